@@ -1,0 +1,58 @@
+"""Leg kinematics (pinocchio, fixed-base model in the base link frame) and swing-leg control.
+
+Shapes: foot positions (4, 3), Jacobians (4, 3, 3) — leg k's foot position w.r.t. its own three
+joints (abduction, hip, knee), expressed in the base link frame. Units: m, rad.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pinocchio as pin
+
+from latentune.robots import RobotModel
+
+
+class LegKinematics:
+    """Foot positions and per-leg Jacobians from the 12 joint angles."""
+
+    def __init__(self, model: RobotModel):
+        self.model = model.pin_model
+        self.data = self.model.createData()
+        self.fids = model.foot_frame_ids
+        self.q_index = np.asarray(model.q_index)
+        self.v_index = self.q_index  # revolute joints only: idx_v == idx_q
+        self._q = np.zeros(self.model.nq)
+
+    def update(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Args: q (12,) joint angles. Returns (feet (4, 3), J (4, 3, 3)) in the base link frame."""
+        self._q[self.q_index] = q
+        m, d = self.model, self.data
+        pin.computeJointJacobians(m, d, self._q)
+        pin.updateFramePlacements(m, d)
+        feet = np.empty((4, 3))
+        J = np.empty((4, 3, 3))
+        for k, f in enumerate(self.fids):
+            feet[k] = d.oMf[f].translation
+            Jf = pin.getFrameJacobian(m, d, f, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+            J[k] = Jf[:3, self.v_index[3 * k:3 * k + 3]]
+        return feet, J
+
+
+def swing_trajectory(p0: np.ndarray, p1: np.ndarray, s: float, height: float,
+                     duration: float) -> tuple[np.ndarray, np.ndarray]:
+    """Foot position and velocity along a swing from p0 to p1 (world frame).
+
+    Horizontal motion follows a minimum-jerk blend; the vertical offset is a smooth bump
+    ``height · sin²(π s)`` above the straight line. Args: p0, p1 (3,) [m]; s ∈ [0, 1] swing
+    progress; height [m]; duration [s]. Returns (p (3,), v (3,)) in m, m/s.
+    """
+    s = min(max(s, 0.0), 1.0)
+    b = s * s * s * (10 - 15 * s + 6 * s * s)
+    db = 30 * s * s * (1 - s) ** 2 / duration
+    p = p0 + (p1 - p0) * b
+    v = (p1 - p0) * db
+    sn = math.sin(math.pi * s)
+    p[2] += height * sn * sn
+    v[2] += height * 2 * sn * math.cos(math.pi * s) * math.pi / duration
+    return p, v

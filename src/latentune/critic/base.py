@@ -1,0 +1,233 @@
+"""The ask/tell protocol shared by every critic (optimizer) of latentune.
+
+A critic minimizes an unknown cost over the unit box ``[0, 1]^dim``. It never evaluates
+anything itself: the caller asks for points, evaluates them (serially, in a process pool, on a
+Ray cluster, ...) and tells the costs back::
+
+    critic = make_critic("turbo", dim, batch_size=10, seed=0, x0=manual_theta)
+    while budget_left:
+        X = critic.ask()            # (n, dim) float64 in [0, 1]^dim
+        tags = critic.last_tags     # (n,) int64, one opaque tag per asked point
+        y = evaluate(X)             # (n,) raw costs, lower is better; nan/inf allowed
+        critic.tell(X, y, tags=tags)
+
+Tags and resume (the contract the run store relies on)
+-------------------------------------------------------
+* ``ask`` stores in ``critic.last_tags`` one ``int64`` tag per returned point. The caller treats
+  tags as opaque integers: it stores each point's tag next to its cost and passes it back to
+  ``tell``. A tag tells the critic where the point came from (TuRBO-m: ask generation, trust
+  region and design/Thompson kind; CMA-ES: generation; random/Sobol: generation/sequence index).
+* ``tell(X, y, tags=None)``: points told without tags (``tags=None`` or tag ``-1``) are
+  *external* points (warm data, hand-picked θ). Every critic accepts them; they enter the
+  history and the model but do not drive the critic's internal adaptation in the way its own
+  points do (see each implementation).
+* Resume without a ``state_dict``: a fresh critic built with the same ``dim``, ``batch_size``,
+  ``seed``, ``x0`` and options, told the stored history ``(X, y, tags)`` -- in one call, or in
+  the original order of the tell calls -- is in an equivalent state to the original critic, and
+  its next ``ask`` continues the run (for "random", "sobol" and TuRBO with
+  ``warm_start=False`` it returns exactly the batch the original would have returned; see the
+  implementations for the precise guarantee). Points within one ``tell`` are grouped by tag,
+  so the grouping of tell calls does not matter as long as each ask's points are told
+  together or in order.
+* Tags ``<= -2`` are reserved for implementation-specific markers (e.g. ``-2`` = a point of the
+  warm start ``x0``); tags are always ``>= -2``.
+
+Costs
+-----
+The stored ``y`` are the raw costs as told. Non-finite costs (nan, +inf, -inf: a crashed or
+diverged evaluation) are never chosen as best and are treated as the worst finite cost seen so
+far wherever a number is needed (:func:`fill_nonfinite`).
+"""
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from typing import Any
+
+import numpy as np
+
+UNTAGGED: int = -1
+"""Tag of a point the critic did not ask for (external / warm data)."""
+X0_TAG: int = -2
+"""Tag some critics give to the warm-start points ``x0`` they return."""
+
+_BOX_TOL = 1e-9
+
+
+def fill_nonfinite(y: np.ndarray) -> np.ndarray:
+    """Return a float copy of ``y`` (n,) with non-finite entries set to the worst finite value.
+
+    If no entry is finite, every entry becomes ``0.0`` (all equally bad).
+    """
+    y = np.array(y, dtype=float, copy=True).reshape(-1)
+    bad = ~np.isfinite(y)
+    if bad.any():
+        y[bad] = y[~bad].max() if (~bad).any() else 0.0
+    return y
+
+
+def gaussian_copula(y: np.ndarray) -> np.ndarray:
+    """Rank-based Gaussian copula warp of costs ``y`` (n,) -> (n,) standard-normal scores.
+
+    ``z_i = Φ⁻¹((rank_i − 0.5) / n)`` with average ranks for ties, after
+    :func:`fill_nonfinite`. Monotone (rank preserving), scale free and insensitive to the
+    dynamic range of the costs (a fall cost of 200 is just "worse than 150"). ``n = 1 → 0``.
+    """
+    from scipy.special import ndtri
+    from scipy.stats import rankdata
+
+    y = fill_nonfinite(y)
+    n = y.shape[0]
+    if n == 0:
+        return y
+    r = rankdata(y, method="average")
+    return ndtri((r - 0.5) / n)
+
+
+def as_unit_points(X: Any, dim: int, name: str = "X") -> np.ndarray:
+    """Validate points ``X`` and return them as a float64 array (n, dim) clipped to [0, 1].
+
+    Accepts a single point (dim,). Raises ``ValueError`` for a wrong shape, non-finite entries
+    or entries outside [0, 1] by more than 1e-9.
+    """
+    X = np.asarray(X, dtype=float)
+    if X.ndim == 1 and X.shape[0] == dim:
+        X = X[None, :]
+    if X.ndim != 2 or X.shape[1] != dim:
+        raise ValueError(f"{name} must have shape (n, {dim}), got {X.shape}")
+    if not np.all(np.isfinite(X)):
+        raise ValueError(f"{name} contains non-finite values")
+    if X.size and (X.min() < -_BOX_TOL or X.max() > 1 + _BOX_TOL):
+        raise ValueError(f"{name} must lie in the unit box [0, 1]^{dim}")
+    return np.clip(X, 0.0, 1.0)
+
+
+class Critic(ABC):
+    """Abstract ask/tell minimizer on the unit box ``[0, 1]^dim`` (see the module docstring).
+
+    Args:
+        dim: number of variables d >= 1.
+        batch_size: default number of points per :meth:`ask`.
+        seed: integer seed; a critic is a deterministic function of (options, seed, told data).
+        x0: optional warm-start point(s) (d,) or (k, d) in [0, 1]^d; every critic returns them
+            among its first asked points.
+        **opts: implementation options; an unknown option raises ``TypeError``.
+    """
+
+    method: str = "abstract"
+
+    def __init__(self, dim: int, *, batch_size: int = 1, seed: int = 0,
+                 x0: np.ndarray | None = None, **opts: Any) -> None:
+        if opts:
+            raise TypeError(f"{type(self).__name__}: unknown option(s) {sorted(opts)}")
+        if isinstance(dim, bool) or not isinstance(dim, (int, np.integer)) or dim < 1:
+            raise ValueError(f"dim must be an integer >= 1, got {dim!r}")
+        if isinstance(batch_size, bool) or not isinstance(batch_size, (int, np.integer)) \
+                or batch_size < 1:
+            raise ValueError(f"batch_size must be an integer >= 1, got {batch_size!r}")
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+        self.dim = int(dim)
+        self.batch_size = int(batch_size)
+        self.seed = int(seed)
+        self.x0: np.ndarray | None = None if x0 is None else as_unit_points(x0, self.dim, "x0")
+        self._X = np.empty((0, self.dim))
+        self._y = np.empty(0)
+        self._tags = np.empty(0, dtype=np.int64)
+        self.last_tags: np.ndarray = np.empty(0, dtype=np.int64)
+
+    # ----------------------------------------------------------------- protocol
+    def ask(self, n: int | None = None) -> np.ndarray:
+        """Suggest ``n`` (default ``batch_size``) points, float64 (n, dim) in [0, 1]^dim.
+
+        Sets :attr:`last_tags` (n,) int64, the tags to pass back to :meth:`tell`.
+        """
+        n = self.batch_size if n is None else n
+        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+            raise ValueError(f"n must be an integer >= 1, got {n!r}")
+        X, tags = self._ask(int(n))
+        X = np.clip(np.asarray(X, dtype=float).reshape(int(n), self.dim), 0.0, 1.0)
+        self.last_tags = np.asarray(tags, dtype=np.int64).reshape(int(n)).copy()
+        return X
+
+    def tell(self, X: np.ndarray, y: np.ndarray, tags: np.ndarray | None = None) -> None:
+        """Report raw costs ``y`` (n,) of points ``X`` (n, dim) in [0, 1]^dim.
+
+        ``tags`` (n,) ints as returned in :attr:`last_tags` (``None`` = all untagged, ``-1``).
+        Non-finite costs are allowed (see the module docstring).
+        """
+        X = as_unit_points(X, self.dim)
+        y = np.asarray(y, dtype=float).reshape(-1)
+        if y.shape[0] != X.shape[0]:
+            raise ValueError(f"y must have shape ({X.shape[0]},), got {np.shape(y)}")
+        if tags is None:
+            tags_a = np.full(X.shape[0], UNTAGGED, dtype=np.int64)
+        else:
+            tags_a = np.asarray(tags).reshape(-1)
+            if tags_a.shape[0] != X.shape[0]:
+                raise ValueError(f"tags must have shape ({X.shape[0]},), got {np.shape(tags)}")
+            if tags_a.size and (not np.issubdtype(tags_a.dtype, np.integer)):
+                if not np.all(np.equal(np.mod(tags_a, 1), 0)):
+                    raise ValueError("tags must be integers")
+            tags_a = tags_a.astype(np.int64)
+            if tags_a.size and tags_a.min() < X0_TAG:
+                raise ValueError("tags must be >= -2")
+        if X.shape[0] == 0:
+            return
+        start = self._X.shape[0]
+        self._X = np.vstack([self._X, X])
+        self._y = np.concatenate([self._y, y])
+        self._tags = np.concatenate([self._tags, tags_a])
+        self._tell(np.arange(start, start + X.shape[0]), tags_a)
+
+    @abstractmethod
+    def _ask(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """Return ``(X (n, dim), tags (n,))``."""
+
+    @abstractmethod
+    def _tell(self, idx: np.ndarray, tags: np.ndarray) -> None:
+        """Update after the points ``self._X[idx]`` with costs ``self._y[idx]`` were appended."""
+
+    # ---------------------------------------------------------------- history
+    @property
+    def X(self) -> np.ndarray:
+        """All told points (n, dim), in tell order."""
+        return self._X.copy()
+
+    @property
+    def y(self) -> np.ndarray:
+        """All told raw costs (n,), in tell order (non-finite values kept as told)."""
+        return self._y.copy()
+
+    @property
+    def tags(self) -> np.ndarray:
+        """Tags (n,) int64 of all told points, in tell order (-1 = untagged)."""
+        return self._tags.copy()
+
+    @property
+    def n_told(self) -> int:
+        """Number of told points."""
+        return int(self._y.shape[0])
+
+    @property
+    def best_index(self) -> int | None:
+        """Index of the best finite cost told (first one on ties); ``None`` if there is none."""
+        finite = np.isfinite(self._y)
+        if not finite.any():
+            return None
+        return int(np.flatnonzero(finite)[np.argmin(self._y[finite])])
+
+    @property
+    def best_x(self) -> np.ndarray | None:
+        """Point (dim,) of the best finite cost, or ``None``."""
+        i = self.best_index
+        return None if i is None else self._X[i].copy()
+
+    @property
+    def best_y(self) -> float:
+        """Best finite cost told, ``inf`` if there is none."""
+        i = self.best_index
+        return float("inf") if i is None else float(self._y[i])
+
+    def __repr__(self) -> str:
+        return (f"{type(self).__name__}(dim={self.dim}, batch_size={self.batch_size}, "
+                f"seed={self.seed}, n_told={self.n_told}, best_y={self.best_y:.6g})")

@@ -1,0 +1,225 @@
+"""The simulated world: one PyBullet DIRECT client with a ground and one robot.
+
+Units: SI (m, s, rad, N, N·m). World frame: x forward, z up. Leg order FR, FL, RR, RL.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from latentune.sim.bullet import p, quiet_stderr
+
+from latentune.robots import RobotModel, RobotSpec
+
+TERRAINS = ("flat", "hills")
+
+
+@dataclass
+class RobotState:
+    """Measured state of the robot at one physics step.
+
+    Attributes:
+        pos: (3,) base (trunk centre of mass) position, world frame [m].
+        quat: (4,) base orientation quaternion (x, y, z, w).
+        R: (3, 3) rotation base -> world.
+        vel: (3,) base linear velocity, world frame [m/s].
+        omega: (3,) base angular velocity, world frame [rad/s].
+        q: (12,) joint angles [rad]; dq: (12,) joint velocities [rad/s].
+    """
+
+    pos: np.ndarray
+    quat: np.ndarray
+    R: np.ndarray
+    vel: np.ndarray
+    omega: np.ndarray
+    q: np.ndarray
+    dq: np.ndarray
+
+    @property
+    def rpy(self) -> np.ndarray:
+        """(3,) roll, pitch, yaw [rad] (ZYX convention)."""
+        R = self.R
+        return np.array([math.atan2(R[2, 1], R[2, 2]), -math.asin(max(-1.0, min(1.0, R[2, 0]))),
+                         math.atan2(R[1, 0], R[0, 0])])
+
+
+def perlin_heightfield(n: int, seed: int, octaves: int = 10, amplitude: float = 0.02,
+                       base_cells: int = 4) -> np.ndarray:
+    """Fractal Perlin noise on an (n, n) grid, rescaled to heights in [0, amplitude] metres.
+
+    Octave k has ``base_cells·2^k`` lattice cells across the field and weight 0.5^k (the paper's
+    hills: 10 octaves, 0.02 m). Deterministic for ``seed``.
+    """
+    rng = np.random.default_rng(seed)
+    u = np.linspace(0.0, 1.0, n, endpoint=False)
+    total = np.zeros((n, n))
+    for k in range(octaves):
+        cells = base_cells * 2 ** k
+        ang = rng.uniform(0, 2 * np.pi, size=(cells + 1, cells + 1))
+        gx, gy = np.cos(ang), np.sin(ang)
+        x = u * cells
+        i0 = np.minimum(np.floor(x).astype(int), cells - 1)
+        f = x - i0
+        X0, Y0 = np.meshgrid(i0, i0, indexing="ij")
+        FX, FY = np.meshgrid(f, f, indexing="ij")
+
+        def dot(ix, iy, dx, dy):
+            return gx[ix, iy] * dx + gy[ix, iy] * dy
+
+        n00 = dot(X0, Y0, FX, FY)
+        n10 = dot(X0 + 1, Y0, FX - 1, FY)
+        n01 = dot(X0, Y0 + 1, FX, FY - 1)
+        n11 = dot(X0 + 1, Y0 + 1, FX - 1, FY - 1)
+        sx = FX ** 3 * (FX * (FX * 6 - 15) + 10)
+        sy = FY ** 3 * (FY * (FY * 6 - 15) + 10)
+        total += 0.5 ** k * ((n00 * (1 - sx) + n10 * sx) * (1 - sy) + (n01 * (1 - sx) + n11 * sx) * sy)
+    total -= total.min()
+    peak = total.max()
+    return total * (amplitude / peak) if peak > 0 else total
+
+
+class World:
+    """A PyBullet DIRECT client with ground and robot, reset cheaply between rollouts.
+
+    Args:
+        spec: the robot.
+        terrain: ``"flat"`` or ``"hills"`` (5 m × 5 m Perlin heightfield, 0.05 m cells, ≤ 0.02 m).
+        seed: terrain seed.
+        dt: physics step [s] (1 kHz by default).
+        start_x: initial base x [m] (hills start near the field's back edge).
+    """
+
+    def __init__(self, spec: RobotSpec, terrain: str = "flat", seed: int = 0, dt: float = 0.001):
+        if terrain not in TERRAINS:
+            raise ValueError(f"unknown terrain {terrain!r} (choose from {', '.join(TERRAINS)})")
+        self.spec = spec
+        self.model = RobotModel.load(spec)
+        self.terrain = terrain
+        self.dt = dt
+        self.cid = p.connect(p.DIRECT)
+        c = self.cid
+        p.setGravity(0, 0, -9.81, physicsClientId=c)
+        p.setTimeStep(dt, physicsClientId=c)
+        p.setPhysicsEngineParameter(enableConeFriction=0, physicsClientId=c)
+        self.start_x = 0.0
+        self.ground_z = 0.0
+        if terrain == "flat":
+            col = p.createCollisionShape(p.GEOM_PLANE, physicsClientId=c)
+            self.ground = p.createMultiBody(0, col, physicsClientId=c)
+        else:
+            n, cell = 100, 0.05
+            self.heights = perlin_heightfield(n, seed)
+            col = p.createCollisionShape(p.GEOM_HEIGHTFIELD, meshScale=[cell, cell, 1.0],
+                                         heightfieldData=self.heights.T.reshape(-1).tolist(),
+                                         numHeightfieldRows=n, numHeightfieldColumns=n,
+                                         physicsClientId=c)
+            # PyBullet centres the heightfield vertically on (min + max) / 2
+            self.ground = p.createMultiBody(0, col, basePosition=[0, 0, 0.5 * self.heights.max()],
+                                            physicsClientId=c)
+            self.start_x = -1.25
+            self.ground_z = float(self.heights.max())
+        p.changeDynamics(self.ground, -1, lateralFriction=1.0, physicsClientId=c)
+        z0 = spec.nominal_height + self.ground_z + 0.01
+        with quiet_stderr():
+            self.robot = p.loadURDF(self.model.urdf, [self.start_x, 0, z0], [0, 0, 0, 1],
+                                    flags=p.URDF_USE_INERTIA_FROM_FILE, physicsClientId=c)
+        names = {p.getJointInfo(self.robot, j, physicsClientId=c)[1].decode(): j
+                 for j in range(p.getNumJoints(self.robot, physicsClientId=c))}
+        links = {p.getJointInfo(self.robot, j, physicsClientId=c)[12].decode(): j
+                 for j in range(p.getNumJoints(self.robot, physicsClientId=c))}
+        self.joint_ids = [names[j] for j in spec.joint_names]
+        self.foot_ids = [links[f] for f in spec.foot_links]
+        p.setJointMotorControlArray(self.robot, self.joint_ids, p.VELOCITY_CONTROL,
+                                    forces=[0.0] * 12, physicsClientId=c)
+        for j in range(-1, p.getNumJoints(self.robot, physicsClientId=c)):
+            p.changeDynamics(self.robot, j, linearDamping=0, angularDamping=0, physicsClientId=c)
+        for f in self.foot_ids:
+            p.changeDynamics(self.robot, f, lateralFriction=1.0, physicsClientId=c)
+        # base link frame vs. base inertial frame (PyBullet reports the latter)
+        self.base_com_local = np.array(p.getDynamicsInfo(self.robot, -1, physicsClientId=c)[3])
+        for k, j in enumerate(self.joint_ids):
+            p.resetJointState(self.robot, j, spec.nominal_q[k], 0.0, physicsClientId=c)
+        self._settle()
+        self._saved = p.saveState(physicsClientId=c)
+
+    def _settle(self) -> None:
+        """Hold the stance with joint PD for 0.3 s so every rollout starts standing."""
+        q0 = np.array(self.spec.nominal_q)
+        kp, kd = np.tile(self.spec.kp, 4), np.tile(self.spec.kd, 4)
+        lim = np.tile(self.spec.torque_limits, 4)
+        for _ in range(300):
+            s = self.state()
+            self.apply(np.clip(kp * (q0 - s.q) - kd * s.dq, -lim, lim))
+            self.step()
+        # zero residual velocity
+        pos, quat = p.getBasePositionAndOrientation(self.robot, physicsClientId=self.cid)
+        p.resetBaseVelocity(self.robot, [0, 0, 0], [0, 0, 0], physicsClientId=self.cid)
+
+    def reset(self) -> None:
+        """Restore the settled standing state (cheap; reuses the loaded world)."""
+        p.restoreState(self._saved, physicsClientId=self.cid)
+
+    def state(self) -> RobotState:
+        c, r = self.cid, self.robot
+        pos, quat = p.getBasePositionAndOrientation(r, physicsClientId=c)
+        vel, omega = p.getBaseVelocity(r, physicsClientId=c)
+        js = p.getJointStates(r, self.joint_ids, physicsClientId=c)
+        R = np.array(p.getMatrixFromQuaternion(quat)).reshape(3, 3)
+        return RobotState(np.array(pos), np.array(quat), R, np.array(vel), np.array(omega),
+                          np.array([j[0] for j in js]), np.array([j[1] for j in js]))
+
+    def apply(self, tau: np.ndarray) -> None:
+        """Set the 12 joint torques [N·m] for the next step."""
+        p.setJointMotorControlArray(self.robot, self.joint_ids, p.TORQUE_CONTROL,
+                                    forces=tau.tolist(), physicsClientId=self.cid)
+
+    def step(self) -> None:
+        p.stepSimulation(physicsClientId=self.cid)
+
+    def body_touches_ground(self) -> bool:
+        """True if any link other than the feet (or the trunk) touches the ground."""
+        pts = p.getContactPoints(self.robot, self.ground, physicsClientId=self.cid)
+        feet = set(self.foot_ids)
+        return any(pt[3] not in feet for pt in pts)
+
+    def foot_contacts(self) -> np.ndarray:
+        """(4,) bool: which feet touch the ground."""
+        pts = p.getContactPoints(self.robot, self.ground, physicsClientId=self.cid)
+        links = {pt[3] for pt in pts}
+        return np.array([f in links for f in self.foot_ids])
+
+    def ground_height(self, x: float, y: float) -> float:
+        """Terrain height under (x, y) [m]."""
+        if self.terrain == "flat":
+            return 0.0
+        n, cell = self.heights.shape[0], 0.05
+        i = int(round(x / cell + (n - 1) / 2))
+        j = int(round(y / cell + (n - 1) / 2))
+        if 0 <= i < n and 0 <= j < n:
+            return float(self.heights[i, j])
+        return 0.0
+
+    def render(self, width: int = 320, height: int = 240) -> np.ndarray:
+        """(H, W, 3) uint8 RGB frame from a camera following the robot (CPU renderer)."""
+        pos, _ = p.getBasePositionAndOrientation(self.robot, physicsClientId=self.cid)
+        view = p.computeViewMatrixFromYawPitchRoll(pos, 1.0 + 1.5 * self.spec.nominal_height,
+                                                   50, -25, 0, 2, physicsClientId=self.cid)
+        proj = p.computeProjectionMatrixFOV(60, width / height, 0.05, 20, physicsClientId=self.cid)
+        img = p.getCameraImage(width, height, view, proj, renderer=p.ER_TINY_RENDERER,
+                               physicsClientId=self.cid)
+        return np.asarray(img[2], dtype=np.uint8).reshape(height, width, 4)[:, :, :3]
+
+    def close(self) -> None:
+        if self.cid is not None:
+            try:
+                p.disconnect(physicsClientId=self.cid)
+            except p.error:
+                pass
+            self.cid = None
+
+    def __del__(self) -> None:  # pragma: no cover - best effort
+        try:
+            self.close()
+        except Exception:
+            pass

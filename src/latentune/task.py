@@ -1,0 +1,228 @@
+"""Task = robot × gait × terrain × actor × v_des × horizon; a rollout and its path cost.
+
+Path cost (DESIGN §3, paper Eq. 2): over N_H physics steps at 1 kHz,
+
+* the robot never fell:   L = sqrt( Σ_{i=1..N_H} ‖v_i − v_des‖² )   (v_i: base CoM velocity, world)
+* it fell at step k:      L = C1 · (2 − k / N_H),  C1 = 100, and the rollout stops there.
+
+So L < C1 ⇔ stable. Fallen: base height above the ground outside [0.5, 2.5]·h_nom, tilt above
+``max_tilt_deg``, a non-foot link touching the ground, a non-finite state, or an actor failure
+(infeasible QP) — never an exception.
+"""
+from __future__ import annotations
+
+import importlib
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from latentune.actor.base import Actor, ActorFailure
+from latentune.actor.parameter_space import ParameterSpace
+from latentune.robots import RobotSpec, get_robot
+
+C1 = 100.0
+GAITS = ("trot", "jump")
+ACTORS = {
+    "convex": "latentune.actor.convex_mpc:ConvexMPC",
+    "kinodynamic": "latentune.actor.kinodynamic:KinodynamicMPC",
+}
+
+
+def actor_class(name: str) -> type[Actor]:
+    """The actor class registered under ``name`` (``convex`` or ``kinodynamic``)."""
+    if name not in ACTORS:
+        raise ValueError(f"unknown actor {name!r} (choose from {', '.join(ACTORS)})")
+    mod, cls = ACTORS[name].split(":")
+    try:
+        return getattr(importlib.import_module(mod), cls)
+    except ImportError as exc:
+        raise ValueError(f"actor {name!r} is not available here ({exc})") from None
+
+
+def path_cost(vel: np.ndarray, v_des: np.ndarray, fall_step: int | None, horizon: int) -> float:
+    """Path cost of a rollout.
+
+    Args:
+        vel: (n, 3) base CoM velocities [m/s] of the executed steps.
+        v_des: (3,) desired velocity [m/s].
+        fall_step: step k at which the robot fell (1-based count of executed steps), or None.
+        horizon: N_H, the planned number of steps.
+    """
+    if fall_step is not None:
+        return C1 * (2.0 - fall_step / horizon)
+    err = np.asarray(vel, dtype=float) - np.asarray(v_des, dtype=float)
+    return float(math.sqrt(float(np.sum(err * err))))
+
+
+@dataclass
+class RolloutResult:
+    """Outcome of one rollout.
+
+    Attributes:
+        cost: path cost L (see module docstring).
+        fell: the robot fell (⇔ cost ≥ C1).
+        fall_step: step at which it fell, or None.
+        steps: steps executed.
+        mean_vx: mean forward base velocity over the last 3 s (or the whole run if shorter) [m/s].
+        mean_height: mean base height above the ground over the same window [m].
+        wall_s: wall-clock time of the rollout [s].
+        reason: why it fell ('' if it did not).
+        trace: per-step arrays when recorded: t (n,), pos (n, 3), vel (n, 3), rpy (n, 3).
+    """
+
+    cost: float
+    fell: bool
+    fall_step: int | None
+    steps: int
+    mean_vx: float
+    mean_height: float
+    wall_s: float
+    reason: str = ""
+    trace: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
+
+    def summary(self) -> dict[str, Any]:
+        return {"cost": self.cost, "fell": self.fell, "fall_step": self.fall_step,
+                "steps": self.steps, "mean_vx": self.mean_vx, "mean_height": self.mean_height,
+                "wall_s": self.wall_s, "reason": self.reason}
+
+
+class Task:
+    """A tuning task: ``Task(robot="a1", gait="trot", terrain="flat", actor="convex")``.
+
+    ``task.rollout(theta)`` takes θ in the unit box ((d,) array) and returns a
+    :class:`RolloutResult`; ``task(theta)`` returns only the cost. The PyBullet world is built
+    lazily, once per process, and restored between rollouts; a Task pickles without it, so it can
+    be sent to worker processes.
+    """
+
+    def __init__(self, robot: str | RobotSpec = "a1", gait: str = "trot", terrain: str = "flat",
+                 actor: str = "convex", v_des: float | tuple[float, float, float] = 0.5,
+                 steps: int = 5000, seed: int = 0):
+        self.spec = get_robot(robot)
+        if gait not in GAITS:
+            raise ValueError(f"unknown task {gait!r} (choose from {', '.join(GAITS)})")
+        self.spec.gait(gait)
+        if terrain not in ("flat", "hills"):
+            raise ValueError(f"unknown terrain {terrain!r} (choose from flat, hills)")
+        self.actor_cls = actor_class(actor)
+        v = np.array([v_des, 0.0, 0.0] if np.isscalar(v_des) else v_des, dtype=float)
+        if v.shape != (3,) or not np.all(np.isfinite(v)) or np.linalg.norm(v) > 3.0:
+            raise ValueError("v_des must be a finite velocity of at most 3 m/s")
+        if not isinstance(steps, (int, np.integer)) or steps < 1:
+            raise ValueError("steps must be a positive integer")
+        self.robot_name = self.spec.name
+        self.gait = gait
+        self.terrain = terrain
+        self.actor = actor
+        self.v_des = v
+        self.steps = int(steps)
+        self.seed = int(seed)
+        self.space: ParameterSpace = self.actor_cls.space(self.spec, gait)
+        self._world = None
+
+    # pickling: drop the PyBullet client
+    def __getstate__(self) -> dict:
+        d = self.__dict__.copy()
+        d["_world"] = None
+        return d
+
+    def config(self) -> dict[str, Any]:
+        """JSON-able description of the task (recorded with every run)."""
+        return {"robot": self.robot_name, "gait": self.gait, "terrain": self.terrain,
+                "actor": self.actor, "v_des": self.v_des.tolist(), "steps": self.steps,
+                "seed": self.seed, "dim": self.space.dim}
+
+    @property
+    def world(self):
+        if self._world is None:
+            from latentune.sim.world import World
+
+            self._world = World(self.spec, self.terrain, seed=self.seed)
+        return self._world
+
+    def __call__(self, theta: np.ndarray) -> float:
+        return self.rollout(theta).cost
+
+    def rollout(self, theta: np.ndarray, record: bool = False, gif: str | None = None,
+                gif_fps: int = 10) -> RolloutResult:
+        """Simulate ``steps`` physics steps with unit-box θ; see the module docstring for the cost."""
+        from threadpoolctl import threadpool_limits
+
+        theta = self.space.validate_unit(theta)
+        t0 = time.perf_counter()
+        with threadpool_limits(1):
+            res = self._run(theta, record, gif, gif_fps)
+        res.wall_s = time.perf_counter() - t0
+        return res
+
+    def _run(self, theta: np.ndarray, record: bool, gif: str | None, gif_fps: int) -> RolloutResult:
+        world = self.world
+        world.reset()
+        N = self.steps
+        h_nom = self.spec.nominal_height
+        cos_tilt = math.cos(math.radians(self.spec.max_tilt_deg))
+        vel = np.zeros((N, 3))
+        height = np.zeros(N)
+        rec = {"pos": np.zeros((N, 3)), "rpy": np.zeros((N, 3))} if record else None
+        frames = []
+        frame_every = max(1, int(round(1.0 / (gif_fps * world.dt)))) if gif else 0
+        fall_step: int | None = None
+        reason = ""
+        try:
+            actor = self.actor_cls(world, self.gait, self.v_des, self.space.to_physical(theta))
+        except ActorFailure as exc:
+            actor, fall_step, reason = None, 1, f"actor: {exc}"
+        n = 0
+        while actor is not None and n < N:
+            s = world.state()
+            try:
+                tau = actor.control(n, s)
+                if not np.all(np.isfinite(tau)):
+                    raise ActorFailure("non-finite torque")
+            except (ActorFailure, np.linalg.LinAlgError, FloatingPointError) as exc:
+                fall_step, reason = n + 1, f"actor: {exc}"
+                break
+            world.apply(tau)
+            world.step()
+            s = world.state()
+            n += 1
+            vel[n - 1] = s.vel
+            gz = world.ground_height(s.pos[0], s.pos[1])
+            h = s.pos[2] - gz
+            height[n - 1] = h
+            if rec is not None:
+                rec["pos"][n - 1] = s.pos
+                rec["rpy"][n - 1] = s.rpy
+            if frame_every and (n - 1) % frame_every == 0:
+                frames.append(world.render())
+            if not (np.all(np.isfinite(s.pos)) and np.all(np.isfinite(s.vel)) and abs(h) < 1e3):
+                fall_step, reason = n, "simulator blow-up (non-finite state)"
+            elif not (0.5 * h_nom <= h <= 2.5 * h_nom):
+                fall_step, reason = n, f"base height {h:.3f} m outside [{0.5 * h_nom:.3f}, {2.5 * h_nom:.3f}]"
+            elif s.R[2, 2] < cos_tilt:
+                fall_step, reason = n, f"tilt above {self.spec.max_tilt_deg:g} deg"
+            elif n % 10 == 0 and world.body_touches_ground():
+                fall_step, reason = n, "body touched the ground"
+            if fall_step is not None:
+                break
+        n_exec = n if fall_step is None else fall_step
+        vel = vel[:n_exec]
+        height = height[:n_exec]
+        cost = path_cost(vel, self.v_des, fall_step, N)
+        win = max(1, min(n_exec, int(round(3.0 / world.dt))))
+        mean_vx = float(np.mean(vel[-win:, 0])) if n_exec else 0.0
+        mean_h = float(np.mean(height[-win:])) if n_exec else 0.0
+        trace: dict[str, np.ndarray] = {}
+        if rec is not None:
+            trace = {"t": np.arange(1, n_exec + 1) * world.dt, "vel": vel.copy(),
+                     "pos": rec["pos"][:n_exec], "rpy": rec["rpy"][:n_exec], "height": height.copy()}
+        if gif and frames:
+            import imageio.v2 as imageio
+
+            imageio.mimsave(gif, frames, duration=1.0 / gif_fps, loop=0)
+        return RolloutResult(cost=cost, fell=fall_step is not None, fall_step=fall_step,
+                             steps=n_exec, mean_vx=mean_vx, mean_height=mean_h, wall_s=0.0,
+                             reason=reason, trace=trace)
