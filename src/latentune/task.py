@@ -176,8 +176,8 @@ class Task:
         except ActorFailure as exc:
             actor, fall_step, reason = None, 1, f"actor: {exc}"
         n = 0
+        s = world.state()
         while actor is not None and n < N:
-            s = world.state()
             try:
                 tau = actor.control(n, s)
                 if not np.all(np.isfinite(tau)):

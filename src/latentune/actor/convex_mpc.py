@@ -35,8 +35,8 @@ G = 9.81
 
 # Manual-tuned weights (found by hand, checked by tests/test_actor.py and benchmarks/actor.py).
 _Q_MANUAL = {
-    "trot": (5.0, 5.0, 0.2, 1e-3, 1e-3, 10.0, 0.5, 0.5, 0.2, 1.0, 1.0, 0.1, 1e-3),
-    "jump": (5.0, 5.0, 0.2, 1e-3, 1e-3, 10.0, 0.5, 0.5, 0.2, 1.0, 1.0, 0.1, 1e-3),
+    "trot": (20.0, 20.0, 0.2, 1e-3, 1e-3, 10.0, 0.5, 0.5, 0.2, 1.0, 1.0, 0.1, 1e-3),
+    "jump": (20.0, 20.0, 0.2, 1e-3, 1e-3, 10.0, 0.5, 0.5, 0.2, 1.0, 1.0, 0.1, 1e-3),
 }
 _R_MANUAL = {"trot": 1e-2, "jump": 1e-2}
 
@@ -201,46 +201,54 @@ class ConvexMPC(Actor):
         Rb = s.R
         if self.start_yaw is None:
             self.start_yaw = float(s.rpy[2])
+            self._lateral_b = np.zeros((4, 3))
+            self._lateral_b[:, 1] = self.model.foot_stance[:, 1] - self.model.hip_offsets[:, 1]
         base_link = s.pos - Rb @ self.world.base_com_local
         feet_b, J = self.legs.update(s.q)
         feet_w = base_link + feet_b @ Rb.T
         com = base_link + Rb @ self.model.com_offset
         contact = self.gait.contact(t)
-        ground_z = self.world.ground_height(com[0], com[1])
         if step % self.SOLVE_EVERY == 0:
+            ground_z = self.world.ground_height(com[0], com[1])
             self.forces = self._solve_mpc(t, s, com, feet_w, ground_z)
             self.solve_count += 1
-        tau = np.zeros(12)
-        progress = self.gait.swing_progress(t)
-        v_body = s.vel
-        for i in range(4):
-            sl = slice(3 * i, 3 * i + 3)
-            if contact[i]:
-                tau[sl] = -J[i].T @ (Rb.T @ self.forces[i])
-                continue
-            if self.prev_contact[i]:
-                self.swing_start[i] = feet_w[i]
-            # Raibert foothold: under the hip, half a stance ahead, corrected by velocity error
-            hip_w = base_link + Rb @ self.model.hip_offsets[i]
-            hip_w[1] += 0.0
-            lateral = Rb @ np.array([0.0, self.model.foot_stance[i, 1] - self.model.hip_offsets[i, 1], 0.0])
-            target = hip_w + lateral + v_body * (0.5 * self.gait.stance_time) \
-                + self.spec.raibert_gain * (v_body - self.v_des)
-            target[2] = self.world.ground_height(target[0], target[1]) + self.spec.foot_radius
-            remaining = max(1e-3, (1.0 - progress[i]) * self.gait.swing_time)
-            p_des, v_des = swing_trajectory(self.swing_start[i], target, progress[i],
-                                            self.gait.params.step_height, self.gait.swing_time)
-            del remaining
-            # desired foot position/velocity relative to the base, in the base frame
-            p_b = Rb.T @ (p_des - base_link)
-            v_rel_w = v_des - v_body - np.cross(s.omega, feet_w[i] - base_link)
-            v_b = Rb.T @ v_rel_w
-            try:
-                Jinv = np.linalg.inv(J[i])
-            except np.linalg.LinAlgError:
-                Jinv = np.linalg.pinv(J[i])
-            dq_target = Jinv @ v_b
-            q_err = Jinv @ (p_b - feet_b[i])
-            tau[sl] = self.kp[sl] * q_err + self.kd[sl] * (dq_target - s.dq[sl])
+        tau = self.legs.gravity(s.q, Rb)      # hold the legs' own weight, (12,)
+        # stance legs: τ = −Jᵀ Rᵀ f   (f: the ground's force on the robot, world frame)
+        f_b = self.forces @ Rb                # rows are Rᵀ f_k
+        tau_st = -np.einsum("kji,kj->ki", J, f_b).reshape(-1)
+        st = np.repeat(contact, 3)
+        tau[st] += tau_st[st]
+        swing = ~contact
+        lift = swing & self.prev_contact
+        self.swing_start[lift] = feet_w[lift]
         self.prev_contact = contact
+        if swing.any():
+            sw = np.flatnonzero(swing)
+            v_body = s.vel
+            # Raibert foothold: under the hip (at the stance width), half a stance ahead,
+            # corrected by the velocity error
+            hips = base_link + (self.model.hip_offsets[sw] + self._lateral_b[sw]) @ Rb.T
+            target = hips + v_body * (0.5 * self.gait.stance_time) \
+                + self.spec.raibert_gain * (v_body - self.v_des)
+            for j, k in enumerate(sw):
+                target[j, 2] = self.world.ground_height(target[j, 0], target[j, 1]) + self.spec.foot_radius
+            progress = self.gait.swing_progress(t)[sw]
+            p_des, v_des = swing_trajectory(self.swing_start[sw], target, progress,
+                                            self.gait.params.step_height, self.gait.swing_time)
+            # desired foot position/velocity relative to the base, in the base frame
+            w = s.omega
+            r = feet_w[sw] - base_link
+            w_x_r = np.stack([w[1] * r[:, 2] - w[2] * r[:, 1], w[2] * r[:, 0] - w[0] * r[:, 2],
+                              w[0] * r[:, 1] - w[1] * r[:, 0]], axis=1)
+            p_b = (p_des - base_link) @ Rb
+            v_b = (v_des - v_body - w_x_r) @ Rb
+            Jsw = J[sw]
+            try:
+                Jinv = np.linalg.inv(Jsw)
+            except np.linalg.LinAlgError:
+                Jinv = np.linalg.pinv(Jsw)
+            dq_target = np.einsum("kij,kj->ki", Jinv, v_b).reshape(-1)
+            q_err = np.einsum("kij,kj->ki", Jinv, p_b - feet_b[sw]).reshape(-1)
+            idx = (3 * sw[:, None] + np.arange(3)).reshape(-1)
+            tau[idx] += self.kp[idx] * q_err + self.kd[idx] * (dq_target - s.dq[idx])
         return np.clip(tau, -self.tau_lim, self.tau_lim)

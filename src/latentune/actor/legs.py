@@ -5,8 +5,6 @@ joints (abduction, hip, knee), expressed in the base link frame. Units: m, rad.
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pinocchio as pin
 
@@ -38,21 +36,30 @@ class LegKinematics:
             J[k] = Jf[:3, self.v_index[3 * k:3 * k + 3]]
         return feet, J
 
+    def gravity(self, q: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """(12,) joint torques [N·m] that hold the legs' own weight, base orientation R (3, 3).
 
-def swing_trajectory(p0: np.ndarray, p1: np.ndarray, s: float, height: float,
+        Call after :meth:`update` with the same q.
+        """
+        self.model.gravity.linear = R.T @ np.array([0.0, 0.0, -9.81])
+        g = pin.computeGeneralizedGravity(self.model, self.data, self._q)
+        return g[self.q_index]
+
+
+def swing_trajectory(p0: np.ndarray, p1: np.ndarray, s: np.ndarray, height: float,
                      duration: float) -> tuple[np.ndarray, np.ndarray]:
-    """Foot position and velocity along a swing from p0 to p1 (world frame).
+    """Foot positions and velocities along swings from p0 to p1 (world frame), for k legs at once.
 
     Horizontal motion follows a minimum-jerk blend; the vertical offset is a smooth bump
-    ``height · sin²(π s)`` above the straight line. Args: p0, p1 (3,) [m]; s ∈ [0, 1] swing
-    progress; height [m]; duration [s]. Returns (p (3,), v (3,)) in m, m/s.
+    ``height · sin²(π s)`` above the straight line. Args: p0, p1 (k, 3) [m]; s (k,) swing
+    progress in [0, 1]; height [m]; duration [s]. Returns (p (k, 3), v (k, 3)) in m, m/s.
     """
-    s = min(max(s, 0.0), 1.0)
+    s = np.clip(s, 0.0, 1.0)[:, None]
     b = s * s * s * (10 - 15 * s + 6 * s * s)
     db = 30 * s * s * (1 - s) ** 2 / duration
     p = p0 + (p1 - p0) * b
     v = (p1 - p0) * db
-    sn = math.sin(math.pi * s)
-    p[2] += height * sn * sn
-    v[2] += height * 2 * sn * math.cos(math.pi * s) * math.pi / duration
+    sn = np.sin(np.pi * s[:, 0])
+    p[:, 2] += height * sn * sn
+    v[:, 2] += height * 2 * sn * np.cos(np.pi * s[:, 0]) * np.pi / duration
     return p, v

@@ -340,7 +340,8 @@ class RobotModel:
         spec: the :class:`RobotSpec`.
         urdf: prepared URDF path.
         mass: total mass [kg].
-        inertia: (3, 3) centroidal rotational inertia at the stance, in the base frame [kg·m²].
+        inertia: (3, 3) rotational inertia for the single-rigid-body model, base frame [kg·m²]
+            (trunk inertia × total mass / trunk mass).
         hip_offsets: (4, 3) hip (abduction joint) positions in the base *link* frame [m].
         foot_stance: (4, 3) foot positions at ``nominal_q`` in the base link frame [m].
         com_offset: (3,) whole-body CoM at the stance in the base link frame [m].
@@ -394,10 +395,22 @@ def _load_model(spec: RobotSpec) -> RobotModel:
     pin.updateFramePlacements(model, data)
     feet = np.array([data.oMf[i].translation.copy() for i in fids])
     hips = np.array([data.oMi[names.index(spec.joint_names[3 * k])].translation.copy() for k in range(4)])
-    pin.ccrba(model, data, q, np.zeros(model.nv))
-    com = pin.centerOfMass(model, data, q).copy()
-    mass = float(sum(inert.mass for inert in model.inertias))
-    inertia = data.Ig.inertia.copy()  # rotational inertia about the CoM
+    # whole-body CoM and centroidal inertia need the trunk too: use a free-flyer model at identity
+    ff = pin.buildModelFromUrdf(urdf, pin.JointModelFreeFlyer())
+    ffd = ff.createData()
+    qf = pin.neutral(ff)
+    ff_names = [ff.names[i] for i in range(ff.njoints)]
+    for k, j in enumerate(spec.joint_names):
+        qf[ff.joints[ff_names.index(j)].idx_q] = spec.nominal_q[k]
+    pin.ccrba(ff, ffd, qf, np.zeros(ff.nv))
+    com = ffd.com[0].copy()
+    mass = float(pin.computeTotalMass(ff))
+    # Rotational inertia for a single-rigid-body MPC: the trunk's, scaled by total/trunk mass.
+    # (The whole-body centroidal inertia at the stance, pin.ccrba, is ~3x larger on A1 because it
+    # counts the legs swinging with the trunk; with stance feet planted the body turns far more
+    # easily, and the MPC built on the whole-body value over-corrects and oscillates.)
+    trunk = ff.inertias[1]
+    inertia = trunk.inertia.copy() * (mass / trunk.mass)
     return RobotModel(spec=spec, urdf=urdf, mass=mass, inertia=inertia, hip_offsets=hips,
                       foot_stance=feet, com_offset=com, pin_model=model, foot_frame_ids=tuple(fids),
                       q_index=q_index)

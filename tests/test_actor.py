@@ -1,0 +1,170 @@
+"""Convex-MPC actor, world, path cost and the rollout CLI (issue 2)."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import latentune as lt
+from latentune.actor.base import ActorFailure
+from latentune.actor.parameter_space import ParamsError
+from latentune.task import C1, path_cost
+
+
+@pytest.mark.parametrize("robot,gait", [("a1", "trot"), ("a1", "jump"), ("b1", "trot"),
+                                        ("b1", "jump"), ("solo12", "trot")])
+def test_manual_theta_walks(robot, gait):
+    """Manual θ, 5 s at 1 kHz on flat ground: no fall, tracks 0.5 m/s, stands at its height."""
+    task = lt.Task(robot=robot, gait=gait, steps=5000)
+    res = task.rollout(task.space.manual)
+    assert not res.fell, res.reason
+    assert res.steps == 5000
+    assert 0.4 <= res.mean_vx <= 0.6, res.mean_vx
+    # not crawling: the base stays within 20 % of its nominal height
+    assert res.mean_height > 0.8 * task.spec.nominal_height
+    assert res.cost < C1
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a1_trot_hills(seed):
+    task = lt.Task(robot="a1", gait="trot", terrain="hills", seed=seed, steps=5000)
+    res = task.rollout(task.space.manual)
+    assert not res.fell, res.reason
+    assert 0.4 <= res.mean_vx <= 0.6
+
+
+def test_random_theta_properties():
+    """Random θ: never an exception, finite costs, fell ⇔ cost ≥ C1, a share falls, a share stands."""
+    task = lt.Task(robot="a1", gait="trot", steps=1000)
+    rng = np.random.default_rng(0)
+    results = [task.rollout(rng.random(task.space.dim)) for _ in range(40)]
+    costs = np.array([r.cost for r in results])
+    fell = np.array([r.fell for r in results])
+    assert np.all(np.isfinite(costs))
+    assert np.array_equal(fell, costs >= C1)
+    assert 0.1 <= fell.mean() <= 0.9, fell.mean()
+    for r in results:
+        if r.fell:
+            assert 1 <= r.fall_step <= 1000
+            assert r.cost == pytest.approx(C1 * (2 - r.fall_step / 1000))
+
+
+def test_weak_forces_fall():
+    """Force weights at their upper bound starve the legs: the robot must fall (cost ≥ C1)."""
+    task = lt.Task(robot="a1", gait="trot", steps=2000)
+    theta = task.space.manual.copy()
+    theta[13:] = 1.0
+    theta[:13] = 0.0
+    res = task.rollout(theta)
+    assert res.fell and res.cost >= C1
+
+
+def test_path_cost_definition():
+    v = np.tile([0.5, 0.0, 0.0], (100, 1))
+    assert path_cost(v, np.array([0.5, 0, 0]), None, 100) == 0.0
+    v2 = v + np.array([0.1, 0.0, 0.0])
+    assert path_cost(v2, np.array([0.5, 0, 0]), None, 100) == pytest.approx(np.sqrt(100 * 0.01))
+    assert path_cost(v, np.array([0.5, 0, 0]), 25, 100) == pytest.approx(175.0)
+    assert path_cost(v, np.array([0.5, 0, 0]), 100, 100) == pytest.approx(100.0)
+
+
+def test_actor_failure_is_a_fall(monkeypatch):
+    """An infeasible QP (ActorFailure) ends the rollout as a fall at that step, not an exception."""
+    task = lt.Task(robot="a1", gait="trot", steps=500)
+    cls = task.actor_cls
+    orig = cls.control
+
+    def failing(self, step, state):
+        if step == 100:
+            raise ActorFailure("QP infeasible (test)")
+        return orig(self, step, state)
+
+    monkeypatch.setattr(cls, "control", failing)
+    res = task.rollout(task.space.manual)
+    assert res.fell and res.fall_step == 101
+    assert res.cost == pytest.approx(C1 * (2 - 101 / 500))
+
+
+def test_parameter_space_roundtrip():
+    space = lt.Task(robot="a1", gait="trot").space
+    assert space.dim == 25 and len(space.names) == 25
+    u = np.random.default_rng(1).random(25)
+    assert np.allclose(space.to_unit(space.to_physical(u)), u)
+    assert np.all((space.manual >= 0) & (space.manual <= 1))
+    with pytest.raises(ParamsError):
+        space.validate_unit(np.full(24, 0.5))
+    with pytest.raises(ParamsError):
+        space.validate_unit(np.full(25, np.nan))
+    with pytest.raises(ParamsError):
+        space.validate_unit(np.full(25, 1.5))
+    assert np.allclose(space.parse(space.as_dict(u)), u)
+
+
+def test_normalized_theta_is_robot_independent():
+    """A normalized θ means the same on A1 and B1 (transfer needs it)."""
+    a1, b1 = lt.Task(robot="a1").space, lt.Task(robot="b1").space
+    assert a1.names == b1.names
+    assert np.allclose(a1.lower, b1.lower) and np.allclose(a1.upper, b1.upper)
+
+
+def _cli(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "latentune.cli", *args], capture_output=True,
+                          text=True, cwd=cwd, timeout=120)
+
+
+def test_cli_rollout_json(tmp_path):
+    plot = tmp_path / "v.png"
+    out = _cli("rollout", "--robot", "a1", "--task", "trot", "--steps", "600", "--json",
+               "--plot", str(plot))
+    assert out.returncode == 0, out.stderr
+    obj = json.loads(out.stdout)
+    for key in ("cost", "fell", "fall_step", "steps", "mean_vx", "wall_s"):
+        assert key in obj
+    assert obj["steps"] == 600 and not obj["fell"]
+    assert plot.stat().st_size > 1000
+
+
+@pytest.mark.parametrize("args,content", [
+    (["--robot", "nosuchbot"], None),
+    (["--task", "moonwalk"], None),
+    (["--terrain", "lava"], None),
+    (["--params", "PARAMS"], "[0.5, 0.5]"),
+    (["--params", "PARAMS"], json.dumps([float("nan")] * 25).replace("NaN", "NaN")),
+    (["--params", "PARAMS"], json.dumps([1.5] * 25)),
+    (["--params", "PARAMS"], "{not json"),
+    (["--params", "PARAMS"], json.dumps({"Q_roll": 1e9})),
+    (["--params", "/nonexistent/params.json"], None),
+    (["--robot", "SPEC"], "name: x\nurdf: nowhere.urdf\n"),
+    (["--robot", "SPEC"], "name: [unclosed\n"),
+    (["--steps", "-5"], None),
+])
+def test_cli_bad_input(tmp_path, args, content):
+    args = list(args)
+    if "PARAMS" in args:
+        f = tmp_path / "p.json"
+        f.write_text(content)
+        args[args.index("PARAMS")] = str(f)
+    if "SPEC" in args:
+        f = tmp_path / "robot.yaml"
+        f.write_text(content)
+        args[args.index("SPEC")] = str(f)
+    out = _cli("rollout", "--steps", "50", *args) if "--steps" not in args else _cli("rollout", *args)
+    assert out.returncode != 0
+    assert "Traceback" not in out.stderr
+    lines = [ln for ln in out.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1, out.stderr
+    assert lines[0].startswith("latentune: error:")
+
+
+def test_custom_robot_spec(tmp_path):
+    """A YAML spec based on A1 with an overridden gait loads and walks a little."""
+    spec = tmp_path / "my_a1.yaml"
+    spec.write_text("base: a1\nname: my_a1\ngaits:\n  trot: {period: 0.4, duty: 0.6, step_height: 0.07}\n")
+    task = lt.Task(robot=str(spec), gait="trot", steps=800)
+    assert task.robot_name == "my_a1"
+    assert task.spec.gait("trot").period == 0.4
+    res = task.rollout(task.space.manual)
+    assert not res.fell
