@@ -87,6 +87,7 @@ class ConvexMPC(Actor):
         self.solve_count = 0
         self.solve_fail = 0
         self.start_yaw = None
+        self._kk, self._jj = np.tril_indices(self.HORIZON)
 
     # ------------------------------------------------------------------ MPC
     def _solve_mpc(self, t: float, s: RobotState, com: np.ndarray, feet_w: np.ndarray,
@@ -113,7 +114,7 @@ class ConvexMPC(Actor):
             rx = np.array([[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]])
             Bc[6:9, 3 * i:3 * i + 3] = I_w_inv @ rx * mg
             Bc[9:12, 3 * i:3 * i + 3] = np.eye(3) * G
-        B = (np.eye(13) + 0.5 * dt * (A - np.eye(13)) / dt) @ Bc * dt  # 2nd-order hold
+        B = (0.5 * (np.eye(13) + A)) @ Bc * dt  # (I + A_c dt / 2) B_c dt: 2nd-order hold
         # powers
         Apow = [np.eye(13)]
         for _ in range(H):
@@ -122,10 +123,10 @@ class ConvexMPC(Actor):
         Aqp = np.vstack(Apow[1:])                             # (13H, 13)
         active = table.reshape(-1)                            # (4H,) per (step, leg)
         cols = np.flatnonzero(np.repeat(active, 3))           # force variable columns
-        Bqp = np.zeros((13 * H, 12 * H))
-        for k in range(H):
-            for j in range(k + 1):
-                Bqp[13 * k:13 * k + 13, 12 * j:12 * j + 12] = P[k - j]
+        Pst = np.stack(P)                                     # (H, 13, 12)
+        blocks = np.zeros((H, H, 13, 12))
+        blocks[self._kk, self._jj] = Pst[self._kk - self._jj]  # block (k, j) = Ad^(k−j) B, j ≤ k
+        Bqp = blocks.transpose(0, 2, 1, 3).reshape(13 * H, 12 * H)
         Bc_qp = Bqp[:, cols]
         # reference trajectory
         steps = np.arange(1, H + 1) * dt
@@ -237,18 +238,17 @@ class ConvexMPC(Actor):
                                             self.gait.params.step_height, self.gait.swing_time)
             # desired foot position/velocity relative to the base, in the base frame
             w = s.omega
-            r = feet_w[sw] - base_link
-            w_x_r = np.stack([w[1] * r[:, 2] - w[2] * r[:, 1], w[2] * r[:, 0] - w[0] * r[:, 2],
-                              w[0] * r[:, 1] - w[1] * r[:, 0]], axis=1)
-            p_b = (p_des - base_link) @ Rb
-            v_b = (v_des - v_body - w_x_r) @ Rb
-            Jsw = J[sw]
+            skew_w = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+            w_x_r = (feet_w[sw] - base_link) @ skew_w.T       # rows ω × r
+            rhs = np.empty((sw.size, 3, 2))
+            rhs[:, :, 0] = (p_des - base_link) @ Rb - feet_b[sw]     # position error, base frame
+            rhs[:, :, 1] = (v_des - v_body - w_x_r) @ Rb              # velocity relative to base
             try:
-                Jinv = np.linalg.inv(Jsw)
+                sol = np.linalg.solve(J[sw], rhs)                      # J⁻¹ [e_p, v]
             except np.linalg.LinAlgError:
-                Jinv = np.linalg.pinv(Jsw)
-            dq_target = np.einsum("kij,kj->ki", Jinv, v_b).reshape(-1)
-            q_err = np.einsum("kij,kj->ki", Jinv, p_b - feet_b[sw]).reshape(-1)
+                sol = np.linalg.pinv(J[sw]) @ rhs
+            q_err = sol[:, :, 0].reshape(-1)
+            dq_target = sol[:, :, 1].reshape(-1)
             idx = (3 * sw[:, None] + np.arange(3)).reshape(-1)
             tau[idx] += self.kp[idx] * q_err + self.kd[idx] * (dq_target - s.dq[idx])
         return np.clip(tau, -self.tau_lim, self.tau_lim)
