@@ -93,11 +93,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", help="write a PNG of CoM velocity and height here")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_rollout)
-    try:
-        from latentune.pipeline.commands import add_commands
-    except ImportError:
-        add_commands = None
-    if add_commands is not None:
+    import importlib
+
+    for mod in ("latentune.pipeline.commands", "latentune.experiments.commands"):
+        try:
+            add_commands = importlib.import_module(mod).add_commands
+        except (ImportError, AttributeError):
+            continue
         add_commands(sub)
     return parser
 
