@@ -62,6 +62,7 @@ class CMAES(Critic):
         self._gen_es: dict[int, int] = {}                 # generation -> restart id
         self._sampled: dict[int, np.ndarray] = {}         # generation -> sampled points
         self.n_restarts = 0
+        self._n_rearm = 0
         mean0 = self.x0[0] if self.x0 is not None else np.full(self.dim, 0.5)
         self._es = self._new_es(mean0)
         if self.x0 is not None:
@@ -101,6 +102,13 @@ class CMAES(Critic):
     def _es_tell(self, X: np.ndarray, y: np.ndarray) -> None:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
+            if getattr(self._es, "_flgtelldone", False):
+                # pycma allows one tell per ask; when two tells follow each other (foreign
+                # points, or asynchronous generations) a throw-away ask with its own
+                # deterministic generator re-arms it (it samples but changes no state)
+                self._n_rearm += 1
+                self._rng = np.random.default_rng([self.seed, 5, self._n_rearm])
+                self._es.ask()
             self._es.tell(list(X), list(y))
 
     # ------------------------------------------------------------------ protocol

@@ -1,0 +1,150 @@
+"""``minimize``: a scipy-like front end to the critics, on a box in original coordinates.
+
+>>> import numpy as np, latentune as lt
+>>> res = lt.minimize(lambda x: float(np.sum(x ** 2)), [(-1, 1)] * 3, method="random",
+...                   budget=20, batch_size=5, seed=0)
+>>> res.nfev, res.X.shape
+(20, (20, 3))
+"""
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import numpy as np
+from scipy.optimize import OptimizeResult as _ScipyResult
+
+from latentune.critic import critic_class
+from latentune.evaluators import Evaluator, SerialEvaluator
+
+_BOUNDS_TOL = 1e-9
+
+
+class OptimizeResult(_ScipyResult):
+    """Result of :func:`minimize` (a ``scipy.optimize.OptimizeResult``).
+
+    Attributes:
+        x: best point (d,) in the original bounds (``None`` if no finite cost was seen).
+        fun: its cost (``inf`` if no finite cost was seen).
+        nfev: number of evaluations.
+        nit: number of ask/tell batches.
+        X: all evaluated points (n, d), original bounds, in evaluation order.
+        y: their raw costs (n,) (non-finite values kept).
+        tags: the critic's tags (n,) int64 (see :mod:`latentune.critic.base`).
+        method, seed: as passed.
+        success: whether at least one finite cost was seen.
+        message: why the run stopped.
+        critic: the critic object (can be told more data or asked for more points).
+    """
+
+
+def _check_int(name: str, v: Any, low: int) -> int:
+    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
+        raise ValueError(f"{name} must be an integer >= {low}, got {v!r}")
+    return int(v)
+
+
+def _check_bounds(bounds: Any) -> np.ndarray:
+    try:
+        b = np.asarray(bounds, dtype=float)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"bounds must be a (d, 2) array of numbers: {e}") from None
+    if b.ndim != 2 or b.shape[1] != 2 or b.shape[0] < 1:
+        raise ValueError(f"bounds must have shape (d, 2) with d >= 1, got {b.shape}")
+    if not np.all(np.isfinite(b)):
+        raise ValueError("bounds must be finite")
+    if np.any(b[:, 0] >= b[:, 1]):
+        bad = np.flatnonzero(b[:, 0] >= b[:, 1]).tolist()
+        raise ValueError(f"bounds need lower < upper; violated in dimension(s) {bad}")
+    return b
+
+
+def minimize(fun: Callable[[np.ndarray], float], bounds: Any, method: str = "turbo",
+             budget: int = 500, batch_size: int = 10, seed: int = 0,
+             x0: Any = None, evaluator: Evaluator | None = None,
+             callback: Callable[[OptimizeResult], Any] | None = None,
+             **opts: Any) -> OptimizeResult:
+    """Minimize ``fun`` over the box ``bounds`` with a critic (TuRBO-m, CMA-ES, random, Sobol).
+
+    Args:
+        fun: maps a point (d,) float64 ndarray in the original coordinates to a float cost;
+            nan/inf costs are allowed (treated as the worst cost seen).
+        bounds: (d, 2) array-like of finite ``(lower, upper)`` with lower < upper.
+        method: "turbo", "cma", "random" or "sobol".
+        budget: number of evaluations (>= 1).
+        batch_size: points per ask (>= 1); the last batch is cut to the remaining budget.
+        seed: non-negative integer seed; the run is deterministic for a seed.
+        x0: warm-start point(s) (d,) or (k, d) inside ``bounds``; evaluated among the first.
+        evaluator: object with ``map(fun, X) -> y`` (default :class:`SerialEvaluator`).
+        callback: called after every batch with the :class:`OptimizeResult` so far; returning
+            ``True`` stops the run.
+        **opts: options of the critic (e.g. ``n_regions`` for TuRBO, ``sigma0`` for CMA-ES).
+
+    Returns:
+        :class:`OptimizeResult` with ``x, fun, nfev, nit, X, y, tags, method, seed, success,
+        message, critic``.
+
+    Raises:
+        ValueError: bad bounds, budget, batch_size, seed, x0, method, or a non-callable ``fun``.
+    """
+    if not callable(fun):
+        raise ValueError("fun must be callable: (d,) ndarray -> float")
+    b = _check_bounds(bounds)
+    budget = _check_int("budget", budget, 1)
+    batch_size = _check_int("batch_size", batch_size, 1)
+    seed = _check_int("seed", seed, 0)
+    if callback is not None and not callable(callback):
+        raise ValueError("callback must be callable or None")
+    if evaluator is None:
+        evaluator = SerialEvaluator()
+    elif not callable(getattr(evaluator, "map", None)):
+        raise ValueError("evaluator must have a method map(fun, X) -> y")
+    cls = critic_class(method)          # ValueError for an unknown method
+    d = b.shape[0]
+    lo, hi = b[:, 0], b[:, 1]
+    span = hi - lo
+    x0_unit = None
+    if x0 is not None:
+        try:
+            x0a = np.asarray(x0, dtype=float)
+        except (TypeError, ValueError) as e:
+            raise ValueError(f"x0 must be numeric: {e}") from None
+        if x0a.ndim == 1:
+            x0a = x0a[None, :]
+        if x0a.ndim != 2 or x0a.shape[1] != d or x0a.shape[0] < 1:
+            raise ValueError(f"x0 must have shape ({d},) or (k, {d}), got {np.shape(x0)}")
+        if not np.all(np.isfinite(x0a)):
+            raise ValueError("x0 must be finite")
+        tol = _BOUNDS_TOL * np.maximum(span, 1.0)
+        if np.any(x0a < lo - tol) or np.any(x0a > hi + tol):
+            raise ValueError("x0 must lie inside bounds")
+        x0_unit = np.clip((x0a - lo) / span, 0.0, 1.0)
+
+    critic = cls(d, batch_size=batch_size, seed=seed, x0=x0_unit, **opts)
+
+    def result(message: str, nit: int) -> OptimizeResult:
+        i = critic.best_index
+        X = lo + critic.X * span
+        return OptimizeResult(
+            x=None if i is None else X[i].copy(), fun=critic.best_y, nfev=critic.n_told, nit=nit,
+            X=X, y=critic.y, tags=critic.tags, method=method, seed=seed, success=i is not None,
+            message=message, critic=critic)
+
+    nit = 0
+    message = f"budget of {budget} evaluations used"
+    while critic.n_told < budget:
+        k = min(batch_size, budget - critic.n_told)
+        U = critic.ask(k)
+        tags = critic.last_tags
+        Xp = lo + U * span
+        y = np.asarray(evaluator.map(fun, Xp), dtype=float).reshape(-1)
+        if y.shape[0] != k:
+            raise ValueError(f"evaluator returned {y.shape[0]} costs for {k} points")
+        critic.tell(U, y, tags=tags)
+        nit += 1
+        if callback is not None and callback(result("running", nit)) is True:
+            message = "stopped by callback"
+            break
+    res = result(message, nit)
+    if not res.success:
+        res.message = message + "; no finite cost was seen"
+    return res
