@@ -48,6 +48,7 @@ class ConvexMPC(Actor):
     HORIZON = 10
     MPC_DT = 0.025       # [s] horizon step
     SOLVE_EVERY = 10     # physics steps between QP solves (10 ms at 1 kHz)
+    KIN_EVERY = 5        # physics steps between kinematics/feed-forward refreshes (5 ms)
     FZ_MAX = 2.5         # per-foot normal force bound, in units of m·g (= 10·m·g/4)
 
     @classmethod
@@ -87,6 +88,7 @@ class ConvexMPC(Actor):
         self.solve_count = 0
         self.solve_fail = 0
         self.start_yaw = None
+        self._contact = np.ones(4, dtype=bool)
         self._kk, self._jj = np.tril_indices(self.HORIZON)
 
     # ------------------------------------------------------------------ MPC
@@ -198,7 +200,20 @@ class ConvexMPC(Actor):
 
     # ------------------------------------------------------------------ control
     def control(self, step: int, s: RobotState) -> np.ndarray:
+        """Two rates: every ``KIN_EVERY`` steps (and whenever the contact pattern changes) the
+        kinematics, leg gravity, stance torques and swing joint references are refreshed; every
+        step only the swing legs' joint PD runs on the current joint state."""
         t = step * self.dt
+        contact = self.gait.contact(t)
+        if (step % self.KIN_EVERY == 0 or step % self.SOLVE_EVERY == 0
+                or not np.array_equal(contact, self._contact)):
+            self._refresh(step, t, s, contact)
+        dt_ref = t - self._t_ref
+        pd = self.kp * (self._q_ref + self._dq_ref * dt_ref - s.q) + self.kd * (self._dq_ref - s.dq)
+        tau = self._tau_ff + self._swing_mask * pd
+        return np.clip(tau, -self.tau_lim, self.tau_lim)
+
+    def _refresh(self, step: int, t: float, s: RobotState, contact: np.ndarray) -> None:
         Rb = s.R
         if self.start_yaw is None:
             self.start_yaw = float(s.rpy[2])
@@ -207,9 +222,8 @@ class ConvexMPC(Actor):
         base_link = s.pos - Rb @ self.world.base_com_local
         feet_b, J = self.legs.update(s.q)
         feet_w = base_link + feet_b @ Rb.T
-        com = base_link + Rb @ self.model.com_offset
-        contact = self.gait.contact(t)
         if step % self.SOLVE_EVERY == 0:
+            com = base_link + Rb @ self.model.com_offset
             ground_z = self.world.ground_height(com[0], com[1])
             self.forces = self._solve_mpc(t, s, com, feet_w, ground_z)
             self.solve_count += 1
@@ -219,36 +233,41 @@ class ConvexMPC(Actor):
         tau_st = -np.einsum("kji,kj->ki", J, f_b).reshape(-1)
         st = np.repeat(contact, 3)
         tau[st] += tau_st[st]
+        self._tau_ff = tau
+        self._contact = contact
+        self._t_ref = t
         swing = ~contact
         lift = swing & self.prev_contact
         self.swing_start[lift] = feet_w[lift]
         self.prev_contact = contact
-        if swing.any():
-            sw = np.flatnonzero(swing)
-            v_body = s.vel
-            # Raibert foothold: under the hip (at the stance width), half a stance ahead,
-            # corrected by the velocity error
-            hips = base_link + (self.model.hip_offsets[sw] + self._lateral_b[sw]) @ Rb.T
-            target = hips + v_body * (0.5 * self.gait.stance_time) \
-                + self.spec.raibert_gain * (v_body - self.v_des)
-            for j, k in enumerate(sw):
-                target[j, 2] = self.world.ground_height(target[j, 0], target[j, 1]) + self.spec.foot_radius
-            progress = self.gait.swing_progress(t)[sw]
-            p_des, v_des = swing_trajectory(self.swing_start[sw], target, progress,
-                                            self.gait.params.step_height, self.gait.swing_time)
-            # desired foot position/velocity relative to the base, in the base frame
-            w = s.omega
-            skew_w = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
-            w_x_r = (feet_w[sw] - base_link) @ skew_w.T       # rows ω × r
-            rhs = np.empty((sw.size, 3, 2))
-            rhs[:, :, 0] = (p_des - base_link) @ Rb - feet_b[sw]     # position error, base frame
-            rhs[:, :, 1] = (v_des - v_body - w_x_r) @ Rb              # velocity relative to base
-            try:
-                sol = np.linalg.solve(J[sw], rhs)                      # J⁻¹ [e_p, v]
-            except np.linalg.LinAlgError:
-                sol = np.linalg.pinv(J[sw]) @ rhs
-            q_err = sol[:, :, 0].reshape(-1)
-            dq_target = sol[:, :, 1].reshape(-1)
-            idx = (3 * sw[:, None] + np.arange(3)).reshape(-1)
-            tau[idx] += self.kp[idx] * q_err + self.kd[idx] * (dq_target - s.dq[idx])
-        return np.clip(tau, -self.tau_lim, self.tau_lim)
+        self._swing_mask = (~st).astype(float)
+        self._q_ref = s.q.copy()
+        self._dq_ref = np.zeros(12)
+        if not swing.any():
+            return
+        sw = np.flatnonzero(swing)
+        v_body = s.vel
+        # Raibert foothold: under the hip (at the stance width), half a stance ahead,
+        # corrected by the velocity error
+        hips = base_link + (self.model.hip_offsets[sw] + self._lateral_b[sw]) @ Rb.T
+        target = hips + v_body * (0.5 * self.gait.stance_time) \
+            + self.spec.raibert_gain * (v_body - self.v_des)
+        for j in range(sw.size):
+            target[j, 2] = self.world.ground_height(target[j, 0], target[j, 1]) + self.spec.foot_radius
+        progress = self.gait.swing_progress(t)[sw]
+        p_des, v_des = swing_trajectory(self.swing_start[sw], target, progress,
+                                        self.gait.params.step_height, self.gait.swing_time)
+        # desired foot position/velocity relative to the base, in the base frame
+        w = s.omega
+        skew_w = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+        w_x_r = (feet_w[sw] - base_link) @ skew_w.T       # rows ω × r
+        rhs = np.empty((sw.size, 3, 2))
+        rhs[:, :, 0] = (p_des - base_link) @ Rb - feet_b[sw]     # position error, base frame
+        rhs[:, :, 1] = (v_des - v_body - w_x_r) @ Rb              # velocity relative to base
+        try:
+            sol = np.linalg.solve(J[sw], rhs)                      # J⁻¹ [e_p, v]: one IK step
+        except np.linalg.LinAlgError:
+            sol = np.linalg.pinv(J[sw]) @ rhs
+        idx = (3 * sw[:, None] + np.arange(3)).reshape(-1)
+        self._q_ref[idx] += sol[:, :, 0].reshape(-1)
+        self._dq_ref[idx] = sol[:, :, 1].reshape(-1)
