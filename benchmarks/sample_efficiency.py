@@ -1,0 +1,105 @@
+"""Sample efficiency on A1 jump: evaluations needed to reach the manual-tuned cost.
+
+    python benchmarks/sample_efficiency.py --vae RUN_DIR [--budget 220] [--seeds 0 1 2]
+        [--methods latent turbo cma random] [--robot a1 --task jump] [--steps 5000]
+        [--workers 2] [--target COST] [--out results.json]
+
+Methods (same seeds, same budget, all from scratch -- no method gets the manual θ as a start
+point, or every one would "reach" it at evaluation 1):
+
+* ``latent``: phase 3 -- TuRBO-m in the latent box of the VAE of ``--vae RUN_DIR`` (e.g. the
+  A1 trot run of ``latentune tune``) through its decoder;
+* ``turbo``:  TuRBO-m directly on the 25-dim θ;
+* ``cma``:    CMA-ES on θ;  ``random``: uniform random θ.
+
+Target: the manual θ's cost on this task; if the manual θ falls (cost ≥ C1), the target is C1
+(the first stable θ) unless ``--target`` is given. Every evaluation is stored in a run store per
+(method, seed) under ``--work`` so a run can be inspected with ``latentune report``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+import time
+from pathlib import Path
+
+for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")
+
+import numpy as np  # noqa: E402
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--vae", required=False, help="run directory whose VAE phase 3 uses")
+    ap.add_argument("--robot", default="a1")
+    ap.add_argument("--task", default="jump")
+    ap.add_argument("--steps", type=int, default=5000)
+    ap.add_argument("--budget", type=int, default=220)
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    ap.add_argument("--methods", nargs="+", default=["latent", "turbo", "cma", "random"])
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--batch-size", type=int, default=4)
+    ap.add_argument("--target", type=float, default=None)
+    ap.add_argument("--work", default=None, help="directory for the per-run stores")
+    ap.add_argument("--out", default=None, help="write the results JSON here")
+    a = ap.parse_args()
+
+    from latentune.latent import LatentSpace
+    from latentune.pipeline.evaluators import make_evaluator
+    from latentune.pipeline.phases import C1, make_phase_critic, run_phase
+    from latentune.pipeline.store import RunStore
+    from latentune.report import evals_to_reach
+    from latentune.task import Task
+
+    task = Task(a.robot, a.task, steps=a.steps)
+    manual = task.rollout(task.space.manual).cost
+    target = a.target if a.target is not None else (manual if manual < C1 else C1)
+    latent = None
+    if "latent" in a.methods:
+        if not a.vae:
+            ap.error("--vae RUN_DIR is needed for the latent method")
+        src = RunStore(a.vae).artifact("vae") if (Path(a.vae) / "run.db").is_file() else Path(a.vae) / "vae"
+        latent = LatentSpace.load(src)
+    work = Path(a.work or tempfile.mkdtemp(prefix="lt_sampleeff_"))
+    print(f"{a.robot} {a.task}: manual cost {manual:.3f}; target {target:.3f}; budget {a.budget}; "
+          f"seeds {a.seeds}; stores in {work}", flush=True)
+    ev = make_evaluator("process", a.workers)
+    results: dict[str, list[dict]] = {}
+    try:
+        for m in a.methods:
+            for s in a.seeds:
+                t0 = time.perf_counter()
+                d = latent.d_low if m == "latent" else task.space.dim
+                crit = make_phase_critic("turbo" if m in ("latent", "turbo") else m, d,
+                                         a.batch_size, s, None, a.budget)
+                with RunStore(work / f"{m}_s{s}", create=True) as st:
+                    st.set_meta("config", {"task": task.config(), "method": m, "seed": s})
+                    phase = 3 if m == "latent" else 1
+                    run_phase(st, phase, task, crit, a.budget, ev, seed=s,
+                              decoder=latent.decode if m == "latent" else None)
+                    y = st.costs(phase)
+                r = {"seed": s, "evals_to_target": evals_to_reach(y, target),
+                     "best": float(y.min()), "stable": int((y < C1).sum()),
+                     "wall_s": time.perf_counter() - t0}
+                results.setdefault(m, []).append(r)
+                print(f"  {m:7s} seed {s}: evals to target {r['evals_to_target']}, best "
+                      f"{r['best']:.3f}, stable {r['stable']}/{len(y)} ({r['wall_s']:.0f} s)",
+                      flush=True)
+    finally:
+        ev.close()
+    print("\n| method | evals to target (per seed) | median | best cost (median) |")
+    print("|---|---|---:|---:|")
+    for m, rs in results.items():
+        e = [r["evals_to_target"] for r in rs]
+        med = np.median([x if x is not None else np.inf for x in e])
+        print(f"| {m} | {e} | {med} | {np.median([r['best'] for r in rs]):.3f} |")
+    if a.out:
+        Path(a.out).write_text(json.dumps({"manual": manual, "target": target,
+                                           "budget": a.budget, "results": results}, indent=1))
+
+
+if __name__ == "__main__":
+    main()

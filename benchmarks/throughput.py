@@ -1,0 +1,82 @@
+"""Throughput: 2 process workers vs serial on the same batch of rollouts.
+
+    python benchmarks/throughput.py [--n 16] [--steps 5000] [--workers 2] [--robot a1 --task trot]
+
+Both evaluators get the same n θ (the manual θ with small perturbations, so every rollout runs
+the full horizon). The pool is warmed up first (its start-up is reported separately): a tuning
+run pays it once. Goal: ratio ≥ 1.8 with 2 workers on 2 free cores.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+
+for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")
+
+import numpy as np  # noqa: E402
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--n", type=int, default=16)
+    ap.add_argument("--steps", type=int, default=5000)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--robot", default="a1")
+    ap.add_argument("--task", default="trot")
+    ap.add_argument("--json", action="store_true")
+    a = ap.parse_args()
+    from latentune.pipeline.evaluators import ProcessEvaluator, SerialEvaluator
+    from latentune.task import Task
+
+    task = Task(a.robot, a.task, steps=a.steps)
+    rng = np.random.default_rng(0)
+    X = np.clip(task.space.manual + 0.02 * rng.standard_normal((a.n, task.space.dim)), 0, 1)
+    import resource
+
+    t, c = time.perf_counter(), time.process_time()
+    ys = SerialEvaluator().map(task, X)
+    t_serial, cpu_serial = time.perf_counter() - t, time.process_time() - c
+    def children_cpu() -> float:
+        r = resource.getrusage(resource.RUSAGE_CHILDREN)
+        return r.ru_utime + r.ru_stime
+
+    warm = Task(a.robot, a.task, steps=10)
+    # CPU of starting a pool and warming it up (imports, PyBullet worlds), measured on its own
+    c0 = children_cpu()
+    with ProcessEvaluator(a.workers, start_method="spawn") as ev0:
+        ev0.map(warm, X[: a.workers])
+    cpu_startup = children_cpu() - c0
+    c0 = children_cpu()
+    t = time.perf_counter()
+    # spawn: the workers are direct children, so RUSAGE_CHILDREN counts them once they exit
+    ev = ProcessEvaluator(a.workers, start_method="spawn")
+    ev.map(warm, X[: a.workers])                                   # start the workers
+    t_start = time.perf_counter() - t
+    t = time.perf_counter()
+    yp = ev.map(task, X)
+    t_pool = time.perf_counter() - t
+    ev.close()
+    cpu_pool = children_cpu() - c0 - cpu_startup                   # the rollouts only
+    assert np.allclose(ys, yp), "pool and serial costs differ"
+    out = {"n": a.n, "steps": a.steps, "workers": a.workers, "serial_s": t_serial,
+           "pool_s": t_pool, "pool_startup_s": t_start, "ratio": t_serial / t_pool,
+           "ratio_with_startup": t_serial / (t_pool + t_start),
+           "load_avg": os.getloadavg()[0], "stable": int(np.sum(ys < 100)),
+           "cpu_serial_s": cpu_serial, "cpu_workers_s": cpu_pool,
+           # with `workers` free cores the ratio would be about workers x this efficiency
+           "cpu_efficiency": cpu_serial / cpu_pool if cpu_pool > 0 else None}
+    if a.json:
+        print(json.dumps(out))
+    else:
+        print(f"{a.n} x {a.robot} {a.task} {a.steps}-step rollouts: serial {t_serial:.1f} s, "
+              f"{a.workers} process workers {t_pool:.1f} s (+{t_start:.1f} s pool start-up): "
+              f"ratio {out['ratio']:.2f}x ({out['ratio_with_startup']:.2f}x with start-up); "
+              f"load average at the end {out['load_avg']:.1f}; CPU serial {cpu_serial:.1f} s vs "
+              f"workers {cpu_pool:.1f} s (efficiency {out['cpu_efficiency']:.2f})")
+
+
+if __name__ == "__main__":
+    main()

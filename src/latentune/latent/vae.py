@@ -1,0 +1,317 @@
+"""Phase 2: the VAE of the paper's Table I and the latent space it defines (the map D).
+
+Architecture (d = dim θ, d_low = latent size; 10 for d = 25, 5 for d = 77)::
+
+    encoder  d -> ⌊d/2⌋ (ReLU) -> ⌊d/4⌋ (ReLU) -> code of size d_low
+    decoder  d_low -> ⌊d/4⌋ (ReLU) -> ⌊d/2⌋ (ReLU) -> d (Sigmoid: a normalized θ in (0, 1)^d)
+
+Two kinds (``kind=``):
+
+* ``"vae"``: the standard reparameterized VAE (the paper authors' code). The encoder's last
+  layer gives (μ, log σ²); training samples z = μ + σ·ε. Loss per sample =
+  Σ_j (θ̂_j − θ_j)² (summed squared error, the "MSE" of the paper summed over the d entries)
+  + β · KL(N(μ, σ²) ‖ N(0, I)), averaged over the batch, β = :data:`BETA_VAE`.
+* ``"det"``: the paper's deterministic variant: a sigmoid encoder z = s(W·h) ∈ (0, 1)^d_low and
+  a KL on the batch's code statistics: per latent coordinate j, the batch mean m_j and variance
+  v_j define N(m_j, v_j), penalized by KL(N(m_j, v_j) ‖ N(½, 1/12)) (the moments of U(0, 1)),
+  times β = :data:`BETA_DET`. It keeps the codes spread over the unit cube without sampling.
+
+Adam, lr 1e-3, batch 64, a fixed number of epochs (default: enough for ~2000 steps, at least
+100 epochs); deterministic for a seed (torch's generator is seeded and training runs on one
+thread). A few hundred points train in a few seconds on one core.
+
+The latent box
+--------------
+Phase 3's critic works on a unit box u ∈ [0, 1]^d_low; :class:`LatentSpace` maps it to a code
+z = lo + (hi − lo)·u and decodes it. The box [lo, hi] is the bounding box of the encoded training
+set (μ for ``vae``, the code for ``det``) widened by ``margin`` (default 10 %) of its width on
+each side (and for ``det`` clipped to [0, 1], the sigmoid's range). It is stored with the weights.
+
+Default kind
+------------
+``det`` is the default, by measurement (``benchmarks/vae_kind.py``) on the A1 trot run of the
+default ``latentune tune`` (400 phase-1 evaluations, 318 stable θ, seed 0):
+
+========  ===============  ==========================  =========================
+kind      reconstruction   stable preservation (30 θ)  phase-3 best, 60 evals
+========  ===============  ==========================  =========================
+det       0.551            30/30                       4.632
+vae       0.786            30/30                       4.705
+========  ===============  ==========================  =========================
+
+(reconstruction: mean summed squared error per θ; phase-1 best was 4.531.) Both preserve every
+checked stable θ; ``det`` reconstructs better and its phase 3 found the lower cost. With
+``vae`` (β = 1) the KL pulls the means of a few hundred points together, so the decoder's image
+is a blurrier copy of the stable set. The margin is small (one seed); ``--vae-kind vae``
+remains available.
+"""
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+KINDS = ("det", "vae")
+DEFAULT_KIND = "det"
+BETA_VAE = 1.0
+"""KL weight of the ``vae`` kind (relative to the summed squared reconstruction error)."""
+BETA_DET = 0.1
+"""Weight of the batch-statistics KL of the ``det`` kind."""
+BOX_MARGIN = 0.1
+
+
+def default_latent_dim(d: int) -> int:
+    """d_low of the paper: 10 for a 25-dim θ, 5 for a 77-dim θ (else max(2, min(10, d // 4)))."""
+    if d == 25:
+        return 10
+    if d == 77:
+        return 5
+    return max(2, min(10, d // 4))
+
+
+class LatentError(ValueError):
+    """A latent space that cannot be built, loaded or used (bad file, wrong dimension, ...)."""
+
+
+def _torch():
+    import torch
+
+    return torch
+
+
+def _build(d: int, d_low: int, kind: str):
+    torch = _torch()
+    nn = torch.nn
+    h1, h2 = max(d // 2, 1), max(d // 4, 1)
+
+    class Net(nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            out = 2 * d_low if kind == "vae" else d_low
+            self.encoder = nn.Sequential(nn.Linear(d, h1), nn.ReLU(), nn.Linear(h1, h2), nn.ReLU(),
+                                         nn.Linear(h2, out))
+            self.decoder = nn.Sequential(nn.Linear(d_low, h2), nn.ReLU(), nn.Linear(h2, h1),
+                                         nn.ReLU(), nn.Linear(h1, d), nn.Sigmoid())
+
+        def encode(self, x):
+            e = self.encoder(x)
+            if kind == "vae":
+                mu, logvar = e[:, :d_low], e[:, d_low:].clamp(-12.0, 8.0)
+                return mu, logvar
+            return torch.sigmoid(e), None
+
+        def forward(self, x):
+            return self.decoder(self.encode(x)[0])
+
+    return Net()
+
+
+def _loss(net, x, kind: str, beta: float, gen):
+    torch = _torch()
+    if kind == "vae":
+        mu, logvar = net.encode(x)
+        eps = torch.randn(mu.shape, generator=gen, dtype=mu.dtype)
+        z = mu + torch.exp(0.5 * logvar) * eps
+        rec = ((net.decoder(z) - x) ** 2).sum(1).mean()
+        kl = (-0.5 * (1 + logvar - mu ** 2 - logvar.exp()).sum(1)).mean()
+        return rec + beta * kl, rec
+    z, _ = net.encode(x)
+    rec = ((net.decoder(z) - x) ** 2).sum(1).mean()
+    m = z.mean(0)
+    v = z.var(0, unbiased=False) + 1e-6
+    pv = 1.0 / 12.0
+    kl = 0.5 * (torch.log(pv / v) + (v + (m - 0.5) ** 2) / pv - 1.0).sum()
+    return rec + beta * kl, rec
+
+
+@dataclass
+class TrainLog:
+    """Losses of a training run: ``loss``/``rec`` per epoch (mean over batches)."""
+
+    loss: list[float] = field(default_factory=list)
+    rec: list[float] = field(default_factory=list)
+    wall_s: float = 0.0
+
+
+class LatentSpace:
+    """A trained autoencoder and its latent box: the map D from [0, 1]^d_low to θ ∈ [0, 1]^d.
+
+    Build with :meth:`train` or :meth:`load`. ``space(u)`` / :meth:`decode` map unit-box latent
+    points (d_low,) or (n, d_low) to normalized θ; :meth:`encode` maps θ to the code (μ) and
+    :meth:`to_unit` a code to the unit box (clipped).
+    """
+
+    def __init__(self, net, d: int, d_low: int, kind: str, box: np.ndarray,
+                 meta: dict[str, Any] | None = None) -> None:
+        self.net = net
+        self.d, self.d_low, self.kind = int(d), int(d_low), kind
+        self.box = np.asarray(box, dtype=float).reshape(self.d_low, 2)
+        self.meta = dict(meta or {})
+        self.log = TrainLog()
+
+    # ------------------------------------------------------------------ training
+    @classmethod
+    def train(cls, thetas: np.ndarray, d_low: int | None = None, kind: str = DEFAULT_KIND,
+              seed: int = 0, epochs: int | None = None, beta: float | None = None,
+              lr: float = 1e-3, batch_size: int = 64, margin: float = BOX_MARGIN,
+              meta: dict[str, Any] | None = None) -> "LatentSpace":
+        """Train on normalized θ (n, d) (n ≥ 2) and fix the latent box (see the module docstring)."""
+        torch = _torch()
+        X = np.asarray(thetas, dtype=float)
+        if X.ndim != 2 or X.shape[0] < 2 or X.shape[1] < 2:
+            raise LatentError(f"need at least 2 training points of dimension >= 2, got shape {X.shape}")
+        if not np.all(np.isfinite(X)) or X.min() < -1e-9 or X.max() > 1 + 1e-9:
+            raise LatentError("training θ must be finite and normalized to [0, 1]")
+        if kind not in KINDS:
+            raise LatentError(f"unknown VAE kind {kind!r} (choose from {', '.join(KINDS)})")
+        n, d = X.shape
+        d_low = default_latent_dim(d) if d_low is None else int(d_low)
+        if not 1 <= d_low < d:
+            raise LatentError(f"latent dimension must be in [1, {d - 1}], got {d_low}")
+        beta = (BETA_VAE if kind == "vae" else BETA_DET) if beta is None else float(beta)
+        steps_per_epoch = max(1, math.ceil(n / batch_size))
+        if epochs is None:
+            epochs = max(100, math.ceil(2000 / steps_per_epoch))
+        t0 = time.perf_counter()
+        nthreads = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            torch.manual_seed(seed)
+            gen = torch.Generator().manual_seed(int(seed))
+            net = _build(d, d_low, kind).double()
+            opt = torch.optim.Adam(net.parameters(), lr=lr)
+            Xt = torch.as_tensor(np.clip(X, 0.0, 1.0), dtype=torch.float64)
+            log = TrainLog()
+            for _ in range(int(epochs)):
+                perm = torch.randperm(n, generator=gen)
+                tot, totr, k = 0.0, 0.0, 0
+                for s in range(0, n, batch_size):
+                    xb = Xt[perm[s:s + batch_size]]
+                    if xb.shape[0] < 2 and n >= 2:
+                        continue
+                    loss, rec = _loss(net, xb, kind, beta, gen)
+                    opt.zero_grad()
+                    loss.backward()
+                    opt.step()
+                    tot += loss.item() * xb.shape[0]
+                    totr += rec.item() * xb.shape[0]
+                    k += xb.shape[0]
+                log.loss.append(tot / max(k, 1))
+                log.rec.append(totr / max(k, 1))
+            net.eval()
+            with torch.no_grad():
+                code = net.encode(Xt)[0].numpy()
+        finally:
+            torch.set_num_threads(nthreads)
+        lo, hi = code.min(0), code.max(0)
+        w = np.maximum(hi - lo, 1e-3)
+        lo, hi = lo - margin * w, hi + margin * w
+        if kind == "det":
+            lo, hi = np.clip(lo, 0.0, 1.0), np.clip(hi, 0.0, 1.0)
+            hi = np.maximum(hi, lo + 1e-3)
+        m = {"d": d, "d_low": d_low, "kind": kind, "n_train": int(n), "seed": int(seed),
+             "epochs": int(epochs), "beta": beta, "lr": lr, "batch_size": batch_size,
+             "box_rule": f"bounding box of the encoded training set ± {margin:g}·width"
+                         + (" clipped to [0, 1]" if kind == "det" else ""),
+             "final_loss": log.loss[-1] if log.loss else None,
+             "final_rec": log.rec[-1] if log.rec else None}
+        m.update(meta or {})
+        out = cls(net, d, d_low, kind, np.stack([lo, hi], 1), m)
+        log.wall_s = time.perf_counter() - t0
+        out.meta["train_wall_s"] = log.wall_s
+        out.log = log
+        return out
+
+    # ------------------------------------------------------------------ maps
+    def _as2d(self, a: np.ndarray, k: int, what: str) -> tuple[np.ndarray, bool]:
+        a = np.asarray(a, dtype=float)
+        single = a.ndim == 1
+        a = a.reshape(1, -1) if single else a
+        if a.ndim != 2 or a.shape[1] != k:
+            raise LatentError(f"{what} must have shape ({k},) or (n, {k}), got {np.shape(a)}")
+        return a, single
+
+    def decode_code(self, z: np.ndarray) -> np.ndarray:
+        """Codes (n, d_low) -> normalized θ (n, d)."""
+        torch = _torch()
+        z, single = self._as2d(z, self.d_low, "z")
+        with torch.no_grad():
+            th = self.net.decoder(torch.as_tensor(z, dtype=torch.float64)).numpy()
+        th = np.clip(th, 0.0, 1.0)
+        return th[0] if single else th
+
+    def from_unit(self, u: np.ndarray) -> np.ndarray:
+        """Unit-box latent points -> codes in the latent box."""
+        u = np.clip(np.asarray(u, dtype=float), 0.0, 1.0)
+        return self.box[:, 0] + (self.box[:, 1] - self.box[:, 0]) * u
+
+    def to_unit(self, z: np.ndarray) -> np.ndarray:
+        """Codes -> unit-box latent points (clipped to [0, 1])."""
+        z = np.asarray(z, dtype=float)
+        return np.clip((z - self.box[:, 0]) / (self.box[:, 1] - self.box[:, 0]), 0.0, 1.0)
+
+    def decode(self, u: np.ndarray) -> np.ndarray:
+        """The map D: unit-box latent points (d_low,) or (n, d_low) -> normalized θ."""
+        u, single = self._as2d(u, self.d_low, "u")
+        th = self.decode_code(self.from_unit(u))
+        return th[0] if single else th
+
+    __call__ = decode
+
+    def encode(self, theta: np.ndarray) -> np.ndarray:
+        """Normalized θ (d,) or (n, d) -> codes (μ for ``vae``)."""
+        torch = _torch()
+        x, single = self._as2d(theta, self.d, "theta")
+        with torch.no_grad():
+            z = self.net.encode(torch.as_tensor(x, dtype=torch.float64))[0].numpy()
+        return z[0] if single else z
+
+    def reconstruct(self, theta: np.ndarray) -> np.ndarray:
+        """encode -> decode (the code itself, not clipped to the box)."""
+        return self.decode_code(self.encode(theta))
+
+    # ------------------------------------------------------------------ files
+    def save(self, path_prefix: str | Path) -> tuple[str, str]:
+        """Write ``PREFIX.pt`` (state dict) and ``PREFIX.json`` (meta); return both paths."""
+        torch = _torch()
+        p = Path(path_prefix)
+        pt, js = p.with_suffix(".pt"), p.with_suffix(".json")
+        torch.save(self.net.state_dict(), pt)
+        meta = dict(self.meta)
+        meta.update({"format": "latentune-latent-space", "version": 1, "d": self.d,
+                     "d_low": self.d_low, "kind": self.kind, "box": self.box.tolist()})
+        js.write_text(json.dumps(meta, indent=1))
+        return str(pt), str(js)
+
+    @classmethod
+    def load(cls, path_prefix: str | Path) -> "LatentSpace":
+        """Read a latent space written by :meth:`save` (``LatentError`` if missing or corrupt)."""
+        torch = _torch()
+        p = Path(path_prefix)
+        pt, js = p.with_suffix(".pt"), p.with_suffix(".json")
+        if not pt.is_file() or not js.is_file():
+            raise LatentError(f"no latent space at {p} (expected {pt.name} and {js.name})")
+        try:
+            meta = json.loads(js.read_text())
+            if meta.get("format") != "latentune-latent-space":
+                raise ValueError("not a latentune latent space")
+            d, d_low, kind = int(meta["d"]), int(meta["d_low"]), str(meta["kind"])
+            if kind not in KINDS:
+                raise ValueError(f"unknown kind {kind!r}")
+            box = np.asarray(meta["box"], dtype=float).reshape(d_low, 2)
+            net = _build(d, d_low, kind).double()
+            net.load_state_dict(torch.load(pt, map_location="cpu", weights_only=True))
+            net.eval()
+        except LatentError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - any parse/shape error means a corrupt file
+            raise LatentError(f"corrupt latent space {p}: {' '.join(str(exc).split())[:200]}") from None
+        return cls(net, d, d_low, kind, box, meta)
+
+    def __repr__(self) -> str:
+        return f"LatentSpace(d={self.d}, d_low={self.d_low}, kind={self.kind!r})"

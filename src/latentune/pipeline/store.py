@@ -1,0 +1,259 @@
+"""The run store: ``DIR/run.db``, SQLite in WAL mode, the single source of truth of a run.
+
+Tables
+------
+``meta(key TEXT PRIMARY KEY, value TEXT)``: JSON values. ``format`` = ``latentune-run-store``,
+``version``, ``config`` (task config, budgets, seeds, critic method, batch size, VAE options),
+``artifacts`` (paths of the VAE weights, plots, best-θ files, relative to DIR), ``latent``
+(phase-3 latent space description) and free entries.
+
+``evaluations``: one row per finished evaluation, committed as it completes::
+
+    phase      0 = the manual θ, 1 = phase 1 (θ space), 3 = phase 3 (latent space)
+    idx        0, 1, 2, ... unique and contiguous within a phase (completion order)
+    theta      JSON list, the normalized θ that was simulated
+    z          JSON list, the critic's unit-box latent point (phase 3), else NULL
+    tag        the critic's tag of the point (see latentune.critic.base)
+    cost, fell, fall_step, wall_s, seed, created (unix time)
+
+The critic's point is ``z`` in phase 3 and ``theta`` otherwise (:meth:`RunStore.history`).
+"""
+from __future__ import annotations
+
+import json
+import math
+import sqlite3
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterable
+
+import numpy as np
+
+FORMAT = "latentune-run-store"
+VERSION = 1
+DB_NAME = "run.db"
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS evaluations (
+    phase INTEGER NOT NULL,
+    idx INTEGER NOT NULL,
+    theta TEXT NOT NULL,
+    z TEXT,
+    tag INTEGER NOT NULL,
+    cost REAL NOT NULL,
+    fell INTEGER NOT NULL,
+    fall_step INTEGER,
+    wall_s REAL,
+    seed INTEGER,
+    created REAL NOT NULL,
+    PRIMARY KEY (phase, idx)
+);
+"""
+
+
+class StoreError(Exception):
+    """A missing, corrupt or foreign run store, or a write that would break its invariants."""
+
+
+@dataclass
+class Row:
+    """One stored evaluation."""
+
+    phase: int
+    idx: int
+    theta: np.ndarray
+    z: np.ndarray | None
+    tag: int
+    cost: float
+    fell: bool
+    fall_step: int | None
+    wall_s: float | None
+    seed: int | None
+    created: float
+
+
+def _enc(a: Any) -> str | None:
+    if a is None:
+        return None
+    return json.dumps([float(v) for v in np.asarray(a, dtype=float).reshape(-1)])
+
+
+class RunStore:
+    """Open (or create) the store of a run directory.
+
+    ``RunStore(DIR, create=True)`` creates ``DIR`` and ``DIR/run.db`` if needed;
+    ``create=False`` requires an existing store. Any file that is not a latentune store raises
+    :class:`StoreError` before anything is written to it.
+    """
+
+    def __init__(self, run_dir: str | Path, create: bool = False) -> None:
+        self.dir = Path(run_dir)
+        self.path = self.dir / DB_NAME
+        exists = self.path.is_file()
+        if not exists and not create:
+            if not self.dir.exists():
+                raise StoreError(f"run directory {self.dir} does not exist")
+            raise StoreError(f"no run store in {self.dir} (expected {DB_NAME})")
+        if self.dir.exists() and not self.dir.is_dir():
+            raise StoreError(f"{self.dir} is not a directory")
+        if exists:
+            self._check_foreign()
+        else:
+            self.dir.mkdir(parents=True, exist_ok=True)
+        try:
+            self.con = sqlite3.connect(str(self.path), timeout=30.0, isolation_level=None)
+            self.con.execute("PRAGMA journal_mode=WAL")
+            self.con.execute("PRAGMA synchronous=NORMAL")
+            if not exists:
+                self.con.executescript("BEGIN;" + _SCHEMA + "COMMIT;")
+                self.set_meta("format", FORMAT)
+                self.set_meta("version", VERSION)
+                self.set_meta("created", time.time())
+        except sqlite3.DatabaseError as exc:
+            raise StoreError(f"run store {self.path} is corrupt ({exc})") from None
+
+    def _check_foreign(self) -> None:
+        """Validate an existing file read-only (nothing is written to a foreign/corrupt file)."""
+        try:
+            with open(self.path, "rb") as f:
+                head = f.read(16)
+        except OSError as exc:
+            raise StoreError(f"cannot read run store {self.path}: {exc.strerror}") from None
+        if head != b"SQLite format 3\x00":
+            raise StoreError(f"{self.path} is not a latentune run store (not an SQLite file)")
+        try:
+            con = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True, timeout=30.0)
+            try:
+                tables = {r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+                if not {"meta", "evaluations"} <= tables:
+                    raise StoreError(f"{self.path} is not a latentune run store (missing tables)")
+                row = con.execute("SELECT value FROM meta WHERE key='format'").fetchone()
+                if row is None or json.loads(row[0]) != FORMAT:
+                    raise StoreError(f"{self.path} is not a latentune run store (no format mark)")
+                cols = {r[1] for r in con.execute("PRAGMA table_info(evaluations)")}
+                need = {"phase", "idx", "theta", "z", "tag", "cost", "fell", "fall_step"}
+                if not need <= cols:
+                    raise StoreError(f"{self.path} is not a latentune run store (bad schema)")
+                ok = con.execute("PRAGMA quick_check").fetchone()
+                if not ok or ok[0] != "ok":
+                    raise StoreError(f"run store {self.path} is corrupt (integrity check failed)")
+            finally:
+                con.close()
+        except sqlite3.DatabaseError as exc:
+            raise StoreError(f"run store {self.path} is corrupt ({exc})") from None
+        except (json.JSONDecodeError, TypeError):
+            raise StoreError(f"{self.path} is not a latentune run store (bad meta)") from None
+
+    # ------------------------------------------------------------------ meta
+    def set_meta(self, key: str, value: Any) -> None:
+        with self.con:
+            self.con.execute("INSERT OR REPLACE INTO meta(key, value) VALUES (?, ?)",
+                             (key, json.dumps(value)))
+
+    def get_meta(self, key: str, default: Any = None) -> Any:
+        row = self.con.execute("SELECT value FROM meta WHERE key=?", (key,)).fetchone()
+        return default if row is None else json.loads(row[0])
+
+    def meta(self) -> dict[str, Any]:
+        return {k: json.loads(v) for k, v in self.con.execute("SELECT key, value FROM meta")}
+
+    def add_artifact(self, name: str, path: str | Path) -> None:
+        """Record an artifact path (stored relative to the run directory when inside it)."""
+        p = Path(path)
+        try:
+            rel = str(p.resolve().relative_to(self.dir.resolve()))
+        except ValueError:
+            rel = str(p)
+        arts = self.get_meta("artifacts", {}) or {}
+        arts[name] = rel
+        self.set_meta("artifacts", arts)
+
+    def artifact(self, name: str) -> Path | None:
+        rel = (self.get_meta("artifacts", {}) or {}).get(name)
+        if rel is None:
+            return None
+        p = Path(rel)
+        return p if p.is_absolute() else self.dir / p
+
+    # ------------------------------------------------------------------ rows
+    def count(self, phase: int) -> int:
+        return int(self.con.execute("SELECT COUNT(*) FROM evaluations WHERE phase=?",
+                                    (phase,)).fetchone()[0])
+
+    def next_idx(self, phase: int) -> int:
+        row = self.con.execute("SELECT MAX(idx) FROM evaluations WHERE phase=?", (phase,)).fetchone()
+        return 0 if row[0] is None else int(row[0]) + 1
+
+    def add(self, phase: int, idx: int, theta: Any, cost: float, *, z: Any = None, tag: int = -1,
+            fell: bool | None = None, fall_step: int | None = None, wall_s: float | None = None,
+            seed: int | None = None) -> None:
+        """Commit one evaluation (its own transaction). A duplicate (phase, idx) raises StoreError."""
+        cost = float(cost)
+        if fell is None:
+            fell = not (math.isfinite(cost) and cost < 100.0)
+        if not math.isfinite(cost):
+            cost = 1e300 if cost > 0 or math.isnan(cost) else -1e300
+        try:
+            with self.con:
+                self.con.execute(
+                    "INSERT INTO evaluations(phase, idx, theta, z, tag, cost, fell, fall_step, "
+                    "wall_s, seed, created) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                    (int(phase), int(idx), _enc(theta), _enc(z), int(tag), cost, int(bool(fell)),
+                     None if fall_step is None else int(fall_step),
+                     None if wall_s is None else float(wall_s),
+                     None if seed is None else int(seed), time.time()))
+        except sqlite3.IntegrityError:
+            raise StoreError(f"evaluation {idx} of phase {phase} is already stored") from None
+
+    def rows(self, phase: int) -> list[Row]:
+        out = []
+        for r in self.con.execute(
+                "SELECT phase, idx, theta, z, tag, cost, fell, fall_step, wall_s, seed, created "
+                "FROM evaluations WHERE phase=? ORDER BY idx", (phase,)):
+            out.append(Row(r[0], r[1], np.array(json.loads(r[2]), dtype=float),
+                           None if r[3] is None else np.array(json.loads(r[3]), dtype=float),
+                           int(r[4]), float(r[5]), bool(r[6]), r[7], r[8], r[9], r[10]))
+        return out
+
+    def history(self, phase: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The critic's view of a phase: (X (n, k), y (n,), tags (n,)) in idx order.
+
+        X holds ``z`` for rows that have one (phase 3), else ``theta``.
+        """
+        rows = self.rows(phase)
+        if not rows:
+            return np.empty((0, 0)), np.empty(0), np.empty(0, dtype=np.int64)
+        X = np.array([r.z if r.z is not None else r.theta for r in rows])
+        y = np.array([r.cost for r in rows])
+        t = np.array([r.tag for r in rows], dtype=np.int64)
+        return X, y, t
+
+    def costs(self, phase: int) -> np.ndarray:
+        return np.array([r[0] for r in self.con.execute(
+            "SELECT cost FROM evaluations WHERE phase=? ORDER BY idx", (phase,))], dtype=float)
+
+    def best(self, phase: int) -> Row | None:
+        rows = self.rows(phase)
+        if not rows:
+            return None
+        return min(rows, key=lambda r: (r.cost, r.idx))
+
+    def check_contiguous(self, phase: int) -> None:
+        n, mx = self.con.execute("SELECT COUNT(*), MAX(idx) FROM evaluations WHERE phase=?",
+                                 (phase,)).fetchone()
+        if n and (mx != n - 1):
+            raise StoreError(f"phase {phase} indices are not contiguous ({n} rows, max idx {mx})")
+
+    def close(self) -> None:
+        try:
+            self.con.close()
+        except Exception:  # noqa: BLE001
+            pass
+
+    def __enter__(self) -> "RunStore":
+        return self
+
+    def __exit__(self, *exc: Iterable[Any]) -> None:
+        self.close()
