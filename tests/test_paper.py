@@ -1,0 +1,227 @@
+"""``latentune paper`` end to end at a tiny scale, its report against the stored runs, resume,
+``latentune report DIR`` on a paper directory, and bad input.
+
+The end-to-end run takes ~1.5–2.5 minutes on 2 (shared) cores.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from latentune.experiments.paper import budgets, plan
+from latentune.pipeline.store import RunStore
+
+PY = sys.executable
+ENV = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1",
+           PYTHONUNBUFFERED="1")
+
+
+def cli(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
+    return subprocess.run([PY, "-m", "latentune.cli", *args], capture_output=True, text=True,
+                          env=ENV, timeout=timeout)
+
+
+def test_budget_mapping():
+    b = budgets(1.0)
+    assert (b["phase1"], b["phase3"], b["baselines"]) == (10000, 220, 220)
+    b = budgets(0.03)
+    assert (b["phase1"], b["phase3"], b["preservation"]) == (300, 92, 150)
+    b = budgets(1e-6)
+    assert (b["phase1"], b["phase3"]) == (12, 8)
+    assert budgets(0.5, phase3=40)["phase3"] == 40
+    for bad in (0.0, -1.0, math.nan, math.inf):
+        with pytest.raises(ValueError):
+            budgets(bad)
+    keys = [s.key for s in plan("a1", budgets(0.01))]
+    assert {"a1-trot", "a1-jump-hills", "a1-trot-cross", "b1-jump-transfer",
+            "a1-trot-preservation", "a1-jump-cma"} <= set(keys)
+    assert not any(k.startswith("b1") for k in (s.key for s in plan("solo12", budgets(0.01))))
+
+
+def _table_row(md: str, label: str) -> list[str]:
+    for line in md.splitlines():
+        if line.startswith(f"| {label} |"):
+            return [c.strip() for c in line.strip("|").split("|")]
+    raise AssertionError(f"no row {label!r} in the report")
+
+
+def _num(cell: str) -> float:
+    m = re.match(r"^(-?\d+\.\d+)", cell)
+    assert m, cell
+    return float(m.group(1))
+
+
+@pytest.fixture(scope="module")
+def paper_dir(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("paper") / "a1"
+    r = cli("paper", "--robot", "a1", "--scale", "1e-6", "--phase3-evals", "4", "--steps", "250",
+            "--workers", "2", "--out", str(out), "--quiet", timeout=420)
+    assert r.returncode == 0, r.stderr[-2000:]
+    return out
+
+
+def test_paper_end_to_end(paper_dir: Path):
+    out = paper_dir
+    md = (out / "report.md").read_text()
+    summary = json.loads((out / "paper_summary.json").read_text())
+    meta = json.loads((out / "paper.json").read_text())
+    assert meta["budgets"]["phase1"] == 12 and meta["budgets"]["phase3"] == 4
+    assert meta["budgets"]["overridden"]["phase3"] is True
+    for heading in ("## Table II", "A1 → B1 transfer", "stable-region preservation",
+                    "Baselines at the phase-3 budget", "Does the paper's shape hold",
+                    "--report-only", "Wall time", "Scale S = 1e-06"):
+        assert heading in md, heading
+    # every study ran with its budget
+    for key, info in meta["studies"].items():
+        with RunStore(out / key) as st:
+            kind = info["kind"]
+            if kind == "tune":
+                assert (st.count(1), st.count(3)) == (12, 4), key
+                assert st.artifact("vae") is not None
+            elif kind == "phase3":
+                assert (st.count(1), st.count(3)) == (0, 4), key
+            elif kind == "baseline":
+                assert (st.count(1), st.count(3)) == (4, 0), key
+            else:
+                assert (st.count(1), st.count(3)) == (12, 0), key
+            assert st.count(0) == 1
+    # Table II cells equal the stores' bests (manual, phase 1, phase 3 even/uneven/cross-task)
+    paper_vals = json.loads(Path(__file__).resolve().parents[2].joinpath(
+        "shared/paper/results.json").read_text())["path_cost"]["A1"] \
+        if Path(__file__).resolve().parents[2].joinpath("shared/paper/results.json").is_file() \
+        else None
+    rows = {"Manual Tuned": ("{g}", 0), "Phase 1": ("{g}", 1), "Phase 3 even": ("{g}", 3),
+            "Phase 3 uneven": ("{g}-hills", 3), "Phase 3 cross-task": ("{g}-cross", 3)}
+    pkey = {"Manual Tuned": "manual", "Phase 1": "phase1", "Phase 3 even": "phase3_even",
+            "Phase 3 uneven": "phase3_uneven", "Phase 3 cross-task": "phase3_cross_task"}
+    for label, (pattern, phase) in rows.items():
+        cells = _table_row(md, label)
+        for j, g in enumerate(("trot", "jump")):
+            with RunStore(out / f"a1-{pattern.format(g=g)}") as st:
+                best = float(np.min(st.costs(phase)))
+            assert _num(cells[1 + 2 * j]) == pytest.approx(round(best, 3), abs=1e-9), (label, g)
+            assert summary["table"][g][pkey[label]]["ours"] == pytest.approx(best, rel=1e-12)
+            if paper_vals is not None:
+                assert float(cells[2 + 2 * j]) == paper_vals[g][pkey[label]]
+    # transfer
+    for g in ("trot", "jump"):
+        with RunStore(out / f"b1-{g}-transfer") as st:
+            best = float(np.min(st.costs(3)))
+            cfg = st.get_meta("config")
+        assert cfg["task"]["robot"] == "b1"
+        assert cfg["phase3_vae_source"] == str((out / "a1-trot").resolve())
+        cells = _table_row(md, f"B1 {g}")
+        assert _num(cells[2]) == pytest.approx(round(best, 3), abs=1e-9)
+        assert summary["transfer"][g]["ours"] == pytest.approx(best, rel=1e-12)
+    # preservation: phase-5 rows = one per stable θ of the separate run
+    with RunStore(out / "a1-trot-preservation") as st:
+        stable = int(np.sum(st.costs(1) < 100))
+        kept = int(np.sum(st.costs(5) < 100))
+        assert st.count(5) == stable
+        assert st.get_meta("config")["task"]["seed"] == 1
+    p = summary["preservation"]
+    assert (p["n_stable"], p["n_kept"]) == (stable, kept)
+    assert f"| latentune | {stable} | {kept} |" in md
+    # baselines
+    for g in ("trot", "jump"):
+        for m in ("turbo", "cma", "random"):
+            with RunStore(out / f"a1-{g}-{m}") as st:
+                best = float(np.min(st.costs(1)))
+                assert (st.get_meta("config")["phase1"]["method"]) == m
+            assert summary["baselines"][g]["rows"][m]["best"] == pytest.approx(best, rel=1e-12)
+    # figures and GIFs
+    for f in ("best_so_far_trot.png", "best_so_far_jump.png", "com_velocity_trot.png",
+              "com_velocity_jump.png", "a1_trot_phase3_best.gif", "b1_trot_transfer_best.gif"):
+        assert (out / f).is_file() and (out / f).stat().st_size > 1000, f
+        assert f"]({f})" in md
+
+
+def test_paper_resume_and_report_command(paper_dir: Path):
+    out = paper_dir
+
+    def counts():
+        res = {}
+        for d in sorted(out.iterdir()):
+            if (d / "run.db").is_file():
+                with RunStore(d) as st:
+                    res[d.name] = tuple(st.count(ph) for ph in (0, 1, 3, 5))
+        return res
+
+    before = counts()
+    table_before = (out / "report.md").read_text().split("## A1 → B1")[0]
+    # re-running the same command: every study is finished, nothing is evaluated again
+    r = cli("paper", "--robot", "a1", "--scale", "1e-6", "--phase3-evals", "4", "--steps", "250",
+            "--workers", "2", "--out", str(out), "--no-sim")
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert counts() == before
+    assert r.stderr.count("done (skipped)") == len(json.loads((out / "paper.json").read_text())
+                                                   ["studies"])
+    # `latentune report DIR` on a paper directory regenerates the same tables from the stores
+    (out / "report.md").unlink()
+    r = cli("report", str(out), "--no-sim", "--quiet")
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert (out / "report.md").read_text().split("## A1 → B1")[0].split("## Table II")[1] == \
+        table_before.split("## Table II")[1]
+    # a larger budget resumes every unfinished study: stored rows are kept, new ones appended
+    with RunStore(out / "a1-trot-hills") as st:
+        old_rows = [(r.idx, r.theta.tolist(), r.cost) for r in st.rows(3)]
+    r = cli("paper", "--robot", "a1", "--scale", "1e-6", "--phase3-evals", "8", "--steps", "250",
+            "--workers", "2", "--out", str(out), "--no-sim", "--quiet", timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    after = counts()
+    for key, info in json.loads((out / "paper.json").read_text())["studies"].items():
+        if info["kind"] in ("phase3", "tune"):
+            assert after[key][2] == 8, key
+        elif info["kind"] == "baseline":
+            assert after[key][1] == 8, key
+        if info["kind"] in ("tune", "preservation"):
+            assert after[key][1] == before[key][1], key      # phase 1 budget unchanged
+    with RunStore(out / "a1-trot-hills") as st:
+        new_rows = [(r.idx, r.theta.tolist(), r.cost) for r in st.rows(3)]
+    assert new_rows[:4] == old_rows and len(new_rows) == 8
+    assert json.loads((out / "paper.json").read_text())["budgets"]["phase3"] == 8
+    # another configuration in the same directory is refused
+    r = cli("paper", "--robot", "a1", "--scale", "1e-6", "--steps", "300", "--out", str(out))
+    assert r.returncode != 0 and "another configuration" in r.stderr
+
+
+@pytest.mark.parametrize("extra", [
+    ["--robot", "atlas"],
+    ["--scale", "0"],
+    ["--scale", "-1"],
+    ["--scale", "nan"],
+    ["--scale", "inf"],
+    ["--scale", "abc"],
+    ["--workers", "0"],
+])
+def test_paper_bad_input(tmp_path: Path, extra: list[str]):
+    r = cli("paper", "--out", str(tmp_path / "o"), *extra, timeout=60)
+    assert r.returncode != 0
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("latentune: error:"), r.stderr
+    assert "Traceback" not in r.stderr
+    assert not (tmp_path / "o" / "paper.json").exists()
+
+
+def test_paper_unwritable_out(tmp_path: Path):
+    f = tmp_path / "file"
+    f.write_text("x")
+    for out in (str(f / "sub"), str(f), "/proc/latentune-paper-test"):
+        r = cli("paper", "--out", out, "--scale", "1e-6", timeout=60)
+        assert r.returncode != 0, out
+        lines = r.stderr.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("latentune: error:"), r.stderr
+        assert "Traceback" not in r.stderr
+
+
+def test_report_only_without_run(tmp_path: Path):
+    r = cli("paper", "--out", str(tmp_path), "--report-only", timeout=60)
+    assert r.returncode != 0 and "no paper run" in r.stderr
