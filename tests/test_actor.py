@@ -168,3 +168,33 @@ def test_custom_robot_spec(tmp_path):
     assert task.spec.gait("trot").period == 0.4
     res = task.rollout(task.space.manual)
     assert not res.fell
+
+
+def test_osqp_and_daqp_agree_on_mpc_qp():
+    """The MPC's QP solved by DAQP (default) and by OSQP gives the same forces."""
+    from latentune.actor.convex_mpc import ConvexMPC
+
+    task = lt.Task(robot="a1", gait="trot", steps=200)
+    world = task.world
+    world.reset()
+    actor = ConvexMPC(world, "trot", task.v_des, task.space.manual_physical)
+    captured = []
+    orig = actor._qp
+
+    def spy(*args):
+        captured.append(args)
+        return orig(*args)
+
+    actor._qp = spy
+    s = world.state()
+    for n in range(60):
+        world.apply(actor.control(n, s))
+        world.step()
+        s = world.state()
+    assert len(captured) >= 5
+    osqp_actor = ConvexMPC(world, "trot", task.v_des, task.space.manual_physical, solver="osqp")
+    for args in captured:
+        x_daqp = actor.__class__._qp(actor, *args)
+        x_osqp = osqp_actor._qp(*args)
+        # forces are in units of m·g: agree within 1 % of the weight
+        assert np.allclose(x_daqp, x_osqp, atol=1e-2), np.abs(x_daqp - x_osqp).max()
