@@ -69,6 +69,9 @@ def test_path_cost_definition():
     assert path_cost(v2, np.array([0.5, 0, 0]), None, 100) == pytest.approx(np.sqrt(100 * 0.01))
     assert path_cost(v, np.array([0.5, 0, 0]), 25, 100) == pytest.approx(175.0)
     assert path_cost(v, np.array([0.5, 0, 0]), 100, 100) == pytest.approx(100.0)
+    # never fell but 2 m/s off for 5000 steps: sqrt(5000·4) ≈ 141 -> capped below C1
+    far = np.tile([-1.5, 0.0, 0.0], (5000, 1))
+    assert 99.99 < path_cost(far, np.array([0.5, 0, 0]), None, 5000) < C1
 
 
 def test_actor_failure_is_a_fall(monkeypatch):

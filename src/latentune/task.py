@@ -2,7 +2,8 @@
 
 Path cost (DESIGN §3, paper Eq. 2): over N_H physics steps at 1 kHz,
 
-* the robot never fell:   L = sqrt( Σ_{i=1..N_H} ‖v_i − v_des‖² )   (v_i: base CoM velocity, world)
+* the robot never fell:   L = sqrt( Σ_{i=1..N_H} ‖v_i − v_des‖² )   (v_i: base CoM velocity, world),
+  capped just below C1 (a robot that never fell but tracks very badly stays "stable")
 * it fell at step k:      L = C1 · (2 − k / N_H),  C1 = 100, and the rollout stops there.
 
 So L < C1 ⇔ stable. Fallen: base height above the ground outside [0.5, 2.5]·h_nom, tilt above
@@ -24,6 +25,7 @@ from latentune.actor.parameter_space import ParameterSpace
 from latentune.robots import RobotSpec, get_robot
 
 C1 = 100.0
+STABLE_CAP = C1 * (1.0 - 1e-6)  # the largest cost of a rollout that never fell
 GAITS = ("trot", "jump")
 ACTORS = {
     "convex": "latentune.actor.convex_mpc:ConvexMPC",
@@ -54,7 +56,9 @@ def path_cost(vel: np.ndarray, v_des: np.ndarray, fall_step: int | None, horizon
     if fall_step is not None:
         return C1 * (2.0 - fall_step / horizon)
     err = np.asarray(vel, dtype=float) - np.asarray(v_des, dtype=float)
-    return float(math.sqrt(float(np.sum(err * err))))
+    # A robot that never fell but tracks terribly (seen: B1 running backwards at 1.1 m/s) could
+    # exceed C1; cap it just below so that L < C1 ⇔ stable holds for every rollout.
+    return min(float(math.sqrt(float(np.sum(err * err)))), STABLE_CAP)
 
 
 @dataclass
