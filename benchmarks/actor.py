@@ -2,9 +2,9 @@
 
 Usage: python benchmarks/actor.py [--robot a1] [--task trot] [--actor convex] [--steps 5000] [--repeat 3]
 
-Bare stepping = the same World (same robot, ground, contact settings) stepped under torque control
-with the settled stance's joint-PD torques recomputed every step, i.e. the cheapest controller that
-keeps the robot standing; the ratio therefore isolates what the actor adds. Prints min over repeats.
+Baselines (benchmarks/baseline.py): the same World stepped under torque control with a state read
+and a stance joint PD every step (the cheapest controller that keeps the robot standing: the
+reference), and stepSimulation alone with zero torques. Prints the min over repeats.
 """
 from __future__ import annotations
 
@@ -15,34 +15,8 @@ import time
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
-
 import latentune as lt  # noqa: E402
-
-
-def bare_stepping(task: "lt.Task", steps: int) -> float:
-    """Seconds for ``steps`` torque-controlled steps with a one-line PD (state read + torque write)."""
-    w = task.world
-    w.reset()
-    q0 = np.array(w.spec.nominal_q)
-    kp, kd = np.tile(w.spec.kp, 4), np.tile(w.spec.kd, 4)
-    t0 = time.perf_counter()
-    for _ in range(steps):
-        s = w.state()
-        w.apply(kp * (q0 - s.q) - kd * s.dq)
-        w.step()
-    return time.perf_counter() - t0
-
-
-def bare_stepping_only(task: "lt.Task", steps: int) -> float:
-    """Seconds for ``steps`` calls of stepSimulation alone (zero torques, no state reads)."""
-    w = task.world
-    w.reset()
-    w.apply(np.zeros(12))
-    t0 = time.perf_counter()
-    for _ in range(steps):
-        w.step()
-    return time.perf_counter() - t0
+from baseline import bare_stepping_only, bare_stepping_pd  # noqa: E402
 
 
 def main() -> None:
@@ -59,15 +33,15 @@ def main() -> None:
     for _ in range(args.repeat):
         res = task.rollout(task.space.manual)
         roll.append(res.wall_s)
-        bare.append(bare_stepping(task, args.steps))
+        bare.append(bare_stepping_pd(task, args.steps))
         step_only.append(bare_stepping_only(task, args.steps))
     r, b, so = min(roll), min(bare), min(step_only)
     print(f"{args.robot} {args.task} [{args.actor}] {args.steps} steps: cost {res.cost:.3f}, fell {res.fell}")
     print(f"  rollout                    {r:7.3f} s  ({1e6 * r / args.steps:6.1f} us/step)")
     print(f"  bare stepping + PD         {b:7.3f} s  ({1e6 * b / args.steps:6.1f} us/step)")
     print(f"  stepSimulation alone       {so:7.3f} s  ({1e6 * so / args.steps:6.1f} us/step)")
-    print(f"  ratio rollout / bare+PD    {r / b:7.2f}")
-    print(f"  ratio rollout / step alone {r / so:7.2f}   (goal <= 2.0)")
+    print(f"  ratio rollout / bare+PD    {r / b:7.2f}   (the reference; goal <= 2.0)")
+    print(f"  ratio rollout / step alone {r / so:7.2f}   (collapsed robot: more contacts, slower steps)")
 
 
 if __name__ == "__main__":

@@ -30,31 +30,7 @@ import numpy as np  # noqa: E402
 import latentune as lt  # noqa: E402
 from latentune.actor import kinodynamic as kd  # noqa: E402
 from latentune.task import C1  # noqa: E402
-
-
-def bare_step_only(task: "lt.Task", steps: int) -> float:
-    """Seconds for ``steps`` calls of stepSimulation alone (zero torques, no state reads)."""
-    w = task.world
-    w.reset()
-    w.apply(np.zeros(12))
-    t0 = time.perf_counter()
-    for _ in range(steps):
-        w.step()
-    return time.perf_counter() - t0
-
-
-def bare_step_pd(task: "lt.Task", steps: int) -> float:
-    """Seconds for ``steps`` steps with a state read and a stance joint PD per step."""
-    w = task.world
-    w.reset()
-    q0 = np.array(w.spec.nominal_q)
-    kp, kd_ = np.tile(w.spec.kp, 4), np.tile(w.spec.kd, 4)
-    t0 = time.perf_counter()
-    for _ in range(steps):
-        s = w.state()
-        w.apply(kp * (q0 - s.q) - kd_ * s.dq)
-        w.step()
-    return time.perf_counter() - t0
+from baseline import bare_stepping_only, bare_stepping_pd  # noqa: E402
 
 
 class _Recorder:
@@ -90,8 +66,8 @@ def main() -> None:
     task.rollout(theta)  # warm-up (URDF parse, model build)
     roll, only, pd, res, breakdown = [], [], [], None, None
     for _ in range(args.repeat):
-        only.append(bare_step_only(task, args.steps))
-        pd.append(bare_step_pd(task, args.steps))
+        only.append(bare_stepping_only(task, args.steps))
+        pd.append(bare_stepping_pd(task, args.steps))
         t0 = time.perf_counter()
         res = task.rollout(theta)
         roll.append(time.perf_counter() - t0)
