@@ -17,7 +17,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-C1 = 100.0
+from latentune.task import C1  # the fall threshold, defined once with the path cost
 ROBOT_NAME = {"a1": "A1", "b1": "B1", "solo12": "Solo12"}
 TABLE_NO = {"a1": "II", "solo12": "III"}
 METHOD_NAME = {"turbo": "TuRBO-m on θ (full space)", "cma": "CMA-ES on θ",

@@ -28,7 +28,7 @@ import numpy as np
 
 from latentune.pipeline.store import RunStore
 
-C1 = 100.0
+from latentune.task import C1  # the fall threshold, defined once with the path cost
 PHASE_MANUAL, PHASE1, PHASE3 = 0, 1, 3
 
 
