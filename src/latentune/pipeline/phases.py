@@ -27,8 +27,8 @@ from typing import Any, Callable
 import numpy as np
 
 from latentune.pipeline.store import RunStore
-
 from latentune.task import C1  # the fall threshold, defined once with the path cost
+
 PHASE_MANUAL, PHASE1, PHASE3 = 0, 1, 3
 
 
