@@ -4,6 +4,9 @@
   the cheapest controller that keeps the robot standing, i.e. "bare stepping under torque control".
 * :func:`bare_stepping_only`: ``stepSimulation`` alone with zero torques (the robot collapses, and
   its body's extra contacts make each step *slower*).
+* :func:`replay_stepping`: the torques a rollout applied, replayed open loop from the same start
+  (PyBullet is deterministic, so the robot makes the *same* motion): the physics of that very gait
+  with no controller and no state reads, i.e. the floor any actor's rollout sits on.
 """
 from __future__ import annotations
 
@@ -33,5 +36,35 @@ def bare_stepping_only(task, steps: int) -> float:
     w.apply(np.zeros(12))
     t0 = time.perf_counter()
     for _ in range(steps):
+        w.step()
+    return time.perf_counter() - t0
+
+
+def record_torques(task, theta) -> np.ndarray:
+    """(n, 12) joint torques [N·m] a rollout of unit-box ``theta`` applied, step by step."""
+    w = task.world
+    taus: list[np.ndarray] = []
+    apply = w.apply
+
+    def recording(tau: np.ndarray) -> None:
+        taus.append(np.array(tau))
+        apply(tau)
+
+    w.apply = recording
+    try:
+        task.rollout(theta)
+    finally:
+        del w.apply
+    return np.array(taus)
+
+
+def replay_stepping(task, taus: np.ndarray) -> float:
+    """Seconds to apply the recorded ``taus`` open loop and step, one physics step each."""
+    w = task.world
+    w.reset()
+    rows = [t.tolist() for t in taus]
+    t0 = time.perf_counter()
+    for tau in rows:
+        w.apply_list(tau)
         w.step()
     return time.perf_counter() - t0

@@ -32,6 +32,7 @@ from latentune.sim.world import RobotState, World
 STATE_NAMES = ("roll", "pitch", "yaw", "x", "y", "z", "wx", "wy", "wz", "vx", "vy", "vz", "g")
 FORCE_NAMES = tuple(f"{leg}_f{ax}" for leg in LEGS for ax in "xyz")
 G = 9.81
+_INF = 1e30  # "no bound" for the QP solvers (DAQP and OSQP both read ±1e30 as infinite)
 
 # Manual-tuned weights (found by hand, checked by tests/test_actor.py and benchmarks/actor.py).
 _Q_MANUAL = {
@@ -48,7 +49,7 @@ class ConvexMPC(Actor):
     HORIZON = 10
     MPC_DT = 0.025       # [s] horizon step
     SOLVE_EVERY = 10     # physics steps between QP solves (10 ms at 1 kHz)
-    KIN_EVERY = 5        # physics steps between kinematics/feed-forward refreshes (5 ms)
+    KIN_EVERY = 10       # physics steps between kinematics/feed-forward refreshes (10 ms)
     FZ_MAX = 2.5         # per-foot normal force bound, in units of m·g (= 10·m·g/4)
 
     @classmethod
@@ -75,6 +76,7 @@ class ConvexMPC(Actor):
         self.R = theta[13:].copy()
         self.mass = world.model.mass
         self.inertia_b = world.model.inertia
+        self._inertia_inv_b = np.linalg.inv(self.inertia_b)
         self.dt = world.dt
         self.mu = spec.mu
         self.solver = solver
@@ -84,12 +86,35 @@ class ConvexMPC(Actor):
         self.forces = np.zeros((4, 3))            # world-frame ground forces on the feet [N]
         self.swing_start = np.zeros((4, 3))       # world-frame foot position at lift-off
         self.prev_contact = np.ones(4, dtype=bool)
+        self._tau_lo = -self.tau_lim
+        self._period, self._duty = self.gait.period, self.gait.duty
+        self._offsets = tuple(float(o) for o in self.gait.offsets)
+        self._patterns: dict[tuple[bool, ...], tuple] = {}
         self.L_diag = np.tile(self.Q, self.HORIZON)
         self.solve_count = 0
         self.solve_fail = 0
         self.start_yaw = None
-        self._contact = np.ones(4, dtype=bool)
-        self._kk, self._jj = np.tril_indices(self.HORIZON)
+        self._contact: tuple[bool, ...] = ()
+        # MPC buffers and constants (reused every solve)
+        H, dt = self.HORIZON, self.MPC_DT
+        self._eye13 = np.eye(13)
+        self._N = np.zeros((13, 13))
+        self._N[3:6, 9:12] = np.eye(3) * dt
+        self._N[11, 12] = dt
+        ks = np.arange(H + 1, dtype=float)
+        self._kpow, self._k2pow = ks, 0.5 * ks * (ks - 1.0)
+        self._Bc = np.zeros((13, 12))
+        self._Bc[9:12] = np.tile(np.eye(3), 4) * G
+        self._Ppad = np.zeros((H + 1, 13, 12))
+        self._pattern_cache: dict[bytes, tuple] = {}
+        self._cols3 = np.arange(12 * H).reshape(4 * H, 3)
+        self._tsteps = np.arange(1, H + 1) * dt
+        self._Xref = np.zeros((H, 13))
+        self._Xref[:, 9:12] = self.v_des
+        self._Xref[:, 12] = -G
+        self._L_col = self.L_diag[:, None]
+        self._Rvec = np.tile(self.R, H) + 1e-9
+        self._con_cache: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
     # ------------------------------------------------------------------ MPC
     def _solve_mpc(self, t: float, s: RobotState, com: np.ndarray, feet_w: np.ndarray,
@@ -103,52 +128,74 @@ class ConvexMPC(Actor):
         yaw = rpy[2]
         cy, sy = math.cos(yaw), math.sin(yaw)
         Rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
-        I_w_inv = np.linalg.inv(Rz @ self.inertia_b @ Rz.T)
+        I_w_inv = Rz @ self._inertia_inv_b @ Rz.T               # world-frame inverse inertia
         x0 = np.concatenate([rpy, com, s.omega, s.vel, [-G]])
-        A = np.eye(13)
-        A[0:3, 6:9] = Rz.T * dt
-        A[3:6, 9:12] = np.eye(3) * dt
-        A[11, 12] = dt
-        Bc = np.zeros((13, 12))
+        # A = I + N with N nilpotent (N³ = 0): A^k = I + k N + k(k−1)/2 N²
+        N = self._N
+        N[0:3, 6:9] = Rz.T * dt
+        N2 = N @ N
+        Apow = self._eye13 + self._kpow[:, None, None] * N + self._k2pow[:, None, None] * N2
+        Bc = self._Bc
         mg = m * G
-        for i in range(4):
-            r = feet_w[i] - com
-            rx = np.array([[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]])
-            Bc[6:9, 3 * i:3 * i + 3] = I_w_inv @ rx * mg
-            Bc[9:12, 3 * i:3 * i + 3] = np.eye(3) * G
-        B = (0.5 * (np.eye(13) + A)) @ Bc * dt  # (I + A_c dt / 2) B_c dt: 2nd-order hold
-        # powers
-        Apow = [np.eye(13)]
-        for _ in range(H):
-            Apow.append(A @ Apow[-1])
-        P = [Apow[k] @ B for k in range(H)]                   # Ad^k B
-        Aqp = np.vstack(Apow[1:])                             # (13H, 13)
-        active = table.reshape(-1)                            # (4H,) per (step, leg)
-        cols = np.flatnonzero(np.repeat(active, 3))           # force variable columns
-        Pst = np.stack(P)                                     # (H, 13, 12)
-        blocks = np.zeros((H, H, 13, 12))
-        blocks[self._kk, self._jj] = Pst[self._kk - self._jj]  # block (k, j) = Ad^(k−j) B, j ≤ k
-        Bqp = blocks.transpose(0, 2, 1, 3).reshape(13 * H, 12 * H)
-        Bc_qp = Bqp[:, cols]
+        r = feet_w - com                                      # (4, 3) lever arms
+        rx = np.zeros((4, 3, 3))
+        rx[:, 0, 1], rx[:, 0, 2] = -r[:, 2], r[:, 1]
+        rx[:, 1, 0], rx[:, 1, 2] = r[:, 2], -r[:, 0]
+        rx[:, 2, 0], rx[:, 2, 1] = -r[:, 1], r[:, 0]
+        Bc[6:9] = (I_w_inv @ rx * mg).transpose(1, 0, 2).reshape(3, 12)
+        B = (self._eye13 + 0.5 * (Apow[1] - self._eye13)) @ Bc * dt  # (I + A_c dt/2) B_c dt
+        Ppad = self._Ppad
+        np.matmul(Apow[:H], B, out=Ppad[:H])                  # (H, 13, 12): Ad^k B; Ppad[H] = 0
+        Aqp = Apow[1:].reshape(13 * H, 13)
+        cols, gather, Rvec, (Acon, lo, hi) = self._horizon_pattern(table)
+        Bc_qp = Ppad.reshape(-1)[gather]                      # (13H, n): block (k, j) = Ad^(k−j) B
         # reference trajectory
-        steps = np.arange(1, H + 1) * dt
-        Xref = np.zeros((H, 13))
+        Xref = self._Xref
         Xref[:, 2] = self.start_yaw
-        Xref[:, 3] = com[0] + self.v_des[0] * steps
-        Xref[:, 4] = com[1] + self.v_des[1] * steps
+        Xref[:, 3] = com[0] + self.v_des[0] * self._tsteps
+        Xref[:, 4] = com[1] + self.v_des[1] * self._tsteps
         Xref[:, 5] = ground_z + self.spec.nominal_height + self.model.com_offset[2]
-        Xref[:, 9:12] = self.v_des
-        Xref[:, 12] = -G
         err0 = Aqp @ x0 - Xref.reshape(-1)
-        LB = Bc_qp * self.L_diag[:, None]
+        LB = Bc_qp * self._L_col
         Hm = Bc_qp.T @ LB
-        n = cols.size
-        Rvec = np.tile(self.R, H)[cols]
-        Hm[np.diag_indices(n)] += Rvec + 1e-9
+        Hm.flat[::cols.size + 1] += Rvec                       # + K (force weights) on the diagonal
         g = LB.T @ err0
-        # constraints: simple bounds then friction pyramid rows
-        nc = n // 3
-        mu = self.mu
+        u = self._qp(Hm, g, Acon, lo, hi)
+        # first horizon step's forces
+        first = table[0]
+        f = np.zeros((4, 3))
+        f[first] = u[:3 * int(first.sum())].reshape(-1, 3) * mg
+        return f
+
+    def _horizon_pattern(self, table: np.ndarray) -> tuple:
+        """Per horizon contact table (H, 4) (cached; a periodic gait has few): the force
+        variables' columns (n,), the gather index (13H, n) that builds the condensed input
+        matrix from the padded powers Ad^k B, their force weights (n,) and the constraints."""
+        key = table.tobytes()
+        hit = self._pattern_cache.get(key)
+        if hit is None:
+            H = self.HORIZON
+            cols = self._cols3[table.reshape(-1)].reshape(-1)
+            j = cols // 12                                    # horizon step of each variable
+            k = np.arange(H).repeat(13)                       # horizon step of each state row
+            rr = np.tile(np.arange(13), H)
+            d = k[:, None] - j[None, :]
+            d = np.where(d >= 0, d, H)                        # k < j: the zero block Ppad[H]
+            gather = (d * 13 + rr[:, None]) * 12 + (cols % 12)[None, :]
+            hit = (cols, gather, self._Rvec[cols], self._constraints(cols.size // 3))
+            self._pattern_cache[key] = hit
+        return hit
+
+    def _constraints(self, nc: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Friction pyramid and force bounds for ``nc`` stance (step, leg) pairs, cached per nc.
+
+        Returns (A (4·nc, 3·nc), lower (7·nc,), upper (7·nc,)): simple bounds on the 3·nc
+        variables first, then the pyramid rows |f_x|, |f_y| ≤ μ f_z (all in units of m·g).
+        """
+        hit = self._con_cache.get(nc)
+        if hit is not None:
+            return hit
+        n, mu = 3 * nc, self.mu
         lb = np.tile([-mu * self.FZ_MAX, -mu * self.FZ_MAX, 0.0], nc)
         ub = np.tile([mu * self.FZ_MAX, mu * self.FZ_MAX, self.FZ_MAX], nc)
         Acon = np.zeros((4 * nc, n))
@@ -158,18 +205,11 @@ class ConvexMPC(Actor):
             Acon[4 * r + 2 * a, 3 * r + 2] = -mu
             Acon[4 * r + 2 * a + 1, 3 * r + a] = 1.0
             Acon[4 * r + 2 * a + 1, 3 * r + 2] = mu
-        cu = np.tile([0.0, np.inf, 0.0, np.inf], nc)
-        cl = np.tile([-np.inf, 0.0, -np.inf, 0.0], nc)
-        u = self._qp(Hm, g, Acon, np.concatenate([lb, cl]), np.concatenate([ub, cu]))
-        # first horizon step's forces
-        first = table[0]
-        f = np.zeros((4, 3))
-        k = 0
-        for i in range(4):
-            if first[i]:
-                f[i] = u[3 * k:3 * k + 3] * mg
-                k += 1
-        return f
+        cu = np.tile([0.0, _INF, 0.0, _INF], nc)
+        cl = np.tile([-_INF, 0.0, -_INF, 0.0], nc)
+        hit = (Acon, np.concatenate([lb, cl]), np.concatenate([ub, cu]))
+        self._con_cache[nc] = hit
+        return hit
 
     def _qp(self, Hm: np.ndarray, g: np.ndarray, A: np.ndarray, lo: np.ndarray,
             hi: np.ndarray) -> np.ndarray:
@@ -180,9 +220,7 @@ class ConvexMPC(Actor):
             import daqp
 
             sense = np.zeros(lo.size, dtype=np.int32)
-            hi_c = np.where(np.isinf(hi), 1e30, hi)
-            lo_c = np.where(np.isinf(lo), -1e30, lo)
-            x, _, flag, _ = daqp.solve(Hm, g, A, hi_c, lo_c, sense)
+            x, _, flag, _ = daqp.solve(Hm, g, A, hi, lo, sense)
             if flag < 1 or not np.all(np.isfinite(x)):
                 raise ActorFailure(f"MPC QP failed (daqp exit {flag})")
             return np.asarray(x)
@@ -204,16 +242,32 @@ class ConvexMPC(Actor):
         kinematics, leg gravity, stance torques and swing joint references are refreshed; every
         step only the swing legs' joint PD runs on the current joint state."""
         t = step * self.dt
-        contact = self.gait.contact(t)
-        if (step % self.KIN_EVERY == 0 or step % self.SOLVE_EVERY == 0
-                or not np.array_equal(contact, self._contact)):
+        ph = t / self._period
+        contact = tuple((ph + o) % 1.0 < self._duty for o in self._offsets)  # = gait.contact(t)
+        if step % self.KIN_EVERY == 0 or step % self.SOLVE_EVERY == 0 or contact != self._contact:
             self._refresh(step, t, s, contact)
+        if self._stance_only:
+            return self._tau_ff
         dt_ref = t - self._t_ref
-        pd = self.kp * (self._q_ref + self._dq_ref * dt_ref - s.q) + self.kd * (self._dq_ref - s.dq)
-        tau = self._tau_ff + self._swing_mask * pd
-        return np.clip(tau, -self.tau_lim, self.tau_lim)
+        tau = (self._kp_sw * (self._q_ref + self._dq_ref * dt_ref - s.q)
+               + self._kd_sw * (self._dq_ref - s.dq) + self._tau_ff)
+        return np.minimum(np.maximum(tau, self._tau_lo, out=tau), self.tau_lim, out=tau)
 
-    def _refresh(self, step: int, t: float, s: RobotState, contact: np.ndarray) -> None:
+    def _pattern(self, contact: tuple[bool, ...]) -> tuple:
+        """Per contact pattern (cached): stance mask (12,), swing legs, their joint indices and
+        the swing-only PD gains."""
+        hit = self._patterns.get(contact)
+        if hit is None:
+            c = np.array(contact, dtype=bool)
+            st = np.repeat(c, 3)
+            sw = np.flatnonzero(~c)
+            idx = (3 * sw[:, None] + np.arange(3)).reshape(-1)
+            hit = (c, st.astype(float), sw, idx, self.kp * ~st, self.kd * ~st)
+            self._patterns[contact] = hit
+        return hit
+
+    def _refresh(self, step: int, t: float, s: RobotState, contact_key: tuple[bool, ...]) -> None:
+        contact, st_f, sw, idx, self._kp_sw, self._kd_sw = self._pattern(contact_key)
         Rb = s.R
         if self.start_yaw is None:
             self.start_yaw = float(s.rpy[2])
@@ -230,30 +284,32 @@ class ConvexMPC(Actor):
         tau = self.legs.gravity(s.q, Rb)      # hold the legs' own weight, (12,)
         # stance legs: τ = −Jᵀ Rᵀ f   (f: the ground's force on the robot, world frame)
         f_b = self.forces @ Rb                # rows are Rᵀ f_k
-        tau_st = -np.einsum("kji,kj->ki", J, f_b).reshape(-1)
-        st = np.repeat(contact, 3)
-        tau[st] += tau_st[st]
-        self._tau_ff = tau
-        self._contact = contact
+        tau -= (J * f_b[:, :, None]).sum(axis=1).reshape(-1) * st_f
+        self._contact = contact_key
         self._t_ref = t
         swing = ~contact
         lift = swing & self.prev_contact
         self.swing_start[lift] = feet_w[lift]
         self.prev_contact = contact
-        self._swing_mask = (~st).astype(float)
+        self._stance_only = sw.size == 0
+        if self._stance_only:
+            self._tau_ff = np.minimum(np.maximum(tau, self._tau_lo), self.tau_lim)
+            return
+        self._tau_ff = tau
         self._q_ref = s.q.copy()
         self._dq_ref = np.zeros(12)
-        if not swing.any():
-            return
-        sw = np.flatnonzero(swing)
         v_body = s.vel
         # Raibert foothold: under the hip (at the stance width), half a stance ahead,
         # corrected by the velocity error
         hips = base_link + (self.model.hip_offsets[sw] + self._lateral_b[sw]) @ Rb.T
         target = hips + v_body * (0.5 * self.gait.stance_time) \
             + self.spec.raibert_gain * (v_body - self.v_des)
-        for j in range(sw.size):
-            target[j, 2] = self.world.ground_height(target[j, 0], target[j, 1]) + self.spec.foot_radius
+        if self.world.terrain == "flat":
+            target[:, 2] = self.spec.foot_radius
+        else:
+            for j in range(sw.size):
+                target[j, 2] = (self.world.ground_height(target[j, 0], target[j, 1])
+                                + self.spec.foot_radius)
         progress = self.gait.swing_progress(t)[sw]
         p_des, v_des = swing_trajectory(self.swing_start[sw], target, progress,
                                         self.gait.params.step_height, self.gait.swing_time)
@@ -268,6 +324,5 @@ class ConvexMPC(Actor):
             sol = np.linalg.solve(J[sw], rhs)                      # J⁻¹ [e_p, v]: one IK step
         except np.linalg.LinAlgError:
             sol = np.linalg.pinv(J[sw]) @ rhs
-        idx = (3 * sw[:, None] + np.arange(3)).reshape(-1)
         self._q_ref[idx] += sol[:, :, 0].reshape(-1)
         self._dq_ref[idx] = sol[:, :, 1].reshape(-1)

@@ -213,7 +213,8 @@ class TurboM(Critic):
                  max_gp_points: int = 256, max_fit_points: int = 128, num_features: int = 512,
                  refit_fraction: float = 0.1, warm_start: bool = True, fit_maxiter: int = 50,
                  refit_maxiter: int = 15, y_transform: str = "copula",
-                 gp_select: str = "recent") -> None:
+                 gp_select: str = "recent", failure_unit: str = "evaluations",
+                 restart: str = "fresh", box_clip: float | None = None) -> None:
         super().__init__(dim, batch_size=batch_size, seed=seed, x0=x0)
         d = self.dim
         if n_regions < 1 or n_regions >= _KIND:
@@ -227,7 +228,19 @@ class TurboM(Critic):
         self.length_init, self.length_min, self.length_max = (
             float(length_init), float(length_min), float(length_max))
         self.success_tol = int(success_tol)
-        self.failure_tol = int(failure_tol) if failure_tol is not None else max(5, d)
+        if failure_unit not in ("evaluations", "groups"):
+            raise ValueError(f"failure_unit must be 'evaluations' or 'groups', got {failure_unit!r}")
+        self.failure_unit = failure_unit
+        if failure_tol is not None:
+            self.failure_tol = int(failure_tol)
+        elif failure_unit == "groups":
+            self.failure_tol = max(1, math.ceil(max(4, d) / self.batch_size))
+        else:
+            self.failure_tol = max(5, d)
+        if restart not in ("fresh", "incumbent"):
+            raise ValueError(f"restart must be 'fresh' or 'incumbent', got {restart!r}")
+        self.restart = restart
+        self.box_clip = None if box_clip is None else float(box_clip)
         self.n_candidates = int(n_candidates) if n_candidates is not None else min(100 * d, 5000)
         self.perturb_prob = float(perturb_prob) if perturb_prob is not None else min(20.0 / d, 1.0)
         self.max_gp_points = int(max_gp_points)
@@ -250,6 +263,7 @@ class TurboM(Critic):
         self.regions = [self._fresh_region(r, epoch=0, epoch_gen=0)
                         for r in range(self.n_regions)]
         self._z_cache: tuple[int, np.ndarray] | None = None
+        self._inc_index = -1                  # best finite point among the processed tells
 
     # ------------------------------------------------------------------ regions
     def _design(self, r: int, epoch: int) -> np.ndarray:
@@ -268,7 +282,20 @@ class TurboM(Critic):
                            epoch=epoch, epoch_gen=epoch_gen)
 
     def _restart(self, tr: TrustRegion, epoch_gen: int) -> None:
-        self.regions[tr.index] = self._fresh_region(tr.index, tr.epoch + 1, epoch_gen)
+        new = self._fresh_region(tr.index, tr.epoch + 1, epoch_gen)
+        if self.restart == "incumbent" and self._inc_index >= 0:
+            c = self._X[self._inc_index]
+            lb = np.clip(c - self.length_init / 2.0, 0.0, 1.0)
+            ub = np.clip(c + self.length_init / 2.0, 0.0, 1.0)
+            new.design = lb + (ub - lb) * new.design
+            self._add_points(new, [self._inc_index])
+        self.regions[tr.index] = new
+
+    def _note_incumbent(self, idx) -> None:
+        for i in idx:
+            if np.isfinite(self._y[i]) and (self._inc_index < 0
+                                            or self._y[i] < self._y[self._inc_index]):
+                self._inc_index = int(i)
 
     def _ready(self, tr: TrustRegion) -> bool:
         design_done = tr.design_ptr >= len(tr.design) or tr.n_points >= self.n_init
@@ -302,7 +329,7 @@ class TurboM(Critic):
             tr.n_success += 1
             tr.n_failure = 0
         else:
-            tr.n_failure += group_size
+            tr.n_failure += group_size if self.failure_unit == "evaluations" else 1
             tr.n_success = 0
         if tr.n_success >= self.success_tol:
             tr.length = min(2.0 * tr.length, self.length_max)
@@ -326,6 +353,7 @@ class TurboM(Critic):
             self._gen = max(self._gen, g + 1)
             tr = self.regions[r]
             members = groups[(g, kind, r)]
+            self._note_incumbent(members)
             if g < tr.epoch_gen:
                 continue                      # asked before this region restarted: history only
             if kind == KIND_DESIGN:
@@ -341,6 +369,7 @@ class TurboM(Critic):
             if tr.length < self.length_min:
                 self._restart(tr, epoch_gen=g + 1)
         for i in untagged:
+            self._note_incumbent([i])
             self._add_untagged(i)
 
     def _add_untagged(self, i: int) -> None:
@@ -574,6 +603,8 @@ class TurboM(Critic):
                            else np.ones(self.dim))
         ls = np.asarray(lengthscale, dtype=float).reshape(self.dim)
         w = ls / np.exp(np.mean(np.log(ls)))
+        if self.box_clip is not None:
+            w = np.clip(w, 1.0 / self.box_clip, self.box_clip)
         i = self._centre_index(tr)
         centre = self._X[i] if i >= 0 else np.full(self.dim, 0.5)
         lb = np.clip(centre - tr.length * w / 2.0, 0.0, 1.0)

@@ -5,7 +5,6 @@ Units: SI (m, s, rad, N, N·m). World frame: x forward, z up. Leg order FR, FL, 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 from latentune.sim.bullet import p, quiet_stderr
@@ -15,26 +14,32 @@ from latentune.robots import RobotModel, RobotSpec
 TERRAINS = ("flat", "hills")
 
 
-@dataclass
 class RobotState:
     """Measured state of the robot at one physics step.
 
     Attributes:
         pos: (3,) base (trunk centre of mass) position, world frame [m].
         quat: (4,) base orientation quaternion (x, y, z, w).
-        R: (3, 3) rotation base -> world.
         vel: (3,) base linear velocity, world frame [m/s].
         omega: (3,) base angular velocity, world frame [rad/s].
         q: (12,) joint angles [rad]; dq: (12,) joint velocities [rad/s].
+        up_z: z component of the base's up axis (cos of the tilt), R[2, 2].
+        finite: base position and velocity are finite.
+        R: (3, 3) rotation base -> world (computed on first use).
     """
 
-    pos: np.ndarray
-    quat: np.ndarray
-    R: np.ndarray
-    vel: np.ndarray
-    omega: np.ndarray
-    q: np.ndarray
-    dq: np.ndarray
+    __slots__ = ("pos", "quat", "vel", "omega", "q", "dq", "up_z", "finite", "_R")
+
+    def __init__(self, pos, quat, vel, omega, q, dq, up_z: float, finite: bool,
+                 R: np.ndarray | None = None):
+        self.pos, self.quat, self.vel, self.omega, self.q, self.dq = pos, quat, vel, omega, q, dq
+        self.up_z, self.finite, self._R = up_z, finite, R
+
+    @property
+    def R(self) -> np.ndarray:
+        if self._R is None:
+            self._R = np.array(p.getMatrixFromQuaternion(self.quat.tolist())).reshape(3, 3)
+        return self._R
 
     @property
     def rpy(self) -> np.ndarray:
@@ -165,14 +170,21 @@ class World:
         pos, quat = p.getBasePositionAndOrientation(r, physicsClientId=c)
         vel, omega = p.getBaseVelocity(r, physicsClientId=c)
         js = p.getJointStates(r, self.joint_ids, physicsClientId=c)
-        R = np.array(p.getMatrixFromQuaternion(quat)).reshape(3, 3)
-        return RobotState(np.array(pos), np.array(quat), R, np.array(vel), np.array(omega),
-                          np.array([j[0] for j in js]), np.array([j[1] for j in js]))
+        q, dq = np.array([(j[0], j[1]) for j in js]).T
+        qx, qy = quat[0], quat[1]
+        finite = math.isfinite(pos[0] + pos[1] + pos[2] + vel[0] + vel[1] + vel[2])
+        return RobotState(np.array(pos), np.array(quat), np.array(vel), np.array(omega), q, dq,
+                          1.0 - 2.0 * (qx * qx + qy * qy), finite)
 
     def apply(self, tau: np.ndarray) -> None:
         """Set the 12 joint torques [N·m] for the next step."""
         p.setJointMotorControlArray(self.robot, self.joint_ids, p.TORQUE_CONTROL,
                                     forces=tau.tolist(), physicsClientId=self.cid)
+
+    def apply_list(self, tau: list[float]) -> None:
+        """:meth:`apply` for a plain list of 12 torques [N·m]."""
+        p.setJointMotorControlArray(self.robot, self.joint_ids, p.TORQUE_CONTROL, forces=tau,
+                                    physicsClientId=self.cid)
 
     def step(self) -> None:
         p.stepSimulation(physicsClientId=self.cid)
