@@ -152,9 +152,17 @@ def test_perturbation_probability_high_dim():
     assert 0.17 < frac < 0.23
 
 
+def test_regions_for_budget():
+    from latentune.critic.turbo import regions_for_budget
+
+    assert [regions_for_budget(b) for b in (1, 220, 400, 1000, 2000, 5000, 10_000)] == \
+        [1, 1, 1, 2, 4, 10, 10]
+
+
 def test_turbo_defaults_follow_design():
     t = TurboM(25, batch_size=20, seed=0)
     assert t.n_regions == 10 and t.failure_tol == 25 and t.success_tol == 3
+    assert (t.max_gp_points, t.max_fit_points) == (256, 256)
     assert t.n_candidates == 2500 and t.perturb_prob == pytest.approx(0.8)
     assert (t.length_init, t.length_max, t.length_min) == (0.8, 1.6, 0.5 ** 7)
     assert TurboM(77).n_candidates == 5000

@@ -77,7 +77,8 @@ def minimize(fun: Callable[[np.ndarray], float], bounds: Any, method: str = "tur
         evaluator: object with ``map(fun, X) -> y`` (default :class:`SerialEvaluator`).
         callback: called after every batch with the :class:`OptimizeResult` so far; returning
             ``True`` stops the run.
-        **opts: options of the critic (e.g. ``n_regions`` for TuRBO, ``sigma0`` for CMA-ES).
+        **opts: options of the critic (e.g. ``n_regions`` for TuRBO, default
+            :func:`~latentune.critic.turbo.regions_for_budget` of ``budget``; ``sigma0`` for CMA-ES).
 
     Returns:
         :class:`OptimizeResult` with ``x, fun, nfev, nit, X, y, tags, method, seed, success,
@@ -119,6 +120,10 @@ def minimize(fun: Callable[[np.ndarray], float], bounds: Any, method: str = "tur
             raise ValueError("x0 must lie inside bounds")
         x0_unit = np.clip((x0a - lo) / span, 0.0, 1.0)
 
+    if method == "turbo" and "n_regions" not in opts:
+        from latentune.critic.turbo import regions_for_budget
+
+        opts["n_regions"] = regions_for_budget(budget)
     critic = cls(d, batch_size=batch_size, seed=seed, x0=x0_unit, **opts)
 
     def result(message: str, nit: int) -> OptimizeResult:

@@ -4,7 +4,7 @@ A from-scratch implementation on BoTorch/GPyTorch (the reference code is not use
 
 Trust regions
 -------------
-``n_regions`` (default 10) regions, each with its own GP fitted only on the points attributed to
+``n_regions`` (default 10, the paper's m; budget-aware callers use :func:`regions_for_budget`) regions, each with its own GP fitted only on the points attributed to
 it since its last restart (its *epoch*). Region ``r`` has a side length ``L`` (start 0.8) and a
 centre, its best point. Its box is ``centre ± L·w/2`` clipped to [0, 1], with
 ``w = ℓ / geomean(ℓ)`` from the GP's ARD lengthscales ``ℓ``. After a tell, every region that got
@@ -47,7 +47,7 @@ lengthscale ∈ [0.005, 4], outputscale ∈ [0.05, 20], noise ∈ [1e-4, 0.2]; h
 L-BFGS-B on the exact marginal likelihood (``botorch.optim.fit.fit_gpytorch_mll_scipy``).
 
 * A region's GP is conditioned on at most ``max_gp_points`` (default 256) of its points, and its
-  hyperparameters are fitted on at most ``max_fit_points`` (default 128): in both cases the best
+  hyperparameters are fitted on at most ``max_fit_points`` (default 256): in both cases the best
   half plus the most recent others (``gp_select="recent"``; ``"near"`` = best quarter plus the
   points nearest to the region's best point). Hyperparameter fits use the transform applied to the fitted
   points alone (e.g. their own copula ranks), so they depend only on those points.
@@ -62,23 +62,32 @@ L-BFGS-B on the exact marginal likelihood (``botorch.optim.fit.fit_gpytorch_mll_
   ``refit_maxiter`` (15) L-BFGS iterations; the first fit of an epoch (or every fit with
   ``warm_start=False``) starts from fixed values with ``fit_maxiter`` (50) iterations.
 
-Measured limits (Levy-25, 1,000 evaluations, batch 20)
-------------------------------------------------------
-``benchmarks/critic.py``, seeds 0-4, median best (global min 0): TuRBO-m 11.8 (range 9.5-27.8)
-vs CMA-ES 2.95 (2.3-4.2); on Ackley-20 TuRBO-m wins (0.41 vs 4.24). Levy is separable: a
-quadratic bowl times ``1 + 10·sin²`` with a period of 0.2 of the unit box per coordinate, so
-every coordinate has ~5 basins. A region's side soon falls below a basin's width (TuRBO-1,
-seed 0: 0.8 → 0.1 by 300 evaluations, 0.025 at 1,000; ARD box weights fitted on few points in
-25-d, lengthscale ratios up to ~50, make some sides far narrower still), after which the region
-polishes the basin combination it is in; with the defaults no region reaches ``length_min``
-within 1,000 evaluations, so restarts never happen and the result depends on where the regions
-locked in (large spread over seeds). CMA-ES follows the bowl's trend with its whole
-population. None of these closed the gap (median over 5 seeds unless noted): 2 regions 4.05
-(Ackley-20 0.31), 3 regions 4.7, 4 regions 9.8, 1 region 8.6 (3 seeds), BoTorch's dim-scaled
-lengthscale prior LogNormal(√2 + ln(d)/2, √3) 5.8 (but Ackley-20 1.71), box weights clipped to
-[1/4, 4] 5.8 (Ackley-20 0.30; with 2 regions 7.4), ``warm_start=False`` with 2 regions 12.0,
-``n_init=20`` with 2 regions 8.4 (4 seeds), ``perturb_prob=1`` 11.1 (3 seeds),
-``y_transform="none"`` 13.9 and ``"log"`` 28.8 (3 seeds). The defaults are unchanged.
+Measured limits (1,000 evaluations, batch 20)
+---------------------------------------------
+``benchmarks/critic.py``, median best over seeds 0-4 (range), global min 0. ``minimize``'s
+defaults (2 regions by :func:`regions_for_budget`, hyperparameters fitted on up to 256 points): Levy-25 2.21 (0.78-8.15) vs CMA-ES 2.95 (2.34-4.18),
+Ackley-20 0.25 (0.22-1.22) vs 4.24. The former defaults (10 regions, 128 fit points): Levy-25 11.8
+(9.5-27.8), Ackley-20 0.41. Levy-25 stays a lottery with a heavy tail: over seeds 0-11 the median
+is 3.55 (0.78-17.1) vs CMA-ES 3.11 (1.58-5.42); seeds 0-7: 3.65 (2 regions with 128 fit points:
+5.2, seeds 0-4 4.05). Levy is separable, a bowl times ``1 + 10·sin²`` with ~5 basins of width 0.2
+per coordinate. The best region takes nearly all Thompson points (the other keeps its design and
+length 0.8) and shrinks below a basin's width within 200-600 evaluations, then polishes its basin
+combination; no region reaches ``length_min``. Coordinates in a wrong basin are steeper, so they
+get short lengthscales and narrow box sides (seed 7: the 12 wrong-basin coordinates had weights
+0.2-0.8, the right ones 1-5.6) and stay frozen. More fit points give better ARD estimates. Tried,
+not better (Levy-25 median of seeds 0-7 with 2 regions and 128 fit points, unless noted): 1/3/5/10
+regions 8.6 (3 seeds)/5.1/14.6 (3)/11.8 (5); 384 fit and GP points 3.35 (seeds 0-4 3.10, slower);
+failures counted per group with the original tolerance ⌈max(4, d)/q⌉ = 2 groups: identical with 2
+regions, 21.0 with 10 (3 seeds); 1/4/8 groups 8.3/9.1/17.5 (3); restarts below length 0.1 with a
+fresh design 4.7 (3), below 0.05 with a design centred on the global incumbent 5.5, length reset
+to 0.8 keeping the GP data below 0.05/0.1 5.4/6.2; isotropic box 17.4, weights clipped to [1/2, 2]
+14.6, floored at 1/2 5.4 (4.9 with 256 fit points) or 1/3 9.1, clipped to [1/4, 4] with 10 regions
+5.8 (5); lengthscale ≥ 0.05/0.1/0.2: 10.3/5.9 (3)/7.0 (3); noise cap 1.0 5.9; raw costs capped at
+the 75th/50th percentile 13.3/7.7, ``"none"`` 15.0 (3), ``"log"`` 28.8 (10 regions, 3); 5000
+candidates 8.4; ``perturb_prob`` 1/0.2 12.0/8.4 (3); 1024 Fourier features 6.0; ``success_tol=2``
+8.8; ``length_init`` 1.6/0.4 7.4/11.6; 8/3 L-BFGS iterations 7.9; ``n_init=20`` 8.4 (4);
+``warm_start=False`` 12.0 (5); BoTorch's LogNormal(√2 + ln(d)/2, √3) lengthscale prior with 10
+regions 5.8 (5; Ackley-20 1.71).
 
 Tags and resume
 ---------------
@@ -118,6 +127,14 @@ KIND_THOMPSON = 1
 def encode_tag(generation: int, kind: int, region: int) -> int:
     """TuRBO-m tag of a point: ask ``generation``, ``kind`` (0 design, 1 Thompson), ``region``."""
     return int(generation) * _GEN + int(kind) * _KIND + int(region)
+
+
+def regions_for_budget(budget: int) -> int:
+    """Trust regions for a known evaluation budget: about 500 evaluations per region, between 1
+    and the paper's 10 (reached at 5,000). At 1,000 evaluations in 20-25 dimensions 2 regions
+    beat 1, 3, 5 and 10 (see "Measured limits"); 10 regions of ~100 evaluations each spend the
+    budget on initial designs and never shrink far enough."""
+    return int(min(10, max(1, round(budget / 500))))
 
 
 def decode_tag(tag: int) -> tuple[int, int, int]:
@@ -185,8 +202,9 @@ class TurboM(Critic):
 
     Args:
         dim, batch_size, seed, x0: see :class:`~latentune.critic.base.Critic`.
-        n_regions: number of trust regions m (10, the paper's m; the critic does not know the
-            budget, so a budget-dependent m is the caller's choice; see "Measured limits").
+        n_regions: number of trust regions m (10, the paper's m at its 10,000 evaluations; the
+            critic does not know the budget: callers that do (``minimize``, the pipeline's
+            phases) pass :func:`regions_for_budget`; see "Measured limits").
         n_init: initial (Sobol) design size per region and epoch; default
             ``max(5, min(dim, 10))`` (10 beat 20 per region at d = 20-25 and 1,000 evaluations).
         length_init, length_min, length_max: side length rules (0.8, 0.5**7, 1.6).
@@ -195,7 +213,7 @@ class TurboM(Critic):
         n_candidates: candidates per region (default ``min(100·dim, 5000)``).
         perturb_prob: per-coordinate perturbation probability (default ``min(20/dim, 1)``).
         max_gp_points: cap on the points one region's GP is conditioned on (256).
-        max_fit_points: cap on the points its hyperparameters are fitted on (128).
+        max_fit_points: cap on the points its hyperparameters are fitted on (256).
         num_features: random Fourier features of the pathwise prior samples (512).
         refit_fraction: relative growth of a region's data between hyperparameter refits (0.1).
         warm_start: warm-start refits from the previous hyperparameters (True).
@@ -210,11 +228,10 @@ class TurboM(Critic):
                  length_init: float = 0.8, length_min: float = 0.5 ** 7,
                  length_max: float = 1.6, success_tol: int = 3, failure_tol: int | None = None,
                  n_candidates: int | None = None, perturb_prob: float | None = None,
-                 max_gp_points: int = 256, max_fit_points: int = 128, num_features: int = 512,
+                 max_gp_points: int = 256, max_fit_points: int = 256, num_features: int = 512,
                  refit_fraction: float = 0.1, warm_start: bool = True, fit_maxiter: int = 50,
                  refit_maxiter: int = 15, y_transform: str = "copula",
-                 gp_select: str = "recent", failure_unit: str = "evaluations",
-                 restart: str = "fresh", box_clip: float | None = None) -> None:
+                 gp_select: str = "recent") -> None:
         super().__init__(dim, batch_size=batch_size, seed=seed, x0=x0)
         d = self.dim
         if n_regions < 1 or n_regions >= _KIND:
@@ -228,19 +245,7 @@ class TurboM(Critic):
         self.length_init, self.length_min, self.length_max = (
             float(length_init), float(length_min), float(length_max))
         self.success_tol = int(success_tol)
-        if failure_unit not in ("evaluations", "groups"):
-            raise ValueError(f"failure_unit must be 'evaluations' or 'groups', got {failure_unit!r}")
-        self.failure_unit = failure_unit
-        if failure_tol is not None:
-            self.failure_tol = int(failure_tol)
-        elif failure_unit == "groups":
-            self.failure_tol = max(1, math.ceil(max(4, d) / self.batch_size))
-        else:
-            self.failure_tol = max(5, d)
-        if restart not in ("fresh", "incumbent"):
-            raise ValueError(f"restart must be 'fresh' or 'incumbent', got {restart!r}")
-        self.restart = restart
-        self.box_clip = None if box_clip is None else float(box_clip)
+        self.failure_tol = int(failure_tol) if failure_tol is not None else max(5, d)
         self.n_candidates = int(n_candidates) if n_candidates is not None else min(100 * d, 5000)
         self.perturb_prob = float(perturb_prob) if perturb_prob is not None else min(20.0 / d, 1.0)
         self.max_gp_points = int(max_gp_points)
@@ -263,7 +268,6 @@ class TurboM(Critic):
         self.regions = [self._fresh_region(r, epoch=0, epoch_gen=0)
                         for r in range(self.n_regions)]
         self._z_cache: tuple[int, np.ndarray] | None = None
-        self._inc_index = -1                  # best finite point among the processed tells
 
     # ------------------------------------------------------------------ regions
     def _design(self, r: int, epoch: int) -> np.ndarray:
@@ -282,20 +286,7 @@ class TurboM(Critic):
                            epoch=epoch, epoch_gen=epoch_gen)
 
     def _restart(self, tr: TrustRegion, epoch_gen: int) -> None:
-        new = self._fresh_region(tr.index, tr.epoch + 1, epoch_gen)
-        if self.restart == "incumbent" and self._inc_index >= 0:
-            c = self._X[self._inc_index]
-            lb = np.clip(c - self.length_init / 2.0, 0.0, 1.0)
-            ub = np.clip(c + self.length_init / 2.0, 0.0, 1.0)
-            new.design = lb + (ub - lb) * new.design
-            self._add_points(new, [self._inc_index])
-        self.regions[tr.index] = new
-
-    def _note_incumbent(self, idx) -> None:
-        for i in idx:
-            if np.isfinite(self._y[i]) and (self._inc_index < 0
-                                            or self._y[i] < self._y[self._inc_index]):
-                self._inc_index = int(i)
+        self.regions[tr.index] = self._fresh_region(tr.index, tr.epoch + 1, epoch_gen)
 
     def _ready(self, tr: TrustRegion) -> bool:
         design_done = tr.design_ptr >= len(tr.design) or tr.n_points >= self.n_init
@@ -329,7 +320,7 @@ class TurboM(Critic):
             tr.n_success += 1
             tr.n_failure = 0
         else:
-            tr.n_failure += group_size if self.failure_unit == "evaluations" else 1
+            tr.n_failure += group_size
             tr.n_success = 0
         if tr.n_success >= self.success_tol:
             tr.length = min(2.0 * tr.length, self.length_max)
@@ -353,7 +344,6 @@ class TurboM(Critic):
             self._gen = max(self._gen, g + 1)
             tr = self.regions[r]
             members = groups[(g, kind, r)]
-            self._note_incumbent(members)
             if g < tr.epoch_gen:
                 continue                      # asked before this region restarted: history only
             if kind == KIND_DESIGN:
@@ -369,7 +359,6 @@ class TurboM(Critic):
             if tr.length < self.length_min:
                 self._restart(tr, epoch_gen=g + 1)
         for i in untagged:
-            self._note_incumbent([i])
             self._add_untagged(i)
 
     def _add_untagged(self, i: int) -> None:
@@ -603,8 +592,6 @@ class TurboM(Critic):
                            else np.ones(self.dim))
         ls = np.asarray(lengthscale, dtype=float).reshape(self.dim)
         w = ls / np.exp(np.mean(np.log(ls)))
-        if self.box_clip is not None:
-            w = np.clip(w, 1.0 / self.box_clip, self.box_clip)
         i = self._centre_index(tr)
         centre = self._X[i] if i >= 0 else np.full(self.dim, 0.5)
         lb = np.clip(centre - tr.length * w / 2.0, 0.0, 1.0)

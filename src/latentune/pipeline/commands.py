@@ -65,7 +65,7 @@ def _add_run_args(p: argparse.ArgumentParser, name: str) -> None:
     p.add_argument("--method", choices=("turbo", "cma", "random", "sobol"), default="turbo",
                    help="critic (default turbo = TuRBO-m)")
     p.add_argument("--regions", type=int, default=None,
-                   help="TuRBO-m trust regions (default: budget // 100, between 1 and 10)")
+                   help="TuRBO-m trust regions (default: ~1 per 500 evaluations, between 1 and 10)")
     p.add_argument("--batch-size", type=int, default=None,
                    help="critic batch size (default max(workers, 4))")
     p.add_argument("--resume", action="store_true", help="continue the run stored in --out")

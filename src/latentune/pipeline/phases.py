@@ -38,9 +38,11 @@ def default_batch_size(workers: int) -> int:
 
 
 def default_regions(budget: int) -> int:
-    """TuRBO-m trust regions for a budget: 10 (the paper's m) at ≥ 1000 evaluations, fewer on
-    small budgets so the initial designs (n_init each) do not eat the budget."""
-    return int(min(10, max(1, budget // 100)))
+    """TuRBO-m trust regions for a phase budget: :func:`~latentune.critic.turbo.regions_for_budget`
+    (~500 evaluations per region, 1 to the paper's 10)."""
+    from latentune.critic.turbo import regions_for_budget
+
+    return regions_for_budget(budget)
 
 
 def make_phase_critic(method: str, dim: int, batch_size: int, seed: int, x0: np.ndarray | None,
