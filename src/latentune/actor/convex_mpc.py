@@ -13,6 +13,9 @@ X = A_qp x0 + B_qp U and the QP
     s.t.   0 ≤ f_z ≤ f_max,  |f_x|, |f_y| ≤ μ f_z  (only for (step, leg) pairs in stance)
 
 is solved with DAQP (dense active-set; OSQP optional), L = diag(Q, …, Q), K = diag(R, …, R).
+The reference moves forward at v_des from the current position; its height starts at the current
+height and returns to the standing height with time constant ``TAU_Z``, with v_z,ref its time
+derivative (a self-consistent reference, as for x and y); roll and pitch likewise return to level.
 θ = (Q (13), R (12)): the paper's 25 weights. Stance torques τ = −Jᵀ Rᵀ f (f acts on the robot,
 the leg pushes the ground with −f); swing legs follow a Raibert foothold with joint PD.
 """
@@ -51,6 +54,7 @@ class ConvexMPC(Actor):
     SOLVE_EVERY = 10     # physics steps between QP solves (10 ms at 1 kHz)
     KIN_EVERY = 10       # physics steps between kinematics/feed-forward refreshes (10 ms)
     FZ_MAX = 2.5         # per-foot normal force bound, in units of m·g (= 10·m·g/4)
+    TAU_Z = 0.1          # [s] time constant of the height/attitude reference's return to nominal
 
     @classmethod
     def space(cls, spec: RobotSpec, gait: str) -> ParameterSpace:
@@ -109,6 +113,7 @@ class ConvexMPC(Actor):
         self._pattern_cache: dict[bytes, tuple] = {}
         self._cols3 = np.arange(12 * H).reshape(4 * H, 3)
         self._tsteps = np.arange(1, H + 1) * dt
+        self._z_decay = np.exp(-self._tsteps / self.TAU_Z)  # (H,) height-reference error decay
         self._Xref = np.zeros((H, 13))
         self._Xref[:, 9:12] = self.v_des
         self._Xref[:, 12] = -G
@@ -155,6 +160,19 @@ class ConvexMPC(Actor):
         Xref[:, 3] = com[0] + self.v_des[0] * self._tsteps
         Xref[:, 4] = com[1] + self.v_des[1] * self._tsteps
         Xref[:, 5] = ground_z + self.spec.nominal_height + self.model.com_offset[2]
+        # Height reference from the current height back to the standing height, v_z,ref = its
+        # derivative. (A step to the standing height with v_z,ref = 0 contradicts itself: weights
+        # with Q_vz >> Q_z, which a trot never penalises, then hold v_z ≈ 0 and never restore the
+        # height lost in each flight/landing of a jump; the A1 sinks ~4 cm per cycle and falls.)
+        dz = (com[2] - Xref[0, 5]) * self._z_decay
+        Xref[:, 5] += dz
+        Xref[:, 11] = self.v_des[2] - dz / self.TAU_Z
+        # Roll and pitch likewise: from the current attitude back to level, ω_x,y,ref = its
+        # derivative (small angles, yaw ≈ start yaw). With a step to level and ω_ref = 0 the
+        # steady pitch error under a constant unmodelled moment scales like 1/Q_pitch.
+        att = np.outer(self._z_decay, rpy[:2])
+        Xref[:, 0:2] = att
+        Xref[:, 6:8] = -att / self.TAU_Z
         err0 = Aqp @ x0 - Xref.reshape(-1)
         LB = Bc_qp * self._L_col
         Hm = Bc_qp.T @ LB

@@ -19,26 +19,29 @@ class RobotState:
 
     Attributes:
         pos: (3,) base (trunk centre of mass) position, world frame [m].
-        quat: (4,) base orientation quaternion (x, y, z, w).
+        quat: (4,) orientation quaternion (x, y, z, w) of the base's inertial frame (PyBullet's
+            base frame: it is rotated against the trunk link when the URDF's inertia has a
+            rotated origin, as on A1 (0.7 deg) and B1 (2.7 deg)).
         vel: (3,) base linear velocity, world frame [m/s].
         omega: (3,) base angular velocity, world frame [rad/s].
         q: (12,) joint angles [rad]; dq: (12,) joint velocities [rad/s].
         up_z: z component of the base's up axis (cos of the tilt), R[2, 2].
         finite: base position and velocity are finite.
-        R: (3, 3) rotation base -> world (computed on first use).
+        R: (3, 3) rotation trunk link -> world (computed on first use).
     """
 
-    __slots__ = ("pos", "quat", "vel", "omega", "q", "dq", "up_z", "finite", "_R")
+    __slots__ = ("pos", "quat", "vel", "omega", "q", "dq", "up_z", "finite", "_R", "_RT")
 
     def __init__(self, pos, quat, vel, omega, q, dq, up_z: float, finite: bool,
-                 R: np.ndarray | None = None):
+                 RT: np.ndarray | None = None):
         self.pos, self.quat, self.vel, self.omega, self.q, self.dq = pos, quat, vel, omega, q, dq
-        self.up_z, self.finite, self._R = up_z, finite, R
+        self.up_z, self.finite, self._RT, self._R = up_z, finite, RT, None
 
     @property
     def R(self) -> np.ndarray:
         if self._R is None:
-            self._R = np.array(p.getMatrixFromQuaternion(self.quat.tolist())).reshape(3, 3)
+            R = np.array(p.getMatrixFromQuaternion(self.quat.tolist())).reshape(3, 3)
+            self._R = R if self._RT is None else R @ self._RT
         return self._R
 
     @property
@@ -141,8 +144,13 @@ class World:
             p.changeDynamics(self.robot, j, linearDamping=0, angularDamping=0, physicsClientId=c)
         for f in self.foot_ids:
             p.changeDynamics(self.robot, f, lateralFriction=1.0, physicsClientId=c)
-        # base link frame vs. base inertial frame (PyBullet reports the latter)
-        self.base_com_local = np.array(p.getDynamicsInfo(self.robot, -1, physicsClientId=c)[3])
+        # base link frame vs. base inertial frame (PyBullet reports the pose of the latter):
+        # its origin in the link frame, and its rotation, undone in state()
+        info = p.getDynamicsInfo(self.robot, -1, physicsClientId=c)
+        self.base_com_local = np.array(info[3])
+        R_in = np.array(p.getMatrixFromQuaternion(info[4])).reshape(3, 3)
+        self._RT = None if np.allclose(R_in, np.eye(3), atol=1e-12) else R_in.T
+        self._RT_col2 = (0.0, 0.0, 1.0) if self._RT is None else tuple(self._RT[:, 2])
         for k, j in enumerate(self.joint_ids):
             p.resetJointState(self.robot, j, spec.nominal_q[k], 0.0, physicsClientId=c)
         self._settle()
@@ -171,10 +179,15 @@ class World:
         vel, omega = p.getBaseVelocity(r, physicsClientId=c)
         js = p.getJointStates(r, self.joint_ids, physicsClientId=c)
         q, dq = np.array([(j[0], j[1]) for j in js]).T
-        qx, qy = quat[0], quat[1]
+        x, y, z, w = quat
         finite = math.isfinite(pos[0] + pos[1] + pos[2] + vel[0] + vel[1] + vel[2])
+        # up_z = (R_inertial · RTᵀ)[2, 2]: row 2 of the inertial frame's rotation, times column 2
+        # of the inertial -> link correction
+        c = self._RT_col2
+        up_z = 2.0 * (x * z - w * y) * c[0] + 2.0 * (y * z + w * x) * c[1] \
+            + (1.0 - 2.0 * (x * x + y * y)) * c[2]
         return RobotState(np.array(pos), np.array(quat), np.array(vel), np.array(omega), q, dq,
-                          1.0 - 2.0 * (qx * qx + qy * qy), finite)
+                          up_z, finite, self._RT)
 
     def apply(self, tau: np.ndarray) -> None:
         """Set the 12 joint torques [N·m] for the next step."""
