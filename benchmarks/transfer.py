@@ -42,16 +42,21 @@ def main() -> None:
             print(f"{t}: failed: {p.stderr.strip()}")
             continue
         s = json.loads((out / "summary.json").read_text())
+        from latentune.pipeline.store import RunStore
+
+        with RunStore(out) as st:
+            n_stable = int((st.costs(3) < 100).sum())
         r = {"target": t, "manual": s["manual_cost"], "phase3_best": s["phase3_best"],
              "evals": s["phase3_evals"], "evals_to_manual": s["phase3_evals_to_manual"],
-             "stable": s["phase3_best"] < 100, "wall_s": time.perf_counter() - t0}
+             "stable": s["phase3_best"] < 100, "n_stable": n_stable, "wall_s": time.perf_counter() - t0}
         rows.append(r)
         print(json.dumps(r), flush=True)
     print(f"\nVAE of {a.run_dir}; stores in {root}")
-    print("| target | manual | phase 3 best | evals | stable |")
-    print("|---|---:|---:|---:|---|")
+    print("| target | manual | phase 3 best | evals | stable evals | evals to reach manual |")
+    print("|---|---:|---:|---:|---:|---:|")
     for r in rows:
-        print(f"| {r['target']} | {r['manual']:.3f} | {r['phase3_best']:.3f} | {r['evals']} | {r['stable']} |")
+        print(f"| {r['target']} | {r['manual']:.3f} | {r['phase3_best']:.3f} | {r['evals']} | "
+              f"{r['n_stable']}/{r['evals']} | {r['evals_to_manual']} |")
 
 
 if __name__ == "__main__":
