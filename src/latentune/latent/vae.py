@@ -12,9 +12,15 @@ Two kinds (``kind=``):
   Σ_j (θ̂_j − θ_j)² (summed squared error, the "MSE" of the paper summed over the d entries)
   + β · KL(N(μ, σ²) ‖ N(0, I)), averaged over the batch, β = :data:`BETA_VAE`.
 * ``"det"``: the paper's deterministic variant: a sigmoid encoder z = s(W·h) ∈ (0, 1)^d_low and
-  a KL on the batch's code statistics: per latent coordinate j, the batch mean m_j and variance
-  v_j define N(m_j, v_j), penalized by KL(N(m_j, v_j) ‖ N(½, 1/12)) (the moments of U(0, 1)),
-  times β = :data:`BETA_DET`. It keeps the codes spread over the unit cube without sampling.
+  a KL on the batch's code statistics: the batch mean m and full covariance Σ define N(m, Σ),
+  penalized by KL(N(m, Σ) ‖ N(½, I/12)) (the moments of U(0, 1)^d_low), times β = :data:`BETA_DET`.
+  It keeps the codes spread over the unit cube without sampling. The full covariance matters: with
+  only per-coordinate variances (a diagonal Σ) all ten codes learned the same 1-d signal (mean
+  |correlation| 0.999 on A1 trot, 389 stable θ), so the latent box was a 1-d curve plus directions
+  the decoder ignores (decoded θ of random box points: std 0.04 per coordinate vs 0.22 in the
+  training set); with the full Σ: |correlation| 0.26, std 0.10, reconstruction error 0.65 vs 0.85
+  (of a total variance of 1.30; the stable set now fills most of the θ box, so no 10-d code can
+  reconstruct it closely).
 
 Adam, lr 1e-3, batch 64, a fixed number of epochs (default: enough for ~2000 steps, at least
 100 epochs); deterministic for a seed (torch's generator is seeded and training runs on one
@@ -122,10 +128,16 @@ def _loss(net, x, kind: str, beta: float, gen):
         return rec + beta * kl, rec
     z, _ = net.encode(x)
     rec = ((net.decoder(z) - x) ** 2).sum(1).mean()
+    k = z.shape[1]
     m = z.mean(0)
-    v = z.var(0, unbiased=False) + 1e-6
+    zc = z - m
+    cov = zc.T @ zc / z.shape[0] + 1e-6 * torch.eye(k, dtype=z.dtype)
     pv = 1.0 / 12.0
-    kl = 0.5 * (torch.log(pv / v) + (v + (m - 0.5) ** 2) / pv - 1.0).sum()
+    # KL(N(m, Σ) ‖ N(½, I/12)) with the batch's full covariance Σ: its −ln det Σ term keeps the
+    # code coordinates decorrelated (with only the per-coordinate variances, all of them learned
+    # the same 1-d signal: |corr| 0.999 on A1 trot)
+    kl = 0.5 * (torch.trace(cov) / pv + ((m - 0.5) ** 2).sum() / pv - k
+                + k * math.log(pv) - torch.logdet(cov))
     return rec + beta * kl, rec
 
 

@@ -121,7 +121,7 @@ def run_phase(store: RunStore, phase: int, task: Any, critic: Any, budget: int, 
             U = critic.ask(k)
             T = critic.last_tags.copy()
             thetas = U if decoder is None else np.atleast_2d(decoder(U))
-            Xb, yb, tb = [], [], []
+            ib, yb = [], []                        # ask index and cost of each result
             if hasattr(evaluator, "imap"):
                 results = evaluator.imap(task, thetas)
             else:
@@ -134,9 +134,8 @@ def run_phase(store: RunStore, phase: int, task: Any, critic: Any, budget: int, 
                           wall_s=r.get("wall_s"), seed=seed)
                 idx += 1
                 new += 1
-                Xb.append(U[i])
+                ib.append(i)
                 yb.append(cost)
-                tb.append(T[i])
                 if cost < best:
                     best = cost
                 if on_row is not None:
@@ -144,7 +143,11 @@ def run_phase(store: RunStore, phase: int, task: Any, critic: Any, budget: int, 
                 if bar is not None:
                     bar.update(1)
                     bar.set_postfix(best=f"{best:.3f}")
-            critic.tell(np.array(Xb), np.array(yb), np.array(tb, dtype=np.int64))
+            # rows are stored as they complete (crash safety); the critic is told the batch in
+            # ask order, so a seed gives the same run whatever order the workers finish in
+            order = np.argsort(ib, kind="stable")
+            ii = np.asarray(ib, dtype=np.int64)[order]
+            critic.tell(U[ii], np.asarray(yb, dtype=float)[order], T[ii].astype(np.int64))
     finally:
         if bar is not None:
             bar.close()
