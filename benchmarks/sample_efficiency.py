@@ -43,6 +43,10 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--batch-size", type=int, default=4)
     ap.add_argument("--target", type=float, default=None)
+    ap.add_argument("--more-targets", type=float, nargs="*", default=[],
+                    help="also report evaluations to reach these costs")
+    ap.add_argument("--from-stores", action="store_true",
+                    help="run nothing: report from the stores already in --work")
     ap.add_argument("--work", default=None, help="directory for the per-run stores")
     ap.add_argument("--out", default=None, help="write the results JSON here")
     a = ap.parse_args()
@@ -66,22 +70,31 @@ def main() -> None:
     work = Path(a.work or tempfile.mkdtemp(prefix="lt_sampleeff_"))
     print(f"{a.robot} {a.task}: manual cost {manual:.3f}; target {target:.3f}; budget {a.budget}; "
           f"seeds {a.seeds}; stores in {work}", flush=True)
-    ev = make_evaluator("process", a.workers)
+    ev = make_evaluator("serial" if a.from_stores else "process", a.workers)
     results: dict[str, list[dict]] = {}
     try:
         for m in a.methods:
             for s in a.seeds:
                 t0 = time.perf_counter()
+                phase = 3 if m == "latent" else 1
+                if a.from_stores:
+                    with RunStore(work / f"{m}_s{s}") as st:
+                        y = st.costs(phase)
+                    results.setdefault(m, []).append(
+                        {"seed": s, "evals_to_target": evals_to_reach(y, target),
+                         "more": [evals_to_reach(y, t) for t in a.more_targets],
+                         "best": float(y.min()), "stable": int((y < C1).sum()), "wall_s": 0.0})
+                    continue
                 d = latent.d_low if m == "latent" else task.space.dim
                 crit = make_phase_critic("turbo" if m in ("latent", "turbo") else m, d,
                                          a.batch_size, s, None, a.budget)
                 with RunStore(work / f"{m}_s{s}", create=True) as st:
                     st.set_meta("config", {"task": task.config(), "method": m, "seed": s})
-                    phase = 3 if m == "latent" else 1
                     run_phase(st, phase, task, crit, a.budget, ev, seed=s,
                               decoder=latent.decode if m == "latent" else None)
                     y = st.costs(phase)
                 r = {"seed": s, "evals_to_target": evals_to_reach(y, target),
+                     "more": [evals_to_reach(y, t) for t in a.more_targets],
                      "best": float(y.min()), "stable": int((y < C1).sum()),
                      "wall_s": time.perf_counter() - t0}
                 results.setdefault(m, []).append(r)
@@ -96,6 +109,11 @@ def main() -> None:
         e = [r["evals_to_target"] for r in rs]
         med = np.median([x if x is not None else np.inf for x in e])
         print(f"| {m} | {e} | {med} | {np.median([r['best'] for r in rs]):.3f} |")
+    for k, t in enumerate(a.more_targets):
+        print(f"\ntarget {t:.3f}: evaluations to reach it per seed (None = not within the budget)")
+        for m, rs in results.items():
+            e = [r["more"][k] for r in rs]
+            print(f"  {m:7s} {e}  median {np.median([x if x is not None else np.inf for x in e])}")
     if a.out:
         Path(a.out).write_text(json.dumps({"manual": manual, "target": target,
                                            "budget": a.budget, "results": results}, indent=1))
