@@ -152,6 +152,25 @@ def test_phase_identity_and_resume(tmp_path):
         assert r.n_new == 0
 
 
+class _ReversedEvaluator:
+    """Yields each batch's results last-first, as workers that finish out of order would."""
+
+    def imap(self, fun, X):
+        return reversed([(i, {"cost": fun(x)}) for i, x in enumerate(X)])
+
+
+def test_phase_same_seed_same_run_whatever_the_completion_order(tmp_path):
+    from latentune.pipeline.evaluators import SerialEvaluator
+    from latentune.pipeline.phases import make_phase_critic, run_phase
+
+    runs = []
+    for name, ev in (("in_order", SerialEvaluator()), ("reversed", _ReversedEvaluator())):
+        with RunStore(tmp_path / name, create=True) as st:
+            run_phase(st, 1, quad, make_phase_critic("turbo", 6, 4, 0, None, 60, regions=2), 60, ev)
+            runs.append(sorted(tuple(r.theta) for r in st.rows(1)))
+    assert len(runs[0]) == 60 and runs[0] == runs[1]
+
+
 def test_phase_with_decoder_and_task(tmp_path):
     from latentune.pipeline.evaluators import SerialEvaluator
     from latentune.pipeline.phases import ensure_manual, make_phase_critic, run_phase
