@@ -113,13 +113,12 @@ class ConvexMPC(Actor):
         self._pattern_cache: dict[bytes, tuple] = {}
         self._cols3 = np.arange(12 * H).reshape(4 * H, 3)
         self._tsteps = np.arange(1, H + 1) * dt
-        self._z_decay = np.exp(-self._tsteps / self.TAU_Z)  # (H,) height-reference error decay
+        self._ref_decay = np.exp(-self._tsteps / self.TAU_Z)  # (H,) height/attitude error decay
         self._Xref = np.zeros((H, 13))
         self._Xref[:, 9:12] = self.v_des
         self._Xref[:, 12] = -G
         self._L_col = self.L_diag[:, None]
         self._Rvec = np.tile(self.R, H) + 1e-9
-        self._con_cache: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
     # ------------------------------------------------------------------ MPC
     def _solve_mpc(self, t: float, s: RobotState, com: np.ndarray, feet_w: np.ndarray,
@@ -164,13 +163,13 @@ class ConvexMPC(Actor):
         # derivative. (A step to the standing height with v_z,ref = 0 contradicts itself: weights
         # with Q_vz >> Q_z, which a trot never penalises, then hold v_z ≈ 0 and never restore the
         # height lost in each flight/landing of a jump; the A1 sinks ~4 cm per cycle and falls.)
-        dz = (com[2] - Xref[0, 5]) * self._z_decay
+        dz = (com[2] - Xref[0, 5]) * self._ref_decay
         Xref[:, 5] += dz
         Xref[:, 11] = self.v_des[2] - dz / self.TAU_Z
         # Roll and pitch likewise: from the current attitude back to level, ω_x,y,ref = its
         # derivative (small angles, yaw ≈ start yaw). With a step to level and ω_ref = 0 the
         # steady pitch error under a constant unmodelled moment scales like 1/Q_pitch.
-        att = np.outer(self._z_decay, rpy[:2])
+        att = np.outer(self._ref_decay, rpy[:2])
         Xref[:, 0:2] = att
         Xref[:, 6:8] = -att / self.TAU_Z
         err0 = Aqp @ x0 - Xref.reshape(-1)
@@ -205,14 +204,11 @@ class ConvexMPC(Actor):
         return hit
 
     def _constraints(self, nc: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Friction pyramid and force bounds for ``nc`` stance (step, leg) pairs, cached per nc.
+        """Friction pyramid and force bounds for ``nc`` stance (step, leg) pairs.
 
         Returns (A (4·nc, 3·nc), lower (7·nc,), upper (7·nc,)): simple bounds on the 3·nc
         variables first, then the pyramid rows |f_x|, |f_y| ≤ μ f_z (all in units of m·g).
         """
-        hit = self._con_cache.get(nc)
-        if hit is not None:
-            return hit
         n, mu = 3 * nc, self.mu
         lb = np.tile([-mu * self.FZ_MAX, -mu * self.FZ_MAX, 0.0], nc)
         ub = np.tile([mu * self.FZ_MAX, mu * self.FZ_MAX, self.FZ_MAX], nc)
@@ -225,9 +221,7 @@ class ConvexMPC(Actor):
             Acon[4 * r + 2 * a + 1, 3 * r + 2] = mu
         cu = np.tile([0.0, _INF, 0.0, _INF], nc)
         cl = np.tile([-_INF, 0.0, -_INF, 0.0], nc)
-        hit = (Acon, np.concatenate([lb, cl]), np.concatenate([ub, cu]))
-        self._con_cache[nc] = hit
-        return hit
+        return Acon, np.concatenate([lb, cl]), np.concatenate([ub, cu])
 
     def _qp(self, Hm: np.ndarray, g: np.ndarray, A: np.ndarray, lo: np.ndarray,
             hi: np.ndarray) -> np.ndarray:

@@ -191,8 +191,7 @@ class World:
 
     def apply(self, tau: np.ndarray) -> None:
         """Set the 12 joint torques [N·m] for the next step."""
-        p.setJointMotorControlArray(self.robot, self.joint_ids, p.TORQUE_CONTROL,
-                                    forces=tau.tolist(), physicsClientId=self.cid)
+        self.apply_list(tau.tolist())
 
     def apply_list(self, tau: list[float]) -> None:
         """:meth:`apply` for a plain list of 12 torques [N·m]."""
