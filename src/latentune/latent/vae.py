@@ -51,10 +51,9 @@ checked stable θ; ``det`` reconstructs better and its phase 3 found the lower c
 is a blurrier copy of the stable set. The margin is small (one seed); ``--vae-kind vae``
 remains available.
 
-Re-measured after the full-covariance KL (session 8, A1 trot, 389 stable θ of the default
-``latentune tune``, 2,000 Adam steps, seed 0): ``det`` reconstruction 0.653, code |corr| 0.26,
-decoded random box points spread 0.10 per coordinate; ``vae`` reconstruction 1.304 = the training
-set's total variance (1.303): posterior collapse, every code decodes to the mean θ. ``det`` stays.
+Re-measured after the full-covariance KL (session 8, same data as the ``det`` bullet above, 2,000
+Adam steps, seed 0): ``vae`` reconstruction 1.304 = the training set's total variance (1.303):
+posterior collapse, every code decodes to the mean θ; ``det`` 0.653. ``det`` stays.
 """
 from __future__ import annotations
 

@@ -159,7 +159,7 @@ class _Run:
                                    f"{sc.get(k)!r}, not {mine.get(k)!r}")
 
     def phase_config(self, ph: str, stored: dict[str, Any] | None = None) -> dict[str, Any]:
-        from latentune.pipeline.phases import default_regions
+        from latentune.critic.turbo import regions_for_budget
 
         a = self.args
         budget = a.phase1_evals if ph == "phase1" else a.phase3_evals
@@ -168,7 +168,7 @@ class _Run:
             # a resumed phase keeps the stored region count even if its budget was extended
             regions = (stored or {}).get("regions") if a.regions is None and stored else None
             if regions is None:
-                regions = default_regions(budget) if a.method == "turbo" else None
+                regions = regions_for_budget(budget) if a.method == "turbo" else None
         return {"method": a.method, "batch_size": self.batch_size, "seed": a.seed,
                 "regions": regions if a.method == "turbo" else None, "budget": budget}
 

@@ -37,21 +37,14 @@ def default_batch_size(workers: int) -> int:
     return max(int(workers), 4)
 
 
-def default_regions(budget: int) -> int:
-    """TuRBO-m trust regions for a phase budget: :func:`~latentune.critic.turbo.regions_for_budget`
-    (~500 evaluations per region, 1 to the paper's 10)."""
-    from latentune.critic.turbo import regions_for_budget
-
-    return regions_for_budget(budget)
-
-
 def make_phase_critic(method: str, dim: int, batch_size: int, seed: int, x0: np.ndarray | None,
                       budget: int, regions: int | None = None):
     from latentune.critic import make_critic
+    from latentune.critic.turbo import regions_for_budget
 
     kw: dict[str, Any] = {"batch_size": batch_size, "seed": seed, "x0": x0}
     if method == "turbo":
-        kw["n_regions"] = regions if regions is not None else default_regions(budget)
+        kw["n_regions"] = regions if regions is not None else regions_for_budget(budget)
     return make_critic(method, dim, **kw)
 
 
