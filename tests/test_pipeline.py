@@ -171,6 +171,21 @@ def test_phase_same_seed_same_run_whatever_the_completion_order(tmp_path):
     assert len(runs[0]) == 60 and runs[0] == runs[1]
 
 
+def test_training_set_does_not_depend_on_completion_order(tmp_path):
+    from latentune.pipeline.phases import training_set
+
+    rng = np.random.default_rng(0)
+    X, y = rng.random((20, 5)), np.where(rng.random(20) < 0.3, 150.0, 10.0)
+    sets = []
+    for name, order in (("a", np.arange(20)), ("b", rng.permutation(20))):
+        with RunStore(tmp_path / name, create=True) as st:
+            for idx, i in enumerate(order):
+                st.add(1, idx, X[i], float(y[i]))
+            sets.append(training_set(st))
+    assert sets[0].shape == (int((y < 100).sum()), 5)
+    np.testing.assert_array_equal(sets[0], sets[1])
+
+
 def test_phase_with_decoder_and_task(tmp_path):
     from latentune.pipeline.evaluators import SerialEvaluator
     from latentune.pipeline.phases import ensure_manual, make_phase_critic, run_phase

@@ -162,11 +162,15 @@ def ensure_manual(store: RunStore, task: Any, seed: int | None = None) -> float:
 
 
 def training_set(store: RunStore, phase: int = PHASE1) -> np.ndarray:
-    """Phase-1 θ with cost < C1 (the stable ones): phase 2's training set (n, d)."""
+    """Phase-1 θ with cost < C1 (the stable ones): phase 2's training set (n, d), in
+    lexicographic order of θ. The store's order is the order the workers finished in, which varies
+    from run to run; the VAE's minibatches depend on the order, so a fixed one keeps a seed's
+    latent space the same."""
     rows = [r for r in store.rows(phase) if r.cost < C1]
     if not rows:
         return np.empty((0, 0))
-    return np.array([r.theta for r in rows])
+    X = np.array([r.theta for r in rows])
+    return X[np.lexsort(X.T[::-1])]
 
 
 def preservation_rate(task: Any, latent: Any, thetas: np.ndarray, evaluator: Any) -> float:
