@@ -2,7 +2,8 @@
 
     python benchmarks/sample_efficiency.py --vae RUN_DIR [--budget 220] [--seeds 0 1 2]
         [--methods latent turbo cma random] [--robot a1 --task jump] [--steps 5000]
-        [--workers 2] [--target COST] [--out results.json]
+        [--workers 2] [--target COST] [--more-targets C ...] [--from-stores] [--reconstruct]
+        [--out results.json]
 
 Methods (same seeds, same budget, all from scratch -- no method gets the manual θ as a start
 point, or every one would "reach" it at evaluation 1):
@@ -47,6 +48,9 @@ def main() -> None:
                     help="also report evaluations to reach these costs")
     ap.add_argument("--from-stores", action="store_true",
                     help="run nothing: report from the stores already in --work")
+    ap.add_argument("--reconstruct", action="store_true",
+                    help="also pass the best θ of each full-space method through the VAE "
+                         "(encode -> decode) and simulate it: is it inside the latent space?")
     ap.add_argument("--work", default=None, help="directory for the per-run stores")
     ap.add_argument("--out", default=None, help="write the results JSON here")
     a = ap.parse_args()
@@ -83,7 +87,8 @@ def main() -> None:
                     results.setdefault(m, []).append(
                         {"seed": s, "evals_to_target": evals_to_reach(y, target),
                          "more": [evals_to_reach(y, t) for t in a.more_targets],
-                         "best": float(y.min()), "stable": int((y < C1).sum()), "wall_s": 0.0})
+                         "best": float(y.min()), "stable": int((y < C1).sum()),
+                         "hit_rate": float(np.mean(y <= target)), "wall_s": 0.0})
                     continue
                 d = latent.d_low if m == "latent" else task.space.dim
                 crit = make_phase_critic("turbo" if m in ("latent", "turbo") else m, d,
@@ -96,7 +101,7 @@ def main() -> None:
                 r = {"seed": s, "evals_to_target": evals_to_reach(y, target),
                      "more": [evals_to_reach(y, t) for t in a.more_targets],
                      "best": float(y.min()), "stable": int((y < C1).sum()),
-                     "wall_s": time.perf_counter() - t0}
+                     "hit_rate": float(np.mean(y <= target)), "wall_s": time.perf_counter() - t0}
                 results.setdefault(m, []).append(r)
                 print(f"  {m:7s} seed {s}: evals to target {r['evals_to_target']}, best "
                       f"{r['best']:.3f}, stable {r['stable']}/{len(y)} ({r['wall_s']:.0f} s)",
@@ -109,11 +114,37 @@ def main() -> None:
         e = [r["evals_to_target"] for r in rs]
         med = np.median([x if x is not None else np.inf for x in e])
         print(f"| {m} | {e} | {med} | {np.median([r['best'] for r in rs]):.3f} |")
+    med = {m: float(np.median([r["evals_to_target"] if r["evals_to_target"] is not None else np.inf
+                                for r in rs])) for m, rs in results.items()}
+    if "latent" in med and "turbo" in med:
+        print(f"\nratio of medians, direct TuRBO-m / latent: {med['turbo'] / med['latent']:.2f}"
+              " (goal >= 10)")
+    if "random" in results:
+        # each random θ reaches the target independently with probability p, so any method whose
+        # first points are a space-filling design needs about 1/p evaluations to hit it by chance
+        p = float(np.mean([r["hit_rate"] for r in results["random"]]))
+        print(f"share of random θ at or below the target: p = {p:.3f}"
+              + (f" -> 1/p = {1 / p:.1f} evaluations by chance" if p > 0 else ""))
     for k, t in enumerate(a.more_targets):
         print(f"\ntarget {t:.3f}: evaluations to reach it per seed (None = not within the budget)")
         for m, rs in results.items():
             e = [r["more"][k] for r in rs]
             print(f"  {m:7s} {e}  median {np.median([x if x is not None else np.inf for x in e])}")
+    if a.reconstruct and latent is not None:
+        # the latent space's reach: the best θ the full-space methods found, encoded and decoded
+        print("\nbest θ of the full-space methods through the VAE (encode -> decode):")
+        for m in results:
+            if m == "latent":
+                continue
+            for s in a.seeds:
+                with RunStore(work / f"{m}_s{s}") as st:
+                    b = st.best(1)
+                if b is None or b.cost >= C1:
+                    continue
+                rec = latent.reconstruct(b.theta[None])[0]
+                c = task.rollout(rec).cost
+                print(f"  {m:7s} seed {s}: {b.cost:.3f} -> {c:.3f} after encode -> decode "
+                      f"(|Δθ| = {np.linalg.norm(b.theta - rec):.2f} in the unit box)")
     if a.out:
         Path(a.out).write_text(json.dumps({"manual": manual, "target": target,
                                            "budget": a.budget, "results": results}, indent=1))

@@ -10,8 +10,10 @@ Resume and crash safety
 Rows get their index when they are *committed* (completion order), so the indices of a phase
 are always 0..n−1 without gaps, whatever order the workers finish in, and one index is never
 written twice (the store's primary key refuses it). On resume a fresh critic with the same
-options and seed is told the stored rows (X, y, tags) in index order -- the order the original
-critic was told them -- which restores its state (see :mod:`latentune.critic.base`); the loop
+options and seed is told the stored rows (X, y, tags) in index order. Index order is completion
+order, not the ask order each batch was told in, but the tags group the rows by ask, so the
+critic replays its batches as they were told and its state is restored (see
+:mod:`latentune.critic.base`; only the order of points inside the GP's data may differ); the loop
 then continues at index n. If the process died in the middle of a batch, the rows of that batch
 that were committed are kept and told with their tags; its unfinished points are lost with the
 process and are *re-asked*: the resumed critic's next ask covers the remaining budget. No
