@@ -1,7 +1,7 @@
 """Sample efficiency on A1 jump: evaluations needed to reach the manual-tuned cost.
 
     python benchmarks/sample_efficiency.py --vae RUN_DIR [--budget 220] [--seeds 0 1 2]
-        [--methods latent turbo cma random] [--robot a1 --task jump] [--steps 5000]
+        [--methods latent turbo cma random] [--robot a1 --task jump] [--actor A] [--steps 5000]
         [--workers 2] [--target COST] [--more-targets C ...] [--from-stores] [--reconstruct]
         [--out results.json]
 
@@ -37,6 +37,7 @@ def main() -> None:
     ap.add_argument("--vae", required=False, help="run directory whose VAE phase 3 uses")
     ap.add_argument("--robot", default="a1")
     ap.add_argument("--task", default="jump")
+    ap.add_argument("--actor", default=None, help="convex (default) or kinodynamic (the paper's Solo12 actor)")
     ap.add_argument("--steps", type=int, default=5000)
     ap.add_argument("--budget", type=int, default=220)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
@@ -62,7 +63,7 @@ def main() -> None:
     from latentune.report import evals_to_reach
     from latentune.task import Task
 
-    task = Task(a.robot, a.task, steps=a.steps)
+    task = Task(a.robot, a.task, steps=a.steps, **({"actor": a.actor} if a.actor else {}))
     manual = task.rollout(task.space.manual).cost
     target = a.target if a.target is not None else (manual if manual < C1 else C1)
     latent = None
