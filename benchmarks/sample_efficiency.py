@@ -1,4 +1,4 @@
-"""Sample efficiency on A1 jump: evaluations needed to reach the manual-tuned cost.
+"""Sample efficiency (default: A1 jump): evaluations needed to reach the manual-tuned cost.
 
     python benchmarks/sample_efficiency.py --vae RUN_DIR [--budget 220] [--seeds 0 1 2]
         [--methods latent turbo cma random] [--robot a1 --task jump] [--actor A] [--steps 5000]
@@ -30,6 +30,11 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
 
 import numpy as np  # noqa: E402
+
+
+def _median(evals: list[int | None]) -> float:
+    """Median of evaluations-to-target over seeds; a seed that never reached it counts as inf."""
+    return float(np.median([np.inf if e is None else e for e in evals]))
 
 
 def main() -> None:
@@ -111,12 +116,11 @@ def main() -> None:
         ev.close()
     print("\n| method | evals to target (per seed) | median | best cost (median) |")
     print("|---|---|---:|---:|")
+    med = {}
     for m, rs in results.items():
         e = [r["evals_to_target"] for r in rs]
-        med = np.median([x if x is not None else np.inf for x in e])
-        print(f"| {m} | {e} | {med} | {np.median([r['best'] for r in rs]):.3f} |")
-    med = {m: float(np.median([r["evals_to_target"] if r["evals_to_target"] is not None else np.inf
-                                for r in rs])) for m, rs in results.items()}
+        med[m] = _median(e)
+        print(f"| {m} | {e} | {med[m]} | {np.median([r['best'] for r in rs]):.3f} |")
     if "latent" in med and "turbo" in med:
         print(f"\nratio of medians, direct TuRBO-m / latent: {med['turbo'] / med['latent']:.2f}"
               " (goal >= 10)")
@@ -130,7 +134,7 @@ def main() -> None:
         print(f"\ntarget {t:.3f}: evaluations to reach it per seed (None = not within the budget)")
         for m, rs in results.items():
             e = [r["more"][k] for r in rs]
-            print(f"  {m:7s} {e}  median {np.median([x if x is not None else np.inf for x in e])}")
+            print(f"  {m:7s} {e}  median {_median(e)}")
     if a.reconstruct and latent is not None:
         # the latent space's reach: the best θ the full-space methods found, encoded and decoded
         print("\nbest θ of the full-space methods through the VAE (encode -> decode):")
