@@ -17,6 +17,9 @@ import tempfile
 import time
 from pathlib import Path
 
+from latentune.pipeline.store import RunStore
+from latentune.task import C1
+
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -42,13 +45,11 @@ def main() -> None:
             print(f"{t}: failed: {p.stderr.strip()}")
             continue
         s = json.loads((out / "summary.json").read_text())
-        from latentune.pipeline.store import RunStore
-
         with RunStore(out) as st:
-            n_stable = int((st.costs(3) < 100).sum())
+            n_stable = int((st.costs(3) < C1).sum())
         r = {"target": t, "manual": s["manual_cost"], "phase3_best": s["phase3_best"],
              "evals": s["phase3_evals"], "evals_to_manual": s["phase3_evals_to_manual"],
-             "stable": s["phase3_best"] < 100, "n_stable": n_stable, "wall_s": time.perf_counter() - t0}
+             "stable": s["phase3_best"] < C1, "n_stable": n_stable, "wall_s": time.perf_counter() - t0}
         rows.append(r)
         print(json.dumps(r), flush=True)
     print(f"\nVAE of {a.run_dir}; stores in {root}")
