@@ -65,7 +65,7 @@ def main() -> None:
     from latentune.pipeline.evaluators import make_evaluator
     from latentune.pipeline.phases import C1, make_phase_critic, run_phase
     from latentune.pipeline.store import RunStore
-    from latentune.report import evals_to_reach
+    from latentune.reporting.metrics import evals_to_beat as evals_to_reach
     from latentune.task import Task
 
     task = Task(a.robot, a.task, steps=a.steps, **({"actor": a.actor} if a.actor else {}))

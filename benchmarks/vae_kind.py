@@ -40,7 +40,7 @@ def main() -> None:
     from latentune.pipeline.evaluators import make_evaluator
     from latentune.pipeline.phases import C1, make_phase_critic, run_phase, training_set
     from latentune.pipeline.store import RunStore
-    from latentune.report import _task_from_config
+    from latentune.reporting.run_report import task_from_config as _task_from_config
 
     st = RunStore(a.run_dir)
     task = _task_from_config(st.get_meta("config"))

@@ -10,8 +10,9 @@ import pytest
 
 import latentune as lt
 from latentune.actor.base import ActorFailure
-from latentune.actor.parameter_space import ParamsError
-from latentune.task import C1, path_cost
+from latentune.constants import C1, G, STABLE_CAP
+from latentune.space import ParamsError
+from latentune.task import path_cost
 
 
 @pytest.mark.parametrize("robot,gait", [("a1", "trot"), ("a1", "jump"), ("b1", "trot"),
@@ -67,11 +68,11 @@ def test_path_cost_definition():
     assert path_cost(v, np.array([0.5, 0, 0]), None, 100) == 0.0
     v2 = v + np.array([0.1, 0.0, 0.0])
     assert path_cost(v2, np.array([0.5, 0, 0]), None, 100) == pytest.approx(np.sqrt(100 * 0.01))
-    assert path_cost(v, np.array([0.5, 0, 0]), 25, 100) == pytest.approx(175.0)
-    assert path_cost(v, np.array([0.5, 0, 0]), 100, 100) == pytest.approx(100.0)
-    # never fell but 2 m/s off for 5000 steps: sqrt(5000·4) ≈ 141 -> capped below C1
+    assert path_cost(v, np.array([0.5, 0, 0]), 25, 100) == pytest.approx(1.75 * C1)
+    assert path_cost(v, np.array([0.5, 0, 0]), 100, 100) == pytest.approx(C1)
+    # never fell but 2 m/s off for 5000 steps: sqrt(5000·4) ≈ 1.4·C1 -> capped below C1
     far = np.tile([-1.5, 0.0, 0.0], (5000, 1))
-    assert 99.99 < path_cost(far, np.array([0.5, 0, 0]), None, 5000) < C1
+    assert path_cost(far, np.array([0.5, 0, 0]), None, 5000) == STABLE_CAP < C1
 
 
 def test_actor_failure_is_a_fall(monkeypatch):
@@ -106,11 +107,26 @@ def test_parameter_space_roundtrip():
     assert np.allclose(space.parse(space.as_dict(u)), u)
 
 
-def test_normalized_theta_is_robot_independent():
-    """A normalized θ means the same on A1 and B1 (transfer needs it)."""
-    a1, b1 = lt.Task(robot="a1").space, lt.Task(robot="b1").space
-    assert a1.names == b1.names
-    assert np.allclose(a1.lower, b1.lower) and np.allclose(a1.upper, b1.upper)
+def test_normalized_forces_carry_each_robots_weight():
+    """A normalized θ means the same on A1 and B1 (transfer needs it): the MPC's forces are
+    u = f / (m·g), so with the same θ each robot's stance forces carry its own weight m·g
+    (B1 is ~4.5 times heavier than A1)."""
+    from latentune.actor.convex_mpc import ConvexMPC
+
+    for robot in ("a1", "b1"):
+        task = lt.Task(robot=robot, gait="trot", steps=1000)
+        world = task.world
+        world.reset()
+        actor = ConvexMPC(world, "trot", task.v_des, task.space.to_physical(task.space.manual))
+        s, fz = world.state(), []
+        for n in range(1000):
+            world.apply(actor.control(n, s))
+            world.step()
+            s = world.state()
+            if n % actor.SOLVE_EVERY == 0:
+                fz.append(actor.forces[:, 2].sum())
+        weight = world.model.mass * G
+        assert np.mean(fz) == pytest.approx(weight, rel=0.1), (robot, np.mean(fz) / weight)
 
 
 def _cli(*args, cwd=None):

@@ -10,7 +10,7 @@ import torch
 import latentune as lt
 from latentune.critic import (X0_TAG, Critic, fill_nonfinite, gaussian_copula, make_critic)
 from latentune.critic.turbo import KIND_DESIGN, KIND_THOMPSON, TurboM, decode_tag, encode_tag
-from latentune.evaluators import Evaluator, SerialEvaluator
+from latentune.pipeline.evaluators import Evaluator, SerialEvaluator
 
 torch.set_num_threads(1)
 
@@ -159,13 +159,28 @@ def test_regions_for_budget():
         [1, 1, 1, 2, 4, 10, 10]
 
 
-def test_turbo_defaults_follow_design():
-    t = TurboM(25, batch_size=20, seed=0)
-    assert t.n_regions == 10 and t.failure_tol == 25 and t.success_tol == 3
-    assert (t.max_gp_points, t.max_fit_points) == (256, 256)
-    assert t.n_candidates == 2500 and t.perturb_prob == pytest.approx(0.8)
-    assert (t.length_init, t.length_max, t.length_min) == (0.8, 1.6, 0.5 ** 7)
-    assert TurboM(77).n_candidates == 5000
+@pytest.mark.parametrize("d,n_cand,p", [(25, 2500, 0.8), (77, 5000, 20 / 77)])
+def test_default_candidates_scale_with_dim(d, n_cand, p):
+    """min(100·d, 5000) candidates, each coordinate perturbed with probability min(20/d, 1)."""
+    rng = np.random.default_rng(0)
+    t = TurboM(d, seed=0, n_regions=1, n_init=4)
+    t.tell(rng.random((4, d)), np.arange(4.0))
+    tr = t.regions[0]
+    cand = t._candidates(tr, np.ones(d), rng)
+    assert cand.shape == (n_cand, d)
+    frac = (cand != t._X[tr.best_index]).mean()
+    assert abs(frac - p) < 0.02, frac
+
+
+def test_gp_point_selection_keeps_best_half_and_most_recent():
+    t = TurboM(2, seed=0, n_regions=1, n_init=4)
+    pts = list(range(100, 140))                        # global indices, in attribution order
+    v = np.random.default_rng(0).permutation(40).astype(float)
+    keep = t._select(pts, v, 10)
+    best = {pts[i] for i in np.argsort(v)[:5]}
+    recent = [p for p in pts if p not in best][-5:]
+    assert keep.tolist() == sorted(best | set(recent))
+    np.testing.assert_array_equal(t._select(pts[:10], v[:10], 10), pts[:10])  # under the cap
 
 
 def test_thompson_batch_attributed_to_regions():
@@ -298,6 +313,9 @@ def test_x0_is_asked_first(method):
     U = c.ask()
     for x in x0:
         assert np.any(np.all(np.isclose(U, x), axis=1))
+    if method in ("random", "sobol"):                  # x0 comes first, marked as such
+        np.testing.assert_array_equal(U[:2], x0)
+        assert c.last_tags[:2].tolist() == [X0_TAG] * 2 and np.all(c.last_tags[2:] >= 0)
 
 
 # ----------------------------------------------------------------------------- quality
@@ -402,5 +420,6 @@ def test_critic_bad_input():
         c.ask(0)
     with pytest.raises(ValueError):
         make_critic("turbo", 3, x0=np.zeros(4))
+    with pytest.raises(ValueError, match="tags"):
+        c.tell(np.zeros((2, 3)), np.zeros(2), tags=np.array([X0_TAG - 1, 0]))
     assert c.ask().shape == (2, 3) and c.last_tags.shape == (2,)
-    assert X0_TAG == -2

@@ -4,13 +4,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import latentune as lt
-from latentune.actor import kinodynamic as kd
-from latentune.actor.centroidal import CentroidalPlanner
-from latentune.actor.parameter_space import ParamsError
-from latentune.task import C1
-
+# before any import of the actor: latentune.actor.kinodynamic raises ImportError without crocoddyl
 pytest.importorskip("crocoddyl")
+
+import latentune as lt  # noqa: E402
+from latentune.actor import kinodynamic as kd  # noqa: E402
+from latentune.actor.centroidal import CentroidalPlanner  # noqa: E402
+from latentune.constants import C1  # noqa: E402
+from latentune.space import ParamsError  # noqa: E402
 
 
 # ----------------------------------------------------------------------------- θ space
@@ -35,14 +36,18 @@ def test_space_layout_and_roundtrip():
 
 
 def test_normalized_theta_means_the_same_on_a1_and_solo12():
+    """One normalized θ on both robots; the physical gains scale with the robot's joint gains."""
     from latentune.robots import get_robot
 
-    s_solo = kd.KinodynamicMPC.space(get_robot("solo12"), "trot")
-    s_a1 = kd.KinodynamicMPC.space(get_robot("a1"), "trot")
+    solo, a1 = get_robot("solo12"), get_robot("a1")
+    s_solo = kd.KinodynamicMPC.space(solo, "trot")
+    s_a1 = kd.KinodynamicMPC.space(a1, "trot")
     np.testing.assert_allclose(s_solo.manual, s_a1.manual, atol=1e-12)
-    # weights identical; only the gains carry the robot's unit
-    np.testing.assert_allclose(s_solo.lower[:75], s_a1.lower[:75])
-    assert s_a1.manual_physical[75] > 10 * s_solo.manual_physical[75]
+    u = np.random.default_rng(0).random(77)
+    p_solo, p_a1 = s_solo.to_physical(u), s_a1.to_physical(u)
+    np.testing.assert_allclose(p_a1[:75], p_solo[:75], rtol=1e-12)      # weights: no robot unit
+    assert p_a1[75] / p_solo[75] == pytest.approx(np.mean(a1.kp) / np.mean(solo.kp))
+    assert p_a1[76] / p_solo[76] == pytest.approx(np.mean(a1.kd) / np.mean(solo.kd))
 
 
 def test_bad_theta_length_raises():
@@ -53,15 +58,6 @@ def test_bad_theta_length_raises():
         kd.KinodynamicMPC(task.world, "trot", task.v_des, np.ones(78))
     with pytest.raises(ParamsError):
         task.rollout(np.full(25, 0.5))
-
-
-def test_missing_crocoddyl_raises_import_error(monkeypatch):
-    import latentune.actor.wholebody as wb
-
-    task = lt.Task(robot="solo12", gait="trot", actor="kinodynamic", steps=10)
-    monkeypatch.setattr(wb, "crocoddyl", None)
-    with pytest.raises(ImportError):
-        kd.KinodynamicMPC(task.world, "trot", task.v_des, task.space.to_physical(task.space.manual))
 
 
 def test_task_reports_missing_crocoddyl_clearly():

@@ -18,6 +18,7 @@ import pytest
 
 from latentune.experiments.paper import budgets, plan
 from latentune.pipeline.store import RunStore
+from latentune.reporting.metrics import paper_results
 
 PY = sys.executable
 ENV = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1",
@@ -59,6 +60,40 @@ def _num(cell: str) -> float:
     return float(m.group(1))
 
 
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_paper_numbers_are_packaged():
+    """The paper's numbers come from the package (latentune/data/paper_results.json), so these
+    checks run in any clone; nothing reads a results file outside the repository."""
+    from importlib import resources
+
+    assert resources.files("latentune").joinpath("data", "paper_results.json").is_file()
+    p = paper_results()
+    assert "High-Dimensional Controller Tuning through Latent Representations" in \
+        p["source"]["paper"]
+    assert p["path_cost"]["A1"]["trot"]["manual"] == 8.96
+    assert p["path_cost"]["Solo12"]["jump"]["phase3_cross_task"] == 10.17
+    assert p["vae_stable_preservation"] == {"stable_in_original_space": 677,
+                                            "stable_after_encode_decode": 658}
+    for f in (REPO / "src" / "latentune").rglob("*.py"):
+        text = f.read_text()
+        assert "shared/paper" not in text and '/ "shared"' not in text, f
+
+
+@pytest.mark.parametrize("robot, table, name", [("a1", "II", "A1"), ("solo12", "III", "Solo12")])
+def test_committed_report_paper_column(robot: str, table: str, name: str):
+    """The paper column of the committed Table II / III equals the packaged numbers."""
+    md = (REPO / "results" / robot / "report.md").read_text()
+    assert f"## Table {table}" in md
+    vals = paper_results()["path_cost"][name]
+    for label, key in (("Manual Tuned", "manual"), ("Phase 1", "phase1"),
+                       ("Phase 3 even", "phase3_even"), ("Phase 3 uneven", "phase3_uneven"),
+                       ("Phase 3 cross-task", "phase3_cross_task")):
+        cells = _table_row(md, label)
+        assert (float(cells[2]), float(cells[4])) == (vals["trot"][key], vals["jump"][key]), label
+
+
 @pytest.fixture(scope="module")
 def paper_dir(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("paper") / "a1"
@@ -94,10 +129,7 @@ def test_paper_end_to_end(paper_dir: Path):
                 assert (st.count(1), st.count(3)) == (12, 0), key
             assert st.count(0) == 1
     # Table II cells equal the stores' bests (manual, phase 1, phase 3 even/uneven/cross-task)
-    paper_vals = json.loads(Path(__file__).resolve().parents[2].joinpath(
-        "shared/paper/results.json").read_text())["path_cost"]["A1"] \
-        if Path(__file__).resolve().parents[2].joinpath("shared/paper/results.json").is_file() \
-        else None
+    paper_vals = paper_results()["path_cost"]["A1"]
     rows = {"Manual Tuned": ("{g}", 0), "Phase 1": ("{g}", 1), "Phase 3 even": ("{g}", 3),
             "Phase 3 uneven": ("{g}-hills", 3), "Phase 3 cross-task": ("{g}-cross", 3)}
     pkey = {"Manual Tuned": "manual", "Phase 1": "phase1", "Phase 3 even": "phase3_even",
@@ -109,8 +141,7 @@ def test_paper_end_to_end(paper_dir: Path):
                 best = float(np.min(st.costs(phase)))
             assert _num(cells[1 + 2 * j]) == pytest.approx(round(best, 3), abs=1e-9), (label, g)
             assert summary["table"][g][pkey[label]]["ours"] == pytest.approx(best, rel=1e-12)
-            if paper_vals is not None:
-                assert float(cells[2 + 2 * j]) == paper_vals[g][pkey[label]]
+            assert float(cells[2 + 2 * j]) == paper_vals[g][pkey[label]]
     # transfer
     for g in ("trot", "jump"):
         with RunStore(out / f"b1-{g}-transfer") as st:

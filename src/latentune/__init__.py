@@ -1,7 +1,9 @@
-"""latentune: high-dimensional controller tuning for legged robots through latent representations.
+"""latentune: high-dimensional controller tuning through latent representations.
 
-Phase 1 tunes the full MPC weight vector θ with an actor–critic loop (MPC in PyBullet × TuRBO-m),
-phase 2 trains a VAE on the stable θ, phase 3 tunes in the VAE's latent space.
+Phase 1 tunes the full weight vector θ of a system (a built-in simulated quadruped, :class:`Task`,
+or any :class:`System`) with a critic (TuRBO-m); phase 2 trains a VAE on the θ whose trial did not
+fail; phase 3 tunes in the VAE's latent space, on the same or another system. :class:`Study` runs
+the phases on a resumable run directory; :func:`minimize` is the critic alone.
 
 Heavy modules (torch, pybullet) are imported lazily so ``import latentune`` stays cheap.
 """
@@ -16,7 +18,14 @@ _LAZY = {
     "Task": "latentune.task",
     "RolloutResult": "latentune.task",
     "path_cost": "latentune.task",
-    "ParameterSpace": "latentune.actor.parameter_space",
+    "ParameterSpace": "latentune.space",
+    "System": "latentune.system",
+    "FunctionSystem": "latentune.system",
+    "Outcome": "latentune.system",
+    "load_system": "latentune.system",
+    "Study": "latentune.study",
+    "Suggestion": "latentune.study",
+    "LatentSpace": "latentune.latent.vae",
     "RobotSpec": "latentune.robots",
     "get_robot": "latentune.robots",
     "minimize": "latentune.optimize",

@@ -1,28 +1,29 @@
-"""Command line: ``latentune rollout | tune | phase1 | train-vae | phase3 | report | paper | bench``.
+"""Command line: ``latentune rollout | tune | phase1 | train-vae | phase3 | report | ask | tell |
+status | paper | bench``.
 
-Bad input exits with status 2 and one line on stderr (``latentune: error: …``), never a traceback.
+Every command parses its flags and calls the public API (:class:`latentune.Study`,
+:class:`latentune.Task`, :func:`latentune.system.load_system`, the paper studies); no logic
+lives here. Bad input exits with status 2 and one line on stderr (``latentune: error: …``).
 """
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
-from typing import Callable, Sequence
+from pathlib import Path
+from typing import Any, Callable, Sequence
 
-# one BLAS/OpenMP thread: rollouts are many small matrix ops (22x slower with default threading)
-for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+from latentune.threads import one_thread_env
 
+one_thread_env()  # before numpy is imported: rollouts are many small matrix operations
 
-class CLIError(Exception):
-    """A user error reported as one line on stderr with exit status 2."""
+from latentune.errors import CLIError, LatentuneError  # noqa: E402
 
-
-def _die(msg: str, code: int = 2) -> int:
-    msg = " ".join(str(msg).split())  # one line
-    print(f"latentune: error: {msg}", file=sys.stderr)
-    return code
+DEFAULT_PHASE1 = 400
+DEFAULT_PHASE3 = 220
+DEFAULT_WORKERS = 2
 
 
 class _Parser(argparse.ArgumentParser):
@@ -30,49 +31,92 @@ class _Parser(argparse.ArgumentParser):
         raise CLIError(message)
 
 
-def add_task_args(p: argparse.ArgumentParser) -> None:
-    """The task flags shared by every command that simulates."""
-    p.add_argument("--robot", default="a1", help="a1, b1, solo12 or a robot spec .yaml")
-    p.add_argument("--task", default="trot", help="gait: trot or jump")
-    p.add_argument("--terrain", default="flat", help="flat or hills")
-    p.add_argument("--actor", default="convex", help="convex or kinodynamic")
-    p.add_argument("--steps", type=int, default=5000, help="rollout horizon in 1 kHz steps")
-    p.add_argument("--v-des", type=float, default=0.5, help="desired forward velocity [m/s]")
-    p.add_argument("--seed", type=int, default=0, help="seed (terrain, critic, everything)")
+def _positive(name: str, v: Any, low: int = 1) -> None:
+    if v is not None and v < low:
+        raise CLIError(f"--{name} must be >= {low}, got {v}")
 
 
-def make_task(args: argparse.Namespace):
-    from latentune.robots import RobotSpecError
+def _seed(s: str) -> int:
+    try:
+        v = int(s)
+    except ValueError:
+        raise CLIError(f"--seed must be an integer, got {s!r}") from None
+    if not 0 <= v < 2 ** 63:
+        raise CLIError(f"--seed must be in [0, 2**63), got {v}")
+    return v
+
+
+# ---------------------------------------------------------------------------- systems
+def add_system_args(p: argparse.ArgumentParser) -> None:
+    """The flags that choose the system: a built-in task, or ``--system module:factory``."""
+    p.add_argument("--robot", help="a1 (default), b1, solo12 or a robot spec .yaml")
+    p.add_argument("--task", help="gait: trot (default) or jump")
+    p.add_argument("--terrain", help="flat (default) or hills")
+    p.add_argument("--actor", help="convex (default) or kinodynamic")
+    p.add_argument("--steps", type=int, help="rollout horizon in 1 kHz steps (default 5000)")
+    p.add_argument("--v-des", type=float, help="desired forward velocity [m/s] (default 0.5)")
+    p.add_argument("--system", default=None, metavar="MODULE:FACTORY",
+                   help="tune your own system: FACTORY(**system-args) returns it (see README)")
+    p.add_argument("--system-arg", action="append", default=[], metavar="KEY=VALUE",
+                   help="an argument of the --system factory (repeatable; YAML-typed value)")
+
+
+def _task_given(args: argparse.Namespace) -> bool:
+    return any(getattr(args, k, None) is not None
+               for k in ("robot", "task", "terrain", "actor", "steps", "v_des"))
+
+
+def make_system(args: argparse.Namespace, seed: int = 0) -> Any:
+    """The system of the flags: ``--system`` (a plugin) or the built-in task."""
+    from latentune.system import load_system, parse_system_args
+
+    if args.system is not None:
+        if _task_given(args):
+            raise CLIError("--system replaces --robot/--task/--terrain/--actor/--steps/--v-des")
+        return load_system(args.system, parse_system_args(args.system_arg))
+    if args.system_arg:
+        raise CLIError("--system-arg needs --system")
+    return make_task(args, seed)
+
+
+def make_task(args: argparse.Namespace, seed: int = 0) -> Any:
     from latentune.task import Task
 
+    _positive("steps", args.steps)
+    if args.v_des is not None and not math.isfinite(args.v_des):
+        raise CLIError(f"--v-des must be finite, got {args.v_des}")
     try:
-        return Task(robot=args.robot, gait=args.task, terrain=args.terrain, actor=args.actor,
-                    v_des=args.v_des, steps=args.steps, seed=args.seed)
-    except RobotSpecError as exc:
-        raise CLIError(str(exc)) from None
-    except ValueError as exc:
+        return Task(robot=args.robot or "a1", gait=args.task or "trot",
+                    terrain=args.terrain or "flat", actor=args.actor or "convex",
+                    v_des=0.5 if args.v_des is None else args.v_des,
+                    steps=5000 if args.steps is None else args.steps, seed=seed)
+    except (ValueError, TypeError) as exc:
         raise CLIError(str(exc)) from None
 
 
+# ---------------------------------------------------------------------------- rollout
 def cmd_rollout(args: argparse.Namespace) -> int:
-    from latentune.actor.parameter_space import ParamsError
-
-    task = make_task(args)
-    try:
-        theta = task.space.load(args.params) if args.params else task.space.manual
-    except ParamsError as exc:
-        raise CLIError(str(exc)) from None
-    for path in (args.gif, args.plot):
-        if path and not os.path.isdir(os.path.dirname(os.path.abspath(path))):
-            raise CLIError(f"output directory does not exist: {os.path.dirname(os.path.abspath(path))}")
+    task = make_task(args, args.seed)
+    theta = task.space.load(args.params) if args.params else task.space.manual
+    for path, exts in ((args.gif, (".gif",)), (args.plot, (".png", ".pdf", ".svg"))):
+        if not path:
+            continue
+        parent = os.path.dirname(os.path.abspath(path))
+        if not os.path.isdir(parent):
+            raise CLIError(f"output directory does not exist: {parent}")
+        if os.path.isdir(path):
+            raise CLIError(f"{path} is a directory, not a file")
+        if not path.lower().endswith(exts):
+            raise CLIError(f"{path}: the file name must end in {' or '.join(exts)}")
     res = task.rollout(theta, record=bool(args.plot), gif=args.gif)
     if args.plot:
-        from latentune.plots import plot_rollouts
+        from latentune.reporting.plots import plot_rollouts
 
         plot_rollouts({"rollout": res}, args.plot, v_des=float(task.v_des[0]),
                       title=f"{task.robot_name} {task.gait} ({task.terrain}, {task.actor})")
     out = res.summary()
     out.update(task.config())
+    out.pop("spec", None)
     if args.json:
         print(json.dumps(out))
     else:
@@ -83,37 +127,391 @@ def cmd_rollout(args: argparse.Namespace) -> int:
     return 0
 
 
+# ---------------------------------------------------------------------------- the phases
+def add_run_args(p: argparse.ArgumentParser, name: str) -> None:
+    """The flags of ``tune``, ``phase1``, ``train-vae`` and ``phase3``."""
+    from latentune.latent.vae import DEFAULT_KIND, KINDS
+
+    add_system_args(p)
+    p.add_argument("--seed", type=_seed, default=0, help="seed (terrain, critic, VAE)")
+    p.add_argument("--out", required=True, help="run directory (holds run.db and artifacts)")
+    p.add_argument("--phase1-evals", type=int, default=DEFAULT_PHASE1,
+                   help=f"phase-1 evaluations (default {DEFAULT_PHASE1}; the paper: 10000)")
+    p.add_argument("--phase3-evals", type=int, default=DEFAULT_PHASE3,
+                   help=f"phase-3 evaluations (default {DEFAULT_PHASE3})")
+    p.add_argument("--latent-dim", type=int, default=None,
+                   help="latent size d_low (default 10 for 25-dim θ, 5 for 77-dim)")
+    p.add_argument("--vae-kind", choices=KINDS, default=DEFAULT_KIND,
+                   help=f"autoencoder kind (default {DEFAULT_KIND}; see latentune.latent.vae)")
+    p.add_argument("--vae-epochs", type=int, default=None,
+                   help="VAE training epochs (default: ~2000 Adam steps, at least 100 epochs)")
+    p.add_argument("--workers", type=int, default=DEFAULT_WORKERS, help="parallel rollouts")
+    p.add_argument("--backend", choices=("serial", "process", "ray"), default="process",
+                   help="evaluator: serial, local process pool (default) or ray")
+    p.add_argument("--ray-address", default=None, help="Ray cluster address (default: local Ray)")
+    p.add_argument("--method", choices=("turbo", "cma", "random", "sobol"), default="turbo",
+                   help="critic (default turbo = TuRBO-m)")
+    p.add_argument("--regions", type=int, default=None,
+                   help="TuRBO-m trust regions (default: ~1 per 500 evaluations, between 1 and 10)")
+    p.add_argument("--batch-size", type=int, default=None,
+                   help="critic batch size (default max(workers, 4))")
+    p.add_argument("--resume", action="store_true", help="continue the run stored in --out")
+    p.add_argument("--quiet", action="store_true", help="no progress bar or log lines")
+    if name == "phase3":
+        p.add_argument("--vae", default=None, metavar="RUN_DIR",
+                       help="use the latent space of another run (same θ); its best θ is also "
+                            "run as it is here (zero-shot baseline)")
+
+
+def _study(args: argparse.Namespace):
+    from latentune.study import Study, stderr_log
+
+    for flag in ("phase1_evals", "phase3_evals", "workers", "vae_epochs", "latent_dim",
+                 "batch_size"):
+        _positive(flag.replace("_", "-"), getattr(args, flag, None))
+    if args.regions is not None and not 1 <= args.regions <= 100:
+        raise CLIError(f"--regions must be in [1, 100], got {args.regions}")
+    if args.ray_address and args.backend != "ray":
+        raise CLIError("--ray-address needs --backend ray")
+    return Study(args.out, seed=args.seed, workers=args.workers, backend=args.backend,
+                 ray_address=args.ray_address, batch_size=args.batch_size,
+                 progress=not args.quiet, log=None if args.quiet else stderr_log)
+
+
+def _refuse_rerun(study: Any, phase: int, resume: bool) -> None:
+    if study.exists and study.store.count(phase) > 0 and not resume:
+        raise CLIError(f"{study.dir} already holds {study.store.count(phase)} phase-{phase} "
+                       "evaluations; pass --resume to continue the run or choose another --out")
+
+
+def _need_store(study: Any, resume: bool) -> None:
+    if resume and not study.exists:
+        raise CLIError(f"--resume: no run store in {study.dir}")
+
+
+def _finish(study: Any) -> None:
+    from latentune.reporting.run_report import comparison_table
+
+    study.summary()
+    print(comparison_table(study.store))
+
+
+def cmd_tune(args: argparse.Namespace) -> int:
+    study = _study(args)
+    _need_store(study, args.resume)
+    _refuse_rerun(study, 1, args.resume)
+    system = make_system(args, args.seed)
+    with study:
+        study.phase1(system, args.phase1_evals, method=args.method, regions=args.regions)
+        study.train_latent(args.latent_dim, kind=args.vae_kind, epochs=args.vae_epochs)
+        study.phase3(system, args.phase3_evals, method=args.method, regions=args.regions)
+        _finish(study)
+    return 0
+
+
+def cmd_phase1(args: argparse.Namespace) -> int:
+    study = _study(args)
+    _need_store(study, args.resume)
+    _refuse_rerun(study, 1, args.resume)
+    system = make_system(args, args.seed)
+    with study:
+        study.phase1(system, args.phase1_evals, method=args.method, regions=args.regions)
+        study.summary()
+    return 0
+
+
+def cmd_train_vae(args: argparse.Namespace) -> int:
+    study = _study(args)
+    if not study.exists:
+        raise CLIError(f"no run store in {study.dir} (run phase1 or tune first)")
+    study.bind_check(make_system(args, args.seed))
+    with study:
+        if study.store.artifact("vae") is not None and args.resume:
+            study.log(f"{study.dir}: VAE already trained (kept, --resume)")
+            return 0
+        study.train_latent(args.latent_dim, kind=args.vae_kind, epochs=args.vae_epochs,
+                           retrain=True)
+    return 0
+
+
+def cmd_phase3(args: argparse.Namespace) -> int:
+    study = _study(args)
+    _need_store(study, args.resume)
+    if args.vae is None and not study.exists:
+        raise CLIError(f"no run store in {study.dir} (run phase1 and train-vae first, "
+                       "or pass --vae RUN_DIR)")
+    _refuse_rerun(study, 3, args.resume)
+    system = make_system(args, args.seed)
+    with study:
+        study.phase3(system, args.phase3_evals, latent=args.vae, method=args.method,
+                     regions=args.regions)
+        _finish(study)
+    return 0
+
+
+# ---------------------------------------------------------------------------- report
+def cmd_report(args: argparse.Namespace) -> int:
+    from latentune.study import Study
+
+    d = Path(args.dir)
+    if (d / "paper.json").is_file() and not (d / "run.db").is_file():
+        from latentune.reporting.paper_report import write_paper_report
+
+        log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr))
+        print(write_paper_report(d, simulate=not args.no_sim, gifs=True, log=log))
+        return 0
+    study = Study(d, progress=not args.quiet)
+    if not study.exists:
+        raise CLIError(f"no run store in {d}" if d.is_dir() else f"run directory {d} does not exist")
+    system = None
+    if args.system is not None:
+        system = make_system(args)
+    with study:
+        print(study.report(system=system, simulate=not args.no_sim))
+    return 0
+
+
+# ---------------------------------------------------------------------------- ask / tell / status
+def _asktell_study(args: argparse.Namespace):
+    from latentune.study import Study
+
+    study = Study(args.dir)
+    at = study.config().get("asktell") if study.exists else None
+    seed = getattr(args, "seed", None)
+    if at is not None:
+        if seed is not None and seed != at["seed"]:
+            raise CLIError(f"{args.dir}: ask/tell runs with seed {at['seed']}, not {seed}")
+        return Study(args.dir, seed=at["seed"], batch_size=at["batch_size"])
+    return Study(args.dir, seed=seed or 0)
+
+
+def cmd_ask(args: argparse.Namespace) -> int:
+    from latentune.space import ParameterSpace
+
+    _positive("n", args.n)
+    study = _asktell_study(args)
+    system = None
+    if args.system is not None or _task_given(args):
+        system = make_system(args, study.seed)
+    space = None
+    if args.space is not None:
+        try:
+            space = ParameterSpace.from_dict(_read_data(args.space, "--space"))
+        except ValueError as exc:
+            raise CLIError(f"--space {args.space}: {exc}") from None
+    with study:
+        sugg = study.ask(args.n, system=system, space=space, phase=args.phase, latent=args.vae,
+                         method=args.method)
+    if args.json:
+        print(json.dumps([s.to_dict() for s in sugg]))
+    else:
+        for s in sugg:
+            vals = ", ".join(f"{k}={v:.6g}" for k, v in list(s.params.items())[:6])
+            more = " ..." if len(s.params) > 6 else ""
+            print(f"{s.id}\tphase {s.phase}{' (again)' if s.again else ''}\t{s.path}\t{vals}{more}")
+    return 0
+
+
+def cmd_tell(args: argparse.Namespace) -> int:
+    from latentune.study import Study
+
+    study = Study(args.dir)
+    if not study.exists:
+        raise CLIError(f"no run store in {args.dir}")
+    if args.cost is None and not args.failed:
+        raise CLIError("tell needs --cost C, or --failed (a failed trial may omit the cost)")
+    try:
+        trial_id = int(args.id)
+    except ValueError:
+        raise CLIError(f"a suggestion id is an integer, got {args.id!r}") from None
+    with study:
+        row = study.tell(trial_id, args.cost, failed=args.failed, note=args.note)
+    print(f"told {trial_id}: phase {row.phase} evaluation {row.idx}, cost {row.cost:.6g}"
+          f"{' (failed)' if row.fell else ''}")
+    return 0
+
+
+def cmd_status(args: argparse.Namespace) -> int:
+    from latentune.study import Study
+
+    study = Study(args.dir)
+    if not study.exists:
+        raise CLIError(f"no run store in {args.dir}")
+    with study:
+        s = study.status()
+    if args.json:
+        print(json.dumps(s))
+        return 0
+    for name, p in s["phases"].items():
+        print(f"{name}: {p['n']} evaluations, {p['failed']} failed, best {p['best']:.6g} "
+              f"(evaluation {p['best_idx']})")
+    print(f"pending suggestions: {len(s['pending'])}"
+          + (f" ({', '.join(map(str, s['pending']))})" if s["pending"] else ""))
+    if s["best"] is not None:
+        print(f"best: {s['best']['cost']:.6g} (phase {s['best']['phase']}, evaluation "
+              f"{s['best']['idx']})")
+    return 0
+
+
+def _read_data(path: str, flag: str) -> Any:
+    import yaml
+
+    p = Path(path)
+    if not p.is_file():
+        raise CLIError(f"{flag}: file not found: {p}")
+    try:
+        return yaml.safe_load(p.read_text())
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise CLIError(f"{flag}: {p} is not valid YAML/JSON ({str(exc).splitlines()[0]})") from None
+
+
+# ---------------------------------------------------------------------------- paper, bench
+def _scale(s: str) -> float:
+    try:
+        v = float(s)
+    except ValueError:
+        raise CLIError(f"--scale must be a number, got {s!r}") from None
+    if not math.isfinite(v) or v <= 0:
+        raise CLIError(f"--scale must be a finite number > 0, got {s}")
+    return v
+
+
+def cmd_paper(args: argparse.Namespace) -> int:
+    from latentune.experiments.paper import PaperOptions, run_paper
+
+    opts = PaperOptions(robot=str(args.robot).lower(), actor=args.actor, scale=args.scale,
+                        phase1=args.phase1_evals, phase3=args.phase3_evals,
+                        out=args.out or f"paper-{str(args.robot).lower()}", workers=args.workers,
+                        seed=args.seed, steps=args.steps, v_des=args.v_des, quiet=args.quiet)
+    text = run_paper(opts, report_only=args.report_only, simulate=not args.no_sim,
+                     gifs=not args.no_gif)
+    if not args.quiet:
+        print(text)
+    return 0
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from latentune.experiments.bench import run_bench
+
+    return run_bench(args.steps, args.n, args.timeout)
+
+
+# ---------------------------------------------------------------------------- parser
 def build_parser() -> argparse.ArgumentParser:
+    from latentune.experiments.paper import MAPPING_DOC
+
     parser = _Parser(prog="latentune", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", parser_class=_Parser, required=True)
+
     p = sub.add_parser("rollout", help="simulate one rollout and print its path cost")
-    add_task_args(p)
+    add_system_args(p)
+    p.add_argument("--seed", type=_seed, default=0, help="terrain seed")
     p.add_argument("--params", help="JSON file: list of normalized θ or object of physical values")
     p.add_argument("--gif", help="write a GIF of the motion here")
     p.add_argument("--plot", help="write a PNG of CoM velocity and height here")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_rollout)
-    import importlib
 
-    for mod in ("latentune.pipeline.commands", "latentune.experiments.commands"):
-        try:
-            add_commands = importlib.import_module(mod).add_commands
-        except (ImportError, AttributeError):
-            continue
-        add_commands(sub)
+    for name, func, hlp in (
+            ("tune", cmd_tune, "phases 1-3: tune θ, learn a latent space, tune in it"),
+            ("phase1", cmd_phase1, "phase 1: TuRBO-m on the full θ"),
+            ("train-vae", cmd_train_vae, "phase 2: train the VAE on the stable phase-1 θ"),
+            ("phase3", cmd_phase3, "phase 3: TuRBO-m in the latent space")):
+        p = sub.add_parser(name, help=hlp)
+        add_run_args(p, name)
+        p.set_defaults(func=func)
+
+    p = sub.add_parser("report", help="tables, plots and report.md of a run directory")
+    p.add_argument("dir", help="run directory (or a paper directory)")
+    p.add_argument("--no-sim", action="store_true", help="skip the re-simulated CoM plots")
+    p.add_argument("--system", default=None, metavar="MODULE:FACTORY",
+                   help="rebuild the run's user system to re-simulate (must match the stored one)")
+    p.add_argument("--system-arg", action="append", default=[], metavar="KEY=VALUE")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=cmd_report, robot=None, task=None, terrain=None, actor=None, steps=None,
+                   v_des=None)  # report rebuilds built-in tasks from the store
+
+    p = sub.add_parser("ask", help="suggest θ for trials run elsewhere (stored as pending)")
+    p.add_argument("dir", help="study directory (created on the first ask)")
+    p.add_argument("--n", type=int, default=1, help="number of suggestions (default 1)")
+    add_system_args(p)
+    p.add_argument("--space", default=None, metavar="FILE",
+                   help="YAML/JSON parameter space: names, low, high, log, manual")
+    p.add_argument("--phase", type=int, choices=(1, 3), default=None,
+                   help="1 = the full θ (default), 3 = the latent space of --vae")
+    p.add_argument("--vae", default=None, metavar="RUN_DIR", help="the latent space for phase 3")
+    p.add_argument("--method", choices=("turbo", "cma", "random", "sobol"), default="turbo")
+    p.add_argument("--seed", type=_seed, default=None, help="seed (first ask only; default 0)")
+    p.add_argument("--json", action="store_true", help="print one JSON list")
+    p.set_defaults(func=cmd_ask)
+
+    p = sub.add_parser("tell", help="store the result of a suggestion")
+    p.add_argument("dir", help="study directory")
+    p.add_argument("id", help="the suggestion's id (from ask)")
+    p.add_argument("--cost", type=float, default=None, help="the trial's cost")
+    p.add_argument("--failed", action="store_true", help="the trial failed (a fall)")
+    p.add_argument("--note", default=None, help="free text stored with the trial")
+    p.set_defaults(func=cmd_tell)
+
+    p = sub.add_parser("status", help="evaluations, failures, pending suggestions, best")
+    p.add_argument("dir", help="study directory")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_status)
+
+    p = sub.add_parser("paper", help="the paper's studies end to end, with a budget scale")
+    p.add_argument("--robot", default="a1", help="a1 (convex MPC; adds A1→B1 transfer) or solo12")
+    p.add_argument("--actor", default=None, help="default: convex for a1, kinodynamic for solo12")
+    p.add_argument("--scale", type=_scale, default=0.03,
+                   help=f"budget scale, 1.0 = the paper's budgets ({MAPPING_DOC}); default 0.03")
+    p.add_argument("--phase1-evals", type=int, default=None, help="override the phase-1 budget")
+    p.add_argument("--phase3-evals", type=int, default=None,
+                   help="override the phase-3 (and baseline) budget")
+    p.add_argument("--out", default=None, help="output directory (default paper-<robot>)")
+    p.add_argument("--workers", type=int, default=2, help="parallel rollouts")
+    p.add_argument("--seed", type=_seed, default=0)
+    p.add_argument("--steps", type=int, default=5000, help="rollout horizon in 1 kHz steps")
+    p.add_argument("--v-des", type=float, default=0.5)
+    p.add_argument("--report-only", action="store_true", help="only (re)write DIR/report.md")
+    p.add_argument("--no-sim", action="store_true", help="report: skip re-simulated CoM plots/GIFs")
+    p.add_argument("--no-gif", action="store_true", help="report: skip the GIFs")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=cmd_paper)
+
+    p = sub.add_parser("bench", help="the performance-ratio benchmarks at a quick size")
+    p.add_argument("--steps", type=int, default=2000, help="rollout steps (default 2000)")
+    p.add_argument("--n", type=int, default=8, help="rollouts of the throughput benchmark")
+    p.add_argument("--timeout", type=float, default=900, help="per benchmark [s]")
+    p.set_defaults(func=cmd_bench)
     return parser
 
 
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split())
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; return the exit status."""
+    from concurrent.futures.process import BrokenProcessPool
+
     try:
         args = build_parser().parse_args(argv)
         func: Callable[[argparse.Namespace], int] = args.func
         return func(args)
-    except CLIError as exc:
-        return _die(str(exc))
+    except LatentuneError as exc:
+        print(f"latentune: error: {_one_line(exc)}", file=sys.stderr)
+        return 2
+    except Exception as exc:  # noqa: BLE001 - a dead worker is one line; anything else a bug
+        if not (isinstance(exc, BrokenProcessPool) or type(exc).__module__.startswith("ray.")):
+            raise
+        print(f"latentune: error: an evaluation worker died ({type(exc).__name__}: "
+              f"{_one_line(exc)[:200]}); the finished evaluations are stored: rerun with --resume",
+              file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
-        return _die("interrupted; stored results are kept", 130)
+        print("latentune: error: interrupted; stored results are kept", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":
     sys.exit(main())
+

@@ -14,7 +14,7 @@ import numpy as np
 from scipy.optimize import OptimizeResult as _ScipyResult
 
 from latentune.critic import critic_class
-from latentune.evaluators import Evaluator, SerialEvaluator
+from latentune.pipeline.evaluators import Evaluator, SerialEvaluator
 
 _BOUNDS_TOL = 1e-9
 
@@ -74,7 +74,8 @@ def minimize(fun: Callable[[np.ndarray], float], bounds: Any, method: str = "tur
         batch_size: points per ask (>= 1); the last batch is cut to the remaining budget.
         seed: non-negative integer seed; the run is deterministic for a seed.
         x0: warm-start point(s) (d,) or (k, d) inside ``bounds``; evaluated among the first.
-        evaluator: object with ``map(fun, X) -> y`` (default :class:`SerialEvaluator`).
+        evaluator: a :class:`~latentune.pipeline.evaluators.Evaluator` (default serial); a
+            process or Ray evaluator needs a picklable ``fun``.
         callback: called after every batch with the :class:`OptimizeResult` so far; returning
             ``True`` stops the run.
         **opts: options of the critic (e.g. ``n_regions`` for TuRBO, default
@@ -86,6 +87,7 @@ def minimize(fun: Callable[[np.ndarray], float], bounds: Any, method: str = "tur
 
     Raises:
         ValueError: bad bounds, budget, batch_size, seed, x0, method, or a non-callable ``fun``.
+        EvaluationError: ``fun`` raised (the message names the exception).
     """
     if not callable(fun):
         raise ValueError("fun must be callable: (d,) ndarray -> float")
@@ -97,8 +99,8 @@ def minimize(fun: Callable[[np.ndarray], float], bounds: Any, method: str = "tur
         raise ValueError("callback must be callable or None")
     if evaluator is None:
         evaluator = SerialEvaluator()
-    elif not callable(getattr(evaluator, "map", None)):
-        raise ValueError("evaluator must have a method map(fun, X) -> y")
+    elif not isinstance(evaluator, Evaluator):
+        raise ValueError("evaluator must be a latentune.pipeline.evaluators.Evaluator")
     cls = critic_class(method)          # ValueError for an unknown method
     d = b.shape[0]
     lo, hi = b[:, 0], b[:, 1]

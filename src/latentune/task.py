@@ -21,12 +21,12 @@ from typing import Any
 import numpy as np
 
 from latentune.actor.base import Actor, ActorFailure
-from latentune.actor.parameter_space import ParameterSpace
+from latentune.constants import C1, GAITS, STABLE_CAP, TERRAINS, fail_cost
 from latentune.robots import RobotSpec, get_robot
+from latentune.space import ParameterSpace
+from latentune.system import Outcome
 
-C1 = 100.0
-STABLE_CAP = C1 * (1.0 - 1e-6)  # the largest cost of a rollout that never fell
-GAITS = ("trot", "jump")
+__all__ = ["Task", "RolloutResult", "path_cost", "actor_class", "ACTORS", "C1"]
 ACTORS = {
     "convex": "latentune.actor.convex_mpc:ConvexMPC",
     "kinodynamic": "latentune.actor.kinodynamic:KinodynamicMPC",
@@ -54,7 +54,7 @@ def path_cost(vel: np.ndarray, v_des: np.ndarray, fall_step: int | None, horizon
         horizon: N_H, the planned number of steps.
     """
     if fall_step is not None:
-        return C1 * (2.0 - fall_step / horizon)
+        return fail_cost(fall_step, horizon)
     err = np.asarray(vel, dtype=float) - np.asarray(v_des, dtype=float)
     # A robot that never fell but tracks terribly (seen: B1 running backwards at 1.1 m/s) could
     # exceed C1; cap it just below so that L < C1 ⇔ stable holds for every rollout.
@@ -87,6 +87,17 @@ class RolloutResult:
     reason: str = ""
     trace: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
 
+    def info(self, horizon: int) -> dict[str, Any]:
+        """The JSON-able details stored with a trial (everything but cost, fell and trace)."""
+        return {"fall_step": self.fall_step, "horizon": int(horizon), "steps": self.steps,
+                "mean_vx": self.mean_vx, "mean_height": self.mean_height,
+                "rms_vel_error": self.rms_vel_error, "reason": self.reason}
+
+    @property
+    def rms_vel_error(self) -> float | None:
+        """RMS of ‖v − v_des‖ over the horizon [m/s] (cost / sqrt(N_H)); None after a fall."""
+        return None if self.fell else float(self.cost / math.sqrt(max(self.steps, 1)))
+
     def summary(self) -> dict[str, Any]:
         return {"cost": self.cost, "fell": self.fell, "fall_step": self.fall_step,
                 "steps": self.steps, "mean_vx": self.mean_vx, "mean_height": self.mean_height,
@@ -109,8 +120,8 @@ class Task:
         if gait not in GAITS:
             raise ValueError(f"unknown task {gait!r} (choose from {', '.join(GAITS)})")
         self.spec.gait(gait)
-        if terrain not in ("flat", "hills"):
-            raise ValueError(f"unknown terrain {terrain!r} (choose from flat, hills)")
+        if terrain not in TERRAINS:
+            raise ValueError(f"unknown terrain {terrain!r} (choose from {', '.join(TERRAINS)})")
         self.actor_cls = actor_class(actor)
         v = np.array([v_des, 0.0, 0.0] if np.isscalar(v_des) else v_des, dtype=float)
         if v.shape != (3,) or not np.all(np.isfinite(v)) or np.linalg.norm(v) > 3.0:
@@ -135,9 +146,41 @@ class Task:
 
     def config(self) -> dict[str, Any]:
         """JSON-able description of the task (recorded with every run)."""
-        return {"robot": self.robot_name, "gait": self.gait, "terrain": self.terrain,
-                "actor": self.actor, "v_des": self.v_des.tolist(), "steps": self.steps,
-                "seed": self.seed, "dim": self.space.dim}
+        from latentune.robots import is_builtin
+
+        cfg = {"robot": self.robot_name, "gait": self.gait, "terrain": self.terrain,
+               "actor": self.actor, "v_des": self.v_des.tolist(), "steps": self.steps,
+               "seed": self.seed, "dim": self.space.dim}
+        if not is_builtin(self.spec):
+            cfg["spec"] = self.spec.to_dict()
+        return cfg
+
+    @classmethod
+    def from_config(cls, cfg: dict[str, Any]) -> "Task":
+        """Rebuild a Task from :meth:`config`'s dict (a stored run's ``config["task"]``).
+
+        A custom robot is rebuilt from the spec stored with it (``cfg["spec"]``), so a run
+        directory can be reported on another machine without the robot's YAML file."""
+        robot: Any = cfg["robot"]
+        if cfg.get("spec") is not None:
+            from latentune.robots import spec_from_dict
+
+            robot = spec_from_dict(cfg["spec"])
+        return cls(robot=robot, gait=cfg["gait"], terrain=cfg["terrain"], actor=cfg["actor"],
+                   v_des=tuple(cfg["v_des"]), steps=int(cfg["steps"]), seed=int(cfg["seed"]))
+
+    def cache_key(self) -> str:
+        """Evaluator workers keep one Task (one simulator client) per key."""
+        import json
+
+        return json.dumps(self.config(), sort_keys=True, default=str)
+
+    def evaluate(self, theta: np.ndarray) -> Outcome:
+        """The :class:`~latentune.system.System` protocol: one rollout as an Outcome
+        (cost = path cost, failed = fell; info: fall_step, horizon, steps, mean_vx, mean_height,
+        rms_vel_error [m/s], reason)."""
+        res = self.rollout(theta)
+        return Outcome(res.cost, res.fell, res.info(self.steps), res.wall_s)
 
     @property
     def world(self):

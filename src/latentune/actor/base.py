@@ -5,7 +5,7 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
-from latentune.actor.parameter_space import ParameterSpace
+from latentune.space import ParameterSpace
 from latentune.robots import RobotSpec
 from latentune.sim.world import RobotState, World
 

@@ -22,25 +22,24 @@ problems, warm-started from the previous plan:
 
 1. *forces step* — fix the CoM trajectory c̄ in the torque arms (p_i − c̄_k); the dynamics are then
    linear in U and the trajectory is an affine function of U (condensing), which gives a QP in the
-   forces alone with the friction cones (solved with DAQP, dense active-set; ≈ 0.1–0.5 ms).
+   forces alone with the friction cones (solved with DAQP, dense active-set).
 2. *trajectory step* — fix the forces; the dynamics are linear in X and, imposed as hard
    constraints, determine X uniquely from the measured X_0: the equality-constrained QP in the
    trajectory reduces to this forward pass, which updates c̄.
 
 The alternation stops when the CoM path moves less than ``tol`` (1 mm) or after ``iters`` (3).
 Warm-started with the previous plan shifted by one knot, the torque arms are nearly right from the
-first step; from a cold start (the reference path) it converges slowly (measured on the first trot
-plan: cost 12.6k, 7.1k, 3.9k, 1.9k over 4 alternations) but the robot is then standing still and
-the next replans fix it. BiConMP instead relaxes the dynamics with an augmented-Lagrangian
-penalty ρ and runs up to ~50 FISTA iterations in C++, which would not fit a Python 20 Hz budget.
+first step; from a cold start (the reference path) it converges slowly, but the robot is then
+standing still and the next replans fix it. BiConMP instead relaxes the dynamics with an
+augmented-Lagrangian penalty ρ and runs up to ~50 FISTA iterations in C++, which would not fit a
+Python 20 Hz budget. Measured (time per planner solve): ``python benchmarks/kinodynamic.py``.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from latentune.actor.base import ActorFailure
-
-G = 9.81
+from latentune.constants import G
 
 
 def _skew_blocks(r: np.ndarray) -> np.ndarray:

@@ -28,13 +28,13 @@ import numpy as np
 from latentune.actor.base import Actor, ActorFailure
 from latentune.actor.gait import GaitScheduler
 from latentune.actor.legs import LegKinematics, swing_trajectory
-from latentune.actor.parameter_space import ParameterSpace, make_space
+from latentune.constants import G
 from latentune.robots import LEGS, RobotSpec
+from latentune.space import ParameterSpace, make_space
 from latentune.sim.world import RobotState, World
 
 STATE_NAMES = ("roll", "pitch", "yaw", "x", "y", "z", "wx", "wy", "wz", "vx", "vy", "vz", "g")
 FORCE_NAMES = tuple(f"{leg}_f{ax}" for leg in LEGS for ax in "xyz")
-G = 9.81
 _INF = 1e30  # "no bound" for the QP solvers (DAQP and OSQP both read ±1e30 as infinite)
 
 # Manual-tuned weights (found by hand, checked by tests/test_actor.py and benchmarks/actor.py).
@@ -162,7 +162,7 @@ class ConvexMPC(Actor):
         # Height reference from the current height back to the standing height, v_z,ref = its
         # derivative. (A step to the standing height with v_z,ref = 0 contradicts itself: weights
         # with Q_vz >> Q_z, which a trot never penalises, then hold v_z ≈ 0 and never restore the
-        # height lost in each flight/landing of a jump; the A1 sinks ~4 cm per cycle and falls.)
+        # height lost in each flight/landing of a jump: the robot sinks every cycle and falls.)
         dz = (com[2] - Xref[0, 5]) * self._ref_decay
         Xref[:, 5] += dz
         Xref[:, 11] = self.v_des[2] - dz / self.TAU_Z

@@ -36,15 +36,15 @@ from latentune.actor.base import Actor, ActorFailure
 from latentune.actor.centroidal import CentroidalPlanner
 from latentune.actor.gait import GaitScheduler
 from latentune.actor.legs import LegKinematics
-from latentune.actor.parameter_space import ParameterSpace, make_space
+from latentune.constants import G
 from latentune.robots import LEGS, RobotSpec
+from latentune.space import ParameterSpace, make_space
 from latentune.sim.world import RobotState, World
 
 if _wholebody.crocoddyl is None:  # Task turns this into "actor 'kinodynamic' is not available here"
     raise ImportError("the kino-dynamic MPC actor needs crocoddyl "
                       "(pip install --no-deps crocoddyl==3.2.1 libcrocoddyl==3.2.1)")
 
-G = 9.81
 X_NAMES = ("cx", "cy", "cz", "lx", "ly", "lz", "kx", "ky", "kz")
 _JNAMES = ("haa", "hfe", "kfe")
 STATE_NAMES = (tuple(f"base_{a}" for a in "xyz") + tuple(f"base_r{a}" for a in "xyz")
@@ -111,9 +111,6 @@ class KinodynamicMPC(Actor):
         return make_space(rows)
 
     def __init__(self, world: World, gait: str, v_des: np.ndarray, theta: np.ndarray):
-        if _wholebody.crocoddyl is None:
-            raise ImportError("the kino-dynamic MPC actor needs crocoddyl "
-                              "(pip install --no-deps crocoddyl==3.2.1 libcrocoddyl==3.2.1)")
         theta = np.asarray(theta, dtype=float)
         if theta.shape != (self.DIM,):
             raise ValueError(f"kino-dynamic MPC needs {self.DIM} parameters, got shape {theta.shape}")

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
+from latentune.constants import G
 from latentune.robots import RobotModel
 
 
@@ -41,7 +42,7 @@ class LegKinematics:
 
         Call after :meth:`update` with the same q.
         """
-        self.model.gravity.linear = R.T @ np.array([0.0, 0.0, -9.81])
+        self.model.gravity.linear = R.T @ np.array([0.0, 0.0, -G])
         g = pin.computeGeneralizedGravity(self.model, self.data, self._q)
         return g[self.q_index]
 

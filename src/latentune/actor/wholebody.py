@@ -13,7 +13,7 @@ finds joint and base trajectories over the horizon that track
 
 Momentum and CoM residuals. crocoddyl's ``ResidualModelCentroidalMomentum`` and
 ``ResidualModelCoMPosition`` read pinocchio quantities that ``DifferentialActionModelFreeFwdDynamics``
-does not compute in ``calc`` (measured: the residuals stay zero there), so the centroidal terms
+does not compute in ``calc`` (the residuals stay zero there), so the centroidal terms
 act on an operational frame fixed to the base at the nominal whole-body CoM: its position tracks
 the planned CoM, its spatial velocity (local-world-aligned) tracks the planned l/m and the angular
 velocity I⁻¹k of the plan (composite-rigid-body approximation of the momentum; the weights on the
@@ -106,7 +106,7 @@ class WholeBodyDDP:
         self.costs = [m.differential.costs.costs for m in self.models]
         x0 = x_nom.copy()
         self.problem = crocoddyl.ShootingProblem(x0, self.models[:-1], self.models[-1])
-        try:  # OpenMP threads in a rollout on a shared machine cost 20-30x (measured)
+        try:  # one thread per rollout, as for BLAS (latentune.threads): rollouts run one per core
             self.problem.nthreads = 1
         except AttributeError:  # pragma: no cover - crocoddyl built without multithreading
             pass

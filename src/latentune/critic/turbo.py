@@ -4,17 +4,17 @@ A from-scratch implementation on BoTorch/GPyTorch (the reference code is not use
 
 Trust regions
 -------------
-``n_regions`` (default 10, the paper's m; budget-aware callers use :func:`regions_for_budget`) regions, each with its own GP fitted only on the points attributed to
-it since its last restart (its *epoch*). Region ``r`` has a side length ``L`` (start 0.8) and a
+``n_regions`` regions (default 10, the paper's m; callers that know the budget use
+:func:`regions_for_budget`), each with its own GP fitted only on the points attributed to it
+since its last restart (its *epoch*). Region ``r`` has a side length ``L`` (start 0.8) and a
 centre, its best point. Its box is ``centre ± L·w/2`` clipped to [0, 1], with
 ``w = ℓ / geomean(ℓ)`` from the GP's ARD lengthscales ``ℓ``. After a tell, every region that got
 Thompson points in that ask (one *group* per ask generation and region) counts a success if the
 group's best cost beats the region's best by more than ``1e-3·|best|``, else one failure per
 point of the group (a region gets a varying share of each batch, so failures are counted in
 evaluations): 3 consecutive successes double ``L`` (max 1.6), ``max(5, d)`` consecutive failed
-evaluations halve it; when
-``L < 0.5**7`` the region restarts: a fresh scrambled-Sobol design of ``n_init`` points, its old
-points stay in the global history but leave the region.
+evaluations halve it; when ``L < 0.5**7`` the region restarts: a fresh scrambled-Sobol design of
+``n_init`` points, its old points stay in the global history but leave the region.
 
 Asking
 ------
@@ -33,10 +33,10 @@ What the GP sees (the cost transform)
 Raw costs are stored untouched. For a fit, all told costs are replaced by non-finite → worst
 finite, then warped by a global rank-based Gaussian copula, ``z = Φ⁻¹((rank − ½)/N)`` over the
 whole history (ties share their average rank). Monotone, so argmins and the trust-region rules
-are unchanged, but immune to the dynamic range of the costs (fall costs 100–200 next to stable
-costs 5–30) and to outliers, with the best points spread out in the lower tail. Each region then
-standardizes its own ``z``: median-centred, divided by the std (or IQR/1.349 when the std
-vanishes). Its samples are mapped back through that affine map, so samples of all regions live on
+are unchanged, but immune to the dynamic range of the costs (fall costs in [C1, 2·C1) next to
+much smaller stable costs) and to outliers, with the best points spread out in the lower tail.
+Each region then standardizes its own ``z``: median-centred, divided by the std (or IQR/1.349
+when the std vanishes). Its samples are mapped back through that affine map, so samples of all regions live on
 the common ``z`` scale when the global argmin is taken. ``y_transform="log"`` (``log(y − min +
 δ)`` with δ = 1e-3·(IQR or 1)) or ``"none"`` are available for comparison.
 
@@ -49,8 +49,8 @@ L-BFGS-B on the exact marginal likelihood (``botorch.optim.fit.fit_gpytorch_mll_
 * A region's GP is conditioned on at most ``max_gp_points`` (default 256) of its points, and its
   hyperparameters are fitted on at most ``max_fit_points`` (default 256): in both cases the best
   half plus the most recent others (``gp_select="recent"``; ``"near"`` = best quarter plus the
-  points nearest to the region's best point). Hyperparameter fits use the transform applied to the fitted
-  points alone (e.g. their own copula ranks), so they depend only on those points.
+  points nearest to the region's best point). Hyperparameter fits use the transform applied to
+  the fitted points alone (e.g. their own copula ranks), so they depend only on those points.
 * Hyperparameters are refitted only at *checkpoints* of the region's epoch size ``c``:
   ``c_{k+1} = c_k + max(1, ⌈refit_fraction·min(c_k, max_fit_points)⌉)`` (10 %), on the first
   ``c_k`` epoch points (capped as above), i.e. a deterministic function of the data; between
@@ -62,32 +62,19 @@ L-BFGS-B on the exact marginal likelihood (``botorch.optim.fit.fit_gpytorch_mll_
   ``refit_maxiter`` (15) L-BFGS iterations; the first fit of an epoch (or every fit with
   ``warm_start=False``) starts from fixed values with ``fit_maxiter`` (50) iterations.
 
-Measured limits (1,000 evaluations, batch 20)
----------------------------------------------
-``benchmarks/critic.py``, median best over seeds 0-4 (range), global min 0. ``minimize``'s
-defaults (2 regions by :func:`regions_for_budget`, hyperparameters fitted on up to 256 points): Levy-25 2.21 (0.78-8.15) vs CMA-ES 2.95 (2.34-4.18),
-Ackley-20 0.25 (0.22-1.22) vs 4.24. The former defaults (10 regions, 128 fit points): Levy-25 11.8
-(9.5-27.8), Ackley-20 0.41. Levy-25 stays a lottery with a heavy tail: over seeds 0-11 the median
-is 3.55 (0.78-17.1) vs CMA-ES 3.11 (1.58-5.42); seeds 0-7: 3.65 (2 regions with 128 fit points:
-5.2, seeds 0-4 4.05). Levy is separable, a bowl times ``1 + 10·sin²`` with ~5 basins of width 0.2
-per coordinate. The best region takes nearly all Thompson points (the other keeps its design and
-length 0.8) and shrinks below a basin's width within 200-600 evaluations, then polishes its basin
-combination; no region reaches ``length_min``. Coordinates in a wrong basin are steeper, so they
-get short lengthscales and narrow box sides (seed 7: the 12 wrong-basin coordinates had weights
-0.2-0.8, the right ones 1-5.6) and stay frozen. More fit points give better ARD estimates. Tried,
-not better (Levy-25 median of seeds 0-7 with 2 regions and 128 fit points, unless noted): 1/3/5/10
-regions 8.6 (3 seeds)/5.1/14.6 (3)/11.8 (5); 384 fit and GP points 3.35 (seeds 0-4 3.10, slower);
-failures counted per group with the original tolerance ⌈max(4, d)/q⌉ = 2 groups: identical with 2
-regions, 21.0 with 10 (3 seeds); 1/4/8 groups 8.3/9.1/17.5 (3); restarts below length 0.1 with a
-fresh design 4.7 (3), below 0.05 with a design centred on the global incumbent 5.5, length reset
-to 0.8 keeping the GP data below 0.05/0.1 5.4/6.2; isotropic box 17.4, weights clipped to [1/2, 2]
-14.6, floored at 1/2 5.4 (4.9 with 256 fit points) or 1/3 9.1, clipped to [1/4, 4] with 10 regions
-5.8 (5); lengthscale ≥ 0.05/0.1/0.2: 10.3/5.9 (3)/7.0 (3); noise cap 1.0 5.9; raw costs capped at
-the 75th/50th percentile 13.3/7.7, ``"none"`` 15.0 (3), ``"log"`` 28.8 (10 regions, 3); 5000
-candidates 8.4; ``perturb_prob`` 1/0.2 12.0/8.4 (3); 1024 Fourier features 6.0; ``success_tol=2``
-8.8; ``length_init`` 1.6/0.4 7.4/11.6; 8/3 L-BFGS iterations 7.9; ``n_init=20`` 8.4 (4);
-``warm_start=False`` 12.0 (5); BoTorch's LogNormal(√2 + ln(d)/2, √3) lengthscale prior with 10
-regions 5.8 (5; Ackley-20 1.71).
+Design choices
+--------------
+* About 500 evaluations per region (:func:`regions_for_budget`): with ~100 per region the budget
+  goes into initial designs and no region shrinks far enough to polish a basin.
+* Hyperparameters fitted on up to 256 points: more fitted points give better ARD lengthscales,
+  hence better-shaped boxes; beyond 256 the results are not clearly better and every fit is
+  slower.
+* On multi-basin functions (e.g. Levy) the best value over seeds has a heavy tail: compare
+  medians over several seeds.
+
+Measured: ``python benchmarks/critic.py --functions levy25 ackley20 --methods turbo cma
+--budget 1000 --seeds 5 --batch-size 20`` (``minimize``'s defaults against CMA-ES; other options
+are compared by passing them to :func:`latentune.minimize`).
 
 Tags and resume
 ---------------
@@ -130,10 +117,9 @@ def encode_tag(generation: int, kind: int, region: int) -> int:
 
 
 def regions_for_budget(budget: int) -> int:
-    """Trust regions for a known evaluation budget: about 500 evaluations per region, between 1
-    and the paper's 10 (reached at 5,000). At 1,000 evaluations in 20-25 dimensions 2 regions
-    beat 1, 3, 5 and 10 (see "Measured limits"); 10 regions of ~100 evaluations each spend the
-    budget on initial designs and never shrink far enough."""
+    """Trust regions for a known evaluation budget: ``round(budget / 500)`` clipped to [1, 10]
+    (about 500 evaluations per region; the paper's 10 from 5,000 on). See "Design choices" in
+    the module docstring."""
     return int(min(10, max(1, round(budget / 500))))
 
 
@@ -148,7 +134,7 @@ def _evaluate_paths(path, x):
 
     Same result as ``path(x)``, but computes ``weight @ features(x).T`` once instead of
     broadcasting the (n, m) features against every sample (BoTorch's batched matvec), which is
-    ~10x faster for thousands of candidates. Falls back to ``path(x)`` for other structures.
+    much faster for thousands of candidates. Falls back to ``path(x)`` for other structures.
     """
     from botorch.sampling.pathwise import GeneralizedLinearPath, PathDict
 
@@ -202,11 +188,11 @@ class TurboM(Critic):
 
     Args:
         dim, batch_size, seed, x0: see :class:`~latentune.critic.base.Critic`.
-        n_regions: number of trust regions m (10, the paper's m at its 10,000 evaluations; the
-            critic does not know the budget: callers that do (``minimize``, the pipeline's
-            phases) pass :func:`regions_for_budget`; see "Measured limits").
+        n_regions: number of trust regions m (default 10, the paper's m at its 10,000
+            evaluations; the critic does not know the budget: callers that do (``minimize``,
+            the pipeline's phases) pass :func:`regions_for_budget`).
         n_init: initial (Sobol) design size per region and epoch; default
-            ``max(5, min(dim, 10))`` (10 beat 20 per region at d = 20-25 and 1,000 evaluations).
+            ``max(5, min(dim, 10))``.
         length_init, length_min, length_max: side length rules (0.8, 0.5**7, 1.6).
         success_tol: consecutive successful groups to double the side (3).
         failure_tol: consecutive failed evaluations to halve it (default ``max(5, dim)``).
@@ -219,6 +205,8 @@ class TurboM(Critic):
         warm_start: warm-start refits from the previous hyperparameters (True).
         fit_maxiter, refit_maxiter: L-BFGS-B iteration limits for cold / warm fits (50 / 15).
         y_transform: "copula" (default), "log" or "none" (see the module docstring).
+        gp_select: which points a capped GP keeps: "recent" (default) or "near" (see
+            :meth:`_select`).
     """
 
     method = "turbo"
@@ -414,7 +402,7 @@ class TurboM(Critic):
 
         ``gp_select="recent"`` (default): the best half, then the most recent others.
         ``"near"``: the best quarter, then the points nearest (Euclidean, unit box) to the best
-        point (measured worse on Levy-25: 13.6/16.0 vs 9.0/4.9 at 1,000 evaluations).
+        point.
         """
         pts_a = np.asarray(pts, dtype=np.int64)
         if pts_a.size <= cap:

@@ -14,17 +14,14 @@ Two kinds (``kind=``):
 * ``"det"``: the paper's deterministic variant: a sigmoid encoder z = s(W·h) ∈ (0, 1)^d_low and
   a KL on the batch's code statistics: the batch mean m and full covariance Σ define N(m, Σ),
   penalized by KL(N(m, Σ) ‖ N(½, I/12)) (the moments of U(0, 1)^d_low), times β = :data:`BETA_DET`.
-  It keeps the codes spread over the unit cube without sampling. The full covariance matters: with
-  only per-coordinate variances (a diagonal Σ) all ten codes learned the same 1-d signal (mean
-  |correlation| 0.999 on A1 trot, 389 stable θ), so the latent box was a 1-d curve plus directions
-  the decoder ignores (decoded θ of random box points: std 0.04 per coordinate vs 0.22 in the
-  training set); with the full Σ: |correlation| 0.26, std 0.10, reconstruction error 0.65 vs 0.85
-  (of a total variance of 1.30; the stable set now fills most of the θ box, so no 10-d code can
-  reconstruct it closely).
+  It keeps the codes spread over the unit cube without sampling. The full covariance (its
+  −ln det Σ term) keeps the code coordinates decorrelated: with per-coordinate variances only,
+  all codes learn the same 1-d signal and the latent box degenerates to a curve plus directions
+  the decoder ignores.
 
 Adam, lr 1e-3, batch 64, a fixed number of epochs (default: enough for ~2000 steps, at least
 100 epochs); deterministic for a seed (torch's generator is seeded and training runs on one
-thread). A few hundred points train in a few seconds on one core.
+torch thread).
 
 The latent box
 --------------
@@ -35,25 +32,14 @@ each side (and for ``det`` clipped to [0, 1], the sigmoid's range). It is stored
 
 Default kind
 ------------
-``det`` is the default, by measurement (``benchmarks/vae_kind.py``) on the A1 trot run of the
-default ``latentune tune`` (400 phase-1 evaluations, 318 stable θ, seed 0):
+``det`` is the default because it reconstructs the stable set better than ``vae``: with β = 1
+the ``vae``'s KL pulls the means of a few hundred points together and can collapse the posterior
+(reconstruction error = the training set's total variance: every code decodes to the mean θ).
+``--vae-kind vae`` remains available.
 
-========  ===============  ==========================  =========================
-kind      reconstruction   stable preservation (30 θ)  phase-3 best, 60 evals
-========  ===============  ==========================  =========================
-det       0.551            30/30                       4.632
-vae       0.786            30/30                       4.705
-========  ===============  ==========================  =========================
-
-(reconstruction: mean summed squared error per θ; phase-1 best was 4.531.) Both preserve every
-checked stable θ; ``det`` reconstructs better and its phase 3 found the lower cost. With
-``vae`` (β = 1) the KL pulls the means of a few hundred points together, so the decoder's image
-is a blurrier copy of the stable set. The margin is small (one seed); ``--vae-kind vae``
-remains available.
-
-Re-measured after the full-covariance KL (session 8, same data as the ``det`` bullet above, 2,000
-Adam steps, seed 0): ``vae`` reconstruction 1.304 = the training set's total variance (1.303):
-posterior collapse, every code decodes to the mean θ; ``det`` 0.653. ``det`` stays.
+Measured: ``python benchmarks/vae_kind.py RUN_DIR --kinds det vae --n-check 30`` (reconstruction
+error, stable preservation; ``--phase3-evals N`` adds a phase 3); a committed run is in
+``results/benchmarks/vae_kind_a1_trot.json``.
 """
 from __future__ import annotations
 
@@ -66,13 +52,18 @@ from typing import Any
 
 import numpy as np
 
+from latentune.errors import LatentError
+
 KINDS = ("det", "vae")
+"""Autoencoder kinds (see the module docstring)."""
 DEFAULT_KIND = "det"
+"""The kind :meth:`LatentSpace.train` uses unless told otherwise (see "Default kind")."""
 BETA_VAE = 1.0
 """KL weight of the ``vae`` kind (relative to the summed squared reconstruction error)."""
 BETA_DET = 0.1
 """Weight of the batch-statistics KL of the ``det`` kind."""
 BOX_MARGIN = 0.1
+"""Widening of the latent box on each side, as a fraction of its width."""
 
 
 def default_latent_dim(d: int) -> int:
@@ -82,10 +73,6 @@ def default_latent_dim(d: int) -> int:
     if d == 77:
         return 5
     return max(2, min(10, d // 4))
-
-
-class LatentError(ValueError):
-    """A latent space that cannot be built, loaded or used (bad file, wrong dimension, ...)."""
 
 
 def _torch():
@@ -138,8 +125,7 @@ def _loss(net, x, kind: str, beta: float, gen):
     cov = zc.T @ zc / z.shape[0] + 1e-6 * torch.eye(k, dtype=z.dtype)
     pv = 1.0 / 12.0
     # KL(N(m, Σ) ‖ N(½, I/12)) with the batch's full covariance Σ: its −ln det Σ term keeps the
-    # code coordinates decorrelated (with only the per-coordinate variances, all of them learned
-    # the same 1-d signal: |corr| 0.999 on A1 trot)
+    # code coordinates decorrelated (see the module docstring)
     kl = 0.5 * (torch.trace(cov) / pv + ((m - 0.5) ** 2).sum() / pv - k
                 + k * math.log(pv) - torch.logdet(cov))
     return rec + beta * kl, rec

@@ -1,137 +1,129 @@
-"""Evaluators for the pipeline: serial, a local process pool, and Ray (DESIGN §6).
+"""Evaluators: run a batch of trials serially, in a local process pool, or on Ray (one protocol).
 
-All implement the :class:`latentune.evaluators.Evaluator` protocol, ``map(fun, X) -> y`` (y: the
-(n,) float costs in the order of X), and an incremental form ``imap(fun, X)`` that yields
-``(i, result)`` as each evaluation completes, so the caller can commit each row at once.
+An evaluator maps ``fun`` over the rows of ``X`` (n, d):
 
-``fun`` is either a :class:`~latentune.task.Task` -- then ``result`` is a dict with ``cost, fell,
-fall_step, wall_s, steps, mean_vx, reason`` and each worker keeps one Task (with its PyBullet
-client) per task configuration for the rest of its life -- or any picklable callable
-``(d,) ndarray -> float``, then ``result`` is ``{"cost": float}``. An exception inside an
-evaluation becomes ``cost = inf`` with the message in ``reason`` (never a crashed run).
+* ``imap(fun, X)`` yields ``(i, result)`` as each trial completes (any order), so the caller
+  can store every trial at once; ``map(fun, X)`` returns the (n,) float costs in the order of X.
+* ``fun`` is a System (an object with ``evaluate``, see :mod:`latentune.system`): then
+  ``result`` is an :class:`~latentune.system.Outcome`; or a plain callable ``(d,) -> float``
+  (``lt.minimize``): then ``result`` is an Outcome holding the float as it was returned
+  (nan/inf allowed there).
+* A trial that raises, or a System that returns no usable cost, yields a :class:`TrialError`
+  (the message, one line) in place of the Outcome, the same way on every backend; ``map``
+  raises :class:`~latentune.system.EvaluationError` for it. Trials that finished are yielded
+  before the error is seen by the caller's next step, so they can be stored.
 
-The process pool uses forkserver (spawn elsewhere): a script that creates one must guard its
-entry point with ``if __name__ == "__main__":`` (the usual multiprocessing rule).
-
-Workers limit BLAS/OpenMP to one thread (the rollouts are many small matrix operations; default
-threading made them 22x slower here).
+Workers keep one instance of a System that has ``cache_key()`` (a simulated Task keeps its
+PyBullet client) for the rest of their life, and run with one BLAS thread
+(:mod:`latentune.threads`). The process pool uses forkserver (spawn where unavailable): a
+script that creates one must guard its entry point with ``if __name__ == "__main__":``.
 """
 from __future__ import annotations
 
-import json
 import os
-from typing import Any, Callable, Iterator
+import time
+from dataclasses import dataclass
+from typing import Any, Iterator
 
 import numpy as np
 
-_BLAS_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS")
+from latentune.system import EvaluationError, Outcome, evaluate
+from latentune.threads import one_thread_env, thread_env
+
 BACKENDS = ("serial", "process", "ray")
 
 
-def _one_thread_env() -> None:
-    for v in _BLAS_VARS:
-        os.environ.setdefault(v, "1")
+@dataclass(frozen=True)
+class TrialError:
+    """A trial that raised or returned no usable cost: ``message`` is one line."""
+
+    message: str
 
 
-def _is_task(fun: Any) -> bool:
-    from latentune.task import Task
-
-    return isinstance(fun, Task)
-
-
-def task_key(task: Any) -> str:
-    """A key identifying a task's configuration (workers cache one Task per key)."""
-    cfg = task.config()
-    cfg["spec"] = getattr(task.spec, "name", "")
-    cfg["actor_cls"] = getattr(task.actor_cls, "__name__", "")
-    return json.dumps(cfg, sort_keys=True, default=str)
+def _key(fun: Any) -> str | None:
+    ck = getattr(fun, "cache_key", None)
+    return ck() if callable(ck) else None
 
 
-def _task_result(res: Any) -> dict[str, Any]:
-    return {"cost": float(res.cost), "fell": bool(res.fell), "fall_step": res.fall_step,
-            "wall_s": float(res.wall_s), "steps": int(res.steps), "mean_vx": float(res.mean_vx),
-            "reason": res.reason}
-
-
-_WORKER_TASKS: dict[str, Any] = {}
+_WORKER_CACHE: dict[str, Any] = {}
 
 
 def _init_worker() -> None:
-    _one_thread_env()
+    one_thread_env()
     try:
         from threadpoolctl import threadpool_limits
 
         threadpool_limits(1)
-    except Exception:  # noqa: BLE001
+    except ImportError:
         pass
 
 
-def evaluate_one(fun: Any, key: str | None, x: np.ndarray) -> dict[str, Any]:
-    """Evaluate one point in this process (worker side); Tasks are cached by ``key``."""
-    import time
+def run_trial(fun: Any, key: str | None, x: np.ndarray) -> Outcome | TrialError:
+    """Evaluate one point in this process (the worker side of every backend).
 
-    t0 = time.perf_counter()
+    A System with a ``key`` is cached: the worker keeps the first instance sent with that key.
+    """
+    if key is not None:
+        cached = _WORKER_CACHE.get(key)
+        if cached is None:
+            _WORKER_CACHE.clear()              # one cached System (one simulator) per worker
+            _WORKER_CACHE[key] = cached = fun
+        fun = cached
+    x = np.asarray(x, dtype=float).copy()
     try:
-        if key is not None:
-            task = _WORKER_TASKS.get(key)
-            if task is None:
-                _WORKER_TASKS.clear()          # one Task (one PyBullet client) per worker
-                _WORKER_TASKS[key] = task = fun
-            return _task_result(task.rollout(np.asarray(x, dtype=float)))
-        return {"cost": float(fun(np.asarray(x, dtype=float).copy())),
-                "wall_s": time.perf_counter() - t0}
-    except Exception as exc:  # noqa: BLE001 - an evaluation never crashes the run
-        return {"cost": float("inf"), "fell": True, "fall_step": None,
-                "wall_s": time.perf_counter() - t0,
-                "reason": f"{type(exc).__name__}: {' '.join(str(exc).split())[:200]}"}
+        if hasattr(fun, "evaluate"):
+            return evaluate(fun, x)
+        t0 = time.perf_counter()
+        return Outcome(float(fun(x)), wall_s=time.perf_counter() - t0)
+    except EvaluationError as exc:
+        return TrialError(str(exc))
+    except Exception as exc:  # noqa: BLE001 - a plain callable that raised
+        return TrialError(f"the function raised {type(exc).__name__}: "
+                          f"{' '.join(str(exc).split())[:300]}")
 
 
-class _Base:
+class Evaluator:
+    """Base of every evaluator: ``imap`` (subclasses), ``map``, ``close`` and context use."""
+
     workers: int = 1
 
-    def imap(self, fun: Any, X: np.ndarray) -> Iterator[tuple[int, dict[str, Any]]]:
+    def imap(self, fun: Any, X: np.ndarray) -> Iterator[tuple[int, Outcome | TrialError]]:
+        """Yield ``(i, Outcome or TrialError)`` for every row i of X (n, d), as they complete."""
         raise NotImplementedError
 
-    def map(self, fun: Callable[[np.ndarray], float] | Any, X: np.ndarray) -> np.ndarray:
+    def map(self, fun: Any, X: np.ndarray) -> np.ndarray:
+        """(n,) float64 costs in the order of X (n, d). Raises EvaluationError on a TrialError."""
         X = np.asarray(X, dtype=float)
         y = np.full(X.shape[0], np.nan)
         for i, r in self.imap(fun, X):
-            y[i] = r["cost"]
+            if isinstance(r, TrialError):
+                raise EvaluationError(r.message)
+            y[i] = r.cost
         return y
 
     def close(self) -> None:
-        pass
+        """Stop the workers (no-op for the serial evaluator)."""
 
-    def __enter__(self):
+    def __enter__(self) -> "Evaluator":
         return self
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
 
 
-class SerialEvaluator(_Base):
+class SerialEvaluator(Evaluator):
     """In this process, one point after the other."""
 
-    workers = 1
-
-    def imap(self, fun: Any, X: np.ndarray) -> Iterator[tuple[int, dict[str, Any]]]:
-        key = task_key(fun) if _is_task(fun) else None
+    def imap(self, fun: Any, X: np.ndarray) -> Iterator[tuple[int, Outcome | TrialError]]:
         for i, x in enumerate(np.asarray(X, dtype=float)):
-            if key is not None:
-                yield i, _task_result(fun.rollout(x))
-            else:
-                yield i, evaluate_one(fun, None, x)
+            yield i, run_trial(fun, None, x)
 
     def __repr__(self) -> str:
         return "SerialEvaluator()"
 
 
-class ProcessEvaluator(_Base):
-    """A local pool of ``workers`` processes (forkserver on Linux, else spawn).
-
-    Each worker keeps one Task and its PyBullet client between evaluations. Call :meth:`close`
-    (or use it as a context manager) to stop the workers.
-    """
+class ProcessEvaluator(Evaluator):
+    """A local pool of ``workers`` processes (forkserver on Linux, else spawn)."""
 
     def __init__(self, workers: int = 2, start_method: str | None = None) -> None:
         import multiprocessing as mp
@@ -139,7 +131,7 @@ class ProcessEvaluator(_Base):
 
         if workers < 1:
             raise ValueError("workers must be >= 1")
-        _one_thread_env()
+        one_thread_env()
         if start_method is None:
             start_method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
         self.workers = int(workers)
@@ -147,12 +139,12 @@ class ProcessEvaluator(_Base):
         self._pool = ProcessPoolExecutor(self.workers, mp_context=mp.get_context(start_method),
                                          initializer=_init_worker)
 
-    def imap(self, fun: Any, X: np.ndarray) -> Iterator[tuple[int, dict[str, Any]]]:
+    def imap(self, fun: Any, X: np.ndarray) -> Iterator[tuple[int, Outcome | TrialError]]:
         from concurrent.futures import FIRST_COMPLETED, wait
 
         X = np.asarray(X, dtype=float)
-        key = task_key(fun) if _is_task(fun) else None
-        futs = {self._pool.submit(evaluate_one, fun, key, x): i for i, x in enumerate(X)}
+        key = _key(fun)
+        futs = {self._pool.submit(run_trial, fun, key, x): i for i, x in enumerate(X)}
         pending = set(futs)
         try:
             while pending:
@@ -171,16 +163,16 @@ class ProcessEvaluator(_Base):
 
 
 class _RayWorker:
-    """A Ray actor keeping one Task (one PyBullet client)."""
+    """A Ray actor keeping one cached System."""
 
     def __init__(self) -> None:
         _init_worker()
 
-    def run(self, fun: Any, key: str | None, x: np.ndarray) -> dict[str, Any]:
-        return evaluate_one(fun, key, x)
+    def run(self, fun: Any, key: str | None, x: np.ndarray) -> Outcome | TrialError:
+        return run_trial(fun, key, x)
 
 
-class RayEvaluator(_Base):
+class RayEvaluator(Evaluator):
     """``workers`` Ray actors on a cluster (``address``) or on a local Ray started here.
 
     A local Ray gets ``num_cpus=workers``; its temp dir is ``temp_dir`` or ``$RAY_TMPDIR``.
@@ -195,7 +187,7 @@ class RayEvaluator(_Base):
             raise RuntimeError("the ray backend needs ray (pip install 'latentune[ray]')") from None
         if workers < 1:
             raise ValueError("workers must be >= 1")
-        _one_thread_env()
+        one_thread_env()
         self.workers = int(workers)
         self.address = address
         self._owns = False
@@ -211,14 +203,13 @@ class RayEvaluator(_Base):
                 ray.init(num_cpus=self.workers, **kw)
             self._owns = True
         self._ray = ray
-        env = {v: "1" for v in _BLAS_VARS}
-        actor = ray.remote(num_cpus=1, runtime_env={"env_vars": env})(_RayWorker)
+        actor = ray.remote(num_cpus=1, runtime_env={"env_vars": thread_env()})(_RayWorker)
         self._actors = [actor.remote() for _ in range(self.workers)]
 
-    def imap(self, fun: Any, X: np.ndarray) -> Iterator[tuple[int, dict[str, Any]]]:
+    def imap(self, fun: Any, X: np.ndarray) -> Iterator[tuple[int, Outcome | TrialError]]:
         ray = self._ray
         X = np.asarray(X, dtype=float)
-        key = task_key(fun) if _is_task(fun) else None
+        key = _key(fun)
         fun_ref = ray.put(fun)
         todo = list(range(X.shape[0]))
         idle = list(self._actors)
@@ -237,7 +228,7 @@ class RayEvaluator(_Base):
         for a in getattr(self, "_actors", []):
             try:
                 self._ray.kill(a)
-            except Exception:  # noqa: BLE001
+            except Exception:  # noqa: BLE001 - the actor may already be gone
                 pass
         self._actors = []
         if self._owns and self._ray.is_initialized():
@@ -249,7 +240,7 @@ class RayEvaluator(_Base):
 
 
 def make_evaluator(backend: str = "process", workers: int = 2, address: str | None = None,
-                   temp_dir: str | None = None) -> _Base:
+                   temp_dir: str | None = None) -> Evaluator:
     """``serial``, ``process`` (a pool of ``workers``; ``workers == 1`` → serial) or ``ray``."""
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r} (choose from {', '.join(BACKENDS)})")

@@ -28,10 +28,11 @@ from typing import Any, Callable
 
 import numpy as np
 
+from latentune.constants import Phase
+from latentune.errors import StoreError
+from latentune.pipeline.evaluators import Evaluator, TrialError
 from latentune.pipeline.store import RunStore
-from latentune.task import C1  # the fall threshold, defined once with the path cost
-
-PHASE_MANUAL, PHASE1, PHASE3 = 0, 1, 3
+from latentune.system import EvaluationError, Outcome
 
 
 def default_batch_size(workers: int) -> int:
@@ -41,6 +42,8 @@ def default_batch_size(workers: int) -> int:
 
 def make_phase_critic(method: str, dim: int, batch_size: int, seed: int, x0: np.ndarray | None,
                       budget: int, regions: int | None = None):
+    """The critic of a phase on [0, 1]^dim: ``method`` with its batch size, seed and warm start
+    ``x0`` (d,); TuRBO-m gets ``regions`` trust regions (default: by budget)."""
     from latentune.critic import make_critic
     from latentune.critic.turbo import regions_for_budget
 
@@ -75,7 +78,27 @@ def _restore_inf(y: np.ndarray) -> np.ndarray:
     return y
 
 
-def run_phase(store: RunStore, phase: int, task: Any, critic: Any, budget: int, evaluator: Any,
+def store_outcome(store: RunStore, phase: int, idx: int, theta: np.ndarray, out: Outcome, *,
+                  z: np.ndarray | None = None, tag: int = -1, seed: int | None = None) -> None:
+    """Commit one Outcome as evaluation ``idx`` of ``phase``."""
+    store.add(phase, idx, theta, out.cost, z=z, tag=tag, fell=out.failed,
+              fall_step=out.fall_step, wall_s=out.wall_s, seed=seed, info=out.info)
+
+
+def replay(store: RunStore, phase: int, critic: Any) -> int:
+    """Tell ``critic`` the stored rows of ``phase`` (idx order, with their tags); return n."""
+    store.check_contiguous(phase)
+    X, y, tags = store.history(phase)
+    if len(y):
+        if X.shape[1] != critic.dim:
+            raise StoreError(f"stored phase-{phase} points have dimension {X.shape[1]}, "
+                             f"the critic {critic.dim}")
+        critic.tell(X, _restore_inf(y), tags)
+    return len(y)
+
+
+def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int,
+              evaluator: Evaluator,
               decoder: Callable[[np.ndarray], np.ndarray] | None = None, seed: int | None = None,
               progress: bool = False, on_row: Callable[[int, float], None] | None = None,
               max_new: int | None = None) -> PhaseResult:
@@ -83,25 +106,22 @@ def run_phase(store: RunStore, phase: int, task: Any, critic: Any, budget: int, 
 
     Args:
         store: the run store; rows of ``phase`` already stored are told to ``critic`` first.
-        phase: 1 (θ space) or 3 (latent space); any integer works.
-        task: a :class:`~latentune.task.Task` (or a picklable callable θ -> cost).
+        phase: :attr:`Phase.PHASE1` (θ space) or :attr:`Phase.PHASE3` (latent space).
+        system: a System (``space`` + ``evaluate``, see :mod:`latentune.system`).
         critic: a fresh critic on [0, 1]^k (k = d in phase 1, d_low in phase 3).
         budget: total evaluations of the phase (stored ones included).
-        evaluator: has ``imap(fun, X)`` yielding ``(i, result dict)`` (pipeline evaluators) or
-            just ``map(fun, X) -> y``.
+        evaluator: a :class:`~latentune.pipeline.evaluators.Evaluator`.
         decoder: the map D from the critic's box to normalized θ ((n, k) -> (n, d)); ``None`` is
             the identity (phase 1). Rows then store both z (the critic's point) and θ.
         max_new: stop after this many new evaluations (tests; ``None`` = no limit).
+
+    Raises:
+        EvaluationError: a trial raised or gave no usable cost; the batch's finished trials are
+            stored first, the failed one is not (a resume asks again).
     """
     t0 = time.perf_counter()
-    store.check_contiguous(phase)
-    X, y, tags = store.history(phase)
-    n0 = len(y)
-    if n0:
-        if X.shape[1] != critic.dim:
-            raise ValueError(f"stored phase-{phase} points have dimension {X.shape[1]}, "
-                             f"the critic {critic.dim}")
-        critic.tell(X, _restore_inf(y), tags)
+    n0 = replay(store, phase, critic)
+    y = store.costs(phase)
     idx = n0
     bar = _progress(budget, min(n0, budget), f"phase {phase}", progress)
     best = float(np.min(y)) if n0 else math.inf
@@ -117,16 +137,14 @@ def run_phase(store: RunStore, phase: int, task: Any, critic: Any, budget: int, 
             T = critic.last_tags.copy()
             thetas = U if decoder is None else np.atleast_2d(decoder(U))
             ib, yb = [], []                        # ask index and cost of each result
-            if hasattr(evaluator, "imap"):
-                results = evaluator.imap(task, thetas)
-            else:
-                ys = np.asarray(evaluator.map(task, thetas), dtype=float).reshape(-1)
-                results = ((i, {"cost": float(c)}) for i, c in enumerate(ys))
-            for i, r in results:
-                cost = float(r["cost"])
-                store.add(phase, idx, thetas[i], cost, z=None if decoder is None else U[i],
-                          tag=int(T[i]), fell=r.get("fell"), fall_step=r.get("fall_step"),
-                          wall_s=r.get("wall_s"), seed=seed)
+            error: str | None = None
+            for i, r in evaluator.imap(system, thetas):
+                if isinstance(r, TrialError):
+                    error = error or r.message
+                    continue
+                cost = float(r.cost)
+                store_outcome(store, phase, idx, thetas[i], r,
+                              z=None if decoder is None else U[i], tag=int(T[i]), seed=seed)
                 idx += 1
                 new += 1
                 ib.append(i)
@@ -138,6 +156,9 @@ def run_phase(store: RunStore, phase: int, task: Any, critic: Any, budget: int, 
                 if bar is not None:
                     bar.update(1)
                     bar.set_postfix(best=f"{best:.3f}")
+            if error is not None:
+                raise EvaluationError(f"{error} (phase {int(phase)}; {idx} evaluations are "
+                                      "stored; fix the system and resume)")
             # rows are stored as they complete (crash safety); the critic is told the batch in
             # ask order, so a seed gives the same run whatever order the workers finish in
             order = np.argsort(ib, kind="stable")
@@ -152,33 +173,25 @@ def run_phase(store: RunStore, phase: int, task: Any, critic: Any, budget: int, 
                        None if b is None else b.theta, wall)
 
 
-def ensure_manual(store: RunStore, task: Any, seed: int | None = None) -> float:
-    """Evaluate the task's manual θ once (phase 0, idx 0) and return its cost."""
-    rows = store.rows(PHASE_MANUAL)
-    if rows:
-        return rows[0].cost
-    res = task.rollout(task.space.manual)
-    store.add(PHASE_MANUAL, 0, task.space.manual, res.cost, tag=-1, fell=res.fell,
-              fall_step=res.fall_step, wall_s=res.wall_s, seed=seed)
-    return float(res.cost)
+def ensure_manual(store: RunStore, system: Any, seed: int | None = None, idx: int = 0) -> float:
+    """Evaluate the system's manual θ once (phase 0, row ``idx``) and return its cost."""
+    for r in store.rows(Phase.MANUAL):
+        if r.idx == idx:
+            return r.cost
+    from latentune.system import evaluate
+
+    out = evaluate(system, system.space.manual)
+    store_outcome(store, Phase.MANUAL, idx, system.space.manual, out, seed=seed)
+    return float(out.cost)
 
 
-def training_set(store: RunStore, phase: int = PHASE1) -> np.ndarray:
-    """Phase-1 θ with cost < C1 (the stable ones): phase 2's training set (n, d), in
-    lexicographic order of θ. The store's order is the order the workers finished in, which varies
-    from run to run; the VAE's minibatches depend on the order, so a fixed one keeps a seed's
-    latent space the same."""
-    rows = [r for r in store.rows(phase) if r.cost < C1]
+def training_set(store: RunStore, phase: int = Phase.PHASE1) -> np.ndarray:
+    """The θ of ``phase`` whose trial did not fail (for a built-in task: cost < C1, stable):
+    phase 2's training set (n, d), in lexicographic order of θ. The store's order is the order
+    the workers finished in, which varies from run to run; the VAE's minibatches depend on the
+    order, so a fixed one keeps a seed's latent space the same."""
+    rows = [r for r in store.rows(phase) if not r.fell]
     if not rows:
         return np.empty((0, 0))
     X = np.array([r.theta for r in rows])
     return X[np.lexsort(X.T[::-1])]
-
-
-def preservation_rate(task: Any, latent: Any, thetas: np.ndarray, evaluator: Any) -> float:
-    """Fraction of stable θ that stay stable after encode → decode (rollouts of the decoded θ)."""
-    if len(thetas) == 0:
-        return math.nan
-    rec = latent.reconstruct(np.asarray(thetas))
-    y = evaluator.map(task, rec)
-    return float(np.mean(np.asarray(y) < C1))

@@ -9,14 +9,26 @@ Tables
 
 ``evaluations``: one row per finished evaluation, committed as it completes::
 
-    phase      0 = the manual θ, 1 = phase 1 (θ space), 3 = phase 3 (latent space)
+    phase      a :class:`~latentune.constants.Phase`: 0 manual θ, 1 phase 1 (θ space),
+               3 phase 3 (latent space), 4 zero-shot (the source run's best θ on this system),
+               5 preservation (encode → decode of stable θ)
     idx        0, 1, 2, ... unique and contiguous within a phase (completion order)
-    theta      JSON list, the normalized θ that was simulated
+    theta      JSON list, the normalized θ that was evaluated
     z          JSON list, the critic's unit-box latent point (phase 3), else NULL
     tag        the critic's tag of the point (see latentune.critic.base)
-    cost, fell, fall_step, wall_s, seed, created (unix time)
+    cost, fell (the trial failed), fall_step, wall_s, seed, created (unix time)
+    info       JSON object of the trial's details (Outcome.info; ask/tell: trial id, note)
+
+``trials``: suggestions handed out by ``ask`` (trials run elsewhere)::
+
+    id         integer, never reused
+    phase, theta, z, tag   as above
+    status     'pending' until told, then 'told'
+    idx        the evaluation row it became (NULL while pending)
+    created, told (unix times)
 
 The critic's point is ``z`` in phase 3 and ``theta`` otherwise (:meth:`RunStore.history`).
+Stores of version 1 (no ``info``, no ``trials``) are upgraded in place when opened.
 """
 from __future__ import annotations
 
@@ -24,14 +36,18 @@ import json
 import math
 import sqlite3
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable
+from contextlib import contextmanager
+from typing import Any, Iterable, Iterator
 
 import numpy as np
 
+from latentune.constants import C1
+from latentune.errors import StoreError
+
 FORMAT = "latentune-run-store"
-VERSION = 1
+VERSION = 2
 DB_NAME = "run.db"
 
 _SCHEMA = """
@@ -48,13 +64,23 @@ CREATE TABLE IF NOT EXISTS evaluations (
     wall_s REAL,
     seed INTEGER,
     created REAL NOT NULL,
+    info TEXT,
     PRIMARY KEY (phase, idx)
 );
 """
-
-
-class StoreError(Exception):
-    """A missing, corrupt or foreign run store, or a write that would break its invariants."""
+_TRIALS = """
+CREATE TABLE IF NOT EXISTS trials (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    phase INTEGER NOT NULL,
+    theta TEXT NOT NULL,
+    z TEXT,
+    tag INTEGER NOT NULL,
+    status TEXT NOT NULL,
+    idx INTEGER,
+    created REAL NOT NULL,
+    told REAL
+);
+"""
 
 
 @dataclass
@@ -72,6 +98,29 @@ class Row:
     wall_s: float | None
     seed: int | None
     created: float
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class Trial:
+    """A suggestion handed out by ask (``status`` 'pending' or 'told')."""
+
+    id: int
+    phase: int
+    theta: np.ndarray
+    z: np.ndarray | None
+    tag: int
+    status: str
+    idx: int | None
+    created: float
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.integer, np.floating, np.bool_)):
+        return o.item()
+    return str(o)
 
 
 def _enc(a: Any) -> str | None:
@@ -107,12 +156,30 @@ class RunStore:
             self.con.execute("PRAGMA journal_mode=WAL")
             self.con.execute("PRAGMA synchronous=NORMAL")
             if not exists:
-                self.con.executescript("BEGIN;" + _SCHEMA + "COMMIT;")
+                self.con.executescript("BEGIN;" + _SCHEMA + _TRIALS + "COMMIT;")
                 self.set_meta("format", FORMAT)
                 self.set_meta("version", VERSION)
                 self.set_meta("created", time.time())
+            else:
+                self._upgrade()
+        except sqlite3.OperationalError as exc:
+            raise StoreError(f"run store {self.path}: {exc}") from None
         except sqlite3.DatabaseError as exc:
             raise StoreError(f"run store {self.path} is corrupt ({exc})") from None
+
+    def _upgrade(self) -> None:
+        """Bring a version-1 store to this version (adds ``evaluations.info`` and ``trials``)."""
+        cols = {r[1] for r in self.con.execute("PRAGMA table_info(evaluations)")}
+        tables = {r[0] for r in self.con.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+        if "info" in cols and "trials" in tables:
+            return
+        with self.con:
+            if "info" not in cols:
+                self.con.execute("ALTER TABLE evaluations ADD COLUMN info TEXT")
+            if "trials" not in tables:
+                self.con.execute(_TRIALS)
+            self.con.execute("INSERT OR REPLACE INTO meta(key, value) VALUES ('version', ?)",
+                             (json.dumps(VERSION),))
 
     def _check_foreign(self) -> None:
         """Validate an existing file read-only (nothing is written to a foreign/corrupt file)."""
@@ -148,16 +215,24 @@ class RunStore:
 
     # ------------------------------------------------------------------ meta
     def set_meta(self, key: str, value: Any) -> None:
-        with self.con:
+        """Store a JSON-able value under ``key`` (its own transaction)."""
+        with self._write():
             self.con.execute("INSERT OR REPLACE INTO meta(key, value) VALUES (?, ?)",
-                             (key, json.dumps(value)))
+                             (key, json.dumps(value, default=_json_default)))
 
     def get_meta(self, key: str, default: Any = None) -> Any:
+        """The JSON value stored under ``key`` (``default`` if absent); StoreError if garbled."""
         row = self.con.execute("SELECT value FROM meta WHERE key=?", (key,)).fetchone()
-        return default if row is None else json.loads(row[0])
+        if row is None:
+            return default
+        try:
+            return json.loads(row[0])
+        except (json.JSONDecodeError, TypeError):
+            raise StoreError(f"run store {self.path}: meta entry {key!r} is not valid JSON") from None
 
     def meta(self) -> dict[str, Any]:
-        return {k: json.loads(v) for k, v in self.con.execute("SELECT key, value FROM meta")}
+        """Every meta entry, decoded."""
+        return {k: self.get_meta(k) for (k,) in self.con.execute("SELECT key FROM meta")}
 
     def add_artifact(self, name: str, path: str | Path) -> None:
         """Record an artifact path (stored relative to the run directory when inside it)."""
@@ -188,33 +263,121 @@ class RunStore:
 
     def add(self, phase: int, idx: int, theta: Any, cost: float, *, z: Any = None, tag: int = -1,
             fell: bool | None = None, fall_step: int | None = None, wall_s: float | None = None,
-            seed: int | None = None) -> None:
-        """Commit one evaluation (its own transaction). A duplicate (phase, idx) raises StoreError."""
+            seed: int | None = None, info: dict[str, Any] | None = None) -> None:
+        """Commit one evaluation (its own transaction). A duplicate (phase, idx) raises StoreError.
+
+        ``fell`` defaults to ``not cost < C1``; non-finite costs are stored as ±1e300."""
+        with self._write():
+            self._insert(phase, idx, theta, cost, z, tag, fell, fall_step, wall_s, seed, info)
+
+    def _insert(self, phase: int, idx: int, theta: Any, cost: float, z: Any, tag: int,
+                fell: bool | None, fall_step: int | None, wall_s: float | None,
+                seed: int | None, info: dict[str, Any] | None) -> None:
         cost = float(cost)
         if fell is None:
-            fell = not (math.isfinite(cost) and cost < 100.0)
+            fell = not (math.isfinite(cost) and cost < C1)
         if not math.isfinite(cost):
             cost = 1e300 if cost > 0 or math.isnan(cost) else -1e300
         try:
-            with self.con:
-                self.con.execute(
-                    "INSERT INTO evaluations(phase, idx, theta, z, tag, cost, fell, fall_step, "
-                    "wall_s, seed, created) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
-                    (int(phase), int(idx), _enc(theta), _enc(z), int(tag), cost, int(bool(fell)),
-                     None if fall_step is None else int(fall_step),
-                     None if wall_s is None else float(wall_s),
-                     None if seed is None else int(seed), time.time()))
+            self.con.execute(
+                "INSERT INTO evaluations(phase, idx, theta, z, tag, cost, fell, fall_step, "
+                "wall_s, seed, created, info) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                (int(phase), int(idx), _enc(theta), _enc(z), int(tag), cost, int(bool(fell)),
+                 None if fall_step is None else int(fall_step),
+                 None if wall_s is None else float(wall_s),
+                 None if seed is None else int(seed), time.time(),
+                 None if not info else json.dumps(info, default=_json_default)))
         except sqlite3.IntegrityError:
             raise StoreError(f"evaluation {idx} of phase {phase} is already stored") from None
 
+    @contextmanager
+    def _write(self) -> Iterator[None]:
+        """One write transaction (BEGIN IMMEDIATE … COMMIT); a full disk or a locked database
+        becomes a StoreError with the store untouched."""
+        try:
+            self.con.execute("BEGIN IMMEDIATE")
+        except sqlite3.OperationalError as exc:
+            raise StoreError(f"run store {self.path}: {exc}") from None
+        try:
+            yield
+            self.con.execute("COMMIT")
+        except BaseException as exc:
+            try:
+                self.con.execute("ROLLBACK")
+            except sqlite3.Error:
+                pass
+            if isinstance(exc, sqlite3.OperationalError):
+                raise StoreError(f"run store {self.path}: {exc}") from None
+            raise
+
+    # ------------------------------------------------------------------ ask/tell trials
+    def add_trial(self, phase: int, theta: Any, z: Any, tag: int) -> int:
+        """Record a pending suggestion; return its id."""
+        with self._write():
+            cur = self.con.execute(
+                "INSERT INTO trials(phase, theta, z, tag, status, idx, created) "
+                "VALUES (?, ?, ?, ?, 'pending', NULL, ?)",
+                (int(phase), _enc(theta), _enc(z), int(tag), time.time()))
+            return int(cur.lastrowid)
+
+    def trials(self, status: str | None = None) -> list[Trial]:
+        """Suggestions (oldest first), all or those with ``status`` ('pending' or 'told')."""
+        q = "SELECT id, phase, theta, z, tag, status, idx, created FROM trials"
+        rows = self.con.execute(q + (" WHERE status=?" if status else "") + " ORDER BY id",
+                                (status,) if status else ())
+        return [Trial(int(r[0]), int(r[1]), np.array(json.loads(r[2]), dtype=float),
+                      None if r[3] is None else np.array(json.loads(r[3]), dtype=float),
+                      int(r[4]), r[5], r[6], float(r[7])) for r in rows]
+
+    def trials_by_id(self, trial_id: int) -> Trial:
+        """The suggestion ``trial_id`` (StoreError if there is none)."""
+        for t in self.trials():
+            if t.id == int(trial_id):
+                return t
+        raise StoreError(f"no suggestion with id {trial_id} in {self.dir}")
+
+    def tell_trial(self, trial_id: int, cost: float, *, fell: bool, fall_step: int | None = None,
+                   wall_s: float | None = None, seed: int | None = None,
+                   info: dict[str, Any] | None = None) -> int:
+        """Store the result of a pending suggestion as the next evaluation of its phase and mark
+        it told, in one transaction (a crash leaves it pending, never half-told). Returns idx.
+
+        Raises StoreError for an unknown or already told id."""
+        with self._write():
+            r = self.con.execute("SELECT phase, theta, z, tag, status, idx FROM trials WHERE id=?",
+                                 (int(trial_id),)).fetchone()
+            if r is None:
+                raise StoreError(f"no suggestion with id {trial_id} in {self.dir}")
+            if r[4] != "pending":
+                raise StoreError(f"suggestion {trial_id} was already told (evaluation {r[5]} "
+                                 f"of phase {r[0]})")
+            phase = int(r[0])
+            row = self.con.execute("SELECT MAX(idx) FROM evaluations WHERE phase=?",
+                                   (phase,)).fetchone()
+            idx = 0 if row[0] is None else int(row[0]) + 1
+            inf = dict(info or {})
+            inf["trial"] = int(trial_id)
+            self._insert(phase, idx, json.loads(r[1]), cost,
+                         None if r[2] is None else json.loads(r[2]), int(r[3]), fell, fall_step,
+                         wall_s, seed, inf)
+            self.con.execute("UPDATE trials SET status='told', idx=?, told=? WHERE id=?",
+                             (idx, time.time(), int(trial_id)))
+        return idx
+
     def rows(self, phase: int) -> list[Row]:
+        """The evaluations of ``phase`` in idx order (StoreError for a garbled row)."""
         out = []
         for r in self.con.execute(
-                "SELECT phase, idx, theta, z, tag, cost, fell, fall_step, wall_s, seed, created "
-                "FROM evaluations WHERE phase=? ORDER BY idx", (phase,)):
-            out.append(Row(r[0], r[1], np.array(json.loads(r[2]), dtype=float),
-                           None if r[3] is None else np.array(json.loads(r[3]), dtype=float),
-                           int(r[4]), float(r[5]), bool(r[6]), r[7], r[8], r[9], r[10]))
+                "SELECT phase, idx, theta, z, tag, cost, fell, fall_step, wall_s, seed, created, "
+                "info FROM evaluations WHERE phase=? ORDER BY idx", (int(phase),)):
+            try:
+                out.append(Row(r[0], r[1], np.array(json.loads(r[2]), dtype=float),
+                               None if r[3] is None else np.array(json.loads(r[3]), dtype=float),
+                               int(r[4]), float(r[5]), bool(r[6]), r[7], r[8], r[9], r[10],
+                               json.loads(r[11]) if r[11] else {}))
+            except (json.JSONDecodeError, TypeError, ValueError):
+                raise StoreError(f"run store {self.path}: evaluation {r[1]} of phase {r[0]} "
+                                 "is garbled") from None
         return out
 
     def history(self, phase: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

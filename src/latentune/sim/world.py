@@ -9,9 +9,8 @@ import math
 import numpy as np
 from latentune.sim.bullet import p, quiet_stderr
 
+from latentune.constants import G, TERRAINS
 from latentune.robots import RobotModel, RobotSpec
-
-TERRAINS = ("flat", "hills")
 
 
 class RobotState:
@@ -92,10 +91,14 @@ class World:
 
     Args:
         spec: the robot.
-        terrain: ``"flat"`` or ``"hills"`` (5 m × 5 m Perlin heightfield, 0.05 m cells, ≤ 0.02 m).
+        terrain: one of :data:`latentune.constants.TERRAINS`: ``"flat"`` or ``"hills"`` (5 m × 5 m
+            Perlin heightfield, 0.05 m cells, ≤ 0.02 m).
         seed: terrain seed.
         dt: physics step [s] (1 kHz by default).
-        start_x: initial base x [m] (hills start near the field's back edge).
+
+    Attributes:
+        start_x: initial base x [m] (0 on flat ground; hills start near the field's back edge).
+        ground_z: highest terrain point [m] (0 on flat ground).
     """
 
     def __init__(self, spec: RobotSpec, terrain: str = "flat", seed: int = 0, dt: float = 0.001):
@@ -107,7 +110,7 @@ class World:
         self.dt = dt
         self.cid = p.connect(p.DIRECT)
         c = self.cid
-        p.setGravity(0, 0, -9.81, physicsClientId=c)
+        p.setGravity(0, 0, -G, physicsClientId=c)
         p.setTimeStep(dt, physicsClientId=c)
         p.setPhysicsEngineParameter(enableConeFriction=0, physicsClientId=c)
         self.start_x = 0.0

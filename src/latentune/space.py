@@ -13,41 +13,87 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 
-
-class ParamsError(ValueError):
-    """A parameter vector or file that cannot be used (wrong length, NaN, out of bounds, …)."""
+from latentune.errors import ParamsError
 
 
-@dataclass(frozen=True)
+def _vec(name: str, v: Any, d: int, dtype: type) -> np.ndarray:
+    a = np.asarray(v, dtype=dtype).reshape(-1)
+    if a.shape != (d,):
+        raise ValueError(f"ParameterSpace: {name} must have {d} entries (one per name), got {a.shape[0]}")
+    return a
+
+
 class ParameterSpace:
-    """Names, bounds and scales of θ; the manual-tuned θ.
+    """Names, bounds and scales of θ, and the manual-tuned θ.
 
-    Attributes:
-        names: (d,) entry names.
-        lower, upper: (d,) physical bounds.
-        log: (d,) True where the entry is log-scaled (then lower > 0).
-        manual_physical: (d,) the manual-tuned θ in physical units.
+    ``ParameterSpace(names, low, high, log=None, manual=None)``:
+
+    Args:
+        names: d distinct entry names.
+        low, high: (d,) physical bounds, low < high, finite.
+        log: (d,) True where the entry is log-scaled (then low > 0); default all linear.
+        manual: (d,) the hand-tuned θ in physical units, inside the bounds; default the centre
+            of the unit box. Phase 1 starts its first trust region there.
+
+    Attributes ``lower``, ``upper``, ``log``, ``manual_physical`` hold the (d,) arrays.
+    Raises ``ValueError`` for inconsistent arguments.
     """
 
-    names: tuple[str, ...]
-    lower: np.ndarray
-    upper: np.ndarray
-    log: np.ndarray
-    manual_physical: np.ndarray
+    def __init__(self, names: Sequence[str], low: Any, high: Any, log: Any = None,
+                 manual: Any = None) -> None:
+        names_t = tuple(str(n) for n in names)
+        d = len(names_t)
+        if d < 1:
+            raise ValueError("ParameterSpace needs at least one name")
+        if len(set(names_t)) != d:
+            raise ValueError("ParameterSpace names must be distinct")
+        lower = _vec("low", low, d, float)
+        upper = _vec("high", high, d, float)
+        lg = np.zeros(d, bool) if log is None else _vec("log", log, d, bool)
+        if not (np.all(np.isfinite(lower)) and np.all(np.isfinite(upper))):
+            raise ValueError("ParameterSpace bounds must be finite")
+        if np.any(lower >= upper) or np.any(lower[lg] <= 0):
+            raise ValueError("ParameterSpace needs low < high and low > 0 on log entries")
+        self.names = names_t
+        self.lower = lower
+        self.upper = upper
+        self.log = lg
+        if manual is None:
+            man = self.to_physical(np.full(d, 0.5))
+        else:
+            man = _vec("manual", manual, d, float)
+            if not np.all(np.isfinite(man)):
+                raise ValueError("ParameterSpace manual values must be finite")
+            tol = 1e-9 * np.maximum(np.abs(upper - lower), 1.0)
+            if np.any(man < lower - tol) or np.any(man > upper + tol):
+                i = int(np.flatnonzero((man < lower - tol) | (man > upper + tol))[0])
+                raise ValueError(f"ParameterSpace: manual {names_t[i]} = {man[i]:g} is outside "
+                                 f"[{lower[i]:g}, {upper[i]:g}]")
+        self.manual_physical = man
 
-    def __post_init__(self) -> None:
-        d = len(self.names)
-        for arr in (self.lower, self.upper, self.log, self.manual_physical):
-            if np.shape(arr) != (d,):
-                raise ValueError("ParameterSpace arrays must all have shape (d,)")
-        if np.any(self.lower >= self.upper) or np.any(self.lower[self.log] <= 0):
-            raise ValueError("ParameterSpace needs lower < upper and lower > 0 on log entries")
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, ParameterSpace) and self.to_dict() == other.to_dict()
+
+    def __repr__(self) -> str:
+        return f"ParameterSpace(dim={self.dim}, names={list(self.names[:3])}{'...' if self.dim > 3 else ''})"
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able form (recorded in the run store); :meth:`from_dict` reads it back."""
+        return {"names": list(self.names), "low": self.lower.tolist(), "high": self.upper.tolist(),
+                "log": self.log.tolist(), "manual": self.manual_physical.tolist()}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "ParameterSpace":
+        """Build a space from :meth:`to_dict`'s form (also the ``--space`` YAML/JSON file form).
+        Raises ``ValueError`` for missing keys or inconsistent values."""
+        if not isinstance(d, dict) or not {"names", "low", "high"} <= set(d):
+            raise ValueError("a parameter space needs the keys names, low, high (log, manual optional)")
+        return cls(d["names"], d["low"], d["high"], d.get("log"), d.get("manual"))
 
     @property
     def dim(self) -> int:
@@ -132,5 +178,4 @@ class ParameterSpace:
 def make_space(entries: Sequence[tuple[str, float, float, bool, float]]) -> ParameterSpace:
     """Build a space from rows (name, lower, upper, log, manual_physical)."""
     names, lo, hi, lg, man = zip(*entries)
-    return ParameterSpace(tuple(names), np.array(lo, float), np.array(hi, float),
-                          np.array(lg, bool), np.array(man, float))
+    return ParameterSpace(names, lo, hi, lg, man)

@@ -1,0 +1,280 @@
+"""The report of one run directory (``latentune report DIR``): every number from ``DIR/run.db``.
+
+* :func:`comparison_table`: Markdown table of the manual θ, phase 1, phase 3 and, when the store
+  has phase-4 rows, the zero-shot baseline (the source run's best θ evaluated as it is).
+* :func:`write_summary`: ``DIR/summary.json``.
+* :func:`make_report`: ``DIR/report.md``, ``DIR/best_so_far.png`` and, when a system that can
+  record rollouts is available, ``DIR/com_velocity.png`` (the stored best θ of each phase
+  re-simulated with ``record=True``).
+
+A built-in task (the stored config has ``config["task"]``) also gets the RMS velocity error
+[m/s] beside each path cost; a user system's run (no ``"task"``) gets the tables and the
+best-cost figure, and the CoM figure only when ``make_report`` is given the system.
+"""
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+from typing import Any
+
+import numpy as np
+
+from latentune.constants import Phase
+from latentune.reporting.metrics import fall_count, paper_row, phase_stats, rms_velocity_error
+
+TABLE_PHASES = (Phase.MANUAL, Phase.PHASE1, Phase.PHASE3, Phase.ZERO_SHOT)
+"""The table's rows, in order; a zero-shot row appears only when the store has one."""
+
+METHOD_LABEL = {"turbo": "TuRBO-m", "cma": "CMA-ES", "random": "random search",
+                "sobol": "Sobol search"}
+
+
+def fmt(v: Any, nd: int = 3) -> str:
+    """A table cell: ``–`` for None or a non-finite float, an int as it is, else ``nd`` decimals."""
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "–"
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    return f"{float(v):.{nd}f}"
+
+
+def task_from_config(config: dict[str, Any]):
+    """The :class:`~latentune.task.Task` of a stored run config (``config["task"]``), or None
+    for a user system's run (no ``"task"``)."""
+    if "task" not in config:
+        return None
+    from latentune.task import Task
+
+    return Task.from_config(config["task"])
+
+
+def phase_label(phase: int, config: dict[str, Any]) -> str:
+    """The table label of a phase, naming the critic of the stored config."""
+    def method(key: str) -> str:
+        m = str((config.get(key) or {}).get("method", "turbo"))
+        return METHOD_LABEL.get(m, m)
+
+    return {Phase.MANUAL: "manual tuned",
+            Phase.PHASE1: f"phase 1 (θ, {method('phase1')})",
+            Phase.PHASE3: f"phase 3 (latent, {method('phase3')})",
+            Phase.ZERO_SHOT: "zero-shot (source best θ)"}.get(int(phase), f"phase {phase}")
+
+
+def _steps(config: dict[str, Any]) -> int | None:
+    """N_H of a built-in task's rollouts, None for a user system."""
+    t = config.get("task")
+    return None if not t or t.get("steps") is None else int(t["steps"])
+
+
+def _title(config: dict[str, Any]) -> str:
+    t = config.get("task")
+    if t:
+        return f"{t.get('robot', '?')} {t.get('gait', '?')} ({t.get('terrain', '?')}, {t.get('actor', '?')})"
+    s = config.get("system")
+    name = next((s[k] for k in ("target", "class", "name") if s.get(k)), None) \
+        if isinstance(s, dict) else s
+    return f"system {name}" if name else "user system"
+
+
+def _paper_numbers(config: dict[str, Any]) -> dict[str, Any] | None:
+    """The paper's manual / phase 1 / phase 3 costs of a built-in task (phase 3 of its terrain),
+    None when the paper has no row for its robot and gait."""
+    t = config.get("task") or {}
+    row = paper_row(str(t.get("robot", "")), str(t.get("gait", "")))
+    if not row:
+        return None
+    key = "phase3_even" if t.get("terrain") == "flat" else "phase3_uneven"
+    return {"manual": row.get("manual"), "phase1": row.get("phase1"), "phase3": row.get(key)}
+
+
+def run_stats(store: Any) -> dict[int, dict[str, Any]]:
+    """Phase → :func:`~latentune.reporting.metrics.phase_stats` of the store's costs against the
+    manual θ's cost, plus ``rms`` (RMS velocity error of the best θ [m/s], built-in tasks only)
+    and ``falls`` counted from the stored ``fell`` flags."""
+    cfg = store.get_meta("config") or {}
+    steps = _steps(cfg)
+    manual = phase_stats(store.costs(Phase.MANUAL))["best"]
+    out = {}
+    for ph in TABLE_PHASES:
+        rows = store.rows(ph)
+        s = phase_stats([r.cost for r in rows], manual)
+        s["falls"] = fall_count([r.cost for r in rows], [r.fell for r in rows])
+        s["rms"] = rms_velocity_error(s["best"], steps) if steps else None
+        out[int(ph)] = s
+    return out
+
+
+def comparison_table(store: Any) -> str:
+    """The Markdown table of the run: per phase the best cost, (built-in tasks) its RMS velocity
+    error [m/s], the number of evaluations, the stable ones and the evaluations until the first
+    cost strictly below the manual θ's; the paper's numbers below it when it has the task."""
+    cfg = store.get_meta("config") or {}
+    t = cfg.get("task")
+    stats = run_stats(store)
+    rms = t is not None
+    if t:
+        head = (f"{t.get('robot', '?')} {t.get('gait', '?')} on {t.get('terrain', '?')} "
+                f"[{t.get('actor', '?')}], {t.get('steps', '?')} steps, v_des {t.get('v_des', '?')}")
+    else:
+        head = _title(cfg)
+    cols = ["best path cost" if rms else "best cost"] + (["RMS velocity error [m/s]"] if rms else [])
+    cols += ["evaluations", "stable", "evals to beat manual"]
+    lines = [head, "", "| | " + " | ".join(cols) + " |", "|---|" + "---:|" * len(cols)]
+    for ph in TABLE_PHASES:
+        s = stats[int(ph)]
+        if s["n"] == 0:
+            if ph == Phase.ZERO_SHOT:
+                continue
+            cells = ["–"] * (2 if rms else 1) + ["0", "–", "–"]
+        else:
+            beat = "–"
+            if ph != Phase.MANUAL and stats[Phase.MANUAL]["best"] is not None:
+                beat = fmt(s["evals_to_beat"]) if s["evals_to_beat"] is not None else "not beaten"
+            cells = [fmt(s["best"])] + ([fmt(s["rms"])] if rms else [])
+            cells += [str(s["n"]), f"{s['stable']}/{s['n']}", beat]
+        lines.append(f"| {phase_label(ph, cfg)} | " + " | ".join(cells) + " |")
+    paper = _paper_numbers(cfg) if t else None
+    if paper and any(v is not None for v in paper.values()):
+        lines.append("")
+        lines.append("paper (Sarmadi et al., 10000 phase-1 evaluations): manual "
+                     f"{paper['manual']}, phase 1 {paper['phase1']}, phase 3 {paper['phase3']}")
+    return "\n".join(lines)
+
+
+def write_summary(store: Any, wall_this: float | None = None) -> dict[str, Any]:
+    """Write ``DIR/summary.json`` from the store and return it.
+
+    Costs: ``manual_cost``, ``phase1_best``, ``phase3_best``, ``zero_shot_cost`` (None without
+    phase-4 rows), ``phase3_vs_phase1`` (ratio of the bests); counts: ``phase{1,3}_evals``,
+    ``phase{1,3}_stable``, ``phase{1,3}_falls``, ``phase{1,3}_evals_to_beat_manual`` (first
+    evaluation strictly below the manual cost, 1-based, None if never); ``rms_velocity_error_m_s``
+    (per phase, the best θ's RMS velocity error [m/s]; None for a user system); wall times [s]
+    ``wall_s`` (sum over phases), ``wall_by_phase_s``, ``wall_s_this_command``; ``seed``,
+    ``config``, ``artifacts``, ``phase{1,3}_best_params``, ``paper`` (the paper's numbers for
+    the task or None), ``written`` (unix time).
+    """
+    cfg = store.get_meta("config") or {}
+    wall = store.get_meta("wall", {}) or {}
+    arts = store.get_meta("artifacts", {}) or {}
+    st = run_stats(store)
+    p0, p1, p3, p4 = (st[int(ph)] for ph in TABLE_PHASES)
+    names = {"manual": p0, "phase1": p1, "phase3": p3, "zero_shot": p4}
+    summary = {
+        "manual_cost": p0["best"],
+        "phase1_best": p1["best"],
+        "phase3_best": p3["best"],
+        "zero_shot_cost": p4["best"],
+        "phase1_evals": p1["n"],
+        "phase3_evals": p3["n"],
+        "phase1_stable": p1["stable"],
+        "phase3_stable": p3["stable"],
+        "phase1_falls": p1["falls"],
+        "phase3_falls": p3["falls"],
+        "phase1_evals_to_beat_manual": p1["evals_to_beat"],
+        "phase3_evals_to_beat_manual": p3["evals_to_beat"],
+        "phase3_vs_phase1": (p3["best"] / p1["best"]) if p1["best"] and p3["best"] else None,
+        "rms_velocity_error_m_s": ({k: v["rms"] for k, v in names.items()}
+                                   if _steps(cfg) else None),
+        "wall_s": float(sum(wall.values())),
+        "wall_by_phase_s": wall,
+        "wall_s_this_command": wall_this,
+        "seed": cfg.get("phase1", cfg.get("phase3", {})).get("seed", cfg.get("task", {}).get("seed")),
+        "config": cfg,
+        "phase1_best_params": arts.get("phase1_best"),
+        "phase3_best_params": arts.get("phase3_best"),
+        "artifacts": arts,
+        "paper": _paper_numbers(cfg) if "task" in cfg else None,
+        "written": time.time(),
+    }
+    (store.dir / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
+    return summary
+
+
+def _curve_panels(store: Any, cfg: dict[str, Any]) -> list:
+    """One best-cost panel per tuned phase (phase 1, phase 3), each on its own evaluation axis."""
+    from latentune.reporting.plots import CurvePanel
+
+    manual = phase_stats(store.costs(Phase.MANUAL))["best"]
+    zero = phase_stats(store.costs(Phase.ZERO_SHOT))["best"]
+    panels = []
+    for ph in (Phase.PHASE1, Phase.PHASE3):
+        rows = store.rows(ph)
+        if not rows:
+            continue
+        label = phase_label(ph, cfg)
+        refs: dict[str, float | None] = {"manual θ": manual}
+        if ph == Phase.PHASE3 and zero is not None:
+            refs["zero-shot (source best θ)"] = zero
+        panels.append(CurvePanel(f"{label}: {len(rows)} evaluations",
+                                 {label: [r.cost for r in rows]}, refs,
+                                 {label: [r.fell for r in rows]}))
+    return panels
+
+
+def _rollout_system(system: Any, cfg: dict[str, Any]):
+    """The system used to re-simulate: ``system`` if given, else the stored built-in task;
+    None when neither has a ``rollout(theta, record=True)`` method."""
+    sim = system if system is not None else task_from_config(cfg)
+    return sim if callable(getattr(sim, "rollout", None)) else None
+
+
+def make_report(store: Any, system: Any = None, simulate: bool = True, quiet: bool = False) -> str:
+    """Write ``DIR/report.md``, ``DIR/best_so_far.png``, ``DIR/summary.json`` and (``simulate``
+    and a system with ``rollout(theta, record=True)``: ``system``, else the stored config's
+    task) ``DIR/com_velocity.png``; return the comparison table (Markdown).
+
+    ``quiet``: no progress messages on stderr.
+    """
+    from latentune.reporting.plots import plot_best_so_far, plot_rollouts
+
+    cfg = store.get_meta("config") or {}
+    title = _title(cfg)
+    out = store.dir
+    figs = []
+    panels = _curve_panels(store, cfg)
+    if panels:
+        plot_best_so_far(panels, out / "best_so_far.png", title=f"{title}: best cost so far")
+        store.add_artifact("best_so_far_png", out / "best_so_far.png")
+        figs.append("best_so_far.png")
+    sim = _rollout_system(system, cfg) if simulate else None
+    if sim is not None:
+        runs = {}
+        for ph in TABLE_PHASES:
+            b = store.best(ph)
+            if b is not None:
+                if not quiet:
+                    print(f"report: re-simulating the best θ of {phase_label(ph, cfg)}",
+                          file=sys.stderr)
+                runs[phase_label(ph, cfg)] = sim.rollout(b.theta, record=True)
+        if runs:
+            v_des = getattr(sim, "v_des", None)
+            plot_rollouts(runs, out / "com_velocity.png",
+                          v_des=None if v_des is None else float(np.ravel(v_des)[0]), title=title)
+            store.add_artifact("com_velocity_png", out / "com_velocity.png")
+            figs.append("com_velocity.png")
+    summary = write_summary(store)
+    table = comparison_table(store)
+    lat = cfg.get("latent") or cfg.get("vae") or {}
+    md = [f"# latentune run: {title}", "", table, ""]
+    if lat:
+        md.append(f"Latent space: kind {lat.get('kind')}, d_low {lat.get('d_low')}, trained on "
+                  f"{lat.get('n_train')} stable θ; box: {lat.get('box_rule')}.")
+        src = cfg.get("phase3_vae_source")
+        if src and src != "self":
+            md.append(f"Phase 3 used the VAE of {src} ({lat.get('from')}).")
+        md.append("")
+    wall = summary.get("wall_by_phase_s") or {}
+    if wall:
+        md.append("Wall time: " + ", ".join(f"{k} {v:.0f} s" for k, v in wall.items()) + ".")
+        md.append("")
+    for f in figs:
+        md.append(f"![{f}]({f})")
+    (out / "report.md").write_text("\n".join(md) + "\n")
+    store.add_artifact("report_md", out / "report.md")
+    return table
+
+
+__all__ = ["comparison_table", "write_summary", "make_report", "run_stats", "task_from_config",
+           "phase_label", "fmt"]

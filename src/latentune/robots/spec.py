@@ -1,0 +1,324 @@
+"""Robot specifications: what the actors and the simulator need to know about a quadruped.
+
+A :class:`RobotSpec` names a URDF, the 12 actuated joints in leg order FR, FL, RR, RL (hip
+abduction, hip flexion, knee per leg), the four foot links, the nominal stance and per-gait
+fixed timing. Mass, inertia, hip offsets and foot positions are measured from the URDF
+(:class:`~latentune.robots.model.RobotModel`), so they are not spec fields.
+
+A spec is a YAML file read by :func:`load_spec_file`; the built-in robots (:data:`BUILTIN`) are
+the files ``specs/<name>.yaml`` of this package. The ``urdf`` field is a path (absolute, or
+relative to the YAML file) or ``{package: <name>, path: <path inside the package>}`` for a URDF
+shipped by an installed package (``pybullet_data``, ``example-robot-data``). ``base: <built-in
+name>`` starts from a built-in robot and overrides only the fields given. Units: SI (m, s, rad,
+N·m); angles of ``max_tilt_deg`` in degrees.
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+import importlib.resources
+import math
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from latentune.errors import RobotSpecError
+from latentune.robots.urdf import package_dir
+
+LEGS = ("FR", "FL", "RR", "RL")
+
+TROT_OFFSETS = (0.0, 0.5, 0.5, 0.0)
+JUMP_OFFSETS = (0.0, 0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class GaitParams:
+    """Fixed (not tuned) gait timing per robot × gait. Times in seconds, heights in metres."""
+
+    period: float        # full gait cycle [s]
+    duty: float          # stance fraction of the cycle
+    step_height: float   # swing apex above the ground [m]
+    offsets: tuple[float, float, float, float]  # phase offset per leg FR, FL, RR, RL, in cycles
+
+
+@dataclass(frozen=True)
+class CollisionShape:
+    """The collision shape that replaces a link's collision meshes (``primitive_collisions``).
+
+    Attributes:
+        kind: ``"box"`` or ``"sphere"``.
+        size: box edge lengths (x, y, z) [m]; sphere ``(radius,)`` [m], or ``()`` for a sphere
+            of the spec's ``foot_radius``.
+        xyz: shape origin in the link frame [m].
+    """
+
+    kind: str
+    size: tuple[float, ...]
+    xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def to_dict(self) -> dict[str, Any]:
+        size: Any = list(self.size) if self.kind == "box" else (self.size[0] if self.size else "foot_radius")
+        return {self.kind: size, "xyz": list(self.xyz)}
+
+
+@dataclass(frozen=True)
+class RobotSpec:
+    """Static description of a quadruped. Leg order is always FR, FL, RR, RL.
+
+    Attributes:
+        name: short name.
+        urdf: absolute path of the URDF file loaded by PyBullet and pinocchio.
+        joint_names: 12 actuated joint names, per leg (abduction, hip, knee).
+        foot_links: 4 foot link names.
+        nominal_q: (12,) joint angles of the standing pose [rad].
+        nominal_height: base height when standing at ``nominal_q`` on flat ground [m].
+        torque_limits: (3,) max |τ| for (abduction, hip, knee) [N·m].
+        kp, kd: (3,) joint PD gains for swing legs [N·m/rad, N·m·s/rad].
+        foot_radius: contact sphere radius [m].
+        gaits: gait name -> :class:`GaitParams`.
+        strip_root: the URDF has a massless dummy root link to remove.
+        primitive_collisions: replace collision meshes by ``collision_primitives`` (faster
+            stepping).
+        raibert_gain: swing foot placement gain on the velocity error [s].
+        mu: friction coefficient used by the MPC friction pyramid.
+        max_tilt_deg: base tilt beyond which the robot counts as fallen [deg].
+        collision_primitives: link-name suffix -> :class:`CollisionShape`; a link whose name
+            ends with no key loses its collision shapes (used with ``primitive_collisions``).
+    """
+
+    name: str
+    urdf: str
+    joint_names: tuple[str, ...]
+    foot_links: tuple[str, ...]
+    nominal_q: tuple[float, ...]
+    nominal_height: float
+    torque_limits: tuple[float, float, float]
+    kp: tuple[float, float, float]
+    kd: tuple[float, float, float]
+    foot_radius: float
+    gaits: dict[str, GaitParams] = field(default_factory=dict)
+    strip_root: bool = False
+    primitive_collisions: bool = False
+    raibert_gain: float = 0.03
+    mu: float = 0.45
+    max_tilt_deg: float = 60.0
+    collision_primitives: dict[str, CollisionShape] = field(default_factory=dict)
+
+    def gait(self, name: str) -> GaitParams:
+        if name not in self.gaits:
+            raise RobotSpecError(f"robot {self.name!r} has no gait {name!r} (has: {', '.join(self.gaits)})")
+        return self.gaits[name]
+
+    def to_dict(self) -> dict[str, Any]:
+        """Every field as JSON-able values (lists for tuples, ``urdf`` as an absolute path);
+        :func:`spec_from_dict` is the inverse."""
+        d: dict[str, Any] = {}
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            d[f.name] = list(v) if isinstance(v, tuple) else v
+        d["urdf"] = str(Path(self.urdf).resolve())
+        d["gaits"] = {k: {"period": g.period, "duty": g.duty, "step_height": g.step_height,
+                          "offsets": list(g.offsets)} for k, g in self.gaits.items()}
+        d["collision_primitives"] = {k: s.to_dict() for k, s in self.collision_primitives.items()}
+        return d
+
+
+# --------------------------------------------------------------------------- built-in robots
+
+SPECS_DIR = Path(str(importlib.resources.files(__package__).joinpath("specs")))
+"""Directory of the built-in spec files, inside the installed package."""
+
+BUILTIN: tuple[str, ...] = tuple(sorted(p.stem for p in SPECS_DIR.glob("*.yaml")))
+"""Names of the built-in robots (``a1``, ``b1``, ``solo12``)."""
+
+
+@functools.lru_cache(maxsize=None)
+def _builtin(name: str) -> RobotSpec:
+    return load_spec_file(SPECS_DIR / f"{name}.yaml")
+
+
+def _copy(spec: RobotSpec) -> RobotSpec:
+    """A spec with its own dicts (a cached spec is never shared mutably)."""
+    return dataclasses.replace(spec, gaits=dict(spec.gaits),
+                               collision_primitives=dict(spec.collision_primitives))
+
+
+def get_robot(robot: str | os.PathLike | RobotSpec | Mapping[str, Any]) -> RobotSpec:
+    """A robot spec from a built-in name (``a1``, ``b1``, ``solo12``), a spec ``.yaml`` path, a
+    :class:`RobotSpec` (returned as is) or a dict of fields (:func:`spec_from_dict`).
+
+    Raises:
+        RobotSpecError: unknown name, or a file or dict that is not a valid spec.
+    """
+    if isinstance(robot, RobotSpec):
+        return robot
+    if isinstance(robot, Mapping):
+        return spec_from_dict(robot)
+    if isinstance(robot, str) and robot in BUILTIN:
+        return _copy(_builtin(robot))
+    path = os.fspath(robot)
+    if path.endswith((".yaml", ".yml")) or os.path.sep in path:
+        return load_spec_file(path)
+    raise RobotSpecError(f"unknown robot {path!r} (choose from {', '.join(BUILTIN)} or a spec .yaml)")
+
+
+def is_builtin(spec: RobotSpec) -> bool:
+    """True iff ``spec`` equals (in every field) the built-in robot of the same name."""
+    return spec.name in BUILTIN and spec == _builtin(spec.name)
+
+
+# --------------------------------------------------------------------------- loading and validation
+
+def load_spec_file(path: str | os.PathLike) -> RobotSpec:
+    """Read a robot spec from a YAML file (see the module docstring; README, "Custom robots").
+
+    Raises:
+        RobotSpecError: missing file, bad YAML, missing/unknown/ill-typed field, URDF not found.
+    """
+    import yaml
+
+    p = Path(path)
+    if not p.is_file():
+        raise RobotSpecError(f"robot spec file not found: {p}")
+    try:
+        raw = yaml.safe_load(p.read_text())
+    except yaml.YAMLError as exc:
+        raise RobotSpecError(f"robot spec {p}: malformed YAML ({str(exc).splitlines()[0]})") from None
+    return _build(raw, f"robot spec {p}", p.parent)
+
+
+def spec_from_dict(d: Mapping[str, Any], base_dir: str | os.PathLike | None = None) -> RobotSpec:
+    """The spec of a dict of fields (:meth:`RobotSpec.to_dict`, or the keys of a YAML spec),
+    validated like :func:`load_spec_file`. A relative ``urdf`` path is taken relative to
+    ``base_dir`` (default: the working directory).
+
+    Raises:
+        RobotSpecError: missing/unknown/ill-typed field, URDF not found.
+    """
+    name = d.get("name", "?") if isinstance(d, Mapping) else "?"
+    return _build(d, f"robot spec {name!r}", Path(base_dir) if base_dir is not None else Path.cwd())
+
+
+_REQUIRED = ("name", "urdf", "joint_names", "foot_links", "nominal_q", "nominal_height",
+             "torque_limits", "kp", "kd", "foot_radius", "gaits")
+_FIELDS = frozenset(f.name for f in dataclasses.fields(RobotSpec))
+_TUPLES = {"joint_names": (12, str), "foot_links": (4, str), "nominal_q": (12, float),
+           "torque_limits": (3, float), "kp": (3, float), "kd": (3, float)}
+_POSITIVE = ("nominal_height", "foot_radius", "raibert_gain", "mu", "max_tilt_deg")
+_BOOLS = ("strip_root", "primitive_collisions")
+_GAIT_KEYS = {"period", "duty", "step_height", "offsets"}
+
+
+def _build(raw: Any, where: str, base_dir: Path) -> RobotSpec:
+    """Validate a mapping of spec fields (``where`` prefixes every error message)."""
+    if not isinstance(raw, Mapping):
+        raise RobotSpecError(f"{where}: expected a mapping of fields")
+    fields = dict(raw)
+    if "base" in fields:  # start from a built-in robot and override fields
+        base = fields.pop("base")
+        if not isinstance(base, str) or base not in BUILTIN:
+            raise RobotSpecError(f"{where}: unknown base robot {base!r} (choose from {', '.join(BUILTIN)})")
+        fields = {**_builtin(base).to_dict(), **fields}
+    missing = [k for k in _REQUIRED if k not in fields]
+    if missing:
+        raise RobotSpecError(f"{where}: missing field(s) {', '.join(missing)}")
+    unknown = set(fields) - _FIELDS
+    if unknown:
+        raise RobotSpecError(f"{where}: unknown field(s) {', '.join(sorted(unknown))}")
+    fields["urdf"] = _urdf_path(fields["urdf"], where, base_dir)
+    try:
+        if not isinstance(fields["name"], str) or not fields["name"]:
+            raise RobotSpecError(f"{where}: name must be a non-empty string")
+        for key, (n, typ) in _TUPLES.items():
+            vals = _sequence(fields[key], key, where)
+            if len(vals) != n:
+                raise RobotSpecError(f"{where}: {key} needs {n} entries, got {len(vals)}")
+            fields[key] = tuple(typ(v) for v in vals)
+            if typ is float and not all(math.isfinite(v) for v in fields[key]):
+                raise RobotSpecError(f"{where}: {key} must be finite numbers")
+        for key in _POSITIVE:
+            if key in fields:
+                fields[key] = float(fields[key])
+                if not math.isfinite(fields[key]) or fields[key] <= 0:
+                    raise RobotSpecError(f"{where}: {key} must be a positive number")
+        for key in _BOOLS:
+            if key in fields and not isinstance(fields[key], bool):
+                raise RobotSpecError(f"{where}: {key} must be true or false")
+        fields["gaits"] = _gaits(fields["gaits"], where)
+        fields["collision_primitives"] = _collision_primitives(fields.get("collision_primitives", {}), where)
+    except (TypeError, ValueError) as exc:
+        if isinstance(exc, RobotSpecError):
+            raise
+        raise RobotSpecError(f"{where}: bad value ({exc})") from None
+    if fields.get("primitive_collisions") and not fields["collision_primitives"]:
+        raise RobotSpecError(f"{where}: primitive_collisions needs collision_primitives "
+                             "(link-name suffix -> {box: [x, y, z]} or {sphere: radius})")
+    return RobotSpec(**fields)
+
+
+def _sequence(v: Any, key: str, where: str) -> tuple:
+    if isinstance(v, (str, bytes, Mapping)) or not hasattr(v, "__iter__"):
+        raise RobotSpecError(f"{where}: {key} must be a list")
+    return tuple(v)
+
+
+def _urdf_path(urdf: Any, where: str, base_dir: Path) -> str:
+    """Absolute path of the ``urdf`` field: a path string, or ``{package, path}``."""
+    if isinstance(urdf, Mapping):
+        if set(urdf) != {"package", "path"} or not all(isinstance(v, str) for v in urdf.values()):
+            raise RobotSpecError(f"{where}: urdf must be a path or {{package: <name>, path: <path>}}")
+        try:
+            path = package_dir(urdf["package"]) / urdf["path"]
+        except RobotSpecError as exc:
+            raise RobotSpecError(f"{where}: urdf: {exc}") from None
+    elif isinstance(urdf, (str, os.PathLike)):
+        path = Path(urdf)
+        if not path.is_absolute():
+            path = (base_dir / path).resolve()
+    else:
+        raise RobotSpecError(f"{where}: urdf must be a path or {{package: <name>, path: <path>}}")
+    if not path.is_file():
+        raise RobotSpecError(f"{where}: URDF not found: {path}")
+    return str(path)
+
+
+def _gaits(raw: Any, where: str) -> dict[str, GaitParams]:
+    if not isinstance(raw, Mapping) or not raw:
+        raise RobotSpecError(f"{where}: gaits must map gait names to {{period, duty, step_height}}")
+    gaits = {}
+    for name, g in raw.items():
+        if not isinstance(g, Mapping) or set(g) - _GAIT_KEYS or not {"period", "duty", "step_height"} <= set(g):
+            raise RobotSpecError(f"{where}: gait {name!r} needs period, duty, step_height (and optional offsets)")
+        offsets = _sequence(g.get("offsets", TROT_OFFSETS if name == "trot" else JUMP_OFFSETS), "offsets", where)
+        gp = GaitParams(float(g["period"]), float(g["duty"]), float(g["step_height"]),
+                        tuple(float(o) for o in offsets))
+        if not (gp.period > 0 and 0 < gp.duty < 1 and gp.step_height >= 0 and len(gp.offsets) == 4):
+            raise RobotSpecError(f"{where}: gait {name!r} needs period > 0, 0 < duty < 1, "
+                                 "step_height >= 0, 4 offsets")
+        gaits[str(name)] = gp
+    return gaits
+
+
+def _collision_primitives(raw: Any, where: str) -> dict[str, CollisionShape]:
+    if not isinstance(raw, Mapping):
+        raise RobotSpecError(f"{where}: collision_primitives must map link-name suffixes to shapes")
+    shapes = {}
+    for suffix, s in raw.items():
+        kinds = [k for k in ("box", "sphere") if isinstance(s, Mapping) and k in s]
+        if len(kinds) != 1 or set(s) - {kinds[0], "xyz"}:
+            raise RobotSpecError(f"{where}: collision primitive {suffix!r} needs one of box: [x, y, z] "
+                                 "or sphere: <radius | foot_radius> (and optional xyz)")
+        kind, size = kinds[0], s[kinds[0]]
+        if kind == "box":
+            size = tuple(float(v) for v in _sequence(size, f"{suffix}.box", where))
+        else:
+            size = () if size == "foot_radius" else (float(size),)
+        xyz = tuple(float(v) for v in _sequence(s.get("xyz", (0.0, 0.0, 0.0)), f"{suffix}.xyz", where))
+        if (kind == "box" and len(size) != 3) or len(xyz) != 3 or not all(
+                math.isfinite(v) and v > 0 for v in size) or not all(math.isfinite(v) for v in xyz):
+            raise RobotSpecError(f"{where}: collision primitive {suffix!r}: box needs 3 positive "
+                                 "lengths, sphere a positive radius, xyz 3 finite numbers")
+        shapes[str(suffix)] = CollisionShape(kind, size, xyz)
+    return shapes

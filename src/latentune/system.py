@@ -1,0 +1,247 @@
+"""The thing being tuned: a :class:`System` is a parameter space plus ``evaluate``.
+
+``system.space`` is a :class:`~latentune.space.ParameterSpace`; ``system.evaluate(theta)``
+takes θ in the unit box ((d,) float array in [0, 1]^d: the critic's coordinates; use
+``system.space.to_physical(theta)`` for physical values) and returns an :class:`Outcome`.
+The built-in :class:`~latentune.task.Task` (a simulated quadruped) is one System;
+:class:`FunctionSystem` wraps a plain function of the physical θ; any object with ``space`` and
+``evaluate`` works.
+
+Failed trials
+-------------
+``Outcome.failed`` marks a trial that was unsafe or unusable (a fall, an e-stop, a diverged
+simulation). Phase 2 trains the latent space only on θ whose trial did not fail. A failed
+outcome without a cost gets the project's convention: ``C1 · (2 − k/N)`` when the failure step
+``k`` of ``N`` is known (``info["fall_step"]``, ``info["horizon"]``), else ``2 · C1``, with
+C1 = 100 (see :mod:`latentune.constants`). That convention assumes successful trials cost less
+than C1; a system on another scale should give failed trials its own cost.
+
+Errors
+------
+An ``evaluate`` that raises, or returns something that is not a finite cost (None, NaN, a
+string), is a defect of the system, not a failed trial: the phase stops with
+:class:`EvaluationError` after storing the trials that finished (resume re-asks the rest).
+"""
+from __future__ import annotations
+
+import importlib
+import inspect
+import math
+import os
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable, Protocol, runtime_checkable
+
+import numpy as np
+
+from latentune.constants import C1, fail_cost
+from latentune.errors import LatentuneError, SystemSpecError
+from latentune.space import ParameterSpace
+
+
+class EvaluationError(LatentuneError):
+    """A system's ``evaluate`` raised or returned no usable cost."""
+
+
+@dataclass
+class Outcome:
+    """What one trial gave.
+
+    Attributes:
+        cost: the cost to minimize (finite; a failed trial may leave it ``None`` to get the
+            C1 convention, see the module docstring).
+        failed: the trial was unsafe or unusable (a fall).
+        info: free-form JSON-able details (stored with the trial), e.g. ``fall_step``,
+            ``horizon``, ``reason``, ``mean_vx``.
+        wall_s: the trial's wall time [s] (filled in by the evaluator when absent).
+    """
+
+    cost: float | None
+    failed: bool = False
+    info: dict[str, Any] = field(default_factory=dict)
+    wall_s: float | None = None
+
+    @property
+    def fall_step(self) -> int | None:
+        v = self.info.get("fall_step")
+        return None if v is None else int(v)
+
+
+def as_outcome(value: Any) -> Outcome:
+    """Normalize what an ``evaluate``/function returned to a checked :class:`Outcome`.
+
+    Accepts an :class:`Outcome`, a number (the cost; not failed), a ``(cost, failed)`` pair or a
+    dict with ``cost`` and optional ``failed``, ``info``. Raises :class:`EvaluationError` for
+    anything else, and for a non-finite cost of a trial that did not fail.
+    """
+    if isinstance(value, Outcome):
+        out = Outcome(value.cost, bool(value.failed), dict(value.info or {}), value.wall_s)
+    elif isinstance(value, dict):
+        if "cost" not in value and not value.get("failed"):
+            raise EvaluationError(f"evaluate returned a dict without 'cost': {sorted(value)}")
+        out = Outcome(value.get("cost"), bool(value.get("failed", False)),
+                      dict(value.get("info") or {}), value.get("wall_s"))
+    elif isinstance(value, tuple) and len(value) == 2:
+        out = Outcome(value[0], bool(value[1]))
+    elif isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool):
+        out = Outcome(float(value))
+    else:
+        raise EvaluationError(f"evaluate returned {type(value).__name__} {_short(value)}; "
+                              "expected a cost (float), (cost, failed) or an Outcome")
+    if out.cost is None:
+        if not out.failed:
+            raise EvaluationError("evaluate returned no cost for a trial that did not fail")
+        out.cost = fail_cost(out.info.get("fall_step"), out.info.get("horizon") or 1) \
+            if out.info.get("fall_step") is not None and out.info.get("horizon") else 2.0 * C1
+    try:
+        out.cost = float(out.cost)
+    except (TypeError, ValueError):
+        raise EvaluationError(f"evaluate returned a cost that is not a number: {_short(out.cost)}") from None
+    if not math.isfinite(out.cost):
+        raise EvaluationError(f"evaluate returned a non-finite cost ({out.cost})")
+    return out
+
+
+def _short(v: Any) -> str:
+    s = repr(v)
+    return s if len(s) <= 60 else s[:57] + "..."
+
+
+@runtime_checkable
+class System(Protocol):
+    """A parameter space and a trial: ``evaluate((d,) unit-box θ) -> Outcome`` (or a cost)."""
+
+    space: ParameterSpace
+
+    def evaluate(self, theta: np.ndarray) -> Any:
+        ...
+
+
+class FunctionSystem:
+    """A System from a plain function of the physical θ.
+
+    ``FunctionSystem(space, fn, by_name=False)``: ``fn`` gets the physical θ, a (d,) float array
+    (``by_name=True``: a dict name -> value), and returns a cost, ``(cost, failed)``, a dict or
+    an :class:`Outcome`. ``fn`` must be picklable (a module-level function) for the process
+    and Ray backends.
+    """
+
+    def __init__(self, space: ParameterSpace, fn: Callable[..., Any], by_name: bool = False,
+                 name: str | None = None) -> None:
+        if not isinstance(space, ParameterSpace):
+            raise TypeError("FunctionSystem: space must be a latentune.ParameterSpace")
+        if not callable(fn):
+            raise TypeError("FunctionSystem: fn must be callable")
+        self.space = space
+        self.fn = fn
+        self.by_name = bool(by_name)
+        self.name = name or getattr(fn, "__qualname__", type(fn).__name__)
+
+    def evaluate(self, theta: np.ndarray) -> Outcome:
+        phys = self.space.to_physical(self.space.validate_unit(theta))
+        arg = dict(zip(self.space.names, map(float, phys))) if self.by_name else phys
+        return as_outcome(self.fn(arg))
+
+    def config(self) -> dict[str, Any]:
+        """JSON-able description (recorded with the run)."""
+        return {"kind": "function", "name": self.name, "dim": self.space.dim}
+
+    def __repr__(self) -> str:
+        return f"FunctionSystem({self.name}, dim={self.space.dim})"
+
+
+def check_system(system: Any) -> Any:
+    """Return ``system`` if it follows the protocol, else raise :class:`SystemSpecError`."""
+    space = getattr(system, "space", None)
+    if not isinstance(space, ParameterSpace):
+        raise SystemSpecError(f"{type(system).__name__} is not a latentune system: it needs a "
+                              "`space` attribute that is a latentune.ParameterSpace")
+    if not callable(getattr(system, "evaluate", None)):
+        raise SystemSpecError(f"{type(system).__name__} is not a latentune system: it needs a "
+                              "method evaluate(theta) -> Outcome or cost")
+    return system
+
+
+def evaluate(system: Any, theta: np.ndarray) -> Outcome:
+    """One trial of ``system`` at unit-box ``theta`` (d,), timed and checked.
+
+    Raises :class:`EvaluationError` if ``evaluate`` raises or returns no usable cost.
+    """
+    t0 = time.perf_counter()
+    try:
+        raw = system.evaluate(np.asarray(theta, dtype=float).copy())
+    except EvaluationError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - reported as one line by the caller
+        raise EvaluationError(f"{type(system).__name__}.evaluate raised "
+                              f"{type(exc).__name__}: {' '.join(str(exc).split())[:300]}") from exc
+    out = as_outcome(raw)
+    if out.wall_s is None:
+        out.wall_s = time.perf_counter() - t0
+    return out
+
+
+def parse_system_args(pairs: list[str] | None) -> dict[str, Any]:
+    """``["k=v", ...]`` -> dict; values are parsed as YAML scalars (numbers, booleans, lists)."""
+    import yaml
+
+    out: dict[str, Any] = {}
+    for p in pairs or []:
+        if "=" not in p or not p.split("=", 1)[0].strip():
+            raise SystemSpecError(f"--system-arg must be key=value, got {p!r}")
+        k, v = p.split("=", 1)
+        try:
+            out[k.strip()] = yaml.safe_load(v) if v.strip() else ""
+        except yaml.YAMLError:
+            out[k.strip()] = v
+    return out
+
+
+def load_system(target: str, args: dict[str, Any] | None = None) -> Any:
+    """Import ``module:factory`` and call ``factory(**args)``; return the checked system.
+
+    The current directory is searched for ``module`` (as ``python -m`` does).
+
+    ``factory`` may also be a System instance (then ``args`` must be empty). Raises
+    :class:`SystemSpecError` with one line for a malformed target, a module that cannot be
+    imported, a missing attribute, a factory that raises or returns a non-system.
+    """
+    args = dict(args or {})
+    if not isinstance(target, str) or target.count(":") != 1 or not all(target.split(":")):
+        raise SystemSpecError(f"--system must be module:factory, got {target!r}")
+    mod_name, attr = target.split(":")
+    import sys
+
+    if "" not in sys.path and os.getcwd() not in sys.path:
+        sys.path.insert(0, os.getcwd())  # like `python -m`: modules next to the user are found
+    try:
+        mod = importlib.import_module(mod_name)
+    except Exception as exc:  # noqa: BLE001 - any import failure is one line
+        raise SystemSpecError(f"--system {target}: cannot import {mod_name} "
+                              f"({type(exc).__name__}: {' '.join(str(exc).split())[:200]})") from None
+    obj: Any = mod
+    for part in attr.split("."):
+        if not hasattr(obj, part):
+            raise SystemSpecError(f"--system {target}: {mod_name} has no attribute {attr!r}")
+        obj = getattr(obj, part)
+    if callable(obj) and not hasattr(obj, "evaluate"):
+        try:
+            if args:
+                inspect.signature(obj).bind(**args)
+        except TypeError as exc:
+            raise SystemSpecError(f"--system {target}: bad --system-arg ({exc})") from None
+        except ValueError:
+            pass
+        try:
+            obj = obj(**args)
+        except Exception as exc:  # noqa: BLE001
+            raise SystemSpecError(f"--system {target}: the factory raised {type(exc).__name__}: "
+                                  f"{' '.join(str(exc).split())[:200]}") from None
+    elif args:
+        raise SystemSpecError(f"--system {target} is not callable; it takes no --system-arg")
+    check_system(obj)
+    try:  # what a study records of a plugin: the string and its arguments, for the user to read
+        obj.latentune_plugin = {"target": target, "args": args}
+    except (AttributeError, TypeError):
+        pass
+    return obj

@@ -1,0 +1,280 @@
+"""latentune.reporting on synthetic run stores: metrics, the run report, the paper report.
+
+No rollouts: stores are filled with made-up costs; the one re-simulation test uses a fake system.
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from latentune.constants import C1, Phase
+from latentune.pipeline.store import RunStore
+from latentune.reporting import metrics
+from latentune.reporting.metrics import (best_so_far, evals_to_beat, fall_count, paper_row,
+                                         phase_stats, rms_velocity_error, stable_count,
+                                         stable_share)
+from latentune.reporting.paper_report import write_paper_report
+from latentune.reporting.plots import CurvePanel, plot_best_so_far
+from latentune.reporting.run_report import comparison_table, make_report, write_summary
+
+TASK = {"robot": "a1", "gait": "trot", "terrain": "flat", "actor": "convex",
+        "v_des": [0.5, 0.0, 0.0], "steps": 2500, "seed": 0, "dim": 3}
+MANUAL = 6.0
+PHASE1 = [6.0, 150.0, 7.0, 5.5, 120.0, 5.0]      # first = the manual θ; beats manual at 4
+PHASE3 = [8.0, 6.5, 5.8, 4.5]                      # beats manual at 3
+ZERO_SHOT = 5.9
+
+
+def _fill(store: RunStore, phase: int, costs, dim: int = 3) -> None:
+    for i, c in enumerate(costs):
+        store.add(phase, i, np.full(dim, 0.1 * (i % 10)), c, fell=c >= C1, tag=-1)
+
+
+def _store(path: Path, config: dict, zero_shot: bool = True) -> RunStore:
+    st = RunStore(path, create=True)
+    st.set_meta("config", config)
+    st.set_meta("wall", {"phase1": 12.0, "phase3": 3.0})
+    _fill(st, Phase.MANUAL, [MANUAL])
+    _fill(st, Phase.PHASE1, PHASE1)
+    _fill(st, Phase.PHASE3, PHASE3)
+    if zero_shot:
+        _fill(st, Phase.ZERO_SHOT, [ZERO_SHOT])
+    return st
+
+
+def _row(md: str, label: str) -> list[str]:
+    for line in md.splitlines():
+        if line.startswith(f"| {label} |"):
+            return [c.strip() for c in line.strip("|").split("|")]
+    raise AssertionError(f"no row {label!r} in\n{md}")
+
+
+# ---------------------------------------------------------------------------- metrics
+def test_evals_to_beat_is_strict():
+    assert evals_to_beat([5.0, 5.0, 4.9], 5.0) == 3      # equal to the target does not count
+    assert evals_to_beat([5.0], 5.0) is None
+    assert evals_to_beat([6.0, 4.0, 3.0], 5.0) == 2      # 1-based index of the first hit
+    assert evals_to_beat([1.0], 5.0) == 1
+    assert evals_to_beat([6.0, 7.0], 5.0) is None
+    assert evals_to_beat([], 5.0) is None
+    assert evals_to_beat([1.0], None) is None
+    assert evals_to_beat(np.array([np.nan, 2.0]), 3.0) == 2
+
+
+def test_curve_and_counts():
+    y = [9.0, 150.0, 7.0, 8.0, 200.0, 6.5]
+    assert best_so_far(y).tolist() == [9.0, 9.0, 7.0, 7.0, 7.0, 6.5]
+    assert best_so_far([]).shape == (0,)
+    assert stable_count(y) == 4 and fall_count(y) == 2
+    assert stable_share(y) == pytest.approx(4 / 6) and stable_share([]) is None
+    assert fall_count(y, fell=[True, False, False, False, False, False]) == 1
+    assert fall_count([1e300, math.inf, 5.0]) == 2
+    s = phase_stats(y, target=7.5)
+    assert (s["n"], s["best"], s["best_idx"], s["stable"], s["falls"], s["evals_to_beat"]) == \
+        (6, 6.5, 5, 4, 2, 3)
+    assert phase_stats([])["best"] is None
+
+
+def test_rms_velocity_error():
+    # L = sqrt(N_H) · 0.1 m/s for a constant 0.1 m/s error over N_H steps
+    assert rms_velocity_error(math.sqrt(2500) * 0.1, 2500) == pytest.approx(0.1)
+    assert rms_velocity_error(5.0, 2500) == pytest.approx(0.1)
+    assert rms_velocity_error(150.0, 2500) is None        # a fall: the cost is a penalty
+    assert rms_velocity_error(None, 2500) is None
+    assert rms_velocity_error(5.0, 0) is None
+
+
+def test_paper_numbers_lookup():
+    assert paper_row("a1", "trot")["phase1"] == 5.96
+    assert paper_row("Solo12", "jump")["manual"] == 12.24
+    assert paper_row("b1", "trot") == {} and paper_row("anymal", "trot") == {}
+    p = metrics.paper_results()
+    p["path_cost"]["A1"]["trot"]["manual"] = -1.0          # callers get a copy
+    assert paper_row("a1", "trot")["manual"] == 8.96
+    assert "Sarmadi" in p["source"]["paper"]
+
+
+# ---------------------------------------------------------------------------- run report
+def test_summary_keys_and_values(tmp_path: Path):
+    with _store(tmp_path / "run", {"task": TASK, "phase1": {"method": "turbo", "seed": 3}}) as st:
+        s = write_summary(st, wall_this=1.5)
+        on_disk = json.loads((tmp_path / "run" / "summary.json").read_text())
+    for k in ("manual_cost", "phase1_best", "phase3_best", "phase1_evals", "phase3_evals",
+              "wall_s", "phase1_stable", "phase3_stable", "phase1_evals_to_beat_manual",
+              "phase3_evals_to_beat_manual", "zero_shot_cost", "phase3_vs_phase1",
+              "wall_by_phase_s", "wall_s_this_command", "seed", "config", "artifacts", "paper",
+              "rms_velocity_error_m_s", "phase1_falls"):
+        assert k in s and k in on_disk, k
+    assert not any(k.endswith("_evals_to_manual") for k in s)
+    assert (s["manual_cost"], s["phase1_best"], s["phase3_best"]) == (MANUAL, 5.0, 4.5)
+    assert (s["phase1_evals"], s["phase3_evals"], s["phase1_stable"], s["phase1_falls"]) == \
+        (6, 4, 4, 2)
+    # phase 1's first evaluation equals the manual cost: not a "beat"
+    assert (s["phase1_evals_to_beat_manual"], s["phase3_evals_to_beat_manual"]) == (4, 3)
+    assert s["zero_shot_cost"] == ZERO_SHOT
+    assert s["wall_s"] == 15.0 and s["wall_s_this_command"] == 1.5 and s["seed"] == 3
+    assert s["rms_velocity_error_m_s"]["phase3"] == pytest.approx(4.5 / 50.0)
+    assert s["paper"] == {"manual": 8.96, "phase1": 5.96, "phase3": 6.17}
+
+
+def test_comparison_table(tmp_path: Path):
+    with _store(tmp_path / "run", {"task": TASK}) as st:
+        md = comparison_table(st)
+    assert "| | best path cost | RMS velocity error [m/s] | evaluations | stable | evals to beat " \
+        "manual |" in md
+    m = _row(md, "manual tuned")
+    assert m == ["manual tuned", "6.000", "0.120", "1", "1/1", "–"]
+    p1 = _row(md, "phase 1 (θ, TuRBO-m)")
+    assert p1 == ["phase 1 (θ, TuRBO-m)", "5.000", "0.100", "6", "4/6", "4"]
+    p3 = _row(md, "phase 3 (latent, TuRBO-m)")
+    assert p3 == ["phase 3 (latent, TuRBO-m)", "4.500", "0.090", "4", "4/4", "3"]
+    z = _row(md, "zero-shot (source best θ)")
+    assert z == ["zero-shot (source best θ)", "5.900", "0.118", "1", "1/1", "1"]
+    lines = md.splitlines()
+    assert lines.index(next(l for l in lines if l.startswith("| zero-shot"))) == \
+        lines.index(next(l for l in lines if l.startswith("| phase 3"))) + 1
+    assert "a1 trot on flat [convex], 2500 steps" in md
+    assert "paper (Sarmadi et al." in md and "phase 3 6.17" in md
+
+
+def test_table_without_zero_shot_and_never_beaten(tmp_path: Path):
+    cfg = {"task": dict(TASK, terrain="hills"), "phase1": {"method": "cma"}}
+    with RunStore(tmp_path / "run", create=True) as st:
+        st.set_meta("config", cfg)
+        _fill(st, Phase.MANUAL, [4.0])
+        _fill(st, Phase.PHASE1, [4.0, 4.0, 130.0])
+        md = comparison_table(st)
+        s = write_summary(st)
+    assert "zero-shot" not in md and s["zero_shot_cost"] is None
+    assert _row(md, "phase 1 (θ, CMA-ES)")[-1] == "not beaten"
+    assert _row(md, "phase 3 (latent, TuRBO-m)") == ["phase 3 (latent, TuRBO-m)", "–", "–", "0",
+                                                     "–", "–"]
+    assert s["phase1_evals_to_beat_manual"] is None and s["phase1_falls"] == 1
+    assert "phase 3 6.57" in md                                # the paper's uneven number
+
+
+def test_make_report_user_system_without_simulation(tmp_path: Path):
+    cfg = {"system": {"kind": "python", "class": "mymod.Arm"}, "phase1": {"method": "turbo"}}
+    with _store(tmp_path / "run", cfg, zero_shot=False) as st:
+        table = make_report(st, simulate=True, quiet=True)
+        arts = st.get_meta("artifacts")
+    out = tmp_path / "run"
+    assert (out / "best_so_far.png").stat().st_size > 1000
+    assert not (out / "com_velocity.png").exists()          # nothing to re-simulate with
+    md = (out / "report.md").read_text()
+    assert md.startswith("# latentune run: system mymod.Arm")
+    assert table in md and "![best_so_far.png](best_so_far.png)" in md
+    assert "RMS" not in table and "| best cost |" in table and "paper" not in table
+    assert _row(table, "phase 1 (θ, TuRBO-m)")[-1] == "4"
+    assert set(arts) >= {"best_so_far_png", "report_md"}
+    assert json.loads((out / "summary.json").read_text())["rms_velocity_error_m_s"] is None
+
+
+class _FakeResult:
+    def __init__(self, cost: float) -> None:
+        self.cost = cost
+        self.rms_vel_error = cost / 50.0
+        t = np.arange(1, 51) * 1e-3
+        self.trace = {"t": t, "vel": np.tile([0.45, 0.0, 0.0], (50, 1)), "height": 0.3 + 0 * t}
+
+
+class _FakeSystem:
+    v_des = (0.5, 0.0, 0.0)
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[np.ndarray, bool]] = []
+
+    def rollout(self, theta, record: bool = False):
+        self.calls.append((np.asarray(theta), record))
+        return _FakeResult(5.0 + len(self.calls))
+
+
+def test_make_report_resimulates_with_given_system(tmp_path: Path):
+    sim = _FakeSystem()
+    with _store(tmp_path / "run", {"task": TASK}) as st:
+        make_report(st, system=sim, simulate=True, quiet=True)
+        best3 = st.best(Phase.PHASE3).theta
+    assert len(sim.calls) == 4 and all(rec for _, rec in sim.calls)   # manual, 1, 3, zero-shot
+    assert np.allclose(sim.calls[2][0], best3)
+    out = tmp_path / "run"
+    assert (out / "com_velocity.png").stat().st_size > 1000
+    assert "![com_velocity.png](com_velocity.png)" in (out / "report.md").read_text()
+    # simulate=False: the system is not used
+    sim2 = _FakeSystem()
+    with RunStore(out) as st:
+        make_report(st, system=sim2, simulate=False, quiet=True)
+    assert sim2.calls == []
+
+
+def test_best_so_far_figure(tmp_path: Path):
+    with pytest.raises(ValueError):
+        plot_best_so_far(CurvePanel("empty", {"a": []}), tmp_path / "x.png")
+    p = tmp_path / "f.png"
+    plot_best_so_far([CurvePanel("phase 1", {"p1": PHASE1}, {"manual θ": MANUAL}),
+                      CurvePanel("phase 3", {"p3": PHASE3, "all fell": [150.0, 190.0]},
+                                 {"manual θ": None})], p, title="t")
+    assert p.stat().st_size > 5000
+
+
+# ---------------------------------------------------------------------------- paper report
+def _paper_dir(root: Path) -> Path:
+    studies = {"a1-trot": {"label": "tune trot", "kind": "tune"},
+               "a1-trot-hills": {"label": "trot on hills", "kind": "phase3"},
+               "a1-trot-cma": {"label": "CMA-ES baseline", "kind": "baseline"},
+               "a1-jump": {"label": "tune jump", "kind": "tune"},
+               "b1-trot-transfer": {"label": "B1 transfer", "kind": "phase3"}}
+    meta = {"robot": "a1", "actor": "convex", "steps": 2500, "v_des": 0.5, "seed": 0,
+            "workers": 1, "command": "latentune paper --robot a1 --scale 0.001",
+            "wall_s_total": 42.0, "invocations": [{"wall_s": 42.0}], "studies": studies,
+            "budgets": {"scale": 0.001, "phase1": 6, "phase3": 4, "baselines": 4,
+                        "preservation": 3, "mapping": "phase1 = ...", "overridden": {}}}
+    root.mkdir(parents=True)
+    (root / "paper.json").write_text(json.dumps(meta))
+    with _store(root / "a1-trot", {"task": TASK}, zero_shot=False):
+        pass
+    for key, phase, costs, manual in (("a1-trot-hills", Phase.PHASE3, [7.0, 6.2], 6.4),
+                                      ("a1-trot-cma", Phase.PHASE1, [6.0, 5.9, 190.0, 5.2], MANUAL),
+                                      ("b1-trot-transfer", Phase.PHASE3, [9.0, 8.0, 150.0], 8.5)):
+        with RunStore(root / key, create=True) as st:
+            st.set_meta("config", {"task": TASK})
+            st.set_meta("wall", {"phase": 1.0})
+            _fill(st, Phase.MANUAL, [manual])
+            _fill(st, phase, costs)
+    return root
+
+
+def test_paper_report_on_synthetic_directory(tmp_path: Path):
+    root = _paper_dir(tmp_path / "paper")
+    md = write_paper_report(root, simulate=False, gifs=False)
+    assert md == (root / "report.md").read_text()
+    summary = json.loads((root / "paper_summary.json").read_text())
+    t = _row(md, "Manual Tuned")
+    assert t[1:] == ["6.000", "8.96", "–", "13.81"]                  # a1-jump has no rows
+    assert _row(md, "Phase 1")[1:3] == ["5.000 (6 evals)", "5.96"]
+    assert _row(md, "Phase 3 even")[1] == "4.500 (4 evals)"
+    assert _row(md, "Phase 3 uneven")[1] == "6.200 (2 evals)"
+    assert _row(md, "Phase 3 cross-task")[1:3] == ["–", "9.61"]       # study not in paper.json
+    assert _row(md, "(extra) Manual Tuned on hills")[1] == "6.400"
+    # baselines: strict "evals to beat manual" (the CMA-ES and phase-1 prefixes start at 6.0)
+    assert _row(md, "CMA-ES on θ") == ["CMA-ES on θ", "4", "5.200", "3/4", "2"]
+    assert _row(md, "phase 1's first 4 evaluations (TuRBO-m on θ, phase-1 settings)")[1:] == \
+        ["4", "5.500", "3/4", "4"]
+    assert _row(md, "phase 3: TuRBO-m in the latent space (ours)")[-1] == "3"
+    assert summary["baselines"]["trot"]["rows"]["cma"]["evals_to_beat_manual"] == 2
+    # transfer: B1 trot ran, B1 jump did not
+    assert _row(md, "B1 trot")[1:] == ["8.500", "8.000", "3", "2", "2", "33.41"]
+    assert _row(md, "B1 jump")[1:4] == ["–", "–", "0"]
+    assert summary["table"]["trot"]["phase1"]["ours"] == 5.0
+    assert "- A1 trot: phase 1 beats the manual θ: **holds** (5.000 vs manual 6.000)" in md
+    assert "- A1 jump: phase 1 beats the manual θ: not run" in md
+    assert "- VAE stable-preservation rate ≥ 95 %: not run (–)" in md
+    assert "| a1-jump | tune jump | not run | – |" in md
+    assert "| a1-trot | tune trot | 1 / 6 / 4 | 15 |" in md
+    for f in ("best_so_far_trot.png", "best_so_far_transfer.png", "cost_transform.png"):
+        assert (root / f).stat().st_size > 1000 and f"]({f})" in md, f
+    assert not (root / "best_so_far_jump.png").exists()
+    assert not list(root.glob("com_velocity_*.png")) and not list(root.glob("*.gif"))

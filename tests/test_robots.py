@@ -1,0 +1,197 @@
+"""Robot specs: built-in YAML files, the user loader, dict round-trip, URDF preparation."""
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+
+import latentune.robots as robots
+from latentune.errors import LatentuneError, RobotSpecError
+from latentune.robots import (BUILTIN, GaitParams, RobotSpec, get_robot, is_builtin,
+                              load_spec_file, prepared_urdf, spec_from_dict)
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def write(tmp_path: Path, text: str, name: str = "robot.yaml") -> Path:
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+# ----------------------------------------------------------------------------- built-in robots
+def test_builtin_names_and_error_type():
+    assert BUILTIN == ("a1", "b1", "solo12")
+    assert robots.RobotSpecError is RobotSpecError and issubclass(RobotSpecError, LatentuneError)
+
+
+def test_builtin_known_values():
+    a1, b1, solo = get_robot("a1"), get_robot("b1"), get_robot("solo12")
+    assert a1.nominal_height == 0.30 and a1.torque_limits == (20.0, 55.0, 55.0)
+    assert a1.gaits["trot"] == GaitParams(0.3833, 0.6, 0.08, (0.0, 0.5, 0.5, 0.0))
+    assert a1.gaits["jump"].offsets == (0.0, 0.0, 0.0, 0.0)
+    assert a1.nominal_q == (0.0, 0.8, -1.6) * 4 and a1.joint_names[1] == "FR_upper_joint"
+    assert (a1.strip_root, a1.primitive_collisions, a1.raibert_gain, a1.mu) == (False, False, 0.03, 0.45)
+    assert Path(a1.urdf).parts[-3:] == ("pybullet_data", "a1", "a1.urdf")
+    assert b1.strip_root is True and b1.raibert_gain == 0.04 and b1.foot_links[0] == "FR_foot"
+    assert Path(b1.urdf) == robots.erd_robots_dir() / "b1_description" / "urdf" / "b1.urdf"
+    assert solo.primitive_collisions is True and solo.mu == 0.6 and solo.foot_radius == 0.0175
+    assert solo.collision_primitives["UPPER_LEG"].xyz == (0.0, 0.0, -0.08)
+    assert solo.collision_primitives["FOOT"].size == ()  # sphere of foot_radius
+    for name in BUILTIN:
+        spec = get_robot(name)
+        assert spec.name == name and Path(spec.urdf).is_absolute() and Path(spec.urdf).is_file()
+        assert is_builtin(spec) and len(spec.joint_names) == 12 and spec.max_tilt_deg == 60.0
+
+
+def test_builtin_specs_are_package_files_read_by_the_user_loader():
+    pkg = Path(robots.__file__).resolve().parent
+    assert robots.SPECS_DIR.resolve() == pkg / "specs"
+    for name in BUILTIN:
+        assert load_spec_file(pkg / "specs" / f"{name}.yaml") == get_robot(name)
+    # the returned spec is a copy: mutating it does not change the built-in
+    spec = get_robot("a1")
+    spec.gaits.pop("jump")
+    assert "jump" in get_robot("a1").gaits and not is_builtin(spec)
+
+
+def test_builtin_specs_ship_in_the_wheel_and_load_from_the_installed_package(tmp_path):
+    """Build a wheel from a copy of the sources, unpack it, and load the built-ins from there."""
+    src = tmp_path / "src"
+    shutil.copytree(REPO / "src" / "latentune", src / "src" / "latentune",
+                    ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
+    for f in ("pyproject.toml", "README.md"):
+        shutil.copy(REPO / f, src / f)
+    build = subprocess.run([sys.executable, "-c", "import sys; from setuptools import build_meta; "
+                            "print(build_meta.build_wheel(sys.argv[1]))", str(tmp_path / "dist")],
+                           cwd=src, capture_output=True, text=True, timeout=120)
+    assert build.returncode == 0, build.stderr[-2000:]
+    wheel = tmp_path / "dist" / build.stdout.strip().splitlines()[-1]
+    site = tmp_path / "site"
+    with zipfile.ZipFile(wheel) as z:
+        assert {f"latentune/robots/specs/{n}.yaml" for n in BUILTIN} <= set(z.namelist())
+        z.extractall(site)
+    code = ("import json, latentune.robots as r; "
+            "print(json.dumps([r.__file__, str(r.SPECS_DIR), r.BUILTIN, r.get_robot('b1').to_dict()]))")
+    env = {**os.environ, "PYTHONPATH": str(site)}
+    out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env,
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    mod_file, specs_dir, names, b1 = json.loads(out.stdout)
+    assert Path(mod_file).is_relative_to(site) and Path(specs_dir) == site / "latentune" / "robots" / "specs"
+    assert tuple(names) == BUILTIN and b1 == get_robot("b1").to_dict()
+
+
+# ----------------------------------------------------------------------------- to_dict / spec_from_dict
+@pytest.mark.parametrize("name", BUILTIN)
+def test_to_dict_round_trip(name):
+    spec = get_robot(name)
+    d = spec.to_dict()
+    assert set(d) == {f for f in RobotSpec.__dataclass_fields__}
+    assert d["urdf"] == str(Path(spec.urdf).resolve())
+    d2 = json.loads(json.dumps(d))  # JSON-able, and floats survive exactly
+    back = spec_from_dict(d2)
+    assert back == spec and is_builtin(back)
+    assert get_robot(d2) == spec
+
+
+def test_spec_from_dict_validates_like_the_loader():
+    d = get_robot("a1").to_dict()
+    d["mu"] = -1.0
+    with pytest.raises(RobotSpecError, match="mu must be a positive number"):
+        spec_from_dict(d)
+    d = get_robot("a1").to_dict()
+    del d["kp"]
+    with pytest.raises(RobotSpecError, match="missing field"):
+        spec_from_dict(d)
+    d = get_robot("a1").to_dict()
+    d["nominal_q"] = d["nominal_q"][:11]
+    with pytest.raises(RobotSpecError, match="nominal_q needs 12 entries, got 11"):
+        get_robot(d)
+    changed = spec_from_dict({**get_robot("a1").to_dict(), "mu": 0.5})
+    assert changed.mu == 0.5 and not is_builtin(changed)
+
+
+# ----------------------------------------------------------------------------- user YAML files
+def test_user_yaml_with_base_overrides_one_field(tmp_path):
+    p = write(tmp_path, "base: a1\nname: heavy_a1\nnominal_height: 0.28\n")
+    spec = get_robot(str(p))
+    assert spec.nominal_height == 0.28 and spec.name == "heavy_a1"
+    a1 = get_robot("a1")
+    assert spec == RobotSpec(**{**a1.__dict__, "name": "heavy_a1", "nominal_height": 0.28})
+    assert not is_builtin(spec) and get_robot(p) == spec  # a Path works as well as a str
+    assert spec_from_dict(spec.to_dict()) == spec
+
+
+def test_user_yaml_urdf_forms(tmp_path):
+    a1_urdf = Path(get_robot("a1").urdf)
+    (tmp_path / "urdf").mkdir()
+    shutil.copy(a1_urdf, tmp_path / "urdf" / "mine.urdf")
+    rel = load_spec_file(write(tmp_path, "base: a1\nurdf: urdf/mine.urdf\n"))
+    assert rel.urdf == str((tmp_path / "urdf" / "mine.urdf").resolve())
+    absolute = load_spec_file(write(tmp_path, f"base: a1\nurdf: {a1_urdf}\n", "abs.yaml"))
+    assert absolute == get_robot("a1")
+    pkg = load_spec_file(write(tmp_path, "base: b1\nurdf: {package: pybullet_data, path: a1/a1.urdf}\n", "p.yaml"))
+    assert pkg.urdf == str(a1_urdf.resolve())
+
+
+def test_missing_field_is_a_clear_error(tmp_path):
+    d = get_robot("a1").to_dict()
+    del d["foot_radius"], d["gaits"]
+    p = write(tmp_path, json.dumps(d))  # JSON is YAML
+    with pytest.raises(RobotSpecError, match=r"robot\.yaml: missing field\(s\) foot_radius, gaits"):
+        load_spec_file(p)
+
+
+def test_bad_package_name_is_a_clear_error(tmp_path):
+    p = write(tmp_path, "base: a1\nurdf: {package: no_such_robot_pkg, path: a1/a1.urdf}\n")
+    with pytest.raises(RobotSpecError, match="urdf: package 'no_such_robot_pkg' is not installed"):
+        get_robot(str(p))
+    p = write(tmp_path, "base: a1\nurdf: {package: pybullet_data, path: a1/none.urdf}\n", "b.yaml")
+    with pytest.raises(RobotSpecError, match="URDF not found: .*none.urdf"):
+        get_robot(str(p))
+
+
+@pytest.mark.parametrize("text, message", [
+    ("base: a1\nunknown_key: 1\n", "unknown field"),
+    ("base: spot\n", "unknown base robot 'spot'"),
+    ("base: a1\nstrip_root: 'yes'\n", "strip_root must be true or false"),
+    ("base: a1\ngaits: {trot: {period: 0.4, duty: 1.5, step_height: 0.08}}\n", "0 < duty < 1"),
+    ("base: a1\nprimitive_collisions: true\n", "primitive_collisions needs collision_primitives"),
+    ("base: solo12\ncollision_primitives: {FOOT: {cone: 1}}\n", "collision primitive 'FOOT'"),
+    ("base: a1\nkp: 100\n", "kp must be a list"),
+    ("[1, 2]\n", "expected a mapping"),
+    ("name: [\n", "malformed YAML"),
+])
+def test_invalid_yaml_fields(tmp_path, text, message):
+    with pytest.raises(RobotSpecError, match=message):
+        load_spec_file(write(tmp_path, text))
+
+
+def test_unknown_robot_name():
+    with pytest.raises(RobotSpecError, match="unknown robot 'spot'.*a1, b1, solo12"):
+        get_robot("spot")
+    with pytest.raises(RobotSpecError, match="not found"):
+        get_robot("nowhere/robot.yaml")
+
+
+# ----------------------------------------------------------------------------- URDF preparation
+def test_prepared_urdf(tmp_path):
+    assert prepared_urdf(get_robot("a1")) == get_robot("a1").urdf  # nothing to rewrite
+    b1 = Path(prepared_urdf(get_robot("b1"))).read_text()
+    assert re.search(r'<link\s+name="([^"]+)"', b1).group(1) == "trunk"  # massless "base" stripped
+    assert '<link name="base"' not in b1 and "package://" not in b1 and 'parent link="base"' not in b1
+    solo = Path(prepared_urdf(get_robot("solo12"))).read_text()
+    collisions = re.findall(r"<collision>.*?</collision>", solo, flags=re.S)
+    assert len(collisions) == 1 + 3 * 4 and not any("<mesh" in c for c in collisions)
+    assert solo.count('<sphere radius="0.0175"/>') == 4
+    assert solo.count('<origin xyz="0 0 -0.08" rpy="0 0 0"/><geometry><box size="0.03 0.03 0.16"/>') == 4
+    bigger = load_spec_file(write(tmp_path, "base: solo12\nname: solo_big_feet\nfoot_radius: 0.02\n"))
+    assert Path(prepared_urdf(bigger)).read_text().count('<sphere radius="0.02"/>') == 4

@@ -1,0 +1,378 @@
+"""The public pipeline (Study), user systems, --system plugins, ask/tell, evaluators on errors."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import latentune as lt
+from latentune.constants import Phase
+from latentune.errors import LatentuneError, StoreError
+from latentune.pipeline.store import RunStore
+
+PY = sys.executable
+ENV = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1",
+           RAY_AUTH_MODE="disabled", PYTHONUNBUFFERED="1")
+
+PLUGIN = textwrap.dedent('''
+    import numpy as np
+    import latentune as lt
+
+    def space(dim):
+        return lt.ParameterSpace([f"w{i}" for i in range(dim)], [-1.0] * dim, [1.0] * dim,
+                                 manual=[0.5] * dim)
+
+    def cost(x, shift=0.0):
+        c = float(np.sum((x - 0.2 - shift) ** 2))
+        return lt.Outcome(None, failed=True, info={"reason": "x0 too big"}) if x[0] > 0.8 else c
+
+    class Plant:
+        def __init__(self, dim=8, shift=0.0):
+            self.space = space(dim)
+            self.shift = shift
+        def evaluate(self, u):
+            return cost(self.space.to_physical(u), self.shift)
+        def config(self):
+            return {"shift": self.shift}
+
+    def make(dim=8, shift=0.0):
+        return Plant(dim, shift)
+
+    def raises(dim=8):
+        raise RuntimeError("no robot connected")
+
+    class Bad:
+        space = space(4)
+        def evaluate(self, u):
+            if u[1] > 0.5:
+                raise ValueError("sensor timeout")
+            return float(np.sum(u))
+
+    class Nan(Bad):
+        def evaluate(self, u):
+            return float("nan")
+
+    class NoneSys(Bad):
+        def evaluate(self, u):
+            return None
+
+    def bad(): return Bad()
+    def nan(): return Nan()
+    def none(): return NoneSys()
+    not_a_system = 3
+''')
+
+
+@pytest.fixture(scope="module")
+def plugin_dir(tmp_path_factory):
+    d = tmp_path_factory.mktemp("plugin")
+    (d / "myplant.py").write_text(PLUGIN)
+    sys.path.insert(0, str(d))
+    yield d
+    sys.path.remove(str(d))
+
+
+def cli(*args: str, cwd: Path | None = None, timeout: float = 300) -> subprocess.CompletedProcess:
+    return subprocess.run([PY, "-m", "latentune.cli", *args], capture_output=True, text=True,
+                          env=ENV, timeout=timeout, cwd=cwd)
+
+
+def one_line_error(p: subprocess.CompletedProcess) -> str:
+    assert p.returncode == 2, (p.returncode, p.stderr)
+    assert "Traceback" not in p.stderr
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("latentune: error:"), p.stderr
+    return lines[0]
+
+
+def rows(run: Path) -> list[tuple]:
+    con = sqlite3.connect(f"file:{run / 'run.db'}?mode=ro", uri=True)
+    try:
+        return con.execute("SELECT phase, idx, theta, cost, fell FROM evaluations "
+                           "ORDER BY phase, idx").fetchall()
+    finally:
+        con.close()
+
+
+# ---------------------------------------------------------------------------- Python API
+def test_study_phases_on_a_user_system(tmp_path, plugin_dir):
+    import myplant
+
+    model, real = myplant.make(8, 0.0), myplant.make(8, 0.15)
+    sim = lt.Study(tmp_path / "sim", seed=3)
+    r1 = sim.phase1(model, 48)
+    assert r1.n == 48 and r1.best_cost < model.evaluate(model.space.manual)
+    latent = sim.train_latent(latent_dim=3, epochs=40)
+    assert latent.d == 8 and latent.d_low == 3
+    target = lt.Study(tmp_path / "real", seed=3)
+    r3 = target.phase3(real, 12, latent=tmp_path / "sim")
+    assert r3.n == 12
+    st = target.store
+    assert st.count(Phase.MANUAL) == 1 and st.count(Phase.PHASE3) == 12
+    zs = st.rows(Phase.ZERO_SHOT)                       # the source's best θ, as it is
+    assert len(zs) == 1
+    np.testing.assert_allclose(zs[0].theta, sim.best().theta)
+    assert zs[0].cost == pytest.approx(real.evaluate(sim.best().theta))
+    # phase 3 rows: θ is the decoded z
+    row = st.rows(Phase.PHASE3)[5]
+    np.testing.assert_allclose(row.theta, target.latent().decode(row.z[None])[0], atol=1e-9)
+    # failed trials keep the C1 convention
+    failed = [r for r in sim.store.rows(Phase.PHASE1) if r.fell]
+    assert all(r.cost == 200.0 and r.info.get("reason") == "x0 too big" for r in failed)
+    s = target.summary()
+    assert s["phase3_evals"] == 12 and s["manual_cost"] == pytest.approx(
+        real.evaluate(real.space.manual))
+    assert "phase 3" in target.report(simulate=False)
+    # resume: another system or other options are refused
+    with pytest.raises(StoreError, match="another system"):
+        lt.Study(tmp_path / "real", seed=3).phase3(myplant.make(8, 0.3), 20,
+                                                     latent=tmp_path / "sim")
+    with pytest.raises(StoreError, match="seed"):
+        lt.Study(tmp_path / "sim", seed=4).phase1(model, 60)
+    sim.close()
+    target.close()
+
+
+def test_a_second_writer_is_refused_at_once(tmp_path, plugin_dir):
+    import myplant
+
+    a = lt.Study(tmp_path / "s")
+    with a.writing():
+        t = time.perf_counter()
+        with pytest.raises(LatentuneError, match=f"pid {os.getpid()}"):
+            lt.Study(tmp_path / "s").phase1(myplant.make(), 10)
+        assert time.perf_counter() - t < 2
+    lt.Study(tmp_path / "s").phase1(myplant.make(), 6)   # released
+
+
+# ---------------------------------------------------------------------------- CLI plugins
+def test_tune_and_report_with_system_plugin(tmp_path, plugin_dir):
+    out = tmp_path / "run"
+    args = ["--system", "myplant:make", "--system-arg", "dim=6", "--out", str(out),
+            "--backend", "serial", "--quiet", "--vae-epochs", "30", "--latent-dim", "2"]
+    p = cli("tune", *args, "--phase1-evals", "24", "--phase3-evals", "8", cwd=plugin_dir)
+    assert p.returncode == 0, p.stderr
+    r = rows(out)
+    assert [sum(1 for x in r if x[0] == ph) for ph in (0, 1, 3)] == [1, 24, 8]
+    cfg = json.loads((out / "summary.json").read_text())["config"]
+    assert cfg["system"]["target"] == "myplant:make" and cfg["system"]["args"] == {"dim": 6}
+    best = json.loads((out / "phase1_best.json").read_text())
+    assert sorted(best) == [f"w{i}" for i in range(6)]
+    before = rows(out)
+    p = cli("report", str(out), "--quiet", cwd=plugin_dir)     # never imports the plugin
+    assert p.returncode == 0, p.stderr
+    assert (out / "report.md").is_file() and rows(out) == before
+    # resume with other --system-arg values is refused, nothing is written
+    one_line_error(cli("tune", *args[:2], "--system-arg", "dim=7", *args[4:], "--resume",
+                       cwd=plugin_dir))
+    assert rows(out) == before
+    p = cli("phase3", *args, "--phase3-evals", "10", "--resume", cwd=plugin_dir)
+    assert p.returncode == 0, p.stderr
+    assert sum(1 for x in rows(out) if x[0] == 3) == 10
+
+
+def test_report_on_a_custom_robot_run(tmp_path):
+    spec = tmp_path / "my_a1.yaml"
+    spec.write_text("base: a1\nname: my_a1\nnominal_height: 0.29\n")
+    out = tmp_path / "robot"
+    p = cli("phase1", "--robot", str(spec), "--steps", "150", "--out", str(out),
+            "--phase1-evals", "4", "--backend", "serial", "--quiet")
+    assert p.returncode == 0, p.stderr
+    spec.unlink()                                   # the run holds the spec itself
+    p = cli("report", str(out), "--quiet")
+    assert p.returncode == 0, p.stderr
+    assert (out / "com_velocity.png").is_file()
+
+
+@pytest.mark.parametrize("target, expect", [
+    ("nosuchmodule:make", "cannot import"),
+    ("myplant:nothing", "no attribute"),
+    ("myplant", "module:factory"),
+    ("myplant:raises", "factory raised RuntimeError: no robot connected"),
+    ("myplant:not_a_system", "not a latentune system"),
+])
+def test_bad_system_plugins(tmp_path, plugin_dir, target, expect):
+    line = one_line_error(cli("phase1", "--system", target, "--out", str(tmp_path / "x"),
+                              "--phase1-evals", "4", "--backend", "serial", cwd=plugin_dir))
+    assert expect in line
+    assert not (tmp_path / "x" / "run.db").exists()
+
+
+@pytest.mark.parametrize("factory, expect", [
+    ("bad", "raised ValueError: sensor timeout"), ("nan", "non-finite cost"),
+    ("none", "returned NoneType"),
+])
+def test_a_system_that_raises_or_returns_no_cost_stops_with_one_line(tmp_path, plugin_dir,
+                                                                      factory, expect):
+    out = tmp_path / "r"
+    line = one_line_error(cli("phase1", "--system", f"myplant:{factory}", "--out", str(out),
+                              "--phase1-evals", "20", "--backend", "serial", "--quiet",
+                              cwd=plugin_dir))
+    assert expect in line
+    if factory == "bad":            # the trials before the failing one are stored, contiguous
+        r = [x for x in rows(out) if x[0] == 1]
+        assert [x[1] for x in r] == list(range(len(r)))
+
+
+# ---------------------------------------------------------------------------- evaluators
+def _raises_sometimes(x):
+    if x[0] > 0.6:
+        raise RuntimeError("boom")
+    return float(np.sum(x))
+
+
+class RaisingSystem:
+    space = lt.ParameterSpace(["a", "b", "c"], [0, 0, 0], [1, 1, 1])
+
+    def evaluate(self, u):
+        return _raises_sometimes(u)
+
+
+def test_every_backend_stores_the_same_rows_when_a_trial_raises(tmp_path):
+    pytest.importorskip("ray")
+    from latentune.pipeline.evaluators import make_evaluator
+    from latentune.pipeline.phases import make_phase_critic, run_phase
+    from latentune.system import EvaluationError
+
+    import ray.cloudpickle
+
+    ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])   # workers lack tests/
+    stored = {}
+    link = Path("/tmp") / f"ltr{os.getpid()}"
+    link.mkdir(exist_ok=True)
+    for backend in ("serial", "process", "ray"):
+        ev = make_evaluator(backend, 2, temp_dir=str(link))
+        try:
+            with RunStore(tmp_path / backend, create=True) as st:
+                with pytest.raises(EvaluationError, match="RuntimeError: boom"):
+                    run_phase(st, 1, RaisingSystem(), make_phase_critic("sobol", 3, 4, 0, None, 40),
+                              40, ev)
+                stored[backend] = [(r.idx, tuple(r.theta), r.cost) for r in st.rows(1)]
+        finally:
+            ev.close()
+    assert stored["serial"], "the first batch should finish before a trial raises"
+    key = lambda rows: sorted(r[1:] for r in rows)  # noqa: E731 - completion order may differ
+    assert key(stored["serial"]) == key(stored["process"]) == key(stored["ray"])
+
+
+def test_a_broken_module_fails_loudly(tmp_path):
+    """A syntax error in a command's module is a traceback, never 'invalid choice'."""
+    pkg = tmp_path / "latentune"
+    src = Path(lt.__file__).parent
+    import shutil
+
+    shutil.copytree(src, pkg)
+    (pkg / "study.py").write_text((pkg / "study.py").read_text() + "\n)\n")
+    env = dict(ENV, PYTHONPATH=str(tmp_path))
+    p = subprocess.run([PY, "-c", "import latentune.cli"], capture_output=True, text=True,
+                       env=env, cwd=tmp_path)
+    assert p.returncode == 0, p.stderr          # the CLI imports commands' modules lazily ...
+    p = subprocess.run([PY, "-m", "latentune.cli", "tune", "--out", str(tmp_path / "r")],
+                       capture_output=True, text=True, env=env, cwd=tmp_path)
+    assert p.returncode != 0                    # ... and running one shows the real error
+    assert "SyntaxError" in p.stderr and "invalid choice" not in p.stderr
+    (pkg / "cli.py").write_text((pkg / "cli.py").read_text() + "\nimport latentune.study\n")
+    p = subprocess.run([PY, "-c", "import latentune.cli"], capture_output=True, text=True,
+                       env=env, cwd=tmp_path)
+    assert p.returncode != 0 and "SyntaxError" in p.stderr
+
+
+# ---------------------------------------------------------------------------- ask / tell
+PERSON = textwrap.dedent('''
+    import json, sys
+    import numpy as np
+    import myplant
+    sys_ = myplant.make(6, 0.1)
+    params = json.load(open(sys.argv[1]))
+    x = np.array([params[f"w{i}"] for i in range(6)])
+    out = myplant.cost(x, 0.1)
+    print("FAILED" if not isinstance(out, float) else out)
+''')
+
+
+def test_ask_tell_a_whole_phase3_with_kills(tmp_path, plugin_dir):
+    """A person at a robot: asks and tells from separate processes, SIGKILL between ask and
+    tell and during tell; every told trial is stored once, none lost or handed out twice."""
+    (plugin_dir / "person.py").write_text(PERSON)
+    sim = tmp_path / "sim"
+    p = cli("tune", "--system", "myplant:make", "--system-arg", "dim=6", "--out", str(sim),
+            "--phase1-evals", "30", "--phase3-evals", "4", "--backend", "serial", "--quiet",
+            "--vae-epochs", "30", "--latent-dim", "2", cwd=plugin_dir)
+    assert p.returncode == 0, p.stderr
+    real = tmp_path / "real"
+    sysargs = ["--system", "myplant:make", "--system-arg", "dim=6", "--system-arg", "shift=0.1"]
+    budget, told, handed, kills = 12, [], set(), 0
+    rng = np.random.default_rng(0)
+    while len(told) < budget:
+        a = cli("ask", str(real), *sysargs, "--phase", "3", "--vae", str(sim), "--json",
+                cwd=plugin_dir)
+        assert a.returncode == 0, a.stderr
+        (s,) = json.loads(a.stdout)
+        assert s["phase"] == 3
+        if not s["again"]:
+            assert s["id"] not in handed            # a new suggestion is new
+        handed.add(s["id"])
+        if rng.random() < 0.25:                     # the person walks away: ask again later
+            continue
+        r = subprocess.run([PY, "person.py", s["file"]], capture_output=True, text=True,
+                           cwd=plugin_dir, env=ENV)
+        res = r.stdout.strip()
+        tell = [PY, "-m", "latentune.cli", "tell", str(real), str(s["id"])]
+        tell += ["--failed"] if res == "FAILED" else ["--cost", res]
+        if rng.random() < 0.25:                     # SIGKILL during tell
+            proc = subprocess.Popen(tell, env=ENV, cwd=plugin_dir, stdout=subprocess.DEVNULL,
+                                    stderr=subprocess.DEVNULL)
+            time.sleep(rng.uniform(0.0, 0.6))
+            proc.send_signal(signal.SIGKILL)
+            proc.wait()
+            kills += 1
+            with RunStore(real) as st:
+                done = st.trials_by_id(s["id"]).status == "told"
+            if done:
+                told.append(s["id"])
+            continue                                 # pending: it is handed out again
+        t = subprocess.run(tell, capture_output=True, text=True, env=ENV, cwd=plugin_dir)
+        assert t.returncode == 0, t.stderr
+        told.append(s["id"])
+        assert one_line_error(subprocess.run(tell, capture_output=True, text=True, env=ENV,
+                                             cwd=plugin_dir))  # told twice: refused
+    assert kills > 0
+    with RunStore(real) as st:
+        r3 = st.rows(Phase.PHASE3)
+        assert [r.idx for r in r3] == list(range(budget))
+        assert sorted(r.info["trial"] for r in r3) == sorted(told)      # each told trial once
+        assert len({r.info["trial"] for r in r3}) == budget
+        assert {t.id for t in st.trials("told")} == set(told)
+        assert st.count(Phase.ZERO_SHOT) == 0       # ask/tell does not run trials itself
+    st_ = cli("status", str(real), "--json")
+    assert st_.returncode == 0 and json.loads(st_.stdout)["phases"]["phase3"]["n"] == budget
+    # bad ids: one line, store untouched
+    before = rows(real)
+    for bad in (["999"], ["abc"], [str(told[0])]):
+        one_line_error(cli("tell", str(real), *bad, "--cost", "1.0"))
+    one_line_error(cli("tell", str(real), str(max(handed) + 50)))   # no cost, not failed
+    assert rows(real) == before
+
+
+def test_ask_answers_quickly_with_many_told_trials(tmp_path):
+    """The critic is rebuilt from the store on every ask: with 1000 told trials in 25-d."""
+    space = lt.ParameterSpace([f"q{i}" for i in range(25)], [0] * 25, [1] * 25)
+    study = lt.Study(tmp_path / "s")
+    first = study.ask(1, space=space)[0]
+    rng = np.random.default_rng(0)
+    with study.writing() as st:
+        for i in range(1000):
+            st.add(Phase.PHASE1, i, rng.random(25), float(rng.random()), tag=-1)
+    t = time.perf_counter()
+    again, new = study.ask(2)
+    assert time.perf_counter() - t < 6.0
+    assert again.id == first.id and again.again and not new.again and new.theta.shape == (25,)
