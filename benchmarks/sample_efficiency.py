@@ -22,19 +22,40 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import platform
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
 
-for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_v, "1")
+from latentune.threads import one_thread_env
+
+one_thread_env()
 
 import numpy as np  # noqa: E402
+
+import latentune as lt  # noqa: E402
+from latentune.constants import C1, Phase  # noqa: E402
+from latentune.reporting.metrics import evals_to_beat  # noqa: E402
 
 
 def _median(evals: list[int | None]) -> float:
     """Median of evaluations-to-target over seeds; a seed that never reached it counts as inf."""
     return float(np.median([np.inf if e is None else e for e in evals]))
+
+
+def provenance(argv: list[str], t0: float) -> dict:
+    """What reproduces a benchmark output: command, commit, date, wall time, machine load."""
+    try:
+        commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
+                                cwd=Path(__file__).parent).stdout.strip() or None
+    except OSError:
+        commit = None
+    return {"command": "python " + " ".join(argv), "commit": commit,
+            "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+            "wall_s": time.perf_counter() - t0, "loadavg_end": list(os.getloadavg()),
+            "machine": f"{platform.machine()}, {os.cpu_count()} cores", "python": sys.version.split()[0]}
 
 
 def main() -> None:
@@ -60,23 +81,21 @@ def main() -> None:
     ap.add_argument("--work", default=None, help="directory for the per-run stores")
     ap.add_argument("--out", default=None, help="write the results JSON here")
     a = ap.parse_args()
-
-    from latentune.latent import LatentSpace
+    t_start = time.perf_counter()
+    load_start = list(os.getloadavg())
     from latentune.pipeline.evaluators import make_evaluator
-    from latentune.pipeline.phases import C1, make_phase_critic, run_phase
     from latentune.pipeline.store import RunStore
-    from latentune.reporting.metrics import evals_to_beat as evals_to_reach
-    from latentune.task import Task
 
-    task = Task(a.robot, a.task, steps=a.steps, **({"actor": a.actor} if a.actor else {}))
+    evals_to_reach = evals_to_beat
+    task = lt.Task(a.robot, a.task, steps=a.steps, **({"actor": a.actor} if a.actor else {}))
     manual = task.rollout(task.space.manual).cost
     target = a.target if a.target is not None else (manual if manual < C1 else C1)
     latent = None
-    if "latent" in a.methods:
+    if "latent" in a.methods or a.reconstruct:
         if not a.vae:
             ap.error("--vae RUN_DIR is needed for the latent method")
         src = RunStore(a.vae).artifact("vae") if (Path(a.vae) / "run.db").is_file() else Path(a.vae) / "vae"
-        latent = LatentSpace.load(src)
+        latent = lt.LatentSpace.load(src)
     work = Path(a.work or tempfile.mkdtemp(prefix="lt_sampleeff_"))
     print(f"{a.robot} {a.task}: manual cost {manual:.3f}; target {target:.3f}; budget {a.budget}; "
           f"seeds {a.seeds}; stores in {work}", flush=True)
@@ -94,16 +113,17 @@ def main() -> None:
                         {"seed": s, "evals_to_target": evals_to_reach(y, target),
                          "more": [evals_to_reach(y, t) for t in a.more_targets],
                          "best": float(y.min()), "stable": int((y < C1).sum()),
-                         "hit_rate": float(np.mean(y <= target)), "wall_s": 0.0})
+                         "hit_rate": float(np.mean(y <= target)), "wall_s": None})
                     continue
-                d = latent.d_low if m == "latent" else task.space.dim
-                crit = make_phase_critic("turbo" if m in ("latent", "turbo") else m, d,
-                                         a.batch_size, s, None, a.budget)
-                with RunStore(work / f"{m}_s{s}", create=True) as st:
-                    st.set_meta("config", {"task": task.config(), "method": m, "seed": s})
-                    run_phase(st, phase, task, crit, a.budget, ev, seed=s,
-                              decoder=latent.decode if m == "latent" else None)
-                    y = st.costs(phase)
+                # every method from scratch (start=None): none gets the manual θ as a start
+                with lt.Study(work / f"{m}_s{s}", seed=s, workers=a.workers,
+                              batch_size=a.batch_size, evaluator=ev) as study:
+                    if m == "latent":
+                        study.phase3(task, a.budget, latent=a.vae, start=None)
+                    else:
+                        study.phase1(task, a.budget, method="turbo" if m == "turbo" else m,
+                                     start=None)
+                    y = study.store.costs(phase)
                 r = {"seed": s, "evals_to_target": evals_to_reach(y, target),
                      "more": [evals_to_reach(y, t) for t in a.more_targets],
                      "best": float(y.min()), "stable": int((y < C1).sum()),
@@ -123,7 +143,7 @@ def main() -> None:
         print(f"| {m} | {e} | {med[m]} | {np.median([r['best'] for r in rs]):.3f} |")
     if "latent" in med and "turbo" in med:
         print(f"\nratio of medians, direct TuRBO-m / latent: {med['turbo'] / med['latent']:.2f}"
-              " (goal >= 10)")
+              "")
     if "random" in results:
         # each random θ reaches the target independently with probability p, so any method whose
         # first points are a space-filling design needs about 1/p evaluations to hit it by chance
@@ -151,8 +171,12 @@ def main() -> None:
                 print(f"  {m:7s} seed {s}: {b.cost:.3f} -> {c:.3f} after encode -> decode "
                       f"(|Δθ| = {np.linalg.norm(b.theta - rec):.2f} in the unit box)")
     if a.out:
+        prov = provenance(sys.argv, t_start)
+        prov["loadavg_start"] = load_start
         Path(a.out).write_text(json.dumps({"manual": manual, "target": target,
-                                           "budget": a.budget, "results": results}, indent=1))
+                                           "budget": a.budget, "seeds": a.seeds,
+                                           "vae": a.vae, "work": str(work),
+                                           "provenance": prov, "results": results}, indent=1))
 
 
 if __name__ == "__main__":

@@ -52,6 +52,11 @@ def _check_bounds(bounds: Any) -> np.ndarray:
         raise ValueError(f"bounds must have shape (d, 2) with d >= 1, got {b.shape}")
     if not np.all(np.isfinite(b)):
         raise ValueError("bounds must be finite")
+    with np.errstate(over="ignore"):
+        span = b[:, 1] - b[:, 0]
+    if not np.all(np.isfinite(span)):
+        raise ValueError("bounds: upper - lower overflows a float64 in dimension(s) "
+                         f"{np.flatnonzero(~np.isfinite(span)).tolist()}")
     if np.any(b[:, 0] >= b[:, 1]):
         bad = np.flatnonzero(b[:, 0] >= b[:, 1]).tolist()
         raise ValueError(f"bounds need lower < upper; violated in dimension(s) {bad}")

@@ -176,7 +176,10 @@ class Study:
             self._acquire()
         self._lock_depth += 1
         try:
-            yield self._open()
+            st = self._open()
+            if self._lock_depth == 1:
+                st.check()             # a damaged store is refused before anything is added
+            yield st
         finally:
             self._lock_depth -= 1
             if self._lock_depth == 0:
@@ -261,7 +264,12 @@ class Study:
         desc = describe(system)
         cfg = self.config()
         stored = cfg.get("system")
-        if stored is None:
+        if stored is None and "task" in cfg:        # a run written before systems were recorded
+            stored = {"kind": "task", "task": cfg["task"]}
+            if stored != desc:
+                raise StoreError(f"{self.dir} holds a run of another configuration "
+                                 f"({_diff(stored, desc)})")
+        if cfg.get("system") is None:
             kw: dict[str, Any] = {"system": desc, "space": system.space.to_dict()}
             if desc["kind"] == "task":
                 kw["task"] = desc["task"]
@@ -298,26 +306,32 @@ class Study:
               **(extra or {})}
         if stored and n:
             for k in ("method", "batch_size", "seed", "regions", *(extra or {})):
-                if stored.get(k) != pc.get(k):
+                if k in stored and stored.get(k) != pc.get(k):
                     raise StoreError(f"{self.dir}: {key} was run with {k.replace('_', '-')} = "
                                      f"{stored.get(k)!r}, not {pc.get(k)!r}")
         return pc
 
     # ------------------------------------------------------------------ phases
     def phase1(self, system: Any, budget: int, *, method: str = "turbo",
-               regions: int | None = None, max_new: int | None = None) -> PhaseResult:
+               regions: int | None = None, start: Any = "manual",
+               max_new: int | None = None) -> PhaseResult:
         """Phase 1: ``method`` tunes the full θ of ``system`` for ``budget`` evaluations in all
-        (stored ones included), starting from the manual θ. Resumes a stored phase 1."""
+        (stored ones included). Resumes a stored phase 1.
+
+        ``start``: ``"manual"`` (the first point is the system's manual θ), ``None`` (from
+        scratch: the critic's own initial design) or a (d,) unit-box θ (e.g. another run's best).
+        """
         check_system(system)
-        pc = self._phase_config("phase1", method, budget, regions)   # checks before writing
+        x0, start_rec = _start_point(start, system.space.manual, system.space.dim)
+        pc = self._phase_config("phase1", method, budget, regions, {"start": start_rec})
         with self.writing() as st:
             self.bind(system)
-            pc = self._phase_config("phase1", method, budget, regions)
+            pc = self._phase_config("phase1", method, budget, regions, {"start": start_rec})
             self._update_config(phase1=pc)
             manual = ensure_manual(st, system, seed=self.seed)
             self.log(f"manual θ: cost {manual:.3f}")
             critic = make_phase_critic(method, system.space.dim, self.batch_size, self.seed,
-                                       system.space.manual, pc["budget"], pc["regions"])
+                                       x0, pc["budget"], pc["regions"])
             t = time.perf_counter()
             try:
                 res = run_phase(st, Phase.PHASE1, system, critic, pc["budget"], self.evaluator(),
@@ -370,7 +384,8 @@ class Study:
             return latent
 
     def phase3(self, system: Any, budget: int, *, latent: Any = None, method: str = "turbo",
-               regions: int | None = None, max_new: int | None = None) -> PhaseResult:
+               regions: int | None = None, start: Any = "manual",
+               max_new: int | None = None) -> PhaseResult:
         """Phase 3: ``method`` tunes in the latent box through the decoder, on ``system``.
 
         Args:
@@ -380,19 +395,20 @@ class Study:
         ``system`` as it is first (the zero-shot baseline, phase 4, one evaluation)."""
         check_system(system)
         ls, source = self._resolve_latent(latent, system)              # checks before writing
-        pc = self._phase_config("phase3", method, budget, regions, {"latent_source": source})
+        theta0, start_rec = _start_point(start, system.space.manual, system.space.dim)
+        extra = {"latent_source": source, "start": start_rec}
+        pc = self._phase_config("phase3", method, budget, regions, extra)
         if self.exists:
             self.bind_check(system)
         with self.writing() as st:
             self.bind(system)
-            pc = self._phase_config("phase3", method, budget, regions,
-                                    {"latent_source": source})
+            pc = self._phase_config("phase3", method, budget, regions, extra)
             self._record_latent(ls, source)
             self._update_config(phase3=pc)
             manual = ensure_manual(st, system, seed=self.seed)
             self.log(f"manual θ: cost {manual:.3f}")
             self._zero_shot(system, source)
-            x0 = ls.to_unit(ls.encode(system.space.manual))
+            x0 = None if theta0 is None else ls.to_unit(ls.encode(theta0))
             critic = make_phase_critic(method, ls.d_low, self.batch_size, self.seed, x0,
                                        pc["budget"], pc["regions"])
             t = time.perf_counter()
@@ -700,6 +716,23 @@ class _SpaceOnly:
     """A stand-in carrying only a space (ask/tell on an external system)."""
 
     space: ParameterSpace
+
+
+def _start_point(start: Any, manual: np.ndarray, dim: int) -> tuple[np.ndarray | None, Any]:
+    """(θ0 or None, the JSON record of ``start``) for a phase's ``start`` argument."""
+    if isinstance(start, str):
+        if start != "manual":
+            raise UsageError(f"start must be 'manual', None or a θ, got {start!r}")
+        return manual, "manual"
+    if start is None:
+        return None, None
+    from latentune.critic.base import as_unit_points
+
+    try:
+        x = as_unit_points(start, dim, "start")[0]
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    return x, [float(v) for v in x]
 
 
 def _checked(out: Any) -> Any:

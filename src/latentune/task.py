@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import importlib
 import math
+import os
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -22,6 +23,7 @@ import numpy as np
 
 from latentune.actor.base import Actor, ActorFailure
 from latentune.constants import C1, GAITS, STABLE_CAP, TERRAINS, fail_cost
+from latentune.errors import UsageError
 from latentune.robots import RobotSpec, get_robot
 from latentune.space import ParameterSpace
 from latentune.system import Outcome
@@ -36,12 +38,12 @@ ACTORS = {
 def actor_class(name: str) -> type[Actor]:
     """The actor class registered under ``name`` (``convex`` or ``kinodynamic``)."""
     if name not in ACTORS:
-        raise ValueError(f"unknown actor {name!r} (choose from {', '.join(ACTORS)})")
+        raise UsageError(f"unknown actor {name!r} (choose from {', '.join(ACTORS)})")
     mod, cls = ACTORS[name].split(":")
     try:
         return getattr(importlib.import_module(mod), cls)
     except ImportError as exc:
-        raise ValueError(f"actor {name!r} is not available here ({exc})") from None
+        raise UsageError(f"actor {name!r} is not available here ({exc})") from None
 
 
 def path_cost(vel: np.ndarray, v_des: np.ndarray, fall_step: int | None, horizon: int) -> float:
@@ -116,18 +118,28 @@ class Task:
     def __init__(self, robot: str | RobotSpec = "a1", gait: str = "trot", terrain: str = "flat",
                  actor: str = "convex", v_des: float | tuple[float, float, float] = 0.5,
                  steps: int = 5000, seed: int = 0):
+        if not isinstance(robot, (str, os.PathLike, RobotSpec, dict)):
+            raise UsageError(f"robot must be a name, a spec file or a RobotSpec, got {robot!r}")
         self.spec = get_robot(robot)
-        if gait not in GAITS:
-            raise ValueError(f"unknown task {gait!r} (choose from {', '.join(GAITS)})")
+        if not isinstance(gait, str) or gait not in GAITS:
+            raise UsageError(f"unknown task {gait!r} (choose from {', '.join(GAITS)})")
         self.spec.gait(gait)
-        if terrain not in TERRAINS:
-            raise ValueError(f"unknown terrain {terrain!r} (choose from {', '.join(TERRAINS)})")
+        if not isinstance(terrain, str) or terrain not in TERRAINS:
+            raise UsageError(f"unknown terrain {terrain!r} (choose from {', '.join(TERRAINS)})")
+        if not isinstance(actor, str):
+            raise UsageError(f"unknown actor {actor!r} (choose from {', '.join(ACTORS)})")
         self.actor_cls = actor_class(actor)
-        v = np.array([v_des, 0.0, 0.0] if np.isscalar(v_des) else v_des, dtype=float)
+        try:
+            v = np.array([v_des, 0.0, 0.0] if np.isscalar(v_des) else v_des, dtype=float)
+        except (TypeError, ValueError):
+            raise UsageError(f"v_des must be a number or a 3-vector [m/s], got {v_des!r}") from None
         if v.shape != (3,) or not np.all(np.isfinite(v)) or np.linalg.norm(v) > 3.0:
-            raise ValueError("v_des must be a finite velocity of at most 3 m/s")
-        if not isinstance(steps, (int, np.integer)) or steps < 1:
-            raise ValueError("steps must be a positive integer")
+            raise UsageError("v_des must be a finite velocity of at most 3 m/s")
+        if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
+            raise UsageError(f"steps must be a positive integer, got {steps!r}")
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) \
+                or not 0 <= seed < 2 ** 63:
+            raise UsageError(f"seed must be an integer in [0, 2**63), got {seed!r}")
         self.robot_name = self.spec.name
         self.gait = gait
         self.terrain = terrain
@@ -253,8 +265,8 @@ class Task:
                 fall_step, reason = n, f"base height {h:.3f} m outside [{h_lo:.3f}, {h_hi:.3f}]"
             elif s.up_z < cos_tilt:
                 fall_step, reason = n, f"tilt above {self.spec.max_tilt_deg:g} deg"
-            elif n % 10 == 0 and world.body_touches_ground():
-                fall_step, reason = n, "body touched the ground"
+            elif n % 10 == 0 and (link := world.body_ground_contact()) is not None:
+                fall_step, reason = n, f"body touched the ground: link {link}"
             if fall_step is not None:
                 break
         n_exec = n if fall_step is None else fall_step

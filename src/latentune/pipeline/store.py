@@ -28,7 +28,8 @@ Tables
     created, told (unix times)
 
 The critic's point is ``z`` in phase 3 and ``theta`` otherwise (:meth:`RunStore.history`).
-Stores of version 1 (no ``info``, no ``trials``) are upgraded in place when opened.
+Stores of version 1 (no ``info``, no ``trials``) are read as they are and upgraded in place by
+their first write.
 """
 from __future__ import annotations
 
@@ -157,29 +158,34 @@ class RunStore:
             self.con.execute("PRAGMA synchronous=NORMAL")
             if not exists:
                 self.con.executescript("BEGIN;" + _SCHEMA + _TRIALS + "COMMIT;")
+            self._current = self._is_current()
+            if not exists:
                 self.set_meta("format", FORMAT)
                 self.set_meta("version", VERSION)
                 self.set_meta("created", time.time())
-            else:
-                self._upgrade()
         except sqlite3.OperationalError as exc:
             raise StoreError(f"run store {self.path}: {exc}") from None
         except sqlite3.DatabaseError as exc:
             raise StoreError(f"run store {self.path} is corrupt ({exc})") from None
 
-    def _upgrade(self) -> None:
-        """Bring a version-1 store to this version (adds ``evaluations.info`` and ``trials``)."""
+    def _is_current(self) -> bool:
         cols = {r[1] for r in self.con.execute("PRAGMA table_info(evaluations)")}
         tables = {r[0] for r in self.con.execute("SELECT name FROM sqlite_master WHERE type='table'")}
-        if "info" in cols and "trials" in tables:
+        self._has_info = "info" in cols
+        return self._has_info and "trials" in tables
+
+    def _upgrade(self) -> None:
+        """Bring a version-1 store to this version (adds ``evaluations.info`` and ``trials``);
+        runs inside the first write transaction, so reading an old store never changes it."""
+        if self._is_current():
             return
-        with self.con:
-            if "info" not in cols:
-                self.con.execute("ALTER TABLE evaluations ADD COLUMN info TEXT")
-            if "trials" not in tables:
-                self.con.execute(_TRIALS)
-            self.con.execute("INSERT OR REPLACE INTO meta(key, value) VALUES ('version', ?)",
-                             (json.dumps(VERSION),))
+        if not self._has_info:
+            self.con.execute("ALTER TABLE evaluations ADD COLUMN info TEXT")
+        self.con.execute(_TRIALS)
+        self.con.execute("INSERT OR REPLACE INTO meta(key, value) VALUES ('version', ?)",
+                         (json.dumps(VERSION),))
+        self._has_info = True
+        self._current = True
 
     def _check_foreign(self) -> None:
         """Validate an existing file read-only (nothing is written to a foreign/corrupt file)."""
@@ -299,6 +305,8 @@ class RunStore:
         except sqlite3.OperationalError as exc:
             raise StoreError(f"run store {self.path}: {exc}") from None
         try:
+            if not self._current:
+                self._upgrade()
             yield
             self.con.execute("COMMIT")
         except BaseException as exc:
@@ -322,6 +330,8 @@ class RunStore:
 
     def trials(self, status: str | None = None) -> list[Trial]:
         """Suggestions (oldest first), all or those with ``status`` ('pending' or 'told')."""
+        if not self._current:
+            return []
         q = "SELECT id, phase, theta, z, tag, status, idx, created FROM trials"
         rows = self.con.execute(q + (" WHERE status=?" if status else "") + " ORDER BY id",
                                 (status,) if status else ())
@@ -367,9 +377,10 @@ class RunStore:
     def rows(self, phase: int) -> list[Row]:
         """The evaluations of ``phase`` in idx order (StoreError for a garbled row)."""
         out = []
+        info = "info" if self._current or self._has_info else "NULL"
         for r in self.con.execute(
                 "SELECT phase, idx, theta, z, tag, cost, fell, fall_step, wall_s, seed, created, "
-                "info FROM evaluations WHERE phase=? ORDER BY idx", (int(phase),)):
+                f"{info} FROM evaluations WHERE phase=? ORDER BY idx", (int(phase),)):
             try:
                 out.append(Row(r[0], r[1], np.array(json.loads(r[2]), dtype=float),
                                None if r[3] is None else np.array(json.loads(r[3]), dtype=float),
@@ -408,6 +419,13 @@ class RunStore:
                                  (phase,)).fetchone()
         if n and (mx != n - 1):
             raise StoreError(f"phase {phase} indices are not contiguous ({n} rows, max idx {mx})")
+
+    def check(self) -> None:
+        """Check every phase: indices contiguous, rows decodable, config readable (StoreError)."""
+        for (ph,) in self.con.execute("SELECT DISTINCT phase FROM evaluations").fetchall():
+            self.check_contiguous(ph)
+            self.rows(ph)
+        self.get_meta("config")
 
     def close(self) -> None:
         try:

@@ -11,6 +11,11 @@ relative to the YAML file) or ``{package: <name>, path: <path inside the package
 shipped by an installed package (``pybullet_data``, ``example-robot-data``). ``base: <built-in
 name>`` starts from a built-in robot and overrides only the fields given. Units: SI (m, s, rad,
 N·m); angles of ``max_tilt_deg`` in degrees.
+
+Every load checks the spec against its URDF (:mod:`latentune.robots.check`: joint and foot names,
+leg order against the geometry, collision shapes of the feet) and fills ``nominal_height``,
+``torque_limits`` and ``strip_root`` when they are omitted; a problem is a one-line
+:class:`~latentune.errors.RobotSpecError` naming the file.
 """
 from __future__ import annotations
 
@@ -73,12 +78,15 @@ class RobotSpec:
         joint_names: 12 actuated joint names, per leg (abduction, hip, knee).
         foot_links: 4 foot link names.
         nominal_q: (12,) joint angles of the standing pose [rad].
-        nominal_height: base height when standing at ``nominal_q`` on flat ground [m].
-        torque_limits: (3,) max |τ| for (abduction, hip, knee) [N·m].
+        nominal_height: base link height when standing at ``nominal_q`` on flat ground [m]
+            (default: from forward kinematics, ``foot_radius`` − mean foot z).
+        torque_limits: (3,) max |τ| for (abduction, hip, knee) [N·m] (default: the URDF's
+            ``<limit effort>``, the smallest of the four legs).
         kp, kd: (3,) joint PD gains for swing legs [N·m/rad, N·m·s/rad].
         foot_radius: contact sphere radius [m].
         gaits: gait name -> :class:`GaitParams`.
-        strip_root: the URDF has a massless dummy root link to remove.
+        strip_root: remove the URDF's root link, a massless dummy fixed to the real base
+            (PyBullet would zero its inertia and warn); default: true iff the root is one.
         primitive_collisions: replace collision meshes by ``collision_primitives`` (faster
             stepping).
         raibert_gain: swing foot placement gain on the velocity error [s].
@@ -175,18 +183,27 @@ def load_spec_file(path: str | os.PathLike) -> RobotSpec:
     """Read a robot spec from a YAML file (see the module docstring; README, "Custom robots").
 
     Raises:
-        RobotSpecError: missing file, bad YAML, missing/unknown/ill-typed field, URDF not found.
+        RobotSpecError: missing file, bad YAML, missing/unknown/ill-typed field, URDF not found,
+            a spec that does not fit its URDF (:mod:`latentune.robots.check`).
+    """
+    p = Path(path)
+    return _build(read_yaml(p), f"robot spec {p}", p.parent)
+
+
+def read_yaml(path: Path) -> Any:
+    """The parsed YAML of a spec file.
+
+    Raises:
+        RobotSpecError: missing file or bad YAML.
     """
     import yaml
 
-    p = Path(path)
-    if not p.is_file():
-        raise RobotSpecError(f"robot spec file not found: {p}")
+    if not path.is_file():
+        raise RobotSpecError(f"robot spec file not found: {path}")
     try:
-        raw = yaml.safe_load(p.read_text())
+        return yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
-        raise RobotSpecError(f"robot spec {p}: malformed YAML ({str(exc).splitlines()[0]})") from None
-    return _build(raw, f"robot spec {p}", p.parent)
+        raise RobotSpecError(f"robot spec {path}: malformed YAML ({str(exc).splitlines()[0]})") from None
 
 
 def spec_from_dict(d: Mapping[str, Any], base_dir: str | os.PathLike | None = None) -> RobotSpec:
@@ -195,14 +212,15 @@ def spec_from_dict(d: Mapping[str, Any], base_dir: str | os.PathLike | None = No
     ``base_dir`` (default: the working directory).
 
     Raises:
-        RobotSpecError: missing/unknown/ill-typed field, URDF not found.
+        RobotSpecError: missing/unknown/ill-typed field, URDF not found, a spec that does not
+            fit its URDF.
     """
     name = d.get("name", "?") if isinstance(d, Mapping) else "?"
     return _build(d, f"robot spec {name!r}", Path(base_dir) if base_dir is not None else Path.cwd())
 
 
-_REQUIRED = ("name", "urdf", "joint_names", "foot_links", "nominal_q", "nominal_height",
-             "torque_limits", "kp", "kd", "foot_radius", "gaits")
+_REQUIRED = ("name", "urdf", "joint_names", "foot_links", "nominal_q", "kp", "kd", "foot_radius",
+             "gaits")  # nominal_height, torque_limits, strip_root: computed from the URDF if omitted
 _FIELDS = frozenset(f.name for f in dataclasses.fields(RobotSpec))
 _TUPLES = {"joint_names": (12, str), "foot_links": (4, str), "nominal_q": (12, float),
            "torque_limits": (3, float), "kp": (3, float), "kd": (3, float)}
@@ -212,7 +230,27 @@ _GAIT_KEYS = {"period", "duty", "step_height", "offsets"}
 
 
 def _build(raw: Any, where: str, base_dir: Path) -> RobotSpec:
-    """Validate a mapping of spec fields (``where`` prefixes every error message)."""
+    """Validate a mapping of spec fields and check them against the URDF (``where`` prefixes
+    every error and warning message)."""
+    from latentune.robots.check import emit_warning, inspect_fields
+
+    fields = validated_fields(raw, where, base_dir)
+    found = inspect_fields(fields)
+    if found.errors:
+        raise RobotSpecError(f"{where}: {'; '.join(found.errors)}")
+    spec = RobotSpec(**{**fields, **found.filled})
+    for w in found.warnings:
+        emit_warning(f"{where}: {w}")
+    return spec
+
+
+def validated_fields(raw: Any, where: str, base_dir: Path) -> dict[str, Any]:
+    """The fields of a spec mapping, typed and checked on their own (not yet against the URDF);
+    ``nominal_height``, ``torque_limits`` and ``strip_root`` may be absent.
+
+    Raises:
+        RobotSpecError: ``where: <problem>``.
+    """
     if not isinstance(raw, Mapping):
         raise RobotSpecError(f"{where}: expected a mapping of fields")
     fields = dict(raw)
@@ -232,12 +270,17 @@ def _build(raw: Any, where: str, base_dir: Path) -> RobotSpec:
         if not isinstance(fields["name"], str) or not fields["name"]:
             raise RobotSpecError(f"{where}: name must be a non-empty string")
         for key, (n, typ) in _TUPLES.items():
+            if fields.get(key) is None and key not in _REQUIRED:
+                fields.pop(key, None)
+                continue
             vals = _sequence(fields[key], key, where)
             if len(vals) != n:
                 raise RobotSpecError(f"{where}: {key} needs {n} entries, got {len(vals)}")
             fields[key] = tuple(typ(v) for v in vals)
             if typ is float and not all(math.isfinite(v) for v in fields[key]):
                 raise RobotSpecError(f"{where}: {key} must be finite numbers")
+        if fields.get("nominal_height", 0) is None:
+            del fields["nominal_height"]
         for key in _POSITIVE:
             if key in fields:
                 fields[key] = float(fields[key])
@@ -255,7 +298,7 @@ def _build(raw: Any, where: str, base_dir: Path) -> RobotSpec:
     if fields.get("primitive_collisions") and not fields["collision_primitives"]:
         raise RobotSpecError(f"{where}: primitive_collisions needs collision_primitives "
                              "(link-name suffix -> {box: [x, y, z]} or {sphere: radius})")
-    return RobotSpec(**fields)
+    return fields
 
 
 def _sequence(v: Any, key: str, where: str) -> tuple:

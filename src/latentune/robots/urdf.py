@@ -1,21 +1,29 @@
-"""URDF files: where installed robot packages keep them, and the copy PyBullet and pinocchio load.
+"""URDF files: where installed robot packages keep them, their link/joint tree, and the copy
+PyBullet and pinocchio load.
 
 :func:`package_dir` locates an installed package's files (``example-robot-data`` ships URDFs
 only, under ``site-packages/cmeel.prefix/share/example-robot-data/robots``; any other name is an
-importable Python package such as ``pybullet_data``). :func:`prepared_urdf` rewrites a spec's URDF
-for simulation: ``package://`` mesh URIs become absolute paths, a massless dummy root link is
-removed (``strip_root``), ``.dae`` collision meshes are dropped, and with
-``primitive_collisions`` each link's collision shapes are replaced by the spec's
-:class:`~latentune.robots.spec.CollisionShape` for that link (lengths in metres).
+importable Python package such as ``pybullet_data``). :func:`read_urdf` parses a URDF into a
+:class:`UrdfTree` (links with mass and collision shapes, joints with type, axis and limits) and
+raises a one-line :class:`~latentune.errors.RobotSpecError` for a file that is not XML or not a
+tree of links and joints. :func:`prepared_urdf` rewrites a spec's URDF for simulation:
+``package://`` mesh URIs become absolute paths, a massless dummy root link is removed
+(``strip_root``), ``continuous`` joints become ``revolute`` without limits (one configuration
+value each, as the leg kinematics expect), ``.dae`` collision meshes are dropped (PyBullet
+ignores them), and with ``primitive_collisions`` each link's collision shapes are replaced by the
+spec's :class:`~latentune.robots.spec.CollisionShape` for that link (lengths in metres).
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib.metadata
 import importlib.util
 import os
 import re
 import tempfile
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -59,36 +67,272 @@ def package_dir(package: str) -> Path:
     return Path(next(iter(found.submodule_search_locations))).resolve()
 
 
-def _fix_uris(text: str, src: Path) -> str:
-    """Replace ``package://`` mesh URIs by absolute paths where the file is found."""
-    roots: list[tuple[Path, bool]] = []  # (directory, drop the URI's package component)
+MASSLESS = 1e-4
+"""A link lighter than this [kg] (or without ``<inertial>``) counts as massless."""
+
+_REWRITE_VERSION = "rewrite-2"  # in the prepared-URDF cache key of URDFs with continuous joints
+
+
+@dataclass(frozen=True)
+class UrdfLink:
+    """A ``<link>``: ``mass`` [kg] (None without ``<inertial>``); ``collisions``: one
+    ``(geometry tag, attributes)`` per ``<collision>``, e.g. ``("sphere", {"radius": "0.02"})``."""
+
+    name: str
+    mass: float | None
+    collisions: tuple[tuple[str, dict[str, str]], ...]
+
+
+@dataclass(frozen=True)
+class UrdfJoint:
+    """A ``<joint>``: type, parent and child link, axis (joint frame), origin xyz [m] and the
+    ``<limit>`` attributes as floats (None where absent): effort [N·m], lower/upper [rad]."""
+
+    name: str
+    type: str
+    parent: str
+    child: str
+    axis: tuple[float, float, float]
+    xyz: tuple[float, float, float]
+    effort: float | None
+    lower: float | None
+    upper: float | None
+
+    @property
+    def movable(self) -> bool:
+        return self.type in ("revolute", "continuous", "prismatic", "planar", "floating")
+
+
+@dataclass(frozen=True)
+class UrdfTree:
+    """The link/joint tree of a URDF file (:func:`read_urdf`).
+
+    Attributes:
+        path: the file.
+        name: the ``<robot name>``.
+        links, joints: by name, in file order.
+        root: the one link that is no joint's child.
+    """
+
+    path: str
+    name: str
+    links: dict[str, UrdfLink]
+    joints: dict[str, UrdfJoint]
+    root: str
+
+    def child_joints(self, link: str) -> list[UrdfJoint]:
+        return [j for j in self.joints.values() if j.parent == link]
+
+    def parent_joint(self, link: str) -> UrdfJoint | None:
+        return next((j for j in self.joints.values() if j.child == link), None)
+
+    def joints_above(self, link: str) -> list[str]:
+        """Names of the joints from the root down to ``link`` (root first)."""
+        out = []
+        j = self.parent_joint(link)
+        while j is not None:
+            out.append(j.name)
+            j = self.parent_joint(j.parent)
+        return out[::-1]
+
+    def links_below(self, link: str) -> list[str]:
+        """``link`` and every link under it."""
+        out, todo = [], [link]
+        while todo:
+            name = todo.pop(0)
+            out.append(name)
+            todo += [j.child for j in self.child_joints(name)]
+        return out
+
+    def total_mass(self) -> float:
+        return float(sum(link.mass or 0.0 for link in self.links.values()))
+
+    def massless_root(self) -> bool:
+        """The root link is a massless dummy fixed to the real base (``strip_root``)."""
+        mass = self.links[self.root].mass
+        kids = self.child_joints(self.root)
+        return (mass is None or mass < MASSLESS) and len(kids) == 1 and kids[0].type == "fixed"
+
+    def base(self, strip_root: bool) -> str:
+        """The base link: the root, or its child once a massless root is stripped."""
+        if strip_root and self.massless_root():
+            return self.child_joints(self.root)[0].child
+        return self.root
+
+
+def _floats(text: str | None, n: int, what: str) -> tuple[float, ...]:
+    vals = tuple(float(v) for v in (text or "").split())
+    if len(vals) != n:
+        raise ValueError(f"{what} needs {n} numbers, got {text!r}")
+    return vals
+
+
+def _opt_float(el: ET.Element | None, key: str) -> float | None:
+    v = None if el is None else el.get(key)
+    return None if v is None else float(v)
+
+
+def read_urdf(path: str | os.PathLike) -> UrdfTree:
+    """The link/joint tree of a URDF file (cached per file path, size and modification time).
+
+    Raises:
+        RobotSpecError: one line naming the file: unreadable, empty, not XML, no ``<robot>``,
+            no links or joints, a joint naming an undefined link, not one tree.
+    """
+    p = Path(path)
+    try:
+        st = p.stat()
+    except OSError as exc:
+        raise RobotSpecError(f"URDF {p}: cannot read ({exc.strerror})") from None
+    return _read_urdf(str(p), st.st_size, st.st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=64)
+def _read_urdf(path: str, size: int, mtime_ns: int) -> UrdfTree:
+    where = f"URDF {path}"
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise RobotSpecError(f"{where}: cannot read ({exc.strerror})") from None
+    if not data.strip():
+        raise RobotSpecError(f"{where}: the file is empty")
+    try:
+        root = ET.fromstring(data)
+    except ET.ParseError as exc:
+        raise RobotSpecError(f"{where}: not XML ({exc})") from None
+    if root.tag != "robot":
+        raise RobotSpecError(f"{where}: the top element is <{root.tag}>, not <robot>")
+    links: dict[str, UrdfLink] = {}
+    joints: dict[str, UrdfJoint] = {}
+    try:
+        for el in root.findall("link"):
+            name = el.get("name")
+            if not name:
+                raise ValueError("a <link> has no name")
+            if name in links:
+                raise ValueError(f"link {name!r} is defined twice")
+            mass_el = el.find("inertial/mass")
+            mass = None if mass_el is None else float(mass_el.get("value", "nan"))
+            cols = tuple((g[0].tag, dict(g[0].attrib)) for g in (c.find("geometry") for c in el.findall("collision"))
+                         if g is not None and len(g))
+            links[name] = UrdfLink(name, mass, cols)
+        for el in root.findall("joint"):
+            name, typ = el.get("name"), el.get("type")
+            if not name or not typ:
+                raise ValueError("a <joint> has no name or type")
+            if name in joints:
+                raise ValueError(f"joint {name!r} is defined twice")
+            parent, child = el.find("parent"), el.find("child")
+            if parent is None or child is None or not parent.get("link") or not child.get("link"):
+                raise ValueError(f"joint {name!r} needs <parent link> and <child link>")
+            for end in (parent.get("link"), child.get("link")):
+                if end not in links:
+                    raise ValueError(f"joint {name!r} names the undefined link {end!r}")
+            axis_el, origin_el, lim = el.find("axis"), el.find("origin"), el.find("limit")
+            axis = _floats(axis_el.get("xyz"), 3, f"joint {name!r} axis") if axis_el is not None else (1.0, 0.0, 0.0)
+            xyz = _floats(origin_el.get("xyz", "0 0 0"), 3, f"joint {name!r} origin") if origin_el is not None \
+                else (0.0, 0.0, 0.0)
+            joints[name] = UrdfJoint(name, typ, parent.get("link"), child.get("link"), axis, xyz,
+                                     _opt_float(lim, "effort"), _opt_float(lim, "lower"), _opt_float(lim, "upper"))
+    except ValueError as exc:
+        raise RobotSpecError(f"{where}: {exc}") from None
+    if not links:
+        raise RobotSpecError(f"{where}: no <link> elements")
+    if not joints:
+        raise RobotSpecError(f"{where}: no <joint> elements (a quadruped needs 12 actuated joints)")
+    children = [j.child for j in joints.values()]
+    twice = sorted({c for c in children if children.count(c) > 1})
+    if twice:
+        raise RobotSpecError(f"{where}: link {twice[0]!r} is the child of more than one joint")
+    roots = [n for n in links if n not in set(children)]
+    if len(roots) != 1:
+        raise RobotSpecError(f"{where}: the links do not form one tree (root links: "
+                             f"{', '.join(roots) if roots else 'none, a joint loop'})")
+    tree = UrdfTree(path, root.get("name", ""), links, joints, roots[0])
+    unreached = set(links) - set(tree.links_below(tree.root))
+    if unreached:
+        raise RobotSpecError(f"{where}: the links do not form one tree (a joint loop through "
+                             f"{', '.join(sorted(unreached)[:3])})")
+    return tree
+
+
+def _uri_roots(src: Path) -> list[tuple[Path, bool]]:
+    """Where ``package://`` URIs of the URDF ``src`` are looked for: (directory, drop the URI's
+    package component)."""
+    roots: list[tuple[Path, bool]] = []
     try:
         robots = erd_robots_dir()
         roots += [(robots.parent.parent, False), (robots, False)]
     except RobotSpecError:
         pass
     roots.append((src.parent.parent, True))
+    return roots
 
-    def fix(m: re.Match) -> str:
-        rel = m.group(1)[len("package://"):]
-        for root, drop_package in roots:
+
+def resolve_mesh(filename: str, src: str | os.PathLike, roots: list[tuple[Path, bool]] | None = None) -> Path | None:
+    """The file a mesh ``filename`` of the URDF ``src`` refers to (a ``package://`` URI, a path
+    relative to the URDF's directory, or absolute), or None when it does not exist."""
+    src = Path(src)
+    if filename.startswith("package://"):
+        rel = filename[len("package://"):]
+        for root, drop_package in (roots if roots is not None else _uri_roots(src)):
             cand = root / (rel.split("/", 1)[-1] if drop_package else rel)
             if cand.is_file():
-                return f'filename="{cand}"'
-        return m.group(0)
+                return cand
+        return None
+    cand = Path(filename[len("file://"):] if filename.startswith("file://") else filename)
+    cand = cand if cand.is_absolute() else src.parent / cand
+    return cand if cand.is_file() else None
+
+
+def _fix_uris(text: str, src: Path) -> str:
+    """Replace ``package://`` mesh URIs by absolute paths where the file is found."""
+    roots = _uri_roots(src)
+
+    def fix(m: re.Match) -> str:
+        found = resolve_mesh(m.group(1), src, roots)
+        return f'filename="{found}"' if found is not None else m.group(0)
 
     return re.sub(r'filename="(package://[^"]+)"', fix, text)
 
 
-def _strip_root(text: str) -> str:
-    """Remove the first link if it is (nearly) massless, and the fixed joint to the real base."""
-    m = re.search(r'<link\s+name="([^"]+)"\s*(?:/>|>.*?</link>)', text, flags=re.S)
+def _strip_root(text: str, root: str | None = None) -> str:
+    """Remove the link ``root`` (default: the first link) if it is (nearly) massless, and the
+    fixed joint to the real base."""
+    name = r"[^\"]+" if root is None else re.escape(root)
+    m = re.search(r'<link\s+name="(%s)"\s*(?:/>|>.*?</link>)' % name, text, flags=re.S)
     mass = re.search(r'<mass\s+value="([^"]+)"', m.group(0)) if m else None
-    if m and (mass is None or float(mass.group(1)) < 1e-4):
+    if m and (mass is None or float(mass.group(1)) < MASSLESS):
         root = m.group(1)
         text = text.replace(m.group(0), "", 1)
         text = re.sub(r'<joint[^>]*type="fixed"[^>]*>(?:(?!</joint>).)*?<parent\s+link="%s"\s*/>.*?</joint>'
                       % re.escape(root), "", text, count=1, flags=re.S)
+    return text
+
+
+def _continuous_to_revolute(text: str) -> str:
+    """``continuous`` joints as ``revolute`` ones with limits that are never reached (pinocchio
+    gives a continuous joint two configuration values; the leg kinematics expect one)."""
+    def repl(m: re.Match) -> str:
+        body = m.group(0).replace('type="continuous"', 'type="revolute"', 1)
+        limit = re.search(r"<limit\b[^>]*?/>", body)
+        effort = re.search(r'effort="([^"]*)"', limit.group(0)) if limit else None
+        velocity = re.search(r'velocity="([^"]*)"', limit.group(0)) if limit else None
+        new = (f'<limit lower="-1e4" upper="1e4" effort="{effort.group(1) if effort else 0}" '
+               f'velocity="{velocity.group(1) if velocity else 0}"/>')
+        return body.replace(limit.group(0), new, 1) if limit else body.replace("</joint>", new + "</joint>", 1)
+
+    return re.sub(r'<joint\b[^>]*type="continuous"[^>]*>.*?</joint>', repl, text, flags=re.S)
+
+
+def kinematic_urdf_text(spec_urdf: str | os.PathLike, strip_root: bool) -> str:
+    """The URDF text whose kinematics pinocchio and PyBullet see after :func:`prepared_urdf`
+    (root stripped, continuous joints revolute); collision and mesh rewrites left out."""
+    text = Path(spec_urdf).read_text()
+    if strip_root:
+        text = _strip_root(text, read_urdf(spec_urdf).root)
+    if 'type="continuous"' in text:
+        text = _continuous_to_revolute(text)
     return text
 
 
@@ -126,18 +370,22 @@ def prepared_urdf(spec: RobotSpec) -> str:
     """
     src = Path(spec.urdf)
     text = src.read_text()
-    if not (spec.strip_root or spec.primitive_collisions or "package://" in text):
+    continuous = 'type="continuous"' in text
+    if not (spec.strip_root or spec.primitive_collisions or continuous or "package://" in text):
         return str(src)
     prims = spec.collision_primitives if spec.primitive_collisions else {}
     key = hashlib.sha1((text + repr((spec.strip_root, spec.primitive_collisions, spec.foot_radius,
-                                     sorted(prims.items())))).encode()).hexdigest()[:12]
+                                     sorted(prims.items())))
+                        + (_REWRITE_VERSION if continuous else "")).encode()).hexdigest()[:12]
     out = Path(tempfile.gettempdir()) / "latentune_urdf" / f"{spec.name}_{key}.urdf"
     if out.is_file():
         return str(out)
 
     text = _fix_uris(text, src)
     if spec.strip_root:
-        text = _strip_root(text)
+        text = _strip_root(text, read_urdf(src).root)
+    if continuous:
+        text = _continuous_to_revolute(text)
     # PyBullet does not collide with .dae meshes: drop those collision shapes
     text = re.sub(r'<collision>(?:(?!</collision>).)*?\.dae"(?:(?!</collision>).)*?</collision>', "", text, flags=re.S)
     if spec.primitive_collisions:

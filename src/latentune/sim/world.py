@@ -1,13 +1,15 @@
 """The simulated world: one PyBullet DIRECT client with a ground and one robot.
 
 Units: SI (m, s, rad, N, N·m). World frame: x forward, z up. Leg order FR, FL, RR, RL.
+PyBullet's own output never reaches stdout (:mod:`latentune.sim.bullet`): building the world,
+rendering and closing send it to stderr, ``loadURDF``'s parser warnings go nowhere.
 """
 from __future__ import annotations
 
 import math
 
 import numpy as np
-from latentune.sim.bullet import p, quiet_stderr
+from latentune.sim.bullet import p, quiet, stdout_to_stderr
 
 from latentune.constants import G, TERRAINS
 from latentune.robots import RobotModel, RobotSpec
@@ -105,9 +107,17 @@ class World:
         if terrain not in TERRAINS:
             raise ValueError(f"unknown terrain {terrain!r} (choose from {', '.join(TERRAINS)})")
         self.spec = spec
+        self.cid = None
         self.model = RobotModel.load(spec)
         self.terrain = terrain
         self.dt = dt
+        with stdout_to_stderr():
+            self._build(seed)
+
+    def _build(self, seed: int) -> None:
+        spec = self.spec
+        terrain = self.terrain
+        dt = self.dt
         self.cid = p.connect(p.DIRECT)
         c = self.cid
         p.setGravity(0, 0, -G, physicsClientId=c)
@@ -132,13 +142,16 @@ class World:
             self.ground_z = float(self.heights.max())
         p.changeDynamics(self.ground, -1, lateralFriction=1.0, physicsClientId=c)
         z0 = spec.nominal_height + self.ground_z + 0.01
-        with quiet_stderr():
+        with quiet():
             self.robot = p.loadURDF(self.model.urdf, [self.start_x, 0, z0], [0, 0, 0, 1],
                                     flags=p.URDF_USE_INERTIA_FROM_FILE, physicsClientId=c)
         names = {p.getJointInfo(self.robot, j, physicsClientId=c)[1].decode(): j
                  for j in range(p.getNumJoints(self.robot, physicsClientId=c))}
         links = {p.getJointInfo(self.robot, j, physicsClientId=c)[12].decode(): j
                  for j in range(p.getNumJoints(self.robot, physicsClientId=c))}
+        # link index -> name (-1: the base), for the fall reason "body touched the ground: link …"
+        self.link_names = {j: name for name, j in links.items()}
+        self.link_names[-1] = p.getBodyInfo(self.robot, physicsClientId=c)[0].decode()
         self.joint_ids = [names[j] for j in spec.joint_names]
         self.foot_ids = [links[f] for f in spec.foot_links]
         p.setJointMotorControlArray(self.robot, self.joint_ids, p.VELOCITY_CONTROL,
@@ -205,10 +218,16 @@ class World:
         p.stepSimulation(physicsClientId=self.cid)
 
     def body_touches_ground(self) -> bool:
-        """True if any link other than the feet (or the trunk) touches the ground."""
+        """True if any link other than the feet (the trunk included) touches the ground."""
+        return self.body_ground_contact() is not None
+
+    def body_ground_contact(self) -> str | None:
+        """Name of the first link other than the feet (the trunk included) that touches the
+        ground, or None."""
         pts = p.getContactPoints(self.robot, self.ground, physicsClientId=self.cid)
         feet = set(self.foot_ids)
-        return any(pt[3] not in feet for pt in pts)
+        link = next((pt[3] for pt in pts if pt[3] not in feet), None)
+        return None if link is None else self.link_names.get(link, f"#{link}")
 
     def foot_contacts(self) -> np.ndarray:
         """(4,) bool: which feet touch the ground."""
@@ -233,14 +252,16 @@ class World:
         view = p.computeViewMatrixFromYawPitchRoll(pos, 1.0 + 1.5 * self.spec.nominal_height,
                                                    50, -25, 0, 2, physicsClientId=self.cid)
         proj = p.computeProjectionMatrixFOV(60, width / height, 0.05, 20, physicsClientId=self.cid)
-        img = p.getCameraImage(width, height, view, proj, renderer=p.ER_TINY_RENDERER,
-                               physicsClientId=self.cid)
+        with stdout_to_stderr():
+            img = p.getCameraImage(width, height, view, proj, renderer=p.ER_TINY_RENDERER,
+                                   physicsClientId=self.cid)
         return np.asarray(img[2], dtype=np.uint8).reshape(height, width, 4)[:, :, :3]
 
     def close(self) -> None:
         if self.cid is not None:
             try:
-                p.disconnect(physicsClientId=self.cid)
+                with stdout_to_stderr():
+                    p.disconnect(physicsClientId=self.cid)
             except p.error:
                 pass
             self.cid = None

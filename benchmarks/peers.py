@@ -1,0 +1,526 @@
+"""latentune's critics against peer optimizers, side by side on one suite (issue 16).
+
+Every (problem, method, seed) runs in this process, one thread (``OMP_NUM_THREADS=1``,
+``torch.set_num_threads(1)``), on the problems of ``benchmarks/peer_problems.py`` (unit box),
+with the same budget and batch size, and is written as soon as it completes to
+``<out>/runs/<problem>__<method>__s<seed>__b<budget>[__<hash>].json`` (best value, best-so-far
+trace, wall and function seconds). A killed run continues where it stopped: finished runs are
+skipped. Runs of latentune's critics carry a hash of ``src/latentune/critic/*.py`` in their name,
+so they are redone after the critic changes and the older ones stay for comparison
+(``--report --critic-hash HASH``). Every invocation is appended to ``<out>/invocations.jsonl``
+(command, date, seeds, budgets, versions, ``os.getloadavg()`` at start and end).
+
+Methods (all minimize on [0, 1]^d; batch = ``--batch-size`` points per ask unless stated):
+
+* ``lt_turbo``, ``lt_cma``: ``latentune.minimize(method="turbo" / "cma")`` with its defaults.
+  ``--variant NAME='{"opt": value}'`` adds ``lt_turbo@NAME`` (or ``lt_cma@NAME`` with
+  ``--variant-method cma``) with extra critic options.
+* ``ref_turbo1``: reference TuRBO-1 (``uber-turbo``), ``n_init = 2·d``.
+* ``ref_turbom``: reference TuRBO-m, ``m = 3`` regions, ``n_init = min(2·d, budget // (2·m))``
+  per region (its 2·d does not fit 3 regions in 500 evaluations above 41 dimensions).
+  The reference restarts can evaluate past ``max_evals``: the objective wrapper stops both at the
+  budget.
+* ``optuna_tpe`` (``TPESampler(multivariate=True)``), ``optuna_cma`` (``CmaEsSampler``: its
+  defaults, mean at the centre, sigma0 = 1/6 of the range, population 4 + ⌊3 ln d⌋),
+  ``optuna_gp`` (``GPSampler``; ``--gp-budget``, default 200, because it is slow): batches of
+  ``--batch-size`` trials asked before any is told.
+* ``pycma``: pycma as a user would call it: ``cma.CMAEvolutionStrategy(centre, 0.3 · range,
+  {"bounds": [0, 1]})``, its default population, one generation per batch, a fresh start from
+  a random mean when it stops.
+
+Report (``--report``): per problem the median and [min, max] of the best value over seeds, the
+rank of every method by median and a tied-best mark (a method is tied-best if a two-sided
+Mann–Whitney U test over seeds does not separate it from the method with the best median at
+p < 0.05), ``lt_turbo``'s win/tie/loss against every peer, and each method's own seconds per
+suggested point (wall minus function time, divided by the evaluations). Methods with a smaller
+budget (``optuna_gp``) are compared with the others' best-so-far at that budget. Written to
+``<out>/summary.md`` and ``<out>/summary.json``.
+
+Overhead (``--overhead``): latentune's TuRBO-m in 25-d, batch 10, told 10,000 points (1 and 10
+regions), then asked and told 5 batches: the critic's seconds per suggested point, with the
+critic's thread setting and, for comparison, with torch's default threads. Written to
+``<out>/overhead.json``.
+
+    .venv/bin/python benchmarks/peers.py --seeds 0 1 2 3 4 --budget 500 --batch-size 10
+    .venv/bin/python benchmarks/peers.py --report
+"""
+from __future__ import annotations
+
+import os
+
+for _v in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")
+
+import argparse  # noqa: E402
+import datetime  # noqa: E402
+import hashlib  # noqa: E402
+import json  # noqa: E402
+import platform  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+import traceback  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from peer_problems import problems  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+CRITIC_DIR = ROOT / "src" / "latentune" / "critic"
+ALL_METHODS = ["lt_turbo", "lt_cma", "pycma", "optuna_cma", "optuna_tpe", "ref_turbo1",
+               "ref_turbom", "optuna_gp"]
+HEAVY = {"ref_turbo1", "ref_turbom", "optuna_gp", "optuna_tpe"}
+
+
+def critic_hash() -> str:
+    h = hashlib.sha256()
+    for p in sorted(CRITIC_DIR.glob("*.py")):
+        h.update(p.name.encode())
+        h.update(p.read_bytes())
+    return h.hexdigest()[:12]
+
+
+class BudgetReached(Exception):
+    pass
+
+
+class Objective:
+    """Counts and times evaluations, keeps the best-so-far trace, stops at the budget."""
+
+    def __init__(self, problem, budget: int) -> None:
+        self.p, self.budget = problem, budget
+        self.y: list[float] = []
+        self.fun_time = 0.0
+
+    def __call__(self, u) -> float:
+        if len(self.y) >= self.budget:
+            raise BudgetReached
+        u = np.clip(np.asarray(u, dtype=float).reshape(-1), 0.0, 1.0)
+        t = time.perf_counter()
+        v = self.p(u)
+        self.fun_time += time.perf_counter() - t
+        self.y.append(v)
+        return v
+
+    @property
+    def left(self) -> int:
+        return self.budget - len(self.y)
+
+
+# ------------------------------------------------------------------ methods
+def run_lt(method: str, opts: dict, obj: Objective, d: int, batch: int, seed: int) -> None:
+    import latentune as lt
+
+    lt.minimize(obj, [(0.0, 1.0)] * d, method=method, budget=obj.budget, batch_size=batch,
+                seed=seed, **opts)
+
+
+def run_pycma(obj: Objective, d: int, batch: int, seed: int) -> None:
+    import cma
+
+    restart = 0
+    x0 = np.full(d, 0.5)
+    while obj.left > 0:
+        es = cma.CMAEvolutionStrategy(x0.tolist(), 0.3, {"bounds": [0.0, 1.0], "verbose": -9,
+                                                         "seed": 1 + seed + 1000 * restart})
+        while not es.stop() and obj.left > 0:
+            X = es.ask()
+            if len(X) > obj.left:
+                for x in X[: obj.left]:
+                    obj(x)
+                return
+            es.tell(X, [obj(x) for x in X])
+        restart += 1
+        x0 = np.random.default_rng([seed, restart]).random(d)
+
+
+def run_optuna(kind: str, obj: Objective, d: int, batch: int, seed: int) -> None:
+    import optuna
+
+    optuna.logging.set_verbosity(optuna.logging.ERROR)
+    if kind == "tpe":
+        sampler = optuna.samplers.TPESampler(multivariate=True, seed=seed)
+    elif kind == "cma":
+        sampler = optuna.samplers.CmaEsSampler(seed=seed)
+    elif kind == "gp":
+        sampler = optuna.samplers.GPSampler(seed=seed)
+    else:
+        raise ValueError(kind)
+    import warnings
+
+    warnings.filterwarnings("ignore", module="optuna")
+    study = optuna.create_study(sampler=sampler)
+    dists = {f"x{i:03d}": optuna.distributions.FloatDistribution(0.0, 1.0) for i in range(d)}
+    while obj.left > 0:
+        k = min(batch, obj.left)
+        trials = [study.ask(dists) for _ in range(k)]   # the whole batch before any tell
+        ys = [obj(np.array([tr.params[f"x{i:03d}"] for i in range(d)])) for tr in trials]
+        for tr, v in zip(trials, ys):
+            study.tell(tr, v)
+
+
+def run_ref(kind: str, obj: Objective, d: int, batch: int, seed: int) -> None:
+    import torch
+    from turbo import Turbo1, TurboM
+
+    np.random.seed(seed)          # the reference draws from the global generators
+    torch.manual_seed(seed)
+
+    def f(x):
+        return obj(x)
+
+    lb, ub = np.zeros(d), np.ones(d)
+    if kind == "turbo1":
+        opt = Turbo1(f=f, lb=lb, ub=ub, n_init=2 * d, max_evals=obj.budget, batch_size=batch,
+                     verbose=False)
+    else:
+        m = 3
+        n_init = min(2 * d, obj.budget // (2 * m))
+        opt = TurboM(f=f, lb=lb, ub=ub, n_init=n_init, max_evals=obj.budget, batch_size=batch,
+                     n_trust_regions=m, verbose=False)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        opt.optimize()               # restarts inside; the wrapper stops it at the budget
+
+
+def run_method(method: str, pname: str, seed: int, budget: int, batch: int,
+               variants: dict) -> dict:
+    prob = problems()[pname]
+    d = prob.dim
+    obj = Objective(prob, budget)
+    t0 = time.perf_counter()
+    try:
+        if method == "lt_turbo" or method == "lt_cma":
+            run_lt(method[3:], {}, obj, d, batch, seed)
+        elif method.startswith("lt_") and "@" in method:
+            base, name = method.split("@", 1)
+            run_lt(base[3:], variants[name][1], obj, d, batch, seed)
+        elif method == "pycma":
+            run_pycma(obj, d, batch, seed)
+        elif method.startswith("optuna_"):
+            run_optuna(method[7:], obj, d, batch, seed)
+        elif method.startswith("ref_"):
+            run_ref(method[4:], obj, d, batch, seed)
+        else:
+            raise ValueError(f"unknown method {method}")
+    except BudgetReached:
+        pass
+    wall = time.perf_counter() - t0
+    y = np.array(obj.y)
+    yf = np.where(np.isfinite(y), y, np.inf)
+    trace = np.minimum.accumulate(yf).tolist()
+    return dict(problem=pname, method=method, seed=seed, budget=budget, batch=batch,
+                n=len(obj.y), best=float(yf.min()) if len(yf) else float("inf"),
+                trace=trace, wall=wall, fun_time=obj.fun_time,
+                overhead_per_point=(wall - obj.fun_time) / max(len(obj.y), 1))
+
+
+def run_path(out: Path, pname: str, method: str, seed: int, budget: int, chash: str) -> Path:
+    safe = method.replace("@", "-at-")
+    tail = f"__{chash}" if method.startswith("lt_") else ""
+    return out / "runs" / f"{pname}__{safe}__s{seed}__b{budget}{tail}.json"
+
+
+def versions() -> dict:
+    out = {"python": platform.python_version()}
+    for mod in ("numpy", "scipy", "torch", "gpytorch", "botorch", "cma", "optuna", "cmaes"):
+        try:
+            out[mod] = __import__(mod).__version__
+        except Exception:
+            out[mod] = None
+    try:
+        from importlib.metadata import version
+
+        out["uber-turbo"] = version("uber-turbo")
+        out["latentune"] = version("latentune")
+    except Exception:
+        pass
+    return out
+
+
+def method_budget(method: str, budget: int, gp_budget: int) -> int:
+    return min(budget, gp_budget) if method == "optuna_gp" else budget
+
+
+def bench(a) -> None:
+    import torch
+
+    torch.set_num_threads(1)
+    out = Path(a.out)
+    (out / "runs").mkdir(parents=True, exist_ok=True)
+    variants = {}
+    for v in a.variant or []:
+        name, js = v.split("=", 1)
+        variants[name] = (a.variant_method, json.loads(js))
+    methods = list(a.methods) + [f"lt_{m}@{n}" for n, (m, _) in variants.items()]
+    chash = critic_hash()
+    inv = dict(command=" ".join([sys.executable] + sys.argv), cwd=os.getcwd(),
+               date=datetime.datetime.now(datetime.timezone.utc).isoformat(),
+               problems=a.problems, methods=methods, seeds=a.seeds, budget=a.budget,
+               gp_budget=a.gp_budget, batch=a.batch_size, critic_hash=chash,
+               variants={k: v[1] for k, v in variants.items()}, versions=versions(),
+               loadavg_start=os.getloadavg(), threads=dict(torch=torch.get_num_threads(),
+                                                           omp=os.environ.get("OMP_NUM_THREADS")))
+    # cheap methods for every seed first, then the slow ones seed by seed
+    work = []
+    cheap = [m for m in methods if m not in HEAVY]
+    heavy = [m for m in methods if m in HEAVY]
+    for s in a.seeds:
+        for p in a.problems:
+            for m in cheap:
+                work.append((p, m, s))
+    for s in a.seeds:
+        for p in a.problems:
+            for m in heavy:
+                work.append((p, m, s))
+    n_done = 0
+    for p, m, s in work:
+        b = method_budget(m, a.budget, a.gp_budget)
+        path = run_path(out, p, m, s, b, chash)
+        if path.exists():
+            continue
+        try:
+            r = run_method(m, p, s, b, a.batch_size, variants)
+        except Exception:
+            print(f"FAILED {p} {m} {s}:\n{traceback.format_exc()}", flush=True)
+            continue
+        r["critic_hash"] = chash if m.startswith("lt_") else None
+        if m.startswith("lt_") and "@" in m:
+            r["options"] = variants[m.split("@", 1)[1]][1]
+        r["loadavg"] = os.getloadavg()
+        r["date"] = datetime.datetime.now(datetime.timezone.utc).isoformat()
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(json.dumps(r))
+        tmp.replace(path)
+        n_done += 1
+        print(f"{p:14s} {m:22s} s{s} best {r['best']:.5g}  n={r['n']}  wall {r['wall']:.1f}s  "
+              f"own {r['overhead_per_point'] * 1e3:.1f} ms/pt  load {r['loadavg'][0]:.2f}",
+              flush=True)
+    inv["loadavg_end"] = os.getloadavg()
+    inv["runs_done"] = n_done
+    with open(out / "invocations.jsonl", "a") as fh:
+        fh.write(json.dumps(inv) + "\n")
+
+
+# ------------------------------------------------------------------ report
+def _mwu(a, b) -> float:
+    from scipy.stats import mannwhitneyu
+
+    if len(a) < 2 or len(b) < 2:
+        return 1.0
+    if np.allclose(np.concatenate([a, b]), a[0]):
+        return 1.0
+    return float(mannwhitneyu(a, b, alternative="two-sided").pvalue)
+
+
+def load_runs(out: Path) -> list[dict]:
+    return [json.loads(p.read_text()) for p in sorted((out / "runs").glob("*.json"))]
+
+
+def report(a) -> None:
+    out = Path(a.out)
+    runs = load_runs(out)
+    chash = a.critic_hash or critic_hash()
+    # keep latentune runs of the current critic only (older ones are stale)
+    runs = [r for r in runs if not r["method"].startswith("lt_") or r.get("critic_hash") == chash]
+    budget = a.budget
+    probs = [p for p in a.problems if any(r["problem"] == p for r in runs)]
+    methods = [m for m in ALL_METHODS if any(r["method"] == m for r in runs)]
+    methods += sorted({r["method"] for r in runs if r["method"] not in ALL_METHODS})
+    summary: dict = {"budget": budget, "gp_budget": a.gp_budget, "problems": {},
+                     "critic_hash": chash}
+    lines = [f"# latentune's critics against peers (budget {budget}, batch {a.batch_size})", "",
+             "Best value found: median [min, max] over seeds (n = seeds); lower is better. "
+             "`*` = tied-best (two-sided Mann–Whitney U against the best median, p >= 0.05); "
+             f"ranks by median. `optuna_gp` ran {a.gp_budget} evaluations and is compared with "
+             f"every method's best-so-far at {a.gp_budget} (second table).", ""]
+
+    def vals(p, m, at=None):
+        out_ = []
+        for r in runs:
+            if r["problem"] == p and r["method"] == m and r["seed"] in a.seeds:
+                if at is None:
+                    if r["budget"] != budget:
+                        continue
+                    out_.append(r["best"])
+                else:
+                    if len(r["trace"]) >= at:
+                        out_.append(r["trace"][at - 1])
+        return np.array(out_)
+
+    def table(at, meths, title):
+        lines.append(f"## {title}")
+        lines.append("")
+        lines.append("| problem | " + " | ".join(meths) + " |")
+        lines.append("|---|" + "---|" * len(meths))
+        res = {}
+        for p in probs:
+            v = {m: vals(p, m, at) for m in meths}
+            v = {m: x for m, x in v.items() if len(x)}
+            if not v:
+                continue
+            med = {m: float(np.median(x)) for m, x in v.items()}
+            best_m = min(med, key=med.get)
+            order = sorted(med, key=med.get)
+            cells = []
+            res[p] = {}
+            for m in meths:
+                if m not in v:
+                    cells.append("–")
+                    continue
+                pval = 1.0 if m == best_m else _mwu(v[m], v[best_m])
+                tied = pval >= 0.05
+                rank = order.index(m) + 1
+                cells.append(f"{'**' if tied else ''}{med[m]:.4g}{'**' if tied else ''} "
+                             f"[{v[m].min():.3g}, {v[m].max():.3g}] n{len(v[m])} "
+                             f"r{rank}{'*' if tied else ''}")
+                res[p][m] = dict(median=med[m], min=float(v[m].min()), max=float(v[m].max()),
+                                 q25=float(np.percentile(v[m], 25)),
+                                 q75=float(np.percentile(v[m], 75)), n=int(len(v[m])),
+                                 rank=rank, tied_best=bool(tied), p_vs_best=pval,
+                                 values=v[m].tolist())
+            lines.append(f"| {p} | " + " | ".join(cells) + " |")
+        lines.append("")
+        return res
+
+    main_m = [m for m in methods if m != "optuna_gp"]
+    summary["problems"] = table(None, main_m, f"All methods at {budget} evaluations")
+    if "optuna_gp" in methods:
+        summary["at_gp_budget"] = table(a.gp_budget, methods,
+                                        f"Best-so-far at {a.gp_budget} evaluations")
+    # latentune's methods against each peer
+    peers = [m for m in methods if not m.startswith("lt_")]
+    for ours in [m for m in methods if m.startswith("lt_")]:
+        lines.append(f"## {ours} against each peer (win / tie / loss over problems, "
+                     "Mann–Whitney U p < 0.05)")
+        lines.append("")
+        lines.append("| peer | win | tie | loss | problems lost |")
+        lines.append("|---|---|---|---|---|")
+        summary.setdefault("versus", {})[ours] = {}
+        for peer in peers:
+            at = a.gp_budget if peer == "optuna_gp" else None
+            w = t = l_ = 0
+            lost = []
+            for p in probs:
+                x, y = vals(p, ours, at), vals(p, peer, at)
+                if len(x) == 0 or len(y) == 0:
+                    continue
+                pv = _mwu(x, y)
+                if pv < 0.05 and np.median(x) < np.median(y):
+                    w += 1
+                elif pv < 0.05:
+                    l_ += 1
+                    lost.append(p)
+                else:
+                    t += 1
+            summary["versus"][ours][peer] = dict(win=w, tie=t, loss=l_, lost=lost)
+            lines.append(f"| {peer} | {w} | {t} | {l_} | {', '.join(lost)} |")
+        lines.append("")
+    # overhead
+    lines.append("## Optimizer's own seconds per suggested point (wall − function time) / n")
+    lines.append("")
+    lines.append("| method | median ms/pt | max ms/pt | runs |")
+    lines.append("|---|---|---|---|")
+    summary["overhead_ms_per_point"] = {}
+    for m in methods:
+        o = np.array([r["overhead_per_point"] for r in runs if r["method"] == m]) * 1e3
+        if len(o):
+            summary["overhead_ms_per_point"][m] = dict(median=float(np.median(o)),
+                                                       max=float(o.max()), runs=int(len(o)))
+            lines.append(f"| {m} | {np.median(o):.2f} | {o.max():.2f} | {len(o)} |")
+    lines.append("")
+    inv = [json.loads(x) for x in (out / "invocations.jsonl").read_text().splitlines()] \
+        if (out / "invocations.jsonl").exists() else []
+    lines.append("## Invocations")
+    lines.append("")
+    for i in inv:
+        lines.append(f"- {i['date']}: `{i['command']}` (load {i['loadavg_start'][0]:.2f} → "
+                     f"{i.get('loadavg_end', [float('nan')])[0]:.2f}, {i.get('runs_done')} runs)")
+    lines.append("")
+    lines.append(f"Report: `.venv/bin/python benchmarks/peers.py --report` (critic hash {chash}).")
+    (out / "summary.md").write_text("\n".join(lines) + "\n")
+    (out / "summary.json").write_text(json.dumps(summary, indent=1))
+    print("\n".join(lines))
+
+
+# ------------------------------------------------------------------ overhead
+def overhead(a) -> None:
+    import torch
+
+    from latentune.critic import make_critic
+
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    d, batch, n = 25, 10, a.overhead_points
+    from peer_problems import ackley
+
+    def fz(u):
+        return float(ackley(-10.0 + 20.0 * u - 1.0))
+    res = {"d": d, "batch": batch, "told": n, "date": datetime.datetime.now(
+        datetime.timezone.utc).isoformat(), "command": " ".join([sys.executable] + sys.argv),
+        "critic_hash": critic_hash(), "cases": []}
+    default_threads = torch.get_num_threads()
+    for regions in (1, 10):
+        for torch_threads in (1, os.cpu_count() or 1):
+            torch.set_num_threads(torch_threads)
+            rng = np.random.default_rng(0)
+            X = rng.random((n, d))
+            y = np.array([fz(x) for x in X])
+            c = make_critic("turbo", d, batch_size=batch, seed=0, n_regions=regions)
+            t = time.perf_counter()
+            c.tell(X, y)
+            load = time.perf_counter() - t
+            per = []
+            for _ in range(a.overhead_asks):
+                t = time.perf_counter()
+                U = c.ask()
+                tags = c.last_tags
+                dt = time.perf_counter() - t
+                yy = np.array([fz(u) for u in U])
+                t = time.perf_counter()
+                c.tell(U, yy, tags=tags)
+                per.append((dt + time.perf_counter() - t) / batch)
+            case = dict(regions=regions, torch_threads_outside=torch_threads, tell_load_s=load,
+                        s_per_point=per, mean_s_per_point=float(np.mean(per)),
+                        steady_mean_s_per_point=float(np.mean(per[1:])),
+                        loadavg=os.getloadavg())
+            res["cases"].append(case)
+            print(json.dumps({k: v for k, v in case.items() if k != "s_per_point"}), flush=True)
+    torch.set_num_threads(default_threads)
+    (out / "overhead.json").write_text(json.dumps(res, indent=1))
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--problems", nargs="+", default=list(problems()))
+    p.add_argument("--methods", nargs="*", default=ALL_METHODS)
+    p.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3, 4])
+    p.add_argument("--budget", type=int, default=500)
+    p.add_argument("--gp-budget", type=int, default=200)
+    p.add_argument("--batch-size", type=int, default=10)
+    p.add_argument("--out", default=str(ROOT / "results" / "peers"))
+    p.add_argument("--variant", action="append",
+                   help="NAME=JSON: extra latentune run lt_<method>@NAME with these options")
+    p.add_argument("--variant-method", default="turbo", choices=["turbo", "cma"])
+    p.add_argument("--report", action="store_true")
+    p.add_argument("--critic-hash", default=None,
+                   help="report latentune runs of this critic hash (default: the current code)")
+    p.add_argument("--overhead", action="store_true")
+    p.add_argument("--overhead-points", type=int, default=10_000)
+    p.add_argument("--overhead-asks", type=int, default=5)
+    a = p.parse_args(argv)
+    if a.report:
+        report(a)
+    elif a.overhead:
+        overhead(a)
+    else:
+        bench(a)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,237 @@
+"""Sim-to-real over seeds: phase 3 in the model's latent space vs direct TuRBO-m vs zero-shot.
+
+    python benchmarks/sim_to_real.py [--seeds 0 1 2 3 4] [--phase1-evals 300]
+        [--phase3-evals 100] [--checkpoints 20 40 60] [--latent-dim 5] [--episode-steps 400]
+        [--out runs/sim_to_real] [--workers 1] [--backend serial]
+        [--json results/sim_to_real/sim_to_real.json]
+
+The system is example (b), ``examples/sim_to_real.py``: the 36-weight linear controller of
+Gymnasium's ``Hopper-v5`` (``examples/gym_controller.py``); the model is the nominal Hopper, the
+"real" one has masses x1.3, friction x0.6, gear x0.8, observation noise and a one-step action
+delay. For every seed s (one model study per seed, seed s; nothing is shared between seeds):
+
+1. ``OUT/seed<s>/model``: phase 1 (``--phase1-evals`` model evaluations) + the VAE;
+2. ``OUT/seed<s>/phase3``: phase 3 on the real Hopper, ``--phase3-evals`` evaluations in the
+   model's latent space (``Study.phase3(real, B, latent=model)``; that also runs the model's best
+   θ on the real Hopper once: the zero-shot cost);
+3. ``OUT/seed<s>/direct``: TuRBO-m on the full θ on the real Hopper from the manual θ
+   (``Study.phase1(real, B)``), the same ``--phase3-evals`` budget.
+
+Each tuning budget B counts the tuned trials only; both also evaluate the manual θ once and
+phase 3 also the zero-shot θ once. Reported per method, over the seeds: median, min-max and
+IQR of the best real cost at B (and at each ``--checkpoints`` budget: TuRBO-m's options depend on
+the budget only through the number of trust regions, 1 for every budget below 750, so the best
+after k < B evaluations is the result of a k-evaluation run), evaluations until the best so far
+beats the zero-shot cost and the manual cost, and failed real trials (falls) during tuning.
+Every study directory resumes: rerunning the same command finishes what is missing.
+Writes a JSON (the exact command, seeds, budgets, wall time, date, ``os.getloadavg()``) and a
+Markdown table next to it.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shlex
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from latentune.threads import one_thread_env  # noqa: E402
+
+one_thread_env()
+
+import numpy as np  # noqa: E402
+
+from examples.gym_controller import REAL  # noqa: E402
+from examples.sim_to_real import run_model, run_real  # noqa: E402
+
+METHODS = ("phase3", "direct")
+
+
+def spread(values: list[float]) -> dict[str, Any]:
+    """median, min, max, IQR (q25, q75) of the finite values; n."""
+    v = np.asarray([x for x in values if x is not None], dtype=float)
+    if v.size == 0:
+        return {"n": 0, "median": None, "min": None, "max": None, "q25": None, "q75": None}
+    q25, med, q75 = np.percentile(v, [25, 50, 75])
+    return {"n": int(v.size), "median": float(med), "min": float(v.min()),
+            "max": float(v.max()), "q25": float(q25), "q75": float(q75)}
+
+
+def aggregate(per_seed: list[dict[str, Any]], budget: int,
+              checkpoints: list[int]) -> dict[str, Any]:
+    agg: dict[str, Any] = {
+        "manual_real": spread([r["manual_real"] for r in per_seed]),
+        "zero_shot": spread([r["zero_shot"] for r in per_seed]),
+        "zero_shot_fell": int(sum(r["zero_shot_failed"] for r in per_seed)),
+        "model_phase1_best": spread([r["model"]["phase1_best"] for r in per_seed]),
+    }
+    for m in METHODS:
+        rs = [r[m] for r in per_seed]
+        a: dict[str, Any] = {"best": spread([x["best"] for x in rs]),
+                             "best_failed": int(sum(x["best_failed"] for x in rs)),
+                             "failed": spread([x["failed"] for x in rs]),
+                             "failed_total": int(sum(x["failed"] for x in rs)),
+                             "trials_total": int(sum(x["n"] for x in rs))}
+        for key in ("evals_to_beat_zero_shot", "evals_to_beat_manual"):
+            vals = [x[key] for x in rs]
+            a[key] = {**spread(vals), "never": int(sum(v is None for v in vals))}
+        a["best_at"] = {str(k): spread([x["best_so_far"][k - 1] for x in rs])
+                        for k in checkpoints if k <= budget}
+        agg[m] = a
+    wins = [r["phase3"]["best"] < r["direct"]["best"] for r in per_seed]
+    agg["phase3_beats_direct"] = {"seeds": int(sum(wins)), "of": len(wins)}
+    agg["phase3_beats_direct_at"] = {
+        str(k): int(sum(r["phase3"]["best_so_far"][k - 1] < r["direct"]["best_so_far"][k - 1]
+                        for r in per_seed)) for k in checkpoints if k <= budget}
+    agg["beats_zero_shot"] = {m: int(sum(r[m]["best"] < r["zero_shot"] for r in per_seed))
+                              for m in METHODS}
+    agg["beats_manual"] = {m: int(sum(r[m]["best"] < r["manual_real"] for r in per_seed))
+                           for m in METHODS}
+    return agg
+
+
+def _fmt(s: dict[str, Any], nd: int = 2) -> str:
+    if not s or s.get("median") is None:
+        return "–"
+    return (f"{s['median']:.{nd}f} [{s['min']:.{nd}f}–{s['max']:.{nd}f}] "
+            f"(IQR {s['q25']:.{nd}f}–{s['q75']:.{nd}f})")
+
+
+def _fmt_evals(s: dict[str, Any]) -> str:
+    if s["n"] == 0:
+        return f"never ({s['never']} seeds)"
+    txt = f"{s['median']:g} [{s['min']:g}–{s['max']:g}]"
+    return txt + (f", never on {s['never']} seeds" if s["never"] else "")
+
+
+def markdown(res: dict[str, Any]) -> str:
+    agg, b, n = res["aggregate"], res["phase3_evals"], len(res["seeds"])
+    label = {"phase3": "phase 3 (latent space of the model)",
+             "direct": "direct TuRBO-m on θ (real, from manual)"}
+    out = [f"Best real cost at {b} real evaluations, over {n} seeds: median [min–max] (IQR). "
+           f"Phase 1 on the model: {res['phase1_evals']} evaluations per seed.", "",
+           "| method | best real cost | failed trials (falls) | evals to beat zero-shot | "
+           "evals to beat manual |", "|---|---|---|---|---|",
+           f"| manual θ (1 eval) | {_fmt(agg['manual_real'])} | 0 | – | – |",
+           f"| zero-shot: model's best θ (1 eval) | {_fmt(agg['zero_shot'])} | "
+           f"{agg['zero_shot_fell']}/{n} fell | – | – |"]
+    for m in METHODS:
+        a = agg[m]
+        out.append(f"| {label[m]} | {_fmt(a['best'])} | median {a['failed']['median']:g} of {b} "
+                   f"(total {a['failed_total']}/{a['trials_total']}) | "
+                   f"{_fmt_evals(a['evals_to_beat_zero_shot'])} | "
+                   f"{_fmt_evals(a['evals_to_beat_manual'])} |")
+    ks = list(agg["phase3"]["best_at"])
+    out += ["", "Best real cost so far after k evaluations (median [min–max]); phase 3 better "
+            "than direct on how many seeds:", "",
+            "| k | phase 3 | direct | phase 3 < direct |", "|---:|---|---|---:|"]
+    for k in ks:
+        out.append(f"| {k} | {_fmt(agg['phase3']['best_at'][k])} | "
+                   f"{_fmt(agg['direct']['best_at'][k])} | "
+                   f"{agg['phase3_beats_direct_at'][k]}/{n} |")
+    out += ["", "Per seed (real costs; ✗ = the trial fell):", "",
+            "| seed | manual | zero-shot | phase 3 best | direct best | phase-3 falls | "
+            "direct falls | model phase-1 best |", "|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in res["per_seed"]:
+        out.append(f"| {r['seed']} | {r['manual_real']:.2f} | {r['zero_shot']:.2f}"
+                   f"{' ✗' if r['zero_shot_failed'] else ''} | {r['phase3']['best']:.2f}"
+                   f"{' ✗' if r['phase3']['best_failed'] else ''} | {r['direct']['best']:.2f}"
+                   f"{' ✗' if r['direct']['best_failed'] else ''} | {r['phase3']['failed']} | "
+                   f"{r['direct']['failed']} | {r['model']['phase1_best']:.2f} |")
+    return "\n".join(out)
+
+
+def _versions() -> dict[str, str]:
+    out = {"python": platform.python_version()}
+    for mod in ("latentune", "numpy", "torch", "botorch", "gymnasium", "mujoco"):
+        try:
+            out[mod] = __import__(mod).__version__
+        except Exception:  # noqa: BLE001
+            out[mod] = "?"
+    try:
+        out["git"] = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"],
+                                    capture_output=True, text=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        pass
+    return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
+    ap.add_argument("--phase1-evals", type=int, default=300)
+    ap.add_argument("--phase3-evals", type=int, default=100,
+                    help="real evaluations of phase 3 and of direct TuRBO-m each")
+    ap.add_argument("--checkpoints", type=int, nargs="*", default=[10, 20, 40, 60])
+    ap.add_argument("--latent-dim", type=int, default=5)
+    ap.add_argument("--episode-steps", type=int, default=400)
+    ap.add_argument("--out", default="runs/sim_to_real", help="root of the study directories")
+    ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--backend", default="serial", choices=("serial", "process", "ray"))
+    ap.add_argument("--json", default=str(ROOT / "results" / "sim_to_real" / "sim_to_real.json"))
+    a = ap.parse_args()
+    root = Path(a.out)
+    command = " ".join(shlex.quote(x) for x in [os.path.relpath(sys.executable, os.getcwd())
+                                                 if sys.executable.startswith(os.getcwd())
+                                                 else sys.executable, *sys.argv])
+    load0, t0 = os.getloadavg(), time.perf_counter()
+    started = time.strftime("%Y-%m-%dT%H:%M:%S%z")
+    checkpoints = sorted(set(a.checkpoints) | {a.phase3_evals})
+    per_seed = []
+    for s in a.seeds:
+        d = root / f"seed{s}"
+        ts = time.perf_counter()
+        model = run_model(d / "model", s, a.phase1_evals, a.latent_dim, a.episode_steps,
+                          a.workers, a.backend)
+        r = run_real(d / "model", d / "phase3", d / "direct", s, a.phase3_evals,
+                     a.episode_steps, a.workers, a.backend)
+        r["model"] = model
+        r["wall_s"] = time.perf_counter() - ts
+        per_seed.append(r)
+        print(f"seed {s}: manual {r['manual_real']:.2f}, zero-shot {r['zero_shot']:.2f}"
+              f"{' (fell)' if r['zero_shot_failed'] else ''}, phase 3 {r['phase3']['best']:.2f} "
+              f"({r['phase3']['failed']} falls), direct {r['direct']['best']:.2f} "
+              f"({r['direct']['failed']} falls); model phase 1 {model['phase1_best']:.2f}; "
+              f"{r['wall_s']:.0f} s", flush=True)
+    res = {"benchmark": "sim_to_real", "command": command, "cwd": os.getcwd(),
+           "date": started, "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+           "wall_s": time.perf_counter() - t0,
+           "loadavg_start": list(load0), "loadavg_end": list(os.getloadavg()),
+           "cpus": os.cpu_count(), "versions": _versions(),
+           "system": {"env": "Hopper-v5", "controller": "linear feedback + bias, 36 weights",
+                      "episode_steps": a.episode_steps, "real_perturbation": REAL,
+                      "cost": "100·exp(-max(return - 200·fell, 0)/1000), in (0, 100]; "
+                              "fell = the episode terminated early (unhealthy)"},
+           "seeds": a.seeds, "model_study": "one per seed (seed s), not shared",
+           "phase1_evals": a.phase1_evals, "phase3_evals": a.phase3_evals,
+           "direct_evals": a.phase3_evals, "latent_dim": a.latent_dim,
+           "workers": a.workers, "backend": a.backend, "out": str(root),
+           "notes": ("real budgets count tuned trials; both methods also evaluate the manual θ "
+                     "once, phase 3 also the zero-shot θ once. Wall times of a resumed run "
+                     "cover only what that run computed."),
+           "per_seed": per_seed}
+    res["aggregate"] = aggregate(per_seed, a.phase3_evals, checkpoints)
+    table = markdown(res)
+    res["table"] = table
+    out = Path(a.json)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(res, indent=1))
+    out.with_suffix(".md").write_text(
+        f"# Sim-to-real on the Hopper-v5 controller\n\n`{command}`\n\n{res['date']}, "
+        f"{res['wall_s']:.0f} s wall, load average {res['loadavg_start'][0]:.2f} → "
+        f"{res['loadavg_end'][0]:.2f} on {res['cpus']} cores\n\n{table}\n")
+    print(table)
+    print(f"\n{out} ({res['wall_s']:.0f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

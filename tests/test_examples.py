@@ -1,0 +1,156 @@
+"""The examples/ user systems through phases 1-3: the Python API and ``latentune tune --system``.
+
+The pure-numpy chain (``examples.toy_plant``) always runs; the Gymnasium Hopper
+(``examples.gym_controller``) runs where ``gymnasium[mujoco]`` is installed.
+"""
+from __future__ import annotations
+
+import json
+import os
+import sqlite3
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import latentune as lt
+from latentune.constants import C1, Phase
+from latentune.system import as_outcome
+
+ROOT = Path(__file__).resolve().parents[1]
+PY = sys.executable
+ENV = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1",
+           RAY_AUTH_MODE="disabled", PYTHONUNBUFFERED="1")
+N1, N3 = 16, 6                                   # phase-1 and phase-3 evaluations
+FAST = ["--workers", "1", "--backend", "serial", "--quiet", "--vae-epochs", "30",
+        "--latent-dim", "3"]
+
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+
+def cli(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
+    """``latentune ARGS`` with cwd = the repository root (so ``examples.*`` imports)."""
+    return subprocess.run([PY, "-m", "latentune.cli", *args], capture_output=True, text=True,
+                          env=ENV, timeout=timeout, cwd=ROOT)
+
+
+def counts(run: Path) -> dict[int, int]:
+    con = sqlite3.connect(f"file:{run / 'run.db'}?mode=ro", uri=True)
+    try:
+        return dict(con.execute("SELECT phase, COUNT(*) FROM evaluations GROUP BY phase"))
+    finally:
+        con.close()
+
+
+def check_report(run: Path) -> None:
+    p = cli("report", str(run), "--no-sim", "--quiet")
+    assert p.returncode == 0, p.stderr
+    assert "phase 3" in p.stdout and (run / "report.md").is_file()
+
+
+def through_the_api(system, real, tmp_path: Path) -> None:
+    sim = lt.Study(tmp_path / "api", seed=1)
+    assert sim.phase1(system, N1).n == N1
+    latent = sim.train_latent(latent_dim=3, epochs=30)
+    assert latent.d == system.space.dim and latent.d_low == 3
+    assert sim.phase3(system, N3).n == N3
+    sim.summary()
+    sim.close()
+    assert counts(tmp_path / "api") == {Phase.MANUAL: 1, Phase.PHASE1: N1, Phase.PHASE3: N3}
+    check_report(tmp_path / "api")
+    # sim-to-real: phase 3 on the perturbed system in the model's latent space (+ zero-shot row)
+    target = lt.Study(tmp_path / "real", seed=1)
+    target.phase3(real, 4, latent=tmp_path / "api")
+    zs = target.store.rows(Phase.ZERO_SHOT)
+    np.testing.assert_allclose(zs[0].theta, lt.Study(tmp_path / "api").best().theta)
+    target.close()
+    assert counts(tmp_path / "real") == {Phase.MANUAL: 1, Phase.ZERO_SHOT: 1, Phase.PHASE3: 4}
+
+
+def through_the_cli(target: str, args: list[str], tmp_path: Path) -> Path:
+    out = tmp_path / "cli"
+    sys_args = ["--system", target] + [x for a in args for x in ("--system-arg", a)]
+    p = cli("tune", *sys_args, "--out", str(out), "--phase1-evals", str(N1),
+            "--phase3-evals", str(N3), *FAST)
+    assert p.returncode == 0, p.stderr
+    assert "phase 3" in p.stdout
+    assert counts(out) == {Phase.MANUAL: 1, Phase.PHASE1: N1, Phase.PHASE3: N3}
+    cfg = json.loads((out / "summary.json").read_text())["config"]
+    assert cfg["system"]["target"] == target
+    check_report(out)
+    return out
+
+
+# ---------------------------------------------------------------------------- pure numpy
+def test_numpy_chain_through_the_api(tmp_path):
+    from examples import toy_plant
+
+    model, real = toy_plant.make_system(), toy_plant.make_real_system()
+    assert model.space.dim == 24
+    manual = as_outcome(model.evaluate(model.space.manual))
+    assert not manual.failed and 0 < manual.cost < C1
+    through_the_api(model, real, tmp_path)
+    # failed trials (the chain left the safe box) get the C1 convention, above every success
+    rows = lt.Study(tmp_path / "api").store.rows(Phase.PHASE1)
+    assert all(C1 <= r.cost <= 2 * C1 for r in rows if r.fell)
+    assert all(r.cost < C1 for r in rows if not r.fell)
+
+
+def test_numpy_chain_through_the_cli(tmp_path):
+    out = through_the_cli("examples.toy_plant:make_system", ["steps=100"], tmp_path)
+    assert json.loads((out / "summary.json").read_text())["config"]["system"]["args"] == \
+        {"steps": 100}
+
+
+def test_numpy_chain_ask_tell(tmp_path):
+    """One round of the ask/tell session (examples/ask_tell_session.sh) on the chain."""
+    from examples import toy_plant
+
+    d = tmp_path / "at"
+    p = cli("ask", str(d), "--system", "examples.toy_plant:make_real_system")
+    assert p.returncode == 0, p.stderr
+    sid, _, path, _ = p.stdout.strip().split("\t")
+    real = toy_plant.make_real_system()
+    out = as_outcome(real.evaluate(real.space.parse(json.loads(Path(path).read_text()))))
+    p = cli("tell", str(d), sid, "--cost", f"{out.cost:.6f}", *(["--failed"] if out.failed else []))
+    assert p.returncode == 0, p.stderr
+    p = cli("status", str(d), "--json")
+    assert p.returncode == 0, p.stderr
+    assert json.loads(p.stdout)["phases"]["phase1"]["n"] == 1 and not Path(path).exists()
+
+
+# ---------------------------------------------------------------------------- Gymnasium
+def _hopper():
+    pytest.importorskip("gymnasium")
+    pytest.importorskip("mujoco")
+    from examples import gym_controller
+
+    return gym_controller
+
+
+def test_hopper_controller_system():
+    g = _hopper()
+    model, real = g.make_system(episode_steps=400), g.make_real_system(episode_steps=400)
+    assert model.space.dim == 36
+    for s in (model, real):                       # the manual PD stands for the whole episode
+        o = s.evaluate(s.space.manual)
+        assert not o.failed and o.info["steps"] == 400 and 0 < o.cost < C1
+    assert real.evaluate(real.space.manual).cost != model.evaluate(model.space.manual).cost
+    # a fall is a failed trial with a cost below 100 that counts the fall penalty
+    theta = model.space.manual.copy()
+    theta[-3:] = 1.0                              # full thigh/leg/foot bias: falls
+    o = model.evaluate(theta)
+    assert o.failed and o.info["fall_step"] < 400 and 0 < o.cost <= C1
+    import pickle
+
+    assert pickle.loads(pickle.dumps(model)).evaluate(theta).cost == o.cost
+
+
+def test_hopper_through_the_api_and_cli(tmp_path):
+    g = _hopper()
+    through_the_api(g.make_system(episode_steps=50), g.make_real_system(episode_steps=50),
+                    tmp_path)
+    through_the_cli("examples.gym_controller:make_system", ["episode_steps=50"], tmp_path)

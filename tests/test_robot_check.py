@@ -1,0 +1,291 @@
+"""Robot specs checked against their URDF at load, check_spec, init_spec on Go1/Go2, PyBullet off
+stdout, fall reasons that name the link."""
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from latentune.errors import RobotSpecError
+from latentune.robots import erd_robots_dir, get_robot, load_spec_file, prepared_urdf, spec_from_dict
+from latentune.robots.check import CheckReport, check_spec
+from latentune.robots.template import init_spec
+from latentune.robots.urdf import read_urdf
+
+A1_URDF = Path(get_robot("a1").urdf)
+GO1 = erd_robots_dir() / "go1_description" / "urdf" / "go1.urdf"
+GO2 = erd_robots_dir() / "go2_description" / "urdf" / "go2.urdf"
+A1_JOINTS = [f"{leg}_{j}_joint" for leg in ("FR", "FL", "RR", "RL") for j in ("hip", "upper", "lower")]
+
+
+def spec_file(tmp_path: Path, text: str, name: str = "robot.yaml") -> Path:
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def urdf_file(tmp_path: Path, text: str, name: str = "robot.urdf") -> Path:
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def load_error(path: Path) -> str:
+    with pytest.raises(RobotSpecError) as exc:
+        load_spec_file(path)
+    msg = str(exc.value)
+    assert "\n" not in msg and msg.startswith(f"robot spec {path}: ")
+    return msg
+
+
+# ----------------------------------------------------------------------------- the URDF itself
+@pytest.mark.parametrize("text, message", [
+    ("", "the file is empty"),
+    ("this is not XML\n", "not XML"),
+    ('<robot name="x"><link name="a"></robot>', "not XML"),
+    ('<sdf version="1.6"/>', "top element is <sdf>"),
+    ('<robot name="x"/>', "no <link> elements"),
+    ('<robot name="x"><link name="a"/></robot>', "no <joint> elements"),
+    ('<robot name="x"><link name="a"/><joint name="j" type="fixed"><parent link="a"/>'
+     '<child link="b"/></joint></robot>', "undefined link 'b'"),
+    ('<robot name="x"><link name="a"/><link name="b"/><link name="c"/><joint name="j" type="fixed">'
+     '<parent link="a"/><child link="b"/></joint></robot>', "do not form one tree"),
+])
+def test_bad_urdf_is_one_line_naming_the_file(tmp_path, text, message):
+    urdf = urdf_file(tmp_path, text)
+    msg = load_error(spec_file(tmp_path, f"base: a1\nurdf: {urdf}\n"))
+    assert f"URDF {urdf}: " in msg and message in msg
+
+
+def test_cli_reports_a_bad_urdf_in_one_line(tmp_path):
+    urdf = urdf_file(tmp_path, "garbage")
+    spec = spec_file(tmp_path, f"base: a1\nurdf: {urdf}\n")
+    out = subprocess.run([sys.executable, "-m", "latentune.cli", "rollout", "--robot", str(spec), "--steps", "5"],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2 and out.stdout == ""
+    assert out.stderr.strip().splitlines() == [f"latentune: error: robot spec {spec}: URDF {urdf}: not XML "
+                                               "(syntax error: line 1, column 0)"]
+
+
+# ----------------------------------------------------------------------------- names and leg order
+def test_wrong_joint_and_foot_names(tmp_path):
+    names = list(A1_JOINTS)
+    names[4] = "FL_thigh_joint"
+    msg = load_error(spec_file(tmp_path, f"base: a1\njoint_names: {names}\n"))
+    assert "joint_names: not in the URDF: FL_thigh_joint" in msg and "FR_hip_joint" in msg  # lists real ones
+    names = list(A1_JOINTS)
+    names[2] = "FR_toe_fixed"
+    msg = load_error(spec_file(tmp_path, f"base: a1\njoint_names: {names}\n", "b.yaml"))
+    assert "FR_toe_fixed is fixed, not revolute or continuous" in msg
+    msg = load_error(spec_file(tmp_path, "base: a1\nfoot_links: [FR_toe, FL_toe, RR_toe, RL_foot]\n", "c.yaml"))
+    assert "foot_links: not links of the URDF: RL_foot" in msg and "FR_toe" in msg
+
+
+def test_swapped_feet_and_legs_are_refused(tmp_path):
+    # feet swapped left/right: FL's toe is not below FR's knee
+    msg = load_error(spec_file(tmp_path, "base: a1\nfoot_links: [FL_toe, FR_toe, RR_toe, RL_toe]\n"))
+    assert "foot_links: FL_toe (leg FR) is not below that leg's knee joint FR_lower_joint" in msg
+    # whole legs swapped (joints and feet together): the geometry says FL where FR is expected
+    names = A1_JOINTS[3:6] + A1_JOINTS[0:3] + A1_JOINTS[6:]
+    msg = load_error(spec_file(tmp_path, f"base: a1\njoint_names: {names}\n"
+                                         "foot_links: [FL_toe, FR_toe, RR_toe, RL_toe]\n", "b.yaml"))
+    assert re.search(r"leg FR's foot FL_toe is at x=\+0\.183, y=\+0\.132 m .*\(FL\); FR needs x > 0, y < 0", msg)
+    assert "leg FL's foot FR_toe" in msg
+    # joints of one leg out of order
+    names = list(A1_JOINTS)
+    names[0], names[1] = names[1], names[0]
+    msg = load_error(spec_file(tmp_path, f"base: a1\njoint_names: {names}\n", "c.yaml"))
+    assert "leg FR (FR_upper_joint, FR_hip_joint, FR_lower_joint) is not one chain" in msg
+
+
+def test_feet_must_be_below_the_base(tmp_path):
+    msg = load_error(spec_file(tmp_path, "base: a1\nnominal_q: [0, 3.1, 0, 0, 3.1, 0, 0, 3.1, 0, 0, 3.1, 0]\n"))
+    assert "nominal_q: feet not below the base" in msg
+
+
+# ----------------------------------------------------------------------------- computed fields
+def test_nominal_height_and_torque_limits_from_the_urdf(tmp_path, capsys):
+    text = "\n".join(f"{k}: {json.dumps(v)}" for k, v in get_robot("a1").to_dict().items()
+                     if k not in ("nominal_height", "torque_limits", "strip_root"))
+    spec = load_spec_file(spec_file(tmp_path, text))
+    assert spec.nominal_height == pytest.approx(0.2987, abs=1e-4)      # foot_radius − mean foot z
+    assert spec.torque_limits == (20.0, 55.0, 55.0)                    # <limit effort>
+    assert spec.strip_root is False and spec_from_dict(spec.to_dict()) == spec
+    assert capsys.readouterr().err == ""
+
+
+def test_nominal_height_far_from_forward_kinematics_warns_once(tmp_path, capsys):
+    p = spec_file(tmp_path, "base: a1\nname: tall_a1\nnominal_height: 0.40\n")
+    spec = load_spec_file(p)
+    load_spec_file(p)
+    err = capsys.readouterr().err.splitlines()
+    assert spec.nominal_height == 0.40 and len(err) == 1
+    assert err[0] == (f"latentune: warning: robot spec {p}: nominal_height 0.400 m is +34% off the height "
+                      "0.299 m that nominal_q gives with the feet on the ground (forward kinematics); "
+                      "omit nominal_height to use that")
+    load_spec_file(spec_file(tmp_path, "base: a1\nname: a1b\nnominal_height: 0.31\n", "b.yaml"))  # 4 %: quiet
+    assert capsys.readouterr().err == ""
+
+
+def test_massless_root_is_stripped_when_strip_root_is_omitted(tmp_path, capsys):
+    base = {k: v for k, v in get_robot("b1").to_dict().items() if k not in ("strip_root", "torque_limits")}
+    spec = spec_from_dict(base)
+    assert spec.strip_root is True and spec.torque_limits == (91.0035, 93.33, 140.0)
+    assert read_urdf(spec.urdf).massless_root() and read_urdf(prepared_urdf(spec)).root == "trunk"
+    spec_from_dict({**base, "strip_root": False})
+    assert "strip_root is false but the root link 'base' is massless" in capsys.readouterr().err
+
+
+def test_primitive_collisions_without_table_or_foot_shape(tmp_path):
+    msg = load_error(spec_file(tmp_path, "base: a1\nprimitive_collisions: true\n"))
+    assert "primitive_collisions needs collision_primitives" in msg
+    msg = load_error(spec_file(tmp_path, "base: a1\nprimitive_collisions: true\n"
+                                         "collision_primitives: {trunk: {box: [0.2, 0.1, 0.1]}}\n", "b.yaml"))
+    assert "no key ends the foot link name(s) FR_toe, FL_toe, RR_toe, RL_toe" in msg
+    urdf = urdf_file(tmp_path, re.sub(r'(<link name="FR_toe">.*?)<collision>.*?</collision>', r"\1",
+                                      A1_URDF.read_text(), count=1, flags=re.S))
+    msg = load_error(spec_file(tmp_path, f"base: a1\nurdf: {urdf}\n", "c.yaml"))
+    assert "foot link(s) FR_toe have no collision shape PyBullet uses" in msg
+
+
+def test_continuous_joints_become_revolute(tmp_path):
+    import pinocchio as pin
+
+    urdf = urdf_file(tmp_path, A1_URDF.read_text().replace(
+        '<joint name="FR_lower_joint" type="revolute">', '<joint name="FR_lower_joint" type="continuous">'))
+    spec = load_spec_file(spec_file(tmp_path, f"base: a1\nname: a1c\nurdf: {urdf}\n"))
+    text = Path(prepared_urdf(spec)).read_text()
+    assert 'type="continuous"' not in text and read_urdf(prepared_urdf(spec)).joints["FR_lower_joint"].type == "revolute"
+    assert pin.buildModelFromUrdf(prepared_urdf(spec)).nq == 12
+
+
+# ----------------------------------------------------------------------------- check_spec
+def test_check_spec_reports_measurements_and_all_errors(tmp_path):
+    rep = check_spec("a1")
+    assert isinstance(rep, CheckReport) and rep.ok and rep.errors == [] and rep.warnings == []
+    assert rep.mass == pytest.approx(12.458) and rep.fk_height == pytest.approx(0.2987, abs=1e-4)
+    feet = np.array(rep.foot_positions)
+    assert (np.sign(feet[:, :2]) == [[1, -1], [1, 1], [-1, -1], [-1, 1]]).all() and (feet[:, 2] < 0).all()
+    assert rep.torque_limits == [20.0, 55.0, 55.0] and rep.urdf_torque_limits == [20.0, 55.0, 55.0]
+    assert json.loads(json.dumps(rep.to_dict()))["ok"] is True and "OK" in rep.format().splitlines()[0]
+    assert rep.settled_height == pytest.approx(0.292, abs=0.005)          # stood up in PyBullet
+    assert rep.closest_link.endswith("_lower") and 0.01 < rep.body_clearance < 0.02
+    assert check_spec(get_robot("b1"), simulate=False).ok and check_spec(get_robot("solo12").to_dict(), simulate=False).ok
+
+    bad = check_spec(spec_file(tmp_path, "base: a1\nnominal_height: 0.5\nkp: [1, 2]\n"))
+    assert not bad.ok and bad.errors == ["kp needs 3 entries, got 2"]
+    bad = check_spec(spec_file(tmp_path, "base: a1\nfoot_links: [FL_toe, FR_toe, RR_toe, RL_toe]\n", "b.yaml"))
+    assert len(bad.errors) == 2 and "INVALID" in bad.format() and bad.mass == pytest.approx(12.458)
+    assert check_spec(tmp_path / "none.yaml").errors == [f"robot spec file not found: {tmp_path / 'none.yaml'}"]
+    warn = check_spec(spec_file(tmp_path, "base: a1\nnominal_height: 0.5\ntorque_limits: [20, 55, 99]\n", "c.yaml"))
+    assert warn.ok and len(warn.warnings) == 2 and "knee 99 > 55" in warn.warnings[1]
+
+
+# ----------------------------------------------------------------------------- init_spec
+@pytest.fixture(scope="module")
+def go_specs(tmp_path_factory):
+    d = tmp_path_factory.mktemp("go")
+    out = {}
+    for name, urdf in (("go1", GO1), ("go2", GO2)):
+        p = d / f"{name}.yaml"
+        p.write_text(init_spec(urdf))
+        out[name] = p
+    return out
+
+
+def test_init_spec_go1_go2(go_specs):
+    go1, go2 = load_spec_file(go_specs["go1"]), load_spec_file(go_specs["go2"])
+    for spec in (go1, go2):
+        assert spec.joint_names == tuple(f"{leg}_{j}_joint" for leg in ("FR", "FL", "RR", "RL")
+                                         for j in ("hip", "thigh", "calf"))   # Go2's URDF lists FL first
+        assert spec.foot_links == ("FR_foot", "FL_foot", "RR_foot", "RL_foot")  # not the rotor leaves
+        assert spec.nominal_q[:3] == pytest.approx((0.0, 0.7227, -1.4455), abs=1e-4)
+        assert spec.gaits["trot"].period == 0.392 and check_spec(spec).ok and not check_spec(spec).warnings
+    assert go1.strip_root is True and go2.strip_root is False
+    assert go1.torque_limits == (23.7, 23.7, 35.55) and go2.torque_limits == (23.7, 23.7, 45.43)
+    assert (go1.kp, go1.kd) == ((100.0,) * 3, (1.0, 2.0, 2.0)) and go2.kp == (130.0,) * 3
+    assert go1.foot_radius == 0.02 and go2.foot_radius == pytest.approx(0.0206)  # sphere; STL extent
+    assert yaml.safe_load(go_specs["go1"].read_text())["urdf"] == {
+        "package": "example-robot-data", "path": "go1_description/urdf/go1.urdf"}
+
+
+def test_init_spec_replaces_collisions_that_reach_the_ground():
+    """HyQ's lower-leg collision is 1 mm above the ground at the stance: a base box and foot
+    spheres instead (with the URDF's shapes the robot 'falls' at step 10, body contact)."""
+    text = init_spec(erd_robots_dir() / "hyq_description" / "robots" / "hyq_no_sensors.urdf")
+    d = yaml.safe_load(text)
+    assert d["foot_links"] == ["rf_foot", "lf_foot", "rh_foot", "lh_foot"]
+    assert d["nominal_q"][6:9] == pytest.approx([0.0, -0.7177, 1.4455], abs=1e-4)  # rear knees forward (limits)
+    assert d["primitive_collisions"] is True and d["collision_primitives"]["_foot"] == {"sphere": "foot_radius"}
+    assert "lf_lowerleg is 1.0 mm from the ground" in text and set(d["collision_primitives"]) == {"trunk", "_foot"}
+
+
+def test_init_spec_refuses_what_is_not_a_quadruped(tmp_path):
+    text = A1_URDF.read_text()
+    for leg in ("RR", "RL"):  # rear legs of two joints
+        text = text.replace(f'<joint name="{leg}_hip_joint" type="revolute">', f'<joint name="{leg}_hip_joint" type="fixed">')
+    with pytest.raises(RobotSpecError, match=r"init needs 4 legs of 3 revolute joints .*found chains: "
+                                             r"FR_hip_joint…\(3 joints\), FL_hip_joint…\(3 joints\), "
+                                             r"RR_upper_joint…\(2 joints\)"):
+        init_spec(urdf_file(tmp_path, text))
+    with pytest.raises(RobotSpecError, match="not XML"):
+        init_spec(urdf_file(tmp_path, "<robot", "b.urdf"))
+
+
+@pytest.mark.parametrize("name", ["go1", "go2"])
+def test_init_spec_robot_trots_with_the_manual_weights(go_specs, name):
+    from latentune.task import Task
+
+    task = Task(robot=str(go_specs[name]), gait="trot")
+    res = task.rollout(task.space.manual)
+    assert not res.fell, res.reason
+    assert res.steps == 5000 and res.mean_vx > 0.4 and 0.9 * 0.34 < res.mean_height < 1.05 * 0.34
+    assert res.cost < 6.0
+
+
+# ----------------------------------------------------------------------------- PyBullet off stdout
+def test_rollout_json_is_the_only_stdout_line(tmp_path):
+    # strip_root false: PyBullet's URDF parser warns about the massless root (on stdout by default)
+    spec = spec_file(tmp_path, f"base: b1\nname: go1_raw\nurdf: {GO1}\nstrip_root: false\n"
+                               "nominal_height: 0.32\ntorque_limits: [23.7, 23.7, 35.55]\nkp: [100, 100, 100]\n"
+                               "kd: [1, 2, 2]\nfoot_radius: 0.02\n")
+    out = subprocess.run([sys.executable, "-m", "latentune.cli", "rollout", "--robot", str(spec), "--json",
+                          "--steps", "200"], capture_output=True, text=True, timeout=180)
+    assert out.returncode == 0, out.stderr[-2000:]
+    lines = out.stdout.splitlines()
+    assert len(lines) == 1 and json.loads(lines[0])["robot"] == "go1_raw" and json.loads(lines[0])["steps"] > 0
+    assert "strip_root is false" in out.stderr and "b3Warning" not in out.stdout
+
+
+def test_stdout_to_stderr_moves_c_level_output():
+    code = ("import ctypes; from latentune.sim.bullet import stdout_to_stderr\n"
+            "libc = ctypes.CDLL(None)\n"
+            "with stdout_to_stderr():\n    libc.printf(b'from C\\n')\n"
+            "print('from python')\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert out.stdout == "from python\n" and out.stderr == "from C\n"
+
+
+# ----------------------------------------------------------------------------- fall reasons
+def test_body_contact_names_the_link(monkeypatch):
+    from latentune.sim.bullet import p
+    from latentune.task import Task
+
+    task = Task(robot="a1", gait="trot", steps=50)
+    world = task.world
+    world.reset()
+    assert world.body_ground_contact() is None
+    p.resetBasePositionAndOrientation(world.robot, [0, 0, 0.03], p.getQuaternionFromEuler([np.pi, 0, 0]),
+                                      physicsClientId=world.cid)  # on its back
+    p.stepSimulation(physicsClientId=world.cid)
+    assert world.body_ground_contact() == "trunk" and world.body_touches_ground()
+    world.reset()
+    monkeypatch.setattr(type(world), "body_ground_contact", lambda self: "FR_lower")
+    res = task.rollout(task.space.manual)
+    assert res.fell and res.fall_step == 10 and res.reason == "body touched the ground: link FR_lower"
