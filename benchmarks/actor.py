@@ -10,11 +10,10 @@ torques (the same motion with no controller). Prints the min over repeats.
 from __future__ import annotations
 
 import argparse
-import os
-import time
 
-os.environ.setdefault("OMP_NUM_THREADS", "1")
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+from latentune.threads import one_thread_env  # noqa: E402
+
+one_thread_env()
 
 import latentune as lt  # noqa: E402
 from baseline import (bare_stepping_only, bare_stepping_pd, record_torques,  # noqa: E402

@@ -19,7 +19,6 @@ so that their global minimum is 0.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -27,8 +26,9 @@ from typing import Callable
 
 import numpy as np
 
-for _v in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
-    os.environ.setdefault(_v, "1")
+from latentune.threads import one_thread_env  # noqa: E402
+
+one_thread_env()
 
 
 # ---------------------------------------------------------------- test functions (x in [0,1]^d)

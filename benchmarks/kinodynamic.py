@@ -19,11 +19,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import time
 
-os.environ.setdefault("OMP_NUM_THREADS", "1")
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+from latentune.threads import one_thread_env  # noqa: E402
+
+one_thread_env()
 
 import numpy as np  # noqa: E402
 

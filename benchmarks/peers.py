@@ -70,7 +70,8 @@ ROOT = Path(__file__).resolve().parents[1]
 CRITIC_DIR = ROOT / "src" / "latentune" / "critic"
 ALL_METHODS = ["lt_turbo", "lt_cma", "pycma", "optuna_cma", "optuna_tpe", "ref_turbo1",
                "ref_turbom", "optuna_gp"]
-HEAVY = {"ref_turbo1", "ref_turbom", "optuna_gp", "optuna_tpe"}
+HEAVY_ORDER = ["optuna_tpe", "ref_turbo1", "optuna_gp", "ref_turbom"]
+HEAVY = set(HEAVY_ORDER)
 
 
 def critic_hash() -> str:
@@ -264,7 +265,8 @@ def bench(a) -> None:
                variants={k: v[1] for k, v in variants.items()}, versions=versions(),
                loadavg_start=os.getloadavg(), threads=dict(torch=torch.get_num_threads(),
                                                            omp=os.environ.get("OMP_NUM_THREADS")))
-    # cheap methods for every seed first, then the slow ones seed by seed
+    # cheap methods for every seed first, then the slow ones: for the first three seeds one
+    # method after the other (HEAVY_ORDER), then for the other seeds
     work = []
     cheap = [m for m in methods if m not in HEAVY]
     heavy = [m for m in methods if m in HEAVY]
@@ -272,10 +274,12 @@ def bench(a) -> None:
         for p in a.problems:
             for m in cheap:
                 work.append((p, m, s))
-    for s in a.seeds:
-        for p in a.problems:
-            for m in heavy:
-                work.append((p, m, s))
+    groups = [a.seeds[:3], a.seeds[3:]]
+    for group in groups:
+        for m in sorted(heavy, key=HEAVY_ORDER.index):
+            for s in group:
+                for p in a.problems:
+                    work.append((p, m, s))
     n_done = 0
     for p, m, s in work:
         b = method_budget(m, a.budget, a.gp_budget)

@@ -17,11 +17,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import os
 import time
 from multiprocessing import get_context
 
-os.environ.setdefault("OMP_NUM_THREADS", "1")
+from latentune.threads import one_thread_env  # noqa: E402
+
+one_thread_env()
 
 import numpy as np  # noqa: E402
 

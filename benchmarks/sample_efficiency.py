@@ -36,7 +36,7 @@ one_thread_env()
 import numpy as np  # noqa: E402
 
 import latentune as lt  # noqa: E402
-from latentune.constants import C1, Phase  # noqa: E402
+from latentune.constants import C1  # noqa: E402
 from latentune.reporting.metrics import evals_to_beat  # noqa: E402
 
 

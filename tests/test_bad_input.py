@@ -390,3 +390,23 @@ def test_rollout_json_is_one_line_on_stdout():
     assert p.returncode == 0, p.stderr
     assert len(p.stdout.strip().splitlines()) == 1
     assert json.loads(p.stdout)["steps"] == 20
+
+
+@pytest.mark.parametrize("spec", ["nosuch", "missing.yaml"])
+def test_robot_check_reports_a_bad_spec(capsys, spec):
+    code, out, err = run_cli(capsys, "robot", "check", spec, "--no-sim")
+    assert code == 2 and "Traceback" not in err + out and spec in out
+
+
+@pytest.mark.parametrize("argv", [["robot", "init", "/nonexistent.urdf"], ["robot"],
+                                  ["robot", "init"], ["robot", "check", "a1", "--bogus"]],
+                         ids=lambda a: " ".join(a))
+def test_robot_commands_reject_bad_input(capsys, argv):
+    assert_one_line(capsys, *argv)
+
+
+def test_robot_init_keeps_an_existing_file(capsys, tmp_path):
+    f = tmp_path / "spec.yaml"
+    f.write_text("keep me")
+    assert_one_line(capsys, "robot", "init", "x.urdf", "--out", f)
+    assert f.read_text() == "keep me"

@@ -423,3 +423,48 @@ def test_critic_bad_input():
     with pytest.raises(ValueError, match="tags"):
         c.tell(np.zeros((2, 3)), np.zeros(2), tags=np.array([X0_TAG - 1, 0]))
     assert c.ask().shape == (2, 3) and c.last_tags.shape == (2,)
+
+
+# ----------------------------------------------------------------------------- CMA-ES defaults
+def test_cma_default_population_and_step():
+    from latentune.critic.cmaes import CMAES, default_popsize
+
+    assert default_popsize(30) == 14 and default_popsize(3) == 7
+    c = CMAES(30, batch_size=10, seed=0)
+    assert c.popsize == 14 and c.sigma0 == pytest.approx(1 / 6)   # population not the batch
+    assert CMAES(3, batch_size=10).popsize == 10                    # at least one batch
+    assert CMAES(30, batch_size=10, popsize=6, sigma0=0.3).popsize == 6
+
+
+def test_resume_cma_generations_straddling_batches():
+    """Population 7, batch 4: generations are sampled before the previous one is complete; a
+    replay tell by tell, or of a history that lost its last points, continues the run."""
+    orig = history_run("cma", 10)
+    assert orig.popsize == 7
+    fresh = make_critic("cma", 3, batch_size=4, seed=3, x0=np.full(3, 0.25))
+    for k in range(0, orig.n_told, 4):
+        fresh.tell(orig.X[k:k + 4], orig.y[k:k + 4], tags=orig.tags[k:k + 4])
+    assert fresh.sigma == orig.sigma
+    lost = make_critic("cma", 3, batch_size=4, seed=3, x0=np.full(3, 0.25))
+    lost.tell(orig.X[:38], orig.y[:38], tags=orig.tags[:38])   # the last 2 points were lost
+    np.testing.assert_array_equal(lost.ask(2), orig.X[38:40])   # ... and are asked again
+    np.testing.assert_array_equal(lost.last_tags, orig.tags[38:40])
+    np.testing.assert_array_equal(fresh.ask(), orig.ask())
+    np.testing.assert_array_equal(fresh.last_tags, orig.last_tags)
+
+
+# ----------------------------------------------------------------------------- threads
+def test_turbo_sets_its_threads_and_restores_them():
+    before = torch.get_num_threads()
+    seen = []
+    t = make_critic("turbo", 3, batch_size=4, seed=0, **FAST_TURBO)
+    orig = t._ask_impl
+    t._ask_impl = lambda n: (seen.append(torch.get_num_threads()), orig(n))[1]
+    try:
+        torch.set_num_threads(2)
+        run(t, sphere, 3)
+        assert seen == [1, 1, 1] and torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
+    with pytest.raises(ValueError, match="threads"):
+        make_critic("turbo", 3, threads=0)

@@ -14,6 +14,8 @@ import sys
 from pathlib import Path
 
 import numpy as np
+
+from latentune.threads import thread_env
 import pytest
 
 from latentune.experiments.paper import budgets, plan
@@ -21,7 +23,7 @@ from latentune.pipeline.store import RunStore
 from latentune.reporting.metrics import paper_results
 
 PY = sys.executable
-ENV = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1",
+ENV = dict(os.environ, **thread_env(),
            PYTHONUNBUFFERED="1")
 
 

@@ -16,12 +16,14 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from latentune.threads import thread_env
 import pytest
 
 from latentune.pipeline.store import RunStore, StoreError
 
 PY = sys.executable
-ENV = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1",
+ENV = dict(os.environ, **thread_env(),
            RAY_AUTH_MODE="disabled", PYTHONUNBUFFERED="1")
 
 

@@ -104,9 +104,11 @@ def test_swapped_feet_and_legs_are_refused(tmp_path):
     assert "leg FR (FR_upper_joint, FR_hip_joint, FR_lower_joint) is not one chain" in msg
 
 
-def test_feet_must_be_below_the_base(tmp_path):
+def test_feet_must_be_below_the_base_and_at_the_contact_point(tmp_path):
     msg = load_error(spec_file(tmp_path, "base: a1\nnominal_q: [0, 3.1, 0, 0, 3.1, 0, 0, 3.1, 0, 0, 3.1, 0]\n"))
     assert "nominal_q: feet not below the base" in msg
+    msg = load_error(spec_file(tmp_path, "base: a1\nfoot_links: [FR_lower, FL_lower, RR_lower, RL_lower]\n", "b.yaml"))
+    assert "foot_links: FR_lower, FL_lower, RR_lower, RL_lower at the knee joint, not at the foot" in msg
 
 
 # ----------------------------------------------------------------------------- computed fields
@@ -206,7 +208,8 @@ def test_init_spec_go1_go2(go_specs):
                                          for j in ("hip", "thigh", "calf"))   # Go2's URDF lists FL first
         assert spec.foot_links == ("FR_foot", "FL_foot", "RR_foot", "RL_foot")  # not the rotor leaves
         assert spec.nominal_q[:3] == pytest.approx((0.0, 0.7227, -1.4455), abs=1e-4)
-        assert spec.gaits["trot"].period == 0.392 and check_spec(spec).ok and not check_spec(spec).warnings
+        rep = check_spec(spec, simulate=False)
+        assert spec.gaits["trot"].period == 0.392 and rep.ok and not rep.warnings
     assert go1.strip_root is True and go2.strip_root is False
     assert go1.torque_limits == (23.7, 23.7, 35.55) and go2.torque_limits == (23.7, 23.7, 45.43)
     assert (go1.kp, go1.kd) == ((100.0,) * 3, (1.0, 2.0, 2.0)) and go2.kp == (130.0,) * 3

@@ -138,7 +138,7 @@ def test_user_yaml_urdf_forms(tmp_path):
     assert rel.urdf == str((tmp_path / "urdf" / "mine.urdf").resolve())
     absolute = load_spec_file(write(tmp_path, f"base: a1\nurdf: {a1_urdf}\n", "abs.yaml"))
     assert absolute == get_robot("a1")
-    pkg = load_spec_file(write(tmp_path, "base: b1\nurdf: {package: pybullet_data, path: a1/a1.urdf}\n", "p.yaml"))
+    pkg = load_spec_file(write(tmp_path, "base: a1\nurdf: {package: pybullet_data, path: a1/a1.urdf}\n", "p.yaml"))
     assert pkg.urdf == str(a1_urdf.resolve())
 
 

@@ -12,6 +12,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from latentune.threads import thread_env
 import pytest
 
 import latentune as lt
@@ -20,7 +22,7 @@ from latentune.errors import LatentuneError, StoreError
 from latentune.pipeline.store import RunStore
 
 PY = sys.executable
-ENV = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1",
+ENV = dict(os.environ, **thread_env(),
            RAY_AUTH_MODE="disabled", PYTHONUNBUFFERED="1")
 
 PLUGIN = textwrap.dedent('''

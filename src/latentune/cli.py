@@ -1,5 +1,5 @@
 """Command line: ``latentune rollout | tune | phase1 | train-vae | phase3 | report | ask | tell |
-status | paper | bench``.
+status | robot check | robot init | paper | bench``.
 
 Every command parses its flags and calls the public API (:class:`latentune.Study`,
 :class:`latentune.Task`, :func:`latentune.system.load_system`, the paper studies); no logic
@@ -196,13 +196,23 @@ def _finish(study: Any) -> None:
     print(comparison_table(study.store))
 
 
-def cmd_tune(args: argparse.Namespace) -> int:
+def _phase1_study(args: argparse.Namespace) -> tuple[Any, Any]:
+    """The study and system of ``tune``/``phase1``, phase 1 run (or resumed) on them."""
     study = _study(args)
     _need_store(study, args.resume)
     _refuse_rerun(study, 1, args.resume)
     system = make_system(args, args.seed)
-    with study:
+    try:
         study.phase1(system, args.phase1_evals, method=args.method, regions=args.regions)
+    except BaseException:
+        study.close()
+        raise
+    return study, system
+
+
+def cmd_tune(args: argparse.Namespace) -> int:
+    study, system = _phase1_study(args)
+    with study:
         study.train_latent(args.latent_dim, kind=args.vae_kind, epochs=args.vae_epochs)
         study.phase3(system, args.phase3_evals, method=args.method, regions=args.regions)
         _finish(study)
@@ -210,12 +220,8 @@ def cmd_tune(args: argparse.Namespace) -> int:
 
 
 def cmd_phase1(args: argparse.Namespace) -> int:
-    study = _study(args)
-    _need_store(study, args.resume)
-    _refuse_rerun(study, 1, args.resume)
-    system = make_system(args, args.seed)
+    study, _ = _phase1_study(args)
     with study:
-        study.phase1(system, args.phase1_evals, method=args.method, regions=args.regions)
         study.summary()
     return 0
 
@@ -365,6 +371,31 @@ def _read_data(path: str, flag: str) -> Any:
         raise CLIError(f"{flag}: {p} is not valid YAML/JSON ({str(exc).splitlines()[0]})") from None
 
 
+# ---------------------------------------------------------------------------- robot specs
+def cmd_robot_check(args: argparse.Namespace) -> int:
+    from latentune.robots import check_spec
+
+    rep = check_spec(args.spec, simulate=not args.no_sim)
+    print(json.dumps(rep.to_dict()) if args.json else rep.format())
+    return 0 if rep.ok else 2
+
+
+def cmd_robot_init(args: argparse.Namespace) -> int:
+    from latentune.robots import init_spec
+
+    if args.out is not None and os.path.exists(args.out):
+        raise CLIError(f"{args.out} exists (not overwritten)")
+    text = init_spec(args.urdf, name=args.name)
+    if args.out is None:
+        print(text, end="")
+    else:
+        try:
+            Path(args.out).write_text(text)
+        except OSError as exc:
+            raise CLIError(f"cannot write {args.out}: {exc.strerror or exc}") from None
+    return 0
+
+
 # ---------------------------------------------------------------------------- paper, bench
 def _scale(s: str) -> float:
     try:
@@ -457,6 +488,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("dir", help="study directory")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_status)
+
+    p = sub.add_parser("robot", help="check a robot spec, or write one for a quadruped URDF")
+    rsub = p.add_subparsers(dest="robot_command", parser_class=_Parser, required=True)
+    c = rsub.add_parser("check", help="check a spec against its URDF (and stand it in PyBullet)")
+    c.add_argument("spec", help="a1, b1, solo12 or a robot spec .yaml")
+    c.add_argument("--no-sim", action="store_true", help="skip standing the robot in PyBullet")
+    c.add_argument("--json", action="store_true", help="print one JSON object")
+    c.set_defaults(func=cmd_robot_check)
+    i = rsub.add_parser("init", help="print a starting robot spec (YAML) for a quadruped URDF")
+    i.add_argument("urdf")
+    i.add_argument("--name", default=None, help="robot name (default: from the URDF)")
+    i.add_argument("--out", default=None, help="write the YAML here (an existing file is kept)")
+    i.set_defaults(func=cmd_robot_init)
 
     p = sub.add_parser("paper", help="the paper's studies end to end, with a budget scale")
     p.add_argument("--robot", default="a1", help="a1 (convex MPC; adds A1→B1 transfer) or solo12")

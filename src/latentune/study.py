@@ -335,12 +335,27 @@ class Study:
             t = time.perf_counter()
             try:
                 res = run_phase(st, Phase.PHASE1, system, critic, pc["budget"], self.evaluator(),
-                                seed=self.seed, progress=self.progress, max_new=max_new)
+                                seed=self.seed, progress=self.progress, max_new=max_new,
+                                known=self._manual_outcome(system))
             finally:
                 self._add_wall("phase1", time.perf_counter() - t)
             self._write_best(Phase.PHASE1)
             self.log(f"phase 1: {res.n} evaluations, best cost {res.best_cost:.3f}")
             return res
+
+    def _manual_outcome(self, system: Any) -> dict[bytes, Any]:
+        """The stored manual-θ trial (phase 0), keyed for :func:`run_phase`'s ``known``."""
+        from latentune.system import Outcome
+
+        rows = [r for r in self.store.rows(Phase.MANUAL) if r.idx == 0]
+        if not rows:
+            return {}
+        r = rows[0]
+        theta = np.ascontiguousarray(system.space.manual, dtype=float)
+        if not np.array_equal(r.theta, theta):
+            return {}
+        info = {**r.info, "fall_step": r.fall_step} if r.fall_step is not None else dict(r.info)
+        return {theta.tobytes(): Outcome(r.cost, r.fell, info, r.wall_s)}
 
     def train_latent(self, latent_dim: int | None = None, *, kind: str | None = None,
                      epochs: int | None = None, retrain: bool = False) -> Any:
@@ -508,7 +523,8 @@ class Study:
             rows = [r for ph in (Phase.PHASE1, Phase.PHASE3) for r in o.rows(ph)]
         if not rows:
             return
-        best = min(rows, key=lambda r: (r.cost, r.phase, r.idx))
+        ok = [r for r in rows if not r.fell] or rows     # the best trial that did not fail
+        best = min(ok, key=lambda r: (r.cost, r.phase, r.idx))
         out = evaluate(system, best.theta)
         out.info.update({"source": str(src), "source_phase": int(best.phase),
                          "source_idx": int(best.idx), "source_cost": float(best.cost)})

@@ -1,6 +1,6 @@
 """Task = robot × gait × terrain × actor × v_des × horizon; a rollout and its path cost.
 
-Path cost (DESIGN §3, paper Eq. 2): over N_H physics steps at 1 kHz,
+Path cost (paper Eq. 2 with the running cost of its §IV): over N_H physics steps at 1 kHz,
 
 * the robot never fell:   L = sqrt( Σ_{i=1..N_H} ‖v_i − v_des‖² )   (v_i: base CoM velocity, world),
   capped just below C1 (a robot that never fell but tracks very badly stays "stable")
@@ -193,6 +193,14 @@ class Task:
         rms_vel_error [m/s], reason)."""
         res = self.rollout(theta)
         return Outcome(res.cost, res.fell, res.info(self.steps), res.wall_s)
+
+    def use_world(self, world: Any) -> None:
+        """Run this task's rollouts in ``world``, a World of the same robot, terrain and seed
+        built by another task (a world does not depend on the gait; building one takes seconds).
+        Raises UsageError for a world of another robot or terrain."""
+        if (world.spec.name, world.terrain) != (self.spec.name, self.terrain):
+            raise UsageError("use_world needs a world of the same robot and terrain")
+        self._world = world
 
     @property
     def world(self):

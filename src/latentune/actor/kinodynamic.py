@@ -66,12 +66,12 @@ KP_MANUAL, KD_MANUAL = 3.0, 0.05          # Solo12 [N·m/rad], [N·m·s/rad]
 SOLO_KP, SOLO_KD = 6.0, 0.15              # Solo12's spec.kp / spec.kd: the gain unit
 MANUAL_NOTES = (
     "W_X, W_X_ter (incl. its 1e6 on terminal com x), W_F, kp = 3.0: BiConMP's Solo12 trot values;",
-    "kd = 0.05 as DESIGN lists (BiConMP's current trot file has 0.3; its bound config has 0.05);",
+    "kd = 0.05 (BiConMP's current trot file has 0.3; its bound config has 0.05);",
     "state_wt base x/y position and base linear velocity: 0 in BiConMP -> 1e-2 (log bounds need > 0);",
     "cent_wt: BiConMP has 2 weights (com, momentum) = (0·5e1, 5e2); here 9: com 5e1 (BiConMP's "
     "value before its ×0, it keeps the kinematic CoM on the plan), l/m and k/m 5e2;",
     "gait timing, step height (0.05 m) and nominal height (0.24 m) come from the task's RobotSpec "
-    "(BiConMP's file: step 0.13 m, height 0.26 m; DESIGN: 0.05 m, 0.2 m);",
+    "(BiConMP's file: step 0.13 m, height 0.26 m);",
     "fixed, not tuned: reg_wt (5e-2, 1e-5), swing_wt 1e4 (BiConMP values), ctrl_wt (BiConMP's with "
     "the base x/y entries 0 -> 1, around a gravity-compensation reference), orientation correction "
     "gains ORI_GAIN (BiConMP's ori_correction plays this role), DDP ≤ 3 FDDP iterations.",

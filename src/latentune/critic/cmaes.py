@@ -1,21 +1,35 @@
 """CMA-ES (pycma) behind the ask/tell protocol, bounded to the unit box.
 
-* ``pycma.CMAEvolutionStrategy`` with ``bounds=[0, 1]`` (its BoundTransform), ``sigma0=0.3``,
-  ``popsize = max(batch_size, 2)`` unless given; the initial mean is ``x0[0]`` (else the box
-  centre) and all ``x0`` rows are injected into the first generation.
+* ``pycma.CMAEvolutionStrategy`` with ``bounds=[0, 1]`` (its BoundTransform),
+  ``sigma0 = 1/6`` (from the centre, ``mean ± 3·sigma0`` spans the box: pycma's rule of
+  thumb for the initial step, and Optuna's ``CmaEsSampler`` default) and
+  ``popsize = max(4 + ⌊3 ln d⌋, batch_size)`` unless given: pycma's default population, enlarged
+  to the batch so that one ask does not sample two generations from the same distribution. The
+  population is independent of the batch otherwise: an ask serves the current generation's
+  points and samples the next generation only when they are used up. The initial mean is
+  ``x0[0]`` (else the box centre) and all ``x0`` rows are injected into the first generation.
+  ``benchmarks/peers.py`` compares these defaults with Optuna's CMA-ES and pycma called
+  directly (results in ``results/peers/``).
 * Randomness: generation ``g`` samples with ``numpy.random.default_rng([seed, g])`` through
   pycma's ``randn`` option; pycma's global-seed path is disabled (``seed=nan``), so the global
   numpy state is neither used nor touched.
-* Tags: a point's tag is its generation number ``g``. ``ask(n)`` serves points from the current
-  generation and samples a new one when it is used up. A generation is passed to pycma's
-  ``tell`` once all its ``popsize`` points have been told (in any number of tell calls).
+* Tags: ``tag = told·2**20 + g`` (:func:`encode_tag`): the point's generation ``g`` and the
+  number of generations already passed to pycma when ``g`` was sampled. ``ask(n)`` serves
+  points from the current generation and samples a new one when it is used up (so with a
+  population that is not a multiple of the batch, a generation can be sampled before the
+  previous one is complete). A generation is passed to pycma's ``tell`` once all its
+  ``popsize`` points have been told (in any number of tell calls), in generation order.
 * Untagged points (``tags=None``) and points of generations the ``es`` never sampled are fed to
   pycma's ``tell`` as foreign solutions (pycma repairs them), in chunks of ``popsize``.
-* Resume: when a fresh critic is told a generation it did not ask, it first re-samples that
-  generation with the same generator (same ``es`` state by induction, so the same points), then
-  tells it; told points that equal the re-sampled ones are recognized by pycma exactly as in the
-  original run. Replaying a history therefore restores the same mean, step size and covariance,
-  and the next ``ask`` returns the same batch.
+* Resume: when a fresh critic is told generations it did not ask, it re-samples them in order
+  with the same generators, each one after passing to pycma as many complete generations as the
+  original had when it sampled it (read from the tag), so the sequence of pycma asks and tells
+  and hence every re-sampled point is the original's; told points that equal the re-sampled
+  ones are recognized by pycma exactly as in the original run. Replaying a history therefore
+  restores the same mean, step size and covariance; the last generation's points that were not
+  told (not asked yet, or lost) are served first, so the next ``ask`` returns the same batch.
+  (Exact for a history whose generations were completed in generation order; untagged points
+  are passed to pycma at the end of each ``tell``.)
 * When pycma's termination criteria fire, the strategy restarts from a uniformly random mean
   (generator ``[seed, 1, restart]``) with ``sigma0``; the history is kept.
 * Non-finite costs are given to pycma as the worst finite cost seen so far.
@@ -30,26 +44,47 @@ import numpy as np
 from latentune.critic.base import Critic, fill_nonfinite
 
 
+_GEN = 1 << 20
+
+
+def encode_tag(generation: int, told: int) -> int:
+    """CMA-ES tag of a point: its ``generation`` and the number of generations ``told`` to pycma
+    before that generation was sampled."""
+    return int(told) * _GEN + int(generation)
+
+
+def decode_tag(tag: int) -> tuple[int, int]:
+    """Inverse of :func:`encode_tag`: ``(generation, told)``."""
+    return int(tag) % _GEN, int(tag) // _GEN
+
+
+def default_popsize(dim: int) -> int:
+    """pycma's (and Hansen's) default population ``4 + ⌊3 ln dim⌋``."""
+    return 4 + int(3.0 * np.log(dim))
+
+
 class CMAES(Critic):
     """CMA-ES on [0, 1]^dim (see the module docstring).
 
     Args:
         dim, batch_size, seed, x0: see :class:`~latentune.critic.base.Critic`.
-        sigma0: initial step size in unit-box coordinates.
-        popsize: population size (default ``max(batch_size, 2)``).
+        sigma0: initial step size in unit-box coordinates (default 1/6).
+        popsize: population size (default ``max(4 + ⌊3 ln dim⌋, batch_size)``).
         cma_options: extra pycma options (override the defaults set here).
     """
 
     method = "cma"
 
     def __init__(self, dim: int, *, batch_size: int = 1, seed: int = 0,
-                 x0: np.ndarray | None = None, sigma0: float = 0.3, popsize: int | None = None,
+                 x0: np.ndarray | None = None, sigma0: float = 1.0 / 6.0,
+                 popsize: int | None = None,
                  cma_options: dict[str, Any] | None = None) -> None:
         super().__init__(dim, batch_size=batch_size, seed=seed, x0=x0)
         if not (np.isfinite(sigma0) and sigma0 > 0):
             raise ValueError(f"sigma0 must be > 0, got {sigma0!r}")
         self.sigma0 = float(sigma0)
-        self.popsize = int(popsize) if popsize is not None else max(self.batch_size, 2)
+        self.popsize = (int(popsize) if popsize is not None
+                        else max(default_popsize(self.dim), self.batch_size))
         if self.popsize < 2:
             raise ValueError(f"popsize must be >= 2, got {popsize!r}")
         self._cma_options = dict(cma_options or {})
@@ -61,6 +96,9 @@ class CMAES(Critic):
         self._foreign: list[int] = []                     # untagged / orphan told indices
         self._gen_es: dict[int, int] = {}                 # generation -> restart id
         self._sampled: dict[int, np.ndarray] = {}         # generation -> sampled points
+        self._gen_told: dict[int, int] = {}     # generation -> generations told when sampled
+        self._tag_told: dict[int, int] = {}     # the same, read from told tags (resume)
+        self._n_gen_told = 0                    # generations passed to pycma's tell
         self.n_restarts = 0
         self._n_rearm = 0
         mean0 = self.x0[0] if self.x0 is not None else np.full(self.dim, 0.5)
@@ -96,6 +134,7 @@ class CMAES(Critic):
             pop = np.asarray(self._es.ask(), dtype=float)
         self._es_gen = g
         self._gen_es[g] = self.n_restarts
+        self._gen_told[g] = self._n_gen_told
         self._sampled[g] = pop
         return pop
 
@@ -122,32 +161,56 @@ class CMAES(Critic):
                 self._queue = [(x, g) for x in self._sample_generation(g)]
             x, g = self._queue.pop(0)
             out.append(x)
-            tags.append(g)
+            tags.append(encode_tag(g, self._gen_told[g]))
         return np.asarray(out), np.asarray(tags, dtype=np.int64)
 
-    def _tell(self, idx: np.ndarray, tags: np.ndarray) -> None:
+    def _tell_complete(self, limit: int | None) -> None:
+        """Pass complete sampled generations to pycma in generation order (at most until
+        ``limit`` generations have been passed in total)."""
         yfill = fill_nonfinite(self._y)
-        gens = sorted({int(t) for t in tags if t >= 0})
-        self._foreign.extend(int(i) for i, t in zip(idx, tags) if t < 0)
-        for g in gens:
-            self._pending.setdefault(g, []).extend(int(i) for i, t in zip(idx, tags) if t == g)
-        # replay: generations this critic never sampled are re-sampled in order first
         for g in sorted(self._pending):
+            if g >= self._gen or (limit is not None and self._n_gen_told >= limit):
+                break
             members = self._pending[g]
             if len(members) < self.popsize:
                 continue
-            if g >= self._gen:  # never sampled here (resume): reproduce the sampling
-                while self._gen <= g:
-                    gg = self._gen
-                    self._gen += 1
-                    self._sample_generation(gg)
-                self._queue = []
             del self._pending[g]
+            self._sampled.pop(g, None)
             if self._gen_es.get(g) != self.n_restarts:
                 self._foreign.extend(members)   # sampled by an es that has since restarted
                 continue
             self._es_tell(self._X[members], yfill[members])
-            self._sampled.pop(g, None)
+            self._n_gen_told += 1
+
+    def _tell(self, idx: np.ndarray, tags: np.ndarray) -> None:
+        self._foreign.extend(int(i) for i, t in zip(idx, tags) if t < 0)
+        for i, t in zip(idx, tags):
+            if t >= 0:
+                g, c = decode_tag(int(t))
+                self._pending.setdefault(g, []).append(int(i))
+                self._tag_told.setdefault(g, c)
+        # resume: generations this critic never sampled are re-sampled in order, each after as
+        # many generations were passed to pycma as when the original critic sampled it
+        top = max(self._pending, default=-1)
+        resampled = self._gen <= top
+        while self._gen <= top:
+            g = self._gen
+            self._tell_complete(self._tag_told.get(g, self._n_gen_told))
+            self._gen += 1
+            self._sample_generation(g)
+        self._tell_complete(None)
+        if resampled:     # the last generation's points not told yet are asked next
+            g = self._gen - 1
+            self._queue = [(x, g) for x in self._sampled.get(g, np.empty((0, self.dim)))]
+        if self._queue:   # a queued point told already (a replay in several tells) is dropped
+            told = self._X[idx]
+            self._queue = [(x, g) for x, g in self._queue
+                           if not np.any(np.all(told == x, axis=1))]
+            if resampled:
+                told = self._X[self._pending.get(self._gen - 1, [])]
+                self._queue = [(x, g) for x, g in self._queue
+                               if not (told.shape[0] and np.any(np.all(told == x, axis=1)))]
+        yfill = fill_nonfinite(self._y)
         while len(self._foreign) >= self.popsize:
             chunk, self._foreign = self._foreign[:self.popsize], self._foreign[self.popsize:]
             self._es_tell(self._X[chunk], yfill[chunk])

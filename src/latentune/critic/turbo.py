@@ -76,6 +76,14 @@ Measured: ``python benchmarks/critic.py --functions levy25 ackley20 --methods tu
 --budget 1000 --seeds 5 --batch-size 20`` (``minimize``'s defaults against CMA-ES; other options
 are compared by passing them to :func:`latentune.minimize`).
 
+Threads
+-------
+The GPs are small (at most ``max_gp_points`` points) and their linear algebra does not gain
+from several threads; with torch's default threads and a busy second core an ask is many times
+slower. So :meth:`TurboM.ask` runs with ``threads`` (default 1) torch threads and restores the
+caller's setting afterwards (``benchmarks/peers.py --overhead`` measures both settings;
+``results/peers/overhead.json``).
+
 Tags and resume
 ---------------
 ``tag = generation·2**20 + kind·2**16 + region``, ``kind`` 0 = design point, 1 = Thompson point,
@@ -207,6 +215,14 @@ class TurboM(Critic):
         y_transform: "copula" (default), "log" or "none" (see the module docstring).
         gp_select: which points a capped GP keeps: "recent" (default) or "near" (see
             :meth:`_select`).
+        lengthscale_prior: ``None`` (maximum likelihood within the bounds), ``"dim"``
+            (log-normal, ``loc = √2 + ½·ln d``, ``scale = √3``: BoTorch's dimension-scaled
+            default since 0.12) or ``"dim_tr"`` (the same with ``loc`` shifted by
+            ``ln(L / length_init)``, so the prior's lengthscales follow the region's side ``L``
+            at the time of the fit). With a prior, cold fits start at its mode.
+        threads: torch threads used inside :meth:`ask` (default 1; the previous setting is
+            restored afterwards); ``None`` leaves torch's setting alone. See "Threads" in the
+            module docstring.
     """
 
     method = "turbo"
@@ -219,7 +235,8 @@ class TurboM(Critic):
                  max_gp_points: int = 256, max_fit_points: int = 256, num_features: int = 512,
                  refit_fraction: float = 0.1, warm_start: bool = True, fit_maxiter: int = 50,
                  refit_maxiter: int = 15, y_transform: str = "copula",
-                 gp_select: str = "recent") -> None:
+                 gp_select: str = "recent", lengthscale_prior: str | None = None,
+                 threads: int | None = 1) -> None:
         super().__init__(dim, batch_size=batch_size, seed=seed, x0=x0)
         d = self.dim
         if n_regions < 1 or n_regions >= _KIND:
@@ -251,7 +268,13 @@ class TurboM(Critic):
             raise ValueError(f"gp_select must be 'near' or 'recent', got {gp_select!r}")
         self.gp_select = gp_select
         self.ls_bounds = (0.005, 4.0)
-        self.ls_prior: tuple[float, float] | None = None
+        if lengthscale_prior not in (None, "dim", "dim_tr"):
+            raise ValueError("lengthscale_prior must be None, 'dim' or 'dim_tr', "
+                             f"got {lengthscale_prior!r}")
+        self.lengthscale_prior = lengthscale_prior
+        if threads is not None and (isinstance(threads, bool) or int(threads) < 1):
+            raise ValueError(f"threads must be None or an integer >= 1, got {threads!r}")
+        self.threads = None if threads is None else int(threads)
         self._gen = 0
         self.regions = [self._fresh_region(r, epoch=0, epoch_gen=0)
                         for r in range(self.n_regions)]
@@ -360,6 +383,20 @@ class TurboM(Critic):
 
     # ------------------------------------------------------------------ ask
     def _ask(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        if self.threads is None:
+            return self._ask_impl(n)
+        import torch
+
+        before = torch.get_num_threads()
+        if before == self.threads:
+            return self._ask_impl(n)
+        torch.set_num_threads(self.threads)
+        try:
+            return self._ask_impl(n)
+        finally:
+            torch.set_num_threads(before)
+
+    def _ask_impl(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         g = self._gen
         self._gen += 1
         X_out: list[np.ndarray] = []
@@ -449,7 +486,17 @@ class TurboM(Critic):
             s = 1.0
         return (z - med) / s, med, s
 
-    def _build_gp(self, Xt: np.ndarray, yt: np.ndarray, hypers: dict[str, np.ndarray] | None):
+    def _ls_prior(self, length: float) -> tuple[float, float] | None:
+        """(loc, scale) of the log-normal lengthscale prior for a region of side ``length``."""
+        if self.lengthscale_prior is None:
+            return None
+        loc = math.sqrt(2.0) + 0.5 * math.log(self.dim)
+        if self.lengthscale_prior == "dim_tr":
+            loc += math.log(length / self.length_init)
+        return loc, math.sqrt(3.0)
+
+    def _build_gp(self, Xt: np.ndarray, yt: np.ndarray, hypers: dict[str, np.ndarray] | None,
+                  prior_ls: tuple[float, float] | None = None):
         import torch
         from botorch.models import SingleTaskGP
         from gpytorch.constraints import Interval
@@ -460,9 +507,9 @@ class TurboM(Critic):
         Y = torch.as_tensor(yt, dtype=torch.float64).reshape(-1, 1)
         lik = GaussianLikelihood(noise_constraint=Interval(1e-4, 0.2))
         prior = None
-        if self.ls_prior is not None:
+        if prior_ls is not None:
             from gpytorch.priors import LogNormalPrior
-            prior = LogNormalPrior(*self.ls_prior)
+            prior = LogNormalPrior(*prior_ls)
         kern = ScaleKernel(MaternKernel(nu=2.5, ard_num_dims=self.dim, lengthscale_prior=prior,
                                         lengthscale_constraint=Interval(*self.ls_bounds)),
                            outputscale_constraint=Interval(0.05, 20.0))
@@ -470,7 +517,10 @@ class TurboM(Critic):
             warnings.simplefilter("ignore")
             model = SingleTaskGP(X, Y, likelihood=lik, covar_module=kern, outcome_transform=None)
         model.to(torch.float64)
-        h = hypers or {"lengthscale": np.full(self.dim, 0.5), "outputscale": np.array(1.0),
+        ls0 = 0.5
+        if prior_ls is not None and hypers is None:   # start at the prior's mode
+            ls0 = float(np.clip(math.exp(prior_ls[0] - prior_ls[1] ** 2), 0.02, self.ls_bounds[1]))
+        h = hypers or {"lengthscale": np.full(self.dim, ls0), "outputscale": np.array(1.0),
                        "noise": np.array(1e-3), "constant": np.array(0.0)}
         model.covar_module.base_kernel.lengthscale = torch.as_tensor(
             h["lengthscale"], dtype=torch.float64).reshape(1, self.dim)
@@ -531,7 +581,7 @@ class TurboM(Critic):
                 start = {"lengthscale": np.clip(h["lengthscale"], 0.02, 1.0),
                          "outputscale": np.clip(h["outputscale"], 0.1, 10.0),
                          "noise": np.clip(h["noise"], 1e-3, 0.1), "constant": h["constant"]}
-            model = self._build_gp(self._X[fit_pts], zs, start)
+            model = self._build_gp(self._X[fit_pts], zs, start, self._ls_prior(tr.length))
             self._fit(model, self.refit_maxiter if warm else self.fit_maxiter)
             tr.hypers = self._hypers_of(model)
             tr.fit_count = c

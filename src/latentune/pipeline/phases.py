@@ -101,7 +101,8 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
               evaluator: Evaluator,
               decoder: Callable[[np.ndarray], np.ndarray] | None = None, seed: int | None = None,
               progress: bool = False, on_row: Callable[[int, float], None] | None = None,
-              max_new: int | None = None) -> PhaseResult:
+              max_new: int | None = None, known: dict[bytes, Outcome] | None = None
+              ) -> PhaseResult:
     """Run (or resume) one tuning phase until ``budget`` evaluations are stored.
 
     Args:
@@ -114,6 +115,9 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
         decoder: the map D from the critic's box to normalized θ ((n, k) -> (n, d)); ``None`` is
             the identity (phase 1). Rows then store both z (the critic's point) and θ.
         max_new: stop after this many new evaluations (tests; ``None`` = no limit).
+        known: outcomes already measured, by ``theta.tobytes()`` of the (d,) float64 θ: an asked
+            θ found here is stored with that outcome instead of being run again (the manual θ,
+            evaluated once as phase 0, is phase 1's first point).
 
     Raises:
         EvaluationError: a trial raised or gave no usable cost; the batch's finished trials are
@@ -138,7 +142,7 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
             thetas = U if decoder is None else np.atleast_2d(decoder(U))
             ib, yb = [], []                        # ask index and cost of each result
             error: str | None = None
-            for i, r in evaluator.imap(system, thetas):
+            for i, r in _results(evaluator, system, thetas, known or {}):
                 if isinstance(r, TrialError):
                     error = error or r.message
                     continue
@@ -171,6 +175,20 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
     wall = time.perf_counter() - t0
     return PhaseResult(phase, store.count(phase), new, b.cost if b else math.inf,
                        None if b is None else b.theta, wall)
+
+
+def _results(evaluator: Evaluator, system: Any, thetas: np.ndarray,
+             known: dict[bytes, Outcome]) -> Any:
+    """``(i, Outcome | TrialError)`` for each row of ``thetas``: known ones first (not run)."""
+    thetas = np.ascontiguousarray(thetas, dtype=float)
+    reuse = [i for i in range(len(thetas)) if thetas[i].tobytes() in known]
+    for i in reuse:
+        out = known[thetas[i].tobytes()]
+        yield i, Outcome(out.cost, out.failed, {**out.info, "reused": True}, out.wall_s)
+    todo = [i for i in range(len(thetas)) if i not in reuse]
+    if todo:
+        for j, r in evaluator.imap(system, thetas[todo]):
+            yield todo[j], r
 
 
 def ensure_manual(store: RunStore, system: Any, seed: int | None = None, idx: int = 0) -> float:

@@ -88,16 +88,18 @@ def rms_velocity_error(cost: float | None, steps: int) -> float | None:
     return float(cost) / math.sqrt(float(steps))
 
 
-def phase_stats(costs: Sequence[float] | np.ndarray, target: float | None = None) -> dict[str, Any]:
+def phase_stats(costs: Sequence[float] | np.ndarray, target: float | None = None,
+                fell: Sequence[bool] | None = None) -> dict[str, Any]:
     """Summary of one phase's (n,) costs.
 
     Keys: ``n`` (evaluations), ``best`` (min cost, None if n = 0), ``best_idx`` (0-based index
-    of the first minimum, None if n = 0), ``stable`` (cost < C1 count), ``falls`` (n − stable),
-    ``evals_to_beat`` (:func:`evals_to_beat` against ``target``, e.g. the manual θ's cost).
+    of the first minimum, None if n = 0), ``stable`` (trials that did not fail: from the (n,)
+    ``fell`` flags when given, else cost < C1), ``falls`` (n − stable), ``evals_to_beat``
+    (:func:`evals_to_beat` against ``target``, e.g. the manual θ's cost).
     """
     y = _costs(costs)
     n = int(y.size)
-    stable = stable_count(y)
+    stable = stable_count(y) if fell is None else int(n - np.count_nonzero(np.asarray(fell)))
     return {"n": n, "best": float(np.min(y)) if n else None,
             "best_idx": int(np.argmin(y)) if n else None, "stable": stable, "falls": n - stable,
             "evals_to_beat": evals_to_beat(y, target)}

@@ -225,7 +225,7 @@ def _task(cfg: dict[str, Any]):
     t = cfg["task"]
     key = (str(t["robot"]), t["terrain"], int(t["seed"]))
     if key in _WORLDS:
-        task._world = _WORLDS[key]
+        task.use_world(_WORLDS[key])
     else:
         _WORLDS[key] = task.world
     return task

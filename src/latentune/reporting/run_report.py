@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from latentune.constants import Phase
-from latentune.reporting.metrics import fall_count, paper_row, phase_stats, rms_velocity_error
+from latentune.reporting.metrics import paper_row, phase_stats, rms_velocity_error
 
 TABLE_PHASES = (Phase.MANUAL, Phase.PHASE1, Phase.PHASE3, Phase.ZERO_SHOT)
 """The table's rows, in order; a zero-shot row appears only when the store has one."""
@@ -99,8 +99,7 @@ def run_stats(store: Any) -> dict[int, dict[str, Any]]:
     out = {}
     for ph in TABLE_PHASES:
         rows = store.rows(ph)
-        s = phase_stats([r.cost for r in rows], manual)
-        s["falls"] = fall_count([r.cost for r in rows], [r.fell for r in rows])
+        s = phase_stats([r.cost for r in rows], manual, fell=[r.fell for r in rows])
         s["rms"] = rms_velocity_error(s["best"], steps) if steps else None
         out[int(ph)] = s
     return out

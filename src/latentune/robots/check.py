@@ -39,7 +39,7 @@ from latentune.constants import G
 from latentune.errors import RobotSpecError
 from latentune.robots import spec as S
 from latentune.robots.spec import LEGS
-from latentune.robots.urdf import UrdfTree, kinematic_urdf_text, read_urdf, resolve_mesh
+from latentune.robots.urdf import MASSLESS, UrdfTree, kinematic_urdf_text, read_urdf, resolve_mesh
 
 LEG_SIGNS = {"FR": (1, -1), "FL": (1, 1), "RR": (-1, -1), "RL": (-1, 1)}
 """Sign of a leg's foot (x, y) in the base frame: front x > 0, right y < 0."""
@@ -164,7 +164,7 @@ def inspect_fields(fields: Mapping[str, Any]) -> Findings:
 
     # ---- root link
     root_mass = tree.links[tree.root].mass
-    root_light = root_mass is None or root_mass < 1e-4
+    root_light = root_mass is None or root_mass < MASSLESS
     if "strip_root" in fields:
         strip = bool(fields["strip_root"])
         if strip and not tree.massless_root():
@@ -179,7 +179,7 @@ def inspect_fields(fields: Mapping[str, Any]) -> Findings:
     if root_light and not tree.massless_root():
         warn(f"the root link {tree.root!r} is massless but carries movable joints, so it is not "
              "stripped (PyBullet zeroes its inertia; a root of mass 0 would be fixed in space)")
-    out.base_link = base = tree.base(strip)
+    out.base_link = tree.base(strip)
     out.mass = tree.total_mass()
     if out.mass <= 0:
         err("the URDF's links have no mass")
@@ -230,11 +230,16 @@ def inspect_fields(fields: Mapping[str, Any]) -> Findings:
     foot_pos = np.array([link_position(model, data, f) for f in feet])
     hip_pos = np.array([joint_position(model, data, jn[3 * k]) for k in range(4)])
     out.foot_positions, out.hip_positions = foot_pos.tolist(), hip_pos.tolist()
-    _, data0 = placements(model, {})
-    lengths = [np.linalg.norm(joint_position(model, data0, jn[3 * k + 2]) - joint_position(model, data0, jn[3 * k + 1]))
-               + np.linalg.norm(link_position(model, data0, feet[k]) - joint_position(model, data0, jn[3 * k + 2]))
-               for k in range(4)]
-    out.leg_length = leg_length = float(np.mean(lengths))
+    _, data0 = placements(model, {})  # q = 0: hip flexion joint, knee joint, foot per leg
+    hip0, knee0 = ([joint_position(model, data0, jn[3 * k + r]) for k in range(4)] for r in (1, 2))
+    foot0 = [link_position(model, data0, f) for f in feet]
+    thigh = [float(np.linalg.norm(knee0[k] - hip0[k])) for k in range(4)]
+    shank = [float(np.linalg.norm(foot0[k] - knee0[k])) for k in range(4)]
+    out.leg_length = leg_length = float(np.mean(np.add(thigh, shank)))
+    at_knee = [feet[k] for k in range(4) if shank[k] < 0.2 * thigh[k]]
+    if at_knee:
+        err(f"foot_links: {', '.join(at_knee)} at the knee joint, not at the foot: a foot link's "
+            "origin must be the contact point (add fixed foot links)")
     for k, leg in enumerate(LEGS):
         sx, sy = LEG_SIGNS[leg]
         x, y = foot_pos[k, 0], foot_pos[k, 1]
@@ -282,7 +287,8 @@ def inspect_fields(fields: Mapping[str, Any]) -> Findings:
                 f"{' …' if len(none) > 4 else ''}: give torque_limits [abduction, hip, knee] in N·m")
         else:
             out.filled["torque_limits"] = tuple(float(v) for v in urdf_lim)
-            big = [f"{ROLES[r]} {urdf_lim[r]:g}" for r in range(3) if urdf_lim[r] > PLACEHOLDER_EFFORT * scale]
+            big = [f"{ROLES[r]} {urdf_lim[r]:g}" for r in range(3)
+                   if urdf_lim[r] > PLACEHOLDER_EFFORT * scale]
             if big:
                 warn(f"torque_limits from the URDF's effort limits ({', '.join(big)} N·m) exceed "
                      f"{PLACEHOLDER_EFFORT:g} × m·g·leg length = {PLACEHOLDER_EFFORT * scale:.0f} N·m: "
@@ -354,7 +360,8 @@ class CheckReport(Findings):
 
     def format(self) -> str:
         """Human-readable lines: the verdict, measured values, then errors and warnings."""
-        lines = [f"{self.source}: {'OK' if self.ok else 'INVALID'}" + (f" (robot {self.name})" if self.name else "")]
+        robot = f" (robot {self.name})" if self.name else ""
+        lines = [f"{self.source}: {'OK' if self.ok else 'INVALID'}{robot}"]
         if self.urdf:
             lines.append(f"  urdf: {self.urdf}")
         if self.mass is not None:
@@ -364,15 +371,16 @@ class CheckReport(Findings):
             h = "" if self.nominal_height is None else f"nominal_height {self.nominal_height:.3f} m, "
             lines.append(f"  {h}height from forward kinematics {self.fk_height:.3f} m")
         if self.foot_positions:
-            lines.append("  feet at nominal_q (base frame, m): " + ", ".join(
-                f"{leg} ({p[0]:+.3f}, {p[1]:+.3f}, {p[2]:+.3f})" for leg, p in zip(LEGS, self.foot_positions)))
+            feet = (f"{leg} ({p[0]:+.3f}, {p[1]:+.3f}, {p[2]:+.3f})" for leg, p in zip(LEGS, self.foot_positions))
+            lines.append("  feet at nominal_q (base frame, m): " + ", ".join(feet))
         if self.torque_limits is not None:
             u = "" if self.urdf_torque_limits is None else " (URDF effort: " + ", ".join(
                 "-" if v is None else f"{v:g}" for v in self.urdf_torque_limits) + ")"
             lines.append(f"  torque_limits {', '.join(f'{v:g}' for v in self.torque_limits)} N·m{u}")
         if self.settled_height is not None:
-            near = "" if self.closest_link is None else \
-                f", nearest body link {self.closest_link} {1000 * self.body_clearance:.1f} mm above the ground"
+            near = "" if self.closest_link is None else (
+                f", nearest body link {self.closest_link} {1000 * self.body_clearance:.1f} mm above "
+                "the ground")
             lines.append(f"  standing in PyBullet: base (CoM) height {self.settled_height:.3f} m{near}")
         for k, v in self.filled.items():
             lines.append(f"  computed {k}: {list(v) if isinstance(v, tuple) else v}")
@@ -446,8 +454,9 @@ def _stand(spec: Any, report: CheckReport) -> None:
                     f"ground: the robot counts as fallen (body contact) as soon as it touches; lower "
                     "nominal_q's crouch or give collision_primitives")
         if not (0.5 * spec.nominal_height <= report.settled_height <= 2.5 * spec.nominal_height):
-            report.warnings.append(f"the robot settles at a base height of {report.settled_height:.3f} m, "
-                                   f"outside the standing band [0.5, 2.5] × nominal_height: it falls at once")
+            report.warnings.append(f"the robot settles at a base height of {report.settled_height:.3f} "
+                                   "m, outside the standing band [0.5, 2.5] × nominal_height: it falls "
+                                   "at once")
     finally:
         world.close()
 

@@ -59,7 +59,7 @@ def _leg_from_name(name: str) -> str | None:
     return None
 
 
-def _legs(tree: UrdfTree) -> list[tuple[list[str], str]]:
+def _legs(tree: UrdfTree) -> list[tuple[list[str], list[str]]]:
     """The four (three joint names, leaf links below the knee) chains of the URDF."""
     revolute = ("revolute", "continuous")
     chains: dict[tuple[str, ...], list[str]] = {}
@@ -78,7 +78,7 @@ def _legs(tree: UrdfTree) -> list[tuple[list[str], str]]:
         found = ", ".join(f"{c[0]}…({len(c)} joints)" for c in maximal) or "none"
         raise RobotSpecError(f"URDF {tree.path}: init needs 4 legs of 3 revolute joints (abduction, "
                              f"hip, knee) from the base to a foot; found chains: {found}")
-    return [(c, leaves) for c, leaves in legs]
+    return legs
 
 
 def _stl_extent(path: Path) -> np.ndarray | None:
@@ -168,6 +168,11 @@ def _urdf_field(path: Path) -> str:
     return json.dumps(str(path))  # a JSON string is a YAML string
 
 
+def _str(v: str) -> str:
+    """A YAML scalar for a name: as is when plain, else JSON-quoted."""
+    return v if re.fullmatch(r"[A-Za-z_][A-Za-z0-9_.-]*", v) else json.dumps(v)
+
+
 def _num(v: float, digits: int = 4) -> str:
     r = round(float(v), digits)
     return repr(0.0 if r == 0 else r)
@@ -235,11 +240,11 @@ def init_spec(urdf_path: str | os.PathLike, name: str | None = None) -> str:
             raise RobotSpecError(f"URDF {path}: leg {leg} has no foot link below its knee joint "
                                  f"{chain[2]} (the leaf {foot} is at the knee): add a fixed foot link")
         axes = [_axis(model, d0, j) for j in chain]
-        want = ((0, "x"), (1, "y"), (1, "y"))
-        for j, ax, (i, n) in zip(chain, axes, want):
+        for j, ax, i in zip(chain, axes, (0, 1, 1)):  # abduction about x, hip and knee about y
             if abs(ax[i]) < 0.9:
-                raise RobotSpecError(f"URDF {path}: joint {j} turns about ({', '.join(f'{v:+.2f}' for v in ax)}) "
-                                     f"in the base frame; init expects abduction about x, hip and knee about y")
+                axis = ", ".join(f"{v:+.2f}" for v in ax)
+                raise RobotSpecError(f"URDF {path}: joint {j} turns about ({axis}) in the base frame; init "
+                                     "expects abduction about x, hip and knee about y")
         lim = [(tree.joints[j].lower, tree.joints[j].upper) if tree.joints[j].type == "revolute"
                else (None, None) for j in chain]
         q_hip, q_knee = _crouch(p1, p2, pf, math.copysign(1, axes[1][1]), math.copysign(1, axes[2][1]),
@@ -281,32 +286,37 @@ def init_spec(urdf_path: str | os.PathLike, name: str | None = None) -> str:
         hips = np.array([joint_position(model, d0, joint_names[3 * k]) for k in range(4)])
         box = [2 * np.abs(hips[:, 0]).max(), 2 * np.abs(hips[:, 1]).max(), 0.25 * L]
         return [f"primitive_collisions: true       # {why}",
-                "collision_primitives:            # link-name suffix -> shape [m]; other links do not collide",
-                f"  {tree.base(strip)}: {{box: {_list(box, 3)}}}"] + \
-            [f"  {f}: {{sphere: foot_radius}}" for f in ([suffix] if suffix else feet)]
+                "collision_primitives:            # link-name suffix -> shape [m]; other links: none",
+                f"  {_str(tree.base(strip))}: {{box: {_list(box, 3)}}}"] + \
+            [f"  {_str(f)}: {{sphere: foot_radius}}" for f in ([suffix] if suffix else feet)]
 
     def compose(prim_lines: list[str], warnings: list[str]) -> str:
-        legs_txt = ",\n              ".join(", ".join(joint_names[3 * k:3 * k + 3]) for k in range(4))
-        lines = [f"# {robot}: starting spec written by latentune init_spec from {path.name}. Units: m, s, rad, N·m.",
-                 "# Leg order FR, FL, RR, RL; check the stance, gains and limits, then `latentune robot check`."]
+        legs_txt = ",\n              ".join(", ".join(map(_str, joint_names[3 * k:3 * k + 3]))
+                                             for k in range(4))
+        lines = [f"# {robot}: starting spec written by latentune init_spec from {path.name}. "
+                 "Units: m, s, rad, N·m.",
+                 "# Leg order FR, FL, RR, RL; check the stance, gains and limits, then "
+                 "`latentune robot check`."]
         lines += [f"# note: {n}" for n in notes] + [f"# warning: {w}" for w in warnings]
         lines += [
-            f"name: {robot}",
+            f"name: {_str(robot)}",
             f"urdf: {_urdf_field(path)}",
             f"joint_names: [{legs_txt}]",
-            f"foot_links: [{', '.join(feet)}]",
+            f"foot_links: [{', '.join(map(_str, feet))}]",
             f"nominal_q: {_list(q_nom)}   # crouch: foot {CROUCH:g} × leg length below the hip",
             f"nominal_height: {_num(height)}           # from forward kinematics at nominal_q [m]",
             f"torque_limits: {_list(torque, 6)}   # abduction, hip, knee [N·m]: {torque_src}",
-            f"kp: {_list([kp] * 3, 3)}   # swing-leg joint PD [N·m/rad]: min(8 × mass {mass:.1f} kg, 4 × knee torque)",
+            f"kp: {_list([kp] * 3, 3)}   # swing-leg joint PD [N·m/rad]: "
+            f"min(8 × mass {mass:.1f} kg, 4 × knee torque)",
             f"kd: {_list(kd, 3)}   # [N·m·s/rad]: (0.01, 0.02, 0.02) × kp",
             f"foot_radius: {_num(radius)}              # {radius_src} [m]",
-            f"gaits:                           # leg length {L:.3f} m: period 0.6·sqrt(L), swing apex 0.2·L",
+            f"gaits:                           # leg length L = {L:.3f} m: period 0.6·sqrt(L), apex 0.2·L",
             f"  trot: {{period: {_num(period, 3)}, duty: 0.6, step_height: {_num(step, 3)}}}",
-            f"  jump: {{period: {_num(round(1.12 * period, 3), 3)}, duty: 0.7, step_height: {_num(step, 3)}}}",
+            f"  jump: {{period: {_num(round(1.12 * period, 3), 3)}, duty: 0.7, "
+            f"step_height: {_num(step, 3)}}}",
         ]
         if strip:
-            lines.append(f"strip_root: true                 # the root link {tree.root!r} is a massless dummy")
+            lines.append(f"strip_root: true                 # the root link {tree.root!r}: a massless dummy")
         lines += prim_lines
         lines += ["raibert_gain: 0.03               # swing foot placement gain on the velocity error [s]",
                   "mu: 0.45                         # MPC friction coefficient",

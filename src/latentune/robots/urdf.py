@@ -70,7 +70,7 @@ def package_dir(package: str) -> Path:
 MASSLESS = 1e-4
 """A link lighter than this [kg] (or without ``<inertial>``) counts as massless."""
 
-_REWRITE_VERSION = "rewrite-2"  # in the prepared-URDF cache key of URDFs with continuous joints
+_REWRITE_VERSION = "rewrite-2"  # in the prepared-URDF cache key: bump when the rewrite changes
 
 
 @dataclass(frozen=True)
@@ -213,8 +213,8 @@ def _read_urdf(path: str, size: int, mtime_ns: int) -> UrdfTree:
                 raise ValueError(f"link {name!r} is defined twice")
             mass_el = el.find("inertial/mass")
             mass = None if mass_el is None else float(mass_el.get("value", "nan"))
-            cols = tuple((g[0].tag, dict(g[0].attrib)) for g in (c.find("geometry") for c in el.findall("collision"))
-                         if g is not None and len(g))
+            geoms = (c.find("geometry") for c in el.findall("collision"))
+            cols = tuple((g[0].tag, dict(g[0].attrib)) for g in geoms if g is not None and len(g))
             links[name] = UrdfLink(name, mass, cols)
         for el in root.findall("joint"):
             name, typ = el.get("name"), el.get("type")
@@ -229,11 +229,12 @@ def _read_urdf(path: str, size: int, mtime_ns: int) -> UrdfTree:
                 if end not in links:
                     raise ValueError(f"joint {name!r} names the undefined link {end!r}")
             axis_el, origin_el, lim = el.find("axis"), el.find("origin"), el.find("limit")
-            axis = _floats(axis_el.get("xyz"), 3, f"joint {name!r} axis") if axis_el is not None else (1.0, 0.0, 0.0)
-            xyz = _floats(origin_el.get("xyz", "0 0 0"), 3, f"joint {name!r} origin") if origin_el is not None \
-                else (0.0, 0.0, 0.0)
+            axis = (1.0, 0.0, 0.0) if axis_el is None else _floats(axis_el.get("xyz"), 3, f"joint {name!r} axis")
+            xyz = (0.0, 0.0, 0.0) if origin_el is None else \
+                _floats(origin_el.get("xyz", "0 0 0"), 3, f"joint {name!r} origin")
             joints[name] = UrdfJoint(name, typ, parent.get("link"), child.get("link"), axis, xyz,
-                                     _opt_float(lim, "effort"), _opt_float(lim, "lower"), _opt_float(lim, "upper"))
+                                     _opt_float(lim, "effort"), _opt_float(lim, "lower"),
+                                     _opt_float(lim, "upper"))
     except ValueError as exc:
         raise RobotSpecError(f"{where}: {exc}") from None
     if not links:
@@ -269,7 +270,8 @@ def _uri_roots(src: Path) -> list[tuple[Path, bool]]:
     return roots
 
 
-def resolve_mesh(filename: str, src: str | os.PathLike, roots: list[tuple[Path, bool]] | None = None) -> Path | None:
+def resolve_mesh(filename: str, src: str | os.PathLike,
+                 roots: list[tuple[Path, bool]] | None = None) -> Path | None:
     """The file a mesh ``filename`` of the URDF ``src`` refers to (a ``package://`` URI, a path
     relative to the URDF's directory, or absolute), or None when it does not exist."""
     src = Path(src)
@@ -298,7 +300,7 @@ def _fix_uris(text: str, src: Path) -> str:
 
 def _strip_root(text: str, root: str | None = None) -> str:
     """Remove the link ``root`` (default: the first link) if it is (nearly) massless, and the
-    fixed joint to the real base."""
+    fixed joint to the real base (callers check :meth:`UrdfTree.massless_root` first)."""
     name = r"[^\"]+" if root is None else re.escape(root)
     m = re.search(r'<link\s+name="(%s)"\s*(?:/>|>.*?</link>)' % name, text, flags=re.S)
     mass = re.search(r'<mass\s+value="([^"]+)"', m.group(0)) if m else None
@@ -320,7 +322,9 @@ def _continuous_to_revolute(text: str) -> str:
         velocity = re.search(r'velocity="([^"]*)"', limit.group(0)) if limit else None
         new = (f'<limit lower="-1e4" upper="1e4" effort="{effort.group(1) if effort else 0}" '
                f'velocity="{velocity.group(1) if velocity else 0}"/>')
-        return body.replace(limit.group(0), new, 1) if limit else body.replace("</joint>", new + "</joint>", 1)
+        if limit:
+            return body.replace(limit.group(0), new, 1)
+        return body.replace("</joint>", new + "</joint>", 1)
 
     return re.sub(r'<joint\b[^>]*type="continuous"[^>]*>.*?</joint>', repl, text, flags=re.S)
 
@@ -329,7 +333,7 @@ def kinematic_urdf_text(spec_urdf: str | os.PathLike, strip_root: bool) -> str:
     """The URDF text whose kinematics pinocchio and PyBullet see after :func:`prepared_urdf`
     (root stripped, continuous joints revolute); collision and mesh rewrites left out."""
     text = Path(spec_urdf).read_text()
-    if strip_root:
+    if strip_root and read_urdf(spec_urdf).massless_root():
         text = _strip_root(text, read_urdf(spec_urdf).root)
     if 'type="continuous"' in text:
         text = _continuous_to_revolute(text)
@@ -365,8 +369,8 @@ def prepared_urdf(spec: RobotSpec) -> str:
     """Path of a URDF PyBullet and pinocchio can both load, derived from ``spec.urdf``.
 
     ``spec.urdf`` itself when it needs no change; otherwise a rewritten copy (see the module
-    docstring), cached in the temp directory under a hash of the URDF text and the spec fields
-    the rewrite uses.
+    docstring), cached in the temp directory under a hash of the URDF text, the spec fields the
+    rewrite uses and the rewrite's version.
     """
     src = Path(spec.urdf)
     text = src.read_text()
@@ -375,14 +379,13 @@ def prepared_urdf(spec: RobotSpec) -> str:
         return str(src)
     prims = spec.collision_primitives if spec.primitive_collisions else {}
     key = hashlib.sha1((text + repr((spec.strip_root, spec.primitive_collisions, spec.foot_radius,
-                                     sorted(prims.items())))
-                        + (_REWRITE_VERSION if continuous else "")).encode()).hexdigest()[:12]
+                                     sorted(prims.items()))) + _REWRITE_VERSION).encode()).hexdigest()[:12]
     out = Path(tempfile.gettempdir()) / "latentune_urdf" / f"{spec.name}_{key}.urdf"
     if out.is_file():
         return str(out)
 
     text = _fix_uris(text, src)
-    if spec.strip_root:
+    if spec.strip_root and read_urdf(src).massless_root():  # a massless dummy fixed to the base
         text = _strip_root(text, read_urdf(src).root)
     if continuous:
         text = _continuous_to_revolute(text)

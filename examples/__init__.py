@@ -1,0 +1,9 @@
+"""Examples of latentune on user-defined systems (run from the repository root).
+
+* :mod:`examples.toy_plant` — a pure-numpy plant (no extra dependency; used by the tests);
+* :mod:`examples.gym_controller` — a 36-weight linear feedback controller for Gymnasium's
+  MuJoCo ``Hopper-v5`` (needs ``pip install "gymnasium[mujoco]"``);
+* :mod:`examples.sim_to_real` — phases 1 + 2 on the Hopper model, phase 3 on a perturbed
+  "real" Hopper, against the zero-shot θ and direct TuRBO-m on the real one;
+* ``examples/ask_tell_session.sh`` — ask/tell from the shell, as a person at a robot would.
+"""
