@@ -314,12 +314,12 @@ def test_ask_tell_a_whole_phase3_with_kills(tmp_path, plugin_dir):
     sysargs = ["--system", "myplant:make", "--system-arg", "dim=6", "--system-arg", "shift=0.1"]
     budget, told, handed, kills = 12, [], set(), 0
     rng = np.random.default_rng(0)
-    while len(told) < budget:
+    while len(told) < budget + 1:                   # + the zero-shot trial
         a = cli("ask", str(real), *sysargs, "--phase", "3", "--vae", str(sim), "--json",
                 cwd=plugin_dir)
         assert a.returncode == 0, a.stderr
         (s,) = json.loads(a.stdout)
-        assert s["phase"] == 3
+        assert s["phase"] == (4 if s["id"] == 1 else 3)   # the source's best θ comes first
         if not s["again"]:
             assert s["id"] not in handed            # a new suggestion is new
         handed.add(s["id"])
@@ -351,10 +351,14 @@ def test_ask_tell_a_whole_phase3_with_kills(tmp_path, plugin_dir):
     with RunStore(real) as st:
         r3 = st.rows(Phase.PHASE3)
         assert [r.idx for r in r3] == list(range(budget))
-        assert sorted(r.info["trial"] for r in r3) == sorted(told)      # each told trial once
+        zs = st.rows(Phase.ZERO_SHOT)
+        assert len(zs) == 1 and zs[0].info["trial"] == 1
+        assert sorted(r.info["trial"] for r in r3 + zs) == sorted(told)   # each told trial once
         assert len({r.info["trial"] for r in r3}) == budget
         assert {t.id for t in st.trials("told")} == set(told)
-        assert st.count(Phase.ZERO_SHOT) == 0       # ask/tell does not run trials itself
+        with RunStore(sim) as src:                   # zero-shot = the source's best θ
+            ok = [r for ph in (1, 3) for r in src.rows(ph) if not r.fell]
+            np.testing.assert_allclose(zs[0].theta, min(ok, key=lambda r: (r.cost, r.phase, r.idx)).theta)
     st_ = cli("status", str(real), "--json")
     assert st_.returncode == 0 and json.loads(st_.stdout)["phases"]["phase3"]["n"] == budget
     # bad ids: one line, store untouched

@@ -573,8 +573,12 @@ class Study:
             sp = self._ask_space(system, space)
             at = self._ask_config(phase, method, budget, latent, sp)
             ph = Phase(at["phase"])
-            pending = [t for t in st.trials("pending") if t.phase == ph]
-            out = [self._suggestion(t, sp, again=True) for t in pending[:n]]
+            if ph == Phase.PHASE3:
+                self._ask_zero_shot(st, at.get("latent_source"))
+            waiting = st.trials("pending")
+            pending = [t for t in waiting if t.phase == ph]
+            first = [t for t in waiting if t.phase == Phase.ZERO_SHOT] + pending
+            out = [self._suggestion(t, sp, again=True) for t in first[:n]]
             k = n - len(out)
             if k > 0:
                 ls = self.latent() if ph == Phase.PHASE3 else None
@@ -590,6 +594,22 @@ class Study:
                     tid = st.add_trial(ph, thetas[i], None if ls is None else U[i], int(tags[i]))
                     out.append(self._suggestion(st.trials_by_id(tid), sp, again=False))
             return out
+
+    def _ask_zero_shot(self, st: RunStore, source: str | None) -> None:
+        """Phase-3 ask/tell with another study's latent space: the first suggestion is that
+        study's best θ as it is (the zero-shot baseline, phase 4), handed out once."""
+        if source in (None, "self") or st.count(Phase.ZERO_SHOT) > 0 or \
+                any(t.phase == Phase.ZERO_SHOT for t in st.trials()):
+            return
+        src = Path(source)
+        if not (src / "run.db").is_file():
+            return
+        with RunStore(src) as o:
+            rows = [r for ph in (Phase.PHASE1, Phase.PHASE3) for r in o.rows(ph)]
+        if rows:
+            ok = [r for r in rows if not r.fell] or rows
+            best = min(ok, key=lambda r: (r.cost, r.phase, r.idx))
+            st.add_trial(Phase.ZERO_SHOT, best.theta, None, -1)
 
     def tell(self, trial_id: int, cost: float | None = None, *, failed: bool = False,
              note: str | None = None, info: dict[str, Any] | None = None) -> Row:

@@ -1,0 +1,73 @@
+"""Time the README's two commands on a fresh clone of this repository.
+
+    python benchmarks/readme_commands.py [--out results/benchmarks/readme_commands.json]
+
+Clones the current HEAD into a temporary directory, runs the README's first command (set up the
+venv and run the main job) and its second (the tests), and records each wall time, exit status,
+the main job's summary (manual / phase-1 / phase-3 best) and the machine load.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def readme_commands() -> list[str]:
+    """The two commands of the README's first code block (comment lines dropped)."""
+    text = (ROOT / "README.md").read_text()
+    block = re.search(r"```bash\n(.*?)```", text, re.S).group(1)
+    return [ln.strip() for ln in block.splitlines() if ln.strip() and not ln.strip().startswith("#")]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default=None)
+    a = ap.parse_args()
+    cmds = readme_commands()
+    work = Path(tempfile.mkdtemp(prefix="lt_readme_"))
+    clone = work / "latentune"
+    subprocess.run(["git", "clone", "-q", str(ROOT), str(clone)], check=True)
+    shared = ROOT.parent / "shared"
+    if shared.is_dir() and not (work / "shared").exists():
+        os.symlink(shared, work / "shared")
+    commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
+                            cwd=clone).stdout.strip()
+    runs = []
+    env = {k: v for k, v in os.environ.items() if k not in ("VIRTUAL_ENV", "PYTHONPATH")}
+    env["RAY_AUTH_MODE"] = "disabled"
+    for cmd in cmds:
+        load0 = list(os.getloadavg())
+        t0 = time.perf_counter()
+        p = subprocess.run(["bash", "-c", cmd], cwd=clone, capture_output=True, text=True, env=env)
+        wall = time.perf_counter() - t0
+        tail = p.stdout.strip().splitlines()[-12:]
+        runs.append({"command": cmd, "wall_s": wall, "exit": p.returncode, "stdout_tail": tail,
+                     "stderr_tail": p.stderr.strip().splitlines()[-3:],
+                     "loadavg_start": load0, "loadavg_end": list(os.getloadavg())})
+        print(f"{cmd}\n  exit {p.returncode} in {wall:.0f} s", flush=True)
+    summary = None
+    s = clone / "runs" / "a1_trot" / "summary.json"
+    if s.is_file():
+        d = json.loads(s.read_text())
+        summary = {k: d.get(k) for k in ("manual_cost", "phase1_best", "phase3_best",
+                                          "phase1_evals", "phase3_evals", "wall_s")}
+        print(f"  main job: {summary}")
+    out = {"commit": commit, "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+           "machine": f"{os.cpu_count()} cores", "python": sys.version.split()[0],
+           "command": "python benchmarks/readme_commands.py" + (f" --out {a.out}" if a.out else ""),
+           "runs": runs, "main_job": summary}
+    if a.out:
+        Path(a.out).write_text(json.dumps(out, indent=1))
+
+
+if __name__ == "__main__":
+    main()
