@@ -71,14 +71,16 @@ BAD_TASK_ARGS = [
     ["--robot", "nosuch"], ["--robot", "missing.yaml"], ["--task", "gallop"],
     ["--terrain", "ice"], ["--actor", "pid"], ["--steps", "0"], ["--steps", "-5"],
     ["--steps", "x"], ["--v-des", "nan"], ["--v-des", "inf"], ["--v-des", "9"],
-    ["--seed", "-1"], ["--seed", str(2 ** 63)], ["--seed", "1.5"],
+    ["--seed", "-1"], ["--seed", str(2 ** 63)], ["--seed", "1.5"], ["--reality", "nope"],
+    ["--reality", "missing.yaml"], ["--engine", "ode"],
 ]
 BAD_RUN_ARGS = [
     ["--phase1-evals", "0"], ["--phase3-evals", "-1"], ["--workers", "0"],
     ["--latent-dim", "0"], ["--regions", "0"], ["--regions", "101"], ["--batch-size", "0"],
     ["--vae-epochs", "0"], ["--backend", "gpu"], ["--method", "adam"],
     ["--ray-address", "1.2.3.4:6379"], ["--system-arg", "k=v"],
-    ["--system", "a:b", "--robot", "a1"], ["--no-such-flag"],
+    ["--system", "a:b", "--robot", "a1"], ["--system", "a:b", "--reality", "heavy"],
+    ["--no-such-flag"],
 ]
 
 

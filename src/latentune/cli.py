@@ -55,6 +55,11 @@ def add_system_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--actor", help="convex (default) or kinodynamic")
     p.add_argument("--steps", type=int, help="rollout horizon in 1 kHz steps (default 5000)")
     p.add_argument("--v-des", type=float, help="desired forward velocity [m/s] (default 0.5)")
+    p.add_argument("--reality", default=None, metavar="PRESET|FILE",
+                   help="perturb the simulated robot: nominal, heavy, worn, slippery, laggy, hard "
+                        "or a YAML profile (default none)")
+    p.add_argument("--engine", choices=("pybullet", "mujoco"), default=None,
+                   help="physics engine (default pybullet)")
     p.add_argument("--system", default=None, metavar="MODULE:FACTORY",
                    help="tune your own system: FACTORY(**system-args) returns it (see README)")
     p.add_argument("--system-arg", action="append", default=[], metavar="KEY=VALUE",
@@ -63,7 +68,8 @@ def add_system_args(p: argparse.ArgumentParser) -> None:
 
 def _task_given(args: argparse.Namespace) -> bool:
     return any(getattr(args, k, None) is not None
-               for k in ("robot", "task", "terrain", "actor", "steps", "v_des"))
+               for k in ("robot", "task", "terrain", "actor", "steps", "v_des", "reality",
+                         "engine"))
 
 
 def make_system(args: argparse.Namespace, seed: int = 0) -> Any:
@@ -72,7 +78,8 @@ def make_system(args: argparse.Namespace, seed: int = 0) -> Any:
 
     if args.system is not None:
         if _task_given(args):
-            raise CLIError("--system replaces --robot/--task/--terrain/--actor/--steps/--v-des")
+            raise CLIError("--system replaces --robot/--task/--terrain/--actor/--steps/--v-des/"
+                           "--reality/--engine")
         return load_system(args.system, parse_system_args(args.system_arg))
     if args.system_arg:
         raise CLIError("--system-arg needs --system")
@@ -89,7 +96,9 @@ def make_task(args: argparse.Namespace, seed: int = 0) -> Any:
         return Task(robot=args.robot or "a1", gait=args.task or "trot",
                     terrain=args.terrain or "flat", actor=args.actor or "convex",
                     v_des=0.5 if args.v_des is None else args.v_des,
-                    steps=5000 if args.steps is None else args.steps, seed=seed)
+                    steps=5000 if args.steps is None else args.steps, seed=seed,
+                    reality=getattr(args, "reality", None),
+                    engine=getattr(args, "engine", None) or "pybullet")
     except (ValueError, TypeError) as exc:
         raise CLIError(str(exc)) from None
 

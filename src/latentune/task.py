@@ -9,6 +9,10 @@ Path cost (paper Eq. 2 with the running cost of its §IV): over N_H physics step
 So L < C1 ⇔ stable. Fallen: base height above the ground outside [0.5, 2.5]·h_nom, tilt above
 ``max_tilt_deg``, a non-foot link touching the ground, a non-finite state, or an actor failure
 (infeasible QP) — never an exception.
+
+A Task may run on another physics engine (``engine="mujoco"``) and in a perturbed reality
+(``reality=``: a preset name, a YAML file, a dict or a :class:`~latentune.sim.reality.Reality`):
+the actor sees the world's noisy sensor view, the cost and the fall detector the true state.
 """
 from __future__ import annotations
 
@@ -113,11 +117,17 @@ class Task:
     :class:`RolloutResult`; ``task(theta)`` returns only the cost. The PyBullet world is built
     lazily, once per process, and restored between rollouts; a Task pickles without it, so it can
     be sent to worker processes.
+
+    ``reality`` (a preset name, a YAML file, a dict or a :class:`~latentune.sim.reality.Reality`;
+    None: nominal) perturbs the simulated robot; ``engine`` is ``"pybullet"`` (default) or
+    ``"mujoco"``. Both are recorded in :meth:`config` when they are not the defaults; the
+    reality's random parts are seeded from ``seed``.
     """
 
     def __init__(self, robot: str | RobotSpec = "a1", gait: str = "trot", terrain: str = "flat",
                  actor: str = "convex", v_des: float | tuple[float, float, float] = 0.5,
-                 steps: int = 5000, seed: int = 0):
+                 steps: int = 5000, seed: int = 0, reality: Any = None,
+                 engine: str = "pybullet"):
         if not isinstance(robot, (str, os.PathLike, RobotSpec, dict)):
             raise UsageError(f"robot must be a name, a spec file or a RobotSpec, got {robot!r}")
         self.spec = get_robot(robot)
@@ -140,6 +150,17 @@ class Task:
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) \
                 or not 0 <= seed < 2 ** 63:
             raise UsageError(f"seed must be an integer in [0, 2**63), got {seed!r}")
+        from latentune.sim.reality import Reality
+        from latentune.sim.world import ENGINES
+
+        if not isinstance(engine, str) or engine not in ENGINES:
+            raise UsageError(f"unknown engine {engine!r} (choose from {', '.join(ENGINES)})")
+        if engine == "mujoco":
+            from latentune.sim.mujoco_world import require_mujoco
+
+            require_mujoco()
+        self.reality = Reality.load(reality)
+        self.engine = engine
         self.robot_name = self.spec.name
         self.gait = gait
         self.terrain = terrain
@@ -165,6 +186,10 @@ class Task:
                "seed": self.seed, "dim": self.space.dim}
         if not is_builtin(self.spec):
             cfg["spec"] = self.spec.to_dict()
+        if not self.reality.is_nominal:
+            cfg["reality"] = self.reality.to_dict()
+        if self.engine != "pybullet":
+            cfg["engine"] = self.engine
         return cfg
 
     @classmethod
@@ -179,7 +204,8 @@ class Task:
 
             robot = spec_from_dict(cfg["spec"])
         return cls(robot=robot, gait=cfg["gait"], terrain=cfg["terrain"], actor=cfg["actor"],
-                   v_des=tuple(cfg["v_des"]), steps=int(cfg["steps"]), seed=int(cfg["seed"]))
+                   v_des=tuple(cfg["v_des"]), steps=int(cfg["steps"]), seed=int(cfg["seed"]),
+                   reality=cfg.get("reality"), engine=cfg.get("engine", "pybullet"))
 
     def cache_key(self) -> str:
         """Evaluator workers keep one Task (one simulator client) per key."""
@@ -194,20 +220,32 @@ class Task:
         res = self.rollout(theta)
         return Outcome(res.cost, res.fell, res.info(self.steps), res.wall_s)
 
+    def world_key(self) -> tuple:
+        """What a world depends on: robot, terrain, seed, engine and reality (not the gait):
+        tasks with equal keys can share one world (:meth:`use_world`)."""
+        import json
+
+        return (self.spec.name, self.terrain, self.seed, self.engine,
+                json.dumps(self.reality.to_dict(), sort_keys=True))
+
     def use_world(self, world: Any) -> None:
         """Run this task's rollouts in ``world``, a World of the same robot, terrain and seed
         built by another task (a world does not depend on the gait; building one takes seconds).
-        Raises UsageError for a world of another robot or terrain."""
+        Raises UsageError for a world of another robot, terrain, engine or reality."""
         if (world.spec.name, world.terrain) != (self.spec.name, self.terrain):
             raise UsageError("use_world needs a world of the same robot and terrain")
+        if (getattr(world, "engine", "pybullet"), getattr(world, "reality", self.reality)) \
+                != (self.engine, self.reality):
+            raise UsageError("use_world needs a world of the same engine and reality")
         self._world = world
 
     @property
     def world(self):
         if self._world is None:
-            from latentune.sim.world import World
+            from latentune.sim import make_world
 
-            self._world = World(self.spec, self.terrain, seed=self.seed)
+            self._world = make_world(self.spec, self.terrain, seed=self.seed,
+                                     reality=self.reality, engine=self.engine)
         return self._world
 
     def __call__(self, theta: np.ndarray) -> float:
@@ -243,12 +281,12 @@ class Task:
         except ActorFailure as exc:
             actor, fall_step, reason = None, 1, f"actor: {exc}"
         n = 0
-        s = world.state()
+        s = world.true_state()  # the cost and the fall detector see the true state ...
         flat = world.terrain == "flat"
         h_lo, h_hi = 0.5 * h_nom, 2.5 * h_nom
         while actor is not None and n < N:
             try:
-                tau = actor.control(n, s)
+                tau = actor.control(n, world.observe(s))  # ... the actor its sensors' view
                 if not math.isfinite(tau.sum()):
                     raise ActorFailure("non-finite torque")
             except (ActorFailure, np.linalg.LinAlgError, FloatingPointError) as exc:
@@ -256,7 +294,7 @@ class Task:
                 break
             world.apply(tau)
             world.step()
-            s = world.state()
+            s = world.true_state()
             n += 1
             vel[n - 1] = s.vel
             pos = s.pos

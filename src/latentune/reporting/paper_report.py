@@ -220,10 +220,10 @@ _WORLDS: dict[tuple, Any] = {}
 
 def _task(cfg: dict[str, Any]):
     """The Task of a stored config. PyBullet worlds are shared between tasks of the same robot,
-    terrain and seed (the world does not depend on the gait; building a B1 world takes ~10 s)."""
+    terrain, seed, engine and reality (:meth:`Task.world_key`; the world does not depend on the
+    gait, and building one takes seconds)."""
     task = task_from_config(cfg)
-    t = cfg["task"]
-    key = (str(t["robot"]), t["terrain"], int(t["seed"]))
+    key = task.world_key()
     if key in _WORLDS:
         task.use_world(_WORLDS[key])
     else:

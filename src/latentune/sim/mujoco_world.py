@@ -1,0 +1,315 @@
+"""The MuJoCo world: the same robot, ground and interface as the PyBullet one, another engine.
+
+:class:`MujocoWorld` implements :class:`~latentune.sim.world.SimWorld`. The robot is the
+spec's prepared URDF (:func:`~latentune.robots.urdf.prepared_urdf`: a massless root stripped,
+primitive collisions where the spec asks for them), with the reality's body perturbations
+(:func:`~latentune.sim.reality.perturbed_urdf`), loaded by MuJoCo's URDF importer with
+visual geoms discarded and fixed links kept as their own bodies (so the feet keep their names).
+It gets a free joint for the base, a torque actuator (motor, gear 1, no control limits) per
+joint in the spec's order, gravity 9.81 m/s² and a 1 ms step; the ground is a plane or the
+same Perlin hills as PyBullet (a MuJoCo heightfield of the same 100 × 100 heights, 0.05 m
+apart). The robot's geoms collide with the ground only (PyBullet does not collide a robot with
+itself either). Contacts use MuJoCo's soft model with a 0.005 s time constant and damping
+ratio 1 (:data:`CONTACT_TIMECONST`; an A1 foot sinks ≈ 0.3 mm standing), a pyramidal friction
+cone and the foot–ground coefficient of the reality (nominal 1.0, as PyBullet's product of
+1.0 × 1.0); the contact models differ between the engines, and that is the point: it is the
+kind of gap a real robot has.
+
+Units SI. The state is that of the base link: ``RobotState.pos``/``vel`` are the base's centre
+of mass position and velocity in the world frame (as PyBullet's), ``quat`` the base link's
+orientation (x, y, z, w), so ``R`` is the trunk link rotation directly.
+"""
+from __future__ import annotations
+
+import math
+import sys
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+
+from latentune.constants import G
+from latentune.errors import UsageError
+from latentune.robots import RobotSpec
+from latentune.robots.urdf import read_urdf
+from latentune.sim.reality import Reality, perturbed_urdf
+from latentune.sim.world import HILLS_CELL, HILLS_CELLS, RobotState, WorldBase
+
+__all__ = ["MujocoWorld", "require_mujoco", "contact_solref", "mujoco_urdf_text"]
+
+_ROBOT_CONTYPE, _GROUND_CONTYPE = 2, 1   # robot geoms touch the ground, not each other
+CONTACT_TIMECONST = 0.005
+"""Time constant of the contacts [s] (MuJoCo's default 0.02 lets an A1 foot sink 3 mm standing
+and 14 mm at a hard touchdown, deep enough for the shank to touch the ground; ≥ 2 steps)."""
+MIN_DAMPING_RATIO = 0.05
+"""Least contact damping ratio (restitution ≤ 0.85): below it MuJoCo's contacts blow up."""
+
+
+def contact_solref(restitution: float) -> tuple[float, float]:
+    """MuJoCo ``solref`` (time constant [s], damping ratio) of the contacts for a restitution
+    coefficient e: ratio 1 and :data:`CONTACT_TIMECONST` for e = 0; otherwise the ratio ζ of
+    a mass-spring-damper that rebounds with e = exp(−πζ/√(1−ζ²)), at least
+    :data:`MIN_DAMPING_RATIO` (so e ≤ 0.85), and a 0.01 s time constant (stiffer, lightly
+    damped contacts blow up at a 1 ms step)."""
+    if restitution <= 0:
+        return CONTACT_TIMECONST, 1.0
+    le = math.log(restitution) if restitution < 1 else 0.0
+    return 0.01, max(-le / math.sqrt(math.pi ** 2 + le ** 2), MIN_DAMPING_RATIO)
+
+
+def require_mujoco():
+    """The ``mujoco`` module (its warnings sent to stderr, not to a MUJOCO_LOG.TXT).
+
+    Raises:
+        UsageError: mujoco is not installed.
+    """
+    try:
+        import mujoco
+    except ImportError:
+        raise UsageError("engine 'mujoco' needs the mujoco package (pip install mujoco==4.0.0)") from None
+    if mujoco.get_mju_user_warning() is None:  # not MuJoCo's default: a MUJOCO_LOG.TXT in the cwd
+        mujoco.set_mju_user_warning(_warn)
+    return mujoco
+
+
+def _warn(msg: str) -> None:
+    """MuJoCo's warnings (e.g. an unstable simulation, which MuJoCo resets) on stderr only."""
+    sys.stderr.write(f"MuJoCo warning: {msg}\n")
+
+
+def mujoco_urdf_text(urdf: str) -> str:
+    """The URDF text MuJoCo's importer loads: the file with a ``<mujoco><compiler>`` element
+    (mesh directory = the URDF's, visual geoms discarded, static bodies not fused, inertias
+    balanced, angles in radians)."""
+    src = Path(urdf)
+    robot = ET.fromstring(src.read_text())
+    for el in robot.findall("mujoco"):
+        robot.remove(el)
+    ext = ET.Element("mujoco")
+    ET.SubElement(ext, "compiler", meshdir=str(src.parent.resolve()), discardvisual="true",
+                  fusestatic="false", balanceinertia="true", angle="radian")
+    robot.insert(0, ext)
+    for vis in list(robot.iter("link")):
+        for v in vis.findall("visual"):
+            vis.remove(v)
+    return ET.tostring(robot, encoding="unicode")
+
+
+class MujocoWorld(WorldBase):
+    """A MuJoCo model and data with ground and robot, reset cheaply between rollouts
+    (implements :class:`~latentune.sim.world.SimWorld`; see the module docstring).
+
+    Args:
+        spec: the robot.
+        terrain: ``"flat"`` or ``"hills"`` (the PyBullet world's heights).
+        seed: terrain seed, and the seed of the reality's noise and pushes.
+        dt: physics step [s].
+        reality: a :class:`~latentune.sim.reality.Reality` (None: nominal). In MuJoCo: masses,
+            inertias and the payload through the URDF; friction (every geom's sliding
+            coefficient, MuJoCo takes the larger of the pair), restitution (the contacts'
+            ``solref``, :func:`contact_solref`), joint damping (``dof_damping``) and joint
+            friction (``dof_frictionloss``, time constant 0.005 s) in the model; latency,
+            torque scale and limits in :meth:`apply`; sensor noise in :meth:`state`; pushes
+            through ``xfrc_applied`` on the base in :meth:`step`.
+
+    Raises:
+        UsageError: mujoco is not installed, or cannot load the robot's URDF.
+    """
+
+    engine = "mujoco"
+
+    def __init__(self, spec: RobotSpec, terrain: str = "flat", seed: int = 0, dt: float = 0.001,
+                 reality: Reality | None = None):
+        self.mj = require_mujoco()
+        self._data = None
+        self._pushed = False
+        self._init_common(spec, terrain, seed, dt, reality)
+        self._build()
+
+    def _build(self) -> None:
+        mujoco, spec, real = self.mj, self.spec, self.reality
+        urdf = perturbed_urdf(self.model.urdf, real)
+        try:
+            ms = mujoco.MjSpec.from_string(mujoco_urdf_text(urdf))
+        except ValueError as exc:
+            raise UsageError(f"MuJoCo cannot load the URDF of {spec.name} ({urdf}): "
+                             f"{str(exc).splitlines()[0]}") from None
+        ms.option.timestep = self.dt
+        ms.option.gravity = [0.0, 0.0, -G]
+        root = read_urdf(urdf).root
+        base = ms.body(root)
+        base.add_freejoint()
+        mu = real.foot_friction
+        timeconst, ratio = contact_solref(real.restitution)
+        for g in ms.geoms:
+            g.contype, g.conaffinity = _ROBOT_CONTYPE, _GROUND_CONTYPE
+            g.friction = [mu, 0.005, 0.0001]
+            g.solref = [timeconst, ratio]
+        if self.heights is None:
+            ground = ms.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 1])
+        else:
+            n = HILLS_CELLS
+            half = 0.5 * (n - 1) * HILLS_CELL
+            hf = ms.add_hfield(name="hills", nrow=n, ncol=n,
+                               size=[half, half, max(self.ground_z, 1e-6), 0.1])
+            # row r runs along y, column c along x: data[r * n + c] = heights[c, r]
+            hf.userdata = self.heights.T.reshape(-1).tolist()
+            ground = ms.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_HFIELD, hfieldname="hills")
+        ground.name = "ground"
+        ground.contype, ground.conaffinity = _GROUND_CONTYPE, _ROBOT_CONTYPE
+        ground.friction = [mu, 0.005, 0.0001]
+        ground.solref = [timeconst, ratio]
+        for name in spec.joint_names:
+            j = ms.joint(name)
+            if j is None:
+                raise UsageError(f"MuJoCo model of {spec.name}: no joint {name!r}")
+            j.damping = [real.joint_damping, 0.0, 0.0]
+            j.frictionloss = real.joint_friction
+            j.solref_friction = [CONTACT_TIMECONST, 1.0]  # the default 0.02 s lets a joint creep
+            act = ms.add_actuator(name=name, target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT)
+            act.set_to_motor()
+            act.gear = [1.0, 0, 0, 0, 0, 0]
+            act.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
+        try:
+            m = ms.compile()
+        except ValueError as exc:
+            raise UsageError(f"MuJoCo cannot compile the model of {spec.name} ({urdf}): "
+                             f"{str(exc).splitlines()[0]}") from None
+        d = mujoco.MjData(m)
+        self.mjmodel, self._data = m, d
+        obj = mujoco.mjtObj
+        self.base_id = mujoco.mj_name2id(m, obj.mjOBJ_BODY, root)
+        self.ground_geom = mujoco.mj_name2id(m, obj.mjOBJ_GEOM, "ground")
+        jids = [mujoco.mj_name2id(m, obj.mjOBJ_JOINT, n) for n in spec.joint_names]
+        self.qadr = np.array([m.jnt_qposadr[j] for j in jids])
+        self.dadr = np.array([m.jnt_dofadr[j] for j in jids])
+        self.foot_bodies = []
+        for f in spec.foot_links:
+            b = mujoco.mj_name2id(m, obj.mjOBJ_BODY, f)
+            if b < 0:
+                raise UsageError(f"MuJoCo model of {spec.name}: no foot body {f!r}")
+            self.foot_bodies.append(b)
+        self.body_names = {b: mujoco.mj_id2name(m, obj.mjOBJ_BODY, b) for b in range(m.nbody)}
+        self.base_com_local = m.body_ipos[self.base_id].copy()
+        z0 = spec.nominal_height + self.ground_z + 0.01
+        d.qpos[:7] = [self.start_x, 0.0, z0, 1.0, 0.0, 0.0, 0.0]
+        d.qpos[self.qadr] = spec.nominal_q
+        mujoco.mj_forward(m, d)
+        w = mujoco.mjtWarning
+        self._bad_kinds = tuple(int(k) for k in (w.mjWARN_BADQACC, w.mjWARN_BADQVEL,
+                                                 w.mjWARN_BADQPOS, w.mjWARN_BADCTRL))
+        self._bad, self._blown = self._bad_count(), False
+        self._settle()
+        self._kind = mujoco.mjtState.mjSTATE_INTEGRATION
+        self._saved = np.empty(mujoco.mj_stateSize(m, self._kind))
+        mujoco.mj_getState(m, d, self._saved, self._kind)
+
+    # ------------------------------------------------------------------ engine hooks
+    def _zero_base_velocity(self) -> None:
+        self._data.qvel[:6] = 0.0
+        self.mj.mj_forward(self.mjmodel, self._data)
+
+    def _restore(self) -> None:
+        self.mj.mj_setState(self.mjmodel, self._data, self._saved, self._kind)
+        self._data.xfrc_applied[:] = 0.0
+        self.mj.mj_forward(self.mjmodel, self._data)
+        self._bad, self._blown = self._bad_count(), False
+
+    def _bad_count(self) -> int:
+        """How often MuJoCo found a non-finite or huge qacc, qvel or qpos (and reset the data)
+        or control (and zeroed it)."""
+        return sum(self._data.warning[k].number for k in self._bad_kinds)
+
+    def _drive(self, tau: np.ndarray) -> None:
+        self._data.ctrl[:] = tau
+
+    def _push(self, f: np.ndarray) -> None:
+        self._data.xfrc_applied[self.base_id, :3] = f
+        self._pushed = True
+
+    def _raw_step(self) -> None:
+        self.mj.mj_step(self.mjmodel, self._data)
+        if self._bad_count() != self._bad:
+            self._blown = True  # MuJoCo reset the state after a blow-up: report it as non-finite
+        if self._pushed:
+            self._data.xfrc_applied[self.base_id, :3] = 0.0
+            self._pushed = False
+
+    # ------------------------------------------------------------------ interface
+    def true_state(self) -> RobotState:
+        """The exact state: base centre of mass position/velocity, base link orientation,
+        world angular velocity, joint angles and velocities (from ``qpos``/``qvel``, so current
+        after ``mj_step``)."""
+        d = self._data
+        qp, qv = d.qpos, d.qvel
+        w, x, y, z = qp[3:7]
+        quat = np.array([x, y, z, w])
+        R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                      [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                      [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+        r = R @ self.base_com_local
+        omega = R @ qv[3:6]                  # MuJoCo: free-joint angular velocity, body frame
+        pos = qp[0:3] + r
+        vel = qv[0:3] + np.cross(omega, r)   # linear velocity of the body origin, world frame
+        finite = math.isfinite(pos.sum() + vel.sum()) and not self._blown
+        st = RobotState(pos, quat, vel, omega, qp[self.qadr].copy(), qv[self.dadr].copy(),
+                        float(R[2, 2]), finite)
+        st._R = R
+        return st
+
+    def _ground_contacts(self) -> list[int]:
+        """Bodies in contact with the ground (from the last step's collision detection)."""
+        d, m, g = self._data, self.mjmodel, self.ground_geom
+        out = []
+        for k in range(d.ncon):
+            c = d.contact[k]
+            if c.geom1 == g:
+                out.append(int(m.geom_bodyid[c.geom2]))
+            elif c.geom2 == g:
+                out.append(int(m.geom_bodyid[c.geom1]))
+        return out
+
+    def body_ground_contact(self) -> str | None:
+        """Name of the first body other than the feet (the trunk included) that touches the
+        ground, or None."""
+        feet = set(self.foot_bodies)
+        b = next((b for b in self._ground_contacts() if b not in feet), None)
+        return None if b is None else self.body_names.get(b, f"#{b}")
+
+    def foot_contacts(self) -> np.ndarray:
+        """(4,) bool: which feet touch the ground."""
+        bodies = set(self._ground_contacts())
+        return np.array([f in bodies for f in self.foot_bodies])
+
+    def foot_positions(self) -> np.ndarray:
+        """(4, 3) world positions of the foot bodies' frames [m] (true, no noise; the
+        kinematics are recomputed for the current ``qpos``)."""
+        self.mj.mj_kinematics(self.mjmodel, self._data)
+        return self._data.xpos[self.foot_bodies].copy()
+
+    def render(self, width: int = 320, height: int = 240) -> np.ndarray:
+        """(H, W, 3) uint8 RGB frame from a camera following the robot (needs an OpenGL
+        context, e.g. ``MUJOCO_GL=egl`` or ``osmesa``; the collision geoms are drawn)."""
+        mujoco = self.mj
+        try:
+            if getattr(self, "_renderer", None) is None:
+                self._renderer = mujoco.Renderer(self.mjmodel, height, width)
+            cam = mujoco.MjvCamera()
+            cam.lookat[:] = self._data.qpos[:3]
+            cam.distance = 1.0 + 1.5 * self.spec.nominal_height
+            cam.azimuth, cam.elevation = 140.0, -25.0
+            self._renderer.update_scene(self._data, cam)
+            return self._renderer.render()
+        except Exception as exc:  # no OpenGL context on this machine
+            raise UsageError(f"MuJoCo cannot render here ({str(exc).splitlines()[0] if str(exc) else exc}); "
+                             "set MUJOCO_GL=egl or osmesa, or use --engine pybullet") from None
+
+    def close(self) -> None:
+        r = getattr(self, "_renderer", None)
+        if r is not None:
+            try:
+                r.close()
+            except Exception:
+                pass
+            self._renderer = None
+        self._data = None

@@ -1,0 +1,367 @@
+"""Reality profiles and the MuJoCo engine: bad profiles are one line, presets and the YAML form
+load, a Task records and rebuilds its reality and engine, every profile parameter moves the
+simulated dynamics in its intended direction (in PyBullet and in MuJoCo), the random parts are
+reproducible for a seed and differ across seeds, and the manual θ walks on A1 in MuJoCo."""
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+
+import numpy as np
+import pytest
+
+from latentune.errors import LatentuneError, UsageError
+from latentune.robots import get_robot
+from latentune.sim import ENGINES, PRESETS, Reality, SimWorld, make_world
+from latentune.sim.reality import RealityRuntime
+from latentune.sim.world import p
+from latentune.task import Task
+
+A1 = get_robot("a1")
+HAVE_MUJOCO = importlib.util.find_spec("mujoco") is not None
+engines = pytest.mark.parametrize("engine", [
+    "pybullet", pytest.param("mujoco", marks=pytest.mark.skipif(not HAVE_MUJOCO, reason="no mujoco"))])
+_WORLDS: dict = {}
+
+
+def world(engine: str, **reality):
+    """An A1 world on flat ground (cached per engine and reality), reset."""
+    key = (engine, json.dumps(reality, sort_keys=True))
+    if key not in _WORLDS:
+        _WORLDS[key] = make_world(A1, "flat", 0, reality=reality or None, engine=engine)
+    w = _WORLDS[key]
+    w.reset()
+    return w
+
+
+def place(w, pos, quat=(0.0, 0.0, 0.0, 1.0)) -> None:
+    """Teleport the base (position [m], quaternion x, y, z, w) and zero its velocity."""
+    if w.engine == "pybullet":
+        p.resetBasePositionAndOrientation(w.robot, list(pos), list(quat), physicsClientId=w.cid)
+        p.resetBaseVelocity(w.robot, [0, 0, 0], [0, 0, 0], physicsClientId=w.cid)
+    else:
+        w._data.qpos[:7] = [*pos, quat[3], quat[0], quat[1], quat[2]]
+        w._data.qvel[:6] = 0.0
+        w.mj.mj_forward(w.mjmodel, w._data)
+
+
+def hold(w, s) -> np.ndarray:
+    """Joint PD torques [N·m] holding the nominal stance."""
+    kp, kd = np.tile(w.spec.kp, 4), np.tile(w.spec.kd, 4)
+    return kp * (np.array(w.spec.nominal_q) - s.q) - kd * s.dq
+
+
+def knee_response(w, cmd: float, n: int = 30, k0: int = 5) -> np.ndarray:
+    """FR knee velocity [rad/s] per step in free fall (1 m up): no torque for k0 steps, then
+    ``cmd`` [N·m] on the FR knee; minus the same run without the command."""
+    out = []
+    for c in (cmd, 0.0):
+        w.reset()
+        place(w, [0.0, 0.0, 1.3])
+        dq = []
+        for k in range(n):
+            tau = np.zeros(12)
+            tau[2] = c if k >= k0 else 0.0
+            w.apply(tau)
+            w.step()
+            dq.append(w.true_state().dq[2])
+        out.append(np.array(dq))
+    return out[0] - out[1]
+
+
+# ----------------------------------------------------------------------------- profiles
+@pytest.mark.parametrize("bad, words", [
+    ({"mass_scal": 1.1}, "unknown key 'mass_scal'"),
+    ({"latency_steps": -1}, "latency_steps must be finite and >= 0"),
+    ({"latency_steps": 2.5}, "whole number"),
+    ({"torque_scale": float("nan")}, "torque_scale must be finite"),
+    ({"friction_scale": 0.0}, "friction_scale must be finite and > 0"),
+    ({"payload_offset": [0.1, 0.0]}, "payload_offset must be 3 numbers"),
+    ({"noise_vel": "high"}, "noise_vel must be a number"),
+    ({"restitution": 1.5}, "restitution must be finite and in [0, 1]"),
+    ({"latency_steps": True}, "latency_steps must be a number"),
+    ("no-such-preset", "unknown reality 'no-such-preset': not a preset"),
+    (["heavy"], "reality must be a preset name"),
+])
+def test_bad_profile_is_one_usage_error_line(bad, words):
+    with pytest.raises(UsageError) as exc:
+        Reality.load(bad)
+    msg = str(exc.value)
+    assert words in msg and "\n" not in msg
+    assert isinstance(exc.value, LatentuneError)
+    with pytest.raises(UsageError):  # the Task refuses it the same way
+        Task("a1", reality=bad)
+
+
+def test_bad_yaml_files(tmp_path):
+    cases = {"broken.yaml": "mass_scale: [1.1\n", "list.yaml": "- 1\n- 2\n",
+             "key.yaml": "torque_scal: 0.8\n", "nan.yaml": "torque_scale: .nan\n",
+             "base.yaml": "base: [nope]\n", "cycle.yaml": "base: [cycle.yaml]\n"}
+    for name, text in cases.items():
+        (tmp_path / name).write_text(text)
+    for name, words in [("broken.yaml", "malformed YAML"), ("list.yaml", "must be a mapping"),
+                        ("key.yaml", "unknown key 'torque_scal'"), ("nan.yaml", "torque_scale"),
+                        ("base.yaml", "base 'nope' is neither a preset"), ("cycle.yaml", "include itself")]:
+        with pytest.raises(UsageError) as exc:
+            Reality.load(str(tmp_path / name))
+        assert words in str(exc.value) and "\n" not in str(exc.value), name
+
+
+def test_presets_and_yaml_form(tmp_path):
+    assert set(PRESETS) >= {"nominal", "heavy", "worn", "slippery", "laggy", "hard"}
+    assert Reality.load("nominal").is_nominal and Reality().is_nominal and Reality.load(None).is_nominal
+    heavy, worn, slip, lag = (Reality.load(n) for n in ("heavy", "worn", "slippery", "laggy"))
+    assert heavy.mass_scale == 1.15 and heavy.payload_mass > 0
+    assert worn.torque_scale == 0.8 and worn.joint_friction > 0
+    assert slip.foot_friction == 0.5 and lag.latency_steps > 0 and lag.has_noise
+    hard = Reality.load("hard")
+    assert hard.name == "hard" and hard.push_force > 0
+    for part in (heavy, worn, slip, lag):  # hard = heavy + worn + slippery + laggy + pushes
+        for k, v in part.changes().items():
+            assert hard.changes()[k] == v, k
+    for name in PRESETS:
+        r = Reality.load(name)
+        assert Reality.from_dict(json.loads(json.dumps(r.to_dict()))) == r
+    f = tmp_path / "mine.yaml"
+    f.write_text("base: [heavy]\ntorque_scale: 0.9\nlatency_steps: 2\npayload_offset: [0, 0.02, 0]\n")
+    mine = Reality.load(str(f))
+    assert mine.name == "mine" and mine.mass_scale == 1.15 and mine.torque_scale == 0.9
+    assert mine.payload_offset == (0.0, 0.02, 0.0) and mine.latency_steps == 2
+    assert Reality.load(mine) is mine and Reality.load({"friction": 0.3}).foot_friction == 0.3
+
+
+def test_task_records_and_rebuilds_reality_and_engine():
+    nominal = Task("a1", steps=100)
+    assert "reality" not in nominal.config() and "engine" not in nominal.config()
+    assert Task("a1", steps=100, reality="nominal").config() == nominal.config()
+    t = Task("a1", steps=100, reality="hard", engine="mujoco", seed=3)
+    cfg = t.config()
+    assert cfg["engine"] == "mujoco" and cfg["reality"] == Reality.load("hard").to_dict()
+    back = Task.from_config(json.loads(json.dumps(cfg)))
+    assert back.config() == cfg and back.reality == t.reality and back.engine == "mujoco"
+    # another reality or engine is another configuration (a resume compares configs)
+    assert Task("a1", steps=100, reality="heavy", seed=3).config() != cfg
+    assert Task("a1", steps=100, reality="hard", seed=3).config() != cfg
+    assert back.cache_key() == t.cache_key() != nominal.cache_key()
+    with pytest.raises(UsageError, match="unknown engine 'ode'"):
+        Task("a1", engine="ode")
+    assert ENGINES == ("pybullet", "mujoco")
+
+
+# ----------------------------------------------------------------------------- worlds
+def test_nominal_reality_keeps_the_default_numbers():
+    for r in (None, "nominal"):
+        t = Task("a1", steps=2000, reality=r)
+        assert t.rollout(t.space.manual).cost == 4.396841505610051
+
+
+@engines
+def test_world_interface(engine):
+    w = world(engine)
+    assert isinstance(w, SimWorld) and w.engine == engine and w.dt == 0.001
+    s = w.true_state()
+    assert s.pos.shape == s.vel.shape == s.omega.shape == (3,) and s.q.shape == s.dq.shape == (12,)
+    assert w.state().pos.tolist() == s.pos.tolist()  # no noise: the controller sees the truth
+    assert abs(s.pos[2] - A1.nominal_height) < 0.02 and s.up_z > 0.999
+    assert w.foot_contacts().all() and w.body_ground_contact() is None
+    feet = w.foot_positions()
+    assert feet.shape == (4, 3) and np.all(np.abs(feet[:, 2] - A1.foot_radius) < 0.005)
+    with pytest.raises(UsageError, match="same engine and reality"):
+        Task("a1", reality="heavy", engine=engine).use_world(w)
+
+
+@engines
+def test_mass_inertia_payload(engine):
+    nom, heavy = world(engine), world(engine, mass_scale=1.3, inertia_scale=2.0, payload_mass=3.0)
+    if engine == "pybullet":
+        def masses(w):
+            info = [p.getDynamicsInfo(w.robot, j, physicsClientId=w.cid)
+                    for j in range(-1, p.getNumJoints(w.robot, physicsClientId=w.cid))]
+            return sum(i[0] for i in info), np.array(info[0][2])
+    else:
+        def masses(w):
+            return float(w.mjmodel.body_mass.sum()), w.mjmodel.body_inertia[w.base_id].copy()
+    (m0, i0), (m1, i1) = masses(nom), masses(heavy)
+    assert m1 == pytest.approx(1.3 * m0 + 3.0, rel=1e-6)
+    assert np.sort(i1) == pytest.approx(2.6 * np.sort(i0), rel=1e-6)  # × mass_scale · inertia_scale
+    # under the same θ a heavier robot sinks: lower mean height; a payload ahead pitches it down
+    res = {}
+    for name, r in [("nominal", None), ("heavy", {"mass_scale": 1.3}),
+                    ("ahead", {"payload_mass": 3.0, "payload_offset": [0.1, 0.0, 0.0]})]:
+        t = Task("a1", steps=2000, reality=r, engine=engine)
+        res[name] = t.rollout(t.space.manual, record=True)
+        assert not res[name].fell
+    assert res["heavy"].mean_height < res["nominal"].mean_height - 0.005
+    assert res["ahead"].mean_height < res["nominal"].mean_height - 0.005
+    pitch = {k: float(np.mean(r.trace["rpy"][-1000:, 1])) for k, r in res.items()}
+    assert pitch["ahead"] > pitch["nominal"] + 0.03  # nose down [rad]
+
+
+@engines
+def test_motor_and_joint_parameters(engine):
+    ref = knee_response(world(engine), -2.0)
+    assert abs(ref[-1]) > 5.0
+    ratio = {}
+    for name, r in [("scale", {"torque_scale": 0.5}), ("limit", {"torque_limits": [20.0, 55.0, 1.0]}),
+                    ("damping", {"joint_damping": 0.05}), ("friction", {"joint_friction": 0.5})]:
+        ratio[name] = knee_response(world(engine, **r), -2.0)[-1] / ref[-1]
+    assert ratio["scale"] == pytest.approx(0.5, abs=0.03)       # half the torque
+    assert ratio["limit"] == pytest.approx(0.5, abs=0.03)       # 2 N·m saturated at 1 N·m
+    assert 0.6 < ratio["damping"] < 0.95 and 0.4 < ratio["friction"] < 0.8
+    stuck = knee_response(world(engine, joint_friction=0.5), -0.3)  # below the friction torque
+    assert np.abs(stuck).max() < 0.05 * np.abs(knee_response(world(engine), -0.3)).max()
+    # latency: the response starts exactly latency_steps later
+    for lat in (0, 3, 10):
+        resp = knee_response(world(engine, latency_steps=lat) if lat else world(engine), -2.0)
+        assert int(np.argmax(np.abs(resp) > 1e-9)) == 5 + lat
+
+
+@engines
+def test_lower_friction_more_foot_slip(engine):
+    def slip(w):
+        f0 = w.foot_positions()
+        for _ in range(300):  # 50 N forward on the base for 0.3 s, stance held
+            w.apply(hold(w, w.true_state()))
+            w._push(np.array([50.0, 0.0, 0.0]))
+            w._raw_step()
+        return float(np.linalg.norm((w.foot_positions() - f0)[:, :2], axis=1).mean())
+    s1, s05, s02 = slip(world(engine)), slip(world(engine, friction_scale=0.5)), slip(world(engine, friction=0.2))
+    assert s1 < s05 < s02 and s02 > 3 * s1
+
+
+@engines
+def test_restitution_bounces(engine):
+    def rebound(w):
+        place(w, [0.0, 0.0, 0.5], (1.0, 0.0, 0.0, 0.0))  # upside down: the trunk lands first
+        vz = []
+        for _ in range(500):
+            w.apply(hold(w, w.true_state()))
+            w.step()
+            vz.append(w.true_state().vel[2])
+        vz = np.array(vz)
+        return float(vz[int(np.argmin(vz)):].max())
+    assert rebound(world(engine, restitution=0.8)) > 1.5 * rebound(world(engine))
+
+
+@engines
+def test_sensor_noise_is_the_controllers_view_only(engine):
+    sd = {"noise_pos": 0.01, "noise_rpy": 0.02, "noise_vel": 0.1, "noise_omega": 0.2,
+          "noise_q": 0.03, "noise_dq": 0.4}
+    w = world(engine, **sd)
+    s = w.true_state()
+    obs = [w.observe(s) for _ in range(2000)]
+    assert w.true_state().pos.tolist() == s.pos.tolist()
+    for key, get in [("noise_pos", lambda o: o.pos - s.pos), ("noise_vel", lambda o: o.vel - s.vel),
+                     ("noise_omega", lambda o: o.omega - s.omega), ("noise_q", lambda o: o.q - s.q),
+                     ("noise_dq", lambda o: o.dq - s.dq)]:
+        assert np.std([get(o) for o in obs]) == pytest.approx(sd[key], rel=0.1), key
+    tilt = [math.acos(min(1.0, (np.trace(o.R.T @ s.R) - 1) / 2)) for o in obs]  # rotation angle
+    assert np.sqrt(np.mean(np.square(tilt)) / 3) == pytest.approx(0.02, rel=0.1)
+    # the actor sees noisy velocities; the cost uses the true ones: with 0.2 m/s of noise a cost
+    # of noisy velocities would be ≥ sqrt(2000 · 3 · 0.2²) = 15.5
+    t = Task("a1", steps=2000, reality={"noise_vel": 0.2}, engine=engine)
+    nominal = Task("a1", steps=2000, engine=engine)
+    r, r0 = t.rollout(t.space.manual), nominal.rollout(nominal.space.manual)
+    assert not r.fell and r.cost < 12.0 and r.cost != r0.cost
+
+
+def test_push_schedule():
+    r = Reality(push_force=30.0, push_duration=0.05, push_interval=0.5)
+    rt = RealityRuntime(r, seed=0, dt=0.001)
+    forces = np.array([f if (f := rt.push()) is not None else np.zeros(3) for _ in range(100_000)])
+    on = np.linalg.norm(forces, axis=1)
+    assert set(np.round(on, 9)) == {0.0, 30.0} and np.all(forces[:, 2] == 0)
+    starts = np.flatnonzero(np.diff((on > 0).astype(int)) == 1)
+    assert len(starts) == pytest.approx(100.0 / 0.55, rel=0.15)  # a push per interval + duration
+    assert (on > 0).sum() == pytest.approx(50 * len(starts), abs=50)
+    rt.reset()
+    again = np.array([f if (f := rt.push()) is not None else np.zeros(3) for _ in range(100_000)])
+    assert np.array_equal(forces, again)
+    other = RealityRuntime(r, seed=1, dt=0.001)
+    assert not np.array_equal(forces[:20000], [f if (f := other.push()) is not None else np.zeros(3)
+                                               for _ in range(20000)])
+
+
+@engines
+def test_pushes_shake_the_robot(engine):
+    runs = {}
+    for name, r in [("calm", None), ("pushed", {"push_force": 60.0, "push_interval": 0.5})]:
+        t = Task("a1", steps=2000, reality=r, engine=engine)
+        runs[name] = t.rollout(t.space.manual, record=True)
+    assert not runs["pushed"].fell
+    assert runs["pushed"].trace["vel"][:, 1].std() > 2 * runs["calm"].trace["vel"][:, 1].std()
+
+
+def test_reproducible_for_a_seed_and_different_across_seeds():
+    t = Task("a1", steps=2000, reality="hard", seed=0)
+    c0 = t.rollout(t.space.manual).cost
+    assert t.rollout(t.space.manual).cost == c0
+    fresh = Task("a1", steps=2000, reality="hard", seed=0)
+    assert fresh.rollout(fresh.space.manual).cost == c0
+    t1 = Task("a1", steps=2000, reality="hard", seed=1)
+    assert t1.rollout(t1.space.manual).cost != c0
+    # a profile without random parts does not depend on the seed (flat ground)
+    h0, h1 = (Task("a1", steps=1000, reality="heavy", seed=s) for s in (0, 1))
+    assert h0.rollout(h0.space.manual).cost == h1.rollout(h1.space.manual).cost
+
+
+# ----------------------------------------------------------------------------- MuJoCo
+@pytest.mark.skipif(not HAVE_MUJOCO, reason="no mujoco")
+def test_manual_theta_walks_on_a1_in_mujoco():
+    t = Task("a1", "trot", steps=5000, engine="mujoco")
+    r = t.rollout(t.space.manual, record=True)
+    assert not r.fell, r.reason
+    assert r.mean_vx > 0.3 and 0.27 < r.mean_height < 0.31      # walks, neither crawls nor sinks
+    assert abs(r.trace["pos"][-1, 1]) < 0.1 and r.cost < 10.0
+    pb = Task("a1", "trot", steps=5000)
+    assert r.cost != pb.rollout(pb.space.manual).cost             # another engine, another contact
+
+
+@pytest.mark.skipif(not HAVE_MUJOCO, reason="no mujoco")
+def test_mujoco_hills_are_the_pybullet_hills():
+    import mujoco
+
+    w = make_world(A1, "hills", 5, engine="mujoco")
+    pb = make_world(A1, "hills", 5)
+    assert np.array_equal(w.heights, pb.heights) and w.ground_z == pb.ground_z and w.start_x == -1.25
+    geom = np.zeros(1, dtype=np.int32)
+    rng = np.random.default_rng(0)
+    for i, j in rng.integers(40, 95, size=(20, 2)):  # vertices ahead of the robot
+        x, y = (i - 49.5) * 0.05, (j - 49.5) * 0.05
+        d = mujoco.mj_ray(w.mjmodel, w._data, np.array([x, y, 1.0]), np.array([0.0, 0.0, -1.0]),
+                          None, 1, -1, geom)
+        assert geom[0] == w.ground_geom and 1.0 - d == pytest.approx(w.ground_height(x, y), abs=1e-6)
+    t = Task("a1", terrain="hills", steps=1500, engine="mujoco", seed=5)
+    t.use_world(w)
+    assert not t.rollout(t.space.manual).fell
+
+
+@pytest.mark.skipif(not HAVE_MUJOCO, reason="no mujoco")
+def test_mujoco_blow_up_is_a_non_finite_state(tmp_path, monkeypatch, capfd):
+    monkeypatch.chdir(tmp_path)
+    w = make_world(A1, "flat", 0, engine="mujoco")
+    for case in ("ctrl", "qvel"):  # a huge control (MuJoCo zeroes it), a huge velocity (resets)
+        w.reset()
+        if case == "qvel":
+            w._data.qvel[:] = 1e30
+        for _ in range(3):
+            w.apply(np.full(12, 1e30 if case == "ctrl" else 0.0))
+            w.step()
+        assert not w.true_state().finite, case  # the fall detector is told: "simulator blow-up"
+    out, err = capfd.readouterr()
+    assert out == "" and "MuJoCo warning" in err and not (tmp_path / "MUJOCO_LOG.TXT").exists()
+    w.reset()
+    assert w.true_state().finite
+
+
+def test_a_study_of_one_reality_refuses_another(tmp_path):
+    from latentune.errors import StoreError
+    from latentune.study import Study
+
+    Study(tmp_path / "run").bind(Task("a1", steps=100, reality="heavy"))
+    Study(tmp_path / "run").bind(Task("a1", steps=100, reality="heavy"))  # the same: resumes
+    for other in (Task("a1", steps=100, reality="slippery"), Task("a1", steps=100),
+                  Task("a1", steps=100, reality="heavy", engine="mujoco")):
+        with pytest.raises(StoreError, match="another"):
+            Study(tmp_path / "run").bind(other)
