@@ -1,0 +1,130 @@
+"""Phase 3 on a robot that is not the simulator: reality profiles and MuJoCo as the target.
+
+    python benchmarks/reality_gap.py --source results/a1/a1-trot --realities hard mujoco
+        [--robot a1 --task trot --actor convex] [--budget 40] [--seeds 0 1 2 3 4]
+        [--methods phase3 direct cma] [--max-fall-prob P] [--workers 2] [--work DIR]
+        [--out results/reality_gap/a1_trot.json]
+
+The source is a finished run (phase 1 + VAE) on the nominal PyBullet robot. For every target
+reality (a preset or profile file run in PyBullet, or ``mujoco``: the nominal robot in MuJoCo)
+and seed, at equal budgets on the target:
+
+* ``zero-shot``: the source run's best θ run as it is (one trial; every Study records it);
+* ``phase3``:    TuRBO-m in the source's latent space (``Study.phase3(target, latent=source)``);
+* ``direct``:    TuRBO-m on θ warm-started at the source's best θ (``Study.phase1(start=best)``);
+* ``cma``:       CMA-ES on θ from the same start.
+
+Reports per method the median and spread (min–max) over seeds of the best cost at the budget,
+evaluations to beat the zero-shot cost, and falls during tuning. Each (reality, method, seed) is
+a Study under ``--work`` and resumes.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+from latentune.threads import one_thread_env
+
+one_thread_env()
+
+import numpy as np  # noqa: E402
+
+import latentune as lt  # noqa: E402
+from latentune.constants import Phase  # noqa: E402
+from latentune.pipeline.evaluators import make_evaluator  # noqa: E402
+from latentune.reporting.metrics import evals_to_beat  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).parent))
+from sample_efficiency import provenance  # noqa: E402
+
+
+def source_best(source: Path) -> np.ndarray:
+    """The source run's best θ (d,) among trials that did not fail (phases 1 and 3)."""
+    with lt.Study(source) as s:
+        rows = [r for ph in (Phase.PHASE1, Phase.PHASE3) for r in s.store.rows(ph) if not r.fell]
+    return min(rows, key=lambda r: (r.cost, r.phase, r.idx)).theta
+
+
+def spread(v: list[float]) -> dict:
+    a = np.asarray(v, dtype=float)
+    return {"median": float(np.median(a)), "min": float(a.min()), "max": float(a.max())}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--source", required=True, help="a finished run directory (phase 1 + VAE)")
+    ap.add_argument("--realities", nargs="+", default=["hard", "mujoco"])
+    ap.add_argument("--robot", default="a1")
+    ap.add_argument("--task", default="trot")
+    ap.add_argument("--actor", default="convex")
+    ap.add_argument("--steps", type=int, default=5000)
+    ap.add_argument("--budget", type=int, default=40)
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
+    ap.add_argument("--methods", nargs="+", default=["phase3", "direct", "cma"])
+    ap.add_argument("--max-fall-prob", type=float, default=None,
+                    help="fall-aware critics: skip candidates above this predicted fall probability")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--work", default="runs/reality_gap")
+    ap.add_argument("--out", default=None)
+    a = ap.parse_args()
+    t0 = time.perf_counter()
+    best0 = source_best(Path(a.source))
+    work = Path(a.work)
+    ev = make_evaluator("process", a.workers)
+    res: dict = {}
+    try:
+        for reality in a.realities:
+            for s in a.seeds:
+                kw = {"engine": "mujoco"} if reality == "mujoco" else {"reality": reality}
+                target = lt.Task(a.robot, a.task, actor=a.actor, steps=a.steps, seed=s, **kw)
+                zero = target.evaluate(best0).cost    # the source's best θ as it is, on the target
+                for m in a.methods:
+                    d = work / f"{reality}_{m}{'_fa' if a.max_fall_prob else ''}_s{s}"
+                    opts = {} if a.max_fall_prob is None else {"max_fall_prob": a.max_fall_prob}
+                    with lt.Study(d, seed=s, workers=a.workers, evaluator=ev) as st:
+                        if m == "phase3":
+                            st.phase3(target, a.budget, latent=a.source, **opts)
+                            ph = Phase.PHASE3
+                        else:
+                            st.phase1(target, a.budget, method="turbo" if m == "direct" else m,
+                                      start=best0, **opts)
+                            ph = Phase.PHASE1
+                        rows = st.store.rows(ph)
+                        y = [r.cost for r in rows]
+                        r = {"seed": s, "best": float(min(y)), "falls": int(sum(r.fell for r in rows)),
+                             "evals_to_beat_zero_shot": evals_to_beat(y, zero), "zero_shot": zero,
+                             "manual": st.store.rows(Phase.MANUAL)[0].cost}
+                    res.setdefault(reality, {}).setdefault(m, []).append(r)
+                    print(f"{reality:9s} {m:7s} seed {s}: best {r['best']:.3f} (zero-shot {zero:.3f}), "
+                          f"falls {r['falls']}/{len(y)}, beat zero-shot at {r['evals_to_beat_zero_shot']}",
+                          flush=True)
+    finally:
+        ev.close()
+    summary = {}
+    print("\n| reality | method | best (median [min–max]) | falls | evals to beat zero-shot | zero-shot |")
+    print("|---|---|---|---|---|---|")
+    for reality, ms in res.items():
+        for m, rs in ms.items():
+            b = spread([r["best"] for r in rs])
+            f = spread([r["falls"] for r in rs])
+            e = [np.inf if r["evals_to_beat_zero_shot"] is None else r["evals_to_beat_zero_shot"] for r in rs]
+            z = spread([r["zero_shot"] for r in rs])
+            summary.setdefault(reality, {})[m] = {"best": b, "falls": f, "evals_to_beat_zero_shot_median": float(np.median(e)),
+                                                  "zero_shot": z}
+            print(f"| {reality} | {m} | {b['median']:.3f} [{b['min']:.3f}–{b['max']:.3f}] | "
+                  f"{f['median']:.0f} [{f['min']:.0f}–{f['max']:.0f}] of {a.budget} | {np.median(e)} | "
+                  f"{z['median']:.3f} |")
+    if a.out:
+        Path(a.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(a.out).write_text(json.dumps({"source": a.source, "robot": a.robot, "task": a.task,
+                                           "actor": a.actor, "budget": a.budget, "seeds": a.seeds,
+                                           "max_fall_prob": a.max_fall_prob, "summary": summary,
+                                           "results": res, "provenance": provenance(sys.argv, t0)},
+                                          indent=1))
+
+
+if __name__ == "__main__":
+    main()
