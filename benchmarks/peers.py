@@ -5,7 +5,9 @@ Every (problem, method, seed) runs in this process, one thread (``OMP_NUM_THREAD
 with the same budget and batch size, and is written as soon as it completes to
 ``<out>/runs/<problem>__<method>__s<seed>__b<budget>[__<hash>].json`` (best value, best-so-far
 trace, wall and function seconds). A killed run continues where it stopped: finished runs are
-skipped. Runs of latentune's critics carry a hash of ``src/latentune/critic/*.py`` in their name,
+skipped. Runs of latentune's critics carry a hash of the code (docstrings and comments left out)
+of the critics they use (``base``, ``turbo``, ``cmaes``, ``random_search``, ``__init__`` in
+``src/latentune/critic/``) in their name,
 so they are redone after the critic changes and the older ones stay for comparison
 (``--report --critic-hash HASH``). Every invocation is appended to ``<out>/invocations.jsonl``
 (command, date, seeds, budgets, versions, ``os.getloadavg()`` at start and end).
@@ -34,12 +36,14 @@ Mann–Whitney U test over seeds does not separate it from the method with the b
 p < 0.05), ``lt_turbo``'s win/tie/loss against every peer, and each method's own seconds per
 suggested point (wall minus function time, divided by the evaluations). Methods with a smaller
 budget (``optuna_gp``) are compared with the others' best-so-far at that budget. Written to
-``<out>/summary.md`` and ``<out>/summary.json``.
+``<out>/summary.md`` and ``<out>/summary.json`` (``summary_<hash>.*`` with ``--critic-hash``;
+``--baseline-hash HASH`` adds the latentune runs of an older critic as peers ``before:<method>``).
 
 Overhead (``--overhead``): latentune's TuRBO-m in 25-d, batch 10, told 10,000 points (1 and 10
-regions), then asked and told 5 batches: the critic's seconds per suggested point, with the
-critic's thread setting and, for comparison, with torch's default threads. Written to
-``<out>/overhead.json``.
+regions), then asked and told 5 batches: the critic's seconds per suggested point (ask + tell),
+with torch set to all cores outside the critic (its default) and the critic's default
+``threads=1``; with ``threads=None`` (the critic uses torch's setting: all cores); and with
+``threads=None`` under one torch thread. Written to ``<out>/overhead.json``.
 
     .venv/bin/python benchmarks/peers.py --seeds 0 1 2 3 4 --budget 500 --batch-size 10
     .venv/bin/python benchmarks/peers.py --report
@@ -68,17 +72,35 @@ from peer_problems import problems  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 CRITIC_DIR = ROOT / "src" / "latentune" / "critic"
+CRITIC_FILES = ("__init__.py", "base.py", "cmaes.py", "random_search.py", "turbo.py")
 ALL_METHODS = ["lt_turbo", "lt_cma", "pycma", "optuna_cma", "optuna_tpe", "ref_turbo1",
                "ref_turbom", "optuna_gp"]
 HEAVY_ORDER = ["optuna_tpe", "ref_turbo1", "optuna_gp", "ref_turbom"]
 HEAVY = set(HEAVY_ORDER)
 
 
-def critic_hash() -> str:
+def code_digest(source: str) -> bytes:
+    """The code of a module without its docstrings and comments (its AST), as bytes."""
+    import ast
+
+    tree = ast.parse(source)
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        if (isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
+                and body and isinstance(body[0], ast.Expr)
+                and isinstance(body[0].value, ast.Constant)
+                and isinstance(body[0].value.value, str)):
+            node.body = body[1:] or [ast.Pass()]
+    return ast.dump(tree, include_attributes=False).encode()
+
+
+def critic_hash(sources: dict[str, str] | None = None) -> str:
+    """Hash of the code (not the docstrings) of the critics latentune's runs use."""
     h = hashlib.sha256()
-    for p in sorted(CRITIC_DIR.glob("*.py")):
-        h.update(p.name.encode())
-        h.update(p.read_bytes())
+    for name in sorted(CRITIC_FILES):
+        src = sources[name] if sources is not None else (CRITIC_DIR / name).read_text()
+        h.update(name.encode())
+        h.update(code_digest(src))
     return h.hexdigest()[:12]
 
 
@@ -113,6 +135,9 @@ class Objective:
 def run_lt(method: str, opts: dict, obj: Objective, d: int, batch: int, seed: int) -> None:
     import latentune as lt
 
+    # an option given as "<k>d" is k times the dimension (e.g. {"n_init": "2d"})
+    opts = {k: int(float(v[:-1]) * d) if isinstance(v, str) and v.endswith("d") and
+            v[:-1].replace(".", "", 1).isdigit() else v for k, v in opts.items()}
     lt.minimize(obj, [(0.0, 1.0)] * d, method=method, budget=obj.budget, batch_size=batch,
                 seed=seed, **opts)
 
@@ -265,6 +290,8 @@ def bench(a) -> None:
                variants={k: v[1] for k, v in variants.items()}, versions=versions(),
                loadavg_start=os.getloadavg(), threads=dict(torch=torch.get_num_threads(),
                                                            omp=os.environ.get("OMP_NUM_THREADS")))
+    with open(out / "invocations.jsonl", "a") as fh:
+        fh.write(json.dumps(dict(inv, event="start")) + "\n")
     # cheap methods for every seed first, then the slow ones: for the first three seeds one
     # method after the other (HEAVY_ORDER), then for the other seeds
     work = []
@@ -306,7 +333,7 @@ def bench(a) -> None:
     inv["loadavg_end"] = os.getloadavg()
     inv["runs_done"] = n_done
     with open(out / "invocations.jsonl", "a") as fh:
-        fh.write(json.dumps(inv) + "\n")
+        fh.write(json.dumps(dict(inv, event="end")) + "\n")
 
 
 # ------------------------------------------------------------------ report
@@ -328,8 +355,15 @@ def report(a) -> None:
     out = Path(a.out)
     runs = load_runs(out)
     chash = a.critic_hash or critic_hash()
-    # keep latentune runs of the current critic only (older ones are stale)
-    runs = [r for r in runs if not r["method"].startswith("lt_") or r.get("critic_hash") == chash]
+    # keep latentune runs of the current critic only (older ones are stale), and those of
+    # --baseline-hash as the peers "before:<method>"
+    kept = []
+    for r in runs:
+        if not r["method"].startswith("lt_") or r.get("critic_hash") == chash:
+            kept.append(r)
+        elif a.baseline_hash and r.get("critic_hash") == a.baseline_hash:
+            kept.append(dict(r, method="before:" + r["method"]))
+    runs = kept
     budget = a.budget
     probs = [p for p in a.problems if any(r["problem"] == p for r in runs)]
     methods = [m for m in ALL_METHODS if any(r["method"] == m for r in runs)]
@@ -340,7 +374,9 @@ def report(a) -> None:
              "Best value found: median [min, max] over seeds (n = seeds); lower is better. "
              "`*` = tied-best (two-sided Mann–Whitney U against the best median, p >= 0.05); "
              f"ranks by median. `optuna_gp` ran {a.gp_budget} evaluations and is compared with "
-             f"every method's best-so-far at {a.gp_budget} (second table).", ""]
+             f"every method's best-so-far at {a.gp_budget} (second table). With fewer than 4 "
+             "seeds on either side the test cannot reach p < 0.05, so such a method is always "
+             "'tied'.", ""]
 
     def vals(p, m, at=None):
         out_ = []
@@ -441,12 +477,18 @@ def report(a) -> None:
     lines.append("## Invocations")
     lines.append("")
     for i in inv:
-        lines.append(f"- {i['date']}: `{i['command']}` (load {i['loadavg_start'][0]:.2f} → "
-                     f"{i.get('loadavg_end', [float('nan')])[0]:.2f}, {i.get('runs_done')} runs)")
+        if i.get("event") == "start":
+            lines.append(f"- started {i['date']}: `{i['command']}` (load "
+                         f"{i['loadavg_start'][0]:.2f})")
+        else:
+            lines.append(f"- ended (started {i['date']}): `{i['command']}` (load "
+                         f"{i['loadavg_start'][0]:.2f} → {i['loadavg_end'][0]:.2f}, "
+                         f"{i.get('runs_done')} runs)")
     lines.append("")
     lines.append(f"Report: `.venv/bin/python benchmarks/peers.py --report` (critic hash {chash}).")
-    (out / "summary.md").write_text("\n".join(lines) + "\n")
-    (out / "summary.json").write_text(json.dumps(summary, indent=1))
+    stem = "summary" if a.critic_hash is None else f"summary_{a.critic_hash}"
+    (out / f"{stem}.md").write_text("\n".join(lines) + "\n")
+    (out / f"{stem}.json").write_text(json.dumps(summary, indent=1))
     print("\n".join(lines))
 
 
@@ -467,13 +509,19 @@ def overhead(a) -> None:
         datetime.timezone.utc).isoformat(), "command": " ".join([sys.executable] + sys.argv),
         "critic_hash": critic_hash(), "cases": []}
     default_threads = torch.get_num_threads()
+    ncpu = os.cpu_count() or 1          # torch's default without OMP_NUM_THREADS
+    w = make_critic("turbo", 3, batch_size=4, seed=0, n_regions=1, n_init=4)   # warm-up:
+    for _ in range(3):                                                        # imports, caches
+        U = w.ask()
+        w.tell(U, np.array([fz(u) for u in U]), tags=w.last_tags)
     for regions in (1, 10):
-        for torch_threads in (1, os.cpu_count() or 1):
+        for torch_threads, critic_threads in ((ncpu, 1), (ncpu, None), (1, None)):
             torch.set_num_threads(torch_threads)
             rng = np.random.default_rng(0)
             X = rng.random((n, d))
             y = np.array([fz(x) for x in X])
-            c = make_critic("turbo", d, batch_size=batch, seed=0, n_regions=regions)
+            c = make_critic("turbo", d, batch_size=batch, seed=0, n_regions=regions,
+                            threads=critic_threads)
             t = time.perf_counter()
             c.tell(X, y)
             load = time.perf_counter() - t
@@ -487,7 +535,8 @@ def overhead(a) -> None:
                 t = time.perf_counter()
                 c.tell(U, yy, tags=tags)
                 per.append((dt + time.perf_counter() - t) / batch)
-            case = dict(regions=regions, torch_threads_outside=torch_threads, tell_load_s=load,
+            case = dict(regions=regions, torch_threads_outside=torch_threads,
+                        critic_threads=critic_threads, tell_load_s=load,
                         s_per_point=per, mean_s_per_point=float(np.mean(per)),
                         steady_mean_s_per_point=float(np.mean(per[1:])),
                         loadavg=os.getloadavg())
@@ -511,6 +560,8 @@ def main(argv=None) -> int:
                    help="NAME=JSON: extra latentune run lt_<method>@NAME with these options")
     p.add_argument("--variant-method", default="turbo", choices=["turbo", "cma"])
     p.add_argument("--report", action="store_true")
+    p.add_argument("--baseline-hash", default=None,
+                   help="also report latentune runs of this critic hash, as 'before:<method>'")
     p.add_argument("--critic-hash", default=None,
                    help="report latentune runs of this critic hash (default: the current code)")
     p.add_argument("--overhead", action="store_true")

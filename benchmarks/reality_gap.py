@@ -89,6 +89,8 @@ def main() -> None:
                             st.phase3(target, a.budget, latent=a.source, **opts)
                             ph = Phase.PHASE3
                         else:
+                            if opts:
+                                opts["fall_prior"] = a.source   # the source run's trials
                             st.phase1(target, a.budget, method="turbo" if m == "direct" else m,
                                       start=best0, **opts)
                             ph = Phase.PHASE1

@@ -468,3 +468,31 @@ def test_turbo_sets_its_threads_and_restores_them():
         torch.set_num_threads(before)
     with pytest.raises(ValueError, match="threads"):
         make_critic("turbo", 3, threads=0)
+
+
+# ----------------------------------------------------------------------------- GP prior
+def test_lengthscale_prior_follows_region_side():
+    assert TurboM(16, seed=0).lengthscale_prior is None        # the default: no prior
+    t = TurboM(16, seed=0, n_regions=1, lengthscale_prior="dim_tr")
+    loc, scale = t._ls_prior(0.8)
+    assert loc == pytest.approx(math.sqrt(2) + 0.5 * math.log(16))   # BoTorch's at L = 0.8
+    assert scale == pytest.approx(math.sqrt(3))
+    assert t._ls_prior(0.1)[0] == pytest.approx(loc + math.log(0.1 / 0.8))
+    assert TurboM(16, lengthscale_prior="dim")._ls_prior(0.1)[0] == pytest.approx(loc)
+    assert TurboM(16, lengthscale_prior=None)._ls_prior(0.1) is None
+    with pytest.raises(ValueError, match="lengthscale_prior"):
+        TurboM(3, lengthscale_prior="bogus")
+
+
+def test_prior_side_is_the_side_when_the_checkpoint_was_reached():
+    """The fit of a checkpoint uses the side right after the tell that reached it, not the side
+    at the (later) ask, so the hyperparameters are a function of the told data."""
+    t = turbo_after_design(d=4, lengthscale_prior="dim_tr")
+    tr = t.regions[0]
+    for g in range(1, 6):                               # 5 failures: the side halves at the 5th
+        tell_group(t, 50.0, g)
+    assert tr.length == pytest.approx(0.4)
+    assert t._length_at(tr, 4) == pytest.approx(0.8)
+    assert t._length_at(tr, 8) == pytest.approx(0.8)
+    assert t._length_at(tr, 9) == pytest.approx(0.4)
+    assert t._length_at(tr, 100) == pytest.approx(0.4)  # beyond the data: the current side

@@ -164,6 +164,13 @@ def add_run_args(p: argparse.ArgumentParser, name: str) -> None:
                    help="TuRBO-m trust regions (default: ~1 per 500 evaluations, between 1 and 10)")
     p.add_argument("--batch-size", type=int, default=None,
                    help="critic batch size (default max(workers, 4))")
+    p.add_argument("--max-fall-prob", type=float, default=None, metavar="P",
+                   help="fall-aware critic: skip candidates whose predicted probability of "
+                        "failing exceeds P in (0, 1] (default off; phase 3 learns it from the "
+                        "latent space's source run)")
+    if name == "phase1":
+        p.add_argument("--fall-prior", default=None, metavar="RUN_DIR",
+                       help="with --max-fall-prob: a run whose phase-1 trials seed the prediction")
     p.add_argument("--resume", action="store_true", help="continue the run stored in --out")
     p.add_argument("--quiet", action="store_true", help="no progress bar or log lines")
     if name == "phase3":
@@ -212,7 +219,9 @@ def _phase1_study(args: argparse.Namespace) -> tuple[Any, Any]:
     _refuse_rerun(study, 1, args.resume)
     system = make_system(args, args.seed)
     try:
-        study.phase1(system, args.phase1_evals, method=args.method, regions=args.regions)
+        study.phase1(system, args.phase1_evals, method=args.method, regions=args.regions,
+                     max_fall_prob=args.max_fall_prob,
+                     fall_prior=getattr(args, "fall_prior", None))
     except BaseException:
         study.close()
         raise
@@ -223,7 +232,8 @@ def cmd_tune(args: argparse.Namespace) -> int:
     study, system = _phase1_study(args)
     with study:
         study.train_latent(args.latent_dim, kind=args.vae_kind, epochs=args.vae_epochs)
-        study.phase3(system, args.phase3_evals, method=args.method, regions=args.regions)
+        study.phase3(system, args.phase3_evals, method=args.method, regions=args.regions,
+                     max_fall_prob=args.max_fall_prob)
         _finish(study)
     return 0
 
@@ -259,7 +269,7 @@ def cmd_phase3(args: argparse.Namespace) -> int:
     system = make_system(args, args.seed)
     with study:
         study.phase3(system, args.phase3_evals, latent=args.vae, method=args.method,
-                     regions=args.regions)
+                     regions=args.regions, max_fall_prob=args.max_fall_prob)
         _finish(study)
     return 0
 

@@ -314,24 +314,30 @@ class Study:
     # ------------------------------------------------------------------ phases
     def phase1(self, system: Any, budget: int, *, method: str = "turbo",
                regions: int | None = None, start: Any = "manual",
+               max_fall_prob: float | None = None, fall_prior: Any = None,
                max_new: int | None = None) -> PhaseResult:
         """Phase 1: ``method`` tunes the full θ of ``system`` for ``budget`` evaluations in all
         (stored ones included). Resumes a stored phase 1.
 
         ``start``: ``"manual"`` (the first point is the system's manual θ), ``None`` (from
         scratch: the critic's own initial design) or a (d,) unit-box θ (e.g. another run's best).
+        ``max_fall_prob``: skip candidates whose predicted probability of failing exceeds it
+        (:class:`~latentune.critic.fall_aware.FallAware`); ``fall_prior``: a run directory whose
+        phase-1 trials (θ, failed) seed that prediction.
         """
         check_system(system)
         x0, start_rec = _start_point(start, system.space.manual, system.space.dim)
-        pc = self._phase_config("phase1", method, budget, regions, {"start": start_rec})
+        extra = {"start": start_rec, **_fall_options(max_fall_prob, fall_prior)}
+        pc = self._phase_config("phase1", method, budget, regions, extra)
+        prior = _theta_prior(fall_prior, system.space.dim) if max_fall_prob is not None else None
         with self.writing() as st:
             self.bind(system)
-            pc = self._phase_config("phase1", method, budget, regions, {"start": start_rec})
+            pc = self._phase_config("phase1", method, budget, regions, extra)
             self._update_config(phase1=pc)
             manual = ensure_manual(st, system, seed=self.seed)
             self.log(f"manual θ: cost {manual:.3f}")
             critic = make_phase_critic(method, system.space.dim, self.batch_size, self.seed,
-                                       x0, pc["budget"], pc["regions"])
+                                       x0, pc["budget"], pc["regions"], max_fall_prob, prior)
             t = time.perf_counter()
             try:
                 res = run_phase(st, Phase.PHASE1, system, critic, pc["budget"], self.evaluator(),
@@ -400,19 +406,28 @@ class Study:
 
     def phase3(self, system: Any, budget: int, *, latent: Any = None, method: str = "turbo",
                regions: int | None = None, start: Any = "manual",
-               max_new: int | None = None) -> PhaseResult:
+               max_fall_prob: float | None = None, max_new: int | None = None) -> PhaseResult:
         """Phase 3: ``method`` tunes in the latent box through the decoder, on ``system``.
 
         Args:
             latent: None (this study's latent space), a LatentSpace, or another study (its
                 directory or a Study) whose latent space is copied here.
+            start: ``"manual"`` (the first point is the code of the manual θ), ``None`` (from
+                scratch) or a (d,) unit-box θ whose code starts the search.
+            max_fall_prob: skip candidates whose predicted probability of failing exceeds it;
+                the prediction starts from the latent space's source run (its phase-1 θ,
+                encoded, with their failed flags).
         If the latent space comes from another study, that study's best θ is evaluated on
         ``system`` as it is first (the zero-shot baseline, phase 4, one evaluation)."""
         check_system(system)
         ls, source = self._resolve_latent(latent, system)              # checks before writing
         theta0, start_rec = _start_point(start, system.space.manual, system.space.dim)
-        extra = {"latent_source": source, "start": start_rec}
+        extra = {"latent_source": source, "start": start_rec,
+                 **_fall_options(max_fall_prob, None if max_fall_prob is None else "latent source")}
         pc = self._phase_config("phase3", method, budget, regions, extra)
+        prior = None
+        if max_fall_prob is not None:
+            prior = _latent_prior(self.dir if source == "self" else Path(source), ls)
         if self.exists:
             self.bind_check(system)
         with self.writing() as st:
@@ -425,7 +440,7 @@ class Study:
             self._zero_shot(system, source)
             x0 = None if theta0 is None else ls.to_unit(ls.encode(theta0))
             critic = make_phase_critic(method, ls.d_low, self.batch_size, self.seed, x0,
-                                       pc["budget"], pc["regions"])
+                                       pc["budget"], pc["regions"], max_fall_prob, prior)
             t = time.perf_counter()
             try:
                 res = run_phase(st, Phase.PHASE3, system, critic, pc["budget"], self.evaluator(),
@@ -752,6 +767,49 @@ class _SpaceOnly:
     """A stand-in carrying only a space (ask/tell on an external system)."""
 
     space: ParameterSpace
+
+
+def _fall_options(max_fall_prob: float | None, prior: Any) -> dict[str, Any]:
+    """The phase-config record of the fall-aware option (checked, compared on resume)."""
+    if max_fall_prob is None:
+        return {"max_fall_prob": None}
+    if isinstance(max_fall_prob, bool) or not isinstance(max_fall_prob, (int, float)) or \
+            not 0.0 < float(max_fall_prob) <= 1.0:
+        raise UsageError(f"max_fall_prob must be in (0, 1], got {max_fall_prob!r}")
+    return {"max_fall_prob": float(max_fall_prob),
+            "fall_prior": None if prior is None else str(prior)}
+
+
+def _prior_rows(run: Path) -> list[Row]:
+    if not (Path(run) / "run.db").is_file():
+        raise StoreError(f"fall prior: no run store in {run}")
+    with RunStore(run) as o:
+        return o.rows(Phase.PHASE1)
+
+
+def _theta_prior(run: Any, dim: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """(θ (m, d), fell (m,)) of another run's phase 1, the prior of a direct fall-aware search."""
+    if run is None:
+        return None
+    rows = _prior_rows(Path(run))
+    if not rows:
+        return None
+    X = np.array([r.theta for r in rows])
+    if X.shape[1] != dim:
+        raise StoreError(f"fall prior {run}: its θ have {X.shape[1]} entries, not {dim}")
+    return X, np.array([r.fell for r in rows], dtype=bool)
+
+
+def _latent_prior(run: Path, ls: Any) -> tuple[np.ndarray, np.ndarray] | None:
+    """The source run's phase-1 θ encoded into the latent unit box (codes outside the box are
+    dropped: clipping would pile them on its faces) with their fell flags."""
+    rows = _prior_rows(run)
+    if not rows:
+        return None
+    Z = np.atleast_2d(ls.encode(np.array([r.theta for r in rows])))
+    inside = np.all((Z >= ls.box[:, 0]) & (Z <= ls.box[:, 1]), axis=1)
+    fell = np.array([r.fell for r in rows], dtype=bool)[inside]
+    return ls.to_unit(Z[inside]), fell
 
 
 def _start_point(start: Any, manual: np.ndarray, dim: int) -> tuple[np.ndarray | None, Any]:

@@ -44,7 +44,21 @@ GP and cost control
 -------------------
 ``SingleTaskGP`` with a constant mean and a ``ScaleKernel(MaternKernel(ν=5/2, ARD))``;
 lengthscale ∈ [0.005, 4], outputscale ∈ [0.05, 20], noise ∈ [1e-4, 0.2]; hyperparameters by
-L-BFGS-B on the exact marginal likelihood (``botorch.optim.fit.fit_gpytorch_mll_scipy``).
+L-BFGS-B on the exact marginal likelihood (``botorch.optim.fit.fit_gpytorch_mll_scipy``),
+by default without a prior (``lengthscale_prior=None``). With a log-normal lengthscale prior
+the fit is the MAP estimate:
+
+* ``lengthscale_prior="dim_tr"``: ``loc = √2 + ½·ln d + ln(L / length_init)``,
+  ``scale = √3``, with ``L`` the region's side right after the tell that brought it to the
+  checkpoint's number of points (so the fit is a function of the data). At the initial side
+  this is BoTorch's dimension-scaled default prior (since BoTorch 0.12); as the region shrinks,
+  the prior's lengthscales shrink with it (as in AdaScale-style methods), so the GP of a small
+  region is not pulled to the long lengthscales that fit the whole box.
+* ``"dim"``: the dimension-scaled prior without the side term.
+
+With a prior, cold fits start at its mode (clipped to [0.02, 4]). ``results/peers/README.md``
+compares ``"dim_tr"`` with the default on the problems of ``benchmarks/peers.py`` and on the
+main job.
 
 * A region's GP is conditioned on at most ``max_gp_points`` (default 256) of its points, and its
   hyperparameters are fitted on at most ``max_fit_points`` (default 256): in both cases the best
@@ -72,9 +86,10 @@ Design choices
 * On multi-basin functions (e.g. Levy) the best value over seeds has a heavy tail: compare
   medians over several seeds.
 
-Measured: ``python benchmarks/critic.py --functions levy25 ackley20 --methods turbo cma
---budget 1000 --seeds 5 --batch-size 20`` (``minimize``'s defaults against CMA-ES; other options
-are compared by passing them to :func:`latentune.minimize`).
+Measured: ``benchmarks/peers.py`` runs ``minimize``'s defaults against the reference TuRBO,
+Optuna's samplers and CMA-ES on ten problems (``--variant NAME='{"option": value}'`` compares
+other options); its outputs are in ``results/peers/``. ``benchmarks/critic.py`` has the older
+quick comparison with CMA-ES.
 
 Threads
 -------
@@ -179,6 +194,7 @@ class TrustRegion:
     epoch: int = 0                          # number of restarts so far
     epoch_gen: int = 0                      # first ask generation of the current epoch
     points: list[int] = field(default_factory=list)
+    length_log: list[tuple[int, float]] = field(default_factory=list)   # (n_points, length)
     best_y: float = math.inf                # best finite raw cost in the epoch
     best_index: int = -1                    # its global index (-1: none)
     # GP hyperparameter cache
@@ -215,11 +231,8 @@ class TurboM(Critic):
         y_transform: "copula" (default), "log" or "none" (see the module docstring).
         gp_select: which points a capped GP keeps: "recent" (default) or "near" (see
             :meth:`_select`).
-        lengthscale_prior: ``None`` (maximum likelihood within the bounds), ``"dim"``
-            (log-normal, ``loc = √2 + ½·ln d``, ``scale = √3``: BoTorch's dimension-scaled
-            default since 0.12) or ``"dim_tr"`` (the same with ``loc`` shifted by
-            ``ln(L / length_init)``, so the prior's lengthscales follow the region's side ``L``
-            at the time of the fit). With a prior, cold fits start at its mode.
+        lengthscale_prior: ``None`` (default), ``"dim_tr"`` or ``"dim"`` (see "GP and cost
+            control" in the module docstring).
         threads: torch threads used inside :meth:`ask` (default 1; the previous setting is
             restored afterwards); ``None`` leaves torch's setting alone. See "Threads" in the
             module docstring.
@@ -306,6 +319,7 @@ class TurboM(Critic):
     def _add_points(self, tr: TrustRegion, idx: list[int]) -> float:
         """Attribute told points to a region; return the best finite raw cost among them."""
         tr.points.extend(idx)
+        tr.length_log.append((tr.n_points, tr.length))
         y = self._y[idx]
         fin = np.isfinite(y)
         if not fin.any():
@@ -581,7 +595,8 @@ class TurboM(Critic):
                 start = {"lengthscale": np.clip(h["lengthscale"], 0.02, 1.0),
                          "outputscale": np.clip(h["outputscale"], 0.1, 10.0),
                          "noise": np.clip(h["noise"], 1e-3, 0.1), "constant": h["constant"]}
-            model = self._build_gp(self._X[fit_pts], zs, start, self._ls_prior(tr.length))
+            model = self._build_gp(self._X[fit_pts], zs, start,
+                                   self._ls_prior(self._length_at(tr, c)))
             self._fit(model, self.refit_maxiter if warm else self.fit_maxiter)
             tr.hypers = self._hypers_of(model)
             tr.fit_count = c
@@ -590,6 +605,15 @@ class TurboM(Critic):
         model = self._build_gp(self._X[pts], zs, tr.hypers)
         model.eval()
         return model, med, s
+
+    @staticmethod
+    def _length_at(tr: TrustRegion, c: int) -> float:
+        """The region's side right after the tell that brought its epoch to ``c`` points (a
+        function of the told data, whatever the timing of the asks)."""
+        for n, length in tr.length_log:
+            if n >= c:
+                return length
+        return tr.length
 
     def _candidates(self, tr: TrustRegion, lengthscale: np.ndarray,
                     rng: np.random.Generator) -> np.ndarray:

@@ -41,16 +41,37 @@ def default_batch_size(workers: int) -> int:
 
 
 def make_phase_critic(method: str, dim: int, batch_size: int, seed: int, x0: np.ndarray | None,
-                      budget: int, regions: int | None = None):
+                      budget: int, regions: int | None = None, max_fall_prob: float | None = None,
+                      prior: tuple[np.ndarray, np.ndarray] | None = None):
     """The critic of a phase on [0, 1]^dim: ``method`` with its batch size, seed and warm start
-    ``x0`` (d,); TuRBO-m gets ``regions`` trust regions (default: by budget)."""
+    ``x0`` (d,); TuRBO-m gets ``regions`` trust regions (default: by budget).
+
+    ``max_fall_prob``: wrap it in :class:`~latentune.critic.fall_aware.FallAware`, which skips
+    candidates whose predicted probability of failing exceeds it; ``prior`` = (X (m, dim),
+    fell (m,)) are failed/stable points of a source run in the same box, for its classifier."""
     from latentune.critic import make_critic
     from latentune.critic.turbo import regions_for_budget
 
     kw: dict[str, Any] = {"batch_size": batch_size, "seed": seed, "x0": x0}
     if method == "turbo":
         kw["n_regions"] = regions if regions is not None else regions_for_budget(budget)
-    return make_critic(method, dim, **kw)
+    critic = make_critic(method, dim, **kw)
+    if max_fall_prob is not None:
+        from latentune.critic.fall_aware import FallAware
+
+        px, pf = prior if prior is not None and len(prior[0]) else (None, None)
+        critic = FallAware(critic, max_fall_prob=max_fall_prob, prior_X=px, prior_fell=pf)
+    return critic
+
+
+def _tell(critic: Any, X: np.ndarray, y: np.ndarray, tags: np.ndarray, fell: np.ndarray) -> None:
+    """Tell ``critic`` (n,) costs; a fall-aware critic also gets the (n,) fell flags."""
+    from latentune.critic.fall_aware import FallAware
+
+    if isinstance(critic, FallAware):
+        critic.tell(X, y, tags, fell=fell)
+    else:
+        critic.tell(X, y, tags)
 
 
 @dataclass
@@ -93,7 +114,8 @@ def replay(store: RunStore, phase: int, critic: Any) -> int:
         if X.shape[1] != critic.dim:
             raise StoreError(f"stored phase-{phase} points have dimension {X.shape[1]}, "
                              f"the critic {critic.dim}")
-        critic.tell(X, _restore_inf(y), tags)
+        fell = np.array([r.fell for r in store.rows(phase)], dtype=bool)
+        _tell(critic, X, _restore_inf(y), tags, fell)
     return len(y)
 
 
@@ -140,7 +162,7 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
             U = critic.ask(k)
             T = critic.last_tags.copy()
             thetas = U if decoder is None else np.atleast_2d(decoder(U))
-            ib, yb = [], []                        # ask index and cost of each result
+            ib, yb, fb = [], [], []                # ask index, cost and fell of each result
             error: str | None = None
             for i, r in _results(evaluator, system, thetas, known or {}):
                 if isinstance(r, TrialError):
@@ -153,6 +175,7 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
                 new += 1
                 ib.append(i)
                 yb.append(cost)
+                fb.append(bool(r.failed))
                 if cost < best:
                     best = cost
                 if on_row is not None:
@@ -167,7 +190,8 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
             # ask order, so a seed gives the same run whatever order the workers finish in
             order = np.argsort(ib, kind="stable")
             ii = np.asarray(ib, dtype=np.int64)[order]
-            critic.tell(U[ii], np.asarray(yb, dtype=float)[order], T[ii].astype(np.int64))
+            _tell(critic, U[ii], np.asarray(yb, dtype=float)[order], T[ii].astype(np.int64),
+                  np.asarray(fb, dtype=bool)[order])
     finally:
         if bar is not None:
             bar.close()

@@ -1,0 +1,306 @@
+"""Tests of the fall-aware critic (latentune.critic.fall_aware): fewer falls at equal budget,
+determinism, resume, prior data, the tag protocol and argument checks."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from latentune.constants import C1
+from latentune.critic import X0_TAG, make_critic
+from latentune.critic.fall_aware import FallAware, FallClassifier
+from latentune.critic.turbo import KIND_DESIGN, KIND_THOMPSON, decode_tag
+
+torch.set_num_threads(1)
+
+XSTAR = np.array([0.6, 0.5, 0.35])          # x0 + x1 = 1.1: just inside the stable side
+FAST_TURBO = dict(n_regions=1, n_candidates=300)
+
+
+def problem(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Cost ``1 + |x − x*|²`` (d = 3); fell if ``x0 + x1 > 1.2`` (cost ``C1 + …``)."""
+    X = np.atleast_2d(X)
+    fell = X[:, 0] + X[:, 1] > 1.2
+    y = 1.0 + ((X - XSTAR[: X.shape[1]]) ** 2).sum(1)
+    return np.where(fell, C1 + 10.0 * y, y), fell
+
+
+def critic(method: str, seed: int, fall_aware: bool, batch: int = 5, **fa_kw):
+    kw = dict(batch_size=batch, seed=seed, **(FAST_TURBO if method == "turbo" else {}))
+    c = make_critic(method, 3, **kw)
+    return FallAware(c, **fa_kw) if fall_aware else c
+
+
+def run(c, budget: int, pass_fell: bool = True) -> tuple[int, float]:
+    falls = 0
+    while c.n_told < budget:
+        X = c.ask(min(c.batch_size, budget - c.n_told))
+        y, f = problem(X)
+        falls += int(f.sum())
+        if isinstance(c, FallAware) and pass_fell:
+            c.tell(X, y, c.last_tags, fell=f)
+        else:
+            c.tell(X, y, c.last_tags)
+    return falls, c.best_y
+
+
+# ----------------------------------------------------------------------------- effect
+def _medians(runs):
+    return np.median([r[0] for r in runs]), np.median([r[1] for r in runs])
+
+
+def test_random_far_fewer_falls_same_best():
+    f_plain, b_plain = _medians([run(critic("random", s, False), 80) for s in range(3)])
+    f_aware, b_aware = _medians([run(critic("random", s, True), 80, pass_fell=bool(s % 2))
+                                 for s in range(3)])
+    assert f_plain >= 15
+    assert f_aware <= 0.5 * f_plain, (f_plain, f_aware)
+    assert b_aware <= 1.05 * b_plain, (b_plain, b_aware)
+
+
+def test_turbo_fewer_falls_same_best():
+    """TuRBO-m: with prior data (a source run's θ and fell flags, here the same problem) the
+    falls drop by half; without, the first falls cannot be predicted and the drop is smaller,
+    but there are no more falls than without the wrapper and the best cost is kept."""
+    rng = np.random.default_rng(7)
+    P = rng.random((100, 3))
+    pf = problem(P)[1]
+    f_plain, b_plain = _medians([run(critic("turbo", s, False), 60) for s in range(3)])
+    f_aware, b_aware = _medians([run(critic("turbo", s, True), 60) for s in range(3)])
+    f_prior, b_prior = _medians([run(critic("turbo", s, True, prior_X=P, prior_fell=pf), 60)
+                                 for s in range(3)])
+    assert f_plain >= 4
+    assert f_prior <= 0.5 * f_plain, (f_plain, f_prior)
+    assert f_aware <= f_plain, (f_plain, f_aware)
+    assert max(b_aware, b_prior) <= 1.05 * b_plain, (b_plain, b_aware, b_prior)
+
+
+def test_cma_generations_complete_and_fewer_falls():
+    """CMA-ES in penalise mode: its generations are completed (screened members told with a
+    penalty), so pycma keeps updating; falls do not increase."""
+    plain = [run(critic("cma", s, False, batch=4), 100)[0] for s in range(3)]
+    fas = [critic("cma", s, True, batch=4) for s in range(3)]
+    aware = [run(c, 100)[0] for c in fas]
+    assert np.median(aware) <= np.median(plain)
+    for c in fas:
+        assert c.inner.n_told >= 80 and c.inner.n_told % c.inner.popsize == 0
+        assert c.inner.sigma != pytest.approx(1.0 / 6.0)
+    assert sum(c.n_screened for c in fas) > 0
+    assert all(c.stats()["mode"] == "penalise" for c in fas)
+
+
+def test_dropping_points_would_stall_cma():
+    """Why CMA-ES is not run in drop mode: told only part of each generation, pycma never
+    updates (the generation stays pending)."""
+    c = make_critic("cma", 3, batch_size=4, seed=0)
+    for _ in range(10):
+        X = c.ask(20)
+        y, _ = problem(X)
+        c.tell(X[:4], y[:4], c.last_tags[:4])
+    assert c.sigma == pytest.approx(1.0 / 6.0)
+
+
+# ----------------------------------------------------------------------------- protocol
+@pytest.mark.parametrize("method", ["random", "sobol", "cma", "turbo"])
+def test_passes_through_until_both_classes(method):
+    """Before any fall (and without a prior) a FallAware asks exactly what its inner asks."""
+    a = critic(method, 1, False, batch=5)
+    b = critic(method, 1, True, batch=5)
+    for _ in range(3):
+        Xa, Xb = a.ask(), b.ask()
+        np.testing.assert_array_equal(Xa, Xb)
+        np.testing.assert_array_equal(a.last_tags, b.last_tags)
+        assert np.isnan(b.last_fall_prob).all()
+        y = np.ones(len(Xa))                         # nothing falls
+        a.tell(Xa, y, a.last_tags)
+        b.tell(Xb, y, b.last_tags)
+
+
+@pytest.mark.parametrize("method", ["random", "sobol", "cma", "turbo"])
+def test_shapes_tags_and_screening(method):
+    c = critic(method, 2, True, batch=4)
+    run(c, 40)
+    for n in (1, 3, 7):
+        X = c.ask(n)
+        assert X.shape == (n, 3) and X.dtype == np.float64
+        assert X.min() >= 0.0 and X.max() <= 1.0
+        assert c.last_tags.shape == (n,) and c.last_tags.dtype == np.int64
+        assert c.last_fall_prob.shape == (n,)
+        if method == "turbo":
+            assert all(decode_tag(t)[1] in (KIND_DESIGN, KIND_THOMPSON) for t in c.last_tags)
+        over = c.last_fall_prob > c.max_fall_prob
+        assert int(over.sum()) <= c.last_n_over
+        y, f = problem(X)
+        c.tell(X, y, c.last_tags, fell=f)
+    assert c.fell.shape == (c.n_told,)
+    assert c.n_told == c.inner.n_told or method == "cma"
+
+
+@pytest.mark.parametrize("method", ["random", "cma", "turbo"])
+def test_deterministic(method):
+    seqs = []
+    for _ in range(2):
+        c = critic(method, 4, True)
+        run(c, 30)
+        seqs.append((c.X, c.tags, c.ask(), c.last_tags))
+    for u, v in zip(*seqs):
+        np.testing.assert_array_equal(u, v)
+
+
+@pytest.mark.parametrize("method,opts", [("random", {}), ("sobol", {}), ("cma", {}),
+                                         ("turbo", {"warm_start": False})])
+def test_resume_asks_the_same_batch(method, opts):
+    """A fresh FallAware (fresh inner) told the stored history -- in completion order inside
+    each batch, in one call or batch by batch -- asks the original's next batch."""
+    def fresh():
+        kw = dict(batch_size=4, seed=5, **opts, **(FAST_TURBO if method == "turbo" else {}))
+        return FallAware(make_critic(method, 3, **kw))
+
+    c = fresh()
+    rng = np.random.default_rng(0)
+    batches = []
+    while c.n_told < 48:
+        X = c.ask()
+        T = c.last_tags
+        y, f = problem(X)
+        p = rng.permutation(len(y))            # the store keeps completion order
+        batches.append((X[p], y[p], T[p], f[p]))
+        c.tell(X[p], y[p], T[p], fell=f[p])
+    assert c.fell.any() and c.n_screened + c.n_over > 0
+    want, want_tags = c.ask(), c.last_tags.copy()
+    one = fresh()
+    one.tell(*(np.concatenate(v) for v in zip(*batches[:-1])))
+    one.tell(*batches[-1][:3])                 # fell derived from y >= C1
+    got = one.ask()
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(one.last_tags, want_tags)
+    assert not one.inexact_replay
+
+
+def test_points_asked_and_not_told_are_dropped_or_served_again():
+    c = critic("random", 0, True)
+    run(c, 30)
+    X = c.ask(5)
+    y, f = problem(X)
+    c.tell(X[:2], y[:2], c.last_tags[:2], fell=f[:2])   # three never told
+    assert c.inner.n_told == c.n_told == 32
+    c.ask(5)
+    # CMA-ES: the evaluated members of a generation that were not told are asked again first
+    m = critic("cma", 0, True, batch=4)
+    run(m, 40)
+    X = m.ask(4)
+    T = m.last_tags.copy()
+    y, f = problem(X)
+    m.tell(X[:1], y[:1], T[:1], fell=f[:1])
+    X2 = m.ask(3)
+    np.testing.assert_array_equal(X2, X[1:])
+    np.testing.assert_array_equal(m.last_tags, T[1:])
+
+
+def test_second_ask_without_tell_gives_new_points():
+    c = critic("random", 0, True)
+    run(c, 30)
+    X1, X2 = c.ask(5), c.ask(5)
+    assert not np.any(np.all(X1[:, None] == X2[None], axis=2))
+
+
+# ----------------------------------------------------------------------------- prior data
+def test_prior_data_screens_from_the_first_ask():
+    rng = np.random.default_rng(1)
+    P = rng.random((150, 3))
+    pf = problem(P)[1]
+    plain_falls = run(critic("random", 0, False), 30)[0]
+    c = critic("random", 0, True, prior_X=P, prior_fell=pf)
+    assert c.fall_prob(np.array([[0.95, 0.95, 0.5], [0.1, 0.1, 0.5]])) is not None
+    p = c.fall_prob(np.array([[0.95, 0.95, 0.5], [0.1, 0.1, 0.5]]))
+    assert p[0] > 0.7 and p[1] < 0.1
+    X = c.ask()
+    assert np.all(c.last_fall_prob <= c.max_fall_prob)
+    assert c.last_n_screened > 0
+    c.tell(X, problem(X)[0], c.last_tags)
+    assert run(c, 30)[0] <= max(1, plain_falls // 4)
+
+
+def test_turbo_design_points_are_replaced_not_dropped():
+    """With a prior that says the upper half of x0 falls, TuRBO-m's design points there are
+    replaced (same design tag) and its region still completes its design."""
+    rng = np.random.default_rng(2)
+    P = rng.random((200, 3))
+    pf = P[:, 0] > 0.5
+    c = FallAware(make_critic("turbo", 3, batch_size=4, seed=0, n_regions=1, n_init=8,
+                              n_candidates=300), prior_X=P, prior_fell=pf)
+    seen_design = 0
+    for _ in range(4):
+        X = c.ask()
+        kinds = [decode_tag(t)[1] for t in c.last_tags]
+        seen_design += kinds.count(KIND_DESIGN)
+        assert np.all(X[np.array(kinds) == KIND_DESIGN, 0] <= 0.5 + 1e-9)
+        y = 1.0 + ((X - 0.3) ** 2).sum(1)
+        c.tell(X, y, c.last_tags, fell=X[:, 0] > 0.5)
+    assert seen_design == 8
+    assert c.inner.regions[0].n_points == 16 and c.n_screened > 0
+    assert all(decode_tag(t)[1] == KIND_THOMPSON for t in c.tags[8:])
+
+
+def test_warm_start_is_never_screened():
+    rng = np.random.default_rng(3)
+    P = rng.random((100, 3))
+    x0 = np.array([0.9, 0.9, 0.5])                    # inside the fall region
+    for method in ("random", "turbo", "cma"):
+        kw = dict(batch_size=4, seed=0, x0=x0, **(FAST_TURBO if method == "turbo" else {}))
+        c = FallAware(make_critic(method, 3, **kw), prior_X=P, prior_fell=problem(P)[1])
+        X = c.ask()
+        np.testing.assert_array_equal(X[0], x0)
+        if method != "cma":
+            assert c.last_tags[0] == X0_TAG or method == "turbo"
+
+
+# ----------------------------------------------------------------------------- classifier
+def test_classifier_learns_a_region_and_its_cost():
+    rng = np.random.default_rng(0)
+    X = rng.random((1000, 10))
+    fell = X[:, 0] + X[:, 1] > 1.2
+    clf = FallClassifier(10)
+    assert not clf.fit(X[:50], np.zeros(50, dtype=bool))      # one class only: inactive
+    assert clf.fit(X, fell)
+    T = rng.random((2000, 10))
+    p = clf.predict(T)
+    truth = T[:, 0] + T[:, 1] > 1.2
+    far = np.abs(T[:, 0] + T[:, 1] - 1.2) > 0.15
+    assert np.mean((p > 0.5)[far] == truth[far]) > 0.97
+    assert np.all((p >= 0) & (p <= 1))
+
+
+# ----------------------------------------------------------------------------- arguments
+@pytest.mark.parametrize("kw", [dict(max_fall_prob=0.0), dict(max_fall_prob=1.5),
+                                dict(max_fall_prob=float("nan")), dict(max_fall_prob=True),
+                                dict(oversample=0), dict(oversample=2.5),
+                                dict(prior_X=np.zeros((3, 3))),
+                                dict(prior_X=np.zeros((3, 3)), prior_fell=np.zeros(2, bool)),
+                                dict(prior_X=np.full((3, 3), 2.0), prior_fell=np.zeros(3, bool)),
+                                dict(prior_X=np.zeros((3, 2)), prior_fell=np.zeros(3, bool)),
+                                dict(prior_X=np.zeros((3, 3)), prior_fell=np.array([0, 2, 1])),
+                                dict(max_points=2), dict(threads=0)])
+def test_bad_arguments(kw):
+    with pytest.raises(ValueError):
+        FallAware(make_critic("random", 3), **kw)
+
+
+def test_bad_inner_and_bad_tell():
+    with pytest.raises(ValueError):
+        FallAware("turbo")
+    used = make_critic("random", 3)
+    used.tell(np.full((1, 3), 0.5), np.ones(1))
+    with pytest.raises(ValueError):
+        FallAware(used)
+    with pytest.raises(ValueError):
+        FallAware(FallAware(make_critic("random", 3)))
+    c = FallAware(make_critic("random", 3))
+    X = c.ask(2)
+    with pytest.raises(ValueError):
+        c.tell(X, np.ones(2), c.last_tags, fell=np.zeros(3, bool))
+    with pytest.raises(ValueError):
+        c.tell(X, np.ones(2), c.last_tags, fell=np.array([0.5, 1.0]))
+    with pytest.raises(ValueError):
+        c.tell(X, np.ones(3), c.last_tags)
+    assert c.n_told == 0 and c.inner.n_told == 0
