@@ -36,16 +36,10 @@ import latentune as lt  # noqa: E402
 from latentune.constants import Phase  # noqa: E402
 from latentune.pipeline.evaluators import make_evaluator  # noqa: E402
 from latentune.reporting.metrics import evals_to_beat  # noqa: E402
+from latentune.study import source_best  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).parent))
 from sample_efficiency import provenance  # noqa: E402
-
-
-def source_best(source: Path) -> np.ndarray:
-    """The source run's best θ (d,) among trials that did not fail (phases 1 and 3)."""
-    with lt.Study(source) as s:
-        rows = [r for ph in (Phase.PHASE1, Phase.PHASE3) for r in s.store.rows(ph) if not r.fell]
-    return min(rows, key=lambda r: (r.cost, r.phase, r.idx)).theta
 
 
 def spread(v: list[float]) -> dict:
@@ -71,7 +65,7 @@ def main() -> None:
     ap.add_argument("--out", default=None)
     a = ap.parse_args()
     t0 = time.perf_counter()
-    best0 = source_best(Path(a.source))
+    best0 = source_best(a.source).theta     # the zero-shot θ
     work = Path(a.work)
     ev = make_evaluator("process", a.workers)
     res: dict = {}

@@ -531,15 +531,10 @@ class Study:
         st = self.store
         if source == "self" or st.count(Phase.ZERO_SHOT) > 0:
             return
+        best = source_best(source)
+        if best is None:
+            return
         src = Path(source)
-        if not (src / "run.db").is_file():
-            return
-        with RunStore(src) as o:
-            rows = [r for ph in (Phase.PHASE1, Phase.PHASE3) for r in o.rows(ph)]
-        if not rows:
-            return
-        ok = [r for r in rows if not r.fell] or rows     # the best trial that did not fail
-        best = min(ok, key=lambda r: (r.cost, r.phase, r.idx))
         out = evaluate(system, best.theta)
         out.info.update({"source": str(src), "source_phase": int(best.phase),
                          "source_idx": int(best.idx), "source_cost": float(best.cost)})
@@ -616,14 +611,8 @@ class Study:
         if source in (None, "self") or st.count(Phase.ZERO_SHOT) > 0 or \
                 any(t.phase == Phase.ZERO_SHOT for t in st.trials()):
             return
-        src = Path(source)
-        if not (src / "run.db").is_file():
-            return
-        with RunStore(src) as o:
-            rows = [r for ph in (Phase.PHASE1, Phase.PHASE3) for r in o.rows(ph)]
-        if rows:
-            ok = [r for r in rows if not r.fell] or rows
-            best = min(ok, key=lambda r: (r.cost, r.phase, r.idx))
+        best = source_best(source)
+        if best is not None:
             st.add_trial(Phase.ZERO_SHOT, best.theta, None, -1)
 
     def tell(self, trial_id: int, cost: float | None = None, *, failed: bool = False,
@@ -769,6 +758,19 @@ class _SpaceOnly:
     space: ParameterSpace
 
 
+def source_best(run: str | os.PathLike) -> Row | None:
+    """The best trial of a run's phases 1 and 3 among those that did not fail (all trials if
+    every one failed); None if the run has no store or no trials. The zero-shot θ."""
+    if not (Path(run) / "run.db").is_file():
+        return None
+    with RunStore(run) as o:
+        rows = [r for ph in (Phase.PHASE1, Phase.PHASE3) for r in o.rows(ph)]
+    if not rows:
+        return None
+    ok = [r for r in rows if not r.fell] or rows
+    return min(ok, key=lambda r: (r.cost, r.phase, r.idx))
+
+
 def _fall_options(max_fall_prob: float | None, prior: Any) -> dict[str, Any]:
     """The phase-config record of the fall-aware option (checked, compared on resume)."""
     if max_fall_prob is None:
@@ -861,4 +863,4 @@ def stderr_log(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
 
 
-__all__ = ["Study", "Suggestion", "describe", "stderr_log"]
+__all__ = ["Study", "Suggestion", "describe", "source_best", "stderr_log"]

@@ -126,7 +126,7 @@ from typing import Any
 
 import numpy as np
 
-from latentune.critic.base import UNTAGGED, Critic, fill_nonfinite, gaussian_copula
+from latentune.critic.base import Critic, fill_nonfinite, gaussian_copula
 
 _GEN = 1 << 20
 _KIND = 1 << 16
