@@ -149,10 +149,13 @@ class Critic(ABC):
         self.last_tags = np.asarray(tags, dtype=np.int64).reshape(int(n)).copy()
         return X
 
-    def tell(self, X: np.ndarray, y: np.ndarray, tags: np.ndarray | None = None) -> None:
+    def tell(self, X: np.ndarray, y: np.ndarray, tags: np.ndarray | None = None,
+             fell: np.ndarray | None = None) -> None:
         """Report raw costs ``y`` (n,) of points ``X`` (n, dim) in [0, 1]^dim.
 
         ``tags`` (n,) ints as returned in :attr:`last_tags` (``None`` = all untagged, ``-1``).
+        ``fell`` (n,) bools: which trials failed; the plain critics model the cost only and
+        ignore it (:class:`~latentune.critic.fall_aware.FallAware` uses it).
         Non-finite costs are allowed (see the module docstring).
         """
         X = as_unit_points(X, self.dim)

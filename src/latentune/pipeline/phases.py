@@ -64,16 +64,6 @@ def make_phase_critic(method: str, dim: int, batch_size: int, seed: int, x0: np.
     return critic
 
 
-def _tell(critic: Any, X: np.ndarray, y: np.ndarray, tags: np.ndarray, fell: np.ndarray) -> None:
-    """Tell ``critic`` (n,) costs; a fall-aware critic also gets the (n,) fell flags."""
-    from latentune.critic.fall_aware import FallAware
-
-    if isinstance(critic, FallAware):
-        critic.tell(X, y, tags, fell=fell)
-    else:
-        critic.tell(X, y, tags)
-
-
 @dataclass
 class PhaseResult:
     phase: int
@@ -114,8 +104,7 @@ def replay(store: RunStore, phase: int, critic: Any) -> int:
         if X.shape[1] != critic.dim:
             raise StoreError(f"stored phase-{phase} points have dimension {X.shape[1]}, "
                              f"the critic {critic.dim}")
-        fell = np.array([r.fell for r in store.rows(phase)], dtype=bool)
-        _tell(critic, X, _restore_inf(y), tags, fell)
+        critic.tell(X, _restore_inf(y), tags, fell=store.fell(phase))
     return len(y)
 
 
@@ -190,8 +179,8 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
             # ask order, so a seed gives the same run whatever order the workers finish in
             order = np.argsort(ib, kind="stable")
             ii = np.asarray(ib, dtype=np.int64)[order]
-            _tell(critic, U[ii], np.asarray(yb, dtype=float)[order], T[ii].astype(np.int64),
-                  np.asarray(fb, dtype=bool)[order])
+            critic.tell(U[ii], np.asarray(yb, dtype=float)[order], T[ii].astype(np.int64),
+                        fell=np.asarray(fb, dtype=bool)[order])
     finally:
         if bar is not None:
             bar.close()
