@@ -328,23 +328,31 @@ class RunStore:
                 (int(phase), _enc(theta), _enc(z), int(tag), time.time()))
             return int(cur.lastrowid)
 
-    def trials(self, status: str | None = None) -> list[Trial]:
-        """Suggestions (oldest first), all or those with ``status`` ('pending' or 'told')."""
+    def trials(self, status: str | None = None, trial_id: int | None = None) -> list[Trial]:
+        """Suggestions (oldest first): all, those with ``status`` ('pending' or 'told'), or the
+        one with id ``trial_id``."""
         if not self._current:
             return []
         q = "SELECT id, phase, theta, z, tag, status, idx, created FROM trials"
-        rows = self.con.execute(q + (" WHERE status=?" if status else "") + " ORDER BY id",
-                                (status,) if status else ())
+        where, args = [], []
+        if status:
+            where.append("status=?")
+            args.append(status)
+        if trial_id is not None:
+            where.append("id=?")
+            args.append(int(trial_id))
+        rows = self.con.execute(q + (" WHERE " + " AND ".join(where) if where else "")
+                                + " ORDER BY id", args)
         return [Trial(int(r[0]), int(r[1]), np.array(json.loads(r[2]), dtype=float),
                       None if r[3] is None else np.array(json.loads(r[3]), dtype=float),
                       int(r[4]), r[5], r[6], float(r[7])) for r in rows]
 
     def trials_by_id(self, trial_id: int) -> Trial:
         """The suggestion ``trial_id`` (StoreError if there is none)."""
-        for t in self.trials():
-            if t.id == int(trial_id):
-                return t
-        raise StoreError(f"no suggestion with id {trial_id} in {self.dir}")
+        found = self.trials(trial_id=int(trial_id))
+        if not found:
+            raise StoreError(f"no suggestion with id {trial_id} in {self.dir}")
+        return found[0]
 
     def tell_trial(self, trial_id: int, cost: float, *, fell: bool, fall_step: int | None = None,
                    wall_s: float | None = None, seed: int | None = None,
@@ -407,6 +415,11 @@ class RunStore:
     def costs(self, phase: int) -> np.ndarray:
         return np.array([r[0] for r in self.con.execute(
             "SELECT cost FROM evaluations WHERE phase=? ORDER BY idx", (phase,))], dtype=float)
+
+    def fell(self, phase: int) -> np.ndarray:
+        """(n,) bool: which evaluations of ``phase`` failed, in idx order."""
+        return np.array([bool(r[0]) for r in self.con.execute(
+            "SELECT fell FROM evaluations WHERE phase=? ORDER BY idx", (phase,))], dtype=bool)
 
     def best(self, phase: int) -> Row | None:
         rows = self.rows(phase)
