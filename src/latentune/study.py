@@ -260,23 +260,12 @@ class Study:
         """Record ``system`` as the study's system, or check it is the one recorded.
 
         Raises StoreError naming the differences if the study holds a run of another system."""
-        check_system(system)
-        desc = describe(system)
-        cfg = self.config()
-        stored = cfg.get("system")
-        if stored is None and "task" in cfg:        # a run written before systems were recorded
-            stored = {"kind": "task", "task": cfg["task"]}
-            if stored != desc:
-                raise StoreError(f"{self.dir} holds a run of another configuration "
-                                 f"({_diff(stored, desc)})")
-        if cfg.get("system") is None:
+        desc = self.bind_check(system)
+        if self.config().get("system") is None:
             kw: dict[str, Any] = {"system": desc, "space": system.space.to_dict()}
             if desc["kind"] == "task":
                 kw["task"] = desc["task"]
             self._update_config(**kw)
-        elif stored != desc:
-            raise StoreError(f"{self.dir} holds a run of another system "
-                             f"({_diff(stored, desc)})")
         return desc
 
     def space(self) -> ParameterSpace | None:
@@ -731,12 +720,17 @@ class Study:
             self.bind_check(system)
         return make_report(self.store, system=system, simulate=simulate, quiet=not self.progress)
 
-    def bind_check(self, system: Any) -> None:
-        """Raise StoreError unless ``system`` is the one this study recorded."""
-        stored = self.config().get("system")
+    def bind_check(self, system: Any) -> dict[str, Any]:
+        """Return ``system``'s description; StoreError (naming the differences) unless it is
+        the system this study recorded, or no system is recorded yet."""
         desc = describe(check_system(system))
+        cfg = self.config()
+        stored = cfg.get("system")
+        if stored is None and "task" in cfg:        # a run written before systems were recorded
+            stored = {"kind": "task", "task": cfg["task"]}
         if stored is not None and stored != desc:
             raise StoreError(f"{self.dir} holds a run of another system ({_diff(stored, desc)})")
+        return desc
 
     def _write_best(self, phase: int) -> None:
         b = self.store.best(phase)
