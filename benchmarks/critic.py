@@ -112,6 +112,22 @@ def quality(fnames: list[str], methods: list[str], seeds: int, budget: int, batc
                   f"{r[:, 0].max():10.4g} {np.median(r[:, 1]):10.1f}")
 
 
+def ask_tell_seconds(critic, fun, n_asks: int) -> list[float]:
+    """The critic's own seconds per suggested point of each of ``n_asks`` ask/tell rounds
+    (``fun``'s time excluded): (n_asks,) floats."""
+    per = []
+    for _ in range(n_asks):
+        t = time.perf_counter()
+        U = critic.ask()
+        tags = critic.last_tags
+        dt = time.perf_counter() - t
+        yy = np.array([fun(u) for u in U])
+        t = time.perf_counter()
+        critic.tell(U, yy, tags=tags)
+        per.append((dt + time.perf_counter() - t) / len(U))
+    return per
+
+
 def overhead(sizes: list[int], n_asks: int, d: int = 25, batch: int = 20,
              n_regions: int = 10) -> None:
     import torch
@@ -129,17 +145,7 @@ def overhead(sizes: list[int], n_asks: int, d: int = 25, batch: int = 20,
         t = time.perf_counter()
         critic.tell(X, y)
         t_load = time.perf_counter() - t
-        per_ask = []
-        for _ in range(n_asks):
-            t = time.perf_counter()
-            U = critic.ask()
-            tags = critic.last_tags
-            dt = time.perf_counter() - t
-            yy = np.array([ackley(u) for u in U])
-            t = time.perf_counter()
-            critic.tell(U, yy, tags=tags)
-            per_ask.append(dt + time.perf_counter() - t)
-        per_pt = np.array(per_ask) / batch
+        per_pt = np.array(ask_tell_seconds(critic, ackley, n_asks))
         steady = per_pt[1:] if len(per_pt) > 1 else per_pt
         print(f"  told {n:6d}: load (tell) {t_load:.2f} s | first ask {per_pt[0]:.3f} s/pt | "
               f"steady state (asks 2..{n_asks}) mean {steady.mean():.3f} s/pt, "

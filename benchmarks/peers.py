@@ -68,6 +68,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from critic import ask_tell_seconds  # noqa: E402
 from peer_problems import problems  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -525,16 +526,7 @@ def overhead(a) -> None:
             t = time.perf_counter()
             c.tell(X, y)
             load = time.perf_counter() - t
-            per = []
-            for _ in range(a.overhead_asks):
-                t = time.perf_counter()
-                U = c.ask()
-                tags = c.last_tags
-                dt = time.perf_counter() - t
-                yy = np.array([fz(u) for u in U])
-                t = time.perf_counter()
-                c.tell(U, yy, tags=tags)
-                per.append((dt + time.perf_counter() - t) / batch)
+            per = ask_tell_seconds(c, fz, a.overhead_asks)
             case = dict(regions=regions, torch_threads_outside=torch_threads,
                         critic_threads=critic_threads, tell_load_s=load,
                         s_per_point=per, mean_s_per_point=float(np.mean(per)),
