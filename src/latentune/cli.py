@@ -118,11 +118,13 @@ def cmd_rollout(args: argparse.Namespace) -> int:
         if not path.lower().endswith(exts):
             raise CLIError(f"{path}: the file name must end in {' or '.join(exts)}")
     res = task.rollout(theta, record=bool(args.plot), gif=args.gif)
+    where = ", ".join([task.terrain, task.actor, task.engine]
+                      + ([] if task.reality.is_nominal else [f"reality {task.reality.name}"]))
     if args.plot:
         from latentune.reporting.plots import plot_rollouts
 
         plot_rollouts({"rollout": res}, args.plot, v_des=float(task.v_des[0]),
-                      title=f"{task.robot_name} {task.gait} ({task.terrain}, {task.actor})")
+                      title=f"{task.robot_name} {task.gait} ({where})")
     out = res.summary()
     out.update(task.config())
     out.pop("spec", None)
@@ -130,7 +132,7 @@ def cmd_rollout(args: argparse.Namespace) -> int:
         print(json.dumps(out))
     else:
         state = f"FELL at step {res.fall_step} ({res.reason})" if res.fell else "stable"
-        print(f"{task.robot_name} {task.gait} on {task.terrain} [{task.actor}]: cost {res.cost:.3f}, "
+        print(f"{task.robot_name} {task.gait} ({where}): cost {res.cost:.3f}, "
               f"{state}, mean vx (last 3 s) {res.mean_vx:.3f} m/s, height {res.mean_height:.3f} m, "
               f"{res.steps} steps in {res.wall_s:.2f} s")
     return 0
