@@ -92,6 +92,16 @@ def test_run_commands_reject_bad_arguments(capsys, tmp_path, cmd, bad):
     assert not (tmp_path / "r" / "run.db").exists()
 
 
+@pytest.mark.parametrize("cmd", ["tune", "phase3"])
+@pytest.mark.parametrize("bad", [["--handover", "size=3"], ["--handover", "patience=a"],
+                                 ["--handover", "tol=2"], ["--handover", "length=0"],
+                                 ["--handover", "patience"]], ids=lambda b: " ".join(b))
+def test_bad_handover_options(capsys, tmp_path, cmd, bad):
+    argv = [cmd, "--out", tmp_path / "r", "--quiet", "--backend", "serial", *bad]
+    assert "--handover" in assert_one_line(capsys, *argv)
+    assert not (tmp_path / "r" / "run.db").exists()
+
+
 @pytest.mark.parametrize("bad", BAD_TASK_ARGS + [
     ["--params", "missing.json"], ["--gif", "/nonexistent/dir/x.gif"], ["--gif", "."],
     ["--gif", "x.png"], ["--plot", "x.txt"], ["--plot", "/nonexistent/x.png"], ["--json", "x"],

@@ -144,6 +144,53 @@ def test_study_phases_on_a_user_system(tmp_path, plugin_dir):
     target.close()
 
 
+def test_phase3_hands_over_to_the_full_space_and_records_it(tmp_path, plugin_dir):
+    import myplant
+
+    model, real = myplant.make(8, 0.0), myplant.make(8, 0.15)
+    with lt.Study(tmp_path / "sim", seed=3) as sim:
+        sim.phase1(model, 48)
+        sim.train_latent(latent_dim=3, epochs=40)
+    with lt.Study(tmp_path / "plain", seed=3) as plain:
+        floor = plain.phase3(real, 40, latent=tmp_path / "sim").best_cost
+    opts = {"patience": 8}
+    with lt.Study(tmp_path / "real", seed=3) as target:
+        target.phase3(real, 24, latent=tmp_path / "sim", handover=opts, max_new=24)
+    with lt.Study(tmp_path / "real", seed=3) as target:        # resumed
+        res = target.phase3(real, 40, latent=tmp_path / "sim", handover=opts)
+        rec = target.config()["phase3_handover"]
+        rows = target.store.rows(Phase.PHASE3)
+        ls = target.latent()
+        summ = target.summary()["phase3_handover"]
+        report = target.report(simulate=False) and (target.dir / "report.md").read_text()
+    at = rec["handover_at"]
+    assert res.n == 40 and at is not None and 8 <= at < 40
+    # the store says which space each evaluation came from: z up to the hand-over, none after
+    assert [r.z is not None for r in rows] == [True] * at + [False] * (40 - at)
+    np.testing.assert_allclose(rows[0].theta, ls.decode(rows[0].z[None])[0], atol=1e-9)
+    assert res.best_cost < floor            # the full-space stage gets below the latent floor
+    assert summ["latent_evals"] == at and summ["full_evals"] == 40 - at
+    assert summ["full_best"] == pytest.approx(res.best_cost)
+    assert f"handed over after {at} latent evaluations" in report
+    with pytest.raises(StoreError, match="handover"):
+        lt.Study(tmp_path / "real", seed=3).phase3(real, 50, latent=tmp_path / "sim")
+    with pytest.raises(LatentuneError, match="handover"):
+        lt.Study(tmp_path / "bad", seed=3).phase3(real, 5, latent=tmp_path / "sim",
+                                                  handover={"after": 3})
+    # ask/tell with a hand-over: suggestions cross into the full space like the phase does
+    at_study = lt.Study(tmp_path / "asktell", seed=3)
+    n_full = 0
+    for _ in range(7):
+        for sg in at_study.ask(4, system=real, phase=3, latent=tmp_path / "sim",
+                               handover=opts):
+            n_full += sg.z is None and sg.phase == Phase.PHASE3
+            at_study.tell(sg.id, real.evaluate(sg.theta))
+    assert n_full > 0
+    zs = [r.z is not None for r in at_study.store.rows(Phase.PHASE3)]
+    assert zs == sorted(zs, reverse=True) and zs[0]
+    at_study.close()
+
+
 def test_a_second_writer_is_refused_at_once(tmp_path, plugin_dir):
     import myplant
 

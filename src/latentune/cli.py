@@ -170,6 +170,8 @@ def add_run_args(p: argparse.ArgumentParser, name: str) -> None:
                    help="fall-aware critic: skip candidates whose predicted probability of "
                         "failing exceeds P in (0, 1] (default off; phase 3 learns it from the "
                         "latent space's source run)")
+    if name in ("tune", "phase3"):
+        _handover_arg(p)
     if name == "phase1":
         p.add_argument("--fall-prior", default=None, metavar="RUN_DIR",
                        help="with --max-fall-prob: a run whose phase-1 trials seed the prediction")
@@ -179,6 +181,38 @@ def add_run_args(p: argparse.ArgumentParser, name: str) -> None:
         p.add_argument("--vae", default=None, metavar="RUN_DIR",
                        help="use the latent space of another run (same θ); its best θ is also "
                             "run as it is here (zero-shot baseline)")
+
+
+def _handover_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--handover", nargs="?", const="on", default=None, metavar="OPTS",
+                   help="phase 3 hands over to TuRBO-m on the full θ once the latent search "
+                        "stalls; OPTS = patience=20,tol=0.01,length=0.2 (any of them; "
+                        "default these)")
+
+
+def _handover(args: argparse.Namespace) -> Any:
+    """--handover [OPTS] as Study.phase3's ``handover`` argument (None, True or a dict)."""
+    v = getattr(args, "handover", None)
+    if v is None:
+        return None
+    if v == "on":
+        return True
+    out: dict[str, Any] = {}
+    for part in v.split(","):
+        key, sep, val = part.partition("=")
+        if not sep or key.strip() not in ("patience", "tol", "length"):
+            raise CLIError(f"--handover {v}: expected patience=N,tol=X,length=X")
+        try:
+            out[key.strip()] = int(val) if key.strip() == "patience" else float(val)
+        except ValueError:
+            raise CLIError(f"--handover {v}: {key.strip()} must be a number, got {val!r}") from None
+    from latentune.pipeline.phases import handover_options
+
+    try:
+        handover_options(out)
+    except ValueError as exc:
+        raise CLIError(f"--handover {v}: {exc}") from None
+    return out
 
 
 def _study(args: argparse.Namespace):
@@ -231,11 +265,12 @@ def _phase1_study(args: argparse.Namespace) -> tuple[Any, Any]:
 
 
 def cmd_tune(args: argparse.Namespace) -> int:
+    handover = _handover(args)                      # checked before phase 1 runs
     study, system = _phase1_study(args)
     with study:
         study.train_latent(args.latent_dim, kind=args.vae_kind, epochs=args.vae_epochs)
         study.phase3(system, args.phase3_evals, method=args.method, regions=args.regions,
-                     max_fall_prob=args.max_fall_prob)
+                     max_fall_prob=args.max_fall_prob, handover=handover)
         _finish(study)
     return 0
 
@@ -262,6 +297,7 @@ def cmd_train_vae(args: argparse.Namespace) -> int:
 
 
 def cmd_phase3(args: argparse.Namespace) -> int:
+    handover = _handover(args)
     study = _study(args)
     _need_store(study, args.resume)
     if args.vae is None and not study.exists:
@@ -271,7 +307,8 @@ def cmd_phase3(args: argparse.Namespace) -> int:
     system = make_system(args, args.seed)
     with study:
         study.phase3(system, args.phase3_evals, latent=args.vae, method=args.method,
-                     regions=args.regions, max_fall_prob=args.max_fall_prob)
+                     regions=args.regions, max_fall_prob=args.max_fall_prob,
+                     handover=handover)
         _finish(study)
     return 0
 
@@ -328,7 +365,7 @@ def cmd_ask(args: argparse.Namespace) -> int:
             raise CLIError(f"--space {args.space}: {exc}") from None
     with study:
         sugg = study.ask(args.n, system=system, space=space, phase=args.phase, latent=args.vae,
-                         method=args.method)
+                         method=args.method, handover=_handover(args))
     if args.json:
         print(json.dumps([s.to_dict() for s in sugg]))
     else:
@@ -493,6 +530,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="1 = the full θ (default), 3 = the latent space of --vae")
     p.add_argument("--vae", default=None, metavar="RUN_DIR", help="the latent space for phase 3")
     p.add_argument("--method", choices=("turbo", "cma", "random", "sobol"), default="turbo")
+    _handover_arg(p)
     p.add_argument("--seed", type=_seed, default=None, help="seed (first ask only; default 0)")
     p.add_argument("--json", action="store_true", help="print one JSON list")
     p.set_defaults(func=cmd_ask)

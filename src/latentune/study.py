@@ -41,7 +41,7 @@ from latentune.constants import Phase
 from latentune.errors import LatentError, LockError, StoreError, UsageError
 from latentune.pipeline.evaluators import Evaluator, make_evaluator
 from latentune.pipeline.phases import (PhaseResult, default_batch_size, ensure_manual,
-                                       make_phase_critic, replay, run_phase, store_outcome,
+                                       handover_options, make_handover_critic, make_phase_critic, replay, run_phase, store_outcome,
                                        training_set)
 from latentune.pipeline.store import RunStore, Row
 from latentune.space import ParameterSpace
@@ -395,7 +395,8 @@ class Study:
 
     def phase3(self, system: Any, budget: int, *, latent: Any = None, method: str = "turbo",
                regions: int | None = None, start: Any = "manual",
-               max_fall_prob: float | None = None, max_new: int | None = None) -> PhaseResult:
+               max_fall_prob: float | None = None, handover: Any = None,
+               max_new: int | None = None) -> PhaseResult:
         """Phase 3: ``method`` tunes in the latent box through the decoder, on ``system``.
 
         Args:
@@ -406,17 +407,20 @@ class Study:
             max_fall_prob: skip candidates whose predicted probability of failing exceeds it;
                 the prediction starts from the latent space's source run (its phase-1 θ,
                 encoded, with their failed flags).
+            handover: ``True`` or a dict of options (``patience``, ``tol``, ``length``): when
+                the latent search stalls, continue with TuRBO-m on the full θ box from the best
+                decoded θ (:mod:`latentune.critic.handover`; the rule and where it fired are
+                recorded as ``phase3_handover`` in the run's config; rows of the full-space
+                stage have no z).
         If the latent space comes from another study, that study's best θ is evaluated on
         ``system`` as it is first (the zero-shot baseline, phase 4, one evaluation)."""
         check_system(system)
         ls, source = self._resolve_latent(latent, system)              # checks before writing
         theta0, start_rec = _start_point(start, system.space.manual, system.space.dim)
         extra = {"latent_source": source, "start": start_rec,
-                 **_fall_options(max_fall_prob, None if max_fall_prob is None else "latent source")}
+                 **_fall_options(max_fall_prob, None if max_fall_prob is None else "latent source"),
+                 "handover": _handover(handover)}
         pc = self._phase_config("phase3", method, budget, regions, extra)
-        prior = None
-        if max_fall_prob is not None:
-            prior = _latent_prior(self.dir if source == "self" else Path(source), ls)
         if self.exists:
             self.bind_check(system)
         with self.writing() as st:
@@ -428,18 +432,34 @@ class Study:
             self.log(f"manual θ: cost {manual:.3f}")
             self._zero_shot(system, source)
             x0 = None if theta0 is None else ls.to_unit(ls.encode(theta0))
-            critic = make_phase_critic(method, ls.d_low, self.batch_size, self.seed, x0,
-                                       pc["budget"], pc["regions"], max_fall_prob, prior)
+            critic = self._phase3_critic(ls, source, pc, x0)
+            two = pc["handover"] is not None
             t = time.perf_counter()
             try:
                 res = run_phase(st, Phase.PHASE3, system, critic, pc["budget"], self.evaluator(),
-                                decoder=ls.decode, seed=self.seed, progress=self.progress,
-                                max_new=max_new)
+                                decoder=None if two else ls.decode, seed=self.seed,
+                                progress=self.progress, max_new=max_new)
             finally:
                 self._add_wall("phase3", time.perf_counter() - t)
+                if two:
+                    self._update_config(phase3_handover=critic.rule())
             self._write_best(Phase.PHASE3)
             self.log(f"phase 3: {res.n} evaluations, best cost {res.best_cost:.3f}")
             return res
+
+    def _phase3_critic(self, ls: Any, source: str, pc: dict[str, Any], x0: Any) -> Any:
+        """The critic of phase 3 for the phase config ``pc``: on the latent box, or (with a
+        hand-over) a :class:`~latentune.critic.handover.Handover` on the θ box."""
+        mfp = pc.get("max_fall_prob")
+        run = self.dir if source == "self" else Path(source)
+        lprior = _latent_prior(run, ls) if mfp is not None else None
+        if pc.get("handover") is None:
+            return make_phase_critic(pc["method"], ls.d_low, self.batch_size, self.seed, x0,
+                                     pc["budget"], pc["regions"], mfp, lprior)
+        tprior = _theta_prior(run, ls.d) if mfp is not None else None
+        return make_handover_critic(pc["method"], ls, self.batch_size, self.seed, x0,
+                                    pc["budget"], pc["regions"], pc["handover"], mfp, lprior,
+                                    tprior)
 
     def latent(self) -> Any:
         """The latent space phase 3 uses here (own or copied), or None."""
@@ -559,18 +579,18 @@ class Study:
     # ------------------------------------------------------------------ ask / tell
     def ask(self, n: int = 1, *, system: Any = None, space: ParameterSpace | None = None,
             phase: int | None = None, latent: Any = None, method: str = "turbo",
-            budget: int = ASK_BUDGET) -> list[Suggestion]:
+            budget: int = ASK_BUDGET, handover: Any = None) -> list[Suggestion]:
         """Suggest ``n`` θ for trials run elsewhere; pending ones are handed out again first.
 
         The first ask fixes the study's system (``system``) or parameter space (``space``),
         the phase (1, or 3 with ``latent`` or this study's trained latent space) and the
-        critic's options; later asks reuse them. Every call rebuilds the critic from the store.
+        critic's options (``handover`` as in :meth:`phase3`); later asks reuse them. Every call rebuilds the critic from the store.
         Each suggestion is stored as pending and written as a ``--params`` file."""
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
             raise UsageError(f"n must be an integer >= 1, got {n!r}")
         with self.writing() as st:
             sp = self._ask_space(system, space)
-            at = self._ask_config(phase, method, budget, latent, sp)
+            at = self._ask_config(phase, method, budget, latent, sp, handover)
             ph = Phase(at["phase"])
             if ph == Phase.PHASE3:
                 self._ask_zero_shot(st, at.get("latent_source"))
@@ -581,16 +601,24 @@ class Study:
             k = n - len(out)
             if k > 0:
                 ls = self.latent() if ph == Phase.PHASE3 else None
-                dim = sp.dim if ls is None else ls.d_low
-                x0 = sp.manual if ls is None else ls.to_unit(ls.encode(sp.manual))
-                critic = make_phase_critic(at["method"], dim, self.batch_size, self.seed, x0,
-                                           at["budget"], at["regions"])
+                if ls is None:
+                    critic = make_phase_critic(at["method"], sp.dim, self.batch_size, self.seed,
+                                               sp.manual, at["budget"], at["regions"])
+                else:
+                    critic = self._phase3_critic(ls, at.get("latent_source", "self"), at,
+                                                 ls.to_unit(ls.encode(sp.manual)))
                 replay(st, ph, critic)
                 U = critic.ask(len(pending) + k)[len(pending):]
                 tags = critic.last_tags[len(pending):]
-                thetas = U if ls is None else np.atleast_2d(ls.decode(U))
+                Z = getattr(critic, "last_z", None)
+                if Z is not None:                      # a hand-over critic: U is θ already
+                    thetas = U
+                    zs = [z if np.all(np.isfinite(z)) else None for z in Z[len(pending):]]
+                else:
+                    thetas = U if ls is None else np.atleast_2d(ls.decode(U))
+                    zs = [None if ls is None else U[i] for i in range(k)]
                 for i in range(k):
-                    tid = st.add_trial(ph, thetas[i], None if ls is None else U[i], int(tags[i]))
+                    tid = st.add_trial(ph, thetas[i], zs[i], int(tags[i]))
                     out.append(self._suggestion(st.trials_by_id(tid), sp, again=False))
             return out
 
@@ -646,7 +674,7 @@ class Study:
         return stored
 
     def _ask_config(self, phase: int | None, method: str, budget: int, latent: Any,
-                    space: ParameterSpace) -> dict[str, Any]:
+                    space: ParameterSpace, handover: Any = None) -> dict[str, Any]:
         cfg = self.config()
         stored = cfg.get("asktell")
         if stored is not None:
@@ -662,7 +690,9 @@ class Study:
         if int(phase) == Phase.PHASE3:
             ls, source = self._resolve_latent(latent, _SpaceOnly(space))
             self._record_latent(ls, source)
-            extra = {"latent_source": source}
+            extra = {"latent_source": source, "handover": _handover(handover)}
+        elif handover:
+            raise UsageError("handover is an option of phase 3")
         pc = self._phase_config(key, method, budget, None, extra)
         at = {**pc, "phase": int(phase)}
         self._update_config(asktell=at, **{key: pc})
@@ -774,6 +804,13 @@ def _fall_options(max_fall_prob: float | None, prior: Any) -> dict[str, Any]:
         raise UsageError(f"max_fall_prob must be in (0, 1], got {max_fall_prob!r}")
     return {"max_fall_prob": float(max_fall_prob),
             "fall_prior": None if prior is None else str(prior)}
+
+
+def _handover(handover: Any) -> dict[str, Any] | None:
+    try:
+        return handover_options(handover)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
 
 
 def _prior_rows(run: Path) -> list[Row]:

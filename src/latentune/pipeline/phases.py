@@ -64,6 +64,63 @@ def make_phase_critic(method: str, dim: int, batch_size: int, seed: int, x0: np.
     return critic
 
 
+HANDOVER_DEFAULTS = {"patience": 20, "tol": 0.01, "length": 0.2}
+"""Options of the hand-over of phase 3 to the full θ space (see
+:mod:`latentune.critic.handover`): ``patience`` latent evaluations, relative ``tol``, the full
+trust region's initial side ``length``."""
+
+
+def handover_options(handover: Any) -> dict[str, Any] | None:
+    """The checked hand-over options: ``None``/``False`` (plain phase 3), ``True`` (defaults) or
+    a dict overriding some of :data:`HANDOVER_DEFAULTS`. ``ValueError`` for anything else."""
+    if handover is None or handover is False:
+        return None
+    if handover is True:
+        return dict(HANDOVER_DEFAULTS)
+    if not isinstance(handover, dict) or set(handover) - set(HANDOVER_DEFAULTS):
+        raise ValueError("handover must be True, False or a dict with keys "
+                         f"{', '.join(HANDOVER_DEFAULTS)}, got {handover!r}")
+    out = {**HANDOVER_DEFAULTS, **handover}
+    p, t, ln = out["patience"], out["tol"], out["length"]
+    if isinstance(p, bool) or not isinstance(p, (int, np.integer)) or p < 1:
+        raise ValueError(f"handover patience must be an integer >= 1, got {p!r}")
+    if isinstance(t, bool) or not isinstance(t, (int, float)) or not 0 <= t < 1:
+        raise ValueError(f"handover tol must be in [0, 1), got {t!r}")
+    if isinstance(ln, bool) or not isinstance(ln, (int, float)) or not 0 < ln <= 1.6:
+        raise ValueError(f"handover length must be in (0, 1.6], got {ln!r}")
+    return {"patience": int(p), "tol": float(t), "length": float(ln)}
+
+
+def make_handover_critic(method: str, latent: Any, batch_size: int, seed: int,
+                         x0: np.ndarray | None, budget: int, regions: int | None,
+                         handover: dict[str, Any], max_fall_prob: float | None = None,
+                         latent_prior: tuple[np.ndarray, np.ndarray] | None = None,
+                         theta_prior: tuple[np.ndarray, np.ndarray] | None = None):
+    """Phase 3 with a hand-over (:class:`~latentune.critic.handover.Handover`): ``method`` on
+    the latent box of ``latent`` (a LatentSpace) from the code ``x0`` (k,), then TuRBO-m with
+    one trust region on the full θ box. With ``max_fall_prob`` both are fall-aware, with the
+    source run's points in each box (``latent_prior``, ``theta_prior``) as priors."""
+    from latentune.critic.handover import Handover
+
+    lat = make_phase_critic(method, latent.d_low, batch_size, seed, x0, budget, regions,
+                            max_fall_prob, latent_prior)
+
+    def make_full(length: float):
+        from latentune.critic.turbo import TurboM
+
+        full = TurboM(latent.d, batch_size=batch_size, seed=seed, n_regions=1,
+                      length_init=length)
+        if max_fall_prob is None:
+            return full
+        from latentune.critic.fall_aware import FallAware
+
+        px, pf = theta_prior if theta_prior is not None and len(theta_prior[0]) else (None, None)
+        return FallAware(full, max_fall_prob=max_fall_prob, prior_X=px, prior_fell=pf)
+
+    return Handover(lat, latent.decode, latent.d, make_full, patience=handover["patience"],
+                    tol=handover["tol"], handover_length=handover["length"])
+
+
 @dataclass
 class PhaseResult:
     phase: int
@@ -99,6 +156,18 @@ def store_outcome(store: RunStore, phase: int, idx: int, theta: np.ndarray, out:
 def replay(store: RunStore, phase: int, critic: Any) -> int:
     """Tell ``critic`` the stored rows of ``phase`` (idx order, with their tags); return n."""
     store.check_contiguous(phase)
+    if hasattr(critic, "last_z"):                  # a two-space critic: θ, and z where stored
+        rows = store.rows(phase)
+        if not rows:
+            return 0
+        k = critic.last_z.shape[1]
+        X = np.array([r.theta for r in rows])
+        Z = np.array([r.z if r.z is not None and len(r.z) == k else np.full(k, np.nan)
+                      for r in rows])
+        y = np.array([r.cost for r in rows])
+        critic.tell(X, _restore_inf(y), np.array([r.tag for r in rows], dtype=np.int64),
+                    fell=np.array([r.fell for r in rows], dtype=bool), z=Z)
+        return len(rows)
     X, y, tags = store.history(phase)
     if len(y):
         if X.shape[1] != critic.dim:
@@ -125,6 +194,9 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
         evaluator: a :class:`~latentune.pipeline.evaluators.Evaluator`.
         decoder: the map D from the critic's box to normalized θ ((n, k) -> (n, d)); ``None`` is
             the identity (phase 1). Rows then store both z (the critic's point) and θ.
+            A critic with a ``last_z`` attribute (:class:`~latentune.critic.handover.Handover`)
+            works on θ itself and decodes its latent-stage points on its own: rows store its
+            ``last_z`` rows as z where they are finite, and it is told them back (``z=``).
         max_new: stop after this many new evaluations (tests; ``None`` = no limit).
         known: outcomes already measured, by ``theta.tobytes()`` of the (d,) float64 θ: an asked
             θ found here is stored with that outcome instead of being run again (the manual θ,
@@ -150,6 +222,8 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
                 k = min(k, max_new - new)
             U = critic.ask(k)
             T = critic.last_tags.copy()
+            Z = getattr(critic, "last_z", None)       # a two-space critic's latent codes
+            Z = None if Z is None else Z.copy()
             thetas = U if decoder is None else np.atleast_2d(decoder(U))
             ib, yb, fb = [], [], []                # ask index, cost and fell of each result
             error: str | None = None
@@ -158,8 +232,10 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
                     error = error or r.message
                     continue
                 cost = float(r.cost)
-                store_outcome(store, phase, idx, thetas[i], r,
-                              z=None if decoder is None else U[i], tag=int(T[i]), seed=seed)
+                z = None if decoder is None else U[i]
+                if Z is not None and np.all(np.isfinite(Z[i])):
+                    z = Z[i]
+                store_outcome(store, phase, idx, thetas[i], r, z=z, tag=int(T[i]), seed=seed)
                 idx += 1
                 new += 1
                 ib.append(i)
@@ -180,7 +256,8 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
             order = np.argsort(ib, kind="stable")
             ii = np.asarray(ib, dtype=np.int64)[order]
             critic.tell(U[ii], np.asarray(yb, dtype=float)[order], T[ii].astype(np.int64),
-                        fell=np.asarray(fb, dtype=bool)[order])
+                        fell=np.asarray(fb, dtype=bool)[order],
+                        **({} if Z is None else {"z": Z[ii]}))
     finally:
         if bar is not None:
             bar.close()

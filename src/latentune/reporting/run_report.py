@@ -142,6 +142,27 @@ def comparison_table(store: Any) -> str:
     return "\n".join(lines)
 
 
+def _fmt(v: float | None) -> str:
+    return "-" if v is None else f"{v:.3f}"
+
+
+def handover_stats(store: Any) -> dict[str, Any] | None:
+    """Phase 3 with a hand-over (:mod:`latentune.critic.handover`): the recorded rule, and the
+    evaluations, best cost and falls of each space (rows with z: latent space; without: θ);
+    None for a plain phase 3."""
+    rec = (store.get_meta("config") or {}).get("phase3_handover")
+    if rec is None:
+        return None
+    rows = store.rows(Phase.PHASE3)
+    out: dict[str, Any] = dict(rec)
+    for name, part in (("latent", [r for r in rows if r.z is not None]),
+                       ("full", [r for r in rows if r.z is None])):
+        out[f"{name}_evals"] = len(part)
+        out[f"{name}_best"] = min((r.cost for r in part), default=None)
+        out[f"{name}_falls"] = sum(r.fell for r in part)
+    return out
+
+
 def write_summary(store: Any, wall_this: float | None = None) -> dict[str, Any]:
     """Write ``DIR/summary.json`` from the store and return it.
 
@@ -152,7 +173,7 @@ def write_summary(store: Any, wall_this: float | None = None) -> dict[str, Any]:
     (per phase, the best θ's RMS velocity error [m/s]; None for a user system); wall times [s]
     ``wall_s`` (sum over phases), ``wall_by_phase_s``, ``wall_s_this_command``; ``seed``,
     ``config``, ``artifacts``, ``phase{1,3}_best_params``, ``paper`` (the paper's numbers for
-    the task or None), ``written`` (unix time).
+    the task or None), ``phase3_handover`` (:func:`handover_stats`), ``written`` (unix time).
     """
     cfg = store.get_meta("config") or {}
     wall = store.get_meta("wall", {}) or {}
@@ -185,6 +206,7 @@ def write_summary(store: Any, wall_this: float | None = None) -> dict[str, Any]:
         "phase3_best_params": arts.get("phase3_best"),
         "artifacts": arts,
         "paper": _paper_numbers(cfg) if "task" in cfg else None,
+        "phase3_handover": handover_stats(store),
         "written": time.time(),
     }
     (store.dir / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
@@ -263,6 +285,16 @@ def make_report(store: Any, system: Any = None, simulate: bool = True, quiet: bo
         src = cfg.get("phase3_vae_source")
         if src and src != "self":
             md.append(f"Phase 3 used the VAE of {src} ({lat.get('from')}).")
+        ho = summary.get("phase3_handover")
+        if ho:
+            at = ho.get("handover_at")
+            md.append(f"Phase 3 hand-over rule: {ho.get('rule')}; "
+                      + (f"it handed over after {at} latent evaluations" if at is not None
+                         else "it did not hand over")
+                      + f" (latent space: {ho['latent_evals']} evaluations, best "
+                      f"{_fmt(ho['latent_best'])}, {ho['latent_falls']} falls; full θ: "
+                      f"{ho['full_evals']} evaluations, best {_fmt(ho['full_best'])}, "
+                      f"{ho['full_falls']} falls).")
         md.append("")
     wall = summary.get("wall_by_phase_s") or {}
     if wall:

@@ -1,0 +1,194 @@
+"""Phase 3 without a floor (issue 15): phase 3 with a hand-over to the full θ space against plain
+phase 3 and direct search on θ, all from scratch, at equal budgets and seeds.
+
+    python benchmarks/handover.py --robot solo12 --task jump --actor kinodynamic \\
+        --vae results/solo12/solo12-trot --budget 100 --seeds 0 1 2 3 4 \\
+        --methods handover latent turbo optuna_cma optuna_tpe --targets 25.0 23.0 \\
+        --work /work/runs/se_solo12 --out results/handover/solo12_jump.json
+
+Methods (every one from scratch: no method gets the manual θ as its first point):
+
+* ``latent``: plain phase 3 (``Study.phase3(start=None)``), TuRBO-m in the VAE's latent box;
+* ``handover``: the same with ``handover=True`` (``Study.phase3``'s defaults, or ``--handover``
+  options), which continues with TuRBO-m on θ once the latent search stalls;
+* ``turbo``: TuRBO-m on θ (``Study.phase1(start=None)``);
+* ``optuna_cma``, ``optuna_tpe``: Optuna's ``CmaEsSampler`` / ``TPESampler(multivariate=True)``
+  on the unit box of θ, seeded, asked in batches of ``--batch-size`` before any is told, as a
+  user would call them; their trials go through the same evaluator and are stored as phase 1 of
+  a run store (Optuna is installed for the benchmark only: ``pip install optuna``).
+
+Every (method, seed) is a run store under ``--work`` (``<method>_s<seed>``); a finished store is
+read instead of re-run (so stores of ``benchmarks/sample_efficiency.py`` with the same task,
+budget, batch size and seed are reused: the same Study calls). Reported per method: evaluations
+to the manual cost and to each ``--targets`` cost (median over seeds; a seed that never gets
+there counts as infinite), the best cost after the budget (median, min, max), and falls during
+tuning (median per run).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import time
+from pathlib import Path
+
+from latentune.threads import one_thread_env
+
+one_thread_env()
+
+import numpy as np  # noqa: E402
+
+import latentune as lt  # noqa: E402
+from latentune.constants import Phase  # noqa: E402
+from latentune.reporting.metrics import evals_to_beat  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).parent))
+from sample_efficiency import _median, provenance  # noqa: E402
+
+METHODS = ("latent", "handover", "turbo", "optuna_cma", "optuna_tpe")
+
+
+def run_optuna(study: lt.Study, task: lt.Task, method: str, budget: int, seed: int,
+               batch: int, evaluator) -> None:
+    """Optuna's sampler on θ's unit box, ``batch`` asks then their tells, until ``budget``
+    trials are stored as phase 1 of ``study`` (a partial run is started again)."""
+    import optuna
+    from latentune.pipeline.phases import store_outcome
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    sampler = (optuna.samplers.CmaEsSampler(seed=seed) if method == "optuna_cma"
+               else optuna.samplers.TPESampler(seed=seed, multivariate=True))
+    ost = optuna.create_study(sampler=sampler)
+    d = task.space.dim
+    dist = {f"x{j}": optuna.distributions.FloatDistribution(0.0, 1.0) for j in range(d)}
+    with study.writing() as st:
+        if 0 < st.count(Phase.PHASE1) < budget:
+            raise RuntimeError(f"{study.dir}: a partial Optuna run; delete it to start again")
+        study.bind(task)
+        st.set_meta("optuna", {"sampler": method, "seed": seed, "batch_size": batch,
+                               "budget": budget, "version": optuna.__version__})
+        idx = 0
+        while idx < budget:
+            trials = [ost.ask(dist) for _ in range(min(batch, budget - idx))]
+            X = np.array([[t.params[f"x{j}"] for j in range(d)] for t in trials])
+            outs = dict(evaluator.imap(task, X))
+            for i, t in enumerate(trials):
+                out = outs[i]
+                store_outcome(st, Phase.PHASE1, idx, X[i], out, tag=-1, seed=seed)
+                idx += 1
+                ost.tell(t, float(out.cost))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--robot", default="a1")
+    ap.add_argument("--task", default="jump")
+    ap.add_argument("--actor", default=None)
+    ap.add_argument("--reality", default=None, help="a reality preset or YAML for the target")
+    ap.add_argument("--vae", required=True, help="run directory whose latent space phase 3 uses")
+    ap.add_argument("--budget", type=int, default=100)
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
+    ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
+    ap.add_argument("--handover", default=None, help='JSON options, e.g. \'{"length": 0.4}\'')
+    ap.add_argument("--handover-name", default="handover",
+                    help="store name of the handover method (for option variants)")
+    ap.add_argument("--targets", type=float, nargs="*", default=[])
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--batch-size", type=int, default=4)
+    ap.add_argument("--work", required=True)
+    ap.add_argument("--out", default=None)
+    a = ap.parse_args()
+    t_start = time.perf_counter()
+    from latentune.pipeline.evaluators import make_evaluator
+
+    kw = {"actor": a.actor} if a.actor else {}
+    if a.reality:
+        kw["reality"] = a.reality
+    task = lt.Task(a.robot, a.task, **kw)
+    manual = task.rollout(task.space.manual).cost
+    handover = json.loads(a.handover) if a.handover else True
+    work = Path(a.work)
+    work.mkdir(parents=True, exist_ok=True)
+    print(f"{a.robot} {a.task}{' / ' + a.reality if a.reality else ''}: manual {manual:.3f}; "
+          f"budget {a.budget}; seeds {a.seeds}; stores in {work}", flush=True)
+    ev = make_evaluator("process", a.workers)
+    res: dict[str, list[dict]] = {}
+    try:
+        for m in a.methods:
+            name = a.handover_name if m == "handover" else m
+            for s in a.seeds:
+                d = work / f"{name}_s{s}"
+                phase = Phase.PHASE3 if m in ("latent", "handover") else Phase.PHASE1
+                t0 = time.perf_counter()
+                with lt.Study(d, seed=s, workers=a.workers, batch_size=a.batch_size,
+                              evaluator=ev) as study:
+                    if study.exists and study.store.count(phase) >= a.budget:
+                        ran = False
+                    else:
+                        ran = True
+                        if m.startswith("optuna") and study.exists:
+                            study.close()
+                            shutil.rmtree(d)
+                            study = lt.Study(d, seed=s, workers=a.workers,
+                                             batch_size=a.batch_size, evaluator=ev)
+                        if m == "latent":
+                            study.phase3(task, a.budget, latent=a.vae, start=None)
+                        elif m == "handover":
+                            study.phase3(task, a.budget, latent=a.vae, start=None,
+                                         handover=handover)
+                        elif m == "turbo":
+                            study.phase1(task, a.budget, start=None)
+                        else:
+                            run_optuna(study, task, m, a.budget, s, a.batch_size, ev)
+                    rows = study.store.rows(phase)[: a.budget]
+                    cfg = study.config()
+                y = np.array([r.cost for r in rows])
+                fell = np.array([r.fell for r in rows])
+                r = {"seed": s, "to_manual": evals_to_beat(y, manual),
+                     "to": [evals_to_beat(y, t) for t in a.targets], "best": float(y.min()),
+                     "falls": int(fell.sum()), "n": int(len(y)),
+                     "wall_s": time.perf_counter() - t0 if ran else None, "ran": ran}
+                if m == "handover":
+                    ho = cfg.get("phase3_handover", {})
+                    r["handover_at"] = ho.get("handover_at")
+                    at = r["handover_at"] if r["handover_at"] is not None else len(y)
+                    r["best_at_handover"] = float(y[:at].min()) if at else None
+                    r["falls_after_handover"] = int(fell[at:].sum())
+                res.setdefault(name, []).append(r)
+                print(f"  {name:10s} seed {s}: best {r['best']:.3f}, to manual {r['to_manual']}, "
+                      f"to {a.targets} {r['to']}, falls {r['falls']}"
+                      + (f", handed over at {r.get('handover_at')}" if m == "handover" else "")
+                      + ("" if ran else " (stored)"), flush=True)
+    finally:
+        ev.close()
+    tabs = ["| " + " | ".join(["method", "seeds", "evals to manual",
+                               *[f"to {t:g}" for t in a.targets],
+                               "best (median [min, max])", "falls (median)"]) + " |",
+            "|---|---:|---:|" + "---:|" * len(a.targets) + "---|---:|"]
+    summary = {}
+    for name, rs in res.items():
+        b = [r["best"] for r in rs]
+        row = {"to_manual": _median([r["to_manual"] for r in rs]),
+               "to": [_median([r["to"][k] for r in rs]) for k in range(len(a.targets))],
+               "best_median": float(np.median(b)), "best_min": float(min(b)),
+               "best_max": float(max(b)), "falls_median": float(np.median([r["falls"] for r in rs]))}
+        summary[name] = row
+        tabs.append("| " + " | ".join(
+            [name, str(len(rs)), f"{row['to_manual']:g}", *[f"{v:g}" for v in row["to"]],
+             f"{row['best_median']:.3f} [{row['best_min']:.3f}, {row['best_max']:.3f}]",
+             f"{row['falls_median']:g}"]) + " |")
+    print("\n" + "\n".join(tabs))
+    if a.out:
+        out = Path(a.out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps({"robot": a.robot, "task": a.task, "actor": a.actor,
+                                   "reality": a.reality, "manual": manual, "budget": a.budget,
+                                   "seeds": a.seeds, "vae": a.vae, "handover": handover,
+                                   "targets": a.targets, "work": str(work),
+                                   "provenance": provenance(sys.argv, t_start),
+                                   "summary": summary, "table": tabs, "results": res}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
