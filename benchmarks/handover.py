@@ -91,6 +91,8 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
     ap.add_argument("--handover", default=None, help='JSON options, e.g. \'{"length": 0.4}\'')
+    ap.add_argument("--max-fall-prob", type=float, default=None,
+                    help="the handover method's fall-aware option (both of its stages)")
     ap.add_argument("--handover-name", default="handover",
                     help="store name of the handover method (for option variants)")
     ap.add_argument("--targets", type=float, nargs="*", default=[])
@@ -136,7 +138,7 @@ def main() -> None:
                             study.phase3(task, a.budget, latent=a.vae, start=None)
                         elif m == "handover":
                             study.phase3(task, a.budget, latent=a.vae, start=None,
-                                         handover=handover)
+                                         handover=handover, max_fall_prob=a.max_fall_prob)
                         elif m == "turbo":
                             study.phase1(task, a.budget, start=None)
                         else:
@@ -185,6 +187,7 @@ def main() -> None:
         out.write_text(json.dumps({"robot": a.robot, "task": a.task, "actor": a.actor,
                                    "reality": a.reality, "manual": manual, "budget": a.budget,
                                    "seeds": a.seeds, "vae": a.vae, "handover": handover,
+                                   "max_fall_prob": a.max_fall_prob,
                                    "targets": a.targets, "work": str(work),
                                    "provenance": provenance(sys.argv, t_start),
                                    "summary": summary, "table": tabs, "results": res}, indent=1))

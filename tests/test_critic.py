@@ -496,3 +496,18 @@ def test_prior_side_is_the_side_when_the_checkpoint_was_reached():
     assert t._length_at(tr, 8) == pytest.approx(0.8)
     assert t._length_at(tr, 9) == pytest.approx(0.4)
     assert t._length_at(tr, 100) == pytest.approx(0.4)  # beyond the data: the current side
+
+
+def test_exact_thompson_samples_are_deterministic_and_make_progress():
+    def critic(seed):
+        t = TurboM(3, batch_size=4, seed=seed, n_regions=1, n_init=4, n_candidates=200,
+                   thompson="exact")
+        run(t, sphere, 6)
+        return t
+
+    a, b = critic(0), critic(0)
+    np.testing.assert_array_equal(a.X, b.X)
+    assert len({tuple(x) for x in a.X[4:8]}) == 4           # one batch, four distinct points
+    assert a.best_y < a.y[:4].min()                       # Thompson points beat the design
+    with pytest.raises(ValueError, match="thompson"):
+        TurboM(3, thompson="nope")
