@@ -154,6 +154,33 @@ def test_phase_identity_and_resume(tmp_path):
         assert r.n_new == 0
 
 
+def test_a_resumed_turbo_run_is_the_uninterrupted_run(tmp_path):
+    """The store keeps TuRBO-m's warm-started GP hyperparameters (its state_dict) after every
+    batch, so a run stopped between batches and resumed asks exactly the points of a run that
+    was never stopped; without that state it would not (the hyperparameters are refitted cold)."""
+    from latentune.pipeline.evaluators import SerialEvaluator
+    from latentune.pipeline.phases import make_phase_critic, run_phase, state_key
+
+    def critic():
+        return make_phase_critic("turbo", 6, 4, 0, None, 60, regions=2)
+
+    def thetas(st):
+        return np.array([r.theta for r in st.rows(1)])
+
+    with RunStore(tmp_path / "whole", create=True) as st:
+        run_phase(st, 1, quad, critic(), 60, SerialEvaluator())
+        whole = thetas(st)
+    with RunStore(tmp_path / "resumed", create=True) as st:
+        for stop in (20, 36, 60):
+            run_phase(st, 1, quad, critic(), 60, SerialEvaluator(), max_new=stop - st.count(1))
+        np.testing.assert_array_equal(thetas(st), whole)
+    with RunStore(tmp_path / "stateless", create=True) as st:
+        run_phase(st, 1, quad, critic(), 60, SerialEvaluator(), max_new=36)
+        st.set_meta(state_key(1), {})
+        run_phase(st, 1, quad, critic(), 60, SerialEvaluator())
+        assert not np.array_equal(thetas(st), whole)
+
+
 class _ReversedEvaluator:
     """Yields each batch's results last-first, as workers that finish out of order would."""
 

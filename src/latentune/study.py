@@ -41,7 +41,8 @@ from latentune.constants import Phase
 from latentune.errors import LatentError, LockError, StoreError, UsageError
 from latentune.pipeline.evaluators import Evaluator, make_evaluator
 from latentune.pipeline.phases import (PhaseResult, default_batch_size, ensure_manual,
-                                       handover_options, make_handover_critic, make_phase_critic, replay, run_phase, store_outcome,
+                                       handover_options, make_handover_critic, make_phase_critic,
+                                       save_state, replay, run_phase, store_outcome,
                                        training_set)
 from latentune.pipeline.store import RunStore, Row
 from latentune.space import ParameterSpace
@@ -610,6 +611,7 @@ class Study:
                 replay(st, ph, critic)
                 U = critic.ask(len(pending) + k)[len(pending):]
                 tags = critic.last_tags[len(pending):]
+                save_state(st, ph, critic)          # the next ask reuses its GP fits
                 Z = getattr(critic, "last_z", None)
                 if Z is not None:                      # a hand-over critic: U is θ already
                     thetas = U

@@ -29,6 +29,10 @@ Tags and resume (the contract the run store relies on)
   implementations for the precise guarantee). Points within one ``tell`` are grouped by tag,
   so the grouping of tell calls does not matter as long as each ask's points are told
   together or in order.
+* What the history does not determine (TuRBO-m's warm-started GP hyperparameters) is
+  :meth:`Critic.state_dict`; a fresh critic told the history and then given
+  :meth:`Critic.load_state_dict` of the original's state (saved after its last tell) asks the
+  original's next batch. The pipeline saves it in the run store after every batch.
 * Tags ``<= -2`` are reserved for implementation-specific markers (e.g. ``-2`` = a point of the
   warm start ``x0``); tags are always ``>= -2``.
 
@@ -230,6 +234,16 @@ class Critic(ABC):
         """Best finite cost told, ``inf`` if there is none."""
         i = self.best_index
         return float("inf") if i is None else float(self._y[i])
+
+    # ------------------------------------------------------------------ state
+    def state_dict(self) -> dict[str, Any]:
+        """What the told history does not determine and a resume should restore (JSON-ready;
+        ``{}`` for critics whose state is a function of the history). See
+        :meth:`load_state_dict`."""
+        return {}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore :meth:`state_dict` after the same history was told (no-op here)."""
 
     def __repr__(self) -> str:
         return (f"{type(self).__name__}(dim={self.dim}, batch_size={self.batch_size}, "

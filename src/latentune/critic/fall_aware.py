@@ -613,6 +613,15 @@ class FallAware(Critic):
                 ri.hypers = copy.deepcopy(rp.hypers)
                 ri.fit_count = rp.fit_count
 
+    def state_dict(self) -> dict[str, Any]:
+        """The inner critic's :meth:`~latentune.critic.base.Critic.state_dict`."""
+        return {"inner": self.inner.state_dict()}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        if state and "inner" in state:
+            self.inner.load_state_dict(state["inner"])
+            self._probe = None
+
     # ------------------------------------------------------------------ CMA-ES
     def _ask_cma(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         out: list[tuple[int, int]] = []

@@ -225,6 +225,18 @@ class Handover(Critic):
     def _tell_full(self, idx: np.ndarray, inner_tags: np.ndarray) -> None:
         self.full.tell(self._X[idx], self._y[idx], inner_tags, fell=self._fell[idx])
 
+    def state_dict(self) -> dict[str, Any]:
+        """The inner critics' states (``full`` only after the hand-over)."""
+        return {"latent": self.latent.state_dict(),
+                "full": None if self.full is None else self.full.state_dict()}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        if not state:
+            return
+        self.latent.load_state_dict(state.get("latent") or {})
+        if self.full is not None and state.get("full"):
+            self.full.load_state_dict(state["full"])
+
     def __repr__(self) -> str:
         return (f"Handover(dim={self.dim}, k={self.k}, stage={self.stage}, "
                 f"handover_at={self.handover_at}, n_told={self.n_told}, best_y={self.best_y:.6g})")

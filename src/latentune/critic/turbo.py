@@ -107,9 +107,11 @@ groups in generation order, so telling a stored history (X, y, tags) to a fresh 
 same options and seed replays the region updates batch by batch: lengths, counters, centres,
 bests, epochs and designs are identical. Randomness of ask ``g`` comes only from
 ``(seed, g)``. With ``warm_start=False`` the hyperparameters are a function of the data too, so
-the next ask is exactly the original's; with the default warm start the resumed critic refits
-from fixed values and may differ in the last digits of the hyperparameters (same trust-region
-state, slightly different candidates). A group whose region restarted after it was asked (only
+the next ask is exactly the original's. With the default warm start they also depend on the
+previous fits: :meth:`TurboM.state_dict` holds them (the pipeline stores it after every batch),
+and a resumed critic given :meth:`TurboM.load_state_dict` asks exactly the original's next
+batch; without it, it refits from fixed values and may differ in the last digits of the
+hyperparameters (same trust-region state, slightly different candidates). A group whose region restarted after it was asked (only
 with asynchronous asks) stays in the history but not in the region.
 
 Untagged points (``tags=None``): each goes to the region with the fewest epoch points while some
@@ -709,6 +711,29 @@ class TurboM(Critic):
             regions.append(ready[best_r].index)
             samples[best_r][:, best_j] = np.inf
         return np.asarray(X_out), regions
+
+    # ------------------------------------------------------------------ state
+    def state_dict(self) -> dict[str, Any]:
+        """Each region's fitted GP hyperparameters with the epoch and refit checkpoint they
+        belong to (floats as JSON numbers, which round-trip float64 exactly), and ``n_told``."""
+        return {"method": self.method, "n_told": self.n_told,
+                "regions": [{"index": tr.index, "epoch": tr.epoch, "fit_count": tr.fit_count,
+                             "hypers": {k: np.asarray(v, dtype=float).tolist()
+                                        for k, v in tr.hypers.items()}}
+                            for tr in self.regions if tr.hypers is not None]}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore the hyperparameters of :meth:`state_dict` (regions of another epoch, e.g.
+        restarted since, or another index are skipped; they refit as usual)."""
+        if not state or state.get("method") != self.method:
+            return
+        for r in state.get("regions", []):
+            i = int(r.get("index", -1))
+            if not 0 <= i < self.n_regions or self.regions[i].epoch != int(r.get("epoch", -1)):
+                continue
+            tr = self.regions[i]
+            tr.hypers = {k: np.asarray(v, dtype=float) for k, v in r["hypers"].items()}
+            tr.fit_count = int(r["fit_count"])
 
     # ------------------------------------------------------------------ inspection
     def region_state(self) -> list[dict[str, Any]]:

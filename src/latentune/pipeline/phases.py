@@ -153,8 +153,29 @@ def store_outcome(store: RunStore, phase: int, idx: int, theta: np.ndarray, out:
               fall_step=out.fall_step, wall_s=out.wall_s, seed=seed, info=out.info)
 
 
+def state_key(phase: int) -> str:
+    """The store's meta key of the critic state (:meth:`Critic.state_dict`) of ``phase``."""
+    return f"critic_state_{int(phase)}"
+
+
+def save_state(store: RunStore, phase: int, critic: Any) -> None:
+    """Store ``critic.state_dict()`` for ``phase`` (nothing for a critic without state)."""
+    state = critic.state_dict() if hasattr(critic, "state_dict") else {}
+    if state:
+        store.set_meta(state_key(phase), state)
+
+
 def replay(store: RunStore, phase: int, critic: Any) -> int:
-    """Tell ``critic`` the stored rows of ``phase`` (idx order, with their tags); return n."""
+    """Tell ``critic`` the stored rows of ``phase`` (idx order, with their tags) and restore
+    its stored state (:func:`save_state`); return n."""
+    n = _tell_rows(store, phase, critic)
+    state = store.get_meta(state_key(phase))
+    if n and state and hasattr(critic, "load_state_dict"):
+        critic.load_state_dict(state)
+    return n
+
+
+def _tell_rows(store: RunStore, phase: int, critic: Any) -> int:
     store.check_contiguous(phase)
     if hasattr(critic, "last_z"):                  # a two-space critic: θ, and z where stored
         rows = store.rows(phase)
@@ -258,6 +279,7 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
             critic.tell(U[ii], np.asarray(yb, dtype=float)[order], T[ii].astype(np.int64),
                         fell=np.asarray(fb, dtype=bool)[order],
                         **({} if Z is None else {"z": Z[ii]}))
+            save_state(store, phase, critic)
     finally:
         if bar is not None:
             bar.close()
