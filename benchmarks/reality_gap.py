@@ -47,9 +47,48 @@ def spread(v: list[float]) -> dict:
     return {"median": float(np.median(a)), "min": float(a.min()), "max": float(a.max())}
 
 
+def report(d: Path) -> str:
+    """One Markdown table of every ``*.json`` output in ``d``: per (robot, task, reality,
+    method) the best cost, falls and evaluations to beat zero-shot, plain and fall-aware side by
+    side, with the ratio of falls (fall-aware / plain)."""
+    rows: dict = {}
+    cmds = []
+    for f in sorted(d.glob("*.json")):
+        o = json.loads(f.read_text())
+        fa = o.get("max_fall_prob")
+        cmds.append(f"- `{f.name}`: `{o['provenance']['command']}` "
+                    f"({o['provenance']['wall_s']:.0f} s)")
+        for reality, ms in o["summary"].items():
+            for m, v in ms.items():
+                key = (o["robot"], o["task"], reality, m)
+                rows.setdefault(key, {})["fa" if fa else "plain"] = (v, len(o["seeds"]), fa)
+
+    def cell(v):
+        if v is None:
+            return "–", "–", "–"
+        b, f = v[0]["best"], v[0]["falls"]
+        return (f"{b['median']:.3f} [{b['min']:.3f}–{b['max']:.3f}]", f"{f['median']:.0f}",
+                f"{v[0]['evals_to_beat_zero_shot_median']:g}")
+
+    out = ["| robot | task | reality | method | zero-shot | best | falls | to beat zero-shot | "
+           "best, fall-aware | falls, fall-aware | falls ratio |", "|---" * 11 + "|"]
+    for (robot, task, reality, m), v in sorted(rows.items()):
+        p, q = cell(v.get("plain")), cell(v.get("fa"))
+        z = (v.get("plain") or v.get("fa"))[0]["zero_shot"]["median"]
+        ratio = "–"
+        if v.get("plain") and v.get("fa"):
+            a, b = v["plain"][0]["falls"]["median"], v["fa"][0]["falls"]["median"]
+            ratio = f"{b / a:.2f}" if a else ("1" if b == 0 else "inf")
+        out.append(f"| {robot} | {task} | {reality} | {m} | {z:.3f} | {p[0]} | {p[1]} | {p[2]} | "
+                   f"{q[0]} | {q[1]} | {ratio} |")
+    return "\n".join(out + ["", "Commands (wall time):", *cmds])
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--source", required=True, help="a finished run directory (phase 1 + VAE)")
+    ap.add_argument("--report", default=None, metavar="DIR",
+                    help="print one table of the outputs in DIR (e.g. results/reality_gap)")
+    ap.add_argument("--source", help="a finished run directory (phase 1 + VAE)")
     ap.add_argument("--realities", nargs="+", default=["hard", "mujoco"])
     ap.add_argument("--robot", default="a1")
     ap.add_argument("--task", default="trot")
@@ -64,6 +103,11 @@ def main() -> None:
     ap.add_argument("--work", default="runs/reality_gap")
     ap.add_argument("--out", default=None)
     a = ap.parse_args()
+    if a.report:
+        print(report(Path(a.report)))
+        return
+    if not a.source:
+        ap.error("--source is required")
     t0 = time.perf_counter()
     best0 = source_best(a.source).theta     # the zero-shot θ
     work = Path(a.work)

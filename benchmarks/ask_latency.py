@@ -1,0 +1,96 @@
+"""Wall time of one ``latentune ask`` (a new process: imports, store, critic rebuilt from the
+store) on a study with many told trials, with and without the stored critic state.
+
+    python benchmarks/ask_latency.py [--told 1000] [--dim 25] [--repeats 3]
+        [--out results/benchmarks/ask_latency.json]
+
+Builds an ask/tell study on a shifted sphere in ``--dim`` dimensions through the Python API
+(``Study.ask``/``tell`` in batches of 50 until ``--told`` trials are told), then times
+``latentune ask DIR --n 1`` followed by ``tell`` ``--repeats`` times: as it is (the store holds
+TuRBO-m's last GP fits, :meth:`Critic.state_dict`) and after deleting that state before each ask
+(every ask refits the GPs from scratch, as before the state was stored). Also times a bare
+``python -c "import latentune.critic.turbo"`` (the import floor of any ask).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from latentune.threads import one_thread_env, thread_env
+
+one_thread_env()
+
+import numpy as np  # noqa: E402
+
+import latentune as lt  # noqa: E402
+from latentune.pipeline.phases import state_key  # noqa: E402
+from latentune.pipeline.store import RunStore  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).parent))
+from sample_efficiency import provenance  # noqa: E402
+
+ENV = dict(os.environ, **thread_env())
+
+
+def cost(theta: np.ndarray) -> float:
+    return float(np.sum((theta - 0.3) ** 2))
+
+
+def cli_seconds(*args: str) -> float:
+    t = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "latentune.cli", *args], check=True,
+                   capture_output=True, env=ENV)
+    return time.perf_counter() - t
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--told", type=int, default=1000)
+    ap.add_argument("--dim", type=int, default=25)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--out", default=None)
+    a = ap.parse_args()
+    t0 = time.perf_counter()
+    d = Path(tempfile.mkdtemp(prefix="lt_asklat_")) / "study"
+    space = lt.ParameterSpace([f"k{i}" for i in range(a.dim)], [0.0] * a.dim, [1.0] * a.dim)
+    study = lt.Study(d, seed=0)
+    told = 0
+    while told < a.told:
+        for s in study.ask(min(50, a.told - told), space=space):
+            study.tell(s.id, cost(np.asarray(s.theta)))
+        told = study.store.count(1)
+    study.close()
+    build_s = time.perf_counter() - t0
+    t = time.perf_counter()
+    subprocess.run([sys.executable, "-c", "import latentune.critic.turbo, botorch"], check=True,
+                   env=ENV)
+    import_s = time.perf_counter() - t
+    out: dict = {"told": a.told, "dim": a.dim, "build_s": build_s, "import_s": import_s}
+    for mode in ("with_state", "without_state"):
+        secs = []
+        for _ in range(a.repeats):
+            if mode == "without_state":
+                with RunStore(d) as st:
+                    st.set_meta(state_key(1), {})
+            secs.append(cli_seconds("ask", str(d), "--json"))
+            with RunStore(d) as st:
+                tid = st.trials("pending")[0].id
+                theta = st.trials_by_id(tid).theta
+            cli_seconds("tell", str(d), str(tid), "--cost", repr(cost(theta)))
+        out[mode] = {"ask_s": secs, "median_s": float(np.median(secs))}
+        print(f"{mode:14s} ask wall {np.round(secs, 2).tolist()} s (median "
+              f"{np.median(secs):.2f}); import floor {import_s:.2f} s", flush=True)
+    out["provenance"] = provenance(sys.argv, t0)
+    out["provenance"]["loadavg"] = list(os.getloadavg())
+    if a.out:
+        Path(a.out).write_text(json.dumps(out, indent=1))
+
+
+if __name__ == "__main__":
+    main()
