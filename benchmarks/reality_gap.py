@@ -49,38 +49,45 @@ def spread(v: list[float]) -> dict:
 
 def report(d: Path) -> str:
     """One Markdown table of every ``*.json`` output in ``d``: per (robot, task, reality,
-    method) the best cost, falls and evaluations to beat zero-shot, plain and fall-aware side by
-    side, with the ratio of falls (fall-aware / plain)."""
+    method) the best cost, falls and evaluations to beat zero-shot without fall avoidance and
+    with each ``--max-fall-prob`` P found, and the ratio of falls (P / plain)."""
     rows: dict = {}
+    probs: set = set()
     cmds = []
     for f in sorted(d.glob("*.json")):
         o = json.loads(f.read_text())
         fa = o.get("max_fall_prob")
+        if fa:
+            probs.add(fa)
         cmds.append(f"- `{f.name}`: `{o['provenance']['command']}` "
                     f"({o['provenance']['wall_s']:.0f} s)")
         for reality, ms in o["summary"].items():
             for m, v in ms.items():
-                key = (o["robot"], o["task"], reality, m)
-                rows.setdefault(key, {})["fa" if fa else "plain"] = (v, len(o["seeds"]), fa)
+                rows.setdefault((o["robot"], o["task"], reality, m), {})[fa] = v
+    ps = sorted(probs)
 
     def cell(v):
         if v is None:
-            return "–", "–", "–"
-        b, f = v[0]["best"], v[0]["falls"]
-        return (f"{b['median']:.3f} [{b['min']:.3f}–{b['max']:.3f}]", f"{f['median']:.0f}",
-                f"{v[0]['evals_to_beat_zero_shot_median']:g}")
+            return ["–", "–", "–"]
+        b = v["best"]
+        return [f"{b['median']:.3f} [{b['min']:.3f}–{b['max']:.3f}]",
+                f"{v['falls']['median']:.0f}", f"{v['evals_to_beat_zero_shot_median']:g}"]
 
-    out = ["| robot | task | reality | method | zero-shot | best | falls | to beat zero-shot | "
-           "best, fall-aware | falls, fall-aware | falls ratio |", "|---" * 11 + "|"]
+    head = ["robot", "task", "reality", "method", "zero-shot", "best", "falls", "to beat zero-shot"]
+    for p in ps:
+        head += [f"best, P={p:g}", f"falls, P={p:g}", f"falls ratio, P={p:g}"]
+    out = ["| " + " | ".join(head) + " |", "|---" * len(head) + "|"]
     for (robot, task, reality, m), v in sorted(rows.items()):
-        p, q = cell(v.get("plain")), cell(v.get("fa"))
-        z = (v.get("plain") or v.get("fa"))[0]["zero_shot"]["median"]
-        ratio = "–"
-        if v.get("plain") and v.get("fa"):
-            a, b = v["plain"][0]["falls"]["median"], v["fa"][0]["falls"]["median"]
-            ratio = f"{b / a:.2f}" if a else ("1" if b == 0 else "inf")
-        out.append(f"| {robot} | {task} | {reality} | {m} | {z:.3f} | {p[0]} | {p[1]} | {p[2]} | "
-                   f"{q[0]} | {q[1]} | {ratio} |")
+        z = next(iter(v.values()))["zero_shot"]["median"]
+        cells = [robot, task, reality, m, f"{z:.3f}", *cell(v.get(None))]
+        for p in ps:
+            c = cell(v.get(p))
+            ratio = "–"
+            if v.get(None) and v.get(p):
+                a, b = v[None]["falls"]["median"], v[p]["falls"]["median"]
+                ratio = f"{b / a:.2f}" if a else ("1" if b == 0 else "inf")
+            cells += [c[0], c[1], ratio]
+        out.append("| " + " | ".join(cells) + " |")
     return "\n".join(out + ["", "Commands (wall time):", *cmds])
 
 
