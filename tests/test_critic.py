@@ -244,6 +244,17 @@ def test_resume_cma_restores_distribution():
 
 
 # ----------------------------------------------------------------------------- robustness
+def test_average_ranks_match_scipy():
+    from scipy.stats import rankdata
+
+    from latentune.critic.base import average_ranks
+
+    rng = np.random.default_rng(0)
+    for n in (1, 2, 7, 300):
+        for y in (rng.integers(0, 5, n).astype(float), rng.random(n)):
+            np.testing.assert_array_equal(average_ranks(y), rankdata(y, method="average"))
+
+
 def test_fill_nonfinite_and_copula():
     y = np.array([3.0, np.nan, 1.0, np.inf, -np.inf, 2.0])
     np.testing.assert_array_equal(fill_nonfinite(y), [3, 3, 1, 3, 3, 2])
