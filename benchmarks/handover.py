@@ -21,8 +21,9 @@ Every (method, seed) is a run store under ``--work`` (``<method>_s<seed>``); a f
 read instead of re-run (so stores of ``benchmarks/sample_efficiency.py`` with the same task,
 budget, batch size and seed are reused: the same Study calls). Reported per method: evaluations
 to the manual cost and to each ``--targets`` cost (median over seeds; a seed that never gets
-there counts as infinite), the best cost after the budget (median, min, max), and falls during
-tuning (median per run).
+there counts as infinite), the best cost after the budget (median, min, max), falls during
+tuning (median per run), and the two-sided Mann–Whitney U p-value of the bests against the
+handover method's.
 """
 from __future__ import annotations
 
@@ -80,13 +81,29 @@ def run_optuna(study: lt.Study, task: lt.Task, method: str, budget: int, seed: i
                 ost.tell(t, float(out.cost))
 
 
+def report(d: Path) -> str:
+    """The tables of every ``*.json`` output in ``d`` with their commands and wall times."""
+    out = []
+    for f in sorted(d.glob("*.json")):
+        o = json.loads(f.read_text())
+        pr = o["provenance"]
+        title = f"{o['robot']} {o['task']}" + (f", reality {o['reality']}" if o.get("reality")
+                                               else "")
+        out += [f"### {title}: `{f.name}`", "", f"`{pr['command']}` ({pr['wall_s']:.0f} s, "
+                f"commit {str(pr.get('commit'))[:7]}; manual cost {o['manual']:.3f})", "",
+                *o["table"], ""]
+    return "\n".join(out)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--report", default=None, metavar="DIR",
+                    help="print the tables of the outputs in DIR (e.g. results/handover)")
     ap.add_argument("--robot", default="a1")
     ap.add_argument("--task", default="jump")
     ap.add_argument("--actor", default=None)
     ap.add_argument("--reality", default=None, help="a reality preset or YAML for the target")
-    ap.add_argument("--vae", required=True, help="run directory whose latent space phase 3 uses")
+    ap.add_argument("--vae", help="run directory whose latent space phase 3 uses")
     ap.add_argument("--budget", type=int, default=100)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
@@ -98,9 +115,14 @@ def main() -> None:
     ap.add_argument("--targets", type=float, nargs="*", default=[])
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--batch-size", type=int, default=4)
-    ap.add_argument("--work", required=True)
+    ap.add_argument("--work")
     ap.add_argument("--out", default=None)
     a = ap.parse_args()
+    if a.report:
+        print(report(Path(a.report)))
+        return
+    if not (a.vae and a.work):
+        ap.error("--vae and --work are required")
     t_start = time.perf_counter()
     from latentune.pipeline.evaluators import make_evaluator
 
@@ -166,8 +188,12 @@ def main() -> None:
         ev.close()
     tabs = ["| " + " | ".join(["method", "seeds", "evals to manual",
                                *[f"to {t:g}" for t in a.targets],
-                               "best (median [min, max])", "falls (median)"]) + " |",
-            "|---|---:|---:|" + "---:|" * len(a.targets) + "---|---:|"]
+                               "best (median [min, max])", "falls (median)",
+                               "p (best vs handover)"]) + " |",
+            "|---|---:|---:|" + "---:|" * len(a.targets) + "---|---:|---:|"]
+    from scipy.stats import mannwhitneyu
+
+    ref = [r["best"] for r in res.get(a.handover_name, [])]
     summary = {}
     for name, rs in res.items():
         b = [r["best"] for r in rs]
@@ -175,11 +201,14 @@ def main() -> None:
                "to": [_median([r["to"][k] for r in rs]) for k in range(len(a.targets))],
                "best_median": float(np.median(b)), "best_min": float(min(b)),
                "best_max": float(max(b)), "falls_median": float(np.median([r["falls"] for r in rs]))}
+        p = (float(mannwhitneyu(ref, b).pvalue) if ref and name != a.handover_name
+             and len(ref) > 1 and len(b) > 1 else None)
+        row["p_best_vs_handover"] = p    # two-sided Mann-Whitney U over seeds
         summary[name] = row
         tabs.append("| " + " | ".join(
             [name, str(len(rs)), f"{row['to_manual']:g}", *[f"{v:g}" for v in row["to"]],
              f"{row['best_median']:.3f} [{row['best_min']:.3f}, {row['best_max']:.3f}]",
-             f"{row['falls_median']:g}"]) + " |")
+             f"{row['falls_median']:g}", "–" if p is None else f"{p:.2f}"]) + " |")
     print("\n" + "\n".join(tabs))
     if a.out:
         out = Path(a.out)
