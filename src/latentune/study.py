@@ -40,10 +40,10 @@ import numpy as np
 from latentune.constants import Phase
 from latentune.errors import LatentError, LockError, StoreError, UsageError
 from latentune.pipeline.evaluators import Evaluator, make_evaluator
-from latentune.pipeline.phases import (PhaseResult, default_batch_size, ensure_manual,
-                                       handover_options, make_handover_critic, make_phase_critic,
-                                       save_state, replay, run_phase, store_outcome,
-                                       training_set)
+from latentune.pipeline.phases import (PhaseResult, asked_points, default_batch_size,
+                                       ensure_manual, handover_options, make_handover_critic,
+                                       make_phase_critic, replay, run_phase, save_state,
+                                       store_outcome, training_set)
 from latentune.pipeline.store import RunStore, Row
 from latentune.space import ParameterSpace
 from latentune.system import EvaluationError, as_outcome, check_system, evaluate
@@ -585,7 +585,8 @@ class Study:
 
         The first ask fixes the study's system (``system``) or parameter space (``space``),
         the phase (1, or 3 with ``latent`` or this study's trained latent space) and the
-        critic's options (``handover`` as in :meth:`phase3`); later asks reuse them. Every call rebuilds the critic from the store.
+        critic's options (``handover`` as in :meth:`phase3`); later asks reuse them. Every call
+        rebuilds the critic from the store.
         Each suggestion is stored as pending and written as a ``--params`` file."""
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
             raise UsageError(f"n must be an integer >= 1, got {n!r}")
@@ -612,13 +613,9 @@ class Study:
                 U = critic.ask(len(pending) + k)[len(pending):]
                 tags = critic.last_tags[len(pending):]
                 save_state(st, ph, critic)          # the next ask reuses its GP fits
-                Z = getattr(critic, "last_z", None)
-                if Z is not None:                      # a hand-over critic: U is θ already
-                    thetas = U
-                    zs = [z if np.all(np.isfinite(z)) else None for z in Z[len(pending):]]
-                else:
-                    thetas = U if ls is None else np.atleast_2d(ls.decode(U))
-                    zs = [None if ls is None else U[i] for i in range(k)]
+                Z = getattr(critic, "last_z", None)    # a hand-over critic: U is θ already
+                thetas, zs = asked_points(U, None if Z is None else Z[len(pending):],
+                                          None if ls is None else ls.decode)
                 for i in range(k):
                     tid = st.add_trial(ph, thetas[i], zs[i], int(tags[i]))
                     out.append(self._suggestion(st.trials_by_id(tid), sp, again=False))

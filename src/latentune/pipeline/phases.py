@@ -55,13 +55,19 @@ def make_phase_critic(method: str, dim: int, batch_size: int, seed: int, x0: np.
     kw: dict[str, Any] = {"batch_size": batch_size, "seed": seed, "x0": x0}
     if method == "turbo":
         kw["n_regions"] = regions if regions is not None else regions_for_budget(budget)
-    critic = make_critic(method, dim, **kw)
-    if max_fall_prob is not None:
-        from latentune.critic.fall_aware import FallAware
+    return _fall_aware(make_critic(method, dim, **kw), max_fall_prob, prior)
 
-        px, pf = prior if prior is not None and len(prior[0]) else (None, None)
-        critic = FallAware(critic, max_fall_prob=max_fall_prob, prior_X=px, prior_fell=pf)
-    return critic
+
+def _fall_aware(critic: Any, max_fall_prob: float | None,
+                prior: tuple[np.ndarray, np.ndarray] | None) -> Any:
+    """``critic`` wrapped in :class:`~latentune.critic.fall_aware.FallAware` with the prior
+    (X, fell) (none when empty), or ``critic`` itself when ``max_fall_prob`` is None."""
+    if max_fall_prob is None:
+        return critic
+    from latentune.critic.fall_aware import FallAware
+
+    px, pf = prior if prior is not None and len(prior[0]) else (None, None)
+    return FallAware(critic, max_fall_prob=max_fall_prob, prior_X=px, prior_fell=pf)
 
 
 HANDOVER_DEFAULTS = {"patience": 20, "tol": 0.01, "length": 0.2}
@@ -108,14 +114,8 @@ def make_handover_critic(method: str, latent: Any, batch_size: int, seed: int,
     def make_full(length: float):
         from latentune.critic.turbo import TurboM
 
-        full = TurboM(latent.d, batch_size=batch_size, seed=seed, n_regions=1,
-                      length_init=length)
-        if max_fall_prob is None:
-            return full
-        from latentune.critic.fall_aware import FallAware
-
-        px, pf = theta_prior if theta_prior is not None and len(theta_prior[0]) else (None, None)
-        return FallAware(full, max_fall_prob=max_fall_prob, prior_X=px, prior_fell=pf)
+        return _fall_aware(TurboM(latent.d, batch_size=batch_size, seed=seed, n_regions=1,
+                                  length_init=length), max_fall_prob, theta_prior)
 
     return Handover(lat, latent.decode, latent.d, make_full, patience=handover["patience"],
                     tol=handover["tol"], handover_length=handover["length"])
@@ -151,6 +151,19 @@ def store_outcome(store: RunStore, phase: int, idx: int, theta: np.ndarray, out:
     """Commit one Outcome as evaluation ``idx`` of ``phase``."""
     store.add(phase, idx, theta, out.cost, z=z, tag=tag, fell=out.failed,
               fall_step=out.fall_step, wall_s=out.wall_s, seed=seed, info=out.info)
+
+
+def asked_points(U: np.ndarray, Z: np.ndarray | None, decoder: Callable | None
+                 ) -> tuple[np.ndarray, list[np.ndarray | None]]:
+    """The θ (n, d) of the points ``U`` (n, k) a critic just asked and the latent code to store
+    with each: ``Z`` (n, k) is a two-space critic's ``last_z`` (``U`` is θ already; a finite row
+    is the code, a NaN row none); else ``decoder(U)`` with ``U`` as the codes, or ``U`` itself
+    without a decoder (no codes)."""
+    if Z is not None:
+        return U, [z if np.all(np.isfinite(z)) else None for z in Z]
+    if decoder is None:
+        return U, [None] * len(U)
+    return np.atleast_2d(decoder(U)), list(U)
 
 
 def state_key(phase: int) -> str:
@@ -245,7 +258,7 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
             T = critic.last_tags.copy()
             Z = getattr(critic, "last_z", None)       # a two-space critic's latent codes
             Z = None if Z is None else Z.copy()
-            thetas = U if decoder is None else np.atleast_2d(decoder(U))
+            thetas, codes = asked_points(U, Z, decoder)
             ib, yb, fb = [], [], []                # ask index, cost and fell of each result
             error: str | None = None
             for i, r in _results(evaluator, system, thetas, known or {}):
@@ -253,10 +266,8 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
                     error = error or r.message
                     continue
                 cost = float(r.cost)
-                z = None if decoder is None else U[i]
-                if Z is not None and np.all(np.isfinite(Z[i])):
-                    z = Z[i]
-                store_outcome(store, phase, idx, thetas[i], r, z=z, tag=int(T[i]), seed=seed)
+                store_outcome(store, phase, idx, thetas[i], r, z=codes[i], tag=int(T[i]),
+                              seed=seed)
                 idx += 1
                 new += 1
                 ib.append(i)
