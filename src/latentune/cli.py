@@ -184,10 +184,12 @@ def add_run_args(p: argparse.ArgumentParser, name: str) -> None:
 
 
 def _handover_arg(p: argparse.ArgumentParser) -> None:
+    from latentune.critic.handover import HANDOVER_DEFAULTS
+
+    opts = ",".join(f"{k}={v:g}" for k, v in HANDOVER_DEFAULTS.items())
     p.add_argument("--handover", nargs="?", const="on", default=None, metavar="OPTS",
                    help="phase 3 hands over to TuRBO-m on the full θ once the latent search "
-                        "stalls; OPTS = patience=20,tol=0.01,length=0.2 (any of them; "
-                        "default these)")
+                        f"stalls; OPTS = {opts} (any of them; default these)")
 
 
 def _handover(args: argparse.Namespace) -> Any:
@@ -197,16 +199,20 @@ def _handover(args: argparse.Namespace) -> Any:
         return None
     if v == "on":
         return True
+    from latentune.critic.handover import HANDOVER_DEFAULTS
+    from latentune.pipeline.phases import handover_options
+
     out: dict[str, Any] = {}
     for part in v.split(","):
         key, sep, val = part.partition("=")
-        if not sep or key.strip() not in ("patience", "tol", "length"):
-            raise CLIError(f"--handover {v}: expected patience=N,tol=X,length=X")
+        key = key.strip()
+        if not sep or key not in HANDOVER_DEFAULTS:
+            raise CLIError(f"--handover {v}: expected "
+                           + ",".join(f"{k}=X" for k in HANDOVER_DEFAULTS))
         try:
-            out[key.strip()] = int(val) if key.strip() == "patience" else float(val)
+            out[key] = type(HANDOVER_DEFAULTS[key])(val)    # int patience, float tol, length
         except ValueError:
-            raise CLIError(f"--handover {v}: {key.strip()} must be a number, got {val!r}") from None
-    from latentune.pipeline.phases import handover_options
+            raise CLIError(f"--handover {v}: {key} must be a number, got {val!r}") from None
 
     try:
         handover_options(out)

@@ -52,6 +52,10 @@ from latentune.constants import C1
 LATENT = 0
 FULL = 1
 
+HANDOVER_DEFAULTS = {"patience": 20, "tol": 0.01, "length": 0.2}
+"""The hand-over's default options: ``patience`` latent evaluations, relative ``tol``, the full
+trust region's initial side ``length`` (:class:`Handover`'s ``handover_length``)."""
+
 
 def encode_tag(inner: int, stage: int) -> int:
     """The Handover tag of a point with the inner critic's tag ``inner`` (≥ −2) in ``stage``."""
@@ -82,8 +86,10 @@ class Handover(Critic):
     method = "handover"
 
     def __init__(self, latent: Critic, decode: Callable[[np.ndarray], np.ndarray], dim: int,
-                 make_full: Callable[[float], Critic], *, patience: int = 20, tol: float = 0.01,
-                 handover_length: float = 0.2) -> None:
+                 make_full: Callable[[float], Critic], *,
+                 patience: int = HANDOVER_DEFAULTS["patience"],
+                 tol: float = HANDOVER_DEFAULTS["tol"],
+                 handover_length: float = HANDOVER_DEFAULTS["length"]) -> None:
         if not isinstance(latent, Critic) or latent.n_told:
             raise ValueError("latent must be a fresh Critic")
         super().__init__(dim, batch_size=latent.batch_size, seed=latent.seed)

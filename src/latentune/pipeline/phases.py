@@ -29,6 +29,7 @@ from typing import Any, Callable
 import numpy as np
 
 from latentune.constants import Phase
+from latentune.critic.handover import HANDOVER_DEFAULTS
 from latentune.errors import StoreError
 from latentune.pipeline.evaluators import Evaluator, TrialError
 from latentune.pipeline.store import RunStore
@@ -68,12 +69,6 @@ def _fall_aware(critic: Any, max_fall_prob: float | None,
 
     px, pf = prior if prior is not None and len(prior[0]) else (None, None)
     return FallAware(critic, max_fall_prob=max_fall_prob, prior_X=px, prior_fell=pf)
-
-
-HANDOVER_DEFAULTS = {"patience": 20, "tol": 0.01, "length": 0.2}
-"""Options of the hand-over of phase 3 to the full θ space (see
-:mod:`latentune.critic.handover`): ``patience`` latent evaluations, relative ``tol``, the full
-trust region's initial side ``length``."""
 
 
 def handover_options(handover: Any) -> dict[str, Any] | None:
