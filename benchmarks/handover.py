@@ -45,7 +45,7 @@ from latentune.constants import Phase  # noqa: E402
 from latentune.reporting.metrics import evals_to_beat  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).parent))
-from sample_efficiency import _median, provenance  # noqa: E402
+from sample_efficiency import median_evals, provenance  # noqa: E402
 
 METHODS = ("latent", "handover", "turbo", "optuna_cma", "optuna_tpe")
 
@@ -197,8 +197,8 @@ def main() -> None:
     summary = {}
     for name, rs in res.items():
         b = [r["best"] for r in rs]
-        row = {"to_manual": _median([r["to_manual"] for r in rs]),
-               "to": [_median([r["to"][k] for r in rs]) for k in range(len(a.targets))],
+        row = {"to_manual": median_evals([r["to_manual"] for r in rs]),
+               "to": [median_evals([r["to"][k] for r in rs]) for k in range(len(a.targets))],
                "best_median": float(np.median(b)), "best_min": float(min(b)),
                "best_max": float(max(b)), "falls_median": float(np.median([r["falls"] for r in rs]))}
         p = (float(mannwhitneyu(ref, b).pvalue) if ref and name != a.handover_name

@@ -39,7 +39,7 @@ from latentune.reporting.metrics import evals_to_beat  # noqa: E402
 from latentune.study import source_best  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).parent))
-from sample_efficiency import provenance  # noqa: E402
+from sample_efficiency import median_evals, provenance  # noqa: E402
 
 
 def spread(v: list[float]) -> dict:
@@ -157,12 +157,12 @@ def main() -> None:
         for m, rs in ms.items():
             b = spread([r["best"] for r in rs])
             f = spread([r["falls"] for r in rs])
-            e = [np.inf if r["evals_to_beat_zero_shot"] is None else r["evals_to_beat_zero_shot"] for r in rs]
+            e = median_evals([r["evals_to_beat_zero_shot"] for r in rs])
             z = spread([r["zero_shot"] for r in rs])
-            summary.setdefault(reality, {})[m] = {"best": b, "falls": f, "evals_to_beat_zero_shot_median": float(np.median(e)),
+            summary.setdefault(reality, {})[m] = {"best": b, "falls": f, "evals_to_beat_zero_shot_median": e,
                                                   "zero_shot": z}
             print(f"| {reality} | {m} | {b['median']:.3f} [{b['min']:.3f}–{b['max']:.3f}] | "
-                  f"{f['median']:.0f} [{f['min']:.0f}–{f['max']:.0f}] of {a.budget} | {np.median(e)} | "
+                  f"{f['median']:.0f} [{f['min']:.0f}–{f['max']:.0f}] of {a.budget} | {e} | "
                   f"{z['median']:.3f} |")
     if a.out:
         Path(a.out).parent.mkdir(parents=True, exist_ok=True)

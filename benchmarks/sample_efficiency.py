@@ -40,7 +40,7 @@ from latentune.constants import C1  # noqa: E402
 from latentune.reporting.metrics import evals_to_beat  # noqa: E402
 
 
-def _median(evals: list[int | None]) -> float:
+def median_evals(evals: list[int | None]) -> float:
     """Median of evaluations-to-target over seeds; a seed that never reached it counts as inf."""
     return float(np.median([np.inf if e is None else e for e in evals]))
 
@@ -139,7 +139,7 @@ def main() -> None:
     med = {}
     for m, rs in results.items():
         e = [r["evals_to_target"] for r in rs]
-        med[m] = _median(e)
+        med[m] = median_evals(e)
         print(f"| {m} | {e} | {med[m]} | {np.median([r['best'] for r in rs]):.3f} |")
     if "latent" in med and "turbo" in med:
         print(f"\nratio of medians, direct TuRBO-m / latent: {med['turbo'] / med['latent']:.2f}"
@@ -154,7 +154,7 @@ def main() -> None:
         print(f"\ntarget {t:.3f}: evaluations to reach it per seed (None = not within the budget)")
         for m, rs in results.items():
             e = [r["more"][k] for r in rs]
-            print(f"  {m:7s} {e}  median {_median(e)}")
+            print(f"  {m:7s} {e}  median {median_evals(e)}")
     if a.reconstruct and latent is not None:
         # the latent space's reach: the best θ the full-space methods found, encoded and decoded
         print("\nbest θ of the full-space methods through the VAE (encode -> decode):")
