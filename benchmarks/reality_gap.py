@@ -50,7 +50,8 @@ def spread(v: list[float]) -> dict:
 def report(d: Path) -> str:
     """One Markdown table of every ``*.json`` output in ``d``: per (robot, task, reality,
     method) the best cost, falls and evaluations to beat zero-shot without fall avoidance and
-    with each ``--max-fall-prob`` P found, and the ratio of falls (P / plain)."""
+    with each ``--max-fall-prob`` P found, and the ratios of the median best cost and of the
+    median falls (P / plain)."""
     rows: dict = {}
     probs: set = set()
     cmds = []
@@ -75,18 +76,20 @@ def report(d: Path) -> str:
 
     head = ["robot", "task", "reality", "method", "zero-shot", "best", "falls", "to beat zero-shot"]
     for p in ps:
-        head += [f"best, P={p:g}", f"falls, P={p:g}", f"falls ratio, P={p:g}"]
+        head += [f"best, P={p:g}", f"falls, P={p:g}", f"best ratio, P={p:g}",
+                 f"falls ratio, P={p:g}"]
     out = ["| " + " | ".join(head) + " |", "|---" * len(head) + "|"]
     for (robot, task, reality, m), v in sorted(rows.items()):
         z = next(iter(v.values()))["zero_shot"]["median"]
         cells = [robot, task, reality, m, f"{z:.3f}", *cell(v.get(None))]
         for p in ps:
             c = cell(v.get(p))
-            ratio = "–"
+            ratio = best_ratio = "–"
             if v.get(None) and v.get(p):
                 a, b = v[None]["falls"]["median"], v[p]["falls"]["median"]
                 ratio = f"{b / a:.2f}" if a else ("1" if b == 0 else "inf")
-            cells += [c[0], c[1], ratio]
+                best_ratio = f"{v[p]['best']['median'] / v[None]['best']['median']:.3f}"
+            cells += [c[0], c[1], best_ratio, ratio]
         out.append("| " + " | ".join(cells) + " |")
     return "\n".join(out + ["", "Commands (wall time):", *cmds])
 
@@ -127,7 +130,7 @@ def main() -> None:
                 target = lt.Task(a.robot, a.task, actor=a.actor, steps=a.steps, seed=s, **kw)
                 zero = target.evaluate(best0).cost    # the source's best θ as it is, on the target
                 for m in a.methods:
-                    d = work / f"{reality}_{m}{'_fa' if a.max_fall_prob else ''}_s{s}"
+                    d = work / f"{reality}_{m}{f'_fa{a.max_fall_prob:g}' if a.max_fall_prob else ''}_s{s}"
                     opts = {} if a.max_fall_prob is None else {"max_fall_prob": a.max_fall_prob}
                     with lt.Study(d, seed=s, workers=a.workers, evaluator=ev) as st:
                         if m == "phase3":

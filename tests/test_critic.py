@@ -522,3 +522,54 @@ def test_exact_thompson_samples_are_deterministic_and_make_progress():
     assert a.best_y < a.y[:4].min()                       # Thompson points beat the design
     with pytest.raises(ValueError, match="thompson"):
         TurboM(3, thompson="nope")
+
+
+# ----------------------------------------------------------------------------- falls
+def test_design_side_fills_a_box_around_the_warm_start():
+    x0 = np.full(6, 0.7)
+    t = TurboM(6, batch_size=4, seed=0, n_regions=2, n_init=6, x0=x0, design_side=0.2)
+    lo, hi = t.design_box(0, 0)
+    assert np.allclose(lo, 0.6) and np.allclose(hi, 0.8)
+    D0, D1 = t.regions[0].design, t.regions[1].design
+    assert np.array_equal(D0[0], x0)
+    assert np.all((D0 >= 0.6 - 1e-12) & (D0 <= 0.8 + 1e-12))
+    assert np.ptp(D1, axis=0).max() > 0.4                 # region 1 fills the whole box
+    assert np.allclose(t.design_box(0, 1)[1], 1.0)         # so does region 0 after a restart
+    plain = TurboM(6, batch_size=4, seed=0, n_regions=2, n_init=6, x0=x0)
+    assert np.array_equal(plain.regions[1].design, D1)
+    assert np.ptp(plain.regions[0].design[1:], axis=0).max() > 0.4
+    clipped = TurboM(6, seed=0, n_regions=1, n_init=6, x0=np.full(6, 0.95), design_side=0.2)
+    assert np.all(clipped.regions[0].design <= 1.0) and np.allclose(clipped.design_box(0, 0)[0], 0.85)
+
+
+def test_fall_shrink_halves_a_region_whose_group_falls():
+    rng = np.random.default_rng(0)
+    t = turbo_after_design(d=8, fall_shrink=0.5)
+    tr = t.regions[0]
+    t.tell(rng.random((4, 8)), np.full(4, 150.0), tags=np.full(4, thompson_tag(1)),
+           fell=[True, True, False, False])                 # share 0.5: not more than 0.5
+    assert tr.length == pytest.approx(0.8) and tr.n_failure == 4
+    t.tell(rng.random((4, 8)), [1.0, 150.0, 150.0, 150.0], tags=np.full(4, thompson_tag(2)),
+           fell=[False, True, True, True])                  # a success, but 3/4 fell
+    assert tr.length == pytest.approx(0.4) and tr.n_failure == tr.n_success == 0
+    t.tell(rng.random((4, 8)), np.full(4, 150.0), tags=np.full(4, thompson_tag(3)))
+    assert tr.length == pytest.approx(0.4)                  # no flags: nothing fell
+    # a fresh critic told the same history with the flags replays the same regions
+    fresh = TurboM(8, batch_size=4, seed=0, n_regions=1, n_init=4, fall_shrink=0.5)
+    fresh.tell(t.X, t.y, t.tags, fell=t.fell)
+    assert fresh.region_state() == t.region_state()
+    no_flags = TurboM(8, batch_size=4, seed=0, n_regions=1, n_init=4, fall_shrink=0.5)
+    no_flags.tell(t.X, t.y, t.tags)
+    assert no_flags.regions[0].length == pytest.approx(0.8)
+    plain = turbo_after_design(d=8)
+    plain.tell(t.X[4:], t.y[4:], t.tags[4:], fell=t.fell[4:])
+    assert plain.regions[0].length == pytest.approx(0.8)    # without the option falls are costs
+
+
+@pytest.mark.parametrize("kw", [dict(design_side=0.0), dict(design_side=1.5),
+                                dict(fall_shrink=1.0), dict(fall_shrink=-0.1)])
+def test_fall_options_bad_values(kw):
+    with pytest.raises(ValueError):
+        TurboM(3, **kw)
+    with pytest.raises(ValueError, match="fell must have shape"):
+        TurboM(3).tell(np.zeros((2, 3)), [1.0, 2.0], fell=[True])

@@ -304,3 +304,28 @@ def test_bad_inner_and_bad_tell():
     with pytest.raises(ValueError):
         c.tell(X, np.ones(3), c.last_tags)
     assert c.n_told == 0 and c.inner.n_told == 0
+
+
+def test_fall_aware_turbo_tells_its_falls_and_starts_near_the_warm_start():
+    """The phase critic with max_fall_prob: TuRBO-m's design fills the initial side around x0,
+    the wrapper passes the fall flags on, and a batch that falls shrinks the region."""
+    from latentune.pipeline.phases import FALL_DESIGN_SIDE, make_phase_critic
+
+    x0 = np.full(4, 0.5)
+    c = make_phase_critic("turbo", 4, batch_size=4, seed=0, x0=x0, budget=40,
+                          max_fall_prob=0.5)
+    inner = c.inner
+    assert inner.fall_shrink == 0.5 and inner.design_side == FALL_DESIGN_SIDE
+    half = FALL_DESIGN_SIDE / 2
+    assert np.all(np.abs(inner.regions[0].design - 0.5) <= half + 1e-12)
+    plain = make_phase_critic("turbo", 4, batch_size=4, seed=0, x0=x0, budget=40)
+    assert plain.fall_shrink is None and plain.design_side is None
+    while inner.regions[0].n_points < inner.n_init:
+        X = c.ask()
+        c.tell(X, 1.0 + ((X - 0.3) ** 2).sum(1), c.last_tags, fell=np.zeros(len(X), bool))
+    X = c.ask()
+    assert all(decode_tag(t)[1] == KIND_THOMPSON for t in c.last_tags)
+    side = inner.regions[0].length
+    c.tell(X, np.full(len(X), 150.0), c.last_tags, fell=np.ones(len(X), bool))
+    assert inner.regions[0].length == pytest.approx(side / 2)
+    assert inner.fell[-len(X):].all()

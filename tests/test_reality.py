@@ -112,11 +112,11 @@ def test_presets_and_yaml_form(tmp_path):
     assert set(PRESETS) >= {"nominal", "heavy", "worn", "slippery", "laggy", "hard"}
     assert Reality.load("nominal").is_nominal and Reality().is_nominal and Reality.load(None).is_nominal
     heavy, worn, slip, lag = (Reality.load(n) for n in ("heavy", "worn", "slippery", "laggy"))
-    assert heavy.mass_scale == 1.15 and heavy.payload_mass > 0
-    assert worn.torque_scale == 0.8 and worn.joint_friction > 0
+    assert heavy.mass_scale == 1.15 and heavy.payload_fraction > 0
+    assert worn.torque_scale == 0.8 and worn.joint_friction_fraction > 0
     assert slip.foot_friction == 0.5 and lag.latency_steps > 0 and lag.has_noise
     hard = Reality.load("hard")
-    assert hard.name == "hard" and hard.push_force > 0
+    assert hard.name == "hard" and hard.push_fraction > 0 and hard.relative
     for part in (heavy, worn, slip, lag):  # hard = heavy + worn + slippery + laggy + pushes
         for k, v in part.changes().items():
             assert hard.changes()[k] == v, k
@@ -129,6 +129,27 @@ def test_presets_and_yaml_form(tmp_path):
     assert mine.name == "mine" and mine.mass_scale == 1.15 and mine.torque_scale == 0.9
     assert mine.payload_offset == (0.0, 0.02, 0.0) and mine.latency_steps == 2
     assert Reality.load(mine) is mine and Reality.load({"friction": 0.3}).foot_friction == 0.3
+
+
+def test_relative_fields_scale_with_the_robot():
+    """The presets' payload, pushes and joint friction are fractions of the robot's mass, weight
+    and torque limit: the same share of a light Solo12 as of an A1, resolved by the worlds."""
+    hard = Reality.load("hard")
+    a1, solo = hard.for_robot(12.0, 50.0), hard.for_robot(2.5, 2.7)
+    assert not a1.relative and a1.for_robot(1.0, 1.0) is a1
+    assert a1.payload_mass == pytest.approx(12.0 * hard.payload_fraction)
+    assert a1.push_force == pytest.approx(12.0 * 9.81 * hard.push_fraction)
+    assert a1.joint_friction == pytest.approx(50.0 * hard.joint_friction_fraction)
+    assert solo.payload_mass / a1.payload_mass == pytest.approx(2.5 / 12.0)
+    both = Reality(payload_mass=1.0, payload_fraction=0.1, push_force=5.0).for_robot(10.0, 1.0)
+    assert both.payload_mass == pytest.approx(2.0) and both.push_force == 5.0
+    assert Reality(push_force=5.0).for_robot(10.0, 1.0) == Reality(push_force=5.0)
+    for engine in ENGINES:
+        w = world(engine, **hard.to_dict())
+        assert w.reality.payload_mass == pytest.approx(hard.payload_fraction * 12.458, rel=1e-3)
+        assert w.reality.joint_friction == pytest.approx(hard.joint_friction_fraction * 55.0)
+    with pytest.raises(UsageError, match="push_fraction must be finite and >= 0"):
+        Reality(push_fraction=-0.1)
 
 
 def test_task_records_and_rebuilds_reality_and_engine():

@@ -136,6 +136,10 @@ class FallClassifier:
             checkpoint ``c_{k+1} = c_k + max(1, ⌈refit_fraction·min(c_k, max_fit_points)⌉)``, on
             the first ``c_k`` points, from fixed starting values: a deterministic function of
             the data.
+        calibrate: the points of the probit calibration when a prior is set: ``"pooled"``,
+            the caller's and the prior's; ``"target"``, the caller's alone once they hold both
+            classes (the prior's before), so the probabilities follow the fall rate of the
+            system being tuned rather than the prior's.
 
     Prior data (:meth:`set_prior`, e.g. another system's trials) get a GP of their own; its
     posterior mean ``m_prior(x)`` is the prior mean of the GP of the caller's points (which then
@@ -150,7 +154,10 @@ class FallClassifier:
     """
 
     def __init__(self, dim: int, *, max_points: int = 1000, max_fit_points: int = 300,
-                 refit_fraction: float = 0.2) -> None:
+                 refit_fraction: float = 0.2, calibrate: str = "pooled") -> None:
+        if calibrate not in ("pooled", "target"):
+            raise ValueError(f"calibrate must be 'pooled' or 'target', got {calibrate!r}")
+        self.calibrate = calibrate
         self.dim = int(dim)
         self.max_points = int(max_points)
         self.max_fit_points = int(max_fit_points)
@@ -324,7 +331,7 @@ class FallClassifier:
         # calibration data: the fitted points' leave-one-out predictions of the label
         m_loo = self._posterior(pr["gp"], h["loo_X"])[0] if pr is not None else 0.0
         mu, var, lb = h["loo_mu"] + m_loo, h["loo_var"], h["loo_lab"]
-        if pr is not None:
+        if pr is not None and not (self.calibrate == "target" and both):
             mu, var = np.concatenate([mu, pr["loo_mu"]]), np.concatenate([var, pr["loo_var"]])
             lb = np.concatenate([lb, pr["loo_lab"]])
         c, sc = self._calibrate(mu, var, lb)
@@ -519,7 +526,7 @@ class FallAware(Critic):
         if Xa.shape[0] == 0:
             return
         if not self._cma:
-            self.inner.tell(Xa, ya, tags)       # validates the tags for the inner critic
+            self.inner.tell(Xa, ya, tags, fell=fa)   # validates the tags for the inner critic
         self._incoming_fell = fa
         super().tell(Xa, ya, tags)
 
@@ -591,13 +598,19 @@ class FallAware(Critic):
 
     def _replacement(self, clf: FallClassifier, tag: int, rank: int) -> tuple[np.ndarray, float]:
         """A design point not predicted to fall: the first of 64 scrambled-Sobol points of the
-        box (seeded by the seed, ``tag`` and ``rank``) under the threshold, else the one of
-        lowest probability; returns ``(x (dim,), p)``."""
+        region's design box (:meth:`TurboM.design_box <latentune.critic.turbo.TurboM.design_box>`;
+        seeded by the seed, ``tag`` and ``rank``) under the threshold, else the one of lowest
+        probability; returns ``(x (dim,), p)``."""
         import torch
         from torch.quasirandom import SobolEngine
 
+        from latentune.critic.turbo import decode_tag
+
+        r = decode_tag(tag)[2]
+        lo, hi = self.inner.design_box(r, self.inner.regions[r].epoch)
         s = int(np.random.default_rng([self.seed, 7, tag, rank]).integers(2 ** 31))
         Z = SobolEngine(self.dim, scramble=True, seed=s).draw(64, dtype=torch.float64).numpy()
+        Z = lo + Z * (hi - lo)
         with _torch_threads(self.threads):
             pz = clf.predict(Z)
         good = np.flatnonzero(pz <= self.max_fall_prob)

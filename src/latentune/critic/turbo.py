@@ -117,6 +117,20 @@ with asynchronous asks) stays in the history but not in the region.
 Untagged points (``tags=None``): each goes to the region with the fewest epoch points while some
 region has fewer than ``n_init`` points, else to the region with the nearest centre; they update
 that region's data and best but not its success/failure counters.
+
+Falls (for trials on a robot)
+-----------------------------
+Two options keep the search near what is known to work when a trial can fail (``tell(...,
+fell=)``); the pipeline sets both with the fall-aware option (``max_fall_prob``):
+
+* ``design_side``: with a warm start ``x0``, region 0's first design (after the ``x0`` rows) is
+  a scrambled-Sobol design of the box ``x0[0] ± design_side/2`` (clipped to [0, 1]) instead of
+  the whole box (:meth:`TurboM.design_box`); later epochs and other regions keep the whole box.
+* ``fall_shrink``: a Thompson group in which more than this share of the points fell halves
+  its region's side (once, and resets its counters), whatever the success rule says: the share of
+  falls estimates the fall probability of the region's trials, and a smaller region stays
+  closer to its best, stable point. Falls are known only from ``fell``; without it nothing
+  shrinks. The flags enter the tell like the costs, so a replay of the store is exact.
 """
 from __future__ import annotations
 
@@ -242,6 +256,10 @@ class TurboM(Critic):
             ``"exact"`` (joint samples of the GP posterior on the candidates, a Cholesky of
             the candidates' covariance: as the reference TuRBO does up to 2,000 candidates;
             cubic in the number of candidates, for comparisons).
+        design_side: side of the box around ``x0`` that region 0's first design fills (in
+            (0, 1]; None: the whole box). See "Falls" in the module docstring.
+        fall_shrink: halve a region whose Thompson group's share of fallen trials exceeds this
+            (in [0, 1); None: falls do not shrink regions). See "Falls".
     """
 
     method = "turbo"
@@ -255,7 +273,8 @@ class TurboM(Critic):
                  refit_fraction: float = 0.1, warm_start: bool = True, fit_maxiter: int = 50,
                  refit_maxiter: int = 15, y_transform: str = "copula",
                  gp_select: str = "recent", lengthscale_prior: str | None = None,
-                 threads: int | None = 1, thompson: str = "paths") -> None:
+                 threads: int | None = 1, thompson: str = "paths",
+                 design_side: float | None = None, fall_shrink: float | None = None) -> None:
         super().__init__(dim, batch_size=batch_size, seed=seed, x0=x0)
         d = self.dim
         if n_regions < 1 or n_regions >= _KIND:
@@ -297,19 +316,37 @@ class TurboM(Critic):
         if thompson not in ("paths", "exact"):
             raise ValueError(f"thompson must be 'paths' or 'exact', got {thompson!r}")
         self.thompson = thompson
+        if design_side is not None and not 0 < design_side <= 1:
+            raise ValueError(f"design_side must be in (0, 1], got {design_side!r}")
+        self.design_side = None if design_side is None else float(design_side)
+        if fall_shrink is not None and not 0 <= fall_shrink < 1:
+            raise ValueError(f"fall_shrink must be in [0, 1), got {fall_shrink!r}")
+        self.fall_shrink = None if fall_shrink is None else float(fall_shrink)
+        self._fell = np.zeros(0, dtype=bool)
+        self._incoming_fell: np.ndarray | None = None
         self._gen = 0
         self.regions = [self._fresh_region(r, epoch=0, epoch_gen=0)
                         for r in range(self.n_regions)]
         self._z_cache: tuple[int, np.ndarray] | None = None
 
     # ------------------------------------------------------------------ regions
+    def design_box(self, r: int, epoch: int) -> tuple[np.ndarray, np.ndarray]:
+        """(lower (dim,), upper (dim,)) of the box region ``r``'s design of ``epoch`` fills:
+        ``x0[0] ± design_side/2`` clipped to [0, 1] for region 0's first epoch with a warm start
+        and ``design_side``, else the unit box."""
+        if self.design_side is not None and r == 0 and epoch == 0 and self.x0 is not None:
+            h = self.design_side / 2.0
+            return np.clip(self.x0[0] - h, 0.0, 1.0), np.clip(self.x0[0] + h, 0.0, 1.0)
+        return np.zeros(self.dim), np.ones(self.dim)
+
     def _design(self, r: int, epoch: int) -> np.ndarray:
         from torch.quasirandom import SobolEngine
         import torch
 
         s = int(np.random.default_rng([self.seed, 1, r, epoch]).integers(2 ** 31))
         D = SobolEngine(self.dim, scramble=True, seed=s).draw(self.n_init, dtype=torch.float64)
-        D = D.numpy()
+        lo, hi = self.design_box(r, epoch)
+        D = lo + D.numpy() * (hi - lo)
         if r == 0 and epoch == 0 and self.x0 is not None:
             D = np.vstack([self.x0, D[: max(self.n_init - self.x0.shape[0], 0)]])
         return D
@@ -364,8 +401,30 @@ class TurboM(Critic):
             tr.n_failure = 0
 
     # ------------------------------------------------------------------ tell
+    def tell(self, X: np.ndarray, y: np.ndarray, tags: np.ndarray | None = None,
+             fell: np.ndarray | None = None) -> None:
+        """:meth:`Critic.tell <latentune.critic.base.Critic.tell>`; ``fell`` (n,) bools are
+        used by ``fall_shrink`` (absent: no trial fell)."""
+        n = np.asarray(y, dtype=float).reshape(-1).shape[0]
+        if fell is not None and np.asarray(fell).reshape(-1).shape[0] != n:
+            raise ValueError(f"fell must have shape ({n},), got {np.shape(fell)}")
+        self._incoming_fell = (np.zeros(n, dtype=bool) if fell is None
+                               else np.asarray(fell, dtype=bool).reshape(-1))
+        try:
+            super().tell(X, y, tags)
+        finally:
+            self._incoming_fell = None
+
+    @property
+    def fell(self) -> np.ndarray:
+        """(n,) bool: the ``fell`` flags told with each point (False where none were given)."""
+        return self._fell.copy()
+
     def _tell(self, idx: np.ndarray, tags: np.ndarray) -> None:
         self._z_cache = None
+        inc = self._incoming_fell
+        self._fell = np.concatenate([self._fell, inc if inc is not None and inc.shape[0] == len(idx)
+                                     else np.zeros(len(idx), dtype=bool)])
         tagged = tags >= 0
         untagged = [int(i) for i, t in zip(idx, tags) if t < 0]
         groups: dict[tuple[int, int, int], list[int]] = {}
@@ -388,7 +447,11 @@ class TurboM(Critic):
             y = self._y[members]
             fin = np.isfinite(y)
             group_best = float(y[fin].min()) if fin.any() else math.inf
+            side = tr.length
             self._update_region(tr, group_best, len(members))
+            if self.fall_shrink is not None and self._fell[members].mean() > self.fall_shrink:
+                tr.length = min(tr.length, side / 2.0)     # once, even if the failures halved it
+                tr.n_success = tr.n_failure = 0
             self._add_points(tr, members)
             if tr.length < self.length_min:
                 self._restart(tr, epoch_gen=g + 1)

@@ -35,6 +35,10 @@ from latentune.pipeline.evaluators import Evaluator, TrialError
 from latentune.pipeline.store import RunStore
 from latentune.system import EvaluationError, Outcome
 
+FALL_DESIGN_SIDE = 0.8
+"""Side of the box around the warm start that a fall-aware TuRBO-m's first design fills (the
+initial trust region's side)."""
+
 
 def default_batch_size(workers: int) -> int:
     """Critic batch size: the number of workers, at least 4 (TuRBO-m's Thompson batches)."""
@@ -49,13 +53,18 @@ def make_phase_critic(method: str, dim: int, batch_size: int, seed: int, x0: np.
 
     ``max_fall_prob``: wrap it in :class:`~latentune.critic.fall_aware.FallAware`, which skips
     candidates whose predicted probability of failing exceeds it; ``prior`` = (X (m, dim),
-    fell (m,)) are failed/stable points of a source run in the same box, for its classifier."""
+    fell (m,)) are failed/stable points of a source run in the same box, for its classifier.
+    TuRBO-m then also fills its first design around ``x0`` (``design_side`` = its initial
+    side) and halves a region whose batch's share of falls exceeds ``max_fall_prob``
+    (``fall_shrink``; "Falls" in :mod:`latentune.critic.turbo`)."""
     from latentune.critic import make_critic
     from latentune.critic.turbo import regions_for_budget
 
     kw: dict[str, Any] = {"batch_size": batch_size, "seed": seed, "x0": x0}
     if method == "turbo":
         kw["n_regions"] = regions if regions is not None else regions_for_budget(budget)
+        if max_fall_prob is not None:
+            kw.update(design_side=FALL_DESIGN_SIDE, fall_shrink=float(max_fall_prob))
     return _fall_aware(make_critic(method, dim, **kw), max_fall_prob, prior)
 
 

@@ -22,6 +22,12 @@ defaults to "no change", so ``Reality()`` is the nominal simulator. The worlds
   ``push_duration`` [s], in a uniformly random direction, separated by exponential waiting
   times of mean ``push_interval`` [s].
 
+**Relative to the robot.** A payload, a push or a joint friction that is modest for a 12 kg A1
+is beyond a 2.5 kg Solo12, so three fields have relative twins, resolved for each robot by the
+worlds (:meth:`Reality.for_robot`) and added to the absolute ones: ``payload_fraction`` (of the
+robot's nominal total mass), ``push_fraction`` (of its nominal weight ``m·g``) and
+``joint_friction_fraction`` (of its largest joint torque limit). The presets use them.
+
 The random parts (sensor noise, pushes) draw from generators seeded from the world's seed (the
 Task's seed) and re-seeded at every ``reset()``: a rollout is reproducible for a seed, and two
 seeds give two different noise and push sequences.
@@ -34,7 +40,7 @@ all optional; ``base`` names presets or files merged first, in order, the file's
     torque_scale: 0.85
     latency_steps: 5
     noise_vel: 0.02
-    push_force: 20.0
+    push_fraction: 0.16      # pushes of 16 % of the robot's weight
 
 :meth:`Reality.load` takes a preset name, a file, a dict or a Reality; a bad profile raises one
 :class:`~latentune.errors.UsageError` line.
@@ -52,6 +58,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from latentune.constants import G
 from latentune.errors import UsageError
 
 __all__ = ["Reality", "RealityRuntime", "PRESETS", "preset_names", "perturbed_urdf"]
@@ -98,6 +105,12 @@ class Reality:
         push_force: magnitude of the random horizontal pushes [N] (≥ 0; 0: no pushes).
         push_duration: duration of one push [s] (> 0).
         push_interval: mean time between pushes [s] (> 0).
+        payload_fraction: extra payload as a fraction of the robot's nominal total mass (≥ 0;
+            added to ``payload_mass`` by :meth:`for_robot`).
+        push_fraction: extra push magnitude as a fraction of the robot's nominal weight (≥ 0;
+            added to ``push_force``).
+        joint_friction_fraction: extra Coulomb joint friction as a fraction of the robot's
+            largest joint torque limit (≥ 0; added to ``joint_friction``).
     """
 
     name: str = "nominal"
@@ -122,6 +135,9 @@ class Reality:
     push_force: float = 0.0
     push_duration: float = 0.1
     push_interval: float = 2.0
+    payload_fraction: float = 0.0
+    push_fraction: float = 0.0
+    joint_friction_fraction: float = 0.0
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
@@ -136,6 +152,24 @@ class Reality:
             if f.name != "name" and v != f.default:
                 out[f.name] = list(v) if isinstance(v, tuple) else v
         return out
+
+    @property
+    def relative(self) -> bool:
+        """Some field is relative to the robot (resolve it with :meth:`for_robot`)."""
+        return bool(self.payload_fraction or self.push_fraction or self.joint_friction_fraction)
+
+    def for_robot(self, mass: float, torque_limit: float) -> "Reality":
+        """This profile in absolute units for a robot of nominal total ``mass`` [kg] and
+        largest joint torque limit ``torque_limit`` [N·m]: the relative fields added to
+        ``payload_mass``, ``push_force`` and ``joint_friction`` and set to 0 (the same
+        Reality when none is set)."""
+        if not self.relative:
+            return self
+        return dataclasses.replace(
+            self, payload_mass=self.payload_mass + self.payload_fraction * float(mass),
+            push_force=self.push_force + self.push_fraction * float(mass) * G,
+            joint_friction=self.joint_friction + self.joint_friction_fraction * float(torque_limit),
+            payload_fraction=0.0, push_fraction=0.0, joint_friction_fraction=0.0)
 
     @property
     def is_nominal(self) -> bool:
@@ -207,6 +241,8 @@ _RULES: dict[str, tuple[str, str]] = {
     "latency_steps": ("i", _NONNEG), "joint_damping": ("f", _NONNEG),
     "joint_friction": ("f", _NONNEG), **{k: ("f", _NONNEG) for k in _NOISE},
     "push_force": ("f", _NONNEG), "push_duration": ("f", _POS), "push_interval": ("f", _POS),
+    "payload_fraction": ("f", _NONNEG), "push_fraction": ("f", _NONNEG),
+    "joint_friction_fraction": ("f", _NONNEG),
 }
 
 

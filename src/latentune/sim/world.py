@@ -182,6 +182,11 @@ class WorldBase:
         self.dt = dt
         self.seed = int(seed)
         self.reality = Reality.load(reality)
+        if self.reality.relative:      # fractions of this robot's mass and torque limits
+            from latentune.robots.urdf import read_urdf
+
+            self.reality = self.reality.for_robot(read_urdf(self.model.urdf).total_mass(),
+                                                  max(spec.torque_limits))
         self._rt = None if self.reality.is_nominal else RealityRuntime(self.reality, seed, dt)
         self._motor = self._rt is not None and not self._rt.passthrough
         self.start_x = 0.0
