@@ -39,11 +39,18 @@ budget (``optuna_gp``) are compared with the others' best-so-far at that budget.
 ``<out>/summary.md`` and ``<out>/summary.json`` (``summary_<hash>.*`` with ``--critic-hash``;
 ``--baseline-hash HASH`` adds the latentune runs of an older critic as peers ``before:<method>``).
 
+Relabel (``--relabel HASH``): after a change to the critics' code that leaves the defaults'
+path alone, re-runs ``--relabel-check`` (3) of each of the ``lt_turbo``/``lt_cma`` runs of ``HASH``; if
+their best-so-far traces are bit-identical, copies all of them under the current hash (with a
+``relabelled`` record), so they need not be run again.
+
 Overhead (``--overhead``): latentune's TuRBO-m in 25-d, batch 10, told 10,000 points (1 and 10
 regions), then asked and told 5 batches: the critic's seconds per suggested point (ask + tell),
 with torch set to all cores outside the critic (its default) and the critic's default
 ``threads=1``; with ``threads=None`` (the critic uses torch's setting: all cores); and with
-``threads=None`` under one torch thread. Written to ``<out>/overhead.json``.
+``threads=None`` under one torch thread. ``--busy N`` keeps N other processes busy (one core
+each) during the measurement, the "busy machine" of issue 16 with N = 1 on 2 cores. Written to
+``<out>/overhead.json``.
 
     .venv/bin/python benchmarks/peers.py --seeds 0 1 2 3 4 --budget 500 --batch-size 10
     .venv/bin/python benchmarks/peers.py --report
@@ -493,8 +500,75 @@ def report(a) -> None:
     print("\n".join(lines))
 
 
+# ------------------------------------------------------------------ relabel
+def relabel(a) -> int:
+    """Carry the ``lt_turbo`` / ``lt_cma`` runs of critic hash ``a.relabel`` over to the current
+    hash when the code change does not touch their path: ``a.relabel_check`` of them (spread over
+    methods, problems and seeds) are re-run with the current code and must give bit-identical
+    best-so-far traces; then every run is copied under the current hash with a ``relabelled``
+    record (old hash, the runs checked, date). ``a.relabel_check`` runs of each method are
+    checked. Returns 1 (nothing written) if a trace differs."""
+    import torch
+
+    torch.set_num_threads(1)
+    out, new = Path(a.out), critic_hash()
+    old = sorted(f for f in (out / "runs").glob(f"*__b*__{a.relabel}.json")
+                 if json.loads(f.read_text())["method"] in ("lt_turbo", "lt_cma"))
+    if not old or new == a.relabel:
+        print(f"nothing to relabel: {len(old)} runs of {a.relabel}, current hash {new}")
+        return 1
+    picks = []
+    for m in ("lt_turbo", "lt_cma"):      # --relabel-check runs of each, spread over the list
+        runs = [f for f in old if f"__{m}__" in f.name]
+        picks += runs[:: max(1, len(runs) // max(a.relabel_check, 1))][: a.relabel_check]
+    checked = []
+    for f in picks:
+        o = json.loads(f.read_text())
+        r = run_method(o["method"], o["problem"], o["seed"], o["budget"], o["batch"], {})
+        same = r["trace"] == o["trace"]
+        print(f"{o['problem']:14s} {o['method']:9s} s{o['seed']}: "
+              f"{'identical' if same else 'DIFFERENT'} (best {r['best']:.6g} vs {o['best']:.6g})",
+              flush=True)
+        if not same:
+            return 1
+        checked.append(f.name)
+    stamp = datetime.datetime.now(datetime.timezone.utc).isoformat()
+    n = 0
+    for f in old:
+        o = json.loads(f.read_text())
+        path = run_path(out, o["problem"], o["method"], o["seed"], o["budget"], new)
+        if path.exists():
+            continue
+        o["relabelled"] = {"from": a.relabel, "to": new, "checked": checked, "date": stamp}
+        o["critic_hash"] = new
+        path.write_text(json.dumps(o))
+        n += 1
+    print(f"relabelled {n} runs {a.relabel} -> {new} ({len(checked)} re-run bit-identical)")
+    return 0
+
+
 # ------------------------------------------------------------------ overhead
+def _spin() -> None:
+    """A busy process (for ``--busy``): one core's worth of pure-Python work until killed."""
+    x = 0
+    while True:
+        x = (x * 1103515245 + 12345) % 2147483648
+
+
 def overhead(a) -> None:
+    import multiprocessing as mp
+
+    busy = [mp.Process(target=_spin, daemon=True) for _ in range(a.busy)]
+    for b in busy:
+        b.start()
+    try:
+        _overhead(a)
+    finally:
+        for b in busy:
+            b.terminate()
+
+
+def _overhead(a) -> None:
     import torch
 
     from latentune.critic import make_critic
@@ -508,7 +582,8 @@ def overhead(a) -> None:
         return float(ackley(-10.0 + 20.0 * u - 1.0))
     res = {"d": d, "batch": batch, "told": n, "date": datetime.datetime.now(
         datetime.timezone.utc).isoformat(), "command": " ".join([sys.executable] + sys.argv),
-        "critic_hash": critic_hash(), "cases": []}
+        "critic_hash": critic_hash(), "busy_processes": a.busy, "cpus": os.cpu_count(),
+        "cases": []}
     default_threads = torch.get_num_threads()
     ncpu = os.cpu_count() or 1          # torch's default without OMP_NUM_THREADS
     w = make_critic("turbo", 3, batch_size=4, seed=0, n_regions=1, n_init=4)   # warm-up:
@@ -559,7 +634,15 @@ def main(argv=None) -> int:
     p.add_argument("--overhead", action="store_true")
     p.add_argument("--overhead-points", type=int, default=10_000)
     p.add_argument("--overhead-asks", type=int, default=5)
+    p.add_argument("--busy", type=int, default=0,
+                   help="--overhead: keep this many other processes busy meanwhile (one core each)")
+    p.add_argument("--relabel", default=None, metavar="HASH",
+                   help="carry lt_turbo/lt_cma runs of this critic hash over to the current one "
+                        "after re-running --relabel-check of them bit-identically")
+    p.add_argument("--relabel-check", type=int, default=3)
     a = p.parse_args(argv)
+    if a.relabel:
+        return relabel(a)
     if a.report:
         report(a)
     elif a.overhead:

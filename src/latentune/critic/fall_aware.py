@@ -43,7 +43,9 @@ Telling
 -------
 ``tell(X, y, tags=None, fell=None)``: ``fell`` (n,) bool are the trials that failed; when absent,
 ``fell = not (y < C1)`` (non-finite costs count as failed), the convention of the run store.
-Tags are the inner critic's tags, passed through unchanged.
+Tags are the inner critic's tags, passed through unchanged, and so are the flags (a TuRBO-m
+with ``fall_shrink`` shrinks a region whose batch fell too often; the pipeline's fall-aware
+TuRBO-m has it, see :func:`latentune.pipeline.phases.make_phase_critic`).
 
 Resume
 ------
