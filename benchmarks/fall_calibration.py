@@ -10,10 +10,7 @@ avoided the falls, and at what price in trials that would not have fallen.
 
 Variants (``--variants``):
 
-* ``prior``: the source's phase-1 trials as prior, calibration pooled over the source's and the
-  target's points (FallAware's classifier; ``calibrate="pooled"``);
-* ``prior_target_cal``: the same prior, calibrated on the target's own points once they hold
-  both classes (``calibrate="target"``);
+* ``prior``: the source's phase-1 trials as prior (FallAware's classifier in a direct search);
 * ``target``: no prior, the target's trials only.
 
 Per variant: the number of predicted trials (batches after the first one whose training data
@@ -45,7 +42,7 @@ from latentune.constants import Phase  # noqa: E402
 from latentune.pipeline.store import RunStore  # noqa: E402
 
 THRESHOLDS = (0.1, 0.2, 0.3, 0.5)
-VARIANTS = ("prior", "prior_target_cal", "target")
+VARIANTS = ("prior", "target")
 
 
 def trials(run: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
@@ -77,8 +74,7 @@ def replay(X: np.ndarray, fell: np.ndarray, batch: np.ndarray, variant: str,
     ps, ys = [], []
     for b in range(int(batch.max()) + 1):
         train, test = batch < b, batch == b
-        clf = FallClassifier(X.shape[1], calibrate="target" if variant == "prior_target_cal"
-                             else "pooled")
+        clf = FallClassifier(X.shape[1])
         if variant != "target":
             clf.set_prior(*prior)
         if not clf.fit(X[train], fell[train]):

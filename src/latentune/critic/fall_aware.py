@@ -138,10 +138,6 @@ class FallClassifier:
             checkpoint ``c_{k+1} = c_k + max(1, ⌈refit_fraction·min(c_k, max_fit_points)⌉)``, on
             the first ``c_k`` points, from fixed starting values: a deterministic function of
             the data.
-        calibrate: the points of the probit calibration when a prior is set: ``"pooled"``,
-            the caller's and the prior's; ``"target"``, the caller's alone once they hold both
-            classes (the prior's before), so the probabilities follow the fall rate of the
-            system being tuned rather than the prior's.
 
     Prior data (:meth:`set_prior`, e.g. another system's trials) get a GP of their own; its
     posterior mean ``m_prior(x)`` is the prior mean of the GP of the caller's points (which then
@@ -156,10 +152,7 @@ class FallClassifier:
     """
 
     def __init__(self, dim: int, *, max_points: int = 1000, max_fit_points: int = 300,
-                 refit_fraction: float = 0.2, calibrate: str = "pooled") -> None:
-        if calibrate not in ("pooled", "target"):
-            raise ValueError(f"calibrate must be 'pooled' or 'target', got {calibrate!r}")
-        self.calibrate = calibrate
+                 refit_fraction: float = 0.2) -> None:
         self.dim = int(dim)
         self.max_points = int(max_points)
         self.max_fit_points = int(max_fit_points)
@@ -333,7 +326,7 @@ class FallClassifier:
         # calibration data: the fitted points' leave-one-out predictions of the label
         m_loo = self._posterior(pr["gp"], h["loo_X"])[0] if pr is not None else 0.0
         mu, var, lb = h["loo_mu"] + m_loo, h["loo_var"], h["loo_lab"]
-        if pr is not None and not (self.calibrate == "target" and both):
+        if pr is not None:
             mu, var = np.concatenate([mu, pr["loo_mu"]]), np.concatenate([var, pr["loo_var"]])
             lb = np.concatenate([lb, pr["loo_lab"]])
         c, sc = self._calibrate(mu, var, lb)
