@@ -148,6 +148,7 @@ def test_relative_fields_scale_with_the_robot():
         w = world(engine, **hard.to_dict())
         assert w.reality.payload_mass == pytest.approx(hard.payload_fraction * 12.458, rel=1e-3)
         assert w.reality.joint_friction == pytest.approx(hard.joint_friction_fraction * 55.0)
+        assert w.reality.push_force == pytest.approx(hard.push_fraction * 12.458 * 9.81, rel=1e-3)
     with pytest.raises(UsageError, match="push_fraction must be finite and >= 0"):
         Reality(push_fraction=-0.1)
 

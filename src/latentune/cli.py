@@ -168,8 +168,9 @@ def add_run_args(p: argparse.ArgumentParser, name: str) -> None:
                    help="critic batch size (default max(workers, 4))")
     p.add_argument("--max-fall-prob", type=float, default=None, metavar="P",
                    help="fall-aware critic: skip candidates whose predicted probability of "
-                        "failing exceeds P in (0, 1] (default off; phase 3 learns it from the "
-                        "latent space's source run)")
+                        "failing exceeds P in (0, 1], and (TuRBO-m) start near the warm start "
+                        "and shrink the trust region when more than P of a batch falls "
+                        "(default off; phase 3 learns it from the latent space's source run)")
     if name in ("tune", "phase3"):
         _handover_arg(p)
     if name == "phase1":

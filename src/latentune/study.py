@@ -312,8 +312,10 @@ class Study:
         ``start``: ``"manual"`` (the first point is the system's manual θ), ``None`` (from
         scratch: the critic's own initial design) or a (d,) unit-box θ (e.g. another run's best).
         ``max_fall_prob``: skip candidates whose predicted probability of failing exceeds it
-        (:class:`~latentune.critic.fall_aware.FallAware`); ``fall_prior``: a run directory whose
-        phase-1 trials (θ, failed) seed that prediction.
+        (:class:`~latentune.critic.fall_aware.FallAware`; TuRBO-m also fills its first design
+        around ``start`` and halves its trust region when more than that share of a batch
+        falls, see :func:`~latentune.pipeline.phases.make_phase_critic`); ``fall_prior``: a run
+        directory whose phase-1 trials (θ, failed) seed that prediction.
         """
         check_system(system)
         x0, start_rec = _start_point(start, system.space.manual, system.space.dim)
@@ -407,7 +409,8 @@ class Study:
                 scratch) or a (d,) unit-box θ whose code starts the search.
             max_fall_prob: skip candidates whose predicted probability of failing exceeds it;
                 the prediction starts from the latent space's source run (its phase-1 θ,
-                encoded, with their failed flags).
+                encoded, with their failed flags). TuRBO-m's trust region also starts and
+                shrinks as in :meth:`phase1`.
             handover: ``True`` or a dict of options (``patience``, ``tol``, ``length``): when
                 the latent search stalls, continue with TuRBO-m on the full θ box from the best
                 decoded θ (:mod:`latentune.critic.handover`; the rule and where it fired are
