@@ -573,3 +573,18 @@ def test_fall_options_bad_values(kw):
         TurboM(3, **kw)
     with pytest.raises(ValueError, match="fell must have shape"):
         TurboM(3).tell(np.zeros((2, 3)), [1.0, 2.0], fell=[True])
+
+
+def test_fall_shrink_waits_for_a_trial_that_did_not_fall():
+    """While every trial of the region fell, its centre is a fall: no shrinking towards it."""
+    rng = np.random.default_rng(1)
+    t = TurboM(8, batch_size=4, seed=0, n_regions=1, n_init=4, fall_shrink=0.5)
+    U = t.ask(4)
+    t.tell(U, np.full(4, 150.0), tags=t.last_tags, fell=np.ones(4, bool))
+    tr = t.regions[0]
+    t.tell(rng.random((4, 8)), np.full(4, 160.0), tags=np.full(4, thompson_tag(1)),
+           fell=np.ones(4, bool))
+    assert tr.length == pytest.approx(0.8)
+    t.tell(rng.random((4, 8)), [20.0, 150.0, 150.0, 150.0], tags=np.full(4, thompson_tag(2)),
+           fell=[False, True, True, True])                  # a stable trial: now it shrinks
+    assert tr.length == pytest.approx(0.4)

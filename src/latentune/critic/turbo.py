@@ -129,8 +129,10 @@ fell=)``); the pipeline sets both with the fall-aware option (``max_fall_prob``)
 * ``fall_shrink``: a Thompson group in which more than this share of the points fell halves
   its region's side (once, and resets its counters), whatever the success rule says: the share of
   falls estimates the fall probability of the region's trials, and a smaller region stays
-  closer to its best, stable point. Falls are known only from ``fell``; without it nothing
-  shrinks. The flags enter the tell like the costs, so a replay of the store is exact.
+  closer to its best, stable point. Only a region that holds a trial that did not fall shrinks
+  so (while all of them fell, its centre is a fall too). Falls are known only from ``fell``;
+  without it nothing shrinks. The flags enter the tell like the costs, so a replay of the
+  store is exact.
 """
 from __future__ import annotations
 
@@ -449,7 +451,7 @@ class TurboM(Critic):
             group_best = float(y[fin].min()) if fin.any() else math.inf
             side = tr.length
             self._update_region(tr, group_best, len(members))
-            if self.fall_shrink is not None and self._fell[members].mean() > self.fall_shrink:
+            if self._fall_shrink_due(tr, members):
                 tr.length = min(tr.length, side / 2.0)     # once, even if the failures halved it
                 tr.n_success = tr.n_failure = 0
             self._add_points(tr, members)
@@ -457,6 +459,15 @@ class TurboM(Critic):
                 self._restart(tr, epoch_gen=g + 1)
         for i in untagged:
             self._add_untagged(i)
+
+    def _fall_shrink_due(self, tr: TrustRegion, members: list[int]) -> bool:
+        """``fall_shrink``'s rule for a Thompson group ``members`` of region ``tr``: more than
+        that share of the group fell, and the region (with the group) holds a trial that did
+        not fall -- while every trial of the region fell, its centre is a fall and shrinking
+        would only search closer to it."""
+        if self.fall_shrink is None or self._fell[members].mean() <= self.fall_shrink:
+            return False
+        return bool((~self._fell[tr.points + members]).any())
 
     def _add_untagged(self, i: int) -> None:
         counts = np.array([tr.n_points for tr in self.regions])
