@@ -57,6 +57,8 @@ def report(d: Path) -> str:
     cmds = []
     for f in sorted(d.glob("*.json")):
         o = json.loads(f.read_text())
+        if "summary" not in o:            # not a reality_gap.py output (e.g. fall_calibration.py)
+            continue
         fa = o.get("max_fall_prob")
         if fa:
             probs.add(fa)
