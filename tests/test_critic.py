@@ -530,16 +530,38 @@ def test_design_side_fills_a_box_around_the_warm_start():
     t = TurboM(6, batch_size=4, seed=0, n_regions=2, n_init=6, x0=x0, design_side=0.2)
     lo, hi = t.design_box(0, 0)
     assert np.allclose(lo, 0.6) and np.allclose(hi, 0.8)
-    D0, D1 = t.regions[0].design, t.regions[1].design
+    D0 = np.array([t.design_point(t.regions[0], k) for k in range(6)])
+    D1 = np.array([t.design_point(t.regions[1], k) for k in range(6)])
     assert np.array_equal(D0[0], x0)
     assert np.all((D0 >= 0.6 - 1e-12) & (D0 <= 0.8 + 1e-12))
     assert np.ptp(D1, axis=0).max() > 0.4                 # region 1 fills the whole box
     assert np.allclose(t.design_box(0, 1)[1], 1.0)         # so does region 0 after a restart
+    U = t.ask(4)
+    assert np.array_equal(U, D0[:4])                       # what is asked
     plain = TurboM(6, batch_size=4, seed=0, n_regions=2, n_init=6, x0=x0)
-    assert np.array_equal(plain.regions[1].design, D1)
+    assert np.array_equal(plain.design_point(plain.regions[1], 2), D1[2])
     assert np.ptp(plain.regions[0].design[1:], axis=0).max() > 0.4
     clipped = TurboM(6, seed=0, n_regions=1, n_init=6, x0=np.full(6, 0.95), design_side=0.2)
-    assert np.all(clipped.regions[0].design <= 1.0) and np.allclose(clipped.design_box(0, 0)[0], 0.85)
+    assert np.allclose(clipped.design_box(0, 0)[0], 0.85)
+    assert all(clipped.design_point(clipped.regions[0], k).max() <= 1.0 for k in range(6))
+
+
+def test_design_around_the_warm_start_widens_when_it_falls():
+    """More than half of the told design points fell: the rest fills the whole box."""
+    x0 = np.full(6, 0.7)
+    kw = dict(batch_size=3, seed=0, n_regions=1, n_init=6, x0=x0, design_side=0.2)
+    t, s = TurboM(6, fall_shrink=0.2, **kw), TurboM(6, fall_shrink=0.2, **kw)
+    for c, fell in ((t, [True, True, False]), (s, [True, False, False])):
+        U = c.ask()
+        c.tell(U, np.where(fell, 150.0, 10.0), c.last_tags, fell=fell)
+    assert np.allclose(s.design_box(0, 0)[1], 0.8)         # 1 of 3 fell: still around x0
+    assert np.allclose(t.design_box(0, 0)[1], 1.0)         # 2 of 3: the whole box
+    assert np.ptp(t.ask(), axis=0).max() > 0.2
+    assert np.all(np.abs(s.ask() - 0.7) <= 0.1 + 1e-12)
+    no_shrink = TurboM(6, **kw)                            # without fall_shrink it never widens
+    U = no_shrink.ask()
+    no_shrink.tell(U, np.full(3, 150.0), no_shrink.last_tags, fell=[True] * 3)
+    assert np.allclose(no_shrink.design_box(0, 0)[1], 0.8)
 
 
 def test_fall_shrink_halves_a_region_whose_group_falls():

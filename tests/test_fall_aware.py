@@ -317,7 +317,8 @@ def test_fall_aware_turbo_tells_its_falls_and_starts_near_the_warm_start():
     inner = c.inner
     assert inner.fall_shrink == 0.5 and inner.design_side == FALL_DESIGN_SIDE
     half = FALL_DESIGN_SIDE / 2
-    assert np.all(np.abs(inner.regions[0].design - 0.5) <= half + 1e-12)
+    assert all(np.all(np.abs(inner.design_point(inner.regions[0], k) - 0.5) <= half + 1e-12)
+               for k in range(inner.n_init))
     plain = make_phase_critic("turbo", 4, batch_size=4, seed=0, x0=x0, budget=40)
     assert plain.fall_shrink is None and plain.design_side is None
     while inner.regions[0].n_points < inner.n_init:

@@ -125,7 +125,11 @@ fell=)``); the pipeline sets both with the fall-aware option (``max_fall_prob``)
 
 * ``design_side``: with a warm start ``x0``, region 0's first design (after the ``x0`` rows) is
   a scrambled-Sobol design of the box ``x0[0] ± design_side/2`` (clipped to [0, 1]) instead of
-  the whole box (:meth:`TurboM.design_box`); later epochs and other regions keep the whole box.
+  the whole box (:meth:`TurboM.design_box`). With ``fall_shrink`` set, that lasts as long as at
+  most half of its told design points fell: the box is worth searching only while the warm
+  start's neighbourhood mostly stands on the target. Once more than half of them fell, its
+  remaining design points fill the whole box. Later epochs and other regions keep the whole
+  box.
 * ``fall_shrink``: a Thompson group in which more than this share of the points fell halves
   its region's side (once, and resets its counters), whatever the success rule says: the share of
   falls estimates the fall probability of the region's trials, and a smaller region stays
@@ -207,6 +211,7 @@ class TrustRegion:
     design: np.ndarray                      # (k, d) initial design of the current epoch
     design_ptr: int = 0                     # design points handed out (or told)
     n_design_told: int = 0
+    n_design_fell: int = 0                  # told design points whose trial fell
     n_success: int = 0
     n_failure: int = 0
     epoch: int = 0                          # number of restarts so far
@@ -333,25 +338,40 @@ class TurboM(Critic):
 
     # ------------------------------------------------------------------ regions
     def design_box(self, r: int, epoch: int) -> tuple[np.ndarray, np.ndarray]:
-        """(lower (dim,), upper (dim,)) of the box region ``r``'s design of ``epoch`` fills:
-        ``x0[0] ± design_side/2`` clipped to [0, 1] for region 0's first epoch with a warm start
-        and ``design_side``, else the unit box."""
+        """(lower (dim,), upper (dim,)) of the box that region ``r``'s design of ``epoch`` fills
+        now: ``x0[0] ± design_side/2`` clipped to [0, 1] for region 0's first epoch with a warm
+        start and ``design_side`` (with ``fall_shrink``: while at most half of its told design
+        points fell); else the unit box."""
         if self.design_side is not None and r == 0 and epoch == 0 and self.x0 is not None:
-            h = self.design_side / 2.0
-            return np.clip(self.x0[0] - h, 0.0, 1.0), np.clip(self.x0[0] + h, 0.0, 1.0)
+            tr = self.regions[0] if getattr(self, "regions", None) else None
+            widened = (tr is not None and tr.epoch == 0 and self.fall_shrink is not None
+                       and tr.n_design_told > 0
+                       and tr.n_design_fell > 0.5 * tr.n_design_told)
+            if not widened:
+                h = self.design_side / 2.0
+                return np.clip(self.x0[0] - h, 0.0, 1.0), np.clip(self.x0[0] + h, 0.0, 1.0)
         return np.zeros(self.dim), np.ones(self.dim)
 
     def _design(self, r: int, epoch: int) -> np.ndarray:
+        """The design rows of a fresh region: the warm-start rows (region 0's first epoch), then
+        scrambled-Sobol points of the unit cube, mapped into :meth:`design_box` when asked."""
         from torch.quasirandom import SobolEngine
         import torch
 
         s = int(np.random.default_rng([self.seed, 1, r, epoch]).integers(2 ** 31))
         D = SobolEngine(self.dim, scramble=True, seed=s).draw(self.n_init, dtype=torch.float64)
-        lo, hi = self.design_box(r, epoch)
-        D = lo + D.numpy() * (hi - lo)
+        D = D.numpy()
         if r == 0 and epoch == 0 and self.x0 is not None:
             D = np.vstack([self.x0, D[: max(self.n_init - self.x0.shape[0], 0)]])
         return D
+
+    def design_point(self, tr: TrustRegion, k: int) -> np.ndarray:
+        """Design point ``k`` of region ``tr`` as it is asked now (d,): a warm-start row as it
+        is, a Sobol row mapped into the region's current :meth:`design_box`."""
+        if tr.index == 0 and tr.epoch == 0 and self.x0 is not None and k < self.x0.shape[0]:
+            return tr.design[k].copy()
+        lo, hi = self.design_box(tr.index, tr.epoch)
+        return lo + tr.design[k] * (hi - lo)
 
     def _fresh_region(self, r: int, epoch: int, epoch_gen: int) -> TrustRegion:
         return TrustRegion(index=r, length=self.length_init, design=self._design(r, epoch),
@@ -443,6 +463,7 @@ class TurboM(Critic):
                 continue                      # asked before this region restarted: history only
             if kind == KIND_DESIGN:
                 tr.n_design_told += len(members)
+                tr.n_design_fell += int(self._fell[members].sum())
                 tr.design_ptr = max(tr.design_ptr, min(tr.n_design_told, len(tr.design)))
                 self._add_points(tr, members)
                 continue
@@ -500,7 +521,7 @@ class TurboM(Critic):
         tags: list[int] = []
         for tr in self.regions:
             while tr.design_ptr < len(tr.design) and tr.n_points < self.n_init and len(X_out) < n:
-                X_out.append(tr.design[tr.design_ptr])
+                X_out.append(self.design_point(tr, tr.design_ptr))
                 tags.append(encode_tag(g, KIND_DESIGN, tr.index))
                 tr.design_ptr += 1
         q = n - len(X_out)
