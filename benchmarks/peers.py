@@ -506,7 +506,7 @@ def relabel(a) -> int:
     hash when the code change does not touch their path: ``a.relabel_check`` of them (spread over
     methods, problems and seeds) are re-run with the current code and must give bit-identical
     best-so-far traces; then every run is copied under the current hash with a ``relabelled``
-    record (old hash, the runs checked, date). ``a.relabel_check`` runs of each method are
+    record (old hash, the runs checked, date; a list, oldest first, after several relabels). ``a.relabel_check`` runs of each method are
     checked. Returns 1 (nothing written) if a trace differs."""
     import torch
 
@@ -539,7 +539,10 @@ def relabel(a) -> int:
         path = run_path(out, o["problem"], o["method"], o["seed"], o["budget"], new)
         if path.exists():
             continue
-        o["relabelled"] = {"from": a.relabel, "to": new, "checked": checked, "date": stamp}
+        prev = o.get("relabelled", [])
+        prev = [prev] if isinstance(prev, dict) else prev       # earlier relabels, oldest first
+        o["relabelled"] = prev + [{"from": a.relabel, "to": new, "checked": checked,
+                                   "date": stamp}]
         o["critic_hash"] = new
         path.write_text(json.dumps(o))
         n += 1
