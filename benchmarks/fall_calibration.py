@@ -3,7 +3,7 @@
 For every run store given (direct searches on θ made by ``benchmarks/reality_gap.py``, without
 the fall-aware option, so their points were not screened), the trials are replayed batch by
 batch: before batch ``b`` a :class:`~latentune.critic.fall_aware.FallClassifier` is fitted on the
-trials before it (the start trial and batches ``< b``) and, for the variants that use it, on the
+trials before it (the manual θ's trial, phase 0, and batches ``< b``) and, for the variants that use it, on the
 source run's phase-1 trials as its prior; it then predicts the fall probability of each trial of
 batch ``b``. The pooled predictions against what happened say whether any threshold could have
 avoided the falls, and at what price in trials that would not have fallen.
@@ -46,7 +46,7 @@ VARIANTS = ("prior", "target")
 
 
 def trials(run: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    """(θ (n, d), fell (n,), batch index (n,), batch size) of a direct run: the start trial
+    """(θ (n, d), fell (n,), batch index (n,), batch size) of a direct run: the manual θ's trial
     (phase 0, batch -1) and the tuning phase's trials in order."""
     with RunStore(run, create=False) as st:
         cfg = st.meta().get("config", {})
