@@ -44,6 +44,10 @@ path alone, re-runs ``--relabel-check`` (3) of each of the ``lt_turbo``/``lt_cma
 their best-so-far traces are bit-identical, copies all of them under the current hash (with a
 ``relabelled`` record), so they need not be run again.
 
+Compare (``--compare DIR``): the runs of ``--out`` against the runs of the same name in DIR
+(identical traces, where they part, both medians per problem and method); every invocation
+and run records the machine's CPU and vector extension (``machine``).
+
 Overhead (``--overhead``): latentune's TuRBO-m in 25-d, batch 10, told 10,000 points (1 and 10
 regions), then asked and told 5 batches: the critic's seconds per suggested point (ask + tell),
 with torch set to all cores outside the critic (its default) and the critic's default
@@ -275,6 +279,23 @@ def versions() -> dict:
     return out
 
 
+def machine() -> dict:
+    """The CPU the runs are made on: its model name and widest vector extension (MKL and
+    OpenBLAS choose their kernels by it, so the last bits of linear algebra, and after a few
+    batches a seeded run's trajectory, depend on it; see ``--compare``)."""
+    flags, name = set(), platform.processor()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("flags") and not flags:
+                flags = set(line.split(":", 1)[1].split())
+            elif line.startswith("model name") and name in ("", platform.processor()):
+                name = line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    simd = next((f for f in ("avx512f", "avx2", "avx", "sse4_2") if f in flags), None)
+    return {"cpu": name or None, "simd": simd, "cores": os.cpu_count()}
+
+
 def method_budget(method: str, budget: int, gp_budget: int) -> int:
     return min(budget, gp_budget) if method == "optuna_gp" else budget
 
@@ -296,7 +317,7 @@ def bench(a) -> None:
                problems=a.problems, methods=methods, seeds=a.seeds, budget=a.budget,
                gp_budget=a.gp_budget, batch=a.batch_size, critic_hash=chash,
                variants={k: v[1] for k, v in variants.items()}, versions=versions(),
-               loadavg_start=os.getloadavg(), threads=dict(torch=torch.get_num_threads(),
+               machine=machine(), loadavg_start=os.getloadavg(), threads=dict(torch=torch.get_num_threads(),
                                                            omp=os.environ.get("OMP_NUM_THREADS")))
     with open(out / "invocations.jsonl", "a") as fh:
         fh.write(json.dumps(dict(inv, event="start")) + "\n")
@@ -330,6 +351,7 @@ def bench(a) -> None:
         if m.startswith("lt_") and "@" in m:
             r["options"] = variants[m.split("@", 1)[1]][1]
         r["loadavg"] = os.getloadavg()
+        r["machine"] = inv["machine"]
         r["date"] = datetime.datetime.now(datetime.timezone.utc).isoformat()
         tmp = path.with_suffix(".tmp")
         tmp.write_text(json.dumps(r))
@@ -500,6 +522,54 @@ def report(a) -> None:
     print("\n".join(lines))
 
 
+# ------------------------------------------------------------------ compare
+def compare(a) -> int:
+    """The runs of ``a.out`` against the runs of the same name in ``a.compare`` (e.g. the same
+    seeded runs made on another machine): per run whether the best-so-far traces are identical
+    and the first evaluation where they differ by more than 1e-6 relatively; per (problem,
+    method) both medians and the Mann–Whitney U p between the two sets of seeds. Written to
+    ``<out>/compare_<name of the other directory's parent>.json`` and printed."""
+    out, other = Path(a.out), Path(a.compare)
+    rows, groups = [], {}
+    for f in sorted((out / "runs").glob("*.json")):
+        g = other / "runs" / f.name
+        if not g.exists():
+            continue
+        r, o = json.loads(f.read_text()), json.loads(g.read_text())
+        x, y = np.asarray(r["trace"], float), np.asarray(o["trace"], float)
+        n = min(len(x), len(y))
+        rel = np.abs(x[:n] - y[:n]) / np.maximum(np.abs(y[:n]), 1e-300)
+        apart = np.flatnonzero(rel > 1e-6)
+        rows.append(dict(run=f.name, identical=bool(n == len(x) == len(y) and
+                                                    np.array_equal(x, y)),
+                         first_apart=int(apart[0]) if apart.size else None,
+                         best=r["best"], best_other=o["best"], machine=r.get("machine"),
+                         machine_other=o.get("machine")))
+        groups.setdefault((r["problem"], r["method"]), ([], []))
+        groups[(r["problem"], r["method"])][0].append(r["best"])
+        groups[(r["problem"], r["method"])][1].append(o["best"])
+    if not rows:
+        print(f"no run of {out / 'runs'} is also in {other / 'runs'}", file=sys.stderr)
+        return 1
+    lines = [f"# {out} against {other}", "",
+             f"{sum(r['identical'] for r in rows)} of {len(rows)} runs have identical traces; "
+             "first evaluation apart by > 1e-6 (relative): "
+             + ", ".join(str(r["first_apart"]) for r in rows), "",
+             "| problem | method | seeds | median here | median there | p |", "|---|---|---|---|---|---|"]
+    summ = []
+    for (pn, m), (b1, b2) in sorted(groups.items()):
+        pv = _mwu(np.asarray(b1), np.asarray(b2))
+        summ.append(dict(problem=pn, method=m, seeds=len(b1), median=float(np.median(b1)),
+                         median_other=float(np.median(b2)), p=pv))
+        lines.append(f"| {pn} | {m} | {len(b1)} | {np.median(b1):.4g} | {np.median(b2):.4g} | "
+                     f"{pv:.2f} |")
+    name = other.resolve().name
+    (out / f"compare_{name}.json").write_text(json.dumps(dict(
+        here=str(out), there=str(other), runs=rows, groups=summ), indent=1))
+    print("\n".join(lines))
+    return 0
+
+
 # ------------------------------------------------------------------ relabel
 def relabel(a) -> int:
     """Carry the ``lt_turbo`` / ``lt_cma`` runs of critic hash ``a.relabel`` over to the current
@@ -643,7 +713,11 @@ def main(argv=None) -> int:
                    help="carry lt_turbo/lt_cma runs of this critic hash over to the current one "
                         "after re-running --relabel-check of them bit-identically")
     p.add_argument("--relabel-check", type=int, default=3)
+    p.add_argument("--compare", default=None, metavar="DIR",
+                   help="compare the runs of --out with the runs of the same name in DIR")
     a = p.parse_args(argv)
+    if a.compare:
+        return compare(a)
     if a.relabel:
         return relabel(a)
     if a.report:
