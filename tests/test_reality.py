@@ -173,9 +173,12 @@ def test_task_records_and_rebuilds_reality_and_engine():
 
 # ----------------------------------------------------------------------------- worlds
 def test_nominal_reality_keeps_the_default_numbers():
-    for r in (None, "nominal"):
-        t = Task("a1", steps=2000, reality=r)
-        assert t.rollout(t.space.manual).cost == 4.396841505610051
+    costs = [Task("a1", steps=2000, reality=r) for r in (None, "nominal")]
+    costs = [t.rollout(t.space.manual).cost for t in costs]
+    assert costs[0] == costs[1]                     # nominal is no profile, to the last bit
+    # the default numbers: equal to the last bits only on one CPU (BLAS and the QP solver's
+    # kernels are chosen by CPU: 4.396841505606021 on an AVX-512 Xeon)
+    assert costs[0] == pytest.approx(4.396841505610051, rel=1e-9)
 
 
 @engines
