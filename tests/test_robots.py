@@ -183,6 +183,38 @@ def test_unknown_robot_name():
 
 
 # ----------------------------------------------------------------------------- URDF preparation
+def test_prepared_urdf_of_a_copy_elsewhere_refers_to_its_own_meshes(tmp_path):
+    # the same URDF text in two places (as in two venvs): each prepared copy names the meshes
+    # beside its own source, and removing one place leaves the other loadable
+    import dataclasses
+    import shutil
+
+    paths = {}
+    for place in ("a", "b"):
+        (tmp_path / place / "robots").mkdir(parents=True)
+        (tmp_path / place / "meshes").mkdir()
+        shutil.copy(Path(get_robot("solo12").urdf).parents[1] / "meshes" / "stl" / "solo12"
+                    / "solo_12_base.stl", tmp_path / place / "meshes" / "base.stl")
+        urdf = tmp_path / place / "robots" / "r.urdf"
+        urdf.write_text('<robot name="r"><link name="base"><inertial><mass value="1"/>'
+                        '<inertia ixx="0.01" ixy="0" ixz="0" iyy="0.01" iyz="0" izz="0.01"/>'
+                        '</inertial><visual><geometry><mesh filename="package://r_pkg/meshes/'
+                        'base.stl"/></geometry></visual></link></robot>')
+        spec = dataclasses.replace(get_robot("solo12"), name="r_copy", urdf=str(urdf),
+                                   strip_root=False, primitive_collisions=False)
+        paths[place] = Path(prepared_urdf(spec))
+    assert paths["a"] != paths["b"]
+    for place, path in paths.items():
+        assert f'filename="{tmp_path / place / "meshes" / "base.stl"}"' in path.read_text()
+    shutil.rmtree(tmp_path / "a")
+    import pybullet as pb
+    c = pb.connect(pb.DIRECT)
+    try:
+        assert pb.loadURDF(str(paths["b"]), physicsClientId=c) >= 0
+    finally:
+        pb.disconnect(c)
+
+
 def test_prepared_urdf(tmp_path):
     assert prepared_urdf(get_robot("a1")) == get_robot("a1").urdf  # nothing to rewrite
     b1 = Path(prepared_urdf(get_robot("b1"))).read_text()

@@ -378,13 +378,15 @@ def prepared_urdf(spec: RobotSpec) -> str:
     if not (spec.strip_root or spec.primitive_collisions or continuous or "package://" in text):
         return str(src)
     prims = spec.collision_primitives if spec.primitive_collisions else {}
+    # the key hashes the text with its mesh URIs resolved: the same URDF in another place (e.g.
+    # another venv's example-robot-data) refers to other mesh files, so it gets its own copy
+    text = _fix_uris(text, src)
     key = hashlib.sha1((text + repr((spec.strip_root, spec.primitive_collisions, spec.foot_radius,
                                      sorted(prims.items()))) + _REWRITE_VERSION).encode()).hexdigest()[:12]
     out = Path(tempfile.gettempdir()) / "latentune_urdf" / f"{spec.name}_{key}.urdf"
     if out.is_file():
         return str(out)
 
-    text = _fix_uris(text, src)
     if spec.strip_root and read_urdf(src).massless_root():  # a massless dummy fixed to the base
         text = _strip_root(text, read_urdf(src).root)
     if continuous:
