@@ -42,7 +42,8 @@ budget (``optuna_gp``) are compared with the others' best-so-far at that budget.
 Relabel (``--relabel HASH``): after a change to the critics' code that leaves the defaults'
 path alone, re-runs ``--relabel-check`` (3) of each of the ``lt_turbo``/``lt_cma`` runs of ``HASH``; if
 their best-so-far traces are bit-identical, copies all of them under the current hash (with a
-``relabelled`` record), so they need not be run again.
+``relabelled`` record), so they need not be run again. Only runs made on this kind of machine
+can be checked (runs that record no ``machine`` count as another machine's).
 
 Compare (``--compare DIR``): the runs of ``--out`` against the runs of the same name in DIR
 (identical traces, where they part, both medians per problem and method); every invocation
@@ -586,6 +587,13 @@ def relabel(a) -> int:
                  if json.loads(f.read_text())["method"] in ("lt_turbo", "lt_cma"))
     if not old or new == a.relabel:
         print(f"nothing to relabel: {len(old)} runs of {a.relabel}, current hash {new}")
+        return 1
+    here = machine()
+    elsewhere = {json.dumps(json.loads(f.read_text()).get("machine")) for f in old} - {json.dumps(here)}
+    if elsewhere:      # a seeded trajectory is reproducible on one kind of CPU only (--compare)
+        print(f"runs of {a.relabel} were made on another machine ({', '.join(sorted(elsewhere))}; "
+              f"here {json.dumps(here)}): their traces cannot be checked here; re-run them",
+              file=sys.stderr)
         return 1
     picks = []
     for m in ("lt_turbo", "lt_cma"):      # --relabel-check runs of each, spread over the list
