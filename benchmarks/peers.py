@@ -284,17 +284,17 @@ def machine() -> dict:
     """The CPU the runs are made on: its model name and widest vector extension (MKL and
     OpenBLAS choose their kernels by it, so the last bits of linear algebra, and after a few
     batches a seeded run's trajectory, depend on it; see ``--compare``)."""
-    flags, name = set(), platform.processor()
+    info: dict[str, str] = {}                  # the first CPU's fields
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("flags") and not flags:
-                flags = set(line.split(":", 1)[1].split())
-            elif line.startswith("model name") and name in ("", platform.processor()):
-                name = line.split(":", 1)[1].strip()
+            key, _, value = line.partition(":")
+            info.setdefault(key.strip(), value.strip())
     except OSError:
         pass
+    flags = set(info.get("flags", "").split())
     simd = next((f for f in ("avx512f", "avx2", "avx", "sse4_2") if f in flags), None)
-    return {"cpu": name or None, "simd": simd, "cores": os.cpu_count()}
+    return {"cpu": info.get("model name") or platform.processor() or None, "simd": simd,
+            "cores": os.cpu_count()}
 
 
 def method_budget(method: str, budget: int, gp_budget: int) -> int:
@@ -546,9 +546,9 @@ def compare(a) -> int:
                          first_apart=int(apart[0]) if apart.size else None,
                          best=r["best"], best_other=o["best"], machine=r.get("machine"),
                          machine_other=o.get("machine")))
-        groups.setdefault((r["problem"], r["method"]), ([], []))
-        groups[(r["problem"], r["method"])][0].append(r["best"])
-        groups[(r["problem"], r["method"])][1].append(o["best"])
+        here_best, there_best = groups.setdefault((r["problem"], r["method"]), ([], []))
+        here_best.append(r["best"])
+        there_best.append(o["best"])
     if not rows:
         print(f"no run of {out / 'runs'} is also in {other / 'runs'}", file=sys.stderr)
         return 1
@@ -583,13 +583,14 @@ def relabel(a) -> int:
 
     torch.set_num_threads(1)
     out, new = Path(a.out), critic_hash()
-    old = sorted(f for f in (out / "runs").glob(f"*__b*__{a.relabel}.json")
-                 if json.loads(f.read_text())["method"] in ("lt_turbo", "lt_cma"))
+    old = {f: json.loads(f.read_text())
+           for f in sorted((out / "runs").glob(f"*__b*__{a.relabel}.json"))}
+    old = {f: o for f, o in old.items() if o["method"] in ("lt_turbo", "lt_cma")}
     if not old or new == a.relabel:
         print(f"nothing to relabel: {len(old)} runs of {a.relabel}, current hash {new}")
         return 1
     here = machine()
-    elsewhere = {json.dumps(json.loads(f.read_text()).get("machine")) for f in old} - {json.dumps(here)}
+    elsewhere = {json.dumps(o.get("machine")) for o in old.values()} - {json.dumps(here)}
     if elsewhere:      # a seeded trajectory is reproducible on one kind of CPU only (--compare)
         print(f"runs of {a.relabel} were made on another machine ({', '.join(sorted(elsewhere))}; "
               f"here {json.dumps(here)}): their traces cannot be checked here; re-run them",
@@ -601,7 +602,7 @@ def relabel(a) -> int:
         picks += runs[:: max(1, len(runs) // max(a.relabel_check, 1))][: a.relabel_check]
     checked = []
     for f in picks:
-        o = json.loads(f.read_text())
+        o = old[f]
         r = run_method(o["method"], o["problem"], o["seed"], o["budget"], o["batch"], {})
         same = r["trace"] == o["trace"]
         print(f"{o['problem']:14s} {o['method']:9s} s{o['seed']}: "
@@ -612,8 +613,7 @@ def relabel(a) -> int:
         checked.append(f.name)
     stamp = datetime.datetime.now(datetime.timezone.utc).isoformat()
     n = 0
-    for f in old:
-        o = json.loads(f.read_text())
+    for o in old.values():
         path = run_path(out, o["problem"], o["method"], o["seed"], o["budget"], new)
         if path.exists():
             continue
