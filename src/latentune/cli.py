@@ -478,7 +478,8 @@ def cmd_paper(args: argparse.Namespace) -> int:
     opts = PaperOptions(robot=str(args.robot).lower(), actor=args.actor, scale=args.scale,
                         phase1=args.phase1_evals, phase3=args.phase3_evals,
                         out=args.out or f"paper-{str(args.robot).lower()}", workers=args.workers,
-                        seed=args.seed, steps=args.steps, v_des=args.v_des, quiet=args.quiet)
+                        seed=args.seed, steps=args.steps, v_des=args.v_des, quiet=args.quiet,
+                        sources_only=args.sources_only)
     text = run_paper(opts, report_only=args.report_only, simulate=not args.no_sim,
                      gifs=not args.no_gif)
     if not args.quiet:
@@ -582,6 +583,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=int, default=5000, help="rollout horizon in 1 kHz steps")
     p.add_argument("--v-des", type=float, default=0.5)
     p.add_argument("--report-only", action="store_true", help="only (re)write DIR/report.md")
+    p.add_argument("--sources-only", action="store_true",
+                   help="only the phase-1 source runs (resumed later by the full command)")
     p.add_argument("--no-sim", action="store_true", help="report: skip re-simulated CoM plots/GIFs")
     p.add_argument("--no-gif", action="store_true", help="report: skip the GIFs")
     p.add_argument("--quiet", action="store_true")

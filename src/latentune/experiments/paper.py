@@ -29,6 +29,9 @@ The fourth root keeps phase 3 meaningful at small scales (S = 0.03 → 300 / 92 
 phase-1 budget, the expensive one, scales linearly. ``--phase1-evals`` / ``--phase3-evals``
 override the mapping (also recorded).
 
+``--sources-only`` runs only the phase-1 runs of ``R-g`` (and of ``R-trot-preservation``): the
+long sources of every other study, in the layout a later full ``latentune paper`` resumes.
+
 Resume: every study is a pipeline run; re-running the same command skips finished studies and
 resumes unfinished ones from their stored rows (the pipeline's ``run_phase`` resume). All
 studies share one evaluator (process pool of ``--workers``).
@@ -132,6 +135,7 @@ class PaperOptions:
     steps: int = 5000
     v_des: float = 0.5
     quiet: bool = False
+    sources_only: bool = False   # only the phase-1 runs (the sources): R-g and R-trot-preservation
 
 
 def _done(out: Path, plan_: StudyPlan, b: dict[str, Any]) -> bool:
@@ -159,6 +163,14 @@ def run_study(plan_: StudyPlan, opts: PaperOptions, root: Path, b: dict[str, Any
     from latentune.task import Task
 
     out = root / plan_.key
+    if opts.sources_only:
+        if plan_.kind not in ("tune", "preservation"):
+            return
+        with_phase1 = StudyPlan(plan_.key, "baseline", plan_.robot, plan_.gait, plan_.terrain,
+                                method=plan_.method, seed_offset=plan_.seed_offset,
+                                budget=b["phase1"] if plan_.kind == "tune" else plan_.budget,
+                                label=f"{plan_.label} (phase-1 source only)")
+        plan_ = with_phase1
     if _done(out, plan_, b):
         log(f"[{plan_.key}] done (skipped)")
         return
@@ -227,6 +239,8 @@ def command_line(opts: PaperOptions, report_only: bool = False) -> str:
         parts.append(f"--phase1-evals {opts.phase1}")
     if opts.phase3 is not None:
         parts.append(f"--phase3-evals {opts.phase3}")
+    if opts.sources_only:
+        parts.append("--sources-only")
     if report_only:
         parts.append("--report-only")
     return " ".join(parts)
@@ -288,4 +302,6 @@ def run_paper(opts: PaperOptions, report_only: bool = False, simulate: bool = Tr
             meta_path.write_text(json.dumps(meta, indent=1))
     elif not meta_path.is_file():
         raise CLIError(f"{root} holds no paper run (no paper.json): run latentune paper first")
+    if opts.sources_only:
+        return f"sources of {root} done (phase 1 only; run without --sources-only for the rest)"
     return write_paper_report(root, simulate=simulate, gifs=gifs, log=log)
