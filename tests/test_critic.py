@@ -610,3 +610,33 @@ def test_fall_shrink_waits_for_a_trial_that_did_not_fall():
     t.tell(rng.random((4, 8)), [20.0, 150.0, 150.0, 150.0], tags=np.full(4, thompson_tag(2)),
            fell=[False, True, True, True])                  # a stable trial: now it shrinks
     assert tr.length == pytest.approx(0.4)
+
+
+# ----------------------------------------------------------------------------- diagnostics
+def test_failed_gp_fit_is_counted_and_logged_once(monkeypatch, caplog):
+    """A GP fit that raises keeps the starting hyperparameters, is counted in stats() and logged
+    once per critic (a WARNING), however many fits fail."""
+    import botorch.optim.fit
+
+    def broken_fit(*args, **kwargs):
+        raise RuntimeError("forced numerical failure")
+
+    monkeypatch.setattr(botorch.optim.fit, "fit_gpytorch_mll_scipy", broken_fit)
+    t = TurboM(3, batch_size=4, seed=0, **FAST_TURBO)
+    with caplog.at_level("WARNING", logger="latentune.critic.turbo"):
+        run(t, sphere, 8)
+    st = t.stats()
+    assert st["n_fit_failed"] == st["n_fits"] >= 3, st
+    records = [r for r in caplog.records if r.name == "latentune.critic.turbo"]
+    assert len(records) == 1 and records[0].levelname == "WARNING"
+    assert "forced numerical failure" in records[0].getMessage()
+    assert all(tr.hypers is not None for tr in t.regions if tr.n_points >= 2)
+
+
+def test_successful_gp_fits_are_counted_without_a_warning(caplog):
+    t = TurboM(3, batch_size=4, seed=0, **FAST_TURBO)
+    with caplog.at_level("WARNING", logger="latentune.critic"):
+        run(t, sphere, 4)
+    st = t.stats()
+    assert st["n_fits"] >= 1 and st["n_fit_failed"] == 0 and st["method"] == "turbo"
+    assert not [r for r in caplog.records if r.name.startswith("latentune.critic")]

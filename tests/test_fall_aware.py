@@ -330,3 +330,26 @@ def test_fall_aware_turbo_tells_its_falls_and_starts_near_the_warm_start():
     c.tell(X, np.full(len(X), 150.0), c.last_tags, fell=np.ones(len(X), bool))
     assert inner.regions[0].length == pytest.approx(side / 2)
     assert inner.fell[-len(X):].all()
+
+
+# ----------------------------------------------------------------------------- diagnostics
+def test_failed_classifier_and_gp_fits_are_reported_once_each(monkeypatch, caplog):
+    """Failed fits of the classifier and of the inner TuRBO-m (asked on deep copies) are counted
+    in stats() and each model's failure is logged exactly once."""
+    import botorch.optim.fit
+
+    def broken(*args, **kwargs):
+        raise FloatingPointError("forced numerical failure")
+
+    monkeypatch.setattr(FallClassifier, "_nll", broken)
+    monkeypatch.setattr(botorch.optim.fit, "fit_gpytorch_mll_scipy", broken)
+    c = critic("turbo", 0, True)
+    with caplog.at_level("WARNING", logger="latentune.critic"):
+        run(c, 45)
+    st = c.stats()
+    assert st["n_fit_failed"] == st["n_fits"] >= 2, st
+    inner = st["inner_stats"]
+    assert inner["n_fit_failed"] == inner["n_fits"] >= 2, inner
+    by_logger = [r.name for r in caplog.records if r.levelname == "WARNING"]
+    assert sorted(by_logger) == ["latentune.critic.fall_aware", "latentune.critic.turbo"]
+    assert c.best_y < np.inf          # the critic kept working on its starting hyperparameters

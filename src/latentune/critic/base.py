@@ -44,6 +44,7 @@ far wherever a number is needed (:func:`fill_nonfinite`).
 """
 from __future__ import annotations
 
+import logging
 from abc import ABC, abstractmethod
 from typing import Any
 
@@ -90,6 +91,48 @@ def average_ranks(y: np.ndarray) -> np.ndarray:
     "average", without importing scipy.stats: a large part of a cold ``ask``'s imports)."""
     _, inv, counts = np.unique(y, return_inverse=True, return_counts=True)
     return (np.cumsum(counts) - (counts - 1) / 2.0)[inv.reshape(-1)]
+
+
+class FitReport:
+    """Counts a critic's model fits and the fits that failed, and logs the first failure.
+
+    A failed fit (a numerical error of the optimizer) leaves the model at its starting
+    hyperparameters, so the critic keeps working; the failure is logged once through ``logger``
+    (a ``WARNING``) and every failure is counted in :attr:`n_failed` (shown in the critic's
+    :meth:`Critic.stats`). Copies of a critic made with :func:`copy.deepcopy` (e.g. the
+    fall-aware critic's probes) share the report: ``deepcopy`` returns the same object.
+
+    Args:
+        what: the model, as shown in the log line (e.g. ``"TuRBO-m GP"``).
+        logger: the logger of the module that fits the model.
+    """
+
+    def __init__(self, what: str, logger: logging.Logger) -> None:
+        self.what = what
+        self.logger = logger
+        self.n_fits = 0
+        self.n_failed = 0
+
+    def record(self, ok: bool, detail: str = "") -> None:
+        """Count one fit; on the first failure, log ``detail`` (the error) once."""
+        self.n_fits += 1
+        if ok:
+            return
+        self.n_failed += 1
+        if self.n_failed == 1:
+            self.logger.warning("%s: a hyperparameter fit failed (%s); the model keeps its "
+                                "starting hyperparameters; later failures are only counted "
+                                "(stats()['n_fit_failed'])", self.what, detail or "no detail")
+
+    def as_dict(self) -> dict[str, int]:
+        """``{"n_fits": ..., "n_fit_failed": ...}``."""
+        return {"n_fits": self.n_fits, "n_fit_failed": self.n_failed}
+
+    def __deepcopy__(self, memo: dict[int, Any]) -> "FitReport":
+        return self
+
+    def __copy__(self) -> "FitReport":
+        return self
 
 
 def as_unit_points(X: Any, dim: int, name: str = "X") -> np.ndarray:
@@ -249,6 +292,12 @@ class Critic(ABC):
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Restore :meth:`state_dict` after the same history was told (no-op here)."""
+
+    # ------------------------------------------------------------------ report
+    def stats(self) -> dict[str, Any]:
+        """Counters for logs and run records (``method``, ``n_told``; model-based critics add
+        their fit counts, see :class:`FitReport`)."""
+        return {"method": self.method, "n_told": self.n_told}
 
     def __repr__(self) -> str:
         return (f"{type(self).__name__}(dim={self.dim}, batch_size={self.batch_size}, "

@@ -36,8 +36,9 @@
 """
 from __future__ import annotations
 
+import contextlib
 import warnings
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -45,6 +46,19 @@ from latentune.critic.base import Critic, fill_nonfinite
 
 
 _GEN = 1 << 20
+
+
+@contextlib.contextmanager
+def _cma_warnings_filtered() -> Iterator[None]:
+    """Silence pycma's known, handled warnings inside the block (and only those): a sampling
+    standard deviation clipped to the box's limits and an initial step size larger than the box
+    (the box is [0, 1]^d by construction)."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=r"Sampling standard deviation i=",
+                                category=UserWarning)
+        warnings.filterwarnings("ignore", message=r"\s*Initial standard deviation",
+                                category=UserWarning)
+        yield
 
 
 def encode_tag(generation: int, told: int) -> int:
@@ -117,8 +131,7 @@ class CMAES(Critic):
                 "randn": self._randn, "verbose": -9, "tolflatfitness": 10,
                 "CMA_diagonal": False}
         opts.update(self._cma_options)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
+        with _cma_warnings_filtered():
             return cma.CMAEvolutionStrategy(np.asarray(mean, dtype=float).tolist(),
                                             self.sigma0, opts)
 
@@ -129,8 +142,7 @@ class CMAES(Critic):
             mean = np.random.default_rng([self.seed, 1, self.n_restarts]).random(self.dim)
             self._es = self._new_es(mean)
         self._rng = np.random.default_rng([self.seed, 2, g])
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
+        with _cma_warnings_filtered():
             pop = np.asarray(self._es.ask(), dtype=float)
         self._es_gen = g
         self._gen_es[g] = self.n_restarts
@@ -139,8 +151,7 @@ class CMAES(Critic):
         return pop
 
     def _es_tell(self, X: np.ndarray, y: np.ndarray) -> None:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
+        with _cma_warnings_filtered():
             if getattr(self._es, "_flgtelldone", False):
                 # pycma allows one tell per ask; when two tells follow each other (foreign
                 # points, or asynchronous generations) a throw-away ask with its own

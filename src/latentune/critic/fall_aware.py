@@ -76,11 +76,19 @@ their own whose mean is the prior mean of the told points' GP (:class:`FallClass
 ``benchmarks/fall_avoidance.py --part classifiers`` compares it with a Dirichlet GP, a logistic
 regression on random Fourier features and k nearest neighbours (results in
 ``results/fall_avoidance/``).
+
+Diagnostics
+-----------
+A hyperparameter fit of the classifier that fails (the optimizer raises or ends at a non-finite
+point) keeps the starting hyperparameters; the first failure is logged (a ``WARNING`` of this
+module's logger) and every one is counted in :meth:`FallAware.stats` (``n_fit_failed``; the
+inner critic's own counts are under ``inner_stats``).
 """
 from __future__ import annotations
 
 import copy
 import hashlib
+import logging
 import math
 import warnings
 from dataclasses import dataclass, field
@@ -89,7 +97,9 @@ from typing import Any
 import numpy as np
 
 from latentune.constants import C1
-from latentune.critic.base import X0_TAG, Critic, as_unit_points
+from latentune.critic.base import X0_TAG, Critic, FitReport, as_unit_points
+
+logger = logging.getLogger(__name__)
 
 
 # ============================================================================ classifier
@@ -152,8 +162,9 @@ class FallClassifier:
     """
 
     def __init__(self, dim: int, *, max_points: int = 1000, max_fit_points: int = 300,
-                 refit_fraction: float = 0.2) -> None:
+                 refit_fraction: float = 0.2, fit_report: FitReport | None = None) -> None:
         self.dim = int(dim)
+        self.fit_report = fit_report or FitReport("fall classifier GP", logger)
         self.max_points = int(max_points)
         self.max_fit_points = int(max_fit_points)
         self.refit_fraction = float(refit_fraction)
@@ -217,12 +228,24 @@ class FallClassifier:
         theta0 = np.concatenate([np.full(d, math.log(0.3)), [0.0, math.log(0.1), 0.0]])
         bounds = ([(math.log(0.01), math.log(10.0))] * d
                   + [(math.log(0.05), math.log(10.0)), (math.log(1e-3), 0.0), (-2.0, 2.0)])
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            res = minimize(self._nll, theta0, args=(torch.as_tensor(Xs, dtype=torch.float64),
-                                                    torch.as_tensor(rs, dtype=torch.float64)),
-                           jac=True, method="L-BFGS-B", bounds=bounds, options={"maxiter": 60})
-        theta = np.asarray(res.x, dtype=float) if np.all(np.isfinite(res.x)) else theta0
+        theta = theta0
+        try:
+            with warnings.catch_warnings():
+                # L-BFGS-B's line search may step past a bound before clipping: harmless
+                warnings.filterwarnings("ignore", message="Values in x were outside bounds",
+                                        category=RuntimeWarning)
+                res = minimize(self._nll, theta0,
+                               args=(torch.as_tensor(Xs, dtype=torch.float64),
+                                     torch.as_tensor(rs, dtype=torch.float64)),
+                               jac=True, method="L-BFGS-B", bounds=bounds,
+                               options={"maxiter": 60})
+        except (RuntimeError, ValueError, ArithmeticError) as exc:
+            self.fit_report.record(False, f"{type(exc).__name__}: {exc}")
+        else:
+            ok = bool(np.all(np.isfinite(res.x)))
+            self.fit_report.record(ok, "" if ok else f"non-finite optimum ({res.message})")
+            if ok:
+                theta = np.asarray(res.x, dtype=float)
         h = {"ls": np.exp(theta[:d]), "os": float(np.exp(theta[d])),
              "nz": float(np.exp(theta[d + 1])), "mean": float(theta[d + 2]),
              "loo_X": Xs, "loo_lab": np.where(fc[sub], 1.0, -1.0),
@@ -442,7 +465,8 @@ class FallAware(Critic):
         self.threads = threads
         self.classifier = FallClassifier(self.dim, max_points=int(max_points),
                                          max_fit_points=int(max_fit_points),
-                                         refit_fraction=float(refit_fraction))
+                                         refit_fraction=float(refit_fraction),
+                                         fit_report=FitReport("fall classifier GP", logger))
         self._prior_set = False
         self._fell = np.empty(0, dtype=bool)
         self._probe: Critic | None = None
@@ -765,13 +789,18 @@ class FallAware(Critic):
 
     # ------------------------------------------------------------------ report
     def stats(self) -> dict[str, Any]:
-        """Counters for logs and run records: asks screened, points over the threshold."""
-        return {"inner": self.inner.method, "max_fall_prob": self.max_fall_prob,
+        """Counters for logs and run records: asks screened, points over the threshold, the
+        classifier's hyperparameter fits (``n_fits``, ``n_fit_failed``) and the inner critic's
+        :meth:`~latentune.critic.base.Critic.stats` (``inner_stats``)."""
+        return {"method": self.method, "inner": self.inner.method,
+                "max_fall_prob": self.max_fall_prob,
                 "n_told": self.n_told, "n_fell": int(self._fell.sum()),
                 "n_prior": int(self.prior_X.shape[0]),
                 "n_over": self.n_over,
                 "n_screened": self.n_screened,
-                "mode": "penalise" if self._cma else "drop"}
+                "mode": "penalise" if self._cma else "drop",
+                **self.classifier.fit_report.as_dict(),
+                "inner_stats": self.inner.stats()}
 
     def __repr__(self) -> str:
         return (f"FallAware({self.inner!r}, max_fall_prob={self.max_fall_prob}, "

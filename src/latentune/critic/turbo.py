@@ -86,18 +86,22 @@ Design choices
 * On multi-basin functions (e.g. Levy) the best value over seeds has a heavy tail: compare
   medians over several seeds.
 
-Measured: ``benchmarks/peers.py`` runs ``minimize``'s defaults against the reference TuRBO,
-Optuna's samplers and CMA-ES on ten problems (``--variant NAME='{"option": value}'`` compares
-other options); its outputs are in ``results/peers/``. ``benchmarks/critic.py`` has the older
-quick comparison with CMA-ES.
+``benchmarks/peers.py`` runs ``minimize``'s defaults against the reference TuRBO, Optuna's
+samplers and CMA-ES on ten problems (``--variant NAME='{"option": value}'`` compares other
+options).
+
+Diagnostics
+-----------
+A hyperparameter fit that raises (a numerical failure of the optimizer) keeps the starting
+hyperparameters; the first failure is logged (a ``WARNING`` of this module's logger) and every
+one is counted in :meth:`TurboM.stats` (``n_fit_failed``, with ``n_fits``).
 
 Threads
 -------
 The GPs are small (at most ``max_gp_points`` points) and their linear algebra does not gain
 from several threads; with torch's default threads and a busy second core an ask is many times
 slower. So :meth:`TurboM.ask` runs with ``threads`` (default 1) torch threads and restores the
-caller's setting afterwards (``benchmarks/peers.py --overhead`` measures both settings;
-``results/peers/overhead.json``).
+caller's setting afterwards (``python -m benchmarks.turbo_overhead`` compares both settings).
 
 Tags and resume
 ---------------
@@ -140,15 +144,43 @@ fell=)``); the pipeline sets both with the fall-aware option (``max_fall_prob``)
 """
 from __future__ import annotations
 
+import contextlib
 import functools
+import logging
 import math
 import warnings
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
-from latentune.critic.base import Critic, fill_nonfinite, gaussian_copula
+from latentune.critic.base import Critic, FitReport, fill_nonfinite, gaussian_copula
+
+logger = logging.getLogger(__name__)
+
+
+@contextlib.contextmanager
+def gp_warnings_filtered() -> Iterator[None]:
+    """Silence the known, handled GP warnings inside the block (and only those):
+
+    * BoTorch's ``InputDataWarning`` that the targets are not standardized (each region's
+      targets are median-centred on purpose, see "What the GP sees");
+    * linear_operator's ``NumericalWarning`` that jitter was added to a Cholesky factor (the
+      jitter is the remedy);
+    * BoTorch's ``OptimizationWarning`` that L-BFGS-B stopped with a non-success status (the
+      fit keeps the best hyperparameters reached; the status is logged at DEBUG level).
+    """
+    from botorch.exceptions.warnings import InputDataWarning, OptimizationWarning
+    from linear_operator.utils.warnings import NumericalWarning
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=r"Data \(outcome observations\) is not "
+                                "standardized", category=InputDataWarning)
+        warnings.filterwarnings("ignore", message=r"A not p\.d\., added jitter",
+                                category=NumericalWarning)
+        warnings.filterwarnings("ignore", message=r"`scipy_minimize` terminated with status",
+                                category=OptimizationWarning)
+        yield
 
 _GEN = 1 << 20
 _KIND = 1 << 16
@@ -335,6 +367,7 @@ class TurboM(Critic):
         self.regions = [self._fresh_region(r, epoch=0, epoch_gen=0)
                         for r in range(self.n_regions)]
         self._z_cache: tuple[int, np.ndarray] | None = None
+        self.fit_report = FitReport("TuRBO-m GP", logger)
 
     # ------------------------------------------------------------------ regions
     def design_box(self, r: int, epoch: int) -> tuple[np.ndarray, np.ndarray]:
@@ -631,8 +664,7 @@ class TurboM(Critic):
         kern = ScaleKernel(MaternKernel(nu=2.5, ard_num_dims=self.dim, lengthscale_prior=prior,
                                         lengthscale_constraint=Interval(*self.ls_bounds)),
                            outputscale_constraint=Interval(0.05, 20.0))
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
+        with gp_warnings_filtered():
             model = SingleTaskGP(X, Y, likelihood=lik, covar_module=kern, outcome_transform=None)
         model.to(torch.float64)
         ls0 = 0.5
@@ -658,19 +690,25 @@ class TurboM(Critic):
         }
 
     def _fit(self, model, maxiter: int) -> bool:
+        """Fit ``model``'s hyperparameters by L-BFGS-B (at most ``maxiter`` iterations) on its
+        exact marginal likelihood. Returns ``False`` when the fit raised (the model keeps its
+        starting hyperparameters); every fit is counted in :attr:`fit_report`."""
         from botorch.optim.fit import fit_gpytorch_mll_scipy
         from gpytorch.mlls import ExactMarginalLogLikelihood
 
         model.train()
         mll = ExactMarginalLogLikelihood(model.likelihood, model)
         try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                fit_gpytorch_mll_scipy(mll, options={"maxiter": maxiter})
-        except Exception:  # numerical failure: keep the starting hyperparameters
+            with gp_warnings_filtered():
+                result = fit_gpytorch_mll_scipy(mll, options={"maxiter": maxiter})
+        except (RuntimeError, ValueError, ArithmeticError) as exc:
+            # torch's linear algebra errors (NotPSDError, LinAlgError) are RuntimeErrors
+            self.fit_report.record(False, f"{type(exc).__name__}: {exc}")
             return False
         finally:
             model.eval()
+        logger.debug("GP fit: %s after %d iterations", result.status.name, result.step)
+        self.fit_report.record(True)
         return True
 
     def _next_checkpoint(self, c: int) -> int:
@@ -781,8 +819,7 @@ class TurboM(Critic):
             cand = self._candidates(tr, ls, rng)
             with torch.random.fork_rng(devices=[]):
                 torch.manual_seed(int(rng.integers(2 ** 62)))
-                with torch.no_grad(), warnings.catch_warnings():
-                    warnings.simplefilter("ignore")
+                with torch.no_grad(), gp_warnings_filtered():
                     ct = torch.as_tensor(cand, dtype=torch.float64)
                     if self.thompson == "exact":
                         f = model.posterior(ct).rsample(torch.Size([q])).squeeze(-1).numpy()
@@ -831,6 +868,11 @@ class TurboM(Critic):
             tr.fit_count = int(r["fit_count"])
 
     # ------------------------------------------------------------------ inspection
+    def stats(self) -> dict[str, Any]:
+        """Counters for logs and run records: ``method``, ``n_told``, ``n_fits`` (hyperparameter
+        fits made) and ``n_fit_failed`` (fits that raised, see "Diagnostics")."""
+        return {**super().stats(), **self.fit_report.as_dict()}
+
     def region_state(self) -> list[dict[str, Any]]:
         """Plain summary of every region (for tests, logs and resume checks)."""
         return [{"index": tr.index, "length": tr.length, "n_success": tr.n_success,
