@@ -51,8 +51,8 @@ def digest(*runs: Path) -> dict[str, object]:
     """``{"md5", "n", "per_phase"}`` of the rows of ``runs`` (in the order given)."""
     h = hashlib.md5()
     n, per = 0, {}
-    for run in runs:
-        h.update(str(Path(run).name).encode())
+    for k, run in enumerate(runs):
+        h.update(f"run {k}|".encode())           # the position, not the name, of each run
         for p, theta, cost, fell in rows(run):
             h.update(f"{p}|{cost!r}|{int(fell)}|".encode())
             h.update(theta)
