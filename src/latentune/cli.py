@@ -4,31 +4,85 @@ status | robot check | robot init | paper | bench``.
 Every command parses its flags and calls the public API (:class:`latentune.Study`,
 :class:`latentune.Task`, :func:`latentune.system.load_system`, the paper studies); no logic
 lives here. Bad input exits with status 2 and one line on stderr (``latentune: error: …``).
+
+Diagnostics: the library logs through :mod:`logging` (loggers ``latentune.…``); the command line
+shows them on stderr as one line each (``latentune: message``; warnings and Python
+:mod:`warnings` as ``latentune: warning: message``): warnings by default, informational lines
+with ``-v/--verbose``, errors only with ``--quiet``. Progress bars are drawn only when stderr
+is a terminal. Exit status: 0 done, 2 bad input or a failure reported in one line, 130
+interrupted, 141 stdout closed early (``latentune ask --json | head``).
 """
 from __future__ import annotations
 
 import argparse
+import errno
 import json
+import logging
 import math
 import os
 import sys
+import warnings
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
-from latentune.threads import one_thread_env
-
-one_thread_env()  # before numpy is imported: rollouts are many small matrix operations
-
-from latentune.errors import CLIError, LatentuneError  # noqa: E402
+from latentune.errors import CLIError, LatentuneError
 
 DEFAULT_PHASE1 = 400
 DEFAULT_PHASE3 = 220
 DEFAULT_WORKERS = 2
+DISK_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EIO})
+"""OSError numbers reported as one line (a full or read-only disk), not as a bug."""
+
+log = logging.getLogger(__name__)
+
+
+class _HelpFormatter(argparse.HelpFormatter):
+    """Appends ``(default X)`` to an option's help unless it has no default (None, False) or
+    its help already names the default."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        h = action.help or ""
+        d = action.default
+        if (d is None or d is False or d is argparse.SUPPRESS or d == [] or "default" in h
+                or not action.option_strings):
+            return h
+        return f"{h} (default %(default)s)" if h else "(default %(default)s)"
 
 
 class _Parser(argparse.ArgumentParser):
+    """No abbreviated flags (``--phase1-eval`` is not ``--phase1-evals``); errors as one line."""
+
+    def __init__(self, *a: Any, **kw: Any) -> None:
+        kw.setdefault("allow_abbrev", False)
+        kw.setdefault("formatter_class", _HelpFormatter)
+        super().__init__(*a, **kw)
+
     def error(self, message: str) -> None:  # one line, exit 2 (argparse prints usage otherwise)
         raise CLIError(message)
+
+
+def _verbosity_parser() -> argparse.ArgumentParser:
+    """``-v/--verbose`` and ``--quiet``, shared by every command."""
+    p = _Parser(add_help=False)
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("-v", "--verbose", action="store_true",
+                   help="also show informational lines (what each phase did)")
+    g.add_argument("--quiet", action="store_true",
+                   help="errors only: no progress bar, warnings or informational lines")
+    return p
+
+
+def _progress(args: argparse.Namespace) -> bool:
+    """Progress bars: only on a terminal, never with --quiet."""
+    return not getattr(args, "quiet", False) and _isatty(sys.stderr)
+
+
+def _isatty(stream: Any) -> bool:
+    try:
+        return bool(stream.isatty())
+    except (AttributeError, ValueError):
+        return False
 
 
 def _positive(name: str, v: Any, low: int = 1) -> None:
@@ -89,12 +143,18 @@ def make_system(args: argparse.Namespace, seed: int = 0) -> Any:
 def make_task(args: argparse.Namespace, seed: int = 0) -> Any:
     from latentune.task import Task
 
+    for flag in ("robot", "task", "terrain", "actor", "reality"):
+        v = getattr(args, flag, None)
+        if v is not None and not str(v).strip():
+            raise CLIError(f"--{flag} is empty; leave it out for the default")
     _positive("steps", args.steps)
     if args.v_des is not None and not math.isfinite(args.v_des):
         raise CLIError(f"--v-des must be finite, got {args.v_des}")
     try:
-        return Task(robot=args.robot or "a1", gait=args.task or "trot",
-                    terrain=args.terrain or "flat", actor=args.actor or "convex",
+        return Task(robot="a1" if args.robot is None else args.robot,
+                    gait="trot" if args.task is None else args.task,
+                    terrain="flat" if args.terrain is None else args.terrain,
+                    actor="convex" if args.actor is None else args.actor,
                     v_des=0.5 if args.v_des is None else args.v_des,
                     steps=5000 if args.steps is None else args.steps, seed=seed,
                     reality=getattr(args, "reality", None),
@@ -105,7 +165,9 @@ def make_task(args: argparse.Namespace, seed: int = 0) -> Any:
 
 # ---------------------------------------------------------------------------- rollout
 def cmd_rollout(args: argparse.Namespace) -> int:
-    task = make_task(args, args.seed)
+    if args.system is not None or args.system_arg:
+        return _rollout_system(args)
+    task = make_task(args, 0 if args.seed is None else args.seed)
     theta = task.space.load(args.params) if args.params else task.space.manual
     for path, exts in ((args.gif, (".gif",)), (args.plot, (".png", ".pdf", ".svg"))):
         if not path:
@@ -138,6 +200,29 @@ def cmd_rollout(args: argparse.Namespace) -> int:
     return 0
 
 
+def _rollout_system(args: argparse.Namespace) -> int:
+    """``rollout --system``: one trial of the user system at --params (default its manual θ)."""
+    from latentune.system import evaluate
+
+    for flag, v in (("--seed", args.seed), ("--gif", args.gif), ("--plot", args.plot)):
+        if v is not None:
+            raise CLIError(f"{flag} is for a built-in robot; a --system rollout takes --params "
+                           "and --json (its options are --system-arg)")
+    system = make_system(args)
+    theta = system.space.load(args.params) if args.params else system.space.manual
+    out = evaluate(system, theta)
+    plugin = getattr(system, "latentune_plugin", {}) or {}
+    res = {"system": args.system, "system_args": plugin.get("args", {}), "cost": out.cost,
+           "fell": out.failed, "failed": out.failed, "fall_step": out.fall_step,
+           "wall_s": out.wall_s, "params": system.space.as_dict(theta), "info": out.info}
+    if args.json:
+        print(json.dumps(res, default=str))
+    else:
+        state = "FAILED" if out.failed else "did not fail"
+        print(f"{args.system}: cost {out.cost:.6g}, {state}, {out.wall_s:.2f} s")
+    return 0
+
+
 # ---------------------------------------------------------------------------- the phases
 def add_run_args(p: argparse.ArgumentParser, name: str) -> None:
     """The flags of ``tune``, ``phase1``, ``train-vae`` and ``phase3``."""
@@ -153,15 +238,15 @@ def add_run_args(p: argparse.ArgumentParser, name: str) -> None:
     p.add_argument("--latent-dim", type=int, default=None,
                    help="latent size d_low (default 10 for 25-dim θ, 5 for 77-dim)")
     p.add_argument("--vae-kind", choices=KINDS, default=DEFAULT_KIND,
-                   help=f"autoencoder kind (default {DEFAULT_KIND}; see latentune.latent.vae)")
+                   help="autoencoder kind (see latentune.latent.vae)")
     p.add_argument("--vae-epochs", type=int, default=None,
                    help="VAE training epochs (default: ~2000 Adam steps, at least 100 epochs)")
     p.add_argument("--workers", type=int, default=DEFAULT_WORKERS, help="parallel rollouts")
     p.add_argument("--backend", choices=("serial", "process", "ray"), default="process",
-                   help="evaluator: serial, local process pool (default) or ray")
+                   help="evaluator: serial, a local process pool or ray")
     p.add_argument("--ray-address", default=None, help="Ray cluster address (default: local Ray)")
     p.add_argument("--method", choices=("turbo", "cma", "random", "sobol"), default="turbo",
-                   help="critic (default turbo = TuRBO-m)")
+                   help="critic (turbo = TuRBO-m)")
     p.add_argument("--regions", type=int, default=None,
                    help="TuRBO-m trust regions (default: ~1 per 500 evaluations, between 1 and 10)")
     p.add_argument("--batch-size", type=int, default=None,
@@ -177,7 +262,6 @@ def add_run_args(p: argparse.ArgumentParser, name: str) -> None:
         p.add_argument("--fall-prior", default=None, metavar="RUN_DIR",
                        help="with --max-fall-prob: a run whose phase-1 trials seed the prediction")
     p.add_argument("--resume", action="store_true", help="continue the run stored in --out")
-    p.add_argument("--quiet", action="store_true", help="no progress bar or log lines")
     if name == "phase3":
         p.add_argument("--vae", default=None, metavar="RUN_DIR",
                        help="use the latent space of another run (same θ); its best θ is also "
@@ -223,7 +307,8 @@ def _handover(args: argparse.Namespace) -> Any:
 
 
 def _study(args: argparse.Namespace):
-    from latentune.study import Study, stderr_log
+    """The Study of a run command, its flags checked (nothing is run or written here)."""
+    from latentune.study import Study
 
     for flag in ("phase1_evals", "phase3_evals", "workers", "vae_epochs", "latent_dim",
                  "batch_size"):
@@ -232,9 +317,58 @@ def _study(args: argparse.Namespace):
         raise CLIError(f"--regions must be in [1, 100], got {args.regions}")
     if args.ray_address and args.backend != "ray":
         raise CLIError("--ray-address needs --backend ray")
+    mfp = args.max_fall_prob
+    if mfp is not None and not 0.0 < mfp <= 1.0:          # nan fails too
+        raise CLIError(f"--max-fall-prob must be in (0, 1], got {mfp}")
+    if getattr(args, "fall_prior", None) is not None:
+        if mfp is None:
+            raise CLIError("--fall-prior needs --max-fall-prob (it seeds the fall prediction)")
+        if not (Path(args.fall_prior) / "run.db").is_file():
+            raise CLIError(f"--fall-prior: no run store in {args.fall_prior}")
     return Study(args.out, seed=args.seed, workers=args.workers, backend=args.backend,
                  ray_address=args.ray_address, batch_size=args.batch_size,
-                 progress=not args.quiet, log=None if args.quiet else stderr_log)
+                 progress=_progress(args), log=logging.getLogger("latentune.study").info)
+
+
+def _check_stored_system(study: Any, args: argparse.Namespace) -> None:
+    """Refuse, in one line saying what to pass, a run directory whose stored system is not the
+    kind the flags describe (read from the stored config; nothing is imported)."""
+    if not study.exists:
+        return
+    desc = study.config().get("system") or {}
+    kind = desc.get("kind")
+    if kind == "plugin" and args.system is None:
+        target = desc.get("target")
+        given = " ".join(f"--system-arg {k}={v if isinstance(v, str) else json.dumps(v)}"
+                         for k, v in (desc.get("args") or {}).items())
+        raise CLIError(f"{study.dir} holds a run of the user system {target}: pass --system "
+                       f"{target}{' ' + given if given else ''}")
+    if kind == "python":
+        raise CLIError(f"{study.dir} holds a run of the Python system {desc.get('class')} "
+                       "(made through the API); the command line cannot rebuild it: continue "
+                       "it with latentune.Study")
+    if kind == "task" and args.system is not None:
+        t = desc.get("task") or {}
+        raise CLIError(f"{study.dir} holds a run of the built-in {t.get('robot')} "
+                       f"{t.get('gait')} task, not of --system {args.system}: pass its "
+                       "--robot/--task flags instead")
+
+
+def _check_latent_dim(args: argparse.Namespace, dim: int) -> None:
+    """--latent-dim (or its default) against a θ of ``dim`` entries, before any trial."""
+    from latentune.latent.vae import default_latent_dim
+
+    ld = getattr(args, "latent_dim", None)
+    if dim < 2:
+        raise CLIError(f"a {dim}-dim θ has no smaller latent space: run phase1 alone")
+    if ld is None:
+        ld = default_latent_dim(dim)
+        if not 1 <= ld < dim:
+            raise CLIError(f"the default latent size {ld} does not fit a {dim}-dim θ: pass "
+                           f"--latent-dim in [1, {dim - 1}]")
+    elif not 1 <= ld < dim:
+        raise CLIError(f"--latent-dim {ld}: the latent space of a {dim}-dim θ needs a size in "
+                       f"[1, {dim - 1}]")
 
 
 def _refuse_rerun(study: Any, phase: int, resume: bool) -> None:
@@ -255,25 +389,35 @@ def _finish(study: Any) -> None:
     print(comparison_table(study.store))
 
 
-def _phase1_study(args: argparse.Namespace) -> tuple[Any, Any]:
-    """The study and system of ``tune``/``phase1``, phase 1 run (or resumed) on them."""
+def _phase1_study(args: argparse.Namespace, latent: bool) -> tuple[Any, Any, Any]:
+    """The study, system and phase-1 result of ``tune``/``phase1``, every flag checked first
+    (``latent``: the latent-space flags are used afterwards, as in ``tune``)."""
     study = _study(args)
     _need_store(study, args.resume)
     _refuse_rerun(study, 1, args.resume)
+    _check_stored_system(study, args)
     system = make_system(args, args.seed)
+    if latent or args.latent_dim is not None:
+        _check_latent_dim(args, system.space.dim)
     try:
-        study.phase1(system, args.phase1_evals, method=args.method, regions=args.regions,
-                     max_fall_prob=args.max_fall_prob,
-                     fall_prior=getattr(args, "fall_prior", None))
+        res = study.phase1(system, args.phase1_evals, method=args.method, regions=args.regions,
+                           max_fall_prob=args.max_fall_prob,
+                           fall_prior=getattr(args, "fall_prior", None))
     except BaseException:
         study.close()
         raise
-    return study, system
+    return study, system, res
+
+
+def _phase_line(res: Any, study: Any) -> str:
+    best = study.dir / f"phase{res.phase}_best.json"
+    return (f"phase {res.phase}: {res.n} evaluations ({res.n_new} new), best cost "
+            f"{res.best_cost:.6g}" + (f"; its θ: {best}" if best.is_file() else ""))
 
 
 def cmd_tune(args: argparse.Namespace) -> int:
     handover = _handover(args)                      # checked before phase 1 runs
-    study, system = _phase1_study(args)
+    study, system, _ = _phase1_study(args, latent=True)
     with study:
         study.train_latent(args.latent_dim, kind=args.vae_kind, epochs=args.vae_epochs)
         study.phase3(system, args.phase3_evals, method=args.method, regions=args.regions,
@@ -283,9 +427,10 @@ def cmd_tune(args: argparse.Namespace) -> int:
 
 
 def cmd_phase1(args: argparse.Namespace) -> int:
-    study, _ = _phase1_study(args)
+    study, _, res = _phase1_study(args, latent=False)
     with study:
         study.summary()
+        print(_phase_line(res, study))
     return 0
 
 
@@ -293,13 +438,18 @@ def cmd_train_vae(args: argparse.Namespace) -> int:
     study = _study(args)
     if not study.exists:
         raise CLIError(f"no run store in {study.dir} (run phase1 or tune first)")
-    study.bind_check(make_system(args, args.seed))
+    _check_stored_system(study, args)
+    system = make_system(args, args.seed)
+    _check_latent_dim(args, system.space.dim)
+    study.bind_check(system)
     with study:
         if study.store.artifact("vae") is not None and args.resume:
-            study.log(f"{study.dir}: VAE already trained (kept, --resume)")
+            print(f"{study.dir}: the VAE is already trained (kept, --resume)")
             return 0
-        study.train_latent(args.latent_dim, kind=args.vae_kind, epochs=args.vae_epochs,
-                           retrain=True)
+        latent = study.train_latent(args.latent_dim, kind=args.vae_kind, epochs=args.vae_epochs,
+                                    retrain=True)
+        print(f"VAE ({latent.kind}, d_low {latent.d_low}) trained on "
+              f"{latent.meta.get('n_train', '?')} θ: {study.dir / 'vae.pt'}")
     return 0
 
 
@@ -311,7 +461,15 @@ def cmd_phase3(args: argparse.Namespace) -> int:
         raise CLIError(f"no run store in {study.dir} (run phase1 and train-vae first, "
                        "or pass --vae RUN_DIR)")
     _refuse_rerun(study, 3, args.resume)
+    _check_stored_system(study, args)
     system = make_system(args, args.seed)
+    if args.latent_dim is not None:
+        _check_latent_dim(args, system.space.dim)
+        vae = study.config().get("vae") or {}
+        if args.vae is None and vae.get("d_low") not in (None, args.latent_dim):
+            raise CLIError(f"--latent-dim {args.latent_dim}: the latent space of {study.dir} "
+                           f"has size {vae['d_low']} (retrain it with train-vae, or leave "
+                           "--latent-dim out)")
     with study:
         study.phase3(system, args.phase3_evals, latent=args.vae, method=args.method,
                      regions=args.regions, max_fall_prob=args.max_fall_prob,
@@ -328,10 +486,10 @@ def cmd_report(args: argparse.Namespace) -> int:
     if (d / "paper.json").is_file() and not (d / "run.db").is_file():
         from latentune.reporting.paper_report import write_paper_report
 
-        log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr))
+        log = logging.getLogger("latentune.report").info
         print(write_paper_report(d, simulate=not args.no_sim, gifs=True, log=log))
         return 0
-    study = Study(d, progress=not args.quiet)
+    study = Study(d, progress=_progress(args))
     if not study.exists:
         raise CLIError(f"no run store in {d}" if d.is_dir() else f"run directory {d} does not exist")
     system = None
@@ -498,12 +656,18 @@ def build_parser() -> argparse.ArgumentParser:
     from latentune.experiments.paper import MAPPING_DOC
 
     parser = _Parser(prog="latentune", description=__doc__.splitlines()[0])
+    common = [_verbosity_parser()]
     sub = parser.add_subparsers(dest="command", parser_class=_Parser, required=True)
 
-    p = sub.add_parser("rollout", help="simulate one rollout and print its path cost")
+    def add(name: str, **kw: Any) -> argparse.ArgumentParser:
+        return sub.add_parser(name, parents=common, **kw)
+
+    p = add("rollout", help="simulate one rollout and print its path cost (or, with --system, "
+                            "run one trial of your system)")
     add_system_args(p)
-    p.add_argument("--seed", type=_seed, default=0, help="terrain seed")
-    p.add_argument("--params", help="JSON file: list of normalized θ or object of physical values")
+    p.add_argument("--seed", type=_seed, default=None, help="terrain seed (default 0)")
+    p.add_argument("--params", help="JSON file: list of normalized θ or object of physical values "
+                                    "(default: the manual θ)")
     p.add_argument("--gif", help="write a GIF of the motion here")
     p.add_argument("--plot", help="write a PNG of CoM velocity and height here")
     p.add_argument("--json", action="store_true", help="print one JSON object")
@@ -514,21 +678,21 @@ def build_parser() -> argparse.ArgumentParser:
             ("phase1", cmd_phase1, "phase 1: TuRBO-m on the full θ"),
             ("train-vae", cmd_train_vae, "phase 2: train the VAE on the stable phase-1 θ"),
             ("phase3", cmd_phase3, "phase 3: TuRBO-m in the latent space")):
-        p = sub.add_parser(name, help=hlp)
+        p = add(name, help=hlp)
         add_run_args(p, name)
         p.set_defaults(func=func)
 
-    p = sub.add_parser("report", help="tables, plots and report.md of a run directory")
+    p = add("report", help="tables, plots and report.md of a run directory")
     p.add_argument("dir", help="run directory (or a paper directory)")
     p.add_argument("--no-sim", action="store_true", help="skip the re-simulated CoM plots")
     p.add_argument("--system", default=None, metavar="MODULE:FACTORY",
                    help="rebuild the run's user system to re-simulate (must match the stored one)")
-    p.add_argument("--system-arg", action="append", default=[], metavar="KEY=VALUE")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--system-arg", action="append", default=[], metavar="KEY=VALUE",
+                   help="an argument of the --system factory (repeatable)")
     p.set_defaults(func=cmd_report, robot=None, task=None, terrain=None, actor=None, steps=None,
                    v_des=None)  # report rebuilds built-in tasks from the store
 
-    p = sub.add_parser("ask", help="suggest θ for trials run elsewhere (stored as pending)")
+    p = add("ask", help="suggest θ for trials run elsewhere (stored as pending)")
     p.add_argument("dir", help="study directory (created on the first ask)")
     p.add_argument("--n", type=int, default=1, help="number of suggestions (default 1)")
     add_system_args(p)
@@ -543,7 +707,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON list")
     p.set_defaults(func=cmd_ask)
 
-    p = sub.add_parser("tell", help="store the result of a suggestion")
+    p = add("tell", help="store the result of a suggestion")
     p.add_argument("dir", help="study directory")
     p.add_argument("id", help="the suggestion's id (from ask)")
     p.add_argument("--cost", type=float, default=None, help="the trial's cost")
@@ -551,25 +715,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--note", default=None, help="free text stored with the trial")
     p.set_defaults(func=cmd_tell)
 
-    p = sub.add_parser("status", help="evaluations, failures, pending suggestions, best")
+    p = add("status", help="evaluations, failures, pending suggestions, best")
     p.add_argument("dir", help="study directory")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_status)
 
     p = sub.add_parser("robot", help="check a robot spec, or write one for a quadruped URDF")
     rsub = p.add_subparsers(dest="robot_command", parser_class=_Parser, required=True)
-    c = rsub.add_parser("check", help="check a spec against its URDF (and stand it in PyBullet)")
+    c = rsub.add_parser("check", parents=common,
+                        help="check a spec against its URDF (and stand it in PyBullet)")
     c.add_argument("spec", help="a1, b1, solo12 or a robot spec .yaml")
     c.add_argument("--no-sim", action="store_true", help="skip standing the robot in PyBullet")
     c.add_argument("--json", action="store_true", help="print one JSON object")
     c.set_defaults(func=cmd_robot_check)
-    i = rsub.add_parser("init", help="print a starting robot spec (YAML) for a quadruped URDF")
+    i = rsub.add_parser("init", parents=common,
+                        help="print a starting robot spec (YAML) for a quadruped URDF")
     i.add_argument("urdf")
     i.add_argument("--name", default=None, help="robot name (default: from the URDF)")
     i.add_argument("--out", default=None, help="write the YAML here (an existing file is kept)")
     i.set_defaults(func=cmd_robot_init)
 
-    p = sub.add_parser("paper", help="the paper's studies end to end, with a budget scale")
+    p = add("paper", help="the paper's studies end to end, with a budget scale")
     p.add_argument("--robot", default="a1", help="a1 (convex MPC; adds A1→B1 transfer) or solo12")
     p.add_argument("--actor", default=None, help="default: convex for a1, kinodynamic for solo12")
     p.add_argument("--scale", type=_scale, default=0.03,
@@ -587,11 +753,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="only the phase-1 source runs (resumed later by the full command)")
     p.add_argument("--no-sim", action="store_true", help="report: skip re-simulated CoM plots/GIFs")
     p.add_argument("--no-gif", action="store_true", help="report: skip the GIFs")
-    p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_paper)
 
-    p = sub.add_parser("bench", help="the performance-ratio benchmarks at a quick size")
-    p.add_argument("--steps", type=int, default=2000, help="rollout steps (default 2000)")
+    p = add("bench", help="the performance-ratio benchmarks at a quick size")
+    p.add_argument("--steps", type=int, default=2000, help="rollout steps")
     p.add_argument("--n", type=int, default=8, help="rollouts of the throughput benchmark")
     p.add_argument("--timeout", type=float, default=900, help="per benchmark [s]")
     p.set_defaults(func=cmd_bench)
@@ -602,27 +767,98 @@ def _one_line(exc: BaseException) -> str:
     return " ".join(str(exc).split())
 
 
+class _LineFormatter(logging.Formatter):
+    """``latentune: message`` (``latentune: warning: …`` at WARNING and above), one line."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        msg = _one_line(record.getMessage())
+        if record.exc_info and record.exc_info[1] is not None:
+            exc = record.exc_info[1]
+            msg += f" ({type(exc).__name__}: {_one_line(exc)[:200]})"
+        if record.levelno >= logging.ERROR:
+            return f"latentune: error: {msg}"
+        if record.levelno >= logging.WARNING:
+            return f"latentune: warning: {msg}"
+        return f"latentune: {msg}"
+
+
+@contextmanager
+def _cli_logging() -> Iterator[Callable[[int], None]]:
+    """Route the ``latentune`` loggers and Python warnings to stderr, one line each, for the
+    duration of one command; yields a function setting the level. Restored on exit."""
+    logger = logging.getLogger("latentune")
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(_LineFormatter())
+    saved = (logger.level, logger.propagate, warnings.showwarning)
+
+    def show(message: Any, category: type, filename: str, lineno: int, file: Any = None,
+             line: Any = None) -> None:
+        logger.warning("%s", message)
+
+    logger.addHandler(handler)
+    logger.setLevel(logging.WARNING)
+    logger.propagate = False
+    warnings.showwarning = show
+    try:
+        yield logger.setLevel
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(saved[0])
+        logger.propagate = saved[1]
+        warnings.showwarning = saved[2]
+
+
+def _stdout_closed() -> int:
+    """stdout's reader went away (``| head``): no traceback, nothing more written, exit 141."""
+    try:
+        fd = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(fd, sys.stdout.fileno())      # the interpreter's final flush goes nowhere
+        os.close(fd)
+    except (OSError, ValueError, AttributeError):
+        pass
+    return 141
+
+
+def _error(msg: str) -> int:
+    print(f"latentune: error: {msg}", file=sys.stderr)
+    return 2
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; return the exit status."""
     from concurrent.futures.process import BrokenProcessPool
 
-    try:
-        args = build_parser().parse_args(argv)
-        func: Callable[[argparse.Namespace], int] = args.func
-        return func(args)
-    except LatentuneError as exc:
-        print(f"latentune: error: {_one_line(exc)}", file=sys.stderr)
-        return 2
-    except Exception as exc:  # noqa: BLE001 - a dead worker is one line; anything else a bug
-        if not (isinstance(exc, BrokenProcessPool) or type(exc).__module__.startswith("ray.")):
-            raise
-        print(f"latentune: error: an evaluation worker died ({type(exc).__name__}: "
-              f"{_one_line(exc)[:200]}); the finished evaluations are stored: rerun with --resume",
-              file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("latentune: error: interrupted; stored results are kept", file=sys.stderr)
-        return 130
+    from latentune.threads import one_thread_env
+
+    one_thread_env()  # before numpy is imported: rollouts are many small matrix operations
+    with _cli_logging() as set_level:
+        try:
+            args = build_parser().parse_args(argv)
+            set_level(logging.ERROR if args.quiet else
+                      logging.INFO if args.verbose else logging.WARNING)
+            func: Callable[[argparse.Namespace], int] = args.func
+            code = func(args)
+            sys.stdout.flush()                 # a closed pipe is seen here, not at exit
+            return code
+        except LatentuneError as exc:
+            return _error(_one_line(exc))
+        except BrokenPipeError:
+            return _stdout_closed()
+        except OSError as exc:
+            if exc.errno not in DISK_ERRNOS:
+                raise
+            where = f" ({exc.filename})" if exc.filename else ""
+            return _error(f"cannot write{where}: {exc.strerror or exc}; the stored evaluations "
+                          "are kept: free space and rerun with --resume")
+        except Exception as exc:  # noqa: BLE001 - a dead worker is one line; anything else a bug
+            if not (isinstance(exc, BrokenProcessPool) or type(exc).__module__.startswith("ray.")):
+                raise
+            return _error(f"an evaluation worker died ({type(exc).__name__}: "
+                          f"{_one_line(exc)[:200]}); the finished evaluations are stored: rerun "
+                          "with --resume")
+        except KeyboardInterrupt:
+            print("latentune: error: interrupted; stored results are kept", file=sys.stderr)
+            return 130
 
 
 if __name__ == "__main__":

@@ -17,6 +17,9 @@ from latentune.critic import critic_class
 from latentune.pipeline.evaluators import Evaluator, SerialEvaluator
 
 _BOUNDS_TOL = 1e-9
+MAX_ABS_BOUND = 1e150
+"""Largest bound magnitude :func:`minimize` accepts: beyond it the square of a coordinate (any
+quadratic cost, any norm) overflows a float64, so every cost would be inf."""
 
 
 class OptimizeResult(_ScipyResult):
@@ -51,12 +54,12 @@ def _check_bounds(bounds: Any) -> np.ndarray:
     if b.ndim != 2 or b.shape[1] != 2 or b.shape[0] < 1:
         raise ValueError(f"bounds must have shape (d, 2) with d >= 1, got {b.shape}")
     if not np.all(np.isfinite(b)):
-        raise ValueError("bounds must be finite")
-    with np.errstate(over="ignore"):
-        span = b[:, 1] - b[:, 0]
-    if not np.all(np.isfinite(span)):
-        raise ValueError("bounds: upper - lower overflows a float64 in dimension(s) "
-                         f"{np.flatnonzero(~np.isfinite(span)).tolist()}")
+        bad = sorted({int(i) for i in np.argwhere(~np.isfinite(b))[:, 0]})
+        raise ValueError(f"bounds must be finite; not in dimension(s) {bad}")
+    if np.any(np.abs(b) > MAX_ABS_BOUND):
+        bad = sorted({int(i) for i in np.argwhere(np.abs(b) > MAX_ABS_BOUND)[:, 0]})
+        raise ValueError(f"bounds must lie within ±{MAX_ABS_BOUND:g} (squares of larger values "
+                         f"overflow a float64); rescale dimension(s) {bad}")
     if np.any(b[:, 0] >= b[:, 1]):
         bad = np.flatnonzero(b[:, 0] >= b[:, 1]).tolist()
         raise ValueError(f"bounds need lower < upper; violated in dimension(s) {bad}")
@@ -71,9 +74,11 @@ def minimize(fun: Callable[[np.ndarray], float], bounds: Any, method: str = "tur
     """Minimize ``fun`` over the box ``bounds`` with a critic (TuRBO-m, CMA-ES, random, Sobol).
 
     Args:
-        fun: maps a point (d,) float64 ndarray in the original coordinates to a float cost;
-            nan/inf costs are allowed (treated as the worst cost seen).
-        bounds: (d, 2) array-like of finite ``(lower, upper)`` with lower < upper.
+        fun: maps a point (d,) float64 ndarray in the original coordinates to a float cost (a
+            real number: a Python or NumPy int/float, or a 0-d array); nan/inf costs are
+            allowed (treated as the worst cost seen).
+        bounds: (d, 2) array-like of finite ``(lower, upper)`` with lower < upper, each within
+            ±:data:`MAX_ABS_BOUND`.
         method: "turbo", "cma", "random" or "sobol".
         budget: number of evaluations (>= 1).
         batch_size: points per ask (>= 1); the last batch is cut to the remaining budget.
@@ -92,6 +97,9 @@ def minimize(fun: Callable[[np.ndarray], float], bounds: Any, method: str = "tur
 
     Raises:
         ValueError: bad bounds, budget, batch_size, seed, x0, method, or a non-callable ``fun``.
+        CostError: ``fun`` returned something that is not a real number (None, a string, a bool,
+            an array, a complex number, an int beyond float64); it is a TypeError and a
+            ValueError (:class:`latentune.system.CostError`).
         EvaluationError: ``fun`` raised (the message names the exception).
     """
     if not callable(fun):

@@ -43,6 +43,44 @@ class EvaluationError(LatentuneError):
     """A system's ``evaluate`` raised or returned no usable cost."""
 
 
+class CostError(EvaluationError, TypeError, ValueError):
+    """A function or system returned something that is not a cost: None, a string, a bool, an
+    array, a complex number, or an integer beyond the float64 range (a TypeError and a
+    ValueError, so either ``except`` catches it)."""
+
+
+def as_cost(value: Any, *, allow_nonfinite: bool = False, what: str = "the function") -> float:
+    """``value`` as a float cost, or :class:`CostError` naming what was returned instead.
+
+    Accepts a real number (``int``, ``float``, a NumPy real scalar) or a 0-d array of one;
+    refuses None, strings, bools, complex numbers, arrays of any other shape, and integers
+    that do not fit a float64. Non-finite costs are refused unless ``allow_nonfinite``.
+    """
+    v = value
+    if isinstance(v, np.ndarray) and v.ndim == 0:
+        v = v[()]
+    if isinstance(v, (bool, np.bool_)):
+        raise CostError(f"{what} returned a bool ({v!r}); expected a float cost")
+    if isinstance(v, (complex, np.complexfloating)):
+        raise CostError(f"{what} returned a complex number ({_short(v)}); expected a real cost")
+    if isinstance(v, np.ndarray) or (hasattr(v, "shape") and hasattr(v, "ndim")
+                                     and getattr(v, "ndim", 0) > 0):
+        raise CostError(f"{what} returned an array of shape {tuple(v.shape)}; expected one float "
+                        "(e.g. float(y[0]) or y.sum())")
+    if not isinstance(v, (int, float, np.integer, np.floating)):
+        if hasattr(v, "item") and getattr(v, "ndim", None) == 0:     # a 0-d tensor
+            return as_cost(v.item(), allow_nonfinite=allow_nonfinite, what=what)
+        raise CostError(f"{what} returned {type(v).__name__} {_short(v)}; expected a float cost")
+    try:
+        cost = float(v)
+    except OverflowError:
+        raise CostError(f"{what} returned an integer too large for a float64 "
+                        f"({len(str(abs(int(v))))} digits)") from None
+    if not allow_nonfinite and not math.isfinite(cost):
+        raise EvaluationError(f"{what} returned a non-finite cost ({cost})")
+    return cost
+
+
 @dataclass
 class Outcome:
     """What one trial gave.
@@ -84,19 +122,16 @@ def as_outcome(value: Any) -> Outcome:
     elif isinstance(value, tuple) and len(value) == 2:
         out = Outcome(value[0], bool(value[1]))
     elif isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool):
-        out = Outcome(float(value))
+        out = Outcome(as_cost(value, allow_nonfinite=True, what="evaluate"))
     else:
-        raise EvaluationError(f"evaluate returned {type(value).__name__} {_short(value)}; "
-                              "expected a cost (float), (cost, failed) or an Outcome")
+        raise CostError(f"evaluate returned {type(value).__name__} {_short(value)}; "
+                        "expected a cost (float), (cost, failed) or an Outcome")
     if out.cost is None:
         if not out.failed:
             raise EvaluationError("evaluate returned no cost for a trial that did not fail")
         out.cost = fail_cost(out.info.get("fall_step"), out.info.get("horizon") or 1) \
             if out.info.get("fall_step") is not None and out.info.get("horizon") else 2.0 * C1
-    try:
-        out.cost = float(out.cost)
-    except (TypeError, ValueError):
-        raise EvaluationError(f"evaluate returned a cost that is not a number: {_short(out.cost)}") from None
+    out.cost = as_cost(out.cost, allow_nonfinite=True, what="evaluate (its cost)")
     if not math.isfinite(out.cost):
         raise EvaluationError(f"evaluate returned a non-finite cost ({out.cost})")
     return out
@@ -122,8 +157,10 @@ class FunctionSystem:
 
     ``FunctionSystem(space, fn, by_name=False)``: ``fn`` gets the physical θ, a (d,) float array
     (``by_name=True``: a dict name -> value), and returns a cost, ``(cost, failed)``, a dict or
-    an :class:`Outcome`. ``fn`` must be picklable (a module-level function) for the process
-    and Ray backends.
+    an :class:`Outcome`. For the process backend, ``fn`` must be picklable (a module-level
+    function), unless the system comes from :func:`load_system` (``--system module:factory``):
+    then each worker rebuilds it from the factory, and ``fn`` may be a closure. Ray serializes
+    closures itself.
     """
 
     def __init__(self, space: ParameterSpace, fn: Callable[..., Any], by_name: bool = False,

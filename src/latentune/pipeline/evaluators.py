@@ -14,30 +14,78 @@ An evaluator maps ``fun`` over the rows of ``X`` (n, d):
   before the error is seen by the caller's next step, so they can be stored.
 
 Workers keep one instance of a System that has ``cache_key()`` (a simulated Task keeps its
-PyBullet client) for the rest of their life, and run with one BLAS thread
-(:mod:`latentune.threads`). The process pool uses forkserver (spawn where unavailable): a
-script that creates one must guard its entry point with ``if __name__ == "__main__":``.
+PyBullet client) for the rest of their life, and run with one BLAS thread: each worker sets the
+thread variables of :mod:`latentune.threads` in its own environment when it starts (the
+caller's ``os.environ`` is never changed). The process pool uses forkserver (spawn where
+unavailable): a script that creates one must guard its entry point with
+``if __name__ == "__main__":``.
+
+Shipping a System to workers: a system made by :func:`latentune.system.load_system` (a
+``--system module:factory`` plugin; it carries ``latentune_plugin``) is rebuilt in each process
+worker from ``module:factory`` and its arguments (:class:`PluginRef`, built once per worker), so
+a factory may return closures. Ray ships systems with its own serializer (cloudpickle) and falls
+back to the same rebuild. Any other system is pickled; one that cannot be is refused with
+:class:`~latentune.system.EvaluationError` naming ``workers=1`` (``--workers 1``).
 """
 from __future__ import annotations
 
+import json
 import os
+import pickle
+import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Iterator
 
 import numpy as np
 
-from latentune.system import EvaluationError, Outcome, evaluate
-from latentune.threads import one_thread_env, thread_env
+from latentune.system import CostError, EvaluationError, Outcome, as_cost, evaluate
+from latentune.threads import THREAD_VARS, thread_env
 
 BACKENDS = ("serial", "process", "ray")
 
 
 @dataclass(frozen=True)
 class TrialError:
-    """A trial that raised or returned no usable cost: ``message`` is one line."""
+    """A trial that raised or returned no usable cost: ``message`` is one line; ``bad_value``:
+    the function returned something that is not a cost (:class:`~latentune.system.CostError`)."""
 
     message: str
+    bad_value: bool = False
+
+
+@dataclass(frozen=True)
+class PluginRef:
+    """How a worker rebuilds a ``--system module:factory`` system: ``load_system(target, args)``.
+
+    ``path``: the caller's import path (``sys.path``, the current directory first), so a worker
+    started elsewhere finds the user's module. The worker builds the system once and keeps it.
+    """
+
+    target: str
+    args: dict[str, Any] = field(default_factory=dict)
+    path: tuple[str, ...] = ()
+
+    @classmethod
+    def of(cls, system: Any) -> "PluginRef | None":
+        """The reference of a system made by ``load_system`` (None for any other object)."""
+        plugin = getattr(system, "latentune_plugin", None)
+        if not isinstance(plugin, dict) or not isinstance(plugin.get("target"), str):
+            return None
+        path = tuple(os.getcwd() if p == "" else p for p in sys.path)
+        return cls(plugin["target"], dict(plugin.get("args") or {}), path)
+
+    def cache_key(self) -> str:
+        return "plugin:" + json.dumps([self.target, self.args], sort_keys=True, default=str)
+
+    def build(self) -> Any:
+        """Import and call the factory in this process (its import path extended first)."""
+        from latentune.system import load_system
+
+        for p in reversed(self.path):
+            if p not in sys.path:
+                sys.path.insert(0, p)
+        return load_system(self.target, self.args)
 
 
 def _key(fun: Any) -> str | None:
@@ -45,36 +93,71 @@ def _key(fun: Any) -> str | None:
     return ck() if callable(ck) else None
 
 
+def _unshippable(fun: Any, exc: BaseException) -> EvaluationError:
+    return EvaluationError(
+        f"{type(fun).__name__} cannot be sent to worker processes ({type(exc).__name__}: "
+        f"{' '.join(str(exc).split())[:200]}); run it in this process with --workers 1 "
+        "(API: workers=1 or backend='serial'), or pass it as --system module:factory")
+
+
+def _check_picklable(fun: Any) -> None:
+    """Raise EvaluationError (naming --workers 1) if ``fun`` cannot be pickled."""
+    try:
+        pickle.dumps(fun)
+    except Exception as exc:  # noqa: BLE001 - whatever __reduce__ raises: reported as one line
+        raise _unshippable(fun, exc) from None
+
+
 _WORKER_CACHE: dict[str, Any] = {}
 
 
 def _init_worker() -> None:
-    one_thread_env()
-    try:
+    """Start of every worker process: one BLAS/OpenMP thread in this process only."""
+    for v in THREAD_VARS:                      # libraries loaded from now on
+        os.environ[v] = "1"
+    try:                                       # libraries already loaded (forkserver preload)
         from threadpoolctl import threadpool_limits
 
         threadpool_limits(1)
     except ImportError:
         pass
+    if "torch" in sys.modules:
+        sys.modules["torch"].set_num_threads(1)
 
 
 def run_trial(fun: Any, key: str | None, x: np.ndarray) -> Outcome | TrialError:
     """Evaluate one point in this process (the worker side of every backend).
 
     A System with a ``key`` is cached: the worker keeps the first instance sent with that key.
+    A :class:`PluginRef` is built here (once per worker). A plain callable's return value must
+    be a real number (nan/inf allowed); anything else is a TrialError naming what it returned.
     """
     if key is not None:
         cached = _WORKER_CACHE.get(key)
         if cached is None:
+            if isinstance(fun, PluginRef):
+                try:
+                    built = fun.build()
+                except EvaluationError as exc:
+                    return TrialError(str(exc))
+                except Exception as exc:  # noqa: BLE001 - e.g. SystemSpecError: one line
+                    return TrialError(f"a worker could not rebuild --system {fun.target}: "
+                                      f"{' '.join(str(exc).split())[:300]}")
+            else:
+                built = fun
             _WORKER_CACHE.clear()              # one cached System (one simulator) per worker
-            _WORKER_CACHE[key] = cached = fun
+            _WORKER_CACHE[key] = cached = built
         fun = cached
     x = np.asarray(x, dtype=float).copy()
     try:
         if hasattr(fun, "evaluate"):
             return evaluate(fun, x)
         t0 = time.perf_counter()
-        return Outcome(float(fun(x)), wall_s=time.perf_counter() - t0)
+        value = fun(x)
+        wall = time.perf_counter() - t0
+        return Outcome(as_cost(value, allow_nonfinite=True), wall_s=wall)
+    except CostError as exc:
+        return TrialError(str(exc), bad_value=True)
     except EvaluationError as exc:
         return TrialError(str(exc))
     except Exception as exc:  # noqa: BLE001 - a plain callable that raised
@@ -92,12 +175,13 @@ class Evaluator:
         raise NotImplementedError
 
     def map(self, fun: Any, X: np.ndarray) -> np.ndarray:
-        """(n,) float64 costs in the order of X (n, d). Raises EvaluationError on a TrialError."""
+        """(n,) float64 costs in the order of X (n, d). Raises EvaluationError on a TrialError
+        (:class:`~latentune.system.CostError` when ``fun`` returned something not a cost)."""
         X = np.asarray(X, dtype=float)
         y = np.full(X.shape[0], np.nan)
         for i, r in self.imap(fun, X):
             if isinstance(r, TrialError):
-                raise EvaluationError(r.message)
+                raise (CostError if r.bad_value else EvaluationError)(r.message)
             y[i] = r.cost
         return y
 
@@ -131,18 +215,24 @@ class ProcessEvaluator(Evaluator):
 
         if workers < 1:
             raise ValueError("workers must be >= 1")
-        one_thread_env()
         if start_method is None:
             start_method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
         self.workers = int(workers)
         self.start_method = start_method
         self._pool = ProcessPoolExecutor(self.workers, mp_context=mp.get_context(start_method),
                                          initializer=_init_worker)
+        self._checked: Any = None               # the last system found picklable
 
     def imap(self, fun: Any, X: np.ndarray) -> Iterator[tuple[int, Outcome | TrialError]]:
         from concurrent.futures import FIRST_COMPLETED, wait
 
         X = np.asarray(X, dtype=float)
+        ref = PluginRef.of(fun)
+        if ref is not None:
+            fun = ref                           # rebuilt in each worker: closures are fine
+        elif self._checked is not fun:
+            _check_picklable(fun)
+            self._checked = fun
         key = _key(fun)
         futs = {self._pool.submit(run_trial, fun, key, x): i for i, x in enumerate(X)}
         pending = set(futs)
@@ -187,7 +277,6 @@ class RayEvaluator(Evaluator):
             raise RuntimeError("the ray backend needs ray (pip install 'latentune[ray]')") from None
         if workers < 1:
             raise ValueError("workers must be >= 1")
-        one_thread_env()
         self.workers = int(workers)
         self.address = address
         self._owns = False
@@ -209,8 +298,14 @@ class RayEvaluator(Evaluator):
     def imap(self, fun: Any, X: np.ndarray) -> Iterator[tuple[int, Outcome | TrialError]]:
         ray = self._ray
         X = np.asarray(X, dtype=float)
+        try:
+            fun_ref = ray.put(fun)              # cloudpickle: closures are fine
+        except Exception as exc:  # noqa: BLE001 - Ray's serializer raises several types
+            ref = PluginRef.of(fun)
+            if ref is None:
+                raise _unshippable(fun, exc) from None
+            fun, fun_ref = ref, ray.put(ref)
         key = _key(fun)
-        fun_ref = ray.put(fun)
         todo = list(range(X.shape[0]))
         idle = list(self._actors)
         running: dict[Any, tuple[int, Any]] = {}

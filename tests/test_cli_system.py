@@ -1,0 +1,224 @@
+"""``--system module:factory`` on the command line: rollout evaluates the user system, a closure
+factory runs under the default process pool (and Ray), a forgotten ``--system`` is one line
+saying what to pass, and evaluators leave the caller's environment alone."""
+from __future__ import annotations
+
+import json
+import os
+import sys
+import tempfile
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import latentune as lt
+from latentune.constants import Phase
+from latentune.errors import LatentuneError
+from latentune.pipeline.store import RunStore
+from latentune.threads import THREAD_VARS
+
+from conftest import one_line_error
+
+PLUGIN = textwrap.dedent('''
+    import os
+    import threading
+
+    import numpy as np
+    import latentune as lt
+
+
+    def _space(dim):
+        return lt.ParameterSpace([f"w{i}" for i in range(dim)], [-1.0] * dim, [1.0] * dim,
+                                 manual=[0.5] * dim)
+
+
+    def make(dim=4, shift=0.0):
+        """The natural way to write a factory: fn is a closure (not picklable)."""
+        def fn(x):
+            omp = {v: os.environ.get(v) for v in %(vars)r}
+            try:
+                from threadpoolctl import threadpool_info
+                blas = max([i["num_threads"] for i in threadpool_info()] or [1])
+            except ImportError:
+                blas = 1
+            return lt.Outcome(float(np.sum((x - shift) ** 2)), failed=bool(x[0] > 0.95),
+                              info={"pid": os.getpid(), "omp": omp, "blas_threads": blas})
+        return lt.FunctionSystem(_space(dim), fn)
+
+
+    class Locked:
+        """A system holding a lock: no serializer ships it, the factory rebuilds it."""
+        def __init__(self, dim=3):
+            self.space = _space(dim)
+            self.lock = threading.Lock()
+        def evaluate(self, u):
+            with self.lock:
+                return float(np.sum(self.space.to_physical(u) ** 2)), False
+
+
+    def locked(dim=3):
+        return Locked(dim)
+''' % {"vars": THREAD_VARS})
+
+
+@pytest.fixture
+def plugin_dir(tmp_path, monkeypatch):
+    """A directory holding ``closplant.py``, made the current directory (as a user would run)."""
+    d = tmp_path / "plugins"
+    d.mkdir()
+    (d / "closplant.py").write_text(PLUGIN)
+    monkeypatch.chdir(d)
+    monkeypatch.syspath_prepend(str(d))
+    yield d
+    sys.modules.pop("closplant", None)
+
+
+# ---------------------------------------------------------------------------- rollout
+def test_rollout_evaluates_the_user_system(run_cli, plugin_dir, tmp_path):
+    code, out, err = run_cli("rollout", "--system", "closplant:make", "--system-arg", "shift=0.25",
+                             "--json")
+    assert code == 0, err
+    res = json.loads(out)
+    # the manual θ is 0.5 in each of 4 entries: cost 4 * 0.25**2, not an A1 path cost
+    assert res["cost"] == pytest.approx(4 * 0.25 ** 2)
+    assert res["system"] == "closplant:make" and res["system_args"] == {"shift": 0.25}
+    assert res["fell"] is False and res["params"] == {f"w{i}": 0.5 for i in range(4)}
+    assert "robot" not in res
+    params = tmp_path / "p.json"
+    params.write_text(json.dumps({"w0": 0.99, "w1": 0.0, "w2": 0.0, "w3": 0.0}))
+    code, out, err = run_cli("rollout", "--system", "closplant:make", "--params", params, "--json")
+    assert code == 0, err
+    res = json.loads(out)
+    assert res["cost"] == pytest.approx(0.99 ** 2) and res["fell"] is True
+    code, out, err = run_cli("rollout", "--system", "closplant:make")
+    assert code == 0 and out.startswith("closplant:make: cost 1,"), (out, err)
+
+
+@pytest.mark.parametrize("bad, expect", [
+    (["--seed", "3"], "--seed is for a built-in robot"),
+    (["--gif", "x.gif"], "--gif is for a built-in robot"),
+    (["--plot", "x.png"], "--plot is for a built-in robot"),
+    (["--steps", "10"], "--system replaces --robot"),
+    (["--robot", "a1"], "--system replaces --robot"),
+    (["--system-arg", "nosuch=1"], "bad --system-arg"),
+    (["--params", "missing.json"], "params file not found"),
+], ids=lambda b: " ".join(b) if isinstance(b, list) else None)
+def test_rollout_system_refuses_what_it_cannot_honour(run_cli, plugin_dir, bad, expect):
+    assert expect in one_line_error(*run_cli("rollout", "--system", "closplant:make", *bad)[::2])
+
+
+def test_rollout_system_arg_needs_system(run_cli):
+    assert "--system-arg needs --system" in one_line_error(
+        *run_cli("rollout", "--system-arg", "k=1")[::2])
+
+
+# ---------------------------------------------------------------------------- closures
+def test_a_closure_factory_runs_under_the_default_process_pool(run_cli, plugin_dir, tmp_path):
+    out = tmp_path / "run"
+    code, _, err = run_cli("phase1", "--system", "closplant:make", "--out", out,
+                           "--phase1-evals", "8")             # defaults: 2 workers, process
+    assert code == 0, err
+    with RunStore(out) as st:
+        rows = st.rows(Phase.PHASE1)
+    assert len(rows) == 8
+    pids = {r.info["pid"] for r in rows if not r.info.get("reused")}
+    assert pids and os.getpid() not in pids                  # evaluated in the workers
+    assert all(r.info["blas_threads"] == 1 for r in rows if not r.info.get("reused"))
+    assert all(set(r.info["omp"].values()) == {"1"} for r in rows if not r.info.get("reused"))
+
+
+def test_an_unpicklable_api_system_is_one_line_naming_workers_1(tmp_path):
+    space = lt.ParameterSpace(["a", "b"], [0, 0], [1, 1])
+    system = lt.FunctionSystem(space, lambda x: float(np.sum(x)))
+    with pytest.raises(LatentuneError, match="--workers 1") as info:
+        lt.Study(tmp_path / "s", workers=2, backend="process").phase1(system, 6)
+    assert "cannot be sent to worker processes" in str(info.value)
+    # the same system runs in this process
+    res = lt.Study(tmp_path / "t", workers=1).phase1(system, 6)
+    assert res.n == 6
+
+
+def test_a_closure_factory_runs_on_ray(plugin_dir):
+    pytest.importorskip("ray")
+    from latentune.pipeline.evaluators import RayEvaluator
+    from latentune.system import load_system
+
+    closure = load_system("closplant:make", {"shift": 0.1})
+    locked = load_system("closplant:locked", {"dim": 3})       # Ray cannot serialize its lock
+    X4, X3 = np.full((3, 4), 0.5), np.full((2, 3), 0.5)
+    tmp = tempfile.mkdtemp(prefix="ltr", dir="/tmp")          # short: Ray's socket paths
+    with RayEvaluator(1, temp_dir=tmp) as ev:
+        y4 = ev.map(closure, X4)
+        y3 = ev.map(locked, X3)
+    np.testing.assert_allclose(y4, 4 * 0.1 ** 2)
+    np.testing.assert_allclose(y3, 0.0)
+
+
+# ---------------------------------------------------------------------------- a forgotten --system
+@pytest.fixture
+def plugin_run(run_cli, plugin_dir, tmp_path):
+    out = tmp_path / "prun"
+    code, _, err = run_cli("phase1", "--system", "closplant:make", "--system-arg", "shift=0.25",
+                           "--system-arg", "dim=3", "--out", out, "--phase1-evals", "6",
+                           "--backend", "serial")
+    assert code == 0, err
+    return out
+
+
+@pytest.mark.parametrize("cmd", ["tune", "phase1", "train-vae", "phase3"])
+def test_forgetting_system_on_a_plugin_run_says_what_to_pass(run_cli, plugin_run, cmd):
+    before = _rows(plugin_run)
+    line = one_line_error(*run_cli(cmd, "--out", plugin_run, "--resume", "--backend", "serial",
+                                   "--phase1-evals", "8")[::2])
+    assert line == (f"latentune: error: {plugin_run} holds a run of the user system "
+                    "closplant:make: pass --system closplant:make --system-arg shift=0.25 "
+                    "--system-arg dim=3")
+    assert _rows(plugin_run) == before
+
+
+def _rows(run: Path) -> list[tuple]:
+    with RunStore(run) as st:
+        return [(r.phase, r.idx, r.cost, r.theta.tolist()) for ph in (0, 1, 3)
+                for r in st.rows(ph)]
+
+
+def test_passing_system_on_a_task_run_is_refused(run_cli, plugin_dir, tmp_path):
+    out = tmp_path / "task"
+    code, _, err = run_cli("phase1", "--steps", "100", "--out", out, "--phase1-evals", "2",
+                           "--backend", "serial")
+    assert code == 0, err
+    line = one_line_error(*run_cli("phase1", "--system", "closplant:make", "--out", out,
+                                   "--resume", "--backend", "serial", "--phase1-evals", "3")[::2])
+    assert "holds a run of the built-in a1 trot task, not of --system closplant:make" in line
+
+
+def test_a_python_api_run_is_refused_by_the_cli(run_cli, tmp_path):
+    space = lt.ParameterSpace(["a", "b", "c"], [0, 0, 0], [1, 1, 1])
+    lt.Study(tmp_path / "api").phase1(lt.FunctionSystem(space, _sum), 4)
+    line = one_line_error(*run_cli("phase1", "--out", tmp_path / "api", "--resume",
+                                   "--phase1-evals", "5", "--backend", "serial")[::2])
+    assert "holds a run of the Python system latentune.system.FunctionSystem" in line
+    assert "continue it with latentune.Study" in line
+
+
+def _sum(x: np.ndarray) -> float:
+    return float(np.sum(x))
+
+
+# ---------------------------------------------------------------------------- environment
+def test_evaluators_leave_the_callers_environment(plugin_dir, monkeypatch):
+    from latentune.pipeline.evaluators import make_evaluator
+    from latentune.system import load_system
+
+    for v in THREAD_VARS:
+        monkeypatch.delenv(v, raising=False)
+    before = dict(os.environ)
+    system = load_system("closplant:make")
+    for backend in ("serial", "process"):
+        with make_evaluator(backend, 2) as ev:
+            outs = [r for _, r in ev.imap(system, np.full((2, 4), 0.5))]
+        assert dict(os.environ) == before, backend
+    assert all(set(o.info["omp"].values()) == {"1"} for o in outs)   # the workers' own
+    assert all(o.info["pid"] != os.getpid() for o in outs)
