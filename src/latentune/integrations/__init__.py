@@ -1,0 +1,114 @@
+"""Integrations with other tools (optional extras).
+
+* :mod:`latentune.integrations.optuna` — ``LatentSampler`` (phase 3) and ``TurboSampler``
+  (phase 1) as Optuna samplers, and ``import_optuna_study`` (an Optuna study as a phase-1 run);
+* :mod:`latentune.integrations.dashboard` — a latentune run shown live in ``optuna-dashboard``.
+
+Both need ``pip install 'latentune[optuna]'``. :func:`register_cli` adds their commands
+(``import-optuna``, ``dashboard``) to the ``latentune`` command line without importing Optuna:
+a command run without the extra stops with one line naming the install command.
+"""
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+INSTALL_HINT = "install the optuna extra: pip install 'latentune[optuna]'"
+
+
+def _need(module: str) -> Any:
+    """Import ``latentune.integrations.<module>``; a CLIError with the install hint if the
+    extra is missing."""
+    import importlib
+
+    from latentune.errors import CLIError
+
+    try:
+        return importlib.import_module(f"latentune.integrations.{module}")
+    except ImportError as exc:
+        raise CLIError(f"{exc.name or 'a dependency'} is not installed: {INSTALL_HINT}") from None
+
+
+def cmd_import_optuna(args: argparse.Namespace) -> int:
+    """``latentune import-optuna STORAGE --study NAME --out DIR [--space FILE] [--seed S]``."""
+    mod = _need("optuna")
+    space = None
+    if args.space is not None:
+        space = _load_space(args.space)
+    study = mod.import_optuna_study(args.storage, args.study, args.out, space, seed=args.seed)
+    st = study.status()
+    p1 = st["phases"].get("phase1", {})
+    print(f"{args.out}: phase 1 holds {p1.get('n', 0)} trials ({p1.get('failed', 0)} falls), "
+          f"best cost {p1.get('best', float('nan')):.6g}; next: latentune train-vae --out "
+          f"{args.out} --system ... (or Study(DIR).train_latent())")
+    return 0
+
+
+def cmd_dashboard(args: argparse.Namespace) -> int:
+    """``latentune dashboard DIR [--port P] [--interval S] [--journal FILE]``."""
+    from latentune.errors import CLIError
+
+    mod = _need("dashboard")
+    if not 1 <= args.port <= 65535:
+        raise CLIError(f"--port must be in [1, 65535], got {args.port}")
+    if not args.interval > 0:
+        raise CLIError(f"--interval must be > 0, got {args.interval}")
+    mod.serve(args.dir, port=args.port, interval=args.interval, journal=args.journal,
+              quiet=args.quiet)
+    return 0
+
+
+def _load_space(path: str) -> Any:
+    """A ParameterSpace from a YAML/JSON file (``names, low, high, log, manual``); CLIError
+    with one line for a missing or malformed file."""
+    from pathlib import Path
+
+    import yaml
+
+    from latentune.errors import CLIError
+    from latentune.space import ParameterSpace
+
+    p = Path(path)
+    if not p.is_file():
+        raise CLIError(f"--space: file not found: {p}")
+    try:
+        return ParameterSpace.from_dict(yaml.safe_load(p.read_text()))
+    except (yaml.YAMLError, ValueError, TypeError) as exc:
+        raise CLIError(f"--space {p}: {' '.join(str(exc).split())[:200]}") from None
+
+
+def _seed(s: str) -> int:
+    from latentune.errors import CLIError
+
+    try:
+        v = int(s)
+    except ValueError:
+        raise CLIError(f"--seed must be an integer, got {s!r}") from None
+    if not 0 <= v < 2 ** 63:
+        raise CLIError(f"--seed must be in [0, 2**63), got {v}")
+    return v
+
+
+def register_cli(sub: Any) -> None:
+    """Add ``import-optuna`` and ``dashboard`` to the ``latentune`` subcommands ``sub`` (the
+    object ``ArgumentParser.add_subparsers`` returned). Optuna is imported only when one of
+    them runs."""
+    p = sub.add_parser("import-optuna",
+                       help="an Optuna study (RDB URL, SQLite or journal file) as a phase-1 run")
+    p.add_argument("storage", help="sqlite:///file.db, another RDB URL, a .db or a journal file")
+    p.add_argument("--study", default=None, help="the study name (default: the only study)")
+    p.add_argument("--out", required=True, help="the latentune run directory to write")
+    p.add_argument("--space", default=None, metavar="FILE",
+                   help="YAML/JSON parameter space to use (default: from the distributions)")
+    p.add_argument("--seed", type=_seed, default=0, help="the run's seed (default 0)")
+    p.set_defaults(func=cmd_import_optuna)
+
+    p = sub.add_parser("dashboard", help="show a run live in optuna-dashboard (localhost)")
+    p.add_argument("dir", help="run directory")
+    p.add_argument("--port", type=int, default=8080, help="port on 127.0.0.1 (default 8080)")
+    p.add_argument("--interval", type=float, default=2.0,
+                   help="seconds between reads of the run store (default 2)")
+    p.add_argument("--journal", default=None, metavar="FILE",
+                   help="also keep the exported trials in this Optuna journal file")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=cmd_dashboard)

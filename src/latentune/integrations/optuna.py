@@ -1,0 +1,796 @@
+"""latentune inside Optuna (the ``latentune[optuna]`` extra): samplers and study import.
+
+* :class:`LatentSampler` — latentune's phase 3 as an ``optuna.samplers.BaseSampler``: the critic
+  searches the latent box of a source run (phases 1 + 2 done on a simulator), decodes each point
+  to a normalized θ and maps it to the source's physical parameters by name.
+  ``optuna.create_study(sampler=LatentSampler("runs/sim"))``, then ``study.optimize(objective)``
+  or ``study.ask()`` / ``study.tell()``.
+* :class:`TurboSampler` — latentune's TuRBO-m (phase 1) on the θ box of a given search space.
+* :func:`import_optuna_study` — an Optuna study run on a simulator becomes a latentune phase-1
+  run, so ``Study(out).train_latent()`` and phase 3 use it without re-running a trial.
+
+How the samplers see a study
+----------------------------
+Every sample rebuilds the critic from the study (it keeps nothing between trials, so any number
+of processes may share one RDB or journal storage):
+
+* each COMPLETE trial is told with its value (negated for a ``maximize`` study) and a fall flag;
+  each FAIL trial is told as a fall with cost +inf (the critics treat it as the worst cost seen);
+  PRUNED and WAITING trials are ignored;
+* a trial *falls* (``failed`` in latentune) when any of its Optuna constraint values is > 0 —
+  set by ``trial.set_constraint(name, value)`` in the objective, or by a ``constraints_func``
+  given to the sampler (called in ``after_trial``, as Optuna's own samplers do) — or when its
+  user attribute ``latentune_failed`` (:data:`FAILED_ATTR`) is true;
+* a trial the sampler proposed carries its critic point and tag in the system attribute
+  ``latentune:point`` and is told exactly; any other trial (enqueued, another sampler, the
+  zero-shot one) with every parameter inside the box is an external, untagged point (in the
+  latent box: its θ encoded; a code outside the latent box is left out);
+* RUNNING trials are pending: a trial asks the rebuilt critic for ``k + 1`` points, ``k`` = the
+  RUNNING trials with a smaller number, and takes the last, so workers that sample at the same
+  time get distinct θ; a θ equal to one already in the study is replaced by the next asked
+  point. With one worker a seed gives the same trials every time.
+* what the told trials do not determine (TuRBO-m's warm-started GP hyperparameters) is kept in
+  the study's system attribute ``latentune:critic_state:<key>`` after every sample.
+
+The objective must suggest every parameter of the sampler's space with the same bounds and
+scale (``sampler.distributions()`` gives them; ``sampler.suggest_all(trial)`` suggests them all);
+a parameter outside that space is sampled by ``independent_sampler`` (default
+``optuna.samplers.RandomSampler(seed)``). Single-objective studies only.
+
+Import rules (:func:`import_optuna_study`)
+------------------------------------------
+* float distributions (linear or log) map to the :class:`~latentune.space.ParameterSpace`
+  (bounds: the widest seen for the name across trials; the scale must be the same in all);
+* int distributions and stepped floats (``step=``) are **refused**: a latent space decodes to
+  continuous θ, which the objective's ``suggest_int`` / stepped ``suggest_float`` would not take
+  back; categorical distributions are refused too — each with one line naming the parameter;
+* a ``maximize`` study is negated (latentune minimizes); multi-objective studies are refused;
+* COMPLETE trials are phase-1 rows; a COMPLETE trial with a constraint value > 0 or
+  ``latentune_failed`` is a fall (a failed row, its value kept as its cost); FAIL trials are
+  falls with cost +inf (stored as 1e300); PRUNED, RUNNING and WAITING trials are left out, and so
+  are trials that lack one of the parameters (a warning counts them);
+* rows are untagged (tag −1: points the critic did not ask for), in trial-number order, with
+  ``info`` = ``optuna_trial``, ``optuna_state``, ``optuna_value``, ``constraints``; importing
+  again into the same directory adds the trials not imported yet.
+"""
+from __future__ import annotations
+
+import hashlib
+import logging
+import math
+import os
+import warnings
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from latentune.constants import Phase
+from latentune.errors import LatentError, LatentuneError, StoreError, UsageError
+from latentune.space import ParameterSpace
+
+try:
+    import optuna
+    from optuna.samplers import BaseSampler
+except ImportError:  # pragma: no cover - the extra is not installed
+    raise ImportError("latentune.integrations.optuna needs Optuna: "
+                      "pip install 'latentune[optuna]'") from None
+
+logger = logging.getLogger(__name__)
+
+POINT_ATTR = "latentune:point"
+"""Trial system attribute of a sampled trial: ``{"key", "u", "z", "tag", "told", "pending"}``:
+the sampler configuration's key, the critic's unit-box point, the latent code (or None), the
+critic's tag, and how many finished and pending trials the critic saw."""
+STATE_ATTR = "latentune:critic_state:"
+"""Prefix of the study system attribute holding the critic state of a sampler configuration."""
+FAILED_ATTR = "latentune_failed"
+"""Trial user attribute: true marks a fall (``trial.set_user_attr("latentune_failed", True)``)."""
+ZERO_SHOT_ATTR = "latentune:zero_shot"
+"""Trial system attribute: the trial got the source run's best θ as it is (LatentSampler)."""
+INSTALL_HINT = "install the optuna extra: pip install 'latentune[optuna]'"
+
+
+class OptunaImportError(LatentuneError, ValueError):
+    """An Optuna study (or storage) that cannot become a latentune run, with the reason."""
+
+
+def require_optuna() -> Any:
+    """The ``optuna`` module (this module imports it; kept for callers that check)."""
+    return optuna
+
+
+# ---------------------------------------------------------------------------- spaces
+def space_from_distributions(dists: Mapping[str, Any], manual: Mapping[str, float] | None = None
+                             ) -> ParameterSpace:
+    """A :class:`ParameterSpace` from Optuna distributions by name (the import rules).
+
+    ``FloatDistribution(low, high, log)`` without ``step`` maps to one entry; an
+    ``IntDistribution``, a stepped float or a ``CategoricalDistribution`` raises
+    :class:`OptunaImportError` naming the parameter. ``manual``: physical values by name (the
+    manual θ; default the centre of the unit box)."""
+    optuna = require_optuna()
+    D = optuna.distributions
+    names, low, high, log = [], [], [], []
+    for name, d in dists.items():
+        if isinstance(d, D.CategoricalDistribution):
+            raise OptunaImportError(f"parameter {name!r} is categorical ({len(d.choices)} "
+                                    "choices): latentune tunes continuous θ only")
+        if isinstance(d, D.IntDistribution):
+            raise OptunaImportError(f"parameter {name!r} is an integer distribution: latentune "
+                                    "refuses int parameters (a latent space decodes to continuous "
+                                    "θ); suggest it with suggest_float")
+        if not isinstance(d, D.FloatDistribution):
+            raise OptunaImportError(f"parameter {name!r} has an unsupported distribution "
+                                    f"{type(d).__name__}")
+        if d.step is not None:
+            raise OptunaImportError(f"parameter {name!r} is a stepped float (step={d.step:g}): "
+                                    "latentune refuses stepped parameters (a latent space decodes "
+                                    "to continuous θ)")
+        if not d.high > d.low:
+            raise OptunaImportError(f"parameter {name!r} has an empty range [{d.low:g}, {d.high:g}]")
+        names.append(str(name))
+        low.append(float(d.low))
+        high.append(float(d.high))
+        log.append(bool(d.log))
+    if not names:
+        raise OptunaImportError("no parameters: the study has no trial with float parameters")
+    man = None
+    if manual is not None:
+        unknown = sorted(set(manual) - set(names))
+        if unknown:
+            raise OptunaImportError(f"manual values for unknown parameter(s): {', '.join(unknown)}")
+        centre = ParameterSpace(names, low, high, log).manual_physical
+        man = [float(manual.get(n, c)) for n, c in zip(names, centre)]
+    try:
+        return ParameterSpace(names, low, high, log, man)
+    except ValueError as exc:
+        raise OptunaImportError(str(exc)) from None
+
+
+def distributions_of(space: ParameterSpace) -> dict[str, Any]:
+    """``{name: optuna.distributions.FloatDistribution(low, high, log=...)}`` of ``space``."""
+    optuna = require_optuna()
+    return {n: optuna.distributions.FloatDistribution(float(lo), float(hi), log=bool(lg))
+            for n, lo, hi, lg in zip(space.names, space.lower, space.upper, space.log)}
+
+
+def _unit_of(space: ParameterSpace, params: Mapping[str, Any]) -> np.ndarray | None:
+    """The normalized θ (d,) of a trial's ``params`` (physical, by name), or None when a
+    parameter is missing, not a finite number, or outside the space's box."""
+    try:
+        x = np.array([float(params[n]) for n in space.names], dtype=float)
+    except (KeyError, TypeError, ValueError):
+        return None
+    if not np.all(np.isfinite(x)):
+        return None
+    u = space.to_unit(x)
+    if np.any(u < -1e-9) or np.any(u > 1 + 1e-9):
+        return None
+    return np.clip(u, 0.0, 1.0)
+
+
+def _physical(space: ParameterSpace, u: np.ndarray) -> dict[str, float]:
+    """Physical values by name of the unit-box θ ``u`` (d,), clipped to the bounds (a log
+    entry at u = 1 can round past its upper bound)."""
+    x = np.clip(space.to_physical(np.clip(u, 0.0, 1.0)), space.lower, space.upper)
+    return {n: float(v) for n, v in zip(space.names, x)}
+
+
+def trial_fell(trial: Any) -> bool:
+    """Whether a finished Optuna trial is a fall: state FAIL, a constraint value > 0, or the
+    user attribute :data:`FAILED_ATTR` set to a true value."""
+    optuna = require_optuna()
+    if trial.state == optuna.trial.TrialState.FAIL:
+        return True
+    if bool(trial.user_attrs.get(FAILED_ATTR, False)):
+        return True
+    return any(float(v) > 0 for v in trial.constraints.values())
+
+
+def trial_cost(trial: Any, sign: float) -> float:
+    """The cost latentune minimizes for a finished trial: ``sign · value`` (sign −1 for a
+    maximize study); +inf for a FAIL trial or one without a finite value."""
+    v = trial.values[0] if trial.values else None
+    if v is None or not math.isfinite(float(v)):
+        return math.inf
+    return float(sign) * float(v)
+
+
+def _sign(study: Any) -> float:
+    optuna = require_optuna()
+    if len(study.directions) != 1:
+        raise UsageError("latentune's samplers and import take single-objective studies only")
+    return -1.0 if study.direction == optuna.study.StudyDirection.MAXIMIZE else 1.0
+
+
+# ---------------------------------------------------------------------------- samplers
+def _phase3_critic(source_run: Path, latent: Any, *, method: str, batch_size: int, seed: int,
+                   x0: np.ndarray | None, budget: int, regions: int | None,
+                   max_fall_prob: float | None = None,
+                   prior: tuple[np.ndarray, np.ndarray] | None = None
+                   ) -> tuple[Any, Callable[[np.ndarray], np.ndarray] | None]:
+    """The phase-3 critic of :class:`LatentSampler`: ``(critic, decoder)``.
+
+    The one place that chooses it: today latentune's plain phase 3,
+    :func:`~latentune.pipeline.phases.make_phase_critic` on the latent unit box
+    [0, 1]^d_low of ``latent`` (``x0``: (d_low,) unit-box code of the warm start; ``prior``:
+    (codes (m, d_low), fell (m,)) of the source run for the fall-aware option), with the
+    decoder ``latent.decode`` ((n, d_low) -> normalized θ (n, d)). A critic that asks θ itself
+    (a two-space critic with ``last_z``) is returned with decoder None; the sampler handles both.
+    ``source_run`` is the source run directory (for a critic that reads its trials)."""
+    from latentune.pipeline.phases import make_phase_critic
+
+    critic = make_phase_critic(method, latent.d_low, batch_size, seed, x0, budget, regions,
+                               max_fall_prob, prior)
+    return critic, latent.decode
+
+
+class _CriticSampler:
+    """Shared machinery of the samplers (see the module docstring); subclasses set the space,
+    the critic and the map from a trial's θ to the critic's box."""
+
+    _space: ParameterSpace
+    _key: str
+
+    def _init_common(self, seed: int, budget: int, regions: int | None, method: str,
+                     max_fall_prob: float | None, constraints_func: Callable | None,
+                     independent_sampler: Any) -> None:
+        from latentune.study import METHODS
+
+        optuna = require_optuna()
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or \
+                not 0 <= int(seed) < 2 ** 63:
+            raise UsageError(f"seed must be an integer in [0, 2**63), got {seed!r}")
+        if isinstance(budget, bool) or not isinstance(budget, (int, np.integer)) or budget < 1:
+            raise UsageError(f"budget must be an integer >= 1, got {budget!r}")
+        if method not in METHODS:
+            raise UsageError(f"unknown method {method!r} (choose from {', '.join(METHODS)})")
+        if regions is not None and (isinstance(regions, bool) or not 1 <= int(regions) <= 100):
+            raise UsageError(f"regions must be in [1, 100], got {regions!r}")
+        if max_fall_prob is not None and (isinstance(max_fall_prob, bool) or
+                                          not 0.0 < float(max_fall_prob) <= 1.0):
+            raise UsageError(f"max_fall_prob must be in (0, 1], got {max_fall_prob!r}")
+        if constraints_func is not None and not callable(constraints_func):
+            raise UsageError("constraints_func must be callable (trial -> sequence of floats)")
+        self.seed = int(seed)
+        self.budget = int(budget)
+        self.method = method
+        if regions is None and method == "turbo":
+            from latentune.critic.turbo import regions_for_budget
+
+            regions = regions_for_budget(self.budget)
+        self.regions = None if method != "turbo" else int(regions)  # type: ignore[arg-type]
+        self.max_fall_prob = None if max_fall_prob is None else float(max_fall_prob)
+        self.batch_size = 1
+        self._constraints_func = constraints_func
+        self._independent = independent_sampler or optuna.samplers.RandomSampler(seed=self.seed)
+        self._dists = distributions_of(self._space)
+
+    # ------------------------------------------------------------------ subclass hooks
+    def _critic(self) -> tuple[Any, Callable[[np.ndarray], np.ndarray] | None]:
+        raise NotImplementedError
+
+    def _external_point(self, theta: np.ndarray) -> np.ndarray | None:
+        """The critic-box point of a θ the critic did not ask for (None: leave it out)."""
+        raise NotImplementedError
+
+    def _fixed_theta(self, study: Any, trial: Any) -> np.ndarray | None:
+        """A θ decided without the critic (LatentSampler's zero-shot trial), else None."""
+        return None
+
+    # ------------------------------------------------------------------ public helpers
+    @property
+    def space(self) -> ParameterSpace:
+        """The physical parameter space the sampler proposes (names, bounds, scales)."""
+        return self._space
+
+    def distributions(self) -> dict[str, Any]:
+        """The Optuna distributions to suggest, by name (``FloatDistribution(low, high, log)``)."""
+        return dict(self._dists)
+
+    def suggest_all(self, trial: Any) -> dict[str, float]:
+        """``trial.suggest_float`` for every parameter of the space; physical values by name."""
+        return {n: trial.suggest_float(n, d.low, d.high, log=d.log) for n, d in self._dists.items()}
+
+    # ------------------------------------------------------------------ BaseSampler
+    def infer_relative_search_space(self, study: Any, trial: Any) -> dict[str, Any]:
+        return dict(self._dists)
+
+    def sample_relative(self, study: Any, trial: Any, search_space: dict[str, Any]
+                        ) -> dict[str, Any]:
+        if not search_space:
+            return {}
+        _sign(study)
+        theta, point = self._next(study, trial)
+        if point is not None:
+            study._storage.set_trial_system_attr(trial._trial_id, POINT_ATTR, point)
+        phys = _physical(self._space, theta)
+        return {n: phys[n] for n in search_space if n in phys}
+
+    def sample_independent(self, study: Any, trial: Any, param_name: str,
+                           param_distribution: Any) -> Any:
+        if param_name in self._dists:
+            d = self._dists[param_name]
+            raise UsageError(f"{type(self).__name__}: parameter {param_name!r} is suggested as "
+                             f"{param_distribution}, but the sampler's space has it on "
+                             f"[{d.low:g}, {d.high:g}]{' (log)' if d.log else ''}: suggest it "
+                             "with those bounds (sampler.distributions())")
+        return self._independent.sample_independent(study, trial, param_name, param_distribution)
+
+    def before_trial(self, study: Any, trial: Any) -> None:
+        self._independent.before_trial(study, trial)
+
+    def after_trial(self, study: Any, trial: Any, state: Any, values: Sequence[float] | None
+                    ) -> None:
+        if self._constraints_func is not None:
+            from optuna.samplers._base import _process_constraints_after_trial
+
+            _process_constraints_after_trial(self._constraints_func, study, trial, state)
+        self._independent.after_trial(study, trial, state, values)
+
+    def reseed_rng(self) -> None:
+        self._independent.reseed_rng()
+
+    # ------------------------------------------------------------------ the critic loop
+    def _history(self, study: Any, exclude: int, two_space: bool, dim: int
+                 ) -> tuple[list[np.ndarray], list[float], list[int], list[bool], list[Any]]:
+        """(points, costs, tags, fell, z) of the study's finished trials in number order."""
+        optuna = require_optuna()
+        S = optuna.trial.TrialState
+        sign = _sign(study)
+        X, y, tags, fell, Z = [], [], [], [], []
+        for t in sorted(study.get_trials(deepcopy=False, states=(S.COMPLETE, S.FAIL)),
+                        key=lambda t: t.number):
+            if t.number == exclude:
+                continue
+            theta = _unit_of(self._space, t.params)
+            pt = t.system_attrs.get(POINT_ATTR)
+            if isinstance(pt, dict) and pt.get("key") == self._key and len(pt.get("u", ())) == dim:
+                x, tag = np.asarray(pt["u"], dtype=float), int(pt["tag"])
+                z = pt.get("z")
+            else:
+                if theta is None:
+                    continue
+                x = theta if two_space else self._external_point(theta)
+                tag, z = -1, None
+                if x is None:
+                    continue
+            X.append(x)
+            y.append(trial_cost(t, sign))
+            tags.append(tag)
+            fell.append(trial_fell(t))
+            Z.append(z)
+        return X, y, tags, fell, Z
+
+    def _next(self, study: Any, trial: Any) -> tuple[np.ndarray, dict[str, Any] | None]:
+        """The normalized θ (d,) for ``trial`` and the point record to store with it."""
+        optuna = require_optuna()
+        fixed = self._fixed_theta(study, trial)
+        if fixed is not None:
+            return fixed, None
+        critic, decoder = self._critic()
+        two_space = hasattr(critic, "last_z")
+        X, y, tags, fell, Z = self._history(study, trial.number, two_space, critic.dim)
+        if X:
+            kw: dict[str, Any] = {}
+            if two_space:
+                k = critic.last_z.shape[1]
+                kw["z"] = np.array([np.full(k, np.nan) if z is None else np.asarray(z, float)
+                                    for z in Z])
+            critic.tell(np.array(X), np.array(y, dtype=float), np.array(tags, dtype=np.int64),
+                        fell=np.array(fell, dtype=bool), **kw)
+        skey = STATE_ATTR + self._key
+        state = study._storage.get_study_system_attrs(study._study_id).get(skey)
+        if X and state and hasattr(critic, "load_state_dict"):
+            critic.load_state_dict(state)
+        running = [t for t in study.get_trials(deepcopy=False,
+                                               states=(optuna.trial.TrialState.RUNNING,))
+                   if t.number < trial.number]
+        seen = {tuple(np.round(u, 12)) for t in study.get_trials(deepcopy=False)
+                if t.number != trial.number and (u := _unit_of(self._space, t.params)) is not None}
+        n_ask = len(running) + 1
+        for attempt in range(16):
+            U = critic.ask(n_ask)
+            tag = int(critic.last_tags[-1])
+            u = U[-1]
+            z = None
+            if two_space:
+                zr = critic.last_z[-1]
+                theta = u
+                z = [float(v) for v in zr] if np.all(np.isfinite(zr)) else None
+            elif decoder is None:
+                theta = u
+            else:
+                theta = np.asarray(decoder(u[None, :]), dtype=float)[0]
+                z = [float(v) for v in u]
+            if tuple(np.round(theta, 12)) not in seen:
+                break
+            logger.info("trial %d: θ asked already in the study; asking again", trial.number)
+            n_ask = 1
+        if hasattr(critic, "state_dict"):
+            st = critic.state_dict()
+            if st:
+                study._storage.set_study_system_attr(study._study_id, skey, st)
+        point = {"key": self._key, "u": [float(v) for v in u], "z": z, "tag": tag,
+                 "told": len(X), "pending": len(running)}
+        logger.debug("trial %d: %d told, %d pending, tag %d", trial.number, len(X), len(running),
+                     tag)
+        return np.clip(theta, 0.0, 1.0), point
+
+
+class LatentSampler(_CriticSampler, BaseSampler):
+    """latentune's phase 3 as an Optuna sampler over a source run's parameter names.
+
+    ``LatentSampler(source_run, seed=0, *, method="turbo", budget=200, regions=None,
+    start="manual", zero_shot=True, max_fall_prob=None, constraints_func=None,
+    independent_sampler=None)``
+
+    Args:
+        source_run: a latentune run directory with phase 1 and a trained latent space
+            (``Study.train_latent``, ``latentune train-vae``, or an imported Optuna study).
+        seed: the critic's seed (recorded in each trial's ``latentune:point`` key).
+        method: the critic on the latent box: ``turbo`` (TuRBO-m), ``cma``, ``random``,
+            ``sobol``; ``budget``: the trials you plan (TuRBO-m's trust regions unless
+            ``regions`` is given: 1 below 750).
+        start: ``"manual"`` (the first critic point is the code of the source space's manual
+            θ), ``"best"`` (the code of the source's best θ) or None (the critic's design).
+        zero_shot: the study's trial 0 is the source's best θ as it is (latentune's
+            zero-shot baseline; it counts in the budget and is told to the critic as an
+            external point).
+        max_fall_prob: skip candidates whose predicted fall probability exceeds it (the
+            source run's phase-1 θ, encoded, with their fall flags, seed the prediction).
+        constraints_func: Optuna's ``trial -> sequence of floats``; a value > 0 is a fall.
+        independent_sampler: for parameters outside the source's space.
+
+    Raises :class:`~latentune.errors.LatentError` / ``StoreError`` for a source run without
+    a latent space or parameter space.
+    """
+
+    def __init__(self, source_run: str | os.PathLike, seed: int = 0, *,
+                 method: str = "turbo", budget: int = 200, regions: int | None = None,
+                 start: str | None = "manual", zero_shot: bool = True,
+                 max_fall_prob: float | None = None,
+                 constraints_func: Callable | None = None,
+                 independent_sampler: Any = None) -> None:
+        from latentune.study import Study, source_best
+
+        src = Path(source_run)
+        if not (src / "run.db").is_file():
+            raise StoreError(f"LatentSampler: no latentune run in {src} (expected run.db)")
+        with Study(src) as s:
+            space = s.space()
+            latent = s.latent()
+        if space is None:
+            raise StoreError(f"LatentSampler: {src} records no parameter space")
+        if latent is None:
+            raise LatentError(f"LatentSampler: no latent space in {src}: train one first "
+                              "(Study.train_latent or latentune train-vae)")
+        names = latent.meta.get("space_names")
+        if latent.d != space.dim or (names is not None and list(names) != list(space.names)):
+            raise LatentError(f"LatentSampler: the latent space of {src} does not map to its "
+                              "parameter space")
+        if start not in ("manual", "best", None):
+            raise UsageError(f"start must be 'manual', 'best' or None, got {start!r}")
+        self.source_run = src.resolve()
+        self._space = space
+        self.latent = latent
+        best = source_best(src)
+        self._zero_shot_theta = None if best is None or not zero_shot else best.theta.copy()
+        self.start = start
+        self._key = (f"latent:{_fingerprint(latent)}:{method}:{regions}:{budget}:"
+                     f"{max_fall_prob}:{start}")
+        self._init_common(seed, budget, regions, method, max_fall_prob, constraints_func,
+                          independent_sampler)
+        self._x0: np.ndarray | None = None
+        if start == "manual":
+            self._x0 = latent.to_unit(latent.encode(space.manual))
+        elif start == "best" and best is not None:
+            self._x0 = latent.to_unit(latent.encode(best.theta))
+        self._prior = _latent_prior(self.source_run, latent) if max_fall_prob else None
+
+    def _critic(self) -> tuple[Any, Callable | None]:
+        return _phase3_critic(self.source_run, self.latent, method=self.method,
+                              batch_size=self.batch_size, seed=self.seed, x0=self._x0,
+                              budget=self.budget, regions=self.regions,
+                              max_fall_prob=self.max_fall_prob, prior=self._prior)
+
+    def _external_point(self, theta: np.ndarray) -> np.ndarray | None:
+        code = np.asarray(self.latent.encode(theta), dtype=float)
+        box = self.latent.box
+        if np.any(code < box[:, 0]) or np.any(code > box[:, 1]):
+            return None
+        return self.latent.to_unit(code)
+
+    def _fixed_theta(self, study: Any, trial: Any) -> np.ndarray | None:
+        if self._zero_shot_theta is None or trial.number != 0:
+            return None
+        study._storage.set_trial_system_attr(trial._trial_id, ZERO_SHOT_ATTR, True)
+        return self._zero_shot_theta
+
+class TurboSampler(_CriticSampler, BaseSampler):
+    """latentune's TuRBO-m (phase 1) as an Optuna sampler on the θ box of a search space.
+
+    ``TurboSampler(search_space, seed=0, *, budget=200, regions=None, start=None,
+    max_fall_prob=None, constraints_func=None, independent_sampler=None)``
+
+    Args:
+        search_space: ``{name: FloatDistribution(low, high, log=...)}`` (no ``step``; int,
+            stepped and categorical distributions are refused) or a latentune
+            :class:`~latentune.space.ParameterSpace`.
+        seed: the critic's seed.
+        budget: the trials you plan (sets the number of trust regions unless ``regions``).
+        start: None (TuRBO-m's initial design), ``"manual"`` (a ParameterSpace's manual θ)
+            or ``{name: physical value}``: the first point.
+        max_fall_prob, constraints_func, independent_sampler: as in :class:`LatentSampler`
+            (without a prior: the fall prediction learns from the study's falls).
+    """
+
+    def __init__(self, search_space: Mapping[str, Any] | ParameterSpace, seed: int = 0, *,
+                 budget: int = 200, regions: int | None = None, start: Any = None,
+                 max_fall_prob: float | None = None,
+                 constraints_func: Callable | None = None,
+                 independent_sampler: Any = None) -> None:
+        if isinstance(search_space, ParameterSpace):
+            space = search_space
+        elif isinstance(search_space, Mapping):
+            try:
+                space = space_from_distributions(search_space)
+            except OptunaImportError as exc:
+                raise UsageError(f"TurboSampler: {exc}") from None
+        else:
+            raise UsageError("TurboSampler: search_space must be a dict of "
+                             "FloatDistribution by name or a latentune ParameterSpace")
+        self._space = space
+        if start is None:
+            x0 = None
+        elif isinstance(start, str) and start == "manual":
+            if not isinstance(search_space, ParameterSpace):
+                raise UsageError("TurboSampler: start='manual' needs a ParameterSpace")
+            x0 = space.manual
+        elif isinstance(start, Mapping):
+            from latentune.errors import ParamsError
+
+            try:
+                x0 = space.parse(dict(start))
+            except ParamsError as exc:
+                raise UsageError(f"TurboSampler start: {exc}") from None
+        else:
+            raise UsageError("TurboSampler: start must be None, 'manual' or a dict of "
+                             "physical values by name")
+        self._x0 = x0
+        self._key = (f"theta:{_space_hash(space)}:turbo:{regions}:{budget}:{max_fall_prob}:"
+                     f"{None if x0 is None else _hash(np.asarray(x0).tobytes())}")
+        self._init_common(seed, budget, regions, "turbo", max_fall_prob, constraints_func,
+                          independent_sampler)
+
+    def _critic(self) -> tuple[Any, Callable | None]:
+        from latentune.pipeline.phases import make_phase_critic
+
+        return make_phase_critic("turbo", self._space.dim, self.batch_size, self.seed,
+                                 self._x0, self.budget, self.regions,
+                                 self.max_fall_prob, None), None
+
+    def _external_point(self, theta: np.ndarray) -> np.ndarray | None:
+        return theta
+
+
+
+def _hash(b: bytes) -> str:
+    return hashlib.sha1(b).hexdigest()[:12]
+
+
+def _space_hash(space: ParameterSpace) -> str:
+    import json
+
+    d = space.to_dict()
+    d.pop("manual", None)
+    return _hash(json.dumps(d, sort_keys=True).encode())
+
+
+def _fingerprint(latent: Any) -> str:
+    """A short hash of a latent space's weights and box (which latent box a point belongs to)."""
+    h = hashlib.sha1(np.asarray(latent.box, dtype=float).tobytes())
+    for v in latent.net.state_dict().values():
+        h.update(v.detach().cpu().numpy().tobytes())
+    return h.hexdigest()[:12]
+
+
+def _latent_prior(run: Path, latent: Any) -> tuple[np.ndarray, np.ndarray] | None:
+    """The source run's phase-1 θ encoded into the latent unit box (codes outside the box are
+    left out) with their fall flags: the fall-aware option's prior."""
+    from latentune.pipeline.store import RunStore
+
+    with RunStore(run) as st:
+        rows = st.rows(Phase.PHASE1)
+    if not rows:
+        return None
+    Z = np.atleast_2d(latent.encode(np.array([r.theta for r in rows])))
+    inside = np.all((Z >= latent.box[:, 0]) & (Z <= latent.box[:, 1]), axis=1)
+    fell = np.array([r.fell for r in rows], dtype=bool)[inside]
+    return latent.to_unit(Z[inside]), fell
+
+
+# ---------------------------------------------------------------------------- storages and import
+def open_storage(storage: Any) -> Any:
+    """An Optuna storage from: a storage object (returned as is), an RDB URL
+    (``sqlite:///file.db``, ``postgresql://…``), a path to an SQLite file, or a path to a
+    journal file (``JournalStorage(JournalFileBackend(path))``). OptunaImportError for a path
+    that does not exist."""
+    optuna = require_optuna()
+    if isinstance(storage, optuna.storages.BaseStorage):
+        return storage
+    if not isinstance(storage, (str, os.PathLike)):
+        raise OptunaImportError(f"storage must be an Optuna storage, an RDB URL or a file path, "
+                                f"got {type(storage).__name__}")
+    s = os.fspath(storage)
+    if "://" in s:
+        try:
+            return optuna.storages.RDBStorage(s)
+        except Exception as exc:  # noqa: BLE001 - SQLAlchemy errors of any kind: one line
+            raise OptunaImportError(f"cannot open storage {s}: "
+                                    f"{' '.join(str(exc).split())[:200]}") from None
+    p = Path(s)
+    if not p.is_file():
+        raise OptunaImportError(f"storage file not found: {p}")
+    with open(p, "rb") as f:
+        head = f.read(16)
+    if head == b"SQLite format 3\x00":
+        return open_storage(f"sqlite:///{p.resolve()}")
+    from optuna.storages.journal import JournalFileBackend, JournalStorage
+
+    try:
+        return JournalStorage(JournalFileBackend(str(p)))
+    except Exception as exc:  # noqa: BLE001
+        raise OptunaImportError(f"{p} is neither an SQLite nor an Optuna journal file "
+                                f"({' '.join(str(exc).split())[:200]})") from None
+
+
+def _load_study(storage: Any, study_name: str | None) -> Any:
+    optuna = require_optuna()
+    st = open_storage(storage)
+    names = [s.study_name for s in st.get_all_studies()]
+    if study_name is None:
+        if len(names) != 1:
+            raise OptunaImportError(f"the storage holds {len(names)} studies "
+                                    f"({', '.join(names[:5]) or 'none'}); name one")
+        study_name = names[0]
+    if study_name not in names:
+        raise OptunaImportError(f"no study {study_name!r} in the storage (it holds: "
+                                f"{', '.join(names[:8]) or 'none'})")
+    return optuna.load_study(study_name=study_name, storage=st)
+
+
+def import_optuna_study(storage: Any, study_name: str | None, out: str | os.PathLike,
+                        space: ParameterSpace | None = None, *, seed: int = 0) -> Any:
+    """Turn an Optuna study into a latentune phase-1 run in ``out``; return its
+    :class:`~latentune.study.Study`.
+
+    Args:
+        storage: an Optuna storage object, RDB URL, SQLite file or journal file path.
+        study_name: the study (None: the storage's only study).
+        out: the run directory (created; importing again adds the trials not imported yet).
+        space: the parameter space to use (names must be the study's parameters; values
+            outside it are refused); default: built from the trials' distributions.
+        seed: the run's seed (recorded; used by ``train_latent`` and later phases).
+
+    The rules (distributions, direction, falls, left-out trials) are in the module docstring.
+    Raises :class:`OptunaImportError` with one line for a study that cannot be imported,
+    ``StoreError`` when ``out`` holds another run.
+    """
+    optuna = require_optuna()
+    from latentune.pipeline.phases import store_outcome
+    from latentune.study import Study
+    from latentune.system import Outcome
+
+    S = optuna.trial.TrialState
+    study = _load_study(storage, study_name)
+    if len(study.directions) != 1:
+        raise OptunaImportError(f"study {study.study_name!r} has {len(study.directions)} "
+                                "objectives: latentune imports single-objective studies only")
+    sign = _sign(study)
+    trials = sorted(study.get_trials(deepcopy=False, states=(S.COMPLETE, S.FAIL)),
+                    key=lambda t: t.number)
+    n_left = len(study.get_trials(deepcopy=False)) - len(trials)
+    dists: dict[str, Any] = {}
+    for t in trials:
+        for n, d in t.distributions.items():
+            if n not in dists:
+                dists[n] = d
+                continue
+            old = dists[n]
+            if type(old) is not type(d) or getattr(old, "log", None) != getattr(d, "log", None):
+                raise OptunaImportError(f"parameter {n!r} changes its distribution across trials "
+                                        f"({old} and {d})")
+            if isinstance(d, optuna.distributions.FloatDistribution) and d.step is None \
+                    and old.step is None:
+                dists[n] = optuna.distributions.FloatDistribution(
+                    min(old.low, d.low), max(old.high, d.high), log=d.log)
+    sp = space if space is not None else space_from_distributions(dists)
+    if space is not None:
+        space_from_distributions(dists)                       # the refusal rules still apply
+        if set(space.names) != set(dists):
+            raise OptunaImportError("the given space's names differ from the study's parameters "
+                                    f"({sorted(set(space.names) ^ set(dists))[:5]})")
+    rows: list[tuple[Any, np.ndarray]] = []
+    incomplete = 0
+    for t in trials:
+        if set(t.params) != set(sp.names):
+            incomplete += 1
+            continue
+        u = _unit_of(sp, t.params)
+        if u is None:
+            raise OptunaImportError(f"trial {t.number}: a parameter lies outside the space "
+                                    f"({', '.join(f'{k}={v:g}' for k, v in list(t.params.items())[:3])}...)")
+        rows.append((t, u))
+    if incomplete:
+        warnings.warn(f"import of {study.study_name!r}: {incomplete} finished trial(s) lack some "
+                      "of the parameters and are left out", stacklevel=2)
+    if not rows:
+        raise OptunaImportError(f"study {study.study_name!r} has no finished trial with every "
+                                "parameter")
+    out = Path(out)
+    lt_study = Study(out, seed=seed)
+    system = {"kind": "optuna", "study_name": study.study_name,
+              "storage": _storage_label(storage), "direction": "maximize" if sign < 0 else "minimize",
+              "space": sp.to_dict()}
+    with lt_study.writing() as st:
+        cfg = st.get_meta("config") or {}
+        if cfg.get("system") is not None:
+            old = {k: v for k, v in cfg["system"].items() if k != "storage"}
+            new = {k: v for k, v in system.items() if k != "storage"}
+            if old != new:
+                raise StoreError(f"{out} holds another run (not an import of study "
+                                 f"{study.study_name!r} with this space)")
+        done = {r.info.get("optuna_trial") for r in st.rows(Phase.PHASE1)}
+        idx = st.next_idx(Phase.PHASE1)
+        added = 0
+        for t, u in rows:
+            if t.number in done:
+                continue
+            cost = trial_cost(t, sign)
+            info = {"optuna_trial": int(t.number), "optuna_state": t.state.name,
+                    "optuna_value": None if not t.values else float(t.values[0]),
+                    "constraints": {k: float(v) for k, v in t.constraints.items()}}
+            wall = None
+            if t.datetime_start is not None and t.datetime_complete is not None:
+                wall = (t.datetime_complete - t.datetime_start).total_seconds()
+            store_outcome(st, Phase.PHASE1, idx, u,
+                          Outcome(cost, trial_fell(t), info, wall), tag=-1, seed=seed)
+            idx += 1
+            added += 1
+        cfg = st.get_meta("config") or {}
+        cfg.update(system=system, space=sp.to_dict(),
+                   phase1={"method": "optuna", "seed": int(seed), "budget": st.count(Phase.PHASE1),
+                           "batch_size": None, "regions": None,
+                           "import": {"left_out_unfinished": n_left,
+                                      "left_out_incomplete": incomplete,
+                                      "rules": "float -> ParameterSpace; int/step/categorical "
+                                               "refused; maximize negated; FAIL and constraint "
+                                               "> 0 are falls; pruned/running/waiting left out"}})
+        st.set_meta("config", cfg)
+        best = st.best(Phase.PHASE1)
+        if best is not None:
+            path = out / "phase1_best.json"
+            import json
+
+            path.write_text(json.dumps(sp.as_dict(best.theta), indent=1))
+            st.add_artifact("phase1_best", path)
+    logger.info("imported %d trial(s) of %s into %s (%d left out: pruned/running/waiting; "
+                "%d lack parameters)", added, study.study_name, out, n_left, incomplete)
+    return lt_study
+
+
+def _storage_label(storage: Any) -> str:
+    if isinstance(storage, (str, os.PathLike)):
+        s = os.fspath(storage)
+        if "://" in s and "@" in s:                     # never record a password
+            scheme, rest = s.split("://", 1)
+            return f"{scheme}://…@{rest.split('@', 1)[1]}"
+        return s
+    return type(storage).__name__
+
+
+__all__ = ["LatentSampler", "TurboSampler", "import_optuna_study", "open_storage",
+           "space_from_distributions", "distributions_of", "trial_fell", "trial_cost",
+           "OptunaImportError", "FAILED_ATTR", "POINT_ATTR"]
