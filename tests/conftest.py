@@ -6,13 +6,17 @@
   (exit codes seen by a shell, what reaches a terminal, a fresh interpreter).
 * ``run_cli`` (function fixture, uses ``capsys``): ``run_cli(*args) -> (code, stdout, stderr)``
   calls :func:`latentune.cli.main` in this process; much cheaper than a subprocess.
-* ``one_line_error(code, err) -> str``: asserts exit code 2 and exactly one
-  ``latentune: error:`` line on stderr without a traceback, and returns that line so the caller
-  can assert which error it is.
+* ``error_line`` (session fixture): ``error_line(code, err) -> str`` asserts exit code 2 and
+  exactly one ``latentune: error:`` line on stderr without a traceback, and returns that line so
+  the caller can assert which error it is.
+* ``cli_env`` (session fixture): the environment of ``cli`` (for ``subprocess.Popen``).
+* ``dump_store`` (session fixture): ``dump_store(run_dir) -> (rows, meta)``, a store's rows
+  (phase, idx, theta, z, tag, cost) and meta read-only, to check that a store is unchanged.
 """
 from __future__ import annotations
 
 import os
+import sqlite3
 import subprocess
 import sys
 from pathlib import Path
@@ -75,3 +79,27 @@ def one_line_error(code: int, err: str) -> str:
 def error_line() -> Callable[[int, str], str]:
     """:func:`one_line_error` as a fixture (``error_line(code, err) -> str``)."""
     return one_line_error
+
+
+@pytest.fixture(scope="session")
+def cli_env() -> dict[str, str]:
+    """The environment ``cli`` runs the command line in (one BLAS thread, Ray auth off)."""
+    return dict(CLI_ENV)
+
+
+def dump(run_dir: Path) -> tuple[list[tuple], list[tuple]]:
+    """Rows (phase, idx, theta, z, tag, cost) and meta of a run store, read-only."""
+    con = sqlite3.connect(f"file:{Path(run_dir) / 'run.db'}?mode=ro", uri=True)
+    try:
+        rows = con.execute("SELECT phase, idx, theta, z, tag, cost FROM evaluations "
+                           "ORDER BY phase, idx").fetchall()
+        meta = con.execute("SELECT key, value FROM meta ORDER BY key").fetchall()
+    finally:
+        con.close()
+    return rows, meta
+
+
+@pytest.fixture(scope="session")
+def dump_store() -> Callable[[Path], tuple[list[tuple], list[tuple]]]:
+    """:func:`dump` as a fixture: ``dump_store(run_dir) -> (rows, meta)``."""
+    return dump

@@ -183,9 +183,12 @@ class LatentSpace:
         nthreads = torch.get_num_threads()
         torch.set_num_threads(1)
         try:
-            torch.manual_seed(seed)
+            # the initial weights come from torch's global generator: seed it inside a fork, so
+            # the caller's random state is restored and the weights depend on ``seed`` alone
+            with torch.random.fork_rng(devices=[]):
+                torch.manual_seed(int(seed))
+                net = _build(d, d_low, kind).double()
             gen = torch.Generator().manual_seed(int(seed))
-            net = _build(d, d_low, kind).double()
             opt = torch.optim.Adam(net.parameters(), lr=lr)
             Xt = torch.as_tensor(np.clip(X, 0.0, 1.0), dtype=torch.float64)
             log = TrainLog()

@@ -1,0 +1,131 @@
+"""The phase loop (latentune.pipeline.phases): identity and resume, exact resume of TuRBO-m,
+independence of the completion order, the training set, phase 3 through a decoder."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from latentune.pipeline.store import RunStore
+
+
+def quad(x: np.ndarray) -> float:
+    return float(np.sum((np.asarray(x) - 0.3) ** 2) * 100)
+
+
+def test_phase_identity_and_resume(tmp_path):
+    from latentune.pipeline.evaluators import SerialEvaluator
+    from latentune.pipeline.phases import make_phase_critic, run_phase
+
+    def critic():
+        return make_phase_critic("turbo", 6, 4, 0, np.full(6, 0.5), 30, regions=1)
+
+    with RunStore(tmp_path / "r", create=True) as st:
+        r = run_phase(st, 1, quad, critic(), 30, SerialEvaluator(), max_new=14)
+        assert r.n == 14 and r.n_new == 14
+        np.testing.assert_allclose(st.rows(1)[0].theta, 0.5)      # starts from x0
+        r = run_phase(st, 1, quad, critic(), 30, SerialEvaluator())   # resume
+        assert r.n == 30 and r.n_new == 16
+        rows = st.rows(1)
+        assert [x.idx for x in rows] == list(range(30))
+        assert all(x.z is None for x in rows)
+        assert r.best_cost == min(x.cost for x in rows) < quad(np.full(6, 0.5))
+        r = run_phase(st, 1, quad, critic(), 30, SerialEvaluator())    # nothing left to do
+        assert r.n_new == 0
+
+
+def _critic60():
+    from latentune.pipeline.phases import make_phase_critic
+
+    return make_phase_critic("turbo", 6, 4, 0, None, 60, regions=2)
+
+
+def _thetas(st: RunStore) -> np.ndarray:
+    return np.array([r.theta for r in st.rows(1)])
+
+
+@pytest.fixture(scope="module")
+def whole_run(tmp_path_factory) -> np.ndarray:
+    """θ (60, 6) of an uninterrupted serial 60-evaluation TuRBO-m phase (shared: the reference
+    of the resume and completion-order tests)."""
+    from latentune.pipeline.evaluators import SerialEvaluator
+    from latentune.pipeline.phases import run_phase
+
+    with RunStore(tmp_path_factory.mktemp("whole") / "run", create=True) as st:
+        run_phase(st, 1, quad, _critic60(), 60, SerialEvaluator())
+        return _thetas(st)
+
+
+def test_a_resumed_turbo_run_is_the_uninterrupted_run(tmp_path, whole_run):
+    """The store keeps TuRBO-m's warm-started GP hyperparameters (its state_dict) after every
+    batch, so a run stopped between batches and resumed asks exactly the points of a run that
+    was never stopped; without that state it would not (the hyperparameters are refitted cold)."""
+    from latentune.pipeline.evaluators import SerialEvaluator
+    from latentune.pipeline.phases import run_phase, state_key
+
+    with RunStore(tmp_path / "resumed", create=True) as st:
+        for stop in (20, 36, 60):
+            run_phase(st, 1, quad, _critic60(), 60, SerialEvaluator(), max_new=stop - st.count(1))
+        np.testing.assert_array_equal(_thetas(st), whole_run)
+    with RunStore(tmp_path / "stateless", create=True) as st:
+        run_phase(st, 1, quad, _critic60(), 60, SerialEvaluator(), max_new=36)
+        st.set_meta(state_key(1), {})
+        run_phase(st, 1, quad, _critic60(), 60, SerialEvaluator())
+        assert not np.array_equal(_thetas(st), whole_run)
+
+
+class _ReversedEvaluator:
+    """Yields each batch's results last-first, as workers that finish out of order would."""
+
+    def imap(self, fun, X):
+        from latentune.system import Outcome
+
+        return reversed([(i, Outcome(fun(x))) for i, x in enumerate(X)])
+
+
+def test_phase_same_seed_same_run_whatever_the_completion_order(tmp_path, whole_run):
+    from latentune.pipeline.phases import run_phase
+
+    with RunStore(tmp_path / "reversed", create=True) as st:
+        run_phase(st, 1, quad, _critic60(), 60, _ReversedEvaluator())
+        rev = sorted(tuple(r.theta) for r in st.rows(1))
+    assert len(rev) == 60 and rev == sorted(tuple(t) for t in whole_run)
+
+
+def test_training_set_does_not_depend_on_completion_order(tmp_path):
+    from latentune.pipeline.phases import training_set
+
+    rng = np.random.default_rng(0)
+    X, y = rng.random((20, 5)), np.where(rng.random(20) < 0.3, 150.0, 10.0)
+    sets = []
+    for name, order in (("a", np.arange(20)), ("b", rng.permutation(20))):
+        with RunStore(tmp_path / name, create=True) as st:
+            for idx, i in enumerate(order):
+                st.add(1, idx, X[i], float(y[i]), fell=bool(y[i] >= 100))
+            sets.append(training_set(st))
+    assert sets[0].shape == (int((y < 100).sum()), 5)      # the trials that did not fall
+    np.testing.assert_array_equal(sets[0], sets[1])
+
+
+def test_phase_with_decoder_and_task(tmp_path):
+    from latentune.pipeline.evaluators import SerialEvaluator
+    from latentune.pipeline.phases import ensure_manual, make_phase_critic, run_phase
+    from latentune.task import Task
+
+    task = Task("a1", "trot", steps=150)
+    d = task.space.dim
+    W = np.random.default_rng(0).normal(size=(3, d))
+    man = task.space.manual
+
+    def decoder(U):        # a fixed 3-dim "latent space" around the manual θ
+        return np.clip(man + 0.1 * (np.atleast_2d(U) - 0.5) @ W, 0, 1)
+
+    crit = make_phase_critic("random", 3, 3, 0, None, 6)
+    with RunStore(tmp_path / "r", create=True) as st:
+        assert ensure_manual(st, task) == st.rows(0)[0].cost
+        r = run_phase(st, 3, task, crit, 6, SerialEvaluator(), decoder=decoder)
+        rows = st.rows(3)
+        assert r.n == 6 and len(rows) == 6
+        for row in rows:
+            assert row.z.shape == (3,) and row.theta.shape == (d,)
+            np.testing.assert_allclose(row.theta, decoder(row.z)[0])
+            assert row.wall_s > 0 and row.fell == (row.cost >= 100)

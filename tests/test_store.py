@@ -1,0 +1,55 @@
+"""The run store (latentune.pipeline.store): round trip of rows, meta and artifacts; corrupt and
+foreign files refused without being changed."""
+from __future__ import annotations
+
+import sqlite3
+
+import numpy as np
+import pytest
+
+from latentune.pipeline.store import RunStore, StoreError
+
+
+def test_store_round_trip(tmp_path):
+    with RunStore(tmp_path / "run", create=True) as st:
+        st.set_meta("config", {"a": 1, "b": [1, 2]})
+        for i in range(5):
+            st.add(1, i, np.full(3, i / 10), cost=10.0 + i, tag=i * 7, fell=False, wall_s=0.5,
+                   seed=3)
+        st.add(3, 0, np.full(3, 0.5), cost=150.0, z=[0.1, 0.2], tag=2, fall_step=42)
+        with pytest.raises(StoreError):
+            st.add(1, 2, np.zeros(3), cost=1.0)            # an index is never written twice
+        st.add_artifact("vae", tmp_path / "run" / "vae")
+    with RunStore(tmp_path / "run") as st:
+        assert st.get_meta("config") == {"a": 1, "b": [1, 2]}
+        rows = st.rows(1)
+        assert [r.idx for r in rows] == list(range(5))
+        assert np.allclose(rows[3].theta, 0.3) and rows[3].cost == 13.0 and rows[3].tag == 21
+        X, y, t = st.history(3)
+        assert np.allclose(X, [[0.1, 0.2]]) and y[0] == 150.0 and t[0] == 2
+        r3 = st.rows(3)[0]
+        assert r3.fell and r3.fall_step == 42 and np.allclose(r3.theta, 0.5)
+        assert st.best(1).idx == 0 and st.count(1) == 5 and st.next_idx(1) == 5
+        assert st.artifact("vae") == tmp_path / "run" / "vae"
+        st.check_contiguous(1)
+        assert st.con.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+
+
+def test_store_rejects_corrupt_and_foreign(tmp_path):
+    d = tmp_path / "bad"
+    d.mkdir()
+    (d / "run.db").write_bytes(b"this is not a database at all" * 100)
+    before = (d / "run.db").read_bytes()
+    with pytest.raises(StoreError, match="not a latentune run store"):
+        RunStore(d)
+    assert (d / "run.db").read_bytes() == before
+    f = tmp_path / "foreign"
+    f.mkdir()
+    con = sqlite3.connect(f / "run.db")
+    con.execute("CREATE TABLE t (x)")
+    con.commit()
+    con.close()
+    with pytest.raises(StoreError, match="not a latentune run store"):
+        RunStore(f)
+    with pytest.raises(StoreError, match="does not exist"):
+        RunStore(tmp_path / "missing")

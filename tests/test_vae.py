@@ -1,0 +1,77 @@
+"""The latent space (latentune.latent.vae): shapes, training, determinism for a seed, save/load,
+and the caller's torch random state left untouched."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from latentune.latent import LatentSpace
+
+
+def manifold_points(n: int = 150, seed: int = 0) -> np.ndarray:
+    """Points near a 3-dim manifold in [0, 1]^25 (n, 25)."""
+    rng = np.random.default_rng(seed)
+    A = rng.normal(size=(3, 25))
+    return 1 / (1 + np.exp(-(rng.normal(size=(n, 3)) @ A) * 0.5))
+
+
+@pytest.mark.parametrize("kind", ["det", "vae"])
+def test_vae_shapes_determinism_training(tmp_path, kind):
+    X = manifold_points()
+    rng = np.random.default_rng(1)
+    a = LatentSpace.train(X, kind=kind, seed=1, epochs=200)
+    b = LatentSpace.train(X, kind=kind, seed=1, epochs=200)
+    assert a.d == 25 and a.d_low == 10 and a.kind == kind
+    assert a.net.encoder[0].out_features == 12 and a.net.encoder[2].out_features == 6
+    u = rng.random((7, 10))
+    th = a.decode(u)
+    assert th.shape == (7, 25) and th.min() >= 0 and th.max() <= 1
+    assert a.decode(u[0]).shape == (25,)
+    assert np.array_equal(th, b.decode(u))                  # deterministic for a seed
+    assert a.log.rec[-1] < 0.95 * a.log.rec[0]               # training reduces the loss
+    assert a.log.loss[-1] < a.log.loss[0]
+    assert a.box.shape == (10, 2) and np.all(a.box[:, 0] < a.box[:, 1])
+    uz = a.to_unit(a.encode(X))
+    assert uz.shape == (150, 10) and uz.min() >= 0 and uz.max() <= 1
+    a.meta["robot"] = "a1"
+    a.save(tmp_path / "vae")
+    c = LatentSpace.load(tmp_path / "vae")
+    assert np.allclose(c.decode(u), th) and c.meta["robot"] == "a1" and c.meta["n_train"] == 150
+    assert np.allclose(c.box, a.box)
+
+
+def test_vae_77_dim_default_latent():
+    X = np.random.default_rng(0).random((40, 77))
+    ls = LatentSpace.train(X, seed=0, epochs=5)
+    assert ls.d_low == 5 and ls.decode(np.full(5, 0.5)).shape == (77,)
+
+
+def _weights(ls: LatentSpace) -> list[np.ndarray]:
+    return [p.detach().numpy().copy() for p in ls.net.parameters()]
+
+
+def test_vae_seed_fixes_the_weights_and_leaves_the_global_generator_alone(monkeypatch):
+    """The initial weights are a function of the seed only, whatever the caller did to torch's
+    global generator, and training neither reseeds nor advances that generator."""
+    X = manifold_points(60)
+    init: list[list[np.ndarray]] = []
+    build = __import__("latentune.latent.vae", fromlist=["_build"])._build
+
+    def spy(*args, **kwargs):
+        net = build(*args, **kwargs)
+        init.append([p.detach().numpy().copy() for p in net.parameters()])
+        return net
+
+    monkeypatch.setattr("latentune.latent.vae._build", spy)
+    torch.manual_seed(11)
+    state = torch.get_rng_state()
+    a = LatentSpace.train(X, d_low=3, seed=5, epochs=3)
+    assert torch.equal(torch.get_rng_state(), state)        # the caller's generator untouched
+    torch.rand(17)                                          # the caller draws in between
+    b = LatentSpace.train(X, d_low=3, seed=5, epochs=3)
+    c = LatentSpace.train(X, d_low=3, seed=6, epochs=3)
+    assert len(init) == 3
+    assert all(np.array_equal(p, q) for p, q in zip(init[0], init[1]))       # same seed
+    assert not all(np.array_equal(p, q) for p, q in zip(init[0], init[2]))   # another seed
+    assert all(np.array_equal(p, q) for p, q in zip(_weights(a), _weights(b)))
