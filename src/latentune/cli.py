@@ -792,8 +792,9 @@ def _cli_logging() -> Iterator[Callable[[int], None]]:
     saved = (logger.level, logger.propagate, warnings.showwarning)
 
     def show(message: Any, category: type, filename: str, lineno: int, file: Any = None,
-             line: Any = None) -> None:
-        logger.warning("%s", message)
+             line: Any = None) -> None:     # deprecations are for developers: -v only
+        dev = issubclass(category, (DeprecationWarning, PendingDeprecationWarning))
+        logger.log(logging.INFO if dev else logging.WARNING, "%s", message)
 
     logger.addHandler(handler)
     logger.setLevel(logging.WARNING)

@@ -1,0 +1,231 @@
+"""The command line's small edges: no abbreviated flags, defaults in ``--help``, a closed stdout,
+progress bars only on a terminal, diagnostics through ``logging`` (``-v``, ``--quiet``), a full
+disk as one line."""
+from __future__ import annotations
+
+import argparse
+import errno
+import fcntl
+import logging
+import os
+import pty
+import re
+import resource
+import struct
+import subprocess
+import sys
+import termios
+import textwrap
+import warnings
+from pathlib import Path
+
+import pytest
+
+import latentune.cli as cli_mod
+from latentune.cli import build_parser, main
+from latentune.constants import Phase
+from latentune.pipeline.store import RunStore
+
+from conftest import CLI_ENV, one_line_error
+
+PLANT = textwrap.dedent('''
+    import numpy as np
+    import latentune as lt
+
+    def make(dim=4):
+        space = lt.ParameterSpace([f"w{i}" for i in range(dim)], [-1.0] * dim, [1.0] * dim,
+                                  manual=[0.5] * dim)
+        return lt.FunctionSystem(space, lambda x: float(np.sum((x - 0.2) ** 2)))
+''')
+
+
+@pytest.fixture
+def plant(tmp_path, monkeypatch):
+    d = tmp_path / "plant"
+    d.mkdir()
+    (d / "edgeplant.py").write_text(PLANT)
+    monkeypatch.chdir(d)
+    monkeypatch.syspath_prepend(str(d))
+    yield d
+    sys.modules.pop("edgeplant", None)
+
+
+SYS = ["--system", "edgeplant:make", "--backend", "serial"]
+
+
+def _rows(run: Path) -> list[tuple]:
+    with RunStore(run) as st:
+        return [(r.phase, r.idx, r.cost) for ph in (0, 1, 3) for r in st.rows(ph)]
+
+
+# ---------------------------------------------------------------------------- the parser
+@pytest.mark.parametrize("argv", [
+    ["tune", "--out", "x", "--phase1-eval", "10"], ["phase1", "--out", "x", "--work", "2"],
+    ["phase3", "--out", "x", "--va", "y"], ["rollout", "--jso"], ["ask", "d", "--jso"],
+    ["report", "d", "--no-s"], ["paper", "--sca", "0.1"],
+], ids=lambda a: " ".join(a))
+def test_abbreviated_flags_are_refused(run_cli, tmp_path, argv):
+    line = one_line_error(*run_cli(*argv)[::2])
+    abbreviated = [a for a in argv if a.startswith("--") and a != "--out"][0]
+    assert line.endswith("unrecognized arguments: " + " ".join(argv[argv.index(abbreviated):]))
+    assert not Path("x").exists()
+
+
+def _help(capsys, *argv: str) -> str:
+    with pytest.raises(SystemExit) as info:
+        main([*argv, "--help"])
+    assert info.value.code == 0
+    return " ".join(capsys.readouterr().out.split())
+
+
+def test_help_shows_the_defaults(capsys):
+    text = _help(capsys, "tune")
+    for needle in ("parallel rollouts (default 2)", "seed (terrain, critic, VAE) (default 0)",
+                   "(default process)", "critic (turbo = TuRBO-m) (default turbo)",
+                   "phase-1 evaluations (default 400"):
+        assert needle in text, needle
+    assert "number of suggestions (default 1)" in _help(capsys, "ask")
+    assert "rollout steps (default 2000)" in _help(capsys, "bench")
+    assert "terrain seed (default 0)" in _help(capsys, "rollout")
+    # every option with a default says so, in every command
+    todo, seen = [("latentune", build_parser())], 0
+    while todo:
+        name, p = todo.pop()
+        fmt = p._get_formatter()
+        for a in p._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                todo += [(f"{name} {k}", v) for k, v in a.choices.items()]
+            elif a.option_strings and a.default not in (None, False, [], argparse.SUPPRESS):
+                assert "default" in fmt._get_help_string(a), (name, a.option_strings)
+                seen += 1
+    assert seen >= 30
+
+
+def test_verbose_and_quiet_exclude_each_other(run_cli):
+    assert "not allowed with argument" in one_line_error(*run_cli("status", "d", "-v",
+                                                                  "--quiet")[::2])
+
+
+# ---------------------------------------------------------------------------- output streams
+def test_a_closed_stdout_ends_without_a_traceback(tmp_path):
+    space = tmp_path / "space.yaml"
+    space.write_text("names: [a, b]\nlow: [0, 0]\nhigh: [1, 1]\n")
+    assert main(["ask", str(tmp_path / "at"), "--space", str(space), "--quiet"]) == 0
+    p = subprocess.Popen([sys.executable, "-m", "latentune.cli", "ask", str(tmp_path / "at"),
+                          "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         env=CLI_ENV, text=True)
+    p.stdout.close()                            # the reader is gone before anything is written
+    err = p.stderr.read()
+    assert p.wait(timeout=120) == 141, err
+    assert err == ""
+
+
+def test_no_progress_bar_on_a_redirected_stderr(run_cli, plant, tmp_path):
+    code, out, err = run_cli("phase1", *SYS, "--out", tmp_path / "r", "--phase1-evals", "6")
+    assert code == 0
+    assert err == ""                            # no bar, and no info lines by default
+    assert out.startswith("phase 1: 6 evaluations (6 new), best cost")
+
+
+def test_a_progress_bar_on_a_terminal(plant, tmp_path):
+    master, slave = pty.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 100, 0, 0))   # 100 columns
+    p = subprocess.Popen([sys.executable, "-m", "latentune.cli", "phase1", *SYS, "--out",
+                          str(tmp_path / "r"), "--phase1-evals", "6"], stdout=subprocess.PIPE,
+                         stderr=slave, env=CLI_ENV, cwd=plant, text=True)
+    os.close(slave)
+    chunks = []
+    while True:
+        try:
+            b = os.read(master, 4096)
+        except OSError:                          # EIO: the child closed the terminal
+            break
+        if not b:
+            break
+        chunks.append(b)
+    os.close(master)
+    assert p.wait(timeout=120) == 0
+    assert "phase 1" in b"".join(chunks).decode(errors="replace")
+
+
+# ---------------------------------------------------------------------------- logging
+def _chatty(args):
+    log = logging.getLogger("latentune.somewhere")
+    log.info("an informational line")
+    log.warning("a warning\nspread over lines")
+    warnings.warn("a Python warning", UserWarning)
+    log.error("an error line")
+    print("the result")
+    return 0
+
+
+@pytest.mark.parametrize("flag, expect", [
+    ([], ["latentune: warning: a warning spread over lines",
+          "latentune: warning: a Python warning", "latentune: error: an error line"]),
+    (["-v"], ["latentune: an informational line", "latentune: warning: a warning spread over "
+              "lines", "latentune: warning: a Python warning", "latentune: error: an error line"]),
+    (["--quiet"], ["latentune: error: an error line"]),
+], ids=["default", "verbose", "quiet"])
+def test_logging_levels(run_cli, monkeypatch, flag, expect):
+    monkeypatch.setattr(cli_mod, "cmd_status", _chatty)
+    logger = logging.getLogger("latentune")
+    handlers, showwarning = list(logger.handlers), warnings.showwarning
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        code, out, err = run_cli("status", "d", *flag)
+    assert code == 0 and out == "the result\n"
+    assert err.splitlines() == expect
+    assert logger.handlers == handlers and warnings.showwarning is showwarning   # restored
+
+
+# ---------------------------------------------------------------------------- a full disk
+@pytest.fixture
+def small_run(run_cli, plant, tmp_path):
+    out = tmp_path / "run"
+    code, _, err = run_cli("phase1", *SYS, "--out", out, "--phase1-evals", "6", "--quiet")
+    assert code == 0, err
+    return out
+
+
+@pytest.mark.parametrize("name", ["phase1_best.json", "vae.json", "summary.json"])
+def test_a_full_disk_is_one_line(run_cli, monkeypatch, small_run, name):
+    """The disk fills up when the run writes ``name`` (a file of the run directory)."""
+    import builtins
+    import io
+
+    real_open = io.open
+
+    def full_open(file, mode="r", *a, **k):
+        if Path(str(file)).name.startswith(name) and any(c in mode for c in "wax"):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(file))
+        return real_open(file, mode, *a, **k)
+
+    before = _rows(small_run)
+    monkeypatch.setattr(io, "open", full_open)
+    monkeypatch.setattr(builtins, "open", full_open)
+    line = one_line_error(*run_cli("tune", *SYS, "--out", small_run, "--resume", "--quiet",
+                                   "--phase1-evals", "8", "--phase3-evals", "3",
+                                   "--vae-epochs", "5")[::2])
+    monkeypatch.undo()
+    assert "No space left on device" in line and name in line, line
+    after = _rows(small_run)
+    assert after[:len(before)] == before                     # nothing stored was lost
+    n1 = [r for r in after if r[0] == 1]
+    assert [r[1] for r in n1] == list(range(len(n1))) and len(n1) == 8
+
+
+def test_a_full_disk_during_resume_in_a_real_process(plant, small_run):
+    """RLIMIT_FSIZE makes every file stop growing at a size (the store's WAL first)."""
+    before = _rows(small_run)
+
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (48_000, 48_000))
+
+    p = subprocess.run([sys.executable, "-m", "latentune.cli", "phase1", *SYS, "--out",
+                        str(small_run), "--resume", "--phase1-evals", "400"],
+                       capture_output=True, text=True, env=CLI_ENV, cwd=plant, preexec_fn=limit,
+                       timeout=300)
+    line = one_line_error(p.returncode, p.stderr)
+    assert re.search(r"disk I/O error|full|No space|too large", line), line
+    after = _rows(small_run)
+    assert after[:len(before)] == before and len(after) < 400
