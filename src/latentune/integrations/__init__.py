@@ -30,17 +30,32 @@ def _need(module: str) -> Any:
 
 
 def cmd_import_optuna(args: argparse.Namespace) -> int:
-    """``latentune import-optuna STORAGE --study NAME --out DIR [--space FILE] [--seed S]``."""
+    """``latentune import-optuna STORAGE [--study NAME] --out DIR [--space FILE] [--seed S]
+    [--train-latent [--latent-dim D] [--vae-epochs E]]``."""
+    from latentune.errors import CLIError
+
+    for flag, v in (("latent-dim", args.latent_dim), ("vae-epochs", args.vae_epochs)):
+        if v is not None and not args.train_latent:
+            raise CLIError(f"--{flag} needs --train-latent")
+        if v is not None and v < 1:
+            raise CLIError(f"--{flag} must be >= 1, got {v}")
     mod = _need("optuna")
     space = None
     if args.space is not None:
         space = _load_space(args.space)
     study = mod.import_optuna_study(args.storage, args.study, args.out, space, seed=args.seed)
-    st = study.status()
-    p1 = st["phases"].get("phase1", {})
-    print(f"{args.out}: phase 1 holds {p1.get('n', 0)} trials ({p1.get('failed', 0)} falls), "
-          f"best cost {p1.get('best', float('nan')):.6g}; next: latentune train-vae --out "
-          f"{args.out} --system ... (or Study(DIR).train_latent())")
+    from latentune.constants import Phase
+
+    with study:
+        rows = study.store.rows(Phase.PHASE1)
+        best = min((r.cost for r in rows), default=float("nan"))
+        print(f"{args.out}: phase 1 holds {len(rows)} trials ({sum(r.fell for r in rows)} falls), "
+              f"best cost {best:.6g}")
+        if args.train_latent:
+            latent = study.train_latent(args.latent_dim, epochs=args.vae_epochs)
+            print(f"latent space ({latent.kind}, d_low {latent.d_low}) trained on "
+                  f"{latent.meta.get('n_train', '?')} θ that did not fail: "
+                  f"LatentSampler({str(args.out)!r}) can use it")
     return 0
 
 
@@ -100,7 +115,13 @@ def register_cli(sub: Any) -> None:
     p.add_argument("--out", required=True, help="the latentune run directory to write")
     p.add_argument("--space", default=None, metavar="FILE",
                    help="YAML/JSON parameter space to use (default: from the distributions)")
-    p.add_argument("--seed", type=_seed, default=0, help="the run's seed (default 0)")
+    p.add_argument("--seed", type=_seed, default=None,
+                   help="the run's seed (default: the stored one, else 0)")
+    p.add_argument("--train-latent", action="store_true",
+                   help="then train the latent space (phase 2) on the trials that did not fail")
+    p.add_argument("--latent-dim", type=int, default=None,
+                   help="latent size with --train-latent (default: by the number of parameters)")
+    p.add_argument("--vae-epochs", type=int, default=None, help="VAE epochs (default: by size)")
     p.set_defaults(func=cmd_import_optuna)
 
     p = sub.add_parser("dashboard", help="show a run live in optuna-dashboard (localhost)")

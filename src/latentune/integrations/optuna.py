@@ -47,7 +47,7 @@ Import rules (:func:`import_optuna_study`)
 * a ``maximize`` study is negated (latentune minimizes); multi-objective studies are refused;
 * COMPLETE trials are phase-1 rows; a COMPLETE trial with a constraint value > 0 or
   ``latentune_failed`` is a fall (a failed row, its value kept as its cost); FAIL trials are
-  falls with cost +inf (stored as 1e300); PRUNED, RUNNING and WAITING trials are left out, and so
+  falls with cost +inf; PRUNED, RUNNING and WAITING trials are left out, and so
   are trials that lack one of the parameters (a warning counts them);
 * rows are untagged (tag −1: points the critic did not ask for), in trial-number order, with
   ``info`` = ``optuna_trial``, ``optuna_state``, ``optuna_value``, ``constraints``; importing
@@ -662,7 +662,7 @@ def _load_study(storage: Any, study_name: str | None) -> Any:
 
 
 def import_optuna_study(storage: Any, study_name: str | None, out: str | os.PathLike,
-                        space: ParameterSpace | None = None, *, seed: int = 0) -> Any:
+                        space: ParameterSpace | None = None, *, seed: int | None = None) -> Any:
     """Turn an Optuna study into a latentune phase-1 run in ``out``; return its
     :class:`~latentune.study.Study`.
 
@@ -672,7 +672,8 @@ def import_optuna_study(storage: Any, study_name: str | None, out: str | os.Path
         out: the run directory (created; importing again adds the trials not imported yet).
         space: the parameter space to use (names must be the study's parameters; values
             outside it are refused); default: built from the trials' distributions.
-        seed: the run's seed (recorded; used by ``train_latent`` and later phases).
+        seed: the run's seed (recorded; used by ``train_latent`` and later phases); None: the
+            seed stored in ``out``, else 0.
 
     The rules (distributions, direction, falls, left-out trials) are in the module docstring.
     Raises :class:`OptunaImportError` with one line for a study that cannot be imported,
@@ -731,6 +732,7 @@ def import_optuna_study(storage: Any, study_name: str | None, out: str | os.Path
                                 "parameter")
     out = Path(out)
     lt_study = Study(out, seed=seed)
+    seed = int(lt_study.seed)
     system = {"kind": "optuna", "study_name": study.study_name,
               "storage": _storage_label(storage), "direction": "maximize" if sign < 0 else "minimize",
               "space": sp.to_dict()}
@@ -760,6 +762,7 @@ def import_optuna_study(storage: Any, study_name: str | None, out: str | os.Path
             idx += 1
             added += 1
         cfg = st.get_meta("config") or {}
+        cfg.setdefault("seed", seed)
         cfg.update(system=system, space=sp.to_dict(),
                    phase1={"method": "optuna", "seed": int(seed), "budget": st.count(Phase.PHASE1),
                            "batch_size": None, "regions": None,

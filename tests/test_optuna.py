@@ -1,0 +1,335 @@
+"""The Optuna integration: LatentSampler / TurboSampler under study.optimize and ask/tell (two
+worker processes on one journal storage), and an Optuna study imported as a phase-1 run, turned
+into a latent space, with the import rules (``latentune.integrations.optuna``)."""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+optuna = pytest.importorskip("optuna", reason="the optuna extra (CI installs it)")
+
+import latentune as lt  # noqa: E402
+from latentune.constants import Phase  # noqa: E402
+from latentune.errors import LatentuneError, UsageError  # noqa: E402
+from latentune.integrations import register_cli  # noqa: E402
+from latentune.integrations.optuna import (FAILED_ATTR, POINT_ATTR, LatentSampler,  # noqa: E402
+                                           OptunaImportError, TurboSampler, import_optuna_study)
+
+optuna.logging.set_verbosity(optuna.logging.WARNING)
+FD = optuna.distributions.FloatDistribution
+S = optuna.trial.TrialState
+D = 12
+NAMES = [f"w{i}" for i in range(D)]
+DISTS = {n: FD(-1.0, 1.0) for n in NAMES}
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def cost(x: np.ndarray, shift: float = 0.0) -> tuple[float, bool]:
+    """A quadratic bowl; a trial with w0 > 0.8 falls."""
+    return float(np.sum((x - 0.2 - shift) ** 2)), bool(x[0] > 0.8)
+
+
+def manifold(n: int, seed: int = 0) -> np.ndarray:
+    """(n, D) θ in [-1, 1]^D near a 3-dim manifold (a VAE can learn it from few points)."""
+    rng = np.random.default_rng(seed)
+    A = np.random.default_rng(123).normal(size=(D, 3))
+    s = rng.uniform(-1, 1, size=(n, 3))
+    return -1 + 2 * (0.5 + 0.45 * np.tanh(s @ A.T / 1.5))
+
+
+def simulator_study(storage, name: str = "sim", n: int = 60, direction: str = "minimize"):
+    """An Optuna study "run on a simulator": n COMPLETE trials on the manifold."""
+    study = optuna.create_study(storage=storage, study_name=name, direction=direction)
+    sign = -1.0 if direction == "maximize" else 1.0
+    trials = []
+    for x in manifold(n):
+        c, f = cost(x)
+        trials.append(optuna.trial.create_trial(
+            params=dict(zip(NAMES, map(float, x))), distributions=DISTS, value=sign * c,
+            system_attrs={"constraints:fall": 1.0 if f else 0.0}))
+    study.add_trials(trials)
+    return study
+
+
+@pytest.fixture(scope="module")
+def source_run(tmp_path_factory):
+    """An Optuna simulator study imported into a latentune run, with its latent space."""
+    root = tmp_path_factory.mktemp("optuna_src")
+    storage = optuna.storages.InMemoryStorage()
+    simulator_study(storage)
+    study = import_optuna_study(storage, "sim", root / "sim", seed=0)
+    latent = study.train_latent(latent_dim=3, epochs=300)
+    assert latent.d == D and latent.d_low == 3
+    assert np.all(latent.box[:, 1] - latent.box[:, 0] > 0.05)       # not a collapsed code
+    return root / "sim"
+
+
+def objective_for(sampler, shift: float = 0.1):
+    def objective(trial):
+        p = sampler.suggest_all(trial)
+        c, fell = cost(np.array([p[n] for n in NAMES]), shift)
+        trial.set_constraint("fall", 1.0 if fell else 0.0)
+        return c
+    return objective
+
+
+def thetas(study) -> list[tuple[float, ...]]:
+    return [tuple(t.params[n] for n in NAMES) for t in study.trials]
+
+
+# ---------------------------------------------------------------------------- import
+def test_import_rules(tmp_path):
+    storage = optuna.storages.InMemoryStorage()
+    study = optuna.create_study(storage=storage, study_name="s", direction="maximize")
+    X = manifold(8, seed=1)
+    mk = optuna.trial.create_trial
+    p = [dict(zip(NAMES, map(float, x))) for x in X]
+    study.add_trials([
+        mk(params=p[0], distributions=DISTS, value=3.0),                         # plain
+        mk(params=p[1], distributions=DISTS, value=5.0,
+           system_attrs={"constraints:fall": 0.5}),                             # constraint > 0
+        mk(params=p[2], distributions=DISTS, value=1.0, user_attrs={FAILED_ATTR: True}),
+        mk(params=p[3], distributions=DISTS, state=S.FAIL, value=None),          # a FAIL trial
+        mk(params=p[4], distributions=DISTS, state=S.PRUNED, value=None),        # left out
+        mk(params=p[5], distributions=DISTS, state=S.RUNNING, value=None),       # left out
+        mk(params=p[6], distributions=DISTS, value=2.0,
+           system_attrs={"constraints": [-1.0, 0.0]}),                          # feasible, old form
+        mk(params={"w0": 0.1}, distributions={"w0": DISTS["w0"]}, value=9.0),    # lacks parameters
+    ])
+    study.enqueue_trial(p[7])                                                    # WAITING
+    with pytest.warns(UserWarning, match="1 finished trial"):
+        lt_study = import_optuna_study(storage, "s", tmp_path / "run", seed=4)
+    rows = lt_study.store.rows(Phase.PHASE1)
+    assert [r.info["optuna_trial"] for r in rows] == [0, 1, 2, 3, 6]
+    assert [r.cost for r in rows] == [-3.0, -5.0, -1.0, math.inf, -2.0]       # maximize negated
+    assert [r.fell for r in rows] == [False, True, True, True, False]
+    assert all(r.tag == -1 and r.seed == 4 for r in rows)
+    np.testing.assert_allclose(rows[0].theta, (X[0] + 1) / 2, atol=1e-12)
+    cfg = lt_study.config()
+    assert cfg["system"]["kind"] == "optuna" and cfg["system"]["direction"] == "maximize"
+    assert cfg["space"]["names"] == NAMES and cfg["phase1"]["method"] == "optuna"
+    best = json.loads((tmp_path / "run" / "phase1_best.json").read_text())
+    assert best["w0"] == pytest.approx(X[1][0])                               # the max: 5.0
+    # importing again adds only what is new
+    study.add_trial(mk(params=p[7], distributions=DISTS, value=4.0))
+    again = import_optuna_study(storage, "s", tmp_path / "run", seed=4)
+    assert [r.info["optuna_trial"] for r in again.store.rows(Phase.PHASE1)][-1] == 9
+    assert again.store.count(Phase.PHASE1) == 6
+    # another study into the same directory is refused
+    other = optuna.create_study(storage=storage, study_name="other")
+    other.add_trial(mk(params={"a": 0.5}, distributions={"a": FD(0, 1)}, value=1.0))
+    with pytest.raises(LatentuneError, match="holds another run"):
+        import_optuna_study(storage, "other", tmp_path / "run")  # seed: the stored one
+
+
+def test_import_log_and_refusals(tmp_path):
+    storage = optuna.storages.InMemoryStorage()
+    mk = optuna.trial.create_trial
+
+    def one(name, dists, params):
+        s = optuna.create_study(storage=storage, study_name=name)
+        s.add_trial(mk(params=params, distributions=dists, value=1.0))
+        s.add_trial(mk(params=params, distributions=dists, value=2.0))
+
+    one("log", {"kp": FD(0.01, 10.0, log=True), "kd": FD(0.0, 1.0)}, {"kp": 0.1, "kd": 0.5})
+    sp = import_optuna_study(storage, "log", tmp_path / "log").space()
+    assert list(sp.log) == [True, False] and sp.lower[0] == 0.01 and sp.upper[0] == 10.0
+    one("int", {"n": optuna.distributions.IntDistribution(1, 5)}, {"n": 2})
+    one("step", {"x": FD(0.0, 1.0, step=0.25)}, {"x": 0.5})
+    one("cat", {"c": optuna.distributions.CategoricalDistribution(["a", "b"])}, {"c": "a"})
+    for name, msg in (("int", "'n' is an integer distribution"),
+                      ("step", "'x' is a stepped float"), ("cat", "'c' is categorical")):
+        with pytest.raises(OptunaImportError, match=msg) as ei:
+            import_optuna_study(storage, name, tmp_path / name)
+        assert "\n" not in str(ei.value)
+        assert not (tmp_path / name).exists()                 # nothing written on refusal
+    mo = optuna.create_study(storage=storage, study_name="mo", directions=["minimize"] * 2)
+    mo.add_trial(mk(params={"x": 0.5}, distributions={"x": FD(0, 1)}, values=[1.0, 2.0]))
+    with pytest.raises(OptunaImportError, match="2 objectives"):
+        import_optuna_study(storage, "mo", tmp_path / "mo")
+    with pytest.raises(OptunaImportError, match="no study 'nope'"):
+        import_optuna_study(storage, "nope", tmp_path / "nope")
+    with pytest.raises(OptunaImportError, match="not found"):
+        import_optuna_study(tmp_path / "missing.log", None, tmp_path / "x")
+
+
+def test_import_cli_from_a_journal_file(tmp_path, capsys):
+    from optuna.storages.journal import JournalFileBackend, JournalStorage
+
+    path = tmp_path / "sim.log"
+    simulator_study(JournalStorage(JournalFileBackend(str(path))), n=20)
+    parser = argparse.ArgumentParser(prog="latentune")
+    register_cli(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["import-optuna", str(path), "--out", str(tmp_path / "run"),
+                              "--train-latent", "--latent-dim", "3", "--vae-epochs", "20"])
+    assert args.func(args) == 0
+    out = capsys.readouterr().out
+    assert "phase 1 holds 20 trials (0 falls)" in out and "d_low 3) trained on 20" in out
+    run = lt.Study(tmp_path / "run")
+    assert run.store.count(Phase.PHASE1) == 20 and run.latent().d_low == 3
+    with pytest.raises(LatentuneError, match="--latent-dim needs --train-latent"):
+        a = parser.parse_args(["import-optuna", str(path), "--out", "x", "--latent-dim", "2"])
+        a.func(a)
+    bad = parser.parse_args(["import-optuna", str(tmp_path / "none.db"), "--out",
+                             str(tmp_path / "r2")])
+    with pytest.raises(LatentuneError, match="storage file not found"):
+        bad.func(bad)
+
+
+# ---------------------------------------------------------------------------- samplers
+def test_latent_sampler_optimize_and_seed(source_run, tmp_path):
+    src = lt.Study(source_run)
+    best = src.best(Phase.PHASE1)
+    latent = src.latent()
+
+    def run(seed: int) -> optuna.Study:
+        sampler = LatentSampler(source_run, seed=seed, budget=40)
+        study = optuna.create_study(sampler=sampler)
+        study.optimize(objective_for(sampler), n_trials=7)
+        return study
+
+    a, b, c = run(0), run(0), run(1)
+    assert thetas(a) == thetas(b)                                  # one worker: deterministic
+    assert thetas(a)[1:] != thetas(c)[1:]                          # another seed, another run
+    # trial 0: the source's best θ as it is (zero-shot)
+    zs = a.trials[0]
+    assert zs.system_attrs.get("latentune:zero_shot") is True and POINT_ATTR not in zs.system_attrs
+    np.testing.assert_allclose([zs.params[n] for n in NAMES],
+                               src.space().to_physical(best.theta), atol=1e-12)
+    # later trials: decoded latent points, every θ distinct, the critic saw the earlier trials
+    for t in a.trials[1:]:
+        pt = t.system_attrs[POINT_ATTR]
+        assert pt["told"] == t.number and pt["pending"] == 0 and pt["tag"] >= 0
+        theta = latent.decode(np.array(pt["z"]))
+        np.testing.assert_allclose([t.params[n] for n in NAMES],
+                                   src.space().to_physical(theta), atol=1e-9)
+    assert len(set(thetas(a))) == len(a.trials)
+    # the first critic point is the code of the manual θ (start="manual")
+    np.testing.assert_allclose(a.trials[1].system_attrs[POINT_ATTR]["u"],
+                               latent.to_unit(latent.encode(src.space().manual)), atol=1e-12)
+
+
+def test_latent_sampler_falls_and_direction(source_run):
+    """Falls reach the critic (constraint > 0, latentune_failed, FAIL); a maximize study is
+    negated: the same objective told as -cost in a maximize study gives the same trials."""
+    from latentune.integrations.optuna import trial_cost, trial_fell
+
+    sampler = LatentSampler(source_run, seed=2, budget=40, max_fall_prob=0.5)
+    study = optuna.create_study(sampler=sampler)
+    for i in range(4):
+        t = study.ask()
+        p = sampler.suggest_all(t)
+        c, _ = cost(np.array([p[n] for n in NAMES]))
+        if i == 1:
+            t.set_user_attr(FAILED_ATTR, True)
+            study.tell(t, c)
+        elif i == 2:
+            study.tell(t, state=S.FAIL)
+        else:
+            t.set_constraint("fall", 1.0 if i == 3 else -1.0)
+            study.tell(t, c)
+    fell = [trial_fell(t) for t in study.trials]
+    assert fell == [False, True, True, True]
+    assert math.isinf(trial_cost(study.trials[2], 1.0))
+    nxt = study.ask()
+    sampler.suggest_all(nxt)
+    assert study.trials[-1].system_attrs[POINT_ATTR]["told"] == 4
+
+    def run(direction: str) -> list:
+        s = LatentSampler(source_run, seed=5, budget=40)
+        st = optuna.create_study(sampler=s, direction=direction)
+        sign = -1.0 if direction == "maximize" else 1.0
+        st.optimize(lambda tr: sign * cost(np.array(list(s.suggest_all(tr).values())))[0],
+                    n_trials=5)
+        return thetas(st)
+
+    assert run("maximize") == run("minimize")
+
+
+def test_sampler_refuses_other_bounds(source_run):
+    sampler = LatentSampler(source_run, seed=0)
+    study = optuna.create_study(sampler=sampler)
+    study.enqueue_trial({"w0": 0.5})           # trial 0 is fixed; trial 1 comes from the critic
+    study.optimize(objective_for(sampler), n_trials=1)
+    t = study.ask()
+    with pytest.raises(UsageError, match="suggest it with those bounds"):
+        t.suggest_float("w1", 5.0, 6.0)
+    assert sampler.distributions()["w1"] == FD(-1.0, 1.0)
+    assert 0.0 <= t.suggest_float("extra", 0.0, 1.0) <= 1.0          # outside the space: random
+
+
+WORKER = textwrap.dedent('''
+    import sys, time
+    import numpy as np, optuna
+    from optuna.storages.journal import JournalFileBackend, JournalStorage
+    from latentune.integrations.optuna import LatentSampler
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    source, journal, n = sys.argv[1], sys.argv[2], int(sys.argv[3])
+    storage = JournalStorage(JournalFileBackend(journal))
+    sampler = LatentSampler(source, seed=0, budget=40)
+    study = optuna.load_study(study_name="target", storage=storage, sampler=sampler)
+    for _ in range(n):
+        a, b = study.ask(), study.ask()           # two trials in flight: both RUNNING
+        pa, pb = sampler.suggest_all(a), sampler.suggest_all(b)
+        for t, p in ((a, pa), (b, pb)):
+            x = np.array(list(p.values()))
+            study.tell(t, float(np.sum((x - 0.3) ** 2)))
+''')
+
+
+def test_two_workers_on_one_journal(source_run, tmp_path):
+    journal = tmp_path / "target.log"
+    from optuna.storages.journal import JournalFileBackend, JournalStorage
+
+    storage = JournalStorage(JournalFileBackend(str(journal)))
+    optuna.create_study(study_name="target", storage=storage)
+    script = tmp_path / "worker.py"
+    script.write_text(WORKER)
+    env = dict(os.environ, OMP_NUM_THREADS="1", PYTHONPATH=str(ROOT / "src"))
+    procs = [subprocess.Popen([sys.executable, str(script), str(source_run), str(journal), "3"],
+                              env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+             for _ in range(2)]
+    for p in procs:
+        out, err = p.communicate(timeout=240)
+        assert p.returncode == 0, err.decode()[-2000:]
+    study = optuna.load_study(study_name="target", storage=storage)
+    trials = study.trials
+    assert len(trials) == 12 and all(t.state == S.COMPLETE for t in trials)   # none lost
+    assert sorted(t.number for t in trials) == list(range(12))
+    assert len(set(thetas(study))) == 12                                        # none run twice
+    pending = [t.system_attrs[POINT_ATTR]["pending"] for t in trials
+               if POINT_ATTR in t.system_attrs]
+    assert max(pending) >= 1              # RUNNING trials were counted as pending
+
+
+def test_turbo_sampler(tmp_path):
+    dists = {"kp": FD(0.01, 10.0, log=True), "kd": FD(-1.0, 1.0), "ki": FD(0.0, 2.0)}
+    start = {"kp": 1.0, "kd": 0.0, "ki": 1.0}
+
+    def objective(trial):
+        x = sampler.suggest_all(trial)
+        return (math.log10(x["kp"]) - 0.5) ** 2 + (x["kd"] - 0.3) ** 2 + (x["ki"] - 1.5) ** 2
+
+    sampler = TurboSampler(dists, seed=0, budget=20, start=start)
+    study = optuna.create_study(sampler=sampler)
+    study.optimize(objective, n_trials=14)
+    assert study.trials[0].params == pytest.approx(start)
+    assert study.best_value < study.trials[0].value
+    assert len(set(tuple(t.params.values()) for t in study.trials)) == 14
+    again = optuna.create_study(sampler=TurboSampler(dists, seed=0, budget=20, start=start))
+    sampler = again.sampler
+    again.optimize(objective, n_trials=14)
+    assert [t.params for t in again.trials] == [t.params for t in study.trials]
+    with pytest.raises(UsageError, match="integer distribution"):
+        TurboSampler({"n": optuna.distributions.IntDistribution(0, 3)})
+    with pytest.raises(UsageError, match="start"):
+        TurboSampler(dists, start="manual")
