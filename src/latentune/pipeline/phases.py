@@ -18,9 +18,18 @@ then continues at index n. If the process died in the middle of a batch, the row
 that were committed are kept and told with their tags; its unfinished points are lost with the
 process and are *re-asked*: the resumed critic's next ask covers the remaining budget. No
 finished evaluation is lost and none is run twice.
+
+The critic of a phase is built from the study's stored options by
+:func:`latentune.pipeline.loop.phase_critic`, for this loop and for ask/tell alike.
+
+Failing phases
+--------------
+When the last :data:`FAIL_STREAK` trials of a phase all failed, one warning is logged
+(:func:`failing_message`: what it may mean and what to try), once per streak.
 """
 from __future__ import annotations
 
+import logging
 import math
 import time
 from dataclasses import dataclass
@@ -34,6 +43,11 @@ from latentune.errors import StoreError
 from latentune.pipeline.evaluators import Evaluator, TrialError
 from latentune.pipeline.store import RunStore
 from latentune.system import EvaluationError, Outcome
+
+log = logging.getLogger(__name__)
+
+FAIL_STREAK = 8
+"""A phase whose last this many trials all failed says so (:func:`failing_message`)."""
 
 FALL_DESIGN_SIDE = 0.8
 """Side of the box around the warm start that a fall-aware TuRBO-m's first design fills (the
@@ -149,10 +163,31 @@ def _progress(total: int, initial: int, desc: str, enabled: bool):
                 leave=True)
 
 
-def _restore_inf(y: np.ndarray) -> np.ndarray:
-    y = np.asarray(y, dtype=float).copy()
-    y[np.abs(y) >= 1e299] = np.inf
-    return y
+def failing_message(phase: int, n: int) -> str:
+    """The warning of a phase whose last ``n`` trials all failed, with what to try."""
+    if int(phase) == 3:
+        return (f"phase 3: the last {n} trials all failed: the target may be far from the "
+                "latent space's source; try the hand-over (--handover), the fall-aware critic "
+                "(--max-fall-prob 0.3), or phase 1 on the target")
+    return (f"phase {int(phase)}: the last {n} trials all failed: the search is where the "
+            "system fails; try the fall-aware critic (--max-fall-prob 0.3), a start θ that "
+            "does not fail, or narrower bounds")
+
+
+def failure_streak(store: RunStore, phase: int) -> int:
+    """How many of the last stored trials of ``phase`` (idx order) failed in a row."""
+    fell = store.fell(phase)
+    ok = np.flatnonzero(~fell)
+    return int(len(fell) - (ok[-1] + 1 if len(ok) else 0))
+
+
+def warn_if_failing(store: RunStore, phase: int) -> bool:
+    """Log :func:`failing_message` when the streak of failed trials of ``phase`` has just
+    reached :data:`FAIL_STREAK` (after a trial was stored); return whether it did."""
+    if failure_streak(store, phase) == FAIL_STREAK:
+        log.warning(failing_message(phase, FAIL_STREAK))
+        return True
+    return False
 
 
 def store_outcome(store: RunStore, phase: int, idx: int, theta: np.ndarray, out: Outcome, *,
@@ -208,7 +243,7 @@ def _tell_rows(store: RunStore, phase: int, critic: Any) -> int:
         Z = np.array([r.z if r.z is not None and len(r.z) == k else np.full(k, np.nan)
                       for r in rows])
         y = np.array([r.cost for r in rows])
-        critic.tell(X, _restore_inf(y), np.array([r.tag for r in rows], dtype=np.int64),
+        critic.tell(X, y, np.array([r.tag for r in rows], dtype=np.int64),
                     fell=np.array([r.fell for r in rows], dtype=bool), z=Z)
         return len(rows)
     X, y, tags = store.history(phase)
@@ -216,8 +251,20 @@ def _tell_rows(store: RunStore, phase: int, critic: Any) -> int:
         if X.shape[1] != critic.dim:
             raise StoreError(f"stored phase-{phase} points have dimension {X.shape[1]}, "
                              f"the critic {critic.dim}")
-        critic.tell(X, _restore_inf(y), tags, fell=store.fell(phase))
+        critic.tell(X, y, tags, fell=store.fell(phase))
     return len(y)
+
+
+def ask_batch(critic: Any, k: int, decoder: Callable | None
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray, list[Any]]:
+    """Ask ``critic`` for ``k`` points: (U (k, m) its points, tags (k,), Z (k, m') a
+    two-space critic's codes or None, θ (k, d), the code to store with each θ)."""
+    U = critic.ask(k)
+    T = critic.last_tags.copy()
+    Z = getattr(critic, "last_z", None)           # a two-space critic's latent codes
+    Z = None if Z is None else Z.copy()
+    thetas, codes = asked_points(U, Z, decoder)
+    return U, T, Z, thetas, codes
 
 
 def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int,
@@ -255,6 +302,7 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
     idx = n0
     bar = _progress(budget, min(n0, budget), f"phase {phase}", progress)
     best = float(np.min(y)) if n0 else math.inf
+    streak = failure_streak(store, phase)
     new = 0
     try:
         if bar is not None and n0:
@@ -263,11 +311,7 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
             k = min(critic.batch_size, budget - idx)
             if max_new is not None:
                 k = min(k, max_new - new)
-            U = critic.ask(k)
-            T = critic.last_tags.copy()
-            Z = getattr(critic, "last_z", None)       # a two-space critic's latent codes
-            Z = None if Z is None else Z.copy()
-            thetas, codes = asked_points(U, Z, decoder)
+            U, T, Z, thetas, codes = ask_batch(critic, k, decoder)
             ib, yb, fb = [], [], []                # ask index, cost and fell of each result
             error: str | None = None
             for i, r in _results(evaluator, system, thetas, known or {}):
@@ -282,6 +326,9 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
                 ib.append(i)
                 yb.append(cost)
                 fb.append(bool(r.failed))
+                streak = streak + 1 if r.failed else 0
+                if streak == FAIL_STREAK:
+                    log.warning(failing_message(phase, FAIL_STREAK))
                 if cost < best:
                     best = cost
                 if on_row is not None:

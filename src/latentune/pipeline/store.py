@@ -19,17 +19,29 @@ Tables
     cost, fell (the trial failed), fall_step, wall_s, seed, created (unix time)
     info       JSON object of the trial's details (Outcome.info; ask/tell: trial id, note)
 
-``trials``: suggestions handed out by ``ask`` (trials run elsewhere)::
+``trials``: suggestions of ask/tell (trials run elsewhere)::
 
-    id         integer, never reused
+    id         integer, never reused (the suggestion id)
     phase, theta, z, tag   as above
-    status     'pending' until told, then 'told'
-    idx        the evaluation row it became (NULL while pending)
+    status     'queued' (asked from the critic, not handed out yet), 'pending' (handed out:
+               leased to ``asker`` until ``lease_until``), 'told', or 'dropped' (queued, then
+               discarded unseen because a told result was amended)
+    idx        the evaluation row it became (NULL until told)
+    asker      who holds it (pending) or held it last (told)
+    lease_until  unix time the lease ends; an expired pending suggestion is handed out again
     created, told (unix times)
+
+``amendments``: the audit trail of corrected results (:meth:`RunStore.amend_trial`): the
+suggestion id, its evaluation (phase, idx), the old and new (cost, fell, info) as JSON, the time
+and a note. The evaluation row holds the corrected values.
+
+Costs are stored as given; a non-finite cost is encoded as ±1e300 (NaN as +1e300) and decoded
+back to ±inf by every reader here (:meth:`rows`, :meth:`history`, :meth:`costs`). ``fell`` is
+data: a row fails only when its writer says so.
 
 The critic's point is ``z`` in phase 3 and ``theta`` otherwise (:meth:`RunStore.history`).
 Stores of version 1 (no ``info``, no ``trials``) are read as they are and upgraded in place by
-their first write.
+their first write; stores of version 2 (trials without leases) by their first ask/tell write.
 """
 from __future__ import annotations
 
@@ -44,11 +56,12 @@ from typing import Any, Iterable, Iterator
 
 import numpy as np
 
-from latentune.constants import C1
 from latentune.errors import StoreError
 
 FORMAT = "latentune-run-store"
-VERSION = 2
+VERSION = 3
+INF_CODE = 1e300
+"""How a non-finite cost is stored (SQLite REAL has no inf): ±INF_CODE."""
 DB_NAME = "run.db"
 
 _SCHEMA = """
@@ -79,7 +92,21 @@ CREATE TABLE IF NOT EXISTS trials (
     status TEXT NOT NULL,
     idx INTEGER,
     created REAL NOT NULL,
-    told REAL
+    told REAL,
+    asker TEXT,
+    lease_until REAL
+);
+"""
+_AMENDMENTS = """
+CREATE TABLE IF NOT EXISTS amendments (
+    n INTEGER PRIMARY KEY AUTOINCREMENT,
+    trial INTEGER NOT NULL,
+    phase INTEGER NOT NULL,
+    idx INTEGER NOT NULL,
+    old TEXT NOT NULL,
+    new TEXT NOT NULL,
+    note TEXT,
+    created REAL NOT NULL
 );
 """
 
@@ -104,7 +131,7 @@ class Row:
 
 @dataclass
 class Trial:
-    """A suggestion handed out by ask (``status`` 'pending' or 'told')."""
+    """A suggestion of ask/tell (``status`` 'queued', 'pending', 'told' or 'dropped')."""
 
     id: int
     phase: int
@@ -114,6 +141,22 @@ class Trial:
     status: str
     idx: int | None
     created: float
+    asker: str | None = None
+    lease_until: float | None = None
+
+
+def encode_cost(cost: float) -> float:
+    """The stored value of a cost: itself, or ±:data:`INF_CODE` for ±inf (NaN: +INF_CODE)."""
+    cost = float(cost)
+    if math.isfinite(cost):
+        return cost
+    return INF_CODE if cost > 0 or math.isnan(cost) else -INF_CODE
+
+
+def decode_cost(value: float) -> float:
+    """The cost a stored value stands for (the inverse of :func:`encode_cost`)."""
+    v = float(value)
+    return math.copysign(math.inf, v) if abs(v) >= INF_CODE else v
 
 
 def _json_default(o: Any) -> Any:
@@ -157,7 +200,7 @@ class RunStore:
             self.con.execute("PRAGMA journal_mode=WAL")
             self.con.execute("PRAGMA synchronous=NORMAL")
             if not exists:
-                self.con.executescript("BEGIN;" + _SCHEMA + _TRIALS + "COMMIT;")
+                self.con.executescript("BEGIN;" + _SCHEMA + _TRIALS + _AMENDMENTS + "COMMIT;")
             self._current = self._is_current()
             if not exists:
                 self.set_meta("format", FORMAT)
@@ -172,6 +215,8 @@ class RunStore:
         cols = {r[1] for r in self.con.execute("PRAGMA table_info(evaluations)")}
         tables = {r[0] for r in self.con.execute("SELECT name FROM sqlite_master WHERE type='table'")}
         self._has_info = "info" in cols
+        tcols = {r[1] for r in self.con.execute("PRAGMA table_info(trials)")}
+        self._has_leases = "lease_until" in tcols and "amendments" in tables
         return self._has_info and "trials" in tables
 
     def _upgrade(self) -> None:
@@ -183,9 +228,21 @@ class RunStore:
             self.con.execute("ALTER TABLE evaluations ADD COLUMN info TEXT")
         self.con.execute(_TRIALS)
         self.con.execute("INSERT OR REPLACE INTO meta(key, value) VALUES ('version', ?)",
-                         (json.dumps(VERSION),))
+                         (json.dumps(2),))
         self._has_info = True
         self._current = True
+
+    def _upgrade_trials(self) -> None:
+        """Add the leases (``trials.asker``, ``trials.lease_until``) and ``amendments`` of
+        version 3; run inside the first ask/tell write, so phase runs never change the schema."""
+        cols = {r[1] for r in self.con.execute("PRAGMA table_info(trials)")}
+        for c, t in (("asker", "TEXT"), ("lease_until", "REAL")):
+            if c not in cols:
+                self.con.execute(f"ALTER TABLE trials ADD COLUMN {c} {t}")
+        self.con.execute(_AMENDMENTS)
+        self.con.execute("INSERT OR REPLACE INTO meta(key, value) VALUES ('version', ?)",
+                         (json.dumps(VERSION),))
+        self._has_leases = True
 
     def _check_foreign(self) -> None:
         """Validate an existing file read-only (nothing is written to a foreign/corrupt file)."""
@@ -272,18 +329,17 @@ class RunStore:
             seed: int | None = None, info: dict[str, Any] | None = None) -> None:
         """Commit one evaluation (its own transaction). A duplicate (phase, idx) raises StoreError.
 
-        ``fell`` defaults to ``not cost < C1``; non-finite costs are stored as ±1e300."""
+        ``fell``: whether the trial failed; ``None`` means "failed if a failure step is given"
+        (``fall_step`` not None). Non-finite costs are encoded (:func:`encode_cost`)."""
         with self._write():
             self._insert(phase, idx, theta, cost, z, tag, fell, fall_step, wall_s, seed, info)
 
     def _insert(self, phase: int, idx: int, theta: Any, cost: float, z: Any, tag: int,
                 fell: bool | None, fall_step: int | None, wall_s: float | None,
                 seed: int | None, info: dict[str, Any] | None) -> None:
-        cost = float(cost)
         if fell is None:
-            fell = not (math.isfinite(cost) and cost < C1)
-        if not math.isfinite(cost):
-            cost = 1e300 if cost > 0 or math.isnan(cost) else -1e300
+            fell = fall_step is not None
+        cost = encode_cost(cost)
         try:
             self.con.execute(
                 "INSERT INTO evaluations(phase, idx, theta, z, tag, cost, fell, fall_step, "
@@ -297,9 +353,10 @@ class RunStore:
             raise StoreError(f"evaluation {idx} of phase {phase} is already stored") from None
 
     @contextmanager
-    def _write(self) -> Iterator[None]:
+    def _write(self, trials: bool = False) -> Iterator[None]:
         """One write transaction (BEGIN IMMEDIATE … COMMIT); a full disk or a locked database
-        becomes a StoreError with the store untouched."""
+        becomes a StoreError with the store untouched. ``trials``: an ask/tell write (upgrades
+        the trials table to leases first)."""
         try:
             self.con.execute("BEGIN IMMEDIATE")
         except sqlite3.OperationalError as exc:
@@ -307,6 +364,8 @@ class RunStore:
         try:
             if not self._current:
                 self._upgrade()
+            if trials and not self._has_leases:
+                self._upgrade_trials()
             yield
             self.con.execute("COMMIT")
         except BaseException as exc:
@@ -319,21 +378,81 @@ class RunStore:
             raise
 
     # ------------------------------------------------------------------ ask/tell trials
+    def queue_trials(self, phase: int, thetas: Any, zs: list[Any], tags: Any) -> list[int]:
+        """Record a batch the critic asked as 'queued' suggestions (one transaction); return
+        their ids in ask order. ``thetas`` (n, d), ``zs`` n codes or None, ``tags`` (n,)."""
+        now = time.time()
+        with self._write(trials=True):
+            ids = []
+            for th, z, tag in zip(thetas, zs, tags):
+                cur = self.con.execute(
+                    "INSERT INTO trials(phase, theta, z, tag, status, idx, created) "
+                    "VALUES (?, ?, ?, ?, 'queued', NULL, ?)",
+                    (int(phase), _enc(th), _enc(z), int(tag), now))
+                ids.append(int(cur.lastrowid))
+        return ids
+
     def add_trial(self, phase: int, theta: Any, z: Any, tag: int) -> int:
-        """Record a pending suggestion; return its id."""
-        with self._write():
-            cur = self.con.execute(
-                "INSERT INTO trials(phase, theta, z, tag, status, idx, created) "
-                "VALUES (?, ?, ?, ?, 'pending', NULL, ?)",
-                (int(phase), _enc(theta), _enc(z), int(tag), time.time()))
-            return int(cur.lastrowid)
+        """Record one 'queued' suggestion; return its id."""
+        return self.queue_trials(phase, [theta], [z], [tag])[0]
+
+    def lease(self, asker: str, phases: tuple[int, ...], n: int, lease_s: float,
+              queued_only: bool = False) -> list[tuple[Trial, bool]]:
+        """Hand out up to ``n`` suggestions of ``phases`` to ``asker`` for ``lease_s`` seconds,
+        in one transaction: first those ``asker`` holds already, then those whose lease expired
+        (or that were never leased under version 2), then queued ones (``phases`` in the order
+        given, oldest first); only queued ones with ``queued_only``. Returns ``(trial, again)``
+        pairs; ``again``: it was handed out before. Each suggestion is leased to one asker at a
+        time."""
+        now = time.time()
+        ph = tuple(int(p) for p in phases)
+        marks = ",".join("?" * len(ph))
+        out: list[tuple[Trial, bool]] = []
+        with self._write(trials=True):
+            picks: list[tuple[int, bool]] = []
+            for q, args in (
+                    (f"status='pending' AND asker=? AND phase IN ({marks})", (asker, *ph)),
+                    (f"status='pending' AND (asker IS NULL OR asker<>?) AND "
+                     f"(lease_until IS NULL OR lease_until<?) AND phase IN ({marks})",
+                     (asker, now, *ph))):
+                if queued_only:
+                    break
+                for (i,) in self.con.execute(f"SELECT id FROM trials WHERE {q} ORDER BY id", args):
+                    picks.append((int(i), True))
+            for p in ph:
+                for (i,) in self.con.execute("SELECT id FROM trials WHERE status='queued' AND "
+                                             "phase=? ORDER BY id", (p,)):
+                    picks.append((int(i), False))
+            for i, again in picks[:int(n)]:
+                self.con.execute("UPDATE trials SET status='pending', asker=?, lease_until=? "
+                                 "WHERE id=?", (asker, now + float(lease_s), i))
+                out.append((self._trial(i), again))
+        return out
+
+    def release(self, trial_id: int) -> None:
+        """Give a pending suggestion back (its lease ends now): the next ask hands it out
+        again. StoreError unless it is pending."""
+        with self._write(trials=True):
+            t = self._trial(trial_id)
+            if t.status != "pending":
+                raise StoreError(f"suggestion {trial_id} is {t.status}, not pending: there is "
+                                 "no lease to release")
+            self.con.execute("UPDATE trials SET status='queued', asker=NULL, lease_until=NULL "
+                             "WHERE id=?", (int(trial_id),))
+
+    def _trial(self, trial_id: int) -> Trial:
+        found = self.trials(trial_id=int(trial_id))
+        if not found:
+            raise StoreError(f"no suggestion with id {trial_id} in {self.dir}")
+        return found[0]
 
     def trials(self, status: str | None = None, trial_id: int | None = None) -> list[Trial]:
-        """Suggestions (oldest first): all, those with ``status`` ('pending' or 'told'), or the
-        one with id ``trial_id``."""
+        """Suggestions (oldest first): all, those with ``status`` ('queued', 'pending', 'told',
+        'dropped'), or the one with id ``trial_id``."""
         if not self._current:
             return []
-        q = "SELECT id, phase, theta, z, tag, status, idx, created FROM trials"
+        lease = "asker, lease_until" if self._has_leases else "NULL, NULL"
+        q = f"SELECT id, phase, theta, z, tag, status, idx, created, {lease} FROM trials"
         where, args = [], []
         if status:
             where.append("status=?")
@@ -345,14 +464,11 @@ class RunStore:
                                 + " ORDER BY id", args)
         return [Trial(int(r[0]), int(r[1]), np.array(json.loads(r[2]), dtype=float),
                       None if r[3] is None else np.array(json.loads(r[3]), dtype=float),
-                      int(r[4]), r[5], r[6], float(r[7])) for r in rows]
+                      int(r[4]), r[5], r[6], float(r[7]), r[8], r[9]) for r in rows]
 
     def trials_by_id(self, trial_id: int) -> Trial:
         """The suggestion ``trial_id`` (StoreError if there is none)."""
-        found = self.trials(trial_id=int(trial_id))
-        if not found:
-            raise StoreError(f"no suggestion with id {trial_id} in {self.dir}")
-        return found[0]
+        return self._trial(trial_id)
 
     def tell_trial(self, trial_id: int, cost: float, *, fell: bool, fall_step: int | None = None,
                    wall_s: float | None = None, seed: int | None = None,
@@ -360,27 +476,69 @@ class RunStore:
         """Store the result of a pending suggestion as the next evaluation of its phase and mark
         it told, in one transaction (a crash leaves it pending, never half-told). Returns idx.
 
-        Raises StoreError for an unknown or already told id."""
-        with self._write():
-            r = self.con.execute("SELECT phase, theta, z, tag, status, idx FROM trials WHERE id=?",
-                                 (int(trial_id),)).fetchone()
-            if r is None:
-                raise StoreError(f"no suggestion with id {trial_id} in {self.dir}")
-            if r[4] != "pending":
-                raise StoreError(f"suggestion {trial_id} was already told (evaluation {r[5]} "
-                                 f"of phase {r[0]})")
-            phase = int(r[0])
+        Raises StoreError for an unknown id, or one that is told, or was never handed out."""
+        with self._write(trials=True):
+            t = self._trial(trial_id)
+            if t.status == "told":
+                raise StoreError(f"suggestion {trial_id} was already told (evaluation {t.idx} "
+                                 f"of phase {t.phase}; to correct it, amend it)")
+            if t.status != "pending":
+                raise StoreError(f"suggestion {trial_id} was never handed out ({t.status})")
             row = self.con.execute("SELECT MAX(idx) FROM evaluations WHERE phase=?",
-                                   (phase,)).fetchone()
+                                   (t.phase,)).fetchone()
             idx = 0 if row[0] is None else int(row[0]) + 1
             inf = dict(info or {})
             inf["trial"] = int(trial_id)
-            self._insert(phase, idx, json.loads(r[1]), cost,
-                         None if r[2] is None else json.loads(r[2]), int(r[3]), fell, fall_step,
-                         wall_s, seed, inf)
+            self._insert(t.phase, idx, t.theta, cost, t.z, t.tag, fell, fall_step, wall_s, seed,
+                         inf)
             self.con.execute("UPDATE trials SET status='told', idx=?, told=? WHERE id=?",
                              (idx, time.time(), int(trial_id)))
         return idx
+
+    def amend_trial(self, trial_id: int, cost: float, *, fell: bool,
+                    fall_step: int | None = None, info: dict[str, Any] | None = None,
+                    note: str | None = None) -> tuple[int, int]:
+        """Correct the told result of suggestion ``trial_id`` in one transaction: its
+        evaluation row gets the new cost, fell, fall_step and info; the old and new values go
+        to ``amendments`` (the audit trail); queued suggestions of its phase, asked from the
+        uncorrected rows, are dropped. Returns (phase, idx). StoreError unless it was told."""
+        with self._write(trials=True):
+            t = self._trial(trial_id)
+            if t.status != "told":
+                raise StoreError(f"suggestion {trial_id} is {t.status}: only a told result can "
+                                 "be amended (tell it first)")
+            r = self.con.execute("SELECT cost, fell, fall_step, info FROM evaluations "
+                                 "WHERE phase=? AND idx=?", (t.phase, t.idx)).fetchone()
+            old = {"cost": decode_cost(r[0]), "fell": bool(r[1]), "fall_step": r[2],
+                   "info": json.loads(r[3]) if r[3] else {}}
+            inf = dict(info or {})
+            inf["trial"] = int(trial_id)
+            if fell is None:
+                fell = fall_step is not None
+            new = {"cost": float(cost), "fell": bool(fell), "fall_step": fall_step, "info": inf}
+            self.con.execute("UPDATE evaluations SET cost=?, fell=?, fall_step=?, info=? "
+                             "WHERE phase=? AND idx=?",
+                             (encode_cost(cost), int(bool(fell)),
+                              None if fall_step is None else int(fall_step),
+                              json.dumps(inf, default=_json_default), t.phase, t.idx))
+            self.con.execute("INSERT INTO amendments(trial, phase, idx, old, new, note, created) "
+                             "VALUES (?, ?, ?, ?, ?, ?, ?)",
+                             (int(trial_id), t.phase, t.idx,
+                              json.dumps(old, default=_json_default),
+                              json.dumps(new, default=_json_default), note, time.time()))
+            self.con.execute("UPDATE trials SET status='dropped' WHERE status='queued' AND "
+                             "phase=?", (t.phase,))
+        return t.phase, int(t.idx)
+
+    def amendments(self) -> list[dict[str, Any]]:
+        """The audit trail of amended results, oldest first: ``{trial, phase, idx, old, new,
+        note, created}`` (old/new: cost, fell, fall_step, info)."""
+        if not self._has_leases:
+            return []
+        return [{"trial": r[0], "phase": r[1], "idx": r[2], "old": json.loads(r[3]),
+                 "new": json.loads(r[4]), "note": r[5], "created": r[6]}
+                for r in self.con.execute("SELECT trial, phase, idx, old, new, note, created "
+                                          "FROM amendments ORDER BY n")]
 
     def rows(self, phase: int) -> list[Row]:
         """The evaluations of ``phase`` in idx order (StoreError for a garbled row)."""
@@ -392,7 +550,7 @@ class RunStore:
             try:
                 out.append(Row(r[0], r[1], np.array(json.loads(r[2]), dtype=float),
                                None if r[3] is None else np.array(json.loads(r[3]), dtype=float),
-                               int(r[4]), float(r[5]), bool(r[6]), r[7], r[8], r[9], r[10],
+                               int(r[4]), decode_cost(r[5]), bool(r[6]), r[7], r[8], r[9], r[10],
                                json.loads(r[11]) if r[11] else {}))
             except (json.JSONDecodeError, TypeError, ValueError):
                 raise StoreError(f"run store {self.path}: evaluation {r[1]} of phase {r[0]} "
@@ -413,7 +571,8 @@ class RunStore:
         return X, y, t
 
     def costs(self, phase: int) -> np.ndarray:
-        return np.array([r[0] for r in self.con.execute(
+        """(n,) the decoded costs of ``phase`` in idx order."""
+        return np.array([decode_cost(r[0]) for r in self.con.execute(
             "SELECT cost FROM evaluations WHERE phase=? ORDER BY idx", (phase,))], dtype=float)
 
     def fell(self, phase: int) -> np.ndarray:

@@ -1,0 +1,188 @@
+"""One loop: the critic of a phase, built from the study's stored options and seed.
+
+A phase is an ask/tell loop on a critic: :func:`~latentune.pipeline.phases.run_phase` runs it
+with an evaluator (simulated trials), :mod:`latentune.pipeline.asktell` with a person (trials run
+elsewhere). Both build the critic here, with :func:`phase_critic`, from the phase's options
+record (:meth:`~latentune.pipeline.manifest.Manifest.phase_options`: method, batch size, seed,
+regions, budget, start, max_fall_prob and its prior, hand-over, latent source) and both replay
+the stored rows into it, so a seed gives the same rows whichever drives the loop.
+
+This module also finds the latent space phase 3 searches (the study's own or another study's,
+:func:`resolve_latent`) and records it (:func:`record_latent`).
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from latentune.constants import Phase
+from latentune.errors import LatentError, StoreError
+from latentune.pipeline.manifest import Manifest
+from latentune.pipeline.phases import make_handover_critic, make_phase_critic
+from latentune.pipeline.rundir import RunDir
+from latentune.pipeline.store import RunStore, Row
+from latentune.space import ParameterSpace
+
+
+def start_theta(pc: dict[str, Any], space: ParameterSpace) -> np.ndarray | None:
+    """The (d,) unit-box θ a phase starts from, per its stored ``start`` record."""
+    start = pc.get("start", "manual")
+    if start == "manual":
+        return space.manual
+    return None if start is None else np.asarray(start, dtype=float)
+
+
+def phase_critic(phase: int, pc: dict[str, Any], space: ParameterSpace, run_dir: Path,
+                 latent: Any = None) -> Any:
+    """The critic of ``phase`` for its options record ``pc``, fresh (replay the stored rows
+    into it with :func:`~latentune.pipeline.phases.replay`).
+
+    Phase 1: ``pc["method"]`` on the θ box of ``space`` from the ``start`` θ, fall-aware with
+    ``max_fall_prob`` (prior: the phase-1 trials of the run ``fall_prior``). Phase 3: on the
+    latent box of ``latent`` (a LatentSpace) from the code of the ``start`` θ, its fall prior
+    the encoded phase-1 trials of the latent space's source run (``run_dir`` when
+    ``latent_source`` is "self"); with ``handover``, a
+    :class:`~latentune.critic.handover.Handover` on the θ box. Every phase-3 strategy is one
+    branch here."""
+    mfp = pc.get("max_fall_prob")
+    theta0 = start_theta(pc, space)
+    if int(phase) == Phase.PHASE1:
+        prior = theta_prior(pc.get("fall_prior"), space.dim) if mfp is not None else None
+        return make_phase_critic(pc["method"], space.dim, pc["batch_size"], pc["seed"], theta0,
+                                 pc["budget"], pc["regions"], mfp, prior)
+    if latent is None:
+        raise LatentError("phase 3 needs a latent space")
+    source = pc.get("latent_source", "self")
+    run = run_dir if source in (None, "self") else Path(source)
+    x0 = None if theta0 is None else latent.to_unit(latent.encode(theta0))
+    lprior = latent_prior(run, latent) if mfp is not None else None
+    if pc.get("handover") is None:
+        return make_phase_critic(pc["method"], latent.d_low, pc["batch_size"], pc["seed"], x0,
+                                 pc["budget"], pc["regions"], mfp, lprior)
+    tprior = theta_prior(run, latent.d) if mfp is not None else None
+    return make_handover_critic(pc["method"], latent, pc["batch_size"], pc["seed"], x0,
+                                pc["budget"], pc["regions"], pc["handover"], mfp, lprior, tprior)
+
+
+def decoder_of(pc: dict[str, Any], latent: Any) -> Any:
+    """The map from the critic's box to θ for :func:`run_phase`: None in phase 1 and for a
+    two-space critic (a hand-over decodes on its own), else the latent space's decoder."""
+    if latent is None or pc.get("handover") is not None:
+        return None
+    return latent.decode
+
+
+# ---------------------------------------------------------------------------- priors
+def _prior_rows(run: Path) -> list[Row]:
+    if not (Path(run) / "run.db").is_file():
+        raise StoreError(f"fall prior: no run store in {run}")
+    with RunStore(run) as o:
+        return o.rows(Phase.PHASE1)
+
+
+def theta_prior(run: Any, dim: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """(θ (m, d), fell (m,)) of another run's phase 1, the prior of a direct fall-aware search."""
+    if run is None:
+        return None
+    rows = _prior_rows(Path(run))
+    if not rows:
+        return None
+    X = np.array([r.theta for r in rows])
+    if X.shape[1] != dim:
+        raise StoreError(f"fall prior {run}: its θ have {X.shape[1]} entries, not {dim}")
+    return X, np.array([r.fell for r in rows], dtype=bool)
+
+
+def latent_prior(run: Path, ls: Any) -> tuple[np.ndarray, np.ndarray] | None:
+    """The source run's phase-1 θ encoded into the latent unit box (codes outside the box are
+    dropped: clipping would pile them on its faces) with their fell flags."""
+    rows = _prior_rows(run)
+    if not rows:
+        return None
+    Z = np.atleast_2d(ls.encode(np.array([r.theta for r in rows])))
+    inside = np.all((Z >= ls.box[:, 0]) & (Z <= ls.box[:, 1]), axis=1)
+    fell = np.array([r.fell for r in rows], dtype=bool)[inside]
+    return ls.to_unit(Z[inside]), fell
+
+
+# ---------------------------------------------------------------------------- latent space
+def study_latent(run: RunDir) -> Any:
+    """The latent space phase 3 uses in ``run`` (own or copied), or None."""
+    from latentune.latent.vae import LatentSpace
+
+    if not run.exists:
+        return None
+    src = run.store.artifact("phase3_vae") or run.store.artifact("vae")
+    return None if src is None else LatentSpace.load(src)
+
+
+def resolve_latent(run: RunDir, manifest: Manifest, latent: Any, space: ParameterSpace,
+                   actor: str | None = None) -> tuple[Any, str]:
+    """(LatentSpace, source) for phase 3 on ``space``: source is "self" or the source study's
+    resolved path. ``latent``: None (the study's own, or the one copied before), a
+    LatentSpace, or another study (a directory, or an object with ``dir``). LatentError if the
+    latent space's θ are not this space's (dimension, names, actor)."""
+    from latentune.latent.vae import LatentSpace
+
+    me = run.dir.resolve()
+    if latent is None:
+        prev = manifest.config().get("phase3_vae_source")
+        if prev not in (None, "self") and run.store.artifact("phase3_vae") is not None:
+            ls, source = LatentSpace.load(run.store.artifact("phase3_vae")), prev
+        elif run.exists and run.store.artifact("vae") is not None:
+            ls, source = LatentSpace.load(run.store.artifact("vae")), "self"
+        else:
+            raise LatentError(f"no latent space in {run.dir}: train one first "
+                              "(train_latent / train-vae) or pass another study's")
+    elif isinstance(latent, LatentSpace):
+        src = latent.meta.get("source_run")
+        ls = latent
+        source = "self" if src is None or Path(src) == me else str(src)
+    else:
+        other = Path(latent.dir) if hasattr(latent, "dir") else Path(os.fspath(latent))
+        if not other.is_dir():
+            raise LatentError(f"latent: run directory {other} does not exist")
+        src = None
+        if (other / "run.db").is_file():
+            with RunStore(other) as o:
+                src = o.artifact("vae")
+        ls = LatentSpace.load(src if src is not None else other / "vae")
+        source = "self" if other.resolve() == me else str(other.resolve())
+    if ls.d != space.dim:
+        raise LatentError(f"the latent space ({source}) maps to {ls.d}-dim θ, but the "
+                          f"system has {space.dim}-dim θ")
+    names = ls.meta.get("space_names")
+    if names is not None and list(names) != list(space.names):
+        raise LatentError(f"the latent space ({source}) was trained on θ with other names "
+                          "than the system's: normalized θ would not mean the same thing")
+    trained = ls.meta.get("actor")
+    if trained is not None and actor is not None and trained != actor:
+        raise LatentError(f"the latent space ({source}) was trained on θ of the {trained} "
+                          f"actor, not {actor}: normalized θ of different actors do not mean "
+                          "the same thing")
+    return ls, source
+
+
+def record_latent(run: RunDir, manifest: Manifest, ls: Any, source: str) -> None:
+    """Record the latent space of phase 3 (copied into the run when it is another study's);
+    StoreError if phase 3 already ran on another one."""
+    st = run.store
+    prev = manifest.config().get("phase3_vae_source")
+    used = manifest.n_used(Phase.PHASE3)
+    if prev is not None and prev != source and used > 0:
+        raise StoreError(f"{run.dir}: phase 3 was run with the latent space of {prev}, "
+                         f"not {source}")
+    if prev is None or used == 0:
+        if source != "self":
+            dst = run.dir / "phase3_vae"
+            ls.save(dst)
+            st.add_artifact("phase3_vae", dst)
+        manifest.update(phase3_vae_source=source,
+                        latent={"kind": ls.kind, "d": ls.d, "d_low": ls.d_low,
+                                "box": ls.box.tolist(), "box_rule": ls.meta.get("box_rule"),
+                                "n_train": ls.meta.get("n_train"),
+                                "from": {k: ls.meta.get(k) for k in
+                                         ("robot", "gait", "actor", "terrain")}})

@@ -1,0 +1,266 @@
+"""The run manifest: what a study ran, on which system, with which options and seed.
+
+Stored in the run store's ``config`` meta entry (JSON)::
+
+    seed          the study's seed (every critic, VAE and trial of it)
+    system        which system the phases ran (:func:`describe`), and its ``space``
+    phase1, phase3  a phase's options (:meth:`Manifest.phase_options`): method, batch_size, seed,
+                  regions, budget, start, max_fall_prob (+ fall_prior), and in phase 3
+                  latent_source and handover
+    asktell       the phase ask/tell drives (``phase``) with the same options
+    vae, latent, phase3_vae_source, phase3_handover   phase 2's and phase 3's latent space
+
+A study reopened reads its seed and options from here; a conflicting one is refused with one
+line naming the stored value (:class:`~latentune.errors.StoreError`). The manifest records a
+user system's ``--system`` string and arguments, or its class, but never imports or calls them.
+"""
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import numpy as np
+
+from latentune.constants import Phase
+from latentune.errors import StoreError, UsageError
+from latentune.pipeline.rundir import RunDir
+from latentune.space import ParameterSpace
+from latentune.system import check_system
+
+METHODS = ("turbo", "cma", "random", "sobol")
+ASK_BUDGET = 200
+"""The budget ask/tell assumes for its critic's options (TuRBO-m's region count) by default."""
+PHASE_KEYS = {Phase.PHASE1: "phase1", Phase.PHASE3: "phase3"}
+COMPARED = ("method", "batch_size", "seed", "regions", "start", "max_fall_prob", "fall_prior",
+            "latent_source", "handover")
+"""The options of a phase that must match on resume (budget may grow)."""
+
+
+def describe(system: Any) -> dict[str, Any]:
+    """The JSON-able record of which system a phase ran (compared on resume).
+
+    A built-in Task: ``{"kind": "task", "task": task.config()}``; a ``--system`` plugin (from
+    :func:`latentune.system.load_system`): ``{"kind": "plugin", "target", "args"}``; any other
+    object: its class, its ``config()`` if it has one, and its space.
+    """
+    from latentune.task import Task
+
+    if isinstance(system, Task):
+        return {"kind": "task", "task": system.config()}
+    plugin = getattr(system, "latentune_plugin", None)
+    if isinstance(plugin, dict):
+        return {"kind": "plugin", **plugin, "space": system.space.to_dict()}
+    d: dict[str, Any] = {"kind": "python",
+                         "class": f"{type(system).__module__}.{type(system).__qualname__}",
+                         "space": system.space.to_dict()}
+    cfg = getattr(system, "config", None)
+    if callable(cfg):
+        d["config"] = json.loads(json.dumps(cfg(), default=str))
+    return d
+
+
+class Manifest:
+    """The ``config`` record of a run directory (see the module docstring)."""
+
+    def __init__(self, run: RunDir) -> None:
+        self.run = run
+
+    def config(self) -> dict[str, Any]:
+        """The stored configuration (empty for a new study)."""
+        return (self.run.store.get_meta("config") or {}) if self.run.exists else {}
+
+    def update(self, **kw: Any) -> dict[str, Any]:
+        """Merge ``kw`` into the stored configuration (creates the store)."""
+        st = self.run.open()
+        cfg = st.get_meta("config") or {}
+        cfg.update(kw)
+        st.set_meta("config", cfg)
+        return cfg
+
+    def add_wall(self, key: str, seconds: float) -> None:
+        """Add ``seconds`` of wall time to the ``wall`` meta entry ``key``."""
+        st = self.run.store
+        w = st.get_meta("wall", {}) or {}
+        w[key] = float(w.get(key, 0.0)) + float(seconds)
+        st.set_meta("wall", w)
+
+    # ------------------------------------------------------------------ seed
+    def stored_seed(self) -> int | None:
+        """The study's recorded seed (``seed``, else the seed its phases ran with), or None."""
+        cfg = self.config()
+        if cfg.get("seed") is not None:
+            return int(cfg["seed"])
+        for key in ("phase1", "phase3", "asktell", "vae"):
+            s = (cfg.get(key) or {}).get("seed")
+            if s is not None:
+                return int(s)
+        return None
+
+    def record_seed(self, seed: int) -> None:
+        """Record the study's seed (once)."""
+        if self.config().get("seed") is None:
+            self.update(seed=int(seed))
+
+    # ------------------------------------------------------------------ system
+    def bind(self, system: Any) -> dict[str, Any]:
+        """Record ``system`` as the study's system, or check it is the one recorded."""
+        desc = self.bind_check(system)
+        if self.config().get("system") is None:
+            kw: dict[str, Any] = {"system": desc, "space": system.space.to_dict()}
+            if desc["kind"] == "task":
+                kw["task"] = desc["task"]
+            self.update(**kw)
+        return desc
+
+    def bind_check(self, system: Any) -> dict[str, Any]:
+        """Return ``system``'s description; StoreError (naming the differences) unless it is
+        the system this study recorded, or no system is recorded yet."""
+        desc = describe(check_system(system))
+        cfg = self.config()
+        stored = cfg.get("system")
+        if stored is None and "task" in cfg:        # a run written before systems were recorded
+            stored = {"kind": "task", "task": cfg["task"]}
+        if stored is not None and stored != desc:
+            if stored.get("kind") == "plugin" and desc.get("kind") != "plugin":
+                raise StoreError(f"{self.run.dir} holds a run of the user system "
+                                 f"{stored.get('target')}: pass --system {stored.get('target')}"
+                                 " (and its --system-arg values) again")
+            raise StoreError(f"{self.run.dir} holds a run of another system "
+                             f"({diff(stored, desc)})")
+        return desc
+
+    def space(self) -> ParameterSpace | None:
+        """The study's parameter space (stored with its first phase or ask), or None."""
+        sp = self.config().get("space")
+        return None if sp is None else ParameterSpace.from_dict(sp)
+
+    def bind_space(self, space: ParameterSpace) -> None:
+        """Record the parameter space of trials run elsewhere, or check it is the stored one."""
+        stored = self.space()
+        if stored is not None and stored != space:
+            raise StoreError(f"{self.run.dir} holds a study of another parameter space")
+        if stored is None:
+            self.update(space=space.to_dict(), system={"kind": "external",
+                                                       "space": space.to_dict()})
+
+    # ------------------------------------------------------------------ phase options
+    def n_used(self, phase: int) -> int:
+        """Trials of ``phase`` stored or handed out (options are fixed once there is one)."""
+        if not self.run.exists:
+            return 0
+        st = self.run.store
+        return st.count(phase) + sum(1 for t in st.trials() if t.phase == int(phase)
+                                     and t.status in ("queued", "pending"))
+
+    def phase_options(self, phase: int, *, method: str, budget: int, regions: int | None,
+                      seed: int, batch_size: int, extra: dict[str, Any] | None = None
+                      ) -> dict[str, Any]:
+        """The options record of ``phase`` (checked): the one configuration check of phase runs
+        and ask/tell. Stored options must match once the phase has a trial (StoreError naming
+        the stored value); the budget may grow; TuRBO-m's region count defaults by budget and
+        then stays as stored."""
+        from latentune.critic.turbo import regions_for_budget
+
+        key = PHASE_KEYS[Phase(int(phase))]
+        if method not in METHODS:
+            raise UsageError(f"unknown method {method!r} (choose from {', '.join(METHODS)})")
+        if isinstance(budget, bool) or not isinstance(budget, (int, np.integer)) or budget < 1:
+            raise UsageError(f"budget must be an integer >= 1, got {budget!r}")
+        if regions is not None and not 1 <= int(regions) <= 100:
+            raise UsageError(f"regions must be in [1, 100], got {regions}")
+        stored = self.config().get(key)
+        n = self.n_used(phase)
+        if regions is None and stored and n:
+            regions = stored.get("regions")
+        if regions is None and method == "turbo":
+            regions = regions_for_budget(int(budget))
+        pc = {"method": method, "batch_size": int(batch_size), "seed": int(seed),
+              "regions": regions if method == "turbo" else None, "budget": int(budget),
+              **(extra or {})}
+        if stored and n:
+            for k in ("method", "batch_size", "seed", "regions", *(extra or {})):
+                if k in stored and stored.get(k) != pc.get(k):
+                    raise StoreError(f"{self.run.dir}: {key} was run with {k.replace('_', '-')}"
+                                     f" = {stored.get(k)!r}, not {pc.get(k)!r}")
+        return pc
+
+
+def ask_options(stored: dict[str, Any] | None, given: dict[str, Any], dir_: Any,
+                phase: int) -> dict[str, Any]:
+    """The options of a later ask: each ``None`` in ``given`` is the stored value; an explicit
+    one that differs from the stored is refused in one line naming the stored value (a budget
+    may grow). ``stored``: the phase's options record (None on the first ask)."""
+    if not stored:
+        return dict(given)
+    defaults = {"start": "manual", "max_fall_prob": None, "handover": None, "regions": None}
+    out = {}
+    for k, v in given.items():
+        old = stored.get(k, defaults.get(k))
+        if v is None:
+            out[k] = old
+        elif k == "budget" and old is not None and v >= old:
+            out[k] = v
+        elif old != v and not (k == "fall_prior" and stored.get("max_fall_prob") is None):
+            raise StoreError(f"{dir_}: phase {int(phase)} runs with {k.replace('_', '-')} = "
+                             f"{old!r} (stored), not {v!r}")
+        else:
+            out[k] = v
+    return out
+
+
+def diff(a: dict[str, Any], b: dict[str, Any], prefix: str = "") -> str:
+    """The differing keys of two descriptions, as ``key: stored X, given Y`` (at most 4)."""
+    out = []
+    for k in sorted(set(a) | set(b)):
+        va, vb = a.get(k), b.get(k)
+        if va == vb:
+            continue
+        if isinstance(va, dict) and isinstance(vb, dict):
+            out.append(diff(va, vb, f"{prefix}{k}."))
+        else:
+            out.append(f"{prefix}{k}: stored {_short(va)}, given {_short(vb)}")
+    return "; ".join(x for x in out[:4] if x)
+
+
+def _short(v: Any) -> str:
+    s = repr(v)
+    return s if len(s) <= 50 else s[:47] + "..."
+
+
+def start_point(start: Any, manual: np.ndarray, dim: int) -> tuple[np.ndarray | None, Any]:
+    """(θ0 (d,) or None, the JSON record of ``start``) for a phase's ``start`` argument:
+    ``"manual"`` (the system's manual θ), None (the critic's own design) or a unit-box θ."""
+    if isinstance(start, str):
+        if start != "manual":
+            raise UsageError(f"start must be 'manual', None or a θ, got {start!r}")
+        return manual, "manual"
+    if start is None:
+        return None, None
+    from latentune.critic.base import as_unit_points
+
+    try:
+        x = as_unit_points(start, dim, "start")[0]
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    return x, [float(v) for v in x]
+
+
+def fall_options(max_fall_prob: float | None, prior: Any) -> dict[str, Any]:
+    """The options record of the fall-aware option (checked)."""
+    if max_fall_prob is None:
+        return {"max_fall_prob": None}
+    if isinstance(max_fall_prob, bool) or not isinstance(max_fall_prob, (int, float)) or \
+            not 0.0 < float(max_fall_prob) <= 1.0:
+        raise UsageError(f"max_fall_prob must be in (0, 1], got {max_fall_prob!r}")
+    return {"max_fall_prob": float(max_fall_prob),
+            "fall_prior": None if prior is None else str(prior)}
+
+
+def handover(option: Any) -> dict[str, Any] | None:
+    """The checked hand-over options record (see :func:`~latentune.pipeline.phases.handover_options`)."""
+    from latentune.pipeline.phases import handover_options
+
+    try:
+        return handover_options(option)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None

@@ -1,0 +1,208 @@
+"""What a study's trials say: the best trial, a status for the person at the robot, trials as
+data, and the θ to deploy.
+
+Phases are named as a person reads them (:data:`PHASE_NAMES`): "manual", "phase 1", "phase 3",
+"zero-shot" (the source study's best θ as it is, run before phase 3 on another study's latent
+space) and "preservation". A trial's θ is given by name in physical units (the study's
+:class:`~latentune.space.ParameterSpace`). The best trial is the lowest cost among the trials of
+the manual θ, phases 1 and 3 and zero-shot that did not fail; a failed θ is never "best".
+"""
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from latentune.constants import Phase
+from latentune.errors import StoreError
+from latentune.pipeline.store import Row, RunStore
+from latentune.space import ParameterSpace
+
+PHASE_NAMES = {Phase.MANUAL: "manual", Phase.PHASE1: "phase 1", Phase.PHASE3: "phase 3",
+               Phase.ZERO_SHOT: "zero-shot", Phase.PRESERVATION: "preservation"}
+"""The name of each phase of the store, as status and trials give it."""
+TUNING = (Phase.MANUAL, Phase.PHASE1, Phase.PHASE3, Phase.ZERO_SHOT)
+"""The phases whose trials may give the θ to deploy."""
+BEST_FILE = "best.json"
+"""The θ to deploy (physical values by name): ``DIR/best.json``."""
+
+
+def phase_name(phase: int) -> str:
+    """"phase 1", "zero-shot", ...: the name of a stored phase number."""
+    return PHASE_NAMES.get(Phase(int(phase)), f"phase {int(phase)}")
+
+
+@dataclass
+class TrialRecord:
+    """One stored trial as data.
+
+    Attributes:
+        phase: its phase by name ("phase 1", "zero-shot", ...); ``idx``: its row in the phase.
+        params: θ by name in physical units; ``theta``: (d,) the normalized θ.
+        cost, failed, info: what the trial gave; ``trial``: its suggestion id (ask/tell), or
+        None for a trial a phase ran itself; ``z``: its latent code (phase 3), or None.
+    """
+
+    phase: str
+    idx: int
+    params: dict[str, float]
+    cost: float
+    failed: bool
+    info: dict[str, Any] = field(default_factory=dict)
+    trial: int | None = None
+    theta: np.ndarray | None = None
+    z: np.ndarray | None = None
+    created: float | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-able dict (θ and z as lists)."""
+        return {"phase": self.phase, "idx": self.idx, "trial": self.trial, "cost": self.cost,
+                "failed": self.failed, "params": self.params, "info": self.info,
+                "theta": None if self.theta is None else self.theta.tolist(),
+                "z": None if self.z is None else self.z.tolist(), "created": self.created}
+
+
+def _trial_id(r: Row) -> int | None:
+    t = r.info.get("trial")
+    return int(t) if isinstance(t, (int, np.integer)) else None
+
+
+def best_row(store: RunStore, phases: tuple[int, ...] = TUNING) -> Row | None:
+    """The stored trial of ``phases`` with the lowest cost among those that did not fail (ties:
+    earlier phase, then idx); None if every one failed or there is none."""
+    rows = [r for ph in phases for r in store.rows(ph) if not r.fell]
+    return min(rows, key=lambda r: (r.cost, r.phase, r.idx)) if rows else None
+
+
+def trials(store: RunStore, space: ParameterSpace | None,
+           phases: tuple[int, ...] | None = None) -> list[TrialRecord]:
+    """Every stored trial of ``phases`` (default all), in phase then idx order."""
+    if phases is None:
+        phases = tuple(int(p) for (p,) in store.con.execute(
+            "SELECT DISTINCT phase FROM evaluations ORDER BY phase"))
+    out = []
+    for ph in phases:
+        for r in store.rows(ph):
+            params = space.as_dict(r.theta) if space is not None else \
+                {f"theta[{i}]": float(v) for i, v in enumerate(r.theta)}
+            out.append(TrialRecord(phase_name(ph), r.idx, params, r.cost, r.fell, dict(r.info),
+                                   _trial_id(r), r.theta, r.z, r.created))
+    return out
+
+
+def trials_dataframe(records: list[TrialRecord]) -> Any:
+    """The trials as a pandas DataFrame: columns phase, idx, trial, cost, failed, one
+    ``params_<name>`` column per θ entry (physical units), info (a dict per row).
+    ImportError naming the install if pandas is absent."""
+    try:
+        import pandas as pd
+    except ImportError:
+        raise ImportError("trials_dataframe needs pandas: pip install pandas (or use "
+                          "Study.trials(), a list of records)") from None
+    rows = []
+    for t in records:
+        d = {"phase": t.phase, "idx": t.idx, "trial": t.trial, "cost": t.cost,
+             "failed": t.failed}
+        d.update({f"params_{k}": v for k, v in t.params.items()})
+        d["info"] = t.info
+        rows.append(d)
+    return pd.DataFrame(rows, columns=None if rows else
+                        ["phase", "idx", "trial", "cost", "failed", "info"])
+
+
+def status(store: RunStore, run_dir: Path) -> dict[str, Any]:
+    """The status of a study for the person at the robot (JSON-able).
+
+    ``phases``: by name, each ``{n, failed, pending, best, best_idx, best_trial}`` (told
+    trials, how many failed, suggestions handed out and not told, the best cost that did not
+    fail, its row and suggestion id); ``pending``: the ids handed out and not told, with
+    ``leases`` (id → asker, seconds left); ``queued``: asked from the critic, not handed out;
+    ``told``: suggestions told; ``amended``: corrections; ``best``: the best trial over all
+    phases (zero-shot included) with ``phase``, ``idx``, ``trial``, ``cost`` and
+    ``params_file`` (``DIR/best.json`` when written) -- or None."""
+    out: dict[str, Any] = {"dir": str(run_dir), "phases": {}}
+    all_trials = store.trials()
+    now = time.time()
+    pending = [t for t in all_trials if t.status == "pending"]
+    for ph in Phase:
+        rows = store.rows(ph)
+        n_pending = sum(1 for t in pending if t.phase == ph)
+        if not rows and not n_pending:
+            continue
+        ok = [r for r in rows if not r.fell]
+        b = min(ok, key=lambda r: (r.cost, r.idx)) if ok else None
+        out["phases"][phase_name(ph)] = {
+            "n": len(rows), "failed": sum(r.fell for r in rows), "pending": n_pending,
+            "best": None if b is None else b.cost, "best_idx": None if b is None else b.idx,
+            "best_trial": None if b is None else _trial_id(b)}
+    out["pending"] = [t.id for t in pending]
+    out["leases"] = {str(t.id): {"asker": t.asker, "phase": phase_name(t.phase),
+                                 "seconds_left": None if t.lease_until is None
+                                 else max(0.0, round(t.lease_until - now, 1))}
+                     for t in pending}
+    out["queued"] = sum(1 for t in all_trials if t.status == "queued")
+    out["told"] = sum(1 for t in all_trials if t.status == "told")
+    out["amended"] = len(store.amendments())
+    b = best_row(store)
+    f = run_dir / BEST_FILE
+    out["best"] = None if b is None else {
+        "phase": phase_name(b.phase), "idx": b.idx, "trial": _trial_id(b), "cost": b.cost,
+        "params_file": str(f) if f.is_file() else None}
+    return out
+
+
+def write_best(store: RunStore, run_dir: Path, space: ParameterSpace | None,
+               phase: int | None = None) -> Path | None:
+    """Write the θ to deploy as ``--params`` files (physical values by name): the best trial of
+    ``phase`` that did not fail as ``DIR/phase<p>_best.json`` (when ``phase`` is given), and
+    the best over all phases as ``DIR/best.json``. A phase whose trials all failed gets no
+    file (a stale one is removed). Returns the path of ``best.json``, or None."""
+    if space is None:
+        return None
+    if phase is not None:
+        path = run_dir / f"phase{int(phase)}_best.json"
+        b = best_row(store, (int(phase),))
+        if b is None:
+            if path.is_file():
+                path.unlink()
+        else:
+            _write_json(path, space.as_dict(b.theta))
+            store.add_artifact(f"phase{int(phase)}_best", path)
+    b = best_row(store)
+    if b is None:
+        return None
+    path = run_dir / BEST_FILE
+    _write_json(path, space.as_dict(b.theta))
+    store.add_artifact("best", path)
+    return path
+
+
+def best_params(store: RunStore, run_dir: Path, space: ParameterSpace | None,
+                out: str | os.PathLike | None = None) -> tuple[Path, Row]:
+    """Write the θ to deploy (the best trial over all phases that did not fail, physical
+    values by name) to ``out`` (default ``DIR/best.json``); return (path, its row).
+    StoreError if no trial succeeded or the study has no parameter space."""
+    if space is None:
+        raise StoreError(f"{run_dir}: no parameter space stored (no trial yet)")
+    b = best_row(store)
+    if b is None:
+        n = sum(store.count(ph) for ph in TUNING)
+        raise StoreError(f"{run_dir}: no θ to deploy: " + (
+            f"all {n} trials failed" if n else "no trial is stored yet"))
+    path = Path(out) if out is not None else run_dir / BEST_FILE
+    _write_json(path, space.as_dict(b.theta))
+    return path, b
+
+
+def _write_json(path: Path, value: Any) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        tmp.write_text(json.dumps(value, indent=1))
+        os.replace(tmp, path)
+    except OSError as exc:
+        raise StoreError(f"cannot write {path}: {exc.strerror or exc}") from None

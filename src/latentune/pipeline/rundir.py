@@ -1,0 +1,136 @@
+"""A run directory: its store (``DIR/run.db``), its write lock and the evaluator of its trials.
+
+One process writes a run at a time: :meth:`RunDir.writing` holds an ``flock`` on
+``DIR/run.lock`` (released when its process dies, so a kill never leaves a stale lock). A phase
+run refuses a second writer at once (:class:`~latentune.errors.LockError` naming the holder);
+a short writer (an ask or a tell) may wait a bounded time for the lock instead (``wait`` s).
+"""
+from __future__ import annotations
+
+import os
+import time
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator
+
+from latentune.errors import LockError, StoreError
+from latentune.pipeline.evaluators import Evaluator, make_evaluator
+from latentune.pipeline.store import RunStore
+from latentune.system import EvaluationError
+
+
+class RunDir:
+    """The store, lock and evaluator of one run directory.
+
+    Args:
+        path: the run directory (created when something is first written to it).
+        workers, backend, ray_address: the evaluator to start on first use
+            (:func:`~latentune.pipeline.evaluators.make_evaluator`).
+        evaluator: an Evaluator to use instead (shared; the caller closes it).
+    """
+
+    def __init__(self, path: str | os.PathLike, *, workers: int = 1, backend: str = "serial",
+                 ray_address: str | None = None, evaluator: Evaluator | None = None) -> None:
+        self.dir = Path(path)
+        if self.dir.exists() and not self.dir.is_dir():
+            raise StoreError(f"{self.dir} exists and is not a directory")
+        self.workers = int(workers)
+        self.backend = backend
+        self.ray_address = ray_address
+        self._store: RunStore | None = None
+        self._lock_fd: int | None = None
+        self._lock_depth = 0
+        self._evaluator = evaluator
+        self._owns_evaluator = evaluator is None
+
+    @property
+    def exists(self) -> bool:
+        """Whether the directory holds a run store."""
+        return (self.dir / "run.db").is_file()
+
+    @property
+    def store(self) -> RunStore:
+        """The run store (opened read-write; StoreError if there is none yet)."""
+        if self._store is None:
+            self._store = RunStore(self.dir)
+        return self._store
+
+    def open(self) -> RunStore:
+        """The run store, created if needed."""
+        if self._store is None:
+            self._store = RunStore(self.dir, create=True)
+        return self._store
+
+    @contextmanager
+    def writing(self, wait: float = 0.0) -> Iterator[RunStore]:
+        """Hold the write lock (re-entrant) and yield the store (created if needed); the
+        outermost holder checks the store first. ``wait``: seconds to wait for another
+        writer's lock before :class:`LockError` (0: refuse at once)."""
+        if self._lock_depth == 0:
+            self._acquire(wait)
+        self._lock_depth += 1
+        try:
+            st = self.open()
+            if self._lock_depth == 1:
+                st.check()             # a damaged store is refused before anything is added
+            yield st
+        finally:
+            self._lock_depth -= 1
+            if self._lock_depth == 0:
+                self._release()
+
+    def _acquire(self, wait: float) -> None:
+        import fcntl
+
+        try:
+            self.dir.mkdir(parents=True, exist_ok=True)
+            fd = os.open(self.dir / "run.lock", os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise StoreError(f"cannot write to {self.dir}: {exc.strerror or exc}") from None
+        deadline = time.monotonic() + max(0.0, float(wait))
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except OSError:
+                if time.monotonic() < deadline:
+                    time.sleep(0.05)
+                    continue
+                try:
+                    holder = os.pread(fd, 200, 0).decode(errors="replace").strip() \
+                        or "another process"
+                finally:
+                    os.close(fd)
+                waited = f" (waited {wait:g} s)" if wait > 0 else ""
+                raise LockError(f"{self.dir} is being written by {holder}{waited}; wait for it "
+                                "or use another directory") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"pid {os.getpid()} since {time.strftime('%Y-%m-%d %H:%M:%S')}".encode(), 0)
+        self._lock_fd = fd
+
+    def _release(self) -> None:
+        if self._lock_fd is not None:
+            try:
+                os.ftruncate(self._lock_fd, 0)
+            except OSError:
+                pass
+            os.close(self._lock_fd)       # closing releases the flock
+            self._lock_fd = None
+
+    def evaluator(self) -> Evaluator:
+        """The evaluator (started on first use; stopped by :meth:`close`)."""
+        if self._evaluator is None:
+            try:
+                self._evaluator = make_evaluator(self.backend, self.workers, self.ray_address)
+            except (RuntimeError, ValueError, OSError) as exc:
+                raise EvaluationError(f"cannot start the {self.backend} evaluator: {exc}") from None
+        return self._evaluator
+
+    def close(self) -> None:
+        """Stop the evaluator (if this run directory started it) and close the store."""
+        if self._evaluator is not None and self._owns_evaluator:
+            self._evaluator.close()
+            self._evaluator = None
+        if self._store is not None:
+            self._store.close()
+            self._store = None
