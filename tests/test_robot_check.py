@@ -6,13 +6,14 @@ import json
 import re
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
 
-from latentune.errors import RobotSpecError
+from latentune.errors import RobotSpecError, RobotSpecWarning
 from latentune.robots import erd_robots_dir, get_robot, load_spec_file, prepared_urdf, spec_from_dict
 from latentune.robots.check import CheckReport, check_spec
 from latentune.robots.template import init_spec
@@ -124,14 +125,16 @@ def test_nominal_height_and_torque_limits_from_the_urdf(tmp_path, capsys):
 
 def test_nominal_height_far_from_forward_kinematics_warns_once(tmp_path, capsys):
     p = spec_file(tmp_path, "base: a1\nname: tall_a1\nnominal_height: 0.40\n")
-    spec = load_spec_file(p)
-    load_spec_file(p)
-    err = capsys.readouterr().err.splitlines()
-    assert spec.nominal_height == 0.40 and len(err) == 1
-    assert err[0] == (f"latentune: warning: robot spec {p}: nominal_height 0.400 m is +34% off the height "
-                      "0.299 m that nominal_q gives with the feet on the ground (forward kinematics); "
-                      "omit nominal_height to use that")
-    load_spec_file(spec_file(tmp_path, "base: a1\nname: a1b\nnominal_height: 0.31\n", "b.yaml"))  # 4 %: quiet
+    with pytest.warns(RobotSpecWarning) as rec:
+        spec = load_spec_file(p)
+        load_spec_file(p)
+    assert spec.nominal_height == 0.40 and len(rec) == 1
+    assert str(rec[0].message) == (
+        f"robot spec {p}: nominal_height 0.400 m is +34% off the height 0.299 m that nominal_q "
+        "gives with the feet on the ground (forward kinematics); omit nominal_height to use that")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RobotSpecWarning)                        # 4 %: quiet
+        load_spec_file(spec_file(tmp_path, "base: a1\nname: a1b\nnominal_height: 0.31\n", "b.yaml"))
     assert capsys.readouterr().err == ""
 
 

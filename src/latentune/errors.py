@@ -42,3 +42,8 @@ class SystemSpecError(LatentuneError, ValueError):
 
 class LockError(LatentuneError):
     """Another process is writing the same run directory."""
+
+
+class RobotSpecWarning(UserWarning):
+    """A robot spec that loads but holds a value the user should check (e.g. a nominal height
+    far from what the joint angles give)."""

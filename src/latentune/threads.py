@@ -1,9 +1,9 @@
 """One BLAS/OpenMP thread for rollouts and workers.
 
-Rollouts are many small matrix operations; with default BLAS threading they are several times
-slower (``benchmarks/actor.py --threads`` measures it). The command line, the tests and every
-evaluator worker call :func:`one_thread_env` before numpy is imported; a library user who runs
-rollouts in their own process can call it too, or use :func:`one_thread` as a context.
+Rollouts are many small matrix operations, which gain nothing from several BLAS threads and
+lose much when the threads compete for the cores with other workers. The command line, the tests
+and every evaluator worker call :func:`one_thread_env` before numpy is imported; a library user
+who runs rollouts in their own process can call it too, or use :func:`one_thread` as a context.
 """
 from __future__ import annotations
 

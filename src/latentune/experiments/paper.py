@@ -39,8 +39,8 @@ studies share one evaluator (process pool of ``--workers``).
 from __future__ import annotations
 
 import json
+import logging
 import math
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -48,6 +48,8 @@ from typing import Any
 
 from latentune.constants import GAITS, Phase
 from latentune.errors import CLIError, UsageError
+
+logger = logging.getLogger(__name__)
 
 PAPER_PHASE1 = 10000
 PAPER_PHASE3 = 220
@@ -271,7 +273,7 @@ def run_paper(opts: PaperOptions, report_only: bool = False, simulate: bool = Tr
 
     def log(msg: str) -> None:
         if not opts.quiet:
-            print(msg, file=sys.stderr, flush=True)
+            logger.info("%s", msg)
 
     studies = plan(opts.robot, b)
     if not report_only:

@@ -15,6 +15,7 @@ stores) → :func:`check_claims` → :func:`make_figures` → :func:`markdown` (
 from __future__ import annotations
 
 import json
+import logging
 import time
 from pathlib import Path
 from typing import Any, Callable
@@ -25,6 +26,8 @@ from latentune.constants import C1, Phase
 from latentune.reporting.metrics import (PAPER_ROBOT, evals_to_beat, paper_results, paper_row,
                                          phase_stats)
 from latentune.reporting.run_report import fmt, task_from_config
+
+logger = logging.getLogger(__name__)
 
 TABLE_NO = {"a1": "II", "solo12": "III"}
 METHOD_NAME = {"turbo": "TuRBO-m on θ (full space)", "cma": "CMA-ES on θ",
@@ -295,7 +298,7 @@ def make_figures(nums: dict[str, Any], simulate: bool = True, gifs: bool = True,
                          "copula of the path cost (phase 1, A1 trot)"
                          if robot == "a1" else "the GP's copula transform of the path cost"))
         except Exception as exc:  # noqa: BLE001 - a figure must not sink the report
-            log(f"cost-transform figure skipped: {exc}")
+            logger.warning("cost-transform figure skipped: %s", exc)
     resim: dict[str, Any] = {}
     gif_files: list[tuple[str, str]] = []
     if simulate:
@@ -330,8 +333,8 @@ def make_figures(nums: dict[str, Any], simulate: bool = True, gifs: bool = True,
                                                gif_fps=6)
                     gif_files.append((fn, cap))
                     log(f"report: GIF {fn}")
-                except Exception as exc:  # noqa: BLE001
-                    log(f"GIF {fn} skipped: {exc}")
+                except Exception as exc:  # noqa: BLE001 - a GIF must not sink the report
+                    logger.warning("GIF %s skipped: %s", fn, exc)
     return {"figs": figs, "gifs": gif_files, "resim": resim}
 
 
@@ -502,8 +505,8 @@ def write_paper_report(root: str | Path, simulate: bool = True, gifs: bool = Tru
                        log: Callable[[str], None] | None = None) -> str:
     """Write ``root/report.md``, ``root/paper_summary.json`` and the figures (GIFs and CoM
     figures only with ``simulate``; GIFs only with ``gifs`` too); return the Markdown.
-    ``log`` receives progress messages."""
-    log = log or (lambda m: None)
+    Progress messages go to ``log`` (default: this module's logger at INFO level)."""
+    log = log or logger.info
     nums = compute(root)
     claims = check_claims(nums)
     fig = make_figures(nums, simulate=simulate, gifs=gifs, log=log)

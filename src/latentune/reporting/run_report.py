@@ -14,8 +14,8 @@ best-cost figure, and the CoM figure only when ``make_report`` is given the syst
 from __future__ import annotations
 
 import json
+import logging
 import math
-import sys
 import time
 from typing import Any
 
@@ -23,6 +23,8 @@ import numpy as np
 
 from latentune.constants import Phase
 from latentune.reporting.metrics import paper_row, phase_stats, rms_velocity_error
+
+logger = logging.getLogger(__name__)
 
 TABLE_PHASES = (Phase.MANUAL, Phase.PHASE1, Phase.PHASE3, Phase.ZERO_SHOT)
 """The table's rows, in order; a zero-shot row appears only when the store has one."""
@@ -266,8 +268,7 @@ def make_report(store: Any, system: Any = None, simulate: bool = True, quiet: bo
             b = store.best(ph)
             if b is not None:
                 if not quiet:
-                    print(f"report: re-simulating the best θ of {phase_label(ph, cfg)}",
-                          file=sys.stderr)
+                    logger.info("report: re-simulating the best θ of %s", phase_label(ph, cfg))
                 runs[phase_label(ph, cfg)] = sim.rollout(b.theta, record=True)
         if runs:
             v_des = getattr(sim, "v_des", None)

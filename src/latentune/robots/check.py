@@ -27,16 +27,16 @@ from __future__ import annotations
 
 import math
 import os
-import sys
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import warnings
 
 from latentune.constants import G
-from latentune.errors import RobotSpecError
+from latentune.errors import RobotSpecError, RobotSpecWarning
 from latentune.robots import spec as S
 from latentune.robots.spec import LEGS
 from latentune.robots.urdf import MASSLESS, UrdfTree, kinematic_urdf_text, read_urdf, resolve_mesh
@@ -82,10 +82,11 @@ _EMITTED: set[str] = set()
 
 
 def emit_warning(message: str) -> None:
-    """Print ``latentune: warning: <message>`` on stderr, once per process and message."""
+    """Warn (:class:`~latentune.errors.RobotSpecWarning`) about something the user should change
+    in a robot spec, once per process and message."""
     if message not in _EMITTED:
         _EMITTED.add(message)
-        print(f"latentune: warning: {message}", file=sys.stderr)
+        warnings.warn(message, RobotSpecWarning, stacklevel=3)
 
 
 # --------------------------------------------------------------------------- kinematics

@@ -21,8 +21,8 @@ orientation (x, y, z, w), so ``R`` is the trunk link rotation directly.
 """
 from __future__ import annotations
 
+import logging
 import math
-import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -34,6 +34,8 @@ from latentune.robots import RobotSpec
 from latentune.robots.urdf import read_urdf
 from latentune.sim.reality import Reality, perturbed_urdf
 from latentune.sim.world import HILLS_CELL, HILLS_CELLS, RobotState, WorldBase
+
+logger = logging.getLogger(__name__)
 
 __all__ = ["MujocoWorld", "require_mujoco", "contact_solref", "mujoco_urdf_text"]
 
@@ -58,7 +60,7 @@ def contact_solref(restitution: float) -> tuple[float, float]:
 
 
 def require_mujoco():
-    """The ``mujoco`` module (its warnings sent to stderr, not to a MUJOCO_LOG.TXT).
+    """The ``mujoco`` module (its warnings sent to this module's logger, not to a MUJOCO_LOG.TXT).
 
     Raises:
         UsageError: mujoco is not installed.
@@ -73,8 +75,9 @@ def require_mujoco():
 
 
 def _warn(msg: str) -> None:
-    """MuJoCo's warnings (e.g. an unstable simulation, which MuJoCo resets) on stderr only."""
-    sys.stderr.write(f"MuJoCo warning: {msg}\n")
+    """MuJoCo's warnings (e.g. an unstable simulation, which MuJoCo resets) as a WARNING of this
+    module's logger (instead of MuJoCo's default, a MUJOCO_LOG.TXT in the working directory)."""
+    logger.warning("MuJoCo warning: %s", msg.strip())
 
 
 def mujoco_urdf_text(urdf: str) -> str:
@@ -309,7 +312,7 @@ class MujocoWorld(WorldBase):
         if r is not None:
             try:
                 r.close()
-            except Exception:
-                pass
+            except Exception as exc:  # noqa: BLE001 - best effort: the renderer's GL context
+                logger.debug("closing the MuJoCo renderer failed: %s", exc)
             self._renderer = None
         self._data = None

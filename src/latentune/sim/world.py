@@ -11,6 +11,7 @@ sensors, pushes).
 """
 from __future__ import annotations
 
+import logging
 import math
 from typing import Protocol, runtime_checkable
 
@@ -20,6 +21,8 @@ from latentune.sim.bullet import p, quiet, stdout_to_stderr
 from latentune.constants import G, TERRAINS
 from latentune.robots import RobotModel, RobotSpec
 from latentune.sim.reality import Reality, RealityRuntime, perturbed_urdf
+
+logger = logging.getLogger(__name__)
 
 ENGINES: tuple[str, ...] = ("pybullet", "mujoco")
 """The physics engines a world can run on (``pybullet`` is the default and the paper's)."""
@@ -258,8 +261,8 @@ class WorldBase:
     def __del__(self) -> None:  # pragma: no cover - best effort
         try:
             self.close()
-        except Exception:
-            pass
+        except Exception as exc:  # noqa: BLE001 - at interpreter exit anything may be gone
+            logger.debug("closing a simulator world failed: %s", exc)
 
 
 class World(WorldBase):
