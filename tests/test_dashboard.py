@@ -1,0 +1,149 @@
+"""`latentune dashboard`: a run exported to an Optuna storage, kept live, and served by
+optuna-dashboard — checked in headless Chromium (Debian's ``chromium`` + ``chromium-driver``;
+``.ci/run`` installs them, and this test fails rather than skips without them)."""
+from __future__ import annotations
+
+import argparse
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+optuna = pytest.importorskip("optuna", reason="the optuna extra (CI installs it)")
+
+import latentune as lt  # noqa: E402
+from latentune.constants import Phase  # noqa: E402
+from latentune.errors import LatentuneError  # noqa: E402
+from latentune.integrations import register_cli  # noqa: E402
+from latentune.integrations.dashboard import Dashboard, RunExport  # noqa: E402
+
+S = optuna.trial.TrialState
+CHROMIUM_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+                  "--disable-component-update", "--disable-sync", "--no-first-run",
+                  "--disable-dev-shm-usage", "--window-size=1400,1000")
+
+
+def space() -> lt.ParameterSpace:
+    return lt.ParameterSpace(["kp", "kd", "ki"], [0.1, 0.0, 0.0], [10.0, 1.0, 2.0],
+                             log=[True, False, False], manual=[1.0, 0.5, 1.0])
+
+
+def plant(x: np.ndarray) -> tuple[float, bool]:
+    """A bowl in (log kp, kd, ki); kd > 0.8 falls."""
+    c = (np.log10(x[0]) - 0.3) ** 2 + (x[1] - 0.4) ** 2 + (x[2] - 1.2) ** 2
+    return float(c), bool(x[1] > 0.8)
+
+
+def run_dir(tmp_path: Path, budget: int) -> Path:
+    with lt.Study(tmp_path / "run", seed=0) as s:
+        s.phase1(lt.FunctionSystem(space(), plant), budget, method="sobol")
+    return tmp_path / "run"
+
+
+def wait_for(cond, timeout: float = 30.0, what: str = "condition"):
+    t0 = time.time()
+    while time.time() - t0 < timeout:
+        v = cond()
+        if v:
+            return v
+        time.sleep(0.2)
+    raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}")
+
+
+def test_export_phases_falls_and_suggestions(tmp_path):
+    run = run_dir(tmp_path, 8)
+    exp = RunExport(run)
+    assert exp.sync() == 9 and exp.sync() == 0          # manual θ + 8 phase-1 rows, once
+    studies = {s.study_name: s for s in exp.storage.get_all_studies()}
+    assert set(studies) == {"run/manual", "run/phase 1"}
+    p1 = optuna.load_study(study_name="run/phase 1", storage=exp.storage)
+    rows = lt.Study(run).store.rows(Phase.PHASE1)
+    assert len(p1.trials) == len(rows) == 8
+    for t, r in zip(p1.trials, rows):
+        assert t.state == S.COMPLETE and t.value == pytest.approx(r.cost)
+        assert t.user_attrs["idx"] == r.idx and t.user_attrs["fell"] == r.fell
+        assert t.constraints == {"fall": 1.0 if r.fell else 0.0}
+        np.testing.assert_allclose(list(t.params.values()), space().to_physical(r.theta))
+    assert p1.trials[0].distributions["kp"] == optuna.distributions.FloatDistribution(
+        0.1, 10.0, log=True)
+    assert any(r.fell for r in rows) and not all(r.fell for r in rows)
+    # ask/tell: a pending suggestion is RUNNING, then completed in place when told
+    tell_run = tmp_path / "asked"
+    st = lt.Study(tell_run, seed=1)
+    sug = st.ask(2, space=space(), method="sobol")
+    exp2 = RunExport(tell_run)
+    exp2.sync()
+    s2 = optuna.load_study(study_name="asked/phase 1", storage=exp2.storage)
+    assert [t.state for t in s2.trials] == [S.RUNNING, S.RUNNING]
+    st.tell(sug[1].id, cost=0.7, failed=True)
+    assert exp2.sync() == 1
+    t1 = optuna.load_study(study_name="asked/phase 1", storage=exp2.storage).trials[1]
+    assert t1.state == S.COMPLETE and t1.value == 0.7 and t1.user_attrs["fell"] is True
+    assert t1.user_attrs["suggestion"] == sug[1].id and t1.constraints == {"fall": 1.0}
+
+
+def test_dashboard_cli_refusals(tmp_path):
+    parser = argparse.ArgumentParser(prog="latentune")
+    register_cli(parser.add_subparsers(dest="command", required=True))
+    for argv, msg in ((["dashboard", str(tmp_path / "none")], "no latentune run"),
+                      (["dashboard", str(tmp_path), "--port", "0"], "--port must be in"),
+                      (["dashboard", str(tmp_path), "--interval", "0"], "--interval must be")):
+        args = parser.parse_args(argv)
+        with pytest.raises(LatentuneError, match=msg) as ei:
+            args.func(args)
+        assert "\n" not in str(ei.value)
+
+
+def _chromium():
+    from selenium import webdriver
+    from selenium.webdriver.chrome.options import Options
+    from selenium.webdriver.chrome.service import Service
+
+    binary = next((shutil.which(b) for b in ("chromium", "chromium-browser") if shutil.which(b)),
+                  None)
+    driver = shutil.which("chromedriver")
+    if binary is None or driver is None:
+        pytest.fail("headless Chromium is needed: apt-get install -y chromium chromium-driver")
+    opts = Options()
+    for a in CHROMIUM_FLAGS:
+        opts.add_argument(a)
+    opts.binary_location = binary
+    return webdriver.Chrome(service=Service(driver), options=opts)
+
+
+def test_dashboard_live_in_chromium(tmp_path):
+    from selenium.webdriver.common.by import By
+
+    run = run_dir(tmp_path, 6)
+    with Dashboard(run, port=0, interval=0.3) as dash:
+        assert dash.url.startswith("http://127.0.0.1:")
+        drv = _chromium()
+        try:
+            drv.set_page_load_timeout(60)
+            drv.get(dash.url)
+            link = wait_for(lambda: [a for a in drv.find_elements(By.TAG_NAME, "a")
+                                     if "run/phase 1" in a.text], what="the study list")[0]
+            study_url = link.get_attribute("href")
+
+            def points() -> int:
+                plots = drv.find_elements(By.ID, "plot-history")
+                return len(plots[0].find_elements(By.CSS_SELECTOR, "path.point")) if plots else 0
+
+            drv.get(study_url)
+            wait_for(lambda: points() == 6, what="6 trials in the history plot")
+            drv.get(study_url + "/trials")
+            body = wait_for(lambda: "6 Trials" in (t := drv.find_element(By.TAG_NAME, "body").text)
+                            and t, what="the trial list")
+            assert "Trial 5" in body and "kp" in body and "fell" in body
+            # live: the run grows while the dashboard serves it
+            with lt.Study(run) as s:
+                s.phase1(lt.FunctionSystem(space(), plant), 9, method="sobol")
+            wait_for(lambda: len(optuna.load_study(study_name="run/phase 1",
+                                                   storage=dash.export.storage).trials) == 9,
+                     what="the export to catch up")
+            drv.get(study_url)
+            wait_for(lambda: points() == 9, what="9 trials in the history plot")
+        finally:
+            drv.quit()
