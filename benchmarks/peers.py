@@ -1,15 +1,15 @@
 """latentune's critics against peer optimizers, side by side on one suite (issue 16).
 
 Every (problem, method, seed) runs in this process, one thread (``OMP_NUM_THREADS=1``,
-``torch.set_num_threads(1)``), on the problems of ``benchmarks/peer_problems.py`` (unit box),
+``torch.set_num_threads(1)``), on the peer suite of :func:`benchmarks.common.problems` (unit box),
 with the same budget and batch size, and is written as soon as it completes to
-``<out>/runs/<problem>__<method>__s<seed>__b<budget>[__<hash>].json`` (best value, best-so-far
+``<dir>/runs/<problem>__<method>__s<seed>__b<budget>[__<hash>].json`` (best value, best-so-far
 trace, wall and function seconds). A killed run continues where it stopped: finished runs are
 skipped. Runs of latentune's critics carry a hash of the code (docstrings and comments left out)
 of the critics they use (``base``, ``turbo``, ``cmaes``, ``random_search``, ``__init__`` in
 ``src/latentune/critic/``) in their name,
 so they are redone after the critic changes and the older ones stay for comparison
-(``--report --critic-hash HASH``). Every invocation is appended to ``<out>/invocations.jsonl``
+(``--report --critic-hash HASH``). Every invocation is appended to ``<dir>/invocations.jsonl``
 (command, date, seeds, budgets, versions, ``os.getloadavg()`` at start and end).
 
 Methods (all minimize on [0, 1]^d; batch = ``--batch-size`` points per ask unless stated):
@@ -36,7 +36,7 @@ Mann–Whitney U test over seeds does not separate it from the method with the b
 p < 0.05), ``lt_turbo``'s win/tie/loss against every peer, and each method's own seconds per
 suggested point (wall minus function time, divided by the evaluations). Methods with a smaller
 budget (``optuna_gp``) are compared with the others' best-so-far at that budget. Written to
-``<out>/summary.md`` and ``<out>/summary.json`` (``summary_<hash>.*`` with ``--critic-hash``;
+``<dir>/summary.md`` and ``<dir>/summary.json`` (``summary_<hash>.*`` with ``--critic-hash``;
 ``--baseline-hash HASH`` adds the latentune runs of an older critic as peers ``before:<method>``).
 
 Relabel (``--relabel HASH``): after a change to the critics' code that leaves the defaults'
@@ -49,16 +49,11 @@ Compare (``--compare DIR``): the runs of ``--out`` against the runs of the same 
 (identical traces, where they part, both medians per problem and method); every invocation
 and run records the machine's CPU and vector extension (``machine``).
 
-Overhead (``--overhead``): latentune's TuRBO-m in 25-d, batch 10, told 10,000 points (1 and 10
-regions), then asked and told 5 batches: the critic's seconds per suggested point (ask + tell),
-with torch set to all cores outside the critic (its default) and the critic's default
-``threads=1``; with ``threads=None`` (the critic uses torch's setting: all cores); and with
-``threads=None`` under one torch thread. ``--busy N`` keeps N other processes busy (one core
-each) during the measurement, the "busy machine" of issue 16 with N = 1 on 2 cores. Written to
-``<out>/overhead.json``.
+The TuRBO-m overhead (seconds per suggested point, thread settings, a busy machine) is
+``benchmarks.turbo_overhead``.
 
-    .venv/bin/python benchmarks/peers.py --seeds 0 1 2 3 4 --budget 500 --batch-size 10
-    .venv/bin/python benchmarks/peers.py --report
+    python -m benchmarks.peers --seeds 0 1 2 3 4 --budget 500 --batch-size 10
+    python -m benchmarks.peers --report
 """
 from __future__ import annotations
 
@@ -71,7 +66,6 @@ import argparse  # noqa: E402
 import datetime  # noqa: E402
 import hashlib  # noqa: E402
 import json  # noqa: E402
-import platform  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 import traceback  # noqa: E402
@@ -79,11 +73,9 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from critic import ask_tell_seconds  # noqa: E402
-from peer_problems import problems  # noqa: E402
+from benchmarks.common import (ROOT, Provenance, git_commit, machine, problems,  # noqa: E402
+                               versions, write_json)
 
-ROOT = Path(__file__).resolve().parents[1]
 CRITIC_DIR = ROOT / "src" / "latentune" / "critic"
 CRITIC_FILES = ("__init__.py", "base.py", "cmaes.py", "random_search.py", "turbo.py")
 ALL_METHODS = ["lt_turbo", "lt_cma", "pycma", "optuna_cma", "optuna_tpe", "ref_turbo1",
@@ -263,40 +255,6 @@ def run_path(out: Path, pname: str, method: str, seed: int, budget: int, chash: 
     return out / "runs" / f"{pname}__{safe}__s{seed}__b{budget}{tail}.json"
 
 
-def versions() -> dict:
-    out = {"python": platform.python_version()}
-    for mod in ("numpy", "scipy", "torch", "gpytorch", "botorch", "cma", "optuna", "cmaes"):
-        try:
-            out[mod] = __import__(mod).__version__
-        except Exception:
-            out[mod] = None
-    try:
-        from importlib.metadata import version
-
-        out["uber-turbo"] = version("uber-turbo")
-        out["latentune"] = version("latentune")
-    except Exception:
-        pass
-    return out
-
-
-def machine() -> dict:
-    """The CPU the runs are made on: its model name and widest vector extension (MKL and
-    OpenBLAS choose their kernels by it, so the last bits of linear algebra, and after a few
-    batches a seeded run's trajectory, depend on it; see ``--compare``)."""
-    info: dict[str, str] = {}                  # the first CPU's fields
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            key, _, value = line.partition(":")
-            info.setdefault(key.strip(), value.strip())
-    except OSError:
-        pass
-    flags = set(info.get("flags", "").split())
-    simd = next((f for f in ("avx512f", "avx2", "avx", "sse4_2") if f in flags), None)
-    return {"cpu": info.get("model name") or platform.processor() or None, "simd": simd,
-            "cores": os.cpu_count()}
-
-
 def method_budget(method: str, budget: int, gp_budget: int) -> int:
     return min(budget, gp_budget) if method == "optuna_gp" else budget
 
@@ -305,7 +263,7 @@ def bench(a) -> None:
     import torch
 
     torch.set_num_threads(1)
-    out = Path(a.out)
+    out = Path(a.dir)
     (out / "runs").mkdir(parents=True, exist_ok=True)
     variants = {}
     for v in a.variant or []:
@@ -317,7 +275,8 @@ def bench(a) -> None:
                date=datetime.datetime.now(datetime.timezone.utc).isoformat(),
                problems=a.problems, methods=methods, seeds=a.seeds, budget=a.budget,
                gp_budget=a.gp_budget, batch=a.batch_size, critic_hash=chash,
-               variants={k: v[1] for k, v in variants.items()}, versions=versions(),
+               variants={k: v[1] for k, v in variants.items()},
+               versions=versions(("uber-turbo", "cmaes")), commit=git_commit(),
                machine=machine(), loadavg_start=os.getloadavg(), threads=dict(torch=torch.get_num_threads(),
                                                            omp=os.environ.get("OMP_NUM_THREADS")))
     with open(out / "invocations.jsonl", "a") as fh:
@@ -383,7 +342,7 @@ def load_runs(out: Path) -> list[dict]:
 
 
 def report(a) -> None:
-    out = Path(a.out)
+    out = Path(a.dir)
     runs = load_runs(out)
     chash = a.critic_hash or critic_hash()
     # keep latentune runs of the current critic only (older ones are stale), and those of
@@ -516,21 +475,23 @@ def report(a) -> None:
                          f"{i['loadavg_start'][0]:.2f} → {i['loadavg_end'][0]:.2f}, "
                          f"{i.get('runs_done')} runs)")
     lines.append("")
-    lines.append(f"Report: `.venv/bin/python benchmarks/peers.py --report` (critic hash {chash}).")
+    lines.append(f"Report: `python -m benchmarks.peers --report` (critic hash {chash}).")
     stem = "summary" if a.critic_hash is None else f"summary_{a.critic_hash}"
     (out / f"{stem}.md").write_text("\n".join(lines) + "\n")
     (out / f"{stem}.json").write_text(json.dumps(summary, indent=1))
     print("\n".join(lines))
+    if a.out is not None:
+        write_json(a.out, summary, a.provenance)
 
 
 # ------------------------------------------------------------------ compare
 def compare(a) -> int:
-    """The runs of ``a.out`` against the runs of the same name in ``a.compare`` (e.g. the same
+    """The runs of ``a.dir`` against the runs of the same name in ``a.compare`` (e.g. the same
     seeded runs made on another machine): per run whether the best-so-far traces are identical
     and the first evaluation where they differ by more than 1e-6 relatively; per (problem,
     method) both medians and the Mann–Whitney U p between the two sets of seeds. Written to
-    ``<out>/compare_<name of the other directory's parent>.json`` and printed."""
-    out, other = Path(a.out), Path(a.compare)
+    ``<dir>/compare_<name of the other directory's parent>.json`` and printed."""
+    out, other = Path(a.dir), Path(a.compare)
     rows, groups = [], {}
     for f in sorted((out / "runs").glob("*.json")):
         g = other / "runs" / f.name
@@ -582,7 +543,7 @@ def relabel(a) -> int:
     import torch
 
     torch.set_num_threads(1)
-    out, new = Path(a.out), critic_hash()
+    out, new = Path(a.dir), critic_hash()
     old = {f: json.loads(f.read_text())
            for f in sorted((out / "runs").glob(f"*__b*__{a.relabel}.json"))}
     old = {f: o for f, o in old.items() if o["method"] in ("lt_turbo", "lt_cma")}
@@ -628,73 +589,8 @@ def relabel(a) -> int:
     return 0
 
 
-# ------------------------------------------------------------------ overhead
-def _spin() -> None:
-    """A busy process (for ``--busy``): one core's worth of pure-Python work until killed."""
-    x = 0
-    while True:
-        x = (x * 1103515245 + 12345) % 2147483648
-
-
-def overhead(a) -> None:
-    import multiprocessing as mp
-
-    busy = [mp.Process(target=_spin, daemon=True) for _ in range(a.busy)]
-    for b in busy:
-        b.start()
-    try:
-        _overhead(a)
-    finally:
-        for b in busy:
-            b.terminate()
-
-
-def _overhead(a) -> None:
-    import torch
-
-    from latentune.critic import make_critic
-
-    out = Path(a.out)
-    out.mkdir(parents=True, exist_ok=True)
-    d, batch, n = 25, 10, a.overhead_points
-    from peer_problems import ackley
-
-    def fz(u):
-        return float(ackley(-10.0 + 20.0 * u - 1.0))
-    res = {"d": d, "batch": batch, "told": n, "date": datetime.datetime.now(
-        datetime.timezone.utc).isoformat(), "command": " ".join([sys.executable] + sys.argv),
-        "critic_hash": critic_hash(), "busy_processes": a.busy, "cpus": os.cpu_count(),
-        "cases": []}
-    default_threads = torch.get_num_threads()
-    ncpu = os.cpu_count() or 1          # torch's default without OMP_NUM_THREADS
-    w = make_critic("turbo", 3, batch_size=4, seed=0, n_regions=1, n_init=4)   # warm-up:
-    for _ in range(3):                                                        # imports, caches
-        U = w.ask()
-        w.tell(U, np.array([fz(u) for u in U]), tags=w.last_tags)
-    for regions in (1, 10):
-        for torch_threads, critic_threads in ((ncpu, 1), (ncpu, None), (1, None)):
-            torch.set_num_threads(torch_threads)
-            rng = np.random.default_rng(0)
-            X = rng.random((n, d))
-            y = np.array([fz(x) for x in X])
-            c = make_critic("turbo", d, batch_size=batch, seed=0, n_regions=regions,
-                            threads=critic_threads)
-            t = time.perf_counter()
-            c.tell(X, y)
-            load = time.perf_counter() - t
-            per = ask_tell_seconds(c, fz, a.overhead_asks)
-            case = dict(regions=regions, torch_threads_outside=torch_threads,
-                        critic_threads=critic_threads, tell_load_s=load,
-                        s_per_point=per, mean_s_per_point=float(np.mean(per)),
-                        steady_mean_s_per_point=float(np.mean(per[1:])),
-                        loadavg=os.getloadavg())
-            res["cases"].append(case)
-            print(json.dumps({k: v for k, v in case.items() if k != "s_per_point"}), flush=True)
-    torch.set_num_threads(default_threads)
-    (out / "overhead.json").write_text(json.dumps(res, indent=1))
-
-
 def main(argv=None) -> int:
+    prov = Provenance(argv, "benchmarks.peers")
     p = argparse.ArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--problems", nargs="+", default=list(problems()))
@@ -703,7 +599,10 @@ def main(argv=None) -> int:
     p.add_argument("--budget", type=int, default=500)
     p.add_argument("--gp-budget", type=int, default=200)
     p.add_argument("--batch-size", type=int, default=10)
-    p.add_argument("--out", default=str(ROOT / "results" / "peers"))
+    p.add_argument("--dir", default=str(ROOT / "results" / "peers"),
+                   help="the runs directory (runs/, invocations.jsonl, summaries)")
+    p.add_argument("--out", type=Path, default=None, metavar="FILE.json",
+                   help="--report: also write the summary and its provenance to this JSON file")
     p.add_argument("--variant", action="append",
                    help="NAME=JSON: extra latentune run lt_<method>@NAME with these options")
     p.add_argument("--variant-method", default="turbo", choices=["turbo", "cma"])
@@ -712,11 +611,6 @@ def main(argv=None) -> int:
                    help="also report latentune runs of this critic hash, as 'before:<method>'")
     p.add_argument("--critic-hash", default=None,
                    help="report latentune runs of this critic hash (default: the current code)")
-    p.add_argument("--overhead", action="store_true")
-    p.add_argument("--overhead-points", type=int, default=10_000)
-    p.add_argument("--overhead-asks", type=int, default=5)
-    p.add_argument("--busy", type=int, default=0,
-                   help="--overhead: keep this many other processes busy meanwhile (one core each)")
     p.add_argument("--relabel", default=None, metavar="HASH",
                    help="carry lt_turbo/lt_cma runs of this critic hash over to the current one "
                         "after re-running --relabel-check of them bit-identically")
@@ -728,10 +622,9 @@ def main(argv=None) -> int:
         return compare(a)
     if a.relabel:
         return relabel(a)
+    a.provenance = prov
     if a.report:
         report(a)
-    elif a.overhead:
-        overhead(a)
     else:
         bench(a)
     return 0

@@ -1,6 +1,7 @@
 """Throughput: 2 process workers vs serial on the same batch of rollouts.
 
-    python benchmarks/throughput.py [--n 16] [--steps 5000] [--workers 2] [--robot a1 --task trot]
+    python -m benchmarks.throughput [--n 16] [--steps 5000] [--workers 2] [--robot a1 --task trot]
+        [--out FILE.json]
 
 Both evaluators get the same n θ (the manual θ with small perturbations, so every rollout runs
 the full horizon). The pool is warmed up first (its start-up is reported separately): a tuning
@@ -9,8 +10,7 @@ run pays it once. Goal: ratio ≥ 1.8 with 2 workers on 2 free cores.
 from __future__ import annotations
 
 import argparse
-import json
-import os
+import sys
 import time
 
 from latentune.threads import one_thread_env  # noqa: E402
@@ -19,16 +19,19 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
+from benchmarks.common import Provenance, add_out_arg, finish  # noqa: E402
 
-def main() -> None:
+
+def main(argv: list[str] | None = None) -> int:
+    prov = Provenance(argv, "benchmarks.throughput")
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=16)
     ap.add_argument("--steps", type=int, default=5000)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--robot", default="a1")
     ap.add_argument("--task", default="trot")
-    ap.add_argument("--json", action="store_true")
-    a = ap.parse_args()
+    add_out_arg(ap)
+    a = ap.parse_args(argv)
     from latentune.pipeline.evaluators import ProcessEvaluator, SerialEvaluator
     from latentune.task import Task
 
@@ -65,19 +68,19 @@ def main() -> None:
     out = {"n": a.n, "steps": a.steps, "workers": a.workers, "serial_s": t_serial,
            "pool_s": t_pool, "pool_startup_s": t_start, "ratio": t_serial / t_pool,
            "ratio_with_startup": t_serial / (t_pool + t_start),
-           "load_avg": os.getloadavg()[0], "stable": int(np.sum(ys < 100)),
+           "stable": int(np.sum(ys < 100)),
            "cpu_serial_s": cpu_serial, "cpu_workers_s": cpu_pool,
            # with `workers` free cores the ratio would be about workers x this efficiency
            "cpu_efficiency": cpu_serial / cpu_pool if cpu_pool > 0 else None}
-    if a.json:
-        print(json.dumps(out))
-    else:
-        print(f"{a.n} x {a.robot} {a.task} {a.steps}-step rollouts: serial {t_serial:.1f} s, "
-              f"{a.workers} process workers {t_pool:.1f} s (+{t_start:.1f} s pool start-up): "
-              f"ratio {out['ratio']:.2f}x ({out['ratio_with_startup']:.2f}x with start-up); "
-              f"load average at the end {out['load_avg']:.1f}; CPU serial {cpu_serial:.1f} s vs "
-              f"workers {cpu_pool:.1f} s (efficiency {out['cpu_efficiency']:.2f})")
+    rows = [{"evaluator": "serial", "wall_s": t_serial, "cpu_s": cpu_serial},
+            {"evaluator": f"{a.workers} process workers", "wall_s": t_pool, "cpu_s": cpu_pool,
+             "startup_s": t_start}]
+    finish(a.out, prov, out, rows, columns=["evaluator", "wall_s", "cpu_s", "startup_s"],
+           title=f"{a.n} x {a.robot} {a.task} {a.steps}-step rollouts: ratio {out['ratio']:.2f}x "
+                 f"({out['ratio_with_startup']:.2f}x with start-up), CPU efficiency "
+                 f"{out['cpu_efficiency'] or float('nan'):.2f}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -1,0 +1,2 @@
+"""The benchmark suite of latentune (run from the repository root: ``python -m benchmarks.NAME``;
+shared pieces in :mod:`benchmarks.common`)."""
