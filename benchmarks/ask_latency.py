@@ -1,20 +1,18 @@
 """Wall time of one ``latentune ask`` (a new process: imports, store, critic rebuilt from the
 store) on a study with many told trials, with and without the stored critic state.
 
-    python benchmarks/ask_latency.py [--told 1000] [--dim 25] [--repeats 3]
-        [--out results/benchmarks/ask_latency.json]
+    python -m benchmarks.ask_latency [--told 1000] [--dim 25] [--repeats 3] [--out FILE.json]
 
 Builds an ask/tell study on a shifted sphere in ``--dim`` dimensions through the Python API
 (``Study.ask``/``tell`` in batches of 50 until ``--told`` trials are told), then times
 ``latentune ask DIR --n 1`` followed by ``tell`` ``--repeats`` times: as it is (the store holds
 TuRBO-m's last GP fits, :meth:`Critic.state_dict`) and after deleting that state before each ask
-(every ask refits the GPs from scratch, as before the state was stored). Also times a bare
+(every ask refits the GPs from scratch). Also times a bare
 ``python -c "import latentune.critic.turbo"`` (the import floor of any ask).
 """
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import subprocess
 import sys
@@ -32,8 +30,7 @@ import latentune as lt  # noqa: E402
 from latentune.pipeline.phases import state_key  # noqa: E402
 from latentune.pipeline.store import RunStore  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).parent))
-from sample_efficiency import provenance  # noqa: E402
+from benchmarks.common import Provenance, add_out_arg, finish  # noqa: E402
 
 ENV = dict(os.environ, **thread_env())
 
@@ -49,13 +46,14 @@ def cli_seconds(*args: str) -> float:
     return time.perf_counter() - t
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
+    prov = Provenance(argv, "benchmarks.ask_latency")
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--told", type=int, default=1000)
     ap.add_argument("--dim", type=int, default=25)
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--out", default=None)
-    a = ap.parse_args()
+    add_out_arg(ap)
+    a = ap.parse_args(argv)
     t0 = time.perf_counter()
     d = Path(tempfile.mkdtemp(prefix="lt_asklat_")) / "study"
     space = lt.ParameterSpace([f"k{i}" for i in range(a.dim)], [0.0] * a.dim, [1.0] * a.dim)
@@ -84,13 +82,14 @@ def main() -> None:
                 theta = st.trials_by_id(tid).theta
             cli_seconds("tell", str(d), str(tid), "--cost", repr(cost(theta)))
         out[mode] = {"ask_s": secs, "median_s": float(np.median(secs))}
-        print(f"{mode:14s} ask wall {np.round(secs, 2).tolist()} s (median "
-              f"{np.median(secs):.2f}); import floor {import_s:.2f} s", flush=True)
-    out["provenance"] = provenance(sys.argv, t0)
-    out["provenance"]["loadavg"] = list(os.getloadavg())
-    if a.out:
-        Path(a.out).write_text(json.dumps(out, indent=1))
+    rows = [{"stored critic state": mode == "with_state", "ask wall s (per repeat)":
+             [round(v, 2) for v in out[mode]["ask_s"]], "median s": out[mode]["median_s"],
+             "import floor s": import_s} for mode in ("with_state", "without_state")]
+    out["ratio"] = out["without_state"]["median_s"] / out["with_state"]["median_s"]
+    finish(a.out, prov, out, rows,
+           title=f"`latentune ask` on a study with {a.told} told trials, d = {a.dim}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

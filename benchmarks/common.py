@@ -270,6 +270,11 @@ def problem(name: str) -> Problem:
     return allp[name]
 
 
+def median_evals(evals: Sequence[int | None]) -> float:
+    """Median of evaluations-to-target over seeds; a seed that never reached it counts as inf."""
+    return float(np.median([np.inf if e is None else e for e in evals]))
+
+
 # ==================================================================== provenance
 def git_commit() -> str | None:
     """The checkout's commit (with ``+dirty`` when tracked files changed), or None."""

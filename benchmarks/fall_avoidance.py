@@ -32,26 +32,23 @@ uniform, 70 % clustered along a random path), with and without label noise near 
 test points near the training points and uniform. Reports log loss, Brier score, the share of
 falling test points let through (p ≤ 0.5) and of stable ones rejected, and the fit time.
 
-    python benchmarks/fall_avoidance.py --part search --seeds 5 --budget 200 --batch-size 5
-    python benchmarks/fall_avoidance.py --part classifiers
-    python benchmarks/fall_avoidance.py --part overhead
+    python -m benchmarks.fall_avoidance --part search --seeds 5 --budget 200 --batch-size 5
+    python -m benchmarks.fall_avoidance --part classifiers
+    python -m benchmarks.fall_avoidance --part overhead
 
 Part ``overhead``: seconds per suggested point FallAware adds to each critic at 1000 told points
 in 10-d (its asks minus a plain ask of the inner critic for the same batch).
 
-Writes ``results/fall_avoidance/<part>.json`` (command, date, seeds, load averages, every run)
-and prints a table.
+Prints a Markdown table; ``--out FILE.json`` writes every run and the provenance
+(:mod:`benchmarks.common`).
 """
 from __future__ import annotations
 
 import argparse
-import datetime
-import json
 import math
 import os
 import sys
 import time
-from pathlib import Path
 from typing import Any, Callable
 
 from latentune.threads import one_thread_env  # noqa: E402
@@ -62,8 +59,7 @@ import numpy as np  # noqa: E402
 
 from latentune.constants import C1, STABLE_CAP  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
-OUT = ROOT / "results" / "fall_avoidance"
+from benchmarks.common import Provenance, add_out_arg, finish  # noqa: E402
 
 
 # ============================================================================ problems
@@ -281,23 +277,15 @@ def search(a: argparse.Namespace) -> dict[str, Any]:
                                 a.max_fall_prob, prior)
                     runs.append(r)
                     print(f"{name:13s} {method:6s} {variant:8s} seed {seed}: falls {r['falls']:3d}"
-                          f"  best {r['best']:.3f}  {r['wall_s']:.1f}s", flush=True)
+                          f"  best {r['best']:.3f}  {r['wall_s']:.1f}s", file=sys.stderr, flush=True)
     return {"runs": runs, "summary": summarize(runs), "priors": priors,
             "config": {"budget": a.budget, "batch_size": a.batch_size, "seeds": list(range(a.seeds)),
                        "max_fall_prob": a.max_fall_prob, "prior_n": a.prior_n,
                        "problems": names, "methods": a.methods}}
 
 
-def print_search(res: dict[str, Any]) -> None:
-    print(f"\n{'problem':13s} {'method':6s} {'variant':8s} {'falls med [q25,q75]':>22s} "
-          f"{'best med [q25,q75]':>26s} {'falls ×':>8s} {'best Δ%':>8s}")
-    for r in res["summary"]:
-        fr = r.get("falls_ratio")
-        bc = r.get("best_change_pct")
-        print(f"{r['problem']:13s} {r['method']:6s} {r['variant']:8s} "
-              f"{r['falls_median']:6.1f} [{r['falls_q25']:5.1f},{r['falls_q75']:5.1f}]     "
-              f"{r['best_median']:8.3f} [{r['best_q25']:7.3f},{r['best_q75']:7.3f}] "
-              f"{'' if fr is None else f'{fr:8.2f}'} {'' if bc is None else f'{bc:+8.1f}'}")
+SEARCH_COLUMNS = ["problem", "method", "variant", "falls_median", "falls_q25", "falls_q75",
+                  "best_median", "best_q25", "best_q75", "falls_ratio", "best_change_pct"]
 
 
 # ============================================================================ classifier part
@@ -491,7 +479,8 @@ def classifiers(a: argparse.Namespace) -> dict[str, Any]:
                         rows.append(row)
                         print(f"{kind:8s} d={d:2d} n={n:4d} noisy={int(noisy)} {name:13s} "
                               f"fit {t_fit:6.3f}s near ll {row['near']['log_loss']:.3f} "
-                              f"let-through {row['near']['falls_let_through'] or 0:.3f}", flush=True)
+                              f"let-through {row['near']['falls_let_through'] or 0:.3f}", file=sys.stderr,
+                              flush=True)
     summary = []
     for name in makers:
         for n in sizes:
@@ -509,16 +498,9 @@ def classifiers(a: argparse.Namespace) -> dict[str, Any]:
                                                          "dirichlet_max": a.dirichlet_max}}
 
 
-def print_classifiers(res: dict[str, Any]) -> None:
-    print(f"\n{'method':13s} {'n':>5s} {'fit s':>7s} | near: {'logloss':>7s} {'brier':>6s} "
-          f"{'let-thr':>7s} {'reject':>6s} | uniform: {'logloss':>7s} {'brier':>6s} "
-          f"{'let-thr':>7s} {'reject':>6s}")
-    for s in res["summary"]:
-        print(f"{s['method']:13s} {s['n']:5d} {s['fit_s_mean']:7.3f} | "
-              f"{s['near_log_loss']:13.3f} {s['near_brier']:6.3f} {s['near_falls_let_through']:7.3f} "
-              f"{s['near_stable_rejected']:6.3f} | {s['uniform_log_loss']:16.3f} "
-              f"{s['uniform_brier']:6.3f} {s['uniform_falls_let_through']:7.3f} "
-              f"{s['uniform_stable_rejected']:6.3f}")
+CLASSIFIER_COLUMNS = ["method", "n", "fit_s_mean", "near_log_loss", "near_brier",
+                      "near_falls_let_through", "near_stable_rejected", "uniform_log_loss",
+                      "uniform_brier", "uniform_falls_let_through", "uniform_stable_rejected"]
 
 
 # ============================================================================ overhead part
@@ -577,12 +559,13 @@ def overhead(a: argparse.Namespace) -> dict[str, Any]:
             print(f"{method:6s} batch {batch:2d}: ask {r['ask_s_median']:.3f} s median "
                   f"({r['ask_s_mean']:.3f} mean), inner ask "
                   f"{r['inner_ask_s_median']:.3f} s, overhead {r['overhead_s_per_point_mean']:.4f}"
-                  f" s/point (mean)", flush=True)
+                  f" s/point (mean)", file=sys.stderr, flush=True)
     return {"rows": rows, "config": {"dim": d, "told": N, "asks": a.overhead_asks}}
 
 
 # ============================================================================ main
 def main(argv: list[str] | None = None) -> int:
+    prov = Provenance(argv, "benchmarks.fall_avoidance")
     import torch
 
     torch.set_num_threads(1)
@@ -603,24 +586,15 @@ def main(argv: list[str] | None = None) -> int:
                    help="largest training set for the Dirichlet GP (it fits on all points)")
     p.add_argument("--overhead-told", type=int, default=1000)
     p.add_argument("--overhead-asks", type=int, default=30)
-    p.add_argument("--out", type=Path, default=None)
+    add_out_arg(p)
     a = p.parse_args(argv)
-    t0 = time.perf_counter()
-    meta = {"command": " ".join(["python"] + [os.path.relpath(sys.argv[0], ROOT)] + sys.argv[1:]),
-            "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-            "loadavg_start": list(os.getloadavg()), "cpus": os.cpu_count(),
-            "threads": {"torch": torch.get_num_threads(),
-                        "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS")}}
+    threads = {"torch": torch.get_num_threads(),
+               "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS")}
     res = {"search": search, "classifiers": classifiers, "overhead": overhead}[a.part](a)
-    meta["loadavg_end"] = list(os.getloadavg())
-    meta["wall_s"] = time.perf_counter() - t0
-    out = a.out or OUT / f"{a.part}.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({**meta, **res}, indent=1, default=float))
-    {"search": print_search, "classifiers": print_classifiers,
-     "overhead": lambda r: None}[a.part](res)
-    print(f"\nwrote {out} ({meta['wall_s']:.0f} s, load {meta['loadavg_start'][0]:.2f} → "
-          f"{meta['loadavg_end'][0]:.2f})")
+    rows = res["rows"] if a.part == "overhead" else res["summary"]
+    cols = {"search": SEARCH_COLUMNS, "classifiers": CLASSIFIER_COLUMNS}.get(a.part)
+    finish(a.out, prov, {"part": a.part, "threads": threads, **res}, rows, columns=cols,
+           title=f"fall avoidance, part {a.part}")
     return 0
 
 

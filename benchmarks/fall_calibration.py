@@ -1,6 +1,6 @@
 """How well the fall classifier predicts the target's falls: replayed on finished reality-gap runs.
 
-For every run store given (direct searches on θ made by ``benchmarks/reality_gap.py``, without
+For every run store given (direct searches on θ made by ``benchmarks.reality_gap``, without
 the fall-aware option, so their points were not screened), the trials are replayed batch by
 batch: before batch ``b`` a :class:`~latentune.critic.fall_aware.FallClassifier` is fitted on the
 trials before it (the manual θ's trial, phase 0, and batches ``< b``) and, for the variants that use it, on the
@@ -18,17 +18,12 @@ hold both classes), falls among them, the ROC AUC of the predicted probability, 
 threshold ``P`` the share of falls that ``p > P`` would have screened out (``caught``) and the
 share of non-falls screened with them (``lost``).
 
-    python benchmarks/fall_calibration.py --source results/a1/a1-jump \
-        --runs /work/runs/rg_a1_jump/hard_direct_s* --out results/reality_gap/calibration_a1_jump_hard.json
+    python -m benchmarks.fall_calibration --source results/a1/a1-jump \
+        --runs /work/runs/rg_a1_jump/hard_direct_s* [--out FILE.json]
 """
 from __future__ import annotations
 
 import argparse
-import datetime
-import json
-import os
-import sys
-import time
 from pathlib import Path
 
 from latentune.threads import one_thread_env
@@ -40,6 +35,8 @@ import numpy as np  # noqa: E402
 from latentune.critic.fall_aware import FallClassifier  # noqa: E402
 from latentune.constants import Phase  # noqa: E402
 from latentune.pipeline.store import RunStore  # noqa: E402
+
+from benchmarks.common import Provenance, add_out_arg, finish  # noqa: E402
 
 THRESHOLDS = (0.1, 0.2, 0.3, 0.5)
 VARIANTS = ("prior", "target")
@@ -87,19 +84,17 @@ def replay(X: np.ndarray, fell: np.ndarray, batch: np.ndarray, variant: str,
 
 
 def main(argv: list[str] | None = None) -> int:
+    prov = Provenance(argv, "benchmarks.fall_calibration")
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--source", required=True, help="the source run (its phase 1 is the prior)")
     ap.add_argument("--runs", nargs="+", required=True, help="run directories of direct searches")
     ap.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS)
-    ap.add_argument("--out", default=None)
+    add_out_arg(ap)
     a = ap.parse_args(argv)
-    t0 = time.perf_counter()
     with RunStore(Path(a.source), create=False) as st:
         src = st.rows(Phase.PHASE1)
     prior = (np.array([r.theta for r in src]), np.array([r.fell for r in src], dtype=bool))
-    res = {"command": " ".join([sys.executable] + sys.argv), "cwd": os.getcwd(),
-           "date": datetime.datetime.now(datetime.timezone.utc).isoformat(),
-           "loadavg_start": os.getloadavg(), "source": a.source, "runs": a.runs,
+    res = {"source": a.source, "runs": a.runs,
            "prior": {"trials": int(len(prior[1])), "falls": int(prior[1].sum())},
            "variants": {}}
     data = [trials(Path(r)) for r in a.runs]
@@ -117,14 +112,13 @@ def main(argv: list[str] | None = None) -> int:
                                        "lost": float((p[~y] > t).mean()) if (~y).any() else None}
                               for t in THRESHOLDS}}
         res["variants"][v] = row
-        th = "  ".join(f"P={t}: caught {row['thresholds'][str(t)]['caught']:.2f} "
-                       f"lost {row['thresholds'][str(t)]['lost']:.2f}" for t in THRESHOLDS)
-        print(f"{v:17s} n={row['predicted']:3d} falls={row['falls']:3d} AUC={row['auc']:.2f} "
-              f"median p falls {row['p_median_falls']:.2f} stable {row['p_median_stable']:.2f}  {th}",
-              flush=True)
-    res["wall_s"] = time.perf_counter() - t0
-    if a.out:
-        Path(a.out).write_text(json.dumps(res, indent=1) + "\n")
+    rows = [{"variant": v, "predicted": r["predicted"], "falls": r["falls"], "AUC": r["auc"],
+             "median p (falls)": r["p_median_falls"], "median p (stable)": r["p_median_stable"],
+             **{f"P={t} caught / lost": "–" if r["thresholds"][str(t)]["caught"] is None else
+                f"{r['thresholds'][str(t)]['caught']:.2f} / {r['thresholds'][str(t)]['lost'] or 0:.2f}"
+                for t in THRESHOLDS}}
+            for v, r in res["variants"].items()]
+    finish(a.out, prov, res, rows, title=f"fall classifier replayed on {len(a.runs)} runs")
     return 0
 
 

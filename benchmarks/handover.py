@@ -1,7 +1,7 @@
 """Phase 3 without a floor (issue 15): phase 3 with a hand-over to the full θ space against plain
 phase 3 and direct search on θ, all from scratch, at equal budgets and seeds.
 
-    python benchmarks/handover.py --robot solo12 --task jump --actor kinodynamic \\
+    python -m benchmarks.handover --robot solo12 --task jump --actor kinodynamic \\
         --vae results/solo12/solo12-trot --budget 100 --seeds 0 1 2 3 4 \\
         --methods handover latent turbo optuna_cma optuna_tpe --targets 25.0 23.0 \\
         --work /work/runs/se_solo12 --out results/handover/solo12_jump.json
@@ -44,8 +44,8 @@ import latentune as lt  # noqa: E402
 from latentune.constants import Phase  # noqa: E402
 from latentune.reporting.metrics import evals_to_beat  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).parent))
-from sample_efficiency import median_evals, provenance  # noqa: E402
+from benchmarks.common import (Provenance, add_out_arg, median_evals,  # noqa: E402
+                               write_json)
 
 METHODS = ("latent", "handover", "turbo", "optuna_cma", "optuna_tpe")
 
@@ -95,7 +95,8 @@ def report(d: Path) -> str:
     return "\n".join(out)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
+    prov = Provenance(argv, "benchmarks.handover")
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--report", default=None, metavar="DIR",
                     help="print the tables of the outputs in DIR (e.g. results/handover)")
@@ -116,14 +117,13 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--batch-size", type=int, default=4)
     ap.add_argument("--work")
-    ap.add_argument("--out", default=None)
-    a = ap.parse_args()
+    add_out_arg(ap)
+    a = ap.parse_args(argv)
     if a.report:
         print(report(Path(a.report)))
-        return
+        return 0
     if not (a.vae and a.work):
         ap.error("--vae and --work are required")
-    t_start = time.perf_counter()
     from latentune.pipeline.evaluators import make_evaluator
 
     kw = {"actor": a.actor} if a.actor else {}
@@ -135,7 +135,7 @@ def main() -> None:
     work = Path(a.work)
     work.mkdir(parents=True, exist_ok=True)
     print(f"{a.robot} {a.task}{' / ' + a.reality if a.reality else ''}: manual {manual:.3f}; "
-          f"budget {a.budget}; seeds {a.seeds}; stores in {work}", flush=True)
+          f"budget {a.budget}; seeds {a.seeds}; stores in {work}", file=sys.stderr, flush=True)
     ev = make_evaluator("process", a.workers)
     res: dict[str, list[dict]] = {}
     try:
@@ -183,7 +183,7 @@ def main() -> None:
                 print(f"  {name:10s} seed {s}: best {r['best']:.3f}, to manual {r['to_manual']}, "
                       f"to {a.targets} {r['to']}, falls {r['falls']}"
                       + (f", handed over at {r.get('handover_at')}" if m == "handover" else "")
-                      + ("" if ran else " (stored)"), flush=True)
+                      + ("" if ran else " (stored)"), file=sys.stderr, flush=True)
     finally:
         ev.close()
     tabs = ["| " + " | ".join(["method", "seeds", "evals to manual",
@@ -211,16 +211,14 @@ def main() -> None:
              f"{row['falls_median']:g}", "–" if p is None else f"{p:.2f}"]) + " |")
     print("\n" + "\n".join(tabs))
     if a.out:
-        out = Path(a.out)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps({"robot": a.robot, "task": a.task, "actor": a.actor,
-                                   "reality": a.reality, "manual": manual, "budget": a.budget,
-                                   "seeds": a.seeds, "vae": a.vae, "handover": handover,
-                                   "max_fall_prob": a.max_fall_prob,
-                                   "targets": a.targets, "work": str(work),
-                                   "provenance": provenance(sys.argv, t_start),
-                                   "summary": summary, "table": tabs, "results": res}, indent=1))
+        write_json(a.out, {"robot": a.robot, "task": a.task, "actor": a.actor,
+                           "reality": a.reality, "manual": manual, "budget": a.budget,
+                           "seeds": a.seeds, "vae": a.vae, "handover": handover,
+                           "max_fall_prob": a.max_fall_prob,
+                           "targets": a.targets, "work": str(work),
+                           "summary": summary, "table": tabs, "results": res}, prov)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

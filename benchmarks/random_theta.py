@@ -1,7 +1,7 @@
 """Share of uniformly random θ (unit box) that fall, per robot × gait × actor.
 
-Usage: python benchmarks/random_theta.py [--robot a1] [--task trot] [--actor convex] [--n 200]
-           [--steps 1000] [--widen DECADES] [--target COST] [--workers 1]
+Usage: python -m benchmarks.random_theta [--robot a1] [--task trot] [--actor convex] [--n 200]
+           [--steps 1000] [--widen DECADES] [--target COST] [--workers 1] [--out FILE.json]
 
 Checks the properties the tuning relies on: no exception, every cost finite, fell ⇔ cost ≥ C1,
 and a good share falls (the stable set is a proper subset of the box, so there is something for
@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 import time
 from multiprocessing import get_context
 
@@ -28,6 +29,8 @@ import numpy as np  # noqa: E402
 
 import latentune as lt  # noqa: E402
 from latentune.task import C1  # noqa: E402
+
+from benchmarks.common import Provenance, add_out_arg, finish  # noqa: E402
 
 _TASK = None
 
@@ -53,7 +56,8 @@ def _rollout(theta: np.ndarray):
         return np.nan, True, f"{type(exc).__name__}: {exc}"
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
+    prov = Provenance(argv, "benchmarks.random_theta")
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--robot", default="a1")
     ap.add_argument("--task", default="trot")
@@ -64,7 +68,8 @@ def main() -> None:
     ap.add_argument("--widen", type=float, default=0.0, help="decades added on each side of log bounds")
     ap.add_argument("--target", type=float, default=None, help="report the share of θ with cost ≤ this")
     ap.add_argument("--workers", type=int, default=1)
-    args = ap.parse_args()
+    add_out_arg(ap)
+    args = ap.parse_args(argv)
     _init(args)
     thetas = np.random.default_rng(args.seed).random((args.n, _TASK.space.dim))
     t0 = time.perf_counter()
@@ -75,26 +80,29 @@ def main() -> None:
         out = [_rollout(t) for t in thetas]
     errors = [e for _, _, e in out if e is not None]
     for e in errors[:5]:
-        print("EXCEPTION:", e)
+        print("EXCEPTION:", e, file=sys.stderr)
     ok = [(c, f) for c, f, e in out if e is None]
     costs = np.array([c for c, _ in ok])
     fell = np.array([f for _, f in ok], dtype=bool)
     stable = costs[costs < C1]
     box = f", box widened by {args.widen:g} decades per side" if args.widen else ""
-    print(f"{args.robot} {args.task} [{args.actor}] {args.n} random θ x {args.steps} steps{box} "
-          f"in {time.perf_counter() - t0:.1f} s")
-    print(f"  exceptions: {len(errors)}; all costs finite: {bool(np.all(np.isfinite(costs)))}; "
-          f"fell <=> cost >= C1: {bool(np.array_equal(fell, costs >= C1))}")
-    print(f"  fell: {fell.sum()}/{fell.size} = {fell.mean():.1%}")
-    if stable.size:
-        print(f"  stable costs: min {stable.min():.2f}, median {np.median(stable):.2f}, max {stable.max():.2f}")
-    if args.target is not None:
-        p = float(np.mean(costs <= args.target))
-        print(f"  cost <= {args.target:g}: {int(np.sum(costs <= args.target))}/{costs.size} (p = {p:.3f}"
-              + (f", 1/p = {1 / p:.1f} evaluations)" if p > 0 else ")"))
+    wall = time.perf_counter() - t0
     manual = _TASK.rollout(_TASK.space.manual)
-    print(f"  manual θ: cost {manual.cost:.2f} (fell {manual.fell})")
+    p = float(np.mean(costs <= args.target)) if args.target is not None else None
+    row = {"robot": args.robot, "task": args.task, "actor": args.actor, "n": args.n,
+           "steps": args.steps, "widen": args.widen, "exceptions": len(errors),
+           "all_finite": bool(np.all(np.isfinite(costs))),
+           "fell_iff_cost_ge_C1": bool(np.array_equal(fell, costs >= C1)),
+           "fell_share": float(fell.mean()) if fell.size else None,
+           "stable_min": float(stable.min()) if stable.size else None,
+           "stable_median": float(np.median(stable)) if stable.size else None,
+           "stable_max": float(stable.max()) if stable.size else None,
+           "target": args.target, "p_at_or_below_target": p,
+           "manual_cost": manual.cost, "manual_fell": manual.fell}
+    finish(args.out, prov, {"seed": args.seed, "wall_s": wall, "errors": errors[:5], **row},
+           [row], title=f"{args.n} random θ x {args.steps} steps{box} in {wall:.1f} s")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

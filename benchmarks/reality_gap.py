@@ -1,9 +1,9 @@
 """Phase 3 on a robot that is not the simulator: reality profiles and MuJoCo as the target.
 
-    python benchmarks/reality_gap.py --source results/a1/a1-trot --realities hard mujoco
+    python -m benchmarks.reality_gap --source results/a1/a1-trot --realities hard mujoco
         [--robot a1 --task trot --actor convex] [--budget 40] [--seeds 0 1 2 3 4]
         [--methods phase3 direct cma] [--max-fall-prob P] [--workers 2] [--work DIR]
-        [--out results/reality_gap/a1_trot.json]
+        [--out FILE.json]
 
 The source is a finished run (phase 1 + VAE) on the nominal PyBullet robot. For every target
 reality (a preset or profile file run in PyBullet, or ``mujoco``: the nominal robot in MuJoCo)
@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from pathlib import Path
 
 from latentune.threads import one_thread_env
@@ -38,8 +37,8 @@ from latentune.pipeline.evaluators import make_evaluator  # noqa: E402
 from latentune.reporting.metrics import evals_to_beat  # noqa: E402
 from latentune.study import source_best  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).parent))
-from sample_efficiency import median_evals, provenance  # noqa: E402
+from benchmarks.common import (Provenance, add_out_arg, median_evals,  # noqa: E402
+                               write_json)
 
 
 def spread(v: list[float]) -> dict:
@@ -96,7 +95,8 @@ def report(d: Path) -> str:
     return "\n".join(out + ["", "Commands (wall time):", *cmds])
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
+    prov = Provenance(argv, "benchmarks.reality_gap")
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--report", default=None, metavar="DIR",
                     help="print one table of the outputs in DIR (e.g. results/reality_gap)")
@@ -113,14 +113,13 @@ def main() -> None:
                     help="fall-aware critics: skip candidates above this predicted fall probability")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--work", default="runs/reality_gap")
-    ap.add_argument("--out", default=None)
-    a = ap.parse_args()
+    add_out_arg(ap)
+    a = ap.parse_args(argv)
     if a.report:
         print(report(Path(a.report)))
-        return
+        return 0
     if not a.source:
         ap.error("--source is required")
-    t0 = time.perf_counter()
     best0 = source_best(a.source).theta     # the zero-shot θ
     work = Path(a.work)
     ev = make_evaluator("process", a.workers)
@@ -152,7 +151,7 @@ def main() -> None:
                     res.setdefault(reality, {}).setdefault(m, []).append(r)
                     print(f"{reality:9s} {m:7s} seed {s}: best {r['best']:.3f} (zero-shot {zero:.3f}), "
                           f"falls {r['falls']}/{len(y)}, beat zero-shot at {r['evals_to_beat_zero_shot']}",
-                          flush=True)
+                          file=sys.stderr, flush=True)
     finally:
         ev.close()
     summary = {}
@@ -170,13 +169,12 @@ def main() -> None:
                   f"{f['median']:.0f} [{f['min']:.0f}–{f['max']:.0f}] of {a.budget} | {e} | "
                   f"{z['median']:.3f} |")
     if a.out:
-        Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(a.out).write_text(json.dumps({"source": a.source, "robot": a.robot, "task": a.task,
-                                           "actor": a.actor, "budget": a.budget, "seeds": a.seeds,
-                                           "max_fall_prob": a.max_fall_prob, "summary": summary,
-                                           "results": res, "provenance": provenance(sys.argv, t0)},
-                                          indent=1))
+        write_json(a.out, {"source": a.source, "robot": a.robot, "task": a.task,
+                           "actor": a.actor, "budget": a.budget, "seeds": a.seeds,
+                           "max_fall_prob": a.max_fall_prob, "summary": summary,
+                           "results": res}, prov)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -1,9 +1,9 @@
 """Sample efficiency (default: A1 jump): evaluations needed to reach the manual-tuned cost.
 
-    python benchmarks/sample_efficiency.py --vae RUN_DIR [--budget 220] [--seeds 0 1 2]
+    python -m benchmarks.sample_efficiency --vae RUN_DIR [--budget 220] [--seeds 0 1 2]
         [--methods latent turbo cma random] [--robot a1 --task jump] [--actor A] [--steps 5000]
         [--workers 2] [--target COST] [--more-targets C ...] [--from-stores] [--reconstruct]
-        [--out results.json]
+        [--out FILE.json]
 
 Methods (same seeds, same budget, all from scratch -- no method gets the manual θ as a start
 point, or every one would "reach" it at evaluation 1):
@@ -20,10 +20,6 @@ Target: the manual θ's cost on this task; if the manual θ falls (cost ≥ C1),
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import platform
-import subprocess
 import sys
 import tempfile
 import time
@@ -39,26 +35,11 @@ import latentune as lt  # noqa: E402
 from latentune.constants import C1  # noqa: E402
 from latentune.reporting.metrics import evals_to_beat  # noqa: E402
 
-
-def median_evals(evals: list[int | None]) -> float:
-    """Median of evaluations-to-target over seeds; a seed that never reached it counts as inf."""
-    return float(np.median([np.inf if e is None else e for e in evals]))
+from benchmarks.common import Provenance, add_out_arg, finish, median_evals  # noqa: E402
 
 
-def provenance(argv: list[str], t0: float) -> dict:
-    """What reproduces a benchmark output: command, commit, date, wall time, machine load."""
-    try:
-        commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
-                                cwd=Path(__file__).parent).stdout.strip() or None
-    except OSError:
-        commit = None
-    return {"command": "python " + " ".join(argv), "commit": commit,
-            "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-            "wall_s": time.perf_counter() - t0, "loadavg_end": list(os.getloadavg()),
-            "machine": f"{platform.machine()}, {os.cpu_count()} cores", "python": sys.version.split()[0]}
-
-
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
+    prov = Provenance(argv, "benchmarks.sample_efficiency")
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--vae", required=False, help="run directory whose VAE phase 3 uses")
     ap.add_argument("--robot", default="a1")
@@ -79,10 +60,8 @@ def main() -> None:
                     help="also pass the best θ of each full-space method through the VAE "
                          "(encode -> decode) and simulate it: is it inside the latent space?")
     ap.add_argument("--work", default=None, help="directory for the per-run stores")
-    ap.add_argument("--out", default=None, help="write the results JSON here")
-    a = ap.parse_args()
-    t_start = time.perf_counter()
-    load_start = list(os.getloadavg())
+    add_out_arg(ap)
+    a = ap.parse_args(argv)
     from latentune.pipeline.evaluators import make_evaluator
     from latentune.pipeline.store import RunStore
 
@@ -98,7 +77,7 @@ def main() -> None:
         latent = lt.LatentSpace.load(src)
     work = Path(a.work or tempfile.mkdtemp(prefix="lt_sampleeff_"))
     print(f"{a.robot} {a.task}: manual cost {manual:.3f}; target {target:.3f}; budget {a.budget}; "
-          f"seeds {a.seeds}; stores in {work}", flush=True)
+          f"seeds {a.seeds}; stores in {work}", file=sys.stderr, flush=True)
     ev = make_evaluator("serial" if a.from_stores else "process", a.workers)
     results: dict[str, list[dict]] = {}
     try:
@@ -131,33 +110,35 @@ def main() -> None:
                 results.setdefault(m, []).append(r)
                 print(f"  {m:7s} seed {s}: evals to target {r['evals_to_target']}, best "
                       f"{r['best']:.3f}, stable {r['stable']}/{len(y)} ({r['wall_s']:.0f} s)",
-                      flush=True)
+                      file=sys.stderr, flush=True)
     finally:
         ev.close()
-    print("\n| method | evals to target (per seed) | median | best cost (median) |")
-    print("|---|---|---:|---:|")
-    med = {}
+    rows, med = [], {}
     for m, rs in results.items():
         e = [r["evals_to_target"] for r in rs]
         med[m] = median_evals(e)
-        print(f"| {m} | {e} | {med[m]} | {np.median([r['best'] for r in rs]):.3f} |")
+        rows.append({"method": m, "evals to target (per seed)": e, "median": med[m],
+                     "best cost (median)": float(np.median([r["best"] for r in rs]))})
+    notes = []
+    ratio = None
     if "latent" in med and "turbo" in med:
-        print(f"\nratio of medians, direct TuRBO-m / latent: {med['turbo'] / med['latent']:.2f}"
-              "")
+        ratio = med["turbo"] / med["latent"]
+        notes.append(f"ratio of medians, direct TuRBO-m / latent: {ratio:.2f}")
     if "random" in results:
         # each random θ reaches the target independently with probability p, so any method whose
         # first points are a space-filling design needs about 1/p evaluations to hit it by chance
         p = float(np.mean([r["hit_rate"] for r in results["random"]]))
-        print(f"share of random θ at or below the target: p = {p:.3f}"
-              + (f" -> 1/p = {1 / p:.1f} evaluations by chance" if p > 0 else ""))
+        notes.append(f"share of random θ at or below the target: p = {p:.3f}"
+                     + (f" -> 1/p = {1 / p:.1f} evaluations by chance" if p > 0 else ""))
     for k, t in enumerate(a.more_targets):
-        print(f"\ntarget {t:.3f}: evaluations to reach it per seed (None = not within the budget)")
-        for m, rs in results.items():
-            e = [r["more"][k] for r in rs]
-            print(f"  {m:7s} {e}  median {median_evals(e)}")
+        notes.append(f"target {t:.3f}: evaluations to reach it per seed (None = not within the "
+                     "budget): " + "; ".join(
+                         f"{m} {[r['more'][k] for r in rs]} median "
+                         f"{median_evals([r['more'][k] for r in rs])}"
+                         for m, rs in results.items()))
+    reconstructed = []
     if a.reconstruct and latent is not None:
         # the latent space's reach: the best θ the full-space methods found, encoded and decoded
-        print("\nbest θ of the full-space methods through the VAE (encode -> decode):")
         for m in results:
             if m == "latent":
                 continue
@@ -168,16 +149,23 @@ def main() -> None:
                     continue
                 rec = latent.reconstruct(b.theta[None])[0]
                 c = task.rollout(rec).cost
-                print(f"  {m:7s} seed {s}: {b.cost:.3f} -> {c:.3f} after encode -> decode "
-                      f"(|Δθ| = {np.linalg.norm(b.theta - rec):.2f} in the unit box)")
-    if a.out:
-        prov = provenance(sys.argv, t_start)
-        prov["loadavg_start"] = load_start
-        Path(a.out).write_text(json.dumps({"manual": manual, "target": target,
-                                           "budget": a.budget, "seeds": a.seeds,
-                                           "vae": a.vae, "work": str(work),
-                                           "provenance": prov, "results": results}, indent=1))
+                reconstructed.append({"method": m, "seed": s, "best": b.cost,
+                                      "after_encode_decode": c,
+                                      "delta_theta": float(np.linalg.norm(b.theta - rec))})
+    finish(a.out, prov, {"manual": manual, "target": target, "budget": a.budget,
+                         "seeds": a.seeds, "vae": a.vae, "work": str(work), "ratio": ratio,
+                         "notes": notes, "results": results,
+                         "reconstructed": reconstructed}, rows,
+           title=f"{a.robot} {a.task}: evaluations to reach the target {target:.3f} (manual "
+                 f"{manual:.3f}), budget {a.budget}")
+    for line in notes:
+        print(f"\n{line}")
+    if reconstructed:
+        print("\nbest θ of the full-space methods through the VAE (encode -> decode):\n")
+        from benchmarks.common import markdown_table
+        print(markdown_table(reconstructed))
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -1,7 +1,7 @@
 """Choose the autoencoder kind by measurement: reconstruction, stable preservation, phase 3.
 
-    python benchmarks/vae_kind.py RUN_DIR [--kinds det vae] [--n-check 30] [--phase3-evals 0]
-        [--workers 2] [--seed 0]
+    python -m benchmarks.vae_kind RUN_DIR [--kinds det vae] [--n-check 30] [--phase3-evals 0]
+        [--workers 2] [--seed 0] [--out FILE.json]
 
 For each kind, trains on RUN_DIR's stable phase-1 θ (cost < C1) and reports: the training time,
 the reconstruction error (summed squared error per θ), the stable-preservation rate (fraction of
@@ -12,7 +12,7 @@ box (uniform random u), and optionally the best cost of a phase 3 of ``--phase3-
 from __future__ import annotations
 
 import argparse
-import json
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -23,8 +23,11 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
+from benchmarks.common import Provenance, add_out_arg, finish  # noqa: E402
 
-def main() -> None:
+
+def main(argv: list[str] | None = None) -> int:
+    prov = Provenance(argv, "benchmarks.vae_kind")
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("run_dir")
     ap.add_argument("--kinds", nargs="+", default=["det", "vae"])
@@ -35,10 +38,12 @@ def main() -> None:
     ap.add_argument("--phase3-evals", type=int, default=0)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
-    a = ap.parse_args()
+    add_out_arg(ap)
+    a = ap.parse_args(argv)
+    from latentune.constants import C1
     from latentune.latent import LatentSpace
     from latentune.pipeline.evaluators import make_evaluator
-    from latentune.pipeline.phases import C1, make_phase_critic, run_phase, training_set
+    from latentune.pipeline.phases import make_phase_critic, run_phase, training_set
     from latentune.pipeline.store import RunStore
     from latentune.reporting.run_report import task_from_config as _task_from_config
 
@@ -47,8 +52,9 @@ def main() -> None:
     X = training_set(st)
     rng = np.random.default_rng(a.seed)
     check = X[rng.permutation(len(X))[: a.n_check]]
-    print(f"{len(X)} stable θ of {st.count(1)} phase-1 evaluations; checking {len(check)}",
-          flush=True)
+    n_phase1 = st.count(1)
+    print(f"{len(X)} stable θ of {n_phase1} phase-1 evaluations; checking {len(check)}",
+          file=sys.stderr, flush=True)
     ev = make_evaluator("process", a.workers)
     out = []
     try:
@@ -76,10 +82,15 @@ def main() -> None:
                         r["phase3_best"] = res.best_cost
                         r["phase3_stable"] = float(np.mean(s3.costs(3) < C1))
                 out.append(r)
-                print(json.dumps(r), flush=True)
+                print(f"{kind} beta {r['beta']}: done", file=sys.stderr, flush=True)
     finally:
         ev.close()
+        st.close()
+    finish(a.out, prov, {"run_dir": a.run_dir, "n_train": len(X), "n_phase1": n_phase1,
+                         "n_check": len(check), "seed": a.seed}, out,
+           title=f"autoencoder kinds on {a.run_dir}: {len(X)} stable θ, {len(check)} checked")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -70,7 +70,7 @@ def test_vae_seed_fixes_the_weights_and_leaves_the_global_generator_alone(monkey
     assert torch.equal(torch.get_rng_state(), state)        # the caller's generator untouched
     torch.rand(17)                                          # the caller draws in between
     b = LatentSpace.train(X, d_low=3, seed=5, epochs=3)
-    c = LatentSpace.train(X, d_low=3, seed=6, epochs=3)
+    LatentSpace.train(X, d_low=3, seed=6, epochs=3)                          # init[2]
     assert len(init) == 3
     assert all(np.array_equal(p, q) for p, q in zip(init[0], init[1]))       # same seed
     assert not all(np.array_equal(p, q) for p, q in zip(init[0], init[2]))   # another seed
