@@ -33,8 +33,8 @@ from typing import Any, Callable
 import numpy as np
 
 from latentune.constants import Phase
-from latentune.errors import LatentError, StoreError, UsageError
-from latentune.pipeline import asktell, baselines, results
+from latentune.errors import StoreError, UsageError
+from latentune.pipeline import asktell, baselines, phase2, results
 from latentune.pipeline import manifest as mf
 from latentune.pipeline.asktell import Suggestion
 from latentune.pipeline.baselines import source_best
@@ -43,11 +43,11 @@ from latentune.pipeline.loop import (decoder_of, phase_critic, record_latent, re
                                      study_latent, theta_prior)
 from latentune.pipeline.manifest import describe
 from latentune.pipeline.phases import (PhaseResult, default_batch_size, ensure_manual,
-                                       run_phase, training_set)
+                                       manual_outcome, run_phase)
 from latentune.pipeline.rundir import RunDir
 from latentune.pipeline.store import Row, RunStore
 from latentune.space import ParameterSpace
-from latentune.system import Outcome, check_system
+from latentune.system import check_system
 
 METHODS = mf.METHODS
 ASK_BUDGET = mf.ASK_BUDGET
@@ -209,22 +209,12 @@ class Study:
             try:
                 res = run_phase(st, Phase.PHASE1, system, critic, pc["budget"], self.evaluator(),
                                 seed=self.seed, progress=self.progress, max_new=max_new,
-                                known=self._manual_outcome(system))
+                                known=manual_outcome(st, system))
             finally:
                 self.manifest.add_wall("phase1", time.perf_counter() - t)
             results.write_best(st, self.dir, system.space, Phase.PHASE1)
             self.log(f"phase 1: {res.n} evaluations, best cost {res.best_cost:.3f}")
             return res
-
-    def _manual_outcome(self, system: Any) -> dict[bytes, Outcome]:
-        """The stored manual-θ trial (phase 0), keyed for :func:`run_phase`'s ``known``."""
-        rows = [r for r in self.store.rows(Phase.MANUAL) if r.idx == 0]
-        theta = np.ascontiguousarray(system.space.manual, dtype=float)
-        if not rows or not np.array_equal(rows[0].theta, theta):
-            return {}
-        r = rows[0]
-        info = {**r.info, "fall_step": r.fall_step} if r.fall_step is not None else dict(r.info)
-        return {theta.tobytes(): Outcome(r.cost, r.fell, info, r.wall_s)}
 
     def train_latent(self, latent_dim: int | None = None, *, kind: str | None = None,
                      epochs: int | None = None, retrain: bool = False) -> Any:
@@ -233,39 +223,12 @@ class Study:
         Returns the :class:`~latentune.latent.LatentSpace` (``DIR/vae.pt``, ``DIR/vae.json``). A
         trained one is returned as it is unless ``retrain``; retraining after phase 3 used it
         is refused (it would invalidate the stored phase-3 rows)."""
-        from latentune.latent.vae import DEFAULT_KIND, LatentSpace
-
-        with self.writing() as st:
-            if st.artifact("vae") is not None:
-                if not retrain:
-                    return LatentSpace.load(st.artifact("vae"))
-                if st.count(Phase.PHASE3) > 0 and self.config().get("phase3_vae_source") == "self":
-                    raise LatentError(f"{self.dir}: phase 3 already used the VAE; retraining it "
-                                      "would invalidate the stored phase-3 rows (use another dir)")
-            X = training_set(st, Phase.PHASE1)
-            if len(X) < 2:
-                raise LatentError(f"{self.dir}: phase 1 has {len(X)} θ whose trial did not fail; "
-                                  "the latent space needs at least 2 (run more phase-1 evaluations)")
-            cfg = self.config()
-            t = time.perf_counter()
-            meta = {"source_run": str(self.dir.resolve()), "n_phase1": st.count(Phase.PHASE1),
-                    "system": cfg.get("system"), "space_names": cfg.get("space", {}).get("names")}
-            if "task" in cfg:
-                meta.update({k: cfg["task"][k] for k in ("robot", "gait", "actor", "terrain")})
-            latent = LatentSpace.train(X, d_low=latent_dim, kind=kind or DEFAULT_KIND,
-                                       seed=self.seed, epochs=epochs, meta=meta)
-            latent.save(self.dir / "vae")
-            self.manifest.add_wall("vae", time.perf_counter() - t)
-            st.add_artifact("vae", self.dir / "vae")
-            self.manifest.update(vae={"kind": latent.kind, "d_low": latent.d_low, "n_train": len(X),
-                                      "seed": self.seed, "beta": latent.meta.get("beta"),
-                                      "box": latent.box.tolist(),
-                                      "box_rule": latent.meta.get("box_rule")})
-            self.manifest.record_seed(self.seed)
-            self.log(f"VAE ({latent.kind}, d_low {latent.d_low}) trained on {len(X)} θ in "
-                     f"{latent.meta.get('train_wall_s', 0):.1f} s; final reconstruction error "
-                     f"{latent.meta.get('final_rec', float('nan')):.4f}")
-            return latent
+        with self.writing():
+            latent, msg = phase2.train_latent(self.run, self.manifest, self.seed, latent_dim,
+                                              kind, epochs, retrain)
+        if msg:
+            self.log(msg)
+        return latent
 
     def phase3(self, system: Any, budget: int, *, latent: Any = None, method: str = "turbo",
                regions: int | None = None, start: Any = "manual",

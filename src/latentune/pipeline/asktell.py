@@ -164,7 +164,11 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
     not given are the stored ones (or the defaults on the first ask); a given one that differs
     from the stored is refused (:func:`~latentune.pipeline.manifest.ask_options`)."""
     key = mf.PHASE_KEYS[Phase(phase)]
-    stored = study.manifest.config().get(key) if study.manifest.n_used(phase) else None
+    cfg = study.manifest.config()
+    fixed = (cfg.get("asktell") or {}).get("phase") == phase or study.manifest.n_used(phase)
+    stored = cfg.get(key) if fixed else None
+    if phase == Phase.PHASE1 and given.get("handover"):
+        raise UsageError("handover is an option of phase 3")
     g = _normalized(given, space)
     if stored:
         g = mf.ask_options(stored, g, study.dir, phase)
@@ -181,8 +185,6 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
                  **mf.fall_options(mfp, None if mfp is None else "latent source"),
                  "handover": g.get("handover")}
     else:
-        if g.get("handover"):
-            raise UsageError("handover is an option of phase 3")
         extra = {"start": start_rec, **mf.fall_options(mfp, g.get("fall_prior"))}
     pc = study.manifest.phase_options(phase, method=g["method"], budget=g["budget"],
                                       regions=g.get("regions"), seed=study.seed,

@@ -382,6 +382,18 @@ def ensure_manual(store: RunStore, system: Any, seed: int | None = None, idx: in
     return float(out.cost)
 
 
+def manual_outcome(store: RunStore, system: Any) -> dict[bytes, Outcome]:
+    """The stored manual-θ trial (phase 0, idx 0) of ``system``, keyed by the θ's bytes for
+    :func:`run_phase`'s ``known`` (empty if none is stored for this manual θ)."""
+    rows = [r for r in store.rows(Phase.MANUAL) if r.idx == 0]
+    theta = np.ascontiguousarray(system.space.manual, dtype=float)
+    if not rows or not np.array_equal(rows[0].theta, theta):
+        return {}
+    r = rows[0]
+    info = {**r.info, "fall_step": r.fall_step} if r.fall_step is not None else dict(r.info)
+    return {theta.tobytes(): Outcome(r.cost, r.fell, info, r.wall_s)}
+
+
 def training_set(store: RunStore, phase: int = Phase.PHASE1) -> np.ndarray:
     """The θ of ``phase`` whose trial did not fail (for a built-in task: cost < C1, stable):
     phase 2's training set (n, d), in lexicographic order of θ. The store's order is the order

@@ -1,0 +1,53 @@
+"""Phase 2: the latent space (a VAE, :mod:`latentune.latent.vae`) trained on the θ of phase 1
+whose trial did not fail (:func:`~latentune.pipeline.phases.training_set`)."""
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from latentune.constants import Phase
+from latentune.errors import LatentError
+from latentune.pipeline.manifest import Manifest
+from latentune.pipeline.phases import training_set
+from latentune.pipeline.rundir import RunDir
+
+
+def train_latent(run: RunDir, manifest: Manifest, seed: int, latent_dim: int | None = None,
+                 kind: str | None = None, epochs: int | None = None, retrain: bool = False
+                 ) -> tuple[Any, str | None]:
+    """(the run's LatentSpace, a one-line message or None when it was trained before).
+
+    Trains it with ``seed`` and saves it as ``DIR/vae.pt`` / ``DIR/vae.json``; a trained one is
+    returned as it is unless ``retrain``; retraining after phase 3 used it is refused (it
+    would invalidate the stored phase-3 rows). Call with the run's write lock held."""
+    from latentune.latent.vae import DEFAULT_KIND, LatentSpace
+
+    st = run.store
+    if st.artifact("vae") is not None:
+        if not retrain:
+            return LatentSpace.load(st.artifact("vae")), None
+        if st.count(Phase.PHASE3) > 0 and manifest.config().get("phase3_vae_source") == "self":
+            raise LatentError(f"{run.dir}: phase 3 already used the VAE; retraining it "
+                              "would invalidate the stored phase-3 rows (use another dir)")
+    X = training_set(st, Phase.PHASE1)
+    if len(X) < 2:
+        raise LatentError(f"{run.dir}: phase 1 has {len(X)} θ whose trial did not fail; "
+                          "the latent space needs at least 2 (run more phase-1 evaluations)")
+    cfg = manifest.config()
+    t = time.perf_counter()
+    meta = {"source_run": str(run.dir.resolve()), "n_phase1": st.count(Phase.PHASE1),
+            "system": cfg.get("system"), "space_names": cfg.get("space", {}).get("names")}
+    if "task" in cfg:
+        meta.update({k: cfg["task"][k] for k in ("robot", "gait", "actor", "terrain")})
+    latent = LatentSpace.train(X, d_low=latent_dim, kind=kind or DEFAULT_KIND, seed=seed,
+                               epochs=epochs, meta=meta)
+    latent.save(run.dir / "vae")
+    manifest.add_wall("vae", time.perf_counter() - t)
+    st.add_artifact("vae", run.dir / "vae")
+    manifest.update(vae={"kind": latent.kind, "d_low": latent.d_low, "n_train": len(X),
+                         "seed": seed, "beta": latent.meta.get("beta"),
+                         "box": latent.box.tolist(), "box_rule": latent.meta.get("box_rule")})
+    manifest.record_seed(seed)
+    return latent, (f"VAE ({latent.kind}, d_low {latent.d_low}) trained on {len(X)} θ in "
+                    f"{latent.meta.get('train_wall_s', 0):.1f} s; final reconstruction error "
+                    f"{latent.meta.get('final_rec', float('nan')):.4f}")

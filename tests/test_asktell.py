@@ -1,0 +1,339 @@
+"""Ask/tell on the one phase loop: the same rows as a phase run, options and seed from the
+store, several askers with leases, status, amendments, trials as data, failing phases."""
+from __future__ import annotations
+
+import inspect
+import json
+import logging
+import math
+import multiprocessing as mp
+import os
+import sqlite3
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import latentune as lt
+from latentune.constants import Phase
+from latentune.errors import LatentuneError, StoreError
+from latentune.pipeline import store as store_module
+from latentune.pipeline.asktell import write_suggestion_files
+from latentune.pipeline.loop import phase_critic
+from latentune.pipeline.phases import FAIL_STREAK, replay
+from latentune.pipeline.store import RunStore
+from latentune.system import evaluate
+
+SPACE = lt.ParameterSpace(["a", "b", "c", "d"], [-1.0] * 4, [1.0] * 4, manual=[0.5] * 4)
+
+
+def plant_fn(x: np.ndarray, shift: float = 0.0):
+    """A quadratic with a fall region (a > 0.6, physical)."""
+    if x[0] > 0.6:
+        return lt.Outcome(None, failed=True, info={"reason": "a too big"})
+    return float(np.sum((x - 0.2 - shift) ** 2))
+
+
+def plant(shift: float = 0.0) -> lt.FunctionSystem:
+    return lt.FunctionSystem(SPACE, lambda x: plant_fn(x, shift))
+
+
+def all_fail(x: np.ndarray):
+    return lt.Outcome(None, failed=True)
+
+
+def rows_of(study: lt.Study, phase: int) -> list[tuple]:
+    return [(r.theta.tobytes(), r.cost, r.fell) for r in study.store.rows(phase)]
+
+
+def person(study: lt.Study, plant_: lt.FunctionSystem, n_trials: int, **ask_kw) -> None:
+    """A person asking one suggestion at a time and telling its result."""
+    for _ in range(n_trials):
+        (s,) = study.ask(**ask_kw)
+        out = evaluate(plant_, s.theta)
+        study.tell(s.id, out.cost, failed=out.failed)
+
+
+# ---------------------------------------------------------------------------- one loop
+def test_ask_tell_gives_the_rows_of_the_phase_run_with_fall_avoidance(tmp_path):
+    sys_ = plant()
+    with lt.Study(tmp_path / "run", seed=2) as run:
+        run.phase1(sys_, 20, max_fall_prob=0.4)
+    with lt.Study(tmp_path / "ask", seed=2) as at:
+        person(at, sys_, 20, system=sys_, max_fall_prob=0.4, budget=20)
+        cfg = at.config()
+    assert cfg["phase1"]["max_fall_prob"] == 0.4 and cfg["phase1"]["start"] == "manual"
+    with lt.Study(tmp_path / "run") as run, lt.Study(tmp_path / "ask") as at:
+        assert rows_of(at, Phase.PHASE1) == rows_of(run, Phase.PHASE1)
+        assert sum(f for _, _, f in rows_of(at, Phase.PHASE1)) > 0        # falls were seen
+
+
+def test_ask_tell_phase3_with_handover_and_start_gives_the_rows_of_the_phase_run(tmp_path):
+    with lt.Study(tmp_path / "src", seed=1) as src:
+        src.phase1(plant(), 40)
+        src.train_latent(latent_dim=2, epochs=40)
+    target = plant(0.2)
+    start = np.full(4, 0.4)
+    opts = {"patience": 6}
+    with lt.Study(tmp_path / "run", seed=1) as run:
+        run.phase3(target, 24, latent=tmp_path / "src", handover=opts, start=start,
+                   max_fall_prob=0.5)
+        hand_run = run.config()["phase3_handover"]["handover_at"]
+    with lt.Study(tmp_path / "ask", seed=1) as at:
+        first = at.ask(system=target, phase=3, latent=tmp_path / "src", handover=opts,
+                       start=start, max_fall_prob=0.5, budget=24)[0]
+        assert first.phase == Phase.ZERO_SHOT and first.phase_name == "zero-shot"
+        out = evaluate(target, first.theta)
+        at.tell(first.id, out.cost, failed=out.failed)
+        person(at, target, 24)                 # later asks take every option from the store
+        assert at.config()["phase3_handover"]["handover_at"] == hand_run
+        with pytest.raises(StoreError, match="budget of 24 trials is handed out"):
+            at.ask()
+    with lt.Study(tmp_path / "run") as run, lt.Study(tmp_path / "ask") as at:
+        assert rows_of(at, Phase.PHASE3) == rows_of(run, Phase.PHASE3)
+        assert rows_of(at, Phase.ZERO_SHOT) == rows_of(run, Phase.ZERO_SHOT)
+    assert hand_run is not None
+
+
+def test_a_reopened_study_takes_its_seed_and_options_from_the_store(tmp_path):
+    d = tmp_path / "s"
+    a = lt.Study(d, seed=7)
+    s1 = a.ask(2, space=SPACE, method="cma", budget=30)
+    a.close()
+    b = lt.Study(d)                                    # no seed: the stored one
+    assert b.seed == 7
+    with pytest.raises(StoreError, match="seed = 7, not 3"):
+        lt.Study(d, seed=3)
+    for kw, stored in ((dict(method="turbo"), "'cma'"), (dict(max_fall_prob=0.2), "None"),
+                       (dict(budget=10), "30"), (dict(phase=3), "phase 1"),
+                       (dict(start=[0.1] * 4), "'manual'")):
+        with pytest.raises(StoreError, match=stored) as e:
+            b.ask(**kw)
+        assert "\n" not in str(e.value)
+    with pytest.raises(LatentuneError, match="handover is an option of phase 3"):
+        b.ask(handover=True)
+    again = b.ask(2)                                   # the same asker: its pending ones again
+    assert [s.id for s in again] == [s.id for s in s1] and all(s.again for s in again)
+    grown = b.ask(3, budget=40)                        # a budget may grow
+    assert grown[2].id not in {s.id for s in s1} and b.config()["phase1"]["budget"] == 40
+    b.close()
+    # the same suggestions as a study created with that seed
+    with lt.Study(tmp_path / "control", seed=7) as c:
+        ctl = c.ask(3, space=SPACE, method="cma", budget=30)
+    np.testing.assert_array_equal([s.theta for s in ctl], [s.theta for s in grown])
+
+
+# ---------------------------------------------------------------------------- several askers
+def test_leases_expire_and_are_released(tmp_path):
+    st = lt.Study(tmp_path / "s", seed=0)
+    (a,) = st.ask(space=SPACE, asker="alice", lease_s=0.3)
+    (b,) = st.ask(asker="bob")
+    assert b.id != a.id and not b.again
+    (a2,) = st.ask(asker="alice")                      # alice's own, handed out again
+    assert a2.id == a.id and a2.again
+    a3 = st.ask(asker="alice", lease_s=0.3)[0]
+    time.sleep(0.4)                                    # alice's lease expires
+    (c,) = st.ask(asker="carol")
+    assert c.id == a3.id and c.again and c.asker == "carol"
+    st.release(b.id)                                   # bob gives his back
+    (d,) = st.ask(asker="dave")
+    assert d.id == b.id
+    s = st.status()
+    assert s["leases"][str(b.id)]["asker"] == "dave"
+    st.tell(d.id, 1.0)
+    with pytest.raises(StoreError, match="told, not pending"):
+        st.release(d.id)
+    st.close()
+
+
+def _asker(d: str, name: str, rounds: int, q: "mp.Queue") -> None:
+    study = lt.Study(d)
+    rng = np.random.default_rng(abs(hash(name)) % 2 ** 32)
+    for _ in range(rounds):
+        (s,) = study.ask(asker=name)
+        t0 = time.time()
+        time.sleep(float(rng.uniform(0, 0.05)))
+        q.put((name, s.id, t0, time.time(), s.theta.tobytes()))
+        study.tell(s.id, float(np.sum(s.theta ** 2)))
+    study.close()
+
+
+def test_four_concurrent_askers_never_hold_one_suggestion(tmp_path):
+    d = tmp_path / "s"
+    with lt.Study(d, seed=0) as st:
+        st.ask(space=SPACE, budget=60, asker="setup")
+        st.release(1)
+    ctx = mp.get_context("spawn")
+    q = ctx.Queue()
+    procs = [ctx.Process(target=_asker, args=(str(d), f"robot{i}", 6, q)) for i in range(4)]
+    for p in procs:
+        p.start()
+    got = [q.get(timeout=300) for _ in range(24)]
+    for p in procs:
+        p.join(timeout=60)
+        assert p.exitcode == 0
+    ids = [g[1] for g in got]
+    assert len(set(ids)) == 24                          # every suggestion went to one asker
+    assert len({g[4] for g in got}) == 24               # and no θ twice
+    with RunStore(d) as st:
+        assert st.count(Phase.PHASE1) == 24
+        assert sorted(r.info["trial"] for r in st.rows(Phase.PHASE1)) == sorted(ids)
+        st.check()
+
+
+def _ask_then_die(d: str) -> None:
+    study = lt.Study(d)
+    study.ask(asker="doomed")
+    os._exit(0)                                         # noqa: SLF001 - a kill after the ask
+
+
+def test_a_kill_during_ask_loses_nothing(tmp_path):
+    d = tmp_path / "s"
+    with lt.Study(d, seed=0, batch_size=4) as st:
+        st.ask(space=SPACE)
+    ctx = mp.get_context("spawn")
+    p = ctx.Process(target=_ask_then_die, args=(str(d),))
+    p.start()
+    time.sleep(2.5)
+    if p.is_alive():
+        p.kill()                                        # during its ask, or after it
+    p.join()
+    with lt.Study(d) as st:
+        st.store.check()
+        trials = st.store.trials()
+        assert len({t.theta.tobytes() for t in trials}) == len(trials)
+        assert {t.status for t in trials} <= {"queued", "pending"}
+        s = st.ask(asker="next")[0]
+        st.tell(s.id, 1.0)
+        assert st.store.count(Phase.PHASE1) == 1
+
+
+# ---------------------------------------------------------------------------- status, best
+def test_status_names_phases_and_counts_the_zero_shot_trial(tmp_path):
+    with lt.Study(tmp_path / "src", seed=0) as src:
+        src.phase1(plant(), 30)
+        src.train_latent(latent_dim=2, epochs=30)
+    target = plant(0.3)
+    with lt.Study(tmp_path / "t", seed=0) as st:
+        sugg = st.ask(3, system=target, phase=3, latent=tmp_path / "src")
+        assert [s.phase_name for s in sugg] == ["zero-shot", "phase 3", "phase 3"]
+        st.tell(sugg[0].id, 0.01)                      # the zero-shot trial is the best
+        st.tell(sugg[1].id, 0.5)
+        st.tell(sugg[2].id, None, failed=True)
+        s = st.status()
+        assert set(s["phases"]) == {"zero-shot", "phase 3"}
+        assert s["phases"]["phase 3"] == {"n": 2, "failed": 1, "pending": 0, "best": 0.5,
+                                          "best_idx": 0, "best_trial": sugg[1].id}
+        assert s["best"]["phase"] == "zero-shot" and s["best"]["trial"] == sugg[0].id
+        assert json.loads(Path(s["best"]["params_file"]).read_text()) == sugg[0].params
+        assert st.best().phase == Phase.ZERO_SHOT
+        p = st.best_params(tmp_path / "deploy.json")
+        assert json.loads(p.read_text()) == sugg[0].params
+        nxt = st.ask()[0]
+        assert st.status()["phases"]["phase 3"]["pending"] == 1 and nxt.phase_name == "phase 3"
+        write_suggestion_files(st.dir, [nxt])
+        assert json.loads(Path(nxt.path).read_text()) == nxt.params
+
+
+def test_no_best_file_for_a_failed_theta_and_a_failing_phase_says_so(tmp_path, caplog):
+    sys_ = lt.FunctionSystem(SPACE, all_fail)
+    with caplog.at_level(logging.WARNING):
+        with lt.Study(tmp_path / "s", seed=0) as st:
+            st.phase1(sys_, 2 * FAIL_STREAK + 2)
+            assert st.best() is None
+            with pytest.raises(StoreError, match="all .* trials failed"):
+                st.best_params()
+    warned = [r for r in caplog.records if "trials all failed" in r.getMessage()]
+    assert len(warned) == 1 and warned[0].levelno == logging.WARNING
+    assert f"phase 1: the last {FAIL_STREAK} trials all failed" in warned[0].getMessage()
+    assert not (tmp_path / "s" / "phase1_best.json").exists()
+    assert not (tmp_path / "s" / "best.json").exists()
+    caplog.clear()
+    with caplog.at_level(logging.WARNING), lt.Study(tmp_path / "a", seed=0) as at:
+        for i in range(FAIL_STREAK):
+            (s,) = at.ask(space=SPACE)
+            at.tell(s.id, None, failed=True)
+    assert sum("trials all failed" in r.getMessage() for r in caplog.records) == 1
+
+
+# ---------------------------------------------------------------------------- corrections
+def test_amend_keeps_an_audit_trail_and_rebuilds_the_critic(tmp_path):
+    st = lt.Study(tmp_path / "s", seed=0, batch_size=2)
+    ids = []
+    for cost in (4.0, 2.0, 3.0):
+        (s,) = st.ask(space=SPACE)
+        ids.append(s.id)
+        st.tell(s.id, -3.0 if cost == 2.0 else cost)   # a typo on the second
+    assert st.best().cost == -3.0
+    with pytest.raises(StoreError, match="already told.*amend"):
+        st.tell(ids[1], 2.0)
+    queued = [t for t in st.store.trials() if t.status == "queued"]
+    assert queued                                       # asked from the typo
+    row = st.tell(ids[1], 2.0, amend=True, note="typo: -3")
+    assert row.cost == 2.0 and st.best().cost == 2.0
+    (a,) = st.amendments()
+    assert a["trial"] == ids[1] and a["old"]["cost"] == -3.0 and a["new"]["cost"] == 2.0
+    assert a["note"] == "typo: -3"
+    assert all(t.status == "dropped" for t in st.store.trials() if t.id in {q.id for q in queued})
+    pc = st.config()["phase1"]
+    control = phase_critic(Phase.PHASE1, pc, SPACE, st.dir)
+    replay(st.store, Phase.PHASE1, control)             # the corrected rows alone
+    expected = control.ask(2)
+    nxt = st.ask(2)
+    np.testing.assert_array_equal([s.theta for s in nxt], expected)
+    with pytest.raises(StoreError, match="only a told result"):
+        st.tell(nxt[0].id, 1.0, amend=True)
+    st.close()
+
+
+# ---------------------------------------------------------------------------- trials as data
+def test_trials_are_records_with_named_phases_and_physical_params(tmp_path, monkeypatch):
+    with lt.Study(tmp_path / "s", seed=0) as st:
+        st.phase1(plant(), 8)
+        recs = st.trials()
+        assert [r.phase for r in recs] == ["manual"] + ["phase 1"] * 8
+        r = recs[3]
+        assert set(r.params) == set(SPACE.names)
+        np.testing.assert_allclose(list(r.params.values()), SPACE.to_physical(r.theta))
+        assert r.trial is None and isinstance(r.failed, bool)
+        assert json.loads(json.dumps(r.to_dict()))["phase"] == "phase 1"
+    with lt.Study(tmp_path / "a", seed=0) as at:
+        (s,) = at.ask(space=SPACE)
+        at.tell(s.id, 1.5, note="by hand")
+        (rec,) = at.trials()
+        assert rec.trial == s.id and rec.cost == 1.5 and rec.info["note"] == "by hand"
+        monkeypatch.setitem(__import__("sys").modules, "pandas", None)
+        with pytest.raises(ImportError, match="pip install pandas"):
+            at.trials_dataframe()
+
+
+def test_the_store_decodes_non_finite_costs_and_names_no_fall_constant(tmp_path):
+    with RunStore(tmp_path / "r", create=True) as st:
+        st.add(1, 0, [0.1], math.inf, fell=True)
+        st.add(1, 1, [0.2], -math.inf, fell=False)
+        st.add(1, 2, [0.3], 150.0)                    # failed only when told so
+        assert [r.cost for r in st.rows(1)] == [math.inf, -math.inf, 150.0]
+        assert list(st.costs(1)) == [math.inf, -math.inf, 150.0]
+        assert [r.fell for r in st.rows(1)] == [True, False, False]
+    src = inspect.getsource(store_module)
+    assert "C1" not in src and "STABLE_CAP" not in src and "fail_cost" not in src
+
+
+def test_a_version_2_store_is_upgraded_by_its_first_ask(tmp_path):
+    d = tmp_path / "s"
+    with lt.Study(d, seed=0) as st:
+        st.ask(space=SPACE)
+    con = sqlite3.connect(d / "run.db")                 # back to version 2: no leases
+    con.executescript("DROP TABLE amendments; ALTER TABLE trials DROP COLUMN asker; "
+                      "ALTER TABLE trials DROP COLUMN lease_until; "
+                      "UPDATE trials SET status='pending' WHERE status='queued';")
+    con.execute("UPDATE meta SET value='2' WHERE key='version'")
+    con.commit()
+    con.close()
+    with lt.Study(d) as st:
+        assert st.status()["pending"] == [1, 2, 3, 4]
+        got = st.ask(2, asker="new")                    # unleased pending: handed out again
+        assert [s.id for s in got] == [1, 2] and all(s.again for s in got)
+        st.tell(1, 1.0)
+        assert st.store.get_meta("version") == 3
