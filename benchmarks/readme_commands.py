@@ -1,10 +1,11 @@
 """Time the README's two commands on a fresh clone of this repository.
 
-    python benchmarks/readme_commands.py [--out results/benchmarks/readme_commands.json]
+    python -m benchmarks.readme_commands [--out FILE.json]
 
 Clones the current HEAD into a temporary directory, runs the README's first command (set up the
 venv and run the main job) and its second (the tests), and records each wall time, exit status,
-the main job's summary (manual / phase-1 / phase-3 best) and the machine load.
+the main job's summary (manual / phase-1 / phase-3 best) and the machine load at the start and
+end of each.
 """
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+from benchmarks.common import ROOT, Provenance, add_out_arg, finish
 
 
 def readme_commands() -> list[str]:
@@ -28,10 +29,11 @@ def readme_commands() -> list[str]:
     return [ln.strip() for ln in block.splitlines() if ln.strip() and not ln.strip().startswith("#")]
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
+    prov = Provenance(argv, "benchmarks.readme_commands")
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default=None)
-    a = ap.parse_args()
+    add_out_arg(ap)
+    a = ap.parse_args(argv)
     cmds = readme_commands()
     work = Path(tempfile.mkdtemp(prefix="lt_readme_"))
     clone = work / "latentune"
@@ -53,21 +55,21 @@ def main() -> None:
         runs.append({"command": cmd, "wall_s": wall, "exit": p.returncode, "stdout_tail": tail,
                      "stderr_tail": p.stderr.strip().splitlines()[-3:],
                      "loadavg_start": load0, "loadavg_end": list(os.getloadavg())})
-        print(f"{cmd}\n  exit {p.returncode} in {wall:.0f} s", flush=True)
+        print(f"{cmd}\n  exit {p.returncode} in {wall:.0f} s", file=sys.stderr, flush=True)
     summary = None
     s = clone / "runs" / "a1_trot" / "summary.json"
     if s.is_file():
         d = json.loads(s.read_text())
         summary = {k: d.get(k) for k in ("manual_cost", "phase1_best", "phase3_best",
                                           "phase1_evals", "phase3_evals", "wall_s")}
-        print(f"  main job: {summary}")
-    out = {"commit": commit, "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-           "machine": f"{os.cpu_count()} cores", "python": sys.version.split()[0],
-           "command": "python benchmarks/readme_commands.py" + (f" --out {a.out}" if a.out else ""),
-           "runs": runs, "main_job": summary}
-    if a.out:
-        Path(a.out).write_text(json.dumps(out, indent=1))
+    rows = [{"command": r["command"], "exit": r["exit"], "wall_s": r["wall_s"],
+             "load_start": r["loadavg_start"][0], "load_end": r["loadavg_end"][0]}
+            for r in runs]
+    finish(a.out, prov, {"clone_commit": commit, "runs": runs, "main_job": summary}, rows,
+           title="the README's commands on a fresh clone"
+                 + (f"; main job {summary}" if summary else ""))
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -1,20 +1,21 @@
 """Sim-to-real over seeds: phase 3 in the model's latent space vs direct TuRBO-m vs zero-shot.
 
-    python benchmarks/sim_to_real.py [--seeds 0 1 2 3 4] [--phase1-evals 300]
+    python -m benchmarks.sim_to_real [--seeds 0 1 2 3 4] [--phase1-evals 300]
         [--phase3-evals 100] [--checkpoints 20 40 60] [--latent-dim 5] [--episode-steps 400]
-        [--out runs/sim_to_real] [--workers 1] [--backend serial]
-        [--json results/sim_to_real/sim_to_real.json]
+        [--work runs/sim_to_real] [--workers 1] [--backend serial] [--out FILE.json]
+
+(from the repository root: it imports ``examples``).
 
 The system is example (b), ``examples/sim_to_real.py``: the 36-weight linear controller of
 Gymnasium's ``Hopper-v5`` (``examples/gym_controller.py``); the model is the nominal Hopper, the
 "real" one has masses x1.3, friction x0.6, gear x0.8, observation noise and a one-step action
 delay. For every seed s (one model study per seed, seed s; nothing is shared between seeds):
 
-1. ``OUT/seed<s>/model``: phase 1 (``--phase1-evals`` model evaluations) + the VAE;
-2. ``OUT/seed<s>/phase3``: phase 3 on the real Hopper, ``--phase3-evals`` evaluations in the
+1. ``WORK/seed<s>/model``: phase 1 (``--phase1-evals`` model evaluations) + the VAE;
+2. ``WORK/seed<s>/phase3``: phase 3 on the real Hopper, ``--phase3-evals`` evaluations in the
    model's latent space (``Study.phase3(real, B, latent=model)``; that also runs the model's best
    θ on the real Hopper once: the zero-shot cost);
-3. ``OUT/seed<s>/direct``: TuRBO-m on the full θ on the real Hopper from the manual θ
+3. ``WORK/seed<s>/direct``: TuRBO-m on the full θ on the real Hopper from the manual θ
    (``Study.phase1(real, B)``), the same ``--phase3-evals`` budget.
 
 Each tuning budget B counts the tuned trials only; both also evaluate the manual θ once and
@@ -24,24 +25,16 @@ the budget only through the number of trust regions, 1 for every budget below 75
 after k < B evaluations is the result of a k-evaluation run), evaluations until the best so far
 beats the zero-shot cost and the manual cost, and failed real trials (falls) during tuning.
 Every study directory resumes: rerunning the same command finishes what is missing.
-Writes a JSON (the exact command, seeds, budgets, wall time, date, ``os.getloadavg()``) and a
-Markdown table next to it.
+Prints a Markdown table; ``--out FILE.json`` writes every seed's results with the provenance
+(:mod:`benchmarks.common`) and the table next to it (``FILE.md``).
 """
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import platform
-import shlex
-import subprocess
 import sys
 import time
 from pathlib import Path
 from typing import Any
-
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 from latentune.threads import one_thread_env  # noqa: E402
 
@@ -51,6 +44,8 @@ import numpy as np  # noqa: E402
 
 from examples.gym_controller import REAL  # noqa: E402
 from examples.sim_to_real import run_model, run_real  # noqa: E402
+
+from benchmarks.common import Provenance, add_out_arg, write_json  # noqa: E402
 
 METHODS = ("phase3", "direct")
 
@@ -149,22 +144,8 @@ def markdown(res: dict[str, Any]) -> str:
     return "\n".join(out)
 
 
-def _versions() -> dict[str, str]:
-    out = {"python": platform.python_version()}
-    for mod in ("latentune", "numpy", "torch", "botorch", "gymnasium", "mujoco"):
-        try:
-            out[mod] = __import__(mod).__version__
-        except Exception:  # noqa: BLE001
-            out[mod] = "?"
-    try:
-        out["git"] = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"],
-                                    capture_output=True, text=True, timeout=10).stdout.strip()
-    except (OSError, subprocess.SubprocessError):
-        pass
-    return out
-
-
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
+    prov = Provenance(argv, "benchmarks.sim_to_real")
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     ap.add_argument("--phase1-evals", type=int, default=300)
@@ -173,17 +154,12 @@ def main() -> int:
     ap.add_argument("--checkpoints", type=int, nargs="*", default=[10, 20, 40, 60])
     ap.add_argument("--latent-dim", type=int, default=5)
     ap.add_argument("--episode-steps", type=int, default=400)
-    ap.add_argument("--out", default="runs/sim_to_real", help="root of the study directories")
+    ap.add_argument("--work", default="runs/sim_to_real", help="root of the study directories")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--backend", default="serial", choices=("serial", "process", "ray"))
-    ap.add_argument("--json", default=str(ROOT / "results" / "sim_to_real" / "sim_to_real.json"))
-    a = ap.parse_args()
-    root = Path(a.out)
-    command = " ".join(shlex.quote(x) for x in [os.path.relpath(sys.executable, os.getcwd())
-                                                 if sys.executable.startswith(os.getcwd())
-                                                 else sys.executable, *sys.argv])
-    load0, t0 = os.getloadavg(), time.perf_counter()
-    started = time.strftime("%Y-%m-%dT%H:%M:%S%z")
+    add_out_arg(ap)
+    a = ap.parse_args(argv)
+    root = Path(a.work)
     checkpoints = sorted(set(a.checkpoints) | {a.phase3_evals})
     per_seed = []
     for s in a.seeds:
@@ -200,12 +176,8 @@ def main() -> int:
               f"{' (fell)' if r['zero_shot_failed'] else ''}, phase 3 {r['phase3']['best']:.2f} "
               f"({r['phase3']['failed']} falls), direct {r['direct']['best']:.2f} "
               f"({r['direct']['failed']} falls); model phase 1 {model['phase1_best']:.2f}; "
-              f"{r['wall_s']:.0f} s", flush=True)
-    res = {"benchmark": "sim_to_real", "command": command, "cwd": os.getcwd(),
-           "date": started, "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-           "wall_s": time.perf_counter() - t0,
-           "loadavg_start": list(load0), "loadavg_end": list(os.getloadavg()),
-           "cpus": os.cpu_count(), "versions": _versions(),
+              f"{r['wall_s']:.0f} s", file=sys.stderr, flush=True)
+    res = {"benchmark": "sim_to_real",
            "system": {"env": "Hopper-v5", "controller": "linear feedback + bias, 36 weights",
                       "episode_steps": a.episode_steps, "real_perturbation": REAL,
                       "cost": "100·exp(-max(return - 200·fell, 0)/1000), in (0, 100]; "
@@ -221,15 +193,16 @@ def main() -> int:
     res["aggregate"] = aggregate(per_seed, a.phase3_evals, checkpoints)
     table = markdown(res)
     res["table"] = table
-    out = Path(a.json)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(res, indent=1))
-    out.with_suffix(".md").write_text(
-        f"# Sim-to-real on the Hopper-v5 controller\n\n`{command}`\n\n{res['date']}, "
-        f"{res['wall_s']:.0f} s wall, load average {res['loadavg_start'][0]:.2f} → "
-        f"{res['loadavg_end'][0]:.2f} on {res['cpus']} cores\n\n{table}\n")
     print(table)
-    print(f"\n{out} ({res['wall_s']:.0f} s)")
+    if a.out is not None:
+        p = prov.finish()
+        out = write_json(a.out, res, p)
+        load = p["loadavg_start"] or [float("nan")], p["loadavg_end"] or [float("nan")]
+        out.with_suffix(".md").write_text(
+            f"# Sim-to-real on the Hopper-v5 controller\n\n`{p['command']}`\n\n{p['date']}, "
+            f"{p['wall_s']:.0f} s wall, load average {load[0][0]:.2f} → {load[1][0]:.2f} on "
+            f"{p['machine']['cores']} cores\n\n{table}\n")
+        print(f"\nwritten: {out}")
     return 0
 
 
