@@ -126,17 +126,22 @@ def _task_given(args: argparse.Namespace) -> bool:
                          "engine"))
 
 
+def check_system_flags(args: argparse.Namespace) -> None:
+    """Refuse a built-in task's flags beside ``--system``, and ``--system-arg`` without it."""
+    if args.system is not None and _task_given(args):
+        raise CLIError("--system replaces --robot/--task/--terrain/--actor/--steps/--v-des/"
+                       "--reality/--engine")
+    if args.system is None and args.system_arg:
+        raise CLIError("--system-arg needs --system")
+
+
 def make_system(args: argparse.Namespace, seed: int = 0) -> Any:
     """The system of the flags: ``--system`` (a plugin) or the built-in task."""
     from latentune.system import load_system, parse_system_args
 
+    check_system_flags(args)
     if args.system is not None:
-        if _task_given(args):
-            raise CLIError("--system replaces --robot/--task/--terrain/--actor/--steps/--v-des/"
-                           "--reality/--engine")
         return load_system(args.system, parse_system_args(args.system_arg))
-    if args.system_arg:
-        raise CLIError("--system-arg needs --system")
     return make_task(args, seed)
 
 
@@ -310,6 +315,7 @@ def _study(args: argparse.Namespace):
     """The Study of a run command, its flags checked (nothing is run or written here)."""
     from latentune.study import Study
 
+    check_system_flags(args)
     for flag in ("phase1_evals", "phase3_evals", "workers", "vae_epochs", "latent_dim",
                  "batch_size"):
         _positive(flag.replace("_", "-"), getattr(args, flag, None))
@@ -393,12 +399,12 @@ def _phase1_study(args: argparse.Namespace, latent: bool) -> tuple[Any, Any, Any
     """The study, system and phase-1 result of ``tune``/``phase1``, every flag checked first
     (``latent``: the latent-space flags are used afterwards, as in ``tune``)."""
     study = _study(args)
-    _need_store(study, args.resume)
-    _refuse_rerun(study, 1, args.resume)
     _check_stored_system(study, args)
     system = make_system(args, args.seed)
     if latent or args.latent_dim is not None:
         _check_latent_dim(args, system.space.dim)
+    _need_store(study, args.resume)
+    _refuse_rerun(study, 1, args.resume)
     try:
         res = study.phase1(system, args.phase1_evals, method=args.method, regions=args.regions,
                            max_fall_prob=args.max_fall_prob,
@@ -436,11 +442,11 @@ def cmd_phase1(args: argparse.Namespace) -> int:
 
 def cmd_train_vae(args: argparse.Namespace) -> int:
     study = _study(args)
-    if not study.exists:
-        raise CLIError(f"no run store in {study.dir} (run phase1 or tune first)")
     _check_stored_system(study, args)
     system = make_system(args, args.seed)
     _check_latent_dim(args, system.space.dim)
+    if not study.exists:
+        raise CLIError(f"no run store in {study.dir} (run phase1 or tune first)")
     study.bind_check(system)
     with study:
         if study.store.artifact("vae") is not None and args.resume:
@@ -456,15 +462,16 @@ def cmd_train_vae(args: argparse.Namespace) -> int:
 def cmd_phase3(args: argparse.Namespace) -> int:
     handover = _handover(args)
     study = _study(args)
+    _check_stored_system(study, args)
+    system = make_system(args, args.seed)
+    if args.latent_dim is not None:
+        _check_latent_dim(args, system.space.dim)
     _need_store(study, args.resume)
     if args.vae is None and not study.exists:
         raise CLIError(f"no run store in {study.dir} (run phase1 and train-vae first, "
                        "or pass --vae RUN_DIR)")
     _refuse_rerun(study, 3, args.resume)
-    _check_stored_system(study, args)
-    system = make_system(args, args.seed)
     if args.latent_dim is not None:
-        _check_latent_dim(args, system.space.dim)
         vae = study.config().get("vae") or {}
         if args.vae is None and vae.get("d_low") not in (None, args.latent_dim):
             raise CLIError(f"--latent-dim {args.latent_dim}: the latent space of {study.dir} "
