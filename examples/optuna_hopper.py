@@ -1,0 +1,117 @@
+"""An Optuna user's Hopper script, moved to latentune by changing a few lines.
+
+The user tunes the 36 weights of the linear Hopper controller of
+:mod:`examples.gym_controller` with Optuna: an objective with ``trial.suggest_float`` for each
+weight by name, one study on the simulator (the nominal ``Hopper-v5``) in an SQLite storage, then
+a study on the "real" Hopper (masses x1.3, friction x0.6, gear x0.8, noise, a one-step delay).
+Going to latentune changes these lines (marked ``# latentune`` below):
+
+* the objective also reports a fall: ``trial.set_constraint("fall", 1.0 if fell else 0.0)``;
+* on the simulator: ``TurboSampler(space, seed=...)`` (latentune's TuRBO-m, phase 1) instead of
+  ``TPESampler(seed=...)`` (``--sim-sampler tpe`` keeps TPE: the import works on any study);
+* the simulator study becomes a latentune run with a latent space, without re-running a trial:
+  ``import_optuna_study(storage, "hopper-sim", out / "sim").train_latent(latent_dim=5)``;
+* on the real Hopper: ``LatentSampler(out / "sim", seed=...)`` instead of ``TPESampler``.
+
+``--baseline`` also runs the unchanged script (TPE on the real Hopper) for comparison. Every study
+is in ``OUT/hopper.db`` and resumes. Run from the repository root::
+
+    python -m examples.optuna_hopper --out runs/examples/optuna_hopper --sim-trials 300 --trials 40
+
+``benchmarks/optuna_hopper.py`` compares LatentSampler with TPE, CMA-ES with ``source_trials``
+and GPSampler over seeds; ``latentune dashboard`` shows the latentune run, and
+``optuna-dashboard sqlite:///OUT/hopper.db`` the Optuna studies.
+"""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any, Callable
+
+from latentune.threads import one_thread_env
+
+one_thread_env()
+
+import numpy as np  # noqa: E402
+import optuna  # noqa: E402
+
+if __package__ in (None, ""):                   # run as a file: python examples/optuna_hopper.py
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from examples.gym_controller import hopper_space, make_real_system, make_system  # noqa: E402
+from latentune.integrations.optuna import (LatentSampler, TurboSampler,  # noqa: E402  # latentune
+                                           import_optuna_study)
+
+SPACE = hopper_space()                           # names, bounds and the hand-tuned weights
+
+
+def make_objective(system: Any) -> Callable[[optuna.Trial], float]:
+    """The user's objective: 36 ``suggest_float`` by name, one episode, its cost."""
+    def objective(trial: optuna.Trial) -> float:
+        w = np.array([trial.suggest_float(n, lo, hi)
+                      for n, lo, hi in zip(SPACE.names, SPACE.lower, SPACE.upper)])
+        out = system.evaluate(np.clip(SPACE.to_unit(w), 0.0, 1.0))     # one 400-step episode
+        trial.set_constraint("fall", 1.0 if out.failed else 0.0)         # latentune: a fall
+        return out.cost
+    return objective
+
+
+def main(argv: list[str] | None = None) -> int:
+    import argparse
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default="runs/examples/optuna_hopper", help="output directory")
+    ap.add_argument("--sim-trials", type=int, default=300, help="trials on the simulator")
+    ap.add_argument("--trials", type=int, default=40, help="trials on the real Hopper")
+    ap.add_argument("--sim-sampler", choices=("turbo", "tpe"), default="turbo")
+    ap.add_argument("--latent-dim", type=int, default=5)
+    ap.add_argument("--episode-steps", type=int, default=400)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--baseline", action="store_true", help="also run TPE on the real Hopper")
+    a = ap.parse_args(argv)
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    storage = f"sqlite:///{out.resolve() / 'hopper.db'}"
+    sim, real = (make_system(seed=a.seed, episode_steps=a.episode_steps),
+                 make_real_system(seed=a.seed, episode_steps=a.episode_steps))
+
+    # 1. the simulator study
+    if a.sim_sampler == "turbo":
+        sampler = TurboSampler(SPACE, seed=a.seed, budget=a.sim_trials, start="manual")  # latentune
+    else:
+        sampler = optuna.samplers.TPESampler(seed=a.seed)
+    study = optuna.create_study(study_name="hopper-sim", storage=storage, sampler=sampler,
+                                load_if_exists=True)
+    study.optimize(make_objective(sim), n_trials=max(0, a.sim_trials - len(study.trials)))
+    best = min(t.value for t in study.trials if t.value is not None)  # a fall's cost counts too
+    print(f"simulator: {len(study.trials)} trials, best cost {best:.2f}", flush=True)
+
+    # 2. latentune: the simulator study as phase 1, and its latent space (phase 2)
+    run = import_optuna_study(storage, "hopper-sim", out / "sim", seed=a.seed)        # latentune
+    latent = run.train_latent(latent_dim=a.latent_dim)                                 # latentune
+    print(f"latent space: d_low {latent.d_low}, trained on {latent.meta.get('n_train')} θ that "
+          "did not fall", flush=True)
+
+    # 3. the real Hopper
+    results = {}
+    samplers = {"latent": lambda: LatentSampler(out / "sim", seed=a.seed,               # latentune
+                                                budget=a.trials)}
+    if a.baseline:
+        samplers["tpe"] = lambda: optuna.samplers.TPESampler(seed=a.seed)
+    for name, make in samplers.items():
+        study = optuna.create_study(study_name=f"hopper-real-{name}", storage=storage,
+                                    sampler=make(), load_if_exists=True)
+        study.optimize(make_objective(real), n_trials=max(0, a.trials - len(study.trials)))
+        done = [t for t in study.trials if t.value is not None]
+        falls = sum(t.constraints.get("fall", 0) > 0 for t in done)
+        results[name] = (min(t.value for t in done), falls, len(done))
+    print(f"\n| on the real Hopper (seed {a.seed}) | trials | best cost | falls |")
+    print("|---|---:|---:|---:|")
+    for name, (best, falls, n) in results.items():
+        label = "LatentSampler (simulator's latent space)" if name == "latent" else "TPE"
+        print(f"| {label} | {n} | {best:.2f} | {falls} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
