@@ -64,6 +64,9 @@ def cmd_dashboard(args: argparse.Namespace) -> int:
     from latentune.errors import CLIError
 
     mod = _need("dashboard")
+    import optuna
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)   # not a line per exported study
     if not 1 <= args.port <= 65535:
         raise CLIError(f"--port must be in [1, 65535], got {args.port}")
     if not args.interval > 0:
