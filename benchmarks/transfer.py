@@ -1,64 +1,374 @@
-"""Cross-task / cross-robot transfer of a latent space: ``phase3 --vae RUN_DIR`` elsewhere.
+"""The transfer ladder: phase 3 against the tools a user would pick, on targets at several gaps.
 
-    python benchmarks/transfer.py RUN_DIR [--targets a1:jump b1:trot b1:jump] [--evals 220]
-        [--workers 2] [--seed 0] [--out-root DIR]
+    python -m benchmarks.transfer run [--systems chain arm hopper] [--seeds 0 1 ... 9]
+        [--budget 40] [--source-evals 300] [--root runs/transfer] [--only METHOD ...]
+    python -m benchmarks.transfer summary [--root runs/transfer] [--out results/transfer/ladder.json]
 
-RUN_DIR holds the VAE (e.g. ``latentune tune --robot a1 --task trot --out RUN_DIR``). For each
-target robot:gait, runs ``latentune phase3 --vae RUN_DIR`` in ``OUT_ROOT/<robot>_<gait>`` and
-prints the manual cost, the phase-3 best cost and whether it is stable (< C1 = 100).
+Systems (``SYSTEMS``; the model is gap 0, each target is the same controller on a plant at a gap):
+
+* ``chain``  — :mod:`examples.lqr_chain`, 20 LQR weights of a seven-cart chain (gaps 0.5, 1, 1.5);
+* ``arm``    — :mod:`examples.arm_controller`, 21 joint-controller weights of a two-link arm
+  (gaps 0.5, 1, 1.5);
+* ``hopper`` — :mod:`examples.gym_controller`, 36 weights of a linear Hopper controller; gap g
+  scales the "real" perturbation: masses × (1 + 0.3 g), friction × (1 − 0.4 g), gear × (1 − 0.2 g),
+  observation noise 0.01 g, a round(g)-step action delay (gaps 0.5, 1, 1.5).
+
+For every (system, seed) one source run: ``Study(ROOT/<system>/seed<s>/source, seed=s)``, phase 1
+(TuRBO-m, ``--source-evals`` trials on the model, batch 4) and the latent space. For every target
+(system, gap) and seed each method gets ``--budget`` B trials on the target, one at a time, every
+trial counted (the zero-shot one included):
+
+* ``transfer``     latentune's default phase 3 (:class:`latentune.critic.transfer.Transfer`): the
+  zero-shot θ, then the critic on everything the source tried;
+* ``plain``        the paper's phase 3 as ``Study.phase3`` runs it: the manual θ, the zero-shot θ,
+  then TuRBO-m in the latent box from the manual θ's code (not a peer);
+* ``handover``     the same with the hand-over to the full θ box (not a peer);
+* peers: ``zero_shot`` (the source's best θ, one trial), ``turbo_manual`` / ``turbo_source``
+  (TuRBO-m, one trust region, on θ from the manual θ / the source's best), and Optuna 5's
+  ``cma_source`` (``CmaEsSampler(x0=source best)``), ``cma_source_trials``
+  (``CmaEsSampler(source_trials=<every source trial>)``), ``tpe`` (multivariate) and ``gp``
+  (``GPSampler``), each with the source's best θ enqueued as its first trial.
+
+Every (system, gap, seed, method) writes ``ROOT/<system>/gap<g>/seed<s>/<method>.json`` (cost and
+failed per trial, wall time) and is skipped when it exists: the run resumes. ``summary`` applies
+the transfer issue's definitions (best peer, trials to reach its median, falls, Mann-Whitney) and
+writes JSON + Markdown with provenance.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import math
+import os
+import platform
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
+from typing import Any, Callable
 
-from latentune.pipeline.store import RunStore
-from latentune.task import C1
+from latentune.threads import one_thread_env
+
+one_thread_env()
+
+import numpy as np  # noqa: E402
+
+PEERS = ("zero_shot", "turbo_manual", "turbo_source", "cma_source", "cma_source_trials", "tpe",
+         "gp")
+OURS = ("transfer",)
+BESIDE = ("plain", "handover")
+METHODS = OURS + BESIDE + PEERS
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("run_dir")
-    ap.add_argument("--targets", nargs="+", default=["a1:jump", "b1:trot", "b1:jump"])
-    ap.add_argument("--evals", type=int, default=220)
-    ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out-root", default=None)
-    a = ap.parse_args()
-    root = Path(a.out_root or tempfile.mkdtemp(prefix="lt_transfer_"))
-    rows = []
-    for t in a.targets:
-        robot, gait = t.split(":")
-        out = root / f"{robot}_{gait}"
-        t0 = time.perf_counter()
-        p = subprocess.run([sys.executable, "-m", "latentune.cli", "phase3", "--robot", robot,
-                            "--task", gait, "--vae", a.run_dir, "--out", str(out),
-                            "--phase3-evals", str(a.evals), "--workers", str(a.workers),
-                            "--seed", str(a.seed), "--quiet"] + (["--resume"] if (out / "run.db").exists() else []),
-                           capture_output=True, text=True)
-        if p.returncode != 0:
-            print(f"{t}: failed: {p.stderr.strip()}")
+def _hopper_target(g: float) -> Any:
+    from examples.gym_controller import make_real_system
+
+    return make_real_system(seed=0, mass_scale=1 + 0.3 * g, friction_scale=1 - 0.4 * g,
+                            gear_scale=1 - 0.2 * g, obs_noise=0.01 * g,
+                            action_delay=int(round(g)))
+
+
+def _hopper_model() -> Any:
+    from examples.gym_controller import make_system
+
+    return make_system(seed=0)
+
+
+def _chain(g: float) -> Any:
+    from examples.lqr_chain import make_system
+
+    return make_system(gap=g)
+
+
+def _arm(g: float) -> Any:
+    from examples.arm_controller import make_system
+
+    return make_system(gap=g)
+
+
+SYSTEMS: dict[str, dict[str, Any]] = {
+    "chain": {"model": lambda: _chain(0.0), "target": _chain, "gaps": (0.5, 1.0, 1.5)},
+    "arm": {"model": lambda: _arm(0.0), "target": _arm, "gaps": (0.5, 1.0, 1.5)},
+    "hopper": {"model": _hopper_model, "target": _hopper_target, "gaps": (0.5, 1.0, 1.5)},
+}
+
+
+# --------------------------------------------------------------------------- sources
+def source_run(root: Path, system: str, seed: int, evals: int) -> Path:
+    """Phase 1 + the latent space on the model (resumes); the source directory."""
+    import latentune as lt
+
+    d = root / system / f"seed{seed}" / "source"
+    with lt.Study(d, seed=seed, batch_size=4) as st:
+        st.phase1(SYSTEMS[system]["model"](), evals)
+        st.train_latent()
+    return d
+
+
+def _source_hypers(src: Path, seed: int) -> dict[str, Any]:
+    """The fitted source models' hyperparameters, fitted once per source (cached as JSON)."""
+    from latentune.critic.transfer import SourceModel, source_trials
+
+    f = src / "transfer_source_model.json"
+    if f.is_file():
+        return json.loads(f.read_text())
+    X, y, fell = source_trials(src)
+    h = SourceModel(X, y, fell, seed=seed).hypers
+    f.write_text(json.dumps(h))
+    return h
+
+
+# --------------------------------------------------------------------------- methods
+def _loop(critic: Any, target: Any, n: int, costs: list, failed: list,
+          decode: Callable[[np.ndarray], np.ndarray] | None = None) -> None:
+    """``n`` trials of ``critic`` on ``target`` one at a time: its points are θ, or latent points
+    mapped by ``decode``; two-space critics (``last_z``) get their codes back."""
+    for _ in range(n):
+        U = critic.ask(1)
+        tags = critic.last_tags.copy()
+        Z = getattr(critic, "last_z", None)
+        theta = U[0] if decode is None else decode(U)[0]
+        out = target.evaluate(theta)
+        costs.append(float(out.cost))
+        failed.append(bool(out.failed))
+        kw = {} if Z is None or Z.shape[1] == 0 else {"z": Z.copy()}
+        critic.tell(U, np.array([out.cost]), tags, fell=np.array([out.failed]), **kw)
+
+
+def run_method(method: str, target: Any, src: Path, B: int, seed: int) -> dict[str, Any]:
+    """B target trials of ``method`` (module docstring); returns costs, failed and extras."""
+    from latentune.critic.transfer import Transfer, source_trials
+    from latentune.latent.vae import LatentSpace
+    from latentune.study import source_best
+
+    best = source_best(src).theta
+    manual = target.space.manual
+    Xs, ys, fs = source_trials(src)
+    costs: list[float] = []
+    failed: list[bool] = []
+    extra: dict[str, Any] = {}
+
+    def trial(theta: np.ndarray) -> Any:
+        out = target.evaluate(theta)
+        costs.append(float(out.cost))
+        failed.append(bool(out.failed))
+        return out
+
+    if method == "zero_shot":
+        trial(best)
+    elif method == "transfer":
+        ls = LatentSpace.load(src / "vae")
+        cr = Transfer((Xs, ys, fs), ls, manual, batch_size=1, seed=seed)
+        cr.load_state_dict({"source_hypers": _source_hypers(src, seed)})
+        o = trial(best)
+        cr.tell(best[None], np.array([o.cost]), fell=np.array([o.failed]))
+        _loop(cr, target, B - 1, costs, failed)
+        extra["decisions"] = cr.decisions
+    elif method in ("plain", "handover"):
+        from latentune.pipeline.phases import make_handover_critic, make_phase_critic, \
+            handover_options
+
+        ls = LatentSpace.load(src / "vae")
+        trial(manual)
+        trial(best)
+        x0 = ls.to_unit(ls.encode(manual))
+        if method == "plain":
+            cr = make_phase_critic("turbo", ls.d_low, 1, seed, x0, B - 2)
+            _loop(cr, target, B - 2, costs, failed, decode=ls.decode)
+        else:
+            cr = make_handover_critic("turbo", ls, 1, seed, x0, B - 2, None,
+                                      handover_options(True))
+            _loop(cr, target, B - 2, costs, failed)
+    elif method in ("turbo_manual", "turbo_source"):
+        from latentune.critic.turbo import TurboM
+
+        x0 = manual if method == "turbo_manual" else best
+        cr = TurboM(target.space.dim, batch_size=1, seed=seed, x0=x0, n_regions=1)
+        _loop(cr, target, B, costs, failed)
+    else:
+        _optuna(method, target, best, (Xs, ys), B, seed, trial)
+    return {"costs": costs, "failed": failed, **extra}
+
+
+def _optuna(method: str, target: Any, best: np.ndarray, source: tuple[np.ndarray, np.ndarray],
+            B: int, seed: int, trial: Callable[[np.ndarray], Any]) -> None:
+    import optuna
+    from optuna.distributions import FloatDistribution
+
+    import warnings
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    warnings.filterwarnings("ignore", category=FutureWarning, module="optuna")
+    warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning)
+    d = target.space.dim
+    names = [f"x{i:02d}" for i in range(d)]
+    dists = {n: FloatDistribution(0.0, 1.0) for n in names}
+    start = {n: float(v) for n, v in zip(names, best)}
+    if method == "cma_source":
+        sampler = optuna.samplers.CmaEsSampler(x0=start, seed=seed)
+    elif method == "cma_source_trials":
+        Xs, ys = source
+        src_trials = [optuna.trial.create_trial(params={n: float(v) for n, v in zip(names, x)},
+                                                distributions=dists, value=float(c))
+                      for x, c in zip(Xs, ys) if math.isfinite(c)]
+        sampler = optuna.samplers.CmaEsSampler(source_trials=src_trials, seed=seed)
+    elif method == "tpe":
+        sampler = optuna.samplers.TPESampler(multivariate=True, seed=seed)
+    elif method == "gp":
+        sampler = optuna.samplers.GPSampler(seed=seed)
+    else:
+        raise ValueError(f"unknown method {method}")
+    study = optuna.create_study(sampler=sampler)
+    study.enqueue_trial(start)
+
+    def objective(t: Any) -> float:
+        x = np.array([t.suggest_float(n, 0.0, 1.0) for n in names])
+        return float(trial(x).cost)
+
+    study.optimize(objective, n_trials=B)
+
+
+# --------------------------------------------------------------------------- run / summary
+def run(a: argparse.Namespace) -> None:
+    root = Path(a.root)
+    methods = a.only or METHODS
+    for seed in a.seeds:
+        for name in a.systems:
+            src = source_run(root, name, seed, a.source_evals)
+            for g in SYSTEMS[name]["gaps"]:
+                target = SYSTEMS[name]["target"](g)
+                for m in methods:
+                    f = root / name / f"gap{g:g}" / f"seed{seed}" / f"{m}.json"
+                    if f.is_file():
+                        continue
+                    t0 = time.perf_counter()
+                    res = run_method(m, target, src, a.budget, seed)
+                    res.update(system=name, gap=g, seed=seed, method=m, budget=a.budget,
+                               wall_s=time.perf_counter() - t0)
+                    f.parent.mkdir(parents=True, exist_ok=True)
+                    f.write_text(json.dumps(res))
+                    print(f"{name} gap {g:g} seed {seed} {m}: best {min(res['costs']):.4g}, "
+                          f"falls {sum(res['failed'])}, {res['wall_s']:.1f} s", flush=True)
+
+
+def _first_reach(costs: list[float], level: float) -> float:
+    for i, c in enumerate(costs, 1):
+        if c <= level:
+            return float(i)
+    return math.inf
+
+
+def summarize(root: Path) -> dict[str, Any]:
+    """The issue's criteria per target from every stored run under ``root``."""
+    from scipy.stats import mannwhitneyu
+
+    runs: dict[tuple[str, float], dict[str, dict[int, dict]]] = {}
+    for f in sorted(root.glob("*/gap*/seed*/*.json")):
+        r = json.loads(f.read_text())
+        runs.setdefault((r["system"], float(r["gap"])), {}).setdefault(r["method"], {})[
+            int(r["seed"])] = r
+    out: dict[str, Any] = {"targets": []}
+    for (system, gap), by_m in sorted(runs.items()):
+        seeds = sorted(set.intersection(*[set(v) for v in by_m.values()]))
+        if not seeds:
             continue
-        s = json.loads((out / "summary.json").read_text())
-        with RunStore(out) as st:
-            n_stable = int((st.costs(3) < C1).sum())
-        r = {"target": t, "manual": s["manual_cost"], "phase3_best": s["phase3_best"],
-             "evals": s["phase3_evals"], "evals_to_manual": s["phase3_evals_to_beat_manual"],
-             "stable": s["phase3_best"] < C1, "n_stable": n_stable, "wall_s": time.perf_counter() - t0}
-        rows.append(r)
-        print(json.dumps(r), flush=True)
-    print(f"\nVAE of {a.run_dir}; stores in {root}")
-    print("| target | manual | phase 3 best | evals | stable evals | evals to reach manual |")
-    print("|---|---:|---:|---:|---:|---:|")
-    for r in rows:
-        print(f"| {r['target']} | {r['manual']:.3f} | {r['phase3_best']:.3f} | {r['evals']} | "
-              f"{r['n_stable']}/{r['evals']} | {r['evals_to_manual']} |")
+        row: dict[str, Any] = {"system": system, "gap": gap, "seeds": seeds, "methods": {}}
+        for m, rs in by_m.items():
+            best = [min(rs[s]["costs"]) for s in seeds]
+            row["methods"][m] = {"median_best": float(np.median(best)),
+                                 "iqr": [float(np.percentile(best, 25)),
+                                         float(np.percentile(best, 75))],
+                                 "falls_median": float(np.median([sum(rs[s]["failed"])
+                                                                  for s in seeds])),
+                                 "best": best}
+        peers = [m for m in PEERS if m in row["methods"]]
+        bp = min(peers, key=lambda m: row["methods"][m]["median_best"])
+        level = row["methods"][bp]["median_best"]
+        row["best_peer"] = bp
+        for m in row["methods"]:
+            reach = [_first_reach(by_m[m][s]["costs"], level) for s in seeds]
+            row["methods"][m]["trials_to_best_peer"] = float(np.median(reach))
+        if "transfer" in row["methods"]:
+            t, p = row["methods"]["transfer"], row["methods"][bp]
+            try:
+                pv = float(mannwhitneyu(t["best"], p["best"], alternative="two-sided").pvalue)
+            except ValueError:
+                pv = 1.0
+            B = by_m["transfer"][seeds[0]]["budget"]
+            row["criteria"] = {
+                "no_worse": t["median_best"] <= p["median_best"] or pv >= 0.05,
+                "mannwhitney_p": pv,
+                "reach_le_B10": t["trials_to_best_peer"] <= B / 10,
+                "reach_le_B2": t["trials_to_best_peer"] <= B / 2,
+                "falls_ok": t["falls_median"] <= (1 if p["falls_median"] <= 4
+                                                  else p["falls_median"] / 4)}
+        out["targets"].append(row)
+    return out
+
+
+def markdown(s: dict[str, Any]) -> str:
+    lines = []
+    for row in s["targets"]:
+        lines.append(f"\n### {row['system']} gap {row['gap']:g} ({len(row['seeds'])} seeds; "
+                     f"best peer: {row['best_peer']})\n")
+        lines.append("| method | median best | IQR | trials to best peer's median | falls |")
+        lines.append("|---|---:|---:|---:|---:|")
+        for m in METHODS:
+            if m not in row["methods"]:
+                continue
+            r = row["methods"][m]
+            lines.append(f"| {m} | {r['median_best']:.4g} | {r['iqr'][0]:.4g}–{r['iqr'][1]:.4g} "
+                         f"| {r['trials_to_best_peer']:g} | {r['falls_median']:g} |")
+        if "criteria" in row:
+            c = row["criteria"]
+            lines.append(f"\ncriteria: no worse {c['no_worse']} (p {c['mannwhitney_p']:.3f}), "
+                         f"≤ B/10 {c['reach_le_B10']}, ≤ B/2 {c['reach_le_B2']}, "
+                         f"falls {c['falls_ok']}")
+    return "\n".join(lines)
+
+
+def provenance(argv: list[str]) -> dict[str, Any]:
+    try:
+        commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
+                                check=False).stdout.strip()
+    except OSError:
+        commit = None
+    cpu = next((ln.split(":", 1)[1].strip() for ln in open("/proc/cpuinfo")
+                if ln.startswith("model name")), platform.processor()) \
+        if os.path.exists("/proc/cpuinfo") else platform.processor()
+    return {"command": "python -m benchmarks.transfer " + " ".join(argv), "commit": commit,
+            "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "cpu": cpu,
+            "load": os.getloadavg()}
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    r = sub.add_parser("run")
+    r.add_argument("--systems", nargs="+", default=list(SYSTEMS), choices=list(SYSTEMS))
+    r.add_argument("--seeds", nargs="+", type=int, default=list(range(10)))
+    r.add_argument("--budget", type=int, default=40)
+    r.add_argument("--source-evals", type=int, default=300)
+    r.add_argument("--root", default="runs/transfer")
+    r.add_argument("--only", nargs="+", choices=METHODS, default=None)
+    s = sub.add_parser("summary")
+    s.add_argument("--root", default="runs/transfer")
+    s.add_argument("--out", default="results/transfer/ladder.json")
+    a = ap.parse_args(argv)
+    if a.cmd == "run":
+        run(a)
+        return 0
+    res = summarize(Path(a.root))
+    res["provenance"] = provenance(argv)
+    out = Path(a.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(res, indent=1))
+    md = markdown(res)
+    out.with_suffix(".md").write_text(f"`{res['provenance']['command']}`\n{md}\n")
+    print(md)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -1,0 +1,677 @@
+"""Phase 3 that uses everything the source run learned: a model of the target built from the
+source's trials and the target's own, a measured agreement that decides how much the source is
+trusted, and a search that moves between the latent box and the full θ box.
+
+:class:`Transfer` is a critic on the full normalized θ box ``[0, 1]^d`` (a two-space critic like
+:class:`~latentune.critic.handover.Handover`: latent-pool points carry their codes in
+:attr:`Transfer.last_z`). It is built from the source run's trials ``(X_s, y_s, fell_s)``
+(every θ the source tried, (N, d), with its cost and fall flag), the source's latent space (the
+map D) and the target's manual θ.
+
+The model of the target (all of it closed-form except the source fit)
+--------------------------------------------------------------------
+*Source models* (:class:`SourceModel`, fitted once with BoTorch/GPyTorch on at most
+``max_points`` source trials: the best ones and a seeded spread of the rest):
+``m_s(θ)``, a GP (Matérn-5/2, ARD) on the source's cost *ranks* (Gaussian copula scores; a fall
+ranks below every trial that did not fall), and ``p_s(θ)``, a GP on the source's fall flags (a
+least-squares classifier, clipped to [0, 1]). Their ARD lengthscales say how cost and falls vary
+across the box; the target models reuse them.
+
+*Target cost model*: the target's cost ranks ``z`` (copula scores of its own trials, falls last)
+are modelled as ``z(θ) = a · m_s(θ) + b + r(θ)`` with ``(a, b) ~ N((1, 0), I)`` and a residual
+``r ~ GP(0, σ_r² k_s)`` (``k_s``: Matérn-5/2 with the source's lengthscales). Integrating
+``a, b`` out gives one GP with the kernel ``σ_r² k_s + h hᵀ + σ_n² I``, ``h(θ) = (m_s(θ), 1)``
+(Rasmussen & Williams §2.7): exact posterior, joint Thompson samples. ``σ_r²`` is chosen by
+marginal likelihood on a grid at every ask. The posterior of ``a`` is the *agreement*: about 1
+when the target ranks θ as the source did, about 0 (or negative) when the source says nothing
+about the target. It is computed from the target's trials alone at every ask, so the source is
+trusted exactly as far as the target's own evidence supports.
+
+*Target fall model*: the same construction on the target's fall flags with ``h = (p_s(θ), 1)``
+and the source's fall lengthscales: the probability that θ fails on the target.
+
+The search (every ask; every decision is kept in :attr:`Transfer.decisions`)
+---------------------------------------------------------------------------
+Candidates come from three pools:
+
+* ``elite``: the source's best *diverse* θ (greedy: best first, each at least ``elite_spacing``
+  from those chosen, in the unit box) and the target's manual θ, until evaluated;
+* ``latent``: Sobol codes in a box around the code of the target's best θ in the latent box,
+  decoded (D);
+* ``full``: TuRBO-style perturbations of the target's best θ in a box of side ``L`` shaped by the
+  source's lengthscales (a coordinate is perturbed with probability ``min(20/d, 1)``).
+
+The first ``n_design`` own points come from the elite pool only (the initial design); while
+every trial so far fell, the next one is the target's manual θ (once). After it,
+the latent pool's share is ``w_lat = clip(agreement, 0, latent_share_max)``, set to 0 once at
+least ``latent_falls`` latent-pool trials fell and they fell more often than not; the full pool
+gets the rest. ``L`` follows TuRBO's rule on the full box (doubling after ``succ_tol``
+improving batches, halving after ``fail_tol`` batches without one). A candidate whose predicted
+fall probability exceeds ``max_fall_prob`` is skipped (if fewer than the batch remain, the least
+likely to fall are kept); among the rest each point of the batch is the argmin of one joint
+Thompson sample of the cost model.
+
+Tags and resume
+---------------
+``tag = 4 · generation + pool`` (pool 0 elite, 1 full, 2 latent). The critic's state (``L``, the
+counters, the latent share) is a function of the told history, so a fresh critic told the stored
+rows asks what the original would have asked; the source models' fitted hyperparameters are
+:meth:`Transfer.state_dict` (a resume or an ask/tell call does not refit them).
+Untagged points (the zero-shot and manual trials) are data for the models and the centre.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from latentune.critic.base import UNTAGGED, Critic, as_unit_points
+
+log = logging.getLogger(__name__)
+
+ELITE, FULL, LATENT = 0, 1, 2
+POOL_NAMES = {ELITE: "elite", FULL: "full", LATENT: "latent"}
+
+TRANSFER_DEFAULTS: dict[str, Any] = {
+    "max_fall_prob": 0.3, "n_design": 3, "n_elite": 16, "elite_spacing": 0.15,
+    "n_candidates": 1000, "length_init": 0.3, "length_max": 1.0, "length_min": 1 / 128,
+    "succ_tol": 2, "fail_tol": 3, "latent_share_max": 0.5, "latent_falls": 3,
+    "max_points": 300,
+}
+"""The options of :class:`Transfer` (see the module docstring); recorded with the run."""
+
+_SIGMA_R2_GRID = (0.01, 0.05, 0.2, 0.5, 1.0, 2.0)
+_NOISE = 1e-2
+_JOINT = 256
+"""Candidates (lowest confidence bounds) that share one joint Thompson sample."""
+_LS_BOUNDS = (0.02, 4.0)
+
+
+# --------------------------------------------------------------------------- helpers
+def rank_scores(y: np.ndarray, fell: np.ndarray) -> np.ndarray:
+    """Gaussian-copula scores (n,) of costs ``y`` (n,) with falls ranked below every trial that
+    did not fall (among falls by cost); non-finite costs rank last. Lower is better."""
+    from scipy.special import ndtri
+
+    y = np.asarray(y, dtype=float).reshape(-1)
+    n = y.shape[0]
+    if n == 0:
+        return y.copy()
+    fell = np.asarray(fell, dtype=bool).reshape(-1)
+    yy = np.where(np.isfinite(y), y, np.inf)
+    order = np.lexsort((yy, fell.astype(int)))      # key: fell first, then cost
+    key = np.empty(n, dtype=float)
+    key[order] = np.arange(n, dtype=float)
+    # ties (same fell flag and cost) share their average rank
+    _, inv, counts = np.unique(np.stack([fell.astype(float), yy]).T, axis=0,
+                               return_inverse=True, return_counts=True)
+    inv = inv.reshape(-1)
+    sums = np.bincount(inv, weights=key)
+    ranks = sums[inv] / counts[inv] + 1.0
+    return ndtri((ranks - 0.5) / n)
+
+
+def matern52(X1: np.ndarray, X2: np.ndarray, ls: np.ndarray) -> np.ndarray:
+    """Matérn-5/2 kernel matrix (n1, n2) of points (n1, d), (n2, d) with lengthscales (d,)."""
+    A = X1 / ls
+    B = X2 / ls
+    d2 = np.maximum((A * A).sum(1)[:, None] + (B * B).sum(1)[None, :] - 2.0 * A @ B.T, 0.0)
+    r = np.sqrt(5.0 * d2)
+    return (1.0 + r + r * r / 3.0) * np.exp(-r)
+
+
+def _chol(K: np.ndarray) -> np.ndarray:
+    """Cholesky factor of a symmetric PSD matrix, with growing jitter when needed."""
+    jitter = 1e-9 * max(1.0, float(np.mean(np.diag(K))))
+    for _ in range(8):
+        try:
+            return np.linalg.cholesky(K + jitter * np.eye(K.shape[0]))
+        except np.linalg.LinAlgError:
+            jitter *= 10.0
+    raise np.linalg.LinAlgError("covariance matrix is not positive definite")
+
+
+# --------------------------------------------------------------------------- source models
+@dataclass
+class _GPFit:
+    """A fitted GP's numpy predictor: mean(X) = c + k(X, S) α."""
+
+    S: np.ndarray
+    alpha: np.ndarray
+    ls: np.ndarray
+    outputscale: float
+    constant: float
+
+    def mean(self, X: np.ndarray) -> np.ndarray:
+        if self.S.shape[0] == 0:
+            return np.full(X.shape[0], self.constant)
+        return self.constant + self.outputscale * matern52(X, self.S, self.ls) @ self.alpha
+
+
+def _fit_gp(X: np.ndarray, y: np.ndarray, hypers: dict[str, Any] | None) -> tuple[_GPFit, dict]:
+    """Fit (or, with ``hypers``, only condition) a Matérn-5/2 ARD GP on (X (n, d), y (n,)) with
+    BoTorch; return its numpy predictor and its hyperparameters (JSON-ready)."""
+    n, d = X.shape
+    if hypers is None:
+        import warnings
+
+        import torch
+        from botorch.models import SingleTaskGP
+        from gpytorch.constraints import Interval
+        from gpytorch.kernels import MaternKernel, ScaleKernel
+        from gpytorch.likelihoods import GaussianLikelihood
+        from gpytorch.mlls import ExactMarginalLogLikelihood
+
+        Xt = torch.as_tensor(X, dtype=torch.float64)
+        Yt = torch.as_tensor(y, dtype=torch.float64).reshape(-1, 1)
+        kern = ScaleKernel(MaternKernel(nu=2.5, ard_num_dims=d,
+                                        lengthscale_constraint=Interval(*_LS_BOUNDS)),
+                           outputscale_constraint=Interval(0.01, 20.0))
+        lik = GaussianLikelihood(noise_constraint=Interval(1e-4, 0.5))
+        model = SingleTaskGP(Xt, Yt, likelihood=lik, covar_module=kern, outcome_transform=None)
+        model.covar_module.base_kernel.lengthscale = torch.full((1, d), 0.5, dtype=torch.float64)
+        model.covar_module.outputscale = torch.tensor(1.0, dtype=torch.float64)
+        model.likelihood.noise = torch.tensor([0.05], dtype=torch.float64)
+        model.mean_module.constant = torch.tensor(float(np.mean(y)), dtype=torch.float64)
+        mll = ExactMarginalLogLikelihood(model.likelihood, model)
+        from botorch.exceptions.warnings import OptimizationWarning
+        from botorch.optim.fit import fit_gpytorch_mll_scipy
+
+        before = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", OptimizationWarning)
+                res = fit_gpytorch_mll_scipy(mll, options={"maxiter": 100})
+            if res.status.name == "FAILURE":
+                log.warning("source model fit did not converge (%s); using where it stopped",
+                            res.message)
+        except Exception as exc:  # noqa: BLE001 - reported, starting values kept
+            log.warning("source model fit failed (%s: %s); using its starting hyperparameters",
+                        type(exc).__name__, exc)
+        finally:
+            torch.set_num_threads(before)
+            model.eval()
+        hypers = {"lengthscale": model.covar_module.base_kernel.lengthscale.detach().numpy()
+                  .reshape(-1).tolist(),
+                  "outputscale": float(model.covar_module.outputscale.detach()),
+                  "noise": float(model.likelihood.noise.detach().reshape(-1)[0]),
+                  "constant": float(model.mean_module.constant.detach())}
+    ls = np.clip(np.asarray(hypers["lengthscale"], dtype=float).reshape(d), *_LS_BOUNDS)
+    os_, noise, c = float(hypers["outputscale"]), float(hypers["noise"]), float(hypers["constant"])
+    K = os_ * matern52(X, X, ls) + noise * np.eye(n)
+    L = _chol(K)
+    alpha = np.linalg.solve(L.T, np.linalg.solve(L, y - c))
+    return _GPFit(X, alpha, ls, os_, c), hypers
+
+
+class SourceModel:
+    """What the source run says about cost and falls across the θ box.
+
+    Args:
+        X: (N, d) normalized θ the source tried; ``y`` (N,) their costs; ``fell`` (N,) bools.
+        seed: seeds the choice of the fitted subset.
+        max_points: at most this many trials per fitted GP.
+        hypers: previously fitted hyperparameters (:attr:`hypers`): condition only, no fit.
+    """
+
+    def __init__(self, X: np.ndarray, y: np.ndarray, fell: np.ndarray, *, seed: int = 0,
+                 max_points: int = 300, hypers: dict[str, Any] | None = None) -> None:
+        X = np.asarray(X, dtype=float)
+        if X.ndim != 2 or X.shape[0] < 2:
+            raise ValueError(f"the source needs at least 2 trials (N, d), got shape {X.shape}")
+        self.X, self.d = X, X.shape[1]
+        self.y = np.asarray(y, dtype=float).reshape(-1)
+        self.fell = np.asarray(fell, dtype=bool).reshape(-1)
+        self.z = rank_scores(self.y, self.fell)
+        rng = np.random.default_rng([int(seed), 7])
+        n = X.shape[0]
+        order = np.argsort(self.z, kind="stable")
+        m = min(n, int(max_points))
+        n_best = (2 * m) // 3
+        rest = order[n_best:]
+        pick = np.concatenate([order[:n_best],
+                               np.sort(rng.choice(rest, size=m - n_best, replace=False))])
+        hypers = hypers or {}
+        self.cost_gp, hc = _fit_gp(X[pick], self.z[pick], hypers.get("cost"))
+        self.fall_rate = float(self.fell.mean())
+        self.fall_gp: _GPFit | None = None
+        hf = None
+        if self.fell.sum() >= 5 and (~self.fell).sum() >= 5:
+            falls, ok = np.flatnonzero(self.fell), np.flatnonzero(~self.fell)
+            kf = min(falls.size, m // 2)
+            ko = min(ok.size, m - kf)
+            fpick = np.sort(np.concatenate([rng.choice(falls, size=kf, replace=False),
+                                            rng.choice(ok, size=ko, replace=False)]))
+            self.fall_gp, hf = _fit_gp(X[fpick], self.fell[fpick].astype(float),
+                                       hypers.get("fall"))
+        self.hypers = {"cost": hc, "fall": hf}
+
+    @property
+    def lengthscales(self) -> np.ndarray:
+        """(d,) ARD lengthscales of the source cost model (unit-box units)."""
+        return self.cost_gp.ls
+
+    @property
+    def fall_lengthscales(self) -> np.ndarray:
+        """(d,) lengthscales of the fall model (the cost model's when there is none)."""
+        return self.cost_gp.ls if self.fall_gp is None else self.fall_gp.ls
+
+    def cost(self, X: np.ndarray) -> np.ndarray:
+        """Predicted source cost rank score (n,) at θ (n, d); lower is better."""
+        return self.cost_gp.mean(X)
+
+    def fall_prob(self, X: np.ndarray) -> np.ndarray:
+        """Predicted source fall probability (n,) at θ (n, d), in [0, 1]."""
+        if self.fall_gp is None:
+            return np.full(X.shape[0], self.fall_rate)
+        return np.clip(self.fall_gp.mean(X), 0.0, 1.0)
+
+
+# --------------------------------------------------------------------------- target model
+class TargetModel:
+    """The GP ``v(θ) = a·h0(θ) + b + r(θ)`` on the target's values ``v`` (n,) at θ (n, d) with
+    ``(a, b) ~ N(prior_mean, I)`` integrated out (module docstring); ``feature`` maps θ (m, d)
+    to h0 (m,), ``ls`` (d,) are the residual kernel's lengthscales."""
+
+    def __init__(self, X: np.ndarray, v: np.ndarray, feature: Callable[[np.ndarray], np.ndarray],
+                 ls: np.ndarray, prior_mean: tuple[float, float] = (1.0, 0.0),
+                 sigma_r2: float | None = None) -> None:
+        self.X, self.v, self.feature, self.ls = X, np.asarray(v, float), feature, ls
+        self.b0 = np.asarray(prior_mean, dtype=float)
+        self.hX = self._basis(X)
+        self.kX = matern52(X, X, ls)
+        if sigma_r2 is None:
+            sigma_r2 = max(_SIGMA_R2_GRID, key=self._log_evidence)
+        self.sigma_r2 = float(sigma_r2)
+        self.L = _chol(self._cov(self.kX, self.hX, self.hX) + _NOISE * np.eye(len(v)))
+        r = self.v - self.hX @ self.b0
+        self.alpha = np.linalg.solve(self.L.T, np.linalg.solve(self.L, r))
+
+    def _basis(self, X: np.ndarray) -> np.ndarray:
+        return np.stack([self.feature(X), np.ones(X.shape[0])], 1)
+
+    def _cov(self, k: np.ndarray, h1: np.ndarray, h2: np.ndarray,
+             sigma_r2: float | None = None) -> np.ndarray:
+        s = self.sigma_r2 if sigma_r2 is None else sigma_r2
+        return s * k + h1 @ h2.T
+
+    def _log_evidence(self, s: float) -> float:
+        K = self._cov(self.kX, self.hX, self.hX, s) + _NOISE * np.eye(len(self.v))
+        try:
+            L = _chol(K)
+        except np.linalg.LinAlgError:
+            return -math.inf
+        r = self.v - self.hX @ self.b0
+        a = np.linalg.solve(L, r)
+        return float(-0.5 * a @ a - np.log(np.diag(L)).sum())
+
+    def coefficients(self) -> tuple[np.ndarray, np.ndarray]:
+        """Posterior mean (2,) and standard deviation (2,) of (a, b)."""
+        H = self.hX
+        Kr = self.sigma_r2 * self.kX + _NOISE * np.eye(len(self.v))
+        Lr = _chol(Kr)
+        A = np.linalg.solve(Lr, H)
+        prec = np.eye(2) + A.T @ A
+        cov = np.linalg.inv(prec)
+        rhs = self.b0 + A.T @ np.linalg.solve(Lr, self.v)
+        return cov @ rhs, np.sqrt(np.maximum(np.diag(cov), 0.0))
+
+    def mean_cov(self, Xs: np.ndarray, with_cov: bool = True
+                 ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Posterior mean (m,) and, with ``with_cov``, covariance (m, m) at θ ``Xs`` (m, d)."""
+        hS = self._basis(Xs)
+        Ks = self._cov(matern52(self.X, Xs, self.ls), self.hX, hS)
+        mu = hS @ self.b0 + Ks.T @ self.alpha
+        if not with_cov:
+            return mu, None
+        V = np.linalg.solve(self.L, Ks)
+        C = self._cov(matern52(Xs, Xs, self.ls), hS, hS) - V.T @ V
+        return mu, C
+
+    def variance(self, Xs: np.ndarray) -> np.ndarray:
+        """Posterior marginal variance (m,) at θ ``Xs`` (m, d)."""
+        hS = self._basis(Xs)
+        Ks = self._cov(matern52(self.X, Xs, self.ls), self.hX, hS)
+        V = np.linalg.solve(self.L, Ks)
+        prior = self.sigma_r2 + (hS * hS).sum(1)
+        return np.maximum(prior - (V * V).sum(0), 0.0)
+
+
+# --------------------------------------------------------------------------- the critic
+def elite_points(X: np.ndarray, z: np.ndarray, fell: np.ndarray, k: int,
+                 spacing: float) -> np.ndarray:
+    """Indices (≤ k,) of the source's best diverse trials: by rank score ``z``, trials that did not
+    fail, each at least ``spacing`` (Euclidean, unit box, divided by sqrt(d)) from those taken."""
+    ok = np.flatnonzero(~fell)
+    if ok.size == 0:
+        ok = np.arange(len(z))
+    order = ok[np.argsort(z[ok], kind="stable")]
+    taken: list[int] = []
+    d = X.shape[1]
+    for i in order:
+        if len(taken) >= k:
+            break
+        if all(np.linalg.norm(X[i] - X[j]) / math.sqrt(d) >= spacing for j in taken):
+            taken.append(int(i))
+    return np.asarray(taken, dtype=np.int64)
+
+
+class Transfer(Critic):
+    """Phase 3 from everything the source learned (see the module docstring).
+
+    Args:
+        source: ``(X (N, d), y (N,), fell (N,))``, the source run's trials in the θ unit box.
+        latent: the source's latent space (``d_low``, ``encode``, ``decode``, ``to_unit``) or None
+            (then the latent pool is empty).
+        manual: the target's manual θ (d,) in the unit box, an elite candidate, or None.
+        batch_size, seed: as for every critic.
+        **options: any of :data:`TRANSFER_DEFAULTS`.
+    """
+
+    method = "transfer"
+
+    def __init__(self, source: tuple[np.ndarray, np.ndarray, np.ndarray], latent: Any = None,
+                 manual: np.ndarray | None = None, *, batch_size: int = 1, seed: int = 0,
+                 **options: Any) -> None:
+        Xs = np.asarray(source[0], dtype=float)
+        if Xs.ndim != 2:
+            raise ValueError(f"source X must be (N, d), got shape {Xs.shape}")
+        unknown = set(options) - set(TRANSFER_DEFAULTS)
+        if unknown:
+            raise TypeError(f"Transfer: unknown option(s) {sorted(unknown)}")
+        super().__init__(Xs.shape[1], batch_size=batch_size, seed=seed)
+        self.opts = {**TRANSFER_DEFAULTS, **options}
+        p = self.opts["max_fall_prob"]
+        if not (isinstance(p, (int, float)) and 0 < float(p) <= 1):
+            raise ValueError(f"max_fall_prob must be in (0, 1], got {p!r}")
+        self.source = (as_unit_points(Xs, self.dim, "source X"),
+                       np.asarray(source[1], dtype=float).reshape(-1),
+                       np.asarray(source[2], dtype=bool).reshape(-1))
+        if not (self.source[1].shape[0] == self.source[2].shape[0] == Xs.shape[0]):
+            raise ValueError("source X, y and fell must have the same length")
+        self.latent = latent
+        if latent is not None and int(latent.d) != self.dim:
+            raise ValueError(f"the latent space maps to {latent.d}-dim θ, not {self.dim}")
+        self.manual = None if manual is None else as_unit_points(manual, self.dim, "manual")[0]
+        self._model: SourceModel | None = None
+        self._hypers: dict[str, Any] | None = None
+        self._fell = np.empty(0, dtype=bool)
+        self._incoming: tuple[np.ndarray, np.ndarray] | None = None
+        self._Z = np.empty((0, self.k))
+        self.last_z = np.empty((0, self.k))
+        self.decisions: list[dict[str, Any]] = []
+        self._elite: np.ndarray | None = None
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def k(self) -> int:
+        """Dimension of the latent box (0 without a latent space)."""
+        return 0 if self.latent is None else int(self.latent.d_low)
+
+    @property
+    def fell(self) -> np.ndarray:
+        """(n,) fall flags of the told points."""
+        return self._fell.copy()
+
+    def source_model(self) -> SourceModel:
+        """The fitted source models (fitted at the first need, or restored from the state)."""
+        if self._model is None:
+            X, y, f = self.source
+            self._model = SourceModel(X, y, f, seed=self.seed, max_points=self.opts["max_points"],
+                                      hypers=self._hypers)
+            self._hypers = self._model.hypers
+        return self._model
+
+    def elites(self) -> np.ndarray:
+        """(m, d) the elite pool before removing evaluated points: the source's best diverse θ,
+        then the manual θ."""
+        if self._elite is None:
+            X, _, f = self.source
+            z = rank_scores(self.source[1], f)
+            idx = elite_points(X, z, f, int(self.opts["n_elite"]), float(self.opts["elite_spacing"]))
+            E = X[idx]
+            if self.manual is not None:
+                E = np.vstack([E, self.manual[None, :]])
+            self._elite = E
+        return self._elite
+
+    # ------------------------------------------------------------------ tell
+    def tell(self, X: np.ndarray, y: np.ndarray, tags: np.ndarray | None = None,
+             fell: np.ndarray | None = None, z: np.ndarray | None = None) -> None:
+        """Report costs ``y`` (n,) of θ ``X`` (n, d), their fall flags ``fell`` (n,) (default:
+        non-finite cost) and, for latent-pool points, their codes ``z`` (n, k) (NaN rows for the
+        others; optional: the codes are not needed by the model)."""
+        Xa = as_unit_points(X, self.dim)
+        ya = np.asarray(y, dtype=float).reshape(-1)
+        fa = ~np.isfinite(ya) if fell is None else np.asarray(fell, dtype=bool).reshape(-1)
+        if fa.shape[0] != Xa.shape[0]:
+            raise ValueError(f"fell must have shape ({Xa.shape[0]},), got {np.shape(fell)}")
+        za = np.full((Xa.shape[0], self.k), np.nan) if z is None or self.k == 0 else \
+            np.asarray(z, dtype=float).reshape(Xa.shape[0], self.k)
+        self._incoming = (fa, za)
+        super().tell(Xa, ya, tags)
+
+    def _tell(self, idx: np.ndarray, tags: np.ndarray) -> None:
+        fa, za = self._incoming
+        self._incoming = None
+        self._fell = np.concatenate([self._fell, fa])
+        self._Z = np.vstack([self._Z, za]) if self.k else self._Z
+
+    # ------------------------------------------------------------------ state from history
+    def _replay_state(self) -> dict[str, Any]:
+        """Trust-region side, counters and the latent pool's record, from the told history."""
+        tags = self._tags
+        own = tags >= 0
+        ext = ~own
+        y = np.where(np.isfinite(self._y) & ~self._fell, self._y, np.inf)
+        best = float(y[ext].min()) if ext.any() else math.inf
+        L = float(self.opts["length_init"])
+        succ = fail = 0
+        gens = np.unique(tags[own] // 4) if own.any() else np.empty(0, dtype=np.int64)
+        for g in gens:
+            m = own & (tags // 4 == g)
+            gb = float(y[m].min())
+            if gb < best - 1e-3 * abs(best) if math.isfinite(best) else gb < best:
+                succ, fail = succ + 1, 0
+            else:
+                succ, fail = 0, fail + 1
+            best = min(best, gb)
+            if succ >= self.opts["succ_tol"]:
+                L, succ = min(2.0 * L, float(self.opts["length_max"])), 0
+            elif fail >= self.opts["fail_tol"]:
+                L, fail = max(L / 2.0, float(self.opts["length_min"])), 0
+        lat = own & (tags % 4 == LATENT)
+        return {"L": L, "succ": succ, "fail": fail, "n_own": int(own.sum()),
+                "generation": int(gens.max()) + 1 if gens.size else 0,
+                "latent_told": int(lat.sum()), "latent_fell": int(self._fell[lat].sum())}
+
+    def _centre(self) -> np.ndarray:
+        """The target's best θ: lowest cost among trials that did not fail, else the fall with
+        the lowest cost (falling later), else the first elite."""
+        if self.n_told == 0:
+            return self.elites()[0]
+        y = np.where(np.isfinite(self._y), self._y, np.inf)
+        ok = ~self._fell
+        if ok.any():
+            return self._X[np.flatnonzero(ok)[np.argmin(y[ok])]]
+        return self._X[int(np.argmin(y))]
+
+    # ------------------------------------------------------------------ pools
+    def _pool_full(self, m: int, L: float, centre: np.ndarray, rng: np.random.Generator
+                   ) -> np.ndarray:
+        import torch
+        from torch.quasirandom import SobolEngine
+
+        if m <= 0:
+            return np.empty((0, self.dim))
+        ls = self.source_model().lengthscales
+        w = ls / np.exp(np.mean(np.log(ls)))
+        w = np.clip(w, 0.25, 4.0)
+        lb, ub = np.clip(centre - L * w / 2, 0, 1), np.clip(centre + L * w / 2, 0, 1)
+        sob = SobolEngine(self.dim, scramble=True, seed=int(rng.integers(2 ** 31))).draw(
+            m, dtype=torch.float64).numpy()
+        pert = lb + (ub - lb) * sob
+        mask = rng.random((m, self.dim)) <= min(20.0 / self.dim, 1.0)
+        none = ~mask.any(1)
+        mask[np.flatnonzero(none), rng.integers(0, self.dim, size=int(none.sum()))] = True
+        return np.where(mask, pert, centre[None, :])
+
+    def _pool_latent(self, m: int, L: float, centre: np.ndarray, rng: np.random.Generator
+                     ) -> tuple[np.ndarray, np.ndarray]:
+        import torch
+        from torch.quasirandom import SobolEngine
+
+        if m <= 0 or self.latent is None:
+            return np.empty((0, self.dim)), np.empty((0, self.k))
+        u0 = np.asarray(self.latent.to_unit(self.latent.encode(centre)), dtype=float)
+        side = min(1.0, 2.0 * L)
+        lb, ub = np.clip(u0 - side / 2, 0, 1), np.clip(u0 + side / 2, 0, 1)
+        sob = SobolEngine(self.k, scramble=True, seed=int(rng.integers(2 ** 31))).draw(
+            m, dtype=torch.float64).numpy()
+        U = lb + (ub - lb) * sob
+        return np.clip(np.atleast_2d(self.latent.decode(U)), 0, 1), U
+
+    def _pool_elite(self) -> np.ndarray:
+        E = self.elites()
+        if self.n_told == 0:
+            return E
+        seen = np.array([np.min(np.abs(self._X - e).max(1)) > 1e-9 for e in E], dtype=bool)
+        return E[seen]
+
+    def _manual_next(self) -> bool:
+        """True when every told trial fell and the target's manual θ was not tried yet."""
+        if self.manual is None or self.n_told == 0 or not self._fell.all():
+            return False
+        return bool(np.min(np.abs(self._X - self.manual).max(1)) > 1e-9)
+
+    # ------------------------------------------------------------------ models
+    def models(self) -> tuple[TargetModel | None, TargetModel | None]:
+        """(cost model, fall model) of the target from the told points (None before any)."""
+        if self.n_told == 0:
+            return None, None
+        sm = self.source_model()
+        v = rank_scores(self._y, self._fell)
+        cost = TargetModel(self._X, v, sm.cost, sm.lengthscales)
+        fall = TargetModel(self._X, self._fell.astype(float), sm.fall_prob,
+                           sm.fall_lengthscales, prior_mean=(1.0, 0.0))
+        return cost, fall
+
+    # ------------------------------------------------------------------ ask
+    def _ask(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        from latentune.threads import one_thread
+
+        with one_thread():          # many small matrix operations: one BLAS thread is fastest
+            return self._ask_one_thread(n)
+
+    def _ask_one_thread(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        st = self._replay_state()
+        g = st["generation"]
+        rng = np.random.default_rng([self.seed, g, 11])
+        sm = self.source_model()
+        cost_m, fall_m = self.models()
+        centre = self._centre()
+        design = st["n_own"] < int(self.opts["n_design"])
+        agree, agree_sd = (np.array([1.0, 0.0]), np.array([1.0, 1.0])) if cost_m is None \
+            else cost_m.coefficients()
+        w_lat = float(np.clip(agree[0], 0.0, self.opts["latent_share_max"]))
+        latent_off = st["latent_told"] >= self.opts["latent_falls"] and \
+            st["latent_fell"] * 2 > st["latent_told"]
+        if latent_off or self.latent is None:
+            w_lat = 0.0
+        E = self._pool_elite()
+        M = int(self.opts["n_candidates"])
+        if self._manual_next():
+            self.last_z = np.full((n, self.k), np.nan)
+            self.decisions.append({"generation": g, "n_told": self.n_told, "design": True,
+                                   "rule": "every trial so far fell: the target's manual θ",
+                                   "pools": ["elite"] * n})
+            return np.tile(self.manual, (n, 1)), np.full(n, 4 * g + ELITE, dtype=np.int64)
+        if design and len(E) >= 1:
+            parts = [(E, np.full((len(E), self.k), np.nan), ELITE)]
+        else:
+            m_lat = int(round(M * w_lat))
+            XL, UL = self._pool_latent(m_lat, st["L"], centre, rng)
+            XF = self._pool_full(M - len(XL), st["L"], centre, rng)
+            parts = [(E, np.full((len(E), self.k), np.nan), ELITE),
+                     (XF, np.full((len(XF), self.k), np.nan), FULL), (XL, UL, LATENT)]
+        C = np.vstack([p[0] for p in parts])
+        Zc = np.vstack([p[1] for p in parts]) if self.k else np.empty((len(C), 0))
+        pool = np.concatenate([np.full(len(p[0]), p[2], dtype=np.int64) for p in parts])
+        # the fall screen
+        pf = sm.fall_prob(C) if fall_m is None else np.clip(fall_m.mean_cov(C, False)[0], 0, 1)
+        ok = pf <= float(self.opts["max_fall_prob"])
+        if ok.sum() < n:
+            ok = np.zeros(len(C), dtype=bool)
+            ok[np.argsort(pf, kind="stable")[:max(n, min(len(C), 3 * n))]] = True
+        cand = np.flatnonzero(ok)
+        if cost_m is not None and len(cand) > _JOINT:
+            # joint samples on the candidates a sample could pick: the lowest confidence bounds
+            mu0, _ = cost_m.mean_cov(C[cand], False)
+            lcb = mu0 - 2.0 * np.sqrt(cost_m.variance(C[cand]))
+            cand = np.sort(cand[np.argsort(lcb, kind="stable")[:_JOINT]])
+        # joint Thompson samples of the cost model on the admissible candidates
+        if cost_m is None:
+            mu, cov = sm.cost(C[cand]), None
+        else:
+            mu, cov = cost_m.mean_cov(C[cand])
+        if cov is None:
+            S = np.tile(mu, (n, 1)) + 0.1 * rng.standard_normal((n, len(cand)))
+        else:
+            Lc = _chol(0.5 * (cov + cov.T))
+            S = mu[None, :] + rng.standard_normal((n, len(cand))) @ Lc.T
+        picked: list[int] = []
+        for j in range(n):
+            s = S[j % len(S)].copy()
+            s[picked] = np.inf
+            if np.all(~np.isfinite(s)):          # fewer candidates than points: reuse the best
+                s = S[j % len(S)].copy()
+            picked.append(int(np.argmin(s)))
+        sel = cand[picked]
+        X = C[sel]
+        self.last_z = Zc[sel] if self.k else np.empty((n, 0))
+        tags = 4 * g + pool[sel]
+        self.decisions.append({
+            "generation": g, "n_told": self.n_told, "design": bool(design),
+            "agreement": float(agree[0]), "agreement_sd": float(agree_sd[0]),
+            "sigma_r2": None if cost_m is None else cost_m.sigma_r2,
+            "latent_share": w_lat, "latent_off": bool(latent_off), "length": st["L"],
+            "n_candidates": int(len(C)), "n_admissible": int(ok.sum()),
+            "max_fall_prob_asked": float(pf[sel].max()),
+            "pools": [POOL_NAMES[int(p)] for p in pool[sel]]})
+        log.debug("transfer ask %s", self.decisions[-1])
+        return X, tags
+
+    # ------------------------------------------------------------------ state
+    def state_dict(self) -> dict[str, Any]:
+        """The source models' fitted hyperparameters and the last decision (JSON-ready)."""
+        return {"source_hypers": self._hypers,
+                "last_decision": self.decisions[-1] if self.decisions else None}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        if state and state.get("source_hypers") and self._model is None:
+            self._hypers = state["source_hypers"]
+
+    def __repr__(self) -> str:
+        return (f"Transfer(dim={self.dim}, k={self.k}, n_source={len(self.source[1])}, "
+                f"n_told={self.n_told}, best_y={self.best_y:.6g})")
+
+
+def source_trials(run: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every trial of a source run's phases 1 and 3 as ``(X (N, d), y (N,), fell (N,))``, in
+    (phase, idx) order."""
+    from latentune.constants import Phase
+    from latentune.pipeline.store import RunStore
+
+    with RunStore(run) as st:
+        rows = [r for ph in (Phase.PHASE1, Phase.PHASE3) for r in st.rows(ph)]
+    if not rows:
+        return np.empty((0, 0)), np.empty(0), np.empty(0, dtype=bool)
+    X = np.array([r.theta for r in rows], dtype=float)
+    y = np.array([r.cost for r in rows], dtype=float)
+    f = np.array([bool(r.fell) for r in rows], dtype=bool)
+    return X, y, f

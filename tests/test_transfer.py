@@ -1,0 +1,137 @@
+"""The transfer phase 3 (latentune.critic.transfer): its models, its search and its resume."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from latentune.critic.transfer import (TRANSFER_DEFAULTS, SourceModel, TargetModel, Transfer,
+                                       elite_points, rank_scores)
+
+D = 8
+
+
+def _bowl(X: np.ndarray, centre: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Cost = 10·distance to ``centre``; a trial fails beyond ``radius`` (cost 100 + distance)."""
+    r = np.sqrt(((np.atleast_2d(X) - centre) ** 2).sum(1))
+    fell = r > radius
+    return np.where(fell, 100.0 + r, 10.0 * r), fell
+
+
+@pytest.fixture(scope="module")
+def source() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(0)
+    c = np.full(D, 0.4)
+    X = np.clip(c + 0.25 * rng.standard_normal((160, D)), 0, 1)
+    y, f = _bowl(X, c, 0.6)
+    return X, y, f, c
+
+
+@pytest.fixture(scope="module")
+def hypers(source):
+    X, y, f, _ = source
+    return SourceModel(X, y, f, seed=0).hypers
+
+
+def _critic(source, hypers, manual=None, **kw) -> Transfer:
+    X, y, f, _ = source
+    cr = Transfer((X, y, f), None, manual, batch_size=1, seed=3, **kw)
+    cr.load_state_dict({"source_hypers": hypers})
+    return cr
+
+
+def _run(cr: Transfer, centre: np.ndarray, radius: float, n: int) -> tuple[list, list]:
+    costs, falls = [], []
+    for _ in range(n):
+        X = cr.ask(1)
+        y, f = _bowl(X, centre, radius)
+        cr.tell(X, y, cr.last_tags, fell=f)
+        costs.append(float(y[0]))
+        falls.append(bool(f[0]))
+    return costs, falls
+
+
+def test_rank_scores_put_falls_last_and_share_ties():
+    z = rank_scores(np.array([5.0, 1.0, 0.5, 1.0, np.nan]), np.array([0, 0, 1, 0, 0], bool))
+    assert z[1] == z[3]                                 # tie
+    assert z[1] < z[0]                                  # lower cost, better score
+    assert z[2] > z[0] and z[4] > z[0]                  # the fall and the nan rank last
+    assert np.argmax(z) in (2, 4)
+
+
+def test_source_model_ranks_like_the_source(source, hypers):
+    X, y, f, c = source
+    sm = SourceModel(X, y, f, seed=0, hypers=hypers)
+    near, far = c + 0.02, np.clip(c + 0.5, 0, 1)
+    m = sm.cost(np.stack([near, far]))
+    assert m[0] < m[1]
+    p = sm.fall_prob(np.stack([near, far]))
+    assert p[0] < 0.3 < p[1]
+
+
+def test_agreement_follows_the_target(source, hypers):
+    X, y, f, c = source
+    sm = SourceModel(X, y, f, seed=0, hypers=hypers)
+    rng = np.random.default_rng(1)
+    Xt = np.clip(c + 0.2 * rng.standard_normal((12, D)), 0, 1)
+    same, _ = _bowl(Xt, c, 9.0)
+    a_same = TargetModel(Xt, rank_scores(same, np.zeros(12, bool)), sm.cost,
+                         sm.lengthscales).coefficients()[0][0]
+    a_flip = TargetModel(Xt, rank_scores(-same, np.zeros(12, bool)), sm.cost,
+                         sm.lengthscales).coefficients()[0][0]
+    assert a_same > 0.5 > a_flip
+
+
+def test_elite_points_are_diverse_and_stable(source):
+    X, y, f, _ = source
+    idx = elite_points(X, rank_scores(y, f), f, 5, 0.1)
+    assert len(idx) == 5 and not f[idx].any()
+    assert idx[0] == int(np.argmin(np.where(f, np.inf, y)))
+    dist = [np.linalg.norm(X[i] - X[j]) / np.sqrt(D) for i in idx for j in idx if i < j]
+    assert min(dist) >= 0.1
+
+
+def test_small_gap_improves_on_the_zero_shot_with_few_falls(source, hypers):
+    X, y, f, c = source
+    target_c = np.clip(c + 0.05, 0, 1)
+    cr = _critic(source, hypers, manual=np.full(D, 0.5))
+    best = X[np.argmin(np.where(f, np.inf, y))]
+    y0, f0 = _bowl(best, target_c, 0.5)
+    cr.tell(best[None], y0, fell=f0)
+    costs, falls = _run(cr, target_c, 0.5, 15)
+    assert min(costs) < 0.8 * y0[0]
+    assert sum(falls) <= 2
+    assert cr.decisions[0]["design"] and not cr.decisions[-1]["design"]
+
+
+def test_harsh_target_leaves_the_failing_region(source, hypers):
+    """Every source-stable θ fails on the target (its stable region moved to the far corner,
+    where the manual θ lies): the search must find stable trials after a few falls."""
+    X, y, f, _ = source
+    corner = np.full(D, 0.9)
+    cr = _critic(source, hypers, manual=np.full(D, 0.85))
+    best = X[np.argmin(np.where(f, np.inf, y))]
+    y0, f0 = _bowl(best, corner, 0.3)
+    assert f0[0]
+    cr.tell(best[None], y0, fell=f0)
+    costs, falls = _run(cr, corner, 0.3, 15)
+    assert not all(falls)
+    assert falls.index(False) <= 5
+
+
+def test_resume_asks_what_the_original_would(source, hypers):
+    X, y, f, c = source
+    a = _critic(source, hypers)
+    _run(a, c, 0.6, 6)
+    b = _critic(source, hypers)
+    b.tell(a.X, a.y, a.tags, fell=a.fell)
+    assert np.array_equal(a.ask(2), b.ask(2))
+    assert np.array_equal(a.last_tags, b.last_tags)
+
+
+def test_options_are_checked(source):
+    X, y, f, _ = source
+    with pytest.raises(TypeError, match="unknown option"):
+        Transfer((X, y, f), None, None, bogus=1)
+    with pytest.raises(ValueError, match="max_fall_prob"):
+        Transfer((X, y, f), None, None, max_fall_prob=1.5)
+    assert set(TRANSFER_DEFAULTS) >= {"max_fall_prob", "n_design"}
