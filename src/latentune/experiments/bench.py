@@ -1,72 +1,132 @@
-"""``latentune bench``: the performance-ratio benchmarks of ``benchmarks/`` at a quick size.
+"""``latentune bench``: the performance-ratio benchmarks of the suite at a quick size.
 
-Each benchmark script runs in a subprocess with one BLAS thread; its ratio lines are printed.
+Each benchmark runs as ``python -m benchmarks.NAME ... --out FILE.json`` in a subprocess with one
+BLAS thread, from the source checkout that holds ``benchmarks/`` (the suite is not part of the
+installed package); its JSON output's ``"ratio"`` and provenance are read back and shown in one
+Markdown table.
 """
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
+import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
-from latentune.errors import CLIError
+from latentune.errors import UsageError
 from latentune.threads import thread_env
 
-BENCHES = (
-    ("actor", ["benchmarks/actor.py", "--repeat", "1"], "steps"),
-    ("critic --overhead", ["benchmarks/critic.py", "--overhead", "--overhead-sizes", "1000",
-                           "--overhead-asks", "3"], None),
-    ("throughput", ["benchmarks/throughput.py"], "steps"),
+
+@dataclass(frozen=True)
+class Bench:
+    """One benchmark of ``latentune bench``: module, arguments, what its ratio means."""
+
+    name: str
+    args: tuple[str, ...]
+    ratio: str
+    uses_steps: bool = False
+    uses_n: bool = False
+
+
+BENCHES: tuple[Bench, ...] = (
+    Bench("actor", ("--repeat", "1"), "rollout / bare stepping + PD (goal <= 2)", uses_steps=True),
+    Bench("turbo_overhead", ("--told", "1000", "--asks", "3", "--regions", "1"),
+          "TuRBO-m s/point with torch's threads / with its default one thread (> 1: one "
+          "thread is faster)"),
+    Bench("throughput", (), "serial / 2 process workers wall time (goal >= 1.8 on 2 free cores)",
+          uses_steps=True, uses_n=True),
 )
 
 
-def repo_root() -> Path | None:
-    """The source checkout holding ``benchmarks/`` (None for an installed package)."""
-    here = Path(__file__).resolve()
-    for base in here.parents:
-        if (base / "benchmarks").is_dir() and (base / "pyproject.toml").is_file():
-            return base
+def repo_root(start: Path | None = None) -> Path | None:
+    """The source checkout holding ``benchmarks/common.py``: an ancestor of this module (an
+    editable install) or of ``start`` (default: the working directory); None if neither."""
+    for here in (Path(__file__).resolve(), (start or Path.cwd()).resolve() / "_"):
+        for base in here.parents:
+            if (base / "benchmarks" / "common.py").is_file():
+                return base
     return None
 
 
-def run_bench(steps: int = 2000, n: int = 8, timeout: float = 900.0) -> int:
-    """Run the benchmark scripts; print their ratio lines. Returns 0 if all succeeded, else 1."""
+def run_bench(steps: int = 2000, n: int = 8, timeout: float = 900.0,
+              root: Path | None = None) -> int:
+    """Run the benchmarks of :data:`BENCHES` and print one Markdown table of their ratios.
+
+    Args:
+        steps: rollout steps of the actor and throughput benchmarks (>= 1).
+        n: rollouts of the throughput benchmark (>= 1).
+        timeout: seconds allowed per benchmark (> 0).
+        root: the source checkout (default: :func:`repo_root`).
+
+    Returns:
+        0 if every benchmark succeeded, else 1.
+
+    Raises:
+        UsageError: a bad argument, or no checkout with ``benchmarks/`` (an installed package).
+    """
+    # the parameters are the command's flags of the same names
     if steps < 1 or n < 1:
-        raise CLIError("--steps and --n must be >= 1")
+        raise UsageError("--steps and --n must be >= 1")
     if not timeout > 0:
-        raise CLIError(f"--timeout must be > 0, got {timeout}")
-    root = repo_root()
+        raise UsageError(f"--timeout must be > 0, got {timeout}")
+    root = root or repo_root()
     if root is None:
-        raise CLIError("benchmarks/ not found (run bench from a source checkout)")
+        raise UsageError("the benchmarks are not installed with the package: run latentune bench "
+                         "in a source checkout of latentune (a directory holding benchmarks/)")
     env = dict(os.environ, **thread_env())
+    rows: list[dict[str, Any]] = []
     status = 0
-    for name, cmd, steps_flag in BENCHES:
-        script = root / cmd[0]
-        if not script.is_file():
-            print(f"== {name}: {cmd[0]} missing (skipped)")
-            continue
-        argv = [sys.executable, str(script), *cmd[1:]]
-        if steps_flag:
-            argv += ["--steps", str(steps)]
-        if name == "throughput":
-            argv += ["--n", str(n)]
-        print(f"== {name}: {' '.join(argv[1:])}", flush=True)
-        t = time.perf_counter()
-        try:
-            r = subprocess.run(argv, capture_output=True, text=True, env=env, cwd=root,
-                               timeout=timeout)
-        except subprocess.TimeoutExpired:
-            print(f"   timed out after {timeout:.0f} s")
-            status = 1
-            continue
-        lines = [ln for ln in r.stdout.splitlines() if ln.strip()]
-        ratio = [ln for ln in lines if "ratio" in ln.lower() or "×" in ln or "x " in ln.lower()]
-        for ln in (ratio or lines[-10:]):
-            print("   " + ln)
-        if r.returncode != 0:
-            status = 1
-            err = r.stderr.strip().splitlines()
-            print(f"   exit {r.returncode}: {err[-1] if err else ''}")
-        print(f"   ({time.perf_counter() - t:.0f} s)", flush=True)
+    with tempfile.TemporaryDirectory(prefix="lt_bench_") as tmp:
+        for b in BENCHES:
+            out = Path(tmp) / f"{b.name}.json"
+            args = [*b.args, *(["--steps", str(steps)] if b.uses_steps else []),
+                    *(["--n", str(n)] if b.uses_n else [])]
+            print(f"running python -m benchmarks.{b.name} {' '.join(args)}", file=sys.stderr,
+                  flush=True)
+            argv = [sys.executable, "-m", f"benchmarks.{b.name}", *args, "--out", str(out)]
+            t = time.perf_counter()
+            row: dict[str, Any] = {"benchmark": b.name, "ratio": None, "meaning": b.ratio}
+            try:
+                r = subprocess.run(argv, capture_output=True, text=True, env=env, cwd=root,
+                                   timeout=timeout)
+            except subprocess.TimeoutExpired:
+                row["status"] = f"timed out after {timeout:.0f} s"
+                status = 1
+            else:
+                row.update(_read(out, r))
+                if row["status"] != "ok":
+                    status = 1
+            row["wall_s"] = round(time.perf_counter() - t, 1)
+            rows.append(row)
+    print(_table(rows))
     return status
+
+
+def _read(out: Path, proc: subprocess.CompletedProcess) -> dict[str, Any]:
+    """Ratio, load and status of one benchmark from its JSON output."""
+    if proc.returncode != 0 or not out.is_file():
+        err = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+        return {"status": f"exit {proc.returncode}: {err[-1] if err else 'no output'}"}
+    try:
+        obj = json.loads(out.read_text())
+        ratio = float(obj["ratio"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        return {"status": f"unreadable output ({type(exc).__name__}: {exc})"}
+    load = (obj.get("provenance") or {}).get("loadavg_end") or [None]
+    return {"status": "ok", "ratio": ratio, "load": load[0]}
+
+
+def _table(rows: list[dict[str, Any]]) -> str:
+    cols = ["benchmark", "ratio", "meaning", "load", "wall_s", "status"]
+    lines = ["| " + " | ".join(cols) + " |", "|" + "|".join("---" for _ in cols) + "|"]
+    for r in rows:
+        cells = []
+        for c in cols:
+            v = r.get(c)
+            cells.append("–" if v is None else f"{v:.2f}" if isinstance(v, float) else str(v))
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
