@@ -32,7 +32,7 @@ Warm-started with the previous plan shifted by one knot, the torque arms are nea
 first step; from a cold start (the reference path) it converges slowly, but the robot is then
 standing still and the next replans fix it. BiConMP instead relaxes the dynamics with an
 augmented-Lagrangian penalty ρ and runs up to ~50 FISTA iterations in C++, which would not fit a
-Python 20 Hz budget. Measured (time per planner solve): ``python benchmarks/kinodynamic.py``.
+Python 20 Hz budget. ``python -m benchmarks.kinodynamic`` times a planner solve.
 """
 from __future__ import annotations
 

@@ -37,7 +37,7 @@ STATE_NAMES = ("roll", "pitch", "yaw", "x", "y", "z", "wx", "wy", "wz", "vx", "v
 FORCE_NAMES = tuple(f"{leg}_f{ax}" for leg in LEGS for ax in "xyz")
 _INF = 1e30  # "no bound" for the QP solvers (DAQP and OSQP both read ±1e30 as infinite)
 
-# Manual-tuned weights (found by hand, checked by tests/test_actor.py and benchmarks/actor.py).
+# Manual-tuned weights (found by hand, checked by tests/test_actor.py and benchmarks.actor).
 _Q_MANUAL = {
     "trot": (20.0, 20.0, 0.2, 1e-3, 1e-3, 10.0, 0.5, 0.5, 0.2, 1.0, 1.0, 0.1, 1e-3),
     "jump": (20.0, 20.0, 0.2, 1e-3, 1e-3, 10.0, 0.5, 0.5, 0.2, 1.0, 1.0, 0.1, 1e-3),

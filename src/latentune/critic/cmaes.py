@@ -8,7 +8,7 @@
   population is independent of the batch otherwise: an ask serves the current generation's
   points and samples the next generation only when they are used up. The initial mean is
   ``x0[0]`` (else the box centre) and all ``x0`` rows are injected into the first generation.
-  ``benchmarks/peers.py`` compares these defaults with Optuna's CMA-ES and pycma called
+  ``benchmarks.peers`` compares these defaults with Optuna's CMA-ES and pycma called
   directly (results in ``results/peers/``).
 * Randomness: generation ``g`` samples with ``numpy.random.default_rng([seed, g])`` through
   pycma's ``randn`` option; pycma's global-seed path is disabled (``seed=nan``), so the global

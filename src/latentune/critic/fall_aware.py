@@ -73,7 +73,7 @@ leave-one-out predictions, ``P(fell | x) = Φ((μ(x) + c) / √(s² + σ²(x)))`
 predictive mean and variance of the label). Far from the data the probability returns to the
 level of the GP's constant mean instead of extrapolating. Prior data (a source run) get a GP of
 their own whose mean is the prior mean of the told points' GP (:class:`FallClassifier`).
-``benchmarks/fall_avoidance.py --part classifiers`` compares it with a Dirichlet GP, a logistic
+``python -m benchmarks.fall_avoidance --part classifiers`` compares it with a Dirichlet GP, a logistic
 regression on random Fourier features and k nearest neighbours (results in
 ``results/fall_avoidance/``).
 

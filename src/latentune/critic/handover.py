@@ -22,10 +22,9 @@ trust region in the pipeline, optionally fall-aware), then told every latent-sta
 untagged warm data (θ = the decoded point, its cost and fell flag, in a fixed order), so its first
 trust region is centred on the best decoded θ and its GP starts with the latent stage's data.
 ``length`` is ``handover_length`` (default 0.2, in the unit box: a quarter of TuRBO's usual
-initial side). The decoder's own local spread is not used to shape the box: measured on the
-Solo12 and A1 trot VAEs, decoded points within ±0.05 of the best code differ by a median
-0.008–0.009 per θ entry, so a box of that shape would keep the search on the decoder's surface,
-which is the floor.
+initial side). The decoder's own local spread is not used to shape the box: decoded points near
+the best code differ far less than that side in every θ entry, so a box of that shape would keep
+the search on the decoder's surface, which is the floor.
 
 Tags, z and resume
 ------------------

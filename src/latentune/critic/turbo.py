@@ -57,7 +57,7 @@ the fit is the MAP estimate:
 * ``"dim"``: the dimension-scaled prior without the side term.
 
 With a prior, cold fits start at its mode (clipped to [0.02, 4]). ``results/peers/README.md``
-compares ``"dim_tr"`` with the default on the problems of ``benchmarks/peers.py`` and on the
+compares ``"dim_tr"`` with the default on the problems of ``benchmarks.peers`` and on the
 main job.
 
 * A region's GP is conditioned on at most ``max_gp_points`` (default 256) of its points, and its
@@ -86,7 +86,7 @@ Design choices
 * On multi-basin functions (e.g. Levy) the best value over seeds has a heavy tail: compare
   medians over several seeds.
 
-``benchmarks/peers.py`` runs ``minimize``'s defaults against the reference TuRBO, Optuna's
+``python -m benchmarks.peers`` runs ``minimize``'s defaults against the reference TuRBO, Optuna's
 samplers and CMA-ES on ten problems (``--variant NAME='{"option": value}'`` compares other
 options).
 

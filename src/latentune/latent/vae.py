@@ -37,7 +37,7 @@ the ``vae``'s KL pulls the means of a few hundred points together and can collap
 (reconstruction error = the training set's total variance: every code decodes to the mean θ).
 ``--vae-kind vae`` remains available.
 
-Measured: ``python benchmarks/vae_kind.py RUN_DIR --kinds det vae --n-check 30`` (reconstruction
+Compared by ``python -m benchmarks.vae_kind RUN_DIR --kinds det vae --n-check 30`` (reconstruction
 error, stable preservation; ``--phase3-evals N`` adds a phase 3); a committed run is in
 ``results/benchmarks/vae_kind_a1_trot.json``.
 """
