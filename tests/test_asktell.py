@@ -113,6 +113,8 @@ def test_a_reopened_study_takes_its_seed_and_options_from_the_store(tmp_path):
         assert "\n" not in str(e.value)
     with pytest.raises(LatentuneError, match="handover is an option of phase 3"):
         b.ask(handover=True)
+    with pytest.raises(LatentuneError, match="latent space is an option of phase 3"):
+        b.ask(latent=tmp_path)
     again = b.ask(2)                                   # the same asker: its pending ones again
     assert [s.id for s in again] == [s.id for s in s1] and all(s.again for s in again)
     grown = b.ask(3, budget=40)                        # a budget may grow
@@ -303,6 +305,19 @@ def test_trials_are_records_with_named_phases_and_physical_params(tmp_path, monk
         at.tell(s.id, 1.5, note="by hand")
         (rec,) = at.trials()
         assert rec.trial == s.id and rec.cost == 1.5 and rec.info["note"] == "by hand"
+        seen = {}
+
+        class FakePandas:                               # what trials_dataframe hands pandas
+            @staticmethod
+            def DataFrame(rows, columns=None):          # noqa: N802 - pandas' name
+                seen["rows"] = rows
+                return "frame"
+
+        monkeypatch.setitem(__import__("sys").modules, "pandas", FakePandas)
+        assert at.trials_dataframe() == "frame"
+        (row,) = seen["rows"]
+        assert row["phase"] == "phase 1" and row["trial"] == s.id and row["cost"] == 1.5
+        assert row["params_a"] == pytest.approx(s.params["a"]) and row["failed"] is False
         monkeypatch.setitem(__import__("sys").modules, "pandas", None)
         with pytest.raises(ImportError, match="pip install pandas"):
             at.trials_dataframe()

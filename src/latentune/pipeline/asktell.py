@@ -169,6 +169,9 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
     stored = cfg.get(key) if fixed else None
     if phase == Phase.PHASE1 and given.get("handover"):
         raise UsageError("handover is an option of phase 3")
+    if phase == Phase.PHASE1 and latent is not None:
+        raise UsageError(f"{study.dir}: ask/tell runs phase 1 here; a latent space is an option "
+                         "of phase 3 (use another directory)")
     g = _normalized(given, space)
     if stored:
         g = mf.ask_options(stored, g, study.dir, phase)
