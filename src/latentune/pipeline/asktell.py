@@ -40,7 +40,7 @@ from latentune.constants import Phase
 from latentune.errors import StoreError, UsageError
 from latentune.pipeline import manifest as mf
 from latentune.pipeline.baselines import queue_zero_shot
-from latentune.pipeline.loop import phase_critic, record_latent, resolve_latent
+from latentune.pipeline.loop import decoder_of, phase_critic, record_latent, resolve_latent
 from latentune.pipeline.phases import (ask_batch, replay, save_state, state_key,
                                        warn_if_failing)
 from latentune.pipeline.results import phase_name, write_best
@@ -242,8 +242,7 @@ def _ask_critic(study: Any, st: RunStore, phase: int, pc: dict[str, Any], space:
     k = min(max(pc["batch_size"], need), left)
     critic = phase_critic(phase, pc, space, study.dir, ls)
     replay(st, phase, critic)
-    decoder = None if ls is None or pc.get("handover") is not None else ls.decode
-    U, T, Z, thetas, codes = ask_batch(critic, len(open_) + k, decoder)
+    U, T, Z, thetas, codes = ask_batch(critic, len(open_) + k, decoder_of(pc, ls))
     held = {np.ascontiguousarray(t.theta).tobytes() for t in open_}
     keep = [i for i in range(len(thetas))
             if np.ascontiguousarray(thetas[i]).tobytes() not in held][-k:]
