@@ -50,26 +50,27 @@ def _count(db: Path) -> int:
 def test_crash_and_resume(tmp_path, cli, cli_env, dump_store):
     """SIGKILL of the CLI and its worker processes mid-run (needs real processes), then resume."""
     out = tmp_path / "crash"
-    args = ["phase1", *TINY, "--out", str(out), "--phase1-evals", "40", "--workers", "2"]
+    n, n_kill = 24, 8
+    args = ["phase1", *TINY, "--out", str(out), "--phase1-evals", str(n), "--workers", "2"]
     proc = subprocess.Popen([sys.executable, "-m", "latentune.cli", *args], env=cli_env,
                             start_new_session=True, stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE)
     t0 = time.monotonic()
-    while _count(out / "run.db") < 12:
+    while _count(out / "run.db") < n_kill:
         assert proc.poll() is None, proc.stderr.read().decode()
-        assert time.monotonic() - t0 < 600, "no 12 stored trials after 600 s"   # a hang guard
+        assert time.monotonic() - t0 < 600, "no trials stored after 600 s"     # a hang guard
         time.sleep(0.05)
     os.killpg(proc.pid, signal.SIGKILL)                   # the CLI and its workers
     proc.wait()
     kept = dump_store(out)[0]
-    n_kill = len([r for r in kept if r[0] == 1])
-    assert 12 <= n_kill < 40
+    n_stored = len([r for r in kept if r[0] == 1])
+    assert n_kill <= n_stored < n
     p = cli(*args, "--resume")
     assert p.returncode == 0, p.stderr
     rows = [r for r in dump_store(out)[0] if r[0] == 1]
-    assert [r[1] for r in rows] == list(range(40))          # contiguous, none duplicated
-    assert rows[:n_kill] == [r for r in kept if r[0] == 1]  # everything stored is kept
-    assert len({r[2] for r in rows}) == 40                   # no θ evaluated twice
+    assert [r[1] for r in rows] == list(range(n))           # contiguous, none duplicated
+    assert rows[:n_stored] == [r for r in kept if r[0] == 1]  # everything stored is kept
+    assert len({r[2] for r in rows}) == n                    # no θ evaluated twice
 
 
 def test_phase1_on_local_ray(tmp_path, cli, cli_env, dump_store):

@@ -6,9 +6,7 @@ The pure-numpy chain (``examples.toy_plant``) always runs; the Gymnasium Hopper
 from __future__ import annotations
 
 import json
-import os
 import sqlite3
-import subprocess
 import sys
 from pathlib import Path
 
@@ -20,21 +18,29 @@ from latentune.constants import C1, Phase
 from latentune.system import as_outcome
 
 ROOT = Path(__file__).resolve().parents[1]
-PY = sys.executable
-ENV = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1",
-           RAY_AUTH_MODE="disabled", PYTHONUNBUFFERED="1")
 N1, N3 = 16, 6                                   # phase-1 and phase-3 evaluations
 FAST = ["--workers", "1", "--backend", "serial", "--quiet", "--vae-epochs", "30",
         "--latent-dim", "3"]
 
-if str(ROOT) not in sys.path:
+if str(ROOT) not in sys.path:           # ``examples`` is imported from the repository root
     sys.path.insert(0, str(ROOT))
 
 
-def cli(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
-    """``latentune ARGS`` with cwd = the repository root (so ``examples.*`` imports)."""
-    return subprocess.run([PY, "-m", "latentune.cli", *args], capture_output=True, text=True,
-                          env=ENV, timeout=timeout, cwd=ROOT)
+@pytest.fixture
+def run(run_cli, monkeypatch):
+    """``latentune ARGS`` in-process with cwd = the repository root: ``(code, stdout, stderr)``."""
+    monkeypatch.chdir(ROOT)
+    return run_cli
+
+
+@pytest.fixture
+def run_process(cli):
+    """``latentune ARGS`` in a subprocess with cwd = the repository root (the user module is
+    imported from the working directory, as from a user's shell): ``(code, stdout, stderr)``."""
+    def go(*args: object) -> tuple[int, str, str]:
+        p = cli(*args, cwd=ROOT, timeout=300)
+        return p.returncode, p.stdout, p.stderr
+    return go
 
 
 def counts(run: Path) -> dict[int, int]:
@@ -45,13 +51,13 @@ def counts(run: Path) -> dict[int, int]:
         con.close()
 
 
-def check_report(run: Path) -> None:
-    p = cli("report", str(run), "--no-sim", "--quiet")
-    assert p.returncode == 0, p.stderr
-    assert "phase 3" in p.stdout and (run / "report.md").is_file()
+def check_report(run_dir: Path, run) -> None:
+    code, out, err = run("report", run_dir, "--no-sim", "--quiet")
+    assert code == 0, err
+    assert "phase 3" in out and (run_dir / "report.md").is_file()
 
 
-def through_the_api(system, real, tmp_path: Path) -> None:
+def through_the_api(system, real, tmp_path: Path, run) -> None:
     sim = lt.Study(tmp_path / "api", seed=1)
     assert sim.phase1(system, N1).n == N1
     latent = sim.train_latent(latent_dim=3, epochs=30)
@@ -60,7 +66,7 @@ def through_the_api(system, real, tmp_path: Path) -> None:
     sim.summary()
     sim.close()
     assert counts(tmp_path / "api") == {Phase.MANUAL: 1, Phase.PHASE1: N1, Phase.PHASE3: N3}
-    check_report(tmp_path / "api")
+    check_report(tmp_path / "api", run)
     # sim-to-real: phase 3 on the perturbed system in the model's latent space (+ zero-shot row)
     target = lt.Study(tmp_path / "real", seed=1)
     target.phase3(real, 4, latent=tmp_path / "api")
@@ -70,56 +76,57 @@ def through_the_api(system, real, tmp_path: Path) -> None:
     assert counts(tmp_path / "real") == {Phase.MANUAL: 1, Phase.ZERO_SHOT: 1, Phase.PHASE3: 4}
 
 
-def through_the_cli(target: str, args: list[str], tmp_path: Path) -> Path:
+def through_the_cli(target: str, args: list[str], tmp_path: Path, run) -> Path:
     out = tmp_path / "cli"
     sys_args = ["--system", target] + [x for a in args for x in ("--system-arg", a)]
-    p = cli("tune", *sys_args, "--out", str(out), "--phase1-evals", str(N1),
-            "--phase3-evals", str(N3), *FAST)
-    assert p.returncode == 0, p.stderr
-    assert "phase 3" in p.stdout
+    code, stdout, err = run("tune", *sys_args, "--out", out, "--phase1-evals", N1,
+                            "--phase3-evals", N3, *FAST)
+    assert code == 0, err
+    assert "phase 3" in stdout
     assert counts(out) == {Phase.MANUAL: 1, Phase.PHASE1: N1, Phase.PHASE3: N3}
     cfg = json.loads((out / "summary.json").read_text())["config"]
     assert cfg["system"]["target"] == target
-    check_report(out)
+    check_report(out, run)
     return out
 
 
 # ---------------------------------------------------------------------------- pure numpy
-def test_numpy_chain_through_the_api(tmp_path):
+def test_numpy_chain_through_the_api(tmp_path, run):
     from examples import toy_plant
 
     model, real = toy_plant.make_system(), toy_plant.make_real_system()
     assert model.space.dim == 24
     manual = as_outcome(model.evaluate(model.space.manual))
     assert not manual.failed and 0 < manual.cost < C1
-    through_the_api(model, real, tmp_path)
+    through_the_api(model, real, tmp_path, run)
     # failed trials (the chain left the safe box) get the C1 convention, above every success
     rows = lt.Study(tmp_path / "api").store.rows(Phase.PHASE1)
     assert all(C1 <= r.cost <= 2 * C1 for r in rows if r.fell)
     assert all(r.cost < C1 for r in rows if not r.fell)
 
 
-def test_numpy_chain_through_the_cli(tmp_path):
-    out = through_the_cli("examples.toy_plant:make_system", ["steps=100"], tmp_path)
+def test_numpy_chain_through_the_cli(tmp_path, run_process):
+    out = through_the_cli("examples.toy_plant:make_system", ["steps=100"], tmp_path, run_process)
     assert json.loads((out / "summary.json").read_text())["config"]["system"]["args"] == \
         {"steps": 100}
 
 
-def test_numpy_chain_ask_tell(tmp_path):
+def test_numpy_chain_ask_tell(tmp_path, run):
     """One round of the ask/tell session (examples/ask_tell_session.sh) on the chain."""
     from examples import toy_plant
 
     d = tmp_path / "at"
-    p = cli("ask", str(d), "--system", "examples.toy_plant:make_real_system")
-    assert p.returncode == 0, p.stderr
-    sid, _, path, _ = p.stdout.strip().split("\t")
+    code, stdout, err = run("ask", d, "--system", "examples.toy_plant:make_real_system")
+    assert code == 0, err
+    sid, _, path, _ = stdout.strip().split("\t")
     real = toy_plant.make_real_system()
     out = as_outcome(real.evaluate(real.space.parse(json.loads(Path(path).read_text()))))
-    p = cli("tell", str(d), sid, "--cost", f"{out.cost:.6f}", *(["--failed"] if out.failed else []))
-    assert p.returncode == 0, p.stderr
-    p = cli("status", str(d), "--json")
-    assert p.returncode == 0, p.stderr
-    assert json.loads(p.stdout)["phases"]["phase1"]["n"] == 1 and not Path(path).exists()
+    code, _, err = run("tell", d, sid, "--cost", f"{out.cost:.6f}",
+                       *(["--failed"] if out.failed else []))
+    assert code == 0, err
+    code, stdout, err = run("status", d, "--json")
+    assert code == 0, err
+    assert json.loads(stdout)["phases"]["phase1"]["n"] == 1 and not Path(path).exists()
 
 
 # ---------------------------------------------------------------------------- Gymnasium
@@ -149,8 +156,8 @@ def test_hopper_controller_system():
     assert pickle.loads(pickle.dumps(model)).evaluate(theta).cost == o.cost
 
 
-def test_hopper_through_the_api_and_cli(tmp_path):
+def test_hopper_through_the_api_and_cli(tmp_path, run):
     g = _hopper()
     through_the_api(g.make_system(episode_steps=50), g.make_real_system(episode_steps=50),
-                    tmp_path)
-    through_the_cli("examples.gym_controller:make_system", ["episode_steps=50"], tmp_path)
+                    tmp_path, run)
+    through_the_cli("examples.gym_controller:make_system", ["episode_steps=50"], tmp_path, run)

@@ -20,8 +20,8 @@ def manifold_points(n: int = 150, seed: int = 0) -> np.ndarray:
 def test_vae_shapes_determinism_training(tmp_path, kind):
     X = manifold_points()
     rng = np.random.default_rng(1)
-    a = LatentSpace.train(X, kind=kind, seed=1, epochs=200)
-    b = LatentSpace.train(X, kind=kind, seed=1, epochs=200)
+    a = LatentSpace.train(X, kind=kind, seed=1, epochs=60)
+    b = LatentSpace.train(X, kind=kind, seed=1, epochs=60)
     assert a.d == 25 and a.d_low == 10 and a.kind == kind
     assert a.net.encoder[0].out_features == 12 and a.net.encoder[2].out_features == 6
     u = rng.random((7, 10))
