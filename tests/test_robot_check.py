@@ -64,14 +64,12 @@ def test_bad_urdf_is_one_line_naming_the_file(tmp_path, text, message):
     assert f"URDF {urdf}: " in msg and message in msg
 
 
-def test_cli_reports_a_bad_urdf_in_one_line(tmp_path):
+def test_cli_reports_a_bad_urdf_in_one_line(tmp_path, run_cli, error_line):
     urdf = urdf_file(tmp_path, "garbage")
     spec = spec_file(tmp_path, f"base: a1\nurdf: {urdf}\n")
-    out = subprocess.run([sys.executable, "-m", "latentune.cli", "rollout", "--robot", str(spec), "--steps", "5"],
-                         capture_output=True, text=True, timeout=120)
-    assert out.returncode == 2 and out.stdout == ""
-    assert out.stderr.strip().splitlines() == [f"latentune: error: robot spec {spec}: URDF {urdf}: not XML "
-                                               "(syntax error: line 1, column 0)"]
+    code, out, err = run_cli("rollout", "--robot", spec, "--steps", "5")
+    assert out == "" and error_line(code, err) == (
+        f"latentune: error: robot spec {spec}: URDF {urdf}: not XML (syntax error: line 1, column 0)")
 
 
 # ----------------------------------------------------------------------------- names and leg order
@@ -256,13 +254,13 @@ def test_init_spec_robot_trots_with_the_manual_weights(go_specs, name):
 
 
 # ----------------------------------------------------------------------------- PyBullet off stdout
-def test_rollout_json_is_the_only_stdout_line(tmp_path):
+def test_rollout_json_is_the_only_stdout_line(tmp_path, cli):
+    """In a process: PyBullet's C-level output must not reach the file descriptor of stdout."""
     # strip_root false: PyBullet's URDF parser warns about the massless root (on stdout by default)
     spec = spec_file(tmp_path, f"base: b1\nname: go1_raw\nurdf: {GO1}\nstrip_root: false\n"
                                "nominal_height: 0.32\ntorque_limits: [23.7, 23.7, 35.55]\nkp: [100, 100, 100]\n"
                                "kd: [1, 2, 2]\nfoot_radius: 0.02\n")
-    out = subprocess.run([sys.executable, "-m", "latentune.cli", "rollout", "--robot", str(spec), "--json",
-                          "--steps", "200"], capture_output=True, text=True, timeout=180)
+    out = cli("rollout", "--robot", spec, "--json", "--steps", "200", timeout=180)
     assert out.returncode == 0, out.stderr[-2000:]
     lines = out.stdout.splitlines()
     assert len(lines) == 1 and json.loads(lines[0])["robot"] == "go1_raw" and json.loads(lines[0])["steps"] > 0
