@@ -316,11 +316,6 @@ class FallClassifier:
             self._prior = {"gp": gp, "loo_mu": h["loo_mu"], "loo_var": h["loo_var"],
                            "loo_lab": h["loo_lab"]}
 
-    @property
-    def has_prior(self) -> bool:
-        """Whether a prior with both classes is set."""
-        return self._prior is not None
-
     def fit(self, X: np.ndarray, fell: np.ndarray) -> bool:
         """Fit on points ``X`` (n, dim) in [0, 1]^dim with labels ``fell`` (n,) bool, in data
         order (later points take precedence when the caps apply). Returns whether the
