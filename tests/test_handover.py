@@ -68,6 +68,9 @@ def test_hands_over_on_a_stall_and_gets_below_the_latent_floor():
     assert np.all(np.isnan(h.last_z))
     assert h.best_y < 0.5 * FLOOR
     assert h.rule()["handover_at"] == h.handover_at
+    st = h.stats()                    # both stages' counters, the full TuRBO-m's GP fits
+    assert st["stage"] == FULL and st["latent_stats"]["method"] == "random"
+    assert st["full_stats"]["n_fits"] >= 1 and st["full_stats"]["n_fit_failed"] == 0
 
 
 def test_no_hand_over_while_the_latent_search_improves():

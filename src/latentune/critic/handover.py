@@ -242,6 +242,14 @@ class Handover(Critic):
         if self.full is not None and state.get("full"):
             self.full.load_state_dict(state["full"])
 
+    def stats(self) -> dict[str, Any]:
+        """Counters for logs and run records: the stage and each stage critic's
+        :meth:`~latentune.critic.base.Critic.stats` (``full_stats`` is None before the
+        hand-over)."""
+        return {**super().stats(), "stage": self.stage,
+                "latent_stats": self.latent.stats(),
+                "full_stats": None if self.full is None else self.full.stats()}
+
     def __repr__(self) -> str:
         return (f"Handover(dim={self.dim}, k={self.k}, stage={self.stage}, "
                 f"handover_at={self.handover_at}, n_told={self.n_told}, best_y={self.best_y:.6g})")
