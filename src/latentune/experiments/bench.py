@@ -8,6 +8,7 @@ Markdown table.
 from __future__ import annotations
 
 import json
+import logging
 import os
 import subprocess
 import sys
@@ -19,6 +20,8 @@ from typing import Any
 
 from latentune.errors import UsageError
 from latentune.threads import thread_env
+
+logger = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -85,8 +88,7 @@ def run_bench(steps: int = 2000, n: int = 8, timeout: float = 900.0,
             out = Path(tmp) / f"{b.name}.json"
             args = [*b.args, *(["--steps", str(steps)] if b.uses_steps else []),
                     *(["--n", str(n)] if b.uses_n else [])]
-            print(f"running python -m benchmarks.{b.name} {' '.join(args)}", file=sys.stderr,
-                  flush=True)
+            logger.info("running python -m benchmarks.%s %s", b.name, " ".join(args))
             argv = [sys.executable, "-m", f"benchmarks.{b.name}", *args, "--out", str(out)]
             t = time.perf_counter()
             row: dict[str, Any] = {"benchmark": b.name, "ratio": None, "meaning": b.ratio}
