@@ -25,10 +25,11 @@ of processes may share one RDB or journal storage):
   ``latentune:point`` and is told exactly; any other trial (enqueued, another sampler, the
   zero-shot one) with every parameter inside the box is an external, untagged point (in the
   latent box: its θ encoded; a code outside the latent box is left out);
-* RUNNING trials are pending: a trial asks the rebuilt critic for ``k + 1`` points, ``k`` = the
-  RUNNING trials with a smaller number, and takes the last, so workers that sample at the same
-  time get distinct θ; a θ equal to one already in the study is replaced by the next asked
-  point. With one worker a seed gives the same trials every time.
+* RUNNING trials are pending: a trial asks the rebuilt critic for ``len(pending) + 2`` points,
+  passes over those whose θ a trial of the study already has (a RUNNING trial's θ is recorded
+  the moment it is sampled), leaves one more to each pending trial with a smaller number that is
+  sampling at the same moment, and takes the next; so workers on one storage do not run the
+  same θ. With one worker a seed gives the same trials every time.
 * what the told trials do not determine (TuRBO-m's warm-started GP hyperparameters) is kept in
   the study's system attribute ``latentune:critic_state:<key>`` after every sample.
 
@@ -79,9 +80,10 @@ except ImportError:  # pragma: no cover - the extra is not installed
 logger = logging.getLogger(__name__)
 
 POINT_ATTR = "latentune:point"
-"""Trial system attribute of a sampled trial: ``{"key", "u", "z", "tag", "told", "pending"}``:
-the sampler configuration's key, the critic's unit-box point, the latent code (or None), the
-critic's tag, and how many finished and pending trials the critic saw."""
+"""Trial system attribute of a sampled trial: ``{"key", "u", "z", "tag", "theta", "told",
+"pending", "skipped"}``: the sampler configuration's key, the critic's unit-box point, the
+latent code (or None), the critic's tag, the normalized θ, how many finished and pending trials
+the critic saw, and how many free points it left to pending trials not sampled yet."""
 STATE_ATTR = "latentune:critic_state:"
 """Prefix of the study system attribute holding the critic state of a sampler configuration."""
 FAILED_ATTR = "latentune_failed"
@@ -170,7 +172,7 @@ def _unit_of(space: ParameterSpace, params: Mapping[str, Any]) -> np.ndarray | N
     return np.clip(u, 0.0, 1.0)
 
 
-def _physical(space: ParameterSpace, u: np.ndarray) -> dict[str, float]:
+def physical_params(space: ParameterSpace, u: np.ndarray) -> dict[str, float]:
     """Physical values by name of the unit-box θ ``u`` (d,), clipped to the bounds (a log
     entry at u = 1 can round past its upper bound)."""
     x = np.clip(space.to_physical(np.clip(u, 0.0, 1.0)), space.lower, space.upper)
@@ -305,7 +307,7 @@ class _CriticSampler:
         theta, point = self._next(study, trial)
         if point is not None:
             study._storage.set_trial_system_attr(trial._trial_id, POINT_ATTR, point)
-        phys = _physical(self._space, theta)
+        phys = physical_params(self._space, theta)
         return {n: phys[n] for n in search_space if n in phys}
 
     def sample_independent(self, study: Any, trial: Any, param_name: str,
@@ -333,16 +335,13 @@ class _CriticSampler:
         self._independent.reseed_rng()
 
     # ------------------------------------------------------------------ the critic loop
-    def _history(self, study: Any, exclude: int, two_space: bool, dim: int
+    def _history(self, trials: list[Any], sign: float, exclude: int, two_space: bool, dim: int
                  ) -> tuple[list[np.ndarray], list[float], list[int], list[bool], list[Any]]:
-        """(points, costs, tags, fell, z) of the study's finished trials in number order."""
-        optuna = require_optuna()
+        """(points, costs, tags, fell, z) of the finished trials in ``trials`` (number order)."""
         S = optuna.trial.TrialState
-        sign = _sign(study)
         X, y, tags, fell, Z = [], [], [], [], []
-        for t in sorted(study.get_trials(deepcopy=False, states=(S.COMPLETE, S.FAIL)),
-                        key=lambda t: t.number):
-            if t.number == exclude:
+        for t in sorted(trials, key=lambda t: t.number):
+            if t.number == exclude or t.state not in (S.COMPLETE, S.FAIL):
                 continue
             theta = _unit_of(self._space, t.params)
             pt = t.system_attrs.get(POINT_ATTR)
@@ -364,14 +363,24 @@ class _CriticSampler:
         return X, y, tags, fell, Z
 
     def _next(self, study: Any, trial: Any) -> tuple[np.ndarray, dict[str, Any] | None]:
-        """The normalized θ (d,) for ``trial`` and the point record to store with it."""
-        optuna = require_optuna()
+        """The normalized θ (d,) for ``trial`` and the point record to store with it.
+
+        One snapshot of the study's trials gives the history (finished trials), the pending
+        ones (RUNNING, other than ``trial``) and the θ already taken: every trial's parameters,
+        and the θ a RUNNING trial was given (``POINT_ATTR``, written as soon as it is sampled,
+        before its parameters). The critic is asked for ``len(pending) + 2`` points; those
+        whose θ is taken are passed over, then one more for each pending trial with a smaller
+        number whose θ is not known yet (it is sampling now and takes that one), and the trial
+        takes the next (asking again when none is left)."""
         fixed = self._fixed_theta(study, trial)
         if fixed is not None:
             return fixed, None
+        S = optuna.trial.TrialState
+        sign = _sign(study)
+        trials = study.get_trials(deepcopy=False)              # one snapshot for everything
         critic, decoder = self._critic()
         two_space = hasattr(critic, "last_z")
-        X, y, tags, fell, Z = self._history(study, trial.number, two_space, critic.dim)
+        X, y, tags, fell, Z = self._history(trials, sign, trial.number, two_space, critic.dim)
         if X:
             kw: dict[str, Any] = {}
             if two_space:
@@ -384,39 +393,76 @@ class _CriticSampler:
         state = study._storage.get_study_system_attrs(study._study_id).get(skey)
         if X and state and hasattr(critic, "load_state_dict"):
             critic.load_state_dict(state)
-        running = [t for t in study.get_trials(deepcopy=False,
-                                               states=(optuna.trial.TrialState.RUNNING,))
-                   if t.number < trial.number]
-        seen = {tuple(np.round(u, 12)) for t in study.get_trials(deepcopy=False)
-                if t.number != trial.number and (u := _unit_of(self._space, t.params)) is not None}
-        n_ask = len(running) + 1
-        for attempt in range(16):
+        others = [t for t in trials if t.number != trial.number]
+        # pending: RUNNING trials that take (or may take) a critic point; an enqueued trial
+        # (fixed parameters) and the zero-shot trial do not
+        pending = [t for t in others if t.state == S.RUNNING and "fixed_params" not in
+                   t.system_attrs and not t.system_attrs.get(ZERO_SHOT_ATTR)]
+        pending_numbers = {t.number for t in pending}
+        taken: set[tuple[float, ...]] = set()
+        unknown = 0                     # pending trials before this one whose θ is not known yet
+        for t in others:
+            u_t = _unit_of(self._space, t.params)
+            if u_t is not None:
+                taken.add(_key_of(u_t))
+            pt = t.system_attrs.get(POINT_ATTR)
+            if t.state == S.RUNNING and isinstance(pt, dict) and pt.get("theta") is not None:
+                taken.add(_key_of(np.asarray(pt["theta"], dtype=float)))
+            elif t.number in pending_numbers and t.number < trial.number and u_t is None:
+                unknown += 1
+        n_ask, skip = len(pending) + 2, unknown
+        chosen = None
+        for _ in range(8):
             U = critic.ask(n_ask)
-            tag = int(critic.last_tags[-1])
-            u = U[-1]
-            z = None
-            if two_space:
-                zr = critic.last_z[-1]
-                theta = u
-                z = [float(v) for v in zr] if np.all(np.isfinite(zr)) else None
-            elif decoder is None:
-                theta = u
-            else:
-                theta = np.asarray(decoder(u[None, :]), dtype=float)[0]
-                z = [float(v) for v in u]
-            if tuple(np.round(theta, 12)) not in seen:
+            T = critic.last_tags.copy()
+            LZ = critic.last_z.copy() if two_space else None
+            for i in range(len(U)):
+                theta, z = self._decoded(U[i], None if LZ is None else LZ[i], decoder)
+                if _key_of(theta) in taken:
+                    continue
+                if skip > 0:            # left for a pending trial with a smaller number
+                    skip -= 1
+                    continue
+                chosen = (U[i], theta, z, int(T[i]))
                 break
-            logger.info("trial %d: θ asked already in the study; asking again", trial.number)
-            n_ask = 1
+            if chosen is not None:
+                break
+            logger.info("trial %d: every asked θ is taken already; asking again", trial.number)
+            n_ask, skip = 2, 0
+        if chosen is None:
+            raise LatentuneError(f"{type(self).__name__}: the critic keeps proposing θ that are "
+                                 "in the study already")
+        u, theta, z, tag = chosen
         if hasattr(critic, "state_dict"):
             st = critic.state_dict()
             if st:
                 study._storage.set_study_system_attr(study._study_id, skey, st)
         point = {"key": self._key, "u": [float(v) for v in u], "z": z, "tag": tag,
-                 "told": len(X), "pending": len(running)}
-        logger.debug("trial %d: %d told, %d pending, tag %d", trial.number, len(X), len(running),
-                     tag)
+                 "theta": [float(v) for v in theta], "told": len(X), "pending": len(pending),
+                 "skipped": unknown}
+        logger.debug("trial %d: %d told, %d pending (%d before it not sampled yet), tag %d",
+                     trial.number, len(X), len(pending), unknown, tag)
         return np.clip(theta, 0.0, 1.0), point
+
+    @staticmethod
+    def _decoded(u: np.ndarray, zr: np.ndarray | None, decoder: Callable | None
+                 ) -> tuple[np.ndarray, list[float] | None]:
+        """(θ (d,), stored code or None) of an asked point ``u``: a two-space critic's point
+        is θ with its code ``zr`` (NaN: none); else ``decoder(u)`` with code ``u``, or ``u``
+        itself without a decoder."""
+        if zr is not None:
+            return np.clip(u, 0.0, 1.0), ([float(v) for v in zr] if np.all(np.isfinite(zr))
+                                          else None)
+        if decoder is None:
+            return np.clip(u, 0.0, 1.0), None
+        return np.clip(np.asarray(decoder(u[None, :]), dtype=float)[0], 0.0, 1.0), \
+            [float(v) for v in u]
+
+
+def _key_of(theta: np.ndarray) -> tuple[float, ...]:
+    """A hashable key of a normalized θ (rounded to 1e-9: parameters stored in physical units
+    and mapped back differ from the proposed θ in the last bits)."""
+    return tuple(np.round(np.asarray(theta, dtype=float), 9).tolist())
 
 
 class LatentSampler(_CriticSampler, BaseSampler):
@@ -795,5 +841,5 @@ def _storage_label(storage: Any) -> str:
 
 
 __all__ = ["LatentSampler", "TurboSampler", "import_optuna_study", "open_storage",
-           "space_from_distributions", "distributions_of", "trial_fell", "trial_cost",
-           "OptunaImportError", "FAILED_ATTR", "POINT_ATTR"]
+           "space_from_distributions", "distributions_of", "physical_params", "trial_fell",
+           "trial_cost", "OptunaImportError", "FAILED_ATTR", "POINT_ATTR"]
