@@ -116,7 +116,7 @@ def test_study_phases_on_a_user_system(tmp_path, plugin_dir):
     latent = sim.train_latent(latent_dim=3, epochs=40)
     assert latent.d == 8 and latent.d_low == 3
     target = lt.Study(tmp_path / "real", seed=3)
-    r3 = target.phase3(real, 12, latent=tmp_path / "sim")
+    r3 = target.phase3(real, 12, latent=tmp_path / "sim", strategy="plain")   # the paper's
     assert r3.n == 12
     st = target.store
     assert st.count(Phase.MANUAL) == 1 and st.count(Phase.PHASE3) == 12
@@ -152,7 +152,7 @@ def test_phase3_hands_over_to_the_full_space_and_records_it(tmp_path, plugin_dir
         sim.phase1(model, 48)
         sim.train_latent(latent_dim=3, epochs=40)
     with lt.Study(tmp_path / "plain", seed=3) as plain:
-        floor = plain.phase3(real, 40, latent=tmp_path / "sim").best_cost
+        floor = plain.phase3(real, 40, latent=tmp_path / "sim", strategy="plain").best_cost
     opts = {"patience": 8}
     with lt.Study(tmp_path / "real", seed=3) as target:
         target.phase3(real, 24, latent=tmp_path / "sim", handover=opts, max_new=24)

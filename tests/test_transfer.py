@@ -135,3 +135,42 @@ def test_options_are_checked(source):
     with pytest.raises(ValueError, match="max_fall_prob"):
         Transfer((X, y, f), None, None, max_fall_prob=1.5)
     assert set(TRANSFER_DEFAULTS) >= {"max_fall_prob", "n_design"}
+
+
+def test_study_phase3_default_is_transfer(tmp_path):
+    """``Study.phase3`` runs the transfer strategy by default: the zero-shot trial is its first
+    data, the manual θ is a candidate (not run unless chosen), the options record names it, a
+    resume keeps it, and the plain strategy with a hand-over is refused for it."""
+    import latentune as lt
+    from latentune.constants import Phase
+    from latentune.errors import UsageError
+
+    space = lt.ParameterSpace(names=[f"w{i}" for i in range(6)], low=[0.0] * 6, high=[1.0] * 6,
+                              manual=[0.5] * 6)
+
+    def plant(shift: float):
+        c = np.full(6, 0.3 + shift)
+
+        def fn(w: np.ndarray):
+            r = float(np.sqrt(((w - c) ** 2).sum()))
+            return (100.0 + r, True) if r > 0.5 else (10.0 * r, False)
+        return lt.FunctionSystem(space, fn)
+
+    with lt.Study(tmp_path / "sim", seed=1) as sim:
+        sim.phase1(plant(0.0), 40)
+        sim.train_latent(latent_dim=2, epochs=30)
+    with lt.Study(tmp_path / "real", seed=1) as real:
+        r = real.phase3(plant(0.05), 10, latent=tmp_path / "sim")
+        cfg = real.manifest.config()["phase3"]
+        assert cfg["strategy"] == "transfer" and r.n == 10
+        assert real.store.count(Phase.ZERO_SHOT) == 1
+        assert real.store.count(Phase.MANUAL) == 0
+        zs = real.store.rows(Phase.ZERO_SHOT)[0].cost
+        assert r.best_cost <= zs
+        with pytest.raises(UsageError, match="hand-over"):
+            real.phase3(plant(0.05), 12, latent=tmp_path / "sim", strategy="transfer",
+                        handover=True)
+    with lt.Study(tmp_path / "real", seed=1) as again:
+        again.phase3(plant(0.05), 12, latent=tmp_path / "sim")
+        assert again.manifest.config()["phase3"]["strategy"] == "transfer"
+        assert again.store.count(Phase.PHASE3) == 12

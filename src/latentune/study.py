@@ -40,7 +40,7 @@ from latentune.pipeline.asktell import Suggestion
 from latentune.pipeline.baselines import source_best
 from latentune.pipeline.evaluators import Evaluator
 from latentune.pipeline.loop import (decoder_of, phase_critic, record_latent, resolve_latent,
-                                     study_latent, theta_prior)
+                                     resolve_strategy, study_latent, theta_prior)
 from latentune.pipeline.manifest import describe
 from latentune.pipeline.phases import (PhaseResult, default_batch_size, ensure_manual,
                                        manual_outcome, run_phase)
@@ -233,18 +233,20 @@ class Study:
     def phase3(self, system: Any, budget: int, *, latent: Any = None, method: str = "turbo",
                regions: int | None = None, start: Any = "manual",
                max_fall_prob: float | None = None, handover: Any = None,
-               max_new: int | None = None) -> PhaseResult:
-        """Phase 3: ``method`` tunes in the latent box through the decoder, on ``system``.
+               strategy: str | None = None, max_new: int | None = None) -> PhaseResult:
+        """Phase 3 on ``system`` with the ``strategy`` (default ``"transfer"``: everything the
+        source run tried as a model of the target, latent and full θ boxes,
+        :mod:`latentune.critic.transfer`; ``"plain"``: the paper's phase 3, ``method`` in the
+        latent box through the decoder; options ``method``, ``regions``, ``start`` and
+        ``handover`` are the plain strategy's).
 
         Args:
             latent: None (this study's latent space), a LatentSpace, or another study (its
                 directory or a Study) whose latent space is copied here.
             start: ``"manual"`` (the first point is the code of the manual θ), ``None`` (from
                 scratch) or a (d,) unit-box θ whose code starts the search.
-            max_fall_prob: skip candidates whose predicted probability of failing exceeds it;
-                the prediction starts from the latent space's source run (its phase-1 θ,
-                encoded, with their failed flags). TuRBO-m's trust region also starts and
-                shrinks as in :meth:`phase1`.
+            max_fall_prob: skip candidates whose predicted probability of failing exceeds it
+                (a prediction that starts from the source run's falls; transfer default 0.3).
             handover: ``True`` or a dict of options (``patience``, ``tol``, ``length``): when
                 the latent search stalls, continue with TuRBO-m on the full θ box from the best
                 decoded θ (:mod:`latentune.critic.handover`; recorded as ``phase3_handover``).
@@ -256,7 +258,8 @@ class Study:
         ls, source = resolve_latent(self.run, self.manifest, latent, system.space,
                                     _actor(system))
         mfp_prior = None if max_fall_prob is None else "latent source"
-        extra = {"latent_source": source,
+        strategy = resolve_strategy(self.manifest, strategy, handover)
+        extra = {"latent_source": source, "strategy": strategy,
                  "start": mf.start_point(start, system.space.manual, system.space.dim)[1],
                  **mf.fall_options(max_fall_prob, mfp_prior), "handover": mf.handover(handover)}
         self._options(Phase.PHASE3, method, budget, regions, extra)     # checked before writing
@@ -268,7 +271,8 @@ class Study:
             record_latent(self.run, self.manifest, ls, source)
             self.manifest.update(phase3=pc)
             self.manifest.record_seed(self.seed)
-            self.log(f"manual θ: cost {ensure_manual(st, system, seed=self.seed):.3f}")
+            if strategy == "plain" or source == "self":     # transfer: the manual θ is a candidate
+                self.log(f"manual θ: cost {ensure_manual(st, system, seed=self.seed):.3f}")
             zs = baselines.zero_shot(st, system, source, self.seed)
             if zs is not None:
                 self.log(f"zero-shot (the source's best θ as it is): cost {zs:.3f}")

@@ -661,14 +661,15 @@ class Transfer(Critic):
                 f"n_told={self.n_told}, best_y={self.best_y:.6g})")
 
 
-def source_trials(run: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Every trial of a source run's phases 1 and 3 as ``(X (N, d), y (N,), fell (N,))``, in
-    (phase, idx) order."""
+def source_trials(run: str | Path, phases: tuple[int, ...] | None = None
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every trial of a source run's ``phases`` (default phases 1 and 3) as
+    ``(X (N, d), y (N,), fell (N,))``, in (phase, idx) order."""
     from latentune.constants import Phase
     from latentune.pipeline.store import RunStore
 
     with RunStore(run) as st:
-        rows = [r for ph in (Phase.PHASE1, Phase.PHASE3) for r in st.rows(ph)]
+        rows = [r for ph in (phases or (Phase.PHASE1, Phase.PHASE3)) for r in st.rows(ph)]
     if not rows:
         return np.empty((0, 0)), np.empty(0), np.empty(0, dtype=bool)
     X = np.array([r.theta for r in rows], dtype=float)

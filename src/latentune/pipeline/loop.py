@@ -57,6 +57,8 @@ def phase_critic(phase: int, pc: dict[str, Any], space: ParameterSpace, run_dir:
         raise LatentError("phase 3 needs a latent space")
     source = pc.get("latent_source", "self")
     run = run_dir if source in (None, "self") else Path(source)
+    if strategy_of(pc) == "transfer":
+        return transfer_critic(pc, space, run_dir, run, latent)
     x0 = None if theta0 is None else latent.to_unit(latent.encode(theta0))
     lprior = latent_prior(run, latent) if mfp is not None else None
     if pc.get("handover") is None:
@@ -67,10 +69,69 @@ def phase_critic(phase: int, pc: dict[str, Any], space: ParameterSpace, run_dir:
                                 pc["budget"], pc["regions"], pc["handover"], mfp, lprior, tprior)
 
 
+STRATEGIES = ("transfer", "plain")
+"""Phase 3's strategies: ``transfer`` (the default, :mod:`latentune.critic.transfer`: everything
+the source run tried, the target's own trials, latent and full θ boxes) and ``plain`` (the
+paper's phase 3: ``method`` on the latent box only, optionally with a hand-over)."""
+
+
+def strategy_of(pc: dict[str, Any]) -> str:
+    """The phase-3 strategy of an options record; records written before strategies existed
+    ran the paper's phase 3 (``plain``)."""
+    return str(pc.get("strategy") or "plain")
+
+
+def resolve_strategy(manifest: Manifest, strategy: str | None, handover: Any) -> str:
+    """Phase 3's strategy for a call: ``strategy`` if given (checked), else the stored one once
+    phase 3 has trials (``plain`` for runs recorded before strategies existed), else
+    ``transfer`` — or ``plain`` with a hand-over, which is an option of the paper's phase 3."""
+    from latentune.errors import UsageError
+
+    if strategy is not None and strategy not in STRATEGIES:
+        raise UsageError(f"unknown phase-3 strategy {strategy!r} (choose from "
+                         f"{', '.join(STRATEGIES)})")
+    if strategy == "transfer" and handover:
+        raise UsageError("the hand-over is an option of the plain phase 3 (strategy plain); "
+                         "the transfer phase 3 moves to the full θ box on its own")
+    if strategy is None:
+        stored = manifest.config().get("phase3")
+        if stored and manifest.n_used(Phase.PHASE3):
+            return strategy_of(stored)
+        return "plain" if handover else "transfer"
+    return strategy
+
+
+def transfer_critic(pc: dict[str, Any], space: ParameterSpace, run_dir: Path, source_run: Path,
+                    latent: Any) -> Any:
+    """The transfer phase 3's critic (:class:`~latentune.critic.transfer.Transfer`) on the θ box:
+    the source run's trials (phases 1 and 3; only phase 1 when the source is this run), the
+    latent space, the target's manual θ, and the target trials stored outside phase 3 (the
+    zero-shot trial and the manual θ's) told to it as data."""
+    from latentune.critic.transfer import TRANSFER_DEFAULTS, Transfer, source_trials
+
+    own = Path(source_run).resolve() == Path(run_dir).resolve()
+    X, y, fell = source_trials(source_run, phases=(Phase.PHASE1,) if own else None)
+    if len(y) < 2:
+        raise LatentError(f"transfer phase 3: the source run {source_run} has {len(y)} trials; "
+                          "it needs at least 2 (or use strategy plain)")
+    mfp = pc.get("max_fall_prob")
+    critic = Transfer((X, y, fell), latent, space.manual, batch_size=pc["batch_size"],
+                      seed=pc["seed"],
+                      max_fall_prob=TRANSFER_DEFAULTS["max_fall_prob"] if mfp is None else mfp)
+    if (Path(run_dir) / "run.db").is_file():
+        with RunStore(run_dir) as st:
+            rows = [r for ph in (Phase.MANUAL, Phase.ZERO_SHOT) for r in st.rows(ph)]
+        if rows:
+            critic.tell(np.array([r.theta for r in rows]), np.array([r.cost for r in rows]),
+                        fell=np.array([r.fell for r in rows], dtype=bool))
+    return critic
+
+
 def decoder_of(pc: dict[str, Any], latent: Any) -> Any:
     """The map from the critic's box to θ for :func:`run_phase`: None in phase 1 and for a
-    two-space critic (a hand-over decodes on its own), else the latent space's decoder."""
-    if latent is None or pc.get("handover") is not None:
+    two-space critic (a hand-over or the transfer critic decode on their own), else the latent
+    space's decoder."""
+    if latent is None or pc.get("handover") is not None or strategy_of(pc) == "transfer":
         return None
     return latent.decode
 
