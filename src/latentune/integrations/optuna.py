@@ -97,11 +97,6 @@ class OptunaImportError(LatentuneError, ValueError):
     """An Optuna study (or storage) that cannot become a latentune run, with the reason."""
 
 
-def require_optuna() -> Any:
-    """The ``optuna`` module (this module imports it; kept for callers that check)."""
-    return optuna
-
-
 # ---------------------------------------------------------------------------- spaces
 def space_from_distributions(dists: Mapping[str, Any], manual: Mapping[str, float] | None = None
                              ) -> ParameterSpace:
@@ -111,7 +106,6 @@ def space_from_distributions(dists: Mapping[str, Any], manual: Mapping[str, floa
     ``IntDistribution``, a stepped float or a ``CategoricalDistribution`` raises
     :class:`OptunaImportError` naming the parameter. ``manual``: physical values by name (the
     manual θ; default the centre of the unit box)."""
-    optuna = require_optuna()
     D = optuna.distributions
     names, low, high, log = [], [], [], []
     for name, d in dists.items():
@@ -152,7 +146,6 @@ def space_from_distributions(dists: Mapping[str, Any], manual: Mapping[str, floa
 
 def distributions_of(space: ParameterSpace) -> dict[str, Any]:
     """``{name: optuna.distributions.FloatDistribution(low, high, log=...)}`` of ``space``."""
-    optuna = require_optuna()
     return {n: optuna.distributions.FloatDistribution(float(lo), float(hi), log=bool(lg))
             for n, lo, hi, lg in zip(space.names, space.lower, space.upper, space.log)}
 
@@ -182,7 +175,6 @@ def physical_params(space: ParameterSpace, u: np.ndarray) -> dict[str, float]:
 def trial_fell(trial: Any) -> bool:
     """Whether a finished Optuna trial is a fall: state FAIL, a constraint value > 0, or the
     user attribute :data:`FAILED_ATTR` set to a true value."""
-    optuna = require_optuna()
     if trial.state == optuna.trial.TrialState.FAIL:
         return True
     if bool(trial.user_attrs.get(FAILED_ATTR, False)):
@@ -200,7 +192,6 @@ def trial_cost(trial: Any, sign: float) -> float:
 
 
 def _sign(study: Any) -> float:
-    optuna = require_optuna()
     if len(study.directions) != 1:
         raise UsageError("latentune's samplers and import take single-objective studies only")
     return -1.0 if study.direction == optuna.study.StudyDirection.MAXIMIZE else 1.0
@@ -238,9 +229,8 @@ class _CriticSampler:
     def _init_common(self, seed: int, budget: int, regions: int | None, method: str,
                      max_fall_prob: float | None, constraints_func: Callable | None,
                      independent_sampler: Any) -> None:
-        from latentune.study import METHODS
+        from latentune.critic import METHODS
 
-        optuna = require_optuna()
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or \
                 not 0 <= int(seed) < 2 ** 63:
             raise UsageError(f"seed must be an integer in [0, 2**63), got {seed!r}")
@@ -663,7 +653,6 @@ def open_storage(storage: Any) -> Any:
     (``sqlite:///file.db``, ``postgresql://…``), a path to an SQLite file, or a path to a
     journal file (``JournalStorage(JournalFileBackend(path))``). OptunaImportError for a path
     that does not exist."""
-    optuna = require_optuna()
     if isinstance(storage, optuna.storages.BaseStorage):
         return storage
     if not isinstance(storage, (str, os.PathLike)):
@@ -693,7 +682,6 @@ def open_storage(storage: Any) -> Any:
 
 
 def _load_study(storage: Any, study_name: str | None) -> Any:
-    optuna = require_optuna()
     st = open_storage(storage)
     names = [s.study_name for s in st.get_all_studies()]
     if study_name is None:
@@ -725,7 +713,6 @@ def import_optuna_study(storage: Any, study_name: str | None, out: str | os.Path
     Raises :class:`OptunaImportError` with one line for a study that cannot be imported,
     ``StoreError`` when ``out`` holds another run.
     """
-    optuna = require_optuna()
     from latentune.pipeline.phases import store_outcome
     from latentune.study import Study
     from latentune.system import Outcome
