@@ -11,7 +11,7 @@ a command run without the extra stops with one line naming the install command.
 from __future__ import annotations
 
 import argparse
-from typing import Any
+from typing import Any, Sequence
 
 INSTALL_HINT = "install the optuna extra: pip install 'latentune[optuna]'"
 
@@ -72,7 +72,7 @@ def cmd_dashboard(args: argparse.Namespace) -> int:
     if not args.interval > 0:
         raise CLIError(f"--interval must be > 0, got {args.interval}")
     mod.serve(args.dir, port=args.port, interval=args.interval, journal=args.journal,
-              quiet=args.quiet)
+              quiet=bool(getattr(args, "quiet", False)))
     return 0
 
 
@@ -107,11 +107,12 @@ def _seed(s: str) -> int:
     return v
 
 
-def register_cli(sub: Any) -> None:
+def register_cli(sub: Any, parents: Sequence[argparse.ArgumentParser] = ()) -> None:
     """Add ``import-optuna`` and ``dashboard`` to the ``latentune`` subcommands ``sub`` (the
-    object ``ArgumentParser.add_subparsers`` returned). Optuna is imported only when one of
-    them runs."""
-    p = sub.add_parser("import-optuna",
+    object ``ArgumentParser.add_subparsers`` returned); ``parents``: parsers whose flags every
+    command shares (the CLI's ``-v/--verbose``, ``--quiet``). Optuna is imported only when one
+    of them runs."""
+    p = sub.add_parser("import-optuna", parents=list(parents),
                        help="an Optuna study (RDB URL, SQLite or journal file) as a phase-1 run")
     p.add_argument("storage", help="sqlite:///file.db, another RDB URL, a .db or a journal file")
     p.add_argument("--study", default=None, help="the study name (default: the only study)")
@@ -127,12 +128,11 @@ def register_cli(sub: Any) -> None:
     p.add_argument("--vae-epochs", type=int, default=None, help="VAE epochs (default: by size)")
     p.set_defaults(func=cmd_import_optuna)
 
-    p = sub.add_parser("dashboard", help="show a run live in optuna-dashboard (localhost)")
+    p = sub.add_parser("dashboard", parents=list(parents), help="show a run live in optuna-dashboard (localhost)")
     p.add_argument("dir", help="run directory")
     p.add_argument("--port", type=int, default=8080, help="port on 127.0.0.1 (default 8080)")
     p.add_argument("--interval", type=float, default=2.0,
                    help="seconds between reads of the run store (default 2)")
     p.add_argument("--journal", default=None, metavar="FILE",
                    help="also keep the exported trials in this Optuna journal file")
-    p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_dashboard)
