@@ -69,6 +69,14 @@ def test_export_phases_falls_and_suggestions(tmp_path):
     assert p1.trials[0].distributions["kp"] == optuna.distributions.FloatDistribution(
         0.1, 10.0, log=True)
     assert any(r.fell for r in rows) and not all(r.fell for r in rows)
+    # the same export into a journal file, readable by any Optuna process
+    from optuna.storages.journal import JournalFileBackend, JournalStorage
+
+    journal = tmp_path / "run.journal"
+    RunExport(run, JournalStorage(JournalFileBackend(str(journal)))).sync()
+    again = JournalStorage(JournalFileBackend(str(journal)))
+    assert [t.value for t in optuna.load_study(study_name="run/phase 1", storage=again).trials] \
+        == [t.value for t in p1.trials]
     # ask/tell: a pending suggestion is RUNNING, then completed in place when told
     tell_run = tmp_path / "asked"
     st = lt.Study(tell_run, seed=1)
