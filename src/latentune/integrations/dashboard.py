@@ -16,7 +16,10 @@ The export (:class:`RunExport`)
   constraint ``fall`` = 1 (else 0), so the dashboard draws it as infeasible; a row whose cost is
   non-finite (stored as 1e300) is a FAIL trial;
 * a suggestion handed out by ``ask`` and not told yet is a RUNNING trial; when it is told, that
-  trial is completed with its result;
+  trial is completed with its result (a suggestion released by its asker stays RUNNING until it
+  is told; one dropped unseen becomes a FAIL trial with user attribute ``status = dropped``);
+* a result corrected after it was exported (``amend``) keeps its first value here: Optuna does
+  not change a finished trial; restart the dashboard to show it;
 * the store is read again every ``interval`` seconds (a new SQLite connection each time, read
   only: the run's writer is never blocked for long); rows already exported are not read twice.
 
@@ -42,7 +45,7 @@ except ImportError:  # pragma: no cover - the extra is not installed
 
 from latentune.constants import Phase
 from latentune.errors import StoreError, UsageError
-from latentune.integrations.optuna import _physical, distributions_of
+from latentune.integrations.optuna import distributions_of, physical_params
 from latentune.pipeline.store import RunStore
 from latentune.space import ParameterSpace
 
@@ -114,10 +117,16 @@ class RunExport:
                     for r in st.rows(ph)[start:]:
                         n += self._add_row(int(ph), r, space, dists)
                         self._done[int(ph)] = r.idx + 1
+                status = {t.id: t.status for t in st.trials()}
+                for sid in [i for i in self._running if status.get(i) == "dropped"]:
+                    otid = self._running.pop(sid)         # discarded unseen: it will not be told
+                    self.storage.set_trial_user_attr(otid, "status", "dropped")
+                    self.storage.set_trial_state_values(otid, optuna.trial.TrialState.FAIL)
+                    n += 1
                 for t in st.trials("pending"):
                     if t.id in self._running:
                         continue
-                    params = _physical(space, t.theta)
+                    params = physical_params(space, t.theta)
                     ft = optuna.trial.FrozenTrial(
                         number=0, state=optuna.trial.TrialState.RUNNING, value=None,
                         datetime_start=_time(t.created), datetime_complete=None, params=params,
@@ -159,7 +168,7 @@ class RunExport:
         ft = optuna.trial.FrozenTrial(
             number=0, state=state, value=None if failed else float(r.cost),
             datetime_start=_time(r.created - wall), datetime_complete=_time(r.created),
-            params=_physical(space, r.theta), distributions=dists, user_attrs=user,
+            params=physical_params(space, r.theta), distributions=dists, user_attrs=user,
             system_attrs=system, intermediate_values={}, trial_id=0)
         self.storage.create_new_trial(self._study(phase), ft)
         return 1
