@@ -256,6 +256,14 @@ def test_latent_sampler_falls_and_direction(source_run):
     sampler.suggest_all(nxt)
     assert study.trials[-1].system_attrs[POINT_ATTR]["told"] == 4
 
+    # Optuna's constraints_func, called by the sampler after each trial, marks falls too
+    cf = LatentSampler(source_run, seed=2, budget=40,
+                       constraints_func=lambda tr: [1.0 if tr.params["w0"] > 0.0 else -1.0])
+    st = optuna.create_study(sampler=cf)
+    st.optimize(lambda tr: cost(np.array(list(cf.suggest_all(tr).values())))[0], n_trials=3)
+    assert [trial_fell(t) for t in st.trials] == [t.params["w0"] > 0.0 for t in st.trials]
+    assert all(t.constraints for t in st.trials)
+
     def run(direction: str) -> list:
         s = LatentSampler(source_run, seed=5, budget=40)
         st = optuna.create_study(sampler=s, direction=direction)
