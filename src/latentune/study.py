@@ -307,19 +307,18 @@ class Study:
             phase: int | None = None, latent: Any = None, method: str | None = None,
             budget: int | None = None, regions: int | None = None, start: Any = None,
             max_fall_prob: float | None = None, fall_prior: Any = None, handover: Any = None,
-            asker: str | None = None, lease_s: float | None = None) -> list[Suggestion]:
+            strategy: str | None = None, asker: str | None = None,
+            lease_s: float | None = None) -> list[Suggestion]:
         """Hand out ``n`` suggestions for trials run elsewhere (the asker's pending ones first).
 
-        The first ask fixes the study's system (``system``) or parameter space (``space``), the
-        phase (1, or 3 with ``latent`` or this study's latent space) and its options, as
-        :meth:`phase1` / :meth:`phase3` take them (``start``: "manual" or a θ; default
-        "manual"; ``budget`` default 200); a later ask takes them from the store (None) and
-        refuses another value (a budget may grow). ``asker`` and ``lease_s``: see
-        :mod:`latentune.pipeline.asktell` (default lease one hour)."""
+        The first ask fixes the study's system or ``space``, the phase (1, or 3 with a latent
+        space) and its options as :meth:`phase1` / :meth:`phase3` take them (``budget`` default
+        200); a later ask takes them from the store (None) and refuses another value (a budget
+        may grow). ``asker``, ``lease_s``: see :mod:`latentune.pipeline.asktell`."""
         return asktell.ask(self, n, system=system, space=space, phase=phase, latent=latent,
                            asker=asker, lease_s=lease_s, method=method, budget=budget,
                            regions=regions, start=start, max_fall_prob=max_fall_prob,
-                           fall_prior=fall_prior, handover=handover)
+                           fall_prior=fall_prior, handover=handover, strategy=strategy)
 
     def tell(self, trial_id: int, cost: float | None = None, *, failed: bool = False,
              note: str | None = None, info: dict[str, Any] | None = None,

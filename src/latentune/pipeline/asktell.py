@@ -40,7 +40,8 @@ from latentune.constants import Phase
 from latentune.errors import StoreError, UsageError
 from latentune.pipeline import manifest as mf
 from latentune.pipeline.baselines import queue_zero_shot
-from latentune.pipeline.loop import decoder_of, phase_critic, record_latent, resolve_latent
+from latentune.pipeline.loop import (decoder_of, phase_critic, record_latent, resolve_latent,
+                                     resolve_strategy)
 from latentune.pipeline.phases import (ask_batch, replay, save_state, state_key,
                                        warn_if_failing)
 from latentune.pipeline.results import phase_name, write_best
@@ -169,6 +170,10 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
     stored = cfg.get(key) if fixed else None
     if phase == Phase.PHASE1 and given.get("handover"):
         raise UsageError("handover is an option of phase 3")
+    strategy = given.get("strategy")
+    if phase == Phase.PHASE1 and strategy:
+        raise UsageError("strategy is an option of phase 3")
+    given = {k: v for k, v in given.items() if k != "strategy"}
     if phase == Phase.PHASE1 and latent is not None:
         raise UsageError(f"{study.dir}: ask/tell runs phase 1 here; a latent space is an option "
                          "of phase 3 (use another directory)")
@@ -184,7 +189,9 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
     if phase == Phase.PHASE3:
         ls, source = resolve_latent(study.run, study.manifest, latent, space)
         record_latent(study.run, study.manifest, ls, source)
-        extra = {"latent_source": source, "start": start_rec,
+        extra = {"latent_source": source,
+                 "strategy": resolve_strategy(study.manifest, strategy, g.get("handover")),
+                 "start": start_rec,
                  **mf.fall_options(mfp, None if mfp is None else "latent source"),
                  "handover": g.get("handover")}
     else:
@@ -200,7 +207,7 @@ def ask(study: Any, n: int = 1, *, system: Any = None, space: ParameterSpace | N
         lease_s: float | None = None, **given: Any) -> list[Suggestion]:
     """Hand out ``n`` suggestions of ``study`` to ``asker`` (see the module docstring).
 
-    ``given``: the phase's options (method, budget, regions, start, max_fall_prob,
+    ``given``: the phase's options (strategy, method, budget, regions, start, max_fall_prob,
     fall_prior, handover), each None for "the stored one"."""
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
         raise UsageError(f"n must be an integer >= 1, got {n!r}")
