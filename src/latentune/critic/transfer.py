@@ -47,7 +47,8 @@ the latent pool's share is ``w_lat = clip(agreement, 0, latent_share_max)``, set
 least ``latent_falls`` latent-pool trials fell and they fell more often than not; the full pool
 gets the rest. ``L`` follows TuRBO's rule on the full box (doubling after ``succ_tol``
 improving batches, halving after ``fail_tol`` batches without one). A candidate whose predicted
-fall probability exceeds ``max_fall_prob`` is skipped (if fewer than the batch remain, the least
+fall probability (its posterior mean plus ``fall_kappa`` standard deviations: an upper
+confidence bound, as in safe Bayesian optimization) exceeds ``max_fall_prob`` is skipped (if fewer than the batch remain, the least
 likely to fall are kept); among the rest each point of the batch is the argmin of one joint
 Thompson sample of the cost model.
 
@@ -80,7 +81,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "max_fall_prob": 0.3, "n_design": 3, "n_elite": 16, "elite_spacing": 0.15,
     "n_candidates": 1000, "length_init": 0.3, "length_max": 1.0, "length_min": 1 / 128,
     "succ_tol": 2, "fail_tol": 3, "latent_share_max": 0.5, "latent_falls": 3,
-    "max_points": 300,
+    "max_points": 300, "fall_kappa": 1.0,
 }
 """The options of :class:`Transfer` (see the module docstring); recorded with the run."""
 
@@ -603,7 +604,11 @@ class Transfer(Critic):
         Zc = np.vstack([p[1] for p in parts]) if self.k else np.empty((len(C), 0))
         pool = np.concatenate([np.full(len(p[0]), p[2], dtype=np.int64) for p in parts])
         # the fall screen
-        pf = sm.fall_prob(C) if fall_m is None else np.clip(fall_m.mean_cov(C, False)[0], 0, 1)
+        if fall_m is None:
+            pf = sm.fall_prob(C)
+        else:                   # an upper confidence bound: where the model is unsure, it screens
+            pf = np.clip(fall_m.mean_cov(C, False)[0] + float(self.opts["fall_kappa"])
+                         * np.sqrt(fall_m.variance(C)), 0, 1)
         ok = pf <= float(self.opts["max_fall_prob"])
         if ok.sum() < n:
             ok = np.zeros(len(C), dtype=bool)
