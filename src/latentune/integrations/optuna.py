@@ -198,7 +198,8 @@ def _sign(study: Any) -> float:
 
 
 # ---------------------------------------------------------------------------- samplers
-def _phase3_critic(source_run: Path, latent: Any, *, method: str, batch_size: int, seed: int,
+def _phase3_critic(source_run: Path, latent: Any, space: ParameterSpace, *, method: str,
+                   batch_size: int, seed: int,
                    x0: np.ndarray | None, budget: int, regions: int | None,
                    max_fall_prob: float | None = None,
                    prior: tuple[np.ndarray, np.ndarray] | None = None
@@ -211,7 +212,8 @@ def _phase3_critic(source_run: Path, latent: Any, *, method: str, batch_size: in
     (codes (m, d_low), fell (m,)) of the source run for the fall-aware option), with the
     decoder ``latent.decode`` ((n, d_low) -> normalized θ (n, d)). A critic that asks θ itself
     (a two-space critic with ``last_z``) is returned with decoder None; the sampler handles both.
-    ``source_run`` is the source run directory (for a critic that reads its trials)."""
+    ``source_run`` is the source run directory and ``space`` its parameter space (manual θ),
+    for a critic that reads the source's trials."""
     from latentune.pipeline.phases import make_phase_critic
 
     critic = make_phase_critic(method, latent.d_low, batch_size, seed, x0, budget, regions,
@@ -526,7 +528,7 @@ class LatentSampler(_CriticSampler, BaseSampler):
         self._prior = _latent_prior(self.source_run, latent) if max_fall_prob else None
 
     def _critic(self) -> tuple[Any, Callable | None]:
-        return _phase3_critic(self.source_run, self.latent, method=self.method,
+        return _phase3_critic(self.source_run, self.latent, self._space, method=self.method,
                               batch_size=self.batch_size, seed=self.seed, x0=self._x0,
                               budget=self.budget, regions=self.regions,
                               max_fall_prob=self.max_fall_prob, prior=self._prior)
