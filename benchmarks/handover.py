@@ -157,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
                             study = lt.Study(d, seed=s, workers=a.workers,
                                              batch_size=a.batch_size, evaluator=ev)
                         if m == "latent":
-                            study.phase3(task, a.budget, latent=a.vae, start=None)
+                            study.phase3(task, a.budget, latent=a.vae, start=None, strategy="plain")
                         elif m == "handover":
                             study.phase3(task, a.budget, latent=a.vae, start=None,
                                          handover=handover, max_fall_prob=a.max_fall_prob)

@@ -135,7 +135,7 @@ def main(argv: list[str] | None = None) -> int:
                     opts = {} if a.max_fall_prob is None else {"max_fall_prob": a.max_fall_prob}
                     with lt.Study(d, seed=s, workers=a.workers, evaluator=ev) as st:
                         if m == "phase3":
-                            st.phase3(target, a.budget, latent=a.source, **opts)
+                            st.phase3(target, a.budget, latent=a.source, strategy="plain", **opts)
                             ph = Phase.PHASE3
                         else:
                             if opts:

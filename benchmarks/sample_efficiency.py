@@ -98,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
                 with lt.Study(work / f"{m}_s{s}", seed=s, workers=a.workers,
                               batch_size=a.batch_size, evaluator=ev) as study:
                     if m == "latent":
-                        study.phase3(task, a.budget, latent=a.vae, start=None)
+                        study.phase3(task, a.budget, latent=a.vae, start=None, strategy="plain")
                     else:
                         study.phase1(task, a.budget, method="turbo" if m == "turbo" else m,
                                      start=None)

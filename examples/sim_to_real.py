@@ -81,7 +81,7 @@ def run_real(model_dir: str | os.PathLike, phase3_dir: str | os.PathLike,
     out: dict[str, Any] = {"seed": seed, "budget": budget}
     t = time.perf_counter()
     with lt.Study(phase3_dir, seed=seed, workers=workers, backend=backend, log=log) as s3:
-        s3.phase3(real, budget, latent=model_dir)
+        s3.phase3(real, budget, latent=model_dir, strategy="plain")
         zs = s3.store.rows(Phase.ZERO_SHOT)[0]
         manual = float(s3.store.rows(Phase.MANUAL)[0].cost)
         rows3 = _phase_rows(s3, Phase.PHASE3)

@@ -186,9 +186,10 @@ def run_study(plan_: StudyPlan, opts: PaperOptions, root: Path, b: dict[str, Any
         if plan_.kind == "tune":
             study.phase1(task, b["phase1"], method=plan_.method)
             study.train_latent()
-            study.phase3(task, b["phase3"], method=plan_.method)
+            study.phase3(task, b["phase3"], method=plan_.method, strategy="plain")
         elif plan_.kind == "phase3":
-            study.phase3(task, plan_.budget, latent=root / plan_.vae_from, method=plan_.method)
+            study.phase3(task, plan_.budget, latent=root / plan_.vae_from, method=plan_.method,
+                         strategy="plain")
         elif plan_.kind == "baseline":
             study.phase1(task, plan_.budget, method=plan_.method)
         elif plan_.kind == "preservation":
