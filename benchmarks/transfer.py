@@ -6,7 +6,8 @@
 
 Systems (``SYSTEMS``; the model is gap 0, each target is the same controller on a plant at a gap):
 
-* ``chain``  — :mod:`examples.lqr_chain`, 20 LQR weights of a seven-cart chain (gaps 0.5, 1, 1.5);
+* ``chain``  — :mod:`examples.lqr_chain`, 20 LQR weights of a seven-cart chain (gaps 0.5, 1, 1.5,
+  2: at 2 most θ that were stable on the model fail);
 * ``arm``    — :mod:`examples.arm_controller`, 21 joint-controller weights of a two-link arm
   (gaps 0.5, 1, 1.5);
 * ``hopper`` — :mod:`examples.gym_controller`, 36 weights of a linear Hopper controller; gap g
@@ -87,7 +88,7 @@ def _arm(g: float) -> Any:
 
 
 SYSTEMS: dict[str, dict[str, Any]] = {
-    "chain": {"model": lambda: _chain(0.0), "target": _chain, "gaps": (0.5, 1.0, 1.5)},
+    "chain": {"model": lambda: _chain(0.0), "target": _chain, "gaps": (0.5, 1.0, 1.5, 2.0)},
     "arm": {"model": lambda: _arm(0.0), "target": _arm, "gaps": (0.5, 1.0, 1.5)},
     "hopper": {"model": _hopper_model, "target": _hopper_target, "gaps": (0.5, 1.0, 1.5)},
 }
