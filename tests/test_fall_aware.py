@@ -65,9 +65,10 @@ def test_turbo_fewer_falls_same_best():
     rng = np.random.default_rng(7)
     P = rng.random((100, 3))
     pf = problem(P)[1]
-    f_plain, b_plain = _medians([run(critic("turbo", s, False), 60) for s in range(3)])
-    f_aware, b_aware = _medians([run(critic("turbo", s, True), 60) for s in range(3)])
-    f_prior, b_prior = _medians([run(critic("turbo", s, True, prior_X=P, prior_fell=pf), 60)
+    kw = dict(batch=10)                   # 6 asks of 10 per run
+    f_plain, b_plain = _medians([run(critic("turbo", s, False, **kw), 60) for s in range(3)])
+    f_aware, b_aware = _medians([run(critic("turbo", s, True, **kw), 60) for s in range(3)])
+    f_prior, b_prior = _medians([run(critic("turbo", s, True, prior_X=P, prior_fell=pf, **kw), 60)
                                  for s in range(3)])
     assert f_plain >= 4
     assert f_prior <= 0.5 * f_plain, (f_plain, f_prior)

@@ -136,13 +136,14 @@ def test_nominal_height_far_from_forward_kinematics_warns_once(tmp_path, capsys)
     assert capsys.readouterr().err == ""
 
 
-def test_massless_root_is_stripped_when_strip_root_is_omitted(tmp_path, capsys):
+def test_massless_root_is_stripped_when_strip_root_is_omitted(tmp_path):
     base = {k: v for k, v in get_robot("b1").to_dict().items() if k not in ("strip_root", "torque_limits")}
     spec = spec_from_dict(base)
     assert spec.strip_root is True and spec.torque_limits == (91.0035, 93.33, 140.0)
     assert read_urdf(spec.urdf).massless_root() and read_urdf(prepared_urdf(spec)).root == "trunk"
-    spec_from_dict({**base, "strip_root": False})
-    assert "strip_root is false but the root link 'base' is massless" in capsys.readouterr().err
+    with pytest.warns(RobotSpecWarning, match="strip_root is false but the root link 'base' is "
+                                              "massless"):
+        spec_from_dict({**base, "strip_root": False})
 
 
 def test_primitive_collisions_without_table_or_foot_shape(tmp_path):
