@@ -198,13 +198,31 @@ def test_imported_run_feeds_study_phase3(source_run, tmp_path):
 
 
 # ---------------------------------------------------------------------------- samplers
+def test_latent_sampler_default_is_the_transfer_phase3(source_run):
+    """The default sampler is latentune's default phase 3: deterministic for a seed with one
+    worker, trial 0 the zero-shot θ, the plain strategy's options refused with it."""
+    def run(seed: int) -> optuna.Study:
+        sampler = LatentSampler(source_run, seed=seed)
+        assert sampler.strategy == "transfer"
+        study = optuna.create_study(sampler=sampler)
+        study.optimize(objective_for(sampler), n_trials=6)
+        return study
+
+    a, b = run(0), run(0)
+    assert thetas(a) == thetas(b) and len(set(thetas(a))) == len(a.trials)
+    assert a.trials[0].system_attrs.get("latentune:zero_shot") is True
+    assert all(t.system_attrs[POINT_ATTR]["tag"] >= 0 for t in a.trials[1:])
+    with pytest.raises(UsageError, match="strategy='plain'"):
+        LatentSampler(source_run, method="cma")
+
+
 def test_latent_sampler_optimize_and_seed(source_run, tmp_path):
     src = lt.Study(source_run)
     best = src.best(Phase.PHASE1)
     latent = src.latent()
 
     def run(seed: int) -> optuna.Study:
-        sampler = LatentSampler(source_run, seed=seed, budget=40)
+        sampler = LatentSampler(source_run, seed=seed, budget=40, strategy="plain")
         study = optuna.create_study(sampler=sampler)
         study.optimize(objective_for(sampler), n_trials=7)
         return study

@@ -198,22 +198,28 @@ def _sign(study: Any) -> float:
 
 
 # ---------------------------------------------------------------------------- samplers
-def _phase3_critic(source_run: Path, latent: Any, space: ParameterSpace, *, method: str,
-                   batch_size: int, seed: int,
+def _phase3_critic(source_run: Path, latent: Any, space: ParameterSpace, *, strategy: str,
+                   method: str, batch_size: int, seed: int,
                    x0: np.ndarray | None, budget: int, regions: int | None,
                    max_fall_prob: float | None = None,
                    prior: tuple[np.ndarray, np.ndarray] | None = None
                    ) -> tuple[Any, Callable[[np.ndarray], np.ndarray] | None]:
-    """The phase-3 critic of :class:`LatentSampler`: ``(critic, decoder)``.
+    """The phase-3 critic of :class:`LatentSampler`: ``(critic, decoder)``, the one place that
+    chooses it, as ``Study.phase3`` does (:func:`latentune.pipeline.loop.phase_critic`).
 
-    The one place that chooses it: today latentune's plain phase 3,
-    :func:`~latentune.pipeline.phases.make_phase_critic` on the latent unit box
-    [0, 1]^d_low of ``latent`` (``x0``: (d_low,) unit-box code of the warm start; ``prior``:
-    (codes (m, d_low), fell (m,)) of the source run for the fall-aware option), with the
-    decoder ``latent.decode`` ((n, d_low) -> normalized θ (n, d)). A critic that asks θ itself
-    (a two-space critic with ``last_z``) is returned with decoder None; the sampler handles both.
-    ``source_run`` is the source run directory and ``space`` its parameter space (manual θ),
-    for a critic that reads the source's trials."""
+    ``strategy="transfer"`` (the default): :class:`~latentune.critic.transfer.Transfer` on the
+    θ box from every trial of ``source_run`` (its parameter space ``space`` gives the manual θ),
+    a two-space critic (it asks θ; decoder None). ``strategy="plain"``: the paper's phase 3,
+    :func:`~latentune.pipeline.phases.make_phase_critic` on the latent unit box [0, 1]^d_low
+    (``x0``: (d_low,) code of the warm start; ``prior``: (codes (m, d_low), fell (m,)) of the
+    source run for the fall-aware option), with the decoder ``latent.decode``."""
+    if strategy == "transfer":
+        from latentune.critic.transfer import TRANSFER_DEFAULTS, Transfer, source_trials
+
+        X, y, fell = source_trials(source_run)
+        mfp = TRANSFER_DEFAULTS["max_fall_prob"] if max_fall_prob is None else max_fall_prob
+        return Transfer((X, y, fell), latent, space.manual, batch_size=batch_size, seed=seed,
+                        max_fall_prob=mfp), None
     from latentune.pipeline.phases import make_phase_critic
 
     critic = make_phase_critic(method, latent.d_low, batch_size, seed, x0, budget, regions,
@@ -460,15 +466,19 @@ def _key_of(theta: np.ndarray) -> tuple[float, ...]:
 class LatentSampler(_CriticSampler, BaseSampler):
     """latentune's phase 3 as an Optuna sampler over a source run's parameter names.
 
-    ``LatentSampler(source_run, seed=0, *, method="turbo", budget=200, regions=None,
-    start="manual", zero_shot=True, max_fall_prob=None, constraints_func=None,
+    ``LatentSampler(source_run, seed=0, *, strategy="transfer", method="turbo", budget=200,
+    regions=None, start="manual", zero_shot=True, max_fall_prob=None, constraints_func=None,
     independent_sampler=None)``
 
     Args:
         source_run: a latentune run directory with phase 1 and a trained latent space
             (``Study.train_latent``, ``latentune train-vae``, or an imported Optuna study).
         seed: the critic's seed (recorded in each trial's ``latentune:point`` key).
-        method: the critic on the latent box: ``turbo`` (TuRBO-m), ``cma``, ``random``,
+        strategy: ``"transfer"`` (default: latentune's phase 3 from every source trial, on the
+            latent and the full θ box, :mod:`latentune.critic.transfer`) or ``"plain"`` (the
+            paper's phase 3 on the latent box; ``method``, ``regions`` and ``start`` are its
+            options).
+        method: the plain strategy's critic on the latent box: ``turbo`` (TuRBO-m), ``cma``, ``random``,
             ``sobol``; ``budget``: the trials you plan (TuRBO-m's trust regions unless
             ``regions`` is given: 1 below 750).
         start: ``"manual"`` (the first critic point is the code of the source space's manual
@@ -486,12 +496,20 @@ class LatentSampler(_CriticSampler, BaseSampler):
     """
 
     def __init__(self, source_run: str | os.PathLike, seed: int = 0, *,
-                 method: str = "turbo", budget: int = 200, regions: int | None = None,
-                 start: str | None = "manual", zero_shot: bool = True,
-                 max_fall_prob: float | None = None,
+                 strategy: str = "transfer", method: str = "turbo", budget: int = 200,
+                 regions: int | None = None, start: str | None = "manual",
+                 zero_shot: bool = True, max_fall_prob: float | None = None,
                  constraints_func: Callable | None = None,
                  independent_sampler: Any = None) -> None:
+        from latentune.pipeline.loop import STRATEGIES
         from latentune.study import Study, source_best
+
+        if strategy not in STRATEGIES:
+            raise UsageError(f"strategy must be one of {', '.join(STRATEGIES)}, got {strategy!r}")
+        if strategy == "transfer" and (method != "turbo" or regions is not None or
+                                       start != "manual"):
+            raise UsageError("method, regions and start are options of strategy='plain'")
+        self.strategy = strategy
 
         src = Path(source_run)
         if not (src / "run.db").is_file():
@@ -516,7 +534,7 @@ class LatentSampler(_CriticSampler, BaseSampler):
         best = source_best(src)
         self._zero_shot_theta = None if best is None or not zero_shot else best.theta.copy()
         self.start = start
-        self._key = (f"latent:{_fingerprint(latent)}:{method}:{regions}:{budget}:"
+        self._key = (f"latent:{_fingerprint(latent)}:{strategy}:{method}:{regions}:{budget}:"
                      f"{max_fall_prob}:{start}")
         self._init_common(seed, budget, regions, method, max_fall_prob, constraints_func,
                           independent_sampler)
@@ -528,7 +546,8 @@ class LatentSampler(_CriticSampler, BaseSampler):
         self._prior = _latent_prior(self.source_run, latent) if max_fall_prob else None
 
     def _critic(self) -> tuple[Any, Callable | None]:
-        return _phase3_critic(self.source_run, self.latent, self._space, method=self.method,
+        return _phase3_critic(self.source_run, self.latent, self._space,
+                              strategy=self.strategy, method=self.method,
                               batch_size=self.batch_size, seed=self.seed, x0=self._x0,
                               budget=self.budget, regions=self.regions,
                               max_fall_prob=self.max_fall_prob, prior=self._prior)
