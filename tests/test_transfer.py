@@ -174,3 +174,15 @@ def test_study_phase3_default_is_transfer(tmp_path):
         again.phase3(plant(0.05), 12, latent=tmp_path / "sim")
         assert again.manifest.config()["phase3"]["strategy"] == "transfer"
         assert again.store.count(Phase.PHASE3) == 12
+
+
+def test_params_at_a_negative_lower_bound_parse():
+    """A physical value exactly at a negative bound is inside the space (the slack used to move
+    a negative lower bound inward)."""
+    import latentune as lt
+
+    sp = lt.ParameterSpace(names=["a", "b"], low=[-1.0, -5.0], high=[1.0, -2.0], manual=[0.0, -3.0])
+    np.testing.assert_allclose(sp.parse({"a": -1.0, "b": -5.0}), [0.0, 0.0])
+    np.testing.assert_allclose(sp.parse({"a": 1.0, "b": -2.0}), [1.0, 1.0])
+    with pytest.raises(Exception, match="outside"):
+        sp.parse({"a": -1.01})

@@ -153,7 +153,8 @@ class ParameterSpace:
                 if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
                     raise ParamsError(f"parameter {k} must be a finite number, got {v!r}")
                 i = self.names.index(k)
-                if not (self.lower[i] * (1 - 1e-9) <= v <= self.upper[i] * (1 + 1e-9)):
+                slack = 1e-9 * max(abs(self.lower[i]), abs(self.upper[i]), 1e-300)
+                if not (self.lower[i] - slack <= v <= self.upper[i] + slack):
                     raise ParamsError(f"parameter {k} = {v:g} is outside [{self.lower[i]:g}, {self.upper[i]:g}]")
                 phys[i] = float(v)
             return self.validate_unit(np.clip(self.to_unit(phys), 0.0, 1.0))
