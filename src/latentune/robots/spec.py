@@ -12,7 +12,7 @@ shipped by an installed package (``pybullet_data``, ``example-robot-data``). ``b
 name>`` starts from a built-in robot and overrides only the fields given. Units: SI (m, s, rad,
 N·m); angles of ``max_tilt_deg`` in degrees.
 
-Every load checks the spec against its URDF (:mod:`latentune.robots.check`: joint and foot names,
+Every load checks the spec against its URDF (:mod:`latentune.robots.inspection`: joint and foot names,
 leg order against the geometry, collision shapes of the feet) and fills ``nominal_height``,
 ``torque_limits`` and ``strip_root`` when they are omitted; a problem is a one-line
 :class:`~latentune.errors.RobotSpecError` naming the file.
@@ -30,9 +30,8 @@ from pathlib import Path
 from typing import Any
 
 from latentune.errors import RobotSpecError
-from latentune.robots.urdf import package_dir
-
-LEGS = ("FR", "FL", "RR", "RL")
+from latentune.robots.inspection import LEGS  # noqa: F401 - the leg order, re-exported
+from latentune.robots.urdf import CollisionShape, package_dir
 
 TROT_OFFSETS = (0.0, 0.5, 0.5, 0.0)
 JUMP_OFFSETS = (0.0, 0.0, 0.0, 0.0)
@@ -46,26 +45,6 @@ class GaitParams:
     duty: float          # stance fraction of the cycle
     step_height: float   # swing apex above the ground [m]
     offsets: tuple[float, float, float, float]  # phase offset per leg FR, FL, RR, RL, in cycles
-
-
-@dataclass(frozen=True)
-class CollisionShape:
-    """The collision shape that replaces a link's collision meshes (``primitive_collisions``).
-
-    Attributes:
-        kind: ``"box"`` or ``"sphere"``.
-        size: box edge lengths (x, y, z) [m]; sphere ``(radius,)`` [m], or ``()`` for a sphere
-            of the spec's ``foot_radius``.
-        xyz: shape origin in the link frame [m].
-    """
-
-    kind: str
-    size: tuple[float, ...]
-    xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
-
-    def to_dict(self) -> dict[str, Any]:
-        size: Any = list(self.size) if self.kind == "box" else (self.size[0] if self.size else "foot_radius")
-        return {self.kind: size, "xyz": list(self.xyz)}
 
 
 @dataclass(frozen=True)
@@ -184,7 +163,7 @@ def load_spec_file(path: str | os.PathLike) -> RobotSpec:
 
     Raises:
         RobotSpecError: missing file, bad YAML, missing/unknown/ill-typed field, URDF not found,
-            a spec that does not fit its URDF (:mod:`latentune.robots.check`).
+            a spec that does not fit its URDF (:mod:`latentune.robots.inspection`).
     """
     p = Path(path)
     return _build(read_yaml(p), f"robot spec {p}", p.parent)
@@ -232,7 +211,7 @@ _GAIT_KEYS = {"period", "duty", "step_height", "offsets"}
 def _build(raw: Any, where: str, base_dir: Path) -> RobotSpec:
     """Validate a mapping of spec fields and check them against the URDF (``where`` prefixes
     every error and warning message)."""
-    from latentune.robots.check import emit_warning, inspect_fields
+    from latentune.robots.inspection import emit_warning, inspect_fields
 
     fields = validated_fields(raw, where, base_dir)
     found = inspect_fields(fields)

@@ -33,9 +33,9 @@ import numpy as np
 
 from latentune.constants import G
 from latentune.errors import RobotSpecError
-from latentune.robots.check import (LEG_SIGNS, PLACEHOLDER_EFFORT, joint_position,
-                                    link_position, pin_model, placements, round_sig)
-from latentune.robots.spec import LEGS
+from latentune.robots.check import CLEARANCE, check_spec, round_sig
+from latentune.robots.inspection import (LEG_SIGNS, LEGS, PLACEHOLDER_EFFORT, joint_position,
+                                         link_position, pin_model, placements, usable_collision)
 from latentune.robots.urdf import ERD, UrdfTree, package_dir, read_urdf, resolve_mesh
 
 CROUCH = 0.75
@@ -279,8 +279,6 @@ def init_spec(urdf_path: str | os.PathLike, name: str | None = None) -> str:
 
     # ---- collisions: the URDF's, unless a foot has none PyBullet uses or another link of the
     # leg reaches the ground at the stance; then a base box and foot spheres only
-    from latentune.robots.check import CLEARANCE, _usable_collision
-
     def primitives(why: str) -> list[str]:
         suffix = os.path.commonprefix([f[::-1] for f in feet])[::-1]
         hips = np.array([joint_position(model, d0, joint_names[3 * k]) for k in range(4)])
@@ -323,7 +321,7 @@ def init_spec(urdf_path: str | os.PathLike, name: str | None = None) -> str:
                   "max_tilt_deg: 60.0               # fallen beyond this base tilt [deg]"]
         return "\n".join(lines) + "\n"
 
-    prims = [] if all(_usable_collision(tree, f) for f in feet) else \
+    prims = [] if all(usable_collision(tree, f) for f in feet) else \
         primitives("the feet have no collision shape PyBullet uses")
     report = _self_check(compose(prims, []), path)
     if not prims and report.body_clearance is not None and report.body_clearance < CLEARANCE:
@@ -337,8 +335,6 @@ def _self_check(text: str, path: Path) -> Any:
     """:func:`~latentune.robots.check.check_spec` of the written spec, standing in PyBullet; the
     spec must load (else a bug of init_spec)."""
     import yaml
-
-    from latentune.robots.check import check_spec
 
     report = check_spec(yaml.safe_load(text))
     if report.errors:

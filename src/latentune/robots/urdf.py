@@ -11,7 +11,7 @@ tree of links and joints. :func:`prepared_urdf` rewrites a spec's URDF for simul
 (``strip_root``), ``continuous`` joints become ``revolute`` without limits (one configuration
 value each, as the leg kinematics expect), ``.dae`` collision meshes are dropped (PyBullet
 ignores them), and with ``primitive_collisions`` each link's collision shapes are replaced by the
-spec's :class:`~latentune.robots.spec.CollisionShape` for that link (lengths in metres).
+spec's :class:`CollisionShape` for that link (lengths in metres).
 """
 from __future__ import annotations
 
@@ -25,14 +25,49 @@ import tempfile
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Any, Mapping, Protocol
 
 from latentune.errors import RobotSpecError
 
-if TYPE_CHECKING:
-    from latentune.robots.spec import CollisionShape, RobotSpec
-
 ERD = "example-robot-data"
+
+
+@dataclass(frozen=True)
+class CollisionShape:
+    """The collision shape that replaces a link's collision meshes (``primitive_collisions``).
+
+    Attributes:
+        kind: ``"box"`` or ``"sphere"``.
+        size: box edge lengths (x, y, z) [m]; sphere ``(radius,)`` [m], or ``()`` for a sphere
+            of the spec's ``foot_radius``.
+        xyz: shape origin in the link frame [m].
+    """
+
+    kind: str
+    size: tuple[float, ...]
+    xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def to_dict(self) -> dict[str, Any]:
+        size: Any = list(self.size) if self.kind == "box" else (self.size[0] if self.size else "foot_radius")
+        return {self.kind: size, "xyz": list(self.xyz)}
+
+
+class UrdfFields(Protocol):
+    """The fields of a :class:`~latentune.robots.spec.RobotSpec` that :func:`prepared_urdf`
+    reads (read-only: the spec is frozen)."""
+
+    @property
+    def name(self) -> str: ...
+    @property
+    def urdf(self) -> str: ...
+    @property
+    def strip_root(self) -> bool: ...
+    @property
+    def primitive_collisions(self) -> bool: ...
+    @property
+    def collision_primitives(self) -> Mapping[str, CollisionShape]: ...
+    @property
+    def foot_radius(self) -> float: ...
 
 
 def erd_robots_dir() -> Path:
@@ -353,7 +388,7 @@ def _collision_xml(shape: CollisionShape, foot_radius: float) -> str:
     return f"<collision>{origin}<geometry>{geom}</geometry></collision>"
 
 
-def _primitive_collisions(text: str, spec: RobotSpec) -> str:
+def _primitive_collisions(text: str, spec: UrdfFields) -> str:
     """In every link, replace each collision by the shape whose key ends the link's name, or
     drop it when no key matches."""
     def repl_link(m: re.Match) -> str:
@@ -365,7 +400,7 @@ def _primitive_collisions(text: str, spec: RobotSpec) -> str:
     return re.sub(r'<link\s+name="([^"]+)"\s*>.*?</link>', repl_link, text, flags=re.S)
 
 
-def prepared_urdf(spec: RobotSpec) -> str:
+def prepared_urdf(spec: UrdfFields) -> str:
     """Path of a URDF PyBullet and pinocchio can both load, derived from ``spec.urdf``.
 
     ``spec.urdf`` itself when it needs no change; otherwise a rewritten copy (see the module

@@ -33,7 +33,8 @@ from latentune.errors import UsageError
 from latentune.robots import RobotSpec
 from latentune.robots.urdf import read_urdf
 from latentune.sim.reality import Reality, perturbed_urdf
-from latentune.sim.world import HILLS_CELL, HILLS_CELLS, RobotState, WorldBase
+from latentune.sim.state import RobotState
+from latentune.sim.world import HILLS_CELL, HILLS_CELLS, WorldBase
 
 logger = logging.getLogger(__name__)
 

@@ -60,6 +60,7 @@ import numpy as np
 
 from latentune.constants import G
 from latentune.errors import UsageError
+from latentune.sim.state import RobotState
 
 __all__ = ["Reality", "RealityRuntime", "PRESETS", "preset_names", "perturbed_urdf"]
 
@@ -446,8 +447,6 @@ class RealityRuntime:
         vector of std ``noise_rpy`` [rad], world frame)."""
         if not np.any(self.noise):
             return s
-        from latentune.sim.world import RobotState
-
         sd = self.noise
         g = self.rng_noise
         pos = s.pos + g.normal(0.0, sd[0], 3)

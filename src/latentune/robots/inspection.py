@@ -1,0 +1,317 @@
+"""Checks of a robot spec's fields against its URDF, run whenever a spec is loaded.
+
+:func:`inspect_fields` compares the spec fields with the URDF (:func:`~latentune.robots.urdf.read_urdf`
+tree and pinocchio forward kinematics at ``nominal_q``, in the base link frame: x forward, y left,
+z up) and fills the fields a spec may omit:
+
+* errors: the URDF is not XML or has no links/joints; a ``joint_names`` entry is missing or not
+  ``revolute``/``continuous``; a foot link is missing; a leg's three joints are not one chain or
+  its foot is not below its knee; a foot is not where its leg's name says (FR: x > 0, y < 0;
+  FL: x > 0, y > 0; RR: x < 0, y < 0; RL: x < 0, y > 0) or not below the base; a foot has no
+  collision shape PyBullet uses.
+* filled when omitted: ``nominal_height`` (the base height that ``nominal_q`` gives with the feet
+  on the ground: ``foot_radius`` − mean foot z), ``torque_limits`` (the URDF's
+  ``<limit effort>``, the smallest of the four legs per joint role), ``strip_root`` (true iff the
+  root link is a massless dummy fixed to the real base).
+* warnings: ``nominal_height`` more than :data:`HEIGHT_TOLERANCE` from the forward-kinematics
+  height, feet not level at ``nominal_q``, ``nominal_q`` outside the URDF's joint limits,
+  ``torque_limits`` above the URDF's effort limits, an effort limit that looks like a placeholder,
+  ``strip_root`` that strips nothing or is off with a massless root, a massless root that
+  carries movable joints (not strippable), a ``collision_primitives`` key that matches no link.
+
+The loader (:mod:`latentune.robots.spec`) raises :class:`~latentune.errors.RobotSpecError` with
+every error in one line and warns (:func:`emit_warning`) once per process about each warning;
+:func:`~latentune.robots.check.check_spec` reports them all. :data:`LEGS` is the leg order of
+every spec field (FR, FL, RR, RL).
+"""
+from __future__ import annotations
+
+import warnings
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from latentune.constants import G
+from latentune.errors import RobotSpecError, RobotSpecWarning
+from latentune.robots.urdf import MASSLESS, UrdfTree, kinematic_urdf_text, read_urdf, resolve_mesh
+
+LEGS = ("FR", "FL", "RR", "RL")
+"""The leg order of every per-leg spec field: front right, front left, rear right, rear left."""
+LEG_SIGNS = {"FR": (1, -1), "FL": (1, 1), "RR": (-1, -1), "RL": (-1, 1)}
+"""Sign of a leg's foot (x, y) in the base frame: front x > 0, right y < 0."""
+ROLES = ("abduction", "hip", "knee")
+HEIGHT_TOLERANCE = 0.10
+"""Relative gap between ``nominal_height`` and the forward-kinematics height that warns (the
+built-in robots agree within 0.5 %)."""
+LEVEL_TOLERANCE = 0.05
+"""Spread of the foot heights at ``nominal_q``, relative to the height, that warns."""
+PLACEHOLDER_EFFORT = 5.0
+"""An effort limit above this × m·g·leg length looks like a placeholder (A1's URDF: 1000 N·m)."""
+
+
+@dataclass
+class Findings:
+    """What :func:`inspect_fields` found (errors and warnings without the file prefix).
+
+    Attributes:
+        filled: values of omitted fields (``nominal_height``, ``torque_limits``, ``strip_root``).
+        mass: total URDF mass [kg]; base_link: the base link after stripping.
+        fk_height: base height from forward kinematics at ``nominal_q``, feet on the ground [m].
+        foot_positions, hip_positions: (4, 3) at ``nominal_q``, base link frame [m].
+        leg_length: mean hip-flexion-joint → knee → foot length at q = 0 [m].
+        urdf_torque_limits: (3,) smallest URDF effort per role (None where a joint has none).
+    """
+
+    errors: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    filled: dict[str, Any] = field(default_factory=dict)
+    mass: float | None = None
+    base_link: str | None = None
+    fk_height: float | None = None
+    foot_positions: list[list[float]] | None = None
+    hip_positions: list[list[float]] | None = None
+    leg_length: float | None = None
+    urdf_torque_limits: list[float | None] | None = None
+
+
+_EMITTED: set[str] = set()
+
+
+def emit_warning(message: str) -> None:
+    """Warn (:class:`~latentune.errors.RobotSpecWarning`) about something the user should change
+    in a robot spec, once per process and message."""
+    if message not in _EMITTED:
+        _EMITTED.add(message)
+        warnings.warn(message, RobotSpecWarning, stacklevel=3)
+
+
+# --------------------------------------------------------------------------- kinematics
+
+def pin_model(urdf: str, strip_root: bool) -> Any:
+    """Fixed-base pinocchio model of the URDF as simulated (root stripped, continuous joints
+    revolute).
+
+    Raises:
+        RobotSpecError: pinocchio cannot build it.
+    """
+    import pinocchio as pin
+
+    try:
+        return pin.buildModelFromXML(kinematic_urdf_text(urdf, strip_root))
+    except Exception as exc:  # noqa: BLE001 - pinocchio raises RuntimeError/ValueError
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise RobotSpecError(f"URDF {urdf}: pinocchio cannot build the model ({msg})") from None
+
+
+def placements(model: Any, q_by_joint: Mapping[str, float]) -> tuple[Any, Any]:
+    """(model, data) after forward kinematics with the given joint angles (others 0)."""
+    import pinocchio as pin
+
+    q = np.zeros(model.nq)
+    for name, v in q_by_joint.items():
+        q[model.joints[model.getJointId(name)].idx_q] = v
+    data = model.createData()
+    pin.forwardKinematics(model, data, q)
+    pin.updateFramePlacements(model, data)
+    return model, data
+
+
+def joint_position(model: Any, data: Any, joint: str) -> np.ndarray:
+    return data.oMi[model.getJointId(joint)].translation.copy()
+
+
+def link_position(model: Any, data: Any, link: str) -> np.ndarray:
+    import pinocchio as pin
+
+    return data.oMf[model.getFrameId(link, pin.FrameType.BODY)].translation.copy()
+
+
+# --------------------------------------------------------------------------- the checks
+
+def _fmt(v: float) -> str:
+    return f"{v:+.3f}"
+
+
+def usable_collision(tree: UrdfTree, link: str) -> bool:
+    """The link keeps a collision shape PyBullet uses (.dae meshes are dropped; a mesh file
+    must exist)."""
+    for tag, attrib in tree.links[link].collisions:
+        if tag != "mesh":
+            return True
+        fn = attrib.get("filename", "")
+        if not fn.lower().endswith(".dae") and resolve_mesh(fn, tree.path) is not None:
+            return True
+    return False
+
+
+def inspect_fields(fields: Mapping[str, Any]) -> Findings:
+    """Check validated spec fields against the URDF (see the module docstring).
+
+    ``fields`` holds at least ``urdf`` (absolute path), ``joint_names`` (12), ``foot_links`` (4),
+    ``nominal_q`` (12) and ``foot_radius``; ``nominal_height``, ``torque_limits`` and
+    ``strip_root`` are filled when absent. Never raises for a bad URDF: the problem is an error.
+    """
+    out = Findings()
+    err, warn = out.errors.append, out.warnings.append
+    try:
+        tree = read_urdf(fields["urdf"])
+    except RobotSpecError as exc:
+        err(str(exc))
+        return out
+
+    # ---- root link
+    root_mass = tree.links[tree.root].mass
+    root_light = root_mass is None or root_mass < MASSLESS
+    if "strip_root" in fields:
+        strip = bool(fields["strip_root"])
+        if strip and not tree.massless_root():
+            warn(f"strip_root: the root link {tree.root!r} is not a massless dummy fixed to the "
+                 "base; nothing is stripped")
+        elif not strip and tree.massless_root():
+            warn(f"strip_root is false but the root link {tree.root!r} is massless (PyBullet "
+                 "zeroes its inertia and prints a warning); omit strip_root to strip it")
+    else:
+        strip = tree.massless_root()
+        out.filled["strip_root"] = strip
+    if root_light and not tree.massless_root():
+        warn(f"the root link {tree.root!r} is massless but carries movable joints, so it is not "
+             "stripped (PyBullet zeroes its inertia; a root of mass 0 would be fixed in space)")
+    out.base_link = tree.base(strip)
+    out.mass = tree.total_mass()
+    if out.mass <= 0:
+        err("the URDF's links have no mass")
+
+    # ---- names
+    jn, feet = list(fields["joint_names"]), list(fields["foot_links"])
+    movable = [j.name for j in tree.joints.values() if j.type in ("revolute", "continuous")]
+    for what, names in (("joint_names", jn), ("foot_links", feet)):
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            err(f"{what}: {', '.join(twice)} given twice")
+    missing = [j for j in jn if j not in tree.joints]
+    if missing:
+        err(f"joint_names: not in the URDF: {', '.join(missing)} (its revolute joints: "
+            f"{', '.join(movable[:16]) or 'none'})")
+    wrong = [f"{j} is {tree.joints[j].type}" for j in jn if j in tree.joints
+             and tree.joints[j].type not in ("revolute", "continuous")]
+    if wrong:
+        err(f"joint_names: {', '.join(wrong)}, not revolute or continuous")
+    missing = [f for f in feet if f not in tree.links]
+    if missing:
+        leaves = [n for n in tree.links if not tree.child_joints(n)]
+        err(f"foot_links: not links of the URDF: {', '.join(missing)} (its leaf links: "
+            f"{', '.join(leaves[:16])})")
+    if out.errors:
+        return out
+
+    # ---- leg chains: abduction -> hip -> knee -> foot
+    for k, leg in enumerate(LEGS):
+        j0, j1, j2 = jn[3 * k:3 * k + 3]
+        above = tree.joints_above(feet[k])
+        chain = tree.joints_above(tree.joints[j2].child)
+        if not (j0 in chain and j1 in chain and chain.index(j0) < chain.index(j1) < chain.index(j2)):
+            err(f"joint_names: leg {leg} ({j0}, {j1}, {j2}) is not one chain abduction -> hip -> knee")
+        elif j2 not in above:
+            err(f"foot_links: {feet[k]} (leg {leg}) is not below that leg's knee joint {j2}")
+    if out.errors:
+        return out
+
+    # ---- forward kinematics at nominal_q, base frame
+    try:
+        model = pin_model(fields["urdf"], strip)
+    except RobotSpecError as exc:
+        err(str(exc))
+        return out
+    q_nom = dict(zip(jn, fields["nominal_q"]))
+    _, data = placements(model, q_nom)
+    foot_pos = np.array([link_position(model, data, f) for f in feet])
+    hip_pos = np.array([joint_position(model, data, jn[3 * k]) for k in range(4)])
+    out.foot_positions, out.hip_positions = foot_pos.tolist(), hip_pos.tolist()
+    _, data0 = placements(model, {})  # q = 0: hip flexion joint, knee joint, foot per leg
+    hip0, knee0 = ([joint_position(model, data0, jn[3 * k + r]) for k in range(4)] for r in (1, 2))
+    foot0 = [link_position(model, data0, f) for f in feet]
+    thigh = [float(np.linalg.norm(knee0[k] - hip0[k])) for k in range(4)]
+    shank = [float(np.linalg.norm(foot0[k] - knee0[k])) for k in range(4)]
+    out.leg_length = leg_length = float(np.mean(np.add(thigh, shank)))
+    at_knee = [feet[k] for k in range(4) if shank[k] < 0.2 * thigh[k]]
+    if at_knee:
+        err(f"foot_links: {', '.join(at_knee)} at the knee joint, not at the foot: a foot link's "
+            "origin must be the contact point (add fixed foot links)")
+    for k, leg in enumerate(LEGS):
+        sx, sy = LEG_SIGNS[leg]
+        x, y = foot_pos[k, 0], foot_pos[k, 1]
+        if not (sx * x > 0 and sy * y > 0):
+            at = next(n for n, (a, b) in LEG_SIGNS.items() if a * x > 0 and b * y > 0) \
+                if x != 0 and y != 0 else "on an axis"
+            err(f"foot_links/joint_names: leg {leg}'s foot {feet[k]} is at x={_fmt(x)}, y={_fmt(y)} m "
+                f"in the base frame at nominal_q ({at}); {leg} needs x {'>' if sx > 0 else '<'} 0, "
+                f"y {'>' if sy > 0 else '<'} 0 (order FR, FL, RR, RL; base x forward, y left)")
+    low = [f"{feet[k]} (z={_fmt(foot_pos[k, 2])})" for k in range(4) if foot_pos[k, 2] >= 0]
+    if low:
+        err(f"nominal_q: feet not below the base: {', '.join(low)}")
+    if out.errors:
+        return out
+    radius = float(fields["foot_radius"])
+    fk_height = radius - float(foot_pos[:, 2].mean())
+    out.fk_height = fk_height
+    spread = float(np.ptp(foot_pos[:, 2]))
+    if spread > LEVEL_TOLERANCE * fk_height:
+        warn(f"nominal_q does not put the feet level: foot z from {foot_pos[:, 2].min():.3f} to "
+             f"{foot_pos[:, 2].max():.3f} m")
+    if fields.get("nominal_height") is None:
+        out.filled["nominal_height"] = round(fk_height, 4)
+    else:
+        h = float(fields["nominal_height"])
+        if abs(h - fk_height) > HEIGHT_TOLERANCE * fk_height:
+            warn(f"nominal_height {h:.3f} m is {100 * (h / fk_height - 1):+.0f}% off the height "
+                 f"{fk_height:.3f} m that nominal_q gives with the feet on the ground (forward "
+                 "kinematics); omit nominal_height to use that")
+
+    # ---- joint limits and torque limits
+    for j, v in q_nom.items():
+        lo, hi = tree.joints[j].lower, tree.joints[j].upper
+        if tree.joints[j].type == "revolute" and lo is not None and hi is not None and lo < hi \
+                and not lo - 1e-9 <= v <= hi + 1e-9:
+            warn(f"nominal_q: {j} = {v:g} rad is outside its URDF limits [{lo:g}, {hi:g}]")
+    efforts = [[tree.joints[jn[3 * k + r]].effort for k in range(4)] for r in range(3)]
+    urdf_lim = [min(e) if all(x is not None and x > 0 for x in e) else None for e in efforts]
+    out.urdf_torque_limits = urdf_lim
+    scale = out.mass * G * leg_length
+    if fields.get("torque_limits") is None:
+        none = [jn[3 * k + r] for r in range(3) for k in range(4) if not (efforts[r][k] or 0) > 0]
+        if none:
+            err(f"torque_limits omitted and the URDF gives no <limit effort> for {', '.join(none[:4])}"
+                f"{' …' if len(none) > 4 else ''}: give torque_limits [abduction, hip, knee] in N·m")
+        else:
+            out.filled["torque_limits"] = tuple(float(v) for v in urdf_lim)
+            big = [f"{ROLES[r]} {urdf_lim[r]:g}" for r in range(3)
+                   if urdf_lim[r] > PLACEHOLDER_EFFORT * scale]
+            if big:
+                warn(f"torque_limits from the URDF's effort limits ({', '.join(big)} N·m) exceed "
+                     f"{PLACEHOLDER_EFFORT:g} × m·g·leg length = {PLACEHOLDER_EFFORT * scale:.0f} N·m: "
+                     "placeholders? give torque_limits")
+    else:
+        over = [f"{ROLES[r]} {fields['torque_limits'][r]:g} > {urdf_lim[r]:g}" for r in range(3)
+                if urdf_lim[r] is not None and fields["torque_limits"][r] > urdf_lim[r] * (1 + 1e-9)]
+        if over:
+            warn(f"torque_limits above the URDF's effort limits ({', '.join(over)} N·m)")
+
+    # ---- collisions
+    prims = fields.get("collision_primitives") or {}
+    if fields.get("primitive_collisions"):
+        nofoot = [f for f in feet if not any(f.endswith(s) for s in prims)]
+        if nofoot:
+            err(f"collision_primitives: no key ends the foot link name(s) {', '.join(nofoot)}, "
+                "so they would not touch the ground")
+    else:
+        nofoot = [f for f in feet if not usable_collision(tree, f)]
+        if nofoot:
+            err(f"foot link(s) {', '.join(nofoot)} have no collision shape PyBullet uses (none, a "
+                "missing mesh or a .dae mesh): give primitive_collisions: true and "
+                "collision_primitives with a foot sphere")
+    unused = [s for s in prims if not any(n.endswith(s) for n in tree.links)]
+    if unused:
+        warn(f"collision_primitives: {', '.join(unused)} ends no link name")
+    return out
