@@ -47,7 +47,7 @@ from pathlib import Path
 from typing import Any
 
 from latentune.constants import GAITS, Phase
-from latentune.errors import CLIError, UsageError
+from latentune.errors import UsageError
 
 logger = logging.getLogger(__name__)
 
@@ -205,31 +205,31 @@ def _check_out(out: Path) -> None:
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise CLIError(f"cannot create --out {out}: {exc.strerror or exc}") from None
+        raise UsageError(f"cannot create --out {out}: {exc.strerror or exc}") from None
     if not out.is_dir():
-        raise CLIError(f"--out {out} is not a directory")
+        raise UsageError(f"--out {out} is not a directory")
     probe = out / ".latentune-write-test"
     try:
         probe.write_text("x")
         probe.unlink()
     except OSError as exc:
-        raise CLIError(f"--out {out} is not writable: {exc.strerror or exc}") from None
+        raise UsageError(f"--out {out} is not writable: {exc.strerror or exc}") from None
 
 
 def validate(opts: PaperOptions) -> dict[str, Any]:
     """Check the options (fills the default actor); return the budgets."""
     if opts.robot not in ROBOT_ACTOR:
-        raise CLIError(f"unknown robot {opts.robot!r} for the paper's studies (choose from a1, solo12)")
+        raise UsageError(f"unknown robot {opts.robot!r} for the paper's studies (choose from a1, solo12)")
     if opts.actor is None:
         opts.actor = ROBOT_ACTOR[opts.robot]
     b = budgets(opts.scale, opts.phase1, opts.phase3)
     for name, v in (("workers", opts.workers), ("steps", opts.steps)):
         if v < 1:
-            raise CLIError(f"--{name} must be >= 1, got {v}")
+            raise UsageError(f"--{name} must be >= 1, got {v}")
     if opts.seed < 0:
-        raise CLIError(f"--seed must be >= 0, got {opts.seed}")
+        raise UsageError(f"--seed must be >= 0, got {opts.seed}")
     if not math.isfinite(opts.v_des):
-        raise CLIError(f"--v-des must be finite, got {opts.v_des}")
+        raise UsageError(f"--v-des must be finite, got {opts.v_des}")
     return b
 
 
@@ -265,12 +265,12 @@ def run_paper(opts: PaperOptions, report_only: bool = False, simulate: bool = Tr
         try:
             meta = json.loads(meta_path.read_text())
         except (OSError, json.JSONDecodeError) as exc:
-            raise CLIError(f"{meta_path} is unreadable ({exc})") from None
+            raise UsageError(f"{meta_path} is unreadable ({exc})") from None
         if meta.get("robot") != opts.robot or meta.get("actor") != opts.actor or \
                 meta.get("steps") != opts.steps or meta.get("seed") != opts.seed:
-            raise CLIError(f"{root} holds a paper run of another configuration (robot "
-                           f"{meta.get('robot')}, actor {meta.get('actor')}, steps "
-                           f"{meta.get('steps')}, seed {meta.get('seed')})")
+            raise UsageError(f"{root} holds a paper run of another configuration (robot "
+                             f"{meta.get('robot')}, actor {meta.get('actor')}, steps "
+                             f"{meta.get('steps')}, seed {meta.get('seed')})")
 
     def log(msg: str) -> None:
         if not opts.quiet:
@@ -294,7 +294,7 @@ def run_paper(opts: PaperOptions, report_only: bool = False, simulate: bool = Tr
         try:
             ev = make_evaluator("process", opts.workers)
         except (RuntimeError, ValueError, OSError) as exc:
-            raise CLIError(f"cannot start the evaluator: {exc}") from None
+            raise UsageError(f"cannot start the evaluator: {exc}") from None
         try:
             for s in studies:
                 run_study(s, opts, root, b, ev, log)
@@ -304,7 +304,7 @@ def run_paper(opts: PaperOptions, report_only: bool = False, simulate: bool = Tr
             meta["wall_s_total"] = sum(float(i.get("wall_s") or 0) for i in meta["invocations"])
             meta_path.write_text(json.dumps(meta, indent=1))
     elif not meta_path.is_file():
-        raise CLIError(f"{root} holds no paper run (no paper.json): run latentune paper first")
+        raise UsageError(f"{root} holds no paper run (no paper.json): run latentune paper first")
     if opts.sources_only:
         return f"sources of {root} done (phase 1 only; run without --sources-only for the rest)"
     return write_paper_report(root, simulate=simulate, gifs=gifs, log=log)
