@@ -23,7 +23,6 @@ import pytest
 
 import latentune.cli as cli_mod
 from latentune.cli import build_parser, main
-from latentune.constants import Phase
 from latentune.pipeline.store import RunStore
 
 from conftest import CLI_ENV, one_line_error

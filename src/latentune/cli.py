@@ -839,6 +839,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from latentune.threads import one_thread_env
 
     one_thread_env()  # before numpy is imported: rollouts are many small matrix operations
+    args: argparse.Namespace | None = None
     with _cli_logging() as set_level:
         try:
             args = build_parser().parse_args(argv)
@@ -856,8 +857,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             if exc.errno not in DISK_ERRNOS:
                 raise
             where = f" ({exc.filename})" if exc.filename else ""
+            again = ("rerun with --resume" if hasattr(args, "resume") else
+                     "run the command again")
             return _error(f"cannot write{where}: {exc.strerror or exc}; the stored evaluations "
-                          "are kept: free space and rerun with --resume")
+                          f"are kept: free space and {again}")
         except Exception as exc:  # noqa: BLE001 - a dead worker is one line; anything else a bug
             if not (isinstance(exc, BrokenProcessPool) or type(exc).__module__.startswith("ray.")):
                 raise
