@@ -6,10 +6,16 @@ relative names resolved. Importing ``a.b.c`` runs the ``__init__`` of ``a.b`` fi
 to ``a.b.c`` also goes to the packages above it, except those above the importer itself (they
 are already being imported when the importer runs). A name read from a package (``from a.b
 import X``, ``X`` not a submodule) is an edge to ``a.b``'s ``__init__`` even from inside ``a.b``.
+A package attribute loaded on first use through ``importlib.import_module`` of a name from a
+table (``latentune`` itself; ``latentune.robots``'s ``check_spec``/``CheckReport``/``init_spec``,
+which stand the robot up in :mod:`latentune.sim`) is not an import statement and not an edge;
+that loading a robot spec does not import the simulator is checked on its own.
 """
 from __future__ import annotations
 
 import ast
+import subprocess
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -186,6 +192,18 @@ def test_no_module_imports_a_private_name_of_another():
                 bad += [f"{name} imports {node.module}.{a.name} (line {node.lineno})" for a in node.names
                         if a.name.startswith("_") and not a.name.startswith("__")]
     assert not bad, "\n".join(bad)
+
+
+def test_robot_specs_load_without_the_simulator():
+    """``latentune.sim`` builds on ``latentune.robots``: a spec (and its checks against the URDF)
+    loads without importing the simulator; ``check_spec`` loads on first use."""
+    code = ("import sys, latentune.robots as r\n"
+            "r.get_robot('a1')\n"
+            "print(sorted(m for m in sys.modules if m.startswith('latentune.sim')))\n"
+            "r.check_spec('a1', simulate=False)\n"
+            "print('latentune.robots.check' in sys.modules)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split("\n")[:2] == ["[]", "True"], out.stdout + out.stderr
 
 
 def _write(root: Path, files: dict[str, str]) -> Path:
