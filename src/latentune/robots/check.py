@@ -18,6 +18,7 @@ from latentune.errors import RobotSpecError
 from latentune.robots import spec as S
 from latentune.robots.inspection import LEGS, Findings, inspect_fields
 
+
 # --------------------------------------------------------------------------- check_spec
 
 @dataclass
