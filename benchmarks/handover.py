@@ -18,7 +18,7 @@ Methods (every one from scratch: no method gets the manual θ as its first point
   a run store (Optuna is installed for the benchmark only: ``pip install optuna``).
 
 Every (method, seed) is a run store under ``--work`` (``<method>_s<seed>``); a finished store is
-read instead of re-run (so stores of ``benchmarks/sample_efficiency.py`` with the same task,
+read instead of re-run (so stores of ``benchmarks.sample_efficiency`` with the same task,
 budget, batch size and seed are reused: the same Study calls). Reported per method: evaluations
 to the manual cost and to each ``--targets`` cost (median over seeds; a seed that never gets
 there counts as infinite), the best cost after the budget (median, min, max), falls during
