@@ -533,10 +533,13 @@ def overhead(a: argparse.Namespace) -> dict[str, Any]:
                     fa.tell(X, y, fa.last_tags, fell=fl)
             else:                          # a plain run's history, told at once
                 plain = make_critic(method, d, **kw)
+                fells = []
                 while plain.n_told < N:
                     X = plain.ask()
-                    plain.tell(X, f(X)[0], plain.last_tags)
-                fa.tell(plain.X, plain.y, plain.tags)
+                    y, fl = f(X)
+                    plain.tell(X, y, plain.last_tags)
+                    fells.append(fl)
+                fa.tell(plain.X, plain.y, plain.tags, fell=np.concatenate(fells))
             inner_t, fa_t = [], []
             for _ in range(a.overhead_asks):
                 probe = copy.deepcopy(fa.inner)

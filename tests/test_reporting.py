@@ -69,11 +69,13 @@ def test_curve_and_counts():
     y = [9.0, 150.0, 7.0, 8.0, 200.0, 6.5]
     assert best_so_far(y).tolist() == [9.0, 9.0, 7.0, 7.0, 7.0, 6.5]
     assert best_so_far([]).shape == (0,)
-    assert stable_count(y) == 4 and fall_count(y) == 2
-    assert stable_share(y) == pytest.approx(4 / 6) and stable_share([]) is None
+    assert stable_count(y, fall_cost=C1) == 4 and fall_count(y, fall_cost=C1) == 2
+    assert stable_count(y) == 6 and fall_count(y) == 0        # no flags, no fall cost: finite
+    assert stable_share(y, fall_cost=C1) == pytest.approx(4 / 6) and stable_share([]) is None
     assert fall_count(y, fell=[True, False, False, False, False, False]) == 1
-    assert fall_count([1e300, math.inf, 5.0]) == 2
-    s = phase_stats(y, target=7.5)
+    assert fall_count([1e300, math.inf, 5.0], fall_cost=C1) == 2
+    assert fall_count([1e300, math.inf, math.nan, 5.0]) == 2
+    s = phase_stats(y, target=7.5, fall_cost=C1)
     assert (s["n"], s["best"], s["best_idx"], s["stable"], s["falls"], s["evals_to_beat"]) == \
         (6, 6.5, 5, 4, 2, 3)
     assert phase_stats([])["best"] is None
@@ -83,7 +85,7 @@ def test_rms_velocity_error():
     # L = sqrt(N_H) · 0.1 m/s for a constant 0.1 m/s error over N_H steps
     assert rms_velocity_error(math.sqrt(2500) * 0.1, 2500) == pytest.approx(0.1)
     assert rms_velocity_error(5.0, 2500) == pytest.approx(0.1)
-    assert rms_velocity_error(150.0, 2500) is None        # a fall: the cost is a penalty
+    assert rms_velocity_error(150.0, 2500, fell=True) is None   # a fall: the cost is a penalty
     assert rms_velocity_error(None, 2500) is None
     assert rms_velocity_error(5.0, 0) is None
 

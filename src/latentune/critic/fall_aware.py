@@ -41,8 +41,9 @@ are copied back, so its hyperparameter refits follow TuRBO-m's own schedule.)
 
 Telling
 -------
-``tell(X, y, tags=None, fell=None)``: ``fell`` (n,) bool are the trials that failed; when absent,
-``fell = not (y < C1)`` (non-finite costs count as failed), the convention of the run store.
+``tell(X, y, tags=None, fell=None)``: ``fell`` (n,) bool are the trials that failed, data of the
+trial like its cost (the pipeline tells the stored flags); when absent, only a non-finite cost
+counts as failed (a cost alone cannot say it: each system fails on its own scale).
 Tags are the inner critic's tags, passed through unchanged, and so are the flags (a TuRBO-m
 with ``fall_shrink`` shrinks a region whose batch fell too often; the pipeline's fall-aware
 TuRBO-m has it, see :func:`latentune.pipeline.phases.make_phase_critic`).
@@ -96,7 +97,6 @@ from typing import Any
 
 import numpy as np
 
-from latentune.constants import C1
 from latentune.critic.base import X0_TAG, Critic, FitReport, as_unit_points
 
 logger = logging.getLogger(__name__)
@@ -528,13 +528,13 @@ class FallAware(Critic):
     def tell(self, X: np.ndarray, y: np.ndarray, tags: np.ndarray | None = None,
              fell: np.ndarray | None = None) -> None:
         """Report raw costs ``y`` (n,) of ``X`` (n, dim) with the inner critic's ``tags`` and the
-        ``fell`` flags (n,) bool (default: ``not y < C1``); see the module docstring."""
+        ``fell`` flags (n,) bool (default: the non-finite costs); see the module docstring."""
         Xa = as_unit_points(X, self.dim)
         ya = np.asarray(y, dtype=float).reshape(-1)
         if ya.shape[0] != Xa.shape[0]:
             raise ValueError(f"y must have shape ({Xa.shape[0]},), got {np.shape(y)}")
         if fell is None:
-            fa = ~(np.isfinite(ya) & (ya < C1))
+            fa = ~np.isfinite(ya)
         else:
             fa = _as_flags(fell, Xa.shape[0], "fell")
         if Xa.shape[0] == 0:

@@ -46,7 +46,6 @@ from typing import Any, Callable
 import numpy as np
 
 from latentune.critic.base import UNTAGGED, Critic, as_unit_points
-from latentune.constants import C1
 
 LATENT = 0
 FULL = 1
@@ -181,15 +180,14 @@ class Handover(Critic):
     def tell(self, X: np.ndarray, y: np.ndarray, tags: np.ndarray | None = None,
              fell: np.ndarray | None = None, z: np.ndarray | None = None) -> None:
         """Report costs ``y`` (n,) of θ ``X`` (n, d) with this critic's ``tags``, ``fell`` (n,)
-        bool (default ``not y < C1``) and the latent codes ``z`` (n, k) of latent-stage points
+        bool (which trials failed; default: the non-finite costs) and the latent codes ``z`` (n, k) of latent-stage points
         (NaN rows elsewhere; required when latent-stage points are told). Untagged points are
         full-space warm data (kept for the hand-over while the latent search runs)."""
         Xa = as_unit_points(X, self.dim)
         ya = np.asarray(y, dtype=float).reshape(-1)
         if ya.shape[0] != Xa.shape[0]:
             raise ValueError(f"y must have shape ({Xa.shape[0]},), got {np.shape(y)}")
-        fa = ~(np.isfinite(ya) & (ya < C1)) if fell is None else \
-            np.asarray(fell, dtype=bool).reshape(-1)
+        fa = ~np.isfinite(ya) if fell is None else np.asarray(fell, dtype=bool).reshape(-1)
         if fa.shape[0] != Xa.shape[0]:
             raise ValueError(f"fell must have shape ({Xa.shape[0]},), got {np.shape(fell)}")
         za = np.full((Xa.shape[0], self.k), np.nan) if z is None else \

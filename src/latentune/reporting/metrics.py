@@ -2,8 +2,10 @@
 
 ``costs`` is always a 1-D sequence of shape (n,): the path costs of one phase in evaluation
 order (the run store's ``idx`` order, :meth:`~latentune.pipeline.store.RunStore.costs`).
-A cost below :data:`~latentune.constants.C1` marks an evaluation that did not fail (stable);
-a cost ≥ C1 (or a non-finite one) marks a fall.
+Which evaluations failed (fell) is data of the trial, not of its cost's scale: the functions
+that count falls take the (n,) ``fell`` flags (the run store's), or a ``fall_cost`` from a
+caller that knows its task's convention (a cost not below it is a fall; the built-in tasks'
+reports pass theirs); given neither, only a non-finite cost counts as a fall.
 
 The paper's reported numbers are packaged with latentune (``latentune/data/paper_results.json``)
 and read through :func:`paper_results` / :func:`paper_row`.
@@ -18,7 +20,6 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from latentune.constants import C1
 
 PAPER_ROBOT = {"a1": "A1", "b1": "B1", "solo12": "Solo12"}
 """latentune robot name → the paper's spelling (the keys of ``paper_results()["path_cost"]``)."""
@@ -50,56 +51,65 @@ def best_so_far(costs: Sequence[float] | np.ndarray) -> np.ndarray:
 
 
 def fell_mask(costs: Sequence[float] | np.ndarray,
-              fell: Sequence[bool] | np.ndarray | None = None) -> np.ndarray:
-    """(n,) bool array, True where the evaluation failed: the ``fell`` flags when given
-    (a user system may fail on its own scale), else ``not (cost < C1)``."""
+              fell: Sequence[bool] | np.ndarray | None = None,
+              fall_cost: float | None = None) -> np.ndarray:
+    """(n,) bool array, True where the evaluation failed: the (n,) ``fell`` flags when given;
+    else ``not (cost < fall_cost)`` when ``fall_cost`` is given; else the non-finite costs."""
     if fell is not None:
         return np.asarray(fell, dtype=bool).reshape(-1)
-    return ~(_costs(costs) < C1)
-
-
-def stable_count(costs: Sequence[float] | np.ndarray) -> int:
-    """Number of evaluations with cost < C1."""
-    return int(np.sum(_costs(costs) < C1))
-
-
-def stable_share(costs: Sequence[float] | np.ndarray) -> float | None:
-    """Fraction in [0, 1] of evaluations with cost < C1; ``None`` for no evaluations."""
     y = _costs(costs)
-    return None if y.size == 0 else float(np.mean(y < C1))
+    return ~(y < float(fall_cost)) if fall_cost is not None else ~np.isfinite(y)
+
+
+def stable_count(costs: Sequence[float] | np.ndarray,
+                 fell: Sequence[bool] | np.ndarray | None = None,
+                 fall_cost: float | None = None) -> int:
+    """Number of evaluations that did not fail (see :func:`fell_mask`)."""
+    return int(np.count_nonzero(~fell_mask(costs, fell, fall_cost)))
+
+
+def stable_share(costs: Sequence[float] | np.ndarray,
+                 fell: Sequence[bool] | np.ndarray | None = None,
+                 fall_cost: float | None = None) -> float | None:
+    """Fraction in [0, 1] of evaluations that did not fail (see :func:`fell_mask`); ``None``
+    for no evaluations."""
+    f = fell_mask(costs, fell, fall_cost)
+    return None if f.size == 0 else float(np.mean(~f))
 
 
 def fall_count(costs: Sequence[float] | np.ndarray,
-               fell: Sequence[bool] | np.ndarray | None = None) -> int:
+               fell: Sequence[bool] | np.ndarray | None = None,
+               fall_cost: float | None = None) -> int:
     """Number of evaluations that failed (see :func:`fell_mask`)."""
-    return int(np.sum(fell_mask(costs, fell)))
+    return int(np.count_nonzero(fell_mask(costs, fell, fall_cost)))
 
 
-def rms_velocity_error(cost: float | None, steps: int) -> float | None:
+def rms_velocity_error(cost: float | None, steps: int, fell: bool = False) -> float | None:
     """RMS velocity-tracking error [m/s] of a stable rollout of ``steps`` steps.
 
     The path cost of a stable rollout is ``L = sqrt(Σ_k ‖v_k − v_des‖²)`` over the ``N_H =
     steps`` steps of the horizon, so the RMS of ``‖v − v_des‖`` is ``L / sqrt(N_H)``. Returns
-    ``None`` for a missing cost, a fall (cost ≥ C1, where L is the fall penalty, not a velocity
-    error) or ``steps < 1``.
+    ``None`` for a missing or non-finite cost, a rollout that ``fell`` (its cost is the fall
+    penalty, not a velocity error) or ``steps < 1``.
     """
-    if cost is None or not math.isfinite(cost) or cost >= C1 or steps < 1:
+    if cost is None or not math.isfinite(cost) or fell or steps < 1:
         return None
     return float(cost) / math.sqrt(float(steps))
 
 
 def phase_stats(costs: Sequence[float] | np.ndarray, target: float | None = None,
-                fell: Sequence[bool] | None = None) -> dict[str, Any]:
+                fell: Sequence[bool] | np.ndarray | None = None,
+                fall_cost: float | None = None) -> dict[str, Any]:
     """Summary of one phase's (n,) costs.
 
     Keys: ``n`` (evaluations), ``best`` (min cost, None if n = 0), ``best_idx`` (0-based index
     of the first minimum, None if n = 0), ``stable`` (trials that did not fail: from the (n,)
-    ``fell`` flags when given, else cost < C1), ``falls`` (n − stable), ``evals_to_beat``
-    (:func:`evals_to_beat` against ``target``, e.g. the manual θ's cost).
+    ``fell`` flags or ``fall_cost``, see :func:`fell_mask`), ``falls`` (n − stable),
+    ``evals_to_beat`` (:func:`evals_to_beat` against ``target``, e.g. the manual θ's cost).
     """
     y = _costs(costs)
     n = int(y.size)
-    stable = stable_count(y) if fell is None else int(n - np.count_nonzero(np.asarray(fell)))
+    stable = stable_count(y, fell, fall_cost)
     return {"n": n, "best": float(np.min(y)) if n else None,
             "best_idx": int(np.argmin(y)) if n else None, "stable": stable, "falls": n - stable,
             "evals_to_beat": evals_to_beat(y, target)}

@@ -60,7 +60,7 @@ def study_stats(run_dir: Path) -> dict[str, Any] | None:
         for ph, name in STUDY_PHASES:
             y = st.costs(ph)
             b = st.best(ph)
-            s = phase_stats(y)
+            s = phase_stats(y, fall_cost=C1)
             del s["evals_to_beat"]
             s.update(best_idx=None if b is None else int(b.idx),
                      theta=None if b is None else b.theta.tolist(), costs=y.tolist())
@@ -80,7 +80,7 @@ def _cell(S: dict[str, Any], key: str, phase: str, paper: Any, **extra: Any) -> 
 
 
 def _baseline_row(label: str, study: str, costs: Any, manual: float | None) -> dict[str, Any]:
-    s = phase_stats(costs, manual)
+    s = phase_stats(costs, manual, fall_cost=C1)
     return {"label": label, "study": study, "n": s["n"], "best": s["best"],
             "stable": s["stable"], "evals_to_beat_manual": s["evals_to_beat"]}
 

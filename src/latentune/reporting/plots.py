@@ -135,7 +135,7 @@ def plot_best_so_far(panels: Sequence[CurvePanel] | CurvePanel, path: str | Path
                 continue
             x = np.arange(1, y.size + 1)
             nmax = max(nmax, y.size)
-            f = fell_mask(y, p.fell.get(label))
+            f = fell_mask(y, p.fell.get(label), fall_cost=C1)
             c = color[label]
             top.scatter(x[~f], y[~f], s=6, color=c, alpha=0.7, linewidths=0)
             top.scatter(x[f], y[f], s=14, color=c, marker="x", linewidths=0.8)

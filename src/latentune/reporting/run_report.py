@@ -102,7 +102,8 @@ def run_stats(store: Any) -> dict[int, dict[str, Any]]:
     for ph in TABLE_PHASES:
         rows = store.rows(ph)
         s = phase_stats([r.cost for r in rows], manual, fell=[r.fell for r in rows])
-        s["rms"] = rms_velocity_error(s["best"], steps) if steps else None
+        s["rms"] = rms_velocity_error(s["best"], steps, fell=rows[s["best_idx"]].fell) \
+            if steps and rows else None
         out[int(ph)] = s
     return out
 
