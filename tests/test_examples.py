@@ -127,7 +127,7 @@ def test_numpy_chain_ask_tell(tmp_path, run):
     assert code == 0, err
     code, stdout, err = run("status", d, "--json")
     assert code == 0, err
-    assert json.loads(stdout)["phases"]["phase1"]["n"] == 1 and not Path(path).exists()
+    assert json.loads(stdout)["phases"]["phase 1"]["n"] == 1 and not Path(path).exists()
 
 
 # ---------------------------------------------------------------------------- Gymnasium
