@@ -1,5 +1,5 @@
 """Command line: ``latentune rollout | tune | phase1 | train-vae | phase3 | report | ask | tell |
-status | robot check | robot init | paper | bench``.
+release | best | status | import-optuna | dashboard | robot check | robot init | paper | bench``.
 
 Every command parses its flags and calls the public API (:class:`latentune.Study`,
 :class:`latentune.Task`, :func:`latentune.system.load_system`, the paper studies); no logic
@@ -263,6 +263,7 @@ def add_run_args(p: argparse.ArgumentParser, name: str) -> None:
                         "(default off; phase 3 learns it from the latent space's source run)")
     if name in ("tune", "phase3"):
         _handover_arg(p)
+        _strategy_arg(p)
     if name == "phase1":
         p.add_argument("--fall-prior", default=None, metavar="RUN_DIR",
                        help="with --max-fall-prob: a run whose phase-1 trials seed the prediction")
@@ -423,11 +424,12 @@ def _phase_line(res: Any, study: Any) -> str:
 
 def cmd_tune(args: argparse.Namespace) -> int:
     handover = _handover(args)                      # checked before phase 1 runs
+    strategy = _strategy(args, handover)
     study, system, _ = _phase1_study(args, latent=True)
     with study:
         study.train_latent(args.latent_dim, kind=args.vae_kind, epochs=args.vae_epochs)
         study.phase3(system, args.phase3_evals, method=args.method, regions=args.regions,
-                     max_fall_prob=args.max_fall_prob, handover=handover)
+                     max_fall_prob=args.max_fall_prob, handover=handover, strategy=strategy)
         _finish(study)
     return 0
 
@@ -461,6 +463,7 @@ def cmd_train_vae(args: argparse.Namespace) -> int:
 
 def cmd_phase3(args: argparse.Namespace) -> int:
     handover = _handover(args)
+    strategy = _strategy(args, handover)
     study = _study(args)
     _check_stored_system(study, args)
     system = make_system(args, args.seed)
@@ -480,7 +483,7 @@ def cmd_phase3(args: argparse.Namespace) -> int:
     with study:
         study.phase3(system, args.phase3_evals, latent=args.vae, method=args.method,
                      regions=args.regions, max_fall_prob=args.max_fall_prob,
-                     handover=handover)
+                     handover=handover, strategy=strategy)
         _finish(study)
     return 0
 
@@ -535,16 +538,30 @@ def cmd_ask(args: argparse.Namespace) -> int:
             space = ParameterSpace.from_dict(_read_data(args.space, "--space"))
         except ValueError as exc:
             raise CLIError(f"--space {args.space}: {exc}") from None
+    from latentune.pipeline.asktell import write_suggestion_files
+
+    handover = _handover(args)
+    strategy = _strategy(args, handover)
+    if args.max_fall_prob is not None and not 0 < args.max_fall_prob <= 1:
+        raise CLIError(f"--max-fall-prob must be in (0, 1], got {args.max_fall_prob}")
+    if args.lease is not None and not args.lease > 0:
+        raise CLIError(f"--lease must be a positive number of seconds, got {args.lease}")
+    if args.budget is not None:
+        _positive("budget", args.budget)
     with study:
         sugg = study.ask(args.n, system=system, space=space, phase=args.phase, latent=args.vae,
-                         method=args.method, handover=_handover(args))
+                         method=args.method, handover=handover, strategy=strategy,
+                         budget=args.budget, regions=args.regions,
+                         max_fall_prob=args.max_fall_prob, fall_prior=args.fall_prior,
+                         asker=args.asker, lease_s=args.lease)
+        write_suggestion_files(study.dir, sugg)
     if args.json:
         print(json.dumps([s.to_dict() for s in sugg]))
     else:
         for s in sugg:
             vals = ", ".join(f"{k}={v:.6g}" for k, v in list(s.params.items())[:6])
             more = " ..." if len(s.params) > 6 else ""
-            print(f"{s.id}\tphase {s.phase}{' (again)' if s.again else ''}\t{s.path}\t{vals}{more}")
+            print(f"{s.id}\t{s.phase_name}{' (again)' if s.again else ''}\t{s.path}\t{vals}{more}")
     return 0
 
 
@@ -560,10 +577,46 @@ def cmd_tell(args: argparse.Namespace) -> int:
         trial_id = int(args.id)
     except ValueError:
         raise CLIError(f"a suggestion id is an integer, got {args.id!r}") from None
+    from latentune.pipeline.asktell import remove_suggestion_file
+    from latentune.pipeline.results import phase_name
+
     with study:
-        row = study.tell(trial_id, args.cost, failed=args.failed, note=args.note)
-    print(f"told {trial_id}: phase {row.phase} evaluation {row.idx}, cost {row.cost:.6g}"
-          f"{' (failed)' if row.fell else ''}")
+        row = study.tell(trial_id, args.cost, failed=args.failed, note=args.note,
+                         amend=args.amend)
+        remove_suggestion_file(study.dir, trial_id)
+    print(f"{'amended' if args.amend else 'told'} {trial_id}: {phase_name(row.phase)} "
+          f"evaluation {row.idx}, cost {row.cost:.6g}{' (failed)' if row.fell else ''}")
+    return 0
+
+
+def cmd_release(args: argparse.Namespace) -> int:
+    from latentune.study import Study
+
+    study = Study(args.dir)
+    if not study.exists:
+        raise CLIError(f"no run store in {args.dir}")
+    try:
+        trial_id = int(args.id)
+    except ValueError:
+        raise CLIError(f"a suggestion id is an integer, got {args.id!r}") from None
+    with study:
+        study.release(trial_id)
+    print(f"released {trial_id}: the next ask hands it out again")
+    return 0
+
+
+def cmd_best(args: argparse.Namespace) -> int:
+    from latentune.pipeline.results import phase_name
+    from latentune.study import Study
+
+    study = Study(args.dir)
+    if not study.exists:
+        raise CLIError(f"no run store in {args.dir}")
+    with study:
+        path = study.best_params(args.out)
+        b = study.best()
+    print(f"best: cost {b.cost:.6g} ({phase_name(b.phase)}, evaluation {b.idx}); its θ, to "
+          f"deploy: {path}")
     return 0
 
 
@@ -579,13 +632,20 @@ def cmd_status(args: argparse.Namespace) -> int:
         print(json.dumps(s))
         return 0
     for name, p in s["phases"].items():
-        print(f"{name}: {p['n']} evaluations, {p['failed']} failed, best {p['best']:.6g} "
-              f"(evaluation {p['best_idx']})")
-    print(f"pending suggestions: {len(s['pending'])}"
-          + (f" ({', '.join(map(str, s['pending']))})" if s["pending"] else ""))
+        best = "no trial without a fall" if p["best"] is None else (
+            f"best {p['best']:.6g} (evaluation {p['best_idx']}"
+            + (f", suggestion {p['best_trial']}" if p.get("best_trial") is not None else "") + ")")
+        print(f"{name}: {p['n']} trials, {p['failed']} failed, {p['pending']} pending; {best}")
+    leases = s.get("leases") or {}
+    print(f"pending suggestions: {len(s['pending'])}" + (" (" + ", ".join(
+        f"{i} held by {leases.get(str(i), {}).get('asker')}" for i in s["pending"]) + ")"
+        if s["pending"] else ""))
     if s["best"] is not None:
-        print(f"best: {s['best']['cost']:.6g} (phase {s['best']['phase']}, evaluation "
-              f"{s['best']['idx']})")
+        b = s["best"]
+        print(f"best: {b['cost']:.6g} ({b['phase']}, evaluation {b['idx']}"
+              + (f", suggestion {b['trial']}" if b.get("trial") is not None else "") + ")"
+              + (f"; its θ: {b['params_file']}" if b.get("params_file") else
+                 f"; write it with: latentune best {args.dir}"))
     return 0
 
 
@@ -658,6 +718,21 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return run_bench(args.steps, args.n, args.timeout)
 
 
+def _strategy_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--strategy", choices=("transfer", "plain"), default=None,
+                   help="phase 3: transfer (default for a new phase 3: everything the source run "
+                        "tried, latent and full θ boxes) or plain (the paper's latent search; "
+                        "--method, --regions and --handover are its options)")
+
+
+def _strategy(args: argparse.Namespace, handover: Any) -> Any:
+    """The --strategy of phase 3, refused with options only the plain strategy has."""
+    st = getattr(args, "strategy", None)
+    if st == "transfer" and handover:
+        raise CLIError("--handover is an option of --strategy plain")
+    return st
+
+
 # ---------------------------------------------------------------------------- parser
 def build_parser() -> argparse.ArgumentParser:
     from latentune.experiments.paper import MAPPING_DOC
@@ -708,8 +783,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--phase", type=int, choices=(1, 3), default=None,
                    help="1 = the full θ (default), 3 = the latent space of --vae")
     p.add_argument("--vae", default=None, metavar="RUN_DIR", help="the latent space for phase 3")
-    p.add_argument("--method", choices=("turbo", "cma", "random", "sobol"), default="turbo")
+    p.add_argument("--method", choices=("turbo", "cma", "random", "sobol"), default=None,
+                   help="critic (first ask: default turbo; later asks: the stored one)")
     _handover_arg(p)
+    _strategy_arg(p)
+    p.add_argument("--budget", type=int, default=None,
+                   help="the trials you plan (first ask: default 200; may grow later)")
+    p.add_argument("--regions", type=int, default=None, help="TuRBO-m trust regions")
+    p.add_argument("--max-fall-prob", type=float, default=None, metavar="P",
+                   help="fall-aware: skip candidates whose predicted fall probability exceeds P")
+    p.add_argument("--fall-prior", default=None, metavar="RUN_DIR",
+                   help="phase 1 with --max-fall-prob: a run whose trials seed the prediction")
+    p.add_argument("--asker", default=None,
+                   help="who runs the trials (several askers on one study each get their own)")
+    p.add_argument("--lease", type=float, default=None, metavar="SECONDS",
+                   help="a suggestion not told within this time is handed out again "
+                        "(default 3600)")
     p.add_argument("--seed", type=_seed, default=None, help="seed (first ask only; default 0)")
     p.add_argument("--json", action="store_true", help="print one JSON list")
     p.set_defaults(func=cmd_ask)
@@ -720,12 +809,28 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--cost", type=float, default=None, help="the trial's cost")
     p.add_argument("--failed", action="store_true", help="the trial failed (a fall)")
     p.add_argument("--note", default=None, help="free text stored with the trial")
+    p.add_argument("--amend", action="store_true",
+                   help="correct a result told before (the old one is kept as an audit trail)")
     p.set_defaults(func=cmd_tell)
+
+    p = add("release", help="hand a pending suggestion out again (its trial will not be run)")
+    p.add_argument("dir", help="study directory")
+    p.add_argument("id", help="the suggestion's id")
+    p.set_defaults(func=cmd_release)
+
+    p = add("best", help="write the θ to deploy: the best trial over all phases that did not fail")
+    p.add_argument("dir", help="study directory")
+    p.add_argument("--out", default=None, help="the --params file to write (default DIR/best.json)")
+    p.set_defaults(func=cmd_best)
 
     p = add("status", help="evaluations, failures, pending suggestions, best")
     p.add_argument("dir", help="study directory")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_status)
+
+    from latentune.integrations import register_cli
+
+    register_cli(sub, parents=common)            # import-optuna, dashboard (the optuna extra)
 
     p = sub.add_parser("robot", help="check a robot spec, or write one for a quadruped URDF")
     rsub = p.add_subparsers(dest="robot_command", parser_class=_Parser, required=True)

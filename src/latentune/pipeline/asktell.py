@@ -250,7 +250,8 @@ def _ask_critic(study: Any, st: RunStore, phase: int, pc: dict[str, Any], space:
     critic = phase_critic(phase, pc, space, study.dir, ls)
     replay(st, phase, critic)
     U, T, Z, thetas, codes = ask_batch(critic, len(open_) + k, decoder_of(pc, ls))
-    held = {np.ascontiguousarray(t.theta).tobytes() for t in open_}
+    held = {np.ascontiguousarray(t.theta).tobytes() for t in st.trials()
+            if t.status in ("queued", "pending") and t.phase in (phase, Phase.ZERO_SHOT)}
     keep = [i for i in range(len(thetas))
             if np.ascontiguousarray(thetas[i]).tobytes() not in held][-k:]
     save_state(st, phase, critic)           # the next ask reuses its GP fits
