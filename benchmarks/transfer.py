@@ -40,9 +40,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
-import platform
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -328,20 +325,6 @@ def markdown(s: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def provenance(argv: list[str]) -> dict[str, Any]:
-    try:
-        commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
-                                check=False).stdout.strip()
-    except OSError:
-        commit = None
-    cpu = next((ln.split(":", 1)[1].strip() for ln in open("/proc/cpuinfo")
-                if ln.startswith("model name")), platform.processor()) \
-        if os.path.exists("/proc/cpuinfo") else platform.processor()
-    return {"command": "python -m benchmarks.transfer " + " ".join(argv), "commit": commit,
-            "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "cpu": cpu,
-            "load": os.getloadavg()}
-
-
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -360,8 +343,11 @@ def main(argv: list[str] | None = None) -> int:
     if a.cmd == "run":
         run(a)
         return 0
+    from benchmarks.common import Provenance
+
+    prov = Provenance(argv, module="benchmarks.transfer")
     res = summarize(Path(a.root))
-    res["provenance"] = provenance(argv)
+    res["provenance"] = prov.finish()
     out = Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(res, indent=1))

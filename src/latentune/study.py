@@ -24,8 +24,8 @@ for a second phase run at once; an ask or a tell waits a bounded time).
 """
 from __future__ import annotations
 
+import logging
 import os
-import sys
 import time
 from pathlib import Path
 from typing import Any, Callable
@@ -392,8 +392,9 @@ def _actor(system: Any) -> str | None:
 
 
 def stderr_log(msg: str) -> None:
-    """A ``log`` for :class:`Study` that prints to stderr."""
-    print(msg, file=sys.stderr, flush=True)
+    """A ``log`` for :class:`Study` that logs at INFO on the ``latentune.study`` logger (shown
+    on stderr by the CLI with -v, or by any logging configuration of the caller)."""
+    logging.getLogger(__name__).info(msg)
 
 
 __all__ = ["Study", "Suggestion", "describe", "source_best", "stderr_log"]

@@ -70,7 +70,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from latentune.critic.base import UNTAGGED, Critic, as_unit_points
+from latentune.critic.base import Critic, as_unit_points
 
 log = logging.getLogger(__name__)
 

@@ -30,6 +30,7 @@ back to the same rebuild. Any other system is pickled; one that cannot be is ref
 from __future__ import annotations
 
 import json
+import logging
 import os
 import pickle
 import sys
@@ -43,6 +44,8 @@ from latentune.system import CostError, EvaluationError, Outcome, as_cost, evalu
 from latentune.threads import THREAD_VARS, thread_env
 
 BACKENDS = ("serial", "process", "ray")
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -323,8 +326,8 @@ class RayEvaluator(Evaluator):
         for a in getattr(self, "_actors", []):
             try:
                 self._ray.kill(a)
-            except Exception:  # noqa: BLE001 - the actor may already be gone
-                pass
+            except Exception as exc:  # noqa: BLE001 - the actor may already be gone
+                log.debug("killing a Ray actor: %s: %s", type(exc).__name__, exc)
         self._actors = []
         if self._owns and self._ray.is_initialized():
             self._ray.shutdown()

@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import json
 import math
+import logging
 import sqlite3
 import time
 from dataclasses import dataclass, field
@@ -109,6 +110,8 @@ CREATE TABLE IF NOT EXISTS amendments (
     created REAL NOT NULL
 );
 """
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -602,8 +605,8 @@ class RunStore:
     def close(self) -> None:
         try:
             self.con.close()
-        except Exception:  # noqa: BLE001
-            pass
+        except sqlite3.Error as exc:
+            log.debug("closing %s: %s", getattr(self, "dir", "the store"), exc)
 
     def __enter__(self) -> "RunStore":
         return self
