@@ -81,6 +81,11 @@ def strategy_of(pc: dict[str, Any]) -> str:
     return str(pc.get("strategy") or "plain")
 
 
+OWN_TOLD = 30
+"""Phase 3 on the system of its own phase 1: the best trials of phase 1 told to the transfer
+critic as target data (with the phase-1 trials among its elites), so it does not run them again."""
+
+
 def resolve_strategy(manifest: Manifest, strategy: str | None, handover: Any) -> str:
     """Phase 3's strategy for a call: ``strategy`` if given (checked), else the stored one once
     phase 3 has trials (``plain`` for runs recorded before strategies existed), else
@@ -124,6 +129,15 @@ def transfer_critic(pc: dict[str, Any], space: ParameterSpace, run_dir: Path, so
         if rows:
             critic.tell(np.array([r.theta for r in rows]), np.array([r.cost for r in rows]),
                         fell=np.array([r.fell for r in rows], dtype=bool))
+    if own:     # the source is this system: its best trials and elites are target data already
+        from latentune.critic.transfer import rank_scores
+
+        z = rank_scores(y, fell)
+        E = critic.elites()
+        known = set(np.argsort(z, kind="stable")[:OWN_TOLD].tolist())
+        known |= {int(i) for i in range(len(X)) if np.min(np.abs(E - X[i]).max(1)) <= 1e-12}
+        idx = np.array(sorted(known), dtype=np.int64)
+        critic.tell(X[idx], y[idx], fell=fell[idx])
     return critic
 
 
