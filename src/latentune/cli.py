@@ -589,12 +589,18 @@ def cmd_tell(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_release(args: argparse.Namespace) -> int:
+def _stored_study(d: str) -> Any:
+    """The Study of an existing run directory ``d``; CLIError when it holds no store."""
     from latentune.study import Study
 
-    study = Study(args.dir)
+    study = Study(d)
     if not study.exists:
-        raise CLIError(f"no run store in {args.dir}")
+        raise CLIError(f"no run store in {d}")
+    return study
+
+
+def cmd_release(args: argparse.Namespace) -> int:
+    study = _stored_study(args.dir)
     try:
         trial_id = int(args.id)
     except ValueError:
@@ -607,11 +613,8 @@ def cmd_release(args: argparse.Namespace) -> int:
 
 def cmd_best(args: argparse.Namespace) -> int:
     from latentune.pipeline.results import phase_name
-    from latentune.study import Study
 
-    study = Study(args.dir)
-    if not study.exists:
-        raise CLIError(f"no run store in {args.dir}")
+    study = _stored_study(args.dir)
     with study:
         path = study.best_params(args.out)
         b = study.best()
@@ -621,11 +624,7 @@ def cmd_best(args: argparse.Namespace) -> int:
 
 
 def cmd_status(args: argparse.Namespace) -> int:
-    from latentune.study import Study
-
-    study = Study(args.dir)
-    if not study.exists:
-        raise CLIError(f"no run store in {args.dir}")
+    study = _stored_study(args.dir)
     with study:
         s = study.status()
     if args.json:

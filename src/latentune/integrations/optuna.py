@@ -654,18 +654,10 @@ def _fingerprint(latent: Any) -> str:
 
 
 def _latent_prior(run: Path, latent: Any) -> tuple[np.ndarray, np.ndarray] | None:
-    """The source run's phase-1 θ encoded into the latent unit box (codes outside the box are
-    left out) with their fall flags: the fall-aware option's prior."""
-    from latentune.pipeline.store import RunStore
+    """The fall-aware option's prior: :func:`latentune.pipeline.loop.latent_prior`."""
+    from latentune.pipeline.loop import latent_prior
 
-    with RunStore(run) as st:
-        rows = st.rows(Phase.PHASE1)
-    if not rows:
-        return None
-    Z = np.atleast_2d(latent.encode(np.array([r.theta for r in rows])))
-    inside = np.all((Z >= latent.box[:, 0]) & (Z <= latent.box[:, 1]), axis=1)
-    fell = np.array([r.fell for r in rows], dtype=bool)[inside]
-    return latent.to_unit(Z[inside]), fell
+    return latent_prior(run, latent)
 
 
 # ---------------------------------------------------------------------------- storages and import
