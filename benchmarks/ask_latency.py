@@ -1,7 +1,8 @@
 """Wall time of one ``latentune ask`` (a new process: imports, store, critic rebuilt from the
 store) on a study with many told trials, with and without the stored critic state.
 
-    python -m benchmarks.ask_latency [--told 1000] [--dim 25] [--repeats 3] [--out FILE.json]
+    python -m benchmarks.ask_latency [--told 1000] [--dim 25] [--repeats 3] [--phase {1,3}]
+        [--out FILE.json]
 
 Builds an ask/tell study on a shifted sphere in ``--dim`` dimensions through the Python API
 (``Study.ask``/``tell`` in batches of 50 until ``--told`` trials are told), then times
@@ -52,30 +53,41 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--told", type=int, default=1000)
     ap.add_argument("--dim", type=int, default=25)
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--phase", type=int, choices=(1, 3), default=1,
+                    help="3: phase 3 with the default (transfer) strategy, from a 300-trial "
+                         "phase-1 source on the same sphere")
     add_out_arg(ap)
     a = ap.parse_args(argv)
     t0 = time.perf_counter()
-    d = Path(tempfile.mkdtemp(prefix="lt_asklat_")) / "study"
+    root = Path(tempfile.mkdtemp(prefix="lt_asklat_"))
+    d = root / "study"
     space = lt.ParameterSpace([f"k{i}" for i in range(a.dim)], [0.0] * a.dim, [1.0] * a.dim)
+    kw: dict = {"space": space}
+    if a.phase == 3:
+        with lt.Study(root / "source", seed=0) as src:
+            src.phase1(lt.FunctionSystem(space, cost), 300)
+            src.train_latent()
+        kw.update(phase=3, latent=root / "source")
     study = lt.Study(d, seed=0)
     told = 0
     while told < a.told:
-        for s in study.ask(min(50, a.told - told), space=space):
+        for s in study.ask(min(50, a.told - told), **kw):
             study.tell(s.id, cost(np.asarray(s.theta)))
-        told = study.store.count(1)
+        told = study.store.count(a.phase)
     study.close()
     build_s = time.perf_counter() - t0
     t = time.perf_counter()
     subprocess.run([sys.executable, "-c", "import latentune.critic.turbo, botorch"], check=True,
                    env=ENV)
     import_s = time.perf_counter() - t
-    out: dict = {"told": a.told, "dim": a.dim, "build_s": build_s, "import_s": import_s}
+    out: dict = {"told": a.told, "dim": a.dim, "phase": a.phase, "build_s": build_s,
+                 "import_s": import_s}
     for mode in ("with_state", "without_state"):
         secs = []
         for _ in range(a.repeats):
             if mode == "without_state":
                 with RunStore(d) as st:
-                    st.set_meta(state_key(1), {})
+                    st.set_meta(state_key(a.phase), {})
             secs.append(cli_seconds("ask", str(d), "--json"))
             with RunStore(d) as st:
                 tid = st.trials("pending")[0].id
@@ -87,7 +99,8 @@ def main(argv: list[str] | None = None) -> int:
              "import floor s": import_s} for mode in ("with_state", "without_state")]
     out["ratio"] = out["without_state"]["median_s"] / out["with_state"]["median_s"]
     finish(a.out, prov, out, rows,
-           title=f"`latentune ask` on a study with {a.told} told trials, d = {a.dim}")
+           title=f"`latentune ask` on a phase-{a.phase} study with {a.told} told trials, "
+                 f"d = {a.dim}")
     return 0
 
 
