@@ -62,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
     root = Path(tempfile.mkdtemp(prefix="lt_asklat_"))
     d = root / "study"
     space = lt.ParameterSpace([f"k{i}" for i in range(a.dim)], [0.0] * a.dim, [1.0] * a.dim)
-    kw: dict = {"space": space}
+    kw: dict = {"space": space, "budget": a.told + 4 * a.repeats}     # room for the timed asks
     if a.phase == 3:
         with lt.Study(root / "source", seed=0) as src:
             src.phase1(lt.FunctionSystem(space, cost), 300)
