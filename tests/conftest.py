@@ -12,6 +12,10 @@
 * ``cli_env`` (session fixture): the environment of ``cli`` (for ``subprocess.Popen``).
 * ``dump_store`` (session fixture): ``dump_store(run_dir) -> (rows, meta)``, a store's rows
   (phase, idx, theta, z, tag, cost) and meta read-only, to check that a store is unchanged.
+
+Under pytest-xdist (the README's ``pytest -n auto``, ``--dist loadgroup`` from pyproject.toml) the
+tests of a module that use a module-scoped fixture form one ``xdist_group``: they run on one
+worker, so the fixture (a phase-1 run, a trained VAE, a paper directory) is built once.
 """
 from __future__ import annotations
 
@@ -42,6 +46,17 @@ def _cli(*args: object, cwd: Path | str | None = None, env: dict[str, str] | Non
     return subprocess.run([sys.executable, "-m", "latentune.cli", *map(str, args)],
                           capture_output=True, text=True, env=env or CLI_ENV, cwd=cwd,
                           timeout=timeout)
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Put the tests of a module that share a module-scoped fixture in one ``xdist_group``
+    (named after the module); other tests go one by one to whichever worker is free."""
+    for item in items:
+        info = getattr(item, "_fixtureinfo", None)
+        if info is None or item.get_closest_marker("xdist_group"):
+            continue
+        if any(d.scope == "module" for defs in info.name2fixturedefs.values() for d in defs):
+            item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::")[0]))
 
 
 @pytest.fixture(scope="session")

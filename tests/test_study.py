@@ -13,7 +13,6 @@ from pathlib import Path
 
 import numpy as np
 
-from latentune.threads import thread_env
 import pytest
 
 import latentune as lt
@@ -22,8 +21,6 @@ from latentune.errors import LatentuneError, StoreError
 from latentune.pipeline.store import RunStore
 
 PY = sys.executable
-ENV = dict(os.environ, **thread_env(),
-           RAY_AUTH_MODE="disabled", PYTHONUNBUFFERED="1")
 
 PLUGIN = textwrap.dedent('''
     import numpy as np
@@ -74,8 +71,9 @@ PLUGIN = textwrap.dedent('''
 ''')
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def plugin_dir(tmp_path_factory):
+    """A directory holding the user module ``myplant`` (also put on ``sys.path``)."""
     d = tmp_path_factory.mktemp("plugin")
     (d / "myplant.py").write_text(PLUGIN)
     sys.path.insert(0, str(d))
@@ -83,17 +81,12 @@ def plugin_dir(tmp_path_factory):
     sys.path.remove(str(d))
 
 
-def cli(*args: str, cwd: Path | None = None, timeout: float = 300) -> subprocess.CompletedProcess:
-    return subprocess.run([PY, "-m", "latentune.cli", *args], capture_output=True, text=True,
-                          env=ENV, timeout=timeout, cwd=cwd)
-
-
-def one_line_error(p: subprocess.CompletedProcess) -> str:
-    assert p.returncode == 2, (p.returncode, p.stderr)
-    assert "Traceback" not in p.stderr
-    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
-    assert len(lines) == 1 and lines[0].startswith("latentune: error:"), p.stderr
-    return lines[0]
+@pytest.fixture
+def in_plugin_dir(plugin_dir, run_cli, monkeypatch):
+    """``run_cli`` (the CLI in this process) with the plugin's directory as the working
+    directory, as a user runs ``latentune --system myplant:make`` next to the module."""
+    monkeypatch.chdir(plugin_dir)
+    return run_cli
 
 
 def rows(run: Path) -> list[tuple]:
@@ -205,7 +198,8 @@ def test_a_second_writer_is_refused_at_once(tmp_path, plugin_dir):
 
 
 # ---------------------------------------------------------------------------- CLI plugins
-def test_tune_and_report_with_system_plugin(tmp_path, plugin_dir):
+def test_tune_and_report_with_system_plugin(tmp_path, plugin_dir, cli, in_plugin_dir,
+                                           error_line):
     out = tmp_path / "run"
     args = ["--system", "myplant:make", "--system-arg", "dim=6", "--out", str(out),
             "--backend", "serial", "--quiet", "--vae-epochs", "30", "--latent-dim", "2"]
@@ -218,27 +212,30 @@ def test_tune_and_report_with_system_plugin(tmp_path, plugin_dir):
     best = json.loads((out / "phase1_best.json").read_text())
     assert sorted(best) == [f"w{i}" for i in range(6)]
     before = rows(out)
-    p = cli("report", str(out), "--quiet", cwd=plugin_dir)     # never imports the plugin
+    elsewhere = tmp_path / "elsewhere"                          # myplant is not importable here
+    elsewhere.mkdir()
+    p = cli("report", str(out), "--quiet", cwd=elsewhere)      # never imports the plugin
     assert p.returncode == 0, p.stderr
     assert (out / "report.md").is_file() and rows(out) == before
     # resume with other --system-arg values is refused, nothing is written
-    one_line_error(cli("tune", *args[:2], "--system-arg", "dim=7", *args[4:], "--resume",
-                       cwd=plugin_dir))
+    code, _, err = in_plugin_dir("tune", *args[:2], "--system-arg", "dim=7", *args[4:],
+                                 "--resume")
+    assert "dim" in error_line(code, err)
     assert rows(out) == before
-    p = cli("phase3", *args, "--phase3-evals", "10", "--resume", cwd=plugin_dir)
-    assert p.returncode == 0, p.stderr
+    code, _, err = in_plugin_dir("phase3", *args, "--phase3-evals", "10", "--resume")
+    assert code == 0, err
     assert sum(1 for x in rows(out) if x[0] == 3) == 10
 
 
-def test_report_on_a_custom_robot_run(tmp_path):
+def test_report_on_a_custom_robot_run(tmp_path, cli, run_cli):
     spec = tmp_path / "my_a1.yaml"
     spec.write_text("base: a1\nname: my_a1\nnominal_height: 0.29\n")
     out = tmp_path / "robot"
-    p = cli("phase1", "--robot", str(spec), "--steps", "150", "--out", str(out),
-            "--phase1-evals", "4", "--backend", "serial", "--quiet")
-    assert p.returncode == 0, p.stderr
+    code, _, err = run_cli("phase1", "--robot", spec, "--steps", "150", "--out", out,
+                           "--phase1-evals", "4", "--backend", "serial", "--quiet")
+    assert code == 0, err
     spec.unlink()                                   # the run holds the spec itself
-    p = cli("report", str(out), "--quiet")
+    p = cli("report", str(out), "--quiet")          # a fresh process: no spec cached
     assert p.returncode == 0, p.stderr
     assert (out / "com_velocity.png").is_file()
 
@@ -250,9 +247,10 @@ def test_report_on_a_custom_robot_run(tmp_path):
     ("myplant:raises", "factory raised RuntimeError: no robot connected"),
     ("myplant:not_a_system", "not a latentune system"),
 ])
-def test_bad_system_plugins(tmp_path, plugin_dir, target, expect):
-    line = one_line_error(cli("phase1", "--system", target, "--out", str(tmp_path / "x"),
-                              "--phase1-evals", "4", "--backend", "serial", cwd=plugin_dir))
+def test_bad_system_plugins(tmp_path, in_plugin_dir, error_line, target, expect):
+    code, _, err = in_plugin_dir("phase1", "--system", target, "--out", tmp_path / "x",
+                                 "--phase1-evals", "4", "--backend", "serial")
+    line = error_line(code, err)
     assert expect in line
     assert not (tmp_path / "x" / "run.db").exists()
 
@@ -261,12 +259,13 @@ def test_bad_system_plugins(tmp_path, plugin_dir, target, expect):
     ("bad", "raised ValueError: sensor timeout"), ("nan", "non-finite cost"),
     ("none", "returned NoneType"),
 ])
-def test_a_system_that_raises_or_returns_no_cost_stops_with_one_line(tmp_path, plugin_dir,
-                                                                      factory, expect):
+def test_a_system_that_raises_or_returns_no_cost_stops_with_one_line(tmp_path, in_plugin_dir,
+                                                                      error_line, factory,
+                                                                      expect):
     out = tmp_path / "r"
-    line = one_line_error(cli("phase1", "--system", f"myplant:{factory}", "--out", str(out),
-                              "--phase1-evals", "20", "--backend", "serial", "--quiet",
-                              cwd=plugin_dir))
+    code, _, err = in_plugin_dir("phase1", "--system", f"myplant:{factory}", "--out", out,
+                                 "--phase1-evals", "20", "--backend", "serial", "--quiet")
+    line = error_line(code, err)
     assert expect in line
     if factory == "bad":            # the trials before the failing one are stored, contiguous
         r = [x for x in rows(out) if x[0] == 1]
@@ -314,7 +313,7 @@ def test_every_backend_stores_the_same_rows_when_a_trial_raises(tmp_path):
     assert key(stored["serial"]) == key(stored["process"]) == key(stored["ray"])
 
 
-def test_a_broken_module_fails_loudly(tmp_path):
+def test_a_broken_module_fails_loudly(tmp_path, cli_env):
     """A syntax error in a command's module is a traceback, never 'invalid choice'."""
     pkg = tmp_path / "latentune"
     src = Path(lt.__file__).parent
@@ -322,7 +321,7 @@ def test_a_broken_module_fails_loudly(tmp_path):
 
     shutil.copytree(src, pkg)
     (pkg / "study.py").write_text((pkg / "study.py").read_text() + "\n)\n")
-    env = dict(ENV, PYTHONPATH=str(tmp_path))
+    env = dict(cli_env, PYTHONPATH=str(tmp_path))
     p = subprocess.run([PY, "-c", "import latentune.cli"], capture_output=True, text=True,
                        env=env, cwd=tmp_path)
     assert p.returncode == 0, p.stderr          # the CLI imports commands' modules lazily ...
@@ -349,24 +348,28 @@ PERSON = textwrap.dedent('''
 ''')
 
 
-def test_ask_tell_a_whole_phase3_with_kills(tmp_path, plugin_dir):
-    """A person at a robot: asks and tells from separate processes, SIGKILL between ask and
-    tell and during tell; every told trial is stored once, none lost or handed out twice."""
+def test_ask_tell_a_whole_phase3_with_kills(tmp_path, plugin_dir, in_plugin_dir, error_line,
+                                            cli_env):
+    """A person at a robot: ``latentune ask`` (the CLI, a new Study from the store each time),
+    the robot's program and ``latentune tell`` in separate processes, walking away between ask
+    and tell and SIGKILL during tell; every told trial is stored once, none lost or handed out
+    twice."""
     (plugin_dir / "person.py").write_text(PERSON)
     sim = tmp_path / "sim"
-    p = cli("tune", "--system", "myplant:make", "--system-arg", "dim=6", "--out", str(sim),
-            "--phase1-evals", "30", "--phase3-evals", "4", "--backend", "serial", "--quiet",
-            "--vae-epochs", "30", "--latent-dim", "2", cwd=plugin_dir)
-    assert p.returncode == 0, p.stderr
+    code, _, err = in_plugin_dir("tune", "--system", "myplant:make", "--system-arg", "dim=6",
+                                 "--out", sim, "--phase1-evals", "30", "--phase3-evals", "4",
+                                 "--backend", "serial", "--quiet", "--vae-epochs", "30",
+                                 "--latent-dim", "2")
+    assert code == 0, err
     real = tmp_path / "real"
     sysargs = ["--system", "myplant:make", "--system-arg", "dim=6", "--system-arg", "shift=0.1"]
     budget, told, handed, kills = 12, [], set(), 0
     rng = np.random.default_rng(0)
     while len(told) < budget + 1:                   # + the zero-shot trial
-        a = cli("ask", str(real), *sysargs, "--phase", "3", "--vae", str(sim), "--json",
-                cwd=plugin_dir)
-        assert a.returncode == 0, a.stderr
-        (s,) = json.loads(a.stdout)
+        code, out, err = in_plugin_dir("ask", real, *sysargs, "--phase", "3", "--vae", sim,
+                                       "--json")
+        assert code == 0, err
+        (s,) = json.loads(out)
         assert s["phase"] == (4 if s["id"] == 1 else 3)   # the source's best θ comes first
         if not s["again"]:
             assert s["id"] not in handed            # a new suggestion is new
@@ -378,12 +381,12 @@ def test_ask_tell_a_whole_phase3_with_kills(tmp_path, plugin_dir):
             Path(pfile).write_text(json.dumps(s["params"]))
         assert json.loads(Path(pfile).read_text()) == s["params"]
         r = subprocess.run([PY, "person.py", pfile], capture_output=True, text=True,
-                           cwd=plugin_dir, env=ENV)
+                           cwd=plugin_dir, env=cli_env)
         res = r.stdout.strip()
         tell = [PY, "-m", "latentune.cli", "tell", str(real), str(s["id"])]
         tell += ["--failed"] if res == "FAILED" else ["--cost", res]
         if rng.random() < 0.25:                     # SIGKILL during tell
-            proc = subprocess.Popen(tell, env=ENV, cwd=plugin_dir, stdout=subprocess.DEVNULL,
+            proc = subprocess.Popen(tell, env=cli_env, cwd=plugin_dir, stdout=subprocess.DEVNULL,
                                     stderr=subprocess.DEVNULL)
             time.sleep(rng.uniform(0.0, 0.6))
             proc.send_signal(signal.SIGKILL)
@@ -394,11 +397,11 @@ def test_ask_tell_a_whole_phase3_with_kills(tmp_path, plugin_dir):
             if done:
                 told.append(s["id"])
             continue                                 # pending: it is handed out again
-        t = subprocess.run(tell, capture_output=True, text=True, env=ENV, cwd=plugin_dir)
+        t = subprocess.run(tell, capture_output=True, text=True, env=cli_env, cwd=plugin_dir)
         assert t.returncode == 0, t.stderr
         told.append(s["id"])
-        assert one_line_error(subprocess.run(tell, capture_output=True, text=True, env=ENV,
-                                             cwd=plugin_dir))  # told twice: refused
+        code, _, err = in_plugin_dir(*tell[3:])     # told twice: refused
+        assert "was already told" in error_line(code, err)
     assert kills > 0
     with RunStore(real) as st:
         r3 = st.rows(Phase.PHASE3)
@@ -411,13 +414,17 @@ def test_ask_tell_a_whole_phase3_with_kills(tmp_path, plugin_dir):
         with RunStore(sim) as src:                   # zero-shot = the source's best θ
             ok = [r for ph in (1, 3) for r in src.rows(ph) if not r.fell]
             np.testing.assert_allclose(zs[0].theta, min(ok, key=lambda r: (r.cost, r.phase, r.idx)).theta)
-    st_ = cli("status", str(real), "--json")
-    assert st_.returncode == 0 and json.loads(st_.stdout)["phases"]["phase 3"]["n"] == budget
+    code, out, err = in_plugin_dir("status", real, "--json")
+    assert code == 0 and json.loads(out)["phases"]["phase 3"]["n"] == budget, err
     # bad ids: one line, store untouched
     before = rows(real)
-    for bad in (["999"], ["abc"], [str(told[0])]):
-        one_line_error(cli("tell", str(real), *bad, "--cost", "1.0"))
-    one_line_error(cli("tell", str(real), str(max(handed) + 50)))   # no cost, not failed
+    for bad, expect in ((["999"], "no suggestion with id 999"),
+                        (["abc"], "a suggestion id is an integer, got 'abc'"),
+                        ([str(told[0])], f"suggestion {told[0]} was already told")):
+        code, _, err = in_plugin_dir("tell", real, *bad, "--cost", "1.0")
+        assert expect in error_line(code, err)
+    code, _, err = in_plugin_dir("tell", real, max(handed) + 50)   # no cost, not failed
+    assert "tell needs --cost C, or --failed" in error_line(code, err)
     assert rows(real) == before
 
 
