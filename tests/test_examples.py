@@ -77,7 +77,9 @@ def through_the_api(system, real, tmp_path: Path, run) -> None:
     assert counts(tmp_path / "real") == {Phase.ZERO_SHOT: 1, Phase.PHASE3: 4}
 
 
-def through_the_cli(target: str, args: list[str], tmp_path: Path, run) -> Path:
+def through_the_cli(target: str, args: list[str], tmp_path: Path, run, report=None) -> Path:
+    """``latentune tune --system TARGET`` through ``run``, then its report through ``report``
+    (default: ``run``)."""
     out = tmp_path / "cli"
     sys_args = ["--system", target] + [x for a in args for x in ("--system-arg", a)]
     code, stdout, err = run("tune", *sys_args, "--out", out, "--phase1-evals", N1,
@@ -87,7 +89,7 @@ def through_the_cli(target: str, args: list[str], tmp_path: Path, run) -> Path:
     assert counts(out) == {Phase.MANUAL: 1, Phase.PHASE1: N1, Phase.PHASE3: N3}
     cfg = json.loads((out / "summary.json").read_text())["config"]
     assert cfg["system"]["target"] == target
-    check_report(out, run)
+    check_report(out, report or run)
     return out
 
 
@@ -106,8 +108,10 @@ def test_numpy_chain_through_the_api(tmp_path, run):
     assert all(r.cost < C1 for r in rows if not r.fell)
 
 
-def test_numpy_chain_through_the_cli(tmp_path, run_process):
-    out = through_the_cli("examples.toy_plant:make_system", ["steps=100"], tmp_path, run_process)
+def test_numpy_chain_through_the_cli(tmp_path, run_process, run):
+    """tune in a fresh process that imports the user module from its working directory."""
+    out = through_the_cli("examples.toy_plant:make_system", ["steps=100"], tmp_path, run_process,
+                          report=run)
     assert json.loads((out / "summary.json").read_text())["config"]["system"]["args"] == \
         {"steps": 100}
 
