@@ -363,3 +363,102 @@ def test_failed_classifier_and_gp_fits_are_reported_once_each(monkeypatch, caplo
     by_logger = [r.name for r in caplog.records if r.levelname == "WARNING"]
     assert sorted(by_logger) == ["latentune.critic.fall_model", "latentune.critic.turbo"]
     assert c.best_y < np.inf          # the critic kept working on its starting hyperparameters
+
+
+# ----------------------------------------------------------------------------- the interface
+def test_fall_aware_reads_no_critic_internals():
+    """The wrapper works through the critic protocol only: it names no concrete critic and
+    reads no critic's internals (trust regions, design boxes, population)."""
+    import ast
+    import inspect
+
+    import latentune.critic.fall_aware as fa
+
+    tree = ast.parse(inspect.getsource(fa))
+    names = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name)}
+    names |= {n.attr for n in ast.walk(tree) if isinstance(n, ast.Attribute)}
+    modules = {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+    modules |= {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    assert not names & {"TurboM", "CMAES", "regions", "popsize", "design_box", "decode_tag",
+                        "deepcopy", "hypers"}, names
+    assert not any(m and m.split(".")[-1] in ("turbo", "cmaes", "random_search", "copy")
+                   for m in modules), modules
+
+
+class _Oracle(FallModel):
+    """A fall model that knows the problem's fall region (a user-supplied model)."""
+
+    def __init__(self, dim: int) -> None:
+        from latentune.critic.base import FitReport
+
+        self.dim, self.fit_report, self.n_fit = dim, FitReport("oracle", None), 0
+
+    def fit(self, X, fell):
+        self.n_fit += 1
+        return True
+
+    @property
+    def active(self):
+        return True
+
+    def p_fall(self, X, kappa=0.0):
+        return problem(X)[1].astype(float)
+
+
+@pytest.mark.parametrize("method", ["random", "turbo", "cma"])
+def test_any_fall_model_plugs_in(method):
+    """A FallModel given to FallAware screens every critic from the first ask."""
+    model = _Oracle(3)
+    c = critic(method, 0, True, batch=5, model=model)
+    falls, _ = run(c, 40)
+    assert falls == 0 and model.n_fit > 0
+    assert c.n_screened > 0
+    with pytest.raises(ValueError):
+        FallAware(make_critic("random", 3), prior_X=np.zeros((2, 3)),
+                  prior_fell=np.array([True, False]), model=model).fall_prob(np.zeros((1, 3)))
+    with pytest.raises(ValueError):
+        FallAware(make_critic("random", 3), model=GPFallModel(2))
+
+
+def test_fall_model_upper_bound_prior_and_determinism():
+    rng = np.random.default_rng(4)
+    X = rng.random((80, 3))
+    f = problem(X)[1]
+    a, b = GPFallModel(3), GPFallModel(3)
+    assert a.fit(X, f) and b.fit(X, f)
+    T = rng.random((200, 3))
+    np.testing.assert_array_equal(a.p_fall(T), b.p_fall(T))          # a function of the data
+    assert np.all(a.p_fall(T, kappa=2.0) >= a.p_fall(T))
+    assert a.fit_report.as_dict() == {"n_fits": 1, "n_fit_failed": 0}
+    a.fit(X, f)
+    assert a.fit_report.n_fits == 1                                     # same data: no refit
+    pr = GPFallModel(3)
+    pr.set_prior(X, f)                                                  # prior only: active
+    assert pr.fit(np.empty((0, 3)), np.empty(0, bool))
+    p = pr.p_fall(np.array([[0.95, 0.95, 0.5], [0.1, 0.1, 0.5]]))
+    assert p[0] > 0.7 and p[1] < 0.2
+
+
+# ----------------------------------------------------------------------------- stored runs
+@pytest.mark.parametrize("method", ["turbo", "cma", "random"])
+def test_stored_runs_of_the_hand_written_classifier_resume(method):
+    """Runs stored before the fall model moved behind the critic protocol (histories and
+    state_dict written by commit 728b357) resume: the inner critic replays the same state and
+    asks valid points."""
+    import json
+    from pathlib import Path
+
+    data = json.loads((Path(__file__).parent / "data" / "fall_aware_v1.json").read_text())
+    r = data["runs"][method]
+    c = FallAware(make_critic(method, 3, **r["kw"]), prior_X=np.array(r["prior_X"]),
+                  prior_fell=np.array(r["prior_fell"]))
+    c.tell(np.array(r["X"]), np.array(r["y"]), np.array(r["tags"]), fell=np.array(r["fell"]))
+    c.load_state_dict(r["state"])
+    if method == "turbo":
+        assert c.inner.region_state() == r["region_state"]
+    assert c.n_told == c.inner.n_told == len(r["X"])
+    X = c.ask()
+    assert X.shape == (4, 3) and np.all((X >= 0) & (X <= 1))
+    assert np.all(c.last_fall_prob <= c.max_fall_prob)
+    c.tell(X, problem(X)[0], c.last_tags, fell=problem(X)[1])
+    assert c.n_told == len(r["X"]) + 4
