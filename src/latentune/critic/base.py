@@ -182,7 +182,7 @@ class FitReport:
     hyperparameters, so the critic keeps working; the failure is logged once through ``logger``
     (a ``WARNING``) and every failure is counted in :attr:`n_failed` (shown in the critic's
     :meth:`Critic.stats`). Copies of a critic made with :func:`copy.deepcopy` (e.g. the
-    fall-aware critic's probes) share the report: ``deepcopy`` returns the same object.
+    copies :meth:`Critic.propose` asks) share the report: ``deepcopy`` returns the same object.
 
     Args:
         what: the model, as shown in the log line (e.g. ``"TuRBO-m GP"``).

@@ -141,6 +141,13 @@ fell=)``); the pipeline sets both with the fall-aware option (``max_fall_prob``)
   so (while all of them fell, its centre is a fall too). Falls are known only from ``fell``;
   without it nothing shrinks. The flags enter the tell like the costs, so a replay of the
   store is exact.
+
+Screened by a fall model (the critic protocol's screening hooks, :mod:`latentune.critic.base`),
+TuRBO-m has the ``"drop"`` batch policy; its initial-design points are replace-only (a region
+counts design points by their tag, not their position, so its state is the same as if the
+design had held the replacement), replaced by scrambled-Sobol points of the region's
+:meth:`TurboM.design_box` (:meth:`TurboM.replacement_candidates`), and the GP hyperparameters a
+proposal fits are kept (:meth:`TurboM.propose`).
 """
 from __future__ import annotations
 
