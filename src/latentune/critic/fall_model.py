@@ -11,8 +11,8 @@ on the fall flags whose prior mean is a source model's fall probability.
 :class:`GPFallModel` (the default) is a least-squares GP classifier (Rasmussen & Williams 2006,
 §6.5) on BoTorch/GPyTorch: an exact GP regression (``SingleTaskGP``, constant mean,
 ``ScaleKernel(MaternKernel(ν=5/2, ARD))``, Gaussian likelihood) on the labels ``+1`` (fell) /
-``−1`` (did not), hyperparameters by maximum marginal likelihood with a log-normal lengthscale
-prior (``botorch.optim.fit.fit_gpytorch_mll_scipy``, L-BFGS-B), then a probit calibration of the
+``−1`` (did not), hyperparameters by maximum a posteriori with a normal prior on the log
+lengthscales (``botorch.optim.fit.fit_gpytorch_mll_scipy``, L-BFGS-B on log parameters), then a probit calibration of the
 GP's leave-one-out predictions: ``P(fell | x) = Φ((μ(x) + c) / √(s² + σ²(x)))`` (μ, σ²: the GP's
 predictive mean and variance of the label, observation noise included). Far from the data the
 probability returns to the level of the GP's constant mean instead of extrapolating.
@@ -46,12 +46,18 @@ from latentune.critic.base import FitReport, refit_checkpoint
 
 logger = logging.getLogger(__name__)
 
-_LS_BOUNDS = (0.01, 10.0)
-_OS_BOUNDS = (0.05, 10.0)
-_NOISE_BOUNDS = (1e-3, 1.0)
+_LS_MIN, _OS_MIN, _NOISE_MIN = 0.01, 0.05, 1e-3      # lower bounds (log parameterization)
 _MEAN_BOUNDS = (-2.0, 2.0)
-_LS_PRIOR = (math.log(0.3), 2.0)          # log-normal (loc, scale): median 0.3 box units
+_LS_PRIOR = (math.log(0.3), 2.0)          # normal on log ℓ (loc, scale): median 0.3
 _START = {"lengthscale": 0.3, "outputscale": 1.0, "noise": 0.1, "constant": 0.0}
+
+
+def _log_bound(lower: float):
+    """A lower bound with a log parameterization (``value = lower + exp(raw)``)."""
+    import torch
+    from gpytorch.constraints import GreaterThan
+
+    return GreaterThan(lower, transform=torch.exp, inv_transform=torch.log)
 
 
 class FallModel(ABC):
@@ -145,9 +151,9 @@ class GPFallModel(FallModel):
             ``None`` leaves torch's setting alone.
         fit_report: where fits are counted (default: a new :class:`FitReport`).
 
-    Hyperparameters: lengthscales in [0.01, 10] (box units) with a log-normal prior (median 0.3,
-    log-sd 2), outputscale in [0.05, 10], noise variance in [1e-3, 1], constant mean in
-    [-2, 2]. Calibration ``(c, s)`` by maximum leave-one-out probit likelihood (R&W §6.5) on the
+    Hyperparameters (log-parameterized): lengthscales >= 0.01 (box units) with a normal prior on
+    their logarithm (median 0.3, sd 2), outputscale >= 0.05, noise variance >= 1e-3, constant
+    mean in [-2, 2]; the fit starts at lengthscales 0.3, outputscale 1, noise 0.1, mean 0. Calibration ``(c, s)`` by maximum leave-one-out probit likelihood (R&W §6.5) on the
     fitted points of the GP and of the prior's GP, ``c`` in [-2, 2], ``s`` in [1e-3, 10].
     """
 
@@ -176,17 +182,20 @@ class GPFallModel(FallModel):
         from gpytorch.kernels import MaternKernel, ScaleKernel
         from gpytorch.likelihoods import GaussianLikelihood
         from gpytorch.means import ConstantMean
-        from gpytorch.priors import LogNormalPrior
+        from gpytorch.priors import NormalPrior
 
         h = h or {k: np.full(self.dim if k == "lengthscale" else 1, v) for k, v in _START.items()}
-        kern = ScaleKernel(MaternKernel(nu=2.5, ard_num_dims=self.dim,
-                                        lengthscale_prior=LogNormalPrior(*_LS_PRIOR),
-                                        lengthscale_constraint=Interval(*_LS_BOUNDS)),
-                           outputscale_constraint=Interval(*_OS_BOUNDS))
+        matern = MaternKernel(nu=2.5, ard_num_dims=self.dim,
+                              lengthscale_constraint=_log_bound(_LS_MIN))
+        # a normal prior on log ℓ (no Jacobian term: its MAP is the median's neighbourhood, not
+        # the log-normal density's mode exp(μ − σ²), which is far below the median here)
+        matern.register_prior("log_lengthscale_prior", NormalPrior(*_LS_PRIOR),
+                              lambda m: m.lengthscale.log(),
+                              lambda m, v: m._set_lengthscale(v.exp()))
+        kern = ScaleKernel(matern, outputscale_constraint=_log_bound(_OS_MIN))
         model = SingleTaskGP(torch.as_tensor(X, dtype=torch.float64),
                              torch.as_tensor(r, dtype=torch.float64).reshape(-1, 1),
-                             likelihood=GaussianLikelihood(noise_constraint=Interval(
-                                 *_NOISE_BOUNDS)),
+                             likelihood=GaussianLikelihood(noise_constraint=_log_bound(_NOISE_MIN)),
                              covar_module=kern,
                              mean_module=ConstantMean(constant_constraint=Interval(*_MEAN_BOUNDS)),
                              outcome_transform=None)
