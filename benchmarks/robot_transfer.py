@@ -14,7 +14,9 @@ sources of A1 and Solo12 to targets at several gaps.
 
 Rungs (:func:`rungs`; ``list`` prints them). A source is a phase-1 study of ``latentune paper``
 (``PAPER/<robot>/<robot>-<gait>/run.db``, ``scripts/paper_sources.sh``); a target is the
-source's task (its stored ``Task.config()``) with a few fields changed. For each robot R of
+source's task (its stored ``Task.config()``: actor, horizon, v_des and world seed, so the
+``hard`` profile's noise and pushes are the same for every method and seed) with a few fields
+changed. For each robot R of
 ``a1`` (convex MPC) and ``solo12`` (kino-dynamic MPC) and each gait g of trot and jump:
 
 * ``R-g-heavy`` / ``R-g-hard``: the source ``R-g`` on the ``heavy`` / ``hard`` reality profile
@@ -528,16 +530,14 @@ def main(argv: list[str] | None = None) -> int:
         elif a.cmd == "run":
             run(a)
         elif a.cmd == "summary":
-            from benchmarks.common import Provenance
+            from benchmarks.common import Provenance, write_json
 
             prov = Provenance(argv, module="benchmarks.robot_transfer")
             res = summarize(Path(a.root))
-            res["provenance"] = prov.finish()
-            out = Path(a.out)
-            out.parent.mkdir(parents=True, exist_ok=True)
-            out.write_text(json.dumps(res, indent=1))
+            p = prov.finish()
+            out = write_json(a.out, res, p)
             md = markdown(res)
-            out.with_suffix(".md").write_text(f"`{res['provenance']['command']}`\n{md}\n")
+            out.with_suffix(".md").write_text(f"`{p['command']}`\n{md}\n")
             print(md)
         else:
             plot(a)

@@ -144,6 +144,23 @@ def test_run_files_record_the_source_size_and_resume(live, tmp_path):
     assert row["seeds"] == [0, 1] and set(row["methods"]) == {"zero_shot", "turbo_source"}
     assert row["best_peer"] in ("zero_shot", "turbo_source")
     assert "toy-real (source toy" in rt.markdown(s)
+    out = tmp_path / "out" / "ladder.json"
+    assert rt.main(["summary", "--root", str(tmp_path), "--out", str(out)]) == 0
+    written = json.loads(out.read_text())
+    assert written["targets"][0]["source_trials"] == n
+    assert "benchmarks.robot_transfer summary" in written["provenance"]["command"]
+    assert out.with_suffix(".md").read_text().startswith("`")
+
+
+def test_plot_com_draws_every_rollout(tmp_path):
+    class Res:
+        def __init__(self, cost: float, k: float) -> None:
+            t = np.linspace(0.001, 1.0, 50)
+            self.cost, self.trace = cost, {"t": t, "pos": np.c_[k * t, 0 * t, 0.3 + 0 * t]}
+
+    f = tmp_path / "com.png"
+    rt.plot_com({"a": Res(1.0, 0.5), "b": Res(2.0, 0.4)}, f, "toy")
+    assert f.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_ladder_summary_keeps_its_rows(tmp_path):
