@@ -273,21 +273,29 @@ def _first_reach(costs: list[float], level: float) -> float:
     return math.inf
 
 
-def summarize(root: Path) -> dict[str, Any]:
-    """The issue's criteria per target from every stored run under ``root``."""
+def _ladder_target(run: dict[str, Any]) -> dict[str, Any]:
+    return {"system": run["system"], "gap": float(run["gap"])}
+
+
+def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
+              target: Callable[[dict[str, Any]], dict[str, Any]] = _ladder_target
+              ) -> dict[str, Any]:
+    """The issue's criteria per target from every stored run under ``root`` (the files matching
+    ``pattern``); ``target(run)`` gives a run's target fields, the key and head of its row
+    (default: ``system`` and ``gap``)."""
     from scipy.stats import mannwhitneyu
 
-    runs: dict[tuple[str, float], dict[str, dict[int, dict]]] = {}
-    for f in sorted(root.glob("*/gap*/seed*/*.json")):
+    runs: dict[tuple, dict[str, dict[int, dict]]] = {}
+    for f in sorted(root.glob(pattern)):
         r = json.loads(f.read_text())
-        runs.setdefault((r["system"], float(r["gap"])), {}).setdefault(r["method"], {})[
+        runs.setdefault(tuple(target(r).items()), {}).setdefault(r["method"], {})[
             int(r["seed"])] = r
     out: dict[str, Any] = {"targets": []}
-    for (system, gap), by_m in sorted(runs.items()):
+    for key, by_m in sorted(runs.items()):
         seeds = sorted(set.intersection(*[set(v) for v in by_m.values()]))
         if not seeds:
             continue
-        row: dict[str, Any] = {"system": system, "gap": gap, "seeds": seeds, "methods": {}}
+        row: dict[str, Any] = {**dict(key), "seeds": seeds, "methods": {}}
         for m, rs in by_m.items():
             best = [min(rs[s]["costs"]) for s in seeds]
             row["methods"][m] = {"median_best": float(np.median(best)),
@@ -321,10 +329,13 @@ def summarize(root: Path) -> dict[str, Any]:
     return out
 
 
-def markdown(s: dict[str, Any]) -> str:
+def markdown(s: dict[str, Any],
+             title: Callable[[dict[str, Any]], str] = lambda row: f"{row['system']} gap "
+                                                              f"{row['gap']:g}") -> str:
+    """``summarize``'s rows as Markdown tables, each headed by ``title(row)``."""
     lines = []
     for row in s["targets"]:
-        lines.append(f"\n### {row['system']} gap {row['gap']:g} ({len(row['seeds'])} seeds; "
+        lines.append(f"\n### {title(row)} ({len(row['seeds'])} seeds; "
                      f"best peer: {row['best_peer']})\n")
         lines.append("| method | median best | IQR | trials to best peer's median | falls |")
         lines.append("|---|---:|---:|---:|---:|")
