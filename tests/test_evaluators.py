@@ -15,6 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from latentune.system import EvaluationError
+
 TINY = ["--robot", "a1", "--task", "trot", "--steps", "200", "--quiet"]
 
 
@@ -93,3 +95,43 @@ def test_phase1_on_local_ray(tmp_path, cli, cli_env, dump_store):
         assert any(ray_tmp.iterdir())                      # Ray wrote its files inside tmp_path
     finally:
         shutil.rmtree(link_dir, ignore_errors=True)
+
+
+def test_ray_reruns_a_trial_lost_with_its_worker(tmp_path):
+    """A worker process that dies mid-trial (os._exit) loses that run: Ray restarts the actor,
+    the trial is run again and yielded once with ``lost_runs``; a trial that kills every worker
+    it runs on is a TrialError after ``max_losses`` runs, the other trials complete."""
+    pytest.importorskip("ray")
+    from latentune.pipeline.evaluators import RayEvaluator, TrialError
+
+    marks = str(tmp_path / "crashed")
+
+    def crash_once(x: np.ndarray) -> float:          # shipped by value (cloudpickle)
+        mark = f"{marks}{x[0]:.3f}"
+        if x[0] > 0.5 and not os.path.exists(mark):
+            open(mark, "w").close()
+            os._exit(1)
+        return float(np.sum(x))
+
+    def always_crash(x: np.ndarray) -> float:
+        if x[0] > 0.5:
+            os._exit(1)
+        return float(np.sum(x))
+
+    X = np.array([[0.1, 0.2], [0.9, 0.1], [0.2, 0.2]])
+    ray_tmp = Path(tempfile.mkdtemp(prefix="ltr", dir="/tmp"))   # unix sockets: a short path
+    try:
+        with RayEvaluator(1, temp_dir=str(ray_tmp), max_losses=2) as ev:
+            res = dict(ev.imap(crash_once, X))
+            assert sorted(res) == [0, 1, 2]
+            assert [res[i].cost for i in range(3)] == pytest.approx(X.sum(axis=1))
+            assert res[1].info == {"lost_runs": 1} and res[0].info == {} == res[2].info
+            assert ev.lost_trials == 1
+            res = dict(ev.imap(always_crash, X))
+            assert isinstance(res[1], TrialError) and "2 times" in res[1].message, res[1]
+            assert [res[i].cost for i in (0, 2)] == pytest.approx(X[[0, 2]].sum(axis=1))
+            assert ev.lost_trials == 3
+            with pytest.raises(EvaluationError, match="lost with its Ray worker"):
+                ev.map(always_crash, X)
+    finally:
+        shutil.rmtree(ray_tmp, ignore_errors=True)
