@@ -1,9 +1,9 @@
 """Phase 1 on a two-node Ray cluster started on this machine, its worker node killed mid-run.
 
-The cluster: a head and a worker node (one CPU each, their own temp dirs and free ports), each
-started with ``ray start --block`` in its own process group; the finalizer ends both groups
-(SIGTERM, then SIGKILL) even when the test fails. ``ray stop`` is not used: it ends every Ray
-process on the machine, other runs' included.
+The cluster (:class:`benchmarks.cluster.LocalCluster`): a head and a worker node (one CPU each,
+their own temp dirs and free ports), each started with ``ray start --block`` in its own process
+group; the fixture's finalizer ends both groups (SIGTERM, then SIGKILL) even when the test fails.
+``ray stop`` is not used: it ends every Ray process on the machine, other runs' included.
 
 The system is the chain of ``examples/lqr_chain.py`` with a journal (:class:`JournalChain`):
 every trial appends ``start``/``end`` lines (its node's process group, its θ) to a file. Once a
@@ -17,13 +17,9 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import signal
-import socket
-import sqlite3
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -31,26 +27,24 @@ from typing import Any
 import numpy as np
 import pytest
 
-from examples.lqr_chain import ChainSystem
-
 ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:           # ``examples``, ``benchmarks``: from the repository root
+    sys.path.insert(0, str(ROOT))
+
+from benchmarks.cluster import LocalCluster, node_group, stored, wait_for  # noqa: E402
+from examples.lqr_chain import ChainSystem  # noqa: E402
+
 HOLD_S = 600.0          # a held trial waits at most this long for its node to be killed
 BUDGET = 24
 KILL_AFTER = 6          # rows stored before the hold starts
 
 
-def _node_group() -> int:
-    """The process group of this process's parent: a Ray worker's parent is its node's raylet,
-    in the group of the node's ``ray start`` (Ray workers have groups of their own)."""
-    return os.getpgid(os.getppid())
-
-
 class JournalChain(ChainSystem):
     """:class:`~examples.lqr_chain.ChainSystem` (plant gap 0.5) whose trials append ``start
-    PGID THETA`` and ``end PGID THETA`` lines to ``journal`` (PGID: :func:`_node_group`; θ: the
-    unit-box values as a JSON list). While the file ``journal + ".hold"`` exists, a trial on
-    the node of group ``hold_pgid`` writes ``held PGID THETA`` instead and sleeps (until its
-    process is killed)."""
+    PGID THETA`` and ``end PGID THETA`` lines to ``journal`` (PGID:
+    :func:`~benchmarks.cluster.node_group`, the node's; θ: the unit-box values as a JSON list).
+    While the file ``journal + ".hold"`` exists, a trial on the node of group ``hold_pgid``
+    writes ``held PGID THETA`` instead and sleeps (until its process is killed)."""
 
     def __init__(self, journal: str, hold_pgid: int) -> None:
         super().__init__(gap=0.5)
@@ -58,7 +52,7 @@ class JournalChain(ChainSystem):
         self.hold_pgid = int(hold_pgid)
 
     def _log(self, what: str, theta: np.ndarray) -> None:
-        line = f"{what} {_node_group()} {json.dumps([float(v) for v in theta])}\n"
+        line = f"{what} {node_group()} {json.dumps([float(v) for v in theta])}\n"
         fd = os.open(self.journal, os.O_WRONLY | os.O_APPEND | os.O_CREAT)
         try:
             os.write(fd, line.encode())
@@ -66,7 +60,7 @@ class JournalChain(ChainSystem):
             os.close(fd)
 
     def evaluate(self, theta: np.ndarray) -> Any:
-        if _node_group() == self.hold_pgid and os.path.exists(self.journal + ".hold"):
+        if node_group() == self.hold_pgid and os.path.exists(self.journal + ".hold"):
             self._log("held", theta)
             t0 = time.monotonic()
             while time.monotonic() - t0 < HOLD_S:
@@ -93,107 +87,14 @@ def _journal(path: Path) -> list[tuple[str, int, tuple[float, ...]]]:
     return out
 
 
-def _free_ports(n: int) -> list[int]:
-    socks, ports = [], []
-    for _ in range(n):
-        s = socket.socket()
-        s.bind(("127.0.0.1", 0))
-        socks.append(s)
-        ports.append(s.getsockname()[1])
-    for s in socks:
-        s.close()
-    return ports
-
-
-def _count(db: Path) -> int:
-    try:
-        con = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=5)
-        try:
-            return con.execute("SELECT COUNT(*) FROM evaluations WHERE phase=1").fetchone()[0]
-        finally:
-            con.close()
-    except sqlite3.Error:
-        return 0
-
-
-def _wait_for(cond, what: str, proc: subprocess.Popen | None = None, log: Path | None = None,
-              timeout: float = 300.0) -> None:
-    """Poll ``cond()`` until true; fail naming ``what`` (a hang guard, not a timing assert)."""
-    t0 = time.monotonic()
-    while not cond():
-        if proc is not None and proc.poll() is not None:
-            pytest.fail(f"{what}: the process ended ({proc.returncode}): "
-                        f"{log.read_text()[-3000:] if log else ''}")
-        if time.monotonic() - t0 > timeout:
-            pytest.fail(f"{what}: not within {timeout:.0f} s; "
-                        f"{log.read_text()[-3000:] if log and log.exists() else ''}")
-        time.sleep(0.05)
-
-
-class Cluster:
-    """A head and one worker node (``ray start --block``, one CPU each) on 127.0.0.1."""
-
-    def __init__(self, env: dict[str, str]) -> None:
-        self.env = env
-        self.dir = Path(tempfile.mkdtemp(prefix="ltc", dir="/tmp"))   # unix sockets: short
-        self.procs: dict[str, subprocess.Popen] = {}
-        self.port = _free_ports(1)[0]
-        self.address = f"127.0.0.1:{self.port}"
-
-    def _start(self, name: str, args: list[str]) -> subprocess.Popen:
-        ray = shutil.which("ray", path=os.path.dirname(sys.executable)) or "ray"
-        ports = _free_ports(4)
-        log = self.dir / f"{name}.log"
-        cmd = [ray, "start", "--block", *args, "--node-ip-address=127.0.0.1", "--num-cpus=1",
-               f"--temp-dir={self.dir / name}", "--disable-usage-stats",
-               f"--dashboard-agent-listen-port={ports[0]}",
-               f"--dashboard-agent-grpc-port={ports[1]}", f"--metrics-export-port={ports[2]}",
-               f"--runtime-env-agent-port={ports[3]}"]
-        with open(log, "wb") as f:
-            proc = subprocess.Popen(cmd, env=self.env, stdout=f, stderr=subprocess.STDOUT,
-                                    start_new_session=True)
-        self.procs[name] = proc
-        _wait_for(lambda: b"Ray runtime started" in log.read_bytes(), f"ray start ({name})",
-                  proc, log)
-        return proc
-
-    def start(self) -> None:
-        dash = _free_ports(1)[0]
-        self._start("head", ["--head", f"--port={self.port}", "--include-dashboard=false",
-                             f"--dashboard-port={dash}"])
-        self._start("worker", [f"--address={self.address}"])
-
-    def kill(self, name: str) -> None:
-        """SIGKILL the node's process group (its raylet, its workers: the node is gone)."""
-        proc = self.procs[name]
-        try:
-            os.killpg(proc.pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
-        proc.wait(timeout=60)
-
-    def stop(self) -> None:
-        for name in reversed(list(self.procs)):
-            proc = self.procs[name]
-            try:
-                os.killpg(proc.pid, signal.SIGTERM)
-                proc.wait(timeout=10)
-            except (ProcessLookupError, subprocess.TimeoutExpired):
-                pass
-            try:
-                os.killpg(proc.pid, signal.SIGKILL)   # whatever of the group is left
-            except ProcessLookupError:
-                pass
-        shutil.rmtree(self.dir, ignore_errors=True)
-
-
 @pytest.fixture
 def cluster(cli_env):
     pytest.importorskip("ray")
     pypath = os.pathsep.join(p for p in (str(ROOT), cli_env.get("PYTHONPATH", "")) if p)
-    c = Cluster(dict(cli_env, PYTHONPATH=pypath, RAY_AUTH_MODE="disabled"))
+    c = LocalCluster(dict(cli_env, PYTHONPATH=pypath, RAY_AUTH_MODE="disabled"))
     try:
-        c.start()
+        c.start_head()
+        c.add_worker("worker")
         yield c
     finally:
         c.stop()
@@ -215,14 +116,14 @@ def test_worker_node_killed_mid_run(tmp_path, cluster, dump_store):
                                 start_new_session=True)
     try:
         # both nodes have run trials
-        _wait_for(lambda: _count(out / "run.db") >= KILL_AFTER and worker_pgid in
-                  {g for w, g, _ in _journal(journal) if w == "end"}, "the first rows",
-                  proc, log)
+        wait_for(lambda: stored(out / "run.db") >= KILL_AFTER and worker_pgid in
+                 {g for w, g, _ in _journal(journal) if w == "end"}, "the first rows",
+                 proc, log)
         hold.touch()
-        _wait_for(lambda: any(w == "held" for w, _, _ in _journal(journal)),
-                  "a held trial on the worker node", proc, log)
+        wait_for(lambda: any(w == "held" for w, _, _ in _journal(journal)),
+                 "a held trial on the worker node", proc, log)
         held = next(t for w, _, t in _journal(journal) if w == "held")
-        n_at_kill = _count(out / "run.db")
+        n_at_kill = stored(out / "run.db")
         cluster.kill("worker")
         hold.unlink()
         proc.wait(timeout=900)
@@ -242,11 +143,11 @@ def test_worker_node_killed_mid_run(tmp_path, cluster, dump_store):
 
     store = RunStore(out)
     try:
-        stored = store.rows(1)
+        phase1 = store.rows(1)
     finally:
         store.close()
     system = ChainSystem(gap=0.5)
-    rerun = [r for r in stored if r.info.get("lost_runs")]
+    rerun = [r for r in phase1 if r.info.get("lost_runs")]
     assert [r.info["lost_runs"] for r in rerun] == [1], rerun     # only the held trial
     held = np.array(held)
     np.testing.assert_array_equal(rerun[0].theta, held)
