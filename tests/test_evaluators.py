@@ -135,3 +135,16 @@ def test_ray_reruns_a_trial_lost_with_its_worker(tmp_path):
                 ev.map(always_crash, X)
     finally:
         shutil.rmtree(ray_tmp, ignore_errors=True)
+
+
+def test_unreachable_ray_address_is_one_line(tmp_path, run_cli, error_line):
+    """A cluster address nobody answers at: one line at once (Ray alone retries without end)."""
+    pytest.importorskip("ray")
+    import socket
+
+    with socket.socket() as s:                       # a port that was free a moment ago
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    code, _, err = run_cli("phase1", *TINY, "--out", tmp_path / "r", "--phase1-evals", "4",
+                           "--backend", "ray", "--ray-address", f"127.0.0.1:{port}")
+    assert f"no Ray cluster answers at 127.0.0.1:{port}" in error_line(code, err)

@@ -272,11 +272,30 @@ def _one_line(exc: BaseException, limit: int = 300) -> str:
     return f"{type(exc).__name__}: {' '.join(str(exc).split())[:limit]}"
 
 
+def _check_reachable(address: str, timeout: float = 10.0) -> None:
+    """Raise ConnectionError if a ``HOST:PORT`` Ray address does not accept a TCP connection
+    within ``timeout`` seconds (Ray itself retries such an address without end). Other forms
+    (``auto``, ``ray://…``) are left to Ray."""
+    import socket
+
+    host, sep, port = address.rpartition(":")
+    if not sep or "://" in address or not port.isdigit():
+        return
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=timeout):
+            pass
+    except OSError as exc:
+        raise ConnectionError(f"no Ray cluster answers at {address} ({exc.strerror or exc}); "
+                              "start its head (ray start --head) or correct the address"
+                              ) from None
+
+
 class RayEvaluator(Evaluator):
     """``workers`` Ray actors (one CPU each) on a cluster (``address``) or on a local Ray.
 
     A local Ray gets ``num_cpus=workers``; its temp dir is ``temp_dir`` or ``$RAY_TMPDIR``.
-    Ray is shut down on :meth:`close` only if this evaluator started it.
+    Ray is shut down on :meth:`close` only if this evaluator started it. A ``HOST:PORT``
+    address that accepts no connection raises ConnectionError at once.
 
     Lost workers: a trial whose actor dies before it returns (its node stopped or lost, the
     worker process killed or out of memory, its connection lost) has given no result; it is run
@@ -313,6 +332,7 @@ class RayEvaluator(Evaluator):
             kw: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False,
                                   "configure_logging": False}
             if address:
+                _check_reachable(address)
                 ray.init(address=address, **kw)
             else:
                 tmp = temp_dir or os.environ.get("RAY_TMPDIR")
