@@ -100,7 +100,8 @@ def test_phase1_on_local_ray(tmp_path, cli, cli_env, dump_store):
 def test_ray_reruns_a_trial_lost_with_its_worker(tmp_path):
     """A worker process that dies mid-trial (os._exit) loses that run: Ray restarts the actor,
     the trial is run again and yielded once with ``lost_runs``; a trial that kills every worker
-    it runs on is a TrialError after ``max_losses`` runs, the other trials complete."""
+    it runs on is a TrialError after ``max_losses`` runs, the other trials complete; with no
+    actor left for ``lost_timeout`` seconds, imap raises EvaluationError."""
     pytest.importorskip("ray")
     from latentune.pipeline.evaluators import RayEvaluator, TrialError
 
@@ -133,6 +134,17 @@ def test_ray_reruns_a_trial_lost_with_its_worker(tmp_path):
             assert ev.lost_trials == 3
             with pytest.raises(EvaluationError, match="lost with its Ray worker"):
                 ev.map(always_crash, X)
+
+            def leave(x: np.ndarray) -> float:        # the actor exits for good: no restart
+                if x[0] > 0.5:
+                    from ray.actor import exit_actor
+
+                    exit_actor()
+                return float(np.sum(x))
+
+            ev.lost_timeout = 3.0
+            with pytest.raises(EvaluationError, match="all 1 Ray workers were lost"):
+                dict(ev.imap(leave, X))
     finally:
         shutil.rmtree(ray_tmp, ignore_errors=True)
 
