@@ -12,6 +12,8 @@ An evaluator maps ``fun`` over the rows of ``X`` (n, d):
   (the message, one line) in place of the Outcome, the same way on every backend; ``map``
   raises :class:`~latentune.system.EvaluationError` for it. Trials that finished are yielded
   before the error is seen by the caller's next step, so they can be stored.
+* On Ray, a trial lost with its worker or node (no result) is run again on another worker and
+  yielded once (:class:`RayEvaluator`).
 
 Workers keep one instance of a System that has ``cache_key()`` (a simulated Task keeps its
 PyBullet client) for the rest of their life, and run with one BLAS thread: each worker sets the
@@ -304,9 +306,10 @@ class RayEvaluator(Evaluator):
     (a system that crashes its worker process) yields a :class:`TrialError`. Ray restarts a
     lost actor wherever the cluster has a free CPU (a node that comes back, or one that joins);
     until then the remaining actors take every trial. If no actor is alive for
-    ``lost_timeout`` seconds while trials wait, ``imap`` raises
-    :class:`~latentune.system.EvaluationError` (the trials it yielded before are complete).
-    ``lost_trials`` counts the lost runs since the evaluator started.
+    ``lost_timeout`` seconds while trials wait (all lost, or none placed: more workers than the
+    cluster has free CPUs is fine, the actors without one take no trials),
+    ``imap`` raises :class:`~latentune.system.EvaluationError` (the trials it yielded before
+    are complete). ``lost_trials`` counts the lost runs since the evaluator started.
     """
 
     def __init__(self, workers: int = 2, address: str | None = None,
@@ -352,16 +355,18 @@ class RayEvaluator(Evaluator):
         actor = ray.remote(num_cpus=1, max_restarts=-1, max_task_retries=0,
                            runtime_env={"env_vars": thread_env()})(_RayWorker)
         self._actors = [actor.remote() for _ in range(self.workers)]
-        self._idle = list(self._actors)
+        self._idle: list[Any] = []              # actors known to be alive and free
         self._back: dict[Any, Any] = {}         # ref -> actor that is idle once ref is done
         self._later: list[tuple[float, Any]] = []   # (when, actor): ping it again then
+        for a in self._actors:                  # an actor takes trials once it answers: one
+            self._wait_back(a)                  # the cluster has no CPU for yet takes none
 
     def _lost(self, exc: BaseException) -> bool:
         return isinstance(exc, self._lost_types)
 
     def _wait_back(self, actor: Any) -> None:
-        """``actor`` lost a run: it rejoins the idle actors when a ping returns (after Ray
-        restarted it, if it died)."""
+        """``actor`` is new or lost a run: it joins the idle actors when a ping returns (once
+        Ray has placed it, or restarted it if it died)."""
         self._back[actor.ping.remote()] = actor
 
     def _timeout(self, running: bool) -> float | None:
@@ -402,9 +407,10 @@ class RayEvaluator(Evaluator):
                     none_alive = time.monotonic()
                 elif time.monotonic() - none_alive > self.lost_timeout:
                     raise EvaluationError(
-                        f"all {self.workers} Ray workers were lost and none came back within "
-                        f"{self.lost_timeout:g} s ({self.lost_trials} trial runs lost); the "
-                        f"trials finished so far are complete, {len(todo)} were not run")
+                        f"no Ray worker of {self.workers} was alive for {self.lost_timeout:g} s "
+                        "(the cluster's nodes were lost or it has no free CPU; "
+                        f"{self.lost_trials} trial runs lost); the trials finished so far are "
+                        f"complete, {len(todo)} were not run")
                 timeout = self._timeout(bool(running))
                 refs = [*running, *self._back]
                 if not refs:                    # every actor waits for its next ping
@@ -417,7 +423,10 @@ class RayEvaluator(Evaluator):
                         try:
                             ray.get(ref)
                             self._idle.append(a)
-                        except Exception as exc:  # noqa: BLE001 - not restarted yet: ask again
+                        except Exception as exc:  # noqa: BLE001 - sorted below
+                            if not self._lost(exc):   # it cannot start at all (its runtime env)
+                                raise EvaluationError("a Ray worker could not start: "
+                                                      f"{_one_line(exc)}") from None
                             log.debug("a Ray worker is not back yet: %s", _one_line(exc))
                             self._later.append((time.monotonic() + 2.0, a))
                         continue
