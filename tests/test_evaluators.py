@@ -156,3 +156,25 @@ def test_unreachable_ray_address_is_one_line(tmp_path, run_cli, error_line):
     code, _, err = run_cli("phase1", *TINY, "--out", tmp_path / "r", "--phase1-evals", "4",
                            "--backend", "ray", "--ray-address", f"127.0.0.1:{port}")
     assert f"no Ray cluster answers at 127.0.0.1:{port}" in error_line(code, err)
+
+
+def test_ray_more_workers_than_cpus(tmp_path):
+    """Actors the cluster has no CPU for take no trials: a batch completes on the placed ones."""
+    pytest.importorskip("ray")
+    import ray
+
+    from latentune.pipeline.evaluators import RayEvaluator
+
+    ray_tmp = Path(tempfile.mkdtemp(prefix="ltr", dir="/tmp"))   # unix sockets: a short path
+    ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False, configure_logging=False,
+             _temp_dir=str(ray_tmp))
+    try:
+        def sq(x: np.ndarray) -> float:               # shipped by value (cloudpickle)
+            return float(np.sum((x - 0.3) ** 2))
+
+        X = np.random.default_rng(0).random((5, 3))
+        with RayEvaluator(3) as ev:
+            np.testing.assert_allclose(ev.map(sq, X), np.sum((X - 0.3) ** 2, axis=1))
+    finally:
+        ray.shutdown()
+        shutil.rmtree(ray_tmp, ignore_errors=True)
