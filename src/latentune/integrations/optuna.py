@@ -851,9 +851,10 @@ __all__ = ["LatentSampler", "TurboSampler", "import_optuna_study", "open_storage
 
 
 # ---------------------------------------------------------------------------- Optuna as critic
-BASELINE_SAMPLERS = ("tpe", "cmaes")
-"""Optuna samplers :class:`OptunaCritic` runs: ``tpe`` (``TPESampler(multivariate=True)``) and
-``cmaes`` (``CmaEsSampler``; with source trials its warm-start mode, WS-CMA-ES)."""
+BASELINE_SAMPLERS = ("tpe", "cmaes", "gp")
+"""Optuna samplers :class:`OptunaCritic` runs: ``tpe`` (``TPESampler(multivariate=True)``),
+``cmaes`` (``CmaEsSampler``; with source trials its warm-start mode, WS-CMA-ES) and ``gp``
+(``GPSampler``)."""
 
 _NUM = 1 << 20
 
@@ -863,9 +864,12 @@ def baseline_sampler(name: str, seed: int, *, x0: Mapping[str, float] | None = N
     """The Optuna sampler of a baseline: ``"tpe"`` → ``TPESampler(multivariate=True, seed)``;
     ``"cmaes"`` → ``CmaEsSampler(seed)`` with ``source_trials`` (Optuna's transfer mode: the
     initial mean, step size and covariance from the best of a related task's trials) or else
-    with its mean at ``x0`` (params by name). UsageError for another name."""
+    with its mean at ``x0`` (params by name); ``"gp"`` → ``GPSampler(seed)``. UsageError for
+    another name."""
     if name == "tpe":
         return optuna.samplers.TPESampler(multivariate=True, seed=int(seed))
+    if name == "gp":
+        return optuna.samplers.GPSampler(seed=int(seed))
     if name == "cmaes":
         if source_trials:
             return optuna.samplers.CmaEsSampler(source_trials=list(source_trials), seed=int(seed))
@@ -875,8 +879,8 @@ def baseline_sampler(name: str, seed: int, *, x0: Mapping[str, float] | None = N
 
 
 class _Quiet:
-    """Optuna's per-trial INFO lines and its experimental-feature warnings silenced inside the
-    block (the previous verbosity is restored)."""
+    """Optuna's per-trial INFO lines, its experimental-feature warnings and the deprecation of
+    ``CmaEsSampler(x0=...)`` silenced inside the block (the previous verbosity is restored)."""
 
     def __enter__(self) -> "_Quiet":
         self._level = optuna.logging.get_verbosity()
@@ -884,6 +888,9 @@ class _Quiet:
         self._w = warnings.catch_warnings()
         self._w.__enter__()
         warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning)
+        # CmaEsSampler's x0 (its initial mean) is deprecated in Optuna 4.9+, still supported in 5
+        warnings.filterwarnings("ignore", message=r".*`x0` has been deprecated",
+                                category=FutureWarning)
         return self
 
     def __exit__(self, *exc: Any) -> None:
