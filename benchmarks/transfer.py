@@ -29,7 +29,8 @@ trial counted (the zero-shot one included):
   (TuRBO-m, one trust region, on θ from the manual θ / the source's best), and Optuna 5's
   ``cma_source`` (``CmaEsSampler(x0=source best)``), ``cma_source_trials``
   (``CmaEsSampler(source_trials=<every source trial>)``), ``tpe`` (multivariate) and ``gp``
-  (``GPSampler``), each with the source's best θ enqueued as its first trial.
+  (``GPSampler``), each with the source's best θ enqueued as its first trial
+  (:class:`latentune.integrations.optuna.OptunaCritic`).
 
 Every (system, gap, seed, method) writes ``ROOT/<system>/gap<g>/seed<s>/<method>.json`` (cost and
 failed per trial, wall time) and is skipped when it exists: the run resumes. ``summary`` applies
@@ -199,46 +200,14 @@ def run_method(method: str, target: Any, src: Path, B: int, seed: int,
         cr = TurboM(target.space.dim, batch_size=1, seed=seed, x0=x0, n_regions=1)
         _loop(cr, target, B, costs, failed)
     else:
-        _optuna(method, target, best, (Xs, ys), B, seed, trial)
+        from latentune.integrations.optuna import OptunaCritic
+
+        sampler = {"cma_source": "cmaes", "cma_source_trials": "cmaes", "tpe": "tpe",
+                   "gp": "gp"}[method]
+        cr = OptunaCritic(target.space.dim, batch_size=1, seed=seed, x0=best, sampler=sampler,
+                          source=(Xs, ys) if method == "cma_source_trials" else None)
+        _loop(cr, target, B, costs, failed)
     return {"costs": costs, "failed": failed, **extra}
-
-
-def _optuna(method: str, target: Any, best: np.ndarray, source: tuple[np.ndarray, np.ndarray],
-            B: int, seed: int, trial: Callable[[np.ndarray], Any]) -> None:
-    import optuna
-    from optuna.distributions import FloatDistribution
-
-    import warnings
-
-    optuna.logging.set_verbosity(optuna.logging.WARNING)
-    warnings.filterwarnings("ignore", category=FutureWarning, module="optuna")
-    warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning)
-    d = target.space.dim
-    names = [f"x{i:02d}" for i in range(d)]
-    dists = {n: FloatDistribution(0.0, 1.0) for n in names}
-    start = {n: float(v) for n, v in zip(names, best)}
-    if method == "cma_source":
-        sampler = optuna.samplers.CmaEsSampler(x0=start, seed=seed)
-    elif method == "cma_source_trials":
-        Xs, ys = source
-        src_trials = [optuna.trial.create_trial(params={n: float(v) for n, v in zip(names, x)},
-                                                distributions=dists, value=float(c))
-                      for x, c in zip(Xs, ys) if math.isfinite(c)]
-        sampler = optuna.samplers.CmaEsSampler(source_trials=src_trials, seed=seed)
-    elif method == "tpe":
-        sampler = optuna.samplers.TPESampler(multivariate=True, seed=seed)
-    elif method == "gp":
-        sampler = optuna.samplers.GPSampler(seed=seed)
-    else:
-        raise ValueError(f"unknown method {method}")
-    study = optuna.create_study(sampler=sampler)
-    study.enqueue_trial(start)
-
-    def objective(t: Any) -> float:
-        x = np.array([t.suggest_float(n, 0.0, 1.0) for n in names])
-        return float(trial(x).cost)
-
-    study.optimize(objective, n_trials=B)
 
 
 # --------------------------------------------------------------------------- run / summary
