@@ -39,7 +39,10 @@ Candidates come from three pools:
 * ``latent``: Sobol codes in a box around the code of the target's best θ in the latent box,
   decoded (D);
 * ``full``: TuRBO-style perturbations of the target's best θ in a box of side ``L`` shaped by the
-  source's lengthscales (a coordinate is perturbed with probability ``min(20/d, 1)``).
+  source's lengthscales (a coordinate is perturbed with probability ``min(20/d, 1)``); with
+  ``full_scales`` = s > 1 the pool is split evenly over the sides ``L, 2L, …, 2^(s-1) L`` (capped
+  at ``length_max``), so the model, not the trust region alone, chooses how far to step;
+* ``global``: a share ``global_share`` of the candidates drawn over the whole θ box (Sobol).
 
 The first ``n_design`` own points come from the elite pool only (the initial design); while
 every trial so far fell, the next one is the target's manual θ (once). After it,
@@ -52,12 +55,19 @@ confidence bound, as in safe Bayesian optimization) exceeds ``max_fall_prob`` is
 likely to fall are kept); among the rest each point of the batch is the argmin of one joint
 Thompson sample of the cost model.
 
+Options that change the model and the choice (:data:`TRANSFER_DEFAULTS`): ``fit_lengthscale``
+lets the target cost model choose, with σ_r², a multiplier of the source's lengthscales
+(0.25–2, by marginal likelihood); ``acquisition`` ``"ei"`` takes the candidates of highest
+expected improvement over the best told value instead of Thompson samples; ``restart`` sets
+``L`` back to ``length_init`` when halving it would go below ``length_min``.
+
 Tags and resume
 ---------------
-``tag = 4 · generation + pool`` (pool 0 elite, 1 full, 2 latent). The critic's state (``L``, the
+``tag = 4 · generation + pool`` (pool 0 elite, 1 full, 2 latent, 3 global). The critic's state (``L``, the
 counters, the latent share) is a function of the told history, so a fresh critic told the stored
-rows asks what the original would have asked; the source models' fitted hyperparameters are
-:meth:`Transfer.state_dict` (a resume or an ask/tell call does not refit them).
+rows asks what the original would have asked; the options and the source models' fitted
+hyperparameters are :meth:`Transfer.state_dict` (a resume or an ask/tell call does not refit
+them, and asks with the options the run was started with).
 Untagged points (the zero-shot and manual trials) are data for the models and the centre.
 """
 from __future__ import annotations
@@ -74,21 +84,21 @@ from latentune.critic.base import Critic, as_unit_points
 
 log = logging.getLogger(__name__)
 
-ELITE, FULL, LATENT = 0, 1, 2
-POOL_NAMES = {ELITE: "elite", FULL: "full", LATENT: "latent"}
+ELITE, FULL, LATENT, GLOBAL = 0, 1, 2, 3
+POOL_NAMES = {ELITE: "elite", FULL: "full", LATENT: "latent", GLOBAL: "global"}
 
 TRANSFER_DEFAULTS: dict[str, Any] = {
     "max_fall_prob": 0.3, "n_design": 3, "n_elite": 16, "elite_spacing": 0.15,
     "n_candidates": 1000, "length_init": 0.3, "length_max": 1.0, "length_min": 1 / 128,
     "succ_tol": 2, "fail_tol": 3, "latent_share_max": 0.5, "latent_falls": 3,
     "max_points": 300, "fall_kappa": 1.0, "fit_lengthscale": False, "acquisition": "thompson",
-    "restart": False, "full_scales": 1,
+    "restart": False, "full_scales": 1, "global_share": 0.0,
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
 LEGACY_OPTIONS: dict[str, Any] = {**TRANSFER_DEFAULTS, "length_init": 0.3,
                                   "fit_lengthscale": False, "acquisition": "thompson",
-                                  "restart": False, "full_scales": 1}
+                                  "restart": False, "full_scales": 1, "global_share": 0.0}
 """The options of runs stored before :meth:`Transfer.state_dict` recorded them."""
 
 _SIGMA_R2_GRID = (0.01, 0.05, 0.2, 0.5, 1.0, 2.0)
@@ -406,6 +416,10 @@ class Transfer(Critic):
         p = self.opts["max_fall_prob"]
         if not (isinstance(p, (int, float)) and 0 < float(p) <= 1):
             raise ValueError(f"max_fall_prob must be in (0, 1], got {p!r}")
+        if not 0.0 <= float(self.opts["global_share"]) < 1.0:
+            raise ValueError(f"global_share must be in [0, 1), got {self.opts['global_share']!r}")
+        if int(self.opts["full_scales"]) < 1:
+            raise ValueError(f"full_scales must be ≥ 1, got {self.opts['full_scales']!r}")
         if self.opts["acquisition"] not in ACQUISITIONS:
             raise ValueError(f"acquisition must be one of {ACQUISITIONS}, "
                              f"got {self.opts['acquisition']!r}")
@@ -545,6 +559,16 @@ class Transfer(Critic):
         mask[np.flatnonzero(none), rng.integers(0, self.dim, size=int(none.sum()))] = True
         return np.where(mask, pert, centre[None, :])
 
+    def _pool_global(self, m: int, rng: np.random.Generator) -> np.ndarray:
+        """``m`` scrambled Sobol points (m, d) over the whole θ box."""
+        import torch
+        from torch.quasirandom import SobolEngine
+
+        if m <= 0:
+            return np.empty((0, self.dim))
+        return SobolEngine(self.dim, scramble=True, seed=int(rng.integers(2 ** 31))).draw(
+            m, dtype=torch.float64).numpy()
+
     def _pool_latent(self, m: int, L: float, centre: np.ndarray, rng: np.random.Generator
                      ) -> tuple[np.ndarray, np.ndarray]:
         import torch
@@ -621,13 +645,16 @@ class Transfer(Critic):
         else:
             m_lat = int(round(M * w_lat))
             XL, UL = self._pool_latent(m_lat, st["L"], centre, rng)
-            m_full, k_sc = M - len(XL), max(1, int(self.opts["full_scales"]))
+            m_glob = int(round(M * float(self.opts["global_share"])))
+            XG = self._pool_global(m_glob, rng)
+            m_full, k_sc = M - len(XL) - len(XG), max(1, int(self.opts["full_scales"]))
             XF = np.vstack([self._pool_full(
                 m_full // k_sc + (1 if i < m_full % k_sc else 0),
                 min(st["L"] * 2.0 ** i, float(self.opts["length_max"])), centre, rng)
                 for i in range(k_sc)])
             parts = [(E, np.full((len(E), self.k), np.nan), ELITE),
-                     (XF, np.full((len(XF), self.k), np.nan), FULL), (XL, UL, LATENT)]
+                     (XF, np.full((len(XF), self.k), np.nan), FULL), (XL, UL, LATENT),
+                     (XG, np.full((len(XG), self.k), np.nan), GLOBAL)]
         C = np.vstack([p[0] for p in parts])
         Zc = np.vstack([p[1] for p in parts]) if self.k else np.empty((len(C), 0))
         pool = np.concatenate([np.full(len(p[0]), p[2], dtype=np.int64) for p in parts])
