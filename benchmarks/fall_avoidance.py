@@ -428,17 +428,17 @@ class _DirichletGP:
 
 
 class _LSGP:
-    """latentune's FallClassifier (the one FallAware uses)."""
+    """latentune's GPFallModel (the one FallAware uses by default)."""
 
     def fit(self, X, fell):
-        from latentune.critic.fall_aware import FallClassifier
+        from latentune.critic.fall_model import GPFallModel
 
-        self.c = FallClassifier(X.shape[1])
+        self.c = GPFallModel(X.shape[1])
         self.c.fit(X, fell)
         return self
 
     def predict(self, Xs):
-        return self.c.predict(Xs)
+        return self.c.p_fall(Xs)
 
 
 def classifiers(a: argparse.Namespace) -> dict[str, Any]:

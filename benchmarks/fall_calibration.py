@@ -2,7 +2,7 @@
 
 For every run store given (direct searches on θ made by ``benchmarks.reality_gap``, without
 the fall-aware option, so their points were not screened), the trials are replayed batch by
-batch: before batch ``b`` a :class:`~latentune.critic.fall_aware.FallClassifier` is fitted on the
+batch: before batch ``b`` a :class:`~latentune.critic.fall_model.GPFallModel` is fitted on the
 trials before it (the manual θ's trial, phase 0, and batches ``< b``) and, for the variants that use it, on the
 source run's phase-1 trials as its prior; it then predicts the fall probability of each trial of
 batch ``b``. The pooled predictions against what happened say whether any threshold could have
@@ -32,7 +32,7 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
-from latentune.critic.fall_aware import FallClassifier  # noqa: E402
+from latentune.critic.fall_model import GPFallModel  # noqa: E402
 from latentune.constants import Phase  # noqa: E402
 from latentune.pipeline.store import RunStore  # noqa: E402
 
@@ -71,12 +71,12 @@ def replay(X: np.ndarray, fell: np.ndarray, batch: np.ndarray, variant: str,
     ps, ys = [], []
     for b in range(int(batch.max()) + 1):
         train, test = batch < b, batch == b
-        clf = FallClassifier(X.shape[1])
+        clf = GPFallModel(X.shape[1])
         if variant != "target":
             clf.set_prior(*prior)
         if not clf.fit(X[train], fell[train]):
             continue
-        ps.append(clf.predict(X[test]))
+        ps.append(clf.p_fall(X[test]))
         ys.append(fell[test])
     if not ps:
         return np.zeros(0), np.zeros(0, dtype=bool)

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import sys
 import time
 from pathlib import Path
@@ -48,37 +47,6 @@ from benchmarks.common import (Provenance, add_out_arg, median_evals,  # noqa: E
                                write_json)
 
 METHODS = ("latent", "handover", "turbo", "optuna_cma", "optuna_tpe")
-
-
-def run_optuna(study: lt.Study, task: lt.Task, method: str, budget: int, seed: int,
-               batch: int, evaluator) -> None:
-    """Optuna's sampler on θ's unit box, ``batch`` asks then their tells, until ``budget``
-    trials are stored as phase 1 of ``study`` (a partial run is started again)."""
-    import optuna
-    from latentune.pipeline.phases import store_outcome
-
-    optuna.logging.set_verbosity(optuna.logging.WARNING)
-    sampler = (optuna.samplers.CmaEsSampler(seed=seed) if method == "optuna_cma"
-               else optuna.samplers.TPESampler(seed=seed, multivariate=True))
-    ost = optuna.create_study(sampler=sampler)
-    d = task.space.dim
-    dist = {f"x{j}": optuna.distributions.FloatDistribution(0.0, 1.0) for j in range(d)}
-    with study.writing() as st:
-        if 0 < st.count(Phase.PHASE1) < budget:
-            raise RuntimeError(f"{study.dir}: a partial Optuna run; delete it to start again")
-        study.bind(task)
-        st.set_meta("optuna", {"sampler": method, "seed": seed, "batch_size": batch,
-                               "budget": budget, "version": optuna.__version__})
-        idx = 0
-        while idx < budget:
-            trials = [ost.ask(dist) for _ in range(min(batch, budget - idx))]
-            X = np.array([[t.params[f"x{j}"] for j in range(d)] for t in trials])
-            outs = dict(evaluator.imap(task, X))
-            for i, t in enumerate(trials):
-                out = outs[i]
-                store_outcome(st, Phase.PHASE1, idx, X[i], out, tag=-1, seed=seed)
-                idx += 1
-                ost.tell(t, float(out.cost))
 
 
 def report(d: Path) -> str:
@@ -151,11 +119,6 @@ def main(argv: list[str] | None = None) -> int:
                         ran = False
                     else:
                         ran = True
-                        if m.startswith("optuna") and study.exists:
-                            study.close()
-                            shutil.rmtree(d)
-                            study = lt.Study(d, seed=s, workers=a.workers,
-                                             batch_size=a.batch_size, evaluator=ev)
                         if m == "latent":
                             study.phase3(task, a.budget, latent=a.vae, start=None, strategy="plain")
                         elif m == "handover":
@@ -163,8 +126,12 @@ def main(argv: list[str] | None = None) -> int:
                                          handover=handover, max_fall_prob=a.max_fall_prob)
                         elif m == "turbo":
                             study.phase1(task, a.budget, start=None)
-                        else:
-                            run_optuna(study, task, m, a.budget, s, a.batch_size, ev)
+                        else:       # Optuna's sampler as phase 1 from its own design
+                            from latentune.integrations.optuna import run_baseline
+
+                            run_baseline(study, task, a.budget, start=None,
+                                         sampler={"optuna_cma": "cmaes",
+                                                  "optuna_tpe": "tpe"}[m])
                     rows = study.store.rows(phase)[: a.budget]
                     cfg = study.config()
                 y = np.array([r.cost for r in rows])

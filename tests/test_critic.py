@@ -640,3 +640,133 @@ def test_successful_gp_fits_are_counted_without_a_warning(caplog):
     st = t.stats()
     assert st["n_fits"] >= 1 and st["n_fit_failed"] == 0 and st["method"] == "turbo"
     assert not [r for r in caplog.records if r.name.startswith("latentune.critic")]
+
+
+# ----------------------------------------------------------------------------- screening hooks
+class _Grid(Critic):
+    """A critic with no screening code of its own: point k of the sequence is (k·φ mod 1)."""
+
+    method = "grid"
+
+    def __init__(self, dim: int, **kw) -> None:
+        super().__init__(dim, **kw)
+        self._next = 0
+
+    def _ask(self, n):
+        k = np.arange(self._next, self._next + n)
+        self._next += n
+        golden = (np.sqrt(5.0) - 1) / 2 * (1 + np.arange(self.dim))
+        return (k[:, None] * golden[None, :]) % 1.0, k
+
+    def _tell(self, idx, tags):
+        if (tags >= 0).any():
+            self._next = max(self._next, int(tags.max()) + 1)
+
+
+class _HalfScreen:
+    """A screen predicting a fall where x0 > 0.5 (once ``on``); records the bases it was asked."""
+
+    def __init__(self, on: bool = True, max_fall_prob: float = 0.5, oversample: int = 4):
+        self.on, self.max_fall_prob, self.oversample = on, max_fall_prob, oversample
+        self.bases: list = []
+
+    def predictor(self, basis=None):
+        self.bases.append(None if basis is None else np.asarray(basis).copy())
+        if not self.on:
+            return None
+        return lambda X: (np.asarray(X)[:, 0] > 0.5).astype(float)
+
+
+def test_base_drop_policy_screens_any_critic_and_leaves_its_state_to_the_history():
+    """The default hooks: a critic with no screening code proposes from a copy, the screen drops
+    the candidates predicted to fall, and the critic's state stays a function of what it was told
+    (a copy told the same history asks the same batch)."""
+    c = _Grid(2, batch_size=3)
+    assert c.batch_policy == "drop"
+    screen = _HalfScreen(on=False)
+    c.screen_with(screen)
+    plain = _Grid(2, batch_size=3)
+    X = c.ask()
+    np.testing.assert_array_equal(X, plain.ask())           # nothing to predict from: as is
+    assert np.isnan(c.last_screen.p).all()
+    screen.on = True
+    X2 = c.ask()                                              # continues from the proposal
+    assert not np.any(np.all(X2[:, None] == X[None], axis=2))
+    assert np.all(X2[:, 0] <= 0.5) and c.last_screen.n_screened > 0
+    assert c.last_screen.n_over == 0 and np.all(c.last_screen.p == 0.0)
+    c.tell(X2, np.ones(3), c.last_tags)
+    fresh = _Grid(2, batch_size=3)
+    fresh.screen_with(screen)
+    fresh.tell(c.X, c.y, c.tags)
+    np.testing.assert_array_equal(fresh.ask(), c.ask())
+    np.testing.assert_array_equal(fresh.last_tags, c.last_tags)
+    with pytest.raises(ValueError):
+        fresh.screen_with(screen)                             # only a fresh critic
+
+
+def test_base_drop_policy_fills_with_the_least_likely_and_never_screens_x0():
+    x0 = np.array([0.9, 0.9])
+    c = _Grid(2, batch_size=4, x0=x0)
+    c.screen_with(_HalfScreen(oversample=1))
+    X = c.ask(4)
+    rep = c.last_screen
+    assert rep.n_over == int((X[:, 0] > 0.5).sum()) > 0     # too few under: filled, counted
+    roles = c.screen_roles(np.vstack([x0, [0.1, 0.1]]), np.array([5, X0_TAG]))
+    assert roles.tolist() == [1, 1]                           # a row of x0, the x0 tag: exempt
+    assert c.screen_roles(np.array([[0.2, 0.2]]), np.array([3])).tolist() == [0]
+    with pytest.raises(NotImplementedError):
+        c.replacement_candidates(3, 0, 4)
+
+
+def test_turbo_hooks_replace_design_points_in_the_design_box_and_keep_hypers():
+    t = TurboM(3, batch_size=4, seed=0, n_regions=1, n_init=6, x0=np.full(3, 0.5),
+               design_side=0.4)
+    X, T = t.propose(8)
+    roles = t.screen_roles(X, T)
+    design = np.array([decode_tag(int(k))[1] == KIND_DESIGN for k in T])
+    assert roles[0] == 1                                       # x0: exempt
+    assert np.all(roles[1:][design[1:]] == 2)                  # design: replace, not drop
+    Z = t.replacement_candidates(int(T[1]), 0, 16)
+    assert Z.shape == (16, 3) and np.all(np.abs(Z - 0.5) <= 0.2 + 1e-12)
+    np.testing.assert_array_equal(Z, t.replacement_candidates(int(T[1]), 0, 16))
+    assert not np.array_equal(Z, t.replacement_candidates(int(T[1]), 1, 16))
+    assert t.n_told == 0 and t.regions[0].design_ptr == 0      # a proposal commits nothing
+    u = turbo_after_design()
+    u.propose(4)                                               # a proposal fits the GP ...
+    assert u.regions[0].hypers is not None                     # ... and the critic keeps it
+
+
+def test_cma_complete_policy_penalises_screened_members():
+    """CMA-ES screens whole generations: screened members are not asked but are passed to
+    pycma (so it keeps updating), and the screen is fitted on the told points of the
+    generations passed when each generation was sampled."""
+    from latentune.critic.cmaes import CMAES
+
+    c = CMAES(2, batch_size=4, seed=0, x0=np.array([0.9, 0.9]))
+    assert c.batch_policy == "complete"
+    screen = _HalfScreen()
+    c.screen_with(screen)
+    n_asked = 0
+    for _ in range(8):
+        X = c.ask()
+        n_asked += len(X)
+        np.testing.assert_array_equal(np.isnan(c.last_screen.p), False)
+        assert np.all(X[:, 0] <= 0.5) or np.any(np.all(X == [0.9, 0.9], axis=1)) \
+            or c.last_screen.n_over > 0
+        c.tell(X, ((X - 0.3) ** 2).sum(1), c.last_tags)
+    assert c.n_told == n_asked
+    assert c.n_generations_told * c.popsize > n_asked          # screened members were passed
+    assert c.sigma != pytest.approx(1.0 / 6.0)
+    assert screen.bases[0].size == 0 and screen.bases[-1].size > 0
+    told = set(range(c.n_told))
+    assert all(set(b.tolist()) <= told for b in screen.bases)
+
+
+def test_refit_checkpoint_schedule():
+    from latentune.critic.base import refit_checkpoint
+
+    seq = sorted({refit_checkpoint(n, 0.1, 256) for n in range(2, 60)})
+    assert seq[:10] == list(range(2, 12))                       # +1 while 10 % is at most 1
+    assert all(b - a == max(1, math.ceil(0.1 * a)) for a, b in zip(seq, seq[1:]))
+    c = refit_checkpoint(5_000, 0.1, 256)                        # past the cap: every 26 points
+    assert refit_checkpoint(c + 25, 0.1, 256) == c and refit_checkpoint(c + 26, 0.1, 256) == c + 26

@@ -1,11 +1,12 @@
 """Evaluators (latentune.pipeline.evaluators): a process pool gives the serial costs, a run
-killed with its workers resumes without losing or repeating a trial, phase 1 on a local Ray."""
+killed with its workers resumes without losing or repeating a trial, phase 1 on a local Ray, a
+Ray worker lost mid-trial (the trial is run again, once), an unreachable Ray address (one line).
+A worker *node* lost mid-run: tests/test_ray_cluster.py."""
 from __future__ import annotations
 
 import os
 import shutil
 import signal
-import sqlite3
 import subprocess
 import sys
 import tempfile
@@ -14,6 +15,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
+from latentune.system import EvaluationError
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:           # ``benchmarks``: from the repository root
+    sys.path.insert(0, str(ROOT))
+
+from benchmarks.cluster import stored  # noqa: E402
 
 TINY = ["--robot", "a1", "--task", "trot", "--steps", "200", "--quiet"]
 
@@ -36,17 +45,6 @@ def test_process_evaluator_matches_serial():
     np.testing.assert_allclose(yq, [quad(x) for x in X[:, :6]])
 
 
-def _count(db: Path) -> int:
-    try:
-        con = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=5)
-        try:
-            return con.execute("SELECT COUNT(*) FROM evaluations WHERE phase=1").fetchone()[0]
-        finally:
-            con.close()
-    except sqlite3.Error:
-        return 0
-
-
 def test_crash_and_resume(tmp_path, cli, cli_env, dump_store):
     """SIGKILL of the CLI and its worker processes mid-run (needs real processes), then resume."""
     out = tmp_path / "crash"
@@ -56,7 +54,7 @@ def test_crash_and_resume(tmp_path, cli, cli_env, dump_store):
                             start_new_session=True, stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE)
     t0 = time.monotonic()
-    while _count(out / "run.db") < n_kill:
+    while stored(out / "run.db") < n_kill:
         assert proc.poll() is None, proc.stderr.read().decode()
         assert time.monotonic() - t0 < 600, "no trials stored after 600 s"     # a hang guard
         time.sleep(0.05)
@@ -93,3 +91,90 @@ def test_phase1_on_local_ray(tmp_path, cli, cli_env, dump_store):
         assert any(ray_tmp.iterdir())                      # Ray wrote its files inside tmp_path
     finally:
         shutil.rmtree(link_dir, ignore_errors=True)
+
+
+def test_ray_reruns_a_trial_lost_with_its_worker(tmp_path):
+    """A worker process that dies mid-trial (os._exit) loses that run: Ray restarts the actor,
+    the trial is run again and yielded once with ``lost_runs``; a trial that kills every worker
+    it runs on is a TrialError after ``max_losses`` runs, the other trials complete; with no
+    actor left for ``lost_timeout`` seconds, imap raises EvaluationError."""
+    pytest.importorskip("ray")
+    from latentune.pipeline.evaluators import RayEvaluator, TrialError
+
+    marks = str(tmp_path / "crashed")
+
+    def crash_once(x: np.ndarray) -> float:          # shipped by value (cloudpickle)
+        mark = f"{marks}{x[0]:.3f}"
+        if x[0] > 0.5 and not os.path.exists(mark):
+            open(mark, "w").close()
+            os._exit(1)
+        return float(np.sum(x))
+
+    def always_crash(x: np.ndarray) -> float:
+        if x[0] > 0.5:
+            os._exit(1)
+        return float(np.sum(x))
+
+    X = np.array([[0.1, 0.2], [0.9, 0.1], [0.2, 0.2]])
+    ray_tmp = Path(tempfile.mkdtemp(prefix="ltr", dir="/tmp"))   # unix sockets: a short path
+    try:
+        with RayEvaluator(1, temp_dir=str(ray_tmp), max_losses=2) as ev:
+            res = dict(ev.imap(crash_once, X))
+            assert sorted(res) == [0, 1, 2]
+            assert [res[i].cost for i in range(3)] == pytest.approx(X.sum(axis=1))
+            assert res[1].info == {"lost_runs": 1} and res[0].info == {} == res[2].info
+            assert ev.lost_trials == 1
+            res = dict(ev.imap(always_crash, X))
+            assert isinstance(res[1], TrialError) and "2 times" in res[1].message, res[1]
+            assert [res[i].cost for i in (0, 2)] == pytest.approx(X[[0, 2]].sum(axis=1))
+            assert ev.lost_trials == 3
+            with pytest.raises(EvaluationError, match="lost with its Ray worker"):
+                ev.map(always_crash, X)
+
+            def leave(x: np.ndarray) -> float:        # the actor exits for good: no restart
+                if x[0] > 0.5:
+                    from ray.actor import exit_actor
+
+                    exit_actor()
+                return float(np.sum(x))
+
+            ev.lost_timeout = 3.0
+            with pytest.raises(EvaluationError, match="no Ray worker of 1 was alive"):
+                dict(ev.imap(leave, X))
+    finally:
+        shutil.rmtree(ray_tmp, ignore_errors=True)
+
+
+def test_unreachable_ray_address_is_one_line(tmp_path, run_cli, error_line):
+    """A cluster address nobody answers at: one line at once (Ray alone retries without end)."""
+    pytest.importorskip("ray")
+    import socket
+
+    with socket.socket() as s:                       # a port that was free a moment ago
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    code, _, err = run_cli("phase1", *TINY, "--out", tmp_path / "r", "--phase1-evals", "4",
+                           "--backend", "ray", "--ray-address", f"127.0.0.1:{port}")
+    assert f"no Ray cluster answers at 127.0.0.1:{port}" in error_line(code, err)
+
+
+def test_ray_more_workers_than_cpus(tmp_path):
+    """Actors the cluster has no CPU for take no trials: a batch completes on the placed ones."""
+    pytest.importorskip("ray")
+    import ray
+
+    from latentune.pipeline.evaluators import RayEvaluator
+
+    ray_tmp = Path(tempfile.mkdtemp(prefix="ltr", dir="/tmp"))   # unix sockets: a short path
+    ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False, configure_logging=False,
+             _temp_dir=str(ray_tmp))
+    try:
+        def sq(x: np.ndarray) -> float:               # shipped by value (cloudpickle)
+            return float(np.sum((x - 0.3) ** 2))
+
+        X = np.random.default_rng(0).random((5, 3))
+        with RayEvaluator(3) as ev:
+            np.testing.assert_allclose(ev.map(sq, X), np.sum((X - 0.3) ** 2, axis=1))
+    finally:
+        ray.shutdown()
+        shutil.rmtree(ray_tmp, ignore_errors=True)

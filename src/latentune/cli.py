@@ -696,6 +696,16 @@ def _scale(s: str) -> float:
     return v
 
 
+def _seeds(s: str) -> int:
+    try:
+        v = int(s)
+    except ValueError:
+        raise CLIError(f"--seeds must be an integer >= 1, got {s!r}") from None
+    if v < 1:
+        raise CLIError(f"--seeds must be an integer >= 1, got {v}")
+    return v
+
+
 def cmd_paper(args: argparse.Namespace) -> int:
     from latentune.experiments.paper import PaperOptions, run_paper
 
@@ -703,7 +713,8 @@ def cmd_paper(args: argparse.Namespace) -> int:
                         phase1=args.phase1_evals, phase3=args.phase3_evals,
                         out=args.out or f"paper-{str(args.robot).lower()}", workers=args.workers,
                         seed=args.seed, steps=args.steps, v_des=args.v_des, quiet=args.quiet,
-                        sources_only=args.sources_only)
+                        sources_only=args.sources_only, seeds=args.seeds,
+                        progress=_progress(args))
     text = run_paper(opts, report_only=args.report_only, simulate=not args.no_sim,
                      gifs=not args.no_gif)
     if not args.quiet:
@@ -862,6 +873,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--report-only", action="store_true", help="only (re)write DIR/report.md")
     p.add_argument("--sources-only", action="store_true",
                    help="only the phase-1 source runs (resumed later by the full command)")
+    p.add_argument("--seeds", type=_seeds, default=1,
+                   help="repeat phase 3, the transfer rows and the baselines over N seeds on the "
+                        "same sources (median and IQR in the report; default 1)")
     p.add_argument("--no-sim", action="store_true", help="report: skip re-simulated CoM plots/GIFs")
     p.add_argument("--no-gif", action="store_true", help="report: skip the GIFs")
     p.set_defaults(func=cmd_paper)

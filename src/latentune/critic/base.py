@@ -36,6 +36,28 @@ Tags and resume (the contract the run store relies on)
 * Tags ``<= -2`` are reserved for implementation-specific markers (e.g. ``-2`` = a point of the
   warm start ``x0``); tags are always ``>= -2``.
 
+Screening hooks (a fall model behind the protocol)
+--------------------------------------------------
+A feasibility model (e.g. :class:`~latentune.critic.fall_aware.FallAware`'s fall model) composes
+with any critic through one hook, :meth:`Critic.screen_with`: the critic is given a
+:class:`Screen` and from then on every :meth:`Critic.ask` returns only points the screen lets
+through (as far as it can), recording what it did in :attr:`Critic.last_screen`. How a critic
+screens is its own business, stated by :attr:`Critic.batch_policy`:
+
+* ``"drop"`` (the default): the critic proposes more candidates than it needs
+  (:meth:`Critic.propose`, ``oversample·n`` of them, in its order of preference), those the
+  screen predicts to fall are dropped and the first ``n`` of the rest are returned. Each
+  candidate has a role (:meth:`Critic.screen_roles`): never screened (a warm-start point),
+  droppable, or *replace-only* -- a point the critic needs under its tag (e.g. a TuRBO-m initial
+  design point), which is replaced by one of :meth:`Critic.replacement_candidates` when predicted
+  to fall. The default :meth:`Critic.propose` asks a copy of the critic (kept, and asked again,
+  until the next tell), so the critic's state stays a function of its told history.
+* ``"complete"``: the critic needs every point it samples told (CMA-ES: a generation), so it
+  screens while sampling and accounts for the screened points itself (see its module).
+
+Either way the screen is consulted through :meth:`Screen.predictor` only; the critic says which
+told points a prediction may use (``basis``) when its resume needs it.
+
 Costs
 -----
 The stored ``y`` are the raw costs as told. Non-finite costs (nan, +inf, -inf: a crashed or
@@ -44,9 +66,12 @@ far wherever a number is needed (:func:`fill_nonfinite`).
 """
 from __future__ import annotations
 
+import copy
 import logging
+import math
 from abc import ABC, abstractmethod
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, Callable, Protocol
 
 import numpy as np
 
@@ -56,6 +81,63 @@ X0_TAG: int = -2
 """Tag some critics give to the warm-start points ``x0`` they return."""
 
 _BOX_TOL = 1e-9
+
+SCREENED: int = 0
+"""Role of a candidate the screen may drop (:meth:`Critic.screen_roles`)."""
+EXEMPT: int = 1
+"""Role of a candidate that is never screened (a warm-start point)."""
+REPLACE: int = 2
+"""Role of a candidate the critic needs under its tag: replaced, not dropped, when screened."""
+
+
+class Screen(Protocol):
+    """What a critic consults to screen its candidates (:meth:`Critic.screen_with`).
+
+    ``max_fall_prob``: candidates with a predicted probability above it are screened;
+    ``oversample``: candidates proposed per returned point (``"drop"`` policy).
+    """
+
+    max_fall_prob: float
+    oversample: int
+
+    def predictor(self, basis: np.ndarray | None = None
+                  ) -> Callable[[np.ndarray], np.ndarray] | None:
+        """The model's prediction ``X (m, dim) -> p (m,)`` in [0, 1] fitted on the told points
+        ``basis`` (indices into the critic's history; ``None``: all of them), or ``None`` while
+        the model has nothing to predict from (e.g. one class only)."""
+
+
+@dataclass
+class ScreenReport:
+    """What the screen did in one ask: ``p`` (n,) the predicted probabilities of the returned
+    points (nan where nothing was predicted), ``n_over`` returned points above the threshold
+    (too few below it), ``n_screened`` candidates predicted to fall and not returned."""
+
+    p: np.ndarray
+    n_over: int = 0
+    n_screened: int = 0
+
+
+class _ScreenLink:
+    """Holds a critic's :class:`Screen`; copies of the critic (``copy.deepcopy``) share it."""
+
+    def __init__(self, screen: Screen) -> None:
+        self.screen = screen
+
+    def __deepcopy__(self, memo: dict[int, Any]) -> "_ScreenLink":
+        return self
+
+
+def refit_checkpoint(n: int, fraction: float, cap: int) -> int:
+    """Largest hyperparameter-refit checkpoint ``<= n``: checkpoints start at 2 and grow as
+    ``c_{k+1} = c_k + max(1, ⌈fraction·min(c_k, cap)⌉)``, so a model refitted at checkpoints is
+    a deterministic function of its data."""
+    c = 2
+    while True:
+        nxt = c + max(1, math.ceil(fraction * min(c, cap)))
+        if nxt > n:
+            return c
+        c = nxt
 
 
 def fill_nonfinite(y: np.ndarray) -> np.ndarray:
@@ -100,7 +182,7 @@ class FitReport:
     hyperparameters, so the critic keeps working; the failure is logged once through ``logger``
     (a ``WARNING``) and every failure is counted in :attr:`n_failed` (shown in the critic's
     :meth:`Critic.stats`). Copies of a critic made with :func:`copy.deepcopy` (e.g. the
-    fall-aware critic's probes) share the report: ``deepcopy`` returns the same object.
+    copies :meth:`Critic.propose` asks) share the report: ``deepcopy`` returns the same object.
 
     Args:
         what: the model, as shown in the log line (e.g. ``"TuRBO-m GP"``).
@@ -186,6 +268,10 @@ class Critic(ABC):
         self._y = np.empty(0)
         self._tags = np.empty(0, dtype=np.int64)
         self.last_tags: np.ndarray = np.empty(0, dtype=np.int64)
+        self._screen: _ScreenLink | None = None
+        self._proposer: Critic | None = None
+        self.last_screen: ScreenReport | None = None
+        """What the screen did in the last ask (``None`` without a screen)."""
 
     # ----------------------------------------------------------------- protocol
     def ask(self, n: int | None = None) -> np.ndarray:
@@ -196,10 +282,18 @@ class Critic(ABC):
         n = self.batch_size if n is None else n
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
             raise ValueError(f"n must be an integer >= 1, got {n!r}")
-        X, tags = self._ask(int(n))
-        X = np.clip(np.asarray(X, dtype=float).reshape(int(n), self.dim), 0.0, 1.0)
+        if self._screen is None:
+            X, tags = self._checked_ask(int(n))
+        else:
+            X, tags, self.last_screen = self._screened_ask(int(n))
         self.last_tags = np.asarray(tags, dtype=np.int64).reshape(int(n)).copy()
         return X
+
+    def _checked_ask(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_ask` with its points as float64 (n, dim) clipped to the box."""
+        X, tags = self._ask(n)
+        X = np.clip(np.asarray(X, dtype=float).reshape(n, self.dim), 0.0, 1.0)
+        return X, np.asarray(tags, dtype=np.int64).reshape(n)
 
     def tell(self, X: np.ndarray, y: np.ndarray, tags: np.ndarray | None = None,
              fell: np.ndarray | None = None) -> None:
@@ -232,6 +326,7 @@ class Critic(ABC):
         self._X = np.vstack([self._X, X])
         self._y = np.concatenate([self._y, y])
         self._tags = np.concatenate([self._tags, tags_a])
+        self._proposer = None
         self._tell(np.arange(start, start + X.shape[0]), tags_a)
 
     @abstractmethod
@@ -241,6 +336,81 @@ class Critic(ABC):
     @abstractmethod
     def _tell(self, idx: np.ndarray, tags: np.ndarray) -> None:
         """Update after the points ``self._X[idx]`` with costs ``self._y[idx]`` were appended."""
+
+    # -------------------------------------------------------------- screening
+    batch_policy: str = "drop"
+    """How the critic screens (module docstring): ``"drop"`` or ``"complete"``."""
+
+    def screen_with(self, screen: Screen) -> None:
+        """From now on, screen every ask with ``screen`` (module docstring, "Screening hooks").
+        Only a fresh critic (nothing told) can be given a screen; copies share it."""
+        if self.n_told:
+            raise ValueError(f"a screen needs a fresh critic, this one was told {self.n_told} "
+                             "points")
+        self._screen = _ScreenLink(screen)
+
+    def propose(self, m: int) -> tuple[np.ndarray, np.ndarray]:
+        """``m`` candidates ``(X (m, dim), tags (m,))`` in the critic's order of preference, as
+        its next asks would return them, without changing what the critic's next :meth:`ask`
+        after a tell depends on: the default asks a copy of the critic, kept (and asked again
+        by the next proposal, which continues from it) until the next :meth:`tell`."""
+        if self._proposer is None:
+            link, self._screen = self._screen, None
+            try:
+                self._proposer = copy.deepcopy(self)
+            finally:
+                self._screen = link
+        return self._proposer._checked_ask(int(m))
+
+    def screen_roles(self, X: np.ndarray, tags: np.ndarray) -> np.ndarray:
+        """Role (m,) int8 of each candidate ``X`` (m, dim) with ``tags`` (m,): :data:`EXEMPT`
+        for warm-start points (tag ``-2`` or a row of ``x0``), else :data:`SCREENED`. Critics
+        that need some of their points under their tag mark them :data:`REPLACE`."""
+        ex = np.asarray(tags) == X0_TAG
+        if self.x0 is not None and X.shape[0]:
+            ex |= np.any(np.all(X[:, None, :] == self.x0[None, :, :], axis=2), axis=1)
+        return np.where(ex, EXEMPT, SCREENED).astype(np.int8)
+
+    def replacement_candidates(self, tag: int, rank: int, m: int) -> np.ndarray:
+        """``m`` alternatives (m, dim) for the ``rank``-th :data:`REPLACE` candidate with tag
+        ``tag`` of a proposal, in order of preference; a deterministic function of the critic's
+        seed, state, ``tag`` and ``rank``. Only critics that mark candidates :data:`REPLACE`
+        implement it."""
+        raise NotImplementedError(f"{type(self).__name__} marks no candidate REPLACE")
+
+    def _screened_ask(self, n: int) -> tuple[np.ndarray, np.ndarray, ScreenReport]:
+        """The ``"drop"`` policy (module docstring): ``(X (n, dim), tags (n,), report)``."""
+        screen = self._screen.screen
+        thr = float(screen.max_fall_prob)
+        pred = screen.predictor()
+        if pred is None:                        # nothing to predict from: pass through
+            X, T = self.propose(n)
+            return X, T, ScreenReport(np.full(n, np.nan))
+        C, T = self.propose(n * int(screen.oversample))
+        p = np.asarray(pred(C), dtype=float).copy()
+        roles = self.screen_roles(C, T)
+        ex, repl = roles == EXEMPT, roles == REPLACE
+        ok = ex | repl | (p <= thr)
+        sel = np.flatnonzero(ok)[:n]
+        n_over = 0
+        if sel.size < n:                        # too few under the threshold: the least likely
+            rest = np.flatnonzero(~ok)
+            fill = rest[np.argsort(p[rest], kind="stable")[: n - sel.size]]
+            sel = np.sort(np.concatenate([sel, fill]))
+            n_over = int(fill.size)
+        screened = int(np.count_nonzero(~ok[: sel[-1] + 1])) - n_over
+        rank: dict[int, int] = {}
+        for i in sel[repl[sel]]:
+            j = rank[int(T[i])] = rank.get(int(T[i]), -1) + 1
+            if p[i] > thr:
+                Z = self.replacement_candidates(int(T[i]), j, 64)
+                pz = np.asarray(pred(Z), dtype=float)
+                good = np.flatnonzero(pz <= thr)
+                k = int(good[0]) if good.size else int(np.argmin(pz))
+                C[i], p[i] = Z[k], float(pz[k])
+                screened += 1
+                n_over += int(p[i] > thr)
+        return C[sel], T[sel], ScreenReport(p[sel], n_over, screened)
 
     # ---------------------------------------------------------------- history
     @property

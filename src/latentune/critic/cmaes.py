@@ -33,6 +33,22 @@
 * When pycma's termination criteria fire, the strategy restarts from a uniformly random mean
   (generator ``[seed, 1, restart]``) with ``sigma0``; the history is kept.
 * Non-finite costs are given to pycma as the worst finite cost seen so far.
+
+Screening (:meth:`~latentune.critic.base.Critic.screen_with`, e.g. a fall model)
+--------------------------------------------------------------------------------
+pycma updates only on complete generations of ``popsize`` points, so dropping points would stop
+it: the batch policy is ``"complete"``. Each generation is sampled whole and screened when it is
+sampled; members predicted to fall (probability ``p > max_fall_prob``; the ``x0`` rows are never
+screened) are not asked (not evaluated) but are passed to pycma, once the generation's evaluated
+members have all been told, with the cost ``M + 1 + p`` (``M`` = the largest finite cost of the
+evaluated members of this and all earlier screened generations), i.e. ranked below every
+evaluated member and among themselves by ``p``. Every generation has at least one evaluated
+member (the one with the lowest ``p`` if none is under the threshold). A generation is screened
+with the model fitted on the untagged told points and the evaluated members of the generations
+already passed to pycma when it was sampled (the number its tag records), so a resumed critic
+re-samples and re-screens the same generations. (Untagged points told after the first ask enter
+a generation's screening from the next generation on in the original run but at once in a
+resumed one.)
 """
 from __future__ import annotations
 
@@ -42,7 +58,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from latentune.critic.base import Critic, fill_nonfinite
+from latentune.critic.base import EXEMPT, Critic, ScreenReport, fill_nonfinite
 
 
 _GEN = 1 << 20
@@ -88,6 +104,7 @@ class CMAES(Critic):
     """
 
     method = "cma"
+    batch_policy = "complete"
 
     def __init__(self, dim: int, *, batch_size: int = 1, seed: int = 0,
                  x0: np.ndarray | None = None, sigma0: float = 1.0 / 6.0,
@@ -115,6 +132,12 @@ class CMAES(Critic):
         self._n_gen_told = 0                    # generations passed to pycma's tell
         self.n_restarts = 0
         self._n_rearm = 0
+        # screening (see "Screening"): generation -> (evaluated mask, p, over mask, active)
+        self._screened: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray, bool]] = {}
+        self._untagged: list[int] = []          # told indices without a tag
+        self._passed: list[int] = []            # told members of generations passed to pycma
+        self._max_real = -np.inf                # largest finite cost of evaluated members
+        self._n_new_screened = 0
         mean0 = self.x0[0] if self.x0 is not None else np.full(self.dim, 0.5)
         self._es = self._new_es(mean0)
         if self.x0 is not None:
@@ -148,7 +171,47 @@ class CMAES(Critic):
         self._gen_es[g] = self.n_restarts
         self._gen_told[g] = self._n_gen_told
         self._sampled[g] = pop
+        if self._screen is not None:
+            self._screen_generation(g, pop)
         return pop
+
+    def _screen_generation(self, g: int, pop: np.ndarray) -> None:
+        """Screen a freshly sampled generation (see "Screening")."""
+        screen = self._screen.screen
+        basis = np.asarray(self._untagged + self._passed, dtype=np.int64)
+        pred = screen.predictor(basis)
+        if pred is None:
+            p = np.zeros(pop.shape[0])
+        else:
+            p = np.maximum(np.asarray(pred(pop), dtype=float), 1e-300)
+        tags = np.full(pop.shape[0], encode_tag(g, self._gen_told[g]), dtype=np.int64)
+        ex = self.screen_roles(pop, tags) == EXEMPT
+        thr = float(screen.max_fall_prob)
+        real = ex | (p <= thr)
+        if not real.any():
+            real[int(np.argmin(p))] = True
+        self._screened[g] = (real, p, real & ~ex & (p > thr), pred is not None)
+        self._n_new_screened += int(np.count_nonzero(~real))
+
+    def _asked_rows(self, g: int) -> np.ndarray:
+        """The members of sampled generation ``g`` that asks return (all without a screen)."""
+        pop = self._sampled.get(g, np.empty((0, self.dim)))
+        return pop[self._screened[g][0]] if g in self._screened and pop.shape[0] else pop
+
+    def _screened_ask(self, n: int) -> tuple[np.ndarray, np.ndarray, ScreenReport]:
+        """The ``"complete"`` policy: generations are screened as they are sampled."""
+        self._n_new_screened = 0
+        X, T = self._checked_ask(n)
+        p, n_over = np.full(n, np.nan), 0
+        for k, (x, t) in enumerate(zip(X, T)):
+            g = decode_tag(int(t))[0]
+            if g not in self._screened:
+                continue
+            real, pg, over, active = self._screened[g]
+            j = int(np.flatnonzero(np.all(self._sampled[g] == x, axis=1))[0])
+            p[k] = pg[j] if active else np.nan
+            n_over += int(over[j])
+        return X, T, ScreenReport(p, n_over, self._n_new_screened)
 
     def _es_tell(self, X: np.ndarray, y: np.ndarray) -> None:
         with _cma_warnings_filtered():
@@ -169,7 +232,8 @@ class CMAES(Critic):
             if not self._queue:
                 g = self._gen
                 self._gen += 1
-                self._queue = [(x, g) for x in self._sample_generation(g)]
+                self._sample_generation(g)
+                self._queue = [(x, g) for x in self._asked_rows(g)]
             x, g = self._queue.pop(0)
             out.append(x)
             tags.append(encode_tag(g, self._gen_told[g]))
@@ -183,18 +247,33 @@ class CMAES(Critic):
             if g >= self._gen or (limit is not None and self._n_gen_told >= limit):
                 break
             members = self._pending[g]
-            if len(members) < self.popsize:
+            screened = self._screened.pop(g, None) if g in self._screened else None
+            if len(members) < (self.popsize if screened is None else int(screened[0].sum())):
+                if screened is not None:
+                    self._screened[g] = screened
                 continue
             del self._pending[g]
-            self._sampled.pop(g, None)
+            pop = self._sampled.pop(g, None)
             if self._gen_es.get(g) != self.n_restarts:
                 self._foreign.extend(members)   # sampled by an es that has since restarted
                 continue
-            self._es_tell(self._X[members], yfill[members])
+            Xg, yg = self._X[members], yfill[members]
+            if screened is not None and pop is not None:
+                fin = self._y[members][np.isfinite(self._y[members])]
+                if fin.size:
+                    self._max_real = max(self._max_real, float(fin.max()))
+                M = self._max_real if np.isfinite(self._max_real) else 0.0
+                virtual = ~screened[0] & ~np.array([np.any(np.all(Xg == x, axis=1))
+                                                   for x in pop], dtype=bool)
+                Xg = np.vstack([Xg, pop[virtual]])
+                yg = np.concatenate([yg, M + 1.0 + screened[1][virtual]])
+            self._es_tell(Xg, yg)
+            self._passed.extend(members)
             self._n_gen_told += 1
 
     def _tell(self, idx: np.ndarray, tags: np.ndarray) -> None:
         self._foreign.extend(int(i) for i, t in zip(idx, tags) if t < 0)
+        self._untagged.extend(int(i) for i, t in zip(idx, tags) if t < 0)
         for i, t in zip(idx, tags):
             if t >= 0:
                 g, c = decode_tag(int(t))
@@ -212,7 +291,7 @@ class CMAES(Critic):
         self._tell_complete(None)
         if resampled:     # the last generation's points not told yet are asked next
             g = self._gen - 1
-            self._queue = [(x, g) for x in self._sampled.get(g, np.empty((0, self.dim)))]
+            self._queue = [(x, g) for x in self._asked_rows(g)]
         if self._queue:   # a queued point told already (a replay in several tells) is dropped
             told = self._X[idx]
             self._queue = [(x, g) for x, g in self._queue
@@ -225,6 +304,11 @@ class CMAES(Critic):
         while len(self._foreign) >= self.popsize:
             chunk, self._foreign = self._foreign[:self.popsize], self._foreign[self.popsize:]
             self._es_tell(self._X[chunk], yfill[chunk])
+
+    @property
+    def n_generations_told(self) -> int:
+        """Generations passed to pycma's ``tell`` so far."""
+        return self._n_gen_told
 
     @property
     def sigma(self) -> float:

@@ -141,6 +141,13 @@ fell=)``); the pipeline sets both with the fall-aware option (``max_fall_prob``)
   so (while all of them fell, its centre is a fall too). Falls are known only from ``fell``;
   without it nothing shrinks. The flags enter the tell like the costs, so a replay of the
   store is exact.
+
+Screened by a fall model (the critic protocol's screening hooks, :mod:`latentune.critic.base`),
+TuRBO-m has the ``"drop"`` batch policy; its initial-design points are replace-only (a region
+counts design points by their tag, not their position, so its state is the same as if the
+design had held the replacement), replaced by scrambled-Sobol points of the region's
+:meth:`TurboM.design_box` (:meth:`TurboM.replacement_candidates`), and the GP hyperparameters a
+proposal fits are kept (:meth:`TurboM.propose`).
 """
 from __future__ import annotations
 
@@ -154,7 +161,8 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from latentune.critic.base import Critic, FitReport, fill_nonfinite, gaussian_copula
+from latentune.critic.base import (REPLACE, SCREENED, Critic, FitReport, fill_nonfinite,
+                                   gaussian_copula, refit_checkpoint)
 
 logger = logging.getLogger(__name__)
 
@@ -711,17 +719,9 @@ class TurboM(Critic):
         self.fit_report.record(True)
         return True
 
-    def _next_checkpoint(self, c: int) -> int:
-        return c + max(1, math.ceil(self.refit_fraction * min(c, self.max_fit_points)))
-
     def _checkpoint(self, n: int) -> int:
-        """Largest refit checkpoint <= n (checkpoints start at 2)."""
-        c = 2
-        while True:
-            nxt = self._next_checkpoint(c)
-            if nxt > n:
-                return c
-            c = nxt
+        """Largest refit checkpoint <= n (:func:`~latentune.critic.base.refit_checkpoint`)."""
+        return refit_checkpoint(n, self.refit_fraction, self.max_fit_points)
 
     def _region_model(self, tr: TrustRegion, z: np.ndarray):
         """Fitted GP of a region on its standardized warped costs, with (median, scale)."""
@@ -859,6 +859,7 @@ class TurboM(Critic):
         restarted since, or another index are skipped; they refit as usual)."""
         if not state or state.get("method") != self.method:
             return
+        self._proposer = None
         for r in state.get("regions", []):
             i = int(r.get("index", -1))
             if not 0 <= i < self.n_regions or self.regions[i].epoch != int(r.get("epoch", -1)):
@@ -866,6 +867,40 @@ class TurboM(Critic):
             tr = self.regions[i]
             tr.hypers = {k: np.asarray(v, dtype=float) for k, v in r["hypers"].items()}
             tr.fit_count = int(r["fit_count"])
+
+    # ------------------------------------------------------------------ screening hooks
+    def propose(self, m: int) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`Critic.propose <latentune.critic.base.Critic.propose>`; the GP
+        hyperparameters the proposal fitted are kept, so refits follow the region's own
+        checkpoints whether or not its asks are screened."""
+        X, T = super().propose(m)
+        for ri, rp in zip(self.regions, self._proposer.regions):
+            if ri.index == rp.index and ri.epoch == rp.epoch and rp.hypers is not None:
+                ri.hypers = {k: np.array(v, copy=True) for k, v in rp.hypers.items()}
+                ri.fit_count = rp.fit_count
+        return X, T
+
+    def screen_roles(self, X: np.ndarray, tags: np.ndarray) -> np.ndarray:
+        """Initial-design points are :data:`~latentune.critic.base.REPLACE`: a region needs its
+        whole design told before it models anything, and counts design points by their tag,
+        not their position (warm-start points stay exempt)."""
+        roles = super().screen_roles(X, tags)
+        design = np.array([t >= 0 and decode_tag(int(t))[1] == KIND_DESIGN for t in tags],
+                          dtype=bool)
+        roles[(roles == SCREENED) & design] = REPLACE
+        return roles
+
+    def replacement_candidates(self, tag: int, rank: int, m: int) -> np.ndarray:
+        """``m`` scrambled-Sobol points (m, dim) of the design box (:meth:`design_box`) of the
+        region of design tag ``tag``, seeded by the critic's seed, ``tag`` and ``rank``."""
+        import torch
+        from torch.quasirandom import SobolEngine
+
+        r = decode_tag(tag)[2]
+        lo, hi = self.design_box(r, self.regions[r].epoch)
+        s = int(np.random.default_rng([self.seed, 7, int(tag), int(rank)]).integers(2 ** 31))
+        Z = SobolEngine(self.dim, scramble=True, seed=s).draw(int(m), dtype=torch.float64).numpy()
+        return lo + Z * (hi - lo)
 
     # ------------------------------------------------------------------ inspection
     def stats(self) -> dict[str, Any]:

@@ -16,6 +16,27 @@ For the robot R (a1: convex MPC, solo12: kino-dynamic MPC) and each gait g in (t
                     decoder of ``R-trot``'s VAE and rolled out again (store phase 5, idx = the
                     source row's idx). Rate = stable after encode→decode / stable before.
 
+Seeds (``--seeds N``, seed indices i = 0..N-1; run directory = seed 0's key + ``-s<i>`` for i > 0)
+------------------------------------------------------------------------------------------------
+The sources — ``R-g``'s phase 1 and VAE, and the preservation run — are run once (seed 0), as the
+paper does; every seed reuses them. Per seed index i, with the study seed ``--seed + i`` and the
+same target tasks (task seed ``--seed``, so hills are the same terrain for every seed):
+
+``R-g-flat-s<i>``, ``R-g-hills-s<i>``, ``R-g-cross-s<i>``, ``b1-g-transfer-s<i>``  the paper's
+                    plain phase 3 (i > 0; seed 0's are the studies above)
+``<same stems>-default[-s<i>]``  latentune's default phase 3 (``strategy="transfer"``) beside it
+``R-g-<m>[-s<i>]``  baselines on θ from the manual θ: m = turbo, cma, random (latentune's
+                    critics; seed 0's are the studies above), tpe (Optuna's multivariate TPE),
+                    cmaes-src (Optuna's CMA-ES with ``R-g``'s trials as ``source_trials``)
+``R-g-cross-<m>[-s<i>]``, ``b1-g-transfer-<m>[-s<i>]``  baselines on the cross-task and the
+                    cross-robot target from the zero-shot θ (the source run's best θ), m =
+                    turbo, cma, tpe, cmaes-src (the source run's trials as ``source_trials``)
+
+The Optuna baselines need the ``optuna`` extra; without it they are skipped with a warning.
+Each study records its comparison (``row``) and method (``arm``) in ``paper.json``; the report
+gives median and interquartile range over the seeds in every cell, and best-so-far curves with
+bands.
+
 Budget scale
 ------------
 ``--scale S`` maps to (``budgets``; recorded in ``DIR/paper.json`` and the report)::
@@ -86,38 +107,114 @@ class StudyPlan:
     gait: str
     terrain: str = "flat"
     vae_from: str | None = None   # key of the study whose VAE phase 3 uses
-    method: str = "turbo"
+    method: str = "turbo"     # turbo | cma | random (latentune) | tpe | cmaes-src (Optuna)
     budget: int = 0
-    seed_offset: int = 0
+    seed_offset: int = 0      # the task's seed: DIR's --seed + seed_offset
     label: str = ""
     extra: dict[str, Any] = field(default_factory=dict)
+    strategy: str = "plain"   # phase 3: plain (the paper's) | transfer (latentune's default)
+    source: str | None = None     # baselines: the run whose trials cmaes-src starts from
+    start: str = "manual"     # baselines: manual (the task's manual θ) | source (source's best θ)
+    seed_index: int = 0       # the study's seed: DIR's --seed + seed_offset + seed_index
+    row: str | None = None    # the seeded comparison this study is one seed of
+    arm: str | None = None    # its method in that comparison (ARMS)
 
 
-def plan(robot: str, b: dict[str, Any]) -> list[StudyPlan]:
-    """The studies of ``latentune paper --robot R`` in execution order."""
+ARMS = {"phase3-plain": "phase 3, plain (the paper's)",
+        "phase3-transfer": "phase 3, default (transfer)",
+        "turbo": "TuRBO-m on θ", "cma": "CMA-ES on θ", "random": "random search on θ",
+        "tpe": "Optuna TPE (multivariate) on θ",
+        "cmaes-src": "Optuna CMA-ES with source_trials on θ"}
+"""The methods of the seeded comparisons (arm key -> label)."""
+OPTUNA_METHODS = {"tpe": "tpe", "cmaes-src": "cmaes"}
+"""Baselines run by Optuna's samplers (:func:`latentune.integrations.optuna.run_baseline`)."""
+OWN_BASELINES = ("turbo", "cma", "random", "tpe", "cmaes-src")
+"""On a study's own task, from the manual θ (cmaes-src: the task's phase-1 trials)."""
+CROSS_BASELINES = ("turbo", "cma", "tpe", "cmaes-src")
+"""On a cross-task / cross-robot target, from the zero-shot θ (the source run's best;
+cmaes-src: the source run's trials)."""
+
+
+def _sfx(i: int) -> str:
+    return "" if i == 0 else f"-s{i}"
+
+
+def plan(robot: str, b: dict[str, Any], seeds: int = 1) -> list[StudyPlan]:
+    """The studies of ``latentune paper --robot R --seeds N`` in execution order: seed 0's
+    (the paper's layout, one seed) first, then the transfer rows and baselines per seed.
+
+    Seed index i > 0 repeats phase 3 (both strategies) and the baselines with the study seed
+    ``--seed + i`` on the same source runs (``R-g``, their VAEs) and the same target tasks;
+    its run directories are seed 0's key + ``-s<i>``."""
     R = robot
     other = {"trot": "jump", "jump": "trot"}
     st: list[StudyPlan] = []
     for g in GAITS:
         st.append(StudyPlan(f"{R}-{g}", "tune", R, g, budget=b["phase1"],
-                        label=f"{R} {g}: manual, phase 1, VAE, phase 3 (flat)"))
+                            label=f"{R} {g}: manual, phase 1, VAE, phase 3 (flat)",
+                            row=g, arm="phase3-plain"))
     for g in GAITS:
         st.append(StudyPlan(f"{R}-{g}-hills", "phase3", R, g, "hills", vae_from=f"{R}-{g}",
-                        budget=b["phase3"], label=f"{R} {g}: phase 3 on hills ({g} VAE, flat)"))
+                            budget=b["phase3"], label=f"{R} {g}: phase 3 on hills ({g} VAE, flat)",
+                            row=f"{g}-hills", arm="phase3-plain"))
     for g in GAITS:
         st.append(StudyPlan(f"{R}-{g}-cross", "phase3", R, g, vae_from=f"{R}-{other[g]}",
-                        budget=b["phase3"], label=f"{R} {g}: phase 3 with the {other[g]} VAE"))
+                            budget=b["phase3"], label=f"{R} {g}: phase 3 with the {other[g]} VAE",
+                            row=f"{g}-cross", arm="phase3-plain"))
     if R == "a1":
         for g in GAITS:
             st.append(StudyPlan(f"b1-{g}-transfer", "phase3", "b1", g, vae_from="a1-trot",
-                            budget=b["phase3"], label=f"B1 {g}: phase 3 with the A1 trot VAE"))
+                                budget=b["phase3"], label=f"B1 {g}: phase 3 with the A1 trot VAE",
+                                row=f"b1-{g}", arm="phase3-plain"))
     st.append(StudyPlan(f"{R}-trot-preservation", "preservation", R, "trot", vae_from=f"{R}-trot",
-                    budget=b["preservation"], seed_offset=1,
-                    label=f"{R} trot: separate TuRBO-m run (seed+1) → encode/decode"))
+                        budget=b["preservation"], seed_offset=1,
+                        label=f"{R} trot: separate TuRBO-m run (seed+1) → encode/decode"))
     for g in GAITS:
         for m in BASELINES:
             st.append(StudyPlan(f"{R}-{g}-{m}", "baseline", R, g, method=m, budget=b["baselines"],
-                            label=f"{R} {g}: {m} on θ at the phase-3 budget"))
+                                label=f"{R} {g}: {m} on θ at the phase-3 budget", row=g, arm=m))
+    for i in range(seeds):
+        st += _seeded(R, b, i)
+    return st
+
+
+def _seeded(R: str, b: dict[str, Any], i: int) -> list[StudyPlan]:
+    """Seed index ``i``'s phase-3 rows (plain for i > 0; the transfer strategy for every i)
+    and baselines, jump first (the paper's claims are about jump)."""
+    other = {"trot": "jump", "jump": "trot"}
+    sx, B = _sfx(i), b["phase3"]
+    targets = []        # (row, key stem, robot, gait, terrain, vae/source)
+    for g in ("jump", "trot"):
+        targets += [(g, f"{R}-{g}-flat", R, g, "flat", f"{R}-{g}"),
+                    (f"{g}-hills", f"{R}-{g}-hills", R, g, "hills", f"{R}-{g}"),
+                    (f"{g}-cross", f"{R}-{g}-cross", R, g, "flat", f"{R}-{other[g]}")]
+        if R == "a1":
+            targets.append((f"b1-{g}", f"b1-{g}-transfer", "b1", g, "flat", "a1-trot"))
+    st: list[StudyPlan] = []
+    seed_txt = f" (seed +{i})" if i else ""
+    for row, stem, robot, g, terrain, src in targets:
+        if i > 0:
+            st.append(StudyPlan(f"{stem}{sx}", "phase3", robot, g, terrain, vae_from=src, budget=B,
+                                seed_index=i, row=row, arm="phase3-plain",
+                                label=f"{robot} {g} {terrain}: plain phase 3, {src} VAE{seed_txt}"))
+        st.append(StudyPlan(f"{stem}-default{sx}", "phase3", robot, g, terrain, vae_from=src,
+                            budget=B, seed_index=i, row=row, arm="phase3-transfer",
+                            strategy="transfer",
+                            label=f"{robot} {g} {terrain}: default phase 3 (transfer), {src} "
+                                  f"source{seed_txt}"))
+    for row, stem, robot, g, terrain, src in targets:
+        if terrain != "flat":
+            continue
+        own = row == g
+        for m in (OWN_BASELINES if own else CROSS_BASELINES):
+            if own and i == 0 and m in BASELINES:
+                continue                     # seed 0's are the paper layout's R-g-<m>
+            key = f"{R}-{g}-{m}{sx}" if own else f"{stem}-{m}{sx}"
+            start = "manual θ" if own else f"{src}'s best θ"
+            st.append(StudyPlan(key, "baseline", robot, g, method=m, budget=B, seed_index=i,
+                                source=src if (m == "cmaes-src" or not own) else None,
+                                start="manual" if own else "source", row=row, arm=m,
+                                label=f"{robot} {g}: {ARMS[m]} from the {start}{seed_txt}"))
     return st
 
 
@@ -138,6 +235,8 @@ class PaperOptions:
     v_des: float = 0.5
     quiet: bool = False
     sources_only: bool = False   # only the phase-1 runs (the sources): R-g and R-trot-preservation
+    seeds: int = 1               # phase 3, transfer rows and baselines over seed indices 0..N-1
+    progress: bool = False       # progress bars (never with quiet)
 
 
 def _done(out: Path, plan_: StudyPlan, b: dict[str, Any]) -> bool:
@@ -158,6 +257,18 @@ def _done(out: Path, plan_: StudyPlan, b: dict[str, Any]) -> bool:
             pres.get("n_phase1") == st.count(Phase.PHASE1)
 
 
+def _start(root: Path, plan_: StudyPlan) -> Any:
+    """A baseline's first θ: ``"manual"``, or the source run's best θ (the zero-shot θ)."""
+    if plan_.start == "manual":
+        return "manual"
+    from latentune.study import source_best
+
+    best = source_best(root / str(plan_.source))
+    if best is None:
+        raise UsageError(f"{root / str(plan_.source)} holds no trial: run its study first")
+    return best.theta
+
+
 def run_study(plan_: StudyPlan, opts: PaperOptions, root: Path, b: dict[str, Any], evaluator: Any,
               log: Any) -> None:
     """Run (or resume) one planned study as a :class:`~latentune.study.Study` under ``root``."""
@@ -176,22 +287,38 @@ def run_study(plan_: StudyPlan, opts: PaperOptions, root: Path, b: dict[str, Any
     if _done(out, plan_, b):
         log(f"[{plan_.key}] done (skipped)")
         return
+    optuna_run = None
+    if plan_.method in OPTUNA_METHODS:
+        try:
+            from latentune.integrations.optuna import run_baseline as optuna_run
+        except ImportError:
+            logger.warning("[%s] skipped: Optuna is not installed (pip install "
+                           "'latentune[optuna]')", plan_.key)
+            return
     log(f"[{plan_.key}] {plan_.label}")
-    seed = opts.seed + plan_.seed_offset
+    seed = opts.seed + plan_.seed_offset        # the task's: the same target for every seed
     task = Task(robot=plan_.robot, gait=plan_.gait, terrain=plan_.terrain, actor=opts.actor,
                 v_des=opts.v_des, steps=opts.steps, seed=seed)
-    study = Study(out, seed=seed, workers=opts.workers, progress=not opts.quiet,
-                  log=None if opts.quiet else log, evaluator=evaluator)
+    study = Study(out, seed=seed + plan_.seed_index, workers=opts.workers,
+                  progress=opts.progress and not opts.quiet, log=None if opts.quiet else log,
+                  evaluator=evaluator)
     try:
         if plan_.kind == "tune":
             study.phase1(task, b["phase1"], method=plan_.method)
             study.train_latent()
             study.phase3(task, b["phase3"], method=plan_.method, strategy="plain")
         elif plan_.kind == "phase3":
-            study.phase3(task, plan_.budget, latent=root / plan_.vae_from, method=plan_.method,
-                         strategy="plain")
+            study.phase3(task, plan_.budget, latent=root / plan_.vae_from,
+                         strategy=plan_.strategy,
+                         **({"method": plan_.method} if plan_.strategy == "plain" else {}))
         elif plan_.kind == "baseline":
-            study.phase1(task, plan_.budget, method=plan_.method)
+            start = _start(root, plan_)
+            if optuna_run is not None:
+                optuna_run(study, task, plan_.budget, sampler=OPTUNA_METHODS[plan_.method],
+                           start=start, source_run=None if plan_.method != "cmaes-src"
+                           else root / str(plan_.source))
+            else:
+                study.phase1(task, plan_.budget, method=plan_.method, start=start)
         elif plan_.kind == "preservation":
             study.phase1(task, plan_.budget, method=plan_.method)
             res = study.preservation(task, root / plan_.vae_from)
@@ -230,6 +357,11 @@ def validate(opts: PaperOptions) -> dict[str, Any]:
         raise UsageError(f"--seed must be >= 0, got {opts.seed}")
     if not math.isfinite(opts.v_des):
         raise UsageError(f"--v-des must be finite, got {opts.v_des}")
+    if isinstance(opts.seeds, bool) or not isinstance(opts.seeds, int) or opts.seeds < 1:
+        raise UsageError(f"--seeds must be an integer >= 1, got {opts.seeds!r}")
+    if opts.sources_only and opts.seeds > 1:
+        raise UsageError("--seeds does not apply to --sources-only: the sources are run once "
+                         "(seed 0) and shared by every seed")
     return b
 
 
@@ -242,6 +374,8 @@ def command_line(opts: PaperOptions, report_only: bool = False) -> str:
         parts.append(f"--phase1-evals {opts.phase1}")
     if opts.phase3 is not None:
         parts.append(f"--phase3-evals {opts.phase3}")
+    if opts.seeds > 1:
+        parts.append(f"--seeds {opts.seeds}")
     if opts.sources_only:
         parts.append("--sources-only")
     if report_only:
@@ -276,16 +410,22 @@ def run_paper(opts: PaperOptions, report_only: bool = False, simulate: bool = Tr
         if not opts.quiet:
             logger.info("%s", msg)
 
-    studies = plan(opts.robot, b)
+    studies = plan(opts.robot, b, opts.seeds)
     if not report_only:
         t0 = time.perf_counter()
         meta.update({"format": "latentune-paper", "robot": opts.robot, "actor": opts.actor,
                      "steps": opts.steps, "seed": opts.seed, "v_des": opts.v_des,
                      "workers": opts.workers, "budgets": b, "command": command_line(opts),
+                     "seeds": opts.seeds,
                      "studies": {s.key: {"kind": s.kind, "robot": s.robot, "gait": s.gait,
                                          "terrain": s.terrain, "vae_from": s.vae_from,
                                          "method": s.method, "budget": s.budget,
-                                         "seed": opts.seed + s.seed_offset, "label": s.label}
+                                         "seed": opts.seed + s.seed_offset + s.seed_index,
+                                         "task_seed": opts.seed + s.seed_offset,
+                                         "label": s.label, "strategy": s.strategy,
+                                         "start": s.start, "source": s.source,
+                                         "seed_index": s.seed_index, "row": s.row,
+                                         "arm": s.arm}
                                  for s in studies}})
         meta.setdefault("invocations", [])
         meta["invocations"].append({"started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),

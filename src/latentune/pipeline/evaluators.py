@@ -12,6 +12,8 @@ An evaluator maps ``fun`` over the rows of ``X`` (n, d):
   (the message, one line) in place of the Outcome, the same way on every backend; ``map``
   raises :class:`~latentune.system.EvaluationError` for it. Trials that finished are yielded
   before the error is seen by the caller's next step, so they can be stored.
+* On Ray, a trial lost with its worker or node (no result) is run again on another worker and
+  yielded once (:class:`RayEvaluator`).
 
 Workers keep one instance of a System that has ``cache_key()`` (a simulated Task keeps its
 PyBullet client) for the rest of their life, and run with one BLAS thread: each worker sets the
@@ -264,29 +266,76 @@ class _RayWorker:
     def run(self, fun: Any, key: str | None, x: np.ndarray) -> Outcome | TrialError:
         return run_trial(fun, key, x)
 
+    def ping(self) -> bool:
+        return True
+
+
+def _one_line(exc: BaseException, limit: int = 300) -> str:
+    return f"{type(exc).__name__}: {' '.join(str(exc).split())[:limit]}"
+
+
+def _check_reachable(address: str, timeout: float = 10.0) -> None:
+    """Raise ConnectionError if a ``HOST:PORT`` Ray address does not accept a TCP connection
+    within ``timeout`` seconds (Ray itself retries such an address without end). Other forms
+    (``auto``, ``ray://…``) are left to Ray."""
+    import socket
+
+    host, sep, port = address.rpartition(":")
+    if not sep or "://" in address or not port.isdigit():
+        return
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=timeout):
+            pass
+    except OSError as exc:
+        raise ConnectionError(f"no Ray cluster answers at {address} ({exc.strerror or exc}); "
+                              "start its head (ray start --head) or correct the address"
+                              ) from None
+
 
 class RayEvaluator(Evaluator):
-    """``workers`` Ray actors on a cluster (``address``) or on a local Ray started here.
+    """``workers`` Ray actors (one CPU each) on a cluster (``address``) or on a local Ray.
 
     A local Ray gets ``num_cpus=workers``; its temp dir is ``temp_dir`` or ``$RAY_TMPDIR``.
-    Ray is shut down on :meth:`close` only if this evaluator started it.
+    Ray is shut down on :meth:`close` only if this evaluator started it. A ``HOST:PORT``
+    address that accepts no connection raises ConnectionError at once.
+
+    Lost workers: a trial whose actor dies before it returns (its node stopped or lost, the
+    worker process killed or out of memory, its connection lost) has given no result; it is run
+    again on another actor, and yielded once, when a run of it returns. Its Outcome's ``info``
+    then holds ``lost_runs`` (how many runs of it were lost). A trial lost ``max_losses`` times
+    (a system that crashes its worker process) yields a :class:`TrialError`. Ray restarts a
+    lost actor wherever the cluster has a free CPU (a node that comes back, or one that joins);
+    until then the remaining actors take every trial. If no actor is alive for
+    ``lost_timeout`` seconds while trials wait (all lost, or none placed: more workers than the
+    cluster has free CPUs is fine, the actors without one take no trials),
+    ``imap`` raises :class:`~latentune.system.EvaluationError` (the trials it yielded before
+    are complete). ``lost_trials`` counts the lost runs since the evaluator started.
     """
 
     def __init__(self, workers: int = 2, address: str | None = None,
-                 temp_dir: str | None = None) -> None:
+                 temp_dir: str | None = None, max_losses: int = 3,
+                 lost_timeout: float = 300.0) -> None:
         try:
             import ray
         except ImportError:
             raise RuntimeError("the ray backend needs ray (pip install 'latentune[ray]')") from None
         if workers < 1:
             raise ValueError("workers must be >= 1")
+        if max_losses < 1:
+            raise ValueError("max_losses must be >= 1")
+        if not lost_timeout > 0:
+            raise ValueError("lost_timeout must be > 0")
         self.workers = int(workers)
         self.address = address
+        self.max_losses = int(max_losses)
+        self.lost_timeout = float(lost_timeout)
+        self.lost_trials = 0
         self._owns = False
         if not ray.is_initialized():
             kw: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False,
                                   "configure_logging": False}
             if address:
+                _check_reachable(address)
                 ray.init(address=address, **kw)
             else:
                 tmp = temp_dir or os.environ.get("RAY_TMPDIR")
@@ -295,10 +344,44 @@ class RayEvaluator(Evaluator):
                 ray.init(num_cpus=self.workers, **kw)
             self._owns = True
         self._ray = ray
-        actor = ray.remote(num_cpus=1, runtime_env={"env_vars": thread_env()})(_RayWorker)
+        from ray import exceptions as rex
+
+        # a run that gave no result because its worker or node went away: run it again
+        self._lost_types: tuple[type[BaseException], ...] = (
+            rex.RayActorError, rex.WorkerCrashedError, rex.NodeDiedError, rex.ObjectLostError,
+            rex.OutOfMemoryError)
+        # Ray restarts a lost actor (wherever a CPU is free) and never retries its task: the
+        # lost trial is re-run here, on whichever actor is free first
+        actor = ray.remote(num_cpus=1, max_restarts=-1, max_task_retries=0,
+                           runtime_env={"env_vars": thread_env()})(_RayWorker)
         self._actors = [actor.remote() for _ in range(self.workers)]
+        self._idle: list[Any] = []              # actors known to be alive and free
+        self._back: dict[Any, Any] = {}         # ref -> actor that is idle once ref is done
+        self._later: list[tuple[float, Any]] = []   # (when, actor): ping it again then
+        for a in self._actors:                  # an actor takes trials once it answers: one
+            self._wait_back(a)                  # the cluster has no CPU for yet takes none
+
+    def _lost(self, exc: BaseException) -> bool:
+        return isinstance(exc, self._lost_types)
+
+    def _wait_back(self, actor: Any) -> None:
+        """``actor`` is new or lost a run: it joins the idle actors when a ping returns (once
+        Ray has placed it, or restarted it if it died)."""
+        self._back[actor.ping.remote()] = actor
+
+    def _timeout(self, running: bool) -> float | None:
+        """Ping the actors whose retry time has come; how long the next wait may block."""
+        now = time.monotonic()
+        due = [a for t, a in self._later if t <= now]
+        self._later = [(t, a) for t, a in self._later if t > now]
+        for a in due:
+            self._wait_back(a)
+        waits = [t - now for t, _ in self._later] + ([] if running else [1.0])
+        return min(waits) if waits else None
 
     def imap(self, fun: Any, X: np.ndarray) -> Iterator[tuple[int, Outcome | TrialError]]:
+        from collections import deque
+
         ray = self._ray
         X = np.asarray(X, dtype=float)
         try:
@@ -309,26 +392,80 @@ class RayEvaluator(Evaluator):
                 raise _unshippable(fun, exc) from None
             fun, fun_ref = ref, ray.put(ref)
         key = _key(fun)
-        todo = list(range(X.shape[0]))
-        idle = list(self._actors)
+        todo = deque(range(X.shape[0]))
+        losses = [0] * X.shape[0]
         running: dict[Any, tuple[int, Any]] = {}
-        while todo or running:
-            while todo and idle:
-                i, a = todo.pop(0), idle.pop(0)
-                running[a.run.remote(fun_ref, key, X[i])] = (i, a)
-            done, _ = ray.wait(list(running), num_returns=1)
-            for ref in done:
-                i, a = running.pop(ref)
-                idle.append(a)
-                yield i, ray.get(ref)
+        none_alive: float | None = None        # since when no actor is alive (trials waiting)
+        try:
+            while todo or running:
+                while todo and self._idle:
+                    i, a = todo.popleft(), self._idle.pop(0)
+                    running[a.run.remote(fun_ref, key, X[i])] = (i, a)
+                if running:
+                    none_alive = None
+                elif none_alive is None:
+                    none_alive = time.monotonic()
+                elif time.monotonic() - none_alive > self.lost_timeout:
+                    raise EvaluationError(
+                        f"no Ray worker of {self.workers} was alive for {self.lost_timeout:g} s "
+                        "(the cluster's nodes were lost or it has no free CPU; "
+                        f"{self.lost_trials} trial runs lost); the trials finished so far are "
+                        f"complete, {len(todo)} were not run")
+                timeout = self._timeout(bool(running))
+                refs = [*running, *self._back]
+                if not refs:                    # every actor waits for its next ping
+                    time.sleep(timeout or 1.0)
+                    continue
+                done, _ = ray.wait(refs, num_returns=1, timeout=timeout)
+                for ref in done:
+                    if ref in self._back:
+                        a = self._back.pop(ref)
+                        try:
+                            ray.get(ref)
+                            self._idle.append(a)
+                        except Exception as exc:  # noqa: BLE001 - sorted below
+                            if not self._lost(exc):   # it cannot start at all (its runtime env)
+                                raise EvaluationError("a Ray worker could not start: "
+                                                      f"{_one_line(exc)}") from None
+                            log.debug("a Ray worker is not back yet: %s", _one_line(exc))
+                            self._later.append((time.monotonic() + 2.0, a))
+                        continue
+                    i, a = running.pop(ref)
+                    try:
+                        r = ray.get(ref)
+                    except Exception as exc:  # noqa: BLE001 - sorted below
+                        if not self._lost(exc):
+                            self._idle.append(a)
+                            yield i, TrialError(f"a Ray worker could not run the trial: "
+                                                f"{_one_line(exc)}")
+                            continue
+                        losses[i] += 1
+                        self.lost_trials += 1
+                        self._wait_back(a)
+                        if losses[i] >= self.max_losses:
+                            yield i, TrialError(f"the trial was lost with its Ray worker "
+                                                f"{losses[i]} times ({_one_line(exc, 200)})")
+                            continue
+                        log.warning("a Ray worker was lost (%s); its trial is run again",
+                                    _one_line(exc, 160))
+                        todo.appendleft(i)
+                        continue
+                    self._idle.append(a)
+                    if losses[i] and isinstance(r, Outcome):
+                        r = Outcome(r.cost, r.failed, {**r.info, "lost_runs": losses[i]},
+                                    r.wall_s)
+                    yield i, r
+        finally:
+            for ref, (_, a) in running.items():   # abandoned runs: the actor is busy until done
+                self._back[ref] = a
 
     def close(self) -> None:
         for a in getattr(self, "_actors", []):
             try:
-                self._ray.kill(a)
+                self._ray.kill(a, no_restart=True)
             except Exception as exc:  # noqa: BLE001 - the actor may already be gone
-                log.debug("killing a Ray actor: %s: %s", type(exc).__name__, exc)
-        self._actors = []
+                log.debug("killing a Ray actor: %s", _one_line(exc))
+        self._actors, self._idle, self._back, self._later = [], [], {}, []
         if self._owns and self._ray.is_initialized():
             self._ray.shutdown()
             self._owns = False

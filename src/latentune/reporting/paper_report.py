@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import time
 from pathlib import Path
 from typing import Any, Callable
@@ -35,7 +36,8 @@ METHOD_NAME = {"turbo": "TuRBO-m on θ (full space)", "cma": "CMA-ES on θ",
 GAITS = ("trot", "jump")
 OTHER_GAIT = {"trot": "jump", "jump": "trot"}
 STUDY_PHASES = ((Phase.MANUAL, "manual"), (Phase.PHASE1, "phase1"), (Phase.PHASE3, "phase3"),
-                (Phase.PRESERVATION, "preservation"))
+                (Phase.ZERO_SHOT, "zero_shot"), (Phase.PRESERVATION, "preservation"))
+BASELINE_ARMS = ("turbo", "cma", "random", "tpe", "cmaes-src")
 
 Claim = tuple[str, "bool | None", str]
 """(claim, holds — None when its studies did not run, detail)."""
@@ -161,9 +163,132 @@ def compute(root: str | Path) -> dict[str, Any]:
                        "evals_to_beat_manual": None if s is None else
                        s["phase1"]["evals_to_beat_manual"]}
         baselines[g] = {"manual": man, "rows": rows}
+    seeded = seeded_stats(meta, S)
+    for g in GAITS:
+        for key, row in (("phase3_even", g), ("phase3_uneven", f"{g}-hills"),
+                         ("phase3_cross_task", f"{g}-cross")):
+            _add_spread(table[g][key], seeded.get(row))
+        if g in transfer:
+            _add_spread(transfer[g], seeded.get(f"b1-{g}"))
     return {"root": root, "meta": meta, "robot": robot, "R": PAPER_ROBOT.get(robot, robot),
             "budgets": b, "paper": paper, "studies": S, "table": table, "transfer": transfer,
-            "preservation": preservation, "baselines": baselines}
+            "preservation": preservation, "baselines": baselines, "seeded": seeded}
+
+
+# ---------------------------------------------------------------------------- seeds
+def spread(values: list[float]) -> dict[str, Any]:
+    """Median and interquartile range of per-seed values (``inf`` = never reached):
+    ``{"median", "q25", "q75", "n", "reached"}`` (None for no values)."""
+    v = np.asarray([np.inf if x is None else float(x) for x in values], dtype=float)
+    if v.size == 0:
+        return {"median": None, "q25": None, "q75": None, "n": 0, "reached": 0}
+    # linear interpolation between seeds; with a seed that never reached (inf) the quantiles
+    # are seeds' values (inverted CDF), so a quantile is "never" only if that share never did
+    how = "linear" if np.all(np.isfinite(v)) else "inverted_cdf"
+    q25, med, q75 = (float(x) for x in np.percentile(v, [25, 50, 75], method=how))
+    return {"median": med, "q25": q25, "q75": q75, "n": int(v.size),
+            "reached": int(np.isfinite(v).sum())}
+
+
+def _first_reach(costs: list[float], level: float | None) -> float:
+    """1-based evaluation of the first cost <= ``level`` (inf when none; None level: inf)."""
+    if level is None:
+        return math.inf
+    hit = np.flatnonzero(np.asarray(costs, dtype=float) <= float(level))
+    return float(hit[0] + 1) if hit.size else math.inf
+
+
+def seeded_stats(meta: dict[str, Any], S: dict[str, Any]) -> dict[str, Any]:
+    """The seeded comparisons: row → ``label``, ``manual`` (the target's manual θ cost),
+    ``zero_shot`` (the source's best θ on the target, None on its own task), ``phase1`` (own
+    and cross rows: the direct phase-1 run on the target: ``n``, ``best``, ``costs``) and
+    ``arms``: arm → ``studies``, ``seeds`` (indices), ``traces`` (each seed's costs on the
+    target in evaluation order: phase 3's for phase-3 arms, phase 1's for baselines) and
+    spreads over the seeds (:func:`spread`) of ``best``, ``evals``, ``falls_per_100``,
+    ``to_manual`` (evaluations to a cost strictly below the manual θ's), ``to_zero_shot``,
+    ``to_level`` (to a cost <= ``level``: the lowest median best of the baselines). Empty for a
+    directory written before seeds were recorded."""
+    robot = meta.get("robot")
+    rows: dict[str, Any] = {}
+    for key, info in meta.get("studies", {}).items():
+        row, arm, s = info.get("row"), info.get("arm"), S.get(key)
+        if row is None or arm is None:
+            continue
+        r = rows.setdefault(row, {"label": _row_label(robot, row), "arms": {}, "manual": None,
+                                  "zero_shot": None, "phase1": None})
+        a = r["arms"].setdefault(arm, {"label": _arm_label(arm, row), "studies": [], "seeds": [],
+                                       "traces": []})
+        if s is None:
+            continue
+        trace = s["phase3" if info["kind"] in ("tune", "phase3") else "phase1"]["costs"]
+        if not trace:
+            continue
+        a["studies"].append(key)
+        a["seeds"].append(int(info.get("seed_index", 0)))
+        a["traces"].append(trace)
+        if r["manual"] is None and s["manual"]["best"] is not None:
+            r["manual"] = s["manual"]["best"]
+        if r["zero_shot"] is None and s["zero_shot"]["best"] is not None and \
+                info["kind"] == "phase3" and row != info.get("gait"):
+            r["zero_shot"] = s["zero_shot"]["best"]
+    for row, r in rows.items():
+        g = row.split("-")[-1] if row.startswith("b1-") else row.split("-")[0]
+        direct = S.get(f"{robot}-{g}") if not row.startswith("b1-") and \
+            not row.endswith("-hills") else None
+        if direct is not None and direct["phase1"]["n"]:
+            r["phase1"] = {"study": f"{robot}-{g}", "n": direct["phase1"]["n"],
+                           "best": direct["phase1"]["best"], "costs": direct["phase1"]["costs"]}
+        for a in r["arms"].values():
+            tr = a["traces"]
+            a["best"] = spread([min(t) for t in tr])
+            a["evals"] = spread([len(t) for t in tr])
+            a["falls_per_100"] = spread([100.0 * float(np.sum(np.asarray(t) >= C1)) / len(t)
+                                         for t in tr])
+            a["to_manual"] = spread([evals_to_beat(t, r["manual"]) or math.inf for t in tr])
+            a["to_zero_shot"] = spread([evals_to_beat(t, r["zero_shot"]) or math.inf
+                                        for t in tr]) if r["zero_shot"] is not None else None
+        meds = [a["best"]["median"] for k, a in r["arms"].items()
+                if k in BASELINE_ARMS and a["best"]["median"] is not None]
+        r["level"] = min(meds) if meds else None
+        for a in r["arms"].values():
+            a["to_level"] = spread([_first_reach(t, r["level"]) for t in a["traces"]])
+        if r["phase1"] is not None:
+            p3 = r["arms"].get("phase3-plain", {}).get("best", {}).get("median")
+            r["phase1"]["to_phase3_median"] = None if p3 is None else \
+                _first_reach(r["phase1"]["costs"], p3)
+    return rows
+
+
+def _row_label(robot: str, row: str) -> str:
+    R = PAPER_ROBOT.get(robot, robot)
+    if row.startswith("b1-"):
+        return f"B1 {row[3:]} from the {R} trot source (cross-robot)"
+    g, _, rest = row.partition("-")
+    if rest == "hills":
+        return f"{R} {g} on hills from the {R} {g} source (flat)"
+    if rest == "cross":
+        return f"{R} {g} from the {R} {OTHER_GAIT[g]} source (cross-task)"
+    return f"{R} {g} (flat) from its own phase 1"
+
+
+def _arm_label(arm: str, row: str) -> str:
+    from latentune.experiments.paper import ARMS
+
+    own = "-" not in row
+    if arm in BASELINE_ARMS:
+        start = "manual θ" if own else "zero-shot θ"
+        if arm == "cmaes-src":
+            return f"{ARMS[arm]} (source's trials, from the {start})"
+        return f"{ARMS[arm]} from the {start}"
+    return ARMS.get(arm, arm)
+
+
+def _add_spread(cell: dict[str, Any], row: dict[str, Any] | None) -> None:
+    """Add the plain phase 3's spread over seeds to a Table II/III or transfer cell (with two or
+    more seeds)."""
+    arm = (row or {}).get("arms", {}).get("phase3-plain")
+    if arm and arm["best"]["n"] >= 2:
+        cell["seeds"] = arm["best"]
 
 
 # ---------------------------------------------------------------------------- claims
@@ -200,6 +325,17 @@ def check_claims(nums: dict[str, Any]) -> list[Claim]:
                        None if cj["phase3"]["n"] == 0 else e3 is not None,
                        f"first strictly better than manual at evaluation {fmt(e3)} "
                        f"(phase 1 on θ: {fmt(e1)} of {mj['phase1']['n']})"))
+    for g in GAITS:
+        r = nums.get("seeded", {}).get(g)
+        p3 = (r or {}).get("arms", {}).get("phase3-plain", {}).get("best")
+        if r is None or r["phase1"] is None or p3 is None or p3["n"] < 2:
+            continue
+        p1 = r["phase1"]["best"]
+        claims.append((f"{R} {g}: phase 3's median best at {nums['budgets']['phase3']} "
+                       f"evaluations is within the seeds' spread of phase 1's best at "
+                       f"{r['phase1']['n']} (or below it)", bool(p3["median"] <= p1 or
+                                                                  p3["q25"] <= p1 <= p3["q75"]),
+                       f"phase 3 {_spread_txt(p3)} over {p3['n']} seeds vs phase 1 {fmt(p1)}"))
     rate, nk, nst = preservation["rate"], preservation["n_kept"], preservation["n_stable"]
     claims.append(("VAE stable-preservation rate ≥ 95 %",
                    None if rate is None else bool(rate >= 0.95),
@@ -299,6 +435,12 @@ def make_figures(nums: dict[str, Any], simulate: bool = True, gifs: bool = True,
                          if robot == "a1" else "the GP's copula transform of the path cost"))
         except Exception as exc:  # noqa: BLE001 - a figure must not sink the report
             logger.warning("cost-transform figure skipped: %s", exc)
+    for row, r in nums["seeded"].items():
+        if any(a["traces"] for a in r["arms"].values()):
+            fn = f"seeds_{row}.png"
+            plot_seed_bands(r, root / fn)
+            figs.append((fn, f"{r['label']}: best cost so far, median over the seeds with the "
+                         "interquartile band"))
     resim: dict[str, Any] = {}
     gif_files: list[tuple[str, str]] = []
     if simulate:
@@ -338,6 +480,59 @@ def make_figures(nums: dict[str, Any], simulate: bool = True, gifs: bool = True,
     return {"figs": figs, "gifs": gif_files, "resim": resim}
 
 
+def band(traces: list[list[float]]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Best-so-far over seeds: ``(x (m,), median, q25, q75)`` at evaluations 1..m (m: the
+    longest trace; at each x, over the seeds whose trace reaches x)."""
+    from latentune.reporting.metrics import best_so_far
+
+    m = max(len(t) for t in traces)
+    B = np.full((len(traces), m), np.nan)
+    for i, t in enumerate(traces):
+        B[i, : len(t)] = best_so_far(t)
+    q25, med, q75 = np.nanpercentile(B, [25, 50, 75], axis=0)
+    return np.arange(1, m + 1), med, q25, q75
+
+
+def plot_seed_bands(r: dict[str, Any], path: Path) -> None:
+    """One row of the seeded comparison (:func:`seeded_stats`): per method, the median
+    best-so-far cost against the evaluation number with its interquartile band; the manual θ's
+    cost (dashed), the zero-shot θ's (dotted) and the direct phase-1 run's best (dash-dot)."""
+    from latentune.reporting.plots import _plt
+
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(8.0, 5.0))
+    lo, hi = [], []
+    for j, arm in enumerate(ARM_ORDER):
+        a = r["arms"].get(arm)
+        if a is None or not a["traces"]:
+            continue
+        x, med, q25, q75 = band(a["traces"])
+        c = f"C{j}"
+        ax.plot(x, med, color=c, lw=1.5, drawstyle="steps-post",
+                label=f"{a['label']} ({len(a['traces'])} seeds)")
+        ax.fill_between(x, q25, q75, color=c, alpha=0.18, step="post", linewidth=0)
+        lo.append(float(np.nanmin(q25)))
+        hi.append(float(np.nanmax(q75[len(q75) // 10:])))
+    refs = (("manual θ", r["manual"], "--"), ("zero-shot θ", r["zero_shot"], ":"),
+            ("direct phase 1, best", (r["phase1"] or {}).get("best"), "-."))
+    for lab, v, ls in refs:
+        if v is not None:
+            ax.axhline(v, color="k", ls=ls, lw=1, label=f"{lab} ({v:.3f})")
+            lo.append(float(v))
+    if lo and hi:
+        top = max(min(max(hi), C1), max(lo))
+        pad = 0.05 * max(top - min(lo), 1e-6)
+        ax.set_ylim(min(lo) - pad, top + pad)
+    ax.set_xlabel("evaluations on the target")
+    ax.set_ylabel("best path cost so far")
+    ax.set_title(r["label"], fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="upper right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 # ---------------------------------------------------------------------------- outputs
 def _walls(nums: dict[str, Any]) -> dict[str, dict[str, float]]:
     return {k: (s or {}).get("wall", {}) for k, s in nums["studies"].items()}
@@ -352,6 +547,7 @@ def summary_json(nums: dict[str, Any], claims: list[Claim], fig: dict[str, Any])
             "steps": meta.get("steps"), "seed": meta.get("seed"),
             "table": nums["table"], "transfer": nums["transfer"],
             "preservation": nums["preservation"], "baselines": nums["baselines"],
+            "seeds": meta.get("seeds", 1), "seeded": nums["seeded"],
             "claims": [{"claim": c, "holds": ok, "detail": d} for c, ok, d in claims],
             "resimulated_costs": fig["resim"], "wall_s_invocations": meta.get("wall_s_total"),
             "wall_s_studies": float(sum(sum(w.values()) for w in walls.values())),
@@ -402,8 +598,14 @@ def _md_table(nums: dict[str, Any]) -> list[str]:
             extra = f" ({r['evals']} evals)" if key != "manual" and r["evals"] else ""
             if key == "phase3_cross_task":
                 extra += f", {r['vae']} VAE" if r["evals"] else ""
-            cells += [f"{fmt(r['ours'])}{extra}", _pv(r["paper"])]
+            ours = fmt(r["ours"])
+            if "seeds" in r:
+                ours = f"{_spread_txt(r['seeds'])}, {r['seeds']['n']} seeds"
+            cells += [f"{ours}{extra}", _pv(r["paper"])]
         md.append(f"| {lab} | " + " | ".join(cells) + " |")
+    if any("seeds" in table[g][k] for g in GAITS for k in table[g]):
+        md += ["", "Phase 3 cells: median [interquartile range] over the seeds (see \"Over "
+               "the seeds\" below); manual and phase 1 are the source runs, run once."]
     md += [f"| (extra) Manual Tuned on hills | {fmt(table['trot']['manual_on_hills']['ours'])} "
            f"| – | {fmt(table['jump']['manual_on_hills']['ours'])} | – |", "",
            f"Phase 3 uneven: Perlin hills (seed {seed}), latent space trained on flat-ground "
@@ -420,7 +622,9 @@ def _md_transfer(nums: dict[str, Any]) -> list[str]:
           "found | evals to beat B1 manual (first strictly lower) | paper (220 evals) |",
           "|---|---:|---:|---:|---:|---:|---:|"]
     for g, tr in nums["transfer"].items():
-        md.append(f"| B1 {g} | {fmt(tr['manual'])} | {fmt(tr['ours'])} | {tr['evals']} | "
+        ours = fmt(tr["ours"]) if "seeds" not in tr else \
+            f"{_spread_txt(tr['seeds'])}, {tr['seeds']['n']} seeds"
+        md.append(f"| B1 {g} | {fmt(tr['manual'])} | {ours} | {tr['evals']} | "
                   f"{fmt(tr['stable'])} | {fmt(tr['evals_to_beat_manual'])} | {_pv(tr['paper'])} |")
     return md + [""]
 
@@ -462,6 +666,93 @@ def _md_baselines(nums: dict[str, Any]) -> list[str]:
     return md
 
 
+def _spread_txt(sp: dict[str, Any] | None, digits: int = 3, evals: bool = False) -> str:
+    """``median [q25–q75]`` of a :func:`spread`; for evaluation counts, ``never`` for a
+    quantile no seed reached and ``(k/n reached)`` when some seed did not."""
+    if sp is None or sp["n"] == 0:
+        return "–"
+
+    def one(v: float) -> str:
+        if not math.isfinite(v):
+            return "never"
+        return f"{v:.0f}" if evals else fmt(v, digits)
+
+    txt = f"{one(sp['median'])} [{one(sp['q25'])}–{one(sp['q75'])}]"
+    if evals and sp["reached"] < sp["n"]:
+        txt += f" ({sp['reached']}/{sp['n']} reached)"
+    return txt
+
+
+ARM_ORDER = ("phase3-plain", "phase3-transfer", "turbo", "cma", "random", "tpe", "cmaes-src")
+
+
+def _md_seeded(nums: dict[str, Any]) -> list[str]:
+    rows, meta, b = nums["seeded"], nums["meta"], nums["budgets"]
+    if not rows or not any(a["traces"] for r in rows.values() for a in r["arms"].values()):
+        return []
+    n = meta.get("seeds", 1)
+    s0 = meta.get("seed", 0)
+    md = [f"## Over the seeds (median [interquartile range], {n} seed(s))", "",
+          f"The sources — each gait's phase-1 run ({b['phase1']} evaluations) and its VAE, and "
+          "the preservation run — were run once (seed "
+          f"{s0}) and are shared by every seed, as the paper trains its VAE once. Phase 3 (the "
+          "paper's plain strategy and latentune's default, transfer), and the baselines were "
+          f"repeated with the study seeds {s0}..{s0 + n - 1} on the same target tasks, "
+          f"{b['phase3']} evaluations each. Every cell is median [25th–75th percentile] over "
+          "the seeds. Evaluations to a level: the first evaluation strictly below the manual / "
+          "zero-shot θ's cost, or at or below the level L (the lowest median best cost of the "
+          "baselines), counted from each method's first evaluation on the target. Phase-3 "
+          "studies on another study's latent space also ran the zero-shot θ (one evaluation, "
+          "not counted in their trace); the baselines of a cross-task or cross-robot row start "
+          "from it (their first evaluation). Falls: cost ≥ "
+          f"{C1:g}.", ""]
+    for row, r in rows.items():
+        if not any(a["traces"] for a in r["arms"].values()):
+            continue
+        refs = [f"manual θ {fmt(r['manual'])}"]
+        if r["zero_shot"] is not None:
+            refs.append(f"zero-shot θ {fmt(r['zero_shot'])}")
+        if r["phase1"] is not None:
+            refs.append(f"direct phase 1 on this target ({r['phase1']['study']}, one run): best "
+                        f"{fmt(r['phase1']['best'])} at {r['phase1']['n']} evaluations")
+        if r["level"] is not None:
+            refs.append(f"L = {fmt(r['level'])}")
+        md += [f"### {r['label']}", "", "; ".join(refs) + ".", "",
+               "| method | seeds | evaluations | best cost | evals to beat manual | "
+               "evals to beat zero-shot | evals to reach L | falls / 100 trials |",
+               "|---|---:|---:|---:|---:|---:|---:|---:|"]
+        for arm in ARM_ORDER:
+            a = r["arms"].get(arm)
+            if a is None:
+                continue
+            if not a["traces"]:
+                md.append(f"| {a['label']} | 0 | not run | – | – | – | – | – |")
+                continue
+            md.append(f"| {a['label']} | {len(a['traces'])} | {_spread_txt(a['evals'], evals=True)}"
+                      f" | {_spread_txt(a['best'])} | {_spread_txt(a['to_manual'], evals=True)} | "
+                      f"{_spread_txt(a['to_zero_shot'], evals=True)} | "
+                      f"{_spread_txt(a['to_level'], evals=True)} | "
+                      f"{_spread_txt(a['falls_per_100'], 1)} |")
+        p1 = r["phase1"]
+        if p1 is not None and p1.get("to_phase3_median") is not None:
+            v = p1["to_phase3_median"]
+            p3 = r["arms"]["phase3-plain"]["best"]
+            when = f"never reaches the plain phase 3's median best ({fmt(p3['median'])}) in " \
+                f"its {p1['n']} evaluations" if not math.isfinite(v) else \
+                f"first reaches the plain phase 3's median best ({fmt(p3['median'])}) at " \
+                f"evaluation {v:.0f}"
+            md += ["", f"The direct phase-1 run on this target {when}; its best at {p1['n']} "
+                   f"evaluations is {fmt(p1['best'])}"
+                   + (f", {'inside' if p3['q25'] <= p1['best'] <= p3['q75'] else 'outside'} the "
+                      f"phase-3 seeds' interquartile range [{fmt(p3['q25'])}–{fmt(p3['q75'])}]"
+                      if p3["n"] >= 2 else "") + "."]
+        fn = f"seeds_{row}.png"
+        if (nums["root"] / fn).is_file():
+            md += ["", f"![{r['label']}: best cost so far over the seeds]({fn})"]
+        md.append("")
+    return md
+
+
 def _md_images(items: list[tuple[str, str]]) -> list[str]:
     md: list[str] = []
     for fn, cap in items:
@@ -473,11 +764,15 @@ def markdown(nums: dict[str, Any], claims: list[Claim], fig: dict[str, Any]) -> 
     """``report.md`` from :func:`compute`'s numbers, the claims and :func:`make_figures`' output."""
     md = _md_header(nums) + _md_table(nums) + _md_transfer(nums) + _md_preservation(nums)
     md += _md_baselines(nums)
+    md += _md_seeded(nums)
     md += ["## Does the paper's shape hold here?", ""]
     for c, ok, d in claims:
         mark = "not run" if ok is None else ("**holds**" if ok else "**does not hold**")
         md.append(f"- {c}: {mark} ({d})")
-    md += ["", "Caveat: one seed per study and budgets far below the paper's (see the scale "
+    seeds = nums["meta"].get("seeds", 1)
+    md += ["", ("Caveat: one seed per study" if seeds <= 1 else
+                f"Caveat: the claims above read seed 0 ({seeds} seeds: see \"Over the seeds\")")
+           + " and budgets far below the paper's (see the scale "
            "above); differences of a few tenths in path cost are within seed-to-seed noise at "
            "these budgets. The paper's absolute numbers come from another simulator setup and "
            "MPC implementation (its manual θ costs differ from ours), so compare the shape "
