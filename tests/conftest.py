@@ -13,9 +13,8 @@
 * ``dump_store`` (session fixture): ``dump_store(run_dir) -> (rows, meta)``, a store's rows
   (phase, idx, theta, z, tag, cost) and meta read-only, to check that a store is unchanged.
 
-Under pytest-xdist (the README's ``pytest -n auto``, ``--dist loadgroup`` from pyproject.toml) the
-tests of a module that use a module-scoped fixture form one ``xdist_group``: they run on one
-worker, so the fixture (a phase-1 run, a trained VAE, a paper directory) is built once.
+The README runs the suite with pytest-xdist (``pytest -n auto``): every worker builds the
+module-scoped fixtures of the tests it runs, so those tests are moved to the front of the run.
 """
 from __future__ import annotations
 
@@ -48,15 +47,17 @@ def _cli(*args: object, cwd: Path | str | None = None, env: dict[str, str] | Non
                           timeout=timeout)
 
 
+def _shares_a_module_fixture(item: pytest.Item) -> bool:
+    info = getattr(item, "_fixtureinfo", None)
+    return info is not None and any(d.scope == "module" for defs in
+                                    info.name2fixturedefs.values() for d in defs)
+
+
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Put the tests of a module that share a module-scoped fixture in one ``xdist_group``
-    (named after the module); other tests go one by one to whichever worker is free."""
-    for item in items:
-        info = getattr(item, "_fixtureinfo", None)
-        if info is None or item.get_closest_marker("xdist_group"):
-            continue
-        if any(d.scope == "module" for defs in info.name2fixturedefs.values() for d in defs):
-            item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::")[0]))
+    """Run the tests that use a module-scoped fixture first (otherwise in collection order):
+    under pytest-xdist the expensive shared setups (a paper directory, a phase-1 run) start at
+    once on the workers instead of at the end of the run."""
+    items.sort(key=lambda item: not _shares_a_module_fixture(item))   # stable
 
 
 @pytest.fixture(scope="session")
