@@ -11,7 +11,8 @@ alternating before / after ``--pairs`` times so both see the same machine load.
 
 Each run records the wall time [s], the CPU time of the command and all its children
 (user + sys [s], from ``getrusage(RUSAGE_CHILDREN)``), the load average at start and end, the
-exit status and pytest's counts (passed, failed, skipped, errors) from its last line.
+exit status, pytest's counts (passed, failed, skipped, errors) from its last line and the
+names of the failed tests.
 """
 from __future__ import annotations
 
@@ -72,7 +73,8 @@ def run_suite(checkout: Path, python: str, label: str) -> dict[str, Any]:
            "sys_s": round(ru1.ru_stime - ru0.ru_stime, 2),
            "load_start": [round(v, 2) for v in load0],
            "load_end": [round(v, 2) for v in os.getloadavg()], **counts(last),
-           "summary": last.strip("= ")}
+           "summary": last.strip("= "),
+           "failed_tests": [ln.split()[1] for ln in lines if ln.startswith(("FAILED ", "ERROR "))]}
     row["cpu_s"] = round(row["user_s"] + row["sys_s"], 2)
     row["tests"] = sum(row[k] for k in ("passed", "failed", "skipped", "errors"))
     print(f"{label}: exit {p.returncode}, {wall:.0f} s wall, {row['cpu_s']:.0f} s CPU, "
