@@ -305,22 +305,30 @@ def test_trials_are_records_with_named_phases_and_physical_params(tmp_path, monk
         at.tell(s.id, 1.5, note="by hand")
         (rec,) = at.trials()
         assert rec.trial == s.id and rec.cost == 1.5 and rec.info["note"] == "by hand"
-        seen = {}
+        import pandas as pd
 
-        class FakePandas:                               # what trials_dataframe hands pandas
-            @staticmethod
-            def DataFrame(rows, columns=None):          # noqa: N802 - pandas' name
-                seen["rows"] = rows
-                return "frame"
-
-        monkeypatch.setitem(__import__("sys").modules, "pandas", FakePandas)
-        assert at.trials_dataframe() == "frame"
-        (row,) = seen["rows"]
-        assert row["phase"] == "phase 1" and row["trial"] == s.id and row["cost"] == 1.5
-        assert row["params_a"] == pytest.approx(s.params["a"]) and row["failed"] is False
+        df = at.trials_dataframe()
+        assert isinstance(df, pd.DataFrame) and len(df) == 1
+        assert list(df.columns) == ["phase", "idx", "trial", "cost", "failed",
+                                    *[f"params_{n}" for n in SPACE.names], "info"]
+        assert df["phase"].tolist() == ["phase 1"] and df["trial"].tolist() == [s.id]
+        assert df.loc[0, "cost"] == 1.5 and df.loc[0, "info"]["note"] == "by hand"
+        np.testing.assert_allclose(df.loc[0, [f"params_{n}" for n in SPACE.names]].to_numpy(
+            dtype=float), SPACE.to_physical(s.theta))
         monkeypatch.setitem(__import__("sys").modules, "pandas", None)
         with pytest.raises(ImportError, match="pip install pandas"):
             at.trials_dataframe()
+    monkeypatch.delitem(__import__("sys").modules, "pandas")
+    with lt.Study(tmp_path / "s") as st:                # a phase run and its manual θ
+        df = st.trials_dataframe()
+        assert df["phase"].tolist() == ["manual"] + ["phase 1"] * 8
+        assert str(df["trial"].dtype) == "Int64" and df["trial"].isna().all()
+        assert df["idx"].dtype == np.int64 and df["cost"].dtype == np.float64
+        assert df["failed"].dtype == bool and df["failed"].sum() == sum(r.failed for r in recs)
+        assert all(df[f"params_{n}"].dtype == np.float64 for n in SPACE.names)
+        np.testing.assert_allclose(df[[f"params_{n}" for n in SPACE.names]].to_numpy(),
+                                   SPACE.to_physical(np.array([r.theta for r in recs])))
+        assert st.trials_dataframe(phases=(Phase.MANUAL,)).shape[0] == 1
 
 
 def test_the_store_decodes_non_finite_costs_and_names_no_fall_constant(tmp_path):
