@@ -225,6 +225,13 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
         g = mf.ask_options(stored, g, study.dir, phase)
     else:
         g = {**g, "method": g.get("method") or "turbo", "budget": g.get("budget") or mf.ASK_BUDGET}
+    strat = None
+    if phase == Phase.PHASE3:
+        strat = resolve_strategy(study.manifest, strategy, g.get("handover"))
+        if strat == "transfer" and given.get("start") is not None:
+            raise UsageError("start is an option of phase 1 and of the plain phase 3 (strategy "
+                             "plain); the transfer phase 3 starts from the manual θ and the "
+                             "source's best trials")
     old_start = stored.get("start", "manual") if stored else "manual"
     start_rec = old_start
     if given.get("start") is not None:
@@ -237,11 +244,6 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
     if phase == Phase.PHASE3:
         ls, source = resolve_latent(study.run, study.manifest, latent, space)
         record_latent(study.run, study.manifest, ls, source)
-        strat = resolve_strategy(study.manifest, strategy, g.get("handover"))
-        if strat == "transfer" and given.get("start") is not None:
-            raise UsageError("start is an option of phase 1 and of the plain phase 3 (strategy "
-                             "plain); the transfer phase 3 starts from the manual θ and the "
-                             "source's best trials")
         extra = {"latent_source": source,
                  "strategy": strat,
                  "start": start_rec,
