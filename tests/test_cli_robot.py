@@ -1,9 +1,11 @@
 """The person at the robot through the CLI: asks by two askers, a mistyped result amended, a
-suggestion released, status by phase name, the θ to deploy, and --strategy's refusals."""
+suggestion released, status by phase name, the θ to deploy, --strategy's refusals, --start,
+and later asks that lease without loading the critic."""
 from __future__ import annotations
 
 import json
 
+import pytest
 import yaml
 
 
@@ -52,15 +54,25 @@ def _space_file(tmp_path):
     return space
 
 
-def test_later_asks_lease_without_loading_the_critic(tmp_path, cli, cli_env):
+@pytest.mark.parametrize("phase", [1, 3])
+def test_later_asks_lease_without_loading_the_critic(tmp_path, cli, cli_env, phase):
     """Each call in its own process, as the person runs them: after the first ask, an ask
-    hands out a queued or prepared suggestion without importing torch or BoTorch."""
+    hands out a queued or prepared suggestion without importing torch or BoTorch (phase 3:
+    the default strategy, whose first suggestion is the zero-shot trial)."""
     d = tmp_path / "robot"
+    first: tuple = ("--space", _space_file(tmp_path))
+    if phase == 3:
+        import latentune as lt
+
+        space = lt.ParameterSpace(["a", "b", "c"], [0, 0, 0], [1, 2, 4], manual=[0.5] * 3)
+        with lt.Study(tmp_path / "sim", seed=0) as sim:
+            sim.phase1(lt.FunctionSystem(space, lambda x: float(sum((x - 0.4) ** 2))), 30)
+            sim.train_latent(latent_dim=2, epochs=30)
+        first += ("--phase", "3", "--vae", tmp_path / "sim")
     env = dict(cli_env, PYTHONPROFILEIMPORTTIME="1")       # python -X importtime
     seen = []
     for i in range(6):
-        r = cli("ask", d, "--json", *(("--space", _space_file(tmp_path)) if i == 0 else ()),
-                env=env)
+        r = cli("ask", d, "--json", *(first if i == 0 else ()), env=env)
         assert r.returncode == 0, r.stderr
         (s,) = json.loads(r.stdout)
         seen.append(s["id"])
@@ -73,7 +85,9 @@ def test_later_asks_lease_without_loading_the_critic(tmp_path, cli, cli_env):
             assert not imported & {"torch", "botorch", "gpytorch"}, i
         r = cli("tell", d, s["id"], "--cost", str(sum(v * v for v in s["theta"])))
         assert r.returncode == 0 and r.stdout.startswith(f"told {s['id']}"), r.stderr
-    assert seen == [1, 2, 3, 4, 5, 6]                   # the 5th: the batch the 4th tell made
+        if phase == 3:
+            assert s["phase_name"] == ("zero-shot" if i == 0 else "phase 3")
+    assert seen == [1, 2, 3, 4, 5, 6]       # batches of 4 after the first ask's (and zero-shot)
 
 
 def test_ask_start(tmp_path, run_cli, error_line):

@@ -61,8 +61,7 @@ from latentune.pipeline import manifest as mf
 from latentune.pipeline.baselines import queue_zero_shot
 from latentune.pipeline.loop import (decoder_of, phase_critic, record_latent, resolve_latent,
                                      resolve_strategy, strategy_of)
-from latentune.pipeline.phases import (ask_batch, replay, save_state, state_key,
-                                       warn_if_failing)
+from latentune.pipeline.phases import ask_batch, replay, state_key, warn_if_failing
 from latentune.pipeline.results import phase_name, write_best
 from latentune.pipeline.store import Row, RunStore
 from latentune.space import ParameterSpace
