@@ -2,6 +2,7 @@
 
     python -m benchmarks.transfer run [--systems chain arm hopper] [--seeds 0 1 ... 9]
         [--budget 40] [--source-evals 300] [--root runs/transfer] [--only METHOD ...]
+        [--variants OPTION=VALUE[:OPTION=VALUE] ...]   (transfer variants, stored as transfer+VARIANT)
     python -m benchmarks.transfer summary [--root runs/transfer] [--out results/transfer/ladder.json]
 
 Systems (``SYSTEMS``; the model is gap 0, each target is the same controller on a plant at a gap):
@@ -133,8 +134,22 @@ def _loop(critic: Any, target: Any, n: int, costs: list, failed: list,
         critic.tell(U, np.array([out.cost]), tags, fell=np.array([out.failed]), **kw)
 
 
-def run_method(method: str, target: Any, src: Path, B: int, seed: int) -> dict[str, Any]:
-    """B target trials of ``method`` (module docstring); returns costs, failed and extras."""
+def parse_variant(text: str) -> dict[str, Any]:
+    """``"option=value[:option=value]"`` as Transfer options (values read as JSON, else text)."""
+    out: dict[str, Any] = {}
+    for part in filter(None, text.split(":")):
+        k, _, v = part.partition("=")
+        try:
+            out[k] = json.loads(v)
+        except json.JSONDecodeError:
+            out[k] = v
+    return out
+
+
+def run_method(method: str, target: Any, src: Path, B: int, seed: int,
+               options: dict[str, Any] | None = None) -> dict[str, Any]:
+    """B target trials of ``method`` (module docstring; ``options``: the transfer critic's
+    options beyond its defaults); returns costs, failed and extras."""
     from latentune.critic.transfer import Transfer, source_trials
     from latentune.latent.vae import LatentSpace
     from latentune.study import source_best
@@ -156,7 +171,7 @@ def run_method(method: str, target: Any, src: Path, B: int, seed: int) -> dict[s
         trial(best)
     elif method == "transfer":
         ls = LatentSpace.load(src / "vae")
-        cr = Transfer((Xs, ys, fs), ls, manual, batch_size=1, seed=seed)
+        cr = Transfer((Xs, ys, fs), ls, manual, batch_size=1, seed=seed, **(options or {}))
         cr.load_state_dict({"source_hypers": _source_hypers(src, seed)})
         o = trial(best)
         cr.tell(best[None], np.array([o.cost]), fell=np.array([o.failed]))
@@ -229,18 +244,20 @@ def _optuna(method: str, target: Any, best: np.ndarray, source: tuple[np.ndarray
 # --------------------------------------------------------------------------- run / summary
 def run(a: argparse.Namespace) -> None:
     root = Path(a.root)
-    methods = a.only or METHODS
+    methods = METHODS if a.only is None else a.only
     for seed in a.seeds:
         for name in a.systems:
             src = source_run(root, name, seed, a.source_evals)
             for g in SYSTEMS[name]["gaps"]:
                 target = SYSTEMS[name]["target"](g)
-                for m in methods:
+                jobs = [(m, m, None) for m in methods] + \
+                    [(f"transfer+{v}", "transfer", parse_variant(v)) for v in a.variants]
+                for m, base, opts in jobs:
                     f = root / name / f"gap{g:g}" / f"seed{seed}" / f"{m}.json"
                     if f.is_file():
                         continue
                     t0 = time.perf_counter()
-                    res = run_method(m, target, src, a.budget, seed)
+                    res = run_method(base, target, src, a.budget, seed, opts)
                     res.update(system=name, gap=g, seed=seed, method=m, budget=a.budget,
                                wall_s=time.perf_counter() - t0)
                     f.parent.mkdir(parents=True, exist_ok=True)
@@ -256,21 +273,29 @@ def _first_reach(costs: list[float], level: float) -> float:
     return math.inf
 
 
-def summarize(root: Path) -> dict[str, Any]:
-    """The issue's criteria per target from every stored run under ``root``."""
+def _ladder_target(run: dict[str, Any]) -> dict[str, Any]:
+    return {"system": run["system"], "gap": float(run["gap"])}
+
+
+def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
+              target: Callable[[dict[str, Any]], dict[str, Any]] = _ladder_target
+              ) -> dict[str, Any]:
+    """The issue's criteria per target from every stored run under ``root`` (the files matching
+    ``pattern``); ``target(run)`` gives a run's target fields, the key and head of its row
+    (default: ``system`` and ``gap``)."""
     from scipy.stats import mannwhitneyu
 
-    runs: dict[tuple[str, float], dict[str, dict[int, dict]]] = {}
-    for f in sorted(root.glob("*/gap*/seed*/*.json")):
+    runs: dict[tuple, dict[str, dict[int, dict]]] = {}
+    for f in sorted(root.glob(pattern)):
         r = json.loads(f.read_text())
-        runs.setdefault((r["system"], float(r["gap"])), {}).setdefault(r["method"], {})[
+        runs.setdefault(tuple(target(r).items()), {}).setdefault(r["method"], {})[
             int(r["seed"])] = r
     out: dict[str, Any] = {"targets": []}
-    for (system, gap), by_m in sorted(runs.items()):
+    for key, by_m in sorted(runs.items()):
         seeds = sorted(set.intersection(*[set(v) for v in by_m.values()]))
         if not seeds:
             continue
-        row: dict[str, Any] = {"system": system, "gap": gap, "seeds": seeds, "methods": {}}
+        row: dict[str, Any] = {**dict(key), "seeds": seeds, "methods": {}}
         for m, rs in by_m.items():
             best = [min(rs[s]["costs"]) for s in seeds]
             row["methods"][m] = {"median_best": float(np.median(best)),
@@ -304,14 +329,17 @@ def summarize(root: Path) -> dict[str, Any]:
     return out
 
 
-def markdown(s: dict[str, Any]) -> str:
+def markdown(s: dict[str, Any],
+             title: Callable[[dict[str, Any]], str] = lambda row: f"{row['system']} gap "
+                                                              f"{row['gap']:g}") -> str:
+    """``summarize``'s rows as Markdown tables, each headed by ``title(row)``."""
     lines = []
     for row in s["targets"]:
-        lines.append(f"\n### {row['system']} gap {row['gap']:g} ({len(row['seeds'])} seeds; "
+        lines.append(f"\n### {title(row)} ({len(row['seeds'])} seeds; "
                      f"best peer: {row['best_peer']})\n")
         lines.append("| method | median best | IQR | trials to best peer's median | falls |")
         lines.append("|---|---:|---:|---:|---:|")
-        for m in METHODS:
+        for m in list(METHODS) + sorted(set(row["methods"]) - set(METHODS)):
             if m not in row["methods"]:
                 continue
             r = row["methods"][m]
@@ -335,7 +363,9 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--budget", type=int, default=40)
     r.add_argument("--source-evals", type=int, default=300)
     r.add_argument("--root", default="runs/transfer")
-    r.add_argument("--only", nargs="+", choices=METHODS, default=None)
+    r.add_argument("--only", nargs="*", choices=METHODS, default=None)
+    r.add_argument("--variants", nargs="+", default=[],
+                   help="transfer variants option=value[:option=value], stored as transfer+VARIANT")
     s = sub.add_parser("summary")
     s.add_argument("--root", default="runs/transfer")
     s.add_argument("--out", default="results/transfer/ladder.json")

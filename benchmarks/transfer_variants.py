@@ -15,6 +15,7 @@ zero-shot θ first) and of TuRBO-m from the source's best. A variant is ``defaul
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 
 from latentune.threads import one_thread_env
@@ -51,26 +52,35 @@ def problem(name: str, gap: float, rng: np.random.Generator):
         (lambda X: (_levy(X * 20 - 10 - st) * (1 + gap), np.zeros(len(X), bool)))
 
 
-def run(variant: str, name: str, gap: float, seed: int) -> tuple[float, int, np.ndarray]:
-    from latentune.critic.transfer import Transfer
+@functools.lru_cache(maxsize=None)
+def source(name: str, gap: float, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The source run of (problem, gap, seed): 200 TuRBO-m trials, ``(X, y, fell)``."""
     from latentune.critic.turbo import TurboM
 
-    src, tgt = problem(name, gap, np.random.default_rng([seed, 99]))
+    src, _ = problem(name, gap, np.random.default_rng([seed, 99]))
     s = TurboM(D, batch_size=10, seed=seed, x0=np.full(D, 0.5))
     while s.n_told < SOURCE:
         X = s.ask()
         y, f = src(X)
         s.tell(X, y, s.last_tags, fell=f)
-    Xs, ys = s.X, s.y
-    fs = src(Xs)[1]
+    return s.X, s.y, src(s.X)[1]
+
+
+def run(variant: str, name: str, gap: float, seed: int) -> tuple[float, int, np.ndarray]:
+    from latentune.critic.transfer import Transfer
+    from latentune.critic.turbo import TurboM
+
+    _, tgt = problem(name, gap, np.random.default_rng([seed, 99]))
+    Xs, ys, fs = source(name, gap, seed)
     best = Xs[np.argmin(np.where(fs, np.inf, ys))]
     costs: list[float] = []
     falls: list[bool] = []
     if variant == "turbo_source":
         cr = TurboM(D, batch_size=1, seed=seed, x0=best, n_regions=1)
     else:
-        opts = {} if variant == "default" else {
-            k: float(v) for k, v in (kv.split("=") for kv in variant.split(":"))}
+        from benchmarks.transfer import parse_variant
+
+        opts = {} if variant == "default" else parse_variant(variant)
         cr = Transfer((Xs, ys, fs), None, np.full(D, 0.5), batch_size=1, seed=seed, **opts)
         y0, f0 = tgt(best[None])
         cr.tell(best[None], y0, fell=f0)

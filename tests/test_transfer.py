@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from latentune.critic.transfer import (TRANSFER_DEFAULTS, SourceModel, TargetModel, Transfer,
-                                       elite_points, rank_scores)
+from latentune.critic.transfer import (LEGACY_OPTIONS, TRANSFER_DEFAULTS, SourceModel,
+                                       TargetModel, Transfer, elite_points, rank_scores)
 
 D = 8
 
@@ -128,12 +128,45 @@ def test_resume_asks_what_the_original_would(source, hypers):
     assert np.array_equal(a.last_tags, b.last_tags)
 
 
+def test_target_model_chooses_the_lengthscale_the_target_needs(source, hypers):
+    """A target that varies on a quarter of the source's lengthscale: with a choice of scales,
+    maximum likelihood takes a shorter one than the source's."""
+    X, y, f, c = source
+    sm = SourceModel(X, y, f, seed=0, hypers=hypers)
+    rng = np.random.default_rng(4)
+    Xt = rng.random((25, D))
+    v = np.sin(Xt @ (4.0 / sm.lengthscales))
+    one = TargetModel(Xt, v, sm.cost, sm.lengthscales)
+    free = TargetModel(Xt, v, sm.cost, sm.lengthscales, ls_scales=(0.25, 0.5, 1.0, 2.0))
+    assert one.ls_scale == 1.0 and free.ls_scale < 1.0
+    assert np.allclose(free.ls, sm.lengthscales * free.ls_scale)
+
+
+def test_resume_uses_the_stored_options(source, hypers):
+    """A resumed critic asks with the options its run was asked with, whatever today's defaults;
+    a state stored before options were recorded resumes with the legacy options."""
+    X, y, f, c = source
+    a = _critic(source, hypers, length_init=0.6, acquisition="ei")
+    _run(a, c, 0.6, 5)
+    b = _critic(source, hypers)
+    b.tell(a.X, a.y, a.tags, fell=a.fell)
+    b.load_state_dict(a.state_dict())
+    assert b.opts == a.opts
+    assert np.array_equal(a.ask(1), b.ask(1))
+    old = _critic(source, hypers)
+    old.load_state_dict({"source_hypers": hypers, "last_decision": None})
+    assert {k: old.opts[k] for k in LEGACY_OPTIONS if k != "max_fall_prob"} == \
+        {k: v for k, v in LEGACY_OPTIONS.items() if k != "max_fall_prob"}
+
+
 def test_options_are_checked(source):
     X, y, f, _ = source
     with pytest.raises(TypeError, match="unknown option"):
         Transfer((X, y, f), None, None, bogus=1)
     with pytest.raises(ValueError, match="max_fall_prob"):
         Transfer((X, y, f), None, None, max_fall_prob=1.5)
+    with pytest.raises(ValueError, match="acquisition"):
+        Transfer((X, y, f), None, None, acquisition="ucb")
     assert set(TRANSFER_DEFAULTS) >= {"max_fall_prob", "n_design"}
 
 

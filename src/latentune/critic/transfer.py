@@ -81,11 +81,20 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "max_fall_prob": 0.3, "n_design": 3, "n_elite": 16, "elite_spacing": 0.15,
     "n_candidates": 1000, "length_init": 0.3, "length_max": 1.0, "length_min": 1 / 128,
     "succ_tol": 2, "fail_tol": 3, "latent_share_max": 0.5, "latent_falls": 3,
-    "max_points": 300, "fall_kappa": 1.0,
+    "max_points": 300, "fall_kappa": 1.0, "fit_lengthscale": False, "acquisition": "thompson",
+    "restart": False, "full_scales": 1,
 }
-"""The options of :class:`Transfer` (see the module docstring); recorded with the run."""
+"""The options of :class:`Transfer` (see the module docstring); recorded in its state."""
+
+LEGACY_OPTIONS: dict[str, Any] = {**TRANSFER_DEFAULTS, "length_init": 0.3,
+                                  "fit_lengthscale": False, "acquisition": "thompson",
+                                  "restart": False, "full_scales": 1}
+"""The options of runs stored before :meth:`Transfer.state_dict` recorded them."""
 
 _SIGMA_R2_GRID = (0.01, 0.05, 0.2, 0.5, 1.0, 2.0)
+_LS_SCALES = (0.25, 0.5, 1.0, 2.0)
+"""Multipliers of the source's lengthscales the target cost model may choose (``fit_lengthscale``)."""
+ACQUISITIONS = ("thompson", "ei")
 _NOISE = 1e-2
 _JOINT = 256
 """Candidates (lowest confidence bounds) that share one joint Thompson sample."""
@@ -281,13 +290,20 @@ class TargetModel:
 
     def __init__(self, X: np.ndarray, v: np.ndarray, feature: Callable[[np.ndarray], np.ndarray],
                  ls: np.ndarray, prior_mean: tuple[float, float] = (1.0, 0.0),
-                 sigma_r2: float | None = None) -> None:
-        self.X, self.v, self.feature, self.ls = X, np.asarray(v, float), feature, ls
+                 sigma_r2: float | None = None, ls_scales: tuple[float, ...] = (1.0,)) -> None:
+        self.X, self.v, self.feature = X, np.asarray(v, float), feature
         self.b0 = np.asarray(prior_mean, dtype=float)
         self.hX = self._basis(X)
-        self.kX = matern52(X, X, ls)
-        if sigma_r2 is None:
-            sigma_r2 = max(_SIGMA_R2_GRID, key=self._log_evidence)
+        if sigma_r2 is None:            # type-II maximum likelihood on the grids
+            grid = _SIGMA_R2_GRID if len(ls_scales) == 1 else _SIGMA_R2_GRID + (4.0,)
+            fits = [(self._log_evidence(kX, s), s, rho, kX)
+                    for rho in ls_scales for kX in [matern52(X, X, ls * rho)] for s in grid]
+            _, sigma_r2, rho, self.kX = max(fits, key=lambda f: f[0])
+        else:
+            rho = ls_scales[0]
+            self.kX = matern52(X, X, ls * rho)
+        self.ls_scale = float(rho)
+        self.ls = ls * rho
         self.sigma_r2 = float(sigma_r2)
         self.L = _chol(self._cov(self.kX, self.hX, self.hX) + _NOISE * np.eye(len(v)))
         r = self.v - self.hX @ self.b0
@@ -301,8 +317,8 @@ class TargetModel:
         s = self.sigma_r2 if sigma_r2 is None else sigma_r2
         return s * k + h1 @ h2.T
 
-    def _log_evidence(self, s: float) -> float:
-        K = self._cov(self.kX, self.hX, self.hX, s) + _NOISE * np.eye(len(self.v))
+    def _log_evidence(self, kX: np.ndarray, s: float) -> float:
+        K = self._cov(kX, self.hX, self.hX, s) + _NOISE * np.eye(len(self.v))
         try:
             L = _chol(K)
         except np.linalg.LinAlgError:
@@ -390,6 +406,9 @@ class Transfer(Critic):
         p = self.opts["max_fall_prob"]
         if not (isinstance(p, (int, float)) and 0 < float(p) <= 1):
             raise ValueError(f"max_fall_prob must be in (0, 1], got {p!r}")
+        if self.opts["acquisition"] not in ACQUISITIONS:
+            raise ValueError(f"acquisition must be one of {ACQUISITIONS}, "
+                             f"got {self.opts['acquisition']!r}")
         self.source = (as_unit_points(Xs, self.dim, "source X"),
                        np.asarray(source[1], dtype=float).reshape(-1),
                        np.asarray(source[2], dtype=bool).reshape(-1))
@@ -472,7 +491,7 @@ class Transfer(Critic):
         y = np.where(np.isfinite(self._y) & ~self._fell, self._y, np.inf)
         best = float(y[ext].min()) if ext.any() else math.inf
         L = float(self.opts["length_init"])
-        succ = fail = 0
+        succ = fail = restarts = 0
         gens = np.unique(tags[own] // 4) if own.any() else np.empty(0, dtype=np.int64)
         for g in gens:
             m = own & (tags // 4 == g)
@@ -485,9 +504,13 @@ class Transfer(Critic):
             if succ >= self.opts["succ_tol"]:
                 L, succ = min(2.0 * L, float(self.opts["length_max"])), 0
             elif fail >= self.opts["fail_tol"]:
-                L, fail = max(L / 2.0, float(self.opts["length_min"])), 0
+                if self.opts["restart"] and L / 2.0 < float(self.opts["length_min"]):
+                    L, restarts = float(self.opts["length_init"]), restarts + 1
+                else:
+                    L = max(L / 2.0, float(self.opts["length_min"]))
+                fail = 0
         lat = own & (tags % 4 == LATENT)
-        return {"L": L, "succ": succ, "fail": fail, "n_own": int(own.sum()),
+        return {"L": L, "succ": succ, "fail": fail, "n_own": int(own.sum()), "restarts": restarts,
                 "generation": int(gens.max()) + 1 if gens.size else 0,
                 "latent_told": int(lat.sum()), "latent_fell": int(self._fell[lat].sum())}
 
@@ -557,7 +580,8 @@ class Transfer(Critic):
             return None, None
         sm = self.source_model()
         v = rank_scores(self._y, self._fell)
-        cost = TargetModel(self._X, v, sm.cost, sm.lengthscales)
+        scales = _LS_SCALES if self.opts["fit_lengthscale"] else (1.0,)
+        cost = TargetModel(self._X, v, sm.cost, sm.lengthscales, ls_scales=scales)
         fall = TargetModel(self._X, self._fell.astype(float), sm.fall_prob,
                            sm.fall_lengthscales, prior_mean=(1.0, 0.0))
         return cost, fall
@@ -597,7 +621,11 @@ class Transfer(Critic):
         else:
             m_lat = int(round(M * w_lat))
             XL, UL = self._pool_latent(m_lat, st["L"], centre, rng)
-            XF = self._pool_full(M - len(XL), st["L"], centre, rng)
+            m_full, k_sc = M - len(XL), max(1, int(self.opts["full_scales"]))
+            XF = np.vstack([self._pool_full(
+                m_full // k_sc + (1 if i < m_full % k_sc else 0),
+                min(st["L"] * 2.0 ** i, float(self.opts["length_max"])), centre, rng)
+                for i in range(k_sc)])
             parts = [(E, np.full((len(E), self.k), np.nan), ELITE),
                      (XF, np.full((len(XF), self.k), np.nan), FULL), (XL, UL, LATENT)]
         C = np.vstack([p[0] for p in parts])
@@ -619,6 +647,19 @@ class Transfer(Critic):
             mu0, _ = cost_m.mean_cov(C[cand], False)
             lcb = mu0 - 2.0 * np.sqrt(cost_m.variance(C[cand]))
             cand = np.sort(cand[np.argsort(lcb, kind="stable")[:_JOINT]])
+        ei = self.opts["acquisition"] == "ei" and cost_m is not None
+        if ei:                  # expected improvement over the best told value, top n
+            from scipy.stats import norm
+
+            mu, _ = cost_m.mean_cov(C[cand], False)
+            sd = np.sqrt(np.maximum(cost_m.variance(C[cand]), 1e-12))
+            u = (float(cost_m.v.min()) - mu) / sd
+            acq = sd * (u * norm.cdf(u) + norm.pdf(u))
+            sel = cand[np.argsort(-acq, kind="stable")[:n]]
+            if len(sel) < n:
+                sel = np.resize(sel, n)
+            return self._chosen(C, Zc, pool, sel, ok, pf, g, st, design, agree, agree_sd, w_lat,
+                                latent_off, cost_m)
         # joint Thompson samples of the cost model on the admissible candidates
         if cost_m is None:
             mu, cov = sm.cost(C[cand]), None
@@ -637,6 +678,15 @@ class Transfer(Critic):
                 s = S[j % len(S)].copy()
             picked.append(int(np.argmin(s)))
         sel = cand[picked]
+        return self._chosen(C, Zc, pool, sel, ok, pf, g, st, design, agree, agree_sd, w_lat,
+                            latent_off, cost_m)
+
+    def _chosen(self, C: np.ndarray, Zc: np.ndarray, pool: np.ndarray, sel: np.ndarray,
+                ok: np.ndarray, pf: np.ndarray, g: int, st: dict[str, Any], design: bool,
+                agree: np.ndarray, agree_sd: np.ndarray, w_lat: float, latent_off: bool,
+                cost_m: TargetModel | None) -> tuple[np.ndarray, np.ndarray]:
+        """The chosen candidates ``C[sel]`` with their tags; records the decision."""
+        n = len(sel)
         X = C[sel]
         self.last_z = Zc[sel] if self.k else np.empty((n, 0))
         tags = 4 * g + pool[sel]
@@ -644,7 +694,9 @@ class Transfer(Critic):
             "generation": g, "n_told": self.n_told, "design": bool(design),
             "agreement": float(agree[0]), "agreement_sd": float(agree_sd[0]),
             "sigma_r2": None if cost_m is None else cost_m.sigma_r2,
+            "ls_scale": None if cost_m is None else cost_m.ls_scale,
             "latent_share": w_lat, "latent_off": bool(latent_off), "length": st["L"],
+            "restarts": st["restarts"],
             "n_candidates": int(len(C)), "n_admissible": int(ok.sum()),
             "max_fall_prob_asked": float(pf[sel].max()),
             "pools": [POOL_NAMES[int(p)] for p in pool[sel]]})
@@ -653,13 +705,23 @@ class Transfer(Critic):
 
     # ------------------------------------------------------------------ state
     def state_dict(self) -> dict[str, Any]:
-        """The source models' fitted hyperparameters and the last decision (JSON-ready)."""
-        return {"source_hypers": self._hypers,
+        """The options, the source models' fitted hyperparameters and the last decision
+        (JSON-ready)."""
+        return {"options": dict(self.opts), "source_hypers": self._hypers,
                 "last_decision": self.decisions[-1] if self.decisions else None}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        if state and state.get("source_hypers") and self._model is None:
+        """Restore :meth:`state_dict`: the source hyperparameters, and the options the stored
+        run was asked with (a state stored before options were recorded resumes with
+        :data:`LEGACY_OPTIONS`), so a resumed run asks what the original would have."""
+        if not state:
+            return
+        if state.get("source_hypers") and self._model is None:
             self._hypers = state["source_hypers"]
+        if "options" in state:
+            self.opts.update(state["options"])
+        elif "last_decision" in state:
+            self.opts.update({k: v for k, v in LEGACY_OPTIONS.items() if k != "max_fall_prob"})
 
     def __repr__(self) -> str:
         return (f"Transfer(dim={self.dim}, k={self.k}, n_source={len(self.source[1])}, "

@@ -1,0 +1,551 @@
+"""The transfer ladder on the robots: phase 3 against the user's tools, from the paper-budget
+sources of A1 and Solo12 to targets at several gaps.
+
+    python -m benchmarks.robot_transfer list
+    python -m benchmarks.robot_transfer snapshot [--robots a1 solo12] [--sources a1-trot ...]
+        [--paper results/paper10k] [--root runs/robot_transfer]
+    python -m benchmarks.robot_transfer run [--robots a1 solo12] [--targets RUNG ...]
+        [--methods METHOD ...] [--seeds 0 1 2 3 4] [--budget 100] [--source-trials N]
+        [--paper results/paper10k] [--root runs/robot_transfer] [--workers 1]
+    python -m benchmarks.robot_transfer summary [--root runs/robot_transfer]
+        [--out results/robot_transfer/ladder.json]
+    python -m benchmarks.robot_transfer plot [--targets RUNG ...] [--root runs/robot_transfer]
+        [--out results/robot_transfer] [--gifs]
+
+Rungs (:func:`rungs`; ``list`` prints them). A source is a phase-1 study of ``latentune paper``
+(``PAPER/<robot>/<robot>-<gait>/run.db``, ``scripts/paper_sources.sh``); a target is the
+source's task (its stored ``Task.config()``: actor, horizon, v_des and world seed, so the
+``hard`` profile's noise and pushes are the same for every method and seed) with a few fields
+changed. For each robot R of
+``a1`` (convex MPC) and ``solo12`` (kino-dynamic MPC) and each gait g of trot and jump:
+
+* ``R-g-heavy`` / ``R-g-hard``: the source ``R-g`` on the ``heavy`` / ``hard`` reality profile
+  (:mod:`latentune.sim.reality`);
+* ``R-g-mujoco``: the source ``R-g`` in MuJoCo (the other engine);
+* ``R-jump-from-trot``: the source ``R-trot`` on the jump task (cross-task);
+* A1 only, ``b1-g-from-a1``: the source ``a1-g`` on B1 (cross-robot).
+
+Sources are never opened in place: a long ``latentune paper`` run may be writing them.
+:func:`snapshot` copies a source's ``run.db`` with SQLite's online-backup API (a read-only
+connection, one consistent read) into ``ROOT/sources/<source>/n<N>/`` (N = its phase-1 and
+phase-3 trials at that moment) and trains its latent space there (phase 2, the source's recorded
+seed) unless the source has one; ``snapshot.json``, written last, marks a finished snapshot.
+Sources grow: ``run`` uses the newest snapshot (``--source-trials N``: that one; none yet: it
+takes one), ``snapshot`` takes a new one when the source has grown.
+
+``run``: for every rung, seed and method (:data:`benchmarks.transfer.METHODS`, run by
+:func:`benchmarks.transfer.run_method`) ``--budget`` B trials on the target, one at a time,
+every trial counted; one JSON per run at ``ROOT/targets/<rung>/src<N>/seed<s>/<method>.json``
+(cost, failed and θ per trial, the transfer critic's decisions, wall time, load average, the
+target's task config, the source and its trial count N), skipped when it exists: the run
+resumes. ``summary`` applies the transfer issue's definitions per (rung, source size)
+(:func:`benchmarks.transfer.summarize`) and flags rungs where no method beats the zero-shot θ;
+``plot`` re-simulates the best θ of the default phase 3 and of the best peer (and the zero-shot
+θ) on a rung's target and draws the base's CoM x/y/z, forward velocity and height over time
+into ``OUT/<rung>/``.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import logging
+import os
+import shutil
+import sqlite3
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable, Sequence
+
+from benchmarks import transfer as tr
+
+import numpy as np  # noqa: E402  (benchmarks.transfer sets one BLAS thread first)
+
+logger = logging.getLogger(__name__)
+
+ROBOT_GAITS = ("trot", "jump")
+ROBOTS = ("a1", "solo12")
+SNAPSHOT_FILE = "snapshot.json"
+
+
+class RobotTransferError(Exception):
+    """A request this benchmark cannot honour (unknown rung, missing source, ...)."""
+
+
+# --------------------------------------------------------------------------- registry
+@dataclass(frozen=True)
+class Rung:
+    """One target of the ladder.
+
+    Attributes:
+        name: the rung's name (``a1-trot-heavy``).
+        robot: the paper run holding the source (``PAPER/<robot>/``).
+        source: the source study's key in that run (``a1-trot``).
+        change: the Task fields of the target that differ from the source's task
+            (``robot``, ``gait``, ``reality``, ``engine``).
+        label: one line for tables and plots.
+    """
+
+    name: str
+    robot: str
+    source: str
+    change: dict[str, Any] = field(hash=False)
+    label: str = ""
+
+    def target(self, source_task: dict[str, Any]) -> Any:
+        """The target Task: ``source_task`` (a stored ``Task.config()``) with :attr:`change`."""
+        from latentune.task import Task
+
+        cfg = dict(source_task)
+        if "robot" in self.change:
+            cfg.pop("spec", None)
+        cfg.update(self.change)
+        return Task.from_config(cfg)
+
+
+def rungs(robots: Iterable[str] = ROBOTS) -> dict[str, Rung]:
+    """The rungs of ``robots`` by name (module docstring), in run order."""
+    out: dict[str, Rung] = {}
+    for R in robots:
+        if R not in ROBOTS:
+            raise RobotTransferError(f"unknown robot {R!r} (choose from {', '.join(ROBOTS)})")
+        for g in ROBOT_GAITS:
+            for kind, change in (("heavy", {"reality": "heavy"}), ("hard", {"reality": "hard"}),
+                                 ("mujoco", {"engine": "mujoco"})):
+                out[f"{R}-{g}-{kind}"] = Rung(f"{R}-{g}-{kind}", R, f"{R}-{g}", change,
+                                              f"{R} {g} → {kind}")
+        out[f"{R}-jump-from-trot"] = Rung(f"{R}-jump-from-trot", R, f"{R}-trot",
+                                          {"gait": "jump"}, f"{R} trot source → {R} jump")
+        if R == "a1":
+            for g in ROBOT_GAITS:
+                out[f"b1-{g}-from-a1"] = Rung(f"b1-{g}-from-a1", R, f"a1-{g}", {"robot": "b1"},
+                                              f"a1 {g} source → b1 {g}")
+    return out
+
+
+def select(robots: Sequence[str], names: Sequence[str] | None) -> list[Rung]:
+    """The rungs named (all of ``robots`` when ``names`` is None); refuses unknown names and
+    rungs of other robots."""
+    reg = rungs(robots)
+    if names is None:
+        return list(reg.values())
+    every = rungs(ROBOTS)
+    for n in names:
+        if n not in every:
+            raise RobotTransferError(f"unknown target {n!r} (see `list`)")
+        if n not in reg:
+            raise RobotTransferError(f"target {n!r} is a rung of {every[n].robot}, not of "
+                                     f"{', '.join(robots)}")
+    return [reg[n] for n in dict.fromkeys(names)]
+
+
+# --------------------------------------------------------------------------- sources
+def _count(run_dir: Path) -> tuple[int, int]:
+    from latentune.constants import Phase
+    from latentune.pipeline.store import RunStore
+
+    with RunStore(run_dir) as st:
+        return st.count(Phase.PHASE1), st.count(Phase.PHASE3)
+
+
+def snapshots(dest: Path) -> list[Path]:
+    """The finished snapshots under ``dest`` (``dest/n<N>/`` with ``snapshot.json``), by N."""
+    found = [p for p in dest.glob("n*") if p.is_dir() and p.name[1:].isdigit()
+             and (p / SNAPSHOT_FILE).is_file()]
+    return sorted(found, key=lambda p: int(p.name[1:]))
+
+
+def snapshot(live: Path, dest: Path) -> Path:
+    """Snapshot the study ``live`` into ``dest/n<N>/`` and prepare it as a source.
+
+    The copy is made with SQLite's backup API from a read-only connection (``live`` is never
+    locked or written); N is its number of phase-1 + phase-3 trials. A snapshot of that size
+    that exists is reused. The latent space is copied from ``live`` when it has one
+    (``vae.pt`` / ``vae.json``), else trained in the snapshot (``Study.train_latent``, the
+    source's recorded seed). Returns the snapshot directory."""
+    src_db = live / "run.db"
+    if not src_db.is_file():
+        raise RobotTransferError(f"no source run at {live} (expected {src_db})")
+    dest.mkdir(parents=True, exist_ok=True)
+    tmp = dest / f".taking-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir()
+    t0 = time.perf_counter()
+    try:
+        con = sqlite3.connect(f"file:{src_db.resolve()}?mode=ro", uri=True, timeout=60.0)
+        try:
+            out = sqlite3.connect(str(tmp / "run.db"))
+            try:
+                con.backup(out)
+            finally:
+                out.close()
+        finally:
+            con.close()
+    except sqlite3.Error as exc:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise RobotTransferError(f"cannot copy {src_db}: {exc}") from None
+    n1, n3 = _count(tmp)
+    final = dest / f"n{n1 + n3}"
+    if final.exists():
+        shutil.rmtree(tmp)
+    else:
+        tmp.rename(final)
+    if not (final / SNAPSHOT_FILE).is_file():
+        _prepare(live, final, n1, n3, time.perf_counter() - t0)
+    return final
+
+
+def _prepare(live: Path, snap: Path, n1: int, n3: int, copy_s: float) -> None:
+    """Give the snapshot ``snap`` its latent space, then write ``snapshot.json``."""
+    from latentune.study import Study
+
+    copied = all((live / f"vae{ext}").is_file() for ext in (".pt", ".json"))
+    if copied:
+        for ext in (".pt", ".json"):
+            shutil.copy2(live / f"vae{ext}", snap / f"vae{ext}")
+    t0 = time.perf_counter()
+    with Study(snap) as st:
+        if copied and st.store.artifact("vae") is None:
+            st.store.add_artifact("vae", snap / "vae")
+        latent = st.train_latent()
+        cfg = st.config()
+        seed = st.seed
+    info = {"from": str(live.resolve()), "n_trials": n1 + n3, "n_phase1": n1, "n_phase3": n3,
+            "taken": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            "copy_s": copy_s, "seed": seed,
+            "vae": {"from": "source" if copied else "trained here", "kind": latent.kind,
+                    "d_low": latent.d_low, "n_train": (cfg.get("vae") or {}).get("n_train"),
+                    "wall_s": time.perf_counter() - t0},
+            "task": cfg.get("task"), "system": cfg.get("system"),
+            "space_names": (cfg.get("space") or {}).get("names")}
+    (snap / SNAPSHOT_FILE).write_text(json.dumps(info, indent=1))
+    logger.info("snapshot %s: %d trials, VAE %s", snap, n1 + n3, info["vae"]["from"])
+
+
+def source_dir(paper: Path, root: Path, robot: str, source: str, trials: int | None = None,
+               take: bool = True) -> Path:
+    """The snapshot a run uses: of ``trials`` trials if given (it must exist), else the newest
+    one; with none yet, a new one (``take``) from ``paper/<robot>/<source>``."""
+    dest = root / "sources" / source
+    have = snapshots(dest)
+    if trials is not None:
+        for p in have:
+            if int(p.name[1:]) == trials:
+                return p
+        raise RobotTransferError(f"no snapshot of {source} with {trials} trials under {dest} "
+                                 f"(have: {', '.join(p.name for p in have) or 'none'})")
+    if have:
+        return have[-1]
+    if not take:
+        raise RobotTransferError(f"no snapshot of {source} under {dest}")
+    return snapshot(paper / robot / source, dest)
+
+
+def snapshot_info(src: Path) -> dict[str, Any]:
+    """A snapshot's ``snapshot.json``."""
+    return json.loads((src / SNAPSHOT_FILE).read_text())
+
+
+def build_target(rung: Rung, src: Path) -> Any:
+    """The rung's target Task from the snapshot ``src``; refuses a θ space other than the
+    source's (the latent space and the source's trials are over the source's θ)."""
+    info = snapshot_info(src)
+    if not info.get("task"):
+        raise RobotTransferError(f"{src} is not a robot task's run (no stored task)")
+    target = rung.target(info["task"])
+    names = list(target.space.names)
+    if info.get("space_names") is not None and names != list(info["space_names"]):
+        raise RobotTransferError(f"{rung.name}: the target's θ ({len(names)} entries) are not "
+                                 f"the source's ({len(info['space_names'])})")
+    return target
+
+
+# --------------------------------------------------------------------------- runs
+class Recorded:
+    """A System that forwards to ``system`` and records every θ it evaluates ((d,) lists)."""
+
+    def __init__(self, system: Any) -> None:
+        self.system = system
+        self.space = system.space
+        self.thetas: list[list[float]] = []
+
+    def evaluate(self, theta: np.ndarray) -> Any:
+        self.thetas.append([float(v) for v in np.asarray(theta, dtype=float).ravel()])
+        return self.system.evaluate(theta)
+
+
+def result_path(root: Path, target: str, n_source: int, seed: int, method: str) -> Path:
+    """Where the run of ``method`` on ``target`` with a source of ``n_source`` trials lives."""
+    return root / "targets" / target / f"src{n_source}" / f"seed{seed}" / f"{method}.json"
+
+
+def run_one(target_name: str, target: Any, src: Path, method: str, seed: int, budget: int,
+            root: Path, extra: dict[str, Any] | None = None) -> dict[str, Any] | None:
+    """``budget`` trials of ``method`` on ``target`` (a System) from the prepared source
+    ``src``; writes and returns the result (None when it is stored already)."""
+    info = snapshot_info(src)
+    f = result_path(root, target_name, int(info["n_trials"]), seed, method)
+    if f.is_file():
+        return None
+    rec = Recorded(target)
+    load0 = list(os.getloadavg())
+    t0 = time.perf_counter()
+    res = tr.run_method(method, rec, src, budget, seed)
+    res.update(target=target_name, source=Path(info["from"]).name, source_dir=str(src),
+               source_trials=int(info["n_trials"]), seed=seed, method=method, budget=budget,
+               wall_s=time.perf_counter() - t0, load_start=load0, load_end=list(os.getloadavg()),
+               thetas=rec.thetas, **(extra or {}))
+    cfg = getattr(target, "config", None)
+    if callable(cfg):
+        res["target_config"] = cfg()
+    f.parent.mkdir(parents=True, exist_ok=True)
+    tmp = f.with_suffix(".tmp")
+    tmp.write_text(json.dumps(res))
+    tmp.replace(f)
+    return res
+
+
+def _job(args: tuple) -> str:
+    rung, src, method, seed, budget, root = args
+    target = build_target(rung, src)
+    res = run_one(rung.name, target, src, method, seed, budget, root, {"label": rung.label})
+    if res is None:
+        return f"{rung.name} seed {seed} {method}: stored"
+    return (f"{rung.name} ({res['source_trials']} source trials) seed {seed} {method}: best "
+            f"{min(res['costs']):.4g}, falls {sum(res['failed'])}, {res['wall_s']:.0f} s")
+
+
+def run(a: argparse.Namespace) -> None:
+    root, paper = Path(a.root), Path(a.paper)
+    jobs = []
+    for rung in select(a.robots, a.targets):
+        src = source_dir(paper, root, rung.robot, rung.source, a.source_trials)
+        build_target(rung, src)                         # refuse a bad rung before any trial
+        if "transfer" in a.methods:
+            tr._source_hypers(src, 0)                   # fitted once, before the workers share it
+        n = int(snapshot_info(src)["n_trials"])
+        jobs += [(rung, src, m, s, a.budget, root) for s in a.seeds for m in a.methods
+                 if not result_path(root, rung.name, n, s, m).is_file()]
+    print(f"{len(jobs)} runs to do", flush=True)
+    if a.workers == 1:
+        for j in jobs:
+            print(_job(j), flush=True)
+        return
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(a.workers) as ex:
+        for line in ex.map(_job, jobs):
+            print(line, flush=True)
+
+
+# --------------------------------------------------------------------------- summary
+RESULT_GLOB = "*/src*/seed*/*.json"
+
+
+def _target_key(r: dict[str, Any]) -> dict[str, Any]:
+    return {"target": r["target"], "source": r["source"], "source_trials": int(r["source_trials"])}
+
+
+def _title(row: dict[str, Any]) -> str:
+    return f"{row['target']} (source {row['source']}, {row['source_trials']} trials)"
+
+
+def summarize(root: Path) -> dict[str, Any]:
+    """:func:`benchmarks.transfer.summarize` of ``root``'s runs per (rung, source, source size),
+    each row with its rung's label and ``beats_zero_shot``: the methods whose best costs are
+    below the zero-shot θ's (one-sided Mann–Whitney p < 0.05); a rung where none does is one to
+    drop."""
+    from scipy.stats import mannwhitneyu
+
+    s = tr.summarize(root / "targets", RESULT_GLOB, _target_key)
+    every = rungs(ROBOTS)
+    for row in s["targets"]:
+        row["label"] = every[row["target"]].label if row["target"] in every else row["target"]
+        zs = row["methods"].get("zero_shot")
+        if zs is None:
+            continue
+        beats = []
+        for m, r in row["methods"].items():
+            if m == "zero_shot":
+                continue
+            try:
+                p = float(mannwhitneyu(r["best"], zs["best"], alternative="less").pvalue)
+            except ValueError:
+                p = 1.0
+            if p < 0.05:
+                beats.append(m)
+        row["beats_zero_shot"] = beats
+    return s
+
+
+def markdown(s: dict[str, Any]) -> str:
+    """The summary's tables (:func:`benchmarks.transfer.markdown`) and the rungs to drop."""
+    md = tr.markdown(s, _title)
+    flat = [_title(r) for r in s["targets"] if r.get("beats_zero_shot") == []]
+    if flat:
+        md += "\n\nNo method beats the zero-shot θ (p < 0.05) on: " + "; ".join(flat)
+    return md
+
+
+# --------------------------------------------------------------------------- plots
+def plot_com(results: dict[str, Any], path: Path, title: str) -> None:
+    """The base's CoM x, y, z [m] against time [s] of recorded rollouts (label → a result with
+    ``cost`` and ``trace`` holding ``t`` (n,) and ``pos`` (n, 3)), one panel per axis."""
+    from latentune.reporting.plots import _plt
+
+    plt = _plt()
+    fig, axes = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
+    for label, res in results.items():
+        t, pos = res.trace["t"], res.trace["pos"]
+        for k, ax in enumerate(axes):
+            ax.plot(t, pos[:, k], lw=0.8, label=f"{label} (L = {res.cost:.2f})" if k == 0 else None)
+    for ax, name in zip(axes, "xyz"):
+        ax.set_ylabel(f"CoM {name} [m]")
+    axes[-1].set_xlabel("time [s]")
+    axes[0].legend(fontsize=8)
+    axes[0].set_title(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _best_theta(runs: dict[int, dict[str, Any]]) -> tuple[list[float], float, int, int]:
+    """(θ, cost, seed, trial) of the lowest cost over every seed's run of a method."""
+    seed, i = min(((s, i) for s, r in runs.items() for i in range(len(r["costs"]))),
+                  key=lambda si: runs[si[0]]["costs"][si[1]])
+    return runs[seed]["thetas"][i], float(runs[seed]["costs"][i]), seed, i + 1
+
+
+def plot(a: argparse.Namespace) -> None:
+    from latentune.reporting.plots import plot_rollouts
+    from latentune.task import Task
+
+    root, out = Path(a.root), Path(a.out)
+    summ = summarize(root)
+    names = a.targets or sorted({r["target"] for r in summ["targets"]})
+    for name in names:
+        rows = [r for r in summ["targets"] if r["target"] == name]
+        if not rows:
+            raise RobotTransferError(f"no runs of {name} under {root / 'targets'}")
+        row = max(rows, key=lambda r: r["source_trials"])
+        methods = [m for m in ("transfer", row["best_peer"], "zero_shot") if m in row["methods"]]
+        runs: dict[str, dict[int, dict]] = {}
+        for m in dict.fromkeys(methods):
+            runs[m] = {s: json.loads(result_path(root, name, row["source_trials"], s, m)
+                                     .read_text()) for s in row["seeds"]}
+        task = Task.from_config(next(iter(runs[methods[0]].values()))["target_config"])
+        d = out / name
+        d.mkdir(parents=True, exist_ok=True)
+        sims: dict[str, Any] = {}
+        record: dict[str, Any] = {"target": name, "source_trials": row["source_trials"],
+                                  "best_peer": row["best_peer"], "theta": {}}
+        for m in dict.fromkeys(methods):
+            theta, cost, seed, trial = _best_theta(runs[m])
+            label = "default phase 3" if m == "transfer" else \
+                f"best peer ({m})" if m == row["best_peer"] else m
+            gif = str(d / f"{m}.gif") if a.gifs else None
+            sims[label] = task.rollout(np.array(theta), record=True, gif=gif)
+            record["theta"][m] = {"theta": theta, "cost": cost, "seed": seed, "trial": trial,
+                                  "resimulated_cost": sims[label].cost}
+        title = f"{row['label']}: best θ"
+        plot_com(sims, d / "com_xyz.png", title)
+        plot_rollouts(sims, d / "com_velocity.png", v_des=float(task.v_des[0]), title=title)
+        (d / "plot.json").write_text(json.dumps(record, indent=1))
+        print(f"{name}: {d}/com_xyz.png, com_velocity.png", flush=True)
+
+
+# --------------------------------------------------------------------------- command line
+def _nonneg_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {v}")
+    return v
+
+
+def _pos_int(text: str) -> int:
+    v = _nonneg_int(text)
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {v}")
+    return v
+
+
+def parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.robot_transfer",
+                                 description=__doc__.splitlines()[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    sub.add_parser("list", help="the rungs")
+    sn = sub.add_parser("snapshot", help="snapshot sources (a new one when a source has grown)")
+    r = sub.add_parser("run", help="run the ladder (resumes)")
+    for p in (sn, r):
+        p.add_argument("--robots", nargs="+", choices=ROBOTS, default=list(ROBOTS))
+        p.add_argument("--paper", default="results/paper10k",
+                       help="the directory holding the paper runs <robot>/<robot>-<gait>/")
+        p.add_argument("--root", default="runs/robot_transfer")
+    sn.add_argument("--sources", nargs="+", default=None,
+                    help="source studies (default: every source of the robots' rungs)")
+    r.add_argument("--targets", nargs="+", default=None, help="rungs (default: all of the robots)")
+    r.add_argument("--methods", nargs="+", choices=tr.METHODS, default=list(tr.METHODS))
+    r.add_argument("--seeds", nargs="+", type=_nonneg_int, default=list(range(5)))
+    r.add_argument("--budget", type=_pos_int, default=100)
+    r.add_argument("--source-trials", type=_pos_int, default=None,
+                   help="use the snapshot of this many trials (default: the newest)")
+    r.add_argument("--workers", type=_pos_int, default=1)
+    s = sub.add_parser("summary", help="the criteria per rung")
+    s.add_argument("--root", default="runs/robot_transfer")
+    s.add_argument("--out", default="results/robot_transfer/ladder.json")
+    pl = sub.add_parser("plot", help="CoM plots of the best θ per rung")
+    pl.add_argument("--targets", nargs="+", default=None)
+    pl.add_argument("--root", default="runs/robot_transfer")
+    pl.add_argument("--out", default="results/robot_transfer")
+    pl.add_argument("--gifs", action="store_true", help="also a GIF of each re-simulated θ")
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    a = parser().parse_args(argv)
+    from latentune.errors import LatentuneError
+
+    try:
+        if a.cmd == "list":
+            for rung in rungs().values():
+                print(f"{rung.name:22s} source {rung.robot}/{rung.source:10s} change "
+                      f"{json.dumps(rung.change)}")
+        elif a.cmd == "snapshot":
+            reg = rungs(a.robots)
+            known = {(g.robot, g.source) for g in reg.values()}
+            want = a.sources or sorted({s for _, s in known})
+            for name in want:
+                robot = next((rb for rb, s in known if s == name), None)
+                if robot is None:
+                    raise RobotTransferError(f"unknown source {name!r} for {', '.join(a.robots)}"
+                                             f" (choose from {', '.join(sorted(s for _, s in known))})")
+                p = snapshot(Path(a.paper) / robot / name, Path(a.root) / "sources" / name)
+                print(f"{name}: {p} ({snapshot_info(p)['n_trials']} trials)", flush=True)
+        elif a.cmd == "run":
+            run(a)
+        elif a.cmd == "summary":
+            from benchmarks.common import Provenance, write_json
+
+            prov = Provenance(argv, module="benchmarks.robot_transfer")
+            res = summarize(Path(a.root))
+            p = prov.finish()
+            out = write_json(a.out, res, p)
+            md = markdown(res)
+            out.with_suffix(".md").write_text(f"`{p['command']}`\n{md}\n")
+            print(md)
+        else:
+            plot(a)
+    except (RobotTransferError, LatentuneError, OSError) as exc:
+        print(f"robot_transfer: error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

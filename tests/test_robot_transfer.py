@@ -1,0 +1,188 @@
+"""benchmarks.robot_transfer: the rung registry, the source snapshots and the run files (on a
+tiny user system, not on a robot)."""
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import latentune as lt
+from benchmarks import robot_transfer as rt
+from benchmarks import transfer as tr
+from examples.toy_plant import make_real_system, make_system
+
+A1_TASK = {"robot": "a1", "gait": "trot", "terrain": "flat", "actor": "convex",
+           "v_des": [0.5, 0.0, 0.0], "steps": 5000, "seed": 0, "dim": 25}
+SOLO_TASK = {**A1_TASK, "robot": "solo12", "actor": "kinodynamic", "dim": 77}
+
+
+def test_registry_names_sources_and_changes():
+    reg = rt.rungs()
+    for R in ("a1", "solo12"):
+        for g in ("trot", "jump"):
+            for kind in ("heavy", "hard", "mujoco"):
+                r = reg[f"{R}-{g}-{kind}"]
+                assert (r.robot, r.source) == (R, f"{R}-{g}")
+        cross = reg[f"{R}-jump-from-trot"]
+        assert (cross.source, cross.change) == (f"{R}-trot", {"gait": "jump"})
+    assert reg["b1-trot-from-a1"].source == "a1-trot"
+    assert reg["b1-jump-from-a1"].source == "a1-jump"
+    assert not any(n.startswith("b1") for n in rt.rungs(["solo12"]))
+    assert len(reg) == 16
+
+
+def test_rung_targets_are_the_source_task_with_the_change():
+    reg = rt.rungs()
+    heavy = reg["a1-trot-heavy"].target(A1_TASK)
+    assert heavy.reality.name == "heavy" and not heavy.reality.is_nominal
+    assert (heavy.robot_name, heavy.gait, heavy.engine, heavy.steps) == ("a1", "trot",
+                                                                          "pybullet", 5000)
+    hard = reg["a1-trot-hard"].target(A1_TASK)
+    assert hard.reality.name == "hard" and hard.reality.to_dict() != heavy.reality.to_dict()
+    mj = reg["a1-trot-mujoco"].target(A1_TASK)
+    assert mj.engine == "mujoco" and mj.reality.is_nominal
+    jump = reg["solo12-jump-from-trot"].target(SOLO_TASK)
+    assert (jump.robot_name, jump.gait, jump.actor) == ("solo12", "jump", "kinodynamic")
+    b1 = reg["b1-trot-from-a1"].target({**A1_TASK, "spec": {"stale": True}})
+    assert b1.robot_name == "b1" and list(b1.space.names) == list(heavy.space.names)
+
+
+def test_select_refuses_unknown_and_foreign_rungs():
+    assert [r.name for r in rt.select(["a1"], ["a1-trot-heavy"])] == ["a1-trot-heavy"]
+    assert len(rt.select(["solo12"], None)) == 7
+    with pytest.raises(rt.RobotTransferError, match="unknown target"):
+        rt.select(["a1"], ["a1-trot-windy"])
+    with pytest.raises(rt.RobotTransferError, match="rung of solo12"):
+        rt.select(["a1"], ["solo12-trot-hard"])
+    with pytest.raises(rt.RobotTransferError, match="unknown robot"):
+        rt.rungs(["go1"])
+
+
+@pytest.fixture(scope="module")
+def live(tmp_path_factory) -> Path:
+    """A source study of the toy plant, phase 1 only (as the paper's sources-only runs)."""
+    d = tmp_path_factory.mktemp("live") / "toy"
+    with lt.Study(d, seed=3, batch_size=4) as st:
+        st.phase1(make_system(steps=60), 40, max_new=16)
+    return d
+
+
+def test_snapshot_copies_without_touching_the_live_store(live, tmp_path, dump_store):
+    before = dump_store(live)
+    dest = tmp_path / "sources" / "toy"
+    snap = rt.snapshot(live, dest)
+    assert snap == dest / "n16"
+    assert dump_store(live) == before                       # the live store is unchanged
+    assert not (live / "vae.pt").exists()                   # the latent space lives in the copy
+    rows, _ = dump_store(snap)
+    assert rows == before[0]
+    info = rt.snapshot_info(snap)
+    assert (info["n_trials"], info["n_phase1"], info["n_phase3"]) == (16, 16, 0)
+    assert info["seed"] == 3 and info["vae"]["from"] == "trained here"
+    assert info["from"] == str(live.resolve())
+    ls = lt.LatentSpace.load(snap / "vae")
+    assert ls.d == make_system().space.dim
+    assert rt.snapshot(live, dest) == snap                  # not grown: the same snapshot
+    assert rt.snapshots(dest) == [snap]
+    assert not list(dest.glob(".taking-*"))
+
+
+def test_snapshot_of_a_grown_source_is_a_new_one(live, tmp_path):
+    live = Path(shutil.copytree(live, tmp_path / "live" / "toy"))
+    dest = tmp_path / "sources" / "toy"
+    first = rt.snapshot(live, dest)
+    (dest / "n99").mkdir()                                  # unfinished: no snapshot.json
+    with lt.Study(live) as st:
+        st.phase1(make_system(steps=60), 40, max_new=4)
+    second = rt.snapshot(live, dest)
+    assert second.name == "n20" and rt.snapshots(dest) == [first, second]
+    root = tmp_path
+    assert rt.source_dir(Path("unused"), root, "x", "toy") == second
+    assert rt.source_dir(Path("unused"), root, "x", "toy", trials=16) == first
+    with pytest.raises(rt.RobotTransferError, match="no snapshot of toy with 5 trials"):
+        rt.source_dir(Path("unused"), root, "x", "toy", trials=5)
+    with pytest.raises(rt.RobotTransferError, match="no source run"):
+        rt.snapshot(tmp_path / "nowhere", tmp_path / "sources" / "nowhere")
+
+
+def test_snapshot_takes_the_source_latent_space_when_it_has_one(tmp_path):
+    live = tmp_path / "live"
+    with lt.Study(live, seed=1, batch_size=4) as st:
+        st.phase1(make_system(steps=60), 12)
+        mine = st.train_latent()
+    snap = rt.snapshot(live, tmp_path / "sources" / "live")
+    assert rt.snapshot_info(snap)["vae"]["from"] == "source"
+    z = np.full((1, mine.d), 0.5)
+    np.testing.assert_allclose(lt.LatentSpace.load(snap / "vae").encode(z), mine.encode(z))
+
+
+def test_run_files_record_the_source_size_and_resume(live, tmp_path):
+    snap = rt.snapshot(live, tmp_path / "sources" / "toy")
+    n = rt.snapshot_info(snap)["n_trials"]
+    target = make_real_system(steps=60)
+    for m in ("zero_shot", "turbo_source"):
+        for seed in (0, 1):
+            res = rt.run_one("toy-real", target, snap, m, seed, 3, tmp_path)
+            assert res is not None
+    f = rt.result_path(tmp_path, "toy-real", n, 0, "turbo_source")
+    r = json.loads(f.read_text())
+    assert (r["source"], r["source_trials"], r["budget"], r["method"]) == ("toy", n, 3,
+                                                                          "turbo_source")
+    assert len(r["costs"]) == len(r["failed"]) == len(r["thetas"]) == 3
+    assert r["target_config"]["name"] == "real"
+    out = target.evaluate(np.array(r["thetas"][1]))            # the θ recorded is the one run
+    assert out.failed == r["failed"][1]
+    if not out.failed:
+        assert out.cost == pytest.approx(r["costs"][1])
+    assert rt.run_one("toy-real", target, snap, "turbo_source", 0, 3, tmp_path) is None
+    s = rt.summarize(tmp_path)
+    (row,) = s["targets"]
+    assert (row["target"], row["source"], row["source_trials"]) == ("toy-real", "toy", n)
+    assert row["seeds"] == [0, 1] and set(row["methods"]) == {"zero_shot", "turbo_source"}
+    assert row["best_peer"] in ("zero_shot", "turbo_source")
+    assert "toy-real (source toy" in rt.markdown(s)
+    out = tmp_path / "out" / "ladder.json"
+    assert rt.main(["summary", "--root", str(tmp_path), "--out", str(out)]) == 0
+    written = json.loads(out.read_text())
+    assert written["targets"][0]["source_trials"] == n
+    assert "benchmarks.robot_transfer summary" in written["provenance"]["command"]
+    assert out.with_suffix(".md").read_text().startswith("`")
+
+
+def test_plot_com_draws_every_rollout(tmp_path):
+    class Res:
+        def __init__(self, cost: float, k: float) -> None:
+            t = np.linspace(0.001, 1.0, 50)
+            self.cost, self.trace = cost, {"t": t, "pos": np.c_[k * t, 0 * t, 0.3 + 0 * t]}
+
+    f = tmp_path / "com.png"
+    rt.plot_com({"a": Res(1.0, 0.5), "b": Res(2.0, 0.4)}, f, "toy")
+    assert f.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_ladder_summary_keeps_its_rows(tmp_path):
+    """The generalized benchmarks.transfer.summarize reads the cheap ladder's files as before."""
+    for m, costs in (("zero_shot", [3.0]), ("tpe", [4.0, 2.0]), ("transfer", [2.5, 1.0])):
+        for s in (0, 1):
+            f = tmp_path / "arm" / "gap1" / f"seed{s}" / f"{m}.json"
+            f.parent.mkdir(parents=True, exist_ok=True)
+            f.write_text(json.dumps({"system": "arm", "gap": 1.0, "seed": s, "method": m,
+                                     "budget": 2, "costs": costs,
+                                     "failed": [False] * len(costs)}))
+    (row,) = tr.summarize(tmp_path)["targets"]
+    assert (row["system"], row["gap"], row["best_peer"]) == ("arm", 1.0, "tpe")
+    assert row["methods"]["transfer"]["trials_to_best_peer"] == 2
+    assert "### arm gap 1 (2 seeds; best peer: tpe)" in tr.markdown({"targets": [row]})
+
+
+def test_command_line_refuses_bad_input(capsys):
+    assert rt.main(["run", "--robots", "solo12", "--targets", "a1-trot-heavy"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["robot_transfer: error: target 'a1-trot-heavy' is a rung of a1, not of solo12"]
+    assert rt.main(["snapshot", "--sources", "a1-walk", "--robots", "a1"]) == 2
+    assert "unknown source 'a1-walk'" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        rt.main(["run", "--budget", "0"])
