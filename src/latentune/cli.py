@@ -549,9 +549,10 @@ def cmd_ask(args: argparse.Namespace) -> int:
     if args.budget is not None:
         _positive("budget", args.budget)
     with study:
+        start = _ask_start(args.start, system, space, study)
         sugg = study.ask(args.n, system=system, space=space, phase=args.phase, latent=args.vae,
                          method=args.method, handover=handover, strategy=strategy,
-                         budget=args.budget, regions=args.regions,
+                         budget=args.budget, regions=args.regions, start=start,
                          max_fall_prob=args.max_fall_prob, fall_prior=args.fall_prior,
                          asker=args.asker, lease_s=args.lease)
         write_suggestion_files(study.dir, sugg)
@@ -563,6 +564,23 @@ def cmd_ask(args: argparse.Namespace) -> int:
             more = " ..." if len(s.params) > 6 else ""
             print(f"{s.id}\t{s.phase_name}{' (again)' if s.again else ''}\t{s.path}\t{vals}{more}")
     return 0
+
+
+def _ask_start(start: str | None, system: Any, space: Any, study: Any) -> Any:
+    """ask --start as Study.ask's ``start``: None, "manual", "scratch", or the unit-box θ of
+    a --params file (read with the system's, the given or the stored parameter space)."""
+    if start is None or start in ("manual", "scratch"):
+        return start
+    sp = system.space if system is not None else space if space is not None else study.space()
+    if sp is None:
+        raise CLIError(f"--start {start}: reading a θ file needs the parameter space: pass "
+                       "--system, --robot or --space on the first ask")
+    from latentune.errors import ParamsError
+
+    try:
+        return sp.load(start)
+    except ParamsError as exc:
+        raise CLIError(f"--start {start}: {exc}") from None
 
 
 def cmd_tell(args: argparse.Namespace) -> int:
@@ -800,6 +818,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--budget", type=int, default=None,
                    help="the trials you plan (first ask: default 200; may grow later)")
     p.add_argument("--regions", type=int, default=None, help="TuRBO-m trust regions")
+    p.add_argument("--start", default=None, metavar="manual|scratch|FILE",
+                   help="the θ the search starts from: manual (the manual θ, the default), "
+                        "scratch (the critic's own initial design) or a --params file "
+                        "(physical values by name, or a list of normalized θ); first ask only")
     p.add_argument("--max-fall-prob", type=float, default=None, metavar="P",
                    help="fall-aware: skip candidates whose predicted fall probability exceeds P")
     p.add_argument("--fall-prior", default=None, metavar="RUN_DIR",

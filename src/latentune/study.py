@@ -313,8 +313,12 @@ class Study:
 
         The first ask fixes the study's system or ``space``, the phase (1, or 3 with a latent
         space) and its options as :meth:`phase1` / :meth:`phase3` take them (``budget`` default
-        200); a later ask takes them from the store (None) and refuses another value (a budget
-        may grow). ``asker``, ``lease_s``: see :mod:`latentune.pipeline.asktell`."""
+        200; ``start``: ``"manual"`` by default, ``"scratch"`` for the critic's own initial
+        design, or a (d,) unit-box θ; not an option of the transfer phase 3); a later ask takes
+        them from the store (None) and refuses another value (a budget may grow). ``asker``,
+        ``lease_s``: see :mod:`latentune.pipeline.asktell`. An ask with the stored options hands
+        out a batch :meth:`tell` prepared when it is still the one the critic would give now
+        (the same suggestions as without it), without building the critic."""
         return asktell.ask(self, n, system=system, space=space, phase=phase, latent=latent,
                            asker=asker, lease_s=lease_s, method=method, budget=budget,
                            regions=regions, start=start, max_fall_prob=max_fall_prob,
@@ -326,7 +330,11 @@ class Study:
         """Store the result of suggestion ``trial_id``: its cost (None with ``failed`` takes the
         C1 convention of :mod:`latentune.system`), whether it failed, a free note. ``amend``:
         correct a told result (the old one is kept in the store's audit trail). StoreError for
-        an unknown id, one told already (without ``amend``) or never handed out."""
+        an unknown id, one told already (without ``amend``) or never handed out.
+
+        When no suggestion is left queued or handed out, the tell then asks the critic the
+        batch the next ask would ask it and stores it, so that ask is immediate
+        (:func:`latentune.pipeline.asktell.prepare`)."""
         return asktell.tell(self, trial_id, cost, failed=failed, note=note, info=info,
                             amend=amend)
 
