@@ -26,6 +26,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
+from latentune import argtypes
 from latentune.errors import CLIError, LatentuneError
 
 DEFAULT_PHASE1 = 400
@@ -88,16 +89,6 @@ def _isatty(stream: Any) -> bool:
 def _positive(name: str, v: Any, low: int = 1) -> None:
     if v is not None and v < low:
         raise CLIError(f"--{name} must be >= {low}, got {v}")
-
-
-def _seed(s: str) -> int:
-    try:
-        v = int(s)
-    except ValueError:
-        raise CLIError(f"--seed must be an integer, got {s!r}") from None
-    if not 0 <= v < 2 ** 63:
-        raise CLIError(f"--seed must be in [0, 2**63), got {v}")
-    return v
 
 
 # ---------------------------------------------------------------------------- systems
@@ -234,7 +225,7 @@ def add_run_args(p: argparse.ArgumentParser, name: str) -> None:
     from latentune.latent.vae import DEFAULT_KIND, KINDS
 
     add_system_args(p)
-    p.add_argument("--seed", type=_seed, default=0, help="seed (terrain, critic, VAE)")
+    p.add_argument("--seed", type=argtypes.seed, default=0, help="seed (terrain, critic, VAE)")
     p.add_argument("--out", required=True, help="run directory (holds run.db and artifacts)")
     p.add_argument("--phase1-evals", type=int, default=DEFAULT_PHASE1,
                    help=f"phase-1 evaluations (default {DEFAULT_PHASE1}; the paper: 10000)")
@@ -775,7 +766,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = add("rollout", help="simulate one rollout and print its path cost (or, with --system, "
                             "run one trial of your system)")
     add_system_args(p)
-    p.add_argument("--seed", type=_seed, default=None, help="terrain seed (default 0)")
+    p.add_argument("--seed", type=argtypes.seed, default=None, help="terrain seed (default 0)")
     p.add_argument("--params", help="JSON file: list of normalized θ or object of physical values "
                                     "(default: the manual θ)")
     p.add_argument("--gif", help="write a GIF of the motion here")
@@ -831,7 +822,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--lease", type=float, default=None, metavar="SECONDS",
                    help="a suggestion not told within this time is handed out again "
                         "(default 3600)")
-    p.add_argument("--seed", type=_seed, default=None, help="seed (first ask only; default 0)")
+    p.add_argument("--seed", type=argtypes.seed, default=None, help="seed (first ask only; default 0)")
     p.add_argument("--json", action="store_true", help="print one JSON list")
     p.set_defaults(func=cmd_ask)
 
@@ -889,7 +880,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="override the phase-3 (and baseline) budget")
     p.add_argument("--out", default=None, help="output directory (default paper-<robot>)")
     p.add_argument("--workers", type=int, default=2, help="parallel rollouts")
-    p.add_argument("--seed", type=_seed, default=0)
+    p.add_argument("--seed", type=argtypes.seed, default=0)
     p.add_argument("--steps", type=int, default=5000, help="rollout horizon in 1 kHz steps")
     p.add_argument("--v-des", type=float, default=0.5)
     p.add_argument("--report-only", action="store_true", help="only (re)write DIR/report.md")
