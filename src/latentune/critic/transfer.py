@@ -92,7 +92,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "n_candidates": 1000, "length_init": 0.5, "length_max": 1.0, "length_min": 1 / 128,
     "succ_tol": 2, "fail_tol": 3, "latent_share_max": 0.5, "latent_falls": 3,
     "max_points": 300, "fall_kappa": 1.0, "fit_lengthscale": False, "acquisition": "thompson",
-    "restart": False, "full_scales": 3, "global_share": 0.1,
+    "restart": False, "full_scales": 1, "global_share": 0.0,
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
