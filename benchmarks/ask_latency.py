@@ -1,19 +1,29 @@
-"""Wall time of one ``latentune ask`` (a new process: imports, store, critic rebuilt from the
-store) on a study with many told trials, with and without the stored critic state.
+"""Wall time of ``latentune ask`` and ``latentune tell``, each a new process as the person at the
+robot runs them, on a study with many told trials.
 
-    python -m benchmarks.ask_latency [--told 1000] [--dim 25] [--repeats 3] [--phase {1,3}]
+    python -m benchmarks.ask_latency [--told 1000] [--dim 25] [--repeats 8] [--phase {1,3}]
         [--out FILE.json]
 
 Builds an ask/tell study on a shifted sphere in ``--dim`` dimensions through the Python API
-(``Study.ask``/``tell`` in batches of 50 until ``--told`` trials are told), then times
-``latentune ask DIR --n 1`` followed by ``tell`` ``--repeats`` times: as it is (the store holds
-TuRBO-m's last GP fits, :meth:`Critic.state_dict`) and after deleting that state before each ask
-(every ask refits the GPs from scratch). Also times a bare
-``python -c "import latentune.critic.turbo"`` (the import floor of any ask).
+(``Study.ask``/``tell`` in batches of 50 until ``--told`` trials are told; phase 3: the default
+strategy, transfer, from a 300-trial phase-1 source on the same sphere), then runs ``latentune
+ask DIR --json`` followed by ``latentune tell DIR ID --cost C`` ``--repeats`` times, timing each:
+
+* ``prepared``: as the person runs them. An ask leases a queued suggestion or the batch the
+  tell before it prepared (:mod:`latentune.pipeline.asktell`); the tell that ends a batch asks
+  the critic for the next one.
+* ``cold``: before each timed ask, the open suggestions are told through the API and the
+  prepared batch is deleted, so every timed ask builds the critic from the stored rows and its
+  saved state (what an ask costs when the prepared batch is stale, or was never made).
+
+Also times ``python -c "import latentune.cli"`` and ``python -c "import latentune.critic.turbo,
+botorch"`` (the import floor of building the critic), and records the load average around the
+timed calls.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import subprocess
 import sys
@@ -28,8 +38,7 @@ one_thread_env()
 import numpy as np  # noqa: E402
 
 import latentune as lt  # noqa: E402
-from latentune.pipeline.phases import state_key  # noqa: E402
-from latentune.pipeline.store import RunStore  # noqa: E402
+from latentune.pipeline.asktell import NEXT_KEY  # noqa: E402
 
 from benchmarks.common import Provenance, add_out_arg, finish  # noqa: E402
 
@@ -37,14 +46,25 @@ ENV = dict(os.environ, **thread_env())
 
 
 def cost(theta: np.ndarray) -> float:
-    return float(np.sum((theta - 0.3) ** 2))
+    return float(np.sum((np.asarray(theta) - 0.3) ** 2))
 
 
-def cli_seconds(*args: str) -> float:
+def cli_seconds(*args: str) -> tuple[float, str]:
+    """(wall seconds, stdout) of ``latentune ARGS`` in a new process."""
     t = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "latentune.cli", *args], check=True,
-                   capture_output=True, env=ENV)
+    r = subprocess.run([sys.executable, "-m", "latentune.cli", *args], check=True,
+                       capture_output=True, text=True, env=ENV)
+    return time.perf_counter() - t, r.stdout
+
+
+def python_seconds(code: str) -> float:
+    t = time.perf_counter()
+    subprocess.run([sys.executable, "-c", code], check=True, env=ENV)
     return time.perf_counter() - t
+
+
+def stats(secs: list[float]) -> dict:
+    return {"s": secs, "median_s": float(np.median(secs)), "max_s": float(np.max(secs))}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -52,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--told", type=int, default=1000)
     ap.add_argument("--dim", type=int, default=25)
-    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--repeats", type=int, default=8, help="ask/tell pairs timed per mode")
     ap.add_argument("--phase", type=int, choices=(1, 3), default=1,
                     help="3: phase 3 with the default (transfer) strategy, from a 300-trial "
                          "phase-1 source on the same sphere")
@@ -62,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
     root = Path(tempfile.mkdtemp(prefix="lt_asklat_"))
     d = root / "study"
     space = lt.ParameterSpace([f"k{i}" for i in range(a.dim)], [0.0] * a.dim, [1.0] * a.dim)
-    kw: dict = {"space": space, "budget": a.told + 4 * a.repeats}     # room for the timed asks
+    kw: dict = {"space": space, "budget": a.told + 8 * a.repeats}     # room for the timed asks
     if a.phase == 3:
         with lt.Study(root / "source", seed=0) as src:
             src.phase1(lt.FunctionSystem(space, cost), 300)
@@ -72,35 +92,43 @@ def main(argv: list[str] | None = None) -> int:
     told = 0
     while told < a.told:
         for s in study.ask(min(50, a.told - told), **kw):
-            study.tell(s.id, cost(np.asarray(s.theta)))
+            study.tell(s.id, cost(s.theta))
         told = study.store.count(a.phase)
     study.close()
     build_s = time.perf_counter() - t0
-    t = time.perf_counter()
-    subprocess.run([sys.executable, "-c", "import latentune.critic.turbo, botorch"], check=True,
-                   env=ENV)
-    import_s = time.perf_counter() - t
     out: dict = {"told": a.told, "dim": a.dim, "phase": a.phase, "build_s": build_s,
-                 "import_s": import_s}
-    for mode in ("with_state", "without_state"):
-        secs = []
+                 "cli_import_s": python_seconds("import latentune.cli"),
+                 "critic_import_s": python_seconds("import latentune.critic.turbo, botorch")}
+    out["load_before"] = os.getloadavg()
+    for mode in ("prepared", "cold"):
+        asks, tells = [], []
         for _ in range(a.repeats):
-            if mode == "without_state":
-                with RunStore(d) as st:
-                    st.set_meta(state_key(a.phase), {})
-            secs.append(cli_seconds("ask", str(d), "--json"))
-            with RunStore(d) as st:
-                tid = st.trials("pending")[0].id
-                theta = st.trials_by_id(tid).theta
-            cli_seconds("tell", str(d), str(tid), "--cost", repr(cost(theta)))
-        out[mode] = {"ask_s": secs, "median_s": float(np.median(secs))}
-    rows = [{"stored critic state": mode == "with_state", "ask wall s (per repeat)":
-             [round(v, 2) for v in out[mode]["ask_s"]], "median s": out[mode]["median_s"],
-             "import floor s": import_s} for mode in ("with_state", "without_state")]
-    out["ratio"] = out["without_state"]["median_s"] / out["with_state"]["median_s"]
+            if mode == "cold":
+                with lt.Study(d) as st:
+                    n_open = len(st.store.trials("queued")) + len(st.store.trials("pending"))
+                    for sugg in st.ask(n_open) if n_open else []:
+                        st.tell(sugg.id, cost(sugg.theta))
+                    st.store.delete_meta(NEXT_KEY)
+            s, text = cli_seconds("ask", str(d), "--json")
+            asks.append(s)
+            (sugg,) = json.loads(text)
+            s, _ = cli_seconds("tell", str(d), str(sugg["id"]), "--cost",
+                               repr(cost(sugg["theta"])))
+            tells.append(s)
+        out[mode] = {"ask": stats(asks), "tell": stats(tells)}
+    out["load_after"] = os.getloadavg()
+    rows = [{"mode": mode, "ask median s": out[mode]["ask"]["median_s"],
+             "ask max s": out[mode]["ask"]["max_s"],
+             "tell median s": out[mode]["tell"]["median_s"],
+             "tell max s": out[mode]["tell"]["max_s"],
+             "ask s (per repeat)": [round(v, 2) for v in out[mode]["ask"]["s"]],
+             "tell s (per repeat)": [round(v, 2) for v in out[mode]["tell"]["s"]]}
+            for mode in ("prepared", "cold")]
     finish(a.out, prov, out, rows,
-           title=f"`latentune ask` on a phase-{a.phase} study with {a.told} told trials, "
-                 f"d = {a.dim}")
+           title=f"`latentune ask` / `tell` on a phase-{a.phase} study with {a.told} told "
+                 f"trials, d = {a.dim} (import floors: latentune.cli {out['cli_import_s']:.2f} s, "
+                 f"the critic {out['critic_import_s']:.2f} s; load {out['load_before'][0]:.1f} "
+                 f"to {out['load_after'][0]:.1f})")
     return 0
 
 

@@ -4,6 +4,7 @@
         [--budget 40] [--source-evals 300] [--root runs/transfer] [--only METHOD ...]
         [--variants OPTION=VALUE[:OPTION=VALUE] ...]   (transfer variants, stored as transfer+VARIANT)
     python -m benchmarks.transfer summary [--root runs/transfer] [--out results/transfer/ladder.json]
+    python -m benchmarks.transfer compare --root runs/transfer --a METHOD --b METHOD ... [--out F]
 
 Systems (``SYSTEMS``; the model is gap 0, each target is the same controller on a plant at a gap):
 
@@ -298,6 +299,25 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
     return out
 
 
+def compare(root: Path, a: str, b: str) -> dict[str, Any]:
+    """Method ``a`` against ``b`` on every (target, seed) where both ran: wins (lower best cost
+    within the budget), ties, losses, a two-sided sign test on the non-ties, and the falls."""
+    from scipy.stats import binomtest
+
+    runs: dict[tuple[str, str, str], dict[str, dict]] = {}
+    for f in sorted(root.glob("*/gap*/seed*/*.json")):
+        r = json.loads(f.read_text())
+        runs.setdefault(f.parts[-4:-1], {})[r["method"]] = r
+    pairs = [(k, v[a], v[b]) for k, v in sorted(runs.items()) if a in v and b in v]
+    d = [min(ra["costs"]) - min(rb["costs"]) for _, ra, rb in pairs]
+    wins, losses = sum(x < 0 for x in d), sum(x > 0 for x in d)
+    return {"a": a, "b": b, "pairs": len(pairs), "wins": wins, "losses": losses,
+            "ties": len(pairs) - wins - losses,
+            "sign_test_p": float(binomtest(wins, wins + losses).pvalue) if wins + losses else 1.0,
+            "falls_a": int(sum(sum(ra["failed"]) for _, ra, _ in pairs)),
+            "falls_b": int(sum(sum(rb["failed"]) for _, _, rb in pairs))}
+
+
 def markdown(s: dict[str, Any],
              title: Callable[[dict[str, Any]], str] = lambda row: f"{row['system']} gap "
                                                               f"{row['gap']:g}") -> str:
@@ -338,7 +358,25 @@ def main(argv: list[str] | None = None) -> int:
     s = sub.add_parser("summary")
     s.add_argument("--root", default="runs/transfer")
     s.add_argument("--out", default="results/transfer/ladder.json")
+    c = sub.add_parser("compare", help="one method against another over (target, seed)")
+    c.add_argument("--root", default="runs/transfer")
+    c.add_argument("--a", required=True)
+    c.add_argument("--b", nargs="+", required=True)
+    c.add_argument("--out", default=None)
     a = ap.parse_args(argv)
+    if a.cmd == "compare":
+        from benchmarks.common import Provenance
+
+        prov = Provenance(argv, module="benchmarks.transfer")
+        rows = [compare(Path(a.root), a.a, b) for b in a.b]
+        for r in rows:
+            print(f"{r['a']} vs {r['b']}: {r['wins']} wins, {r['ties']} ties, {r['losses']} losses "
+                  f"of {r['pairs']} (sign test p {r['sign_test_p']:.3f}); falls "
+                  f"{r['falls_a']} vs {r['falls_b']}")
+        if a.out:
+            Path(a.out).write_text(json.dumps({"rows": rows, "provenance": prov.finish()},
+                                              indent=1))
+        return 0
     if a.cmd == "run":
         run(a)
         return 0

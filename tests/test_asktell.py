@@ -18,10 +18,11 @@ import pytest
 import latentune as lt
 from latentune.constants import Phase
 from latentune.errors import LatentuneError, StoreError
+from latentune.pipeline import asktell
 from latentune.pipeline import store as store_module
 from latentune.pipeline.asktell import write_suggestion_files
 from latentune.pipeline.loop import phase_critic
-from latentune.pipeline.phases import FAIL_STREAK, replay
+from latentune.pipeline.phases import FAIL_STREAK, replay, state_key
 from latentune.pipeline.store import RunStore
 from latentune.system import evaluate
 
@@ -211,6 +212,234 @@ def test_a_kill_during_ask_loses_nothing(tmp_path):
         assert st.store.count(Phase.PHASE1) == 1
 
 
+# ---------------------------------------------------------------------------- prepared batches
+class CriticSpy:
+    """Records which step (``where``) built a critic, through ``asktell.phase_critic``."""
+
+    def __init__(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        self.where, self.builds = "", []
+        real = asktell.phase_critic
+
+        def spy(*a, **k):
+            self.builds.append(self.where)
+            return real(*a, **k)
+
+        monkeypatch.setattr(asktell, "phase_critic", spy)
+
+
+def _phase1_script(d: Path, spy: CriticSpy) -> list[tuple]:
+    """A person at a fall-prone plant: one trial at a time, then an ask of more than a batch,
+    an amendment, a grown budget; returns every suggestion handed out (id, θ)."""
+    sys_ = plant()
+    got: list[tuple] = []
+
+    def step(name: str, n: int = 1, **kw) -> list:
+        spy.where = f"ask {name}"
+        sugg = st.ask(n, **kw)
+        got.extend((s.id, s.theta.tobytes()) for s in sugg)
+        for s in sugg:
+            spy.where = f"tell {name}"
+            out = evaluate(sys_, s.theta)
+            st.tell(s.id, out.cost, failed=out.failed)
+        return sugg
+
+    with lt.Study(d, seed=3) as st:
+        step("0", system=sys_, budget=40, max_fall_prob=0.4)
+        for i in range(1, 8):
+            step(str(i))                       # the 4th and the 8th tell end a batch
+        step("6 at once", 6)                   # more than the prepared batch of 4
+        first = st.trials(phases=(Phase.PHASE1,))[1]
+        spy.where = "amend"
+        st.tell(first.trial, first.cost + 1.0, amend=True)
+        for name in ("after the amend", "a", "b", "c"):
+            step(name)                          # the tell of c ends the batch
+        step("budget", budget=48)              # another options record than prepared for
+        step("last")
+    return got
+
+
+def test_a_prepared_batch_gives_the_suggestions_and_rows_of_asking_the_critic(tmp_path,
+                                                                               monkeypatch):
+    spy = CriticSpy(monkeypatch)
+    prepared = _phase1_script(tmp_path / "prepared", spy)
+    builds = spy.builds
+    spy.builds = []
+    with monkeypatch.context() as m:
+        m.setattr(asktell, "prepare", lambda study: False)
+        control = _phase1_script(tmp_path / "control", spy)
+    assert prepared == control                          # the same ids and θ, in order
+    with lt.Study(tmp_path / "prepared") as a, lt.Study(tmp_path / "control") as b:
+        assert rows_of(a, Phase.PHASE1) == rows_of(b, Phase.PHASE1)
+        assert a.store.get_meta(state_key(1)) == b.store.get_meta(state_key(1))
+        assert a.amendments()[0]["new"] == b.amendments()[0]["new"]
+    # without preparation every batch is asked by an ask; with it, by the tell before it,
+    # except when the prepared batch is stale or too small
+    assert spy.builds == ["ask 0", "ask 4", "ask 6 at once", "ask after the amend",
+                          "ask budget"]
+    assert builds == ["ask 0", "tell 3", "tell 7", "ask 6 at once", "tell 6 at once", "amend",
+                      "tell c", "ask budget"]
+
+
+def _poison(study: lt.Study) -> None:
+    """Replace the θ of the prepared batch by a sentinel, its key kept."""
+    prep = study.store.get_meta(asktell.NEXT_KEY)
+    assert prep, "no prepared batch"
+    prep["thetas"] = [[0.123] * len(t) for t in prep["thetas"]]
+    study.store.set_meta(asktell.NEXT_KEY, prep)
+
+
+def _settle(study: lt.Study) -> None:
+    """Tell every open suggestion (the last tell prepares a batch)."""
+    n = sum(t.status in ("queued", "pending") for t in study.store.trials())
+    for s in study.ask(n) if n else []:
+        study.tell(s.id, float(np.sum(s.theta ** 2)))
+
+
+def test_a_stale_prepared_batch_is_never_handed_out(tmp_path):
+    sentinel = np.full(4, 0.123)
+    with lt.Study(tmp_path / "s", seed=0) as st:
+        st.ask(space=SPACE, budget=100)
+        _settle(st)
+        _poison(st)
+        (s,) = st.ask()                                 # a fresh one is handed out as it is
+        np.testing.assert_array_equal(s.theta, sentinel)
+        st.tell(s.id, 1.0)
+
+        def held_by_bob() -> None:                      # bob's ask from another process
+            st.store.queue_trials(1, [np.full(4, 0.9)], [None], [-1])
+            st.store.lease("bob", (1,), 1, 60.0)
+
+        stale = {
+            "the critic's state changed": lambda: st.store.set_meta(state_key(1), {}),
+            "a result amended without preparing": lambda: st.store.amend_trial(
+                s.id, 2.0, fell=False),
+            "a suggestion held by another asker": held_by_bob,
+            "a row added behind its back": lambda: st.store.add(
+                Phase.PHASE1, st.store.next_idx(1), np.full(4, 0.7), 0.5),
+        }
+        for why, change in stale.items():
+            _settle(st)
+            _poison(st)
+            change()
+            got = st.ask()
+            assert not np.array_equal(got[0].theta, sentinel), why
+            assert st.store.get_meta(asktell.NEXT_KEY) is None, why
+            for t in st.store.trials("pending"):
+                if t.asker == "bob":
+                    st.release(t.id)
+        for why, kw in (("more than the batch", dict(n=5)), ("a grown budget", dict(budget=120))):
+            _settle(st)
+            _poison(st)
+            got = st.ask(**kw)
+            assert not any(np.array_equal(g.theta, sentinel) for g in got), why
+        st.store.check()
+
+
+def test_a_prepared_transfer_phase3_gives_the_rows_of_asking_the_critic(tmp_path, monkeypatch):
+    with lt.Study(tmp_path / "src", seed=0) as src:
+        src.phase1(plant(), 30)
+        src.train_latent(latent_dim=2, epochs=30)
+    target = plant(0.2)
+    spy = CriticSpy(monkeypatch)
+
+    def person3(d: Path) -> list[tuple]:
+        got = []
+        with lt.Study(d, seed=0) as st:
+            for i in range(10):
+                spy.where = f"ask {i}"
+                (s,) = st.ask(system=target, phase=3, latent=tmp_path / "src", budget=30) \
+                    if i == 0 else st.ask()
+                got.append((s.id, s.phase_name, s.theta.tobytes()))
+                spy.where = f"tell {i}"
+                out = evaluate(target, s.theta)
+                st.tell(s.id, out.cost, failed=out.failed)
+            assert st.config()["phase3"]["strategy"] == "transfer"
+            for start in ([0.4] * 4, "scratch", "manual"):
+                with pytest.raises(LatentuneError, match="start is an option of phase 1 and "
+                                                         "of the plain phase 3"):
+                    st.ask(start=start)
+        return got
+
+    prepared, builds = person3(tmp_path / "prepared"), spy.builds
+    spy.builds = []
+    with monkeypatch.context() as m:
+        m.setattr(asktell, "prepare", lambda study: False)
+        control = person3(tmp_path / "control")
+    assert prepared == control and prepared[0][1] == "zero-shot"
+    with lt.Study(tmp_path / "prepared") as a, lt.Study(tmp_path / "control") as b:
+        for ph in (Phase.ZERO_SHOT, Phase.PHASE3):
+            assert rows_of(a, ph) == rows_of(b, ph)
+    # zero-shot first, then batches of 4 asked by ask 1 and ask 5 (ask 9) without preparing
+    assert spy.builds == ["ask 1", "ask 5", "ask 9"]
+    assert builds == ["tell 0", "tell 4", "tell 8"]
+    with lt.Study(tmp_path / "prepared") as st:         # the source run grew since
+        _settle(st)
+        _poison(st)
+        with lt.Study(tmp_path / "src") as src:
+            src.phase1(plant(), 31)
+        (s,) = st.ask()
+        assert not np.allclose(s.theta, 0.123)
+
+
+def _tell_and_die(d: str, tid: int, at: str) -> None:
+    def die(*a, **k):
+        os._exit(0)                                     # noqa: SLF001 - a kill
+
+    setattr(asktell, at, die)
+    lt.Study(d).tell(tid, 1.0)
+
+
+@pytest.mark.parametrize("at", ["prepare", "ask_batch"])
+def test_a_kill_after_a_tell_loses_nothing(tmp_path, monkeypatch, at):
+    """Killed after the told result is stored: before the preparation, or while it asks."""
+    def start(d: Path) -> int:
+        with lt.Study(d, seed=1) as st:
+            sugg = st.ask(4, space=SPACE)
+            for s in sugg[:3]:
+                st.tell(s.id, float(np.sum(s.theta ** 2)))
+        return sugg[3].id
+
+    tid = start(tmp_path / "s")
+    ctx = mp.get_context("spawn")
+    p = ctx.Process(target=_tell_and_die, args=(str(tmp_path / "s"), tid, at))
+    p.start()
+    p.join(timeout=300)
+    assert p.exitcode == 0
+    with monkeypatch.context() as m:
+        m.setattr(asktell, "prepare", lambda study: False)
+        ctl = start(tmp_path / "control")
+        with lt.Study(tmp_path / "control") as c:
+            c.tell(ctl, 1.0)
+            expected = c.ask(2)
+    with lt.Study(tmp_path / "s") as st:
+        st.store.check()
+        assert st.store.count(Phase.PHASE1) == 4 and st.store.rows(1)[3].info["trial"] == tid
+        assert st.store.get_meta(asktell.NEXT_KEY) is None
+        got = st.ask(2)
+    assert [(s.id, s.theta.tobytes()) for s in got] == \
+        [(s.id, s.theta.tobytes()) for s in expected]
+
+
+def test_start_through_ask(tmp_path):
+    with lt.Study(tmp_path / "a", seed=0) as st:
+        start = np.array([0.1, 0.9, 0.3, 0.6])
+        (s,) = st.ask(space=SPACE, start=start)
+        np.testing.assert_allclose(s.theta, start)     # the critic starts from it
+        assert st.config()["phase1"]["start"] == start.tolist()
+        assert st.ask(start=start)[0].id == s.id        # the stored one may be repeated
+        for other, shown in (("manual", "not 'manual'"), ("scratch", "not None")):
+            with pytest.raises(StoreError, match=shown):
+                st.ask(start=other)
+        with pytest.raises(LatentuneError, match="start must be 'manual', 'scratch' or a θ"):
+            st.ask(start="best")
+    with lt.Study(tmp_path / "b", seed=0) as st:
+        sugg = st.ask(4, space=SPACE, start="scratch")
+        assert st.config()["phase1"]["start"] is None
+        assert not any(np.allclose(s.theta, SPACE.manual) for s in sugg)
+    with lt.Study(tmp_path / "c", seed=0) as st:
+        assert np.allclose(st.ask(space=SPACE)[0].theta, SPACE.manual)
+
+
 # ---------------------------------------------------------------------------- status, best
 def test_status_names_phases_and_counts_the_zero_shot_trial(tmp_path):
     with lt.Study(tmp_path / "src", seed=0) as src:
@@ -305,22 +534,30 @@ def test_trials_are_records_with_named_phases_and_physical_params(tmp_path, monk
         at.tell(s.id, 1.5, note="by hand")
         (rec,) = at.trials()
         assert rec.trial == s.id and rec.cost == 1.5 and rec.info["note"] == "by hand"
-        seen = {}
+        import pandas as pd
 
-        class FakePandas:                               # what trials_dataframe hands pandas
-            @staticmethod
-            def DataFrame(rows, columns=None):          # noqa: N802 - pandas' name
-                seen["rows"] = rows
-                return "frame"
-
-        monkeypatch.setitem(__import__("sys").modules, "pandas", FakePandas)
-        assert at.trials_dataframe() == "frame"
-        (row,) = seen["rows"]
-        assert row["phase"] == "phase 1" and row["trial"] == s.id and row["cost"] == 1.5
-        assert row["params_a"] == pytest.approx(s.params["a"]) and row["failed"] is False
+        df = at.trials_dataframe()
+        assert isinstance(df, pd.DataFrame) and len(df) == 1
+        assert list(df.columns) == ["phase", "idx", "trial", "cost", "failed",
+                                    *[f"params_{n}" for n in SPACE.names], "info"]
+        assert df["phase"].tolist() == ["phase 1"] and df["trial"].tolist() == [s.id]
+        assert df.loc[0, "cost"] == 1.5 and df.loc[0, "info"]["note"] == "by hand"
+        np.testing.assert_allclose(df.loc[0, [f"params_{n}" for n in SPACE.names]].to_numpy(
+            dtype=float), SPACE.to_physical(s.theta))
         monkeypatch.setitem(__import__("sys").modules, "pandas", None)
         with pytest.raises(ImportError, match="pip install pandas"):
             at.trials_dataframe()
+    monkeypatch.delitem(__import__("sys").modules, "pandas")
+    with lt.Study(tmp_path / "s") as st:                # a phase run and its manual θ
+        df = st.trials_dataframe()
+        assert df["phase"].tolist() == ["manual"] + ["phase 1"] * 8
+        assert str(df["trial"].dtype) == "Int64" and df["trial"].isna().all()
+        assert df["idx"].dtype == np.int64 and df["cost"].dtype == np.float64
+        assert df["failed"].dtype == bool and df["failed"].sum() == sum(r.failed for r in recs)
+        assert all(df[f"params_{n}"].dtype == np.float64 for n in SPACE.names)
+        np.testing.assert_allclose(df[[f"params_{n}" for n in SPACE.names]].to_numpy(),
+                                   SPACE.to_physical(np.array([r.theta for r in recs])))
+        assert st.trials_dataframe(phases=(Phase.MANUAL,)).shape[0] == 1
 
 
 def test_the_store_decodes_non_finite_costs_and_names_no_fall_constant(tmp_path):

@@ -1,9 +1,11 @@
 """The person at the robot through the CLI: asks by two askers, a mistyped result amended, a
-suggestion released, status by phase name, the θ to deploy, and --strategy's refusals."""
+suggestion released, status by phase name, the θ to deploy, --strategy's refusals, --start,
+and later asks that lease without loading the critic."""
 from __future__ import annotations
 
 import json
 
+import pytest
 import yaml
 
 
@@ -43,3 +45,72 @@ def test_strategy_flag_is_checked(tmp_path, run_cli, error_line):
     assert "--handover is an option of --strategy plain" in line
     assert "invalid choice" in error_line(*run_cli("phase3", "--robot", "a1", "--out", tmp_path,
                                                    "--strategy", "latent")[::2])
+
+
+def _space_file(tmp_path):
+    space = tmp_path / "space.yaml"
+    space.write_text(yaml.safe_dump({"names": ["a", "b", "c"], "low": [0, 0, 0],
+                                     "high": [1, 2, 4], "manual": [0.5, 0.5, 0.5]}))
+    return space
+
+
+@pytest.mark.parametrize("phase", [1, 3])
+def test_later_asks_lease_without_loading_the_critic(tmp_path, cli, cli_env, phase):
+    """Each call in its own process, as the person runs them: after the first ask, an ask
+    hands out a queued or prepared suggestion without importing torch or BoTorch (phase 3:
+    the default strategy, whose first suggestion is the zero-shot trial)."""
+    d = tmp_path / "robot"
+    first: tuple = ("--space", _space_file(tmp_path))
+    if phase == 3:
+        import latentune as lt
+
+        space = lt.ParameterSpace(["a", "b", "c"], [0, 0, 0], [1, 2, 4], manual=[0.5] * 3)
+        with lt.Study(tmp_path / "sim", seed=0) as sim:
+            sim.phase1(lt.FunctionSystem(space, lambda x: float(sum((x - 0.4) ** 2))), 30)
+            sim.train_latent(latent_dim=2, epochs=30)
+        first += ("--phase", "3", "--vae", tmp_path / "sim")
+    env = dict(cli_env, PYTHONPROFILEIMPORTTIME="1")       # python -X importtime
+    seen = []
+    for i in range(6):
+        r = cli("ask", d, "--json", *(first if i == 0 else ()), env=env)
+        assert r.returncode == 0, r.stderr
+        (s,) = json.loads(r.stdout)
+        seen.append(s["id"])
+        imported = {ln.split("|")[-1].strip().split(".")[0] for ln in r.stderr.splitlines()
+                    if ln.startswith("import time:")}
+        assert "latentune" in imported
+        if i == 0:                                     # the first ask builds the critic
+            assert "torch" in imported
+        else:
+            assert not imported & {"torch", "botorch", "gpytorch"}, i
+        r = cli("tell", d, s["id"], "--cost", str(sum(v * v for v in s["theta"])))
+        assert r.returncode == 0 and r.stdout.startswith(f"told {s['id']}"), r.stderr
+        if phase == 3:
+            assert s["phase_name"] == ("zero-shot" if i == 0 else "phase 3")
+    assert seen == [1, 2, 3, 4, 5, 6]       # batches of 4 after the first ask's (and zero-shot)
+
+
+def test_ask_start(tmp_path, run_cli, error_line):
+    space = _space_file(tmp_path)
+    start = tmp_path / "start.json"
+    start.write_text(json.dumps({"a": 0.25, "b": 1.5, "c": 3.0}))
+    d = tmp_path / "robot"
+    code, out, err = run_cli("ask", d, "--space", space, "--start", start, "--json")
+    assert code == 0, err
+    (s,) = json.loads(out)
+    assert s["params"] == {"a": 0.25, "b": 1.5, "c": 3.0}           # the critic starts there
+    assert run_cli("ask", d, "--start", start)[0] == 0               # the stored one again
+    line = error_line(*run_cli("ask", d, "--start", "manual")[::2])
+    assert "start = [0.25, 0.75, 0.75] (stored), not 'manual'" in line
+    line = error_line(*run_cli("ask", d, "--start", "scratch")[::2])
+    assert "(stored), not None" in line
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"a": 7}))
+    assert "--start" in error_line(*run_cli("ask", d, "--start", bad)[::2])
+    assert "not found" in error_line(*run_cli("ask", d, "--start", tmp_path / "none.json")[::2])
+    line = error_line(*run_cli("ask", tmp_path / "new", "--start", start)[::2])
+    assert "needs the parameter space" in line
+    code, out, err = run_cli("ask", tmp_path / "scratch", "--space", space, "--start", "scratch",
+                             "--json", "--n", "4")
+    assert code == 0, err
+    assert all(s["params"] != {"a": 0.5, "b": 1.0, "c": 2.0} for s in json.loads(out))

@@ -26,6 +26,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
+from latentune import argtypes
 from latentune.errors import CLIError, LatentuneError
 
 DEFAULT_PHASE1 = 400
@@ -88,16 +89,6 @@ def _isatty(stream: Any) -> bool:
 def _positive(name: str, v: Any, low: int = 1) -> None:
     if v is not None and v < low:
         raise CLIError(f"--{name} must be >= {low}, got {v}")
-
-
-def _seed(s: str) -> int:
-    try:
-        v = int(s)
-    except ValueError:
-        raise CLIError(f"--seed must be an integer, got {s!r}") from None
-    if not 0 <= v < 2 ** 63:
-        raise CLIError(f"--seed must be in [0, 2**63), got {v}")
-    return v
 
 
 # ---------------------------------------------------------------------------- systems
@@ -234,7 +225,7 @@ def add_run_args(p: argparse.ArgumentParser, name: str) -> None:
     from latentune.latent.vae import DEFAULT_KIND, KINDS
 
     add_system_args(p)
-    p.add_argument("--seed", type=_seed, default=0, help="seed (terrain, critic, VAE)")
+    p.add_argument("--seed", type=argtypes.seed, default=0, help="seed (terrain, critic, VAE)")
     p.add_argument("--out", required=True, help="run directory (holds run.db and artifacts)")
     p.add_argument("--phase1-evals", type=int, default=DEFAULT_PHASE1,
                    help=f"phase-1 evaluations (default {DEFAULT_PHASE1}; the paper: 10000)")
@@ -549,9 +540,10 @@ def cmd_ask(args: argparse.Namespace) -> int:
     if args.budget is not None:
         _positive("budget", args.budget)
     with study:
+        start = _ask_start(args.start, system, space, study)
         sugg = study.ask(args.n, system=system, space=space, phase=args.phase, latent=args.vae,
                          method=args.method, handover=handover, strategy=strategy,
-                         budget=args.budget, regions=args.regions,
+                         budget=args.budget, regions=args.regions, start=start,
                          max_fall_prob=args.max_fall_prob, fall_prior=args.fall_prior,
                          asker=args.asker, lease_s=args.lease)
         write_suggestion_files(study.dir, sugg)
@@ -563,6 +555,23 @@ def cmd_ask(args: argparse.Namespace) -> int:
             more = " ..." if len(s.params) > 6 else ""
             print(f"{s.id}\t{s.phase_name}{' (again)' if s.again else ''}\t{s.path}\t{vals}{more}")
     return 0
+
+
+def _ask_start(start: str | None, system: Any, space: Any, study: Any) -> Any:
+    """ask --start as Study.ask's ``start``: None, "manual", "scratch", or the unit-box θ of
+    a --params file (read with the system's, the given or the stored parameter space)."""
+    if start is None or start in ("manual", "scratch"):
+        return start
+    sp = system.space if system is not None else space if space is not None else study.space()
+    if sp is None:
+        raise CLIError(f"--start {start}: reading a θ file needs the parameter space: pass "
+                       "--system, --robot or --space on the first ask")
+    from latentune.errors import ParamsError
+
+    try:
+        return sp.load(start)
+    except ParamsError as exc:
+        raise CLIError(f"--start {start}: {exc}") from None
 
 
 def cmd_tell(args: argparse.Namespace) -> int:
@@ -757,7 +766,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = add("rollout", help="simulate one rollout and print its path cost (or, with --system, "
                             "run one trial of your system)")
     add_system_args(p)
-    p.add_argument("--seed", type=_seed, default=None, help="terrain seed (default 0)")
+    p.add_argument("--seed", type=argtypes.seed, default=None, help="terrain seed (default 0)")
     p.add_argument("--params", help="JSON file: list of normalized θ or object of physical values "
                                     "(default: the manual θ)")
     p.add_argument("--gif", help="write a GIF of the motion here")
@@ -800,6 +809,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--budget", type=int, default=None,
                    help="the trials you plan (first ask: default 200; may grow later)")
     p.add_argument("--regions", type=int, default=None, help="TuRBO-m trust regions")
+    p.add_argument("--start", default=None, metavar="manual|scratch|FILE",
+                   help="the θ the search starts from: manual (the manual θ, the default), "
+                        "scratch (the critic's own initial design) or a --params file "
+                        "(physical values by name, or a list of normalized θ); first ask only")
     p.add_argument("--max-fall-prob", type=float, default=None, metavar="P",
                    help="fall-aware: skip candidates whose predicted fall probability exceeds P")
     p.add_argument("--fall-prior", default=None, metavar="RUN_DIR",
@@ -809,7 +822,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--lease", type=float, default=None, metavar="SECONDS",
                    help="a suggestion not told within this time is handed out again "
                         "(default 3600)")
-    p.add_argument("--seed", type=_seed, default=None, help="seed (first ask only; default 0)")
+    p.add_argument("--seed", type=argtypes.seed, default=None, help="seed (first ask only; default 0)")
     p.add_argument("--json", action="store_true", help="print one JSON list")
     p.set_defaults(func=cmd_ask)
 
@@ -867,7 +880,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="override the phase-3 (and baseline) budget")
     p.add_argument("--out", default=None, help="output directory (default paper-<robot>)")
     p.add_argument("--workers", type=int, default=2, help="parallel rollouts")
-    p.add_argument("--seed", type=_seed, default=0)
+    p.add_argument("--seed", type=argtypes.seed, default=0)
     p.add_argument("--steps", type=int, default=5000, help="rollout horizon in 1 kHz steps")
     p.add_argument("--v-des", type=float, default=0.5)
     p.add_argument("--report-only", action="store_true", help="only (re)write DIR/report.md")

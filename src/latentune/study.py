@@ -5,11 +5,11 @@
 * :meth:`Study.phase1` — the critic (TuRBO-m by default) tunes the full θ of a System
   (``AC_GEN(f, Id)``), starting from the system's manual θ;
 * :meth:`Study.train_latent` — phase 2: a VAE on the θ of phase 1 whose trial did not fail;
-* :meth:`Study.phase3` — the critic tunes in the latent box through the decoder
-  (``AC_GEN(f, D)``), on the same or another system, with this study's latent space or another
-  study's; with another study's, that study's best θ is first run as it is (zero-shot);
-* :meth:`Study.ask` / :meth:`Study.tell` — the same phase loop driven by a person (trials run
-  elsewhere), with leases for several askers and amendments (:mod:`latentune.pipeline.asktell`);
+* :meth:`Study.phase3` — on the same or another system, from this study's source run or
+  another's (whose best θ is first run as it is: zero-shot): by default everything the source
+  tried (:mod:`latentune.critic.transfer`), or the paper's latent search (``AC_GEN(f, D)``);
+* :meth:`Study.ask` / :meth:`Study.tell` — the same loop driven by a person, with leases and
+  amendments (:mod:`latentune.pipeline.asktell`);
 * :meth:`Study.status`, :meth:`Study.best`, :meth:`Study.best_params`, :meth:`Study.trials`,
   :meth:`Study.trials_dataframe`, :meth:`Study.summary`, :meth:`Study.report`.
 
@@ -18,9 +18,8 @@ A study is a thin façade over its run directory (store, lock, evaluator:
 :mod:`latentune.pipeline.manifest`) and the one phase loop (:mod:`latentune.pipeline.loop`,
 :mod:`latentune.pipeline.phases`). Every phase resumes from the stored rows and refuses other
 options, another system or another seed than it was started with; a reopened study takes its
-seed and batch size from the store. A study records which system it ran but never imports or
-calls what it names. One process writes a study at a time (:class:`~latentune.errors.LockError`
-for a second phase run at once; an ask or a tell waits a bounded time).
+seed and batch size from the store. One process writes a study at a time
+(:class:`~latentune.errors.LockError`; an ask or a tell waits a bounded time).
 """
 from __future__ import annotations
 
@@ -83,10 +82,6 @@ class Study:
             raise UsageError(f"seed must be below 2**63, got {seed}")
         if batch_size is not None and (isinstance(batch_size, bool) or int(batch_size) < 1):
             raise UsageError(f"batch_size must be an integer >= 1, got {batch_size!r}")
-        if backend not in ("serial", "process", "ray"):
-            raise UsageError(f"unknown backend {backend!r} (choose from serial, process, ray)")
-        if ray_address and backend != "ray":
-            raise UsageError("ray_address needs backend='ray'")
         self.run = RunDir(path, workers=int(workers), backend=backend, ray_address=ray_address,
                           evaluator=evaluator)
         self.manifest = mf.Manifest(self.run)
@@ -313,8 +308,10 @@ class Study:
 
         The first ask fixes the study's system or ``space``, the phase (1, or 3 with a latent
         space) and its options as :meth:`phase1` / :meth:`phase3` take them (``budget`` default
-        200); a later ask takes them from the store (None) and refuses another value (a budget
-        may grow). ``asker``, ``lease_s``: see :mod:`latentune.pipeline.asktell`."""
+        200; ``start``: ``"manual"``, ``"scratch"`` or a (d,) unit-box θ, not for the transfer
+        phase 3); a later ask takes them from the store (None) and refuses another value (a
+        budget may grow); it hands out the batch :meth:`tell` prepared when that is still what
+        the critic would give. ``asker``, ``lease_s``: :mod:`latentune.pipeline.asktell`."""
         return asktell.ask(self, n, system=system, space=space, phase=phase, latent=latent,
                            asker=asker, lease_s=lease_s, method=method, budget=budget,
                            regions=regions, start=start, max_fall_prob=max_fall_prob,
@@ -326,7 +323,9 @@ class Study:
         """Store the result of suggestion ``trial_id``: its cost (None with ``failed`` takes the
         C1 convention of :mod:`latentune.system`), whether it failed, a free note. ``amend``:
         correct a told result (the old one is kept in the store's audit trail). StoreError for
-        an unknown id, one told already (without ``amend``) or never handed out."""
+        an unknown id, one told already (without ``amend``) or never handed out. With no
+        suggestion left out, it prepares the next ask's batch (:func:`~latentune.pipeline.
+        asktell.prepare`)."""
         return asktell.tell(self, trial_id, cost, failed=failed, note=note, info=info,
                             amend=amend)
 

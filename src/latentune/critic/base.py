@@ -472,3 +472,50 @@ class Critic(ABC):
     def __repr__(self) -> str:
         return (f"{type(self).__name__}(dim={self.dim}, batch_size={self.batch_size}, "
                 f"seed={self.seed}, n_told={self.n_told}, best_y={self.best_y:.6g})")
+
+
+class TwoSpaceCritic(Critic):
+    """A critic on the full θ box some of whose points come from a latent box of dimension
+    :attr:`k`: after each ask :attr:`last_z` (n, k) holds their codes (NaN rows for the others),
+    and :meth:`tell` takes the codes back with the fall flags. A subclass sets ``last_z``,
+    ``_fell`` ((0,) bools) and ``_incoming`` (None) in its constructor and calls
+    :meth:`_incoming_told` first in its ``_tell``."""
+
+    last_z: np.ndarray
+    _fell: np.ndarray
+    _incoming: tuple[np.ndarray, np.ndarray] | None
+
+    @property
+    @abstractmethod
+    def k(self) -> int:
+        """Dimension of the latent box."""
+
+    @property
+    def fell(self) -> np.ndarray:
+        """(n,) fall flags of the told points."""
+        return self._fell.copy()
+
+    def tell(self, X: np.ndarray, y: np.ndarray, tags: np.ndarray | None = None,
+             fell: np.ndarray | None = None, z: np.ndarray | None = None) -> None:
+        """Report costs ``y`` (n,) of θ ``X`` (n, d) with this critic's ``tags``, their fall
+        flags ``fell`` (n,) (default: the non-finite costs) and the latent codes ``z`` (n, k) of
+        latent points (NaN rows for the others; None: no latent points)."""
+        Xa = as_unit_points(X, self.dim)
+        ya = np.asarray(y, dtype=float).reshape(-1)
+        if ya.shape[0] != Xa.shape[0]:
+            raise ValueError(f"y must have shape ({Xa.shape[0]},), got {np.shape(y)}")
+        fa = ~np.isfinite(ya) if fell is None else np.asarray(fell, dtype=bool).reshape(-1)
+        if fa.shape[0] != Xa.shape[0]:
+            raise ValueError(f"fell must have shape ({Xa.shape[0]},), got {np.shape(fell)}")
+        za = np.full((Xa.shape[0], self.k), np.nan) if z is None or self.k == 0 else \
+            np.asarray(z, dtype=float).reshape(Xa.shape[0], self.k)
+        self._incoming = (fa, za)
+        super().tell(Xa, ya, tags)
+
+    def _incoming_told(self) -> tuple[np.ndarray, np.ndarray]:
+        """The fall flags (n,) and codes (n, k) of the points being told; appends the flags."""
+        assert self._incoming is not None
+        fa, za = self._incoming
+        self._incoming = None
+        self._fell = np.concatenate([self._fell, fa])
+        return fa, za

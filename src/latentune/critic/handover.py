@@ -45,7 +45,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from latentune.critic.base import UNTAGGED, Critic, as_unit_points
+from latentune.critic.base import UNTAGGED, Critic, TwoSpaceCritic
 
 LATENT = 0
 FULL = 1
@@ -66,7 +66,7 @@ def decode_tag(tag: int) -> tuple[int, int]:
     return tag // 2 - 2, tag % 2
 
 
-class Handover(Critic):
+class Handover(TwoSpaceCritic):
     """Latent critic first, full-space critic after the hand-over rule fires (module docstring).
 
     Args:
@@ -177,28 +177,8 @@ class Handover(Critic):
         self.last_z = np.full((n, self.k), np.nan)
         return X, np.asarray([encode_tag(t, FULL) for t in self.full.last_tags], dtype=np.int64)
 
-    def tell(self, X: np.ndarray, y: np.ndarray, tags: np.ndarray | None = None,
-             fell: np.ndarray | None = None, z: np.ndarray | None = None) -> None:
-        """Report costs ``y`` (n,) of θ ``X`` (n, d) with this critic's ``tags``, ``fell`` (n,)
-        bool (which trials failed; default: the non-finite costs) and the latent codes ``z`` (n, k) of latent-stage points
-        (NaN rows elsewhere; required when latent-stage points are told). Untagged points are
-        full-space warm data (kept for the hand-over while the latent search runs)."""
-        Xa = as_unit_points(X, self.dim)
-        ya = np.asarray(y, dtype=float).reshape(-1)
-        if ya.shape[0] != Xa.shape[0]:
-            raise ValueError(f"y must have shape ({Xa.shape[0]},), got {np.shape(y)}")
-        fa = ~np.isfinite(ya) if fell is None else np.asarray(fell, dtype=bool).reshape(-1)
-        if fa.shape[0] != Xa.shape[0]:
-            raise ValueError(f"fell must have shape ({Xa.shape[0]},), got {np.shape(fell)}")
-        za = np.full((Xa.shape[0], self.k), np.nan) if z is None else \
-            np.asarray(z, dtype=float).reshape(Xa.shape[0], self.k)
-        self._incoming = (fa, za)
-        super().tell(Xa, ya, tags)
-
     def _tell(self, idx: np.ndarray, tags: np.ndarray) -> None:
-        fa, za = self._incoming
-        self._incoming = None
-        self._fell = np.concatenate([self._fell, fa])
+        fa, za = self._incoming_told()
         stage = np.array([decode_tag(t)[1] if t >= 0 else -1 for t in tags])
         lat = np.flatnonzero(stage == LATENT)
         if lat.size:

@@ -80,7 +80,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from latentune.critic.base import Critic, as_unit_points
+from latentune.critic.base import TwoSpaceCritic, as_unit_points
 
 log = logging.getLogger(__name__)
 
@@ -89,7 +89,7 @@ POOL_NAMES = {ELITE: "elite", FULL: "full", LATENT: "latent", GLOBAL: "global"}
 
 TRANSFER_DEFAULTS: dict[str, Any] = {
     "max_fall_prob": 0.3, "n_design": 3, "n_elite": 16, "elite_spacing": 0.15,
-    "n_candidates": 1000, "length_init": 0.3, "length_max": 1.0, "length_min": 1 / 128,
+    "n_candidates": 1000, "length_init": 0.5, "length_max": 1.0, "length_min": 1 / 128,
     "succ_tol": 2, "fail_tol": 3, "latent_share_max": 0.5, "latent_falls": 3,
     "max_points": 300, "fall_kappa": 1.0, "fit_lengthscale": False, "acquisition": "thompson",
     "restart": False, "full_scales": 1, "global_share": 0.0,
@@ -388,7 +388,7 @@ def elite_points(X: np.ndarray, z: np.ndarray, fell: np.ndarray, k: int,
     return np.asarray(taken, dtype=np.int64)
 
 
-class Transfer(Critic):
+class Transfer(TwoSpaceCritic):
     """Phase 3 from everything the source learned (see the module docstring).
 
     Args:
@@ -447,11 +447,6 @@ class Transfer(Critic):
         """Dimension of the latent box (0 without a latent space)."""
         return 0 if self.latent is None else int(self.latent.d_low)
 
-    @property
-    def fell(self) -> np.ndarray:
-        """(n,) fall flags of the told points."""
-        return self._fell.copy()
-
     def source_model(self) -> SourceModel:
         """The fitted source models (fitted at the first need, or restored from the state)."""
         if self._model is None:
@@ -475,25 +470,8 @@ class Transfer(Critic):
         return self._elite
 
     # ------------------------------------------------------------------ tell
-    def tell(self, X: np.ndarray, y: np.ndarray, tags: np.ndarray | None = None,
-             fell: np.ndarray | None = None, z: np.ndarray | None = None) -> None:
-        """Report costs ``y`` (n,) of θ ``X`` (n, d), their fall flags ``fell`` (n,) (default:
-        non-finite cost) and, for latent-pool points, their codes ``z`` (n, k) (NaN rows for the
-        others; optional: the codes are not needed by the model)."""
-        Xa = as_unit_points(X, self.dim)
-        ya = np.asarray(y, dtype=float).reshape(-1)
-        fa = ~np.isfinite(ya) if fell is None else np.asarray(fell, dtype=bool).reshape(-1)
-        if fa.shape[0] != Xa.shape[0]:
-            raise ValueError(f"fell must have shape ({Xa.shape[0]},), got {np.shape(fell)}")
-        za = np.full((Xa.shape[0], self.k), np.nan) if z is None or self.k == 0 else \
-            np.asarray(z, dtype=float).reshape(Xa.shape[0], self.k)
-        self._incoming = (fa, za)
-        super().tell(Xa, ya, tags)
-
     def _tell(self, idx: np.ndarray, tags: np.ndarray) -> None:
-        fa, za = self._incoming
-        self._incoming = None
-        self._fell = np.concatenate([self._fell, fa])
+        _, za = self._incoming_told()
         self._Z = np.vstack([self._Z, za]) if self.k else self._Z
 
     # ------------------------------------------------------------------ state from history

@@ -69,6 +69,7 @@ from typing import Any
 
 from latentune.constants import GAITS, Phase
 from latentune.errors import UsageError
+from latentune.reporting.paper_report import ARMS
 
 logger = logging.getLogger(__name__)
 
@@ -117,15 +118,9 @@ class StudyPlan:
     start: str = "manual"     # baselines: manual (the task's manual θ) | source (source's best θ)
     seed_index: int = 0       # the study's seed: DIR's --seed + seed_offset + seed_index
     row: str | None = None    # the seeded comparison this study is one seed of
-    arm: str | None = None    # its method in that comparison (ARMS)
+    arm: str | None = None    # its method in that comparison (paper_report.ARMS)
 
 
-ARMS = {"phase3-plain": "phase 3, plain (the paper's)",
-        "phase3-transfer": "phase 3, default (transfer)",
-        "turbo": "TuRBO-m on θ", "cma": "CMA-ES on θ", "random": "random search on θ",
-        "tpe": "Optuna TPE (multivariate) on θ",
-        "cmaes-src": "Optuna CMA-ES with source_trials on θ"}
-"""The methods of the seeded comparisons (arm key -> label)."""
 OPTUNA_METHODS = {"tpe": "tpe", "cmaes-src": "cmaes"}
 """Baselines run by Optuna's samplers (:func:`latentune.integrations.optuna.run_baseline`)."""
 OWN_BASELINES = ("turbo", "cma", "random", "tpe", "cmaes-src")

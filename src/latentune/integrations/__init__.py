@@ -13,6 +13,8 @@ from __future__ import annotations
 import argparse
 from typing import Any, Sequence
 
+from latentune import argtypes
+
 INSTALL_HINT = "install the optuna extra: pip install 'latentune[optuna]'"
 
 
@@ -95,18 +97,6 @@ def _load_space(path: str) -> Any:
         raise CLIError(f"--space {p}: {' '.join(str(exc).split())[:200]}") from None
 
 
-def _seed(s: str) -> int:
-    from latentune.errors import CLIError
-
-    try:
-        v = int(s)
-    except ValueError:
-        raise CLIError(f"--seed must be an integer, got {s!r}") from None
-    if not 0 <= v < 2 ** 63:
-        raise CLIError(f"--seed must be in [0, 2**63), got {v}")
-    return v
-
-
 def register_cli(sub: Any, parents: Sequence[argparse.ArgumentParser] = ()) -> None:
     """Add ``import-optuna`` and ``dashboard`` to the ``latentune`` subcommands ``sub`` (the
     object ``ArgumentParser.add_subparsers`` returned); ``parents``: parsers whose flags every
@@ -119,7 +109,7 @@ def register_cli(sub: Any, parents: Sequence[argparse.ArgumentParser] = ()) -> N
     p.add_argument("--out", required=True, help="the latentune run directory to write")
     p.add_argument("--space", default=None, metavar="FILE",
                    help="YAML/JSON parameter space to use (default: from the distributions)")
-    p.add_argument("--seed", type=_seed, default=None,
+    p.add_argument("--seed", type=argtypes.seed, default=None,
                    help="the run's seed (default: the stored one, else 0)")
     p.add_argument("--train-latent", action="store_true",
                    help="then train the latent space (phase 2) on the trials that did not fail")

@@ -282,15 +282,27 @@ class LatentSpace:
 
     # ------------------------------------------------------------------ files
     def save(self, path_prefix: str | Path) -> tuple[str, str]:
-        """Write ``PREFIX.pt`` (state dict) and ``PREFIX.json`` (meta); return both paths."""
+        """Write ``PREFIX.pt`` (state dict) and ``PREFIX.json`` (meta); return both paths.
+        Each file is written to a temporary name and renamed, so a failed write (a full disk:
+        an :class:`OSError` with its errno) leaves any earlier files as they were."""
+        import io
+        import os
+
         torch = _torch()
         p = Path(path_prefix)
         pt, js = p.with_suffix(".pt"), p.with_suffix(".json")
-        torch.save(self.net.state_dict(), pt)
+        buf = io.BytesIO()
+        torch.save(self.net.state_dict(), buf)
         meta = dict(self.meta)
         meta.update({"format": "latentune-latent-space", "version": 1, "d": self.d,
                      "d_low": self.d_low, "kind": self.kind, "box": self.box.tolist()})
-        js.write_text(json.dumps(meta, indent=1))
+        for path, data in ((pt, buf.getvalue()), (js, json.dumps(meta, indent=1).encode())):
+            tmp = path.with_name(path.name + ".tmp")
+            try:
+                tmp.write_bytes(data)
+                os.replace(tmp, path)
+            finally:
+                tmp.unlink(missing_ok=True)
         return str(pt), str(js)
 
     @classmethod

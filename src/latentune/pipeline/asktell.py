@@ -17,6 +17,23 @@ transaction under the study's lock (an asker waits up to :data:`WAIT_S` seconds 
 ask to finish), so a kill loses nothing: an asked batch is queued or not at all, a told
 result is stored and its suggestion marked told together.
 
+Prepared suggestions
+--------------------
+Building the critic (its libraries, the GP fits) takes seconds; leasing a stored suggestion
+does not. So :func:`tell` (and :func:`tell` with ``amend``) ends by preparing the next batch
+when the next ask would have to ask the critic (no suggestion queued or handed out): the
+critic is asked exactly as that ask would ask it and the batch is stored, with the critic's
+new state, in the store's meta entry :data:`NEXT_KEY`, under a key made of everything the
+batch depends on (the phase's options record, the store's :meth:`~RunStore.data_version`,
+the critic's saved state, and the data version of the runs the critic reads: the latent
+space's source, the fall prior). An ask whose options are the stored ones then leases from
+it without building the critic; a prepared batch whose key differs when it is asked for (a
+tell, an amendment, a release or a lease since, a grown budget, other options), or that is
+smaller than the ask needs, is dropped unseen and the ask asks the critic itself. So a
+study's suggestions, ids and rows are the same with or without the preparation, and a kill
+loses nothing: the prepared batch is written in one transaction after the told result's, and
+turned into queued suggestions (with the critic's state) in one transaction.
+
 Corrections
 -----------
 ``tell(..., amend=True)`` replaces a told result; the store keeps the old one in its audit
@@ -28,7 +45,9 @@ to the command line: :func:`write_suggestion_files` and :func:`remove_suggestion
 """
 from __future__ import annotations
 
+import hashlib
 import json
+import logging
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,13 +56,12 @@ from typing import Any
 import numpy as np
 
 from latentune.constants import Phase
-from latentune.errors import StoreError, UsageError
+from latentune.errors import LatentuneError, StoreError, UsageError
 from latentune.pipeline import manifest as mf
 from latentune.pipeline.baselines import queue_zero_shot
 from latentune.pipeline.loop import (decoder_of, phase_critic, record_latent, resolve_latent,
-                                     resolve_strategy)
-from latentune.pipeline.phases import (ask_batch, replay, save_state, state_key,
-                                       warn_if_failing)
+                                     resolve_strategy, strategy_of)
+from latentune.pipeline.phases import ask_batch, replay, state_key, warn_if_failing
 from latentune.pipeline.results import phase_name, write_best
 from latentune.pipeline.store import Row, RunStore
 from latentune.space import ParameterSpace
@@ -54,6 +72,16 @@ LEASE_S = 3600.0
 WAIT_S = 60.0
 """How long an ask or a tell waits for another writer of the study [s]."""
 DEFAULT_ASKER = "default"
+OPTIONS = ("strategy", "method", "budget", "regions", "start", "max_fall_prob", "fall_prior",
+           "handover")
+"""The phase options an ask takes (each None for "the stored one")."""
+NEXT_KEY = "asktell_next"
+"""The store's meta entry of the prepared batch (see the module docstring)."""
+SCRATCH = "scratch"
+"""The ``start`` of an ask that starts from the critic's own initial design (a phase run's
+``start=None``; None in an ask means "the stored one")."""
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -145,11 +173,25 @@ def _phase(cfg: dict[str, Any], phase: int | None, latent: Any, dir_: Path) -> i
     return int(phase)
 
 
+def _start_record(start: Any, space: ParameterSpace) -> Any:
+    """The stored record of an ask's (not None) ``start``: "manual", None for
+    :data:`SCRATCH`, or the unit-box θ as a list."""
+    if isinstance(start, str) and start == SCRATCH:
+        return None
+    if isinstance(start, str) and start != "manual":
+        raise UsageError(f"start must be 'manual', '{SCRATCH}' or a θ, got {start!r}")
+    return mf.start_point(start, space.manual, space.dim)[1]
+
+
+def _shown(v: Any) -> str:
+    s = repr(v)
+    return s if len(s) <= 60 else s[:57] + "..."
+
+
 def _normalized(given: dict[str, Any], space: ParameterSpace) -> dict[str, Any]:
-    """The given ask options as their stored records (None stays None: "the stored one")."""
-    g = dict(given)
-    if g.get("start") is not None:
-        g["start"] = mf.start_point(g["start"], space.manual, space.dim)[1]
+    """The given ask options as their stored records (None stays None: "the stored one");
+    ``start`` is left out (:func:`_start_record`)."""
+    g = {k: v for k, v in given.items() if k != "start"}
     if g.get("handover") is not None:
         g["handover"] = mf.handover(g["handover"])
     if g.get("max_fall_prob") is not None:
@@ -181,16 +223,28 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
     if stored:
         g = mf.ask_options(stored, g, study.dir, phase)
     else:
-        g = {**g, "method": g.get("method") or "turbo", "budget": g.get("budget") or mf.ASK_BUDGET,
-             "start": "manual" if g.get("start") is None else g["start"]}
-    start_rec = g.get("start")
+        g = {**g, "method": g.get("method") or "turbo", "budget": g.get("budget") or mf.ASK_BUDGET}
+    strat = None
+    if phase == Phase.PHASE3:
+        strat = resolve_strategy(study.manifest, strategy, g.get("handover"))
+        if strat == "transfer" and given.get("start") is not None:
+            raise UsageError("start is an option of phase 1 and of the plain phase 3 (strategy "
+                             "plain); the transfer phase 3 starts from the manual θ and the "
+                             "source's best trials")
+    old_start = stored.get("start", "manual") if stored else "manual"
+    start_rec = old_start
+    if given.get("start") is not None:
+        start_rec = _start_record(given["start"], space)
+        if stored and start_rec != old_start:
+            raise StoreError(f"{study.dir}: phase {int(phase)} runs with start = "
+                             f"{_shown(old_start)} (stored), not {_shown(start_rec)}")
     mfp = g.get("max_fall_prob")
     ls = None
     if phase == Phase.PHASE3:
         ls, source = resolve_latent(study.run, study.manifest, latent, space)
         record_latent(study.run, study.manifest, ls, source)
         extra = {"latent_source": source,
-                 "strategy": resolve_strategy(study.manifest, strategy, g.get("handover")),
+                 "strategy": strat,
                  "start": start_rec,
                  **mf.fall_options(mfp, None if mfp is None else "latent source"),
                  "handover": g.get("handover")}
@@ -208,7 +262,8 @@ def ask(study: Any, n: int = 1, *, system: Any = None, space: ParameterSpace | N
     """Hand out ``n`` suggestions of ``study`` to ``asker`` (see the module docstring).
 
     ``given``: the phase's options (strategy, method, budget, regions, start, max_fall_prob,
-    fall_prior, handover), each None for "the stored one"."""
+    fall_prior, handover), each None for "the stored one"; ``start`` is "manual",
+    :data:`SCRATCH` or a (d,) unit-box θ."""
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
         raise UsageError(f"n must be an integer >= 1, got {n!r}")
     who = DEFAULT_ASKER if asker is None else str(asker)
@@ -218,54 +273,211 @@ def ask(study: Any, n: int = 1, *, system: Any = None, space: ParameterSpace | N
     if not np.isfinite(lease) or lease <= 0:
         raise UsageError(f"lease_s must be a positive number of seconds, got {lease_s!r}")
     with study.run.writing(wait=WAIT_S) as st:
-        sp = _space(study, system, space)
-        ph = _phase(study.manifest.config(), phase, latent, study.dir)
-        pc, ls = options(study, ph, sp, latent, given)
-        study.manifest.record_seed(study.seed)
-        study.manifest.update(asktell={**pc, "phase": ph}, **{mf.PHASE_KEYS[Phase(ph)]: pc})
-        phases: tuple[int, ...] = (ph,)
-        if ph == Phase.PHASE3:
-            queue_zero_shot(st, pc.get("latent_source"))
-            phases = (Phase.ZERO_SHOT, ph)
+        ctx = _stored_context(study, system, space, phase, latent, given)
+        if ctx is None:
+            ctx = _context(study, st, system, space, phase, latent, given)
+        phases = (Phase.ZERO_SHOT, ctx.phase) if ctx.phase == Phase.PHASE3 else (ctx.phase,)
         got = st.lease(who, phases, int(n), lease)
-        if len(got) < n:
-            _ask_critic(study, st, ph, pc, sp, ls, int(n) - len(got))
-            got += st.lease(who, (ph,), int(n) - len(got), lease, queued_only=True)
-        return [Suggestion(t.id, t.phase, t.theta, sp.as_dict(t.theta), t.z, again, None,
-                           t.asker, t.lease_until) for t, again in got]
+        need = int(n) - len(got)
+        if need > 0:
+            if not _take_prepared(study, st, ctx.phase, ctx.options, need):
+                if not ctx.built:
+                    ctx = _context(study, st, system, space, phase, latent, given)
+                _queue(study, st, ctx.phase, _critic_batch(study, st, ctx.phase, ctx.options,
+                                                           ctx.space, ctx.latent, need))
+            got += st.lease(who, (ctx.phase,), need, lease, queued_only=True)
+        return [Suggestion(t.id, t.phase, t.theta, ctx.space.as_dict(t.theta), t.z, again,
+                           None, t.asker, t.lease_until) for t, again in got]
 
 
-def _ask_critic(study: Any, st: RunStore, phase: int, pc: dict[str, Any], space: ParameterSpace,
-                ls: Any, need: int) -> None:
-    """Ask the critic the next batch (at least ``need`` points, the batch size by default,
-    within the budget) and queue it; points already handed out and not told are not asked
-    again (the critic does not know them yet)."""
-    open_ = [t for t in st.trials() if t.phase == phase and t.status in ("queued", "pending")]
-    left = pc["budget"] - st.count(phase) - len(open_)
+@dataclass
+class _Context:
+    """What an ask works with: its phase, the phase's options record, the space, and the
+    LatentSpace of phase 3 (None in phase 1, or when ``built`` is False: the options were
+    read from the store alone, :func:`_stored_context`)."""
+
+    phase: int
+    options: dict[str, Any]
+    space: ParameterSpace
+    latent: Any = None
+    built: bool = True
+
+
+def _context(study: Any, st: RunStore, system: Any, space: ParameterSpace | None,
+             phase: int | None, latent: Any, given: dict[str, Any]) -> _Context:
+    """The context of an ask with its options checked and recorded in the manifest (the
+    zero-shot suggestion queued on phase 3's first ask)."""
+    sp = _space(study, system, space)
+    ph = _phase(study.manifest.config(), phase, latent, study.dir)
+    pc, ls = options(study, ph, sp, latent, given)
+    study.manifest.record_seed(study.seed)
+    study.manifest.update(asktell={**pc, "phase": ph}, **{mf.PHASE_KEYS[Phase(ph)]: pc})
+    if ph == Phase.PHASE3:
+        queue_zero_shot(st, pc.get("latent_source"))
+    return _Context(ph, pc, sp, ls)
+
+
+def _stored_context(study: Any, system: Any, space: ParameterSpace | None, phase: int | None,
+                    latent: Any, given: dict[str, Any]) -> _Context | None:
+    """The context of a later ask read from the store alone, without building the critic's
+    options (which loads its libraries and the latent space), when everything given is what
+    is stored; else None (the ask then checks and records its options, :func:`_context`)."""
+    cfg = study.manifest.config()
+    at = cfg.get("asktell")
+    if not at:
+        return None
+    ph = int(at["phase"])
+    pc = cfg.get(mf.PHASE_KEYS[Phase(ph)])
+    if not pc or (phase is not None and int(phase) != ph) or int(pc["seed"]) != study.seed \
+            or int(pc["batch_size"]) != study.batch_size_of(ph):
+        return None
+    if latent is not None:
+        if ph != Phase.PHASE3 or not isinstance(latent, (str, os.PathLike)):
+            return None
+        other = Path(latent).resolve()
+        if ("self" if other == study.dir.resolve() else str(other)) != pc.get("latent_source"):
+            return None
+    sp = _space(study, system, space)
+    g = _normalized({k: v for k, v in given.items() if k != "strategy"}, sp)
+    for k, v in g.items():
+        if v is not None and v != pc.get(k):
+            return None
+    if given.get("strategy") is not None and (ph != Phase.PHASE3
+                                              or given["strategy"] != strategy_of(pc)):
+        return None
+    if given.get("start") is not None and (
+            (ph == Phase.PHASE3 and strategy_of(pc) == "transfer")
+            or _start_record(given["start"], sp) != pc.get("start", "manual")):
+        return None
+    return _Context(ph, pc, sp, None, built=False)
+
+
+@dataclass
+class _Batch:
+    """A batch the critic asked: θ (k, d), the code to store with each, tags (k,), the
+    critic's state after the ask and its hand-over rule (or None)."""
+
+    thetas: np.ndarray
+    codes: list[Any]
+    tags: np.ndarray
+    state: dict[str, Any]
+    rule: dict[str, Any] | None
+
+
+def _budget_left(st: RunStore, phase: int, pc: dict[str, Any]) -> tuple[int, int]:
+    """(trials of ``phase`` the budget leaves to ask, suggestions of it open)."""
+    open_ = sum(1 for t in st.trials() if t.phase == phase and t.status in ("queued", "pending"))
+    return pc["budget"] - st.count(phase) - open_, open_
+
+
+def _critic_batch(study: Any, st: RunStore, phase: int, pc: dict[str, Any],
+                  space: ParameterSpace, ls: Any, need: int) -> _Batch:
+    """Ask the critic (built from the stored rows and state) the next batch: at least
+    ``need`` points, the batch size by default, within the budget; points already handed out
+    and not told are not asked again (the critic does not know them yet). Writes nothing."""
+    left, n_open = _budget_left(st, phase, pc)
     if left <= 0:
         raise StoreError(f"{study.dir}: {phase_name(phase)}'s budget of {pc['budget']} trials is "
-                         f"handed out ({st.count(phase)} told, {len(open_)} pending): tell the "
+                         f"handed out ({st.count(phase)} told, {n_open} pending): tell the "
                          "pending ones, or ask with a larger budget")
     k = min(max(pc["batch_size"], need), left)
     critic = phase_critic(phase, pc, space, study.dir, ls)
     replay(st, phase, critic)
-    U, T, Z, thetas, codes = ask_batch(critic, len(open_) + k, decoder_of(pc, ls))
+    U, T, Z, thetas, codes = ask_batch(critic, n_open + k, decoder_of(pc, ls))
     held = {np.ascontiguousarray(t.theta).tobytes() for t in st.trials()
             if t.status in ("queued", "pending") and t.phase in (phase, Phase.ZERO_SHOT)}
     keep = [i for i in range(len(thetas))
             if np.ascontiguousarray(thetas[i]).tobytes() not in held][-k:]
-    save_state(st, phase, critic)           # the next ask reuses its GP fits
-    st.queue_trials(phase, thetas[keep], [codes[i] for i in keep], T[keep])
-    if pc.get("handover") is not None:
-        study.manifest.update(phase3_handover=critic.rule())
+    state = critic.state_dict() if hasattr(critic, "state_dict") else {}
+    rule = critic.rule() if pc.get("handover") is not None else None
+    return _Batch(np.asarray(thetas)[keep], [codes[i] for i in keep], np.asarray(T)[keep],
+                  state, rule)
+
+
+def _queue(study: Any, st: RunStore, phase: int, batch: _Batch) -> None:
+    """Queue ``batch`` as suggestions, with the critic's state (the next ask reuses its GP
+    fits) and without any prepared batch, in one transaction."""
+    meta: dict[str, Any] = {NEXT_KEY: None}
+    if batch.state:
+        meta[state_key(phase)] = batch.state
+    st.queue_trials(phase, batch.thetas, batch.codes, batch.tags, meta=meta)
+    if batch.rule is not None:
+        study.manifest.update(phase3_handover=batch.rule)
+
+
+def _prepared_key(study: Any, st: RunStore, phase: int, pc: dict[str, Any]) -> str:
+    """The key of a batch prepared for ``phase`` now (see the module docstring)."""
+    runs = []
+    if phase == Phase.PHASE3 and pc.get("latent_source") not in (None, "self"):
+        runs.append(pc["latent_source"])
+    if pc.get("max_fall_prob") is not None and pc.get("fall_prior") not in (None, "latent source"):
+        runs.append(pc["fall_prior"])
+    ext = []
+    for r in runs:
+        try:
+            ext.append(RunStore.data_version_of(r))
+        except StoreError:
+            ext.append(None)
+    body = {"phase": int(phase), "options": pc, "store": st.data_version(),
+            "state": st.get_meta(state_key(phase)), "runs": [runs, ext]}
+    return hashlib.sha256(json.dumps(body, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def _take_prepared(study: Any, st: RunStore, phase: int, pc: dict[str, Any], need: int) -> bool:
+    """Queue the prepared batch if it is what the critic would be asked now for ``need``
+    points (True); else drop it (False)."""
+    prep = st.get_meta(NEXT_KEY)
+    if not prep:
+        return False
+    if prep.get("phase") != phase or need > len(prep["thetas"]) \
+            or prep.get("key") != _prepared_key(study, st, phase, pc):
+        log.debug("%s: the prepared batch is stale; asking the critic", study.dir)
+        st.delete_meta(NEXT_KEY)
+        return False
+    codes = [None if c is None else np.asarray(c, dtype=float) for c in prep["codes"]]
+    _queue(study, st, phase, _Batch(np.asarray(prep["thetas"], dtype=float), codes,
+                                    np.asarray(prep["tags"], dtype=np.int64), prep["state"],
+                                    prep["rule"]))
+    return True
+
+
+def prepare(study: Any) -> bool:
+    """Prepare the batch the next ask of ``study`` would ask the critic for, if it would ask
+    it (no suggestion queued or handed out, budget left): see the module docstring. Returns
+    whether a batch was prepared. A library error here is logged, not raised (the next ask
+    meets it)."""
+    if not study.exists:
+        return False
+    with study.run.writing(wait=WAIT_S) as st:
+        at = study.manifest.config().get("asktell")
+        if not at or any(t.status in ("queued", "pending") for t in st.trials()):
+            return False
+        ph = int(at["phase"])
+        try:
+            sp = _space(study, None, None)
+            pc, ls = options(study, ph, sp, None, dict.fromkeys(OPTIONS))
+            if _budget_left(st, ph, pc)[0] <= 0:
+                return False
+            key = _prepared_key(study, st, ph, pc)
+            b = _critic_batch(study, st, ph, pc, sp, ls, 1)
+        except LatentuneError as exc:
+            log.warning("%s: the next suggestion was not prepared (%s); the next ask asks "
+                        "the critic", study.dir, exc)
+            st.delete_meta(NEXT_KEY)
+            return False
+        st.set_meta(NEXT_KEY, {"phase": ph, "key": key, "thetas": b.thetas, "tags": b.tags,
+                               "codes": [None if c is None else np.asarray(c)
+                                         for c in b.codes],
+                               "state": b.state, "rule": b.rule})
+        return True
 
 
 def tell(study: Any, trial_id: int, cost: float | None = None, *, failed: bool = False,
          note: str | None = None, info: dict[str, Any] | None = None,
          amend: bool = False) -> Row:
     """Store the result of suggestion ``trial_id`` (``amend``: correct a told one, see the
-    module docstring); return its evaluation row. A failed trial may omit the cost (the
-    convention of :mod:`latentune.system`)."""
+    module docstring), then :func:`prepare` the next batch; return its evaluation row. A
+    failed trial may omit the cost (the convention of :mod:`latentune.system`)."""
     tid = _check_id(trial_id)
     try:
         out = as_outcome({"cost": cost, "failed": bool(failed), "info": dict(info or {})})
@@ -285,7 +497,9 @@ def tell(study: Any, trial_id: int, cost: float | None = None, *, failed: bool =
             ph = st.trials_by_id(tid).phase
             warn_if_failing(st, ph)
         write_best(st, study.dir, study.manifest.space(), ph)
-        return next(r for r in st.rows(ph) if r.idx == idx)
+        row = next(r for r in st.rows(ph) if r.idx == idx)
+    prepare(study)
+    return row
 
 
 def release(study: Any, trial_id: int) -> None:

@@ -96,9 +96,11 @@ def trials(store: RunStore, space: ParameterSpace | None,
 
 
 def trials_dataframe(records: list[TrialRecord]) -> Any:
-    """The trials as a pandas DataFrame: columns phase, idx, trial, cost, failed, one
-    ``params_<name>`` column per θ entry (physical units), info (a dict per row).
-    ImportError naming the install if pandas is absent."""
+    """The trials as a pandas DataFrame, one row per trial: columns phase (its name), idx
+    (int), trial (the suggestion id, a nullable integer: missing for a trial a phase ran
+    itself), cost (float), failed (bool), one ``params_<name>`` column per θ entry (float,
+    physical units), info (a dict per row). ImportError naming the install if pandas is
+    absent."""
     try:
         import pandas as pd
     except ImportError:
@@ -111,8 +113,9 @@ def trials_dataframe(records: list[TrialRecord]) -> Any:
         d.update({f"params_{k}": v for k, v in t.params.items()})
         d["info"] = t.info
         rows.append(d)
-    return pd.DataFrame(rows, columns=None if rows else
-                        ["phase", "idx", "trial", "cost", "failed", "info"])
+    df = pd.DataFrame(rows, columns=None if rows else
+                      ["phase", "idx", "trial", "cost", "failed", "info"])
+    return df.astype({"idx": "int64", "trial": "Int64", "cost": "float64", "failed": "bool"})
 
 
 def status(store: RunStore, run_dir: Path) -> dict[str, Any]:

@@ -13,8 +13,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
-from latentune.errors import LockError, StoreError
-from latentune.pipeline.evaluators import Evaluator, make_evaluator
+from latentune.errors import LockError, StoreError, UsageError
+from latentune.pipeline.evaluators import BACKENDS, Evaluator, make_evaluator
 from latentune.pipeline.store import RunStore
 from latentune.system import EvaluationError
 
@@ -31,6 +31,10 @@ class RunDir:
 
     def __init__(self, path: str | os.PathLike, *, workers: int = 1, backend: str = "serial",
                  ray_address: str | None = None, evaluator: Evaluator | None = None) -> None:
+        if backend not in BACKENDS:
+            raise UsageError(f"unknown backend {backend!r} (choose from {', '.join(BACKENDS)})")
+        if ray_address and backend != "ray":
+            raise UsageError("ray_address needs backend='ray'")
         self.dir = Path(path)
         if self.dir.exists() and not self.dir.is_dir():
             raise StoreError(f"{self.dir} exists and is not a directory")

@@ -176,6 +176,18 @@ def _enc(a: Any) -> str | None:
     return json.dumps([float(v) for v in np.asarray(a, dtype=float).reshape(-1)])
 
 
+def version_of(con: sqlite3.Connection, amendments: bool, trials: bool) -> list[Any]:
+    """:meth:`RunStore.data_version` of an open connection (``amendments``, ``trials``: the
+    store has those tables)."""
+    out: list[Any] = [list(r) for r in con.execute(
+        "SELECT phase, COUNT(*), MAX(created) FROM evaluations GROUP BY phase ORDER BY phase")]
+    n_amend = con.execute("SELECT COUNT(*) FROM amendments").fetchone()[0] if amendments else 0
+    open_ = [r[0] for r in con.execute(
+        "SELECT id FROM trials WHERE status IN ('queued', 'pending') ORDER BY id")] \
+        if trials else []
+    return [out, int(n_amend), open_]
+
+
 class RunStore:
     """Open (or create) the store of a run directory.
 
@@ -286,6 +298,11 @@ class RunStore:
             self.con.execute("INSERT OR REPLACE INTO meta(key, value) VALUES (?, ?)",
                              (key, json.dumps(value, default=_json_default)))
 
+    def delete_meta(self, key: str) -> None:
+        """Remove the meta entry ``key`` if there is one (its own transaction)."""
+        with self._write():
+            self.con.execute("DELETE FROM meta WHERE key=?", (key,))
+
     def get_meta(self, key: str, default: Any = None) -> Any:
         """The JSON value stored under ``key`` (``default`` if absent); StoreError if garbled."""
         row = self.con.execute("SELECT value FROM meta WHERE key=?", (key,)).fetchone()
@@ -381,11 +398,19 @@ class RunStore:
             raise
 
     # ------------------------------------------------------------------ ask/tell trials
-    def queue_trials(self, phase: int, thetas: Any, zs: list[Any], tags: Any) -> list[int]:
+    def queue_trials(self, phase: int, thetas: Any, zs: list[Any], tags: Any,
+                     meta: dict[str, Any] | None = None) -> list[int]:
         """Record a batch the critic asked as 'queued' suggestions (one transaction); return
-        their ids in ask order. ``thetas`` (n, d), ``zs`` n codes or None, ``tags`` (n,)."""
+        their ids in ask order. ``thetas`` (n, d), ``zs`` n codes or None, ``tags`` (n,).
+        ``meta``: entries written in the same transaction (a None value removes the entry)."""
         now = time.time()
         with self._write(trials=True):
+            for key, value in (meta or {}).items():
+                if value is None:
+                    self.con.execute("DELETE FROM meta WHERE key=?", (key,))
+                else:
+                    self.con.execute("INSERT OR REPLACE INTO meta(key, value) VALUES (?, ?)",
+                                     (key, json.dumps(value, default=_json_default)))
             ids = []
             for th, z, tag in zip(thetas, zs, tags):
                 cur = self.con.execute(
@@ -542,6 +567,33 @@ class RunStore:
                  "new": json.loads(r[4]), "note": r[5], "created": r[6]}
                 for r in self.con.execute("SELECT trial, phase, idx, old, new, note, created "
                                           "FROM amendments ORDER BY n")]
+
+    def data_version(self) -> list[Any]:
+        """A JSON-able summary that changes whenever the data a critic is built from change:
+        per phase the number of evaluations and the latest one's time, the number of
+        amendments (rows change only by a tell or an amendment), and the ids of the open
+        (queued or pending) suggestions. Two equal summaries of one store: the same rows."""
+        return version_of(self.con, self._has_leases, self._current)
+
+    @staticmethod
+    def data_version_of(run_dir: str | Path) -> list[Any]:
+        """:meth:`data_version` of the store in ``run_dir``, read-only (StoreError if there is
+        none or it cannot be read)."""
+        path = Path(run_dir) / DB_NAME
+        if not path.is_file():
+            raise StoreError(f"no run store in {run_dir} (expected {DB_NAME})")
+        try:
+            con = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=30.0)
+            try:
+                tables = {r[0] for r in con.execute(
+                    "SELECT name FROM sqlite_master WHERE type='table'")}
+                cols = {r[1] for r in con.execute("PRAGMA table_info(trials)")}
+                return version_of(con, "amendments" in tables and "lease_until" in cols,
+                                  "trials" in tables)
+            finally:
+                con.close()
+        except sqlite3.DatabaseError as exc:
+            raise StoreError(f"run store {path}: {exc}") from None
 
     def rows(self, phase: int) -> list[Row]:
         """The evaluations of ``phase`` in idx order (StoreError for a garbled row)."""

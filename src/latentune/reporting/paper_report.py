@@ -37,6 +37,12 @@ GAITS = ("trot", "jump")
 OTHER_GAIT = {"trot": "jump", "jump": "trot"}
 STUDY_PHASES = ((Phase.MANUAL, "manual"), (Phase.PHASE1, "phase1"), (Phase.PHASE3, "phase3"),
                 (Phase.ZERO_SHOT, "zero_shot"), (Phase.PRESERVATION, "preservation"))
+ARMS = {"phase3-plain": "phase 3, plain (the paper's)",
+        "phase3-transfer": "phase 3, default (transfer)",
+        "turbo": "TuRBO-m on θ", "cma": "CMA-ES on θ", "random": "random search on θ",
+        "tpe": "Optuna TPE (multivariate) on θ",
+        "cmaes-src": "Optuna CMA-ES with source_trials on θ"}
+"""The methods of the seeded comparisons (arm key -> label)."""
 BASELINE_ARMS = ("turbo", "cma", "random", "tpe", "cmaes-src")
 
 Claim = tuple[str, "bool | None", str]
@@ -272,8 +278,6 @@ def _row_label(robot: str, row: str) -> str:
 
 
 def _arm_label(arm: str, row: str) -> str:
-    from latentune.experiments.paper import ARMS
-
     own = "-" not in row
     if arm in BASELINE_ARMS:
         start = "manual θ" if own else "zero-shot θ"
@@ -497,9 +501,9 @@ def plot_seed_bands(r: dict[str, Any], path: Path) -> None:
     """One row of the seeded comparison (:func:`seeded_stats`): per method, the median
     best-so-far cost against the evaluation number with its interquartile band; the manual θ's
     cost (dashed), the zero-shot θ's (dotted) and the direct phase-1 run's best (dash-dot)."""
-    from latentune.reporting.plots import _plt
+    from latentune.reporting.plots import pyplot
 
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(8.0, 5.0))
     lo, hi = [], []
     for j, arm in enumerate(ARM_ORDER):

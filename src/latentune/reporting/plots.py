@@ -21,7 +21,8 @@ _DISPLAY_MAX = 1e6
 """Costs above this (a non-finite cost is stored as 1e300) are drawn at this value."""
 
 
-def _plt():
+def pyplot():
+    """matplotlib.pyplot on the non-interactive Agg backend."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -40,7 +41,7 @@ def plot_rollouts(results: Mapping[str, object], path: str | Path, v_des: float 
     path cost L and, when the result has one, its RMS velocity error. ``v_des``: the desired
     forward velocity drawn dashed (None: not drawn).
     """
-    plt = _plt()
+    plt = pyplot()
     fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(8, 5.5), sharex=True)
     for label, res in results.items():
         tr = getattr(res, "trace", None)
@@ -118,7 +119,7 @@ def plot_best_so_far(panels: Sequence[CurvePanel] | CurvePanel, path: str | Path
     panels = [p for p in panels if any(len(v) for v in p.curves.values())]
     if not panels:
         raise ValueError("plot_best_so_far: no costs to plot")
-    plt = _plt()
+    plt = pyplot()
     labels = list(dict.fromkeys(k for p in panels for k, v in p.curves.items() if len(v)))
     color = {k: f"C{i % 10}" for i, k in enumerate(labels)}
     ncol = len(panels)
@@ -179,7 +180,7 @@ def plot_cost_transform(costs: Sequence[float] | np.ndarray, path: str | Path, t
     models) for (n,) costs; falls (cost ≥ C1) in red."""
     from latentune.critic import gaussian_copula
 
-    plt = _plt()
+    plt = pyplot()
     y = np.asarray(costs, dtype=float).reshape(-1)
     z = gaussian_copula(y)
     fig, ax = plt.subplots(figsize=(6, 4))

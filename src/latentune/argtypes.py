@@ -1,0 +1,17 @@
+"""Argument types shared by the ``latentune`` command line and the subcommands other modules
+register on it (:func:`latentune.integrations.register_cli`): each parses one flag's text or
+raises :class:`~latentune.errors.CLIError` with a one-line message naming the flag."""
+from __future__ import annotations
+
+from latentune.errors import CLIError
+
+
+def seed(s: str) -> int:
+    """``--seed``: an integer in [0, 2**63)."""
+    try:
+        v = int(s)
+    except ValueError:
+        raise CLIError(f"--seed must be an integer, got {s!r}") from None
+    if not 0 <= v < 2 ** 63:
+        raise CLIError(f"--seed must be in [0, 2**63), got {v}")
+    return v
