@@ -274,6 +274,17 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
                                  "falls_median": float(np.median([sum(rs[s]["failed"])
                                                                   for s in seeds])),
                                  "best": best}
+            dec = [d for s in seeds for d in rs[s].get("decisions", [])]
+            if dec:                     # the transfer critic's decision records
+                picks = [sum(p == "latent" for d in rs[s].get("decisions", [])
+                             for p in d["pools"]) for s in seeds]
+                agree = [d["agreement"] for d in dec if d.get("agreement") is not None
+                         and not d.get("design")]
+                row["methods"][m]["latent_picks"] = {"median": float(np.median(picks)),
+                                                     "max": int(max(picks))}
+                if agree:
+                    row["methods"][m]["agreement_iqr"] = [float(np.percentile(agree, 25)),
+                                                          float(np.percentile(agree, 75))]
         peers = [m for m in PEERS if m in row["methods"]]
         bp = min(peers, key=lambda m: row["methods"][m]["median_best"])
         level = row["methods"][bp]["median_best"]
