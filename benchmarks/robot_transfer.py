@@ -393,9 +393,9 @@ def markdown(s: dict[str, Any]) -> str:
 def plot_com(results: dict[str, Any], path: Path, title: str) -> None:
     """The base's CoM x, y, z [m] against time [s] of recorded rollouts (label → a result with
     ``cost`` and ``trace`` holding ``t`` (n,) and ``pos`` (n, 3)), one panel per axis."""
-    from latentune.reporting.plots import _plt
+    from latentune.reporting.plots import pyplot
 
-    plt = _plt()
+    plt = pyplot()
     fig, axes = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
     for label, res in results.items():
         t, pos = res.trace["t"], res.trace["pos"]
