@@ -324,6 +324,35 @@ WORKER = textwrap.dedent('''
 ''')
 
 
+def test_a_theta_given_twice_at_once_is_chosen_again(source_run, monkeypatch):
+    """Write, then check: a trial whose θ another RUNNING trial recorded at the same moment (the
+    race of two workers on one storage, played here by handing trial 2 trial 1's θ) chooses
+    again, and the two run different θ."""
+    sampler = LatentSampler(source_run, seed=0, budget=40)
+    study = optuna.create_study(sampler=sampler)
+    z = study.ask()                               # the zero-shot trial: no critic point
+    study.tell(z, float(np.sum(np.array(list(sampler.suggest_all(z).values())) ** 2)))
+    a = study.ask()
+    pa = sampler.suggest_all(a)
+    first = study._storage.get_trial_system_attrs(a._trial_id)[POINT_ATTR]
+    real = LatentSampler._next
+    calls = []
+
+    def racing(self, st, trial, extra_skip=0):
+        calls.append(extra_skip)
+        if len(calls) == 1:                       # blind to trial 1: its pick is trial 1's
+            return np.asarray(first["theta"], dtype=float), dict(first)
+        return real(self, st, trial, extra_skip)
+
+    monkeypatch.setattr(LatentSampler, "_next", racing)
+    b = study.ask()
+    pb = sampler.suggest_all(b)
+    assert len(calls) == 2 and calls[1] == 1      # chose again, leaving trial 1 its θ
+    assert tuple(pa.values()) != pytest.approx(tuple(pb.values()))
+    assert LatentSampler._clashes(study, b, np.asarray(
+        study._storage.get_trial_system_attrs(b._trial_id)[POINT_ATTR]["theta"])) == []
+
+
 def test_two_workers_on_one_journal(source_run, tmp_path):
     journal = tmp_path / "target.log"
     from optuna.storages.journal import JournalFileBackend, JournalStorage

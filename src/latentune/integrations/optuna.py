@@ -32,8 +32,10 @@ of processes may share one RDB or journal storage):
 * RUNNING trials are pending: a trial asks the rebuilt critic for ``len(pending) + 2`` points,
   passes over those whose θ a trial of the study already has (a RUNNING trial's θ is recorded
   the moment it is sampled), leaves one more to each pending trial with a smaller number that is
-  sampling at the same moment, and takes the next; so workers on one storage do not run the
-  same θ. With one worker a seed gives the same trials every time.
+  sampling at the same moment, and takes the next. It records its θ, then checks: when another
+  RUNNING trial recorded the same θ at that moment, it chooses again, leaving the first untaken
+  points to those with smaller numbers; so workers on one storage do not run the same θ. With
+  one worker a seed gives the same trials every time.
 * what the told trials do not determine (TuRBO-m's warm-started GP hyperparameters) is kept in
   the study's system attribute ``latentune:critic_state:<key>`` after every sample.
 
@@ -308,8 +310,17 @@ class _CriticSampler:
             return {}
         _sign(study)
         theta, point = self._next(study, trial)
-        if point is not None:
+        for _ in range(4):      # write, then check: of two trials given one θ, one sees it
+            if point is None:
+                break
             study._storage.set_trial_system_attr(trial._trial_id, POINT_ATTR, point)
+            clash = self._clashes(study, trial, theta)
+            if not clash:
+                break
+            logger.info("trial %d: θ given to trial(s) %s at the same moment; choosing again",
+                        trial.number, clash)
+            theta, point = self._next(study, trial,
+                                      extra_skip=sum(n < trial.number for n in clash))
         phys = physical_params(self._space, theta)
         return {n: phys[n] for n in search_space if n in phys}
 
@@ -365,7 +376,20 @@ class _CriticSampler:
             Z.append(z)
         return X, y, tags, fell, Z
 
-    def _next(self, study: Any, trial: Any) -> tuple[np.ndarray, dict[str, Any] | None]:
+    @staticmethod
+    def _clashes(study: Any, trial: Any, theta: np.ndarray) -> list[int]:
+        """Numbers of the other RUNNING trials whose recorded θ is ``theta``."""
+        key = _key_of(theta)
+        out = []
+        for t in study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.RUNNING,)):
+            pt = t.system_attrs.get(POINT_ATTR)
+            if t.number != trial.number and isinstance(pt, dict) and pt.get("theta") is not None \
+                    and _key_of(np.asarray(pt["theta"], dtype=float)) == key:
+                out.append(t.number)
+        return out
+
+    def _next(self, study: Any, trial: Any, extra_skip: int = 0
+              ) -> tuple[np.ndarray, dict[str, Any] | None]:
         """The normalized θ (d,) for ``trial`` and the point record to store with it.
 
         One snapshot of the study's trials gives the history (finished trials), the pending
@@ -374,7 +398,9 @@ class _CriticSampler:
         before its parameters). The critic is asked for ``len(pending) + 2`` points; those
         whose θ is taken are passed over, then one more for each pending trial with a smaller
         number whose θ is not known yet (it is sampling now and takes that one), and the trial
-        takes the next (asking again when none is left)."""
+        takes the next (asking again when none is left). ``extra_skip``: pass over that many
+        more (a trial that was given the same θ as others with smaller numbers, at the same
+        moment, leaves them the first ones)."""
         fixed = self._fixed_theta(study, trial)
         if fixed is not None:
             return fixed, None
@@ -413,7 +439,7 @@ class _CriticSampler:
                 taken.add(_key_of(np.asarray(pt["theta"], dtype=float)))
             elif t.number in pending_numbers and t.number < trial.number and u_t is None:
                 unknown += 1
-        n_ask, skip = len(pending) + 2, unknown
+        n_ask, skip = len(pending) + 2 + extra_skip, unknown + extra_skip
         chosen = None
         for _ in range(8):
             U = critic.ask(n_ask)
