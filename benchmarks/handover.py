@@ -127,11 +127,9 @@ def main(argv: list[str] | None = None) -> int:
                         elif m == "turbo":
                             study.phase1(task, a.budget, start=None)
                         else:       # Optuna's sampler as phase 1 from its own design
-                            from latentune.integrations.optuna import run_baseline
-
-                            run_baseline(study, task, a.budget, start=None,
-                                         sampler={"optuna_cma": "cmaes",
-                                                  "optuna_tpe": "tpe"}[m])
+                            study.phase1(task, a.budget, start=None,
+                                         method={"optuna_cma": "optuna-cmaes",
+                                                 "optuna_tpe": "optuna-tpe"}[m])
                     rows = study.store.rows(phase)[: a.budget]
                     cfg = study.config()
                 y = np.array([r.cost for r in rows])

@@ -31,7 +31,7 @@ trial counted (the zero-shot one included):
   ``cma_source`` (``CmaEsSampler(x0=source best)``), ``cma_source_trials``
   (``CmaEsSampler(source_trials=<every source trial>)``), ``tpe`` (multivariate) and ``gp``
   (``GPSampler``), each with the source's best θ enqueued as its first trial
-  (:class:`latentune.integrations.optuna.OptunaCritic`).
+  (:class:`latentune.critic.optuna.OptunaCritic`).
 
 Every (system, gap, seed, method) writes ``ROOT/<system>/gap<g>/seed<s>/<method>.json`` (cost and
 failed per trial, wall time) and is skipped when it exists: the run resumes. ``summary`` applies
@@ -201,7 +201,7 @@ def run_method(method: str, target: Any, src: Path, B: int, seed: int,
         cr = TurboM(target.space.dim, batch_size=1, seed=seed, x0=x0, n_regions=1)
         _loop(cr, target, B, costs, failed)
     else:
-        from latentune.integrations.optuna import OptunaCritic
+        from latentune.critic.optuna import OptunaCritic
 
         sampler = {"cma_source": "cmaes", "cma_source_trials": "cmaes", "tpe": "tpe",
                    "gp": "gp"}[method]

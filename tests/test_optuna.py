@@ -400,3 +400,29 @@ def test_turbo_sampler(tmp_path):
         TurboSampler({"n": optuna.distributions.IntDistribution(0, 3)})
     with pytest.raises(UsageError, match="start"):
         TurboSampler(dists, start="manual")
+
+
+def test_optuna_samplers_are_phase1_methods(tmp_path):
+    """``Study.phase1(method="optuna-…")`` runs Optuna's sampler through latentune's own loop and
+    store: the manual θ first, resumable with the same rows, CMA-ES warm-started from another
+    run's trials, and its options checked in one line."""
+    space = lt.ParameterSpace(["a", "b", "c"], [-1.0] * 3, [1.0] * 3, manual=[0.5] * 3)
+    sys_ = lt.FunctionSystem(space, lambda x: float(np.sum((x - 0.2) ** 2)))
+    with lt.Study(tmp_path / "src", seed=1) as st:
+        st.phase1(sys_, 12, method="optuna-tpe")
+        rows = st.store.rows(Phase.PHASE1)
+        assert len(rows) == 12 and st.config()["phase1"]["method"] == "optuna-tpe"
+        assert np.allclose(rows[0].theta, space.manual)             # unit box
+    with lt.Study(tmp_path / "half", seed=1) as st:
+        st.phase1(sys_, 12, method="optuna-tpe", max_new=8)        # a batch boundary
+    with lt.Study(tmp_path / "half") as st:                    # resumes: the same 12 rows
+        st.phase1(sys_, 12, method="optuna-tpe")
+        assert [r.theta.tolist() for r in st.store.rows(Phase.PHASE1)] == \
+            [r.theta.tolist() for r in rows]
+    with lt.Study(tmp_path / "cma", seed=1) as st:
+        st.phase1(sys_, 6, method="optuna-cmaes", source_run=tmp_path / "src", start=None)
+        assert st.config()["phase1"]["source_run"] == str((tmp_path / "src").resolve())
+    with pytest.raises(UsageError, match="source_run is an option of the method optuna-cmaes"):
+        lt.Study(tmp_path / "bad", seed=1).phase1(sys_, 6, source_run=tmp_path / "src")
+    with pytest.raises(UsageError, match="max_fall_prob is not an option"):
+        lt.Study(tmp_path / "bad2", seed=1).phase1(sys_, 6, method="optuna-gp", max_fall_prob=0.3)

@@ -377,7 +377,7 @@ def test_paper_bad_seeds(tmp_path: Path, run_cli, error_line, extra: list[str], 
 def test_optuna_critic_resume_replays_the_sampler(sampler: str):
     """A fresh OptunaCritic told a stored history (any order) asks the batch the original asks
     next; the warm start is its first point; cmaes takes source trials."""
-    from latentune.integrations.optuna import OptunaCritic
+    from latentune.critic.optuna import OptunaCritic
 
     rng = np.random.default_rng(0)
 

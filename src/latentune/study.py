@@ -174,9 +174,10 @@ class Study:
     def phase1(self, system: Any, budget: int, *, method: str = "turbo",
                regions: int | None = None, start: Any = "manual",
                max_fall_prob: float | None = None, fall_prior: Any = None,
-               max_new: int | None = None) -> PhaseResult:
+               source_run: Any = None, max_new: int | None = None) -> PhaseResult:
         """Phase 1: ``method`` tunes the full θ of ``system`` for ``budget`` evaluations in all
-        (stored ones included). Resumes a stored phase 1.
+        (stored ones included; ``optuna-*``: Optuna's samplers, ``source_run``: a run whose
+        trials are ``optuna-cmaes``'s ``source_trials``). Resumes a stored phase 1.
 
         ``start``: ``"manual"`` (the first point is the system's manual θ), ``None`` (from
         scratch: the critic's own initial design) or a (d,) unit-box θ (e.g. another run's best).
@@ -185,11 +186,11 @@ class Study:
         more than that share of a batch falls, see
         :func:`~latentune.pipeline.phases.make_phase_critic`); ``fall_prior``: a run directory
         whose phase-1 trials (θ, failed) seed that prediction. ``max_new``: stop after this
-        many new trials.
-        """
+        many new trials."""
         check_system(system)
         extra = {"start": mf.start_point(start, system.space.manual, system.space.dim)[1],
-                 **mf.fall_options(max_fall_prob, fall_prior)}
+                 **mf.fall_options(max_fall_prob, fall_prior),
+                 **mf.source_option(method, source_run)}
         self._options(Phase.PHASE1, method, budget, regions, extra)     # checked before writing
         if max_fall_prob is not None:
             theta_prior(fall_prior, system.space.dim)

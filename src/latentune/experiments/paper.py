@@ -121,8 +121,9 @@ class StudyPlan:
     arm: str | None = None    # its method in that comparison (paper_report.ARMS)
 
 
-OPTUNA_METHODS = {"tpe": "tpe", "cmaes-src": "cmaes"}
-"""Baselines run by Optuna's samplers (:func:`latentune.integrations.optuna.run_baseline`)."""
+OPTUNA_METHODS = {"tpe": "optuna-tpe", "cmaes-src": "optuna-cmaes"}
+"""Baselines run by Optuna's samplers (their :meth:`Study.phase1 <latentune.study.Study.phase1>`
+methods)."""
 OWN_BASELINES = ("turbo", "cma", "random", "tpe", "cmaes-src")
 """On a study's own task, from the manual θ (cmaes-src: the task's phase-1 trials)."""
 CROSS_BASELINES = ("turbo", "cma", "tpe", "cmaes-src")
@@ -282,10 +283,9 @@ def run_study(plan_: StudyPlan, opts: PaperOptions, root: Path, b: dict[str, Any
     if _done(out, plan_, b):
         log(f"[{plan_.key}] done (skipped)")
         return
-    optuna_run = None
     if plan_.method in OPTUNA_METHODS:
         try:
-            from latentune.integrations.optuna import run_baseline as optuna_run
+            import optuna  # noqa: F401
         except ImportError:
             logger.warning("[%s] skipped: Optuna is not installed (pip install "
                            "'latentune[optuna]')", plan_.key)
@@ -308,12 +308,10 @@ def run_study(plan_: StudyPlan, opts: PaperOptions, root: Path, b: dict[str, Any
                          **({"method": plan_.method} if plan_.strategy == "plain" else {}))
         elif plan_.kind == "baseline":
             start = _start(root, plan_)
-            if optuna_run is not None:
-                optuna_run(study, task, plan_.budget, sampler=OPTUNA_METHODS[plan_.method],
-                           start=start, source_run=None if plan_.method != "cmaes-src"
-                           else root / str(plan_.source))
-            else:
-                study.phase1(task, plan_.budget, method=plan_.method, start=start)
+            study.phase1(task, plan_.budget, method=OPTUNA_METHODS.get(plan_.method,
+                                                                      plan_.method),
+                         start=start, source_run=None if plan_.method != "cmaes-src"
+                         else root / str(plan_.source))
         elif plan_.kind == "preservation":
             study.phase1(task, plan_.budget, method=plan_.method)
             res = study.preservation(task, root / plan_.vae_from)

@@ -52,7 +52,8 @@ def phase_critic(phase: int, pc: dict[str, Any], space: ParameterSpace, run_dir:
     if int(phase) == Phase.PHASE1:
         prior = theta_prior(pc.get("fall_prior"), space.dim) if mfp is not None else None
         return make_phase_critic(pc["method"], space.dim, pc["batch_size"], pc["seed"], theta0,
-                                 pc["budget"], pc["regions"], mfp, prior)
+                                 pc["budget"], pc["regions"], mfp, prior,
+                                 source=source_costs(pc.get("source_run"), space.dim))
     if latent is None:
         raise LatentError("phase 3 needs a latent space")
     source = pc.get("latent_source", "self")
@@ -139,6 +140,21 @@ def transfer_critic(pc: dict[str, Any], space: ParameterSpace, run_dir: Path, so
         idx = np.array(sorted(known), dtype=np.int64)
         critic.tell(X[idx], y[idx], fell=fell[idx])
     return critic
+
+
+def source_costs(run: Any, dim: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """The phase-1 and phase-3 trials of the run ``run`` as (X (m, dim) unit-box θ, cost (m,)),
+    or None without a run; StoreError when it holds none or of another dimension."""
+    if run is None:
+        return None
+    from latentune.critic.transfer import source_trials
+
+    X, y, _ = source_trials(run)
+    if X.ndim != 2 or len(X) == 0:
+        raise StoreError(f"{run} holds no phase-1 or phase-3 trials")
+    if X.shape[1] != dim:
+        raise StoreError(f"the trials of {run} have {X.shape[1]} parameters, the system {dim}")
+    return X, y
 
 
 def decoder_of(pc: dict[str, Any], latent: Any) -> Any:

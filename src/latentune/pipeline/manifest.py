@@ -17,6 +17,7 @@ user system's ``--system`` string and arguments, or its class, but never imports
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -27,7 +28,10 @@ from latentune.pipeline.rundir import RunDir
 from latentune.space import ParameterSpace
 from latentune.system import check_system
 
-METHODS = ("turbo", "cma", "random", "sobol")
+OPTUNA_METHODS = ("optuna-tpe", "optuna-cmaes", "optuna-gp")
+"""Optuna's samplers as critics (:class:`latentune.critic.optuna.OptunaCritic`; the
+``optuna`` extra): the baselines a user would pick, run by the same loop and store."""
+METHODS = ("turbo", "cma", "random", "sobol") + OPTUNA_METHODS
 ASK_BUDGET = 200
 """The budget ask/tell assumes for its critic's options (TuRBO-m's region count) by default."""
 PHASE_KEYS = {Phase.PHASE1: "phase1", Phase.PHASE3: "phase3"}
@@ -254,6 +258,18 @@ def fall_options(max_fall_prob: float | None, prior: Any) -> dict[str, Any]:
         raise UsageError(f"max_fall_prob must be in (0, 1], got {max_fall_prob!r}")
     return {"max_fall_prob": float(max_fall_prob),
             "fall_prior": None if prior is None else str(prior)}
+
+
+def source_option(method: str, source_run: Any) -> dict[str, Any]:
+    """The options record of ``source_run``, a run whose phase-1 and phase-3 trials warm-start
+    Optuna's CMA-ES (its ``source_trials`` mode): only with the method ``optuna-cmaes``."""
+    if source_run is None:
+        return {}
+    if method != "optuna-cmaes":
+        raise UsageError(f"source_run is an option of the method optuna-cmaes, not {method}")
+    if not (Path(source_run) / "run.db").is_file():
+        raise StoreError(f"no latentune run in {source_run} (expected run.db)")
+    return {"source_run": str(Path(source_run).resolve())}
 
 
 def handover(option: Any) -> dict[str, Any] | None:

@@ -39,7 +39,7 @@ import numpy as np
 
 from latentune.constants import Phase
 from latentune.critic.handover import HANDOVER_DEFAULTS
-from latentune.errors import StoreError
+from latentune.errors import StoreError, UsageError
 from latentune.pipeline.evaluators import Evaluator, TrialError
 from latentune.pipeline.store import RunStore
 from latentune.system import EvaluationError, Outcome
@@ -62,7 +62,8 @@ def default_batch_size(workers: int) -> int:
 def make_phase_critic(method: str, dim: int, batch_size: int, seed: int, x0: np.ndarray | None,
                       budget: int, regions: int | None = None, max_fall_prob: float | None = None,
                       prior: tuple[np.ndarray, np.ndarray] | None = None,
-                      fall_region: bool = True):
+                      fall_region: bool = True,
+                      source: tuple[np.ndarray, np.ndarray] | None = None):
     """The critic of a phase on [0, 1]^dim: ``method`` with its batch size, seed and warm start
     ``x0`` (d,); TuRBO-m gets ``regions`` trust regions (default: by budget).
 
@@ -72,7 +73,15 @@ def make_phase_critic(method: str, dim: int, batch_size: int, seed: int, x0: np.
     TuRBO-m then also fills its first design around ``x0`` (``design_side`` = its initial
     side) and halves a region whose batch's share of falls exceeds ``max_fall_prob``
     (``fall_shrink``; "Falls" in :mod:`latentune.critic.turbo`), unless ``fall_region`` is
-    False (the hand-over's latent stage, which hands over when its search stalls)."""
+    False (the hand-over's latent stage, which hands over when its search stalls).
+    ``optuna-<sampler>``: Optuna's sampler (:class:`~latentune.critic.optuna.OptunaCritic`), ``source`` = (X (m, dim), y (m,)) its CMA-ES's ``source_trials``."""
+    if method.startswith("optuna-"):
+        if max_fall_prob is not None:
+            raise UsageError(f"max_fall_prob is not an option of the method {method}")
+        from latentune.critic.optuna import OptunaCritic
+
+        return OptunaCritic(dim, batch_size=batch_size, seed=seed, x0=x0,
+                            sampler=method.split("-", 1)[1], source=source)
     from latentune.critic import make_critic
     from latentune.critic.turbo import regions_for_budget
 
