@@ -280,3 +280,15 @@ def test_paper_report_on_synthetic_directory(tmp_path: Path):
         assert (root / f).stat().st_size > 1000 and f"]({f})" in md, f
     assert not (root / "best_so_far_jump.png").exists()
     assert not list(root.glob("com_velocity_*.png")) and not list(root.glob("*.gif"))
+
+
+def test_phase3_label_names_the_strategy():
+    from latentune.constants import Phase
+    from latentune.reporting.run_report import phase_label
+
+    assert phase_label(Phase.PHASE3, {"phase3": {"strategy": "transfer"}}).startswith(
+        "phase 3 (transfer")
+    assert phase_label(Phase.PHASE3, {"phase3": {"strategy": "plain", "method": "cma"}}) == \
+        "phase 3 (latent, CMA-ES)"
+    assert phase_label(Phase.PHASE3, {"phase3": {"method": "turbo", "handover": {"tol": 0.01}}}) \
+        == "phase 3 (latent, TuRBO-m, hand-over)"

@@ -53,14 +53,21 @@ def task_from_config(config: dict[str, Any]):
 
 
 def phase_label(phase: int, config: dict[str, Any]) -> str:
-    """The table label of a phase, naming the critic of the stored config."""
+    """The table label of a phase, naming the critic (phase 3: the strategy) of the stored
+    config."""
     def method(key: str) -> str:
         m = str((config.get(key) or {}).get("method", "turbo"))
         return METHOD_LABEL.get(m, m)
 
+    p3 = config.get("phase3") or {}
+    if p3.get("strategy") == "transfer":
+        third = "phase 3 (transfer: source model, latent and θ boxes)"
+    else:
+        third = f"phase 3 (latent, {method('phase3')}" + (", hand-over)" if p3.get("handover")
+                                                          else ")")
     return {Phase.MANUAL: "manual tuned",
             Phase.PHASE1: f"phase 1 (θ, {method('phase1')})",
-            Phase.PHASE3: f"phase 3 (latent, {method('phase3')})",
+            Phase.PHASE3: third,
             Phase.ZERO_SHOT: "zero-shot (source best θ)"}.get(int(phase), f"phase {phase}")
 
 
