@@ -67,6 +67,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from latentune.constants import GAITS, Phase
 from latentune.errors import UsageError
 from latentune.reporting.paper_report import ARMS
@@ -254,10 +256,26 @@ def _done(out: Path, plan_: StudyPlan, b: dict[str, Any]) -> bool:
 
 
 def _start(root: Path, plan_: StudyPlan) -> Any:
-    """A baseline's first θ: ``"manual"``, or the source run's best θ (the zero-shot θ)."""
+    """A baseline's first θ: ``"manual"``, or the zero-shot θ of its row: the θ of the zero-shot
+    trial stored by the row's phase-3 study (the source's best when that study ran; the source
+    may improve later, by its own phase 3), else the source's best now. A resumed baseline
+    keeps its stored start."""
     if plan_.start == "manual":
         return "manual"
-    from latentune.study import source_best
+    from latentune.pipeline.store import RunStore
+    from latentune.study import Study, source_best
+
+    if (root / plan_.key / "run.db").is_file():
+        with Study(root / plan_.key) as done:
+            stored = (done.config().get("phase1") or {}).get("start")
+        if isinstance(stored, list):
+            return np.asarray(stored, dtype=float)
+    stem = root / plan_.key[: plan_.key.rindex(f"-{plan_.method}")]
+    if (stem / "run.db").is_file():
+        with RunStore(stem) as st:
+            zs = st.rows(Phase.ZERO_SHOT)
+        if zs:
+            return zs[0].theta
 
     best = source_best(root / str(plan_.source))
     if best is None:
