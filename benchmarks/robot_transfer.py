@@ -324,7 +324,7 @@ def run(a: argparse.Namespace) -> None:
         src = source_dir(paper, root, rung.robot, rung.source, a.source_trials)
         build_target(rung, src)                         # refuse a bad rung before any trial
         if "transfer" in a.methods:
-            tr._source_hypers(src, 0)                   # fitted once, before the workers share it
+            tr.source_hypers(src, 0)                   # fitted once, before the workers share it
         n = int(snapshot_info(src)["n_trials"])
         jobs += [(rung, src, m, s, a.budget, root) for s in a.seeds for m in a.methods
                  if not result_path(root, rung.name, n, s, m).is_file()]

@@ -106,7 +106,7 @@ def source_run(root: Path, system: str, seed: int, evals: int) -> Path:
     return d
 
 
-def _source_hypers(src: Path, seed: int) -> dict[str, Any]:
+def source_hypers(src: Path, seed: int) -> dict[str, Any]:
     """The fitted source models' hyperparameters, fitted once per source (cached as JSON)."""
     from latentune.critic.transfer import SourceModel, source_trials
 
@@ -174,7 +174,7 @@ def run_method(method: str, target: Any, src: Path, B: int, seed: int,
     elif method == "transfer":
         ls = LatentSpace.load(src / "vae")
         cr = Transfer((Xs, ys, fs), ls, manual, batch_size=1, seed=seed, **(options or {}))
-        cr.load_state_dict({"source_hypers": _source_hypers(src, seed)})
+        cr.load_state_dict({"source_hypers": source_hypers(src, seed)})
         o = trial(best)
         cr.tell(best[None], np.array([o.cost]), fell=np.array([o.failed]))
         _loop(cr, target, B - 1, costs, failed)
