@@ -1,11 +1,20 @@
 #!/usr/bin/env bash
-# The evidence issue's phase-1 sources at the paper's budget (10,000 evaluations each, seed 0),
-# in the layout `latentune paper --scale 1.0` resumes: A1 trot, A1 jump, A1's preservation run,
-# then Solo12 trot and jump. Resumable: run it again after a stop and it continues where it was.
-# Usage: bash scripts/paper_sources.sh [WORKERS]   (stores under results/paper10k/{a1,solo12})
+# The evidence issue's runs at the paper's budget, in the layout `latentune paper --scale 1.0`
+# resumes (stores under results/paper10k/{a1,solo12}). Resumable: run it again after a stop and it
+# continues where it was.
+#   bash scripts/paper_sources.sh [WORKERS] [SEEDS]
+# runs two jobs side by side, WORKERS workers each:
+#   A1: every study of `latentune paper --robot a1 --scale 1 --seeds SEEDS` (its own sources first:
+#       trot and jump at 10,000 evaluations, seed 0; the preservation run last);
+#   Solo12: the phase-1 sources only (trot and jump at 10,000, then the preservation run).
 set -uo pipefail
 cd "$(dirname "$0")/.."
 W=${1:-2}
+SEEDS=${2:-5}
 LT=.venv/bin/latentune
-$LT paper --robot a1 --scale 1.0 --out results/paper10k/a1 --workers "$W" --sources-only --quiet
-$LT paper --robot solo12 --scale 1.0 --out results/paper10k/solo12 --workers "$W" --sources-only --quiet
+export OMP_NUM_THREADS=1
+$LT paper --robot a1 --scale 1.0 --out results/paper10k/a1 --workers "$W" --seeds "$SEEDS" \
+    --quiet > results/paper10k/a1.log 2>&1 &
+$LT paper --robot solo12 --scale 1.0 --out results/paper10k/solo12 --workers "$W" \
+    --sources-only --quiet > results/paper10k/solo12.log 2>&1 &
+wait

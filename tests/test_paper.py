@@ -45,6 +45,20 @@ def test_budget_mapping():
     assert not any(k.startswith("b1") for k in (s.key for s in plan("solo12", budgets(0.01))))
 
 
+def test_plan_runs_the_claims_first():
+    """The sources first, phase 3 on the claim rows over every seed before any baseline, the
+    preservation run last; every study once."""
+    st = plan("a1", budgets(0.01), seeds=3)
+    keys = [s.key for s in st]
+    assert len(keys) == len(set(keys))
+    assert keys[:2] == ["a1-trot", "a1-jump"] and keys[-1] == "a1-trot-preservation"
+    first_baseline = next(i for i, s in enumerate(st) if s.kind == "baseline")
+    claims = [i for i, s in enumerate(st) if s.kind == "phase3" and s.row in ("jump", "trot")]
+    assert len(claims) == 3 * 2 * 2 - 2 and max(claims) < first_baseline   # seed 0's plain: tune
+    assert keys.index("a1-jump-cross-default-s2") < keys.index("a1-jump-turbo")
+    assert keys.index("b1-jump-transfer-tpe-s2") < keys.index("a1-jump-hills")
+
+
 def _table_row(md: str, label: str) -> list[str]:
     for line in md.splitlines():
         if line.startswith(f"| {label} |"):

@@ -53,6 +53,10 @@ override the mapping (also recorded).
 ``--sources-only`` runs only the phase-1 runs of ``R-g`` (and of ``R-trot-preservation``): the
 long sources of every other study, in the layout a later full ``latentune paper`` resumes.
 
+Order (``_priority``): the sources; phase 3 (plain and default) on flat jump, flat trot and
+trot → jump over every seed; the baselines on jump, trot → jump and A1 → B1 jump; the other
+phase-3 rows; the other baselines; the preservation run (the longest) last.
+
 Resume: every study is a pipeline run; re-running the same command skips finished studies and
 resumes unfinished ones from their stored rows (the pipeline's ``run_phase`` resume). All
 studies share one evaluator (process pool of ``--workers``).
@@ -138,8 +142,9 @@ def _sfx(i: int) -> str:
 
 
 def plan(robot: str, b: dict[str, Any], seeds: int = 1) -> list[StudyPlan]:
-    """The studies of ``latentune paper --robot R --seeds N`` in execution order: seed 0's
-    (the paper's layout, one seed) first, then the transfer rows and baselines per seed.
+    """The studies of ``latentune paper --robot R --seeds N`` in execution order (``_priority``):
+    the sources, then the phase-3 rows that answer the paper's claims over every seed, their
+    baselines, the other rows, and the preservation run last; seed-major within each tier.
 
     Seed index i > 0 repeats phase 3 (both strategies) and the baselines with the study seed
     ``--seed + i`` on the same source runs (``R-g``, their VAEs) and the same target tasks;
@@ -173,7 +178,27 @@ def plan(robot: str, b: dict[str, Any], seeds: int = 1) -> list[StudyPlan]:
                                 label=f"{R} {g}: {m} on θ at the phase-3 budget", row=g, arm=m))
     for i in range(seeds):
         st += _seeded(R, b, i)
-    return st
+    return sorted(st, key=_priority)     # stable: seed-major within a tier
+
+
+CLAIM_ROWS = ("jump", "trot", "jump-cross")
+"""The rows that answer the paper's claims (phase 3 at 220 against phase 1 at 10,000; the trot
+space finding a jump); their phase-3 arms run over every seed before anything else."""
+BASELINE_ROWS = ("jump", "jump-cross", "b1-jump")
+"""The rows whose baselines come next (the issue's "baselines on jump, trot → jump, A1 → B1
+jump")."""
+
+
+def _priority(s: StudyPlan) -> int:
+    """Execution tier: sources (0), phase 3 on the claim rows (1), their baselines (2), the
+    other phase-3 rows (3), the other baselines (4), the long preservation run (5)."""
+    if s.kind == "tune":
+        return 0
+    if s.kind == "phase3":
+        return 1 if s.row in CLAIM_ROWS else 3
+    if s.kind == "baseline":
+        return 2 if s.row in BASELINE_ROWS else 4
+    return 5
 
 
 def _seeded(R: str, b: dict[str, Any], i: int) -> list[StudyPlan]:
