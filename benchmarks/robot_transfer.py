@@ -7,6 +7,8 @@ sources of A1 and Solo12 to targets at several gaps.
     python -m benchmarks.robot_transfer run [--robots a1 solo12] [--targets RUNG ...]
         [--methods METHOD ...] [--seeds 0 1 2 3 4] [--budget 100] [--source-trials N]
         [--paper results/paper10k] [--root runs/robot_transfer] [--workers 1]
+    python -m benchmarks.robot_transfer import-paper --paper-run results/paper10k/a1
+        [--root runs/robot_transfer] [--budget 100]
     python -m benchmarks.robot_transfer summary [--root runs/robot_transfer]
         [--out results/robot_transfer/ladder.json]
     python -m benchmarks.robot_transfer plot [--targets RUNG ...] [--root runs/robot_transfer]
@@ -23,7 +25,8 @@ changed. For each robot R of
   (:mod:`latentune.sim.reality`);
 * ``R-g-mujoco``: the source ``R-g`` in MuJoCo (the other engine);
 * ``R-jump-from-trot``: the source ``R-trot`` on the jump task (cross-task);
-* A1 only, ``b1-g-from-a1``: the source ``a1-g`` on B1 (cross-robot).
+* A1 only, ``b1-g-from-a1``: the source ``a1-g`` on B1 (cross-robot), and
+  ``b1-jump-from-a1-trot``: the A1 trot source on B1 jump (the paper's A1 → B1 jump row).
 
 Sources are never opened in place: a long ``latentune paper`` run may be writing them.
 :func:`snapshot` copies a source's ``run.db`` with SQLite's online-backup API (a read-only
@@ -40,6 +43,9 @@ every trial counted; one JSON per run at ``ROOT/targets/<rung>/src<N>/seed<s>/<m
 target's task config, the source and its trial count N), skipped when it exists: the run
 resumes. ``summary`` applies the transfer issue's definitions per (rung, source size)
 (:func:`benchmarks.transfer.summarize`) and flags rungs where no method beats the zero-shot θ;
+``import-paper`` shares rollouts with the evidence issue: the seeded studies of a ``latentune
+paper --seeds N`` run whose rows are rungs (trot → jump, A1 trot → B1 trot and jump;
+:data:`PAPER_ROWS`) become results of those rungs, cut at ``--budget`` (:func:`import_paper`).
 ``plot`` re-simulates the best θ of the default phase 3 and of the best peer (and the zero-shot
 θ) on a rung's target and draws the base's CoM x/y/z, forward velocity and height over time
 into ``OUT/<rung>/``.
@@ -57,7 +63,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any, Callable, Iterable, Sequence
 
 from benchmarks import transfer as tr
 
@@ -122,6 +128,9 @@ def rungs(robots: Iterable[str] = ROBOTS) -> dict[str, Rung]:
             for g in ROBOT_GAITS:
                 out[f"b1-{g}-from-a1"] = Rung(f"b1-{g}-from-a1", R, f"a1-{g}", {"robot": "b1"},
                                               f"a1 {g} source → b1 {g}")
+            out["b1-jump-from-a1-trot"] = Rung("b1-jump-from-a1-trot", R, "a1-trot",
+                                               {"robot": "b1", "gait": "jump"},
+                                               "a1 trot source → b1 jump")
     return out
 
 
@@ -157,6 +166,23 @@ def snapshots(dest: Path) -> list[Path]:
     return sorted(found, key=lambda p: int(p.name[1:]))
 
 
+def copy_db(src_db: Path, dest_db: Path) -> None:
+    """One consistent copy of the SQLite store ``src_db`` at ``dest_db``, read through a
+    read-only connection with SQLite's online-backup API (a live run may be writing it)."""
+    try:
+        con = sqlite3.connect(f"file:{src_db.resolve()}?mode=ro", uri=True, timeout=60.0)
+        try:
+            out = sqlite3.connect(str(dest_db))
+            try:
+                con.backup(out)
+            finally:
+                out.close()
+        finally:
+            con.close()
+    except sqlite3.Error as exc:
+        raise RobotTransferError(f"cannot copy {src_db}: {exc}") from None
+
+
 def snapshot(live: Path, dest: Path) -> Path:
     """Snapshot the study ``live`` into ``dest/n<N>/`` and prepare it as a source.
 
@@ -174,18 +200,10 @@ def snapshot(live: Path, dest: Path) -> Path:
     tmp.mkdir()
     t0 = time.perf_counter()
     try:
-        con = sqlite3.connect(f"file:{src_db.resolve()}?mode=ro", uri=True, timeout=60.0)
-        try:
-            out = sqlite3.connect(str(tmp / "run.db"))
-            try:
-                con.backup(out)
-            finally:
-                out.close()
-        finally:
-            con.close()
-    except sqlite3.Error as exc:
+        copy_db(src_db, tmp / "run.db")
+    except RobotTransferError:
         shutil.rmtree(tmp, ignore_errors=True)
-        raise RobotTransferError(f"cannot copy {src_db}: {exc}") from None
+        raise
     n1, n3 = _count(tmp)
     final = dest / f"n{n1 + n3}"
     if final.exists():
@@ -338,6 +356,100 @@ def run(a: argparse.Namespace) -> None:
     with ProcessPoolExecutor(a.workers) as ex:
         for line in ex.map(_job, jobs):
             print(line, flush=True)
+
+
+# --------------------------------------------------------------------------- paper rows
+PAPER_ROWS = {"jump-cross": "{R}-jump-from-trot", "b1-trot": "b1-trot-from-a1",
+              "b1-jump": "b1-jump-from-a1-trot"}
+"""The seeded rows of ``latentune paper --seeds N`` that are rungs of this ladder (row → rung)."""
+PAPER_ARMS = {"phase3-transfer": "transfer", "phase3-plain": "plain", "turbo": "turbo_source",
+              "cma": "cma_source", "tpe": "tpe", "cmaes-src": "cma_source_trials"}
+"""The paper's arms of those rows as this ladder's methods (its ``cma`` is latentune's pycma
+critic, not Optuna's ``CmaEsSampler``: the record says so)."""
+
+
+def _read_copy(study: Path, tmp: Path, read: Callable[[Any], Any]) -> Any:
+    """``read(store)`` on a consistent copy (in ``tmp``, removed after) of the study ``study``'s
+    run store: a live ``latentune paper`` may be writing it."""
+    from latentune.pipeline.store import RunStore
+
+    tmp.mkdir(parents=True, exist_ok=True)
+    try:
+        copy_db(study / "run.db", tmp / "run.db")
+        with RunStore(tmp) as st:
+            return read(st)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def import_paper(paper_run: Path, root: Path, budget: int) -> list[str]:
+    """Write the first ``budget`` target trials of every finished seeded study of the paper
+    run ``paper_run`` (``latentune paper --seeds N --out paper_run``) whose row is a rung
+    (:data:`PAPER_ROWS`) as this ladder's results, so the two issues share those rollouts.
+
+    A phase-3 study's trace is its zero-shot trial (the source's best θ, trial 1 as in
+    ``run``) then its first ``budget - 1`` phase-3 trials; a baseline's is its first ``budget``
+    trials (its first θ is the zero-shot θ); ``zero_shot`` is the zero-shot trial alone. The
+    source size is the source study's phase-1 + phase-3 trials. A study's target task must be
+    the rung's target built from the source's task (else RobotTransferError); studies with
+    fewer than ``budget`` trials are skipped, stored results are kept. Returns one line per
+    result written."""
+    from latentune.constants import Phase
+
+    meta = json.loads((paper_run / "paper.json").read_text())
+    R = meta["robot"]
+    every = rungs(ROBOTS)
+    done: list[str] = []
+    tmp = root / f".import-{os.getpid()}"
+    for key, info in meta.get("studies", {}).items():
+        rung_name = PAPER_ROWS.get(str(info.get("row")), "").format(R=R)
+        method = PAPER_ARMS.get(str(info.get("arm")))
+        if rung_name not in every or method is None or not (paper_run / key / "run.db").is_file():
+            continue
+        rung = every[rung_name]
+        src_cfg, n_src = _read_copy(paper_run / rung.source, tmp, lambda st: (
+            st.get_meta("config") or {}, st.count(Phase.PHASE1) + st.count(Phase.PHASE3)))
+        cfg, zs, rows = _read_copy(paper_run / key, tmp, lambda st: (
+            st.get_meta("config") or {}, st.rows(Phase.ZERO_SHOT),
+            st.rows(Phase.PHASE3) or st.rows(Phase.PHASE1)))
+        want = rung.target(src_cfg["task"]).config()
+        if cfg.get("task") != want:
+            diff = sorted(k for k in set(want) | set(cfg.get("task") or {})
+                          if want.get(k) != (cfg.get("task") or {}).get(k))
+            raise RobotTransferError(f"{paper_run / key}: its task is not the target of "
+                                     f"{rung_name} (differs in {', '.join(diff)})")
+        seed = int(info.get("seed_index", 0))
+        phase3 = info["kind"] == "phase3"
+        if phase3 and not zs:
+            continue
+        trace = ([zs[0]] + rows[: budget - 1]) if phase3 else rows[:budget]
+        items = [(method, trace)] + ([("zero_shot", [zs[0]])] if phase3 else [])
+        for m, tr_rows in items:
+            if len(tr_rows) < (1 if m == "zero_shot" else budget):
+                continue
+            f = result_path(root, rung_name, n_src, seed, m)
+            if f.is_file():
+                continue
+            res = {"costs": [float(r.cost) for r in tr_rows],
+                   "failed": [bool(r.fell) for r in tr_rows],
+                   "thetas": [[float(v) for v in r.theta] for r in tr_rows],
+                   "target": rung_name, "source": rung.source,
+                   "source_dir": str(paper_run / rung.source), "source_trials": n_src,
+                   "seed": seed, "method": m, "budget": budget if m != "zero_shot" else 1,
+                   "label": rung.label, "target_config": cfg["task"],
+                   "imported": {"paper_run": str(paper_run), "study": key,
+                                "arm": info.get("arm"), "study_seed": info.get("seed"),
+                                "note": "latentune paper's study (batch of its critic, "
+                                        "process pool)" + ("; CMA-ES is latentune's pycma critic"
+                                                           if info.get("arm") == "cma" else "")},
+                   "wall_s": float(sum(float(r.wall_s or 0.0) for r in tr_rows))}
+            f.parent.mkdir(parents=True, exist_ok=True)
+            tmpf = f.with_suffix(".tmp")
+            tmpf.write_text(json.dumps(res))
+            tmpf.replace(f)
+            done.append(f"{rung_name} (src {n_src}) seed {seed} {m}: from {key}, best "
+                        f"{min(res['costs']):.4g}, falls {sum(res['failed'])}")
+    return done
 
 
 # --------------------------------------------------------------------------- summary
@@ -495,6 +607,12 @@ def parser() -> argparse.ArgumentParser:
     r.add_argument("--source-trials", type=_pos_int, default=None,
                    help="use the snapshot of this many trials (default: the newest)")
     r.add_argument("--workers", type=_pos_int, default=1)
+    im = sub.add_parser("import-paper", help="the seeded rows of a latentune paper run that "
+                        "are rungs, as results (no new trial)")
+    im.add_argument("--paper-run", required=True,
+                    help="a `latentune paper --seeds N` directory (results/paper10k/a1)")
+    im.add_argument("--root", default="runs/robot_transfer")
+    im.add_argument("--budget", type=_pos_int, default=100)
     s = sub.add_parser("summary", help="the criteria per rung")
     s.add_argument("--root", default="runs/robot_transfer")
     s.add_argument("--out", default="results/robot_transfer/ladder.json")
@@ -529,6 +647,9 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"{name}: {p} ({snapshot_info(p)['n_trials']} trials)", flush=True)
         elif a.cmd == "run":
             run(a)
+        elif a.cmd == "import-paper":
+            for line in import_paper(Path(a.paper_run), Path(a.root), a.budget):
+                print(line, flush=True)
         elif a.cmd == "summary":
             from benchmarks.common import Provenance, write_json
 

@@ -357,6 +357,7 @@ def test_paper_seeds_end_to_end_with_a_kill(paper_dir: Path, cli, cli_env, dump_
                 assert f"| {a['label']} | 2 | {B} [{B}–{B}] | {txt} |" in md, (row, txt)
         assert (out / f"seeds_{row}.png").stat().st_size > 1000, row
         assert f"](seeds_{row}.png)" in md
+    _imported_as_rungs(out, tmp_path / "ladder", meta, B)
     jump = _bests(out, ["a1-jump", "a1-jump-flat-s1"], 3)
     cell = _table_row(md, "Phase 3 even")[3]
     assert cell.startswith(f"{np.median(jump):.3f} [") and "2 seeds" in cell, cell
@@ -416,3 +417,32 @@ def test_optuna_critic_resume_replays_the_sampler(sampler: str):
     assert c2.best_y == pytest.approx(float(y.min()))
     with pytest.raises(ValueError, match="source trials are an option of the cmaes"):
         OptunaCritic(5, sampler="tpe", source=(Xs, f(Xs)))
+
+
+def _imported_as_rungs(out: Path, root: Path, meta: dict, B: int) -> None:
+    """benchmarks.robot_transfer's import of the seeded rows that are rungs: a phase-3 study's
+    trace is its zero-shot trial then its phase-3 trials, a baseline's its phase-1 trials, each
+    cut at the budget; a second import writes nothing."""
+    from benchmarks import robot_transfer as rt
+
+    lines = rt.import_paper(out, root, budget=B)
+    assert lines and not rt.import_paper(out, root, budget=B)
+    with RunStore(out / "a1-trot") as st:
+        n_src = st.count(1) + st.count(3)
+    for key, rung, method in (("b1-jump-transfer-default-s1", "b1-jump-from-a1-trot", "transfer"),
+                              ("a1-jump-cross-s1", "a1-jump-from-trot", "plain"),
+                              ("b1-trot-transfer-tpe-s1", "b1-trot-from-a1", "tpe")):
+        res = json.loads(rt.result_path(root, rung, n_src, 1, method).read_text())
+        with RunStore(out / key) as st:
+            zs, p3, p1 = st.rows(4), st.rows(3), st.rows(1)
+        want = [zs[0]] + p3[: B - 1] if p3 else p1[:B]
+        assert res["costs"] == [r.cost for r in want] and len(res["costs"]) == B, key
+        assert res["failed"] == [bool(r.fell) for r in want], key
+        assert res["imported"]["study"] == key and res["target_config"]["robot"] == \
+            ("b1" if rung.startswith("b1") else "a1")
+    zs = json.loads(rt.result_path(root, "a1-jump-from-trot", n_src, 1, "zero_shot").read_text())
+    assert len(zs["costs"]) == 1
+    assert not any(root.glob("targets/*/*/seed*/random.json"))   # not a peer of the ladder
+    s = rt.summarize(root)
+    assert {r["target"] for r in s["targets"]} == {"a1-jump-from-trot", "b1-jump-from-a1-trot",
+                                                   "b1-trot-from-a1"}

@@ -30,8 +30,10 @@ def test_registry_names_sources_and_changes():
         assert (cross.source, cross.change) == (f"{R}-trot", {"gait": "jump"})
     assert reg["b1-trot-from-a1"].source == "a1-trot"
     assert reg["b1-jump-from-a1"].source == "a1-jump"
+    assert (reg["b1-jump-from-a1-trot"].source, reg["b1-jump-from-a1-trot"].change) == (
+        "a1-trot", {"robot": "b1", "gait": "jump"})
     assert not any(n.startswith("b1") for n in rt.rungs(["solo12"]))
-    assert len(reg) == 16
+    assert len(reg) == 17
 
 
 def test_rung_targets_are_the_source_task_with_the_change():
