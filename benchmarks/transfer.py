@@ -4,7 +4,9 @@
         [--budget 40] [--source-evals 300] [--root runs/transfer] [--only METHOD ...]
         [--variants OPTION=VALUE[:OPTION=VALUE] ...]   (transfer variants, stored as transfer+VARIANT)
     python -m benchmarks.transfer summary [--root runs/transfer] [--out results/transfer/ladder.json]
-    python -m benchmarks.transfer compare --root runs/transfer --a METHOD --b METHOD ... [--out F]
+        [--default transfer+VARIANT] [--methods METHOD ...]
+    python -m benchmarks.transfer compare --root runs/transfer --a METHOD ... --b METHOD ...
+        [--seeds S ...] [--out F]
 
 Systems (``SYSTEMS``; the model is gap 0, each target is the same controller on a plant at a gap):
 
@@ -255,16 +257,22 @@ def _ladder_target(run: dict[str, Any]) -> dict[str, Any]:
 
 
 def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
-              target: Callable[[dict[str, Any]], dict[str, Any]] = _ladder_target
-              ) -> dict[str, Any]:
+              target: Callable[[dict[str, Any]], dict[str, Any]] = _ladder_target,
+              default: str = "transfer", methods: list[str] | None = None) -> dict[str, Any]:
     """The issue's criteria per target from every stored run under ``root`` (the files matching
     ``pattern``); ``target(run)`` gives a run's target fields, the key and head of its row
-    (default: ``system`` and ``gap``)."""
+    (default: ``system`` and ``gap``). ``default`` names the method judged as latentune's default
+    (its rows read as ``transfer``; the stored ``transfer`` runs then read as
+    ``transfer@stored``); ``methods``: only these (names after that renaming) are read."""
     from scipy.stats import mannwhitneyu
 
     runs: dict[tuple, dict[str, dict[int, dict]]] = {}
     for f in sorted(root.glob(pattern)):
         r = json.loads(f.read_text())
+        if default != "transfer" and r["method"] in (default, "transfer"):
+            r["method"] = "transfer" if r["method"] == default else "transfer@stored"
+        if methods is not None and r["method"] not in methods:
+            continue
         runs.setdefault(tuple(target(r).items()), {}).setdefault(r["method"], {})[
             int(r["seed"])] = r
     out: dict[str, Any] = {"targets": []}
@@ -321,14 +329,17 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
     return out
 
 
-def compare(root: Path, a: str, b: str) -> dict[str, Any]:
-    """Method ``a`` against ``b`` on every (target, seed) where both ran: wins (lower best cost
-    within the budget), ties, losses, a two-sided sign test on the non-ties, and the falls; the
-    same counts per target (``by_target``, keyed ``"<system> gap<g>"``)."""
+def compare(root: Path, a: str, b: str, seeds: list[int] | None = None) -> dict[str, Any]:
+    """Method ``a`` against ``b`` on every (target, seed) where both ran (only ``seeds`` when
+    given): wins (lower best cost within the budget), ties, losses, a two-sided sign test on the
+    non-ties, and the falls; the same counts per target (``by_target``, keyed
+    ``"<system> gap<g>"``)."""
     from scipy.stats import binomtest
 
     runs: dict[tuple[str, str, str], dict[str, dict]] = {}
     for f in sorted(root.glob("*/gap*/seed*/*.json")):
+        if seeds is not None and f.parts[-2] not in {f"seed{s}" for s in seeds}:
+            continue
         r = json.loads(f.read_text())
         runs.setdefault(f.parts[-4:-1], {})[r["method"]] = r
     pairs = [(k, v[a], v[b]) for k, v in sorted(runs.items()) if a in v and b in v]
@@ -389,17 +400,22 @@ def main(argv: list[str] | None = None) -> int:
     s = sub.add_parser("summary")
     s.add_argument("--root", default="runs/transfer")
     s.add_argument("--out", default="results/transfer/ladder.json")
-    c = sub.add_parser("compare", help="one method against another over (target, seed)")
+    s.add_argument("--default", default="transfer",
+                   help="the method judged as the default (e.g. a transfer+VARIANT)")
+    s.add_argument("--methods", nargs="+", default=None,
+                   help="read only these methods (after --default renames)")
+    c = sub.add_parser("compare", help="methods against methods over (target, seed)")
     c.add_argument("--root", default="runs/transfer")
-    c.add_argument("--a", required=True)
+    c.add_argument("--a", nargs="+", required=True)
     c.add_argument("--b", nargs="+", required=True)
+    c.add_argument("--seeds", nargs="+", type=int, default=None)
     c.add_argument("--out", default=None)
     a = ap.parse_args(argv)
     if a.cmd == "compare":
         from benchmarks.common import Provenance
 
         prov = Provenance(argv, module="benchmarks.transfer")
-        rows = [compare(Path(a.root), a.a, b) for b in a.b]
+        rows = [compare(Path(a.root), x, b, a.seeds) for x in a.a for b in a.b]
         for r in rows:
             print(f"{r['a']} vs {r['b']}: {r['wins']} wins, {r['ties']} ties, {r['losses']} losses "
                   f"of {r['pairs']} (sign test p {r['sign_test_p']:.3f}); falls "
@@ -417,7 +433,7 @@ def main(argv: list[str] | None = None) -> int:
     from benchmarks.common import Provenance
 
     prov = Provenance(argv, module="benchmarks.transfer")
-    res = summarize(Path(a.root))
+    res = summarize(Path(a.root), default=a.default, methods=a.methods)
     res["provenance"] = prov.finish()
     out = Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)

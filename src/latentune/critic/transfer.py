@@ -59,7 +59,14 @@ Options that change the model and the choice (:data:`TRANSFER_DEFAULTS`): ``fit_
 lets the target cost model choose, with σ_r², a multiplier of the source's lengthscales
 (0.25–2, by marginal likelihood); ``acquisition`` ``"ei"`` takes the candidates of highest
 expected improvement over the best told value instead of Thompson samples; ``restart`` sets
-``L`` back to ``length_init`` when halving it would go below ``length_min``.
+``L`` back to ``length_init`` when halving it would go below ``length_min``; ``fit_ard`` = k > 0
+fits, once the target has k trials, the residual kernel's ARD lengthscales and σ_r² by marginal
+likelihood (GPyTorch, a log-normal prior around the source's lengthscales;
+:func:`fit_residual_kernel`) and shapes the full pool's box with them; ``design_screen`` lets
+the fall screen end the initial design when it rejects every remaining elite;
+``safe_fallback``: when the screen admits fewer candidates than the batch, perturbations of the
+centre on shrinking sides (``L/2 … L/2^8``) join the candidates before the least likely to fall
+are kept, so the search steps back toward its safe trial rather than asking over the screen.
 
 Tags and resume
 ---------------
