@@ -18,7 +18,8 @@ Per (target, seed) the JSON keeps:
   ``max_fall_prob`` (the screen kept them because no elite passed it);
 * distances in the unit θ box (RMS over coordinates, ``‖Δ‖ / √d``, and the largest
   coordinate step) between the source's best θ (the zero-shot trial), the transfer's best and the peer's
-  best (the lowest cost, as ``summary`` counts it), and the trial at which each found its best.
+  best (the lowest cost, as ``summary`` counts it), the trial at which each found its best, and
+  the share of each one's coordinates at the box's faces (within 0.01).
 """
 from __future__ import annotations
 
@@ -39,6 +40,12 @@ import numpy as np  # noqa: E402
 def _dist(a: np.ndarray, b: np.ndarray) -> dict[str, float]:
     d = np.asarray(a, float) - np.asarray(b, float)
     return {"rms": float(np.linalg.norm(d) / math.sqrt(d.size)), "max": float(np.abs(d).max())}
+
+
+def _at_bounds(x: np.ndarray, tol: float = 0.01) -> float:
+    """Share of the coordinates of θ (d,) within ``tol`` of the unit box's faces."""
+    x = np.asarray(x, float)
+    return float(np.mean((x < tol) | (x > 1 - tol)))
 
 
 def _trace(runs: Path, sources: Path, system: str, gap: float, seed: int, method: str,
@@ -92,6 +99,8 @@ def diagnose_seed(t: dict[str, Any], p: dict[str, Any], length_min: float,
         "dist_source_to_transfer_best": _dist(src, Xt[it]),
         "dist_transfer_best_to_peer_best": _dist(Xt[it], Xp[ip]),
         "peer_first_theta_is_source_best": bool(np.allclose(Xp[0], src)),
+        "at_bounds": {"source": _at_bounds(src), "transfer_best": _at_bounds(Xt[it]),
+                      "peer_best": _at_bounds(Xp[ip])},
     }
 
 
@@ -105,8 +114,9 @@ def markdown(out: dict[str, Any]) -> str:
     lines = ["| target | peer | best transfer / peer | falls 1–5 / after (transfer), peer "
              "| forced design asks | agreement | log2 side @10/20/30/40 | first trial at min side "
              "| source→peer best (rms / max) | source→transfer best | transfer→peer best "
-             "| best found at trial (transfer / peer) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| best found at trial (transfer / peer) | at the box's faces (source / transfer "
+             "/ peer best) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for row in out["targets"]:
         S = row["seeds"]
         r = list(S.values())
@@ -122,7 +132,9 @@ def markdown(out: dict[str, Any]) -> str:
             f"{sides} | {_med(r, 'first_trial_at_min_side'):g} | "
             f"{d['dist_source_to_peer_best']} | {d['dist_source_to_transfer_best']} | "
             f"{d['dist_transfer_best_to_peer_best']} | {_med(r, 'transfer_best_trial'):g} / "
-            f"{_med(r, 'peer_best_trial'):g} |")
+            f"{_med(r, 'peer_best_trial'):g} | "
+            + " / ".join(f"{_med(r, 'at_bounds', k):.2f}"
+                         for k in ("source", "transfer_best", "peer_best")) + " |")
     return "\n".join(lines)
 
 
