@@ -17,9 +17,12 @@ Per (target, seed) the JSON keeps:
   trials 1–5 and after; the design asks whose predicted fall probability exceeded
   ``max_fall_prob`` (the screen kept them because no elite passed it);
 * distances in the unit θ box (RMS over coordinates, ``‖Δ‖ / √d``, and the largest
-  coordinate step) between the source's best θ (the zero-shot trial), the transfer's best and the peer's
-  best (the lowest cost, as ``summary`` counts it), the trial at which each found its best, and
-  the share of each one's coordinates at the box's faces (within 0.01).
+  coordinate step) between the source's best θ (the zero-shot trial), the transfer's best and
+  the peer's best (the lowest cost, as ``summary`` counts it), the trial at which each found
+  its best, and the share of each one's coordinates at the box's faces (within 0.01).
+
+``screen_calibration``: over every stored trace under ``--stored``, the asks the fall screen
+admitted and those asked over it (when no candidate passed), with how many fell.
 """
 from __future__ import annotations
 
@@ -104,6 +107,25 @@ def diagnose_seed(t: dict[str, Any], p: dict[str, Any], length_min: float,
     }
 
 
+def screen_calibration(stored: Path, method: str, max_fall_prob: float) -> dict[str, Any]:
+    """Per system, over every stored ``method`` trace under ``stored``: how many asks the fall
+    screen admitted (predicted fall probability ≤ ``max_fall_prob``) and how many were asked
+    over it (no candidate passed), and the share of each that fell."""
+    out: dict[str, Any] = {}
+    for f in sorted(stored.glob(f"*/gap*/seed*/{method}.json")):
+        r = json.loads(f.read_text())
+        o = out.setdefault(r["system"], {"admitted": [0, 0], "over_screen": [0, 0]})
+        for i, d in enumerate(r.get("decisions", [])):
+            p = d.get("max_fall_prob_asked")
+            if p is None:
+                continue
+            k = "admitted" if p <= max_fall_prob else "over_screen"
+            o[k][0] += 1
+            o[k][1] += int(bool(r["failed"][i + 1]))      # decision i asks trial i + 2
+    return {s: {k: {"asks": v[0], "fell": v[1], "fall_rate": v[1] / v[0] if v[0] else None}
+                for k, v in o.items()} for s, o in out.items()}
+
+
 def _med(rows: list[dict[str, Any]], key: str, sub: str | None = None) -> float:
     v = [r[key][sub] if sub else r[key] for r in rows]
     v = [x for x in v if x is not None]
@@ -152,6 +174,8 @@ def main(argv: list[str] | None = None) -> int:
                                                       "hopper:1.5"])
     ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     ap.add_argument("--options", default="", help="transfer options option=value[:option=value]")
+    ap.add_argument("--stored", default="results/transfer/runs",
+                    help="stored ladder traces for the fall screen's calibration")
     ap.add_argument("--out", default="results/transfer/selection/diagnosis.json")
     a = ap.parse_args(argv)
     prov = Provenance(argv, module="benchmarks.transfer_diagnose")
@@ -184,11 +208,16 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{system} {gap:g} seed {s}: transfer {rec['transfer_best']:.4g}, "
                   f"{peer} {rec['peer_best']:.4g}", flush=True)
         out["targets"].append(row)
+    out["screen_calibration"] = screen_calibration(Path(a.stored), name, float(o["max_fall_prob"]))
     out["provenance"] = prov.finish()
     f = Path(a.out)
     f.parent.mkdir(parents=True, exist_ok=True)
     f.write_text(json.dumps(out, indent=1))
-    md = markdown(out)
+    md = markdown(out) + "\n\nThe fall screen on every stored run (" + a.stored + "):\n\n" + \
+        "| system | admitted asks (fell) | asks over the screen (fell) |\n|---|---:|---:|\n" + \
+        "\n".join(f"| {s} | {c['admitted']['asks']} ({c['admitted']['fell']}) | "
+                  f"{c['over_screen']['asks']} ({c['over_screen']['fell']}) |"
+                  for s, c in out["screen_calibration"].items())
     f.with_suffix(".md").write_text(f"`{out['provenance']['command']}`\n\nMedians over seeds "
                                     f"{a.seeds}.\n\n{md}\n")
     print(md)
