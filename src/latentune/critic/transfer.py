@@ -189,13 +189,30 @@ class _GPFit:
         return self.constant + self.outputscale * matern52(X, self.S, self.ls) @ self.alpha
 
 
+def _scipy_fit(mll: Any) -> Any:
+    """Maximize a GPyTorch marginal likelihood in place with BoTorch's scipy L-BFGS-B (100
+    iterations, one torch thread, optimization warnings silenced); its result."""
+    import warnings
+
+    import torch
+    from botorch.exceptions.warnings import OptimizationWarning
+    from botorch.optim.fit import fit_gpytorch_mll_scipy
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", OptimizationWarning)
+            return fit_gpytorch_mll_scipy(mll, options={"maxiter": 100})
+    finally:
+        torch.set_num_threads(before)
+
+
 def _fit_gp(X: np.ndarray, y: np.ndarray, hypers: dict[str, Any] | None) -> tuple[_GPFit, dict]:
     """Fit (or, with ``hypers``, only condition) a Matérn-5/2 ARD GP on (X (n, d), y (n,)) with
     BoTorch; return its numpy predictor and its hyperparameters (JSON-ready)."""
     n, d = X.shape
     if hypers is None:
-        import warnings
-
         import torch
         from botorch.models import SingleTaskGP
         from gpytorch.constraints import Interval
@@ -215,15 +232,8 @@ def _fit_gp(X: np.ndarray, y: np.ndarray, hypers: dict[str, Any] | None) -> tupl
         model.likelihood.noise = torch.tensor([0.05], dtype=torch.float64)
         model.mean_module.constant = torch.tensor(float(np.mean(y)), dtype=torch.float64)
         mll = ExactMarginalLogLikelihood(model.likelihood, model)
-        from botorch.exceptions.warnings import OptimizationWarning
-        from botorch.optim.fit import fit_gpytorch_mll_scipy
-
-        before = torch.get_num_threads()
-        torch.set_num_threads(1)
         try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", OptimizationWarning)
-                res = fit_gpytorch_mll_scipy(mll, options={"maxiter": 100})
+            res = _scipy_fit(mll)
             if res.status.name == "FAILURE":
                 log.warning("source model fit did not converge (%s); using where it stopped",
                             res.message)
@@ -231,7 +241,6 @@ def _fit_gp(X: np.ndarray, y: np.ndarray, hypers: dict[str, Any] | None) -> tupl
             log.warning("source model fit failed (%s: %s); using its starting hyperparameters",
                         type(exc).__name__, exc)
         finally:
-            torch.set_num_threads(before)
             model.eval()
         hypers = {"lengthscale": model.covar_module.base_kernel.lengthscale.detach().numpy()
                   .reshape(-1).tolist(),
@@ -398,13 +407,9 @@ def fit_residual_kernel(X: np.ndarray, v: np.ndarray, h0: np.ndarray,
     ``ls0`` (d,) (standard deviation :data:`_ARD_PRIOR_SD` in log space): the source says how the
     cost varies, the target's trials move it where they disagree. Starts at ``(ls0,
     sigma_r2_0)``; on a failed fit returns them."""
-    import warnings
-
     import gpytorch
     import torch
-    from botorch.exceptions.warnings import OptimizationWarning
     from botorch.models.gpytorch import GPyTorchModel
-    from botorch.optim.fit import fit_gpytorch_mll_scipy
     from gpytorch.constraints import Interval
     from gpytorch.kernels import LinearKernel, MaternKernel, ScaleKernel
     from gpytorch.likelihoods import GaussianLikelihood
@@ -454,20 +459,14 @@ def fit_residual_kernel(X: np.ndarray, v: np.ndarray, h0: np.ndarray,
         prm.requires_grad_(False)
     model.train()
     mll = ExactMarginalLogLikelihood(model.likelihood, model)
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", OptimizationWarning)
-            fit_gpytorch_mll_scipy(mll, options={"maxiter": 100})
+        _scipy_fit(mll)
         ls = model.residual.base_kernel.lengthscale.detach().numpy().reshape(d).copy()
         s2 = float(model.residual.outputscale.detach())
     except Exception as exc:  # noqa: BLE001 - reported, the source's lengthscales kept
         log.warning("target lengthscale fit failed (%s: %s); using the source's",
                     type(exc).__name__, exc)
         return np.asarray(ls0, dtype=float), float(sigma_r2_0)
-    finally:
-        torch.set_num_threads(before)
     if not (np.all(np.isfinite(ls)) and math.isfinite(s2)):
         return np.asarray(ls0, dtype=float), float(sigma_r2_0)
     return ls, s2
