@@ -4,7 +4,9 @@
         [--budget 40] [--source-evals 300] [--root runs/transfer] [--only METHOD ...]
         [--variants OPTION=VALUE[:OPTION=VALUE] ...]   (transfer variants, stored as transfer+VARIANT)
     python -m benchmarks.transfer summary [--root runs/transfer] [--out results/transfer/ladder.json]
-    python -m benchmarks.transfer compare --root runs/transfer --a METHOD --b METHOD ... [--out F]
+        [--default transfer+VARIANT] [--methods METHOD ...]
+    python -m benchmarks.transfer compare --root runs/transfer --a METHOD ... --b METHOD ...
+        [--seeds S ...] [--out F]
 
 Systems (``SYSTEMS``; the model is gap 0, each target is the same controller on a plant at a gap):
 
@@ -33,10 +35,10 @@ trial counted (the zero-shot one included):
   (``GPSampler``), each with the source's best θ enqueued as its first trial
   (:class:`latentune.critic.optuna.OptunaCritic`).
 
-Every (system, gap, seed, method) writes ``ROOT/<system>/gap<g>/seed<s>/<method>.json`` (cost and
-failed per trial, wall time) and is skipped when it exists: the run resumes. ``summary`` applies
-the transfer issue's definitions (best peer, trials to reach its median, falls, Mann-Whitney) and
-writes JSON + Markdown with provenance.
+Every (system, gap, seed, method) writes ``ROOT/<system>/gap<g>/seed<s>/<method>.json`` (cost,
+failed and θ per trial, wall time) and is skipped when it exists: the run resumes. ``summary``
+applies the transfer issue's definitions (best peer, trials to reach its median, falls,
+Mann-Whitney) and writes JSON + Markdown with provenance.
 """
 from __future__ import annotations
 
@@ -121,9 +123,11 @@ def source_hypers(src: Path, seed: int) -> dict[str, Any]:
 
 # --------------------------------------------------------------------------- methods
 def _loop(critic: Any, target: Any, n: int, costs: list, failed: list,
-          decode: Callable[[np.ndarray], np.ndarray] | None = None) -> None:
+          decode: Callable[[np.ndarray], np.ndarray] | None = None,
+          thetas: list | None = None) -> None:
     """``n`` trials of ``critic`` on ``target`` one at a time: its points are θ, or latent points
-    mapped by ``decode``; two-space critics (``last_z``) get their codes back."""
+    mapped by ``decode``; two-space critics (``last_z``) get their codes back. The θ tried (unit
+    box) are appended to ``thetas`` when given."""
     for _ in range(n):
         U = critic.ask(1)
         tags = critic.last_tags.copy()
@@ -132,6 +136,8 @@ def _loop(critic: Any, target: Any, n: int, costs: list, failed: list,
         out = target.evaluate(theta)
         costs.append(float(out.cost))
         failed.append(bool(out.failed))
+        if thetas is not None:
+            thetas.append([float(v) for v in np.asarray(theta).reshape(-1)])
         kw = {} if Z is None or Z.shape[1] == 0 else {"z": Z.copy()}
         critic.tell(U, np.array([out.cost]), tags, fell=np.array([out.failed]), **kw)
 
@@ -151,7 +157,8 @@ def parse_variant(text: str) -> dict[str, Any]:
 def run_method(method: str, target: Any, src: Path, B: int, seed: int,
                options: dict[str, Any] | None = None) -> dict[str, Any]:
     """B target trials of ``method`` (module docstring; ``options``: the transfer critic's
-    options beyond its defaults); returns costs, failed and extras."""
+    options beyond its defaults); returns costs, failed, the θ tried (unit box, one list per
+    trial) and extras."""
     from latentune.critic.transfer import Transfer, source_trials
     from latentune.latent.vae import LatentSpace
     from latentune.study import source_best
@@ -161,12 +168,14 @@ def run_method(method: str, target: Any, src: Path, B: int, seed: int,
     Xs, ys, fs = source_trials(src)
     costs: list[float] = []
     failed: list[bool] = []
+    thetas: list[list[float]] = []
     extra: dict[str, Any] = {}
 
     def trial(theta: np.ndarray) -> Any:
         out = target.evaluate(theta)
         costs.append(float(out.cost))
         failed.append(bool(out.failed))
+        thetas.append([float(v) for v in np.asarray(theta).reshape(-1)])
         return out
 
     if method == "zero_shot":
@@ -177,7 +186,7 @@ def run_method(method: str, target: Any, src: Path, B: int, seed: int,
         cr.load_state_dict({"source_hypers": source_hypers(src, seed)})
         o = trial(best)
         cr.tell(best[None], np.array([o.cost]), fell=np.array([o.failed]))
-        _loop(cr, target, B - 1, costs, failed)
+        _loop(cr, target, B - 1, costs, failed, thetas=thetas)
         extra["decisions"] = cr.decisions
     elif method in ("plain", "handover"):
         from latentune.pipeline.phases import make_handover_critic, make_phase_critic, \
@@ -189,17 +198,17 @@ def run_method(method: str, target: Any, src: Path, B: int, seed: int,
         x0 = ls.to_unit(ls.encode(manual))
         if method == "plain":
             cr = make_phase_critic("turbo", ls.d_low, 1, seed, x0, B - 2)
-            _loop(cr, target, B - 2, costs, failed, decode=ls.decode)
+            _loop(cr, target, B - 2, costs, failed, decode=ls.decode, thetas=thetas)
         else:
             cr = make_handover_critic("turbo", ls, 1, seed, x0, B - 2, None,
                                       handover_options(True))
-            _loop(cr, target, B - 2, costs, failed)
+            _loop(cr, target, B - 2, costs, failed, thetas=thetas)
     elif method in ("turbo_manual", "turbo_source"):
         from latentune.critic.turbo import TurboM
 
         x0 = manual if method == "turbo_manual" else best
         cr = TurboM(target.space.dim, batch_size=1, seed=seed, x0=x0, n_regions=1)
-        _loop(cr, target, B, costs, failed)
+        _loop(cr, target, B, costs, failed, thetas=thetas)
     else:
         from latentune.critic.optuna import OptunaCritic
 
@@ -207,8 +216,8 @@ def run_method(method: str, target: Any, src: Path, B: int, seed: int,
                    "gp": "gp"}[method]
         cr = OptunaCritic(target.space.dim, batch_size=1, seed=seed, x0=best, sampler=sampler,
                           source=(Xs, ys) if method == "cma_source_trials" else None)
-        _loop(cr, target, B, costs, failed)
-    return {"costs": costs, "failed": failed, **extra}
+        _loop(cr, target, B, costs, failed, thetas=thetas)
+    return {"costs": costs, "failed": failed, "thetas": thetas, **extra}
 
 
 # --------------------------------------------------------------------------- run / summary
@@ -248,16 +257,22 @@ def _ladder_target(run: dict[str, Any]) -> dict[str, Any]:
 
 
 def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
-              target: Callable[[dict[str, Any]], dict[str, Any]] = _ladder_target
-              ) -> dict[str, Any]:
+              target: Callable[[dict[str, Any]], dict[str, Any]] = _ladder_target,
+              default: str = "transfer", methods: list[str] | None = None) -> dict[str, Any]:
     """The issue's criteria per target from every stored run under ``root`` (the files matching
     ``pattern``); ``target(run)`` gives a run's target fields, the key and head of its row
-    (default: ``system`` and ``gap``)."""
+    (default: ``system`` and ``gap``). ``default`` names the method judged as latentune's default
+    (its rows read as ``transfer``; the stored ``transfer`` runs then read as
+    ``transfer@stored``); ``methods``: only these (names after that renaming) are read."""
     from scipy.stats import mannwhitneyu
 
     runs: dict[tuple, dict[str, dict[int, dict]]] = {}
     for f in sorted(root.glob(pattern)):
         r = json.loads(f.read_text())
+        if default != "transfer" and r["method"] in (default, "transfer"):
+            r["method"] = "transfer" if r["method"] == default else "transfer@stored"
+        if methods is not None and r["method"] not in methods:
+            continue
         runs.setdefault(tuple(target(r).items()), {}).setdefault(r["method"], {})[
             int(r["seed"])] = r
     out: dict[str, Any] = {"targets": []}
@@ -274,12 +289,16 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
                                  "falls_median": float(np.median([sum(rs[s]["failed"])
                                                                   for s in seeds])),
                                  "best": best}
-            dec = [d for s in seeds for d in rs[s].get("decisions", [])]
-            if dec:                     # the transfer critic's decision records
-                picks = [sum(p == "latent" for d in rs[s].get("decisions", [])
-                             for p in d["pools"]) for s in seeds]
-                agree = [d["agreement"] for d in dec if d.get("agreement") is not None
-                         and not d.get("design")]
+            picks, agree, any_dec = [], [], False
+            for s in seeds:             # the transfer critic's decision records, one pass
+                n_lat = 0
+                for d in rs[s].get("decisions", []):
+                    any_dec = True
+                    n_lat += sum(p == "latent" for p in d["pools"])
+                    if d.get("agreement") is not None and not d.get("design"):
+                        agree.append(d["agreement"])
+                picks.append(n_lat)
+            if any_dec:
                 row["methods"][m]["latent_picks"] = {"median": float(np.median(picks)),
                                                      "max": int(max(picks))}
                 if agree:
@@ -310,23 +329,35 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
     return out
 
 
-def compare(root: Path, a: str, b: str) -> dict[str, Any]:
-    """Method ``a`` against ``b`` on every (target, seed) where both ran: wins (lower best cost
-    within the budget), ties, losses, a two-sided sign test on the non-ties, and the falls."""
+def compare(root: Path, a: str, b: str, seeds: list[int] | None = None) -> dict[str, Any]:
+    """Method ``a`` against ``b`` on every (target, seed) where both ran (only ``seeds`` when
+    given): wins (lower best cost within the budget), ties, losses, a two-sided sign test on the
+    non-ties, and the falls; the same counts per target (``by_target``, keyed
+    ``"<system> gap<g>"``)."""
     from scipy.stats import binomtest
 
     runs: dict[tuple[str, str, str], dict[str, dict]] = {}
     for f in sorted(root.glob("*/gap*/seed*/*.json")):
+        if seeds is not None and f.parts[-2] not in {f"seed{s}" for s in seeds}:
+            continue
         r = json.loads(f.read_text())
         runs.setdefault(f.parts[-4:-1], {})[r["method"]] = r
     pairs = [(k, v[a], v[b]) for k, v in sorted(runs.items()) if a in v and b in v]
     d = [min(ra["costs"]) - min(rb["costs"]) for _, ra, rb in pairs]
     wins, losses = sum(x < 0 for x in d), sum(x > 0 for x in d)
+    by_target: dict[str, dict[str, Any]] = {}
+    for (k, ra, rb), x in zip(pairs, d):
+        t = by_target.setdefault(f"{k[0]} {k[1]}", {"wins": 0, "ties": 0, "losses": 0,
+                                                     "falls_a": 0, "falls_b": 0})
+        t["wins" if x < 0 else "losses" if x > 0 else "ties"] += 1
+        t["falls_a"] += int(sum(ra["failed"]))
+        t["falls_b"] += int(sum(rb["failed"]))
     return {"a": a, "b": b, "pairs": len(pairs), "wins": wins, "losses": losses,
             "ties": len(pairs) - wins - losses,
             "sign_test_p": float(binomtest(wins, wins + losses).pvalue) if wins + losses else 1.0,
             "falls_a": int(sum(sum(ra["failed"]) for _, ra, _ in pairs)),
-            "falls_b": int(sum(sum(rb["failed"]) for _, _, rb in pairs))}
+            "falls_b": int(sum(sum(rb["failed"]) for _, _, rb in pairs)),
+            "by_target": by_target}
 
 
 def markdown(s: dict[str, Any],
@@ -369,21 +400,29 @@ def main(argv: list[str] | None = None) -> int:
     s = sub.add_parser("summary")
     s.add_argument("--root", default="runs/transfer")
     s.add_argument("--out", default="results/transfer/ladder.json")
-    c = sub.add_parser("compare", help="one method against another over (target, seed)")
+    s.add_argument("--default", default="transfer",
+                   help="the method judged as the default (e.g. a transfer+VARIANT)")
+    s.add_argument("--methods", nargs="+", default=None,
+                   help="read only these methods (after --default renames)")
+    c = sub.add_parser("compare", help="methods against methods over (target, seed)")
     c.add_argument("--root", default="runs/transfer")
-    c.add_argument("--a", required=True)
+    c.add_argument("--a", nargs="+", required=True)
     c.add_argument("--b", nargs="+", required=True)
+    c.add_argument("--seeds", nargs="+", type=int, default=None)
     c.add_argument("--out", default=None)
     a = ap.parse_args(argv)
     if a.cmd == "compare":
         from benchmarks.common import Provenance
 
         prov = Provenance(argv, module="benchmarks.transfer")
-        rows = [compare(Path(a.root), a.a, b) for b in a.b]
+        rows = [compare(Path(a.root), x, b, a.seeds) for x in a.a for b in a.b]
         for r in rows:
             print(f"{r['a']} vs {r['b']}: {r['wins']} wins, {r['ties']} ties, {r['losses']} losses "
                   f"of {r['pairs']} (sign test p {r['sign_test_p']:.3f}); falls "
                   f"{r['falls_a']} vs {r['falls_b']}")
+            for t, c in r["by_target"].items():
+                print(f"  {t}: {c['wins']}/{c['ties']}/{c['losses']} (w/t/l), falls "
+                      f"{c['falls_a']} vs {c['falls_b']}")
         if a.out:
             Path(a.out).write_text(json.dumps({"rows": rows, "provenance": prov.finish()},
                                               indent=1))
@@ -394,7 +433,7 @@ def main(argv: list[str] | None = None) -> int:
     from benchmarks.common import Provenance
 
     prov = Provenance(argv, module="benchmarks.transfer")
-    res = summarize(Path(a.root))
+    res = summarize(Path(a.root), default=a.default, methods=a.methods)
     res["provenance"] = prov.finish()
     out = Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -219,3 +219,93 @@ def test_params_at_a_negative_lower_bound_parse():
     np.testing.assert_allclose(sp.parse({"a": 1.0, "b": -2.0}), [1.0, 1.0])
     with pytest.raises(Exception, match="outside"):
         sp.parse({"a": -1.01})
+
+
+def test_design_screen_skips_elites_the_fall_model_rejects(source, hypers):
+    """On a target where the source's best θ falls, the fall model soon rejects the elites near
+    it: with ``design_screen`` the design gives way to the search (admissible θ only); without
+    it, the design asks an elite over the screen."""
+    X, y, f, _ = source
+    corner = np.full(D, 0.9)
+    best = X[np.argmin(np.where(f, np.inf, y))]
+    y0, f0 = _bowl(best, corner, 0.3)
+    runs = {}
+    for on in (False, True):
+        cr = _critic(source, hypers, manual=np.full(D, 0.85), design_screen=on)
+        cr.tell(best[None], y0, fell=f0)
+        runs[on] = (cr, _run(cr, corner, 0.3, 6)[1])
+    off, on = runs[False][0].decisions, runs[True][0].decisions
+    p = TRANSFER_DEFAULTS["max_fall_prob"]
+    assert any(d["design"] and d.get("max_fall_prob_asked", 0.0) > p for d in off)
+    assert any(d.get("design_screened") for d in on)
+    assert all(d.get("max_fall_prob_asked", 0.0) <= p for d in on if d.get("design_screened"))
+    assert not any(d.get("design_screened") for d in off)
+    assert sum(runs[True][1]) < sum(runs[False][1])
+
+
+def test_a_stored_run_resumes_without_options_added_later(source, hypers):
+    """A state recorded before an option existed resumes with the behaviour it had then."""
+    from latentune.critic.transfer import ADDED_OPTIONS
+
+    a = _critic(source, hypers, **ADDED_OPTIONS)
+    st = a.state_dict()
+    for k in ADDED_OPTIONS:
+        st["options"].pop(k)
+    b = _critic(source, hypers, **{k: not v if isinstance(v, bool) else v
+                                   for k, v in ADDED_OPTIONS.items()})
+    b.load_state_dict(st)
+    assert {k: b.opts[k] for k in ADDED_OPTIONS} == ADDED_OPTIONS
+
+
+def test_target_ard_fit_finds_the_coordinates_the_target_needs(source, hypers):
+    """A target that varies fast along two coordinates only: the fitted ARD lengthscales are
+    short there and stay near the source's elsewhere, and the model predicts the target better
+    than with the source's lengthscales."""
+    from latentune.critic.transfer import fit_residual_kernel
+
+    X, y, f, _ = source
+    sm = SourceModel(X, y, f, seed=0, hypers=hypers)
+    rng = np.random.default_rng(5)
+    Xt, Xq = rng.random((25, D)), rng.random((200, D))
+    fn = lambda Z: np.sin(6 * Z[:, 0]) + np.cos(5 * Z[:, 1])  # noqa: E731
+    base = TargetModel(Xt, fn(Xt), sm.cost, sm.lengthscales)
+    ls, s2 = fit_residual_kernel(Xt, fn(Xt), base.hX[:, 0], (1.0, 0.0), base.ls, base.sigma_r2)
+    assert ls[:2].max() < 0.5 * ls[2:].min()
+    fitted = TargetModel(Xt, fn(Xt), sm.cost, ls, sigma_r2=s2)
+    err = [np.sqrt(np.mean((m.mean_cov(Xq, False)[0] - fn(Xq)) ** 2)) for m in (base, fitted)]
+    assert err[1] < 0.7 * err[0]
+
+
+def test_fit_ard_option_fits_once_the_target_has_enough_trials(source, hypers):
+    X, y, f, c = source
+    cr = _critic(source, hypers, fit_ard=6)
+    _run(cr, np.clip(c + 0.1, 0, 1), 0.6, 8)
+    src_ls = cr.source_model().lengthscales
+    assert "ls_ratio" not in cr.decisions[3] and "ls_ratio" in cr.decisions[-1]
+    assert not np.allclose(cr.models()[0].ls, src_ls)
+    plain = _critic(source, hypers)
+    plain.tell(cr.X, cr.y, cr.tags, fell=cr.fell)
+    assert np.allclose(plain.models()[0].ls, src_ls)
+
+
+def test_safe_fallback_steps_back_instead_of_asking_over_the_screen(source, hypers):
+    """Where the fall screen rejects every candidate, ``safe_fallback`` adds steps toward the
+    best safe trial and asks one the screen admits; without it the critic asks over the
+    screen."""
+    X, y, f, _ = source
+    corner = np.full(D, 0.6)
+    best = X[np.argmin(np.where(f, np.inf, y))]
+    y0, f0 = _bowl(best, corner, 0.3)
+    p = TRANSFER_DEFAULTS["max_fall_prob"]
+    over = {}
+    for on in (False, True):
+        cr = _critic(source, hypers, manual=np.full(D, 0.6), safe_fallback=on)
+        cr.tell(best[None], y0, fell=f0)
+        falls = _run(cr, corner, 0.3, 10)[1]
+        over[on] = sum(d.get("max_fall_prob_asked", 0.0) > p for d in cr.decisions)
+        used = [d for d in cr.decisions if d.get("safe_fallback")]
+        assert bool(used) == on
+        assert all(d["max_fall_prob_asked"] <= p for d in used)
+        over[on, "falls"] = sum(falls)
+    assert over[False] >= 1 and over[True] == 0
+    assert over[True, "falls"] < over[False, "falls"]

@@ -59,7 +59,14 @@ Options that change the model and the choice (:data:`TRANSFER_DEFAULTS`): ``fit_
 lets the target cost model choose, with σ_r², a multiplier of the source's lengthscales
 (0.25–2, by marginal likelihood); ``acquisition`` ``"ei"`` takes the candidates of highest
 expected improvement over the best told value instead of Thompson samples; ``restart`` sets
-``L`` back to ``length_init`` when halving it would go below ``length_min``.
+``L`` back to ``length_init`` when halving it would go below ``length_min``; ``fit_ard`` = k > 0
+fits, once the target has k trials, the residual kernel's ARD lengthscales and σ_r² by marginal
+likelihood (GPyTorch, a log-normal prior around the source's lengthscales;
+:func:`fit_residual_kernel`) and shapes the full pool's box with them; ``design_screen`` lets
+the fall screen end the initial design when it rejects every remaining elite;
+``safe_fallback``: when the screen admits fewer candidates than the batch, perturbations of the
+centre on shrinking sides (``L/2 … L/2^8``) join the candidates before the least likely to fall
+are kept, so the search steps back toward its safe trial rather than asking over the screen.
 
 Tags and resume
 ---------------
@@ -92,14 +99,21 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "n_candidates": 1000, "length_init": 0.5, "length_max": 1.0, "length_min": 1 / 128,
     "succ_tol": 2, "fail_tol": 3, "latent_share_max": 0.5, "latent_falls": 3,
     "max_points": 300, "fall_kappa": 1.0, "fit_lengthscale": False, "acquisition": "thompson",
-    "restart": False, "full_scales": 1, "global_share": 0.0,
+    "restart": False, "full_scales": 1, "global_share": 0.0, "design_screen": False,
+    "fit_ard": 0, "safe_fallback": False,
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
 LEGACY_OPTIONS: dict[str, Any] = {**TRANSFER_DEFAULTS, "length_init": 0.3,
                                   "fit_lengthscale": False, "acquisition": "thompson",
-                                  "restart": False, "full_scales": 1, "global_share": 0.0}
+                                  "restart": False, "full_scales": 1, "global_share": 0.0,
+                                  "design_screen": False, "fit_ard": 0,
+                                  "safe_fallback": False}
 """The options of runs stored before :meth:`Transfer.state_dict` recorded them."""
+
+ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fallback": False}
+"""Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
+behaviour had before they existed: a stored run without them resumes with these."""
 
 _SIGMA_R2_GRID = (0.01, 0.05, 0.2, 0.5, 1.0, 2.0)
 _LS_SCALES = (0.25, 0.5, 1.0, 2.0)
@@ -109,6 +123,9 @@ _NOISE = 1e-2
 _JOINT = 256
 """Candidates (lowest confidence bounds) that share one joint Thompson sample."""
 _LS_BOUNDS = (0.02, 4.0)
+_ARD_PRIOR_SD = 1.0
+"""Standard deviation of the log-normal prior of the target's ARD lengthscales (``fit_ard``)
+around the source's: a factor e either way is one standard deviation."""
 
 
 # --------------------------------------------------------------------------- helpers
@@ -172,13 +189,30 @@ class _GPFit:
         return self.constant + self.outputscale * matern52(X, self.S, self.ls) @ self.alpha
 
 
+def _scipy_fit(mll: Any) -> Any:
+    """Maximize a GPyTorch marginal likelihood in place with BoTorch's scipy L-BFGS-B (100
+    iterations, one torch thread, optimization warnings silenced); its result."""
+    import warnings
+
+    import torch
+    from botorch.exceptions.warnings import OptimizationWarning
+    from botorch.optim.fit import fit_gpytorch_mll_scipy
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", OptimizationWarning)
+            return fit_gpytorch_mll_scipy(mll, options={"maxiter": 100})
+    finally:
+        torch.set_num_threads(before)
+
+
 def _fit_gp(X: np.ndarray, y: np.ndarray, hypers: dict[str, Any] | None) -> tuple[_GPFit, dict]:
     """Fit (or, with ``hypers``, only condition) a Matérn-5/2 ARD GP on (X (n, d), y (n,)) with
     BoTorch; return its numpy predictor and its hyperparameters (JSON-ready)."""
     n, d = X.shape
     if hypers is None:
-        import warnings
-
         import torch
         from botorch.models import SingleTaskGP
         from gpytorch.constraints import Interval
@@ -198,15 +232,8 @@ def _fit_gp(X: np.ndarray, y: np.ndarray, hypers: dict[str, Any] | None) -> tupl
         model.likelihood.noise = torch.tensor([0.05], dtype=torch.float64)
         model.mean_module.constant = torch.tensor(float(np.mean(y)), dtype=torch.float64)
         mll = ExactMarginalLogLikelihood(model.likelihood, model)
-        from botorch.exceptions.warnings import OptimizationWarning
-        from botorch.optim.fit import fit_gpytorch_mll_scipy
-
-        before = torch.get_num_threads()
-        torch.set_num_threads(1)
         try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", OptimizationWarning)
-                res = fit_gpytorch_mll_scipy(mll, options={"maxiter": 100})
+            res = _scipy_fit(mll)
             if res.status.name == "FAILURE":
                 log.warning("source model fit did not converge (%s); using where it stopped",
                             res.message)
@@ -214,7 +241,6 @@ def _fit_gp(X: np.ndarray, y: np.ndarray, hypers: dict[str, Any] | None) -> tupl
             log.warning("source model fit failed (%s: %s); using its starting hyperparameters",
                         type(exc).__name__, exc)
         finally:
-            torch.set_num_threads(before)
             model.eval()
         hypers = {"lengthscale": model.covar_module.base_kernel.lengthscale.detach().numpy()
                   .reshape(-1).tolist(),
@@ -369,6 +395,83 @@ class TargetModel:
         return np.maximum(prior - (V * V).sum(0), 0.0)
 
 
+def fit_residual_kernel(X: np.ndarray, v: np.ndarray, h0: np.ndarray,
+                        prior_mean: tuple[float, float], ls0: np.ndarray, sigma_r2_0: float
+                        ) -> tuple[np.ndarray, float]:
+    """MAP ARD lengthscales (d,) and ``σ_r²`` of :class:`TargetModel`'s residual kernel, fitted
+    with GPyTorch/BoTorch on the target's values ``v`` (n,) at θ ``X`` (n, d).
+
+    The model is the target model's own: mean ``(h0(θ), 1) · prior_mean``, covariance
+    ``σ_r² k_ls + h hᵀ + σ_n² I`` (``h0`` (n,): the source feature at ``X``; ``(a, b)``
+    integrated out), with a log-normal prior on each lengthscale centred at the source's
+    ``ls0`` (d,) (standard deviation :data:`_ARD_PRIOR_SD` in log space): the source says how the
+    cost varies, the target's trials move it where they disagree. Starts at ``(ls0,
+    sigma_r2_0)``; on a failed fit returns them."""
+    import gpytorch
+    import torch
+    from botorch.models.gpytorch import GPyTorchModel
+    from gpytorch.constraints import Interval
+    from gpytorch.kernels import LinearKernel, MaternKernel, ScaleKernel
+    from gpytorch.likelihoods import GaussianLikelihood
+    from gpytorch.means import LinearMean
+    from gpytorch.mlls import ExactMarginalLogLikelihood
+    from gpytorch.priors import LogNormalPrior
+
+    n, d = X.shape
+    dt = torch.float64
+    lo, hi = _LS_BOUNDS
+    ls0 = np.clip(np.asarray(ls0, dtype=float), lo * 1.01, hi * 0.99)
+    s_lo, s_hi = 0.005, 8.0
+    T = torch.as_tensor(np.column_stack([X, h0, np.ones(n)]), dtype=dt)
+    Y = torch.as_tensor(np.asarray(v, dtype=float), dtype=dt)
+
+    class _Model(gpytorch.models.ExactGP, GPyTorchModel):
+        _num_outputs = 1
+
+        def __init__(self) -> None:
+            super().__init__(T, Y, GaussianLikelihood())
+            self.mean_module = LinearMean(d + 2, bias=False)
+            self.residual = ScaleKernel(
+                MaternKernel(nu=2.5, ard_num_dims=d, active_dims=torch.arange(d),
+                             lengthscale_constraint=Interval(lo, hi),
+                             lengthscale_prior=LogNormalPrior(
+                                 torch.as_tensor(np.log(ls0), dtype=dt),
+                                 torch.full((d,), _ARD_PRIOR_SD, dtype=dt))),
+                outputscale_constraint=Interval(s_lo, s_hi))
+            self.basis = LinearKernel(active_dims=torch.tensor([d, d + 1]))
+
+        def forward(self, x: torch.Tensor) -> gpytorch.distributions.MultivariateNormal:
+            return gpytorch.distributions.MultivariateNormal(
+                self.mean_module(x), self.residual(x) + self.basis(x))
+
+    model = _Model().to(dt)
+    with torch.no_grad():
+        w = torch.zeros(d + 2, 1, dtype=dt)
+        w[d, 0], w[d + 1, 0] = float(prior_mean[0]), float(prior_mean[1])
+        model.mean_module.weights.copy_(w)
+        model.basis.variance = torch.tensor(1.0, dtype=dt)
+        model.likelihood.noise = torch.tensor([_NOISE], dtype=dt)
+        model.residual.base_kernel.lengthscale = torch.as_tensor(ls0, dtype=dt).reshape(1, d)
+        model.residual.outputscale = torch.tensor(float(np.clip(sigma_r2_0, s_lo * 1.01,
+                                                                s_hi * 0.99)), dtype=dt)
+    for prm in (model.mean_module.weights, model.basis.raw_variance,
+                model.likelihood.noise_covar.raw_noise):
+        prm.requires_grad_(False)
+    model.train()
+    mll = ExactMarginalLogLikelihood(model.likelihood, model)
+    try:
+        _scipy_fit(mll)
+        ls = model.residual.base_kernel.lengthscale.detach().numpy().reshape(d).copy()
+        s2 = float(model.residual.outputscale.detach())
+    except Exception as exc:  # noqa: BLE001 - reported, the source's lengthscales kept
+        log.warning("target lengthscale fit failed (%s: %s); using the source's",
+                    type(exc).__name__, exc)
+        return np.asarray(ls0, dtype=float), float(sigma_r2_0)
+    if not (np.all(np.isfinite(ls)) and math.isfinite(s2)):
+        return np.asarray(ls0, dtype=float), float(sigma_r2_0)
+    return ls, s2
+
+
 # --------------------------------------------------------------------------- the critic
 def elite_points(X: np.ndarray, z: np.ndarray, fell: np.ndarray, k: int,
                  spacing: float) -> np.ndarray:
@@ -386,6 +489,34 @@ def elite_points(X: np.ndarray, z: np.ndarray, fell: np.ndarray, k: int,
         if all(np.linalg.norm(X[i] - X[j]) / math.sqrt(d) >= spacing for j in taken):
             taken.append(int(i))
     return np.asarray(taken, dtype=np.int64)
+
+
+@dataclass
+class _AskContext:
+    """What one ask decided before it chose its points (recorded with the choice)."""
+
+    generation: int
+    state: dict[str, Any]
+    design: bool
+    agree: np.ndarray
+    agree_sd: np.ndarray
+    w_lat: float
+    latent_off: bool
+    cost_m: TargetModel | None
+    design_screened: bool = False
+    safe_fallback: bool = False
+
+
+@dataclass
+class _Candidates:
+    """One ask's candidates: θ (m, d), latent codes (m, k; NaN outside the latent pool), pool
+    (m,), the fall screen's probability (m,) and its verdict (m,)."""
+
+    X: np.ndarray
+    Z: np.ndarray
+    pool: np.ndarray
+    pf: np.ndarray
+    ok: np.ndarray | None = None
 
 
 class Transfer(TwoSpaceCritic):
@@ -518,14 +649,16 @@ class Transfer(TwoSpaceCritic):
         return self._X[int(np.argmin(y))]
 
     # ------------------------------------------------------------------ pools
-    def _pool_full(self, m: int, L: float, centre: np.ndarray, rng: np.random.Generator
-                   ) -> np.ndarray:
+    def _pool_full(self, m: int, L: float, centre: np.ndarray, rng: np.random.Generator,
+                   ls: np.ndarray | None = None) -> np.ndarray:
+        """``m`` TuRBO perturbations (m, d) of ``centre`` in a box of side ``L`` shaped by the
+        lengthscales ``ls`` (d,) (default: the source's)."""
         import torch
         from torch.quasirandom import SobolEngine
 
         if m <= 0:
             return np.empty((0, self.dim))
-        ls = self.source_model().lengthscales
+        ls = self.source_model().lengthscales if ls is None else ls
         w = ls / np.exp(np.mean(np.log(ls)))
         w = np.clip(w, 0.25, 4.0)
         lb, ub = np.clip(centre - L * w / 2, 0, 1), np.clip(centre + L * w / 2, 0, 1)
@@ -584,9 +717,18 @@ class Transfer(TwoSpaceCritic):
         v = rank_scores(self._y, self._fell)
         scales = _LS_SCALES if self.opts["fit_lengthscale"] else (1.0,)
         cost = TargetModel(self._X, v, sm.cost, sm.lengthscales, ls_scales=scales)
+        if self._ard_active():
+            ls, s2 = fit_residual_kernel(self._X, v, cost.hX[:, 0], (1.0, 0.0), cost.ls,
+                                         cost.sigma_r2)
+            cost = TargetModel(self._X, v, sm.cost, ls, sigma_r2=s2)
         fall = TargetModel(self._X, self._fell.astype(float), sm.fall_prob,
                            sm.fall_lengthscales, prior_mean=(1.0, 0.0))
         return cost, fall
+
+    def _ard_active(self) -> bool:
+        """True when the cost model's lengthscales are fitted on the target (``fit_ard``)."""
+        k = int(self.opts["fit_ard"])
+        return k > 0 and self.n_told >= k
 
     # ------------------------------------------------------------------ ask
     def _ask(self, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -618,6 +760,13 @@ class Transfer(TwoSpaceCritic):
                                    "rule": "every trial so far fell: the target's manual θ",
                                    "pools": ["elite"] * n})
             return np.tile(self.manual, (n, 1)), np.full(n, 4 * g + ELITE, dtype=np.int64)
+        ctx = _AskContext(generation=g, state=st, design=design, agree=agree,
+                          agree_sd=agree_sd, w_lat=w_lat, latent_off=latent_off, cost_m=cost_m)
+        if design and len(E) >= 1 and self.opts["design_screen"]:
+            ok_e = self._fall_prob(E, fall_m) <= float(self.opts["max_fall_prob"])
+            if ok_e.sum() < n:          # the screen rejects the elites: search instead
+                design = ctx.design = False
+                ctx.design_screened = True
         if design and len(E) >= 1:
             parts = [(E, np.full((len(E), self.k), np.nan), ELITE)]
         else:
@@ -628,43 +777,47 @@ class Transfer(TwoSpaceCritic):
             m_full, k_sc = M - len(XL) - len(XG), max(1, int(self.opts["full_scales"]))
             XF = np.vstack([self._pool_full(
                 m_full // k_sc + (1 if i < m_full % k_sc else 0),
-                min(st["L"] * 2.0 ** i, float(self.opts["length_max"])), centre, rng)
+                min(st["L"] * 2.0 ** i, float(self.opts["length_max"])), centre, rng,
+                cost_m.ls if cost_m is not None and self._ard_active() else None)
                 for i in range(k_sc)])
             parts = [(E, np.full((len(E), self.k), np.nan), ELITE),
                      (XF, np.full((len(XF), self.k), np.nan), FULL), (XL, UL, LATENT),
                      (XG, np.full((len(XG), self.k), np.nan), GLOBAL)]
         C = np.vstack([p[0] for p in parts])
-        Zc = np.vstack([p[1] for p in parts]) if self.k else np.empty((len(C), 0))
-        pool = np.concatenate([np.full(len(p[0]), p[2], dtype=np.int64) for p in parts])
+        cands = _Candidates(
+            X=C, Z=np.vstack([p[1] for p in parts]) if self.k else np.empty((len(C), 0)),
+            pool=np.concatenate([np.full(len(p[0]), p[2], dtype=np.int64) for p in parts]),
+            pf=self._fall_prob(C, fall_m))
         # the fall screen
-        if fall_m is None:
-            pf = sm.fall_prob(C)
-        else:                   # an upper confidence bound: where the model is unsure, it screens
-            pf = np.clip(fall_m.mean_cov(C, False)[0] + float(self.opts["fall_kappa"])
-                         * np.sqrt(fall_m.variance(C)), 0, 1)
-        ok = pf <= float(self.opts["max_fall_prob"])
+        ok = cands.pf <= float(self.opts["max_fall_prob"])
+        if ok.sum() < n and self.opts["safe_fallback"]:
+            cands = self._safe_fallback(cands, st["L"], centre, fall_m, rng)
+            C, ctx.safe_fallback = cands.X, True
+            ok = cands.pf <= float(self.opts["max_fall_prob"])
         if ok.sum() < n:
             ok = np.zeros(len(C), dtype=bool)
-            ok[np.argsort(pf, kind="stable")[:max(n, min(len(C), 3 * n))]] = True
+            ok[np.argsort(cands.pf, kind="stable")[:max(n, min(len(C), 3 * n))]] = True
+        cands.ok = ok
         cand = np.flatnonzero(ok)
+        ei = self.opts["acquisition"] == "ei" and cost_m is not None
+        mu = var = None
+        if cost_m is not None and (ei or len(cand) > _JOINT):
+            mu, _ = cost_m.mean_cov(C[cand], False)
+            var = cost_m.variance(C[cand])
         if cost_m is not None and len(cand) > _JOINT:
             # joint samples on the candidates a sample could pick: the lowest confidence bounds
-            mu0, _ = cost_m.mean_cov(C[cand], False)
-            lcb = mu0 - 2.0 * np.sqrt(cost_m.variance(C[cand]))
-            cand = np.sort(cand[np.argsort(lcb, kind="stable")[:_JOINT]])
-        ei = self.opts["acquisition"] == "ei" and cost_m is not None
+            keep = np.sort(np.argsort(mu - 2.0 * np.sqrt(var), kind="stable")[:_JOINT])
+            cand, mu, var = cand[keep], mu[keep], var[keep]
         if ei:                  # expected improvement over the best told value, top n
             from scipy.stats import norm
 
-            mu, _ = cost_m.mean_cov(C[cand], False)
-            sd = np.sqrt(np.maximum(cost_m.variance(C[cand]), 1e-12))
+            sd = np.sqrt(np.maximum(var, 1e-12))
             u = (float(cost_m.v.min()) - mu) / sd
             acq = sd * (u * norm.cdf(u) + norm.pdf(u))
             sel = cand[np.argsort(-acq, kind="stable")[:n]]
             if len(sel) < n:
                 sel = np.resize(sel, n)
-            return self._chosen(C, Zc, pool, sel, ok, pf, g, st, design, agree, agree_sd, w_lat,
-                                latent_off, cost_m)
+            return self._chosen(cands, sel, ctx)
         # joint Thompson samples of the cost model on the admissible candidates
         if cost_m is None:
             mu, cov = sm.cost(C[cand]), None
@@ -682,29 +835,56 @@ class Transfer(TwoSpaceCritic):
             if np.all(~np.isfinite(s)):          # fewer candidates than points: reuse the best
                 s = S[j % len(S)].copy()
             picked.append(int(np.argmin(s)))
-        sel = cand[picked]
-        return self._chosen(C, Zc, pool, sel, ok, pf, g, st, design, agree, agree_sd, w_lat,
-                            latent_off, cost_m)
+        return self._chosen(cands, cand[picked], ctx)
 
-    def _chosen(self, C: np.ndarray, Zc: np.ndarray, pool: np.ndarray, sel: np.ndarray,
-                ok: np.ndarray, pf: np.ndarray, g: int, st: dict[str, Any], design: bool,
-                agree: np.ndarray, agree_sd: np.ndarray, w_lat: float, latent_off: bool,
-                cost_m: TargetModel | None) -> tuple[np.ndarray, np.ndarray]:
-        """The chosen candidates ``C[sel]`` with their tags; records the decision."""
+    def _safe_fallback(self, cands: _Candidates, L: float, centre: np.ndarray,
+                       fall_m: TargetModel | None, rng: np.random.Generator) -> _Candidates:
+        """``cands`` with full-pool perturbations of ``centre`` (the best θ that did not fall)
+        added on shrinking sides ``L/2, L/4, …, L/2^8`` (``n_candidates/8`` each): where the fall
+        screen rejects the candidates, the search steps back toward the safe trial, as safe
+        Bayesian optimization expands from its safe set, instead of asking the candidate least
+        likely to fall (``safe_fallback``)."""
+        M, J = int(self.opts["n_candidates"]), 8
+        XS = np.vstack([self._pool_full(max(1, M // J), L / 2.0 ** j, centre, rng)
+                        for j in range(1, J + 1)])
+        return _Candidates(
+            X=np.vstack([cands.X, XS]),
+            Z=np.vstack([cands.Z, np.full((len(XS), self.k), np.nan)]),
+            pool=np.concatenate([cands.pool, np.full(len(XS), FULL, dtype=np.int64)]),
+            pf=np.concatenate([cands.pf, self._fall_prob(XS, fall_m)]))
+
+    def _fall_prob(self, C: np.ndarray, fall_m: TargetModel | None) -> np.ndarray:
+        """The fall screen's probability (m,) at θ ``C`` (m, d): the source's fall model before
+        the target has data, else the target fall model's upper confidence bound (where the
+        model is unsure, it screens)."""
+        if fall_m is None:
+            return self.source_model().fall_prob(C)
+        return np.clip(fall_m.mean_cov(C, False)[0] + float(self.opts["fall_kappa"])
+                       * np.sqrt(fall_m.variance(C)), 0, 1)
+
+    def _chosen(self, cands: _Candidates, sel: np.ndarray, ctx: _AskContext
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """The chosen candidates ``cands.X[sel]`` with their tags; records the decision."""
         n = len(sel)
-        X = C[sel]
-        self.last_z = Zc[sel] if self.k else np.empty((n, 0))
-        tags = 4 * g + pool[sel]
+        X = cands.X[sel]
+        self.last_z = cands.Z[sel] if self.k else np.empty((n, 0))
+        tags = 4 * ctx.generation + cands.pool[sel]
+        cm = ctx.cost_m
         self.decisions.append({
-            "generation": g, "n_told": self.n_told, "design": bool(design),
-            "agreement": float(agree[0]), "agreement_sd": float(agree_sd[0]),
-            "sigma_r2": None if cost_m is None else cost_m.sigma_r2,
-            "ls_scale": None if cost_m is None else cost_m.ls_scale,
-            "latent_share": w_lat, "latent_off": bool(latent_off), "length": st["L"],
-            "restarts": st["restarts"],
-            "n_candidates": int(len(C)), "n_admissible": int(ok.sum()),
-            "max_fall_prob_asked": float(pf[sel].max()),
-            "pools": [POOL_NAMES[int(p)] for p in pool[sel]]})
+            "generation": ctx.generation, "n_told": self.n_told, "design": bool(ctx.design),
+            "agreement": float(ctx.agree[0]), "agreement_sd": float(ctx.agree_sd[0]),
+            "sigma_r2": None if cm is None else cm.sigma_r2,
+            "ls_scale": None if cm is None else cm.ls_scale,
+            "latent_share": ctx.w_lat, "latent_off": bool(ctx.latent_off),
+            "length": ctx.state["L"], "restarts": ctx.state["restarts"],
+            "n_candidates": int(len(cands.X)), "n_admissible": int(cands.ok.sum()),
+            "max_fall_prob_asked": float(cands.pf[sel].max()),
+            "pools": [POOL_NAMES[int(p)] for p in cands.pool[sel]],
+            **({"design_screened": True} if ctx.design_screened else {}),
+            **({"safe_fallback": True} if ctx.safe_fallback else {}),
+            **({"ls_ratio": float(np.exp(np.mean(np.log(
+                cm.ls / self.source_model().lengthscales))))}
+               if cm is not None and self._ard_active() else {})})
         log.debug("transfer ask %s", self.decisions[-1])
         return X, tags
 
@@ -724,7 +904,7 @@ class Transfer(TwoSpaceCritic):
         if state.get("source_hypers") and self._model is None:
             self._hypers = state["source_hypers"]
         if "options" in state:
-            self.opts.update(state["options"])
+            self.opts.update({**ADDED_OPTIONS, **state["options"]})
         elif "last_decision" in state:
             self.opts.update({k: v for k, v in LEGACY_OPTIONS.items() if k != "max_fall_prob"})
 

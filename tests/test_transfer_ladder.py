@@ -1,0 +1,42 @@
+"""The transfer ladder's tables (benchmarks.transfer): a variant judged as the default, and the
+per-target, per-seed comparison."""
+from __future__ import annotations
+
+import json
+
+from benchmarks import transfer as tr
+
+
+def _write(root, m: str, seed: int, costs: list[float], failed: list[bool]) -> None:
+    f = root / "arm" / "gap1" / f"seed{seed}" / f"{m}.json"
+    f.parent.mkdir(parents=True, exist_ok=True)
+    f.write_text(json.dumps({"system": "arm", "gap": 1.0, "seed": seed, "method": m,
+                             "budget": 2, "costs": costs, "failed": failed}))
+
+
+def test_summary_judges_a_variant_as_the_default(tmp_path):
+    for s in (0, 1, 2):
+        _write(tmp_path, "tpe", s, [4.0, 2.0], [False, False])
+        _write(tmp_path, "transfer", s, [2.5, 3.0], [False, True])
+        _write(tmp_path, "transfer+x=1", s, [2.5, 1.0], [False, False])
+    _write(tmp_path, "transfer+y=1", 0, [9.0, 9.0], [False, False])     # seed 0 only
+    (row,) = tr.summarize(tmp_path)["targets"]
+    assert row["seeds"] == [0]                  # every method's seeds: the screened one limits
+    (row,) = tr.summarize(tmp_path, default="transfer+x=1",
+                          methods=["tpe", "transfer", "transfer@stored"])["targets"]
+    assert row["seeds"] == [0, 1, 2]
+    assert row["methods"]["transfer"]["median_best"] == 1.0
+    assert row["methods"]["transfer@stored"]["median_best"] == 2.5
+    assert row["criteria"]["falls_ok"] and row["methods"]["transfer"]["trials_to_best_peer"] == 2
+
+
+def test_compare_counts_per_target_and_keeps_the_seeds_asked(tmp_path):
+    for s, (a, b) in enumerate([(1.0, 2.0), (3.0, 2.0), (1.0, 2.0)]):
+        _write(tmp_path, "a", s, [a], [s == 0])
+        _write(tmp_path, "b", s, [b], [False])
+    r = tr.compare(tmp_path, "a", "b")
+    assert (r["wins"], r["losses"], r["falls_a"]) == (2, 1, 1)
+    assert r["by_target"]["arm gap1"] == {"wins": 2, "ties": 0, "losses": 1, "falls_a": 1,
+                                          "falls_b": 0}
+    r = tr.compare(tmp_path, "a", "b", seeds=[1, 2])
+    assert (r["pairs"], r["wins"], r["losses"], r["falls_a"]) == (2, 1, 1, 0)
