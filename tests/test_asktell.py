@@ -167,7 +167,7 @@ def test_four_concurrent_askers_never_hold_one_suggestion(tmp_path):
     with lt.Study(d, seed=0) as st:
         st.ask(space=SPACE, budget=60, asker="setup")
         st.release(1)
-    ctx = mp.get_context("spawn")
+    ctx = mp.get_context("forkserver")      # the askers start at once (conftest's preload)
     q = ctx.Queue()
     procs = [ctx.Process(target=_asker, args=(str(d), f"robot{i}", 6, q)) for i in range(4)]
     for p in procs:
@@ -400,7 +400,7 @@ def test_a_kill_after_a_tell_loses_nothing(tmp_path, monkeypatch, at):
         return sugg[3].id
 
     tid = start(tmp_path / "s")
-    ctx = mp.get_context("spawn")
+    ctx = mp.get_context("forkserver")
     p = ctx.Process(target=_tell_and_die, args=(str(tmp_path / "s"), tid, at))
     p.start()
     p.join(timeout=300)

@@ -1,8 +1,10 @@
 """``latentune paper`` end to end at a tiny scale, its report against the stored runs, resume,
 ``latentune report DIR`` on a paper directory, and bad input.
 
-The end-to-end run (a tiny scale: 12 phase-1 and 4 phase-3 evaluations per study, 120-step
-rollouts, serial) runs in a subprocess, as a user runs it; bad input is checked in-process.
+The end-to-end run (a tiny scale: 12 phase-1 and 4 phase-3 evaluations per study, 60-step
+rollouts, one worker) runs in a subprocess, as a user runs it, and so does the ``--seeds`` run
+that is killed; the runs that resume, ``report`` and bad input are checked in-process
+(:func:`latentune.cli.main`).
 """
 from __future__ import annotations
 
@@ -187,7 +189,7 @@ def test_paper_end_to_end(paper_dir: Path):
         assert f"]({f})" in md
 
 
-def test_paper_resume_and_report_command(paper_dir: Path, cli):
+def test_paper_resume_and_report_command(paper_dir: Path, run_cli, error_line):
     out = paper_dir
 
     def counts():
@@ -201,23 +203,23 @@ def test_paper_resume_and_report_command(paper_dir: Path, cli):
     before = counts()
     table_before = (out / "report.md").read_text().split("## A1 → B1")[0]
     # re-running the same command: every study is finished, nothing is evaluated again
-    r = cli("paper", *TINY, "--phase3-evals", "4", "--out", out, "--no-sim", "-v")
-    assert r.returncode == 0, r.stderr[-2000:]
+    code, _, err = run_cli("paper", *TINY, "--phase3-evals", "4", "--out", out, "--no-sim", "-v")
+    assert code == 0, err[-2000:]
     assert counts() == before
-    assert r.stderr.count("done (skipped)") == len(json.loads((out / "paper.json").read_text())
-                                                   ["studies"])
+    assert err.count("done (skipped)") == len(json.loads((out / "paper.json").read_text())
+                                              ["studies"])
     # `latentune report DIR` on a paper directory regenerates the same tables from the stores
     (out / "report.md").unlink()
-    r = cli("report", out, "--no-sim", "--quiet")
-    assert r.returncode == 0, r.stderr[-2000:]
+    code, _, err = run_cli("report", out, "--no-sim", "--quiet")
+    assert code == 0, err[-2000:]
     assert (out / "report.md").read_text().split("## A1 → B1")[0].split("## Table II")[1] == \
         table_before.split("## Table II")[1]
     # a larger budget resumes every unfinished study: stored rows are kept, new ones appended
     with RunStore(out / "a1-trot-hills") as st:
         old_rows = [(r.idx, r.theta.tolist(), r.cost) for r in st.rows(3)]
-    r = cli("paper", *TINY, "--phase3-evals", "6", "--out", out, "--no-sim", "--quiet",
-            timeout=600)
-    assert r.returncode == 0, r.stderr[-2000:]
+    code, _, err = run_cli("paper", *TINY, "--phase3-evals", "6", "--out", out, "--no-sim",
+                           "--quiet")
+    assert code == 0, err[-2000:]
     after = counts()
     for key, info in json.loads((out / "paper.json").read_text())["studies"].items():
         if info["kind"] in ("phase3", "tune"):
@@ -231,8 +233,9 @@ def test_paper_resume_and_report_command(paper_dir: Path, cli):
     assert new_rows[:4] == old_rows and len(new_rows) == 6
     assert json.loads((out / "paper.json").read_text())["budgets"]["phase3"] == 6
     # another configuration in the same directory is refused
-    r = cli("paper", "--robot", "a1", "--scale", "1e-6", "--steps", "300", "--out", out)
-    assert r.returncode == 2 and "another configuration" in r.stderr
+    code, _, err = run_cli("paper", "--robot", "a1", "--scale", "1e-6", "--steps", "300",
+                           "--out", out)
+    assert "another configuration" in error_line(code, err)
 
 
 @pytest.mark.parametrize("extra, expect", [
@@ -285,7 +288,7 @@ def _bests(out: Path, keys: list[str], phase: int) -> list[float]:
     return res
 
 
-def test_paper_seeds_end_to_end_with_a_kill(paper_dir: Path, cli, cli_env, dump_store,
+def test_paper_seeds_end_to_end_with_a_kill(paper_dir: Path, run_cli, cli_env, dump_store,
                                             tmp_path: Path):
     """``paper --seeds 2`` on a finished seed-0 directory: killed mid-way and run again, it
     reuses the sources (their rows unchanged), keeps the killed study's rows, and its report
@@ -314,8 +317,8 @@ def test_paper_seeds_end_to_end_with_a_kill(paper_dir: Path, cli, cli_env, dump_
         proc.wait(timeout=60)
     assert killed is not None, proc.stderr.read().decode()[-2000:]
     partial = set(dump_store(killed)[0])
-    r = cli(*args, timeout=900)
-    assert r.returncode == 0, r.stderr[-2000:]
+    code, _, err = run_cli(*args)
+    assert code == 0, err[-2000:]
     for k in sources:                       # the sources are reused as they are
         assert dump_store(out / k)[0] == before[k], k
     assert partial <= set(dump_store(killed)[0])   # the killed study resumed from its rows
