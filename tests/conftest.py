@@ -19,7 +19,9 @@
   needs this process without Ray (an evaluator that starts or reaches its own).
 
 The README runs the suite with pytest-xdist (``pytest -n auto``): every worker builds the
-module-scoped fixtures of the tests it runs, so those tests are moved to the front of the run.
+module-scoped fixtures of the tests it runs, so those tests are moved to the front of the run,
+and after them the tests marked ``slow`` (tens of seconds in one test: a Ray cluster, a
+browser), so that no long test is left for the end of the run while the other worker idles.
 
 New processes started in a test process (the process pools of the ``process`` backend, the
 ask/tell tests' concurrent askers) fork from multiprocessing's forkserver, which has torch and
@@ -73,11 +75,18 @@ def _shares_a_module_fixture(item: pytest.Item) -> bool:
                                     info.name2fixturedefs.values() for d in defs)
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line("markers", "slow: one test of tens of seconds (run early under "
+                            "pytest-xdist)")
+
+
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Run the tests that use a module-scoped fixture first (otherwise in collection order):
-    under pytest-xdist the expensive shared setups (a paper directory, a phase-1 run) start at
-    once on the workers instead of at the end of the run."""
-    items.sort(key=lambda item: not _shares_a_module_fixture(item))   # stable
+    """Run the tests that use a module-scoped fixture first, then the ``slow`` ones (otherwise
+    in collection order): under pytest-xdist the expensive shared setups (a paper directory, a
+    phase-1 run) start at once on the workers instead of at the end of the run, and the long
+    tests do not end the run on one worker."""
+    items.sort(key=lambda item: (not _shares_a_module_fixture(item),        # stable
+                                 item.get_closest_marker("slow") is None))
 
 
 @pytest.fixture(scope="session")

@@ -127,6 +127,7 @@ def test_crash_and_resume(tmp_path, run_cli, cli_env, dump_store):
     assert len({r[2] for r in rows}) == n                    # no θ evaluated twice
 
 
+@pytest.mark.slow
 def test_phase1_on_local_ray(tmp_path, cli, cli_env, dump_store):
     pytest.importorskip("ray")
     out = tmp_path / "ray"
@@ -149,6 +150,7 @@ def test_phase1_on_local_ray(tmp_path, cli, cli_env, dump_store):
         shutil.rmtree(link_dir, ignore_errors=True)
 
 
+@pytest.mark.slow
 def test_ray_reruns_a_trial_lost_with_its_worker(tmp_path, ray_local):
     """A worker process that dies mid-trial (os._exit) loses that run: Ray restarts the actor,
     the trial is run again and yielded once with ``lost_runs``; a trial that kills every worker
