@@ -219,6 +219,17 @@ def test_a_world_without_visual_shapes_moves_and_renders_like_one_with_them():
     assert bare._twin is None and bare.cid is None
 
 
+def test_hills_are_computed_once_and_handed_out_as_copies():
+    from latentune.sim import perlin_heightfield
+
+    a = perlin_heightfield(40, 7)
+    assert a.shape == (40, 40) and a.min() == 0.0 and a.max() == pytest.approx(0.02)
+    a[0, 0] = 1.0                                   # the caller's copy, not the cached field
+    b = perlin_heightfield(40, 7)
+    assert b[0, 0] != 1.0 and b is not perlin_heightfield(40, 7) and b.flags.writeable
+    assert not np.array_equal(b, perlin_heightfield(40, 8))
+
+
 @engines
 def test_mass_inertia_payload(engine):
     nom, heavy = world(engine), world(engine, mass_scale=1.3, inertia_scale=2.0, payload_mass=3.0)

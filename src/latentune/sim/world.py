@@ -11,6 +11,7 @@ sensors, pushes).
 """
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from typing import Protocol, runtime_checkable
@@ -96,8 +97,14 @@ def perlin_heightfield(n: int, seed: int, octaves: int = 10, amplitude: float = 
     """Fractal Perlin noise on an (n, n) grid, rescaled to heights in [0, amplitude] metres.
 
     Octave k has ``base_cells·2^k`` lattice cells across the field and weight 0.5^k (the paper's
-    hills: 10 octaves, 0.02 m). Deterministic for ``seed``.
+    hills: 10 octaves, 0.02 m). Deterministic for ``seed``: a field is computed once per process
+    (a tenth of a second or more for the hills) and each call returns a new copy of it.
     """
+    return _perlin(int(n), int(seed), int(octaves), float(amplitude), int(base_cells)).copy()
+
+
+@functools.lru_cache(maxsize=32)
+def _perlin(n: int, seed: int, octaves: int, amplitude: float, base_cells: int) -> np.ndarray:
     rng = np.random.default_rng(seed)
     u = np.linspace(0.0, 1.0, n, endpoint=False)
     total = np.zeros((n, n))
@@ -123,7 +130,9 @@ def perlin_heightfield(n: int, seed: int, octaves: int = 10, amplitude: float = 
         total += 0.5 ** k * ((n00 * (1 - sx) + n10 * sx) * (1 - sy) + (n01 * (1 - sx) + n11 * sx) * sy)
     total -= total.min()
     peak = total.max()
-    return total * (amplitude / peak) if peak > 0 else total
+    out = total * (amplitude / peak) if peak > 0 else total
+    out.flags.writeable = False                # the cached field: callers get copies
+    return out
 
 
 HILLS_CELLS, HILLS_CELL = 100, 0.05
