@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import sqlite3
 import subprocess
@@ -99,14 +100,27 @@ def rows(run: Path) -> list[tuple]:
 
 
 # ---------------------------------------------------------------------------- Python API
-def test_study_phases_on_a_user_system(tmp_path, plugin_dir):
+@pytest.fixture(scope="module")
+def user_sim(tmp_path_factory, plugin_dir):
+    """The simulator study of the Python API tests: phase 1 (48) and a 3-d latent space on
+    ``myplant.make(8)``; ``(run dir, phase-1 result, latent space)``. Tests copy the run."""
+    import myplant
+
+    d = tmp_path_factory.mktemp("user_sim") / "sim"
+    with lt.Study(d, seed=3) as sim:
+        r1 = sim.phase1(myplant.make(8, 0.0), 48)
+        latent = sim.train_latent(latent_dim=3, epochs=40)
+    return d, r1, latent
+
+
+def test_study_phases_on_a_user_system(tmp_path, user_sim):
     import myplant
 
     model, real = myplant.make(8, 0.0), myplant.make(8, 0.15)
+    sim_dir, r1, latent = user_sim
+    shutil.copytree(sim_dir, tmp_path / "sim")
     sim = lt.Study(tmp_path / "sim", seed=3)
-    r1 = sim.phase1(model, 48)
     assert r1.n == 48 and r1.best_cost < model.evaluate(model.space.manual)
-    latent = sim.train_latent(latent_dim=3, epochs=40)
     assert latent.d == 8 and latent.d_low == 3
     target = lt.Study(tmp_path / "real", seed=3)
     r3 = target.phase3(real, 12, latent=tmp_path / "sim", strategy="plain")   # the paper's
@@ -137,13 +151,11 @@ def test_study_phases_on_a_user_system(tmp_path, plugin_dir):
     target.close()
 
 
-def test_phase3_hands_over_to_the_full_space_and_records_it(tmp_path, plugin_dir):
+def test_phase3_hands_over_to_the_full_space_and_records_it(tmp_path, user_sim):
     import myplant
 
-    model, real = myplant.make(8, 0.0), myplant.make(8, 0.15)
-    with lt.Study(tmp_path / "sim", seed=3) as sim:
-        sim.phase1(model, 48)
-        sim.train_latent(latent_dim=3, epochs=40)
+    real = myplant.make(8, 0.15)
+    shutil.copytree(user_sim[0], tmp_path / "sim")
     with lt.Study(tmp_path / "plain", seed=3) as plain:
         floor = plain.phase3(real, 40, latent=tmp_path / "sim", strategy="plain").best_cost
     opts = {"patience": 8}
@@ -276,8 +288,6 @@ def test_a_broken_module_fails_loudly(tmp_path, cli_env):
     """A syntax error in a command's module is a traceback, never 'invalid choice'."""
     pkg = tmp_path / "latentune"
     src = Path(lt.__file__).parent
-    import shutil
-
     shutil.copytree(src, pkg)
     (pkg / "study.py").write_text((pkg / "study.py").read_text() + "\n)\n")
     env = dict(cli_env, PYTHONPATH=str(tmp_path))
