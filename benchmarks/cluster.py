@@ -98,8 +98,9 @@ class LocalCluster:
     of its own, with its own temp dir under one short directory (Ray's unix socket paths must
     stay under 107 bytes) and free ports. ``address`` is the head's ``127.0.0.1:PORT``.
     :meth:`kill` SIGKILLs one node's group (its raylet and workers: the node is lost);
-    :meth:`stop` ends the groups it started (SIGTERM, then SIGKILL) and removes the temp dirs,
-    never any other Ray process of the machine (``ray stop`` would end them all)."""
+    :meth:`stop` ends the nodes it started (SIGINT to each ``ray start``, which then stops its
+    node as Ctrl-C does, then SIGKILL to whatever of its group is left) and removes the temp
+    dirs, never any other Ray process of the machine (``ray stop`` would end them all)."""
 
     def __init__(self, env: dict[str, str] | None = None, timeout: float = 300.0) -> None:
         self.env = dict(os.environ if env is None else env)
@@ -150,13 +151,16 @@ class LocalCluster:
         proc.wait(timeout=60)
 
     def stop(self) -> None:
+        """End every node started (``ray start --block`` ignores SIGTERM: a SIGTERM only ran
+        out a 10-s wait before the SIGKILL; SIGINT ends it and its node within seconds)."""
         for name in reversed(list(self.procs)):
             proc = self.procs[name]
-            try:
-                os.killpg(proc.pid, signal.SIGTERM)
-                proc.wait(timeout=10)
-            except (ProcessLookupError, subprocess.TimeoutExpired):
-                pass
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGINT)
+                try:
+                    proc.wait(timeout=10)
+                except subprocess.TimeoutExpired:
+                    pass
             try:
                 os.killpg(proc.pid, signal.SIGKILL)   # whatever of the group is left
             except ProcessLookupError:

@@ -12,18 +12,33 @@
 * ``cli_env`` (session fixture): the environment of ``cli`` (for ``subprocess.Popen``).
 * ``dump_store`` (session fixture): ``dump_store(run_dir) -> (rows, meta)``, a store's rows
   (phase, idx, theta, z, tag, cost) and meta read-only, to check that a store is unchanged.
+* ``ray_local`` (function fixture): the ``ray`` module with a local Ray running in this process
+  (2 CPUs, a short temp dir), started once per test process and shared: a
+  :class:`~latentune.pipeline.evaluators.RayEvaluator` made meanwhile uses it and leaves it
+  running. Starting and stopping Ray takes seconds. ``no_local_ray`` stops it, for a test that
+  needs this process without Ray (an evaluator that starts or reaches its own).
 
 The README runs the suite with pytest-xdist (``pytest -n auto``): every worker builds the
-module-scoped fixtures of the tests it runs, so those tests are moved to the front of the run.
+module-scoped fixtures of the tests it runs, so those tests are moved to the front of the run,
+and after them the tests marked ``slow`` (tens of seconds in one test: a Ray cluster, a
+browser), so that no long test is left for the end of the run while the other worker idles.
+
+New processes started in a test process (the process pools of the ``process`` backend, the
+ask/tell tests' concurrent askers) fork from multiprocessing's forkserver, which has torch and
+latentune's pipeline loaded once (:data:`FORKSERVER_PRELOAD`) instead of each process importing
+them again (about 1.5 s of CPU each).
 """
 from __future__ import annotations
 
+import multiprocessing
 import os
+import shutil
 import sqlite3
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable, Iterator
 
 import pytest
 
@@ -31,6 +46,13 @@ from latentune.threads import one_thread_env, thread_env
 
 one_thread_env()  # rollouts are many tiny matrix operations: one BLAS thread
 os.environ.setdefault("RAY_AUTH_MODE", "disabled")
+
+FORKSERVER_PRELOAD = ["torch", "latentune.study", "latentune.critic.turbo",
+                      "latentune.pipeline.asktell", "latentune.pipeline.evaluators",
+                      "latentune.task"]
+"""Modules the forkserver imports once; set before any test starts it (a running server keeps
+the list it started with)."""
+multiprocessing.set_forkserver_preload(FORKSERVER_PRELOAD)
 
 ROOT = Path(__file__).resolve().parents[1]
 CLI_ENV: dict[str, str] = dict(os.environ, **thread_env(), RAY_AUTH_MODE="disabled",
@@ -53,11 +75,18 @@ def _shares_a_module_fixture(item: pytest.Item) -> bool:
                                     info.name2fixturedefs.values() for d in defs)
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line("markers", "slow: one test of tens of seconds (run early under "
+                            "pytest-xdist)")
+
+
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Run the tests that use a module-scoped fixture first (otherwise in collection order):
-    under pytest-xdist the expensive shared setups (a paper directory, a phase-1 run) start at
-    once on the workers instead of at the end of the run."""
-    items.sort(key=lambda item: not _shares_a_module_fixture(item))   # stable
+    """Run the tests that use a module-scoped fixture first, then the ``slow`` ones (otherwise
+    in collection order): under pytest-xdist the expensive shared setups (a paper directory, a
+    phase-1 run) start at once on the workers instead of at the end of the run, and the long
+    tests do not end the run on one worker."""
+    items.sort(key=lambda item: (not _shares_a_module_fixture(item),        # stable
+                                 item.get_closest_marker("slow") is None))
 
 
 @pytest.fixture(scope="session")
@@ -119,3 +148,33 @@ def dump(run_dir: Path) -> tuple[list[tuple], list[tuple]]:
 def dump_store() -> Callable[[Path], tuple[list[tuple], list[tuple]]]:
     """:func:`dump` as a fixture: ``dump_store(run_dir) -> (rows, meta)``."""
     return dump
+
+
+@pytest.fixture(scope="session")
+def _ray_dir() -> Iterator[str]:
+    """The temp dir of the shared local Ray (under /tmp: Ray's unix socket paths are short);
+    Ray is shut down at the end of the session."""
+    d = tempfile.mkdtemp(prefix="ltr", dir="/tmp")
+    try:
+        yield d
+    finally:
+        if "ray" in sys.modules and sys.modules["ray"].is_initialized():
+            sys.modules["ray"].shutdown()
+        shutil.rmtree(d, ignore_errors=True)
+
+
+@pytest.fixture
+def ray_local(_ray_dir: str) -> Any:
+    """The ``ray`` module, with the shared local Ray of this process running (2 CPUs)."""
+    ray = pytest.importorskip("ray")
+    if not ray.is_initialized():
+        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False,
+                 configure_logging=False, _temp_dir=_ray_dir)
+    return ray
+
+
+@pytest.fixture
+def no_local_ray() -> None:
+    """No Ray running in this process (the shared one is stopped; ``ray_local`` restarts it)."""
+    if "ray" in sys.modules and sys.modules["ray"].is_initialized():
+        sys.modules["ray"].shutdown()

@@ -8,6 +8,7 @@ import logging
 import math
 import multiprocessing as mp
 import os
+import shutil
 import sqlite3
 import time
 from pathlib import Path
@@ -54,6 +55,16 @@ def person(study: lt.Study, plant_: lt.FunctionSystem, n_trials: int, **ask_kw) 
         (s,) = study.ask(**ask_kw)
         out = evaluate(plant_, s.theta)
         study.tell(s.id, out.cost, failed=out.failed)
+
+
+@pytest.fixture(scope="module")
+def src30(tmp_path_factory) -> Path:
+    """A source run of the plant: phase 1 (30, seed 0) and a 2-d latent space. Tests copy it."""
+    d = tmp_path_factory.mktemp("src30") / "src"
+    with lt.Study(d, seed=0) as src:
+        src.phase1(plant(), 30)
+        src.train_latent(latent_dim=2, epochs=30)
+    return d
 
 
 # ---------------------------------------------------------------------------- one loop
@@ -167,7 +178,7 @@ def test_four_concurrent_askers_never_hold_one_suggestion(tmp_path):
     with lt.Study(d, seed=0) as st:
         st.ask(space=SPACE, budget=60, asker="setup")
         st.release(1)
-    ctx = mp.get_context("spawn")
+    ctx = mp.get_context("forkserver")      # the askers start at once (conftest's preload)
     q = ctx.Queue()
     procs = [ctx.Process(target=_asker, args=(str(d), f"robot{i}", 6, q)) for i in range(4)]
     for p in procs:
@@ -335,10 +346,9 @@ def test_a_stale_prepared_batch_is_never_handed_out(tmp_path):
         st.store.check()
 
 
-def test_a_prepared_transfer_phase3_gives_the_rows_of_asking_the_critic(tmp_path, monkeypatch):
-    with lt.Study(tmp_path / "src", seed=0) as src:
-        src.phase1(plant(), 30)
-        src.train_latent(latent_dim=2, epochs=30)
+def test_a_prepared_transfer_phase3_gives_the_rows_of_asking_the_critic(tmp_path, monkeypatch,
+                                                                         src30):
+    shutil.copytree(src30, tmp_path / "src")
     target = plant(0.2)
     spy = CriticSpy(monkeypatch)
 
@@ -400,7 +410,7 @@ def test_a_kill_after_a_tell_loses_nothing(tmp_path, monkeypatch, at):
         return sugg[3].id
 
     tid = start(tmp_path / "s")
-    ctx = mp.get_context("spawn")
+    ctx = mp.get_context("forkserver")
     p = ctx.Process(target=_tell_and_die, args=(str(tmp_path / "s"), tid, at))
     p.start()
     p.join(timeout=300)
@@ -441,10 +451,8 @@ def test_start_through_ask(tmp_path):
 
 
 # ---------------------------------------------------------------------------- status, best
-def test_status_names_phases_and_counts_the_zero_shot_trial(tmp_path):
-    with lt.Study(tmp_path / "src", seed=0) as src:
-        src.phase1(plant(), 30)
-        src.train_latent(latent_dim=2, epochs=30)
+def test_status_names_phases_and_counts_the_zero_shot_trial(tmp_path, src30):
+    shutil.copytree(src30, tmp_path / "src")
     target = plant(0.3)
     with lt.Study(tmp_path / "t", seed=0) as st:
         sugg = st.ask(3, system=target, phase=3, latent=tmp_path / "src")

@@ -55,10 +55,11 @@ def _space_file(tmp_path):
 
 
 @pytest.mark.parametrize("phase", [1, 3])
-def test_later_asks_lease_without_loading_the_critic(tmp_path, cli, cli_env, phase):
-    """Each call in its own process, as the person runs them: after the first ask, an ask
+def test_later_asks_lease_without_loading_the_critic(tmp_path, cli, cli_env, run_cli, phase):
+    """Each ask in its own process, as the person runs them: after the first ask, an ask
     hands out a queued or prepared suggestion without importing torch or BoTorch (phase 3:
-    the default strategy, whose first suggestion is the zero-shot trial)."""
+    the default strategy, whose first suggestion is the zero-shot trial). The tells (which
+    prepare the next batch) run in this process."""
     d = tmp_path / "robot"
     first: tuple = ("--space", _space_file(tmp_path))
     if phase == 3:
@@ -83,8 +84,8 @@ def test_later_asks_lease_without_loading_the_critic(tmp_path, cli, cli_env, pha
             assert "torch" in imported
         else:
             assert not imported & {"torch", "botorch", "gpytorch"}, i
-        r = cli("tell", d, s["id"], "--cost", str(sum(v * v for v in s["theta"])))
-        assert r.returncode == 0 and r.stdout.startswith(f"told {s['id']}"), r.stderr
+        code, out, err = run_cli("tell", d, s["id"], "--cost", str(sum(v * v for v in s["theta"])))
+        assert code == 0 and out.startswith(f"told {s['id']}"), err
         if phase == 3:
             assert s["phase_name"] == ("zero-shot" if i == 0 else "phase 3")
     assert seen == [1, 2, 3, 4, 5, 6]       # batches of 4 after the first ask's (and zero-shot)

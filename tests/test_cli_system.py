@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import os
 import sys
-import tempfile
 import textwrap
 from pathlib import Path
 
@@ -140,16 +139,14 @@ def test_an_unpicklable_api_system_is_one_line_naming_workers_1(tmp_path):
     assert res.n == 6
 
 
-def test_a_closure_factory_runs_on_ray(plugin_dir):
-    pytest.importorskip("ray")
+def test_a_closure_factory_runs_on_ray(plugin_dir, ray_local):
     from latentune.pipeline.evaluators import RayEvaluator
     from latentune.system import load_system
 
     closure = load_system("closplant:make", {"shift": 0.1})
     locked = load_system("closplant:locked", {"dim": 3})       # Ray cannot serialize its lock
     X4, X3 = np.full((3, 4), 0.5), np.full((2, 3), 0.5)
-    tmp = tempfile.mkdtemp(prefix="ltr", dir="/tmp")          # short: Ray's socket paths
-    with RayEvaluator(1, temp_dir=tmp) as ev:
+    with RayEvaluator(1) as ev:                               # on conftest's local Ray
         y4 = ev.map(closure, X4)
         y3 = ev.map(locked, X3)
     np.testing.assert_allclose(y4, 4 * 0.1 ** 2)

@@ -121,6 +121,7 @@ def _chromium():
     return webdriver.Chrome(service=Service(driver), options=opts)
 
 
+@pytest.mark.slow
 def test_dashboard_live_in_chromium(tmp_path):
     from selenium.webdriver.common.by import By
 

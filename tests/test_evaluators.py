@@ -1,7 +1,11 @@
-"""Evaluators (latentune.pipeline.evaluators): a process pool gives the serial costs, a run
-killed with its workers resumes without losing or repeating a trial, phase 1 on a local Ray, a
-Ray worker lost mid-trial (the trial is run again, once), an unreachable Ray address (one line).
-A worker *node* lost mid-run: tests/test_ray_cluster.py."""
+"""Evaluators (latentune.pipeline.evaluators): a process pool gives the serial costs, every
+backend stores the same rows when a trial raises, a run killed with its workers resumes without
+losing or repeating a trial, phase 1 on a local Ray, a Ray worker lost mid-trial (the trial is
+run again, once), an unreachable Ray address (one line). A worker *node* lost mid-run:
+tests/test_ray_cluster.py.
+
+The tests of Ray evaluators in this process share one local Ray (conftest's ``ray_local``); the
+command line's phase 1 on Ray starts its own, in its process."""
 from __future__ import annotations
 
 import os
@@ -16,6 +20,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import latentune as lt
+from latentune.pipeline.store import RunStore
 from latentune.system import EvaluationError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -45,8 +51,58 @@ def test_process_evaluator_matches_serial():
     np.testing.assert_allclose(yq, [quad(x) for x in X[:, :6]])
 
 
-def test_crash_and_resume(tmp_path, cli, cli_env, dump_store):
-    """SIGKILL of the CLI and its worker processes mid-run (needs real processes), then resume."""
+def test_unreachable_ray_address_is_one_line(tmp_path, run_cli, error_line, no_local_ray):
+    """A cluster address nobody answers at: one line at once (Ray alone retries without end)."""
+    pytest.importorskip("ray")
+    import socket
+
+    with socket.socket() as s:                       # a port that was free a moment ago
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    code, _, err = run_cli("phase1", *TINY, "--out", tmp_path / "r", "--phase1-evals", "4",
+                           "--backend", "ray", "--ray-address", f"127.0.0.1:{port}")
+    assert f"no Ray cluster answers at 127.0.0.1:{port}" in error_line(code, err)
+
+
+def _raises_sometimes(x):
+    if x[0] > 0.6:
+        raise RuntimeError("boom")
+    return float(np.sum(x))
+
+
+class RaisingSystem:
+    space = lt.ParameterSpace(["a", "b", "c"], [0, 0, 0], [1, 1, 1])
+
+    def evaluate(self, u):
+        return _raises_sometimes(u)
+
+
+def test_every_backend_stores_the_same_rows_when_a_trial_raises(tmp_path, ray_local):
+    from latentune.pipeline.evaluators import make_evaluator
+    from latentune.pipeline.phases import make_phase_critic, run_phase
+
+    import ray.cloudpickle
+
+    ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])   # workers lack tests/
+    by_backend = {}
+    for backend in ("serial", "process", "ray"):
+        ev = make_evaluator(backend, 2)
+        try:
+            with RunStore(tmp_path / backend, create=True) as st:
+                with pytest.raises(EvaluationError, match="RuntimeError: boom"):
+                    run_phase(st, 1, RaisingSystem(), make_phase_critic("sobol", 3, 4, 0, None, 40),
+                              40, ev)
+                by_backend[backend] = [(r.idx, tuple(r.theta), r.cost) for r in st.rows(1)]
+        finally:
+            ev.close()
+    assert by_backend["serial"], "the first batch should finish before a trial raises"
+    key = lambda rows: sorted(r[1:] for r in rows)  # noqa: E731 - completion order may differ
+    assert key(by_backend["serial"]) == key(by_backend["process"]) == key(by_backend["ray"])
+
+
+def test_crash_and_resume(tmp_path, run_cli, cli_env, dump_store):
+    """SIGKILL of the CLI and its worker processes mid-run (needs real processes), then resume
+    (in this process)."""
     out = tmp_path / "crash"
     n, n_kill = 24, 8
     args = ["phase1", *TINY, "--out", str(out), "--phase1-evals", str(n), "--workers", "2"]
@@ -63,14 +119,15 @@ def test_crash_and_resume(tmp_path, cli, cli_env, dump_store):
     kept = dump_store(out)[0]
     n_stored = len([r for r in kept if r[0] == 1])
     assert n_kill <= n_stored < n
-    p = cli(*args, "--resume")
-    assert p.returncode == 0, p.stderr
+    code, _, err = run_cli(*args, "--resume")
+    assert code == 0, err
     rows = [r for r in dump_store(out)[0] if r[0] == 1]
     assert [r[1] for r in rows] == list(range(n))           # contiguous, none duplicated
     assert rows[:n_stored] == [r for r in kept if r[0] == 1]  # everything stored is kept
     assert len({r[2] for r in rows}) == n                    # no θ evaluated twice
 
 
+@pytest.mark.slow
 def test_phase1_on_local_ray(tmp_path, cli, cli_env, dump_store):
     pytest.importorskip("ray")
     out = tmp_path / "ray"
@@ -93,12 +150,12 @@ def test_phase1_on_local_ray(tmp_path, cli, cli_env, dump_store):
         shutil.rmtree(link_dir, ignore_errors=True)
 
 
-def test_ray_reruns_a_trial_lost_with_its_worker(tmp_path):
+@pytest.mark.slow
+def test_ray_reruns_a_trial_lost_with_its_worker(tmp_path, ray_local):
     """A worker process that dies mid-trial (os._exit) loses that run: Ray restarts the actor,
     the trial is run again and yielded once with ``lost_runs``; a trial that kills every worker
     it runs on is a TrialError after ``max_losses`` runs, the other trials complete; with no
     actor left for ``lost_timeout`` seconds, imap raises EvaluationError."""
-    pytest.importorskip("ray")
     from latentune.pipeline.evaluators import RayEvaluator, TrialError
 
     marks = str(tmp_path / "crashed")
@@ -116,65 +173,39 @@ def test_ray_reruns_a_trial_lost_with_its_worker(tmp_path):
         return float(np.sum(x))
 
     X = np.array([[0.1, 0.2], [0.9, 0.1], [0.2, 0.2]])
-    ray_tmp = Path(tempfile.mkdtemp(prefix="ltr", dir="/tmp"))   # unix sockets: a short path
-    try:
-        with RayEvaluator(1, temp_dir=str(ray_tmp), max_losses=2) as ev:
-            res = dict(ev.imap(crash_once, X))
-            assert sorted(res) == [0, 1, 2]
-            assert [res[i].cost for i in range(3)] == pytest.approx(X.sum(axis=1))
-            assert res[1].info == {"lost_runs": 1} and res[0].info == {} == res[2].info
-            assert ev.lost_trials == 1
-            res = dict(ev.imap(always_crash, X))
-            assert isinstance(res[1], TrialError) and "2 times" in res[1].message, res[1]
-            assert [res[i].cost for i in (0, 2)] == pytest.approx(X[[0, 2]].sum(axis=1))
-            assert ev.lost_trials == 3
-            with pytest.raises(EvaluationError, match="lost with its Ray worker"):
-                ev.map(always_crash, X)
+    with RayEvaluator(1, max_losses=2) as ev:
+        res = dict(ev.imap(crash_once, X))
+        assert sorted(res) == [0, 1, 2]
+        assert [res[i].cost for i in range(3)] == pytest.approx(X.sum(axis=1))
+        assert res[1].info == {"lost_runs": 1} and res[0].info == {} == res[2].info
+        assert ev.lost_trials == 1
+        res = dict(ev.imap(always_crash, X))
+        assert isinstance(res[1], TrialError) and "2 times" in res[1].message, res[1]
+        assert [res[i].cost for i in (0, 2)] == pytest.approx(X[[0, 2]].sum(axis=1))
+        assert ev.lost_trials == 3
+        with pytest.raises(EvaluationError, match="lost with its Ray worker"):
+            ev.map(always_crash, X)
 
-            def leave(x: np.ndarray) -> float:        # the actor exits for good: no restart
-                if x[0] > 0.5:
-                    from ray.actor import exit_actor
+        def leave(x: np.ndarray) -> float:        # the actor exits for good: no restart
+            if x[0] > 0.5:
+                from ray.actor import exit_actor
 
-                    exit_actor()
-                return float(np.sum(x))
+                exit_actor()
+            return float(np.sum(x))
 
-            ev.lost_timeout = 3.0
-            with pytest.raises(EvaluationError, match="no Ray worker of 1 was alive"):
-                dict(ev.imap(leave, X))
-    finally:
-        shutil.rmtree(ray_tmp, ignore_errors=True)
+        ev.lost_timeout = 3.0
+        with pytest.raises(EvaluationError, match="no Ray worker of 1 was alive"):
+            dict(ev.imap(leave, X))
 
 
-def test_unreachable_ray_address_is_one_line(tmp_path, run_cli, error_line):
-    """A cluster address nobody answers at: one line at once (Ray alone retries without end)."""
-    pytest.importorskip("ray")
-    import socket
-
-    with socket.socket() as s:                       # a port that was free a moment ago
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    code, _, err = run_cli("phase1", *TINY, "--out", tmp_path / "r", "--phase1-evals", "4",
-                           "--backend", "ray", "--ray-address", f"127.0.0.1:{port}")
-    assert f"no Ray cluster answers at 127.0.0.1:{port}" in error_line(code, err)
-
-
-def test_ray_more_workers_than_cpus(tmp_path):
+def test_ray_more_workers_than_cpus(ray_local):
     """Actors the cluster has no CPU for take no trials: a batch completes on the placed ones."""
-    pytest.importorskip("ray")
-    import ray
-
     from latentune.pipeline.evaluators import RayEvaluator
 
-    ray_tmp = Path(tempfile.mkdtemp(prefix="ltr", dir="/tmp"))   # unix sockets: a short path
-    ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False, configure_logging=False,
-             _temp_dir=str(ray_tmp))
-    try:
-        def sq(x: np.ndarray) -> float:               # shipped by value (cloudpickle)
-            return float(np.sum((x - 0.3) ** 2))
+    def sq(x: np.ndarray) -> float:                   # shipped by value (cloudpickle)
+        return float(np.sum((x - 0.3) ** 2))
 
-        X = np.random.default_rng(0).random((5, 3))
-        with RayEvaluator(3) as ev:
-            np.testing.assert_allclose(ev.map(sq, X), np.sum((X - 0.3) ** 2, axis=1))
-    finally:
-        ray.shutdown()
-        shutil.rmtree(ray_tmp, ignore_errors=True)
+    cpus = int(ray_local.cluster_resources()["CPU"])
+    X = np.random.default_rng(0).random((5, 3))
+    with RayEvaluator(cpus + 1) as ev:
+        np.testing.assert_allclose(ev.map(sq, X), np.sum((X - 0.3) ** 2, axis=1))

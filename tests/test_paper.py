@@ -1,8 +1,10 @@
 """``latentune paper`` end to end at a tiny scale, its report against the stored runs, resume,
 ``latentune report DIR`` on a paper directory, and bad input.
 
-The end-to-end run (a tiny scale: 12 phase-1 and 4 phase-3 evaluations per study, 120-step
-rollouts, serial) runs in a subprocess, as a user runs it; bad input is checked in-process.
+The end-to-end run (a tiny scale: 12 phase-1 and 4 phase-3 evaluations per study, 60-step
+rollouts, one worker) runs in a subprocess, as a user runs it, and so does the ``--seeds`` run
+that is killed; the runs that resume, ``report`` and bad input are checked in-process
+(:func:`latentune.cli.main`).
 """
 from __future__ import annotations
 
@@ -187,54 +189,6 @@ def test_paper_end_to_end(paper_dir: Path):
         assert f"]({f})" in md
 
 
-def test_paper_resume_and_report_command(paper_dir: Path, cli):
-    out = paper_dir
-
-    def counts():
-        res = {}
-        for d in sorted(out.iterdir()):
-            if (d / "run.db").is_file():
-                with RunStore(d) as st:
-                    res[d.name] = tuple(st.count(ph) for ph in (0, 1, 3, 5))
-        return res
-
-    before = counts()
-    table_before = (out / "report.md").read_text().split("## A1 → B1")[0]
-    # re-running the same command: every study is finished, nothing is evaluated again
-    r = cli("paper", *TINY, "--phase3-evals", "4", "--out", out, "--no-sim", "-v")
-    assert r.returncode == 0, r.stderr[-2000:]
-    assert counts() == before
-    assert r.stderr.count("done (skipped)") == len(json.loads((out / "paper.json").read_text())
-                                                   ["studies"])
-    # `latentune report DIR` on a paper directory regenerates the same tables from the stores
-    (out / "report.md").unlink()
-    r = cli("report", out, "--no-sim", "--quiet")
-    assert r.returncode == 0, r.stderr[-2000:]
-    assert (out / "report.md").read_text().split("## A1 → B1")[0].split("## Table II")[1] == \
-        table_before.split("## Table II")[1]
-    # a larger budget resumes every unfinished study: stored rows are kept, new ones appended
-    with RunStore(out / "a1-trot-hills") as st:
-        old_rows = [(r.idx, r.theta.tolist(), r.cost) for r in st.rows(3)]
-    r = cli("paper", *TINY, "--phase3-evals", "6", "--out", out, "--no-sim", "--quiet",
-            timeout=600)
-    assert r.returncode == 0, r.stderr[-2000:]
-    after = counts()
-    for key, info in json.loads((out / "paper.json").read_text())["studies"].items():
-        if info["kind"] in ("phase3", "tune"):
-            assert after[key][2] == 6, key
-        elif info["kind"] == "baseline":
-            assert after[key][1] == 6, key
-        if info["kind"] in ("tune", "preservation"):
-            assert after[key][1] == before[key][1], key      # phase 1 budget unchanged
-    with RunStore(out / "a1-trot-hills") as st:
-        new_rows = [(r.idx, r.theta.tolist(), r.cost) for r in st.rows(3)]
-    assert new_rows[:4] == old_rows and len(new_rows) == 6
-    assert json.loads((out / "paper.json").read_text())["budgets"]["phase3"] == 6
-    # another configuration in the same directory is refused
-    r = cli("paper", "--robot", "a1", "--scale", "1e-6", "--steps", "300", "--out", out)
-    assert r.returncode == 2 and "another configuration" in r.stderr
-
-
 @pytest.mark.parametrize("extra, expect", [
     (["--robot", "atlas"], "unknown robot 'atlas'"),
     (["--scale", "0"], "--scale"),
@@ -285,11 +239,12 @@ def _bests(out: Path, keys: list[str], phase: int) -> list[float]:
     return res
 
 
-def test_paper_seeds_end_to_end_with_a_kill(paper_dir: Path, cli, cli_env, dump_store,
+def test_paper_seeds_end_to_end_with_a_kill(paper_dir: Path, run_cli, cli_env, dump_store,
                                             tmp_path: Path):
-    """``paper --seeds 2`` on a finished seed-0 directory: killed mid-way and run again, it
-    reuses the sources (their rows unchanged), keeps the killed study's rows, and its report
-    gives median [IQR] cells equal to the stores' and band curves."""
+    """``paper --seeds 2`` on a copy of the finished seed-0 directory: killed mid-way and run
+    again, it reuses the sources (their rows unchanged), keeps the killed study's rows, and its
+    report gives median [IQR] cells equal to the stores' and band curves. (Defined before the
+    resume test, which grows the shared directory's budget: the copy is of the smaller run.)"""
     out = tmp_path / "a1"
     shutil.copytree(paper_dir, out)
     B = json.loads((out / "paper.json").read_text())["budgets"]["phase3"]
@@ -314,8 +269,8 @@ def test_paper_seeds_end_to_end_with_a_kill(paper_dir: Path, cli, cli_env, dump_
         proc.wait(timeout=60)
     assert killed is not None, proc.stderr.read().decode()[-2000:]
     partial = set(dump_store(killed)[0])
-    r = cli(*args, timeout=900)
-    assert r.returncode == 0, r.stderr[-2000:]
+    code, _, err = run_cli(*args)
+    assert code == 0, err[-2000:]
     for k in sources:                       # the sources are reused as they are
         assert dump_store(out / k)[0] == before[k], k
     assert partial <= set(dump_store(killed)[0])   # the killed study resumed from its rows
@@ -375,6 +330,60 @@ def test_paper_seeds_end_to_end_with_a_kill(paper_dir: Path, cli, cli_env, dump_
             assert float(st.costs(1)[0]) == pytest.approx(cross["zero_shot"], rel=1e-9), m
 
 
+# ---------------------------------------------------------------------------- resume, report
+def test_paper_resume_and_report_command(paper_dir: Path, run_cli, error_line):
+    """On the shared seed-0 directory (after the --seeds test copied it): the same command
+    evaluates nothing again, ``report DIR`` gives the same tables, a larger budget resumes
+    every study, another configuration is refused."""
+    out = paper_dir
+
+    def counts():
+        res = {}
+        for d in sorted(out.iterdir()):
+            if (d / "run.db").is_file():
+                with RunStore(d) as st:
+                    res[d.name] = tuple(st.count(ph) for ph in (0, 1, 3, 5))
+        return res
+
+    before = counts()
+    table_before = (out / "report.md").read_text().split("## A1 → B1")[0]
+    # re-running the same command: every study is finished, nothing is evaluated again
+    code, _, err = run_cli("paper", *TINY, "--phase3-evals", "4", "--out", out, "--no-sim", "-v")
+    assert code == 0, err[-2000:]
+    assert counts() == before
+    assert err.count("done (skipped)") == len(json.loads((out / "paper.json").read_text())
+                                              ["studies"])
+    # `latentune report DIR` on a paper directory regenerates the same tables from the stores
+    (out / "report.md").unlink()
+    code, _, err = run_cli("report", out, "--no-sim", "--quiet")
+    assert code == 0, err[-2000:]
+    assert (out / "report.md").read_text().split("## A1 → B1")[0].split("## Table II")[1] == \
+        table_before.split("## Table II")[1]
+    # a larger budget resumes every unfinished study: stored rows are kept, new ones appended
+    with RunStore(out / "a1-trot-hills") as st:
+        old_rows = [(r.idx, r.theta.tolist(), r.cost) for r in st.rows(3)]
+    code, _, err = run_cli("paper", *TINY, "--phase3-evals", "6", "--out", out, "--no-sim",
+                           "--quiet")
+    assert code == 0, err[-2000:]
+    after = counts()
+    for key, info in json.loads((out / "paper.json").read_text())["studies"].items():
+        if info["kind"] in ("phase3", "tune"):
+            assert after[key][2] == 6, key
+        elif info["kind"] == "baseline":
+            assert after[key][1] == 6, key
+        if info["kind"] in ("tune", "preservation"):
+            assert after[key][1] == before[key][1], key      # phase 1 budget unchanged
+    with RunStore(out / "a1-trot-hills") as st:
+        new_rows = [(r.idx, r.theta.tolist(), r.cost) for r in st.rows(3)]
+    assert new_rows[:4] == old_rows and len(new_rows) == 6
+    assert json.loads((out / "paper.json").read_text())["budgets"]["phase3"] == 6
+    # another configuration in the same directory is refused
+    code, _, err = run_cli("paper", "--robot", "a1", "--scale", "1e-6", "--steps", "300",
+                           "--out", out)
+    assert "another configuration" in error_line(code, err)
+
+
+# ---------------------------------------------------------------------------- --seeds input
 @pytest.mark.parametrize("extra, expect", [
     (["--seeds", "0"], "--seeds must be an integer >= 1, got 0"),
     (["--seeds", "-2"], "--seeds must be an integer >= 1, got -2"),

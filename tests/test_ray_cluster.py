@@ -2,7 +2,8 @@
 
 The cluster (:class:`benchmarks.cluster.LocalCluster`): a head and a worker node (one CPU each,
 their own temp dirs and free ports), each started with ``ray start --block`` in its own process
-group; the fixture's finalizer ends both groups (SIGTERM, then SIGKILL) even when the test fails.
+group; the fixture's finalizer ends both nodes (:meth:`~benchmarks.cluster.LocalCluster.stop`)
+even when the test fails.
 ``ray stop`` is not used: it ends every Ray process on the machine, other runs' included.
 
 The system is the chain of ``examples/lqr_chain.py`` with a journal (:class:`JournalChain`):
@@ -100,6 +101,7 @@ def cluster(cli_env):
         c.stop()
 
 
+@pytest.mark.slow
 def test_worker_node_killed_mid_run(tmp_path, cluster, dump_store):
     out = tmp_path / "run"
     journal = tmp_path / "journal.txt"

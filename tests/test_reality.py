@@ -196,6 +196,40 @@ def test_world_interface(engine):
         Task("a1", reality="heavy", engine=engine).use_world(w)
 
 
+def test_a_world_without_visual_shapes_moves_and_renders_like_one_with_them():
+    """PyBullet worlds skip the URDF's visual meshes (the physics never reads them): the same
+    rollout to the last bit, and render() draws a twin with them, posed like the world."""
+    from latentune.sim.world import World
+
+    bare, full = World(A1, "hills", seed=3), World(A1, "hills", seed=3, visuals=True)
+    assert not bare.visuals and full.visuals
+    runs = []
+    for w in (bare, full):
+        t = Task("a1", gait="jump", terrain="hills", seed=3, steps=250)
+        t.use_world(w)
+        runs.append(t.rollout(np.linspace(0.2, 0.8, t.space.dim), record=True))
+    assert runs[0].cost == runs[1].cost
+    assert np.array_equal(runs[0].trace["pos"], runs[1].trace["pos"])
+    frames = bare.render(64, 48), full.render(64, 48)
+    assert frames[0].shape == (48, 64, 3) and frames[0].std() > 1
+    assert np.array_equal(*frames)                  # the robot is drawn in the same pose
+    place(full, (0.0, 0.0, 0.6))
+    assert not np.array_equal(full.render(64, 48), frames[0])
+    bare.close()
+    assert bare._twin is None and bare.cid is None
+
+
+def test_hills_are_computed_once_and_handed_out_as_copies():
+    from latentune.sim import perlin_heightfield
+
+    a = perlin_heightfield(40, 7)
+    assert a.shape == (40, 40) and a.min() == 0.0 and a.max() == pytest.approx(0.02)
+    a[0, 0] = 1.0                                   # the caller's copy, not the cached field
+    b = perlin_heightfield(40, 7)
+    assert b[0, 0] != 1.0 and b is not perlin_heightfield(40, 7) and b.flags.writeable
+    assert not np.array_equal(b, perlin_heightfield(40, 8))
+
+
 @engines
 def test_mass_inertia_payload(engine):
     nom, heavy = world(engine), world(engine, mass_scale=1.3, inertia_scale=2.0, payload_mass=3.0)

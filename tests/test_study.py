@@ -1,8 +1,9 @@
-"""The public pipeline (Study), user systems, --system plugins, ask/tell, evaluators on errors."""
+"""The public pipeline (Study), user systems, --system plugins, ask/tell, a broken module."""
 from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import sqlite3
 import subprocess
@@ -99,14 +100,27 @@ def rows(run: Path) -> list[tuple]:
 
 
 # ---------------------------------------------------------------------------- Python API
-def test_study_phases_on_a_user_system(tmp_path, plugin_dir):
+@pytest.fixture(scope="module")
+def user_sim(tmp_path_factory, plugin_dir):
+    """The simulator study of the Python API tests: phase 1 (48) and a 3-d latent space on
+    ``myplant.make(8)``; ``(run dir, phase-1 result, latent space)``. Tests copy the run."""
+    import myplant
+
+    d = tmp_path_factory.mktemp("user_sim") / "sim"
+    with lt.Study(d, seed=3) as sim:
+        r1 = sim.phase1(myplant.make(8, 0.0), 48)
+        latent = sim.train_latent(latent_dim=3, epochs=40)
+    return d, r1, latent
+
+
+def test_study_phases_on_a_user_system(tmp_path, user_sim):
     import myplant
 
     model, real = myplant.make(8, 0.0), myplant.make(8, 0.15)
+    sim_dir, r1, latent = user_sim
+    shutil.copytree(sim_dir, tmp_path / "sim")
     sim = lt.Study(tmp_path / "sim", seed=3)
-    r1 = sim.phase1(model, 48)
     assert r1.n == 48 and r1.best_cost < model.evaluate(model.space.manual)
-    latent = sim.train_latent(latent_dim=3, epochs=40)
     assert latent.d == 8 and latent.d_low == 3
     target = lt.Study(tmp_path / "real", seed=3)
     r3 = target.phase3(real, 12, latent=tmp_path / "sim", strategy="plain")   # the paper's
@@ -137,13 +151,11 @@ def test_study_phases_on_a_user_system(tmp_path, plugin_dir):
     target.close()
 
 
-def test_phase3_hands_over_to_the_full_space_and_records_it(tmp_path, plugin_dir):
+def test_phase3_hands_over_to_the_full_space_and_records_it(tmp_path, user_sim):
     import myplant
 
-    model, real = myplant.make(8, 0.0), myplant.make(8, 0.15)
-    with lt.Study(tmp_path / "sim", seed=3) as sim:
-        sim.phase1(model, 48)
-        sim.train_latent(latent_dim=3, epochs=40)
+    real = myplant.make(8, 0.15)
+    shutil.copytree(user_sim[0], tmp_path / "sim")
     with lt.Study(tmp_path / "plain", seed=3) as plain:
         floor = plain.phase3(real, 40, latent=tmp_path / "sim", strategy="plain").best_cost
     opts = {"patience": 8}
@@ -203,8 +215,8 @@ def test_tune_and_report_with_system_plugin(tmp_path, plugin_dir, cli, in_plugin
     out = tmp_path / "run"
     args = ["--system", "myplant:make", "--system-arg", "dim=6", "--out", str(out),
             "--backend", "serial", "--quiet", "--vae-epochs", "30", "--latent-dim", "2"]
-    p = cli("tune", *args, "--phase1-evals", "24", "--phase3-evals", "8", cwd=plugin_dir)
-    assert p.returncode == 0, p.stderr
+    code, _, err = in_plugin_dir("tune", *args, "--phase1-evals", "24", "--phase3-evals", "8")
+    assert code == 0, err
     r = rows(out)
     assert [sum(1 for x in r if x[0] == ph) for ph in (0, 1, 3)] == [1, 24, 8]
     cfg = json.loads((out / "summary.json").read_text())["config"]
@@ -272,53 +284,10 @@ def test_a_system_that_raises_or_returns_no_cost_stops_with_one_line(tmp_path, i
         assert [x[1] for x in r] == list(range(len(r)))
 
 
-# ---------------------------------------------------------------------------- evaluators
-def _raises_sometimes(x):
-    if x[0] > 0.6:
-        raise RuntimeError("boom")
-    return float(np.sum(x))
-
-
-class RaisingSystem:
-    space = lt.ParameterSpace(["a", "b", "c"], [0, 0, 0], [1, 1, 1])
-
-    def evaluate(self, u):
-        return _raises_sometimes(u)
-
-
-def test_every_backend_stores_the_same_rows_when_a_trial_raises(tmp_path):
-    pytest.importorskip("ray")
-    from latentune.pipeline.evaluators import make_evaluator
-    from latentune.pipeline.phases import make_phase_critic, run_phase
-    from latentune.system import EvaluationError
-
-    import ray.cloudpickle
-
-    ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])   # workers lack tests/
-    stored = {}
-    link = Path("/tmp") / f"ltr{os.getpid()}"
-    link.mkdir(exist_ok=True)
-    for backend in ("serial", "process", "ray"):
-        ev = make_evaluator(backend, 2, temp_dir=str(link))
-        try:
-            with RunStore(tmp_path / backend, create=True) as st:
-                with pytest.raises(EvaluationError, match="RuntimeError: boom"):
-                    run_phase(st, 1, RaisingSystem(), make_phase_critic("sobol", 3, 4, 0, None, 40),
-                              40, ev)
-                stored[backend] = [(r.idx, tuple(r.theta), r.cost) for r in st.rows(1)]
-        finally:
-            ev.close()
-    assert stored["serial"], "the first batch should finish before a trial raises"
-    key = lambda rows: sorted(r[1:] for r in rows)  # noqa: E731 - completion order may differ
-    assert key(stored["serial"]) == key(stored["process"]) == key(stored["ray"])
-
-
 def test_a_broken_module_fails_loudly(tmp_path, cli_env):
     """A syntax error in a command's module is a traceback, never 'invalid choice'."""
     pkg = tmp_path / "latentune"
     src = Path(lt.__file__).parent
-    import shutil
-
     shutil.copytree(src, pkg)
     (pkg / "study.py").write_text((pkg / "study.py").read_text() + "\n)\n")
     env = dict(cli_env, PYTHONPATH=str(tmp_path))
@@ -336,25 +305,22 @@ def test_a_broken_module_fails_loudly(tmp_path, cli_env):
 
 
 # ---------------------------------------------------------------------------- ask / tell
-PERSON = textwrap.dedent('''
-    import json, sys
-    import numpy as np
+def robot_program(pfile: str) -> str:
+    """The robot's program: reads the suggestion's parameter file, returns the cost to tell
+    (``FAILED`` for a failed trial)."""
     import myplant
-    sys_ = myplant.make(6, 0.1)
-    params = json.load(open(sys.argv[1]))
-    x = np.array([params[f"w{i}"] for i in range(6)])
-    out = myplant.cost(x, 0.1)
-    print("FAILED" if not isinstance(out, float) else out)
-''')
+
+    params = json.loads(Path(pfile).read_text())
+    out = myplant.cost(np.array([params[f"w{i}"] for i in range(6)]), 0.1)
+    return "FAILED" if not isinstance(out, float) else str(out)
 
 
 def test_ask_tell_a_whole_phase3_with_kills(tmp_path, plugin_dir, in_plugin_dir, error_line,
                                             cli_env):
-    """A person at a robot: ``latentune ask`` (the CLI, a new Study from the store each time),
-    the robot's program and ``latentune tell`` in separate processes, walking away between ask
-    and tell and SIGKILL during tell; every told trial is stored once, none lost or handed out
-    twice."""
-    (plugin_dir / "person.py").write_text(PERSON)
+    """A person at a robot: ``latentune ask`` and ``latentune tell`` (the CLI, a new Study from
+    the store each time), the robot's program reading the suggestion's file, walking away between
+    ask and tell and SIGKILL of a ``tell`` process; every told trial is stored once, none lost or
+    handed out twice."""
     sim = tmp_path / "sim"
     code, _, err = in_plugin_dir("tune", "--system", "myplant:make", "--system-arg", "dim=6",
                                  "--out", sim, "--phase1-evals", "30", "--phase3-evals", "4",
@@ -380,9 +346,7 @@ def test_ask_tell_a_whole_phase3_with_kills(tmp_path, plugin_dir, in_plugin_dir,
         if not s["file"]:                           # the CLI writes it once it is wired
             Path(pfile).write_text(json.dumps(s["params"]))
         assert json.loads(Path(pfile).read_text()) == s["params"]
-        r = subprocess.run([PY, "person.py", pfile], capture_output=True, text=True,
-                           cwd=plugin_dir, env=cli_env)
-        res = r.stdout.strip()
+        res = robot_program(pfile)
         tell = [PY, "-m", "latentune.cli", "tell", str(real), str(s["id"])]
         tell += ["--failed"] if res == "FAILED" else ["--cost", res]
         if rng.random() < 0.25:                     # SIGKILL during tell
@@ -397,8 +361,8 @@ def test_ask_tell_a_whole_phase3_with_kills(tmp_path, plugin_dir, in_plugin_dir,
             if done:
                 told.append(s["id"])
             continue                                 # pending: it is handed out again
-        t = subprocess.run(tell, capture_output=True, text=True, env=cli_env, cwd=plugin_dir)
-        assert t.returncode == 0, t.stderr
+        code, out, err = in_plugin_dir(*tell[3:])
+        assert code == 0 and out.startswith(f"told {s['id']}"), err
         told.append(s["id"])
         code, _, err = in_plugin_dir(*tell[3:])     # told twice: refused
         assert "was already told" in error_line(code, err)

@@ -11,6 +11,7 @@ sensors, pushes).
 """
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from typing import Protocol, runtime_checkable
@@ -96,8 +97,14 @@ def perlin_heightfield(n: int, seed: int, octaves: int = 10, amplitude: float = 
     """Fractal Perlin noise on an (n, n) grid, rescaled to heights in [0, amplitude] metres.
 
     Octave k has ``base_cells·2^k`` lattice cells across the field and weight 0.5^k (the paper's
-    hills: 10 octaves, 0.02 m). Deterministic for ``seed``.
+    hills: 10 octaves, 0.02 m). Deterministic for ``seed``: a field is computed once per process
+    (a tenth of a second or more for the hills) and each call returns a new copy of it.
     """
+    return _perlin(int(n), int(seed), int(octaves), float(amplitude), int(base_cells)).copy()
+
+
+@functools.lru_cache(maxsize=32)
+def _perlin(n: int, seed: int, octaves: int, amplitude: float, base_cells: int) -> np.ndarray:
     rng = np.random.default_rng(seed)
     u = np.linspace(0.0, 1.0, n, endpoint=False)
     total = np.zeros((n, n))
@@ -123,7 +130,9 @@ def perlin_heightfield(n: int, seed: int, octaves: int = 10, amplitude: float = 
         total += 0.5 ** k * ((n00 * (1 - sx) + n10 * sx) * (1 - sy) + (n01 * (1 - sx) + n11 * sx) * sy)
     total -= total.min()
     peak = total.max()
-    return total * (amplitude / peak) if peak > 0 else total
+    out = total * (amplitude / peak) if peak > 0 else total
+    out.flags.writeable = False                # the cached field: callers get copies
+    return out
 
 
 HILLS_CELLS, HILLS_CELL = 100, 0.05
@@ -246,6 +255,10 @@ class World(WorldBase):
             friction as each joint's velocity motor (target 0, maximum torque
             ``joint_friction``); latency, torque scale and limits in :meth:`apply`; sensor
             noise in :meth:`state`; pushes through ``applyExternalForce`` in :meth:`step`.
+        visuals: load the URDF's visual shapes. Without them (the default) the robot is its
+            collision shapes and inertias only, which is all the physics reads; B1's visual
+            meshes alone take seconds to load. :meth:`render` then draws a twin world that has
+            them, posed like this one.
 
     Attributes:
         start_x: initial base x [m] (0 on flat ground; hills start near the field's back edge).
@@ -255,8 +268,10 @@ class World(WorldBase):
     engine = "pybullet"
 
     def __init__(self, spec: RobotSpec, terrain: str = "flat", seed: int = 0, dt: float = 0.001,
-                 reality: Reality | None = None):
+                 reality: Reality | None = None, visuals: bool = False):
         self.cid = None
+        self.visuals = bool(visuals)
+        self._twin: World | None = None       # render()'s world with visual shapes
         self._init_common(spec, terrain, seed, dt, reality)
         with stdout_to_stderr():
             self._build()
@@ -289,7 +304,9 @@ class World(WorldBase):
         with quiet():
             self.robot = p.loadURDF(perturbed_urdf(self.model.urdf, real),
                                     [self.start_x, 0, z0], [0, 0, 0, 1],
-                                    flags=p.URDF_USE_INERTIA_FROM_FILE, physicsClientId=c)
+                                    flags=p.URDF_USE_INERTIA_FROM_FILE
+                                    | (0 if self.visuals else p.URDF_IGNORE_VISUAL_SHAPES),
+                                    physicsClientId=c)
         names = {p.getJointInfo(self.robot, j, physicsClientId=c)[1].decode(): j
                  for j in range(p.getNumJoints(self.robot, physicsClientId=c))}
         links = {p.getJointInfo(self.robot, j, physicsClientId=c)[12].decode(): j
@@ -383,7 +400,10 @@ class World(WorldBase):
         return np.array([st[4] for st in states])
 
     def render(self, width: int = 320, height: int = 240) -> np.ndarray:
-        """(H, W, 3) uint8 RGB frame from a camera following the robot (CPU renderer)."""
+        """(H, W, 3) uint8 RGB frame from a camera following the robot (CPU renderer). A world
+        without visual shapes renders its twin (built on the first call) in this pose."""
+        if not self.visuals:
+            return self._posed_twin().render(width, height)
         pos, _ = p.getBasePositionAndOrientation(self.robot, physicsClientId=self.cid)
         view = p.computeViewMatrixFromYawPitchRoll(pos, 1.0 + 1.5 * self.spec.nominal_height,
                                                    50, -25, 0, 2, physicsClientId=self.cid)
@@ -393,7 +413,23 @@ class World(WorldBase):
                                    physicsClientId=self.cid)
         return np.asarray(img[2], dtype=np.uint8).reshape(height, width, 4)[:, :, :3]
 
+    def _posed_twin(self) -> World:
+        """The world with visual shapes, its robot in this robot's base pose and joint angles."""
+        if self._twin is None:
+            self._twin = World(self.spec, self.terrain, seed=self.seed, dt=self.dt,
+                               reality=self.reality, visuals=True)
+        t = self._twin
+        pos, orn = p.getBasePositionAndOrientation(self.robot, physicsClientId=self.cid)
+        p.resetBasePositionAndOrientation(t.robot, pos, orn, physicsClientId=t.cid)
+        states = p.getJointStates(self.robot, self.joint_ids, physicsClientId=self.cid)
+        for j, st in zip(t.joint_ids, states):
+            p.resetJointState(t.robot, j, st[0], 0.0, physicsClientId=t.cid)
+        return t
+
     def close(self) -> None:
+        if self._twin is not None:
+            self._twin.close()
+            self._twin = None
         if self.cid is not None:
             try:
                 with stdout_to_stderr():
