@@ -349,8 +349,36 @@ def test_a_theta_given_twice_at_once_is_chosen_again(source_run, monkeypatch):
     pb = sampler.suggest_all(b)
     assert len(calls) == 2 and calls[1] == 1      # chose again, leaving trial 1 its θ
     assert tuple(pa.values()) != pytest.approx(tuple(pb.values()))
-    assert LatentSampler._clashes(study, b, np.asarray(
+    assert sampler._clashes(study, b, np.asarray(
         study._storage.get_trial_system_attrs(b._trial_id)[POINT_ATTR]["theta"])) == []
+
+
+def test_a_theta_that_finished_meanwhile_is_chosen_again(source_run, monkeypatch):
+    """The race with a fast objective: trial 1 sampled θ and *finished* before trial 2, blind
+    to it, checks; trial 2 sees the finished trial's θ and chooses again (passing over nothing
+    more: a finished trial takes no critic point), so no θ runs twice."""
+    sampler = LatentSampler(source_run, seed=0, budget=40)
+    study = optuna.create_study(sampler=sampler)
+    z = study.ask()
+    study.tell(z, float(np.sum(np.array(list(sampler.suggest_all(z).values())) ** 2)))
+    a = study.ask()
+    pa = sampler.suggest_all(a)
+    first = study._storage.get_trial_system_attrs(a._trial_id)[POINT_ATTR]
+    study.tell(a, float(np.sum(np.array(list(pa.values())) ** 2)))      # finished
+    real = LatentSampler._next
+    calls = []
+
+    def racing(self, st, trial, extra_skip=0):
+        calls.append(extra_skip)
+        if len(calls) == 1:
+            return np.asarray(first["theta"], dtype=float), dict(first)
+        return real(self, st, trial, extra_skip)
+
+    monkeypatch.setattr(LatentSampler, "_next", racing)
+    b = study.ask()
+    pb = sampler.suggest_all(b)
+    assert calls == [0, 0]                        # chose again; nothing left to trial 1
+    assert tuple(pa.values()) != pytest.approx(tuple(pb.values()))
 
 
 def test_two_workers_on_one_journal(source_run, tmp_path):

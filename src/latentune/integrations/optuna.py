@@ -319,9 +319,9 @@ class _CriticSampler:
             if not clash:
                 break
             logger.info("trial %d: θ given to trial(s) %s at the same moment; choosing again",
-                        trial.number, clash)
-            theta, point = self._next(study, trial,
-                                      extra_skip=sum(n < trial.number for n in clash))
+                        trial.number, [n for n, _ in clash])
+            theta, point = self._next(study, trial, extra_skip=sum(
+                n < trial.number for n, running in clash if running))
         phys = physical_params(self._space, theta)
         return {n: phys[n] for n in search_space if n in phys}
 
@@ -377,16 +377,23 @@ class _CriticSampler:
             Z.append(z)
         return X, y, tags, fell, Z
 
-    @staticmethod
-    def _clashes(study: Any, trial: Any, theta: np.ndarray) -> list[int]:
-        """Numbers of the other RUNNING trials whose recorded θ is ``theta``."""
+    def _clashes(self, study: Any, trial: Any, theta: np.ndarray) -> list[tuple[int, bool]]:
+        """(number, still RUNNING) of the other trials that have ``theta``: recorded when they
+        were sampled (``POINT_ATTR``) or as their parameters. A trial that finished in the
+        meantime counts too: a fast objective can complete between one worker's sampling and
+        another's check."""
         key = _key_of(theta)
+        running = optuna.trial.TrialState.RUNNING
         out = []
-        for t in study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.RUNNING,)):
+        for t in study.get_trials(deepcopy=False):
+            if t.number == trial.number:
+                continue
             pt = t.system_attrs.get(POINT_ATTR)
-            if t.number != trial.number and isinstance(pt, dict) and pt.get("theta") is not None \
-                    and _key_of(np.asarray(pt["theta"], dtype=float)) == key:
-                out.append(t.number)
+            mine = isinstance(pt, dict) and pt.get("theta") is not None and \
+                _key_of(np.asarray(pt["theta"], dtype=float)) == key
+            u_t = None if mine else _unit_of(self._space, t.params)
+            if mine or (u_t is not None and _key_of(u_t) == key):
+                out.append((t.number, t.state == running))
         return out
 
     def _next(self, study: Any, trial: Any, extra_skip: int = 0
