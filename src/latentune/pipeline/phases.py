@@ -49,7 +49,7 @@ import numpy as np
 from latentune.constants import Phase
 from latentune.critic.handover import HANDOVER_DEFAULTS
 from latentune.errors import StoreError, UsageError
-from latentune.pipeline.evaluators import Evaluator, TrialError
+from latentune.pipeline.evaluators import ClusterLost, Evaluator, TrialError
 from latentune.pipeline.store import RunStore
 from latentune.system import EvaluationError, Outcome
 
@@ -396,6 +396,8 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
     Raises:
         EvaluationError: a trial raised or gave no usable cost; the batch's finished trials are
             stored first, the failed one is not (a resume runs it again).
+        ClusterLost: the Ray cluster's head was lost; its message says how many evaluations
+            of the phase are stored (a resume runs the batch's others).
     """
     t0 = time.perf_counter()
     batch = pending_batch(store, phase, budget, decoder)
@@ -425,7 +427,8 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
             if max_new is not None:
                 todo = todo[:max_new - new]
             error: str | None = None
-            for j, r in _results(evaluator, system, thetas[todo], known or {}):
+            for j, r in _lost_head_says_stored(
+                    _results(evaluator, system, thetas[todo], known or {}), store, phase):
                 i = todo[j]
                 if isinstance(r, TrialError):
                     error = error or r.message
@@ -465,6 +468,16 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
     wall = time.perf_counter() - t0
     return PhaseResult(phase, store.count(phase), new, b.cost if b else math.inf,
                        None if b is None else b.theta, wall)
+
+
+def _lost_head_says_stored(results: Any, store: RunStore, phase: int) -> Any:
+    """``results`` as they come; a :class:`ClusterLost` among them again with the number of
+    evaluations of ``phase`` stored."""
+    try:
+        yield from results
+    except ClusterLost as exc:
+        raise ClusterLost(f"{exc} ({store.count(phase)} evaluations of phase {int(phase)} "
+                          "stored)") from None
 
 
 def _results(evaluator: Evaluator, system: Any, thetas: np.ndarray,
