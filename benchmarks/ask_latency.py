@@ -2,11 +2,12 @@
 robot runs them, on a study with many told trials.
 
     python -m benchmarks.ask_latency [--told 1000] [--dim 25] [--repeats 8] [--phase {1,3}]
-        [--max-fall-prob P] [--out FILE.json]
+        [--strategy {transfer,plain}] [--max-fall-prob P] [--out FILE.json]
 
 Builds an ask/tell study on a shifted sphere in ``--dim`` dimensions through the Python API
-(``Study.ask``/``tell`` in batches of 50 until ``--told`` trials are told; phase 3: the default
-strategy, transfer, from a 300-trial phase-1 source on the same sphere), then runs ``latentune
+(``Study.ask``/``tell`` in batches of 50 until ``--told`` trials are told; phase 3: the
+``--strategy``, by default transfer, from a 300-trial phase-1 source on the same sphere), then
+runs ``latentune
 ask DIR --json`` followed by ``latentune tell DIR ID --cost C`` ``--repeats`` times, timing each:
 
 * ``prepared``: as the person runs them. An ask leases a queued suggestion or the batch the
@@ -24,7 +25,8 @@ The fall model's overhead (``--max-fall-prob P``): the cost has falls (:func:`ou
 with ``θ₀ + θ₁ >`` :data:`FALL_SUM` on the unit box fails, cost :data:`FALL_COST`; told with
 ``--failed``), and two studies of the same seed are built in the same run, ``plain`` and ``fall
 model`` (``max_fall_prob=P``; phase 3: both from one source run on the same cost, the fall
-model's prior its trials), each to ``--told`` trials of its own. Their timed calls are
+model's prior its trials; ``--strategy plain`` only: the transfer strategy always screens with
+a fall model of its own), each to ``--told`` trials of its own. Their timed calls are
 interleaved (each repeat times both, in alternating order), and the output adds the ratio fall
 model / plain of each median (and of the longest tell: the one that ends a batch and asks the
 critic).
@@ -139,12 +141,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--phase", type=int, choices=(1, 3), default=1,
                     help="3: phase 3 with the default (transfer) strategy, from a 300-trial "
                          "phase-1 source on the same sphere")
+    ap.add_argument("--strategy", choices=("transfer", "plain"), default="transfer",
+                    help="phase 3's strategy")
     ap.add_argument("--max-fall-prob", type=float, default=None, metavar="P",
                     help="compare a study with the fall model (this max_fall_prob) and one "
                          "without it, on a cost with falls")
     add_out_arg(ap)
     a = ap.parse_args(argv)
     falls = a.max_fall_prob is not None
+    if falls and a.phase == 3 and a.strategy == "transfer":
+        ap.error("the transfer strategy screens with its own fall model in every study: "
+                 "compare with --strategy plain")
     root = Path(tempfile.mkdtemp(prefix="lt_asklat_"))
     space = lt.ParameterSpace([f"k{i}" for i in range(a.dim)], [0.0] * a.dim, [1.0] * a.dim)
     kw: dict = {"space": space, "budget": a.told + 8 * a.repeats}     # room for the timed asks
@@ -153,13 +160,14 @@ def main(argv: list[str] | None = None) -> int:
         with lt.Study(root / "source", seed=0) as src:
             src.phase1(lt.FunctionSystem(space, falling_cost if falls else cost), 300)
             src.train_latent()
-        kw.update(phase=3, latent=root / "source")
+        kw.update(phase=3, latent=root / "source", strategy=a.strategy)
     source_s = time.perf_counter() - t0
     runs = {name: root / name.replace(" ", "_") for name in (STUDIES if falls else ("study",))}
     built = {name: build(d, a, {**kw, **({"max_fall_prob": a.max_fall_prob}
                                          if name == "fall model" else {})}, falls)
              for name, d in runs.items()}
     out: dict = {"told": a.told, "dim": a.dim, "phase": a.phase,
+                 **({"strategy": a.strategy} if a.phase == 3 else {}),
                  "cli_import_s": python_seconds("import latentune.cli"),
                  "critic_import_s": python_seconds("import latentune.critic.turbo, botorch")}
     if falls:
@@ -187,7 +195,8 @@ def main(argv: list[str] | None = None) -> int:
              "ask s (per repeat)": [round(v, 2) for v in t[mode]["ask"]["s"]],
              "tell s (per repeat)": [round(v, 2) for v in t[mode]["tell"]["s"]]}
             for name, t in timed.items() for mode in ("prepared", "cold")]
-    head = (f"`latentune ask` / `tell` on a phase-{a.phase} study with {a.told} told "
+    head = (f"`latentune ask` / `tell` on a phase-{a.phase} study "
+            + (f"({a.strategy}) " if a.phase == 3 else "") + f"with {a.told} told "
             f"trials, d = {a.dim} (import floors: latentune.cli {out['cli_import_s']:.2f} s, "
             f"the critic {out['critic_import_s']:.2f} s; load {out['load_before'][0]:.1f} "
             f"to {out['load_after'][0]:.1f})")
