@@ -306,6 +306,17 @@ def _connect(hp: tuple[str, int], timeout: float) -> None:
         pass
 
 
+def _gcs_address(ray: Any) -> str | None:
+    """The ``HOST:PORT`` of the GCS the driver is connected to (None where Ray does not say:
+    a ``ray://`` client; the head is then not watched)."""
+    try:
+        address = ray.get_runtime_context().gcs_address
+    except Exception as exc:  # noqa: BLE001 - Ray's client mode raises its own types
+        log.debug("no GCS address to watch: %s", _one_line(exc))
+        return None
+    return address if isinstance(address, str) and _host_port(address) else None
+
+
 def _check_reachable(address: str, timeout: float = 10.0) -> None:
     """Raise ConnectionError if a ``HOST:PORT`` Ray address does not accept a TCP connection
     within ``timeout`` seconds (Ray itself retries such an address without end). Other forms
@@ -386,7 +397,7 @@ class RayEvaluator(Evaluator):
                 ray.init(num_cpus=self.workers, **kw)
             self._owns = True
         self._ray = ray
-        self.head = address if _host_port(address) else ray.get_runtime_context().gcs_address
+        self.head = address if _host_port(address) else _gcs_address(ray)
         from ray import exceptions as rex
 
         # a run that gave no result because its worker or node went away: run it again
