@@ -1,8 +1,11 @@
 """Tests of the fall-aware critic (latentune.critic.fall_aware) and its fall model
 (latentune.critic.fall_model): fewer falls at equal budget, determinism, resume (stored runs of
 the hand-written classifier included), prior data, the screening hooks of the critic protocol,
-the tag protocol and argument checks."""
+the tag protocol and argument checks; `benchmarks.ask_latency --max-fall-prob` (the fall model's
+cost in an ask) at a tiny size."""
 from __future__ import annotations
+
+import os
 
 import numpy as np
 import pytest
@@ -462,3 +465,48 @@ def test_stored_runs_of_the_hand_written_classifier_resume(method):
     assert np.all(c.last_fall_prob <= c.max_fall_prob)
     c.tell(X, problem(X)[0], c.last_tags, fell=problem(X)[1])
     assert c.n_told == len(r["X"]) + 4
+
+
+def test_ask_latency_measures_the_fall_model_against_none(tmp_path, monkeypatch):
+    """``benchmarks.ask_latency --max-fall-prob`` (tiny): two studies on a cost with falls, one
+    whose critic screens with a fall model fitted on both classes, one whose critic has none;
+    the output holds both studies' timed asks and tells and their ratios."""
+    import json
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    monkeypatch.syspath_prepend(str(root))
+    from benchmarks import ask_latency
+
+    import latentune as lt
+    from latentune.pipeline.loop import phase_critic
+    from latentune.pipeline.phases import replay
+
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.setattr(ask_latency.tempfile, "mkdtemp", lambda prefix="": str(work))
+    monkeypatch.setattr(ask_latency, "ENV", {**ask_latency.ENV, "PYTHONPATH": os.pathsep.join(
+        [str(root / "src"), *sys.path])})
+    out = tmp_path / "o.json"
+    assert ask_latency.main(["--told", "12", "--dim", "4", "--repeats", "1",
+                             "--max-fall-prob", "0.3", "--out", str(out)]) == 0
+    res = json.loads(out.read_text())
+    studies = res["studies"]
+    assert set(studies) == {"plain", "fall model"}
+    for name, s in studies.items():
+        assert s["n_fell"] > 0, name                       # falls in the data
+        for mode in ("prepared", "cold"):
+            assert len(s[mode]["ask"]["s"]) == len(s[mode]["tell"]["s"]) == 1
+    ratio = res["ratio_fall_model_over_plain"]["cold ask median"]
+    assert ratio == pytest.approx(studies["fall model"]["cold"]["ask"]["median_s"]
+                                  / studies["plain"]["cold"]["ask"]["median_s"])
+    for name, screens in (("plain", False), ("fall_model", True)):
+        with lt.Study(work / name) as st:
+            pc = st.manifest.config()["phase1"]
+            crit = phase_critic(1, pc, st.manifest.space(), st.dir)
+            replay(st.store, 1, crit)
+            assert isinstance(crit, FallAware) == screens, name
+            if screens:                                      # fitted on both classes
+                assert pc["max_fall_prob"] == 0.3
+                assert crit.fall_prob(np.full((1, 4), 0.5)) is not None

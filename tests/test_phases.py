@@ -1,5 +1,7 @@
 """The phase loop (latentune.pipeline.phases): identity and resume, exact resume of TuRBO-m,
-independence of the completion order, the training set, phase 3 through a decoder."""
+a run stopped in the middle of a batch resumed to the uninterrupted run (TuRBO-m and Optuna's
+samplers), independence of the completion order, the training set, phase 3 through a
+decoder."""
 from __future__ import annotations
 
 import numpy as np
@@ -73,6 +75,71 @@ def test_a_resumed_turbo_run_is_the_uninterrupted_run(tmp_path, whole_run):
         theta = _thetas(st)
         np.testing.assert_array_equal(theta[:36], whole_run[:36])
         assert not np.array_equal(theta[36:44], whole_run[36:44])
+
+
+class _Killed(BaseException):
+    """The process dying (not an Exception: nothing in the loop handles it)."""
+
+
+class _DyingEvaluator:
+    """Serial, and "dies" (raises :class:`_Killed`) when asked for a result after ``after`` of
+    them: mid-batch, or after a batch's last trial is stored but before it is told."""
+
+    def __init__(self, after: int) -> None:
+        self.left = after
+
+    def imap(self, fun, X):
+        from latentune.system import Outcome
+
+        for i, x in enumerate(X):
+            if self.left == 0:
+                raise _Killed
+            self.left -= 1
+            yield i, Outcome(fun(x))
+        if self.left == 0:
+            raise _Killed
+
+
+def _stopped_and_resumed(path, critic, budget: int, after: int) -> np.ndarray:
+    """θ of a phase killed by :class:`_DyingEvaluator` after ``after`` trials, then resumed."""
+    from latentune.pipeline.evaluators import SerialEvaluator
+    from latentune.pipeline.phases import batch_key, run_phase
+
+    with RunStore(path, create=True) as st:
+        with pytest.raises(_Killed):
+            run_phase(st, 1, quad, critic(), budget, _DyingEvaluator(after))
+        assert st.count(1) == after and st.get_meta(batch_key(1))    # the batch is recorded
+        run_phase(st, 1, quad, critic(), budget, SerialEvaluator())
+        assert st.get_meta(batch_key(1)) is None
+        return _thetas(st)
+
+
+@pytest.mark.parametrize("after", [22, 24])
+def test_a_turbo_run_killed_mid_batch_resumes_to_the_uninterrupted_run(tmp_path, whole_run,
+                                                                       after):
+    """Killed with two of a batch's four trials stored (22), or all four stored and not told
+    (24): the resume asks the recorded batch again (TuRBO-m's GP fits happen in the ask),
+    runs its missing points and continues as the uninterrupted run."""
+    np.testing.assert_array_equal(
+        _stopped_and_resumed(tmp_path / "r", _critic60, 60, after), whole_run)
+
+
+@pytest.mark.parametrize("method", ["optuna-tpe", "optuna-cmaes", "optuna-gp"])
+def test_an_optuna_run_killed_mid_batch_resumes_to_the_uninterrupted_run(tmp_path, method):
+    """Optuna's samplers: a stop after 10 of 24 trials (two of the third batch's four) resumes
+    to the θ of the run that was never stopped (before the batch was recorded, the resumed
+    critic told the two stored trials and asked the lost ones again, after them: other θ)."""
+    pytest.importorskip("optuna")
+    from latentune.pipeline.evaluators import SerialEvaluator
+    from latentune.pipeline.phases import make_phase_critic, run_phase
+
+    def critic():
+        return make_phase_critic(method, 6, 4, 0, np.full(6, 0.5), 24)
+
+    with RunStore(tmp_path / "whole", create=True) as st:
+        run_phase(st, 1, quad, critic(), 24, SerialEvaluator())
+        whole = _thetas(st)
+    np.testing.assert_array_equal(_stopped_and_resumed(tmp_path / "r", critic, 24, 10), whole)
 
 
 class _ReversedEvaluator:

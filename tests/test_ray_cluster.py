@@ -1,4 +1,5 @@
-"""Phase 1 on a two-node Ray cluster started on this machine, its worker node killed mid-run.
+"""Phase 1 on a two-node Ray cluster started on this machine, its worker node killed mid-run;
+its head node killed mid-run (one line, exit 2, the store resumed by the command the line names).
 
 The cluster (:class:`benchmarks.cluster.LocalCluster`): a head and a worker node (one CPU each,
 their own temp dirs and free ports), each started with ``ray start --block`` in its own process
@@ -23,6 +24,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+import shlex
 from typing import Any
 
 import numpy as np
@@ -101,21 +103,30 @@ def cluster(cli_env):
         c.stop()
 
 
-@pytest.mark.slow
-def test_worker_node_killed_mid_run(tmp_path, cluster, dump_store):
-    out = tmp_path / "run"
-    journal = tmp_path / "journal.txt"
-    hold = Path(str(journal) + ".hold")
-    worker_pgid = cluster.procs["worker"].pid
-    log = tmp_path / "cli.log"
+def _phase1(tmp_path: Path, cluster: LocalCluster, log: Path, **popen: Any
+            ) -> tuple[subprocess.Popen, Path, Path]:
+    """Start ``latentune phase1`` (BUDGET trials of :class:`JournalChain`, trials held on the
+    worker node) on ``cluster``, its output to ``log``; return the process, the run directory
+    and the journal."""
+    out, journal = tmp_path / "run", tmp_path / "journal.txt"
     args = ["phase1", "--system", "tests.test_ray_cluster:make_system",
-            "--system-arg", f"journal={journal}", "--system-arg", f"hold_pgid={worker_pgid}",
+            "--system-arg", f"journal={journal}",
+            "--system-arg", f"hold_pgid={cluster.pgid('worker')}",
             "--out", str(out), "--phase1-evals", str(BUDGET), "--backend", "ray",
             "--ray-address", cluster.address, "--workers", "2", "--seed", "3"]
     with open(log, "wb") as f:
         proc = subprocess.Popen([sys.executable, "-m", "latentune.cli", *args], cwd=ROOT,
-                                env=cluster.env, stdout=f, stderr=subprocess.STDOUT,
-                                start_new_session=True)
+                                env=cluster.env, stdout=f, start_new_session=True,
+                                **{"stderr": subprocess.STDOUT, **popen})
+    return proc, out, journal
+
+
+@pytest.mark.slow
+def test_worker_node_killed_mid_run(tmp_path, cluster, dump_store):
+    log = tmp_path / "cli.log"
+    worker_pgid = cluster.pgid("worker")
+    proc, out, journal = _phase1(tmp_path, cluster, log)
+    hold = Path(str(journal) + ".hold")
     try:
         # both nodes have run trials
         wait_for(lambda: stored(out / "run.db") >= KILL_AFTER and worker_pgid in
@@ -161,3 +172,54 @@ def test_worker_node_killed_mid_run(tmp_path, cluster, dump_store):
     entries = [(w, g) for w, g, t in _journal(journal) if np.array_equal(t, held)]
     assert entries.count(("held", worker_pgid)) == 1
     assert [w for w, g in entries if g != worker_pgid] == ["start", "end"]
+
+
+@pytest.mark.slow
+def test_head_node_killed_mid_run(tmp_path, cluster, dump_store):
+    """The head node (the GCS the run is connected to) is killed while a trial is held on the
+    worker node: the command ends with exit status 2 and one line on stderr (what happened,
+    that the stored trials are safe, the command that resumes) before Ray would end it
+    silently (exit 1 after 60 s); the store is intact, and that command, once a head is back
+    on the address, completes the phase: every index once, no θ twice."""
+    log, err_log = tmp_path / "cli.log", tmp_path / "cli.err"
+    with open(err_log, "wb") as err:
+        proc, out, journal = _phase1(tmp_path, cluster, log, stderr=err)
+    hold = Path(str(journal) + ".hold")
+    try:
+        wait_for(lambda: stored(out / "run.db") >= 4, "the first rows", proc, log)
+        hold.touch()                     # the run cannot finish: a trial waits on the worker
+        wait_for(lambda: any(w == "held" for w, _, _ in _journal(journal)),
+                 "a held trial on the worker node", proc, log)
+        t0 = time.monotonic()
+        cluster.kill("head")
+        proc.wait(timeout=120)           # Ray alone: exit 1 after 60 s, no line of ours
+        took = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+        if hold.exists():
+            hold.unlink()
+    err = err_log.read_text()
+    assert proc.returncode == 2, err[-3000:]
+    lines = err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("latentune: error: the Ray cluster's head "
+                                                   f"at {cluster.address} stopped answering"), err
+    assert f"the trials stored in {out} are safe" in lines[0], lines[0]
+    assert took < 60, took
+    kept = [r for r in dump_store(out)[0] if r[0] == 1]
+    n = len(kept)
+    assert 4 <= n < BUDGET and f"({n} evaluations of phase 1 stored)" in lines[0], lines[0]
+    assert [r[1] for r in kept] == list(range(n))
+
+    resume = shlex.split(lines[0].split("`")[1])
+    assert resume[0] == "latentune" and resume[-1] == "--resume", resume
+    cluster.kill("worker")               # its raylet still names the old head's address,
+    cluster.start_head()                 # which ray start refuses; a head is back on it
+    p = subprocess.run([sys.executable, "-m", "latentune.cli", *resume[1:]], cwd=ROOT,
+                       env=cluster.env, capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr[-3000:]
+    rows = [r for r in dump_store(out)[0] if r[0] == 1]
+    assert rows[:n] == kept                                  # everything stored is kept
+    assert [r[1] for r in rows] == list(range(BUDGET))       # contiguous, none twice
+    assert len({r[2] for r in rows}) == BUDGET               # no θ stored twice

@@ -20,6 +20,7 @@ import json
 import logging
 import math
 import os
+import shlex
 import sys
 import warnings
 from contextlib import contextmanager
@@ -958,6 +959,21 @@ def _stdout_closed() -> int:
     return 141
 
 
+def _cluster_lost(exc: BaseException, args: argparse.Namespace | None,
+                  argv: Sequence[str] | None) -> str:
+    """The line of a lost Ray head: what happened, where the stored trials are, the command
+    that resumes (this one with ``--resume``)."""
+    words = list(sys.argv[1:] if argv is None else argv)
+    where = f" in {args.out}" if getattr(args, "out", None) else ""
+    if args is not None and hasattr(args, "resume"):
+        cmd = shlex.join(["latentune", *words, *([] if "--resume" in words else ["--resume"])])
+        again = (f"resume with `{cmd}` once the cluster is back (or with --backend process "
+                 "in place of the Ray flags)")
+    else:
+        again = f"run `{shlex.join(['latentune', *words])}` again once the cluster is back"
+    return f"{_one_line(exc)}; the trials stored{where} are safe: {again}"
+
+
 def _error(msg: str) -> int:
     print(f"latentune: error: {msg}", file=sys.stderr)
     return 2
@@ -981,6 +997,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             sys.stdout.flush()                 # a closed pipe is seen here, not at exit
             return code
         except LatentuneError as exc:
+            from latentune.pipeline.evaluators import ClusterLost   # numpy: not at import
+
+            if isinstance(exc, ClusterLost):
+                return _error(_cluster_lost(exc, args, argv))
             return _error(_one_line(exc))
         except BrokenPipeError:
             return _stdout_closed()

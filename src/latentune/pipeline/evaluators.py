@@ -46,8 +46,21 @@ from latentune.system import CostError, EvaluationError, Outcome, as_cost, evalu
 from latentune.threads import THREAD_VARS, thread_env
 
 BACKENDS = ("serial", "process", "ray")
+HEAD_PROBE_S = 2.0
+"""How often the Ray evaluator checks that the cluster's head accepts a connection while it
+waits for trials [s]."""
+HEAD_TIMEOUT_S = 15.0
+"""How long the head may not answer before the Ray evaluator gives up [s] (:class:`ClusterLost`;
+Ray itself ends the process after 60 s without its head)."""
 
 log = logging.getLogger(__name__)
+
+
+class ClusterLost(EvaluationError):
+    """The Ray cluster's head (its GCS) stopped answering: its node, or the network to it, was
+    lost. Raised by :class:`RayEvaluator` before Ray ends the process on its own (it exits
+    with status 1 and no message of latentune's a minute after losing its head), so the
+    caller can say what happened; the trials yielded before are complete."""
 
 
 @dataclass(frozen=True)
@@ -274,18 +287,45 @@ def _one_line(exc: BaseException, limit: int = 300) -> str:
     return f"{type(exc).__name__}: {' '.join(str(exc).split())[:limit]}"
 
 
+def _host_port(address: str | None) -> tuple[str, int] | None:
+    """``(host, port)`` of a ``HOST:PORT`` address, None for other forms (``auto``,
+    ``ray://…``)."""
+    if not address:
+        return None
+    host, sep, port = address.rpartition(":")
+    if not sep or "://" in address or not port.isdigit():
+        return None
+    return host.strip("[]"), int(port)
+
+
+def _connect(hp: tuple[str, int], timeout: float) -> None:
+    """Open and close a TCP connection to ``hp`` (OSError if none within ``timeout`` s)."""
+    import socket
+
+    with socket.create_connection(hp, timeout=timeout):
+        pass
+
+
+def _gcs_address(ray: Any) -> str | None:
+    """The ``HOST:PORT`` of the GCS the driver is connected to (None where Ray does not say:
+    a ``ray://`` client; the head is then not watched)."""
+    try:
+        address = ray.get_runtime_context().gcs_address
+    except Exception as exc:  # noqa: BLE001 - Ray's client mode raises its own types
+        log.debug("no GCS address to watch: %s", _one_line(exc))
+        return None
+    return address if isinstance(address, str) and _host_port(address) else None
+
+
 def _check_reachable(address: str, timeout: float = 10.0) -> None:
     """Raise ConnectionError if a ``HOST:PORT`` Ray address does not accept a TCP connection
     within ``timeout`` seconds (Ray itself retries such an address without end). Other forms
     (``auto``, ``ray://…``) are left to Ray."""
-    import socket
-
-    host, sep, port = address.rpartition(":")
-    if not sep or "://" in address or not port.isdigit():
+    hp = _host_port(address)
+    if hp is None:
         return
     try:
-        with socket.create_connection((host.strip("[]"), int(port)), timeout=timeout):
-            pass
+        _connect(hp, timeout)
     except OSError as exc:
         raise ConnectionError(f"no Ray cluster answers at {address} ({exc.strerror or exc}); "
                               "start its head (ray start --head) or correct the address"
@@ -310,11 +350,18 @@ class RayEvaluator(Evaluator):
     cluster has free CPUs is fine, the actors without one take no trials),
     ``imap`` raises :class:`~latentune.system.EvaluationError` (the trials it yielded before
     are complete). ``lost_trials`` counts the lost runs since the evaluator started.
+
+    Lost head: while it waits, the evaluator checks every :data:`HEAD_PROBE_S` seconds that the
+    cluster's head (its GCS address) accepts a TCP connection; one that has not for
+    ``head_timeout`` seconds raises :class:`ClusterLost` (the trials it yielded before are
+    complete; runs lost meanwhile are not counted as lost with a worker). Ray would end the
+    process on its own a minute after losing the head, without a word. After that,
+    :meth:`close` leaves the cluster alone.
     """
 
     def __init__(self, workers: int = 2, address: str | None = None,
                  temp_dir: str | None = None, max_losses: int = 3,
-                 lost_timeout: float = 300.0) -> None:
+                 lost_timeout: float = 300.0, head_timeout: float = HEAD_TIMEOUT_S) -> None:
         try:
             import ray
         except ImportError:
@@ -325,11 +372,17 @@ class RayEvaluator(Evaluator):
             raise ValueError("max_losses must be >= 1")
         if not lost_timeout > 0:
             raise ValueError("lost_timeout must be > 0")
+        if not head_timeout > 0:
+            raise ValueError("head_timeout must be > 0")
         self.workers = int(workers)
         self.address = address
         self.max_losses = int(max_losses)
         self.lost_timeout = float(lost_timeout)
+        self.head_timeout = float(head_timeout)
         self.lost_trials = 0
+        self.head_lost = False
+        self._head_silent: float | None = None  # since when the head has not answered
+        self._next_probe = 0.0
         self._owns = False
         if not ray.is_initialized():
             kw: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False,
@@ -344,6 +397,7 @@ class RayEvaluator(Evaluator):
                 ray.init(num_cpus=self.workers, **kw)
             self._owns = True
         self._ray = ray
+        self.head = address if _host_port(address) else _gcs_address(ray)
         from ray import exceptions as rex
 
         # a run that gave no result because its worker or node went away: run it again
@@ -363,6 +417,35 @@ class RayEvaluator(Evaluator):
 
     def _lost(self, exc: BaseException) -> bool:
         return isinstance(exc, self._lost_types)
+
+    def _watch_head(self, now: bool = False) -> bool:
+        """Check that the head answers (every :data:`HEAD_PROBE_S` seconds, or ``now``) and
+        return whether it did at the last check; raise :class:`ClusterLost` once it has not
+        for ``head_timeout`` seconds."""
+        hp = _host_port(self.head)
+        t = time.monotonic()
+        if hp is None or (not now and t < self._next_probe):
+            return self._head_silent is None
+        self._next_probe = t + HEAD_PROBE_S
+        try:
+            _connect(hp, min(HEAD_PROBE_S, 1.0))
+        except OSError as exc:
+            if self._head_silent is None:
+                self._head_silent = t
+                log.debug("the Ray head at %s does not answer: %s", self.head, exc)
+            elif t - self._head_silent >= self.head_timeout:
+                self.head_lost = True
+                raise ClusterLost(f"the Ray cluster's head at {self.head} stopped answering "
+                                  f"(no connection for {self.head_timeout:g} s): its node or "
+                                  "the network to it was lost") from None
+            return False
+        self._head_silent = None
+        return True
+
+    def _wait_for_head(self) -> None:
+        """Return once the head answers; :class:`ClusterLost` after ``head_timeout`` s."""
+        while not self._watch_head(now=True):
+            time.sleep(HEAD_PROBE_S)
 
     def _wait_back(self, actor: Any) -> None:
         """``actor`` is new or lost a run: it joins the idle actors when a ping returns (once
@@ -384,6 +467,7 @@ class RayEvaluator(Evaluator):
 
         ray = self._ray
         X = np.asarray(X, dtype=float)
+        self._wait_for_head()                   # Ray's calls block while the head is away
         try:
             fun_ref = ray.put(fun)              # cloudpickle: closures are fine
         except Exception as exc:  # noqa: BLE001 - Ray's serializer raises several types
@@ -411,10 +495,11 @@ class RayEvaluator(Evaluator):
                         "(the cluster's nodes were lost or it has no free CPU; "
                         f"{self.lost_trials} trial runs lost); the trials finished so far are "
                         f"complete, {len(todo)} were not run")
-                timeout = self._timeout(bool(running))
+                self._watch_head()
+                timeout = min(self._timeout(bool(running)) or HEAD_PROBE_S, HEAD_PROBE_S)
                 refs = [*running, *self._back]
                 if not refs:                    # every actor waits for its next ping
-                    time.sleep(timeout or 1.0)
+                    time.sleep(timeout)
                     continue
                 done, _ = ray.wait(refs, num_returns=1, timeout=timeout)
                 for ref in done:
@@ -439,9 +524,14 @@ class RayEvaluator(Evaluator):
                             yield i, TrialError(f"a Ray worker could not run the trial: "
                                                 f"{_one_line(exc)}")
                             continue
+                        self._wait_back(a)
+                        if not self._watch_head(now=True):    # not a worker: the head
+                            log.debug("a Ray worker's run was lost while the head does not "
+                                      "answer (%s)", _one_line(exc, 160))
+                            todo.appendleft(i)
+                            continue
                         losses[i] += 1
                         self.lost_trials += 1
-                        self._wait_back(a)
                         if losses[i] >= self.max_losses:
                             yield i, TrialError(f"the trial was lost with its Ray worker "
                                                 f"{losses[i]} times ({_one_line(exc, 200)})")
@@ -460,6 +550,9 @@ class RayEvaluator(Evaluator):
                 self._back[ref] = a
 
     def close(self) -> None:
+        if getattr(self, "head_lost", False):   # Ray's calls would wait for the head
+            self._actors, self._idle, self._back, self._later = [], [], {}, []
+            return
         for a in getattr(self, "_actors", []):
             try:
                 self._ray.kill(a, no_restart=True)

@@ -14,10 +14,19 @@ options and seed is told the stored rows (X, y, tags) in index order. Index orde
 order, not the ask order each batch was told in, but the tags group the rows by ask, so the
 critic replays its batches as they were told and its state is restored (see
 :mod:`latentune.critic.base`; only the order of points inside the GP's data may differ); the loop
-then continues at index n. If the process died in the middle of a batch, the rows of that batch
-that were committed are kept and told with their tags; its unfinished points are lost with the
-process and are *re-asked*: the resumed critic's next ask covers the remaining budget. No
-finished evaluation is lost and none is run twice.
+then continues at index n.
+
+A process may die in the middle of a batch. So every asked batch is recorded in the store's meta
+(:class:`AskedBatch`, key :func:`batch_key`) before its first trial runs, and removed in the
+transaction that stores the critic's state after the batch is told. A resume that finds the
+record, with the phase's last rows all points of that batch, replays only the rows stored before
+the batch (and the state saved then), asks the critic that batch again (:func:`reask`: a critic
+fits its models when it asks, and the next fits start from those), runs the batch's points that
+have no row yet, and tells the critic the whole batch in ask order: the critic sees the asks and
+tells of a run that was never stopped, so a seed gives the same θ whether or not (and wherever)
+it was stopped. A record that does not match the rows (the rows grew since, another budget) is
+ignored: the stored rows are told and the critic asks again. No finished evaluation is lost and
+none is run twice.
 
 The critic of a phase is built from the study's stored options by
 :func:`latentune.pipeline.loop.phase_critic`, for this loop and for ask/tell alike.
@@ -32,7 +41,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import numpy as np
@@ -40,7 +49,7 @@ import numpy as np
 from latentune.constants import Phase
 from latentune.critic.handover import HANDOVER_DEFAULTS
 from latentune.errors import StoreError, UsageError
-from latentune.pipeline.evaluators import Evaluator, TrialError
+from latentune.pipeline.evaluators import ClusterLost, Evaluator, TrialError
 from latentune.pipeline.store import RunStore
 from latentune.system import EvaluationError, Outcome
 
@@ -212,11 +221,16 @@ def asked_points(U: np.ndarray, Z: np.ndarray | None, decoder: Callable | None
     with each: ``Z`` (n, k) is a two-space critic's ``last_z`` (``U`` is θ already; a finite row
     is the code, a NaN row none); else ``decoder(U)`` with ``U`` as the codes, or ``U`` itself
     without a decoder (no codes)."""
+    thetas = U if Z is not None or decoder is None else np.atleast_2d(decoder(U))
+    return thetas, stored_codes(U, Z, decoder is not None)
+
+
+def stored_codes(U: np.ndarray, Z: np.ndarray | None, decoded: bool) -> list[np.ndarray | None]:
+    """The latent code stored with each asked point (:func:`asked_points`): the finite rows of
+    ``Z``, else the rows of ``U`` when they were ``decoded`` to θ, else none."""
     if Z is not None:
-        return U, [z if np.all(np.isfinite(z)) else None for z in Z]
-    if decoder is None:
-        return U, [None] * len(U)
-    return np.atleast_2d(decoder(U)), list(U)
+        return [z if np.all(np.isfinite(z)) else None for z in Z]
+    return list(U) if decoded else [None] * len(U)
 
 
 def state_key(phase: int) -> str:
@@ -224,27 +238,104 @@ def state_key(phase: int) -> str:
     return f"critic_state_{int(phase)}"
 
 
+def batch_key(phase: int) -> str:
+    """The store's meta key of the batch of ``phase`` being evaluated (:class:`AskedBatch`)."""
+    return f"asked_batch_{int(phase)}"
+
+
 def save_state(store: RunStore, phase: int, critic: Any) -> None:
-    """Store ``critic.state_dict()`` for ``phase`` (nothing for a critic without state)."""
+    """Store ``critic.state_dict()`` for ``phase`` (nothing for a critic without state) and
+    remove the record of the batch just told (:class:`AskedBatch`), in one transaction."""
     state = critic.state_dict() if hasattr(critic, "state_dict") else {}
-    if state:
-        store.set_meta(state_key(phase), state)
+    store.update_meta({batch_key(phase): None, **({state_key(phase): state} if state else {})})
 
 
-def replay(store: RunStore, phase: int, critic: Any) -> int:
-    """Tell ``critic`` the stored rows of ``phase`` (idx order, with their tags) and restore
-    its stored state (:func:`save_state`); return n."""
-    n = _tell_rows(store, phase, critic)
+@dataclass
+class AskedBatch:
+    """A batch the critic asked, recorded in the store until it is told (see "Resume and crash
+    safety" above).
+
+    Attributes:
+        n0: rows of the phase stored when it was asked (its points get indices from n0 on).
+        U: (k, m) the critic's points; ``T`` (k,) their tags; ``Z`` (k, m') a two-space
+            critic's codes (``last_z``, NaN rows for none) or None.
+        thetas: (k, d) the normalized θ to evaluate; ``codes``: the code stored with each.
+        done: ask index -> (cost, fell) of the points evaluated so far.
+    """
+
+    n0: int
+    U: np.ndarray
+    T: np.ndarray
+    Z: np.ndarray | None
+    thetas: np.ndarray
+    codes: list[np.ndarray | None]
+    done: dict[int, tuple[float, bool]] = field(default_factory=dict)
+
+    def record(self) -> dict[str, Any]:
+        """The JSON record stored under :func:`batch_key` (floats round-trip exactly)."""
+        return {"n0": self.n0, "u": self.U.tolist(), "tags": self.T.tolist(),
+                "z": None if self.Z is None else self.Z.tolist(), "theta": self.thetas.tolist()}
+
+
+def pending_batch(store: RunStore, phase: int, budget: int, decoder: Callable | None
+                  ) -> AskedBatch | None:
+    """The recorded batch of ``phase`` a stopped run did not tell (its evaluated points in
+    ``done``), or None: no record, or one the stored rows do not continue (rows stored after
+    it that are not its points, a budget it does not fit in)."""
+    rec = store.get_meta(batch_key(phase))
+    if not rec:
+        return None
+    try:
+        U = np.array(rec["u"], dtype=float)
+        Z = None if rec["z"] is None else np.array(rec["z"], dtype=float)
+        b = AskedBatch(int(rec["n0"]), U, np.array(rec["tags"], dtype=np.int64), Z,
+                       np.array(rec["theta"], dtype=float),
+                       stored_codes(U, Z, Z is None and decoder is not None))
+    except (KeyError, TypeError, ValueError):
+        log.warning("phase %d: the record of the last asked batch is garbled; it is ignored "
+                    "(the critic asks again)", int(phase))
+        return None
+    k, n = len(b.thetas), store.count(phase)
+    if not b.n0 <= n <= b.n0 + k or b.n0 + k > budget or len(b.T) != k or len(b.U) != k:
+        return None
+    for r in store.rows(phase)[b.n0:]:
+        i = next((i for i in range(k) if i not in b.done and b.T[i] == r.tag
+                  and np.array_equal(b.thetas[i], r.theta)), None)
+        if i is None:
+            return None
+        b.done[i] = (float(r.cost), bool(r.fell))
+    return b
+
+
+def reask(critic: Any, batch: AskedBatch, decoder: Callable | None) -> None:
+    """Ask ``critic``, told the rows stored before ``batch``, for as many points as ``batch``
+    holds, so its state (model fits, random streams, Optuna's trials) is the one the stopped
+    run's critic had while the batch was evaluated; the recorded points are the ones evaluated
+    and told. A critic that asks other points (not deterministic) is told the recorded ones as
+    points of its batch (a warning says so)."""
+    U, T = ask_batch(critic, len(batch.thetas), decoder)[:2]
+    if U.shape != batch.U.shape or not (np.array_equal(U, batch.U)
+                                        and np.array_equal(T, batch.T)):
+        log.warning("the critic asked again for the batch a stopped run left unfinished gives "
+                    "other points (it is not deterministic); the recorded points are evaluated "
+                    "and told, and the run may differ from one that was never stopped")
+
+
+def replay(store: RunStore, phase: int, critic: Any, upto: int | None = None) -> int:
+    """Tell ``critic`` the stored rows of ``phase`` (idx order, with their tags; only the first
+    ``upto`` when given) and restore its stored state (:func:`save_state`); return how many
+    rows it was told."""
+    n = _tell_rows(store, phase, critic, upto)
     state = store.get_meta(state_key(phase))
     if n and state and hasattr(critic, "load_state_dict"):
         critic.load_state_dict(state)
     return n
 
 
-def _tell_rows(store: RunStore, phase: int, critic: Any) -> int:
+def _tell_rows(store: RunStore, phase: int, critic: Any, upto: int | None = None) -> int:
     store.check_contiguous(phase)
     if hasattr(critic, "last_z"):                  # a two-space critic: θ, and z where stored
-        rows = store.rows(phase)
+        rows = store.rows(phase)[:upto]
         if not rows:
             return 0
         k = critic.last_z.shape[1]
@@ -256,11 +347,12 @@ def _tell_rows(store: RunStore, phase: int, critic: Any) -> int:
                     fell=np.array([r.fell for r in rows], dtype=bool), z=Z)
         return len(rows)
     X, y, tags = store.history(phase)
+    X, y, tags, fell = X[:upto], y[:upto], tags[:upto], store.fell(phase)[:upto]
     if len(y):
         if X.shape[1] != critic.dim:
             raise StoreError(f"stored phase-{phase} points have dimension {X.shape[1]}, "
                              f"the critic {critic.dim}")
-        critic.tell(X, y, tags, fell=store.fell(phase))
+        critic.tell(X, y, tags, fell=fell)
     return len(y)
 
 
@@ -303,12 +395,19 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
 
     Raises:
         EvaluationError: a trial raised or gave no usable cost; the batch's finished trials are
-            stored first, the failed one is not (a resume asks again).
+            stored first, the failed one is not (a resume runs it again).
+        ClusterLost: the Ray cluster's head was lost; its message says how many evaluations
+            of the phase are stored (a resume runs the batch's others).
     """
     t0 = time.perf_counter()
-    n0 = replay(store, phase, critic)
+    batch = pending_batch(store, phase, budget, decoder)
+    replay(store, phase, critic, None if batch is None else batch.n0)
     y = store.costs(phase)
-    idx = n0
+    idx = n0 = len(y)
+    if batch is not None:
+        reask(critic, batch, decoder)
+        log.info("phase %d: finishing the batch of %d points a stopped run asked (%d of them "
+                 "stored)", int(phase), len(batch.thetas), len(batch.done))
     bar = _progress(budget, min(n0, budget), f"phase {phase}", progress)
     best = float(np.min(y)) if n0 else math.inf
     streak = failure_streak(store, phase)
@@ -317,13 +416,20 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
         if bar is not None and n0:
             bar.set_postfix(best=f"{best:.3f}")
         while idx < budget and (max_new is None or new < max_new):
-            k = min(critic.batch_size, budget - idx)
+            if batch is None:
+                k = min(critic.batch_size, budget - idx)
+                if max_new is not None:
+                    k = min(k, max_new - new)
+                batch = AskedBatch(idx, *ask_batch(critic, k, decoder))
+                store.set_meta(batch_key(phase), batch.record())
+            U, T, Z, thetas, codes = batch.U, batch.T, batch.Z, batch.thetas, batch.codes
+            todo = [i for i in range(len(thetas)) if i not in batch.done]
             if max_new is not None:
-                k = min(k, max_new - new)
-            U, T, Z, thetas, codes = ask_batch(critic, k, decoder)
-            ib, yb, fb = [], [], []                # ask index, cost and fell of each result
+                todo = todo[:max_new - new]
             error: str | None = None
-            for i, r in _results(evaluator, system, thetas, known or {}):
+            for j, r in _lost_head_says_stored(
+                    _results(evaluator, system, thetas[todo], known or {}), store, phase):
+                i = todo[j]
                 if isinstance(r, TrialError):
                     error = error or r.message
                     continue
@@ -332,9 +438,7 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
                               seed=seed)
                 idx += 1
                 new += 1
-                ib.append(i)
-                yb.append(cost)
-                fb.append(bool(r.failed))
+                batch.done[i] = (cost, bool(r.failed))
                 streak = streak + 1 if r.failed else 0
                 if streak == FAIL_STREAK:
                     log.warning(failing_message(phase, FAIL_STREAK))
@@ -348,14 +452,15 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
             if error is not None:
                 raise EvaluationError(f"{error} (phase {int(phase)}; {idx} evaluations are "
                                       "stored; fix the system and resume)")
+            if len(batch.done) < len(thetas):      # max_new stopped it: it stays recorded
+                break
             # rows are stored as they complete (crash safety); the critic is told the batch in
             # ask order, so a seed gives the same run whatever order the workers finish in
-            order = np.argsort(ib, kind="stable")
-            ii = np.asarray(ib, dtype=np.int64)[order]
-            critic.tell(U[ii], np.asarray(yb, dtype=float)[order], T[ii].astype(np.int64),
-                        fell=np.asarray(fb, dtype=bool)[order],
-                        **({} if Z is None else {"z": Z[ii]}))
+            yb = np.array([batch.done[i][0] for i in range(len(thetas))], dtype=float)
+            fb = np.array([batch.done[i][1] for i in range(len(thetas))], dtype=bool)
+            critic.tell(U, yb, T.astype(np.int64), fell=fb, **({} if Z is None else {"z": Z}))
             save_state(store, phase, critic)
+            batch = None
     finally:
         if bar is not None:
             bar.close()
@@ -363,6 +468,16 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
     wall = time.perf_counter() - t0
     return PhaseResult(phase, store.count(phase), new, b.cost if b else math.inf,
                        None if b is None else b.theta, wall)
+
+
+def _lost_head_says_stored(results: Any, store: RunStore, phase: int) -> Any:
+    """``results`` as they come; a :class:`ClusterLost` among them again with the number of
+    evaluations of ``phase`` stored."""
+    try:
+        yield from results
+    except ClusterLost as exc:
+        raise ClusterLost(f"{exc} ({store.count(phase)} evaluations of phase {int(phase)} "
+                          "stored)") from None
 
 
 def _results(evaluator: Evaluator, system: Any, thetas: np.ndarray,

@@ -303,6 +303,19 @@ class RunStore:
         with self._write():
             self.con.execute("DELETE FROM meta WHERE key=?", (key,))
 
+    def update_meta(self, entries: dict[str, Any]) -> None:
+        """Write several meta entries in one transaction (a None value removes the entry)."""
+        with self._write():
+            self._put_meta(entries)
+
+    def _put_meta(self, entries: dict[str, Any]) -> None:
+        for key, value in entries.items():
+            if value is None:
+                self.con.execute("DELETE FROM meta WHERE key=?", (key,))
+            else:
+                self.con.execute("INSERT OR REPLACE INTO meta(key, value) VALUES (?, ?)",
+                                 (key, json.dumps(value, default=_json_default)))
+
     def get_meta(self, key: str, default: Any = None) -> Any:
         """The JSON value stored under ``key`` (``default`` if absent); StoreError if garbled."""
         row = self.con.execute("SELECT value FROM meta WHERE key=?", (key,)).fetchone()
@@ -405,12 +418,7 @@ class RunStore:
         ``meta``: entries written in the same transaction (a None value removes the entry)."""
         now = time.time()
         with self._write(trials=True):
-            for key, value in (meta or {}).items():
-                if value is None:
-                    self.con.execute("DELETE FROM meta WHERE key=?", (key,))
-                else:
-                    self.con.execute("INSERT OR REPLACE INTO meta(key, value) VALUES (?, ?)",
-                                     (key, json.dumps(value, default=_json_default)))
+            self._put_meta(meta or {})
             ids = []
             for th, z, tag in zip(thetas, zs, tags):
                 cur = self.con.execute(
