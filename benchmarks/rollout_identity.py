@@ -13,8 +13,11 @@ pos, rpy, height as float64 bytes) and of every torque the actor commanded ((ste
 The unrecorded cost (``Task.evaluate``, what tuning runs store) is checked equal to the recorded
 one. ``--compare`` prints which digests differ between two output files (exit 1 if any).
 
-``tests/data/rollout_golden.json`` is this benchmark's output with ``--steps 300`` on the code
-before the rollout speed-up; ``tests/test_rollout_identity.py`` recomputes it.
+The output also records :func:`environment` (the libraries that compute the numbers, the CPU's
+vector extension) and the directory ``latentune`` was imported from: bits are only comparable in
+one environment. ``tests/data/rollout_golden.json`` is this benchmark's output
+(``--steps 500 --per-task 7``) on main's code before the rollout speed-up (an export of commit
+7f6b88a on ``PYTHONPATH``); ``tests/test_rollout_identity.py`` recomputes it.
 """
 from __future__ import annotations
 
@@ -31,7 +34,7 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import Provenance, add_out_arg, finish  # noqa: E402
+from benchmarks.common import Provenance, add_out_arg, finish, machine, versions  # noqa: E402
 
 ROBOT_ACTOR = {"a1": "convex", "b1": "convex", "solo12": "kinodynamic"}
 DEFAULT_TASKS = "a1:trot,a1:jump,solo12:trot"
@@ -39,6 +42,14 @@ DEFAULT_TASKS = "a1:trot,a1:jump,solo12:trot"
 
 def _sha(a: np.ndarray) -> str:
     return hashlib.sha256(np.ascontiguousarray(a, dtype=np.float64).tobytes()).hexdigest()
+
+
+def environment() -> dict[str, Any]:
+    """What the digests depend on besides the code: Python, the numerical libraries' versions
+    and the CPU's widest vector extension (BLAS kernels are chosen by it)."""
+    v = versions(("pybullet", "pin", "crocoddyl", "daqp"))
+    return {"python": v["python"], **{k: v[k] for k in ("numpy", "pybullet", "pin", "crocoddyl",
+                                                         "daqp")}, "simd": machine()["simd"]}
 
 
 def thetas(task: Any, n: int, seed: int = 0) -> np.ndarray:
@@ -138,7 +149,11 @@ def main(argv: list[str] | None = None) -> int:
               f"{', '.join(ROBOT_ACTOR)}, got {a.tasks!r}", file=sys.stderr)
         return 2
     rows = run(tasks, a.steps, a.per_task)  # type: ignore[arg-type]
-    out = {"steps": a.steps, "per_task": a.per_task, "tasks": a.tasks, "rows": rows}
+    import latentune
+
+    out = {"steps": a.steps, "per_task": a.per_task, "tasks": a.tasks,
+           "latentune_src": str(Path(latentune.__file__).resolve().parent),
+           "environment": environment(), "rows": rows}
     table = [{"task": f"{r['robot']} {r['gait']}", "theta": r["theta_index"],
               "cost": r["cost"], "fell": r["digest"]["fell"], "steps": r["digest"]["steps"],
               "wall_s": r["wall_s"]} for r in rows]
