@@ -53,7 +53,7 @@ def environment() -> dict[str, Any]:
 
 
 def thetas(task: Any, n: int, seed: int = 0) -> np.ndarray:
-    """(n, d) unit-box θ: the manual θ, then alternately a perturbed manual θ and a uniform θ."""
+    """(n, d) unit-box θ: the manual θ, then alternately a perturbed manual and a uniform θ."""
     rng = np.random.default_rng(seed)
     d = task.space.dim
     out = [np.asarray(task.space.manual, dtype=float)]

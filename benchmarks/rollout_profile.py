@@ -56,7 +56,8 @@ def profile_task(robot: str, gait: str, steps: int, per_task: int, top: int) -> 
         costs.append(res.cost)
     task.world.close()
     st = pstats.Stats(prof)
-    rows = [(_name(f), cc, nc, tt, ct) for f, (cc, nc, tt, ct, _) in st.stats.items()]  # type: ignore[attr-defined]
+    stats = st.stats  # type: ignore[attr-defined]
+    rows = [(_name(f), cc, nc, tt, ct) for f, (cc, nc, tt, ct, _) in stats.items()]
     n = len(ths)
 
     def table(key: int) -> list[dict[str, Any]]:

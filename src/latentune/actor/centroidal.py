@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from latentune.actor.base import ActorFailure
+from latentune.actor.base import ActorFailure, friction_pyramid
 from latentune.constants import G
 
 
@@ -122,7 +122,10 @@ class CentroidalPlanner:
         Xf[:, 6:9] = x0[6:9]
         err0 = (Xf - x_ref).reshape(-1)
         n = cols.size
-        Acon, lo, hi = self._constraints(n // 3)
+        nc = n // 3
+        if nc not in self._cons:   # DAQP does not write to them: cached per nc
+            self._cons[nc] = friction_pyramid(nc, self.mu, self.u_max)
+        Acon, lo, hi = self._cons[nc]
         Rvec = np.tile(w_f, H)[cols]
         X = None
         B = self._B
@@ -150,27 +153,6 @@ class CentroidalPlanner:
             if delta < self.tol:
                 break
         return X, U
-
-    def _constraints(self, nc: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Friction pyramids and force bounds of ``nc`` stance (knot, foot) pairs (cached per
-        nc; DAQP does not write to them): A (4·nc, 3·nc), lower and upper (7·nc,), the 3·nc
-        simple bounds first (units of m·g)."""
-        hit = self._cons.get(nc)
-        if hit is None:
-            n, mu = 3 * nc, self.mu
-            Acon = np.zeros((4 * nc, n))
-            r = np.arange(nc)
-            for a in range(2):
-                Acon[4 * r + 2 * a, 3 * r + a] = 1.0
-                Acon[4 * r + 2 * a, 3 * r + 2] = -mu
-                Acon[4 * r + 2 * a + 1, 3 * r + a] = 1.0
-                Acon[4 * r + 2 * a + 1, 3 * r + 2] = mu
-            lb = np.tile([-mu * self.u_max, -mu * self.u_max, 0.0], nc)
-            ub = np.tile([mu * self.u_max, mu * self.u_max, self.u_max], nc)
-            cl = np.tile([-1e30, 0.0, -1e30, 0.0], nc)
-            cu = np.tile([0.0, 1e30, 0.0, 1e30], nc)
-            hit = self._cons[nc] = (Acon, np.concatenate([lb, cl]), np.concatenate([ub, cu]))
-        return hit
 
     def rollout(self, x0: np.ndarray, U: np.ndarray, feet: np.ndarray) -> np.ndarray:
         """(H + 1, 9) trajectory from x0 under forces U (H, 12) [m·g] with exact bilinear dynamics."""

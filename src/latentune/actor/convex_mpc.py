@@ -25,7 +25,7 @@ import math
 
 import numpy as np
 
-from latentune.actor.base import Actor, ActorFailure
+from latentune.actor.base import Actor, ActorFailure, friction_pyramid
 from latentune.actor.gait import GaitScheduler, StepContacts
 from latentune.actor.legs import LegKinematics, swing_trajectory
 from latentune.constants import G
@@ -35,7 +35,6 @@ from latentune.sim.world import RobotState, World
 
 STATE_NAMES = ("roll", "pitch", "yaw", "x", "y", "z", "wx", "wy", "wz", "vx", "vy", "vz", "g")
 FORCE_NAMES = tuple(f"{leg}_f{ax}" for leg in LEGS for ax in "xyz")
-_INF = 1e30  # "no bound" for the QP solvers (DAQP and OSQP both read ±1e30 as infinite)
 
 # Manual-tuned weights (found by hand, checked by tests/test_actor.py and benchmarks.actor).
 _Q_MANUAL = {
@@ -220,30 +219,11 @@ class ConvexMPC(Actor):
                 d = k[:, None] - j[None, :]
                 d = np.where(d >= 0, d, H)                    # k < j: the zero block Ppad[H]
                 gather = (d * 13 + rr[:, None]) * 12 + (cols % 12)[None, :]
-                shared = _STRUCTURES[skey] = (cols, gather, self._constraints(cols.size // 3))
+                cons = friction_pyramid(cols.size // 3, self.mu, self.FZ_MAX)
+                shared = _STRUCTURES[skey] = (cols, gather, cons)
             cols, gather, cons = shared
             hit = self._pattern_cache[key] = (cols, gather, self._Rvec[cols], cons)
         return hit
-
-    def _constraints(self, nc: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Friction pyramid and force bounds for ``nc`` stance (step, leg) pairs.
-
-        Returns (A (4·nc, 3·nc), lower (7·nc,), upper (7·nc,)): simple bounds on the 3·nc
-        variables first, then the pyramid rows |f_x|, |f_y| ≤ μ f_z (all in units of m·g).
-        """
-        n, mu = 3 * nc, self.mu
-        lb = np.tile([-mu * self.FZ_MAX, -mu * self.FZ_MAX, 0.0], nc)
-        ub = np.tile([mu * self.FZ_MAX, mu * self.FZ_MAX, self.FZ_MAX], nc)
-        Acon = np.zeros((4 * nc, n))
-        r = np.arange(nc)
-        for a in range(2):  # x and y
-            Acon[4 * r + 2 * a, 3 * r + a] = 1.0
-            Acon[4 * r + 2 * a, 3 * r + 2] = -mu
-            Acon[4 * r + 2 * a + 1, 3 * r + a] = 1.0
-            Acon[4 * r + 2 * a + 1, 3 * r + 2] = mu
-        cu = np.tile([0.0, _INF, 0.0, _INF], nc)
-        cl = np.tile([-_INF, 0.0, -_INF, 0.0], nc)
-        return Acon, np.concatenate([lb, cl]), np.concatenate([ub, cu])
 
     def _qp(self, Hm: np.ndarray, g: np.ndarray, A: np.ndarray, lo: np.ndarray,
             hi: np.ndarray) -> np.ndarray:
