@@ -10,7 +10,8 @@ unprofiled warm-up rollout (world build, imports), then ``--per-task`` rollouts 
 profiled CPU seconds per rollout and the ``--top`` functions by own time (``tottime``) and by
 cumulative time, in CPU seconds per rollout. cProfile's own overhead inflates Python-heavy code
 more than C calls: the shares are a guide, the rollout timings of :mod:`benchmarks.rollout_speed`
-are the measurement.
+are the measurement. The output records the directory ``latentune`` was imported from (put an
+export of older code first on ``PYTHONPATH`` to profile it).
 """
 from __future__ import annotations
 
@@ -19,6 +20,7 @@ import cProfile
 import pstats
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 from latentune.threads import one_thread_env  # noqa: E402
@@ -92,7 +94,11 @@ def main(argv: list[str] | None = None) -> int:
                      "own_s": None, "cum_s": p["cpu_s_per_rollout"]})
         rows += [{"task": "", **{k: r[k] for k in ("function", "own_s", "cum_s")}}
                  for r in p["by_own"]]
-    finish(a.out, prov, {"steps": a.steps, "per_task": a.per_task, "profiles": profiles}, rows,
+    import latentune
+
+    src = str(Path(latentune.__file__).resolve().parent)   # which code was profiled
+    finish(a.out, prov, {"steps": a.steps, "per_task": a.per_task, "latentune_src": src,
+                         "profiles": profiles}, rows,
            columns=["task", "function", "own_s", "cum_s"],
            title=f"CPU seconds per warm {a.steps}-step rollout (cProfile, top {a.top} by own time)")
     return 0
