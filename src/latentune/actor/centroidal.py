@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from latentune.actor.base import ActorFailure
+from latentune.actor.base import ActorFailure, friction_pyramid
 from latentune.constants import G
 
 
@@ -78,6 +78,8 @@ class CentroidalPlanner:
             self._B_lin[:, 0:3, :, sl] = self._c_coef[:, None, :, None] * eye3[None, :, None, :]
             self._B_lin[:, 3:6, :, sl] = self._v_coef[:, None, :, None] * eye3[None, :, None, :]
         self._mask = (np.arange(H)[None, :] < np.arange(1, H + 1)[:, None]).astype(float)
+        self._B = self._B_lin.copy()    # the forces step's B: rows 6:9 rewritten every step
+        self._cons: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
     def plan(self, x0: np.ndarray, contact: np.ndarray, feet: np.ndarray, x_ref: np.ndarray,
              w_x: np.ndarray, w_x_ter: np.ndarray, w_f: np.ndarray,
@@ -120,26 +122,15 @@ class CentroidalPlanner:
         Xf[:, 6:9] = x0[6:9]
         err0 = (Xf - x_ref).reshape(-1)
         n = cols.size
-        mu = self.mu
         nc = n // 3
-        Acon = np.zeros((4 * nc, n))
-        r = np.arange(nc)
-        for a in range(2):
-            Acon[4 * r + 2 * a, 3 * r + a] = 1.0
-            Acon[4 * r + 2 * a, 3 * r + 2] = -mu
-            Acon[4 * r + 2 * a + 1, 3 * r + a] = 1.0
-            Acon[4 * r + 2 * a + 1, 3 * r + 2] = mu
-        lb = np.tile([-mu * self.u_max, -mu * self.u_max, 0.0], nc)
-        ub = np.tile([mu * self.u_max, mu * self.u_max, self.u_max], nc)
-        cl = np.tile([-1e30, 0.0, -1e30, 0.0], nc)
-        cu = np.tile([0.0, 1e30, 0.0, 1e30], nc)
-        lo = np.concatenate([lb, cl])
-        hi = np.concatenate([ub, cu])
+        if nc not in self._cons:   # DAQP does not write to them: cached per nc
+            self._cons[nc] = friction_pyramid(nc, self.mu, self.u_max)
+        Acon, lo, hi = self._cons[nc]
         Rvec = np.tile(w_f, H)[cols]
         X = None
+        B = self._B
         for it in range(self.iters):
             # ---- forces step: condensed QP with the torque arms fixed at c_bar
-            B = self._B_lin.copy()
             arms = _skew_blocks((feet - c_bar[:, None, :]).reshape(-1, 3)).reshape(H, 4, 3, 3) * (dt * G)
             # h_k depends on u_j (j < k) through the arm at knot j: B[k, 6+a, j, 3 leg + b]
             B[:, 6:9, :, :] = self._mask[:, None, :, None] * \
@@ -147,7 +138,7 @@ class CentroidalPlanner:
             Bm = B.reshape(9 * H, 12 * H)[:, cols]
             WB = Bm * Wv[:, None]
             Hm = Bm.T @ WB
-            Hm[np.diag_indices(n)] += Rvec + 1e-9
+            Hm.flat[::n + 1] += Rvec + 1e-9
             g = WB.T @ err0
             u = self._solve(Hm, g, Acon, lo, hi)
             U = np.zeros(12 * H)
@@ -185,12 +176,12 @@ class CentroidalPlanner:
     @staticmethod
     def _solve(Hm: np.ndarray, g: np.ndarray, A: np.ndarray, lo: np.ndarray,
                hi: np.ndarray) -> np.ndarray:
-        if not (np.all(np.isfinite(Hm)) and np.all(np.isfinite(g))):
+        if not (np.isfinite(Hm).all() and np.isfinite(g).all()):
             raise ActorFailure("non-finite centroidal QP")
         import daqp
 
         sense = np.zeros(lo.size, dtype=np.int32)
         x, _, flag, _ = daqp.solve(Hm, g, A, hi, lo, sense)
-        if flag < 1 or not np.all(np.isfinite(x)):
+        if flag < 1 or not np.isfinite(x).all():
             raise ActorFailure(f"centroidal QP failed (daqp exit {flag})")
         return np.asarray(x)

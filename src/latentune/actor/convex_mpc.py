@@ -25,8 +25,8 @@ import math
 
 import numpy as np
 
-from latentune.actor.base import Actor, ActorFailure
-from latentune.actor.gait import GaitScheduler
+from latentune.actor.base import Actor, ActorFailure, friction_pyramid
+from latentune.actor.gait import GaitScheduler, StepContacts
 from latentune.actor.legs import LegKinematics, swing_trajectory
 from latentune.constants import G
 from latentune.robots import LEGS, RobotSpec
@@ -35,7 +35,6 @@ from latentune.sim.world import RobotState, World
 
 STATE_NAMES = ("roll", "pitch", "yaw", "x", "y", "z", "wx", "wy", "wz", "vx", "vy", "vz", "g")
 FORCE_NAMES = tuple(f"{leg}_f{ax}" for leg in LEGS for ax in "xyz")
-_INF = 1e30  # "no bound" for the QP solvers (DAQP and OSQP both read ±1e30 as infinite)
 
 # Manual-tuned weights (found by hand, checked by tests/test_actor.py and benchmarks.actor).
 _Q_MANUAL = {
@@ -43,6 +42,9 @@ _Q_MANUAL = {
     "jump": (20.0, 20.0, 0.2, 1e-3, 1e-3, 10.0, 0.5, 0.5, 0.2, 1.0, 1.0, 0.1, 1e-3),
 }
 _R_MANUAL = {"trot": 1e-2, "jump": 1e-2}
+
+
+_STRUCTURES: dict[tuple, tuple] = {}   # ConvexMPC._horizon_pattern's actor-independent part
 
 
 class ConvexMPC(Actor):
@@ -91,8 +93,7 @@ class ConvexMPC(Actor):
         self.swing_start = np.zeros((4, 3))       # world-frame foot position at lift-off
         self.prev_contact = np.ones(4, dtype=bool)
         self._tau_lo = -self.tau_lim
-        self._period, self._duty = self.gait.period, self.gait.duty
-        self._offsets = tuple(float(o) for o in self.gait.offsets)
+        self._step_contacts = StepContacts(self.gait, self.dt)  # stance per physics step
         self._patterns: dict[tuple[bool, ...], tuple] = {}
         self.L_diag = np.tile(self.Q, self.HORIZON)
         self.solve_count = 0
@@ -107,6 +108,15 @@ class ConvexMPC(Actor):
         self._N[11, 12] = dt
         ks = np.arange(H + 1, dtype=float)
         self._kpow, self._k2pow = ks, 0.5 * ks * (ks - 1.0)
+        # N² = dt² at (z, g) whatever the yaw (the yaw block's products all meet zero rows), so
+        # A^k = I + k N + k(k−1)/2 N² changes only in its yaw block [0:3, 6:9] from solve to
+        # solve: _solve_mpc recomputes that block with the same elementwise expression
+        self._N[0:3, 6:9] = np.eye(3) * dt
+        self._k2N2 = self._k2pow[:, None, None] * (self._N @ self._N)
+        self._Apow = self._eye13 + self._kpow[:, None, None] * self._N + self._k2N2
+        self._kpow3 = self._kpow[:, None, None]
+        self._x0 = np.empty(13)
+        self._x0[12] = -G
         self._Bc = np.zeros((13, 12))
         self._Bc[9:12] = np.tile(np.eye(3), 4) * G
         self._Ppad = np.zeros((H + 1, 13, 12))
@@ -117,6 +127,8 @@ class ConvexMPC(Actor):
         self._Xref = np.zeros((H, 13))
         self._Xref[:, 9:12] = self.v_des
         self._Xref[:, 12] = -G
+        self._vx_steps = self.v_des[0] * self._tsteps     # (H,) reference x, y advance [m]
+        self._vy_steps = self.v_des[1] * self._tsteps
         self._L_col = self.L_diag[:, None]
         self._Rvec = np.tile(self.R, H) + 1e-9
 
@@ -133,12 +145,15 @@ class ConvexMPC(Actor):
         cy, sy = math.cos(yaw), math.sin(yaw)
         Rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
         I_w_inv = Rz @ self._inertia_inv_b @ Rz.T               # world-frame inverse inertia
-        x0 = np.concatenate([rpy, com, s.omega, s.vel, [-G]])
-        # A = I + N with N nilpotent (N³ = 0): A^k = I + k N + k(k−1)/2 N²
+        x0 = self._x0                                         # (rpy, com, ω, v, −g)
+        x0[0:3], x0[3:6], x0[6:9], x0[9:12] = rpy, com, s.omega, s.vel
+        # A = I + N with N nilpotent (N³ = 0): A^k = I + k N + k(k−1)/2 N² (only the yaw block
+        # of N, and so of A^k, depends on the state; see __init__)
         N = self._N
         N[0:3, 6:9] = Rz.T * dt
-        N2 = N @ N
-        Apow = self._eye13 + self._kpow[:, None, None] * N + self._k2pow[:, None, None] * N2
+        Apow = self._Apow
+        Apow[:, 0:3, 6:9] = (self._eye13[0:3, 6:9] + self._kpow3 * N[0:3, 6:9]
+                             + self._k2N2[:, 0:3, 6:9])
         Bc = self._Bc
         mg = m * G
         r = feet_w - com                                      # (4, 3) lever arms
@@ -152,12 +167,12 @@ class ConvexMPC(Actor):
         np.matmul(Apow[:H], B, out=Ppad[:H])                  # (H, 13, 12): Ad^k B; Ppad[H] = 0
         Aqp = Apow[1:].reshape(13 * H, 13)
         cols, gather, Rvec, (Acon, lo, hi) = self._horizon_pattern(table)
-        Bc_qp = Ppad.reshape(-1)[gather]                      # (13H, n): block (k, j) = Ad^(k−j) B
+        Bc_qp = Ppad.ravel().take(gather)                     # (13H, n): block (k, j) = Ad^(k−j) B
         # reference trajectory
         Xref = self._Xref
         Xref[:, 2] = self.start_yaw
-        Xref[:, 3] = com[0] + self.v_des[0] * self._tsteps
-        Xref[:, 4] = com[1] + self.v_des[1] * self._tsteps
+        Xref[:, 3] = com[0] + self._vx_steps
+        Xref[:, 4] = com[1] + self._vy_steps
         Xref[:, 5] = ground_z + self.spec.nominal_height + self.model.com_offset[2]
         # Height reference from the current height back to the standing height, v_z,ref = its
         # derivative. (A step to the standing height with v_z,ref = 0 contradicts itself: weights
@@ -191,41 +206,28 @@ class ConvexMPC(Actor):
         key = table.tobytes()
         hit = self._pattern_cache.get(key)
         if hit is None:
-            H = self.HORIZON
-            cols = self._cols3[table.reshape(-1)].reshape(-1)
-            j = cols // 12                                    # horizon step of each variable
-            k = np.arange(H).repeat(13)                       # horizon step of each state row
-            rr = np.tile(np.arange(13), H)
-            d = k[:, None] - j[None, :]
-            d = np.where(d >= 0, d, H)                        # k < j: the zero block Ppad[H]
-            gather = (d * 13 + rr[:, None]) * 12 + (cols % 12)[None, :]
-            hit = (cols, gather, self._Rvec[cols], self._constraints(cols.size // 3))
-            self._pattern_cache[key] = hit
+            # the structure depends on the table, the horizon, μ and the force bound only: it
+            # is shared by every actor of the process (read-only; DAQP does not write to it)
+            skey = (key, self.HORIZON, self.mu, self.FZ_MAX)
+            shared = _STRUCTURES.get(skey)
+            if shared is None:
+                H = self.HORIZON
+                cols = self._cols3[table.reshape(-1)].reshape(-1)
+                j = cols // 12                                # horizon step of each variable
+                k = np.arange(H).repeat(13)                   # horizon step of each state row
+                rr = np.tile(np.arange(13), H)
+                d = k[:, None] - j[None, :]
+                d = np.where(d >= 0, d, H)                    # k < j: the zero block Ppad[H]
+                gather = (d * 13 + rr[:, None]) * 12 + (cols % 12)[None, :]
+                cons = friction_pyramid(cols.size // 3, self.mu, self.FZ_MAX)
+                shared = _STRUCTURES[skey] = (cols, gather, cons)
+            cols, gather, cons = shared
+            hit = self._pattern_cache[key] = (cols, gather, self._Rvec[cols], cons)
         return hit
-
-    def _constraints(self, nc: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Friction pyramid and force bounds for ``nc`` stance (step, leg) pairs.
-
-        Returns (A (4·nc, 3·nc), lower (7·nc,), upper (7·nc,)): simple bounds on the 3·nc
-        variables first, then the pyramid rows |f_x|, |f_y| ≤ μ f_z (all in units of m·g).
-        """
-        n, mu = 3 * nc, self.mu
-        lb = np.tile([-mu * self.FZ_MAX, -mu * self.FZ_MAX, 0.0], nc)
-        ub = np.tile([mu * self.FZ_MAX, mu * self.FZ_MAX, self.FZ_MAX], nc)
-        Acon = np.zeros((4 * nc, n))
-        r = np.arange(nc)
-        for a in range(2):  # x and y
-            Acon[4 * r + 2 * a, 3 * r + a] = 1.0
-            Acon[4 * r + 2 * a, 3 * r + 2] = -mu
-            Acon[4 * r + 2 * a + 1, 3 * r + a] = 1.0
-            Acon[4 * r + 2 * a + 1, 3 * r + 2] = mu
-        cu = np.tile([0.0, _INF, 0.0, _INF], nc)
-        cl = np.tile([-_INF, 0.0, -_INF, 0.0], nc)
-        return Acon, np.concatenate([lb, cl]), np.concatenate([ub, cu])
 
     def _qp(self, Hm: np.ndarray, g: np.ndarray, A: np.ndarray, lo: np.ndarray,
             hi: np.ndarray) -> np.ndarray:
-        if not (np.all(np.isfinite(Hm)) and np.all(np.isfinite(g))):
+        if not (np.isfinite(Hm).all() and np.isfinite(g).all()):
             raise ActorFailure("non-finite MPC problem")
         n = Hm.shape[0]
         if self.solver == "daqp":
@@ -233,7 +235,7 @@ class ConvexMPC(Actor):
 
             sense = np.zeros(lo.size, dtype=np.int32)
             x, _, flag, _ = daqp.solve(Hm, g, A, hi, lo, sense)
-            if flag < 1 or not np.all(np.isfinite(x)):
+            if flag < 1 or not np.isfinite(x).all():
                 raise ActorFailure(f"MPC QP failed (daqp exit {flag})")
             return np.asarray(x)
         import osqp
@@ -254,8 +256,7 @@ class ConvexMPC(Actor):
         kinematics, leg gravity, stance torques and swing joint references are refreshed; every
         step only the swing legs' joint PD runs on the current joint state."""
         t = step * self.dt
-        ph = t / self._period
-        contact = tuple((ph + o) % 1.0 < self._duty for o in self._offsets)  # = gait.contact(t)
+        contact = self._step_contacts(step)
         if step % self.KIN_EVERY == 0 or step % self.SOLVE_EVERY == 0 or contact != self._contact:
             self._refresh(step, t, s, contact)
         if self._stance_only:
@@ -274,12 +275,12 @@ class ConvexMPC(Actor):
             st = np.repeat(c, 3)
             sw = np.flatnonzero(~c)
             idx = (3 * sw[:, None] + np.arange(3)).reshape(-1)
-            hit = (c, st.astype(float), sw, idx, self.kp * ~st, self.kd * ~st)
+            hit = (c, st.astype(float), sw, idx, self.kp * ~st, self.kd * ~st, {})
             self._patterns[contact] = hit
         return hit
 
     def _refresh(self, step: int, t: float, s: RobotState, contact_key: tuple[bool, ...]) -> None:
-        contact, st_f, sw, idx, self._kp_sw, self._kd_sw = self._pattern(contact_key)
+        contact, st_f, sw, idx, self._kp_sw, self._kd_sw, memo = self._pattern(contact_key)
         Rb = s.R
         if self.start_yaw is None:
             self.start_yaw = float(s.rpy[2])
@@ -313,7 +314,10 @@ class ConvexMPC(Actor):
         v_body = s.vel
         # Raibert foothold: under the hip (at the stance width), half a stance ahead,
         # corrected by the velocity error
-        hips = base_link + (self.model.hip_offsets[sw] + self._lateral_b[sw]) @ Rb.T
+        hip_b = memo.get("hip_b")   # the swing hips at the stance width, base frame
+        if hip_b is None:
+            hip_b = memo["hip_b"] = self.model.hip_offsets[sw] + self._lateral_b[sw]
+        hips = base_link + hip_b @ Rb.T
         target = hips + v_body * (0.5 * self.gait.stance_time) \
             + self.spec.raibert_gain * (v_body - self.v_des)
         if self.world.terrain == "flat":
@@ -326,8 +330,8 @@ class ConvexMPC(Actor):
         p_des, v_des = swing_trajectory(self.swing_start[sw], target, progress,
                                         self.gait.params.step_height, self.gait.swing_time)
         # desired foot position/velocity relative to the base, in the base frame
-        w = s.omega
-        skew_w = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+        wx, wy, wz = s.omega.tolist()
+        skew_w = np.array([[0.0, -wz, wy], [wz, 0.0, -wx], [-wy, wx, 0.0]])
         w_x_r = (feet_w[sw] - base_link) @ skew_w.T       # rows ω × r
         rhs = np.empty((sw.size, 3, 2))
         rhs[:, :, 0] = (p_des - base_link) @ Rb - feet_b[sw]     # position error, base frame

@@ -34,7 +34,7 @@ import numpy as np
 from latentune.actor import wholebody as _wholebody
 from latentune.actor.base import Actor, ActorFailure
 from latentune.actor.centroidal import CentroidalPlanner
-from latentune.actor.gait import GaitScheduler
+from latentune.actor.gait import GaitScheduler, StepContacts
 from latentune.actor.legs import LegKinematics
 from latentune.constants import G
 from latentune.robots import LEGS, RobotSpec
@@ -131,6 +131,7 @@ class KinodynamicMPC(Actor):
         self.ddp = _wholebody.WholeBodyDDP(world.model, self.KNOT_DT, self.HORIZON, self.state_wt, self.cent_wt,
                                 self.DDP_ITERS)
         self.tau_lim = np.tile(spec.torque_limits, 4)
+        self._tau_lo = -self.tau_lim
         self.qi, self.vi = self.ddp.qi, self.ddp.vi
         self.nq = self.ddp.nq
         self.forces = np.zeros((2, 4, 3))      # world ground forces on the feet at knots 0, 1 [N]
@@ -140,6 +141,8 @@ class KinodynamicMPC(Actor):
         self.start_yaw = None
         self.liftoff = None                     # (4, 3) world position where each foot last stood
         self._offsets = [float(o) for o in self.gait.offsets]
+        self._step_contacts = StepContacts(self.gait, self.dt, 1e-6)   # = _contact(step · dt)
+        self._yaw_frame: tuple | None = None    # functions of start_yaw (see _start_frame)
         self._ff = np.zeros(12)
         self._ff_contact = None
         self.c_guess = None
@@ -148,12 +151,23 @@ class KinodynamicMPC(Actor):
         self.n_control = 0
 
     # ------------------------------------------------------------------ footholds
+    def _start_frame(self) -> tuple:
+        """Constants of the start yaw (set once, at the first control step): Rz (3, 3), its
+        quaternion (4,), Rz·com_offset (3,) and each leg's lateral stance offset Rz·(0, y, 0)
+        (4 × (3,)) [m]."""
+        if self._yaw_frame is None or self._yaw_frame[0] != self.start_yaw:
+            Rz = _rot_z(self.start_yaw)
+            lateral = [Rz @ np.array([0.0, self.model.foot_stance[leg, 1]
+                                      - self.model.hip_offsets[leg, 1], 0.0]) for leg in range(4)]
+            self._yaw_frame = (self.start_yaw, Rz, _quat_from_R(Rz), Rz @ self.model.com_offset,
+                               lateral)
+        return self._yaw_frame[1:]
+
     def _foothold(self, leg: int, t_td: float, t: float, base_link: np.ndarray, Rb: np.ndarray,
                   vel: np.ndarray) -> np.ndarray:
         """World foothold of the stance that starts at t_td (Raibert heuristic, hip moving at v_des)."""
-        Rz = _rot_z(self.start_yaw)
         hip = base_link + Rb @ self.model.hip_offsets[leg]
-        lateral = Rz @ np.array([0.0, self.model.foot_stance[leg, 1] - self.model.hip_offsets[leg, 1], 0.0])
+        lateral = self._start_frame()[3][leg]
         dt_ahead = max(0.0, t_td - t)
         p = hip + lateral + self.v_des * dt_ahead + vel * (0.5 * self.gait.stance_time) \
             + self.spec.raibert_gain * (vel - self.v_des)
@@ -211,7 +225,7 @@ class KinodynamicMPC(Actor):
         feet = self._feet_plan(t, feet_now, contact_now, base_link, Rb, s.vel)
         # contact per knot interval: stance at the interval's midpoint
         table = self.gait.contact_table(t + 0.5 * dt, dt, H)
-        Rz = _rot_z(self.start_yaw)
+        Rz, quat, com_off_w, _ = self._start_frame()
         I_w = Rb @ self.model.inertia @ Rb.T
         # references (knots 1..H)
         tk = np.arange(1, H + 1)[:, None] * dt
@@ -241,11 +255,10 @@ class KinodynamicMPC(Actor):
         vel_ref[:, 0:3] = X[:, 3:6]
         vel_ref[:, 3:6] = (X[:, 6:9] * m) @ I_w_inv.T
         xr = np.zeros((H + 1, self.nq + self.ddp.nv))
-        quat = _quat_from_R(Rz)
+        xr[:, :self.nq] = self.ddp.q_nom
+        xr[:, 0:3] = X[:, 0:3] - com_off_w
+        xr[:, 3:7] = quat
         for k in range(H + 1):
-            xr[k, :self.nq] = self.ddp.q_nom
-            xr[k, 0:3] = X[k, 0:3] - Rz @ self.model.com_offset
-            xr[k, 3:7] = quat
             xr[k, self.nq:self.nq + 3] = Rz.T @ X[k, 3:6]
             xr[k, self.nq + 3:self.nq + 6] = Rz.T @ vel_ref[k, 3:6]
         try:
@@ -289,7 +302,7 @@ class KinodynamicMPC(Actor):
             self.replan_step, k = step, 0
             self._replan(t, s)
         tc = time.perf_counter()
-        contact = self._contact(t)
+        contact = self._step_contacts(step)
         if contact != self._ff_contact or k % self.FF_EVERY == 0:
             # feed-forward τ = −Jᵀ Rᵀ f of the stance legs, Jacobians refreshed every FF_EVERY steps
             _, J = self.legs.update(s.q)
@@ -311,7 +324,7 @@ class KinodynamicMPC(Actor):
         tau = self.kp * (self._q_a + a * self._q_d - s.q) + self.kd * (self._v_a + a * self._v_d - s.dq) + self._ff
         self.timing["control"] += time.perf_counter() - tc
         self.n_control += 1
-        return np.minimum(np.maximum(tau, -self.tau_lim), self.tau_lim)
+        return np.minimum(np.maximum(tau, self._tau_lo), self.tau_lim)
 
 
 def _swing_point(p0: np.ndarray, p1: np.ndarray, s: float, height: float) -> np.ndarray:
@@ -319,10 +332,9 @@ def _swing_point(p0: np.ndarray, p1: np.ndarray, s: float, height: float) -> np.
     ``height · sin²(π s)`` bump (the same curve as :func:`latentune.actor.legs.swing_trajectory`)."""
     s = min(max(s, 0.0), 1.0)
     b = s * s * s * (10 - 15 * s + 6 * s * s)
-    p = p0 + (p1 - p0) * b
+    (a0, a1, a2), (c0, c1, c2) = p0.tolist(), p1.tolist()   # floats: cheaper than (3,) arrays
     sn = math.sin(math.pi * s)
-    p[2] += height * sn * sn
-    return p
+    return np.array([a0 + (c0 - a0) * b, a1 + (c1 - a1) * b, a2 + (c2 - a2) * b + height * sn * sn])
 
 
 def _quat_from_R(R: np.ndarray) -> np.ndarray:

@@ -11,6 +11,8 @@ import pinocchio as pin
 from latentune.constants import G
 from latentune.robots import RobotModel
 
+_LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+
 
 class LegKinematics:
     """Foot positions and per-leg Jacobians from the 12 joint angles."""
@@ -22,6 +24,14 @@ class LegKinematics:
         self.q_index = np.asarray(model.q_index)
         self.v_index = self.q_index  # revolute joints only: idx_v == idx_q
         self._q = np.zeros(self.model.nq)
+        # per leg: its foot frame and its joints' Jacobian columns (a slice when consecutive)
+        self._legs = []
+        for k, f in enumerate(self.fids):
+            cols = self.v_index[3 * k:3 * k + 3]
+            a = int(cols[0])
+            consecutive = cols.tolist() == [a, a + 1, a + 2]
+            self._legs.append((f, slice(a, a + 3) if consecutive else cols))
+        self._gravity_w = np.array([0.0, 0.0, -G])
 
     def update(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Args: q (12,) joint angles. Returns (feet (4, 3), J (4, 3, 3)) in the base link frame."""
@@ -31,10 +41,10 @@ class LegKinematics:
         pin.updateFramePlacements(m, d)
         feet = np.empty((4, 3))
         J = np.empty((4, 3, 3))
-        for k, f in enumerate(self.fids):
-            feet[k] = d.oMf[f].translation
-            Jf = pin.getFrameJacobian(m, d, f, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
-            J[k] = Jf[:3, self.v_index[3 * k:3 * k + 3]]
+        oMf = d.oMf
+        for k, (f, cols) in enumerate(self._legs):
+            feet[k] = oMf[f].translation
+            J[k] = pin.getFrameJacobian(m, d, f, _LWA)[:3, cols]
         return feet, J
 
     def gravity(self, q: np.ndarray, R: np.ndarray) -> np.ndarray:
@@ -42,7 +52,7 @@ class LegKinematics:
 
         Call after :meth:`update` with the same q.
         """
-        self.model.gravity.linear = R.T @ np.array([0.0, 0.0, -G])
+        self.model.gravity.linear = R.T @ self._gravity_w
         g = pin.computeGeneralizedGravity(self.model, self.data, self._q)
         return g[self.q_index]
 
@@ -58,9 +68,11 @@ def swing_trajectory(p0: np.ndarray, p1: np.ndarray, s: np.ndarray, height: floa
     s = np.clip(s, 0.0, 1.0)[:, None]
     b = s * s * s * (10 - 15 * s + 6 * s * s)
     db = 30 * s * s * (1 - s) ** 2 / duration
-    p = p0 + (p1 - p0) * b
-    v = (p1 - p0) * db
-    sn = np.sin(np.pi * s[:, 0])
+    d = p1 - p0
+    p = p0 + d * b
+    v = d * db
+    pi_s = np.pi * s[:, 0]
+    sn = np.sin(pi_s)
     p[:, 2] += height * sn * sn
-    v[:, 2] += height * 2 * sn * np.cos(np.pi * s[:, 0]) * np.pi / duration
+    v[:, 2] += height * 2 * sn * np.cos(pi_s) * np.pi / duration
     return p, v

@@ -104,6 +104,10 @@ class WholeBodyDDP:
             dam = crocoddyl.DifferentialActionModelFreeFwdDynamics(self.state, self.actuation, costs)
             self.models.append(crocoddyl.IntegratedActionModelEuler(dam, dt if k < horizon else 0.0))
         self.costs = [m.differential.costs.costs for m in self.models]
+        # per knot: the residuals whose references solve() sets (state, com, mom, 4 feet)
+        self._residuals = [(c["state"].cost.residual, c["com"].cost.residual,
+                            c["mom"].cost.residual, [c[f"foot{i}"].cost.residual for i in range(4)])
+                           for c in self.costs]
         x0 = x_nom.copy()
         self.problem = crocoddyl.ShootingProblem(x0, self.models[:-1], self.models[-1])
         try:  # one thread per rollout, as for BLAS (latentune.threads): rollouts run one per core
@@ -155,13 +159,12 @@ class WholeBodyDDP:
             xs (H + 1, nq + nv), us (H, nv).
         """
         H = self.H
-        for k in range(H + 1):
-            c = self.costs[k]
-            c["state"].cost.residual.reference = x_ref[k]
-            c["com"].cost.residual.reference = com_ref[k]
-            c["mom"].cost.residual.reference = pin.Motion(vel_ref[k, 0:3], vel_ref[k, 3:6])
+        for k, (r_state, r_com, r_mom, r_feet) in enumerate(self._residuals):
+            r_state.reference = x_ref[k]
+            r_com.reference = com_ref[k]
+            r_mom.reference = pin.Motion(vel_ref[k, 0:3], vel_ref[k, 3:6])
             for i in range(4):
-                c[f"foot{i}"].cost.residual.reference = foot_ref[k, i]
+                r_feet[i].reference = foot_ref[k, i]
         self.problem.x0 = x0
         if self.xs is None:  # cold start from the references (base moving with the plan)
             xs = [x0.copy()] + [x_ref[k].copy() for k in range(1, H + 1)]

@@ -354,7 +354,7 @@ class World(WorldBase):
         pos, quat = p.getBasePositionAndOrientation(r, physicsClientId=c)
         vel, omega = p.getBaseVelocity(r, physicsClientId=c)
         js = p.getJointStates(r, self.joint_ids, physicsClientId=c)
-        q, dq = np.array([(j[0], j[1]) for j in js]).T
+        q, dq = np.array([j[0] for j in js]), np.array([j[1] for j in js])
         x, y, z, w = quat
         finite = math.isfinite(pos[0] + pos[1] + pos[2] + vel[0] + vel[1] + vel[2])
         # up_z = (R_inertial · RTᵀ)[2, 2]: row 2 of the inertial frame's rotation, times column 2
