@@ -1,6 +1,6 @@
 """LatentSampler against Optuna's own samplers on the Hopper sim-to-real, at equal budgets.
 
-    python benchmarks/optuna_hopper.py [--seeds 0 1 2 3 4] [--trials 40] [--phase1-evals 300]
+    python -m benchmarks.optuna_hopper [--seeds 0 1 2 3 4] [--trials 40] [--phase1-evals 300]
         [--latent-dim 5] [--episode-steps 400] [--models runs/sim_to_real]
         [--samplers latent tpe cmaes_source gp] [--checkpoints 5 10 20 40]
         [--out results/optuna_hopper/optuna_hopper.json]
@@ -40,11 +40,7 @@ table next to it.
 from __future__ import annotations
 
 import argparse
-import datetime
-import json
 import math
-import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -57,6 +53,8 @@ from latentune.threads import one_thread_env  # noqa: E402
 one_thread_env()
 
 import numpy as np  # noqa: E402
+
+from benchmarks.common import Provenance, write_json  # noqa: E402
 
 PEERS = ("tpe", "cmaes_source", "gp", "cmaes", "turbo")
 """Samplers that are peers (stock tools); ``latent`` is reported beside them."""
@@ -249,8 +247,7 @@ def main(argv: list[str] | None = None) -> int:
     warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning)
     # the objective records falls as a constraint for every sampler; CMA-ES says it ignores them
     warnings.filterwarnings("ignore", message="Constraints have been set, but CmaEsSampler")
-    t0 = time.perf_counter()
-    load0 = os.getloadavg()
+    prov = Provenance(argv, module="benchmarks.optuna_hopper")
     per_seed = []
     for s in a.seeds:
         model_dir = Path(a.models) / f"seed{s}" / "model"
@@ -271,18 +268,10 @@ def main(argv: list[str] | None = None) -> int:
         "episode_steps": a.episode_steps, "samplers": a.samplers,
         "checkpoints": a.checkpoints, "models": a.models,
         "aggregate": aggregate(per_seed, a.samplers, a.trials, a.checkpoints),
-        "per_seed": per_seed,
-        "command": " ".join(["python", "benchmarks/optuna_hopper.py", *(argv or sys.argv[1:])]),
-        "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-        "loadavg_start": [round(v, 2) for v in load0],
-        "loadavg_end": [round(v, 2) for v in os.getloadavg()],
-        "wall_s": round(time.perf_counter() - t0, 1),
-        "versions": {"python": platform.python_version(), "optuna": optuna.__version__}}
+        "per_seed": per_seed}
     text = markdown(res)
     print(text)
-    out = Path(a.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(res, indent=1) + "\n")
+    out = write_json(a.out, res, prov.finish())
     out.with_suffix(".md").write_text(text + "\n")
     print(f"written: {out} and {out.with_suffix('.md')}")
     return 0

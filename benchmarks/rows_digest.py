@@ -6,16 +6,17 @@ same machine give the same digest whatever order the workers finished in.
 
 Usage::
 
-    python benchmarks/rows_digest.py digest DIR [DIR ...]   # the digest of stored runs
-    python benchmarks/rows_digest.py main OUT               # the main job (A1 trot, small), then its digest
-    python benchmarks/rows_digest.py handover OUT           # a seeded hand-over run on a user system
+    python -m benchmarks.rows_digest digest DIR [DIR ...] [--out F.json] # the digest of stored runs
+    python -m benchmarks.rows_digest main OUT                       # the main job (A1 trot, small), then its digest
+    python -m benchmarks.rows_digest handover OUT                   # a seeded hand-over run on a user system
 
 ``main`` runs ``latentune tune --robot a1 --task trot --out OUT --phase1-evals 40
 --phase3-evals 16 --workers 2 --seed 0 --quiet``. ``handover`` runs, with seed 0, phase 1
 (60 trials) and phase 2 on a quadratic :class:`~latentune.FunctionSystem` with a fall region
 (``OUT/source``), then phase 3 (30 trials, ``handover=True``) on a shifted copy of it through the
 source's latent space (``OUT/target``), and the same phase 3 fall-aware (``max_fall_prob=0.3``,
-``OUT/target_fall``). OUT must not exist (the digest is of a fresh run). Prints one JSON object.
+``OUT/target_fall``). OUT must not exist (the digest is of a fresh run). Prints the digest as a table; ``--out``
+writes it with its provenance (benchmarks.common).
 """
 from __future__ import annotations
 
@@ -32,6 +33,8 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXP
     os.environ.setdefault(_v, "1")      # one BLAS thread, as the CLI (before numpy is loaded)
 
 import numpy as np  # noqa: E402
+
+from benchmarks.common import Provenance, add_out_arg, finish  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -105,16 +108,17 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("what", choices=("digest", "main", "handover"))
     ap.add_argument("dirs", nargs="+", type=Path)
+    add_out_arg(ap)
     a = ap.parse_args(argv)
+    prov = Provenance(argv, module="benchmarks.rows_digest")
     if a.what == "digest":
         res = digest(*a.dirs)
     else:
         if len(a.dirs) != 1 or a.dirs[0].exists():
             raise SystemExit(f"rows_digest {a.what}: give one OUT directory that does not exist")
         res = run_main(a.dirs[0]) if a.what == "main" else run_handover(a.dirs[0])
-    rev = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
-                 text=True).stdout.strip()
-    print(json.dumps({"what": a.what, "dirs": [str(d) for d in a.dirs], "commit": rev, **res}))
+    finish(a.out, prov, {"what": a.what, "dirs": [str(d) for d in a.dirs], **res},
+           [{"what": a.what, "rows": res["n"], "md5": res["md5"]}])
     return 0
 
 

@@ -18,7 +18,7 @@ is in ``OUT/hopper.db`` and resumes. Run from the repository root::
 
     python -m examples.optuna_hopper --out runs/examples/optuna_hopper --sim-trials 300 --trials 40
 
-``benchmarks/optuna_hopper.py`` compares LatentSampler with TPE, CMA-ES with ``source_trials``
+``python -m benchmarks.optuna_hopper`` compares LatentSampler with TPE, CMA-ES with ``source_trials``
 and GPSampler over seeds; ``latentune dashboard`` shows the latentune run, and
 ``optuna-dashboard sqlite:///OUT/hopper.db`` the Optuna studies.
 """
