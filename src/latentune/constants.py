@@ -38,3 +38,9 @@ def fail_cost(fall_step: int | None, horizon: int) -> float:
     if fall_step is None:
         return 2.0 * C1
     return C1 * (2.0 - float(fall_step) / float(horizon))
+
+
+PAPER_PHASE1 = 10000
+"""The paper's phase-1 budget (evaluations per gait; Sarmadi et al.)."""
+PAPER_PHASE3 = 220
+"""The paper's phase-3 budget (evaluations per study)."""

@@ -73,14 +73,12 @@ from typing import Any
 
 import numpy as np
 
-from latentune.constants import GAITS, Phase
+from latentune.constants import GAITS, PAPER_PHASE1, PAPER_PHASE3, Phase
 from latentune.errors import UsageError
 from latentune.reporting.paper_report import ARMS
 
 logger = logging.getLogger(__name__)
 
-PAPER_PHASE1 = 10000
-PAPER_PHASE3 = 220
 MIN_PHASE1 = 12
 MIN_PHASE3 = 8
 MIN_PRESERVATION = 12

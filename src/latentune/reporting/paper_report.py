@@ -23,7 +23,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from latentune.constants import C1, Phase
+from latentune.constants import C1, PAPER_PHASE1, PAPER_PHASE3, Phase
 from latentune.reporting.metrics import (PAPER_ROBOT, evals_to_beat, paper_results, paper_row,
                                          phase_stats)
 from latentune.reporting.run_report import fmt, task_from_config
@@ -773,8 +773,6 @@ def markdown(nums: dict[str, Any], claims: list[Claim], fig: dict[str, Any]) -> 
     for c, ok, d in claims:
         mark = "not run" if ok is None else ("**holds**" if ok else "**does not hold**")
         md.append(f"- {c}: {mark} ({d})")
-    from latentune.experiments.paper import PAPER_PHASE1, PAPER_PHASE3
-
     seeds = nums["meta"].get("seeds", 1)
     md += ["", ("Caveat: one seed per study" if seeds <= 1 else
                 f"Caveat: the claims above read seed 0 ({seeds} seeds: see \"Over the seeds\")")
