@@ -401,14 +401,17 @@ def import_paper(paper_run: Path, root: Path, budget: int) -> list[str]:
     every = rungs(ROBOTS)
     done: list[str] = []
     tmp = root / f".import-{os.getpid()}"
+    sources: dict[str, tuple[dict[str, Any], int]] = {}
     for key, info in meta.get("studies", {}).items():
         rung_name = PAPER_ROWS.get(str(info.get("row")), "").format(R=R)
         method = PAPER_ARMS.get(str(info.get("arm")))
         if rung_name not in every or method is None or not (paper_run / key / "run.db").is_file():
             continue
         rung = every[rung_name]
-        src_cfg, n_src = _read_copy(paper_run / rung.source, tmp, lambda st: (
-            st.get_meta("config") or {}, st.count(Phase.PHASE1) + st.count(Phase.PHASE3)))
+        if rung.source not in sources:          # each source store is copied once
+            sources[rung.source] = _read_copy(paper_run / rung.source, tmp, lambda st: (
+                st.get_meta("config") or {}, st.count(Phase.PHASE1) + st.count(Phase.PHASE3)))
+        src_cfg, n_src = sources[rung.source]
         cfg, zs, rows = _read_copy(paper_run / key, tmp, lambda st: (
             st.get_meta("config") or {}, st.rows(Phase.ZERO_SHOT),
             st.rows(Phase.PHASE3) or st.rows(Phase.PHASE1)))
