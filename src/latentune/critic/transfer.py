@@ -68,10 +68,23 @@ the fall screen end the initial design when it rejects every remaining elite;
 centre on shrinking sides (``L/2 … L/2^8``) join the candidates before the least likely to fall
 are kept, so the search steps back toward its safe trial rather than asking over the screen.
 
+The late phase (``handoff`` = k > 0): the asks made once the target has k own (tagged) trials
+follow TuRBO-m's rules (:class:`~latentune.critic.turbo.TurboM` with one region and batch 1:
+its ``success_tol``, its ``failure_tol`` counted in evaluations, its side bounds), the side and
+counters carrying on from the transfer's side at the hand-off, the counters reset; and their
+cost model is ``handoff_model``: ``"target"``, a GP on the target's trials alone fitted as
+TuRBO-m fits a region's GP (:class:`TargetGP`: constant mean, Matérn-5/2 ARD by marginal
+likelihood on the standardized rank scores, a cold fit at every ask); ``"prior"``, the transfer
+model ``a·m_s + b + r`` with the residual's ARD lengthscales and σ_r² fitted as ``fit_ard`` fits
+them; ``"transfer"``, the transfer model as before (only the side rules change). With
+``"target"`` and ``"prior"`` the full pool's box takes its shape from the fitted lengthscales.
+The agreement, the latent share, the fall model and its screen are those of the early phase.
+
 Tags and resume
 ---------------
 ``tag = 4 · generation + pool`` (pool 0 elite, 1 full, 2 latent, 3 global). The critic's state (``L``, the
-counters, the latent share) is a function of the told history, so a fresh critic told the stored
+counters, the latent share, the hand-off: the number of own trials told before a generation) is
+a function of the told history, so a fresh critic told the stored
 rows asks what the original would have asked; the options and the source models' fitted
 hyperparameters are :meth:`Transfer.state_dict` (a resume or an ask/tell call does not refit
 them, and asks with the options the run was started with).
@@ -100,7 +113,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "succ_tol": 2, "fail_tol": 3, "latent_share_max": 0.5, "latent_falls": 3,
     "max_points": 300, "fall_kappa": 1.0, "fit_lengthscale": False, "acquisition": "thompson",
     "restart": False, "full_scales": 1, "global_share": 0.0, "design_screen": False,
-    "fit_ard": 0, "safe_fallback": False,
+    "fit_ard": 0, "safe_fallback": False, "handoff": 0, "handoff_model": "target",
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
@@ -108,10 +121,12 @@ LEGACY_OPTIONS: dict[str, Any] = {**TRANSFER_DEFAULTS, "length_init": 0.3,
                                   "fit_lengthscale": False, "acquisition": "thompson",
                                   "restart": False, "full_scales": 1, "global_share": 0.0,
                                   "design_screen": False, "fit_ard": 0,
-                                  "safe_fallback": False}
+                                  "safe_fallback": False, "handoff": 0,
+                                  "handoff_model": "target"}
 """The options of runs stored before :meth:`Transfer.state_dict` recorded them."""
 
-ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fallback": False}
+ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fallback": False,
+                                 "handoff": 0, "handoff_model": "target"}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -119,6 +134,9 @@ _SIGMA_R2_GRID = (0.01, 0.05, 0.2, 0.5, 1.0, 2.0)
 _LS_SCALES = (0.25, 0.5, 1.0, 2.0)
 """Multipliers of the source's lengthscales the target cost model may choose (``fit_lengthscale``)."""
 ACQUISITIONS = ("thompson", "ei")
+HANDOFF_MODELS = ("target", "prior", "transfer")
+"""Cost models of the late phase (``handoff``): a GP on the target alone, the transfer model
+with fitted residual lengthscales, or the transfer model unchanged (TuRBO's side rules only)."""
 _NOISE = 1e-2
 _JOINT = 256
 """Candidates (lowest confidence bounds) that share one joint Thompson sample."""
@@ -395,6 +413,51 @@ class TargetModel:
         return np.maximum(prior - (V * V).sum(0), 0.0)
 
 
+class TargetGP:
+    """A GP on the target's values ``v`` (n,) at θ ``X`` (n, d) alone, fitted as TuRBO-m fits a
+    region's GP (``turbo``: a :class:`~latentune.critic.turbo.TurboM` whose ``_build_gp`` /
+    ``_fit`` are used): ``v`` standardized (median-centred), constant mean, Matérn-5/2 ARD
+    kernel, hyperparameters by L-BFGS-B on the exact marginal likelihood from fixed starting
+    values (so they are a function of the data). Predictions are on the scale of ``v``. The
+    agreement (:meth:`coefficients`) is that of ``base``, the transfer's own model of the same
+    trials."""
+
+    sigma_r2: float
+    ls_scale = None
+
+    def __init__(self, X: np.ndarray, v: np.ndarray, turbo: Any, base: TargetModel) -> None:
+        self.X, self.v, self.base = X, np.asarray(v, dtype=float), base
+        zs, self.med, self.s = turbo._standardize(self.v)
+        model = turbo._build_gp(X, zs, None)
+        turbo._fit(model, turbo.fit_maxiter)
+        h = turbo._hypers_of(model)
+        self.ls = np.clip(np.asarray(h["lengthscale"], dtype=float).reshape(-1), *turbo.ls_bounds)
+        self.sigma_r2 = float(np.asarray(h["outputscale"]).reshape(-1)[0])
+        self.noise = float(np.asarray(h["noise"]).reshape(-1)[0])
+        self.constant = float(np.asarray(h["constant"]).reshape(-1)[0])
+        self.L = _chol(self.sigma_r2 * matern52(X, X, self.ls) + self.noise * np.eye(len(X)))
+        self.alpha = np.linalg.solve(self.L.T, np.linalg.solve(self.L, zs - self.constant))
+
+    def coefficients(self) -> tuple[np.ndarray, np.ndarray]:
+        """The transfer model's posterior mean (2,) and standard deviation (2,) of (a, b)."""
+        return self.base.coefficients()
+
+    def mean_cov(self, Xs: np.ndarray, with_cov: bool = True
+                 ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Posterior mean (m,) and, with ``with_cov``, covariance (m, m) at θ ``Xs`` (m, d)."""
+        Ks = self.sigma_r2 * matern52(self.X, Xs, self.ls)
+        mu = self.med + self.s * (self.constant + Ks.T @ self.alpha)
+        if not with_cov:
+            return mu, None
+        V = np.linalg.solve(self.L, Ks)
+        return mu, self.s ** 2 * (self.sigma_r2 * matern52(Xs, Xs, self.ls) - V.T @ V)
+
+    def variance(self, Xs: np.ndarray) -> np.ndarray:
+        """Posterior marginal variance (m,) at θ ``Xs`` (m, d)."""
+        V = np.linalg.solve(self.L, self.sigma_r2 * matern52(self.X, Xs, self.ls))
+        return self.s ** 2 * np.maximum(self.sigma_r2 - (V * V).sum(0), 0.0)
+
+
 def fit_residual_kernel(X: np.ndarray, v: np.ndarray, h0: np.ndarray,
                         prior_mean: tuple[float, float], ls0: np.ndarray, sigma_r2_0: float
                         ) -> tuple[np.ndarray, float]:
@@ -551,6 +614,11 @@ class Transfer(TwoSpaceCritic):
             raise ValueError(f"global_share must be in [0, 1), got {self.opts['global_share']!r}")
         if int(self.opts["full_scales"]) < 1:
             raise ValueError(f"full_scales must be ≥ 1, got {self.opts['full_scales']!r}")
+        if isinstance(self.opts["handoff"], bool) or int(self.opts["handoff"]) < 0:
+            raise ValueError(f"handoff must be an integer ≥ 0, got {self.opts['handoff']!r}")
+        if self.opts["handoff_model"] not in HANDOFF_MODELS:
+            raise ValueError(f"handoff_model must be one of {HANDOFF_MODELS}, "
+                             f"got {self.opts['handoff_model']!r}")
         if self.opts["acquisition"] not in ACQUISITIONS:
             raise ValueError(f"acquisition must be one of {ACQUISITIONS}, "
                              f"got {self.opts['acquisition']!r}")
@@ -571,6 +639,7 @@ class Transfer(TwoSpaceCritic):
         self.last_z = np.empty((0, self.k))
         self.decisions: list[dict[str, Any]] = []
         self._elite: np.ndarray | None = None
+        self._turbo: Any = None
 
     # ------------------------------------------------------------------ properties
     @property
@@ -614,28 +683,59 @@ class Transfer(TwoSpaceCritic):
         y = np.where(np.isfinite(self._y) & ~self._fell, self._y, np.inf)
         best = float(y[ext].min()) if ext.any() else math.inf
         L = float(self.opts["length_init"])
-        succ = fail = restarts = 0
+        succ = fail = restarts = n_seen = 0
+        k_h = int(self.opts["handoff"])
+        rules = self._side_rules(False)
+        late = False
         gens = np.unique(tags[own] // 4) if own.any() else np.empty(0, dtype=np.int64)
         for g in gens:
             m = own & (tags // 4 == g)
+            if k_h > 0 and not late and n_seen >= k_h:     # the hand-off: TuRBO's rules
+                late, succ, fail, rules = True, 0, 0, self._side_rules(True)
+            succ_tol, fail_tol, l_min, l_max = rules
             gb = float(y[m].min())
             if gb < best - 1e-3 * abs(best) if math.isfinite(best) else gb < best:
                 succ, fail = succ + 1, 0
-            else:
-                succ, fail = 0, fail + 1
+            else:           # TuRBO counts failures in evaluations, the early phase in batches
+                succ, fail = 0, fail + (int(m.sum()) if late else 1)
             best = min(best, gb)
-            if succ >= self.opts["succ_tol"]:
-                L, succ = min(2.0 * L, float(self.opts["length_max"])), 0
-            elif fail >= self.opts["fail_tol"]:
-                if self.opts["restart"] and L / 2.0 < float(self.opts["length_min"]):
+            n_seen += int(m.sum())
+            if succ >= succ_tol:
+                L, succ = min(2.0 * L, l_max), 0
+            elif fail >= fail_tol:
+                if self.opts["restart"] and L / 2.0 < l_min:
                     L, restarts = float(self.opts["length_init"]), restarts + 1
                 else:
-                    L = max(L / 2.0, float(self.opts["length_min"]))
+                    L = max(L / 2.0, l_min)
                 fail = 0
         lat = own & (tags % 4 == LATENT)
         return {"L": L, "succ": succ, "fail": fail, "n_own": int(own.sum()), "restarts": restarts,
                 "generation": int(gens.max()) + 1 if gens.size else 0,
                 "latent_told": int(lat.sum()), "latent_fell": int(self._fell[lat].sum())}
+
+    def _side_rules(self, late: bool) -> tuple[int, int, float, float]:
+        """(succ_tol, fail_tol, length_min, length_max) of the early phase (the options) or, after
+        the hand-off, of TuRBO-m (its defaults for this dimension)."""
+        if not late:
+            o = self.opts
+            return (int(o["succ_tol"]), int(o["fail_tol"]), float(o["length_min"]),
+                    float(o["length_max"]))
+        tm = self._turbo_helper()
+        return tm.success_tol, tm.failure_tol, tm.length_min, tm.length_max
+
+    def _turbo_helper(self) -> Any:
+        """A one-region :class:`~latentune.critic.turbo.TurboM` of this dimension, whose rules
+        and GP fit the late phase uses (made at the first need)."""
+        if self._turbo is None:
+            from latentune.critic.turbo import TurboM
+
+            self._turbo = TurboM(self.dim, batch_size=1, seed=self.seed, n_regions=1)
+        return self._turbo
+
+    def _handoff_active(self) -> bool:
+        """True once the target has ``handoff`` own (tagged) trials (``handoff`` > 0)."""
+        k = int(self.opts["handoff"])
+        return k > 0 and int((self._tags >= 0).sum()) >= k
 
     def _centre(self) -> np.ndarray:
         """The target's best θ: lowest cost among trials that did not fail, else the fall with
@@ -717,7 +817,9 @@ class Transfer(TwoSpaceCritic):
         v = rank_scores(self._y, self._fell)
         scales = _LS_SCALES if self.opts["fit_lengthscale"] else (1.0,)
         cost = TargetModel(self._X, v, sm.cost, sm.lengthscales, ls_scales=scales)
-        if self._ard_active():
+        if self._handoff_active() and self.opts["handoff_model"] == "target":
+            cost = TargetGP(self._X, v, self._turbo_helper(), cost)
+        elif self._ard_active():
             ls, s2 = fit_residual_kernel(self._X, v, cost.hX[:, 0], (1.0, 0.0), cost.ls,
                                          cost.sigma_r2)
             cost = TargetModel(self._X, v, sm.cost, ls, sigma_r2=s2)
@@ -726,9 +828,17 @@ class Transfer(TwoSpaceCritic):
         return cost, fall
 
     def _ard_active(self) -> bool:
-        """True when the cost model's lengthscales are fitted on the target (``fit_ard``)."""
+        """True when the transfer model's residual lengthscales are fitted on the target
+        (``fit_ard``, or the late phase's ``"prior"`` model)."""
         k = int(self.opts["fit_ard"])
-        return k > 0 and self.n_told >= k
+        return (k > 0 and self.n_told >= k) or (
+            self._handoff_active() and self.opts["handoff_model"] == "prior")
+
+    def _fitted_ls(self) -> bool:
+        """True when the cost model's lengthscales are fitted on the target (and shape the full
+        pool's box)."""
+        return self._ard_active() or (self._handoff_active()
+                                      and self.opts["handoff_model"] == "target")
 
     # ------------------------------------------------------------------ ask
     def _ask(self, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -775,10 +885,11 @@ class Transfer(TwoSpaceCritic):
             m_glob = int(round(M * float(self.opts["global_share"])))
             XG = self._pool_global(m_glob, rng)
             m_full, k_sc = M - len(XL) - len(XG), max(1, int(self.opts["full_scales"]))
+            l_max = self._side_rules(self._handoff_active())[3]
             XF = np.vstack([self._pool_full(
                 m_full // k_sc + (1 if i < m_full % k_sc else 0),
-                min(st["L"] * 2.0 ** i, float(self.opts["length_max"])), centre, rng,
-                cost_m.ls if cost_m is not None and self._ard_active() else None)
+                min(st["L"] * 2.0 ** i, l_max), centre, rng,
+                cost_m.ls if cost_m is not None and self._fitted_ls() else None)
                 for i in range(k_sc)])
             parts = [(E, np.full((len(E), self.k), np.nan), ELITE),
                      (XF, np.full((len(XF), self.k), np.nan), FULL), (XL, UL, LATENT),
@@ -884,7 +995,8 @@ class Transfer(TwoSpaceCritic):
             **({"safe_fallback": True} if ctx.safe_fallback else {}),
             **({"ls_ratio": float(np.exp(np.mean(np.log(
                 cm.ls / self.source_model().lengthscales))))}
-               if cm is not None and self._ard_active() else {})})
+               if cm is not None and self._fitted_ls() else {}),
+            **({"handoff": True} if self._handoff_active() else {})})
         log.debug("transfer ask %s", self.decisions[-1])
         return X, tags
 

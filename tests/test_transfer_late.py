@@ -1,0 +1,139 @@
+"""The transfer critic's late phase (``handoff``): TuRBO-m's side rules and a cost model of the
+target's own trials once the target has ``handoff`` own trials."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from latentune.critic.transfer import SourceModel, TargetGP, TargetModel, Transfer
+from latentune.critic.turbo import TurboM
+
+D = 8
+
+
+def _bowl(X: np.ndarray, centre: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Cost = 10·distance to ``centre``; a trial fails beyond ``radius`` (cost 100 + distance)."""
+    r = np.sqrt(((np.atleast_2d(X) - centre) ** 2).sum(1))
+    fell = r > radius
+    return np.where(fell, 100.0 + r, 10.0 * r), fell
+
+
+@pytest.fixture(scope="module")
+def source() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(0)
+    c = np.full(D, 0.4)
+    X = np.clip(c + 0.25 * rng.standard_normal((160, D)), 0, 1)
+    y, f = _bowl(X, c, 0.6)
+    return X, y, f, c
+
+
+@pytest.fixture(scope="module")
+def hypers(source):
+    X, y, f, _ = source
+    return SourceModel(X, y, f, seed=0).hypers
+
+
+def _critic(source, hypers, **kw) -> Transfer:
+    X, y, f, _ = source
+    cr = Transfer((X, y, f), None, None, batch_size=1, seed=3, **kw)
+    cr.load_state_dict({"source_hypers": hypers})
+    return cr
+
+
+def _run(cr: Transfer, centre: np.ndarray, n: int) -> None:
+    for _ in range(n):
+        X = cr.ask(1)
+        y, f = _bowl(X, centre, 0.6)
+        cr.tell(X, y, cr.last_tags, fell=f)
+
+
+def _stalled_history(cr: Transfer, n: int) -> None:
+    """One good untagged trial, then ``n`` own single-trial generations that never improve."""
+    rng = np.random.default_rng(1)
+    cr.tell(np.full((1, D), 0.4), np.array([0.0]), fell=np.array([False]))
+    for g in range(n):
+        cr.tell(rng.random((1, D)), np.array([5.0 + g]), np.array([4 * g + 1]),
+                fell=np.array([False]))
+
+
+def test_handoff_follows_turbos_side_rules(source, hypers):
+    """On a stalled run the early rules halve the side every ``fail_tol`` generations; after
+    the hand-off TuRBO-m halves it only after ``max(5, d)`` failed evaluations."""
+    early, late = _critic(source, hypers), _critic(source, hypers, handoff=3)
+    for cr in (early, late):
+        _stalled_history(cr, 12)
+    tm = TurboM(D, n_regions=1)
+    # early: 12 failures, halved 4 times from 0.5; late: 1 halving in the 3 early generations,
+    # then 9 failed evaluations: one TuRBO halving (failure_tol = 8)
+    assert early._replay_state()["L"] == pytest.approx(0.5 / 16)
+    assert tm.failure_tol == 8
+    assert late._replay_state()["L"] == pytest.approx(0.5 / 4)
+    assert late._side_rules(True) == (tm.success_tol, tm.failure_tol, tm.length_min,
+                                      tm.length_max)
+
+
+def test_handoff_models_the_target_alone(source, hypers):
+    """After the hand-off the cost model is a GP on the target's trials (its lengthscales are
+    its own, not the source's); before it the transfer model."""
+    X, y, f, c = source
+    cr = _critic(source, hypers, handoff=6)
+    _run(cr, np.clip(c + 0.1, 0, 1), 5)
+    assert isinstance(cr.models()[0], TargetModel)
+    _run(cr, np.clip(c + 0.1, 0, 1), 5)
+    m = cr.models()[0]
+    assert isinstance(m, TargetGP)
+    assert not np.allclose(m.ls, cr.source_model().lengthscales)
+    assert "handoff" not in cr.decisions[4] and cr.decisions[-1]["handoff"]
+    assert all("ls_ratio" in d for d in cr.decisions[6:])
+
+
+def test_target_gp_finds_the_coordinate_the_target_varies_on(source, hypers):
+    X, y, f, c = source
+    sm = SourceModel(X, y, f, seed=0, hypers=hypers)
+    rng = np.random.default_rng(5)
+    Xt = rng.random((30, D))
+    v = np.sin(6.0 * Xt[:, 2])
+    base = TargetModel(Xt, v, sm.cost, sm.lengthscales)
+    gp = TargetGP(Xt, v, TurboM(D, n_regions=1), base)
+    assert int(np.argmin(gp.ls)) == 2
+    mu, cov = gp.mean_cov(Xt[:5])
+    assert np.allclose(mu, v[:5], atol=0.1)
+    assert np.allclose(np.diag(cov), gp.variance(Xt[:5]))
+
+
+@pytest.mark.parametrize("model", ["target", "prior", "transfer"])
+def test_handoff_resume_asks_what_the_original_would(source, hypers, model):
+    X, y, f, c = source
+    a = _critic(source, hypers, handoff=4, handoff_model=model)
+    _run(a, np.clip(c + 0.1, 0, 1), 8)
+    b = _critic(source, hypers)
+    b.tell(a.X, a.y, a.tags, fell=a.fell)
+    b.load_state_dict(a.state_dict())
+    assert b.opts["handoff"] == 4 and b.opts["handoff_model"] == model
+    assert np.array_equal(a.ask(1), b.ask(1))
+    assert np.array_equal(a.last_tags, b.last_tags)
+
+
+def test_handoff_models_differ(source, hypers):
+    """``prior`` fits the transfer model's residual lengthscales; ``transfer`` keeps them."""
+    X, y, f, c = source
+    ls = {}
+    for model in ("prior", "transfer"):
+        cr = _critic(source, hypers, handoff=4, handoff_model=model)
+        _run(cr, np.clip(c + 0.1, 0, 1), 6)
+        m = cr.models()[0]
+        assert isinstance(m, TargetModel)
+        ls[model] = m.ls
+    src = SourceModel(X, y, f, seed=0, hypers=hypers).lengthscales
+    assert np.allclose(ls["transfer"], src) and not np.allclose(ls["prior"], src)
+
+
+def test_handoff_options_are_checked_and_stored_runs_resume_without_them(source, hypers):
+    with pytest.raises(ValueError):
+        _critic(source, hypers, handoff=-1)
+    with pytest.raises(ValueError):
+        _critic(source, hypers, handoff_model="source")
+    old = _critic(source, hypers, handoff=5)
+    opts = {k: v for k, v in old.opts.items() if k not in ("handoff", "handoff_model")}
+    old.load_state_dict({"options": opts})
+    assert old.opts["handoff"] == 0 and not old._handoff_active()
