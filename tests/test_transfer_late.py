@@ -137,3 +137,16 @@ def test_handoff_options_are_checked_and_stored_runs_resume_without_them(source,
     opts = {k: v for k, v in old.opts.items() if k not in ("handoff", "handoff_model")}
     old.load_state_dict({"options": opts})
     assert old.opts["handoff"] == 0 and not old._handoff_active()
+
+
+def test_handoff_fall_shrink_halves_the_side_after_a_late_fall(source, hypers):
+    """With ``handoff_fall_shrink`` a late generation that fell halves the side (TuRBO-m's
+    ``fall_shrink``); without it a fall is one failed evaluation like any other."""
+    side = {}
+    for on in (False, True):
+        cr = _critic(source, hypers, handoff=3, handoff_fall_shrink=on)
+        _stalled_history(cr, 4)
+        cr.tell(np.full((1, D), 0.9), np.array([200.0]), np.array([4 * 4 + 1]),
+                fell=np.array([True]))
+        side[on] = cr._replay_state()["L"]
+    assert side[False] == pytest.approx(0.25) and side[True] == pytest.approx(0.125)

@@ -79,6 +79,10 @@ model ``a·m_s + b + r`` with the residual's ARD lengthscales and σ_r² fitted 
 them; ``"transfer"``, the transfer model as before (only the side rules change). With
 ``"target"`` and ``"prior"`` the full pool's box takes its shape from the fitted lengthscales.
 The agreement, the latent share, the fall model and its screen are those of the early phase.
+``handoff_fall_shrink`` adds TuRBO-m's rule for falls as the pipeline's fall-aware TuRBO-m runs
+it (``fall_shrink`` = ``max_fall_prob``; "Falls" in :mod:`latentune.critic.turbo`): a late
+generation in which more than that share of the trials fell halves the side (once) and resets
+the counters, when the target holds a trial that did not fall.
 
 Tags and resume
 ---------------
@@ -114,6 +118,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "max_points": 300, "fall_kappa": 1.0, "fit_lengthscale": False, "acquisition": "thompson",
     "restart": False, "full_scales": 1, "global_share": 0.0, "design_screen": False,
     "fit_ard": 0, "safe_fallback": False, "handoff": 0, "handoff_model": "target",
+    "handoff_fall_shrink": False,
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
@@ -122,11 +127,12 @@ LEGACY_OPTIONS: dict[str, Any] = {**TRANSFER_DEFAULTS, "length_init": 0.3,
                                   "restart": False, "full_scales": 1, "global_share": 0.0,
                                   "design_screen": False, "fit_ard": 0,
                                   "safe_fallback": False, "handoff": 0,
-                                  "handoff_model": "target"}
+                                  "handoff_model": "target", "handoff_fall_shrink": False}
 """The options of runs stored before :meth:`Transfer.state_dict` recorded them."""
 
 ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fallback": False,
-                                 "handoff": 0, "handoff_model": "target"}
+                                 "handoff": 0, "handoff_model": "target",
+                                 "handoff_fall_shrink": False}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -700,6 +706,7 @@ class Transfer(TwoSpaceCritic):
                 succ, fail = 0, fail + (int(m.sum()) if late else 1)
             best = min(best, gb)
             n_seen += int(m.sum())
+            side = L
             if succ >= succ_tol:
                 L, succ = min(2.0 * L, l_max), 0
             elif fail >= fail_tol:
@@ -708,10 +715,22 @@ class Transfer(TwoSpaceCritic):
                 else:
                     L = max(L / 2.0, l_min)
                 fail = 0
+            if late and self._fall_shrink_due(m, tags // 4 <= g):
+                L, succ, fail = max(min(L, side / 2.0), l_min), 0, 0
         lat = own & (tags % 4 == LATENT)
         return {"L": L, "succ": succ, "fail": fail, "n_own": int(own.sum()), "restarts": restarts,
                 "generation": int(gens.max()) + 1 if gens.size else 0,
                 "latent_told": int(lat.sum()), "latent_fell": int(self._fell[lat].sum())}
+
+    def _fall_shrink_due(self, group: np.ndarray, upto: np.ndarray) -> bool:
+        """``handoff_fall_shrink``'s rule for the generation ``group`` (n,) bool: more than
+        ``max_fall_prob`` of its trials fell and one of the trials ``upto`` (n,) bool (those told
+        with it or before, the untagged ones included) did not."""
+        if not self.opts["handoff_fall_shrink"]:
+            return False
+        if self._fell[group].mean() <= float(self.opts["max_fall_prob"]):
+            return False
+        return bool((~self._fell[upto]).any())
 
     def _side_rules(self, late: bool) -> tuple[int, int, float, float]:
         """(succ_tol, fail_tol, length_min, length_max) of the early phase (the options) or, after
