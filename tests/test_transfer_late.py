@@ -150,3 +150,16 @@ def test_handoff_fall_shrink_halves_the_side_after_a_late_fall(source, hypers):
                 fell=np.array([True]))
         side[on] = cr._replay_state()["L"]
     assert side[False] == pytest.approx(0.25) and side[True] == pytest.approx(0.125)
+
+
+def test_handoff_rules_transfer_changes_the_model_only(source, hypers):
+    """``handoff_rules="transfer"``: the early side rules go on after the hand-off (the side of
+    a stalled run is the default's) while the cost model is the target's GP."""
+    early = _critic(source, hypers)
+    late = _critic(source, hypers, handoff=3, handoff_rules="transfer")
+    for cr in (early, late):
+        _stalled_history(cr, 12)
+    assert late._replay_state()["L"] == early._replay_state()["L"]
+    assert isinstance(late.models()[0], TargetGP)
+    with pytest.raises(ValueError):
+        _critic(source, hypers, handoff_rules="cma")

@@ -71,8 +71,8 @@ are kept, so the search steps back toward its safe trial rather than asking over
 The late phase (``handoff`` = k > 0): the asks made once the target has k own (tagged) trials
 follow TuRBO-m's rules (:class:`~latentune.critic.turbo.TurboM` with one region and batch 1:
 its ``success_tol``, its ``failure_tol`` counted in evaluations, its side bounds), the side and
-counters carrying on from the transfer's side at the hand-off, the counters reset; and their
-cost model is ``handoff_model``: ``"target"``, a GP on the target's trials alone fitted as
+counters carrying on from the transfer's side at the hand-off, the counters reset (``handoff_rules="transfer"`` keeps the
+early phase's rules: only the model changes); and their cost model is ``handoff_model``: ``"target"``, a GP on the target's trials alone fitted as
 TuRBO-m fits a region's GP (:class:`TargetGP`: constant mean, Matérn-5/2 ARD by marginal
 likelihood on the standardized rank scores, a cold fit at every ask); ``"prior"``, the transfer
 model ``a·m_s + b + r`` with the residual's ARD lengthscales and σ_r² fitted as ``fit_ard`` fits
@@ -118,7 +118,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "max_points": 300, "fall_kappa": 1.0, "fit_lengthscale": False, "acquisition": "thompson",
     "restart": False, "full_scales": 1, "global_share": 0.0, "design_screen": False,
     "fit_ard": 0, "safe_fallback": False, "handoff": 0, "handoff_model": "target",
-    "handoff_fall_shrink": False,
+    "handoff_fall_shrink": False, "handoff_rules": "turbo",
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
@@ -127,12 +127,13 @@ LEGACY_OPTIONS: dict[str, Any] = {**TRANSFER_DEFAULTS, "length_init": 0.3,
                                   "restart": False, "full_scales": 1, "global_share": 0.0,
                                   "design_screen": False, "fit_ard": 0,
                                   "safe_fallback": False, "handoff": 0,
-                                  "handoff_model": "target", "handoff_fall_shrink": False}
+                                  "handoff_model": "target", "handoff_fall_shrink": False,
+                                  "handoff_rules": "turbo"}
 """The options of runs stored before :meth:`Transfer.state_dict` recorded them."""
 
 ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fallback": False,
                                  "handoff": 0, "handoff_model": "target",
-                                 "handoff_fall_shrink": False}
+                                 "handoff_fall_shrink": False, "handoff_rules": "turbo"}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -141,6 +142,8 @@ _LS_SCALES = (0.25, 0.5, 1.0, 2.0)
 """Multipliers of the source's lengthscales the target cost model may choose (``fit_lengthscale``)."""
 ACQUISITIONS = ("thompson", "ei")
 HANDOFF_MODELS = ("target", "prior", "transfer")
+HANDOFF_RULES = ("turbo", "transfer")
+"""Side rules of the late phase (``handoff_rules``): TuRBO-m's, or the early phase's options."""
 """Cost models of the late phase (``handoff``): a GP on the target alone, the transfer model
 with fitted residual lengthscales, or the transfer model unchanged (TuRBO's side rules only)."""
 _NOISE = 1e-2
@@ -625,6 +628,9 @@ class Transfer(TwoSpaceCritic):
         if self.opts["handoff_model"] not in HANDOFF_MODELS:
             raise ValueError(f"handoff_model must be one of {HANDOFF_MODELS}, "
                              f"got {self.opts['handoff_model']!r}")
+        if self.opts["handoff_rules"] not in HANDOFF_RULES:
+            raise ValueError(f"handoff_rules must be one of {HANDOFF_RULES}, "
+                             f"got {self.opts['handoff_rules']!r}")
         if self.opts["acquisition"] not in ACQUISITIONS:
             raise ValueError(f"acquisition must be one of {ACQUISITIONS}, "
                              f"got {self.opts['acquisition']!r}")
@@ -692,18 +698,20 @@ class Transfer(TwoSpaceCritic):
         succ = fail = restarts = n_seen = 0
         k_h = int(self.opts["handoff"])
         rules = self._side_rules(False)
-        late = False
+        late = turbo = False
         gens = np.unique(tags[own] // 4) if own.any() else np.empty(0, dtype=np.int64)
         for g in gens:
             m = own & (tags // 4 == g)
-            if k_h > 0 and not late and n_seen >= k_h:     # the hand-off: TuRBO's rules
-                late, succ, fail, rules = True, 0, 0, self._side_rules(True)
+            if k_h > 0 and not late and n_seen >= k_h:     # the hand-off
+                late, turbo = True, self.opts["handoff_rules"] == "turbo"
+                if turbo:
+                    succ, fail, rules = 0, 0, self._side_rules(True)
             succ_tol, fail_tol, l_min, l_max = rules
             gb = float(y[m].min())
             if gb < best - 1e-3 * abs(best) if math.isfinite(best) else gb < best:
                 succ, fail = succ + 1, 0
             else:           # TuRBO counts failures in evaluations, the early phase in batches
-                succ, fail = 0, fail + (int(m.sum()) if late else 1)
+                succ, fail = 0, fail + (int(m.sum()) if turbo else 1)
             best = min(best, gb)
             n_seen += int(m.sum())
             side = L
@@ -734,8 +742,9 @@ class Transfer(TwoSpaceCritic):
 
     def _side_rules(self, late: bool) -> tuple[int, int, float, float]:
         """(succ_tol, fail_tol, length_min, length_max) of the early phase (the options) or, after
-        the hand-off, of TuRBO-m (its defaults for this dimension)."""
-        if not late:
+        the hand-off, of TuRBO-m (its defaults for this dimension; with ``handoff_rules``
+        ``"turbo"``)."""
+        if not late or self.opts["handoff_rules"] != "turbo":
             o = self.opts
             return (int(o["succ_tol"]), int(o["fail_tol"]), float(o["length_min"]),
                     float(o["length_max"]))
