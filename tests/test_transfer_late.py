@@ -8,29 +8,7 @@ import pytest
 from latentune.critic.transfer import SourceModel, TargetGP, TargetModel, Transfer
 from latentune.critic.turbo import TurboM
 
-D = 8
-
-
-def _bowl(X: np.ndarray, centre: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
-    """Cost = 10·distance to ``centre``; a trial fails beyond ``radius`` (cost 100 + distance)."""
-    r = np.sqrt(((np.atleast_2d(X) - centre) ** 2).sum(1))
-    fell = r > radius
-    return np.where(fell, 100.0 + r, 10.0 * r), fell
-
-
-@pytest.fixture(scope="module")
-def source() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    rng = np.random.default_rng(0)
-    c = np.full(D, 0.4)
-    X = np.clip(c + 0.25 * rng.standard_normal((160, D)), 0, 1)
-    y, f = _bowl(X, c, 0.6)
-    return X, y, f, c
-
-
-@pytest.fixture(scope="module")
-def hypers(source):
-    X, y, f, _ = source
-    return SourceModel(X, y, f, seed=0).hypers
+from test_transfer import D, _bowl, hypers, source  # noqa: F401 - shared fixtures
 
 
 def _critic(source, hypers, **kw) -> Transfer:
