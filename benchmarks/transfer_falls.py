@@ -1,9 +1,10 @@
 """Why the transfer phase 3 falls: every fallen trial of stored transfer studies against the ones
 that did not fall, from the stores alone (no rollouts).
 
-    python -m benchmarks.transfer_falls [--root results/paper10k/a1]
+    python -m benchmarks.transfer_falls [stores] [--root results/paper10k/a1]
         [--target a1-jump-flat-default] [--plain a1-jump-flat] [--source a1-jump]
-        [--seeds 0 1 2 3 4] [--out FILE.json] [--md FILE.md]
+        [--seeds 0 1 2 3 4] [--counterfactual OPTION=VALUE[:OPTION=VALUE] ...]
+        [--out FILE.json] [--md FILE.md]
 
 The study of seed 0 is ``ROOT/TARGET``, of seed s > 0 ``ROOT/TARGET-sS`` (the paper runner's
 naming); ``--plain`` names the paper's plain phase 3 the same way (its seed 0 is the phase 3 of
@@ -28,6 +29,17 @@ the fall rate by trust-region side and by distance from the centre.
 The source: how many of its falls each source model was fitted on (the cost model's subset and
 the fall model's balanced subset of ``max_points``), the source fall model's AUC on all source
 trials, and the source's own fall rate by RMS distance from its best θ.
+
+``--counterfactual``: at every replayed ask a copy of the critic with those Transfer options
+asks too (told the same stored history), and the fall model's mean probability at its θ is kept
+beside the stored asks' — what the option would have asked, predicted by the model, no rollouts.
+
+    python -m benchmarks.transfer_falls ladder [--root runs/transfer] [--systems chain hopper]
+        [--seeds 0 1 2] [--methods transfer transfer+VARIANT ...] [--after 8] [--out FILE.json]
+
+``ladder``: for traces of :mod:`benchmarks.transfer` (``run --variants``), per (system, gap,
+method) the median over the seeds of the best cost, of the falls and of the falls from trial
+``--after`` on (the search's falls, after the first trials the screen knows little about).
 """
 from __future__ import annotations
 
@@ -168,8 +180,14 @@ def _build(target: Path, source: Path) -> tuple[Any, list[Any]]:
     return critic, rows
 
 
-def replay_seed(target: Path, source: Path) -> dict[str, Any]:
-    """Per-trial records of one transfer study (module docstring) and its source report."""
+def replay_seed(target: Path, source: Path, variants: dict[str, dict[str, Any]] | None = None
+                ) -> dict[str, Any]:
+    """Per-trial records of one transfer study (module docstring) and its source report; with
+    ``variants`` (name -> Transfer options), each record also holds, per variant, the fall
+    model's mean probability at the θ a copy of the critic with those options asks in the same
+    state (``pf_mean_option``; no rollouts)."""
+    import copy
+
     critic, rows = _build(target, source)
     src = source_report(critic)
     k = critic.k
@@ -184,6 +202,11 @@ def replay_seed(target: Path, source: Path) -> dict[str, Any]:
         batch = rows[i:j]
         centre = critic._centre().copy()
         best_cost = float(critic.best_y) if critic.n_told else math.nan
+        twins = {}
+        for name, opts in (variants or {}).items():
+            twin = copy.deepcopy(critic)
+            twin.opts.update(opts)
+            twins[name] = twin.ask(len(batch))
         U = critic.ask(len(batch))
         T = critic.last_tags.copy()
         dec = critic.decisions[-1]
@@ -200,6 +223,8 @@ def replay_seed(target: Path, source: Path) -> dict[str, Any]:
             sd = np.sqrt(fall_m.variance(Xb))
             fa = float(fall_m.coefficients()[0][0])
         ps = critic.source_model().fall_prob(Xb)
+        p_opt = {name: np.clip(fall_m.mean_cov(Uo, False)[0], 0, 1) if fall_m is not None
+                 else np.full(len(Uo), np.nan) for name, Uo in twins.items()}
         step = np.abs(Xb - centre)
         for q, r in enumerate(batch):
             trials.append({
@@ -212,7 +237,8 @@ def replay_seed(target: Path, source: Path) -> dict[str, Any]:
                 "pf_screen": float(pf[q]), "pf_mean": float(mean[q]), "pf_sd": float(sd[q]),
                 "p_source": float(ps[q]), "rms_from_centre": float(_rms(Xb[q], centre)[0]),
                 "max_step": float(step[q].max()), "coords_moved": int((step[q] > 1e-12).sum()),
-                "best_before": best_cost})
+                "best_before": best_cost,
+                "pf_mean_option": {k: float(v[q]) for k, v in p_opt.items()}})
         Z = np.array([r.z if r.z is not None and len(r.z) == k else np.full(k, np.nan)
                       for r in batch]) if k else None
         critic.tell(Xb, np.array([r.cost for r in batch]), np.array([r.tag for r in batch]),
@@ -266,6 +292,10 @@ def seed_summary(rep: dict[str, Any], max_fall_prob: float) -> dict[str, Any]:
                      "falls": int(fell[m].sum())})
     pf = np.array([r["pf_screen"] for r in t])
     pm = np.array([r["pf_mean"] for r in t])
+    Ls = np.array([math.inf if r["L"] is None else r["L"] for r in t])
+    at_min = np.flatnonzero(Ls <= min(Ls) * (1 + 1e-9))
+    k0 = int(at_min[0]) if at_min.size else len(t)
+    costs = np.array([math.inf if r["fell"] else r["cost"] for r in t])
     after = np.array([not r["design"] for r in t])
     return {"trials": len(t), "falls": int(fell.sum()),
             "falls_per_100": 100.0 * float(fell.mean()),
@@ -278,6 +308,9 @@ def seed_summary(rep: dict[str, Any], max_fall_prob: float) -> dict[str, Any]:
             "source_p_auc": auc(np.array([r["p_source"] for r in t])[after], fell[after]),
             "screen_mean_prob": float(pf[after].mean()),
             "screen_mean_of_mean": float(pm[after].mean()),
+            "option_mean_of_mean": {k: float(np.mean([r["pf_mean_option"][k]
+                                                      for r, a in zip(t, after) if a]))
+                                    for k in t[-1]["pf_mean_option"]},
             "fall_rate_after_design": float(fell[after].mean()),
             "by_screen_prob": [{"pf_screen": f"({lo:g}, {hi:g}]", "trials": int(m.sum()),
                                 "falls": int(fell[m].sum())}
@@ -285,6 +318,11 @@ def seed_summary(rep: dict[str, Any], max_fall_prob: float) -> dict[str, Any]:
                                for m in [after & (pf > lo) & (pf <= hi)]],
             "asked_over_screen": int((pf > max_fall_prob).sum()),
             "first_fall_idx": int(np.flatnonzero(fell)[0]) if fell.any() else None,
+            "best_before_first_ask": t[0]["best_before"],
+            "first_trial_at_min_L": k0, "trials_at_min_L": int(len(t) - k0),
+            "falls_from_min_L": int(fell[k0:].sum()),
+            "best_before_min_L": float(min(t[0]["best_before"], costs[:k0].min(initial=math.inf))),
+            "best_final": float(min(t[0]["best_before"], costs.min())),
             "falls_by_quarter": [int(fell[q * len(t) // 4:(q + 1) * len(t) // 4].sum())
                                  for q in range(4)]}
 
@@ -315,6 +353,19 @@ def _fmt(v: Any) -> str:
     return str(v)
 
 
+def _section(title: str, cols: list[str], rows: list[list[Any]]) -> list[str]:
+    """Markdown lines of a titled table (cells through :func:`_fmt`)."""
+    return ["", f"## {title}", "", "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols),
+            *("| " + " | ".join(_fmt(c) for c in r) + " |" for r in rows)]
+
+
+def _rate_table(title: str, head: str, key: str, rows: list[dict[str, Any]]) -> list[str]:
+    """Markdown lines of a table of trials, falls and fall rate per bin ``row[key]``."""
+    return _section(title, [head, "trials", "falls", "rate"],
+                    [[v[key], v["trials"], v["falls"],
+                      v["falls"] / v["trials"] if v["trials"] else None] for v in rows])
+
+
 def markdown(res: dict[str, Any]) -> str:
     """The Markdown report of :func:`run`'s result."""
     S = res["seeds"]
@@ -334,6 +385,29 @@ def markdown(res: dict[str, Any]) -> str:
                  f"| {_fmt(m['screen_auc'])} / {_fmt(m['screen_mean_auc'])} / "
                  f"{_fmt(m['source_p_auc'])} | {_fmt(m['screen_mean_prob'])} / "
                  f"{_fmt(m['fall_rate_after_design'])} |")
+    cf = res.get("counterfactual") or []
+    if cf:
+        L += ["", "## Counterfactual (no rollouts): the same states asked with other options", "",
+              "Mean over the asks after the design of the fall model's posterior mean at the "
+              "asked θ; for the stored asks compare it with their fall rate after the design "
+              "(per-seed table).", "",
+              "| seed | stored asks | " + " | ".join(cf) + " |",
+              "|---|---|" + "---|" * len(cf)]
+        for s in S:
+            m = s["summary"]
+            L.append(f"| {s['seed']} | {_fmt(m['screen_mean_of_mean'])} | "
+                     + " | ".join(_fmt(m["option_mean_of_mean"][k]) for k in cf) + " |")
+        L.append("| median | " + _fmt(_median([s["summary"]["screen_mean_of_mean"] for s in S]))
+                 + " | " + " | ".join(_fmt(_median([s["summary"]["option_mean_of_mean"][k]
+                                                   for s in S])) for k in cf) + " |")
+    L += _section("What the trials at the smallest trust region bought",
+                  ["seed", "best before the first ask (zero-shot)",
+                   "first trial at the smallest side", "trials / falls from it", "best before it",
+                   "final best"],
+                  [[s["seed"], f"{m['best_before_first_ask']:.4f}", m["first_trial_at_min_L"],
+                    f"{m['trials_at_min_L']} / {m['falls_from_min_L']}",
+                    f"{m['best_before_min_L']:.4f}", f"{m['best_final']:.4f}"]
+                   for s in S for m in [s["summary"]]])
     L += ["", "## Fallen against standing trials (median over seeds of the per-seed medians)", "",
           "| quantity at the ask | fell | stood |", "|---|---|---|"]
     for k, v in res["fallen_vs_stood"].items():
@@ -342,37 +416,30 @@ def markdown(res: dict[str, Any]) -> str:
           "| log2 L | trials | falls | rate |", "|---|---|---|---|"]
     for k, v in sorted(res["by_log2_L"].items(), key=lambda kv: -float(kv[0])):
         L.append(f"| {k} | {v['trials']} | {v['falls']} | {v['falls'] / v['trials']:.3f} |")
-    L += ["", "## Fall rate by RMS distance from the ask's centre (all seeds pooled)", "",
-          "| RMS from centre | trials | falls | rate |", "|---|---|---|---|"]
-    for v in res["by_rms_from_centre"]:
-        r = v["falls"] / v["trials"] if v["trials"] else None
-        L.append(f"| {v['rms']} | {v['trials']} | {v['falls']} | {_fmt(r)} |")
-    L += ["", "## The screen's calibration: fall rate by its probability at the asked θ (asks "
-          "after the design, all seeds pooled)", "",
-          "| screen probability | trials | falls | rate |", "|---|---|---|---|"]
-    for v in res["by_screen_prob"]:
-        r = v["falls"] / v["trials"] if v["trials"] else None
-        L.append(f"| {v['pf_screen']} | {v['trials']} | {v['falls']} | {_fmt(r)} |")
-    L += ["", "## The final centre (the best θ that did not fall, after the last trial)", "",
-          "| seed | found at trial | RMS to the source's best | target trials / falls within "
-          "RMS 0.01 of it | source trials / falls within RMS 0.02 of it |", "|---|---|---|---|---|"]
-    for s in S:
-        a, b = s["final_centre_falls"][0], s["source_falls_near_final_centre"][1]
-        L.append(f"| {s['seed']} | {_fmt(s['final_centre_trial'])} "
-                 f"| {_fmt(s['final_centre_rms_to_source_best'])} | {a['trials']} / {a['falls']} "
-                 f"| {b['trials']} / {b['falls']} |")
-    L += ["", "## The source models (per seed: the fitted subsets depend on the seed)", "",
-          "| seed | source trials / falls | cost-model points / falls | fall-model points / falls "
-          "| fall-model constant | fall-model AUC on the source | p at falls / standing "
-          "| p at source best |", "|---|---|---|---|---|---|---|---|"]
-    for s in S:
-        r = s["source"]
-        L.append(f"| {s['seed']} | {r['trials']} / {r['falls']} | {r['cost_model_points']} / "
-                 f"{r['cost_model_falls']} | {r['fall_model_points']} / {r['fall_model_falls']} "
-                 f"| {_fmt(r['fall_model_constant'])} | {_fmt(r['fall_model_auc_all_source'])} "
-                 f"| {_fmt(r['fall_model_mean_at_falls'])} / "
-                 f"{_fmt(r['fall_model_mean_at_standing'])} "
-                 f"| {_fmt(r['fall_model_at_source_best'])} |")
+    L += _rate_table("Fall rate by RMS distance from the ask's centre (all seeds pooled)",
+                     "RMS from centre", "rms", res["by_rms_from_centre"])
+    L += _rate_table("The screen's calibration: fall rate by its probability at the asked θ "
+                     "(asks after the design, all seeds pooled)", "screen probability",
+                     "pf_screen", res["by_screen_prob"])
+    L += _section("The final centre (the best θ that did not fall, after the last trial)",
+                  ["seed", "found at trial", "RMS to the source's best",
+                   "target trials / falls within RMS 0.01 of it",
+                   "source trials / falls within RMS 0.02 of it"],
+                  [[s["seed"], s["final_centre_trial"], s["final_centre_rms_to_source_best"],
+                    f"{a['trials']} / {a['falls']}", f"{b['trials']} / {b['falls']}"]
+                   for s in S for a, b in [(s["final_centre_falls"][0],
+                                            s["source_falls_near_final_centre"][1])]])
+    L += _section("The source models (per seed: the fitted subsets depend on the seed)",
+                  ["seed", "source trials / falls", "cost-model points / falls",
+                   "fall-model points / falls", "fall-model constant",
+                   "fall-model AUC on the source", "p at falls / standing", "p at source best"],
+                  [[s["seed"], f"{r['trials']} / {r['falls']}",
+                    f"{r['cost_model_points']} / {r['cost_model_falls']}",
+                    f"{r['fall_model_points']} / {r['fall_model_falls']}",
+                    r["fall_model_constant"], r["fall_model_auc_all_source"],
+                    f"{_fmt(r['fall_model_mean_at_falls'])} / "
+                    f"{_fmt(r['fall_model_mean_at_standing'])}", r["fall_model_at_source_best"]]
+                   for s in S for r in [s["source"]]])
     L += ["", "## Falls around the source's best θ (source trials) and around the target's final "
           "centre (target trials, seed 0)", "",
           "| RMS within | source trials | source falls | target trials | target falls |",
@@ -385,7 +452,7 @@ def markdown(res: dict[str, Any]) -> str:
 
 
 def run(root: Path, target: str, plain: str, source: str, seeds: list[int],
-        command: str) -> dict[str, Any]:
+        command: str, variants: dict[str, dict[str, Any]] | None = None) -> dict[str, Any]:
     """Replay and summarize every seed (module docstring)."""
     plain_rows = {p["seed"]: p for p in plain_falls(root, plain, source, seeds)}
     out: list[dict[str, Any]] = []
@@ -394,7 +461,7 @@ def run(root: Path, target: str, plain: str, source: str, seeds: list[int],
         for s in seeds:
             name = study_name(target, s)
             tgt = snapshot(root / name, Path(tmp) / name)
-            rep = replay_seed(tgt, src)
+            rep = replay_seed(tgt, src, variants)
             from latentune.critic.transfer import TRANSFER_DEFAULTS
 
             summ = seed_summary(rep, float(TRANSFER_DEFAULTS["max_fall_prob"]))
@@ -429,13 +496,46 @@ def run(root: Path, target: str, plain: str, source: str, seeds: list[int],
             b["trials"] += v["trials"]
             b["falls"] += v["falls"]
     return {"target": target, "source": source, "plain": plain, "seeds": out,
-            "command": command,
+            "command": command, "counterfactual": sorted(variants or {}),
             "median_falls_per_100": _median([o["summary"]["falls_per_100"] for o in out]),
             "fallen_vs_stood": fvs, "by_log2_L": byL, "by_rms_from_centre": list(by_d.values()),
             "by_screen_prob": list(by_p.values())}
 
 
+def ladder(root: Path, systems: list[str], seeds: list[int], methods: list[str], after: int
+           ) -> list[dict[str, Any]]:
+    """Per (system, gap, method) of the transfer ladder's traces under ``root``
+    (``ROOT/<system>/gap<g>/seed<s>/<method>.json``): the median over ``seeds`` of the best cost
+    of the trials that did not fall, of the falls, and of the falls from trial ``after`` + 1 on
+    (once the target models have data), with the seeds found."""
+    rows = []
+    for system in systems:
+        for g in sorted((root / system).glob("gap*"), key=lambda p: float(p.name[3:])):
+            for m in methods:
+                best, falls, late = [], [], []
+                for s in seeds:
+                    f = g / f"seed{s}" / f"{m}.json"
+                    if not f.is_file():
+                        continue
+                    r = json.loads(f.read_text())
+                    c, fl = np.asarray(r["costs"], float), np.asarray(r["failed"], bool)
+                    best.append(float(np.min(c[~fl])) if (~fl).any() else math.inf)
+                    falls.append(int(fl.sum()))
+                    late.append(int(fl[after:].sum()))
+                rows.append({"system": system, "gap": g.name[3:], "method": m,
+                             "seeds": len(best), "median_best": _median(best),
+                             "median_falls": _median(falls), f"median_falls_after_{after}":
+                             _median(late), "falls_total": int(sum(falls)),
+                             f"falls_after_{after}_total": int(sum(late))})
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["ladder"]:
+        return main_ladder(argv[1:])
+    if argv[:1] == ["stores"]:
+        argv = argv[1:]
     from benchmarks.common import Provenance, write_json
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -447,13 +547,20 @@ def main(argv: list[str] | None = None) -> int:
                     help="the plain phase 3's studies' name (seed 0: the source's phase 3)")
     ap.add_argument("--source", default="a1-jump", help="the source study")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
+    ap.add_argument("--counterfactual", nargs="+", default=[],
+                    metavar="OPTION=VALUE[:OPTION=VALUE]",
+                    help="also ask a copy of the critic with these Transfer options at every "
+                         "replayed ask and report the fall model's mean probability at its θ")
     ap.add_argument("--out", type=Path, default=None, metavar="FILE.json",
                     help="write the results (every trial's record) and provenance here")
     ap.add_argument("--md", type=Path, default=None, metavar="FILE.md",
                     help="write the Markdown report here (it is printed on stdout too)")
     a = ap.parse_args(argv)
-    prov = Provenance(argv, module="benchmarks.transfer_falls")
-    res = run(a.root, a.target, a.plain, a.source, a.seeds, prov.command)
+    prov = Provenance(["stores", *argv], module="benchmarks.transfer_falls")
+    from benchmarks.transfer import parse_variant
+
+    variants = {v: parse_variant(v) for v in a.counterfactual}
+    res = run(a.root, a.target, a.plain, a.source, a.seeds, prov.command, variants)
     md = markdown(res)
     print(md)
     if a.md is not None:
@@ -461,6 +568,28 @@ def main(argv: list[str] | None = None) -> int:
         a.md.write_text(md)
     if a.out is not None:
         write_json(a.out, res, prov)
+    return 0
+
+
+def main_ladder(argv: list[str]) -> int:
+    """``ladder``: falls and best costs of transfer variants on the transfer ladder's traces."""
+    from benchmarks.common import Provenance, finish
+
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.transfer_falls ladder",
+                                 description=main_ladder.__doc__)
+    ap.add_argument("--root", type=Path, default=Path("runs/transfer"))
+    ap.add_argument("--systems", nargs="+", default=["chain", "hopper"])
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    ap.add_argument("--methods", nargs="+", default=["transfer"],
+                    help="trace names, e.g. transfer transfer+fall_cost=true")
+    ap.add_argument("--after", type=int, default=8,
+                    help="also count the falls from this trial on (0-based index)")
+    ap.add_argument("--out", type=Path, default=None, metavar="FILE.json")
+    a = ap.parse_args(argv)
+    prov = Provenance(["ladder", *argv], module="benchmarks.transfer_falls")
+    rows = ladder(a.root, a.systems, a.seeds, a.methods, a.after)
+    finish(a.out, prov, {"root": str(a.root), "seeds": a.seeds, "after": a.after}, rows,
+           title=f"Transfer variants on the ladder (median over seeds {a.seeds})")
     return 0
 
 
