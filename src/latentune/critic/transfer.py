@@ -66,13 +66,21 @@ likelihood (GPyTorch, a log-normal prior around the source's lengthscales;
 the fall screen end the initial design when it rejects every remaining elite;
 ``safe_fallback``: when the screen admits fewer candidates than the batch, perturbations of the
 centre on shrinking sides (``L/2 … L/2^8``) join the candidates before the least likely to fall
-are kept, so the search steps back toward its safe trial rather than asking over the screen.
+are kept, so the search steps back toward its safe trial rather than asking over the screen;
+``fall_cost``: the acquisition counts the fall among the outcomes of a candidate, with the fall
+model's posterior mean ``p(θ)`` (clipped to [0, 1]) as its probability: a Thompson sample ``s(θ)``
+of the cost rank score becomes the expected score ``(1 − p) s + p s_fall`` (``s_fall``: the
+mean score of the target's falls, or the last rank's score before any fall), also in the
+lowest-bound preselection, and expected improvement becomes ``EI · (1 − p)`` (constrained EI,
+Gardner et al. 2014): among the candidates the screen admits, the less likely to fall win ties
+in cost.
 
 The late phase (``handoff`` = k > 0): the asks made once the target has k own (tagged) trials
 follow TuRBO-m's rules (:class:`~latentune.critic.turbo.TurboM` with one region and batch 1:
-its ``success_tol``, its ``failure_tol`` counted in evaluations, its side bounds), the side and
-counters carrying on from the transfer's side at the hand-off, the counters reset (``handoff_rules="transfer"`` keeps the
-early phase's rules: only the model changes); and their cost model is ``handoff_model``: ``"target"``, a GP on the target's trials alone fitted as
+its ``success_tol``, its ``failure_tol`` counted in evaluations, its side bounds), the side
+carrying on from the transfer's side at the hand-off, the counters reset
+(``handoff_rules="transfer"`` keeps the early phase's rules: only the model changes); and their
+cost model is ``handoff_model``: ``"target"``, a GP on the target's trials alone fitted as
 TuRBO-m fits a region's GP (:class:`TargetGP`: constant mean, Matérn-5/2 ARD by marginal
 likelihood on the standardized rank scores, a cold fit at every ask); ``"prior"``, the transfer
 model ``a·m_s + b + r`` with the residual's ARD lengthscales and σ_r² fitted as ``fit_ard`` fits
@@ -117,8 +125,8 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "succ_tol": 2, "fail_tol": 3, "latent_share_max": 0.5, "latent_falls": 3,
     "max_points": 300, "fall_kappa": 1.0, "fit_lengthscale": False, "acquisition": "thompson",
     "restart": False, "full_scales": 1, "global_share": 0.0, "design_screen": False,
-    "fit_ard": 0, "safe_fallback": False, "handoff": 0, "handoff_model": "target",
-    "handoff_fall_shrink": False, "handoff_rules": "turbo",
+    "fit_ard": 0, "safe_fallback": False, "fall_cost": False, "handoff": 0,
+    "handoff_model": "target", "handoff_fall_shrink": False, "handoff_rules": "turbo",
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
@@ -132,7 +140,7 @@ LEGACY_OPTIONS: dict[str, Any] = {**TRANSFER_DEFAULTS, "length_init": 0.3,
 """The options of runs stored before :meth:`Transfer.state_dict` recorded them."""
 
 ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fallback": False,
-                                 "handoff": 0, "handoff_model": "target",
+                                 "fall_cost": False, "handoff": 0, "handoff_model": "target",
                                  "handoff_fall_shrink": False, "handoff_rules": "turbo"}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
@@ -943,16 +951,25 @@ class Transfer(TwoSpaceCritic):
         if cost_m is not None and (ei or len(cand) > _JOINT):
             mu, _ = cost_m.mean_cov(C[cand], False)
             var = cost_m.variance(C[cand])
+        p_fall = s_fall = None
+        if cost_m is not None and fall_m is not None and self.opts["fall_cost"]:
+            p_fall, s_fall = self._fall_outcome(C[cand], fall_m)
         if cost_m is not None and len(cand) > _JOINT:
             # joint samples on the candidates a sample could pick: the lowest confidence bounds
-            keep = np.sort(np.argsort(mu - 2.0 * np.sqrt(var), kind="stable")[:_JOINT])
+            lcb = mu - 2.0 * np.sqrt(var)
+            if p_fall is not None:
+                lcb = (1.0 - p_fall) * lcb + p_fall * s_fall
+            keep = np.sort(np.argsort(lcb, kind="stable")[:_JOINT])
             cand, mu, var = cand[keep], mu[keep], var[keep]
+            p_fall = None if p_fall is None else p_fall[keep]
         if ei:                  # expected improvement over the best told value, top n
             from scipy.stats import norm
 
             sd = np.sqrt(np.maximum(var, 1e-12))
             u = (float(cost_m.v.min()) - mu) / sd
             acq = sd * (u * norm.cdf(u) + norm.pdf(u))
+            if p_fall is not None:
+                acq = acq * (1.0 - p_fall)
             sel = cand[np.argsort(-acq, kind="stable")[:n]]
             if len(sel) < n:
                 sel = np.resize(sel, n)
@@ -967,6 +984,8 @@ class Transfer(TwoSpaceCritic):
         else:
             Lc = _chol(0.5 * (cov + cov.T))
             S = mu[None, :] + rng.standard_normal((n, len(cand))) @ Lc.T
+        if p_fall is not None:
+            S = (1.0 - p_fall)[None, :] * S + (p_fall * s_fall)[None, :]
         picked: list[int] = []
         for j in range(n):
             s = S[j % len(S)].copy()
@@ -991,6 +1010,19 @@ class Transfer(TwoSpaceCritic):
             Z=np.vstack([cands.Z, np.full((len(XS), self.k), np.nan)]),
             pool=np.concatenate([cands.pool, np.full(len(XS), FULL, dtype=np.int64)]),
             pf=np.concatenate([cands.pf, self._fall_prob(XS, fall_m)]))
+
+    def _fall_outcome(self, C: np.ndarray, fall_m: TargetModel) -> tuple[np.ndarray, float]:
+        """The fall model's posterior mean probability (m,) at θ ``C`` (m, d), clipped to [0, 1],
+        and the cost rank score of a fall (``fall_cost``): the mean score of the told falls, or,
+        before any, the score of the last of ``n_told + 1`` ranks."""
+        from scipy.special import ndtri
+
+        p = np.clip(fall_m.mean_cov(C, False)[0], 0.0, 1.0)
+        if self._fell.any():
+            s = float(rank_scores(self._y, self._fell)[self._fell].mean())
+        else:
+            s = float(ndtri(1.0 - 0.5 / (self.n_told + 1)))
+        return p, s
 
     def _fall_prob(self, C: np.ndarray, fall_m: TargetModel | None) -> np.ndarray:
         """The fall screen's probability (m,) at θ ``C`` (m, d): the source's fall model before
