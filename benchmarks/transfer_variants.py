@@ -36,18 +36,18 @@ def _levy(x: np.ndarray) -> np.ndarray:
     return t + (w[:, -1] - 1) ** 2 * (1 + np.sin(2 * np.pi * w[:, -1]) ** 2)
 
 
-def problem(name: str, gap: float, rng: np.random.Generator):
-    """(source, target): each maps θ (n, D) to (cost (n,), fell (n,))."""
+def problem(name: str, gap: float, rng: np.random.Generator, d: int = D):
+    """(source, target): each maps θ (n, d) to (cost (n,), fell (n,))."""
     if name == "bowl":
-        c = rng.uniform(0.3, 0.7, D)
-        ct = np.clip(c + gap * rng.standard_normal(D), 0, 1)
+        c = rng.uniform(0.3, 0.7, d)
+        ct = np.clip(c + gap * rng.standard_normal(d), 0, 1)
 
         def bowl(X, centre, radius):
             r = np.sqrt(((X - centre) ** 2).sum(1))
             return np.where(r > radius, 100 + r, 10 * r), r > radius
         return (lambda X: bowl(X, c, 0.8)), (lambda X: bowl(X, ct, 0.8 - gap))
-    s0 = rng.uniform(-2, 2, D)
-    st = s0 + gap * 10 * rng.standard_normal(D)
+    s0 = rng.uniform(-2, 2, d)
+    st = s0 + gap * 10 * rng.standard_normal(d)
     return (lambda X: (_levy(X * 20 - 10 - s0), np.zeros(len(X), bool))), \
         (lambda X: (_levy(X * 20 - 10 - st) * (1 + gap), np.zeros(len(X), bool)))
 

@@ -73,7 +73,15 @@ of the cost rank score becomes the expected score ``(1 − p) s + p s_fall`` (``
 mean score of the target's falls, or the last rank's score before any fall), also in the
 lowest-bound preselection, and expected improvement becomes ``EI · (1 − p)`` (constrained EI,
 Gardner et al. 2014): among the candidates the screen admits, the less likely to fall win ties
-in cost.
+in cost; ``stop_converged``: once the trust region has converged (``fail_tol`` batches without
+an improving one at side ``length_min``, where TuRBO ends or restarts a region; ``restart``
+restarts it instead), every later ask is the centre itself (the best θ that did not fall, tag
+pool ``full``): the search stops perturbing an incumbent whose remaining gain it cannot
+resolve, where every perturbation risks a fall near a fall boundary; ``success_scale``: a batch
+improves (TuRBO's success) when it beats the best by more than ``1e-3`` times ``|best|``
+(``"best"``, TuRBO's rule) or times the spread of the target's standing costs told before it,
+median minus best (``"spread"``: the same for any constant added to the cost, so a small gain
+near an optimum counts when it is large against what the target's trials vary by).
 
 The late phase (``handoff`` = k > 0): the asks made once the target has k own (tagged) trials
 follow TuRBO-m's rules (:class:`~latentune.critic.turbo.TurboM` with one region and batch 1:
@@ -127,6 +135,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "restart": False, "full_scales": 1, "global_share": 0.0, "design_screen": False,
     "fit_ard": 0, "safe_fallback": False, "fall_cost": False, "handoff": 0,
     "handoff_model": "target", "handoff_fall_shrink": False, "handoff_rules": "turbo",
+    "stop_converged": False, "success_scale": "best",
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
@@ -141,7 +150,8 @@ LEGACY_OPTIONS: dict[str, Any] = {**TRANSFER_DEFAULTS, "length_init": 0.3,
 
 ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fallback": False,
                                  "fall_cost": False, "handoff": 0, "handoff_model": "target",
-                                 "handoff_fall_shrink": False, "handoff_rules": "turbo"}
+                                 "handoff_fall_shrink": False, "handoff_rules": "turbo",
+                                 "stop_converged": False, "success_scale": "best"}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -639,6 +649,9 @@ class Transfer(TwoSpaceCritic):
         if self.opts["handoff_rules"] not in HANDOFF_RULES:
             raise ValueError(f"handoff_rules must be one of {HANDOFF_RULES}, "
                              f"got {self.opts['handoff_rules']!r}")
+        if self.opts["success_scale"] not in ("best", "spread"):
+            raise ValueError(f"success_scale must be 'best' or 'spread', "
+                             f"got {self.opts['success_scale']!r}")
         if self.opts["acquisition"] not in ACQUISITIONS:
             raise ValueError(f"acquisition must be one of {ACQUISITIONS}, "
                              f"got {self.opts['acquisition']!r}")
@@ -707,7 +720,9 @@ class Transfer(TwoSpaceCritic):
         k_h = int(self.opts["handoff"])
         rules = self._side_rules(False)
         late = turbo = False
+        converged = False
         gens = np.unique(tags[own] // 4) if own.any() else np.empty(0, dtype=np.int64)
+        spread = self.opts["success_scale"] == "spread"
         for g in gens:
             m = own & (tags // 4 == g)
             if k_h > 0 and not late and n_seen >= k_h:     # the hand-off
@@ -716,7 +731,12 @@ class Transfer(TwoSpaceCritic):
                     succ, fail, rules = 0, 0, self._side_rules(True)
             succ_tol, fail_tol, l_min, l_max = rules
             gb = float(y[m].min())
-            if gb < best - 1e-3 * abs(best) if math.isfinite(best) else gb < best:
+            if spread:
+                before = y[(ext | (own & (tags // 4 < g))) & np.isfinite(y)]
+                scale = float(np.median(before)) - best if before.size else 0.0
+            else:
+                scale = abs(best)
+            if gb < best - 1e-3 * scale if math.isfinite(best) else gb < best:
                 succ, fail = succ + 1, 0
             else:           # TuRBO counts failures in evaluations, the early phase in batches
                 succ, fail = 0, fail + (int(m.sum()) if turbo else 1)
@@ -729,12 +749,14 @@ class Transfer(TwoSpaceCritic):
                 if self.opts["restart"] and L / 2.0 < l_min:
                     L, restarts = float(self.opts["length_init"]), restarts + 1
                 else:
+                    converged = converged or L / 2.0 < float(self.opts["length_min"])
                     L = max(L / 2.0, l_min)
                 fail = 0
             if late and self._fall_shrink_due(m, tags // 4 <= g):
                 L, succ, fail = max(min(L, side / 2.0), l_min), 0, 0
         lat = own & (tags % 4 == LATENT)
         return {"L": L, "succ": succ, "fail": fail, "n_own": int(own.sum()), "restarts": restarts,
+                "converged": converged,
                 "generation": int(gens.max()) + 1 if gens.size else 0,
                 "latent_told": int(lat.sum()), "latent_fell": int(self._fell[lat].sum())}
 
@@ -906,6 +928,13 @@ class Transfer(TwoSpaceCritic):
                                    "rule": "every trial so far fell: the target's manual θ",
                                    "pools": ["elite"] * n})
             return np.tile(self.manual, (n, 1)), np.full(n, 4 * g + ELITE, dtype=np.int64)
+        if st["converged"] and self.opts["stop_converged"]:
+            self.last_z = np.full((n, self.k), np.nan)
+            self.decisions.append({"generation": g, "n_told": self.n_told, "design": False,
+                                   "rule": "the trust region converged: the centre",
+                                   "length": st["L"], "restarts": st["restarts"],
+                                   "pools": ["full"] * n})
+            return np.tile(centre, (n, 1)), np.full(n, 4 * g + FULL, dtype=np.int64)
         ctx = _AskContext(generation=g, state=st, design=design, agree=agree,
                           agree_sd=agree_sd, w_lat=w_lat, latent_off=latent_off, cost_m=cost_m)
         if design and len(E) >= 1 and self.opts["design_screen"]:
