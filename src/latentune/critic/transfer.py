@@ -160,10 +160,13 @@ _LS_SCALES = (0.25, 0.5, 1.0, 2.0)
 """Multipliers of the source's lengthscales the target cost model may choose (``fit_lengthscale``)."""
 ACQUISITIONS = ("thompson", "ei")
 HANDOFF_MODELS = ("target", "prior", "transfer")
-HANDOFF_RULES = ("turbo", "transfer")
-"""Side rules of the late phase (``handoff_rules``): TuRBO-m's, or the early phase's options."""
 """Cost models of the late phase (``handoff``): a GP on the target alone, the transfer model
 with fitted residual lengthscales, or the transfer model unchanged (TuRBO's side rules only)."""
+HANDOFF_RULES = ("turbo", "transfer")
+"""Side rules of the late phase (``handoff_rules``): TuRBO-m's, or the early phase's options."""
+SUCCESS_SCALES = ("best", "spread")
+"""What TuRBO's ``1e-3`` success margin multiplies (``success_scale``): ``|best|`` or the spread
+of the target's standing costs."""
 _NOISE = 1e-2
 _JOINT = 256
 """Candidates (lowest confidence bounds) that share one joint Thompson sample."""
@@ -649,8 +652,8 @@ class Transfer(TwoSpaceCritic):
         if self.opts["handoff_rules"] not in HANDOFF_RULES:
             raise ValueError(f"handoff_rules must be one of {HANDOFF_RULES}, "
                              f"got {self.opts['handoff_rules']!r}")
-        if self.opts["success_scale"] not in ("best", "spread"):
-            raise ValueError(f"success_scale must be 'best' or 'spread', "
+        if self.opts["success_scale"] not in SUCCESS_SCALES:
+            raise ValueError(f"success_scale must be one of {SUCCESS_SCALES}, "
                              f"got {self.opts['success_scale']!r}")
         if self.opts["acquisition"] not in ACQUISITIONS:
             raise ValueError(f"acquisition must be one of {ACQUISITIONS}, "
@@ -982,7 +985,7 @@ class Transfer(TwoSpaceCritic):
             var = cost_m.variance(C[cand])
         p_fall = s_fall = None
         if cost_m is not None and fall_m is not None and self.opts["fall_cost"]:
-            p_fall, s_fall = self._fall_outcome(C[cand], fall_m)
+            p_fall, s_fall = self._fall_outcome(C[cand], fall_m, cost_m.v)
         if cost_m is not None and len(cand) > _JOINT:
             # joint samples on the candidates a sample could pick: the lowest confidence bounds
             lcb = mu - 2.0 * np.sqrt(var)
@@ -1040,15 +1043,17 @@ class Transfer(TwoSpaceCritic):
             pool=np.concatenate([cands.pool, np.full(len(XS), FULL, dtype=np.int64)]),
             pf=np.concatenate([cands.pf, self._fall_prob(XS, fall_m)]))
 
-    def _fall_outcome(self, C: np.ndarray, fall_m: TargetModel) -> tuple[np.ndarray, float]:
+    def _fall_outcome(self, C: np.ndarray, fall_m: TargetModel, v: np.ndarray
+                      ) -> tuple[np.ndarray, float]:
         """The fall model's posterior mean probability (m,) at θ ``C`` (m, d), clipped to [0, 1],
-        and the cost rank score of a fall (``fall_cost``): the mean score of the told falls, or,
-        before any, the score of the last of ``n_told + 1`` ranks."""
+        and the cost rank score of a fall (``fall_cost``): the mean of the told falls' scores in
+        ``v`` (n_told,) (the cost model's rank scores of the told trials), or, before any fall,
+        the score of the last of ``n_told + 1`` ranks."""
         from scipy.special import ndtri
 
         p = np.clip(fall_m.mean_cov(C, False)[0], 0.0, 1.0)
         if self._fell.any():
-            s = float(rank_scores(self._y, self._fell)[self._fell].mean())
+            s = float(v[self._fell].mean())
         else:
             s = float(ndtri(1.0 - 0.5 / (self.n_told + 1)))
         return p, s
