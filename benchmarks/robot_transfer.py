@@ -7,6 +7,7 @@ sources of A1 and Solo12 to targets at several gaps.
     python -m benchmarks.robot_transfer run [--robots a1 solo12] [--targets RUNG ...]
         [--methods METHOD ...] [--seeds 0 1 2 3 4] [--budget 100] [--source-trials N]
         [--paper results/paper10k] [--root runs/robot_transfer] [--workers 1]
+        [--variants OPTION=VALUE[:OPTION=VALUE] ...]   (transfer variants, stored as transfer+VARIANT)
     python -m benchmarks.robot_transfer import-paper --paper-run results/paper10k/a1
         [--root runs/robot_transfer] [--budget 100]
     python -m benchmarks.robot_transfer summary [--root runs/robot_transfer]
@@ -36,9 +37,13 @@ seed) unless the source has one; ``snapshot.json``, written last, marks a finish
 Sources grow: ``run`` uses the newest snapshot (``--source-trials N``: that one; none yet: it
 takes one), ``snapshot`` takes a new one when the source has grown.
 
-``run``: for every rung, seed and method (:data:`benchmarks.transfer.METHODS`, run by
-:func:`benchmarks.transfer.run_method`) ``--budget`` B trials on the target, one at a time,
-every trial counted; one JSON per run at ``ROOT/targets/<rung>/src<N>/seed<s>/<method>.json``
+``run``: for every seed, rung and method (:data:`benchmarks.transfer.METHODS`, run by
+:func:`benchmarks.transfer.run_method`; in that order, so every rung has a seed's runs before
+the next seed starts) ``--budget`` B trials on the target, one at a time, every trial counted;
+``--variants`` adds the transfer critic with options beyond its defaults
+(:func:`benchmarks.transfer.parse_variant`), stored as method ``transfer+VARIANT`` and listed
+by ``summary`` beside the methods (never a peer); one JSON per run at
+``ROOT/targets/<rung>/src<N>/seed<s>/<method>.json``
 (cost, failed and θ per trial, the transfer critic's decisions, wall time, load average, the
 target's task config, the source and its trial count N), skipped when it exists: the run
 resumes. ``summary`` applies the transfer issue's definitions per (rung, source size)
@@ -300,9 +305,11 @@ def result_path(root: Path, target: str, n_source: int, seed: int, method: str) 
 
 
 def run_one(target_name: str, target: Any, src: Path, method: str, seed: int, budget: int,
-            root: Path, extra: dict[str, Any] | None = None) -> dict[str, Any] | None:
+            root: Path, extra: dict[str, Any] | None = None,
+            options: dict[str, Any] | None = None) -> dict[str, Any] | None:
     """``budget`` trials of ``method`` on ``target`` (a System) from the prepared source
-    ``src``; writes and returns the result (None when it is stored already)."""
+    ``src``; writes and returns the result (None when it is stored already). A method
+    ``transfer+VARIANT`` is the transfer critic with ``options`` (stored under that name)."""
     info = snapshot_info(src)
     f = result_path(root, target_name, int(info["n_trials"]), seed, method)
     if f.is_file():
@@ -310,11 +317,13 @@ def run_one(target_name: str, target: Any, src: Path, method: str, seed: int, bu
     rec = Recorded(target)
     load0 = list(os.getloadavg())
     t0 = time.perf_counter()
-    res = tr.run_method(method, rec, src, budget, seed)
+    res = tr.run_method(method.partition("+")[0], rec, src, budget, seed, options)
     res.update(target=target_name, source=Path(info["from"]).name, source_dir=str(src),
                source_trials=int(info["n_trials"]), seed=seed, method=method, budget=budget,
                wall_s=time.perf_counter() - t0, load_start=load0, load_end=list(os.getloadavg()),
                thetas=rec.thetas, **(extra or {}))
+    if options:
+        res["options"] = options
     cfg = getattr(target, "config", None)
     if callable(cfg):
         res["target_config"] = cfg()
@@ -326,9 +335,10 @@ def run_one(target_name: str, target: Any, src: Path, method: str, seed: int, bu
 
 
 def _job(args: tuple) -> str:
-    rung, src, method, seed, budget, root = args
+    rung, src, method, seed, budget, root, options = args
     target = build_target(rung, src)
-    res = run_one(rung.name, target, src, method, seed, budget, root, {"label": rung.label})
+    res = run_one(rung.name, target, src, method, seed, budget, root, {"label": rung.label},
+                  options)
     if res is None:
         return f"{rung.name} seed {seed} {method}: stored"
     return (f"{rung.name} ({res['source_trials']} source trials) seed {seed} {method}: best "
@@ -337,15 +347,23 @@ def _job(args: tuple) -> str:
 
 def run(a: argparse.Namespace) -> None:
     root, paper = Path(a.root), Path(a.paper)
-    jobs = []
+    methods = [(m, None) for m in a.methods] + \
+        [(f"transfer+{v}", tr.parse_variant(v)) for v in getattr(a, "variants", None) or []]
+    from latentune.critic.transfer import TRANSFER_DEFAULTS
+
+    for m, o in methods:
+        if o is not None and set(o) - set(TRANSFER_DEFAULTS):
+            raise RobotTransferError(f"{m}: unknown transfer option(s) "
+                                     f"{', '.join(sorted(set(o) - set(TRANSFER_DEFAULTS)))}")
+    prepared = []
     for rung in select(a.robots, a.targets):
         src = source_dir(paper, root, rung.robot, rung.source, a.source_trials)
         build_target(rung, src)                         # refuse a bad rung before any trial
-        if "transfer" in a.methods:
+        if any(m.partition("+")[0] == "transfer" for m, _ in methods):
             tr.source_hypers(src, 0)                   # fitted once, before the workers share it
-        n = int(snapshot_info(src)["n_trials"])
-        jobs += [(rung, src, m, s, a.budget, root) for s in a.seeds for m in a.methods
-                 if not result_path(root, rung.name, n, s, m).is_file()]
+        prepared.append((rung, src, int(snapshot_info(src)["n_trials"])))
+    jobs = [(rung, src, m, s, a.budget, root, o) for s in a.seeds for rung, src, n in prepared
+            for m, o in methods if not result_path(root, rung.name, n, s, m).is_file()]
     print(f"{len(jobs)} runs to do", flush=True)
     if a.workers == 1:
         for j in jobs:
@@ -610,6 +628,8 @@ def parser() -> argparse.ArgumentParser:
     r.add_argument("--source-trials", type=_pos_int, default=None,
                    help="use the snapshot of this many trials (default: the newest)")
     r.add_argument("--workers", type=_pos_int, default=1)
+    r.add_argument("--variants", nargs="+", default=[],
+                   help="transfer variants option=value[:option=value], stored as transfer+VARIANT")
     im = sub.add_parser("import-paper", help="the seeded rows of a latentune paper run that "
                         "are rungs, as results (no new trial)")
     im.add_argument("--paper-run", required=True,

@@ -289,18 +289,23 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
                                  "falls_median": float(np.median([sum(rs[s]["failed"])
                                                                   for s in seeds])),
                                  "best": best}
-            picks, agree, any_dec = [], [], False
+            picks, explores, agree, any_dec = [], [], [], False
             for s in seeds:             # the transfer critic's decision records, one pass
-                n_lat = 0
+                n_lat = n_ex = 0
                 for d in rs[s].get("decisions", []):
                     any_dec = True
                     n_lat += sum(p == "latent" for p in d["pools"])
+                    n_ex += len(d["pools"]) if d.get("explore") else 0
                     if d.get("agreement") is not None and not d.get("design"):
                         agree.append(d["agreement"])
                 picks.append(n_lat)
+                explores.append(n_ex)
             if any_dec:
                 row["methods"][m]["latent_picks"] = {"median": float(np.median(picks)),
                                                      "max": int(max(picks))}
+                if any(explores):       # trials of explore asks (``explore_every``)
+                    row["methods"][m]["explore_picks"] = {"median": float(np.median(explores)),
+                                                          "max": int(max(explores))}
                 if agree:
                     row["methods"][m]["agreement_iqr"] = [float(np.percentile(agree, 25)),
                                                           float(np.percentile(agree, 75))]

@@ -188,3 +188,49 @@ def test_command_line_refuses_bad_input(capsys):
     assert "unknown source 'a1-walk'" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         rt.main(["run", "--budget", "0"])
+
+
+def test_variants_run_as_transfer_with_their_options_seed_by_seed(monkeypatch, tmp_path):
+    """``run --variants``: each variant is a job ``transfer+VARIANT`` carrying its options; every
+    rung has a seed's jobs before the next seed's."""
+    done: list[tuple] = []
+    monkeypatch.setattr(rt, "source_dir", lambda *a, **k: tmp_path)
+    monkeypatch.setattr(rt, "build_target", lambda rung, src: None)
+    monkeypatch.setattr(rt, "snapshot_info", lambda src: {"n_trials": 5})
+    monkeypatch.setattr(tr, "source_hypers", lambda src, seed: None)
+    monkeypatch.setattr(rt, "_job", lambda j: done.append((j[0].name, j[3], j[2], j[6])) or "")
+    a = rt.parser().parse_args(["run", "--robots", "a1", "--targets", "b1-trot-from-a1",
+                                "a1-jump-from-trot", "--methods", "tpe", "--seeds", "0", "1",
+                                "--variants", "explore_every=2", "--root", str(tmp_path)])
+    rt.run(a)
+    v = ("transfer+explore_every=2", {"explore_every": 2})
+    assert done == [(r, s, *m) for s in (0, 1) for r in ("b1-trot-from-a1", "a1-jump-from-trot")
+                    for m in (("tpe", None), v)]
+    assert rt.main(["run", "--robots", "a1", "--targets", "b1-trot-from-a1", "--root",
+                    str(tmp_path), "--variants", "no_such_option=1"]) == 2
+
+
+def test_a_variant_is_stored_under_its_name_and_summarized_beside_the_peers(live, tmp_path,
+                                                                              monkeypatch):
+    snap = rt.snapshot(live, tmp_path / "sources" / "toy")
+    calls: list[tuple] = []
+
+    def fake(method, target, src, B, seed, options=None):
+        calls.append((method, options))
+        return {"costs": [3.0 - (method == "transfer")] * B, "failed": [False] * B}
+
+    monkeypatch.setattr(tr, "run_method", fake)
+    target = make_real_system(steps=60)
+    for seed in (0, 1):
+        for m, o in (("zero_shot", None), ("tpe", None),
+                     ("transfer+explore_every=2", {"explore_every": 2})):
+            rt.run_one("toy-real", target, snap, m, seed, 2, tmp_path, options=o)
+    assert calls[2] == ("transfer", {"explore_every": 2})
+    n = rt.snapshot_info(snap)["n_trials"]
+    r = json.loads(rt.result_path(tmp_path, "toy-real", n, 0, "transfer+explore_every=2")
+                   .read_text())
+    assert r["method"] == "transfer+explore_every=2" and r["options"] == {"explore_every": 2}
+    (row,) = rt.summarize(tmp_path)["targets"]
+    assert row["best_peer"] in ("zero_shot", "tpe")
+    assert row["methods"]["transfer+explore_every=2"]["median_best"] == 2.0
+    assert "| transfer+explore_every=2 | 2 |" in rt.markdown({"targets": [row]})

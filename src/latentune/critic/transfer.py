@@ -83,6 +83,22 @@ improves (TuRBO's success) when it beats the best by more than ``1e-3`` times ``
 median minus best (``"spread"``: the same for any constant added to the cost, so a small gain
 near an optimum counts when it is large against what the target's trials vary by).
 
+``explore_every`` = k ≥ 2 (0: off) makes every k-th ask an *explore* ask: generation ``g`` is
+one when ``g % k == k − 1`` and the ask is not an initial-design ask of the elite pool, the
+manual θ after falls, nor the converged centre (``stop_converged``). Its candidates are
+``n_candidates`` Sobol codes over the whole latent box (side 1, not ``2L`` around the centre's
+code), decoded as the latent pool's (tag pool ``latent``); without a latent space, Sobol points
+over the whole θ box (tag pool ``global``). The fall screen applies as usual (without
+``safe_fallback``'s centre perturbations), and the batch is chosen among these candidates alone
+as every batch is (Thompson samples of the cost model by default): the model chooses where in
+the decoded manifold to look, and perturbations of the centre cannot take the slot. The told
+history recognises an explore generation by the same rule (``g % k == k − 1`` and none of its
+trials in pool ``elite`` or ``full``). Explore generations leave ``L`` and its counters alone
+(and ``handoff_fall_shrink``'s rule; the trust region follows the other batches only) and do
+not count in the latent pool's fall record (``latent_falls``); their trials are data for the
+models and raise the best value a later batch must beat, and an explore trial that becomes the
+best moves the centre, as any trial does. Each decision records ``"explore"``.
+
 The late phase (``handoff`` = k > 0): the asks made once the target has k own (tagged) trials
 follow TuRBO-m's rules (:class:`~latentune.critic.turbo.TurboM` with one region and batch 1:
 its ``success_tol``, its ``failure_tol`` counted in evaluations, its side bounds), the side
@@ -135,7 +151,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "restart": False, "full_scales": 1, "global_share": 0.0, "design_screen": False,
     "fit_ard": 0, "safe_fallback": False, "fall_cost": False, "handoff": 0,
     "handoff_model": "target", "handoff_fall_shrink": False, "handoff_rules": "turbo",
-    "stop_converged": False, "success_scale": "best",
+    "stop_converged": False, "success_scale": "best", "explore_every": 0,
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
@@ -151,7 +167,8 @@ LEGACY_OPTIONS: dict[str, Any] = {**TRANSFER_DEFAULTS, "length_init": 0.3,
 ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fallback": False,
                                  "fall_cost": False, "handoff": 0, "handoff_model": "target",
                                  "handoff_fall_shrink": False, "handoff_rules": "turbo",
-                                 "stop_converged": False, "success_scale": "best"}
+                                 "stop_converged": False, "success_scale": "best",
+                                 "explore_every": 0}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -598,6 +615,7 @@ class _AskContext:
     cost_m: TargetModel | None
     design_screened: bool = False
     safe_fallback: bool = False
+    explore: bool = False
 
 
 @dataclass
@@ -652,6 +670,10 @@ class Transfer(TwoSpaceCritic):
         if self.opts["handoff_rules"] not in HANDOFF_RULES:
             raise ValueError(f"handoff_rules must be one of {HANDOFF_RULES}, "
                              f"got {self.opts['handoff_rules']!r}")
+        k_ex = self.opts["explore_every"]
+        if isinstance(k_ex, bool) or not isinstance(k_ex, (int, np.integer)) or k_ex < 0 \
+                or k_ex == 1:
+            raise ValueError(f"explore_every must be 0 (off) or an integer ≥ 2, got {k_ex!r}")
         if self.opts["success_scale"] not in SUCCESS_SCALES:
             raise ValueError(f"success_scale must be one of {SUCCESS_SCALES}, "
                              f"got {self.opts['success_scale']!r}")
@@ -726,8 +748,14 @@ class Transfer(TwoSpaceCritic):
         converged = False
         gens = np.unique(tags[own] // 4) if own.any() else np.empty(0, dtype=np.int64)
         spread = self.opts["success_scale"] == "spread"
+        explore = np.zeros(len(tags), dtype=bool)
         for g in gens:
             m = own & (tags // 4 == g)
+            if self._explore_generation(int(g)) and not np.isin(tags[m] % 4, (ELITE, FULL)).any():
+                explore |= m            # data and best value only: L follows the other batches
+                best = min(best, float(y[m].min()))
+                n_seen += int(m.sum())
+                continue
             if k_h > 0 and not late and n_seen >= k_h:     # the hand-off
                 late, turbo = True, self.opts["handoff_rules"] == "turbo"
                 if turbo:
@@ -757,11 +785,18 @@ class Transfer(TwoSpaceCritic):
                 fail = 0
             if late and self._fall_shrink_due(m, tags // 4 <= g):
                 L, succ, fail = max(min(L, side / 2.0), l_min), 0, 0
-        lat = own & (tags % 4 == LATENT)
+        lat = own & (tags % 4 == LATENT) & ~explore
         return {"L": L, "succ": succ, "fail": fail, "n_own": int(own.sum()), "restarts": restarts,
                 "converged": converged,
                 "generation": int(gens.max()) + 1 if gens.size else 0,
                 "latent_told": int(lat.sum()), "latent_fell": int(self._fell[lat].sum())}
+
+    def _explore_generation(self, g: int) -> bool:
+        """True when generation ``g`` is due for an explore ask (``explore_every`` = k ≥ 2 and
+        ``g % k == k − 1``; the ask itself is one unless it is a design, manual or converged
+        ask: module docstring)."""
+        k = int(self.opts["explore_every"])
+        return k >= 2 and g % k == k - 1
 
     def _fall_shrink_due(self, group: np.ndarray, upto: np.ndarray) -> bool:
         """``handoff_fall_shrink``'s rule for the generation ``group`` (n,) bool: more than
@@ -841,16 +876,22 @@ class Transfer(TwoSpaceCritic):
         return SobolEngine(self.dim, scramble=True, seed=int(rng.integers(2 ** 31))).draw(
             m, dtype=torch.float64).numpy()
 
-    def _pool_latent(self, m: int, L: float, centre: np.ndarray, rng: np.random.Generator
-                     ) -> tuple[np.ndarray, np.ndarray]:
+    def _pool_latent(self, m: int, L: float, centre: np.ndarray, rng: np.random.Generator,
+                     whole: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """``m`` decoded Sobol codes: θ (m, d) and their unit codes (m, k), in a box of side
+        ``min(1, 2L)`` around the code of ``centre`` (d,), or with ``whole`` in the whole latent
+        box (``explore_every``)."""
         import torch
         from torch.quasirandom import SobolEngine
 
         if m <= 0 or self.latent is None:
             return np.empty((0, self.dim)), np.empty((0, self.k))
-        u0 = np.asarray(self.latent.to_unit(self.latent.encode(centre)), dtype=float)
-        side = min(1.0, 2.0 * L)
-        lb, ub = np.clip(u0 - side / 2, 0, 1), np.clip(u0 + side / 2, 0, 1)
+        if whole:
+            lb, ub = np.zeros(self.k), np.ones(self.k)
+        else:
+            u0 = np.asarray(self.latent.to_unit(self.latent.encode(centre)), dtype=float)
+            side = min(1.0, 2.0 * L)
+            lb, ub = np.clip(u0 - side / 2, 0, 1), np.clip(u0 + side / 2, 0, 1)
         sob = SobolEngine(self.k, scramble=True, seed=int(rng.integers(2 ** 31))).draw(
             m, dtype=torch.float64).numpy()
         U = lb + (ub - lb) * sob
@@ -929,14 +970,14 @@ class Transfer(TwoSpaceCritic):
             self.last_z = np.full((n, self.k), np.nan)
             self.decisions.append({"generation": g, "n_told": self.n_told, "design": True,
                                    "rule": "every trial so far fell: the target's manual θ",
-                                   "pools": ["elite"] * n})
+                                   "pools": ["elite"] * n, "explore": False})
             return np.tile(self.manual, (n, 1)), np.full(n, 4 * g + ELITE, dtype=np.int64)
         if st["converged"] and self.opts["stop_converged"]:
             self.last_z = np.full((n, self.k), np.nan)
             self.decisions.append({"generation": g, "n_told": self.n_told, "design": False,
                                    "rule": "the trust region converged: the centre",
                                    "length": st["L"], "restarts": st["restarts"],
-                                   "pools": ["full"] * n})
+                                   "pools": ["full"] * n, "explore": False})
             return np.tile(centre, (n, 1)), np.full(n, 4 * g + FULL, dtype=np.int64)
         ctx = _AskContext(generation=g, state=st, design=design, agree=agree,
                           agree_sd=agree_sd, w_lat=w_lat, latent_off=latent_off, cost_m=cost_m)
@@ -947,6 +988,13 @@ class Transfer(TwoSpaceCritic):
                 ctx.design_screened = True
         if design and len(E) >= 1:
             parts = [(E, np.full((len(E), self.k), np.nan), ELITE)]
+        elif self._explore_generation(g):   # explore: the whole latent box (or θ box) only
+            ctx.explore = True
+            if self.latent is None:
+                parts = [(self._pool_global(M, rng), np.empty((M, 0)), GLOBAL)]
+            else:
+                XL, UL = self._pool_latent(M, st["L"], centre, rng, whole=True)
+                parts = [(XL, UL, LATENT)]
         else:
             m_lat = int(round(M * w_lat))
             XL, UL = self._pool_latent(m_lat, st["L"], centre, rng)
@@ -969,7 +1017,7 @@ class Transfer(TwoSpaceCritic):
             pf=self._fall_prob(C, fall_m))
         # the fall screen
         ok = cands.pf <= float(self.opts["max_fall_prob"])
-        if ok.sum() < n and self.opts["safe_fallback"]:
+        if ok.sum() < n and self.opts["safe_fallback"] and not ctx.explore:
             cands = self._safe_fallback(cands, st["L"], centre, fall_m, rng)
             C, ctx.safe_fallback = cands.X, True
             ok = cands.pf <= float(self.opts["max_fall_prob"])
@@ -1085,6 +1133,7 @@ class Transfer(TwoSpaceCritic):
             "n_candidates": int(len(cands.X)), "n_admissible": int(cands.ok.sum()),
             "max_fall_prob_asked": float(cands.pf[sel].max()),
             "pools": [POOL_NAMES[int(p)] for p in cands.pool[sel]],
+            "explore": bool(ctx.explore),
             **({"design_screened": True} if ctx.design_screened else {}),
             **({"safe_fallback": True} if ctx.safe_fallback else {}),
             **({"ls_ratio": float(np.exp(np.mean(np.log(

@@ -1,0 +1,143 @@
+"""The transfer critic's explore asks (``explore_every``): every k-th ask searches the whole
+latent box (or θ box), and the trust region follows the other asks only."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from latentune.critic.transfer import (ADDED_OPTIONS, FULL, GLOBAL, LATENT, TRANSFER_DEFAULTS,
+                                       Transfer)
+
+from test_transfer import D, _bowl, hypers, source  # noqa: F401 - shared fixtures
+
+# what the critic asked before ``explore_every`` existed (seed 3, the linear latent space below,
+# the target bowl centred at 0.5): θ (8, D) and tags (8,)
+_BEFORE_X = np.array([
+    (0.465157437267, 0.393638670827, 0.363238623288, 0.242355502507, 0.413841243728, 0.503029351282, 0.334052959865, 0.284168965073),
+    (0.215966907167, 0.557782272286, 0.392644519346, 0.503156838801, 0.326929271845, 0.241250654353, 0.377331716223, 0.398750967431),
+    (0.267014533677, 0.226847575704, 0.369864766428, 0.395688214068, 0.389753783826, 0.261119031622, 0.446856294472, 0.618903873883),
+    (0.387254974969, 0.396724641356, 0.453140019828, 0.398688930644, 0.335586908185, 0.389939275625, 0.398891864460, 0.376595438253),
+    (0.443052695619, 0.376610905028, 0.442451580281, 0.391246210733, 0.357045842527, 0.395988613770, 0.413744337088, 0.352790181734),
+    (0.474448722950, 0.361629070618, 0.419952767960, 0.412215525275, 0.403614193271, 0.414197576030, 0.402438020400, 0.375953883638),
+    (0.388363364545, 0.399238251682, 0.383762095557, 0.433042808051, 0.436238705660, 0.416963551175, 0.372285593897, 0.449638213675),
+    (0.389710196970, 0.402612024404, 0.376369696067, 0.422595438539, 0.438434770488, 0.413031981757, 0.380689274126, 0.441103286516)])
+_BEFORE_TAGS = [0, 4, 8, 14, 18, 22, 26, 30]
+
+
+class _LinearLatent:
+    """A 3-dim linear latent space of the D-dim θ box around 0.4 (codes in [0, 1]^3)."""
+
+    d, d_low = D, 3
+
+    def __init__(self) -> None:
+        self.W = np.random.default_rng(4).standard_normal((3, D)) * 0.3
+
+    def to_unit(self, z: np.ndarray) -> np.ndarray:
+        return np.clip(np.asarray(z), 0, 1)
+
+    def encode(self, th: np.ndarray) -> np.ndarray:
+        return np.clip(0.5 + (np.atleast_2d(th) - 0.4) @ self.W.T, 0, 1)[0]
+
+    def decode(self, U: np.ndarray) -> np.ndarray:
+        return np.clip(0.4 + (np.atleast_2d(U) - 0.5) @ self.W, 0, 1)
+
+
+def _critic(source, hypers, latent=True, **kw) -> Transfer:
+    X, y, f, _ = source
+    cr = Transfer((X, y, f), _LinearLatent() if latent else None, None, batch_size=1, seed=3,
+                  **kw)
+    cr.load_state_dict({"source_hypers": hypers})
+    return cr
+
+
+def _run(cr: Transfer, n: int) -> None:
+    for _ in range(n):
+        X = cr.ask(1)
+        y, f = _bowl(X, np.full(D, 0.5), 0.6)
+        cr.tell(X, y, cr.last_tags, fell=f, z=cr.last_z)
+
+
+def test_off_asks_what_the_critic_asked_before(source, hypers):
+    assert TRANSFER_DEFAULTS["explore_every"] == 0 == ADDED_OPTIONS["explore_every"]
+    cr = _critic(source, hypers)
+    _run(cr, 8)
+    assert cr.tags.tolist() == _BEFORE_TAGS
+    assert np.allclose(cr.X, _BEFORE_X, atol=1e-8)
+    assert not any(d["explore"] for d in cr.decisions)
+
+
+def test_every_second_ask_decodes_a_code_of_the_whole_latent_box(source, hypers):
+    cr = _critic(source, hypers, explore_every=2)
+    _run(cr, 8)
+    ex = [d["generation"] for d in cr.decisions if d["explore"]]
+    assert ex == [3, 5, 7]                  # after the design (0-2), g % 2 == 1
+    for g in ex:
+        assert cr.tags[g] % 4 == LATENT
+        assert np.allclose(cr.X[g], cr.latent.decode(cr._Z[g][None, :])[0])
+    # with no latent share the other asks perturb the centre; the explore asks still decode
+    cr = _critic(source, hypers, explore_every=2, latent_share_max=0.0)
+    _run(cr, 8)
+    assert [t % 4 for t in cr.tags[3:]] == [LATENT, FULL, LATENT, FULL, LATENT]
+    # whole box: the pool's codes are not confined around the centre's code
+    U = cr._pool_latent(256, 1 / 128, cr._centre(), np.random.default_rng(0), whole=True)[1]
+    assert U.min(0).max() < 0.05 and U.max(0).min() > 0.95
+
+
+def test_without_a_latent_space_explore_asks_the_whole_theta_box(source, hypers):
+    cr = _critic(source, hypers, latent=False, explore_every=2)
+    _run(cr, 6)
+    assert [d["explore"] for d in cr.decisions] == [False] * 3 + [True, False, True]
+    assert [t % 4 for t in cr.tags[[3, 5]]] == [GLOBAL, GLOBAL]
+
+
+def _history(cr: Transfer, explore_cost: float) -> None:
+    """One good untagged trial, then 12 single-trial generations: the odd ones (explore asks for
+    k = 2) from the latent pool at ``explore_cost``, the even ones from the full pool, never
+    improving."""
+    rng = np.random.default_rng(1)
+    cr.tell(np.full((1, D), 0.4), np.array([0.0]), fell=np.array([False]))
+    for g in range(12):
+        pool, y = (LATENT, explore_cost) if g % 2 else (FULL, 5.0 + g)
+        cr.tell(rng.random((1, D)), np.array([y]), np.array([4 * g + pool]),
+                fell=np.array([bool(g % 2) and explore_cost > 50]))
+
+
+@pytest.mark.parametrize("explore_cost", [9.0, -1.0, 99.0])
+def test_explore_asks_leave_the_side_and_its_counters_alone(source, hypers, explore_cost):
+    """Failing (9), improving (-1) or falling (99) explore trials: the k = 2 critic's side
+    follows the 6 full-pool generations (two halvings), the k = 0 critic's all 12."""
+    on, off = _critic(source, hypers, explore_every=2), _critic(source, hypers)
+    for cr in (on, off):
+        _history(cr, explore_cost)
+    st = on._replay_state()
+    assert st["L"] == pytest.approx(0.5 / 4) and st["succ"] == 0
+    assert st["latent_told"] == 0
+    assert off._replay_state()["L"] != pytest.approx(0.5 / 4)
+    if explore_cost < 0:                    # the explore trial is the best: the centre moves
+        assert on.best_y == -1.0 and np.allclose(on._centre(), on.X[on.y.argmin()])
+
+
+def test_resume_mid_run_asks_what_the_original_would(source, hypers):
+    a = _critic(source, hypers, explore_every=2)
+    _run(a, 6)                              # the next ask (generation 6) is not explore
+    b = _critic(source, hypers)
+    b.tell(a.X, a.y, a.tags, fell=a.fell, z=a._Z)
+    b.load_state_dict(a.state_dict())
+    assert b.opts["explore_every"] == 2
+    for _ in range(2):                      # generations 6 and 7 (explore)
+        xa, xb = a.ask(1), b.ask(1)
+        assert np.array_equal(xa, xb) and np.array_equal(a.last_tags, b.last_tags)
+        assert a.decisions[-1]["explore"] == b.decisions[-1]["explore"]
+        for cr, x in ((a, xa), (b, xb)):
+            y, f = _bowl(x, np.full(D, 0.5), 0.6)
+            cr.tell(x, y, cr.last_tags, fell=f, z=cr.last_z)
+    assert a.decisions[-1]["explore"]
+    old = _critic(source, hypers, explore_every=2)
+    old.load_state_dict({"options": {k: v for k, v in a.opts.items() if k != "explore_every"}})
+    assert old.opts["explore_every"] == 0
+
+
+@pytest.mark.parametrize("bad", [1, -2, 2.5, True])
+def test_explore_every_is_checked(source, hypers, bad):
+    with pytest.raises(ValueError):
+        _critic(source, hypers, explore_every=bad)
