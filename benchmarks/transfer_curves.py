@@ -15,7 +15,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -28,17 +28,36 @@ def best_so_far(run: dict) -> np.ndarray:
     return np.minimum.accumulate(np.where(np.array(run["failed"], dtype=bool), np.inf, c))
 
 
+def targets(root: Path, methods: list[str], seeds: list[int] | None
+            ) -> Iterator[tuple[Path, list[int]]]:
+    """Each target directory ``ROOT/<system>/gap<g>`` with the seeds (among ``seeds``, all when
+    ``None``) that ran every method of ``methods``; targets with none are skipped."""
+    for tdir in sorted(root.glob("*/gap*")):
+        have = [int(p.name[4:]) for p in tdir.glob("seed*")
+                if all((p / f"{m}.json").is_file() for m in methods)]
+        use = sorted(s for s in have if seeds is None or s in seeds)
+        if use:
+            yield tdir, use
+
+
+def ladder_args(ap: argparse.ArgumentParser) -> None:
+    """The options every table of the ladder's stored runs takes: ``--root``, ``--methods``,
+    ``--seeds``, ``--out`` (JSON with provenance) and ``--md`` (the table headed by its
+    command)."""
+    ap.add_argument("--root", default="runs/transfer")
+    ap.add_argument("--methods", nargs="+", required=True)
+    ap.add_argument("--seeds", nargs="+", type=int, default=None)
+    add_out_arg(ap)
+    ap.add_argument("--md", type=Path, default=None, metavar="FILE.md",
+                    help="also write the table, headed by the command that made it")
+
+
 def curves(root: Path, methods: list[str], seeds: list[int] | None, at: list[int]
            ) -> list[dict[str, Any]]:
     """One row per (target, method): the seeds used and the median best-so-far at each trial of
     ``at`` (key ``"trial t"``; ∞ until a trial stands) over the seeds that ran every method."""
     rows: list[dict[str, Any]] = []
-    for tdir in sorted(root.glob("*/gap*")):
-        have = [int(p.name[4:]) for p in tdir.glob("seed*")
-                if all((p / f"{m}.json").is_file() for m in methods)]
-        use = sorted(s for s in have if seeds is None or s in seeds)
-        if not use:
-            continue
+    for tdir, use in targets(root, methods, seeds):
         for m in methods:
             C = np.array([best_so_far(json.loads((tdir / f"seed{s}" / f"{m}.json").read_text()))
                           for s in use])
@@ -54,13 +73,8 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     prov = Provenance(argv, "benchmarks.transfer_curves")
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--root", default="runs/transfer")
-    ap.add_argument("--methods", nargs="+", required=True)
-    ap.add_argument("--seeds", nargs="+", type=int, default=None)
+    ladder_args(ap)
     ap.add_argument("--at", nargs="+", type=int, default=[1, 2, 4, 10, 20, 40])
-    add_out_arg(ap)
-    ap.add_argument("--md", type=Path, default=None, metavar="FILE.md",
-                    help="also write the table, headed by the command that made it")
     a = ap.parse_args(argv)
     if min(a.at) < 1:
         print("error: --at: trials count from 1", file=sys.stderr)
