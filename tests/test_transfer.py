@@ -231,7 +231,7 @@ def test_design_screen_skips_elites_the_fall_model_rejects(source, hypers):
     y0, f0 = _bowl(best, corner, 0.3)
     runs = {}
     for on in (False, True):
-        cr = _critic(source, hypers, manual=np.full(D, 0.85), design_screen=on)
+        cr = _critic(source, hypers, manual=np.full(D, 0.85), design_screen=on, explore_every=0)
         cr.tell(best[None], y0, fell=f0)
         runs[on] = (cr, _run(cr, corner, 0.3, 6)[1])
     off, on = runs[False][0].decisions, runs[True][0].decisions
@@ -299,7 +299,7 @@ def test_safe_fallback_steps_back_instead_of_asking_over_the_screen(source, hype
     p = TRANSFER_DEFAULTS["max_fall_prob"]
     over = {}
     for on in (False, True):
-        cr = _critic(source, hypers, manual=np.full(D, 0.6), safe_fallback=on)
+        cr = _critic(source, hypers, manual=np.full(D, 0.6), safe_fallback=on, explore_every=0)
         cr.tell(best[None], y0, fell=f0)
         falls = _run(cr, corner, 0.3, 10)[1]
         over[on] = sum(d.get("max_fall_prob_asked", 0.0) > p for d in cr.decisions)

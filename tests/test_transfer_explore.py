@@ -58,8 +58,8 @@ def _run(cr: Transfer, n: int) -> None:
 
 
 def test_off_asks_what_the_critic_asked_before(source, hypers):
-    assert TRANSFER_DEFAULTS["explore_every"] == 0 == ADDED_OPTIONS["explore_every"]
-    cr = _critic(source, hypers)
+    assert ADDED_OPTIONS["explore_every"] == 0      # stored runs from before resume without
+    cr = _critic(source, hypers, explore_every=0)
     _run(cr, 8)
     assert cr.tags.tolist() == _BEFORE_TAGS
     assert np.allclose(cr.X, _BEFORE_X, atol=1e-8)
@@ -106,7 +106,7 @@ def _history(cr: Transfer, explore_cost: float) -> None:
 def test_explore_asks_leave_the_side_and_its_counters_alone(source, hypers, explore_cost):
     """Failing (9), improving (-1) or falling (99) explore trials: the k = 2 critic's side
     follows the 6 full-pool generations (two halvings), the k = 0 critic's all 12."""
-    on, off = _critic(source, hypers, explore_every=2), _critic(source, hypers)
+    on, off = _critic(source, hypers, explore_every=2), _critic(source, hypers, explore_every=0)
     for cr in (on, off):
         _history(cr, explore_cost)
     st = on._replay_state()

@@ -11,7 +11,7 @@ D = 6
 # a target that no trial improves on: the trust region halves 0.5 → 0.25 → 0.125 (one failed
 # batch each) and converges at the third failed batch
 FAST = {"length_init": 0.5, "length_min": 0.125, "fail_tol": 1, "n_design": 0,
-        "n_candidates": 200}
+        "n_candidates": 200, "explore_every": 0}
 
 
 def _cost(X: np.ndarray, best: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -53,7 +53,9 @@ improving batches, halving after ``fail_tol`` batches without one). A candidate 
 fall probability (its posterior mean plus ``fall_kappa`` standard deviations: an upper
 confidence bound, as in safe Bayesian optimization) exceeds ``max_fall_prob`` is skipped (if fewer than the batch remain, the least
 likely to fall are kept); among the rest each point of the batch is the argmin of one joint
-Thompson sample of the cost model.
+Thompson sample of the cost model. By default every second ask after the design is an explore
+ask (``explore_every`` below): its candidates are decoded codes of the whole latent box, and
+``L`` follows the other asks only.
 
 Options that change the model and the choice (:data:`TRANSFER_DEFAULTS`): ``fit_lengthscale``
 lets the target cost model choose, with σ_r², a multiplier of the source's lengthscales
@@ -83,7 +85,7 @@ improves (TuRBO's success) when it beats the best by more than ``1e-3`` times ``
 median minus best (``"spread"``: the same for any constant added to the cost, so a small gain
 near an optimum counts when it is large against what the target's trials vary by).
 
-``explore_every`` = k ≥ 2 (0: off) makes every k-th ask an *explore* ask: generation ``g`` is
+``explore_every`` = k ≥ 2 (0: off; default 2) makes every k-th ask an *explore* ask: generation ``g`` is
 one when ``g % k == k − 1`` and the ask is not an initial-design ask of the elite pool, the
 manual θ after falls, nor the converged centre (``stop_converged``). Its candidates are
 ``n_candidates`` Sobol codes over the whole latent box (side 1, not ``2L`` around the centre's
@@ -154,7 +156,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "restart": False, "full_scales": 1, "global_share": 0.0, "design_screen": False,
     "fit_ard": 0, "safe_fallback": False, "fall_cost": False, "handoff": 0,
     "handoff_model": "target", "handoff_fall_shrink": False, "handoff_rules": "turbo",
-    "stop_converged": False, "success_scale": "best", "explore_every": 0,
+    "stop_converged": False, "success_scale": "best", "explore_every": 2,
     "explore_when": "always",
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
