@@ -510,12 +510,47 @@ def summarize(root: Path) -> dict[str, Any]:
             if p < 0.05:
                 beats.append(m)
         row["beats_zero_shot"] = beats
+    checks = cost_checks(root)
+    for row in s["targets"]:
+        row["cost_check"] = checks.get((row["target"], row["source_trials"]))
     return s
+
+
+def cost_checks(root: Path) -> dict[tuple[str, int], dict[str, Any]]:
+    """Per (rung, source size), over every stored trial under ``root``: the number of trials,
+    of non-finite costs and of falls, the lowest cost of a fall and the highest of a trial that
+    did not fall (a fall's cost carries the fall penalty: the two ranges should not meet)."""
+    out: dict[tuple[str, int], dict[str, Any]] = {}
+    for f in sorted((root / "targets").glob(RESULT_GLOB)):
+        r = json.loads(f.read_text())
+        c = np.asarray(r["costs"], dtype=float)
+        fell = np.asarray(r["failed"], dtype=bool)
+        o = out.setdefault((r["target"], int(r["source_trials"])),
+                           {"trials": 0, "non_finite": 0, "falls": 0, "fall_cost_min": None,
+                            "standing_cost_max": None})
+        o["trials"] += int(c.size)
+        o["non_finite"] += int((~np.isfinite(c)).sum())
+        o["falls"] += int(fell.sum())
+        for k, sel, agg in (("fall_cost_min", fell, min), ("standing_cost_max", ~fell, max)):
+            v = c[sel & np.isfinite(c)]
+            if v.size:
+                o[k] = float(agg(v)) if o[k] is None else float(agg(o[k], agg(v)))
+    return out
+
+
+def _g(v: float | None) -> str:
+    return "-" if v is None else f"{v:.4g}"
 
 
 def markdown(s: dict[str, Any]) -> str:
     """The summary's tables (:func:`benchmarks.transfer.markdown`) and the rungs to drop."""
     md = tr.markdown(s, _title)
+    for row in s["targets"]:
+        c = row.get("cost_check")
+        if c:
+            md += (f"\n\n{_title(row)}: {c['trials']} trials, {c['non_finite']} non-finite costs, "
+                   f"{c['falls']} falls (fall costs ≥ {_g(c['fall_cost_min'])}, standing costs ≤ "
+                   f"{_g(c['standing_cost_max'])})")
     flat = [_title(r) for r in s["targets"] if r.get("beats_zero_shot") == []]
     if flat:
         md += "\n\nNo method beats the zero-shot θ (p < 0.05) on: " + "; ".join(flat)

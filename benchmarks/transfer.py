@@ -290,9 +290,13 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
                                                                   for s in seeds])),
                                  "best": best}
             picks, explores, agree, any_dec = [], [], [], False
+            best_ex = 0
             for s in seeds:             # the transfer critic's decision records, one pass
                 n_lat = n_ex = 0
-                for d in rs[s].get("decisions", []):
+                dec = rs[s].get("decisions", [])
+                j = int(np.argmin(rs[s]["costs"]))      # decision i asks trial i + 2
+                best_ex += int(1 <= j <= len(dec) and bool(dec[j - 1].get("explore")))
+                for d in dec:
                     any_dec = True
                     n_lat += sum(p == "latent" for p in d["pools"])
                     n_ex += len(d["pools"]) if d.get("explore") else 0
@@ -305,7 +309,8 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
                                                      "max": int(max(picks))}
                 if any(explores):       # trials of explore asks (``explore_every``)
                     row["methods"][m]["explore_picks"] = {"median": float(np.median(explores)),
-                                                          "max": int(max(explores))}
+                                                          "max": int(max(explores)),
+                                                          "seeds_best_from_explore": best_ex}
                 if agree:
                     row["methods"][m]["agreement_iqr"] = [float(np.percentile(agree, 25)),
                                                           float(np.percentile(agree, 75))]
