@@ -1,11 +1,13 @@
 """Median best-so-far curves of the transfer ladder's stored runs.
 
     python -m benchmarks.transfer_curves --root runs/transfer --methods transfer gp ...
-        [--seeds 0 1 2] [--at 1 2 4 10 20 40] [--out F.md]
+        [--seeds 0 1 2] [--at 1 2 4 10 20 40] [--out F.json] [--md F.md]
 
 For every target (``ROOT/<system>/gap<g>``) and method: the best cost among the trials that did
 not fall after each trial (∞ until one stands), per seed, then the median over the seeds that
-ran every listed method, printed at the trials ``--at`` (Markdown; ``--out`` also writes it).
+ran every listed method, at the trials ``--at``. Printed as a Markdown table; ``--out`` writes the
+rows with their provenance (command, commit, machine, load) as JSON, ``--md`` the table headed by
+the command that made it.
 """
 from __future__ import annotations
 
@@ -13,8 +15,11 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import Any, Iterator
 
 import numpy as np
+
+from benchmarks.common import Provenance, add_out_arg, finish, markdown_table
 
 
 def best_so_far(run: dict) -> np.ndarray:
@@ -23,37 +28,65 @@ def best_so_far(run: dict) -> np.ndarray:
     return np.minimum.accumulate(np.where(np.array(run["failed"], dtype=bool), np.inf, c))
 
 
-def curves(root: Path, methods: list[str], seeds: list[int] | None, at: list[int]) -> str:
-    """The Markdown table of median best-so-far at trials ``at`` (module docstring)."""
-    lines = [f"| target | method | {' | '.join(f'trial {t}' for t in at)} |",
-             "|---|---|" + "---:|" * len(at)]
+def targets(root: Path, methods: list[str], seeds: list[int] | None
+            ) -> Iterator[tuple[Path, list[int]]]:
+    """Each target directory ``ROOT/<system>/gap<g>`` with the seeds (among ``seeds``, all when
+    ``None``) that ran every method of ``methods``; targets with none are skipped."""
     for tdir in sorted(root.glob("*/gap*")):
         have = [int(p.name[4:]) for p in tdir.glob("seed*")
                 if all((p / f"{m}.json").is_file() for m in methods)]
         use = sorted(s for s in have if seeds is None or s in seeds)
-        if not use:
-            continue
+        if use:
+            yield tdir, use
+
+
+def ladder_args(ap: argparse.ArgumentParser) -> None:
+    """The options every table of the ladder's stored runs takes: ``--root``, ``--methods``,
+    ``--seeds``, ``--out`` (JSON with provenance) and ``--md`` (the table headed by its
+    command)."""
+    ap.add_argument("--root", default="runs/transfer")
+    ap.add_argument("--methods", nargs="+", required=True)
+    ap.add_argument("--seeds", nargs="+", type=int, default=None)
+    add_out_arg(ap)
+    ap.add_argument("--md", type=Path, default=None, metavar="FILE.md",
+                    help="also write the table, headed by the command that made it")
+
+
+def curves(root: Path, methods: list[str], seeds: list[int] | None, at: list[int]
+           ) -> list[dict[str, Any]]:
+    """One row per (target, method): the seeds used and the median best-so-far at each trial of
+    ``at`` (key ``"trial t"``; ∞ until a trial stands) over the seeds that ran every method."""
+    rows: list[dict[str, Any]] = []
+    for tdir, use in targets(root, methods, seeds):
         for m in methods:
             C = np.array([best_so_far(json.loads((tdir / f"seed{s}" / f"{m}.json").read_text()))
                           for s in use])
             med = np.median(C, axis=0)
-            lines.append(f"| {tdir.parent.name} {tdir.name} ({len(use)} seeds) | {m} | "
-                         + " | ".join(f"{med[t - 1]:.4g}" for t in at) + " |")
-    return "\n".join(lines)
+            if max(at) > len(med):
+                raise ValueError(f"{tdir}: {m} ran {len(med)} trials, fewer than --at {max(at)}")
+            rows.append({"target": f"{tdir.parent.name} {tdir.name}", "seeds": len(use),
+                         "method": m, **{f"trial {t}": float(med[t - 1]) for t in at}})
+    return rows
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    prov = Provenance(argv, "benchmarks.transfer_curves")
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--root", default="runs/transfer")
-    ap.add_argument("--methods", nargs="+", required=True)
-    ap.add_argument("--seeds", nargs="+", type=int, default=None)
+    ladder_args(ap)
     ap.add_argument("--at", nargs="+", type=int, default=[1, 2, 4, 10, 20, 40])
-    ap.add_argument("--out", default=None)
-    a = ap.parse_args(sys.argv[1:] if argv is None else argv)
-    md = curves(Path(a.root), a.methods, a.seeds, a.at)
-    print(md)
-    if a.out:
-        Path(a.out).write_text(md + "\n")
+    a = ap.parse_args(argv)
+    if min(a.at) < 1:
+        print("error: --at: trials count from 1", file=sys.stderr)
+        return 2
+    try:
+        rows = curves(Path(a.root), a.methods, a.seeds, a.at)
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    finish(a.out, prov, {"root": str(a.root), "methods": a.methods, "at": a.at}, rows)
+    if a.md is not None:
+        a.md.write_text(f"`{prov.command}`\n\n{markdown_table(rows)}\n")
     return 0
 
 

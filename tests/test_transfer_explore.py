@@ -141,3 +141,29 @@ def test_resume_mid_run_asks_what_the_original_would(source, hypers):
 def test_explore_every_is_checked(source, hypers, bad):
     with pytest.raises(ValueError):
         _critic(source, hypers, explore_every=bad)
+
+
+def test_stalled_explores_only_at_the_minimum_side(source, hypers):
+    """``explore_when="stalled"``: a due generation explores only while the side it is asked at
+    is ``length_min``; before that it is an ordinary ask that moves the side."""
+    assert TRANSFER_DEFAULTS["explore_when"] == "always" == ADDED_OPTIONS["explore_when"]
+    # a side held at its minimum: every due generation explores, as with "always"
+    at_min = _critic(source, hypers, explore_every=2, explore_when="stalled",
+                     length_init=1 / 128, length_max=1 / 128)
+    _run(at_min, 8)
+    assert [d["generation"] for d in at_min.decisions if d["explore"]] == [3, 5, 7]
+    # a side far above it (never halved in 8 asks of a 3-batch fail_tol to the minimum):
+    # no explore ask, and the asks are those of the critic without explore asks
+    wide = _critic(source, hypers, explore_every=2, explore_when="stalled")
+    _run(wide, 8)
+    assert not any(d["explore"] for d in wide.decisions)
+    assert np.allclose(wide.X, _BEFORE_X, atol=1e-8)
+    # the replayed history: due generations count in the side until it reaches the minimum
+    on = _critic(source, hypers, explore_every=2, explore_when="stalled", length_init=1 / 32)
+    _history(on, 9.0)                       # never improving: halve every 3 counted batches
+    st = on._replay_state()
+    assert st["L"] == pytest.approx(1 / 128)
+    assert on._explore_generation(13, st["L"]) and not on._explore_generation(12, st["L"])
+    assert not on._explore_generation(13, 1 / 32)
+    with pytest.raises(ValueError):
+        _critic(source, hypers, explore_every=2, explore_when="sometimes")

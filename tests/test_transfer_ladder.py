@@ -40,3 +40,46 @@ def test_compare_counts_per_target_and_keeps_the_seeds_asked(tmp_path):
                                           "falls_b": 0}
     r = tr.compare(tmp_path, "a", "b", seeds=[1, 2])
     assert (r["pairs"], r["wins"], r["losses"], r["falls_a"]) == (2, 1, 1, 0)
+
+
+def test_transfer_curves_median_best_so_far_with_provenance(tmp_path) -> None:
+    """The curves are medians over seeds of the best standing cost so far (falls never count),
+    and the outputs name the command that made them."""
+    from benchmarks import transfer_curves
+
+    runs = {0: ([5.0, 3.0, 1.0, 4.0], [False, False, True, False]),
+            1: ([7.0, 6.0, 2.0, 2.5], [False, False, False, False]),
+            2: ([9.0, 1.5, 8.0, 8.0], [True, False, False, False])}
+    for s, (c, f) in runs.items():
+        _write(tmp_path, "m", s, c, f)
+    out, md = tmp_path / "c.json", tmp_path / "c.md"
+    assert transfer_curves.main(["--root", str(tmp_path), "--methods", "m", "--at", "1", "2", "4",
+                                 "--out", str(out), "--md", str(md)]) == 0
+    row = json.loads(out.read_text())["rows"][0]
+    # seed 0: 5, 3, 3, 3 (the fall at 1.0 does not count); seed 1: 7, 6, 2, 2; seed 2: ∞, 1.5, ...
+    assert (row["trial 1"], row["trial 2"], row["trial 4"]) == (7.0, 3.0, 2.0)
+    assert json.loads(out.read_text())["provenance"]["command"].startswith(
+        "python -m benchmarks.transfer_curves")
+    assert md.read_text().startswith("`python -m benchmarks.transfer_curves")
+    assert transfer_curves.main(["--root", str(tmp_path), "--methods", "m", "--at", "5"]) == 2
+
+
+def test_explore_stats_split_trials_by_ask(tmp_path) -> None:
+    """Trials are counted by the ask that made them (zero-shot by none), records are standing
+    trials that beat every earlier standing one, and the final best's ask is named."""
+    from benchmarks import transfer_explore_stats as es
+
+    dec = [{"n_told": 1, "design": True, "explore": False, "pools": ["elite"]},
+           {"n_told": 2, "design": False, "explore": True, "pools": ["latent"]},
+           {"n_told": 3, "design": False, "explore": False, "pools": ["full"]},
+           {"n_told": 4, "design": False, "explore": True, "pools": ["latent"]}]
+    _write(tmp_path, "m", 0, [5.0, 6.0, 2.0, 1.0, 1.5], [False, False, False, True, False])
+    f = tmp_path / "arm" / "gap1" / "seed0" / "m.json"
+    f.write_text(json.dumps({**json.loads(f.read_text()), "decisions": dec}))
+    assert es.ask_kinds(json.loads(f.read_text())) == [None, "design", "explore", "region",
+                                                       "explore"]
+    out = tmp_path / "s.json"
+    assert es.main(["--root", str(tmp_path), "--methods", "m", "--out", str(out)]) == 0
+    (row,) = json.loads(out.read_text())["rows"]
+    assert (row["design records"], row["explore trials"], row["explore records"]) == (0, 2, 2)
+    assert (row["region falls"], row["region records"], row["final best by explore"]) == (1, 0, 1)

@@ -98,6 +98,9 @@ trials in pool ``elite`` or ``full``). Explore generations leave ``L`` and its c
 not count in the latent pool's fall record (``latent_falls``); their trials are data for the
 models and raise the best value a later batch must beat, and an explore trial that becomes the
 best moves the centre, as any trial does. Each decision records ``"explore"``.
+``explore_when="stalled"`` makes a due generation an explore ask only while the side it is asked
+at is ``length_min`` (the trust region has nothing left to resolve near its centre); the other
+due generations are ordinary asks, so the local search keeps every ask while it still improves.
 
 The late phase (``handoff`` = k > 0): the asks made once the target has k own (tagged) trials
 follow TuRBO-m's rules (:class:`~latentune.critic.turbo.TurboM` with one region and batch 1:
@@ -152,6 +155,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "fit_ard": 0, "safe_fallback": False, "fall_cost": False, "handoff": 0,
     "handoff_model": "target", "handoff_fall_shrink": False, "handoff_rules": "turbo",
     "stop_converged": False, "success_scale": "best", "explore_every": 0,
+    "explore_when": "always",
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
@@ -168,7 +172,7 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "fall_cost": False, "handoff": 0, "handoff_model": "target",
                                  "handoff_fall_shrink": False, "handoff_rules": "turbo",
                                  "stop_converged": False, "success_scale": "best",
-                                 "explore_every": 0}
+                                 "explore_every": 0, "explore_when": "always"}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -184,6 +188,9 @@ HANDOFF_RULES = ("turbo", "transfer")
 SUCCESS_SCALES = ("best", "spread")
 """What TuRBO's ``1e-3`` success margin multiplies (``success_scale``): ``|best|`` or the spread
 of the target's standing costs."""
+EXPLORE_WHEN = ("always", "stalled")
+"""When a due generation is an explore ask (``explore_when``): always, or only while the trust
+region's side is at its minimum."""
 _NOISE = 1e-2
 _JOINT = 256
 """Candidates (lowest confidence bounds) that share one joint Thompson sample."""
@@ -674,6 +681,9 @@ class Transfer(TwoSpaceCritic):
         if isinstance(k_ex, bool) or not isinstance(k_ex, (int, np.integer)) or k_ex < 0 \
                 or k_ex == 1:
             raise ValueError(f"explore_every must be 0 (off) or an integer ≥ 2, got {k_ex!r}")
+        if self.opts["explore_when"] not in EXPLORE_WHEN:
+            raise ValueError(f"explore_when must be one of {EXPLORE_WHEN}, "
+                             f"got {self.opts['explore_when']!r}")
         if self.opts["success_scale"] not in SUCCESS_SCALES:
             raise ValueError(f"success_scale must be one of {SUCCESS_SCALES}, "
                              f"got {self.opts['success_scale']!r}")
@@ -751,7 +761,8 @@ class Transfer(TwoSpaceCritic):
         explore = np.zeros(len(tags), dtype=bool)
         for g in gens:
             m = own & (tags // 4 == g)
-            if self._explore_generation(int(g)) and not np.isin(tags[m] % 4, (ELITE, FULL)).any():
+            if self._explore_generation(int(g), L) and \
+                    not np.isin(tags[m] % 4, (ELITE, FULL)).any():
                 explore |= m            # data and best value only: L follows the other batches
                 best = min(best, float(y[m].min()))
                 n_seen += int(m.sum())
@@ -791,12 +802,16 @@ class Transfer(TwoSpaceCritic):
                 "generation": int(gens.max()) + 1 if gens.size else 0,
                 "latent_told": int(lat.sum()), "latent_fell": int(self._fell[lat].sum())}
 
-    def _explore_generation(self, g: int) -> bool:
+    def _explore_generation(self, g: int, L: float) -> bool:
         """True when generation ``g`` is due for an explore ask (``explore_every`` = k ≥ 2 and
-        ``g % k == k − 1``; the ask itself is one unless it is a design, manual or converged
-        ask: module docstring)."""
+        ``g % k == k − 1``; with ``explore_when="stalled"`` only while the side ``L`` it is asked
+        at is ``length_min``); the ask itself is one unless it is a design, manual or converged
+        ask: module docstring."""
         k = int(self.opts["explore_every"])
-        return k >= 2 and g % k == k - 1
+        if not (k >= 2 and g % k == k - 1):
+            return False
+        return self.opts["explore_when"] == "always" or \
+            L <= float(self.opts["length_min"]) * (1.0 + 1e-9)
 
     def _fall_shrink_due(self, group: np.ndarray, upto: np.ndarray) -> bool:
         """``handoff_fall_shrink``'s rule for the generation ``group`` (n,) bool: more than
@@ -988,7 +1003,7 @@ class Transfer(TwoSpaceCritic):
                 ctx.design_screened = True
         if design and len(E) >= 1:
             parts = [(E, np.full((len(E), self.k), np.nan), ELITE)]
-        elif self._explore_generation(g):   # explore: the whole latent box (or θ box) only
+        elif self._explore_generation(g, st["L"]):   # explore: the whole latent box (or θ box) only
             ctx.explore = True
             if self.latent is None:
                 parts = [(self._pool_global(M, rng), np.empty((M, 0)), GLOBAL)]

@@ -1,0 +1,98 @@
+"""Where the transfer critic's explore asks help on the transfer ladder's stored runs.
+
+    python -m benchmarks.transfer_explore_stats --root runs/transfer --methods transfer ...
+        [--seeds 0 1 2] [--out F.json] [--md F.md]
+
+For every target (``ROOT/<system>/gap<g>``) and method whose runs carry the transfer critic's
+decision records, the trials are split by the ask that made them (the decision's ``n_told`` is
+the index of its first trial; trial 0, the zero-shot trial, belongs to no ask): ``design`` (the
+elite pool's initial design), ``explore`` (an ``explore_every`` ask) and ``region`` (every other
+ask: the trust region's pools, the manual θ after falls). Per kind, summed over the seeds that
+ran every listed method: trials, falls, and *records*, the trials that did not fall and beat
+every earlier standing trial (zero-shot included; the first standing trial of a run is a record).
+``final best by explore``: seeds whose lowest standing cost is an explore trial's.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from benchmarks.common import Provenance, finish, markdown_table
+from benchmarks.transfer_curves import ladder_args, targets
+
+KINDS = ("design", "explore", "region")
+
+
+def ask_kinds(run: dict[str, Any]) -> list[str | None]:
+    """(n,) the kind of ask (``KINDS``) that made each trial of ``run``; ``None`` for trials no
+    decision record covers (the zero-shot trial)."""
+    kinds: list[str | None] = [None] * len(run["costs"])
+    for d in run.get("decisions", []):
+        kind = "design" if d.get("design") else "explore" if d.get("explore") else "region"
+        for j in range(len(d["pools"])):
+            if d["n_told"] + j < len(kinds):
+                kinds[d["n_told"] + j] = kind
+    return kinds
+
+
+def run_stats(run: dict[str, Any]) -> dict[str, Any]:
+    """Per kind of ask: ``trials``, ``falls``, ``records`` (counts in one run), and
+    ``final_kind``: the kind of the run's lowest standing trial (``None``: zero-shot or none)."""
+    kinds = ask_kinds(run)
+    out: dict[str, Any] = {k: {"trials": 0, "falls": 0, "records": 0} for k in KINDS}
+    best, final_kind = np.inf, None
+    for kind, c, fell in zip(kinds, run["costs"], run["failed"]):
+        record = not fell and c is not None and c < best
+        if record:
+            best, final_kind = c, kind
+        if kind is None:
+            continue
+        out[kind]["trials"] += 1
+        out[kind]["falls"] += int(bool(fell))
+        out[kind]["records"] += int(record)
+    out["final_kind"] = final_kind
+    return out
+
+
+def explore_stats(root: Path, methods: list[str], seeds: list[int] | None
+                  ) -> list[dict[str, Any]]:
+    """One row per (target, method) with decision records: per kind of ask, trials, falls and
+    records summed over the seeds that ran every method, and the seeds whose final best is an
+    explore trial."""
+    rows: list[dict[str, Any]] = []
+    for tdir, use in targets(root, methods, seeds):
+        for m in methods:
+            runs = [json.loads((tdir / f"seed{s}" / f"{m}.json").read_text()) for s in use]
+            if not any(r.get("decisions") for r in runs):
+                continue
+            st = [run_stats(r) for r in runs]
+            row: dict[str, Any] = {"target": f"{tdir.parent.name} {tdir.name}",
+                                   "seeds": len(use), "method": m}
+            for k in KINDS:
+                for q in ("trials", "falls", "records"):
+                    row[f"{k} {q}"] = sum(s[k][q] for s in st)
+            row["final best by explore"] = sum(s["final_kind"] == "explore" for s in st)
+            rows.append(row)
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    prov = Provenance(argv, "benchmarks.transfer_explore_stats")
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ladder_args(ap)
+    a = ap.parse_args(argv)
+    rows = explore_stats(Path(a.root), a.methods, a.seeds)
+    finish(a.out, prov, {"root": str(a.root), "methods": a.methods}, rows)
+    if a.md is not None:
+        a.md.write_text(f"`{prov.command}`\n\n{markdown_table(rows)}\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
