@@ -258,12 +258,14 @@ def _ladder_target(run: dict[str, Any]) -> dict[str, Any]:
 
 def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
               target: Callable[[dict[str, Any]], dict[str, Any]] = _ladder_target,
-              default: str = "transfer", methods: list[str] | None = None) -> dict[str, Any]:
+              default: str = "transfer", methods: list[str] | None = None,
+              seeds: list[int] | None = None) -> dict[str, Any]:
     """The issue's criteria per target from every stored run under ``root`` (the files matching
     ``pattern``); ``target(run)`` gives a run's target fields, the key and head of its row
     (default: ``system`` and ``gap``). ``default`` names the method judged as latentune's default
     (its rows read as ``transfer``; the stored ``transfer`` runs then read as
-    ``transfer@stored``); ``methods``: only these (names after that renaming) are read."""
+    ``transfer@stored``); ``methods``: only these (names after that renaming) are read;
+    ``seeds``: only these seeds."""
     from scipy.stats import mannwhitneyu
 
     runs: dict[tuple, dict[str, dict[int, dict]]] = {}
@@ -272,6 +274,8 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
         if default != "transfer" and r["method"] in (default, "transfer"):
             r["method"] = "transfer" if r["method"] == default else "transfer@stored"
         if methods is not None and r["method"] not in methods:
+            continue
+        if seeds is not None and int(r["seed"]) not in seeds:
             continue
         runs.setdefault(tuple(target(r).items()), {}).setdefault(r["method"], {})[
             int(r["seed"])] = r

@@ -267,3 +267,21 @@ def test_summary_counts_explore_asks_and_bests_they_found(tmp_path):
     assert row["methods"]["transfer+explore_every=2"]["explore_picks"] == {
         "median": 1.0, "max": 1, "seeds_best_from_explore": 1}
     assert "explore_picks" not in row["methods"]["tpe"]
+
+
+def test_summary_reads_only_the_methods_targets_and_seeds_asked(tmp_path):
+    for t in ("b1-trot-from-a1", "a1-trot-hard"):
+        for m in ("tpe", "transfer", "transfer+explore_every=2"):
+            for s in (0, 1, 2):
+                if m == "transfer+explore_every=2" and s > 0:
+                    continue            # a partial method would cut every method to seed 0
+                f = rt.result_path(tmp_path, t, 7, s, m)
+                f.parent.mkdir(parents=True, exist_ok=True)
+                f.write_text(json.dumps({"target": t, "source": "a1-trot", "source_trials": 7,
+                                         "seed": s, "method": m, "budget": 2,
+                                         "costs": [5.0, 4.0 - s], "failed": [False, True]}))
+    assert [r["seeds"] for r in rt.summarize(tmp_path)["targets"]] == [[0], [0]]
+    (row,) = rt.summarize(tmp_path, ["tpe", "transfer"], ["b1-trot-from-a1"], [1, 2])["targets"]
+    assert row["target"] == "b1-trot-from-a1" and row["seeds"] == [1, 2]
+    assert set(row["methods"]) == {"tpe", "transfer"}
+    assert row["cost_check"]["trials"] == 8 and row["cost_check"]["falls"] == 4
