@@ -11,7 +11,8 @@ sources of A1 and Solo12 to targets at several gaps.
     python -m benchmarks.robot_transfer import-paper --paper-run results/paper10k/a1
         [--root runs/robot_transfer] [--budget 100]
     python -m benchmarks.robot_transfer summary [--root runs/robot_transfer]
-        [--out results/robot_transfer/ladder.json]
+        [--out results/robot_transfer/ladder.json] [--methods M ...] [--targets RUNG ...]
+        [--seeds S ...]
     python -m benchmarks.robot_transfer plot [--targets RUNG ...] [--root runs/robot_transfer]
         [--out results/robot_transfer] [--gifs]
 
@@ -485,14 +486,18 @@ def _title(row: dict[str, Any]) -> str:
     return f"{row['target']} (source {row['source']}, {row['source_trials']} trials)"
 
 
-def summarize(root: Path) -> dict[str, Any]:
+def summarize(root: Path, methods: list[str] | None = None, targets: list[str] | None = None,
+              seeds: list[int] | None = None) -> dict[str, Any]:
     """:func:`benchmarks.transfer.summarize` of ``root``'s runs per (rung, source, source size),
-    each row with its rung's label and ``beats_zero_shot``: the methods whose best costs are
-    below the zero-shot θ's (one-sided Mann–Whitney p < 0.05); a rung where none does is one to
-    drop."""
+    each row with its rung's label, ``beats_zero_shot``: the methods whose best costs are
+    below the zero-shot θ's (one-sided Mann–Whitney p < 0.05; a rung where none does is one to
+    drop), and ``cost_check`` (:func:`cost_checks`) of its runs. ``methods``, ``targets``,
+    ``seeds``: only these runs (default: all)."""
     from scipy.stats import mannwhitneyu
 
-    s = tr.summarize(root / "targets", RESULT_GLOB, _target_key)
+    s = tr.summarize(root / "targets", RESULT_GLOB, _target_key, methods=methods, seeds=seeds)
+    if targets is not None:
+        s["targets"] = [row for row in s["targets"] if row["target"] in targets]
     every = rungs(ROBOTS)
     for row in s["targets"]:
         row["label"] = every[row["target"]].label if row["target"] in every else row["target"]
@@ -510,12 +515,54 @@ def summarize(root: Path) -> dict[str, Any]:
             if p < 0.05:
                 beats.append(m)
         row["beats_zero_shot"] = beats
+    for row in s["targets"]:
+        row["cost_check"] = cost_checks(root, list(row["methods"]), [row["target"]],
+                                        row["seeds"]).get((row["target"], row["source_trials"]))
     return s
+
+
+def cost_checks(root: Path, methods: list[str] | None = None, targets: list[str] | None = None,
+                seeds: list[int] | None = None) -> dict[tuple[str, int], dict[str, Any]]:
+    """Per (rung, source size), over every stored trial under ``root`` (only of ``methods``,
+    ``targets`` and ``seeds`` when given): the number of trials, of non-finite costs and of
+    falls, the lowest cost of a fall and the highest of a trial that did not fall (a fall's cost
+    carries the fall penalty: the two ranges should not meet)."""
+    out: dict[tuple[str, int], dict[str, Any]] = {}
+    for f in sorted((root / "targets").glob(RESULT_GLOB)):
+        if (targets is not None and f.parts[-4] not in targets) or (
+                seeds is not None and f.parts[-2] not in {f"seed{s}" for s in seeds}):
+            continue
+        r = json.loads(f.read_text())
+        if methods is not None and r["method"] not in methods:
+            continue
+        c = np.asarray(r["costs"], dtype=float)
+        fell = np.asarray(r["failed"], dtype=bool)
+        o = out.setdefault((r["target"], int(r["source_trials"])),
+                           {"trials": 0, "non_finite": 0, "falls": 0, "fall_cost_min": None,
+                            "standing_cost_max": None})
+        o["trials"] += int(c.size)
+        o["non_finite"] += int((~np.isfinite(c)).sum())
+        o["falls"] += int(fell.sum())
+        for k, sel, agg in (("fall_cost_min", fell, min), ("standing_cost_max", ~fell, max)):
+            v = c[sel & np.isfinite(c)]
+            if v.size:
+                o[k] = float(agg(v)) if o[k] is None else float(agg(o[k], agg(v)))
+    return out
+
+
+def _g(v: float | None) -> str:
+    return "-" if v is None else f"{v:.4g}"
 
 
 def markdown(s: dict[str, Any]) -> str:
     """The summary's tables (:func:`benchmarks.transfer.markdown`) and the rungs to drop."""
     md = tr.markdown(s, _title)
+    for row in s["targets"]:
+        c = row.get("cost_check")
+        if c:
+            md += (f"\n\n{_title(row)}: {c['trials']} trials, {c['non_finite']} non-finite costs, "
+                   f"{c['falls']} falls (fall costs ≥ {_g(c['fall_cost_min'])}, standing costs ≤ "
+                   f"{_g(c['standing_cost_max'])})")
     flat = [_title(r) for r in s["targets"] if r.get("beats_zero_shot") == []]
     if flat:
         md += "\n\nNo method beats the zero-shot θ (p < 0.05) on: " + "; ".join(flat)
@@ -639,6 +686,9 @@ def parser() -> argparse.ArgumentParser:
     s = sub.add_parser("summary", help="the criteria per rung")
     s.add_argument("--root", default="runs/robot_transfer")
     s.add_argument("--out", default="results/robot_transfer/ladder.json")
+    s.add_argument("--methods", nargs="+", default=None, help="only these methods' runs")
+    s.add_argument("--targets", nargs="+", default=None, help="only these rungs")
+    s.add_argument("--seeds", nargs="+", type=_nonneg_int, default=None, help="only these seeds")
     pl = sub.add_parser("plot", help="CoM plots of the best θ per rung")
     pl.add_argument("--targets", nargs="+", default=None)
     pl.add_argument("--root", default="runs/robot_transfer")
@@ -677,7 +727,7 @@ def main(argv: list[str] | None = None) -> int:
             from benchmarks.common import Provenance, write_json
 
             prov = Provenance(argv, module="benchmarks.robot_transfer")
-            res = summarize(Path(a.root))
+            res = summarize(Path(a.root), a.methods, a.targets, a.seeds)
             p = prov.finish()
             out = write_json(a.out, res, p)
             md = markdown(res)

@@ -258,12 +258,14 @@ def _ladder_target(run: dict[str, Any]) -> dict[str, Any]:
 
 def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
               target: Callable[[dict[str, Any]], dict[str, Any]] = _ladder_target,
-              default: str = "transfer", methods: list[str] | None = None) -> dict[str, Any]:
+              default: str = "transfer", methods: list[str] | None = None,
+              seeds: list[int] | None = None) -> dict[str, Any]:
     """The issue's criteria per target from every stored run under ``root`` (the files matching
     ``pattern``); ``target(run)`` gives a run's target fields, the key and head of its row
     (default: ``system`` and ``gap``). ``default`` names the method judged as latentune's default
     (its rows read as ``transfer``; the stored ``transfer`` runs then read as
-    ``transfer@stored``); ``methods``: only these (names after that renaming) are read."""
+    ``transfer@stored``); ``methods``: only these (names after that renaming) are read;
+    ``seeds``: only these seeds."""
     from scipy.stats import mannwhitneyu
 
     runs: dict[tuple, dict[str, dict[int, dict]]] = {}
@@ -272,6 +274,8 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
         if default != "transfer" and r["method"] in (default, "transfer"):
             r["method"] = "transfer" if r["method"] == default else "transfer@stored"
         if methods is not None and r["method"] not in methods:
+            continue
+        if seeds is not None and int(r["seed"]) not in seeds:
             continue
         runs.setdefault(tuple(target(r).items()), {}).setdefault(r["method"], {})[
             int(r["seed"])] = r
@@ -290,9 +294,13 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
                                                                   for s in seeds])),
                                  "best": best}
             picks, explores, agree, any_dec = [], [], [], False
+            best_ex = 0
             for s in seeds:             # the transfer critic's decision records, one pass
                 n_lat = n_ex = 0
-                for d in rs[s].get("decisions", []):
+                dec = rs[s].get("decisions", [])
+                j = int(np.argmin(rs[s]["costs"]))      # decision i asks trial i + 2
+                best_ex += int(1 <= j <= len(dec) and bool(dec[j - 1].get("explore")))
+                for d in dec:
                     any_dec = True
                     n_lat += sum(p == "latent" for p in d["pools"])
                     n_ex += len(d["pools"]) if d.get("explore") else 0
@@ -305,7 +313,8 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
                                                      "max": int(max(picks))}
                 if any(explores):       # trials of explore asks (``explore_every``)
                     row["methods"][m]["explore_picks"] = {"median": float(np.median(explores)),
-                                                          "max": int(max(explores))}
+                                                          "max": int(max(explores)),
+                                                          "seeds_best_from_explore": best_ex}
                 if agree:
                     row["methods"][m]["agreement_iqr"] = [float(np.percentile(agree, 25)),
                                                           float(np.percentile(agree, 75))]

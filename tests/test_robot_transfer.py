@@ -234,3 +234,54 @@ def test_a_variant_is_stored_under_its_name_and_summarized_beside_the_peers(live
     assert row["best_peer"] in ("zero_shot", "tpe")
     assert row["methods"]["transfer+explore_every=2"]["median_best"] == 2.0
     assert "| transfer+explore_every=2 | 2 |" in rt.markdown({"targets": [row]})
+
+
+def test_cost_checks_count_non_finite_costs_and_separate_falls(tmp_path):
+    for m, costs, failed in (("tpe", [4.0, 150.0, float("nan")], [False, True, False]),
+                             ("transfer", [5.0, 3.0], [False, False])):
+        f = rt.result_path(tmp_path, "b1-trot-from-a1", 7, 0, m)
+        f.parent.mkdir(parents=True, exist_ok=True)
+        f.write_text(json.dumps({"target": "b1-trot-from-a1", "source": "a1-trot",
+                                 "source_trials": 7, "seed": 0, "method": m, "budget": 3,
+                                 "costs": costs, "failed": failed}))
+    c = rt.cost_checks(tmp_path)[("b1-trot-from-a1", 7)]
+    assert c == {"trials": 5, "non_finite": 1, "falls": 1, "fall_cost_min": 150.0,
+                 "standing_cost_max": 5.0}
+    (row,) = rt.summarize(tmp_path)["targets"]
+    assert row["cost_check"] == c
+    assert "1 non-finite costs, 1 falls (fall costs ≥ 150" in rt.markdown({"targets": [row]})
+
+
+def test_summary_counts_explore_asks_and_bests_they_found(tmp_path):
+    """Decision i asks trial i + 2; seed 0's best is trial 3 (an explore ask), seed 1's trial 2."""
+    dec = [{"pools": ["full"], "explore": False}, {"pools": ["latent"], "explore": True}]
+    for m, runs in (("tpe", [[3.0, 3.0, 3.0]] * 2),
+                    ("transfer+explore_every=2", [[4.0, 3.5, 1.0], [4.0, 1.0, 2.0]])):
+        for s, costs in enumerate(runs):
+            f = tmp_path / "arm" / "gap1" / f"seed{s}" / f"{m}.json"
+            f.parent.mkdir(parents=True, exist_ok=True)
+            f.write_text(json.dumps({"system": "arm", "gap": 1.0, "seed": s, "method": m,
+                                     "budget": 3, "costs": costs, "failed": [False] * 3,
+                                     **({"decisions": dec} if m != "tpe" else {})}))
+    (row,) = tr.summarize(tmp_path)["targets"]
+    assert row["methods"]["transfer+explore_every=2"]["explore_picks"] == {
+        "median": 1.0, "max": 1, "seeds_best_from_explore": 1}
+    assert "explore_picks" not in row["methods"]["tpe"]
+
+
+def test_summary_reads_only_the_methods_targets_and_seeds_asked(tmp_path):
+    for t in ("b1-trot-from-a1", "a1-trot-hard"):
+        for m in ("tpe", "transfer", "transfer+explore_every=2"):
+            for s in (0, 1, 2):
+                if m == "transfer+explore_every=2" and s > 0:
+                    continue            # a partial method would cut every method to seed 0
+                f = rt.result_path(tmp_path, t, 7, s, m)
+                f.parent.mkdir(parents=True, exist_ok=True)
+                f.write_text(json.dumps({"target": t, "source": "a1-trot", "source_trials": 7,
+                                         "seed": s, "method": m, "budget": 2,
+                                         "costs": [5.0, 4.0 - s], "failed": [False, True]}))
+    assert [r["seeds"] for r in rt.summarize(tmp_path)["targets"]] == [[0], [0]]
+    (row,) = rt.summarize(tmp_path, ["tpe", "transfer"], ["b1-trot-from-a1"], [1, 2])["targets"]
+    assert row["target"] == "b1-trot-from-a1" and row["seeds"] == [1, 2]
+    assert set(row["methods"]) == {"tpe", "transfer"}
+    assert row["cost_check"]["trials"] == 8 and row["cost_check"]["falls"] == 4
