@@ -83,3 +83,19 @@ def test_explore_stats_split_trials_by_ask(tmp_path) -> None:
     (row,) = json.loads(out.read_text())["rows"]
     assert (row["design records"], row["explore trials"], row["explore records"]) == (0, 2, 2)
     assert (row["region falls"], row["region records"], row["final best by explore"]) == (1, 0, 1)
+
+
+def test_transfer_same_tells_equal_traces_from_different_ones(tmp_path) -> None:
+    from benchmarks import transfer_same
+
+    for s in (0, 1):
+        _write(tmp_path, "a", s, [1.0, 2.0], [False, True])
+        _write(tmp_path, "b", s, [1.0, 2.0], [False, True])
+        _write(tmp_path, "c", s, [1.0, 2.0 if s == 0 else 2.5], [False, True])
+    out = tmp_path / "same.json"
+    assert transfer_same.main(["--a", f"{tmp_path}:a", "--b", f"{tmp_path}:b",
+                               "--out", str(out)]) == 0
+    assert json.loads(out.read_text())["same"] == 2
+    assert transfer_same.main(["--a", f"{tmp_path}:a", "--b", f"{tmp_path}:c"]) == 1
+    assert transfer_same.main(["--a", f"{tmp_path}:a", "--b", f"{tmp_path}:missing"]) == 1
+    assert transfer_same.main(["--a", f"{tmp_path}:nothing", "--b", f"{tmp_path}:a"]) == 2
