@@ -487,15 +487,18 @@ def _title(row: dict[str, Any]) -> str:
 
 
 def summarize(root: Path, methods: list[str] | None = None, targets: list[str] | None = None,
-              seeds: list[int] | None = None) -> dict[str, Any]:
+              seeds: list[int] | None = None, default: str = "transfer") -> dict[str, Any]:
     """:func:`benchmarks.transfer.summarize` of ``root``'s runs per (rung, source, source size),
     each row with its rung's label, ``beats_zero_shot``: the methods whose best costs are
     below the zero-shot θ's (one-sided Mann–Whitney p < 0.05; a rung where none does is one to
     drop), and ``cost_check`` (:func:`cost_checks`) of its runs. ``methods``, ``targets``,
-    ``seeds``: only these runs (default: all)."""
+    ``seeds``: only these runs (default: all); ``default``: the method judged as latentune's
+    default (:func:`benchmarks.transfer.summarize`: it reads as ``transfer``, the stored
+    ``transfer`` runs as ``transfer@stored``)."""
     from scipy.stats import mannwhitneyu
 
-    s = tr.summarize(root / "targets", RESULT_GLOB, _target_key, methods=methods, seeds=seeds)
+    s = tr.summarize(root / "targets", RESULT_GLOB, _target_key, default=default, methods=methods,
+                     seeds=seeds)
     if targets is not None:
         s["targets"] = [row for row in s["targets"] if row["target"] in targets]
     every = rungs(ROBOTS)
@@ -689,6 +692,9 @@ def parser() -> argparse.ArgumentParser:
     s.add_argument("--methods", nargs="+", default=None, help="only these methods' runs")
     s.add_argument("--targets", nargs="+", default=None, help="only these rungs")
     s.add_argument("--seeds", nargs="+", type=_nonneg_int, default=None, help="only these seeds")
+    s.add_argument("--default", default="transfer",
+                   help="the method judged as the default (its runs read as transfer; the stored "
+                        "transfer runs as transfer@stored)")
     pl = sub.add_parser("plot", help="CoM plots of the best θ per rung")
     pl.add_argument("--targets", nargs="+", default=None)
     pl.add_argument("--root", default="runs/robot_transfer")
@@ -727,7 +733,7 @@ def main(argv: list[str] | None = None) -> int:
             from benchmarks.common import Provenance, write_json
 
             prov = Provenance(argv, module="benchmarks.robot_transfer")
-            res = summarize(Path(a.root), a.methods, a.targets, a.seeds)
+            res = summarize(Path(a.root), a.methods, a.targets, a.seeds, a.default)
             p = prov.finish()
             out = write_json(a.out, res, p)
             md = markdown(res)
