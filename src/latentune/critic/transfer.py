@@ -49,7 +49,10 @@ every trial so far fell, the next one is the target's manual θ (once). After it
 the latent pool's share is ``w_lat = clip(agreement, 0, latent_share_max)``, set to 0 once at
 least ``latent_falls`` latent-pool trials fell and they fell more often than not; the full pool
 gets the rest. ``L`` follows TuRBO's rule on the full box (doubling after ``succ_tol``
-improving batches, halving after ``fail_tol`` batches without one). A candidate whose predicted
+improving batches, halving after ``fail_tol`` batches without one); by default a batch improves
+when it beats the best by more than ``1e-3`` times the spread of the target's standing costs
+(``success_scale="spread"`` below), not times ``|best|``, so a constant in the cost does not
+decide when the region shrinks. A candidate whose predicted
 fall probability (its posterior mean plus ``fall_kappa`` standard deviations: an upper
 confidence bound, as in safe Bayesian optimization) exceeds ``max_fall_prob`` is skipped (if fewer than the batch remain, the least
 likely to fall are kept); among the rest each point of the batch is the argmin of one joint
@@ -79,7 +82,7 @@ in cost; ``stop_converged``: once the trust region has converged (``fail_tol`` b
 an improving one at side ``length_min``, where TuRBO ends or restarts a region; ``restart``
 restarts it instead), every later ask is the centre itself (the best θ that did not fall, tag
 pool ``full``): the search stops perturbing an incumbent whose remaining gain it cannot
-resolve, where every perturbation risks a fall near a fall boundary; ``success_scale``: a batch
+resolve, where every perturbation risks a fall near a fall boundary; ``success_scale`` (default ``"spread"``): a batch
 improves (TuRBO's success) when it beats the best by more than ``1e-3`` times ``|best|``
 (``"best"``, TuRBO's rule) or times the spread of the target's standing costs told before it,
 median minus best (``"spread"``: the same for any constant added to the cost, so a small gain
@@ -156,7 +159,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "restart": False, "full_scales": 1, "global_share": 0.0, "design_screen": False,
     "fit_ard": 0, "safe_fallback": False, "fall_cost": False, "handoff": 0,
     "handoff_model": "target", "handoff_fall_shrink": False, "handoff_rules": "turbo",
-    "stop_converged": False, "success_scale": "best", "explore_every": 2,
+    "stop_converged": False, "success_scale": "spread", "explore_every": 2,
     "explore_when": "always",
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
