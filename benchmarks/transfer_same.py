@@ -18,7 +18,7 @@ from benchmarks.common import Provenance, add_out_arg, finish
 
 
 def _spec(text: str) -> tuple[Path, str]:
-    root, sep, method = text.rpartition(":")
+    root, sep, method = text.partition(":")
     if not sep or not root or not method:
         raise argparse.ArgumentTypeError(f"expected ROOT:METHOD, got {text!r}")
     return Path(root), method

@@ -99,3 +99,13 @@ def test_transfer_same_tells_equal_traces_from_different_ones(tmp_path) -> None:
     assert transfer_same.main(["--a", f"{tmp_path}:a", "--b", f"{tmp_path}:c"]) == 1
     assert transfer_same.main(["--a", f"{tmp_path}:a", "--b", f"{tmp_path}:missing"]) == 1
     assert transfer_same.main(["--a", f"{tmp_path}:nothing", "--b", f"{tmp_path}:a"]) == 2
+
+
+def test_transfer_same_reads_methods_with_colons(tmp_path) -> None:
+    """A variant's name holds ``:`` (option separators): ROOT:METHOD splits at the first one."""
+    from benchmarks import transfer_same
+
+    _write(tmp_path, "transfer+a=1:b=2", 0, [1.0], [False])
+    _write(tmp_path, "transfer", 0, [1.0], [False])
+    assert transfer_same.main(["--a", f"{tmp_path}:transfer+a=1:b=2",
+                               "--b", f"{tmp_path}:transfer"]) == 0
