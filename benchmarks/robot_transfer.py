@@ -606,7 +606,8 @@ def plot(a: argparse.Namespace) -> None:
     from latentune.task import Task
 
     root, out = Path(a.root), Path(a.out)
-    summ = summarize(root)
+    default = getattr(a, "default", "transfer")
+    summ = summarize(root, getattr(a, "methods", None), default=default)
     names = a.targets or sorted({r["target"] for r in summ["targets"]})
     for name in names:
         rows = [r for r in summ["targets"] if r["target"] == name]
@@ -615,9 +616,11 @@ def plot(a: argparse.Namespace) -> None:
         row = max(rows, key=lambda r: r["source_trials"])
         methods = [m for m in ("transfer", row["best_peer"], "zero_shot") if m in row["methods"]]
         runs: dict[str, dict[int, dict]] = {}
+        stored = {"transfer": default, "transfer@stored": "transfer"}   # judged name → file
         for m in dict.fromkeys(methods):
-            runs[m] = {s: json.loads(result_path(root, name, row["source_trials"], s, m)
-                                     .read_text()) for s in row["seeds"]}
+            runs[m] = {s: json.loads(result_path(root, name, row["source_trials"], s,
+                                                 stored.get(m, m)).read_text())
+                       for s in row["seeds"]}
         task = Task.from_config(next(iter(runs[methods[0]].values()))["target_config"])
         d = out / name
         d.mkdir(parents=True, exist_ok=True)
@@ -700,6 +703,8 @@ def parser() -> argparse.ArgumentParser:
     pl.add_argument("--root", default="runs/robot_transfer")
     pl.add_argument("--out", default="results/robot_transfer")
     pl.add_argument("--gifs", action="store_true", help="also a GIF of each re-simulated θ")
+    pl.add_argument("--default", default="transfer", help="as summary's --default")
+    pl.add_argument("--methods", nargs="+", default=None, help="only these methods' runs")
     return ap
 
 
