@@ -360,8 +360,11 @@ def run(a: argparse.Namespace) -> None:
     for rung in select(a.robots, a.targets):
         src = source_dir(paper, root, rung.robot, rung.source, a.source_trials)
         build_target(rung, src)                         # refuse a bad rung before any trial
-        if any(m.partition("+")[0] == "transfer" for m, _ in methods):
-            tr.source_hypers(src, 0)                   # fitted once, before the workers share it
+        if any(m.partition("+")[0] == "transfer" and (o or {}).get("source_order") == "stored"
+               for m, o in methods):
+            # the cache of the runs made before ``source_order`` (fitted with seed 0 for every
+            # seed), before the workers share it; a canonical-order critic fits per seed
+            tr.source_hypers(src, 0, {"source_order": "stored"})
         prepared.append((rung, src, int(snapshot_info(src)["n_trials"])))
     jobs = [(rung, src, m, s, a.budget, root, o) for s in a.seeds for rung, src, n in prepared
             for m, o in methods if not result_path(root, rung.name, n, s, m).is_file()]

@@ -45,6 +45,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -108,16 +109,32 @@ def source_run(root: Path, system: str, seed: int, evals: int) -> Path:
     return d
 
 
-def source_hypers(src: Path, seed: int) -> dict[str, Any]:
-    """The fitted source models' hyperparameters, fitted once per source (cached as JSON)."""
-    from latentune.critic.transfer import SourceModel, source_trials
+def source_hypers(src: Path, seed: int, options: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The source models' fitted hyperparameters of the transfer critic with ``options`` and
+    ``seed`` on the source ``src``, fitted once and cached as JSON beside it: the fit the critic
+    would make itself (its subset depends on the seed and ``source_order``).
 
-    f = src / "transfer_source_model.json"
+    ``source_order="stored"`` with the default ``max_points`` keeps the cache of the runs made
+    before the option (``transfer_source_model.json``, fitted with the seed of its first use);
+    any other choice has its own file per seed."""
+    from latentune.critic.transfer import TRANSFER_DEFAULTS, SourceModel, Transfer, source_trials
+
+    opts = {**TRANSFER_DEFAULTS, **(options or {})}
+    legacy = (opts["source_order"] == "stored"
+              and opts["max_points"] == TRANSFER_DEFAULTS["max_points"])
+    f = src / ("transfer_source_model.json" if legacy else
+               f"transfer_source_model.{opts['source_order']}.m{opts['max_points']}.s{seed}.json")
     if f.is_file():
         return json.loads(f.read_text())
     X, y, fell = source_trials(src)
-    h = SourceModel(X, y, fell, seed=seed).hypers
-    f.write_text(json.dumps(h))
+    if legacy:
+        h = SourceModel(X, y, fell, seed=seed).hypers
+    else:
+        h = Transfer((X, y, fell), None, None, seed=seed, source_order=opts["source_order"],
+                     max_points=opts["max_points"]).source_model().hypers
+    tmp = f.with_suffix(f".{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(h))
+    os.replace(tmp, f)                       # workers sharing a source never read half a file
     return h
 
 
@@ -183,7 +200,7 @@ def run_method(method: str, target: Any, src: Path, B: int, seed: int,
     elif method == "transfer":
         ls = LatentSpace.load(src / "vae")
         cr = Transfer((Xs, ys, fs), ls, manual, batch_size=1, seed=seed, **(options or {}))
-        cr.load_state_dict({"source_hypers": source_hypers(src, seed)})
+        cr.load_state_dict({"source_hypers": source_hypers(src, seed, options)})
         o = trial(best)
         cr.tell(best[None], np.array([o.cost]), fell=np.array([o.failed]))
         _loop(cr, target, B - 1, costs, failed, thetas=thetas)

@@ -59,7 +59,7 @@ def _run(cr: Transfer, n: int) -> None:
 
 def test_off_asks_what_the_critic_asked_before(source, hypers):
     assert ADDED_OPTIONS["explore_every"] == 0      # stored runs from before resume without
-    cr = _critic(source, hypers, explore_every=0)
+    cr = _critic(source, hypers, explore_every=0, source_order="stored")
     _run(cr, 8)
     assert cr.tags.tolist() == _BEFORE_TAGS
     assert np.allclose(cr.X, _BEFORE_X, atol=1e-8)
@@ -154,7 +154,7 @@ def test_stalled_explores_only_at_the_minimum_side(source, hypers):
     assert [d["generation"] for d in at_min.decisions if d["explore"]] == [3, 5, 7]
     # a side far above it (never halved in 8 asks of a 3-batch fail_tol to the minimum):
     # no explore ask, and the asks are those of the critic without explore asks
-    wide = _critic(source, hypers, explore_every=2, explore_when="stalled")
+    wide = _critic(source, hypers, explore_every=2, explore_when="stalled", source_order="stored")
     _run(wide, 8)
     assert not any(d["explore"] for d in wide.decisions)
     assert np.allclose(wide.X, _BEFORE_X, atol=1e-8)

@@ -87,6 +87,10 @@ improves (TuRBO's success) when it beats the best by more than ``1e-3`` times ``
 (``"best"``, TuRBO's rule) or times the spread of the target's standing costs told before it,
 median minus best (``"spread"``: the same for any constant added to the cost, so a small gain
 near an optimum counts when it is large against what the target's trials vary by).
+``source_order`` (default ``"canonical"``): the source's trials are used sorted by
+(cost, fell, θ) (:func:`canonical_order`), so the fitted subset, the source models and the elite
+pool depend on the set of trials alone, not on the order a parallel phase 1 stored them in
+(completion order); ``"stored"`` uses them as given (runs stored before the option existed).
 
 ``explore_every`` = k ≥ 2 (0: off; default 2) makes every k-th ask an *explore* ask: generation ``g`` is
 one when ``g % k == k − 1`` and the ask is not an initial-design ask of the elite pool, the
@@ -160,26 +164,23 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "fit_ard": 0, "safe_fallback": False, "fall_cost": False, "handoff": 0,
     "handoff_model": "target", "handoff_fall_shrink": False, "handoff_rules": "turbo",
     "stop_converged": False, "success_scale": "spread", "explore_every": 2,
-    "explore_when": "always",
+    "explore_when": "always", "source_order": "canonical",
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
-
-LEGACY_OPTIONS: dict[str, Any] = {**TRANSFER_DEFAULTS, "length_init": 0.3,
-                                  "fit_lengthscale": False, "acquisition": "thompson",
-                                  "restart": False, "full_scales": 1, "global_share": 0.0,
-                                  "design_screen": False, "fit_ard": 0,
-                                  "safe_fallback": False, "handoff": 0,
-                                  "handoff_model": "target", "handoff_fall_shrink": False,
-                                  "handoff_rules": "turbo"}
-"""The options of runs stored before :meth:`Transfer.state_dict` recorded them."""
 
 ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fallback": False,
                                  "fall_cost": False, "handoff": 0, "handoff_model": "target",
                                  "handoff_fall_shrink": False, "handoff_rules": "turbo",
                                  "stop_converged": False, "success_scale": "best",
-                                 "explore_every": 0, "explore_when": "always"}
+                                 "explore_every": 0, "explore_when": "always",
+                                 "source_order": "stored"}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
+
+LEGACY_OPTIONS: dict[str, Any] = {**TRANSFER_DEFAULTS, **ADDED_OPTIONS, "length_init": 0.3,
+                                  "fit_lengthscale": False, "acquisition": "thompson",
+                                  "restart": False, "full_scales": 1, "global_share": 0.0}
+"""The options of runs stored before :meth:`Transfer.state_dict` recorded them."""
 
 _SIGMA_R2_GRID = (0.01, 0.05, 0.2, 0.5, 1.0, 2.0)
 _LS_SCALES = (0.25, 0.5, 1.0, 2.0)
@@ -193,6 +194,9 @@ HANDOFF_RULES = ("turbo", "transfer")
 SUCCESS_SCALES = ("best", "spread")
 """What TuRBO's ``1e-3`` success margin multiplies (``success_scale``): ``|best|`` or the spread
 of the target's standing costs."""
+SOURCE_ORDERS = ("canonical", "stored")
+"""The order the source's trials are used in (``source_order``): sorted by (cost, fell, θ), or as
+given."""
 EXPLORE_WHEN = ("always", "stalled")
 """When a due generation is an explore ask (``explore_when``): always, or only while the trust
 region's side is at its minimum."""
@@ -689,6 +693,9 @@ class Transfer(TwoSpaceCritic):
         if self.opts["explore_when"] not in EXPLORE_WHEN:
             raise ValueError(f"explore_when must be one of {EXPLORE_WHEN}, "
                              f"got {self.opts['explore_when']!r}")
+        if self.opts["source_order"] not in SOURCE_ORDERS:
+            raise ValueError(f"source_order must be one of {SOURCE_ORDERS}, "
+                             f"got {self.opts['source_order']!r}")
         if self.opts["success_scale"] not in SUCCESS_SCALES:
             raise ValueError(f"success_scale must be one of {SUCCESS_SCALES}, "
                              f"got {self.opts['success_scale']!r}")
@@ -720,10 +727,19 @@ class Transfer(TwoSpaceCritic):
         """Dimension of the latent box (0 without a latent space)."""
         return 0 if self.latent is None else int(self.latent.d_low)
 
+    def _source_rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The source's (X, y, fell) in the order the models and the elites use
+        (``source_order``)."""
+        X, y, f = self.source
+        if self.opts["source_order"] == "stored":
+            return X, y, f
+        o = canonical_order(X, y, f)
+        return X[o], y[o], f[o]
+
     def source_model(self) -> SourceModel:
         """The fitted source models (fitted at the first need, or restored from the state)."""
         if self._model is None:
-            X, y, f = self.source
+            X, y, f = self._source_rows()
             self._model = SourceModel(X, y, f, seed=self.seed, max_points=self.opts["max_points"],
                                       hypers=self._hypers)
             self._hypers = self._model.hypers
@@ -733,8 +749,8 @@ class Transfer(TwoSpaceCritic):
         """(m, d) the elite pool before removing evaluated points: the source's best diverse θ,
         then the manual θ."""
         if self._elite is None:
-            X, _, f = self.source
-            z = rank_scores(self.source[1], f)
+            X, y, f = self._source_rows()
+            z = rank_scores(y, f)
             idx = elite_points(X, z, f, int(self.opts["n_elite"]), float(self.opts["elite_spacing"]))
             E = X[idx]
             if self.manual is not None:
@@ -1186,6 +1202,15 @@ class Transfer(TwoSpaceCritic):
     def __repr__(self) -> str:
         return (f"Transfer(dim={self.dim}, k={self.k}, n_source={len(self.source[1])}, "
                 f"n_told={self.n_told}, best_y={self.best_y:.6g})")
+
+
+def canonical_order(X: np.ndarray, y: np.ndarray, fell: np.ndarray) -> np.ndarray:
+    """(N,) the permutation that sorts trials by cost, then fell, then θ's coordinates: the same
+    set of trials in any order gives the same sorted rows (a source is a set; the order a
+    parallel run stored a batch in carries no information)."""
+    X = np.asarray(X, dtype=float)
+    keys = [X[:, j] for j in range(X.shape[1] - 1, -1, -1)]
+    return np.lexsort([*keys, np.asarray(fell, dtype=bool), np.asarray(y, dtype=float)])
 
 
 def source_trials(run: str | Path, phases: tuple[int, ...] | None = None

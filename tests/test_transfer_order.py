@@ -1,0 +1,73 @@
+"""The transfer critic uses its source as a set (``source_order="canonical"``): the order a
+parallel phase 1 stored its trials in does not change what phase 3 asks."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from latentune.critic.transfer import ADDED_OPTIONS, TRANSFER_DEFAULTS, Transfer, canonical_order
+
+from test_transfer import D, _bowl, source  # noqa: F401 - shared fixtures
+
+
+def _asks(src, perm: np.ndarray, n: int = 7, **kw) -> np.ndarray:
+    """(n, D) what a critic fitted on the source rows in order ``perm`` asks (no stored hypers:
+    it fits its source models itself)."""
+    X, y, f, c = src
+    cr = Transfer((X[perm], y[perm], f[perm]), None, None, batch_size=1, seed=5, max_points=60,
+                  **kw)
+    for _ in range(n):
+        th = cr.ask(1)
+        yy, ff = _bowl(th, np.full(D, 0.45), 0.6)
+        cr.tell(th, yy, cr.last_tags, fell=ff)
+    return cr.X
+
+
+def _swapped_pairs(n: int) -> np.ndarray:
+    """A permutation that swaps rows 2↔3, 4↔5, … as two workers finishing a batch out of order
+    store them."""
+    p = np.arange(n)
+    for i in range(2, n - 1, 2):
+        p[i], p[i + 1] = p[i + 1], p[i]
+    return p
+
+
+def test_canonical_order_sorts_a_set_the_same_way_whatever_its_order():
+    rng = np.random.default_rng(1)
+    X = rng.random((50, 4))
+    y = rng.random(50).round(1)                      # ties in cost, broken by fell then θ
+    f = rng.random(50) < 0.3
+    o = canonical_order(X, y, f)
+    assert np.all(np.diff(y[o]) >= 0)
+    p = rng.permutation(50)
+    q = canonical_order(X[p], y[p], f[p])
+    assert np.array_equal(X[p][q], X[o]) and np.array_equal(y[p][q], y[o])
+
+
+def test_the_order_of_the_source_does_not_change_the_asks(source):
+    assert TRANSFER_DEFAULTS["source_order"] == "canonical"
+    n = source[0].shape[0]
+    same = np.arange(n)
+    a = _asks(source, same)
+    assert np.array_equal(a, _asks(source, _swapped_pairs(n)))
+    assert np.array_equal(a, _asks(source, np.random.default_rng(2).permutation(n)))
+
+
+def test_stored_order_is_the_behaviour_of_runs_before_the_option():
+    assert ADDED_OPTIONS["source_order"] == "stored"
+
+
+def test_stored_order_uses_the_rows_as_given(source):
+    """With ``source_order="stored"`` the fitted subset follows the rows' order: a permuted
+    source asks other θ (what made parallel sources irreproducible)."""
+    n = source[0].shape[0]
+    perm = np.random.default_rng(2).permutation(n)
+    a = _asks(source, np.arange(n), source_order="stored")
+    b = _asks(source, perm, source_order="stored")
+    assert not np.allclose(a, b)
+
+
+def test_an_unknown_source_order_is_refused(source):
+    X, y, f, _ = source
+    with pytest.raises(ValueError, match="source_order"):
+        Transfer((X, y, f), None, None, source_order="sorted")
