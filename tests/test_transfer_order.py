@@ -71,3 +71,42 @@ def test_an_unknown_source_order_is_refused(source):
     X, y, f, _ = source
     with pytest.raises(ValueError, match="source_order"):
         Transfer((X, y, f), None, None, source_order="sorted")
+
+
+def _own_run(tmp, name: str, X: np.ndarray, y: np.ndarray, order: np.ndarray):
+    """A run directory whose phase-1 rows are (X, y) stored in ``order`` (as a parallel phase 1
+    stores a batch in completion order)."""
+    from latentune.constants import Phase
+    from latentune.pipeline.store import RunStore
+
+    d = tmp / name
+    d.mkdir()
+    with RunStore(d, create=True) as st:
+        for i, j in enumerate(order):
+            st.add(Phase.PHASE1, i, X[j], float(y[j]), fell=bool(y[j] > 30))
+    return d
+
+
+def test_phase3_on_its_own_source_is_the_same_whatever_order_phase1_stored(tmp_path, source):
+    """The pipeline's own-task phase 3 (``latentune tune``) tells the critic the source's best
+    trials and elites as target data: with rows swapped in pairs it asks the same θ."""
+    from latentune.pipeline.loop import transfer_critic
+    from latentune.space import ParameterSpace
+
+    X, y, _, _ = source
+    n = len(y)
+    space = ParameterSpace([f"w{i}" for i in range(D)], np.zeros(D), np.ones(D))
+    pc = {"batch_size": 1, "seed": 2, "max_fall_prob": None}
+    asked, told = [], []
+    for name, order in (("a", np.arange(n)), ("b", _swapped_pairs(n))):
+        d = _own_run(tmp_path, name, X, y, order)
+        cr = transfer_critic(pc, space, d, d, None)
+        told.append(cr.X.copy())                # the source rows told as target data
+        cr.opts["max_points"] = 60
+        for _ in range(4):
+            th = cr.ask(1)
+            yy, ff = _bowl(th, np.full(D, 0.45), 0.6)
+            cr.tell(th, yy, cr.last_tags, fell=ff)
+        asked.append(cr.X[-4:])
+    assert len(told[0]) > 0 and np.array_equal(told[0], told[1])
+    assert np.array_equal(asked[0], asked[1])

@@ -177,7 +177,8 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
-LEGACY_OPTIONS: dict[str, Any] = {**TRANSFER_DEFAULTS, **ADDED_OPTIONS, "length_init": 0.3,
+LEGACY_OPTIONS: dict[str, Any] = {**TRANSFER_DEFAULTS, **ADDED_OPTIONS, "max_fall_prob": 0.3,
+                                  "length_init": 0.3,
                                   "fit_lengthscale": False, "acquisition": "thompson",
                                   "restart": False, "full_scales": 1, "global_share": 0.0}
 """The options of runs stored before :meth:`Transfer.state_dict` recorded them."""
@@ -671,6 +672,7 @@ class Transfer(TwoSpaceCritic):
             raise TypeError(f"Transfer: unknown option(s) {sorted(unknown)}")
         super().__init__(Xs.shape[1], batch_size=batch_size, seed=seed)
         self.opts = {**TRANSFER_DEFAULTS, **options}
+        self._explicit = frozenset(options)
         p = self.opts["max_fall_prob"]
         if not (isinstance(p, (int, float)) and 0 < float(p) <= 1):
             raise ValueError(f"max_fall_prob must be in (0, 1], got {p!r}")
@@ -727,9 +729,9 @@ class Transfer(TwoSpaceCritic):
         """Dimension of the latent box (0 without a latent space)."""
         return 0 if self.latent is None else int(self.latent.d_low)
 
-    def _source_rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The source's (X, y, fell) in the order the models and the elites use
-        (``source_order``)."""
+    def source_rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The source's (X (N, d) unit box, y (N,), fell (N,)) in the order the models and the
+        elites use (``source_order``)."""
         X, y, f = self.source
         if self.opts["source_order"] == "stored":
             return X, y, f
@@ -739,7 +741,7 @@ class Transfer(TwoSpaceCritic):
     def source_model(self) -> SourceModel:
         """The fitted source models (fitted at the first need, or restored from the state)."""
         if self._model is None:
-            X, y, f = self._source_rows()
+            X, y, f = self.source_rows()
             self._model = SourceModel(X, y, f, seed=self.seed, max_points=self.opts["max_points"],
                                       hypers=self._hypers)
             self._hypers = self._model.hypers
@@ -749,7 +751,7 @@ class Transfer(TwoSpaceCritic):
         """(m, d) the elite pool before removing evaluated points: the source's best diverse θ,
         then the manual θ."""
         if self._elite is None:
-            X, y, f = self._source_rows()
+            X, y, f = self.source_rows()
             z = rank_scores(y, f)
             idx = elite_points(X, z, f, int(self.opts["n_elite"]), float(self.opts["elite_spacing"]))
             E = X[idx]
@@ -1196,8 +1198,8 @@ class Transfer(TwoSpaceCritic):
             self._hypers = state["source_hypers"]
         if "options" in state:
             self.opts.update({**ADDED_OPTIONS, **state["options"]})
-        elif "last_decision" in state:
-            self.opts.update({k: v for k, v in LEGACY_OPTIONS.items() if k != "max_fall_prob"})
+        elif "last_decision" in state:      # options given to the constructor stand
+            self.opts.update({k: v for k, v in LEGACY_OPTIONS.items() if k not in self._explicit})
 
     def __repr__(self) -> str:
         return (f"Transfer(dim={self.dim}, k={self.k}, n_source={len(self.source[1])}, "

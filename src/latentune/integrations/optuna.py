@@ -222,12 +222,12 @@ def _phase3_critic(source_run: Path, latent: Any, space: ParameterSpace, *, stra
     (``x0``: (d_low,) code of the warm start; ``prior``: (codes (m, d_low), fell (m,)) of the
     source run for the fall-aware option), with the decoder ``latent.decode``."""
     if strategy == "transfer":
-        from latentune.critic.transfer import TRANSFER_DEFAULTS, Transfer, source_trials
+        from latentune.critic.transfer import Transfer, source_trials
 
         X, y, fell = source_trials(source_run)
-        mfp = TRANSFER_DEFAULTS["max_fall_prob"] if max_fall_prob is None else max_fall_prob
+        mfp = {} if max_fall_prob is None else {"max_fall_prob": max_fall_prob}
         return Transfer((X, y, fell), latent, space.manual, batch_size=batch_size, seed=seed,
-                        max_fall_prob=mfp), None
+                        **mfp), None
     from latentune.pipeline.phases import make_phase_critic
 
     critic = make_phase_critic(method, latent.d_low, batch_size, seed, x0, budget, regions,

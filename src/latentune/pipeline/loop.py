@@ -21,7 +21,7 @@ import numpy as np
 from latentune.constants import Phase
 from latentune.errors import LatentError, StoreError
 from latentune.pipeline.manifest import Manifest
-from latentune.pipeline.phases import make_handover_critic, make_phase_critic
+from latentune.pipeline.phases import make_handover_critic, make_phase_critic, state_key
 from latentune.pipeline.rundir import RunDir
 from latentune.pipeline.store import RunStore, Row
 from latentune.space import ParameterSpace
@@ -113,7 +113,7 @@ def transfer_critic(pc: dict[str, Any], space: ParameterSpace, run_dir: Path, so
     the source run's trials (phases 1 and 3; only phase 1 when the source is this run), the
     latent space, the target's manual θ, and the target trials stored outside phase 3 (the
     zero-shot trial and the manual θ's) told to it as data."""
-    from latentune.critic.transfer import TRANSFER_DEFAULTS, Transfer, source_trials
+    from latentune.critic.transfer import Transfer, source_trials
 
     own = Path(source_run).resolve() == Path(run_dir).resolve()
     X, y, fell = source_trials(source_run, phases=(Phase.PHASE1,) if own else None)
@@ -122,17 +122,20 @@ def transfer_critic(pc: dict[str, Any], space: ParameterSpace, run_dir: Path, so
                           "it needs at least 2 (or use strategy plain)")
     mfp = pc.get("max_fall_prob")
     critic = Transfer((X, y, fell), latent, space.manual, batch_size=pc["batch_size"],
-                      seed=pc["seed"],
-                      max_fall_prob=TRANSFER_DEFAULTS["max_fall_prob"] if mfp is None else mfp)
+                      seed=pc["seed"], **({} if mfp is None else {"max_fall_prob": mfp}))
     if (Path(run_dir) / "run.db").is_file():
         with RunStore(run_dir) as st:
             rows = [r for ph in (Phase.MANUAL, Phase.ZERO_SHOT) for r in st.rows(ph)]
+            state = st.get_meta(state_key(Phase.PHASE3))
+        if state:       # a stored run: its options (source order among them) from the start
+            critic.load_state_dict(state)
         if rows:
             critic.tell(np.array([r.theta for r in rows]), np.array([r.cost for r in rows]),
                         fell=np.array([r.fell for r in rows], dtype=bool))
     if own:     # the source is this system: its best trials and elites are target data already
         from latentune.critic.transfer import rank_scores
 
+        X, y, fell = critic.source_rows()           # the order the critic uses its source in
         z = rank_scores(y, fell)
         E = critic.elites()
         known = set(np.argsort(z, kind="stable")[:OWN_TOLD].tolist())
