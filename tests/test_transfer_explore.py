@@ -106,7 +106,8 @@ def _history(cr: Transfer, explore_cost: float) -> None:
 def test_explore_asks_leave_the_side_and_its_counters_alone(source, hypers, explore_cost):
     """Failing (9), improving (-1) or falling (99) explore trials: the k = 2 critic's side
     follows the 6 full-pool generations (two halvings), the k = 0 critic's all 12."""
-    on, off = _critic(source, hypers, explore_every=2), _critic(source, hypers, explore_every=0)
+    on = _critic(source, hypers, explore_every=2, explore_falls=0)    # no brake: test_brake_*
+    off = _critic(source, hypers, explore_every=0)
     for cr in (on, off):
         _history(cr, explore_cost)
     st = on._replay_state()
@@ -167,3 +168,72 @@ def test_stalled_explores_only_at_the_minimum_side(source, hypers):
     assert not on._explore_generation(13, 1 / 32)
     with pytest.raises(ValueError):
         _critic(source, hypers, explore_every=2, explore_when="sometimes")
+
+
+def _fall_history(cr: Transfer, explore_fell: list[bool], start: int = 0) -> None:
+    """(``start`` 0: one good untagged trial first,) then generation pairs from 2·start: even
+    ones full pool (cost 5 + g), odd ones latent-pool explore trials that fell as
+    ``explore_fell`` says (else cost 9)."""
+    rng = np.random.default_rng(1 + start)
+    if start == 0:
+        cr.tell(np.full((1, D), 0.4), np.array([0.0]), fell=np.array([False]))
+    for i, f in enumerate(explore_fell, start):
+        for g, pool, y, fl in ((2 * i, FULL, 5.0 + 2 * i, False),
+                               (2 * i + 1, LATENT, 150.0 if f else 9.0, f)):
+            cr.tell(rng.random((1, D)), np.array([y]), np.array([4 * g + pool]),
+                    fell=np.array([fl]))
+
+
+def test_brake_stops_exploring_after_explore_falls_beyond_the_admitted_risk(source, hypers):
+    """``explore_falls=3``: 3 of 3 explore trials fell (more than max_fall_prob 0.3 of them):
+    the next due generation is an ordinary ask, recorded as braked; a resumed critic agrees."""
+    assert TRANSFER_DEFAULTS["explore_falls"] == 3 and ADDED_OPTIONS["explore_falls"] == 0
+    cr = _critic(source, hypers, explore_every=2, explore_falls=3, latent_share_max=0.0)
+    _fall_history(cr, [True, True])
+    assert not cr._replay_state()["explore_braked"]          # 2 falls: fewer than k
+    _fall_history(cr, [True], start=2)
+    st = cr._replay_state()
+    assert st["explore_braked"] and st["explore_told"] == 3 and st["explore_fell"] == 3
+    for _ in range(2):                                      # generations 6 (full) and 7 (due)
+        x = cr.ask(1)
+        y, f = _bowl(x, np.full(D, 0.5), 0.6)
+        cr.tell(x, y, cr.last_tags, fell=f, z=cr.last_z)
+    assert cr.decisions[-1]["generation"] == 7 and not cr.decisions[-1]["explore"]
+    assert cr.decisions[-1]["explore_braked"] and cr.tags[-1] % 4 != LATENT   # not decoded
+    b = _critic(source, hypers)
+    b.tell(cr.X, cr.y, cr.tags, fell=cr.fell)
+    b.load_state_dict(cr.state_dict())
+    assert b._replay_state() == cr._replay_state()
+
+
+def test_no_brake_while_explore_falls_stay_within_the_admitted_risk(source, hypers):
+    """3 falls in 12 explore trials (25 % ≤ max_fall_prob 0.3): explore asks go on; with
+    ``explore_falls=0`` they go on whatever falls."""
+    few = [i % 4 == 3 for i in range(12)]
+    cr = _critic(source, hypers, explore_every=2, explore_falls=3)
+    _fall_history(cr, few)
+    assert not cr._replay_state()["explore_braked"]
+    cr = _critic(source, hypers, explore_every=2, explore_falls=0)
+    _fall_history(cr, [True] * 6)
+    assert not cr._replay_state()["explore_braked"]
+    for _ in range(2):                                      # generations 12 and 13 (due)
+        x = cr.ask(1)
+        y, f = _bowl(x, np.full(D, 0.5), 0.6)
+        cr.tell(x, y, cr.last_tags, fell=f, z=cr.last_z)
+    assert cr.decisions[-1]["generation"] == 13 and cr.decisions[-1]["explore"]
+    with pytest.raises(ValueError, match="explore_falls"):
+        _critic(source, hypers, explore_falls=-1)
+
+
+def test_no_brake_while_every_trial_fell(source, hypers):
+    """Every explore trial fell and nothing on the target stands: the explore asks go on (the
+    way out); one standing trial later, the brake holds."""
+    cr = _critic(source, hypers, explore_every=2, explore_falls=3)
+    rng = np.random.default_rng(3)
+    for g in range(6):                      # full and explore generations, all fell
+        pool = LATENT if g % 2 else FULL
+        cr.tell(rng.random((1, D)), np.array([150.0]), np.array([4 * g + pool]),
+                fell=np.array([True]))
+    assert not cr._replay_state()["explore_braked"]
+    cr.tell(rng.random((1, D)), np.array([5.0]), np.array([4 * 6 + FULL]), fell=np.array([False]))
+    assert cr._replay_state()["explore_braked"]

@@ -110,6 +110,12 @@ best moves the centre, as any trial does. Each decision records ``"explore"``.
 ``explore_when="stalled"`` makes a due generation an explore ask only while the side it is asked
 at is ``length_min`` (the trust region has nothing left to resolve near its centre); the other
 due generations are ordinary asks, so the local search keeps every ask while it still improves.
+``explore_falls`` = k > 0 (default 3; 0: never) stops the explore asks for good once at least k
+explore trials fell and they fell more often than ``max_fall_prob`` (the risk the fall screen
+admits), once the target holds a trial that did not fall: the fall model underrates the whole
+box's risk on this target, and later due generations are ordinary asks. While every trial fell
+the explore asks go on (they are the way out of a target where the source's θ all fall). The
+replay applies the same rule in generation order.
 
 The late phase (``handoff`` = k > 0): the asks made once the target has k own (tagged) trials
 follow TuRBO-m's rules (:class:`~latentune.critic.turbo.TurboM` with one region and batch 1:
@@ -164,7 +170,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "fit_ard": 0, "safe_fallback": False, "fall_cost": False, "handoff": 0,
     "handoff_model": "target", "handoff_fall_shrink": False, "handoff_rules": "turbo",
     "stop_converged": False, "success_scale": "spread", "explore_every": 2,
-    "explore_when": "always", "source_order": "canonical",
+    "explore_when": "always", "source_order": "canonical", "explore_falls": 3,
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
@@ -173,7 +179,7 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "handoff_fall_shrink": False, "handoff_rules": "turbo",
                                  "stop_converged": False, "success_scale": "best",
                                  "explore_every": 0, "explore_when": "always",
-                                 "source_order": "stored"}
+                                 "source_order": "stored", "explore_falls": 0}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -692,6 +698,10 @@ class Transfer(TwoSpaceCritic):
         if isinstance(k_ex, bool) or not isinstance(k_ex, (int, np.integer)) or k_ex < 0 \
                 or k_ex == 1:
             raise ValueError(f"explore_every must be 0 (off) or an integer ≥ 2, got {k_ex!r}")
+        k_ef = self.opts["explore_falls"]
+        if isinstance(k_ef, bool) or not isinstance(k_ef, (int, np.integer)) or k_ef < 0:
+            raise ValueError(f"explore_falls must be an integer ≥ 0 (0: never stop exploring), "
+                             f"got {k_ef!r}")
         if self.opts["explore_when"] not in EXPLORE_WHEN:
             raise ValueError(f"explore_when must be one of {EXPLORE_WHEN}, "
                              f"got {self.opts['explore_when']!r}")
@@ -784,7 +794,9 @@ class Transfer(TwoSpaceCritic):
         explore = np.zeros(len(tags), dtype=bool)
         for g in gens:
             m = own & (tags // 4 == g)
+            standing = bool((~self._fell & (ext | (own & (tags // 4 < g)))).any())
             if self._explore_generation(int(g), L) and \
+                    not self._explore_braked(explore, standing) and \
                     not np.isin(tags[m] % 4, (ELITE, FULL)).any():
                 explore |= m            # data and best value only: L follows the other batches
                 best = min(best, float(y[m].min()))
@@ -820,10 +832,24 @@ class Transfer(TwoSpaceCritic):
             if late and self._fall_shrink_due(m, tags // 4 <= g):
                 L, succ, fail = max(min(L, side / 2.0), l_min), 0, 0
         lat = own & (tags % 4 == LATENT) & ~explore
-        return {"L": L, "succ": succ, "fail": fail, "n_own": int(own.sum()), "restarts": restarts,
+        return {"L": L, "explore_braked": self._explore_braked(explore, bool((~self._fell).any())),
+                "explore_told": int(explore.sum()), "explore_fell": int(self._fell[explore].sum()), "succ": succ, "fail": fail, "n_own": int(own.sum()), "restarts": restarts,
                 "converged": converged,
                 "generation": int(gens.max()) + 1 if gens.size else 0,
                 "latent_told": int(lat.sum()), "latent_fell": int(self._fell[lat].sum())}
+
+    def _explore_braked(self, explore: np.ndarray, standing: bool) -> bool:
+        """``explore_falls`` = k > 0: True once at least k of the told explore trials (``explore``
+        (n,) bool over the told history) fell and they fell more often than ``max_fall_prob``
+        allows, while the target holds a trial that did not fall (``standing``): the decoded
+        codes of the whole box are riskier on this target than the fall model predicts, and the
+        local search has a standing centre to work from. While every trial so far fell, the
+        explore asks go on: they are the way out."""
+        k = int(self.opts["explore_falls"])
+        if k <= 0 or not standing:
+            return False
+        fell = int(self._fell[explore].sum())
+        return fell >= k and fell > float(self.opts["max_fall_prob"]) * int(explore.sum())
 
     def _explore_generation(self, g: int, L: float) -> bool:
         """True when generation ``g`` is due for an explore ask (``explore_every`` = k ≥ 2 and
@@ -1026,7 +1052,8 @@ class Transfer(TwoSpaceCritic):
                 ctx.design_screened = True
         if design and len(E) >= 1:
             parts = [(E, np.full((len(E), self.k), np.nan), ELITE)]
-        elif self._explore_generation(g, st["L"]):   # explore: the whole latent box (or θ box) only
+        elif self._explore_generation(g, st["L"]) and not st["explore_braked"]:
+            # explore: the whole latent box (or θ box) only
             ctx.explore = True
             if self.latent is None:
                 parts = [(self._pool_global(M, rng), np.empty((M, 0)), GLOBAL)]
@@ -1172,6 +1199,7 @@ class Transfer(TwoSpaceCritic):
             "max_fall_prob_asked": float(cands.pf[sel].max()),
             "pools": [POOL_NAMES[int(p)] for p in cands.pool[sel]],
             "explore": bool(ctx.explore),
+            **({"explore_braked": True} if ctx.state.get("explore_braked") else {}),
             **({"design_screened": True} if ctx.design_screened else {}),
             **({"safe_fallback": True} if ctx.safe_fallback else {}),
             **({"ls_ratio": float(np.exp(np.mean(np.log(
