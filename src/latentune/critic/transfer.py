@@ -724,6 +724,7 @@ class Transfer(TwoSpaceCritic):
             raise ValueError(f"the latent space maps to {latent.d}-dim θ, not {self.dim}")
         self.manual = None if manual is None else as_unit_points(manual, self.dim, "manual")[0]
         self._model: SourceModel | None = None
+        self._canonical: np.ndarray | None = None      # (N,) canonical_order of the source
         self._hypers: dict[str, Any] | None = None
         self._fell = np.empty(0, dtype=bool)
         self._incoming: tuple[np.ndarray, np.ndarray] | None = None
@@ -745,7 +746,9 @@ class Transfer(TwoSpaceCritic):
         X, y, f = self.source
         if self.opts["source_order"] == "stored":
             return X, y, f
-        o = canonical_order(X, y, f)
+        if self._canonical is None:
+            self._canonical = canonical_order(X, y, f)
+        o = self._canonical
         return X[o], y[o], f[o]
 
     def source_model(self) -> SourceModel:
@@ -792,9 +795,14 @@ class Transfer(TwoSpaceCritic):
         gens = np.unique(tags[own] // 4) if own.any() else np.empty(0, dtype=np.int64)
         spread = self.opts["success_scale"] == "spread"
         explore = np.zeros(len(tags), dtype=bool)
+        # a trial stands before generation g when an untagged one stood or an own one of an
+        # earlier generation did: g > the first own generation with a standing trial
+        ok = ~self._fell
+        first_ok = -1 if (ok & ext).any() else \
+            int((tags[ok & own] // 4).min()) if (ok & own).any() else math.inf
         for g in gens:
             m = own & (tags // 4 == g)
-            standing = bool((~self._fell & (ext | (own & (tags // 4 < g)))).any())
+            standing = g > first_ok
             if self._explore_generation(int(g), L) and \
                     not self._explore_braked(explore, standing) and \
                     not np.isin(tags[m] % 4, (ELITE, FULL)).any():
@@ -832,9 +840,10 @@ class Transfer(TwoSpaceCritic):
             if late and self._fall_shrink_due(m, tags // 4 <= g):
                 L, succ, fail = max(min(L, side / 2.0), l_min), 0, 0
         lat = own & (tags % 4 == LATENT) & ~explore
-        return {"L": L, "explore_braked": self._explore_braked(explore, bool((~self._fell).any())),
-                "explore_told": int(explore.sum()), "explore_fell": int(self._fell[explore].sum()), "succ": succ, "fail": fail, "n_own": int(own.sum()), "restarts": restarts,
+        return {"L": L, "succ": succ, "fail": fail, "n_own": int(own.sum()), "restarts": restarts,
                 "converged": converged,
+                "explore_braked": self._explore_braked(explore, bool(ok.any())),
+                "explore_told": int(explore.sum()), "explore_fell": int(self._fell[explore].sum()),
                 "generation": int(gens.max()) + 1 if gens.size else 0,
                 "latent_told": int(lat.sum()), "latent_fell": int(self._fell[lat].sum())}
 
