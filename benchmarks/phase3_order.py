@@ -110,6 +110,16 @@ def main(argv: list[str] | None = None) -> int:
     if not (a.run / "run.db").is_file():
         print(f"phase3_order: {a.run} holds no run store (run.db)", file=sys.stderr)
         return 2
+    con = sqlite3.connect(f"file:{a.run / 'run.db'}?mode=ro", uri=True)
+    try:
+        n1 = con.execute("SELECT COUNT(*) FROM evaluations WHERE phase=1").fetchone()[0]
+        cfg = con.execute("SELECT value FROM meta WHERE key='config'").fetchone()
+    finally:
+        con.close()
+    if n1 < 2 or cfg is None or '"phase3"' not in cfg[0] or '"task"' not in cfg[0]:
+        print(f"phase3_order: {a.run} is not a finished run of a task with phase 1 and phase 3 "
+              "(e.g. the README's `latentune tune` output)", file=sys.stderr)
+        return 2
     prov = Provenance()
     out: dict[str, Any] = {}
     for name, swap in (("stored", False), ("swapped", True)):
