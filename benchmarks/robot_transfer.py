@@ -560,9 +560,41 @@ def _g(v: float | None) -> str:
     return "-" if v is None else f"{v:.4g}"
 
 
+def overview(s: dict[str, Any]) -> str:
+    """One line per rung with a judged default: the best peer's median best and falls, the
+    default's (with the two-sided Mann–Whitney p against the best peer), the default's median
+    above (+) or below (−) the best peer's in percent, its median trials to reach the best
+    peer's median, and the transfer issue's criteria (1) no worse, (2) ≤ B/10 and ≤ B/2,
+    (3) falls; then how many rungs hold each."""
+    rows = [r for r in s["targets"] if "criteria" in r]
+    if not rows:
+        return ""
+    mark = {True: "✓", False: "✗"}
+    lines = ["| rung | seeds | best peer: median / falls | default: median (p) / falls | "
+             "default vs best peer | trials to its median | (1) | (2) B/10, B/2 | (3) |",
+             "|---|---:|---|---|---:|---:|:-:|:-:|:-:|"]
+    for r in rows:
+        bp, t, c = r["methods"][r["best_peer"]], r["methods"]["transfer"], r["criteria"]
+        rel = 100.0 * (t["median_best"] - bp["median_best"]) / abs(bp["median_best"])
+        lines.append(
+            f"| {r['target']} | {len(r['seeds'])} | {r['best_peer']}: {bp['median_best']:.4g} / "
+            f"{bp['falls_median']:g} | {t['median_best']:.4g} ({c['mannwhitney_p']:.2f}) / "
+            f"{t['falls_median']:g} | {rel:+.1f} % | {t['trials_to_best_peer']:g} | "
+            f"{mark[c['no_worse']]} | {mark[c['reach_le_B10']]} {mark[c['reach_le_B2']]} | "
+            f"{mark[c['falls_ok']]} |")
+    n = len(rows)
+    held = {k: sum(r["criteria"][k] for r in rows)
+            for k in ("no_worse", "reach_le_B10", "reach_le_B2", "falls_ok")}
+    lines.append(f"\nOf {n} rungs: (1) no worse on {held['no_worse']}; (2) ≤ B/10 on "
+                 f"{held['reach_le_B10']}, ≤ B/2 on {held['reach_le_B2']}; (3) falls on "
+                 f"{held['falls_ok']}.")
+    return "\n".join(lines)
+
+
 def markdown(s: dict[str, Any]) -> str:
-    """The summary's tables (:func:`benchmarks.transfer.markdown`) and the rungs to drop."""
-    md = tr.markdown(s, _title)
+    """The overview (:func:`overview`), the summary's tables
+    (:func:`benchmarks.transfer.markdown`) and the rungs to drop."""
+    md = overview(s) + "\n" + tr.markdown(s, _title)
     for row in s["targets"]:
         c = row.get("cost_check")
         if c:

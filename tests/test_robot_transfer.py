@@ -2,6 +2,7 @@
 tiny user system, not on a robot)."""
 from __future__ import annotations
 
+import math
 import json
 import shutil
 from pathlib import Path
@@ -285,3 +286,22 @@ def test_summary_reads_only_the_methods_targets_and_seeds_asked(tmp_path):
     assert row["target"] == "b1-trot-from-a1" and row["seeds"] == [1, 2]
     assert set(row["methods"]) == {"tpe", "transfer"}
     assert row["cost_check"]["trials"] == 8 and row["cost_check"]["falls"] == 4
+
+
+def test_overview_lines_up_the_default_against_the_best_peer():
+    def m(med: float, falls: float, reach: float = math.inf) -> dict:
+        return {"median_best": med, "falls_median": falls, "trials_to_best_peer": reach}
+
+    crit = {"no_worse": False, "mannwhitney_p": 0.008, "reach_le_B10": False,
+            "reach_le_B2": True, "falls_ok": True}
+    s = {"targets": [
+        {"target": "r1", "seeds": [0, 1, 2, 3, 4], "best_peer": "tpe",
+         "methods": {"tpe": m(20.0, 8), "transfer": m(21.0, 1, 40)}, "criteria": crit},
+        {"target": "r2", "seeds": [0], "best_peer": "tpe", "methods": {"tpe": m(1.0, 0)}}]}
+    text = rt.overview(s)
+    (line,) = [x for x in text.splitlines() if x.startswith("| r1 ")]
+    assert "tpe: 20 / 8" in line and "21 (0.01) / 1" in line and "+5.0 %" in line
+    assert line.endswith("| 40 | ✗ | ✗ ✓ | ✓ |")
+    assert "| r2 " not in text                      # no default judged there
+    assert "Of 1 rungs: (1) no worse on 0; (2) ≤ B/10 on 0, ≤ B/2 on 1; (3) falls on 1." in text
+    assert rt.overview({"targets": []}) == ""
