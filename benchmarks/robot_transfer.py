@@ -62,6 +62,7 @@ import argparse
 import datetime
 import json
 import logging
+import math
 import os
 import shutil
 import sqlite3
@@ -494,7 +495,7 @@ def summarize(root: Path, methods: list[str] | None = None, targets: list[str] |
     """:func:`benchmarks.transfer.summarize` of ``root``'s runs per (rung, source, source size),
     each row with its rung's label, ``beats_zero_shot``: the methods whose best costs are
     below the zero-shot θ's (one-sided Mann–Whitney p < 0.05; a rung where none does is one to
-    drop), and ``cost_check`` (:func:`cost_checks`) of its runs. ``methods``, ``targets``,
+    drop; None with fewer than 4 seeds, where no p can be below 0.05), and ``cost_check`` (:func:`cost_checks`) of its runs. ``methods``, ``targets``,
     ``seeds``: only these runs (default: all); ``default``: the method judged as latentune's
     default (:func:`benchmarks.transfer.summarize`: it reads as ``transfer``, the stored
     ``transfer`` runs as ``transfer@stored``)."""
@@ -509,6 +510,10 @@ def summarize(root: Path, methods: list[str] | None = None, targets: list[str] |
         row["label"] = every[row["target"]].label if row["target"] in every else row["target"]
         zs = row["methods"].get("zero_shot")
         if zs is None:
+            continue
+        n = len(row["seeds"])
+        if 1.0 / math.comb(2 * n, n) >= 0.05:     # too few seeds for any p < 0.05: unknown
+            row["beats_zero_shot"] = None
             continue
         beats = []
         for m, r in row["methods"].items():
@@ -588,6 +593,10 @@ def overview(s: dict[str, Any]) -> str:
     lines.append(f"\nOf {n} rungs: (1) no worse on {held['no_worse']}; (2) ≤ B/10 on "
                  f"{held['reach_le_B10']}, ≤ B/2 on {held['reach_le_B2']}; (3) falls on "
                  f"{held['falls_ok']}.")
+    few = min(len(r["seeds"]) for r in rows)
+    if 2.0 / math.comb(2 * few, few) >= 0.05:
+        lines.append(f"With {few} seeds no two-sided p is below 0.05: (1) holds on every rung "
+                     "whatever the medians.")
     return "\n".join(lines)
 
 

@@ -146,7 +146,9 @@ def test_run_files_record_the_source_size_and_resume(live, tmp_path):
     assert (row["target"], row["source"], row["source_trials"]) == ("toy-real", "toy", n)
     assert row["seeds"] == [0, 1] and set(row["methods"]) == {"zero_shot", "turbo_source"}
     assert row["best_peer"] in ("zero_shot", "turbo_source")
+    assert row["beats_zero_shot"] is None           # 2 seeds: no p can be below 0.05
     assert "toy-real (source toy" in rt.markdown(s)
+    assert "No method beats" not in rt.markdown(s)
     out = tmp_path / "out" / "ladder.json"
     assert rt.main(["summary", "--root", str(tmp_path), "--out", str(out)]) == 0
     written = json.loads(out.read_text())
@@ -304,4 +306,7 @@ def test_overview_lines_up_the_default_against_the_best_peer():
     assert line.endswith("| 40 | ✗ | ✗ ✓ | ✓ |")
     assert "| r2 " not in text                      # no default judged there
     assert "Of 1 rungs: (1) no worse on 0; (2) ≤ B/10 on 0, ≤ B/2 on 1; (3) falls on 1." in text
+    assert "no two-sided p" not in text
+    s["targets"][0]["seeds"] = [0, 1, 2]
+    assert "With 3 seeds no two-sided p is below 0.05" in rt.overview(s)
     assert rt.overview({"targets": []}) == ""
