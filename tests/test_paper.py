@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from latentune.experiments.paper import budgets, plan
+from latentune.experiments.paper import BASELINE_ROWS, budgets, plan
 from latentune.pipeline.store import RunStore
 from latentune.reporting.metrics import paper_results
 
@@ -49,11 +49,16 @@ def test_budget_mapping():
 
 def test_plan_runs_the_claims_first():
     """The sources first, phase 3 on the claim rows over every seed before any baseline, the
-    preservation run last; every study once."""
+    preservation run after every phase-3 row and before the baselines no claim rests on (the
+    last tier); every study once."""
     st = plan("a1", budgets(0.01), seeds=3)
     keys = [s.key for s in st]
     assert len(keys) == len(set(keys))
-    assert keys[:2] == ["a1-trot", "a1-jump"] and keys[-1] == "a1-trot-preservation"
+    assert keys[:2] == ["a1-trot", "a1-jump"]
+    i_pres = keys.index("a1-trot-preservation")
+    extra = [i for i, s in enumerate(st) if s.kind == "baseline" and s.row not in BASELINE_ROWS]
+    assert extra and i_pres == min(extra) - 1 and max(extra) == len(keys) - 1
+    assert max(i for i, s in enumerate(st) if s.kind == "phase3") < i_pres
     first_baseline = next(i for i, s in enumerate(st) if s.kind == "baseline")
     claims = [i for i, s in enumerate(st) if s.kind == "phase3" and s.row in ("jump", "trot")]
     assert len(claims) == 3 * 2 * 2 - 2 and max(claims) < first_baseline   # seed 0's plain: tune
@@ -455,3 +460,4 @@ def _imported_as_rungs(out: Path, root: Path, meta: dict, B: int) -> None:
     s = rt.summarize(root)
     assert {r["target"] for r in s["targets"]} == {"a1-jump-from-trot", "b1-jump-from-a1-trot",
                                                    "b1-trot-from-a1"}
+

@@ -55,7 +55,9 @@ long sources of every other study, in the layout a later full ``latentune paper`
 
 Order (``_priority``): the sources; phase 3 (plain and default) on flat jump, flat trot and
 trot → jump over every seed; the baselines on jump, trot → jump and A1 → B1 jump; the other
-phase-3 rows; the other baselines; the preservation run (the longest) last.
+phase-3 rows; the preservation run (its encode → decode check answers the paper's
+preservation claim; its phase-1 run is a source); the other baselines last (no claim rests on
+them).
 
 Resume: every study is a pipeline run; re-running the same command skips finished studies and
 resumes unfinished ones from their stored rows (the pipeline's ``run_phase`` resume). All
@@ -142,7 +144,8 @@ def _sfx(i: int) -> str:
 def plan(robot: str, b: dict[str, Any], seeds: int = 1) -> list[StudyPlan]:
     """The studies of ``latentune paper --robot R --seeds N`` in execution order (``_priority``):
     the sources, then the phase-3 rows that answer the paper's claims over every seed, their
-    baselines, the other rows, and the preservation run last; seed-major within each tier.
+    baselines, the other rows, the preservation run, and the other baselines last; seed-major
+    within each tier.
 
     Seed index i > 0 repeats phase 3 (both strategies) and the baselines with the study seed
     ``--seed + i`` on the same source runs (``R-g``, their VAEs) and the same target tasks;
@@ -189,14 +192,14 @@ jump")."""
 
 def _priority(s: StudyPlan) -> int:
     """Execution tier: sources (0), phase 3 on the claim rows (1), their baselines (2), the
-    other phase-3 rows (3), the other baselines (4), the long preservation run (5)."""
+    other phase-3 rows (3), the preservation run (4), the other baselines (5)."""
     if s.kind == "tune":
         return 0
     if s.kind == "phase3":
         return 1 if s.row in CLAIM_ROWS else 3
     if s.kind == "baseline":
-        return 2 if s.row in BASELINE_ROWS else 4
-    return 5
+        return 2 if s.row in BASELINE_ROWS else 5
+    return 4
 
 
 def _seeded(R: str, b: dict[str, Any], i: int) -> list[StudyPlan]:
