@@ -369,6 +369,8 @@ def run(a: argparse.Namespace) -> None:
         prepared.append((rung, src, int(snapshot_info(src)["n_trials"])))
     jobs = [(rung, src, m, s, a.budget, root, o) for s in a.seeds for rung, src, n in prepared
             for m, o in methods if not result_path(root, rung.name, n, s, m).is_file()]
+    if getattr(a, "reverse", False):
+        jobs.reverse()
     print(f"{len(jobs)} runs to do", flush=True)
     if a.workers == 1:
         for j in jobs:
@@ -727,6 +729,9 @@ def parser() -> argparse.ArgumentParser:
     r.add_argument("--workers", type=_pos_int, default=1)
     r.add_argument("--variants", nargs="+", default=[],
                    help="transfer variants option=value[:option=value], stored as transfer+VARIANT")
+    r.add_argument("--reverse", action="store_true",
+                   help="run the jobs last first: a second process on the same root then meets "
+                        "the first once instead of running the same jobs in step with it")
     im = sub.add_parser("import-paper", help="the seeded rows of a latentune paper run that "
                         "are rungs, as results (no new trial)")
     im.add_argument("--paper-run", required=True,

@@ -209,6 +209,13 @@ def test_variants_run_as_transfer_with_their_options_seed_by_seed(monkeypatch, t
     v = ("transfer+explore_every=2", {"explore_every": 2})
     assert done == [(r, s, *m) for s in (0, 1) for r in ("b1-trot-from-a1", "a1-jump-from-trot")
                     for m in (("tpe", None), v)]
+    forward = list(done)
+    done.clear()
+    rt.run(rt.parser().parse_args(["run", "--robots", "a1", "--targets", "b1-trot-from-a1",
+                                   "a1-jump-from-trot", "--methods", "tpe", "--seeds", "0", "1",
+                                   "--variants", "explore_every=2", "--root", str(tmp_path),
+                                   "--reverse"]))
+    assert done == forward[::-1]
     assert rt.main(["run", "--robots", "a1", "--targets", "b1-trot-from-a1", "--root",
                     str(tmp_path), "--variants", "no_such_option=1"]) == 2
 
