@@ -110,3 +110,31 @@ def test_phase3_on_its_own_source_is_the_same_whatever_order_phase1_stored(tmp_p
         asked.append(cr.X[-4:])
     assert len(told[0]) > 0 and np.array_equal(told[0], told[1])
     assert np.array_equal(asked[0], asked[1])
+
+
+def test_stored_options_are_what_a_stored_run_resumes_with():
+    """A state recorded before ``source_order`` and ``explore_falls`` existed resumes with their
+    old behaviour; a state recorded before options were recorded resumes with the legacy set;
+    a state of another critic has none."""
+    from latentune.critic.transfer import LEGACY_OPTIONS, stored_options
+
+    old = {k: v for k, v in TRANSFER_DEFAULTS.items() if k not in ("source_order",
+                                                                     "explore_falls")}
+    o = stored_options({"options": old})
+    assert (o["source_order"], o["explore_falls"]) == ("stored", 0)
+    assert {k: o[k] for k in old} == old
+    assert stored_options({"options": dict(TRANSFER_DEFAULTS)}) == TRANSFER_DEFAULTS
+    assert stored_options({"last_decision": {}}) == LEGACY_OPTIONS
+    assert stored_options({"regions": []}) is None
+
+
+def test_paper_report_names_the_seeds_that_did_not_run_todays_default():
+    from latentune.reporting.paper_report import _options_note
+
+    old = {**TRANSFER_DEFAULTS, "explore_falls": 0}
+    arm = {"seeds": [0, 1, 2, 3], "options": [old, dict(TRANSFER_DEFAULTS), old, None]}
+    note = _options_note(arm)
+    assert "seeds 0, 2: `explore_falls=0` (default 3)" in note
+    assert "1" not in note.split("differ here:")[1].replace("0, 2", "")
+    assert _options_note({"seeds": [0], "options": [dict(TRANSFER_DEFAULTS)]}) == ""
+    assert _options_note(None) == ""

@@ -1234,13 +1234,26 @@ class Transfer(TwoSpaceCritic):
         if state.get("source_hypers") and self._model is None:
             self._hypers = state["source_hypers"]
         if "options" in state:
-            self.opts.update({**ADDED_OPTIONS, **state["options"]})
+            self.opts.update(stored_options(state))
         elif "last_decision" in state:      # options given to the constructor stand
             self.opts.update({k: v for k, v in LEGACY_OPTIONS.items() if k not in self._explicit})
 
     def __repr__(self) -> str:
         return (f"Transfer(dim={self.dim}, k={self.k}, n_source={len(self.source[1])}, "
                 f"n_told={self.n_told}, best_y={self.best_y:.6g})")
+
+
+def stored_options(state: dict[str, Any]) -> dict[str, Any] | None:
+    """The options a stored :meth:`Transfer.state_dict` resumes with: the recorded ones, and
+    :data:`ADDED_OPTIONS` for options added after it was stored; :data:`LEGACY_OPTIONS` for a
+    state stored before options were recorded (options its constructor was given then stand
+    instead, which the state does not record); None for a state that is not a transfer
+    critic's."""
+    if "options" in state:
+        return {**TRANSFER_DEFAULTS, **ADDED_OPTIONS, **state["options"]}
+    if "last_decision" in state:
+        return dict(LEGACY_OPTIONS)
+    return None
 
 
 def canonical_order(X: np.ndarray, y: np.ndarray, fell: np.ndarray) -> np.ndarray:

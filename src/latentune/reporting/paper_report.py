@@ -58,6 +58,8 @@ def study_stats(run_dir: Path) -> dict[str, Any] | None:
     (the best θ as a list, None without rows), ``costs`` (list, evaluation order) and, for
     phase 1 and phase 3, ``evals_to_beat_manual``; ``preservation_meta``.
     """
+    from latentune.critic.transfer import stored_options
+    from latentune.pipeline.phases import state_key
     from latentune.pipeline.store import RunStore
 
     if not (run_dir / "run.db").is_file():
@@ -74,6 +76,8 @@ def study_stats(run_dir: Path) -> dict[str, Any] | None:
                      theta=None if b is None else b.theta.tolist(), costs=y.tolist())
             out[name] = s
         out["preservation_meta"] = st.get_meta("preservation")
+        state = st.get_meta(state_key(3))
+        out["phase3_options"] = stored_options(state) if isinstance(state, dict) else None
     man = out["manual"]["best"]
     for name in ("phase1", "phase3"):
         out[name]["evals_to_beat_manual"] = evals_to_beat(out[name]["costs"], man)
@@ -232,6 +236,8 @@ def seeded_stats(meta: dict[str, Any], S: dict[str, Any]) -> dict[str, Any]:
         a["studies"].append(key)
         a["seeds"].append(int(info.get("seed_index", 0)))
         a["traces"].append(trace)
+        if arm == "phase3-transfer":
+            a.setdefault("options", []).append(s.get("phase3_options"))
         if r["manual"] is None and s["manual"]["best"] is not None:
             r["manual"] = s["manual"]["best"]
         if r["zero_shot"] is None and s["zero_shot"]["best"] is not None and \
@@ -737,6 +743,9 @@ def _md_seeded(nums: dict[str, Any]) -> list[str]:
                       f"{_spread_txt(a['to_zero_shot'], evals=True)} | "
                       f"{_spread_txt(a['to_level'], evals=True)} | "
                       f"{_spread_txt(a['falls_per_100'], 1)} |")
+        note = _options_note(r["arms"].get("phase3-transfer"))
+        if note:
+            md += ["", note]
         p1 = r["phase1"]
         if p1 is not None and p1.get("to_phase3_median") is not None:
             v = p1["to_phase3_median"]
@@ -755,6 +764,31 @@ def _md_seeded(nums: dict[str, Any]) -> list[str]:
             md += ["", f"![{r['label']}: best cost so far over the seeds]({fn})"]
         md.append("")
     return md
+
+
+def _options_note(arm: dict[str, Any] | None) -> str:
+    """A line naming the default arm's seeds whose stored options differ from today's default
+    (:data:`latentune.critic.transfer.TRANSFER_DEFAULTS`): a row made before an option existed
+    resumes as it ran (:func:`latentune.critic.transfer.stored_options`). Empty when every seed
+    ran today's default."""
+    from latentune.critic.transfer import TRANSFER_DEFAULTS
+
+    if not arm or not arm.get("options"):
+        return ""
+    groups: dict[str, list[int]] = {}
+    for seed, o in zip(arm["seeds"], arm["options"]):
+        if o is None:
+            continue
+        diff = ", ".join(f"`{k}={o[k]}` (default {v})" for k, v in TRANSFER_DEFAULTS.items()
+                         if k in o and o[k] != v)
+        if diff:
+            groups.setdefault(diff, []).append(seed)
+    if not groups:
+        return ""
+    parts = [f"seed{'s' if len(ss) > 1 else ''} {', '.join(map(str, sorted(ss)))}: {d}"
+             for d, ss in groups.items()]
+    return ("Not today's default: the default phase 3's rows stored before an option existed "
+            "resume with the options they ran with, which differ here: " + "; ".join(parts) + ".")
 
 
 def _md_images(items: list[tuple[str, str]]) -> list[str]:
