@@ -618,6 +618,67 @@ def markdown(s: dict[str, Any]) -> str:
     return md
 
 
+def decision_stats(run: dict[str, Any], floor: float = 1 / 64) -> dict[str, Any]:
+    """What the default phase 3 did in one run, from its decision records (decision ``i`` asked
+    trial ``i + 1``; trial 0 is the zero-shot θ): ``n_asks`` (after the initial design),
+    ``floor_share``: the share of its trust-region asks (not explore asks) asked at side
+    ``length`` ≤ ``floor``; ``screened_share``: the share of asks whose fall screen admitted
+    fewer than 5 % of the candidates; ``explore_asks`` and ``explore_falls``; ``falls_by_pool``
+    (the pool of each fallen trial's ask: ``elite``, ``full``, ``latent``, or ``explore``)."""
+    dec = run.get("decisions") or []
+    failed = run["failed"]
+    asks = [d for d in dec if not d.get("design")]
+    region = [d for d in asks if not d.get("explore")]
+    by_pool: dict[str, int] = {}
+    for i, d in enumerate(dec):
+        if i + 1 < len(failed) and failed[i + 1]:
+            pool = "explore" if d.get("explore") else (d.get("pools") or ["?"])[0]
+            by_pool[pool] = by_pool.get(pool, 0) + 1
+    ex = [i for i, d in enumerate(dec) if d.get("explore")]
+    return {
+        "n_asks": len(asks),
+        "floor_share": float(np.mean([d["length"] <= floor for d in region])) if region else 0.0,
+        "screened_share": float(np.mean([d["n_admissible"] < 0.05 * d["n_candidates"]
+                                         for d in asks])) if asks else 0.0,
+        "explore_asks": len(ex),
+        "explore_falls": int(sum(bool(failed[i + 1]) for i in ex if i + 1 < len(failed))),
+        "falls_by_pool": by_pool}
+
+
+def decisions(root: Path, method: str = "transfer", seeds: list[int] | None = None
+              ) -> dict[str, Any]:
+    """:func:`decision_stats` of every stored run of ``method`` under ``root`` (only ``seeds``
+    when given), per rung and seed, with the medians over the seeds."""
+    out: dict[str, Any] = {"method": method, "targets": {}}
+    for f in sorted((root / "targets").glob(RESULT_GLOB)):
+        r = json.loads(f.read_text())
+        if r["method"] != method or (seeds is not None and int(r["seed"]) not in seeds):
+            continue
+        t = out["targets"].setdefault(r["target"], {"seeds": {}})
+        t["seeds"][int(r["seed"])] = decision_stats(r)
+    for t in out["targets"].values():
+        rows = list(t["seeds"].values())
+        t["median"] = {k: float(np.median([x[k] for x in rows]))
+                       for k in ("floor_share", "screened_share", "explore_asks", "explore_falls")}
+        pools = sorted({p for x in rows for p in x["falls_by_pool"]})
+        t["median"]["falls_by_pool"] = {p: float(np.median([x["falls_by_pool"].get(p, 0)
+                                                            for x in rows])) for p in pools}
+    return out
+
+
+def decisions_markdown(d: dict[str, Any]) -> str:
+    lines = ["| rung | seeds | trust-region asks at side ≤ 1/64 | asks the fall screen "
+             "admitted < 5 % of | explore asks / their falls | falls by pool |",
+             "|---|---:|---:|---:|---:|---|"]
+    for name, t in d["targets"].items():
+        m = t["median"]
+        pools = ", ".join(f"{p} {v:g}" for p, v in m["falls_by_pool"].items()) or "none"
+        lines.append(f"| {name} | {len(t['seeds'])} | {100 * m['floor_share']:.0f} % | "
+                     f"{100 * m['screened_share']:.0f} % | {m['explore_asks']:g} / "
+                     f"{m['explore_falls']:g} | {pools} |")
+    return "\n".join(lines) + "\n\nMedians over the seeds."
+
+
 # --------------------------------------------------------------------------- plots
 def plot_com(results: dict[str, Any], path: Path, title: str) -> None:
     """The base's CoM x, y, z [m] against time [s] of recorded rollouts (label → a result with
@@ -747,6 +808,12 @@ def parser() -> argparse.ArgumentParser:
     s.add_argument("--default", default="transfer",
                    help="the method judged as the default (its runs read as transfer; the stored "
                         "transfer runs as transfer@stored)")
+    dc = sub.add_parser("decisions", help="what the default phase 3 did, from its decision "
+                        "records (trust-region floor, fall screen, explore asks, falls by pool)")
+    dc.add_argument("--root", default="runs/robot_transfer")
+    dc.add_argument("--out", required=True, help="a .json (and a .md beside it)")
+    dc.add_argument("--method", default="transfer")
+    dc.add_argument("--seeds", nargs="+", type=_nonneg_int, default=None, help="only these seeds")
     pl = sub.add_parser("plot", help="CoM plots of the best θ per rung")
     pl.add_argument("--targets", nargs="+", default=None)
     pl.add_argument("--root", default="runs/robot_transfer")
@@ -792,6 +859,18 @@ def main(argv: list[str] | None = None) -> int:
             out = write_json(a.out, res, p)
             md = markdown(res)
             out.with_suffix(".md").write_text(f"`{p['command']}`\n{md}\n")
+            print(md)
+        elif a.cmd == "decisions":
+            from benchmarks.common import Provenance, write_json
+
+            prov = Provenance(argv, module="benchmarks.robot_transfer")
+            res = decisions(Path(a.root), a.method, a.seeds)
+            if not res["targets"]:
+                raise RobotTransferError(f"no runs of {a.method} under {Path(a.root) / 'targets'}")
+            p = prov.finish()
+            out = write_json(a.out, res, p)
+            md = decisions_markdown(res)
+            out.with_suffix(".md").write_text(f"`{p['command']}`\n\n{md}\n")
             print(md)
         else:
             plot(a)

@@ -2,6 +2,7 @@
 of a default before it meets the ladder's targets).
 
     python -m benchmarks.transfer_variants [--variants default fail_tol=20 ...] [--seeds 0 1 2 3]
+        [--problems bowl:0.05 levy:0.2 ...]
         [--out FILE.json]
 
 Problems (d = 16; each seed draws its own source and target): ``bowl`` (cost 10·distance to a
@@ -95,15 +96,32 @@ def run(variant: str, name: str, gap: float, seed: int) -> tuple[float, int, np.
     return float(min(costs)), int(sum(falls)), np.minimum.accumulate(costs)
 
 
+PROBLEMS = (("bowl", 0.05), ("bowl", 0.15), ("levy", 0.05), ("levy", 0.2))
+
+
+def _problem(text: str) -> tuple[str, float]:
+    name, _, gap = text.partition(":")
+    try:
+        g = float(gap)
+    except ValueError:
+        g = -1.0
+    if name not in ("bowl", "levy") or not 0 <= g < (0.8 if name == "bowl" else 10):
+        raise argparse.ArgumentTypeError(f"expected bowl:GAP (0 ≤ GAP < 0.8) or levy:GAP, "
+                                         f"got {text!r}")
+    return name, g
+
+
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.transfer_variants")
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--variants", nargs="+", default=["turbo_source", "default"])
     ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3])
+    ap.add_argument("--problems", nargs="+", type=_problem, default=list(PROBLEMS),
+                    help="NAME:GAP pairs, NAME bowl or levy (default: %(default)s)")
     add_out_arg(ap)
     a = ap.parse_args(argv)
     rows = []
-    for name, gap in (("bowl", 0.05), ("bowl", 0.15), ("levy", 0.05), ("levy", 0.2)):
+    for name, gap in a.problems:
         for v in a.variants:
             r = [run(v, name, gap, s) for s in a.seeds]
             rows.append({"problem": name, "gap": gap, "variant": v,

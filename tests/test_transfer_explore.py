@@ -237,3 +237,36 @@ def test_no_brake_while_every_trial_fell(source, hypers):
     assert not cr._replay_state()["explore_braked"]
     cr.tell(rng.random((1, D)), np.array([5.0]), np.array([4 * 6 + FULL]), fell=np.array([False]))
     assert cr._replay_state()["explore_braked"]
+
+
+@pytest.mark.parametrize("zero_shot_stands", [False, True])
+def test_stand_first_keeps_the_side_while_every_trial_fell(source, hypers, zero_shot_stands):
+    """``stand_first``: 9 full-pool generations that all fell leave L at length_init (off: three
+    halvings), and the first standing trial then counts as a success at that side. With a
+    standing (untagged) trial before them, the option changes nothing."""
+    assert TRANSFER_DEFAULTS["stand_first"] is False and ADDED_OPTIONS["stand_first"] is False
+    states = {}
+    for on in (False, True):
+        cr = _critic(source, hypers, explore_every=0, stand_first=on)
+        rng = np.random.default_rng(5)
+        if zero_shot_stands:
+            cr.tell(np.full((1, D), 0.4), np.array([3.0]), fell=np.array([False]))
+        for g in range(9):
+            cr.tell(rng.random((1, D)), np.array([150.0]), np.array([4 * g + FULL]),
+                    fell=np.array([True]))
+        states[on, "fell"] = cr._replay_state()
+        cr.tell(rng.random((1, D)), np.array([2.0]), np.array([4 * 9 + FULL]),
+                fell=np.array([False]))
+        states[on, "stood"] = cr._replay_state()
+        x = cr.ask(1)
+        assert cr.decisions[-1]["length"] == states[on, "stood"]["L"]
+    L0 = TRANSFER_DEFAULTS["length_init"]
+    if zero_shot_stands:
+        assert states[True, "fell"] == states[False, "fell"]
+        assert states[True, "stood"] == states[False, "stood"]
+        return
+    assert states[False, "fell"]["L"] == L0 / 8
+    assert states[True, "fell"]["L"] == L0 and states[True, "fell"]["fail"] == 0
+    assert states[True, "stood"]["L"] == L0 and states[True, "stood"]["succ"] == 1
+    with pytest.raises(ValueError, match="stand_first"):
+        _critic(source, hypers, stand_first="yes")

@@ -116,6 +116,10 @@ admits), once the target holds a trial that did not fall: the fall model underra
 box's risk on this target, and later due generations are ordinary asks. While every trial fell
 the explore asks go on (they are the way out of a target where the source's θ all fall). The
 replay applies the same rule in generation order.
+``stand_first`` (default False): while every trial on the target fell, a batch that falls too
+leaves ``L`` and its counters alone: there is no incumbent it could fail to improve on, so the
+trust region that starts at the first standing trial starts at side ``length_init``, not at a
+side halved by the falls before it (recorded as every decision's ``length``).
 
 The late phase (``handoff`` = k > 0): the asks made once the target has k own (tagged) trials
 follow TuRBO-m's rules (:class:`~latentune.critic.turbo.TurboM` with one region and batch 1:
@@ -171,6 +175,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "handoff_model": "target", "handoff_fall_shrink": False, "handoff_rules": "turbo",
     "stop_converged": False, "success_scale": "spread", "explore_every": 2,
     "explore_when": "always", "source_order": "canonical", "explore_falls": 3,
+    "stand_first": False,
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
@@ -179,7 +184,8 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "handoff_fall_shrink": False, "handoff_rules": "turbo",
                                  "stop_converged": False, "success_scale": "best",
                                  "explore_every": 0, "explore_when": "always",
-                                 "source_order": "stored", "explore_falls": 0}
+                                 "source_order": "stored", "explore_falls": 0,
+                                 "stand_first": False}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -698,6 +704,8 @@ class Transfer(TwoSpaceCritic):
         if isinstance(k_ex, bool) or not isinstance(k_ex, (int, np.integer)) or k_ex < 0 \
                 or k_ex == 1:
             raise ValueError(f"explore_every must be 0 (off) or an integer ≥ 2, got {k_ex!r}")
+        if not isinstance(self.opts["stand_first"], (bool, np.bool_)):
+            raise ValueError(f"stand_first must be true or false, got {self.opts['stand_first']!r}")
         k_ef = self.opts["explore_falls"]
         if isinstance(k_ef, bool) or not isinstance(k_ef, (int, np.integer)) or k_ef < 0:
             raise ValueError(f"explore_falls must be an integer ≥ 0 (0: never stop exploring), "
@@ -809,6 +817,9 @@ class Transfer(TwoSpaceCritic):
                 explore |= m            # data and best value only: L follows the other batches
                 best = min(best, float(y[m].min()))
                 n_seen += int(m.sum())
+                continue
+            if self.opts["stand_first"] and not standing and not (ok & m).any():
+                n_seen += int(m.sum())  # every trial so far fell: no incumbent, L waits
                 continue
             if k_h > 0 and not late and n_seen >= k_h:     # the hand-off
                 late, turbo = True, self.opts["handoff_rules"] == "turbo"
