@@ -317,3 +317,31 @@ def test_overview_lines_up_the_default_against_the_best_peer():
     s["targets"][0]["seeds"] = [0, 1, 2]
     assert "With 3 seeds no two-sided p is below 0.05" in rt.overview(s)
     assert rt.overview({"targets": []}) == ""
+
+
+def test_decisions_reads_what_the_default_did(tmp_path, capsys):
+    """``decisions``: per rung and seed, the share of trust-region asks at the floor side, of
+    asks the fall screen nearly emptied, the explore asks and their falls, the falls by pool."""
+    dec = [{"design": True, "pools": ["elite"], "length": 0.5, "n_admissible": 16,
+            "n_candidates": 16},
+           {"explore": True, "pools": ["latent"], "length": 0.5, "n_admissible": 10,
+            "n_candidates": 1000},
+           {"pools": ["full"], "length": 1 / 128, "n_admissible": 900, "n_candidates": 1000},
+           {"pools": ["full"], "length": 0.25, "n_admissible": 800, "n_candidates": 1000}]
+    run = {"target": "r", "method": "transfer", "seed": 0, "costs": [9.0, 8.0, 150.0, 7.0, 150.0],
+           "failed": [False, False, True, False, True], "decisions": dec}
+    f = rt.result_path(tmp_path, "r", 5, 0, "transfer")
+    f.parent.mkdir(parents=True)
+    f.write_text(json.dumps(run))
+    other = rt.result_path(tmp_path, "r", 5, 0, "tpe")
+    other.write_text(json.dumps({**run, "method": "tpe", "decisions": []}))
+    s = rt.decision_stats(run)
+    assert s == {"n_asks": 3, "floor_share": 0.5, "screened_share": 1 / 3, "explore_asks": 1,
+                 "explore_falls": 1, "falls_by_pool": {"explore": 1, "full": 1}}
+    out = tmp_path / "d.json"
+    assert rt.main(["decisions", "--root", str(tmp_path), "--out", str(out)]) == 0
+    d = json.loads(out.read_text())
+    assert list(d["targets"]) == ["r"] and d["targets"]["r"]["median"]["floor_share"] == 0.5
+    assert "| r | 1 | 50 % | 33 % | 1 / 1 | explore 1, full 1 |" in capsys.readouterr().out
+    assert rt.main(["decisions", "--root", str(tmp_path), "--out", str(out),
+                    "--method", "plain"]) == 2
