@@ -202,6 +202,7 @@ def test_paper_end_to_end(paper_dir: Path):
     (["--scale", "inf"], "--scale"),
     (["--scale", "abc"], "--scale"),
     (["--workers", "0"], "--workers must be >= 1, got 0"),
+    (["--studies", "a1-trot", "no-such"], "--studies: no-such not in this plan"),
 ])
 def test_paper_bad_input(tmp_path: Path, run_cli, error_line, extra: list[str], expect: str):
     code, _, err = run_cli("paper", "--out", tmp_path / "o", *extra)
@@ -461,3 +462,54 @@ def _imported_as_rungs(out: Path, root: Path, meta: dict, B: int) -> None:
     assert {r["target"] for r in s["targets"]} == {"a1-jump-from-trot", "b1-jump-from-a1-trot",
                                                    "b1-trot-from-a1"}
 
+
+
+def test_parallel_paper_processes_share_the_plan(tmp_path: Path, monkeypatch, caplog):
+    """A study another process is writing (its store locked) is skipped with a warning and the
+    rest of the plan runs; paper.json keeps the other process's invocation record."""
+    import logging
+
+    from latentune.errors import LockError
+    from latentune.experiments import paper as pp
+    from latentune.pipeline import evaluators
+    from latentune.reporting import paper_report
+
+    class _Ev:
+        def close(self) -> None:
+            pass
+
+    ran: list[str] = []
+    locked = "a1-jump"
+    other = {"started": "2000-01-01T00:00:00Z", "command": "latentune paper (other)",
+             "pid": 1, "wall_s": 12.5}
+
+    def fake_run_study(plan_, opts, root, b, ev, log):
+        if plan_.key == locked:
+            meta = json.loads((root / "paper.json").read_text())    # the other one starts
+            meta["invocations"].append(other)
+            (root / "paper.json").write_text(json.dumps(meta))
+            raise LockError(f"{root / plan_.key} is being written by pid 1")
+        ran.append(plan_.key)
+
+    monkeypatch.setattr(pp, "run_study", fake_run_study)
+    monkeypatch.setattr(evaluators, "make_evaluator", lambda kind, n: _Ev())
+    monkeypatch.setattr(paper_report, "write_paper_report", lambda *a, **k: "report")
+    opts = pp.PaperOptions(robot="a1", scale=0.01, out=str(tmp_path / "p"), workers=1,
+                           quiet=True)
+    with caplog.at_level(logging.WARNING, logger="latentune"):
+        assert pp.run_paper(opts) == "report"
+    assert locked not in ran and len(ran) == len(pp.plan("a1", pp.budgets(0.01))) - 1
+    assert any(f"[{locked}] skipped" in r.getMessage() and "being written by pid 1"
+               in r.getMessage() for r in caplog.records)
+    meta = json.loads((tmp_path / "p" / "paper.json").read_text())
+    assert other in meta["invocations"] and len(meta["invocations"]) == 2
+    mine = next(i for i in meta["invocations"] if i is not None and i["pid"] != 1)
+    assert mine["wall_s"] is not None
+    assert meta["wall_s_total"] == pytest.approx(12.5 + mine["wall_s"])
+    ran.clear()                       # --studies: only those, and the command says so
+    opts.studies = ("a1-trot-preservation", "a1-jump-hills")
+    pp.run_paper(opts)
+    assert ran == ["a1-jump-hills", "a1-trot-preservation"]       # in plan order
+    meta = json.loads((tmp_path / "p" / "paper.json").read_text())
+    assert meta["invocations"][-1]["command"].endswith(
+        "--studies a1-trot-preservation a1-jump-hills")

@@ -724,7 +724,7 @@ def cmd_paper(args: argparse.Namespace) -> int:
                         out=args.out or f"paper-{str(args.robot).lower()}", workers=args.workers,
                         seed=args.seed, steps=args.steps, v_des=args.v_des, quiet=args.quiet,
                         sources_only=args.sources_only, seeds=args.seeds,
-                        progress=_progress(args))
+                        studies=tuple(args.studies or ()), progress=_progress(args))
     text = run_paper(opts, report_only=args.report_only, simulate=not args.no_sim,
                      gifs=not args.no_gif)
     if not args.quiet:
@@ -890,6 +890,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seeds", type=_seeds, default=1,
                    help="repeat phase 3, the transfer rows and the baselines over N seeds on the "
                         "same sources (median and IQR in the report; default 1)")
+    p.add_argument("--studies", nargs="+", default=None, metavar="KEY",
+                   help="only these studies of the plan (e.g. a1-trot-preservation); another "
+                        "process may run the rest on the same --out")
     p.add_argument("--no-sim", action="store_true", help="report: skip re-simulated CoM plots/GIFs")
     p.add_argument("--no-gif", action="store_true", help="report: skip the GIFs")
     p.set_defaults(func=cmd_paper)

@@ -62,21 +62,29 @@ them).
 Resume: every study is a pipeline run; re-running the same command skips finished studies and
 resumes unfinished ones from their stored rows (the pipeline's ``run_phase`` resume). All
 studies share one evaluator (process pool of ``--workers``).
+
+Parallel: more ``latentune paper`` processes with the same options may run on the same ``--out``
+(one machine, or several sharing the directory), or ``--studies KEY …`` to run chosen studies
+(e.g. the preservation run beside the rest). A study another process is writing is skipped
+with a warning (its store is locked), so the processes share the plan's studies;
+``paper.json`` keeps every invocation's record. Run the command once more when they are done:
+it finishes any study skipped there.
 """
 from __future__ import annotations
 
 import json
 import logging
 import math
+import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from latentune.constants import GAITS, PAPER_PHASE1, PAPER_PHASE3, Phase
-from latentune.errors import UsageError
+from latentune.errors import LockError, UsageError
 from latentune.reporting.paper_report import ARMS
 
 logger = logging.getLogger(__name__)
@@ -260,6 +268,7 @@ class PaperOptions:
     quiet: bool = False
     sources_only: bool = False   # only the phase-1 runs (the sources): R-g and R-trot-preservation
     seeds: int = 1               # phase 3, transfer rows and baselines over seed indices 0..N-1
+    studies: tuple[str, ...] = ()  # only these studies of the plan (keys; default: all)
     progress: bool = False       # progress bars (never with quiet)
 
 
@@ -415,9 +424,26 @@ def command_line(opts: PaperOptions, report_only: bool = False) -> str:
         parts.append(f"--seeds {opts.seeds}")
     if opts.sources_only:
         parts.append("--sources-only")
+    if opts.studies:
+        parts.append("--studies " + " ".join(opts.studies))
     if report_only:
         parts.append("--report-only")
     return " ".join(parts)
+
+
+def _record_invocation(meta_path: Path, meta: dict[str, Any], mine: dict[str, Any]) -> None:
+    """Write ``paper.json`` with this invocation's record ``mine`` (its wall time) into the
+    invocations on disk now: another ``latentune paper`` process on the same directory may have
+    added its own since this one started."""
+    try:
+        disk = json.loads(meta_path.read_text())
+    except (OSError, json.JSONDecodeError):
+        disk = meta
+    inv = [i for i in disk.get("invocations", [])
+           if (i.get("started"), i.get("pid")) != (mine["started"], mine["pid"])]
+    disk = {**meta, "invocations": sorted(inv + [mine], key=lambda i: str(i.get("started")))}
+    disk["wall_s_total"] = sum(float(i.get("wall_s") or 0) for i in disk["invocations"])
+    meta_path.write_text(json.dumps(disk, indent=1))
 
 
 def run_paper(opts: PaperOptions, report_only: bool = False, simulate: bool = True,
@@ -448,6 +474,10 @@ def run_paper(opts: PaperOptions, report_only: bool = False, simulate: bool = Tr
             logger.info("%s", msg)
 
     studies = plan(opts.robot, b, opts.seeds)
+    unknown = sorted(set(opts.studies) - {s.key for s in studies})
+    if unknown:
+        raise UsageError(f"--studies: {', '.join(unknown)} not in this plan (see the report's "
+                         f"Studies list, or paper.json)")
     if not report_only:
         t0 = time.perf_counter()
         meta.update({"format": "latentune-paper", "robot": opts.robot, "actor": opts.actor,
@@ -465,8 +495,9 @@ def run_paper(opts: PaperOptions, report_only: bool = False, simulate: bool = Tr
                                          "arm": s.arm}
                                  for s in studies}})
         meta.setdefault("invocations", [])
-        meta["invocations"].append({"started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-                                    "command": command_line(opts), "wall_s": None})
+        mine = {"started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+                "command": command_line(opts), "pid": os.getpid(), "wall_s": None}
+        meta["invocations"].append(mine)
         meta_path.write_text(json.dumps(meta, indent=1))
         try:
             ev = make_evaluator("process", opts.workers)
@@ -474,12 +505,17 @@ def run_paper(opts: PaperOptions, report_only: bool = False, simulate: bool = Tr
             raise UsageError(f"cannot start the evaluator: {exc}") from None
         try:
             for s in studies:
-                run_study(s, opts, root, b, ev, log)
+                if opts.studies and s.key not in opts.studies:
+                    continue
+                try:
+                    run_study(s, opts, root, b, ev, log)
+                except LockError as exc:     # another `paper` process on this --out has it
+                    logger.warning("[%s] skipped: %s; run the command again once it is done",
+                                   s.key, exc)
         finally:
             ev.close()
-            meta["invocations"][-1]["wall_s"] = time.perf_counter() - t0
-            meta["wall_s_total"] = sum(float(i.get("wall_s") or 0) for i in meta["invocations"])
-            meta_path.write_text(json.dumps(meta, indent=1))
+            mine["wall_s"] = time.perf_counter() - t0
+            _record_invocation(meta_path, meta, mine)
     elif not meta_path.is_file():
         raise UsageError(f"{root} holds no paper run (no paper.json): run latentune paper first")
     if opts.sources_only:
