@@ -588,7 +588,27 @@ def _md_header(nums: dict[str, Any]) -> list[str]:
         f"--report-only` (or `latentune report {root}`).",
         f"Wall time: {fmt(meta.get('wall_s_total'), 0)} s for the `paper` command(s) "
         f"({len(inv)} invocation(s), excluding this report's re-simulations); "
-        f"{wall_studies:.0f} s inside the studies' phases (sum of the stores' wall records).", ""]
+        f"{wall_studies:.0f} s inside the studies' phases (sum of the stores' wall records).",
+        *_md_machines(inv), ""]
+
+
+def _md_machines(inv: list[dict[str, Any]]) -> list[str]:
+    """One line per ``paper`` invocation that recorded its machine and load average."""
+    lines = []
+    for i in inv:
+        m = i.get("machine")
+        if not m:
+            continue
+        load = " → ".join(f"{v[0]:.1f}" for v in (i.get("loadavg_start"), i.get("loadavg_end"))
+                          if v)
+        lines.append(f"- {i.get('started')}: {m.get('cpus')} CPUs ({m.get('cpu')}, host "
+                     f"{m.get('host')}), 1-min load average {load or '–'}, "
+                     f"{fmt(i.get('wall_s'), 0)} s: `{i.get('command')}`")
+    if not lines:
+        return []
+    n = sum(1 for i in inv if not i.get("machine"))
+    return ["", "Machine and load per invocation" + (f" ({n} earlier invocation(s) did not record "
+                                                     "them)" if n else "") + ":", *lines]
 
 
 def _md_table(nums: dict[str, Any]) -> list[str]:
