@@ -47,7 +47,6 @@ import argparse
 import datetime
 import hashlib
 import json
-import os
 import platform
 import subprocess
 import sys
@@ -57,6 +56,8 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
+
+from latentune.machine import loadavg, machine  # noqa: F401 - re-exported to benchmarks
 
 ROOT = Path(__file__).resolve().parents[1]
 """The repository root (the checkout holding ``benchmarks/``)."""
@@ -289,24 +290,6 @@ def git_commit() -> str | None:
     return (rev + ("+dirty" if dirty else "")) if rev else None
 
 
-def machine() -> dict[str, Any]:
-    """The CPU the runs are made on: model name, widest vector extension (MKL and OpenBLAS
-    choose their kernels by it, so the last bits of linear algebra, and after a few batches a
-    seeded run's trajectory, depend on it) and cores (``benchmarks.peers`` compares these
-    dicts across runs: keep the keys)."""
-    info: dict[str, str] = {}                  # the first CPU's fields
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            key, _, value = line.partition(":")
-            info.setdefault(key.strip(), value.strip())
-    except OSError:
-        pass
-    flags = set(info.get("flags", "").split())
-    simd = next((f for f in ("avx512f", "avx2", "avx", "sse4_2") if f in flags), None)
-    return {"cpu": info.get("model name") or platform.processor() or None, "simd": simd,
-            "cores": os.cpu_count()}
-
-
 def versions(extra: Iterable[str] = ()) -> dict[str, str | None]:
     """The platform's, Python's and the main libraries' versions (None: not installed)."""
     from importlib.metadata import PackageNotFoundError, version
@@ -322,13 +305,6 @@ def versions(extra: Iterable[str] = ()) -> dict[str, str | None]:
     return out
 
 
-def _loadavg() -> list[float] | None:
-    try:
-        return [round(v, 2) for v in os.getloadavg()]
-    except OSError:
-        return None
-
-
 class Provenance:
     """What reproduces a benchmark output, started when the benchmark starts.
 
@@ -341,13 +317,13 @@ class Provenance:
         self.command = " ".join(["python", "-m", module, *argv] if module else
                                 ["python", *sys.argv[:1], *argv])
         self.date = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
-        self.loadavg_start = _loadavg()
+        self.loadavg_start = loadavg()
         self.t0 = time.perf_counter()
 
     def finish(self) -> dict[str, Any]:
         return {"command": self.command, "commit": git_commit(), "date": self.date,
                 "machine": machine(), "versions": versions(),
-                "loadavg_start": self.loadavg_start, "loadavg_end": _loadavg(),
+                "loadavg_start": self.loadavg_start, "loadavg_end": loadavg(),
                 "wall_s": round(time.perf_counter() - self.t0, 3)}
 
 

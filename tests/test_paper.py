@@ -505,11 +505,15 @@ def test_parallel_paper_processes_share_the_plan(tmp_path: Path, monkeypatch, ca
     assert other in meta["invocations"] and len(meta["invocations"]) == 2
     mine = next(i for i in meta["invocations"] if i is not None and i["pid"] != 1)
     assert mine["wall_s"] is not None
-    assert mine["machine"]["cpus"] >= 1 and len(mine["loadavg_start"]) == len(
+    assert mine["machine"]["cores"] >= 1 and len(mine["loadavg_start"]) == len(
         mine["loadavg_end"]) == 3
     text = "\n".join(paper_report._md_machines(meta["invocations"]))
     assert "1 earlier invocation(s) did not record them" in text      # the other one
-    assert f"{mine['machine']['cpus']} CPUs" in text and "1-min load average" in text
+    assert f"{mine['machine']['cores']} cores" in text and "1-min load average" in text
+    old = {"started": "x", "machine": {"cpus": 2, "cpu": "CPU X", "host": "h"}, "wall_s": 1.0,
+           "loadavg_start": [1.0, 1.0, 1.0], "loadavg_end": None, "command": "c"}
+    assert "- x: 2 cores (CPU X), 1-min load average 1.0, 1 s: `c`" in \
+        paper_report._md_machines([old])                              # a record with "cpus"
     assert meta["wall_s_total"] == pytest.approx(12.5 + mine["wall_s"])
     ran.clear()                       # --studies: only those, and the command says so
     opts.studies = ("a1-trot-preservation", "a1-jump-hills")

@@ -85,6 +85,7 @@ import numpy as np
 
 from latentune.constants import GAITS, PAPER_PHASE1, PAPER_PHASE3, Phase
 from latentune.errors import LockError, UsageError
+from latentune.machine import loadavg, machine
 from latentune.reporting.paper_report import ARMS
 
 logger = logging.getLogger(__name__)
@@ -431,20 +432,6 @@ def command_line(opts: PaperOptions, report_only: bool = False) -> str:
     return " ".join(parts)
 
 
-def machine() -> dict[str, Any]:
-    """This machine as a run records it: host name, logical CPUs and the CPU model."""
-    import platform
-
-    model = platform.processor() or ""
-    try:
-        with open("/proc/cpuinfo") as f:
-            model = next((ln.split(":", 1)[1].strip() for ln in f
-                          if ln.startswith("model name")), model)
-    except OSError:
-        pass
-    return {"host": platform.node(), "cpus": os.cpu_count(), "cpu": model}
-
-
 def _record_invocation(meta_path: Path, meta: dict[str, Any], mine: dict[str, Any]) -> None:
     """Write ``paper.json`` with this invocation's record ``mine`` (its wall time) into the
     invocations on disk now: another ``latentune paper`` process on the same directory may have
@@ -511,7 +498,7 @@ def run_paper(opts: PaperOptions, report_only: bool = False, simulate: bool = Tr
         meta.setdefault("invocations", [])
         mine = {"started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
                 "command": command_line(opts), "pid": os.getpid(), "wall_s": None,
-                "machine": machine(), "loadavg_start": list(os.getloadavg())}
+                "machine": machine(), "loadavg_start": loadavg()}
         meta["invocations"].append(mine)
         meta_path.write_text(json.dumps(meta, indent=1))
         try:
@@ -530,7 +517,7 @@ def run_paper(opts: PaperOptions, report_only: bool = False, simulate: bool = Tr
         finally:
             ev.close()
             mine["wall_s"] = time.perf_counter() - t0
-            mine["loadavg_end"] = list(os.getloadavg())
+            mine["loadavg_end"] = loadavg()
             _record_invocation(meta_path, meta, mine)
     elif not meta_path.is_file():
         raise UsageError(f"{root} holds no paper run (no paper.json): run latentune paper first")

@@ -601,9 +601,10 @@ def _md_machines(inv: list[dict[str, Any]]) -> list[str]:
             continue
         load = " → ".join(f"{v[0]:.1f}" for v in (i.get("loadavg_start"), i.get("loadavg_end"))
                           if v)
-        lines.append(f"- {i.get('started')}: {m.get('cpus')} CPUs ({m.get('cpu')}, host "
-                     f"{m.get('host')}), 1-min load average {load or '–'}, "
-                     f"{fmt(i.get('wall_s'), 0)} s: `{i.get('command')}`")
+        cores = m.get("cores", m.get("cpus"))     # "cpus": records made before the key was shared
+        lines.append(f"- {i.get('started')}: {cores} cores ({m.get('cpu')}"
+                     + (f", {m['simd']}" if m.get("simd") else "") + "), 1-min load average "
+                     f"{load or '–'}, {fmt(i.get('wall_s'), 0)} s: `{i.get('command')}`")
     if not lines:
         return []
     n = sum(1 for i in inv if not i.get("machine"))
