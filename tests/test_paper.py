@@ -203,6 +203,7 @@ def test_paper_end_to_end(paper_dir: Path):
     (["--scale", "abc"], "--scale"),
     (["--workers", "0"], "--workers must be >= 1, got 0"),
     (["--studies", "a1-trot", "no-such"], "--studies: no-such not in this plan"),
+    (["--report-only", "--studies", "a1-trot"], "--studies does not apply to --report-only"),
 ])
 def test_paper_bad_input(tmp_path: Path, run_cli, error_line, extra: list[str], expect: str):
     code, _, err = run_cli("paper", "--out", tmp_path / "o", *extra)

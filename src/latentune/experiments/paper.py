@@ -455,6 +455,9 @@ def run_paper(opts: PaperOptions, report_only: bool = False, simulate: bool = Tr
     from latentune.reporting.paper_report import write_paper_report
 
     b = validate(opts)
+    if report_only and opts.studies:
+        raise UsageError("--studies does not apply to --report-only: the report covers every "
+                         "study of the run")
     root = Path(opts.out)
     _check_out(root)
     meta_path = root / "paper.json"
