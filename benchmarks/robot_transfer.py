@@ -492,6 +492,12 @@ def _title(row: dict[str, Any]) -> str:
     return f"{row['target']} (source {row['source']}, {row['source_trials']} trials)"
 
 
+def min_mannwhitney_p(n: int, two_sided: bool) -> float:
+    """The smallest p a Mann–Whitney test of n values against n others can give (exact, no
+    ties): every value of one sample below every value of the other."""
+    return min(1.0, (2.0 if two_sided else 1.0) / math.comb(2 * n, n))
+
+
 def summarize(root: Path, methods: list[str] | None = None, targets: list[str] | None = None,
               seeds: list[int] | None = None, default: str = "transfer") -> dict[str, Any]:
     """:func:`benchmarks.transfer.summarize` of ``root``'s runs per (rung, source, source size),
@@ -514,7 +520,7 @@ def summarize(root: Path, methods: list[str] | None = None, targets: list[str] |
         if zs is None:
             continue
         n = len(row["seeds"])
-        if 1.0 / math.comb(2 * n, n) >= 0.05:     # too few seeds for any p < 0.05: unknown
+        if min_mannwhitney_p(n, two_sided=False) >= 0.05:    # no p < 0.05 possible: unknown
             row["beats_zero_shot"] = None
             continue
         beats = []
@@ -596,7 +602,7 @@ def overview(s: dict[str, Any]) -> str:
                  f"{held['reach_le_B10']}, ≤ B/2 on {held['reach_le_B2']}; (3) falls on "
                  f"{held['falls_ok']}.")
     few = min(len(r["seeds"]) for r in rows)
-    if 2.0 / math.comb(2 * few, few) >= 0.05:
+    if min_mannwhitney_p(few, two_sided=True) >= 0.05:
         lines.append(f"With {few} seeds no two-sided p is below 0.05: (1) holds on every rung "
                      "whatever the medians.")
     return "\n".join(lines)

@@ -345,3 +345,15 @@ def test_decisions_reads_what_the_default_did(tmp_path, capsys):
     assert "| r | 1 | 50 % | 33 % | 1 / 1 | explore 1, full 1 |" in capsys.readouterr().out
     assert rt.main(["decisions", "--root", str(tmp_path), "--out", str(out),
                     "--method", "plain"]) == 2
+
+
+def test_min_mannwhitney_p_matches_scipy_at_its_extreme():
+    from scipy.stats import mannwhitneyu
+
+    for n in (2, 3, 4, 5):
+        lo, hi = list(range(n)), list(range(10, 10 + n))
+        for two in (False, True):
+            p = mannwhitneyu(lo, hi, alternative="two-sided" if two else "less",
+                             method="exact").pvalue
+            assert rt.min_mannwhitney_p(n, two) == pytest.approx(p)
+    assert rt.min_mannwhitney_p(3, True) >= 0.05 > rt.min_mannwhitney_p(4, True)
