@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from benchmarks import transfer as tr
 
 
@@ -109,3 +111,15 @@ def test_transfer_same_reads_methods_with_colons(tmp_path) -> None:
     _write(tmp_path, "transfer", 0, [1.0], [False])
     assert transfer_same.main(["--a", f"{tmp_path}:transfer+a=1:b=2",
                                "--b", f"{tmp_path}:transfer"]) == 0
+
+
+@pytest.mark.parametrize("text", ["bowl:0.8", "bowl:-0.1", "bowl:nan", "levy:x", "ring:0.1",
+                                  "bowl"])
+def test_transfer_variants_refuses_a_problem_it_cannot_build(text):
+    import argparse
+
+    from benchmarks import transfer_variants as tv
+
+    assert tv._problem("bowl:0.25") == ("bowl", 0.25) and tv._problem("levy:2") == ("levy", 2.0)
+    with pytest.raises(argparse.ArgumentTypeError, match="expected bowl:GAP"):
+        tv._problem(text)
