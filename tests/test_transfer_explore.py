@@ -270,3 +270,46 @@ def test_stand_first_keeps_the_side_while_every_trial_fell(source, hypers, zero_
     assert states[True, "stood"]["L"] == L0 and states[True, "stood"]["succ"] == 1
     with pytest.raises(ValueError, match="stand_first"):
         _critic(source, hypers, stand_first="yes")
+
+
+def test_explore_pool_source_draws_from_the_source_promising_distribution(source, hypers):
+    from cmaes import get_warm_start_mgd
+
+    assert ADDED_OPTIONS["explore_pool"] == "latent"    # stored runs resume as they ran
+    cr = _critic(source, hypers, explore_pool="source")
+    _run(cr, 8)
+    ex = [d["generation"] for d in cr.decisions if d["explore"]]
+    assert ex == [3, 5, 7]
+    assert all(cr.tags[g] % 4 == GLOBAL and np.isnan(cr._Z[g]).all() for g in ex)
+    # the pool is the Gaussian that warm-starts CMA-ES from the source's best tenth
+    X, y, f = cr.source_rows()
+    mu, sigma, cov = get_warm_start_mgd([(x, v) for x, v in zip(X[~f], y[~f])], 0.1, 0.1)
+    P = cr._pool_source(4000, np.random.default_rng(0))
+    assert P.shape == (4000, D) and P.min() >= 0 and P.max() <= 1
+    inner = np.all(np.abs(P - 0.5) < 0.49, axis=1)      # unclipped draws
+    assert np.abs(P[inner].mean(0) - mu).max() < 0.05
+    # differs from the latent explore asks of the same seed
+    lat = _critic(source, hypers)
+    _run(lat, 8)
+    assert not np.allclose(lat.X[3], cr.X[3])
+
+
+def test_explore_pool_both_offers_half_of_each(source, hypers, monkeypatch):
+    cr = _critic(source, hypers, explore_pool="both")
+    seen = []
+    orig = Transfer._pool_source
+
+    def spy(self, m, rng):
+        seen.append(m)
+        return orig(self, m, rng)
+
+    monkeypatch.setattr(Transfer, "_pool_source", spy)
+    _run(cr, 4)
+    assert seen == [TRANSFER_DEFAULTS["n_candidates"] // 2]      # the one explore ask (g = 3)
+    assert cr.decisions[3]["explore"] and cr.tags[3] % 4 in (LATENT, GLOBAL)
+
+
+@pytest.mark.parametrize("bad", ["box", 1, None])
+def test_explore_pool_is_checked(source, hypers, bad):
+    with pytest.raises(ValueError, match="explore_pool"):
+        _critic(source, hypers, explore_pool=bad)

@@ -107,6 +107,12 @@ trials in pool ``elite`` or ``full``). Explore generations leave ``L`` and its c
 not count in the latent pool's fall record (``latent_falls``); their trials are data for the
 models and raise the best value a later batch must beat, and an explore trial that becomes the
 best moves the centre, as any trial does. Each decision records ``"explore"``.
+``explore_pool`` (default ``"latent"``) says where an explore ask's candidates come from:
+``"latent"``, decoded codes of the whole latent box as above; ``"source"``, ``n_candidates`` θ
+drawn from the source's promising distribution (the Gaussian that warm-starts CMA-ES from a
+source task, Nomura et al. 2021, fitted to the top 10 % of the source's trials that did not
+fall; tag pool ``global``); ``"both"``: half of each, so the model chooses between the decoded
+manifold and the source's spread over the full θ box.
 ``explore_when="stalled"`` makes a due generation an explore ask only while the side it is asked
 at is ``length_min`` (the trust region has nothing left to resolve near its centre); the other
 due generations are ordinary asks, so the local search keeps every ask while it still improves.
@@ -175,7 +181,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "handoff_model": "target", "handoff_fall_shrink": False, "handoff_rules": "turbo",
     "stop_converged": False, "success_scale": "spread", "explore_every": 2,
     "explore_when": "always", "source_order": "canonical", "explore_falls": 3,
-    "stand_first": False,
+    "stand_first": False, "explore_pool": "latent",
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
@@ -185,7 +191,7 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "stop_converged": False, "success_scale": "best",
                                  "explore_every": 0, "explore_when": "always",
                                  "source_order": "stored", "explore_falls": 0,
-                                 "stand_first": False}
+                                 "stand_first": False, "explore_pool": "latent"}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -210,6 +216,9 @@ of the target's standing costs."""
 SOURCE_ORDERS = ("canonical", "stored")
 """The order the source's trials are used in (``source_order``): sorted by (cost, fell, θ), or as
 given."""
+EXPLORE_POOLS = ("latent", "source", "both")
+"""Where an explore ask's candidates come from (``explore_pool``): decoded codes of the whole
+latent box, the source's promising distribution over θ, or half of each."""
 EXPLORE_WHEN = ("always", "stalled")
 """When a due generation is an explore ask (``explore_when``): always, or only while the trust
 region's side is at its minimum."""
@@ -710,6 +719,9 @@ class Transfer(TwoSpaceCritic):
         if isinstance(k_ef, bool) or not isinstance(k_ef, (int, np.integer)) or k_ef < 0:
             raise ValueError(f"explore_falls must be an integer ≥ 0 (0: never stop exploring), "
                              f"got {k_ef!r}")
+        if self.opts["explore_pool"] not in EXPLORE_POOLS:
+            raise ValueError(f"explore_pool must be one of {EXPLORE_POOLS}, "
+                             f"got {self.opts['explore_pool']!r}")
         if self.opts["explore_when"] not in EXPLORE_WHEN:
             raise ValueError(f"explore_when must be one of {EXPLORE_WHEN}, "
                              f"got {self.opts['explore_when']!r}")
@@ -740,6 +752,7 @@ class Transfer(TwoSpaceCritic):
         self.last_z = np.empty((0, self.k))
         self.decisions: list[dict[str, Any]] = []
         self._elite: np.ndarray | None = None
+        self._source_mgd: tuple[np.ndarray, float, np.ndarray] | None = None   # _pool_source
         self._turbo: Any = None
 
     # ------------------------------------------------------------------ properties
@@ -960,6 +973,29 @@ class Transfer(TwoSpaceCritic):
         return SobolEngine(self.dim, scramble=True, seed=int(rng.integers(2 ** 31))).draw(
             m, dtype=torch.float64).numpy()
 
+    def _pool_source(self, m: int, rng: np.random.Generator) -> np.ndarray:
+        """``m`` θ (m, d) drawn from the source's promising distribution, clipped to the box:
+        the Gaussian ``N(μ, σ² Σ)`` that warm-starts CMA-ES from a source task (Nomura et al.
+        2021, ``cmaes.get_warm_start_mgd``: the top 10 % of the source's trials that did not
+        fall, α = 0.1), the distribution Optuna's ``CmaEsSampler(source_trials=...)`` starts
+        from (``explore_pool``)."""
+        if m <= 0:
+            return np.empty((0, self.dim))
+        if self._source_mgd is None:
+            from cmaes import get_warm_start_mgd
+
+            X, y, f = self.source_rows()
+            keep = ~f & np.isfinite(y)
+            if keep.sum() < 2:          # nothing to fit: the whole box
+                self._source_mgd = (np.full(self.dim, 0.5), 0.5, np.eye(self.dim))
+            else:
+                mu, sigma, cov = get_warm_start_mgd(
+                    [(x, float(v)) for x, v in zip(X[keep], y[keep])], gamma=0.1, alpha=0.1)
+                self._source_mgd = (np.asarray(mu), float(sigma), np.asarray(cov))
+        mu, sigma, cov = self._source_mgd
+        Xs = rng.multivariate_normal(mu, sigma ** 2 * cov, size=m, method="cholesky")
+        return np.clip(Xs, 0.0, 1.0)
+
     def _pool_latent(self, m: int, L: float, centre: np.ndarray, rng: np.random.Generator,
                      whole: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """``m`` decoded Sobol codes: θ (m, d) and their unit codes (m, k), in a box of side
@@ -1075,11 +1111,15 @@ class Transfer(TwoSpaceCritic):
         elif self._explore_generation(g, st["L"]) and not st["explore_braked"]:
             # explore: the whole latent box (or θ box) only
             ctx.explore = True
-            if self.latent is None:
+            where = self.opts["explore_pool"]
+            m_src = {"latent": 0, "source": M, "both": M // 2}[where]
+            if self.latent is None and where == "latent":
                 parts = [(self._pool_global(M, rng), np.empty((M, 0)), GLOBAL)]
             else:
-                XL, UL = self._pool_latent(M, st["L"], centre, rng, whole=True)
-                parts = [(XL, UL, LATENT)]
+                m_src = m_src if self.latent is not None else M
+                XL, UL = self._pool_latent(M - m_src, st["L"], centre, rng, whole=True)
+                XS = self._pool_source(m_src, rng)
+                parts = [(XL, UL, LATENT), (XS, np.full((len(XS), self.k), np.nan), GLOBAL)]
         else:
             m_lat = int(round(M * w_lat))
             XL, UL = self._pool_latent(m_lat, st["L"], centre, rng)
