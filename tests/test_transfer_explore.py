@@ -313,3 +313,39 @@ def test_explore_pool_both_offers_half_of_each(source, hypers, monkeypatch):
 def test_explore_pool_is_checked(source, hypers, bad):
     with pytest.raises(ValueError, match="explore_pool"):
         _critic(source, hypers, explore_pool=bad)
+
+
+def test_explore_pool_auto_decodes_while_every_trial_fell_then_draws_from_the_source(source,
+                                                                                     hypers):
+    cr = _critic(source, hypers, explore_pool="auto")
+    rng = np.random.default_rng(2)
+    cr.tell(rng.random((1, D)), np.array([9.0]), fell=np.array([True]))   # the zero-shot fell
+    for _ in range(4):                           # design (0-2), then the explore ask g = 3
+        X = cr.ask(1)
+        cr.tell(X, np.full(1, 9.0), cr.last_tags, fell=np.array([True]), z=cr.last_z)
+    assert cr.decisions[3]["explore"] and cr.tags[-1] % 4 == LATENT     # all fell: decoded
+    X = cr.ask(1)                                                         # g = 4, ordinary
+    cr.tell(X, np.array([1.0]), cr.last_tags, fell=np.array([False]), z=cr.last_z)
+    X = cr.ask(1)                                                         # g = 5: explore
+    assert cr.decisions[5]["explore"] and cr.last_tags[0] % 4 == GLOBAL  # a trial stood: source
+
+
+def test_explore_pool_auto_brakes_each_pool_on_its_own(source, hypers):
+    """Source draws that fall beyond the admitted risk hand the explore asks back to the latent
+    box; latent codes that fall too end them."""
+    cr = _critic(source, hypers, explore_pool="auto")
+    cr.tell(np.full((1, D), 0.4), np.array([0.0]), fell=np.array([False]))     # a trial stands
+    rng = np.random.default_rng(1)
+    pools = []
+    for g in range(16):
+        X = cr.ask(1)
+        d = cr.decisions[-1]
+        pools.append((d["explore"], int(cr.last_tags[0] % 4)))
+        explore_fell = d["explore"]                      # every explore trial falls
+        cr.tell(X, np.array([50.0 if explore_fell else 1.0 + g]), cr.last_tags,
+                fell=np.array([explore_fell]), z=cr.last_z)
+    ex = [p for e, p in pools if e]
+    # three source draws fall (3 > 0.3 · 3), three latent codes fall, then no explore ask
+    assert ex == [GLOBAL] * 3 + [LATENT] * 3
+    assert [g for g, (e, _) in enumerate(pools) if e] == [3, 5, 7, 9, 11, 13]
+    assert not pools[15][0] and cr.decisions[15]["explore_braked"]          # due, braked

@@ -112,7 +112,11 @@ best moves the centre, as any trial does. Each decision records ``"explore"``.
 drawn from the source's promising distribution (the Gaussian that warm-starts CMA-ES from a
 source task, Nomura et al. 2021, fitted to the top 10 % of the source's trials that did not
 fall; tag pool ``global``); ``"both"``: half of each, so the model chooses between the decoded
-manifold and the source's spread over the full θ box.
+manifold and the source's spread over the full θ box; ``"auto"``: the latent box while every
+trial on the target fell (decoded codes are the way out where the source's θ all fall), the
+source's distribution once a trial stood, until its draws fell more often than the fall screen
+admits (``explore_falls`` counted on the source's draws alone), then the latent box again
+under its own brake.
 ``explore_when="stalled"`` makes a due generation an explore ask only while the side it is asked
 at is ``length_min`` (the trust region has nothing left to resolve near its centre); the other
 due generations are ordinary asks, so the local search keeps every ask while it still improves.
@@ -216,9 +220,10 @@ of the target's standing costs."""
 SOURCE_ORDERS = ("canonical", "stored")
 """The order the source's trials are used in (``source_order``): sorted by (cost, fell, θ), or as
 given."""
-EXPLORE_POOLS = ("latent", "source", "both")
+EXPLORE_POOLS = ("latent", "source", "both", "auto")
 """Where an explore ask's candidates come from (``explore_pool``): decoded codes of the whole
-latent box, the source's promising distribution over θ, or half of each."""
+latent box, the source's promising distribution over θ, half of each, or the latent box while
+every target trial fell and the source's distribution after."""
 EXPLORE_WHEN = ("always", "stalled")
 """When a due generation is an explore ask (``explore_when``): always, or only while the trust
 region's side is at its minimum."""
@@ -825,7 +830,7 @@ class Transfer(TwoSpaceCritic):
             m = own & (tags // 4 == g)
             standing = g > first_ok
             if self._explore_generation(int(g), L) and \
-                    not self._explore_braked(explore, standing) and \
+                    self._explore_pool(explore, standing) is not None and \
                     not np.isin(tags[m] % 4, (ELITE, FULL)).any():
                 explore |= m            # data and best value only: L follows the other batches
                 best = min(best, float(y[m].min()))
@@ -866,7 +871,8 @@ class Transfer(TwoSpaceCritic):
         lat = own & (tags % 4 == LATENT) & ~explore
         return {"L": L, "succ": succ, "fail": fail, "n_own": int(own.sum()), "restarts": restarts,
                 "converged": converged,
-                "explore_braked": self._explore_braked(explore, bool(ok.any())),
+                "explore_braked": self._explore_pool(explore, bool(ok.any())) is None,
+                "explore_pool": self._explore_pool(explore, bool(ok.any())),
                 "explore_told": int(explore.sum()), "explore_fell": int(self._fell[explore].sum()),
                 "generation": int(gens.max()) + 1 if gens.size else 0,
                 "latent_told": int(lat.sum()), "latent_fell": int(self._fell[lat].sum())}
@@ -883,6 +889,27 @@ class Transfer(TwoSpaceCritic):
             return False
         fell = int(self._fell[explore].sum())
         return fell >= k and fell > float(self.opts["max_fall_prob"]) * int(explore.sum())
+
+    def _explore_pool(self, explore: np.ndarray, standing: bool) -> str | None:
+        """The pool of the next explore ask (``explore_pool`` resolved; ``"latent"``,
+        ``"source"`` or ``"both"``), or None once the explore asks are braked, from the told
+        explore trials ``explore`` (n,) bool and whether a trial stands (``standing``).
+
+        With ``"auto"`` each pool has its own brake (``_explore_braked`` on its own explore
+        trials: the source's draws carry tag pool ``global``, the decoded codes ``latent``): the
+        source's distribution once a trial stands, until its draws fell beyond the admitted
+        risk; then the latent box, until its codes did; then none. Without a latent space
+        ``"auto"`` is ``"source"``."""
+        where = self.opts["explore_pool"]
+        if where != "auto" or self.latent is None:
+            where = "source" if where == "auto" else where
+            return None if self._explore_braked(explore, standing) else where
+        pool = self._tags % 4
+        if standing and not self._explore_braked(explore & (pool == GLOBAL), standing):
+            return "source"
+        if not self._explore_braked(explore & (pool == LATENT), standing):
+            return "latent"
+        return None
 
     def _explore_generation(self, g: int, L: float) -> bool:
         """True when generation ``g`` is due for an explore ask (``explore_every`` = k ≥ 2 and
@@ -1108,10 +1135,10 @@ class Transfer(TwoSpaceCritic):
                 ctx.design_screened = True
         if design and len(E) >= 1:
             parts = [(E, np.full((len(E), self.k), np.nan), ELITE)]
-        elif self._explore_generation(g, st["L"]) and not st["explore_braked"]:
-            # explore: the whole latent box (or θ box) only
+        elif self._explore_generation(g, st["L"]) and st["explore_pool"] is not None:
+            # explore: the whole latent box (or θ box), or the source's distribution, only
             ctx.explore = True
-            where = self.opts["explore_pool"]
+            where = st["explore_pool"]
             m_src = {"latent": 0, "source": M, "both": M // 2}[where]
             if self.latent is None and where == "latent":
                 parts = [(self._pool_global(M, rng), np.empty((M, 0)), GLOBAL)]
