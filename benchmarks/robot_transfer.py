@@ -814,6 +814,13 @@ def parser() -> argparse.ArgumentParser:
     s.add_argument("--default", default="transfer",
                    help="the method judged as the default (its runs read as transfer; the stored "
                         "transfer runs as transfer@stored)")
+    c = sub.add_parser("compare", help="methods against methods over (rung, seed): wins, "
+                       "ties, losses, sign test, falls")
+    c.add_argument("--root", default="runs/robot_transfer")
+    c.add_argument("--a", nargs="+", required=True)
+    c.add_argument("--b", nargs="+", required=True)
+    c.add_argument("--seeds", nargs="+", type=_nonneg_int, default=None, help="only these seeds")
+    c.add_argument("--out", default=None, help="a .json")
     dc = sub.add_parser("decisions", help="what the default phase 3 did, from its decision "
                         "records (trust-region floor, fall screen, explore asks, falls by pool)")
     dc.add_argument("--root", default="runs/robot_transfer")
@@ -866,6 +873,18 @@ def main(argv: list[str] | None = None) -> int:
             md = markdown(res)
             out.with_suffix(".md").write_text(f"`{p['command']}`\n{md}\n")
             print(md)
+        elif a.cmd == "compare":
+            from benchmarks.common import Provenance, write_json
+
+            prov = Provenance(argv, module="benchmarks.robot_transfer")
+            rows = [tr.compare(Path(a.root) / "targets", x, b, a.seeds, RESULT_GLOB)
+                    for x in a.a for b in a.b]
+            if not any(r["pairs"] for r in rows):
+                raise RobotTransferError(f"no (rung, seed) under {Path(a.root) / 'targets'} "
+                                         f"holds both methods of any pair")
+            print(tr.compare_text(rows))
+            if a.out:
+                write_json(a.out, {"rows": rows}, prov.finish())
         elif a.cmd == "decisions":
             from benchmarks.common import Provenance, write_json
 

@@ -237,6 +237,18 @@ def run_method(method: str, target: Any, src: Path, B: int, seed: int,
     return {"costs": costs, "failed": failed, "thetas": thetas, **extra}
 
 
+def compare_text(rows: list[dict[str, Any]]) -> str:
+    """:func:`compare` rows as text: one line per pair of methods, one per target below it."""
+    out = []
+    for r in rows:
+        out.append(f"{r['a']} vs {r['b']}: {r['wins']} wins, {r['ties']} ties, {r['losses']} "
+                   f"losses of {r['pairs']} (sign test p {r['sign_test_p']:.3f}); falls "
+                   f"{r['falls_a']} vs {r['falls_b']}")
+        out += [f"  {t}: {c['wins']}/{c['ties']}/{c['losses']} (w/t/l), falls "
+                f"{c['falls_a']} vs {c['falls_b']}" for t, c in r["by_target"].items()]
+    return "\n".join(out)
+
+
 # --------------------------------------------------------------------------- run / summary
 def run(a: argparse.Namespace) -> None:
     root = Path(a.root)
@@ -360,15 +372,17 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
     return out
 
 
-def compare(root: Path, a: str, b: str, seeds: list[int] | None = None) -> dict[str, Any]:
+def compare(root: Path, a: str, b: str, seeds: list[int] | None = None,
+            pattern: str = "*/gap*/seed*/*.json") -> dict[str, Any]:
     """Method ``a`` against ``b`` on every (target, seed) where both ran (only ``seeds`` when
     given): wins (lower best cost within the budget), ties, losses, a two-sided sign test on the
-    non-ties, and the falls; the same counts per target (``by_target``, keyed
-    ``"<system> gap<g>"``)."""
+    non-ties, and the falls; the same counts per target (``by_target``, keyed by the two
+    directories above the seed's: ``"<system> gap<g>"``). ``pattern``: the run files under
+    ``root``, ``<target>/<sub>/seed<s>/<method>.json``."""
     from scipy.stats import binomtest
 
     runs: dict[tuple[str, str, str], dict[str, dict]] = {}
-    for f in sorted(root.glob("*/gap*/seed*/*.json")):
+    for f in sorted(root.glob(pattern)):
         if seeds is not None and f.parts[-2] not in {f"seed{s}" for s in seeds}:
             continue
         r = json.loads(f.read_text())
@@ -447,13 +461,7 @@ def main(argv: list[str] | None = None) -> int:
 
         prov = Provenance(argv, module="benchmarks.transfer")
         rows = [compare(Path(a.root), x, b, a.seeds) for x in a.a for b in a.b]
-        for r in rows:
-            print(f"{r['a']} vs {r['b']}: {r['wins']} wins, {r['ties']} ties, {r['losses']} losses "
-                  f"of {r['pairs']} (sign test p {r['sign_test_p']:.3f}); falls "
-                  f"{r['falls_a']} vs {r['falls_b']}")
-            for t, c in r["by_target"].items():
-                print(f"  {t}: {c['wins']}/{c['ties']}/{c['losses']} (w/t/l), falls "
-                      f"{c['falls_a']} vs {c['falls_b']}")
+        print(compare_text(rows))
         if a.out:
             Path(a.out).write_text(json.dumps({"rows": rows, "provenance": prov.finish()},
                                               indent=1))

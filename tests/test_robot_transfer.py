@@ -357,3 +357,24 @@ def test_min_mannwhitney_p_matches_scipy_at_its_extreme():
                              method="exact").pvalue
             assert rt.min_mannwhitney_p(n, two) == pytest.approx(p)
     assert rt.min_mannwhitney_p(3, True) >= 0.05 > rt.min_mannwhitney_p(4, True)
+
+
+def test_compare_counts_wins_per_rung_and_refuses_an_empty_pair(tmp_path, capsys):
+    best = {("r1", 0): (3.0, 5.0), ("r1", 1): (4.0, 4.0), ("r2", 0): (9.0, 2.0)}
+    for (t, s), (ca, cb) in best.items():
+        for m, c in (("transfer+x=1", ca), ("transfer", cb)):
+            f = rt.result_path(tmp_path, t, 5, s, m)
+            f.parent.mkdir(parents=True, exist_ok=True)
+            f.write_text(json.dumps({"target": t, "seed": s, "method": m, "costs": [10.0, c],
+                                     "failed": [m == "transfer", False]}))
+    out = tmp_path / "c.json"
+    assert rt.main(["compare", "--root", str(tmp_path), "--a", "transfer+x=1", "--b", "transfer",
+                    "--out", str(out)]) == 0
+    (row,) = json.loads(out.read_text())["rows"]
+    assert (row["wins"], row["ties"], row["losses"], row["falls_a"], row["falls_b"]) == \
+        (1, 1, 1, 0, 3)
+    assert row["by_target"]["r1 src5"] == {"wins": 1, "ties": 1, "losses": 0, "falls_a": 0,
+                                           "falls_b": 2}
+    assert "1 wins, 1 ties, 1 losses of 3" in capsys.readouterr().out
+    assert rt.main(["compare", "--root", str(tmp_path), "--a", "tpe", "--b", "transfer"]) == 2
+    assert "holds both methods" in capsys.readouterr().err
