@@ -651,6 +651,31 @@ def decision_stats(run: dict[str, Any], floor: float = 1 / 64) -> dict[str, Any]
         "falls_by_pool": by_pool}
 
 
+TRACE_DROP = ("thetas", "decisions")
+"""Fields of a run file that :func:`export_traces` leaves out (the θ of every trial and the
+critic's decision records: large, and rebuilt by rerunning the run)."""
+
+
+def export_traces(root: Path, out: Path) -> list[Path]:
+    """One JSON per rung under ``out`` (``<rung>.json``): every run under ``root/targets`` with
+    its cost and fall per trial, wall time, load, options and source size, sorted by (source
+    size, seed, method); the θ and decision records are left out (:data:`TRACE_DROP`).
+    Returns the files written."""
+    by_rung: dict[str, list[dict[str, Any]]] = {}
+    for f in sorted((root / "targets").glob(RESULT_GLOB)):
+        r = json.loads(f.read_text())
+        by_rung.setdefault(f.parts[-4], []).append(
+            {k: v for k, v in r.items() if k not in TRACE_DROP})
+    out.mkdir(parents=True, exist_ok=True)
+    files = []
+    for rung, runs in sorted(by_rung.items()):
+        runs.sort(key=lambda r: (int(r.get("source_trials", 0)), int(r["seed"]), r["method"]))
+        p = out / f"{rung}.json"
+        p.write_text(json.dumps({"target": rung, "runs": runs}, separators=(",", ":")) + "\n")
+        files.append(p)
+    return files
+
+
 def decisions(root: Path, method: str = "transfer", seeds: list[int] | None = None
               ) -> dict[str, Any]:
     """:func:`decision_stats` of every stored run of ``method`` under ``root`` (only ``seeds``
@@ -821,6 +846,10 @@ def parser() -> argparse.ArgumentParser:
     c.add_argument("--b", nargs="+", required=True)
     c.add_argument("--seeds", nargs="+", type=_nonneg_int, default=None, help="only these seeds")
     c.add_argument("--out", default=None, help="a .json")
+    ex = sub.add_parser("export", help="the runs' traces (cost and fall per trial, wall "
+                        "time, load) as one JSON per rung, to commit")
+    ex.add_argument("--root", default="runs/robot_transfer")
+    ex.add_argument("--out", required=True, help="a directory")
     dc = sub.add_parser("decisions", help="what the default phase 3 did, from its decision "
                         "records (trust-region floor, fall screen, explore asks, falls by pool)")
     dc.add_argument("--root", default="runs/robot_transfer")
@@ -885,6 +914,16 @@ def main(argv: list[str] | None = None) -> int:
             print(tr.compare_text(rows))
             if a.out:
                 write_json(a.out, {"rows": rows}, prov.finish())
+        elif a.cmd == "export":
+            from benchmarks.common import Provenance, write_json
+
+            prov = Provenance(argv, module="benchmarks.robot_transfer")
+            files = export_traces(Path(a.root), Path(a.out))
+            if not files:
+                raise RobotTransferError(f"no runs under {Path(a.root) / 'targets'}")
+            write_json(Path(a.out) / "export.json", {"files": [f.name for f in files]},
+                       prov.finish())
+            print(f"{len(files)} rungs written to {a.out}")
         elif a.cmd == "decisions":
             from benchmarks.common import Provenance, write_json
 

@@ -378,3 +378,24 @@ def test_compare_counts_wins_per_rung_and_refuses_an_empty_pair(tmp_path, capsys
     assert "1 wins, 1 ties, 1 losses of 3" in capsys.readouterr().out
     assert rt.main(["compare", "--root", str(tmp_path), "--a", "tpe", "--b", "transfer"]) == 2
     assert "holds both methods" in capsys.readouterr().err
+
+
+def test_export_keeps_costs_falls_and_load_without_thetas(tmp_path, capsys):
+    for s, m in ((1, "tpe"), (0, "transfer"), (0, "tpe")):
+        f = rt.result_path(tmp_path, "r1", 9, s, m)
+        f.parent.mkdir(parents=True, exist_ok=True)
+        f.write_text(json.dumps({"target": "r1", "seed": s, "method": m, "source_trials": 9,
+                                 "costs": [2.0, 1.0], "failed": [True, False], "wall_s": 3.0,
+                                 "load_start": [1.0], "thetas": [[0.1], [0.2]],
+                                 "decisions": [{"pools": ["full"]}]}))
+    out = tmp_path / "traces"
+    assert rt.main(["export", "--root", str(tmp_path), "--out", str(out)]) == 0
+    d = json.loads((out / "r1.json").read_text())
+    assert [(r["seed"], r["method"]) for r in d["runs"]] == [(0, "tpe"), (0, "transfer"),
+                                                             (1, "tpe")]
+    assert d["runs"][0] == {"target": "r1", "seed": 0, "method": "tpe", "source_trials": 9,
+                            "costs": [2.0, 1.0], "failed": [True, False], "wall_s": 3.0,
+                            "load_start": [1.0]}
+    assert "machine" in json.loads((out / "export.json").read_text())["provenance"]
+    assert rt.main(["export", "--root", str(tmp_path / "none"), "--out", str(out)]) == 2
+    assert "no runs under" in capsys.readouterr().err
