@@ -869,10 +869,9 @@ class Transfer(TwoSpaceCritic):
             if late and self._fall_shrink_due(m, tags // 4 <= g):
                 L, succ, fail = max(min(L, side / 2.0), l_min), 0, 0
         lat = own & (tags % 4 == LATENT) & ~explore
+        pool = self._explore_pool(explore, bool(ok.any()))
         return {"L": L, "succ": succ, "fail": fail, "n_own": int(own.sum()), "restarts": restarts,
-                "converged": converged,
-                "explore_braked": self._explore_pool(explore, bool(ok.any())) is None,
-                "explore_pool": self._explore_pool(explore, bool(ok.any())),
+                "converged": converged, "explore_braked": pool is None, "explore_pool": pool,
                 "explore_told": int(explore.sum()), "explore_fell": int(self._fell[explore].sum()),
                 "generation": int(gens.max()) + 1 if gens.size else 0,
                 "latent_told": int(lat.sum()), "latent_fell": int(self._fell[lat].sum())}
