@@ -666,7 +666,8 @@ def export_traces(root: Path, out: Path) -> list[Path]:
         r = json.loads(f.read_text())
         by_rung.setdefault(f.parts[-4], []).append(
             {k: v for k, v in r.items() if k not in TRACE_DROP})
-    out.mkdir(parents=True, exist_ok=True)
+    if by_rung:
+        out.mkdir(parents=True, exist_ok=True)
     files = []
     for rung, runs in sorted(by_rung.items()):
         runs.sort(key=lambda r: (int(r.get("source_trials", 0)), int(r["seed"]), r["method"]))
