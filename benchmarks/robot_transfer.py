@@ -13,6 +13,8 @@ sources of A1 and Solo12 to targets at several gaps.
     python -m benchmarks.robot_transfer summary [--root runs/robot_transfer]
         [--out results/robot_transfer/ladder.json] [--methods M ...] [--targets RUNG ...]
         [--seeds S ...]
+    python -m benchmarks.robot_transfer export --root runs/robot_transfer --out DIR
+    python -m benchmarks.robot_transfer restore --traces DIR [--root runs/robot_transfer]
     python -m benchmarks.robot_transfer plot [--targets RUNG ...] [--root runs/robot_transfer]
         [--out results/robot_transfer] [--gifs]
 
@@ -52,7 +54,10 @@ resumes. ``summary`` applies the transfer issue's definitions per (rung, source 
 ``import-paper`` shares rollouts with the evidence issue: the seeded studies of a ``latentune
 paper --seeds N`` run whose rows are rungs (trot → jump, A1 trot → B1 trot and jump;
 :data:`PAPER_ROWS`) become results of those rungs, cut at ``--budget`` (:func:`import_paper`).
-``plot`` re-simulates the best θ of the default phase 3 and of the best peer (and the zero-shot
+``export`` writes every run's trace (cost and fall per trial, wall time, load, the θ of its
+lowest cost) as one JSON per rung, to commit; ``restore`` rebuilds the run files from those
+traces on a fresh clone (the run directory is not committed), so ``run`` resumes there and the
+other commands read them. ``plot`` re-simulates the best θ of the default phase 3 and of the best peer (and the zero-shot
 θ) on a rung's target and draws the base's CoM x/y/z, forward velocity and height over time
 into ``OUT/<rung>/``.
 """
@@ -653,19 +658,28 @@ def decision_stats(run: dict[str, Any], floor: float = 1 / 64) -> dict[str, Any]
 
 TRACE_DROP = ("thetas", "decisions")
 """Fields of a run file that :func:`export_traces` leaves out (the θ of every trial and the
-critic's decision records: large, and rebuilt by rerunning the run)."""
+critic's decision records: large, and rebuilt by rerunning the run); the θ of the run's lowest
+cost is kept as ``best_theta``."""
+
+
+def _with_best_theta(r: dict[str, Any]) -> dict[str, Any]:
+    """``r`` without :data:`TRACE_DROP`, with ``best_theta``: the θ ((d,) list) of its lowest
+    cost (the first such trial), when ``r`` holds its θ or a ``best_theta`` already."""
+    out = {k: v for k, v in r.items() if k not in TRACE_DROP}
+    thetas = r.get("thetas")
+    if thetas and len(thetas) == len(r["costs"]):
+        out["best_theta"] = thetas[int(np.argmin(r["costs"]))]
+    return out
 
 
 def export_traces(root: Path, out: Path) -> list[Path]:
     """One JSON per rung under ``out`` (``<rung>.json``): every run under ``root/targets`` with
-    its cost and fall per trial, wall time, load, options and source size, sorted by (source
-    size, seed, method); the θ and decision records are left out (:data:`TRACE_DROP`).
-    Returns the files written."""
+    its cost and fall per trial, wall time, load, options, source size and the θ of its lowest
+    cost, sorted by (source size, seed, method); the θ of the other trials and the decision
+    records are left out (:data:`TRACE_DROP`). Returns the files written."""
     by_rung: dict[str, list[dict[str, Any]]] = {}
     for f in sorted((root / "targets").glob(RESULT_GLOB)):
-        r = json.loads(f.read_text())
-        by_rung.setdefault(f.parts[-4], []).append(
-            {k: v for k, v in r.items() if k not in TRACE_DROP})
+        by_rung.setdefault(f.parts[-4], []).append(_with_best_theta(json.loads(f.read_text())))
     if by_rung:
         out.mkdir(parents=True, exist_ok=True)
     files = []
@@ -675,6 +689,34 @@ def export_traces(root: Path, out: Path) -> list[Path]:
         p.write_text(json.dumps({"target": rung, "runs": runs}, separators=(",", ":")) + "\n")
         files.append(p)
     return files
+
+
+def restore_traces(traces: Path, root: Path) -> tuple[int, int]:
+    """Rebuild ``root``'s run files from exported traces (:func:`export_traces`'s
+    ``<rung>.json`` files under ``traces``), each marked ``restored_from`` (the trace file) and
+    without the dropped fields: ``run`` then resumes where the exported runs stopped, and
+    ``summary``, ``compare``, ``export`` and ``plot`` (from ``best_theta``) read them. A run
+    file that exists is kept. Returns (files written, files kept)."""
+    files = sorted(f for f in traces.glob("*.json") if f.name != "export.json")
+    if not files:
+        raise RobotTransferError(f"no traces under {traces}")
+    wrote = kept = 0
+    for f in files:
+        d = json.loads(f.read_text())
+        if not isinstance(d, dict) or "runs" not in d or "target" not in d:
+            raise RobotTransferError(f"{f} is not a trace file of `robot_transfer export`")
+        for r in d["runs"]:
+            p = result_path(root, d["target"], int(r["source_trials"]), int(r["seed"]),
+                            r["method"])
+            if p.is_file():
+                kept += 1
+                continue
+            p.parent.mkdir(parents=True, exist_ok=True)
+            tmp = p.with_suffix(".tmp")
+            tmp.write_text(json.dumps({**r, "restored_from": str(f)}))
+            tmp.replace(p)
+            wrote += 1
+    return wrote, kept
 
 
 def decisions(root: Path, method: str = "transfer", seeds: list[int] | None = None
@@ -734,10 +776,16 @@ def plot_com(results: dict[str, Any], path: Path, title: str) -> None:
 
 
 def _best_theta(runs: dict[int, dict[str, Any]]) -> tuple[list[float], float, int, int]:
-    """(θ, cost, seed, trial) of the lowest cost over every seed's run of a method."""
+    """(θ, cost, seed, trial) of the lowest cost over every seed's run of a method: from the
+    run's θ per trial, or from its ``best_theta`` (a run restored from traces)."""
     seed, i = min(((s, i) for s, r in runs.items() for i in range(len(r["costs"]))),
                   key=lambda si: runs[si[0]]["costs"][si[1]])
-    return runs[seed]["thetas"][i], float(runs[seed]["costs"][i]), seed, i + 1
+    r = runs[seed]
+    theta = (_with_best_theta(r) if "thetas" in r else r).get("best_theta")
+    if theta is None:
+        raise RobotTransferError(f"the {r.get('method')} run of {r.get('target')} seed {seed} "
+                                 f"holds no θ (rerun it: delete its file and `run` it again)")
+    return theta, float(r["costs"][i]), seed, i + 1
 
 
 def plot(a: argparse.Namespace) -> None:
@@ -851,6 +899,10 @@ def parser() -> argparse.ArgumentParser:
                         "time, load) as one JSON per rung, to commit")
     ex.add_argument("--root", default="runs/robot_transfer")
     ex.add_argument("--out", required=True, help="a directory")
+    rs = sub.add_parser("restore", help="rebuild the run files from exported traces (without "
+                        "the θ of every trial): run then resumes, summary and plot read them")
+    rs.add_argument("--traces", required=True, help="a directory of `export`")
+    rs.add_argument("--root", default="runs/robot_transfer")
     dc = sub.add_parser("decisions", help="what the default phase 3 did, from its decision "
                         "records (trust-region floor, fall screen, explore asks, falls by pool)")
     dc.add_argument("--root", default="runs/robot_transfer")
@@ -925,6 +977,9 @@ def main(argv: list[str] | None = None) -> int:
             write_json(Path(a.out) / "export.json", {"files": [f.name for f in files]},
                        prov.finish())
             print(f"{len(files)} rungs written to {a.out}")
+        elif a.cmd == "restore":
+            wrote, kept = restore_traces(Path(a.traces), Path(a.root))
+            print(f"{wrote} runs restored under {Path(a.root) / 'targets'}, {kept} kept")
         elif a.cmd == "decisions":
             from benchmarks.common import Provenance, write_json
 

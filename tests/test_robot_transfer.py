@@ -380,7 +380,7 @@ def test_compare_counts_wins_per_rung_and_refuses_an_empty_pair(tmp_path, capsys
     assert "holds both methods" in capsys.readouterr().err
 
 
-def test_export_keeps_costs_falls_and_load_without_thetas(tmp_path, capsys):
+def test_export_keeps_costs_falls_and_best_theta_and_restore_rebuilds_the_runs(tmp_path, capsys):
     for s, m in ((1, "tpe"), (0, "transfer"), (0, "tpe")):
         f = rt.result_path(tmp_path, "r1", 9, s, m)
         f.parent.mkdir(parents=True, exist_ok=True)
@@ -395,7 +395,31 @@ def test_export_keeps_costs_falls_and_load_without_thetas(tmp_path, capsys):
                                                              (1, "tpe")]
     assert d["runs"][0] == {"target": "r1", "seed": 0, "method": "tpe", "source_trials": 9,
                             "costs": [2.0, 1.0], "failed": [True, False], "wall_s": 3.0,
-                            "load_start": [1.0]}
+                            "load_start": [1.0], "best_theta": [0.2]}
     assert "machine" in json.loads((out / "export.json").read_text())["provenance"]
     assert rt.main(["export", "--root", str(tmp_path / "none"), "--out", str(out)]) == 2
     assert "no runs under" in capsys.readouterr().err
+
+    # restored: the same runs where run resumes, a stored file kept; then exported the same
+    new = tmp_path / "restored"
+    kept = rt.result_path(new, "r1", 9, 1, "tpe")
+    kept.parent.mkdir(parents=True)
+    kept.write_text(json.dumps({"target": "r1", "seed": 1, "method": "tpe", "source_trials": 9,
+                                "costs": [5.0], "failed": [False], "thetas": [[0.7]]}))
+    assert rt.main(["restore", "--traces", str(out), "--root", str(new)]) == 0
+    assert "2 runs restored" in capsys.readouterr().out
+    r = json.loads(rt.result_path(new, "r1", 9, 0, "tpe").read_text())
+    assert r["costs"] == [2.0, 1.0] and r["best_theta"] == [0.2] and "thetas" not in r
+    assert r["restored_from"].endswith("r1.json")
+    assert json.loads(kept.read_text())["costs"] == [5.0]
+    assert rt._best_theta({0: r, 1: json.loads(kept.read_text())}) == ([0.2], 1.0, 0, 2)
+    again = tmp_path / "again"
+    assert rt.main(["export", "--root", str(new), "--out", str(again)]) == 0
+    runs = json.loads((again / "r1.json").read_text())["runs"]
+    assert [r.get("best_theta") for r in runs] == [[0.2], [0.2], [0.7]]
+    # a run without θ cannot be plotted; a directory without traces is refused
+    del r["best_theta"]
+    with pytest.raises(rt.RobotTransferError, match="holds no θ"):
+        rt._best_theta({0: r})
+    assert rt.main(["restore", "--traces", str(tmp_path / "none"), "--root", str(new)]) == 2
+    assert "no traces under" in capsys.readouterr().err
