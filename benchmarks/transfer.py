@@ -281,6 +281,19 @@ def _first_reach(costs: list[float], level: float) -> float:
     return math.inf
 
 
+def best_within_falls(costs: list[float], failed: list[bool], k: int) -> float:
+    """The lowest cost among the trials before the (k+1)-th fall (all of them when there are
+    at most k falls): a method's best had it stopped once it fell one time more than k."""
+    best, n = math.inf, 0
+    for c, f in zip(costs, failed):
+        if f:
+            n += 1
+            if n > k:
+                break
+        best = min(best, c)
+    return best
+
+
 def _ladder_target(run: dict[str, Any]) -> dict[str, Any]:
     return {"system": run["system"], "gap": float(run["gap"])}
 
@@ -355,6 +368,11 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
             reach = [_first_reach(by_m[m][s]["costs"], level) for s in seeds]
             row["methods"][m]["trials_to_best_peer"] = float(np.median(reach))
         if "transfer" in row["methods"]:
+            k = [int(sum(by_m["transfer"][s]["failed"])) for s in seeds]
+            for m in row["methods"]:        # each seed cut at the default's falls on it
+                row["methods"][m]["median_best_at_default_falls"] = float(np.median(
+                    [best_within_falls(by_m[m][s]["costs"], by_m[m][s]["failed"], ks)
+                     for s, ks in zip(seeds, k)]))
             t, p = row["methods"]["transfer"], row["methods"][bp]
             try:
                 pv = float(mannwhitneyu(t["best"], p["best"], alternative="two-sided").pvalue)
@@ -413,14 +431,17 @@ def markdown(s: dict[str, Any],
     for row in s["targets"]:
         lines.append(f"\n### {title(row)} ({len(row['seeds'])} seeds; "
                      f"best peer: {row['best_peer']})\n")
-        lines.append("| method | median best | IQR | trials to best peer's median | falls |")
-        lines.append("|---|---:|---:|---:|---:|")
+        cut = "transfer" in row["methods"]
+        lines.append("| method | median best | IQR | trials to best peer's median | falls |"
+                     + (" best at the default's falls |" if cut else ""))
+        lines.append("|---|---:|---:|---:|---:|" + ("---:|" if cut else ""))
         for m in list(METHODS) + sorted(set(row["methods"]) - set(METHODS)):
             if m not in row["methods"]:
                 continue
             r = row["methods"][m]
             lines.append(f"| {m} | {r['median_best']:.4g} | {r['iqr'][0]:.4g}–{r['iqr'][1]:.4g} "
-                         f"| {r['trials_to_best_peer']:g} | {r['falls_median']:g} |")
+                         f"| {r['trials_to_best_peer']:g} | {r['falls_median']:g} |"
+                         + (f" {r['median_best_at_default_falls']:.4g} |" if cut else ""))
         if "criteria" in row:
             c = row["criteria"]
             lines.append(f"\ncriteria: no worse {c['no_worse']} (p {c['mannwhitney_p']:.3f}), "

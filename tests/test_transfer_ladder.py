@@ -32,6 +32,22 @@ def test_summary_judges_a_variant_as_the_default(tmp_path):
     assert row["criteria"]["falls_ok"] and row["methods"]["transfer"]["trials_to_best_peer"] == 2
 
 
+def test_best_at_the_default_falls_cuts_each_seed_at_its_falls(tmp_path):
+    """A peer's best is cut before its (k+1)-th fall, k = the default's falls on that seed."""
+    assert tr.best_within_falls([9.0, 5.0, 20.0, 1.0], [False, False, True, False], 0) == 5.0
+    assert tr.best_within_falls([9.0, 5.0, 20.0, 1.0], [False, False, True, False], 1) == 1.0
+    assert tr.best_within_falls([20.0, 1.0], [True, False], 0) == float("inf")
+    _write(tmp_path, "tpe", 0, [9.0, 20.0, 1.0], [False, True, False])
+    _write(tmp_path, "transfer", 0, [9.0, 3.0, 4.0], [False, False, False])
+    _write(tmp_path, "tpe", 1, [9.0, 20.0, 1.0], [False, True, False])
+    _write(tmp_path, "transfer", 1, [30.0, 3.0, 4.0], [True, False, False])
+    (row,) = tr.summarize(tmp_path)["targets"]
+    assert row["methods"]["tpe"]["median_best"] == 1.0
+    assert row["methods"]["tpe"]["median_best_at_default_falls"] == 5.0     # median of 9 and 1
+    assert row["methods"]["transfer"]["median_best_at_default_falls"] == 3.0
+    assert "| tpe | 1 | 1–1 | 3 | 1 | 5 |" in tr.markdown({"targets": [row]})
+
+
 def test_compare_counts_per_target_and_keeps_the_seeds_asked(tmp_path):
     for s, (a, b) in enumerate([(1.0, 2.0), (3.0, 2.0), (1.0, 2.0)]):
         _write(tmp_path, "a", s, [a], [s == 0])
