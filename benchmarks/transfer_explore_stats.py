@@ -11,6 +11,9 @@ ask: the trust region's pools, the manual θ after falls). Per kind, summed over
 ran every listed method: trials, falls, and *records*, the trials that did not fall and beat
 every earlier standing trial (zero-shot included; the first standing trial of a run is a record).
 ``final best by explore``: seeds whose lowest standing cost is an explore trial's.
+``agreement``: the median over the seeds of each run's median agreement (the posterior mean of
+the source model's weight ``a``) over its asks after the initial design (``None`` when no such
+ask recorded one).
 """
 from __future__ import annotations
 
@@ -41,8 +44,9 @@ def ask_kinds(run: dict[str, Any]) -> list[str | None]:
 
 
 def run_stats(run: dict[str, Any]) -> dict[str, Any]:
-    """Per kind of ask: ``trials``, ``falls``, ``records`` (counts in one run), and
-    ``final_kind``: the kind of the run's lowest standing trial (``None``: zero-shot or none)."""
+    """Per kind of ask: ``trials``, ``falls``, ``records`` (counts in one run);
+    ``final_kind``: the kind of the run's lowest standing trial (``None``: zero-shot or none);
+    ``agreement``: the median agreement of its asks after the initial design (or ``None``)."""
     kinds = ask_kinds(run)
     out: dict[str, Any] = {k: {"trials": 0, "falls": 0, "records": 0} for k in KINDS}
     best, final_kind = np.inf, None
@@ -56,6 +60,9 @@ def run_stats(run: dict[str, Any]) -> dict[str, Any]:
         out[kind]["falls"] += int(bool(fell))
         out[kind]["records"] += int(record)
     out["final_kind"] = final_kind
+    agree = [d["agreement"] for d in run.get("decisions", [])
+             if not d.get("design") and d.get("agreement") is not None]
+    out["agreement"] = float(np.median(agree)) if agree else None
     return out
 
 
@@ -77,6 +84,8 @@ def explore_stats(root: Path, methods: list[str], seeds: list[int] | None
                 for q in ("trials", "falls", "records"):
                     row[f"{k} {q}"] = sum(s[k][q] for s in st)
             row["final best by explore"] = sum(s["final_kind"] == "explore" for s in st)
+            agree = [s["agreement"] for s in st if s["agreement"] is not None]
+            row["agreement"] = round(float(np.median(agree)), 3) if agree else None
             rows.append(row)
     return rows
 

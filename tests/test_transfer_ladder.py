@@ -87,10 +87,10 @@ def test_explore_stats_split_trials_by_ask(tmp_path) -> None:
     trials that beat every earlier standing one, and the final best's ask is named."""
     from benchmarks import transfer_explore_stats as es
 
-    dec = [{"n_told": 1, "design": True, "explore": False, "pools": ["elite"]},
-           {"n_told": 2, "design": False, "explore": True, "pools": ["latent"]},
-           {"n_told": 3, "design": False, "explore": False, "pools": ["full"]},
-           {"n_told": 4, "design": False, "explore": True, "pools": ["latent"]}]
+    dec = [{"n_told": 1, "design": True, "explore": False, "pools": ["elite"], "agreement": 9.0},
+           {"n_told": 2, "design": False, "explore": True, "pools": ["latent"], "agreement": 0.2},
+           {"n_told": 3, "design": False, "explore": False, "pools": ["full"], "agreement": 0.4},
+           {"n_told": 4, "design": False, "explore": True, "pools": ["latent"], "agreement": 1.0}]
     _write(tmp_path, "m", 0, [5.0, 6.0, 2.0, 1.0, 1.5], [False, False, False, True, False])
     f = tmp_path / "arm" / "gap1" / "seed0" / "m.json"
     f.write_text(json.dumps({**json.loads(f.read_text()), "decisions": dec}))
@@ -101,6 +101,7 @@ def test_explore_stats_split_trials_by_ask(tmp_path) -> None:
     (row,) = json.loads(out.read_text())["rows"]
     assert (row["design records"], row["explore trials"], row["explore records"]) == (0, 2, 2)
     assert (row["region falls"], row["region records"], row["final best by explore"]) == (1, 0, 1)
+    assert row["agreement"] == 0.4                  # the design ask's agreement does not count
 
 
 def test_transfer_same_tells_equal_traces_from_different_ones(tmp_path) -> None:
