@@ -726,11 +726,16 @@ def restore_traces(traces: Path, root: Path) -> tuple[int, int]:
 def decisions(root: Path, method: str = "transfer", seeds: list[int] | None = None
               ) -> dict[str, Any]:
     """:func:`decision_stats` of every stored run of ``method`` under ``root`` (only ``seeds``
-    when given), per rung and seed, with the medians over the seeds."""
-    out: dict[str, Any] = {"method": method, "targets": {}}
+    when given), per rung and seed, with the medians over the seeds. Runs without decision
+    records (restored from traces: :func:`restore_traces`) are left out and counted in
+    ``without_records``."""
+    out: dict[str, Any] = {"method": method, "targets": {}, "without_records": 0}
     for f in sorted((root / "targets").glob(RESULT_GLOB)):
         r = json.loads(f.read_text())
         if r["method"] != method or (seeds is not None and int(r["seed"]) not in seeds):
+            continue
+        if "decisions" not in r:
+            out["without_records"] += 1
             continue
         t = out["targets"].setdefault(r["target"], {"seeds": {}})
         t["seeds"][int(r["seed"])] = decision_stats(r)
@@ -754,7 +759,9 @@ def decisions_markdown(d: dict[str, Any]) -> str:
         lines.append(f"| {name} | {len(t['seeds'])} | {100 * m['floor_share']:.0f} % | "
                      f"{100 * m['screened_share']:.0f} % | {m['explore_asks']:g} / "
                      f"{m['explore_falls']:g} | {pools} |")
-    return "\n".join(lines) + "\n\nMedians over the seeds."
+    skipped = (f" {d['without_records']} runs without decision records (restored from traces) "
+               "are left out." if d.get("without_records") else "")
+    return "\n".join(lines) + "\n\nMedians over the seeds." + skipped
 
 
 # --------------------------------------------------------------------------- plots

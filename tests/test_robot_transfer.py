@@ -339,10 +339,15 @@ def test_decisions_reads_what_the_default_did(tmp_path, capsys):
     s = rt.decision_stats(run)
     assert s == {"n_asks": 3, "floor_share": 0.5, "screened_share": 1 / 3, "explore_asks": 1,
                  "explore_falls": 1, "falls_by_pool": {"explore": 1, "full": 1}}
+    restored = rt.result_path(tmp_path, "r", 5, 1, "transfer")     # no records: left out
+    restored.parent.mkdir(parents=True)
+    restored.write_text(json.dumps({k: v for k, v in run.items() if k != "decisions"}))
     out = tmp_path / "d.json"
     assert rt.main(["decisions", "--root", str(tmp_path), "--out", str(out)]) == 0
     d = json.loads(out.read_text())
     assert list(d["targets"]) == ["r"] and d["targets"]["r"]["median"]["floor_share"] == 0.5
+    assert list(d["targets"]["r"]["seeds"]) == ["0"] and d["without_records"] == 1
+    assert "1 runs without decision records" in out.with_suffix(".md").read_text()
     assert "| r | 1 | 50 % | 33 % | 1 / 1 | explore 1, full 1 |" in capsys.readouterr().out
     assert rt.main(["decisions", "--root", str(tmp_path), "--out", str(out),
                     "--method", "plain"]) == 2
