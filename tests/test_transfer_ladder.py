@@ -130,6 +130,26 @@ def test_transfer_same_reads_methods_with_colons(tmp_path) -> None:
                                "--b", f"{tmp_path}:transfer"]) == 0
 
 
+def test_transfer_same_with_a_tolerance_on_the_robot_layout(tmp_path, capsys) -> None:
+    """``--rtol`` admits last-digit differences of costs and θ, never another fall flag; the
+    robot ladder's ``targets/<rung>/src<N>/seed<s>`` layout is read as the cheap ladder's."""
+    from benchmarks import transfer_same
+
+    for root, c, th in (("a", 5.805038760, [0.1, 0.2]), ("b", 5.805038765, [0.1, 0.2000000001])):
+        f = tmp_path / root / "rung" / "src9" / "seed0" / "transfer.json"
+        f.parent.mkdir(parents=True)
+        f.write_text(json.dumps({"costs": [6.0, c], "failed": [True, False], "thetas": [th, th]}))
+    a, b = f"{tmp_path / 'a'}:transfer", f"{tmp_path / 'b'}:transfer"
+    assert transfer_same.main(["--a", a, "--b", b]) == 1
+    assert transfer_same.main(["--a", a, "--b", b, "--rtol", "1e-8"]) == 0
+    assert transfer_same.main(["--a", a, "--b", b, "--rtol", "1e-12"]) == 1
+    g = tmp_path / "b" / "rung" / "src9" / "seed0" / "transfer.json"
+    g.write_text(json.dumps({**json.loads(g.read_text()), "failed": [False, False]}))
+    assert transfer_same.main(["--a", a, "--b", b, "--rtol", "1e-8"]) == 1
+    assert transfer_same.main(["--a", a, "--b", b, "--rtol", "-1"]) == 2
+    assert "--rtol must be >= 0" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("text", ["bowl:0.8", "bowl:-0.1", "bowl:nan", "levy:x", "ring:0.1",
                                   "bowl"])
 def test_transfer_variants_refuses_a_problem_it_cannot_build(text):
