@@ -269,7 +269,9 @@ def run(a: argparse.Namespace) -> None:
                     res.update(system=name, gap=g, seed=seed, method=m, budget=a.budget,
                                wall_s=time.perf_counter() - t0)
                     f.parent.mkdir(parents=True, exist_ok=True)
-                    f.write_text(json.dumps(res))
+                    tmp = f.with_suffix(".tmp")     # a killed run leaves no half-written trace
+                    tmp.write_text(json.dumps(res))
+                    tmp.replace(f)
                     print(f"{name} gap {g:g} seed {seed} {m}: best {min(res['costs']):.4g}, "
                           f"falls {sum(res['failed'])}, {res['wall_s']:.1f} s", flush=True)
 
