@@ -578,20 +578,24 @@ def _g(v: float | None) -> str:
     return "-" if v is None else f"{v:.4g}"
 
 
+def _cut(c: dict[str, Any] | None) -> str:
+    return "-" if c is None else f"{c['median']:.4g} ({c['method']})"
+
+
 def overview(s: dict[str, Any]) -> str:
     """One line per rung with a judged default: the best peer's median best and falls, the
     default's (with the two-sided Mann–Whitney p against the best peer), the default's median
-    above (+) or below (−) the best peer's in percent, the best peer's median best with each
-    seed cut before its fall one beyond the default's falls on that seed
-    (:func:`benchmarks.transfer.best_within_falls`), the default's median trials to reach the
-    best peer's median, and the transfer issue's criteria (1) no worse, (2) ≤ B/10 and ≤ B/2,
+    above (+) or below (−) the best peer's in percent, the lowest of the peers' median bests
+    with each seed cut before its fall one beyond the default's falls on that seed
+    (:func:`benchmarks.transfer.best_within_falls`; the peer named), the default's median
+    trials to reach the best peer's median, and the transfer issue's criteria (1) no worse, (2) ≤ B/10 and ≤ B/2,
     (3) falls; then how many rungs hold each."""
     rows = [r for r in s["targets"] if "criteria" in r]
     if not rows:
         return ""
     mark = {True: "✓", False: "✗"}
     lines = ["| rung | seeds | best peer: median / falls | default: median (p) / falls | "
-             "default vs best peer | best peer at the default's falls | trials to its median "
+             "default vs best peer | lowest peer at the default's falls | trials to its median "
              "| (1) | (2) B/10, B/2 | (3) |",
              "|---|---:|---|---|---:|---:|---:|:-:|:-:|:-:|"]
     for r in rows:
@@ -601,7 +605,7 @@ def overview(s: dict[str, Any]) -> str:
             f"| {r['target']} | {len(r['seeds'])} | {r['best_peer']}: {bp['median_best']:.4g} / "
             f"{bp['falls_median']:g} | {t['median_best']:.4g} ({c['mannwhitney_p']:.2f}) / "
             f"{t['falls_median']:g} | {rel:+.1f} % | "
-            f"{_g(bp.get('median_best_at_default_falls'))} | {t['trials_to_best_peer']:g} | "
+            f"{_cut(r.get('peer_at_default_falls'))} | {t['trials_to_best_peer']:g} | "
             f"{mark[c['no_worse']]} | {mark[c['reach_le_B10']]} {mark[c['reach_le_B2']]} | "
             f"{mark[c['falls_ok']]} |")
     n = len(rows)

@@ -375,6 +375,9 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
                 row["methods"][m]["median_best_at_default_falls"] = float(np.median(
                     [best_within_falls(by_m[m][s]["costs"], by_m[m][s]["failed"], ks)
                      for s, ks in zip(seeds, k)]))
+            m_cut = min(peers, key=lambda m: row["methods"][m]["median_best_at_default_falls"])
+            row["peer_at_default_falls"] = {
+                "method": m_cut, "median": row["methods"][m_cut]["median_best_at_default_falls"]}
             t, p = row["methods"]["transfer"], row["methods"][bp]
             try:
                 pv = float(mannwhitneyu(t["best"], p["best"], alternative="two-sided").pvalue)

@@ -305,13 +305,13 @@ def test_overview_lines_up_the_default_against_the_best_peer():
             "reach_le_B2": True, "falls_ok": True}
     s = {"targets": [
         {"target": "r1", "seeds": [0, 1, 2, 3, 4], "best_peer": "tpe",
-         "methods": {"tpe": {**m(20.0, 8), "median_best_at_default_falls": 23.5},
-                     "transfer": m(21.0, 1, 40)}, "criteria": crit},
+         "methods": {"tpe": m(20.0, 8), "transfer": m(21.0, 1, 40)}, "criteria": crit,
+         "peer_at_default_falls": {"method": "tpe", "median": 23.5}},
         {"target": "r2", "seeds": [0], "best_peer": "tpe", "methods": {"tpe": m(1.0, 0)}}]}
     text = rt.overview(s)
     (line,) = [x for x in text.splitlines() if x.startswith("| r1 ")]
     assert "tpe: 20 / 8" in line and "21 (0.01) / 1" in line and "+5.0 %" in line
-    assert line.endswith("| +5.0 % | 23.5 | 40 | ✗ | ✗ ✓ | ✓ |")
+    assert line.endswith("| +5.0 % | 23.5 (tpe) | 40 | ✗ | ✗ ✓ | ✓ |")
     assert "| r2 " not in text                      # no default judged there
     assert "Of 1 rungs: (1) no worse on 0; (2) ≤ B/10 on 0, ≤ B/2 on 1; (3) falls on 1." in text
     assert "no two-sided p" not in text

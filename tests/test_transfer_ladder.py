@@ -45,6 +45,7 @@ def test_best_at_the_default_falls_cuts_each_seed_at_its_falls(tmp_path):
     assert row["methods"]["tpe"]["median_best"] == 1.0
     assert row["methods"]["tpe"]["median_best_at_default_falls"] == 5.0     # median of 9 and 1
     assert row["methods"]["transfer"]["median_best_at_default_falls"] == 3.0
+    assert row["peer_at_default_falls"] == {"method": "tpe", "median": 5.0}
     assert "| tpe | 1 | 1–1 | 3 | 1 | 5 |" in tr.markdown({"targets": [row]})
 
 
