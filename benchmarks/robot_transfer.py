@@ -792,9 +792,13 @@ def plot_com(results: dict[str, Any], path: Path, title: str) -> None:
 
 def _best_theta(runs: dict[int, dict[str, Any]]) -> tuple[list[float], float, int, int]:
     """(θ, cost, seed, trial) of the lowest cost over every seed's run of a method: from the
-    run's θ per trial, or from its ``best_theta`` (a run restored from traces)."""
+    run's θ per trial, or from its ``best_theta`` (a run restored from traces). Of equal costs
+    (the zero-shot θ on every seed) a run that holds its θ is taken."""
+    def no_theta(r: dict[str, Any]) -> bool:
+        return "thetas" not in r and "best_theta" not in r
+
     seed, i = min(((s, i) for s, r in runs.items() for i in range(len(r["costs"]))),
-                  key=lambda si: runs[si[0]]["costs"][si[1]])
+                  key=lambda si: (runs[si[0]]["costs"][si[1]], no_theta(runs[si[0]])))
     r = runs[seed]
     theta = (_with_best_theta(r) if "thetas" in r else r).get("best_theta")
     if theta is None:

@@ -423,8 +423,11 @@ def test_export_keeps_costs_falls_and_best_theta_and_restore_rebuilds_the_runs(t
     assert rt.main(["export", "--root", str(new), "--out", str(again)]) == 0
     runs = json.loads((again / "r1.json").read_text())["runs"]
     assert [r.get("best_theta") for r in runs] == [[0.2], [0.2], [0.7]]
-    # a run without θ cannot be plotted; a directory without traces is refused
+    # a run without θ cannot be plotted, unless another seed's run of equal cost holds it
     del r["best_theta"]
+    twin = {**r, "best_theta": [0.3]}
+    assert rt._best_theta({0: r, 1: twin})[:3] == ([0.3], 1.0, 1)
+    # a directory without traces is refused
     with pytest.raises(rt.RobotTransferError, match="holds no θ"):
         rt._best_theta({0: r})
     assert rt.main(["restore", "--traces", str(tmp_path / "none"), "--root", str(new)]) == 2
