@@ -57,9 +57,9 @@ paper --seeds N`` run whose rows are rungs (trot → jump, A1 trot → B1 trot a
 ``export`` writes every run's trace (cost and fall per trial, wall time, load, the θ of its
 lowest cost) as one JSON per rung, to commit; ``restore`` rebuilds the run files from those
 traces on a fresh clone (the run directory is not committed), so ``run`` resumes there and the
-other commands read them. ``plot`` re-simulates the best θ of the default phase 3 and of the best peer (and the zero-shot
-θ) on a rung's target and draws the base's CoM x/y/z, forward velocity and height over time
-into ``OUT/<rung>/``.
+other commands read them. ``plot`` re-simulates the best θ of the default phase 3 and of the
+best peer (and the zero-shot θ) on a rung's target and draws the base's CoM x/y/z, forward
+velocity and height over time into ``OUT/<rung>/``.
 """
 from __future__ import annotations
 
@@ -588,8 +588,8 @@ def overview(s: dict[str, Any]) -> str:
     above (+) or below (−) the best peer's in percent, the lowest of the peers' median bests
     with each seed cut before its fall one beyond the default's falls on that seed
     (:func:`benchmarks.transfer.best_within_falls`; the peer named), the default's median
-    trials to reach the best peer's median, and the transfer issue's criteria (1) no worse, (2) ≤ B/10 and ≤ B/2,
-    (3) falls; then how many rungs hold each."""
+    trials to reach the best peer's median, and the transfer issue's criteria (1) no worse,
+    (2) ≤ B/10 and ≤ B/2, (3) falls; then how many rungs hold each."""
     rows = [r for r in s["targets"] if "criteria" in r]
     if not rows:
         return ""
