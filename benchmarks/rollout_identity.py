@@ -44,12 +44,32 @@ def _sha(a: np.ndarray) -> str:
     return hashlib.sha256(np.ascontiguousarray(a, dtype=np.float64).tobytes()).hexdigest()
 
 
+def _numpy_dispatch() -> list[str]:
+    """The SIMD targets numpy dispatches to on this CPU (its ``__cpu_dispatch__`` the CPU has):
+    two CPUs with AVX-512 can still take different kernels (``AVX512_ICL`` or not)."""
+    from numpy._core._multiarray_umath import __cpu_dispatch__, __cpu_features__
+
+    return sorted(k for k in __cpu_dispatch__ if __cpu_features__.get(k))
+
+
+def _blas_kernel() -> str | None:
+    """The kernel family numpy's OpenBLAS chose for this CPU (``threadpoolctl``), or None."""
+    try:
+        from threadpoolctl import threadpool_info
+    except ImportError:
+        return None
+    arch = [i.get("architecture") for i in threadpool_info() if i.get("internal_api") == "openblas"]
+    return arch[0] if arch else None
+
+
 def environment() -> dict[str, Any]:
-    """What the digests depend on besides the code: Python, the numerical libraries' versions
-    and the CPU's widest vector extension (BLAS kernels are chosen by it)."""
+    """What the digests depend on besides the code: Python, the numerical libraries' versions,
+    the CPU's widest vector extension, the SIMD targets numpy dispatches to and the BLAS kernel
+    family (the last two tell apart CPUs that share the widest extension but not its kernels)."""
     v = versions(("pybullet", "pin", "crocoddyl", "daqp"))
     return {"python": v["python"], **{k: v[k] for k in ("numpy", "pybullet", "pin", "crocoddyl",
-                                                         "daqp")}, "simd": machine()["simd"]}
+                                                         "daqp")}, "simd": machine()["simd"],
+            "numpy_dispatch": _numpy_dispatch(), "blas_kernel": _blas_kernel()}
 
 
 def thetas(task: Any, n: int, seed: int = 0) -> np.ndarray:

@@ -9,6 +9,12 @@ change of the numbers.
 
 The bits depend on the libraries and the CPU's vector kernels too: in another environment than
 the file's (see :func:`benchmarks.rollout_identity.environment`) the test skips, saying why.
+Two AVX-512 machines gave different bits from the same code (an AMD EPYC of family 25 and the
+machine of the first file), so the environment also names numpy's SIMD dispatch targets and
+the BLAS kernel. The file was made again on the first with the code of 7f6b88a (its
+``src`` from ``git archive``, plus the current ``latentune/machine.py``, which
+``benchmarks.common`` imports and which computes no rollout). The current code gives the same
+21 digests there.
 """
 from __future__ import annotations
 
