@@ -8,7 +8,7 @@ For every ``ROOT_A/<target>/<sub>/seed<s>/METHOD_A.json`` (the cheap ladder's
 ``<system>/gap<g>``, or the robot ladder's ``<rung>/src<N>`` under its ``targets/``) the trace of
 ``METHOD_B`` at the same place under ``ROOT_B``: fall flags must be equal, and costs and (when
 both record them) the θ asked equal element for element, or within the relative tolerance
-``--rtol`` (a rerun on another day differs in the last digits of a robot's rollout). Exit
+``--rtol`` (on another machine a robot's rollout differs in its last digits). Exit
 status 1 when any pair differs or is missing.
 """
 from __future__ import annotations
