@@ -800,7 +800,7 @@ def _best_theta(runs: dict[int, dict[str, Any]]) -> tuple[list[float], float, in
     seed, i = min(((s, i) for s, r in runs.items() for i in range(len(r["costs"]))),
                   key=lambda si: (runs[si[0]]["costs"][si[1]], no_theta(runs[si[0]])))
     r = runs[seed]
-    theta = (_with_best_theta(r) if "thetas" in r else r).get("best_theta")
+    theta = r["thetas"][i] if "thetas" in r else r.get("best_theta")
     if theta is None:
         raise RobotTransferError(f"the {r.get('method')} run of {r.get('target')} seed {seed} "
                                  f"holds no θ (rerun it: delete its file and `run` it again)")
