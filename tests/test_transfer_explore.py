@@ -2,6 +2,8 @@
 latent box (or θ box), and the trust region follows the other asks only."""
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 import pytest
 
@@ -164,8 +166,9 @@ def test_stalled_explores_only_at_the_minimum_side(source, hypers):
     _history(on, 9.0)                       # never improving: halve every 3 counted batches
     st = on._replay_state()
     assert st["L"] == pytest.approx(1 / 128)
-    assert on._explore_generation(13, st["L"]) and not on._explore_generation(12, st["L"])
-    assert not on._explore_generation(13, 1 / 32)
+    nd = st["explore_next"]
+    assert on._explore_generation(13, st["L"], nd) and not on._explore_generation(12, st["L"], nd)
+    assert not on._explore_generation(13, 1 / 32, nd)
     with pytest.raises(ValueError):
         _critic(source, hypers, explore_every=2, explore_when="sometimes")
 
@@ -349,3 +352,60 @@ def test_explore_pool_auto_brakes_each_pool_on_its_own(source, hypers):
     assert ex == [GLOBAL] * 3 + [LATENT] * 3
     assert [g for g, (e, _) in enumerate(pools) if e] == [3, 5, 7, 9, 11, 13]
     assert not pools[15][0] and cr.decisions[15]["explore_braked"]          # due, braked
+
+
+def _adapt_schedule(cr: Transfer, explore_cost: Callable[[int], float], n: int = 20) -> list[int]:
+    """One good untagged trial, then ``n`` single-trial generations asked by the replayed
+    schedule: a due one is a latent-pool trial at ``explore_cost(g)``, the others full-pool trials
+    at 5 + g (never improving). The due generations."""
+    rng = np.random.default_rng(2)
+    cr.tell(np.full((1, D), 0.4), np.array([0.0]), fell=np.array([False]))
+    due = []
+    for g in range(n):
+        st = cr._replay_state()
+        if cr._explore_generation(g, st["L"], st["explore_next"]):
+            due.append(g)
+            pool, y = LATENT, explore_cost(g)
+        else:
+            pool, y = FULL, 5.0 + g
+        cr.tell(rng.random((1, D)), np.array([y]), np.array([4 * g + pool]),
+                fell=np.array([False]))
+    return due
+
+
+def test_adapt_doubles_the_wait_after_explore_asks_that_find_nothing(source, hypers):
+    """``explore_adapt``: k = 2; explore asks that never improve come at generations 1, 5, 13
+    (waits 4, 8, then the cap 16); improving ones every second generation, as without it; one
+    that improves after one that did not brings the wait back to k."""
+    assert TRANSFER_DEFAULTS["explore_adapt"] is False and ADDED_OPTIONS["explore_adapt"] is False
+    kw = {"explore_every": 2, "explore_adapt": True, "explore_falls": 0}
+    assert _adapt_schedule(_critic(source, hypers, **kw), lambda g: 9.0, 31) == [1, 5, 13, 29]
+    assert _adapt_schedule(_critic(source, hypers, **kw), lambda g: -1.0 - g) == \
+        list(range(1, 20, 2))
+    assert _adapt_schedule(_critic(source, hypers, **kw),
+                           lambda g: -1.0 - g if g >= 5 else 9.0) == [1, 5, 7, 9, 11, 13, 15, 17,
+                                                                      19]
+    fixed = _critic(source, hypers, explore_every=2, explore_falls=0)
+    assert _adapt_schedule(fixed, lambda g: 9.0) == list(range(1, 20, 2))
+
+
+def test_adapt_resume_asks_what_the_original_would(source, hypers):
+    a = _critic(source, hypers, explore_every=2, explore_adapt=True)
+    _run(a, 9)
+    b = _critic(source, hypers)
+    b.tell(a.X, a.y, a.tags, fell=a.fell, z=a._Z)
+    b.load_state_dict(a.state_dict())
+    assert b.opts["explore_adapt"] is True
+    for _ in range(4):
+        xa, xb = a.ask(1), b.ask(1)
+        assert np.array_equal(xa, xb) and np.array_equal(a.last_tags, b.last_tags)
+        assert a.decisions[-1]["explore"] == b.decisions[-1]["explore"]
+        for cr, x in ((a, xa), (b, xb)):
+            y, f = _bowl(x, np.full(D, 0.5), 0.6)
+            cr.tell(x, y, cr.last_tags, fell=f, z=cr.last_z)
+
+
+@pytest.mark.parametrize("bad", ["yes", 1, None])
+def test_explore_adapt_is_checked(source, hypers, bad):
+    with pytest.raises(ValueError):
+        _critic(source, hypers, explore_every=2, explore_adapt=bad)

@@ -126,6 +126,14 @@ admits), once the target holds a trial that did not fall: the fall model underra
 box's risk on this target, and later due generations are ordinary asks. While every trial fell
 the explore asks go on (they are the way out of a target where the source's θ all fall). The
 replay applies the same rule in generation order.
+``explore_adapt`` (default False) lets the explore asks earn their slots: the interval between
+due generations starts at ``explore_every`` = k, doubles (to at most ``8k``) after each explore
+generation whose best standing trial did not improve on the best before it (TuRBO's success rule
+with ``success_scale``), and returns to k after one that did; a due generation that is not an
+explore ask (design, manual, converged) keeps the interval. Where the decoded manifold holds
+nothing better than the region around the centre, the region asks get the budget; where explore
+asks keep finding records they keep coming every k-th ask. The schedule is replayed from the
+told history like the side ``L``.
 ``stand_first`` (default False): while every trial on the target fell, a batch that falls too
 leaves ``L`` and its counters alone: there is no incumbent it could fail to improve on, so the
 trust region that starts at the first standing trial starts at side ``length_init``, not at a
@@ -185,7 +193,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "handoff_model": "target", "handoff_fall_shrink": False, "handoff_rules": "turbo",
     "stop_converged": False, "success_scale": "spread", "explore_every": 2,
     "explore_when": "always", "source_order": "canonical", "explore_falls": 3,
-    "stand_first": False, "explore_pool": "latent",
+    "stand_first": False, "explore_pool": "latent", "explore_adapt": False,
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
@@ -195,7 +203,8 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "stop_converged": False, "success_scale": "best",
                                  "explore_every": 0, "explore_when": "always",
                                  "source_order": "stored", "explore_falls": 0,
-                                 "stand_first": False, "explore_pool": "latent"}
+                                 "stand_first": False, "explore_pool": "latent",
+                                 "explore_adapt": False}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -227,6 +236,9 @@ every target trial fell and the source's distribution after."""
 EXPLORE_WHEN = ("always", "stalled")
 """When a due generation is an explore ask (``explore_when``): always, or only while the trust
 region's side is at its minimum."""
+_EXPLORE_WAIT_MAX = 8
+"""With ``explore_adapt`` the interval between explore asks grows to at most this many times
+``explore_every``."""
 _NOISE = 1e-2
 _JOINT = 256
 """Candidates (lowest confidence bounds) that share one joint Thompson sample."""
@@ -718,8 +730,9 @@ class Transfer(TwoSpaceCritic):
         if isinstance(k_ex, bool) or not isinstance(k_ex, (int, np.integer)) or k_ex < 0 \
                 or k_ex == 1:
             raise ValueError(f"explore_every must be 0 (off) or an integer ≥ 2, got {k_ex!r}")
-        if not isinstance(self.opts["stand_first"], (bool, np.bool_)):
-            raise ValueError(f"stand_first must be true or false, got {self.opts['stand_first']!r}")
+        for flag in ("stand_first", "explore_adapt"):
+            if not isinstance(self.opts[flag], (bool, np.bool_)):
+                raise ValueError(f"{flag} must be true or false, got {self.opts[flag]!r}")
         k_ef = self.opts["explore_falls"]
         if isinstance(k_ef, bool) or not isinstance(k_ef, (int, np.integer)) or k_ef < 0:
             raise ValueError(f"explore_falls must be an integer ≥ 0 (0: never stop exploring), "
@@ -826,14 +839,24 @@ class Transfer(TwoSpaceCritic):
         ok = ~self._fell
         first_ok = -1 if (ok & ext).any() else \
             int((tags[ok & own] // 4).min()) if (ok & own).any() else math.inf
+        k_ex = int(self.opts["explore_every"])
+        interval, next_due = k_ex, k_ex - 1         # the explore schedule (``explore_adapt``)
         for g in gens:
             m = own & (tags // 4 == g)
             standing = g > first_ok
-            if self._explore_generation(int(g), L) and \
-                    self._explore_pool(explore, standing) is not None and \
+            due = self._explore_generation(int(g), L, next_due)
+            if due:
+                next_due = int(g) + interval
+            if due and self._explore_pool(explore, standing) is not None and \
                     not np.isin(tags[m] % 4, (ELITE, FULL)).any():
                 explore |= m            # data and best value only: L follows the other batches
-                best = min(best, float(y[m].min()))
+                gb = float(y[m].min())
+                if self._improves(gb, best, g, y, ext, own, tags):
+                    interval = k_ex
+                else:                   # an explore ask that found nothing: wait twice as long
+                    interval = min(2 * interval, _EXPLORE_WAIT_MAX * k_ex)
+                next_due = int(g) + interval
+                best = min(best, gb)
                 n_seen += int(m.sum())
                 continue
             if self.opts["stand_first"] and not standing and not (ok & m).any():
@@ -845,12 +868,7 @@ class Transfer(TwoSpaceCritic):
                     succ, fail, rules = 0, 0, self._side_rules(True)
             succ_tol, fail_tol, l_min, l_max = rules
             gb = float(y[m].min())
-            if spread:
-                before = y[(ext | (own & (tags // 4 < g))) & np.isfinite(y)]
-                scale = float(np.median(before)) - best if before.size else 0.0
-            else:
-                scale = abs(best)
-            if gb < best - 1e-3 * scale if math.isfinite(best) else gb < best:
+            if self._improves(gb, best, g, y, ext, own, tags):
                 succ, fail = succ + 1, 0
             else:           # TuRBO counts failures in evaluations, the early phase in batches
                 succ, fail = 0, fail + (int(m.sum()) if turbo else 1)
@@ -871,6 +889,7 @@ class Transfer(TwoSpaceCritic):
         lat = own & (tags % 4 == LATENT) & ~explore
         pool = self._explore_pool(explore, bool(ok.any()))
         return {"L": L, "succ": succ, "fail": fail, "n_own": int(own.sum()), "restarts": restarts,
+                "explore_next": next_due,
                 "converged": converged, "explore_braked": pool is None, "explore_pool": pool,
                 "explore_told": int(explore.sum()), "explore_fell": int(self._fell[explore].sum()),
                 "generation": int(gens.max()) + 1 if gens.size else 0,
@@ -910,13 +929,28 @@ class Transfer(TwoSpaceCritic):
             return "latent"
         return None
 
-    def _explore_generation(self, g: int, L: float) -> bool:
+    def _improves(self, gb: float, best: float, g: int, y: np.ndarray, ext: np.ndarray,
+                  own: np.ndarray, tags: np.ndarray) -> bool:
+        """TuRBO's success: the best standing cost ``gb`` of generation ``g`` beats ``best`` by
+        more than ``1e-3`` times the ``success_scale`` (``y`` (n,): told costs, inf for falls;
+        ``ext``/``own`` (n,) bool: untagged / tagged trials; ``tags`` (n,))."""
+        if not math.isfinite(best):
+            return gb < best
+        if self.opts["success_scale"] == "spread":
+            before = y[(ext | (own & (tags // 4 < g))) & np.isfinite(y)]
+            scale = float(np.median(before)) - best if before.size else 0.0
+        else:
+            scale = abs(best)
+        return gb < best - 1e-3 * scale
+
+    def _explore_generation(self, g: int, L: float, next_due: int) -> bool:
         """True when generation ``g`` is due for an explore ask (``explore_every`` = k ≥ 2 and
-        ``g % k == k − 1``; with ``explore_when="stalled"`` only while the side ``L`` it is asked
-        at is ``length_min``); the ask itself is one unless it is a design, manual or converged
-        ask: module docstring."""
+        ``g % k == k − 1``, or with ``explore_adapt`` ``g ≥ next_due``, the replay's schedule;
+        with ``explore_when="stalled"`` only while the side ``L`` it is asked at is
+        ``length_min``); the ask itself is one unless it is a design, manual or converged ask:
+        module docstring."""
         k = int(self.opts["explore_every"])
-        if not (k >= 2 and g % k == k - 1):
+        if k < 2 or not (g >= next_due if self.opts["explore_adapt"] else g % k == k - 1):
             return False
         return self.opts["explore_when"] == "always" or \
             L <= float(self.opts["length_min"]) * (1.0 + 1e-9)
@@ -1134,7 +1168,8 @@ class Transfer(TwoSpaceCritic):
                 ctx.design_screened = True
         if design and len(E) >= 1:
             parts = [(E, np.full((len(E), self.k), np.nan), ELITE)]
-        elif self._explore_generation(g, st["L"]) and st["explore_pool"] is not None:
+        elif self._explore_generation(g, st["L"], st["explore_next"]) and \
+                st["explore_pool"] is not None:
             # explore: the whole latent box (or θ box), or the source's distribution, only
             ctx.explore = True
             where = st["explore_pool"]
@@ -1286,6 +1321,8 @@ class Transfer(TwoSpaceCritic):
             "pools": [POOL_NAMES[int(p)] for p in cands.pool[sel]],
             "explore": bool(ctx.explore),
             **({"explore_braked": True} if ctx.state.get("explore_braked") else {}),
+            **({"explore_next": int(ctx.state["explore_next"])}
+               if self.opts["explore_adapt"] else {}),
             **({"design_screened": True} if ctx.design_screened else {}),
             **({"safe_fallback": True} if ctx.safe_fallback else {}),
             **({"ls_ratio": float(np.exp(np.mean(np.log(
