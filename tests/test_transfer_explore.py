@@ -409,3 +409,21 @@ def test_adapt_resume_asks_what_the_original_would(source, hypers):
 def test_explore_adapt_is_checked(source, hypers, bad):
     with pytest.raises(ValueError):
         _critic(source, hypers, explore_every=2, explore_adapt=bad)
+
+
+def test_full_shape_cube_perturbs_every_coordinate_on_the_same_side(source, hypers):
+    """``full_shape="cube"``: the full pool's box has side L on every coordinate; by default the
+    sides follow the source's lengthscales (short lengthscale, narrow side)."""
+    assert TRANSFER_DEFAULTS["full_shape"] == "lengthscales" == ADDED_OPTIONS["full_shape"]
+    centre = np.full(D, 0.5)
+    spans = {}
+    for shape in ("lengthscales", "cube"):
+        cr = _critic(source, hypers, full_shape=shape)
+        P = cr._pool_full(4000, 0.4, centre, np.random.default_rng(0))
+        spans[shape] = P.max(0) - P.min(0)
+    assert np.allclose(spans["cube"], 0.4, atol=0.01)
+    ls = _critic(source, hypers).source_model().lengthscales
+    w = np.clip(ls / np.exp(np.mean(np.log(ls))), 0.25, 4.0)
+    assert np.allclose(spans["lengthscales"], np.minimum(0.4 * w, 1.0), atol=0.01)
+    with pytest.raises(ValueError):
+        _critic(source, hypers, full_shape="sphere")

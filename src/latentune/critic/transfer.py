@@ -134,6 +134,12 @@ explore ask (design, manual, converged) keeps the interval. Where the decoded ma
 nothing better than the region around the centre, the region asks get the budget; where explore
 asks keep finding records they keep coming every k-th ask. The schedule is replayed from the
 told history like the side ``L``.
+``full_shape`` (default ``"lengthscales"``): the full pool's box has sides ``L · w_i``,
+``w_i`` the lengthscales (the source's, or the fitted ones) over their geometric mean, clipped to
+[0.25, 4], as TuRBO shapes its region; ``"cube"`` gives every coordinate the side ``L``. A
+coordinate the source's cost is most sensitive to has the shortest lengthscale and so the
+narrowest side, yet a change of the system (a payload, friction) moves the optimum of such a
+gain first: the cube lets the region follow it.
 ``stand_first`` (default False): while every trial on the target fell, a batch that falls too
 leaves ``L`` and its counters alone: there is no incumbent it could fail to improve on, so the
 trust region that starts at the first standing trial starts at side ``length_init``, not at a
@@ -194,6 +200,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "stop_converged": False, "success_scale": "spread", "explore_every": 2,
     "explore_when": "always", "source_order": "canonical", "explore_falls": 3,
     "stand_first": False, "explore_pool": "latent", "explore_adapt": False,
+    "full_shape": "lengthscales",
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
@@ -204,7 +211,7 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "explore_every": 0, "explore_when": "always",
                                  "source_order": "stored", "explore_falls": 0,
                                  "stand_first": False, "explore_pool": "latent",
-                                 "explore_adapt": False}
+                                 "explore_adapt": False, "full_shape": "lengthscales"}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -233,6 +240,8 @@ EXPLORE_POOLS = ("latent", "source", "both", "auto")
 """Where an explore ask's candidates come from (``explore_pool``): decoded codes of the whole
 latent box, the source's promising distribution over θ, half of each, or the latent box while
 every target trial fell and the source's distribution after."""
+FULL_SHAPES = ("lengthscales", "cube")
+"""The full pool's box (``full_shape``): sides in proportion to the lengthscales, or a cube."""
 EXPLORE_WHEN = ("always", "stalled")
 """When a due generation is an explore ask (``explore_when``): always, or only while the trust
 region's side is at its minimum."""
@@ -740,6 +749,9 @@ class Transfer(TwoSpaceCritic):
         if self.opts["explore_pool"] not in EXPLORE_POOLS:
             raise ValueError(f"explore_pool must be one of {EXPLORE_POOLS}, "
                              f"got {self.opts['explore_pool']!r}")
+        if self.opts["full_shape"] not in FULL_SHAPES:
+            raise ValueError(f"full_shape must be one of {FULL_SHAPES}, "
+                             f"got {self.opts['full_shape']!r}")
         if self.opts["explore_when"] not in EXPLORE_WHEN:
             raise ValueError(f"explore_when must be one of {EXPLORE_WHEN}, "
                              f"got {self.opts['explore_when']!r}")
@@ -1005,15 +1017,18 @@ class Transfer(TwoSpaceCritic):
     def _pool_full(self, m: int, L: float, centre: np.ndarray, rng: np.random.Generator,
                    ls: np.ndarray | None = None) -> np.ndarray:
         """``m`` TuRBO perturbations (m, d) of ``centre`` in a box of side ``L`` shaped by the
-        lengthscales ``ls`` (d,) (default: the source's)."""
+        lengthscales ``ls`` (d,) (default: the source's), or a cube of side ``L`` with
+        ``full_shape="cube"``."""
         import torch
         from torch.quasirandom import SobolEngine
 
         if m <= 0:
             return np.empty((0, self.dim))
-        ls = self.source_model().lengthscales if ls is None else ls
-        w = ls / np.exp(np.mean(np.log(ls)))
-        w = np.clip(w, 0.25, 4.0)
+        if self.opts["full_shape"] == "cube":
+            w = np.ones(self.dim)
+        else:
+            ls = self.source_model().lengthscales if ls is None else ls
+            w = np.clip(ls / np.exp(np.mean(np.log(ls))), 0.25, 4.0)
         lb, ub = np.clip(centre - L * w / 2, 0, 1), np.clip(centre + L * w / 2, 0, 1)
         sob = SobolEngine(self.dim, scramble=True, seed=int(rng.integers(2 ** 31))).draw(
             m, dtype=torch.float64).numpy()
