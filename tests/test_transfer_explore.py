@@ -312,7 +312,7 @@ def test_explore_pool_both_offers_half_of_each(source, hypers, monkeypatch):
     assert cr.decisions[3]["explore"] and cr.tags[3] % 4 in (LATENT, GLOBAL)
 
 
-@pytest.mark.parametrize("bad", ["box", 1, None])
+@pytest.mark.parametrize("bad", ["cube", 1, None])
 def test_explore_pool_is_checked(source, hypers, bad):
     with pytest.raises(ValueError, match="explore_pool"):
         _critic(source, hypers, explore_pool=bad)
@@ -427,3 +427,22 @@ def test_full_shape_cube_perturbs_every_coordinate_on_the_same_side(source, hype
     assert np.allclose(spans["lengthscales"], np.minimum(0.4 * w, 1.0), atol=0.01)
     with pytest.raises(ValueError):
         _critic(source, hypers, full_shape="sphere")
+
+
+def test_explore_pool_box_asks_the_whole_theta_box(source, hypers, monkeypatch):
+    """``explore_pool="box"``: explore asks choose among Sobol points of the whole θ box (tag
+    pool ``global``); the decoded manifold is not drawn for them."""
+    whole_calls: list[bool] = []
+    orig = Transfer._pool_latent
+
+    def spy(self, m, L, centre, rng, whole=False):
+        whole_calls.append(whole)
+        return orig(self, m, L, centre, rng, whole=whole)
+
+    monkeypatch.setattr(Transfer, "_pool_latent", spy)
+    cr = _critic(source, hypers, explore_pool="box")
+    _run(cr, 8)
+    ex = [d["generation"] for d in cr.decisions if d["explore"]]
+    assert ex == [3, 5, 7]
+    assert all(cr.tags[g] % 4 == GLOBAL and np.isnan(cr._Z[g]).all() for g in ex)
+    assert whole_calls and not any(whole_calls)     # only the region asks drew latent codes

@@ -116,7 +116,9 @@ manifold and the source's spread over the full θ box; ``"auto"``: the latent bo
 trial on the target fell (decoded codes are the way out where the source's θ all fall), the
 source's distribution once a trial stood, until its draws fell more often than the fall screen
 admits (``explore_falls`` counted on the source's draws alone), then the latent box again
-under its own brake.
+under its own brake; ``"box"``: ``n_candidates`` Sobol points over the whole θ box (tag pool
+``global``), where neither the source's manifold nor its distribution bound the search: the fall
+screen and the brake are what keep it off the falls.
 ``explore_when="stalled"`` makes a due generation an explore ask only while the side it is asked
 at is ``length_min`` (the trust region has nothing left to resolve near its centre); the other
 due generations are ordinary asks, so the local search keeps every ask while it still improves.
@@ -236,10 +238,10 @@ of the target's standing costs."""
 SOURCE_ORDERS = ("canonical", "stored")
 """The order the source's trials are used in (``source_order``): sorted by (cost, fell, θ), or as
 given."""
-EXPLORE_POOLS = ("latent", "source", "both", "auto")
+EXPLORE_POOLS = ("latent", "source", "both", "auto", "box")
 """Where an explore ask's candidates come from (``explore_pool``): decoded codes of the whole
 latent box, the source's promising distribution over θ, half of each, or the latent box while
-every target trial fell and the source's distribution after."""
+every target trial fell and the source's distribution after, or the whole θ box."""
 FULL_SHAPES = ("lengthscales", "cube")
 """The full pool's box (``full_shape``): sides in proportion to the lengthscales, or a cube."""
 EXPLORE_WHEN = ("always", "stalled")
@@ -1188,9 +1190,9 @@ class Transfer(TwoSpaceCritic):
             # explore: the whole latent box (or θ box), or the source's distribution, only
             ctx.explore = True
             where = st["explore_pool"]
-            m_src = {"latent": 0, "source": M, "both": M // 2}[where]
-            if self.latent is None and where == "latent":
-                parts = [(self._pool_global(M, rng), np.empty((M, 0)), GLOBAL)]
+            m_src = {"latent": 0, "source": M, "both": M // 2, "box": 0}[where]
+            if where == "box" or (self.latent is None and where == "latent"):
+                parts = [(self._pool_global(M, rng), np.full((M, self.k), np.nan), GLOBAL)]
             else:
                 m_src = m_src if self.latent is not None else M
                 XL, UL = self._pool_latent(M - m_src, st["L"], centre, rng, whole=True)
