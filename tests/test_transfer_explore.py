@@ -120,6 +120,18 @@ def test_explore_asks_leave_the_side_and_its_counters_alone(source, hypers, expl
         assert on.best_y == -1.0 and np.allclose(on._centre(), on.X[on.y.argmin()])
 
 
+def _asks_alike(a: Transfer, b: Transfer, n: int) -> None:
+    """``n`` asks of ``a`` and ``b`` in lockstep, each told the target bowl: the same θ, tags and
+    explore decisions."""
+    for _ in range(n):
+        xa, xb = a.ask(1), b.ask(1)
+        assert np.array_equal(xa, xb) and np.array_equal(a.last_tags, b.last_tags)
+        assert a.decisions[-1]["explore"] == b.decisions[-1]["explore"]
+        for cr, x in ((a, xa), (b, xb)):
+            y, f = _bowl(x, np.full(D, 0.5), 0.6)
+            cr.tell(x, y, cr.last_tags, fell=f, z=cr.last_z)
+
+
 def test_resume_mid_run_asks_what_the_original_would(source, hypers):
     a = _critic(source, hypers, explore_every=2)
     _run(a, 6)                              # the next ask (generation 6) is not explore
@@ -127,13 +139,7 @@ def test_resume_mid_run_asks_what_the_original_would(source, hypers):
     b.tell(a.X, a.y, a.tags, fell=a.fell, z=a._Z)
     b.load_state_dict(a.state_dict())
     assert b.opts["explore_every"] == 2
-    for _ in range(2):                      # generations 6 and 7 (explore)
-        xa, xb = a.ask(1), b.ask(1)
-        assert np.array_equal(xa, xb) and np.array_equal(a.last_tags, b.last_tags)
-        assert a.decisions[-1]["explore"] == b.decisions[-1]["explore"]
-        for cr, x in ((a, xa), (b, xb)):
-            y, f = _bowl(x, np.full(D, 0.5), 0.6)
-            cr.tell(x, y, cr.last_tags, fell=f, z=cr.last_z)
+    _asks_alike(a, b, 2)                    # generations 6 and 7 (explore)
     assert a.decisions[-1]["explore"]
     old = _critic(source, hypers, explore_every=2)
     old.load_state_dict({"options": {k: v for k, v in a.opts.items() if k != "explore_every"}})
@@ -396,13 +402,7 @@ def test_adapt_resume_asks_what_the_original_would(source, hypers):
     b.tell(a.X, a.y, a.tags, fell=a.fell, z=a._Z)
     b.load_state_dict(a.state_dict())
     assert b.opts["explore_adapt"] is True
-    for _ in range(4):
-        xa, xb = a.ask(1), b.ask(1)
-        assert np.array_equal(xa, xb) and np.array_equal(a.last_tags, b.last_tags)
-        assert a.decisions[-1]["explore"] == b.decisions[-1]["explore"]
-        for cr, x in ((a, xa), (b, xb)):
-            y, f = _bowl(x, np.full(D, 0.5), 0.6)
-            cr.tell(x, y, cr.last_tags, fell=f, z=cr.last_z)
+    _asks_alike(a, b, 4)
 
 
 @pytest.mark.parametrize("bad", ["yes", 1, None])
