@@ -161,3 +161,27 @@ def test_transfer_variants_refuses_a_problem_it_cannot_build(text):
     assert tv._problem("bowl:0.25") == ("bowl", 0.25) and tv._problem("levy:2") == ("levy", 2.0)
     with pytest.raises(argparse.ArgumentTypeError, match="expected bowl:GAP"):
         tv._problem(text)
+
+
+def test_coords_give_where_each_method_looked_and_its_best(tmp_path) -> None:
+    """Per coordinate (by name of the arm's space, or index): the median over the seeds of the
+    best standing θ's value and of the highest and lowest value asked; a fall is never the
+    best; runs without θ are left out."""
+    from benchmarks import transfer_coords as tc
+
+    names = tc.coordinate_names("arm")
+    g = names.index("grav_1")
+    for s, (hi, best_at) in enumerate([(0.9, 0.7), (0.5, 0.3), (0.7, 0.5)]):
+        th = [[0.1] * len(names) for _ in range(3)]
+        th[0][g], th[1][g], th[2][g] = 0.2, best_at, hi
+        _write(tmp_path, "m", s, [3.0, 1.0, 0.5], [False, False, True])
+        f = tmp_path / "arm" / "gap1" / f"seed{s}" / "m.json"
+        f.write_text(json.dumps({**json.loads(f.read_text()), "thetas": th}))
+    out = tmp_path / "c.json"
+    assert tc.main(["--root", str(tmp_path), "--methods", "m", "--coords", "grav_1", str(g + 1),
+                    "--out", str(out)]) == 0
+    rows = json.loads(out.read_text())["rows"]
+    (r,) = [r for r in rows if r["coordinate"] == "grav_1"]
+    assert (r["seeds"], r["best"], r["max"], r["min"]) == (3, 0.5, 0.7, 0.2)
+    assert [r["coordinate"] for r in rows] == ["grav_1", names[g + 1]]
+    assert tc.main(["--root", str(tmp_path), "--methods", "m", "--coords", "nope"]) == 2

@@ -1,0 +1,91 @@
+"""Where in θ each method of the transfer ladder looked and where its best θ lies, coordinate by
+coordinate, from the stored runs.
+
+    python -m benchmarks.transfer_coords --root runs/transfer --methods transfer gp ...
+        --coords grav_1 fric_1 [--targets arm/gap1.5] [--seeds 0 1 2] [--out F.json] [--md F.md]
+
+For every target (``ROOT/<system>/gap<g>``, or those named by ``--targets``) and method, over
+the seeds that ran every listed method and hold their trials' θ (``thetas``, unit box): per
+coordinate named by ``--coords`` (names from the system's parameter space, or indices), the
+median over the seeds of the best standing θ's value (``best``) and of the highest and lowest
+value any trial asked (``max``, ``min``). A method that never asks a coordinate beyond a value
+cannot find an optimum that lies beyond it: this is how a search that stays near the source's
+θ shows itself, whatever the cost says.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from benchmarks.common import Provenance, finish, markdown_table
+from benchmarks.transfer import SYSTEMS
+from benchmarks.transfer_curves import ladder_args, targets
+
+
+def coordinate_names(system: str) -> list[str]:
+    """The θ names of ladder system ``system`` (its model's parameter space)."""
+    return list(SYSTEMS[system]["model"]().space.names)
+
+
+def coords(root: Path, methods: list[str], seeds: list[int] | None, names: list[str],
+           only: list[str] | None = None) -> list[dict[str, Any]]:
+    """One row per (target, method, coordinate): seeds used, median best value, median max and
+    min asked (unit box). ``only``: target paths relative to ``root`` (``"arm/gap1.5"``)."""
+    rows: list[dict[str, Any]] = []
+    for tdir, use in targets(root, methods, seeds):
+        rel = f"{tdir.parent.name}/{tdir.name}"
+        if only is not None and rel not in only:
+            continue
+        space = coordinate_names(tdir.parent.name)
+        idx = [int(n) if n.isdigit() else space.index(n) for n in names if n.isdigit() or n in space]
+        if not idx:
+            continue
+        for m in methods:
+            runs = [json.loads((tdir / f"seed{s}" / f"{m}.json").read_text()) for s in use]
+            runs = [r for r in runs if r.get("thetas")]
+            if not runs:
+                continue
+            best, hi, lo = [], [], []
+            for r in runs:
+                th = np.asarray(r["thetas"], dtype=float)
+                c = np.where(np.asarray(r["failed"], dtype=bool), np.inf,
+                             np.asarray(r["costs"], dtype=float))
+                best.append(th[int(np.argmin(c))])
+                hi.append(th.max(0))
+                lo.append(th.min(0))
+            for i in idx:
+                rows.append({"target": rel, "method": m, "seeds": len(runs),
+                             "coordinate": space[i],
+                             "best": round(float(np.median([b[i] for b in best])), 3),
+                             "max": round(float(np.median([h[i] for h in hi])), 3),
+                             "min": round(float(np.median([v[i] for v in lo])), 3)})
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    prov = Provenance(argv, "benchmarks.transfer_coords")
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ladder_args(ap)
+    ap.add_argument("--coords", nargs="+", required=True,
+                    help="θ names of the system's parameter space, or indices")
+    ap.add_argument("--targets", nargs="+", default=None, help="e.g. arm/gap1.5")
+    a = ap.parse_args(argv)
+    rows = coords(Path(a.root), a.methods, a.seeds, a.coords, a.targets)
+    if not rows:
+        print("transfer_coords: no stored run holds θ for these targets, methods and coordinates",
+              file=sys.stderr)
+        return 2
+    finish(a.out, prov, {"root": str(a.root), "methods": a.methods, "coords": a.coords}, rows)
+    if a.md is not None:
+        a.md.write_text(f"`{prov.command}`\n\n{markdown_table(rows)}\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
