@@ -846,7 +846,6 @@ class Transfer(TwoSpaceCritic):
         late = turbo = False
         converged = False
         gens = np.unique(tags[own] // 4) if own.any() else np.empty(0, dtype=np.int64)
-        spread = self.opts["success_scale"] == "spread"
         explore = np.zeros(len(tags), dtype=bool)
         # a trial stands before generation g when an untagged one stood or an own one of an
         # earlier generation did: g > the first own generation with a standing trial
