@@ -22,9 +22,9 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.common import Provenance, finish, markdown_table
+from benchmarks.common import Provenance
 from benchmarks.transfer import SYSTEMS
-from benchmarks.transfer_curves import ladder_args, targets
+from benchmarks.transfer_curves import finish_ladder, ladder_args, targets
 
 
 def coordinate_names(system: str) -> list[str]:
@@ -81,9 +81,7 @@ def main(argv: list[str] | None = None) -> int:
         print("transfer_coords: no stored run holds θ for these targets, methods and coordinates",
               file=sys.stderr)
         return 2
-    finish(a.out, prov, {"root": str(a.root), "methods": a.methods, "coords": a.coords}, rows)
-    if a.md is not None:
-        a.md.write_text(f"`{prov.command}`\n\n{markdown_table(rows)}\n")
+    finish_ladder(a, prov, {"coords": a.coords}, rows)
     return 0
 
 

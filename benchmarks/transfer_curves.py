@@ -52,6 +52,15 @@ def ladder_args(ap: argparse.ArgumentParser) -> None:
                     help="also write the table, headed by the command that made it")
 
 
+def finish_ladder(a: argparse.Namespace, prov: Provenance, params: dict[str, Any],
+                  rows: list[dict[str, Any]]) -> None:
+    """Write a ladder table's rows: ``--out`` (JSON with ``params`` and provenance, or printed) and,
+    with ``--md``, the table headed by the command that made it (:func:`ladder_args`)."""
+    finish(a.out, prov, {"root": str(a.root), "methods": a.methods, **params}, rows)
+    if a.md is not None:
+        a.md.write_text(f"`{prov.command}`\n\n{markdown_table(rows)}\n")
+
+
 def curves(root: Path, methods: list[str], seeds: list[int] | None, at: list[int]
            ) -> list[dict[str, Any]]:
     """One row per (target, method): the seeds used and the median best-so-far at each trial of
@@ -84,9 +93,7 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    finish(a.out, prov, {"root": str(a.root), "methods": a.methods, "at": a.at}, rows)
-    if a.md is not None:
-        a.md.write_text(f"`{prov.command}`\n\n{markdown_table(rows)}\n")
+    finish_ladder(a, prov, {"at": a.at}, rows)
     return 0
 
 

@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.common import Provenance, finish, markdown_table
-from benchmarks.transfer_curves import ladder_args, targets
+from benchmarks.common import Provenance
+from benchmarks.transfer_curves import finish_ladder, ladder_args, targets
 
 KINDS = ("design", "explore", "region")
 
@@ -97,9 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     ladder_args(ap)
     a = ap.parse_args(argv)
     rows = explore_stats(Path(a.root), a.methods, a.seeds)
-    finish(a.out, prov, {"root": str(a.root), "methods": a.methods}, rows)
-    if a.md is not None:
-        a.md.write_text(f"`{prov.command}`\n\n{markdown_table(rows)}\n")
+    finish_ladder(a, prov, {}, rows)
     return 0
 
 
