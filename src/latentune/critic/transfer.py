@@ -858,8 +858,6 @@ class Transfer(TwoSpaceCritic):
             m = own & (tags // 4 == g)
             standing = g > first_ok
             due = self._explore_generation(int(g), L, next_due)
-            if due:
-                next_due = int(g) + interval
             if due and self._explore_pool(explore, standing) is not None and \
                     not np.isin(tags[m] % 4, (ELITE, FULL)).any():
                 explore |= m            # data and best value only: L follows the other batches
@@ -872,6 +870,8 @@ class Transfer(TwoSpaceCritic):
                 best = min(best, gb)
                 n_seen += int(m.sum())
                 continue
+            if due:                     # due but not an explore ask: the interval stays
+                next_due = int(g) + interval
             if self.opts["stand_first"] and not standing and not (ok & m).any():
                 n_seen += int(m.sum())  # every trial so far fell: no incumbent, L waits
                 continue
