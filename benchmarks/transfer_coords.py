@@ -35,16 +35,19 @@ def coordinate_names(system: str) -> list[str]:
 def coords(root: Path, methods: list[str], seeds: list[int] | None, names: list[str],
            only: list[str] | None = None) -> list[dict[str, Any]]:
     """One row per (target, method, coordinate): seeds used, median best value, median max and
-    min asked (unit box). ``only``: target paths relative to ``root`` (``"arm/gap1.5"``)."""
+    min asked (unit box). ``only``: target paths relative to ``root`` (``"arm/gap1.5"``).
+    ValueError when a name of ``names`` is not a coordinate (or index) of a target's system."""
     rows: list[dict[str, Any]] = []
     for tdir, use in targets(root, methods, seeds):
         rel = f"{tdir.parent.name}/{tdir.name}"
         if only is not None and rel not in only:
             continue
         space = coordinate_names(tdir.parent.name)
-        idx = [int(n) if n.isdigit() else space.index(n) for n in names if n.isdigit() or n in space]
-        if not idx:
-            continue
+        bad = [n for n in names if not (n in space or (n.isdigit() and int(n) < len(space)))]
+        if bad:
+            raise ValueError(f"{tdir.parent.name} has no coordinate {', '.join(bad)} "
+                             f"(its {len(space)} are {', '.join(space)}, or their indices)")
+        idx = [int(n) if n.isdigit() else space.index(n) for n in names]
         for m in methods:
             runs = [json.loads((tdir / f"seed{s}" / f"{m}.json").read_text()) for s in use]
             runs = [r for r in runs if r.get("thetas")]
@@ -76,7 +79,11 @@ def main(argv: list[str] | None = None) -> int:
                     help="θ names of the system's parameter space, or indices")
     ap.add_argument("--targets", nargs="+", default=None, help="e.g. arm/gap1.5")
     a = ap.parse_args(argv)
-    rows = coords(Path(a.root), a.methods, a.seeds, a.coords, a.targets)
+    try:
+        rows = coords(Path(a.root), a.methods, a.seeds, a.coords, a.targets)
+    except ValueError as e:
+        print(f"transfer_coords: {e}", file=sys.stderr)
+        return 2
     if not rows:
         print("transfer_coords: no stored run holds θ for these targets, methods and coordinates",
               file=sys.stderr)

@@ -407,7 +407,7 @@ def test_adapt_resume_asks_what_the_original_would(source, hypers):
 
 @pytest.mark.parametrize("bad", ["yes", 1, None])
 def test_explore_adapt_is_checked(source, hypers, bad):
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="explore_adapt must be true or false"):
         _critic(source, hypers, explore_every=2, explore_adapt=bad)
 
 
@@ -425,7 +425,7 @@ def test_full_shape_cube_perturbs_every_coordinate_on_the_same_side(source, hype
     ls = _critic(source, hypers).source_model().lengthscales
     w = np.clip(ls / np.exp(np.mean(np.log(ls))), 0.25, 4.0)
     assert np.allclose(spans["lengthscales"], np.minimum(0.4 * w, 1.0), atol=0.01)
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="full_shape must be one of"):
         _critic(source, hypers, full_shape="sphere")
 
 

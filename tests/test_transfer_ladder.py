@@ -163,7 +163,7 @@ def test_transfer_variants_refuses_a_problem_it_cannot_build(text):
         tv._problem(text)
 
 
-def test_coords_give_where_each_method_looked_and_its_best(tmp_path) -> None:
+def test_coords_give_where_each_method_looked_and_its_best(tmp_path, capsys) -> None:
     """Per coordinate (by name of the arm's space, or index): the median over the seeds of the
     best standing θ's value and of the highest and lowest value asked; a fall is never the
     best; runs without θ are left out."""
@@ -184,4 +184,11 @@ def test_coords_give_where_each_method_looked_and_its_best(tmp_path) -> None:
     (r,) = [r for r in rows if r["coordinate"] == "grav_1"]
     assert (r["seeds"], r["best"], r["max"], r["min"]) == (3, 0.5, 0.7, 0.2)
     assert [r["coordinate"] for r in rows] == ["grav_1", names[g + 1]]
-    assert tc.main(["--root", str(tmp_path), "--methods", "m", "--coords", "nope"]) == 2
+    capsys.readouterr()
+    for bad in ("nope", str(len(names))):
+        assert tc.main(["--root", str(tmp_path), "--methods", "m", "--coords", "grav_1", bad]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"arm has no coordinate {bad} " in err[0]
+        assert "grav_1," not in err[0].split("(")[0]        # only the unknown one is named
+    assert tc.main(["--root", str(tmp_path), "--methods", "other", "--coords", "grav_1"]) == 2
+    assert "no stored run holds θ" in capsys.readouterr().err
