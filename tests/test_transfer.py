@@ -309,3 +309,41 @@ def test_safe_fallback_steps_back_instead_of_asking_over_the_screen(source, hype
         over[on, "falls"] = sum(falls)
     assert over[False] >= 1 and over[True] == 0
     assert over[True, "falls"] < over[False, "falls"]
+
+
+def test_tilt_learns_the_drift_a_gap_adds_and_extrapolates_it(source, hypers):
+    """A target whose cost is the source's bowl plus a linear drift along coordinate 0 (the gap
+    moved its optimum toward the face): with a tilt grid the model chooses a tilt by marginal
+    likelihood and predicts the far side of coordinate 0 better, relative to the centre, than
+    the model without a tilt, which leans on the source's prior there; on the source's own
+    costs it chooses a smaller tilt."""
+    X, y, f, c = source
+    sm = SourceModel(X, y, f, seed=0, hypers=hypers)
+    rng = np.random.default_rng(2)
+    Xt = np.clip(c + 0.15 * rng.standard_normal((20, D)), 0, 1)
+    drift = lambda Z: _bowl(Z, c, 9.0)[0] - 12.0 * Z[:, 0]  # noqa: E731
+    grid = (0.0, 0.25, 0.5, 1.0)
+    v = rank_scores(drift(Xt), np.zeros(20, bool))
+    flat, tilted = (TargetModel(Xt, v, sm.cost, sm.lengthscales, tilts=t) for t in ((0.0,), grid))
+    assert flat.tilt == 0.0 and flat.hX.shape == (20, 2)
+    assert tilted.tilt > 0 and tilted.hX.shape == (20, 2 + D)
+    far = c.copy()
+    far[0] = 0.95
+    q = np.stack([c, far])
+    assert np.diff(tilted.mean_cov(q, False)[0])[0] < np.diff(flat.mean_cov(q, False)[0])[0]
+    assert tilted.mean_cov(q, False)[0][1] < tilted.mean_cov(q, False)[0][0]
+    same = TargetModel(Xt, rank_scores(_bowl(Xt, c, 9.0)[0], np.zeros(20, bool)), sm.cost,
+                       sm.lengthscales, tilts=grid)
+    assert same.tilt < tilted.tilt
+
+
+def test_tilt_option_records_and_is_checked(source, hypers):
+    X, y, f, c = source
+    assert TRANSFER_DEFAULTS["tilt"] == 0.0
+    cr = _critic(source, hypers, tilt=1.0)
+    _run(cr, np.clip(c + 0.1, 0, 1), 0.6, 5)
+    assert all(d["tilt"] in (0.0, 0.25, 0.5, 1.0) for d in cr.decisions[1:])
+    assert "tilt" not in _critic(source, hypers).decisions     # off: nothing recorded
+    for bad in (-1.0, "1", True, 10.0):
+        with pytest.raises(ValueError, match="tilt must be a number"):
+            _critic(source, hypers, tilt=bad)

@@ -446,3 +446,29 @@ def test_explore_pool_box_asks_the_whole_theta_box(source, hypers, monkeypatch):
     assert ex == [3, 5, 7]
     assert all(cr.tags[g] % 4 == GLOBAL and np.isnan(cr._Z[g]).all() for g in ex)
     assert whole_calls and not any(whole_calls)     # only the region asks drew latent codes
+
+
+def test_explore_pool_lines_moves_one_or_two_coordinates_of_the_centre(source, hypers,
+                                                                       monkeypatch):
+    """``explore_pool="lines"``: explore asks choose among the centre with one or two coordinates
+    set anywhere in [0, 1] (tag pool ``global``), which reach the box's faces."""
+    cr = _critic(source, hypers, explore_pool="lines")
+    centre = np.full(D, 0.45)
+    P = cr._pool_lines(2000, centre, np.random.default_rng(0))
+    moved = (np.abs(P - centre) > 1e-12).sum(1)
+    assert moved.max() <= 2 and (moved == 2).mean() > 0.3 and (moved == 1).mean() > 0.3
+    assert P.min() < 0.01 and P.max() > 0.99
+    centres: list[np.ndarray] = []
+    orig = Transfer._pool_lines
+
+    def spy(self, m, c, rng):
+        centres.append(c.copy())
+        return orig(self, m, c, rng)
+
+    monkeypatch.setattr(Transfer, "_pool_lines", spy)
+    _run(cr, 8)
+    ex = [d["generation"] for d in cr.decisions if d["explore"]]
+    assert ex == [3, 5, 7] and len(centres) == 3
+    for g, c in zip(ex, centres):
+        assert cr.tags[g] % 4 == GLOBAL
+        assert (np.abs(cr.X[g] - c) > 1e-12).sum() <= 2

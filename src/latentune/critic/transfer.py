@@ -118,7 +118,11 @@ source's distribution once a trial stood, until its draws fell more often than t
 admits (``explore_falls`` counted on the source's draws alone), then the latent box again
 under its own brake; ``"box"``: ``n_candidates`` Sobol points over the whole θ box (tag pool
 ``global``), where neither the source's manifold nor its distribution bound the search: the fall
-screen and the brake are what keep it off the falls.
+screen and the brake are what keep it off the falls; ``"lines"``: ``n_candidates`` copies of the
+centre with one coordinate (half of them) or two (the other half), chosen uniformly, set
+uniformly over [0, 1] (tag pool ``global``): steps as far as the box's faces that keep the rest
+of the standing θ, for a gap that moves the best value of a few gains (a payload, friction)
+beyond the region the source's trials support.
 ``explore_when="stalled"`` makes a due generation an explore ask only while the side it is asked
 at is ``length_min`` (the trust region has nothing left to resolve near its centre); the other
 due generations are ordinary asks, so the local search keeps every ask while it still improves.
@@ -142,6 +146,14 @@ told history like the side ``L``.
 coordinate the source's cost is most sensitive to has the shortest lengthscale and so the
 narrowest side, yet a change of the system (a payload, friction) moves the optimum of such a
 gain first: the cube lets the region follow it.
+``tilt`` = t > 0 (default 0: off) adds a linear drift to the target cost model:
+``z(θ) = a · m_s(θ) + b + cᵀ(θ − ½) + r(θ)`` with ``c ~ N(0, σ_t² I)`` integrated out like
+``(a, b)`` (the basis ``h`` gains the columns ``σ_t (θ − ½)``); ``σ_t`` is chosen with ``σ_r²``
+by marginal likelihood from ``(0, t/4, t/2, t)`` at every ask and recorded as the decision's
+``"tilt"``. The residual ``r`` reverts to the source's prior a lengthscale away from the
+target's trials; the drift does not, so where the target's trials show the cost falling along a
+coordinate, the model predicts it goes on falling beyond them (a gap that moves a gain's best
+value toward a face).
 ``stand_first`` (default False): while every trial on the target fell, a batch that falls too
 leaves ``L`` and its counters alone: there is no incumbent it could fail to improve on, so the
 trust region that starts at the first standing trial starts at side ``length_init``, not at a
@@ -202,7 +214,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "stop_converged": False, "success_scale": "spread", "explore_every": 2,
     "explore_when": "always", "source_order": "canonical", "explore_falls": 3,
     "stand_first": False, "explore_pool": "latent", "explore_adapt": False,
-    "full_shape": "lengthscales",
+    "full_shape": "lengthscales", "tilt": 0.0,
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
@@ -213,7 +225,8 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "explore_every": 0, "explore_when": "always",
                                  "source_order": "stored", "explore_falls": 0,
                                  "stand_first": False, "explore_pool": "latent",
-                                 "explore_adapt": False, "full_shape": "lengthscales"}
+                                 "explore_adapt": False, "full_shape": "lengthscales",
+                                 "tilt": 0.0}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -238,10 +251,11 @@ of the target's standing costs."""
 SOURCE_ORDERS = ("canonical", "stored")
 """The order the source's trials are used in (``source_order``): sorted by (cost, fell, θ), or as
 given."""
-EXPLORE_POOLS = ("latent", "source", "both", "auto", "box")
+EXPLORE_POOLS = ("latent", "source", "both", "auto", "box", "lines")
 """Where an explore ask's candidates come from (``explore_pool``): decoded codes of the whole
 latent box, the source's promising distribution over θ, half of each, or the latent box while
-every target trial fell and the source's distribution after, or the whole θ box."""
+every target trial fell and the source's distribution after, the whole θ box, or lines through
+the centre along one or two coordinates."""
 FULL_SHAPES = ("lengthscales", "cube")
 """The full pool's box (``full_shape``): sides in proportion to the lengthscales, or a cube."""
 EXPLORE_WHEN = ("always", "stalled")
@@ -451,46 +465,60 @@ class SourceModel:
 
 # --------------------------------------------------------------------------- target model
 class TargetModel:
-    """The GP ``v(θ) = a·h0(θ) + b + r(θ)`` on the target's values ``v`` (n,) at θ (n, d) with
-    ``(a, b) ~ N(prior_mean, I)`` integrated out (module docstring); ``feature`` maps θ (m, d)
-    to h0 (m,), ``ls`` (d,) are the residual kernel's lengthscales."""
+    """The GP ``v(θ) = a·h0(θ) + b + cᵀ(θ − ½) + r(θ)`` on the target's values ``v`` (n,) at θ
+    (n, d) with ``(a, b) ~ N(prior_mean, I)`` and the tilt ``c ~ N(0, σ_t² I)`` integrated out
+    (module docstring); ``feature`` maps θ (m, d) to h0 (m,), ``ls`` (d,) are the residual
+    kernel's lengthscales. ``σ_r²`` (unless given), the lengthscale multiplier (``ls_scales``)
+    and ``σ_t`` (``tilts``; ``(0,)``: no tilt) are chosen together by marginal likelihood."""
 
     def __init__(self, X: np.ndarray, v: np.ndarray, feature: Callable[[np.ndarray], np.ndarray],
                  ls: np.ndarray, prior_mean: tuple[float, float] = (1.0, 0.0),
-                 sigma_r2: float | None = None, ls_scales: tuple[float, ...] = (1.0,)) -> None:
+                 sigma_r2: float | None = None, ls_scales: tuple[float, ...] = (1.0,),
+                 tilts: tuple[float, ...] = (0.0,)) -> None:
         self.X, self.v, self.feature = X, np.asarray(v, float), feature
-        self.b0 = np.asarray(prior_mean, dtype=float)
-        self.hX = self._basis(X)
-        if sigma_r2 is None:            # type-II maximum likelihood on the grids
-            grid = _SIGMA_R2_GRID if len(ls_scales) == 1 else _SIGMA_R2_GRID + (4.0,)
-            fits = [(self._log_evidence(kX, s), s, rho, kX)
-                    for rho in ls_scales for kX in [matern52(X, X, ls * rho)] for s in grid]
-            _, sigma_r2, rho, self.kX = max(fits, key=lambda f: f[0])
-        else:
-            rho = ls_scales[0]
-            self.kX = matern52(X, X, ls * rho)
+        self.h0X = np.asarray(feature(X), dtype=float)
+        grid = (sigma_r2,) if sigma_r2 is not None else \
+            _SIGMA_R2_GRID if len(ls_scales) == 1 else _SIGMA_R2_GRID + (4.0,)
+        choose = len(grid) * len(ls_scales) * len(tilts) > 1
+        fits = []                       # type-II maximum likelihood on the grids
+        for rho in ls_scales:
+            kX = matern52(X, X, ls * rho)
+            for t in tilts:
+                self.tilt = float(t)
+                hX = self._basis(X, self.h0X)
+                b0 = np.concatenate([prior_mean, np.zeros(hX.shape[1] - 2)])
+                fits += [(self._log_evidence(kX, hX, b0, s) if choose else 0.0, s, rho,
+                          float(t), kX) for s in grid]
+        _, s, rho, self.tilt, self.kX = max(fits, key=lambda f: f[0])
+        self.hX = self._basis(X, self.h0X)
+        self.b0 = np.concatenate([prior_mean, np.zeros(self.hX.shape[1] - 2)])
         self.ls_scale = float(rho)
         self.ls = ls * rho
-        self.sigma_r2 = float(sigma_r2)
+        self.sigma_r2 = float(s)
         self.L = _chol(self._cov(self.kX, self.hX, self.hX) + _NOISE * np.eye(len(v)))
         r = self.v - self.hX @ self.b0
         self.alpha = np.linalg.solve(self.L.T, np.linalg.solve(self.L, r))
 
-    def _basis(self, X: np.ndarray) -> np.ndarray:
-        return np.stack([self.feature(X), np.ones(X.shape[0])], 1)
+    def _basis(self, X: np.ndarray, h0: np.ndarray | None = None) -> np.ndarray:
+        """(m, 2) ``(h0(θ), 1)``, or (m, 2 + d) with the tilt's columns ``σ_t (θ − ½)``."""
+        h0 = self.feature(X) if h0 is None else h0
+        cols = [np.stack([h0, np.ones(X.shape[0])], 1)]
+        if self.tilt > 0:
+            cols.append(self.tilt * (X - 0.5))
+        return np.hstack(cols)
 
     def _cov(self, k: np.ndarray, h1: np.ndarray, h2: np.ndarray,
              sigma_r2: float | None = None) -> np.ndarray:
         s = self.sigma_r2 if sigma_r2 is None else sigma_r2
         return s * k + h1 @ h2.T
 
-    def _log_evidence(self, kX: np.ndarray, s: float) -> float:
-        K = self._cov(kX, self.hX, self.hX, s) + _NOISE * np.eye(len(self.v))
+    def _log_evidence(self, kX: np.ndarray, hX: np.ndarray, b0: np.ndarray, s: float) -> float:
+        K = self._cov(kX, hX, hX, s) + _NOISE * np.eye(len(self.v))
         try:
             L = _chol(K)
         except np.linalg.LinAlgError:
             return -math.inf
-        r = self.v - self.hX @ self.b0
+        r = self.v - hX @ b0
         a = np.linalg.solve(L, r)
         return float(-0.5 * a @ a - np.log(np.diag(L)).sum())
 
@@ -500,10 +528,10 @@ class TargetModel:
         Kr = self.sigma_r2 * self.kX + _NOISE * np.eye(len(self.v))
         Lr = _chol(Kr)
         A = np.linalg.solve(Lr, H)
-        prec = np.eye(2) + A.T @ A
+        prec = np.eye(H.shape[1]) + A.T @ A
         cov = np.linalg.inv(prec)
         rhs = self.b0 + A.T @ np.linalg.solve(Lr, self.v)
-        return cov @ rhs, np.sqrt(np.maximum(np.diag(cov), 0.0))
+        return (cov @ rhs)[:2], np.sqrt(np.maximum(np.diag(cov), 0.0))[:2]
 
     def mean_cov(self, Xs: np.ndarray, with_cov: bool = True
                  ) -> tuple[np.ndarray, np.ndarray | None]:
@@ -751,6 +779,9 @@ class Transfer(TwoSpaceCritic):
         if self.opts["explore_pool"] not in EXPLORE_POOLS:
             raise ValueError(f"explore_pool must be one of {EXPLORE_POOLS}, "
                              f"got {self.opts['explore_pool']!r}")
+        t = self.opts["tilt"]
+        if isinstance(t, bool) or not isinstance(t, (int, float)) or not 0.0 <= float(t) < 10.0:
+            raise ValueError(f"tilt must be a number in [0, 10) (0: no tilt), got {t!r}")
         if self.opts["full_shape"] not in FULL_SHAPES:
             raise ValueError(f"full_shape must be one of {FULL_SHAPES}, "
                              f"got {self.opts['full_shape']!r}")
@@ -1049,6 +1080,20 @@ class Transfer(TwoSpaceCritic):
         return SobolEngine(self.dim, scramble=True, seed=int(rng.integers(2 ** 31))).draw(
             m, dtype=torch.float64).numpy()
 
+    def _pool_lines(self, m: int, centre: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """``m`` θ (m, d) on axis lines and planes through ``centre`` (d,): each is the centre
+        with one coordinate (half of them) or two (the other half), chosen uniformly, set
+        uniformly over its whole range [0, 1] (``explore_pool="lines"``): steps as far as the
+        box's faces that change as little of a standing θ as possible."""
+        if m <= 0:
+            return np.empty((0, self.dim))
+        X = np.tile(centre, (m, 1))
+        rows = np.arange(m)
+        X[rows, rng.integers(0, self.dim, size=m)] = rng.random(m)
+        two = rows[rng.random(m) < 0.5]
+        X[two, rng.integers(0, self.dim, size=two.size)] = rng.random(two.size)
+        return X
+
     def _pool_source(self, m: int, rng: np.random.Generator) -> np.ndarray:
         """``m`` θ (m, d) drawn from the source's promising distribution, clipped to the box:
         the Gaussian ``N(μ, σ² Σ)`` that warm-starts CMA-ES from a source task (Nomura et al.
@@ -1114,13 +1159,15 @@ class Transfer(TwoSpaceCritic):
         sm = self.source_model()
         v = rank_scores(self._y, self._fell)
         scales = _LS_SCALES if self.opts["fit_lengthscale"] else (1.0,)
-        cost = TargetModel(self._X, v, sm.cost, sm.lengthscales, ls_scales=scales)
+        t = float(self.opts["tilt"])
+        tilts = (0.0, t / 4, t / 2, t) if t > 0 else (0.0,)
+        cost = TargetModel(self._X, v, sm.cost, sm.lengthscales, ls_scales=scales, tilts=tilts)
         if self._handoff_active() and self.opts["handoff_model"] == "target":
             cost = TargetGP(self._X, v, self._turbo_helper(), cost)
         elif self._ard_active():
             ls, s2 = fit_residual_kernel(self._X, v, cost.hX[:, 0], (1.0, 0.0), cost.ls,
                                          cost.sigma_r2)
-            cost = TargetModel(self._X, v, sm.cost, ls, sigma_r2=s2)
+            cost = TargetModel(self._X, v, sm.cost, ls, sigma_r2=s2, tilts=tilts)
         fall = TargetModel(self._X, self._fell.astype(float), sm.fall_prob,
                            sm.fall_lengthscales, prior_mean=(1.0, 0.0))
         return cost, fall
@@ -1189,8 +1236,11 @@ class Transfer(TwoSpaceCritic):
             # explore: the whole latent box (or θ box), or the source's distribution, only
             ctx.explore = True
             where = st["explore_pool"]
-            m_src = {"latent": 0, "source": M, "both": M // 2, "box": 0}[where]
-            if where == "box" or (self.latent is None and where == "latent"):
+            m_src = {"latent": 0, "source": M, "both": M // 2, "box": 0, "lines": 0}[where]
+            if where == "lines":
+                parts = [(self._pool_lines(M, centre, rng), np.full((M, self.k), np.nan),
+                          GLOBAL)]
+            elif where == "box" or (self.latent is None and where == "latent"):
                 parts = [(self._pool_global(M, rng), np.full((M, self.k), np.nan), GLOBAL)]
             else:
                 m_src = m_src if self.latent is not None else M
@@ -1330,6 +1380,7 @@ class Transfer(TwoSpaceCritic):
             "agreement": float(ctx.agree[0]), "agreement_sd": float(ctx.agree_sd[0]),
             "sigma_r2": None if cm is None else cm.sigma_r2,
             "ls_scale": None if cm is None else cm.ls_scale,
+            **({"tilt": getattr(cm, "tilt", None)} if self.opts["tilt"] else {}),
             "latent_share": ctx.w_lat, "latent_off": bool(ctx.latent_off),
             "length": ctx.state["L"], "restarts": ctx.state["restarts"],
             "n_candidates": int(len(cands.X)), "n_admissible": int(cands.ok.sum()),
