@@ -472,3 +472,17 @@ def test_explore_pool_lines_moves_one_or_two_coordinates_of_the_centre(source, h
     for g, c in zip(ex, centres):
         assert cr.tags[g] % 4 == GLOBAL
         assert (np.abs(cr.X[g] - c) > 1e-12).sum() <= 2
+
+
+def test_explore_pool_lines_decodes_the_latent_box_while_every_trial_fell(source, hypers):
+    """``explore_pool="lines"`` with nothing standing on the target: the explore ask decodes a
+    code of the whole latent box (tag pool ``latent``); once a trial stands, lines again."""
+    cr = _critic(source, hypers, explore_pool="lines", explore_falls=3, n_design=0)
+    rng = np.random.default_rng(3)
+    cr.tell(rng.random((1, D)), np.array([150.0]), np.array([4 * 0 + FULL]), fell=np.array([True]))
+    assert cr._replay_state()["explore_pool"] == "latent"
+    x = cr.ask(1)                                           # generation 1: due
+    assert cr.decisions[-1]["explore"] and cr.last_tags[0] % 4 == LATENT
+    assert not np.isnan(cr.last_z).any()
+    cr.tell(x, np.array([5.0]), cr.last_tags, fell=np.array([False]), z=cr.last_z)
+    assert cr._replay_state()["explore_pool"] == "lines"

@@ -122,7 +122,9 @@ screen and the brake are what keep it off the falls; ``"lines"``: ``n_candidates
 centre with one coordinate (half of them) or two (the other half), chosen uniformly, set
 uniformly over [0, 1] (tag pool ``global``): steps as far as the box's faces that keep the rest
 of the standing θ, for a gap that moves the best value of a few gains (a payload, friction)
-beyond the region the source's trials support.
+beyond the region the source's trials support. While every trial on the target fell there is
+no standing θ to draw lines through, and ``"lines"`` asks decode codes of the whole latent box
+as ``"latent"`` does (the whole θ box without a latent space).
 ``explore_when="stalled"`` makes a due generation an explore ask only while the side it is asked
 at is ``length_min`` (the trust region has nothing left to resolve near its centre); the other
 due generations are ordinary asks, so the local search keeps every ask while it still improves.
@@ -953,9 +955,10 @@ class Transfer(TwoSpaceCritic):
         return fell >= k and fell > float(self.opts["max_fall_prob"]) * int(explore.sum())
 
     def _explore_pool(self, explore: np.ndarray, standing: bool) -> str | None:
-        """The pool of the next explore ask (``explore_pool`` resolved; ``"latent"``,
-        ``"source"`` or ``"both"``), or None once the explore asks are braked, from the told
-        explore trials ``explore`` (n,) bool and whether a trial stands (``standing``).
+        """The pool of the next explore ask (``explore_pool`` resolved: ``"auto"`` to
+        ``"latent"`` or ``"source"``, ``"lines"`` to ``"latent"`` while no trial stands), or None
+        once the explore asks are braked, from the told explore trials ``explore`` (n,) bool and
+        whether a trial stands (``standing``).
 
         With ``"auto"`` each pool has its own brake (``_explore_braked`` on its own explore
         trials: the source's draws carry tag pool ``global``, the decoded codes ``latent``): the
@@ -963,6 +966,8 @@ class Transfer(TwoSpaceCritic):
         risk; then the latent box, until its codes did; then none. Without a latent space
         ``"auto"`` is ``"source"``."""
         where = self.opts["explore_pool"]
+        if where == "lines" and not standing:
+            where = "latent"            # no standing centre to draw lines through yet
         if where != "auto" or self.latent is None:
             where = "source" if where == "auto" else where
             return None if self._explore_braked(explore, standing) else where
