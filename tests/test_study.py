@@ -237,6 +237,23 @@ def test_tune_and_report_with_system_plugin(tmp_path, plugin_dir, cli, in_plugin
     code, _, err = in_plugin_dir("phase3", *args, "--phase3-evals", "10", "--resume")
     assert code == 0, err
     assert sum(1 for x in rows(out) if x[0] == 3) == 10
+    # every ask of the default phase 3, across the resume, is in the store, status and report
+    from latentune.pipeline.results import decisions
+    from latentune.pipeline.store import RunStore
+
+    with RunStore(out) as st:
+        ds = decisions(st)
+        gens = sorted({int(r.tag) // 4 for r in st.rows(Phase.PHASE3) if r.tag >= 0})
+    assert [d["generation"] for d in ds] == gens and len(gens) >= 3     # asked before and after
+    assert all("agreement" in d or "rule" in d for d in ds)
+    code, outp, err = in_plugin_dir("status", str(out))
+    assert code == 0, err
+    assert f"phase 3 decisions: {len(ds)} asks (" in outp
+    p = cli("report", str(out), "--quiet", cwd=elsewhere)
+    assert p.returncode == 0, p.stderr
+    md = (out / "report.md").read_text()
+    table = md.split("## Phase 3 decisions")[1].split("\n\n")[2].splitlines()
+    assert len(table) == 2 + len(ds) and table[2].startswith("| 0 | ")
 
 
 def test_report_on_a_custom_robot_run(tmp_path, cli, run_cli):

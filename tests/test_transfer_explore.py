@@ -471,6 +471,7 @@ def test_explore_pool_lines_moves_one_or_two_coordinates_of_the_centre(source, h
     _run(cr, 8)
     ex = [d["generation"] for d in cr.decisions if d["explore"]]
     assert ex == [3, 5, 7] and len(centres) == 3
+    assert all(d["explore_pool"] == "lines" for d in cr.decisions if d["explore"])
     for g, c in zip(ex, centres):
         assert cr.tags[g] % 4 == GLOBAL
         assert (np.abs(cr.X[g] - c) > 1e-12).sum() <= 2
@@ -485,6 +486,7 @@ def test_explore_pool_lines_decodes_the_latent_box_while_every_trial_fell(source
     assert cr._replay_state()["explore_pool"] == "latent"
     x = cr.ask(1)                                           # generation 1: due
     assert cr.decisions[-1]["explore"] and cr.last_tags[0] % 4 == LATENT
+    assert cr.decisions[-1]["explore_pool"] == "latent"
     assert not np.isnan(cr.last_z).any()
     cr.tell(x, np.array([5.0]), cr.last_tags, fell=np.array([False]), z=cr.last_z)
     assert cr._replay_state()["explore_pool"] == "lines"

@@ -645,6 +645,15 @@ def cmd_status(args: argparse.Namespace) -> int:
             f"best {p['best']:.6g} (evaluation {p['best_idx']}"
             + (f", suggestion {p['best_trial']}" if p.get("best_trial") is not None else "") + ")")
         print(f"{name}: {p['n']} trials, {p['failed']} failed, {p['pending']} pending; {best}")
+    dec = s.get("decisions")
+    if dec:
+        last = dec["last"]
+        agree = "" if last.get("agreement") is None else f", agreement {last['agreement']:.2f}"
+        side = "" if last.get("length") is None else f", side {last['length']:.3g}"
+        print(f"phase 3 decisions: {dec['n']} asks ("
+              + ", ".join(f"{k} {v}" for k, v in dec["kinds"].items())
+              + f"); last: generation {last['generation']}, {last['kind']}{agree}{side}"
+              + (f", pools {'/'.join(sorted(set(last['pools'])))}" if last.get("pools") else ""))
     leases = s.get("leases") or {}
     print(f"pending suggestions: {len(s['pending'])}" + (" (" + ", ".join(
         f"{i} held by {leases.get(str(i), {}).get('asker')}" for i in s["pending"]) + ")"

@@ -1206,7 +1206,6 @@ class Transfer(TwoSpaceCritic):
         sm = self.source_model()
         cost_m, fall_m = self.models()
         centre = self._centre()
-        design = st["n_own"] < int(self.opts["n_design"])
         agree, agree_sd = (np.array([1.0, 0.0]), np.array([1.0, 1.0])) if cost_m is None \
             else cost_m.coefficients()
         w_lat = float(np.clip(agree[0], 0.0, self.opts["latent_share_max"]))
@@ -1215,6 +1214,7 @@ class Transfer(TwoSpaceCritic):
         if latent_off or self.latent is None:
             w_lat = 0.0
         E = self._pool_elite()
+        design = st["n_own"] < int(self.opts["n_design"]) and len(E) >= 1   # elites left to ask
         M = int(self.opts["n_candidates"])
         if self._manual_next():
             self.last_z = np.full((n, self.k), np.nan)
@@ -1394,6 +1394,7 @@ class Transfer(TwoSpaceCritic):
             "max_fall_prob_asked": float(cands.pf[sel].max()),
             "pools": [POOL_NAMES[int(p)] for p in cands.pool[sel]],
             "explore": bool(ctx.explore),
+            **({"explore_pool": ctx.state["explore_pool"]} if ctx.explore else {}),
             **({"explore_braked": True} if ctx.state.get("explore_braked") else {}),
             **({"explore_next": int(ctx.state["explore_next"])}
                if self.opts["explore_adapt"] else {}),
@@ -1408,17 +1409,23 @@ class Transfer(TwoSpaceCritic):
 
     # ------------------------------------------------------------------ state
     def state_dict(self) -> dict[str, Any]:
-        """The options, the source models' fitted hyperparameters and the last decision
-        (JSON-ready)."""
+        """The options, the source models' fitted hyperparameters, every decision of the run
+        (one per ask, by generation; a generation asked again keeps its last decision) and the
+        last one (JSON-ready)."""
+        by_gen = {int(d["generation"]): d for d in self.decisions}
         return {"options": dict(self.opts), "source_hypers": self._hypers,
+                "decisions": [by_gen[g] for g in sorted(by_gen)],
                 "last_decision": self.decisions[-1] if self.decisions else None}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        """Restore :meth:`state_dict`: the source hyperparameters, and the options the stored
-        run was asked with (a state stored before options were recorded resumes with
-        :data:`LEGACY_OPTIONS`), so a resumed run asks what the original would have."""
+        """Restore :meth:`state_dict`: the decisions so far, the source hyperparameters, and the
+        options the stored run was asked with (a state stored before options were recorded
+        resumes with :data:`LEGACY_OPTIONS`), so a resumed run asks what the original would
+        have and its record of decisions carries on."""
         if not state:
             return
+        if state.get("decisions") and not self.decisions:     # the run's record carries on
+            self.decisions = [dict(d) for d in state["decisions"]]
         if state.get("source_hypers") and self._model is None:
             self._hypers = state["source_hypers"]
         if "options" in state:

@@ -118,6 +118,47 @@ def trials_dataframe(records: list[TrialRecord]) -> Any:
     return df.astype({"idx": "int64", "trial": "Int64", "cost": "float64", "failed": "bool"})
 
 
+def decisions(store: RunStore, phase: int = Phase.PHASE3) -> list[dict[str, Any]]:
+    """The decisions the critic of ``phase`` recorded with its state, one per ask in generation
+    order (the transfer phase 3: :meth:`~latentune.critic.transfer.Transfer.state_dict`); [] for
+    a critic that records none."""
+    from latentune.pipeline.phases import state_key
+
+    state = store.get_meta(state_key(phase)) or {}
+    got = state.get("decisions") if isinstance(state, dict) else None
+    return [d for d in got if isinstance(d, dict)] if isinstance(got, list) else []
+
+
+def decision_kind(d: dict[str, Any]) -> str:
+    """What an ask was, from its decision ``d``: ``"design"`` (the source's elite θ),
+    ``"explore (lines)"`` / ``"explore (latent)"`` / … (an explore ask and its pool),
+    ``"manual θ"`` or ``"converged"`` (a rule's ask), else ``"region"`` (the trust region, the
+    latent box around the best θ and the elites, as the model chose)."""
+    rule = str(d.get("rule") or "")
+    if "manual" in rule:
+        return "manual θ"
+    if "converged" in rule:
+        return "converged"
+    if d.get("explore"):
+        return f"explore ({d.get('explore_pool') or 'latent'})"
+    return "design" if d.get("design") else "region"
+
+
+def decisions_summary(ds: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """``{n, kinds: {kind: asks}, last: {generation, kind, agreement, length, pools}}`` of the
+    decisions ``ds`` (:func:`decisions`), or None without any."""
+    if not ds:
+        return None
+    kinds: dict[str, int] = {}
+    for d in ds:
+        kinds[decision_kind(d)] = kinds.get(decision_kind(d), 0) + 1
+    last = ds[-1]
+    return {"n": len(ds), "kinds": kinds,
+            "last": {"generation": last.get("generation"), "kind": decision_kind(last),
+                     "agreement": last.get("agreement"), "length": last.get("length"),
+                     "pools": last.get("pools")}}
+
+
 def status(store: RunStore, run_dir: Path) -> dict[str, Any]:
     """The status of a study for the person at the robot (JSON-able).
 
@@ -127,7 +168,8 @@ def status(store: RunStore, run_dir: Path) -> dict[str, Any]:
     ``leases`` (id → asker, seconds left); ``queued``: asked from the critic, not handed out;
     ``told``: suggestions told; ``amended``: corrections; ``best``: the best trial over all
     phases (zero-shot included) with ``phase``, ``idx``, ``trial``, ``cost`` and
-    ``params_file`` (``DIR/best.json`` when written) -- or None."""
+    ``params_file`` (``DIR/best.json`` when written) -- or None; ``decisions``: the phase-3
+    critic's decisions so far (:func:`decisions_summary`), or None."""
     out: dict[str, Any] = {"dir": str(run_dir), "phases": {}}
     all_trials = store.trials()
     now = time.time()
@@ -151,6 +193,7 @@ def status(store: RunStore, run_dir: Path) -> dict[str, Any]:
     out["queued"] = sum(1 for t in all_trials if t.status == "queued")
     out["told"] = sum(1 for t in all_trials if t.status == "told")
     out["amended"] = len(store.amendments())
+    out["decisions"] = decisions_summary(decisions(store))
     b = best_row(store)
     f = run_dir / BEST_FILE
     out["best"] = None if b is None else {

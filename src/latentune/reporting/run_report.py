@@ -251,6 +251,34 @@ def _rollout_system(system: Any, cfg: dict[str, Any]):
     return sim if callable(getattr(sim, "rollout", None)) else None
 
 
+def decisions_markdown(store: Any) -> list[str]:
+    """The report's lines on the phase-3 critic's decisions (:func:`~latentune.pipeline.results.
+    decisions`): how many asks of each kind, then one table row per ask (generation, trials
+    told before it, kind, pools of its points, agreement, the trust region's side, admissible
+    candidates of all, the highest fall probability it asked); [] without any."""
+    from latentune.pipeline.results import decision_kind, decisions, decisions_summary
+
+    ds = decisions(store)
+    summ = decisions_summary(ds)
+    if summ is None:
+        return []
+    md = ["## Phase 3 decisions", "",
+          f"{summ['n']} asks: " + ", ".join(f"{k} {v}" for k, v in summ["kinds"].items())
+          + ". The agreement is the posterior mean of the source model's weight in the target's "
+          "cost model (1: the target ranks θ as the source did; 0: the source says nothing).", "",
+          "| generation | trials told | ask | pools | agreement | side | admissible | "
+          "max fall prob asked |", "|---:|---:|---|---|---:|---:|---:|---:|"]
+    for d in ds:
+        pools = "/".join(sorted(set(d.get("pools") or [])))
+        adm = "" if d.get("n_admissible") is None else \
+            f"{d['n_admissible']} of {d.get('n_candidates')}"
+        md.append(f"| {d.get('generation')} | {d.get('n_told')} | {decision_kind(d)} | {pools} | "
+                  f"{fmt(d.get('agreement'), 2)} | {fmt(d.get('length'), 4)} | {adm} | "
+                  f"{fmt(d.get('max_fall_prob_asked'), 2)} |")
+    md.append("")
+    return md
+
+
 def make_report(store: Any, system: Any = None, simulate: bool = True, quiet: bool = False) -> str:
     """Write ``DIR/report.md``, ``DIR/best_so_far.png``, ``DIR/summary.json`` and (``simulate``
     and a system with ``rollout(theta, record=True)``: ``system``, else the stored config's
@@ -305,6 +333,7 @@ def make_report(store: Any, system: Any = None, simulate: bool = True, quiet: bo
                       f"{ho['full_evals']} evaluations, best {_fmt(ho['full_best'])}, "
                       f"{ho['full_falls']} falls).")
         md.append("")
+    md += decisions_markdown(store)
     wall = summary.get("wall_by_phase_s") or {}
     if wall:
         md.append("Wall time: " + ", ".join(f"{k} {v:.0f} s" for k, v in wall.items()) + ".")
@@ -317,4 +346,4 @@ def make_report(store: Any, system: Any = None, simulate: bool = True, quiet: bo
 
 
 __all__ = ["comparison_table", "write_summary", "make_report", "run_stats", "task_from_config",
-           "phase_label", "fmt"]
+           "phase_label", "fmt", "decisions_markdown"]
