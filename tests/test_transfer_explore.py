@@ -416,7 +416,8 @@ def test_explore_adapt_is_checked(source, hypers, bad):
 def test_full_shape_cube_perturbs_every_coordinate_on_the_same_side(source, hypers):
     """``full_shape="cube"``: the full pool's box has side L on every coordinate; by default the
     sides follow the source's lengthscales (short lengthscale, narrow side)."""
-    assert TRANSFER_DEFAULTS["full_shape"] == "cube" and ADDED_OPTIONS["full_shape"] == "lengthscales"
+    assert TRANSFER_DEFAULTS["full_shape"] == "cube"
+    assert ADDED_OPTIONS["full_shape"] == "lengthscales"        # stored runs resume as they ran
     centre = np.full(D, 0.5)
     spans = {}
     for shape in ("lengthscales", "cube"):

@@ -68,8 +68,9 @@ expected improvement over the best told value instead of Thompson samples; ``res
 ``L`` back to ``length_init`` when halving it would go below ``length_min``; ``fit_ard`` = k > 0
 fits, once the target has k trials, the residual kernel's ARD lengthscales and σ_r² by marginal
 likelihood (GPyTorch, a log-normal prior around the source's lengthscales;
-:func:`fit_residual_kernel`) and shapes the full pool's box with them (with ``full_shape="lengthscales"``); ``design_screen`` lets
-the fall screen end the initial design when it rejects every remaining elite;
+:func:`fit_residual_kernel`) and shapes the full pool's box with them (with
+``full_shape="lengthscales"``); ``design_screen`` lets the fall screen end the initial design
+when it rejects every remaining elite;
 ``safe_fallback``: when the screen admits fewer candidates than the batch, perturbations of the
 centre on shrinking sides (``L/2 … L/2^8``) join the candidates before the least likely to fall
 are kept, so the search steps back toward its safe trial rather than asking over the screen;
@@ -143,9 +144,10 @@ explore ask (design, manual, converged) keeps the interval. Where the decoded ma
 nothing better than the region around the centre, the region asks get the budget; where explore
 asks keep finding records they keep coming every k-th ask. The schedule is replayed from the
 told history like the side ``L``.
-``full_shape`` (default ``"cube"``; ``"lengthscales"`` before): the full pool's box has sides ``L · w_i``,
-``w_i`` the lengthscales (the source's, or the fitted ones) over their geometric mean, clipped to
-[0.25, 4], as TuRBO shapes its region; ``"cube"`` gives every coordinate the side ``L``. A
+``full_shape`` (default ``"cube"``; ``"lengthscales"`` before session 24): with
+``"lengthscales"`` the full pool's box has sides ``L · w_i``, ``w_i`` the lengthscales (the
+source's, or the fitted ones) over their geometric mean, clipped to [0.25, 4], as TuRBO shapes
+its region; ``"cube"`` gives every coordinate the side ``L``. A
 coordinate the source's cost is most sensitive to has the shortest lengthscale and so the
 narrowest side, yet a change of the system (a payload, friction) moves the optimum of such a
 gain first: the cube lets the region follow it.
