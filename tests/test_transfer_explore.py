@@ -61,8 +61,7 @@ def _run(cr: Transfer, n: int) -> None:
 
 def test_off_asks_what_the_critic_asked_before(source, hypers):
     assert ADDED_OPTIONS["explore_every"] == 0      # stored runs from before resume without
-    cr = _critic(source, hypers, explore_every=0, source_order="stored",
-                 full_shape="lengthscales")
+    cr = _critic(source, hypers, explore_every=0, source_order="stored")
     _run(cr, 8)
     assert cr.tags.tolist() == _BEFORE_TAGS
     assert np.allclose(cr.X, _BEFORE_X, atol=1e-8)
@@ -70,7 +69,7 @@ def test_off_asks_what_the_critic_asked_before(source, hypers):
 
 
 def test_every_second_ask_decodes_a_code_of_the_whole_latent_box(source, hypers):
-    cr = _critic(source, hypers, explore_every=2, explore_pool="latent")
+    cr = _critic(source, hypers, explore_every=2)
     _run(cr, 8)
     ex = [d["generation"] for d in cr.decisions if d["explore"]]
     assert ex == [3, 5, 7]                  # after the design (0-2), g % 2 == 1
@@ -78,7 +77,7 @@ def test_every_second_ask_decodes_a_code_of_the_whole_latent_box(source, hypers)
         assert cr.tags[g] % 4 == LATENT
         assert np.allclose(cr.X[g], cr.latent.decode(cr._Z[g][None, :])[0])
     # with no latent share the other asks perturb the centre; the explore asks still decode
-    cr = _critic(source, hypers, explore_every=2, explore_pool="latent", latent_share_max=0.0)
+    cr = _critic(source, hypers, explore_every=2, latent_share_max=0.0)
     _run(cr, 8)
     assert [t % 4 for t in cr.tags[3:]] == [LATENT, FULL, LATENT, FULL, LATENT]
     # whole box: the pool's codes are not confined around the centre's code
@@ -87,7 +86,7 @@ def test_every_second_ask_decodes_a_code_of_the_whole_latent_box(source, hypers)
 
 
 def test_without_a_latent_space_explore_asks_the_whole_theta_box(source, hypers):
-    cr = _critic(source, hypers, latent=False, explore_every=2, explore_pool="latent")
+    cr = _critic(source, hypers, latent=False, explore_every=2)
     _run(cr, 6)
     assert [d["explore"] for d in cr.decisions] == [False] * 3 + [True, False, True]
     assert [t % 4 for t in cr.tags[[3, 5]]] == [GLOBAL, GLOBAL]
@@ -164,8 +163,7 @@ def test_stalled_explores_only_at_the_minimum_side(source, hypers):
     assert [d["generation"] for d in at_min.decisions if d["explore"]] == [3, 5, 7]
     # a side far above it (never halved in 8 asks of a 3-batch fail_tol to the minimum):
     # no explore ask, and the asks are those of the critic without explore asks
-    wide = _critic(source, hypers, explore_every=2, explore_when="stalled", source_order="stored",
-                   full_shape="lengthscales")
+    wide = _critic(source, hypers, explore_every=2, explore_when="stalled", source_order="stored")
     _run(wide, 8)
     assert not any(d["explore"] for d in wide.decisions)
     assert np.allclose(wide.X, _BEFORE_X, atol=1e-8)
@@ -416,8 +414,7 @@ def test_explore_adapt_is_checked(source, hypers, bad):
 def test_full_shape_cube_perturbs_every_coordinate_on_the_same_side(source, hypers):
     """``full_shape="cube"``: the full pool's box has side L on every coordinate; by default the
     sides follow the source's lengthscales (short lengthscale, narrow side)."""
-    assert TRANSFER_DEFAULTS["full_shape"] == "cube"
-    assert ADDED_OPTIONS["full_shape"] == "lengthscales"        # stored runs resume as they ran
+    assert TRANSFER_DEFAULTS["full_shape"] == "lengthscales" == ADDED_OPTIONS["full_shape"]
     centre = np.full(D, 0.5)
     spans = {}
     for shape in ("lengthscales", "cube"):
