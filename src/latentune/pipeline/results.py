@@ -150,8 +150,8 @@ def decisions_summary(ds: list[dict[str, Any]]) -> dict[str, Any] | None:
     if not ds:
         return None
     kinds: dict[str, int] = {}
-    for d in ds:
-        kinds[decision_kind(d)] = kinds.get(decision_kind(d), 0) + 1
+    for kind in map(decision_kind, ds):
+        kinds[kind] = kinds.get(kind, 0) + 1
     last = ds[-1]
     return {"n": len(ds), "kinds": kinds,
             "last": {"generation": last.get("generation"), "kind": decision_kind(last),
