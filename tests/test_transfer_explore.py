@@ -475,6 +475,31 @@ def test_explore_pool_lines_moves_one_or_two_coordinates_of_the_centre(source, h
         assert (np.abs(cr.X[g] - c) > 1e-12).sum() <= 2
 
 
+def test_lines_pick_fall_moves_the_gains_falls_depend_on_least(source, hypers):
+    """``lines_pick="fall"``: a coordinate is set with probability ∝ the source fall model's
+    lengthscale; by default, and where the source has no fall model, uniformly."""
+    assert TRANSFER_DEFAULTS["lines_pick"] == "uniform" == ADDED_OPTIONS["lines_pick"]
+    centre = np.full(D, 0.45)
+    ls = np.array([0.05, 0.05, 0.05, 0.05, 2.0, 2.0, 2.0, 2.0])[:D]
+    share = {}
+    for pick in ("uniform", "fall"):
+        cr = _critic(source, hypers, explore_pool="lines", lines_pick=pick)
+        assert cr.source_model().fall_gp is not None
+        cr.source_model().fall_gp.ls = ls.copy()
+        P = cr._pool_lines(4000, centre, np.random.default_rng(0))
+        moved = (np.abs(P - centre) > 1e-12).sum(0)
+        share[pick] = moved[ls < 1].sum() / moved.sum()
+    assert 0.4 < share["uniform"] < 0.6
+    assert share["fall"] < 0.05                 # 0.05 / 2.05 of the picks, ~2.4 %
+    cr = _critic(source, hypers, explore_pool="lines", lines_pick="fall")
+    cr.source_model().fall_gp = None
+    P = cr._pool_lines(4000, centre, np.random.default_rng(0))
+    moved = (np.abs(P - centre) > 1e-12).sum(0)
+    assert 0.4 < moved[ls < 1].sum() / moved.sum() < 0.6
+    with pytest.raises(ValueError, match="lines_pick must be one of"):
+        _critic(source, hypers, lines_pick="cost")
+
+
 def test_explore_pool_lines_decodes_the_latent_box_while_every_trial_fell(source, hypers):
     """``explore_pool="lines"`` with nothing standing on the target: the explore ask decodes a
     code of the whole latent box (tag pool ``latent``); once a trial stands, lines again."""

@@ -119,7 +119,8 @@ admits (``explore_falls`` counted on the source's draws alone), then the latent 
 under its own brake; ``"box"``: ``n_candidates`` Sobol points over the whole θ box (tag pool
 ``global``), where neither the source's manifold nor its distribution bound the search: the fall
 screen and the brake are what keep it off the falls; ``"lines"``: ``n_candidates`` copies of the
-centre with one coordinate (half of them) or two (the other half), chosen uniformly, set
+centre with one coordinate (half of them) or two (the other half), chosen uniformly (or, with
+``lines_pick="fall"``, in proportion to the source fall model's lengthscales), set
 uniformly over [0, 1] (tag pool ``global``): steps as far as the box's faces that keep the rest
 of the standing θ, for a gap that moves the best value of a few gains (a payload, friction)
 beyond the region the source's trials support. While every trial on the target fell there is
@@ -216,7 +217,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "stop_converged": False, "success_scale": "spread", "explore_every": 2,
     "explore_when": "always", "source_order": "canonical", "explore_falls": 3,
     "stand_first": False, "explore_pool": "latent", "explore_adapt": False,
-    "full_shape": "lengthscales", "tilt": 0.0,
+    "full_shape": "lengthscales", "tilt": 0.0, "lines_pick": "uniform",
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
@@ -228,7 +229,7 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "source_order": "stored", "explore_falls": 0,
                                  "stand_first": False, "explore_pool": "latent",
                                  "explore_adapt": False, "full_shape": "lengthscales",
-                                 "tilt": 0.0}
+                                 "tilt": 0.0, "lines_pick": "uniform"}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -258,6 +259,10 @@ EXPLORE_POOLS = ("latent", "source", "both", "auto", "box", "lines")
 latent box, the source's promising distribution over θ, half of each, or the latent box while
 every target trial fell and the source's distribution after, the whole θ box, or lines through
 the centre along one or two coordinates."""
+LINES_PICKS = ("uniform", "fall")
+"""How ``explore_pool="lines"`` picks the coordinates it sets (``lines_pick``): uniformly, or with
+probability in proportion to the source fall model's lengthscale (the gains its falls depend on
+least are moved most often)."""
 FULL_SHAPES = ("lengthscales", "cube")
 """The full pool's box (``full_shape``): sides in proportion to the lengthscales, or a cube."""
 EXPLORE_WHEN = ("always", "stalled")
@@ -784,6 +789,9 @@ class Transfer(TwoSpaceCritic):
         t = self.opts["tilt"]
         if isinstance(t, bool) or not isinstance(t, (int, float)) or not 0.0 <= float(t) < 10.0:
             raise ValueError(f"tilt must be a number in [0, 10) (0: no tilt), got {t!r}")
+        if self.opts["lines_pick"] not in LINES_PICKS:
+            raise ValueError(f"lines_pick must be one of {LINES_PICKS}, "
+                             f"got {self.opts['lines_pick']!r}")
         if self.opts["full_shape"] not in FULL_SHAPES:
             raise ValueError(f"full_shape must be one of {FULL_SHAPES}, "
                              f"got {self.opts['full_shape']!r}")
@@ -1087,16 +1095,23 @@ class Transfer(TwoSpaceCritic):
 
     def _pool_lines(self, m: int, centre: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """``m`` θ (m, d) on axis lines and planes through ``centre`` (d,): each is the centre
-        with one coordinate (half of them) or two (the other half), chosen uniformly, set
-        uniformly over its whole range [0, 1] (``explore_pool="lines"``): steps as far as the
-        box's faces that change as little of a standing θ as possible."""
+        with one coordinate (half of them) or two (the other half) set uniformly over its whole
+        range [0, 1] (``explore_pool="lines"``): steps as far as the box's faces that change as
+        little of a standing θ as possible. The coordinates are chosen uniformly, or with
+        ``lines_pick="fall"`` with probability ∝ the source fall model's lengthscales (uniformly
+        when the source has no fall model)."""
         if m <= 0:
             return np.empty((0, self.dim))
+        p = None
+        sm = self.source_model()
+        if self.opts["lines_pick"] == "fall" and sm.fall_gp is not None:
+            p = np.asarray(sm.fall_lengthscales, dtype=float)
+            p = p / p.sum()
         X = np.tile(centre, (m, 1))
         rows = np.arange(m)
-        X[rows, rng.integers(0, self.dim, size=m)] = rng.random(m)
+        X[rows, rng.choice(self.dim, size=m, p=p)] = rng.random(m)
         two = rows[rng.random(m) < 0.5]
-        X[two, rng.integers(0, self.dim, size=two.size)] = rng.random(two.size)
+        X[two, rng.choice(self.dim, size=two.size, p=p)] = rng.random(two.size)
         return X
 
     def _pool_source(self, m: int, rng: np.random.Generator) -> np.ndarray:
