@@ -347,3 +347,50 @@ def test_tilt_option_records_and_is_checked(source, hypers):
     for bad in (-1.0, "1", True, 10.0):
         with pytest.raises(ValueError, match="tilt must be a number"):
             _critic(source, hypers, tilt=bad)
+
+
+def test_fall_source_sd_screens_where_the_source_tried_nothing(source, hypers):
+    """``fall_source_sd``: the source fall model's posterior sd joins the fall screen's bound.
+    Its sd is small among the source's trials and near its prior's far from them, so the bound
+    rises there and only there; off (the default) the screen is unchanged."""
+    assert TRANSFER_DEFAULTS["fall_source_sd"] is False
+    X, y, f, c = source
+    sm = SourceModel(X, y, f, hypers=hypers)
+    near, far = c[None, :], np.ones((1, D))
+    assert sm.fall_sd(near)[0] < 0.5 * sm.fall_sd(far)[0]
+    assert np.isclose(sm.fall_sd(far)[0] ** 2, sm.fall_gp.outputscale, rtol=0.05)
+    # the GP's variance against BoTorch's posterior of the same hyperparameters
+    torch = pytest.importorskip("torch")
+    from botorch.models import SingleTaskGP
+    from gpytorch.kernels import MaternKernel, ScaleKernel
+    g, S = sm.fall_gp, sm.fall_gp.S
+    k = ScaleKernel(MaternKernel(nu=2.5, ard_num_dims=D))
+    k.base_kernel.lengthscale = torch.as_tensor(g.ls).reshape(1, D)
+    k.outputscale = torch.tensor(g.outputscale)
+    m = SingleTaskGP(torch.as_tensor(S), torch.zeros(len(S), 1, dtype=torch.float64),
+                     covar_module=k.double(), outcome_transform=None)
+    m.likelihood.noise = torch.tensor([hypers["fall"]["noise"]], dtype=torch.float64)
+    m.eval()
+    Q = np.random.default_rng(1).random((5, D))
+    ref = m.posterior(torch.as_tensor(Q)).variance.detach().numpy().reshape(-1)
+    assert np.allclose(g.variance(Q), ref, rtol=1e-4, atol=1e-8)
+    # the screen before the target has data: unchanged off; on, the mean plus kappa sd
+    P = np.vstack([near, far, Q])
+    off = _critic(source, hypers)
+    on = _critic(source, hypers, fall_source_sd=True, fall_kappa=1.5)
+    sm = on.source_model()
+    assert np.allclose(off._fall_prob(P, None), sm.fall_prob(P))
+    assert np.allclose(on._fall_prob(P, None),
+                       np.clip(sm.fall_prob(P) + 1.5 * sm.fall_sd(P), 0, 1))
+    # with target data the two variances add under the root
+    _bowl_tell = _bowl(c[None, :] + 0.05, c, 0.6)
+    for cr in (off, on):
+        cr.tell(c[None, :] + 0.05, _bowl_tell[0], np.array([1]), fell=_bowl_tell[1])
+    _, fm = on.models()
+    assert np.allclose(on._fall_prob(P, fm), np.clip(
+        fm.mean_cov(P, False)[0] + 1.5 * np.sqrt(fm.variance(P) + sm.fall_sd(P) ** 2), 0, 1))
+    _, fm = off.models()
+    assert np.allclose(off._fall_prob(P, fm), np.clip(
+        fm.mean_cov(P, False)[0] + np.sqrt(fm.variance(P)), 0, 1))
+    with pytest.raises(ValueError, match="fall_source_sd must be true or false"):
+        _critic(source, hypers, fall_source_sd="yes")

@@ -157,6 +157,10 @@ by marginal likelihood from ``(0, t/4, t/2, t)`` at every ask and recorded as th
 target's trials; the drift does not, so where the target's trials show the cost falling along a
 coordinate, the model predicts it goes on falling beyond them (a gap that moves a gain's best
 value toward a face).
+``fall_source_sd`` (default False) adds the source fall model's own posterior variance to the
+fall screen's bound (``fall_kappa`` times the root of the target fall model's variance plus the
+source's): far from every source trial the source's fall model only knows its prior mean, and
+the screen then treats such θ as unknown rather than as safe as the source's average.
 ``stand_first`` (default False): while every trial on the target fell, a batch that falls too
 leaves ``L`` and its counters alone: there is no incumbent it could fail to improve on, so the
 trust region that starts at the first standing trial starts at side ``length_init``, not at a
@@ -218,6 +222,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "explore_when": "always", "source_order": "canonical", "explore_falls": 3,
     "stand_first": False, "explore_pool": "latent", "explore_adapt": False,
     "full_shape": "lengthscales", "tilt": 0.0, "lines_pick": "uniform",
+    "fall_source_sd": False,
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
@@ -229,7 +234,8 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "source_order": "stored", "explore_falls": 0,
                                  "stand_first": False, "explore_pool": "latent",
                                  "explore_adapt": False, "full_shape": "lengthscales",
-                                 "tilt": 0.0, "lines_pick": "uniform"}
+                                 "tilt": 0.0, "lines_pick": "uniform",
+                                 "fall_source_sd": False}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -327,18 +333,30 @@ def _chol(K: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------- source models
 @dataclass
 class _GPFit:
-    """A fitted GP's numpy predictor: mean(X) = c + k(X, S) α."""
+    """A fitted GP's numpy predictor: mean(X) = c + k(X, S) α; variance(X) = k(X, X) −
+    k(X, S) K⁻¹ k(S, X) with ``chol`` the Cholesky factor of K = k(S, S) + noise·I."""
 
     S: np.ndarray
     alpha: np.ndarray
     ls: np.ndarray
     outputscale: float
     constant: float
+    chol: np.ndarray
 
     def mean(self, X: np.ndarray) -> np.ndarray:
         if self.S.shape[0] == 0:
             return np.full(X.shape[0], self.constant)
         return self.constant + self.outputscale * matern52(X, self.S, self.ls) @ self.alpha
+
+    def variance(self, X: np.ndarray) -> np.ndarray:
+        """Posterior variance (n,) of the latent function at X (n, d), noise excluded."""
+        if self.S.shape[0] == 0:
+            return np.full(X.shape[0], self.outputscale)
+        from scipy.linalg import solve_triangular
+
+        V = solve_triangular(self.chol, self.outputscale * matern52(self.S, X, self.ls),
+                             lower=True)
+        return np.maximum(self.outputscale - (V * V).sum(0), 0.0)
 
 
 def _scipy_fit(mll: Any) -> Any:
@@ -404,7 +422,7 @@ def _fit_gp(X: np.ndarray, y: np.ndarray, hypers: dict[str, Any] | None) -> tupl
     K = os_ * matern52(X, X, ls) + noise * np.eye(n)
     L = _chol(K)
     alpha = np.linalg.solve(L.T, np.linalg.solve(L, y - c))
-    return _GPFit(X, alpha, ls, os_, c), hypers
+    return _GPFit(X, alpha, ls, os_, c, L), hypers
 
 
 class SourceModel:
@@ -468,6 +486,14 @@ class SourceModel:
         if self.fall_gp is None:
             return np.full(X.shape[0], self.fall_rate)
         return np.clip(self.fall_gp.mean(X), 0.0, 1.0)
+
+    def fall_sd(self, X: np.ndarray) -> np.ndarray:
+        """Posterior standard deviation (n,) of the source fall model at θ (n, d): small near
+        the source's trials, its prior's (√outputscale) where the source tried nothing; zeros
+        without a fall model."""
+        if self.fall_gp is None:
+            return np.zeros(X.shape[0])
+        return np.sqrt(self.fall_gp.variance(X))
 
 
 # --------------------------------------------------------------------------- target model
@@ -776,7 +802,7 @@ class Transfer(TwoSpaceCritic):
         if isinstance(k_ex, bool) or not isinstance(k_ex, (int, np.integer)) or k_ex < 0 \
                 or k_ex == 1:
             raise ValueError(f"explore_every must be 0 (off) or an integer ≥ 2, got {k_ex!r}")
-        for flag in ("stand_first", "explore_adapt"):
+        for flag in ("stand_first", "explore_adapt", "fall_source_sd"):
             if not isinstance(self.opts[flag], (bool, np.bool_)):
                 raise ValueError(f"{flag} must be true or false, got {self.opts[flag]!r}")
         k_ef = self.opts["explore_falls"]
@@ -1381,11 +1407,18 @@ class Transfer(TwoSpaceCritic):
     def _fall_prob(self, C: np.ndarray, fall_m: TargetModel | None) -> np.ndarray:
         """The fall screen's probability (m,) at θ ``C`` (m, d): the source's fall model before
         the target has data, else the target fall model's upper confidence bound (where the
-        model is unsure, it screens)."""
+        model is unsure, it screens). With ``fall_source_sd`` the source fall model's own
+        standard deviation joins the bound (``fall_kappa`` times the root of the two variances
+        summed; before the target has data, the source mean plus ``fall_kappa`` of its sd), so
+        θ far from every source trial, where the source's fall model only knows its prior, are
+        screened as unknown rather than as the source's average."""
+        sm = self.source_model()
+        kappa = float(self.opts["fall_kappa"])
+        v_src = sm.fall_sd(C) ** 2 if self.opts["fall_source_sd"] else 0.0
         if fall_m is None:
-            return self.source_model().fall_prob(C)
-        return np.clip(fall_m.mean_cov(C, False)[0] + float(self.opts["fall_kappa"])
-                       * np.sqrt(fall_m.variance(C)), 0, 1)
+            return np.clip(sm.fall_prob(C) + kappa * np.sqrt(v_src), 0, 1)
+        return np.clip(fall_m.mean_cov(C, False)[0]
+                       + kappa * np.sqrt(fall_m.variance(C) + v_src), 0, 1)
 
     def _chosen(self, cands: _Candidates, sel: np.ndarray, ctx: _AskContext
                 ) -> tuple[np.ndarray, np.ndarray]:
