@@ -517,8 +517,7 @@ class TargetModel:
         for rho in ls_scales:
             kX = matern52(X, X, ls * rho)
             for t in tilts:
-                self.tilt = float(t)
-                hX = self._basis(X, self.h0X)
+                hX = self._basis(X, self.h0X, float(t))
                 b0 = np.concatenate([prior_mean, np.zeros(hX.shape[1] - 2)])
                 fits += [(self._log_evidence(kX, hX, b0, s) if choose else 0.0, s, rho,
                           float(t), kX) for s in grid]
@@ -532,12 +531,15 @@ class TargetModel:
         r = self.v - self.hX @ self.b0
         self.alpha = np.linalg.solve(self.L.T, np.linalg.solve(self.L, r))
 
-    def _basis(self, X: np.ndarray, h0: np.ndarray | None = None) -> np.ndarray:
-        """(m, 2) ``(h0(θ), 1)``, or (m, 2 + d) with the tilt's columns ``σ_t (θ − ½)``."""
+    def _basis(self, X: np.ndarray, h0: np.ndarray | None = None,
+               tilt: float | None = None) -> np.ndarray:
+        """(m, 2) ``(h0(θ), 1)``, or (m, 2 + d) with the tilt's columns ``σ_t (θ − ½)``
+        (``tilt``: σ_t, default the chosen one)."""
         h0 = self.feature(X) if h0 is None else h0
+        tilt = self.tilt if tilt is None else tilt
         cols = [np.stack([h0, np.ones(X.shape[0])], 1)]
-        if self.tilt > 0:
-            cols.append(self.tilt * (X - 0.5))
+        if tilt > 0:
+            cols.append(tilt * (X - 0.5))
         return np.hstack(cols)
 
     def _cov(self, k: np.ndarray, h1: np.ndarray, h2: np.ndarray,
