@@ -360,7 +360,7 @@ def test_fall_source_sd_screens_where_the_source_tried_nothing(source, hypers):
     assert sm.fall_sd(near)[0] < 0.5 * sm.fall_sd(far)[0]
     assert np.isclose(sm.fall_sd(far)[0] ** 2, sm.fall_gp.outputscale, rtol=0.05)
     # the GP's variance against BoTorch's posterior of the same hyperparameters
-    torch = pytest.importorskip("torch")
+    import torch
     from botorch.models import SingleTaskGP
     from gpytorch.kernels import MaternKernel, ScaleKernel
     g, S = sm.fall_gp, sm.fall_gp.S
@@ -383,9 +383,10 @@ def test_fall_source_sd_screens_where_the_source_tried_nothing(source, hypers):
     assert np.allclose(on._fall_prob(P, None),
                        np.clip(sm.fall_prob(P) + 1.5 * sm.fall_sd(P), 0, 1))
     # with target data the two variances add under the root
-    _bowl_tell = _bowl(c[None, :] + 0.05, c, 0.6)
+    x_t = c[None, :] + 0.05
+    y_t, f_t = _bowl(x_t, c, 0.6)
     for cr in (off, on):
-        cr.tell(c[None, :] + 0.05, _bowl_tell[0], np.array([1]), fell=_bowl_tell[1])
+        cr.tell(x_t, y_t, np.array([1]), fell=f_t)
     _, fm = on.models()
     assert np.allclose(on._fall_prob(P, fm), np.clip(
         fm.mean_cov(P, False)[0] + 1.5 * np.sqrt(fm.variance(P) + sm.fall_sd(P) ** 2), 0, 1))
