@@ -5,7 +5,6 @@ the tag protocol and argument checks; `benchmarks.ask_latency --max-fall-prob` (
 cost in an ask) at a tiny size."""
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 import torch
