@@ -17,6 +17,12 @@ Systems (``SYSTEMS``; the model is gap 0, each target is the same controller on 
 * ``hopper`` — :mod:`examples.gym_controller`, 36 weights of a linear Hopper controller; gap g
   scales the "real" perturbation: masses × (1 + 0.3 g), friction × (1 − 0.4 g), gear × (1 − 0.2 g),
   observation noise 0.01 g, a round(g)-step action delay (gaps 0.5, 1, 1.5).
+* ``springs`` — :mod:`examples.toy_plant`, 24 state-feedback gains of four masses on springs;
+  gap g: masses × (1 − 0.2 g), stiffness × (1 − 0.2 g), damping × (1 − 0.5 g), actuators ×
+  (1 + 0.5 g): a lighter, softer plant with stronger actuators, where the gains that damp the
+  model push the target unstable (at gap 2 the springs have no damping of their own and most
+  θ that are stable on the model fail; gaps 0.5, 1, 1.5, 2). Added after the default was
+  chosen and never used to choose an option: the held-out system.
 
 For every (system, seed) one source run: ``Study(ROOT/<system>/seed<s>/source, seed=s)``, phase 1
 (TuRBO-m, ``--source-evals`` trials on the model, batch 4) and the latent space. For every target
@@ -57,6 +63,8 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
+from latentune.system import evaluate  # noqa: E402
+
 PEERS = ("zero_shot", "turbo_manual", "turbo_source", "cma_source", "cma_source_trials", "tpe",
          "gp")
 OURS = ("transfer",)
@@ -90,10 +98,19 @@ def _arm(g: float) -> Any:
     return make_system(gap=g)
 
 
+def _springs(g: float) -> Any:
+    from examples.toy_plant import make_real_system
+
+    return make_real_system(mass_scale=1 - 0.2 * g, stiffness_scale=1 - 0.2 * g,
+                            damping_scale=1 - 0.5 * g, gain_scale=1 + 0.5 * g)
+
+
 SYSTEMS: dict[str, dict[str, Any]] = {
     "chain": {"model": lambda: _chain(0.0), "target": _chain, "gaps": (0.5, 1.0, 1.5, 2.0)},
     "arm": {"model": lambda: _arm(0.0), "target": _arm, "gaps": (0.5, 1.0, 1.5)},
     "hopper": {"model": _hopper_model, "target": _hopper_target, "gaps": (0.5, 1.0, 1.5)},
+    "springs": {"model": lambda: _springs(0.0), "target": _springs,
+                "gaps": (0.5, 1.0, 1.5, 2.0)},
 }
 
 
@@ -150,7 +167,7 @@ def _loop(critic: Any, target: Any, n: int, costs: list, failed: list,
         tags = critic.last_tags.copy()
         Z = getattr(critic, "last_z", None)
         theta = U[0] if decode is None else decode(U)[0]
-        out = target.evaluate(theta)
+        out = evaluate(target, theta)      # a failure without a cost gets C1 · (2 − k/N)
         costs.append(float(out.cost))
         failed.append(bool(out.failed))
         if thetas is not None:
@@ -189,7 +206,7 @@ def run_method(method: str, target: Any, src: Path, B: int, seed: int,
     extra: dict[str, Any] = {}
 
     def trial(theta: np.ndarray) -> Any:
-        out = target.evaluate(theta)
+        out = evaluate(target, theta)      # a failure without a cost gets C1 · (2 − k/N)
         costs.append(float(out.cost))
         failed.append(bool(out.failed))
         thetas.append([float(v) for v in np.asarray(theta).reshape(-1)])
@@ -303,13 +320,14 @@ def _ladder_target(run: dict[str, Any]) -> dict[str, Any]:
 def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
               target: Callable[[dict[str, Any]], dict[str, Any]] = _ladder_target,
               default: str = "transfer", methods: list[str] | None = None,
-              seeds: list[int] | None = None) -> dict[str, Any]:
+              seeds: list[int] | None = None,
+              systems: list[str] | None = None) -> dict[str, Any]:
     """The issue's criteria per target from every stored run under ``root`` (the files matching
     ``pattern``); ``target(run)`` gives a run's target fields, the key and head of its row
     (default: ``system`` and ``gap``). ``default`` names the method judged as latentune's default
     (its rows read as ``transfer``; the stored ``transfer`` runs then read as
     ``transfer@stored``); ``methods``: only these (names after that renaming) are read;
-    ``seeds``: only these seeds."""
+    ``seeds``: only these seeds; ``systems``: only these systems."""
     from scipy.stats import mannwhitneyu
 
     runs: dict[tuple, dict[str, dict[int, dict]]] = {}
@@ -320,6 +338,8 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
         if methods is not None and r["method"] not in methods:
             continue
         if seeds is not None and int(r["seed"]) not in seeds:
+            continue
+        if systems is not None and r.get("system") not in systems:
             continue
         runs.setdefault(tuple(target(r).items()), {}).setdefault(r["method"], {})[
             int(r["seed"])] = r
@@ -475,6 +495,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="the method judged as the default (e.g. a transfer+VARIANT)")
     s.add_argument("--methods", nargs="+", default=None,
                    help="read only these methods (after --default renames)")
+    s.add_argument("--systems", nargs="+", default=None, choices=list(SYSTEMS),
+                   help="read only these systems' targets")
     c = sub.add_parser("compare", help="methods against methods over (target, seed)")
     c.add_argument("--root", default="runs/transfer")
     c.add_argument("--a", nargs="+", required=True)
@@ -498,7 +520,7 @@ def main(argv: list[str] | None = None) -> int:
     from benchmarks.common import Provenance
 
     prov = Provenance(argv, module="benchmarks.transfer")
-    res = summarize(Path(a.root), default=a.default, methods=a.methods)
+    res = summarize(Path(a.root), default=a.default, methods=a.methods, systems=a.systems)
     res["provenance"] = prov.finish()
     out = Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)
