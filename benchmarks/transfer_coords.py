@@ -2,7 +2,8 @@
 coordinate, from the stored runs.
 
     python -m benchmarks.transfer_coords --root runs/transfer --methods transfer gp ...
-        --coords grav_1 fric_1 [--targets arm/gap1.5] [--seeds 0 1 2] [--out F.json] [--md F.md]
+        [--coords grav_1 fric_1] [--faces] [--targets arm/gap1.5] [--seeds 0 1 2] [--out F.json]
+        [--md F.md]
 
 For every target (``ROOT/<system>/gap<g>``, or those named by ``--targets``) and method, over
 the seeds that ran every listed method and hold their trials' θ (``thetas``, unit box): per
@@ -11,6 +12,11 @@ median over the seeds of the best standing θ's value (``best``) and of the high
 value any trial asked (``max``, ``min``). A method that never asks a coordinate beyond a value
 cannot find an optimum that lies beyond it: this is how a search that stays near the source's
 θ shows itself, whatever the cost says.
+
+``--faces`` adds one row per (target, method), coordinate ``on a face``: the share of the
+coordinates within ``FACE_TOL`` of 0 or 1 in the best standing θ (``best``), and the highest and
+lowest such share among the trials (``max``, ``min``), medians over the seeds. An optimizer of an
+acquisition over the box (GPSampler's) ends on its faces; a draw inside a trust region does not.
 """
 from __future__ import annotations
 
@@ -27,16 +33,24 @@ from benchmarks.transfer import SYSTEMS
 from benchmarks.transfer_curves import finish_ladder, ladder_args, targets
 
 
+FACE_TOL = 0.01
+"""A coordinate within this of 0 or 1 (unit box) is on a face (``--faces``)."""
+FACES = "on a face"
+"""The ``coordinate`` of the ``--faces`` rows."""
+
+
 def coordinate_names(system: str) -> list[str]:
     """The θ names of ladder system ``system`` (its model's parameter space)."""
     return list(SYSTEMS[system]["model"]().space.names)
 
 
 def coords(root: Path, methods: list[str], seeds: list[int] | None, names: list[str],
-           only: list[str] | None = None) -> list[dict[str, Any]]:
+           only: list[str] | None = None, faces: bool = False) -> list[dict[str, Any]]:
     """One row per (target, method, coordinate): seeds used, median best value, median max and
-    min asked (unit box). ``only``: target paths relative to ``root`` (``"arm/gap1.5"``).
-    ValueError when a name of ``names`` is not a coordinate (or index) of a target's system."""
+    min asked (unit box); with ``faces`` one more per (target, method), coordinate
+    :data:`FACES` (the module docstring). ``only``: target paths relative to ``root``
+    (``"arm/gap1.5"``). ValueError when a name of ``names`` is not a coordinate (or index) of a
+    target's system."""
     rows: list[dict[str, Any]] = []
     for tdir, use in targets(root, methods, seeds):
         rel = f"{tdir.parent.name}/{tdir.name}"
@@ -53,7 +67,7 @@ def coords(root: Path, methods: list[str], seeds: list[int] | None, names: list[
             runs = [r for r in runs if r.get("thetas")]
             if not runs:
                 continue
-            best, hi, lo = [], [], []
+            best, hi, lo, share = [], [], [], []
             for r in runs:
                 th = np.asarray(r["thetas"], dtype=float)
                 c = np.where(np.asarray(r["failed"], dtype=bool), np.inf,
@@ -61,12 +75,19 @@ def coords(root: Path, methods: list[str], seeds: list[int] | None, names: list[
                 best.append(th[int(np.argmin(c))])
                 hi.append(th.max(0))
                 lo.append(th.min(0))
+                on = ((th <= FACE_TOL) | (th >= 1 - FACE_TOL)).mean(1)     # (trials,)
+                share.append((on[int(np.argmin(c))], on.max(), on.min()))
             for i in idx:
                 rows.append({"target": rel, "method": m, "seeds": len(runs),
                              "coordinate": space[i],
                              "best": round(float(np.median([b[i] for b in best])), 3),
                              "max": round(float(np.median([h[i] for h in hi])), 3),
                              "min": round(float(np.median([v[i] for v in lo])), 3)})
+            if faces:
+                med = np.median(np.asarray(share), axis=0)
+                rows.append({"target": rel, "method": m, "seeds": len(runs), "coordinate": FACES,
+                             "best": round(float(med[0]), 3), "max": round(float(med[1]), 3),
+                             "min": round(float(med[2]), 3)})
     return rows
 
 
@@ -75,12 +96,18 @@ def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.transfer_coords")
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ladder_args(ap)
-    ap.add_argument("--coords", nargs="+", required=True,
+    ap.add_argument("--coords", nargs="+", default=[],
                     help="θ names of the system's parameter space, or indices")
+    ap.add_argument("--faces", action="store_true",
+                    help="one more row per target and method: the share of θ's coordinates on "
+                         "a face of the box")
     ap.add_argument("--targets", nargs="+", default=None, help="e.g. arm/gap1.5")
     a = ap.parse_args(argv)
+    if not a.coords and not a.faces:
+        print("transfer_coords: give --coords NAME ... or --faces (or both)", file=sys.stderr)
+        return 2
     try:
-        rows = coords(Path(a.root), a.methods, a.seeds, a.coords, a.targets)
+        rows = coords(Path(a.root), a.methods, a.seeds, a.coords, a.targets, a.faces)
     except ValueError as e:
         print(f"transfer_coords: {e}", file=sys.stderr)
         return 2

@@ -395,3 +395,29 @@ def test_fall_source_sd_screens_where_the_source_tried_nothing(source, hypers):
         fm.mean_cov(P, False)[0] + np.sqrt(fm.variance(P)), 0, 1))
     with pytest.raises(ValueError, match="fall_source_sd must be true or false"):
         _critic(source, hypers, fall_source_sd="yes")
+
+
+def test_face_snap_puts_full_pool_coordinates_on_the_faces_their_region_reaches(source, hypers):
+    """``face_snap``: a coordinate whose region reaches a face is set to it with the given
+    probability; a coordinate whose region stays inside the box never is; off, the pool is the
+    plain TuRBO draw (no coordinate exactly on a face)."""
+    assert TRANSFER_DEFAULTS["face_snap"] == 0.0
+    centre = np.full(D, 0.5)
+    centre[0], centre[1] = 0.05, 0.97               # regions reach face 0 and face 1
+    m = 4000
+    for p in (0.0, 0.5, 1.0):
+        cr = _critic(source, hypers, face_snap=p, full_shape="cube")
+        P = cr._pool_full(m, 0.4, centre, np.random.default_rng(0))
+        at0, at1 = P == 0.0, P == 1.0
+        assert not at1[:, 0].any() and not at0[:, 1].any()     # only the face it reaches
+        assert not (at0 | at1)[:, 2:].any()                     # interior regions: never
+        moved = np.abs(P[:, :2] - centre[:2]) > 0               # perturbed by the mask
+        share = np.array([at0[:, 0][moved[:, 0]].mean(), at1[:, 1][moved[:, 1]].mean()])
+        assert np.allclose(share, p, atol=0.03), (p, share)
+    # both faces in reach (a side over 1): the nearer face to the draw
+    cr = _critic(source, hypers, face_snap=1.0, full_shape="cube")
+    P = cr._pool_full(m, 2.0, centre, np.random.default_rng(1))
+    assert np.isin(P[:, 2:][P[:, 2:] != 0.5], (0.0, 1.0)).all()
+    for bad in (-0.1, 1.5, "0.5", True):
+        with pytest.raises(ValueError, match="face_snap must be a probability"):
+            _critic(source, hypers, face_snap=bad)

@@ -192,3 +192,24 @@ def test_coords_give_where_each_method_looked_and_its_best(tmp_path, capsys) -> 
         assert "grav_1," not in err[0].split("(")[0]        # only the unknown one is named
     assert tc.main(["--root", str(tmp_path), "--methods", "other", "--coords", "grav_1"]) == 2
     assert "no stored run holds θ" in capsys.readouterr().err
+    assert tc.main(["--root", str(tmp_path), "--methods", "m"]) == 2
+    assert "give --coords NAME ... or --faces" in capsys.readouterr().err
+
+
+def test_faces_give_the_share_of_coordinates_on_the_box_faces(tmp_path) -> None:
+    """``--faces``: per seed the share of the best standing θ's coordinates within 0.01 of 0 or
+    1 and the highest and lowest share among the trials; medians over the seeds."""
+    from benchmarks import transfer_coords as tc
+
+    d = len(tc.coordinate_names("arm"))
+    for s, k in enumerate((0, d // 2, d)):              # the best θ has k coordinates on a face
+        best = [1.0] * k + [0.5] * (d - k)
+        th = [[0.5] * d, best, [0.0] * d]               # the last one fell
+        _write(tmp_path, "m", s, [2.0, 1.0, 0.5], [False, False, True])
+        f = tmp_path / "arm" / "gap1" / f"seed{s}" / "m.json"
+        f.write_text(json.dumps({**json.loads(f.read_text()), "thetas": th}))
+    out = tmp_path / "f.json"
+    assert tc.main(["--root", str(tmp_path), "--methods", "m", "--faces", "--out", str(out)]) == 0
+    (r,) = json.loads(out.read_text())["rows"]
+    assert r["coordinate"] == tc.FACES and r["seeds"] == 3
+    assert (r["best"], r["max"], r["min"]) == (round((d // 2) / d, 3), 1.0, 0.0)

@@ -161,6 +161,13 @@ value toward a face).
 fall screen's bound (``fall_kappa`` times the root of the target fall model's variance plus the
 source's): far from every source trial the source's fall model only knows its prior mean, and
 the screen then treats such θ as unknown rather than as safe as the source's average.
+``face_snap`` = p > 0 (default 0: off): in the full pool every coordinate whose region reaches
+a face of the unit box (``[lb, ub]`` clipped at 0 or 1) is set to that face with probability
+p (the nearer one when it reaches both), before the perturbation mask: the candidates include
+the region's faces and corners, where a gain's best value on the target often lies (its bound)
+and where expected improvement maximized over the box by a gradient method ends, while a
+uniform draw inside the region reaches them with probability 0. The model chooses among them as
+among the others, and the fall screen applies.
 ``stand_first`` (default False): while every trial on the target fell, a batch that falls too
 leaves ``L`` and its counters alone: there is no incumbent it could fail to improve on, so the
 trust region that starts at the first standing trial starts at side ``length_init``, not at a
@@ -222,7 +229,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "explore_when": "always", "source_order": "canonical", "explore_falls": 3,
     "stand_first": False, "explore_pool": "latent", "explore_adapt": False,
     "full_shape": "lengthscales", "tilt": 0.0, "lines_pick": "uniform",
-    "fall_source_sd": False,
+    "fall_source_sd": False, "face_snap": 0.0,
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
@@ -235,7 +242,7 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "stand_first": False, "explore_pool": "latent",
                                  "explore_adapt": False, "full_shape": "lengthscales",
                                  "tilt": 0.0, "lines_pick": "uniform",
-                                 "fall_source_sd": False}
+                                 "fall_source_sd": False, "face_snap": 0.0}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -817,6 +824,9 @@ class Transfer(TwoSpaceCritic):
         t = self.opts["tilt"]
         if isinstance(t, bool) or not isinstance(t, (int, float)) or not 0.0 <= float(t) < 10.0:
             raise ValueError(f"tilt must be a number in [0, 10) (0: no tilt), got {t!r}")
+        f = self.opts["face_snap"]
+        if isinstance(f, bool) or not isinstance(f, (int, float)) or not 0.0 <= float(f) <= 1.0:
+            raise ValueError(f"face_snap must be a probability in [0, 1] (0: off), got {f!r}")
         if self.opts["lines_pick"] not in LINES_PICKS:
             raise ValueError(f"lines_pick must be one of {LINES_PICKS}, "
                              f"got {self.opts['lines_pick']!r}")
@@ -1106,10 +1116,24 @@ class Transfer(TwoSpaceCritic):
         sob = SobolEngine(self.dim, scramble=True, seed=int(rng.integers(2 ** 31))).draw(
             m, dtype=torch.float64).numpy()
         pert = lb + (ub - lb) * sob
+        if self.opts["face_snap"] > 0:
+            pert = self._snap_faces(pert, lb, ub, rng)
         mask = rng.random((m, self.dim)) <= min(20.0 / self.dim, 1.0)
         none = ~mask.any(1)
         mask[np.flatnonzero(none), rng.integers(0, self.dim, size=int(none.sum()))] = True
         return np.where(mask, pert, centre[None, :])
+
+    def _snap_faces(self, pert: np.ndarray, lb: np.ndarray, ub: np.ndarray,
+                    rng: np.random.Generator) -> np.ndarray:
+        """``pert`` (m, d) with each coordinate whose region ``[lb, ub]`` (d,) reaches a face of
+        the unit box set to that face with probability ``face_snap`` (the nearer face when the
+        region reaches both): a gain's best value on the target often lies at its bound, where
+        a continuous optimizer of the acquisition ends and a uniform draw in the region does
+        not (``face_snap``)."""
+        lo, hi = lb <= 0.0, ub >= 1.0
+        face = np.where(hi[None, :] & (~lo[None, :] | (pert >= 0.5)), 1.0, 0.0)
+        snap = (rng.random(pert.shape) < float(self.opts["face_snap"])) & (lo | hi)[None, :]
+        return np.where(snap, face, pert)
 
     def _pool_global(self, m: int, rng: np.random.Generator) -> np.ndarray:
         """``m`` scrambled Sobol points (m, d) over the whole θ box."""
