@@ -213,3 +213,68 @@ def test_faces_give_the_share_of_coordinates_on_the_box_faces(tmp_path) -> None:
     (r,) = json.loads(out.read_text())["rows"]
     assert r["coordinate"] == tc.FACES and r["seeds"] == 3
     assert (r["best"], r["max"], r["min"]) == (round((d // 2) / d, 3), 1.0, 0.0)
+
+
+class _Bowl:
+    """A 2-gain system: cost = 10·|θ − c|², a fall when θ₀ > ``edge`` (no cost: C1's rule)."""
+
+    def __init__(self, c: float, edge: float) -> None:
+        import latentune as lt
+
+        self.space = lt.ParameterSpace(["a", "b"], [0.0, 0.0], [1.0, 1.0], manual=[0.5, 0.5])
+        self.c, self.edge = c, edge
+
+    def evaluate(self, theta):
+        import latentune as lt
+
+        if theta[0] > self.edge:
+            return lt.Outcome(None, failed=True)
+        return float(10 * ((theta - self.c) ** 2).sum())
+
+
+def test_reach_runs_the_sources_best_standing_theta_on_the_target(tmp_path, monkeypatch, capsys):
+    """``transfer_reach``: per seed the source's trials that stood, best model cost first, are
+    run on the target; the best of the first k (falls excluded), on how many seeds it reaches
+    the best peer's median, and the falls among them."""
+    import numpy as np
+
+    import latentune as lt
+    from benchmarks import transfer_reach as rr
+    from latentune.critic.transfer import source_trials
+
+    monkeypatch.setitem(tr.SYSTEMS, "bowl", {"model": lambda: _Bowl(0.3, 0.9),
+                                             "target": lambda g: _Bowl(0.3 + 0.2 * g, 0.6),
+                                             "gaps": (1.0,)})
+    for s in (0, 1):
+        with lt.Study(tmp_path / "bowl" / f"seed{s}" / "source", seed=s) as st:
+            st.phase1(tr.SYSTEMS["bowl"]["model"](), 16)
+    ladder = tmp_path / "ladder.json"
+    ladder.write_text(json.dumps({"targets": [{"system": "bowl", "gap": 1.0, "best_peer": "gp",
+                                               "methods": {"gp": {"median_best": 0.5}}}]}))
+    out = tmp_path / "r.json"
+    assert rr.main(["--sources", str(tmp_path), "--ladder", str(ladder), "--systems", "bowl",
+                    "--seeds", "0", "1", "2", "--top", "1", "5", "--out", str(out)]) == 0
+    (row,) = json.loads(out.read_text())["rows"]
+    target = tr.SYSTEMS["bowl"]["target"](1.0)
+    best = {1: [], 5: []}
+    falls = {1: [], 5: []}
+    for s in (0, 1):                                    # seed 2 has no source: left out
+        X, y, f = source_trials(tmp_path / "bowl" / f"seed{s}" / "source")
+        order = np.flatnonzero(~f)[np.argsort(y[~f], kind="stable")]
+        for k in (1, 5):
+            fell = [x[0] > 0.6 for x in X[order[:k]]]
+            c = [target.evaluate(x) for x, fl in zip(X[order[:k]], fell) if not fl]
+            best[k].append(min(c, default=np.inf))
+            falls[k].append(sum(fell))
+    assert row["seeds"] == 2 and row["best peer"] == "gp" and row["its median"] == 0.5
+    for k in (1, 5):
+        assert row[f"best_of_top_{k}"] == pytest.approx(float(np.median(best[k])))
+        assert row[f"reach_top_{k}"] == sum(b <= 0.5 for b in best[k])
+        assert row[f"falls_top_{k}"] == float(np.median(falls[k]))
+    assert row["best_of_top_5"] <= row["best_of_top_1"]
+    capsys.readouterr()
+    assert rr.main(["--sources", str(tmp_path), "--ladder", str(tmp_path / "none.json")]) == 2
+    assert capsys.readouterr().err.startswith("transfer_reach: no ladder summary")
+    assert rr.main(["--sources", str(tmp_path / "empty"), "--ladder", str(ladder),
+                    "--systems", "bowl"]) == 2
+    assert "no source run under" in capsys.readouterr().err
