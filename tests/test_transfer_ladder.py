@@ -246,8 +246,8 @@ def test_reach_runs_the_sources_best_standing_theta_on_the_target(tmp_path, monk
                                              "target": lambda g: _Bowl(0.3 + 0.2 * g, 0.6),
                                              "gaps": (1.0,)})
     for s in (0, 1):
-        with lt.Study(tmp_path / "bowl" / f"seed{s}" / "source", seed=s) as st:
-            st.phase1(tr.SYSTEMS["bowl"]["model"](), 16)
+        with lt.Study(tmp_path / "bowl" / f"seed{s}" / "source", seed=s, batch_size=4) as st:
+            st.phase1(tr.SYSTEMS["bowl"]["model"](), 12)
     ladder = tmp_path / "ladder.json"
     ladder.write_text(json.dumps({"targets": [{"system": "bowl", "gap": 1.0, "best_peer": "gp",
                                                "methods": {"gp": {"median_best": 0.5}}}]}))
