@@ -4,9 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from latentune.critic.transfer import (ADDED_OPTIONS, LEGACY_OPTIONS, TRANSFER_DEFAULTS,
-                                       SourceModel, TargetModel, Transfer, elite_points,
-                                       rank_scores)
+from latentune.critic.transfer import (LEGACY_OPTIONS, TRANSFER_DEFAULTS, SourceModel,
+                                       TargetModel, Transfer, elite_points, rank_scores)
 
 D = 8
 
@@ -232,8 +231,7 @@ def test_design_screen_skips_elites_the_fall_model_rejects(source, hypers):
     y0, f0 = _bowl(best, corner, 0.3)
     runs = {}
     for on in (False, True):
-        cr = _critic(source, hypers, manual=np.full(D, 0.85), design_screen=on, explore_every=0,
-                     fall_source_sd=False)      # the screen on the target's fall model alone
+        cr = _critic(source, hypers, manual=np.full(D, 0.85), design_screen=on, explore_every=0)
         cr.tell(best[None], y0, fell=f0)
         runs[on] = (cr, _run(cr, corner, 0.3, 6)[1])
     off, on = runs[False][0].decisions, runs[True][0].decisions
@@ -354,8 +352,8 @@ def test_tilt_option_records_and_is_checked(source, hypers):
 def test_fall_source_sd_screens_where_the_source_tried_nothing(source, hypers):
     """``fall_source_sd``: the source fall model's posterior sd joins the fall screen's bound.
     Its sd is small among the source's trials and near its prior's far from them, so the bound
-    rises there and only there; off (runs stored before it) the screen is unchanged."""
-    assert TRANSFER_DEFAULTS["fall_source_sd"] is True and ADDED_OPTIONS["fall_source_sd"] is False
+    rises there and only there; off (the default) the screen is unchanged."""
+    assert TRANSFER_DEFAULTS["fall_source_sd"] is False
     X, y, f, c = source
     sm = SourceModel(X, y, f, hypers=hypers)
     near, far = c[None, :], np.ones((1, D))
@@ -378,7 +376,7 @@ def test_fall_source_sd_screens_where_the_source_tried_nothing(source, hypers):
     assert np.allclose(g.variance(Q), ref, rtol=1e-4, atol=1e-8)
     # the screen before the target has data: unchanged off; on, the mean plus kappa sd
     P = np.vstack([near, far, Q])
-    off = _critic(source, hypers, fall_source_sd=False)
+    off = _critic(source, hypers)
     on = _critic(source, hypers, fall_source_sd=True, fall_kappa=1.5)
     sm = on.source_model()
     assert np.allclose(off._fall_prob(P, None), sm.fall_prob(P))

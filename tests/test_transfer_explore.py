@@ -69,7 +69,7 @@ def test_off_asks_what_the_critic_asked_before(source, hypers):
 
 
 def test_every_second_ask_decodes_a_code_of_the_whole_latent_box(source, hypers):
-    cr = _critic(source, hypers, explore_every=2, explore_pool="latent")
+    cr = _critic(source, hypers, explore_every=2)
     _run(cr, 8)
     ex = [d["generation"] for d in cr.decisions if d["explore"]]
     assert ex == [3, 5, 7]                  # after the design (0-2), g % 2 == 1
@@ -77,7 +77,7 @@ def test_every_second_ask_decodes_a_code_of_the_whole_latent_box(source, hypers)
         assert cr.tags[g] % 4 == LATENT
         assert np.allclose(cr.X[g], cr.latent.decode(cr._Z[g][None, :])[0])
     # with no latent share the other asks perturb the centre; the explore asks still decode
-    cr = _critic(source, hypers, explore_every=2, explore_pool="latent", latent_share_max=0.0)
+    cr = _critic(source, hypers, explore_every=2, latent_share_max=0.0)
     _run(cr, 8)
     assert [t % 4 for t in cr.tags[3:]] == [LATENT, FULL, LATENT, FULL, LATENT]
     # whole box: the pool's codes are not confined around the centre's code
@@ -412,11 +412,9 @@ def test_explore_adapt_is_checked(source, hypers, bad):
 
 
 def test_full_shape_cube_perturbs_every_coordinate_on_the_same_side(source, hypers):
-    """``full_shape="cube"`` (the default): the full pool's box has side L on every coordinate;
-    with ``"lengthscales"`` (runs stored before the option) the sides follow the source's
-    lengthscales (short lengthscale, narrow side)."""
-    assert TRANSFER_DEFAULTS["full_shape"] == "cube"
-    assert ADDED_OPTIONS["full_shape"] == "lengthscales"
+    """``full_shape="cube"``: the full pool's box has side L on every coordinate; by default the
+    sides follow the source's lengthscales (short lengthscale, narrow side)."""
+    assert TRANSFER_DEFAULTS["full_shape"] == "lengthscales" == ADDED_OPTIONS["full_shape"]
     centre = np.full(D, 0.5)
     spans = {}
     for shape in ("lengthscales", "cube"):

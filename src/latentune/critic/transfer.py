@@ -38,8 +38,8 @@ Candidates come from three pools:
   from those chosen, in the unit box) and the target's manual θ, until evaluated;
 * ``latent``: Sobol codes in a box around the code of the target's best θ in the latent box,
   decoded (D);
-* ``full``: TuRBO-style perturbations of the target's best θ in a cube of side ``L`` (by
-  default; ``full_shape`` below; a coordinate is perturbed with probability ``min(20/d, 1)``); with
+* ``full``: TuRBO-style perturbations of the target's best θ in a box of side ``L`` shaped by the
+  source's lengthscales (a coordinate is perturbed with probability ``min(20/d, 1)``); with
   ``full_scales`` = s > 1 the pool is split evenly over the sides ``L, 2L, …, 2^(s-1) L`` (capped
   at ``length_max``), so the model, not the trust region alone, chooses how far to step;
 * ``global``: a share ``global_share`` of the candidates drawn over the whole θ box (Sobol).
@@ -54,13 +54,11 @@ when it beats the best by more than ``1e-3`` times the spread of the target's st
 (``success_scale="spread"`` below), not times ``|best|``, so a constant in the cost does not
 decide when the region shrinks. A candidate whose predicted
 fall probability (its posterior mean plus ``fall_kappa`` standard deviations: an upper
-confidence bound, as in safe Bayesian optimization; by default the source fall model's own
-variance joins it, ``fall_source_sd`` below) exceeds ``max_fall_prob`` is skipped (if fewer than the batch remain, the least
+confidence bound, as in safe Bayesian optimization) exceeds ``max_fall_prob`` is skipped (if fewer than the batch remain, the least
 likely to fall are kept); among the rest each point of the batch is the argmin of one joint
 Thompson sample of the cost model. By default every second ask after the design is an explore
-ask (``explore_every`` below): its candidates are the target's best standing θ with one or two
-coordinates moved anywhere in their range (``explore_pool="lines"``; decoded codes of the whole
-latent box while no trial stands), and ``L`` follows the other asks only.
+ask (``explore_every`` below): its candidates are decoded codes of the whole latent box, and
+``L`` follows the other asks only.
 
 Options that change the model and the choice (:data:`TRANSFER_DEFAULTS`): ``fit_lengthscale``
 lets the target cost model choose, with σ_r², a multiplier of the source's lengthscales
@@ -69,8 +67,7 @@ expected improvement over the best told value instead of Thompson samples; ``res
 ``L`` back to ``length_init`` when halving it would go below ``length_min``; ``fit_ard`` = k > 0
 fits, once the target has k trials, the residual kernel's ARD lengthscales and σ_r² by marginal
 likelihood (GPyTorch, a log-normal prior around the source's lengthscales;
-:func:`fit_residual_kernel`) and shapes the full pool's box with them (with
-``full_shape="lengthscales"``); ``design_screen`` lets
+:func:`fit_residual_kernel`) and shapes the full pool's box with them; ``design_screen`` lets
 the fall screen end the initial design when it rejects every remaining elite;
 ``safe_fallback``: when the screen admits fewer candidates than the batch, perturbations of the
 centre on shrinking sides (``L/2 … L/2^8``) join the candidates before the least likely to fall
@@ -110,7 +107,7 @@ trials in pool ``elite`` or ``full``). Explore generations leave ``L`` and its c
 not count in the latent pool's fall record (``latent_falls``); their trials are data for the
 models and raise the best value a later batch must beat, and an explore trial that becomes the
 best moves the centre, as any trial does. Each decision records ``"explore"``.
-``explore_pool`` (default ``"lines"``; ``"latent"`` before session 27) says where an explore ask's candidates come from:
+``explore_pool`` (default ``"latent"``) says where an explore ask's candidates come from:
 ``"latent"``, decoded codes of the whole latent box as above; ``"source"``, ``n_candidates`` θ
 drawn from the source's promising distribution (the Gaussian that warm-starts CMA-ES from a
 source task, Nomura et al. 2021, fitted to the top 10 % of the source's trials that did not
@@ -146,7 +143,7 @@ explore ask (design, manual, converged) keeps the interval. Where the decoded ma
 nothing better than the region around the centre, the region asks get the budget; where explore
 asks keep finding records they keep coming every k-th ask. The schedule is replayed from the
 told history like the side ``L``.
-``full_shape`` (default ``"cube"``; ``"lengthscales"`` before session 27): the full pool's box has sides ``L · w_i``,
+``full_shape`` (default ``"lengthscales"``): the full pool's box has sides ``L · w_i``,
 ``w_i`` the lengthscales (the source's, or the fitted ones) over their geometric mean, clipped to
 [0.25, 4], as TuRBO shapes its region; ``"cube"`` gives every coordinate the side ``L``. A
 coordinate the source's cost is most sensitive to has the shortest lengthscale and so the
@@ -160,7 +157,7 @@ by marginal likelihood from ``(0, t/4, t/2, t)`` at every ask and recorded as th
 target's trials; the drift does not, so where the target's trials show the cost falling along a
 coordinate, the model predicts it goes on falling beyond them (a gap that moves a gain's best
 value toward a face).
-``fall_source_sd`` (default True; False before session 27) adds the source fall model's own posterior variance to the
+``fall_source_sd`` (default False) adds the source fall model's own posterior variance to the
 fall screen's bound (``fall_kappa`` times the root of the target fall model's variance plus the
 source's): far from every source trial the source's fall model only knows its prior mean, and
 the screen then treats such θ as unknown rather than as safe as the source's average.
@@ -186,8 +183,7 @@ TuRBO-m fits a region's GP (:class:`TargetGP`: constant mean, Matérn-5/2 ARD by
 likelihood on the standardized rank scores, a cold fit at every ask); ``"prior"``, the transfer
 model ``a·m_s + b + r`` with the residual's ARD lengthscales and σ_r² fitted as ``fit_ard`` fits
 them; ``"transfer"``, the transfer model as before (only the side rules change). With
-``"target"`` and ``"prior"`` the full pool's box takes its shape from the fitted lengthscales
-(with ``full_shape="lengthscales"``).
+``"target"`` and ``"prior"`` the full pool's box takes its shape from the fitted lengthscales.
 The agreement, the latent share, the fall model and its screen are those of the early phase.
 ``handoff_fall_shrink`` adds TuRBO-m's rule for falls as the pipeline's fall-aware TuRBO-m runs
 it (``fall_shrink`` = ``max_fall_prob``; "Falls" in :mod:`latentune.critic.turbo`): a late
@@ -231,9 +227,9 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "handoff_model": "target", "handoff_fall_shrink": False, "handoff_rules": "turbo",
     "stop_converged": False, "success_scale": "spread", "explore_every": 2,
     "explore_when": "always", "source_order": "canonical", "explore_falls": 3,
-    "stand_first": False, "explore_pool": "lines", "explore_adapt": False,
-    "full_shape": "cube", "tilt": 0.0, "lines_pick": "uniform",
-    "fall_source_sd": True, "face_snap": 0.0,
+    "stand_first": False, "explore_pool": "latent", "explore_adapt": False,
+    "full_shape": "lengthscales", "tilt": 0.0, "lines_pick": "uniform",
+    "fall_source_sd": False, "face_snap": 0.0,
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
