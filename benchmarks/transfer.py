@@ -258,11 +258,16 @@ def compare_text(rows: list[dict[str, Any]]) -> str:
     """:func:`compare` rows as text: one line per pair of methods, one per target below it."""
     out = []
     for r in rows:
+        g, w = r.get("ratio_geo_mean"), r.get("ratio_worst")
         out.append(f"{r['a']} vs {r['b']}: {r['wins']} wins, {r['ties']} ties, {r['losses']} "
                    f"losses of {r['pairs']} (sign test p {r['sign_test_p']:.3f}); falls "
-                   f"{r['falls_a']} vs {r['falls_b']}")
+                   f"{r['falls_a']} vs {r['falls_b']}"
+                   + (f"; median ratio: geometric mean {g:.3f}, worst {w['ratio']:.3f} "
+                      f"({w['target']})" if g is not None and w is not None else ""))
         out += [f"  {t}: {c['wins']}/{c['ties']}/{c['losses']} (w/t/l), falls "
-                f"{c['falls_a']} vs {c['falls_b']}" for t, c in r["by_target"].items()]
+                f"{c['falls_a']} vs {c['falls_b']}"
+                + (f", medians {c['median_a']:.4g} vs {c['median_b']:.4g}"
+                   if "median_a" in c else "") for t, c in r["by_target"].items()]
     return "\n".join(out)
 
 
@@ -420,8 +425,12 @@ def compare(root: Path, a: str, b: str, seeds: list[int] | None = None,
     """Method ``a`` against ``b`` on every (target, seed) where both ran (only ``seeds`` when
     given): wins (lower best cost within the budget), ties, losses, a two-sided sign test on the
     non-ties, and the falls; the same counts per target (``by_target``, keyed by the two
-    directories above the seed's: ``"<system> gap<g>"``). ``pattern``: the run files under
-    ``root``, ``<target>/<sub>/seed<s>/<method>.json``."""
+    directories above the seed's: ``"<system> gap<g>"``), with the medians over its seeds of
+    each method's best cost and their ratio ``median_a / median_b``. A sign test counts wins,
+    not by how much: ``ratio_geo_mean`` (the geometric mean of the targets' ratios) and
+    ``ratio_worst`` (the largest, and its target) say how much (None where a median is not
+    positive). ``pattern``: the run files under ``root``,
+    ``<target>/<sub>/seed<s>/<method>.json``."""
     from scipy.stats import binomtest
 
     runs: dict[tuple[str, str, str], dict[str, dict]] = {}
@@ -440,7 +449,18 @@ def compare(root: Path, a: str, b: str, seeds: list[int] | None = None,
         t["wins" if x < 0 else "losses" if x > 0 else "ties"] += 1
         t["falls_a"] += int(sum(ra["failed"]))
         t["falls_b"] += int(sum(rb["failed"]))
+        t.setdefault("_best", []).append((min(ra["costs"]), min(rb["costs"])))
+    for t in by_target.values():
+        ma, mb = (float(np.median([p[i] for p in t["_best"]])) for i in (0, 1))
+        del t["_best"]
+        t.update(median_a=ma, median_b=mb, ratio=ma / mb if ma > 0 and mb > 0 else None)
+    ratios = {k: t["ratio"] for k, t in by_target.items()}
+    known = None not in ratios.values() and bool(ratios)
+    worst = max(ratios, key=lambda k: ratios[k]) if known else None
     return {"a": a, "b": b, "pairs": len(pairs), "wins": wins, "losses": losses,
+            "ratio_geo_mean": float(np.exp(np.mean(np.log(list(ratios.values())))))
+            if known else None,
+            "ratio_worst": {"target": worst, "ratio": ratios[worst]} if known else None,
             "ties": len(pairs) - wins - losses,
             "sign_test_p": float(binomtest(wins, wins + losses).pvalue) if wins + losses else 1.0,
             "falls_a": int(sum(sum(ra["failed"]) for _, ra, _ in pairs)),

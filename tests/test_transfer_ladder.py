@@ -56,9 +56,37 @@ def test_compare_counts_per_target_and_keeps_the_seeds_asked(tmp_path):
     r = tr.compare(tmp_path, "a", "b")
     assert (r["wins"], r["losses"], r["falls_a"]) == (2, 1, 1)
     assert r["by_target"]["arm gap1"] == {"wins": 2, "ties": 0, "losses": 1, "falls_a": 1,
-                                          "falls_b": 0}
+                                          "falls_b": 0, "median_a": 1.0, "median_b": 2.0,
+                                          "ratio": 0.5}
     r = tr.compare(tmp_path, "a", "b", seeds=[1, 2])
     assert (r["pairs"], r["wins"], r["losses"], r["falls_a"]) == (2, 1, 1, 0)
+    assert r["by_target"]["arm gap1"]["ratio"] == 1.0                # medians 2 and 2
+
+
+def test_compare_weighs_how_much_not_only_how_often(tmp_path):
+    """Wins on many targets by a little and a loss on one by much: the sign test sees mostly
+    wins, the median ratios' geometric mean and the worst target see the loss."""
+    import numpy as np
+
+    def put(target: str, s: int, a: float, b: float) -> None:
+        for m, c in (("a", a), ("b", b)):
+            f = tmp_path / target / "gap1" / f"seed{s}" / f"{m}.json"
+            f.parent.mkdir(parents=True, exist_ok=True)
+            f.write_text(json.dumps({"method": m, "costs": [c], "failed": [False]}))
+
+    for s in range(3):
+        for t in ("arm", "chain", "hopper"):
+            put(t, s, 0.99, 1.0)                       # 1 % better, 9 wins
+        put("springs", s, 2.0, 1.0)                    # twice as bad, 3 losses
+    r = tr.compare(tmp_path, "a", "b")
+    assert (r["wins"], r["losses"]) == (9, 3)
+    assert r["ratio_worst"] == {"target": "springs gap1", "ratio": 2.0}
+    assert np.isclose(r["ratio_geo_mean"], (0.99 ** 3 * 2.0) ** 0.25)
+    text = tr.compare_text([r])
+    assert "geometric mean 1.180, worst 2.000 (springs gap1)" in text
+    put("zero", 0, 0.0, 1.0)                           # a cost of 0: no ratio, no geometric mean
+    r = tr.compare(tmp_path, "a", "b")
+    assert r["by_target"]["zero gap1"]["ratio"] is None and r["ratio_geo_mean"] is None
 
 
 def test_transfer_curves_median_best_so_far_with_provenance(tmp_path) -> None:
