@@ -513,3 +513,35 @@ def test_explore_pool_lines_decodes_the_latent_box_while_every_trial_fell(source
     assert not np.isnan(cr.last_z).any()
     cr.tell(x, np.array([5.0]), cr.last_tags, fell=np.array([False]), z=cr.last_z)
     assert cr._replay_state()["explore_pool"] == "lines"
+
+
+def test_explore_pool_latent_lines_offers_both_and_the_model_chooses(source, hypers, monkeypatch):
+    """``explore_pool="latent_lines"``: each explore ask once a trial stands draws half its
+    candidates as decoded codes of the whole latent box and half as lines through the centre;
+    the chosen trial is one or the other (tag ``latent`` with its code, or ``global`` with at
+    most two coordinates off the centre)."""
+    calls: list[tuple[str, int]] = []
+    lat, lin = Transfer._pool_latent, Transfer._pool_lines
+
+    def spy_lat(self, m, L, c, rng, whole=False):
+        if whole:
+            calls.append(("latent", m))
+        return lat(self, m, L, c, rng, whole)
+
+    def spy_lin(self, m, c, rng):
+        calls.append(("lines", m))
+        return lin(self, m, c, rng)
+
+    monkeypatch.setattr(Transfer, "_pool_latent", spy_lat)
+    monkeypatch.setattr(Transfer, "_pool_lines", spy_lin)
+    cr = _critic(source, hypers, explore_pool="latent_lines")
+    _run(cr, 8)
+    ex = [d["generation"] for d in cr.decisions if d["explore"]]
+    assert ex == [3, 5, 7]
+    M = TRANSFER_DEFAULTS["n_candidates"]
+    assert calls == [("latent", M // 2), ("lines", M - M // 2)] * 3
+    assert all(d["explore_pool"] == "latent_lines" for d in cr.decisions if d["explore"])
+    for g in ex:
+        assert cr.tags[g] % 4 in (LATENT, GLOBAL)
+        if cr.tags[g] % 4 == LATENT:
+            assert np.allclose(cr.X[g], cr.latent.decode(cr._Z[g][None, :])[0])

@@ -125,7 +125,12 @@ uniformly over [0, 1] (tag pool ``global``): steps as far as the box's faces tha
 of the standing θ, for a gap that moves the best value of a few gains (a payload, friction)
 beyond the region the source's trials support. While every trial on the target fell there is
 no standing θ to draw lines through, and ``"lines"`` asks decode codes of the whole latent box
-as ``"latent"`` does (the whole θ box without a latent space).
+as ``"latent"`` does (the whole θ box without a latent space). ``"latent_lines"``: half the
+candidates are decoded codes of the whole latent box, half lines through the centre, so the
+model chooses at each explore ask between a step along the source's manifold (many gains
+together, what a 77-weight robot's explore asks gain by) and one gain or two moved as far as
+the box's faces (what a payload on a 21-weight arm needs); while no trial stands, the latent
+box alone.
 ``explore_when="stalled"`` makes a due generation an explore ask only while the side it is asked
 at is ``length_min`` (the trust region has nothing left to resolve near its centre); the other
 due generations are ordinary asks, so the local search keeps every ask while it still improves.
@@ -267,7 +272,7 @@ of the target's standing costs."""
 SOURCE_ORDERS = ("canonical", "stored")
 """The order the source's trials are used in (``source_order``): sorted by (cost, fell, θ), or as
 given."""
-EXPLORE_POOLS = ("latent", "source", "both", "auto", "box", "lines")
+EXPLORE_POOLS = ("latent", "source", "both", "auto", "box", "lines", "latent_lines")
 """Where an explore ask's candidates come from (``explore_pool``): decoded codes of the whole
 latent box, the source's promising distribution over θ, half of each, or the latent box while
 every target trial fell and the source's distribution after, the whole θ box, or lines through
@@ -1012,7 +1017,7 @@ class Transfer(TwoSpaceCritic):
         risk; then the latent box, until its codes did; then none. Without a latent space
         ``"auto"`` is ``"source"``."""
         where = self.opts["explore_pool"]
-        if where == "lines" and not standing:
+        if where in ("lines", "latent_lines") and not standing:
             where = "latent"            # no standing centre to draw lines through yet
         if where != "auto" or self.latent is None:
             where = "source" if where == "auto" else where
@@ -1308,10 +1313,15 @@ class Transfer(TwoSpaceCritic):
             # explore: the whole latent box (or θ box), or the source's distribution, only
             ctx.explore = True
             where = st["explore_pool"]
-            m_src = {"latent": 0, "source": M, "both": M // 2, "box": 0, "lines": 0}[where]
+            m_src = {"latent": 0, "source": M, "both": M // 2, "box": 0, "lines": 0,
+                     "latent_lines": 0}[where]
             if where == "lines":
                 parts = [(self._pool_lines(M, centre, rng), np.full((M, self.k), np.nan),
                           GLOBAL)]
+            elif where == "latent_lines":
+                XL, UL = self._pool_latent(M // 2, st["L"], centre, rng, whole=True)
+                XI = self._pool_lines(M - len(XL), centre, rng)
+                parts = [(XL, UL, LATENT), (XI, np.full((len(XI), self.k), np.nan), GLOBAL)]
             elif where == "box" or (self.latent is None and where == "latent"):
                 parts = [(self._pool_global(M, rng), np.full((M, self.k), np.nan), GLOBAL)]
             else:
