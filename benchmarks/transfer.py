@@ -440,19 +440,21 @@ def compare(root: Path, a: str, b: str, seeds: list[int] | None = None,
         r = json.loads(f.read_text())
         runs.setdefault(f.parts[-4:-1], {})[r["method"]] = r
     pairs = [(k, v[a], v[b]) for k, v in sorted(runs.items()) if a in v and b in v]
-    d = [min(ra["costs"]) - min(rb["costs"]) for _, ra, rb in pairs]
+    best = [(min(ra["costs"]), min(rb["costs"])) for _, ra, rb in pairs]
+    d = [ba - bb for ba, bb in best]
     wins, losses = sum(x < 0 for x in d), sum(x > 0 for x in d)
     by_target: dict[str, dict[str, Any]] = {}
-    for (k, ra, rb), x in zip(pairs, d):
-        t = by_target.setdefault(f"{k[0]} {k[1]}", {"wins": 0, "ties": 0, "losses": 0,
-                                                     "falls_a": 0, "falls_b": 0})
+    best_of: dict[str, list[tuple[float, float]]] = {}      # per target: (best a, best b)
+    for (k, ra, rb), x, ab in zip(pairs, d, best):
+        key = f"{k[0]} {k[1]}"
+        t = by_target.setdefault(key, {"wins": 0, "ties": 0, "losses": 0,
+                                       "falls_a": 0, "falls_b": 0})
         t["wins" if x < 0 else "losses" if x > 0 else "ties"] += 1
         t["falls_a"] += int(sum(ra["failed"]))
         t["falls_b"] += int(sum(rb["failed"]))
-        t.setdefault("_best", []).append((min(ra["costs"]), min(rb["costs"])))
-    for t in by_target.values():
-        ma, mb = (float(np.median([p[i] for p in t["_best"]])) for i in (0, 1))
-        del t["_best"]
+        best_of.setdefault(key, []).append(ab)
+    for key, t in by_target.items():
+        ma, mb = (float(v) for v in np.median(np.asarray(best_of[key]), axis=0))
         t.update(median_a=ma, median_b=mb, ratio=ma / mb if ma > 0 and mb > 0 else None)
     ratios = {k: t["ratio"] for k, t in by_target.items()}
     known = None not in ratios.values() and bool(ratios)

@@ -72,11 +72,12 @@ def coords(root: Path, methods: list[str], seeds: list[int] | None, names: list[
                 th = np.asarray(r["thetas"], dtype=float)
                 c = np.where(np.asarray(r["failed"], dtype=bool), np.inf,
                              np.asarray(r["costs"], dtype=float))
-                best.append(th[int(np.argmin(c))])
+                i_best = int(np.argmin(c))
+                best.append(th[i_best])
                 hi.append(th.max(0))
                 lo.append(th.min(0))
                 on = ((th <= FACE_TOL) | (th >= 1 - FACE_TOL)).mean(1)     # (trials,)
-                share.append((on[int(np.argmin(c))], on.max(), on.min()))
+                share.append((on[i_best], on.max(), on.min()))
             for i in idx:
                 rows.append({"target": rel, "method": m, "seeds": len(runs),
                              "coordinate": space[i],

@@ -1313,8 +1313,6 @@ class Transfer(TwoSpaceCritic):
             # explore: the whole latent box (or θ box), or the source's distribution, only
             ctx.explore = True
             where = st["explore_pool"]
-            m_src = {"latent": 0, "source": M, "both": M // 2, "box": 0, "lines": 0,
-                     "latent_lines": 0}[where]
             if where == "lines":
                 parts = [(self._pool_lines(M, centre, rng), np.full((M, self.k), np.nan),
                           GLOBAL)]
@@ -1324,8 +1322,9 @@ class Transfer(TwoSpaceCritic):
                 parts = [(XL, UL, LATENT), (XI, np.full((len(XI), self.k), np.nan), GLOBAL)]
             elif where == "box" or (self.latent is None and where == "latent"):
                 parts = [(self._pool_global(M, rng), np.full((M, self.k), np.nan), GLOBAL)]
-            else:
-                m_src = m_src if self.latent is not None else M
+            else:                       # "latent", "source" or "both"
+                m_src = {"latent": 0, "source": M, "both": M // 2}[where] \
+                    if self.latent is not None else M
                 XL, UL = self._pool_latent(M - m_src, st["L"], centre, rng, whole=True)
                 XS = self._pool_source(m_src, rng)
                 parts = [(XL, UL, LATENT), (XS, np.full((len(XS), self.k), np.nan), GLOBAL)]
