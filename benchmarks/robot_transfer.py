@@ -514,8 +514,11 @@ def summarize(root: Path, methods: list[str] | None = None, targets: list[str] |
     ``transfer`` runs as ``transfer@stored``)."""
     from scipy.stats import mannwhitneyu
 
-    s = tr.summarize(root / "targets", RESULT_GLOB, _target_key, default=default, methods=methods,
-                     seeds=seeds)
+    try:
+        s = tr.summarize(root / "targets", RESULT_GLOB, _target_key, default=default,
+                         methods=methods, seeds=seeds)
+    except ValueError as e:                 # e.g. no peer among the methods read
+        raise RobotTransferError(str(e)) from e
     if targets is not None:
         s["targets"] = [row for row in s["targets"] if row["target"] in targets]
     every = rungs(ROBOTS)

@@ -388,6 +388,10 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
                     row["methods"][m]["agreement_iqr"] = [float(np.percentile(agree, 25)),
                                                           float(np.percentile(agree, 75))]
         peers = [m for m in PEERS if m in row["methods"]]
+        if not peers:
+            raise ValueError(f"no peer among the methods read for {dict(key)} "
+                             f"(read: {', '.join(sorted(row['methods']))}; the peers: "
+                             f"{', '.join(PEERS)}): the criteria need at least one")
         bp = min(peers, key=lambda m: row["methods"][m]["median_best"])
         level = row["methods"][bp]["median_best"]
         row["best_peer"] = bp
@@ -542,7 +546,11 @@ def main(argv: list[str] | None = None) -> int:
     from benchmarks.common import Provenance
 
     prov = Provenance(argv, module="benchmarks.transfer")
-    res = summarize(Path(a.root), default=a.default, methods=a.methods, systems=a.systems)
+    try:
+        res = summarize(Path(a.root), default=a.default, methods=a.methods, systems=a.systems)
+    except ValueError as e:
+        print(f"transfer summary: {e}", file=sys.stderr)
+        return 2
     res["provenance"] = prov.finish()
     out = Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)

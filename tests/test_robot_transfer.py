@@ -434,3 +434,21 @@ def test_export_keeps_costs_falls_and_best_theta_and_restore_rebuilds_the_runs(t
         rt._best_theta({0: r})
     assert rt.main(["restore", "--traces", str(tmp_path / "none"), "--root", str(new)]) == 2
     assert "no traces under" in capsys.readouterr().err
+
+
+def test_summary_and_plot_without_a_peer_are_one_line(tmp_path, capsys):
+    """Read without any peer (``--methods transfer``), ``summary`` and ``plot`` cannot judge a
+    best peer: one line naming the rung and the methods read, exit 2, nothing written."""
+    for s in (0, 1):
+        f = rt.result_path(tmp_path, "a1-trot-hard", 5, s, "transfer")
+        f.parent.mkdir(parents=True, exist_ok=True)
+        f.write_text(json.dumps({"target": "a1-trot-hard", "source": "a1-trot", "source_trials": 5,
+                                 "seed": s, "method": "transfer", "costs": [6.0, 5.0],
+                                 "failed": [False, False]}))
+    for cmd in (["summary", "--out", str(tmp_path / "s.json")],
+                ["plot", "--out", str(tmp_path / "plots")]):
+        assert rt.main([*cmd, "--root", str(tmp_path), "--methods", "transfer"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "no peer among the methods read" in err[0], err
+        assert "'target': 'a1-trot-hard'" in err[0] and "(read: transfer;" in err[0]
+    assert not (tmp_path / "s.json").exists() and not (tmp_path / "plots").exists()

@@ -306,3 +306,19 @@ def test_reach_runs_the_sources_best_standing_theta_on_the_target(tmp_path, monk
     assert rr.main(["--sources", str(tmp_path / "empty"), "--ladder", str(ladder),
                     "--systems", "bowl"]) == 2
     assert "no source run under" in capsys.readouterr().err
+
+
+def test_summary_without_a_peer_is_one_line_not_a_traceback(tmp_path, capsys):
+    """The criteria need a best peer: with only latentune's methods read, ``summary`` says so in
+    one line (the target and the methods it read) and exits 2, writing nothing."""
+    for s in (0, 1):
+        _write(tmp_path, "transfer", s, [2.0, 1.0], [False, False])
+        _write(tmp_path, "tpe", s, [3.0, 2.0], [False, False])
+    out = tmp_path / "s.json"
+    assert tr.main(["summary", "--root", str(tmp_path), "--methods", "transfer",
+                    "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("transfer summary: no peer among the methods read")
+    assert "{'system': 'arm', 'gap': 1.0}" in err[0] and "(read: transfer;" in err[0]
+    assert not out.exists()
+    assert tr.main(["summary", "--root", str(tmp_path), "--out", str(out)]) == 0   # tpe: a peer
