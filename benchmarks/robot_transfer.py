@@ -11,7 +11,7 @@ sources of A1 and Solo12 to targets at several gaps.
     python -m benchmarks.robot_transfer import-paper --paper-run results/paper10k/a1
         [--root runs/robot_transfer] [--budget 100]
     python -m benchmarks.robot_transfer summary [--root runs/robot_transfer]
-        [--out results/robot_transfer/ladder.json] [--methods M ...] [--targets RUNG ...]
+        [--out F.json] [--methods M ...] [--targets RUNG ...]
         [--seeds S ...]
     python -m benchmarks.robot_transfer export --root runs/robot_transfer --out DIR
     python -m benchmarks.robot_transfer restore --traces DIR [--root runs/robot_transfer]
@@ -903,7 +903,9 @@ def parser() -> argparse.ArgumentParser:
     im.add_argument("--budget", type=_pos_int, default=100)
     s = sub.add_parser("summary", help="the criteria per rung")
     s.add_argument("--root", default="runs/robot_transfer")
-    s.add_argument("--out", default="results/robot_transfer/ladder.json")
+    s.add_argument("--out", default=None,
+                   help="write the summary to this JSON and its tables to the .md beside it "
+                        "(default: print only)")
     s.add_argument("--methods", nargs="+", default=None, help="only these methods' runs")
     s.add_argument("--targets", nargs="+", default=None, help="only these rungs")
     s.add_argument("--seeds", nargs="+", type=_nonneg_int, default=None, help="only these seeds")
@@ -973,9 +975,10 @@ def main(argv: list[str] | None = None) -> int:
             prov = Provenance(argv, module="benchmarks.robot_transfer")
             res = summarize(Path(a.root), a.methods, a.targets, a.seeds, a.default)
             p = prov.finish()
-            out = write_json(a.out, res, p)
             md = markdown(res)
-            out.with_suffix(".md").write_text(f"`{p['command']}`\n{md}\n")
+            if a.out:
+                out = write_json(a.out, res, p)
+                out.with_suffix(".md").write_text(f"`{p['command']}`\n{md}\n")
             print(md)
         elif a.cmd == "compare":
             from benchmarks.common import Provenance, write_json

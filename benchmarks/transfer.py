@@ -3,8 +3,9 @@
     python -m benchmarks.transfer run [--systems chain arm hopper] [--seeds 0 1 ... 9]
         [--budget 40] [--source-evals 300] [--root runs/transfer] [--only METHOD ...]
         [--variants OPTION=VALUE[:OPTION=VALUE] ...]   (transfer variants, stored as transfer+VARIANT)
-    python -m benchmarks.transfer summary [--root runs/transfer] [--out results/transfer/ladder.json]
-        [--default transfer+VARIANT] [--methods METHOD ...]
+    python -m benchmarks.transfer summary [--root runs/transfer] [--out F.json]
+        [--default transfer+VARIANT] [--methods METHOD ...]   (prints the tables; --out also
+        writes them, F.json and F.md)
     python -m benchmarks.transfer compare --root runs/transfer --a METHOD ... --b METHOD ...
         [--seeds S ...] [--out F]
 
@@ -516,7 +517,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="transfer variants option=value[:option=value], stored as transfer+VARIANT")
     s = sub.add_parser("summary")
     s.add_argument("--root", default="runs/transfer")
-    s.add_argument("--out", default="results/transfer/ladder.json")
+    s.add_argument("--out", default=None,
+                   help="write the summary to this JSON and its tables to the .md beside it "
+                        "(default: print only)")
     s.add_argument("--default", default="transfer",
                    help="the method judged as the default (e.g. a transfer+VARIANT)")
     s.add_argument("--methods", nargs="+", default=None,
@@ -552,11 +555,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"transfer summary: {e}", file=sys.stderr)
         return 2
     res["provenance"] = prov.finish()
-    out = Path(a.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(res, indent=1))
     md = markdown(res)
-    out.with_suffix(".md").write_text(f"`{res['provenance']['command']}`\n{md}\n")
+    if a.out:
+        out = Path(a.out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(res, indent=1))
+        out.with_suffix(".md").write_text(f"`{res['provenance']['command']}`\n{md}\n")
     print(md)
     return 0
 

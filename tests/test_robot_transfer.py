@@ -122,7 +122,7 @@ def test_snapshot_takes_the_source_latent_space_when_it_has_one(tmp_path):
     np.testing.assert_allclose(lt.LatentSpace.load(snap / "vae").encode(z), mine.encode(z))
 
 
-def test_run_files_record_the_source_size_and_resume(live, tmp_path):
+def test_run_files_record_the_source_size_and_resume(live, tmp_path, monkeypatch):
     snap = rt.snapshot(live, tmp_path / "sources" / "toy")
     n = rt.snapshot_info(snap)["n_trials"]
     target = make_real_system(steps=60)
@@ -149,6 +149,11 @@ def test_run_files_record_the_source_size_and_resume(live, tmp_path):
     assert row["beats_zero_shot"] is None           # 2 seeds: no p can be below 0.05
     assert "toy-real (source toy" in rt.markdown(s)
     assert "No method beats" not in rt.markdown(s)
+    cwd = tmp_path / "cwd"
+    cwd.mkdir()
+    monkeypatch.chdir(cwd)
+    assert rt.main(["summary", "--root", str(tmp_path)]) == 0       # prints, writes nothing
+    assert not any(cwd.rglob("*"))
     out = tmp_path / "out" / "ladder.json"
     assert rt.main(["summary", "--root", str(tmp_path), "--out", str(out)]) == 0
     written = json.loads(out.read_text())

@@ -545,3 +545,36 @@ def test_explore_pool_latent_lines_offers_both_and_the_model_chooses(source, hyp
         assert cr.tags[g] % 4 in (LATENT, GLOBAL)
         if cr.tags[g] % 4 == LATENT:
             assert np.allclose(cr.X[g], cr.latent.decode(cr._Z[g][None, :])[0])
+
+
+def test_explore_pool_adaptive_follows_each_pools_record(source, hypers):
+    """``explore_pool="adaptive"``: the first explore ask decodes the latent box; each later one
+    takes the pool with the higher ``(records + 1) / (asks + 2)`` over the told explore
+    generations (latent on a tie), whose record the replay rebuilds from the tags and costs."""
+    cr = _critic(source, hypers, explore_pool="adaptive", n_design=0)
+    cost = iter([5.0, 6.0, 4.0, 3.0, 3.5, 3.2, 2.0, 2.5, 1.9, 4.0])
+    pools: list[str] = []
+    for _ in range(10):
+        x = cr.ask(1)
+        d = cr.decisions[-1]
+        if d["explore"]:
+            pools.append(d["explore_pool"])
+            assert cr.last_tags[0] % 4 == (GLOBAL if d["explore_pool"] == "lines" else LATENT)
+            lat, lin = d["explore_record"]["latent"], d["explore_record"]["lines"]
+            assert (d["explore_pool"] == "lines") == \
+                ((lin[1] + 1) / (lin[0] + 2) > (lat[1] + 1) / (lat[0] + 2))
+        cr.tell(x, np.array([next(cost)]), cr.last_tags, fell=np.array([False]), z=cr.last_z)
+    # generations 1, 3, 5, 7, 9 are explore asks: the latent box at 1 finds nothing (6.0 > 5.0),
+    # so 3 tries the lines, which improve (3.0 < 4.0) and keep the asks at 5, 7 and 9 while their
+    # record (records + 1) / (asks + 2) stays above the latent box's 1/3; after 9 they tie at 1/3
+    assert pools == ["latent", "lines", "lines", "lines", "lines"]
+    st = cr._replay_state()
+    assert st["explore_record"] == {"latent": [1, 0], "lines": [4, 1]}
+    assert st["explore_pool"] == "latent"
+
+
+def test_explore_pool_adaptive_without_a_latent_space_draws_lines(source, hypers):
+    cr = _critic(source, hypers, latent=False, explore_pool="adaptive", n_design=0)
+    _run(cr, 6)
+    ex = [d for d in cr.decisions if d["explore"]]
+    assert ex and all(d["explore_pool"] == "lines" for d in ex)

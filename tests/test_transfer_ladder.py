@@ -322,3 +322,20 @@ def test_summary_without_a_peer_is_one_line_not_a_traceback(tmp_path, capsys):
     assert "{'system': 'arm', 'gap': 1.0}" in err[0] and "(read: transfer;" in err[0]
     assert not out.exists()
     assert tr.main(["summary", "--root", str(tmp_path), "--out", str(out)]) == 0   # tpe: a peer
+
+
+def test_summary_prints_and_writes_only_where_told(tmp_path, capsys, monkeypatch):
+    """``summary`` without ``--out`` prints the tables and writes no file (a committed summary is
+    not overwritten by a look at a root); with ``--out`` it writes the JSON and the .md."""
+    for s in (0, 1):
+        _write(tmp_path, "transfer", s, [2.0, 1.0], [False, False])
+        _write(tmp_path, "tpe", s, [3.0, 2.0], [False, False])
+    cwd = tmp_path / "cwd"
+    cwd.mkdir()
+    monkeypatch.chdir(cwd)
+    assert tr.main(["summary", "--root", str(tmp_path)]) == 0
+    assert "criteria:" in capsys.readouterr().out
+    assert not any(cwd.rglob("*"))
+    out = tmp_path / "s.json"
+    assert tr.main(["summary", "--root", str(tmp_path), "--out", str(out)]) == 0
+    assert json.loads(out.read_text())["targets"] and out.with_suffix(".md").exists()

@@ -130,7 +130,16 @@ candidates are decoded codes of the whole latent box, half lines through the cen
 model chooses at each explore ask between a step along the source's manifold (many gains
 together, what a 77-weight robot's explore asks gain by) and one gain or two moved as far as
 the box's faces (what a payload on a 21-weight arm needs); while no trial stands, the latent
-box alone.
+box alone. ``"adaptive"``: each explore ask takes one pool whole, decoded codes of the whole
+latent box or lines through the centre, chosen from the target's own record of the two: every
+told explore generation counts as an ask of its pool (tag pool ``latent`` or ``global``) and as
+a record when its best standing trial improved on the best before it (TuRBO's success rule, as
+``explore_adapt`` counts); the next explore ask takes the pool with the higher
+``(records + 1) / (asks + 2)`` (the mean of a uniform prior's posterior on the pool's record
+rate), the latent box on a tie. The decoded manifold goes first and keeps the explore asks while
+at least half of them make records; lines are tried once it falls below that and keep the asks
+while they do better. While no trial stands, the latent box. Each explore decision records the
+two pools' ``[asks, records]`` (``explore_record``). Without a latent space, ``"lines"``.
 ``explore_when="stalled"`` makes a due generation an explore ask only while the side it is asked
 at is ``length_min`` (the trust region has nothing left to resolve near its centre); the other
 due generations are ordinary asks, so the local search keeps every ask while it still improves.
@@ -272,11 +281,12 @@ of the target's standing costs."""
 SOURCE_ORDERS = ("canonical", "stored")
 """The order the source's trials are used in (``source_order``): sorted by (cost, fell, θ), or as
 given."""
-EXPLORE_POOLS = ("latent", "source", "both", "auto", "box", "lines", "latent_lines")
+EXPLORE_POOLS = ("latent", "source", "both", "auto", "box", "lines", "latent_lines", "adaptive")
 """Where an explore ask's candidates come from (``explore_pool``): decoded codes of the whole
 latent box, the source's promising distribution over θ, half of each, or the latent box while
 every target trial fell and the source's distribution after, the whole θ box, or lines through
-the centre along one or two coordinates."""
+the centre along one or two coordinates, half decoded codes and half lines, or decoded codes or
+lines by the target's record of each."""
 LINES_PICKS = ("uniform", "fall")
 """How ``explore_pool="lines"`` picks the coordinates it sets (``lines_pick``): uniformly, or with
 probability in proportion to the source fall model's lengthscale (the gains its falls depend on
@@ -938,15 +948,20 @@ class Transfer(TwoSpaceCritic):
             int((tags[ok & own] // 4).min()) if (ok & own).any() else math.inf
         k_ex = int(self.opts["explore_every"])
         interval, next_due = k_ex, k_ex - 1         # the explore schedule (``explore_adapt``)
+        record = {LATENT: [0, 0], GLOBAL: [0, 0]}  # per explore pool: [asks, records]
         for g in gens:
             m = own & (tags // 4 == g)
             standing = g > first_ok
             due = self._explore_generation(int(g), L, next_due)
-            if due and self._explore_pool(explore, standing) is not None and \
+            if due and self._explore_pool(explore, standing, record) is not None and \
                     not np.isin(tags[m] % 4, (ELITE, FULL)).any():
                 explore |= m            # data and best value only: L follows the other batches
                 gb = float(y[m].min())
-                if self._improves(gb, best, g, y, ext, own, tags):
+                improved = self._improves(gb, best, g, y, ext, own, tags)
+                kind = record.get(int(tags[m][0] % 4))
+                if kind is not None:
+                    kind[0], kind[1] = kind[0] + 1, kind[1] + int(improved)
+                if improved:
                     interval = k_ex
                 else:                   # an explore ask that found nothing: wait twice as long
                     interval = min(2 * interval, _EXPLORE_WAIT_MAX * k_ex)
@@ -984,9 +999,10 @@ class Transfer(TwoSpaceCritic):
             if late and self._fall_shrink_due(m, tags // 4 <= g):
                 L, succ, fail = max(min(L, side / 2.0), l_min), 0, 0
         lat = own & (tags % 4 == LATENT) & ~explore
-        pool = self._explore_pool(explore, bool(ok.any()))
+        pool = self._explore_pool(explore, bool(ok.any()), record)
         return {"L": L, "succ": succ, "fail": fail, "n_own": int(own.sum()), "restarts": restarts,
                 "explore_next": next_due,
+                "explore_record": {"latent": record[LATENT], "lines": record[GLOBAL]},
                 "converged": converged, "explore_braked": pool is None, "explore_pool": pool,
                 "explore_told": int(explore.sum()), "explore_fell": int(self._fell[explore].sum()),
                 "generation": int(gens.max()) + 1 if gens.size else 0,
@@ -1005,11 +1021,14 @@ class Transfer(TwoSpaceCritic):
         fell = int(self._fell[explore].sum())
         return fell >= k and fell > float(self.opts["max_fall_prob"]) * int(explore.sum())
 
-    def _explore_pool(self, explore: np.ndarray, standing: bool) -> str | None:
+    def _explore_pool(self, explore: np.ndarray, standing: bool,
+                      record: dict[int, list[int]] | None = None) -> str | None:
         """The pool of the next explore ask (``explore_pool`` resolved: ``"auto"`` to
-        ``"latent"`` or ``"source"``, ``"lines"`` to ``"latent"`` while no trial stands), or None
-        once the explore asks are braked, from the told explore trials ``explore`` (n,) bool and
-        whether a trial stands (``standing``).
+        ``"latent"`` or ``"source"``, ``"adaptive"`` to ``"latent"`` or ``"lines"``, ``"lines"``
+        to ``"latent"`` while no trial stands), or None once the explore asks are braked, from
+        the told explore trials ``explore`` (n,) bool, whether a trial stands (``standing``) and,
+        for ``"adaptive"``, the explore generations' ``[asks, records]`` per tag pool
+        (``record``, ``LATENT`` and ``GLOBAL``; none told: both ``[0, 0]``).
 
         With ``"auto"`` each pool has its own brake (``_explore_braked`` on its own explore
         trials: the source's draws carry tag pool ``global``, the decoded codes ``latent``): the
@@ -1017,6 +1036,13 @@ class Transfer(TwoSpaceCritic):
         risk; then the latent box, until its codes did; then none. Without a latent space
         ``"auto"`` is ``"source"``."""
         where = self.opts["explore_pool"]
+        if where == "adaptive" and self.latent is None:
+            where = "lines"             # no manifold to weigh the lines against
+        elif where == "adaptive":
+            rec = record or {}
+            lat, lin = rec.get(LATENT, [0, 0]), rec.get(GLOBAL, [0, 0])
+            where = "lines" if (lin[1] + 1) / (lin[0] + 2) > (lat[1] + 1) / (lat[0] + 2) \
+                else "latent"
         if where in ("lines", "latent_lines") and not standing:
             where = "latent"            # no standing centre to draw lines through yet
         if where != "auto" or self.latent is None:
@@ -1476,6 +1502,8 @@ class Transfer(TwoSpaceCritic):
             "pools": [POOL_NAMES[int(p)] for p in cands.pool[sel]],
             "explore": bool(ctx.explore),
             **({"explore_pool": ctx.state["explore_pool"]} if ctx.explore else {}),
+            **({"explore_record": ctx.state["explore_record"]}
+               if ctx.explore and self.opts["explore_pool"] == "adaptive" else {}),
             **({"explore_braked": True} if ctx.state.get("explore_braked") else {}),
             **({"explore_next": int(ctx.state["explore_next"])}
                if self.opts["explore_adapt"] else {}),
