@@ -11,6 +11,8 @@ ask: the trust region's pools, the manual θ after falls). Per kind, summed over
 ran every listed method: trials, falls, and *records*, the trials that did not fall and beat
 every earlier standing trial (zero-shot included; the first standing trial of a run is a record).
 ``final best by explore``: seeds whose lowest standing cost is an explore trial's.
+``explore asks by pool``: per pool the explore asks drew from (the decision's ``explore_pool``:
+``latent``, ``lines``, …), ``asks (with a record)``, summed over the seeds.
 ``agreement``: the median over the seeds of each run's median agreement (the posterior mean of
 the source model's weight ``a``) over its asks after the initial design (``None`` when no such
 ask recorded one).
@@ -50,8 +52,10 @@ def run_stats(run: dict[str, Any]) -> dict[str, Any]:
     kinds = ask_kinds(run)
     out: dict[str, Any] = {k: {"trials": 0, "falls": 0, "records": 0} for k in KINDS}
     best, final_kind = np.inf, None
+    is_record = []
     for kind, c, fell in zip(kinds, run["costs"], run["failed"]):
         record = not fell and c is not None and c < best
+        is_record.append(record)
         if record:
             best, final_kind = c, kind
         if kind is None:
@@ -60,6 +64,13 @@ def run_stats(run: dict[str, Any]) -> dict[str, Any]:
         out[kind]["falls"] += int(bool(fell))
         out[kind]["records"] += int(record)
     out["final_kind"] = final_kind
+    pools: dict[str, list[int]] = {}
+    for d in run.get("decisions", []):
+        if d.get("explore") and not d.get("design"):
+            got = pools.setdefault(str(d.get("explore_pool") or "latent"), [0, 0])
+            got[0] += 1
+            got[1] += int(any(is_record[d["n_told"]:d["n_told"] + len(d["pools"])]))
+    out["pools"] = pools
     agree = [d["agreement"] for d in run.get("decisions", [])
              if not d.get("design") and d.get("agreement") is not None]
     out["agreement"] = float(np.median(agree)) if agree else None
@@ -84,6 +95,13 @@ def explore_stats(root: Path, methods: list[str], seeds: list[int] | None
                 for q in ("trials", "falls", "records"):
                     row[f"{k} {q}"] = sum(s[k][q] for s in st)
             row["final best by explore"] = sum(s["final_kind"] == "explore" for s in st)
+            by_pool: dict[str, list[int]] = {}
+            for s in st:
+                for pool, (n, r) in s["pools"].items():
+                    got = by_pool.setdefault(pool, [0, 0])
+                    got[0], got[1] = got[0] + n, got[1] + r
+            row["explore asks by pool"] = ", ".join(
+                f"{pool} {n} ({r})" for pool, (n, r) in sorted(by_pool.items())) or None
             agree = [s["agreement"] for s in st if s["agreement"] is not None]
             row["agreement"] = round(float(np.median(agree)), 3) if agree else None
             rows.append(row)

@@ -119,18 +119,24 @@ def test_explore_stats_split_trials_by_ask(tmp_path) -> None:
     dec = [{"n_told": 1, "design": True, "explore": False, "pools": ["elite"], "agreement": 9.0},
            {"n_told": 2, "design": False, "explore": True, "pools": ["latent"], "agreement": 0.2},
            {"n_told": 3, "design": False, "explore": False, "pools": ["full"], "agreement": 0.4},
-           {"n_told": 4, "design": False, "explore": True, "pools": ["latent"], "agreement": 1.0}]
-    _write(tmp_path, "m", 0, [5.0, 6.0, 2.0, 1.0, 1.5], [False, False, False, True, False])
+           {"n_told": 4, "design": False, "explore": True, "pools": ["global"], "agreement": 1.0,
+            "explore_pool": "lines"},
+           {"n_told": 5, "design": False, "explore": True, "pools": ["global"], "agreement": 1.0,
+            "explore_pool": "lines"}]
+    _write(tmp_path, "m", 0, [5.0, 6.0, 2.0, 1.0, 1.5, 1.7],
+           [False, False, False, True, False, False])
     f = tmp_path / "arm" / "gap1" / "seed0" / "m.json"
     f.write_text(json.dumps({**json.loads(f.read_text()), "decisions": dec}))
     assert es.ask_kinds(json.loads(f.read_text())) == [None, "design", "explore", "region",
-                                                       "explore"]
+                                                       "explore", "explore"]
     out = tmp_path / "s.json"
     assert es.main(["--root", str(tmp_path), "--methods", "m", "--out", str(out)]) == 0
     (row,) = json.loads(out.read_text())["rows"]
-    assert (row["design records"], row["explore trials"], row["explore records"]) == (0, 2, 2)
+    assert (row["design records"], row["explore trials"], row["explore records"]) == (0, 3, 2)
+    # per pool: asks (with a record); an explore decision without a pool is the latent box's
+    assert row["explore asks by pool"] == "latent 1 (1), lines 2 (1)"
     assert (row["region falls"], row["region records"], row["final best by explore"]) == (1, 0, 1)
-    assert row["agreement"] == 0.4                  # the design ask's agreement does not count
+    assert row["agreement"] == 0.7                  # of 0.2, 0.4, 1, 1: not the design ask's 9
 
 
 def test_transfer_same_tells_equal_traces_from_different_ones(tmp_path) -> None:
