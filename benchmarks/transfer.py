@@ -533,34 +533,29 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("--seeds", nargs="+", type=int, default=None)
     c.add_argument("--out", default=None)
     a = ap.parse_args(argv)
-    if a.cmd == "compare":
-        from benchmarks.common import Provenance
+    from benchmarks.common import Provenance, write_json
 
+    if a.cmd == "compare":
         prov = Provenance(argv, module="benchmarks.transfer")
         rows = [compare(Path(a.root), x, b, a.seeds) for x in a.a for b in a.b]
         print(compare_text(rows))
         if a.out:
-            Path(a.out).write_text(json.dumps({"rows": rows, "provenance": prov.finish()},
-                                              indent=1))
+            write_json(a.out, {"rows": rows}, prov)
         return 0
     if a.cmd == "run":
         run(a)
         return 0
-    from benchmarks.common import Provenance
-
     prov = Provenance(argv, module="benchmarks.transfer")
     try:
         res = summarize(Path(a.root), default=a.default, methods=a.methods, systems=a.systems)
     except ValueError as e:
         print(f"transfer summary: {e}", file=sys.stderr)
         return 2
-    res["provenance"] = prov.finish()
+    p = prov.finish()
     md = markdown(res)
     if a.out:
-        out = Path(a.out)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(res, indent=1))
-        out.with_suffix(".md").write_text(f"`{res['provenance']['command']}`\n{md}\n")
+        out = write_json(a.out, res, p)
+        out.with_suffix(".md").write_text(f"`{p['command']}`\n{md}\n")
     print(md)
     return 0
 

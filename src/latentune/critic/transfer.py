@@ -958,9 +958,9 @@ class Transfer(TwoSpaceCritic):
                 explore |= m            # data and best value only: L follows the other batches
                 gb = float(y[m].min())
                 improved = self._improves(gb, best, g, y, ext, own, tags)
-                kind = record.get(int(tags[m][0] % 4))
-                if kind is not None:
-                    kind[0], kind[1] = kind[0] + 1, kind[1] + int(improved)
+                counts = record.get(int(tags[m][0] % 4))     # the pool this ask drew from
+                if counts is not None:
+                    counts[0], counts[1] = counts[0] + 1, counts[1] + int(improved)
                 if improved:
                     interval = k_ex
                 else:                   # an explore ask that found nothing: wait twice as long
