@@ -578,3 +578,56 @@ def test_explore_pool_adaptive_without_a_latent_space_draws_lines(source, hypers
     _run(cr, 6)
     ex = [d for d in cr.decisions if d["explore"]]
     assert ex and all(d["explore_pool"] == "lines" for d in ex)
+
+
+def _scripted(cr: Transfer, outcomes: list[tuple[float, bool]]) -> list[dict]:
+    """Asks one θ per outcome and tells it ``(cost, fell)``; the decisions made."""
+    for c, f in outcomes:
+        x = cr.ask(1)
+        cr.tell(x, np.array([c]), cr.last_tags, fell=np.array([f]), z=cr.last_z)
+    return cr.decisions
+
+
+@pytest.mark.parametrize("region_falls", [True, False])
+def test_explore_void_takes_back_a_record_the_region_fell_around(source, hypers, region_falls):
+    """``explore_void``: the lines' record at generation 3 (3.0 < 4.0) moves the centre to it; when
+    the region ask told after it (generation 4) falls, the record is void: the centre goes back to
+    generation 2's θ, the lines' record to none, and the next explore ask (5) decodes the latent
+    box on the tie. When generation 4 stands, the record holds and the lines keep the ask."""
+    cr = _critic(source, hypers, explore_pool="adaptive", explore_void=True, n_design=0)
+    out = [(5.0, False), (6.0, False), (4.0, False), (3.0, False), (2.9 if not region_falls
+                                                                   else 9.0, region_falls)]
+    dec = _scripted(cr, out)
+    assert [d["explore"] for d in dec] == [False, True, False, True, False]
+    assert dec[3]["explore_pool"] == "lines" and cr.tags[3] % 4 == GLOBAL
+    st = cr._replay_state()
+    if region_falls:
+        assert st["void"] == [3]
+        assert st["explore_record"] == {"latent": [1, 0], "lines": [1, 0]}
+        assert np.array_equal(cr._centre(np.arange(5) == 3), cr.X[2])
+        assert st["explore_pool"] == "latent"
+    else:
+        assert st["void"] == []
+        assert st["explore_record"] == {"latent": [1, 0], "lines": [1, 1]}
+        assert np.array_equal(cr._centre(), cr.X[4])
+        assert st["explore_pool"] == "lines"
+    x = cr.ask(1)
+    assert cr.decisions[-1]["explore_void"] == int(region_falls)
+    # a fresh critic told the same history replays the void and asks the same θ
+    fresh = _critic(source, hypers, explore_pool="adaptive", explore_void=True, n_design=0)
+    fresh.tell(cr.X, cr.y, cr.tags, fell=cr.fell, z=cr._Z)
+    assert np.allclose(fresh.ask(1), x)
+
+
+def test_explore_void_off_keeps_the_record(source, hypers):
+    cr = _critic(source, hypers, explore_pool="adaptive", n_design=0)
+    _scripted(cr, [(5.0, False), (6.0, False), (4.0, False), (3.0, False), (9.0, True)])
+    st = cr._replay_state()
+    assert st["explore_record"]["lines"] == [1, 1] and st["void"] == []
+    assert np.array_equal(cr._centre(), cr.X[3])
+
+
+@pytest.mark.parametrize("bad", [1, "yes", None])
+def test_explore_void_is_checked(source, hypers, bad):
+    with pytest.raises(ValueError, match="explore_void"):
+        _critic(source, hypers, explore_void=bad)

@@ -140,6 +140,15 @@ rate), the latent box on a tie. The decoded manifold goes first and keeps the ex
 at least half of them make records; lines are tried once it falls below that and keep the asks
 while they do better. While no trial stands, the latent box. Each explore decision records the
 two pools' ``[asks, records]`` (``explore_record``). Without a latent space, ``"lines"``.
+``explore_void`` (default False): a record an explore ask made holds only once the trust region
+around it stands. When more than ``max_fall_prob`` of the first region generation told after it
+(the next generation that is neither an explore nor a design ask) fell, the record is void: the
+explore trials that beat the best before them stop being the centre (it is the best standing
+trial that is not void), the best value the success rule counts from goes back to the best of
+the trials that are not void, and with ``"adaptive"`` the ask counts for its pool as one without
+a record. A step that lands a standing θ on the edge of a cliff (one gain moved to a face on a
+legged robot that only just stands) then moves the search once, not for the rest of the run.
+The told history replays the voids (``explore_void`` in each decision: the number so far).
 ``explore_when="stalled"`` makes a due generation an explore ask only while the side it is asked
 at is ``length_min`` (the trust region has nothing left to resolve near its centre); the other
 due generations are ordinary asks, so the local search keeps every ask while it still improves.
@@ -243,7 +252,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "explore_when": "always", "source_order": "canonical", "explore_falls": 3,
     "stand_first": False, "explore_pool": "latent", "explore_adapt": False,
     "full_shape": "lengthscales", "tilt": 0.0, "lines_pick": "uniform",
-    "fall_source_sd": False, "face_snap": 0.0,
+    "fall_source_sd": False, "face_snap": 0.0, "explore_void": False,
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
@@ -256,7 +265,8 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "stand_first": False, "explore_pool": "latent",
                                  "explore_adapt": False, "full_shape": "lengthscales",
                                  "tilt": 0.0, "lines_pick": "uniform",
-                                 "fall_source_sd": False, "face_snap": 0.0}
+                                 "fall_source_sd": False, "face_snap": 0.0,
+                                 "explore_void": False}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -826,7 +836,7 @@ class Transfer(TwoSpaceCritic):
         if isinstance(k_ex, bool) or not isinstance(k_ex, (int, np.integer)) or k_ex < 0 \
                 or k_ex == 1:
             raise ValueError(f"explore_every must be 0 (off) or an integer ≥ 2, got {k_ex!r}")
-        for flag in ("stand_first", "explore_adapt", "fall_source_sd"):
+        for flag in ("stand_first", "explore_adapt", "fall_source_sd", "explore_void"):
             if not isinstance(self.opts[flag], (bool, np.bool_)):
                 raise ValueError(f"{flag} must be true or false, got {self.opts[flag]!r}")
         k_ef = self.opts["explore_falls"]
@@ -949,6 +959,8 @@ class Transfer(TwoSpaceCritic):
         k_ex = int(self.opts["explore_every"])
         interval, next_due = k_ex, k_ex - 1         # the explore schedule (``explore_adapt``)
         record = {LATENT: [0, 0], GLOBAL: [0, 0]}  # per explore pool: [asks, records]
+        void = np.zeros(len(tags), dtype=bool)      # explore records the region fell around
+        pending: tuple[int, np.ndarray] | None = None   # (pool, trials) of the last record
         for g in gens:
             m = own & (tags // 4 == g)
             standing = g > first_ok
@@ -961,6 +973,8 @@ class Transfer(TwoSpaceCritic):
                 counts = record.get(int(tags[m][0] % 4))     # the pool this ask drew from
                 if counts is not None:
                     counts[0], counts[1] = counts[0] + 1, counts[1] + int(improved)
+                if improved and self.opts["explore_void"]:
+                    pending = (int(tags[m][0] % 4), m & (y < best))
                 if improved:
                     interval = k_ex
                 else:                   # an explore ask that found nothing: wait twice as long
@@ -971,6 +985,15 @@ class Transfer(TwoSpaceCritic):
                 continue
             if due:                     # due but not an explore ask: the interval stays
                 next_due = int(g) + interval
+            if pending is not None and not np.isin(tags[m] % 4, (ELITE,)).all():
+                if self._fell[m].mean() > float(self.opts["max_fall_prob"]):
+                    void |= pending[1]          # the region around the record fell: void
+                    counts = record.get(pending[0])
+                    if counts is not None:
+                        counts[1] -= 1
+                    kept = (ext | (own & (tags // 4 < g))) & ~void & np.isfinite(y)
+                    best = float(y[kept].min()) if kept.any() else math.inf
+                pending = None
             if self.opts["stand_first"] and not standing and not (ok & m).any():
                 n_seen += int(m.sum())  # every trial so far fell: no incumbent, L waits
                 continue
@@ -1001,7 +1024,7 @@ class Transfer(TwoSpaceCritic):
         lat = own & (tags % 4 == LATENT) & ~explore
         pool = self._explore_pool(explore, bool(ok.any()), record)
         return {"L": L, "succ": succ, "fail": fail, "n_own": int(own.sum()), "restarts": restarts,
-                "explore_next": next_due,
+                "explore_next": next_due, "void": np.flatnonzero(void).tolist(),
                 "explore_record": {"latent": record[LATENT], "lines": record[GLOBAL]},
                 "converged": converged, "explore_braked": pool is None, "explore_pool": pool,
                 "explore_told": int(explore.sum()), "explore_fell": int(self._fell[explore].sum()),
@@ -1116,13 +1139,15 @@ class Transfer(TwoSpaceCritic):
         k = int(self.opts["handoff"])
         return k > 0 and int((self._tags >= 0).sum()) >= k
 
-    def _centre(self) -> np.ndarray:
-        """The target's best θ: lowest cost among trials that did not fail, else the fall with
-        the lowest cost (falling later), else the first elite."""
+    def _centre(self, void: np.ndarray | None = None) -> np.ndarray:
+        """The target's best θ: lowest cost among trials that did not fail (and are not ``void``
+        (n,) bool: ``explore_void``), else the fall with the lowest cost (falling later), else
+        the first elite."""
         if self.n_told == 0:
             return self.elites()[0]
         y = np.where(np.isfinite(self._y), self._y, np.inf)
-        ok = ~self._fell
+        ok = ~self._fell if void is None or not (~self._fell & ~void).any() \
+            else ~self._fell & ~void
         if ok.any():
             return self._X[np.flatnonzero(ok)[np.argmin(y[ok])]]
         return self._X[int(np.argmin(y))]
@@ -1301,7 +1326,7 @@ class Transfer(TwoSpaceCritic):
         rng = np.random.default_rng([self.seed, g, 11])
         sm = self.source_model()
         cost_m, fall_m = self.models()
-        centre = self._centre()
+        centre = self._centre(np.isin(np.arange(self.n_told), st["void"]))
         agree, agree_sd = (np.array([1.0, 0.0]), np.array([1.0, 1.0])) if cost_m is None \
             else cost_m.coefficients()
         w_lat = float(np.clip(agree[0], 0.0, self.opts["latent_share_max"]))
@@ -1505,6 +1530,8 @@ class Transfer(TwoSpaceCritic):
             **({"explore_record": ctx.state["explore_record"]}
                if ctx.explore and self.opts["explore_pool"] == "adaptive" else {}),
             **({"explore_braked": True} if ctx.state.get("explore_braked") else {}),
+            **({"explore_void": len(ctx.state["void"])}
+               if self.opts["explore_void"] else {}),
             **({"explore_next": int(ctx.state["explore_next"])}
                if self.opts["explore_adapt"] else {}),
             **({"design_screened": True} if ctx.design_screened else {}),
