@@ -631,3 +631,28 @@ def test_explore_void_off_keeps_the_record(source, hypers):
 def test_explore_void_is_checked(source, hypers, bad):
     with pytest.raises(ValueError, match="explore_void"):
         _critic(source, hypers, explore_void=bad)
+
+
+@pytest.mark.parametrize("weight", [0.0, 1.0])
+def test_explore_fall_weight_counts_a_fallen_explore_ask_against_its_pool(source, hypers, weight):
+    """``explore_fall_weight`` = w: the lines' ask at generation 3 makes a record (3.0 < 4.0) and
+    the one at 5 falls. Unweighted the lines score (1 + 1) / (2 + 2) against the latent box's
+    1 / 3 and keep generation 7; with w = 1 they score (1 − 1 + 1) / 4 and the latent box takes
+    it. The record then holds ``[asks, records, falls]``."""
+    cr = _critic(source, hypers, explore_pool="adaptive", n_design=0, explore_fall_weight=weight)
+    dec = _scripted(cr, [(5.0, False), (6.0, False), (4.0, False), (3.0, False), (2.9, False),
+                         (9.0, True), (2.8, False)])
+    assert [d.get("explore_pool") for d in dec if d["explore"]] == ["latent", "lines", "lines"]
+    st = cr._replay_state()
+    if weight:
+        assert st["explore_record"] == {"latent": [1, 0, 0], "lines": [2, 1, 1]}
+        assert st["explore_pool"] == "latent"
+    else:
+        assert st["explore_record"] == {"latent": [1, 0], "lines": [2, 1]}
+        assert st["explore_pool"] == "lines"
+
+
+@pytest.mark.parametrize("bad", [-0.5, 11, "1", True])
+def test_explore_fall_weight_is_checked(source, hypers, bad):
+    with pytest.raises(ValueError, match="explore_fall_weight"):
+        _critic(source, hypers, explore_fall_weight=bad)

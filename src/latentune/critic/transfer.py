@@ -140,6 +140,11 @@ rate), the latent box on a tie. The decoded manifold goes first and keeps the ex
 at least half of them make records; lines are tried once it falls below that and keep the asks
 while they do better. While no trial stands, the latent box. Each explore decision records the
 two pools' ``[asks, records]`` (``explore_record``). Without a latent space, ``"lines"``.
+``explore_fall_weight`` = w > 0 (default 0: off) weighs the falls into that record: an explore
+generation in which a trial fell counts as ``w`` records less, so a pool scores
+``(records − w · falls + 1) / (asks + 2)`` and ``explore_record`` holds
+``[asks, records, falls]``; on a target where one pool's steps fall as often as they find
+records, the other pool takes the explore asks.
 ``explore_void`` (default False): a record an explore ask made holds only once the trust region
 around it stands. When more than ``max_fall_prob`` of the first region generation told after it
 (the next generation that is neither an explore nor a design ask) fell, the record is void: the
@@ -253,6 +258,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "stand_first": False, "explore_pool": "latent", "explore_adapt": False,
     "full_shape": "lengthscales", "tilt": 0.0, "lines_pick": "uniform",
     "fall_source_sd": False, "face_snap": 0.0, "explore_void": False,
+    "explore_fall_weight": 0.0,
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
@@ -266,7 +272,7 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "explore_adapt": False, "full_shape": "lengthscales",
                                  "tilt": 0.0, "lines_pick": "uniform",
                                  "fall_source_sd": False, "face_snap": 0.0,
-                                 "explore_void": False}
+                                 "explore_void": False, "explore_fall_weight": 0.0}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -849,6 +855,10 @@ class Transfer(TwoSpaceCritic):
         t = self.opts["tilt"]
         if isinstance(t, bool) or not isinstance(t, (int, float)) or not 0.0 <= float(t) < 10.0:
             raise ValueError(f"tilt must be a number in [0, 10) (0: no tilt), got {t!r}")
+        w_f = self.opts["explore_fall_weight"]
+        if isinstance(w_f, bool) or not isinstance(w_f, (int, float)) or not 0.0 <= w_f <= 10.0:
+            raise ValueError(f"explore_fall_weight must be a number in [0, 10] (0: off), "
+                             f"got {w_f!r}")
         f = self.opts["face_snap"]
         if isinstance(f, bool) or not isinstance(f, (int, float)) or not 0.0 <= float(f) <= 1.0:
             raise ValueError(f"face_snap must be a probability in [0, 1] (0: off), got {f!r}")
@@ -958,7 +968,7 @@ class Transfer(TwoSpaceCritic):
             int((tags[ok & own] // 4).min()) if (ok & own).any() else math.inf
         k_ex = int(self.opts["explore_every"])
         interval, next_due = k_ex, k_ex - 1         # the explore schedule (``explore_adapt``)
-        record = {LATENT: [0, 0], GLOBAL: [0, 0]}  # per explore pool: [asks, records]
+        record = {LATENT: [0, 0, 0], GLOBAL: [0, 0, 0]}    # per pool: [asks, records, falls]
         void = np.zeros(len(tags), dtype=bool)      # explore records the region fell around
         pending: tuple[int, np.ndarray] | None = None   # (pool, trials) of the last record
         for g in gens:
@@ -973,6 +983,7 @@ class Transfer(TwoSpaceCritic):
                 counts = record.get(int(tags[m][0] % 4))     # the pool this ask drew from
                 if counts is not None:
                     counts[0], counts[1] = counts[0] + 1, counts[1] + int(improved)
+                    counts[2] += int(self._fell[m].any())
                 if improved and self.opts["explore_void"]:
                     pending = (int(tags[m][0] % 4), m & (y < best))
                 if improved:
@@ -1023,9 +1034,10 @@ class Transfer(TwoSpaceCritic):
                 L, succ, fail = max(min(L, side / 2.0), l_min), 0, 0
         lat = own & (tags % 4 == LATENT) & ~explore
         pool = self._explore_pool(explore, bool(ok.any()), record)
+        n_rec = 3 if float(self.opts["explore_fall_weight"]) > 0 else 2
         return {"L": L, "succ": succ, "fail": fail, "n_own": int(own.sum()), "restarts": restarts,
                 "explore_next": next_due, "void": np.flatnonzero(void).tolist(),
-                "explore_record": {"latent": record[LATENT], "lines": record[GLOBAL]},
+                "explore_record": {"latent": record[LATENT][:n_rec], "lines": record[GLOBAL][:n_rec]},
                 "converged": converged, "explore_braked": pool is None, "explore_pool": pool,
                 "explore_told": int(explore.sum()), "explore_fell": int(self._fell[explore].sum()),
                 "generation": int(gens.max()) + 1 if gens.size else 0,
@@ -1062,10 +1074,10 @@ class Transfer(TwoSpaceCritic):
         if where == "adaptive" and self.latent is None:
             where = "lines"             # no manifold to weigh the lines against
         elif where == "adaptive":
-            rec = record or {}
-            lat, lin = rec.get(LATENT, [0, 0]), rec.get(GLOBAL, [0, 0])
-            where = "lines" if (lin[1] + 1) / (lin[0] + 2) > (lat[1] + 1) / (lat[0] + 2) \
-                else "latent"
+            rec, w = record or {}, float(self.opts["explore_fall_weight"])
+            lat, lin = rec.get(LATENT, [0, 0, 0]), rec.get(GLOBAL, [0, 0, 0])
+            where = "lines" if (lin[1] - w * lin[2] + 1) / (lin[0] + 2) > \
+                (lat[1] - w * lat[2] + 1) / (lat[0] + 2) else "latent"
         if where in ("lines", "latent_lines") and not standing:
             where = "latent"            # no standing centre to draw lines through yet
         if where != "auto" or self.latent is None:
