@@ -656,3 +656,45 @@ def test_explore_fall_weight_counts_a_fallen_explore_ask_against_its_pool(source
 def test_explore_fall_weight_is_checked(source, hypers, bad):
     with pytest.raises(ValueError, match="explore_fall_weight"):
         _critic(source, hypers, explore_fall_weight=bad)
+
+
+def test_centre_screen_moves_the_centre_off_a_trial_the_falls_around_it_condemn(source, hypers):
+    """``centre_screen``: the best standing trial (cost 1.0) has four falls within 0.01 of it, so
+    the fall screen rejects its θ; the centre becomes the next best standing trial the screen
+    admits (cost 2.0, far from the falls), and the ask records ``centre_screened``. Without the
+    option the centre stays at the best standing trial."""
+    X, y, f, _ = source
+    rng = np.random.default_rng(0)
+    a, b = np.full(D, 0.3), np.full(D, 0.7)
+    Xt = np.vstack([a, b, a + 0.01 * rng.uniform(-1, 1, (4, D))])
+    yt = np.array([1.0, 2.0, 9.0, 9.0, 9.0, 9.0])
+    ft = np.array([False, False, True, True, True, True])
+    for on in (True, False):
+        cr = _critic(source, hypers, n_design=0, centre_screen=on)
+        cr.tell(Xt, yt, np.full(len(yt), -1), fell=ft)
+        _, fall_m = cr.models()
+        pf = cr._fall_prob(Xt[:2], fall_m)
+        assert pf[0] > cr.opts["max_fall_prob"] >= pf[1]      # the screen condemns a, admits b
+        void = np.zeros(len(yt), dtype=bool)
+        c, moved = cr._screened_centre(cr._centre(void), void, fall_m)
+        assert np.array_equal(c, b) and moved
+        cr.ask(1)
+        assert cr.decisions[-1].get("centre_screened", False) is on
+
+
+def test_centre_screen_keeps_the_best_when_the_screen_admits_no_standing_trial(source, hypers):
+    cr = _critic(source, hypers, n_design=0, centre_screen=True)
+    a = np.full(D, 0.3)
+    rng = np.random.default_rng(1)
+    Xt = np.vstack([a, a + 0.01 * rng.uniform(-1, 1, (4, D))])
+    cr.tell(Xt, np.array([1.0, 9.0, 9.0, 9.0, 9.0]), np.full(5, -1),
+            fell=np.array([False, True, True, True, True]))
+    _, fall_m = cr.models()
+    c, moved = cr._screened_centre(cr._centre(), np.zeros(5, dtype=bool), fall_m)
+    assert np.array_equal(c, a) and not moved
+
+
+@pytest.mark.parametrize("bad", [1, "yes"])
+def test_centre_screen_is_checked(source, hypers, bad):
+    with pytest.raises(ValueError, match="centre_screen"):
+        _critic(source, hypers, centre_screen=bad)

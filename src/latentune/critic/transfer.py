@@ -154,6 +154,14 @@ the trials that are not void, and with ``"adaptive"`` the ask counts for its poo
 a record. A step that lands a standing θ on the edge of a cliff (one gain moved to a face on a
 legged robot that only just stands) then moves the search once, not for the rest of the run.
 The told history replays the voids (``explore_void`` in each decision: the number so far).
+``centre_screen`` (default False): the centre the trust region, the lines and the latent box
+around the best θ are drawn about is the best standing trial whose θ the fall screen admits
+(the target fall model's bound ≤ ``max_fall_prob``, the same bound the candidates pass), not
+the best standing trial when the falls around it put it over the bound; when the screen admits
+no standing trial, the best one. On a target whose best trial only just stands (a third of the
+trials around it fall), the search moves to the best trial whose neighbourhood stands instead
+of asking around a θ the model already expects to fall. Each ask that moved the centre records
+``centre_screened``.
 ``explore_when="stalled"`` makes a due generation an explore ask only while the side it is asked
 at is ``length_min`` (the trust region has nothing left to resolve near its centre); the other
 due generations are ordinary asks, so the local search keeps every ask while it still improves.
@@ -258,7 +266,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "stand_first": False, "explore_pool": "latent", "explore_adapt": False,
     "full_shape": "lengthscales", "tilt": 0.0, "lines_pick": "uniform",
     "fall_source_sd": False, "face_snap": 0.0, "explore_void": False,
-    "explore_fall_weight": 0.0,
+    "explore_fall_weight": 0.0, "centre_screen": False,
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
@@ -272,7 +280,8 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "explore_adapt": False, "full_shape": "lengthscales",
                                  "tilt": 0.0, "lines_pick": "uniform",
                                  "fall_source_sd": False, "face_snap": 0.0,
-                                 "explore_void": False, "explore_fall_weight": 0.0}
+                                 "explore_void": False, "explore_fall_weight": 0.0,
+                                 "centre_screen": False}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -783,6 +792,7 @@ class _AskContext:
     design_screened: bool = False
     safe_fallback: bool = False
     explore: bool = False
+    centre_screened: bool = False
 
 
 @dataclass
@@ -842,7 +852,8 @@ class Transfer(TwoSpaceCritic):
         if isinstance(k_ex, bool) or not isinstance(k_ex, (int, np.integer)) or k_ex < 0 \
                 or k_ex == 1:
             raise ValueError(f"explore_every must be 0 (off) or an integer ≥ 2, got {k_ex!r}")
-        for flag in ("stand_first", "explore_adapt", "fall_source_sd", "explore_void"):
+        for flag in ("stand_first", "explore_adapt", "fall_source_sd", "explore_void",
+                     "centre_screen"):
             if not isinstance(self.opts[flag], (bool, np.bool_)):
                 raise ValueError(f"{flag} must be true or false, got {self.opts[flag]!r}")
         k_ef = self.opts["explore_falls"]
@@ -1164,6 +1175,23 @@ class Transfer(TwoSpaceCritic):
             return self._X[np.flatnonzero(ok)[np.argmin(y[ok])]]
         return self._X[int(np.argmin(y))]
 
+    def _screened_centre(self, centre: np.ndarray, void: np.ndarray, fall_m: TargetModel
+                         ) -> tuple[np.ndarray, bool]:
+        """``centre_screen``: the best standing trial (not ``void`` (n,) bool) whose θ the fall
+        screen admits (:meth:`_fall_prob` ≤ ``max_fall_prob`` under the target fall model
+        ``fall_m``), and whether it differs from ``centre`` (d,), the best standing trial; when
+        the screen admits none, ``centre`` itself."""
+        y = np.where(np.isfinite(self._y), self._y, np.inf)
+        idx = np.flatnonzero(~self._fell & ~void)
+        if idx.size == 0:
+            return centre, False
+        idx = idx[np.argsort(y[idx], kind="stable")]
+        ok = self._fall_prob(self._X[idx], fall_m) <= float(self.opts["max_fall_prob"])
+        if not ok.any():
+            return centre, False
+        c = self._X[idx[int(np.argmax(ok))]]
+        return c, not np.array_equal(c, centre)
+
     # ------------------------------------------------------------------ pools
     def _pool_full(self, m: int, L: float, centre: np.ndarray, rng: np.random.Generator,
                    ls: np.ndarray | None = None) -> np.ndarray:
@@ -1338,7 +1366,11 @@ class Transfer(TwoSpaceCritic):
         rng = np.random.default_rng([self.seed, g, 11])
         sm = self.source_model()
         cost_m, fall_m = self.models()
-        centre = self._centre(np.isin(np.arange(self.n_told), st["void"]))
+        void = np.isin(np.arange(self.n_told), st["void"])
+        centre = self._centre(void)
+        centre_screened = False
+        if self.opts["centre_screen"] and fall_m is not None:
+            centre, centre_screened = self._screened_centre(centre, void, fall_m)
         agree, agree_sd = (np.array([1.0, 0.0]), np.array([1.0, 1.0])) if cost_m is None \
             else cost_m.coefficients()
         w_lat = float(np.clip(agree[0], 0.0, self.opts["latent_share_max"]))
@@ -1363,7 +1395,8 @@ class Transfer(TwoSpaceCritic):
                                    "pools": ["full"] * n, "explore": False})
             return np.tile(centre, (n, 1)), np.full(n, 4 * g + FULL, dtype=np.int64)
         ctx = _AskContext(generation=g, state=st, design=design, agree=agree,
-                          agree_sd=agree_sd, w_lat=w_lat, latent_off=latent_off, cost_m=cost_m)
+                          agree_sd=agree_sd, w_lat=w_lat, latent_off=latent_off, cost_m=cost_m,
+                          centre_screened=centre_screened)
         if design and len(E) >= 1 and self.opts["design_screen"]:
             ok_e = self._fall_prob(E, fall_m) <= float(self.opts["max_fall_prob"])
             if ok_e.sum() < n:          # the screen rejects the elites: search instead
@@ -1547,6 +1580,7 @@ class Transfer(TwoSpaceCritic):
             **({"explore_next": int(ctx.state["explore_next"])}
                if self.opts["explore_adapt"] else {}),
             **({"design_screened": True} if ctx.design_screened else {}),
+            **({"centre_screened": True} if ctx.centre_screened else {}),
             **({"safe_fallback": True} if ctx.safe_fallback else {}),
             **({"ls_ratio": float(np.exp(np.mean(np.log(
                 cm.ls / self.source_model().lengthscales))))}
