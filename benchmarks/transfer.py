@@ -263,6 +263,8 @@ def compare_text(rows: list[dict[str, Any]]) -> str:
         out.append(f"{r['a']} vs {r['b']}: {r['wins']} wins, {r['ties']} ties, {r['losses']} "
                    f"losses of {r['pairs']} (sign test p {r['sign_test_p']:.3f}); falls "
                    f"{r['falls_a']} vs {r['falls_b']}"
+                   + (f" (more on {fp['more']}, fewer on {fp['fewer']} of the pairs, sign test "
+                      f"p {fp['sign_test_p']:.3f})" if (fp := r.get("falls_paired")) else "")
                    + (f"; median ratio: geometric mean {g:.3f}, worst {w['ratio']:.3f} "
                       f"({w['target']})" if g is not None and w is not None else ""))
         out += [f"  {t}: {c['wins']}/{c['ties']}/{c['losses']} (w/t/l), falls "
@@ -472,7 +474,20 @@ def compare(root: Path, a: str, b: str, seeds: list[int] | None = None,
             "sign_test_p": float(binomtest(wins, wins + losses).pvalue) if wins + losses else 1.0,
             "falls_a": int(sum(sum(ra["failed"]) for _, ra, _ in pairs)),
             "falls_b": int(sum(sum(rb["failed"]) for _, _, rb in pairs)),
+            "falls_paired": _falls_paired([(int(sum(ra["failed"])), int(sum(rb["failed"])))
+                                           for _, ra, rb in pairs]),
             "by_target": by_target}
+
+
+def _falls_paired(falls: list[tuple[int, int]]) -> dict[str, Any]:
+    """Per (target, seed) pair of fall counts ``(a, b)``: on how many ``a`` fell more, fewer
+    and as often, and a two-sided sign test on the pairs that differ (p 1.0 without any)."""
+    from scipy.stats import binomtest
+
+    more = sum(fa > fb for fa, fb in falls)
+    fewer = sum(fa < fb for fa, fb in falls)
+    return {"more": more, "fewer": fewer, "same": len(falls) - more - fewer,
+            "sign_test_p": float(binomtest(more, more + fewer).pvalue) if more + fewer else 1.0}
 
 
 def markdown(s: dict[str, Any],

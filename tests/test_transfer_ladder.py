@@ -58,9 +58,25 @@ def test_compare_counts_per_target_and_keeps_the_seeds_asked(tmp_path):
     assert r["by_target"]["arm gap1"] == {"wins": 2, "ties": 0, "losses": 1, "falls_a": 1,
                                           "falls_b": 0, "median_a": 1.0, "median_b": 2.0,
                                           "ratio": 0.5}
+    assert r["falls_paired"] == {"more": 1, "fewer": 0, "same": 2, "sign_test_p": 1.0}
+    assert "falls 1 vs 0 (more on 1, fewer on 0 of the pairs, sign test p 1.000)" in \
+        tr.compare_text([r])
     r = tr.compare(tmp_path, "a", "b", seeds=[1, 2])
     assert (r["pairs"], r["wins"], r["losses"], r["falls_a"]) == (2, 1, 1, 0)
+    assert r["falls_paired"] == {"more": 0, "fewer": 0, "same": 2, "sign_test_p": 1.0}
     assert r["by_target"]["arm gap1"]["ratio"] == 1.0                # medians 2 and 2
+
+
+def test_compare_pairs_the_falls_seed_by_seed(tmp_path):
+    """Falls paired per (target, seed): ``a`` falls more on 6 seeds by one and fewer on none,
+    a sign test p of 2 / 2^6; the totals alone (6 against 0) say how many, not how often."""
+    for s in range(7):
+        _write(tmp_path, "a", s, [1.0, 9.0], [False, s > 0])
+        _write(tmp_path, "b", s, [1.0, 9.0], [False, False])
+    r = tr.compare(tmp_path, "a", "b")
+    assert r["falls_paired"]["more"] == 6 and r["falls_paired"]["fewer"] == 0
+    assert r["falls_paired"]["same"] == 1
+    assert abs(r["falls_paired"]["sign_test_p"] - 2 / 2 ** 6) < 1e-12
 
 
 def test_compare_weighs_how_much_not_only_how_often(tmp_path):
