@@ -1048,7 +1048,8 @@ class Transfer(TwoSpaceCritic):
         n_rec = 3 if float(self.opts["explore_fall_weight"]) > 0 else 2
         return {"L": L, "succ": succ, "fail": fail, "n_own": int(own.sum()), "restarts": restarts,
                 "explore_next": next_due, "void": np.flatnonzero(void).tolist(),
-                "explore_record": {"latent": record[LATENT][:n_rec], "lines": record[GLOBAL][:n_rec]},
+                "explore_record": {"latent": record[LATENT][:n_rec],
+                                   "lines": record[GLOBAL][:n_rec]},
                 "converged": converged, "explore_braked": pool is None, "explore_pool": pool,
                 "explore_told": int(explore.sum()), "explore_fell": int(self._fell[explore].sum()),
                 "generation": int(gens.max()) + 1 if gens.size else 0,
