@@ -1007,7 +1007,7 @@ class Transfer(TwoSpaceCritic):
                 continue
             if due:                     # due but not an explore ask: the interval stays
                 next_due = int(g) + interval
-            if pending is not None and not np.isin(tags[m] % 4, (ELITE,)).all():
+            if pending is not None and not (tags[m] % 4 == ELITE).all():
                 if self._fell[m].mean() > float(self.opts["max_fall_prob"]):
                     void |= pending[1]          # the region around the record fell: void
                     counts = record.get(pending[0])
@@ -1170,8 +1170,9 @@ class Transfer(TwoSpaceCritic):
         if self.n_told == 0:
             return self.elites()[0]
         y = np.where(np.isfinite(self._y), self._y, np.inf)
-        ok = ~self._fell if void is None or not (~self._fell & ~void).any() \
-            else ~self._fell & ~void
+        ok = ~self._fell
+        if void is not None and (ok & ~void).any():
+            ok = ok & ~void
         if ok.any():
             return self._X[np.flatnonzero(ok)[np.argmin(y[ok])]]
         return self._X[int(np.argmin(y))]
