@@ -19,6 +19,7 @@ is stored twice.
 from __future__ import annotations
 
 import argparse
+import logging
 import math
 import os
 import shutil
@@ -40,6 +41,11 @@ from examples.lqr_chain import STEPS, ChainSystem  # noqa: E402
 from latentune.system import Outcome  # noqa: E402
 
 from benchmarks.common import ROOT, Provenance, add_out_arg, finish  # noqa: E402
+
+logger = logging.getLogger(__name__)
+
+START_ATTEMPTS = 3
+"""How many times :class:`LocalCluster` tries to start a node before it gives up."""
 
 LOST_WARNING = "a Ray worker was lost"
 """The start of the warning the Ray evaluator logs for each run lost with its worker."""
@@ -112,11 +118,36 @@ class LocalCluster:
         self.address = f"127.0.0.1:{self.port}"
 
     def _start(self, name: str, args: list[str]) -> subprocess.Popen:
+        """``ray start --block`` node ``name`` with ``args``; wait until it reports started.
+        Ray gives a new node's raylet a fixed 30 s to register with the GCS; on a loaded
+        machine that can run out, and ``ray start`` then ends. Such a start is retried (up to
+        ``START_ATTEMPTS`` in all, each in a temp dir of its own after the failed one's group
+        is killed); a start that fails every time, or hangs past ``timeout``, raises the
+        RuntimeError of :func:`wait_for`."""
+        for attempt in range(1, START_ATTEMPTS + 1):
+            try:
+                return self._start_once(name, args, attempt)
+            except RuntimeError as e:
+                proc = self.procs.pop(name)
+                ended = proc.poll() is not None   # not the hang guard's timeout
+                try:
+                    os.killpg(proc.pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
+                proc.wait(timeout=60)
+                if attempt == START_ATTEMPTS or not ended:
+                    raise
+                logger.warning("ray start (%s) failed on attempt %d of %d; retrying: %s",
+                               name, attempt, START_ATTEMPTS, str(e).splitlines()[0])
+        raise AssertionError("unreachable")
+
+    def _start_once(self, name: str, args: list[str], attempt: int) -> subprocess.Popen:
         ray = shutil.which("ray", path=os.path.dirname(sys.executable)) or "ray"
         ports = free_ports(4)
-        log = self.dir / f"{name}.log"
+        tag = name if attempt == 1 else f"{name}-{attempt}"
+        log = self.dir / f"{tag}.log"
         cmd = [ray, "start", "--block", *args, "--node-ip-address=127.0.0.1", "--num-cpus=1",
-               f"--temp-dir={self.dir / name}", "--disable-usage-stats",
+               f"--temp-dir={self.dir / tag}", "--disable-usage-stats",
                f"--dashboard-agent-listen-port={ports[0]}",
                f"--dashboard-agent-grpc-port={ports[1]}", f"--metrics-export-port={ports[2]}",
                f"--runtime-env-agent-port={ports[3]}"]

@@ -223,3 +223,43 @@ def test_head_node_killed_mid_run(tmp_path, cluster, dump_store):
     assert rows[:n] == kept                                  # everything stored is kept
     assert [r[1] for r in rows] == list(range(BUDGET))       # contiguous, none twice
     assert len({r[2] for r in rows}) == BUDGET               # no θ stored twice
+
+
+def _scripted_starts(monkeypatch, cluster: LocalCluster, fails: int) -> list[subprocess.Popen]:
+    """Replace ``_start_once`` so that its first ``fails`` attempts start a process that ends
+    at once (as ``ray start`` does when its raylet misses the GCS's 30-s window) and the next
+    one a process that stays up; return the processes started."""
+    started: list[subprocess.Popen] = []
+
+    def start_once(name: str, args: list[str], attempt: int) -> subprocess.Popen:
+        cmd = ["sh", "-c", "exit 1"] if attempt <= fails else ["sleep", "60"]
+        proc = subprocess.Popen(cmd, start_new_session=True)
+        started.append(proc)
+        cluster.procs[name] = proc
+        wait_for(lambda: False if attempt <= fails else True, f"ray start ({name})", proc)
+        return proc
+
+    monkeypatch.setattr(cluster, "_start_once", start_once)
+    return started
+
+
+def test_a_node_whose_start_fails_is_started_again(monkeypatch):
+    from benchmarks.cluster import START_ATTEMPTS
+
+    with LocalCluster(env={}) as c:
+        started = _scripted_starts(monkeypatch, c, fails=START_ATTEMPTS - 1)
+        c.add_worker("worker")
+        assert len(started) == START_ATTEMPTS
+        assert c.procs["worker"] is started[-1] and started[-1].poll() is None
+        assert all(p.returncode == 1 for p in started[:-1])    # the failed ones were reaped
+    assert started[-1].poll() is not None                     # stop() ended the last one
+
+
+def test_a_node_that_never_starts_raises(monkeypatch):
+    from benchmarks.cluster import START_ATTEMPTS
+
+    with LocalCluster(env={}) as c:
+        started = _scripted_starts(monkeypatch, c, fails=START_ATTEMPTS)
+        with pytest.raises(RuntimeError, match=r"ray start \(worker\): the process ended"):
+            c.add_worker("worker")
+        assert len(started) == START_ATTEMPTS and "worker" not in c.procs
