@@ -27,7 +27,7 @@ from latentune.experiments.paper import BASELINE_ROWS, budgets, plan
 from latentune.pipeline.store import RunStore
 from latentune.reporting.metrics import paper_results
 
-TINY = ["--robot", "a1", "--scale", "1e-6", "--steps", "60", "--workers", "1"]
+TINY = ["--robot", "a1", "--scale", "1e-6", "--steps", "60", "--workers", "1", "--vae-epochs", "100"]
 
 
 def test_budget_mapping():
@@ -128,6 +128,7 @@ def test_paper_end_to_end(paper_dir: Path):
     meta = json.loads((out / "paper.json").read_text())
     assert meta["budgets"]["phase1"] == 12 and meta["budgets"]["phase3"] == 4
     assert meta["budgets"]["overridden"]["phase3"] is True
+    assert meta["vae_epochs"] == 100 and "--vae-epochs 100" in meta["command"]
     for heading in ("## Table II", "A1 → B1 transfer", "stable-region preservation",
                     "Baselines at the phase-3 budget", "Does the paper's shape hold",
                     "--report-only", "Wall time", "Scale S = 1e-06"):
@@ -139,6 +140,7 @@ def test_paper_end_to_end(paper_dir: Path):
             if kind == "tune":
                 assert (st.count(1), st.count(3)) == (12, 4), key
                 assert st.artifact("vae") is not None
+                assert json.loads((out / key / "vae.json").read_text())["epochs"] == 100, key
             elif kind == "phase3":
                 assert (st.count(1), st.count(3)) == (0, 4), key
             elif kind == "baseline":
@@ -202,6 +204,7 @@ def test_paper_end_to_end(paper_dir: Path):
     (["--scale", "inf"], "--scale"),
     (["--scale", "abc"], "--scale"),
     (["--workers", "0"], "--workers must be >= 1, got 0"),
+    (["--vae-epochs", "0"], "--vae-epochs must be >= 1, got 0"),
     (["--studies", "a1-trot", "no-such"], "--studies: no-such not in this plan"),
     (["--report-only", "--studies", "a1-trot"], "--studies does not apply to --report-only"),
 ])
@@ -388,6 +391,9 @@ def test_paper_resume_and_report_command(paper_dir: Path, run_cli, error_line):
     code, _, err = run_cli("paper", "--robot", "a1", "--scale", "1e-6", "--steps", "300",
                            "--out", out)
     assert "another configuration" in error_line(code, err)
+    tiny_default_vae = [a for a in TINY if a not in ("--vae-epochs", "100")]
+    code, _, err = run_cli("paper", *tiny_default_vae, "--phase3-evals", "6", "--out", out)
+    assert "another configuration" in error_line(code, err) and "VAE epochs 100" in err
 
 
 # ---------------------------------------------------------------------------- --seeds input

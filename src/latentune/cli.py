@@ -733,7 +733,8 @@ def cmd_paper(args: argparse.Namespace) -> int:
                         out=args.out or f"paper-{str(args.robot).lower()}", workers=args.workers,
                         seed=args.seed, steps=args.steps, v_des=args.v_des, quiet=args.quiet,
                         sources_only=args.sources_only, seeds=args.seeds,
-                        studies=tuple(args.studies or ()), progress=_progress(args))
+                        studies=tuple(args.studies or ()), progress=_progress(args),
+                        vae_epochs=args.vae_epochs)
     text = run_paper(opts, report_only=args.report_only, simulate=not args.no_sim,
                      gifs=not args.no_gif)
     if not args.quiet:
@@ -902,6 +903,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--studies", nargs="+", default=None, metavar="KEY",
                    help="only these studies of the plan (e.g. a1-trot-preservation); another "
                         "process may run the rest on the same --out")
+    p.add_argument("--vae-epochs", type=int, default=None,
+                   help="the sources' VAE training epochs (default: ~2000 Adam steps, at least "
+                        "100 epochs); recorded, and a resume must give the same")
     p.add_argument("--no-sim", action="store_true", help="report: skip re-simulated CoM plots/GIFs")
     p.add_argument("--no-gif", action="store_true", help="report: skip the GIFs")
     p.set_defaults(func=cmd_paper)

@@ -271,6 +271,7 @@ class PaperOptions:
     seeds: int = 1               # phase 3, transfer rows and baselines over seed indices 0..N-1
     studies: tuple[str, ...] = ()  # only these studies of the plan (keys; default: all)
     progress: bool = False       # progress bars (never with quiet)
+    vae_epochs: int | None = None  # the sources' VAE training epochs (None: ~2000 Adam steps)
 
 
 def _done(out: Path, plan_: StudyPlan, b: dict[str, Any]) -> bool:
@@ -354,7 +355,7 @@ def run_study(plan_: StudyPlan, opts: PaperOptions, root: Path, b: dict[str, Any
     try:
         if plan_.kind == "tune":
             study.phase1(task, b["phase1"], method=plan_.method)
-            study.train_latent()
+            study.train_latent(epochs=opts.vae_epochs)
             study.phase3(task, b["phase3"], method=plan_.method, strategy="plain")
         elif plan_.kind == "phase3":
             study.phase3(task, plan_.budget, latent=root / plan_.vae_from,
@@ -402,6 +403,8 @@ def validate(opts: PaperOptions) -> dict[str, Any]:
             raise UsageError(f"--{name} must be >= 1, got {v}")
     if opts.seed < 0:
         raise UsageError(f"--seed must be >= 0, got {opts.seed}")
+    if opts.vae_epochs is not None and opts.vae_epochs < 1:
+        raise UsageError(f"--vae-epochs must be >= 1, got {opts.vae_epochs}")
     if not math.isfinite(opts.v_des):
         raise UsageError(f"--v-des must be finite, got {opts.v_des}")
     if isinstance(opts.seeds, bool) or not isinstance(opts.seeds, int) or opts.seeds < 1:
@@ -423,6 +426,8 @@ def command_line(opts: PaperOptions, report_only: bool = False) -> str:
         parts.append(f"--phase3-evals {opts.phase3}")
     if opts.seeds > 1:
         parts.append(f"--seeds {opts.seeds}")
+    if opts.vae_epochs is not None:
+        parts.append(f"--vae-epochs {opts.vae_epochs}")
     if opts.sources_only:
         parts.append("--sources-only")
     if opts.studies:
@@ -468,10 +473,12 @@ def run_paper(opts: PaperOptions, report_only: bool = False, simulate: bool = Tr
         except (OSError, json.JSONDecodeError) as exc:
             raise UsageError(f"{meta_path} is unreadable ({exc})") from None
         if meta.get("robot") != opts.robot or meta.get("actor") != opts.actor or \
-                meta.get("steps") != opts.steps or meta.get("seed") != opts.seed:
+                meta.get("steps") != opts.steps or meta.get("seed") != opts.seed or \
+                (not report_only and meta.get("vae_epochs") != opts.vae_epochs):
             raise UsageError(f"{root} holds a paper run of another configuration (robot "
                              f"{meta.get('robot')}, actor {meta.get('actor')}, steps "
-                             f"{meta.get('steps')}, seed {meta.get('seed')})")
+                             f"{meta.get('steps')}, seed {meta.get('seed')}, VAE epochs "
+                             f"{meta.get('vae_epochs') or 'default'})")
 
     def log(msg: str) -> None:
         if not opts.quiet:
@@ -487,7 +494,7 @@ def run_paper(opts: PaperOptions, report_only: bool = False, simulate: bool = Tr
         meta.update({"format": "latentune-paper", "robot": opts.robot, "actor": opts.actor,
                      "steps": opts.steps, "seed": opts.seed, "v_des": opts.v_des,
                      "workers": opts.workers, "budgets": b, "command": command_line(opts),
-                     "seeds": opts.seeds,
+                     "seeds": opts.seeds, "vae_epochs": opts.vae_epochs,
                      "studies": {s.key: {"kind": s.kind, "robot": s.robot, "gait": s.gait,
                                          "terrain": s.terrain, "vae_from": s.vae_from,
                                          "method": s.method, "budget": s.budget,
