@@ -47,6 +47,14 @@ def test_vae_77_dim_default_latent():
     assert ls.d_low == 5 and ls.decode(np.full(5, 0.5)).shape == (77,)
 
 
+@pytest.mark.parametrize("d, d_low", [(2, 1), (3, 2), (8, 2), (12, 3), (60, 10)])
+def test_default_latent_dim_is_below_d(d: int, d_low: int):
+    """A small θ gets a latent space it can train: d_low < d (1 for a 2-dim θ)."""
+    X = np.random.default_rng(0).random((20, d))
+    ls = LatentSpace.train(X, seed=0, epochs=2)
+    assert ls.d_low == d_low and ls.decode(np.full(d_low, 0.5)).shape == (d,)
+
+
 def _weights(ls: LatentSpace) -> list[np.ndarray]:
     return [p.detach().numpy().copy() for p in ls.net.parameters()]
 

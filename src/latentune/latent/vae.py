@@ -67,12 +67,13 @@ BOX_MARGIN = 0.1
 
 
 def default_latent_dim(d: int) -> int:
-    """d_low of the paper: 10 for a 25-dim θ, 5 for a 77-dim θ (else max(2, min(10, d // 4)))."""
+    """d_low of the paper: 10 for a 25-dim θ, 5 for a 77-dim θ (else max(2, min(10, d // 4)),
+    and never more than d − 1: 1 for a 2-dim θ)."""
     if d == 25:
         return 10
     if d == 77:
         return 5
-    return max(2, min(10, d // 4))
+    return min(max(2, min(10, d // 4)), max(1, d - 1))
 
 
 def _torch():
