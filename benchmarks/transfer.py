@@ -24,6 +24,11 @@ Systems (``SYSTEMS``; the model is gap 0, each target is the same controller on 
   model push the target unstable (at gap 2 the springs have no damping of their own and most
   θ that are stable on the model fail; gaps 0.5, 1, 1.5, 2). Added after the default was
   chosen and never used to choose an option: the held-out system.
+* ``zones`` — :mod:`examples.thermal_zones`, 20 PI / anti-windup / feed-forward gains of five
+  thermal zones; gap g: lighter rooms, stronger walls between them, weaker heaters and a
+  round(2 g)-step sensor delay (gaps 0.5, 1, 2: at 2, 90 % of the θ that hold the comfort band
+  on the model leave it). Added in session 30, after every option was chosen: a second
+  held-out system, of another kind (first-order heat flow, integral control, saturation).
 
 For every (system, seed) one source run: ``Study(ROOT/<system>/seed<s>/source, seed=s)``, phase 1
 (TuRBO-m, ``--source-evals`` trials on the model, batch 4) and the latent space. For every target
@@ -99,6 +104,12 @@ def _arm(g: float) -> Any:
     return make_system(gap=g)
 
 
+def _zones(g: float) -> Any:
+    from examples.thermal_zones import make_system
+
+    return make_system(gap=g)
+
+
 def _springs(g: float) -> Any:
     from examples.toy_plant import make_real_system
 
@@ -112,6 +123,7 @@ SYSTEMS: dict[str, dict[str, Any]] = {
     "hopper": {"model": _hopper_model, "target": _hopper_target, "gaps": (0.5, 1.0, 1.5)},
     "springs": {"model": lambda: _springs(0.0), "target": _springs,
                 "gaps": (0.5, 1.0, 1.5, 2.0)},
+    "zones": {"model": lambda: _zones(0.0), "target": _zones, "gaps": (0.5, 1.0, 2.0)},
 }
 
 

@@ -1,0 +1,43 @@
+"""``examples/thermal_zones.py``: the five-room PI system of the transfer ladder's second
+held-out family: the manual gains hold the comfort band on every plant, the gap ladder makes θ
+that hold it on the model fail more often as the gap grows, failures follow the C1 convention,
+bad input is refused."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from examples.thermal_zones import N, STEPS, make_system
+
+
+def test_manual_gains_hold_the_band_on_every_plant():
+    for g in (0.0, 0.5, 1.0, 2.0):
+        s = make_system(g)
+        out = s.evaluate(s.space.manual)
+        assert not out.failed and 0.3 < out.cost < 2.0, (g, out)
+        assert s.config() == {"kind": "thermal_zones", "gap": g, "steps": STEPS}
+
+
+def test_the_gap_ladder_fails_more_of_the_model_stable_gains():
+    X = np.random.default_rng(3).random((40, 4 * N))
+    model = make_system(0.0)
+    ok = [x for x in X if not model.evaluate(x).failed]
+    assert 10 <= len(ok) < len(X)                     # the model itself fails some gains
+    share = [np.mean([make_system(g).evaluate(x).failed for x in ok]) for g in (0.5, 1.0, 2.0)]
+    assert share[0] < share[1] < share[2] and share[2] > 0.5, share
+
+
+def test_a_sluggish_controller_fails_when_the_band_starts_to_count():
+    s = make_system(0.0)
+    theta = np.full(4 * N, 0.5)
+    theta[:N] = 0.0                                   # kp at its lowest: 0.05 kW/K
+    theta[N:2 * N] = 0.0                              # ki at its lowest
+    out = s.evaluate(theta)
+    k = out.info["fall_step"]
+    assert out.failed and k == 60 and out.cost == pytest.approx(100 * (2 - k / STEPS))
+
+
+@pytest.mark.parametrize("bad", [-0.1, float("nan"), float("inf")])
+def test_bad_gap_is_refused(bad):
+    with pytest.raises(ValueError, match="gap must be a finite number"):
+        make_system(bad)
