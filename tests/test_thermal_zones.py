@@ -41,3 +41,20 @@ def test_a_sluggish_controller_fails_when_the_band_starts_to_count():
 def test_bad_gap_is_refused(bad):
     with pytest.raises(ValueError, match="gap must be a finite number"):
         make_system(bad)
+
+
+def test_gap_ladder_benchmark_counts_what_it_says(capsys):
+    """``benchmarks.gap_ladder``: the model-stable θ are those that stand on the model, and
+    ``fail_target`` is the share of them that fail at each gap; bad ``--n`` is refused."""
+    from benchmarks.gap_ladder import ladder_rows, main
+
+    rows = ladder_rows("zones", 12, 5)
+    X = np.random.default_rng(5).random((12, 4 * N))
+    stable = [x for x in X if not make_system(0.0).evaluate(x).failed]
+    assert [r["gap"] for r in rows] == [0.5, 1.0, 2.0]
+    for r in rows:
+        assert r["n_model_stable"] == len(stable)
+        fails = [make_system(r["gap"]).evaluate(x).failed for x in stable]
+        assert r["fail_target"] == pytest.approx(np.mean(fails), abs=1e-3)
+    assert main(["--systems", "zones", "--n", "0"]) == 2
+    assert "--n must be >= 1" in capsys.readouterr().err
