@@ -79,12 +79,24 @@ class ZonesSystem:
         return {"kind": "thermal_zones", "gap": self.gap, "steps": self.steps}
 
     def evaluate(self, theta: np.ndarray) -> lt.Outcome:
+        return self.simulate(theta)[0]
+
+    def simulate(self, theta: np.ndarray) -> tuple[lt.Outcome, dict[str, np.ndarray]]:
+        """The trial of the unit-box θ (d,) and its trace up to the end or the failure:
+        ``time_s`` (k,), ``temperature`` (k, 5) °C, ``setpoint`` (k, 5) °C, ``power_kw``
+        (k, 5) (the heaters' commands, saturated)."""
         w = self.space.to_physical(self.space.validate_unit(theta))
         kp, ki, kaw, kff = w[:N], w[N:2 * N], w[2 * N:3 * N], w[3 * N:] * K_WALL
         T = np.full(N, 18.0)
         integ = np.zeros(N)
         seen = [T.copy()] * (self.delay + 1)           # the sensor's queue: oldest first
         err2 = pow2 = 0.0
+        trace: dict[str, list] = {"time_s": [], "temperature": [], "setpoint": [],
+                                  "power_kw": []}
+
+        def done(out: lt.Outcome) -> tuple[lt.Outcome, dict[str, np.ndarray]]:
+            return out, {k: np.asarray(v) for k, v in trace.items()}
+
         for k in range(self.steps):
             t = k * DT
             sp = np.full(N, 20.0)
@@ -107,13 +119,16 @@ class ZonesSystem:
             flow[1:] += self.k_wall * (T[:-1] - T[1:])
             T = T + DT / self.cap * (K_OUT * (t_out - T) + flow + u + gains)
             seen = seen[1:] + [T.copy()]
+            for key, v in (("time_s", t + DT), ("temperature", T.copy()), ("setpoint", sp),
+                           ("power_kw", u)):
+                trace[key].append(v)
             if not np.all(np.isfinite(T)) or (t >= SETTLE and np.abs(T - sp).max() > BAND):
-                return lt.Outcome(100.0 * (2 - k / self.steps), True, {"fall_step": k})
+                return done(lt.Outcome(100.0 * (2 - k / self.steps), True, {"fall_step": k}))
             err2 += float(np.mean((T - sp) ** 2))
             pow2 += float(np.mean(u ** 2))
         rms_u = math.sqrt(pow2 / self.steps)
-        return lt.Outcome(math.sqrt(err2 / self.steps) + 0.02 * rms_u, False,
-                          {"rms_power_kw": rms_u})
+        return done(lt.Outcome(math.sqrt(err2 / self.steps) + 0.02 * rms_u, False,
+                               {"rms_power_kw": rms_u}))
 
 
 def make_system(gap: float = 0.0, steps: int = STEPS) -> ZonesSystem:

@@ -58,3 +58,26 @@ def test_gap_ladder_benchmark_counts_what_it_says(capsys):
         assert r["fail_target"] == pytest.approx(np.mean(fails), abs=1e-3)
     assert main(["--systems", "zones", "--n", "0"]) == 2
     assert "--n must be >= 1" in capsys.readouterr().err
+
+
+def test_zones_traces_re_runs_the_stored_best_and_draws_it(tmp_path):
+    """``benchmarks.zones_traces`` on the committed ladder traces: each method's best θ re-runs
+    to its stored cost, the median seed is the default's median, and the figure is written."""
+    import json
+    from pathlib import Path
+
+    from benchmarks.zones_traces import main, median_seed
+
+    root = Path(__file__).resolve().parents[1] / "results" / "transfer" / "rebuilt" / "runs"
+    seed = median_seed(root, 2.0)
+    best = sorted(min(json.loads((root / "zones" / "gap2" / f"seed{s}" / "transfer.json")
+                          .read_text())["costs"]) for s in range(10))
+    ours = min(json.loads((root / "zones" / "gap2" / f"seed{seed}" / "transfer.json")
+                          .read_text())["costs"])
+    assert ours == best[4]
+    png, out = tmp_path / "z.png", tmp_path / "z.json"
+    assert main(["--root", str(root), "--gap", "2", "--methods", "transfer", "zero_shot",
+                 "--png", str(png), "--out", str(out)]) == 0
+    rows = json.loads(out.read_text())["rows"]
+    assert [r["method"] for r in rows] == ["transfer", "zero_shot"] and png.stat().st_size > 10000
+    assert rows[1]["failed"] and not rows[0]["failed"]       # the source's best leaves the band

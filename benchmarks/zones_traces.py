@@ -1,0 +1,112 @@
+"""What the thermal zones do under the best θ each method found: room temperatures, set-points
+and heater power over the 4 hours (physics before costs).
+
+    python -m benchmarks.zones_traces [--root results/transfer/rebuilt/runs] [--gap 2]
+        [--methods transfer turbo_manual zero_shot] [--seed S] --png F.png [--out F.json]
+
+Reads ``ROOT/zones/gap<g>/seed<s>/<method>.json`` (the ladder's traces: ``benchmarks.transfer
+run --systems zones``), takes each method's best trial that did not fail (its lowest cost; the
+zero-shot θ is its only trial), re-runs that θ on the target
+(:meth:`examples.thermal_zones.ZonesSystem.simulate`), checks that the cost is the stored one,
+and draws one column per method: the five rooms' temperatures against their set-points and the
+comfort band (±3 K, counted after the first hour), and the heaters' power. Without ``--seed``
+the seed is the one whose ``transfer`` best is the median over the seeds stored (the lower
+median), so the picture is not a chosen good case. The JSON holds per method the seed, trial
+index, cost and its largest band excursion after the first hour (K) and RMS power (kW).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from benchmarks.common import Provenance, add_out_arg, finish
+from examples.thermal_zones import BAND, SETTLE, make_system
+
+
+def _run(root: Path, gap: float, seed: int, method: str) -> dict[str, Any]:
+    return json.loads((root / "zones" / f"gap{gap:g}" / f"seed{seed}" /
+                       f"{method}.json").read_text())
+
+
+def _best(run: dict[str, Any]) -> int:
+    c = np.asarray(run["costs"], float)
+    ok = ~np.asarray(run["failed"], bool)
+    return int(np.argmin(np.where(ok, c, np.inf))) if ok.any() else int(np.argmin(c))
+
+
+def median_seed(root: Path, gap: float, method: str = "transfer") -> int:
+    """The seed whose ``method`` best is the (lower) median over the seeds stored."""
+    seeds = sorted(int(p.name[4:]) for p in (root / "zones" / f"gap{gap:g}").glob("seed*")
+                   if (p / f"{method}.json").is_file())
+    if not seeds:
+        raise SystemExit(f"zones_traces: error: no {method} run under {root}/zones/gap{gap:g}")
+    best = [min(_run(root, gap, s, method)["costs"]) for s in seeds]
+    order = np.argsort(best, kind="stable")
+    return seeds[int(order[(len(seeds) - 1) // 2])]
+
+
+def main(argv: list[str] | None = None) -> int:
+    prov = Provenance(argv, "benchmarks.zones_traces")
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--root", type=Path, default=Path("results/transfer/rebuilt/runs"))
+    ap.add_argument("--gap", type=float, default=2.0)
+    ap.add_argument("--methods", nargs="+", default=["transfer", "turbo_manual", "zero_shot"])
+    ap.add_argument("--seed", type=int, default=None)
+    ap.add_argument("--png", type=Path, required=True)
+    add_out_arg(ap)
+    a = ap.parse_args(argv)
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    seed = median_seed(a.root, a.gap) if a.seed is None else a.seed
+    system = make_system(a.gap)
+    fig, axes = plt.subplots(2, len(a.methods), figsize=(4.2 * len(a.methods), 5.6),
+                             sharex=True, sharey="row", squeeze=False)
+    rows = []
+    for j, m in enumerate(a.methods):
+        run = _run(a.root, a.gap, seed, m)
+        i = _best(run)
+        out, tr = system.simulate(np.asarray(run["thetas"][i], float))
+        if not np.isclose(out.cost, run["costs"][i], rtol=1e-9):
+            print(f"zones_traces: error: {m} trial {i} re-runs to {out.cost}, stored "
+                  f"{run['costs'][i]}", file=sys.stderr)
+            return 1
+        h = tr["time_s"] / 3600.0
+        late = tr["time_s"] > SETTLE
+        dev = np.abs(tr["temperature"] - tr["setpoint"])
+        rows.append({"method": m, "seed": seed, "trial": i, "cost": out.cost,
+                     "failed": out.failed,
+                     "max_excursion_after_1h_K": float(dev[late].max()) if late.any() else None,
+                     "rms_power_kw": float(np.sqrt(np.mean(tr["power_kw"] ** 2)))})
+        ax = axes[0, j]
+        for r in range(tr["temperature"].shape[1]):
+            line, = ax.plot(h, tr["temperature"][:, r], lw=1.2, label=f"room {r + 1}")
+            ax.plot(h, tr["setpoint"][:, r], lw=0.8, ls="--", color=line.get_color())
+        ax.axvline(SETTLE / 3600.0, color="0.6", lw=0.8)
+        ax.set_title(f"{m}: cost {out.cost:.3f}" + (" (failed)" if out.failed else ""),
+                     fontsize=9)
+        axes[1, j].plot(h, tr["power_kw"], lw=1.0)
+        axes[1, j].set_xlabel("time [h]")
+    axes[0, 0].set_ylabel(f"temperature [°C] (set-point dashed, band ±{BAND:g} K after 1 h)",
+                          fontsize=8)
+    axes[1, 0].set_ylabel("heater power [kW]")
+    axes[0, -1].legend(fontsize=7)
+    fig.suptitle(f"Thermal zones, gap {a.gap:g}, seed {seed}: the best θ of each method",
+                 fontsize=10)
+    fig.tight_layout()
+    a.png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(a.png, dpi=110)
+    finish(a.out, prov, {"gap": a.gap, "seed": seed, "png": str(a.png)}, rows,
+           title=f"zones gap {a.gap:g}, seed {seed}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
