@@ -4,8 +4,8 @@
         [--budget 40] [--source-evals 300] [--root runs/transfer] [--only METHOD ...]
         [--variants OPTION=VALUE[:OPTION=VALUE] ...]   (transfer variants, stored as transfer+VARIANT)
     python -m benchmarks.transfer summary [--root runs/transfer] [--out F.json]
-        [--default transfer+VARIANT] [--methods METHOD ...]   (prints the tables; --out also
-        writes them, F.json and F.md)
+        [--default transfer+VARIANT] [--methods METHOD ...] [--machine M]   (prints the tables;
+        --out also writes them, F.json and F.md; --machine: read METHOD@M runs as METHOD)
     python -m benchmarks.transfer compare --root runs/transfer --a METHOD ... --b METHOD ...
         [--seeds S ...] [--out F]
 
@@ -341,18 +341,25 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
               target: Callable[[dict[str, Any]], dict[str, Any]] = _ladder_target,
               default: str = "transfer", methods: list[str] | None = None,
               seeds: list[int] | None = None,
-              systems: list[str] | None = None) -> dict[str, Any]:
+              systems: list[str] | None = None, machine: str | None = None) -> dict[str, Any]:
     """The issue's criteria per target from every stored run under ``root`` (the files matching
     ``pattern``); ``target(run)`` gives a run's target fields, the key and head of its row
-    (default: ``system`` and ``gap``). ``default`` names the method judged as latentune's default
-    (its rows read as ``transfer``; the stored ``transfer`` runs then read as
-    ``transfer@stored``); ``methods``: only these (names after that renaming) are read;
-    ``seeds``: only these seeds; ``systems``: only these systems."""
+    (default: ``system`` and ``gap``). ``machine`` = M: a run stored as ``METHOD@M`` (the same
+    method re-run on machine M's sources) reads as ``METHOD``, and the ``METHOD`` run beside it
+    is not read; methods with no ``@M`` twin are read as they are. ``default`` names the method
+    judged as latentune's default (its rows read as ``transfer``; the stored ``transfer`` runs
+    then read as ``transfer@stored``); ``methods``: only these (names after those renamings)
+    are read; ``seeds``: only these seeds; ``systems``: only these systems."""
     from scipy.stats import mannwhitneyu
 
     runs: dict[tuple, dict[str, dict[int, dict]]] = {}
     for f in sorted(root.glob(pattern)):
         r = json.loads(f.read_text())
+        if machine:
+            if f.with_name(f"{r['method']}@{machine}.json").is_file():
+                continue                        # its twin re-run on that machine is read
+            if r["method"].endswith(f"@{machine}"):
+                r["method"] = r["method"][:-len(machine) - 1]
         if default != "transfer" and r["method"] in (default, "transfer"):
             r["method"] = "transfer" if r["method"] == default else "transfer@stored"
         if methods is not None and r["method"] not in methods:
@@ -553,6 +560,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="read only these methods (after --default renames)")
     s.add_argument("--systems", nargs="+", default=None, choices=list(SYSTEMS),
                    help="read only these systems' targets")
+    s.add_argument("--machine", default=None, metavar="M",
+                   help="read METHOD@M runs (re-run on machine M's sources) as METHOD, in place "
+                        "of the METHOD runs beside them")
     c = sub.add_parser("compare", help="methods against methods over (target, seed)")
     c.add_argument("--root", default="runs/transfer")
     c.add_argument("--a", nargs="+", required=True)
@@ -574,7 +584,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     prov = Provenance(argv, module="benchmarks.transfer")
     try:
-        res = summarize(Path(a.root), default=a.default, methods=a.methods, systems=a.systems)
+        res = summarize(Path(a.root), default=a.default, methods=a.methods, systems=a.systems,
+                        machine=a.machine)
     except ValueError as e:
         print(f"transfer summary: {e}", file=sys.stderr)
         return 2

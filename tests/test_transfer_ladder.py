@@ -361,3 +361,23 @@ def test_summary_prints_and_writes_only_where_told(tmp_path, capsys, monkeypatch
     out = tmp_path / "s.json"
     assert tr.main(["summary", "--root", str(tmp_path), "--out", str(out)]) == 0
     assert json.loads(out.read_text())["targets"] and out.with_suffix(".md").exists()
+
+
+def test_summary_reads_one_machines_reruns_in_place_of_the_stored_runs(tmp_path):
+    """``machine="m2"``: ``tpe@m2`` reads as ``tpe`` and the ``tpe`` beside it is not read; a
+    variant with no twin is read as it is; the default may then be judged on the re-runs."""
+    for s in (0, 1):
+        _write(tmp_path, "tpe", s, [4.0, 2.0], [False, False])
+        _write(tmp_path, "tpe@m2", s, [4.0, 3.0], [False, True])
+        _write(tmp_path, "transfer", s, [9.0, 9.0], [False, False])
+        _write(tmp_path, "transfer@m2", s, [2.5, 2.5], [False, False])
+        _write(tmp_path, "transfer+x=1", s, [2.0, 1.0], [False, False])
+    (row,) = tr.summarize(tmp_path, machine="m2")["targets"]
+    assert set(row["methods"]) == {"tpe", "transfer", "transfer+x=1"}
+    assert row["methods"]["tpe"]["median_best"] == 3.0 and row["methods"]["tpe"]["falls_median"] == 1
+    assert row["methods"]["transfer"]["median_best"] == 2.5
+    (row,) = tr.summarize(tmp_path, machine="m2", default="transfer+x=1",
+                          methods=["tpe", "transfer"])["targets"]
+    assert row["methods"]["transfer"]["median_best"] == 1.0
+    (row,) = tr.summarize(tmp_path, methods=["tpe", "transfer"])["targets"]     # no machine
+    assert row["methods"]["tpe"]["median_best"] == 2.0
