@@ -454,3 +454,25 @@ def test_optuna_samplers_are_phase1_methods(tmp_path):
         lt.Study(tmp_path / "bad", seed=1).phase1(sys_, 6, source_run=tmp_path / "src")
     with pytest.raises(UsageError, match="max_fall_prob is not an option"):
         lt.Study(tmp_path / "bad2", seed=1).phase1(sys_, 6, method="optuna-gp", max_fall_prob=0.3)
+
+
+def test_latent_sampler_on_a_three_weight_system_never_repeats_a_theta(tmp_path):
+    """A 3-weight system (a 2-dim latent space from 20 source trials): the default sampler runs
+    14 trials, every θ distinct (the transfer critic's ``distinct``; before it, trial 6 on
+    stopped with "the critic keeps proposing θ that are in the study already")."""
+    space = lt.ParameterSpace(names=["a", "b", "c"], low=[0.0] * 3, high=[1.0] * 3,
+                              manual=[0.5] * 3)
+    with lt.Study(tmp_path / "src", seed=0) as st:
+        st.phase1(lt.FunctionSystem(space, lambda x: float(np.sum((x - 0.3) ** 2)), name="q"),
+                  20)
+        st.train_latent(epochs=200)
+    sampler = LatentSampler(tmp_path / "src", seed=0)
+    study = optuna.create_study(sampler=sampler)
+
+    def objective(trial):
+        p = sampler.suggest_all(trial)
+        return float(sum((p[k] - 0.35) ** 2 for k in "abc"))
+
+    study.optimize(objective, n_trials=14)
+    assert [t.state for t in study.trials] == [optuna.trial.TrialState.COMPLETE] * 14
+    assert len({tuple(t.params[k] for k in "abc") for t in study.trials}) == 14

@@ -698,3 +698,54 @@ def test_centre_screen_keeps_the_best_when_the_screen_admits_no_standing_trial(s
 def test_centre_screen_is_checked(source, hypers, bad):
     with pytest.raises(ValueError, match="centre_screen"):
         _critic(source, hypers, centre_screen=bad)
+
+
+class _CollapsedLatent(_LinearLatent):
+    """A latent space whose decoder maps every code to one θ (a decoder that collapsed)."""
+
+    def decode(self, U: np.ndarray) -> np.ndarray:
+        return np.tile(np.full(D, 0.45), (len(np.atleast_2d(U)), 1))
+
+
+def _run_batches(cr: Transfer, asks: int, n: int) -> None:
+    for _ in range(asks):
+        X = cr.ask(n)
+        y, f = _bowl(X, np.full(D, 0.5), 0.6)
+        cr.tell(X, y, cr.last_tags, fell=f, z=cr.last_z)
+
+
+@pytest.mark.parametrize("on", [True, False])
+def test_distinct_never_asks_a_theta_twice(source, hypers, on):
+    """``distinct`` (the default): with a decoder that maps every code to one θ and the latent
+    share at its maximum, no θ is asked twice, within a batch or across asks, and the asks that
+    dropped candidates record how many. Off (runs stored before it), the same θ comes back."""
+    assert TRANSFER_DEFAULTS["distinct"] is True and ADDED_OPTIONS["distinct"] is False
+    X, y, f, _ = source
+    cr = Transfer((X, y, f), _CollapsedLatent(), None, batch_size=4, seed=3,
+                  latent_share_max=1.0, distinct=on)
+    cr.load_state_dict({"source_hypers": hypers})
+    _run_batches(cr, 5, 4)
+    keys = {tuple(r) for r in np.round(cr.X, 9).tolist()}
+    if on:
+        assert len(keys) == len(cr.X) == 20
+        assert sum(d.get("duplicates_dropped", 0) for d in cr.decisions) > 0
+    else:
+        assert len(keys) < len(cr.X)
+        assert not any("duplicates_dropped" in d for d in cr.decisions)
+
+
+def test_distinct_fills_a_batch_larger_than_the_elites_left(source, hypers):
+    """A design ask with fewer elites left than the batch fills it with distinct perturbations
+    of the centre (before: the best elite again)."""
+    cr = _critic(source, hypers, n_design=3, n_elite=2)
+    X = cr.ask(4)
+    assert len({tuple(r) for r in np.round(X, 9).tolist()}) == 4
+    off = _critic(source, hypers, n_design=3, n_elite=2, distinct=False)
+    Xo = off.ask(4)
+    assert len({tuple(r) for r in np.round(Xo, 9).tolist()}) < 4
+
+
+@pytest.mark.parametrize("bad", [1, "yes", None])
+def test_distinct_is_checked(source, hypers, bad):
+    with pytest.raises(ValueError, match="distinct"):
+        _critic(source, hypers, distinct=bad)

@@ -162,6 +162,15 @@ no standing trial, the best one. On a target whose best trial only just stands (
 trials around it fall), the search moves to the best trial whose neighbourhood stands instead
 of asking around a θ the model already expects to fall. Each ask that moved the centre records
 ``centre_screened``.
+``distinct`` (default True; False before session 30, so stored runs resume as they ran): an
+ask never picks a θ the target has run, nor one θ twice in a batch (equal to 1e-9): the choice
+passes over such candidates to the next best (each ask that did so records
+``repeats_avoided``). The candidates themselves are unchanged, so an ask whose choice had no
+repeat picks what it picked before. When fewer candidates than the batch are new, the repeats
+are dropped and perturbations of the centre in the full pool added (``duplicates_dropped``:
+how many were dropped). Without it, a small θ (a 3-weight system: a 2-dim latent space whose
+decoder maps a region of codes to one θ) or fewer elites than the batch made a batch ask one θ
+several times, and the Optuna sampler, which refuses a θ the study has, stopped.
 ``explore_when="stalled"`` makes a due generation an explore ask only while the side it is asked
 at is ``length_min`` (the trust region has nothing left to resolve near its centre); the other
 due generations are ordinary asks, so the local search keeps every ask while it still improves.
@@ -266,7 +275,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "stand_first": False, "explore_pool": "latent", "explore_adapt": False,
     "full_shape": "lengthscales", "tilt": 0.0, "lines_pick": "uniform",
     "fall_source_sd": False, "face_snap": 0.0, "explore_void": False,
-    "explore_fall_weight": 0.0, "centre_screen": False,
+    "explore_fall_weight": 0.0, "centre_screen": False, "distinct": True,
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
@@ -281,7 +290,7 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "tilt": 0.0, "lines_pick": "uniform",
                                  "fall_source_sd": False, "face_snap": 0.0,
                                  "explore_void": False, "explore_fall_weight": 0.0,
-                                 "centre_screen": False}
+                                 "centre_screen": False, "distinct": False}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -793,6 +802,8 @@ class _AskContext:
     safe_fallback: bool = False
     explore: bool = False
     centre_screened: bool = False
+    duplicates: int = 0
+    repeats: int = 0
 
 
 @dataclass
@@ -853,7 +864,7 @@ class Transfer(TwoSpaceCritic):
                 or k_ex == 1:
             raise ValueError(f"explore_every must be 0 (off) or an integer ≥ 2, got {k_ex!r}")
         for flag in ("stand_first", "explore_adapt", "fall_source_sd", "explore_void",
-                     "centre_screen"):
+                     "centre_screen", "distinct"):
             if not isinstance(self.opts[flag], (bool, np.bool_)):
                 raise ValueError(f"{flag} must be true or false, got {self.opts[flag]!r}")
         k_ef = self.opts["explore_falls"]
@@ -1441,6 +1452,12 @@ class Transfer(TwoSpaceCritic):
             parts = [(E, np.full((len(E), self.k), np.nan), ELITE),
                      (XF, np.full((len(XF), self.k), np.nan), FULL), (XL, UL, LATENT),
                      (XG, np.full((len(XG), self.k), np.nan), GLOBAL)]
+        keys = None
+        if self.opts["distinct"]:
+            keys, fresh = self._fresh(np.vstack([p[0] for p in parts]))
+            if fresh.sum() < n:         # too few θ not run yet: drop repeats, add perturbations
+                parts, ctx.duplicates = self._distinct(parts, n, st["L"], centre, rng)
+                keys = None
         C = np.vstack([p[0] for p in parts])
         cands = _Candidates(
             X=C, Z=np.vstack([p[1] for p in parts]) if self.k else np.empty((len(C), 0)),
@@ -1451,6 +1468,8 @@ class Transfer(TwoSpaceCritic):
         if ok.sum() < n and self.opts["safe_fallback"] and not ctx.explore:
             cands = self._safe_fallback(cands, st["L"], centre, fall_m, rng)
             C, ctx.safe_fallback = cands.X, True
+            if keys is not None:
+                keys = self._fresh(C)[0]
             ok = cands.pf <= float(self.opts["max_fall_prob"])
         if ok.sum() < n:
             ok = np.zeros(len(C), dtype=bool)
@@ -1481,7 +1500,8 @@ class Transfer(TwoSpaceCritic):
             acq = sd * (u * norm.cdf(u) + norm.pdf(u))
             if p_fall is not None:
                 acq = acq * (1.0 - p_fall)
-            sel = cand[np.argsort(-acq, kind="stable")[:n]]
+            order = cand[np.argsort(-acq, kind="stable")]
+            sel = order[:n] if keys is None else self._distinct_picks(order, keys, n, ctx)
             if len(sel) < n:
                 sel = np.resize(sel, n)
             return self._chosen(cands, sel, ctx)
@@ -1497,14 +1517,103 @@ class Transfer(TwoSpaceCritic):
             S = mu[None, :] + rng.standard_normal((n, len(cand))) @ Lc.T
         if p_fall is not None:
             S = (1.0 - p_fall)[None, :] * S + (p_fall * s_fall)[None, :]
-        picked: list[int] = []
+        picked: list[int] = []                   # indices into ``cand``
+        chosen: list[int] = []                   # indices into ``C``
+        if keys is not None:                     # ``distinct``: a repeat is never picked
+            taken = self._told_keys()
+            ck = [keys[i] for i in cand]
+            banned = np.array([k in taken for k in ck], dtype=bool)
         for j in range(n):
             s = S[j % len(S)].copy()
             s[picked] = np.inf
+            if keys is not None:
+                first = int(np.argmin(s))
+                s[banned] = np.inf
+                if np.all(~np.isfinite(s)):      # every admissible candidate is a repeat:
+                    i = self._least_falling_new(cands.pf, keys, taken)  # the screen's rule
+                    if i is not None:
+                        ctx.repeats += 1
+                        chosen.append(i)
+                        taken.add(keys[i])
+                        banned |= np.array([k == keys[i] for k in ck], dtype=bool)
+                        continue
+                elif int(np.argmin(s)) != first:
+                    ctx.repeats += 1
             if np.all(~np.isfinite(s)):          # fewer candidates than points: reuse the best
                 s = S[j % len(S)].copy()
             picked.append(int(np.argmin(s)))
-        return self._chosen(cands, cand[picked], ctx)
+            chosen.append(int(cand[picked[-1]]))
+            if keys is not None:                 # its θ, wherever else it is a candidate
+                taken.add(ck[picked[-1]])
+                banned |= np.array([k == ck[picked[-1]] for k in ck], dtype=bool)
+        return self._chosen(cands, np.asarray(chosen, dtype=np.int64), ctx)
+
+    @staticmethod
+    def _least_falling_new(pf: np.ndarray, keys: list[tuple[float, ...]],
+                           taken: set[tuple[float, ...]]) -> int | None:
+        """The candidate (index) least likely to fall (``pf`` (m,)) whose θ is not in ``taken``
+        (``distinct``), or None."""
+        for i in np.argsort(pf, kind="stable"):
+            if keys[i] not in taken:
+                return int(i)
+        return None
+
+    def _told_keys(self) -> set[tuple[float, ...]]:
+        """The told θ, rounded to 1e-9 (``distinct``)."""
+        return {tuple(r) for r in np.round(self._X, 9).tolist()} if self.n_told else set()
+
+    def _fresh(self, C: np.ndarray) -> tuple[list[tuple[float, ...]], np.ndarray]:
+        """Keys (θ rounded to 1e-9) of the candidates ``C`` (m, d) and which of them (m,) are
+        neither told nor a repeat of an earlier candidate (``distinct``)."""
+        told, seen = self._told_keys(), set()
+        keys = list(map(tuple, np.round(C, 9).tolist()))
+        fresh = np.zeros(len(C), dtype=bool)
+        for i, k in enumerate(keys):
+            fresh[i] = k not in told and k not in seen
+            seen.add(k)
+        return keys, fresh
+
+    def _distinct_picks(self, order: np.ndarray, keys: list[tuple[float, ...]], n: int,
+                        ctx: _AskContext) -> np.ndarray:
+        """The first ``n`` candidates of ``order`` (indices, best first) whose θ is neither told
+        nor picked already (``distinct``)."""
+        told, out, taken = self._told_keys(), [], set()
+        for i in order:
+            if keys[i] in told or keys[i] in taken:
+                continue
+            out.append(int(i))
+            taken.add(keys[i])
+            if len(out) == n:
+                break
+        ctx.repeats += int(list(order[:len(out)]) != out)
+        return np.asarray(out, dtype=np.int64)
+
+    def _distinct(self, parts: list[tuple[np.ndarray, np.ndarray, int]], n: int, L: float,
+                  centre: np.ndarray, rng: np.random.Generator
+                  ) -> tuple[list[tuple[np.ndarray, np.ndarray, int]], int]:
+        """The candidate pools ``parts`` ((θ (m, d), codes (m, k), pool) each) without θ that
+        were told already or that repeat an earlier candidate (equal to 1e-9; option
+        ``distinct``), and how many were dropped. A decoder that maps a region of codes to one
+        θ, or fewer elites than the batch, would otherwise make the batch ask one θ several
+        times, and the next ask a θ the target has run. When fewer than ``n`` remain,
+        perturbations of ``centre`` in the full pool (side ``L``) are added, distinct as well."""
+        told, seen = self._told_keys(), set()
+        out, dropped = [], 0
+        for X, Z, pool in parts:
+            keep = np.zeros(len(X), dtype=bool)
+            for i, key in enumerate(map(tuple, np.round(X, 9).tolist())):
+                keep[i] = key not in told and key not in seen
+                seen.add(key)
+            dropped += int((~keep).sum())
+            out.append((X[keep], Z[keep], pool))
+        if sum(len(X) for X, _, _ in out) < n:
+            XF = self._pool_full(int(self.opts["n_candidates"]), L, centre, rng)
+            keys = list(map(tuple, np.round(XF, 9).tolist()))
+            fresh = np.array([k not in told and k not in seen for k in keys], dtype=bool)
+            _, first = np.unique(np.round(XF, 9), axis=0, return_index=True)
+            fresh &= np.isin(np.arange(len(XF)), first)
+            out.append((XF[fresh], np.full((int(fresh.sum()), self.k), np.nan), FULL))
+        return out, dropped
 
     def _safe_fallback(self, cands: _Candidates, L: float, centre: np.ndarray,
                        fall_m: TargetModel | None, rng: np.random.Generator) -> _Candidates:
@@ -1583,6 +1692,8 @@ class Transfer(TwoSpaceCritic):
                if self.opts["explore_adapt"] else {}),
             **({"design_screened": True} if ctx.design_screened else {}),
             **({"centre_screened": True} if ctx.centre_screened else {}),
+            **({"duplicates_dropped": ctx.duplicates} if ctx.duplicates else {}),
+            **({"repeats_avoided": ctx.repeats} if ctx.repeats else {}),
             **({"safe_fallback": True} if ctx.safe_fallback else {}),
             **({"ls_ratio": float(np.exp(np.mean(np.log(
                 cm.ls / self.source_model().lengthscales))))}
