@@ -1454,10 +1454,11 @@ class Transfer(TwoSpaceCritic):
                      (XG, np.full((len(XG), self.k), np.nan), GLOBAL)]
         keys = None
         if self.opts["distinct"]:
-            keys, fresh = self._fresh(np.vstack([p[0] for p in parts]))
+            taken = self._told_keys()
+            keys, fresh = self._fresh(np.vstack([p[0] for p in parts]), taken)
             if fresh.sum() < n:         # too few θ not run yet: drop repeats, add perturbations
-                parts, ctx.duplicates = self._distinct(parts, n, st["L"], centre, rng)
-                keys = None
+                parts = self._distinct(parts, fresh, taken, st["L"], centre, rng)
+                ctx.duplicates, keys = int((~fresh).sum()), None
         C = np.vstack([p[0] for p in parts])
         cands = _Candidates(
             X=C, Z=np.vstack([p[1] for p in parts]) if self.k else np.empty((len(C), 0)),
@@ -1529,23 +1530,22 @@ class Transfer(TwoSpaceCritic):
             if keys is not None:
                 first = int(np.argmin(s))
                 s[banned] = np.inf
+                i = None
                 if np.all(~np.isfinite(s)):      # every admissible candidate is a repeat:
                     i = self._least_falling_new(cands.pf, keys, taken)  # the screen's rule
-                    if i is not None:
-                        ctx.repeats += 1
-                        chosen.append(i)
-                        taken.add(keys[i])
-                        banned |= np.array([k == keys[i] for k in ck], dtype=bool)
-                        continue
-                elif int(np.argmin(s)) != first:
-                    ctx.repeats += 1
+                if i is None and np.any(np.isfinite(s)):
+                    picked.append(int(np.argmin(s)))
+                    i = int(cand[picked[-1]])
+                if i is not None:
+                    ctx.repeats += int(i != cand[first])
+                    chosen.append(i)
+                    taken.add(keys[i])           # its θ, wherever else it is a candidate
+                    banned |= np.array([k == keys[i] for k in ck], dtype=bool)
+                    continue
             if np.all(~np.isfinite(s)):          # fewer candidates than points: reuse the best
                 s = S[j % len(S)].copy()
             picked.append(int(np.argmin(s)))
             chosen.append(int(cand[picked[-1]]))
-            if keys is not None:                 # its θ, wherever else it is a candidate
-                taken.add(ck[picked[-1]])
-                banned |= np.array([k == ck[picked[-1]] for k in ck], dtype=bool)
         return self._chosen(cands, np.asarray(chosen, dtype=np.int64), ctx)
 
     @staticmethod
@@ -1562,15 +1562,17 @@ class Transfer(TwoSpaceCritic):
         """The told θ, rounded to 1e-9 (``distinct``)."""
         return {tuple(r) for r in np.round(self._X, 9).tolist()} if self.n_told else set()
 
-    def _fresh(self, C: np.ndarray) -> tuple[list[tuple[float, ...]], np.ndarray]:
+    def _fresh(self, C: np.ndarray, taken: set[tuple[float, ...]] | None = None
+               ) -> tuple[list[tuple[float, ...]], np.ndarray]:
         """Keys (θ rounded to 1e-9) of the candidates ``C`` (m, d) and which of them (m,) are
-        neither told nor a repeat of an earlier candidate (``distinct``)."""
-        told, seen = self._told_keys(), set()
+        neither in ``taken`` (default: the told θ) nor a repeat of an earlier candidate
+        (``distinct``); ``taken`` gains every key."""
+        taken = self._told_keys() if taken is None else taken
         keys = list(map(tuple, np.round(C, 9).tolist()))
         fresh = np.zeros(len(C), dtype=bool)
         for i, k in enumerate(keys):
-            fresh[i] = k not in told and k not in seen
-            seen.add(k)
+            fresh[i] = k not in taken
+            taken.add(k)
         return keys, fresh
 
     def _distinct_picks(self, order: np.ndarray, keys: list[tuple[float, ...]], n: int,
@@ -1588,32 +1590,21 @@ class Transfer(TwoSpaceCritic):
         ctx.repeats += int(list(order[:len(out)]) != out)
         return np.asarray(out, dtype=np.int64)
 
-    def _distinct(self, parts: list[tuple[np.ndarray, np.ndarray, int]], n: int, L: float,
-                  centre: np.ndarray, rng: np.random.Generator
-                  ) -> tuple[list[tuple[np.ndarray, np.ndarray, int]], int]:
-        """The candidate pools ``parts`` ((θ (m, d), codes (m, k), pool) each) without θ that
-        were told already or that repeat an earlier candidate (equal to 1e-9; option
-        ``distinct``), and how many were dropped. A decoder that maps a region of codes to one
-        θ, or fewer elites than the batch, would otherwise make the batch ask one θ several
-        times, and the next ask a θ the target has run. When fewer than ``n`` remain,
-        perturbations of ``centre`` in the full pool (side ``L``) are added, distinct as well."""
-        told, seen = self._told_keys(), set()
-        out, dropped = [], 0
-        for X, Z, pool in parts:
-            keep = np.zeros(len(X), dtype=bool)
-            for i, key in enumerate(map(tuple, np.round(X, 9).tolist())):
-                keep[i] = key not in told and key not in seen
-                seen.add(key)
-            dropped += int((~keep).sum())
-            out.append((X[keep], Z[keep], pool))
-        if sum(len(X) for X, _, _ in out) < n:
-            XF = self._pool_full(int(self.opts["n_candidates"]), L, centre, rng)
-            keys = list(map(tuple, np.round(XF, 9).tolist()))
-            fresh = np.array([k not in told and k not in seen for k in keys], dtype=bool)
-            _, first = np.unique(np.round(XF, 9), axis=0, return_index=True)
-            fresh &= np.isin(np.arange(len(XF)), first)
-            out.append((XF[fresh], np.full((int(fresh.sum()), self.k), np.nan), FULL))
-        return out, dropped
+    def _distinct(self, parts: list[tuple[np.ndarray, np.ndarray, int]], fresh: np.ndarray,
+                  taken: set[tuple[float, ...]], L: float, centre: np.ndarray,
+                  rng: np.random.Generator) -> list[tuple[np.ndarray, np.ndarray, int]]:
+        """The candidate pools ``parts`` ((θ (m_i, d), codes (m_i, k), pool) each) cut to their
+        ``fresh`` candidates ((Σ m_i,) bool, :meth:`_fresh` over the pools stacked), with
+        perturbations of ``centre`` in the full pool (side ``L``) added whose θ are not in
+        ``taken`` (the told θ and every candidate's) nor repeated (option ``distinct``). A
+        decoder that maps a region of codes to one θ, or fewer elites than the batch, would
+        otherwise make the batch ask one θ several times, or a θ the target has run."""
+        cuts = np.cumsum([len(X) for X, _, _ in parts])[:-1]
+        out = [(X[f], Z[f], pool) for (X, Z, pool), f in zip(parts, np.split(fresh, cuts))]
+        XF = self._pool_full(int(self.opts["n_candidates"]), L, centre, rng)
+        new = self._fresh(XF, taken)[1]
+        out.append((XF[new], np.full((int(new.sum()), self.k), np.nan), FULL))
+        return out
 
     def _safe_fallback(self, cands: _Candidates, L: float, centre: np.ndarray,
                        fall_m: TargetModel | None, rng: np.random.Generator) -> _Candidates:
