@@ -597,3 +597,19 @@ def test_a_version_2_store_is_upgraded_by_its_first_ask(tmp_path):
         assert [s.id for s in got] == [1, 2] and all(s.again for s in got)
         st.tell(1, 1.0)
         assert st.store.get_meta("version") == 3
+
+
+def test_tell_takes_the_outcome_of_evaluate(tmp_path):
+    """``tell(id, system.evaluate(θ))``: an Outcome is stored as it is (a failed one without a
+    cost takes the C1 convention); an Outcome with ``failed`` or ``info`` beside it is refused."""
+    from latentune.errors import UsageError
+    from latentune.system import Outcome
+
+    st = lt.Study(tmp_path / "o", seed=0)
+    a, b, c = st.ask(3, system=plant(), phase=1, method="sobol", budget=6)
+    row = st.tell(a.id, Outcome(None, True, {"reason": "x0 too big"}))
+    assert row.fell and row.cost == 200.0 and row.info["reason"] == "x0 too big"
+    assert st.tell(b.id, Outcome(1.5)).cost == 1.5
+    with pytest.raises(UsageError, match="give an Outcome alone"):
+        st.tell(c.id, Outcome(2.0), failed=True)
+    st.close()

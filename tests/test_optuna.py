@@ -476,3 +476,37 @@ def test_latent_sampler_on_a_three_weight_system_never_repeats_a_theta(tmp_path)
     study.optimize(objective, n_trials=14)
     assert [t.state for t in study.trials] == [optuna.trial.TrialState.COMPLETE] * 14
     assert len({tuple(t.params[k] for k in "abc") for t in study.trials}) == 14
+
+
+def test_plain_latent_sampler_on_a_two_weight_system(tmp_path):
+    """A 2-weight system (a 1-dim latent space): the paper's plain phase 3 through the sampler
+    runs 12 distinct trials (before the small-θ widths of the VAE every code decoded to one θ
+    and trial 2 stopped); a latent space whose codes all decode to one θ is refused with one
+    line before any trial."""
+    from latentune.latent.vae import LatentSpace
+
+    space = lt.ParameterSpace(names=["a", "b"], low=[0.0] * 2, high=[1.0] * 2, manual=[0.5] * 2)
+    with lt.Study(tmp_path / "src", seed=0) as st:
+        st.phase1(lt.FunctionSystem(space, lambda x: float(np.sum((x - 0.3) ** 2)), name="q"),
+                  20)
+        st.train_latent(epochs=200)
+    sampler = LatentSampler(tmp_path / "src", seed=0, strategy="plain")
+    study = optuna.create_study(sampler=sampler)
+
+    def objective(trial):
+        p = sampler.suggest_all(trial)
+        return float(sum((p[k] - 0.35) ** 2 for k in "ab"))
+
+    study.optimize(objective, n_trials=12)
+    assert [t.state for t in study.trials] == [optuna.trial.TrialState.COMPLETE] * 12
+    assert len({tuple(t.params[k] for k in "ab") for t in study.trials}) == 12
+
+    ls = LatentSpace.load(tmp_path / "src" / "vae")         # a constant decoder in its place
+    for p in ls.net.decoder[-2].parameters():
+        p.data.zero_()
+    ls.save(tmp_path / "src" / "vae")
+    flat = LatentSampler(tmp_path / "src", seed=0, strategy="plain")
+    study = optuna.create_study(sampler=flat)
+    with pytest.raises(LatentuneError, match="decodes every code to one θ"):
+        study.optimize(lambda t: float(sum(flat.suggest_all(t).values())), n_trials=3)
+    assert len(study.trials) == 2 and study.trials[0].state == optuna.trial.TrialState.COMPLETE

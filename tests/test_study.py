@@ -426,3 +426,27 @@ def test_study_is_a_thin_facade():
     """Study delegates to the pipeline's modules (issue 25: study.py <= 400 lines)."""
     src = Path(lt.__file__).parent / "study.py"
     assert len(src.read_text().splitlines()) <= 400
+
+
+def test_plain_phase3_refuses_a_latent_space_that_decodes_to_one_theta(tmp_path):
+    """A latent space whose codes all decode to one θ: the paper's phase 3 is refused with one
+    line before any trial, the default transfer phase 3 runs on it."""
+    from latentune.errors import LatentError
+    from latentune.latent.vae import LatentSpace
+
+    space = lt.ParameterSpace(names=["a", "b", "c"], low=[0.0] * 3, high=[1.0] * 3,
+                              manual=[0.5] * 3)
+    sys_ = lt.FunctionSystem(space, lambda x: float(np.sum((x - 0.3) ** 2)), name="q")
+    with lt.Study(tmp_path / "src", seed=0) as st:
+        st.phase1(sys_, 12)
+        st.train_latent(epochs=5)
+    ls = LatentSpace.load(tmp_path / "src" / "vae")
+    for p in ls.net.decoder[-2].parameters():          # the sigmoid's input: 0 for every code
+        p.data.zero_()
+    ls.save(tmp_path / "src" / "vae")
+    with lt.Study(tmp_path / "t", seed=0) as st:
+        with pytest.raises(LatentError, match="decodes every code to one θ"):
+            st.phase3(sys_, 6, latent=tmp_path / "src", strategy="plain")
+        assert not st.exists or st.store.count(Phase.PHASE3) == 0
+    with lt.Study(tmp_path / "d", seed=0) as st:
+        assert st.phase3(sys_, 6, latent=tmp_path / "src").n == 6

@@ -112,3 +112,50 @@ def test_save_on_a_full_disk_keeps_the_earlier_files(tmp_path, monkeypatch):
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
     np.testing.assert_allclose(LatentSpace.load(tmp_path / "vae").decode(np.full((1, 2), 0.5)),
                                ls.decode(np.full((1, 2), 0.5)))
+
+
+@pytest.mark.parametrize("d", [2, 5])
+def test_a_small_theta_gets_a_decoder_that_reaches_its_training_set(d: int):
+    """Below d = 20 both hidden layers have 16 units: on a 2-dim stable set each seed's decoder
+    spreads over more than SPREAD_WARN of the set's variance. With Table I's widths (1 unit in
+    the second layer for d < 8) the decoder is constant, which ``require_spread`` refuses."""
+    from latentune.errors import LatentError
+    from latentune.latent.vae import SPREAD_WARN, hidden_widths
+
+    assert hidden_widths(d) == (16, 16) and hidden_widths(20) == (10, 5)
+    assert hidden_widths(25) == (12, 6) and hidden_widths(77) == (38, 19)     # Table I
+    rng = np.random.default_rng(d)
+    A = np.linalg.qr(rng.standard_normal((d, 2)))[0] if d > 2 else np.eye(2)
+    X = np.clip(0.5 + 0.25 * rng.uniform(-1, 1, (60, 2)) @ A.T, 0, 1)
+    collapsed = 0
+    for seed in range(2):
+        ls = LatentSpace.train(X, seed=seed, epochs=400)
+        assert ls.meta["hidden"] == [16, 16]
+        assert ls.meta["decoded_variance_ratio"] > SPREAD_WARN, (seed, ls.meta)
+        ls.require_spread()
+        old = LatentSpace.train(X, seed=seed, epochs=300, hidden=(max(d // 2, 1), 1))
+        try:
+            old.require_spread()
+        except LatentError as e:
+            assert "decodes every code to one θ" in str(e) and "\n" not in str(e)
+            assert old.meta["decoded_variance_ratio"] < 1e-9
+            collapsed += 1
+    assert collapsed >= 1                           # the defect the widths remove
+
+
+def test_a_latent_space_saved_before_the_widths_were_recorded_loads(tmp_path):
+    """A file without ``hidden`` was built with max(⌊d/2⌋, 1), max(⌊d/4⌋, 1): it loads with
+    those widths and decodes as before."""
+    import json
+
+    X = np.random.default_rng(0).random((30, 6))
+    ls = LatentSpace.train(X, seed=0, epochs=3, hidden=(3, 1))
+    ls.save(tmp_path / "vae")
+    meta = json.loads((tmp_path / "vae.json").read_text())
+    del meta["hidden"]
+    (tmp_path / "vae.json").write_text(json.dumps(meta))
+    back = LatentSpace.load(tmp_path / "vae")
+    u = np.random.default_rng(1).random((5, ls.d_low))
+    assert back.net.decoder[0].out_features == 1 and np.array_equal(back.decode(u), ls.decode(u))
+    with pytest.raises(Exception, match="hidden widths must be >= 1"):
+        LatentSpace.train(X, seed=0, epochs=1, hidden=(0, 4))

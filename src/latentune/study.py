@@ -254,7 +254,7 @@ class Study:
         ls, source = resolve_latent(self.run, self.manifest, latent, system.space,
                                     _actor(system))
         mfp_prior = None if max_fall_prob is None else "latent source"
-        strategy = resolve_strategy(self.manifest, strategy, handover)
+        strategy = resolve_strategy(self.manifest, strategy, handover, ls)
         extra = {"latent_source": source, "strategy": strategy,
                  "start": mf.start_point(start, system.space.manual, system.space.dim)[1],
                  **mf.fall_options(max_fall_prob, mfp_prior), "handover": mf.handover(handover)}
@@ -321,8 +321,8 @@ class Study:
     def tell(self, trial_id: int, cost: float | None = None, *, failed: bool = False,
              note: str | None = None, info: dict[str, Any] | None = None,
              amend: bool = False) -> Row:
-        """Store the result of suggestion ``trial_id``: its cost (None with ``failed`` takes the
-        C1 convention of :mod:`latentune.system`), whether it failed, a free note. ``amend``:
+        """Store the result of suggestion ``trial_id``: its cost (None with ``failed``: the C1
+        convention; or an ``Outcome`` alone), whether it failed, a free note. ``amend``:
         correct a told result (the old one is kept in the store's audit trail). StoreError for
         an unknown id, one told already (without ``amend``) or never handed out. With no
         suggestion left out, it prepares the next ask's batch (:func:`~latentune.pipeline.

@@ -230,6 +230,7 @@ def _phase3_critic(source_run: Path, latent: Any, space: ParameterSpace, *, stra
                         **mfp), None
     from latentune.pipeline.phases import make_phase_critic
 
+    latent.require_spread()
     critic = make_phase_critic(method, latent.d_low, batch_size, seed, x0, budget, regions,
                                max_fall_prob, prior)
     return critic, latent.decode

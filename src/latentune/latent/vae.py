@@ -30,6 +30,15 @@ z = lo + (hi − lo)·u and decodes it. The box [lo, hi] is the bounding box of 
 set (μ for ``vae``, the code for ``det``) widened by ``margin`` (default 10 %) of its width on
 each side (and for ``det`` clipped to [0, 1], the sigmoid's range). It is stored with the weights.
 
+Widths and spread
+-----------------
+Table I's hidden widths (⌊d/2⌋, ⌊d/4⌋) are kept for d ≥ 20; a smaller θ gets two layers of 16
+units (:func:`hidden_widths`), where Table I's narrow layers often die and leave a constant
+decoder. Training records the decoder's *spread* (:meth:`LatentSpace.spread`): the total
+variance of the θ decoded from :data:`SPREAD_CODES` Sobol codes of the latent box over the
+training set's total variance (``decoded_variance_ratio`` in the meta). The paper's plain phase 3
+refuses a latent space whose codes all decode to one θ (:meth:`LatentSpace.require_spread`).
+
 Default kind
 ------------
 ``det`` is the default because it reconstructs the stable set better than ``vae``: with β = 1
@@ -82,10 +91,35 @@ def _torch():
     return torch
 
 
-def _build(d: int, d_low: int, kind: str):
+SMALL_D = 20
+"""Below this θ dimension both hidden layers have :data:`SMALL_WIDTH` units (see
+:func:`hidden_widths`)."""
+SMALL_WIDTH = 16
+"""The hidden width of the networks of a θ of fewer than :data:`SMALL_D` dimensions."""
+SPREAD_CODES = 256
+"""Sobol codes of the latent box decoded to measure the decoder's spread (:meth:`LatentSpace.spread`)."""
+SPREAD_WARN = 0.01
+"""Below this share of the training set's variance, training logs a warning (see "Spread")."""
+
+
+def hidden_widths(d: int) -> tuple[int, int]:
+    """The two hidden widths (h1, h2) of encoder and decoder for a d-dim θ: Table I's
+    (⌊d/2⌋, ⌊d/4⌋) for d ≥ :data:`SMALL_D` (the paper's d = 25 and 77 among them); below it
+    (:data:`SMALL_WIDTH`, :data:`SMALL_WIDTH`). With Table I's narrow layers below d = 20 all
+    ReLU units of a layer are often off on every input after training, and every code decodes
+    to one θ (``python -m benchmarks.vae_widths``)."""
+    if d >= SMALL_D:
+        return d // 2, d // 4
+    return SMALL_WIDTH, SMALL_WIDTH
+
+
+def _build(d: int, d_low: int, kind: str, widths: tuple[int, int] | None = None):
+    """The network for a d-dim θ and a d_low-dim code; ``widths``: the hidden widths (h1, h2)
+    (default :func:`hidden_widths`; a latent space saved before them records none and was built
+    with ``(max(⌊d/2⌋, 1), max(⌊d/4⌋, 1))``)."""
     torch = _torch()
     nn = torch.nn
-    h1, h2 = max(d // 2, 1), max(d // 4, 1)
+    h1, h2 = hidden_widths(d) if widths is None else widths
 
     class Net(nn.Module):
         def __init__(self) -> None:
@@ -162,8 +196,10 @@ class LatentSpace:
     def train(cls, thetas: np.ndarray, d_low: int | None = None, kind: str = DEFAULT_KIND,
               seed: int = 0, epochs: int | None = None, beta: float | None = None,
               lr: float = 1e-3, batch_size: int = 64, margin: float = BOX_MARGIN,
-              meta: dict[str, Any] | None = None) -> "LatentSpace":
-        """Train on normalized θ (n, d) (n ≥ 2) and fix the latent box (see the module docstring)."""
+              meta: dict[str, Any] | None = None,
+              hidden: tuple[int, int] | None = None) -> "LatentSpace":
+        """Train on normalized θ (n, d) (n ≥ 2) and fix the latent box (see the module docstring).
+        ``hidden``: the two hidden widths (default :func:`hidden_widths`), recorded in the meta."""
         torch = _torch()
         X = np.asarray(thetas, dtype=float)
         if X.ndim != 2 or X.shape[0] < 2 or X.shape[1] < 2:
@@ -176,6 +212,9 @@ class LatentSpace:
         d_low = default_latent_dim(d) if d_low is None else int(d_low)
         if not 1 <= d_low < d:
             raise LatentError(f"latent dimension must be in [1, {d - 1}], got {d_low}")
+        widths = hidden_widths(d) if hidden is None else (int(hidden[0]), int(hidden[1]))
+        if min(widths) < 1:
+            raise LatentError(f"hidden widths must be >= 1, got {hidden}")
         beta = (BETA_VAE if kind == "vae" else BETA_DET) if beta is None else float(beta)
         steps_per_epoch = max(1, math.ceil(n / batch_size))
         if epochs is None:
@@ -188,7 +227,7 @@ class LatentSpace:
             # the caller's random state is restored and the weights depend on ``seed`` alone
             with torch.random.fork_rng(devices=[]):
                 torch.manual_seed(int(seed))
-                net = _build(d, d_low, kind).double()
+                net = _build(d, d_low, kind, widths).double()
             gen = torch.Generator().manual_seed(int(seed))
             opt = torch.optim.Adam(net.parameters(), lr=lr)
             Xt = torch.as_tensor(np.clip(X, 0.0, 1.0), dtype=torch.float64)
@@ -220,7 +259,9 @@ class LatentSpace:
         if kind == "det":
             lo, hi = np.clip(lo, 0.0, 1.0), np.clip(hi, 0.0, 1.0)
             hi = np.maximum(hi, lo + 1e-3)
-        m = {"d": d, "d_low": d_low, "kind": kind, "n_train": int(n), "seed": int(seed),
+        train_var = float(X.var(0).sum())
+        m = {"d": d, "d_low": d_low, "kind": kind, "hidden": list(widths),
+             "n_train": int(n), "seed": int(seed),
              "epochs": int(epochs), "beta": beta, "lr": lr, "batch_size": batch_size,
              "box_rule": f"bounding box of the encoded training set ± {margin:g}·width"
                          + (" clipped to [0, 1]" if kind == "det" else ""),
@@ -230,8 +271,30 @@ class LatentSpace:
         out = cls(net, d, d_low, kind, np.stack([lo, hi], 1), m)
         log.wall_s = time.perf_counter() - t0
         out.meta["train_wall_s"] = log.wall_s
+        out.meta["train_variance"] = train_var
+        out.meta["decoded_variance_ratio"] = (float(out.spread().var(0).sum()) / train_var
+                                              if train_var > 0 else None)
         out.log = log
         return out
+
+    # ------------------------------------------------------------------ spread
+    def spread(self) -> np.ndarray:
+        """The θ (SPREAD_CODES, d) decoded from a scrambled Sobol set (seed 0) of the unit latent
+        box: what phase 3 can reach."""
+        from scipy.stats import qmc
+
+        return self.decode(qmc.Sobol(self.d_low, scramble=True, seed=0).random(SPREAD_CODES))
+
+    def require_spread(self) -> None:
+        """``LatentError`` when every code of the latent box decodes to one θ (the decoded θ of
+        :meth:`spread` within 1e-6 of each other in every coordinate): a search of the latent
+        box would ask that θ again and again."""
+        D = self.spread()
+        if float(np.max(D.max(0) - D.min(0))) < 1e-6:
+            raise LatentError(
+                f"the latent space decodes every code to one θ (d={self.d}, d_low={self.d_low}, "
+                f"{self.meta.get('n_train', '?')} training θ): train it again (more source "
+                "trials, another seed or latent dimension) or use the transfer strategy")
 
     # ------------------------------------------------------------------ maps
     def _as2d(self, a: np.ndarray, k: int, what: str) -> tuple[np.ndarray, bool]:
@@ -322,7 +385,10 @@ class LatentSpace:
             if kind not in KINDS:
                 raise ValueError(f"unknown kind {kind!r}")
             box = np.asarray(meta["box"], dtype=float).reshape(d_low, 2)
-            net = _build(d, d_low, kind).double()
+            # saved before "hidden" was recorded: the widths of that time
+            widths = tuple(int(w) for w in meta["hidden"]) if "hidden" in meta else \
+                (max(d // 2, 1), max(d // 4, 1))
+            net = _build(d, d_low, kind, widths).double()  # type: ignore[arg-type]
             net.load_state_dict(torch.load(pt, map_location="cpu", weights_only=True))
             net.eval()
         except LatentError:

@@ -65,7 +65,7 @@ from latentune.pipeline.phases import ask_batch, replay, state_key, warn_if_fail
 from latentune.pipeline.results import phase_name, write_best
 from latentune.pipeline.store import Row, RunStore
 from latentune.space import ParameterSpace
-from latentune.system import EvaluationError, as_outcome
+from latentune.system import EvaluationError, Outcome, as_outcome
 
 LEASE_S = 3600.0
 """How long a suggestion stays leased to its asker when it is not told [s] (one hour)."""
@@ -472,15 +472,21 @@ def prepare(study: Any) -> bool:
         return True
 
 
-def tell(study: Any, trial_id: int, cost: float | None = None, *, failed: bool = False,
-         note: str | None = None, info: dict[str, Any] | None = None,
+def tell(study: Any, trial_id: int, cost: float | Outcome | None = None, *,
+         failed: bool = False, note: str | None = None, info: dict[str, Any] | None = None,
          amend: bool = False) -> Row:
     """Store the result of suggestion ``trial_id`` (``amend``: correct a told one, see the
     module docstring), then :func:`prepare` the next batch; return its evaluation row. A
-    failed trial may omit the cost (the convention of :mod:`latentune.system`)."""
+    failed trial may omit the cost (the convention of :mod:`latentune.system`). ``cost`` may
+    also be the :class:`~latentune.system.Outcome` a system's ``evaluate`` returned, given alone
+    (without ``failed`` and ``info``)."""
     tid = _check_id(trial_id)
+    if isinstance(cost, Outcome) and (failed or info):
+        raise UsageError(f"suggestion {tid}: give an Outcome alone (its failed and info are "
+                         "part of it)")
     try:
-        out = as_outcome({"cost": cost, "failed": bool(failed), "info": dict(info or {})})
+        out = as_outcome(cost if isinstance(cost, Outcome) else
+                         {"cost": cost, "failed": bool(failed), "info": dict(info or {})})
     except EvaluationError as exc:
         raise UsageError(f"bad result for suggestion {tid}: {exc}".replace(
             "evaluate returned", "got")) from None

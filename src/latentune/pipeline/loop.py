@@ -60,6 +60,7 @@ def phase_critic(phase: int, pc: dict[str, Any], space: ParameterSpace, run_dir:
     run = run_dir if source in (None, "self") else Path(source)
     if strategy_of(pc) == "transfer":
         return transfer_critic(pc, space, run_dir, run, latent)
+    latent.require_spread()                 # the paper's phase 3 searches the decoded θ only
     x0 = None if theta0 is None else latent.to_unit(latent.encode(theta0))
     lprior = latent_prior(run, latent) if mfp is not None else None
     if pc.get("handover") is None:
@@ -87,10 +88,13 @@ OWN_TOLD = 30
 critic as target data (with the phase-1 trials among its elites), so it does not run them again."""
 
 
-def resolve_strategy(manifest: Manifest, strategy: str | None, handover: Any) -> str:
+def resolve_strategy(manifest: Manifest, strategy: str | None, handover: Any,
+                     latent: Any = None) -> str:
     """Phase 3's strategy for a call: ``strategy`` if given (checked), else the stored one once
     phase 3 has trials (``plain`` for runs recorded before strategies existed), else
-    ``transfer`` — or ``plain`` with a hand-over, which is an option of the paper's phase 3."""
+    ``transfer`` — or ``plain`` with a hand-over, which is an option of the paper's phase 3.
+    With ``latent`` (the LatentSpace), a plain strategy on a latent space whose codes all
+    decode to one θ is refused here, before any trial (``LatentSpace.require_spread``)."""
     from latentune.errors import UsageError
 
     if strategy is not None and strategy not in STRATEGIES:
@@ -102,8 +106,11 @@ def resolve_strategy(manifest: Manifest, strategy: str | None, handover: Any) ->
     if strategy is None:
         stored = manifest.config().get("phase3")
         if stored and manifest.n_used(Phase.PHASE3):
-            return strategy_of(stored)
-        return "plain" if handover else "transfer"
+            strategy = strategy_of(stored)
+        else:
+            strategy = "plain" if handover else "transfer"
+    if strategy == "plain" and latent is not None:
+        latent.require_spread()
     return strategy
 
 

@@ -2,6 +2,7 @@
 whose trial did not fail (:func:`~latentune.pipeline.phases.training_set`)."""
 from __future__ import annotations
 
+import logging
 import time
 from typing import Any
 
@@ -10,6 +11,8 @@ from latentune.errors import LatentError
 from latentune.pipeline.manifest import Manifest
 from latentune.pipeline.phases import training_set
 from latentune.pipeline.rundir import RunDir
+
+logger = logging.getLogger(__name__)
 
 
 def train_latent(run: RunDir, manifest: Manifest, seed: int, latent_dim: int | None = None,
@@ -20,7 +23,7 @@ def train_latent(run: RunDir, manifest: Manifest, seed: int, latent_dim: int | N
     Trains it with ``seed`` and saves it as ``DIR/vae.pt`` / ``DIR/vae.json``; a trained one is
     returned as it is unless ``retrain``; retraining after phase 3 used it is refused (it
     would invalidate the stored phase-3 rows). Call with the run's write lock held."""
-    from latentune.latent.vae import DEFAULT_KIND, LatentSpace
+    from latentune.latent.vae import DEFAULT_KIND, SPREAD_WARN, LatentSpace
 
     st = run.store
     if st.artifact("vae") is not None:
@@ -46,8 +49,14 @@ def train_latent(run: RunDir, manifest: Manifest, seed: int, latent_dim: int | N
     st.add_artifact("vae", run.dir / "vae")
     manifest.update(vae={"kind": latent.kind, "d_low": latent.d_low, "n_train": len(X),
                          "seed": seed, "beta": latent.meta.get("beta"),
-                         "box": latent.box.tolist(), "box_rule": latent.meta.get("box_rule")})
+                         "box": latent.box.tolist(), "box_rule": latent.meta.get("box_rule"),
+                         "decoded_variance_ratio": latent.meta.get("decoded_variance_ratio")})
     manifest.record_seed(seed)
+    ratio = latent.meta.get("decoded_variance_ratio")
+    if ratio is not None and ratio < SPREAD_WARN:
+        logger.warning("%s: the latent box decodes to %.2g of the training θ's variance: the "
+                       "paper's plain phase 3 can reach little beyond one θ", run.dir, ratio)
+    spread = "" if ratio is None else f"; decoded spread {ratio:.3f} of the training variance"
     return latent, (f"VAE ({latent.kind}, d_low {latent.d_low}) trained on {len(X)} θ in "
                     f"{latent.meta.get('train_wall_s', 0):.1f} s; final reconstruction error "
-                    f"{latent.meta.get('final_rec', float('nan')):.4f}")
+                    f"{latent.meta.get('final_rec', float('nan')):.4f}{spread}")
