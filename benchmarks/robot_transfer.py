@@ -646,7 +646,9 @@ def decision_stats(run: dict[str, Any], floor: float = 1 / 64) -> dict[str, Any]
     ``floor_share``: the share of its trust-region asks (not explore asks) asked at side
     ``length`` ≤ ``floor``; ``screened_share``: the share of asks whose fall screen admitted
     fewer than 5 % of the candidates; ``explore_asks`` and ``explore_falls``; ``falls_by_pool``
-    (the pool of each fallen trial's ask: ``elite``, ``full``, ``latent``, or ``explore``)."""
+    (the pool of each fallen trial's ask: ``elite``, ``full``, ``latent``, or ``explore``);
+    ``distinct_acted``: the asks whose choice ``distinct`` changed (``repeats_avoided`` or
+    ``duplicates_dropped`` recorded; 0 = the same asks as without the option)."""
     dec = run.get("decisions") or []
     failed = run["failed"]
     asks = [d for d in dec if not d.get("design")]
@@ -664,7 +666,9 @@ def decision_stats(run: dict[str, Any], floor: float = 1 / 64) -> dict[str, Any]
                                          for d in asks])) if asks else 0.0,
         "explore_asks": len(ex),
         "explore_falls": int(sum(bool(failed[i + 1]) for i in ex if i + 1 < len(failed))),
-        "falls_by_pool": by_pool}
+        "falls_by_pool": by_pool,
+        "distinct_acted": sum(bool(d.get("repeats_avoided") or d.get("duplicates_dropped"))
+                              for d in dec)}
 
 
 TRACE_DROP = ("thetas", "decisions")
@@ -750,6 +754,7 @@ def decisions(root: Path, method: str = "transfer", seeds: list[int] | None = No
         rows = list(t["seeds"].values())
         t["median"] = {k: float(np.median([x[k] for x in rows]))
                        for k in ("floor_share", "screened_share", "explore_asks", "explore_falls")}
+        t["distinct_acted"] = sum(x.get("distinct_acted", 0) for x in rows)
         pools = sorted({p for x in rows for p in x["falls_by_pool"]})
         t["median"]["falls_by_pool"] = {p: float(np.median([x["falls_by_pool"].get(p, 0)
                                                             for x in rows])) for p in pools}
@@ -758,14 +763,15 @@ def decisions(root: Path, method: str = "transfer", seeds: list[int] | None = No
 
 def decisions_markdown(d: dict[str, Any]) -> str:
     lines = ["| rung | seeds | trust-region asks at side ≤ 1/64 | asks the fall screen "
-             "admitted < 5 % of | explore asks / their falls | falls by pool |",
-             "|---|---:|---:|---:|---:|---|"]
+             "admitted < 5 % of | explore asks / their falls | falls by pool | asks `distinct` "
+             "changed (all seeds) |",
+             "|---|---:|---:|---:|---:|---|---:|"]
     for name, t in d["targets"].items():
         m = t["median"]
         pools = ", ".join(f"{p} {v:g}" for p, v in m["falls_by_pool"].items()) or "none"
         lines.append(f"| {name} | {len(t['seeds'])} | {100 * m['floor_share']:.0f} % | "
                      f"{100 * m['screened_share']:.0f} % | {m['explore_asks']:g} / "
-                     f"{m['explore_falls']:g} | {pools} |")
+                     f"{m['explore_falls']:g} | {pools} | {t.get('distinct_acted', 0)} |")
     skipped = (f" {d['without_records']} runs without decision records (restored from traces) "
                "are left out." if d.get("without_records") else "")
     return "\n".join(lines) + "\n\nMedians over the seeds." + skipped

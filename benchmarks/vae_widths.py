@@ -1,10 +1,11 @@
 """Whether the VAE's decoder reaches the training set: Table I's hidden widths against the
 current ones (:func:`latentune.latent.vae.hidden_widths`) over θ dimensions and seeds.
 
-    python -m benchmarks.vae_widths [--dims 2 3 5 ...] [--seeds 8] [--n 100] [--out F.json]
+    python -m benchmarks.vae_widths [--dims 2 3 5 ...] [--seeds 8] [--n 100] [--epochs E]
+        [--out F.json]
 
 Per (training set, d, seed) a :class:`~latentune.latent.vae.LatentSpace` of the default kind,
-latent size and epochs is trained on ``--n`` normalized θ with each rule of widths:
+latent size and epochs (``--epochs`` to change them) is trained on ``--n`` normalized θ with each rule of widths:
 ``table1`` = (max(⌊d/2⌋, 1), max(⌊d/4⌋, 1)), the rule before session 31, and ``current``.
 Two training sets, both drawn with ``numpy.random.default_rng(seed)``:
 
@@ -48,10 +49,11 @@ def training_set(kind: str, d: int, n: int, seed: int) -> np.ndarray:
     return np.clip(0.5 + 0.25 * s @ A.T + 0.02 * rng.standard_normal((n, d)), 0.0, 1.0)
 
 
-def one(kind: str, d: int, seed: int, n: int, rule: str) -> dict[str, Any]:
+def one(kind: str, d: int, seed: int, n: int, rule: str, epochs: int | None = None
+        ) -> dict[str, Any]:
     """spread, rec and collapsed of one trained latent space."""
     X = training_set(kind, d, n, seed)
-    ls = LatentSpace.train(X, seed=seed, hidden=RULES[rule](d))
+    ls = LatentSpace.train(X, seed=seed, hidden=RULES[rule](d), epochs=epochs)
     var = float(X.var(0).sum())
     rec = float(((ls.reconstruct(X) - X) ** 2).sum(1).mean()) / var
     try:
@@ -69,17 +71,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, default=8, help="seeds 0 .. SEEDS-1")
     ap.add_argument("--n", type=int, default=100, help="training θ per set")
     ap.add_argument("--sets", nargs="+", default=list(SETS), choices=SETS)
+    ap.add_argument("--epochs", type=int, default=None, help="default: the training's own")
     add_out_arg(ap)
     a = ap.parse_args(argv)
-    if min(a.dims) < 2 or a.seeds < 1 or a.n < 2:
-        print("vae_widths: error: --dims must be >= 2, --seeds >= 1 and --n >= 2",
+    if min(a.dims) < 2 or a.seeds < 1 or a.n < 2 or (a.epochs is not None and a.epochs < 1):
+        print("vae_widths: error: --dims must be >= 2, --seeds >= 1, --n >= 2, --epochs >= 1",
               file=sys.stderr)
         return 2
     rows, runs = [], []
     for kind in a.sets:
         for d in a.dims:
             for rule in RULES:
-                res = [one(kind, d, s, a.n, rule) for s in range(a.seeds)]
+                res = [one(kind, d, s, a.n, rule, a.epochs) for s in range(a.seeds)]
                 runs += [{"set": kind, "d": d, "rule": rule, "seed": s, **r}
                          for s, r in enumerate(res)]
                 rows.append({"set": kind, "d": d, "rule": rule, "hidden": str(RULES[rule](d)),
@@ -87,6 +90,7 @@ def main(argv: list[str] | None = None) -> int:
                              "spread": float(np.median([r["spread"] for r in res])),
                              "rec": float(np.median([r["rec"] for r in res]))})
     finish(a.out, prov, {"dims": a.dims, "seeds": a.seeds, "n": a.n, "sets": a.sets,
+                         "epochs": a.epochs,
                          "runs": runs}, rows,
            title="the decoder's reach: Table I's widths against the current ones")
     return 0

@@ -48,45 +48,53 @@ SETTLE = 3600.0                            # s
 _SHARE = np.array([1.0, 0.5, 1.0, 0.5, 1.0])
 
 
-def zones_space() -> lt.ParameterSpace:
-    """The 20 gains: ``kp_1..5``, ``ki_1..5``, ``kaw_1..5``, ``kff_1..5`` (module docstring)."""
-    names = [f"{g}_{i + 1}" for g in ("kp", "ki", "kaw", "kff") for i in range(N)]
-    low = [0.05] * N + [1e-5] * N + [1e-3] * N + [1e-3] * N
-    high = [20.0] * N + [0.05] * N + [10.0] * N + [1.0] * N
-    manual = [1.0] * N + [1e-3] * N + [0.1] * N + [0.1] * N
-    return lt.ParameterSpace(names=names, low=low, high=high, log=[True] * (4 * N),
+def zones_space(rooms: int = N) -> lt.ParameterSpace:
+    """The 4·rooms gains: ``kp_1..n``, ``ki_1..n``, ``kaw_1..n``, ``kff_1..n`` (module
+    docstring; 20 for the five rooms)."""
+    n = rooms
+    names = [f"{g}_{i + 1}" for g in ("kp", "ki", "kaw", "kff") for i in range(n)]
+    low = [0.05] * n + [1e-5] * n + [1e-3] * n + [1e-3] * n
+    high = [20.0] * n + [0.05] * n + [10.0] * n + [1.0] * n
+    manual = [1.0] * n + [1e-3] * n + [0.1] * n + [0.1] * n
+    return lt.ParameterSpace(names=names, low=low, high=high, log=[True] * (4 * n),
                              manual=manual)
 
 
 class ZonesSystem:
     """The five rooms' PI gains on a building with model-to-plant ``gap`` (module docstring)."""
 
-    def __init__(self, gap: float = 0.0, steps: int = STEPS) -> None:
+    def __init__(self, gap: float = 0.0, steps: int = STEPS, rooms: int = N) -> None:
         self.gap = float(gap)
         if not math.isfinite(self.gap) or self.gap < 0:
             raise ValueError(f"gap must be a finite number >= 0, got {gap}")
         self.steps = int(steps)
         if self.steps < 1:
             raise ValueError(f"steps must be >= 1, got {steps}")
-        self.space = zones_space()
+        if isinstance(rooms, bool) or int(rooms) != rooms or not 1 <= int(rooms) <= N:
+            raise ValueError(f"rooms must be an integer in [1, {N}], got {rooms}")
+        self.n = int(rooms)
+        self.space = zones_space(self.n)
         g = self.gap
-        self.cap = CAP * np.maximum(1.0 - 0.35 * g * _SHARE, 0.1)
+        self.cap = CAP[:self.n] * np.maximum(1.0 - 0.35 * g * _SHARE[:self.n], 0.1)
         self.k_wall = K_WALL * (1.0 + 0.6 * g)
         self.u_max = U_MAX * max(1.0 - 0.2 * g, 0.2)
         self.delay = int(round(2 * g))
 
     def config(self) -> dict[str, Any]:
-        return {"kind": "thermal_zones", "gap": self.gap, "steps": self.steps}
+        out = {"kind": "thermal_zones", "gap": self.gap, "steps": self.steps}
+        return out if self.n == N else {**out, "rooms": self.n}
 
     def evaluate(self, theta: np.ndarray) -> lt.Outcome:
         return self.simulate(theta)[0]
 
     def simulate(self, theta: np.ndarray) -> tuple[lt.Outcome, dict[str, np.ndarray]]:
         """The trial of the unit-box θ (d,) and its trace up to the end or the failure:
-        ``time_s`` (k,), ``temperature`` (k, 5) °C, ``setpoint`` (k, 5) °C, ``power_kw``
-        (k, 5) (the heaters' commands, saturated)."""
+        ``time_s`` (k,), ``temperature`` (k, n) °C, ``setpoint`` (k, n) °C, ``power_kw``
+        (k, n) (the heaters' commands, saturated; n rooms)."""
         w = self.space.to_physical(self.space.validate_unit(theta))
+        N = self.n                                      # noqa: N806 - the rooms of this system
         kp, ki, kaw, kff = w[:N], w[N:2 * N], w[2 * N:3 * N], w[3 * N:] * K_WALL
+        step_rooms, busy_rooms = [i for i in (0, 2, 4) if i < N], [i for i in (1, 3) if i < N]
         T = np.full(N, 18.0)
         integ = np.zeros(N)
         seen = [T.copy()] * (self.delay + 1)           # the sensor's queue: oldest first
@@ -101,11 +109,11 @@ class ZonesSystem:
             t = k * DT
             sp = np.full(N, 20.0)
             if t >= 1800.0:
-                sp[[0, 2, 4]] = 22.0
+                sp[step_rooms] = 22.0
             t_out = 10.0 if t < 3600.0 else 2.0
             gains = np.zeros(N)
             if t >= 7200.0:
-                gains[[1, 3]] = 1.5
+                gains[busy_rooms] = 1.5
             Tm = seen[0]                                # what the controller measures
             e = sp - Tm
             lap = np.zeros(N)                           # Σ_j (T_i − T_j) over neighbours
@@ -131,6 +139,8 @@ class ZonesSystem:
                                {"rms_power_kw": rms_u}))
 
 
-def make_system(gap: float = 0.0, steps: int = STEPS) -> ZonesSystem:
-    """``--system examples.thermal_zones:make_system [--system-arg gap=G]``."""
-    return ZonesSystem(gap=float(gap), steps=int(steps))
+def make_system(gap: float = 0.0, steps: int = STEPS, rooms: int = N) -> ZonesSystem:
+    """``--system examples.thermal_zones:make_system [--system-arg gap=G rooms=R]``: the
+    first ``rooms`` of the five (4·rooms gains; the set-point steps of rooms 1, 3, 5 and the
+    occupancy of rooms 2, 4 among them)."""
+    return ZonesSystem(gap=float(gap), steps=int(steps), rooms=int(rooms))

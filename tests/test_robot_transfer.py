@@ -343,7 +343,11 @@ def test_decisions_reads_what_the_default_did(tmp_path, capsys):
     other.write_text(json.dumps({**run, "method": "tpe", "decisions": []}))
     s = rt.decision_stats(run)
     assert s == {"n_asks": 3, "floor_share": 0.5, "screened_share": 1 / 3, "explore_asks": 1,
-                 "explore_falls": 1, "falls_by_pool": {"explore": 1, "full": 1}}
+                 "explore_falls": 1, "falls_by_pool": {"explore": 1, "full": 1},
+                 "distinct_acted": 0}
+    dec[3]["repeats_avoided"] = 1                       # an ask whose choice distinct changed
+    assert rt.decision_stats(run)["distinct_acted"] == 1
+    dec[3].pop("repeats_avoided")
     restored = rt.result_path(tmp_path, "r", 5, 1, "transfer")     # no records: left out
     restored.parent.mkdir(parents=True)
     restored.write_text(json.dumps({k: v for k, v in run.items() if k != "decisions"}))

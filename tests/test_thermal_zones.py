@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from examples.thermal_zones import N, STEPS, make_system
+from examples.thermal_zones import N, STEPS, ZonesSystem, make_system
 
 
 def test_manual_gains_hold_the_band_on_every_plant():
@@ -81,3 +81,33 @@ def test_zones_traces_re_runs_the_stored_best_and_draws_it(tmp_path):
     rows = json.loads(out.read_text())["rows"]
     assert [r["method"] for r in rows] == ["transfer", "zero_shot"] and png.stat().st_size > 10000
     assert rows[1]["failed"] and not rows[0]["failed"]       # the source's best leaves the band
+
+
+@pytest.mark.parametrize("rooms", [1, 2, 3])
+def test_fewer_rooms_are_the_first_rooms_of_the_row(rooms):
+    """``rooms=r``: 4·r gains; room 1 steps to 22 °C, room 2 gets the occupancy gains; the
+    manual gains hold the band at every gap; the gap still fails some model-stable gains;
+    the five-room system's config is unchanged; bad room counts are refused."""
+    s = make_system(0.0, rooms=rooms)
+    assert s.space.dim == 4 * rooms and s.config()["rooms"] == rooms
+    assert list(s.space.names[:rooms]) == [f"kp_{i + 1}" for i in range(rooms)]
+    out, trace = s.simulate(s.space.manual)
+    assert not out.failed and trace["temperature"].shape == (STEPS, rooms)
+    assert trace["setpoint"][-1, 0] == 22.0 and (rooms < 2 or trace["setpoint"][-1, 1] == 20.0)
+    for g in (1.0, 2.0):
+        assert not make_system(g, rooms=rooms).evaluate(s.space.manual).failed
+    X = np.random.default_rng(0).random((60, 4 * rooms))
+    ok = [x for x in X if not s.evaluate(x).failed]
+    assert any(make_system(2.0, rooms=rooms).evaluate(x).failed for x in ok)
+    assert "rooms" not in make_system(0.0, rooms=N).config()
+    for bad in (0, N + 1, 2.5, True):
+        with pytest.raises(ValueError, match="rooms must be an integer"):
+            ZonesSystem(rooms=bad)
+
+
+def test_small_theta_benchmark_refuses_bad_sizes(capsys, tmp_path):
+    from benchmarks.small_theta import main
+
+    assert main(["--root", str(tmp_path), "--rooms", "5"]) == 2
+    assert "--rooms in [1, 4]" in capsys.readouterr().err
+    assert main(["--root", str(tmp_path), "--gaps", "0"]) == 2

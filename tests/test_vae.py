@@ -159,3 +159,22 @@ def test_a_latent_space_saved_before_the_widths_were_recorded_loads(tmp_path):
     assert back.net.decoder[0].out_features == 1 and np.array_equal(back.decode(u), ls.decode(u))
     with pytest.raises(Exception, match="hidden widths must be >= 1"):
         LatentSpace.train(X, seed=0, epochs=1, hidden=(0, 4))
+
+
+def test_vae_widths_benchmark_reports_what_it_trained(tmp_path, capsys):
+    """``benchmarks.vae_widths`` at a tiny size: one row per (set, d, rule), the collapsed count
+    agrees with ``require_spread`` on the run's own record; bad sizes are refused."""
+    import json
+
+    from benchmarks.vae_widths import main
+
+    out = tmp_path / "w.json"
+    assert main(["--dims", "2", "--seeds", "1", "--n", "30", "--sets", "manifold",
+                 "--epochs", "60", "--out", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert [(r["d"], r["rule"], r["hidden"]) for r in res["rows"]] == \
+        [(2, "table1", "(1, 1)"), (2, "current", "(16, 16)")]
+    for row, run in zip(res["rows"], res["runs"]):
+        assert row["collapsed"] == f"{int(run['collapsed'])}/1"
+        assert run["collapsed"] == (run["spread"] < 1e-9)
+    assert main(["--dims", "1"]) == 2 and "--dims must be >= 2" in capsys.readouterr().err

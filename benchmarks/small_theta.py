@@ -1,0 +1,148 @@
+"""The default phase 3 on small θ: the VAE's current hidden widths against Table I's, on thermal
+zones of 2 and 3 rooms (8 and 12 gains, :mod:`examples.thermal_zones`).
+
+    python -m benchmarks.small_theta --root runs/small_theta [--rooms 2 3] [--gaps 1 2]
+        [--seeds 0 1 2 3 4] [--phase1 300] [--budget 40] [--out F.json]
+
+Per (rooms, seed): phase 1 on the model (gap 0; ``--phase1`` trials, TuRBO-m, batch 4, the
+seed) once, in ``ROOT/r<rooms>/seed<s>/phase1``; it is copied to two sources, and each gets a
+latent space trained by ``Study.train_latent`` with one rule of hidden widths: ``current``
+(:func:`latentune.latent.vae.hidden_widths`) and ``table1`` (max(⌊d/2⌋, 1), max(⌊d/4⌋, 1),
+the rule before session 31, reproduced by replacing ``hidden_widths`` while that source
+trains). Per gap and rule, the default phase 3 (``Study.phase3``, strategy transfer) runs
+``--budget`` trials on the target from that source, with the seed. Everything resumes.
+
+Output rows per (rooms, gap, rule): the median over seeds of the best cost within the budget
+and of the falls, and per (rooms, gap) the pairs ``current`` against ``table1`` (lower best,
+tie, higher). ``runs`` holds every run's costs and failed flags per trial and each source's
+``decoded_variance_ratio`` and whether its codes all decode to one θ.
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import shutil
+import sys
+from pathlib import Path
+from typing import Any, Iterator
+
+from latentune.threads import one_thread_env
+
+one_thread_env()
+
+import numpy as np  # noqa: E402
+
+from benchmarks.common import Provenance, add_out_arg, finish  # noqa: E402
+
+RULES = ("current", "table1")
+
+
+@contextlib.contextmanager
+def widths_rule(rule: str) -> Iterator[None]:
+    """Train latent spaces with ``rule``'s widths inside the block."""
+    import latentune.latent.vae as vae
+
+    if rule == "current":
+        yield
+        return
+    kept = vae.hidden_widths
+    vae.hidden_widths = lambda d: (max(d // 2, 1), max(d // 4, 1))      # type: ignore
+    try:
+        yield
+    finally:
+        vae.hidden_widths = kept                                         # type: ignore
+
+
+def source(root: Path, rooms: int, seed: int, phase1: int, rule: str) -> tuple[Path, dict]:
+    """The source of (rooms, seed, rule) (module docstring) and its latent space's record."""
+    import latentune as lt
+    from examples.thermal_zones import make_system
+    from latentune.errors import LatentError
+
+    base = root / f"r{rooms}" / f"seed{seed}"
+    with lt.Study(base / "phase1", seed=seed, batch_size=4) as st:
+        st.phase1(make_system(0.0, rooms=rooms), phase1)
+    d = base / f"src_{rule}"
+    if not (d / "vae.json").is_file():
+        shutil.rmtree(d, ignore_errors=True)
+        shutil.copytree(base / "phase1", d, ignore=shutil.ignore_patterns("run.lock"))
+        with widths_rule(rule), lt.Study(d) as st:
+            st.train_latent()
+    with lt.Study(d) as st:
+        ls = st.latent()
+    try:
+        ls.require_spread()
+        one = False
+    except LatentError:
+        one = True
+    return d, {"hidden": ls.meta.get("hidden"), "spread": ls.meta.get("decoded_variance_ratio"),
+               "decodes_to_one_theta": one}
+
+
+def target_run(root: Path, rooms: int, seed: int, gap: float, rule: str, src: Path,
+               budget: int) -> dict[str, Any]:
+    """The default phase 3 of --budget trials on the target; its costs and failed flags."""
+    import latentune as lt
+    from examples.thermal_zones import make_system
+    from latentune.constants import Phase
+
+    d = root / f"r{rooms}" / f"seed{seed}" / f"gap{gap:g}" / rule
+    with lt.Study(d, seed=seed) as st:
+        st.phase3(make_system(gap, rooms=rooms), budget, latent=src)
+        rows = st.store.rows(Phase.PHASE3)
+    costs = [float(r.cost) for r in rows][:budget]
+    failed = [bool(r.fell) for r in rows][:budget]
+    return {"costs": costs, "failed": failed, "best": min(costs), "falls": sum(failed)}
+
+
+def main(argv: list[str] | None = None) -> int:
+    prov = Provenance(argv, "benchmarks.small_theta")
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--root", type=Path, required=True)
+    ap.add_argument("--rooms", type=int, nargs="+", default=[2, 3])
+    ap.add_argument("--gaps", type=float, nargs="+", default=[1.0, 2.0])
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
+    ap.add_argument("--phase1", type=int, default=300)
+    ap.add_argument("--budget", type=int, default=40)
+    add_out_arg(ap)
+    a = ap.parse_args(argv)
+    if not all(1 <= r <= 4 for r in a.rooms) or a.phase1 < 8 or a.budget < 2 or \
+            min(a.gaps) <= 0:
+        print("small_theta: error: --rooms in [1, 4] (θ below 20 gains), --phase1 >= 8, "
+              "--budget >= 2, --gaps > 0", file=sys.stderr)
+        return 2
+    runs, rows = [], []
+    for rooms in a.rooms:
+        for s in a.seeds:
+            srcs = {rule: source(a.root, rooms, s, a.phase1, rule) for rule in RULES}
+            for g in a.gaps:
+                for rule in RULES:
+                    r = target_run(a.root, rooms, s, g, rule, srcs[rule][0], a.budget)
+                    runs.append({"rooms": rooms, "seed": s, "gap": g, "rule": rule,
+                                 "source": srcs[rule][1], **r})
+                    print(f"rooms {rooms} seed {s} gap {g:g} {rule}: best {r['best']:.4f}, "
+                          f"falls {r['falls']}", flush=True)
+    for rooms in a.rooms:
+        for g in a.gaps:
+            by = {rule: {x["seed"]: x for x in runs if (x["rooms"], x["gap"], x["rule"]) ==
+                         (rooms, g, rule)} for rule in RULES}
+            pairs = [(by["current"][s]["best"], by["table1"][s]["best"]) for s in a.seeds]
+            for rule in RULES:
+                rr = list(by[rule].values())
+                rows.append({"rooms": rooms, "d": 4 * rooms, "gap": g, "rule": rule,
+                             "median best": float(np.median([x["best"] for x in rr])),
+                             "median falls": float(np.median([x["falls"] for x in rr])),
+                             "sources decoding to one θ":
+                                 sum(x["source"]["decodes_to_one_theta"] for x in rr),
+                             "current lower / tie / higher": "" if rule == "table1" else
+                             f"{sum(c < t for c, t in pairs)} / {sum(c == t for c, t in pairs)}"
+                             f" / {sum(c > t for c, t in pairs)}"})
+    finish(a.out, prov, {"root": str(a.root), "rooms": a.rooms, "gaps": a.gaps,
+                         "seeds": a.seeds, "phase1": a.phase1, "budget": a.budget,
+                         "runs": runs}, rows,
+           title="the default phase 3 on small θ: current widths against Table I's")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
