@@ -1,8 +1,8 @@
 """The default phase 3 on small θ: the VAE's current hidden widths against Table I's, on thermal
-zones of 2 and 3 rooms (8 and 12 gains, :mod:`examples.thermal_zones`).
+zones of 1 to 4 rooms (4 to 16 gains, :mod:`examples.thermal_zones`).
 
-    python -m benchmarks.small_theta --root runs/small_theta [--rooms 2 3] [--gaps 1 2]
-        [--seeds 0 1 2 3 4] [--phase1 300] [--budget 40] [--out F.json]
+    python -m benchmarks.small_theta --root runs/small_theta [--rooms 1 2 3 4] [--gaps 1 2]
+        [--seeds 0 .. 9] [--phase1 300] [--budget 40] [--out F.json]
 
 Per (rooms, seed): phase 1 on the model (gap 0; ``--phase1`` trials, TuRBO-m, batch 4, the
 seed) once, in ``ROOT/r<rooms>/seed<s>/phase1``; it is copied to two sources, and each gets a
@@ -14,7 +14,7 @@ trains). Per gap and rule, the default phase 3 (``Study.phase3``, strategy trans
 
 Output rows per (rooms, gap, rule): the median over seeds of the best cost within the budget
 and of the falls, and per (rooms, gap) the pairs ``current`` against ``table1`` (lower best,
-tie, higher). ``runs`` holds every run's costs and failed flags per trial and each source's
+tie, higher); ``overall`` pools every pair (:func:`overall`). ``runs`` holds every run's costs and failed flags per trial and each source's
 ``decoded_variance_ratio`` and whether its codes all decode to one θ.
 """
 from __future__ import annotations
@@ -95,13 +95,31 @@ def target_run(root: Path, rooms: int, seed: int, gap: float, rule: str, src: Pa
     return {"costs": costs, "failed": failed, "best": min(costs), "falls": sum(failed)}
 
 
+def overall(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """Every (rooms, gap, seed) pair: ``current`` lower / tie / higher best than ``table1``, the
+    two-sided sign test's p over the untied pairs, the geometric mean of the best-cost ratios
+    current / table1, and each rule's falls."""
+    from scipy.stats import binomtest
+
+    key = {(x["rooms"], x["gap"], x["seed"], x["rule"]): x for x in runs}
+    pairs = [(key[k[:3] + ("current",)]["best"], x["best"]) for k, x in key.items()
+             if k[3] == "table1" and k[:3] + ("current",) in key]
+    lo, hi = sum(c < t for c, t in pairs), sum(c > t for c, t in pairs)
+    return {"pairs": len(pairs), "current_lower": lo, "tie": len(pairs) - lo - hi,
+            "current_higher": hi,
+            "sign_p": float(binomtest(lo, lo + hi).pvalue) if lo + hi else None,
+            "geomean_ratio": float(np.exp(np.mean([np.log(c / t) for c, t in pairs])))
+            if pairs else None,
+            "falls": {r: sum(x["falls"] for x in runs if x["rule"] == r) for r in RULES}}
+
+
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.small_theta")
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--root", type=Path, required=True)
-    ap.add_argument("--rooms", type=int, nargs="+", default=[2, 3])
+    ap.add_argument("--rooms", type=int, nargs="+", default=[1, 2, 3, 4])
     ap.add_argument("--gaps", type=float, nargs="+", default=[1.0, 2.0])
-    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
+    ap.add_argument("--seeds", type=int, nargs="+", default=list(range(10)))
     ap.add_argument("--phase1", type=int, default=300)
     ap.add_argument("--budget", type=int, default=40)
     add_out_arg(ap)
@@ -132,6 +150,7 @@ def main(argv: list[str] | None = None) -> int:
                 rows.append({"rooms": rooms, "d": 4 * rooms, "gap": g, "rule": rule,
                              "median best": float(np.median([x["best"] for x in rr])),
                              "median falls": float(np.median([x["falls"] for x in rr])),
+                             "falls": sum(x["falls"] for x in rr),
                              "sources decoding to one θ":
                                  sum(x["source"]["decodes_to_one_theta"] for x in rr),
                              "current lower / tie / higher": "" if rule == "table1" else
@@ -139,7 +158,7 @@ def main(argv: list[str] | None = None) -> int:
                              f" / {sum(c > t for c, t in pairs)}"})
     finish(a.out, prov, {"root": str(a.root), "rooms": a.rooms, "gaps": a.gaps,
                          "seeds": a.seeds, "phase1": a.phase1, "budget": a.budget,
-                         "runs": runs}, rows,
+                         "overall": overall(runs), "runs": runs}, rows,
            title="the default phase 3 on small θ: current widths against Table I's")
     return 0
 

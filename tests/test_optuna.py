@@ -456,26 +456,33 @@ def test_optuna_samplers_are_phase1_methods(tmp_path):
         lt.Study(tmp_path / "bad2", seed=1).phase1(sys_, 6, method="optuna-gp", max_fall_prob=0.3)
 
 
-def test_latent_sampler_on_a_three_weight_system_never_repeats_a_theta(tmp_path):
-    """A 3-weight system (a 2-dim latent space from 20 source trials): the default sampler runs
-    14 trials, every θ distinct (the transfer critic's ``distinct``; before it, trial 6 on
-    stopped with "the critic keeps proposing θ that are in the study already")."""
-    space = lt.ParameterSpace(names=["a", "b", "c"], low=[0.0] * 3, high=[1.0] * 3,
-                              manual=[0.5] * 3)
+def _small_sampler_run(tmp_path, names: str, n: int, **sampler_opts) -> None:
+    """A source on a quadratic of len(names) weights (20 trials, a latent space), then ``n``
+    trials of ``LatentSampler`` on a shifted quadratic: all complete, every θ distinct."""
+    d = len(names)
+    space = lt.ParameterSpace(names=list(names), low=[0.0] * d, high=[1.0] * d,
+                              manual=[0.5] * d)
     with lt.Study(tmp_path / "src", seed=0) as st:
         st.phase1(lt.FunctionSystem(space, lambda x: float(np.sum((x - 0.3) ** 2)), name="q"),
                   20)
         st.train_latent(epochs=200)
-    sampler = LatentSampler(tmp_path / "src", seed=0)
+    sampler = LatentSampler(tmp_path / "src", seed=0, **sampler_opts)
     study = optuna.create_study(sampler=sampler)
 
     def objective(trial):
         p = sampler.suggest_all(trial)
-        return float(sum((p[k] - 0.35) ** 2 for k in "abc"))
+        return float(sum((p[k] - 0.35) ** 2 for k in names))
 
-    study.optimize(objective, n_trials=14)
-    assert [t.state for t in study.trials] == [optuna.trial.TrialState.COMPLETE] * 14
-    assert len({tuple(t.params[k] for k in "abc") for t in study.trials}) == 14
+    study.optimize(objective, n_trials=n)
+    assert [t.state for t in study.trials] == [optuna.trial.TrialState.COMPLETE] * n
+    assert len({tuple(t.params[k] for k in names) for t in study.trials}) == n
+
+
+def test_latent_sampler_on_a_three_weight_system_never_repeats_a_theta(tmp_path):
+    """A 3-weight system (a 2-dim latent space from 20 source trials): the default sampler runs
+    14 trials, every θ distinct (the transfer critic's ``distinct``; before it, trial 6 on
+    stopped with "the critic keeps proposing θ that are in the study already")."""
+    _small_sampler_run(tmp_path, "abc", 14)
 
 
 def test_plain_latent_sampler_on_a_two_weight_system(tmp_path):
@@ -485,21 +492,7 @@ def test_plain_latent_sampler_on_a_two_weight_system(tmp_path):
     line before any trial."""
     from latentune.latent.vae import LatentSpace
 
-    space = lt.ParameterSpace(names=["a", "b"], low=[0.0] * 2, high=[1.0] * 2, manual=[0.5] * 2)
-    with lt.Study(tmp_path / "src", seed=0) as st:
-        st.phase1(lt.FunctionSystem(space, lambda x: float(np.sum((x - 0.3) ** 2)), name="q"),
-                  20)
-        st.train_latent(epochs=200)
-    sampler = LatentSampler(tmp_path / "src", seed=0, strategy="plain")
-    study = optuna.create_study(sampler=sampler)
-
-    def objective(trial):
-        p = sampler.suggest_all(trial)
-        return float(sum((p[k] - 0.35) ** 2 for k in "ab"))
-
-    study.optimize(objective, n_trials=12)
-    assert [t.state for t in study.trials] == [optuna.trial.TrialState.COMPLETE] * 12
-    assert len({tuple(t.params[k] for k in "ab") for t in study.trials}) == 12
+    _small_sampler_run(tmp_path, "ab", 12, strategy="plain")
 
     ls = LatentSpace.load(tmp_path / "src" / "vae")         # a constant decoder in its place
     for p in ls.net.decoder[-2].parameters():
