@@ -15,7 +15,8 @@ trains). Per gap and rule, the default phase 3 (``Study.phase3``, strategy trans
 Output rows per (rooms, gap, rule): the median over seeds of the best cost within the budget
 and of the falls, and per (rooms, gap) the pairs ``current`` against ``table1`` (lower best,
 tie, higher); ``overall`` pools every pair (:func:`overall`). ``runs`` holds every run's costs and failed flags per trial and each source's
-``decoded_variance_ratio`` and whether its codes all decode to one θ.
+``decoded_variance_ratio`` and whether its codes all decode to one θ, and the trials and falls
+of each of the critic's pools (``pool_falls``: falls / trials summed over the seeds).
 """
 from __future__ import annotations
 
@@ -35,6 +36,8 @@ import numpy as np  # noqa: E402
 from benchmarks.common import Provenance, add_out_arg, finish  # noqa: E402
 
 RULES = ("current", "table1")
+POOLS = ("elite", "full", "latent", "global")
+"""The transfer critic's pools by ``tag % 4`` (:mod:`latentune.critic.transfer`, "Tags")."""
 
 
 @contextlib.contextmanager
@@ -92,7 +95,14 @@ def target_run(root: Path, rooms: int, seed: int, gap: float, rule: str, src: Pa
         rows = st.store.rows(Phase.PHASE3)
     costs = [float(r.cost) for r in rows][:budget]
     failed = [bool(r.fell) for r in rows][:budget]
-    return {"costs": costs, "failed": failed, "best": min(costs), "falls": sum(failed)}
+    pools: dict[str, list[int]] = {}                # pool of each trial's ask: [trials, falls]
+    for r in rows[:budget]:
+        p = POOLS[r.tag % 4] if r.tag is not None else "zero-shot"
+        pools.setdefault(p, [0, 0])
+        pools[p][0] += 1
+        pools[p][1] += bool(r.fell)
+    return {"costs": costs, "failed": failed, "best": min(costs), "falls": sum(failed),
+            "pools": pools}
 
 
 def overall(runs: list[dict[str, Any]]) -> dict[str, Any]:
@@ -111,6 +121,20 @@ def overall(runs: list[dict[str, Any]]) -> dict[str, Any]:
             "geomean_ratio": float(np.exp(np.mean([np.log(c / t) for c, t in pairs])))
             if pairs else None,
             "falls": {r: sum(x["falls"] for x in runs if x["rule"] == r) for r in RULES}}
+
+
+def pool_falls(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per (rooms, gap, rule): trials and falls of each pool, summed over the seeds."""
+    out: dict[tuple, dict[str, list[int]]] = {}
+    for x in runs:
+        acc = out.setdefault((x["rooms"], x["gap"], x["rule"]), {})
+        for p, (n, f) in x.get("pools", {}).items():
+            acc.setdefault(p, [0, 0])
+            acc[p][0] += n
+            acc[p][1] += f
+    return [{"rooms": k[0], "gap": k[1], "rule": k[2],
+             **{p: f"{v[1]} / {v[0]}" for p, v in sorted(acc.items())}}
+            for k, acc in out.items()]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -158,7 +182,8 @@ def main(argv: list[str] | None = None) -> int:
                              f" / {sum(c > t for c, t in pairs)}"})
     finish(a.out, prov, {"root": str(a.root), "rooms": a.rooms, "gaps": a.gaps,
                          "seeds": a.seeds, "phase1": a.phase1, "budget": a.budget,
-                         "overall": overall(runs), "runs": runs}, rows,
+                         "overall": overall(runs), "pool_falls": pool_falls(runs),
+                         "runs": runs}, rows,
            title="the default phase 3 on small θ: current widths against Table I's")
     return 0
 
