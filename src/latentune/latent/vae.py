@@ -97,9 +97,11 @@ SMALL_D = 20
 SMALL_WIDTH = 16
 """The hidden width of the networks of a θ of fewer than :data:`SMALL_D` dimensions."""
 SPREAD_CODES = 256
-"""Sobol codes of the latent box decoded to measure the decoder's spread (:meth:`LatentSpace.spread`)."""
+"""Sobol codes of the latent box decoded to measure the decoder's spread
+(:meth:`LatentSpace.spread`)."""
 SPREAD_WARN = 0.01
-"""Below this share of the training set's variance, training logs a warning (see "Spread")."""
+"""Below this share of the training set's variance, training logs a warning (module docstring,
+"Widths and spread")."""
 
 
 def hidden_widths(d: int) -> tuple[int, int]:
