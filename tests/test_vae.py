@@ -133,12 +133,18 @@ def test_a_small_theta_gets_a_decoder_that_reaches_its_training_set(d: int):
         assert ls.meta["hidden"] == [16, 16]
         assert ls.meta["decoded_variance_ratio"] > SPREAD_WARN, (seed, ls.meta)
         ls.require_spread()
+        calls = []
+        ls.spread = lambda: calls.append(1)          # type: ignore  # checked once: not again
+        ls.require_spread()
+        assert calls == []
         old = LatentSpace.train(X, seed=seed, epochs=300, hidden=(max(d // 2, 1), 1))
         try:
             old.require_spread()
         except LatentError as e:
             assert "decodes every code to one θ" in str(e) and "\n" not in str(e)
             assert old.meta["decoded_variance_ratio"] < 1e-9
+            with pytest.raises(LatentError):                # a refusal is not remembered
+                old.require_spread()
             collapsed += 1
     assert collapsed >= 1                           # the defect the widths remove
 

@@ -192,6 +192,7 @@ class LatentSpace:
         self.box = np.asarray(box, dtype=float).reshape(self.d_low, 2)
         self.meta = dict(meta or {})
         self.log = TrainLog()
+        self._spread_checked = False          # require_spread passed on this instance
 
     # ------------------------------------------------------------------ training
     @classmethod
@@ -290,13 +291,18 @@ class LatentSpace:
     def require_spread(self) -> None:
         """``LatentError`` when every code of the latent box decodes to one θ (the decoded θ of
         :meth:`spread` within 1e-6 of each other in every coordinate): a search of the latent
-        box would ask that θ again and again."""
+        box would ask that θ again and again. A latent space that passed is not checked again
+        (its network does not change after training or loading), so callers on every path that
+        builds a plain critic may call it freely."""
+        if self._spread_checked:
+            return
         D = self.spread()
         if float(np.max(D.max(0) - D.min(0))) < 1e-6:
             raise LatentError(
                 f"the latent space decodes every code to one θ (d={self.d}, d_low={self.d_low}, "
                 f"{self.meta.get('n_train', '?')} training θ): train it again (more source "
                 "trials, another seed or latent dimension) or use the transfer strategy")
+        self._spread_checked = True
 
     # ------------------------------------------------------------------ maps
     def _as2d(self, a: np.ndarray, k: int, what: str) -> tuple[np.ndarray, bool]:
