@@ -573,6 +573,28 @@ def test_explore_pool_adaptive_follows_each_pools_record(source, hypers):
     assert st["explore_pool"] == "latent"
 
 
+def test_the_default_explore_pool_is_adaptive_and_a_stored_latent_run_resumes_latent(source,
+                                                                                    hypers):
+    """The default's explore asks choose their pool by its record (``"adaptive"``); a run stored
+    with ``"latent"`` (the default before) resumes with it and asks what it would have asked."""
+    assert TRANSFER_DEFAULTS["explore_pool"] == "adaptive"
+    cr = _critic(source, hypers, n_design=0)
+    cost = iter([5.0, 6.0, 4.0, 3.0, 3.5, 3.2, 2.0, 2.5])     # the latent explore ask finds
+    for _ in range(8):                                         # nothing; the lines do
+        x = cr.ask(1)
+        cr.tell(x, np.array([next(cost)]), cr.last_tags, fell=np.array([False]), z=cr.last_z)
+    assert [d["explore_pool"] for d in cr.decisions if d["explore"]] == \
+        ["latent", "lines", "lines", "lines"]
+    old = _critic(source, hypers, explore_pool="latent", n_design=0)
+    _run(old, 5)
+    again = _critic(source, hypers, n_design=0)
+    again.tell(old.X, old.y, old.tags, fell=old.fell, z=old._Z)
+    again.load_state_dict(old.state_dict())
+    assert again.opts["explore_pool"] == "latent"
+    _asks_alike(old, again, 3)
+    assert {d["explore_pool"] for d in old.decisions if d["explore"]} == {"latent"}
+
+
 def test_explore_pool_adaptive_without_a_latent_space_draws_lines(source, hypers):
     cr = _critic(source, hypers, latent=False, explore_pool="adaptive", n_design=0)
     _run(cr, 6)

@@ -107,7 +107,7 @@ trials in pool ``elite`` or ``full``). Explore generations leave ``L`` and its c
 not count in the latent pool's fall record (``latent_falls``); their trials are data for the
 models and raise the best value a later batch must beat, and an explore trial that becomes the
 best moves the centre, as any trial does. Each decision records ``"explore"``.
-``explore_pool`` (default ``"latent"``) says where an explore ask's candidates come from:
+``explore_pool`` (default ``"adaptive"``, below) says where an explore ask's candidates come from:
 ``"latent"``, decoded codes of the whole latent box as above; ``"source"``, ``n_candidates`` θ
 drawn from the source's promising distribution (the Gaussian that warm-starts CMA-ES from a
 source task, Nomura et al. 2021, fitted to the top 10 % of the source's trials that did not
@@ -272,7 +272,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "handoff_model": "target", "handoff_fall_shrink": False, "handoff_rules": "turbo",
     "stop_converged": False, "success_scale": "spread", "explore_every": 2,
     "explore_when": "always", "source_order": "canonical", "explore_falls": 3,
-    "stand_first": False, "explore_pool": "latent", "explore_adapt": False,
+    "stand_first": False, "explore_pool": "adaptive", "explore_adapt": False,
     "full_shape": "lengthscales", "tilt": 0.0, "lines_pick": "uniform",
     "fall_source_sd": False, "face_snap": 0.0, "explore_void": False,
     "explore_fall_weight": 0.0, "centre_screen": False, "distinct": True,
