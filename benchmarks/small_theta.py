@@ -2,7 +2,8 @@
 zones of 1 to 4 rooms (4 to 16 gains, :mod:`examples.thermal_zones`).
 
     python -m benchmarks.small_theta --root runs/small_theta [--rooms 1 2 3 4] [--gaps 1 2]
-        [--seeds 0 .. 9] [--phase1 300] [--budget 40] [--out F.json]
+        [--seeds 0 .. 9] [--phase1 300] [--budget 40] [--rules current table1]
+        [--against EARLIER.json] [--out F.json]
 
 Per (rooms, seed): phase 1 on the model (gap 0; ``--phase1`` trials, TuRBO-m, batch 4, the
 seed) once, in ``ROOT/r<rooms>/seed<s>/phase1``; it is copied to two sources, and each gets a
@@ -17,6 +18,14 @@ and of the falls, and per (rooms, gap) the pairs ``current`` against ``table1`` 
 tie, higher); ``overall`` pools every pair (:func:`overall`). ``runs`` holds every run's costs and failed flags per trial and each source's
 ``decoded_variance_ratio`` and whether its codes all decode to one θ, and the trials and falls
 of each of the critic's pools (``pool_falls``: falls / trials summed over the seeds).
+``explore_pool`` records the default phase 3's explore pool of the run
+(``TRANSFER_DEFAULTS``).
+
+``--rules`` runs only those rules. ``--against`` pairs this run's ``current`` runs with those of
+an earlier output of this benchmark, made with another default phase 3 (``against``: this run
+lower / tie / higher, sign test, geometric mean of the best-cost ratios, falls of each). The
+sources must be the same: every pair's first trial (the zero-shot θ) must cost the same to
+1e-9 relative, else the pairing is refused.
 """
 from __future__ import annotations
 
@@ -137,6 +146,46 @@ def pool_falls(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
             for k, acc in out.items()]
 
 
+def against(runs: list[dict[str, Any]], earlier: dict[str, Any]) -> dict[str, Any]:
+    """This run's ``current`` runs paired by (rooms, gap, seed) with ``earlier``'s (an output of
+    this benchmark): this run lower / tie / higher, the two-sided sign test's p, the geometric
+    mean of the best-cost ratios (this / earlier) and each side's falls. ``ValueError`` when a
+    pair's first trial costs differ (not the same source) or no pair exists."""
+    from scipy.stats import binomtest
+
+    old = {(x["rooms"], x["gap"], x["seed"]): x for x in earlier["runs"]
+           if x["rule"] == "current"}
+    pairs = [(x, old[k]) for x in runs if x["rule"] == "current"
+             and (k := (x["rooms"], x["gap"], x["seed"])) in old]
+    if not pairs:
+        raise ValueError("no (rooms, gap, seed) of this run is in the earlier output")
+    for x, o in pairs:
+        if not np.isclose(x["costs"][0], o["costs"][0], rtol=1e-9, atol=0.0):
+            raise ValueError(f"rooms {x['rooms']} gap {x['gap']:g} seed {x['seed']}: the first "
+                             f"trial costs {x['costs'][0]!r} here and {o['costs'][0]!r} in the "
+                             "earlier output: not the same source")
+    lo = sum(x["best"] < o["best"] for x, o in pairs)
+    hi = sum(x["best"] > o["best"] for x, o in pairs)
+    return {"pairs": len(pairs), "lower": lo, "tie": len(pairs) - lo - hi, "higher": hi,
+            "sign_p": float(binomtest(lo, lo + hi).pvalue) if lo + hi else None,
+            "geomean_ratio": float(np.exp(np.mean([np.log(x["best"] / o["best"])
+                                                   for x, o in pairs]))),
+            "falls": sum(x["falls"] for x, _ in pairs),
+            "falls_earlier": sum(o["falls"] for _, o in pairs),
+            "earlier_explore_pool": earlier.get("explore_pool", "latent"),
+            "by_rooms_gap": [
+                {"rooms": r, "gap": g,
+                 "lower / tie / higher": f"{sum(x['best'] < o['best'] for x, o in pp)} / "
+                                         f"{sum(x['best'] == o['best'] for x, o in pp)} / "
+                                         f"{sum(x['best'] > o['best'] for x, o in pp)}",
+                 "median best": float(np.median([x["best"] for x, _ in pp])),
+                 "median best earlier": float(np.median([o["best"] for _, o in pp])),
+                 "falls": sum(x["falls"] for x, _ in pp),
+                 "falls earlier": sum(o["falls"] for _, o in pp)}
+                for r, g in sorted({(x["rooms"], x["gap"]) for x, _ in pairs})
+                if (pp := [(x, o) for x, o in pairs if (x["rooms"], x["gap"]) == (r, g)])]}
+
+
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.small_theta")
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -146,8 +195,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, nargs="+", default=list(range(10)))
     ap.add_argument("--phase1", type=int, default=300)
     ap.add_argument("--budget", type=int, default=40)
+    ap.add_argument("--rules", nargs="+", choices=RULES, default=list(RULES))
+    ap.add_argument("--against", type=Path, default=None, metavar="EARLIER.json")
     add_out_arg(ap)
     a = ap.parse_args(argv)
+    earlier = None
+    if a.against is not None:
+        import json
+
+        try:
+            earlier = json.loads(a.against.read_text())
+            assert isinstance(earlier, dict) and isinstance(earlier.get("runs"), list)
+        except (OSError, ValueError, AssertionError) as e:
+            print(f"small_theta: error: --against {a.against}: not an output of this benchmark "
+                  f"({e.__class__.__name__})", file=sys.stderr)
+            return 2
     if not all(1 <= r <= 4 for r in a.rooms) or a.phase1 < 8 or a.budget < 2 or \
             min(a.gaps) <= 0:
         print("small_theta: error: --rooms in [1, 4] (θ below 20 gains), --phase1 >= 8, "
@@ -156,9 +218,9 @@ def main(argv: list[str] | None = None) -> int:
     runs, rows = [], []
     for rooms in a.rooms:
         for s in a.seeds:
-            srcs = {rule: source(a.root, rooms, s, a.phase1, rule) for rule in RULES}
+            srcs = {rule: source(a.root, rooms, s, a.phase1, rule) for rule in a.rules}
             for g in a.gaps:
-                for rule in RULES:
+                for rule in a.rules:
                     r = target_run(a.root, rooms, s, g, rule, srcs[rule][0], a.budget)
                     runs.append({"rooms": rooms, "seed": s, "gap": g, "rule": rule,
                                  "source": srcs[rule][1], **r})
@@ -167,9 +229,10 @@ def main(argv: list[str] | None = None) -> int:
     for rooms in a.rooms:
         for g in a.gaps:
             by = {rule: {x["seed"]: x for x in runs if (x["rooms"], x["gap"], x["rule"]) ==
-                         (rooms, g, rule)} for rule in RULES}
-            pairs = [(by["current"][s]["best"], by["table1"][s]["best"]) for s in a.seeds]
-            for rule in RULES:
+                         (rooms, g, rule)} for rule in a.rules}
+            pairs = [(by["current"][s]["best"], by["table1"][s]["best"]) for s in a.seeds] \
+                if len(by) == 2 else []
+            for rule in a.rules:
                 rr = list(by[rule].values())
                 rows.append({"rooms": rooms, "d": 4 * rooms, "gap": g, "rule": rule,
                              "median best": float(np.median([x["best"] for x in rr])),
@@ -177,13 +240,25 @@ def main(argv: list[str] | None = None) -> int:
                              "falls": sum(x["falls"] for x in rr),
                              "sources decoding to one θ":
                                  sum(x["source"]["decodes_to_one_theta"] for x in rr),
-                             "current lower / tie / higher": "" if rule == "table1" else
+                             "current lower / tie / higher": "" if rule == "table1" or
+                             not pairs else
                              f"{sum(c < t for c, t in pairs)} / {sum(c == t for c, t in pairs)}"
                              f" / {sum(c > t for c, t in pairs)}"})
+    from latentune.critic.transfer import TRANSFER_DEFAULTS
+
+    extra: dict[str, Any] = {}
+    if earlier is not None:
+        try:
+            extra["against"] = {"file": str(a.against), **against(runs, earlier)}
+        except ValueError as e:
+            print(f"small_theta: error: --against: {e}", file=sys.stderr)
+            return 2
+        print(f"against {a.against}: {extra['against']}", flush=True)
     finish(a.out, prov, {"root": str(a.root), "rooms": a.rooms, "gaps": a.gaps,
                          "seeds": a.seeds, "phase1": a.phase1, "budget": a.budget,
+                         "rules": a.rules, "explore_pool": TRANSFER_DEFAULTS["explore_pool"],
                          "overall": overall(runs), "pool_falls": pool_falls(runs),
-                         "runs": runs}, rows,
+                         "runs": runs, **extra}, rows,
            title="the default phase 3 on small θ: current widths against Table I's")
     return 0
 

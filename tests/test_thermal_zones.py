@@ -111,3 +111,33 @@ def test_small_theta_benchmark_refuses_bad_sizes(capsys, tmp_path):
     assert main(["--root", str(tmp_path), "--rooms", "5"]) == 2
     assert "--rooms in [1, 4]" in capsys.readouterr().err
     assert main(["--root", str(tmp_path), "--gaps", "0"]) == 2
+
+
+def test_small_theta_benchmark_pairs_a_run_with_an_earlier_output(capsys, tmp_path):
+    """``--against``: this run's ``current`` runs paired with an earlier output's by (rooms,
+    gap, seed); the same sources give ties; a different source (first trial's cost) or a file
+    that is no output is refused in one line."""
+    import json
+
+    from benchmarks.small_theta import main
+
+    args = ["--root", str(tmp_path / "r"), "--rooms", "1", "--gaps", "2", "--seeds", "0",
+            "--phase1", "12", "--budget", "3", "--rules", "current"]
+    assert main(args + ["--out", str(tmp_path / "a.json")]) == 0
+    first = json.loads((tmp_path / "a.json").read_text())
+    assert first["rules"] == ["current"] and first["explore_pool"] == "adaptive"
+    assert [x["rule"] for x in first["runs"]] == ["current"]
+    assert main(args + ["--against", str(tmp_path / "a.json"), "--out",
+                        str(tmp_path / "b.json")]) == 0
+    ag = json.loads((tmp_path / "b.json").read_text())["against"]
+    assert (ag["pairs"], ag["lower"], ag["tie"], ag["higher"]) == (1, 0, 1, 0)
+    assert ag["geomean_ratio"] == 1.0 and ag["falls"] == ag["falls_earlier"]
+    first["runs"][0]["costs"][0] *= 1.01                    # another source
+    (tmp_path / "c.json").write_text(json.dumps(first))
+    capsys.readouterr()
+    assert main(args + ["--against", str(tmp_path / "c.json")]) == 2
+    err = capsys.readouterr().err
+    assert "not the same source" in err and err.count("\n") == 1
+    (tmp_path / "d.json").write_text("[1]")
+    assert main(args + ["--against", str(tmp_path / "d.json")]) == 2
+    assert "not an output of this benchmark" in capsys.readouterr().err
