@@ -35,8 +35,11 @@ For every (system, seed) one source run: ``Study(ROOT/<system>/seed<s>/source, s
 (system, gap) and seed each method gets ``--budget`` B trials on the target, one at a time, every
 trial counted (the zero-shot one included):
 
-* ``transfer``     latentune's default phase 3 (:class:`latentune.critic.transfer.Transfer`): the
-  zero-shot θ, then the critic on everything the source tried;
+* ``transfer``     latentune's transfer phase 3 (:class:`latentune.critic.transfer.Transfer`): the
+  zero-shot θ, then the critic on everything the source tried. The name keeps the meaning of
+  its stored runs: the critic's defaults with the explore pool of the default before session
+  32 (:data:`LADDER_BASE`); ``transfer+OPTIONS`` is that with OPTIONS, so the default since
+  session 32 is ``transfer+explore_pool=adaptive``;
 * ``plain``        the paper's phase 3 as ``Study.phase3`` runs it: the manual θ, the zero-shot θ,
   then TuRBO-m in the latent box from the manual θ's code (not a peer);
 * ``handover``     the same with the hand-over to the full θ box (not a peer);
@@ -201,6 +204,12 @@ def parse_variant(text: str) -> dict[str, Any]:
     return out
 
 
+LADDER_BASE: dict[str, Any] = {"explore_pool": "latent"}
+"""The transfer critic's options under the method name ``transfer`` beyond its defaults: the
+explore pool every stored ``transfer`` and ``transfer+…`` run was made with (the default before
+session 32), so that a run added later under a stored name is the same method."""
+
+
 def run_method(method: str, target: Any, src: Path, B: int, seed: int,
                options: dict[str, Any] | None = None) -> dict[str, Any]:
     """B target trials of ``method`` (module docstring; ``options``: the transfer critic's
@@ -229,7 +238,8 @@ def run_method(method: str, target: Any, src: Path, B: int, seed: int,
         trial(best)
     elif method == "transfer":
         ls = LatentSpace.load(src / "vae")
-        cr = Transfer((Xs, ys, fs), ls, manual, batch_size=1, seed=seed, **(options or {}))
+        cr = Transfer((Xs, ys, fs), ls, manual, batch_size=1, seed=seed,
+                      **{**LADDER_BASE, **(options or {})})
         cr.load_state_dict({"source_hypers": source_hypers(src, seed, options)})
         o = trial(best)
         cr.tell(best[None], np.array([o.cost]), fell=np.array([o.failed]))

@@ -120,7 +120,7 @@ def run(variant: str, name: str, gap: float, seed: int, root: Path) -> dict[str,
     """The zero-shot trial and ``B`` target trials of ``variant``: its trace (stored, or read
     when stored): ``zero_shot`` cost, per trial ``cost``, ``fell`` and ``length`` (the side the
     trial was asked at)."""
-    from benchmarks.transfer import parse_variant
+    from benchmarks.transfer import LADDER_BASE, parse_variant
     from latentune.critic.transfer import Transfer
 
     path = root / name / f"gap{gap:g}" / f"seed{seed}" / f"{variant}.json"
@@ -129,7 +129,7 @@ def run(variant: str, name: str, gap: float, seed: int, root: Path) -> dict[str,
     Xs, ys, fs = source(name, gap, seed, root)
     _, tgt = problem(name, gap, seed)
     best = Xs[np.argmin(np.where(fs, np.inf, ys))]
-    opts = {} if variant == "default" else parse_variant(variant)
+    opts = {**LADDER_BASE, **({} if variant == "default" else parse_variant(variant))}
     cr = Transfer((Xs, ys, fs), None, np.full(D, 0.5), batch_size=BATCH, seed=seed, **opts)
     y0, f0 = tgt(best[None])
     cr.tell(best[None], y0, fell=f0)

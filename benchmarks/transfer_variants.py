@@ -79,9 +79,9 @@ def run(variant: str, name: str, gap: float, seed: int) -> tuple[float, int, np.
     if variant == "turbo_source":
         cr = TurboM(D, batch_size=1, seed=seed, x0=best, n_regions=1)
     else:
-        from benchmarks.transfer import parse_variant
+        from benchmarks.transfer import LADDER_BASE, parse_variant
 
-        opts = {} if variant == "default" else parse_variant(variant)
+        opts = {**LADDER_BASE, **({} if variant == "default" else parse_variant(variant))}
         cr = Transfer((Xs, ys, fs), None, np.full(D, 0.5), batch_size=1, seed=seed, **opts)
         y0, f0 = tgt(best[None])
         cr.tell(best[None], y0, fell=f0)

@@ -381,3 +381,29 @@ def test_summary_reads_one_machines_reruns_in_place_of_the_stored_runs(tmp_path)
     assert row["methods"]["transfer"]["median_best"] == 1.0
     (row,) = tr.summarize(tmp_path, methods=["tpe", "transfer"])["targets"]     # no machine
     assert row["methods"]["tpe"]["median_best"] == 2.0
+
+
+def test_a_stored_method_name_keeps_its_explore_pool_after_the_default_changed(tmp_path,
+                                                                                monkeypatch):
+    """``transfer`` runs the critic with the explore pool of its stored runs (``LADDER_BASE``,
+    the default before session 32) and ``transfer+explore_pool=adaptive`` the default since;
+    any other option leaves the base pool."""
+    import latentune.critic.transfer as ct
+
+    src = tr.source_run(tmp_path, "chain", 0, 16)
+    made: list[dict] = []
+
+    class Stop(Exception):
+        pass
+
+    def capture(*args, **kw):
+        made.append(kw)
+        raise Stop
+
+    monkeypatch.setattr(ct, "Transfer", capture)
+    for opts in (None, {"explore_pool": "adaptive"}, {"distinct": True}):
+        with pytest.raises(Stop):
+            tr.run_method("transfer", tr.SYSTEMS["chain"]["target"](1.0), src, 4, 0, opts)
+    assert [m["explore_pool"] for m in made] == ["latent", "adaptive", "latent"]
+    assert tr.LADDER_BASE == {"explore_pool": "latent"} != {
+        "explore_pool": ct.TRANSFER_DEFAULTS["explore_pool"]}
