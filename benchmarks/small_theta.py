@@ -200,6 +200,10 @@ def main(argv: list[str] | None = None) -> int:
     add_out_arg(ap)
     a = ap.parse_args(argv)
     earlier = None
+    if a.against is not None and "current" not in a.rules:
+        print("small_theta: error: --against pairs the current rule's runs: give --rules "
+              "current", file=sys.stderr)
+        return 2
     if a.against is not None:
         import json
 

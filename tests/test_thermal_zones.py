@@ -138,6 +138,8 @@ def test_small_theta_benchmark_pairs_a_run_with_an_earlier_output(capsys, tmp_pa
     assert main(args + ["--against", str(tmp_path / "c.json")]) == 2
     err = capsys.readouterr().err
     assert "not the same source" in err and err.count("\n") == 1
+    assert main(args[:-1] + ["table1", "--against", str(tmp_path / "a.json")]) == 2
+    assert "give --rules current" in capsys.readouterr().err
     (tmp_path / "d.json").write_text("[1]")
     assert main(args + ["--against", str(tmp_path / "d.json")]) == 2
     assert "not an output of this benchmark" in capsys.readouterr().err
