@@ -771,3 +771,35 @@ def test_distinct_fills_a_batch_larger_than_the_elites_left(source, hypers):
 def test_distinct_is_checked(source, hypers, bad):
     with pytest.raises(ValueError, match="distinct"):
         _critic(source, hypers, distinct=bad)
+
+
+@pytest.mark.parametrize("floor", [0.0, 0.1])
+def test_explore_fall_prob_screens_the_explore_asks_at_their_own_bound(source, hypers,
+                                                                       monkeypatch, floor):
+    """``explore_fall_prob`` = 0.05 with a fall screen that rates a θ by its first gain
+    (``floor + 0.25 · θ_0``): with ``floor`` 0 the explore asks pick θ with ``θ_0 ≤ 0.2`` and
+    record the bound 0.05, the other asks pick as before; with ``floor`` 0.1 no candidate passes
+    0.05 and the explore asks fall back to ``max_fall_prob`` (0.3), as they record."""
+    monkeypatch.setattr(Transfer, "_fall_prob",
+                        lambda self, C, fall_m: floor + 0.25 * np.asarray(C)[:, 0])
+    out = [(5.0, False), (6.0, False), (4.0, False), (3.0, False), (2.9, False), (2.8, False),
+           (2.7, False)]
+    cr = _critic(source, hypers, n_design=0, explore_fall_prob=0.05)
+    dec = _scripted(cr, out)
+    ex = [i for i, d in enumerate(dec) if d["explore"]]
+    assert ex == [1, 3, 5]
+    for i in ex:
+        assert dec[i]["explore_bound"] == (0.05 if floor == 0.0 else 0.3)
+        assert cr.X[i, 0] <= (0.2 + 1e-12 if floor == 0.0 else 0.8 + 1e-12)
+    assert not any("explore_bound" in dec[i] for i in range(len(dec)) if i not in ex)
+    plain = _critic(source, hypers, n_design=0)
+    dec0 = _scripted(plain, out[:2])
+    assert dec0[1]["explore"] and "explore_bound" not in dec0[1]
+    if floor == 0.0:        # without the bound the first explore ask picks a θ it now refuses
+        assert plain.X[1, 0] > 0.2
+
+
+@pytest.mark.parametrize("bad", [-0.1, 0.5, "0.1", True])
+def test_explore_fall_prob_is_checked(source, hypers, bad):
+    with pytest.raises(ValueError, match="explore_fall_prob"):
+        _critic(source, hypers, explore_fall_prob=bad)

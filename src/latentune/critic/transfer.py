@@ -162,6 +162,12 @@ no standing trial, the best one. On a target whose best trial only just stands (
 trials around it fall), the search moves to the best trial whose neighbourhood stands instead
 of asking around a θ the model already expects to fall. Each ask that moved the centre records
 ``centre_screened``.
+``explore_fall_prob`` = q > 0 (default 0: off) screens an explore ask's candidates at the
+bound q (at most ``max_fall_prob``) instead of ``max_fall_prob``; when fewer than the batch pass
+it, at ``max_fall_prob`` as every ask (then the least likely to fall, as every ask). An explore
+ask is a step the local search does not need: a line that sets a gain far out near the bound
+falls several times as often as one well inside it and makes fewer records. Each explore
+decision records the bound it applied (``explore_bound``).
 ``distinct`` (default True; False before session 30, so stored runs resume as they ran): an
 ask never picks a θ the target has run, nor one θ twice in a batch (equal to 1e-9): the choice
 passes over such candidates to the next best (each ask that did so records
@@ -276,6 +282,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "full_shape": "lengthscales", "tilt": 0.0, "lines_pick": "uniform",
     "fall_source_sd": False, "face_snap": 0.0, "explore_void": False,
     "explore_fall_weight": 0.0, "centre_screen": False, "distinct": True,
+    "explore_fall_prob": 0.0,
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
@@ -290,7 +297,8 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "tilt": 0.0, "lines_pick": "uniform",
                                  "fall_source_sd": False, "face_snap": 0.0,
                                  "explore_void": False, "explore_fall_weight": 0.0,
-                                 "centre_screen": False, "distinct": False}
+                                 "centre_screen": False, "distinct": False,
+                                 "explore_fall_prob": 0.0}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -804,6 +812,7 @@ class _AskContext:
     centre_screened: bool = False
     duplicates: int = 0
     repeats: int = 0
+    explore_bound: float | None = None
 
 
 @dataclass
@@ -881,6 +890,11 @@ class Transfer(TwoSpaceCritic):
         if isinstance(w_f, bool) or not isinstance(w_f, (int, float)) or not 0.0 <= w_f <= 10.0:
             raise ValueError(f"explore_fall_weight must be a number in [0, 10] (0: off), "
                              f"got {w_f!r}")
+        q = self.opts["explore_fall_prob"]
+        if isinstance(q, bool) or not isinstance(q, (int, float)) or \
+                not 0.0 <= float(q) <= float(p):
+            raise ValueError(f"explore_fall_prob must be a number in [0, max_fall_prob = {p}] "
+                             f"(0: the same bound as every ask), got {q!r}")
         f = self.opts["face_snap"]
         if isinstance(f, bool) or not isinstance(f, (int, float)) or not 0.0 <= float(f) <= 1.0:
             raise ValueError(f"face_snap must be a probability in [0, 1] (0: off), got {f!r}")
@@ -1464,8 +1478,13 @@ class Transfer(TwoSpaceCritic):
             X=C, Z=np.vstack([p[1] for p in parts]) if self.k else np.empty((len(C), 0)),
             pool=np.concatenate([np.full(len(p[0]), p[2], dtype=np.int64) for p in parts]),
             pf=self._fall_prob(C, fall_m))
-        # the fall screen
+        # the fall screen (an explore ask first at its own, stricter bound)
         ok = cands.pf <= float(self.opts["max_fall_prob"])
+        q_ex = float(self.opts["explore_fall_prob"])
+        if ctx.explore and q_ex > 0.0:
+            strict = cands.pf <= q_ex
+            ctx.explore_bound = q_ex if strict.sum() >= n else float(self.opts["max_fall_prob"])
+            ok = strict if strict.sum() >= n else ok
         if ok.sum() < n and self.opts["safe_fallback"] and not ctx.explore:
             cands = self._safe_fallback(cands, st["L"], centre, fall_m, rng)
             C, ctx.safe_fallback = cands.X, True
@@ -1677,6 +1696,7 @@ class Transfer(TwoSpaceCritic):
             **({"explore_record": ctx.state["explore_record"]}
                if ctx.explore and self.opts["explore_pool"] == "adaptive" else {}),
             **({"explore_braked": True} if ctx.state.get("explore_braked") else {}),
+            **({"explore_bound": ctx.explore_bound} if ctx.explore_bound is not None else {}),
             **({"explore_void": len(ctx.state["void"])}
                if self.opts["explore_void"] else {}),
             **({"explore_next": int(ctx.state["explore_next"])}
