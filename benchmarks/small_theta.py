@@ -3,7 +3,7 @@ zones of 1 to 4 rooms (4 to 16 gains, :mod:`examples.thermal_zones`).
 
     python -m benchmarks.small_theta --root runs/small_theta [--rooms 1 2 3 4] [--gaps 1 2]
         [--seeds 0 .. 9] [--phase1 300] [--budget 40] [--rules current table1]
-        [--against EARLIER.json] [--out F.json]
+        [--options OPTION=VALUE[:...]] [--against EARLIER.json] [--out F.json]
 
 Per (rooms, seed): phase 1 on the model (gap 0; ``--phase1`` trials, TuRBO-m, batch 4, the
 seed) once, in ``ROOT/r<rooms>/seed<s>/phase1``; it is copied to two sources, and each gets a
@@ -21,7 +21,10 @@ of each of the critic's pools (``pool_falls``: falls / trials summed over the se
 ``explore_pool`` records the default phase 3's explore pool of the run
 (``TRANSFER_DEFAULTS``).
 
-``--rules`` runs only those rules. ``--against`` pairs this run's ``current`` runs with those of
+``--rules`` runs only those rules. ``--options`` runs the default phase 3 with these options of
+the transfer critic changed (``"explore_fall_prob=0.15"``, as ``benchmarks.transfer``'s
+variants; recorded as ``options``); its target runs are stored beside the default's, in
+``<rule>+<options>``, so both resume. ``--against`` pairs this run's ``current`` runs with those of
 an earlier output of this benchmark, made with another default phase 3 (``against``: this run
 lower / tie / higher, sign test, geometric mean of the best-cost ratios, falls of each). The
 sources must be the same: every pair's first trial (the zero-shot θ) must cost the same to
@@ -65,6 +68,21 @@ def widths_rule(rule: str) -> Iterator[None]:
         vae.hidden_widths = kept                                         # type: ignore
 
 
+@contextlib.contextmanager
+def transfer_options(options: dict[str, Any]) -> Iterator[None]:
+    """Inside the block, phase 3's transfer critic is built with ``options`` over its defaults
+    (:data:`latentune.critic.transfer.TRANSFER_DEFAULTS`, restored after)."""
+    from latentune.critic.transfer import TRANSFER_DEFAULTS
+
+    kept = dict(TRANSFER_DEFAULTS)
+    TRANSFER_DEFAULTS.update(options)
+    try:
+        yield
+    finally:
+        TRANSFER_DEFAULTS.clear()
+        TRANSFER_DEFAULTS.update(kept)
+
+
 def source(root: Path, rooms: int, seed: int, phase1: int, rule: str) -> tuple[Path, dict]:
     """The source of (rooms, seed, rule) (module docstring) and its latent space's record."""
     import latentune as lt
@@ -92,14 +110,17 @@ def source(root: Path, rooms: int, seed: int, phase1: int, rule: str) -> tuple[P
 
 
 def target_run(root: Path, rooms: int, seed: int, gap: float, rule: str, src: Path,
-               budget: int) -> dict[str, Any]:
-    """The default phase 3 of --budget trials on the target; its costs and failed flags."""
+               budget: int, options: str = "") -> dict[str, Any]:
+    """The default phase 3 of --budget trials on the target (with the transfer ``options``,
+    ``"option=value[:...]"``, when given); its costs and failed flags."""
+    from benchmarks.transfer import parse_variant
     import latentune as lt
     from examples.thermal_zones import make_system
     from latentune.constants import Phase
 
-    d = root / f"r{rooms}" / f"seed{seed}" / f"gap{gap:g}" / rule
-    with lt.Study(d, seed=seed) as st:
+    d = root / f"r{rooms}" / f"seed{seed}" / f"gap{gap:g}" / (f"{rule}+{options}" if options
+                                                               else rule)
+    with transfer_options(parse_variant(options)), lt.Study(d, seed=seed) as st:
         st.phase3(make_system(gap, rooms=rooms), budget, latent=src)
         rows = st.store.rows(Phase.PHASE3)
     costs = [float(r.cost) for r in rows][:budget]
@@ -114,21 +135,34 @@ def target_run(root: Path, rooms: int, seed: int, gap: float, rule: str, src: Pa
             "pools": pools}
 
 
+def paired(pairs: list[tuple[float, float]]) -> dict[str, Any]:
+    """Pairs ``(a, b)`` of best costs: ``a`` lower / tie / higher, the two-sided sign test's p
+    over the untied pairs, the geometric mean of the ratios a / b."""
+    from scipy.stats import binomtest
+
+    lo, hi = sum(a < b for a, b in pairs), sum(a > b for a, b in pairs)
+    return {"pairs": len(pairs), "lower": lo, "tie": len(pairs) - lo - hi, "higher": hi,
+            "sign_p": float(binomtest(lo, lo + hi).pvalue) if lo + hi else None,
+            "geomean_ratio": float(np.exp(np.mean([np.log(a / b) for a, b in pairs])))
+            if pairs else None}
+
+
+def counts(pairs: list[tuple[float, float]]) -> str:
+    """``"lower / tie / higher"`` of pairs ``(a, b)``, as :func:`paired` counts them."""
+    p = paired(pairs)
+    return f"{p['lower']} / {p['tie']} / {p['higher']}"
+
+
 def overall(runs: list[dict[str, Any]]) -> dict[str, Any]:
     """Every (rooms, gap, seed) pair: ``current`` lower / tie / higher best than ``table1``, the
     two-sided sign test's p over the untied pairs, the geometric mean of the best-cost ratios
     current / table1, and each rule's falls."""
-    from scipy.stats import binomtest
-
     key = {(x["rooms"], x["gap"], x["seed"], x["rule"]): x for x in runs}
-    pairs = [(key[k[:3] + ("current",)]["best"], x["best"]) for k, x in key.items()
-             if k[3] == "table1" and k[:3] + ("current",) in key]
-    lo, hi = sum(c < t for c, t in pairs), sum(c > t for c, t in pairs)
-    return {"pairs": len(pairs), "current_lower": lo, "tie": len(pairs) - lo - hi,
-            "current_higher": hi,
-            "sign_p": float(binomtest(lo, lo + hi).pvalue) if lo + hi else None,
-            "geomean_ratio": float(np.exp(np.mean([np.log(c / t) for c, t in pairs])))
-            if pairs else None,
+    p = paired([(key[k[:3] + ("current",)]["best"], x["best"]) for k, x in key.items()
+                if k[3] == "table1" and k[:3] + ("current",) in key])
+    return {"pairs": p["pairs"], "current_lower": p["lower"], "tie": p["tie"],
+            "current_higher": p["higher"], "sign_p": p["sign_p"],
+            "geomean_ratio": p["geomean_ratio"],
             "falls": {r: sum(x["falls"] for x in runs if x["rule"] == r) for r in RULES}}
 
 
@@ -149,10 +183,9 @@ def pool_falls(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
 def against(runs: list[dict[str, Any]], earlier: dict[str, Any]) -> dict[str, Any]:
     """This run's ``current`` runs paired by (rooms, gap, seed) with ``earlier``'s (an output of
     this benchmark): this run lower / tie / higher, the two-sided sign test's p, the geometric
-    mean of the best-cost ratios (this / earlier) and each side's falls. ``ValueError`` when a
-    pair's first trial costs differ (not the same source) or no pair exists."""
-    from scipy.stats import binomtest
-
+    mean of the best-cost ratios (this / earlier) (:func:`paired`) and each side's falls.
+    ``ValueError`` when a pair's first trial costs differ (not the same source) or no pair
+    exists."""
     old = {(x["rooms"], x["gap"], x["seed"]): x for x in earlier["runs"]
            if x["rule"] == "current"}
     pairs = [(x, old[k]) for x in runs if x["rule"] == "current"
@@ -164,20 +197,13 @@ def against(runs: list[dict[str, Any]], earlier: dict[str, Any]) -> dict[str, An
             raise ValueError(f"rooms {x['rooms']} gap {x['gap']:g} seed {x['seed']}: the first "
                              f"trial costs {x['costs'][0]!r} here and {o['costs'][0]!r} in the "
                              "earlier output: not the same source")
-    lo = sum(x["best"] < o["best"] for x, o in pairs)
-    hi = sum(x["best"] > o["best"] for x, o in pairs)
-    return {"pairs": len(pairs), "lower": lo, "tie": len(pairs) - lo - hi, "higher": hi,
-            "sign_p": float(binomtest(lo, lo + hi).pvalue) if lo + hi else None,
-            "geomean_ratio": float(np.exp(np.mean([np.log(x["best"] / o["best"])
-                                                   for x, o in pairs]))),
+    return {**paired([(x["best"], o["best"]) for x, o in pairs]),
             "falls": sum(x["falls"] for x, _ in pairs),
             "falls_earlier": sum(o["falls"] for _, o in pairs),
             "earlier_explore_pool": earlier.get("explore_pool", "latent"),
             "by_rooms_gap": [
                 {"rooms": r, "gap": g,
-                 "lower / tie / higher": f"{sum(x['best'] < o['best'] for x, o in pp)} / "
-                                         f"{sum(x['best'] == o['best'] for x, o in pp)} / "
-                                         f"{sum(x['best'] > o['best'] for x, o in pp)}",
+                 "lower / tie / higher": counts([(x["best"], o["best"]) for x, o in pp]),
                  "median best": float(np.median([x["best"] for x, _ in pp])),
                  "median best earlier": float(np.median([o["best"] for _, o in pp])),
                  "falls": sum(x["falls"] for x, _ in pp),
@@ -196,10 +222,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--phase1", type=int, default=300)
     ap.add_argument("--budget", type=int, default=40)
     ap.add_argument("--rules", nargs="+", choices=RULES, default=list(RULES))
+    ap.add_argument("--options", default="", metavar="OPTION=VALUE[:...]")
     ap.add_argument("--against", type=Path, default=None, metavar="EARLIER.json")
     add_out_arg(ap)
     a = ap.parse_args(argv)
     earlier = None
+    from benchmarks.transfer import parse_variant
+    from latentune.critic.transfer import TRANSFER_DEFAULTS, Transfer
+
+    try:            # the critic's own checks, before any trial
+        Transfer((np.zeros((2, 1)), np.zeros(2), np.zeros(2, dtype=bool)),
+                 **parse_variant(a.options))
+    except (TypeError, ValueError) as e:
+        print(f"small_theta: error: --options: {e}", file=sys.stderr)
+        return 2
     if a.against is not None and "current" not in a.rules:
         print("small_theta: error: --against pairs the current rule's runs: give --rules "
               "current", file=sys.stderr)
@@ -225,7 +261,8 @@ def main(argv: list[str] | None = None) -> int:
             srcs = {rule: source(a.root, rooms, s, a.phase1, rule) for rule in a.rules}
             for g in a.gaps:
                 for rule in a.rules:
-                    r = target_run(a.root, rooms, s, g, rule, srcs[rule][0], a.budget)
+                    r = target_run(a.root, rooms, s, g, rule, srcs[rule][0], a.budget,
+                                   a.options)
                     runs.append({"rooms": rooms, "seed": s, "gap": g, "rule": rule,
                                  "source": srcs[rule][1], **r})
                     print(f"rooms {rooms} seed {s} gap {g:g} {rule}: best {r['best']:.4f}, "
@@ -245,11 +282,7 @@ def main(argv: list[str] | None = None) -> int:
                              "sources decoding to one θ":
                                  sum(x["source"]["decodes_to_one_theta"] for x in rr),
                              "current lower / tie / higher": "" if rule == "table1" or
-                             not pairs else
-                             f"{sum(c < t for c, t in pairs)} / {sum(c == t for c, t in pairs)}"
-                             f" / {sum(c > t for c, t in pairs)}"})
-    from latentune.critic.transfer import TRANSFER_DEFAULTS
-
+                             not pairs else counts(pairs)})
     extra: dict[str, Any] = {}
     if earlier is not None:
         try:
@@ -260,7 +293,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"against {a.against}: {extra['against']}", flush=True)
     finish(a.out, prov, {"root": str(a.root), "rooms": a.rooms, "gaps": a.gaps,
                          "seeds": a.seeds, "phase1": a.phase1, "budget": a.budget,
-                         "rules": a.rules, "explore_pool": TRANSFER_DEFAULTS["explore_pool"],
+                         "rules": a.rules, "options": parse_variant(a.options),
+                         "explore_pool": parse_variant(a.options).get(
+                             "explore_pool", TRANSFER_DEFAULTS["explore_pool"]),
                          "overall": overall(runs), "pool_falls": pool_falls(runs),
                          "runs": runs, **extra}, rows,
            title="the default phase 3 on small θ: current widths against Table I's")

@@ -143,3 +143,30 @@ def test_small_theta_benchmark_pairs_a_run_with_an_earlier_output(capsys, tmp_pa
     (tmp_path / "d.json").write_text("[1]")
     assert main(args + ["--against", str(tmp_path / "d.json")]) == 2
     assert "not an output of this benchmark" in capsys.readouterr().err
+    # a variant of the default, paired with the default's output, stored beside its runs
+    from latentune.critic.transfer import TRANSFER_DEFAULTS
+
+    kept = dict(TRANSFER_DEFAULTS)
+    assert main(args + ["--options", "explore_fall_prob=0.15", "--against",
+                        str(tmp_path / "a.json"), "--out", str(tmp_path / "e.json")]) == 0
+    out = json.loads((tmp_path / "e.json").read_text())
+    assert out["options"] == {"explore_fall_prob": 0.15} and out["against"]["pairs"] == 1
+    assert (tmp_path / "r" / "r1" / "seed0" / "gap2" / "current+explore_fall_prob=0.15").is_dir()
+    assert TRANSFER_DEFAULTS == kept                        # the defaults are restored
+    for bad, msg in (("nosuch=1", "unknown option"), ("explore_fall_prob=0.9",
+                                                       "explore_fall_prob must be")):
+        capsys.readouterr()
+        assert main(args + ["--options", bad]) == 2
+        err = capsys.readouterr().err
+        assert msg in err and err.count("\n") == 1
+
+
+def test_small_theta_pairs_count_lower_ties_and_higher():
+    from benchmarks.small_theta import counts, paired
+
+    p = paired([(1.0, 2.0), (2.0, 2.0), (3.0, 1.5), (0.5, 1.0)])
+    assert (p["pairs"], p["lower"], p["tie"], p["higher"]) == (4, 2, 1, 1)
+    assert p["geomean_ratio"] == pytest.approx((0.5 * 1.0 * 2.0 * 0.5) ** 0.25)
+    assert p["sign_p"] == pytest.approx(1.0)
+    assert counts([(1.0, 2.0), (2.0, 2.0)]) == "1 / 1 / 0"
+    assert paired([])["sign_p"] is None and paired([])["geomean_ratio"] is None
