@@ -650,9 +650,30 @@ def decision_stats(run: dict[str, Any], floor: float = 1 / 64) -> dict[str, Any]
     fewer than 5 % of the candidates; ``explore_asks`` and ``explore_falls``; ``falls_by_pool``
     (the pool of each fallen trial's ask: ``elite``, ``full``, ``latent``, or ``explore``);
     ``distinct_acted``: the asks whose choice ``distinct`` changed (``repeats_avoided`` or
-    ``duplicates_dropped`` recorded; 0 = the same asks as without the option)."""
+    ``duplicates_dropped`` recorded; 0 = the same asks as without the option); ``by_kind``:
+    per kind of ask (``design``, a region ask's pool, or ``explore <pool>``) ``[asks, falls,
+    records]``, a record being a trial that stood and cost less than every trial before it
+    that stood; ``by_screen``: the same per kind and per band of the fall screen's probability
+    of the θ asked (``max_fall_prob_asked``; :data:`SCREEN_BANDS`)."""
     dec = run.get("decisions") or []
     failed = run["failed"]
+    costs = run["costs"]
+    by_kind: dict[str, list[int]] = {}
+    by_screen: dict[str, dict[str, list[int]]] = {}
+    best = math.inf if failed[0] else float(costs[0])
+    for i, d in enumerate(dec[:len(failed) - 1]):
+        fell = bool(failed[i + 1])
+        rec = not fell and float(costs[i + 1]) < best
+        best = min(best, math.inf if fell else float(costs[i + 1]))
+        kind = "design" if d.get("design") else \
+            f"explore {d.get('explore_pool', 'latent')}" if d.get("explore") else \
+            (d.get("pools") or ["?"])[0]
+        band = screen_band(d.get("max_fall_prob_asked"))
+        for acc in (by_kind.setdefault(kind, [0, 0, 0]),
+                    by_screen.setdefault(kind, {}).setdefault(band, [0, 0, 0])):
+            acc[0] += 1
+            acc[1] += fell
+            acc[2] += rec
     asks = [d for d in dec if not d.get("design")]
     region = [d for d in asks if not d.get("explore")]
     by_pool: dict[str, int] = {}
@@ -670,7 +691,23 @@ def decision_stats(run: dict[str, Any], floor: float = 1 / 64) -> dict[str, Any]
         "explore_falls": int(sum(bool(failed[i + 1]) for i in ex if i + 1 < len(failed))),
         "falls_by_pool": by_pool,
         "distinct_acted": sum(bool(d.get("repeats_avoided") or d.get("duplicates_dropped"))
-                              for d in dec)}
+                              for d in dec),
+        "by_kind": by_kind, "by_screen": by_screen}
+
+
+SCREEN_BANDS = (0.0, 0.1, 0.15, 0.2, 0.3)
+"""Lower edges of the bands of the fall screen's probability :func:`decision_stats` counts the
+asks in (the last band reaches 1; the default ``max_fall_prob`` is 0.3)."""
+
+
+def screen_band(p: float | None) -> str:
+    """The band (:data:`SCREEN_BANDS`) of the screen's probability ``p``, e.g. ``"0.15–0.2"``;
+    ``"?"`` without one."""
+    if p is None or not math.isfinite(float(p)):
+        return "?"
+    k = int(np.searchsorted(SCREEN_BANDS, float(p), side="right")) - 1
+    hi = SCREEN_BANDS[k + 1] if k + 1 < len(SCREEN_BANDS) else 1
+    return f"{SCREEN_BANDS[max(k, 0)]:g}–{hi:g}"
 
 
 TRACE_DROP = ("thetas", "decisions")
@@ -760,7 +797,23 @@ def decisions(root: Path, method: str = "transfer", seeds: list[int] | None = No
         pools = sorted({p for x in rows for p in x["falls_by_pool"]})
         t["median"]["falls_by_pool"] = {p: float(np.median([x["falls_by_pool"].get(p, 0)
                                                             for x in rows])) for p in pools}
+        t["by_kind"] = _summed([x.get("by_kind", {}) for x in rows])
+    out["by_kind"] = _summed([t["by_kind"] for t in out["targets"].values()])
+    out["by_screen"] = {k: _summed([x.get("by_screen", {}).get(k, {}) for t in
+                                    out["targets"].values() for x in t["seeds"].values()])
+                        for k in out["by_kind"]}
     return out
+
+
+def _summed(counts: list[dict[str, list[int]]]) -> dict[str, list[int]]:
+    """Key-wise sums of ``{key: [asks, falls, records]}`` dicts, keys sorted."""
+    out: dict[str, list[int]] = {}
+    for c in counts:
+        for k, v in c.items():
+            acc = out.setdefault(k, [0] * len(v))
+            for j, x in enumerate(v):
+                acc[j] += x
+    return dict(sorted(out.items()))
 
 
 def decisions_markdown(d: dict[str, Any]) -> str:
@@ -776,7 +829,25 @@ def decisions_markdown(d: dict[str, Any]) -> str:
                      f"{m['explore_falls']:g} | {pools} | {t.get('distinct_acted', 0)} |")
     skipped = (f" {d['without_records']} runs without decision records (restored from traces) "
                "are left out." if d.get("without_records") else "")
-    return "\n".join(lines) + "\n\nMedians over the seeds." + skipped
+    kinds = list(d.get("by_kind", {}))
+    lines += ["", "Medians over the seeds." + skipped, "",
+              "Falls / asks by kind of ask, summed over the seeds:", "",
+              "| rung | " + " | ".join(kinds) + " |", "|---|" + "---:|" * len(kinds)]
+    for name, t in d["targets"].items():
+        bk = t.get("by_kind", {})
+        lines.append(f"| {name} | " + " | ".join(
+            f"{bk[k][1]} / {bk[k][0]}" if k in bk else "–" for k in kinds) + " |")
+    bands = [screen_band(b) for b in SCREEN_BANDS]
+    lines += ["", "Every rung and seed: asks, falls and records (a trial that stood and cost "
+              "less than every standing trial before it) by kind of ask and by the fall "
+              "screen's probability of the θ asked:", "",
+              "| kind | all | " + " | ".join(bands) + " |", "|---|---:|" + "---:|" * len(bands)]
+    for k in kinds:
+        a = d["by_kind"][k]
+        sc = d["by_screen"].get(k, {})
+        lines.append(f"| {k} | {a[0]}, {a[1]} fell, {a[2]} rec. | " + " | ".join(
+            f"{sc[b][0]}, {sc[b][1]}, {sc[b][2]}" if b in sc else "–" for b in bands) + " |")
+    return "\n".join(lines)
 
 
 # --------------------------------------------------------------------------- plots

@@ -331,9 +331,11 @@ def test_decisions_reads_what_the_default_did(tmp_path, capsys):
     dec = [{"design": True, "pools": ["elite"], "length": 0.5, "n_admissible": 16,
             "n_candidates": 16},
            {"explore": True, "pools": ["latent"], "length": 0.5, "n_admissible": 10,
-            "n_candidates": 1000},
-           {"pools": ["full"], "length": 1 / 128, "n_admissible": 900, "n_candidates": 1000},
-           {"pools": ["full"], "length": 0.25, "n_admissible": 800, "n_candidates": 1000}]
+            "n_candidates": 1000, "max_fall_prob_asked": 0.25},
+           {"pools": ["full"], "length": 1 / 128, "n_admissible": 900, "n_candidates": 1000,
+            "max_fall_prob_asked": 0.05},
+           {"pools": ["full"], "length": 0.25, "n_admissible": 800, "n_candidates": 1000,
+            "max_fall_prob_asked": 0.3}]
     run = {"target": "r", "method": "transfer", "seed": 0, "costs": [9.0, 8.0, 150.0, 7.0, 150.0],
            "failed": [False, False, True, False, True], "decisions": dec}
     f = rt.result_path(tmp_path, "r", 5, 0, "transfer")
@@ -344,7 +346,13 @@ def test_decisions_reads_what_the_default_did(tmp_path, capsys):
     s = rt.decision_stats(run)
     assert s == {"n_asks": 3, "floor_share": 0.5, "screened_share": 1 / 3, "explore_asks": 1,
                  "explore_falls": 1, "falls_by_pool": {"explore": 1, "full": 1},
-                 "distinct_acted": 0}
+                 "distinct_acted": 0,
+                 # [asks, falls, records]: trial 1 (8 < 9) and trial 3 (7 < 8) are records
+                 "by_kind": {"design": [1, 0, 1], "explore latent": [1, 1, 0],
+                             "full": [2, 1, 1]},
+                 "by_screen": {"design": {"?": [1, 0, 1]},
+                               "explore latent": {"0.2–0.3": [1, 1, 0]},
+                               "full": {"0–0.1": [1, 0, 1], "0.3–1": [1, 1, 0]}}}
     dec[3]["repeats_avoided"] = 1                       # an ask whose choice distinct changed
     assert rt.decision_stats(run)["distinct_acted"] == 1
     dec[3].pop("repeats_avoided")
@@ -357,7 +365,11 @@ def test_decisions_reads_what_the_default_did(tmp_path, capsys):
     assert list(d["targets"]) == ["r"] and d["targets"]["r"]["median"]["floor_share"] == 0.5
     assert list(d["targets"]["r"]["seeds"]) == ["0"] and d["without_records"] == 1
     assert "1 runs without decision records" in out.with_suffix(".md").read_text()
-    assert "| r | 1 | 50 % | 33 % | 1 / 1 | explore 1, full 1 |" in capsys.readouterr().out
+    text = capsys.readouterr().out
+    assert "| r | 1 | 50 % | 33 % | 1 / 1 | explore 1, full 1 |" in text
+    assert d["by_kind"] == {"design": [1, 0, 1], "explore latent": [1, 1, 0], "full": [2, 1, 1]}
+    assert "| r | 0 / 1 | 1 / 1 | 1 / 2 |" in text
+    assert "| full | 2, 1 fell, 1 rec. | 1, 0, 1 | – | – | – | 1, 1, 0 |" in text
     assert rt.main(["decisions", "--root", str(tmp_path), "--out", str(out),
                     "--method", "plain"]) == 2
 
