@@ -889,11 +889,66 @@ def _best_theta(runs: dict[int, dict[str, Any]]) -> tuple[list[float], float, in
     return theta, float(r["costs"][i]), seed, i + 1
 
 
+def plot_trials(root: Path, out: Path, target: str, method: str, seed: int,
+                trials: list[int], gifs: bool = False) -> Path:
+    """CoM plots (and GIFs) of the θ of ``trials`` (0-based; 0 is the zero-shot θ) of one run
+    (``target``, ``method``, ``seed``) re-simulated, each labelled with its stored outcome and
+    the kind of ask that asked it (:func:`decision_stats`'s kinds); written to
+    ``out/<target>/<method>_seed<seed>/``, with ``plot.json`` (θ, stored and re-simulated cost
+    and fall, the fall's reason). The falls of a run, seen."""
+    from latentune.reporting.plots import plot_rollouts
+    from latentune.task import Task
+
+    files = [f for f in sorted((root / "targets" / target).glob("src*/seed*/*.json"))
+             if f.parent.name == f"seed{seed}" and f.stem == method]
+    if not files:
+        raise RobotTransferError(f"no {method} run of {target} seed {seed} under {root}")
+    r = json.loads(files[-1].read_text())
+    if "thetas" not in r:
+        raise RobotTransferError(f"the {method} run of {target} seed {seed} holds no θ per "
+                                 "trial (restored from traces: delete its file and `run` it)")
+    bad = [t for t in trials if not 0 <= t < len(r["costs"])]
+    if bad:
+        raise RobotTransferError(f"trials {bad} are not in the run (0 to {len(r['costs']) - 1})")
+    dec = r.get("decisions") or []
+    task = Task.from_config(r["target_config"])
+    d = out / target / f"{method}_seed{seed}"
+    d.mkdir(parents=True, exist_ok=True)
+    sims: dict[str, Any] = {}
+    record: dict[str, Any] = {"target": target, "method": method, "seed": seed, "trials": {}}
+    for t in trials:
+        kind = "zero-shot" if t == 0 or t - 1 >= len(dec) else (
+            "design" if dec[t - 1].get("design") else
+            f"explore {dec[t - 1].get('explore_pool', 'latent')}" if dec[t - 1].get("explore")
+            else (dec[t - 1].get("pools") or ["?"])[0])
+        res = task.rollout(np.array(r["thetas"][t]), record=True,
+                           gif=str(d / f"trial{t}.gif") if gifs else None)
+        sims[f"trial {t}, {kind}, {'fell' if r['failed'][t] else 'stood'}"] = res
+        record["trials"][t] = {"kind": kind, "theta": r["thetas"][t], "cost": r["costs"][t],
+                               "fell": bool(r["failed"][t]), "resimulated_cost": res.cost,
+                               "resimulated_fell": bool(res.fell), "reason": res.reason}
+    title = f"{r.get('label', target)}: {method}, seed {seed}"
+    plot_com(sims, d / "com_xyz.png", title)
+    plot_rollouts(sims, d / "com_velocity.png", v_des=float(task.v_des[0]), title=title)
+    (d / "plot.json").write_text(json.dumps(record, indent=1))
+    return d
+
+
 def plot(a: argparse.Namespace) -> None:
     from latentune.reporting.plots import plot_rollouts
     from latentune.task import Task
 
     root, out = Path(a.root), Path(a.out)
+    if a.trials:
+        if a.seed is None or not a.methods or len(a.methods) != 1 or not a.targets or \
+                len(a.targets) != 1:
+            raise RobotTransferError("--trials plots one run: give one --targets, one "
+                                     "--methods and --seed")
+        d = plot_trials(root, out, a.targets[0], a.methods[0], a.seed, a.trials, a.gifs)
+        print(f"{a.targets[0]}: {d}/com_xyz.png, com_velocity.png", flush=True)
+        return
+    if a.seed is not None:
+        raise RobotTransferError("--seed goes with --trials (the best θ is over every seed)")
     default = getattr(a, "default", "transfer")
     summ = summarize(root, getattr(a, "methods", None), default=default)
     names = a.targets or sorted({r["target"] for r in summ["targets"]})
@@ -1019,6 +1074,10 @@ def parser() -> argparse.ArgumentParser:
     pl.add_argument("--gifs", action="store_true", help="also a GIF of each re-simulated θ")
     pl.add_argument("--default", default="transfer", help="as summary's --default")
     pl.add_argument("--methods", nargs="+", default=None, help="only these methods' runs")
+    pl.add_argument("--trials", nargs="+", type=_nonneg_int, default=None,
+                    help="plot these trials (0: the zero-shot θ) of one run (one --targets, "
+                    "one --methods, --seed) instead of the best θ")
+    pl.add_argument("--seed", type=_nonneg_int, default=None, help="the run of --trials")
     return ap
 
 

@@ -473,3 +473,56 @@ def test_summary_and_plot_without_a_peer_are_one_line(tmp_path, capsys):
         assert len(err) == 1 and "no peer among the methods read" in err[0], err
         assert "'target': 'a1-trot-hard'" in err[0] and "(read: transfer;" in err[0]
     assert not (tmp_path / "s.json").exists() and not (tmp_path / "plots").exists()
+
+
+def test_plot_trials_resimulates_the_trials_of_one_run(tmp_path, capsys, monkeypatch):
+    """``plot --trials``: the θ of the given trials of one run re-simulated, each labelled with
+    the kind of ask that asked it and its stored outcome, beside the re-simulated one; a run
+    without θ, a trial outside the run and a half-given run are refused in one line."""
+    from latentune.task import Task
+
+    class Res:
+        def __init__(self, theta: np.ndarray) -> None:
+            t = np.linspace(0.001, 1.0, 20)
+            self.cost, self.fell = float(10 * theta[0]), bool(theta[0] > 0.5)
+            self.reason = "tilt above 60 deg" if self.fell else ""
+            self.trace = {"t": t, "pos": np.c_[t, 0 * t, 0.3 + 0 * t],
+                          "vel": np.c_[0 * t + 0.4, 0 * t, 0 * t], "height": 0.3 + 0 * t}
+
+    class FakeTask:
+        v_des = np.array([0.5])
+
+        def rollout(self, theta, record=False, gif=None):
+            assert record
+            return Res(np.asarray(theta))
+
+    monkeypatch.setattr(Task, "from_config", staticmethod(lambda cfg: FakeTask()))
+    dec = [{"design": True, "pools": ["elite"]},
+           {"explore": True, "explore_pool": "lines", "pools": ["global"]}]
+    run = {"target": "r", "method": "transfer+x=1", "seed": 3, "costs": [2.0, 1.0, 8.0],
+           "failed": [False, False, True], "thetas": [[0.2], [0.1], [0.8]], "decisions": dec,
+           "target_config": {}, "label": "toy rung"}
+    f = rt.result_path(tmp_path, "r", 5, 3, "transfer+x=1")
+    f.parent.mkdir(parents=True)
+    f.write_text(json.dumps(run))
+    args = ["plot", "--root", str(tmp_path), "--out", str(tmp_path / "p"), "--targets", "r",
+            "--methods", "transfer+x=1", "--seed", "3"]
+    assert rt.main(args + ["--trials", "1", "2"]) == 0
+    d = tmp_path / "p" / "r" / "transfer+x=1_seed3"
+    rec = json.loads((d / "plot.json").read_text())
+    assert rec["trials"]["1"]["kind"] == "design" and rec["trials"]["2"]["kind"] == "explore lines"
+    assert rec["trials"]["2"]["fell"] and rec["trials"]["2"]["resimulated_fell"]
+    assert rec["trials"]["2"]["reason"] == "tilt above 60 deg"
+    assert rec["trials"]["2"]["resimulated_cost"] == 8.0
+    assert (d / "com_xyz.png").read_bytes()[:4] == b"\x89PNG"
+    for bad, msg in ((["--trials", "3"], "not in the run"),
+                     (["--trials", "1", "--seed", "4"], "no transfer+x=1 run of r seed 4"),
+                     (args[:-2] + ["--trials", "1"], "give one --targets")):
+        capsys.readouterr()
+        assert rt.main((args if bad[0] == "--trials" else []) + bad) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and msg in err[0], err
+    del run["thetas"]
+    f.write_text(json.dumps(run))
+    assert rt.main(args + ["--trials", "1"]) == 2
+    assert "holds no θ per trial" in capsys.readouterr().err
