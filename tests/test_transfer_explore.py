@@ -803,3 +803,35 @@ def test_explore_fall_prob_screens_the_explore_asks_at_their_own_bound(source, h
 def test_explore_fall_prob_is_checked(source, hypers, bad):
     with pytest.raises(ValueError, match="explore_fall_prob"):
         _critic(source, hypers, explore_fall_prob=bad)
+
+
+@pytest.mark.parametrize("skip", [True, False])
+def test_explore_skip_asks_the_region_when_the_screen_admits_no_explore_candidate(
+        source, hypers, monkeypatch, skip):
+    """``explore_skip``: with a fall screen that admits nothing (every θ 0.9), a due explore
+    ask becomes a region ask in the full pool (``explore_skipped``; the told history replays it
+    as one: a fresh critic told the trials asks the same next θ); without the option it takes
+    the explore pool's least falling candidates. While every trial fell, the explore asks are
+    made either way."""
+    monkeypatch.setattr(Transfer, "_fall_prob",
+                        lambda self, C, fall_m: np.full(len(np.asarray(C)), 0.9))
+    out = [(5.0, False), (6.0, False), (4.0, False), (3.9, False), (3.8, False)]
+    cr = _critic(source, hypers, n_design=0, explore_skip=skip)
+    dec = _scripted(cr, out)
+    due = [1, 3]                                        # g % 2 == 1
+    for g in due:
+        assert dec[g]["explore"] is (not skip) and dec[g].get("explore_skipped", False) is skip
+        assert cr.tags[g] % 4 in ((FULL,) if skip else (LATENT, GLOBAL))
+    fresh = _critic(source, hypers, n_design=0, explore_skip=skip)
+    fresh.tell(cr.X, cr.y, cr.tags, fell=cr.fell, z=cr._Z)
+    assert fresh._replay_state() == cr._replay_state()
+    assert np.allclose(fresh.ask(1), cr.ask(1))
+    fell = _critic(source, hypers, n_design=0, explore_skip=True)
+    dec = _scripted(fell, [(9.0, True)] * 4)
+    assert dec[1]["explore"] and dec[3]["explore"] and "explore_skipped" not in dec[1]
+
+
+@pytest.mark.parametrize("bad", [1, "yes", None])
+def test_explore_skip_is_checked(source, hypers, bad):
+    with pytest.raises(ValueError, match="explore_skip"):
+        _critic(source, hypers, explore_skip=bad)

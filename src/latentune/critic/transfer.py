@@ -168,6 +168,13 @@ it, at ``max_fall_prob`` as every ask (then the least likely to fall, as every a
 ask is a step the local search does not need: a line that sets a gain far out near the bound
 falls several times as often as one well inside it and makes fewer records. Each explore
 decision records the bound it applied (``explore_bound``).
+``explore_skip`` (default False): an explore ask whose pool holds fewer candidates the fall
+screen admits (at ``max_fall_prob``) than the batch is not made, once a trial on the target
+stands: the generation asks the trust region's full pool around the centre instead (tag pool
+``full``, so the told history replays it as a region ask: ``L`` and its counters follow it).
+Without it such an ask takes the candidates least likely to fall, all of them over the bound;
+on the robots a third of those fell. While every trial fell the explore asks are made (they
+are the way out). Each skipped ask records ``explore_skipped``.
 ``distinct`` (default True; False before session 30, so stored runs resume as they ran): an
 ask never picks a θ the target has run, nor one θ twice in a batch (equal to 1e-9): the choice
 passes over such candidates to the next best (each ask that did so records
@@ -282,7 +289,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "full_shape": "lengthscales", "tilt": 0.0, "lines_pick": "uniform",
     "fall_source_sd": False, "face_snap": 0.0, "explore_void": False,
     "explore_fall_weight": 0.0, "centre_screen": False, "distinct": True,
-    "explore_fall_prob": 0.0,
+    "explore_fall_prob": 0.0, "explore_skip": False,
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
@@ -298,7 +305,7 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "fall_source_sd": False, "face_snap": 0.0,
                                  "explore_void": False, "explore_fall_weight": 0.0,
                                  "centre_screen": False, "distinct": False,
-                                 "explore_fall_prob": 0.0}
+                                 "explore_fall_prob": 0.0, "explore_skip": False}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -813,6 +820,7 @@ class _AskContext:
     duplicates: int = 0
     repeats: int = 0
     explore_bound: float | None = None
+    explore_skipped: bool = False
 
 
 @dataclass
@@ -873,7 +881,7 @@ class Transfer(TwoSpaceCritic):
                 or k_ex == 1:
             raise ValueError(f"explore_every must be 0 (off) or an integer ≥ 2, got {k_ex!r}")
         for flag in ("stand_first", "explore_adapt", "fall_source_sd", "explore_void",
-                     "centre_screen", "distinct"):
+                     "centre_screen", "distinct", "explore_skip"):
             if not isinstance(self.opts[flag], (bool, np.bool_)):
                 raise ValueError(f"{flag} must be true or false, got {self.opts[flag]!r}")
         k_ef = self.opts["explore_falls"]
@@ -1451,6 +1459,14 @@ class Transfer(TwoSpaceCritic):
                 XL, UL = self._pool_latent(M - m_src, st["L"], centre, rng, whole=True)
                 XS = self._pool_source(m_src, rng)
                 parts = [(XL, UL, LATENT), (XS, np.full((len(XS), self.k), np.nan), GLOBAL)]
+            if self.opts["explore_skip"] and bool((~self._fell).any()) and \
+                    (self._fall_prob(np.vstack([p[0] for p in parts]), fall_m)
+                     <= float(self.opts["max_fall_prob"])).sum() < n:
+                # the screen admits too few of the explore pool: the trust region asks instead
+                ctx.explore, ctx.explore_skipped = False, True
+                XF = self._pool_full(M, st["L"], centre, rng, cost_m.ls if cost_m is not None
+                                     and self._fitted_ls() else None)
+                parts = [(XF, np.full((len(XF), self.k), np.nan), FULL)]
         else:
             m_lat = int(round(M * w_lat))
             XL, UL = self._pool_latent(m_lat, st["L"], centre, rng)
@@ -1697,6 +1713,7 @@ class Transfer(TwoSpaceCritic):
                if ctx.explore and self.opts["explore_pool"] == "adaptive" else {}),
             **({"explore_braked": True} if ctx.state.get("explore_braked") else {}),
             **({"explore_bound": ctx.explore_bound} if ctx.explore_bound is not None else {}),
+            **({"explore_skipped": True} if ctx.explore_skipped else {}),
             **({"explore_void": len(ctx.state["void"])}
                if self.opts["explore_void"] else {}),
             **({"explore_next": int(ctx.state["explore_next"])}
