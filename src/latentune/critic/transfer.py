@@ -164,17 +164,17 @@ of asking around a θ the model already expects to fall. Each ask that moved the
 ``centre_screened``.
 ``explore_fall_prob`` = q > 0 (default 0: off) screens an explore ask's candidates at the
 bound q (at most ``max_fall_prob``) instead of ``max_fall_prob``; when fewer than the batch pass
-it, at ``max_fall_prob`` as every ask (then the least likely to fall, as every ask). An explore
-ask is a step the local search does not need: a line that sets a gain far out near the bound
-falls several times as often as one well inside it and makes fewer records. Each explore
-decision records the bound it applied (``explore_bound``).
+it, at ``max_fall_prob`` as every ask (then the least likely to fall, as every ask): an explore
+ask is a step the local search does not need, so it may take less risk. Each explore decision
+records the bound it applied (``explore_bound``).
 ``explore_skip`` (default False): an explore ask whose pool holds fewer candidates the fall
 screen admits (at ``max_fall_prob``) than the batch is not made, once a trial on the target
 stands: the generation asks the trust region's full pool around the centre instead (tag pool
 ``full``, so the told history replays it as a region ask: ``L`` and its counters follow it).
-Without it such an ask takes the candidates least likely to fall, all of them over the bound;
-on the robots a third of those fell. While every trial fell the explore asks are made (they
-are the way out). Each skipped ask records ``explore_skipped``.
+Without it such an ask takes the candidates least likely to fall, all of them over the bound.
+While every trial fell the explore asks are made (they are the way out). Each skipped ask
+records ``explore_skipped``. A skipped pool teaches the fall model nothing, so on a target
+where the screen overrates the explore pool's risk every later explore ask is skipped too.
 ``distinct`` (default True; False before session 30, so stored runs resume as they ran): an
 ask never picks a θ the target has run, nor one θ twice in a batch (equal to 1e-9): the choice
 passes over such candidates to the next best (each ask that did so records
