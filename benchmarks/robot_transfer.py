@@ -665,9 +665,7 @@ def decision_stats(run: dict[str, Any], floor: float = 1 / 64) -> dict[str, Any]
         fell = bool(failed[i + 1])
         rec = not fell and float(costs[i + 1]) < best
         best = min(best, math.inf if fell else float(costs[i + 1]))
-        kind = "design" if d.get("design") else \
-            f"explore {d.get('explore_pool', 'latent')}" if d.get("explore") else \
-            (d.get("pools") or ["?"])[0]
+        kind = ask_kind(d)
         band = screen_band(d.get("max_fall_prob_asked"))
         for acc in (by_kind.setdefault(kind, [0, 0, 0]),
                     by_screen.setdefault(kind, {}).setdefault(band, [0, 0, 0])):
@@ -693,6 +691,16 @@ def decision_stats(run: dict[str, Any], floor: float = 1 / 64) -> dict[str, Any]
         "distinct_acted": sum(bool(d.get("repeats_avoided") or d.get("duplicates_dropped"))
                               for d in dec),
         "by_kind": by_kind, "by_screen": by_screen}
+
+
+def ask_kind(d: dict[str, Any]) -> str:
+    """The kind of ask of one decision record: ``design``, ``explore <pool>`` (``latent`` for
+    records made before the explore pool was recorded), or the region ask's pool."""
+    if d.get("design"):
+        return "design"
+    if d.get("explore"):
+        return f"explore {d.get('explore_pool', 'latent')}"
+    return (d.get("pools") or ["?"])[0]
 
 
 SCREEN_BANDS = (0.0, 0.1, 0.15, 0.2, 0.3)
@@ -893,7 +901,7 @@ def plot_trials(root: Path, out: Path, target: str, method: str, seed: int,
                 trials: list[int], gifs: bool = False) -> Path:
     """CoM plots (and GIFs) of the θ of ``trials`` (0-based; 0 is the zero-shot θ) of one run
     (``target``, ``method``, ``seed``) re-simulated, each labelled with its stored outcome and
-    the kind of ask that asked it (:func:`decision_stats`'s kinds); written to
+    the kind of ask that asked it (:func:`ask_kind`); written to
     ``out/<target>/<method>_seed<seed>/``, with ``plot.json`` (θ, stored and re-simulated cost
     and fall, the fall's reason). The falls of a run, seen."""
     from latentune.reporting.plots import plot_rollouts
@@ -917,10 +925,7 @@ def plot_trials(root: Path, out: Path, target: str, method: str, seed: int,
     sims: dict[str, Any] = {}
     record: dict[str, Any] = {"target": target, "method": method, "seed": seed, "trials": {}}
     for t in trials:
-        kind = "zero-shot" if t == 0 or t - 1 >= len(dec) else (
-            "design" if dec[t - 1].get("design") else
-            f"explore {dec[t - 1].get('explore_pool', 'latent')}" if dec[t - 1].get("explore")
-            else (dec[t - 1].get("pools") or ["?"])[0])
+        kind = "zero-shot" if t == 0 or t - 1 >= len(dec) else ask_kind(dec[t - 1])
         res = task.rollout(np.array(r["thetas"][t]), record=True,
                            gif=str(d / f"trial{t}.gif") if gifs else None)
         sims[f"trial {t}, {kind}, {'fell' if r['failed'][t] else 'stood'}"] = res

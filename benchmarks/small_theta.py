@@ -230,9 +230,9 @@ def main(argv: list[str] | None = None) -> int:
     from benchmarks.transfer import parse_variant
     from latentune.critic.transfer import TRANSFER_DEFAULTS, Transfer
 
+    options = parse_variant(a.options)
     try:            # the critic's own checks, before any trial
-        Transfer((np.zeros((2, 1)), np.zeros(2), np.zeros(2, dtype=bool)),
-                 **parse_variant(a.options))
+        Transfer((np.zeros((2, 1)), np.zeros(2), np.zeros(2, dtype=bool)), **options)
     except (TypeError, ValueError) as e:
         print(f"small_theta: error: --options: {e}", file=sys.stderr)
         return 2
@@ -293,9 +293,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"against {a.against}: {extra['against']}", flush=True)
     finish(a.out, prov, {"root": str(a.root), "rooms": a.rooms, "gaps": a.gaps,
                          "seeds": a.seeds, "phase1": a.phase1, "budget": a.budget,
-                         "rules": a.rules, "options": parse_variant(a.options),
-                         "explore_pool": parse_variant(a.options).get(
-                             "explore_pool", TRANSFER_DEFAULTS["explore_pool"]),
+                         "rules": a.rules, "options": options,
+                         "explore_pool": options.get("explore_pool",
+                                                     TRANSFER_DEFAULTS["explore_pool"]),
                          "overall": overall(runs), "pool_falls": pool_falls(runs),
                          "runs": runs, **extra}, rows,
            title="the default phase 3 on small θ: current widths against Table I's")
