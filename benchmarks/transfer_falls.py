@@ -39,7 +39,10 @@ beside the stored asks' — what the option would have asked, predicted by the m
 
 ``ladder``: for traces of :mod:`benchmarks.transfer` (``run --variants``), per (system, gap,
 method) the median over the seeds of the best cost, of the falls and of the falls from trial
-``--after`` on (the search's falls, after the first trials the screen knows little about).
+``--after`` on (the search's falls, after the first trials the screen knows little about); the
+asks and falls by band of the fall screen's probability (``screen_bands``: how calibrated the
+screen was), and with ``fall_calibrate`` the median of the runs' last calibration map
+``(a, b)`` (``b`` well below 1: the screen's score tells little of which θ fall there).
 """
 from __future__ import annotations
 
@@ -512,7 +515,8 @@ def ladder(root: Path, systems: list[str], seeds: list[int], methods: list[str],
     for system in systems:
         for g in sorted((root / system).glob("gap*"), key=lambda p: float(p.name[3:])):
             for m in methods:
-                best, falls, late = [], [], []
+                best, falls, late, calib = [], [], [], []
+                bands = np.zeros((len(PF_EDGES) - 1, 2), dtype=int)
                 for s in seeds:
                     f = g / f"seed{s}" / f"{m}.json"
                     if not f.is_file():
@@ -522,12 +526,37 @@ def ladder(root: Path, systems: list[str], seeds: list[int], methods: list[str],
                     best.append(float(np.min(c[~fl])) if (~fl).any() else math.inf)
                     falls.append(int(fl.sum()))
                     late.append(int(fl[after:].sum()))
+                    bands += screen_bands(r)
+                    if r.get("decisions") and "fall_calibration" in r["decisions"][-1]:
+                        calib.append(r["decisions"][-1]["fall_calibration"])
                 rows.append({"system": system, "gap": g.name[3:], "method": m,
                              "seeds": len(best), "median_best": _median(best),
                              "median_falls": _median(falls), f"median_falls_after_{after}":
                              _median(late), "falls_total": int(sum(falls)),
-                             f"falls_after_{after}_total": int(sum(late))})
+                             f"falls_after_{after}_total": int(sum(late)),
+                             "screen_bands": {f"{lo}-{hi}": [int(n), int(k)] for (lo, hi), (n, k)
+                                              in zip(zip(PF_EDGES, PF_EDGES[1:]), bands)},
+                             **({"calibration_median": np.median(calib, 0).round(3).tolist()}
+                                if calib else {})})
     return rows
+
+
+def screen_bands(trace: dict[str, Any]) -> np.ndarray:
+    """(len(PF_EDGES) − 1, 2) asks and falls of one :mod:`benchmarks.transfer` trace by band of
+    the fall screen's probability of the θ asked (each decision's ``max_fall_prob_asked``, the
+    batch's largest; batch 1 in the ladder). A trace's decisions are its last trials' (the
+    zero-shot trial before them has none); asks without the probability (the manual θ after
+    falls) are not counted."""
+    fl = np.asarray(trace["failed"], bool)
+    dec = trace.get("decisions") or []
+    out = np.zeros((len(PF_EDGES) - 1, 2), dtype=int)
+    for i, d in enumerate(dec, start=len(fl) - len(dec)):
+        p = d.get("max_fall_prob_asked")
+        if p is None or len(d.get("pools", [])) != 1:
+            continue
+        b = min(int(np.searchsorted(PF_EDGES, p, side="right")) - 1, len(PF_EDGES) - 2)
+        out[b] += (1, int(fl[i]))
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:

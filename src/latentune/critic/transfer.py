@@ -175,6 +175,17 @@ Without it such an ask takes the candidates least likely to fall, all of them ov
 While every trial fell the explore asks are made (they are the way out). Each skipped ask
 records ``explore_skipped``. A skipped pool teaches the fall model nothing, so on a target
 where the screen overrates the explore pool's risk every later explore ask is skipped too.
+``fall_calibrate`` (default False): the fall screen's probability is calibrated on the
+target's own outcomes. The score above (the fall model's upper confidence bound) ranks θ by risk
+but is no fall rate: a target may fall at a tenth of it or at twice it. Each told θ is scored
+by the fall model fitted on the trials told before it (:meth:`Transfer.prequential_scores`:
+out-of-sample), and a Platt map ``P(fall) = σ(a + b · logit s)`` is fitted to those scores and
+the outcomes (:func:`fit_calibration`: a prior around the identity map ``(a, b) = (0, 1)``, so
+with few outcomes the score stands). Every use of the probability (the screen at
+``max_fall_prob``, ``explore_fall_prob``, ``design_screen``, ``centre_screen``,
+``safe_fallback``, and ``fall_cost``'s probability of the fall outcome) takes the calibrated
+value, so a bound is a fall rate the target's record supports. Each decision records ``(a, b)``
+(``fall_calibration``).
 ``distinct`` (default True; False before session 30, so stored runs resume as they ran): an
 ask never picks a θ the target has run, nor one θ twice in a batch (equal to 1e-9): the choice
 passes over such candidates to the next best (each ask that did so records
@@ -289,7 +300,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "full_shape": "lengthscales", "tilt": 0.0, "lines_pick": "uniform",
     "fall_source_sd": False, "face_snap": 0.0, "explore_void": False,
     "explore_fall_weight": 0.0, "centre_screen": False, "distinct": True,
-    "explore_fall_prob": 0.0, "explore_skip": False,
+    "explore_fall_prob": 0.0, "explore_skip": False, "fall_calibrate": False,
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
@@ -305,7 +316,8 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "fall_source_sd": False, "face_snap": 0.0,
                                  "explore_void": False, "explore_fall_weight": 0.0,
                                  "centre_screen": False, "distinct": False,
-                                 "explore_fall_prob": 0.0, "explore_skip": False}
+                                 "explore_fall_prob": 0.0, "explore_skip": False,
+                                 "fall_calibrate": False}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -379,6 +391,41 @@ def rank_scores(y: np.ndarray, fell: np.ndarray) -> np.ndarray:
     sums = np.bincount(inv, weights=key)
     ranks = sums[inv] / counts[inv] + 1.0
     return ndtri((ranks - 0.5) / n)
+
+
+_CALIB_EPS = 0.01
+"""Screen scores are clipped to ``[ε, 1 − ε]`` before the logit of the calibration map."""
+_CALIB_PRIOR_SD = (1.0, 0.5)
+"""Prior standard deviations of the calibration map's ``(a, b)`` around ``(0, 1)``."""
+
+
+def calibrated(s: np.ndarray, ab: np.ndarray) -> np.ndarray:
+    """The calibrated fall probability (m,) ``σ(a + b · logit s)`` of screen scores ``s`` (m,)
+    (clipped to ``[ε, 1 − ε]``, :data:`_CALIB_EPS`) under the map ``ab`` = (a, b)."""
+    from scipy.special import expit, logit
+
+    return expit(ab[0] + ab[1] * logit(np.clip(s, _CALIB_EPS, 1.0 - _CALIB_EPS)))
+
+
+def fit_calibration(s: np.ndarray, fell: np.ndarray) -> np.ndarray:
+    """MAP ``(a, b)`` (2,) of the Platt map ``P(fall) = σ(a + b · logit s)`` from screen scores
+    ``s`` (n,) and the outcomes ``fell`` (n,) bool: logistic regression on ``logit s`` with the
+    Gaussian prior ``(a, b) ~ N((0, 1), diag(1, ½)²)`` (:data:`_CALIB_PRIOR_SD`), by L-BFGS on
+    the convex negative log posterior from the prior's mean."""
+    from scipy.optimize import minimize
+    from scipy.special import expit, logit
+
+    x = logit(np.clip(np.asarray(s, float), _CALIB_EPS, 1.0 - _CALIB_EPS))
+    yv = np.asarray(fell, float)
+    m0, sd = np.array([0.0, 1.0]), np.array(_CALIB_PRIOR_SD)
+
+    def nlp(ab: np.ndarray) -> tuple[float, np.ndarray]:
+        f = ab[0] + ab[1] * x
+        r = expit(f) - yv
+        val = float(np.logaddexp(0.0, f).sum() - yv @ f + 0.5 * (((ab - m0) / sd) ** 2).sum())
+        return val, np.array([r.sum(), r @ x]) + (ab - m0) / sd ** 2
+
+    return np.asarray(minimize(nlp, m0, jac=True, method="L-BFGS-B").x, dtype=float)
 
 
 def matern52(X1: np.ndarray, X2: np.ndarray, ls: np.ndarray) -> np.ndarray:
@@ -881,7 +928,7 @@ class Transfer(TwoSpaceCritic):
                 or k_ex == 1:
             raise ValueError(f"explore_every must be 0 (off) or an integer ≥ 2, got {k_ex!r}")
         for flag in ("stand_first", "explore_adapt", "fall_source_sd", "explore_void",
-                     "centre_screen", "distinct", "explore_skip"):
+                     "centre_screen", "distinct", "explore_skip", "fall_calibrate"):
             if not isinstance(self.opts[flag], (bool, np.bool_)):
                 raise ValueError(f"{flag} must be true or false, got {self.opts[flag]!r}")
         k_ef = self.opts["explore_falls"]
@@ -944,6 +991,8 @@ class Transfer(TwoSpaceCritic):
         self._elite: np.ndarray | None = None
         self._source_mgd: tuple[np.ndarray, float, np.ndarray] | None = None   # _pool_source
         self._turbo: Any = None
+        self._preq = np.empty(0)        # (t,) prequential screen scores (fall_calibrate)
+        self._calib: tuple[int, np.ndarray] | None = None     # (n_told, (a, b))
 
     # ------------------------------------------------------------------ properties
     @property
@@ -1659,13 +1708,14 @@ class Transfer(TwoSpaceCritic):
 
     def _fall_outcome(self, C: np.ndarray, fall_m: TargetModel, v: np.ndarray
                       ) -> tuple[np.ndarray, float]:
-        """The fall model's posterior mean probability (m,) at θ ``C`` (m, d), clipped to [0, 1],
-        and the cost rank score of a fall (``fall_cost``): the mean of the told falls' scores in
+        """The fall model's posterior mean probability (m,) at θ ``C`` (m, d), clipped to [0, 1]
+        (with ``fall_calibrate``, the calibrated screen's probability :meth:`_fall_prob`), and the cost rank score of a fall (``fall_cost``): the mean of the told falls' scores in
         ``v`` (n_told,) (the cost model's rank scores of the told trials), or, before any fall,
         the score of the last of ``n_told + 1`` ranks."""
         from scipy.special import ndtri
 
-        p = np.clip(fall_m.mean_cov(C, False)[0], 0.0, 1.0)
+        p = self._fall_prob(C, fall_m) if self.opts["fall_calibrate"] else \
+            np.clip(fall_m.mean_cov(C, False)[0], 0.0, 1.0)
         if self._fell.any():
             s = float(v[self._fell].mean())
         else:
@@ -1673,7 +1723,16 @@ class Transfer(TwoSpaceCritic):
         return p, s
 
     def _fall_prob(self, C: np.ndarray, fall_m: TargetModel | None) -> np.ndarray:
-        """The fall screen's probability (m,) at θ ``C`` (m, d): the source's fall model before
+        """The fall screen's probability (m,) at θ ``C`` (m, d): :meth:`_fall_score`, mapped by
+        the target's calibration (:meth:`calibration`) with ``fall_calibrate``."""
+        p = self._fall_score(C, fall_m)
+        if not self.opts["fall_calibrate"]:
+            return p
+        ab = self.calibration()
+        return p if ab is None else calibrated(p, ab)
+
+    def _fall_score(self, C: np.ndarray, fall_m: TargetModel | None) -> np.ndarray:
+        """The fall screen's score (m,) at θ ``C`` (m, d): the source's fall model before
         the target has data, else the target fall model's upper confidence bound (where the
         model is unsure, it screens). With ``fall_source_sd`` the source fall model's own
         standard deviation joins the bound (``fall_kappa`` times the root of the two variances
@@ -1687,6 +1746,32 @@ class Transfer(TwoSpaceCritic):
             return np.clip(sm.fall_prob(C) + kappa * np.sqrt(v_src), 0, 1)
         return np.clip(fall_m.mean_cov(C, False)[0]
                        + kappa * np.sqrt(fall_m.variance(C) + v_src), 0, 1)
+
+    def prequential_scores(self) -> np.ndarray:
+        """(n_told,) the fall screen's score (:meth:`_fall_score`) of each told θ from the trials
+        told before it: the fall model fitted on rows ``0 … t−1`` (the source's fall model for
+        row 0) scores row ``t``. Out-of-sample by construction; a function of the told history
+        (kept as the history grows, which tells only append to)."""
+        sm = self.source_model()
+        for t in range(len(self._preq), self.n_told):
+            fall_m = None if t == 0 else TargetModel(
+                self._X[:t], self._fell[:t].astype(float), sm.fall_prob,
+                sm.fall_lengthscales, prior_mean=(1.0, 0.0))
+            self._preq = np.append(self._preq, self._fall_score(self._X[t:t + 1], fall_m))
+        return self._preq[:self.n_told]
+
+    def calibration(self) -> np.ndarray | None:
+        """(2,) ``(a, b)`` of the target's calibration of the fall screen, ``P(fall) =
+        σ(a + b · logit s)`` for a screen score ``s`` (Platt scaling), fitted by maximum a
+        posteriori on the told trials' :meth:`prequential_scores` and fall flags with the prior
+        ``a ~ N(0, 1)``, ``b ~ N(1, ½²)`` (the identity map: before the target's outcomes say
+        otherwise, a score is its probability); None before any told trial."""
+        if self.n_told == 0:
+            return None
+        if self._calib is None or self._calib[0] != self.n_told:
+            self._calib = (self.n_told, fit_calibration(self.prequential_scores(),
+                                                        self._fell[:self.n_told]))
+        return self._calib[1]
 
     def _chosen(self, cands: _Candidates, sel: np.ndarray, ctx: _AskContext
                 ) -> tuple[np.ndarray, np.ndarray]:
@@ -1714,6 +1799,8 @@ class Transfer(TwoSpaceCritic):
             **({"explore_braked": True} if ctx.state.get("explore_braked") else {}),
             **({"explore_bound": ctx.explore_bound} if ctx.explore_bound is not None else {}),
             **({"explore_skipped": True} if ctx.explore_skipped else {}),
+            **({"fall_calibration": [float(v) for v in self.calibration()]}
+               if self.opts["fall_calibrate"] and self.n_told else {}),
             **({"explore_void": len(ctx.state["void"])}
                if self.opts["explore_void"] else {}),
             **({"explore_next": int(ctx.state["explore_next"])}

@@ -1,0 +1,108 @@
+"""The transfer critic's fall screen calibrated on the target's own outcomes
+(``fall_calibrate``): prequential scores, the Platt map, and the screen that uses it."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.optimize import approx_fprime
+
+from latentune.critic.transfer import (ADDED_OPTIONS, TRANSFER_DEFAULTS, TargetModel, Transfer,
+                                       calibrated, fit_calibration)
+
+from test_transfer import D, _bowl, hypers, source  # noqa: F401 - shared fixtures
+from test_transfer_explore import _critic, _run
+
+
+def test_the_map_stays_the_identity_without_evidence_and_follows_the_outcomes():
+    """No outcomes: the prior's mean, ``(0, 1)``, so a score is its probability. Scores of 0.3
+    that never fell pull the map below the identity; scores of 0.05 that fell half the time pull
+    it above; scores that say nothing of the outcomes (the same falls at every score) flatten it
+    (``b`` well below 1)."""
+    assert np.allclose(fit_calibration(np.empty(0), np.empty(0, bool)), [0.0, 1.0], atol=1e-6)
+    s = np.array([0.05, 0.3, 0.6])
+    assert np.allclose(calibrated(s, np.array([0.0, 1.0])), s)
+    over = fit_calibration(np.full(30, 0.3), np.zeros(30, bool))
+    assert calibrated(np.array([0.3]), over)[0] < 0.1
+    under = fit_calibration(np.full(30, 0.05), np.arange(30) % 2 == 0)
+    assert calibrated(np.array([0.05]), under)[0] > 0.3
+    rng = np.random.default_rng(1)
+    flat = fit_calibration(rng.uniform(0.01, 0.6, 200), rng.uniform(size=200) < 0.2)
+    assert flat[1] < 0.5
+
+
+def test_the_map_is_the_posterior_mode():
+    """The fitted ``(a, b)`` is a stationary point of the negative log posterior written out
+    here (logistic likelihood on ``logit s``, Gaussian prior ``N((0, 1), diag(1, 0.25))``)."""
+    from scipy.special import logit
+
+    rng = np.random.default_rng(2)
+    s = rng.uniform(0.0, 0.7, 40)
+    fell = rng.uniform(size=40) < s
+    x = logit(np.clip(s, 0.01, 0.99))
+
+    def nlp(ab):
+        f = ab[0] + ab[1] * x
+        return np.logaddexp(0, f).sum() - fell @ f + 0.5 * ab[0] ** 2 + 2.0 * (ab[1] - 1) ** 2
+
+    ab = fit_calibration(s, fell)
+    assert np.abs(approx_fprime(ab, nlp, 1e-7)).max() < 1e-3
+    assert nlp(ab) < nlp(np.array([0.0, 1.0]))
+
+
+def test_prequential_scores_are_out_of_sample(source, hypers):
+    """Row t's score is the screen of the fall model fitted on rows 0 … t−1 alone (the source's
+    fall model for row 0), whatever was told after it."""
+    cr = _critic(source, hypers, fall_calibrate=True)
+    _run(cr, 6)
+    pre = cr.prequential_scores()
+    assert pre.shape == (6,)
+    sm = cr.source_model()
+    assert np.isclose(pre[0], cr._fall_score(cr.X[:1], None)[0])
+    for t in (1, 3, 5):
+        fm = TargetModel(cr.X[:t], cr.fell[:t].astype(float), sm.fall_prob,
+                         sm.fall_lengthscales, prior_mean=(1.0, 0.0))
+        assert np.isclose(pre[t], cr._fall_score(cr.X[t:t + 1], fm)[0])
+
+
+def test_the_screen_takes_the_calibrated_probability(source, hypers):
+    """With ``fall_calibrate`` each decision records the map fitted on the trials told before
+    it, and the probability the screen compares with ``max_fall_prob`` is the map of the score;
+    without it the score itself. A fresh critic told the same trials asks the same θ."""
+    cr = _critic(source, hypers, fall_calibrate=True)
+    _run(cr, 5)
+    ab = np.array(cr.decisions[-1]["fall_calibration"])
+    assert np.allclose(ab, fit_calibration(cr.prequential_scores()[:4], cr.fell[:4]))
+    _, fall_m = cr.models()
+    C = np.random.default_rng(0).uniform(size=(7, D))
+    assert np.allclose(cr._fall_prob(C, fall_m),
+                       calibrated(cr._fall_score(C, fall_m), cr.calibration()))
+    plain = _critic(source, hypers)
+    _run(plain, 5)
+    assert "fall_calibration" not in plain.decisions[-1]
+    assert np.allclose(plain._fall_prob(C, fall_m), plain._fall_score(C, fall_m))
+    fresh = _critic(source, hypers, fall_calibrate=True)
+    fresh.tell(cr.X, cr.y, cr.tags, fell=cr.fell, z=cr._Z)
+    assert np.allclose(fresh.ask(1), cr.ask(1))
+
+
+def test_calibration_is_off_by_default_and_checked(source, hypers):
+    assert TRANSFER_DEFAULTS["fall_calibrate"] is False and ADDED_OPTIONS["fall_calibrate"] is False
+    for bad in (1, "yes", None):
+        with pytest.raises(ValueError, match="fall_calibrate"):
+            _critic(source, hypers, fall_calibrate=bad)
+
+
+def test_screen_bands_count_each_ask_in_the_band_of_its_probability():
+    """``benchmarks.transfer_falls.screen_bands``: the zero-shot trial (no decision) and the
+    manual θ (no probability) are not counted; each other ask counts in the band of its
+    ``max_fall_prob_asked`` (bands closed below), with its fall."""
+    from benchmarks.transfer_falls import PF_EDGES, screen_bands
+
+    trace = {"failed": [True, True, False, True, False, False],
+             "decisions": [{"pools": ["elite"]},
+                           {"max_fall_prob_asked": 0.0, "pools": ["elite"]},
+                           {"max_fall_prob_asked": 0.25, "pools": ["full"]},
+                           {"max_fall_prob_asked": 0.1, "pools": ["full"]},
+                           {"max_fall_prob_asked": 1.0, "pools": ["latent"]}]}
+    assert PF_EDGES == (0.0, 0.1, 0.2, 0.3, 1.0)
+    assert screen_bands(trace).tolist() == [[1, 0], [1, 0], [1, 1], [1, 0]]
