@@ -42,7 +42,8 @@ method) the median over the seeds of the best cost, of the falls and of the fall
 ``--after`` on (the search's falls, after the first trials the screen knows little about); the
 asks and falls by band of the fall screen's probability (``screen_bands``: how calibrated the
 screen was), and with ``fall_calibrate`` the median of the runs' last calibration map
-``(a, b)`` (``b`` well below 1: the screen's score tells little of which θ fall there).
+``(a, b)`` (``b`` well below 1: the screen's score tells little of which θ fall there); and
+the trust-region asks and their falls by band of the step from the centre (``region_steps``).
 """
 from __future__ import annotations
 
@@ -66,6 +67,8 @@ RADII = (0.01, 0.02, 0.05, 0.1, 0.2)
 """RMS distances (unit box) at which fall rates around a centre are counted."""
 PF_EDGES = (0.0, 0.1, 0.2, 0.3, 1.0)
 """Bins of the screen's fall probability for its calibration table."""
+STEP_EDGES = (0.0, 0.05, 0.2, 1.0)
+"""Bins of a trust-region ask's largest coordinate step from its centre (``ladder``)."""
 
 
 def study_name(prefix: str, seed: int) -> str:
@@ -517,6 +520,7 @@ def ladder(root: Path, systems: list[str], seeds: list[int], methods: list[str],
             for m in methods:
                 best, falls, late, calib = [], [], [], []
                 bands = np.zeros((len(PF_EDGES) - 1, 2), dtype=int)
+                steps = np.zeros((len(STEP_EDGES) - 1, 2), dtype=int)
                 for s in seeds:
                     f = g / f"seed{s}" / f"{m}.json"
                     if not f.is_file():
@@ -527,6 +531,7 @@ def ladder(root: Path, systems: list[str], seeds: list[int], methods: list[str],
                     falls.append(int(fl.sum()))
                     late.append(int(fl[after:].sum()))
                     bands += screen_bands(r)
+                    steps += region_steps(r)
                     if r.get("decisions") and "fall_calibration" in r["decisions"][-1]:
                         calib.append(r["decisions"][-1]["fall_calibration"])
                 rows.append({"system": system, "gap": g.name[3:], "method": m,
@@ -536,9 +541,32 @@ def ladder(root: Path, systems: list[str], seeds: list[int], methods: list[str],
                              f"falls_after_{after}_total": int(sum(late)),
                              "screen_bands": {f"{lo}-{hi}": [int(n), int(k)] for (lo, hi), (n, k)
                                               in zip(zip(PF_EDGES, PF_EDGES[1:]), bands)},
+                             "region_steps": {f"{lo}-{hi}": [int(n), int(k)] for (lo, hi), (n, k)
+                                              in zip(zip(STEP_EDGES, STEP_EDGES[1:]), steps)},
                              **({"calibration_median": np.median(calib, 0).round(3).tolist()}
                                 if calib else {})})
     return rows
+
+
+def region_steps(trace: dict[str, Any]) -> np.ndarray:
+    """(len(STEP_EDGES) − 1, 2) asks and falls of one :mod:`benchmarks.transfer` trace's
+    trust-region asks (neither design nor explore; batch 1) by band of their step from the centre:
+    the largest coordinate difference (unit box) between the θ asked and the best θ that did not
+    fall among the trials before it. Asks before any trial stood are not counted."""
+    fl = np.asarray(trace["failed"], bool)
+    c = np.asarray(trace["costs"], float)
+    X = np.asarray(trace["thetas"], float)
+    dec = trace.get("decisions") or []
+    out = np.zeros((len(STEP_EDGES) - 1, 2), dtype=int)
+    for i, d in enumerate(dec, start=len(fl) - len(dec)):
+        ok = ~fl[:i]
+        if d.get("design") or d.get("explore") or len(d.get("pools", [])) != 1 or not ok.any():
+            continue
+        centre = X[:i][ok][np.argmin(c[:i][ok])]
+        step = float(np.abs(X[i] - centre).max())
+        b = min(int(np.searchsorted(STEP_EDGES, step, side="right")) - 1, len(STEP_EDGES) - 2)
+        out[b] += (1, int(fl[i]))
+    return out
 
 
 def screen_bands(trace: dict[str, Any]) -> np.ndarray:

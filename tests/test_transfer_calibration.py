@@ -106,3 +106,22 @@ def test_screen_bands_count_each_ask_in_the_band_of_its_probability():
                            {"max_fall_prob_asked": 1.0, "pools": ["latent"]}]}
     assert PF_EDGES == (0.0, 0.1, 0.2, 0.3, 1.0)
     assert screen_bands(trace).tolist() == [[1, 0], [1, 0], [1, 1], [1, 0]]
+
+
+def test_region_steps_count_trust_region_asks_by_their_step_from_the_best_standing_theta():
+    """``benchmarks.transfer_falls.region_steps``: design and explore asks and asks made while
+    no trial stood are not counted; a region ask counts in the band of its largest coordinate
+    step from the best θ that did not fall before it."""
+    from benchmarks.transfer_falls import STEP_EDGES, region_steps
+
+    trace = {"failed": [True, False, False, True, False, True],
+             "costs": [100.0, 5.0, 4.0, 100.0, 3.0, 100.0],
+             "thetas": [[0.9, 0.9], [0.5, 0.5], [0.6, 0.5], [0.62, 0.5], [0.9, 0.1],
+                        [0.3, 0.5]],
+             "decisions": [{"design": True, "pools": ["elite"]},
+                           {"pools": ["full"]},                     # step 0.1 from (0.5, 0.5)
+                           {"pools": ["full"]},                     # 0.02 from (0.6, 0.5)
+                           {"explore": True, "pools": ["latent"]},
+                           {"pools": ["full"]}]}                    # 0.6 from (0.9, 0.1)
+    assert STEP_EDGES == (0.0, 0.05, 0.2, 1.0)
+    assert region_steps(trace).tolist() == [[1, 1], [1, 0], [1, 1]]

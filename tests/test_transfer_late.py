@@ -130,6 +130,31 @@ def test_handoff_fall_shrink_halves_the_side_after_a_late_fall(source, hypers):
     assert side[False] == pytest.approx(0.25) and side[True] == pytest.approx(0.125)
 
 
+def test_fall_shrink_halves_the_side_after_an_early_region_fall(source, hypers):
+    """``fall_shrink``: in the early phase a region generation that fell halves the side and
+    resets the counters (one generation that did not improve, then one that fell: 0.5 → 0.25;
+    without it these are two failures of the three that halve it, and the side stays 0.5); a
+    design generation (elite pool) that fell, and a fall while no trial stands, leave it."""
+    side = {}
+    for on in (False, True):
+        cr = _critic(source, hypers, fall_shrink=on)
+        _stalled_history(cr, 1)                     # generation 0 fails to improve
+        cr.tell(np.full((1, D), 0.9), np.array([200.0]), np.array([4 * 1 + 1]),
+                fell=np.array([True]))              # generation 1 falls: 2 failures, or halved
+        side[on] = cr._replay_state()["L"]
+    assert side[False] == pytest.approx(0.5) and side[True] == pytest.approx(0.25)
+    design = _critic(source, hypers, fall_shrink=True)
+    _stalled_history(design, 0)
+    design.tell(np.full((1, D), 0.9), np.array([200.0]), np.array([4 * 0 + 0]),
+                fell=np.array([True]))              # an elite fell: a failure, not a shrink
+    assert design._replay_state()["L"] == pytest.approx(0.5)
+    fell_only = _critic(source, hypers, fall_shrink=True)
+    fell_only.tell(np.full((1, D), 0.9), np.array([200.0]), np.array([1]), fell=np.array([True]))
+    assert fell_only._replay_state()["L"] == pytest.approx(0.5)
+    with pytest.raises(ValueError, match="fall_shrink"):
+        _critic(source, hypers, fall_shrink=1)
+
+
 def test_handoff_rules_transfer_changes_the_model_only(source, hypers):
     """``handoff_rules="transfer"``: the early side rules go on after the hand-off (the side of
     a stalled run is the default's) while the cost model is the target's GP."""

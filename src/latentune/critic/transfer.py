@@ -186,6 +186,11 @@ with few outcomes the score stands). Every use of the probability (the screen at
 ``safe_fallback``, and ``fall_cost``'s probability of the fall outcome) takes the calibrated
 value, so a bound is a fall rate the target's record supports. Each decision records ``(a, b)``
 (``fall_calibration``).
+``fall_shrink`` (default False): the same rule for falls in the early phase. A trust-region
+generation (neither an explore ask nor a design ask of the elite pool) in which more than
+``max_fall_prob`` of the trials fell halves the side ``L`` (once, at least ``length_min``) and
+resets the counters, once a trial on the target stands: a step of side ``L`` around the centre
+fell, so the next steps are shorter. The told history replays it as it replays ``L``.
 ``distinct`` (default True; False before session 30, so stored runs resume as they ran): an
 ask never picks a θ the target has run, nor one θ twice in a batch (equal to 1e-9): the choice
 passes over such candidates to the next best (each ask that did so records
@@ -301,6 +306,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "fall_source_sd": False, "face_snap": 0.0, "explore_void": False,
     "explore_fall_weight": 0.0, "centre_screen": False, "distinct": True,
     "explore_fall_prob": 0.0, "explore_skip": False, "fall_calibrate": False,
+    "fall_shrink": False,
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
@@ -317,7 +323,7 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "explore_void": False, "explore_fall_weight": 0.0,
                                  "centre_screen": False, "distinct": False,
                                  "explore_fall_prob": 0.0, "explore_skip": False,
-                                 "fall_calibrate": False}
+                                 "fall_calibrate": False, "fall_shrink": False}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -928,7 +934,8 @@ class Transfer(TwoSpaceCritic):
                 or k_ex == 1:
             raise ValueError(f"explore_every must be 0 (off) or an integer ≥ 2, got {k_ex!r}")
         for flag in ("stand_first", "explore_adapt", "fall_source_sd", "explore_void",
-                     "centre_screen", "distinct", "explore_skip", "fall_calibrate"):
+                     "centre_screen", "distinct", "explore_skip", "fall_calibrate",
+                     "fall_shrink"):
             if not isinstance(self.opts[flag], (bool, np.bool_)):
                 raise ValueError(f"{flag} must be true or false, got {self.opts[flag]!r}")
         k_ef = self.opts["explore_falls"]
@@ -1123,7 +1130,9 @@ class Transfer(TwoSpaceCritic):
                     converged = converged or L / 2.0 < float(self.opts["length_min"])
                     L = max(L / 2.0, l_min)
                 fail = 0
-            if late and self._fall_shrink_due(m, tags // 4 <= g):
+            fall_rule = self.opts["handoff_fall_shrink"] if late else \
+                self.opts["fall_shrink"] and not (tags[m] % 4 == ELITE).all()
+            if fall_rule and self._fall_shrink_due(m, tags // 4 <= g):
                 L, succ, fail = max(min(L, side / 2.0), l_min), 0, 0
         lat = own & (tags % 4 == LATENT) & ~explore
         pool = self._explore_pool(explore, bool(ok.any()), record)
@@ -1211,11 +1220,9 @@ class Transfer(TwoSpaceCritic):
             L <= float(self.opts["length_min"]) * (1.0 + 1e-9)
 
     def _fall_shrink_due(self, group: np.ndarray, upto: np.ndarray) -> bool:
-        """``handoff_fall_shrink``'s rule for the generation ``group`` (n,) bool: more than
-        ``max_fall_prob`` of its trials fell and one of the trials ``upto`` (n,) bool (those told
-        with it or before, the untagged ones included) did not."""
-        if not self.opts["handoff_fall_shrink"]:
-            return False
+        """The rule for falls of ``fall_shrink`` and ``handoff_fall_shrink`` for the generation
+        ``group`` (n,) bool: more than ``max_fall_prob`` of its trials fell and one of the trials
+        ``upto`` (n,) bool (those told with it or before, the untagged ones included) did not."""
         if self._fell[group].mean() <= float(self.opts["max_fall_prob"]):
             return False
         return bool((~self._fell[upto]).any())
