@@ -92,7 +92,7 @@ def _phase3(d: Path, trials: int) -> dict[str, Any]:
         system = Task.from_config(cfg["task"])
         st.phase3(system, int(pc["budget"]), method=pc["method"], regions=pc.get("regions"),
                   max_fall_prob=pc.get("max_fall_prob"), strategy=pc.get("strategy"),
-                  max_new=trials)
+                  transfer_options=pc.get("transfer_options"), max_new=trials)
     with RunStore(d) as s:
         rows = s.rows(Phase.PHASE3)
     return {"theta": [list(map(float, r.theta)) for r in rows],

@@ -23,7 +23,8 @@ of each of the critic's pools (``pool_falls``: falls / trials summed over the se
 
 ``--rules`` runs only those rules. ``--options`` runs the default phase 3 with these options of
 the transfer critic changed (``"explore_fall_prob=0.15"``, as ``benchmarks.transfer``'s
-variants; recorded as ``options``); its target runs are stored beside the default's, in
+variants; passed as ``Study.phase3(transfer_options=...)``, ``max_fall_prob`` as its own
+argument; recorded as ``options``); its target runs are stored beside the default's, in
 ``<rule>+<options>``, so both resume. ``--against`` pairs this run's ``current`` runs with those of
 an earlier output of this benchmark, made with another default phase 3 (``against``: this run
 lower / tie / higher, sign test, geometric mean of the best-cost ratios, falls of each). The
@@ -68,19 +69,16 @@ def widths_rule(rule: str) -> Iterator[None]:
         vae.hidden_widths = kept                                         # type: ignore
 
 
-@contextlib.contextmanager
-def transfer_options(options: dict[str, Any]) -> Iterator[None]:
-    """Inside the block, phase 3's transfer critic is built with ``options`` over its defaults
-    (:data:`latentune.critic.transfer.TRANSFER_DEFAULTS`, restored after)."""
-    from latentune.critic.transfer import TRANSFER_DEFAULTS
+def phase3_options(options: str) -> dict[str, Any]:
+    """The arguments of ``Study.phase3`` for the transfer ``options`` ``"option=value[:...]"``:
+    ``max_fall_prob`` (its own argument) and ``transfer_options`` (the others); checked
+    (UsageError naming the option)."""
+    from benchmarks.transfer import parse_variant
+    from latentune.pipeline import manifest as mf
 
-    kept = dict(TRANSFER_DEFAULTS)
-    TRANSFER_DEFAULTS.update(options)
-    try:
-        yield
-    finally:
-        TRANSFER_DEFAULTS.clear()
-        TRANSFER_DEFAULTS.update(kept)
+    opts = parse_variant(options)
+    mfp = mf.fall_options(opts.pop("max_fall_prob", None), None)["max_fall_prob"]
+    return {"max_fall_prob": mfp, **mf.transfer_option(opts, "transfer", mfp)}
 
 
 def source(root: Path, rooms: int, seed: int, phase1: int, rule: str) -> tuple[Path, dict]:
@@ -112,16 +110,15 @@ def source(root: Path, rooms: int, seed: int, phase1: int, rule: str) -> tuple[P
 def target_run(root: Path, rooms: int, seed: int, gap: float, rule: str, src: Path,
                budget: int, options: str = "") -> dict[str, Any]:
     """The default phase 3 of --budget trials on the target (with the transfer ``options``,
-    ``"option=value[:...]"``, when given); its costs and failed flags."""
-    from benchmarks.transfer import parse_variant
+    ``"option=value[:...]"``, when given: :func:`phase3_options`); its costs and failed flags."""
     import latentune as lt
     from examples.thermal_zones import make_system
     from latentune.constants import Phase
 
     d = root / f"r{rooms}" / f"seed{seed}" / f"gap{gap:g}" / (f"{rule}+{options}" if options
                                                                else rule)
-    with transfer_options(parse_variant(options)), lt.Study(d, seed=seed) as st:
-        st.phase3(make_system(gap, rooms=rooms), budget, latent=src)
+    with lt.Study(d, seed=seed) as st:
+        st.phase3(make_system(gap, rooms=rooms), budget, latent=src, **phase3_options(options))
         rows = st.store.rows(Phase.PHASE3)
     costs = [float(r.cost) for r in rows][:budget]
     failed = [bool(r.fell) for r in rows][:budget]
@@ -228,12 +225,13 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     earlier = None
     from benchmarks.transfer import parse_variant
-    from latentune.critic.transfer import TRANSFER_DEFAULTS, Transfer
+    from latentune.critic.transfer import TRANSFER_DEFAULTS
+    from latentune.errors import UsageError
 
     options = parse_variant(a.options)
     try:            # the critic's own checks, before any trial
-        Transfer((np.zeros((2, 1)), np.zeros(2), np.zeros(2, dtype=bool)), **options)
-    except (TypeError, ValueError) as e:
+        phase3_options(a.options)
+    except UsageError as e:
         print(f"small_theta: error: --options: {e}", file=sys.stderr)
         return 2
     if a.against is not None and "current" not in a.rules:

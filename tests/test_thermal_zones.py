@@ -144,15 +144,21 @@ def test_small_theta_benchmark_pairs_a_run_with_an_earlier_output(capsys, tmp_pa
     assert main(args + ["--against", str(tmp_path / "d.json")]) == 2
     assert "not an output of this benchmark" in capsys.readouterr().err
     # a variant of the default, paired with the default's output, stored beside its runs
+    from latentune.constants import Phase
     from latentune.critic.transfer import TRANSFER_DEFAULTS
+    from latentune.pipeline.phases import state_key
+    from latentune.pipeline.store import RunStore
 
     kept = dict(TRANSFER_DEFAULTS)
     assert main(args + ["--options", "explore_fall_prob=0.15", "--against",
                         str(tmp_path / "a.json"), "--out", str(tmp_path / "e.json")]) == 0
     out = json.loads((tmp_path / "e.json").read_text())
     assert out["options"] == {"explore_fall_prob": 0.15} and out["against"]["pairs"] == 1
-    assert (tmp_path / "r" / "r1" / "seed0" / "gap2" / "current+explore_fall_prob=0.15").is_dir()
-    assert TRANSFER_DEFAULTS == kept                        # the defaults are restored
+    run = tmp_path / "r" / "r1" / "seed0" / "gap2" / "current+explore_fall_prob=0.15"
+    with RunStore(run) as st:         # passed through Study.phase3, recorded, asked with
+        assert st.get_meta("config")["phase3"]["transfer_options"] == {"explore_fall_prob": 0.15}
+        assert st.get_meta(state_key(Phase.PHASE3))["options"]["explore_fall_prob"] == 0.15
+    assert TRANSFER_DEFAULTS == kept                        # nothing patched
     for bad, msg in (("nosuch=1", "unknown option"), ("explore_fall_prob=0.9",
                                                        "explore_fall_prob must be")):
         capsys.readouterr()

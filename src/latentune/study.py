@@ -38,8 +38,8 @@ from latentune.pipeline import manifest as mf
 from latentune.pipeline.asktell import Suggestion
 from latentune.pipeline.baselines import source_best
 from latentune.pipeline.evaluators import Evaluator
-from latentune.pipeline.loop import (decoder_of, phase_critic, record_latent, resolve_latent,
-                                     resolve_strategy, study_latent, theta_prior)
+from latentune.pipeline.loop import (decoder_of, phase3_setup, phase_critic, record_latent,
+                                     resolve_latent, study_latent, theta_prior)
 from latentune.pipeline.manifest import describe
 from latentune.pipeline.phases import (PhaseResult, default_batch_size, ensure_manual,
                                        manual_outcome, run_phase)
@@ -229,7 +229,8 @@ class Study:
     def phase3(self, system: Any, budget: int, *, latent: Any = None, method: str = "turbo",
                regions: int | None = None, start: Any = "manual",
                max_fall_prob: float | None = None, handover: Any = None,
-               strategy: str | None = None, max_new: int | None = None) -> PhaseResult:
+               strategy: str | None = None, transfer_options: dict[str, Any] | None = None,
+               max_new: int | None = None) -> PhaseResult:
         """Phase 3 on ``system`` with the ``strategy`` (default ``"transfer"``: everything the
         source run tried as a model of the target, latent and full θ boxes,
         :mod:`latentune.critic.transfer`; ``"plain"``: the paper's phase 3, ``method`` in the
@@ -246,18 +247,16 @@ class Study:
             handover: ``True`` or a dict of options (``patience``, ``tol``, ``length``): when
                 the latent search stalls, continue with TuRBO-m on the full θ box from the best
                 decoded θ (:mod:`latentune.critic.handover`; recorded as ``phase3_handover``).
+            transfer_options: options of the transfer critic (its module's docstring): a dict
+                of :data:`~latentune.critic.transfer.TRANSFER_DEFAULTS` keys but max_fall_prob.
             max_new: stop after this many new trials.
         If the latent space comes from another study, that study's best θ is evaluated on
         ``system`` as it is first (the zero-shot trial, one evaluation). The critic is built
         by :func:`~latentune.pipeline.loop.phase_critic` from the options recorded here."""
         check_system(system)
-        ls, source = resolve_latent(self.run, self.manifest, latent, system.space,
-                                    _actor(system))
-        mfp_prior = None if max_fall_prob is None else "latent source"
-        strategy = resolve_strategy(self.manifest, strategy, handover, ls)
-        extra = {"latent_source": source, "strategy": strategy,
-                 "start": mf.start_point(start, system.space.manual, system.space.dim)[1],
-                 **mf.fall_options(max_fall_prob, mfp_prior), "handover": mf.handover(handover)}
+        ls, extra = phase3_setup(self.run, self.manifest, system.space, _actor(system), latent,
+                                 strategy, start, max_fall_prob, handover, transfer_options)
+        source, strategy = extra["latent_source"], extra["strategy"]
         self._options(Phase.PHASE3, method, budget, regions, extra)     # checked before writing
         if self.exists:
             self.bind_check(system)
@@ -303,8 +302,8 @@ class Study:
             phase: int | None = None, latent: Any = None, method: str | None = None,
             budget: int | None = None, regions: int | None = None, start: Any = None,
             max_fall_prob: float | None = None, fall_prior: Any = None, handover: Any = None,
-            strategy: str | None = None, asker: str | None = None,
-            lease_s: float | None = None) -> list[Suggestion]:
+            strategy: str | None = None, transfer_options: dict[str, Any] | None = None,
+            asker: str | None = None, lease_s: float | None = None) -> list[Suggestion]:
         """Hand out ``n`` suggestions for trials run elsewhere (the asker's pending ones first).
 
         The first ask fixes the study's system or ``space``, the phase (1, or 3 with a latent
@@ -316,7 +315,8 @@ class Study:
         return asktell.ask(self, n, system=system, space=space, phase=phase, latent=latent,
                            asker=asker, lease_s=lease_s, method=method, budget=budget,
                            regions=regions, start=start, max_fall_prob=max_fall_prob,
-                           fall_prior=fall_prior, handover=handover, strategy=strategy)
+                           fall_prior=fall_prior, handover=handover, strategy=strategy,
+                           transfer_options=transfer_options)
 
     def tell(self, trial_id: int, cost: float | None = None, *, failed: bool = False,
              note: str | None = None, info: dict[str, Any] | None = None,

@@ -73,7 +73,7 @@ WAIT_S = 60.0
 """How long an ask or a tell waits for another writer of the study [s]."""
 DEFAULT_ASKER = "default"
 OPTIONS = ("strategy", "method", "budget", "regions", "start", "max_fall_prob", "fall_prior",
-           "handover")
+           "handover", "transfer_options")
 """The phase options an ask takes (each None for "the stored one")."""
 NEXT_KEY = "asktell_next"
 """The store's meta entry of the prepared batch (see the module docstring)."""
@@ -198,6 +198,8 @@ def _normalized(given: dict[str, Any], space: ParameterSpace) -> dict[str, Any]:
         g["max_fall_prob"] = mf.fall_options(g["max_fall_prob"], None)["max_fall_prob"]
     if g.get("fall_prior") is not None:
         g["fall_prior"] = str(g["fall_prior"])
+    if "transfer_options" in g:          # checked with the strategy by :func:`options`
+        g["transfer_options"] = mf.transfer_record(g["transfer_options"])
     return g
 
 
@@ -210,8 +212,9 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
     cfg = study.manifest.config()
     fixed = (cfg.get("asktell") or {}).get("phase") == phase or study.manifest.n_used(phase)
     stored = cfg.get(key) if fixed else None
-    if phase == Phase.PHASE1 and given.get("handover"):
-        raise UsageError("handover is an option of phase 3")
+    for opt in ("handover", "transfer_options"):
+        if phase == Phase.PHASE1 and given.get(opt):
+            raise UsageError(f"{opt} is an option of phase 3")
     strategy = given.get("strategy")
     if phase == Phase.PHASE1 and strategy:
         raise UsageError("strategy is an option of phase 3")
@@ -243,11 +246,8 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
     if phase == Phase.PHASE3:
         ls, source = resolve_latent(study.run, study.manifest, latent, space)
         record_latent(study.run, study.manifest, ls, source)
-        extra = {"latent_source": source,
-                 "strategy": strat,
-                 "start": start_rec,
-                 **mf.fall_options(mfp, None if mfp is None else "latent source"),
-                 "handover": g.get("handover")}
+        extra = mf.phase3_extra(source, strat, start_rec, mfp, g.get("handover"),
+                                g.get("transfer_options"))
     else:
         extra = {"start": start_rec, **mf.fall_options(mfp, g.get("fall_prior"))}
     pc = study.manifest.phase_options(phase, method=g["method"], budget=g["budget"],
@@ -262,8 +262,8 @@ def ask(study: Any, n: int = 1, *, system: Any = None, space: ParameterSpace | N
     """Hand out ``n`` suggestions of ``study`` to ``asker`` (see the module docstring).
 
     ``given``: the phase's options (strategy, method, budget, regions, start, max_fall_prob,
-    fall_prior, handover), each None for "the stored one"; ``start`` is "manual",
-    :data:`SCRATCH` or a (d,) unit-box θ."""
+    fall_prior, handover, transfer_options), each None for "the stored one"; ``start`` is
+    "manual", :data:`SCRATCH` or a (d,) unit-box θ."""
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
         raise UsageError(f"n must be an integer >= 1, got {n!r}")
     who = DEFAULT_ASKER if asker is None else str(asker)

@@ -4,8 +4,9 @@ A phase is an ask/tell loop on a critic: :func:`~latentune.pipeline.phases.run_p
 with an evaluator (simulated trials), :mod:`latentune.pipeline.asktell` with a person (trials run
 elsewhere). Both build the critic here, with :func:`phase_critic`, from the phase's options
 record (:meth:`~latentune.pipeline.manifest.Manifest.phase_options`: method, batch size, seed,
-regions, budget, start, max_fall_prob and its prior, hand-over, latent source) and both replay
-the stored rows into it, so a seed gives the same rows whichever drives the loop.
+regions, budget, start, max_fall_prob and its prior, hand-over, latent source, the transfer
+critic's options) and both replay the stored rows into it, so a seed gives the same rows
+whichever drives the loop.
 
 This module also finds the latent space phase 3 searches (the study's own or another study's,
 :func:`resolve_latent`) and records it (:func:`record_latent`).
@@ -20,6 +21,7 @@ import numpy as np
 
 from latentune.constants import Phase
 from latentune.errors import LatentError, StoreError
+from latentune.pipeline import manifest as mf
 from latentune.pipeline.manifest import Manifest
 from latentune.pipeline.phases import make_handover_critic, make_phase_critic, state_key
 from latentune.pipeline.rundir import RunDir
@@ -88,6 +90,19 @@ OWN_TOLD = 30
 critic as target data (with the phase-1 trials among its elites), so it does not run them again."""
 
 
+def phase3_setup(run: RunDir, manifest: Manifest, space: ParameterSpace, actor: str | None,
+                 latent: Any, strategy: str | None, start: Any, max_fall_prob: float | None,
+                 handover: Any, transfer_options: dict[str, Any] | None
+                 ) -> tuple[Any, dict[str, Any]]:
+    """(the LatentSpace, phase 3's own options record) of a phase-3 run with these arguments
+    (:meth:`~latentune.study.Study.phase3`), checked; writes nothing."""
+    ls, source = resolve_latent(run, manifest, latent, space, actor)
+    strategy = resolve_strategy(manifest, strategy, handover, ls)
+    start_rec = mf.start_point(start, space.manual, space.dim)[1]
+    return ls, mf.phase3_extra(source, strategy, start_rec, max_fall_prob, handover,
+                               transfer_options)
+
+
 def resolve_strategy(manifest: Manifest, strategy: str | None, handover: Any,
                      latent: Any = None) -> str:
     """Phase 3's strategy for a call: ``strategy`` if given (checked), else the stored one once
@@ -129,7 +144,8 @@ def transfer_critic(pc: dict[str, Any], space: ParameterSpace, run_dir: Path, so
                           "it needs at least 2 (or use strategy plain)")
     mfp = pc.get("max_fall_prob")
     critic = Transfer((X, y, fell), latent, space.manual, batch_size=pc["batch_size"],
-                      seed=pc["seed"], **({} if mfp is None else {"max_fall_prob": mfp}))
+                      seed=pc["seed"], **({} if mfp is None else {"max_fall_prob": mfp}),
+                      **(pc.get("transfer_options") or {}))
     if (Path(run_dir) / "run.db").is_file():
         with RunStore(run_dir) as st:
             rows = [r for ph in (Phase.MANUAL, Phase.ZERO_SHOT) for r in st.rows(ph)]

@@ -6,7 +6,7 @@ Stored in the run store's ``config`` meta entry (JSON)::
     system        which system the phases ran (:func:`describe`), and its ``space``
     phase1, phase3  a phase's options (:meth:`Manifest.phase_options`): method, batch_size, seed,
                   regions, budget, start, max_fall_prob (+ fall_prior), and in phase 3
-                  latent_source and handover
+                  latent_source, strategy, handover and transfer_options (only when given)
     asktell       the phase ask/tell drives (``phase``) with the same options
     vae, latent, phase3_vae_source, phase3_handover   phase 2's and phase 3's latent space
 
@@ -36,8 +36,11 @@ ASK_BUDGET = 200
 """The budget ask/tell assumes for its critic's options (TuRBO-m's region count) by default."""
 PHASE_KEYS = {Phase.PHASE1: "phase1", Phase.PHASE3: "phase3"}
 COMPARED = ("method", "batch_size", "seed", "regions", "start", "max_fall_prob", "fall_prior",
-            "latent_source", "handover")
+            "latent_source", "handover", "transfer_options")
 """The options of a phase that must match on resume (budget may grow)."""
+RECORDED_IF_GIVEN = ("transfer_options",)
+"""Options recorded only when given: a record without one (a run stored before it existed, or
+run without it) compares equal to not giving it."""
 
 
 def describe(system: Any) -> dict[str, Any]:
@@ -186,7 +189,26 @@ class Manifest:
                 if k in stored and stored.get(k) != pc.get(k):
                     raise StoreError(f"{self.run.dir}: {key} was run with {k.replace('_', '-')}"
                                      f" = {stored.get(k)!r}, not {pc.get(k)!r}")
-        return pc
+            if pc.get("transfer_options") and "transfer_options" not in stored:
+                self.check_transfer_state(phase, pc["transfer_options"])
+        return {k: v for k, v in pc.items() if v is not None or k not in RECORDED_IF_GIVEN}
+
+    def check_transfer_state(self, phase: int, given: dict[str, Any]) -> None:
+        """StoreError unless the stored transfer critic of ``phase`` (its saved state, which a
+        resume restores and whose options win) was asked with the ``given`` transfer options:
+        a run recorded without them (none given, or stored before they existed) resumes only
+        with the values it ran with."""
+        from latentune.critic.transfer import stored_options
+        from latentune.pipeline.phases import state_key
+
+        state = self.run.store.get_meta(state_key(phase)) or {}
+        if "options" not in state:      # no state, or one whose constructor's options stand
+            return
+        stored = stored_options(state) or {}
+        for k, v in given.items():
+            if stored.get(k) != v:
+                raise StoreError(f"{self.run.dir}: phase {int(phase)}'s transfer critic was run "
+                                 f"with {k} = {stored.get(k)!r}, not {v!r}")
 
 
 def ask_options(stored: dict[str, Any] | None, given: dict[str, Any], dir_: Any,
@@ -196,7 +218,8 @@ def ask_options(stored: dict[str, Any] | None, given: dict[str, Any], dir_: Any,
     may grow). ``stored``: the phase's options record (None on the first ask)."""
     if not stored:
         return dict(given)
-    defaults = {"start": "manual", "max_fall_prob": None, "handover": None, "regions": None}
+    defaults = {"start": "manual", "max_fall_prob": None, "handover": None, "regions": None,
+                "transfer_options": None}
     out = {}
     for k, v in given.items():
         old = stored.get(k, defaults.get(k))
@@ -258,6 +281,75 @@ def fall_options(max_fall_prob: float | None, prior: Any) -> dict[str, Any]:
         raise UsageError(f"max_fall_prob must be in (0, 1], got {max_fall_prob!r}")
     return {"max_fall_prob": float(max_fall_prob),
             "fall_prior": None if prior is None else str(prior)}
+
+
+def phase3_extra(source: str, strategy: str, start: Any, max_fall_prob: float | None,
+                 hand_over: Any, transfer_options: dict[str, Any] | None) -> dict[str, Any]:
+    """Phase 3's own options for :meth:`Manifest.phase_options` (checked): the latent space's
+    ``source``, the ``strategy``, the ``start`` record (:func:`start_point`), the fall-aware
+    option (its prior: the latent space's source), the hand-over (:func:`handover`) and the
+    transfer critic's options (:func:`transfer_option`)."""
+    return {"latent_source": source, "strategy": strategy, "start": start,
+            **fall_options(max_fall_prob, None if max_fall_prob is None else "latent source"),
+            "handover": handover(hand_over),
+            **transfer_option(transfer_options, strategy, max_fall_prob)}
+
+
+def transfer_record(options: dict[str, Any] | None) -> dict[str, Any] | None:
+    """``transfer_options`` as they are recorded: a plain JSON dict (numpy scalars as numbers),
+    None for none; UsageError for anything but a dict of names to numbers, text and flags."""
+    if not options:
+        return None
+    if not isinstance(options, dict) or not all(isinstance(k, str) for k in options):
+        raise UsageError(f"transfer_options must be a dict of option names to values, "
+                         f"got {options!r}")
+    try:
+        return json.loads(json.dumps(options, default=lambda v: v.item()))
+    except (TypeError, ValueError, AttributeError):
+        raise UsageError(f"transfer_options must hold numbers, text and true/false, got "
+                         f"{options!r}") from None
+
+
+def transfer_option(options: dict[str, Any] | None, strategy: str,
+                    max_fall_prob: float | None) -> dict[str, Any]:
+    """The options record of ``transfer_options`` (checked, before anything is written): options
+    of phase 3's transfer critic over its defaults (keys of
+    :data:`latentune.critic.transfer.TRANSFER_DEFAULTS`), a plain JSON dict under the key
+    ``transfer_options``; None when none are given (not recorded). UsageError naming the
+    option for an unknown one or a value the critic refuses (checked with ``max_fall_prob``,
+    which is its own argument and refused here), and for any option with a strategy other
+    than ``transfer``."""
+    rec = transfer_record(options)
+    if rec is None:
+        return {"transfer_options": None}
+    if strategy != "transfer":
+        raise UsageError(f"transfer_options are options of the transfer phase 3 (strategy "
+                         f"transfer), not of the {strategy} one (a hand-over implies plain)")
+    if "max_fall_prob" in rec:
+        raise UsageError("max_fall_prob is an argument of its own (max_fall_prob=...), not one "
+                         "of transfer_options")
+    from latentune.critic.transfer import TRANSFER_DEFAULTS, Transfer
+
+    unknown = sorted(set(rec) - set(TRANSFER_DEFAULTS))
+    if unknown:
+        raise UsageError(f"unknown option(s) of the transfer critic: {', '.join(unknown)} (see "
+                         "latentune.critic.transfer.TRANSFER_DEFAULTS)")
+    mfp = {} if max_fall_prob is None else {"max_fall_prob": max_fall_prob}
+
+    def refusal(opts: dict[str, Any]) -> Exception | None:
+        try:            # the critic's own checks, on a two-trial source
+            Transfer((np.zeros((2, 1)), np.zeros(2), np.zeros(2, dtype=bool)), **mfp, **opts)
+        except (TypeError, ValueError) as exc:
+            return exc
+        return None
+
+    exc = refusal(rec)
+    if exc is not None:
+        bad = next((k for k in rec if refusal({k: rec[k]}) is not None), None)
+        msg = str(exc if bad is None else refusal({bad: rec[bad]}))
+        raise UsageError(msg if bad is not None and bad in msg else
+                         f"transfer option {bad or ', '.join(rec)}: {msg}") from None
+    return {"transfer_options": rec}
 
 
 def source_option(method: str, source_run: Any) -> dict[str, Any]:

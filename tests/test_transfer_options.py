@@ -1,0 +1,89 @@
+"""``Study.phase3(transfer_options=...)``: the transfer critic's options, checked before anything
+is stored, recorded with phase 3's options, fixed on resume, and the same through ask/tell."""
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+import latentune as lt
+from latentune.constants import Phase
+from latentune.critic.transfer import TRANSFER_DEFAULTS
+from latentune.errors import StoreError, UsageError
+from latentune.pipeline.phases import state_key
+from test_asktell import plant, src30  # noqa: F401 - shared fixtures
+
+OFF = {"explore_every": 0}
+
+
+@pytest.fixture
+def src(tmp_path: Path, src30: Path) -> Path:  # noqa: F811 - the shared fixture
+    shutil.copytree(src30, tmp_path / "src")
+    return tmp_path / "src"
+
+
+def _state(study: lt.Study) -> dict:
+    return study.store.get_meta(state_key(Phase.PHASE3))
+
+
+def test_options_reach_the_critic_and_are_fixed_on_resume(tmp_path, src):
+    kept = dict(TRANSFER_DEFAULTS)
+    target = plant(0.2)
+    with lt.Study(tmp_path / "t", seed=0) as st:
+        st.phase3(target, 5, latent=src, transfer_options=OFF)
+        assert st.config()["phase3"]["transfer_options"] == OFF
+        state = _state(st)
+        assert state["options"]["explore_every"] == 0
+        assert state["decisions"] and not any(d["explore"] for d in state["decisions"])
+        for other, err in (({"explore_every": 4}, StoreError), (None, StoreError)):
+            with pytest.raises(err, match="transfer-options"):
+                st.phase3(target, 9, latent=src, transfer_options=other)
+        assert st.store.count(Phase.PHASE3) == 5
+        assert st.phase3(target, 9, latent=src, transfer_options=dict(OFF)).n == 9
+        assert not any(d["explore"] for d in _state(st)["decisions"])
+    assert TRANSFER_DEFAULTS == kept
+    with lt.Study(tmp_path / "plain", seed=0) as st:    # none given: none recorded
+        st.phase3(target, 5, latent=src)
+        assert "transfer_options" not in st.config()["phase3"]
+        with pytest.raises(StoreError, match="explore_every = 2, not 0"):    # its state's
+            st.phase3(target, 9, latent=src, transfer_options=OFF)
+        assert "transfer_options" not in st.config()["phase3"]
+
+
+@pytest.mark.parametrize("kw, match", [
+    ({"transfer_options": {"nosuch": 1}}, "unknown option.*nosuch"),
+    ({"transfer_options": {"explore_every": 1}}, "explore_every must be"),
+    ({"transfer_options": {"explore_fall_prob": 0.4}, "max_fall_prob": 0.3}, "explore_fall_prob"),
+    ({"transfer_options": {"max_fall_prob": 0.2}}, "max_fall_prob is an argument of its own"),
+    ({"transfer_options": OFF, "strategy": "plain"}, "options of the transfer phase 3"),
+    ({"transfer_options": OFF, "handover": True}, "options of the transfer phase 3"),
+])
+def test_options_the_critic_cannot_honour_are_refused_before_anything_is_stored(
+        tmp_path, src, kw, match):
+    d = tmp_path / "t"
+    with lt.Study(d, seed=0) as st:
+        with pytest.raises(UsageError, match=match) as info:
+            st.phase3(plant(0.2), 5, latent=src, **kw)
+        assert "\n" not in str(info.value)
+        assert "phase3" not in st.config()
+    assert not (d / "run.db").exists()
+
+
+def test_ask_tell_takes_the_same_options(tmp_path, src):
+    target = plant(0.2)
+    with lt.Study(tmp_path / "p1", seed=0) as st:
+        with pytest.raises(UsageError, match="transfer_options is an option of phase 3"):
+            st.ask(system=target, transfer_options=OFF)
+    with lt.Study(tmp_path / "t", seed=0) as st:
+        with pytest.raises(UsageError, match="unknown option.*nosuch"):
+            st.ask(system=target, phase=3, latent=src, transfer_options={"nosuch": 1})
+        for i in range(3):
+            (s,) = st.ask(system=target, phase=3, latent=src, transfer_options=OFF) if i == 0 \
+                else st.ask()
+            st.tell(s.id, lt.system.evaluate(target, s.theta).cost)
+        assert st.config()["phase3"]["transfer_options"] == OFF
+        assert _state(st)["options"]["explore_every"] == 0
+        with pytest.raises(StoreError, match="transfer-options"):
+            st.ask(transfer_options={"explore_every": 4})
+        assert st.ask(transfer_options=OFF)[0].phase == Phase.PHASE3
