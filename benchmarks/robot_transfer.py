@@ -654,7 +654,11 @@ def decision_stats(run: dict[str, Any], floor: float = 1 / 64) -> dict[str, Any]
     per kind of ask (``design``, a region ask's pool, or ``explore <pool>``) ``[asks, falls,
     records]``, a record being a trial that stood and cost less than every trial before it
     that stood; ``by_screen``: the same per kind and per band of the fall screen's probability
-    of the θ asked (``max_fall_prob_asked``; :data:`SCREEN_BANDS`)."""
+    of the θ asked (``max_fall_prob_asked``; :data:`SCREEN_BANDS`); ``region_steps``: the
+    trust-region asks and their falls per band of the step from the centre
+    (:func:`benchmarks.transfer_falls.region_steps`; runs with their θ only)."""
+    from benchmarks.transfer_falls import region_steps
+
     dec = run.get("decisions") or []
     failed = run["failed"]
     costs = run["costs"]
@@ -690,7 +694,8 @@ def decision_stats(run: dict[str, Any], floor: float = 1 / 64) -> dict[str, Any]
         "falls_by_pool": by_pool,
         "distinct_acted": sum(bool(d.get("repeats_avoided") or d.get("duplicates_dropped"))
                               for d in dec),
-        "by_kind": by_kind, "by_screen": by_screen}
+        "by_kind": by_kind, "by_screen": by_screen,
+        **({"region_steps": region_steps(run).tolist()} if "thetas" in run else {})}
 
 
 def ask_kind(d: dict[str, Any]) -> str:
@@ -787,6 +792,8 @@ def decisions(root: Path, method: str = "transfer", seeds: list[int] | None = No
     when given), per rung and seed, with the medians over the seeds. Runs without decision
     records (restored from traces: :func:`restore_traces`) are left out and counted in
     ``without_records``."""
+    from benchmarks.transfer_falls import STEP_EDGES
+
     out: dict[str, Any] = {"method": method, "targets": {}, "without_records": 0}
     for f in sorted((root / "targets").glob(RESULT_GLOB)):
         r = json.loads(f.read_text())
@@ -806,6 +813,10 @@ def decisions(root: Path, method: str = "transfer", seeds: list[int] | None = No
         t["median"]["falls_by_pool"] = {p: float(np.median([x["falls_by_pool"].get(p, 0)
                                                             for x in rows])) for p in pools}
         t["by_kind"] = _summed([x.get("by_kind", {}) for x in rows])
+        t["region_steps"] = np.sum([x["region_steps"] for x in rows if "region_steps" in x]
+                                   or [[[0, 0]] * (len(STEP_EDGES) - 1)], axis=0).tolist()
+    out["region_steps"] = np.sum([t["region_steps"] for t in out["targets"].values()]
+                                 or [[[0, 0]] * (len(STEP_EDGES) - 1)], axis=0).tolist()
     out["by_kind"] = _summed([t["by_kind"] for t in out["targets"].values()])
     out["by_screen"] = {k: _summed([x.get("by_screen", {}).get(k, {}) for t in
                                     out["targets"].values() for x in t["seeds"].values()])
@@ -825,6 +836,8 @@ def _summed(counts: list[dict[str, list[int]]]) -> dict[str, list[int]]:
 
 
 def decisions_markdown(d: dict[str, Any]) -> str:
+    from benchmarks.transfer_falls import STEP_EDGES
+
     lines = ["| rung | seeds | trust-region asks at side ≤ 1/64 | asks the fall screen "
              "admitted < 5 % of | explore asks / their falls | falls by pool | asks `distinct` "
              "changed (all seeds) |",
@@ -855,6 +868,13 @@ def decisions_markdown(d: dict[str, Any]) -> str:
         sc = d["by_screen"].get(k, {})
         lines.append(f"| {k} | {a[0]}, {a[1]} fell, {a[2]} rec. | " + " | ".join(
             f"{sc[b][0]}, {sc[b][1]}, {sc[b][2]}" if b in sc else "–" for b in bands) + " |")
+    steps = [f"{lo:g}–{hi:g}" for lo, hi in zip(STEP_EDGES, STEP_EDGES[1:])]
+    lines += ["", "Trust-region asks (falls / asks) by their largest coordinate step from the "
+              "best standing θ before them:", "",
+              "| rung | " + " | ".join(steps) + " |", "|---|" + "---:|" * len(steps)]
+    for name, t in [*d["targets"].items(), ("all", d)]:
+        rs = t.get("region_steps") or []
+        lines.append(f"| {name} | " + " | ".join(f"{f} / {n}" for n, f in rs) + " |")
     return "\n".join(lines)
 
 

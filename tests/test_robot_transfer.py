@@ -353,6 +353,10 @@ def test_decisions_reads_what_the_default_did(tmp_path, capsys):
                  "by_screen": {"design": {"?": [1, 0, 1]},
                                "explore latent": {"0.2–0.3": [1, 1, 0]},
                                "full": {"0–0.1": [1, 0, 1], "0.3–1": [1, 1, 0]}}}
+    # with the θ: the two region asks by step from the best standing θ before them (trial 3:
+    # 0.02 from trial 1, stood; trial 4: 0.38 from trial 3, fell)
+    th = [[0.1, 0.1], [0.5, 0.5], [0.0, 1.0], [0.52, 0.5], [0.9, 0.5]]
+    assert rt.decision_stats({**run, "thetas": th})["region_steps"] == [[1, 0], [0, 0], [1, 1]]
     dec[3]["repeats_avoided"] = 1                       # an ask whose choice distinct changed
     assert rt.decision_stats(run)["distinct_acted"] == 1
     dec[3].pop("repeats_avoided")
