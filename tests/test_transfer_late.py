@@ -166,3 +166,36 @@ def test_handoff_rules_transfer_changes_the_model_only(source, hypers):
     assert isinstance(late.models()[0], TargetGP)
     with pytest.raises(ValueError):
         _critic(source, hypers, handoff_rules="cma")
+
+
+def test_centre_falls_leaves_a_centre_whose_neighbours_fell(source, hypers):
+    """``centre_falls=2``: the best standing θ (cost 1) with two of its three neighbours (within
+    0.05 in every coordinate) fallen is fragile, and the centre is the next best standing θ
+    (cost 2); with one neighbour fallen, or a neighbour 0.06 away, or the option off, the centre
+    is the best. When every standing θ is fragile, the best. Decisions record the count."""
+    best, second = np.full(D, 0.3), np.full(D, 0.7)
+
+    def told(offsets: list[float], fell: list[bool], **kw) -> Transfer:
+        cr = _critic(source, hypers, **kw)
+        X = np.vstack([best, second] + [best + o for o in offsets])
+        cr.tell(X, np.array([1.0, 2.0] + [200.0 if f else 3.0 for f in fell]),
+                fell=np.array([False, False] + fell))
+        return cr
+
+    near = [0.02, -0.03, 0.04]
+    cr = told(near, [True, True, False], centre_falls=2)
+    assert np.array_equal(cr._centre(cr._fragile()), second)
+    for offsets, fell, k in ((near, [True, False, False], 2), ([0.06, -0.06, 0.06],
+                                                               [True, True, False], 2),
+                             (near, [True, True, False], 0)):
+        cr = told(offsets, fell, centre_falls=k)
+        assert np.array_equal(cr._centre(cr._fragile()), best)
+    both = _critic(source, hypers, centre_falls=1)
+    both.tell(np.vstack([best, best + 0.01, second, second + 0.01]),
+              np.array([1.0, 200.0, 2.0, 200.0]), fell=np.array([False, True, False, True]))
+    assert both._fragile().tolist() == [True, False, True, False]
+    assert np.array_equal(both._centre(both._fragile()), best)
+    both.ask(1)
+    assert both.decisions[-1]["centre_fragile"] == 2
+    with pytest.raises(ValueError, match="centre_falls"):
+        _critic(source, hypers, centre_falls=True)

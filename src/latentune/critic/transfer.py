@@ -191,6 +191,16 @@ generation (neither an explore ask nor a design ask of the elite pool) in which 
 ``max_fall_prob`` of the trials fell halves the side ``L`` (once, at least ``length_min``) and
 resets the counters, once a trial on the target stands: a step of side ``L`` around the centre
 fell, so the next steps are shorter. The told history replays it as it replays ``L``.
+``centre_falls`` = k > 0 (default 0: off): a standing trial at least k of whose neighbours
+fell (other told trials within 0.05 of it in every coordinate of the unit box,
+:data:`_FRAGILE_STEP`), more often than ``max_fall_prob`` of them, is *fragile*: the
+centre of the trust region, the lines and the latent box is the best standing trial that is
+neither fragile nor void (``explore_void``), or the best standing trial when every one is.
+The fall model cannot tell a θ that only just stands from its neighbours that fall (on such
+targets its score hardly separates them: ``fall_calibrate``'s map), but the falls around it
+are observed: the search leaves a centre whose own small steps fall. The best value the
+success rule counts from is unchanged. Each decision records the number of fragile trials
+(``centre_fragile``).
 ``distinct`` (default True; False before session 30, so stored runs resume as they ran): an
 ask never picks a θ the target has run, nor one θ twice in a batch (equal to 1e-9): the choice
 passes over such candidates to the next best (each ask that did so records
@@ -306,7 +316,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "fall_source_sd": False, "face_snap": 0.0, "explore_void": False,
     "explore_fall_weight": 0.0, "centre_screen": False, "distinct": True,
     "explore_fall_prob": 0.0, "explore_skip": False, "fall_calibrate": False,
-    "fall_shrink": False,
+    "fall_shrink": False, "centre_falls": 0,
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
@@ -323,7 +333,8 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "explore_void": False, "explore_fall_weight": 0.0,
                                  "centre_screen": False, "distinct": False,
                                  "explore_fall_prob": 0.0, "explore_skip": False,
-                                 "fall_calibrate": False, "fall_shrink": False}
+                                 "fall_calibrate": False, "fall_shrink": False,
+                                 "centre_falls": 0}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -366,6 +377,8 @@ region's side is at its minimum."""
 _EXPLORE_WAIT_MAX = 8
 """With ``explore_adapt`` the interval between explore asks grows to at most this many times
 ``explore_every``."""
+_FRAGILE_STEP = 0.05
+"""``centre_falls``: the largest coordinate difference (unit box) of a trial's neighbours."""
 _NOISE = 1e-2
 _JOINT = 256
 """Candidates (lowest confidence bounds) that share one joint Thompson sample."""
@@ -874,6 +887,7 @@ class _AskContext:
     repeats: int = 0
     explore_bound: float | None = None
     explore_skipped: bool = False
+    fragile: int = 0
 
 
 @dataclass
@@ -942,6 +956,9 @@ class Transfer(TwoSpaceCritic):
         if isinstance(k_ef, bool) or not isinstance(k_ef, (int, np.integer)) or k_ef < 0:
             raise ValueError(f"explore_falls must be an integer ≥ 0 (0: never stop exploring), "
                              f"got {k_ef!r}")
+        k_cf = self.opts["centre_falls"]
+        if isinstance(k_cf, bool) or not isinstance(k_cf, (int, np.integer)) or k_cf < 0:
+            raise ValueError(f"centre_falls must be an integer ≥ 0 (0: off), got {k_cf!r}")
         if self.opts["explore_pool"] not in EXPLORE_POOLS:
             raise ValueError(f"explore_pool must be one of {EXPLORE_POOLS}, "
                              f"got {self.opts['explore_pool']!r}")
@@ -1266,6 +1283,23 @@ class Transfer(TwoSpaceCritic):
             return self._X[np.flatnonzero(ok)[np.argmin(y[ok])]]
         return self._X[int(np.argmin(y))]
 
+    def _fragile(self) -> np.ndarray:
+        """(n_told,) bool: ``centre_falls`` = k > 0: the standing trials at least k of whose
+        neighbours fell, more often than ``max_fall_prob`` of them (a neighbour: another told
+        trial within :data:`_FRAGILE_STEP` of it in every coordinate of the unit box); all False
+        when the option is off."""
+        k, n = int(self.opts["centre_falls"]), self.n_told
+        out = np.zeros(n, dtype=bool)
+        if k <= 0:
+            return out
+        X, fell = self._X[:n], self._fell[:n]
+        for i in np.flatnonzero(~fell):
+            near = np.abs(X - X[i]).max(1) <= _FRAGILE_STEP
+            near[i] = False
+            f = int(fell[near].sum())
+            out[i] = f >= k and f > float(self.opts["max_fall_prob"]) * int(near.sum())
+        return out
+
     def _screened_centre(self, centre: np.ndarray, void: np.ndarray, fall_m: TargetModel
                          ) -> tuple[np.ndarray, bool]:
         """``centre_screen``: the best standing trial (not ``void`` (n,) bool) whose θ the fall
@@ -1458,7 +1492,8 @@ class Transfer(TwoSpaceCritic):
         sm = self.source_model()
         cost_m, fall_m = self.models()
         void = np.isin(np.arange(self.n_told), st["void"])
-        centre = self._centre(void)
+        fragile = self._fragile()
+        centre = self._centre(void | fragile)
         centre_screened = False
         if self.opts["centre_screen"] and fall_m is not None:
             centre, centre_screened = self._screened_centre(centre, void, fall_m)
@@ -1487,7 +1522,8 @@ class Transfer(TwoSpaceCritic):
             return np.tile(centre, (n, 1)), np.full(n, 4 * g + FULL, dtype=np.int64)
         ctx = _AskContext(generation=g, state=st, design=design, agree=agree,
                           agree_sd=agree_sd, w_lat=w_lat, latent_off=latent_off, cost_m=cost_m,
-                          centre_screened=centre_screened)
+                          centre_screened=centre_screened,
+                          fragile=int((fragile & ~self._fell).sum()))
         if design and len(E) >= 1 and self.opts["design_screen"]:
             ok_e = self._fall_prob(E, fall_m) <= float(self.opts["max_fall_prob"])
             if ok_e.sum() < n:          # the screen rejects the elites: search instead
@@ -1814,6 +1850,7 @@ class Transfer(TwoSpaceCritic):
                if self.opts["explore_adapt"] else {}),
             **({"design_screened": True} if ctx.design_screened else {}),
             **({"centre_screened": True} if ctx.centre_screened else {}),
+            **({"centre_fragile": ctx.fragile} if self.opts["centre_falls"] else {}),
             **({"duplicates_dropped": ctx.duplicates} if ctx.duplicates else {}),
             **({"repeats_avoided": ctx.repeats} if ctx.repeats else {}),
             **({"safe_fallback": True} if ctx.safe_fallback else {}),
