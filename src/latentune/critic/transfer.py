@@ -1752,7 +1752,8 @@ class Transfer(TwoSpaceCritic):
     def _fall_outcome(self, C: np.ndarray, fall_m: TargetModel, v: np.ndarray
                       ) -> tuple[np.ndarray, float]:
         """The fall model's posterior mean probability (m,) at θ ``C`` (m, d), clipped to [0, 1]
-        (with ``fall_calibrate``, the calibrated screen's probability :meth:`_fall_prob`), and the cost rank score of a fall (``fall_cost``): the mean of the told falls' scores in
+        (with ``fall_calibrate``, the calibrated screen's probability :meth:`_fall_prob`), and
+        the cost rank score of a fall (``fall_cost``): the mean of the told falls' scores in
         ``v`` (n_told,) (the cost model's rank scores of the told trials), or, before any fall,
         the score of the last of ``n_told + 1`` ranks."""
         from scipy.special import ndtri
