@@ -792,8 +792,6 @@ def decisions(root: Path, method: str = "transfer", seeds: list[int] | None = No
     when given), per rung and seed, with the medians over the seeds. Runs without decision
     records (restored from traces: :func:`restore_traces`) are left out and counted in
     ``without_records``."""
-    from benchmarks.transfer_falls import STEP_EDGES
-
     out: dict[str, Any] = {"method": method, "targets": {}, "without_records": 0}
     for f in sorted((root / "targets").glob(RESULT_GLOB)):
         r = json.loads(f.read_text())
@@ -813,15 +811,23 @@ def decisions(root: Path, method: str = "transfer", seeds: list[int] | None = No
         t["median"]["falls_by_pool"] = {p: float(np.median([x["falls_by_pool"].get(p, 0)
                                                             for x in rows])) for p in pools}
         t["by_kind"] = _summed([x.get("by_kind", {}) for x in rows])
-        t["region_steps"] = np.sum([x["region_steps"] for x in rows if "region_steps" in x]
-                                   or [[[0, 0]] * (len(STEP_EDGES) - 1)], axis=0).tolist()
-    out["region_steps"] = np.sum([t["region_steps"] for t in out["targets"].values()]
-                                 or [[[0, 0]] * (len(STEP_EDGES) - 1)], axis=0).tolist()
+        t["region_steps"] = _steps_summed([x["region_steps"] for x in rows
+                                           if "region_steps" in x])
+    out["region_steps"] = _steps_summed([t["region_steps"] for t in out["targets"].values()])
     out["by_kind"] = _summed([t["by_kind"] for t in out["targets"].values()])
     out["by_screen"] = {k: _summed([x.get("by_screen", {}).get(k, {}) for t in
                                     out["targets"].values() for x in t["seeds"].values()])
                         for k in out["by_kind"]}
     return out
+
+
+def _steps_summed(counts: list[list[list[int]]]) -> list[list[int]]:
+    """The sum of ``region_steps`` tables (each one ``[asks, falls]`` per band of
+    :data:`benchmarks.transfer_falls.STEP_EDGES`); zeros for none."""
+    from benchmarks.transfer_falls import STEP_EDGES
+
+    zero = np.zeros((len(STEP_EDGES) - 1, 2), dtype=int)
+    return (zero + np.sum(counts, axis=0, dtype=int) if counts else zero).tolist()
 
 
 def _summed(counts: list[dict[str, list[int]]]) -> dict[str, list[int]]:

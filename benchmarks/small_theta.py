@@ -69,14 +69,13 @@ def widths_rule(rule: str) -> Iterator[None]:
         vae.hidden_widths = kept                                         # type: ignore
 
 
-def phase3_options(options: str) -> dict[str, Any]:
-    """The arguments of ``Study.phase3`` for the transfer ``options`` ``"option=value[:...]"``:
+def phase3_options(options: dict[str, Any]) -> dict[str, Any]:
+    """The arguments of ``Study.phase3`` for the transfer ``options`` (``--options`` parsed):
     ``max_fall_prob`` (its own argument) and ``transfer_options`` (the others); checked
     (UsageError naming the option)."""
-    from benchmarks.transfer import parse_variant
     from latentune.pipeline import manifest as mf
 
-    opts = parse_variant(options)
+    opts = dict(options)
     mfp = mf.fall_options(opts.pop("max_fall_prob", None), None)["max_fall_prob"]
     return {"max_fall_prob": mfp, **mf.transfer_option(opts, "transfer", mfp)}
 
@@ -108,9 +107,12 @@ def source(root: Path, rooms: int, seed: int, phase1: int, rule: str) -> tuple[P
 
 
 def target_run(root: Path, rooms: int, seed: int, gap: float, rule: str, src: Path,
-               budget: int, options: str = "") -> dict[str, Any]:
-    """The default phase 3 of --budget trials on the target (with the transfer ``options``,
-    ``"option=value[:...]"``, when given: :func:`phase3_options`); its costs and failed flags."""
+               budget: int, options: str = "", phase3_kw: dict[str, Any] | None = None
+               ) -> dict[str, Any]:
+    """The default phase 3 of --budget trials on the target with the arguments ``phase3_kw``
+    (:func:`phase3_options` of the transfer options; none: the defaults), stored in the
+    directory ``options`` (their ``"option=value[:...]"`` text) names; its costs and failed
+    flags."""
     import latentune as lt
     from examples.thermal_zones import make_system
     from latentune.constants import Phase
@@ -118,7 +120,7 @@ def target_run(root: Path, rooms: int, seed: int, gap: float, rule: str, src: Pa
     d = root / f"r{rooms}" / f"seed{seed}" / f"gap{gap:g}" / (f"{rule}+{options}" if options
                                                                else rule)
     with lt.Study(d, seed=seed) as st:
-        st.phase3(make_system(gap, rooms=rooms), budget, latent=src, **phase3_options(options))
+        st.phase3(make_system(gap, rooms=rooms), budget, latent=src, **(phase3_kw or {}))
         rows = st.store.rows(Phase.PHASE3)
     costs = [float(r.cost) for r in rows][:budget]
     failed = [bool(r.fell) for r in rows][:budget]
@@ -230,7 +232,7 @@ def main(argv: list[str] | None = None) -> int:
 
     options = parse_variant(a.options)
     try:            # the critic's own checks, before any trial
-        phase3_options(a.options)
+        phase3_kw = phase3_options(options)
     except UsageError as e:
         print(f"small_theta: error: --options: {e}", file=sys.stderr)
         return 2
@@ -260,7 +262,7 @@ def main(argv: list[str] | None = None) -> int:
             for g in a.gaps:
                 for rule in a.rules:
                     r = target_run(a.root, rooms, s, g, rule, srcs[rule][0], a.budget,
-                                   a.options)
+                                   a.options, phase3_kw)
                     runs.append({"rooms": rooms, "seed": s, "gap": g, "rule": rule,
                                  "source": srcs[rule][1], **r})
                     print(f"rooms {rooms} seed {s} gap {g:g} {rule}: best {r['best']:.4f}, "

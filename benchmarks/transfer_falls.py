@@ -563,10 +563,14 @@ def region_steps(trace: dict[str, Any]) -> np.ndarray:
         if d.get("design") or d.get("explore") or len(d.get("pools", [])) != 1 or not ok.any():
             continue
         centre = X[:i][ok][np.argmin(c[:i][ok])]
-        step = float(np.abs(X[i] - centre).max())
-        b = min(int(np.searchsorted(STEP_EDGES, step, side="right")) - 1, len(STEP_EDGES) - 2)
-        out[b] += (1, int(fl[i]))
+        out[band(STEP_EDGES, float(np.abs(X[i] - centre).max()))] += (1, int(fl[i]))
     return out
+
+
+def band(edges: tuple[float, ...], v: float) -> int:
+    """The index of the band of ``edges`` (closed below) holding ``v``; the last band holds its
+    upper edge and everything above it."""
+    return min(int(np.searchsorted(edges, v, side="right")) - 1, len(edges) - 2)
 
 
 def screen_bands(trace: dict[str, Any]) -> np.ndarray:
@@ -582,8 +586,7 @@ def screen_bands(trace: dict[str, Any]) -> np.ndarray:
         p = d.get("max_fall_prob_asked")
         if p is None or len(d.get("pools", [])) != 1:
             continue
-        b = min(int(np.searchsorted(PF_EDGES, p, side="right")) - 1, len(PF_EDGES) - 2)
-        out[b] += (1, int(fl[i]))
+        out[band(PF_EDGES, p)] += (1, int(fl[i]))
     return out
 
 

@@ -1461,9 +1461,14 @@ class Transfer(TwoSpaceCritic):
             ls, s2 = fit_residual_kernel(self._X, v, cost.hX[:, 0], (1.0, 0.0), cost.ls,
                                          cost.sigma_r2)
             cost = TargetModel(self._X, v, sm.cost, ls, sigma_r2=s2, tilts=tilts)
-        fall = TargetModel(self._X, self._fell.astype(float), sm.fall_prob,
+        return cost, self._fall_model(self.n_told)
+
+    def _fall_model(self, t: int) -> TargetModel:
+        """The target fall model on the first ``t`` ≥ 1 told trials: the transfer construction on
+        their fall flags with ``h = (p_s(θ), 1)`` and the source's fall lengthscales."""
+        sm = self.source_model()
+        return TargetModel(self._X[:t], self._fell[:t].astype(float), sm.fall_prob,
                            sm.fall_lengthscales, prior_mean=(1.0, 0.0))
-        return cost, fall
 
     def _ard_active(self) -> bool:
         """True when the transfer model's residual lengthscales are fitted on the target
@@ -1523,7 +1528,7 @@ class Transfer(TwoSpaceCritic):
         ctx = _AskContext(generation=g, state=st, design=design, agree=agree,
                           agree_sd=agree_sd, w_lat=w_lat, latent_off=latent_off, cost_m=cost_m,
                           centre_screened=centre_screened,
-                          fragile=int((fragile & ~self._fell).sum()))
+                          fragile=int(fragile.sum()))
         if design and len(E) >= 1 and self.opts["design_screen"]:
             ok_e = self._fall_prob(E, fall_m) <= float(self.opts["max_fall_prob"])
             if ok_e.sum() < n:          # the screen rejects the elites: search instead
@@ -1611,7 +1616,7 @@ class Transfer(TwoSpaceCritic):
             var = cost_m.variance(C[cand])
         p_fall = s_fall = None
         if cost_m is not None and fall_m is not None and self.opts["fall_cost"]:
-            p_fall, s_fall = self._fall_outcome(C[cand], fall_m, cost_m.v)
+            p_fall, s_fall = self._fall_outcome(C[cand], fall_m, cost_m.v, cands.pf[cand])
         if cost_m is not None and len(cand) > _JOINT:
             # joint samples on the candidates a sample could pick: the lowest confidence bounds
             lcb = mu - 2.0 * np.sqrt(var)
@@ -1749,16 +1754,17 @@ class Transfer(TwoSpaceCritic):
             pool=np.concatenate([cands.pool, np.full(len(XS), FULL, dtype=np.int64)]),
             pf=np.concatenate([cands.pf, self._fall_prob(XS, fall_m)]))
 
-    def _fall_outcome(self, C: np.ndarray, fall_m: TargetModel, v: np.ndarray
+    def _fall_outcome(self, C: np.ndarray, fall_m: TargetModel, v: np.ndarray, pf: np.ndarray
                       ) -> tuple[np.ndarray, float]:
         """The fall model's posterior mean probability (m,) at θ ``C`` (m, d), clipped to [0, 1]
-        (with ``fall_calibrate``, the calibrated screen's probability :meth:`_fall_prob`), and
+        (with ``fall_calibrate``, ``pf`` (m,): the calibrated screen's probability
+        :meth:`_fall_prob` at ``C``, as the screen computed it), and
         the cost rank score of a fall (``fall_cost``): the mean of the told falls' scores in
         ``v`` (n_told,) (the cost model's rank scores of the told trials), or, before any fall,
         the score of the last of ``n_told + 1`` ranks."""
         from scipy.special import ndtri
 
-        p = self._fall_prob(C, fall_m) if self.opts["fall_calibrate"] else \
+        p = pf if self.opts["fall_calibrate"] else \
             np.clip(fall_m.mean_cov(C, False)[0], 0.0, 1.0)
         if self._fell.any():
             s = float(v[self._fell].mean())
@@ -1796,11 +1802,8 @@ class Transfer(TwoSpaceCritic):
         told before it: the fall model fitted on rows ``0 … t−1`` (the source's fall model for
         row 0) scores row ``t``. Out-of-sample by construction; a function of the told history
         (kept as the history grows, which tells only append to)."""
-        sm = self.source_model()
         for t in range(len(self._preq), self.n_told):
-            fall_m = None if t == 0 else TargetModel(
-                self._X[:t], self._fell[:t].astype(float), sm.fall_prob,
-                sm.fall_lengthscales, prior_mean=(1.0, 0.0))
+            fall_m = None if t == 0 else self._fall_model(t)
             self._preq = np.append(self._preq, self._fall_score(self._X[t:t + 1], fall_m))
         return self._preq[:self.n_told]
 
