@@ -29,6 +29,12 @@ Systems (``SYSTEMS``; the model is gap 0, each target is the same controller on 
   round(2 g)-step sensor delay (gaps 0.5, 1, 2: at 2, 90 % of the θ that hold the comfort band
   on the model leave it). Added in session 30, after every option was chosen: a second
   held-out system, of another kind (first-order heat flow, integral control, saturation).
+* ``quadrotor`` — :mod:`examples.quadrotor_mpc`, 20 weights of a constrained linear MPC (DAQP)
+  flying a planar quadrotor through set-point steps; gap g: mass × (1 + 0.15 g), inertia ×
+  (1 + 0.5 g), motor limits × (1 − 0.1 g), drag, side wind and a round(g)-step actuation delay
+  (gaps 0.5, 1, 2.5: at 2.5, 72 % of the random θ that fly the model fall). Added in session
+  35, after every option was chosen: a third held-out system (an MPC, an underactuated
+  nonlinear plant, input saturation).
 
 For every (system, seed) one source run: ``Study(ROOT/<system>/seed<s>/source, seed=s)``, phase 1
 (TuRBO-m, ``--source-evals`` trials on the model, batch 4) and the latent space. For every target
@@ -113,6 +119,12 @@ def _zones(g: float) -> Any:
     return make_system(gap=g)
 
 
+def _quadrotor(g: float) -> Any:
+    from examples.quadrotor_mpc import make_system
+
+    return make_system(gap=g)
+
+
 def _springs(g: float) -> Any:
     from examples.toy_plant import make_real_system
 
@@ -127,6 +139,8 @@ SYSTEMS: dict[str, dict[str, Any]] = {
     "springs": {"model": lambda: _springs(0.0), "target": _springs,
                 "gaps": (0.5, 1.0, 1.5, 2.0)},
     "zones": {"model": lambda: _zones(0.0), "target": _zones, "gaps": (0.5, 1.0, 2.0)},
+    "quadrotor": {"model": lambda: _quadrotor(0.0), "target": _quadrotor,
+                  "gaps": (0.5, 1.0, 2.5)},
 }
 
 
