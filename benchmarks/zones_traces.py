@@ -28,24 +28,29 @@ from benchmarks.common import Provenance, add_out_arg, finish
 from examples.thermal_zones import BAND, SETTLE, make_system
 
 
-def _run(root: Path, gap: float, seed: int, method: str) -> dict[str, Any]:
-    return json.loads((root / "zones" / f"gap{gap:g}" / f"seed{seed}" /
+def stored_run(root: Path, gap: float, seed: int, method: str, system: str = "zones"
+               ) -> dict[str, Any]:
+    """The ladder's trace ``ROOT/<system>/gap<g>/seed<s>/<method>.json``."""
+    return json.loads((root / system / f"gap{gap:g}" / f"seed{seed}" /
                        f"{method}.json").read_text())
 
 
-def _best(run: dict[str, Any]) -> int:
+def best_trial(run: dict[str, Any]) -> int:
+    """The index of a run's best trial that did not fail (its lowest cost; the lowest cost when
+    every trial failed)."""
     c = np.asarray(run["costs"], float)
     ok = ~np.asarray(run["failed"], bool)
     return int(np.argmin(np.where(ok, c, np.inf))) if ok.any() else int(np.argmin(c))
 
 
-def median_seed(root: Path, gap: float, method: str = "transfer") -> int:
+def median_seed(root: Path, gap: float, method: str = "transfer", system: str = "zones") -> int:
     """The seed whose ``method`` best is the (lower) median over the seeds stored."""
-    seeds = sorted(int(p.name[4:]) for p in (root / "zones" / f"gap{gap:g}").glob("seed*")
+    seeds = sorted(int(p.name[4:]) for p in (root / system / f"gap{gap:g}").glob("seed*")
                    if (p / f"{method}.json").is_file())
     if not seeds:
-        raise SystemExit(f"zones_traces: error: no {method} run under {root}/zones/gap{gap:g}")
-    best = [min(_run(root, gap, s, method)["costs"]) for s in seeds]
+        raise SystemExit(f"{system} traces: error: no {method} run under "
+                         f"{root}/{system}/gap{gap:g}")
+    best = [min(stored_run(root, gap, s, method, system)["costs"]) for s in seeds]
     order = np.argsort(best, kind="stable")
     return seeds[int(order[(len(seeds) - 1) // 2])]
 
@@ -71,8 +76,8 @@ def main(argv: list[str] | None = None) -> int:
                              sharex=True, sharey="row", squeeze=False)
     rows = []
     for j, m in enumerate(a.methods):
-        run = _run(a.root, a.gap, seed, m)
-        i = _best(run)
+        run = stored_run(a.root, a.gap, seed, m)
+        i = best_trial(run)
         out, tr = system.simulate(np.asarray(run["thetas"][i], float))
         if not np.isclose(out.cost, run["costs"][i], rtol=1e-9):
             print(f"zones_traces: error: {m} trial {i} re-runs to {out.cost}, stored "

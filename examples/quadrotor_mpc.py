@@ -27,9 +27,10 @@ still assumes the model: it under-feeds the hover thrust (its integral weights r
 and weights that fly the model crisply oscillate on the heavier, delayed vehicle.
 
 Cost: the RMS position error (m) over the 300 steps plus 0.05 · the RMS input (the normalized
-u). A trial *fails* when the pitch leaves ±1 rad, the vehicle is below 0.05 m (the ground), 3 m
-from its set-point, a value is non-finite, or the QP has no solution, at step k; its cost is then
-``100 · (2 − k/300)`` (the built-in tasks' C1 convention: failing later is better).
+u as commanded, after the delay). A trial *fails* when the pitch leaves ±1 rad, the vehicle is
+below 0.05 m (the ground), 3 m from its set-point, a value is non-finite, or the QP has no
+solution, at step k; its cost is then ``100 · (2 − k/300)`` (the built-in tasks' C1
+convention: failing later is better).
 
     --system examples.quadrotor_mpc:make_system [--system-arg gap=1]
 
@@ -165,7 +166,8 @@ class QuadrotorSystem:
     def simulate(self, theta: np.ndarray) -> tuple[lt.Outcome, dict[str, np.ndarray]]:
         """The trial of the unit-box θ (20,) and its trace up to the end or the fall:
         ``time_s`` (k,), ``position`` (k, 2) m, ``setpoint`` (k, 2) m, ``pitch`` (k,) rad,
-        ``input`` (k, 2) (the applied normalized thrust deviation and torque)."""
+        ``input`` (k, 2): the thrust deviation and torque the motors gave, normalized as u
+        (after the delay and the vehicle's limits; the cost counts the delayed command)."""
         w = self.space.to_physical(self.space.validate_unit(theta))
         mpc = QuadrotorMPC(w)
         s = np.array([START[0], START[1], 0.0, 0.0, 0.0, 0.0])   # x z φ vx vz ω
@@ -202,8 +204,9 @@ class QuadrotorSystem:
                 az = T / self.mass * math.cos(phi) - G - self.drag * vz
                 s = s + h * np.array([vx, vz, om, ax, az, tau / self.inertia])
             integ = integ + DT * (s[:2] - sp)
+            given = np.array([T / (MASS * G) - 1.0, tau / TAU_MAX])   # what the motors gave
             for key, v in (("time_s", t + DT), ("position", s[:2].copy()), ("setpoint", sp),
-                           ("pitch", s[2]), ("input", applied)):
+                           ("pitch", s[2]), ("input", given)):
                 trace[key].append(v)
             if not np.all(np.isfinite(s)):
                 return fall(k, "non-finite")

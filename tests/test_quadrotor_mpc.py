@@ -82,3 +82,26 @@ def test_bad_gap_is_refused(bad):
 def test_a_theta_outside_the_unit_box_is_refused():
     with pytest.raises(ValueError):
         make_system(0.0).evaluate(np.full(20, 1.5))
+
+
+def test_quadrotor_traces_re_runs_the_stored_best_and_draws_it(tmp_path):
+    """``benchmarks.quadrotor_traces`` on the committed ladder traces: each method's best θ
+    re-runs to its stored cost, the seed drawn is the default's median one, the figure is
+    written; a method with no stored run is one line and exit 2."""
+    import json
+    from pathlib import Path
+
+    from benchmarks.quadrotor_traces import DEFAULT, main
+
+    root = Path(__file__).resolve().parents[1] / "results" / "transfer" / "rebuilt" / "runs"
+    best = {s: min(json.loads((root / "quadrotor" / "gap2.5" / f"seed{s}" / f"{DEFAULT}.json")
+                              .read_text())["costs"]) for s in range(10)}
+    png, out = tmp_path / "q.png", tmp_path / "q.json"
+    assert main(["--root", str(root), "--methods", DEFAULT, "zero_shot",
+                 "--png", str(png), "--out", str(out)]) == 0
+    rows = json.loads(out.read_text())["rows"]
+    assert [r["method"] for r in rows] == [DEFAULT, "zero_shot"] and png.stat().st_size > 10000
+    assert best[rows[0]["seed"]] == sorted(best.values())[4]          # the lower median
+    assert rows[0]["cost"] == best[rows[0]["seed"]] and not rows[0]["failed"]
+    assert rows[1]["trial"] == 0 and rows[1]["failed"] == (rows[1]["cost"] >= 100)
+    assert main(["--root", str(tmp_path), "--seed", "0", "--png", str(png)]) == 2
