@@ -781,7 +781,7 @@ def test_explore_fall_prob_screens_the_explore_asks_at_their_own_bound(source, h
     record the bound 0.05, the other asks pick as before; with ``floor`` 0.1 no candidate passes
     0.05 and the explore asks fall back to ``max_fall_prob`` (0.3), as they record."""
     monkeypatch.setattr(Transfer, "_fall_prob",
-                        lambda self, C, fall_m: floor + 0.25 * np.asarray(C)[:, 0])
+                        lambda self, C, fall_m, bound=None: floor + 0.25 * np.asarray(C)[:, 0])
     out = [(5.0, False), (6.0, False), (4.0, False), (3.0, False), (2.9, False), (2.8, False),
            (2.7, False)]
     cr = _critic(source, hypers, n_design=0, explore_fall_prob=0.05)
@@ -814,7 +814,7 @@ def test_explore_skip_asks_the_region_when_the_screen_admits_no_explore_candidat
     the explore pool's least falling candidates. While every trial fell, the explore asks are
     made either way."""
     monkeypatch.setattr(Transfer, "_fall_prob",
-                        lambda self, C, fall_m: np.full(len(np.asarray(C)), 0.9))
+                        lambda self, C, fall_m, bound=None: np.full(len(np.asarray(C)), 0.9))
     out = [(5.0, False), (6.0, False), (4.0, False), (3.9, False), (3.8, False)]
     cr = _critic(source, hypers, n_design=0, explore_skip=skip)
     dec = _scripted(cr, out)

@@ -199,3 +199,39 @@ def test_centre_falls_leaves_a_centre_whose_neighbours_fell(source, hypers):
     assert both.decisions[-1]["centre_fragile"] == 2
     with pytest.raises(ValueError, match="centre_falls"):
         _critic(source, hypers, centre_falls=True)
+
+
+@pytest.mark.parametrize("on", [False, True])
+def test_fall_rank_keeps_the_least_risky_when_every_bound_is_over_one(source, hypers,
+                                                                        monkeypatch, on):
+    """Every candidate's fall bound over 1 (here ``2 + θ_0``; the target's trials all fell):
+    clipped, they tie at 1 and the screen keeps the first three generated; with ``fall_rank``
+    it keeps the three of lowest unclipped bound, asks among them and records the bound."""
+    cr = _critic(source, hypers, fall_rank=on)
+    for x in (0.35, 0.45, 0.4):
+        cr.tell(np.full((1, D), x), np.array([150.0]), fell=np.array([True]))
+    monkeypatch.setattr(cr, "_fall_bound", lambda C, fall_m: 2.0 + C[:, 0])
+    seen = {}
+    chosen = cr._chosen
+
+    def spy(cands, sel, ctx):
+        seen.update(cands=cands, sel=sel)
+        return chosen(cands, sel, ctx)
+
+    monkeypatch.setattr(cr, "_chosen", spy)
+    X = cr.ask(1)
+    c, sel = seen["cands"], seen["sel"]
+    assert len(c.X) > 3 and np.all(c.pf == 1.0)
+    kept = np.flatnonzero(c.ok)
+    lowest = np.sort(np.argsort(c.X[:, 0], kind="stable")[:3])
+    d = cr.decisions[-1]
+    assert d["max_fall_prob_asked"] == 1.0
+    if on:
+        np.testing.assert_array_equal(kept, lowest)
+        assert d["max_fall_bound_asked"] == pytest.approx(2.0 + X[0, 0])
+    else:
+        np.testing.assert_array_equal(kept, [0, 1, 2])     # the first generated
+        assert "max_fall_bound_asked" not in d
+    assert set(sel) <= set(kept)
+    with pytest.raises(ValueError, match="fall_rank"):
+        _critic(source, hypers, fall_rank="yes")
