@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.common import Provenance, add_out_arg, finish
-from benchmarks.zones_traces import best_trial, median_seed, stored_run
+from benchmarks.common import Provenance, add_out_arg
+from benchmarks.zones_traces import median_seed, rerun_best, stored_run, write_figure
 from examples.quadrotor_mpc import PITCH_MAX, make_system
 
 DEFAULT = "transfer+explore_pool=adaptive"
@@ -59,12 +59,10 @@ def main(argv: list[str] | None = None) -> int:
         except FileNotFoundError as e:
             print(f"quadrotor_traces: error: no stored run: {e.filename}", file=sys.stderr)
             return 2
-        i = best_trial(run)
-        out, tr = system.simulate(np.asarray(run["thetas"][i], float))
-        if not np.isclose(out.cost, run["costs"][i], rtol=1e-9):
-            print(f"quadrotor_traces: error: {m} trial {i} re-runs to {out.cost}, stored "
-                  f"{run['costs'][i]}", file=sys.stderr)
+        best = rerun_best(system, run, m, "quadrotor_traces")
+        if best is None:
             return 1
+        i, out, tr = best
         t = tr["time_s"]
         err = np.hypot(*(tr["position"] - tr["setpoint"]).T)
         last = t > t[-1] - 1.0
@@ -91,11 +89,8 @@ def main(argv: list[str] | None = None) -> int:
     axes[2, -1].legend(fontsize=7)
     fig.suptitle(f"Planar quadrotor MPC, gap {a.gap:g}, seed {seed}: the best θ of each method",
                  fontsize=10)
-    fig.tight_layout()
-    a.png.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(a.png, dpi=110)
-    finish(a.out, prov, {"gap": a.gap, "seed": seed, "png": str(a.png)}, rows,
-           title=f"quadrotor gap {a.gap:g}, seed {seed}")
+    write_figure(fig, a.png, a.out, prov, a.gap, seed, rows,
+                 f"quadrotor gap {a.gap:g}, seed {seed}")
     return 0
 
 

@@ -43,6 +43,29 @@ def best_trial(run: dict[str, Any]) -> int:
     return int(np.argmin(np.where(ok, c, np.inf))) if ok.any() else int(np.argmin(c))
 
 
+def rerun_best(system: Any, run: dict[str, Any], method: str, tool: str
+               ) -> tuple[int, Any, dict[str, np.ndarray]] | None:
+    """Re-run a stored run's best trial (:func:`best_trial`) on ``system`` (its ``simulate``):
+    ``(index, outcome, trace)``, or None after one line on stderr when the cost differs from
+    the stored one (the traces and the system no longer agree)."""
+    i = best_trial(run)
+    out, tr = system.simulate(np.asarray(run["thetas"][i], float))
+    if not np.isclose(out.cost, run["costs"][i], rtol=1e-9):
+        print(f"{tool}: error: {method} trial {i} re-runs to {out.cost}, stored "
+              f"{run['costs'][i]}", file=sys.stderr)
+        return None
+    return i, out, tr
+
+
+def write_figure(fig: Any, png: Path, out: Any, prov: Provenance, gap: float, seed: int,
+                 rows: list[dict[str, Any]], title: str) -> None:
+    """Lay out and save ``fig`` to ``png`` and write the rows (:func:`benchmarks.common.finish`)."""
+    fig.tight_layout()
+    png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(png, dpi=110)
+    finish(out, prov, {"gap": gap, "seed": seed, "png": str(png)}, rows, title=title)
+
+
 def median_seed(root: Path, gap: float, method: str = "transfer", system: str = "zones") -> int:
     """The seed whose ``method`` best is the (lower) median over the seeds stored."""
     seeds = sorted(int(p.name[4:]) for p in (root / system / f"gap{gap:g}").glob("seed*")
@@ -76,13 +99,10 @@ def main(argv: list[str] | None = None) -> int:
                              sharex=True, sharey="row", squeeze=False)
     rows = []
     for j, m in enumerate(a.methods):
-        run = stored_run(a.root, a.gap, seed, m)
-        i = best_trial(run)
-        out, tr = system.simulate(np.asarray(run["thetas"][i], float))
-        if not np.isclose(out.cost, run["costs"][i], rtol=1e-9):
-            print(f"zones_traces: error: {m} trial {i} re-runs to {out.cost}, stored "
-                  f"{run['costs'][i]}", file=sys.stderr)
+        best = rerun_best(system, stored_run(a.root, a.gap, seed, m), m, "zones_traces")
+        if best is None:
             return 1
+        i, out, tr = best
         h = tr["time_s"] / 3600.0
         late = tr["time_s"] > SETTLE
         dev = np.abs(tr["temperature"] - tr["setpoint"])
@@ -105,11 +125,7 @@ def main(argv: list[str] | None = None) -> int:
     axes[0, -1].legend(fontsize=7)
     fig.suptitle(f"Thermal zones, gap {a.gap:g}, seed {seed}: the best θ of each method",
                  fontsize=10)
-    fig.tight_layout()
-    a.png.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(a.png, dpi=110)
-    finish(a.out, prov, {"gap": a.gap, "seed": seed, "png": str(a.png)}, rows,
-           title=f"zones gap {a.gap:g}, seed {seed}")
+    write_figure(fig, a.png, a.out, prov, a.gap, seed, rows, f"zones gap {a.gap:g}, seed {seed}")
     return 0
 
 
