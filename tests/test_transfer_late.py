@@ -201,16 +201,30 @@ def test_centre_falls_leaves_a_centre_whose_neighbours_fell(source, hypers):
         _critic(source, hypers, centre_falls=True)
 
 
-@pytest.mark.parametrize("on", [False, True])
-def test_fall_rank_keeps_the_least_risky_when_every_bound_is_over_one(source, hypers,
-                                                                        monkeypatch, on):
-    """Every candidate's fall bound over 1 (here ``2 + θ_0``; the target's trials all fell):
-    clipped, they tie at 1 and the screen keeps the first three generated; with ``fall_rank``
-    it keeps the three of lowest unclipped bound, asks among them and records the bound."""
-    cr = _critic(source, hypers, fall_rank=on)
+class _Falling:
+    """A fall model whose every bound is over 1: mean ``1.5 − θ_0``, standard deviation
+    ``2 θ_0``, so the bound (``fall_kappa`` 1) is ``1.5 + θ_0``: lowest where θ_0 is small, the
+    mean lowest where it is large."""
+
+    def mean_cov(self, X, with_cov=True):
+        return 1.5 - np.asarray(X)[:, 0], None
+
+    def variance(self, X):
+        return (2.0 * np.asarray(X)[:, 0]) ** 2
+
+
+@pytest.mark.parametrize("how", ["clipped", "bound", "mean"])
+def test_fall_rank_orders_the_least_likely_to_fall_when_every_bound_is_over_one(
+        source, hypers, monkeypatch, how):
+    """Every candidate's fall bound over 1 (the target's trials all fell): clipped they tie at
+    1 and the screen keeps the first three generated; ``fall_rank="bound"`` keeps the three of
+    lowest unclipped bound, ``"mean"`` the three of lowest posterior mean; the ask is among those
+    kept, and the decision records the largest value of the order asked."""
+    cr = _critic(source, hypers, fall_rank=how)
     for x in (0.35, 0.45, 0.4):
         cr.tell(np.full((1, D), x), np.array([150.0]), fell=np.array([True]))
-    monkeypatch.setattr(cr, "_fall_bound", lambda C, fall_m: 2.0 + C[:, 0])
+    cost_m = cr.models()[0]
+    monkeypatch.setattr(cr, "models", lambda: (cost_m, _Falling()))
     seen = {}
     chosen = cr._chosen
 
@@ -223,15 +237,15 @@ def test_fall_rank_keeps_the_least_risky_when_every_bound_is_over_one(source, hy
     c, sel = seen["cands"], seen["sel"]
     assert len(c.X) > 3 and np.all(c.pf == 1.0)
     kept = np.flatnonzero(c.ok)
-    lowest = np.sort(np.argsort(c.X[:, 0], kind="stable")[:3])
     d = cr.decisions[-1]
-    assert d["max_fall_prob_asked"] == 1.0
-    if on:
-        np.testing.assert_array_equal(kept, lowest)
-        assert d["max_fall_bound_asked"] == pytest.approx(2.0 + X[0, 0])
-    else:
+    assert d["max_fall_prob_asked"] == 1.0 and set(sel) <= set(kept)
+    order = {"clipped": None, "bound": 1.5 + c.X[:, 0], "mean": 1.5 - c.X[:, 0]}[how]
+    if order is None:
         np.testing.assert_array_equal(kept, [0, 1, 2])     # the first generated
-        assert "max_fall_bound_asked" not in d
-    assert set(sel) <= set(kept)
+        assert "max_fall_rank_asked" not in d
+    else:
+        np.testing.assert_array_equal(kept, np.sort(np.argsort(order, kind="stable")[:3]))
+        assert d["max_fall_rank_asked"] == pytest.approx(
+            1.5 + X[0, 0] if how == "bound" else 1.5 - X[0, 0])
     with pytest.raises(ValueError, match="fall_rank"):
-        _critic(source, hypers, fall_rank="yes")
+        _critic(source, hypers, fall_rank=True)

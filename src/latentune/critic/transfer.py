@@ -201,13 +201,16 @@ targets its score hardly separates them: ``fall_calibrate``'s map), but the fall
 are observed: the search leaves a centre whose own small steps fall. The best value the
 success rule counts from is unchanged. Each decision records the number of fragile trials
 (``centre_fragile``).
-``fall_rank`` (default False): when fewer candidates than the batch pass the fall screen, the
-ones kept are the least likely to fall by the screen's bound before it is clipped to [0, 1]
-(:meth:`Transfer._fall_bound`), not by the clipped probability. Once the target's trials fell,
-the bound exceeds 1 on most candidates; clipped, they all tie at 1, and the candidates kept were
-the first generated (the source's best elites during the design, whose neighbours on the target
-just fell), not the model's least risky. Each decision records the largest unclipped bound it
-asked (``max_fall_bound_asked``).
+``fall_rank`` (default ``"clipped"``) orders the candidates "least likely to fall" is taken
+from when fewer than the batch pass the fall screen: ``"clipped"``, by the screen's probability
+(the bound clipped to [0, 1]); ``"bound"``, by the bound before clipping
+(:meth:`Transfer._fall_bound`); ``"mean"``, by the fall model's posterior mean before clipping.
+Once the target's trials fell, the bound exceeds 1 on most candidates; clipped, they all tie at
+1, and the candidates kept are the first generated (the source's best elites during the design,
+whose neighbours on the target just fell). Unclipped, the bound is lowest where the model is
+surest, next to the trials that fell, so ``"bound"`` asks there; the mean is lowest where the
+model expects a trial to stand. Each decision with ``"bound"`` or ``"mean"`` records the largest
+value of its order asked (``max_fall_rank_asked``).
 ``distinct`` (default True; False before session 30, so stored runs resume as they ran): an
 ask never picks a θ the target has run, nor one θ twice in a batch (equal to 1e-9): the choice
 passes over such candidates to the next best (each ask that did so records
@@ -323,7 +326,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "fall_source_sd": False, "face_snap": 0.0, "explore_void": False,
     "explore_fall_weight": 0.0, "centre_screen": False, "distinct": True,
     "explore_fall_prob": 0.0, "explore_skip": False, "fall_calibrate": False,
-    "fall_shrink": False, "centre_falls": 0, "fall_rank": False,
+    "fall_shrink": False, "centre_falls": 0, "fall_rank": "clipped",
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
@@ -341,7 +344,7 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "centre_screen": False, "distinct": False,
                                  "explore_fall_prob": 0.0, "explore_skip": False,
                                  "fall_calibrate": False, "fall_shrink": False,
-                                 "centre_falls": 0, "fall_rank": False}
+                                 "centre_falls": 0, "fall_rank": "clipped"}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -376,6 +379,10 @@ LINES_PICKS = ("uniform", "fall")
 """How ``explore_pool="lines"`` picks the coordinates it sets (``lines_pick``): uniformly, or with
 probability in proportion to the source fall model's lengthscale (the gains its falls depend on
 least are moved most often)."""
+FALL_RANKS = ("clipped", "bound", "mean")
+"""The order the least likely to fall are taken by when too few candidates pass the fall screen
+(``fall_rank``): the screen's clipped probability, its unclipped bound, or the fall model's
+unclipped posterior mean."""
 FULL_SHAPES = ("lengthscales", "cube")
 """The full pool's box (``full_shape``): sides in proportion to the lengthscales, or a cube."""
 EXPLORE_WHEN = ("always", "stalled")
@@ -900,21 +907,21 @@ class _AskContext:
 @dataclass
 class _Candidates:
     """One ask's candidates: θ (m, d), latent codes (m, k; NaN outside the latent pool), pool
-    (m,), the fall screen's probability (m,), its verdict (m,) and, with ``fall_rank``, the
-    screen's bound before it is clipped to [0, 1] (m,)."""
+    (m,), the fall screen's probability (m,), its verdict (m,) and, with ``fall_rank`` other
+    than ``"clipped"``, the unclipped order the least likely to fall are taken by (m,)."""
 
     X: np.ndarray
     Z: np.ndarray
     pool: np.ndarray
     pf: np.ndarray
     ok: np.ndarray | None = None
-    bound: np.ndarray | None = None
+    rank: np.ndarray | None = None
 
     @property
     def risk(self) -> np.ndarray:
-        """(m,) what "least likely to fall" orders by: the unclipped bound with ``fall_rank``,
-        else the screen's probability."""
-        return self.pf if self.bound is None else self.bound
+        """(m,) what "least likely to fall" orders by: ``rank`` when given (``fall_rank``), else
+        the screen's probability."""
+        return self.pf if self.rank is None else self.rank
 
 
 class Transfer(TwoSpaceCritic):
@@ -964,7 +971,7 @@ class Transfer(TwoSpaceCritic):
             raise ValueError(f"explore_every must be 0 (off) or an integer ≥ 2, got {k_ex!r}")
         for flag in ("stand_first", "explore_adapt", "fall_source_sd", "explore_void",
                      "centre_screen", "distinct", "explore_skip", "fall_calibrate",
-                     "fall_shrink", "fall_rank"):
+                     "fall_shrink"):
             if not isinstance(self.opts[flag], (bool, np.bool_)):
                 raise ValueError(f"{flag} must be true or false, got {self.opts[flag]!r}")
         k_ef = self.opts["explore_falls"]
@@ -974,6 +981,9 @@ class Transfer(TwoSpaceCritic):
         k_cf = self.opts["centre_falls"]
         if isinstance(k_cf, bool) or not isinstance(k_cf, (int, np.integer)) or k_cf < 0:
             raise ValueError(f"centre_falls must be an integer ≥ 0 (0: off), got {k_cf!r}")
+        if self.opts["fall_rank"] not in FALL_RANKS:
+            raise ValueError(f"fall_rank must be one of {FALL_RANKS}, "
+                             f"got {self.opts['fall_rank']!r}")
         if self.opts["explore_pool"] not in EXPLORE_POOLS:
             raise ValueError(f"explore_pool must be one of {EXPLORE_POOLS}, "
                              f"got {self.opts['explore_pool']!r}")
@@ -1602,12 +1612,11 @@ class Transfer(TwoSpaceCritic):
                 parts = self._distinct(parts, fresh, taken, st["L"], centre, rng)
                 ctx.duplicates, keys = int((~fresh).sum()), None
         C = np.vstack([p[0] for p in parts])
-        bound = self._fall_bound(C, fall_m)
+        bound, rank = self._fall_bound(C, fall_m, rank=True)
         cands = _Candidates(
             X=C, Z=np.vstack([p[1] for p in parts]) if self.k else np.empty((len(C), 0)),
             pool=np.concatenate([np.full(len(p[0]), p[2], dtype=np.int64) for p in parts]),
-            pf=self._fall_prob(C, fall_m, bound),
-            bound=bound if self.opts["fall_rank"] else None)
+            pf=self._fall_prob(C, fall_m, bound), rank=rank)
         # the fall screen (an explore ask first at its own, stricter bound)
         ok = cands.pf <= float(self.opts["max_fall_prob"])
         q_ex = float(self.opts["explore_fall_prob"])
@@ -1765,13 +1774,13 @@ class Transfer(TwoSpaceCritic):
         M, J = int(self.opts["n_candidates"]), 8
         XS = np.vstack([self._pool_full(max(1, M // J), L / 2.0 ** j, centre, rng)
                         for j in range(1, J + 1)])
-        bound = self._fall_bound(XS, fall_m)
+        bound, rank = self._fall_bound(XS, fall_m, rank=True)
         return _Candidates(
             X=np.vstack([cands.X, XS]),
             Z=np.vstack([cands.Z, np.full((len(XS), self.k), np.nan)]),
             pool=np.concatenate([cands.pool, np.full(len(XS), FULL, dtype=np.int64)]),
             pf=np.concatenate([cands.pf, self._fall_prob(XS, fall_m, bound)]),
-            bound=None if cands.bound is None else np.concatenate([cands.bound, bound]))
+            rank=None if cands.rank is None else np.concatenate([cands.rank, rank]))
 
     def _fall_outcome(self, C: np.ndarray, fall_m: TargetModel, v: np.ndarray, pf: np.ndarray
                       ) -> tuple[np.ndarray, float]:
@@ -1807,22 +1816,29 @@ class Transfer(TwoSpaceCritic):
         [0, 1]."""
         return np.clip(self._fall_bound(C, fall_m), 0, 1)
 
-    def _fall_bound(self, C: np.ndarray, fall_m: TargetModel | None) -> np.ndarray:
+    def _fall_bound(self, C: np.ndarray, fall_m: TargetModel | None, rank: bool = False
+                    ) -> Any:
         """The fall screen's bound (m,) at θ ``C`` (m, d), not clipped: the source's fall model
         before the target has data, else the target fall model's upper confidence bound (where
         the model is unsure, it screens). With ``fall_source_sd`` the source fall model's own
         standard deviation joins the bound (``fall_kappa`` times the root of the two variances
         summed; before the target has data, the source mean plus ``fall_kappa`` of its sd), so
         θ far from every source trial, where the source's fall model only knows its prior, are
-        screened as unknown rather than as the source's average. Once the target's trials
-        fell, the bound exceeds 1 on most θ; its order there is still the model's (the mean and
-        the uncertainty), which ``fall_rank`` keeps."""
+        screened as unknown rather than as the source's average. ``rank``: return ``(bound,
+        order)``, the order ``fall_rank`` takes the least likely to fall by (m,), or None with
+        ``"clipped"``; from the same evaluation of the models."""
         sm = self.source_model()
         kappa = float(self.opts["fall_kappa"])
         v_src = sm.fall_sd(C) ** 2 if self.opts["fall_source_sd"] else 0.0
         if fall_m is None:
-            return sm.fall_prob(C) + kappa * np.sqrt(v_src)
-        return fall_m.mean_cov(C, False)[0] + kappa * np.sqrt(fall_m.variance(C) + v_src)
+            mean, var = sm.fall_prob(C), v_src
+        else:
+            mean, var = fall_m.mean_cov(C, False)[0], fall_m.variance(C) + v_src
+        bound = mean + kappa * np.sqrt(var)
+        if not rank:
+            return bound
+        how = self.opts["fall_rank"]
+        return bound, (None if how == "clipped" else bound if how == "bound" else mean)
 
     def prequential_scores(self) -> np.ndarray:
         """(n_told,) the fall screen's score (:meth:`_fall_score`) of each told θ from the trials
@@ -1865,8 +1881,8 @@ class Transfer(TwoSpaceCritic):
             "length": ctx.state["L"], "restarts": ctx.state["restarts"],
             "n_candidates": int(len(cands.X)), "n_admissible": int(cands.ok.sum()),
             "max_fall_prob_asked": float(cands.pf[sel].max()),
-            **({"max_fall_bound_asked": float(cands.bound[sel].max())}
-               if cands.bound is not None else {}),
+            **({"max_fall_rank_asked": float(cands.rank[sel].max())}
+               if cands.rank is not None else {}),
             "pools": [POOL_NAMES[int(p)] for p in cands.pool[sel]],
             "explore": bool(ctx.explore),
             **({"explore_pool": ctx.state["explore_pool"]} if ctx.explore else {}),
