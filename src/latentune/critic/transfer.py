@@ -1612,7 +1612,7 @@ class Transfer(TwoSpaceCritic):
                 parts = self._distinct(parts, fresh, taken, st["L"], centre, rng)
                 ctx.duplicates, keys = int((~fresh).sum()), None
         C = np.vstack([p[0] for p in parts])
-        bound, rank = self._fall_bound(C, fall_m, rank=True)
+        bound, rank = self._fall_bound(C, fall_m)
         cands = _Candidates(
             X=C, Z=np.vstack([p[1] for p in parts]) if self.k else np.empty((len(C), 0)),
             pool=np.concatenate([np.full(len(p[0]), p[2], dtype=np.int64) for p in parts]),
@@ -1774,7 +1774,7 @@ class Transfer(TwoSpaceCritic):
         M, J = int(self.opts["n_candidates"]), 8
         XS = np.vstack([self._pool_full(max(1, M // J), L / 2.0 ** j, centre, rng)
                         for j in range(1, J + 1)])
-        bound, rank = self._fall_bound(XS, fall_m, rank=True)
+        bound, rank = self._fall_bound(XS, fall_m)
         return _Candidates(
             X=np.vstack([cands.X, XS]),
             Z=np.vstack([cands.Z, np.full((len(XS), self.k), np.nan)]),
@@ -1804,7 +1804,7 @@ class Transfer(TwoSpaceCritic):
                    bound: np.ndarray | None = None) -> np.ndarray:
         """The fall screen's probability (m,) at θ ``C`` (m, d): :meth:`_fall_score`, mapped by
         the target's calibration (:meth:`calibration`) with ``fall_calibrate``. ``bound``: the
-        candidates' :meth:`_fall_bound` when already computed."""
+        candidates' bound (:meth:`_fall_bound`) when already computed."""
         p = self._fall_score(C, fall_m) if bound is None else np.clip(bound, 0, 1)
         if not self.opts["fall_calibrate"]:
             return p
@@ -1812,21 +1812,22 @@ class Transfer(TwoSpaceCritic):
         return p if ab is None else calibrated(p, ab)
 
     def _fall_score(self, C: np.ndarray, fall_m: TargetModel | None) -> np.ndarray:
-        """The fall screen's score (m,) at θ ``C`` (m, d): :meth:`_fall_bound` clipped to
-        [0, 1]."""
-        return np.clip(self._fall_bound(C, fall_m), 0, 1)
+        """The fall screen's score (m,) at θ ``C`` (m, d): the bound of :meth:`_fall_bound`
+        clipped to [0, 1]."""
+        return np.clip(self._fall_bound(C, fall_m)[0], 0, 1)
 
-    def _fall_bound(self, C: np.ndarray, fall_m: TargetModel | None, rank: bool = False
-                    ) -> Any:
-        """The fall screen's bound (m,) at θ ``C`` (m, d), not clipped: the source's fall model
+    def _fall_bound(self, C: np.ndarray, fall_m: TargetModel | None
+                    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """``(bound, order)`` at θ ``C`` (m, d), from one evaluation of the models. ``bound``
+        (m,) is the fall screen's bound, not clipped: the source's fall model
         before the target has data, else the target fall model's upper confidence bound (where
         the model is unsure, it screens). With ``fall_source_sd`` the source fall model's own
         standard deviation joins the bound (``fall_kappa`` times the root of the two variances
         summed; before the target has data, the source mean plus ``fall_kappa`` of its sd), so
         θ far from every source trial, where the source's fall model only knows its prior, are
-        screened as unknown rather than as the source's average. ``rank``: return ``(bound,
-        order)``, the order ``fall_rank`` takes the least likely to fall by (m,), or None with
-        ``"clipped"``; from the same evaluation of the models."""
+        screened as unknown rather than as the source's average. ``order`` (m,) is what
+        ``fall_rank`` takes the least likely to fall by: None with ``"clipped"``, else the bound
+        or the posterior mean, unclipped."""
         sm = self.source_model()
         kappa = float(self.opts["fall_kappa"])
         v_src = sm.fall_sd(C) ** 2 if self.opts["fall_source_sd"] else 0.0
@@ -1835,8 +1836,6 @@ class Transfer(TwoSpaceCritic):
         else:
             mean, var = fall_m.mean_cov(C, False)[0], fall_m.variance(C) + v_src
         bound = mean + kappa * np.sqrt(var)
-        if not rank:
-            return bound
         how = self.opts["fall_rank"]
         return bound, (None if how == "clipped" else bound if how == "bound" else mean)
 
