@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common import Provenance, add_out_arg
-from benchmarks.zones_traces import median_seed, rerun_best, stored_run, write_figure
+from benchmarks.zones_traces import TracesError, median_seed, rerun_best, write_figure
 from examples.quadrotor_mpc import PITCH_MAX, make_system
 
 DEFAULT = "transfer+explore_pool=adaptive"
@@ -48,21 +48,17 @@ def main(argv: list[str] | None = None) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    seed = (median_seed(a.root, a.gap, a.default, "quadrotor") if a.seed is None else a.seed)
+    seed = median_seed(a.root, a.gap, a.default, "quadrotor") if a.seed is None else a.seed
     system = make_system(a.gap)
+    try:
+        reruns = [rerun_best(system, a.root, a.gap, seed, m, "quadrotor") for m in a.methods]
+    except TracesError as e:
+        print(f"quadrotor_traces: error: {e}", file=sys.stderr)
+        return e.code
     fig, axes = plt.subplots(3, len(a.methods), figsize=(4.2 * len(a.methods), 7.2),
                              sharex=True, sharey="row", squeeze=False)
     rows = []
-    for j, m in enumerate(a.methods):
-        try:
-            run = stored_run(a.root, a.gap, seed, m, "quadrotor")
-        except FileNotFoundError as e:
-            print(f"quadrotor_traces: error: no stored run: {e.filename}", file=sys.stderr)
-            return 2
-        best = rerun_best(system, run, m, "quadrotor_traces")
-        if best is None:
-            return 1
-        i, out, tr = best
+    for j, (m, (i, out, tr)) in enumerate(zip(a.methods, reruns)):
         t = tr["time_s"]
         err = np.hypot(*(tr["position"] - tr["setpoint"]).T)
         last = t > t[-1] - 1.0

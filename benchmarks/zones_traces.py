@@ -43,17 +43,29 @@ def best_trial(run: dict[str, Any]) -> int:
     return int(np.argmin(np.where(ok, c, np.inf))) if ok.any() else int(np.argmin(c))
 
 
-def rerun_best(system: Any, run: dict[str, Any], method: str, tool: str
-               ) -> tuple[int, Any, dict[str, np.ndarray]] | None:
-    """Re-run a stored run's best trial (:func:`best_trial`) on ``system`` (its ``simulate``):
-    ``(index, outcome, trace)``, or None after one line on stderr when the cost differs from
+class TracesError(Exception):
+    """A stored run that is missing (``code`` 2) or re-runs to another cost (``code`` 1)."""
+
+    def __init__(self, code: int, message: str) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+def rerun_best(system: Any, root: Path, gap: float, seed: int, method: str, name: str
+               ) -> tuple[int, Any, dict[str, np.ndarray]]:
+    """Re-run the best trial (:func:`best_trial`) of the stored run of ``method`` on the
+    ladder system ``name`` (:func:`stored_run`) on ``system`` (its ``simulate``): ``(index,
+    outcome, trace)``. :class:`TracesError` when the run is missing or its cost differs from
     the stored one (the traces and the system no longer agree)."""
+    try:
+        run = stored_run(root, gap, seed, method, name)
+    except FileNotFoundError as e:
+        raise TracesError(2, f"no stored run: {e.filename}") from None
     i = best_trial(run)
     out, tr = system.simulate(np.asarray(run["thetas"][i], float))
     if not np.isclose(out.cost, run["costs"][i], rtol=1e-9):
-        print(f"{tool}: error: {method} trial {i} re-runs to {out.cost}, stored "
-              f"{run['costs'][i]}", file=sys.stderr)
-        return None
+        raise TracesError(1, f"{method} trial {i} re-runs to {out.cost}, stored "
+                             f"{run['costs'][i]}")
     return i, out, tr
 
 
@@ -95,14 +107,15 @@ def main(argv: list[str] | None = None) -> int:
 
     seed = median_seed(a.root, a.gap) if a.seed is None else a.seed
     system = make_system(a.gap)
+    try:
+        reruns = [rerun_best(system, a.root, a.gap, seed, m, "zones") for m in a.methods]
+    except TracesError as e:
+        print(f"zones_traces: error: {e}", file=sys.stderr)
+        return e.code
     fig, axes = plt.subplots(2, len(a.methods), figsize=(4.2 * len(a.methods), 5.6),
                              sharex=True, sharey="row", squeeze=False)
     rows = []
-    for j, m in enumerate(a.methods):
-        best = rerun_best(system, stored_run(a.root, a.gap, seed, m), m, "zones_traces")
-        if best is None:
-            return 1
-        i, out, tr = best
+    for j, (m, (i, out, tr)) in enumerate(zip(a.methods, reruns)):
         h = tr["time_s"] / 3600.0
         late = tr["time_s"] > SETTLE
         dev = np.abs(tr["temperature"] - tr["setpoint"])

@@ -81,6 +81,7 @@ def test_zones_traces_re_runs_the_stored_best_and_draws_it(tmp_path):
     rows = json.loads(out.read_text())["rows"]
     assert [r["method"] for r in rows] == ["transfer", "zero_shot"] and png.stat().st_size > 10000
     assert rows[1]["failed"] and not rows[0]["failed"]       # the source's best leaves the band
+    assert main(["--root", str(tmp_path), "--seed", "0", "--png", str(png)]) == 2  # no run
 
 
 @pytest.mark.parametrize("rooms", [1, 2, 3])
