@@ -41,6 +41,7 @@ random θ that fly the model fall).
 """
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any
 
@@ -88,24 +89,37 @@ def model_matrices() -> tuple[np.ndarray, np.ndarray]:
     return A, B
 
 
+@functools.lru_cache(maxsize=None)
+def prediction(horizon: int = HORIZON) -> tuple[np.ndarray, np.ndarray]:
+    """(Phi (n·8, 8), Gam (n·8, n·2)) for an ``n``-step horizon: the stacked errors
+    ``e_1..e_n = Phi e_0 + Gam U`` of the model (:func:`model_matrices`); the same for every θ,
+    built once (read-only)."""
+    A, B = model_matrices()
+    n = int(horizon)
+    AmB = [np.linalg.matrix_power(A, m) @ B for m in range(n)]
+    Phi = np.zeros((n * NX, NX))
+    Gam = np.zeros((n * NX, n * NU))
+    Ak = np.eye(NX)
+    for k in range(n):
+        Ak = A @ Ak
+        Phi[k * NX:(k + 1) * NX] = Ak
+        for j in range(k + 1):
+            Gam[k * NX:(k + 1) * NX, j * NU:(j + 1) * NU] = AmB[k - j]
+    Phi.flags.writeable = Gam.flags.writeable = False
+    return Phi, Gam
+
+
 class QuadrotorMPC:
     """The MPC's QP for one θ (physical weights ``w``, (20,)): ``H`` and the maps of the state
     and the last input to the linear term are built once; :meth:`solve` returns the first
     input (2,) of the horizon, or None when DAQP finds no solution."""
 
     def __init__(self, w: np.ndarray, horizon: int = HORIZON) -> None:
-        A, B = model_matrices()
+        import daqp
+
         n = int(horizon)
         q, qf, r, rd = w[:NX], w[NX:2 * NX] * w[:NX], w[16:18], w[18:20]
-        Phi = np.zeros((n * NX, NX))                  # stacked e_1..e_n = Phi e_0 + Gam U
-        Gam = np.zeros((n * NX, n * NU))
-        Ak = np.eye(NX)
-        for k in range(n):
-            Ak = A @ Ak
-            Phi[k * NX:(k + 1) * NX] = Ak
-            for j in range(k + 1):
-                Gam[k * NX:(k + 1) * NX, j * NU:(j + 1) * NU] = (
-                    np.linalg.matrix_power(A, k - j) @ B)
+        Phi, Gam = prediction(n)
         Qbar = np.concatenate([np.tile(q, n - 1), qf])
         D = np.eye(n * NU) - np.eye(n * NU, k=-NU)    # Δu_k = u_k − u_{k−1}
         Rbar, Rdbar = np.tile(r, n), np.tile(rd, n)
@@ -119,12 +133,11 @@ class QuadrotorMPC:
         self.hi = np.tile([hi_T, 1.0], n)
         self.A0 = np.zeros((0, n * NU))
         self.sense = np.zeros(n * NU, dtype=np.int32)
+        self._daqp = daqp.solve
 
     def solve(self, e: np.ndarray, u_prev: np.ndarray) -> np.ndarray | None:
-        import daqp
-
         f = self.F @ e - self.Fu @ u_prev
-        x, _, flag, _ = daqp.solve(self.H, f, self.A0, self.hi, self.lo, self.sense)
+        x, _, flag, _ = self._daqp(self.H, f, self.A0, self.hi, self.lo, self.sense)
         if flag < 0 or not np.all(np.isfinite(x)):
             return None
         return np.asarray(x[:NU], float)
@@ -180,10 +193,12 @@ class QuadrotorSystem:
         trace: dict[str, list] = {"time_s": [], "position": [], "setpoint": [], "pitch": [],
                                   "input": []}
 
+        def done(out: lt.Outcome) -> tuple[lt.Outcome, dict[str, np.ndarray]]:
+            return out, {k_: np.asarray(v) for k_, v in trace.items()}
+
         def fall(k: int, why: str) -> tuple[lt.Outcome, dict[str, np.ndarray]]:
-            return (lt.Outcome(100.0 * (2 - k / self.steps), True, {"fall_step": k,
-                                                                    "fall": why}),
-                    {k_: np.asarray(v) for k_, v in trace.items()})
+            return done(lt.Outcome(100.0 * (2 - k / self.steps), True,
+                                   {"fall_step": k, "fall": why}))
 
         for k in range(self.steps):
             t = k * DT
@@ -219,9 +234,8 @@ class QuadrotorSystem:
             err2 += float(np.sum((s[:2] - sp) ** 2))
             u2 += float(np.sum(applied ** 2))
         rms_u = math.sqrt(u2 / self.steps)
-        return (lt.Outcome(math.sqrt(err2 / self.steps) + 0.05 * rms_u, False,
-                           {"rms_input": rms_u}),
-                {k_: np.asarray(v) for k_, v in trace.items()})
+        return done(lt.Outcome(math.sqrt(err2 / self.steps) + 0.05 * rms_u, False,
+                               {"rms_input": rms_u}))
 
 
 def make_system(gap: float = 0.0, steps: int = STEPS) -> QuadrotorSystem:
