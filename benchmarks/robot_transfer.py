@@ -716,11 +716,13 @@ asks in (the last band reaches 1; the default ``max_fall_prob`` is 0.3)."""
 def screen_band(p: float | None) -> str:
     """The band (:data:`SCREEN_BANDS`) of the screen's probability ``p``, e.g. ``"0.15–0.2"``;
     ``"?"`` without one."""
+    from benchmarks.transfer_falls import band
+
     if p is None or not math.isfinite(float(p)):
         return "?"
-    k = int(np.searchsorted(SCREEN_BANDS, float(p), side="right")) - 1
-    hi = SCREEN_BANDS[k + 1] if k + 1 < len(SCREEN_BANDS) else 1
-    return f"{SCREEN_BANDS[max(k, 0)]:g}–{hi:g}"
+    edges = (*SCREEN_BANDS, 1.0)
+    k = max(band(edges, float(p)), 0)
+    return f"{edges[k]:g}–{edges[k + 1]:g}"
 
 
 TRACE_DROP = ("thetas", "decisions")

@@ -835,3 +835,70 @@ def test_explore_skip_asks_the_region_when_the_screen_admits_no_explore_candidat
 def test_explore_skip_is_checked(source, hypers, bad):
     with pytest.raises(ValueError, match="explore_skip"):
         _critic(source, hypers, explore_skip=bad)
+
+
+def test_log_expected_improvement_is_the_log_of_ei_and_keeps_its_order_where_ei_underflows():
+    from scipy.stats import norm
+
+    from latentune.critic.transfer import log_expected_improvement
+
+    mu = np.array([-3.0, -1.0, 0.0, 0.5, 2.0, 5.0, 10.0])
+    var = np.array([1.0, 4.0, 0.25, 1.0, 1.0, 2.0, 1.0])
+    sd = np.sqrt(var)
+    u = (0.0 - mu) / sd
+    ei = sd * (u * norm.cdf(u) + norm.pdf(u))
+    assert np.allclose(log_expected_improvement(mu, var, 0.0), np.log(ei), rtol=1e-9)
+    far = log_expected_improvement(np.array([30.0, 40.0, 60.0]), np.ones(3), 0.0)
+    assert np.all(np.isfinite(far)) and far[0] > far[1] > far[2]     # EI itself is 0 there
+
+
+def test_explore_gp_asks_what_the_targets_own_gp_expects_most_improvement_from(source, hypers,
+                                                                             monkeypatch):
+    """``explore_gp``: a lines explore ask takes half the lines, Sobol points over the box and
+    the local maxima of a target-only GP's log EI, and asks the candidate of highest log EI
+    (with the screen admitting every candidate, the highest of them all); other asks and the
+    tags are as without it; a resumed run asks the same."""
+    from latentune.critic.transfer import log_expected_improvement
+
+    assert TRANSFER_DEFAULTS["explore_gp"] is False and ADDED_OPTIONS["explore_gp"] is False
+    seen: list[tuple[np.ndarray, object]] = []
+    orig = Transfer._pool_explore_gp
+
+    def spy(self, XI, gp, rng):
+        out = orig(self, XI, gp, rng)
+        seen.append((out, gp))
+        return out
+
+    monkeypatch.setattr(Transfer, "_pool_explore_gp", spy)
+    cr = _critic(source, hypers, explore_pool="lines", explore_gp=True, max_fall_prob=1.0)
+    _run(cr, 8)
+    ex = [d for d in cr.decisions if d["explore"]]
+    assert [d["generation"] for d in ex] == [3, 5, 7] and len(seen) == 3
+    assert all(d.get("explore_gp") for d in ex)
+    assert not any(d.get("explore_gp") for d in cr.decisions if not d["explore"])
+    for d, (C, gp) in zip(ex, seen):
+        g = d["generation"]
+        assert cr.tags[g] % 4 == GLOBAL
+        acq = log_expected_improvement(gp.mean_cov(C, False)[0], gp.variance(C),
+                                       float(gp.v.min()))
+        assert np.allclose(cr.X[g], C[int(np.argmax(acq))])
+        assert len(C) > int(cr.opts["n_candidates"])        # the local maxima joined
+    # the target GP, not the transfer model, chose: without it the lines ask elsewhere
+    plain = _critic(source, hypers, explore_pool="lines", max_fall_prob=1.0)
+    _run(plain, 8)
+    assert not np.allclose(plain.X[3], cr.X[3])
+    # resumed mid-run, it asks what the original would
+    a = _critic(source, hypers, explore_pool="lines", explore_gp=True)
+    _run(a, 4)
+    b = _critic(source, hypers)
+    b.tell(a.X, a.y, a.tags, fell=a.fell, z=a._Z)
+    b.load_state_dict(a.state_dict())
+    assert b.opts["explore_gp"] is True
+    _asks_alike(a, b, 2)                    # generations 4 and 5 (explore)
+    assert a.decisions[-1].get("explore_gp")
+
+
+@pytest.mark.parametrize("bad", [1, "yes", None])
+def test_explore_gp_is_checked(source, hypers, bad):
+    with pytest.raises(ValueError, match="explore_gp"):
+        _critic(source, hypers, explore_gp=bad)

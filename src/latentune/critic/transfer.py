@@ -186,6 +186,17 @@ with few outcomes the score stands). Every use of the probability (the screen at
 ``safe_fallback``, and ``fall_cost``'s probability of the fall outcome) takes the calibrated
 value, so a bound is a fall rate the target's record supports. Each decision records ``(a, b)``
 (``fall_calibration``).
+``explore_gp`` (default False): an explore ask of the lines (``"lines"``, or ``"adaptive"``
+resolved to them) is chosen by a GP on the target's trials alone (:class:`TargetGP`: no
+source prior), not by the transfer model, and over a wider pool: half the lines through the
+centre, as many Sobol points over the whole θ box, and the local maxima of that GP's log
+expected improvement (L-BFGS-B from the best of those, :func:`log_expected_improvement`), which
+end on the box's faces and corners. The fall screen applies as at every ask; among the
+candidates it admits, the batch is the highest log expected improvement. Where the gap moves
+the best θ to a region the source ranks as bad (the arm's gravity gain at its face), the
+source's prior keeps the transfer model's samples away from it; the target's own model, as
+Optuna's GPSampler fits it, goes there once the target's trials say so. The adaptive record
+counts these asks as the lines'. Each such decision records ``explore_gp``.
 ``fall_shrink`` (default False): the same rule for falls in the early phase. A trust-region
 generation (neither an explore ask nor a design ask of the elite pool) in which more than
 ``max_fall_prob`` of the trials fell halves the side ``L`` (once, at least ``length_min``) and
@@ -326,7 +337,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "fall_source_sd": False, "face_snap": 0.0, "explore_void": False,
     "explore_fall_weight": 0.0, "centre_screen": False, "distinct": True,
     "explore_fall_prob": 0.0, "explore_skip": False, "fall_calibrate": False,
-    "fall_shrink": False, "centre_falls": 0, "fall_rank": "clipped",
+    "fall_shrink": False, "centre_falls": 0, "fall_rank": "clipped", "explore_gp": False,
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
@@ -344,7 +355,8 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "centre_screen": False, "distinct": False,
                                  "explore_fall_prob": 0.0, "explore_skip": False,
                                  "fall_calibrate": False, "fall_shrink": False,
-                                 "centre_falls": 0, "fall_rank": "clipped"}
+                                 "centre_falls": 0, "fall_rank": "clipped",
+                                 "explore_gp": False}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -394,6 +406,8 @@ _EXPLORE_WAIT_MAX = 8
 _FRAGILE_STEP = 0.05
 """``centre_falls``: the largest coordinate difference (unit box) of a trial's neighbours."""
 _NOISE = 1e-2
+_GP_STARTS = 5
+"""``explore_gp``: the starts of the local search of the target GP's log expected improvement."""
 _JOINT = 256
 """Candidates (lowest confidence bounds) that share one joint Thompson sample."""
 _LS_BOUNDS = (0.02, 4.0)
@@ -479,6 +493,34 @@ def _chol(K: np.ndarray) -> np.ndarray:
         except np.linalg.LinAlgError:
             jitter *= 10.0
     raise np.linalg.LinAlgError("covariance matrix is not positive definite")
+
+
+def log_expected_improvement(mu: np.ndarray, var: np.ndarray, best: float) -> np.ndarray:
+    """log EI (m,) of a minimization at posterior means ``mu`` (m,) and variances ``var`` (m,)
+    below ``best``: ``log(σ h(u))``, ``u = (best − μ)/σ``, ``h(u) = φ(u) + u Φ(u)``, written
+    with ``erfcx`` so that it stays finite and ordered far below the best (where EI itself
+    underflows to 0), as BoTorch's ``LogExpectedImprovement`` does."""
+    from scipy.special import erfcx
+
+    sd = np.sqrt(np.maximum(np.asarray(var, dtype=float), 1e-12))
+    u = (float(best) - np.asarray(mu, dtype=float)) / sd
+    # h(u) = exp(−u²/2) (1/√(2π) + u/2 · erfcx(−u/√2))
+    inner = 1.0 / math.sqrt(2.0 * math.pi) + 0.5 * u * erfcx(-u / math.sqrt(2.0))
+    return np.log(sd) - 0.5 * u * u + np.log(np.maximum(inner, 1e-300))
+
+
+def _local_max(f: Callable[[np.ndarray], np.ndarray], X0: np.ndarray,
+               maxiter: int = 40) -> np.ndarray:
+    """Local maxima (k, d) of ``f`` ((m, d) → (m,)) in the unit box from the starts ``X0``
+    (k, d): L-BFGS-B on finite differences, each start's end clipped to the box."""
+    from scipy.optimize import minimize
+
+    out = []
+    for x0 in X0:
+        res = minimize(lambda x: -float(f(x[None, :])[0]), x0, method="L-BFGS-B",
+                       bounds=[(0.0, 1.0)] * len(x0), options={"maxiter": maxiter})
+        out.append(np.clip(res.x, 0.0, 1.0))
+    return np.asarray(out, dtype=float).reshape(-1, X0.shape[1])
 
 
 # --------------------------------------------------------------------------- source models
@@ -902,6 +944,7 @@ class _AskContext:
     explore_bound: float | None = None
     explore_skipped: bool = False
     fragile: int = 0
+    explore_gp: TargetGP | None = None
 
 
 @dataclass
@@ -971,7 +1014,7 @@ class Transfer(TwoSpaceCritic):
             raise ValueError(f"explore_every must be 0 (off) or an integer ≥ 2, got {k_ex!r}")
         for flag in ("stand_first", "explore_adapt", "fall_source_sd", "explore_void",
                      "centre_screen", "distinct", "explore_skip", "fall_calibrate",
-                     "fall_shrink"):
+                     "fall_shrink", "explore_gp"):
             if not isinstance(self.opts[flag], (bool, np.bool_)):
                 raise ValueError(f"{flag} must be true or false, got {self.opts[flag]!r}")
         k_ef = self.opts["explore_falls"]
@@ -1391,6 +1434,23 @@ class Transfer(TwoSpaceCritic):
         return SobolEngine(self.dim, scramble=True, seed=int(rng.integers(2 ** 31))).draw(
             m, dtype=torch.float64).numpy()
 
+    def _pool_explore_gp(self, XI: np.ndarray, gp: TargetGP, rng: np.random.Generator
+                         ) -> np.ndarray:
+        """``explore_gp``'s candidates (m', d) from the lines ``XI`` (m, d): half of the lines,
+        as many Sobol points over the whole θ box, and the local maxima of ``gp``'s log expected
+        improvement (:func:`_local_max`) from the :data:`_GP_STARTS` best of those, which end
+        on the box's faces and corners where the target's own model puts its best values (as
+        a gradient optimizer of GPSampler's or BoTorch's acquisition does)."""
+        m = len(XI)
+        XB = np.vstack([XI[:m - m // 2], self._pool_global(m // 2, rng)])
+        best = float(gp.v.min())
+
+        def acq(X: np.ndarray) -> np.ndarray:
+            return log_expected_improvement(gp.mean_cov(X, False)[0], gp.variance(X), best)
+
+        starts = XB[np.argsort(-acq(XB), kind="stable")[:_GP_STARTS]]
+        return np.vstack([XB, _local_max(acq, starts)])
+
     def _pool_lines(self, m: int, centre: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """``m`` θ (m, d) on axis lines and planes through ``centre`` (d,): each is the centre
         with one coordinate (half of them) or two (the other half) set uniformly over its whole
@@ -1567,8 +1627,11 @@ class Transfer(TwoSpaceCritic):
             ctx.explore = True
             where = st["explore_pool"]
             if where == "lines":
-                parts = [(self._pool_lines(M, centre, rng), np.full((M, self.k), np.nan),
-                          GLOBAL)]
+                XI = self._pool_lines(M, centre, rng)
+                if self.opts["explore_gp"] and cost_m is not None:
+                    ctx.explore_gp = TargetGP(self._X, cost_m.v, self._turbo_helper(), cost_m)
+                    XI = self._pool_explore_gp(XI, ctx.explore_gp, rng)
+                parts = [(XI, np.full((len(XI), self.k), np.nan), GLOBAL)]
             elif where == "latent_lines":
                 XL, UL = self._pool_latent(M // 2, st["L"], centre, rng, whole=True)
                 XI = self._pool_lines(M - len(XL), centre, rng)
@@ -1585,7 +1648,7 @@ class Transfer(TwoSpaceCritic):
                     (self._fall_prob(np.vstack([p[0] for p in parts]), fall_m)
                      <= float(self.opts["max_fall_prob"])).sum() < n:
                 # the screen admits too few of the explore pool: the trust region asks instead
-                ctx.explore, ctx.explore_skipped = False, True
+                ctx.explore, ctx.explore_skipped, ctx.explore_gp = False, True, None
                 XF = self._pool_full(M, st["L"], centre, rng, cost_m.ls if cost_m is not None
                                      and self._fitted_ls() else None)
                 parts = [(XF, np.full((len(XF), self.k), np.nan), FULL)]
@@ -1635,6 +1698,13 @@ class Transfer(TwoSpaceCritic):
             ok[np.argsort(cands.risk, kind="stable")[:max(n, min(len(C), 3 * n))]] = True
         cands.ok = ok
         cand = np.flatnonzero(ok)
+        if ctx.explore_gp is not None:      # the target's own GP chooses: highest log EI
+            gp = ctx.explore_gp
+            acq = log_expected_improvement(gp.mean_cov(C[cand], False)[0],
+                                           gp.variance(C[cand]), float(gp.v.min()))
+            order = cand[np.argsort(-acq, kind="stable")]
+            sel = order[:n] if keys is None else self._distinct_picks(order, keys, n, ctx)
+            return self._chosen(cands, np.resize(sel, n), ctx)
         ei = self.opts["acquisition"] == "ei" and cost_m is not None
         mu = var = None
         if cost_m is not None and (ei or len(cand) > _JOINT):
@@ -1890,6 +1960,7 @@ class Transfer(TwoSpaceCritic):
             **({"explore_braked": True} if ctx.state.get("explore_braked") else {}),
             **({"explore_bound": ctx.explore_bound} if ctx.explore_bound is not None else {}),
             **({"explore_skipped": True} if ctx.explore_skipped else {}),
+            **({"explore_gp": True} if ctx.explore_gp is not None else {}),
             **({"fall_calibration": [float(v) for v in self.calibration()]}
                if self.opts["fall_calibrate"] and self.n_told else {}),
             **({"explore_void": len(ctx.state["void"])}
