@@ -826,6 +826,12 @@ class TargetGP:
         V = np.linalg.solve(self.L, self.sigma_r2 * matern52(self.X, Xs, self.ls))
         return self.s ** 2 * np.maximum(self.sigma_r2 - (V * V).sum(0), 0.0)
 
+    def log_ei(self, Xs: np.ndarray) -> np.ndarray:
+        """log expected improvement (m,) at θ ``Xs`` (m, d) below the lowest told value
+        (:func:`log_expected_improvement`)."""
+        return log_expected_improvement(self.mean_cov(Xs, False)[0], self.variance(Xs),
+                                        float(self.v.min()))
+
 
 def fit_residual_kernel(X: np.ndarray, v: np.ndarray, h0: np.ndarray,
                         prior_mean: tuple[float, float], ls0: np.ndarray, sigma_r2_0: float
@@ -1443,13 +1449,8 @@ class Transfer(TwoSpaceCritic):
         a gradient optimizer of GPSampler's or BoTorch's acquisition does)."""
         m = len(XI)
         XB = np.vstack([XI[:m - m // 2], self._pool_global(m // 2, rng)])
-        best = float(gp.v.min())
-
-        def acq(X: np.ndarray) -> np.ndarray:
-            return log_expected_improvement(gp.mean_cov(X, False)[0], gp.variance(X), best)
-
-        starts = XB[np.argsort(-acq(XB), kind="stable")[:_GP_STARTS]]
-        return np.vstack([XB, _local_max(acq, starts)])
+        starts = XB[np.argsort(-gp.log_ei(XB), kind="stable")[:_GP_STARTS]]
+        return np.vstack([XB, _local_max(gp.log_ei, starts)])
 
     def _pool_lines(self, m: int, centre: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """``m`` θ (m, d) on axis lines and planes through ``centre`` (d,): each is the centre
@@ -1699,12 +1700,11 @@ class Transfer(TwoSpaceCritic):
         cands.ok = ok
         cand = np.flatnonzero(ok)
         if ctx.explore_gp is not None:      # the target's own GP chooses: highest log EI
-            gp = ctx.explore_gp
-            acq = log_expected_improvement(gp.mean_cov(C[cand], False)[0],
-                                           gp.variance(C[cand]), float(gp.v.min()))
-            order = cand[np.argsort(-acq, kind="stable")]
+            order = cand[np.argsort(-ctx.explore_gp.log_ei(C[cand]), kind="stable")]
             sel = order[:n] if keys is None else self._distinct_picks(order, keys, n, ctx)
-            return self._chosen(cands, np.resize(sel, n), ctx)
+            if len(sel) < n:                # every admissible θ is told: the best of them
+                sel = np.concatenate([sel, order[:n - len(sel)]])
+            return self._chosen(cands, sel, ctx)
         ei = self.opts["acquisition"] == "ei" and cost_m is not None
         mu = var = None
         if cost_m is not None and (ei or len(cand) > _JOINT):
