@@ -902,3 +902,33 @@ def test_explore_gp_asks_what_the_targets_own_gp_expects_most_improvement_from(s
 def test_explore_gp_is_checked(source, hypers, bad):
     with pytest.raises(ValueError, match="explore_gp"):
         _critic(source, hypers, explore_gp=bad)
+
+
+def test_explore_gp_with_fall_cost_asks_the_highest_constrained_ei(source, hypers, monkeypatch):
+    """``explore_gp`` with ``fall_cost``: the candidate of highest ``log EI + log(1 − p)``, ``p``
+    the target fall model's posterior mean (constrained EI), not the highest log EI."""
+    seen: list[tuple[np.ndarray, object]] = []
+    orig = Transfer._pool_explore_gp
+
+    def spy(self, XI, gp, rng):
+        out = orig(self, XI, gp, rng)
+        seen.append((out, gp))
+        return out
+
+    monkeypatch.setattr(Transfer, "_pool_explore_gp", spy)
+    cr = _critic(source, hypers, explore_pool="lines", explore_gp=True, fall_cost=True,
+                 max_fall_prob=1.0)
+    differs = 0
+    for _ in range(8):
+        x = cr.ask(1)
+        d = cr.decisions[-1]
+        if d.get("explore_gp"):
+            C, gp = seen[-1]
+            p = np.clip(cr.models()[1].mean_cov(C, False)[0], 0.0, 1.0)
+            ei = gp.log_ei(C)
+            assert np.allclose(x[0], C[int(np.argmax(ei + np.log(np.maximum(1 - p, 1e-300))))])
+            differs += int(not np.allclose(x[0], C[int(np.argmax(ei))]))
+        y, f = _bowl(x, np.full(D, 0.5), 0.6)
+        cr.tell(x, y, cr.last_tags, fell=f, z=cr.last_z)
+    assert len(seen) == 3
+    assert differs >= 1             # the fall model moved the choice

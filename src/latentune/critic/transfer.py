@@ -196,7 +196,9 @@ candidates it admits, the batch is the highest log expected improvement. Where t
 the best θ to a region the source ranks as bad (the arm's gravity gain at its face), the
 source's prior keeps the transfer model's samples away from it; the target's own model, as
 Optuna's GPSampler fits it, goes there once the target's trials say so. The adaptive record
-counts these asks as the lines'. Each such decision records ``explore_gp``.
+counts these asks as the lines'. With ``fall_cost`` the choice is the highest
+``log EI + log(1 − p)`` (constrained EI, ``p`` as ``fall_cost`` takes it). Each such decision
+records ``explore_gp``.
 ``fall_shrink`` (default False): the same rule for falls in the early phase. A trust-region
 generation (neither an explore ask nor a design ask of the elite pool) in which more than
 ``max_fall_prob`` of the trials fell halves the side ``L`` (once, at least ``length_min``) and
@@ -1700,7 +1702,11 @@ class Transfer(TwoSpaceCritic):
         cands.ok = ok
         cand = np.flatnonzero(ok)
         if ctx.explore_gp is not None:      # the target's own GP chooses: highest log EI
-            order = cand[np.argsort(-ctx.explore_gp.log_ei(C[cand]), kind="stable")]
+            acq = ctx.explore_gp.log_ei(C[cand])
+            if fall_m is not None and self.opts["fall_cost"]:     # EI · (1 − p), as below
+                p = self._fall_outcome(C[cand], fall_m, ctx.explore_gp.v, cands.pf[cand])[0]
+                acq = acq + np.log(np.maximum(1.0 - p, 1e-300))
+            order = cand[np.argsort(-acq, kind="stable")]
             sel = order[:n] if keys is None else self._distinct_picks(order, keys, n, ctx)
             if len(sel) < n:                # every admissible θ is told: the best of them
                 sel = np.concatenate([sel, order[:n - len(sel)]])
