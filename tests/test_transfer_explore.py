@@ -852,15 +852,8 @@ def test_log_expected_improvement_is_the_log_of_ei_and_keeps_its_order_where_ei_
     assert np.all(np.isfinite(far)) and far[0] > far[1] > far[2]     # EI itself is 0 there
 
 
-def test_explore_gp_asks_what_the_targets_own_gp_expects_most_improvement_from(source, hypers,
-                                                                             monkeypatch):
-    """``explore_gp``: a lines explore ask takes half the lines, Sobol points over the box and
-    the local maxima of a target-only GP's log EI, and asks the candidate of highest log EI
-    (with the screen admitting every candidate, the highest of them all); other asks and the
-    tags are as without it; a resumed run asks the same."""
-    from latentune.critic.transfer import log_expected_improvement
-
-    assert TRANSFER_DEFAULTS["explore_gp"] is False and ADDED_OPTIONS["explore_gp"] is False
+def _spy_explore_gp(monkeypatch) -> list[tuple[np.ndarray, object]]:
+    """The (candidates, target GP) of every ``explore_gp`` pool built from now on."""
     seen: list[tuple[np.ndarray, object]] = []
     orig = Transfer._pool_explore_gp
 
@@ -870,6 +863,19 @@ def test_explore_gp_asks_what_the_targets_own_gp_expects_most_improvement_from(s
         return out
 
     monkeypatch.setattr(Transfer, "_pool_explore_gp", spy)
+    return seen
+
+
+def test_explore_gp_asks_what_the_targets_own_gp_expects_most_improvement_from(source, hypers,
+                                                                             monkeypatch):
+    """``explore_gp``: a lines explore ask takes half the lines, Sobol points over the box and
+    the local maxima of a target-only GP's log EI, and asks the candidate of highest log EI
+    (with the screen admitting every candidate, the highest of them all); other asks and the
+    tags are as without it; a resumed run asks the same."""
+    from latentune.critic.transfer import log_expected_improvement
+
+    assert TRANSFER_DEFAULTS["explore_gp"] is False and ADDED_OPTIONS["explore_gp"] is False
+    seen = _spy_explore_gp(monkeypatch)
     cr = _critic(source, hypers, explore_pool="lines", explore_gp=True, max_fall_prob=1.0)
     _run(cr, 8)
     ex = [d for d in cr.decisions if d["explore"]]
@@ -907,15 +913,7 @@ def test_explore_gp_is_checked(source, hypers, bad):
 def test_explore_gp_with_fall_cost_asks_the_highest_constrained_ei(source, hypers, monkeypatch):
     """``explore_gp`` with ``fall_cost``: the candidate of highest ``log EI + log(1 − p)``, ``p``
     the target fall model's posterior mean (constrained EI), not the highest log EI."""
-    seen: list[tuple[np.ndarray, object]] = []
-    orig = Transfer._pool_explore_gp
-
-    def spy(self, XI, gp, rng):
-        out = orig(self, XI, gp, rng)
-        seen.append((out, gp))
-        return out
-
-    monkeypatch.setattr(Transfer, "_pool_explore_gp", spy)
+    seen = _spy_explore_gp(monkeypatch)
     cr = _critic(source, hypers, explore_pool="lines", explore_gp=True, fall_cost=True,
                  max_fall_prob=1.0)
     differs = 0
