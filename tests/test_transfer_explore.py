@@ -573,6 +573,45 @@ def test_explore_pool_adaptive_follows_each_pools_record(source, hypers):
     assert st["explore_pool"] == "latent"
 
 
+@pytest.mark.parametrize("mode, pool_at_9", [("count", "lines"), ("gain", "latent")])
+def test_explore_record_gain_weighs_a_record_by_its_drop(source, hypers, mode, pool_at_9):
+    """``explore_record="gain"``: the latent box's one record at generation 1 dropped the best
+    by 3.0, the lines' one at 7 by 0.01. Counted, the lines' record (1 of 1 ask) outscores the
+    latent box's (1 of 3) and takes the ask at 9; weighed by its drop over the mean drop
+    (1.505), the latent box's scores (3.0 / 1.505 + 1) / 5 against the lines'
+    (0.01 / 1.505 + 1) / 3, and keeps it. The replay rebuilds the drops from the costs."""
+    cr = _critic(source, hypers, explore_pool="adaptive", explore_gp=False, n_design=0,
+                 explore_record=mode)
+    cost = iter([5.0, 2.0, 2.5, 3.0, 2.5, 3.0, 2.4, 1.99, 2.4])
+    for _ in range(9):
+        x = cr.ask(1)
+        cr.tell(x, np.array([next(cost)]), cr.last_tags, fell=np.array([False]), z=cr.last_z)
+    assert [d["explore_pool"] for d in cr.decisions if d["explore"]] == \
+        ["latent", "latent", "latent", "lines"]
+    st = cr._replay_state()
+    assert st["explore_pool"] == pool_at_9
+    rec = st["explore_record"]
+    if mode == "gain":
+        assert rec["latent"][:3] == [3, 1, 0] and rec["lines"][:3] == [1, 1, 0]
+        assert rec["latent"][3:] == pytest.approx([3.0, 1]) and \
+            rec["lines"][3:] == pytest.approx([0.01, 1])
+    else:
+        assert rec == {"latent": [3, 1], "lines": [1, 1]}
+    cr.ask(1)
+    assert cr.decisions[-1]["explore_pool"] == pool_at_9
+
+
+def test_explore_record_gain_scores_records_of_equal_size_as_their_count(source, hypers):
+    gain = _critic(source, hypers, explore_record="gain")
+    count = _critic(source, hypers)
+    own, other = [4, 2, 1, 0.6, 2], [3, 1, 0, 0.3, 1]
+    assert gain._record_score(own, other) == pytest.approx(count._record_score(own, other))
+    assert gain._record_score([4, 2, 0, 0.02, 2], [3, 1, 0, 3.0, 1]) < \
+        count._record_score([4, 2, 0, 0.02, 2], [3, 1, 0, 3.0, 1])
+    with pytest.raises(ValueError, match="explore_record"):
+        _critic(source, hypers, explore_record="size")
+
+
 def test_the_default_explore_pool_is_adaptive_and_a_stored_latent_run_resumes_latent(source,
                                                                                     hypers):
     """The default's explore asks choose their pool by its record (``"adaptive"``); a run stored

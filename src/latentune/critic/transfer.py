@@ -145,6 +145,12 @@ generation in which a trial fell counts as ``w`` records less, so a pool scores
 ``(records − w · falls + 1) / (asks + 2)`` and ``explore_record`` holds
 ``[asks, records, falls]``; on a target where one pool's steps fall as often as they find
 records, the other pool takes the explore asks.
+``explore_record`` (default ``"count"``): ``"gain"`` weighs each record in that score by its
+size: a record that lowered a standing best counts as its drop in cost over the mean drop of
+both pools' such records (a first standing trial as 1), so records of equal size score as their
+count, and a pool that keeps making small records (one gain nudged) cannot hold the explore
+asks from one whose records were large (many gains moved together along the source's
+manifold). ``explore_record`` then holds ``[asks, records, falls, drop, records with a drop]``.
 ``explore_void`` (default False): a record an explore ask made holds only once the trust region
 around it stands. When more than ``max_fall_prob`` of the first region generation told after it
 (the next generation that is neither an explore nor a design ask) fell, the record is void: the
@@ -340,6 +346,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "explore_fall_weight": 0.0, "centre_screen": False, "distinct": True,
     "explore_fall_prob": 0.0, "explore_skip": False, "fall_calibrate": False,
     "fall_shrink": False, "centre_falls": 0, "fall_rank": "clipped", "explore_gp": False,
+    "explore_record": "count",
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
@@ -358,7 +365,7 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "explore_fall_prob": 0.0, "explore_skip": False,
                                  "fall_calibrate": False, "fall_shrink": False,
                                  "centre_falls": 0, "fall_rank": "clipped",
-                                 "explore_gp": False}
+                                 "explore_gp": False, "explore_record": "count"}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -367,6 +374,9 @@ LEGACY_OPTIONS: dict[str, Any] = {**TRANSFER_DEFAULTS, **ADDED_OPTIONS, "max_fal
                                   "fit_lengthscale": False, "acquisition": "thompson",
                                   "restart": False, "full_scales": 1, "global_share": 0.0}
 """The options of runs stored before :meth:`Transfer.state_dict` recorded them."""
+
+EXPLORE_RECORDS = ("count", "gain")
+"""How ``explore_pool="adaptive"`` weighs an explore record (``explore_record``)."""
 
 _SIGMA_R2_GRID = (0.01, 0.05, 0.2, 0.5, 1.0, 2.0)
 _LS_SCALES = (0.25, 0.5, 1.0, 2.0)
@@ -1035,6 +1045,9 @@ class Transfer(TwoSpaceCritic):
         if self.opts["fall_rank"] not in FALL_RANKS:
             raise ValueError(f"fall_rank must be one of {FALL_RANKS}, "
                              f"got {self.opts['fall_rank']!r}")
+        if self.opts["explore_record"] not in EXPLORE_RECORDS:
+            raise ValueError(f"explore_record must be one of {EXPLORE_RECORDS}, "
+                             f"got {self.opts['explore_record']!r}")
         if self.opts["explore_pool"] not in EXPLORE_POOLS:
             raise ValueError(f"explore_pool must be one of {EXPLORE_POOLS}, "
                              f"got {self.opts['explore_pool']!r}")
@@ -1161,9 +1174,11 @@ class Transfer(TwoSpaceCritic):
             int((tags[ok & own] // 4).min()) if (ok & own).any() else math.inf
         k_ex = int(self.opts["explore_every"])
         interval, next_due = k_ex, k_ex - 1         # the explore schedule (``explore_adapt``)
-        record = {LATENT: [0, 0, 0], GLOBAL: [0, 0, 0]}    # per pool: [asks, records, falls]
+        # per pool: [asks, records, falls, summed drop of the records from a standing best,
+        # how many records those are]
+        record = {LATENT: [0, 0, 0, 0.0, 0], GLOBAL: [0, 0, 0, 0.0, 0]}
         void = np.zeros(len(tags), dtype=bool)      # explore records the region fell around
-        pending: tuple[int, np.ndarray] | None = None   # (pool, trials) of the last record
+        pending: tuple[int, np.ndarray, float] | None = None   # (pool, trials, drop) of the last
         for g in gens:
             m = own & (tags // 4 == g)
             standing = g > first_ok
@@ -1174,11 +1189,14 @@ class Transfer(TwoSpaceCritic):
                 gb = float(y[m].min())
                 improved = self._improves(gb, best, g, y, ext, own, tags)
                 counts = record.get(int(tags[m][0] % 4))     # the pool this ask drew from
+                drop = best - gb if improved and math.isfinite(best) else 0.0
                 if counts is not None:
                     counts[0], counts[1] = counts[0] + 1, counts[1] + int(improved)
                     counts[2] += int(self._fell[m].any())
+                    counts[3] += drop
+                    counts[4] += int(drop > 0.0)
                 if improved and self.opts["explore_void"]:
-                    pending = (int(tags[m][0] % 4), m & (y < best))
+                    pending = (int(tags[m][0] % 4), m & (y < best), drop)
                 if improved:
                     interval = k_ex
                 else:                   # an explore ask that found nothing: wait twice as long
@@ -1195,6 +1213,8 @@ class Transfer(TwoSpaceCritic):
                     counts = record.get(pending[0])
                     if counts is not None:
                         counts[1] -= 1
+                        counts[3] -= pending[2]
+                        counts[4] -= int(pending[2] > 0.0)
                     kept = (ext | (own & (tags // 4 < g))) & ~void & np.isfinite(y)
                     best = float(y[kept].min()) if kept.any() else math.inf
                 pending = None
@@ -1229,7 +1249,8 @@ class Transfer(TwoSpaceCritic):
                 L, succ, fail = max(min(L, side / 2.0), l_min), 0, 0
         lat = own & (tags % 4 == LATENT) & ~explore
         pool = self._explore_pool(explore, bool(ok.any()), record)
-        n_rec = 3 if float(self.opts["explore_fall_weight"]) > 0 else 2
+        n_rec = 5 if self.opts["explore_record"] == "gain" else \
+            3 if float(self.opts["explore_fall_weight"]) > 0 else 2
         return {"L": L, "succ": succ, "fail": fail, "n_own": int(own.sum()), "restarts": restarts,
                 "explore_next": next_due, "void": np.flatnonzero(void).tolist(),
                 "explore_record": {"latent": record[LATENT][:n_rec],
@@ -1270,10 +1291,10 @@ class Transfer(TwoSpaceCritic):
         if where == "adaptive" and self.latent is None:
             where = "lines"             # no manifold to weigh the lines against
         elif where == "adaptive":
-            rec, w = record or {}, float(self.opts["explore_fall_weight"])
-            lat, lin = rec.get(LATENT, [0, 0, 0]), rec.get(GLOBAL, [0, 0, 0])
-            where = "lines" if (lin[1] - w * lin[2] + 1) / (lin[0] + 2) > \
-                (lat[1] - w * lat[2] + 1) / (lat[0] + 2) else "latent"
+            rec = record or {}
+            lat, lin = rec.get(LATENT, [0, 0, 0, 0.0, 0]), rec.get(GLOBAL, [0, 0, 0, 0.0, 0])
+            where = "lines" if self._record_score(lin, lat) > self._record_score(lat, lin) \
+                else "latent"
         if where in ("lines", "latent_lines") and not standing:
             where = "latent"            # no standing centre to draw lines through yet
         if where != "auto" or self.latent is None:
@@ -1285,6 +1306,23 @@ class Transfer(TwoSpaceCritic):
         if not self._explore_braked(explore & (pool == LATENT), standing):
             return "latent"
         return None
+
+    def _record_score(self, own: list, other: list) -> float:
+        """``explore_pool="adaptive"``'s score of a pool from its explore record ``own`` and the
+        other pool's ``other`` (each ``[asks, records, falls, drop, n_drop]``):
+        ``(records − w · falls + 1) / (asks + 2)`` (``w``: ``explore_fall_weight``). With
+        ``explore_record="gain"`` a record from a standing best counts as its drop in cost over
+        the mean drop of both pools' such records (a record from no standing best as 1), so
+        records of equal size score as their count and a pool whose records are small does
+        not keep the asks from one whose records are large."""
+        w = float(self.opts["explore_fall_weight"])
+        records = float(own[1])
+        n_drop = int(own[4]) + int(other[4])
+        if self.opts["explore_record"] == "gain" and n_drop > 0:
+            mean = (float(own[3]) + float(other[3])) / n_drop
+            if mean > 0.0:
+                records = float(own[1]) - int(own[4]) + float(own[3]) / mean
+        return (records - w * own[2] + 1) / (own[0] + 2)
 
     def _improves(self, gb: float, best: float, g: int, y: np.ndarray, ext: np.ndarray,
                   own: np.ndarray, tags: np.ndarray) -> bool:
