@@ -57,8 +57,9 @@ fall probability (its posterior mean plus ``fall_kappa`` standard deviations: an
 confidence bound, as in safe Bayesian optimization) exceeds ``max_fall_prob`` is skipped (if fewer than the batch remain, the least
 likely to fall are kept); among the rest each point of the batch is the argmin of one joint
 Thompson sample of the cost model. By default every second ask after the design is an explore
-ask (``explore_every`` below): its candidates are decoded codes of the whole latent box, and
-``L`` follows the other asks only.
+ask (``explore_every`` below): its candidates are decoded codes of the whole latent box or lines
+through the best θ, whichever pool has made more records on the target
+(``explore_pool="adaptive"``), and ``L`` follows the other asks only.
 
 Options that change the model and the choice (:data:`TRANSFER_DEFAULTS`): ``fit_lengthscale``
 lets the target cost model choose, with σ_r², a multiplier of the source's lengthscales
