@@ -198,8 +198,11 @@ resolved to them) is chosen by a GP on the target's trials alone (:class:`Target
 source prior), not by the transfer model, and over a wider pool: half the lines through the
 centre, as many Sobol points over the whole θ box, and the local maxima of that GP's log
 expected improvement (L-BFGS-B from the best of those, :func:`log_expected_improvement`), which
-end on the box's faces and corners. The fall screen applies as at every ask; among the
-candidates it admits, the batch is the highest log expected improvement. Where the gap moves
+end on the box's faces and corners. With ``"latent_lines"`` the lines' half of the pool is
+widened so, and the decoded codes of the whole latent box stay in it: the target's own GP
+weighs a step along the source's manifold against a line, a Sobol point or a maximum at every
+explore ask, so neither pool's record can starve the other. The fall screen applies as at
+every ask; among the candidates it admits, the batch is the highest log expected improvement. Where the gap moves
 the best θ to a region the source ranks as bad (the arm's gravity gain at its face), the
 source's prior keeps the transfer model's samples away from it; the target's own model, as
 Optuna's GPSampler fits it, goes there once the target's trials say so. The adaptive record
@@ -1668,15 +1671,19 @@ class Transfer(TwoSpaceCritic):
             # explore: the whole latent box (or θ box), or the source's distribution, only
             ctx.explore = True
             where = st["explore_pool"]
+            if self.opts["explore_gp"] and cost_m is not None and \
+                    where in ("lines", "latent_lines"):
+                ctx.explore_gp = TargetGP(self._X, cost_m.v, self._turbo_helper(), cost_m)
             if where == "lines":
                 XI = self._pool_lines(M, centre, rng)
-                if self.opts["explore_gp"] and cost_m is not None:
-                    ctx.explore_gp = TargetGP(self._X, cost_m.v, self._turbo_helper(), cost_m)
+                if ctx.explore_gp is not None:
                     XI = self._pool_explore_gp(XI, ctx.explore_gp, rng)
                 parts = [(XI, np.full((len(XI), self.k), np.nan), GLOBAL)]
             elif where == "latent_lines":
                 XL, UL = self._pool_latent(M // 2, st["L"], centre, rng, whole=True)
                 XI = self._pool_lines(M - len(XL), centre, rng)
+                if ctx.explore_gp is not None:      # the decoded codes stay candidates
+                    XI = self._pool_explore_gp(XI, ctx.explore_gp, rng)
                 parts = [(XL, UL, LATENT), (XI, np.full((len(XI), self.k), np.nan), GLOBAL)]
             elif where == "box" or (self.latent is None and where == "latent"):
                 parts = [(self._pool_global(M, rng), np.full((M, self.k), np.nan), GLOBAL)]
