@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from latentune.critic.transfer import (ADDED_OPTIONS, FULL, GLOBAL, LATENT, TRANSFER_DEFAULTS,
-                                       Transfer)
+                                       TargetGP, Transfer)
 
 from test_transfer import D, _bowl, hypers, source  # noqa: F401 - shared fixtures
 
@@ -941,6 +941,52 @@ def test_explore_gp_asks_what_the_targets_own_gp_expects_most_improvement_from(s
     assert b.opts["explore_gp"] is True
     _asks_alike(a, b, 2)                    # generations 4 and 5 (explore)
     assert a.decisions[-1].get("explore_gp")
+
+
+def test_explore_gp_with_latent_lines_weighs_the_decoded_codes_with_the_rest(source, hypers,
+                                                                            monkeypatch):
+    """``explore_gp`` with ``explore_pool="latent_lines"``: an explore ask once a trial stands
+    offers the decoded codes of the whole latent box (half the pool) beside the lines' widened
+    pool (lines, Sobol points, log-EI maxima), and asks the highest log EI of the target GP
+    among them all, a code included (tag ``latent`` with its code)."""
+    codes: list[np.ndarray] = []
+    lat = Transfer._pool_latent
+
+    def spy_lat(self, m, L, c, rng, whole=False):
+        out = lat(self, m, L, c, rng, whole)
+        if whole:
+            codes.append(out[0])
+        return out
+
+    monkeypatch.setattr(Transfer, "_pool_latent", spy_lat)
+    seen = _spy_explore_gp(monkeypatch)
+    cr = _critic(source, hypers, explore_pool="latent_lines", explore_gp=True, max_fall_prob=1.0)
+    _run(cr, 8)
+    ex = [d for d in cr.decisions if d["explore"]]
+    assert [d["generation"] for d in ex] == [3, 5, 7] and len(seen) == len(codes) == 3
+    M = int(cr.opts["n_candidates"])
+    tags = []
+    for d, XL, (C, gp) in zip(ex, codes, seen):
+        assert d.get("explore_gp") and d["explore_pool"] == "latent_lines"
+        assert len(XL) == M // 2 and d["n_candidates"] == len(XL) + len(C)
+        pool = np.vstack([XL, C])
+        g = d["generation"]
+        assert np.allclose(cr.X[g], pool[int(np.argmax(gp.log_ei(pool)))])
+        tags.append(cr.tags[g] % 4)
+        if tags[-1] == LATENT:
+            assert np.allclose(cr.X[g], cr.latent.decode(cr._Z[g][None, :])[0])
+    # the codes are weighed, not dropped: where the GP's log EI peaks at the codes, a code is
+    # asked (with the codes left out, a line or a Sobol point would be)
+
+    def peaks_at_codes(self, X):
+        K = np.vstack(codes)
+        return -np.min(((X[:, None, :] - K[None, :, :]) ** 2).sum(-1), axis=1)
+
+    monkeypatch.setattr(TargetGP, "log_ei", peaks_at_codes)
+    codes.clear()
+    cr2 = _critic(source, hypers, explore_pool="latent_lines", explore_gp=True, max_fall_prob=1.0)
+    _run(cr2, 4)
+    assert cr2.tags[3] % 4 == LATENT
 
 
 @pytest.mark.parametrize("bad", [1, "yes", None])
