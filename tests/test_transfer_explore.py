@@ -612,6 +612,40 @@ def test_explore_record_gain_scores_records_of_equal_size_as_their_count(source,
         _critic(source, hypers, explore_record="size")
 
 
+def test_explore_bandit_thompson_gives_a_pool_behind_on_its_record_a_share_of_the_asks(source,
+                                                                                      hypers):
+    """``explore_bandit="thompson"``: with the latent box 0 records in 2 asks and the lines 6 in
+    10, the posterior means (0.25 against 0.58) give every ask to the lines; draws from
+    Beta(1, 3) and Beta(7, 5) give the latent box about 1 in 10 (exactly 5/52), each
+    generation's draw seeded by (seed, generation), so a replay chooses the same pool."""
+    rec = {LATENT: [2, 0, 0, 0.0, 0], GLOBAL: [10, 6, 0, 0.0, 0]}
+    explore = np.zeros(0, dtype=bool)
+    mean = _critic(source, hypers, explore_pool="adaptive")
+    assert TRANSFER_DEFAULTS["explore_bandit"] == "mean" and \
+        ADDED_OPTIONS["explore_bandit"] == "mean"
+    assert {mean._explore_pool(explore, True, rec, g) for g in range(400)} == {"lines"}
+    ts = _critic(source, hypers, explore_pool="adaptive", explore_bandit="thompson")
+    picks = [ts._explore_pool(explore, True, rec, g) for g in range(400)]
+    assert 0.06 < picks.count("latent") / 400 < 0.18
+    assert picks == [ts._explore_pool(explore, True, rec, g) for g in range(400)]
+    for g in range(40):                     # the draw: the run's seed, the generation, 13
+        r = np.random.default_rng([ts.seed, g, 13])
+        lat, lin = r.beta(1.0, 3.0), r.beta(7.0, 5.0)
+        assert picks[g] == ("lines" if lin > lat else "latent")
+    # in a run: each explore decision's pool is the one the replay chooses for its generation
+    _run(ts, 12)
+    for d in ts.decisions:
+        if d["explore"]:
+            assert d["explore_pool"] in ("latent", "lines")
+    resumed = _critic(source, hypers)
+    resumed.tell(ts.X, ts.y, ts.tags, fell=ts.fell, z=ts._Z)
+    resumed.load_state_dict(ts.state_dict())
+    assert resumed.opts["explore_bandit"] == "thompson"
+    assert resumed._replay_state()["explore_pool"] == ts._replay_state()["explore_pool"]
+    with pytest.raises(ValueError, match="explore_bandit"):
+        _critic(source, hypers, explore_bandit="ucb")
+
+
 def test_the_default_explore_pool_is_adaptive_and_a_stored_latent_run_resumes_latent(source,
                                                                                     hypers):
     """The default's explore asks choose their pool by its record (``"adaptive"``); a run stored

@@ -152,6 +152,13 @@ both pools' such records (a first standing trial as 1), so records of equal size
 count, and a pool that keeps making small records (one gain nudged) cannot hold the explore
 asks from one whose records were large (many gains moved together along the source's
 manifold). ``explore_record`` then holds ``[asks, records, falls, drop, records with a drop]``.
+``explore_bandit`` (default ``"mean"``): how ``"adaptive"`` chooses from the two scores: the
+higher one (the posterior mean of the record rate), or with ``"thompson"`` the higher of one
+draw from each pool's Beta posterior (``a`` = score · (asks + 2), ``b`` = asks + 2 − ``a``;
+Thompson sampling, the two-armed bandit's rule), seeded by the run's seed and the generation so
+a replay chooses the same pool. The mean gives every ask to the pool ahead on its record, and a
+pool that fell behind after one or two asks is never asked again; the draws give it asks in
+proportion to the chance that its rate is the higher one.
 ``explore_void`` (default False): a record an explore ask made holds only once the trust region
 around it stands. When more than ``max_fall_prob`` of the first region generation told after it
 (the next generation that is neither an explore nor a design ask) fell, the record is void: the
@@ -350,7 +357,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "explore_fall_weight": 0.0, "centre_screen": False, "distinct": True,
     "explore_fall_prob": 0.0, "explore_skip": False, "fall_calibrate": False,
     "fall_shrink": False, "centre_falls": 0, "fall_rank": "clipped", "explore_gp": False,
-    "explore_record": "count",
+    "explore_record": "count", "explore_bandit": "mean",
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state."""
 
@@ -369,7 +376,8 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "explore_fall_prob": 0.0, "explore_skip": False,
                                  "fall_calibrate": False, "fall_shrink": False,
                                  "centre_falls": 0, "fall_rank": "clipped",
-                                 "explore_gp": False, "explore_record": "count"}
+                                 "explore_gp": False, "explore_record": "count",
+                                 "explore_bandit": "mean"}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -381,6 +389,9 @@ LEGACY_OPTIONS: dict[str, Any] = {**TRANSFER_DEFAULTS, **ADDED_OPTIONS, "max_fal
 
 EXPLORE_RECORDS = ("count", "gain")
 """How ``explore_pool="adaptive"`` weighs an explore record (``explore_record``)."""
+EXPLORE_BANDITS = ("mean", "thompson")
+"""How ``explore_pool="adaptive"`` chooses a pool from the records (``explore_bandit``): the higher
+posterior mean of the record rate, or the higher draw from each pool's posterior."""
 
 _SIGMA_R2_GRID = (0.01, 0.05, 0.2, 0.5, 1.0, 2.0)
 _LS_SCALES = (0.25, 0.5, 1.0, 2.0)
@@ -1052,6 +1063,9 @@ class Transfer(TwoSpaceCritic):
         if self.opts["explore_record"] not in EXPLORE_RECORDS:
             raise ValueError(f"explore_record must be one of {EXPLORE_RECORDS}, "
                              f"got {self.opts['explore_record']!r}")
+        if self.opts["explore_bandit"] not in EXPLORE_BANDITS:
+            raise ValueError(f"explore_bandit must be one of {EXPLORE_BANDITS}, "
+                             f"got {self.opts['explore_bandit']!r}")
         if self.opts["explore_pool"] not in EXPLORE_POOLS:
             raise ValueError(f"explore_pool must be one of {EXPLORE_POOLS}, "
                              f"got {self.opts['explore_pool']!r}")
@@ -1187,7 +1201,7 @@ class Transfer(TwoSpaceCritic):
             m = own & (tags // 4 == g)
             standing = g > first_ok
             due = self._explore_generation(int(g), L, next_due)
-            if due and self._explore_pool(explore, standing, record) is not None and \
+            if due and self._explore_pool(explore, standing, record, int(g)) is not None and \
                     not np.isin(tags[m] % 4, (ELITE, FULL)).any():
                 explore |= m            # data and best value only: L follows the other batches
                 gb = float(y[m].min())
@@ -1252,7 +1266,8 @@ class Transfer(TwoSpaceCritic):
             if fall_rule and self._fall_shrink_due(m, tags // 4 <= g):
                 L, succ, fail = max(min(L, side / 2.0), l_min), 0, 0
         lat = own & (tags % 4 == LATENT) & ~explore
-        pool = self._explore_pool(explore, bool(ok.any()), record)
+        g_next = int(gens.max()) + 1 if gens.size else 0
+        pool = self._explore_pool(explore, bool(ok.any()), record, g_next)
         n_rec = 5 if self.opts["explore_record"] == "gain" else \
             3 if float(self.opts["explore_fall_weight"]) > 0 else 2
         return {"L": L, "succ": succ, "fail": fail, "n_own": int(own.sum()), "restarts": restarts,
@@ -1261,7 +1276,7 @@ class Transfer(TwoSpaceCritic):
                                    "lines": record[GLOBAL][:n_rec]},
                 "converged": converged, "explore_braked": pool is None, "explore_pool": pool,
                 "explore_told": int(explore.sum()), "explore_fell": int(self._fell[explore].sum()),
-                "generation": int(gens.max()) + 1 if gens.size else 0,
+                "generation": g_next,
                 "latent_told": int(lat.sum()), "latent_fell": int(self._fell[lat].sum())}
 
     def _explore_braked(self, explore: np.ndarray, standing: bool) -> bool:
@@ -1278,13 +1293,14 @@ class Transfer(TwoSpaceCritic):
         return fell >= k and fell > float(self.opts["max_fall_prob"]) * int(explore.sum())
 
     def _explore_pool(self, explore: np.ndarray, standing: bool,
-                      record: dict[int, list[int]] | None = None) -> str | None:
+                      record: dict[int, list[int]] | None = None, g: int = 0) -> str | None:
         """The pool of the next explore ask (``explore_pool`` resolved: ``"auto"`` to
         ``"latent"`` or ``"source"``, ``"adaptive"`` to ``"latent"`` or ``"lines"``, ``"lines"``
         to ``"latent"`` while no trial stands), or None once the explore asks are braked, from
         the told explore trials ``explore`` (n,) bool, whether a trial stands (``standing``) and,
         for ``"adaptive"``, the explore generations' ``[asks, records]`` per tag pool
-        (``record``, ``LATENT`` and ``GLOBAL``; none told: both ``[0, 0]``).
+        (``record``, ``LATENT`` and ``GLOBAL``; none told: both ``[0, 0]``) and the generation
+        ``g`` the pool is for (``explore_bandit="thompson"`` draws with a seed of it).
 
         With ``"auto"`` each pool has its own brake (``_explore_braked`` on its own explore
         trials: the source's draws carry tag pool ``global``, the decoded codes ``latent``): the
@@ -1297,8 +1313,12 @@ class Transfer(TwoSpaceCritic):
         elif where == "adaptive":
             rec = record or {}
             lat, lin = rec.get(LATENT, [0, 0, 0, 0.0, 0]), rec.get(GLOBAL, [0, 0, 0, 0.0, 0])
-            where = "lines" if self._record_score(lin, lat) > self._record_score(lat, lin) \
-                else "latent"
+            s_lin, s_lat = self._record_score(lin, lat), self._record_score(lat, lin)
+            if self.opts["explore_bandit"] == "thompson":
+                rng = np.random.default_rng([self.seed, g, 13])
+                s_lat, s_lin = (rng.beta(*self._record_beta(sc, own))
+                                for sc, own in ((s_lat, lat), (s_lin, lin)))
+            where = "lines" if s_lin > s_lat else "latent"
         if where in ("lines", "latent_lines") and not standing:
             where = "latent"            # no standing centre to draw lines through yet
         if where != "auto" or self.latent is None:
@@ -1327,6 +1347,16 @@ class Transfer(TwoSpaceCritic):
             if mean > 0.0:
                 records = float(own[1]) - int(own[4]) + float(own[3]) / mean
         return (records - w * own[2] + 1) / (own[0] + 2)
+
+    @staticmethod
+    def _record_beta(score: float, own: list) -> tuple[float, float]:
+        """The Beta posterior ``(a, b)`` of a pool's record rate whose mean is its ``score``
+        (:meth:`_record_score`) over ``asks + 2`` pseudo-trials: ``a = score · (asks + 2)``,
+        ``b = asks + 2 − a``, each at least 0.01 (a fall weight or a gain weighting may push
+        the weighted records outside [0, asks])."""
+        n = float(own[0]) + 2.0
+        a = min(max(score * n, 0.01), n - 0.01)
+        return a, n - a
 
     def _improves(self, gb: float, best: float, g: int, y: np.ndarray, ext: np.ndarray,
                   own: np.ndarray, tags: np.ndarray) -> bool:
