@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from latentune.critic.transfer import (ADDED_OPTIONS, FULL, GLOBAL, LATENT, TRANSFER_DEFAULTS,
-                                       TargetGP, Transfer)
+                                       ExploreRecord, TargetGP, Transfer)
 
 from test_transfer import D, _bowl, hypers, source  # noqa: F401 - shared fixtures
 
@@ -604,10 +604,10 @@ def test_explore_record_gain_weighs_a_record_by_its_drop(source, hypers, mode, p
 def test_explore_record_gain_scores_records_of_equal_size_as_their_count(source, hypers):
     gain = _critic(source, hypers, explore_record="gain")
     count = _critic(source, hypers)
-    own, other = [4, 2, 1, 0.6, 2], [3, 1, 0, 0.3, 1]
+    own, other = ExploreRecord(4, 2, 1, 0.6, 2), ExploreRecord(3, 1, 0, 0.3, 1)
     assert gain._record_score(own, other) == pytest.approx(count._record_score(own, other))
-    assert gain._record_score([4, 2, 0, 0.02, 2], [3, 1, 0, 3.0, 1]) < \
-        count._record_score([4, 2, 0, 0.02, 2], [3, 1, 0, 3.0, 1])
+    small, large = ExploreRecord(4, 2, 0, 0.02, 2), ExploreRecord(3, 1, 0, 3.0, 1)
+    assert gain._record_score(small, large) < count._record_score(small, large)
     with pytest.raises(ValueError, match="explore_record"):
         _critic(source, hypers, explore_record="size")
 
@@ -618,7 +618,7 @@ def test_explore_bandit_thompson_gives_a_pool_behind_on_its_record_a_share_of_th
     10, the posterior means (0.25 against 0.58) give every ask to the lines; draws from
     Beta(1, 3) and Beta(7, 5) give the latent box about 1 in 10 (exactly 5/52), each
     generation's draw seeded by (seed, generation), so a replay chooses the same pool."""
-    rec = {LATENT: [2, 0, 0, 0.0, 0], GLOBAL: [10, 6, 0, 0.0, 0]}
+    rec = {LATENT: ExploreRecord(2, 0), GLOBAL: ExploreRecord(10, 6)}
     explore = np.zeros(0, dtype=bool)
     mean = _critic(source, hypers, explore_pool="adaptive")
     assert TRANSFER_DEFAULTS["explore_bandit"] == "mean" and \

@@ -957,6 +957,24 @@ def elite_points(X: np.ndarray, z: np.ndarray, fell: np.ndarray, k: int,
 
 
 @dataclass
+class ExploreRecord:
+    """One explore pool's record over the told history (``explore_pool="adaptive"``): its explore
+    asks, the asks that made a record (their best standing trial improved on the best before it),
+    the asks in which a trial fell, the summed drop in cost of the records made from a standing
+    best (cost units), and how many records those are."""
+
+    asks: int = 0
+    records: int = 0
+    falls: int = 0
+    drop: float = 0.0
+    n_drop: int = 0
+
+    def as_list(self, n: int = 5) -> list[float]:
+        """The first ``n`` fields, in the order above (what a decision stores)."""
+        return [self.asks, self.records, self.falls, self.drop, self.n_drop][:n]
+
+
+@dataclass
 class _AskContext:
     """What one ask decided before it chose its points (recorded with the choice)."""
 
@@ -1192,9 +1210,7 @@ class Transfer(TwoSpaceCritic):
             int((tags[ok & own] // 4).min()) if (ok & own).any() else math.inf
         k_ex = int(self.opts["explore_every"])
         interval, next_due = k_ex, k_ex - 1         # the explore schedule (``explore_adapt``)
-        # per pool: [asks, records, falls, summed drop of the records from a standing best,
-        # how many records those are]
-        record = {LATENT: [0, 0, 0, 0.0, 0], GLOBAL: [0, 0, 0, 0.0, 0]}
+        record = {LATENT: ExploreRecord(), GLOBAL: ExploreRecord()}     # per pool
         void = np.zeros(len(tags), dtype=bool)      # explore records the region fell around
         pending: tuple[int, np.ndarray, float] | None = None   # (pool, trials, drop) of the last
         for g in gens:
@@ -1209,10 +1225,11 @@ class Transfer(TwoSpaceCritic):
                 counts = record.get(int(tags[m][0] % 4))     # the pool this ask drew from
                 drop = best - gb if improved and math.isfinite(best) else 0.0
                 if counts is not None:
-                    counts[0], counts[1] = counts[0] + 1, counts[1] + int(improved)
-                    counts[2] += int(self._fell[m].any())
-                    counts[3] += drop
-                    counts[4] += int(drop > 0.0)
+                    counts.asks += 1
+                    counts.records += int(improved)
+                    counts.falls += int(self._fell[m].any())
+                    counts.drop += drop
+                    counts.n_drop += int(drop > 0.0)
                 if improved and self.opts["explore_void"]:
                     pending = (int(tags[m][0] % 4), m & (y < best), drop)
                 if improved:
@@ -1230,9 +1247,9 @@ class Transfer(TwoSpaceCritic):
                     void |= pending[1]          # the region around the record fell: void
                     counts = record.get(pending[0])
                     if counts is not None:
-                        counts[1] -= 1
-                        counts[3] -= pending[2]
-                        counts[4] -= int(pending[2] > 0.0)
+                        counts.records -= 1
+                        counts.drop -= pending[2]
+                        counts.n_drop -= int(pending[2] > 0.0)
                     kept = (ext | (own & (tags // 4 < g))) & ~void & np.isfinite(y)
                     best = float(y[kept].min()) if kept.any() else math.inf
                 pending = None
@@ -1272,8 +1289,8 @@ class Transfer(TwoSpaceCritic):
             3 if float(self.opts["explore_fall_weight"]) > 0 else 2
         return {"L": L, "succ": succ, "fail": fail, "n_own": int(own.sum()), "restarts": restarts,
                 "explore_next": next_due, "void": np.flatnonzero(void).tolist(),
-                "explore_record": {"latent": record[LATENT][:n_rec],
-                                   "lines": record[GLOBAL][:n_rec]},
+                "explore_record": {"latent": record[LATENT].as_list(n_rec),
+                                   "lines": record[GLOBAL].as_list(n_rec)},
                 "converged": converged, "explore_braked": pool is None, "explore_pool": pool,
                 "explore_told": int(explore.sum()), "explore_fell": int(self._fell[explore].sum()),
                 "generation": g_next,
@@ -1293,13 +1310,14 @@ class Transfer(TwoSpaceCritic):
         return fell >= k and fell > float(self.opts["max_fall_prob"]) * int(explore.sum())
 
     def _explore_pool(self, explore: np.ndarray, standing: bool,
-                      record: dict[int, list[int]] | None = None, g: int = 0) -> str | None:
+                      record: dict[int, ExploreRecord] | None = None, g: int = 0
+                      ) -> str | None:
         """The pool of the next explore ask (``explore_pool`` resolved: ``"auto"`` to
         ``"latent"`` or ``"source"``, ``"adaptive"`` to ``"latent"`` or ``"lines"``, ``"lines"``
         to ``"latent"`` while no trial stands), or None once the explore asks are braked, from
         the told explore trials ``explore`` (n,) bool, whether a trial stands (``standing``) and,
-        for ``"adaptive"``, the explore generations' ``[asks, records]`` per tag pool
-        (``record``, ``LATENT`` and ``GLOBAL``; none told: both ``[0, 0]``) and the generation
+        for ``"adaptive"``, the explore generations' record per tag pool (``record``,
+        ``LATENT`` and ``GLOBAL``; none told: both empty) and the generation
         ``g`` the pool is for (``explore_bandit="thompson"`` draws with a seed of it).
 
         With ``"auto"`` each pool has its own brake (``_explore_braked`` on its own explore
@@ -1312,7 +1330,7 @@ class Transfer(TwoSpaceCritic):
             where = "lines"             # no manifold to weigh the lines against
         elif where == "adaptive":
             rec = record or {}
-            lat, lin = rec.get(LATENT, [0, 0, 0, 0.0, 0]), rec.get(GLOBAL, [0, 0, 0, 0.0, 0])
+            lat, lin = rec.get(LATENT, ExploreRecord()), rec.get(GLOBAL, ExploreRecord())
             s_lin, s_lat = self._record_score(lin, lat), self._record_score(lat, lin)
             if self.opts["explore_bandit"] == "thompson":
                 rng = np.random.default_rng([self.seed, g, 13])
@@ -1331,30 +1349,30 @@ class Transfer(TwoSpaceCritic):
             return "latent"
         return None
 
-    def _record_score(self, own: list, other: list) -> float:
+    def _record_score(self, own: ExploreRecord, other: ExploreRecord) -> float:
         """``explore_pool="adaptive"``'s score of a pool from its explore record ``own`` and the
-        other pool's ``other`` (each ``[asks, records, falls, drop, n_drop]``):
+        other pool's ``other``:
         ``(records − w · falls + 1) / (asks + 2)`` (``w``: ``explore_fall_weight``). With
         ``explore_record="gain"`` a record from a standing best counts as its drop in cost over
         the mean drop of both pools' such records (a record from no standing best as 1), so
         records of equal size score as their count and a pool whose records are small does
         not keep the asks from one whose records are large."""
         w = float(self.opts["explore_fall_weight"])
-        records = float(own[1])
-        n_drop = int(own[4]) + int(other[4])
+        records = float(own.records)
+        n_drop = int(own.n_drop) + int(other.n_drop)
         if self.opts["explore_record"] == "gain" and n_drop > 0:
-            mean = (float(own[3]) + float(other[3])) / n_drop
+            mean = (float(own.drop) + float(other.drop)) / n_drop
             if mean > 0.0:
-                records = float(own[1]) - int(own[4]) + float(own[3]) / mean
-        return (records - w * own[2] + 1) / (own[0] + 2)
+                records = float(own.records) - int(own.n_drop) + float(own.drop) / mean
+        return (records - w * own.falls + 1) / (own.asks + 2)
 
     @staticmethod
-    def _record_beta(score: float, own: list) -> tuple[float, float]:
+    def _record_beta(score: float, own: ExploreRecord) -> tuple[float, float]:
         """The Beta posterior ``(a, b)`` of a pool's record rate whose mean is its ``score``
         (:meth:`_record_score`) over ``asks + 2`` pseudo-trials: ``a = score · (asks + 2)``,
         ``b = asks + 2 − a``, each at least 0.01 (a fall weight or a gain weighting may push
         the weighted records outside [0, asks])."""
-        n = float(own[0]) + 2.0
+        n = float(own.asks) + 2.0
         a = min(max(score * n, 0.01), n - 0.01)
         return a, n - a
 
