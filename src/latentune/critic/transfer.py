@@ -208,11 +208,12 @@ expected improvement (L-BFGS-B from the best of those, :func:`log_expected_impro
 end on the box's faces and corners. With ``"latent_lines"`` the lines' half of the pool is
 widened so, and the decoded codes of the whole latent box stay in it: the target's own GP
 weighs a step along the source's manifold against a line, a Sobol point or a maximum at every
-explore ask, so neither pool's record can starve the other. The fall screen applies as at
-every ask; among the candidates it admits, the batch is the highest log expected improvement. Where the gap moves
-the best θ to a region the source ranks as bad (the arm's gravity gain at its face), the
-source's prior keeps the transfer model's samples away from it; the target's own model, as
-Optuna's GPSampler fits it, goes there once the target's trials say so. The adaptive record
+explore ask (a code rarely outscores a local maximum of the same log EI). The fall screen
+applies as at every ask; among the candidates it admits, the batch is the highest log expected
+improvement. Where the gap moves the best θ to a region the source ranks as bad (the arm's
+gravity gain at its face), the source's prior keeps the transfer model's samples away from it;
+the target's own model, as Optuna's GPSampler fits it, goes there once the target's trials say
+so. The adaptive record
 counts these asks as the lines'. With ``fall_cost`` the choice is the highest
 ``log EI + log(1 − p)`` (constrained EI, ``p`` as ``fall_cost`` takes it). Each such decision
 records ``explore_gp``.
