@@ -632,11 +632,12 @@ def test_explore_bandit_thompson_gives_a_pool_behind_on_its_record_a_share_of_th
         r = np.random.default_rng([ts.seed, g, 13])
         lat, lin = r.beta(1.0, 3.0), r.beta(7.0, 5.0)
         assert picks[g] == ("lines" if lin > lat else "latent")
-    # in a run: each explore decision's pool is the one the replay chooses for its generation
+    # in a run: the same seed draws the same pools; a resumed run's replay chooses alike
     _run(ts, 12)
-    for d in ts.decisions:
-        if d["explore"]:
-            assert d["explore_pool"] in ("latent", "lines")
+    twin = _critic(source, hypers, explore_pool="adaptive", explore_bandit="thompson")
+    _run(twin, 12)
+    assert [d.get("explore_pool") for d in twin.decisions] == \
+        [d.get("explore_pool") for d in ts.decisions]
     resumed = _critic(source, hypers)
     resumed.tell(ts.X, ts.y, ts.tags, fell=ts.fell, z=ts._Z)
     resumed.load_state_dict(ts.state_dict())
@@ -999,15 +1000,13 @@ def test_explore_gp_with_latent_lines_weighs_the_decoded_codes_with_the_rest(sou
     ex = [d for d in cr.decisions if d["explore"]]
     assert [d["generation"] for d in ex] == [3, 5, 7] and len(seen) == len(codes) == 3
     M = int(cr.opts["n_candidates"])
-    tags = []
     for d, XL, (C, gp) in zip(ex, codes, seen):
         assert d.get("explore_gp") and d["explore_pool"] == "latent_lines"
         assert len(XL) == M // 2 and d["n_candidates"] == len(XL) + len(C)
         pool = np.vstack([XL, C])
         g = d["generation"]
         assert np.allclose(cr.X[g], pool[int(np.argmax(gp.log_ei(pool)))])
-        tags.append(cr.tags[g] % 4)
-        if tags[-1] == LATENT:
+        if cr.tags[g] % 4 == LATENT:
             assert np.allclose(cr.X[g], cr.latent.decode(cr._Z[g][None, :])[0])
     # the codes are weighed, not dropped: where the GP's log EI peaks at the codes, a code is
     # asked (with the codes left out, a line or a Sobol point would be)

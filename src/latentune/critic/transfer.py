@@ -213,10 +213,9 @@ applies as at every ask; among the candidates it admits, the batch is the highes
 improvement. Where the gap moves the best θ to a region the source ranks as bad (the arm's
 gravity gain at its face), the source's prior keeps the transfer model's samples away from it;
 the target's own model, as Optuna's GPSampler fits it, goes there once the target's trials say
-so. The adaptive record
-counts these asks as the lines'. With ``fall_cost`` the choice is the highest
-``log EI + log(1 − p)`` (constrained EI, ``p`` as ``fall_cost`` takes it). Each such decision
-records ``explore_gp``.
+so. The adaptive record counts these asks as the lines'. With ``fall_cost`` the choice is the
+highest ``log EI + log(1 − p)`` (constrained EI, ``p`` as ``fall_cost`` takes it). Each such
+decision records ``explore_gp``.
 ``fall_shrink`` (default False): the same rule for falls in the early phase. A trust-region
 generation (neither an explore ask nor a design ask of the elite pool) in which more than
 ``max_fall_prob`` of the trials fell halves the side ``L`` (once, at least ``length_min``) and
@@ -1360,11 +1359,11 @@ class Transfer(TwoSpaceCritic):
         not keep the asks from one whose records are large."""
         w = float(self.opts["explore_fall_weight"])
         records = float(own.records)
-        n_drop = int(own.n_drop) + int(other.n_drop)
+        n_drop = own.n_drop + other.n_drop
         if self.opts["explore_record"] == "gain" and n_drop > 0:
-            mean = (float(own.drop) + float(other.drop)) / n_drop
+            mean = (own.drop + other.drop) / n_drop
             if mean > 0.0:
-                records = float(own.records) - int(own.n_drop) + float(own.drop) / mean
+                records = own.records - own.n_drop + own.drop / mean
         return (records - w * own.falls + 1) / (own.asks + 2)
 
     @staticmethod
