@@ -2,8 +2,8 @@
 its pitch and its inputs over the 6 s (physics before costs).
 
     python -m benchmarks.quadrotor_traces [--root results/transfer/rebuilt/runs] [--gap 2.5]
-        [--methods transfer+explore_pool=adaptive turbo_manual zero_shot] [--seed S]
-        [--default transfer+explore_pool=adaptive] --png F.png [--out F.json]
+        [--methods DEFAULT turbo_manual zero_shot] [--seed S] [--default DEFAULT]
+        --png F.png [--out F.json]
 
 Reads ``ROOT/quadrotor/gap<g>/seed<s>/<method>.json`` (the ladder's traces: ``benchmarks.transfer
 run --systems quadrotor``), takes each method's best trial that did not fall (the lowest cost
@@ -28,7 +28,9 @@ from benchmarks.common import Provenance, add_out_arg
 from benchmarks.zones_traces import TracesError, median_seed, rerun_best, write_figure
 from examples.quadrotor_mpc import PITCH_MAX, make_system
 
-DEFAULT = "transfer+explore_pool=adaptive"
+DEFAULT = "transfer+explore_pool=adaptive:explore_gp=true:explore_fall_prob=0.2"
+"""The default phase 3 in the ladder's names (session 39; ``transfer+explore_pool=adaptive``
+before)."""
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -44,8 +44,10 @@ takes one), ``snapshot`` takes a new one when the source has grown.
 :func:`benchmarks.transfer.run_method`; in that order, so every rung has a seed's runs before
 the next seed starts) ``--budget`` B trials on the target, one at a time, every trial counted;
 ``--variants`` adds the transfer critic with options beyond those of the method ``transfer``
-(its defaults with :data:`benchmarks.transfer.LADDER_BASE`; the default phase 3 since session
-32 is ``--variants explore_pool=adaptive``; :func:`benchmarks.transfer.parse_variant`), stored
+(its defaults with :data:`benchmarks.transfer.LADDER_BASE`; the default phase 3 of sessions
+32–38 is ``--variants explore_pool=adaptive``, since session 39
+``explore_pool=adaptive:explore_gp=true:explore_fall_prob=0.2``;
+:func:`benchmarks.transfer.parse_variant`), stored
 as method ``transfer+VARIANT`` and listed
 by ``summary`` beside the methods (never a peer); one JSON per run at
 ``ROOT/targets/<rung>/src<N>/seed<s>/<method>.json``

@@ -44,8 +44,10 @@ trial counted (the zero-shot one included):
 * ``transfer``     latentune's transfer phase 3 (:class:`latentune.critic.transfer.Transfer`): the
   zero-shot θ, then the critic on everything the source tried. The name keeps the meaning of
   its stored runs: the critic's defaults with the explore pool of the default before session
-  32 (:data:`LADDER_BASE`); ``transfer+OPTIONS`` is that with OPTIONS, so the default since
-  session 32 is ``transfer+explore_pool=adaptive``;
+  32 and the explore asks of the default before session 39 (:data:`LADDER_BASE`);
+  ``transfer+OPTIONS`` is that with OPTIONS, so the default of sessions 32–38 is
+  ``transfer+explore_pool=adaptive`` and the default since session 39
+  ``transfer+explore_pool=adaptive:explore_gp=true:explore_fall_prob=0.2``;
 * ``plain``        the paper's phase 3 as ``Study.phase3`` runs it: the manual θ, the zero-shot θ,
   then TuRBO-m in the latent box from the manual θ's code (not a peer);
 * ``handover``     the same with the hand-over to the full θ box (not a peer);
@@ -218,10 +220,12 @@ def parse_variant(text: str) -> dict[str, Any]:
     return out
 
 
-LADDER_BASE: dict[str, Any] = {"explore_pool": "latent"}
+LADDER_BASE: dict[str, Any] = {"explore_pool": "latent", "explore_gp": False,
+                               "explore_fall_prob": 0.0}
 """The transfer critic's options under the method name ``transfer`` beyond its defaults: the
 explore pool every stored ``transfer`` and ``transfer+…`` run was made with (the default before
-session 32), so that a run added later under a stored name is the same method."""
+session 32) and the explore asks' choice and bound of the runs before session 39, so that a run
+added later under a stored name is the same method."""
 
 
 def run_method(method: str, target: Any, src: Path, B: int, seed: int,

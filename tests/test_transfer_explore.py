@@ -452,7 +452,7 @@ def test_explore_pool_lines_moves_one_or_two_coordinates_of_the_centre(source, h
                                                                        monkeypatch):
     """``explore_pool="lines"``: explore asks choose among the centre with one or two coordinates
     set anywhere in [0, 1] (tag pool ``global``), which reach the box's faces."""
-    cr = _critic(source, hypers, explore_pool="lines")
+    cr = _critic(source, hypers, explore_pool="lines", explore_gp=False)
     centre = np.full(D, 0.45)
     P = cr._pool_lines(2000, centre, np.random.default_rng(0))
     moved = (np.abs(P - centre) > 1e-12).sum(1)
@@ -690,7 +690,8 @@ def test_explore_void_takes_back_a_record_the_region_fell_around(source, hypers,
     the region ask told after it (generation 4) falls, the record is void: the centre goes back to
     generation 2's θ, the lines' record to none, and the next explore ask (5) decodes the latent
     box on the tie. When generation 4 stands, the record holds and the lines keep the ask."""
-    cr = _critic(source, hypers, explore_pool="adaptive", explore_void=True, n_design=0)
+    cr = _critic(source, hypers, explore_pool="adaptive", explore_void=True, n_design=0,
+                 explore_gp=False, explore_fall_prob=0.0)
     out = [(5.0, False), (6.0, False), (4.0, False), (3.0, False), (2.9 if not region_falls
                                                                    else 9.0, region_falls)]
     dec = _scripted(cr, out)
@@ -710,7 +711,8 @@ def test_explore_void_takes_back_a_record_the_region_fell_around(source, hypers,
     x = cr.ask(1)
     assert cr.decisions[-1]["explore_void"] == int(region_falls)
     # a fresh critic told the same history replays the void and asks the same θ
-    fresh = _critic(source, hypers, explore_pool="adaptive", explore_void=True, n_design=0)
+    fresh = _critic(source, hypers, explore_pool="adaptive", explore_void=True, n_design=0,
+                    explore_gp=False, explore_fall_prob=0.0)
     fresh.tell(cr.X, cr.y, cr.tags, fell=cr.fell, z=cr._Z)
     assert np.allclose(fresh.ask(1), x)
 
@@ -866,11 +868,30 @@ def test_explore_fall_prob_screens_the_explore_asks_at_their_own_bound(source, h
         assert dec[i]["explore_bound"] == (0.05 if floor == 0.0 else 0.3)
         assert cr.X[i, 0] <= (0.2 + 1e-12 if floor == 0.0 else 0.8 + 1e-12)
     assert not any("explore_bound" in dec[i] for i in range(len(dec)) if i not in ex)
-    plain = _critic(source, hypers, n_design=0)
+    plain = _critic(source, hypers, n_design=0, explore_fall_prob=0.0)
     dec0 = _scripted(plain, out[:2])
     assert dec0[1]["explore"] and "explore_bound" not in dec0[1]
     if floor == 0.0:        # without the bound the first explore ask picks a θ it now refuses
         assert plain.X[1, 0] > 0.2
+
+
+@pytest.mark.parametrize("max_fall_prob, resolved", [(None, 0.2), (0.1, 0.066666666667),
+                                                     (0.6, 0.4), (1.0, 0.666666666667)])
+def test_explore_fall_prob_defaults_to_two_thirds_of_max_fall_prob(source, hypers, max_fall_prob,
+                                                                    resolved):
+    """The default bound of the explore asks is ⅔ of ``max_fall_prob`` (so a smaller
+    ``max_fall_prob`` is not refused), recorded as that number, and a stored run resumes with
+    it; an explicit value, 0 included, stands."""
+    kw = {} if max_fall_prob is None else {"max_fall_prob": max_fall_prob}
+    cr = _critic(source, hypers, **kw)
+    assert TRANSFER_DEFAULTS["explore_fall_prob"] is None
+    assert cr.opts["explore_fall_prob"] == resolved
+    assert cr.state_dict()["options"]["explore_fall_prob"] == resolved
+    other = _critic(source, hypers, max_fall_prob=0.9)
+    other.load_state_dict(cr.state_dict())
+    assert other.opts["explore_fall_prob"] == resolved
+    for q in (0.0, 0.05):
+        assert _critic(source, hypers, explore_fall_prob=q, **kw).opts["explore_fall_prob"] == q
 
 
 @pytest.mark.parametrize("bad", [-0.1, 0.5, "0.1", True])
@@ -948,9 +969,10 @@ def test_explore_gp_asks_what_the_targets_own_gp_expects_most_improvement_from(s
     tags are as without it; a resumed run asks the same."""
     from latentune.critic.transfer import log_expected_improvement
 
-    assert TRANSFER_DEFAULTS["explore_gp"] is False and ADDED_OPTIONS["explore_gp"] is False
+    assert TRANSFER_DEFAULTS["explore_gp"] is True and ADDED_OPTIONS["explore_gp"] is False
     seen = _spy_explore_gp(monkeypatch)
-    cr = _critic(source, hypers, explore_pool="lines", explore_gp=True, max_fall_prob=1.0)
+    cr = _critic(source, hypers, explore_pool="lines", explore_gp=True, max_fall_prob=1.0,
+                 explore_fall_prob=0.0)
     _run(cr, 8)
     ex = [d for d in cr.decisions if d["explore"]]
     assert [d["generation"] for d in ex] == [3, 5, 7] and len(seen) == 3
@@ -964,16 +986,17 @@ def test_explore_gp_asks_what_the_targets_own_gp_expects_most_improvement_from(s
         assert np.allclose(cr.X[g], C[int(np.argmax(acq))])
         assert len(C) > int(cr.opts["n_candidates"])        # the local maxima joined
     # the target GP, not the transfer model, chose: without it the lines ask elsewhere
-    plain = _critic(source, hypers, explore_pool="lines", max_fall_prob=1.0)
+    plain = _critic(source, hypers, explore_pool="lines", explore_gp=False, max_fall_prob=1.0,
+                    explore_fall_prob=0.0)
     _run(plain, 8)
     assert not np.allclose(plain.X[3], cr.X[3])
     # resumed mid-run, it asks what the original would
     a = _critic(source, hypers, explore_pool="lines", explore_gp=True)
     _run(a, 4)
-    b = _critic(source, hypers)
+    b = _critic(source, hypers, explore_gp=False)
     b.tell(a.X, a.y, a.tags, fell=a.fell, z=a._Z)
     b.load_state_dict(a.state_dict())
-    assert b.opts["explore_gp"] is True
+    assert b.opts["explore_gp"] is True         # the stored run's options stand
     _asks_alike(a, b, 2)                    # generations 4 and 5 (explore)
     assert a.decisions[-1].get("explore_gp")
 
@@ -995,7 +1018,8 @@ def test_explore_gp_with_latent_lines_weighs_the_decoded_codes_with_the_rest(sou
 
     monkeypatch.setattr(Transfer, "_pool_latent", spy_lat)
     seen = _spy_explore_gp(monkeypatch)
-    cr = _critic(source, hypers, explore_pool="latent_lines", explore_gp=True, max_fall_prob=1.0)
+    cr = _critic(source, hypers, explore_pool="latent_lines", explore_gp=True, max_fall_prob=1.0,
+                 explore_fall_prob=0.0)
     _run(cr, 8)
     ex = [d for d in cr.decisions if d["explore"]]
     assert [d["generation"] for d in ex] == [3, 5, 7] and len(seen) == len(codes) == 3
@@ -1017,7 +1041,8 @@ def test_explore_gp_with_latent_lines_weighs_the_decoded_codes_with_the_rest(sou
 
     monkeypatch.setattr(TargetGP, "log_ei", peaks_at_codes)
     codes.clear()
-    cr2 = _critic(source, hypers, explore_pool="latent_lines", explore_gp=True, max_fall_prob=1.0)
+    cr2 = _critic(source, hypers, explore_pool="latent_lines", explore_gp=True, max_fall_prob=1.0,
+                  explore_fall_prob=0.0)
     _run(cr2, 4)
     assert cr2.tags[3] % 4 == LATENT
 

@@ -385,9 +385,11 @@ def test_summary_reads_one_machines_reruns_in_place_of_the_stored_runs(tmp_path)
 
 def test_a_stored_method_name_keeps_its_explore_pool_after_the_default_changed(tmp_path,
                                                                                 monkeypatch):
-    """``transfer`` runs the critic with the explore pool of its stored runs (``LADDER_BASE``,
-    the default before session 32) and ``transfer+explore_pool=adaptive`` the default since;
-    any other option leaves the base pool."""
+    """``transfer`` runs the critic with the explore pool and the explore asks of its stored
+    runs (``LADDER_BASE``: the pool of the default before session 32, the explore asks of the
+    default before session 39), ``transfer+explore_pool=adaptive`` the default of sessions
+    32–38 and ``…:explore_gp=true:explore_fall_prob=0.2`` today's; any other option leaves the
+    base."""
     import latentune.critic.transfer as ct
 
     src = tr.source_run(tmp_path, "chain", 0, 16)
@@ -401,9 +403,13 @@ def test_a_stored_method_name_keeps_its_explore_pool_after_the_default_changed(t
         raise Stop
 
     monkeypatch.setattr(ct, "Transfer", capture)
-    for opts in (None, {"explore_pool": "adaptive"}, {"distinct": True}):
+    today = tr.parse_variant("explore_pool=adaptive:explore_gp=true:explore_fall_prob=0.2")
+    for opts in (None, {"explore_pool": "adaptive"}, {"distinct": True}, today):
         with pytest.raises(Stop):
             tr.run_method("transfer", tr.SYSTEMS["chain"]["target"](1.0), src, 4, 0, opts)
-    assert [m["explore_pool"] for m in made] == ["latent", "adaptive", "latent"]
-    assert tr.LADDER_BASE == {"explore_pool": "latent"} != {
-        "explore_pool": ct.TRANSFER_DEFAULTS["explore_pool"]}
+    assert [(m["explore_pool"], m["explore_gp"], m["explore_fall_prob"]) for m in made] == [
+        ("latent", False, 0.0), ("adaptive", False, 0.0), ("latent", False, 0.0),
+        ("adaptive", True, 0.2)]
+    assert ct.resolved_options({k: made[-1][k] for k in ("explore_pool", "explore_gp",
+                                                         "explore_fall_prob")}) == \
+        ct.resolved_options({}), "today's name must be today's default"

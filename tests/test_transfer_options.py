@@ -87,3 +87,13 @@ def test_ask_tell_takes_the_same_options(tmp_path, src):
         with pytest.raises(StoreError, match="transfer-options"):
             st.ask(transfer_options={"explore_every": 4})
         assert st.ask(transfer_options=OFF)[0].phase == Phase.PHASE3
+
+
+def test_a_small_max_fall_prob_takes_the_default_explore_bound_below_it(tmp_path, src):
+    """The default phase 3 at ``max_fall_prob`` 0.1 runs (the explore asks' default bound is ⅔
+    of it, not a fixed 0.2 over it) and its state records the bound it used."""
+    with lt.Study(tmp_path / "t", seed=0) as st:
+        assert st.phase3(plant(0.2), 5, latent=src, max_fall_prob=0.1).n == 5
+        opts = _state(st)["options"]
+        assert opts["max_fall_prob"] == 0.1 and opts["explore_fall_prob"] == 0.066666666667
+        assert opts["explore_gp"] is True

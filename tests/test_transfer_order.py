@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from latentune.critic.transfer import ADDED_OPTIONS, TRANSFER_DEFAULTS, Transfer, canonical_order
+from latentune.critic.transfer import (ADDED_OPTIONS, TRANSFER_DEFAULTS, Transfer, canonical_order,
+                                      resolved_options)
 
 from test_transfer import D, _bowl, source  # noqa: F401 - shared fixtures
 
@@ -131,10 +132,22 @@ def test_stored_options_are_what_a_stored_run_resumes_with():
 def test_paper_report_names_the_seeds_that_did_not_run_todays_default():
     from latentune.reporting.paper_report import _options_note
 
-    old = {**TRANSFER_DEFAULTS, "explore_falls": 0}
-    arm = {"seeds": [0, 1, 2, 3], "options": [old, dict(TRANSFER_DEFAULTS), old, None]}
+    today = resolved_options({})        # as a run stores them: explore_fall_prob resolved
+    old = {**today, "explore_falls": 0}
+    arm = {"seeds": [0, 1, 2, 3], "options": [old, dict(today), old, None]}
     note = _options_note(arm)
     assert "seeds 0, 2: `explore_falls=0` (default 3)" in note
     assert "1" not in note.split("differ here:")[1].replace("0, 2", "")
-    assert _options_note({"seeds": [0], "options": [dict(TRANSFER_DEFAULTS)]}) == ""
+    assert _options_note({"seeds": [0], "options": [dict(today)]}) == ""
+    # a row of the default before session 39 is named; today's default at another
+    # max_fall_prob is judged against that bound's explore_fall_prob (⅔ of it)
+    s38 = {**today, "explore_gp": False, "explore_fall_prob": 0.0}
+    assert "`explore_fall_prob=0.0` (default 0.2)" in _options_note({"seeds": [5],
+                                                                    "options": [s38]})
+    loose = resolved_options({"max_fall_prob": 0.6})
+    assert loose["explore_fall_prob"] == 0.4
+    assert _options_note({"seeds": [0], "options": [loose]}) == \
+        "Not today's default: the default phase 3's rows stored before an option existed " \
+        "resume with the options they ran with, which differ here: seed 0: " \
+        "`max_fall_prob=0.6` (default 0.3)."
     assert _options_note(None) == ""

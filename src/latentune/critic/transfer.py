@@ -176,7 +176,8 @@ no standing trial, the best one. On a target whose best trial only just stands (
 trials around it fall), the search moves to the best trial whose neighbourhood stands instead
 of asking around a θ the model already expects to fall. Each ask that moved the centre records
 ``centre_screened``.
-``explore_fall_prob`` = q > 0 (default 0: off) screens an explore ask's candidates at the
+``explore_fall_prob`` = q > 0 (default None: ⅔ of ``max_fall_prob``, 0.2 at its default; 0:
+off) screens an explore ask's candidates at the
 bound q (at most ``max_fall_prob``) instead of ``max_fall_prob``; when fewer than the batch pass
 it, at ``max_fall_prob`` as every ask (then the least likely to fall, as every ask): an explore
 ask is a step the local search does not need, so it may take less risk. Each explore decision
@@ -200,7 +201,7 @@ with few outcomes the score stands). Every use of the probability (the screen at
 ``safe_fallback``, and ``fall_cost``'s probability of the fall outcome) takes the calibrated
 value, so a bound is a fall rate the target's record supports. Each decision records ``(a, b)``
 (``fall_calibration``).
-``explore_gp`` (default False): an explore ask of the lines (``"lines"``, or ``"adaptive"``
+``explore_gp`` (default True; False before session 39): an explore ask of the lines (``"lines"``, or ``"adaptive"``
 resolved to them) is chosen by a GP on the target's trials alone (:class:`TargetGP`: no
 source prior), not by the transfer model, and over a wider pool: half the lines through the
 centre, as many Sobol points over the whole θ box, and the local maxima of that GP's log
@@ -355,11 +356,25 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "full_shape": "lengthscales", "tilt": 0.0, "lines_pick": "uniform",
     "fall_source_sd": False, "face_snap": 0.0, "explore_void": False,
     "explore_fall_weight": 0.0, "centre_screen": False, "distinct": True,
-    "explore_fall_prob": 0.0, "explore_skip": False, "fall_calibrate": False,
-    "fall_shrink": False, "centre_falls": 0, "fall_rank": "clipped", "explore_gp": False,
+    "explore_fall_prob": None, "explore_skip": False, "fall_calibrate": False,
+    "fall_shrink": False, "centre_falls": 0, "fall_rank": "clipped", "explore_gp": True,
     "explore_record": "count", "explore_bandit": "mean",
 }
-"""The options of :class:`Transfer` (see the module docstring); recorded in its state."""
+"""The options of :class:`Transfer` (see the module docstring); recorded in its state, where
+``explore_fall_prob`` is resolved (:func:`resolved_options`)."""
+
+
+def resolved_options(options: dict[str, Any]) -> dict[str, Any]:
+    """Every option of :class:`Transfer` given ``options`` (a subset of :data:`TRANSFER_DEFAULTS`):
+    the defaults, with ``explore_fall_prob``'s default (None) resolved to ⅔ of ``max_fall_prob``
+    (0.2 at its default 0.3), so a smaller ``max_fall_prob`` keeps the explore asks' bound below
+    it. A ``max_fall_prob`` that is not a number leaves None for the constructor to refuse."""
+    opts = {**TRANSFER_DEFAULTS, **options}
+    p = opts["max_fall_prob"]
+    if opts["explore_fall_prob"] is None and isinstance(p, (int, float)) \
+            and not isinstance(p, bool):
+        opts["explore_fall_prob"] = round(2.0 * float(p) / 3.0, 12)
+    return opts
 
 ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fallback": False,
                                  "fall_cost": False, "handoff": 0, "handoff_model": "target",
@@ -1042,7 +1057,7 @@ class Transfer(TwoSpaceCritic):
         if unknown:
             raise TypeError(f"Transfer: unknown option(s) {sorted(unknown)}")
         super().__init__(Xs.shape[1], batch_size=batch_size, seed=seed)
-        self.opts = {**TRANSFER_DEFAULTS, **options}
+        self.opts = resolved_options(options)
         self._explicit = frozenset(options)
         p = self.opts["max_fall_prob"]
         if not (isinstance(p, (int, float)) and 0 < float(p) <= 1):

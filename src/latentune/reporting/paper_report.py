@@ -789,10 +789,10 @@ def _md_seeded(nums: dict[str, Any]) -> list[str]:
 
 def _options_note(arm: dict[str, Any] | None) -> str:
     """A line naming the default arm's seeds whose stored options differ from today's default
-    (:data:`latentune.critic.transfer.TRANSFER_DEFAULTS`): a row made before an option existed
+    (:func:`latentune.critic.transfer.resolved_options`): a row made before an option existed
     resumes as it ran (:func:`latentune.critic.transfer.stored_options`). Empty when every seed
     ran today's default."""
-    from latentune.critic.transfer import TRANSFER_DEFAULTS
+    from latentune.critic.transfer import resolved_options
 
     if not arm or not arm.get("options"):
         return ""
@@ -800,7 +800,11 @@ def _options_note(arm: dict[str, Any] | None) -> str:
     for seed, o in zip(arm["seeds"], arm["options"]):
         if o is None:
             continue
-        diff = ", ".join(f"`{k}={o[k]}` (default {v})" for k, v in TRANSFER_DEFAULTS.items()
+        default = resolved_options({})      # explore_fall_prob's default at the row's bound:
+        default["explore_fall_prob"] = resolved_options(
+            {"max_fall_prob": o.get("max_fall_prob", default["max_fall_prob"])}
+        )["explore_fall_prob"]
+        diff = ", ".join(f"`{k}={o[k]}` (default {v})" for k, v in default.items()
                          if k in o and o[k] != v)
         if diff:
             groups.setdefault(diff, []).append(seed)
