@@ -8,6 +8,9 @@
         --out also writes them, F.json and F.md; --machine: read METHOD@M runs as METHOD)
     python -m benchmarks.transfer compare --root runs/transfer --a METHOD ... --b METHOD ...
         [--seeds S ...] [--out F]
+    python -m benchmarks.transfer check-default --stored DIR --method METHOD [--root runs/transfer]
+        [--systems ...] [--seeds S ...]   (re-runs METHOD's stored runs with the critic's own
+        defaults: exit 0 when every cost and fall is the same, 1 when one differs)
 
 Systems (``SYSTEMS``; the model is gap 0, each target is the same controller on a plant at a gap):
 
@@ -293,6 +296,44 @@ def run_method(method: str, target: Any, src: Path, B: int, seed: int,
                           source=(Xs, ys) if method == "cma_source_trials" else None)
         _loop(cr, target, B, costs, failed, thetas=thetas)
     return {"costs": costs, "failed": failed, "thetas": thetas, **extra}
+
+
+def default_options() -> dict[str, Any]:
+    """Options over :data:`LADDER_BASE` that give the transfer critic its own defaults (each
+    base key at :data:`~latentune.critic.transfer.TRANSFER_DEFAULTS`' value): ``run_method``
+    with them runs today's default phase 3."""
+    from latentune.critic.transfer import TRANSFER_DEFAULTS
+
+    return {k: TRANSFER_DEFAULTS[k] for k in LADDER_BASE}
+
+
+def check_default(root: Path, stored: Path, method: str, systems: list[str],
+                  seeds: list[int]) -> list[dict[str, Any]]:
+    """Re-run each stored run ``stored/<system>/gap<g>/seed<s>/<method>.json`` with today's
+    default phase 3 (:func:`default_options`) on the source ``root/<system>/seed<s>/source``
+    (made when missing) at the stored budget; one row per run: system, gap, seed, ``same``
+    (costs and falls equal to the stored ones, trial by trial) and both best costs. Missing
+    stored runs are skipped; ValueError when none is found."""
+    rows = []
+    for name in systems:
+        for seed in seeds:
+            for g in SYSTEMS[name]["gaps"]:
+                f = stored / name / f"gap{g:g}" / f"seed{seed}" / f"{method}.json"
+                if not f.is_file():
+                    continue
+                s = json.loads(f.read_text())
+                src = source_run(root, name, seed, 300)
+                r = run_method("transfer", SYSTEMS[name]["target"](g), src, int(s["budget"]),
+                               seed, default_options())
+                rows.append({"system": name, "gap": g, "seed": seed,
+                             "same": r["costs"] == s["costs"] and r["failed"] == s["failed"],
+                             "best": min(r["costs"]), "stored_best": min(s["costs"])})
+                print(f"{name} gap {g:g} seed {seed}: {'same' if rows[-1]['same'] else 'DIFFERS'}"
+                      f" (best {rows[-1]['best']:.6g}, stored {rows[-1]['stored_best']:.6g})",
+                      flush=True)
+    if not rows:
+        raise ValueError(f"no stored run of {method} under {stored} for these systems and seeds")
+    return rows
 
 
 def compare_text(rows: list[dict[str, Any]]) -> str:
@@ -597,8 +638,26 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("--b", nargs="+", required=True)
     c.add_argument("--seeds", nargs="+", type=int, default=None)
     c.add_argument("--out", default=None)
+    k = sub.add_parser("check-default",
+                       help="re-run a method's stored runs with the critic's own defaults")
+    k.add_argument("--root", default="runs/transfer", help="the sources (made when missing)")
+    k.add_argument("--stored", required=True,
+                   help="the stored runs (e.g. results/transfer/rebuilt/runs)")
+    k.add_argument("--method", required=True, help="the stored name of today's default")
+    k.add_argument("--systems", nargs="+", default=list(SYSTEMS), choices=list(SYSTEMS))
+    k.add_argument("--seeds", nargs="+", type=int, default=[0])
     a = ap.parse_args(argv)
     from benchmarks.common import Provenance, write_json
+
+    if a.cmd == "check-default":
+        try:
+            rows = check_default(Path(a.root), Path(a.stored), a.method, a.systems, a.seeds)
+        except ValueError as e:
+            print(f"transfer check-default: {e}", file=sys.stderr)
+            return 2
+        n_diff = sum(not r["same"] for r in rows)
+        print(f"{len(rows) - n_diff} of {len(rows)} runs the same")
+        return 1 if n_diff else 0
 
     if a.cmd == "compare":
         prov = Provenance(argv, module="benchmarks.transfer")

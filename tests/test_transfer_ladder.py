@@ -413,3 +413,43 @@ def test_a_stored_method_name_keeps_its_explore_pool_after_the_default_changed(t
     assert ct.resolved_options({k: made[-1][k] for k in ("explore_pool", "explore_gp",
                                                          "explore_fall_prob")}) == \
         ct.resolved_options({}), "today's name must be today's default"
+
+
+def test_check_default_re_runs_stored_runs_with_the_critics_own_defaults(tmp_path, monkeypatch,
+                                                                         capsys):
+    """``check-default`` runs each stored run of a method with options that give the critic its
+    own defaults (the ladder's base keys set back), compares costs and falls trial by trial,
+    and exits 1 when one differs, 2 when no stored run is found."""
+    import latentune.critic.transfer as ct
+
+    assert ct.resolved_options({**tr.LADDER_BASE, **tr.default_options()}) == \
+        ct.resolved_options({})
+    stored = tmp_path / "stored"
+    runs = {}
+    for g in tr.SYSTEMS["arm"]["gaps"]:
+        f = stored / "arm" / f"gap{g:g}" / "seed0" / "M.json"
+        f.parent.mkdir(parents=True)
+        runs[g] = {"costs": [3.0, 2.0 + g], "failed": [False, True], "budget": 2}
+        f.write_text(json.dumps(runs[g]))
+    seen = []
+
+    def fake(method, target, src, B, seed, options):
+        seen.append((method, B, seed, options))
+        g = tr.SYSTEMS["arm"]["gaps"][len(seen) - 1]        # the gaps in their order
+        return {"costs": list(runs[g]["costs"]), "failed": list(runs[g]["failed"])}
+
+    monkeypatch.setattr(tr, "run_method", fake)
+    monkeypatch.setattr(tr, "source_run", lambda root, name, seed, n: root / name)
+    args = ["check-default", "--root", str(tmp_path / "src"), "--stored", str(stored),
+            "--method", "M", "--systems", "arm"]
+    assert tr.main(args) == 0
+    assert [s[:3] for s in seen] == [("transfer", 2, 0)] * len(runs)
+    assert all(s[3] == tr.default_options() for s in seen)
+    assert f"{len(runs)} of {len(runs)} runs the same" in capsys.readouterr().out
+    first = min(runs)
+    runs[first] = {**runs[first], "failed": [False, False]}      # a fall that is not stored
+    seen.clear()
+    assert tr.main(args) == 1
+    assert "DIFFERS" in capsys.readouterr().out
+    assert tr.main(args[:-3] + ["M2", "--systems", "arm"]) == 2
+    assert "no stored run of M2" in capsys.readouterr().err
