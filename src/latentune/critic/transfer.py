@@ -853,11 +853,24 @@ class TargetGP:
         """The transfer model's posterior mean (2,) and standard deviation (2,) of (a, b)."""
         return self.base.coefficients()
 
+    def _cross(self, Xs: np.ndarray) -> np.ndarray:
+        """The prior covariance (n, m) of the told θ and θ ``Xs`` (m, d)."""
+        return self.sigma_r2 * matern52(self.X, Xs, self.ls)
+
+    def _mean(self, Ks: np.ndarray) -> np.ndarray:
+        """Posterior mean (m,) from :meth:`_cross`'s ``Ks`` (n, m)."""
+        return self.med + self.s * (self.constant + Ks.T @ self.alpha)
+
+    def _variance(self, Ks: np.ndarray) -> np.ndarray:
+        """Posterior marginal variance (m,) from :meth:`_cross`'s ``Ks`` (n, m)."""
+        V = np.linalg.solve(self.L, Ks)
+        return self.s ** 2 * np.maximum(self.sigma_r2 - (V * V).sum(0), 0.0)
+
     def mean_cov(self, Xs: np.ndarray, with_cov: bool = True
                  ) -> tuple[np.ndarray, np.ndarray | None]:
         """Posterior mean (m,) and, with ``with_cov``, covariance (m, m) at θ ``Xs`` (m, d)."""
-        Ks = self.sigma_r2 * matern52(self.X, Xs, self.ls)
-        mu = self.med + self.s * (self.constant + Ks.T @ self.alpha)
+        Ks = self._cross(Xs)
+        mu = self._mean(Ks)
         if not with_cov:
             return mu, None
         V = np.linalg.solve(self.L, Ks)
@@ -865,14 +878,14 @@ class TargetGP:
 
     def variance(self, Xs: np.ndarray) -> np.ndarray:
         """Posterior marginal variance (m,) at θ ``Xs`` (m, d)."""
-        V = np.linalg.solve(self.L, self.sigma_r2 * matern52(self.X, Xs, self.ls))
-        return self.s ** 2 * np.maximum(self.sigma_r2 - (V * V).sum(0), 0.0)
+        return self._variance(self._cross(Xs))
 
     def log_ei(self, Xs: np.ndarray) -> np.ndarray:
         """log expected improvement (m,) at θ ``Xs`` (m, d) below the lowest told value
-        (:func:`log_expected_improvement`)."""
-        return log_expected_improvement(self.mean_cov(Xs, False)[0], self.variance(Xs),
-                                        float(self.v.min()))
+        (:func:`log_expected_improvement`), mean and variance from one :meth:`_cross` (the
+        local search calls it once per point)."""
+        Ks = self._cross(Xs)
+        return log_expected_improvement(self._mean(Ks), self._variance(Ks), float(self.v.min()))
 
 
 def fit_residual_kernel(X: np.ndarray, v: np.ndarray, h0: np.ndarray,
