@@ -176,10 +176,10 @@ no standing trial, the best one. On a target whose best trial only just stands (
 trials around it fall), the search moves to the best trial whose neighbourhood stands instead
 of asking around a θ the model already expects to fall. Each ask that moved the centre records
 ``centre_screened``.
-``explore_fall_prob`` = q > 0 (default None: ⅔ of ``max_fall_prob``, 0.2 at its default; 0:
-off) screens an explore ask's candidates at the
-bound q (at most ``max_fall_prob``) instead of ``max_fall_prob``; when fewer than the batch pass
-it, at ``max_fall_prob`` as every ask (then the least likely to fall, as every ask): an explore
+``explore_fall_prob`` = q > 0 (default None: ⅔ of ``max_fall_prob``, 0.2 at its default, since
+session 39; 0: off) screens an explore ask's candidates at the bound q (at most
+``max_fall_prob``) instead of ``max_fall_prob``; when fewer than the batch pass it, at
+``max_fall_prob`` as every ask (then the least likely to fall, as every ask): an explore
 ask is a step the local search does not need, so it may take less risk. Each explore decision
 records the bound it applied (``explore_bound``).
 ``explore_skip`` (default False): an explore ask whose pool holds fewer candidates the fall
@@ -201,8 +201,8 @@ with few outcomes the score stands). Every use of the probability (the screen at
 ``safe_fallback``, and ``fall_cost``'s probability of the fall outcome) takes the calibrated
 value, so a bound is a fall rate the target's record supports. Each decision records ``(a, b)``
 (``fall_calibration``).
-``explore_gp`` (default True; False before session 39): an explore ask of the lines (``"lines"``, or ``"adaptive"``
-resolved to them) is chosen by a GP on the target's trials alone (:class:`TargetGP`: no
+``explore_gp`` (default True since session 39): an explore ask of the lines (``"lines"``, or
+``"adaptive"`` resolved to them) is chosen by a GP on the target's trials alone (:class:`TargetGP`: no
 source prior), not by the transfer model, and over a wider pool: half the lines through the
 centre, as many Sobol points over the whole θ box, and the local maxima of that GP's log
 expected improvement (L-BFGS-B from the best of those, :func:`log_expected_improvement`), which
