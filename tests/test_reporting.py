@@ -292,3 +292,30 @@ def test_phase3_label_names_the_strategy():
         "phase 3 (latent, CMA-ES)"
     assert phase_label(Phase.PHASE3, {"phase3": {"method": "turbo", "handover": {"tol": 0.01}}}) \
         == "phase 3 (latent, TuRBO-m, hand-over)"
+
+
+def test_report_and_status_name_the_explore_asks_the_targets_gp_chose(tmp_path: Path):
+    """A decision of an explore ask the target's own GP chose (``explore_gp``) reads
+    ``explore (lines, target GP)`` in the report's table and status's counts, and the screen's
+    bound of an explore ask (``explore_bound``) has its column; other asks leave it empty."""
+    from latentune.pipeline.phases import state_key
+    from latentune.pipeline.results import decision_kind, decisions_summary
+    from latentune.reporting.run_report import decisions_markdown
+
+    ds = [{"generation": 0, "n_told": 1, "design": True, "agreement": 0.5, "length": 0.5},
+          {"generation": 1, "n_told": 2, "explore": True, "explore_pool": "latent",
+           "explore_bound": 0.2, "agreement": 0.4, "length": 0.5},
+          {"generation": 3, "n_told": 4, "explore": True, "explore_pool": "lines",
+           "explore_gp": True, "explore_bound": 0.3, "agreement": 0.3, "length": 0.25}]
+    assert [decision_kind(d) for d in ds] == ["design", "explore (latent)",
+                                              "explore (lines, target GP)"]
+    with RunStore(tmp_path / "r", create=True) as st:
+        st.set_meta(state_key(Phase.PHASE3), {"decisions": ds})
+        md = decisions_markdown(st)
+        assert decisions_summary(ds)["kinds"] == {"design": 1, "explore (latent)": 1,
+                                                  "explore (lines, target GP)": 1}
+    header, rows = md[4], md[6:9]
+    cells = [r.split(" | ") for r in rows]
+    col = header.split(" | ").index("explore screen")
+    assert [c[col] for c in cells] == ["–", "0.20", "0.30"]
+    assert cells[2][2] == "explore (lines, target GP)"

@@ -131,7 +131,8 @@ def decisions(store: RunStore, phase: int = Phase.PHASE3) -> list[dict[str, Any]
 
 def decision_kind(d: dict[str, Any]) -> str:
     """What an ask was, from its decision ``d``: ``"design"`` (the source's elite θ),
-    ``"explore (lines)"`` / ``"explore (latent)"`` / … (an explore ask and its pool),
+    ``"explore (lines)"`` / ``"explore (latent)"`` / … (an explore ask and its pool;
+    ``"explore (lines, target GP)"`` when the target's own GP chose it, ``explore_gp``),
     ``"manual θ"`` or ``"converged"`` (a rule's ask), else ``"region"`` (the trust region, the
     latent box around the best θ and the elites, as the model chose)."""
     rule = str(d.get("rule") or "")
@@ -140,7 +141,8 @@ def decision_kind(d: dict[str, Any]) -> str:
     if "converged" in rule:
         return "converged"
     if d.get("explore"):
-        return f"explore ({d.get('explore_pool') or 'latent'})"
+        return f"explore ({d.get('explore_pool') or 'latent'}" + \
+            (", target GP)" if d.get("explore_gp") else ")")
     return "design" if d.get("design") else "region"
 
 

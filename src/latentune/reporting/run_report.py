@@ -255,7 +255,8 @@ def decisions_markdown(store: Any) -> list[str]:
     """The report's lines on the phase-3 critic's decisions (:func:`~latentune.pipeline.results.
     decisions`): how many asks of each kind, then one table row per ask (generation, trials
     told before it, kind, pools of its points, agreement, the trust region's side, admissible
-    candidates of all, the highest fall probability it asked); [] without any."""
+    candidates of all, the fall screen's bound when an explore ask applied its own
+    (``explore_bound``), the highest fall probability it asked); [] without any."""
     from latentune.pipeline.results import decision_kind, decisions, decisions_summary
 
     ds = decisions(store)
@@ -267,14 +268,14 @@ def decisions_markdown(store: Any) -> list[str]:
           + ". The agreement is the posterior mean of the source model's weight in the target's "
           "cost model (1: the target ranks θ as the source did; 0: the source says nothing).", "",
           "| generation | trials told | ask | pools | agreement | side | admissible | "
-          "max fall prob asked |", "|---:|---:|---|---|---:|---:|---:|---:|"]
+          "explore screen | max fall prob asked |", "|---:|---:|---|---|---:|---:|---:|---:|---:|"]
     for d in ds:
         pools = "/".join(sorted(set(d.get("pools") or [])))
         adm = "" if d.get("n_admissible") is None else \
             f"{d['n_admissible']} of {d.get('n_candidates')}"
         md.append(f"| {d.get('generation')} | {d.get('n_told')} | {decision_kind(d)} | {pools} | "
                   f"{fmt(d.get('agreement'), 2)} | {fmt(d.get('length'), 4)} | {adm} | "
-                  f"{fmt(d.get('max_fall_prob_asked'), 2)} |")
+                  f"{fmt(d.get('explore_bound'), 2)} | {fmt(d.get('max_fall_prob_asked'), 2)} |")
     md.append("")
     return md
 
