@@ -1073,3 +1073,51 @@ def test_explore_gp_with_fall_cost_asks_the_highest_constrained_ei(source, hyper
         cr.tell(x, y, cr.last_tags, fell=f, z=cr.last_z)
     assert len(seen) == 3
     assert differs >= 1             # the fall model moved the choice
+
+
+def test_region_gp_lets_the_targets_own_gp_choose_the_region_asks_while_the_lines_lead(
+        source, hypers, monkeypatch):
+    """``region_gp``: while the next explore pool is the lines, a trust-region ask adds Sobol
+    points and the target GP's log-EI maxima to its pool and asks the highest log EI (with the
+    screen admitting all, at least every maximum's); it records ``region_gp``. With the latent
+    box next, or without the option, the region asks are the transfer model's; a resumed run
+    asks the same."""
+    import latentune.critic.transfer as ct
+
+    assert ct.TRANSFER_DEFAULTS["region_gp"] is False and ct.ADDED_OPTIONS["region_gp"] is False
+    maxima: list[tuple] = []
+    orig = ct._local_max
+
+    def spy(f, X0, maxiter=40):
+        out = orig(f, X0, maxiter)
+        maxima.append((f, out))
+        return out
+
+    monkeypatch.setattr(ct, "_local_max", spy)
+    kw = dict(explore_gp=False, explore_fall_prob=0.0, max_fall_prob=1.0)
+    cr = _critic(source, hypers, explore_pool="lines", region_gp=True, **kw)
+    _run(cr, 8)
+    region = [d for d in cr.decisions if not d["explore"] and not d["design"]]
+    assert region and all(d.get("region_gp") for d in region) and len(maxima) == len(region)
+    assert not any(d.get("region_gp") for d in cr.decisions if d["explore"] or d["design"])
+    for d, (f, XM) in zip(region, maxima):
+        x = cr.X[d["generation"]][None, :]
+        assert f(x)[0] >= f(XM).max() - 1e-12      # the ask is the highest log EI
+    for opts in ({"explore_pool": "latent", "region_gp": True}, {"explore_pool": "lines"}):
+        maxima.clear()
+        other = _critic(source, hypers, **opts, **kw)
+        _run(other, 8)
+        assert not maxima and not any(d.get("region_gp") for d in other.decisions)
+    a = _critic(source, hypers, explore_pool="lines", region_gp=True, **kw)
+    _run(a, 4)
+    b = _critic(source, hypers, region_gp=False)
+    b.tell(a.X, a.y, a.tags, fell=a.fell, z=a._Z)
+    b.load_state_dict(a.state_dict())
+    assert b.opts["region_gp"] is True
+    _asks_alike(a, b, 2)
+
+
+@pytest.mark.parametrize("bad", [1, "yes", None])
+def test_region_gp_is_checked(source, hypers, bad):
+    with pytest.raises(ValueError, match="region_gp"):
+        _critic(source, hypers, region_gp=bad)

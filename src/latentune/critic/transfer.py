@@ -217,6 +217,13 @@ the target's own model, as Optuna's GPSampler fits it, goes there once the targe
 so. The adaptive record counts these asks as the lines'. With ``fall_cost`` the choice is the
 highest ``log EI + log(1 − p)`` (constrained EI, ``p`` as ``fall_cost`` takes it). Each such
 decision records ``explore_gp``.
+``region_gp`` (default False): a trust-region ask (neither an explore ask nor a design ask)
+made while the adaptive record's next explore pool is the lines (the target's own GP has led
+the explore asks) is chosen as ``explore_gp`` chooses: its pool (elites, the full box around
+the centre, the latent box) gains as many Sobol points over the θ box and the local maxima of
+the target GP's log EI from the :data:`_GP_STARTS` best of all, and the ask is the highest log
+EI the fall screen admits (at ``max_fall_prob``). ``L`` and its counters follow it as any
+region ask. Such a decision records ``region_gp``.
 ``fall_shrink`` (default False): the same rule for falls in the early phase. A trust-region
 generation (neither an explore ask nor a design ask of the elite pool) in which more than
 ``max_fall_prob`` of the trials fell halves the side ``L`` (once, at least ``length_min``) and
@@ -358,7 +365,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "explore_fall_weight": 0.0, "centre_screen": False, "distinct": True,
     "explore_fall_prob": None, "explore_skip": False, "fall_calibrate": False,
     "fall_shrink": False, "centre_falls": 0, "fall_rank": "clipped", "explore_gp": True,
-    "explore_record": "count", "explore_bandit": "mean",
+    "explore_record": "count", "explore_bandit": "mean", "region_gp": False,
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state, where
 ``explore_fall_prob`` is resolved (:func:`resolved_options`)."""
@@ -392,7 +399,7 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "fall_calibrate": False, "fall_shrink": False,
                                  "centre_falls": 0, "fall_rank": "clipped",
                                  "explore_gp": False, "explore_record": "count",
-                                 "explore_bandit": "mean"}
+                                 "explore_bandit": "mean", "region_gp": False}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -1024,6 +1031,7 @@ class _AskContext:
     explore_skipped: bool = False
     fragile: int = 0
     explore_gp: TargetGP | None = None
+    region_gp: bool = False
 
 
 @dataclass
@@ -1093,7 +1101,7 @@ class Transfer(TwoSpaceCritic):
             raise ValueError(f"explore_every must be 0 (off) or an integer ≥ 2, got {k_ex!r}")
         for flag in ("stand_first", "explore_adapt", "fall_source_sd", "explore_void",
                      "centre_screen", "distinct", "explore_skip", "fall_calibrate",
-                     "fall_shrink", "explore_gp"):
+                     "fall_shrink", "explore_gp", "region_gp"):
             if not isinstance(self.opts[flag], (bool, np.bool_)):
                 raise ValueError(f"{flag} must be true or false, got {self.opts[flag]!r}")
         k_ef = self.opts["explore_falls"]
@@ -1792,6 +1800,15 @@ class Transfer(TwoSpaceCritic):
             parts = [(E, np.full((len(E), self.k), np.nan), ELITE),
                      (XF, np.full((len(XF), self.k), np.nan), FULL), (XL, UL, LATENT),
                      (XG, np.full((len(XG), self.k), np.nan), GLOBAL)]
+            if self.opts["region_gp"] and cost_m is not None and st["explore_pool"] == "lines":
+                # the lines lead the explore record: the target's own GP chooses this ask too
+                ctx.explore_gp, ctx.region_gp = \
+                    TargetGP(self._X, cost_m.v, self._turbo_helper(), cost_m), True
+                XS = self._pool_global(M // 2, rng)
+                XB = np.vstack([p[0] for p in parts] + [XS])
+                starts = XB[np.argsort(-ctx.explore_gp.log_ei(XB), kind="stable")[:_GP_STARTS]]
+                XM = np.vstack([XS, _local_max(ctx.explore_gp.log_ei, starts)])
+                parts.append((XM, np.full((len(XM), self.k), np.nan), GLOBAL))
         keys = None
         if self.opts["distinct"]:
             taken = self._told_keys()
@@ -2088,7 +2105,8 @@ class Transfer(TwoSpaceCritic):
             **({"explore_braked": True} if ctx.state.get("explore_braked") else {}),
             **({"explore_bound": ctx.explore_bound} if ctx.explore_bound is not None else {}),
             **({"explore_skipped": True} if ctx.explore_skipped else {}),
-            **({"explore_gp": True} if ctx.explore_gp is not None else {}),
+            **({"region_gp" if ctx.region_gp else "explore_gp": True}
+               if ctx.explore_gp is not None else {}),
             **({"fall_calibration": [float(v) for v in self.calibration()]}
                if self.opts["fall_calibrate"] and self.n_told else {}),
             **({"explore_void": len(ctx.state["void"])}
