@@ -309,6 +309,8 @@ def test_report_and_status_name_the_explore_asks_the_targets_gp_chose(tmp_path: 
            "explore_gp": True, "explore_bound": 0.3, "agreement": 0.3, "length": 0.25}]
     assert [decision_kind(d) for d in ds] == ["design", "explore (latent)",
                                               "explore (lines, target GP)"]
+    assert [decision_kind({"explore": False, "region_gp": g}) for g in (True, False)] == \
+        ["region (target GP)", "region"]
     with RunStore(tmp_path / "r", create=True) as st:
         st.set_meta(state_key(Phase.PHASE3), {"decisions": ds})
         md = decisions_markdown(st)

@@ -134,7 +134,8 @@ def decision_kind(d: dict[str, Any]) -> str:
     ``"explore (lines)"`` / ``"explore (latent)"`` / … (an explore ask and its pool;
     ``"explore (lines, target GP)"`` when the target's own GP chose it, ``explore_gp``),
     ``"manual θ"`` or ``"converged"`` (a rule's ask), else ``"region"`` (the trust region, the
-    latent box around the best θ and the elites, as the model chose)."""
+    latent box around the best θ and the elites, as the model chose; ``"region (target GP)"``
+    when the target's own GP chose, ``region_gp``)."""
     rule = str(d.get("rule") or "")
     if "manual" in rule:
         return "manual θ"
@@ -143,7 +144,9 @@ def decision_kind(d: dict[str, Any]) -> str:
     if d.get("explore"):
         return f"explore ({d.get('explore_pool') or 'latent'}" + \
             (", target GP)" if d.get("explore_gp") else ")")
-    return "design" if d.get("design") else "region"
+    if d.get("design"):
+        return "design"
+    return "region (target GP)" if d.get("region_gp") else "region"
 
 
 def decisions_summary(ds: list[dict[str, Any]]) -> dict[str, Any] | None:
