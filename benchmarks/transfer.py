@@ -223,6 +223,9 @@ def parse_variant(text: str) -> dict[str, Any]:
     return out
 
 
+SOURCE_EVALS = 300
+"""Phase-1 trials of each seed's source run on the model (``run --source-evals``)."""
+
 LADDER_BASE: dict[str, Any] = {"explore_pool": "latent", "explore_gp": False,
                                "explore_fall_prob": 0.0}
 """The transfer critic's options under the method name ``transfer`` beyond its defaults: the
@@ -322,7 +325,7 @@ def check_default(root: Path, stored: Path, method: str, systems: list[str],
                 if not f.is_file():
                     continue
                 s = json.loads(f.read_text())
-                src = source_run(root, name, seed, 300)
+                src = source_run(root, name, seed, SOURCE_EVALS)
                 r = run_method("transfer", SYSTEMS[name]["target"](g), src, int(s["budget"]),
                                seed, default_options())
                 rows.append({"system": name, "gap": g, "seed": seed,
@@ -613,7 +616,7 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--systems", nargs="+", default=list(SYSTEMS), choices=list(SYSTEMS))
     r.add_argument("--seeds", nargs="+", type=int, default=list(range(10)))
     r.add_argument("--budget", type=int, default=40)
-    r.add_argument("--source-evals", type=int, default=300)
+    r.add_argument("--source-evals", type=int, default=SOURCE_EVALS)
     r.add_argument("--root", default="runs/transfer")
     r.add_argument("--only", nargs="*", choices=METHODS, default=None)
     r.add_argument("--variants", nargs="+", default=[],

@@ -572,6 +572,14 @@ def _local_max(f: Callable[[np.ndarray], np.ndarray], X0: np.ndarray,
     return np.asarray(out, dtype=float).reshape(-1, X0.shape[1])
 
 
+def _gp_maxima(gp: TargetGP, XB: np.ndarray) -> np.ndarray:
+    """The local maxima (k, d) of ``gp``'s log expected improvement (:func:`_local_max`) from
+    the :data:`_GP_STARTS` candidates of ``XB`` (m, d) with the highest (``explore_gp``'s and
+    ``region_gp``'s)."""
+    starts = XB[np.argsort(-gp.log_ei(XB), kind="stable")[:_GP_STARTS]]
+    return _local_max(gp.log_ei, starts)
+
+
 # --------------------------------------------------------------------------- source models
 @dataclass
 class _GPFit:
@@ -1577,8 +1585,7 @@ class Transfer(TwoSpaceCritic):
         a gradient optimizer of GPSampler's or BoTorch's acquisition does)."""
         m = len(XI)
         XB = np.vstack([XI[:m - m // 2], self._pool_global(m // 2, rng)])
-        starts = XB[np.argsort(-gp.log_ei(XB), kind="stable")[:_GP_STARTS]]
-        return np.vstack([XB, _local_max(gp.log_ei, starts)])
+        return np.vstack([XB, _gp_maxima(gp, XB)])
 
     def _pool_lines(self, m: int, centre: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """``m`` θ (m, d) on axis lines and planes through ``centre`` (d,): each is the centre
@@ -1805,9 +1812,8 @@ class Transfer(TwoSpaceCritic):
                 ctx.explore_gp, ctx.region_gp = \
                     TargetGP(self._X, cost_m.v, self._turbo_helper(), cost_m), True
                 XS = self._pool_global(M // 2, rng)
-                XB = np.vstack([p[0] for p in parts] + [XS])
-                starts = XB[np.argsort(-ctx.explore_gp.log_ei(XB), kind="stable")[:_GP_STARTS]]
-                XM = np.vstack([XS, _local_max(ctx.explore_gp.log_ei, starts)])
+                XM = np.vstack([XS, _gp_maxima(ctx.explore_gp,
+                                               np.vstack([p[0] for p in parts] + [XS]))])
                 parts.append((XM, np.full((len(XM), self.k), np.nan), GLOBAL))
         keys = None
         if self.opts["distinct"]:

@@ -796,14 +796,13 @@ def _options_note(arm: dict[str, Any] | None) -> str:
 
     if not arm or not arm.get("options"):
         return ""
+    today = resolved_options({})
     groups: dict[str, list[int]] = {}
     for seed, o in zip(arm["seeds"], arm["options"]):
         if o is None:
             continue
-        default = resolved_options({})      # explore_fall_prob's default at the row's bound:
-        default["explore_fall_prob"] = resolved_options(
-            {"max_fall_prob": o.get("max_fall_prob", default["max_fall_prob"])}
-        )["explore_fall_prob"]
+        default = {**today, "explore_fall_prob": resolved_options(     # at the row's bound
+            {"max_fall_prob": o.get("max_fall_prob", today["max_fall_prob"])})["explore_fall_prob"]}
         diff = ", ".join(f"`{k}={o[k]}` (default {v})" for k, v in default.items()
                          if k in o and o[k] != v)
         if diff:
