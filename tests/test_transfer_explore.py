@@ -1117,7 +1117,32 @@ def test_region_gp_lets_the_targets_own_gp_choose_the_region_asks_while_the_line
     _asks_alike(a, b, 2)
 
 
-@pytest.mark.parametrize("bad", [1, "yes", None])
+@pytest.mark.parametrize("floor", [0.0, 0.1])
+def test_screened_region_gp_asks_take_the_explore_bound(source, hypers, monkeypatch, floor):
+    """``region_gp="screened"`` with a fall screen that rates a θ by its first gain
+    (``floor + 0.25 · θ_0``), ``explore_fall_prob`` 0.05 and ``max_fall_prob`` 0.3: with
+    ``floor`` 0 every ``region_gp`` ask picks θ with ``θ_0 ≤ 0.2`` and records the bound 0.05;
+    with ``floor`` 0.1 none passes 0.05 and they fall back to 0.3, as recorded. With
+    ``region_gp=True`` the same asks record no bound and at least one picks ``θ_0 > 0.2``."""
+    monkeypatch.setattr(Transfer, "_fall_prob",
+                        lambda self, C, fall_m, bound=None: floor + 0.25 * np.asarray(C)[:, 0])
+    kw = dict(n_design=0, explore_pool="lines", explore_gp=False, explore_fall_prob=0.05)
+    cr = _critic(source, hypers, region_gp="screened", **kw)
+    _run(cr, 10)
+    region = [d for d in cr.decisions if d.get("region_gp")]
+    assert region
+    for d in region:
+        assert d["explore_bound"] == (0.05 if floor == 0.0 else 0.3)
+        assert cr.X[d["generation"], 0] <= (0.2 + 1e-12 if floor == 0.0 else 0.8 + 1e-12)
+    plain = _critic(source, hypers, region_gp=True, **kw)
+    _run(plain, 10)
+    region = [d for d in plain.decisions if d.get("region_gp")]
+    assert region and not any("explore_bound" in d for d in region)
+    if floor == 0.0:
+        assert max(plain.X[d["generation"], 0] for d in region) > 0.2
+
+
+@pytest.mark.parametrize("bad", [1, "yes", None, "screen"])
 def test_region_gp_is_checked(source, hypers, bad):
     with pytest.raises(ValueError, match="region_gp"):
         _critic(source, hypers, region_gp=bad)

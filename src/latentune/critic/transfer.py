@@ -223,7 +223,10 @@ the explore asks) is chosen as ``explore_gp`` chooses: its pool (elites, the ful
 the centre, the latent box) gains as many Sobol points over the θ box and the local maxima of
 the target GP's log EI from the :data:`_GP_STARTS` best of all, and the ask is the highest log
 EI the fall screen admits (at ``max_fall_prob``). ``L`` and its counters follow it as any
-region ask. Such a decision records ``region_gp``.
+region ask. Such a decision records ``region_gp``. With ``region_gp="screened"`` such an ask
+is screened as an explore ask is: at ``explore_fall_prob`` first, at ``max_fall_prob`` when
+fewer than the batch pass (recorded as ``explore_bound``): an ask the target's own GP moves out
+of the trust region's choice, toward the box's faces, takes the explore asks' smaller risk.
 ``fall_shrink`` (default False): the same rule for falls in the early phase. A trust-region
 generation (neither an explore ask nor a design ask of the elite pool) in which more than
 ``max_fall_prob`` of the trials fell halves the side ``L`` (once, at least ``length_min``) and
@@ -1109,9 +1112,12 @@ class Transfer(TwoSpaceCritic):
             raise ValueError(f"explore_every must be 0 (off) or an integer ≥ 2, got {k_ex!r}")
         for flag in ("stand_first", "explore_adapt", "fall_source_sd", "explore_void",
                      "centre_screen", "distinct", "explore_skip", "fall_calibrate",
-                     "fall_shrink", "explore_gp", "region_gp"):
+                     "fall_shrink", "explore_gp"):
             if not isinstance(self.opts[flag], (bool, np.bool_)):
                 raise ValueError(f"{flag} must be true or false, got {self.opts[flag]!r}")
+        rg = self.opts["region_gp"]
+        if not (isinstance(rg, (bool, np.bool_)) or (isinstance(rg, str) and rg == "screened")):
+            raise ValueError(f"region_gp must be true, false or \"screened\", got {rg!r}")
         k_ef = self.opts["explore_falls"]
         if isinstance(k_ef, bool) or not isinstance(k_ef, (int, np.integer)) or k_ef < 0:
             raise ValueError(f"explore_falls must be an integer ≥ 0 (0: never stop exploring), "
@@ -1828,10 +1834,12 @@ class Transfer(TwoSpaceCritic):
             X=C, Z=np.vstack([p[1] for p in parts]) if self.k else np.empty((len(C), 0)),
             pool=np.concatenate([np.full(len(p[0]), p[2], dtype=np.int64) for p in parts]),
             pf=self._fall_prob(C, fall_m, bound), rank=rank)
-        # the fall screen (an explore ask first at its own, stricter bound)
+        # the fall screen (an explore ask, and a screened ``region_gp`` ask, first at the
+        # explore asks' own, stricter bound)
         ok = cands.pf <= float(self.opts["max_fall_prob"])
         q_ex = float(self.opts["explore_fall_prob"])
-        if ctx.explore and q_ex > 0.0:
+        if (ctx.explore or (ctx.region_gp and self.opts["region_gp"] == "screened")) \
+                and q_ex > 0.0:
             strict = cands.pf <= q_ex
             ctx.explore_bound = q_ex if strict.sum() >= n else float(self.opts["max_fall_prob"])
             ok = strict if strict.sum() >= n else ok
