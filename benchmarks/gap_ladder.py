@@ -2,7 +2,7 @@
 and of those that do not, the share that fail on each target.
 
     python -m benchmarks.gap_ladder [--systems zones springs ...] [--n 300] [--seed 0]
-        [--out F.json]
+        [--gaps G ...] [--out F.json]
 
 For every system of :data:`benchmarks.transfer.SYSTEMS`: ``--n`` θ drawn uniformly in the unit
 box (``numpy.random.default_rng(--seed)``) are run once on the model (gap 0); per gap, the model
@@ -25,20 +25,21 @@ one_thread_env()
 import numpy as np  # noqa: E402
 
 from benchmarks.common import Provenance, add_out_arg, finish  # noqa: E402
-from benchmarks.transfer import SYSTEMS  # noqa: E402
+from benchmarks.transfer import SYSTEMS, ladder_targets  # noqa: E402
 from latentune.system import evaluate  # noqa: E402
 
 
-def ladder_rows(system: str, n: int, seed: int) -> list[dict[str, Any]]:
-    """The rows of one system (module docstring)."""
+def ladder_rows(system: str, n: int, seed: int,
+                gaps: list[float] | None = None) -> list[dict[str, Any]]:
+    """The rows of one system (module docstring); ``gaps``: these instead of its ladder's."""
+    targets = ladder_targets([system], gaps)[system]
     model = SYSTEMS[system]["model"]()
     X = np.random.default_rng(seed).random((n, model.space.dim))
     on_model = [evaluate(model, x) for x in X]
     stable = [x for x, o in zip(X, on_model) if not o.failed]
     fail_model = float(np.mean([o.failed for o in on_model]))
     rows = []
-    for g in SYSTEMS[system]["gaps"]:
-        target = SYSTEMS[system]["target"](g)
+    for g, target in targets:
         outs = [evaluate(target, x) for x in stable]
         standing = [o.cost for o in outs if not o.failed]
         rows.append({"system": system, "gap": g, "n": n, "n_model_stable": len(stable),
@@ -55,13 +56,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--systems", nargs="+", default=list(SYSTEMS), choices=list(SYSTEMS))
     ap.add_argument("--n", type=int, default=300)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--gaps", nargs="+", type=float, default=None,
+                    help="these gaps on every system instead of its ladder's")
     add_out_arg(ap)
     a = ap.parse_args(argv)
     if a.n < 1:
         print(f"gap_ladder: error: --n must be >= 1, got {a.n}", file=sys.stderr)
         return 2
-    rows = [r for s in a.systems for r in ladder_rows(s, a.n, a.seed)]
-    finish(a.out, prov, {"n": a.n, "seed": a.seed, "systems": a.systems}, rows,
+    try:
+        rows = [r for s in a.systems for r in ladder_rows(s, a.n, a.seed, a.gaps)]
+    except ValueError as e:
+        print(f"gap_ladder: error: {e}", file=sys.stderr)
+        return 2
+    finish(a.out, prov, {"n": a.n, "seed": a.seed, "systems": a.systems, "gaps": a.gaps}, rows,
            title="random θ on the model and on each target")
     return 0
 

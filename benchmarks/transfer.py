@@ -359,14 +359,32 @@ def compare_text(rows: list[dict[str, Any]]) -> str:
 
 
 # --------------------------------------------------------------------------- run / summary
+def ladder_targets(systems: list[str], gaps: list[float] | None) -> dict[str, list[tuple]]:
+    """Each system's targets ``[(g, target system)]``: its named ladder gaps
+    (``SYSTEMS[name]["gaps"]``), or ``gaps`` (gaps not on the ladder, the same for every
+    system). A gap a system cannot take (its factory raises ValueError, e.g. a scale that would
+    turn negative) raises ValueError naming the system and the gap, before any run."""
+    out: dict[str, list[tuple]] = {}
+    for name in systems:
+        out[name] = []
+        for g in (SYSTEMS[name]["gaps"] if gaps is None else gaps):
+            if not (math.isfinite(float(g)) and float(g) > 0):
+                raise ValueError(f"a gap must be a finite number > 0, got {g}")
+            try:
+                out[name].append((float(g), SYSTEMS[name]["target"](float(g))))
+            except ValueError as e:
+                raise ValueError(f"{name} cannot take gap {g:g}: {e}") from None
+    return out
+
+
 def run(a: argparse.Namespace) -> None:
     root = Path(a.root)
     methods = METHODS if a.only is None else a.only
+    targets = ladder_targets(a.systems, a.gaps)
     for seed in a.seeds:
         for name in a.systems:
             src = source_run(root, name, seed, a.source_evals)
-            for g in SYSTEMS[name]["gaps"]:
-                target = SYSTEMS[name]["target"](g)
+            for g, target in targets[name]:
                 jobs = [(m, m, None) for m in methods] + \
                     [(f"transfer+{v}", "transfer", parse_variant(v)) for v in a.variants]
                 for m, base, opts in jobs:
@@ -621,6 +639,8 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--only", nargs="*", choices=METHODS, default=None)
     r.add_argument("--variants", nargs="+", default=[],
                    help="transfer variants option=value[:option=value], stored as transfer+VARIANT")
+    r.add_argument("--gaps", nargs="+", type=float, default=None,
+                   help="these gaps on every system instead of its ladder's (held-out gaps)")
     s = sub.add_parser("summary")
     s.add_argument("--root", default="runs/transfer")
     s.add_argument("--out", default=None,
@@ -670,7 +690,11 @@ def main(argv: list[str] | None = None) -> int:
             write_json(a.out, {"rows": rows}, prov)
         return 0
     if a.cmd == "run":
-        run(a)
+        try:
+            run(a)
+        except ValueError as e:
+            print(f"transfer run: {e}", file=sys.stderr)
+            return 2
         return 0
     prov = Provenance(argv, module="benchmarks.transfer")
     try:

@@ -453,3 +453,23 @@ def test_check_default_re_runs_stored_runs_with_the_critics_own_defaults(tmp_pat
     assert "DIFFERS" in capsys.readouterr().out
     assert tr.main(args[:-3] + ["M2", "--systems", "arm"]) == 2
     assert "no stored run of M2" in capsys.readouterr().err
+
+
+def test_held_out_gaps_replace_the_ladders_and_a_gap_a_system_cannot_take_is_refused(capsys):
+    """``--gaps``: every system gets those gaps instead of its ladder's; a gap its factory
+    refuses (the Hopper's friction turns 0 at gap 2.5) or a gap ≤ 0 ends ``run`` and
+    ``gap_ladder`` with one line on stderr and exit 2, before any run."""
+    from benchmarks import gap_ladder
+
+    got = tr.ladder_targets(["arm", "chain"], [1.25, 1.75])
+    assert [g for g, _ in got["arm"]] == [1.25, 1.75] == [g for g, _ in got["chain"]]
+    assert [g for g, _ in tr.ladder_targets(["arm"], None)["arm"]] == \
+        list(tr.SYSTEMS["arm"]["gaps"])
+    for argv in (["run", "--systems", "hopper", "--gaps", "2.5", "--root", "/nonexistent/x"],
+                 ["run", "--systems", "arm", "--gaps", "0", "--root", "/nonexistent/x"]):
+        assert tr.main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("transfer run: ")
+    assert gap_ladder.main(["--systems", "hopper", "--gaps", "2.5", "--n", "2"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "hopper cannot take gap 2.5" in err[0]
