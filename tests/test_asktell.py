@@ -613,3 +613,29 @@ def test_tell_takes_the_outcome_of_evaluate(tmp_path):
     with pytest.raises(UsageError, match="give an Outcome alone"):
         st.tell(c.id, Outcome(2.0), failed=True)
     st.close()
+
+
+def test_a_failed_trial_may_report_a_non_finite_cost_and_a_standing_one_may_not(tmp_path):
+    """A simulator that blew up reports ``(nan, failed)``: a fall with the C1 convention and the
+    reported value in its info, through tell and through a phase run; a trial that did not fail
+    with a non-finite cost is refused and nothing is stored."""
+    from latentune.errors import UsageError
+
+    st = lt.Study(tmp_path / "o", seed=0)
+    a, b, c = st.ask(3, system=plant(), phase=1, method="sobol", budget=6)
+    row = st.tell(a.id, float("nan"), failed=True)
+    assert row.fell and row.cost == 200.0 and row.info["reported_cost"] == "nan"
+    assert st.tell(b.id, float("-inf"), failed=True).info["reported_cost"] == "-inf"
+    with pytest.raises(UsageError, match="non-finite cost"):
+        st.tell(c.id, float("inf"))
+    assert len(st.store.rows(Phase.PHASE1)) == 2
+    st.close()
+
+    def blows_up(x):
+        return (float("nan"), True) if x[0] > 0 else (float(np.sum(x ** 2)), False)
+
+    sysm = lt.FunctionSystem(SPACE, blows_up)
+    res = lt.Study(tmp_path / "p", seed=1).phase1(sysm, 12, method="sobol")
+    rows = lt.Study(tmp_path / "p").store.rows(Phase.PHASE1)
+    assert res.n == 12 and any(r.fell for r in rows) and any(not r.fell for r in rows)
+    assert all(r.cost == 200.0 and r.info["reported_cost"] == "nan" for r in rows if r.fell)

@@ -110,7 +110,9 @@ def as_outcome(value: Any) -> Outcome:
 
     Accepts an :class:`Outcome`, a number (the cost; not failed), a ``(cost, failed)`` pair or a
     dict with ``cost`` and optional ``failed``, ``info``. Raises :class:`EvaluationError` for
-    anything else, and for a non-finite cost of a trial that did not fail.
+    anything else, and for a non-finite cost of a trial that did not fail. A failed trial's
+    non-finite cost (a simulator that blew up reports ``nan``) is no cost: it gets the fall
+    convention, and ``info["reported_cost"]`` keeps what was reported (``"nan"``, ``"inf"``).
     """
     if isinstance(value, Outcome):
         out = Outcome(value.cost, bool(value.failed), dict(value.info or {}), value.wall_s)
@@ -126,6 +128,10 @@ def as_outcome(value: Any) -> Outcome:
     else:
         raise CostError(f"evaluate returned {type(value).__name__} {_short(value)}; "
                         "expected a cost (float), (cost, failed) or an Outcome")
+    if out.failed and out.cost is not None:
+        c = as_cost(out.cost, allow_nonfinite=True, what="evaluate (its cost)")
+        if not math.isfinite(c):
+            out.info["reported_cost"], out.cost = str(c), None
     if out.cost is None:
         if not out.failed:
             raise EvaluationError("evaluate returned no cost for a trial that did not fail")
