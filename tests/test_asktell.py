@@ -496,6 +496,30 @@ def test_no_best_file_for_a_failed_theta_and_a_failing_phase_says_so(tmp_path, c
     assert sum("trials all failed" in r.getMessage() for r in caplog.records) == 1
 
 
+@pytest.mark.parametrize("strategy", ["transfer", "plain"])
+def test_a_failing_phase_3_suggests_what_its_strategy_can_take(tmp_path, caplog, src30,
+                                                               strategy):
+    """Phase 3 on a target where every θ fails warns once, through a phase run and through
+    ask/tell alike, and suggests only what the strategy takes: the hand-over is refused under
+    the transfer strategy, so its warning does not offer it."""
+    sys_ = lt.FunctionSystem(SPACE, all_fail)
+    msgs = []
+    for how in ("run", "ask"):
+        caplog.clear()
+        with caplog.at_level(logging.WARNING), lt.Study(tmp_path / how, seed=0) as st:
+            if how == "run":
+                st.phase3(sys_, FAIL_STREAK + 2, latent=src30, strategy=strategy)
+            else:
+                person(st, sys_, FAIL_STREAK + 2, system=sys_, phase=3, latent=src30,
+                       strategy=strategy, budget=FAIL_STREAK + 2)
+        warned = [r.getMessage() for r in caplog.records if "trials all failed" in r.getMessage()]
+        assert len(warned) == 1 and warned[0].startswith("phase 3: the last")
+        msgs.append(warned[0])
+    assert msgs[0] == msgs[1]
+    assert ("--handover" in msgs[0]) == (strategy == "plain")
+    assert ("manual θ" in msgs[0]) == (strategy == "transfer")
+
+
 # ---------------------------------------------------------------------------- corrections
 def test_amend_keeps_an_audit_trail_and_rebuilds_the_critic(tmp_path):
     st = lt.Study(tmp_path / "s", seed=0, batch_size=2)

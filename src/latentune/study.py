@@ -276,7 +276,7 @@ class Study:
             try:
                 res = run_phase(st, Phase.PHASE3, system, critic, pc["budget"], self.evaluator(),
                                 decoder=decoder_of(pc, ls), seed=self.seed,
-                                progress=self.progress, max_new=max_new)
+                                progress=self.progress, max_new=max_new, strategy=strategy)
             finally:
                 self.manifest.add_wall("phase3", time.perf_counter() - t)
                 if pc["handover"] is not None:

@@ -181,12 +181,20 @@ def _progress(total: int, initial: int, desc: str, enabled: bool):
                 leave=True)
 
 
-def failing_message(phase: int, n: int) -> str:
-    """The warning of a phase whose last ``n`` trials all failed, with what to try."""
+def failing_message(phase: int, n: int, strategy: str = "plain") -> str:
+    """The warning of a phase whose last ``n`` trials all failed, with what to try; in phase 3
+    what the ``strategy`` (``"transfer"`` or ``"plain"``) can take: the hand-over is an option of
+    the plain strategy only, and the transfer strategy screens at ``--max-fall-prob`` already."""
+    if int(phase) == 3 and strategy == "transfer":
+        return (f"phase 3: the last {n} trials all failed: the target may be far from the "
+                "source run, or fail wherever it is tuned (run its manual θ by hand); the "
+                "transfer strategy asks the manual θ while every trial failed; try a lower "
+                "--max-fall-prob (it screens at 0.3 unless told), or phase 1 on the target")
     if int(phase) == 3:
         return (f"phase 3: the last {n} trials all failed: the target may be far from the "
                 "latent space's source; try the hand-over (--handover), the fall-aware critic "
-                "(--max-fall-prob 0.3), or phase 1 on the target")
+                "(--max-fall-prob 0.3), the transfer strategy (the default), or phase 1 on "
+                "the target")
     return (f"phase {int(phase)}: the last {n} trials all failed: the search is where the "
             "system fails; try the fall-aware critic (--max-fall-prob 0.3), a start θ that "
             "does not fail, or narrower bounds")
@@ -199,11 +207,12 @@ def failure_streak(store: RunStore, phase: int) -> int:
     return int(len(fell) - (ok[-1] + 1 if len(ok) else 0))
 
 
-def warn_if_failing(store: RunStore, phase: int) -> bool:
-    """Log :func:`failing_message` when the streak of failed trials of ``phase`` has just
-    reached :data:`FAIL_STREAK` (after a trial was stored); return whether it did."""
+def warn_if_failing(store: RunStore, phase: int, strategy: str = "plain") -> bool:
+    """Log :func:`failing_message` (of phase 3's ``strategy``) when the streak of failed trials
+    of ``phase`` has just reached :data:`FAIL_STREAK` (after a trial was stored); return
+    whether it did."""
     if failure_streak(store, phase) == FAIL_STREAK:
-        log.warning(failing_message(phase, FAIL_STREAK))
+        log.warning(failing_message(phase, FAIL_STREAK, strategy))
         return True
     return False
 
@@ -372,8 +381,8 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
               evaluator: Evaluator,
               decoder: Callable[[np.ndarray], np.ndarray] | None = None, seed: int | None = None,
               progress: bool = False, on_row: Callable[[int, float], None] | None = None,
-              max_new: int | None = None, known: dict[bytes, Outcome] | None = None
-              ) -> PhaseResult:
+              max_new: int | None = None, known: dict[bytes, Outcome] | None = None,
+              strategy: str = "plain") -> PhaseResult:
     """Run (or resume) one tuning phase until ``budget`` evaluations are stored.
 
     Args:
@@ -392,6 +401,8 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
         known: outcomes already measured, by ``theta.tobytes()`` of the (d,) float64 θ: an asked
             θ found here is stored with that outcome instead of being run again (the manual θ,
             evaluated once as phase 0, is phase 1's first point).
+        strategy: phase 3's strategy (``"transfer"`` or ``"plain"``): what the warning of a
+            streak of failed trials suggests (:func:`failing_message`).
 
     Raises:
         EvaluationError: a trial raised or gave no usable cost; the batch's finished trials are
@@ -441,7 +452,7 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
                 batch.done[i] = (cost, bool(r.failed))
                 streak = streak + 1 if r.failed else 0
                 if streak == FAIL_STREAK:
-                    log.warning(failing_message(phase, FAIL_STREAK))
+                    log.warning(failing_message(phase, FAIL_STREAK, strategy))
                 if cost < best:
                     best = cost
                 if on_row is not None:
