@@ -1480,6 +1480,11 @@ class Transfer(TwoSpaceCritic):
             self._turbo = TurboM(self.dim, batch_size=1, seed=self.seed, n_regions=1)
         return self._turbo
 
+    def _target_gp(self, base: TargetModel) -> TargetGP:
+        """A GP on the target's trials alone (:class:`TargetGP`, TuRBO-m's model) over
+        ``base``'s rank scores: the late phase's cost model and the explore and region asks'."""
+        return TargetGP(self._X, base.v, self._turbo_helper(), base)
+
     def _handoff_active(self) -> bool:
         """True once the target has ``handoff`` own (tagged) trials (``handoff`` > 0)."""
         k = int(self.opts["handoff"])
@@ -1683,7 +1688,7 @@ class Transfer(TwoSpaceCritic):
         tilts = (0.0, t / 4, t / 2, t) if t > 0 else (0.0,)
         cost = TargetModel(self._X, v, sm.cost, sm.lengthscales, ls_scales=scales, tilts=tilts)
         if self._handoff_active() and self.opts["handoff_model"] == "target":
-            cost = TargetGP(self._X, v, self._turbo_helper(), cost)
+            cost = self._target_gp(cost)
         elif self._ard_active():
             ls, s2 = fit_residual_kernel(self._X, v, cost.hX[:, 0], (1.0, 0.0), cost.ls,
                                          cost.sigma_r2)
@@ -1770,7 +1775,7 @@ class Transfer(TwoSpaceCritic):
             where = st["explore_pool"]
             if self.opts["explore_gp"] and cost_m is not None and \
                     where in ("lines", "latent_lines"):
-                ctx.explore_gp = TargetGP(self._X, cost_m.v, self._turbo_helper(), cost_m)
+                ctx.explore_gp = self._target_gp(cost_m)
             if where == "lines":
                 XI = self._pool_lines(M, centre, rng)
                 if ctx.explore_gp is not None:
@@ -1815,8 +1820,7 @@ class Transfer(TwoSpaceCritic):
                      (XG, np.full((len(XG), self.k), np.nan), GLOBAL)]
             if self.opts["region_gp"] and cost_m is not None and st["explore_pool"] == "lines":
                 # the lines lead the explore record: the target's own GP chooses this ask too
-                ctx.explore_gp, ctx.region_gp = \
-                    TargetGP(self._X, cost_m.v, self._turbo_helper(), cost_m), True
+                ctx.explore_gp, ctx.region_gp = self._target_gp(cost_m), True
                 XS = self._pool_global(M // 2, rng)
                 XM = np.vstack([XS, _gp_maxima(ctx.explore_gp,
                                                np.vstack([p[0] for p in parts] + [XS]))])
