@@ -421,3 +421,28 @@ def test_face_snap_puts_full_pool_coordinates_on_the_faces_their_region_reaches(
     for bad in (-0.1, 1.5, "0.5", True):
         with pytest.raises(ValueError, match="face_snap must be a probability"):
             _critic(source, hypers, face_snap=bad)
+
+
+@pytest.mark.parametrize("scale, shift", [(1e9, 7.0), (1e-6, -3.0)])
+def test_the_asks_do_not_depend_on_the_costs_units(source, scale, shift):
+    """Costs in other units (every source and target cost mapped by ``scale·y + shift``, scale
+    > 0): the critic asks the same θ, bit for bit, over 16 asks with falls among them — its
+    models see ranks and relative margins only."""
+    X, y, f, c = source
+
+    def asks(a: float, b: float) -> np.ndarray:
+        ys = a * y + b
+        cr = Transfer((X, ys, f), None, np.full(D, 0.5), batch_size=1, seed=3)
+        cr.load_state_dict({"source_hypers": SourceModel(X, ys, f, seed=0).hypers})
+        out = []
+        for _ in range(16):
+            t = cr.ask(1)
+            yt, ft = _bowl(t, c + 0.1, 0.5)
+            cr.tell(t, a * yt + b, fell=ft)
+            out.append(t[0])
+        return np.array(out)
+
+    base = asks(1.0, 0.0)
+    fell = _bowl(base, c + 0.1, 0.5)[1]
+    assert fell.any() and not fell.all()
+    assert np.array_equal(asks(scale, shift), base)
