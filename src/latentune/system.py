@@ -128,16 +128,15 @@ def as_outcome(value: Any) -> Outcome:
     else:
         raise CostError(f"evaluate returned {type(value).__name__} {_short(value)}; "
                         "expected a cost (float), (cost, failed) or an Outcome")
-    if out.failed and out.cost is not None:
-        c = as_cost(out.cost, allow_nonfinite=True, what="evaluate (its cost)")
-        if not math.isfinite(c):
-            out.info["reported_cost"], out.cost = str(c), None
+    if out.cost is not None:
+        out.cost = as_cost(out.cost, allow_nonfinite=True, what="evaluate (its cost)")
+        if out.failed and not math.isfinite(out.cost):      # a blown-up simulator: no cost
+            out.info["reported_cost"], out.cost = str(out.cost), None
     if out.cost is None:
         if not out.failed:
             raise EvaluationError("evaluate returned no cost for a trial that did not fail")
         out.cost = fail_cost(out.info.get("fall_step"), out.info.get("horizon") or 1) \
             if out.info.get("fall_step") is not None and out.info.get("horizon") else 2.0 * C1
-    out.cost = as_cost(out.cost, allow_nonfinite=True, what="evaluate (its cost)")
     if not math.isfinite(out.cost):
         raise EvaluationError(f"evaluate returned a non-finite cost ({out.cost})")
     return out
