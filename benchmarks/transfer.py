@@ -223,6 +223,18 @@ def parse_variant(text: str) -> dict[str, Any]:
     return out
 
 
+def check_variant(text: str) -> None:
+    """UsageError (a ValueError) naming the option when the variant ``text`` holds an option
+    the transfer critic does not have or a value it refuses (the checks phase 3's
+    ``max_fall_prob`` and ``transfer_options`` get, :mod:`latentune.pipeline.manifest`)."""
+    from latentune.pipeline.manifest import fall_options, transfer_option
+
+    opts = parse_variant(text)
+    mfp = opts.pop("max_fall_prob", None)
+    fall_options(mfp, None)
+    transfer_option(opts or None, "transfer", mfp)
+
+
 SOURCE_EVALS = 300
 """Phase-1 trials of each seed's source run on the model (``run --source-evals``)."""
 
@@ -377,10 +389,11 @@ def ladder_targets(systems: list[str], gaps: list[float] | None) -> dict[str, li
     return out
 
 
-def run(a: argparse.Namespace) -> None:
+def run(a: argparse.Namespace, targets: dict[str, list[tuple]]) -> None:
+    """``run``: every method and variant on each system's ``targets`` (:func:`ladder_targets`),
+    per seed on its own source run (made when missing; a stored run is kept)."""
     root = Path(a.root)
     methods = METHODS if a.only is None else a.only
-    targets = ladder_targets(a.systems, a.gaps)
     for seed in a.seeds:
         for name in a.systems:
             src = source_run(root, name, seed, a.source_evals)
@@ -690,11 +703,14 @@ def main(argv: list[str] | None = None) -> int:
             write_json(a.out, {"rows": rows}, prov)
         return 0
     if a.cmd == "run":
-        try:
-            run(a)
+        try:            # a bad variant or a gap a system cannot take: refused before any run
+            for v in a.variants:
+                check_variant(v)
+            targets = ladder_targets(a.systems, a.gaps)
         except ValueError as e:
             print(f"transfer run: {e}", file=sys.stderr)
             return 2
+        run(a, targets)
         return 0
     prov = Provenance(argv, module="benchmarks.transfer")
     try:

@@ -458,7 +458,8 @@ def test_check_default_re_runs_stored_runs_with_the_critics_own_defaults(tmp_pat
 def test_held_out_gaps_replace_the_ladders_and_a_gap_a_system_cannot_take_is_refused(capsys):
     """``--gaps``: every system gets those gaps instead of its ladder's; a gap its factory
     refuses (the Hopper's friction turns 0 at gap 2.5) or a gap ≤ 0 ends ``run`` and
-    ``gap_ladder`` with one line on stderr and exit 2, before any run."""
+    ``gap_ladder`` with one line on stderr and exit 2, before any run; so does a ``--variants``
+    option the critic does not have or a value it refuses, named."""
     from benchmarks import gap_ladder
 
     got = tr.ladder_targets(["arm", "chain"], [1.25, 1.75])
@@ -473,3 +474,10 @@ def test_held_out_gaps_replace_the_ladders_and_a_gap_a_system_cannot_take_is_ref
     assert gap_ladder.main(["--systems", "hopper", "--gaps", "2.5", "--n", "2"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "hopper cannot take gap 2.5" in err[0]
+    for variant, expect in (("region_gp=bad", "region_gp must be true, false or"),
+                            ("nope=1", "unknown option(s) of the transfer critic: nope"),
+                            ("max_fall_prob=2", "max_fall_prob must be in (0, 1]")):
+        assert tr.main(["run", "--systems", "arm", "--variants", variant,
+                        "--root", "/nonexistent/x"]) == 2       # before any source run
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("transfer run: ") and expect in err[0]
