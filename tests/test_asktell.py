@@ -507,17 +507,19 @@ def test_a_failing_phase_3_suggests_what_its_strategy_can_take(tmp_path, caplog,
     for how in ("run", "ask"):
         caplog.clear()
         with caplog.at_level(logging.WARNING), lt.Study(tmp_path / how, seed=0) as st:
+            given = None if strategy == "transfer" else strategy       # transfer: the default
             if how == "run":
-                st.phase3(sys_, FAIL_STREAK + 2, latent=src30, strategy=strategy)
+                st.phase3(sys_, FAIL_STREAK + 2, latent=src30, strategy=given)
             else:
                 person(st, sys_, FAIL_STREAK + 2, system=sys_, phase=3, latent=src30,
-                       strategy=strategy, budget=FAIL_STREAK + 2)
+                       strategy=given, budget=FAIL_STREAK + 2)
         warned = [r.getMessage() for r in caplog.records if "trials all failed" in r.getMessage()]
         assert len(warned) == 1 and warned[0].startswith("phase 3: the last")
         msgs.append(warned[0])
     assert msgs[0] == msgs[1]
     assert ("--handover" in msgs[0]) == (strategy == "plain")
     assert ("manual θ" in msgs[0]) == (strategy == "transfer")
+    assert ("screens at 0.3 unless told" in msgs[0]) == (strategy == "transfer")
 
 
 # ---------------------------------------------------------------------------- corrections

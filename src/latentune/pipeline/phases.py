@@ -186,10 +186,13 @@ def failing_message(phase: int, n: int, strategy: str = "plain") -> str:
     what the ``strategy`` (``"transfer"`` or ``"plain"``) can take: the hand-over is an option of
     the plain strategy only, and the transfer strategy screens at ``--max-fall-prob`` already."""
     if int(phase) == 3 and strategy == "transfer":
+        from latentune.critic.transfer import TRANSFER_DEFAULTS
+
         return (f"phase 3: the last {n} trials all failed: the target may be far from the "
                 "source run, or fail wherever it is tuned (run its manual θ by hand); the "
                 "transfer strategy asks the manual θ while every trial failed; try a lower "
-                "--max-fall-prob (it screens at 0.3 unless told), or phase 1 on the target")
+                f"--max-fall-prob (it screens at {TRANSFER_DEFAULTS['max_fall_prob']:g} unless "
+                "told), or phase 1 on the target")
     if int(phase) == 3:
         return (f"phase 3: the last {n} trials all failed: the target may be far from the "
                 "latent space's source; try the hand-over (--handover), the fall-aware critic "
