@@ -296,6 +296,13 @@ value toward a face).
 fall screen's bound (``fall_kappa`` times the root of the target fall model's variance plus the
 source's): far from every source trial the source's fall model only knows its prior mean, and
 the screen then treats such θ as unknown rather than as safe as the source's average.
+``fall_fit`` (default False): the target fall model's hyperparameters are chosen on the target:
+a multiplier of the source's fall lengthscales (0.25–2) and the nugget, the variance of the fall
+flags' noise (0.01, 0.05 or 0.15; 0.01 without it), by marginal likelihood with σ_r² at every ask.
+Where standing and fallen θ lie closer together on the target than the source's lengthscales say
+(a θ that only just stands, whose small steps fall), the model chooses a shorter lengthscale or a
+larger nugget and no longer predicts "stands" for every small step from a standing trial; each
+decision records the choice (``fall_fit``: ``[multiplier, nugget]``).
 ``face_snap`` = p > 0 (default 0: off): in the full pool every coordinate whose region reaches
 a face of the unit box (``[lb, ub]`` clipped at 0 or 1) is set to that face with probability
 p (the nearer one when it reaches both), before the perturbation mask: the candidates include
@@ -369,6 +376,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "explore_fall_prob": None, "explore_skip": False, "fall_calibrate": False,
     "fall_shrink": False, "centre_falls": 0, "fall_rank": "clipped", "explore_gp": True,
     "explore_record": "count", "explore_bandit": "mean", "region_gp": False,
+    "fall_fit": False,
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state, where
 ``explore_fall_prob`` is resolved (:func:`resolved_options`)."""
@@ -402,7 +410,8 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "fall_calibrate": False, "fall_shrink": False,
                                  "centre_falls": 0, "fall_rank": "clipped",
                                  "explore_gp": False, "explore_record": "count",
-                                 "explore_bandit": "mean", "region_gp": False}
+                                 "explore_bandit": "mean", "region_gp": False,
+                                 "fall_fit": False}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -420,7 +429,11 @@ posterior mean of the record rate, or the higher draw from each pool's posterior
 
 _SIGMA_R2_GRID = (0.01, 0.05, 0.2, 0.5, 1.0, 2.0)
 _LS_SCALES = (0.25, 0.5, 1.0, 2.0)
-"""Multipliers of the source's lengthscales the target cost model may choose (``fit_lengthscale``)."""
+"""Multipliers of the source's lengthscales the target cost model may choose (``fit_lengthscale``),
+and the target fall model (``fall_fit``)."""
+_FALL_NOISES = (1e-2, 5e-2, 0.15)
+"""Nuggets (variances of the fall flags' noise, 0/1 labels) the target fall model may choose
+(``fall_fit``); the first is the fixed one without it."""
 ACQUISITIONS = ("thompson", "ei")
 HANDOFF_MODELS = ("target", "prior", "transfer")
 """Cost models of the late phase (``handoff``): a GP on the target alone, the transfer model
@@ -754,33 +767,35 @@ class TargetModel:
     """The GP ``v(θ) = a·h0(θ) + b + cᵀ(θ − ½) + r(θ)`` on the target's values ``v`` (n,) at θ
     (n, d) with ``(a, b) ~ N(prior_mean, I)`` and the tilt ``c ~ N(0, σ_t² I)`` integrated out
     (module docstring); ``feature`` maps θ (m, d) to h0 (m,), ``ls`` (d,) are the residual
-    kernel's lengthscales. ``σ_r²`` (unless given), the lengthscale multiplier (``ls_scales``)
-    and ``σ_t`` (``tilts``; ``(0,)``: no tilt) are chosen together by marginal likelihood."""
+    kernel's lengthscales. ``σ_r²`` (unless given), the lengthscale multiplier (``ls_scales``),
+    ``σ_t`` (``tilts``; ``(0,)``: no tilt) and the nugget, the variance of the values' noise
+    (``noises``; the fixed 0.01 by default), are chosen together by marginal likelihood."""
 
     def __init__(self, X: np.ndarray, v: np.ndarray, feature: Callable[[np.ndarray], np.ndarray],
                  ls: np.ndarray, prior_mean: tuple[float, float] = (1.0, 0.0),
                  sigma_r2: float | None = None, ls_scales: tuple[float, ...] = (1.0,),
-                 tilts: tuple[float, ...] = (0.0,)) -> None:
+                 tilts: tuple[float, ...] = (0.0,), noises: tuple[float, ...] = (_NOISE,)
+                 ) -> None:
         self.X, self.v, self.feature = X, np.asarray(v, float), feature
         self.h0X = np.asarray(feature(X), dtype=float)
         grid = (sigma_r2,) if sigma_r2 is not None else \
             _SIGMA_R2_GRID if len(ls_scales) == 1 else _SIGMA_R2_GRID + (4.0,)
-        choose = len(grid) * len(ls_scales) * len(tilts) > 1
+        choose = len(grid) * len(ls_scales) * len(tilts) * len(noises) > 1
         fits = []                       # type-II maximum likelihood on the grids
         for rho in ls_scales:
             kX = matern52(X, X, ls * rho)
             for t in tilts:
                 hX = self._basis(X, self.h0X, float(t))
                 b0 = np.concatenate([prior_mean, np.zeros(hX.shape[1] - 2)])
-                fits += [(self._log_evidence(kX, hX, b0, s) if choose else 0.0, s, rho,
-                          float(t), kX) for s in grid]
-        _, s, rho, self.tilt, self.kX = max(fits, key=lambda f: f[0])
+                fits += [(self._log_evidence(kX, hX, b0, s, e) if choose else 0.0, s, rho,
+                          float(t), kX, e) for e in noises for s in grid]
+        _, s, rho, self.tilt, self.kX, self.noise = max(fits, key=lambda f: f[0])
         self.hX = self._basis(X, self.h0X)
         self.b0 = np.concatenate([prior_mean, np.zeros(self.hX.shape[1] - 2)])
         self.ls_scale = float(rho)
         self.ls = ls * rho
         self.sigma_r2 = float(s)
-        self.L = _chol(self._cov(self.kX, self.hX, self.hX) + _NOISE * np.eye(len(v)))
+        self.L = _chol(self._cov(self.kX, self.hX, self.hX) + self.noise * np.eye(len(v)))
         r = self.v - self.hX @ self.b0
         self.alpha = np.linalg.solve(self.L.T, np.linalg.solve(self.L, r))
 
@@ -800,8 +815,9 @@ class TargetModel:
         s = self.sigma_r2 if sigma_r2 is None else sigma_r2
         return s * k + h1 @ h2.T
 
-    def _log_evidence(self, kX: np.ndarray, hX: np.ndarray, b0: np.ndarray, s: float) -> float:
-        K = self._cov(kX, hX, hX, s) + _NOISE * np.eye(len(self.v))
+    def _log_evidence(self, kX: np.ndarray, hX: np.ndarray, b0: np.ndarray, s: float,
+                      noise: float = _NOISE) -> float:
+        K = self._cov(kX, hX, hX, s) + noise * np.eye(len(self.v))
         try:
             L = _chol(K)
         except np.linalg.LinAlgError:
@@ -813,7 +829,7 @@ class TargetModel:
     def coefficients(self) -> tuple[np.ndarray, np.ndarray]:
         """Posterior mean (2,) and standard deviation (2,) of (a, b)."""
         H = self.hX
-        Kr = self.sigma_r2 * self.kX + _NOISE * np.eye(len(self.v))
+        Kr = self.sigma_r2 * self.kX + self.noise * np.eye(len(self.v))
         Lr = _chol(Kr)
         A = np.linalg.solve(Lr, H)
         prec = np.eye(H.shape[1]) + A.T @ A
@@ -1032,6 +1048,7 @@ class _AskContext:
     w_lat: float
     latent_off: bool
     cost_m: TargetModel | None
+    fall_m: TargetModel | None = None
     design_screened: bool = False
     safe_fallback: bool = False
     explore: bool = False
@@ -1112,7 +1129,7 @@ class Transfer(TwoSpaceCritic):
             raise ValueError(f"explore_every must be 0 (off) or an integer ≥ 2, got {k_ex!r}")
         for flag in ("stand_first", "explore_adapt", "fall_source_sd", "explore_void",
                      "centre_screen", "distinct", "explore_skip", "fall_calibrate",
-                     "fall_shrink", "explore_gp"):
+                     "fall_shrink", "explore_gp", "fall_fit"):
             if not isinstance(self.opts[flag], (bool, np.bool_)):
                 raise ValueError(f"{flag} must be true or false, got {self.opts[flag]!r}")
         rg = self.opts["region_gp"]
@@ -1697,10 +1714,15 @@ class Transfer(TwoSpaceCritic):
 
     def _fall_model(self, t: int) -> TargetModel:
         """The target fall model on the first ``t`` ≥ 1 told trials: the transfer construction on
-        their fall flags with ``h = (p_s(θ), 1)`` and the source's fall lengthscales."""
+        their fall flags with ``h = (p_s(θ), 1)`` and the source's fall lengthscales (with
+        ``fall_fit``, times a multiplier of :data:`_LS_SCALES`, and a nugget of
+        :data:`_FALL_NOISES`, chosen with σ_r² by marginal likelihood)."""
         sm = self.source_model()
+        fit = bool(self.opts["fall_fit"])
         return TargetModel(self._X[:t], self._fell[:t].astype(float), sm.fall_prob,
-                           sm.fall_lengthscales, prior_mean=(1.0, 0.0))
+                           sm.fall_lengthscales, prior_mean=(1.0, 0.0),
+                           ls_scales=_LS_SCALES if fit else (1.0,),
+                           noises=_FALL_NOISES if fit else (_NOISE,))
 
     def _ard_active(self) -> bool:
         """True when the transfer model's residual lengthscales are fitted on the target
@@ -1759,6 +1781,7 @@ class Transfer(TwoSpaceCritic):
             return np.tile(centre, (n, 1)), np.full(n, 4 * g + FULL, dtype=np.int64)
         ctx = _AskContext(generation=g, state=st, design=design, agree=agree,
                           agree_sd=agree_sd, w_lat=w_lat, latent_off=latent_off, cost_m=cost_m,
+                          fall_m=fall_m,
                           centre_screened=centre_screened,
                           fragile=int(fragile.sum()))
         if design and len(E) >= 1 and self.opts["design_screen"]:
@@ -2137,6 +2160,8 @@ class Transfer(TwoSpaceCritic):
             **({"duplicates_dropped": ctx.duplicates} if ctx.duplicates else {}),
             **({"repeats_avoided": ctx.repeats} if ctx.repeats else {}),
             **({"safe_fallback": True} if ctx.safe_fallback else {}),
+            **({"fall_fit": [ctx.fall_m.ls_scale, ctx.fall_m.noise]}
+               if self.opts["fall_fit"] and ctx.fall_m is not None else {}),
             **({"ls_ratio": float(np.exp(np.mean(np.log(
                 cm.ls / self.source_model().lengthscales))))}
                if cm is not None and self._fitted_ls() else {}),
