@@ -446,3 +446,31 @@ def test_the_asks_do_not_depend_on_the_costs_units(source, scale, shift):
     fell = _bowl(base, c + 0.1, 0.5)[1]
     assert fell.any() and not fell.all()
     assert np.array_equal(asks(scale, shift), base)
+
+
+def test_fall_fit_learns_that_small_steps_from_a_standing_theta_fall(source, hypers):
+    """``fall_fit``: on a target where every other small step from a standing θ falls, the fall
+    model chooses a shorter lengthscale and a larger nugget than the source's and screens out the
+    small steps the fixed model admits; each decision records the choice; off (the default), the
+    source's lengthscales and the fixed nugget, and no record."""
+    assert TRANSFER_DEFAULTS["fall_fit"] is False
+    rng = np.random.default_rng(5)
+    x0 = source[3] + 0.1
+    Xt = np.vstack([x0, x0 + 0.04 * rng.standard_normal((14, D))])
+    ft = np.arange(len(Xt)) % 2 == 1
+    yt = np.where(ft, 100.0, 1.0 + rng.random(len(Xt)))
+    steps = x0 + 0.04 * rng.standard_normal((50, D))
+    admitted, chosen = {}, {}
+    for fit in (False, True):
+        cr = _critic(source, hypers, fall_fit=fit)
+        cr.tell(Xt, yt, np.ones(len(Xt), dtype=np.int64), fell=ft)
+        fm = cr.models()[1]
+        chosen[fit] = (fm.ls_scale, fm.noise)
+        admitted[fit] = float(np.mean(cr._fall_prob(steps, fm) <= 0.3))
+        cr.ask(1)
+        assert cr.decisions[-1].get("fall_fit") == (list(chosen[fit]) if fit else None)
+    assert chosen[False] == (1.0, 1e-2)
+    assert chosen[True][0] < 1.0 and chosen[True][1] > 1e-2
+    assert admitted[False] >= 0.2 and admitted[True] < 0.5 * admitted[False]
+    with pytest.raises(ValueError, match="fall_fit must be true or false"):
+        _critic(source, hypers, fall_fit="yes")
