@@ -362,11 +362,16 @@ def compare_text(rows: list[dict[str, Any]]) -> str:
                    + (f" (more on {fp['more']}, fewer on {fp['fewer']} of the pairs, sign test "
                       f"p {fp['sign_test_p']:.3f})" if (fp := r.get("falls_paired")) else "")
                    + (f"; median ratio: geometric mean {g:.3f}, worst {w['ratio']:.3f} "
-                      f"({w['target']})" if g is not None and w is not None else ""))
+                      f"({w['target']})" if g is not None and w is not None else "")
+                   + (f"; paired ratio: geometric mean {pg:.3f}"
+                      if (pg := r.get("paired_geo_mean")) is not None else ""))
         out += [f"  {t}: {c['wins']}/{c['ties']}/{c['losses']} (w/t/l), falls "
                 f"{c['falls_a']} vs {c['falls_b']}"
                 + (f", medians {c['median_a']:.4g} vs {c['median_b']:.4g}"
-                   if "median_a" in c else "") for t, c in r["by_target"].items()]
+                   if "median_a" in c else "")
+                + (f", paired ratio {c['paired_ratio']:.3f}"
+                   if c.get("paired_ratio") is not None else "")
+                for t, c in r["by_target"].items()]
     return "\n".join(out)
 
 
@@ -558,8 +563,12 @@ def compare(root: Path, a: str, b: str, seeds: list[int] | None = None,
     each method's best cost and their ratio ``median_a / median_b``. A sign test counts wins,
     not by how much: ``ratio_geo_mean`` (the geometric mean of the targets' ratios) and
     ``ratio_worst`` (the largest, and its target) say how much (None where a median is not
-    positive). ``pattern``: the run files under ``root``,
-    ``<target>/<sub>/seed<s>/<method>.json``."""
+    positive). The ratio of two medians is not paired: on few seeds ``a`` can end lower on most
+    seeds and still have the higher median, when the two methods' costs interleave across the
+    seeds. So each target also has ``paired_ratio``, the geometric mean over its seeds of
+    ``best_a / best_b`` on the same seed, and the whole ``paired_geo_mean``, the geometric mean
+    of those (both None where a best cost is not positive). ``pattern``: the run files under
+    ``root``, ``<target>/<sub>/seed<s>/<method>.json``."""
     from scipy.stats import binomtest
 
     runs: dict[tuple[str, str, str], dict[str, dict]] = {}
@@ -583,15 +592,21 @@ def compare(root: Path, a: str, b: str, seeds: list[int] | None = None,
         t["falls_b"] += int(sum(rb["failed"]))
         best_of.setdefault(key, []).append(ab)
     for key, t in by_target.items():
-        ma, mb = (float(v) for v in np.median(np.asarray(best_of[key]), axis=0))
-        t.update(median_a=ma, median_b=mb, ratio=ma / mb if ma > 0 and mb > 0 else None)
+        ab = np.asarray(best_of[key])                   # (seeds, 2) best of a, best of b
+        ma, mb = (float(v) for v in np.median(ab, axis=0))
+        t.update(median_a=ma, median_b=mb, ratio=ma / mb if ma > 0 and mb > 0 else None,
+                 paired_ratio=float(np.exp(np.mean(np.log(ab[:, 0] / ab[:, 1]))))
+                 if (ab > 0).all() else None)
     ratios = {k: t["ratio"] for k, t in by_target.items()}
     known = None not in ratios.values() and bool(ratios)
     worst = max(ratios, key=lambda k: ratios[k]) if known else None
+    paired = [t["paired_ratio"] for t in by_target.values()]
     return {"a": a, "b": b, "pairs": len(pairs), "wins": wins, "losses": losses,
             "ratio_geo_mean": float(np.exp(np.mean(np.log(list(ratios.values())))))
             if known else None,
             "ratio_worst": {"target": worst, "ratio": ratios[worst]} if known else None,
+            "paired_geo_mean": float(np.exp(np.mean(np.log(paired))))
+            if paired and None not in paired else None,
             "ties": len(pairs) - wins - losses,
             "sign_test_p": float(binomtest(wins, wins + losses).pvalue) if wins + losses else 1.0,
             "falls_a": int(sum(sum(ra["failed"]) for _, ra, _ in pairs)),

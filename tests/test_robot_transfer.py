@@ -406,7 +406,8 @@ def test_compare_counts_wins_per_rung_and_refuses_an_empty_pair(tmp_path, capsys
         (1, 1, 1, 0, 3)
     assert row["by_target"]["r1 src5"] == {"wins": 1, "ties": 1, "losses": 0, "falls_a": 0,
                                            "falls_b": 2, "median_a": 3.5, "median_b": 4.5,
-                                           "ratio": 3.5 / 4.5}
+                                           "ratio": 3.5 / 4.5,
+                                           "paired_ratio": pytest.approx((3 / 5) ** 0.5)}
     assert row["ratio_worst"] == {"target": "r2 src5", "ratio": 4.5}
     assert "1 wins, 1 ties, 1 losses of 3" in capsys.readouterr().out
     assert rt.main(["compare", "--root", str(tmp_path), "--a", "tpe", "--b", "transfer"]) == 2

@@ -57,7 +57,8 @@ def test_compare_counts_per_target_and_keeps_the_seeds_asked(tmp_path):
     assert (r["wins"], r["losses"], r["falls_a"]) == (2, 1, 1)
     assert r["by_target"]["arm gap1"] == {"wins": 2, "ties": 0, "losses": 1, "falls_a": 1,
                                           "falls_b": 0, "median_a": 1.0, "median_b": 2.0,
-                                          "ratio": 0.5}
+                                          "ratio": 0.5,
+                                          "paired_ratio": pytest.approx(0.375 ** (1 / 3))}
     assert r["falls_paired"] == {"more": 1, "fewer": 0, "same": 2, "sign_test_p": 1.0}
     assert "falls 1 vs 0 (more on 1, fewer on 0 of the pairs, sign test p 1.000)" in \
         tr.compare_text([r])
@@ -103,7 +104,28 @@ def test_compare_weighs_how_much_not_only_how_often(tmp_path):
     put("zero", 0, 0.0, 1.0)                           # a cost of 0: no ratio, no geometric mean
     r = tr.compare(tmp_path, "a", "b")
     assert r["by_target"]["zero gap1"]["ratio"] is None and r["ratio_geo_mean"] is None
+    assert r["by_target"]["zero gap1"]["paired_ratio"] is None and r["paired_geo_mean"] is None
 
+
+def test_compare_pairs_the_ratios_seed_by_seed(tmp_path):
+    """Costs that interleave across seeds: ``a`` ends lower on 4 of 5 seeds, yet its median is
+    the higher (1.5 against 1.4); the paired ratio, the geometric mean over the seeds of
+    best_a / best_b, is below 1 where the ratio of the medians is above it."""
+    import numpy as np
+
+    a = [1.0, 1.1, 1.5, 1.6, 1.9]
+    b = [1.2, 1.2, 1.7, 1.8, 1.4]
+    for s in range(5):
+        _write(tmp_path, "a", s, [a[s]], [False])
+        _write(tmp_path, "b", s, [b[s]], [False])
+    r = tr.compare(tmp_path, "a", "b")
+    t = r["by_target"]["arm gap1"]
+    assert (r["wins"], r["losses"]) == (4, 1)
+    assert np.isclose(t["ratio"], 1.5 / 1.4) and t["ratio"] > 1
+    paired = float(np.exp(np.mean(np.log(np.array(a) / np.array(b)))))
+    assert paired < 1
+    assert np.isclose(t["paired_ratio"], paired) and np.isclose(r["paired_geo_mean"], paired)
+    assert f"paired ratio: geometric mean {paired:.3f}" in tr.compare_text([r])
 
 def test_transfer_curves_median_best_so_far_with_provenance(tmp_path) -> None:
     """The curves are medians over seeds of the best standing cost so far (falls never count),
