@@ -522,6 +522,25 @@ def test_a_failing_phase_3_suggests_what_its_strategy_can_take(tmp_path, caplog,
     assert ("screens at 0.3 unless told" in msgs[0]) == (strategy == "transfer")
 
 
+def test_a_told_trial_reads_the_strategy_only_when_it_warns(monkeypatch, caplog):
+    """``warn_if_failing`` takes the strategy as a function (what ``tell`` gives it: a read of
+    the study's config) and calls it only when the failing streak is reached."""
+    from latentune.pipeline import phases
+
+    calls = []
+
+    def strategy() -> str:
+        calls.append(1)
+        return "transfer"
+
+    for streak, warns in ((FAIL_STREAK - 1, False), (FAIL_STREAK, True), (FAIL_STREAK + 1, False)):
+        monkeypatch.setattr(phases, "failure_streak", lambda store, phase: streak)
+        with caplog.at_level(logging.WARNING):
+            assert phases.warn_if_failing(None, 3, strategy) is warns
+    assert len(calls) == 1
+    assert sum("manual θ" in r.getMessage() for r in caplog.records) == 1
+
+
 # ---------------------------------------------------------------------------- corrections
 def test_amend_keeps_an_audit_trail_and_rebuilds_the_critic(tmp_path):
     st = lt.Study(tmp_path / "s", seed=0, batch_size=2)

@@ -501,8 +501,8 @@ def tell(study: Any, trial_id: int, cost: float | Outcome | None = None, *,
             idx = st.tell_trial(tid, out.cost, fell=out.failed, fall_step=out.fall_step,
                                 seed=study.seed, info=out.info)
             ph = st.trials_by_id(tid).phase
-            pc = study.config().get(mf.PHASE_KEYS.get(Phase(ph), "")) or {}
-            warn_if_failing(st, ph, strategy_of(pc))
+            warn_if_failing(st, ph, lambda: strategy_of(
+                study.config().get(mf.PHASE_KEYS.get(Phase(ph), "")) or {}))
         write_best(st, study.dir, study.manifest.space(), ph)
         row = next(r for r in st.rows(ph) if r.idx == idx)
     prepare(study)

@@ -210,12 +210,15 @@ def failure_streak(store: RunStore, phase: int) -> int:
     return int(len(fell) - (ok[-1] + 1 if len(ok) else 0))
 
 
-def warn_if_failing(store: RunStore, phase: int, strategy: str = "plain") -> bool:
+def warn_if_failing(store: RunStore, phase: int,
+                    strategy: str | Callable[[], str] = "plain") -> bool:
     """Log :func:`failing_message` (of phase 3's ``strategy``) when the streak of failed trials
     of ``phase`` has just reached :data:`FAIL_STREAK` (after a trial was stored); return
-    whether it did."""
+    whether it did. ``strategy`` may be a function that reads it, called only then (a told
+    trial reads the study's config only when there is something to warn about)."""
     if failure_streak(store, phase) == FAIL_STREAK:
-        log.warning(failing_message(phase, FAIL_STREAK, strategy))
+        log.warning(failing_message(phase, FAIL_STREAK,
+                                    strategy() if callable(strategy) else strategy))
         return True
     return False
 
