@@ -569,7 +569,7 @@ def compare(root: Path, a: str, b: str, seeds: list[int] | None = None,
     ``best_a / best_b`` on the same seed, and the whole ``paired_geo_mean``, the geometric mean
     of those (both None where a best cost is not positive). ``pattern``: the run files under
     ``root``, ``<target>/<sub>/seed<s>/<method>.json``."""
-    from scipy.stats import binomtest
+    from scipy.stats import binomtest, gmean
 
     runs: dict[tuple[str, str, str], dict[str, dict]] = {}
     for f in sorted(root.glob(pattern)):
@@ -595,18 +595,15 @@ def compare(root: Path, a: str, b: str, seeds: list[int] | None = None,
         ab = np.asarray(best_of[key])                   # (seeds, 2) best of a, best of b
         ma, mb = (float(v) for v in np.median(ab, axis=0))
         t.update(median_a=ma, median_b=mb, ratio=ma / mb if ma > 0 and mb > 0 else None,
-                 paired_ratio=float(np.exp(np.mean(np.log(ab[:, 0] / ab[:, 1]))))
-                 if (ab > 0).all() else None)
+                 paired_ratio=float(gmean(ab[:, 0] / ab[:, 1])) if (ab > 0).all() else None)
     ratios = {k: t["ratio"] for k, t in by_target.items()}
     known = None not in ratios.values() and bool(ratios)
     worst = max(ratios, key=lambda k: ratios[k]) if known else None
     paired = [t["paired_ratio"] for t in by_target.values()]
     return {"a": a, "b": b, "pairs": len(pairs), "wins": wins, "losses": losses,
-            "ratio_geo_mean": float(np.exp(np.mean(np.log(list(ratios.values())))))
-            if known else None,
+            "ratio_geo_mean": float(gmean(list(ratios.values()))) if known else None,
             "ratio_worst": {"target": worst, "ratio": ratios[worst]} if known else None,
-            "paired_geo_mean": float(np.exp(np.mean(np.log(paired))))
-            if paired and None not in paired else None,
+            "paired_geo_mean": float(gmean(paired)) if paired and None not in paired else None,
             "ties": len(pairs) - wins - losses,
             "sign_test_p": float(binomtest(wins, wins + losses).pvalue) if wins + losses else 1.0,
             "falls_a": int(sum(sum(ra["failed"]) for _, ra, _ in pairs)),
