@@ -311,6 +311,30 @@ def test_safe_fallback_steps_back_instead_of_asking_over_the_screen(source, hype
     assert over[True, "falls"] < over[False, "falls"]
 
 
+def test_region_fallback_skips_the_design_and_brakes_where_its_steps_fall(source, hypers):
+    """``safe_fallback="region"``: no fallback while the source's elites are the design, and
+    where every step from the standing θ falls (only θ within 0.01 of the target's optimum
+    stand) it stops after ``explore_falls`` = 3 fallen fallback trials, where
+    ``safe_fallback=True`` keeps stepping back on (nearly) every ask."""
+    X, y, f, _ = source
+    corner = np.full(D, 0.6)
+    best = X[np.argmin(np.where(f, np.inf, y))]
+    y0, f0 = _bowl(best, corner, 0.01)
+    used = {}
+    for mode in (True, "region"):
+        cr = _critic(source, hypers, manual=corner, safe_fallback=mode)
+        cr.tell(best[None], y0, fell=f0)
+        _run(cr, corner, 0.01, 25)
+        used[mode] = [d for d in cr.decisions if d.get("safe_fallback")]
+        told = np.isin(cr.tags // 4, [d["generation"] for d in used[mode]])
+        used[mode, "fell"] = int(cr.fell[told].sum())
+    assert len(used[True]) >= 10 and any(d["design"] for d in used[True])
+    assert not any(d["design"] for d in used["region"])
+    assert 1 <= len(used["region"]) <= 3 == used["region", "fell"]
+    with pytest.raises(ValueError, match="safe_fallback must be true, false or"):
+        _critic(source, hypers, safe_fallback="always")
+
+
 def test_tilt_learns_the_drift_a_gap_adds_and_extrapolates_it(source, hypers):
     """A target whose cost is the source's bowl plus a linear drift along coordinate 0 (the gap
     moved its optimum toward the face): with a tilt grid the model chooses a tilt by marginal

@@ -72,7 +72,9 @@ likelihood (GPyTorch, a log-normal prior around the source's lengthscales;
 the fall screen end the initial design when it rejects every remaining elite;
 ``safe_fallback``: when the screen admits fewer candidates than the batch, perturbations of the
 centre on shrinking sides (``L/2 … L/2^8``) join the candidates before the least likely to fall
-are kept, so the search steps back toward its safe trial rather than asking over the screen;
+are kept, so the search steps back toward its safe trial rather than asking over the screen
+(``"region"``: on the trust-region asks only, braked as the explore asks are after
+``explore_falls`` fallen fallback trials);
 ``fall_cost``: the acquisition counts the fall among the outcomes of a candidate, with the fall
 model's posterior mean ``p(θ)`` (clipped to [0, 1]) as its probability: a Thompson sample ``s(θ)``
 of the cost rank score becomes the expected score ``(1 − p) s + p s_fall`` (``s_fall``: the
@@ -1132,6 +1134,9 @@ class Transfer(TwoSpaceCritic):
                      "fall_shrink", "explore_gp", "fall_fit"):
             if not isinstance(self.opts[flag], (bool, np.bool_)):
                 raise ValueError(f"{flag} must be true or false, got {self.opts[flag]!r}")
+        sf = self.opts["safe_fallback"]
+        if not (isinstance(sf, (bool, np.bool_)) or (isinstance(sf, str) and sf == "region")):
+            raise ValueError(f"safe_fallback must be true, false or \"region\", got {sf!r}")
         rg = self.opts["region_gp"]
         if not (isinstance(rg, (bool, np.bool_)) or (isinstance(rg, str) and rg == "screened")):
             raise ValueError(f"region_gp must be true, false or \"screened\", got {rg!r}")
@@ -1870,7 +1875,7 @@ class Transfer(TwoSpaceCritic):
             strict = cands.pf <= q_ex
             ctx.explore_bound = q_ex if strict.sum() >= n else float(self.opts["max_fall_prob"])
             ok = strict if strict.sum() >= n else ok
-        if ok.sum() < n and self.opts["safe_fallback"] and not ctx.explore:
+        if ok.sum() < n and self._fallback_due(ctx):
             cands = self._safe_fallback(cands, st["L"], centre, fall_m, rng)
             C, ctx.safe_fallback = cands.X, True
             if keys is not None:
@@ -2019,6 +2024,30 @@ class Transfer(TwoSpaceCritic):
         new = self._fresh(XF, taken)[1]
         out.append((XF[new], np.full((int(new.sum()), self.k), np.nan), FULL))
         return out
+
+    def _fallback_due(self, ctx: _AskContext) -> bool:
+        """Whether this ask, whose screen admitted fewer candidates than the batch, takes
+        :meth:`_safe_fallback`'s steps (never an explore ask): ``safe_fallback=True`` on every
+        other ask; ``"region"`` on the trust-region asks only (not while the source's elites are
+        the initial design) and, like the explore asks' brake, no more once at least k
+        (``explore_falls``, 0: never) of the told trials of fallback asks (the generations
+        whose decision recorded ``safe_fallback``) fell and they fell more often than
+        ``max_fall_prob`` allows: where small steps from the standing θ fall, the fallback is no
+        safer than the least risky candidate the screen ranked."""
+        mode = self.opts["safe_fallback"]
+        if not mode or ctx.explore:
+            return False
+        if mode != "region":
+            return True
+        if ctx.design:
+            return False
+        k = int(self.opts["explore_falls"])
+        if k <= 0:
+            return True
+        gens = [int(d["generation"]) for d in self.decisions if d.get("safe_fallback")]
+        told = (self._tags >= 0) & np.isin(self._tags // 4, gens)
+        fell = int(self._fell[told].sum())
+        return not (fell >= k and fell > float(self.opts["max_fall_prob"]) * int(told.sum()))
 
     def _safe_fallback(self, cands: _Candidates, L: float, centre: np.ndarray,
                        fall_m: TargetModel | None, rng: np.random.Generator) -> _Candidates:
