@@ -274,7 +274,7 @@ def run_method(method: str, target: Any, src: Path, B: int, seed: int,
         trial(best)
     elif method == "transfer":
         ls = LatentSpace.load(src / "vae")
-        cr = Transfer((Xs, ys, fs), ls, manual, batch_size=1, seed=seed,
+        cr = Transfer((Xs, ys, fs), ls, manual, batch_size=1, seed=seed, budget=B,
                       **{**LADDER_BASE, **(options or {})})
         cr.load_state_dict({"source_hypers": source_hypers(src, seed, options)})
         o = trial(best)
@@ -439,6 +439,33 @@ def best_within_falls(costs: list[float], failed: list[bool], k: int) -> float:
                 break
         best = min(best, c)
     return best
+
+
+def cut_at_fall_budget(run: dict[str, Any], share: float) -> dict[str, Any]:
+    """The run the transfer critic with ``fall_budget`` = ``share`` asks where ``run`` (its
+    stored run without one, budget B) was asked: the same trials until the one after which
+    :func:`~latentune.critic.transfer.falls_allowed` falls are told and one stands, then the
+    best standing θ asked again for the rest of B (its cost, no fall: a deterministic target
+    repeats it). ``cut_at``: the trials kept (B when the budget is never spent)."""
+    from latentune.critic.transfer import falls_allowed
+
+    costs, failed = list(run["costs"]), [bool(f) for f in run["failed"]]
+    B, k = len(costs), falls_allowed(share, len(costs))
+    n_fell, stood, end = 0, False, B
+    for i, f in enumerate(failed):
+        n_fell, stood = n_fell + f, stood or not f
+        if k is not None and n_fell >= k and stood:
+            end = i + 1
+            break
+    ok = [i for i in range(end) if not failed[i]]
+    j = min(ok, key=lambda i: costs[i]) if ok else None
+    out = {**run, "costs": costs[:end] + [costs[j]] * (B - end) if j is not None else costs,
+           "failed": failed[:end] + [False] * (B - end) if j is not None else failed,
+           "cut_at": end, "fall_budget": share}
+    if run.get("thetas") and j is not None:
+        out["thetas"] = run["thetas"][:end] + [run["thetas"][j]] * (B - end)
+    out.pop("decisions", None)
+    return out
 
 
 def _ladder_target(run: dict[str, Any]) -> dict[str, Any]:

@@ -115,3 +115,28 @@ def test_ask_start(tmp_path, run_cli, error_line):
                              "--json", "--n", "4")
     assert code == 0, err
     assert all(s["params"] != {"a": 0.5, "b": 1.0, "c": 2.0} for s in json.loads(out))
+
+
+def test_fall_budget_flag_is_checked_and_kept_by_later_asks(tmp_path, run_cli, error_line):
+    """--fall-budget: out of [0, 1) or with the plain strategy, refused in one line, fixing
+    nothing; given to the first ask of a transfer phase 3 it is recorded in the
+    phase's transfer options, and a later ask with another value is refused naming it."""
+    import latentune as lt
+
+    assert "--fall-budget must be in [0, 1), got 1.5" in error_line(*run_cli(
+        "phase3", "--robot", "a1", "--out", tmp_path / "r", "--fall-budget", "1.5")[::2])
+    space = lt.ParameterSpace(["a", "b", "c"], [0, 0, 0], [1, 2, 4], manual=[0.5] * 3)
+    with lt.Study(tmp_path / "sim", seed=0) as sim:
+        sim.phase1(lt.FunctionSystem(space, lambda x: float(sum((x - 0.4) ** 2))), 30)
+        sim.train_latent(latent_dim=2, epochs=30)
+    d, first = tmp_path / "robot", ("--space", _space_file(tmp_path), "--phase", "3",
+                                    "--vae", tmp_path / "sim")
+    line = error_line(*run_cli("ask", d, *first, "--strategy", "plain",
+                               "--fall-budget", "0.2")[::2])
+    assert "options of the transfer phase 3" in line
+    assert not (d / "run.db").exists() or "asktell" not in lt.Study(d).config()
+    code, _, err = run_cli("ask", d, *first, "--fall-budget", "0.2")
+    assert code == 0, err
+    assert lt.Study(d).config()["phase3"]["transfer_options"] == {"fall_budget": 0.2}
+    assert "0.2" in error_line(*run_cli("ask", d, "--fall-budget", "0.3")[::2])
+    assert run_cli("ask", d)[0] == 0

@@ -12,7 +12,7 @@ from latentune.constants import Phase
 from latentune.critic.transfer import TRANSFER_DEFAULTS
 from latentune.errors import StoreError, UsageError
 from latentune.pipeline.phases import state_key
-from test_asktell import plant, src30  # noqa: F401 - shared fixtures
+from test_asktell import SPACE, plant, src30  # noqa: F401 - shared fixtures
 
 OFF = {"explore_every": 0}
 
@@ -97,3 +97,31 @@ def test_a_small_max_fall_prob_takes_the_default_explore_bound_below_it(tmp_path
         opts = _state(st)["options"]
         assert opts["max_fall_prob"] == 0.1 and opts["explore_fall_prob"] == 0.066666666667
         assert opts["explore_gp"] is True
+
+
+def _harsh(x):
+    """The plant's quadratic where a < 0.21 and b < 0.3; a fall elsewhere."""
+    if x[0] > 0.21 or x[1] > 0.3:
+        return lt.Outcome(None, failed=True)
+    return float(((x - 0.2) ** 2).sum())
+
+
+def test_a_spent_fall_budget_ends_phase_3_and_ask_says_so(tmp_path, src):
+    """``fall_budget`` 0.1 of 20 phase-3 trials and the zero-shot one allows 2 falls: the loop
+    stops at the batch that spends it (2 points a batch: at most one fall over), status says
+    so, a resume asks nothing more, and ask refuses in one line; without a budget all 20
+    trials run."""
+    target = lt.FunctionSystem(SPACE, _harsh)
+    with lt.Study(tmp_path / "all", seed=0) as st:
+        assert st.phase3(target, 20, latent=src).n == 20
+        assert st.status()["fall_budget"] is None
+    with lt.Study(tmp_path / "t", seed=0, batch_size=2) as st:
+        n = st.phase3(target, 20, latent=src, transfer_options={"fall_budget": 0.1}).n
+        rows = [r for ph in (Phase.ZERO_SHOT, Phase.PHASE3) for r in st.store.rows(ph)]
+        assert n < 20 and 2 <= sum(r.fell for r in rows) <= 3 and not all(r.fell for r in rows)
+        assert st.status()["fall_budget"] == {"falls_allowed": 2, "spent": True,
+                                              "falls": sum(r.fell for r in rows)}
+        assert st.phase3(target, 20, latent=src, transfer_options={"fall_budget": 0.1}).n == n
+        with pytest.raises(StoreError, match="fall budget is spent") as info:
+            st.ask(phase=3, budget=20, latent=src, transfer_options={"fall_budget": 0.1})
+        assert "\n" not in str(info.value)

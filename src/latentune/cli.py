@@ -256,6 +256,7 @@ def add_run_args(p: argparse.ArgumentParser, name: str) -> None:
     if name in ("tune", "phase3"):
         _handover_arg(p)
         _strategy_arg(p)
+        _fall_budget_arg(p)
     if name == "phase1":
         p.add_argument("--fall-prior", default=None, metavar="RUN_DIR",
                        help="with --max-fall-prob: a run whose phase-1 trials seed the prediction")
@@ -381,6 +382,14 @@ def _need_store(study: Any, resume: bool) -> None:
         raise CLIError(f"--resume: no run store in {study.dir}")
 
 
+def _stored_transfer(study: Any) -> dict[str, Any] | None:
+    """The transfer options the stored phase 3 of ``study`` was run with (a resume keeps them;
+    none stored: None)."""
+    if not study.exists:
+        return None
+    return (study.config().get("phase3") or {}).get("transfer_options")
+
+
 def _finish(study: Any) -> None:
     from latentune.reporting.run_report import comparison_table
 
@@ -417,11 +426,13 @@ def _phase_line(res: Any, study: Any) -> str:
 def cmd_tune(args: argparse.Namespace) -> int:
     handover = _handover(args)                      # checked before phase 1 runs
     strategy = _strategy(args, handover)
+    _transfer_options(args, None)                   # checked before phase 1 runs
     study, system, _ = _phase1_study(args, latent=True)
     with study:
         study.train_latent(args.latent_dim, kind=args.vae_kind, epochs=args.vae_epochs)
         study.phase3(system, args.phase3_evals, method=args.method, regions=args.regions,
-                     max_fall_prob=args.max_fall_prob, handover=handover, strategy=strategy)
+                     max_fall_prob=args.max_fall_prob, handover=handover, strategy=strategy,
+                     transfer_options=_transfer_options(args, _stored_transfer(study)))
         _finish(study)
     return 0
 
@@ -456,6 +467,7 @@ def cmd_train_vae(args: argparse.Namespace) -> int:
 def cmd_phase3(args: argparse.Namespace) -> int:
     handover = _handover(args)
     strategy = _strategy(args, handover)
+    _transfer_options(args, None)                   # checked before anything runs
     study = _study(args)
     _check_stored_system(study, args)
     system = make_system(args, args.seed)
@@ -475,7 +487,8 @@ def cmd_phase3(args: argparse.Namespace) -> int:
     with study:
         study.phase3(system, args.phase3_evals, latent=args.vae, method=args.method,
                      regions=args.regions, max_fall_prob=args.max_fall_prob,
-                     handover=handover, strategy=strategy)
+                     handover=handover, strategy=strategy,
+                     transfer_options=_transfer_options(args, _stored_transfer(study)))
         _finish(study)
     return 0
 
@@ -540,13 +553,15 @@ def cmd_ask(args: argparse.Namespace) -> int:
         raise CLIError(f"--lease must be a positive number of seconds, got {args.lease}")
     if args.budget is not None:
         _positive("budget", args.budget)
+    topts = _transfer_options(args, None)           # None: the stored ones
     with study:
         start = _ask_start(args.start, system, space, study)
         sugg = study.ask(args.n, system=system, space=space, phase=args.phase, latent=args.vae,
                          method=args.method, handover=handover, strategy=strategy,
                          budget=args.budget, regions=args.regions, start=start,
                          max_fall_prob=args.max_fall_prob, fall_prior=args.fall_prior,
-                         asker=args.asker, lease_s=args.lease)
+                         asker=args.asker, lease_s=args.lease,
+                         **({} if topts is None else {"transfer_options": topts}))
         write_suggestion_files(study.dir, sugg)
     if args.json:
         print(json.dumps([s.to_dict() for s in sugg]))
@@ -654,6 +669,10 @@ def cmd_status(args: argparse.Namespace) -> int:
               + ", ".join(f"{k} {v}" for k, v in dec["kinds"].items())
               + f"); last: generation {last['generation']}, {last['kind']}{agree}{side}"
               + (f", pools {'/'.join(sorted(set(last['pools'])))}" if last.get("pools") else ""))
+    fb = s.get("fall_budget")
+    if fb:
+        print(f"phase 3 fall budget: {fb['falls']} of {fb['falls_allowed']} falls"
+              + ("; spent: phase 3 asks no more" if fb["spent"] else ""))
     leases = s.get("leases") or {}
     print(f"pending suggestions: {len(s['pending'])}" + (" (" + ", ".join(
         f"{i} held by {leases.get(str(i), {}).get('asker')}" for i in s["pending"]) + ")"
@@ -755,6 +774,25 @@ def _strategy_arg(p: argparse.ArgumentParser) -> None:
                         "--method, --regions and --handover are its options)")
 
 
+def _fall_budget_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--fall-budget", type=float, default=None, metavar="Q",
+                   help="transfer phase 3: stop once the target's trials fell Q × its trials "
+                        "times (at least once) and one stands; 0 = never stop (default: the "
+                        "transfer critic's fall_budget)")
+
+
+def _transfer_options(args: argparse.Namespace, stored: dict[str, Any] | None
+                      ) -> dict[str, Any] | None:
+    """Phase 3's ``transfer_options`` from --fall-budget (checked), else ``stored`` (the stored
+    phase 3's, which a resume keeps)."""
+    q = getattr(args, "fall_budget", None)
+    if q is None:
+        return stored
+    if not 0.0 <= q < 1.0:                          # nan fails too
+        raise CLIError(f"--fall-budget must be in [0, 1), got {q}")
+    return {**(stored or {}), "fall_budget": q}
+
+
 def _strategy(args: argparse.Namespace, handover: Any) -> Any:
     """The --strategy of phase 3, refused with options only the plain strategy has."""
     st = getattr(args, "strategy", None)
@@ -817,6 +855,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="critic (first ask: default turbo; later asks: the stored one)")
     _handover_arg(p)
     _strategy_arg(p)
+    _fall_budget_arg(p)
     p.add_argument("--budget", type=int, default=None,
                    help="the trials you plan (first ask: default 200; may grow later)")
     p.add_argument("--regions", type=int, default=None, help="TuRBO-m trust regions")

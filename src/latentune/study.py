@@ -355,7 +355,7 @@ class Study:
     def status(self) -> dict[str, Any]:
         """Trials, falls and pending suggestions per phase by name, and the best trial over
         all phases with its suggestion id and θ file (:func:`latentune.pipeline.results.status`)."""
-        return results.status(self.store, self.dir)
+        return results.status(self.store, self.dir, self.manifest.config())
 
     def trials(self, phases: tuple[int, ...] | None = None) -> list[results.TrialRecord]:
         """Every stored trial as a record: phase by name, θ by name in physical units, cost,

@@ -74,7 +74,11 @@ the fall screen end the initial design when it rejects every remaining elite;
 centre on shrinking sides (``L/2 … L/2^8``) join the candidates before the least likely to fall
 are kept, so the search steps back toward its safe trial rather than asking over the screen
 (``"region"``: on the trust-region asks only, braked as the explore asks are after
-``explore_falls`` fallen fallback trials);
+``explore_falls`` fallen fallback trials); ``fall_budget`` = q in (0, 1) with the constructor's
+``budget`` (the target trials the run will hold, told ones included): once ``max(1, ⌊q ·
+budget⌋)`` of the target's trials fell and one stands, every ask is the best standing θ
+(:attr:`Transfer.fall_budget_spent`; the phase loop stops there), a trade of the rest of the
+search for no more falls on a target where each costs a robot;
 ``fall_cost``: the acquisition counts the fall among the outcomes of a candidate, with the fall
 model's posterior mean ``p(θ)`` (clipped to [0, 1]) as its probability: a Thompson sample ``s(θ)``
 of the cost rank score becomes the expected score ``(1 − p) s + p s_fall`` (``s_fall``: the
@@ -378,7 +382,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "explore_fall_prob": None, "explore_skip": False, "fall_calibrate": False,
     "fall_shrink": False, "centre_falls": 0, "fall_rank": "clipped", "explore_gp": True,
     "explore_record": "count", "explore_bandit": "mean", "region_gp": False,
-    "fall_fit": False,
+    "fall_fit": False, "fall_budget": 0.0,
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state, where
 ``explore_fall_prob`` is resolved (:func:`resolved_options`)."""
@@ -413,7 +417,7 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "centre_falls": 0, "fall_rank": "clipped",
                                  "explore_gp": False, "explore_record": "count",
                                  "explore_bandit": "mean", "region_gp": False,
-                                 "fall_fit": False}
+                                 "fall_fit": False, "fall_budget": 0.0}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -1100,7 +1104,7 @@ class Transfer(TwoSpaceCritic):
 
     def __init__(self, source: tuple[np.ndarray, np.ndarray, np.ndarray], latent: Any = None,
                  manual: np.ndarray | None = None, *, batch_size: int = 1, seed: int = 0,
-                 **options: Any) -> None:
+                 budget: int | None = None, **options: Any) -> None:
         Xs = np.asarray(source[0], dtype=float)
         if Xs.ndim != 2:
             raise ValueError(f"source X must be (N, d), got shape {Xs.shape}")
@@ -1134,6 +1138,15 @@ class Transfer(TwoSpaceCritic):
                      "fall_shrink", "explore_gp", "fall_fit"):
             if not isinstance(self.opts[flag], (bool, np.bool_)):
                 raise ValueError(f"{flag} must be true or false, got {self.opts[flag]!r}")
+        q_fb = self.opts["fall_budget"]
+        if isinstance(q_fb, bool) or not isinstance(q_fb, (int, float)) or \
+                not 0.0 <= float(q_fb) < 1.0:
+            raise ValueError(f"fall_budget must be a share of the trials in [0, 1) (0: none), "
+                             f"got {q_fb!r}")
+        if budget is not None and (isinstance(budget, bool) or
+                                   not isinstance(budget, (int, np.integer)) or budget < 1):
+            raise ValueError(f"budget must be a whole number of trials ≥ 1, got {budget!r}")
+        self.budget = None if budget is None else int(budget)
         sf = self.opts["safe_fallback"]
         if not (isinstance(sf, (bool, np.bool_)) or (isinstance(sf, str) and sf == "region")):
             raise ValueError(f"safe_fallback must be true, false or \"region\", got {sf!r}")
@@ -1507,6 +1520,20 @@ class Transfer(TwoSpaceCritic):
         ``base``'s rank scores: the late phase's cost model and the explore and region asks'."""
         return TargetGP(self._X, base.v, self._turbo_helper(), base)
 
+    def falls_allowed(self) -> int | None:
+        """The fall budget among the target's told trials (the zero-shot and manual ones
+        included): :func:`falls_allowed` of ``fall_budget`` and ``budget``."""
+        return falls_allowed(self.opts["fall_budget"], self.budget)
+
+    @property
+    def fall_budget_spent(self) -> bool:
+        """True once the target's told trials fell :meth:`falls_allowed` times and one of them
+        stands: every later ask is the best θ that did not fall (tag pool ``full``), as
+        ``stop_converged`` asks the centre, and a loop that runs the trials itself stops
+        there. While every trial fell the search goes on: it has nothing to stop at."""
+        k = self.falls_allowed()
+        return k is not None and int(self._fell.sum()) >= k and bool((~self._fell).any())
+
     def _handoff_active(self) -> bool:
         """True once the target has ``handoff`` own (tagged) trials (``handoff`` > 0)."""
         k = int(self.opts["handoff"])
@@ -1752,6 +1779,15 @@ class Transfer(TwoSpaceCritic):
     def _ask_one_thread(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         st = self._replay_state()
         g = st["generation"]
+        k_fb = self.falls_allowed()
+        if self.fall_budget_spent:
+            self.last_z = np.full((n, self.k), np.nan)
+            self.decisions.append({"generation": g, "n_told": self.n_told, "design": False,
+                                   "rule": f"the fall budget is spent ({k_fb} falls of "
+                                           f"{self.budget} trials): the best θ",
+                                   "fall_budget": k_fb, "pools": ["full"] * n,
+                                   "explore": False})
+            return np.tile(self._centre(), (n, 1)), np.full(n, 4 * g + FULL, dtype=np.int64)
         rng = np.random.default_rng([self.seed, g, 11])
         sm = self.source_model()
         cost_m, fall_m = self.models()
@@ -2227,6 +2263,14 @@ class Transfer(TwoSpaceCritic):
     def __repr__(self) -> str:
         return (f"Transfer(dim={self.dim}, k={self.k}, n_source={len(self.source[1])}, "
                 f"n_told={self.n_told}, best_y={self.best_y:.6g})")
+
+
+def falls_allowed(share: float, budget: int | None) -> int | None:
+    """The falls a target of ``budget`` trials may take under ``fall_budget`` = ``share``:
+    ``max(1, ⌊share · budget⌋)``, or None without a budget (``share`` 0 or ``budget`` None)."""
+    if float(share) <= 0.0 or budget is None:
+        return None
+    return max(1, int(np.floor(float(share) * int(budget) + 1e-9)))
 
 
 def stored_options(state: dict[str, Any]) -> dict[str, Any] | None:

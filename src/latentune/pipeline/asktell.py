@@ -383,6 +383,11 @@ def _critic_batch(study: Any, st: RunStore, phase: int, pc: dict[str, Any],
     k = min(max(pc["batch_size"], need), left)
     critic = phase_critic(phase, pc, space, study.dir, ls)
     replay(st, phase, critic)
+    if getattr(critic, "fall_budget_spent", False):
+        raise StoreError(f"{study.dir}: {phase_name(phase)}'s fall budget is spent "
+                         f"({critic.falls_allowed()} falls; {st.count(phase)} trials told): "
+                         "its best θ is the result; a larger budget allows more falls "
+                         "(fall_budget × trials)")
     U, T, Z, thetas, codes = ask_batch(critic, n_open + k, decoder_of(pc, ls))
     held = {np.ascontiguousarray(t.theta).tobytes() for t in st.trials()
             if t.status in ("queued", "pending") and t.phase in (phase, Phase.ZERO_SHOT)}

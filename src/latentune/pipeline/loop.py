@@ -134,7 +134,8 @@ def transfer_critic(pc: dict[str, Any], space: ParameterSpace, run_dir: Path, so
     """The transfer phase 3's critic (:class:`~latentune.critic.transfer.Transfer`) on the θ box:
     the source run's trials (phases 1 and 3; only phase 1 when the source is this run), the
     latent space, the target's manual θ, and the target trials stored outside phase 3 (the
-    zero-shot trial and the manual θ's) told to it as data."""
+    zero-shot trial and the manual θ's) told to it as data. Its ``budget`` (for
+    ``fall_budget``) is the phase's budget and those trials."""
     from latentune.critic.transfer import Transfer, source_trials
 
     own = Path(source_run).resolve() == Path(run_dir).resolve()
@@ -143,18 +144,20 @@ def transfer_critic(pc: dict[str, Any], space: ParameterSpace, run_dir: Path, so
         raise LatentError(f"transfer phase 3: the source run {source_run} has {len(y)} trials; "
                           "it needs at least 2 (or use strategy plain)")
     mfp = pc.get("max_fall_prob")
-    critic = Transfer((X, y, fell), latent, space.manual, batch_size=pc["batch_size"],
-                      seed=pc["seed"], **({} if mfp is None else {"max_fall_prob": mfp}),
-                      **(pc.get("transfer_options") or {}))
+    rows, state = [], None
     if (Path(run_dir) / "run.db").is_file():
         with RunStore(run_dir) as st:
             rows = [r for ph in (Phase.MANUAL, Phase.ZERO_SHOT) for r in st.rows(ph)]
             state = st.get_meta(state_key(Phase.PHASE3))
-        if state:       # a stored run: its options (source order among them) from the start
-            critic.load_state_dict(state)
-        if rows:
-            critic.tell(np.array([r.theta for r in rows]), np.array([r.cost for r in rows]),
-                        fell=np.array([r.fell for r in rows], dtype=bool))
+    critic = Transfer((X, y, fell), latent, space.manual, batch_size=pc["batch_size"],
+                      seed=pc["seed"], budget=int(pc["budget"]) + len(rows),
+                      **({} if mfp is None else {"max_fall_prob": mfp}),
+                      **(pc.get("transfer_options") or {}))
+    if state:           # a stored run: its options (source order among them) from the start
+        critic.load_state_dict(state)
+    if rows:
+        critic.tell(np.array([r.theta for r in rows]), np.array([r.cost for r in rows]),
+                    fell=np.array([r.fell for r in rows], dtype=bool))
     if own:     # the source is this system: its best trials and elites are target data already
         from latentune.critic.transfer import rank_scores
 

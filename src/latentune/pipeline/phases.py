@@ -389,7 +389,9 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
               progress: bool = False, on_row: Callable[[int, float], None] | None = None,
               max_new: int | None = None, known: dict[bytes, Outcome] | None = None,
               strategy: str = "plain") -> PhaseResult:
-    """Run (or resume) one tuning phase until ``budget`` evaluations are stored.
+    """Run (or resume) one tuning phase until ``budget`` evaluations are stored, or until a
+    critic with a fall budget (``fall_budget_spent``: the transfer critic's ``fall_budget``)
+    has spent it.
 
     Args:
         store: the run store; rows of ``phase`` already stored are told to ``critic`` first.
@@ -433,6 +435,10 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
         if bar is not None and n0:
             bar.set_postfix(best=f"{best:.3f}")
         while idx < budget and (max_new is None or new < max_new):
+            if batch is None and getattr(critic, "fall_budget_spent", False):
+                log.info("phase %d: the fall budget is spent (%d falls): stopped after %d of "
+                         "%d trials", int(phase), critic.falls_allowed(), idx, budget)
+                break
             if batch is None:
                 k = min(critic.batch_size, budget - idx)
                 if max_new is not None:

@@ -164,7 +164,31 @@ def decisions_summary(ds: list[dict[str, Any]]) -> dict[str, Any] | None:
                      "pools": last.get("pools")}}
 
 
-def status(store: RunStore, run_dir: Path) -> dict[str, Any]:
+def fall_budget(store: RunStore, config: dict[str, Any] | None) -> dict[str, Any] | None:
+    """The transfer phase 3's fall budget (``fall_budget`` > 0; its stored state's options
+    win, as a resume restores them): ``{falls_allowed, falls, spent}`` over the target's
+    trials the critic is told (manual, zero-shot and phase 3) out of phase 3's budget and
+    those trials; None for another phase 3, none yet, or no budget."""
+    from latentune.critic.transfer import TRANSFER_DEFAULTS, falls_allowed, stored_options
+    from latentune.pipeline.phases import state_key
+
+    pc = (config or {}).get("phase3") or {}
+    if pc.get("strategy") != "transfer" or "budget" not in pc:
+        return None
+    state = store.get_meta(state_key(Phase.PHASE3))
+    opts = (stored_options(state) if isinstance(state, dict) else None) or \
+        {**TRANSFER_DEFAULTS, **(pc.get("transfer_options") or {})}
+    rows = [r for ph in (Phase.MANUAL, Phase.ZERO_SHOT) for r in store.rows(ph)]
+    k = falls_allowed(opts["fall_budget"], int(pc["budget"]) + len(rows))
+    if k is None:
+        return None
+    told = rows + store.rows(Phase.PHASE3)
+    n = sum(bool(r.fell) for r in told)
+    return {"falls_allowed": k, "falls": n, "spent": n >= k and any(not r.fell for r in told)}
+
+
+def status(store: RunStore, run_dir: Path, config: dict[str, Any] | None = None
+           ) -> dict[str, Any]:
     """The status of a study for the person at the robot (JSON-able).
 
     ``phases``: by name, each ``{n, failed, pending, best, best_idx, best_trial}`` (told
@@ -174,7 +198,8 @@ def status(store: RunStore, run_dir: Path) -> dict[str, Any]:
     ``told``: suggestions told; ``amended``: corrections; ``best``: the best trial over all
     phases (zero-shot included) with ``phase``, ``idx``, ``trial``, ``cost`` and
     ``params_file`` (``DIR/best.json`` when written) -- or None; ``decisions``: the phase-3
-    critic's decisions so far (:func:`decisions_summary`), or None."""
+    critic's decisions so far (:func:`decisions_summary`), or None; ``fall_budget``: phase
+    3's (:func:`fall_budget`, from the study's ``config``), or None."""
     out: dict[str, Any] = {"dir": str(run_dir), "phases": {}}
     all_trials = store.trials()
     now = time.time()
@@ -199,6 +224,7 @@ def status(store: RunStore, run_dir: Path) -> dict[str, Any]:
     out["told"] = sum(1 for t in all_trials if t.status == "told")
     out["amended"] = len(store.amendments())
     out["decisions"] = decisions_summary(decisions(store))
+    out["fall_budget"] = fall_budget(store, config)
     b = best_row(store)
     f = run_dir / BEST_FILE
     out["best"] = None if b is None else {
