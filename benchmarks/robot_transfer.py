@@ -15,7 +15,7 @@ sources of A1 and Solo12 to targets at several gaps.
         [--seeds S ...]
     python -m benchmarks.robot_transfer export --root runs/robot_transfer --out DIR
     python -m benchmarks.robot_transfer restore --traces DIR [--root runs/robot_transfer]
-    python -m benchmarks.robot_transfer cut --method METHOD --share Q --as NAME
+    python -m benchmarks.robot_transfer cut --method METHOD --share Q --as NAME [--counts all]
         [--root runs/robot_transfer] [--seeds S ...]   (METHOD's runs as fall_budget = Q runs them)
     python -m benchmarks.robot_transfer plot [--targets RUNG ...] [--root runs/robot_transfer]
         [--out results/robot_transfer] [--gifs]
@@ -765,11 +765,11 @@ def export_traces(root: Path, out: Path) -> list[Path]:
 
 
 def cut_runs(root: Path, method: str, share: float, name: str,
-             seeds: list[int] | None = None) -> int:
+             seeds: list[int] | None = None, counts: str = "all") -> int:
     """Store each run of ``method`` under ``root`` (only ``seeds`` when given) as it would
-    have gone with the transfer critic's ``fall_budget`` = ``share``
-    (:func:`benchmarks.transfer.cut_at_fall_budget`), beside it as method ``name`` with
-    ``derived_from``; returns how many."""
+    have gone with the transfer critic's ``fall_budget`` = ``share`` and
+    ``fall_budget_counts`` = ``counts`` (:func:`benchmarks.transfer.cut_at_fall_budget`),
+    beside it as method ``name`` with ``derived_from``; returns how many."""
     if not 0.0 < share < 1.0:
         raise RobotTransferError(f"--share must be in (0, 1), got {share}")
     n = 0
@@ -777,7 +777,8 @@ def cut_runs(root: Path, method: str, share: float, name: str,
         r = json.loads(f.read_text())
         if seeds is not None and int(r["seed"]) not in seeds:
             continue
-        out = {**tr.cut_at_fall_budget(r, share), "method": name, "derived_from": method}
+        out = {**tr.cut_at_fall_budget(r, share, counts), "method": name,
+               "derived_from": method}
         f.with_name(f"{name}.json").write_text(json.dumps(out))
         n += 1
     return n
@@ -1123,6 +1124,8 @@ def parser() -> argparse.ArgumentParser:
     ct.add_argument("--root", default="runs/robot_transfer")
     ct.add_argument("--method", required=True)
     ct.add_argument("--share", type=float, required=True)
+    ct.add_argument("--counts", choices=("all", "after_stand"), default="all",
+                    help="the critic's fall_budget_counts")
     ct.add_argument("--as", dest="name", required=True, help="the method name to store them as")
     ct.add_argument("--seeds", nargs="+", type=_nonneg_int, default=None, help="only these seeds")
     dc = sub.add_parser("decisions", help="what the default phase 3 did, from its decision "
@@ -1208,8 +1211,9 @@ def main(argv: list[str] | None = None) -> int:
             wrote, kept = restore_traces(Path(a.traces), Path(a.root))
             print(f"{wrote} runs restored under {Path(a.root) / 'targets'}, {kept} kept")
         elif a.cmd == "cut":
-            print(f"{cut_runs(Path(a.root), a.method, a.share, a.name, a.seeds)} runs of "
-                  f"{a.method} cut at fall_budget {a.share:g}, stored as {a.name}")
+            n = cut_runs(Path(a.root), a.method, a.share, a.name, a.seeds, a.counts)
+            print(f"{n} runs of {a.method} cut at fall_budget {a.share:g} ({a.counts}), "
+                  f"stored as {a.name}")
         elif a.cmd == "decisions":
             from benchmarks.common import Provenance, write_json
 

@@ -441,27 +441,25 @@ def best_within_falls(costs: list[float], failed: list[bool], k: int) -> float:
     return best
 
 
-def cut_at_fall_budget(run: dict[str, Any], share: float) -> dict[str, Any]:
-    """The run the transfer critic with ``fall_budget`` = ``share`` asks where ``run`` (its
-    stored run without one, budget B) was asked: the same trials until the one after which
-    :func:`~latentune.critic.transfer.falls_allowed` falls are told and one stands, then the
-    best standing θ asked again for the rest of B (its cost, no fall: a deterministic target
-    repeats it). ``cut_at``: the trials kept (B when the budget is never spent)."""
-    from latentune.critic.transfer import falls_allowed
+def cut_at_fall_budget(run: dict[str, Any], share: float, counts: str = "all"
+                       ) -> dict[str, Any]:
+    """The run the transfer critic with ``fall_budget`` = ``share`` (and
+    ``fall_budget_counts`` = ``counts``) asks where ``run`` (its stored run without one, budget
+    B) was asked: the same trials until the one after which the budget is spent
+    (:func:`~latentune.critic.transfer.fall_budget_spent`), then the best standing θ asked
+    again for the rest of B (its cost, no fall: a deterministic target repeats it).
+    ``cut_at``: the trials kept (B when the budget is never spent)."""
+    from latentune.critic.transfer import fall_budget_spent
 
     costs, failed = list(run["costs"]), [bool(f) for f in run["failed"]]
-    B, k = len(costs), falls_allowed(share, len(costs))
-    n_fell, stood, end = 0, False, B
-    for i, f in enumerate(failed):
-        n_fell, stood = n_fell + f, stood or not f
-        if k is not None and n_fell >= k and stood:
-            end = i + 1
-            break
+    B = len(costs)
+    end = next((i + 1 for i in range(B)
+                if fall_budget_spent(np.array(failed[:i + 1]), share, B, counts)), B)
     ok = [i for i in range(end) if not failed[i]]
     j = min(ok, key=lambda i: costs[i]) if ok else None
     out = {**run, "costs": costs[:end] + [costs[j]] * (B - end) if j is not None else costs,
            "failed": failed[:end] + [False] * (B - end) if j is not None else failed,
-           "cut_at": end, "fall_budget": share}
+           "cut_at": end, "fall_budget": share, "fall_budget_counts": counts}
     if run.get("thetas") and j is not None:
         out["thetas"] = run["thetas"][:end] + [run["thetas"][j]] * (B - end)
     out.pop("decisions", None)

@@ -370,6 +370,29 @@ def test_fall_budget_asks_the_best_standing_theta_once_spent(source, hypers):
             _critic(source, hypers, **kw)
 
 
+def test_the_fall_budget_counts_every_fall_or_those_after_the_first_stand():
+    """Two falls allowed (0.1 of 20 trials): ``"all"`` counts the falls before the first
+    standing trial too, ``"after_stand"`` only those after it; while every trial fell the
+    budget is never spent (the search has no θ to stop at); the ladders' cut agrees."""
+    from benchmarks.transfer import cut_at_fall_budget
+    from latentune.critic.transfer import counted_falls, fall_budget_spent, falls_allowed
+
+    assert falls_allowed(0.1, 20) == 2 and falls_allowed(0.01, 20) == 1
+    early = np.array([1, 1, 0, 1], bool)          # two falls, a stand, a fall
+    assert counted_falls(early, "all") == 3 and counted_falls(early, "after_stand") == 1
+    assert fall_budget_spent(early, 0.1, 20, "all")
+    assert not fall_budget_spent(early, 0.1, 20, "after_stand")
+    assert fall_budget_spent(np.r_[early, True], 0.1, 20, "after_stand")
+    assert not fall_budget_spent(np.ones(9, bool), 0.1, 20, "all")
+    assert not fall_budget_spent(early, 0.0, 20) and not fall_budget_spent(early, 0.1, None)
+    run = {"costs": [9.0, 8.0, 5.0, 7.0, 6.0, 4.0, 3.0] + [2.0] * 13,
+           "failed": [True, True, False, True, False, True] + [False] * 14}
+    for counts, end in (("all", 3), ("after_stand", 6)):
+        cut = cut_at_fall_budget(run, 0.1, counts)
+        assert cut["cut_at"] == end and cut["costs"][end:] == [5.0] * (20 - end)
+        assert not any(cut["failed"][end:]) and cut["failed"][:end] == run["failed"][:end]
+
+
 def test_tilt_learns_the_drift_a_gap_adds_and_extrapolates_it(source, hypers):
     """A target whose cost is the source's bowl plus a linear drift along coordinate 0 (the gap
     moved its optimum toward the face): with a tilt grid the model chooses a tilt by marginal

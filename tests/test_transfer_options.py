@@ -119,7 +119,7 @@ def test_a_spent_fall_budget_ends_phase_3_and_ask_says_so(tmp_path, src):
         n = st.phase3(target, 20, latent=src, transfer_options={"fall_budget": 0.1}).n
         rows = [r for ph in (Phase.ZERO_SHOT, Phase.PHASE3) for r in st.store.rows(ph)]
         assert n < 20 and 2 <= sum(r.fell for r in rows) <= 3 and not all(r.fell for r in rows)
-        assert st.status()["fall_budget"] == {"falls_allowed": 2, "spent": True,
+        assert st.status()["fall_budget"] == {"falls_allowed": 2, "spent": True, "counts": "all",
                                               "falls": sum(r.fell for r in rows)}
         assert st.phase3(target, 20, latent=src, transfer_options={"fall_budget": 0.1}).n == n
         with pytest.raises(StoreError, match="fall budget is spent") as info:

@@ -78,7 +78,9 @@ are kept, so the search steps back toward its safe trial rather than asking over
 ``budget`` (the target trials the run will hold, told ones included): once ``max(1, ⌊q ·
 budget⌋)`` of the target's trials fell and one stands, every ask is the best standing θ
 (:attr:`Transfer.fall_budget_spent`; the phase loop stops there), a trade of the rest of the
-search for no more falls on a target where each costs a robot;
+search for no more falls on a target where each costs a robot (``fall_budget_counts``:
+``"all"`` the falls, or ``"after_stand"`` only those after the first trial that stood, the
+falls taken while a standing θ was in hand);
 ``fall_cost``: the acquisition counts the fall among the outcomes of a candidate, with the fall
 model's posterior mean ``p(θ)`` (clipped to [0, 1]) as its probability: a Thompson sample ``s(θ)``
 of the cost rank score becomes the expected score ``(1 − p) s + p s_fall`` (``s_fall``: the
@@ -382,7 +384,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "explore_fall_prob": None, "explore_skip": False, "fall_calibrate": False,
     "fall_shrink": False, "centre_falls": 0, "fall_rank": "clipped", "explore_gp": True,
     "explore_record": "count", "explore_bandit": "mean", "region_gp": False,
-    "fall_fit": False, "fall_budget": 0.0,
+    "fall_fit": False, "fall_budget": 0.0, "fall_budget_counts": "all",
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state, where
 ``explore_fall_prob`` is resolved (:func:`resolved_options`)."""
@@ -417,7 +419,8 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "centre_falls": 0, "fall_rank": "clipped",
                                  "explore_gp": False, "explore_record": "count",
                                  "explore_bandit": "mean", "region_gp": False,
-                                 "fall_fit": False, "fall_budget": 0.0}
+                                 "fall_fit": False, "fall_budget": 0.0,
+                                 "fall_budget_counts": "all"}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -467,6 +470,7 @@ FALL_RANKS = ("clipped", "bound", "mean")
 (``fall_rank``): the screen's clipped probability, its unclipped bound, or the fall model's
 unclipped posterior mean."""
 FULL_SHAPES = ("lengthscales", "cube")
+FALL_BUDGET_COUNTS = ("all", "after_stand")
 """The full pool's box (``full_shape``): sides in proportion to the lengthscales, or a cube."""
 EXPLORE_WHEN = ("always", "stalled")
 """When a due generation is an explore ask (``explore_when``): always, or only while the trust
@@ -1147,6 +1151,9 @@ class Transfer(TwoSpaceCritic):
                                    not isinstance(budget, (int, np.integer)) or budget < 1):
             raise ValueError(f"budget must be a whole number of trials ≥ 1, got {budget!r}")
         self.budget = None if budget is None else int(budget)
+        if self.opts["fall_budget_counts"] not in FALL_BUDGET_COUNTS:
+            raise ValueError(f"fall_budget_counts must be one of {FALL_BUDGET_COUNTS}, "
+                             f"got {self.opts['fall_budget_counts']!r}")
         sf = self.opts["safe_fallback"]
         if not (isinstance(sf, (bool, np.bool_)) or (isinstance(sf, str) and sf == "region")):
             raise ValueError(f"safe_fallback must be true, false or \"region\", got {sf!r}")
@@ -1528,11 +1535,12 @@ class Transfer(TwoSpaceCritic):
     @property
     def fall_budget_spent(self) -> bool:
         """True once the target's told trials fell :meth:`falls_allowed` times and one of them
-        stands: every later ask is the best θ that did not fall (tag pool ``full``), as
+        stands (:func:`fall_budget_spent`): every later ask is the best θ that did not fall
+        (tag pool ``full``), as
         ``stop_converged`` asks the centre, and a loop that runs the trials itself stops
         there. While every trial fell the search goes on: it has nothing to stop at."""
-        k = self.falls_allowed()
-        return k is not None and int(self._fell.sum()) >= k and bool((~self._fell).any())
+        return fall_budget_spent(self._fell, self.opts["fall_budget"], self.budget,
+                                 self.opts["fall_budget_counts"])
 
     def _handoff_active(self) -> bool:
         """True once the target has ``handoff`` own (tagged) trials (``handoff`` > 0)."""
@@ -2271,6 +2279,27 @@ def falls_allowed(share: float, budget: int | None) -> int | None:
     if float(share) <= 0.0 or budget is None:
         return None
     return max(1, int(np.floor(float(share) * int(budget) + 1e-9)))
+
+
+def fall_budget_spent(fell: np.ndarray, share: float, budget: int | None,
+                      counts: str = "all") -> bool:
+    """Whether told outcomes ``fell`` (n,) bool, in told order, spent the fall budget
+    :func:`falls_allowed` of ``share`` and ``budget``: one of them stands and the falls it
+    counts reach it, every fall (``counts="all"``) or those told after the first trial that
+    stood (``"after_stand"``)."""
+    k = falls_allowed(share, budget)
+    fell = np.asarray(fell, dtype=bool)
+    return k is not None and not fell.all() and counted_falls(fell, counts) >= k
+
+
+def counted_falls(fell: np.ndarray, counts: str = "all") -> int:
+    """The falls a fall budget counts among told outcomes ``fell`` (n,) bool, in told order:
+    all of them (``counts="all"``) or those after the first trial that stood
+    (``"after_stand"``; none while every trial fell)."""
+    fell = np.asarray(fell, dtype=bool)
+    if counts == "all":
+        return int(fell.sum())
+    return 0 if fell.all() else int(fell[int(np.argmax(~fell)) + 1:].sum())
 
 
 def stored_options(state: dict[str, Any]) -> dict[str, Any] | None:

@@ -166,10 +166,12 @@ def decisions_summary(ds: list[dict[str, Any]]) -> dict[str, Any] | None:
 
 def fall_budget(store: RunStore, config: dict[str, Any] | None) -> dict[str, Any] | None:
     """The transfer phase 3's fall budget (``fall_budget`` > 0; its stored state's options
-    win, as a resume restores them): ``{falls_allowed, falls, spent}`` over the target's
+    win, as a resume restores them): ``{falls_allowed, falls, counts, spent}`` (``falls``: as
+    ``fall_budget_counts`` counts them) over the target's
     trials the critic is told (manual, zero-shot and phase 3) out of phase 3's budget and
     those trials; None for another phase 3, none yet, or no budget."""
-    from latentune.critic.transfer import TRANSFER_DEFAULTS, falls_allowed, stored_options
+    from latentune.critic.transfer import (TRANSFER_DEFAULTS, counted_falls, fall_budget_spent,
+                                           falls_allowed, stored_options)
     from latentune.pipeline.phases import state_key
 
     pc = (config or {}).get("phase3") or {}
@@ -179,12 +181,14 @@ def fall_budget(store: RunStore, config: dict[str, Any] | None) -> dict[str, Any
     opts = (stored_options(state) if isinstance(state, dict) else None) or \
         {**TRANSFER_DEFAULTS, **(pc.get("transfer_options") or {})}
     rows = [r for ph in (Phase.MANUAL, Phase.ZERO_SHOT) for r in store.rows(ph)]
-    k = falls_allowed(opts["fall_budget"], int(pc["budget"]) + len(rows))
+    B = int(pc["budget"]) + len(rows)
+    k = falls_allowed(opts["fall_budget"], B)
     if k is None:
         return None
-    told = rows + store.rows(Phase.PHASE3)
-    n = sum(bool(r.fell) for r in told)
-    return {"falls_allowed": k, "falls": n, "spent": n >= k and any(not r.fell for r in told)}
+    fell = np.array([bool(r.fell) for r in rows + store.rows(Phase.PHASE3)], dtype=bool)
+    counts = opts["fall_budget_counts"]
+    return {"falls_allowed": k, "falls": counted_falls(fell, counts), "counts": counts,
+            "spent": fall_budget_spent(fell, opts["fall_budget"], B, counts)}
 
 
 def status(store: RunStore, run_dir: Path, config: dict[str, Any] | None = None
