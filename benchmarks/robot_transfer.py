@@ -764,26 +764,6 @@ def export_traces(root: Path, out: Path) -> list[Path]:
     return files
 
 
-def cut_runs(root: Path, method: str, share: float, name: str,
-             seeds: list[int] | None = None, counts: str = "all") -> int:
-    """Store each run of ``method`` under ``root`` (only ``seeds`` when given) as it would
-    have gone with the transfer critic's ``fall_budget`` = ``share`` and
-    ``fall_budget_counts`` = ``counts`` (:func:`benchmarks.transfer.cut_at_fall_budget`),
-    beside it as method ``name`` with ``derived_from``; returns how many."""
-    if not 0.0 < share < 1.0:
-        raise RobotTransferError(f"--share must be in (0, 1), got {share}")
-    n = 0
-    for f in sorted((root / "targets").glob(f"*/src*/seed*/{method}.json")):
-        r = json.loads(f.read_text())
-        if seeds is not None and int(r["seed"]) not in seeds:
-            continue
-        out = {**tr.cut_at_fall_budget(r, share, counts), "method": name,
-               "derived_from": method}
-        f.with_name(f"{name}.json").write_text(json.dumps(out))
-        n += 1
-    return n
-
-
 def restore_traces(traces: Path, root: Path) -> tuple[int, int]:
     """Rebuild ``root``'s run files from exported traces (:func:`export_traces`'s
     ``<rung>.json`` files under ``traces``), each marked ``restored_from`` (the trace file) and
@@ -1211,7 +1191,11 @@ def main(argv: list[str] | None = None) -> int:
             wrote, kept = restore_traces(Path(a.traces), Path(a.root))
             print(f"{wrote} runs restored under {Path(a.root) / 'targets'}, {kept} kept")
         elif a.cmd == "cut":
-            n = cut_runs(Path(a.root), a.method, a.share, a.name, a.seeds, a.counts)
+            try:
+                n = tr.cut_runs(Path(a.root), a.method, a.share, a.name, a.seeds, a.counts,
+                                pattern="targets/*/src*/seed*")
+            except ValueError as e:
+                raise RobotTransferError(str(e)) from None
             print(f"{n} runs of {a.method} cut at fall_budget {a.share:g} ({a.counts}), "
                   f"stored as {a.name}")
         elif a.cmd == "decisions":

@@ -8,6 +8,8 @@
         --out also writes them, F.json and F.md; --machine: read METHOD@M runs as METHOD)
     python -m benchmarks.transfer compare --root runs/transfer --a METHOD ... --b METHOD ...
         [--seeds S ...] [--out F]
+    python -m benchmarks.transfer cut --root DIR --method METHOD --share Q --as NAME
+        [--counts all|after_stand] [--seeds S ...]   (METHOD's runs as fall_budget = Q runs them)
     python -m benchmarks.transfer check-default --stored DIR --method METHOD [--root runs/transfer]
         [--systems ...] [--seeds S ...]   (re-runs METHOD's stored runs with the critic's own
         defaults: exit 0 when every cost and fall is the same, 1 when one differs)
@@ -466,6 +468,29 @@ def cut_at_fall_budget(run: dict[str, Any], share: float, counts: str = "all"
     return out
 
 
+def cut_runs(root: Path, method: str, share: float, name: str, seeds: list[int] | None = None,
+             counts: str = "all", pattern: str = "*/gap*/seed*") -> int:
+    """Store each run ``root/PATTERN/METHOD.json`` (only ``seeds`` when given) as the transfer
+    critic with ``fall_budget`` = ``share`` and ``fall_budget_counts`` = ``counts`` would have
+    run it (:func:`cut_at_fall_budget`), beside it as method ``name`` with ``derived_from``;
+    returns how many. ValueError for a share outside (0, 1) or an unknown ``counts``."""
+    from latentune.critic.transfer import FALL_BUDGET_COUNTS
+
+    if not 0.0 < share < 1.0:
+        raise ValueError(f"--share must be in (0, 1), got {share}")
+    if counts not in FALL_BUDGET_COUNTS:
+        raise ValueError(f"--counts must be one of {FALL_BUDGET_COUNTS}, got {counts!r}")
+    n = 0
+    for f in sorted(root.glob(f"{pattern}/{method}.json")):
+        r = json.loads(f.read_text())
+        if seeds is not None and int(r["seed"]) not in seeds:
+            continue
+        out = {**cut_at_fall_budget(r, share, counts), "method": name, "derived_from": method}
+        f.with_name(f"{name}.json").write_text(json.dumps(out))
+        n += 1
+    return n
+
+
 def _ladder_target(run: dict[str, Any]) -> dict[str, Any]:
     return {"system": run["system"], "gap": float(run["gap"])}
 
@@ -711,6 +736,14 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("--b", nargs="+", required=True)
     c.add_argument("--seeds", nargs="+", type=int, default=None)
     c.add_argument("--out", default=None)
+    ct = sub.add_parser("cut", help="a method's runs as the transfer critic with fall_budget "
+                        "= SHARE would have run them (cut_at_fall_budget), stored as --as")
+    ct.add_argument("--root", default="runs/transfer")
+    ct.add_argument("--method", required=True)
+    ct.add_argument("--share", type=float, required=True)
+    ct.add_argument("--counts", default="all", help="fall_budget_counts: all or after_stand")
+    ct.add_argument("--as", dest="name", required=True, help="the method name to store them as")
+    ct.add_argument("--seeds", nargs="+", type=int, default=None)
     k = sub.add_parser("check-default",
                        help="re-run a method's stored runs with the critic's own defaults")
     k.add_argument("--root", default="runs/transfer", help="the sources (made when missing)")
@@ -732,6 +765,15 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{len(rows) - n_diff} of {len(rows)} runs the same")
         return 1 if n_diff else 0
 
+    if a.cmd == "cut":
+        try:
+            n = cut_runs(Path(a.root), a.method, a.share, a.name, a.seeds, a.counts)
+        except ValueError as e:
+            print(f"transfer cut: {e}", file=sys.stderr)
+            return 2
+        print(f"{n} runs of {a.method} cut at fall_budget {a.share:g} ({a.counts}), stored as "
+              f"{a.name}")
+        return 0
     if a.cmd == "compare":
         prov = Provenance(argv, module="benchmarks.transfer")
         rows = [compare(Path(a.root), x, b, a.seeds) for x in a.a for b in a.b]

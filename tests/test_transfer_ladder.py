@@ -503,3 +503,20 @@ def test_held_out_gaps_replace_the_ladders_and_a_gap_a_system_cannot_take_is_ref
                         "--root", "/nonexistent/x"]) == 2       # before any source run
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0].startswith("transfer run: ") and expect in err[0]
+
+
+def test_cut_stores_a_methods_runs_as_a_fall_budget_would_have_run_them(tmp_path, capsys):
+    """``cut`` writes, beside each run of the method, the run cut where ``fall_budget`` is
+    spent (named ``--as``, with ``derived_from``), and refuses a share outside (0, 1)."""
+    f = tmp_path / "arm" / "gap1" / "seed3" / "M.json"
+    f.parent.mkdir(parents=True)
+    f.write_text(json.dumps({"costs": [5.0, 9.0, 4.0, 9.0] + [1.0] * 16, "seed": 3,
+                             "failed": [False, True, False, True] + [False] * 16}))
+    assert tr.main(["cut", "--root", str(tmp_path), "--method", "M", "--share", "0.1",
+                    "--as", "M:fall_budget=0.1"]) == 0
+    out = json.loads(f.with_name("M:fall_budget=0.1.json").read_text())
+    assert out["cut_at"] == 4 and out["derived_from"] == "M" and out["method"] == "M:fall_budget=0.1"
+    assert out["costs"] == [5.0, 9.0, 4.0, 9.0] + [4.0] * 16 and sum(out["failed"]) == 2
+    assert tr.main(["cut", "--root", str(tmp_path), "--method", "M", "--share", "1",
+                    "--as", "X"]) == 2
+    assert "--share must be in (0, 1)" in capsys.readouterr().err
