@@ -150,7 +150,8 @@ def transfer_critic(pc: dict[str, Any], space: ParameterSpace, run_dir: Path, so
             rows = [r for ph in (Phase.MANUAL, Phase.ZERO_SHOT) for r in st.rows(ph)]
             state = st.get_meta(state_key(Phase.PHASE3))
     critic = Transfer((X, y, fell), latent, space.manual, batch_size=pc["batch_size"],
-                      seed=pc["seed"], budget=int(pc["budget"]) + len(rows),
+                      seed=pc["seed"],
+                      budget=None if pc.get("budget") is None else int(pc["budget"]) + len(rows),
                       **({} if mfp is None else {"max_fall_prob": mfp}),
                       **(pc.get("transfer_options") or {}))
     if state:           # a stored run: its options (source order among them) from the start
