@@ -241,11 +241,12 @@ SOURCE_EVALS = 300
 """Phase-1 trials of each seed's source run on the model (``run --source-evals``)."""
 
 LADDER_BASE: dict[str, Any] = {"explore_pool": "latent", "explore_gp": False,
-                               "explore_fall_prob": 0.0}
+                               "explore_fall_prob": 0.0, "fall_budget_counts": "all"}
 """The transfer critic's options under the method name ``transfer`` beyond its defaults: the
 explore pool every stored ``transfer`` and ``transfer+…`` run was made with (the default before
-session 32) and the explore asks' choice and bound of the runs before session 39, so that a run
-added later under a stored name is the same method."""
+session 32), the explore asks' choice and bound of the runs before session 39, and the fall
+budget's count of session 43's ``…:fall_budget=0.15`` runs (every fall), so that a run added
+later under a stored name is the same method."""
 
 
 def run_method(method: str, target: Any, src: Path, B: int, seed: int,

@@ -5,11 +5,12 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import latentune as lt
 from latentune.constants import Phase
-from latentune.critic.transfer import TRANSFER_DEFAULTS
+from latentune.critic.transfer import TRANSFER_DEFAULTS, counted_falls
 from latentune.errors import StoreError, UsageError
 from latentune.pipeline.phases import state_key
 from test_asktell import SPACE, plant, src30  # noqa: F401 - shared fixtures
@@ -107,10 +108,10 @@ def _harsh(x):
 
 
 def test_a_spent_fall_budget_ends_phase_3_and_ask_says_so(tmp_path, src):
-    """``fall_budget`` 0.1 of 20 phase-3 trials and the zero-shot one allows 2 falls: the loop
-    stops at the batch that spends it (2 points a batch: at most one fall over), status says
-    so, a resume asks nothing more, and ask refuses in one line; without a budget all 20
-    trials run."""
+    """``fall_budget`` 0.1 of 20 phase-3 trials and the zero-shot one allows 2 falls after the
+    first standing trial (the default count): the loop stops at the batch that spends it (2
+    points a batch: at most one fall over), status says so, a resume asks nothing more, and
+    ask refuses in one line; without a budget all 20 trials run."""
     target = lt.FunctionSystem(SPACE, _harsh)
     with lt.Study(tmp_path / "all", seed=0) as st:
         assert st.phase3(target, 20, latent=src).n == 20
@@ -118,9 +119,11 @@ def test_a_spent_fall_budget_ends_phase_3_and_ask_says_so(tmp_path, src):
     with lt.Study(tmp_path / "t", seed=0, batch_size=2) as st:
         n = st.phase3(target, 20, latent=src, transfer_options={"fall_budget": 0.1}).n
         rows = [r for ph in (Phase.ZERO_SHOT, Phase.PHASE3) for r in st.store.rows(ph)]
-        assert n < 20 and 2 <= sum(r.fell for r in rows) <= 3 and not all(r.fell for r in rows)
-        assert st.status()["fall_budget"] == {"falls_allowed": 2, "spent": True, "counts": "all",
-                                              "falls": sum(r.fell for r in rows)}
+        fell = np.array([r.fell for r in rows], dtype=bool)
+        assert n < 20 and 2 <= counted_falls(fell, "after_stand") <= 3 and not fell.all()
+        assert st.status()["fall_budget"] == {"falls_allowed": 2, "spent": True,
+                                              "counts": "after_stand",
+                                              "falls": counted_falls(fell, "after_stand")}
         assert st.phase3(target, 20, latent=src, transfer_options={"fall_budget": 0.1}).n == n
         with pytest.raises(StoreError, match="fall budget is spent") as info:
             st.ask(phase=3, budget=20, latent=src, transfer_options={"fall_budget": 0.1})

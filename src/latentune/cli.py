@@ -776,9 +776,9 @@ def _strategy_arg(p: argparse.ArgumentParser) -> None:
 
 def _fall_budget_arg(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fall-budget", type=float, default=None, metavar="Q",
-                   help="transfer phase 3: stop once the target's trials fell Q × its trials "
-                        "times (at least once) and one stands; 0 = never stop (default: the "
-                        "transfer critic's fall_budget)")
+                   help="transfer phase 3: stop once the target's trials after the first one "
+                        "that stood fell Q × its trials times (at least once); default 0: "
+                        "never stop")
 
 
 def _transfer_options(args: argparse.Namespace, stored: dict[str, Any] | None

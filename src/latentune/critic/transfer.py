@@ -79,8 +79,8 @@ are kept, so the search steps back toward its safe trial rather than asking over
 budget⌋)`` of the target's trials fell and one stands, every ask is the best standing θ
 (:attr:`Transfer.fall_budget_spent`; the phase loop stops there), a trade of the rest of the
 search for no more falls on a target where each costs a robot (``fall_budget_counts``:
-``"all"`` the falls, or ``"after_stand"`` only those after the first trial that stood, the
-falls taken while a standing θ was in hand);
+``"after_stand"``, the default, counts only the falls after the first trial that stood, those
+taken while a standing θ was in hand; ``"all"`` every fall);
 ``fall_cost``: the acquisition counts the fall among the outcomes of a candidate, with the fall
 model's posterior mean ``p(θ)`` (clipped to [0, 1]) as its probability: a Thompson sample ``s(θ)``
 of the cost rank score becomes the expected score ``(1 − p) s + p s_fall`` (``s_fall``: the
@@ -384,7 +384,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "explore_fall_prob": None, "explore_skip": False, "fall_calibrate": False,
     "fall_shrink": False, "centre_falls": 0, "fall_rank": "clipped", "explore_gp": True,
     "explore_record": "count", "explore_bandit": "mean", "region_gp": False,
-    "fall_fit": False, "fall_budget": 0.0, "fall_budget_counts": "all",
+    "fall_fit": False, "fall_budget": 0.0, "fall_budget_counts": "after_stand",
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state, where
 ``explore_fall_prob`` is resolved (:func:`resolved_options`)."""
