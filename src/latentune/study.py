@@ -282,6 +282,9 @@ class Study:
                 if pc["handover"] is not None:
                     self.manifest.update(phase3_handover=critic.rule())
             results.write_best(st, self.dir, system.space, Phase.PHASE3)
+            if res.n < pc["budget"] and getattr(critic, "fall_budget_spent", False):
+                self.log(f"phase 3 stopped at {res.n} of {pc['budget']} trials: its fall budget "
+                         f"({critic.falls_allowed()} falls) is spent")
             self.log(f"phase 3: {res.n} evaluations, best cost {res.best_cost:.3f}")
             return res
 
