@@ -119,7 +119,7 @@ def test_a_spent_fall_budget_ends_phase_3_and_ask_says_so(tmp_path, src):
     said: list[str] = []
     with lt.Study(tmp_path / "t", seed=0, batch_size=2, log=said.append) as st:
         n = st.phase3(target, 20, latent=src, transfer_options={"fall_budget": 0.1}).n
-        assert any(f"stopped at {n} of 20 trials: its fall budget (2 falls)" in m for m in said)
+        assert any(f"; stopped at {n} of 20 trials: its fall budget (2 falls)" in m for m in said)
         rows = [r for ph in (Phase.ZERO_SHOT, Phase.PHASE3) for r in st.store.rows(ph)]
         fell = np.array([r.fell for r in rows], dtype=bool)
         assert n < 20 and 2 <= counted_falls(fell, "after_stand") <= 3 and not fell.all()

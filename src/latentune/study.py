@@ -39,7 +39,7 @@ from latentune.pipeline.asktell import Suggestion
 from latentune.pipeline.baselines import source_best
 from latentune.pipeline.evaluators import Evaluator
 from latentune.pipeline.loop import (decoder_of, phase3_setup, phase_critic, record_latent,
-                                     resolve_latent, study_latent, theta_prior)
+                                     resolve_latent, stop_note, study_latent, theta_prior)
 from latentune.pipeline.manifest import describe
 from latentune.pipeline.phases import (PhaseResult, default_batch_size, ensure_manual,
                                        manual_outcome, run_phase)
@@ -282,10 +282,8 @@ class Study:
                 if pc["handover"] is not None:
                     self.manifest.update(phase3_handover=critic.rule())
             results.write_best(st, self.dir, system.space, Phase.PHASE3)
-            if res.n < pc["budget"] and getattr(critic, "fall_budget_spent", False):
-                self.log(f"phase 3 stopped at {res.n} of {pc['budget']} trials: its fall budget "
-                         f"({critic.falls_allowed()} falls) is spent")
-            self.log(f"phase 3: {res.n} evaluations, best cost {res.best_cost:.3f}")
+            self.log(f"phase 3: {res.n} evaluations, best cost {res.best_cost:.3f}"
+                     + stop_note(critic, res.n, pc["budget"]))
             return res
 
     def preservation(self, system: Any, latent: Any) -> dict[str, Any]:
@@ -356,8 +354,7 @@ class Study:
         return results.best_params(self.store, self.dir, self.space(), out)[0]
 
     def status(self) -> dict[str, Any]:
-        """Trials, falls and pending suggestions per phase by name, and the best trial over
-        all phases with its suggestion id and θ file (:func:`latentune.pipeline.results.status`)."""
+        """Per phase and in all, with phase 3's budget: :func:`latentune.pipeline.results.status`."""
         return results.status(self.store, self.dir, self.manifest.config())
 
     def trials(self, phases: tuple[int, ...] | None = None) -> list[results.TrialRecord]:

@@ -172,6 +172,16 @@ def transfer_critic(pc: dict[str, Any], space: ParameterSpace, run_dir: Path, so
     return critic
 
 
+def stop_note(critic: Any, n: int, budget: int) -> str:
+    """Why a phase ended with ``n`` of its ``budget`` trials, to end its log line: the fall
+    budget a critic spent (:attr:`~latentune.critic.transfer.Transfer.fall_budget_spent`), or
+    nothing."""
+    if n >= budget or not getattr(critic, "fall_budget_spent", False):
+        return ""
+    return (f"; stopped at {n} of {budget} trials: its fall budget ({critic.falls_allowed()} "
+            "falls) is spent")
+
+
 def source_costs(run: Any, dim: int) -> tuple[np.ndarray, np.ndarray] | None:
     """The phase-1 and phase-3 trials of the run ``run`` as (X (m, dim) unit-box θ, cost (m,)),
     or None without a run; StoreError when it holds none or of another dimension."""
