@@ -470,8 +470,9 @@ FALL_RANKS = ("clipped", "bound", "mean")
 (``fall_rank``): the screen's clipped probability, its unclipped bound, or the fall model's
 unclipped posterior mean."""
 FULL_SHAPES = ("lengthscales", "cube")
-FALL_BUDGET_COUNTS = ("all", "after_stand")
 """The full pool's box (``full_shape``): sides in proportion to the lengthscales, or a cube."""
+FALL_BUDGET_COUNTS = ("all", "after_stand")
+"""The falls a fall budget counts (``fall_budget_counts``, :func:`counted_falls`)."""
 EXPLORE_WHEN = ("always", "stalled")
 """When a due generation is an explore ask (``explore_when``): always, or only while the trust
 region's side is at its minimum."""
@@ -1534,11 +1535,11 @@ class Transfer(TwoSpaceCritic):
 
     @property
     def fall_budget_spent(self) -> bool:
-        """True once the target's told trials fell :meth:`falls_allowed` times and one of them
-        stands (:func:`fall_budget_spent`): every later ask is the best θ that did not fall
-        (tag pool ``full``), as
-        ``stop_converged`` asks the centre, and a loop that runs the trials itself stops
-        there. While every trial fell the search goes on: it has nothing to stop at."""
+        """True once one of the target's told trials stands and the falls
+        ``fall_budget_counts`` counts reach :meth:`falls_allowed` (:func:`fall_budget_spent`):
+        every later ask is the best θ that did not fall (tag pool ``full``), as
+        ``stop_converged`` asks the centre, and a loop that runs the trials itself stops there.
+        While every trial fell the search goes on: it has nothing to stop at."""
         return fall_budget_spent(self._fell, self.opts["fall_budget"], self.budget,
                                  self.opts["fall_budget_counts"])
 
