@@ -671,7 +671,7 @@ def cmd_status(args: argparse.Namespace) -> int:
               + (f", pools {'/'.join(sorted(set(last['pools'])))}" if last.get("pools") else ""))
     fb = s.get("fall_budget")
     if fb:
-        print(f"phase 3 fall budget: {fb['falls']} of {fb['falls_allowed']} falls"
+        print(f"phase 3 fall budget: {fb['falls']} falls counted, {fb['falls_allowed']} allowed"
               + ("; spent: phase 3 asks no more" if fb["spent"] else ""))
     leases = s.get("leases") or {}
     print(f"pending suggestions: {len(s['pending'])}" + (" (" + ", ".join(
