@@ -1155,12 +1155,10 @@ class Transfer(TwoSpaceCritic):
         if self.opts["fall_budget_counts"] not in FALL_BUDGET_COUNTS:
             raise ValueError(f"fall_budget_counts must be one of {FALL_BUDGET_COUNTS}, "
                              f"got {self.opts['fall_budget_counts']!r}")
-        sf = self.opts["safe_fallback"]
-        if not (isinstance(sf, (bool, np.bool_)) or (isinstance(sf, str) and sf == "region")):
-            raise ValueError(f"safe_fallback must be true, false or \"region\", got {sf!r}")
-        rg = self.opts["region_gp"]
-        if not (isinstance(rg, (bool, np.bool_)) or (isinstance(rg, str) and rg == "screened")):
-            raise ValueError(f"region_gp must be true, false or \"screened\", got {rg!r}")
+        for flag, word in (("safe_fallback", "region"), ("region_gp", "screened")):
+            v = self.opts[flag]
+            if not (isinstance(v, (bool, np.bool_)) or (isinstance(v, str) and v == word)):
+                raise ValueError(f"{flag} must be true, false or \"{word}\", got {v!r}")
         k_ef = self.opts["explore_falls"]
         if isinstance(k_ef, bool) or not isinstance(k_ef, (int, np.integer)) or k_ef < 0:
             raise ValueError(f"explore_falls must be an integer ≥ 0 (0: never stop exploring), "
@@ -1389,18 +1387,19 @@ class Transfer(TwoSpaceCritic):
                 "generation": g_next,
                 "latent_told": int(lat.sum()), "latent_fell": int(self._fell[lat].sum())}
 
-    def _explore_braked(self, explore: np.ndarray, standing: bool) -> bool:
-        """``explore_falls`` = k > 0: True once at least k of the told explore trials (``explore``
-        (n,) bool over the told history) fell and they fell more often than ``max_fall_prob``
-        allows, while the target holds a trial that did not fall (``standing``): the decoded
-        codes of the whole box are riskier on this target than the fall model predicts, and the
-        local search has a standing centre to work from. While every trial so far fell, the
+    def _braked(self, asked: np.ndarray, standing: bool) -> bool:
+        """``explore_falls`` = k > 0: True once at least k of the told trials of a kind of ask
+        (``asked`` (n,) bool over the told history: the explore asks', a pool's, or
+        ``safe_fallback="region"``'s fallback asks') fell and they fell more often than
+        ``max_fall_prob`` allows, while the target holds a trial that did not fall
+        (``standing``): those asks are riskier on this target than the fall model predicts, and
+        the local search has a standing centre to work from. While every trial so far fell, the
         explore asks go on: they are the way out."""
         k = int(self.opts["explore_falls"])
         if k <= 0 or not standing:
             return False
-        fell = int(self._fell[explore].sum())
-        return fell >= k and fell > float(self.opts["max_fall_prob"]) * int(explore.sum())
+        fell = int(self._fell[asked].sum())
+        return fell >= k and fell > float(self.opts["max_fall_prob"]) * int(asked.sum())
 
     def _explore_pool(self, explore: np.ndarray, standing: bool,
                       record: dict[int, ExploreRecord] | None = None, g: int = 0
@@ -1413,7 +1412,7 @@ class Transfer(TwoSpaceCritic):
         ``LATENT`` and ``GLOBAL``; none told: both empty) and the generation
         ``g`` the pool is for (``explore_bandit="thompson"`` draws with a seed of it).
 
-        With ``"auto"`` each pool has its own brake (``_explore_braked`` on its own explore
+        With ``"auto"`` each pool has its own brake (``_braked`` on its own explore
         trials: the source's draws carry tag pool ``global``, the decoded codes ``latent``): the
         source's distribution once a trial stands, until its draws fell beyond the admitted
         risk; then the latent box, until its codes did; then none. Without a latent space
@@ -1434,11 +1433,11 @@ class Transfer(TwoSpaceCritic):
             where = "latent"            # no standing centre to draw lines through yet
         if where != "auto" or self.latent is None:
             where = "source" if where == "auto" else where
-            return None if self._explore_braked(explore, standing) else where
+            return None if self._braked(explore, standing) else where
         pool = self._tags % 4
-        if standing and not self._explore_braked(explore & (pool == GLOBAL), standing):
+        if standing and not self._braked(explore & (pool == GLOBAL), standing):
             return "source"
-        if not self._explore_braked(explore & (pool == LATENT), standing):
+        if not self._braked(explore & (pool == LATENT), standing):
             return "latent"
         return None
 
@@ -1785,18 +1784,24 @@ class Transfer(TwoSpaceCritic):
         with one_thread():          # many small matrix operations: one BLAS thread is fastest
             return self._ask_one_thread(n)
 
+    def _rule_ask(self, n: int, g: int, theta: np.ndarray, pool: int, design: bool, rule: str,
+                  **record: Any) -> tuple[np.ndarray, np.ndarray]:
+        """An ask a rule decides without the models: ``theta`` (d,) ``n`` times, tagged
+        ``pool`` in generation ``g``, recorded as a decision with the ``rule`` and ``record``."""
+        self.last_z = np.full((n, self.k), np.nan)
+        self.decisions.append({"generation": g, "n_told": self.n_told, "design": design,
+                               "rule": rule, **record, "pools": [POOL_NAMES[pool]] * n,
+                               "explore": False})
+        return np.tile(theta, (n, 1)), np.full(n, 4 * g + pool, dtype=np.int64)
+
     def _ask_one_thread(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         st = self._replay_state()
         g = st["generation"]
-        k_fb = self.falls_allowed()
         if self.fall_budget_spent:
-            self.last_z = np.full((n, self.k), np.nan)
-            self.decisions.append({"generation": g, "n_told": self.n_told, "design": False,
-                                   "rule": f"the fall budget is spent ({k_fb} falls of "
-                                           f"{self.budget} trials): the best θ",
-                                   "fall_budget": k_fb, "pools": ["full"] * n,
-                                   "explore": False})
-            return np.tile(self._centre(), (n, 1)), np.full(n, 4 * g + FULL, dtype=np.int64)
+            k_fb = self.falls_allowed()
+            return self._rule_ask(n, g, self._centre(), FULL, False,
+                                  f"the fall budget is spent ({k_fb} falls of {self.budget} "
+                                  "trials): the best θ", fall_budget=k_fb)
         rng = np.random.default_rng([self.seed, g, 11])
         sm = self.source_model()
         cost_m, fall_m = self.models()
@@ -1817,18 +1822,12 @@ class Transfer(TwoSpaceCritic):
         design = st["n_own"] < int(self.opts["n_design"]) and len(E) >= 1   # elites left to ask
         M = int(self.opts["n_candidates"])
         if self._manual_next():
-            self.last_z = np.full((n, self.k), np.nan)
-            self.decisions.append({"generation": g, "n_told": self.n_told, "design": True,
-                                   "rule": "every trial so far fell: the target's manual θ",
-                                   "pools": ["elite"] * n, "explore": False})
-            return np.tile(self.manual, (n, 1)), np.full(n, 4 * g + ELITE, dtype=np.int64)
+            return self._rule_ask(n, g, self.manual, ELITE, True,
+                                  "every trial so far fell: the target's manual θ")
         if st["converged"] and self.opts["stop_converged"]:
-            self.last_z = np.full((n, self.k), np.nan)
-            self.decisions.append({"generation": g, "n_told": self.n_told, "design": False,
-                                   "rule": "the trust region converged: the centre",
-                                   "length": st["L"], "restarts": st["restarts"],
-                                   "pools": ["full"] * n, "explore": False})
-            return np.tile(centre, (n, 1)), np.full(n, 4 * g + FULL, dtype=np.int64)
+            return self._rule_ask(n, g, centre, FULL, False,
+                                  "the trust region converged: the centre",
+                                  length=st["L"], restarts=st["restarts"])
         ctx = _AskContext(generation=g, state=st, design=design, agree=agree,
                           agree_sd=agree_sd, w_lat=w_lat, latent_off=latent_off, cost_m=cost_m,
                           fall_m=fall_m,
@@ -2074,11 +2073,10 @@ class Transfer(TwoSpaceCritic):
         """Whether this ask, whose screen admitted fewer candidates than the batch, takes
         :meth:`_safe_fallback`'s steps (never an explore ask): ``safe_fallback=True`` on every
         other ask; ``"region"`` on the trust-region asks only (not while the source's elites are
-        the initial design) and, like the explore asks' brake, no more once at least k
-        (``explore_falls``, 0: never) of the told trials of fallback asks (the generations
-        whose decision recorded ``safe_fallback``) fell and they fell more often than
-        ``max_fall_prob`` allows: where small steps from the standing θ fall, the fallback is no
-        safer than the least risky candidate the screen ranked."""
+        the initial design) until the explore asks' brake (:meth:`_braked`) stops the told trials
+        of fallback asks (the generations whose decision recorded ``safe_fallback``): where
+        small steps from the standing θ fall, the fallback is no safer than the least risky
+        candidate the screen ranked."""
         mode = self.opts["safe_fallback"]
         if not mode or ctx.explore:
             return False
@@ -2086,13 +2084,8 @@ class Transfer(TwoSpaceCritic):
             return True
         if ctx.design:
             return False
-        k = int(self.opts["explore_falls"])
-        if k <= 0:
-            return True
         gens = [int(d["generation"]) for d in self.decisions if d.get("safe_fallback")]
-        told = (self._tags >= 0) & np.isin(self._tags // 4, gens)
-        fell = int(self._fell[told].sum())
-        return not (fell >= k and fell > float(self.opts["max_fall_prob"]) * int(told.sum()))
+        return not self._braked((self._tags >= 0) & np.isin(self._tags // 4, gens), True)
 
     def _safe_fallback(self, cands: _Candidates, L: float, centre: np.ndarray,
                        fall_m: TargetModel | None, rng: np.random.Generator) -> _Candidates:

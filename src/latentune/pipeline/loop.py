@@ -147,11 +147,10 @@ def transfer_critic(pc: dict[str, Any], space: ParameterSpace, run_dir: Path, so
     rows, state = [], None
     if (Path(run_dir) / "run.db").is_file():
         with RunStore(run_dir) as st:
-            rows = [r for ph in (Phase.MANUAL, Phase.ZERO_SHOT) for r in st.rows(ph)]
+            rows = told_outside(st)
             state = st.get_meta(state_key(Phase.PHASE3))
     critic = Transfer((X, y, fell), latent, space.manual, batch_size=pc["batch_size"],
-                      seed=pc["seed"],
-                      budget=None if pc.get("budget") is None else int(pc["budget"]) + len(rows),
+                      seed=pc["seed"], budget=target_budget(pc, len(rows)),
                       **({} if mfp is None else {"max_fall_prob": mfp}),
                       **(pc.get("transfer_options") or {}))
     if state:           # a stored run: its options (source order among them) from the start
@@ -170,6 +169,18 @@ def transfer_critic(pc: dict[str, Any], space: ParameterSpace, run_dir: Path, so
         idx = np.array(sorted(known), dtype=np.int64)
         critic.tell(X[idx], y[idx], fell=fell[idx])
     return critic
+
+
+def told_outside(st: RunStore) -> list[Row]:
+    """The target's trials stored outside phase 3 that the transfer critic is told before its
+    own: the manual θ's and the zero-shot trial."""
+    return [r for ph in (Phase.MANUAL, Phase.ZERO_SHOT) for r in st.rows(ph)]
+
+
+def target_budget(pc: dict[str, Any], n_outside: int) -> int | None:
+    """The transfer critic's ``budget`` (for ``fall_budget``): phase 3's budget in ``pc`` and
+    the ``n_outside`` trials of :func:`told_outside`; None for options without a budget."""
+    return None if pc.get("budget") is None else int(pc["budget"]) + int(n_outside)
 
 
 def stop_note(critic: Any, n: int, budget: int) -> str:

@@ -172,16 +172,17 @@ def fall_budget(store: RunStore, config: dict[str, Any] | None) -> dict[str, Any
     those trials; None for another phase 3, none yet, or no budget."""
     from latentune.critic.transfer import (TRANSFER_DEFAULTS, counted_falls, fall_budget_spent,
                                            falls_allowed, stored_options)
+    from latentune.pipeline.loop import target_budget, told_outside
     from latentune.pipeline.phases import state_key
 
     pc = (config or {}).get("phase3") or {}
-    if pc.get("strategy") != "transfer" or "budget" not in pc:
+    if pc.get("strategy") != "transfer":
         return None
     state = store.get_meta(state_key(Phase.PHASE3))
     opts = (stored_options(state) if isinstance(state, dict) else None) or \
         {**TRANSFER_DEFAULTS, **(pc.get("transfer_options") or {})}
-    rows = [r for ph in (Phase.MANUAL, Phase.ZERO_SHOT) for r in store.rows(ph)]
-    B = int(pc["budget"]) + len(rows)
+    rows = told_outside(store)
+    B = target_budget(pc, len(rows))
     k = falls_allowed(opts["fall_budget"], B)
     if k is None:
         return None
