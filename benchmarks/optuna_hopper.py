@@ -3,6 +3,7 @@
     python -m benchmarks.optuna_hopper [--seeds 0 1 2 3 4] [--trials 40] [--phase1-evals 300]
         [--latent-dim 5] [--episode-steps 400] [--models runs/sim_to_real]
         [--samplers latent tpe cmaes_source gp] [--checkpoints 5 10 20 40]
+        [--warm-start best|none] [--traces DIR]
         [--out results/optuna_hopper/optuna_hopper.json]
 
 The system of ``examples/sim_to_real.py``: the 36-weight linear controller of Gymnasium's
@@ -27,7 +28,14 @@ every seed s:
    * ``gp`` — ``optuna.samplers.GPSampler(seed=s)``;
    * opt-in: ``turbo`` (latentune's ``TurboSampler`` from the manual θ), ``cmaes`` (plain).
 
-   Optuna's samplers run as a user would run them: defaults, no ``constraints_func``.
+   Optuna's samplers run as a user would run them: defaults, no ``constraints_func``, and
+   the same warm start as ``latent``: the model run's best θ is their trial 0
+   (``study.enqueue_trial``; ``--warm-start none`` leaves it out).
+
+   Each (seed, sampler) trace is kept in ``--traces`` (default ``traces/`` beside ``--out``) as
+   ``seed<s>/<sampler>.json`` and reused by a later call with the same settings, so an
+   interrupted run resumes and seeds can run in separate processes; a last call over every
+   seed aggregates them.
 
 Reported over the seeds: the best real cost within B (median, min–max), falls within B
 (median), the best-so-far at ``--checkpoints``, and, against the best peer (the Optuna sampler
@@ -40,6 +48,7 @@ table next to it.
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import sys
 import time
@@ -119,15 +128,22 @@ def hopper_objective(real: Any) -> Callable[[Any], float]:
     return objective
 
 
-def run_sampler(name: str, seed: int, model_dir: Path, budget: int, episode_steps: int
-                ) -> dict[str, Any]:
-    """One Optuna study of ``budget`` trials on the real Hopper; its trace."""
+def run_sampler(name: str, seed: int, model_dir: Path, budget: int, episode_steps: int,
+                warm_start: str = "best") -> dict[str, Any]:
+    """One Optuna study of ``budget`` trials on the real Hopper; its trace. With
+    ``warm_start="best"`` an Optuna sampler's trial 0 is the model run's best θ (enqueued),
+    the θ of LatentSampler's zero-shot trial."""
     import optuna
 
     from examples.gym_controller import make_real_system
+    from latentune.integrations.optuna import physical_params
+    from latentune.study import source_best
 
     real = make_real_system(seed=seed, episode_steps=episode_steps)
     study = optuna.create_study(sampler=make_sampler(name, seed, model_dir, budget))
+    best = source_best(model_dir)
+    if warm_start == "best" and name != "latent" and best is not None:
+        study.enqueue_trial(physical_params(real.space, best.theta))
     t = time.perf_counter()
     study.optimize(hopper_objective(real), n_trials=budget)
     wall = time.perf_counter() - t
@@ -235,6 +251,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--samplers", nargs="+", default=list(SAMPLERS),
                     choices=("latent",) + PEERS)
     ap.add_argument("--checkpoints", type=int, nargs="+", default=[5, 10, 20, 40])
+    ap.add_argument("--warm-start", choices=("best", "none"), default="best",
+                    help="the Optuna samplers' trial 0: the model run's best θ (as latent's) "
+                         "or nothing")
+    ap.add_argument("--traces", default=None,
+                    help="per (seed, sampler) traces, reused (default: traces/ beside --out)")
     ap.add_argument("--out", default="results/optuna_hopper/optuna_hopper.json",
                     help="the JSON to write (a .md with the table next to it)")
     a = ap.parse_args(argv)
@@ -248,6 +269,7 @@ def main(argv: list[str] | None = None) -> int:
     # the objective records falls as a constraint for every sampler; CMA-ES says it ignores them
     warnings.filterwarnings("ignore", message="Constraints have been set, but CmaEsSampler")
     prov = Provenance(argv, module="benchmarks.optuna_hopper")
+    traces = Path(a.traces) if a.traces else Path(a.out).parent / "traces"
     per_seed = []
     for s in a.seeds:
         model_dir = Path(a.models) / f"seed{s}" / "model"
@@ -257,7 +279,18 @@ def main(argv: list[str] | None = None) -> int:
                                                      "phase1_failed", "vae_n_train")},
                                "samplers": {}}
         for name in a.samplers:
-            r = run_sampler(name, s, model_dir, a.trials, a.episode_steps)
+            key = {"trials": a.trials, "episode_steps": a.episode_steps,
+                   "phase1_evals": a.phase1_evals, "latent_dim": a.latent_dim,
+                   "warm_start": a.warm_start}
+            cache = traces / f"seed{s}" / f"{name}.json"
+            r = None
+            if cache.is_file():
+                kept = json.loads(cache.read_text())
+                r = kept["trace"] if kept.get("settings") == key else None
+            if r is None:
+                r = run_sampler(name, s, model_dir, a.trials, a.episode_steps, a.warm_start)
+                cache.parent.mkdir(parents=True, exist_ok=True)
+                cache.write_text(json.dumps({"settings": key, "trace": r}) + "\n")
             rec["samplers"][name] = r
             print(f"seed {s} {name:>13}: best {r['best']:.2f}, falls {r['falls']}/{a.trials}, "
                   f"{r['wall_s']:.0f} s", flush=True)
@@ -266,7 +299,7 @@ def main(argv: list[str] | None = None) -> int:
         "benchmark": "optuna_hopper", "seeds": a.seeds, "trials": a.trials,
         "phase1_evals": a.phase1_evals, "latent_dim": a.latent_dim,
         "episode_steps": a.episode_steps, "samplers": a.samplers,
-        "checkpoints": a.checkpoints, "models": a.models,
+        "checkpoints": a.checkpoints, "models": a.models, "warm_start": a.warm_start,
         "aggregate": aggregate(per_seed, a.samplers, a.trials, a.checkpoints),
         "per_seed": per_seed}
     text = markdown(res)
