@@ -26,7 +26,9 @@ every seed s:
      (WS-CMA-ES, Nomura et al. 2021) from the model run's phase-1 trials (the same source data
      as the latent space), as Optuna trials by name;
    * ``gp`` — ``optuna.samplers.GPSampler(seed=s)``;
-   * opt-in: ``turbo`` (latentune's ``TurboSampler`` from the manual θ), ``cmaes`` (plain).
+   * opt-in: ``turbo`` (latentune's ``TurboSampler`` from the manual θ), ``cmaes`` (plain),
+     ``latent_fb`` (``latent`` with a fall budget of 0.15: its study stops once the budget is
+     spent; its best-so-far curve stays at its last value for the trials it did not run).
 
    Optuna's samplers run as a user would run them: defaults, no ``constraints_func``, and
    the same warm start as ``latent``: the model run's best θ is their trial 0
@@ -70,7 +72,11 @@ PEERS = ("tpe", "cmaes_source", "gp", "cmaes", "turbo")
 SAMPLERS = ("latent", "tpe", "cmaes_source", "gp")
 LABELS = {"latent": "LatentSampler (model's latent space)", "tpe": "TPE",
           "cmaes_source": "CMA-ES with source_trials (model run)", "gp": "GPSampler",
-          "cmaes": "CMA-ES", "turbo": "TurboSampler (θ, from manual)"}
+          "cmaes": "CMA-ES", "turbo": "TurboSampler (θ, from manual)",
+          "latent_fb": "LatentSampler, fall_budget 0.15 (stops when spent)"}
+FALL_BUDGET = 0.15
+"""``latent_fb``'s ``transfer_options={"fall_budget": FALL_BUDGET}``: the share measured on the
+transfer ladders (README, "A fall budget")."""
 
 
 def source_trials(model_dir: Path) -> list[Any]:
@@ -100,6 +106,9 @@ def make_sampler(name: str, seed: int, model_dir: Path, budget: int) -> Any:
 
     if name == "latent":
         return LatentSampler(model_dir, seed=seed, budget=budget)
+    if name == "latent_fb":
+        return LatentSampler(model_dir, seed=seed, budget=budget,
+                             transfer_options={"fall_budget": FALL_BUDGET})
     if name == "tpe":
         return optuna.samplers.TPESampler(seed=seed)
     if name == "cmaes_source":
@@ -150,9 +159,11 @@ def run_sampler(name: str, seed: int, model_dir: Path, budget: int, episode_step
     trials = sorted(study.trials, key=lambda tr: tr.number)
     costs = [float(tr.value) for tr in trials]
     fell = [bool(tr.constraints.get("fall", 0.0) > 0) for tr in trials]
+    curve = np.minimum.accumulate(costs).tolist()
+    curve += [curve[-1]] * (budget - len(curve))           # a study that stopped early
     return {"costs": [round(c, 6) for c in costs], "fell": fell,
             "best": float(min(costs)), "falls": int(sum(fell)),
-            "best_so_far": [round(c, 6) for c in np.minimum.accumulate(costs).tolist()],
+            "best_so_far": [round(c, 6) for c in curve], "trials_run": len(costs),
             "wall_s": round(wall, 2)}
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import math
 import os
 import subprocess
@@ -291,6 +292,49 @@ def test_latent_sampler_falls_and_direction(source_run):
         return thetas(st)
 
     assert run("maximize") == run("minimize")
+
+
+def test_latent_sampler_transfer_options_and_fall_budget(source_run, caplog):
+    """``transfer_options`` reach the critic, checked: a bad one or one with the plain strategy
+    is refused naming it. ``fall_budget`` 0.1 of 20 trials allows 2 falls after the first
+    trial that stood: ``study.optimize`` stops after the trial that spent them (without the
+    option the same objective runs every trial), ``fall_budget(study)`` says so, and a trial
+    asked later re-runs the best θ that stood, with a warning."""
+    with pytest.raises(UsageError, match="unknown option.*no_such"):
+        LatentSampler(source_run, transfer_options={"no_such": 1})
+    with pytest.raises(UsageError, match="fall_budget must be"):
+        LatentSampler(source_run, transfer_options={"fall_budget": 1.5})
+    with pytest.raises(UsageError, match="strategy transfer"):
+        LatentSampler(source_run, strategy="plain", transfer_options={"fall_budget": 0.1})
+
+    def falls_from_trial_1(sampler):
+        def objective(trial):
+            p = sampler.suggest_all(trial)
+            trial.set_constraint("fall", 1.0 if trial.number >= 1 else -1.0)
+            return cost(np.array([p[n] for n in NAMES]), 0.1)[0]
+        return objective
+
+    plain = LatentSampler(source_run, seed=0, budget=20)
+    free = optuna.create_study(sampler=plain)
+    free.optimize(falls_from_trial_1(plain), n_trials=5)
+    assert len(free.trials) == 5 and plain.fall_budget(free) is None
+
+    sampler = LatentSampler(source_run, seed=0, budget=20, transfer_options={"fall_budget": 0.1})
+    study = optuna.create_study(sampler=sampler)
+    with caplog.at_level(logging.WARNING, logger="latentune.integrations.optuna"):
+        study.optimize(falls_from_trial_1(sampler), n_trials=20)
+    assert len(study.trials) == 3 and "the study stops here" in caplog.text
+    assert sampler.fall_budget(study) == {"falls_allowed": 2, "falls": 2,
+                                          "counts": "after_stand", "spent": True}
+    assert thetas(study)[:3] == thetas(free)[:3]      # the same search until it stops
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="latentune.integrations.optuna"):
+        t = study.ask()
+        p = sampler.suggest_all(t)
+    assert "re-runs the best θ that stood" in caplog.text
+    assert study._storage.get_trial(t._trial_id).system_attrs[POINT_ATTR]["fall_budget_spent"]
+    np.testing.assert_allclose([p[n] for n in NAMES],
+                               [study.trials[0].params[n] for n in NAMES], atol=1e-9)
 
 
 def test_sampler_refuses_other_bounds(source_run):

@@ -64,6 +64,7 @@ Import rules (:func:`import_optuna_study`)
 from __future__ import annotations
 
 import hashlib
+import json
 import logging
 import math
 import os
@@ -210,14 +211,17 @@ def _phase3_critic(source_run: Path, latent: Any, space: ParameterSpace, *, stra
                    method: str, batch_size: int, seed: int,
                    x0: np.ndarray | None, budget: int, regions: int | None,
                    max_fall_prob: float | None = None,
-                   prior: tuple[np.ndarray, np.ndarray] | None = None
+                   prior: tuple[np.ndarray, np.ndarray] | None = None,
+                   transfer_options: dict[str, Any] | None = None
                    ) -> tuple[Any, Callable[[np.ndarray], np.ndarray] | None]:
     """The phase-3 critic of :class:`LatentSampler`: ``(critic, decoder)``, the one place that
     chooses it, as ``Study.phase3`` does (:func:`latentune.pipeline.loop.phase_critic`).
 
     ``strategy="transfer"`` (the default): :class:`~latentune.critic.transfer.Transfer` on the
     θ box from every trial of ``source_run`` (its parameter space ``space`` gives the manual θ),
-    a two-space critic (it asks θ; decoder None). ``strategy="plain"``: the paper's phase 3,
+    a two-space critic (it asks θ; decoder None), with ``transfer_options`` (checked by the
+    sampler) and the study's ``budget`` (its fall budget's base). ``strategy="plain"``: the
+    paper's phase 3,
     :func:`~latentune.pipeline.phases.make_phase_critic` on the latent unit box [0, 1]^d_low
     (``x0``: (d_low,) code of the warm start; ``prior``: (codes (m, d_low), fell (m,)) of the
     source run for the fall-aware option), with the decoder ``latent.decode``."""
@@ -227,7 +231,7 @@ def _phase3_critic(source_run: Path, latent: Any, space: ParameterSpace, *, stra
         X, y, fell = source_trials(source_run)
         mfp = {} if max_fall_prob is None else {"max_fall_prob": max_fall_prob}
         return Transfer((X, y, fell), latent, space.manual, batch_size=batch_size, seed=seed,
-                        **mfp), None
+                        budget=budget, **mfp, **(transfer_options or {})), None
     from latentune.pipeline.phases import make_phase_critic
 
     latent.require_spread()
@@ -316,6 +320,8 @@ class _CriticSampler:
             if point is None:
                 break
             study._storage.set_trial_system_attr(trial._trial_id, POINT_ATTR, point)
+            if point.get("fall_budget_spent"):      # the best standing θ again, on purpose
+                break
             clash = self._clashes(study, trial, theta)
             if not clash:
                 break
@@ -346,18 +352,26 @@ class _CriticSampler:
 
             _process_constraints_after_trial(self._constraints_func, study, trial, state)
         self._independent.after_trial(study, trial, state, values)
+        self._after_fall_budget(study, trial, state)
+
+    def _after_fall_budget(self, study: Any, trial: Any, state: Any) -> None:
+        """Subclass hook called after each trial (LatentSampler: its fall budget)."""
 
     def reseed_rng(self) -> None:
         self._independent.reseed_rng()
 
     # ------------------------------------------------------------------ the critic loop
-    def _history(self, trials: list[Any], sign: float, exclude: int, two_space: bool, dim: int
+    def _history(self, trials: list[Any], sign: float, exclude: int, two_space: bool, dim: int,
+                 extra: tuple[int, bool] | None = None
                  ) -> tuple[list[np.ndarray], list[float], list[int], list[bool], list[Any]]:
-        """(points, costs, tags, fell, z) of the finished trials in ``trials`` (number order)."""
+        """(points, costs, tags, fell, z) of the finished trials in ``trials`` (number order);
+        ``extra`` = (number, fell): a trial being finished now counts as finished with that
+        fall flag (its cost is not read)."""
         S = optuna.trial.TrialState
         X, y, tags, fell, Z = [], [], [], [], []
         for t in sorted(trials, key=lambda t: t.number):
-            if t.number == exclude or t.state not in (S.COMPLETE, S.FAIL):
+            now = extra is not None and t.number == extra[0]
+            if t.number == exclude or (t.state not in (S.COMPLETE, S.FAIL) and not now):
                 continue
             theta = _unit_of(self._space, t.params)
             pt = t.system_attrs.get(POINT_ATTR)
@@ -372,9 +386,9 @@ class _CriticSampler:
                 if x is None:
                     continue
             X.append(x)
-            y.append(trial_cost(t, sign))
+            y.append(math.nan if now else trial_cost(t, sign))
             tags.append(tag)
-            fell.append(trial_fell(t))
+            fell.append(bool(extra[1]) if now else trial_fell(t))
             Z.append(z)
         return X, y, tags, fell, Z
 
@@ -431,6 +445,15 @@ class _CriticSampler:
         state = study._storage.get_study_system_attrs(study._study_id).get(skey)
         if X and state and hasattr(critic, "load_state_dict"):
             critic.load_state_dict(state)
+        if getattr(critic, "fall_budget_spent", False):
+            U = critic.ask(1)
+            logger.warning("trial %d: the fall budget is spent (%d falls allowed): it re-runs "
+                           "the best θ that stood; stop the study", trial.number,
+                           critic.falls_allowed())
+            return np.clip(U[0], 0.0, 1.0), {
+                "key": self._key, "u": [float(v) for v in U[0]], "z": None,
+                "tag": int(critic.last_tags[0]), "theta": [float(v) for v in U[0]],
+                "told": len(X), "pending": 0, "skipped": 0, "fall_budget_spent": True}
         others = [t for t in trials if t.number != trial.number]
         # pending: RUNNING trials that take (or may take) a critic point; an enqueued trial
         # (fixed parameters) and the zero-shot trial do not
@@ -507,8 +530,8 @@ class LatentSampler(_CriticSampler, BaseSampler):
     """latentune's phase 3 as an Optuna sampler over a source run's parameter names.
 
     ``LatentSampler(source_run, seed=0, *, strategy="transfer", method="turbo", budget=200,
-    regions=None, start="manual", zero_shot=True, max_fall_prob=None, constraints_func=None,
-    independent_sampler=None)``
+    regions=None, start="manual", zero_shot=True, max_fall_prob=None, transfer_options=None,
+    constraints_func=None, independent_sampler=None)``
 
     Args:
         source_run: a latentune run directory with phase 1 and a trained latent space
@@ -528,6 +551,14 @@ class LatentSampler(_CriticSampler, BaseSampler):
             external point).
         max_fall_prob: skip candidates whose predicted fall probability exceeds it (the
             source run's phase-1 θ, encoded, with their fall flags, seed the prediction).
+        transfer_options: options of the transfer critic over its defaults
+            (:data:`latentune.critic.transfer.TRANSFER_DEFAULTS`, as ``Study.phase3``'s
+            ``transfer_options``), checked here: UsageError naming a bad one. With
+            ``{"fall_budget": q}`` the study may fall ``max(1, ⌊q·budget⌋)`` times
+            (:meth:`fall_budget`): once that is spent and a trial stood, ``study.optimize``
+            stops after the trial that spent it (``study.stop()``), and a trial asked after
+            that (``study.ask()``, another worker) re-runs the best θ that stood, with a
+            warning.
         constraints_func: Optuna's ``trial -> sequence of floats``; a value > 0 is a fall.
         independent_sampler: for parameters outside the source's space.
 
@@ -539,9 +570,11 @@ class LatentSampler(_CriticSampler, BaseSampler):
                  strategy: str = "transfer", method: str = "turbo", budget: int = 200,
                  regions: int | None = None, start: str | None = "manual",
                  zero_shot: bool = True, max_fall_prob: float | None = None,
+                 transfer_options: dict[str, Any] | None = None,
                  constraints_func: Callable | None = None,
                  independent_sampler: Any = None) -> None:
         from latentune.pipeline.loop import STRATEGIES
+        from latentune.pipeline.manifest import transfer_option
         from latentune.study import Study, source_best
 
         if strategy not in STRATEGIES:
@@ -550,6 +583,8 @@ class LatentSampler(_CriticSampler, BaseSampler):
                                        start != "manual"):
             raise UsageError("method, regions and start are options of strategy='plain'")
         self.strategy = strategy
+        self.transfer_options: dict[str, Any] | None = transfer_option(
+            transfer_options, strategy, max_fall_prob)["transfer_options"]
 
         src = Path(source_run)
         if not (src / "run.db").is_file():
@@ -575,7 +610,9 @@ class LatentSampler(_CriticSampler, BaseSampler):
         self._zero_shot_theta = None if best is None or not zero_shot else best.theta.copy()
         self.start = start
         self._key = (f"latent:{_fingerprint(latent)}:{strategy}:{method}:{regions}:{budget}:"
-                     f"{max_fall_prob}:{start}")
+                     f"{max_fall_prob}:{start}" + ("" if self.transfer_options is None else
+                                                   ":" + json.dumps(self.transfer_options,
+                                                                    sort_keys=True)))
         self._init_common(seed, budget, regions, method, max_fall_prob, constraints_func,
                           independent_sampler)
         self._x0: np.ndarray | None = None
@@ -590,7 +627,51 @@ class LatentSampler(_CriticSampler, BaseSampler):
                               strategy=self.strategy, method=self.method,
                               batch_size=self.batch_size, seed=self.seed, x0=self._x0,
                               budget=self.budget, regions=self.regions,
-                              max_fall_prob=self.max_fall_prob, prior=self._prior)
+                              max_fall_prob=self.max_fall_prob, prior=self._prior,
+                              transfer_options=self.transfer_options)
+
+    def fall_budget(self, study: Any) -> dict[str, Any] | None:
+        """The study's fall budget (``transfer_options={"fall_budget": q}``):
+        ``{falls_allowed, falls, counts, spent}`` over its finished trials in number order (the
+        zero-shot one included; ``falls`` as ``fall_budget_counts`` counts them, ``spent`` as
+        the critic decides it), as ``Study.status()["fall_budget"]``; None without one."""
+        return self._fall_budget_of(self._finished_fell(study))
+
+    def _fall_budget_of(self, fell: list[bool]) -> dict[str, Any] | None:
+        from latentune.critic.transfer import (TRANSFER_DEFAULTS, counted_falls,
+                                               fall_budget_spent, falls_allowed)
+
+        opts = {**TRANSFER_DEFAULTS, **(self.transfer_options or {})}
+        k = falls_allowed(opts["fall_budget"], self.budget) if self.strategy == "transfer" \
+            else None
+        if k is None:
+            return None
+        counts = opts["fall_budget_counts"]
+        f = np.asarray(fell, dtype=bool)
+        return {"falls_allowed": k, "falls": counted_falls(f, counts), "counts": counts,
+                "spent": fall_budget_spent(f, opts["fall_budget"], self.budget, counts)}
+
+    def _finished_fell(self, study: Any, extra: tuple[int, bool] | None = None) -> list[bool]:
+        """Fall flags of the trials the critic is told (finished, θ in the box), in number
+        order; ``extra`` = (number, fell) of a trial being finished now."""
+        _, _, _, fell, _ = self._history(study.get_trials(deepcopy=False), 1.0, -1, True,
+                                         self._space.dim, extra=extra)
+        return fell
+
+    def _after_fall_budget(self, study: Any, trial: Any, state: Any) -> None:
+        if self.transfer_options is None or not self.transfer_options.get("fall_budget"):
+            return
+        now = study._storage.get_trial(trial._trial_id)         # constraints set just now
+        fell = state == optuna.trial.TrialState.FAIL or \
+            bool(now.user_attrs.get(FAILED_ATTR, False)) or \
+            any(float(v) > 0 for v in now.constraints.values())
+        fb = self._fall_budget_of(self._finished_fell(study, (trial.number, fell)))
+        if fb is None or not fb["spent"]:
+            return
+        logger.warning("trial %d: the fall budget is spent (%d falls counted, %d allowed); "
+                       "the study stops here", trial.number, fb["falls"], fb["falls_allowed"])
+        if study._thread_local.in_optimize_loop:
+            study.stop()
 
     def _external_point(self, theta: np.ndarray) -> np.ndarray | None:
         code = np.asarray(self.latent.encode(theta), dtype=float)
