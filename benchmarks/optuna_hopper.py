@@ -260,7 +260,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="root of the model runs (MODELS/seed<s>/model; shared with "
                          "benchmarks/sim_to_real.py)")
     ap.add_argument("--samplers", nargs="+", default=list(SAMPLERS),
-                    choices=("latent",) + PEERS)
+                    choices=("latent", "latent_fb") + PEERS)
     ap.add_argument("--checkpoints", type=int, nargs="+", default=[5, 10, 20, 40])
     ap.add_argument("--warm-start", choices=("best", "none"), default="best",
                     help="the Optuna samplers' trial 0: the model run's best θ (as latent's) "
