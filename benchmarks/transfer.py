@@ -40,6 +40,11 @@ Systems (``SYSTEMS``; the model is gap 0, each target is the same controller on 
   (gaps 0.5, 1, 2.5: at 2.5, 72 % of the random θ that fly the model fall). Added in session
   35, after every option was chosen: a third held-out system (an MPC, an underactuated
   nonlinear plant, input saturation).
+* ``vehicle`` — :mod:`examples.vehicle_lateral`, 20 speed-scheduled lane-keeping gains of a car
+  (a single-track model with saturating tyres on a road of curves, 12 → 28 m/s); gap g: a
+  wetter road, worn tyres (rear more: toward oversteer), a heavier car and a round(g)-step
+  steering delay (gaps 0.5, 1, 2: at 2 most θ that keep the model in lane leave it). Added in
+  session 44, after every option was chosen: a fourth held-out system.
 
 For every (system, seed) one source run: ``Study(ROOT/<system>/seed<s>/source, seed=s)``, phase 1
 (TuRBO-m, ``--source-evals`` trials on the model, batch 4) and the latent space. For every target
@@ -132,6 +137,12 @@ def _quadrotor(g: float) -> Any:
     return make_system(gap=g)
 
 
+def _vehicle(g: float) -> Any:
+    from examples.vehicle_lateral import make_system
+
+    return make_system(gap=g)
+
+
 def _springs(g: float) -> Any:
     from examples.toy_plant import make_real_system
 
@@ -148,6 +159,7 @@ SYSTEMS: dict[str, dict[str, Any]] = {
     "zones": {"model": lambda: _zones(0.0), "target": _zones, "gaps": (0.5, 1.0, 2.0)},
     "quadrotor": {"model": lambda: _quadrotor(0.0), "target": _quadrotor,
                   "gaps": (0.5, 1.0, 2.5)},
+    "vehicle": {"model": lambda: _vehicle(0.0), "target": _vehicle, "gaps": (0.5, 1.0, 2.0)},
 }
 
 
