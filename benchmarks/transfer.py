@@ -7,7 +7,7 @@
         [--default transfer+VARIANT] [--methods METHOD ...] [--machine M]   (prints the tables;
         --out also writes them, F.json and F.md; --machine: read METHOD@M runs as METHOD)
     python -m benchmarks.transfer compare --root runs/transfer --a METHOD ... --b METHOD ...
-        [--seeds S ...] [--out F]
+        [--seeds S ...] [--systems SYSTEM ...] [--out F]
     python -m benchmarks.transfer cut --root DIR --method METHOD --share Q --as NAME
         [--counts all|after_stand] [--seeds S ...]   (METHOD's runs as fall_budget = Q runs them)
     python -m benchmarks.transfer check-default --stored DIR --method METHOD [--root runs/transfer]
@@ -618,7 +618,8 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
 
 
 def compare(root: Path, a: str, b: str, seeds: list[int] | None = None,
-            pattern: str = "*/gap*/seed*/*.json") -> dict[str, Any]:
+            pattern: str = "*/gap*/seed*/*.json", systems: list[str] | None = None
+            ) -> dict[str, Any]:
     """Method ``a`` against ``b`` on every (target, seed) where both ran (only ``seeds`` when
     given): wins (lower best cost within the budget), ties, losses, a two-sided sign test on the
     non-ties, and the falls; the same counts per target (``by_target``, keyed by the two
@@ -631,12 +632,15 @@ def compare(root: Path, a: str, b: str, seeds: list[int] | None = None,
     seeds. So each target also has ``paired_ratio``, the geometric mean over its seeds of
     ``best_a / best_b`` on the same seed, and the whole ``paired_geo_mean``, the geometric mean
     of those (both None where a best cost is not positive). ``pattern``: the run files under
-    ``root``, ``<target>/<sub>/seed<s>/<method>.json``."""
+    ``root``, ``<target>/<sub>/seed<s>/<method>.json``; ``systems``: only those targets
+    (``<target>`` is the system's directory)."""
     from scipy.stats import binomtest, gmean
 
     runs: dict[tuple[str, str, str], dict[str, dict]] = {}
     for f in sorted(root.glob(pattern)):
         if seeds is not None and f.parts[-2] not in {f"seed{s}" for s in seeds}:
+            continue
+        if systems is not None and f.parts[-4] not in systems:
             continue
         r = json.loads(f.read_text())
         runs.setdefault(f.parts[-4:-1], {})[r["method"]] = r
@@ -748,6 +752,8 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("--a", nargs="+", required=True)
     c.add_argument("--b", nargs="+", required=True)
     c.add_argument("--seeds", nargs="+", type=int, default=None)
+    c.add_argument("--systems", nargs="+", default=None, choices=list(SYSTEMS),
+                   help="only these systems' targets (default: every one stored)")
     c.add_argument("--out", default=None)
     ct = sub.add_parser("cut", help="a method's runs as the transfer critic with fall_budget "
                         "= SHARE would have run them (cut_at_fall_budget), stored as --as")
@@ -789,7 +795,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if a.cmd == "compare":
         prov = Provenance(argv, module="benchmarks.transfer")
-        rows = [compare(Path(a.root), x, b, a.seeds) for x in a.a for b in a.b]
+        rows = [compare(Path(a.root), x, b, a.seeds, systems=a.systems) for x in a.a for b in a.b]
         print(compare_text(rows))
         if a.out:
             write_json(a.out, {"rows": rows}, prov)

@@ -66,6 +66,8 @@ def test_compare_counts_per_target_and_keeps_the_seeds_asked(tmp_path):
     assert (r["pairs"], r["wins"], r["losses"], r["falls_a"]) == (2, 1, 1, 0)
     assert r["falls_paired"] == {"more": 0, "fewer": 0, "same": 2, "sign_test_p": 1.0}
     assert r["by_target"]["arm gap1"]["ratio"] == 1.0                # medians 2 and 2
+    assert tr.compare(tmp_path, "a", "b", systems=["arm"])["pairs"] == 3
+    assert tr.compare(tmp_path, "a", "b", systems=["chain"])["pairs"] == 0   # only those systems
 
 
 def test_compare_pairs_the_falls_seed_by_seed(tmp_path):
