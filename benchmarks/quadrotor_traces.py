@@ -18,14 +18,13 @@ fell (if it did), its largest pitch (rad) and its RMS position error over the la
 """
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from benchmarks.common import Provenance, add_out_arg
-from benchmarks.zones_traces import TracesError, median_seed, rerun_best, write_figure
+from benchmarks.common import Provenance
+from benchmarks.zones_traces import TracesError, traces_figure, write_figure
 from examples.quadrotor_mpc import PITCH_MAX, make_system
 
 DEFAULT = "transfer+explore_pool=adaptive:explore_gp=true:explore_fall_prob=0.2"
@@ -35,30 +34,13 @@ before)."""
 
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.quadrotor_traces")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--root", type=Path, default=Path("results/transfer/rebuilt/runs"))
-    ap.add_argument("--gap", type=float, default=2.5)
-    ap.add_argument("--methods", nargs="+", default=[DEFAULT, "turbo_manual", "zero_shot"])
-    ap.add_argument("--default", default=DEFAULT,
-                    help="the method whose median seed is drawn when --seed is not given")
-    ap.add_argument("--seed", type=int, default=None)
-    ap.add_argument("--png", type=Path, required=True)
-    add_out_arg(ap)
-    a = ap.parse_args(argv)
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    seed = median_seed(a.root, a.gap, a.default, "quadrotor") if a.seed is None else a.seed
-    system = make_system(a.gap)
     try:
-        reruns = [rerun_best(system, a.root, a.gap, seed, m, "quadrotor") for m in a.methods]
+        a, seed, reruns, fig, axes = traces_figure(
+            argv, __doc__, "quadrotor", make_system, gap=2.5, methods=[DEFAULT, "turbo_manual", "zero_shot"],
+            default=DEFAULT, nrows=3, height=7.2)
     except TracesError as e:
         print(f"quadrotor_traces: error: {e}", file=sys.stderr)
         return e.code
-    fig, axes = plt.subplots(3, len(a.methods), figsize=(4.2 * len(a.methods), 7.2),
-                             sharex=True, sharey="row", squeeze=False)
     rows = []
     for j, (m, (i, out, tr)) in enumerate(zip(a.methods, reruns)):
         t = tr["time_s"]

@@ -17,14 +17,13 @@ whether and when it left the lane, its largest lateral error (m) and its RMS ste
 """
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from benchmarks.common import Provenance, add_out_arg
-from benchmarks.zones_traces import TracesError, median_seed, rerun_best, write_figure
+from benchmarks.common import Provenance
+from benchmarks.zones_traces import TracesError, traces_figure, write_figure
 from examples.vehicle_lateral import LANE, make_system
 
 DEFAULT = "transfer+explore_pool=adaptive:explore_gp=true:explore_fall_prob=0.2"
@@ -33,31 +32,13 @@ DEFAULT = "transfer+explore_pool=adaptive:explore_gp=true:explore_fall_prob=0.2"
 
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.vehicle_traces")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--root", type=Path, default=Path("results/transfer/rebuilt/runs"))
-    ap.add_argument("--gap", type=float, default=2.0)
-    ap.add_argument("--methods", nargs="+",
-                    default=[DEFAULT, "cma_source_trials", "plain", "zero_shot"])
-    ap.add_argument("--default", default=DEFAULT,
-                    help="the method whose median seed is drawn when --seed is not given")
-    ap.add_argument("--seed", type=int, default=None)
-    ap.add_argument("--png", type=Path, required=True)
-    add_out_arg(ap)
-    a = ap.parse_args(argv)
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    seed = median_seed(a.root, a.gap, a.default, "vehicle") if a.seed is None else a.seed
-    system = make_system(a.gap)
     try:
-        reruns = [rerun_best(system, a.root, a.gap, seed, m, "vehicle") for m in a.methods]
+        a, seed, reruns, fig, axes = traces_figure(
+            argv, __doc__, "vehicle", make_system, gap=2.0, methods=[DEFAULT, "cma_source_trials", "plain", "zero_shot"],
+            default=DEFAULT, nrows=3, height=7.2)
     except TracesError as e:
         print(f"vehicle_traces: error: {e}", file=sys.stderr)
         return e.code
-    fig, axes = plt.subplots(3, len(a.methods), figsize=(4.2 * len(a.methods), 7.2),
-                             sharex=True, sharey="row", squeeze=False)
     rows = []
     for j, (m, (i, out, tr)) in enumerate(zip(a.methods, reruns)):
         t = tr["time_s"]

@@ -90,12 +90,22 @@ def median_seed(root: Path, gap: float, method: str = "transfer", system: str = 
     return seeds[int(order[(len(seeds) - 1) // 2])]
 
 
-def main(argv: list[str] | None = None) -> int:
-    prov = Provenance(argv, "benchmarks.zones_traces")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def traces_figure(argv: list[str] | None, doc: str, name: str, make_system: Any, *, gap: float,
+                  methods: list[str], default: str | None, nrows: int, height: float
+                  ) -> tuple[argparse.Namespace, int, list[tuple[int, Any, dict]], Any, Any]:
+    """The common part of the ladder systems' trace figures: parse ``argv`` (``--root``,
+    ``--gap``, ``--methods``, ``--default`` when ``default`` is given, ``--seed``, ``--png``,
+    ``--out``), choose the seed (:func:`median_seed` of the default method), re-run each
+    method's best trial on ``make_system(gap)`` (:func:`rerun_best`) and open a figure of
+    ``nrows`` rows and one column per method: ``(args, seed, reruns, fig, axes)``.
+    :class:`TracesError` as :func:`rerun_best` raises it."""
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
     ap.add_argument("--root", type=Path, default=Path("results/transfer/rebuilt/runs"))
-    ap.add_argument("--gap", type=float, default=2.0)
-    ap.add_argument("--methods", nargs="+", default=["transfer", "turbo_manual", "zero_shot"])
+    ap.add_argument("--gap", type=float, default=gap)
+    ap.add_argument("--methods", nargs="+", default=methods)
+    if default is not None:
+        ap.add_argument("--default", default=default,
+                        help="the method whose median seed is drawn when --seed is not given")
     ap.add_argument("--seed", type=int, default=None)
     ap.add_argument("--png", type=Path, required=True)
     add_out_arg(ap)
@@ -105,15 +115,25 @@ def main(argv: list[str] | None = None) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    seed = median_seed(a.root, a.gap) if a.seed is None else a.seed
+    seed = median_seed(a.root, a.gap, getattr(a, "default", "transfer"), name) \
+        if a.seed is None else a.seed
     system = make_system(a.gap)
+    reruns = [rerun_best(system, a.root, a.gap, seed, m, name) for m in a.methods]
+    fig, axes = plt.subplots(nrows, len(a.methods), figsize=(4.2 * len(a.methods), height),
+                             sharex=True, sharey="row", squeeze=False)
+    return a, seed, reruns, fig, axes
+
+
+def main(argv: list[str] | None = None) -> int:
+    prov = Provenance(argv, "benchmarks.zones_traces")
     try:
-        reruns = [rerun_best(system, a.root, a.gap, seed, m, "zones") for m in a.methods]
+        a, seed, reruns, fig, axes = traces_figure(
+            argv, __doc__, "zones", make_system, gap=2.0,
+            methods=["transfer", "turbo_manual", "zero_shot"], default=None, nrows=2,
+            height=5.6)
     except TracesError as e:
         print(f"zones_traces: error: {e}", file=sys.stderr)
         return e.code
-    fig, axes = plt.subplots(2, len(a.methods), figsize=(4.2 * len(a.methods), 5.6),
-                             sharex=True, sharey="row", squeeze=False)
     rows = []
     for j, (m, (i, out, tr)) in enumerate(zip(a.methods, reruns)):
         h = tr["time_s"] / 3600.0
