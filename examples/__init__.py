@@ -7,3 +7,23 @@
   "real" Hopper, against the zero-shot θ and direct TuRBO-m on the real one;
 * ``examples/ask_tell_session.sh`` — ask/tell from the shell, as a person at a robot would.
 """
+from __future__ import annotations
+
+import math
+
+
+def checked_gap(gap: float) -> float:
+    """A system's model-to-plant ``gap`` as a float; ValueError unless finite and >= 0."""
+    g = float(gap)
+    if not math.isfinite(g) or g < 0:
+        raise ValueError(f"gap must be a finite number >= 0, got {gap}")
+    return g
+
+
+def checked_steps(steps: int) -> int:
+    """An episode's ``steps`` as an int; ValueError unless >= 1."""
+    n = int(steps)
+    if n < 1:
+        raise ValueError(f"steps must be >= 1, got {steps}")
+    return n
+

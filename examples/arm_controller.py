@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 import latentune as lt
+from examples import checked_gap
 
 DT = 0.001
 T_MOTION = 0.6
@@ -83,9 +84,7 @@ class ArmSystem:
     """The arm controller's 21 weights on an arm with model-to-arm ``gap`` (module docstring)."""
 
     def __init__(self, gap: float = 0.0) -> None:
-        self.gap = float(gap)
-        if not math.isfinite(self.gap) or self.gap < 0:
-            raise ValueError(f"gap must be a finite number >= 0, got {gap}")
+        self.gap = checked_gap(gap)
         self.space = arm_space()
         g = self.gap
         self.payload = 1.5 * g

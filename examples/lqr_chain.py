@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 import latentune as lt
+from examples import checked_gap
 
 N_CART = 7
 N_MOTOR = 6
@@ -72,9 +73,7 @@ class ChainSystem:
     """The chain's LQR weights on a plant with model-to-plant ``gap`` (module docstring)."""
 
     def __init__(self, gap: float = 0.0, steps: int = STEPS) -> None:
-        self.gap = float(gap)
-        if not math.isfinite(self.gap) or self.gap < 0:
-            raise ValueError(f"gap must be a finite number >= 0, got {gap}")
+        self.gap = checked_gap(gap)
         self.steps = int(steps)
         self.space = chain_space()
         self.A0, self.B0 = _matrices(np.ones(N_CART), 10.0, 0.5)

@@ -48,6 +48,7 @@ from typing import Any
 import numpy as np
 
 import latentune as lt
+from examples import checked_gap, checked_steps
 
 G = 9.81                                   # m/s²
 MASS, INERTIA = 1.0, 0.01                  # kg, kg·m²
@@ -155,12 +156,8 @@ class QuadrotorSystem:
     """The MPC's 20 weights on a vehicle with model-to-plant ``gap`` (module docstring)."""
 
     def __init__(self, gap: float = 0.0, steps: int = STEPS) -> None:
-        self.gap = float(gap)
-        if not math.isfinite(self.gap) or self.gap < 0:
-            raise ValueError(f"gap must be a finite number >= 0, got {gap}")
-        self.steps = int(steps)
-        if self.steps < 1:
-            raise ValueError(f"steps must be >= 1, got {steps}")
+        self.gap = checked_gap(gap)
+        self.steps = checked_steps(steps)
         self.space = quadrotor_space()
         g = self.gap
         self.mass = MASS * (1 + 0.15 * g)

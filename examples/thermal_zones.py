@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 import latentune as lt
+from examples import checked_gap, checked_steps
 
 N = 5
 DT = 60.0                                  # s
@@ -64,12 +65,8 @@ class ZonesSystem:
     """The five rooms' PI gains on a building with model-to-plant ``gap`` (module docstring)."""
 
     def __init__(self, gap: float = 0.0, steps: int = STEPS, rooms: int = N) -> None:
-        self.gap = float(gap)
-        if not math.isfinite(self.gap) or self.gap < 0:
-            raise ValueError(f"gap must be a finite number >= 0, got {gap}")
-        self.steps = int(steps)
-        if self.steps < 1:
-            raise ValueError(f"steps must be >= 1, got {steps}")
+        self.gap = checked_gap(gap)
+        self.steps = checked_steps(steps)
         if isinstance(rooms, bool) or int(rooms) != rooms or not 1 <= int(rooms) <= N:
             raise ValueError(f"rooms must be an integer in [1, {N}], got {rooms}")
         self.n = int(rooms)

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 import latentune as lt
+from examples import checked_steps
 
 N_MASS = 4
 ACTUATED = (0, 1, 3)
@@ -57,9 +58,7 @@ class ChainSystem:
         self.space = chain_space()
         self.mass_scale, self.stiffness_scale = float(mass_scale), float(stiffness_scale)
         self.damping_scale, self.gain_scale = float(damping_scale), float(gain_scale)
-        self.steps = int(steps)
-        if self.steps < 1:
-            raise ValueError(f"steps must be >= 1, got {steps}")
+        self.steps = checked_steps(steps)
         self.name = str(name)
         self._j_open = None
 

@@ -51,6 +51,7 @@ from typing import Any
 import numpy as np
 
 import latentune as lt
+from examples import checked_gap, checked_steps
 
 DT = 0.02                                   # s
 STEPS = 1000                                # 20 s
@@ -110,12 +111,8 @@ class VehicleSystem:
     """The lane-keeping gains on a car and road with model-to-plant ``gap`` (module docstring)."""
 
     def __init__(self, gap: float = 0.0, steps: int = STEPS) -> None:
-        self.gap = float(gap)
-        if not math.isfinite(self.gap) or self.gap < 0:
-            raise ValueError(f"gap must be a finite number >= 0, got {gap}")
-        self.steps = int(steps)
-        if self.steps < 1:
-            raise ValueError(f"steps must be >= 1, got {steps}")
+        self.gap = checked_gap(gap)
+        self.steps = checked_steps(steps)
         self.space = vehicle_space()
         g = self.gap
         self.mu = MU * max(1.0 - 0.12 * g, 0.2)
