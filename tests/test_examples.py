@@ -166,3 +166,27 @@ def test_hopper_through_the_api_and_cli(tmp_path, run):
     through_the_api(g.make_system(episode_steps=50), g.make_real_system(episode_steps=50),
                     tmp_path, run)
     through_the_cli("examples.gym_controller:make_system", ["episode_steps=50"], tmp_path, run)
+
+
+def test_optuna_hopper_benchmark_warm_starts_every_sampler_and_reuses_traces(tmp_path,
+                                                                              monkeypatch):
+    """``benchmarks.optuna_hopper``: an Optuna sampler's trial 0 is the model's best θ, the θ
+    of LatentSampler's zero-shot trial (the same cost on the same real Hopper), and a second
+    call with the same settings reads the stored traces instead of running them again."""
+    _hopper()
+    pytest.importorskip("optuna")
+    import json
+
+    from benchmarks import optuna_hopper as oh
+
+    args = ["--seeds", "0", "--trials", "3", "--phase1-evals", "60", "--episode-steps", "100",
+            "--models", str(tmp_path / "m"), "--samplers", "latent", "tpe", "--checkpoints",
+            "3", "--out", str(tmp_path / "o.json")]
+    assert oh.main(args) == 0
+    res = json.loads((tmp_path / "o.json").read_text())
+    lat, tpe = (res["per_seed"][0]["samplers"][m] for m in ("latent", "tpe"))
+    assert lat["costs"][0] == tpe["costs"][0] and len(tpe["costs"]) == 3
+    assert (tmp_path / "traces" / "seed0" / "tpe.json").is_file()
+    monkeypatch.setattr(oh, "run_sampler", lambda *a, **k: pytest.fail("ran a stored trace"))
+    assert oh.main(args) == 0
+    assert json.loads((tmp_path / "o.json").read_text())["per_seed"] == res["per_seed"]
