@@ -81,6 +81,14 @@ budget⌋)`` of the target's trials fell and one stands, every ask is the best s
 search for no more falls on a target where each costs a robot (``fall_budget_counts``:
 ``"after_stand"``, the default, counts only the falls after the first trial that stood, those
 taken while a standing θ was in hand; ``"all"`` every fall);
+``record_walk`` = k > 0 (default 0: off): once the target has tried θ of the source's record
+(the zero-shot θ, the design's elites; the manual θ aside) and every one of them fell, the next
+k asks after the design walk down the source's standing trials ranked by cost, one per rank
+quantile (i + 1)/(k + 1), i = 0 … k − 1: at each, the best-ranked θ no told trial has and at
+least ``elite_spacing`` from every told fall (a rule ask in pool ``elite``, recorded with its
+``walk_rank``); the walk ends once one of them stands. Where a gap moves the fall boundary
+through the source's best region, the θ the source tried on the way there, farther from its
+optimum, are the ones that stand (``benchmarks.transfer_reach``);
 ``fall_cost``: the acquisition counts the fall among the outcomes of a candidate, with the fall
 model's posterior mean ``p(θ)`` (clipped to [0, 1]) as its probability: a Thompson sample ``s(θ)``
 of the cost rank score becomes the expected score ``(1 − p) s + p s_fall`` (``s_fall``: the
@@ -385,6 +393,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "fall_shrink": False, "centre_falls": 0, "fall_rank": "clipped", "explore_gp": True,
     "explore_record": "count", "explore_bandit": "mean", "region_gp": False,
     "fall_fit": False, "fall_budget": 0.0, "fall_budget_counts": "after_stand",
+    "record_walk": 0,
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state, where
 ``explore_fall_prob`` is resolved (:func:`resolved_options`)."""
@@ -420,7 +429,7 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "explore_gp": False, "explore_record": "count",
                                  "explore_bandit": "mean", "region_gp": False,
                                  "fall_fit": False, "fall_budget": 0.0,
-                                 "fall_budget_counts": "all"}
+                                 "fall_budget_counts": "all", "record_walk": 0}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -1720,6 +1729,43 @@ class Transfer(TwoSpaceCritic):
         U = lb + (ub - lb) * sob
         return np.clip(np.atleast_2d(self.latent.decode(U)), 0, 1), U
 
+    def _walk_theta(self) -> tuple[np.ndarray, int] | None:
+        """``record_walk`` = k > 0: once the target has tried θ of the source's record and every
+        one of them fell, the next of k asks walks down the source's standing trials ranked by
+        cost: the i-th (i = the told record θ outside the elite pool) is the best-ranked θ past
+        the rank quantile (i + 1)/(k + 1) that no told trial has and that lies at least
+        ``elite_spacing`` from every told fall. ``(θ (d,), its rank)``, or None (off, a record θ
+        stood, the walk is done, or nothing is left)."""
+        k = int(self.opts["record_walk"])
+        if k <= 0 or self.n_told == 0:
+            return None
+        X, y, f = self.source_rows()
+        ok = np.flatnonzero(~f)
+        S = X[ok[np.argsort(y[ok], kind="stable")]]
+        if not len(S):
+            return None
+        near = np.abs(self._X[:, None, :] - S[None, :, :]).max(2)      # (n_told, m)
+        told = near.min(1) <= 1e-9
+        if self.manual is not None:     # the manual θ (phase 1's start) is not the record's
+            told &= np.abs(self._X - self.manual).max(1) > 1e-9
+        if not told.any() or (told & ~self._fell).any():
+            return None
+        E = self.elites()
+        in_elite = np.array([np.min(np.abs(E - x).max(1)) <= 1e-9 for x in self._X[told]])
+        i = int((~in_elite).sum())
+        if i >= k:
+            return None
+        start = int(len(S) * (i + 1) / (k + 1))
+        spacing = float(self.opts["elite_spacing"])
+        falls = self._X[self._fell]
+        for r in range(start, len(S)):
+            if near[:, r].min() <= 1e-9:
+                continue
+            if len(falls) and np.abs(falls - S[r]).max(1).min() < spacing:
+                continue
+            return S[r].copy(), r
+        return None
+
     def _pool_elite(self) -> np.ndarray:
         E = self.elites()
         if self.n_told == 0:
@@ -1828,6 +1874,11 @@ class Transfer(TwoSpaceCritic):
             return self._rule_ask(n, g, centre, FULL, False,
                                   "the trust region converged: the centre",
                                   length=st["L"], restarts=st["restarts"])
+        walk = None if design else self._walk_theta()
+        if walk is not None:
+            return self._rule_ask(n, g, walk[0], ELITE, True,
+                                  "the source's top fell: a θ deeper in its record",
+                                  walk_rank=walk[1])
         ctx = _AskContext(generation=g, state=st, design=design, agree=agree,
                           agree_sd=agree_sd, w_lat=w_lat, latent_off=latent_off, cost_m=cost_m,
                           fall_m=fall_m,
