@@ -562,3 +562,51 @@ def test_fall_fit_learns_that_small_steps_from_a_standing_theta_fall(source, hyp
     assert admitted[False] >= 0.2 and admitted[True] < 0.5 * admitted[False]
     with pytest.raises(ValueError, match="fall_fit must be true or false"):
         _critic(source, hypers, fall_fit="yes")
+
+
+def test_record_walk_walks_down_the_source_record_once_its_top_fell(source, hypers):
+    """``record_walk`` 3 on a target where the source's optimum falls (a hole of radius 0.445
+    around it: the source's 16 best standing trials) and the rest stands: after the zero-shot θ and the design's elites fell, the
+    asks walk down the source's standing trials from the rank quantile 1/4 on, each a source
+    trial away from the told falls, and stop once one stood. Off, or where the source's best
+    stands, nothing walks."""
+    X, y, f, c = source
+
+    def target(T):
+        T = np.atleast_2d(T)
+        fell = np.sqrt(((T - c) ** 2).sum(1)) < 0.445
+        cost = 10.0 * np.sqrt(((T - 0.7) ** 2).sum(1))
+        return np.where(fell, 100.0 + cost, cost), fell
+
+    ok = np.flatnonzero(~f)
+    ranked = X[ok[np.argsort(y[ok], kind="stable")]]
+    best = ranked[0]
+    walks = {}
+    for k in (0, 3):
+        cr = _critic(source, hypers, record_walk=k)
+        y0, f0 = target(best)
+        cr.tell(best[None], y0, fell=f0)
+        for _ in range(8):
+            T = cr.ask(1)
+            yt, ft = target(T)
+            cr.tell(T, yt, cr.last_tags, fell=ft)
+        walks[k] = [(i, d["walk_rank"]) for i, d in enumerate(cr.decisions) if "walk_rank" in d]
+        if k:
+            assert walks[k], "the walk never started"
+            ranks = [r for _, r in walks[k]]
+            assert ranks[0] >= len(ranked) // 4 and ranks == sorted(ranks)
+            for i, r in walks[k]:
+                t = i + 1                               # decision i asked told trial i + 1
+                assert np.allclose(cr.X[t], ranked[r])
+                assert not cr.fell[1:t][cr.fell[1:t]].size or \
+                    np.abs(cr.X[1:t][cr.fell[1:t]] - ranked[r]).max(1).min() >= 0.15
+            assert len(walks[k]) >= 2                         # a walk ask fell, one more
+            assert all(cr.fell[i + 1] for i, _ in walks[k][:-1])     # it goes on after falls
+            assert not cr.fell[walks[k][-1][0] + 1]            # and stops on a stand
+    assert walks[0] == []
+    far = np.full(D, 0.9)                               # a source optimum that stands: no walk
+    cr = _critic(source, hypers, record_walk=3)
+    cr.tell(far[None], *target(far)[:1], fell=target(far)[1])
+    _ = [cr.tell((T := cr.ask(1)), target(T)[0], cr.last_tags, fell=target(T)[1])
+         for _ in range(3)]
+    assert cr.fell[0] or not any("walk_rank" in d for d in cr.decisions)
