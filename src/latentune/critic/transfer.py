@@ -1744,8 +1744,11 @@ class Transfer(TwoSpaceCritic):
         S = X[ok[np.argsort(y[ok], kind="stable")]]
         if not len(S):
             return None
-        near = np.abs(self._X[:, None, :] - S[None, :, :]).max(2)      # (n_told, m)
-        told = near.min(1) <= 1e-9
+        told = np.zeros(self.n_told, dtype=bool)      # told trials that are source trials
+        taken = np.zeros(len(S), dtype=bool)          # source trials a told trial has
+        for j, x in enumerate(self._X):               # row by row: no (n_told, m, d) array
+            same = np.abs(S - x).max(1) <= 1e-9
+            told[j], taken = same.any(), taken | same
         if self.manual is not None:     # the manual θ (phase 1's start) is not the record's
             told &= np.abs(self._X - self.manual).max(1) > 1e-9
         if not told.any() or (told & ~self._fell).any():
@@ -1759,7 +1762,7 @@ class Transfer(TwoSpaceCritic):
         spacing = float(self.opts["elite_spacing"])
         falls = self._X[self._fell]
         for r in range(start, len(S)):
-            if near[:, r].min() <= 1e-9:
+            if taken[r]:
                 continue
             if len(falls) and np.abs(falls - S[r]).max(1).min() < spacing:
                 continue
@@ -2335,6 +2338,19 @@ def fall_budget_spent(fell: np.ndarray, share: float, budget: int | None,
     k = falls_allowed(share, budget)
     fell = np.asarray(fell, dtype=bool)
     return k is not None and not fell.all() and counted_falls(fell, counts) >= k
+
+
+def fall_budget_status(fell: np.ndarray, share: float, budget: int | None,
+                       counts: str = "all") -> dict[str, Any] | None:
+    """The fall budget over told outcomes ``fell`` (n,) bool, in told order, as ``status``
+    reports it: ``{falls_allowed, falls, counts, spent}`` (:func:`falls_allowed`,
+    :func:`counted_falls`, :func:`fall_budget_spent`), or None without a budget."""
+    k = falls_allowed(share, budget)
+    if k is None:
+        return None
+    f = np.asarray(fell, dtype=bool)
+    return {"falls_allowed": k, "falls": counted_falls(f, counts), "counts": counts,
+            "spent": fall_budget_spent(f, share, budget, counts)}
 
 
 def counted_falls(fell: np.ndarray, counts: str = "all") -> int:

@@ -181,10 +181,11 @@ def physical_params(space: ParameterSpace, u: np.ndarray) -> dict[str, float]:
     return {n: float(v) for n, v in zip(space.names, x)}
 
 
-def trial_fell(trial: Any) -> bool:
+def trial_fell(trial: Any, state: Any = None) -> bool:
     """Whether a finished Optuna trial is a fall: state FAIL, a constraint value > 0, or the
-    user attribute :data:`FAILED_ATTR` set to a true value."""
-    if trial.state == optuna.trial.TrialState.FAIL:
+    user attribute :data:`FAILED_ATTR` set to a true value. ``state``: the state it is being
+    finished with (in ``after_trial``, before the storage records it), else its own."""
+    if (trial.state if state is None else state) == optuna.trial.TrialState.FAIL:
         return True
     if bool(trial.user_attrs.get(FAILED_ATTR, False)):
         return True
@@ -638,18 +639,13 @@ class LatentSampler(_CriticSampler, BaseSampler):
         return self._fall_budget_of(self._finished_fell(study))
 
     def _fall_budget_of(self, fell: list[bool]) -> dict[str, Any] | None:
-        from latentune.critic.transfer import (TRANSFER_DEFAULTS, counted_falls,
-                                               fall_budget_spent, falls_allowed)
+        from latentune.critic.transfer import TRANSFER_DEFAULTS, fall_budget_status
 
-        opts = {**TRANSFER_DEFAULTS, **(self.transfer_options or {})}
-        k = falls_allowed(opts["fall_budget"], self.budget) if self.strategy == "transfer" \
-            else None
-        if k is None:
+        if self.strategy != "transfer":
             return None
-        counts = opts["fall_budget_counts"]
-        f = np.asarray(fell, dtype=bool)
-        return {"falls_allowed": k, "falls": counted_falls(f, counts), "counts": counts,
-                "spent": fall_budget_spent(f, opts["fall_budget"], self.budget, counts)}
+        opts = {**TRANSFER_DEFAULTS, **(self.transfer_options or {})}
+        return fall_budget_status(fell, opts["fall_budget"], self.budget,
+                                  opts["fall_budget_counts"])
 
     def _finished_fell(self, study: Any, extra: tuple[int, bool] | None = None) -> list[bool]:
         """Fall flags of the trials the critic is told (finished, θ in the box), in number
@@ -662,10 +658,8 @@ class LatentSampler(_CriticSampler, BaseSampler):
         if self.transfer_options is None or not self.transfer_options.get("fall_budget"):
             return
         now = study._storage.get_trial(trial._trial_id)         # constraints set just now
-        fell = state == optuna.trial.TrialState.FAIL or \
-            bool(now.user_attrs.get(FAILED_ATTR, False)) or \
-            any(float(v) > 0 for v in now.constraints.values())
-        fb = self._fall_budget_of(self._finished_fell(study, (trial.number, fell)))
+        fb = self._fall_budget_of(self._finished_fell(study, (trial.number,
+                                                              trial_fell(now, state))))
         if fb is None or not fb["spent"]:
             return
         logger.warning("trial %d: the fall budget is spent (%d falls counted, %d allowed); "

@@ -170,8 +170,7 @@ def fall_budget(store: RunStore, config: dict[str, Any] | None) -> dict[str, Any
     ``fall_budget_counts`` counts them) over the target's
     trials the critic is told (manual, zero-shot and phase 3) out of phase 3's budget and
     those trials; None for another phase 3, none yet, or no budget."""
-    from latentune.critic.transfer import (TRANSFER_DEFAULTS, counted_falls, fall_budget_spent,
-                                           falls_allowed, stored_options)
+    from latentune.critic.transfer import TRANSFER_DEFAULTS, fall_budget_status, stored_options
     from latentune.pipeline.loop import target_budget, told_outside
     from latentune.pipeline.phases import state_key
 
@@ -182,14 +181,9 @@ def fall_budget(store: RunStore, config: dict[str, Any] | None) -> dict[str, Any
     opts = (stored_options(state) if isinstance(state, dict) else None) or \
         {**TRANSFER_DEFAULTS, **(pc.get("transfer_options") or {})}
     rows = told_outside(store)
-    B = target_budget(pc, len(rows))
-    k = falls_allowed(opts["fall_budget"], B)
-    if k is None:
-        return None
     fell = np.array([bool(r.fell) for r in rows + store.rows(Phase.PHASE3)], dtype=bool)
-    counts = opts["fall_budget_counts"]
-    return {"falls_allowed": k, "falls": counted_falls(fell, counts), "counts": counts,
-            "spent": fall_budget_spent(fell, opts["fall_budget"], B, counts)}
+    return fall_budget_status(fell, opts["fall_budget"], target_budget(pc, len(rows)),
+                              opts["fall_budget_counts"])
 
 
 def status(store: RunStore, run_dir: Path, config: dict[str, Any] | None = None
