@@ -610,3 +610,54 @@ def test_record_walk_walks_down_the_source_record_once_its_top_fell(source, hype
     _ = [cr.tell((T := cr.ask(1)), target(T)[0], cr.last_tags, fell=target(T)[1])
          for _ in range(3)]
     assert cr.fell[0] or not any("walk_rank" in d for d in cr.decisions)
+
+
+def test_walk_pick_chooses_each_step_by_the_target_fall_model(source, hypers):
+    """``walk_pick`` on the target of the test above: ``"fall"`` asks, among the walk's
+    candidates, the one the target fall model (told the record's falls) finds least likely to
+    fall, ``"band"`` the same within the step's band of ranks; each records the probability it
+    chose by. Bad values of ``record_walk`` and ``walk_pick`` are refused."""
+    X, y, f, c = source
+
+    def target(T):
+        T = np.atleast_2d(T)
+        fell = np.sqrt(((T - c) ** 2).sum(1)) < 0.445
+        cost = 10.0 * np.sqrt(((T - 0.7) ** 2).sum(1))
+        return np.where(fell, 100.0 + cost, cost), fell
+
+    ok = np.flatnonzero(~f)
+    ranked = X[ok[np.argsort(y[ok], kind="stable")]]
+    first = {}
+    for pick in ("rank", "fall", "band"):
+        cr = _critic(source, hypers, record_walk=3, walk_pick=pick)
+        cr.tell(ranked[:1], *target(ranked[0])[:1], fell=target(ranked[0])[1])
+        for _ in range(8):
+            before = cr.n_told
+            T = cr.ask(1)
+            d = cr.decisions[-1]
+            if "walk_rank" in d:
+                r = d["walk_rank"]
+                assert np.allclose(T[0], ranked[r])
+                assert ("walk_fall_prob" in d) == (pick != "rank")
+                if pick != "rank":
+                    free = np.array([np.abs(cr.X - s).max(1).min() > 1e-9 and
+                                     (not cr.fell.any() or
+                                      np.abs(cr.X[cr.fell] - s).max(1).min() >= 0.15)
+                                     for s in ranked])
+                    i = sum(1 for e in cr.decisions[:-1] if "walk_rank" in e)
+                    lo, hi = ((0, len(ranked)) if pick == "fall" else
+                              (len(ranked) * (i + 1) // 4, len(ranked) * (i + 2) // 4))
+                    band = np.flatnonzero(free[lo:hi]) + lo
+                    p = cr._fall_model(before).mean_cov(ranked[band], with_cov=False)[0]
+                    assert lo <= r < hi and round(d["walk_fall_prob"], 3) == round(p.min(), 3)
+                    assert d["walk_fall_prob"] == pytest.approx(p[band == r][0])
+                first.setdefault(pick, r)
+            yt, ft = target(T)
+            cr.tell(T, yt, cr.last_tags, fell=ft)
+        assert pick in first, f"walk_pick={pick}: the walk never started"
+    assert first["fall"] != first["rank"]
+    for bad in (-1, 2.5, True, "3"):
+        with pytest.raises(ValueError, match="record_walk must be an integer"):
+            _critic(source, hypers, record_walk=bad)
+    with pytest.raises(ValueError, match="walk_pick must be one of"):
+        _critic(source, hypers, walk_pick="cost")

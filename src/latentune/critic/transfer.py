@@ -88,7 +88,12 @@ quantile (i + 1)/(k + 1), i = 0 … k − 1: at each, the best-ranked θ no told
 least ``elite_spacing`` from every told fall (a rule ask in pool ``elite``, recorded with its
 ``walk_rank``); the walk ends once one of them stands. Where a gap moves the fall boundary
 through the source's best region, the θ the source tried on the way there, farther from its
-optimum, are the ones that stand (``benchmarks.transfer_reach``);
+optimum, are the ones that stand (``benchmarks.transfer_reach``); ``walk_pick`` (default
+``"rank"``, the rule above) chooses each step among the same candidates with the target fall
+model instead: ``"fall"``, the least likely to fall over the whole record; ``"band"``, the
+least likely to fall among ranks (i + 1)/(k + 1) to (i + 2)/(k + 1) (recorded as
+``walk_fall_prob``). On the stored runs where the record fell, a deeper rank and a lower fall
+probability both go with standing (``benchmarks.transfer_walk``);
 ``fall_cost``: the acquisition counts the fall among the outcomes of a candidate, with the fall
 model's posterior mean ``p(θ)`` (clipped to [0, 1]) as its probability: a Thompson sample ``s(θ)``
 of the cost rank score becomes the expected score ``(1 − p) s + p s_fall`` (``s_fall``: the
@@ -393,7 +398,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "fall_shrink": False, "centre_falls": 0, "fall_rank": "clipped", "explore_gp": True,
     "explore_record": "count", "explore_bandit": "mean", "region_gp": False,
     "fall_fit": False, "fall_budget": 0.0, "fall_budget_counts": "after_stand",
-    "record_walk": 0,
+    "record_walk": 0, "walk_pick": "rank",
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state, where
 ``explore_fall_prob`` is resolved (:func:`resolved_options`)."""
@@ -429,7 +434,8 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "explore_gp": False, "explore_record": "count",
                                  "explore_bandit": "mean", "region_gp": False,
                                  "fall_fit": False, "fall_budget": 0.0,
-                                 "fall_budget_counts": "all", "record_walk": 0}
+                                 "fall_budget_counts": "all", "record_walk": 0,
+                                 "walk_pick": "rank"}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -475,6 +481,10 @@ LINES_PICKS = ("uniform", "fall")
 probability in proportion to the source fall model's lengthscale (the gains its falls depend on
 least are moved most often)."""
 FALL_RANKS = ("clipped", "bound", "mean")
+WALK_PICKS = ("rank", "fall", "band")
+"""How ``record_walk`` picks each step (``walk_pick``): the best rank past the step's quantile,
+the least likely to fall over the whole record, or the least likely to fall in the step's band
+of ranks."""
 """The order the least likely to fall are taken by when too few candidates pass the fall screen
 (``fall_rank``): the screen's clipped probability, its unclipped bound, or the fall model's
 unclipped posterior mean."""
@@ -1172,6 +1182,12 @@ class Transfer(TwoSpaceCritic):
         if isinstance(k_ef, bool) or not isinstance(k_ef, (int, np.integer)) or k_ef < 0:
             raise ValueError(f"explore_falls must be an integer ≥ 0 (0: never stop exploring), "
                              f"got {k_ef!r}")
+        k_rw = self.opts["record_walk"]
+        if isinstance(k_rw, bool) or not isinstance(k_rw, (int, np.integer)) or k_rw < 0:
+            raise ValueError(f"record_walk must be an integer ≥ 0 (0: off), got {k_rw!r}")
+        if self.opts["walk_pick"] not in WALK_PICKS:
+            raise ValueError(f"walk_pick must be one of {WALK_PICKS}, "
+                             f"got {self.opts['walk_pick']!r}")
         k_cf = self.opts["centre_falls"]
         if isinstance(k_cf, bool) or not isinstance(k_cf, (int, np.integer)) or k_cf < 0:
             raise ValueError(f"centre_falls must be an integer ≥ 0 (0: off), got {k_cf!r}")
@@ -1729,13 +1745,17 @@ class Transfer(TwoSpaceCritic):
         U = lb + (ub - lb) * sob
         return np.clip(np.atleast_2d(self.latent.decode(U)), 0, 1), U
 
-    def _walk_theta(self) -> tuple[np.ndarray, int] | None:
+    def _walk_theta(self) -> tuple[np.ndarray, int, float | None] | None:
         """``record_walk`` = k > 0: once the target has tried θ of the source's record and every
         one of them fell, the next of k asks walks down the source's standing trials ranked by
-        cost: the i-th (i = the told record θ outside the elite pool) is the best-ranked θ past
-        the rank quantile (i + 1)/(k + 1) that no told trial has and that lies at least
-        ``elite_spacing`` from every told fall. ``(θ (d,), its rank)``, or None (off, a record θ
-        stood, the walk is done, or nothing is left)."""
+        cost. Its candidates are those no told trial has and that lie at least
+        ``elite_spacing`` from every told fall; the i-th step (i = the told record θ outside the
+        elite pool) takes, by ``walk_pick``, the best-ranked candidate past the rank quantile
+        (i + 1)/(k + 1) (``"rank"``), the candidate the target fall model finds least likely
+        to fall (``"fall"``; its mean to 3 decimals, ties to the better rank), or that within the
+        step's band of ranks, quantiles (i + 1)/(k + 1) to (i + 2)/(k + 1) (``"band"``).
+        ``(θ (d,), its rank, its fall probability or None)``, or None (off, a record θ stood,
+        the walk is done, or nothing is left)."""
         k = int(self.opts["record_walk"])
         if k <= 0 or self.n_told == 0:
             return None
@@ -1745,10 +1765,14 @@ class Transfer(TwoSpaceCritic):
         if not len(S):
             return None
         told = np.zeros(self.n_told, dtype=bool)      # told trials that are source trials
-        taken = np.zeros(len(S), dtype=bool)          # source trials a told trial has
+        free = np.ones(len(S), dtype=bool)            # no told trial has it, far from falls
+        spacing = float(self.opts["elite_spacing"])
         for j, x in enumerate(self._X):               # row by row: no (n_told, m, d) array
-            same = np.abs(S - x).max(1) <= 1e-9
-            told[j], taken = same.any(), taken | same
+            gap = np.abs(S - x).max(1)
+            told[j] = bool((gap <= 1e-9).any())
+            free &= gap > 1e-9
+            if self._fell[j]:
+                free &= gap >= spacing
         if self.manual is not None:     # the manual θ (phase 1's start) is not the record's
             told &= np.abs(self._X - self.manual).max(1) > 1e-9
         if not told.any() or (told & ~self._fell).any():
@@ -1758,16 +1782,17 @@ class Transfer(TwoSpaceCritic):
         i = int((~in_elite).sum())
         if i >= k:
             return None
-        start = int(len(S) * (i + 1) / (k + 1))
-        spacing = float(self.opts["elite_spacing"])
-        falls = self._X[self._fell]
-        for r in range(start, len(S)):
-            if taken[r]:
-                continue
-            if len(falls) and np.abs(falls - S[r]).max(1).min() < spacing:
-                continue
-            return S[r].copy(), r
-        return None
+        pick = self.opts["walk_pick"]
+        lo = 0 if pick == "fall" else int(len(S) * (i + 1) / (k + 1))
+        hi = int(len(S) * (i + 2) / (k + 1)) if pick == "band" else len(S)
+        idx = np.flatnonzero(free[lo:hi]) + lo
+        if not len(idx):
+            return None
+        if pick == "rank":
+            return S[idx[0]].copy(), int(idx[0]), None
+        p = np.asarray(self._fall_model(self.n_told).mean_cov(S[idx], with_cov=False)[0])
+        r = idx[np.lexsort((idx, np.round(p, 3)))[0]]
+        return S[r].copy(), int(r), float(p[idx == r][0])
 
     def _pool_elite(self) -> np.ndarray:
         E = self.elites()
@@ -1881,7 +1906,8 @@ class Transfer(TwoSpaceCritic):
         if walk is not None:
             return self._rule_ask(n, g, walk[0], ELITE, True,
                                   "the source's top fell: a θ deeper in its record",
-                                  walk_rank=walk[1])
+                                  walk_rank=walk[1],
+                                  **({} if walk[2] is None else {"walk_fall_prob": walk[2]}))
         ctx = _AskContext(generation=g, state=st, design=design, agree=agree,
                           agree_sd=agree_sd, w_lat=w_lat, latent_off=latent_off, cost_m=cost_m,
                           fall_m=fall_m,
