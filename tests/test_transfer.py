@@ -564,6 +564,17 @@ def test_fall_fit_learns_that_small_steps_from_a_standing_theta_fall(source, hyp
         _critic(source, hypers, fall_fit="yes")
 
 
+def _hole_target(c: np.ndarray):
+    """A target where the source's optimum falls: θ within 0.445 of ``c`` (the source's 16 best
+    standing trials) fall, cost 100 more; the cost is 10 × the distance to (0.7, …, 0.7)."""
+    def target(T):
+        T = np.atleast_2d(T)
+        fell = np.sqrt(((T - c) ** 2).sum(1)) < 0.445
+        cost = 10.0 * np.sqrt(((T - 0.7) ** 2).sum(1))
+        return np.where(fell, 100.0 + cost, cost), fell
+    return target
+
+
 def test_record_walk_walks_down_the_source_record_once_its_top_fell(source, hypers):
     """``record_walk`` 3 on a target where the source's optimum falls (a hole of radius 0.445
     around it: the source's 16 best standing trials) and the rest stands: after the zero-shot θ and the design's elites fell, the
@@ -572,11 +583,7 @@ def test_record_walk_walks_down_the_source_record_once_its_top_fell(source, hype
     stands, nothing walks."""
     X, y, f, c = source
 
-    def target(T):
-        T = np.atleast_2d(T)
-        fell = np.sqrt(((T - c) ** 2).sum(1)) < 0.445
-        cost = 10.0 * np.sqrt(((T - 0.7) ** 2).sum(1))
-        return np.where(fell, 100.0 + cost, cost), fell
+    target = _hole_target(c)
 
     ok = np.flatnonzero(~f)
     ranked = X[ok[np.argsort(y[ok], kind="stable")]]
@@ -619,11 +626,7 @@ def test_walk_pick_chooses_each_step_by_the_target_fall_model(source, hypers):
     chose by. Bad values of ``record_walk`` and ``walk_pick`` are refused."""
     X, y, f, c = source
 
-    def target(T):
-        T = np.atleast_2d(T)
-        fell = np.sqrt(((T - c) ** 2).sum(1)) < 0.445
-        cost = 10.0 * np.sqrt(((T - 0.7) ** 2).sum(1))
-        return np.where(fell, 100.0 + cost, cost), fell
+    target = _hole_target(c)
 
     ok = np.flatnonzero(~f)
     ranked = X[ok[np.argsort(y[ok], kind="stable")]]
