@@ -45,6 +45,11 @@ Systems (``SYSTEMS``; the model is gap 0, each target is the same controller on 
   wetter road, worn tyres (rear more: toward oversteer), a heavier car and a round(g)-step
   steering delay (gaps 0.5, 1, 2: at 2 most θ that keep the model in lane leave it). Added in
   session 44, after every option was chosen: a fourth held-out system.
+* ``cartpole`` — :mod:`examples.cartpole_swingup`, 20 weights of a cart-pole's energy swing-up
+  and LQR balance controller (two modes, rates estimated from positions); gap g: a heavier,
+  longer pole, more cart friction, a weaker motor and a round(2 g)-step actuation delay (gaps
+  0.5, 1, 2: at 2 most θ that balance the model fail). Added in session 45, after every option
+  was chosen: a fifth held-out system.
 
 For every (system, seed) one source run: ``Study(ROOT/<system>/seed<s>/source, seed=s)``, phase 1
 (TuRBO-m, ``--source-evals`` trials on the model, batch 4) and the latent space. For every target
@@ -143,6 +148,12 @@ def _vehicle(g: float) -> Any:
     return make_system(gap=g)
 
 
+def _cartpole(g: float) -> Any:
+    from examples.cartpole_swingup import make_system
+
+    return make_system(gap=g)
+
+
 def _springs(g: float) -> Any:
     from examples.toy_plant import make_real_system
 
@@ -160,6 +171,7 @@ SYSTEMS: dict[str, dict[str, Any]] = {
     "quadrotor": {"model": lambda: _quadrotor(0.0), "target": _quadrotor,
                   "gaps": (0.5, 1.0, 2.5)},
     "vehicle": {"model": lambda: _vehicle(0.0), "target": _vehicle, "gaps": (0.5, 1.0, 2.0)},
+    "cartpole": {"model": lambda: _cartpole(0.0), "target": _cartpole, "gaps": (0.5, 1.0, 2.0)},
 }
 
 
