@@ -18,7 +18,6 @@ that a search which avoids falls has to jump across the band.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import Any
@@ -31,25 +30,20 @@ import numpy as np  # noqa: E402
 
 from benchmarks.common import Provenance, add_out_arg, finish, markdown_table  # noqa: E402
 from benchmarks.transfer import SYSTEMS  # noqa: E402
-
-DEFAULT = "transfer+explore_pool=adaptive:explore_gp=true:explore_fall_prob=0.2"
+from benchmarks.transfer_walk import DEFAULT_METHOD as DEFAULT  # noqa: E402
+from benchmarks.transfer_walk import load_trace  # noqa: E402
 
 
 def best_theta(root: Path, system: str, gap: float, seed: int, method: str
                ) -> tuple[np.ndarray, float] | None:
     """(θ (d,), cost) of ``method``'s best standing trial, or None (no trace, no θ, or every
     trial fell)."""
-    d = root / system / f"gap{gap:g}" / f"seed{seed}"
-    for name in (f"{method}@avx512.json", f"{method}.json"):
-        if (d / name).is_file():
-            tr = json.loads((d / name).read_text())
-            if "thetas" not in tr:
-                return None
-            c = np.where(np.asarray(tr["failed"], bool), np.inf, np.asarray(tr["costs"], float))
-            i = int(np.argmin(c))
-            return (np.asarray(tr["thetas"][i], float), float(c[i])) if np.isfinite(c[i]) \
-                else None
-    return None
+    tr = load_trace([root], system, gap, seed, method)
+    if tr is None or "thetas" not in tr:
+        return None
+    c = np.where(np.asarray(tr["failed"], bool), np.inf, np.asarray(tr["costs"], float))
+    i = int(np.argmin(c))
+    return (np.asarray(tr["thetas"][i], float), float(c[i])) if np.isfinite(c[i]) else None
 
 
 def longest_run(fell: np.ndarray) -> int:
