@@ -133,10 +133,13 @@ def decision_kind(d: dict[str, Any]) -> str:
     """What an ask was, from its decision ``d``: ``"design"`` (the source's elite θ),
     ``"explore (lines)"`` / ``"explore (latent)"`` / … (an explore ask and its pool;
     ``"explore (lines, target GP)"`` when the target's own GP chose it, ``explore_gp``),
-    ``"manual θ"`` or ``"converged"`` (a rule's ask), else ``"region"`` (the trust region, the
-    latent box around the best θ and the elites, as the model chose; ``"region (target GP)"``
-    when the target's own GP chose, ``region_gp``)."""
+    ``"manual θ"``, ``"converged"`` or ``"record walk"`` (a rule's ask; the last, a θ deeper
+    in the source's record after its top fell, ``record_walk``), else
+    ``"region"`` (the trust region, the latent box around the best θ and the elites, as the
+    model chose; ``"region (target GP)"`` when the target's own GP chose, ``region_gp``)."""
     rule = str(d.get("rule") or "")
+    if "walk_rank" in d:
+        return "record walk"
     if "manual" in rule:
         return "manual θ"
     if "converged" in rule:

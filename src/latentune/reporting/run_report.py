@@ -254,7 +254,8 @@ def _rollout_system(system: Any, cfg: dict[str, Any]):
 def decisions_markdown(store: Any) -> list[str]:
     """The report's lines on the phase-3 critic's decisions (:func:`~latentune.pipeline.results.
     decisions`): how many asks of each kind, then one table row per ask (generation, trials
-    told before it, kind, pools of its points, agreement, the trust region's side, admissible
+    told before it, kind (a record walk's with the rank of its θ in the source's standing
+    trials), pools of its points, agreement, the trust region's side, admissible
     candidates of all, the fall screen's bound when an explore ask applied its own
     (``explore_bound``), the highest fall probability it asked); [] without any."""
     from latentune.pipeline.results import decision_kind, decisions, decisions_summary
@@ -273,7 +274,8 @@ def decisions_markdown(store: Any) -> list[str]:
         pools = "/".join(sorted(set(d.get("pools") or [])))
         adm = "" if d.get("n_admissible") is None else \
             f"{d['n_admissible']} of {d.get('n_candidates')}"
-        md.append(f"| {d.get('generation')} | {d.get('n_told')} | {decision_kind(d)} | {pools} | "
+        kind = decision_kind(d) + (f" (rank {d['walk_rank']})" if "walk_rank" in d else "")
+        md.append(f"| {d.get('generation')} | {d.get('n_told')} | {kind} | {pools} | "
                   f"{fmt(d.get('agreement'), 2)} | {fmt(d.get('length'), 4)} | {adm} | "
                   f"{fmt(d.get('explore_bound'), 2)} | {fmt(d.get('max_fall_prob_asked'), 2)} |")
     md.append("")
