@@ -140,3 +140,34 @@ def test_fall_budget_flag_is_checked_and_kept_by_later_asks(tmp_path, run_cli, e
     assert lt.Study(d).config()["phase3"]["transfer_options"] == {"fall_budget": 0.2}
     assert "0.2" in error_line(*run_cli("ask", d, "--fall-budget", "0.3")[::2])
     assert run_cli("ask", d)[0] == 0
+
+
+def test_record_walk_flags_are_checked_and_recorded(tmp_path, run_cli, error_line):
+    """--record-walk K and --walk-pick P: a negative K, an unknown P, or a P without a walk to
+    choose for are refused in one line, fixing nothing; given to the first ask of a transfer
+    phase 3 they are recorded in its transfer options (with --fall-budget beside them), and a
+    later ask keeps them."""
+    import latentune as lt
+
+    assert "--record-walk must be a number of asks ≥ 0" in error_line(*run_cli(
+        "phase3", "--robot", "a1", "--out", tmp_path / "r", "--record-walk", "-1")[::2])
+    assert "give --record-walk K > 0" in error_line(*run_cli(
+        "phase3", "--robot", "a1", "--out", tmp_path / "r", "--walk-pick", "band")[::2])
+    assert "invalid choice" in error_line(*run_cli(
+        "phase3", "--robot", "a1", "--out", tmp_path / "r", "--record-walk", "3",
+        "--walk-pick", "cost")[::2])
+    assert not (tmp_path / "r").exists()
+    space = lt.ParameterSpace(["a", "b", "c"], [0, 0, 0], [1, 2, 4], manual=[0.5] * 3)
+    with lt.Study(tmp_path / "sim", seed=0) as sim:
+        sim.phase1(lt.FunctionSystem(space, lambda x: float(sum((x - 0.4) ** 2))), 30)
+        sim.train_latent(latent_dim=2, epochs=30)
+    d, first = tmp_path / "robot", ("--space", _space_file(tmp_path), "--phase", "3",
+                                    "--vae", tmp_path / "sim")
+    code, _, err = run_cli("ask", d, *first, "--record-walk", "3", "--walk-pick", "band",
+                           "--fall-budget", "0.2")
+    assert code == 0, err
+    assert lt.Study(d).config()["phase3"]["transfer_options"] == \
+        {"fall_budget": 0.2, "record_walk": 3, "walk_pick": "band"}
+    code, _, err = run_cli("ask", d, "--walk-pick", "band")      # the stored walk: K = 3
+    assert code == 0, err
+    assert "walk_pick" in error_line(*run_cli("ask", d, "--walk-pick", "fall")[::2])

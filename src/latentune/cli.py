@@ -256,7 +256,7 @@ def add_run_args(p: argparse.ArgumentParser, name: str) -> None:
     if name in ("tune", "phase3"):
         _handover_arg(p)
         _strategy_arg(p)
-        _fall_budget_arg(p)
+        _transfer_args(p)
     if name == "phase1":
         p.add_argument("--fall-prior", default=None, metavar="RUN_DIR",
                        help="with --max-fall-prob: a run whose phase-1 trials seed the prediction")
@@ -553,7 +553,7 @@ def cmd_ask(args: argparse.Namespace) -> int:
         raise CLIError(f"--lease must be a positive number of seconds, got {args.lease}")
     if args.budget is not None:
         _positive("budget", args.budget)
-    topts = _transfer_options(args, None)           # None: the stored ones
+    topts = _transfer_options(args, _stored_transfer(study))
     with study:
         start = _ask_start(args.start, system, space, study)
         sugg = study.ask(args.n, system=system, space=space, phase=args.phase, latent=args.vae,
@@ -774,23 +774,50 @@ def _strategy_arg(p: argparse.ArgumentParser) -> None:
                         "--method, --regions and --handover are its options)")
 
 
-def _fall_budget_arg(p: argparse.ArgumentParser) -> None:
+def _transfer_args(p: argparse.ArgumentParser) -> None:
+    """The transfer phase 3's options a person at the robot sets from the shell."""
+    from latentune.critic.transfer import WALK_PICKS
+
     p.add_argument("--fall-budget", type=float, default=None, metavar="Q",
                    help="transfer phase 3: stop once the target's trials after the first one "
                         "that stood fell Q × its trials times (at least once); default 0: "
                         "never stop")
+    p.add_argument("--record-walk", type=int, default=None, metavar="K",
+                   help="transfer phase 3: once the zero-shot θ and the design's elites all "
+                        "fell, the next K asks walk down the source's own record, one rank "
+                        "band each, until one stands; default 0: off")
+    p.add_argument("--walk-pick", choices=WALK_PICKS, default=None,
+                   help="how each step of --record-walk is chosen: the best rank past the "
+                        "step's quantile (rank, the default), or the least likely to fall "
+                        "by the target fall model over the record (fall) or in the step's "
+                        "band of ranks (band)")
 
 
 def _transfer_options(args: argparse.Namespace, stored: dict[str, Any] | None
                       ) -> dict[str, Any] | None:
-    """Phase 3's ``transfer_options`` from --fall-budget (checked), else ``stored`` (the stored
-    phase 3's, which a resume keeps)."""
+    """Phase 3's ``transfer_options``: ``stored`` (the stored phase 3's, which a resume or a
+    later ask keeps) with --fall-budget, --record-walk and --walk-pick over it (each checked; a
+    --walk-pick without a walk to choose for is refused). A flag that changes a stored value
+    is then refused by the study, naming both."""
     q = getattr(args, "fall_budget", None)
-    if q is None:
+    k = getattr(args, "record_walk", None)
+    pick = getattr(args, "walk_pick", None)
+    if q is None and k is None and pick is None:
         return stored
-    if not 0.0 <= q < 1.0:                          # nan fails too
-        raise CLIError(f"--fall-budget must be in [0, 1), got {q}")
-    return {**(stored or {}), "fall_budget": q}
+    opts = dict(stored or {})
+    if q is not None:
+        if not 0.0 <= q < 1.0:                      # nan fails too
+            raise CLIError(f"--fall-budget must be in [0, 1), got {q}")
+        opts["fall_budget"] = q
+    if k is not None:
+        if k < 0:
+            raise CLIError(f"--record-walk must be a number of asks ≥ 0 (0: off), got {k}")
+        opts["record_walk"] = k
+    if pick is not None:
+        if int(opts.get("record_walk", 0)) <= 0:
+            raise CLIError("--walk-pick chooses the steps of a walk: give --record-walk K > 0")
+        opts["walk_pick"] = pick
+    return opts
 
 
 def _strategy(args: argparse.Namespace, handover: Any) -> Any:
@@ -855,7 +882,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="critic (first ask: default turbo; later asks: the stored one)")
     _handover_arg(p)
     _strategy_arg(p)
-    _fall_budget_arg(p)
+    _transfer_args(p)
     p.add_argument("--budget", type=int, default=None,
                    help="the trials you plan (first ask: default 200; may grow later)")
     p.add_argument("--regions", type=int, default=None, help="TuRBO-m trust regions")
