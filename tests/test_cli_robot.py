@@ -117,6 +117,19 @@ def test_ask_start(tmp_path, run_cli, error_line):
     assert all(s["params"] != {"a": 0.5, "b": 1.0, "c": 2.0} for s in json.loads(out))
 
 
+def _phase3_asktell(tmp_path):
+    """(the robot's study directory, the first phase-3 ask's arguments) over a 3-weight
+    source study with its latent space in ``tmp_path / "sim"``."""
+    import latentune as lt
+
+    space = lt.ParameterSpace(["a", "b", "c"], [0, 0, 0], [1, 2, 4], manual=[0.5] * 3)
+    with lt.Study(tmp_path / "sim", seed=0) as sim:
+        sim.phase1(lt.FunctionSystem(space, lambda x: float(sum((x - 0.4) ** 2))), 30)
+        sim.train_latent(latent_dim=2, epochs=30)
+    return tmp_path / "robot", ("--space", _space_file(tmp_path), "--phase", "3",
+                                "--vae", tmp_path / "sim")
+
+
 def test_fall_budget_flag_is_checked_and_kept_by_later_asks(tmp_path, run_cli, error_line):
     """--fall-budget: out of [0, 1) or with the plain strategy, refused in one line, fixing
     nothing; given to the first ask of a transfer phase 3 it is recorded in the
@@ -125,12 +138,7 @@ def test_fall_budget_flag_is_checked_and_kept_by_later_asks(tmp_path, run_cli, e
 
     assert "--fall-budget must be in [0, 1), got 1.5" in error_line(*run_cli(
         "phase3", "--robot", "a1", "--out", tmp_path / "r", "--fall-budget", "1.5")[::2])
-    space = lt.ParameterSpace(["a", "b", "c"], [0, 0, 0], [1, 2, 4], manual=[0.5] * 3)
-    with lt.Study(tmp_path / "sim", seed=0) as sim:
-        sim.phase1(lt.FunctionSystem(space, lambda x: float(sum((x - 0.4) ** 2))), 30)
-        sim.train_latent(latent_dim=2, epochs=30)
-    d, first = tmp_path / "robot", ("--space", _space_file(tmp_path), "--phase", "3",
-                                    "--vae", tmp_path / "sim")
+    d, first = _phase3_asktell(tmp_path)
     line = error_line(*run_cli("ask", d, *first, "--strategy", "plain",
                                "--fall-budget", "0.2")[::2])
     assert "options of the transfer phase 3" in line
@@ -157,12 +165,7 @@ def test_record_walk_flags_are_checked_and_recorded(tmp_path, run_cli, error_lin
         "phase3", "--robot", "a1", "--out", tmp_path / "r", "--record-walk", "3",
         "--walk-pick", "cost")[::2])
     assert not (tmp_path / "r").exists()
-    space = lt.ParameterSpace(["a", "b", "c"], [0, 0, 0], [1, 2, 4], manual=[0.5] * 3)
-    with lt.Study(tmp_path / "sim", seed=0) as sim:
-        sim.phase1(lt.FunctionSystem(space, lambda x: float(sum((x - 0.4) ** 2))), 30)
-        sim.train_latent(latent_dim=2, epochs=30)
-    d, first = tmp_path / "robot", ("--space", _space_file(tmp_path), "--phase", "3",
-                                    "--vae", tmp_path / "sim")
+    d, first = _phase3_asktell(tmp_path)
     code, _, err = run_cli("ask", d, *first, "--record-walk", "3", "--walk-pick", "band",
                            "--fall-budget", "0.2")
     assert code == 0, err
