@@ -86,7 +86,10 @@ taken while a standing θ was in hand; ``"all"`` every fall);
 k asks after the design walk down the source's standing trials ranked by cost, one per rank
 quantile (i + 1)/(k + 1), i = 0 … k − 1: at each, the best-ranked θ no told trial has and at
 least ``elite_spacing`` from every told fall (a rule ask in pool ``elite``, recorded with its
-``walk_rank``); the walk ends once one of them stands. Where a gap moves the fall boundary
+``walk_rank``); the walk ends once one of them stands. A step whose θ is one of the
+elite pool's (the source's diverse best, which may lie deep in the ranks) is not counted
+among the k, so a walk can take more than k asks (up to 6 for k = 3 in the ladder's runs).
+Where a gap moves the fall boundary
 through the source's best region, the θ the source tried on the way there, farther from its
 optimum, are the ones that stand (``benchmarks.transfer_reach``); ``walk_pick`` (default
 ``"rank"``, the rule above) chooses each step among the same candidates with the target fall
@@ -1754,8 +1757,9 @@ class Transfer(TwoSpaceCritic):
         (i + 1)/(k + 1) (``"rank"``), the candidate the target fall model finds least likely
         to fall (``"fall"``; its mean to 3 decimals, ties to the better rank), or that within the
         step's band of ranks, quantiles (i + 1)/(k + 1) to (i + 2)/(k + 1) (``"band"``).
-        ``(θ (d,), its rank, its fall probability or None)``, or None (off, a record θ stood,
-        the walk is done, or nothing is left)."""
+        A step whose θ is in the elite pool is not counted (so the walk may take more than k
+        asks). ``(θ (d,), its rank, its fall probability or None)``, or None (off, a record θ
+        stood, the walk is done, or nothing is left)."""
         k = int(self.opts["record_walk"])
         if k <= 0 or self.n_told == 0:
             return None
