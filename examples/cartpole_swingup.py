@@ -131,6 +131,8 @@ class CartPole:
 
 
 MODEL = CartPole(M_POLE, HALF_LEN, B_CART, F_COULOMB)
+A_UP, B_UP = MODEL.linearized()
+"""The model linearized upright: what every θ's LQR is designed on."""
 
 
 class CartPoleSystem:
@@ -160,10 +162,9 @@ class CartPoleSystem:
         from scipy.linalg import solve_continuous_are
 
         w = dict(zip(NAMES, self.space.to_physical(self.space.validate_unit(theta))))
-        A, B = MODEL.linearized()
-        P = solve_continuous_are(A, B, np.diag([w["q_x"], w["q_v"], w["q_phi"], w["q_w"]]),
+        P = solve_continuous_are(A_UP, B_UP, np.diag([w["q_x"], w["q_v"], w["q_phi"], w["q_w"]]),
                                  np.array([[w["r"]]]))
-        K = w["s_K"] * (B.T @ P / w["r"]).reshape(4)
+        K = w["s_K"] * (B_UP.T @ P / w["r"]).reshape(4)
         mgl = MODEL.mp * G * MODEL.l
         J = 4.0 / 3.0 * MODEL.mp * MODEL.l ** 2
         e0 = w["e_over"] * mgl

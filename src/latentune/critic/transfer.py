@@ -484,13 +484,13 @@ LINES_PICKS = ("uniform", "fall")
 probability in proportion to the source fall model's lengthscale (the gains its falls depend on
 least are moved most often)."""
 FALL_RANKS = ("clipped", "bound", "mean")
+"""The order the least likely to fall are taken by when too few candidates pass the fall screen
+(``fall_rank``): the screen's clipped probability, its unclipped bound, or the fall model's
+unclipped posterior mean."""
 WALK_PICKS = ("rank", "fall", "band")
 """How ``record_walk`` picks each step (``walk_pick``): the best rank past the step's quantile,
 the least likely to fall over the whole record, or the least likely to fall in the step's band
 of ranks."""
-"""The order the least likely to fall are taken by when too few candidates pass the fall screen
-(``fall_rank``): the screen's clipped probability, its unclipped bound, or the fall model's
-unclipped posterior mean."""
 FULL_SHAPES = ("lengthscales", "cube")
 """The full pool's box (``full_shape``): sides in proportion to the lengthscales, or a cube."""
 FALL_BUDGET_COUNTS = ("all", "after_stand")
@@ -1748,7 +1748,8 @@ class Transfer(TwoSpaceCritic):
         U = lb + (ub - lb) * sob
         return np.clip(np.atleast_2d(self.latent.decode(U)), 0, 1), U
 
-    def _walk_theta(self) -> tuple[np.ndarray, int, float | None] | None:
+    def _walk_theta(self, fall_m: TargetModel | None
+                    ) -> tuple[np.ndarray, int, float | None] | None:
         """``record_walk`` = k > 0: once the target has tried θ of the source's record and every
         one of them fell, the next of k asks walks down the source's standing trials ranked by
         cost. Its candidates are those no told trial has and that lie at least
@@ -1758,8 +1759,9 @@ class Transfer(TwoSpaceCritic):
         to fall (``"fall"``; its mean to 3 decimals, ties to the better rank), or that within the
         step's band of ranks, quantiles (i + 1)/(k + 1) to (i + 2)/(k + 1) (``"band"``).
         A step whose θ is in the elite pool is not counted (so the walk may take more than k
-        asks). ``(θ (d,), its rank, its fall probability or None)``, or None (off, a record θ
-        stood, the walk is done, or nothing is left)."""
+        asks). ``fall_m``: the target fall model of this ask (:meth:`models`).
+        ``(θ (d,), its rank, its fall probability or None)``, or None (off, a record θ stood,
+        the walk is done, or nothing is left)."""
         k = int(self.opts["record_walk"])
         if k <= 0 or self.n_told == 0:
             return None
@@ -1794,7 +1796,7 @@ class Transfer(TwoSpaceCritic):
             return None
         if pick == "rank":
             return S[idx[0]].copy(), int(idx[0]), None
-        p = np.asarray(self._fall_model(self.n_told).mean_cov(S[idx], with_cov=False)[0])
+        p = np.asarray(fall_m.mean_cov(S[idx], with_cov=False)[0])
         r = idx[np.lexsort((idx, np.round(p, 3)))[0]]
         return S[r].copy(), int(r), float(p[idx == r][0])
 
@@ -1906,7 +1908,7 @@ class Transfer(TwoSpaceCritic):
             return self._rule_ask(n, g, centre, FULL, False,
                                   "the trust region converged: the centre",
                                   length=st["L"], restarts=st["restarts"])
-        walk = None if design else self._walk_theta()
+        walk = None if design else self._walk_theta(fall_m)
         if walk is not None:
             return self._rule_ask(n, g, walk[0], ELITE, True,
                                   "the source's top fell: a θ deeper in its record",
