@@ -1055,7 +1055,8 @@ def parser() -> argparse.ArgumentParser:
     sn.add_argument("--sources", nargs="+", default=None,
                     help="source studies (default: every source of the robots' rungs)")
     r.add_argument("--targets", nargs="+", default=None, help="rungs (default: all of the robots)")
-    r.add_argument("--methods", nargs="+", choices=tr.METHODS, default=list(tr.METHODS))
+    r.add_argument("--methods", nargs="+", choices=tr.METHODS + tr.SCREENED,
+                   default=list(tr.METHODS))
     r.add_argument("--seeds", nargs="+", type=_nonneg_int, default=list(range(5)))
     r.add_argument("--budget", type=_pos_int, default=100)
     r.add_argument("--source-trials", type=_pos_int, default=None,

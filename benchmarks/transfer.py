@@ -102,6 +102,9 @@ PEERS = ("zero_shot", "turbo_manual", "turbo_source", "cma_source", "cma_source_
 OURS = ("transfer",)
 BESIDE = ("plain", "handover")
 METHODS = OURS + BESIDE + PEERS
+SCREENED = ("cma_source_screened", "cma_source_trials_screened")
+"""Candidates run on request only (``--only``): a CMA-ES peer whose every sample passes the
+default transfer critic's fall screen first (:func:`screened_cma`)."""
 
 
 def _hopper_target(g: float) -> Any:
@@ -329,6 +332,9 @@ def run_method(method: str, target: Any, src: Path, B: int, seed: int,
         x0 = manual if method == "turbo_manual" else best
         cr = TurboM(target.space.dim, batch_size=1, seed=seed, x0=x0, n_regions=1)
         _loop(cr, target, B, costs, failed, thetas=thetas)
+    elif method in SCREENED:
+        extra["draws"] = screened_cma(trial, target, src, (Xs, ys, fs), best, B, seed,
+                                      method == "cma_source_trials_screened")
     else:
         from latentune.critic.optuna import OptunaCritic
 
@@ -338,6 +344,72 @@ def run_method(method: str, target: Any, src: Path, B: int, seed: int,
                           source=(Xs, ys) if method == "cma_source_trials" else None)
         _loop(cr, target, B, costs, failed, thetas=thetas)
     return {"costs": costs, "failed": failed, "thetas": thetas, **extra}
+
+
+SCREEN_DRAWS = 200
+"""How many CMA-ES samples :func:`screened_cma` draws at most for one target trial."""
+
+
+def screened_cma(trial: Callable[[np.ndarray], Any], target: Any, src: Path,
+                 source: tuple[np.ndarray, np.ndarray, np.ndarray], best: np.ndarray, B: int,
+                 seed: int, warm: bool) -> list[int]:
+    """``B`` target trials of Optuna's CMA-ES (``warm``: with ``source_trials``, else with its
+    mean at the source's best θ ``best`` (d,)), the source's best enqueued first as in the
+    peers, whose samples pass the default transfer critic's fall screen first: a sample whose
+    fall probability (the critic's screen, on the source and every target trial so far)
+    exceeds its ``max_fall_prob`` is told to the study as failed, which CMA-ES leaves out of
+    its generation, and the next one is drawn; after :data:`SCREEN_DRAWS` draws the one least
+    likely to fall runs (the others told as failed). ``trial`` runs θ on the target and returns
+    its outcome (``cost``, ``failed``). Returns the samples drawn per trial."""
+    import optuna
+
+    from latentune.critic.optuna import _Quiet, baseline_sampler
+    from latentune.critic.transfer import TRANSFER_DEFAULTS, Transfer
+    from latentune.latent.vae import LatentSpace
+
+    Xs, ys, _ = source
+    screen = Transfer(source, LatentSpace.load(src / "vae"), target.space.manual,
+                      batch_size=1, seed=seed, budget=B)
+    screen.load_state_dict({"source_hypers": source_hypers(src, seed, None)})
+    names = [f"x{i:03d}" for i in range(len(best))]
+    dist = {n: optuna.distributions.FloatDistribution(0.0, 1.0) for n in names}
+
+    def params(x: np.ndarray) -> dict[str, float]:
+        return {n: float(v) for n, v in zip(names, x)}
+
+    bound = float(TRANSFER_DEFAULTS["max_fall_prob"])
+    draws: list[int] = []
+    with _Quiet():
+        src_trials = [optuna.trial.create_trial(params=params(x), distributions=dist,
+                                                value=float(c))
+                      for x, c in zip(np.clip(Xs, 0.0, 1.0), ys) if math.isfinite(c)] \
+            if warm else None
+        study = optuna.create_study(direction="minimize", sampler=baseline_sampler(
+            "cmaes", seed, x0=None if warm else params(best), source_trials=src_trials))
+        study.enqueue_trial(params(best))
+        for k in range(B):
+            fall_m = screen._fall_model(screen.n_told) if screen.n_told else None
+            drawn: list[tuple[Any, float]] = []
+            while True:
+                t = study.ask(dist)
+                x = np.array([t.params[n] for n in names])
+                pf = 0.0 if k == 0 else float(screen._fall_prob(x[None], fall_m)[0])
+                drawn.append((t, pf))
+                if pf <= bound or len(drawn) >= SCREEN_DRAWS:
+                    break
+            pick = drawn[-1] if drawn[-1][1] <= bound else min(drawn, key=lambda d: d[1])
+            for t, _ in drawn:
+                if t is not pick[0]:
+                    study.tell(t, state=optuna.trial.TrialState.FAIL)
+            t = pick[0]
+            x = np.array([t.params[n] for n in names])
+            o = trial(x)
+            c = float(o.cost)
+            done = [v for v in (tr.value for tr in study.trials) if v is not None]
+            study.tell(t, c if math.isfinite(c) else max(done, default=0.0))
+            screen.tell(x[None], np.array([o.cost]), fell=np.array([o.failed]))
+            draws.append(len(drawn))
+    return draws
 
 
 def default_options() -> dict[str, Any]:
@@ -740,7 +812,7 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--budget", type=int, default=40)
     r.add_argument("--source-evals", type=int, default=SOURCE_EVALS)
     r.add_argument("--root", default="runs/transfer")
-    r.add_argument("--only", nargs="*", choices=METHODS, default=None)
+    r.add_argument("--only", nargs="*", choices=METHODS + SCREENED, default=None)
     r.add_argument("--variants", nargs="+", default=[],
                    help="transfer variants option=value[:option=value], stored as transfer+VARIANT")
     r.add_argument("--gaps", nargs="+", type=float, default=None,
