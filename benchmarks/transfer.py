@@ -102,9 +102,11 @@ PEERS = ("zero_shot", "turbo_manual", "turbo_source", "cma_source", "cma_source_
 OURS = ("transfer",)
 BESIDE = ("plain", "handover")
 METHODS = OURS + BESIDE + PEERS
-SCREENED = ("cma_source_screened", "cma_source_trials_screened")
+SCREENED = ("cma_source_screened", "cma_source_trials_screened", "transfer_cma_source",
+            "transfer_cma_source_trials")
 """Candidates run on request only (``--only``): a CMA-ES peer whose every sample passes the
-default transfer critic's fall screen first (:func:`screened_cma`)."""
+default transfer critic's fall screen first, and (``transfer_cma_*``) that CMA-ES's admitted
+samples first and the default transfer critic's ask where it has none (:func:`screened_cma`)."""
 
 
 def _hopper_target(g: float) -> Any:
@@ -334,7 +336,9 @@ def run_method(method: str, target: Any, src: Path, B: int, seed: int,
         _loop(cr, target, B, costs, failed, thetas=thetas)
     elif method in SCREENED:
         extra["draws"] = screened_cma(trial, target, src, (Xs, ys, fs), best, B, seed,
-                                      method == "cma_source_trials_screened")
+                                      method.endswith("_trials_screened")
+                                      or method.endswith("_source_trials"),
+                                      fallback=method.startswith("transfer_"))
     else:
         from latentune.critic.optuna import OptunaCritic
 
@@ -352,15 +356,17 @@ SCREEN_DRAWS = 200
 
 def screened_cma(trial: Callable[[np.ndarray], Any], target: Any, src: Path,
                  source: tuple[np.ndarray, np.ndarray, np.ndarray], best: np.ndarray, B: int,
-                 seed: int, warm: bool) -> list[int]:
+                 seed: int, warm: bool, fallback: bool = False) -> list[int]:
     """``B`` target trials of Optuna's CMA-ES (``warm``: with ``source_trials``, else with its
     mean at the source's best θ ``best`` (d,)), the source's best enqueued first as in the
     peers, whose samples pass the default transfer critic's fall screen first: a sample whose
     fall probability (the critic's screen, on the source and every target trial so far)
     exceeds its ``max_fall_prob`` is told to the study as failed, which CMA-ES leaves out of
     its generation, and the next one is drawn; after :data:`SCREEN_DRAWS` draws the one least
-    likely to fall runs (the others told as failed). ``trial`` runs θ on the target and returns
-    its outcome (``cost``, ``failed``). Returns the samples drawn per trial."""
+    likely to fall runs (the others told as failed), or with ``fallback`` the default transfer
+    critic's own ask, enqueued in the study so CMA-ES counts it in its generation. ``trial``
+    runs θ on the target and returns its outcome (``cost``, ``failed``). Returns the samples
+    drawn per trial (0: the critic asked)."""
     import optuna
 
     from latentune.critic.optuna import _Quiet, baseline_sampler
@@ -397,18 +403,27 @@ def screened_cma(trial: Callable[[np.ndarray], Any], target: Any, src: Path,
                 drawn.append((t, pf))
                 if pf <= bound or len(drawn) >= SCREEN_DRAWS:
                     break
-            pick = drawn[-1] if drawn[-1][1] <= bound else min(drawn, key=lambda d: d[1])
+            admitted = drawn[-1][1] <= bound
+            pick = drawn[-1] if admitted else min(drawn, key=lambda d: d[1])
+            own = fallback and not admitted
             for t, _ in drawn:
-                if t is not pick[0]:
+                if own or t is not pick[0]:
                     study.tell(t, state=optuna.trial.TrialState.FAIL)
-            t = pick[0]
+            tags = None
+            if own:                     # the critic asks; CMA-ES gets its point enqueued
+                x_own = np.clip(screen.ask(1)[0], 0.0, 1.0)
+                tags = screen.last_tags.copy()
+                study.enqueue_trial(params(x_own))
+                t = study.ask(dist)
+            else:
+                t = pick[0]
             x = np.array([t.params[n] for n in names])
             o = trial(x)
             c = float(o.cost)
             done = [v for v in (tr.value for tr in study.trials) if v is not None]
             study.tell(t, c if math.isfinite(c) else max(done, default=0.0))
-            screen.tell(x[None], np.array([o.cost]), fell=np.array([o.failed]))
-            draws.append(len(drawn))
+            screen.tell(x[None], np.array([o.cost]), tags, fell=np.array([o.failed]))
+            draws.append(0 if own else len(drawn))
     return draws
 
 
