@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 from benchmarks import transfer as tr
@@ -522,3 +523,27 @@ def test_cut_stores_a_methods_runs_as_a_fall_budget_would_have_run_them(tmp_path
     assert tr.main(["cut", "--root", str(tmp_path), "--method", "M", "--share", "1",
                     "--as", "X"]) == 2
     assert "--share must be in (0, 1)" in capsys.readouterr().err
+
+
+def test_screened_cma_runs_only_what_the_fall_screen_admits(tmp_path, monkeypatch):
+    """``cma_source_screened`` runs the source's best first, then CMA-ES samples the fall screen
+    admits (here: first coordinate at most 0.5), the rejected ones told to the study as
+    failed; where no draw passes, ``transfer_cma_source`` runs the transfer critic's own ask
+    instead."""
+    import latentune.critic.transfer as ct
+
+    src = tr.source_run(tmp_path, "chain", 0, 16)
+    edge = 0.5
+    monkeypatch.setattr(tr, "SCREEN_DRAWS", 400)
+    monkeypatch.setattr(ct.Transfer, "_fall_prob",
+                        lambda self, C, fall_m, bound=None: (C[:, 0] > edge).astype(float))
+    target = tr.SYSTEMS["chain"]["target"](1.0)
+    res = tr.run_method("cma_source_screened", target, src, 6, 0)
+    assert len(res["costs"]) == 6 and res["draws"][0] == 1
+    X = np.array(res["thetas"])
+    assert (X[1:, 0] <= edge).all(), "a θ the screen rejects ran"
+    assert max(res["draws"][1:]) > 1, "no draw was rejected: the screen was not consulted"
+    monkeypatch.setattr(ct.Transfer, "_fall_prob",
+                        lambda self, C, fall_m, bound=None: np.ones(len(C)))
+    res = tr.run_method("transfer_cma_source", target, src, 4, 0)
+    assert res["draws"] == [1, 0, 0, 0], "no draw passes: the critic asks every trial"
