@@ -607,6 +607,24 @@ def _ladder_target(run: dict[str, Any]) -> dict[str, Any]:
     return {"system": run["system"], "gap": float(run["gap"])}
 
 
+def fall_allowance(peer_falls: float) -> int:
+    """The most falls criterion (3) allows beside a best peer that falls ``peer_falls`` times
+    (median over seeds): a quarter of them, rounded down, and 1 where the peer falls ≤ 4 times."""
+    return 1 if peer_falls <= 4 else int(math.floor(peer_falls / 4))
+
+
+def _no_worse(a: list[float], b: list[float]) -> tuple[bool, float]:
+    """Criterion (1) for best costs ``a`` against ``b`` (one per seed): ``a``'s median is no
+    higher, or a two-sided Mann–Whitney test does not tell them apart (p ≥ 0.05); and p."""
+    from scipy.stats import mannwhitneyu
+
+    try:
+        pv = float(mannwhitneyu(a, b, alternative="two-sided").pvalue)
+    except ValueError:
+        pv = 1.0
+    return bool(np.median(a) <= np.median(b) or pv >= 0.05), pv
+
+
 def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
               target: Callable[[dict[str, Any]], dict[str, Any]] = _ladder_target,
               default: str = "transfer", methods: list[str] | None = None,
@@ -620,7 +638,6 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
     judged as latentune's default (its rows read as ``transfer``; the stored ``transfer`` runs
     then read as ``transfer@stored``); ``methods``: only these (names after those renamings)
     are read; ``seeds``: only these seeds; ``systems``: only these systems."""
-    from scipy.stats import mannwhitneyu
 
     runs: dict[tuple, dict[str, dict[int, dict]]] = {}
     for f in sorted(root.glob(pattern)):
@@ -690,6 +707,14 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
         for m in row["methods"]:
             reach = [_first_reach(by_m[m][s]["costs"], level) for s in seeds]
             row["methods"][m]["trials_to_best_peer"] = float(np.median(reach))
+        row["fall_allowance"] = k3 = fall_allowance(row["methods"][bp]["falls_median"])
+        row["within_allowance"] = within = []
+        for m in row["methods"]:            # each seed stopped at its (k3 + 1)-th fall
+            cut = [best_within_falls(by_m[m][s]["costs"], by_m[m][s]["failed"], k3)
+                   for s in seeds]
+            row["methods"][m]["median_best_within_allowance"] = float(np.median(cut))
+            if _no_worse(cut, row["methods"][bp]["best"])[0]:
+                within.append(m)
         if "transfer" in row["methods"]:
             k = [int(sum(by_m["transfer"][s]["failed"])) for s in seeds]
             for m in row["methods"]:        # each seed cut at the default's falls on it
@@ -700,13 +725,10 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
             row["peer_at_default_falls"] = {
                 "method": m_cut, "median": row["methods"][m_cut]["median_best_at_default_falls"]}
             t, p = row["methods"]["transfer"], row["methods"][bp]
-            try:
-                pv = float(mannwhitneyu(t["best"], p["best"], alternative="two-sided").pvalue)
-            except ValueError:
-                pv = 1.0
+            no_worse, pv = _no_worse(t["best"], p["best"])
             B = by_m["transfer"][seeds[0]]["budget"]
             row["criteria"] = {
-                "no_worse": t["median_best"] <= p["median_best"] or pv >= 0.05,
+                "no_worse": no_worse,
                 "mannwhitney_p": pv,
                 "reach_le_B10": t["trials_to_best_peer"] <= B / 10,
                 "reach_le_B2": t["trials_to_best_peer"] <= B / 2,
@@ -809,6 +831,15 @@ def markdown(s: dict[str, Any],
             lines.append(f"| {m} | {r['median_best']:.4g} | {r['iqr'][0]:.4g}–{r['iqr'][1]:.4g} "
                          f"| {r['trials_to_best_peer']:g} | {r['falls_median']:g} |"
                          + (f" {r['median_best_at_default_falls']:.4g} |" if cut else ""))
+        if "within_allowance" in row:
+            k3 = row["fall_allowance"]
+            low = min(row["methods"], key=lambda m: row["methods"][m][
+                "median_best_within_allowance"])
+            lines.append(f"\nstopped at criterion (3)'s allowance ({k3} fall"
+                         f"{'' if k3 == 1 else 's'}): lowest {low} "
+                         f"{row['methods'][low]['median_best_within_allowance']:.4g}; no worse "
+                         f"than the best peer's {row['methods'][row['best_peer']]['median_best']:.4g}"
+                         f": {', '.join(row['within_allowance']) or 'none'}")
         if "criteria" in row:
             c = row["criteria"]
             lines.append(f"\ncriteria: no worse {c['no_worse']} (p {c['mannwhitney_p']:.3f}), "

@@ -50,6 +50,28 @@ def test_best_at_the_default_falls_cuts_each_seed_at_its_falls(tmp_path):
     assert "| tpe | 1 | 1–1 | 3 | 1 | 5 |" in tr.markdown({"targets": [row]})
 
 
+def test_the_fall_allowance_stops_every_method_at_a_quarter_of_the_best_peers_falls(tmp_path):
+    """Criterion (3)'s allowance is ⌊peer falls / 4⌋, and 1 where the peer falls ≤ 4 times;
+    each method is stopped at its (allowance + 1)-th fall and listed when no worse than the
+    best peer's full run."""
+    assert [tr.fall_allowance(f) for f in (0, 4, 4.5, 8, 11.5)] == [1, 1, 1, 2, 2]
+    many = [True] * 8 + [False]
+    for s in range(6):              # tpe: 8 falls, then 1.0; transfer: 2.0 without a fall
+        _write(tmp_path, "tpe", s, [50.0] * 8 + [1.0], many)
+        _write(tmp_path, "transfer", s, [2.0] * 9, [False] * 9)
+        _write(tmp_path, "gp", s, [3.0, 50.0, 50.0, 50.0, 1.5] + [50.0] * 4,
+               [False, True, True, True] + [False] * 5)
+    (row,) = tr.summarize(tmp_path)["targets"]
+    assert row["best_peer"] == "tpe" and row["fall_allowance"] == 2
+    m = row["methods"]
+    assert m["tpe"]["median_best_within_allowance"] == 50.0      # stopped at its 3rd fall
+    assert m["gp"]["median_best_within_allowance"] == 3.0
+    assert m["transfer"]["median_best_within_allowance"] == 2.0
+    assert row["within_allowance"] == [], "1.0 on every seed is better than all of them"
+    assert "stopped at criterion (3)'s allowance (2 falls): lowest transfer 2" in \
+        tr.markdown({"targets": [row]})
+
+
 def test_compare_counts_per_target_and_keeps_the_seeds_asked(tmp_path):
     for s, (a, b) in enumerate([(1.0, 2.0), (3.0, 2.0), (1.0, 2.0)]):
         _write(tmp_path, "a", s, [a], [s == 0])
