@@ -109,10 +109,9 @@ class WalkCase:
 
     def fall_model(self, Xt: np.ndarray, ft: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Posterior mean and sd (m,) of the target fall model on the told (Xt, ft)."""
-        from latentune.critic.transfer import TargetModel
+        from latentune.critic.transfer import target_fall_model
 
-        m = TargetModel(Xt, ft.astype(float), self.sm.fall_prob, self.sm.fall_lengthscales,
-                        prior_mean=(1.0, 0.0))
+        m = target_fall_model(Xt, ft, self.sm)
         mu, _ = m.mean_cov(self.S, with_cov=False)
         return np.asarray(mu), np.sqrt(m.variance(self.S))
 

@@ -891,6 +891,18 @@ class TargetModel:
         return np.maximum(prior - (V * V).sum(0), 0.0)
 
 
+def target_fall_model(X: np.ndarray, fell: np.ndarray, sm: SourceModel,
+                      fit: bool = False) -> TargetModel:
+    """The target fall model on told θ ``X`` (n ≥ 1, d) and their fall flags ``fell`` (n,): the
+    transfer construction on the flags with ``h = (p_s(θ), 1)`` (``sm``'s fall model) and the
+    source's fall lengthscales; with ``fit`` (the ``fall_fit`` option) those times a multiplier
+    of :data:`_LS_SCALES` and a nugget of :data:`_FALL_NOISES`, chosen with σ_r² by marginal
+    likelihood."""
+    return TargetModel(X, np.asarray(fell).astype(float), sm.fall_prob, sm.fall_lengthscales,
+                       prior_mean=(1.0, 0.0), ls_scales=_LS_SCALES if fit else (1.0,),
+                       noises=_FALL_NOISES if fit else (_NOISE,))
+
+
 class TargetGP:
     """A GP on the target's values ``v`` (n,) at θ ``X`` (n, d) alone, fitted as TuRBO-m fits a
     region's GP (``turbo``: a :class:`~latentune.critic.turbo.TurboM` whose ``_build_gp`` /
@@ -1833,16 +1845,10 @@ class Transfer(TwoSpaceCritic):
         return cost, self._fall_model(self.n_told)
 
     def _fall_model(self, t: int) -> TargetModel:
-        """The target fall model on the first ``t`` ≥ 1 told trials: the transfer construction on
-        their fall flags with ``h = (p_s(θ), 1)`` and the source's fall lengthscales (with
-        ``fall_fit``, times a multiplier of :data:`_LS_SCALES`, and a nugget of
-        :data:`_FALL_NOISES`, chosen with σ_r² by marginal likelihood)."""
-        sm = self.source_model()
-        fit = bool(self.opts["fall_fit"])
-        return TargetModel(self._X[:t], self._fell[:t].astype(float), sm.fall_prob,
-                           sm.fall_lengthscales, prior_mean=(1.0, 0.0),
-                           ls_scales=_LS_SCALES if fit else (1.0,),
-                           noises=_FALL_NOISES if fit else (_NOISE,))
+        """The target fall model on the first ``t`` ≥ 1 told trials (:func:`target_fall_model`,
+        fitted with ``fall_fit``)."""
+        return target_fall_model(self._X[:t], self._fell[:t], self.source_model(),
+                                 bool(self.opts["fall_fit"]))
 
     def _ard_active(self) -> bool:
         """True when the transfer model's residual lengthscales are fitted on the target
