@@ -1146,3 +1146,31 @@ def test_screened_region_gp_asks_take_the_explore_bound(source, hypers, monkeypa
 def test_region_gp_is_checked(source, hypers, bad):
     with pytest.raises(ValueError, match="region_gp"):
         _critic(source, hypers, region_gp=bad)
+
+
+def test_explore_pool_cma_asks_a_cma_es_told_every_target_trial(source, hypers):
+    """``explore_pool="cma"``: an explore ask runs the first draw of a CMA-ES (started from the
+    source's promising distribution, told every target trial a population at a time) that the
+    fall screen admits, or the least likely to fall of its draws; a fresh critic told the same
+    history asks the same (the CMA-ES is a function of it)."""
+    cr = _critic(source, hypers, explore_pool="cma")
+    _run(cr, 12)
+    ex = [d for d in cr.decisions if d["explore"]]
+    assert [d["generation"] for d in ex] == [3, 5, 7, 9, 11]
+    assert all(d["explore_pool"] == "cma" and d["pools"] == ["global"] for d in ex)
+    lam = 4 + int(np.floor(3 * np.log(D)))
+    assert cr.n_told >= lam, "the history holds a whole population: CMA-ES has moved"
+    draws = cr._pool_cma(cr.opts["n_candidates"])
+    b = _critic(source, hypers, explore_pool="cma")
+    b.tell(cr.X, cr.y, cr.tags, fell=cr.fell, z=cr._Z)
+    assert np.array_equal(draws, b._pool_cma(cr.opts["n_candidates"]))
+    start = _critic(source, hypers, explore_pool="cma")._pool_cma(cr.opts["n_candidates"])
+    assert not np.allclose(draws, start), "the told trials must move the CMA-ES"
+    # the explore ask of generation 11 ran the first draw its screen admits
+    a = _critic(source, hypers, explore_pool="cma")
+    a.tell(cr.X[:11], cr.y[:11], cr.tags[:11], fell=cr.fell[:11], z=cr._Z[:11])
+    P = a._pool_cma(a.opts["n_candidates"])
+    pf = a._fall_prob(P, a.models()[1])
+    ok = [pf <= a.opts["explore_fall_prob"], pf <= a.opts["max_fall_prob"]]
+    first = next((int(np.flatnonzero(o)[0]) for o in ok if o.any()), int(np.argmin(pf)))
+    assert np.allclose(cr.X[11], P[first])

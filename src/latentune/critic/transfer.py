@@ -150,7 +150,11 @@ uniformly over [0, 1] (tag pool ``global``): steps as far as the box's faces tha
 of the standing θ, for a gap that moves the best value of a few gains (a payload, friction)
 beyond the region the source's trials support. While every trial on the target fell there is
 no standing θ to draw lines through, and ``"lines"`` asks decode codes of the whole latent box
-as ``"latent"`` does (the whole θ box without a latent space). ``"latent_lines"``: half the
+as ``"latent"`` does (the whole θ box without a latent space). ``"cma"``: ``n_candidates`` draws
+of a CMA-ES that starts from the source's promising distribution (as ``"source"``) and is told
+every target trial, a population at a time (:meth:`Transfer._pool_cma`; tag pool ``global``);
+the ask runs its first draw the fall screen admits, in CMA-ES's own order rather than the
+model's, or where the screen admits none, the draw least likely to fall. ``"latent_lines"``: half the
 candidates are decoded codes of the whole latent box, half lines through the centre, so the
 model chooses at each explore ask between a step along the source's manifold (many gains
 together, what a 77-weight robot's explore asks gain by) and one gain or two moved as far as
@@ -473,12 +477,14 @@ of the target's standing costs."""
 SOURCE_ORDERS = ("canonical", "stored")
 """The order the source's trials are used in (``source_order``): sorted by (cost, fell, θ), or as
 given."""
-EXPLORE_POOLS = ("latent", "source", "both", "auto", "box", "lines", "latent_lines", "adaptive")
+EXPLORE_POOLS = ("latent", "source", "both", "auto", "box", "lines", "latent_lines", "adaptive",
+                 "cma")
 """Where an explore ask's candidates come from (``explore_pool``): decoded codes of the whole
 latent box, the source's promising distribution over θ, half of each, or the latent box while
 every target trial fell and the source's distribution after, the whole θ box, or lines through
 the centre along one or two coordinates, half decoded codes and half lines, or decoded codes or
-lines by the target's record of each."""
+lines by the target's record of each, or the draws of a CMA-ES that starts from the source's
+promising distribution and is told every target trial (:meth:`Transfer._pool_cma`)."""
 LINES_PICKS = ("uniform", "fall")
 """How ``explore_pool="lines"`` picks the coordinates it sets (``lines_pick``): uniformly, or with
 probability in proportion to the source fall model's lengthscale (the gains its falls depend on
@@ -1105,6 +1111,7 @@ class _AskContext:
     fragile: int = 0
     explore_gp: TargetGP | None = None
     region_gp: bool = False
+    explore_cma: bool = False
 
 
 @dataclass
@@ -1716,14 +1723,30 @@ class Transfer(TwoSpaceCritic):
         X[two, rng.choice(self.dim, size=two.size, p=p)] = rng.random(two.size)
         return X
 
-    def _pool_source(self, m: int, rng: np.random.Generator) -> np.ndarray:
-        """``m`` θ (m, d) drawn from the source's promising distribution, clipped to the box:
-        the Gaussian ``N(μ, σ² Σ)`` that warm-starts CMA-ES from a source task (Nomura et al.
-        2021, ``cmaes.get_warm_start_mgd``: the top 10 % of the source's trials that did not
-        fall, α = 0.1), the distribution Optuna's ``CmaEsSampler(source_trials=...)`` starts
-        from (``explore_pool``)."""
-        if m <= 0:
-            return np.empty((0, self.dim))
+    def _pool_cma(self, m: int) -> np.ndarray:
+        """``m`` draws (m, d) of a CMA-ES (``cmaes.CMA``, population 4 + ⌊3 ln d⌋, bounded to the
+        box, seeded with the run's seed) that starts from the source's promising distribution
+        (:meth:`_pool_source`'s Gaussian, as Optuna's ``CmaEsSampler(source_trials=...)``) and
+        is told every target trial in the order told, a population at a time (the last,
+        incomplete one not yet): a fall, or a cost that is not finite, as the worst
+        (``explore_pool="cma"``). A function of the told history."""
+        from cmaes import CMA
+
+        mu, sigma, cov = self._source_mgd_of()
+        d = self.dim
+        lam = 4 + int(math.floor(3 * math.log(d)))
+        opt = CMA(mean=np.clip(mu, 0.0, 1.0), sigma=sigma, cov=cov,
+                  bounds=np.tile([0.0, 1.0], (d, 1)), seed=int(self.seed),
+                  population_size=lam)
+        y = np.where(self._fell | ~np.isfinite(self._y), np.inf, self._y)
+        n = self.n_told - self.n_told % lam
+        for i in range(0, n, lam):
+            opt.tell([(np.clip(self._X[j], 0.0, 1.0), float(y[j])) for j in range(i, i + lam)])
+        return np.array([opt.ask() for _ in range(m)]).reshape(m, d)
+
+    def _source_mgd_of(self) -> tuple[np.ndarray, float, np.ndarray]:
+        """The source's promising distribution ``(μ, σ, Σ)`` (:meth:`_pool_source`), fitted
+        once."""
         if self._source_mgd is None:
             from cmaes import get_warm_start_mgd
 
@@ -1735,7 +1758,17 @@ class Transfer(TwoSpaceCritic):
                 mu, sigma, cov = get_warm_start_mgd(
                     [(x, float(v)) for x, v in zip(X[keep], y[keep])], gamma=0.1, alpha=0.1)
                 self._source_mgd = (np.asarray(mu), float(sigma), np.asarray(cov))
-        mu, sigma, cov = self._source_mgd
+        return self._source_mgd
+
+    def _pool_source(self, m: int, rng: np.random.Generator) -> np.ndarray:
+        """``m`` θ (m, d) drawn from the source's promising distribution, clipped to the box:
+        the Gaussian ``N(μ, σ² Σ)`` that warm-starts CMA-ES from a source task (Nomura et al.
+        2021, ``cmaes.get_warm_start_mgd``: the top 10 % of the source's trials that did not
+        fall, α = 0.1), the distribution Optuna's ``CmaEsSampler(source_trials=...)`` starts
+        from (``explore_pool``)."""
+        if m <= 0:
+            return np.empty((0, self.dim))
+        mu, sigma, cov = self._source_mgd_of()
         Xs = rng.multivariate_normal(mu, sigma ** 2 * cov, size=m, method="cholesky")
         return np.clip(Xs, 0.0, 1.0)
 
@@ -1951,6 +1984,10 @@ class Transfer(TwoSpaceCritic):
                 if ctx.explore_gp is not None:      # the decoded codes stay candidates
                     XI = self._pool_explore_gp(XI, ctx.explore_gp, rng)
                 parts = [(XL, UL, LATENT), (XI, np.full((len(XI), self.k), np.nan), GLOBAL)]
+            elif where == "cma":
+                XC = self._pool_cma(M)
+                ctx.explore_cma = True
+                parts = [(XC, np.full((len(XC), self.k), np.nan), GLOBAL)]
             elif where == "box" or (self.latent is None and where == "latent"):
                 parts = [(self._pool_global(M, rng), np.full((M, self.k), np.nan), GLOBAL)]
             else:                       # "latent", "source" or "both"
@@ -2017,11 +2054,16 @@ class Transfer(TwoSpaceCritic):
             if keys is not None:
                 keys = self._fresh(C)[0]
             ok = cands.pf <= float(self.opts["max_fall_prob"])
-        if ok.sum() < n:
+        forced = ok.sum() < n
+        if forced:
             ok = np.zeros(len(C), dtype=bool)
             ok[np.argsort(cands.risk, kind="stable")[:max(n, min(len(C), 3 * n))]] = True
         cands.ok = ok
         cand = np.flatnonzero(ok)
+        if ctx.explore_cma:     # CMA-ES's own order: its first draws the screen admits, or
+            # where it admits too few, the least likely to fall
+            sel = cand[np.argsort(cands.risk[cand], kind="stable")] if forced else cand
+            return self._chosen(cands, sel[:n], ctx)
         if ctx.explore_gp is not None:      # the target's own GP chooses: highest log EI
             acq = ctx.explore_gp.log_ei(C[cand])
             if fall_m is not None and self.opts["fall_cost"]:     # EI · (1 − p), as below
