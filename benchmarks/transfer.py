@@ -670,7 +670,8 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
                                          float(np.percentile(best, 75))],
                                  "falls_median": float(np.median([sum(rs[s]["failed"])
                                                                   for s in seeds])),
-                                 "best": best}
+                                 "best": best,
+                                 "falls": [int(sum(rs[s]["failed"])) for s in seeds]}
             picks, explores, agree, any_dec = [], [], [], False
             best_ex = 0
             for s in seeds:             # the transfer critic's decision records, one pass

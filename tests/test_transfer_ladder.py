@@ -569,3 +569,27 @@ def test_screened_cma_runs_only_what_the_fall_screen_admits(tmp_path, monkeypatc
                         lambda self, C, fall_m, bound=None: np.ones(len(C)))
     res = tr.run_method("transfer_cma_source", target, src, 4, 0)
     assert res["draws"] == [1, 0, 0, 0], "no draw passes: the critic asks every trial"
+
+
+def test_screened_cma_bar_sets_each_cma_peer_beside_its_screened_twin(tmp_path, capsys):
+    """``transfer_screened`` reads a summary: targets whose best peer is a CMA-ES get the peer's
+    screened twin beside it (falls summed per seed, the ratio of medians), then the bar's parts;
+    a target with another best peer is left out; bad input is one line and exit 2."""
+    from benchmarks import transfer_screened as ts
+
+    for s in range(4):
+        _write(tmp_path, "cma_source", s, [5.0, 2.0], [True, False])
+        _write(tmp_path, "cma_source_screened", s, [5.0, 2.1 if s % 2 else 1.9], [False, False])
+        _write(tmp_path, "transfer", s, [3.0, 3.0], [False, False])
+    summary = tr.summarize(tmp_path)
+    res = ts.bar(summary, ["arm 1"])
+    (row,) = res["rows"]
+    assert row["peer"] == "cma_source" and row["peer_falls_sum"] == 4
+    assert row["twin_falls_sum"] == 0 and res["falls_ratio"] == 0.0 and res["bar1_falls_half"]
+    assert row["ratio"] == 1.0 and res["within_5pct"] == 1
+    assert res["bar3"]["arm 1"]["whole_run_quarter_falls"]
+    summary["targets"][0]["best_peer"] = "tpe"
+    with pytest.raises(ValueError, match="no target"):
+        ts.bar(summary, [])
+    assert ts.main(["--summary", str(tmp_path / "missing.json")]) == 2
+    assert "transfer_screened:" in capsys.readouterr().err
