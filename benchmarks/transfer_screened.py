@@ -11,8 +11,11 @@ and the falls summed over the seeds, and the twin stopped at criterion (3)'s fal
 Then the bar's three parts: (1) the twin's falls summed over those targets at most half the
 peer's; (2) its median within 5 % of the peer's on at least all but two of them; (3) on the
 targets named with ``--losses`` (where the default loses), no worse than the best peer with
-at most a quarter of its falls (the whole run, and stopped at the allowance). Bad input is
-one line on stderr and exit 2."""
+at most a quarter of its falls (the whole run, and stopped at the allowance). With ``--runs``
+(the run tree) it also counts, per target and screened method, the trials after the first
+whose sample the screen admitted and those it did not (after :data:`SCREEN_DRAWS
+<benchmarks.transfer.SCREEN_DRAWS>` draws, the least likely to fall ran), and how many of each
+fell. Bad input is one line on stderr and exit 2."""
 from __future__ import annotations
 
 import argparse
@@ -59,14 +62,39 @@ def bar(summary: dict[str, Any], losses: list[str]) -> dict[str, Any]:
                      for r in named}}
 
 
+def forced(root: Path) -> dict[str, dict[str, int]]:
+    """Per ``"system gap method"``: trials after the first that ran an admitted sample and that
+    ran a forced one (no draw admitted), and the falls of each, over every stored screened run
+    under ``root`` (``SYSTEM/gapG/seedS/METHOD.json``)."""
+    from benchmarks.transfer import SCREEN_DRAWS
+
+    out: dict[str, dict[str, int]] = {}
+    for f in sorted(root.glob("*/gap*/seed*/*screened*.json")):
+        r = json.loads(f.read_text())
+        if "draws" not in r:
+            continue
+        key = f"{r['system']} {float(r['gap']):g} {r['method']}"
+        c = out.setdefault(key, {"admitted": 0, "admitted_fell": 0, "forced": 0, "forced_fell": 0})
+        for d, fell in list(zip(r["draws"], r["failed"]))[1:]:
+            kind = "forced" if d >= SCREEN_DRAWS else "admitted"
+            c[kind] += 1
+            c[f"{kind}_fell"] += int(fell)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--summary", required=True)
     ap.add_argument("--losses", nargs="*", default=["vehicle 2", "cartpole 2"])
+    ap.add_argument("--runs", default=None, help="the run tree: count forced and admitted trials")
     ap.add_argument("--out", default=None)
     a = ap.parse_args(sys.argv[1:] if argv is None else argv)
     try:
         res = bar(json.loads(Path(a.summary).read_text()), a.losses)
+        if a.runs is not None:
+            if not Path(a.runs).is_dir():
+                raise ValueError(f"no run tree at {a.runs}")
+            res["forced"] = forced(Path(a.runs))
     except (OSError, ValueError, KeyError) as e:
         print(f"transfer_screened: {e}", file=sys.stderr)
         return 2
@@ -77,6 +105,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"falls summed: ×{res['falls_ratio']:.3f} (bar 1, ≤ 0.5: {res['bar1_falls_half']}); "
           f"median within 5 %: {res['within_5pct']} of {len(res['rows'])} (bar 2: "
           f"{res['bar2_close']}); bar 3: {json.dumps(res['bar3'])}")
+    for k, c in res.get("forced", {}).items():
+        print(f"{k}: admitted {c['admitted']} (fell {c['admitted_fell']}), forced "
+              f"{c['forced']} (fell {c['forced_fell']})")
     if a.out:
         Path(a.out).write_text(json.dumps(res, indent=1))
     return 0

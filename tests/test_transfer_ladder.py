@@ -588,6 +588,13 @@ def test_screened_cma_bar_sets_each_cma_peer_beside_its_screened_twin(tmp_path, 
     assert row["twin_falls_sum"] == 0 and res["falls_ratio"] == 0.0 and res["bar1_falls_half"]
     assert row["ratio"] == 1.0 and res["within_5pct"] == 1
     assert res["bar3"]["arm 1"]["whole_run_quarter_falls"]
+    f = tmp_path / "arm" / "gap1" / "seed9" / "cma_source_screened.json"
+    f.parent.mkdir()
+    f.write_text(json.dumps({"system": "arm", "gap": 1.0, "method": "cma_source_screened",
+                             "draws": [1, tr.SCREEN_DRAWS, 3, tr.SCREEN_DRAWS],
+                             "failed": [True, True, False, False]}))
+    assert ts.forced(tmp_path)["arm 1 cma_source_screened"] == {
+        "admitted": 1, "admitted_fell": 0, "forced": 2, "forced_fell": 1}, "the first trial counts"
     summary["targets"][0]["best_peer"] = "tpe"
     with pytest.raises(ValueError, match="no target"):
         ts.bar(summary, [])
