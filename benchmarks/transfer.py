@@ -76,7 +76,11 @@ trial counted (the zero-shot one included):
 Every (system, gap, seed, method) writes ``ROOT/<system>/gap<g>/seed<s>/<method>.json`` (cost,
 failed and θ per trial, wall time) and is skipped when it exists: the run resumes. ``summary``
 applies the transfer issue's definitions (best peer, trials to reach its median, falls,
-Mann-Whitney) and writes JSON + Markdown with provenance.
+Mann-Whitney), cuts every method's runs at the default's falls and at criterion (3)'s allowance
+(:func:`fall_allowance`: which methods are then still no worse than the best peer), and writes
+JSON + Markdown with provenance. ``--only`` also runs the candidates of :data:`SCREENED`
+(CMA-ES behind the default's fall screen, :func:`screened_cma`), which a plain ``run`` leaves
+out.
 """
 from __future__ import annotations
 
