@@ -23,7 +23,7 @@ import sys
 import numpy as np
 
 from benchmarks.common import Provenance
-from benchmarks.zones_traces import TracesError, traces_figure, write_figure
+from benchmarks.zones_traces import TracesError, method_label, traces_figure, write_figure
 from examples.cartpole_swingup import BALANCED, TRACK, make_system
 
 DEFAULT = "transfer+explore_pool=adaptive:explore_gp=true:explore_fall_prob=0.2"
@@ -51,7 +51,7 @@ def main(argv: list[str] | None = None) -> int:
         axes[0, j].plot(t, tr["phi"], lw=1.0, color="k")
         for s in (-1, 1):
             axes[0, j].axhline(s * BALANCED, color="r", lw=0.6, ls=":")
-        short = m if len(m) <= 24 else "default"
+        short = method_label(m, a.default)
         axes[0, j].set_title(f"{short}: cost {out.cost:.3f}" +
                              (f" (fell at {t[-1]:.1f} s)" if out.failed else ""), fontsize=8)
         axes[1, j].plot(t, tr["x"], lw=1.0, color="C0")

@@ -90,6 +90,12 @@ def median_seed(root: Path, gap: float, method: str = "transfer", system: str = 
     return seeds[int(order[(len(seeds) - 1) // 2])]
 
 
+def method_label(method: str, default: str | None) -> str:
+    """A method's panel title: ``default`` for the default phase 3's long variant name, else the
+    method's own name."""
+    return "default" if method == default else method
+
+
 def traces_figure(argv: list[str] | None, doc: str, name: str, make_system: Any, *, gap: float,
                   methods: list[str], default: str | None, nrows: int, height: float
                   ) -> tuple[argparse.Namespace, int, list[tuple[int, Any, dict]], Any, Any]:

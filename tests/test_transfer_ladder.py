@@ -600,3 +600,13 @@ def test_screened_cma_bar_sets_each_cma_peer_beside_its_screened_twin(tmp_path, 
         ts.bar(summary, [])
     assert ts.main(["--summary", str(tmp_path / "missing.json")]) == 2
     assert "transfer_screened:" in capsys.readouterr().err
+
+
+def test_trace_panels_call_only_the_default_default():
+    """A long method name that is not the default keeps its own title (the screened CMA-ES
+    was once titled "default")."""
+    from benchmarks.zones_traces import method_label
+
+    d = "transfer+explore_pool=adaptive:explore_gp=true:explore_fall_prob=0.2"
+    assert method_label(d, d) == "default"
+    assert method_label("cma_source_trials_screened", d) == "cma_source_trials_screened"
