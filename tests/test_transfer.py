@@ -619,6 +619,44 @@ def test_record_walk_walks_down_the_source_record_once_its_top_fell(source, hype
     assert cr.fell[0] or not any("walk_rank" in d for d in cr.decisions)
 
 
+def test_record_cma_hands_the_asks_to_cma_es_once_the_record_fell(source, hypers):
+    """``record_cma`` on the hole target: the same asks as the default until the zero-shot θ
+    and the design's elites have fallen, then every ask is a CMA-ES draw (tag pool ``global``,
+    recorded ``record_cma``), the first its screen admits. Where the source's best stands it
+    never triggers. A value that is not a bool is refused."""
+    X, y, f, c = source
+    target = _hole_target(c)
+    ok = np.flatnonzero(~f)
+    best = X[ok[np.argmin(y[ok])]]
+    runs = {}
+    for on in (False, True):
+        cr = _critic(source, hypers, record_cma=on)
+        cr.tell(best[None], *target(best)[:1], fell=target(best)[1])
+        for _ in range(8):
+            T = cr.ask(1)
+            yt, ft = target(T)
+            cr.tell(T, yt, cr.last_tags, fell=ft)
+        runs[on] = cr
+    a, b = runs[False], runs[True]
+    first = next(i for i, d in enumerate(b.decisions) if d.get("record_cma"))
+    told = _critic(source, hypers, record_cma=True)      # the history the trigger saw
+    told.tell(b.X[:first + 1], b.y[:first + 1], b.tags[:first + 1], fell=b.fell[:first + 1])
+    assert told.record_fell() and b.fell[0], "it triggered before the record fell"
+    assert np.array_equal(a.X[:first + 1], b.X[:first + 1]), "before it triggers: the default"
+    assert all(d.get("record_cma") and d["pools"] == ["global"] for d in b.decisions[first:]
+               if not d.get("rule"))
+    P = b._pool_cma(b.opts["n_candidates"])
+    assert P.shape == (b.opts["n_candidates"], D)
+    far = np.full(D, 0.9)
+    cr = _critic(source, hypers, record_cma=True)
+    cr.tell(far[None], *target(far)[:1], fell=target(far)[1])
+    _ = [cr.tell((T := cr.ask(1)), target(T)[0], cr.last_tags, fell=target(T)[1])
+         for _ in range(4)]
+    assert not any(d.get("record_cma") for d in cr.decisions)
+    with pytest.raises(ValueError, match="record_cma must be true or false"):
+        _critic(source, hypers, record_cma="yes")
+
+
 def test_walk_pick_chooses_each_step_by_the_target_fall_model(source, hypers):
     """``walk_pick`` on the target of the test above: ``"fall"`` asks, among the walk's
     candidates, the one the target fall model (told the record's falls) finds least likely to

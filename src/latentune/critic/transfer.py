@@ -154,7 +154,10 @@ as ``"latent"`` does (the whole θ box without a latent space). ``"cma"``: ``n_c
 of a CMA-ES that starts from the source's promising distribution (as ``"source"``) and is told
 every target trial, a population at a time (:meth:`Transfer._pool_cma`; tag pool ``global``);
 the ask runs its first draw the fall screen admits, in CMA-ES's own order rather than the
-model's, or where the screen admits none, the draw least likely to fall. ``"latent_lines"``: half the
+model's, or where the screen admits none, the draw least likely to fall. ``record_cma``
+(default off) hands every ask after the design to that CMA-ES, screened at ``max_fall_prob``,
+once the source's record fell on the target (:meth:`Transfer.record_fell`: every θ of the
+source's trials the target ran fell; the trigger of ``record_walk``). ``"latent_lines"``: half the
 candidates are decoded codes of the whole latent box, half lines through the centre, so the
 model chooses at each explore ask between a step along the source's manifold (many gains
 together, what a 77-weight robot's explore asks gain by) and one gain or two moved as far as
@@ -405,7 +408,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "fall_shrink": False, "centre_falls": 0, "fall_rank": "clipped", "explore_gp": True,
     "explore_record": "count", "explore_bandit": "mean", "region_gp": False,
     "fall_fit": False, "fall_budget": 0.0, "fall_budget_counts": "after_stand",
-    "record_walk": 0, "walk_pick": "rank",
+    "record_walk": 0, "walk_pick": "rank", "record_cma": False,
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state, where
 ``explore_fall_prob`` is resolved (:func:`resolved_options`)."""
@@ -442,7 +445,7 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "explore_bandit": "mean", "region_gp": False,
                                  "fall_fit": False, "fall_budget": 0.0,
                                  "fall_budget_counts": "all", "record_walk": 0,
-                                 "walk_pick": "rank"}
+                                 "walk_pick": "rank", "record_cma": False}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -1112,6 +1115,7 @@ class _AskContext:
     explore_gp: TargetGP | None = None
     region_gp: bool = False
     explore_cma: bool = False
+    record_cma: bool = False
 
 
 @dataclass
@@ -1181,7 +1185,7 @@ class Transfer(TwoSpaceCritic):
             raise ValueError(f"explore_every must be 0 (off) or an integer ≥ 2, got {k_ex!r}")
         for flag in ("stand_first", "explore_adapt", "fall_source_sd", "explore_void",
                      "centre_screen", "distinct", "explore_skip", "fall_calibrate",
-                     "fall_shrink", "explore_gp", "fall_fit"):
+                     "fall_shrink", "explore_gp", "fall_fit", "record_cma"):
             if not isinstance(self.opts[flag], (bool, np.bool_)):
                 raise ValueError(f"{flag} must be true or false, got {self.opts[flag]!r}")
         q_fb = self.opts["fall_budget"]
@@ -1793,6 +1797,35 @@ class Transfer(TwoSpaceCritic):
         U = lb + (ub - lb) * sob
         return np.clip(np.atleast_2d(self.latent.decode(U)), 0, 1), U
 
+    def _record_rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The source's record against the told trials: its standing trials ``S`` (m, d) ranked
+        by cost, which told trials are record θ (n_told,) bool (the manual θ is not, though
+        phase 1 started from it) and which record θ are free (m,) bool: no told trial has it
+        and it lies at least ``elite_spacing`` from every told fall."""
+        X, y, f = self.source_rows()
+        ok = np.flatnonzero(~f)
+        S = X[ok[np.argsort(y[ok], kind="stable")]]
+        told = np.zeros(self.n_told, dtype=bool)      # told trials that are source trials
+        free = np.ones(len(S), dtype=bool)            # no told trial has it, far from falls
+        spacing = float(self.opts["elite_spacing"])
+        for j, x in enumerate(self._X if len(S) else ()):   # row by row: no (n, m, d) array
+            gap = np.abs(S - x).max(1)
+            told[j] = bool((gap <= 1e-9).any())
+            free &= gap > 1e-9
+            if self._fell[j]:
+                free &= gap >= spacing
+        if self.manual is not None:     # the manual θ (phase 1's start) is not the record's
+            told &= np.abs(self._X - self.manual).max(1) > 1e-9
+        return S, told, free
+
+    def record_fell(self) -> bool:
+        """True once the target has run θ of the source's record and every one of them fell
+        (the trigger of ``record_walk`` and ``record_cma``)."""
+        if self.n_told == 0:
+            return False
+        _, told, _ = self._record_rows()
+        return bool(told.any() and not (told & ~self._fell).any())
+
     def _walk_theta(self, fall_m: TargetModel | None
                     ) -> tuple[np.ndarray, int, float | None] | None:
         """``record_walk`` = k > 0: once the target has tried θ of the source's record and every
@@ -1810,23 +1843,8 @@ class Transfer(TwoSpaceCritic):
         k = int(self.opts["record_walk"])
         if k <= 0 or self.n_told == 0:
             return None
-        X, y, f = self.source_rows()
-        ok = np.flatnonzero(~f)
-        S = X[ok[np.argsort(y[ok], kind="stable")]]
-        if not len(S):
-            return None
-        told = np.zeros(self.n_told, dtype=bool)      # told trials that are source trials
-        free = np.ones(len(S), dtype=bool)            # no told trial has it, far from falls
-        spacing = float(self.opts["elite_spacing"])
-        for j, x in enumerate(self._X):               # row by row: no (n_told, m, d) array
-            gap = np.abs(S - x).max(1)
-            told[j] = bool((gap <= 1e-9).any())
-            free &= gap > 1e-9
-            if self._fell[j]:
-                free &= gap >= spacing
-        if self.manual is not None:     # the manual θ (phase 1's start) is not the record's
-            told &= np.abs(self._X - self.manual).max(1) > 1e-9
-        if not told.any() or (told & ~self._fell).any():
+        S, told, free = self._record_rows()
+        if not len(S) or not told.any() or (told & ~self._fell).any():
             return None
         E = self.elites()
         in_elite = np.array([np.min(np.abs(E - x).max(1)) <= 1e-9 for x in self._X[told]])
@@ -1965,6 +1983,11 @@ class Transfer(TwoSpaceCritic):
                 ctx.design_screened = True
         if design and len(E) >= 1:
             parts = [(E, np.full((len(E), self.k), np.nan), ELITE)]
+        elif self.opts["record_cma"] and self.record_fell():
+            # the source's record fell on the target: CMA-ES behind the fall screen from here
+            XC = self._pool_cma(M)
+            ctx.explore_cma = ctx.record_cma = True
+            parts = [(XC, np.full((len(XC), self.k), np.nan), GLOBAL)]
         elif self._explore_generation(g, st["L"], st["explore_next"]) and \
                 st["explore_pool"] is not None:
             # explore: the whole latent box (or θ box), or the source's distribution, only
@@ -2366,7 +2389,8 @@ class Transfer(TwoSpaceCritic):
             **({"ls_ratio": float(np.exp(np.mean(np.log(
                 cm.ls / self.source_model().lengthscales))))}
                if cm is not None and self._fitted_ls() else {}),
-            **({"handoff": True} if self._handoff_active() else {})})
+            **({"handoff": True} if self._handoff_active() else {}),
+            **({"record_cma": True} if ctx.record_cma else {})})
         log.debug("transfer ask %s", self.decisions[-1])
         return X, tags
 
