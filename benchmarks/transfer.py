@@ -424,8 +424,10 @@ def screened_cma(trial: Callable[[np.ndarray], Any], target: Any, src: Path,
             x = np.array([t.params[n] for n in names])
             o = trial(x)
             c = float(o.cost)
-            done = [v for v in (tr.value for tr in study.trials) if v is not None]
-            study.tell(t, c if math.isfinite(c) else max(done, default=0.0))
+            if not math.isfinite(c):    # the worst finite value told so far, as the peers
+                c = max((d.value for d in study.get_trials(
+                    deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,))), default=0.0)
+            study.tell(t, c)
             screen.tell(x[None], np.array([o.cost]), tags, fell=np.array([o.failed]))
             draws.append(0 if own else len(drawn))
     return draws
