@@ -610,3 +610,24 @@ def test_trace_panels_call_only_the_default_default():
     d = "transfer+explore_pool=adaptive:explore_gp=true:explore_fall_prob=0.2"
     assert method_label(d, d) == "default"
     assert method_label("cma_source_trials_screened", d) == "cma_source_trials_screened"
+
+
+def test_allowance_sets_the_defaults_early_falls_beside_the_best_peers(tmp_path, capsys):
+    """``transfer_allowance``: the default's falls in the first quarter of each run (median
+    over seeds) beside the best peer's falls and the allowance; bad input is one line, exit 2."""
+    from benchmarks import transfer_allowance as ta
+
+    for s in range(3):
+        _write(tmp_path, "tpe", s, [5.0] * 8, [True] * 7 + [False])
+        _write(tmp_path, "transfer", s, [4.0] * 8, [True, s > 0, False, False, True, True,
+                                                   False, False])
+    summary = tr.summarize(tmp_path)
+    early = ta.cheap_early(tmp_path, summary, "transfer")
+    assert early == {("arm 1", 0): 1, ("arm 1", 1): 2, ("arm 1", 2): 2}
+    (row,) = ta.rows_of(summary, early, "{system} {gap:g}")
+    assert row["peer_falls"] == 7 and row["allowance"] == 1
+    assert row["default_early_falls"] == 2 and row["default_falls"] == 4
+    assert ta.main(["--summary", str(tmp_path / "none.json"), "--runs", str(tmp_path)]) == 2
+    assert ta.main(["--summary", str(tmp_path / "none.json"), "--runs", str(tmp_path),
+                    "--robot-summary", "x"]) == 2
+    assert capsys.readouterr().err.count("transfer_allowance:") == 2
