@@ -30,7 +30,7 @@ import numpy as np  # noqa: E402
 
 from benchmarks.common import Provenance, add_out_arg, finish, markdown_table  # noqa: E402
 from benchmarks.transfer import SYSTEMS  # noqa: E402
-from benchmarks.transfer_walk import DEFAULT_METHOD as DEFAULT  # noqa: E402
+from benchmarks.transfer import DEFAULT_METHOD as DEFAULT  # noqa: E402
 from benchmarks.transfer_walk import load_trace  # noqa: E402
 
 

@@ -24,12 +24,10 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common import Provenance
+from benchmarks.transfer import DEFAULT_METHOD as DEFAULT
 from benchmarks.zones_traces import TracesError, traces_figure, write_figure
 from examples.quadrotor_mpc import PITCH_MAX, make_system
 
-DEFAULT = "transfer+explore_pool=adaptive:explore_gp=true:explore_fall_prob=0.2"
-"""The default phase 3 in the ladder's names (session 39; ``transfer+explore_pool=adaptive``
-before)."""
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -281,6 +281,11 @@ session 32), the explore asks' choice and bound of the runs before session 39, a
 budget's count of session 43's ``…:fall_budget=0.15`` runs (every fall), so that a run added
 later under a stored name is the same method."""
 
+DEFAULT_METHOD = "transfer+explore_pool=adaptive:explore_gp=true:explore_fall_prob=0.2"
+"""Today's default phase 3 (since session 39) in the ladder's method names: ``transfer`` with
+the options that give :data:`LADDER_BASE`'s keys back the critic's defaults. The benchmarks that
+read the default's stored runs take this name."""
+
 
 def run_method(method: str, target: Any, src: Path, B: int, seed: int,
                options: dict[str, Any] | None = None) -> dict[str, Any]:

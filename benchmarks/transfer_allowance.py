@@ -28,7 +28,9 @@ from typing import Any
 
 import numpy as np
 
-DEFAULT = "transfer+explore_pool=adaptive:explore_gp=true:explore_fall_prob=0.2"
+from benchmarks.transfer import DEFAULT_METHOD as DEFAULT
+from benchmarks.transfer_walk import load_trace
+
 
 
 def _early(failed: list[bool]) -> int:
@@ -56,16 +58,15 @@ def rows_of(summary: dict[str, Any], early: dict[tuple[str, int], int], name: st
 
 
 def cheap_early(runs: Path, summary: dict[str, Any], default: str) -> dict[tuple[str, int], int]:
-    """(target, seed) → the default's early falls, from the cheap runs (a run re-made on this
-    machine's sources, ``METHOD@avx512``, is read in place of the stored one)."""
+    """(target, seed) → the default's early falls, from the cheap runs
+    (:func:`benchmarks.transfer_walk.load_trace`: a run re-made on this machine's sources,
+    ``METHOD@avx512``, is read in place of the stored one)."""
     out = {}
     for t in summary["targets"]:
         for s in t["seeds"]:
-            d = runs / t["system"] / f"gap{t['gap']:g}" / f"seed{s}"
-            f = next((p for p in (d / f"{default}@avx512.json", d / f"{default}.json")
-                      if p.is_file()), None)
-            if f is not None:
-                out[f"{t['system']} {t['gap']:g}", s] = _early(json.loads(f.read_text())["failed"])
+            run = load_trace([runs], t["system"], t["gap"], s, default)
+            if run is not None:
+                out[f"{t['system']} {t['gap']:g}", s] = _early(run["failed"])
     return out
 
 

@@ -46,9 +46,8 @@ one_thread_env()
 import numpy as np  # noqa: E402
 
 from benchmarks.common import Provenance, add_out_arg, finish, markdown_table  # noqa: E402
-from benchmarks.transfer import SYSTEMS  # noqa: E402
+from benchmarks.transfer import DEFAULT_METHOD, SYSTEMS  # noqa: E402
 
-DEFAULT_METHOD = "transfer+explore_pool=adaptive:explore_gp=true:explore_fall_prob=0.2"
 SPACING = 0.15          # the default elite_spacing (record_walk's distance from told falls)
 
 

@@ -23,11 +23,10 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common import Provenance
+from benchmarks.transfer import DEFAULT_METHOD as DEFAULT
 from benchmarks.zones_traces import TracesError, method_label, traces_figure, write_figure
 from examples.vehicle_lateral import LANE, make_system
 
-DEFAULT = "transfer+explore_pool=adaptive:explore_gp=true:explore_fall_prob=0.2"
-"""The default phase 3 in the ladder's names (session 39)."""
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -450,7 +450,9 @@ def test_a_stored_method_name_keeps_its_explore_pool_after_the_default_changed(t
         raise Stop
 
     monkeypatch.setattr(ct, "Transfer", capture)
-    today = tr.parse_variant("explore_pool=adaptive:explore_gp=true:explore_fall_prob=0.2")
+    assert tr.DEFAULT_METHOD == \
+        "transfer+explore_pool=adaptive:explore_gp=true:explore_fall_prob=0.2"
+    today = tr.parse_variant(tr.DEFAULT_METHOD.partition("+")[2])
     for opts in (None, {"explore_pool": "adaptive"}, {"distinct": True}, today):
         with pytest.raises(Stop):
             tr.run_method("transfer", tr.SYSTEMS["chain"]["target"](1.0), src, 4, 0, opts)
