@@ -314,6 +314,8 @@ def test_report_and_status_name_the_explore_asks_the_targets_gp_chose(tmp_path: 
     walk = {"generation": 2, "n_told": 4, "design": True, "walk_rank": 75,
             "rule": "the source's top fell: a θ deeper in its record"}
     assert decision_kind(walk) == "record walk"       # a rule ask, not the design
+    assert decision_kind({"explore": False, "record_cma": True, "pools": ["global"]}) == \
+        "record CMA-ES", "a CMA-ES draw is not the trust region's ask"
     with RunStore(tmp_path / "w", create=True) as st:
         st.set_meta(state_key(Phase.PHASE3), {"decisions": [ds[0], walk]})
         assert "| 2 | 4 | record walk (rank 75) |" in "\n".join(decisions_markdown(st))

@@ -134,7 +134,8 @@ def decision_kind(d: dict[str, Any]) -> str:
     ``"explore (lines)"`` / ``"explore (latent)"`` / … (an explore ask and its pool;
     ``"explore (lines, target GP)"`` when the target's own GP chose it, ``explore_gp``),
     ``"manual θ"``, ``"converged"`` or ``"record walk"`` (a rule's ask; the last, a θ deeper
-    in the source's record after its top fell, ``record_walk``), else
+    in the source's record after its top fell, ``record_walk``), ``"record CMA-ES"`` (a draw
+    of the screened CMA-ES the asks go to once the source's record fell, ``record_cma``), else
     ``"region"`` (the trust region, the latent box around the best θ and the elites, as the
     model chose; ``"region (target GP)"`` when the target's own GP chose, ``region_gp``)."""
     rule = str(d.get("rule") or "")
@@ -144,6 +145,8 @@ def decision_kind(d: dict[str, Any]) -> str:
         return "manual θ"
     if "converged" in rule:
         return "converged"
+    if d.get("record_cma"):
+        return "record CMA-ES"
     if d.get("explore"):
         return f"explore ({d.get('explore_pool') or 'latent'}" + \
             (", target GP)" if d.get("explore_gp") else ")")
