@@ -601,7 +601,8 @@ def test_screened_cma_bar_sets_each_cma_peer_beside_its_screened_twin(tmp_path, 
     with pytest.raises(ValueError, match="no target"):
         ts.bar(summary, [])
     assert ts.main(["--summary", str(tmp_path / "missing.json")]) == 2
-    assert "transfer_screened:" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert err.startswith("transfer_screened:") and "missing.json" in err
 
 
 def test_trace_panels_call_only_the_default_default():
@@ -632,4 +633,6 @@ def test_allowance_sets_the_defaults_early_falls_beside_the_best_peers(tmp_path,
     assert ta.main(["--summary", str(tmp_path / "none.json"), "--runs", str(tmp_path)]) == 2
     assert ta.main(["--summary", str(tmp_path / "none.json"), "--runs", str(tmp_path),
                     "--robot-summary", "x"]) == 2
-    assert capsys.readouterr().err.count("transfer_allowance:") == 2
+    err = capsys.readouterr().err
+    assert err.count("transfer_allowance:") == 2 and "none.json" in err
+    assert "--robot-summary and --robot-traces go together" in err
