@@ -576,15 +576,26 @@ def cut_at_fall_budget(run: dict[str, Any], share: float, counts: str = "all"
     ``cut_at``: the trials kept (B when the budget is never spent)."""
     from latentune.critic.transfer import fall_budget_spent
 
-    costs, failed = list(run["costs"]), [bool(f) for f in run["failed"]]
-    B = len(costs)
+    failed = [bool(f) for f in run["failed"]]
+    B = len(failed)
     end = next((i + 1 for i in range(B)
                 if fall_budget_spent(np.array(failed[:i + 1]), share, B, counts)), B)
-    ok = [i for i in range(end) if not failed[i]]
+    return {**cut_at(run, end), "fall_budget": share, "fall_budget_counts": counts}
+
+
+def cut_at(run: dict[str, Any], end: int) -> dict[str, Any]:
+    """``run`` (a stored run of budget B) stopped after its first ``end`` trials at its best
+    standing θ: those trials, then that θ asked again for the rest of B (its cost, no fall: a
+    deterministic target repeats it); unchanged when no trial among them stood. ``cut_at``:
+    the trials kept (B when none stood). The decision records are dropped."""
+    costs, failed = list(run["costs"]), [bool(f) for f in run["failed"]]
+    B = len(costs)
+    ok = [i for i in range(min(end, B)) if not failed[i]]
     j = min(ok, key=lambda i: costs[i]) if ok else None
+    end = min(end, B) if j is not None else B
     out = {**run, "costs": costs[:end] + [costs[j]] * (B - end) if j is not None else costs,
            "failed": failed[:end] + [False] * (B - end) if j is not None else failed,
-           "cut_at": end, "fall_budget": share, "fall_budget_counts": counts}
+           "cut_at": end}
     if run.get("thetas") and j is not None:
         out["thetas"] = run["thetas"][:end] + [run["thetas"][j]] * (B - end)
     out.pop("decisions", None)

@@ -636,3 +636,44 @@ def test_allowance_sets_the_defaults_early_falls_beside_the_best_peers(tmp_path,
     err = capsys.readouterr().err
     assert err.count("transfer_allowance:") == 2 and "none.json" in err
     assert "--robot-summary and --robot-traces go together" in err
+
+
+def test_stopping_rules_cut_a_run_where_its_own_falls_say(tmp_path, capsys):
+    """``transfer_stop``: the early rule's budget comes from the first quarter's falls, the
+    stall rule stops at the m-th fall that bought no better cost; a cut run then holds its
+    best standing θ; judging counts criteria (1) and (3) per target; bad input is one line,
+    exit 2."""
+    from benchmarks import transfer_stop as ts
+
+    y = [5.0, 4.0, 0.0, 3.0, 0.0, 0.0, 2.0, 0.0]
+    f = [False, False, True, False, True, True, False, True]
+    # first quarter (2 trials) no fall: k = max(1, 0 + 1) = 1, spent at the first fall
+    assert ts.early_end(y, f, 1.0, 1) == 3
+    g = [True, False, False, True, False, True, False, False]     # E = 1 → k = 2
+    assert ts.early_end(y, g, 1.0, 1, "all") == 4
+    assert ts.early_end(y, g, 1.0, 1, "after_stand") == 6
+    assert ts.early_end(y, [True] * 8, 1.0, 0) == 8                # nothing stood: no stop
+    assert ts.stall_end(y, f, 2, 0.0) == 6     # 3 improves (count restarts), then 2 falls
+    assert ts.stall_end(y, f, 2, 0.9) == 8     # not before trial 8; 2 restarts it at trial 7
+    assert ts.stall_end(y, f, 1, 0.0) == 3
+    cut = tr.cut_at({"costs": y, "failed": f}, 4)
+    assert cut["costs"] == [5.0, 4.0, 0.0, 3.0] + [3.0] * 4
+    assert cut["failed"] == f[:4] + [False] * 4 and cut["cut_at"] == 4
+    for s in range(3):                           # the peer falls 7 times: allowance 1
+        _write(tmp_path, "tpe", s, [5.0] * 8, [True] * 7 + [False])
+        _write(tmp_path, "transfer", s, [4.0, 3.0, 9.0, 9.0, 2.0, 9.0, 9.0, 1.0],
+               [False, False, True, True, False, True, True, False])
+    (case,) = ts.cheap_cases(tmp_path, ("arm",), "transfer")
+    whole = ts.judge([case], None)
+    assert (whole["c1"], whole["c3"], whole["falls"]) == (1, 0, 12)
+    stopped = ts.judge([case], lambda c, fl: ts.early_end(c, fl, 1.0, 1))
+    assert (stopped["c1"], stopped["c3"], stopped["falls"]) == (1, 1, 3)
+    assert stopped["paired_cost"] == pytest.approx(3.0)             # 3 against 1 on each seed
+    assert ts.main(["--runs", str(tmp_path / "none"), "--heldout-runs", str(tmp_path)]) == 2
+    assert ts.main(["--runs", str(tmp_path), "--heldout-runs", str(tmp_path),
+                    "--robot-summary", "x"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("transfer_stop:") == 2 and "no such directory" in err
+    assert "--robot-summary and --robot-traces go together" in err
+    with pytest.raises(ValueError, match="no rule of the grids"):
+        ts.parse_rule("early:a=7", [])
