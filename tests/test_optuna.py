@@ -119,7 +119,7 @@ def test_import_rules(tmp_path):
     assert cfg["system"]["kind"] == "optuna" and cfg["system"]["direction"] == "maximize"
     assert cfg["space"]["names"] == NAMES and cfg["phase1"]["method"] == "optuna"
     best = json.loads((tmp_path / "run" / "phase1_best.json").read_text())
-    assert best["w0"] == pytest.approx(X[1][0])                               # the max: 5.0
+    assert best["w0"] == pytest.approx(X[0][0])     # 3.0: the best feasible; 5.0 broke a constraint
     # importing again adds only what is new
     study.add_trial(mk(params=p[7], distributions=DISTS, value=4.0))
     with pytest.warns(UserWarning, match="lack some of the parameters"):

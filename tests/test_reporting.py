@@ -123,6 +123,34 @@ def test_summary_keys_and_values(tmp_path: Path):
     assert s["paper"] == {"manual": 8.96, "phase1": 5.96, "phase3": 6.17}
 
 
+def test_a_failed_trial_is_never_the_best_whatever_cost_it_was_given(tmp_path: Path):
+    """A user system may give its failed trials a cost below every standing one: the bests,
+    "evals to beat manual", the table, ``RunStore.best`` (the θ re-simulated and imported as
+    best) skip them; a phase where nothing stood has no best; the manual and zero-shot costs
+    are their trial's own, with whether it fell."""
+    y, fell = [3.0, 0.5, 2.0, 0.1], [False, True, False, True]
+    s = phase_stats(y, target=2.5, fell=fell)
+    assert (s["best"], s["best_idx"], s["stable"], s["evals_to_beat"]) == (2.0, 2, 2, 3)
+    assert phase_stats([0.3, 0.2], fell=[True, True])["best"] is None
+    with RunStore(tmp_path / "run", create=True) as st:
+        st.set_meta("config", {"system": {"kind": "user"}})
+        st.add(Phase.MANUAL, 0, np.zeros(3), 2.5, fell=False, tag=-1)
+        for i, (c, f) in enumerate(zip(y, fell)):
+            st.add(Phase.PHASE3, i, np.full(3, 0.1 * i), c, fell=f, tag=-1)
+        st.add(Phase.ZERO_SHOT, 0, np.ones(3), 0.05, fell=True, tag=-1)
+        for i in range(2):
+            st.add(Phase.PHASE1, i, np.full(3, 0.5), 0.01, fell=True, tag=-1)
+        assert st.best(Phase.PHASE3).idx == 2 and st.best(Phase.PHASE1) is None
+        summ = write_summary(st)
+        md = comparison_table(st)
+    assert (summ["phase3_best"], summ["phase3_evals_to_beat_manual"]) == (2.0, 3)
+    assert summ["phase1_best"] is None and summ["phase3_vs_phase1"] is None
+    assert (summ["zero_shot_cost"], summ["zero_shot_fell"]) == (0.05, True)
+    assert (summ["manual_cost"], summ["manual_fell"]) == (2.5, False)
+    assert _row(md, "phase 3 (latent, TuRBO-m)")[1:3] == ["2.000", "4"]
+    assert _row(md, "phase 1 (θ, TuRBO-m)")[1:4] == ["–", "2", "0/2"]
+
+
 def test_comparison_table(tmp_path: Path):
     with _store(tmp_path / "run", {"task": TASK}) as st:
         md = comparison_table(st)

@@ -644,10 +644,10 @@ class RunStore:
             "SELECT fell FROM evaluations WHERE phase=? ORDER BY idx", (phase,))], dtype=bool)
 
     def best(self, phase: int) -> Row | None:
-        rows = self.rows(phase)
-        if not rows:
-            return None
-        return min(rows, key=lambda r: (r.cost, r.idx))
+        """The lowest-cost row of ``phase`` that did not fail (the first on ties); None if no
+        row stood. A failed trial is never the best, whatever cost it was given."""
+        rows = [r for r in self.rows(phase) if not r.fell]
+        return min(rows, key=lambda r: (r.cost, r.idx)) if rows else None
 
     def check_contiguous(self, phase: int) -> None:
         n, mx = self.con.execute("SELECT COUNT(*), MAX(idx) FROM evaluations WHERE phase=?",

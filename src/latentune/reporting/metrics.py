@@ -102,17 +102,21 @@ def phase_stats(costs: Sequence[float] | np.ndarray, target: float | None = None
                 fall_cost: float | None = None) -> dict[str, Any]:
     """Summary of one phase's (n,) costs.
 
-    Keys: ``n`` (evaluations), ``best`` (min cost, None if n = 0), ``best_idx`` (0-based index
-    of the first minimum, None if n = 0), ``stable`` (trials that did not fail: from the (n,)
-    ``fell`` flags or ``fall_cost``, see :func:`fell_mask`), ``falls`` (n − stable),
-    ``evals_to_beat`` (:func:`evals_to_beat` against ``target``, e.g. the manual θ's cost).
+    Keys: ``n`` (evaluations), ``best`` (the lowest cost of a trial that did not fail, None
+    if none stood), ``best_idx`` (0-based index of its first occurrence, None likewise),
+    ``stable`` (trials that did not fail: from the (n,) ``fell`` flags or ``fall_cost``, see
+    :func:`fell_mask`), ``falls`` (n − stable), ``evals_to_beat`` (:func:`evals_to_beat`
+    against ``target``, e.g. the manual θ's cost, counting only trials that did not fail). A
+    failed trial is never the best, whatever cost it was given.
     """
     y = _costs(costs)
     n = int(y.size)
-    stable = stable_count(y, fell, fall_cost)
-    return {"n": n, "best": float(np.min(y)) if n else None,
-            "best_idx": int(np.argmin(y)) if n else None, "stable": stable, "falls": n - stable,
-            "evals_to_beat": evals_to_beat(y, target)}
+    ok = ~fell_mask(y, fell, fall_cost)
+    y_ok = np.where(ok, y, np.inf)
+    i = int(np.argmin(y_ok)) if ok.any() else None
+    return {"n": n, "best": None if i is None else float(y[i]), "best_idx": i,
+            "stable": int(ok.sum()), "falls": n - int(ok.sum()),
+            "evals_to_beat": evals_to_beat(y_ok, target)}
 
 
 @lru_cache(maxsize=1)

@@ -109,8 +109,8 @@ def run_stats(store: Any) -> dict[int, dict[str, Any]]:
     for ph in TABLE_PHASES:
         rows = store.rows(ph)
         s = phase_stats([r.cost for r in rows], manual, fell=[r.fell for r in rows])
-        s["rms"] = rms_velocity_error(s["best"], steps, fell=rows[s["best_idx"]].fell) \
-            if steps and rows else None
+        s["rms"] = rms_velocity_error(s["best"], steps) \
+            if steps and s["best"] is not None else None
         out[int(ph)] = s
     return out
 
@@ -176,10 +176,12 @@ def handover_stats(store: Any) -> dict[str, Any] | None:
 def write_summary(store: Any, wall_this: float | None = None) -> dict[str, Any]:
     """Write ``DIR/summary.json`` from the store and return it.
 
-    Costs: ``manual_cost``, ``phase1_best``, ``phase3_best``, ``zero_shot_cost`` (None without
-    phase-4 rows), ``phase3_vs_phase1`` (ratio of the bests); counts: ``phase{1,3}_evals``,
+    Costs: ``manual_cost`` and ``zero_shot_cost`` (the trial's own cost, fallen or not, with
+    ``manual_fell`` and ``zero_shot_fell``; None without the trial), ``phase1_best`` and
+    ``phase3_best`` (the best trial that did not fail; None if none stood),
+    ``phase3_vs_phase1`` (ratio of the bests); counts: ``phase{1,3}_evals``,
     ``phase{1,3}_stable``, ``phase{1,3}_falls``, ``phase{1,3}_evals_to_beat_manual`` (first
-    evaluation strictly below the manual cost, 1-based, None if never); ``rms_velocity_error_m_s``
+    evaluation that did not fail strictly below the manual cost, 1-based, None if never); ``rms_velocity_error_m_s``
     (per phase, the best θ's RMS velocity error [m/s]; None for a user system); wall times [s]
     ``wall_s`` (sum over phases), ``wall_by_phase_s``, ``wall_s_this_command``; ``seed``,
     ``config``, ``artifacts``, ``phase{1,3}_best_params``, ``paper`` (the paper's numbers for
@@ -191,11 +193,14 @@ def write_summary(store: Any, wall_this: float | None = None) -> dict[str, Any]:
     st = run_stats(store)
     p0, p1, p3, p4 = (st[int(ph)] for ph in TABLE_PHASES)
     names = {"manual": p0, "phase1": p1, "phase3": p3, "zero_shot": p4}
+    trial = {ph: phase_stats(store.costs(ph))["best"] for ph in (Phase.MANUAL, Phase.ZERO_SHOT)}
     summary = {
-        "manual_cost": p0["best"],
+        "manual_cost": trial[Phase.MANUAL],
+        "manual_fell": bool(p0["falls"]) if p0["n"] else None,
         "phase1_best": p1["best"],
         "phase3_best": p3["best"],
-        "zero_shot_cost": p4["best"],
+        "zero_shot_cost": trial[Phase.ZERO_SHOT],
+        "zero_shot_fell": bool(p4["falls"]) if p4["n"] else None,
         "phase1_evals": p1["n"],
         "phase3_evals": p3["n"],
         "phase1_stable": p1["stable"],
