@@ -19,7 +19,8 @@ from latentune.reporting.metrics import (best_so_far, evals_to_beat, fall_count,
                                          stable_share)
 from latentune.reporting.paper_report import write_paper_report
 from latentune.reporting.plots import CurvePanel, plot_best_so_far
-from latentune.reporting.run_report import comparison_table, make_report, write_summary
+from latentune.reporting.run_report import (comparison_table, handover_stats, make_report,
+                                             write_summary)
 
 TASK = {"robot": "a1", "gait": "trot", "terrain": "flat", "actor": "convex",
         "v_des": [0.5, 0.0, 0.0], "steps": 2500, "seed": 0, "dim": 3}
@@ -132,6 +133,8 @@ def test_a_failed_trial_is_never_the_best_whatever_cost_it_was_given(tmp_path: P
     s = phase_stats(y, target=2.5, fell=fell)
     assert (s["best"], s["best_idx"], s["stable"], s["evals_to_beat"]) == (2.0, 2, 2, 3)
     assert phase_stats([0.3, 0.2], fell=[True, True])["best"] is None
+    np.testing.assert_array_equal(best_so_far(y, fell=fell), [3.0, 3.0, 2.0, 2.0])
+    np.testing.assert_array_equal(best_so_far([0.5, 1.0], fell=[True, False]), [np.inf, 1.0])
     with RunStore(tmp_path / "run", create=True) as st:
         st.set_meta("config", {"system": {"kind": "user"}})
         st.add(Phase.MANUAL, 0, np.zeros(3), 2.5, fell=False, tag=-1)
@@ -149,6 +152,13 @@ def test_a_failed_trial_is_never_the_best_whatever_cost_it_was_given(tmp_path: P
     assert (summ["manual_cost"], summ["manual_fell"]) == (2.5, False)
     assert _row(md, "phase 3 (latent, TuRBO-m)")[1:3] == ["2.000", "4"]
     assert _row(md, "phase 1 (θ, TuRBO-m)")[1:4] == ["–", "2", "0/2"]
+    with RunStore(tmp_path / "hand", create=True) as st:      # the hand-over's two spaces
+        st.set_meta("config", {"phase3_handover": {"rule": "x"}})
+        st.add(Phase.PHASE3, 0, np.zeros(3), 0.2, z=np.zeros(2), fell=True, tag=-1)
+        st.add(Phase.PHASE3, 1, np.zeros(3), 0.9, z=np.zeros(2), fell=False, tag=-1)
+        st.add(Phase.PHASE3, 2, np.zeros(3), 0.1, fell=True, tag=-1)
+        h = handover_stats(st)
+    assert (h["latent_best"], h["full_best"], h["full_falls"]) == (0.9, None, 1)
 
 
 def test_comparison_table(tmp_path: Path):

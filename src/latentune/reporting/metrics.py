@@ -44,9 +44,13 @@ def evals_to_beat(costs: Sequence[float] | np.ndarray, target: float | None) -> 
     return int(hit[0]) + 1 if hit.size else None
 
 
-def best_so_far(costs: Sequence[float] | np.ndarray) -> np.ndarray:
-    """The running minimum of ``costs``: (n,) array, element ``i`` = min(costs[: i + 1])."""
+def best_so_far(costs: Sequence[float] | np.ndarray,
+                fell: Sequence[bool] | np.ndarray | None = None) -> np.ndarray:
+    """The running minimum of ``costs``: (n,) array, element ``i`` = min(costs[: i + 1]); with
+    (n,) ``fell`` flags, over the trials that did not fail only (inf until the first stands)."""
     y = _costs(costs)
+    if fell is not None:
+        y = np.where(np.asarray(fell, dtype=bool).reshape(-1), np.inf, y)
     return np.minimum.accumulate(y) if y.size else y
 
 

@@ -109,7 +109,8 @@ def plot_best_so_far(panels: Sequence[CurvePanel] | CurvePanel, path: str | Path
     """The best-cost figure: one column per :class:`CurvePanel`.
 
     Top row: the cost of every evaluation (log axis; stable ·, fell ×, C1 dotted) against the
-    evaluation number 1..n of that panel. Bottom row: the best cost so far on a linear axis
+    evaluation number 1..n of that panel. Bottom row: the best cost so far of the trials that
+    did not fail (none before the first one that stood) on a linear axis
     zoomed from the best cost found to the panel's highest reference (falls at 100–200 and
     early costs above the zoom leave it through the top). Empty curves are skipped; a figure
     with no curve raises ``ValueError``.
@@ -140,12 +141,16 @@ def plot_best_so_far(panels: Sequence[CurvePanel] | CurvePanel, path: str | Path
             c = color[label]
             top.scatter(x[~f], y[~f], s=6, color=c, alpha=0.7, linewidths=0)
             top.scatter(x[f], y[f], s=14, color=c, marker="x", linewidths=0.8)
-            b = best_so_far(y)
-            bests.append(b)
-            stables.append(~f)
-            k = int(np.argmin(y))
-            bot.plot(x, b, color=c, lw=1.4, drawstyle="steps-post",
-                     label=f"{label}: best {y[k]:.3f} at {k + 1}, {int(f.sum())} fell")
+            b = best_so_far(y, fell=f)          # a failed trial is never the best
+            if f.all():
+                lab = f"{label}: no trial stood, {int(f.sum())} fell"
+            else:
+                bests.append(b)
+                stables.append(~f)
+                k = int(np.argmin(b))
+                lab = f"{label}: best {y[k]:.3f} at {k + 1}, {int(f.sum())} fell"
+            bot.plot(x, np.where(np.isfinite(b), b, np.nan), color=c, lw=1.4,
+                     drawstyle="steps-post", label=lab)
         refs = {k: float(v) for k, v in p.refs.items() if v is not None}
         for (label, v), ls in zip(refs.items(), ("--", "-.", ":", (0, (5, 1)))):
             bot.axhline(v, color="k", ls=ls, lw=1, label=f"{label} ({v:.3f})")

@@ -158,8 +158,8 @@ def _fmt(v: float | None) -> str:
 
 def handover_stats(store: Any) -> dict[str, Any] | None:
     """Phase 3 with a hand-over (:mod:`latentune.critic.handover`): the recorded rule, and the
-    evaluations, best cost and falls of each space (rows with z: latent space; without: θ);
-    None for a plain phase 3."""
+    evaluations, best cost (of a trial that did not fail; None if none stood) and falls of each
+    space (rows with z: latent space; without: θ); None for a plain phase 3."""
     rec = (store.get_meta("config") or {}).get("phase3_handover")
     if rec is None:
         return None
@@ -168,7 +168,7 @@ def handover_stats(store: Any) -> dict[str, Any] | None:
     for name, part in (("latent", [r for r in rows if r.z is not None]),
                        ("full", [r for r in rows if r.z is None])):
         out[f"{name}_evals"] = len(part)
-        out[f"{name}_best"] = min((r.cost for r in part), default=None)
+        out[f"{name}_best"] = min((r.cost for r in part if not r.fell), default=None)
         out[f"{name}_falls"] = sum(r.fell for r in part)
     return out
 
