@@ -260,6 +260,17 @@ def test_best_so_far_figure(tmp_path: Path):
     assert p.stat().st_size > 5000
 
 
+def test_the_cost_axis_is_linear_where_a_log_axis_would_drop_costs():
+    """A user system's costs may be ≤ 0: the top row's log axis would leave them out."""
+    from latentune.reporting.plots import _log_axis, pyplot
+
+    plt = pyplot()
+    fig, (a, b) = plt.subplots(1, 2)
+    assert _log_axis(a, [3.0, 0.5, np.inf]) == "log" and a.get_yscale() == "log"
+    assert _log_axis(b, [3.0, -0.5, 2.0]) == "linear" and b.get_yscale() == "linear"
+    plt.close(fig)
+
+
 # ---------------------------------------------------------------------------- paper report
 def _paper_dir(root: Path) -> Path:
     studies = {"a1-trot": {"label": "tune trot", "kind": "tune"},

@@ -81,14 +81,20 @@ class CurvePanel:
     fell: dict[str, Sequence[bool]] = field(default_factory=dict)
 
 
-def _log_axis(ax) -> None:
-    """Log y axis with plain tick labels at 1, 2, 5 × 10^k."""
+def _log_axis(ax, values: Sequence[float] | np.ndarray | None = None) -> str:
+    """Log y axis with plain tick labels at 1, 2, 5 × 10^k, unless a finite one of ``values``
+    (what the axis shows) is ≤ 0: a log axis would drop it, so the axis stays linear. Returns
+    the scale, ``"log"`` or ``"linear"``."""
     from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
+    v = np.asarray([] if values is None else values, dtype=float).reshape(-1)
+    if (v[np.isfinite(v)] <= 0).any():
+        return "linear"
     ax.set_yscale("log")
     ax.yaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
     ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
     ax.yaxis.set_minor_formatter(NullFormatter())
+    return "log"
 
 
 def _zoom(bests: list[np.ndarray], stable: list[np.ndarray], refs: list[float]) -> tuple | None:
@@ -108,10 +114,10 @@ def plot_best_so_far(panels: Sequence[CurvePanel] | CurvePanel, path: str | Path
                      title: str = "") -> None:
     """The best-cost figure: one column per :class:`CurvePanel`.
 
-    Top row: the cost of every evaluation (log axis; stable ·, fell ×, C1 dotted) against the
-    evaluation number 1..n of that panel. Bottom row: the best cost so far of the trials that
-    did not fail (none before the first one that stood) on a linear axis
-    zoomed from the best cost found to the panel's highest reference (falls at 100–200 and
+    Top row: the cost of every evaluation (log axis, linear where a cost is ≤ 0; stable ·,
+    fell ×, C1 dotted) against the evaluation number 1..n of that panel. Bottom row: the best
+    cost so far of the trials that did not fail (none before the first one that stood) on a
+    linear axis zoomed from the best cost found to the panel's highest reference (falls at 100–200 and
     early costs above the zoom leave it through the top). Empty curves are skipped; a figure
     with no curve raises ``ValueError``.
     """
@@ -130,11 +136,12 @@ def plot_best_so_far(panels: Sequence[CurvePanel] | CurvePanel, path: str | Path
                              sharex="col", gridspec_kw={"height_ratios": [1.0, 1.5]})
     for j, p in enumerate(panels):
         top, bot = axes[0, j], axes[1, j]
-        bests, stables, nmax = [], [], 1
+        bests, stables, shown, nmax = [], [], [], 1
         for label, costs in p.curves.items():
             y = np.minimum(np.asarray(costs, dtype=float).reshape(-1), _DISPLAY_MAX)
             if y.size == 0:
                 continue
+            shown.append(y)
             x = np.arange(1, y.size + 1)
             nmax = max(nmax, y.size)
             f = fell_mask(y, p.fell.get(label), fall_cost=C1)
@@ -157,11 +164,11 @@ def plot_best_so_far(panels: Sequence[CurvePanel] | CurvePanel, path: str | Path
         top.axhline(C1, color="0.4", ls=":", lw=1)
         top.text(0.99, C1, f"C1 = {C1:g} (fall)", transform=top.get_yaxis_transform(),
                  fontsize=7, va="bottom", ha="right", color="0.3")
-        _log_axis(top)
+        scale = _log_axis(top, np.concatenate(shown + [np.array(list(refs.values()))]))
         top.set_title(p.title, fontsize=10)
         lim = _zoom(bests, stables, [v for v in refs.values() if v < C1])
         if lim is None:
-            _log_axis(bot)
+            _log_axis(bot, list(refs.values()))
         else:
             bot.set_ylim(*lim)
         bot.set_xlim(0.5, nmax + 0.5)
@@ -170,8 +177,8 @@ def plot_best_so_far(panels: Sequence[CurvePanel] | CurvePanel, path: str | Path
                    frameon=False)
         bot.grid(alpha=0.3)
         top.grid(alpha=0.3)
-        if j == 0:
-            top.set_ylabel("cost of each evaluation\n(· stable, × fell; log)")
+        if j == 0 or scale == "linear":
+            top.set_ylabel(f"cost of each evaluation\n(· stable, × fell; {scale})")
             bot.set_ylabel("best cost so far (linear, zoomed)")
     if title:
         fig.suptitle(title)
