@@ -177,17 +177,19 @@ def choose(ladder: list[dict[str, Any]], base: dict[str, Any]) -> dict[str, Any]
 
 def parse_rule(text: str, grid: list[dict[str, Any]]) -> dict[str, Any]:
     """The grid's entry named ``FAMILY:K=V,...`` (e.g. ``early:a=1,b=1,counts=all``);
-    ValueError naming the grid's families for any other."""
+    ValueError naming the grids for any other."""
     fam, _, kv = text.partition(":")
-    try:
-        want = dict(x.split("=", 1) for x in kv.split(",")) if kv else {}
-    except ValueError:
-        want = None
+    want = dict(x.partition("=")[::2] for x in kv.split(",") if x)
+
+    def same(v: Any, given: str) -> bool:
+        try:
+            return type(v)(given) == v
+        except ValueError:
+            return False
+
     for g in grid:
-        if want is not None and g["family"] == fam and \
-                {k: str(v) for k, v in g["params"].items()} == \
-                {k: str(float(v)) if isinstance(g["params"].get(k), float) else v
-                 for k, v in want.items()}:
+        if g["family"] == fam and set(want) == set(g["params"]) and \
+                all(same(g["params"][k], want[k]) for k in want):
             return g
     raise ValueError(f"--also {text!r} is no rule of the grids (early:a=A,b=B,counts=C with "
                      f"{EARLY_GRID}; stall:m=M,w=W with {STALL_GRID})")
