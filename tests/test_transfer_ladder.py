@@ -677,3 +677,29 @@ def test_stopping_rules_cut_a_run_where_its_own_falls_say(tmp_path, capsys):
     assert "--robot-summary and --robot-traces go together" in err
     with pytest.raises(ValueError, match="no rule of the grids"):
         ts.parse_rule("early:a=7", [])
+
+
+def test_model_comparison_scores_each_model_on_the_trials_it_was_not_given(tmp_path, capsys):
+    """``transfer_models``: every model predicts the target's trials after the cut; where the
+    target is the source, the source-informed models rank those trials well; the ensemble's
+    weight is a share; bad input is one line, exit 2."""
+    from benchmarks import transfer_models as tm
+    from latentune.critic.transfer import Transfer
+
+    rng = np.random.default_rng(0)
+    Xs = rng.random((40, 3))
+    ys = ((Xs - 0.4) ** 2).sum(1)
+    fs = ys > 0.6
+    h = Transfer((Xs, ys, fs), None, None, seed=0).source_model().hypers
+    X = rng.random((16, 3))
+    y = ((X - 0.4) ** 2).sum(1)                     # the target is the source
+    sc = tm.score_cut((Xs, ys, fs), h, 0, X, y, y > 0.6, 6)
+    assert set(tm.MODELS) <= set(sc)
+    assert sc["source"]["rho"] > 0.8 and sc["transfer"]["rho"] > 0.8 and sc["mtgp"]["rho"] > 0.5
+    assert 0.0 <= sc["rgpe_weight_source"]["w"] <= 1.0
+    assert all(-1.0 <= sc[m]["rho"] <= 1.0 for m in tm.MODELS)
+    assert tm.main(["--sources", str(tmp_path / "none"), "--runs", str(tmp_path)]) == 2
+    assert tm.main(["--merge", "x.json", "--runs", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("transfer_models:") == 2 and "no such directory" in err
+    assert "--merge reads stored rows" in err
