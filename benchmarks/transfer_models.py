@@ -181,9 +181,11 @@ def run(sources: Path, runs: Path, seeds: list[int], systems: list[str] | None,
 
 def table(rows: list[dict[str, Any]]) -> list[str]:
     """Per trial set and cut: each model's median ρ (and AUC) over targets × seeds, and on how
-    many cuts it ranks better than ``transfer`` (ρ higher) / worse."""
-    out = ["| set | t | model | median ρ | better / worse than transfer | median fall AUC |",
-           "|---|---:|---|---:|---|---:|"]
+    many cuts it ranks better than ``transfer`` (ρ higher) / worse, with a two-sided sign test."""
+    from scipy.stats import binomtest
+
+    out = ["| set | t | model | median ρ | better / worse than transfer (sign test p) | "
+           "median fall AUC |", "|---|---:|---|---:|---|---:|"]
     for set_name in SETS:
         for t in CUTS:
             part = [r for r in rows if r["set"] == set_name and r["t"] == t]
@@ -194,8 +196,9 @@ def table(rows: list[dict[str, Any]]) -> list[str]:
                 au = [r[m]["auc"] for r in part if r[m]["auc"] is not None]
                 pairs = [(r[m]["rho"], r["transfer"]["rho"]) for r in part
                          if r[m]["rho"] is not None and r["transfer"]["rho"] is not None]
-                bw = "" if m == "transfer" else \
-                    f"{sum(a > b for a, b in pairs)} / {sum(a < b for a, b in pairs)}"
+                up, down = sum(a > b for a, b in pairs), sum(a < b for a, b in pairs)
+                bw = "" if m == "transfer" or not up + down else \
+                    f"{up} / {down} ({binomtest(up, up + down).pvalue:.2g})"
                 out.append(f"| {set_name} | {t} | {m} | "
                            f"{np.median(rho) if rho else float('nan'):.3f} | {bw} | "
                            f"{np.median(au) if au else float('nan'):.3f} |")
