@@ -244,8 +244,8 @@ def main(argv: list[str] | None = None) -> int:
     for g in grid:
         del g["_end"]
     res = {"default": base, "grid": grid, "chosen": chosen}
-    line = "{:34s} (1) {c1:2d}  (3) {c3:2d}  both {c1_and_c3:2d} of {targets:2d}  falls {falls:4d}" \
-           "  paired {paired_cost:.4f}"
+    line = ("{:34s} (1) {c1:2d}  (3) {c3:2d}  both {c1_and_c3:2d} of {targets:2d}  "
+            "falls {falls:4d}  paired {paired_cost:.4f}")
     print("ladder grid:")
     for g in grid:
         p = " ".join(f"{k}={v}" for k, v in g["params"].items())

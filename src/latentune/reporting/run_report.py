@@ -181,8 +181,9 @@ def write_summary(store: Any, wall_this: float | None = None) -> dict[str, Any]:
     ``phase3_best`` (the best trial that did not fail; None if none stood),
     ``phase3_vs_phase1`` (ratio of the bests); counts: ``phase{1,3}_evals``,
     ``phase{1,3}_stable``, ``phase{1,3}_falls``, ``phase{1,3}_evals_to_beat_manual`` (first
-    evaluation that did not fail strictly below the manual cost, 1-based, None if never); ``rms_velocity_error_m_s``
-    (per phase, the best θ's RMS velocity error [m/s]; None for a user system); wall times [s]
+    evaluation that did not fail strictly below the manual cost, 1-based, None if never);
+    ``rms_velocity_error_m_s`` (per phase, the best θ's RMS velocity error [m/s]; None for a
+    user system); wall times [s]
     ``wall_s`` (sum over phases), ``wall_by_phase_s``, ``wall_s_this_command``; ``seed``,
     ``config``, ``artifacts``, ``phase{1,3}_best_params``, ``paper`` (the paper's numbers for
     the task or None), ``phase3_handover`` (:func:`handover_stats`), ``written`` (unix time).
