@@ -115,7 +115,7 @@ def plot_best_so_far(panels: Sequence[CurvePanel] | CurvePanel, path: str | Path
     """The best-cost figure: one column per :class:`CurvePanel`.
 
     Top row: the cost of every evaluation (log axis, linear where a cost is ≤ 0; stable ·,
-    fell ×, C1 dotted) against the evaluation number 1..n of that panel. Bottom row: the best
+    fell ×, C1 dotted where a cost reaches it) against the evaluation number 1..n of that panel. Bottom row: the best
     cost so far of the trials that did not fail (none before the first one that stood) on a
     linear axis zoomed from the best cost found to the panel's highest reference (falls at
     100–200 and early costs above the zoom leave it through the top). Empty curves are
@@ -161,9 +161,10 @@ def plot_best_so_far(panels: Sequence[CurvePanel] | CurvePanel, path: str | Path
         refs = {k: float(v) for k, v in p.refs.items() if v is not None}
         for (label, v), ls in zip(refs.items(), ("--", "-.", ":", (0, (5, 1)))):
             bot.axhline(v, color="k", ls=ls, lw=1, label=f"{label} ({v:.3f})")
-        top.axhline(C1, color="0.4", ls=":", lw=1)
-        top.text(0.99, C1, f"C1 = {C1:g} (fall)", transform=top.get_yaxis_transform(),
-                 fontsize=7, va="bottom", ha="right", color="0.3")
+        if any((y >= C1).any() for y in shown):     # costs on the path-cost scale reach it
+            top.axhline(C1, color="0.4", ls=":", lw=1)
+            top.text(0.99, C1, f"C1 = {C1:g} (fall)", transform=top.get_yaxis_transform(),
+                     fontsize=7, va="bottom", ha="right", color="0.3")
         scale = _log_axis(top, np.concatenate(shown + [np.array(list(refs.values()))]))
         top.set_title(p.title, fontsize=10)
         lim = _zoom(bests, stables, [v for v in refs.values() if v < C1])
