@@ -50,9 +50,9 @@ def cmd_import_optuna(args: argparse.Namespace) -> int:
 
     with study:
         rows = study.store.rows(Phase.PHASE1)
-        best = min((r.cost for r in rows if not r.fell), default=None)
+        best = study.store.best(Phase.PHASE1)
         print(f"{args.out}: phase 1 holds {len(rows)} trials ({sum(r.fell for r in rows)} falls), "
-              + ("no trial without a fall" if best is None else f"best cost {best:.6g}"))
+              + ("no trial without a fall" if best is None else f"best cost {best.cost:.6g}"))
         if args.train_latent:
             latent = study.train_latent(args.latent_dim, epochs=args.vae_epochs)
             print(f"latent space ({latent.kind}, d_low {latent.d_low}) trained on "

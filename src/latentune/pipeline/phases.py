@@ -216,9 +216,10 @@ def fall_below_best_message(phase: int, cost: float, best: float) -> str | None:
 
 
 def best_standing(store: RunStore, phase: int) -> float:
-    """The lowest cost of a stored trial of ``phase`` that did not fail (inf if none)."""
-    y, fell = store.costs(phase), store.fell(phase)
-    return float(np.min(y[~fell])) if (~fell).any() else math.inf
+    """The cost of :meth:`RunStore.best` of ``phase`` (the lowest of a trial that did not
+    fail; inf if none stood)."""
+    b = store.best(phase)
+    return math.inf if b is None else float(b.cost)
 
 
 def failure_streak(store: RunStore, phase: int) -> int:

@@ -115,11 +115,11 @@ def plot_best_so_far(panels: Sequence[CurvePanel] | CurvePanel, path: str | Path
     """The best-cost figure: one column per :class:`CurvePanel`.
 
     Top row: the cost of every evaluation (log axis, linear where a cost is ≤ 0; stable ·,
-    fell ×, C1 dotted where a cost reaches it) against the evaluation number 1..n of that panel. Bottom row: the best
-    cost so far of the trials that did not fail (none before the first one that stood) on a
-    linear axis zoomed from the best cost found to the panel's highest reference (falls at
-    100–200 and early costs above the zoom leave it through the top). Empty curves are
-    skipped; a figure with no curve raises ``ValueError``.
+    fell ×, C1 dotted where a cost reaches it) against the evaluation number 1..n of that
+    panel. Bottom row: the best cost so far of the trials that did not fail (none before the
+    first one that stood) on a linear axis zoomed from the best cost found to the panel's
+    highest reference (falls at 100–200 and early costs above the zoom leave it through the
+    top). Empty curves are skipped; a figure with no curve raises ``ValueError``.
     """
     if isinstance(panels, CurvePanel):
         panels = [panels]
