@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks.transfer import DEFAULT_METHOD as DEFAULT
-from benchmarks.transfer_walk import load_trace
+from benchmarks.transfer_walk import load_trace, runs_by_seed
 
 
 
@@ -71,13 +71,14 @@ def cheap_early(runs: Path, summary: dict[str, Any], default: str) -> dict[tuple
 
 
 def robot_early(traces: Path, default: str) -> dict[tuple[str, int], int]:
-    """(rung, seed) → the default's early falls, from the exported robot traces."""
+    """(rung, seed) → the default's early falls, from the exported robot traces (its
+    ``@avx512`` run where there is one, :func:`~benchmarks.transfer_walk.runs_by_seed`)."""
     out = {}
     for f in sorted(traces.glob("*.json")):
         d = json.loads(f.read_text())
-        for r in d.get("runs", []) if isinstance(d, dict) else []:
-            if r.get("method") in (default, f"{default}@avx512"):
-                out[d["target"], int(r["seed"])] = _early(r["failed"])
+        runs = d.get("runs", []) if isinstance(d, dict) else []
+        for seed, r in runs_by_seed(runs, default).items():
+            out[d["target"], seed] = _early(r["failed"])
     return out
 
 
@@ -108,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
         robots: list[dict[str, Any]] = []
         if a.robot_summary:
             rs = json.loads(Path(a.robot_summary).read_text())
-            robots = rows_of(rs, robot_early(Path(a.robot_traces), a.default + "@avx512"),
+            robots = rows_of(rs, robot_early(Path(a.robot_traces), a.default),
                              "{target}")
     except (OSError, ValueError, KeyError) as e:
         print(f"transfer_allowance: {e}", file=sys.stderr)

@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks import transfer as tr
-from benchmarks.transfer_walk import load_trace
+from benchmarks.transfer_walk import load_trace, runs_by_seed
 from latentune.critic.transfer import FALL_BUDGET_COUNTS, counted_falls
 
 LADDER = ("arm", "chain", "hopper", "springs", "zones")
@@ -107,13 +107,17 @@ def robot_cases(summary: Path, traces: Path, default: str) -> list[Case]:
     out = []
     for row in s["targets"]:
         d = json.loads((traces / f"{row['target']}.json").read_text())
-        by_seed = {int(r["seed"]): r for r in d["runs"]
-                   if r["method"] in (default, f"{default}@avx512")}
+        by_seed = runs_by_seed(d["runs"], default)
         if not set(row["seeds"]) <= set(by_seed):
             raise ValueError(f"the traces of {row['target']} lack the default's seeds "
                              f"{sorted(set(row['seeds']) - set(by_seed))}")
         out.append((row["target"], row, [by_seed[sd] for sd in row["seeds"]]))
     return out
+
+
+def _cut(run: dict[str, Any], end: Ends) -> dict[str, Any]:
+    """``run`` stopped where the rule ``end`` says (:func:`benchmarks.transfer.cut_at`)."""
+    return tr.cut_at(run, end(list(run["costs"]), [bool(x) for x in run["failed"]]))
 
 
 def judge(cases: list[Case], end: Ends | None) -> dict[str, Any]:
@@ -126,8 +130,7 @@ def judge(cases: list[Case], end: Ends | None) -> dict[str, Any]:
     fails = []
     for key, row, runs in cases:
         peer = row["methods"][row["best_peer"]]
-        cut = [tr.cut_at(r, end(list(r["costs"]), [bool(x) for x in r["failed"]]))
-               if end else r for r in runs]
+        cut = [_cut(r, end) if end else r for r in runs]
         best = [min(r["costs"]) for r in cut]
         fl = [int(sum(r["failed"])) for r in cut]
         ok1 = tr._no_worse(best, peer["best"])[0]
@@ -145,7 +148,7 @@ def paired_only(runs: list[dict[str, Any]], end: Ends) -> dict[str, Any]:
     """Falls and paired cost of ``runs`` cut by ``end`` (a set without peers)."""
     from scipy.stats import gmean
 
-    cut = [tr.cut_at(r, end(list(r["costs"]), [bool(x) for x in r["failed"]])) for r in runs]
+    cut = [_cut(r, end) for r in runs]
     ratio = [min(c["costs"]) / min(r["costs"]) for c, r in zip(cut, runs)]
     return {"runs": len(runs), "falls": int(sum(sum(c["failed"]) for c in cut)),
             "falls_uncut": int(sum(sum(r["failed"]) for r in runs)),

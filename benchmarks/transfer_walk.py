@@ -63,6 +63,19 @@ def load_trace(runs: list[Path], system: str, gap: float, seed: int, method: str
     return None
 
 
+def runs_by_seed(runs: list[dict[str, Any]], method: str) -> dict[int, dict[str, Any]]:
+    """Seed → the run of ``method`` among ``runs`` (an exported robot trace's ``runs``), its
+    ``@avx512`` twin read in its place where both are there (as :func:`load_trace`)."""
+    out: dict[int, dict[str, Any]] = {}
+    for r in runs:
+        if r.get("method") == method:
+            out.setdefault(int(r["seed"]), r)
+    for r in runs:
+        if r.get("method") == f"{method}@avx512":
+            out[int(r["seed"])] = r
+    return out
+
+
 def record_fell(trace: dict[str, Any]) -> bool:
     """True when the zero-shot θ (trial 0) and the design's elites (trials 2, 3) fell."""
     f = trace["failed"]

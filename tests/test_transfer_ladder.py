@@ -703,3 +703,18 @@ def test_model_comparison_scores_each_model_on_the_trials_it_was_not_given(tmp_p
     err = capsys.readouterr().err
     assert err.count("transfer_models:") == 2 and "no such directory" in err
     assert "--merge reads stored rows" in err
+
+
+def test_a_robot_traces_run_of_a_method_is_its_avx512_twin_where_there_is_one():
+    """``runs_by_seed``: the ``@avx512`` run wins whichever comes first in the exported list;
+    a seed with only the plain run keeps it; other methods are left out."""
+    from benchmarks.transfer_walk import runs_by_seed
+
+    runs = [{"method": "M@avx512", "seed": 0, "tag": "new0"},
+            {"method": "M", "seed": 0, "tag": "old0"},
+            {"method": "M", "seed": 1, "tag": "old1"},
+            {"method": "M2", "seed": 2, "tag": "other"}]
+    got = runs_by_seed(runs, "M")
+    assert {s: r["tag"] for s, r in got.items()} == {0: "new0", 1: "old1"}
+    assert {s: r["tag"] for s, r in runs_by_seed(runs[::-1], "M").items()} == \
+        {0: "new0", 1: "old1"}
