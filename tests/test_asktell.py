@@ -684,30 +684,3 @@ def test_a_failed_trial_may_report_a_non_finite_cost_and_a_standing_one_may_not(
     rows = lt.Study(tmp_path / "p").store.rows(Phase.PHASE1)
     assert res.n == 12 and any(r.fell for r in rows) and any(not r.fell for r in rows)
     assert all(r.cost == 200.0 and r.info["reported_cost"] == "nan" for r in rows if r.fell)
-
-
-def test_a_failed_trial_told_below_the_best_standing_cost_is_warned_once(tmp_path, caplog):
-    """A user system may give a failed trial a low cost: the reports never call it the best,
-    and the loop (once per run) and ``tell`` say that the cost-only critics are drawn to it;
-    a fall before anything stood, or above the best, says nothing."""
-    def trial(x):                   # even trials stand at 1.0, odd ones fall at 0.1
-        trial.n += 1
-        return lt.Outcome(cost=0.1 if trial.n % 2 else 1.0, failed=bool(trial.n % 2))
-    trial.n = -1
-    with caplog.at_level(logging.WARNING), lt.Study(tmp_path / "s", seed=0) as st:
-        st.phase1(lt.FunctionSystem(SPACE, trial), 6)
-        assert st.best().cost == 1.0
-    low = [r for r in caplog.records if "below the best trial that stood (1)" in r.getMessage()]
-    assert len(low) == 1 and "phase 1:" in low[0].getMessage()
-    caplog.clear()
-    with caplog.at_level(logging.WARNING), lt.Study(tmp_path / "a", seed=0) as at:
-        (s,) = at.ask(space=SPACE)
-        at.tell(s.id, 0.05, failed=True)            # nothing stood yet
-        (s,) = at.ask()
-        at.tell(s.id, 1.0)
-        (s,) = at.ask()
-        at.tell(s.id, 2.0, failed=True)             # above the best
-        assert not any("below the best" in r.getMessage() for r in caplog.records)
-        (s,) = at.ask()
-        at.tell(s.id, 0.2, failed=True)
-    assert sum("below the best trial that stood" in r.getMessage() for r in caplog.records) == 1

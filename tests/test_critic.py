@@ -770,3 +770,62 @@ def test_refit_checkpoint_schedule():
     assert all(b - a == max(1, math.ceil(0.1 * a)) for a, b in zip(seq, seq[1:]))
     c = refit_checkpoint(5_000, 0.1, 256)                        # past the cap: every 26 points
     assert refit_checkpoint(c + 25, 0.1, 256) == c and refit_checkpoint(c + 26, 0.1, 256) == c + 26
+
+
+# ----------------------------------------------------------------------------- falls rank last
+def test_fall_last_ranks_every_fall_after_every_standing_trial_and_keeps_both_orders():
+    from latentune.critic.base import fall_last
+
+    y = np.array([3.0, 0.1, 2.0, 0.5, 5.0])
+    fell = np.array([False, True, False, True, False])
+    r = fall_last(y, fell)
+    assert r[fell].min() > r[~fell].max()
+    assert np.array_equal(np.argsort(r[fell]), np.argsort(y[fell]))
+    assert np.array_equal(r[~fell], y[~fell])
+    above = np.where(fell, y + 10.0, y)           # falls already above: nothing moves
+    assert np.array_equal(fall_last(above, fell), above)
+    assert np.array_equal(fall_last(y, np.zeros(5, bool)), y)
+    assert np.array_equal(fall_last(y, np.ones(5, bool)), y)
+
+
+@pytest.mark.parametrize("method", ["turbo", "cma", "random"])
+def test_a_failed_trial_told_the_lowest_cost_is_never_the_best(method):
+    kw = FAST_TURBO if method == "turbo" else {}
+    c = make_critic(method, 2, batch_size=4, seed=0, **kw)
+    X = c.ask()
+    c.tell(X, np.array([1.0, 0.01, 2.0, 3.0]), c.last_tags, fell=np.array([0, 1, 0, 0], bool))
+    assert c.best_index == 0 and c.best_y == 1.0
+    assert np.argmax(c.ranked_costs()) == 1 and list(c.fell) == [False, True, False, False]
+    if method == "turbo":        # the region's centre is the trial that stood
+        assert [r["best_index"] for r in c.region_state() if r["n_points"]] == [0]
+    c2 = make_critic(method, 2, batch_size=4, seed=0, **kw)    # no flags: the non-finite fell
+    c2.tell(X, np.array([np.nan, 0.5, 2.0, np.inf]), c2.last_tags)
+    assert list(c2.fell) == [True, False, False, True] and c2.best_index == 1
+
+
+def test_turbo_is_not_drawn_to_failed_trials_told_low_costs():
+    """A cost whose trials fail past a cliff near the optimum and are told the (low) cost they
+    had accumulated when they failed: TuRBO-m told the flags falls a fraction of the times it
+    falls without them, and ends lower."""
+    def problem(X):
+        y = ((X - np.array([0.55, 0.5])) ** 2).sum(1) * 10 + 0.1
+        fell = X[:, 0] > 0.6
+        return np.where(fell, 0.05 * (1 - X[:, 0]), y), fell
+
+    out = {}
+    for told in (True, False):
+        falls, best = 0, []
+        for seed in range(3):
+            c = make_critic("turbo", 2, batch_size=4, seed=seed, x0=np.array([0.2, 0.2]),
+                            **FAST_TURBO)
+            b = np.inf
+            for _ in range(12):
+                X = c.ask()
+                y, f = problem(X)
+                c.tell(X, y, c.last_tags, fell=f if told else np.zeros(len(y), bool))
+                falls += int(f.sum())
+                b = min(b, y[~f].min()) if (~f).any() else b
+            best.append(b)
+        out[told] = (falls, float(np.median(best)))
+    assert out[True][0] * 3 < out[False][0]
+    assert out[True][1] < out[False][1]

@@ -58,11 +58,18 @@ screens is its own business, stated by :attr:`Critic.batch_policy`:
 Either way the screen is consulted through :meth:`Screen.predictor` only; the critic says which
 told points a prediction may use (``basis``) when its resume needs it.
 
-Costs
------
+Costs and falls
+---------------
 The stored ``y`` are the raw costs as told. Non-finite costs (nan, +inf, -inf: a crashed or
 diverged evaluation) are never chosen as best and are treated as the worst finite cost seen so
 far wherever a number is needed (:func:`fill_nonfinite`).
+
+``tell(..., fell=)`` flags the trials that failed (default: the non-finite costs); every critic
+keeps them (:attr:`Critic.fell`). A failed trial ranks after every trial that stood, whatever
+cost it was told: it is never the best (:attr:`Critic.best_index`), and the critics model the
+costs of :meth:`Critic.ranked_costs` (:func:`fall_last`), where the falls keep their order among
+themselves. Where every fall already costs more than every standing trial (the path cost's
+falls at ``C1·(2 − k/N)``) the ranked costs are the told costs.
 """
 from __future__ import annotations
 
@@ -149,6 +156,25 @@ def fill_nonfinite(y: np.ndarray) -> np.ndarray:
     bad = ~np.isfinite(y)
     if bad.any():
         y[bad] = y[~bad].max() if (~bad).any() else 0.0
+    return y
+
+
+def fall_last(y: np.ndarray, fell: np.ndarray) -> np.ndarray:
+    """Costs (n,) in which every failed trial ranks after every trial that stood.
+
+    ``y`` (n,) finite costs, ``fell`` (n,) bools. When the lowest failed cost is not above the
+    highest standing one, every failed cost is raised by the same amount, to just above the
+    highest standing cost: the order among the falls and among the standing trials is kept.
+    Otherwise (and when either group is empty) ``y`` is returned as it is (a copy).
+    """
+    y = np.array(y, dtype=float, copy=True).reshape(-1)
+    fell = np.asarray(fell, dtype=bool).reshape(-1)
+    if not fell.any() or fell.all():
+        return y
+    top, low = float(y[~fell].max()), float(y[fell].min())
+    if low > top:
+        return y
+    y[fell] += top - low + 1e-9 * max(1.0, abs(top))
     return y
 
 
@@ -266,6 +292,7 @@ class Critic(ABC):
         self.x0: np.ndarray | None = None if x0 is None else as_unit_points(x0, self.dim, "x0")
         self._X = np.empty((0, self.dim))
         self._y = np.empty(0)
+        self._fell = np.zeros(0, dtype=bool)
         self._tags = np.empty(0, dtype=np.int64)
         self.last_tags: np.ndarray = np.empty(0, dtype=np.int64)
         self._screen: _ScreenLink | None = None
@@ -300,14 +327,17 @@ class Critic(ABC):
         """Report raw costs ``y`` (n,) of points ``X`` (n, dim) in [0, 1]^dim.
 
         ``tags`` (n,) ints as returned in :attr:`last_tags` (``None`` = all untagged, ``-1``).
-        ``fell`` (n,) bools: which trials failed; the plain critics model the cost only and
-        ignore it (:class:`~latentune.critic.fall_aware.FallAware` uses it).
-        Non-finite costs are allowed (see the module docstring).
+        ``fell`` (n,) bools: which trials failed (default: the non-finite costs); a failed
+        trial ranks after every trial that stood ("Costs and falls" in the module docstring).
+        Non-finite costs are allowed.
         """
         X = as_unit_points(X, self.dim)
         y = np.asarray(y, dtype=float).reshape(-1)
         if y.shape[0] != X.shape[0]:
             raise ValueError(f"y must have shape ({X.shape[0]},), got {np.shape(y)}")
+        fa = ~np.isfinite(y) if fell is None else np.asarray(fell, dtype=bool).reshape(-1)
+        if fa.shape[0] != X.shape[0]:
+            raise ValueError(f"fell must have shape ({X.shape[0]},), got {np.shape(fell)}")
         if tags is None:
             tags_a = np.full(X.shape[0], UNTAGGED, dtype=np.int64)
         else:
@@ -325,6 +355,7 @@ class Critic(ABC):
         start = self._X.shape[0]
         self._X = np.vstack([self._X, X])
         self._y = np.concatenate([self._y, y])
+        self._fell = np.concatenate([self._fell, fa])
         self._tags = np.concatenate([self._tags, tags_a])
         self._proposer = None
         self._tell(np.arange(start, start + X.shape[0]), tags_a)
@@ -429,17 +460,29 @@ class Critic(ABC):
         return self._tags.copy()
 
     @property
+    def fell(self) -> np.ndarray:
+        """(n,) bool: the ``fell`` flags of all told points, in tell order."""
+        return self._fell.copy()
+
+    @property
     def n_told(self) -> int:
         """Number of told points."""
         return int(self._y.shape[0])
 
+    def ranked_costs(self) -> np.ndarray:
+        """The costs (n,) the critic models: :func:`fill_nonfinite`, then :func:`fall_last` with
+        the told ``fell`` flags."""
+        return fall_last(fill_nonfinite(self._y), self._fell)
+
     @property
     def best_index(self) -> int | None:
-        """Index of the best finite cost told (first one on ties); ``None`` if there is none."""
-        finite = np.isfinite(self._y)
-        if not finite.any():
-            return None
-        return int(np.flatnonzero(finite)[np.argmin(self._y[finite])])
+        """Index of the best told point (first one on ties): the lowest finite cost of a trial
+        that stood, else the lowest finite cost of a failed one; ``None`` if no cost is
+        finite."""
+        for ok in (np.isfinite(self._y) & ~self._fell, np.isfinite(self._y)):
+            if ok.any():
+                return int(np.flatnonzero(ok)[np.argmin(self._y[ok])])
+        return None
 
     @property
     def best_x(self) -> np.ndarray | None:
@@ -478,22 +521,16 @@ class TwoSpaceCritic(Critic):
     """A critic on the full θ box some of whose points come from a latent box of dimension
     :attr:`k`: after each ask :attr:`last_z` (n, k) holds their codes (NaN rows for the others),
     and :meth:`tell` takes the codes back with the fall flags. A subclass sets ``last_z``,
-    ``_fell`` ((0,) bools) and ``_incoming`` (None) in its constructor and calls
-    :meth:`_incoming_told` first in its ``_tell``."""
+    ``_incoming`` (None) in its constructor and calls :meth:`_incoming_told` first in its
+    ``_tell``."""
 
     last_z: np.ndarray
-    _fell: np.ndarray
     _incoming: tuple[np.ndarray, np.ndarray] | None
 
     @property
     @abstractmethod
     def k(self) -> int:
         """Dimension of the latent box."""
-
-    @property
-    def fell(self) -> np.ndarray:
-        """(n,) fall flags of the told points."""
-        return self._fell.copy()
 
     def tell(self, X: np.ndarray, y: np.ndarray, tags: np.ndarray | None = None,
              fell: np.ndarray | None = None, z: np.ndarray | None = None) -> None:
@@ -510,12 +547,11 @@ class TwoSpaceCritic(Critic):
         za = np.full((Xa.shape[0], self.k), np.nan) if z is None or self.k == 0 else \
             np.asarray(z, dtype=float).reshape(Xa.shape[0], self.k)
         self._incoming = (fa, za)
-        super().tell(Xa, ya, tags)
+        super().tell(Xa, ya, tags, fell=fa)
 
     def _incoming_told(self) -> tuple[np.ndarray, np.ndarray]:
-        """The fall flags (n,) and codes (n, k) of the points being told; appends the flags."""
+        """The fall flags (n,) and codes (n, k) of the points being told."""
         assert self._incoming is not None
         fa, za = self._incoming
         self._incoming = None
-        self._fell = np.concatenate([self._fell, fa])
         return fa, za

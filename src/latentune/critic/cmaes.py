@@ -32,7 +32,8 @@
   are passed to pycma at the end of each ``tell``.)
 * When pycma's termination criteria fire, the strategy restarts from a uniformly random mean
   (generator ``[seed, 1, restart]``) with ``sigma0``; the history is kept.
-* Non-finite costs are given to pycma as the worst finite cost seen so far.
+* pycma is given :meth:`~latentune.critic.base.Critic.ranked_costs`: non-finite costs as the
+  worst finite cost seen so far, and the failed trials ranked after every trial that stood.
 
 Screening (:meth:`~latentune.critic.base.Critic.screen_with`, e.g. a fall model)
 --------------------------------------------------------------------------------
@@ -58,7 +59,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from latentune.critic.base import EXEMPT, Critic, ScreenReport, fill_nonfinite
+from latentune.critic.base import EXEMPT, Critic, ScreenReport
 
 
 _GEN = 1 << 20
@@ -242,7 +243,7 @@ class CMAES(Critic):
     def _tell_complete(self, limit: int | None) -> None:
         """Pass complete sampled generations to pycma in generation order (at most until
         ``limit`` generations have been passed in total)."""
-        yfill = fill_nonfinite(self._y)
+        yfill = self.ranked_costs()
         for g in sorted(self._pending):
             if g >= self._gen or (limit is not None and self._n_gen_told >= limit):
                 break
@@ -259,7 +260,7 @@ class CMAES(Critic):
                 continue
             Xg, yg = self._X[members], yfill[members]
             if screened is not None and pop is not None:
-                fin = self._y[members][np.isfinite(self._y[members])]
+                fin = yg[np.isfinite(self._y[members])]
                 if fin.size:
                     self._max_real = max(self._max_real, float(fin.max()))
                 M = self._max_real if np.isfinite(self._max_real) else 0.0
@@ -300,7 +301,7 @@ class CMAES(Critic):
                 told = self._X[self._pending.get(self._gen - 1, [])]
                 self._queue = [(x, g) for x, g in self._queue
                                if not (told.shape[0] and np.any(np.all(told == x, axis=1)))]
-        yfill = fill_nonfinite(self._y)
+        yfill = self.ranked_costs()
         while len(self._foreign) >= self.popsize:
             chunk, self._foreign = self._foreign[:self.popsize], self._foreign[self.popsize:]
             self._es_tell(self._X[chunk], yfill[chunk])

@@ -146,8 +146,6 @@ class FallAware(Critic):
             self.dim, max_points=int(max_points), max_fit_points=int(max_fit_points),
             refit_fraction=float(refit_fraction), threads=threads)
         self._prior_set = False
-        self._fell = np.empty(0, dtype=bool)
-        self._incoming_fell = np.empty(0, dtype=bool)
         self.last_fall_prob = np.empty(0)
         """(n,) predicted fall probability of the last asked points (nan: model inactive)."""
         self.last_n_over = 0
@@ -161,11 +159,6 @@ class FallAware(Critic):
         inner.screen_with(self)
 
     # ------------------------------------------------------------------ the screen
-    @property
-    def fell(self) -> np.ndarray:
-        """The ``fell`` flags (n,) bool of all told points, in tell order."""
-        return self._fell.copy()
-
     def _canonical(self, idx: np.ndarray) -> np.ndarray:
         """``idx`` sorted by (tag, point): independent of the order inside a batch."""
         idx = np.asarray(idx, dtype=np.int64)
@@ -207,8 +200,7 @@ class FallAware(Critic):
         if Xa.shape[0] == 0:
             return
         n0 = self.n_told
-        self._incoming_fell = fa
-        super().tell(Xa, ya, tags)               # validates the tags; the screen's data first
+        super().tell(Xa, ya, tags, fell=fa)      # validates the tags; the screen's data first
         try:
             self.inner.tell(Xa, ya, self._tags[n0:], fell=fa)
         except Exception:
@@ -217,7 +209,7 @@ class FallAware(Critic):
             raise
 
     def _tell(self, idx: np.ndarray, tags: np.ndarray) -> None:
-        self._fell = np.concatenate([self._fell, self._incoming_fell])
+        """The told points and flags are the screen's data (kept by :class:`Critic`)."""
 
     def _ask(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         X = self.inner.ask(n)

@@ -111,7 +111,6 @@ class Handover(TwoSpaceCritic):
         self._incoming: tuple[np.ndarray, np.ndarray] | None = None
         self._lat_idx: list[int] = []            # history indices of latent-stage points
         self._ext_idx: list[int] = []            # untagged points told before the hand-over
-        self._fell = np.empty(0, dtype=bool)
 
     @property
     def k(self) -> int:

@@ -3,7 +3,11 @@
 unit box, so the phase loop, the store and resume treat them as latentune's own methods
 (``optuna-tpe``, ``optuna-cmaes``, ``optuna-gp`` of :meth:`Study.phase1
 <latentune.study.Study.phase1>`): the baselines a user would pick instead. Needs the ``optuna``
-extra; latentune's samplers for Optuna studies are in :mod:`latentune.integrations.optuna`."""
+extra; latentune's samplers for Optuna studies are in :mod:`latentune.integrations.optuna`.
+
+As stock tools, the samplers are told each trial's own cost (a non-finite one as the worst
+finite cost before it), failed or not, as a user of Optuna would; only :attr:`best_index
+<latentune.critic.base.Critic.best_index>` ranks the failed trials last, as every critic's."""
 from __future__ import annotations
 
 import logging

@@ -1274,7 +1274,6 @@ class Transfer(TwoSpaceCritic):
         self._model: SourceModel | None = None
         self._canonical: np.ndarray | None = None      # (N,) canonical_order of the source
         self._hypers: dict[str, Any] | None = None
-        self._fell = np.empty(0, dtype=bool)
         self._incoming: tuple[np.ndarray, np.ndarray] | None = None
         self._Z = np.empty((0, self.k))
         self.last_z = np.empty((0, self.k))

@@ -7,13 +7,15 @@ Trust regions
 ``n_regions`` regions (default 10, the paper's m; callers that know the budget use
 :func:`regions_for_budget`), each with its own GP fitted only on the points attributed to it
 since its last restart (its *epoch*). Region ``r`` has a side length ``L`` (start 0.8) and a
-centre, its best point. Its box is ``centre ± L·w/2`` clipped to [0, 1], with
-``w = ℓ / geomean(ℓ)`` from the GP's ARD lengthscales ``ℓ``. After a tell, every region that got
-Thompson points in that ask (one *group* per ask generation and region) counts a success if the
-group's best cost beats the region's best by more than ``1e-3·|best|``, else one failure per
-point of the group (a region gets a varying share of each batch, so failures are counted in
-evaluations): 3 consecutive successes double ``L`` (max 1.6), ``max(5, d)`` consecutive failed
-evaluations halve it; when ``L < 0.5**7`` the region restarts: a fresh scrambled-Sobol design of
+centre, its best point (a trial that stood beats a failed one, else the lower cost). Its box is
+``centre ± L·w/2`` clipped to [0, 1], with ``w = ℓ / geomean(ℓ)`` from the GP's ARD
+lengthscales ``ℓ``. After a tell, every region that got Thompson points in that ask (one
+*group* per ask generation and region) counts a success if the group's best stands where the
+region's best fell, or beats the region's best of its own kind by more than ``1e-3·|best|``,
+else one failure per point of the group (a region gets a varying share of each batch, so
+failures are counted in evaluations): 3 consecutive successes double ``L`` (max 1.6),
+``max(5, d)`` consecutive failed evaluations halve it; when ``L < 0.5**7`` the region restarts:
+a fresh scrambled-Sobol design of
 ``n_init`` points, its old points stay in the global history but leave the region.
 
 Asking
@@ -31,7 +33,9 @@ Asking
 What the GP sees (the cost transform)
 -------------------------------------
 Raw costs are stored untouched. For a fit, all told costs are replaced by non-finite → worst
-finite, then warped by a global rank-based Gaussian copula, ``z = Φ⁻¹((rank − ½)/N)`` over the
+finite, the failed trials are ranked after every trial that stood
+(:meth:`~latentune.critic.base.Critic.ranked_costs`), then warped by a global rank-based
+Gaussian copula, ``z = Φ⁻¹((rank − ½)/N)`` over the
 whole history (ties share their average rank). Monotone, so argmins and the trust-region rules
 are unchanged, but immune to the dynamic range of the costs (fall costs in [C1, 2·C1) next to
 much smaller stable costs) and to outliers, with the best points spread out in the lower tail.
@@ -138,8 +142,8 @@ fell=)``); the pipeline sets both with the fall-aware option (``max_fall_prob``)
   its region's side (once, and resets its counters), whatever the success rule says: the share of
   falls estimates the fall probability of the region's trials, and a smaller region stays
   closer to its best, stable point. Only a region that holds a trial that did not fall shrinks
-  so (while all of them fell, its centre is a fall too). Falls are known only from ``fell``;
-  without it nothing shrinks. The flags enter the tell like the costs, so a replay of the
+  so (while all of them fell, its centre is a fall too). Falls are known only from ``fell``
+  (without it, the non-finite costs). The flags enter the tell like the costs, so a replay of the
   store is exact.
 
 Screened by a fall model (the critic protocol's screening hooks, :mod:`latentune.critic.base`),
@@ -161,8 +165,8 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from latentune.critic.base import (REPLACE, SCREENED, Critic, FitReport, fill_nonfinite,
-                                   gaussian_copula, refit_checkpoint)
+from latentune.critic.base import (REPLACE, SCREENED, Critic, FitReport, fall_last,
+                                   fill_nonfinite, gaussian_copula, refit_checkpoint)
 
 logger = logging.getLogger(__name__)
 
@@ -214,6 +218,18 @@ def decode_tag(tag: int) -> tuple[int, int, int]:
     return tag // _GEN, (tag % _GEN) // _KIND, tag % _KIND
 
 
+def _improves(new: tuple[float, bool], best: tuple[float, bool], rel: float) -> bool:
+    """Whether a trial ``new`` = (cost, fell) improves on ``best`` (cost ``inf``: none yet): a
+    trial that stood beats a failed one; of the same kind, the cost must be lower than the
+    best's by more than ``rel·|best|``."""
+    (y, fell), (b, b_fell) = new, best
+    if not math.isfinite(b):
+        return math.isfinite(y)
+    if fell != b_fell:
+        return b_fell
+    return y < b - rel * abs(b)
+
+
 def _evaluate_paths(path, x):
     """Evaluate pathwise samples ``path`` (sample shape (q,)) at ``x`` (n, d) -> (q, n).
 
@@ -258,7 +274,8 @@ class TrustRegion:
     epoch_gen: int = 0                      # first ask generation of the current epoch
     points: list[int] = field(default_factory=list)
     length_log: list[tuple[int, float]] = field(default_factory=list)   # (n_points, length)
-    best_y: float = math.inf                # best finite raw cost in the epoch
+    best_y: float = math.inf                # raw cost of the epoch's best (module docstring)
+    best_fell: bool = False                 # whether that trial fell (every trial fell)
     best_index: int = -1                    # its global index (-1: none)
     # GP hyperparameter cache
     hypers: dict[str, np.ndarray] | None = None
@@ -369,8 +386,6 @@ class TurboM(Critic):
         if fall_shrink is not None and not 0 <= fall_shrink < 1:
             raise ValueError(f"fall_shrink must be in [0, 1), got {fall_shrink!r}")
         self.fall_shrink = None if fall_shrink is None else float(fall_shrink)
-        self._fell = np.zeros(0, dtype=bool)
-        self._incoming_fell: np.ndarray | None = None
         self._gen = 0
         self.regions = [self._fresh_region(r, epoch=0, epoch_gen=0)
                         for r in range(self.n_regions)]
@@ -425,31 +440,36 @@ class TurboM(Critic):
         design_done = tr.design_ptr >= len(tr.design) or tr.n_points >= self.n_init
         return design_done and tr.n_points >= 2
 
-    def _add_points(self, tr: TrustRegion, idx: list[int]) -> float:
-        """Attribute told points to a region; return the best finite raw cost among them."""
+    def _lowest(self, idx: list[int]) -> int:
+        """The global index of the best of the points ``idx`` (-1 if no cost is finite): the
+        lowest finite cost of a trial that stood, else of a failed one."""
+        fin = [i for i in idx if math.isfinite(self._y[i])]
+        for pool in ([i for i in fin if not self._fell[i]], fin):
+            if pool:
+                return min(pool, key=lambda i: self._y[i])
+        return -1
+
+    def _add_points(self, tr: TrustRegion, idx: list[int]) -> None:
+        """Attribute told points to a region and update its best: a trial that stood beats
+        a failed one, else the lower finite raw cost."""
         tr.points.extend(idx)
         tr.length_log.append((tr.n_points, tr.length))
-        y = self._y[idx]
-        fin = np.isfinite(y)
-        if not fin.any():
-            return math.inf
-        j = int(np.asarray(idx)[fin][np.argmin(y[fin])])
-        if self._y[j] < tr.best_y:
-            tr.best_y, tr.best_index = float(self._y[j]), j
-        return float(self._y[j])
+        j = self._lowest(idx)
+        if j < 0:
+            return
+        if _improves((float(self._y[j]), bool(self._fell[j])), (tr.best_y, tr.best_fell), 0.0):
+            tr.best_y, tr.best_fell, tr.best_index = float(self._y[j]), bool(self._fell[j]), j
 
-    def _update_region(self, tr: TrustRegion, group_best: float, group_size: int) -> None:
+    def _update_region(self, tr: TrustRegion, group_best: tuple[float, bool],
+                       group_size: int) -> None:
         """Success/failure bookkeeping for one Thompson group (called before adding it).
 
-        A group that improves the region's best by more than 1e-3·|best| is one success; a
-        group that does not adds ``group_size`` failures (failures are counted in evaluations,
-        as regions get a varying share of each batch).
+        ``group_best`` is the group's best (cost, fell). A group whose best stands where the
+        region's best fell, or that improves the region's best of its own kind by more than
+        1e-3·|best|, is one success; a group that does not adds ``group_size`` failures
+        (failures are counted in evaluations, as regions get a varying share of each batch).
         """
-        best = tr.best_y
-        if not math.isfinite(best):
-            success = math.isfinite(group_best)
-        else:
-            success = group_best < best - 1e-3 * abs(best)
+        success = _improves(group_best, (tr.best_y, tr.best_fell), 1e-3)
         if success:
             tr.n_success += 1
             tr.n_failure = 0
@@ -464,30 +484,8 @@ class TurboM(Critic):
             tr.n_failure = 0
 
     # ------------------------------------------------------------------ tell
-    def tell(self, X: np.ndarray, y: np.ndarray, tags: np.ndarray | None = None,
-             fell: np.ndarray | None = None) -> None:
-        """:meth:`Critic.tell <latentune.critic.base.Critic.tell>`; ``fell`` (n,) bools are
-        used by ``fall_shrink`` (absent: no trial fell)."""
-        n = np.asarray(y, dtype=float).reshape(-1).shape[0]
-        if fell is not None and np.asarray(fell).reshape(-1).shape[0] != n:
-            raise ValueError(f"fell must have shape ({n},), got {np.shape(fell)}")
-        self._incoming_fell = (np.zeros(n, dtype=bool) if fell is None
-                               else np.asarray(fell, dtype=bool).reshape(-1))
-        try:
-            super().tell(X, y, tags)
-        finally:
-            self._incoming_fell = None
-
-    @property
-    def fell(self) -> np.ndarray:
-        """(n,) bool: the ``fell`` flags told with each point (False where none were given)."""
-        return self._fell.copy()
-
     def _tell(self, idx: np.ndarray, tags: np.ndarray) -> None:
         self._z_cache = None
-        inc = self._incoming_fell
-        self._fell = np.concatenate([self._fell, inc if inc is not None and inc.shape[0] == len(idx)
-                                     else np.zeros(len(idx), dtype=bool)])
         tagged = tags >= 0
         untagged = [int(i) for i, t in zip(idx, tags) if t < 0]
         groups: dict[tuple[int, int, int], list[int]] = {}
@@ -508,9 +506,8 @@ class TurboM(Critic):
                 tr.design_ptr = max(tr.design_ptr, min(tr.n_design_told, len(tr.design)))
                 self._add_points(tr, members)
                 continue
-            y = self._y[members]
-            fin = np.isfinite(y)
-            group_best = float(y[fin].min()) if fin.any() else math.inf
+            j = self._lowest(members)
+            group_best = (math.inf, False) if j < 0 else (float(self._y[j]), bool(self._fell[j]))
             side = tr.length
             self._update_region(tr, group_best, len(members))
             if self._fall_shrink_due(tr, members):
@@ -584,12 +581,7 @@ class TurboM(Critic):
         """Transformed costs of the whole history (n,), cached until the next tell."""
         if self._z_cache is not None and self._z_cache[0] == self.n_told:
             return self._z_cache[1]
-        if self.y_transform == "copula":
-            z = gaussian_copula(self._y)
-        else:
-            z = fill_nonfinite(self._y)
-            if self.y_transform == "log":
-                z = self._log_warp(z)
+        z = self._local_targets(self.ranked_costs())
         self._z_cache = (self.n_told, z)
         return z
 
@@ -619,8 +611,9 @@ class TurboM(Critic):
         return np.sort(np.asarray(sorted(best) + recent, dtype=np.int64))
 
     def _local_targets(self, y: np.ndarray) -> np.ndarray:
-        """The transform applied to a subset's raw costs only (used for hyperparameter fits, so
-        that they depend on the fitted points alone)."""
+        """The transform (``y_transform``) of ranked costs ``y`` (n,) (:func:`fall_last`): of
+        the whole history, or of a subset only (hyperparameter fits, so that they depend on the
+        fitted points alone)."""
         if self.y_transform == "copula":
             return gaussian_copula(y)
         z = fill_nonfinite(y)
@@ -728,8 +721,10 @@ class TurboM(Critic):
         c = self._checkpoint(tr.n_points)
         if tr.hypers is None or tr.fit_count != c:
             prefix = tr.points[:c]
-            fit_pts = self._select(prefix, fill_nonfinite(self._y[prefix]), self.max_fit_points)
-            zs, _, _ = self._standardize(self._local_targets(self._y[fit_pts]))
+            v = np.full(self.n_told, np.nan)
+            v[prefix] = fall_last(fill_nonfinite(self._y[prefix]), self._fell[prefix])
+            fit_pts = self._select(prefix, v[prefix], self.max_fit_points)
+            zs, _, _ = self._standardize(self._local_targets(v[fit_pts]))
             warm = self.warm_start and tr.hypers is not None
             start = None
             if warm:   # pull the start off the constraint edges, where L-BFGS-B would stick

@@ -61,8 +61,7 @@ from latentune.pipeline import manifest as mf
 from latentune.pipeline.baselines import queue_zero_shot
 from latentune.pipeline.loop import (decoder_of, phase_critic, record_latent, resolve_latent,
                                      resolve_strategy, strategy_of)
-from latentune.pipeline.phases import (ask_batch, best_standing, fall_below_best_message, replay,
-                                       state_key, warn_if_failing)
+from latentune.pipeline.phases import ask_batch, replay, state_key, warn_if_failing
 from latentune.pipeline.results import phase_name, write_best
 from latentune.pipeline.store import Row, RunStore
 from latentune.space import ParameterSpace
@@ -505,12 +504,8 @@ def tell(study: Any, trial_id: int, cost: float | Outcome | None = None, *,
             st.set_meta(state_key(ph), {})   # rebuilt from the corrected rows alone
         else:
             ph = st.trials_by_id(tid).phase
-            low = fall_below_best_message(ph, out.cost, best_standing(st, ph)) \
-                if out.failed else None
             idx = st.tell_trial(tid, out.cost, fell=out.failed, fall_step=out.fall_step,
                                 seed=study.seed, info=out.info)
-            if low:
-                log.warning(low)
             warn_if_failing(st, ph, lambda: strategy_of(
                 study.config().get(mf.PHASE_KEYS.get(Phase(ph), "")) or {}))
         write_best(st, study.dir, study.manifest.space(), ph)

@@ -46,7 +46,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from latentune.constants import C1, Phase
+from latentune.constants import Phase
 from latentune.critic.handover import HANDOVER_DEFAULTS
 from latentune.errors import StoreError, UsageError
 from latentune.pipeline.evaluators import ClusterLost, Evaluator, TrialError
@@ -201,18 +201,6 @@ def failing_message(phase: int, n: int, strategy: str = "plain") -> str:
     return (f"phase {int(phase)}: the last {n} trials all failed: the search is where the "
             "system fails; try the fall-aware critic (--max-fall-prob 0.3), a start θ that "
             "does not fail, or narrower bounds")
-
-
-def fall_below_best_message(phase: int, cost: float, best: float) -> str | None:
-    """The warning of a failed trial whose own ``cost`` is below ``best``, the lowest cost of
-    a trial of ``phase`` that stood (None when it is not): the reports never call it the best,
-    but the critics of phase 1 and the plain phase 3 model costs alone and are drawn to it."""
-    if not (math.isfinite(best) and cost < best):      # nothing stood yet: nothing to compare
-        return None
-    return (f"phase {int(phase)}: a failed trial was told cost {cost:.6g}, below the best "
-            f"trial that stood ({best:.6g}); phase 1's and the plain phase 3's critics model "
-            "the costs alone and will search near it (the transfer phase 3 ranks falls last): "
-            f"give failed trials a cost above every standing one, or none (then {2 * C1:g})")
 
 
 def best_standing(store: RunStore, phase: int) -> float:
@@ -448,7 +436,6 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
                  "stored)", int(phase), len(batch.thetas), len(batch.done))
     bar = _progress(budget, min(n0, budget), f"phase {phase}", progress)
     best = best_standing(store, phase)
-    warned_low_fall = False
     streak = failure_streak(store, phase)
     new = 0
     try:
@@ -485,10 +472,6 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
                 streak = streak + 1 if r.failed else 0
                 if streak == FAIL_STREAK:
                     log.warning(failing_message(phase, FAIL_STREAK, strategy))
-                low = fall_below_best_message(phase, cost, best) if r.failed else None
-                if low and not warned_low_fall:
-                    log.warning(low)
-                    warned_low_fall = True
                 if cost < best and not r.failed:
                     best = cost
                 if on_row is not None:
