@@ -799,7 +799,7 @@ def test_a_failed_trial_told_the_lowest_cost_is_never_the_best(method):
     if method == "turbo":        # the region's centre is the trial that stood
         assert [r["best_index"] for r in c.region_state() if r["n_points"]] == [0]
     c2 = make_critic(method, 2, batch_size=4, seed=0, **kw)    # no flags: the non-finite fell
-    c2.tell(X, np.array([np.nan, 0.5, 2.0, np.inf]), c2.last_tags)
+    c2.tell(X, np.array([np.nan, 0.5, 2.0, np.inf]))
     assert list(c2.fell) == [True, False, False, True] and c2.best_index == 1
 
 
