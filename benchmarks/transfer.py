@@ -246,6 +246,24 @@ def _loop(critic: Any, target: Any, n: int, costs: list, failed: list,
         critic.tell(U, np.array([out.cost]), tags, fell=np.array([out.failed]), **kw)
 
 
+def _sim_check_loop(critic: Any, target: Any, model: Any, k: int, n: int, costs: list,
+                    failed: list, thetas: list) -> int:
+    """``n`` trials of the transfer ``critic`` on ``target``, each after the ``k`` θ the critic
+    would ask now (:meth:`~latentune.critic.base.Critic.propose`) ran on the source system
+    ``model`` and were added to its source models (:meth:`~latentune.critic.transfer.Transfer.
+    add_source`; the option ``sim_check=k`` of a ``transfer+…`` method). Returns the source
+    trials made."""
+    made = 0
+    for _ in range(n):
+        P, _ = critic.propose(k)
+        outs = [evaluate(model, p) for p in P]
+        critic.add_source(P, np.array([float(o.cost) for o in outs]),
+                          np.array([bool(o.failed) for o in outs]))
+        made += len(outs)
+        _loop(critic, target, 1, costs, failed, thetas=thetas)
+    return made
+
+
 def parse_variant(text: str) -> dict[str, Any]:
     """``"option=value[:option=value]"`` as Transfer options (values read as JSON, else text)."""
     out: dict[str, Any] = {}
@@ -265,6 +283,9 @@ def check_variant(text: str) -> None:
     from latentune.pipeline.manifest import fall_options, transfer_option
 
     opts = parse_variant(text)
+    k = opts.pop("sim_check", 0)
+    if isinstance(k, bool) or not isinstance(k, int) or k < 0:
+        raise ValueError(f"sim_check must be an integer >= 0, got {k!r}")
     mfp = opts.pop("max_fall_prob", None)
     fall_options(mfp, None)
     transfer_option(opts or None, "transfer", mfp)
@@ -315,12 +336,19 @@ def run_method(method: str, target: Any, src: Path, B: int, seed: int,
         trial(best)
     elif method == "transfer":
         ls = LatentSpace.load(src / "vae")
+        opts = dict(options or {})
+        k = int(opts.pop("sim_check", 0))
         cr = Transfer((Xs, ys, fs), ls, manual, batch_size=1, seed=seed, budget=B,
-                      **{**LADDER_BASE, **(options or {})})
-        cr.load_state_dict({"source_hypers": source_hypers(src, seed, options)})
+                      **{**LADDER_BASE, **opts})
+        cr.load_state_dict({"source_hypers": source_hypers(src, seed, opts)})
         o = trial(best)
         cr.tell(best[None], np.array([o.cost]), fell=np.array([o.failed]))
-        _loop(cr, target, B - 1, costs, failed, thetas=thetas)
+        if k:
+            model = SYSTEMS[src.parent.parent.name]["model"]()
+            extra["source_checks"] = _sim_check_loop(cr, target, model, k, B - 1, costs,
+                                                     failed, thetas)
+        else:
+            _loop(cr, target, B - 1, costs, failed, thetas=thetas)
         extra["decisions"] = cr.decisions
     elif method in ("plain", "handover"):
         from latentune.pipeline.phases import make_handover_critic, make_phase_critic, \

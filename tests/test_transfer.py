@@ -702,3 +702,25 @@ def test_walk_pick_chooses_each_step_by_the_target_fall_model(source, hypers):
             _critic(source, hypers, record_walk=bad)
     with pytest.raises(ValueError, match="walk_pick must be one of"):
         _critic(source, hypers, walk_pick="cost")
+
+
+def test_add_source_conditions_the_source_models_on_new_trials_and_keeps_the_rest(source,
+                                                                                  hypers):
+    """Source trials added while phase 3 runs move the source cost model toward them (the
+    hyperparameters kept), leave the elites and the stored hyperparameters alone, reset a kept
+    proposal, and a bad shape is refused."""
+    X, y, f, c = source
+    cr = _critic(source, hypers)
+    elites = cr.elites().copy()
+    P = c[None, :] + np.linspace(0, 0.05, 3)[:, None]          # where the source stood best
+    before = cr.source_model().cost(P)
+    cr.propose(2)
+    assert cr._proposer is not None
+    cr.add_source(P, np.full(3, y.max() * 10), np.ones(3, bool))     # now they fell
+    after = cr.source_model().cost(P)
+    assert np.all(after > before + 0.1)
+    assert cr._proposer is None and np.array_equal(cr.elites(), elites)
+    assert cr.source_model().hypers["cost"] == hypers["cost"]
+    assert cr.state_dict()["source_hypers"]["cost"] == hypers["cost"]
+    with pytest.raises(ValueError):
+        cr.add_source(P, np.zeros(2), np.zeros(3, bool))

@@ -1274,6 +1274,7 @@ class Transfer(TwoSpaceCritic):
         self._model: SourceModel | None = None
         self._canonical: np.ndarray | None = None      # (N,) canonical_order of the source
         self._hypers: dict[str, Any] | None = None
+        self._added: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._incoming: tuple[np.ndarray, np.ndarray] | None = None
         self._Z = np.empty((0, self.k))
         self.last_z = np.empty((0, self.k))
@@ -1309,6 +1310,29 @@ class Transfer(TwoSpaceCritic):
                                       hypers=self._hypers)
             self._hypers = self._model.hypers
         return self._model
+
+    def add_source(self, X: np.ndarray, y: np.ndarray, fell: np.ndarray) -> None:
+        """Source trials made while phase 3 runs (θ (n, d) in the unit box, costs (n,), fall
+        flags (n,)): the source models are conditioned again on the source run's trials and
+        every trial added so far, with the hyperparameters they have (the fall model is fitted
+        when the added falls first make one possible). The elites, the design and the explore
+        pools keep the source run's own trials. Experimental: ``benchmarks.transfer``'s
+        ``sim_check`` runs the critic's proposals on the model system this way; nothing in
+        the phase loop calls it yet, and added trials are not part of :meth:`state_dict`."""
+        Xa = as_unit_points(X, self.dim, "X")
+        ya = np.asarray(y, dtype=float).reshape(-1)
+        fa = np.asarray(fell, dtype=bool).reshape(-1)
+        if not ya.shape[0] == fa.shape[0] == Xa.shape[0]:
+            raise ValueError(f"X, y and fell must have {Xa.shape[0]} rows")
+        self.source_model()                     # the hyperparameters, fitted once
+        X0, y0, f0 = self._added if self._added is not None else self.source_rows()
+        self._added = (np.vstack([X0, Xa]), np.concatenate([y0, ya]), np.concatenate([f0, fa]))
+        Xu, yu, fu = self._added
+        self._model = SourceModel(Xu, yu, fu, seed=self.seed, max_points=len(yu),
+                                  hypers=self._hypers)
+        self._hypers = {**self._hypers, "fall": self._hypers.get("fall")
+                        or self._model.hypers.get("fall")}
+        self._proposer = None
 
     def elites(self) -> np.ndarray:
         """(m, d) the elite pool before removing evaluated points: the source's best diverse θ,
