@@ -81,7 +81,7 @@ def manual_cost(system: str) -> float:
     s = tr.SYSTEMS[system]["model"]()
     out = evaluate(s, s.space.manual)
     if out.failed:
-        raise SystemExit(f"error: the manual θ of {system} fails on its model")
+        raise ValueError(f"the manual θ of {system} fails on its model")
     return float(out.cost)
 
 
@@ -128,8 +128,8 @@ def summary(root: Path, systems: list[str], seeds: list[int], evals: int) -> dic
                 d = root / s / arm / f"seed{seed}"
                 costs, failed, _ = trace(d)
                 if len(costs) < evals:
-                    raise SystemExit(f"error: {d} holds {len(costs)} of {evals} trials "
-                                     "(run it first)")
+                    raise ValueError(f"{d} holds {len(costs)} of {evals} trials (run it "
+                                     "first)")
                 costs, failed = costs[:evals], failed[:evals]
                 per[arm]["best"].append(best_standing(costs, failed))
                 per[arm]["falls"].append(int(sum(failed)))
@@ -200,18 +200,22 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: unknown system/arm {bad} or empty list or --evals < 1 (systems: "
               f"{', '.join(tr.SYSTEMS)}; arms: {', '.join(ARMS)})", file=sys.stderr)
         return 2
-    if a.cmd == "run":
-        for s in systems:
-            c = manual_cost(s)
-            for seed in seeds:
-                for arm in arms:
-                    run_one(a.root, s, arm, seed, a.evals, c)
-                    print(f"{s} {arm} seed {seed} done", flush=True)
-        return 0
-    if a.out is None:
+    if a.cmd == "summary" and a.out is None:
         print("error: summary needs --out FILE.json", file=sys.stderr)
         return 2
-    res = summary(a.root, systems, seeds, a.evals)
+    try:
+        if a.cmd == "run":
+            for s in systems:
+                c = manual_cost(s)
+                for seed in seeds:
+                    for arm in arms:
+                        run_one(a.root, s, arm, seed, a.evals, c)
+                        print(f"{s} {arm} seed {seed} done", flush=True)
+            return 0
+        res = summary(a.root, systems, seeds, a.evals)
+    except (ValueError, OSError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     a.out.parent.mkdir(parents=True, exist_ok=True)
     traces = res.pop("traces")
     a.out.write_text(json.dumps(res, indent=1) + "\n")

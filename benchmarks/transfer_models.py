@@ -230,12 +230,20 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, ValueError, KeyError) as e:
         print(f"transfer_models: {e}", file=sys.stderr)
         return 2
-    md = table(rows)
-    print("\n".join(md))
-    if a.out:
-        Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(a.out).write_text(json.dumps({"rows": rows, "table": md}, indent=1))
+    emit(rows, table(rows), a.out)
     return 0
+
+
+def emit(rows: list[dict[str, Any]], md: list[str], out: str | None,
+         with_md: bool = False) -> None:
+    """Print the table ``md``; with ``out``, write ``{"rows", "table"}`` there as JSON (and,
+    ``with_md``, the table beside it as ``.md``)."""
+    print("\n".join(md))
+    if out:
+        Path(out).parent.mkdir(parents=True, exist_ok=True)
+        Path(out).write_text(json.dumps({"rows": rows, "table": md}, indent=1))
+        if with_md:
+            Path(out).with_suffix(".md").write_text("\n".join(md) + "\n")
 
 
 if __name__ == "__main__":

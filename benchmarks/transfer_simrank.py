@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks import transfer as tr
-from benchmarks.transfer_models import CUTS, SETS, _spearman
+from benchmarks.transfer_models import CUTS, SETS, _spearman, emit
 from benchmarks.transfer_walk import auc, load_trace
 
 
@@ -156,12 +156,7 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, ValueError, KeyError, json.JSONDecodeError) as e:
         print(f"transfer_simrank: {e}", file=sys.stderr)
         return 2
-    md = table(rows)
-    print("\n".join(md))
-    if a.out:
-        Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(a.out).write_text(json.dumps({"rows": rows, "table": md}, indent=1))
-        Path(a.out).with_suffix(".md").write_text("\n".join(md) + "\n")
+    emit(rows, table(rows), a.out, with_md=True)
     return 0
 
 

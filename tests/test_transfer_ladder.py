@@ -718,3 +718,79 @@ def test_a_robot_traces_run_of_a_method_is_its_avx512_twin_where_there_is_one():
     assert {s: r["tag"] for s, r in got.items()} == {0: "new0", 1: "old1"}
     assert {s: r["tag"] for s, r in runs_by_seed(runs[::-1], "M").items()} == \
         {0: "new0", 1: "old1"}
+
+
+def test_simrank_scores_the_exact_source_and_a_local_source_gp(tmp_path, monkeypatch, capsys):
+    """``transfer_simrank``: a stored trace's θ are run on the model system; where the target
+    is the source, the exact source ranks the later trials perfectly; the local GP gets a ρ;
+    an unknown system is one line, exit 2."""
+    from benchmarks import transfer_simrank as sr
+    from latentune.system import Outcome
+
+    class Bowl:                                    # the model system: cost = distance², stands
+        space = None
+
+        def evaluate(self, theta):
+            return Outcome(float(((np.asarray(theta) - 0.4) ** 2).sum()), False, {})
+
+    monkeypatch.setitem(tr.SYSTEMS, "bowl", {"model": Bowl, "target": None, "gaps": (1.0,)})
+    rng = np.random.default_rng(1)
+    X = rng.random((16, 3))
+    y = ((X - 0.4) ** 2).sum(1)                     # the target is the source
+    d = tmp_path / "runs" / "bowl" / "gap1" / "seed0"
+    d.mkdir(parents=True)
+    (d / f"{tr.DEFAULT_METHOD}.json").write_text(json.dumps(
+        {"method": tr.DEFAULT_METHOD, "thetas": X.tolist(), "costs": y.tolist(),
+         "failed": [False] * 16}))
+    Xs = rng.random((120, 3))
+    src = (Xs, ((Xs - 0.4) ** 2).sum(1), np.zeros(120, bool))
+    monkeypatch.setattr("latentune.critic.transfer.source_trials", lambda d: src)
+    (tmp_path / "src" / "bowl" / "seed0" / "source").mkdir(parents=True)
+    (tmp_path / "src" / "bowl" / "seed0" / "source" / "run.db").write_text("")
+    rows = [{"system": "bowl", "gap": 1.0, "seed": 0, "set": "default", "t": 5,
+             "transfer": {"rho": 0.1, "auc": None}, "source": {"rho": 0.2, "auc": None}}]
+    (out,) = sr.score(rows, tmp_path / "runs", tmp_path / "src")
+    assert out["exact"]["rho"] == pytest.approx(1.0)
+    assert -1.0 <= out["local"]["rho"] <= 1.0 and out["local"]["rho"] > 0.5
+    assert any("| default | 5 | 1.000 |" in line for line in sr.table([out]))
+    mf = tmp_path / "m.json"
+    mf.write_text(json.dumps({"rows": rows}))
+    assert sr.main(["--runs", str(tmp_path / "runs"), "--sources", str(tmp_path / "src"),
+                    "--models", str(mf), "--systems", "nosuch"]) == 2
+    assert "transfer_simrank: unknown system" in capsys.readouterr().err
+
+
+def test_fall_costs_tells_a_low_cost_flagged_or_hidden_and_tables_the_arms(tmp_path, capsys):
+    """``fall_costs``: a failed trial is told (k/N)·c_manual, its flag kept (``told``) or moved
+    to ``info`` (``hidden``); a short run of each arm on the chain is summarized per system;
+    bad input is one line, exit 2."""
+    from benchmarks import fall_costs as fc
+    from latentune.system import Outcome
+
+    class Sys:
+        steps = 50
+        space = None
+
+        def evaluate(self, theta):
+            return Outcome(150.0, True, {"fall_step": 10}) if theta[0] > 0.5 else \
+                Outcome(2.0, False, {})
+
+    told, hidden = fc.LowFallCost(Sys(), 4.0, False), fc.LowFallCost(Sys(), 4.0, True)
+    o = told.evaluate(np.array([0.9]))
+    assert o.failed and o.cost == pytest.approx(0.2 * 4.0) and o.info["convention_cost"] == 150
+    h = hidden.evaluate(np.array([0.9]))
+    assert not h.failed and h.info[fc.FELL_KEY] and h.cost == o.cost
+    assert told.evaluate(np.array([0.1])).cost == 2.0
+    assert fc.main(["run", "--root", str(tmp_path), "--systems", "chain", "--seeds", "0",
+                    "--evals", "6"]) == 0
+    out = tmp_path / "o" / "fc.json"
+    assert fc.main(["summary", "--root", str(tmp_path), "--systems", "chain", "--seeds", "0",
+                    "--evals", "6", "--out", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert set(res["systems"]["chain"]) >= set(fc.ARMS) | {"told_vs_hidden"}
+    assert len(json.loads(out.with_name("traces.json").read_text())) == 3
+    assert "| chain |" in out.with_suffix(".md").read_text()
+    assert fc.main(["run", "--root", str(tmp_path), "--systems", "nosuch"]) == 2
+    assert fc.main(["summary", "--root", str(tmp_path), "--systems", "chain", "--seeds", "0",
+                    "--evals", "60", "--out", str(out)]) != 0
+    assert "error: unknown system/arm" in capsys.readouterr().err
