@@ -247,20 +247,37 @@ def _loop(critic: Any, target: Any, n: int, costs: list, failed: list,
 
 
 def _sim_check_loop(critic: Any, target: Any, model: Any, k: int, n: int, costs: list,
-                    failed: list, thetas: list) -> int:
+                    failed: list, thetas: list, pick: bool = False) -> int:
     """``n`` trials of the transfer ``critic`` on ``target``, each after the ``k`` θ the critic
     would ask now (:meth:`~latentune.critic.base.Critic.propose`) ran on the source system
     ``model`` and were added to its source models (:meth:`~latentune.critic.transfer.Transfer.
-    add_source`; the option ``sim_check=k`` of a ``transfer+…`` method). Returns the source
-    trials made."""
+    add_source`; the option ``sim_check=k`` of a ``transfer+…`` method). The critic then asks;
+    with ``pick`` (``sim_pick=true``) the trial is instead the checked θ with the lowest mean of
+    the target cost model among those the fall screen admits (all when none is), told under
+    its own tag. Returns the source trials made."""
     made = 0
     for _ in range(n):
-        P, _ = critic.propose(k)
+        P, T = critic.propose(k)
+        Zp = critic._proposer.last_z.copy()
         outs = [evaluate(model, p) for p in P]
         critic.add_source(P, np.array([float(o.cost) for o in outs]),
                           np.array([bool(o.failed) for o in outs]))
         made += len(outs)
-        _loop(critic, target, 1, costs, failed, thetas=thetas)
+        cost_m, fall_m = critic.models() if pick else (None, None)
+        if cost_m is None:
+            _loop(critic, target, 1, costs, failed, thetas=thetas)
+            continue
+        mu = cost_m.mean_cov(P, with_cov=False)[0]
+        ok = critic._fall_prob(P, fall_m) <= float(critic.opts["max_fall_prob"]) \
+            if fall_m is not None else np.ones(len(P), dtype=bool)
+        j = int(np.flatnonzero(ok)[np.argmin(mu[ok])]) if ok.any() else int(np.argmin(mu))
+        out = evaluate(target, P[j])
+        costs.append(float(out.cost))
+        failed.append(bool(out.failed))
+        thetas.append([float(v) for v in P[j]])
+        kw = {} if Zp.shape[1] == 0 else {"z": Zp[j:j + 1]}
+        critic.tell(P[j:j + 1], np.array([out.cost]), T[j:j + 1], fell=np.array([out.failed]),
+                    **kw)
     return made
 
 
@@ -286,6 +303,8 @@ def check_variant(text: str) -> None:
     k = opts.pop("sim_check", 0)
     if isinstance(k, bool) or not isinstance(k, int) or k < 0:
         raise ValueError(f"sim_check must be an integer >= 0, got {k!r}")
+    if not isinstance(opts.pop("sim_pick", False), bool):
+        raise ValueError("sim_pick must be true or false")
     mfp = opts.pop("max_fall_prob", None)
     fall_options(mfp, None)
     transfer_option(opts or None, "transfer", mfp)
@@ -338,6 +357,7 @@ def run_method(method: str, target: Any, src: Path, B: int, seed: int,
         ls = LatentSpace.load(src / "vae")
         opts = dict(options or {})
         k = int(opts.pop("sim_check", 0))
+        pick = bool(opts.pop("sim_pick", False))
         cr = Transfer((Xs, ys, fs), ls, manual, batch_size=1, seed=seed, budget=B,
                       **{**LADDER_BASE, **opts})
         cr.load_state_dict({"source_hypers": source_hypers(src, seed, opts)})
@@ -346,7 +366,7 @@ def run_method(method: str, target: Any, src: Path, B: int, seed: int,
         if k:
             model = SYSTEMS[src.parent.parent.name]["model"]()
             extra["source_checks"] = _sim_check_loop(cr, target, model, k, B - 1, costs,
-                                                     failed, thetas)
+                                                     failed, thetas, pick)
         else:
             _loop(cr, target, B - 1, costs, failed, thetas=thetas)
         extra["decisions"] = cr.decisions
