@@ -794,3 +794,13 @@ def test_fall_costs_tells_a_low_cost_flagged_or_hidden_and_tables_the_arms(tmp_p
     assert fc.main(["summary", "--root", str(tmp_path), "--systems", "chain", "--seeds", "0",
                     "--evals", "60", "--out", str(out)]) != 0
     assert "error: unknown system/arm" in capsys.readouterr().err
+
+
+def test_sim_check_options_are_the_benchmarks_and_bad_values_are_refused():
+    """``sim_check``/``sim_pick`` are taken by ``benchmarks.transfer`` (not the critic, which
+    refuses unknown options); a bad value is one ValueError naming the option."""
+    tr.check_variant("explore_gp=true:sim_check=4:sim_pick=true")
+    for bad, name in (("sim_check=-1", "sim_check"), ("sim_check=true", "sim_check"),
+                      ("sim_check=4:sim_pick=3", "sim_pick")):
+        with pytest.raises(ValueError, match=name):
+            tr.check_variant(bad)
