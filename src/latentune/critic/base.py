@@ -68,7 +68,8 @@ far wherever a number is needed (:func:`fill_nonfinite`).
 keeps them (:attr:`Critic.fell`). A failed trial ranks after every trial that stood, whatever
 cost it was told: it is never the best (:attr:`Critic.best_index`), and the critics model the
 costs of :meth:`Critic.ranked_costs` (:func:`fall_last`), where the falls keep their order among
-themselves. Where every fall already costs more than every standing trial (the path cost's
+themselves (Optuna's samplers, run as the stock tools they are, are told the costs as they
+are: :mod:`latentune.critic.optuna`). Where every fall already costs more than every standing trial (the path cost's
 falls at ``C1·(2 − k/N)``) the ranked costs are the told costs.
 """
 from __future__ import annotations
