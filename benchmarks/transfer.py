@@ -247,14 +247,16 @@ def _loop(critic: Any, target: Any, n: int, costs: list, failed: list,
 
 
 def _sim_check_loop(critic: Any, target: Any, model: Any, k: int, n: int, costs: list,
-                    failed: list, thetas: list, pick: bool = False) -> int:
+                    failed: list, thetas: list, pick: bool | str = False) -> int:
     """``n`` trials of the transfer ``critic`` on ``target``, each after the ``k`` θ the critic
     would ask now (:meth:`~latentune.critic.base.Critic.propose`) ran on the source system
     ``model`` and were added to its source models (:meth:`~latentune.critic.transfer.Transfer.
     add_source`; the option ``sim_check=k`` of a ``transfer+…`` method). The critic then asks;
     with ``pick`` (``sim_pick=true``) the trial is instead the checked θ with the lowest mean of
     the target cost model among those the fall screen admits (all when none is), told under
-    its own tag. Returns the source trials made."""
+    its own tag; with ``pick="agree"`` only while the model's agreement is confidently
+    positive (the posterior mean of ``a`` minus two standard deviations above 0). Returns the
+    source trials made."""
     made = 0
     for _ in range(n):
         P, T = critic.propose(k)
@@ -264,6 +266,10 @@ def _sim_check_loop(critic: Any, target: Any, model: Any, k: int, n: int, costs:
                           np.array([bool(o.failed) for o in outs]))
         made += len(outs)
         cost_m, fall_m = critic.models() if pick else (None, None)
+        if cost_m is not None and pick == "agree":
+            mean, sd = cost_m.coefficients()
+            if not float(mean[0]) - 2.0 * float(sd[0]) > 0.0:
+                cost_m = None
         if cost_m is None:
             _loop(critic, target, 1, costs, failed, thetas=thetas)
             continue
@@ -303,8 +309,8 @@ def check_variant(text: str) -> None:
     k = opts.pop("sim_check", 0)
     if isinstance(k, bool) or not isinstance(k, int) or k < 0:
         raise ValueError(f"sim_check must be an integer >= 0, got {k!r}")
-    if not isinstance(opts.pop("sim_pick", False), bool):
-        raise ValueError("sim_pick must be true or false")
+    if opts.pop("sim_pick", False) not in (True, False, "agree"):
+        raise ValueError("sim_pick must be true, false or agree")
     mfp = opts.pop("max_fall_prob", None)
     fall_options(mfp, None)
     transfer_option(opts or None, "transfer", mfp)
@@ -357,7 +363,7 @@ def run_method(method: str, target: Any, src: Path, B: int, seed: int,
         ls = LatentSpace.load(src / "vae")
         opts = dict(options or {})
         k = int(opts.pop("sim_check", 0))
-        pick = bool(opts.pop("sim_pick", False))
+        pick = opts.pop("sim_pick", False)
         cr = Transfer((Xs, ys, fs), ls, manual, batch_size=1, seed=seed, budget=B,
                       **{**LADDER_BASE, **opts})
         cr.load_state_dict({"source_hypers": source_hypers(src, seed, opts)})

@@ -800,6 +800,7 @@ def test_sim_check_options_are_the_benchmarks_and_bad_values_are_refused():
     """``sim_check``/``sim_pick`` are taken by ``benchmarks.transfer`` (not the critic, which
     refuses unknown options); a bad value is one ValueError naming the option."""
     tr.check_variant("explore_gp=true:sim_check=4:sim_pick=true")
+    tr.check_variant("sim_check=8:sim_pick=agree")
     for bad, name in (("sim_check=-1", "sim_check"), ("sim_check=true", "sim_check"),
                       ("sim_check=4:sim_pick=3", "sim_pick")):
         with pytest.raises(ValueError, match=name):
