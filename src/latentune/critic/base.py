@@ -179,6 +179,18 @@ def fall_last(y: np.ndarray, fell: np.ndarray) -> np.ndarray:
     return y
 
 
+def best_of(y: np.ndarray, fell: np.ndarray) -> int | None:
+    """Position of the best of costs ``y`` (n,) with flags ``fell`` (n,) (first one on ties):
+    the lowest finite cost of a trial that stood, else the lowest finite cost of a failed one;
+    ``None`` if no cost is finite."""
+    y = np.asarray(y, dtype=float).reshape(-1)
+    fin = np.isfinite(y)
+    for ok in (fin & ~np.asarray(fell, dtype=bool).reshape(-1), fin):
+        if ok.any():
+            return int(np.flatnonzero(ok)[np.argmin(y[ok])])
+    return None
+
+
 def gaussian_copula(y: np.ndarray) -> np.ndarray:
     """Rank-based Gaussian copula warp of costs ``y`` (n,) -> (n,) standard-normal scores.
 
@@ -479,11 +491,8 @@ class Critic(ABC):
     def best_index(self) -> int | None:
         """Index of the best told point (first one on ties): the lowest finite cost of a trial
         that stood, else the lowest finite cost of a failed one; ``None`` if no cost is
-        finite."""
-        for ok in (np.isfinite(self._y) & ~self._fell, np.isfinite(self._y)):
-            if ok.any():
-                return int(np.flatnonzero(ok)[np.argmin(self._y[ok])])
-        return None
+        finite (:func:`best_of`)."""
+        return best_of(self._y, self._fell)
 
     @property
     def best_x(self) -> np.ndarray | None:

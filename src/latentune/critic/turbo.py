@@ -165,8 +165,9 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from latentune.critic.base import (REPLACE, SCREENED, Critic, FitReport, fall_last,
-                                   fill_nonfinite, gaussian_copula, refit_checkpoint)
+from latentune.critic.base import (REPLACE, SCREENED, Critic, FitReport, best_of,
+                                   fall_last, fill_nonfinite, gaussian_copula,
+                                   refit_checkpoint)
 
 logger = logging.getLogger(__name__)
 
@@ -443,11 +444,8 @@ class TurboM(Critic):
     def _lowest(self, idx: list[int]) -> int:
         """The global index of the best of the points ``idx`` (-1 if no cost is finite): the
         lowest finite cost of a trial that stood, else of a failed one."""
-        fin = [i for i in idx if math.isfinite(self._y[i])]
-        for pool in ([i for i in fin if not self._fell[i]], fin):
-            if pool:
-                return min(pool, key=lambda i: self._y[i])
-        return -1
+        j = best_of(self._y[idx], self._fell[idx])
+        return -1 if j is None else int(idx[j])
 
     def _add_points(self, tr: TrustRegion, idx: list[int]) -> None:
         """Attribute told points to a region and update its best: a trial that stood beats

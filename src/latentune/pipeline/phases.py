@@ -203,13 +203,6 @@ def failing_message(phase: int, n: int, strategy: str = "plain") -> str:
             "does not fail, or narrower bounds")
 
 
-def best_standing(store: RunStore, phase: int) -> float:
-    """The cost of :meth:`RunStore.best` of ``phase`` (the lowest of a trial that did not
-    fail; inf if none stood)."""
-    b = store.best(phase)
-    return math.inf if b is None else float(b.cost)
-
-
 def failure_streak(store: RunStore, phase: int) -> int:
     """How many of the last stored trials of ``phase`` (idx order) failed in a row."""
     fell = store.fell(phase)
@@ -435,7 +428,8 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
         log.info("phase %d: finishing the batch of %d points a stopped run asked (%d of them "
                  "stored)", int(phase), len(batch.thetas), len(batch.done))
     bar = _progress(budget, min(n0, budget), f"phase {phase}", progress)
-    best = best_standing(store, phase)
+    b = store.best(phase)           # the lowest cost of a trial that stood
+    best = math.inf if b is None else float(b.cost)
     streak = failure_streak(store, phase)
     new = 0
     try:
