@@ -760,6 +760,41 @@ def test_simrank_scores_the_exact_source_and_a_local_source_gp(tmp_path, monkeyp
     assert "transfer_simrank: unknown system" in capsys.readouterr().err
 
 
+def test_transfer_gate_measures_local_agreement_and_labels_wins(tmp_path, monkeypatch, capsys):
+    """``transfer_gate``: the θ of ``a``'s run are run on the model system; where the target
+    is the source, local and whole-run ρ are 1; the label is ``a`` ending lower than ``b``; a
+    missing run and an unknown system are one line, exit 2."""
+    from benchmarks import transfer_gate as tg
+    from latentune.system import Outcome
+
+    class Bowl:
+        space = None
+
+        def evaluate(self, theta):
+            return Outcome(float(((np.asarray(theta) - 0.4) ** 2).sum()), False, {})
+
+    monkeypatch.setitem(tr.SYSTEMS, "bowl", {"model": Bowl, "target": None, "gaps": (1.0,)})
+    monkeypatch.setattr(tg, "CUTS", (10,))
+    rng = np.random.default_rng(2)
+    X = rng.random((12, 3))
+    y = ((X - 0.4) ** 2).sum(1)
+    d = tmp_path / "runs" / "bowl" / "gap1" / "seed0"
+    d.mkdir(parents=True)
+    for m, c in (("A", y), ("B", y + 1.0)):
+        (d / f"{m}.json").write_text(json.dumps({"method": m, "thetas": X.tolist(),
+                                                 "costs": c.tolist(), "failed": [False] * 12}))
+    (row,) = tg.score(tmp_path / "runs", ["bowl"], [0], "A", "B", 5)
+    assert row["local_10"] == pytest.approx(1.0) and row["all_10"] == pytest.approx(1.0)
+    assert row["win"] and not row["loss"]
+    md = tg.table([row], "A", "B", 5)
+    assert any(line.startswith("| bowl | 1 / 0 |") for line in md)
+    assert tg.main(["--runs", str(tmp_path / "runs"), "--systems", "bowl", "--seeds", "1",
+                    "--a", "A", "--b", "B"]) == 2
+    assert "transfer_gate: bowl gap 1 seed 1: no stored run of A" in capsys.readouterr().err
+    assert tg.main(["--runs", str(tmp_path / "runs"), "--systems", "nosuch"]) == 2
+    assert "transfer_gate: unknown system" in capsys.readouterr().err
+
+
 def test_fall_costs_tells_a_low_cost_flagged_or_hidden_and_tables_the_arms(tmp_path, capsys):
     """``fall_costs``: a failed trial is told (k/N)·c_manual, its flag kept (``told``) or moved
     to ``info`` (``hidden``); a short run of each arm on the chain is summarized per system;
