@@ -204,7 +204,8 @@ def source_hypers(src: Path, seed: int, options: dict[str, Any] | None = None) -
     ``source_order="stored"`` with the default ``max_points`` keeps the cache of the runs made
     before the option (``transfer_source_model.json``, fitted with the seed of its first use);
     any other choice has its own file per seed."""
-    from latentune.critic.transfer import TRANSFER_DEFAULTS, SourceModel, Transfer, source_trials
+    from latentune.critic.transfer import TRANSFER_DEFAULTS, Transfer, source_trials
+    from latentune.critic.transfer_model import SourceModel
 
     opts = {**TRANSFER_DEFAULTS, **(options or {})}
     legacy = (opts["source_order"] == "stored"

@@ -5,7 +5,7 @@
 
 Each (target, seed) re-runs the default phase 3 of :mod:`benchmarks.transfer` (its source
 ``ROOT/<system>/seed<s>/source``, made when missing; 40 trials) with the local search of
-``explore_gp`` (:func:`latentune.critic.transfer._local_max`) watched. At every ``--every``-th
+``explore_gp`` (:func:`latentune.critic.transfer_model._local_max`) watched. At every ``--every``-th
 search, the best log EI it returned is compared with a stronger search of the same function:
 the 20 best of 1,024 Sobol points of the unit box as starts, L-BFGS-B with 200 iterations
 instead of 40 (finite differences, as the critic's). One row per (target, seed): the number of
@@ -48,7 +48,7 @@ def search_rows(root: Path, targets: list[tuple[str, float]], seeds: list[int],
                 every: int) -> list[dict[str, Any]]:
     """The rows of the module docstring."""
     import benchmarks.transfer as tr
-    import latentune.critic.transfer as ct
+    import latentune.critic.transfer_model as ct
 
     calls: list[tuple[Callable, np.ndarray]] = []
     orig = ct._local_max

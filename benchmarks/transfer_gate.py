@@ -55,7 +55,7 @@ def local_rho(X: np.ndarray, v: np.ndarray, vs: np.ndarray, f: np.ndarray, t: in
 def score(runs: Path, systems: list[str], seeds: list[int], a: str, b: str,
           near: int) -> list[dict[str, Any]]:
     """One row per (target, seed): ρ at every cut and whether ``a`` ended lower than ``b``."""
-    from latentune.critic.transfer import rank_scores
+    from latentune.critic.transfer_model import rank_scores
 
     rows = []
     for s in systems:

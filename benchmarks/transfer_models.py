@@ -106,7 +106,8 @@ def score_cut(src_rows: tuple[np.ndarray, np.ndarray, np.ndarray], hypers: dict[
               models: tuple[str, ...] = MODELS) -> dict[str, dict[str, float | None]]:
     """Each model's scores on trials t… of the target trials (X (40, d), y, fell) given the
     source and trials …t − 1: ``{"rho": …, "auc": …}`` per model (None where undefined)."""
-    from latentune.critic.transfer import Transfer, _fit_gp, rank_scores
+    from latentune.critic.transfer import Transfer
+    from latentune.critic.transfer_model import fit_gp, rank_scores
 
     Xt, yt, ft = X[:t], y[:t], fell[:t]
     Xq, yq, fq = X[t:], y[t:], fell[t:]
@@ -128,8 +129,8 @@ def score_cut(src_rows: tuple[np.ndarray, np.ndarray, np.ndarray], hypers: dict[
     if {"target", "rgpe"} & set(models):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            tgt, _ = _fit_gp(Xt, vt, None)
-            tfall, _ = _fit_gp(Xt, ft.astype(float), None) if 0 < ft.sum() < t else (None, None)
+            tgt, _ = fit_gp(Xt, vt, None)
+            tfall, _ = fit_gp(Xt, ft.astype(float), None) if 0 < ft.sum() < t else (None, None)
         pred["target"] = tgt.mean(Xq)
         fallp["target"] = tfall.mean(Xq) if tfall is not None else np.full(len(Xq), ft.mean())
     if "mtgp" in models:

@@ -46,7 +46,7 @@ def local_source_rho(src: tuple[np.ndarray, np.ndarray, np.ndarray], X: np.ndarr
     """ρ of the local source GP (module docstring) on the target trials t… (rank scores)."""
     import warnings
 
-    from latentune.critic.transfer import _fit_gp, rank_scores
+    from latentune.critic.transfer_model import fit_gp, rank_scores
 
     Xs, ys, fs = src
     ok = np.flatnonzero(~f[:t])
@@ -54,7 +54,7 @@ def local_source_rho(src: tuple[np.ndarray, np.ndarray, np.ndarray], X: np.ndarr
     near = np.argsort(((Xs - inc) ** 2).sum(1), kind="stable")[:LOCAL]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        gp, _ = _fit_gp(Xs[near], rank_scores(ys[near], fs[near]), None)
+        gp, _ = fit_gp(Xs[near], rank_scores(ys[near], fs[near]), None)
     return _spearman(gp.mean(X[t:]), rank_scores(y[t:], f[t:]))
 
 
@@ -70,7 +70,8 @@ def source_outcomes(system: str, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 def score(rows: list[dict[str, Any]], runs: Path, sources: Path) -> list[dict[str, Any]]:
     """Each row of transfer_models with ``exact``: the exact source's ρ and AUC at its cut,
     and ``local``: the local source GP's ρ."""
-    from latentune.critic.transfer import rank_scores, source_trials
+    from latentune.critic.transfer import source_trials
+    from latentune.critic.transfer_model import rank_scores
 
     srcs: dict[tuple[str, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
     cache: dict[tuple[str, float, int, str], tuple[np.ndarray, ...]] = {}

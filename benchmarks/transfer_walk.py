@@ -18,7 +18,7 @@ the model. Every candidate is run once on the target (deterministic; one trial e
 * the AUC of each signal the walk has before it asks (1: every standing candidate scores above
   every falling one; 0.5: no better than chance), with the sign that predicts a stand:
   ``rank`` (better model cost), ``fall_model`` (lower target fall probability: the transfer
-  fall model, :class:`~latentune.critic.transfer.TargetModel` on the told fall flags with
+  fall model, :class:`~latentune.critic.transfer_model.TargetModel` on the told fall flags with
   ``h = (p_s(θ), 1)`` and the source's fall lengthscales), ``source_fall`` (lower ``p_s(θ)``),
   ``far_falls`` (farther from the told falls, Euclidean in fall lengthscales),
   ``near_manual`` (nearer the manual θ), ``source_margin`` (farther from the source's own
@@ -110,7 +110,7 @@ class WalkCase:
         S: (m, d) the candidates, best model cost first; ``rank`` (m,) their rank among the
             source's standing trials (0: best).
         stand: (m,) True where the candidate stands on the target; ``cost`` (m,) its cost there.
-        sm: the source models (:class:`~latentune.critic.transfer.SourceModel`).
+        sm: the source models (:class:`~latentune.critic.transfer_model.SourceModel`).
         manual: (d,) the target's manual θ; ``n_standing`` the source's standing trials.
     """
 
@@ -121,7 +121,7 @@ class WalkCase:
 
     def fall_model(self, Xt: np.ndarray, ft: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Posterior mean and sd (m,) of the target fall model on the told (Xt, ft)."""
-        from latentune.critic.transfer import target_fall_model
+        from latentune.critic.transfer_model import target_fall_model
 
         m = target_fall_model(Xt, ft, self.sm)
         mu, _ = m.mean_cov(self.S, with_cov=False)
@@ -255,7 +255,8 @@ def simulate(c: WalkCase, rule: Rule, steps: int) -> tuple[int, int | None]:
 def build_case(system: str, gap: float, seed: int, trace: dict[str, Any], sources: Path,
                cache: Path) -> WalkCase | None:
     """The walk's view of one run (None without a source run or candidates)."""
-    from latentune.critic.transfer import SourceModel, canonical_order, source_trials
+    from latentune.critic.transfer import canonical_order, source_trials
+    from latentune.critic.transfer_model import SourceModel
     from latentune.system import evaluate
 
     src = sources / system / f"seed{seed}" / "source"

@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from latentune.critic.transfer import (LEGACY_OPTIONS, TRANSFER_DEFAULTS, SourceModel,
-                                       TargetModel, Transfer, elite_points, rank_scores)
+from latentune.critic.transfer import LEGACY_OPTIONS, TRANSFER_DEFAULTS, Transfer, elite_points
+from latentune.critic.transfer_model import SourceModel, TargetModel, rank_scores
 
 D = 8
 
@@ -261,7 +261,7 @@ def test_target_ard_fit_finds_the_coordinates_the_target_needs(source, hypers):
     """A target that varies fast along two coordinates only: the fitted ARD lengthscales are
     short there and stay near the source's elsewhere, and the model predicts the target better
     than with the source's lengthscales."""
-    from latentune.critic.transfer import fit_residual_kernel
+    from latentune.critic.transfer_model import fit_residual_kernel
 
     X, y, f, _ = source
     sm = SourceModel(X, y, f, seed=0, hypers=hypers)

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.optimize import approx_fprime
 
-from latentune.critic.transfer import (ADDED_OPTIONS, TRANSFER_DEFAULTS, TargetModel, Transfer,
-                                       calibrated, fit_calibration)
+from latentune.critic.transfer import ADDED_OPTIONS, TRANSFER_DEFAULTS, Transfer
+from latentune.critic.transfer_model import TargetModel, calibrated, fit_calibration
 
 from test_transfer import D, _bowl, hypers, source  # noqa: F401 - shared fixtures
 from test_transfer_explore import _critic, _run

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from latentune.critic.transfer import (ADDED_OPTIONS, FULL, GLOBAL, LATENT, TRANSFER_DEFAULTS,
-                                       ExploreRecord, TargetGP, Transfer)
+                                       ExploreRecord, Transfer)
+from latentune.critic.transfer_model import TargetGP
 
 from test_transfer import D, _bowl, hypers, source  # noqa: F401 - shared fixtures
 
@@ -935,7 +936,7 @@ def test_explore_skip_is_checked(source, hypers, bad):
 def test_log_expected_improvement_is_the_log_of_ei_and_keeps_its_order_where_ei_underflows():
     from scipy.stats import norm
 
-    from latentune.critic.transfer import log_expected_improvement
+    from latentune.critic.transfer_model import log_expected_improvement
 
     mu = np.array([-3.0, -1.0, 0.0, 0.5, 2.0, 5.0, 10.0])
     var = np.array([1.0, 4.0, 0.25, 1.0, 1.0, 2.0, 1.0])
@@ -967,7 +968,7 @@ def test_explore_gp_asks_what_the_targets_own_gp_expects_most_improvement_from(s
     the local maxima of a target-only GP's log EI, and asks the candidate of highest log EI
     (with the screen admitting every candidate, the highest of them all); other asks and the
     tags are as without it; a resumed run asks the same."""
-    from latentune.critic.transfer import log_expected_improvement
+    from latentune.critic.transfer_model import log_expected_improvement
 
     assert TRANSFER_DEFAULTS["explore_gp"] is True and ADDED_OPTIONS["explore_gp"] is False
     seen = _spy_explore_gp(monkeypatch)
@@ -1083,17 +1084,18 @@ def test_region_gp_lets_the_targets_own_gp_choose_the_region_asks_while_the_line
     box next, or without the option, the region asks are the transfer model's; a resumed run
     asks the same."""
     import latentune.critic.transfer as ct
+    import latentune.critic.transfer_model as tm
 
     assert ct.TRANSFER_DEFAULTS["region_gp"] is False and ct.ADDED_OPTIONS["region_gp"] is False
     maxima: list[tuple] = []
-    orig = ct._local_max
+    orig = tm._local_max
 
     def spy(f, X0, maxiter=40):
         out = orig(f, X0, maxiter)
         maxima.append((f, out))
         return out
 
-    monkeypatch.setattr(ct, "_local_max", spy)
+    monkeypatch.setattr(tm, "_local_max", spy)
     kw = dict(explore_gp=False, explore_fall_prob=0.0, max_fall_prob=1.0)
     cr = _critic(source, hypers, explore_pool="lines", region_gp=True, **kw)
     _run(cr, 8)

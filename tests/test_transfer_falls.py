@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from latentune.critic.transfer import SourceModel, Transfer
+from latentune.critic.transfer import Transfer
+from latentune.critic.transfer_model import SourceModel
 
 D = 6
 

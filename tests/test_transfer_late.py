@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from latentune.critic.transfer import SourceModel, TargetGP, TargetModel, Transfer
+from latentune.critic.transfer import Transfer
+from latentune.critic.transfer_model import SourceModel, TargetGP, TargetModel
 from latentune.critic.turbo import TurboM
 
 from test_transfer import D, _bowl, hypers, source  # noqa: F401 - shared fixtures

@@ -159,7 +159,7 @@ def transfer_critic(pc: dict[str, Any], space: ParameterSpace, run_dir: Path, so
         critic.tell(np.array([r.theta for r in rows]), np.array([r.cost for r in rows]),
                     fell=np.array([r.fell for r in rows], dtype=bool))
     if own:     # the source is this system: its best trials and elites are target data already
-        from latentune.critic.transfer import rank_scores
+        from latentune.critic.transfer_model import rank_scores
 
         X, y, fell = critic.source_rows()           # the order the critic uses its source in
         z = rank_scores(y, fell)
