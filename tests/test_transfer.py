@@ -118,6 +118,26 @@ def test_harsh_target_leaves_the_failing_region(source, hypers):
     assert falls.index(False) <= 5
 
 
+def test_every_trial_fell_asks_the_manual_theta_once_per_batch(source, hypers):
+    """After the zero-shot θ fell, a batch of 3 is the manual θ and two other θ, never the
+    manual θ again (the old rule asked it 3 times); the generation's decision names the rule
+    and puts the manual θ's pool first; a batch of 1 is the manual θ alone."""
+    X, y, f, _ = source
+    corner = np.full(D, 0.9)
+    manual = np.full(D, 0.85)
+    best = X[np.argmin(np.where(f, np.inf, y))]
+    y0, f0 = _bowl(best, corner, 0.3)
+    for n in (3, 1):
+        cr = _critic(source, hypers, manual=manual)
+        cr.tell(best[None], y0, fell=f0)
+        B = cr.ask(n)
+        assert B.shape == (n, D) and np.array_equal(B[0], manual)
+        assert len({tuple(r) for r in B}) == n
+        assert cr.last_z.shape[0] == n and cr.last_tags[0] % 4 == 0    # the elite pool
+        d = cr.decisions[-1]
+        assert "manual" in d["rule"] and d["pools"][0] == "elite" and len(d["pools"]) == n
+
+
 def test_resume_asks_what_the_original_would(source, hypers):
     X, y, f, c = source
     a = _critic(source, hypers)

@@ -723,6 +723,7 @@ class Transfer(TwoSpaceCritic):
         self._Z = np.empty((0, self.k))
         self.last_z = np.empty((0, self.k))
         self.decisions: list[dict[str, Any]] = []
+        self._asking_manual = False     # :meth:`_manual_ask` asks the rest of its batch
         self._elite: np.ndarray | None = None
         self._source_mgd: tuple[np.ndarray, float, np.ndarray] | None = None   # _pool_source
         self._turbo: Any = None
@@ -1398,6 +1399,27 @@ class Transfer(TwoSpaceCritic):
                                "explore": False})
         return np.tile(theta, (n, 1)), np.full(n, 4 * g + pool, dtype=np.int64)
 
+    def _manual_ask(self, n: int, g: int) -> tuple[np.ndarray, np.ndarray]:
+        """Every told trial fell: the target's manual θ once, first; the rest of a batch (n > 1)
+        is what the ask would be otherwise (never the manual θ again), and the generation's
+        decision is that ask's with the rule and the manual θ's pool put first."""
+        rule = "every trial so far fell: the target's manual θ"
+        if n == 1:
+            return self._rule_ask(1, g, self.manual, ELITE, True, rule)
+        self._asking_manual = True
+        try:
+            X, T = self._ask_one_thread(n)        # n: room for the manual θ among them
+        finally:
+            self._asking_manual = False
+        keep = np.flatnonzero(np.abs(X - self.manual).max(1) > 1e-9)[:n - 1]
+        z = np.vstack([np.full((1, self.k), np.nan), self.last_z[keep]])
+        dec = self.decisions[-1]
+        dec.update(rule=f"{rule}, then the ask's own",
+                   pools=["elite"] + [dec["pools"][i] for i in keep])
+        self.last_z = z
+        return (np.vstack([self.manual[None, :], X[keep]]),
+                np.concatenate([[4 * g + ELITE], T[keep]]).astype(np.int64))
+
     def _ask_one_thread(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         st = self._replay_state()
         g = st["generation"]
@@ -1425,9 +1447,8 @@ class Transfer(TwoSpaceCritic):
         E = self._pool_elite()
         design = st["n_own"] < int(self.opts["n_design"]) and len(E) >= 1   # elites left to ask
         M = int(self.opts["n_candidates"])
-        if self._manual_next():
-            return self._rule_ask(n, g, self.manual, ELITE, True,
-                                  "every trial so far fell: the target's manual θ")
+        if self._manual_next() and not self._asking_manual:
+            return self._manual_ask(n, g)
         if st["converged"] and self.opts["stop_converged"]:
             return self._rule_ask(n, g, centre, FULL, False,
                                   "the trust region converged: the centre",
