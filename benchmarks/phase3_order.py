@@ -83,6 +83,7 @@ def _copy(run: Path, dest: Path, swap: bool) -> int:
 def _phase3(d: Path, trials: int) -> dict[str, Any]:
     import latentune as lt
     from latentune.constants import Phase
+    from latentune.pipeline.loop import strategy_of
     from latentune.pipeline.store import RunStore
     from latentune.task import Task
 
@@ -90,7 +91,9 @@ def _phase3(d: Path, trials: int) -> dict[str, Any]:
         cfg = st.manifest.config()
         pc = cfg["phase3"]
         system = Task.from_config(cfg["task"])
-        st.phase3(system, int(pc["budget"]), method=pc["method"], regions=pc.get("regions"),
+        plain = strategy_of(pc) == "plain"        # method and regions are the plain one's
+        st.phase3(system, int(pc["budget"]), method=pc["method"] if plain else "turbo",
+                  regions=pc.get("regions") if plain else None,
                   max_fall_prob=pc.get("max_fall_prob"), strategy=pc.get("strategy"),
                   transfer_options=pc.get("transfer_options"), max_new=trials)
     with RunStore(d) as s:

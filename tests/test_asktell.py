@@ -18,7 +18,7 @@ import pytest
 
 import latentune as lt
 from latentune.constants import Phase
-from latentune.errors import LatentuneError, StoreError
+from latentune.errors import LatentuneError, StoreError, UsageError
 from latentune.pipeline import asktell
 from latentune.pipeline import store as store_module
 from latentune.pipeline.asktell import write_suggestion_files
@@ -520,6 +520,22 @@ def test_a_failing_phase_3_suggests_what_its_strategy_can_take(tmp_path, caplog,
     assert ("--handover" in msgs[0]) == (strategy == "plain")
     assert ("manual θ" in msgs[0]) == (strategy == "transfer")
     assert ("screens at 0.3 unless told" in msgs[0]) == (strategy == "transfer")
+
+
+@pytest.mark.parametrize("kw", [{"method": "cma"}, {"regions": 3}, {"start": None},
+                                {"start": np.full(4, 0.3)}])
+def test_the_plain_phase_3s_options_are_refused_by_the_transfer_phase_3(tmp_path, src30, kw):
+    """``method``, ``regions`` and ``start`` steer only the plain phase 3: the transfer phase 3
+    (the default) refuses them by name before anything is stored (they were taken, changed
+    nothing, and were recorded, so a resume without them was refused); with ``strategy="plain"``
+    they stand."""
+    with lt.Study(tmp_path / "t", seed=0) as st:
+        with pytest.raises(UsageError, match=f"{next(iter(kw))} is an option of the plain phase 3"):
+            st.phase3(plant(), 4, latent=src30, **kw)
+        assert st.manifest.config().get("phase3") is None and st.trials() == []
+    with lt.Study(tmp_path / "p", seed=0) as st:
+        st.phase3(plant(), 3, latent=src30, strategy="plain", **kw)
+        assert st.manifest.config()["phase3"]["strategy"] == "plain"
 
 
 def test_a_told_trial_reads_the_strategy_only_when_it_warns(monkeypatch, caplog):

@@ -424,13 +424,18 @@ def _phase_line(res: Any, study: Any) -> str:
 
 
 def cmd_tune(args: argparse.Namespace) -> int:
+    from latentune.pipeline.loop import resolve_strategy
+
     handover = _handover(args)                      # checked before phase 1 runs
     strategy = _strategy(args, handover)
     _transfer_options(args, None)                   # checked before phase 1 runs
     study, system, _ = _phase1_study(args, latent=True)
     with study:
         study.train_latent(args.latent_dim, kind=args.vae_kind, epochs=args.vae_epochs)
-        study.phase3(system, args.phase3_evals, method=args.method, regions=args.regions,
+        # --method and --regions are phase 1's; phase 3 takes them only when it is plain
+        plain = resolve_strategy(study.manifest, strategy, handover) == "plain"
+        study.phase3(system, args.phase3_evals, method=args.method if plain else "turbo",
+                     regions=args.regions if plain else None,
                      max_fall_prob=args.max_fall_prob, handover=handover, strategy=strategy,
                      transfer_options=_transfer_options(args, _stored_transfer(study)))
         _finish(study)

@@ -234,8 +234,8 @@ class Study:
         """Phase 3 on ``system`` with the ``strategy`` (default ``"transfer"``: everything the
         source run tried as a model of the target, latent and full θ boxes,
         :mod:`latentune.critic.transfer`; ``"plain"``: the paper's phase 3, ``method`` in the
-        latent box through the decoder; options ``method``, ``regions``, ``start`` and
-        ``handover`` are the plain strategy's).
+        latent box through the decoder; ``method``, ``regions``, ``start`` and ``handover``
+        are its options, refused with the transfer strategy).
 
         Args:
             latent: None (this study's latent space), a LatentSpace, or another study (its
@@ -250,12 +250,12 @@ class Study:
             transfer_options: options of the transfer critic (its module's docstring): a dict
                 of :data:`~latentune.critic.transfer.TRANSFER_DEFAULTS` keys but max_fall_prob.
             max_new: stop after this many new trials.
-        If the latent space comes from another study, that study's best θ is evaluated on
-        ``system`` as it is first (the zero-shot trial, one evaluation). The critic is built
-        by :func:`~latentune.pipeline.loop.phase_critic` from the options recorded here."""
+        If the latent space comes from another study, its best θ is evaluated on ``system``
+        first (the zero-shot trial). The critic: :func:`~latentune.pipeline.loop.phase_critic`."""
         check_system(system)
         ls, extra = phase3_setup(self.run, self.manifest, system.space, _actor(system), latent,
-                                 strategy, start, max_fall_prob, handover, transfer_options)
+                                 strategy, start, max_fall_prob, handover, transfer_options,
+                                 method, regions)
         source, strategy = extra["latent_source"], extra["strategy"]
         self._options(Phase.PHASE3, method, budget, regions, extra)     # checked before writing
         if self.exists:

@@ -92,12 +92,26 @@ critic as target data (with the phase-1 trials among its elites), so it does not
 
 def phase3_setup(run: RunDir, manifest: Manifest, space: ParameterSpace, actor: str | None,
                  latent: Any, strategy: str | None, start: Any, max_fall_prob: float | None,
-                 handover: Any, transfer_options: dict[str, Any] | None
+                 handover: Any, transfer_options: dict[str, Any] | None,
+                 method: str = "turbo", regions: int | None = None
                  ) -> tuple[Any, dict[str, Any]]:
     """(the LatentSpace, phase 3's own options record) of a phase-3 run with these arguments
-    (:meth:`~latentune.study.Study.phase3`), checked; writes nothing."""
+    (:meth:`~latentune.study.Study.phase3`), checked; writes nothing. The plain strategy's
+    own options (``method`` other than TuRBO-m, ``regions``, a ``start`` other than the
+    manual θ) are refused with the transfer strategy, which has no use for them."""
+    from latentune.errors import UsageError
+
     ls, source = resolve_latent(run, manifest, latent, space, actor)
     strategy = resolve_strategy(manifest, strategy, handover, ls)
+    if strategy == "transfer":
+        given = [f"{k} = {v!r}" for k, v, unset in (
+            ("method", method, method == "turbo"), ("regions", regions, regions is None),
+            ("start", start, isinstance(start, str) and start == "manual")) if not unset]
+        if given:
+            raise UsageError(f"{given[0].split(' =')[0]} is an option of the plain phase 3 "
+                             f"(strategy plain), not of the transfer phase 3 (given "
+                             f"{given[0]}): its search starts from the source's best trials "
+                             "and the manual θ, in the latent and the full θ box")
     start_rec = mf.start_point(start, space.manual, space.dim)[1]
     return ls, mf.phase3_extra(source, strategy, start_rec, max_fall_prob, handover,
                                transfer_options)
