@@ -538,6 +538,33 @@ def test_the_plain_phase_3s_options_are_refused_by_the_transfer_phase_3(tmp_path
         assert st.manifest.config()["phase3"]["strategy"] == "plain"
 
 
+def test_a_target_whose_box_differs_from_the_source_is_refused(tmp_path, src30):
+    """Same names, other bounds or scale: the source's unit-box θ would mean other physical
+    values on the target (its zero-shot trial ran 100 times the source's best), so phase 3,
+    ask and a fall prior refuse it by name before anything is stored; the manual θ may
+    differ."""
+    from latentune.errors import LatentError
+
+    wide = lt.ParameterSpace(SPACE.names, [-1.0] * 4, [1.0, 1.0, 100.0, 1.0], manual=[0.5] * 4)
+    logd = lt.ParameterSpace(SPACE.names, [1e-3] * 4, [1.0] * 4, log=[True] * 4)
+    assert SPACE.box_difference(wide.to_dict()) == "c: [-1, 100] there, [-1, 1] here"
+    assert wide.box_difference(SPACE.to_dict()) == "c: [-1, 1] there, [-1, 100] here"
+    assert logd.box_difference(SPACE.to_dict()) == "a: [-1, 1] there, [0.001, 1] log here"
+    moved = lt.ParameterSpace(SPACE.names, [-1.0] * 4, [1.0] * 4, manual=[0.1] * 4)
+    assert SPACE.box_difference(moved.to_dict()) is None
+    for sp in (wide, logd):
+        sys_ = lt.FunctionSystem(sp, lambda x: float(np.sum(x ** 2)))
+        with lt.Study(tmp_path / f"t{sp.dim}{sp.log[0]}", seed=0) as st:
+            with pytest.raises(LatentError, match="another box than the system's"):
+                st.phase3(sys_, 4, latent=src30)
+            with pytest.raises(LatentError, match="another box than the system's"):
+                st.ask(system=sys_, phase=3, latent=src30)
+            assert st.trials() == []
+        with lt.Study(tmp_path / f"p{sp.log[0]}", seed=0) as st:
+            with pytest.raises(StoreError, match="fall prior .* another box"):
+                st.phase1(sys_, 4, max_fall_prob=0.3, fall_prior=src30)
+
+
 def test_a_told_trial_reads_the_strategy_only_when_it_warns(monkeypatch, caplog):
     """``warn_if_failing`` takes the strategy as a function (what ``tell`` gives it: a read of
     the study's config) and calls it only when the failing streak is reached."""

@@ -87,6 +87,27 @@ class ParameterSpace:
         return {"names": list(self.names), "low": self.lower.tolist(), "high": self.upper.tolist(),
                 "log": self.log.tolist(), "manual": self.manual_physical.tolist()}
 
+    def box_difference(self, other: dict[str, Any]) -> str | None:
+        """Why unit-box θ of the space ``other`` (:meth:`to_dict`'s form, e.g. another run's)
+        would mean other physical values here: the first name, bound or scale that differs,
+        as ``"b: [0, 1] there, [0, 100] here"``; None when they are the same (the manual θ
+        aside)."""
+        names = list(other.get("names") or [])
+        if names != list(self.names):
+            return f"other names ({', '.join(names[:4])}{', …' if len(names) > 4 else ''})"
+        lo, hi = np.asarray(other["low"], float), np.asarray(other["high"], float)
+        lg = np.zeros(self.dim, bool) if other.get("log") is None else \
+            np.asarray(other["log"], bool)
+        for i, n in enumerate(self.names):
+            if lg[i] != self.log[i] or not (np.isclose(lo[i], self.lower[i], rtol=1e-9, atol=0)
+                                            and np.isclose(hi[i], self.upper[i], rtol=1e-9,
+                                                           atol=0)):
+                def box(a: float, b: float, log: bool) -> str:
+                    return f"[{a:g}, {b:g}]" + (" log" if log else "")
+                return (f"{n}: {box(lo[i], hi[i], bool(lg[i]))} there, "
+                        f"{box(self.lower[i], self.upper[i], bool(self.log[i]))} here")
+        return None
+
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "ParameterSpace":
         """Build a space from :meth:`to_dict`'s form (also the ``--space`` YAML/JSON file form).

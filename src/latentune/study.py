@@ -193,7 +193,7 @@ class Study:
                  **mf.source_option(method, source_run)}
         self._options(Phase.PHASE1, method, budget, regions, extra)     # checked before writing
         if max_fall_prob is not None:
-            theta_prior(fall_prior, system.space.dim)
+            theta_prior(fall_prior, system.space)
         with self.writing() as st:
             self.bind(system)
             pc = self._options(Phase.PHASE1, method, budget, regions, extra)

@@ -52,10 +52,10 @@ def phase_critic(phase: int, pc: dict[str, Any], space: ParameterSpace, run_dir:
     mfp = pc.get("max_fall_prob")
     theta0 = start_theta(pc, space)
     if int(phase) == Phase.PHASE1:
-        prior = theta_prior(pc.get("fall_prior"), space.dim) if mfp is not None else None
+        prior = theta_prior(pc.get("fall_prior"), space) if mfp is not None else None
         return make_phase_critic(pc["method"], space.dim, pc["batch_size"], pc["seed"], theta0,
                                  pc["budget"], pc["regions"], mfp, prior,
-                                 source=source_costs(pc.get("source_run"), space.dim))
+                                 source=source_costs(pc.get("source_run"), space))
     if latent is None:
         raise LatentError("phase 3 needs a latent space")
     source = pc.get("latent_source", "self")
@@ -68,7 +68,7 @@ def phase_critic(phase: int, pc: dict[str, Any], space: ParameterSpace, run_dir:
     if pc.get("handover") is None:
         return make_phase_critic(pc["method"], latent.d_low, pc["batch_size"], pc["seed"], x0,
                                  pc["budget"], pc["regions"], mfp, lprior)
-    tprior = theta_prior(run, latent.d) if mfp is not None else None
+    tprior = theta_prior(run, space) if mfp is not None else None
     return make_handover_critic(pc["method"], latent, pc["batch_size"], pc["seed"], x0,
                                 pc["budget"], pc["regions"], pc["handover"], mfp, lprior, tprior)
 
@@ -207,9 +207,10 @@ def stop_note(critic: Any, n: int, budget: int) -> str:
             "falls) is spent")
 
 
-def source_costs(run: Any, dim: int) -> tuple[np.ndarray, np.ndarray] | None:
-    """The phase-1 and phase-3 trials of the run ``run`` as (X (m, dim) unit-box θ, cost (m,)),
-    or None without a run; StoreError when it holds none or of another dimension."""
+def source_costs(run: Any, space: ParameterSpace) -> tuple[np.ndarray, np.ndarray] | None:
+    """The phase-1 and phase-3 trials of the run ``run`` as (X (m, d) unit-box θ, cost (m,)),
+    or None without a run; StoreError when it holds none, or θ of another dimension or box
+    than ``space``'s (:func:`require_same_box`)."""
     if run is None:
         return None
     from latentune.critic.transfer import source_trials
@@ -217,9 +218,27 @@ def source_costs(run: Any, dim: int) -> tuple[np.ndarray, np.ndarray] | None:
     X, y, _ = source_trials(run)
     if X.ndim != 2 or len(X) == 0:
         raise StoreError(f"{run} holds no phase-1 or phase-3 trials")
-    if X.shape[1] != dim:
-        raise StoreError(f"the trials of {run} have {X.shape[1]} parameters, the system {dim}")
+    if X.shape[1] != space.dim:
+        raise StoreError(f"the trials of {run} have {X.shape[1]} parameters, the system "
+                         f"{space.dim}")
+    require_same_box(run, space, f"the source run {run}", StoreError)
     return X, y
+
+
+def require_same_box(run: Any, space: ParameterSpace, what: str,
+                     error: type[Exception]) -> None:
+    """Raise ``error`` naming ``what`` when the run at ``run`` recorded a parameter space whose
+    unit-box θ mean other physical values than ``space``'s (other names, bounds or scales,
+    :meth:`~latentune.space.ParameterSpace.box_difference`); runs without a recorded space, or
+    gone, pass."""
+    if run is None or not (Path(run) / "run.db").is_file():
+        return
+    with RunStore(run) as o:
+        other = (o.get_meta("config") or {}).get("space")
+    diff = None if other is None else space.box_difference(other)
+    if diff is not None:
+        raise error(f"{what} holds θ of another box than the system's ({diff}): normalized θ "
+                    "would not mean the same thing")
 
 
 def decoder_of(pc: dict[str, Any], latent: Any) -> Any:
@@ -239,16 +258,18 @@ def _prior_rows(run: Path) -> list[Row]:
         return o.rows(Phase.PHASE1)
 
 
-def theta_prior(run: Any, dim: int) -> tuple[np.ndarray, np.ndarray] | None:
-    """(θ (m, d), fell (m,)) of another run's phase 1, the prior of a direct fall-aware search."""
+def theta_prior(run: Any, space: ParameterSpace) -> tuple[np.ndarray, np.ndarray] | None:
+    """(θ (m, d), fell (m,)) of another run's phase 1, the prior of a direct fall-aware search;
+    StoreError when its θ are of another dimension or box than ``space``'s."""
     if run is None:
         return None
     rows = _prior_rows(Path(run))
     if not rows:
         return None
     X = np.array([r.theta for r in rows])
-    if X.shape[1] != dim:
-        raise StoreError(f"fall prior {run}: its θ have {X.shape[1]} entries, not {dim}")
+    if X.shape[1] != space.dim:
+        raise StoreError(f"fall prior {run}: its θ have {X.shape[1]} entries, not {space.dim}")
+    require_same_box(run, space, f"fall prior {run}", StoreError)
     return X, np.array([r.fell for r in rows], dtype=bool)
 
 
@@ -314,6 +335,8 @@ def resolve_latent(run: RunDir, manifest: Manifest, latent: Any, space: Paramete
     if names is not None and list(names) != list(space.names):
         raise LatentError(f"the latent space ({source}) was trained on θ with other names "
                           "than the system's: normalized θ would not mean the same thing")
+    if source != "self":
+        require_same_box(source, space, f"the latent space's run ({source})", LatentError)
     trained = ls.meta.get("actor")
     if trained is not None and actor is not None and trained != actor:
         raise LatentError(f"the latent space ({source}) was trained on θ of the {trained} "
