@@ -450,3 +450,21 @@ def test_plain_phase3_refuses_a_latent_space_that_decodes_to_one_theta(tmp_path)
         assert not st.exists or st.store.count(Phase.PHASE3) == 0
     with lt.Study(tmp_path / "d", seed=0) as st:
         assert st.phase3(sys_, 6, latent=tmp_path / "src").n == 6
+
+
+def test_a_fall_step_beyond_its_horizon_and_a_negative_max_new_are_refused(tmp_path):
+    """A failed outcome whose ``fall_step`` lies outside ``0 … horizon`` is a defect of the
+    system, not a trial (its convention cost ``C1·(2 − k/N)`` would fall below every standing
+    trial: −300 for 50 of 10); ``max_new`` below 0 is refused before any trial."""
+    from latentune.errors import UsageError
+    from latentune.system import EvaluationError, as_outcome
+
+    assert as_outcome(lt.Outcome(None, True, {"fall_step": 5, "horizon": 10})).cost == 150.0
+    for k, n in ((50, 10), (-1, 10), ("late", 10)):
+        with pytest.raises(EvaluationError, match="outside its horizon"):
+            as_outcome(lt.Outcome(None, True, {"fall_step": k, "horizon": n}))
+    sp = lt.ParameterSpace(["a", "b"], [0, 0], [1, 1])
+    with lt.Study(tmp_path / "r") as st:
+        with pytest.raises(UsageError, match="max_new must be a whole number >= 0"):
+            st.phase1(lt.FunctionSystem(sp, lambda x: float(x.sum())), 5, max_new=-1)
+        assert st.trials() == []

@@ -165,10 +165,10 @@ class Study:
         return study_latent(self.run)
 
     def _options(self, phase: int, method: str, budget: int, regions: int | None,
-                 extra: dict[str, Any]) -> dict[str, Any]:
+                 extra: dict[str, Any], max_new: int | None = None) -> dict[str, Any]:
         return self.manifest.phase_options(phase, method=method, budget=budget, regions=regions,
                                            seed=self.seed, batch_size=self.batch_size_of(phase),
-                                           extra=extra)
+                                           extra=extra, max_new=max_new)
 
     # ------------------------------------------------------------------ phases
     def phase1(self, system: Any, budget: int, *, method: str = "turbo",
@@ -191,7 +191,7 @@ class Study:
         extra = {"start": mf.start_point(start, system.space.manual, system.space.dim)[1],
                  **mf.fall_options(max_fall_prob, fall_prior),
                  **mf.source_option(method, source_run)}
-        self._options(Phase.PHASE1, method, budget, regions, extra)     # checked before writing
+        self._options(Phase.PHASE1, method, budget, regions, extra, max_new)   # checked first
         if max_fall_prob is not None:
             theta_prior(fall_prior, system.space)
         with self.writing() as st:
@@ -257,7 +257,7 @@ class Study:
                                  strategy, start, max_fall_prob, handover, transfer_options,
                                  method, regions)
         source, strategy = extra["latent_source"], extra["strategy"]
-        self._options(Phase.PHASE3, method, budget, regions, extra)     # checked before writing
+        self._options(Phase.PHASE3, method, budget, regions, extra, max_new)   # checked first
         if self.exists:
             self.bind_check(system)
         with self.writing() as st:

@@ -132,6 +132,15 @@ def as_outcome(value: Any) -> Outcome:
         out.cost = as_cost(out.cost, allow_nonfinite=True, what="evaluate (its cost)")
         if out.failed and not math.isfinite(out.cost):      # a blown-up simulator: no cost
             out.info["reported_cost"], out.cost = str(out.cost), None
+    k, horizon = out.info.get("fall_step"), out.info.get("horizon")
+    if k is not None and horizon:
+        try:
+            inside = 0 <= float(k) <= float(horizon)
+        except (TypeError, ValueError):
+            inside = False
+        if not inside:
+            raise EvaluationError(f"evaluate reported fall_step {_short(k)} outside its "
+                                  f"horizon of {_short(horizon)} steps (0 … horizon)")
     if out.cost is None:
         if not out.failed:
             raise EvaluationError("evaluate returned no cost for a trial that did not fail")

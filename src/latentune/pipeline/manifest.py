@@ -160,12 +160,13 @@ class Manifest:
                                      and t.status in ("queued", "pending"))
 
     def phase_options(self, phase: int, *, method: str, budget: int, regions: int | None,
-                      seed: int, batch_size: int, extra: dict[str, Any] | None = None
-                      ) -> dict[str, Any]:
+                      seed: int, batch_size: int, extra: dict[str, Any] | None = None,
+                      max_new: int | None = None) -> dict[str, Any]:
         """The options record of ``phase`` (checked): the one configuration check of phase runs
         and ask/tell. Stored options must match once the phase has a trial (StoreError naming
         the stored value); the budget may grow; TuRBO-m's region count defaults by budget and
-        then stays as stored."""
+        then stays as stored. ``max_new`` (a phase run's stop after so many new trials, not
+        recorded) is checked too."""
         from latentune.critic.turbo import regions_for_budget
 
         key = PHASE_KEYS[Phase(int(phase))]
@@ -173,6 +174,9 @@ class Manifest:
             raise UsageError(f"unknown method {method!r} (choose from {', '.join(METHODS)})")
         if isinstance(budget, bool) or not isinstance(budget, (int, np.integer)) or budget < 1:
             raise UsageError(f"budget must be an integer >= 1, got {budget!r}")
+        if max_new is not None and (isinstance(max_new, bool) or
+                                    not isinstance(max_new, (int, np.integer)) or max_new < 0):
+            raise UsageError(f"max_new must be a whole number >= 0, got {max_new!r}")
         if regions is not None and not 1 <= int(regions) <= 100:
             raise UsageError(f"regions must be in [1, 100], got {regions}")
         stored = self.config().get(key)
