@@ -468,3 +468,19 @@ def test_a_fall_step_beyond_its_horizon_and_a_negative_max_new_are_refused(tmp_p
         with pytest.raises(UsageError, match="max_new must be a whole number >= 0"):
             st.phase1(lt.FunctionSystem(sp, lambda x: float(x.sum())), 5, max_new=-1)
         assert st.trials() == []
+
+
+def test_train_latent_refuses_bad_epochs_before_replacing_the_vae(tmp_path):
+    """``epochs`` of 0, −1 or 2.5 with ``retrain`` is refused before the trained VAE is
+    touched (it was replaced by an untrained one, then a TypeError)."""
+    from latentune.errors import UsageError
+
+    sp = lt.ParameterSpace(["a", "b", "c"], [0] * 3, [1] * 3)
+    with lt.Study(tmp_path / "r", seed=0) as st:
+        st.phase1(lt.FunctionSystem(sp, lambda x: float(((x - 0.3) ** 2).sum())), 12)
+        st.train_latent(latent_dim=2, epochs=5)
+        before = (tmp_path / "r" / "vae.pt").read_bytes()
+        for bad in (0, -1, 2.5, True):
+            with pytest.raises(UsageError, match="epochs must be a whole number >= 1"):
+                st.train_latent(epochs=bad, retrain=True)
+        assert (tmp_path / "r" / "vae.pt").read_bytes() == before

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import logging
 import time
+from numbers import Integral
 from typing import Any
 
 from latentune.constants import Phase
-from latentune.errors import LatentError
+from latentune.errors import LatentError, UsageError
 from latentune.pipeline.manifest import Manifest
 from latentune.pipeline.phases import training_set
 from latentune.pipeline.rundir import RunDir
@@ -25,6 +26,10 @@ def train_latent(run: RunDir, manifest: Manifest, seed: int, latent_dim: int | N
     would invalidate the stored phase-3 rows). Call with the run's write lock held."""
     from latentune.latent.vae import DEFAULT_KIND, SPREAD_WARN, LatentSpace
 
+    if epochs is not None and (isinstance(epochs, bool) or not isinstance(epochs, Integral)
+                               or epochs < 1):
+        raise UsageError(f"epochs must be a whole number >= 1 (or None: the default), got "
+                         f"{epochs!r}")
     st = run.store
     if st.artifact("vae") is not None:
         if not retrain:
@@ -57,6 +62,7 @@ def train_latent(run: RunDir, manifest: Manifest, seed: int, latent_dim: int | N
         logger.warning("%s: the latent box decodes to %.2g of the training θ's variance: the "
                        "paper's plain phase 3 can reach little beyond one θ", run.dir, ratio)
     spread = "" if ratio is None else f"; decoded spread {ratio:.3f} of the training variance"
+    rec = latent.meta.get("final_rec")
     return latent, (f"VAE ({latent.kind}, d_low {latent.d_low}) trained on {len(X)} θ in "
                     f"{latent.meta.get('train_wall_s', 0):.1f} s; final reconstruction error "
-                    f"{latent.meta.get('final_rec', float('nan')):.4f}{spread}")
+                    f"{float('nan') if rec is None else rec:.4f}{spread}")
