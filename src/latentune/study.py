@@ -168,7 +168,7 @@ class Study:
                  extra: dict[str, Any], max_new: int | None = None) -> dict[str, Any]:
         return self.manifest.phase_options(phase, method=method, budget=budget, regions=regions,
                                            seed=self.seed, batch_size=self.batch_size_of(phase),
-                                           extra=extra, max_new=max_new)
+                                           extra=extra, max_new=max_new, phase_run=True)
 
     # ------------------------------------------------------------------ phases
     def phase1(self, system: Any, budget: int, *, method: str = "turbo",

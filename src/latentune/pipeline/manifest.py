@@ -161,12 +161,14 @@ class Manifest:
 
     def phase_options(self, phase: int, *, method: str, budget: int, regions: int | None,
                       seed: int, batch_size: int, extra: dict[str, Any] | None = None,
-                      max_new: int | None = None) -> dict[str, Any]:
+                      max_new: int | None = None, phase_run: bool = False) -> dict[str, Any]:
         """The options record of ``phase`` (checked): the one configuration check of phase runs
         and ask/tell. Stored options must match once the phase has a trial (StoreError naming
         the stored value); the budget may grow; TuRBO-m's region count defaults by budget and
         then stays as stored. ``max_new`` (a phase run's stop after so many new trials, not
-        recorded) is checked too."""
+        recorded) is checked too. A ``phase_run`` (the phase run in-process, not by ask/tell)
+        is refused while suggestions of the phase (or of phase 3's zero-shot trial) are handed
+        out: it would run them again and outgrow the budget."""
         from latentune.critic.turbo import regions_for_budget
 
         key = PHASE_KEYS[Phase(int(phase))]
@@ -179,6 +181,19 @@ class Manifest:
             raise UsageError(f"max_new must be a whole number >= 0, got {max_new!r}")
         if regions is not None and not 1 <= int(regions) <= 100:
             raise UsageError(f"regions must be in [1, 100], got {regions}")
+        if phase_run and self.run.exists:
+            from latentune.pipeline.results import phase_name
+
+            held = (int(phase), int(Phase.ZERO_SHOT)) if int(phase) == Phase.PHASE3 \
+                else (int(phase),)
+            out = [t.id for t in self.run.store.trials()
+                   if t.phase in held and t.status in ("queued", "pending")]
+            if out:
+                raise StoreError(f"{self.run.dir}: {len(out)} suggestions of "
+                                 f"{phase_name(phase)} are handed out to ask/tell (ids "
+                                 f"{', '.join(map(str, out[:5]))}{', …' if len(out) > 5 else ''}"
+                                 "): tell them and go on with ask/tell, or run the phase here "
+                                 "in a study without them")
         stored = self.config().get(key)
         n = self.n_used(phase)
         if regions is None and stored and n:
