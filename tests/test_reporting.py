@@ -161,6 +161,34 @@ def test_a_failed_trial_is_never_the_best_whatever_cost_it_was_given(tmp_path: P
     assert (h["latent_best"], h["full_best"], h["full_falls"]) == (0.9, None, 1)
 
 
+def test_summary_beats_a_failed_manual_whatever_the_costs_and_ratio_only_for_positive_bests(
+        tmp_path: Path):
+    """A trial that stood beats a failed manual θ whatever the costs (a constant offset of the
+    costs changes nothing); ``phase3_vs_phase1`` is None unless both bests are positive."""
+    for offset in (0.0, 1e9):
+        with RunStore(tmp_path / f"run{offset:g}", create=True) as st:
+            st.set_meta("config", {"system": {"kind": "user"}})
+            st.add(Phase.MANUAL, 0, np.zeros(3), 200.0, fell=True, tag=-1)
+            for i, (c, f) in enumerate([(200.0, True), (offset + 3.0, False),
+                                        (offset + 1.0, False)]):
+                st.add(Phase.PHASE1, i, np.full(3, 0.1 * i), c, fell=f, tag=-1)
+            st.add(Phase.PHASE3, 0, np.zeros(3), offset + 0.5, fell=False, tag=-1)
+            s = write_summary(st)
+            md = comparison_table(st)
+        assert (s["phase1_evals_to_beat_manual"], s["phase3_evals_to_beat_manual"]) == (2, 1)
+        assert _row(md, "phase 3 (latent, TuRBO-m)")[-1] == "1"
+    with RunStore(tmp_path / "neg", create=True) as st:
+        _fill(st, Phase.MANUAL, [-400.0])
+        _fill(st, Phase.PHASE1, [-400.0, -500.0])
+        _fill(st, Phase.PHASE3, [-600.0])
+        s = write_summary(st)
+    assert s["phase3_vs_phase1"] is None and s["phase1_evals_to_beat_manual"] == 2
+    with RunStore(tmp_path / "pos", create=True) as st:
+        _fill(st, Phase.PHASE1, [4.0])
+        _fill(st, Phase.PHASE3, [2.0])
+        assert write_summary(st)["phase3_vs_phase1"] == 0.5
+
+
 def test_comparison_table(tmp_path: Path):
     with _store(tmp_path / "run", {"task": TASK}) as st:
         md = comparison_table(st)

@@ -98,13 +98,33 @@ def _paper_numbers(config: dict[str, Any]) -> dict[str, Any] | None:
     return {"manual": row.get("manual"), "phase1": row.get("phase1"), "phase3": row.get(key)}
 
 
+def manual_target(store: Any) -> float | None:
+    """The cost a trial that stood must be strictly below to beat the manual θ: the manual
+    trial's cost if it stood; +inf if it failed (a trial that stood ranks before every failed
+    one, whatever the costs: :func:`latentune.critic.base.fall_last`), so the first trial that
+    stood beats it; None without a manual trial."""
+    rows = store.rows(Phase.MANUAL)
+    stood = [r.cost for r in rows if not r.fell]
+    return min(stood) if stood else (math.inf if rows else None)
+
+
+def best_ratio(phase3_best: float | None, phase1_best: float | None) -> float | None:
+    """``phase3_best / phase1_best`` when both bests are positive (< 1: phase 3 found a lower
+    cost); None otherwise: for a zero or negative cost the ratio of costs does not say which
+    phase is better (-10 / -5 = 2 with phase 3 better)."""
+    if phase3_best is None or phase1_best is None or phase3_best <= 0 or phase1_best <= 0:
+        return None
+    return phase3_best / phase1_best
+
+
 def run_stats(store: Any) -> dict[int, dict[str, Any]]:
     """Phase → :func:`~latentune.reporting.metrics.phase_stats` of the store's costs against the
-    manual θ's cost, plus ``rms`` (RMS velocity error of the best θ [m/s], built-in tasks only)
-    and ``falls`` counted from the stored ``fell`` flags."""
+    manual θ (:func:`manual_target`: a trial that stood beats a failed manual θ whatever the
+    costs), plus ``rms`` (RMS velocity error of the best θ [m/s], built-in tasks only) and
+    ``falls`` counted from the stored ``fell`` flags."""
     cfg = store.get_meta("config") or {}
     steps = _steps(cfg)
-    manual = phase_stats(store.costs(Phase.MANUAL))["best"]
+    manual = manual_target(store)
     out = {}
     for ph in TABLE_PHASES:
         rows = store.rows(ph)
@@ -118,7 +138,8 @@ def run_stats(store: Any) -> dict[int, dict[str, Any]]:
 def comparison_table(store: Any) -> str:
     """The Markdown table of the run: per phase the best cost, (built-in tasks) its RMS velocity
     error [m/s], the number of evaluations, the stable ones and the evaluations until the first
-    cost strictly below the manual θ's; the paper's numbers below it when it has the task."""
+    trial that beat the manual θ (:func:`manual_target`); the paper's numbers below it when it
+    has the task."""
     cfg = store.get_meta("config") or {}
     t = cfg.get("task")
     stats = run_stats(store)
@@ -139,7 +160,7 @@ def comparison_table(store: Any) -> str:
             cells = ["–"] * (2 if rms else 1) + ["0", "–", "–"]
         else:
             beat = "–"
-            if ph != Phase.MANUAL and stats[Phase.MANUAL]["best"] is not None:
+            if ph != Phase.MANUAL and stats[Phase.MANUAL]["n"]:
                 beat = fmt(s["evals_to_beat"]) if s["evals_to_beat"] is not None else "not beaten"
             cells = [fmt(s["best"])] + ([fmt(s["rms"])] if rms else [])
             cells += [str(s["n"]), f"{s['stable']}/{s['n']}", beat]
@@ -179,9 +200,11 @@ def write_summary(store: Any, wall_this: float | None = None) -> dict[str, Any]:
     Costs: ``manual_cost`` and ``zero_shot_cost`` (the trial's own cost, fallen or not, with
     ``manual_fell`` and ``zero_shot_fell``; None without the trial), ``phase1_best`` and
     ``phase3_best`` (the best trial that did not fail; None if none stood),
-    ``phase3_vs_phase1`` (ratio of the bests); counts: ``phase{1,3}_evals``,
-    ``phase{1,3}_stable``, ``phase{1,3}_falls``, ``phase{1,3}_evals_to_beat_manual`` (first
-    evaluation that did not fail strictly below the manual cost, 1-based, None if never);
+    ``phase3_vs_phase1`` (``phase3_best / phase1_best`` when both are positive, else None:
+    :func:`best_ratio`); counts: ``phase{1,3}_evals``, ``phase{1,3}_stable``,
+    ``phase{1,3}_falls``, ``phase{1,3}_evals_to_beat_manual`` (the first evaluation, 1-based,
+    that did not fail and beat the manual θ: strictly below its cost, or any that did not fail
+    when the manual θ failed; None if never or without a manual trial);
     ``rms_velocity_error_m_s`` (per phase, the best θ's RMS velocity error [m/s]; None for a
     user system); wall times [s]
     ``wall_s`` (sum over phases), ``wall_by_phase_s``, ``wall_s_this_command``; ``seed``,
@@ -210,7 +233,7 @@ def write_summary(store: Any, wall_this: float | None = None) -> dict[str, Any]:
         "phase3_falls": p3["falls"],
         "phase1_evals_to_beat_manual": p1["evals_to_beat"],
         "phase3_evals_to_beat_manual": p3["evals_to_beat"],
-        "phase3_vs_phase1": (p3["best"] / p1["best"]) if p1["best"] and p3["best"] else None,
+        "phase3_vs_phase1": best_ratio(p3["best"], p1["best"]),
         "rms_velocity_error_m_s": ({k: v["rms"] for k, v in names.items()}
                                    if _steps(cfg) else None),
         "wall_s": float(sum(wall.values())),
