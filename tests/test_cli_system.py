@@ -219,3 +219,71 @@ def test_evaluators_leave_the_callers_environment(plugin_dir, monkeypatch):
         assert dict(os.environ) == before, backend
     assert all(set(o.info["omp"].values()) == {"1"} for o in outs)   # the workers' own
     assert all(o.info["pid"] != os.getpid() for o in outs)
+
+
+# ---------------------------------------------------------------------------- --system-arg values
+def test_system_arg_exponent_values_are_floats():
+    from latentune.system import parse_system_args
+
+    got = parse_system_args(["a=1e9", "b=1e-3", "c=1.0e9", "d=-2.5E+3", "e=2.5", "f=10",
+                             "g=true", "h=null", "i=abc", "j=", "k=1.0e+9", "l=[1, 2]"])
+    assert got == {"a": 1e9, "b": 1e-3, "c": 1e9, "d": -2500.0, "e": 2.5, "f": 10, "g": True,
+                   "h": None, "i": "abc", "j": "", "k": 1e9, "l": [1, 2]}
+    assert all(type(got[k]) is float for k in "abcdek") and type(got["f"]) is int
+
+
+def test_a_study_without_trials_takes_another_system(run_cli, plugin_dir, tmp_path):
+    """A first run that failed before storing a trial leaves a study bound to its system: the
+    corrected run is accepted (and recorded); once a trial is stored, another is refused."""
+    out = tmp_path / "r"
+    code, _, err = run_cli("phase1", "--system", "closplant:make", "--system-arg", "shift=abc",
+                           "--out", out, "--phase1-evals", "4", "--backend", "serial")
+    assert code != 0 and _rows(out) == []
+    code, _, err = run_cli("phase1", "--system", "closplant:make", "--system-arg", "shift=1e-3",
+                           "--system-arg", "dim=3", "--out", out, "--phase1-evals", "4",
+                           "--backend", "serial", "--resume")
+    assert code == 0, err
+    with RunStore(out) as st:
+        assert st.get_meta("config")["system"]["args"] == {"shift": 1e-3, "dim": 3}
+        assert len(st.rows(Phase.PHASE1)) == 4 and len(st.rows(Phase.PHASE1)[0].theta) == 3
+    line = one_line_error(*run_cli("phase1", "--system", "closplant:make", "--system-arg",
+                                   "shift=0.5", "--out", out, "--phase1-evals", "5",
+                                   "--backend", "serial", "--resume")[::2])
+    assert "holds a run of another system (args.dim" in line
+
+
+def test_a_study_without_trials_forgets_the_old_systems_asked_batch(tmp_path):
+    """A batch a failed first run asked (recorded to be evaluated on resume; here written by
+    hand, as phase 1 stores the manual θ first) is in the old system's space: binding another
+    system drops it."""
+    def boom(x):
+        raise RuntimeError("not wired yet")
+
+    sp2 = lt.ParameterSpace(["a", "b"], [0, 0], [1, 1])
+    sp3 = lt.ParameterSpace(["a", "b", "c"], [0, 0, 0], [1, 1, 1])
+    with pytest.raises(LatentuneError, match="not wired yet"):
+        lt.Study(tmp_path / "s", workers=1).phase1(lt.FunctionSystem(sp2, boom), 6, start=None)
+    with RunStore(tmp_path / "s") as st:
+        assert not st.rows(Phase.MANUAL) and not st.rows(Phase.PHASE1)
+        st.set_meta("asked_batch_1", {"n0": 0, "u": [[0.1, 0.2]], "tags": [0], "z": None,
+                                      "theta": [[0.1, 0.2]]})
+    s = lt.Study(tmp_path / "s", workers=1)
+    res = s.phase1(lt.FunctionSystem(sp3, _sum), 6, start=None)
+    assert res.n == 6 and all(len(r.theta) == 3 for r in s.store.rows(Phase.PHASE1))
+    assert s.config()["space"] == sp3.to_dict()
+
+
+def test_a_plugin_run_recorded_with_a_string_exponent_still_resumes(run_cli, plugin_run):
+    """A run stored when ``--system-arg shift=2.5e-1`` reached the factory as a string resumes
+    with the same flag (now a float), and its record is kept as it is."""
+    with RunStore(plugin_run) as st:
+        cfg = st.get_meta("config")
+        cfg["system"]["args"]["shift"] = "2.5e-1"
+        st.set_meta("config", cfg)
+    code, _, err = run_cli("phase1", "--system", "closplant:make", "--system-arg", "shift=2.5e-1",
+                           "--system-arg", "dim=3", "--out", plugin_run, "--resume",
+                           "--phase1-evals", "8", "--backend", "serial")
+    assert code == 0, err
+    with RunStore(plugin_run) as st:
+        assert st.get_meta("config")["system"]["args"]["shift"] == "2.5e-1"
+        assert len(st.rows(Phase.PHASE1)) == 8

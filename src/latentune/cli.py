@@ -109,7 +109,8 @@ def add_system_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--system", default=None, metavar="MODULE:FACTORY",
                    help="tune your own system: FACTORY(**system-args) returns it (see README)")
     p.add_argument("--system-arg", action="append", default=[], metavar="KEY=VALUE",
-                   help="an argument of the --system factory (repeatable; YAML-typed value)")
+                   help="an argument of the --system factory (repeatable; 1e-3, 2.5: floats; "
+                        "other values YAML-typed)")
 
 
 def _task_given(args: argparse.Namespace) -> bool:
@@ -332,8 +333,9 @@ def _study(args: argparse.Namespace):
 
 def _check_stored_system(study: Any, args: argparse.Namespace) -> None:
     """Refuse, in one line saying what to pass, a run directory whose stored system is not the
-    kind the flags describe (read from the stored config; nothing is imported)."""
-    if not study.exists:
+    kind the flags describe (read from the stored config; nothing is imported). A study that
+    holds no trial may take another system (:meth:`Manifest.holds_trials`)."""
+    if not study.exists or not study.manifest.holds_trials():
         return
     desc = study.config().get("system") or {}
     kind = desc.get("kind")

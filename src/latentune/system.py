@@ -28,6 +28,7 @@ import importlib
 import inspect
 import math
 import os
+import re
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable, Protocol, runtime_checkable
@@ -232,8 +233,26 @@ def evaluate(system: Any, theta: np.ndarray) -> Outcome:
     return out
 
 
+_DECIMAL = re.compile(r"[-+]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][-+]?[0-9]+)?")
+"""A number in decimal or exponent form: ``2.5``, ``.5``, ``1e9``, ``-2.5E+3``."""
+
+
+def decimal_float(text: str) -> float | None:
+    """``text`` as a float if it is a number in decimal or exponent form with a point or an
+    exponent (``2.5``, ``1e9``, ``1e-3``, ``-2.5E+3``; ``1e999`` is inf), else None (``10``,
+    ``inf``, ``abc``). Surrounding blanks are ignored."""
+    t = text.strip()
+    if _DECIMAL.fullmatch(t) and not t.lstrip("+-").isdigit():
+        return float(t)
+    return None
+
+
 def parse_system_args(pairs: list[str] | None) -> dict[str, Any]:
-    """``["k=v", ...]`` -> dict; values are parsed as YAML scalars (numbers, booleans, lists)."""
+    """``["k=v", ...]`` -> dict. A value in decimal or exponent form with a point or an
+    exponent (``2.5``, ``1e9``, ``1e-3``, ``-2.5E+3``; ``1e999`` is inf) is a float; any other
+    value is parsed as a YAML scalar (``10`` an int, ``true``/``false`` booleans, ``null``
+    None, ``[1, 2]`` a list), a string when YAML cannot parse it; an empty value is ``""``.
+    (YAML 1.1 alone reads ``1e9`` and ``1.0e9`` as strings.)"""
     import yaml
 
     out: dict[str, Any] = {}
@@ -241,6 +260,10 @@ def parse_system_args(pairs: list[str] | None) -> dict[str, Any]:
         if "=" not in p or not p.split("=", 1)[0].strip():
             raise SystemSpecError(f"--system-arg must be key=value, got {p!r}")
         k, v = p.split("=", 1)
+        num = decimal_float(v)
+        if num is not None:
+            out[k.strip()] = num
+            continue
         try:
             out[k.strip()] = yaml.safe_load(v) if v.strip() else ""
         except yaml.YAMLError:

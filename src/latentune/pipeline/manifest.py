@@ -11,7 +11,8 @@ Stored in the run store's ``config`` meta entry (JSON)::
     vae, latent, phase3_vae_source, phase3_handover   phase 2's and phase 3's latent space
 
 A study reopened reads its seed and options from here; a conflicting one is refused with one
-line naming the stored value (:class:`~latentune.errors.StoreError`). The manifest records a
+line naming the stored value (:class:`~latentune.errors.StoreError`). A study that holds no
+trial (:meth:`Manifest.holds_trials`) takes another system instead (:meth:`Manifest.bind`). The manifest records a
 user system's ``--system`` string and arguments, or its class, but never imports or calls them.
 """
 from __future__ import annotations
@@ -26,7 +27,7 @@ from latentune.constants import Phase
 from latentune.errors import StoreError, UsageError
 from latentune.pipeline.rundir import RunDir
 from latentune.space import ParameterSpace
-from latentune.system import check_system
+from latentune.system import check_system, decimal_float
 
 OPTUNA_METHODS = ("optuna-tpe", "optuna-cmaes", "optuna-gp")
 """Optuna's samplers as critics (:class:`latentune.critic.optuna.OptunaCritic`; the
@@ -64,6 +65,19 @@ def describe(system: Any) -> dict[str, Any]:
     if callable(cfg):
         d["config"] = json.loads(json.dumps(cfg(), default=str))
     return d
+
+
+def same_system(stored: dict[str, Any] | None, desc: dict[str, Any]) -> bool:
+    """Whether the recorded system ``stored`` is the one ``desc`` describes. A plugin recorded
+    before ``--system-arg`` read exponent values as floats holds them as strings (``'1e-3'``):
+    such a string equals the float :func:`~latentune.system.decimal_float` reads from it."""
+    if stored is None or stored == desc:
+        return stored is not None
+    if stored.get("kind") != "plugin" or not isinstance(stored.get("args"), dict):
+        return False
+    args = {k: decimal_float(v) if isinstance(v, str) and decimal_float(v) is not None else v
+            for k, v in stored["args"].items()}
+    return {**stored, "args": args} == desc
 
 
 class Manifest:
@@ -109,25 +123,57 @@ class Manifest:
             self.update(seed=int(seed))
 
     # ------------------------------------------------------------------ system
+    def holds_trials(self) -> bool:
+        """Whether the study stored an evaluation of any phase or has an ask/tell suggestion
+        (of any status). A study without either may be bound to another system."""
+        if not self.run.exists:
+            return False
+        st = self.run.store
+        return any(st.count(int(p)) for p in Phase) or bool(st.trials())
+
     def bind(self, system: Any) -> dict[str, Any]:
-        """Record ``system`` as the study's system, or check it is the one recorded."""
+        """Record ``system`` as the study's system, or check it is the one recorded. A study
+        that holds no trial (:meth:`holds_trials`; e.g. its first run failed before any
+        evaluation was stored) is bound to another system instead of refusing it."""
         desc = self.bind_check(system)
-        if self.config().get("system") is None:
-            kw: dict[str, Any] = {"system": desc, "space": system.space.to_dict()}
-            if desc["kind"] == "task":
-                kw["task"] = desc["task"]
-            self.update(**kw)
+        if not same_system(self.config().get("system"), desc):
+            was = self._stored()
+            self._record(desc, system.space, was is not None and not same_system(was, desc))
         return desc
+
+    def _stored(self) -> dict[str, Any] | None:
+        """The recorded system (a run written before systems were recorded: its task)."""
+        cfg = self.config()
+        stored = cfg.get("system")
+        if stored is None and "task" in cfg:
+            stored = {"kind": "task", "task": cfg["task"]}
+        return stored
+
+    def _record(self, desc: dict[str, Any], space: ParameterSpace, forget: bool) -> None:
+        """Record the system ``desc`` and its ``space`` (and ``task`` for a built-in task), in
+        one transaction. ``forget`` (a study holding no trial bound to another system): also
+        drop what a run on the old system left, the record of an asked batch not yet told and
+        the critic states (their points are in the old space)."""
+        from latentune.pipeline.phases import batch_key, state_key
+
+        st = self.run.open()
+        cfg = st.get_meta("config") or {}
+        cfg.pop("task", None)
+        cfg.update(system=desc, space=space.to_dict())
+        if desc["kind"] == "task":
+            cfg["task"] = desc["task"]
+        entries: dict[str, Any] = {"config": cfg}
+        if forget:
+            entries.update({key(p): None for p in PHASE_KEYS for key in (batch_key, state_key)})
+        st.update_meta(entries)
 
     def bind_check(self, system: Any) -> dict[str, Any]:
         """Return ``system``'s description; StoreError (naming the differences) unless it is
-        the system this study recorded, or no system is recorded yet."""
+        the system this study recorded, or no system is recorded yet, or the study holds no
+        trial (:meth:`holds_trials`)."""
         desc = describe(check_system(system))
-        cfg = self.config()
-        stored = cfg.get("system")
-        if stored is None and "task" in cfg:        # a run written before systems were recorded
-            stored = {"kind": "task", "task": cfg["task"]}
-        if stored is not None and stored != desc:
+        stored = self._stored()
+        if stored is not None and not same_system(stored, desc) and self.holds_trials():
             if stored.get("kind") == "plugin" and desc.get("kind") != "plugin":
                 raise StoreError(f"{self.run.dir} holds a run of the user system "
                                  f"{stored.get('target')}: pass --system {stored.get('target')}"
@@ -142,13 +188,14 @@ class Manifest:
         return None if sp is None else ParameterSpace.from_dict(sp)
 
     def bind_space(self, space: ParameterSpace) -> None:
-        """Record the parameter space of trials run elsewhere, or check it is the stored one."""
+        """Record the parameter space of trials run elsewhere, or check it is the stored one
+        (a study that holds no trial takes the new one, as :meth:`bind`)."""
         stored = self.space()
-        if stored is not None and stored != space:
+        if stored is not None and stored != space and self.holds_trials():
             raise StoreError(f"{self.run.dir} holds a study of another parameter space")
-        if stored is None:
-            self.update(space=space.to_dict(), system={"kind": "external",
-                                                       "space": space.to_dict()})
+        if stored is None or stored != space:
+            self._record({"kind": "external", "space": space.to_dict()}, space,
+                         stored is not None)
 
     # ------------------------------------------------------------------ phase options
     def n_used(self, phase: int) -> int:
