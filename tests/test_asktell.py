@@ -565,6 +565,28 @@ def test_a_target_whose_box_differs_from_the_source_is_refused(tmp_path, src30):
                 st.phase1(sys_, 4, max_fall_prob=0.3, fall_prior=src30)
 
 
+def test_a_phase_run_in_process_is_refused_while_suggestions_are_out(tmp_path, src30):
+    """A phase run in-process while ask/tell has suggestions of the phase out (phase 3: its
+    zero-shot trial too) would run them again: 12 phase-1 trials for a budget of 10, the
+    zero-shot θ twice. It is refused, naming them, and runs once they are told; the batch's
+    suggestions not handed out yet are withdrawn."""
+    sys_ = plant()
+    with lt.Study(tmp_path / "p1", seed=0) as st:
+        out = st.ask(2, system=sys_, budget=10)
+        with pytest.raises(StoreError, match="2 suggestions of phase 1 are handed out"):
+            st.phase1(sys_, 10)
+        for s in out:
+            st.tell(s.id, plant_fn(SPACE.to_physical(s.theta)))
+        assert st.phase1(sys_, 10).n == 10 and st.store.count(Phase.PHASE1) == 10
+        assert not [t for t in st.store.trials() if t.status in ("queued", "pending")]
+    with lt.Study(tmp_path / "p3", seed=0) as st:
+        (zs,) = st.ask(1, system=sys_, phase=3, latent=src30, budget=4)
+        assert zs.phase_name == "zero-shot"
+        with pytest.raises(StoreError, match="1 suggestions of phase 3 are handed out"):
+            st.phase3(sys_, 4, latent=src30)
+        assert len(st.trials()) == 0
+
+
 def test_a_told_trial_reads_the_strategy_only_when_it_warns(monkeypatch, caplog):
     """``warn_if_failing`` takes the strategy as a function (what ``tell`` gives it: a read of
     the study's config) and calls it only when the failing streak is reached."""

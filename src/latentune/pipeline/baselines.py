@@ -34,9 +34,11 @@ def source_best(run: str | os.PathLike) -> Row | None:
 
 def zero_shot(store: RunStore, system: Any, source: str, seed: int) -> float | None:
     """Evaluate the source study's best θ on ``system`` once (phase 4, idx 0) unless it is
-    stored or queued; return its cost (None when there is nothing to run)."""
+    stored (a zero-shot suggestion of ask/tell not handed out yet is withdrawn: this run asks
+    it); return its cost (None when there is nothing to run)."""
     if source == "self" or store.count(Phase.ZERO_SHOT) > 0:
         return None
+    store.drop_queued((Phase.ZERO_SHOT,))
     best = source_best(source)
     if best is None:
         return None

@@ -12,8 +12,9 @@ Stored in the run store's ``config`` meta entry (JSON)::
 
 A study reopened reads its seed and options from here; a conflicting one is refused with one
 line naming the stored value (:class:`~latentune.errors.StoreError`). A study that holds no
-trial (:meth:`Manifest.holds_trials`) takes another system instead (:meth:`Manifest.bind`). The manifest records a
-user system's ``--system`` string and arguments, or its class, but never imports or calls them.
+trial (:meth:`Manifest.holds_trials`) takes another system instead (:meth:`Manifest.bind`).
+The manifest records a user system's ``--system`` string and arguments, or its class, but
+never imports or calls them.
 """
 from __future__ import annotations
 
@@ -215,7 +216,8 @@ class Manifest:
         then stays as stored. ``max_new`` (a phase run's stop after so many new trials, not
         recorded) is checked too. A ``phase_run`` (the phase run in-process, not by ask/tell)
         is refused while suggestions of the phase (or of phase 3's zero-shot trial) are handed
-        out: it would run them again and outgrow the budget."""
+        out to ask/tell: it would run them again and outgrow the budget (those asked and not
+        handed out yet are withdrawn by the run)."""
         from latentune.critic.turbo import regions_for_budget
 
         key = PHASE_KEYS[Phase(int(phase))]
@@ -234,7 +236,7 @@ class Manifest:
             held = (int(phase), int(Phase.ZERO_SHOT)) if int(phase) == Phase.PHASE3 \
                 else (int(phase),)
             out = [t.id for t in self.run.store.trials()
-                   if t.phase in held and t.status in ("queued", "pending")]
+                   if t.phase in held and t.status == "pending"]
             if out:
                 raise StoreError(f"{self.run.dir}: {len(out)} suggestions of "
                                  f"{phase_name(phase)} are handed out to ask/tell (ids "

@@ -419,6 +419,7 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
             of the phase are stored (a resume runs the batch's others).
     """
     t0 = time.perf_counter()
+    store.drop_queued((phase,))     # ask/tell's, not handed out yet: this run asks its own
     batch = pending_batch(store, phase, budget, decoder)
     replay(store, phase, critic, None if batch is None else batch.n0)
     y = store.costs(phase)

@@ -476,6 +476,16 @@ class RunStore:
             self.con.execute("UPDATE trials SET status='queued', asker=NULL, lease_until=NULL "
                              "WHERE id=?", (int(trial_id),))
 
+    def drop_queued(self, phases: tuple[int, ...]) -> int:
+        """Withdraw the suggestions of ``phases`` asked but not handed out yet (status 'queued'
+        to 'dropped'): a phase run in-process asks its own. Returns how many."""
+        if not self._has_leases:                # no suggestion was ever asked here
+            return 0
+        marks = ", ".join("?" * len(phases))
+        with self._write(trials=True):
+            return self.con.execute(f"UPDATE trials SET status='dropped' WHERE status='queued' "
+                                    f"AND phase IN ({marks})", tuple(map(int, phases))).rowcount
+
     def _trial(self, trial_id: int) -> Trial:
         found = self.trials(trial_id=int(trial_id))
         if not found:
