@@ -484,3 +484,21 @@ def test_train_latent_refuses_bad_epochs_before_replacing_the_vae(tmp_path):
             with pytest.raises(UsageError, match="epochs must be a whole number >= 1"):
                 st.train_latent(epochs=bad, retrain=True)
         assert (tmp_path / "r" / "vae.pt").read_bytes() == before
+
+
+def test_a_cost_the_store_cannot_keep_is_refused_or_a_fall(tmp_path):
+    """The store keeps ±1e300 for ±inf: a standing trial's cost of 1e300 or more in size is
+    refused by name (it was stored and read back as inf, and best() became inf); a failed
+    trial's is no cost, as a NaN is (the fall convention, what was reported kept)."""
+    from latentune.system import CostError, as_outcome
+
+    for c in (1e300, -1e300, 1e305):
+        with pytest.raises(CostError, match="smaller than 1e.300 in size"):
+            as_outcome(c)
+    out = as_outcome(lt.Outcome(1e300, True))
+    assert out.cost == 200.0 and out.info["reported_cost"] == "1e+300"
+    assert as_outcome(9.9e299).cost == 9.9e299
+    sp = lt.ParameterSpace(["a"], [0], [1])
+    with lt.Study(tmp_path / "r") as st:
+        with pytest.raises(CostError):
+            st.phase1(lt.FunctionSystem(sp, lambda x: 1e300), 3)

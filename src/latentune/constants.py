@@ -12,6 +12,10 @@ C1: float = 100.0
 STABLE_CAP: float = C1 * (1.0 - 1e-6)
 """The largest cost a trial that did not fail can have (so cost < C1 ⇔ stable always holds)."""
 
+COST_LIMIT: float = 1e300
+"""The largest size of a cost a trial may report: the run store keeps ±COST_LIMIT for ±inf
+(SQLite's REAL column has no inf), so a finite cost this large or larger is refused."""
+
 G: float = 9.81
 """Gravitational acceleration [m/s²]."""
 

@@ -35,7 +35,7 @@ from typing import Any, Callable, Protocol, runtime_checkable
 
 import numpy as np
 
-from latentune.constants import C1, fail_cost
+from latentune.constants import C1, COST_LIMIT, fail_cost
 from latentune.errors import LatentuneError, SystemSpecError
 from latentune.space import ParameterSpace
 
@@ -55,7 +55,9 @@ def as_cost(value: Any, *, allow_nonfinite: bool = False, what: str = "the funct
 
     Accepts a real number (``int``, ``float``, a NumPy real scalar) or a 0-d array of one;
     refuses None, strings, bools, complex numbers, arrays of any other shape, and integers
-    that do not fit a float64. Non-finite costs are refused unless ``allow_nonfinite``.
+    that do not fit a float64. Non-finite costs, and finite ones of :data:`~latentune.
+    constants.COST_LIMIT` (1e300) in size or more (the store's code for inf), are refused
+    unless ``allow_nonfinite``.
     """
     v = value
     if isinstance(v, np.ndarray) and v.ndim == 0:
@@ -79,7 +81,14 @@ def as_cost(value: Any, *, allow_nonfinite: bool = False, what: str = "the funct
                         f"({len(str(abs(int(v))))} digits)") from None
     if not allow_nonfinite and not math.isfinite(cost):
         raise EvaluationError(f"{what} returned a non-finite cost ({cost})")
+    if not allow_nonfinite and abs(cost) >= COST_LIMIT:
+        raise CostError(_too_large(what, cost))
     return cost
+
+
+def _too_large(what: str, cost: float) -> str:
+    return (f"{what} returned {cost:g}: a cost must be smaller than {COST_LIMIT:g} in size (the "
+            "store keeps that for inf); mark the trial failed, or return a smaller penalty")
 
 
 @dataclass
@@ -111,9 +120,10 @@ def as_outcome(value: Any) -> Outcome:
 
     Accepts an :class:`Outcome`, a number (the cost; not failed), a ``(cost, failed)`` pair or a
     dict with ``cost`` and optional ``failed``, ``info``. Raises :class:`EvaluationError` for
-    anything else, and for a non-finite cost of a trial that did not fail. A failed trial's
-    non-finite cost (a simulator that blew up reports ``nan``) is no cost: it gets the fall
-    convention, and ``info["reported_cost"]`` keeps what was reported (``"nan"``, ``"inf"``).
+    anything else, and for a non-finite cost (or one of 1e300 in size or more) of a trial that
+    did not fail. A failed trial's non-finite or so large cost (a simulator that blew up reports
+    ``nan``) is no cost: it gets the fall convention, and ``info["reported_cost"]`` keeps what
+    was reported (``"nan"``, ``"inf"``, ``"1e+300"``).
     """
     if isinstance(value, Outcome):
         out = Outcome(value.cost, bool(value.failed), dict(value.info or {}), value.wall_s)
@@ -131,7 +141,7 @@ def as_outcome(value: Any) -> Outcome:
                         "expected a cost (float), (cost, failed) or an Outcome")
     if out.cost is not None:
         out.cost = as_cost(out.cost, allow_nonfinite=True, what="evaluate (its cost)")
-        if out.failed and not math.isfinite(out.cost):      # a blown-up simulator: no cost
+        if out.failed and not abs(out.cost) < COST_LIMIT:   # a blown-up simulator: no cost
             out.info["reported_cost"], out.cost = str(out.cost), None
     k, horizon = out.info.get("fall_step"), out.info.get("horizon")
     if k is not None and horizon:
@@ -149,6 +159,8 @@ def as_outcome(value: Any) -> Outcome:
             if out.info.get("fall_step") is not None and out.info.get("horizon") else 2.0 * C1
     if not math.isfinite(out.cost):
         raise EvaluationError(f"evaluate returned a non-finite cost ({out.cost})")
+    if abs(out.cost) >= COST_LIMIT:
+        raise CostError(_too_large("evaluate", out.cost))
     return out
 
 

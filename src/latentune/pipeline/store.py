@@ -57,11 +57,12 @@ from typing import Any, Iterable, Iterator
 
 import numpy as np
 
+from latentune.constants import COST_LIMIT
 from latentune.errors import StoreError
 
 FORMAT = "latentune-run-store"
 VERSION = 3
-INF_CODE = 1e300
+INF_CODE = COST_LIMIT
 """How a non-finite cost is stored (SQLite REAL has no inf): ±INF_CODE."""
 DB_NAME = "run.db"
 
