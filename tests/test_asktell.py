@@ -587,6 +587,28 @@ def test_a_phase_run_in_process_is_refused_while_suggestions_are_out(tmp_path, s
         assert len(st.trials()) == 0
 
 
+def test_a_transfer_phase_3_resumes_from_the_source_trials_it_began_with(tmp_path, src30):
+    """The source run's phase 1 grows while a transfer phase 3 from it is stopped: the resume
+    asks what the uninterrupted run asked from the source as it was (the counts it began with
+    are recorded, ``source_counts``), through a phase run and through ask/tell."""
+    frozen, grown = tmp_path / "frozen", tmp_path / "grown"
+    shutil.copytree(src30, frozen)
+    shutil.copytree(src30, grown)
+    target = plant(0.1)
+    with lt.Study(tmp_path / "a", seed=0) as st:
+        st.phase3(target, 6, latent=frozen)
+    with lt.Study(tmp_path / "b", seed=0) as st:
+        st.phase3(target, 6, latent=grown, max_new=3)      # mid-batch (batch 4)
+        assert st.config()["phase3"]["source_counts"] == {"1": 30, "3": 0}
+    with lt.Study(grown, seed=0) as src:
+        src.phase1(plant(), 40)
+    with lt.Study(tmp_path / "b", seed=0) as st:
+        st.phase3(target, 6, latent=grown)
+        assert st.config()["phase3"]["source_counts"] == {"1": 30, "3": 0}
+    with lt.Study(tmp_path / "a") as a, lt.Study(tmp_path / "b") as b:
+        assert rows_of(a, Phase.PHASE3) == rows_of(b, Phase.PHASE3)
+
+
 def test_a_told_trial_reads_the_strategy_only_when_it_warns(monkeypatch, caplog):
     """``warn_if_failing`` takes the strategy as a function (what ``tell`` gives it: a read of
     the study's config) and calls it only when the failing streak is reached."""

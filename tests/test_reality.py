@@ -420,8 +420,11 @@ def test_a_study_of_one_reality_refuses_another(tmp_path):
     from latentune.errors import StoreError
     from latentune.study import Study
 
-    Study(tmp_path / "run").bind(Task("a1", steps=100, reality="heavy"))
-    Study(tmp_path / "run").bind(Task("a1", steps=100, reality="heavy"))  # the same: resumes
+    heavy = Task("a1", steps=100, reality="heavy")
+    Study(tmp_path / "run").bind(heavy)
+    Study(tmp_path / "run").bind(heavy)                                 # the same: resumes
+    with Study(tmp_path / "run") as st:                                 # a trial of it stored
+        st.store.add(1, 0, np.full(heavy.space.dim, 0.5), 1.0, fell=False)
     for other in (Task("a1", steps=100, reality="slippery"), Task("a1", steps=100),
                   Task("a1", steps=100, reality="heavy", engine="mujoco")):
         with pytest.raises(StoreError, match="another"):

@@ -1977,15 +1977,19 @@ def canonical_order(X: np.ndarray, y: np.ndarray, fell: np.ndarray) -> np.ndarra
     return np.lexsort([*keys, np.asarray(fell, dtype=bool), np.asarray(y, dtype=float)])
 
 
-def source_trials(run: str | Path, phases: tuple[int, ...] | None = None
+def source_trials(run: str | Path, phases: tuple[int, ...] | None = None,
+                  counts: dict[str, int] | None = None
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every trial of a source run's ``phases`` (default phases 1 and 3) as
-    ``(X (N, d), y (N,), fell (N,))``, in (phase, idx) order."""
+    ``(X (N, d), y (N,), fell (N,))``, in (phase, idx) order; with ``counts`` (phase number as
+    text to a count, :func:`~latentune.pipeline.loop.source_counts`) only the first that many
+    of each phase (the trials a phase 3 began with)."""
     from latentune.constants import Phase
     from latentune.pipeline.store import RunStore
 
     with RunStore(run) as st:
-        rows = [r for ph in (phases or (Phase.PHASE1, Phase.PHASE3)) for r in st.rows(ph)]
+        rows = [r for ph in (phases or (Phase.PHASE1, Phase.PHASE3)) for r in st.rows(ph)
+                if counts is None or r.idx < int(counts.get(str(int(ph)), 0))]
     if not rows:
         return np.empty((0, 0)), np.empty(0), np.empty(0, dtype=bool)
     X = np.array([r.theta for r in rows], dtype=float)

@@ -60,7 +60,7 @@ from latentune.errors import LatentuneError, StoreError, UsageError
 from latentune.pipeline import manifest as mf
 from latentune.pipeline.baselines import queue_zero_shot
 from latentune.pipeline.loop import (decoder_of, phase_critic, record_latent, resolve_latent,
-                                     resolve_strategy, strategy_of)
+                                     resolve_strategy, source_counts, strategy_of)
 from latentune.pipeline.phases import ask_batch, replay, state_key, warn_if_failing
 from latentune.pipeline.results import phase_name, write_best
 from latentune.pipeline.store import Row, RunStore
@@ -247,7 +247,8 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
         ls, source = resolve_latent(study.run, study.manifest, latent, space)
         record_latent(study.run, study.manifest, ls, source)
         extra = mf.phase3_extra(source, strat, start_rec, mfp, g.get("handover"),
-                                g.get("transfer_options"))
+                                g.get("transfer_options"),
+                                source_counts(study.dir if source == "self" else Path(source)))
     else:
         extra = {"start": start_rec, **mf.fall_options(mfp, g.get("fall_prior"))}
     pc = study.manifest.phase_options(phase, method=g["method"], budget=g["budget"],

@@ -103,6 +103,7 @@ def phase3_setup(run: RunDir, manifest: Manifest, space: ParameterSpace, actor: 
 
     ls, source = resolve_latent(run, manifest, latent, space, actor)
     strategy = resolve_strategy(manifest, strategy, handover, ls)
+    counts = source_counts(run.dir if source == "self" else Path(source))
     if strategy == "transfer":
         given = [f"{k} = {v!r}" for k, v, unset in (
             ("method", method, method == "turbo"), ("regions", regions, regions is None),
@@ -114,7 +115,17 @@ def phase3_setup(run: RunDir, manifest: Manifest, space: ParameterSpace, actor: 
                              "and the manual θ, in the latent and the full θ box")
     start_rec = mf.start_point(start, space.manual, space.dim)[1]
     return ls, mf.phase3_extra(source, strategy, start_rec, max_fall_prob, handover,
-                               transfer_options)
+                               transfer_options, counts)
+
+
+def source_counts(run: Path) -> dict[str, int] | None:
+    """How many trials of phases 1 and 3 the run at ``run`` holds (``{"1": n1, "3": n3}``):
+    what a transfer phase 3 from it starts from (recorded, :data:`~latentune.pipeline.
+    manifest.PINNED`); None without a store."""
+    if not (Path(run) / "run.db").is_file():
+        return None
+    with RunStore(run) as st:
+        return {str(int(ph)): st.count(ph) for ph in (Phase.PHASE1, Phase.PHASE3)}
 
 
 def resolve_strategy(manifest: Manifest, strategy: str | None, handover: Any,
@@ -153,7 +164,8 @@ def transfer_critic(pc: dict[str, Any], space: ParameterSpace, run_dir: Path, so
     from latentune.critic.transfer import Transfer, source_trials
 
     own = Path(source_run).resolve() == Path(run_dir).resolve()
-    X, y, fell = source_trials(source_run, phases=(Phase.PHASE1,) if own else None)
+    X, y, fell = source_trials(source_run, phases=(Phase.PHASE1,) if own else None,
+                               counts=pc.get("source_counts"))
     if len(y) < 2:
         raise LatentError(f"transfer phase 3: the source run {source_run} has {len(y)} trials; "
                           "it needs at least 2 (or use strategy plain)")

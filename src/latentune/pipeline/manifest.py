@@ -40,9 +40,13 @@ PHASE_KEYS = {Phase.PHASE1: "phase1", Phase.PHASE3: "phase3"}
 COMPARED = ("method", "batch_size", "seed", "regions", "start", "max_fall_prob", "fall_prior",
             "latent_source", "handover", "transfer_options")
 """The options of a phase that must match on resume (budget may grow)."""
-RECORDED_IF_GIVEN = ("transfer_options",)
+RECORDED_IF_GIVEN = ("transfer_options", "source_counts")
 """Options recorded only when given: a record without one (a run stored before it existed, or
 run without it) compares equal to not giving it."""
+PINNED = ("source_counts",)
+"""Options taken as the phase first recorded them once it has a trial, never compared: what
+the phase started from (the transfer phase 3's source trials), so a resume asks what the
+uninterrupted run would have."""
 
 
 def describe(system: Any) -> dict[str, Any]:
@@ -231,15 +235,13 @@ class Manifest:
         if regions is not None and not 1 <= int(regions) <= 100:
             raise UsageError(f"regions must be in [1, 100], got {regions}")
         if phase_run and self.run.exists:
-            from latentune.pipeline.results import phase_name
-
             held = (int(phase), int(Phase.ZERO_SHOT)) if int(phase) == Phase.PHASE3 \
                 else (int(phase),)
             out = [t.id for t in self.run.store.trials()
                    if t.phase in held and t.status == "pending"]
             if out:
-                raise StoreError(f"{self.run.dir}: {len(out)} suggestions of "
-                                 f"{phase_name(phase)} are handed out to ask/tell (ids "
+                raise StoreError(f"{self.run.dir}: {len(out)} suggestions of phase "
+                                 f"{int(phase)} are handed out to ask/tell (ids "
                                  f"{', '.join(map(str, out[:5]))}{', …' if len(out) > 5 else ''}"
                                  "): tell them and go on with ask/tell, or run the phase here "
                                  "in a study without them")
@@ -253,7 +255,10 @@ class Manifest:
               "regions": regions if method == "turbo" else None, "budget": int(budget),
               **(extra or {})}
         if stored and n:
+            pc.update({k: stored.get(k) for k in PINNED if k in pc})
             for k in ("method", "batch_size", "seed", "regions", *(extra or {})):
+                if k in PINNED:
+                    continue
                 if k in stored and stored.get(k) != pc.get(k):
                     raise StoreError(f"{self.run.dir}: {key} was run with {k.replace('_', '-')}"
                                      f" = {stored.get(k)!r}, not {pc.get(k)!r}")
@@ -352,15 +357,19 @@ def fall_options(max_fall_prob: float | None, prior: Any) -> dict[str, Any]:
 
 
 def phase3_extra(source: str, strategy: str, start: Any, max_fall_prob: float | None,
-                 hand_over: Any, transfer_options: dict[str, Any] | None) -> dict[str, Any]:
+                 hand_over: Any, transfer_options: dict[str, Any] | None,
+                 source_counts: dict[str, int] | None = None) -> dict[str, Any]:
     """Phase 3's own options for :meth:`Manifest.phase_options` (checked): the latent space's
     ``source``, the ``strategy``, the ``start`` record (:func:`start_point`), the fall-aware
-    option (its prior: the latent space's source), the hand-over (:func:`handover`) and the
-    transfer critic's options (:func:`transfer_option`)."""
+    option (its prior: the latent space's source), the hand-over (:func:`handover`), the
+    transfer critic's options (:func:`transfer_option`) and, for it, how many trials of each
+    phase the source run holds (``{"1": n1, "3": n3}``; :data:`PINNED`: a resume uses those
+    trials, not ones the source made since)."""
     return {"latent_source": source, "strategy": strategy, "start": start,
             **fall_options(max_fall_prob, None if max_fall_prob is None else "latent source"),
             "handover": handover(hand_over),
-            **transfer_option(transfer_options, strategy, max_fall_prob)}
+            **transfer_option(transfer_options, strategy, max_fall_prob),
+            "source_counts": source_counts if strategy == "transfer" else None}
 
 
 def transfer_record(options: dict[str, Any] | None) -> dict[str, Any] | None:

@@ -442,10 +442,8 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
                          "%d trials", int(phase), critic.falls_allowed(), idx, budget)
                 break
             if batch is None:
-                k = min(critic.batch_size, budget - idx)
-                if max_new is not None:
-                    k = min(k, max_new - new)
-                batch = AskedBatch(idx, *ask_batch(critic, k, decoder))
+                k = min(critic.batch_size, budget - idx)   # whole: max_new leaves the rest
+                batch = AskedBatch(idx, *ask_batch(critic, k, decoder))     # for the resume
                 store.set_meta(batch_key(phase), batch.record())
             U, T, Z, thetas, codes = batch.U, batch.T, batch.Z, batch.thetas, batch.codes
             todo = [i for i in range(len(thetas)) if i not in batch.done]
