@@ -174,3 +174,21 @@ def test_record_walk_flags_are_checked_and_recorded(tmp_path, run_cli, error_lin
     code, _, err = run_cli("ask", d, "--walk-pick", "band")      # the stored walk: K = 3
     assert code == 0, err
     assert "walk_pick" in error_line(*run_cli("ask", d, "--walk-pick", "fall")[::2])
+
+
+def test_best_out_never_overwrites_a_file_of_the_run(tmp_path, run_cli, error_line):
+    """``best --out DIR/run.db`` wrote the θ over the run store; now a file in the run's
+    directory that is not a θ file of its space is refused (a θ file there may be rewritten),
+    and an empty name is one line."""
+    d = tmp_path / "robot"
+    code, out, err = run_cli("ask", d, "--space", _space_file(tmp_path), "--json")
+    assert code == 0, err
+    (a,) = json.loads(out)
+    assert run_cli("tell", d, a["id"], "--cost", "2")[0] == 0
+    store = (d / "run.db").read_bytes()
+    assert "is a file of the run" in error_line(*run_cli("best", d, "--out", d / "run.db")[::2])
+    assert (d / "run.db").read_bytes() == store
+    assert "needs a name" in error_line(*run_cli("best", d, "--out", "")[::2])
+    for _ in range(2):                                  # a θ file of its own may be rewritten
+        assert run_cli("best", d, "--out", d / "deploy.json")[0] == 0
+    assert run_cli("status", d)[0] == 0

@@ -276,9 +276,29 @@ def best_params(store: RunStore, run_dir: Path, space: ParameterSpace | None,
         n = sum(store.count(ph) for ph in TUNING)
         raise StoreError(f"{run_dir}: no θ to deploy: " + (
             f"all {n} trials failed" if n else "no trial is stored yet"))
-    path = Path(out) if out is not None else run_dir / BEST_FILE
+    path = run_dir / BEST_FILE if out is None else _deploy_path(out, run_dir, space)
     _write_json(path, space.as_dict(b.theta))
     return path, b
+
+
+def _deploy_path(out: str | os.PathLike, run_dir: Path, space: ParameterSpace) -> Path:
+    """``out`` as the file for the θ to deploy; UsageError for an empty name, and for a file in
+    the run's directory that is not a θ file of this space (its store, summary, records):
+    writing would destroy it."""
+    from latentune.errors import UsageError
+
+    if not str(out).strip():
+        raise UsageError("the θ file to write (--out) needs a name")
+    path = Path(out)
+    if path.is_file() and Path(run_dir).resolve() in path.resolve().parents:
+        try:
+            theta_file = set(json.loads(path.read_text())) == set(space.names)
+        except (OSError, UnicodeDecodeError, ValueError, TypeError):
+            theta_file = False
+        if not theta_file:
+            raise UsageError(f"{path} is a file of the run {run_dir}, not a θ file: write the "
+                             f"θ elsewhere (or to {Path(run_dir) / BEST_FILE})")
+    return path
 
 
 def _write_json(path: Path, value: Any) -> None:
