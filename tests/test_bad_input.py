@@ -184,6 +184,8 @@ def test_rollout_rejects_bad_arguments(capsys, bad, expect):
     (json.dumps({"Q_roll": "a"}), "parameter Q_roll must be a finite number, got 'a'"),
     ("3", "params must be a JSON list of normalized values or an object of physical values"),
     ("null", "params must be a JSON list of normalized values or an object of physical values"),
+    ('{"Q_roll": 1' + "0" * 400 + "}", "parameter Q_roll must be a finite number, got 1000"),
+    ("[1" + "0" * 400 + "," + ",".join(["0.5"] * 24) + "]", "numbers a float can hold"),
 ])
 def test_rollout_rejects_bad_params_files(capsys, tmp_path, content, expect):
     f = tmp_path / "p.json"
@@ -459,6 +461,8 @@ def test_ask_tell_bad_input(capsys, asktell, argv, expect):
     ("names: [a]\nlow: [0]\nhigh: [1]\nlog: [true]\n", "low > 0 on log entries"),
     ("names: [a]\nlow: [0]\nhigh: [1]\nmanual: [5]\n", "manual a = 5 is outside [0, 1]"),
     (": : :", "is not valid YAML/JSON"),
+    ("names: [a]\nlow: [1]\nhigh: [2]\nmanul: [1.5]\n", "not manul"),
+    ("names: [a]\nlow: [1]\nhigh: [2]\nlog: ['false']\n", "log entries must be true or false"),
 ])
 def test_ask_rejects_bad_space_files(capsys, tmp_path, content, expect):
     f = tmp_path / "s.yaml"

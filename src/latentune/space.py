@@ -22,6 +22,9 @@ from latentune.errors import ParamsError
 
 
 def _vec(name: str, v: Any, d: int, dtype: type) -> np.ndarray:
+    if dtype is bool and any(not isinstance(x, (bool, np.bool_)) and x not in (0, 1)
+                             for x in np.asarray(v, dtype=object).reshape(-1)):
+        raise ValueError(f"ParameterSpace: {name} entries must be true or false, got {v!r}")
     a = np.asarray(v, dtype=dtype).reshape(-1)
     if a.shape != (d,):
         raise ValueError(f"ParameterSpace: {name} must have {d} entries (one per name), got {a.shape[0]}")
@@ -114,6 +117,10 @@ class ParameterSpace:
         Raises ``ValueError`` for missing keys or inconsistent values."""
         if not isinstance(d, dict) or not {"names", "low", "high"} <= set(d):
             raise ValueError("a parameter space needs the keys names, low, high (log, manual optional)")
+        unknown = sorted(set(d) - {"names", "low", "high", "log", "manual"})
+        if unknown:
+            raise ValueError(f"a parameter space has the keys names, low, high, log and manual, "
+                             f"not {', '.join(map(str, unknown))}")
         return cls(d["names"], d["low"], d["high"], d.get("log"), d.get("manual"))
 
     @property
@@ -152,6 +159,8 @@ class ParameterSpace:
             arr = np.asarray(u, dtype=float)
         except (TypeError, ValueError):
             raise ParamsError("parameters must be numbers") from None
+        except OverflowError:
+            raise ParamsError("parameters must be numbers a float can hold") from None
         if arr.shape != (self.dim,):
             raise ParamsError(f"expected {self.dim} normalized parameters, got shape {arr.shape}")
         if not np.all(np.isfinite(arr)):
@@ -171,8 +180,13 @@ class ParameterSpace:
                 raise ParamsError(f"unknown parameter name(s): {', '.join(unknown[:5])}")
             phys = self.manual_physical.copy()
             for k, v in obj.items():
-                if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                    raise ParamsError(f"parameter {k} must be a finite number, got {v!r}")
+                try:
+                    finite = math.isfinite(v)
+                except (TypeError, OverflowError):
+                    finite = False
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or not finite:
+                    shown = repr(v) if len(repr(v)) <= 40 else repr(v)[:37] + "..."
+                    raise ParamsError(f"parameter {k} must be a finite number, got {shown}")
                 i = self.names.index(k)
                 slack = 1e-9 * max(abs(self.lower[i]), abs(self.upper[i]), 1e-300)
                 if not (self.lower[i] - slack <= v <= self.upper[i] + slack):
