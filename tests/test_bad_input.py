@@ -273,6 +273,8 @@ def test_existing_run_is_not_rerun_or_changed(capsys, run_dir, tmp_path):
          "--system replaces --robot"),
         (["tune", "--system", "x:y", "--out", run_dir, "--resume"],
          f"{run_dir} holds a run of the built-in a1 trot task, not of --system x:y"),
+        (["report", run_dir, "--no-sim", "--system-arg", "shift=1"],
+         "--system-arg needs --system"),                                  # was ignored
     ]
     for argv, expect in cases:
         assert_one_line(capsys, *argv, expect=expect)

@@ -505,6 +505,8 @@ def cmd_report(args: argparse.Namespace) -> int:
     from latentune.study import Study
 
     d = Path(args.dir)
+    if args.system is None and args.system_arg:
+        raise CLIError("--system-arg needs --system")
     if (d / "paper.json").is_file() and not (d / "run.db").is_file():
         from latentune.reporting.paper_report import write_paper_report
 
