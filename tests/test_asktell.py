@@ -609,6 +609,33 @@ def test_a_transfer_phase_3_resumes_from_the_source_trials_it_began_with(tmp_pat
         assert rows_of(a, Phase.PHASE3) == rows_of(b, Phase.PHASE3)
 
 
+def test_an_amendment_keeps_the_queue_when_nothing_changed_and_the_decisions_always(
+        tmp_path, src30):
+    """Amending a phase-3 result to the value it had (a typo fixed twice) leaves the queued
+    suggestions as they were (they were dropped, and the search changed); amending it to
+    another value drops them and rebuilds the critic from the corrected rows, but keeps the
+    transfer critic's record of decisions (it was wiped: ``status`` forgot every ask)."""
+    from latentune.pipeline.results import decisions
+
+    sys_ = plant(0.1)
+    with lt.Study(tmp_path / "p3", seed=0) as st:
+        (zs,) = st.ask(1, system=sys_, phase=3, latent=src30, budget=8)
+        st.tell(zs.id, plant_fn(SPACE.to_physical(zs.theta), 0.1))
+        (s,) = st.ask(1)
+        cost = plant_fn(SPACE.to_physical(s.theta), 0.1)
+        st.tell(s.id, cost)
+
+        def queued():
+            return [t.id for t in st.store.trials() if t.status == "queued"]
+
+        before, n_dec = queued(), len(decisions(st.store))
+        assert before and n_dec >= 1
+        st.tell(s.id, cost, amend=True)
+        assert queued() == before
+        st.tell(s.id, cost + 1.0, amend=True)
+        assert queued() != before and len(decisions(st.store)) == n_dec
+
+
 def test_a_told_trial_reads_the_strategy_only_when_it_warns(monkeypatch, caplog):
     """``warn_if_failing`` takes the strategy as a function (what ``tell`` gives it: a read of
     the study's config) and calls it only when the failing streak is reached."""

@@ -37,8 +37,10 @@ turned into queued suggestions (with the critic's state) in one transaction.
 Corrections
 -----------
 ``tell(..., amend=True)`` replaces a told result; the store keeps the old one in its audit
-trail (``amendments``), drops the suggestions queued from the uncorrected rows and the
-critic's saved state, so the next ask rebuilds the critic from the corrected rows.
+trail (``amendments``). When the cost, fall flag or fall step changed, it drops the suggestions
+queued from the uncorrected rows and the critic's saved state but what does not depend on the
+rows (:data:`ROW_FREE`: the transfer critic's options, source fits and record of decisions), so
+the next ask rebuilds the critic from the corrected rows.
 
 Suggestion files (``DIR/suggestions/<id>.json``, the ``--params`` file of a suggestion) belong
 to the command line: :func:`write_suggestion_files` and :func:`remove_suggestion_file`.
@@ -66,6 +68,11 @@ from latentune.pipeline.results import phase_name, write_best
 from latentune.pipeline.store import Row, RunStore
 from latentune.space import ParameterSpace
 from latentune.system import EvaluationError, Outcome, as_outcome
+
+ROW_FREE = ("options", "source_hypers", "decisions", "last_decision")
+"""The keys of a critic's saved state an amendment keeps: the transfer critic's
+(:meth:`~latentune.critic.transfer.Transfer.state_dict`) options, source models' fits and
+record of its asks, none of which depends on the target's told rows."""
 
 LEASE_S = 3600.0
 """How long a suggestion stays leased to its asker when it is not told [s] (one hour)."""
@@ -500,9 +507,11 @@ def tell(study: Any, trial_id: int, cost: float | Outcome | None = None, *,
         out.info["note"] = str(note)
     with study.run.writing(wait=WAIT_S) as st:
         if amend:
-            ph, idx = st.amend_trial(tid, out.cost, fell=out.failed, fall_step=out.fall_step,
-                                     info=out.info, note=note)
-            st.set_meta(state_key(ph), {})   # rebuilt from the corrected rows alone
+            ph, idx, changed = st.amend_trial(tid, out.cost, fell=out.failed,
+                                              fall_step=out.fall_step, info=out.info, note=note)
+            if changed:         # the critic is rebuilt from the corrected rows; what does not
+                kept = st.get_meta(state_key(ph)) or {}      # depend on them stays
+                st.set_meta(state_key(ph), {k: v for k, v in kept.items() if k in ROW_FREE})
         else:
             ph = st.trials_by_id(tid).phase
             idx = st.tell_trial(tid, out.cost, fell=out.failed, fall_step=out.fall_step,

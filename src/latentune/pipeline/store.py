@@ -544,11 +544,13 @@ class RunStore:
 
     def amend_trial(self, trial_id: int, cost: float, *, fell: bool,
                     fall_step: int | None = None, info: dict[str, Any] | None = None,
-                    note: str | None = None) -> tuple[int, int]:
+                    note: str | None = None) -> tuple[int, int, bool]:
         """Correct the told result of suggestion ``trial_id`` in one transaction: its
         evaluation row gets the new cost, fell, fall_step and info; the old and new values go
         to ``amendments`` (the audit trail); queued suggestions of its phase, asked from the
-        uncorrected rows, are dropped. Returns (phase, idx). StoreError unless it was told."""
+        uncorrected rows, are dropped when the cost, fell or fall_step changed (an amendment of
+        the info or the note alone changes nothing the critic saw). Returns (phase, idx,
+        whether the outcome changed). StoreError unless it was told."""
         with self._write(trials=True):
             t = self._trial(trial_id)
             if t.status != "told":
@@ -573,9 +575,12 @@ class RunStore:
                              (int(trial_id), t.phase, t.idx,
                               json.dumps(old, default=_json_default),
                               json.dumps(new, default=_json_default), note, time.time()))
-            self.con.execute("UPDATE trials SET status='dropped' WHERE status='queued' AND "
-                             "phase=?", (t.phase,))
-        return t.phase, int(t.idx)
+            changed = [old[k] for k in ("cost", "fell", "fall_step")] != \
+                [new[k] for k in ("cost", "fell", "fall_step")]
+            if changed:
+                self.con.execute("UPDATE trials SET status='dropped' WHERE status='queued' AND "
+                                 "phase=?", (t.phase,))
+        return t.phase, int(t.idx), changed
 
     def amendments(self) -> list[dict[str, Any]]:
         """The audit trail of amended results, oldest first: ``{trial, phase, idx, old, new,
