@@ -203,6 +203,7 @@ _REQUIRED = ("name", "urdf", "joint_names", "foot_links", "nominal_q", "kp", "kd
 _FIELDS = frozenset(f.name for f in dataclasses.fields(RobotSpec))
 _TUPLES = {"joint_names": (12, str), "foot_links": (4, str), "nominal_q": (12, float),
            "torque_limits": (3, float), "kp": (3, float), "kd": (3, float)}
+_POSITIVE_TUPLES = ("torque_limits", "kp", "kd")  # limits and gains: a sign flip or 0 is no robot
 _POSITIVE = ("nominal_height", "foot_radius", "raibert_gain", "mu", "max_tilt_deg")
 _BOOLS = ("strip_root", "primitive_collisions")
 _GAIT_KEYS = {"period", "duty", "step_height", "offsets"}
@@ -256,8 +257,11 @@ def validated_fields(raw: Any, where: str, base_dir: Path) -> dict[str, Any]:
             if len(vals) != n:
                 raise RobotSpecError(f"{where}: {key} needs {n} entries, got {len(vals)}")
             fields[key] = tuple(typ(v) for v in vals)
-            if typ is float and not all(math.isfinite(v) for v in fields[key]):
-                raise RobotSpecError(f"{where}: {key} must be finite numbers")
+            if typ is float:
+                bad = [v for v in fields[key] if not math.isfinite(v) or (key in _POSITIVE_TUPLES and v <= 0)]
+                if bad:
+                    kind = "positive finite" if key in _POSITIVE_TUPLES else "finite"
+                    raise RobotSpecError(f"{where}: {key} must be {kind} numbers, got {bad[0]:g}")
         if fields.get("nominal_height", 0) is None:
             del fields["nominal_height"]
         for key in _POSITIVE:
@@ -316,9 +320,21 @@ def _gaits(raw: Any, where: str) -> dict[str, GaitParams]:
         offsets = _sequence(g.get("offsets", TROT_OFFSETS if name == "trot" else JUMP_OFFSETS), "offsets", where)
         gp = GaitParams(float(g["period"]), float(g["duty"]), float(g["step_height"]),
                         tuple(float(o) for o in offsets))
-        if not (gp.period > 0 and 0 < gp.duty < 1 and gp.step_height >= 0 and len(gp.offsets) == 4):
-            raise RobotSpecError(f"{where}: gait {name!r} needs period > 0, 0 < duty < 1, "
-                                 "step_height >= 0, 4 offsets")
+        # offsets are phases in cycles (taken mod 1 by the schedulers): one cycle is [0, 1)
+        for key, value, ok, rule in (
+                ("period", gp.period, math.isfinite(gp.period) and gp.period > 0, "a positive finite number [s]"),
+                ("duty", gp.duty, 0 < gp.duty < 1, "in 0 < duty < 1"),
+                ("step_height", gp.step_height, math.isfinite(gp.step_height) and gp.step_height >= 0,
+                 "a finite number >= 0 [m]")):
+            if not ok:
+                raise RobotSpecError(f"{where}: gait {name!r}: {key} must be {rule}, got {value:g}")
+        if len(gp.offsets) != 4:
+            raise RobotSpecError(f"{where}: gait {name!r}: offsets needs 4 entries (FR, FL, RR, RL), "
+                                 f"got {len(gp.offsets)}")
+        bad = [o for o in gp.offsets if not 0 <= o < 1]
+        if bad:
+            raise RobotSpecError(f"{where}: gait {name!r}: offsets must be phases in [0, 1) cycles, "
+                                 f"got {bad[0]:g}")
         gaits[str(name)] = gp
     return gaits
 
