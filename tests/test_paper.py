@@ -207,11 +207,25 @@ def test_paper_end_to_end(paper_dir: Path):
     (["--vae-epochs", "0"], "--vae-epochs must be >= 1, got 0"),
     (["--studies", "a1-trot", "no-such"], "--studies: no-such not in this plan"),
     (["--report-only", "--studies", "a1-trot"], "--studies does not apply to --report-only"),
+    # refused by the studies' tasks: before anything is written (paper.json blocked the fix)
+    (["--actor", "foo"], "unknown actor 'foo' (choose from convex, kinodynamic)"),
+    (["--v-des", "5"], "v_des must be a finite velocity of at most 3 m/s"),
 ])
 def test_paper_bad_input(tmp_path: Path, run_cli, error_line, extra: list[str], expect: str):
     code, _, err = run_cli("paper", "--out", tmp_path / "o", *extra)
     assert expect in error_line(code, err)
     assert not (tmp_path / "o" / "paper.json").exists()
+    assert not (tmp_path / "o").exists()           # refused before --out was made
+
+
+def test_paper_bad_actor_leaves_nothing_to_block_the_fix(tmp_path: Path, run_cli, error_line):
+    code, _, err = run_cli("paper", "--robot", "a1", "--actor", "foo", "--out", tmp_path / "o",
+                           "--scale", "0.001", "--steps", "100", "--workers", "1", "--no-sim")
+    assert "unknown actor 'foo'" in error_line(code, err)
+    code, out, err = run_cli("paper", "--robot", "a1", "--out", tmp_path / "o", "--scale", "0.001",
+                             "--steps", "100", "--workers", "1", "--no-sim", "--sources-only")
+    assert code == 0, err
+    assert json.loads((tmp_path / "o" / "paper.json").read_text())["actor"] == "convex"
 
 
 def test_paper_unwritable_out(tmp_path: Path, run_cli, error_line):

@@ -437,6 +437,21 @@ def command_line(opts: PaperOptions, report_only: bool = False) -> str:
     return " ".join(parts)
 
 
+def _check_tasks(opts: PaperOptions, studies: list[StudyPlan]) -> None:
+    """Build the task of every planned study, so that an option a task refuses (``--actor``,
+    ``--v-des``, ``--steps``, ``--seed``) stops the command before paper.json is written.
+
+    Raises:
+        UsageError: the task's one-line message.
+    """
+    from latentune.task import Task
+
+    for robot, gait, terrain, seed in sorted({(s.robot, s.gait, s.terrain, opts.seed + s.seed_offset)
+                                              for s in studies}):
+        Task(robot=robot, gait=gait, terrain=terrain, actor=opts.actor, v_des=opts.v_des,
+             steps=opts.steps, seed=seed)
+
+
 def _record_invocation(meta_path: Path, meta: dict[str, Any], mine: dict[str, Any]) -> None:
     """Write ``paper.json`` with this invocation's record ``mine`` (its wall time) into the
     invocations on disk now: another ``latentune paper`` process on the same directory may have
@@ -463,6 +478,13 @@ def run_paper(opts: PaperOptions, report_only: bool = False, simulate: bool = Tr
     if report_only and opts.studies:
         raise UsageError("--studies does not apply to --report-only: the report covers every "
                          "study of the run")
+    studies = plan(opts.robot, b, opts.seeds)
+    unknown = sorted(set(opts.studies) - {s.key for s in studies})
+    if unknown:
+        raise UsageError(f"--studies: {', '.join(unknown)} not in this plan (see the report's "
+                         f"Studies list, or paper.json)")
+    if not report_only:
+        _check_tasks(opts, studies)     # before --out is made or paper.json written
     root = Path(opts.out)
     _check_out(root)
     meta_path = root / "paper.json"
@@ -472,6 +494,8 @@ def run_paper(opts: PaperOptions, report_only: bool = False, simulate: bool = Tr
             meta = json.loads(meta_path.read_text())
         except (OSError, json.JSONDecodeError) as exc:
             raise UsageError(f"{meta_path} is unreadable ({exc})") from None
+        if not isinstance(meta, dict):
+            raise UsageError(f"{meta_path} is not a paper run's record (not a JSON object)")
         if meta.get("robot") != opts.robot or meta.get("actor") != opts.actor or \
                 meta.get("steps") != opts.steps or meta.get("seed") != opts.seed or \
                 (not report_only and meta.get("vae_epochs") != opts.vae_epochs):
@@ -484,11 +508,6 @@ def run_paper(opts: PaperOptions, report_only: bool = False, simulate: bool = Tr
         if not opts.quiet:
             logger.info("%s", msg)
 
-    studies = plan(opts.robot, b, opts.seeds)
-    unknown = sorted(set(opts.studies) - {s.key for s in studies})
-    if unknown:
-        raise UsageError(f"--studies: {', '.join(unknown)} not in this plan (see the report's "
-                         f"Studies list, or paper.json)")
     if not report_only:
         t0 = time.perf_counter()
         meta.update({"format": "latentune-paper", "robot": opts.robot, "actor": opts.actor,
@@ -510,12 +529,12 @@ def run_paper(opts: PaperOptions, report_only: bool = False, simulate: bool = Tr
                 "command": command_line(opts), "pid": os.getpid(), "wall_s": None,
                 "machine": machine(), "loadavg_start": loadavg()}
         meta["invocations"].append(mine)
-        meta_path.write_text(json.dumps(meta, indent=1))
         try:
             ev = make_evaluator("process", opts.workers)
         except (RuntimeError, ValueError, OSError) as exc:
             raise UsageError(f"cannot start the evaluator: {exc}") from None
         try:
+            meta_path.write_text(json.dumps(meta, indent=1))   # only once every check passed
             for s in studies:
                 if opts.studies and s.key not in opts.studies:
                     continue
