@@ -6,12 +6,14 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from latentune.constants import C1, Phase
+from latentune.errors import UsageError
 from latentune.pipeline.store import RunStore
 from latentune.reporting import metrics
 from latentune.reporting.metrics import (best_so_far, evals_to_beat, fall_count, paper_row,
@@ -288,6 +290,31 @@ def test_best_so_far_figure(tmp_path: Path):
     assert p.stat().st_size > 5000
 
 
+def test_report_of_a_run_where_every_trial_failed_without_a_manual_row(tmp_path: Path):
+    """An ask/tell --space study (no manual row) or an imported Optuna study whose every trial
+    failed: the best-cost axis has nothing to log-scale (matplotlib raised); the report, the
+    figure and summary.json are written."""
+    from latentune.reporting.plots import _log_axis, pyplot
+
+    plt = pyplot()
+    fig, (a, b) = plt.subplots(1, 2)
+    assert _log_axis(a, []) == "linear" and a.get_yscale() == "linear"
+    assert _log_axis(b, [np.nan, np.inf]) == "linear" and b.get_yscale() == "linear"
+    plt.close(fig)
+    for costs in ([np.nan] * 3, [200.0] * 3):
+        out = tmp_path / f"run{len(list(tmp_path.iterdir()))}"
+        with RunStore(out, create=True) as st:
+            st.set_meta("config", {"system": {"kind": "user"}})
+            for i, c in enumerate(costs):
+                st.add(Phase.PHASE1, i, np.full(3, 0.1 * i), c, fell=True, tag=-1)
+            table = make_report(st, simulate=False, quiet=True)
+        assert (out / "best_so_far.png").stat().st_size > 1000
+        assert table in (out / "report.md").read_text()
+        summ = json.loads((out / "summary.json").read_text())
+        assert summ["phase1_best"] is None and summ["phase1_falls"] == 3
+        assert _row(table, "phase 1 (θ, TuRBO-m)")[1:4] == ["–", "3", "0/3"]
+
+
 def test_the_cost_axis_is_linear_where_a_log_axis_would_drop_costs():
     """A user system's costs may be ≤ 0: the top row's log axis would leave them out."""
     from latentune.reporting.plots import _log_axis, pyplot
@@ -357,6 +384,28 @@ def test_paper_report_on_synthetic_directory(tmp_path: Path):
         assert (root / f).stat().st_size > 1000 and f"]({f})" in md, f
     assert not (root / "best_so_far_jump.png").exists()
     assert not list(root.glob("com_velocity_*.png")) and not list(root.glob("*.gif"))
+
+
+@pytest.mark.parametrize("text, expect", [
+    ("{}", "is not a latentune paper run's record (no robot)"),
+    ("[1]", "is not a latentune paper run's record (not a JSON object)"),
+    ('{"robot": "atlas"}', "(robot 'atlas', not a1 or solo12)"),
+    ('{"robot": "a1", "budgets": {}}', "(no budgets"),
+    ('{"robot": "a1", "budgets": {"scale": 1, "phase1": 1, "phase3": 1, "preservation": 1, '
+     '"baselines": 1}}', "(no studies)"),
+    ("nope", "is not JSON (Expecting value"),
+])
+def test_report_of_a_directory_whose_paper_json_is_not_a_paper_runs(tmp_path: Path, run_cli,
+                                                                    error_line, text, expect):
+    """``latentune report DIR`` with a DIR/paper.json that is no paper run's record: one line
+    naming the file (was a KeyError or JSONDecodeError traceback)."""
+    (tmp_path / "paper.json").write_text(text)
+    with pytest.raises(UsageError, match=re.escape(f"{tmp_path / 'paper.json'} ")):
+        write_paper_report(tmp_path, simulate=False)
+    code, _, err = run_cli("report", tmp_path, "--no-sim")
+    line = error_line(code, err)
+    assert str(tmp_path / "paper.json") in line and expect in line
+    assert not (tmp_path / "report.md").exists()
 
 
 def test_phase3_label_names_the_strategy():

@@ -24,6 +24,7 @@ from typing import Any, Callable
 import numpy as np
 
 from latentune.constants import C1, PAPER_PHASE1, PAPER_PHASE3, Phase
+from latentune.errors import UsageError
 from latentune.reporting.metrics import (PAPER_ROBOT, evals_to_beat, paper_results, paper_row,
                                          phase_stats)
 from latentune.reporting.run_report import fmt, task_from_config
@@ -97,6 +98,36 @@ def _baseline_row(label: str, study: str, costs: Any, manual: float | None) -> d
             "stable": s["stable"], "evals_to_beat_manual": s["evals_to_beat"]}
 
 
+def read_paper_meta(root: str | Path) -> dict[str, Any]:
+    """``root/paper.json``, the record of a ``latentune paper`` run, checked for what the report
+    reads: a JSON object with ``robot`` (a1, solo12), ``budgets`` (scale, phase1, phase3,
+    preservation, baselines) and ``studies`` (key → object).
+
+    Raises:
+        UsageError: one line naming the file: unreadable, not JSON, or not a paper run's record.
+    """
+    path = Path(root) / "paper.json"
+    try:
+        meta = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError) as exc:
+        raise UsageError(f"{path} is unreadable ({getattr(exc, 'strerror', None) or exc})") from None
+    except json.JSONDecodeError as exc:
+        raise UsageError(f"{path} is not JSON ({exc}): not a latentune paper run's record") from None
+    if not isinstance(meta, dict):
+        problem = "not a JSON object"
+    elif meta.get("robot") not in ("a1", "solo12"):
+        problem = "no robot" if "robot" not in meta else f"robot {meta['robot']!r}, not a1 or solo12"
+    elif not isinstance(meta.get("budgets"), dict) or not all(
+            k in meta["budgets"] for k in ("scale", "phase1", "phase3", "preservation", "baselines")):
+        problem = "no budgets (scale, phase1, phase3, preservation, baselines)"
+    elif not isinstance(meta.get("studies"), dict) or not all(
+            isinstance(v, dict) for v in meta["studies"].values()):
+        problem = "no studies"
+    else:
+        return meta
+    raise UsageError(f"{path} is not a latentune paper run's record ({problem})")
+
+
 def compute(root: str | Path) -> dict[str, Any]:
     """Every number of the report from ``root/paper.json`` and the studies' stores.
 
@@ -106,7 +137,7 @@ def compute(root: str | Path) -> dict[str, Any]:
     ``preservation``, ``baselines`` (gait → manual cost and method rows).
     """
     root = Path(root)
-    meta = json.loads((root / "paper.json").read_text())
+    meta = read_paper_meta(root)
     robot = meta["robot"]
     b = meta["budgets"]
     paper = paper_results()

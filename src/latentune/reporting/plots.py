@@ -83,12 +83,14 @@ class CurvePanel:
 
 def _log_axis(ax, values: Sequence[float] | np.ndarray | None = None) -> str:
     """Log y axis with plain tick labels at 1, 2, 5 × 10^k, unless a finite one of ``values``
-    (what the axis shows) is ≤ 0: a log axis would drop it, so the axis stays linear. Returns
-    the scale, ``"log"`` or ``"linear"``."""
+    (what the axis shows) is ≤ 0 (a log axis would drop it) or none is finite (every trial
+    failed: matplotlib cannot log-scale an axis with no positive value): then the axis stays
+    linear. Returns the scale, ``"log"`` or ``"linear"``."""
     from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
     v = np.asarray([] if values is None else values, dtype=float).reshape(-1)
-    if (v[np.isfinite(v)] <= 0).any():
+    v = v[np.isfinite(v)]
+    if v.size == 0 or (v <= 0).any():
         return "linear"
     ax.set_yscale("log")
     ax.yaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
@@ -119,7 +121,8 @@ def plot_best_so_far(panels: Sequence[CurvePanel] | CurvePanel, path: str | Path
     panel. Bottom row: the best cost so far of the trials that did not fail (none before the
     first one that stood) on a linear axis zoomed from the best cost found to the panel's
     highest reference (falls at 100–200 and early costs above the zoom leave it through the
-    top). Empty curves are skipped; a figure with no curve raises ``ValueError``.
+    top; a panel where no trial stood and without a reference says so). Empty curves are
+    skipped; a figure with no curve raises ``ValueError``.
     """
     if isinstance(panels, CurvePanel):
         panels = [panels]
@@ -170,6 +173,9 @@ def plot_best_so_far(panels: Sequence[CurvePanel] | CurvePanel, path: str | Path
         lim = _zoom(bests, stables, [v for v in refs.values() if v < C1])
         if lim is None:
             _log_axis(bot, list(refs.values()))
+            if not refs:     # nothing to draw: no trial stood and no reference cost
+                bot.text(0.5, 0.5, "no trial stood: no best cost so far", transform=bot.transAxes,
+                         ha="center", va="center", fontsize=9, color="0.3")
         else:
             bot.set_ylim(*lim)
         bot.set_xlim(0.5, nmax + 0.5)
