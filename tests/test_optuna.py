@@ -164,6 +164,36 @@ def test_import_log_and_refusals(tmp_path):
         import_optuna_study(tmp_path / "missing.log", None, tmp_path / "x")
 
 
+def test_import_refuses_a_trial_that_stood_with_a_non_finite_value(tmp_path):
+    """A COMPLETE trial's value that is not finite (or 1e300 in size or more) is no cost: a
+    trial that stood with one (-inf in a minimize study is Optuna's best) refuses the import
+    by its number, writing nothing; a fall's is +inf, as a FAIL's."""
+    from latentune.integrations.optuna import trial_cost
+
+    storage = optuna.storages.InMemoryStorage()
+    mk = optuna.trial.create_trial
+    p = [dict(zip(NAMES, map(float, x))) for x in manifold(3, seed=2)]
+    for name, direction, bad in (("min", "minimize", -math.inf), ("max", "maximize", math.inf),
+                                 ("big", "minimize", 1e300)):
+        s = optuna.create_study(storage=storage, study_name=name, direction=direction)
+        s.add_trials([mk(params=p[0], distributions=DISTS, value=1.0),
+                      mk(params=p[1], distributions=DISTS, value=bad)])
+        with pytest.raises(OptunaImportError, match="trial 1 stood with value") as ei:
+            import_optuna_study(storage, name, tmp_path / name)
+        assert "\n" not in str(ei.value)
+        assert not (tmp_path / name).exists()                 # nothing written on refusal
+        with pytest.raises(UsageError, match="trial 1 stood"):
+            trial_cost(s.trials[1], 1.0)
+    s = optuna.create_study(storage=storage, study_name="fall")
+    s.add_trials([mk(params=p[0], distributions=DISTS, value=1.0),
+                  mk(params=p[1], distributions=DISTS, value=-math.inf,
+                     system_attrs={"constraints:fall": 1.0}),
+                  mk(params=p[2], distributions=DISTS, value=math.inf,
+                     user_attrs={FAILED_ATTR: True})])
+    rows = import_optuna_study(storage, "fall", tmp_path / "fall").store.rows(Phase.PHASE1)
+    assert [(r.cost, r.fell) for r in rows] == [(1.0, False), (math.inf, True), (math.inf, True)]
+
+
 def test_import_cli_from_a_journal_file(tmp_path, capsys):
     from optuna.storages.journal import JournalFileBackend, JournalStorage
 
@@ -347,6 +377,94 @@ def test_sampler_refuses_other_bounds(source_run):
         t.suggest_float("w1", 5.0, 6.0)
     assert sampler.distributions()["w1"] == FD(-1.0, 1.0)
     assert 0.0 <= t.suggest_float("extra", 0.0, 1.0) <= 1.0          # outside the space: random
+
+
+def test_sampler_refuses_other_bounds_on_the_first_trial(source_run):
+    """Bounds other than the space's are refused on the trial that shows them, whether or not
+    the sampler's value lies inside them, with one message naming the parameter and both
+    ranges: wider ones when trial 0 finishes (the sampler's value fits), narrower ones at the
+    suggest or when the trial finishes. Optuna itself refuses another scale (log)."""
+    ranges = {"wider": (-2.0, 1.0), "narrower": (-1.0, 0.999)}
+    for sampler in (LatentSampler(source_run, seed=0, budget=20),
+                    TurboSampler(DISTS, seed=0, budget=20)):
+        for what, (lo, hi) in ranges.items():
+            study = optuna.create_study(sampler=sampler)
+
+            def objective(trial):
+                x = np.array([trial.suggest_float(n, lo if n == "w3" else -1.0, hi
+                                                  if n == "w3" else 1.0) for n in NAMES])
+                return cost(x)[0]
+
+            with pytest.raises(UsageError, match=rf"parameter 'w3' is suggested on \[{lo:g}, "
+                               rf"{hi:g}\], but the sampler's space has it on \[-1, 1\]"):
+                study.optimize(objective, n_trials=5)
+            assert len(study.trials) == 1, (type(sampler).__name__, what)
+        study = optuna.create_study(sampler=sampler)
+        with pytest.raises(ValueError, match="log"):
+            study.optimize(lambda t: t.suggest_float("w0", 0.1, 1.0, log=True), n_trials=1)
+
+
+def test_a_parameter_of_the_space_not_suggested_is_refused():
+    """An objective that misspells a parameter of the space ("B" for "b": Optuna draws "B" at
+    random) is refused when its first trial finishes, naming the parameter; that trial, which
+    did not run at a θ of the space, is left out of what the critic is told."""
+    dists = {"a": FD(0.0, 1.0), "b": FD(0.1, 10.0, log=True)}
+    sampler = TurboSampler(dists, seed=0, budget=20)
+    study = optuna.create_study(sampler=sampler)
+
+    def typo(trial):
+        return trial.suggest_float("a", 0.0, 1.0) + trial.suggest_float("B", 0.1, 10.0, log=True)
+
+    with pytest.raises(UsageError, match="trial 0: parameter 'b' of the sampler's space was not "
+                                         "suggested \\(it suggested 'B' outside it\\)"):
+        study.optimize(typo, n_trials=5)
+    assert len(study.trials) == 1
+    study.optimize(lambda t: sum(sampler.suggest_all(t).values()), n_trials=2)
+    assert [t.system_attrs[POINT_ATTR]["told"] for t in study.trials[1:]] == [0, 1]
+
+
+@pytest.mark.parametrize("kind", ["turbo", "latent"])
+def test_a_partly_enqueued_trial_is_told_at_the_theta_it_ran(source_run, kind):
+    """A trial with an enqueued value (the sampler fills the rest) ran at a θ the sampler did
+    not propose: the critic is told it as an external point (tag -1) at its own θ; the
+    sampler's own trials are told at their critic points."""
+    sampler = (TurboSampler(DISTS, seed=0, budget=20) if kind == "turbo"
+               else LatentSampler(source_run, seed=0, budget=20))
+    study = optuna.create_study(sampler=sampler)
+    study.optimize(objective_for(sampler), n_trials=3)
+    study.enqueue_trial({"w0": -0.9})
+    study.optimize(objective_for(sampler), n_trials=1)
+    t = study.trials[3]
+    assert t.params["w0"] == -0.9 and t.system_attrs[POINT_ATTR]["theta"][0] != 0.05
+    X, y, tags, _, _ = sampler._history(study.get_trials(), 1.0, -1, kind == "latent", D)
+    np.testing.assert_allclose(X[3], [(t.params[n] + 1) / 2 for n in NAMES], atol=1e-9)
+    assert tags[3] == -1 and y[3] == t.value
+    assert tags[1] != -1
+    np.testing.assert_allclose(X[1], study.trials[1].system_attrs[POINT_ATTR]["u"])
+
+
+def test_a_sampler_refuses_a_trial_that_stood_with_a_non_finite_value():
+    """A trial that stands with -inf (a minimize study's best for Optuna) stops the study as it
+    finishes, naming it, and later samples refuse it too; a fall's -inf is told as +inf."""
+    dists = {"a": FD(0.0, 1.0), "b": FD(-1.0, 1.0)}
+    sampler = TurboSampler(dists, seed=0, budget=20)
+    study = optuna.create_study(sampler=sampler)
+
+    def objective(trial):
+        v = sum(sampler.suggest_all(trial).values())
+        if trial.number == 1:
+            trial.set_constraint("fall", 1.0)
+            return -math.inf
+        return -math.inf if trial.number == 3 else v
+
+    with pytest.raises(UsageError, match="trial 3 stood with value -inf"):
+        study.optimize(objective, n_trials=6)
+    assert len(study.trials) == 4
+    _, y, _, fell, _ = sampler._history(study.get_trials()[:3], 1.0, -1, False, 2)
+    assert y[1] == math.inf and fell[1]
+    t = study.ask()
+    with pytest.raises(UsageError, match="trial 3 stood"):
+        sampler.suggest_all(t)
 
 
 WORKER = textwrap.dedent('''

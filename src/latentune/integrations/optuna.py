@@ -21,15 +21,19 @@ of processes may share one RDB or journal storage):
 
 * each COMPLETE trial is told with its value (negated for a ``maximize`` study) and a fall flag;
   each FAIL trial is told as a fall with cost +inf (the critics treat it as the worst cost seen);
-  PRUNED and WAITING trials are ignored;
+  PRUNED and WAITING trials are ignored; a value that is not finite (or of 1e300 in size or
+  more) is no cost: a fall's is +inf, and a trial that stood with one is refused, naming it
+  (:func:`trial_cost`; ``after_trial`` refuses it as it finishes, and every later sample does);
 * a trial *falls* (``failed`` in latentune) when any of its Optuna constraint values is > 0 —
   set by ``trial.set_constraint(name, value)`` in the objective, or by a ``constraints_func``
   given to the sampler (called in ``after_trial``, as Optuna's own samplers do) — or when its
   user attribute ``latentune_failed`` (:data:`FAILED_ATTR`) is true;
-* a trial the sampler proposed carries its critic point and tag in the system attribute
-  ``latentune:point`` and is told exactly; any other trial (enqueued, another sampler, the
-  zero-shot one) with every parameter inside the box is an external, untagged point (in the
-  latent box: its θ encoded; a code outside the latent box is left out);
+* a trial is told at the θ it ran with, its parameters: a trial the sampler proposed carries
+  its critic point and tag in the system attribute ``latentune:point`` and, when its parameters
+  are that θ, is told exactly; any other trial (enqueued, partly enqueued — a fixed value
+  differs from the sampler's —, another sampler, the zero-shot one) with every parameter inside
+  the box is an external, untagged point at its own θ (in the latent box: its θ encoded; a code
+  outside the latent box is left out); a trial lacking a parameter of the space is left out;
 * RUNNING trials are pending: a trial asks the rebuilt critic for ``len(pending) + 2`` points,
   passes over those whose θ a trial of the study already has (a RUNNING trial's θ is recorded
   the moment it is sampled), leaves one more to each pending trial with a smaller number that is
@@ -43,7 +47,12 @@ of processes may share one RDB or journal storage):
 The objective must suggest every parameter of the sampler's space with the same bounds and
 scale (``sampler.distributions()`` gives them; ``sampler.suggest_all(trial)`` suggests them all);
 a parameter outside that space is sampled by ``independent_sampler`` (default
-``optuna.samplers.RandomSampler(seed)``). Single-objective studies only.
+``optuna.samplers.RandomSampler(seed)``). Other bounds for a parameter of the space, or one
+of its parameters not suggested (a misspelled name), raise a ``UsageError`` naming the
+parameter (and both ranges): at the suggest when the sampler's value lies outside the
+objective's bounds, else in ``after_trial`` when the trial finishes COMPLETE (Optuna records
+it; ``study.optimize`` stops, ``study.tell`` raises). Another scale (``log``) Optuna itself
+refuses at the suggest (ValueError). Single-objective studies only.
 
 Import rules (:func:`import_optuna_study`)
 ------------------------------------------
@@ -57,6 +66,9 @@ Import rules (:func:`import_optuna_study`)
   ``latentune_failed`` is a fall (a failed row, its value kept as its cost); FAIL trials are
   falls with cost +inf; PRUNED, RUNNING and WAITING trials are left out, and so
   are trials that lack one of the parameters (a warning counts them);
+* a value that is not finite (or of 1e300 in size or more) is no cost (:func:`trial_cost`): a
+  fall's becomes +inf, as a FAIL's; a trial that stood with one (``-inf`` in a minimize study
+  is Optuna's best) refuses the import, naming the trial;
 * rows are untagged (tag −1: points the critic did not ask for), in trial-number order, with
   ``info`` = ``optuna_trial``, ``optuna_state``, ``optuna_value``, ``constraints``; importing
   again into the same directory adds the trials not imported yet.
@@ -74,7 +86,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from latentune.constants import Phase
+from latentune.constants import COST_LIMIT, Phase
 from latentune.critic.base import Critic
 from latentune.errors import LatentError, LatentuneError, StoreError, UsageError
 from latentune.space import ParameterSpace
@@ -100,6 +112,9 @@ FAILED_ATTR = "latentune_failed"
 ZERO_SHOT_ATTR = "latentune:zero_shot"
 """Trial system attribute: the trial got the source run's best θ as it is (LatentSampler)."""
 INSTALL_HINT = "install the optuna extra: pip install 'latentune[optuna]'"
+THETA_ATOL = 1e-7
+"""How far (normalized θ) a trial's parameters may lie from the θ the sampler recorded for it
+and still count as that θ (the physical round trip changes the last bits only)."""
 
 
 class OptunaImportError(LatentuneError, ValueError):
@@ -174,6 +189,16 @@ def _unit_of(space: ParameterSpace, params: Mapping[str, Any]) -> np.ndarray | N
     return np.clip(u, 0.0, 1.0)
 
 
+def _range(d: Any) -> str:
+    """``[low, high]`` with ``(log)`` / ``step`` of a float or int distribution, else its repr."""
+    if isinstance(d, (optuna.distributions.FloatDistribution,
+                      optuna.distributions.IntDistribution)):
+        fl = isinstance(d, optuna.distributions.FloatDistribution)
+        step = "" if d.step is None or (not fl and d.step == 1) else f" (step {d.step:g})"
+        return f"[{d.low:g}, {d.high:g}]{'' if fl else ' (int)'}{' (log)' if d.log else ''}{step}"
+    return repr(d)
+
+
 def physical_params(space: ParameterSpace, u: np.ndarray) -> dict[str, float]:
     """Physical values by name of the unit-box θ ``u`` (d,), clipped to the bounds (a log
     entry at u = 1 can round past its upper bound)."""
@@ -194,11 +219,27 @@ def trial_fell(trial: Any, state: Any = None) -> bool:
 
 def trial_cost(trial: Any, sign: float) -> float:
     """The cost latentune minimizes for a finished trial: ``sign · value`` (sign −1 for a
-    maximize study); +inf for a FAIL trial or one without a finite value."""
+    maximize study); +inf for a FAIL trial (it has no value).
+
+    A value that is not finite, or of :data:`~latentune.constants.COST_LIMIT` (1e300) in size
+    or more, is no cost, as in latentune's own trials (:func:`latentune.system.as_outcome`): a
+    fall's is +inf (the fall convention, as a FAIL); a trial that stood with one is refused,
+    :class:`~latentune.errors.UsageError` naming the trial (Optuna keeps a COMPLETE ``-inf`` in
+    a minimize study as its best, which latentune cannot rank)."""
     v = trial.values[0] if trial.values else None
-    if v is None or not math.isfinite(float(v)):
+    if v is None:
         return math.inf
-    return float(sign) * float(v)
+    if math.isfinite(float(v)) and abs(float(v)) < COST_LIMIT:
+        return float(sign) * float(v)
+    if trial_fell(trial):
+        return math.inf
+    raise UsageError(_no_cost(trial.number, float(v)))
+
+
+def _no_cost(number: int, value: float) -> str:
+    return (f"trial {number} stood with value {value:g}: latentune takes a finite cost smaller "
+            f"than {COST_LIMIT:g} in size; return a finite value, or mark the trial a fall "
+            f"(trial.set_constraint(...) > 0 or the user attribute {FAILED_ATTR!r})")
 
 
 def _sign(study: Any) -> float:
@@ -335,13 +376,46 @@ class _CriticSampler:
 
     def sample_independent(self, study: Any, trial: Any, param_name: str,
                            param_distribution: Any) -> Any:
+        """A parameter outside the space goes to ``independent_sampler``. One of the space gets
+        here only when the objective suggests it with other bounds than the space's (the
+        sampler's value is outside them): :class:`UsageError` naming both ranges."""
         if param_name in self._dists:
-            d = self._dists[param_name]
-            raise UsageError(f"{type(self).__name__}: parameter {param_name!r} is suggested as "
-                             f"{param_distribution}, but the sampler's space has it on "
-                             f"[{d.low:g}, {d.high:g}]{' (log)' if d.log else ''}: suggest it "
-                             "with those bounds (sampler.distributions())")
+            raise UsageError(self._other_bounds(param_name, param_distribution))
         return self._independent.sample_independent(study, trial, param_name, param_distribution)
+
+    def _other_bounds(self, name: str, dist: Any, number: int | None = None) -> str:
+        at = "" if number is None else f"trial {number}: "
+        return (f"{type(self).__name__}: {at}parameter {name!r} is suggested on "
+                f"{_range(dist)}, but the sampler's space has it on {_range(self._dists[name])}: "
+                "suggest it with those bounds (sampler.distributions() or "
+                "sampler.suggest_all(trial))")
+
+    def _check_finished(self, study: Any, trial: Any, state: Any,
+                        values: Sequence[float] | None) -> None:
+        """Refuse (:class:`UsageError`) a trial finishing COMPLETE that the critic cannot be
+        told truly: a parameter of the space suggested with other bounds, or not
+        suggested at all (a misspelled name: the trial did not run at a θ of the space), or a
+        value that is no cost while the trial stood (:func:`trial_cost`). Optuna still records
+        the trial; the refusal stops ``study.optimize`` (``study.tell`` raises it)."""
+        if state != optuna.trial.TrialState.COMPLETE:
+            return
+        for n, d in self._dists.items():
+            got = trial.distributions.get(n)
+            if got is None:
+                extra = sorted(set(trial.params) - set(self._dists))
+                raise UsageError(
+                    f"{type(self).__name__}: trial {trial.number}: parameter {n!r} of the "
+                    "sampler's space was not suggested"
+                    + (f" (it suggested {', '.join(map(repr, extra[:5]))} outside it)"
+                       if extra else "")
+                    + ": the critic cannot be told the θ it ran at; suggest every parameter "
+                      "of the space (sampler.suggest_all(trial))")
+            if got != d:
+                raise UsageError(self._other_bounds(n, got, trial.number))
+        v = values[0] if values else None
+        if v is not None and not (math.isfinite(float(v)) and abs(float(v)) < COST_LIMIT) and \
+                not trial_fell(study._storage.get_trial(trial._trial_id), state):
+            raise UsageError(f"{type(self).__name__}: " + _no_cost(trial.number, float(v)))
 
     def before_trial(self, study: Any, trial: Any) -> None:
         self._independent.before_trial(study, trial)
@@ -353,6 +427,7 @@ class _CriticSampler:
 
             _process_constraints_after_trial(self._constraints_func, study, trial, state)
         self._independent.after_trial(study, trial, state, values)
+        self._check_finished(study, trial, state, values)
         self._after_fall_budget(study, trial, state)
 
     def _after_fall_budget(self, study: Any, trial: Any, state: Any) -> None:
@@ -374,24 +449,37 @@ class _CriticSampler:
             now = extra is not None and t.number == extra[0]
             if t.number == exclude or (t.state not in (S.COMPLETE, S.FAIL) and not now):
                 continue
-            theta = _unit_of(self._space, t.params)
-            pt = t.system_attrs.get(POINT_ATTR)
-            if isinstance(pt, dict) and pt.get("key") == self._key and len(pt.get("u", ())) == dim:
-                x, tag = np.asarray(pt["u"], dtype=float), int(pt["tag"])
-                z = pt.get("z")
-            else:
-                if theta is None:
-                    continue
-                x = theta if two_space else self._external_point(theta)
-                tag, z = -1, None
-                if x is None:
-                    continue
+            told = self._told_point(t, two_space, dim)
+            if told is None:
+                continue
+            x, tag, z = told
             X.append(x)
             y.append(math.nan if now else trial_cost(t, sign))
             tags.append(tag)
             fell.append(bool(extra[1]) if now else trial_fell(t))
             Z.append(z)
         return X, y, tags, fell, Z
+
+    def _told_point(self, t: Any, two_space: bool, dim: int
+                    ) -> tuple[np.ndarray, int, Any] | None:
+        """(critic point, tag, code) a finished trial is told at: the θ it ran with.
+
+        A trial that lacks a parameter of the space, or has one outside the box, cannot be
+        mapped (None: left out). A trial whose parameters are the θ the sampler recorded for it
+        (``POINT_ATTR``) is told at its critic point and tag; any other (an enqueued or fixed
+        value, another sampler, the zero-shot trial) is an external point at its own θ
+        (:meth:`_external_point`; None when that is outside the critic's box)."""
+        theta = _unit_of(self._space, t.params)
+        if theta is None:
+            return None
+        pt = t.system_attrs.get(POINT_ATTR)
+        if isinstance(pt, dict) and pt.get("key") == self._key and \
+                len(pt.get("u", ())) == dim and pt.get("theta") is not None and \
+                np.allclose(theta, np.clip(np.asarray(pt["theta"], dtype=float), 0.0, 1.0),
+                            rtol=0.0, atol=THETA_ATOL):
+            return np.asarray(pt["u"], dtype=float), int(pt["tag"]), pt.get("z")
+        x = theta if two_space else self._external_point(theta)
+        return None if x is None else (x, -1, None)
 
     def _clashes(self, study: Any, trial: Any, theta: np.ndarray) -> list[tuple[int, bool]]:
         """(number, still RUNNING) of the other trials that have ``theta``: recorded when they
@@ -874,7 +962,7 @@ def import_optuna_study(storage: Any, study_name: str | None, out: str | os.Path
         if set(space.names) != set(dists):
             raise OptunaImportError("the given space's names differ from the study's parameters "
                                     f"({sorted(set(space.names) ^ set(dists))[:5]})")
-    rows: list[tuple[Any, np.ndarray]] = []
+    rows: list[tuple[Any, np.ndarray, float]] = []
     incomplete = 0
     for t in trials:
         if set(t.params) != set(sp.names):
@@ -884,7 +972,11 @@ def import_optuna_study(storage: Any, study_name: str | None, out: str | os.Path
         if u is None:
             raise OptunaImportError(f"trial {t.number}: a parameter lies outside the space "
                                     f"({', '.join(f'{k}={v:g}' for k, v in list(t.params.items())[:3])}...)")
-        rows.append((t, u))
+        try:
+            cost = trial_cost(t, sign)                  # before anything is written
+        except UsageError as exc:
+            raise OptunaImportError(f"study {study.study_name!r}: {exc}") from None
+        rows.append((t, u, cost))
     if incomplete:
         warnings.warn(f"import of {study.study_name!r}: {incomplete} finished trial(s) lack some "
                       "of the parameters and are left out", stacklevel=2)
@@ -908,10 +1000,9 @@ def import_optuna_study(storage: Any, study_name: str | None, out: str | os.Path
         done = {r.info.get("optuna_trial") for r in st.rows(Phase.PHASE1)}
         idx = st.next_idx(Phase.PHASE1)
         added = 0
-        for t, u in rows:
+        for t, u, cost in rows:
             if t.number in done:
                 continue
-            cost = trial_cost(t, sign)
             info = {"optuna_trial": int(t.number), "optuna_state": t.state.name,
                     "optuna_value": None if not t.values else float(t.values[0]),
                     "constraints": {k: float(v) for k, v in t.constraints.items()}}
