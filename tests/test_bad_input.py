@@ -590,6 +590,27 @@ def test_study_phases_reject_bad_arguments(tmp_path, call):
     assert not (tmp_path / "s" / "run.db").exists()
 
 
+@pytest.mark.parametrize("method", ["cma", "random", "sobol"])
+def test_regions_with_a_method_other_than_turbo_is_refused(capsys, tmp_path, method):
+    """--regions is TuRBO-m's: with another method it was dropped without a word."""
+    assert_one_line(capsys, "phase1", *TINY, "--out",
+                    tmp_path / "p1", "--backend", "serial", "--phase1-evals", "6", "--method",
+                    method, "--regions", "3", expect="regions (trust regions) is an option of "
+                    f"method turbo (TuRBO-m), not of {method} (given regions = 3)")
+    assert not (tmp_path / "p1" / "run.db").exists()
+    assert_one_line(capsys, "ask", tmp_path / "a", *TINY, "--method", method, "--regions", "3",
+                    expect="not of " + method)
+    space = lt.ParameterSpace(["a", "b", "c"], [0, 0, 0], [1, 1, 1])
+    sys_ = lt.FunctionSystem(space, lambda th: float(np.sum((np.asarray(th) - 0.3) ** 2)))
+    st = lt.Study(tmp_path / "s")
+    st.phase1(sys_, 12)
+    st.train_latent(2, epochs=20)
+    before = dump(tmp_path / "s")
+    with pytest.raises(LatentuneError, match=f"not of {method}"):
+        st.phase3(sys_, 4, strategy="plain", method=method, regions=2)
+    assert dump(tmp_path / "s") == before
+
+
 def test_rollout_json_is_one_line_on_stdout():
     p = subprocess.run([sys.executable, "-m", "latentune.cli", "rollout", "--steps", "20",
                         "--json"], capture_output=True, text=True,

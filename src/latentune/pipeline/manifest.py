@@ -234,6 +234,9 @@ class Manifest:
             raise UsageError(f"max_new must be a whole number >= 0, got {max_new!r}")
         if regions is not None and not 1 <= int(regions) <= 100:
             raise UsageError(f"regions must be in [1, 100], got {regions}")
+        if regions is not None and method != "turbo":
+            raise UsageError(f"regions (trust regions) is an option of method turbo (TuRBO-m), "
+                             f"not of {method} (given regions = {regions})")
         if phase_run and self.run.exists:
             held = (int(phase), int(Phase.ZERO_SHOT)) if int(phase) == Phase.PHASE3 \
                 else (int(phase),)
