@@ -231,3 +231,35 @@ def test_a_full_disk_during_resume_in_a_real_process(plant, small_run):
     assert re.search(r"disk I/O error|full|No space|too large", line), line
     after = _rows(small_run)
     assert after[:len(before)] == before and len(after) < 400
+
+
+@pytest.mark.parametrize("cmd, flags, expect", [
+    ("train-vae", ["--method", "cma"], "--method is not an option of train-vae"),
+    ("train-vae", ["--regions", "2"], "--regions is not an option of train-vae"),
+    ("train-vae", ["--max-fall-prob", "0.3"], "--max-fall-prob is not an option of train-vae"),
+    ("train-vae", ["--phase3-evals", "5"], "--phase3-evals is not an option of train-vae"),
+    ("train-vae", ["--batch-size", "3"], "--batch-size is not an option of train-vae"),
+    ("train-vae", ["--resume", "--latent-dim", "1"],
+     "--latent-dim 1: the latent space of {run} has size 2 (kept with --resume"),
+    ("train-vae", ["--resume", "--vae-kind", "vae"],
+     "--vae-kind vae: the latent space of {run} is det (kept with --resume"),
+    ("phase3", ["--phase1-evals", "9"], "--phase1-evals is not an option of phase3"),
+    ("phase3", ["--vae-epochs", "5"], "--vae-epochs is not an option of phase3"),
+    ("phase3", ["--vae-kind", "vae"], "--vae-kind vae: the latent space of {run} is det"),
+])
+def test_flags_a_command_would_ignore_are_refused(run_cli, small_run, cmd, flags, expect):
+    """train-vae ran without --method/--regions/..., phase3 without --phase1-evals/--vae-*;
+    train-vae --resume kept a latent space of another size or kind: all without a word."""
+    code, _, err = run_cli("train-vae", *SYS, "--out", small_run, "--latent-dim", "2",
+                           "--vae-epochs", "5", "--quiet")
+    assert code == 0, err
+    before = _rows(small_run)
+    line = one_line_error(*run_cli(cmd, *SYS, "--out", small_run, "--phase3-evals", "3",
+                                   "--quiet", *flags)[::2]
+                          if cmd == "phase3" else
+                          run_cli(cmd, *SYS, "--out", small_run, "--quiet", *flags)[::2])
+    assert expect.format(run=small_run) in line, line
+    assert _rows(small_run) == before
+    code, out, err = run_cli("train-vae", *SYS, "--out", small_run, "--latent-dim", "2",
+                             "--resume", "--quiet")
+    assert code == 0 and "already trained" in out, err

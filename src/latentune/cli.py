@@ -373,6 +373,39 @@ def _check_latent_dim(args: argparse.Namespace, dim: int) -> None:
                        f"[1, {dim - 1}]")
 
 
+UNUSED_FLAGS = {
+    "train-vae": {"phase1_evals": DEFAULT_PHASE1, "phase3_evals": DEFAULT_PHASE3,
+                  "method": "turbo", "regions": None, "batch_size": None,
+                  "max_fall_prob": None},
+    "phase3": {"phase1_evals": DEFAULT_PHASE1, "vae_epochs": None},
+}
+"""The flags a run command shares with ``tune`` but does not use, with their defaults: another
+value is refused (it would be ignored)."""
+
+
+def _refuse_unused(args: argparse.Namespace, cmd: str) -> None:
+    for dest, default in UNUSED_FLAGS[cmd].items():
+        if getattr(args, dest, default) != default:
+            flag = "--" + dest.replace("_", "-")
+            raise CLIError(f"{flag} is not an option of {cmd} (it would be ignored): "
+                           + ("train-vae trains the latent space only"
+                              if cmd == "train-vae" else "phase3 uses the trained latent space"))
+
+
+def _check_stored_vae(study: Any, args: argparse.Namespace, what: str) -> None:
+    """--latent-dim and --vae-kind against the latent space stored in ``study`` (``what``: how
+    it is used), refused when they differ."""
+    from latentune.latent.vae import DEFAULT_KIND
+
+    vae = (study.config().get("vae") or {}) if study.exists else {}
+    if args.latent_dim is not None and vae.get("d_low") not in (None, args.latent_dim):
+        raise CLIError(f"--latent-dim {args.latent_dim}: the latent space of {study.dir} "
+                       f"has size {vae['d_low']} ({what})")
+    if args.vae_kind != DEFAULT_KIND and vae.get("kind") not in (None, args.vae_kind):
+        raise CLIError(f"--vae-kind {args.vae_kind}: the latent space of {study.dir} is "
+                       f"{vae['kind']} ({what})")
+
+
 def _refuse_rerun(study: Any, phase: int, resume: bool) -> None:
     if study.exists and study.store.count(phase) > 0 and not resume:
         raise CLIError(f"{study.dir} already holds {study.store.count(phase)} phase-{phase} "
@@ -460,8 +493,10 @@ def cmd_train_vae(args: argparse.Namespace) -> int:
     if not study.exists:
         raise CLIError(f"no run store in {study.dir} (run phase1 or tune first)")
     study.bind_check(system)
+    _refuse_unused(args, "train-vae")
     with study:
         if study.store.artifact("vae") is not None and args.resume:
+            _check_stored_vae(study, args, "kept with --resume; leave --resume out to retrain")
             print(f"{study.dir}: the VAE is already trained (kept, --resume)")
             return 0
         latent = study.train_latent(args.latent_dim, kind=args.vae_kind, epochs=args.vae_epochs,
@@ -485,12 +520,9 @@ def cmd_phase3(args: argparse.Namespace) -> int:
         raise CLIError(f"no run store in {study.dir} (run phase1 and train-vae first, "
                        "or pass --vae RUN_DIR)")
     _refuse_rerun(study, 3, args.resume)
-    if args.latent_dim is not None:
-        vae = study.config().get("vae") or {}
-        if args.vae is None and vae.get("d_low") not in (None, args.latent_dim):
-            raise CLIError(f"--latent-dim {args.latent_dim}: the latent space of {study.dir} "
-                           f"has size {vae['d_low']} (retrain it with train-vae, or leave "
-                           "--latent-dim out)")
+    _refuse_unused(args, "phase3")
+    if args.vae is None:
+        _check_stored_vae(study, args, "retrain it with train-vae, or leave the flag out")
     with study:
         study.phase3(system, args.phase3_evals, latent=args.vae, method=args.method,
                      regions=args.regions, max_fall_prob=args.max_fall_prob,
