@@ -107,6 +107,18 @@ def _harsh(x):
     return float(((x - 0.2) ** 2).sum())
 
 
+def test_the_fall_budget_of_a_phase_3_on_its_own_system_counts_only_target_trials(src):
+    """Phase 3 on the system of its own phase 1: the phase-1 trials the transfer critic is told
+    as data are not the target's trials; their falls spent the budget before any phase-3
+    trial (stopped at 0 of 8 while status said 0 falls counted)."""
+    with lt.Study(src, seed=0, batch_size=2) as st:
+        assert st.store.rows(Phase.PHASE1) and any(r.fell for r in st.store.rows(Phase.PHASE1))
+        n = st.phase3(plant(), 8, transfer_options={"fall_budget": 0.1}).n
+        fb = st.status()["fall_budget"]
+        assert n > 0 and (n == 8 or fb["spent"]), (n, fb)
+        assert not fb["spent"] or fb["falls"] >= fb["falls_allowed"]
+
+
 def test_a_spent_fall_budget_ends_phase_3_and_ask_says_so(tmp_path, src):
     """``fall_budget`` 0.1 of 20 phase-3 trials and the zero-shot one allows 2 falls after the
     first standing trial (the default count): the loop stops at the batch that spends it (2

@@ -1058,8 +1058,19 @@ class Transfer(TwoSpaceCritic):
         every later ask is the best θ that did not fall (tag pool ``full``), as
         ``stop_converged`` asks the centre, and a loop that runs the trials itself stops there.
         While every trial fell the search goes on: it has nothing to stop at."""
-        return fall_budget_spent(self._fell, self.opts["fall_budget"], self.budget,
+        fell = self._fell
+        n = getattr(self, "_not_target", None)
+        if n is not None:
+            fell = np.delete(fell, np.arange(n[0], min(n[1], len(fell))))
+        return fall_budget_spent(fell, self.opts["fall_budget"], self.budget,
                                  self.opts["fall_budget_counts"])
+
+    def tell_not_target(self, X: np.ndarray, y: np.ndarray, fell: np.ndarray) -> None:
+        """:meth:`tell` trials that are data but not the target's trials (the source run's own
+        phase-1 trials when the target is its system): the fall budget does not count them."""
+        start = len(self._fell)
+        self.tell(X, y, fell=fell)
+        self._not_target = (start, len(self._fell))
 
     def _handoff_active(self) -> bool:
         """True once the target has ``handoff`` own (tagged) trials (``handoff`` > 0)."""

@@ -193,7 +193,7 @@ def transfer_critic(pc: dict[str, Any], space: ParameterSpace, run_dir: Path, so
         known = set(np.argsort(z, kind="stable")[:OWN_TOLD].tolist())
         known |= {int(i) for i in range(len(X)) if np.min(np.abs(E - X[i]).max(1)) <= 1e-12}
         idx = np.array(sorted(known), dtype=np.int64)
-        critic.tell(X[idx], y[idx], fell=fell[idx])
+        critic.tell_not_target(X[idx], y[idx], fell[idx])
     return critic
 
 
