@@ -263,3 +263,22 @@ def test_flags_a_command_would_ignore_are_refused(run_cli, small_run, cmd, flags
     code, out, err = run_cli("train-vae", *SYS, "--out", small_run, "--latent-dim", "2",
                              "--resume", "--quiet")
     assert code == 0 and "already trained" in out, err
+
+
+def test_phase3_resume_keeps_its_stored_fall_and_handover_options(run_cli, small_run):
+    """A plain phase 3 run with --max-fall-prob and --handover: --resume without them was
+    refused ("was run with max-fall-prob = 0.5, not None"); it now resumes with them."""
+    assert run_cli("train-vae", *SYS, "--out", small_run, "--latent-dim", "2", "--vae-epochs",
+                   "5", "--quiet")[0] == 0
+    flags = ["--strategy", "plain", "--handover", "patience=2", "--max-fall-prob", "0.5"]
+    code, _, err = run_cli("phase3", *SYS, "--out", small_run, "--phase3-evals", "4", "--quiet",
+                           *flags)
+    assert code == 0, err
+    code, _, err = run_cli("phase3", *SYS, "--out", small_run, "--phase3-evals", "8", "--quiet",
+                           "--resume")
+    assert code == 0, err
+    with RunStore(small_run) as st:
+        assert st.count(3) == 8
+    line = one_line_error(*run_cli("phase3", *SYS, "--out", small_run, "--phase3-evals", "9",
+                                   "--quiet", "--resume", "--max-fall-prob", "0.4")[::2])
+    assert "max-fall-prob = 0.5, not 0.4" in line

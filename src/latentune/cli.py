@@ -523,9 +523,14 @@ def cmd_phase3(args: argparse.Namespace) -> int:
     _refuse_unused(args, "phase3")
     if args.vae is None:
         _check_stored_vae(study, args, "retrain it with train-vae, or leave the flag out")
+    mfp = args.max_fall_prob
+    stored = (study.config().get("phase3") or {}) if args.resume and study.exists else {}
+    if stored and study.store.count(3) > 0:   # a resume keeps what it was run with unless given
+        mfp = stored.get("max_fall_prob") if mfp is None else mfp
+        handover = stored.get("handover") if handover is None else handover
     with study:
         study.phase3(system, args.phase3_evals, latent=args.vae, method=args.method,
-                     regions=args.regions, max_fall_prob=args.max_fall_prob,
+                     regions=args.regions, max_fall_prob=mfp,
                      handover=handover, strategy=strategy,
                      transfer_options=_transfer_options(args, _stored_transfer(study)))
         _finish(study)
