@@ -724,6 +724,7 @@ class Transfer(TwoSpaceCritic):
         self.last_z = np.empty((0, self.k))
         self.decisions: list[dict[str, Any]] = []
         self._asking_manual = False     # :meth:`_manual_ask` asks the rest of its batch
+        self._not_target: tuple[int, int] | None = None    # told rows that are not the target's
         self._elite: np.ndarray | None = None
         self._source_mgd: tuple[np.ndarray, float, np.ndarray] | None = None   # _pool_source
         self._turbo: Any = None
@@ -1059,7 +1060,7 @@ class Transfer(TwoSpaceCritic):
         ``stop_converged`` asks the centre, and a loop that runs the trials itself stops there.
         While every trial fell the search goes on: it has nothing to stop at."""
         fell = self._fell
-        n = getattr(self, "_not_target", None)
+        n = self._not_target
         if n is not None:
             fell = np.delete(fell, np.arange(n[0], min(n[1], len(fell))))
         return fall_budget_spent(fell, self.opts["fall_budget"], self.budget,
