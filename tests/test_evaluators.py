@@ -51,6 +51,30 @@ def test_process_evaluator_matches_serial():
     np.testing.assert_allclose(yq, [quad(x) for x in X[:, :6]])
 
 
+class LockInInfo:
+    """A system whose Outcome carries a lock in its info (cannot be pickled)."""
+    space = lt.ParameterSpace(["a", "b", "c"], [0, 0, 0], [1, 1, 1])
+
+    def evaluate(self, u):
+        import threading
+
+        return lt.Outcome(quad(u), info={"lock": threading.Lock(), "k": 1})
+
+
+def test_process_worker_sends_back_an_outcome_whose_info_cannot_be_pickled():
+    """The info is kept as the store records it (as on the serial backend), not a
+    pickling traceback from concurrent.futures."""
+    from latentune.pipeline.evaluators import ProcessEvaluator
+
+    X = np.random.default_rng(0).random((3, 3))
+    with ProcessEvaluator(2) as ev:
+        got = dict(ev.imap(LockInInfo(), X))
+    assert sorted(got) == [0, 1, 2]
+    for i, out in got.items():
+        assert isinstance(out, lt.Outcome) and out.cost == pytest.approx(quad(X[i]))
+        assert out.info["k"] == 1 and "lock" in out.info["lock"]
+
+
 def test_unreachable_ray_address_is_one_line(tmp_path, run_cli, error_line, no_local_ray):
     """A cluster address nobody answers at: one line at once (Ray alone retries without end)."""
     pytest.importorskip("ray")

@@ -143,6 +143,32 @@ def _init_worker() -> None:
         sys.modules["torch"].set_num_threads(1)
 
 
+def _sendable(r: Outcome | TrialError) -> Outcome | TrialError:
+    """``r`` as a worker can send it back: an Outcome whose ``info`` cannot be pickled (a lock,
+    a simulator handle) keeps the info as the store would record it (JSON, other values as
+    text), as on the serial backend."""
+    if not isinstance(r, Outcome) or not r.info:
+        return r
+    try:
+        pickle.dumps(r)
+        return r
+    except Exception:  # noqa: BLE001 - whatever __reduce__ raises
+        pass
+    from latentune.pipeline.store import _json_default
+
+    try:
+        info = json.loads(json.dumps(r.info, default=_json_default))
+    except Exception as exc:  # noqa: BLE001 - e.g. a circular reference: one line
+        return TrialError(f"the trial's info cannot be sent back from its worker or stored "
+                          f"({_one_line(exc, 200)})")
+    return Outcome(r.cost, r.failed, info, r.wall_s)
+
+
+def _run_sent(fun: Any, key: str | None, x: np.ndarray) -> Outcome | TrialError:
+    """:func:`run_trial` in a worker process: its result as the worker can send it back."""
+    return _sendable(run_trial(fun, key, x))
+
+
 def run_trial(fun: Any, key: str | None, x: np.ndarray) -> Outcome | TrialError:
     """Evaluate one point in this process (the worker side of every backend).
 
@@ -252,7 +278,7 @@ class ProcessEvaluator(Evaluator):
             _check_picklable(fun)
             self._checked = fun
         key = _key(fun)
-        futs = {self._pool.submit(run_trial, fun, key, x): i for i, x in enumerate(X)}
+        futs = {self._pool.submit(_run_sent, fun, key, x): i for i, x in enumerate(X)}
         pending = set(futs)
         try:
             while pending:
@@ -277,7 +303,7 @@ class _RayWorker:
         _init_worker()
 
     def run(self, fun: Any, key: str | None, x: np.ndarray) -> Outcome | TrialError:
-        return run_trial(fun, key, x)
+        return _run_sent(fun, key, x)
 
     def ping(self) -> bool:
         return True
