@@ -151,6 +151,54 @@ def test_crash_and_resume(tmp_path, run_cli, cli_env, dump_store):
     assert len({r[2] for r in rows}) == n                    # no θ evaluated twice
 
 
+_POOL_SCRIPT = """
+import os, sys, time
+import numpy as np
+from latentune.pipeline.evaluators import ProcessEvaluator
+
+def pid(x):
+    return float(os.getpid())
+
+if __name__ == "__main__":
+    ev = ProcessEvaluator(2)
+    pids = set()
+    while len(pids) < 2:                    # both workers started
+        pids |= {int(p) for p in ev.map(pid, np.zeros((4, 1)))}
+    print(*sorted(pids), flush=True)
+    time.sleep(600)
+"""
+
+
+def test_process_pool_workers_end_when_their_caller_is_killed(tmp_path, cli_env):
+    """A caller killed (SIGKILL, no cleanup) leaves no worker waiting for work without end
+    (they held its stdout and stderr open: a pipe reader waited for ever)."""
+    (tmp_path / "pool_script.py").write_text(_POOL_SCRIPT)
+    env = {**cli_env, "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), str(tmp_path)])}
+    proc = subprocess.Popen([sys.executable, str(tmp_path / "pool_script.py")], env=env,
+                            cwd=tmp_path, stdout=subprocess.PIPE, text=True)
+    try:
+        pids = [int(p) for p in proc.stdout.readline().split()]
+        assert len(pids) == 2 and proc.pid not in pids
+    finally:
+        proc.kill()
+        proc.wait()
+
+    def alive(p):
+        try:
+            with open(f"/proc/{p}/stat") as f:
+                return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+        except FileNotFoundError:
+            return False
+
+    t0 = time.monotonic()
+    while any(map(alive, pids)) and time.monotonic() - t0 < 20:
+        time.sleep(0.1)
+    left = [p for p in pids if alive(p)]
+    for p in left:                          # do not leave them running
+        os.kill(p, signal.SIGKILL)
+    assert not left, "worker processes outlived their killed caller"
+
+
 @pytest.mark.slow
 def test_phase1_on_local_ray(tmp_path, cli, cli_env, dump_store):
     pytest.importorskip("ray")

@@ -129,8 +129,25 @@ def _check_picklable(fun: Any) -> None:
 _WORKER_CACHE: dict[str, Any] = {}
 
 
-def _init_worker() -> None:
-    """Start of every worker process: one BLAS/OpenMP thread in this process only."""
+def _exit_with(alive: Any) -> None:
+    """End this worker process when ``alive`` (the read end of a pipe whose write end only the
+    caller holds) reaches EOF: the caller exited or was killed. A pool's workers would wait for
+    work without end (running on, holding the caller's stdout and stderr open)."""
+    try:
+        alive.poll(None)                       # nothing is ever written: readable means EOF
+    except (OSError, EOFError):
+        pass
+    os._exit(1)
+
+
+def _init_worker(alive: Any = None) -> None:
+    """Start of every worker process: one BLAS/OpenMP thread in this process only; with
+    ``alive`` (a process pool's), the worker ends when its caller does."""
+    if alive is not None:
+        import threading
+
+        threading.Thread(target=_exit_with, args=(alive,), daemon=True,
+                         name="latentune-exit-with-caller").start()
     for v in THREAD_VARS:                      # libraries loaded from now on
         os.environ[v] = "1"
     try:                                       # libraries already loaded (forkserver preload)
@@ -263,8 +280,11 @@ class ProcessEvaluator(Evaluator):
             start_method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
         self.workers = int(workers)
         self.start_method = start_method
-        self._pool = ProcessPoolExecutor(self.workers, mp_context=mp.get_context(start_method),
-                                         initializer=_init_worker)
+        ctx = mp.get_context(start_method)
+        # the workers watch the read end; the write end stays here: a killed caller's workers end
+        self._alive_r, self._alive_w = ctx.Pipe(duplex=False)
+        self._pool = ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=_init_worker,
+                                         initargs=(self._alive_r,))
         self._checked: Any = None               # the last system found picklable
 
     def imap(self, fun: Any, X: np.ndarray) -> Iterator[tuple[int, Outcome | TrialError]]:
@@ -291,6 +311,8 @@ class ProcessEvaluator(Evaluator):
 
     def close(self) -> None:
         self._pool.shutdown(wait=True, cancel_futures=True)
+        self._alive_r.close()
+        self._alive_w.close()
 
     def __repr__(self) -> str:
         return f"ProcessEvaluator(workers={self.workers}, start_method={self.start_method!r})"
