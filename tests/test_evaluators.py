@@ -151,6 +151,29 @@ def test_crash_and_resume(tmp_path, run_cli, cli_env, dump_store):
     assert len({r[2] for r in rows}) == n                    # no θ evaluated twice
 
 
+def _hangs_above_half(x):
+    if x[0] > 0.5:
+        time.sleep(30)                      # a trial that hangs (or runs long)
+    return float(x[0])
+
+
+def test_process_pool_close_does_not_wait_for_a_trial_that_was_left():
+    """An imap left while a trial runs (Ctrl-C, an error): close terminates its worker
+    instead of waiting for it (a SIGINT to the CLI during a hung trial hung it for ever)."""
+    from latentune.pipeline.evaluators import ProcessEvaluator
+
+    ev = ProcessEvaluator(2)
+    try:
+        it = ev.imap(_hangs_above_half, np.array([[0.0], [1.0]]))
+        i, out = next(it)                   # the quick trial
+        assert i == 0 and out.cost == 0.0
+        it.close()
+    finally:
+        t0 = time.monotonic()
+        ev.close()
+    assert time.monotonic() - t0 < 10
+
+
 _POOL_SCRIPT = """
 import os, sys, time
 import numpy as np

@@ -286,6 +286,7 @@ class ProcessEvaluator(Evaluator):
         self._pool = ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=_init_worker,
                                          initargs=(self._alive_r,))
         self._checked: Any = None               # the last system found picklable
+        self._abandoned: set[Any] = set()       # running trials of an imap that was left
 
     def imap(self, fun: Any, X: np.ndarray) -> Iterator[tuple[int, Outcome | TrialError]]:
         from concurrent.futures import FIRST_COMPLETED, wait
@@ -307,9 +308,18 @@ class ProcessEvaluator(Evaluator):
                     yield futs[f], f.result()
         finally:
             for f in pending:
-                f.cancel()
+                if not f.cancel():             # running: its result will not be looked at
+                    self._abandoned.add(f)
 
     def close(self) -> None:
+        """Stop the workers; a trial still running for an ``imap`` that was left (Ctrl-C, an
+        error) is not waited for: its worker is terminated (a hung or long trial held the
+        caller for ever)."""
+        procs = list((getattr(self._pool, "_processes", None) or {}).values())
+        if any(not f.done() for f in self._abandoned):
+            for p in procs:
+                p.terminate()
+        self._abandoned.clear()
         self._pool.shutdown(wait=True, cancel_futures=True)
         self._alive_r.close()
         self._alive_w.close()
