@@ -3,6 +3,7 @@ in one line without them; it reads each benchmark's JSON output (ratio, provenan
 from __future__ import annotations
 
 import json
+import math
 import subprocess
 from pathlib import Path
 
@@ -64,3 +65,17 @@ def test_runs_every_benchmark_module_with_out(monkeypatch, tmp_path, capsys):
     assert thr[thr.index("--steps") + 1] == "50" and thr[thr.index("--n") + 1] == "3"
     table = capsys.readouterr().out
     assert "| actor | 2.00 |" in table and "| throughput | 4.00 |" in table
+
+
+@pytest.mark.parametrize("timeout", [math.inf, 1e10, 3e6])
+def test_an_infinite_timeout_is_no_limit(monkeypatch, tmp_path, capsys, timeout):
+    """--timeout inf (1e999), or one longer than subprocess can wait, runs each benchmark
+    without a limit (subprocess raised OverflowError: a traceback)."""
+    (tmp_path / "benchmarks").mkdir()
+    (tmp_path / "benchmarks" / "__init__.py").write_text("")
+    (tmp_path / "benchmarks" / "tiny.py").write_text(
+        "import json, sys\n"
+        "open(sys.argv[sys.argv.index('--out') + 1], 'w').write(json.dumps({'ratio': 1.5}))\n")
+    monkeypatch.setattr(bench, "BENCHES", (bench.Bench("tiny", (), "a tiny benchmark"),))
+    assert bench.run_bench(steps=1, n=1, timeout=timeout, root=tmp_path) == 0
+    assert "| tiny | 1.50 |" in capsys.readouterr().out

@@ -1025,7 +1025,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = add("bench", help="the performance-ratio benchmarks at a quick size")
     p.add_argument("--steps", type=int, default=2000, help="rollout steps")
     p.add_argument("--n", type=int, default=8, help="rollouts of the throughput benchmark")
-    p.add_argument("--timeout", type=float, default=900, help="per benchmark [s]")
+    p.add_argument("--timeout", type=float, default=900, help="per benchmark [s] (inf: none)")
     p.set_defaults(func=cmd_bench)
     return parser
 

@@ -45,6 +45,11 @@ BENCHES: tuple[Bench, ...] = (
 )
 
 
+NO_LIMIT_S = 1e6
+"""A longer ``--timeout`` (or inf) is no limit: subprocess cannot wait for much longer (it
+raised OverflowError from 1e10 s, or 3e6 s on epoll)."""
+
+
 def repo_root(start: Path | None = None) -> Path | None:
     """The source checkout holding ``benchmarks/common.py``: an ancestor of this module (an
     editable install) or of ``start`` (default: the working directory); None if neither."""
@@ -62,7 +67,8 @@ def run_bench(steps: int = 2000, n: int = 8, timeout: float = 900.0,
     Args:
         steps: rollout steps of the actor and throughput benchmarks (>= 1).
         n: rollouts of the throughput benchmark (>= 1).
-        timeout: seconds allowed per benchmark (> 0).
+        timeout: seconds allowed per benchmark (> 0; above :data:`NO_LIMIT_S`, ``inf``
+            included: no limit).
         root: the source checkout (default: :func:`repo_root`).
 
     Returns:
@@ -80,6 +86,7 @@ def run_bench(steps: int = 2000, n: int = 8, timeout: float = 900.0,
     if root is None:
         raise UsageError("the benchmarks are not installed with the package: run latentune bench "
                          "in a source checkout of latentune (a directory holding benchmarks/)")
+    limit = timeout if timeout <= NO_LIMIT_S else None
     env = dict(os.environ, **thread_env())
     rows: list[dict[str, Any]] = []
     status = 0
@@ -94,7 +101,7 @@ def run_bench(steps: int = 2000, n: int = 8, timeout: float = 900.0,
             row: dict[str, Any] = {"benchmark": b.name, "ratio": None, "meaning": b.ratio}
             try:
                 r = subprocess.run(argv, capture_output=True, text=True, env=env, cwd=root,
-                                   timeout=timeout)
+                                   timeout=limit)
             except subprocess.TimeoutExpired:
                 row["status"] = f"timed out after {timeout:.0f} s"
                 status = 1
