@@ -13,7 +13,10 @@ import math
 
 
 def checked_gap(gap: float) -> float:
-    """A system's model-to-plant ``gap`` as a float; ValueError unless finite and >= 0."""
+    """A system's model-to-plant ``gap`` as a float; ValueError unless a finite number >= 0
+    (a bool is not one: ``gap=true`` was a gap of 1)."""
+    if isinstance(gap, bool):
+        raise ValueError(f"gap must be a finite number >= 0, got {gap}")
     g = float(gap)
     if not math.isfinite(g) or g < 0:
         raise ValueError(f"gap must be a finite number >= 0, got {gap}")
@@ -21,9 +24,10 @@ def checked_gap(gap: float) -> float:
 
 
 def checked_steps(steps: int) -> int:
-    """An episode's ``steps`` as an int; ValueError unless >= 1."""
-    n = int(steps)
-    if n < 1:
-        raise ValueError(f"steps must be >= 1, got {steps}")
-    return n
+    """An episode's ``steps`` as an int; ValueError unless a whole number >= 1 (``steps=2.5``
+    was 2 steps, ``steps=true`` one)."""
+    if isinstance(steps, bool) or not isinstance(steps, (int, float)) or steps != int(steps) \
+            or steps < 1:
+        raise ValueError(f"steps must be a whole number >= 1, got {steps!r}")
+    return int(steps)
 

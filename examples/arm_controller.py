@@ -164,4 +164,4 @@ class ArmSystem:
 
 def make_system(gap: float = 0.0) -> ArmSystem:
     """``--system examples.arm_controller:make_system [--system-arg gap=G]``."""
-    return ArmSystem(gap=float(gap))
+    return ArmSystem(gap=gap)

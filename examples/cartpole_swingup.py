@@ -234,4 +234,4 @@ class CartPoleSystem:
 
 def make_system(gap: float = 0.0, steps: int = STEPS) -> CartPoleSystem:
     """``--system examples.cartpole_swingup:make_system [--system-arg gap=G]``."""
-    return CartPoleSystem(gap=float(gap), steps=int(steps))
+    return CartPoleSystem(gap=gap, steps=steps)

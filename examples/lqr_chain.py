@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 import latentune as lt
-from examples import checked_gap
+from examples import checked_gap, checked_steps
 
 N_CART = 7
 N_MOTOR = 6
@@ -74,7 +74,7 @@ class ChainSystem:
 
     def __init__(self, gap: float = 0.0, steps: int = STEPS) -> None:
         self.gap = checked_gap(gap)
-        self.steps = int(steps)
+        self.steps = checked_steps(steps)
         self.space = chain_space()
         self.A0, self.B0 = _matrices(np.ones(N_CART), 10.0, 0.5)
         g = self.gap
@@ -123,4 +123,4 @@ class ChainSystem:
 
 def make_system(gap: float = 0.0, steps: int = STEPS) -> ChainSystem:
     """``--system examples.lqr_chain:make_system [--system-arg gap=G]``."""
-    return ChainSystem(gap=float(gap), steps=int(steps))
+    return ChainSystem(gap=gap, steps=steps)

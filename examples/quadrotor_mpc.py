@@ -237,4 +237,4 @@ class QuadrotorSystem:
 
 def make_system(gap: float = 0.0, steps: int = STEPS) -> QuadrotorSystem:
     """``--system examples.quadrotor_mpc:make_system [--system-arg gap=G]``."""
-    return QuadrotorSystem(gap=float(gap), steps=int(steps))
+    return QuadrotorSystem(gap=gap, steps=steps)

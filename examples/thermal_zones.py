@@ -140,4 +140,4 @@ def make_system(gap: float = 0.0, steps: int = STEPS, rooms: int = N) -> ZonesSy
     """``--system examples.thermal_zones:make_system [--system-arg gap=G rooms=R]``: the
     first ``rooms`` of the five (4·rooms gains; the set-point steps of rooms 1, 3, 5 and the
     occupancy of rooms 2, 4 among them)."""
-    return ZonesSystem(gap=float(gap), steps=int(steps), rooms=int(rooms))
+    return ZonesSystem(gap=gap, steps=steps, rooms=rooms)

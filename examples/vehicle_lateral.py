@@ -196,4 +196,4 @@ class VehicleSystem:
 
 def make_system(gap: float = 0.0, steps: int = STEPS) -> VehicleSystem:
     """``--system examples.vehicle_lateral:make_system [--system-arg gap=G]``."""
-    return VehicleSystem(gap=float(gap), steps=int(steps))
+    return VehicleSystem(gap=gap, steps=steps)

@@ -190,3 +190,23 @@ def test_optuna_hopper_benchmark_warm_starts_every_sampler_and_reuses_traces(tmp
     monkeypatch.setattr(oh, "run_sampler", lambda *a, **k: pytest.fail("ran a stored trace"))
     assert oh.main(args) == 0
     assert json.loads((tmp_path / "o.json").read_text())["per_seed"] == res["per_seed"]
+
+
+LADDER = ["arm_controller", "cartpole_swingup", "lqr_chain", "quadrotor_mpc", "thermal_zones",
+          "vehicle_lateral"]
+
+
+@pytest.mark.parametrize("name", LADDER)
+@pytest.mark.parametrize("arg", [{"gap": True}, {"steps": 2.5}, {"steps": True},
+                                 {"steps": -3}, {"steps": 0}])
+def test_example_factories_refuse_a_bool_or_fractional_steps(name, arg):
+    """--system-arg steps=2.5 ran 2 steps, steps=true one, gap=true a gap of 1, and the lqr
+    chain ran steps=-3 as no step at all (cost 0): each is a ValueError naming the argument."""
+    import importlib
+
+    make = importlib.import_module(f"examples.{name}").make_system
+    if "steps" in arg and "steps" not in make.__code__.co_varnames:
+        pytest.skip(f"{name} has no steps")
+    with pytest.raises(ValueError, match=f"{next(iter(arg))} must be"):
+        make(**arg)
+    assert make(**({"steps": 3.0} if "steps" in arg else {"gap": 0.5})) is not None
