@@ -90,7 +90,7 @@ class ArmSystem:
         self.payload = 1.5 * g
         self.visc = 0.4 * g
         self.coulomb = 1.5 * g
-        self.delay = int(round(4 * g))
+        self.delay = int(round(min(4 * g, T_TOTAL / DT)))  # no longer than the episode
 
     def config(self) -> dict[str, Any]:
         return {"kind": "arm2", "gap": self.gap}

@@ -147,7 +147,7 @@ class CartPoleSystem:
         self.plant = CartPole(M_POLE * (1 + 0.3 * g), HALF_LEN * (1 + 0.1 * g),
                               B_CART * (1 + g), F_COULOMB * (1 + g))
         self.motor = max(1.0 - 0.12 * g, 0.2)
-        self.delay = int(round(2 * g))
+        self.delay = int(round(min(2 * g, self.steps)))  # no longer than the episode
 
     def config(self) -> dict[str, Any]:
         return {"kind": "cartpole_swingup", "gap": self.gap, "steps": self.steps}

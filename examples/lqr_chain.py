@@ -80,7 +80,7 @@ class ChainSystem:
         g = self.gap
         self.A, self.B = _matrices(1.0 + 0.6 * g * _SIGNS * np.where(_SIGNS > 0, 1.0, 0.5),
                                    10.0 * (1 - 0.3 * g), 0.5 * max(1 - 0.5 * g, 0.05))
-        self.delay = int(round(3 * g))
+        self.delay = int(round(min(3 * g, self.steps)))  # no longer than the episode
         self.u_max = 6.0 * max(1 - 0.25 * g, 0.2)
 
     def config(self) -> dict[str, Any]:

@@ -165,7 +165,7 @@ class QuadrotorSystem:
         self.limit = max(1 - 0.1 * g, 0.1)
         self.drag = 0.3 * g
         self.wind = 0.5 * g
-        self.delay = int(round(g))
+        self.delay = int(round(min(g, self.steps)))  # no longer than the episode
 
     def config(self) -> dict[str, Any]:
         return {"kind": "quadrotor_mpc", "gap": self.gap, "steps": self.steps}

@@ -75,7 +75,7 @@ class ZonesSystem:
         self.cap = CAP[:self.n] * np.maximum(1.0 - 0.35 * g * _SHARE[:self.n], 0.1)
         self.k_wall = K_WALL * (1.0 + 0.6 * g)
         self.u_max = U_MAX * max(1.0 - 0.2 * g, 0.2)
-        self.delay = int(round(2 * g))
+        self.delay = int(round(min(2 * g, self.steps)))  # no longer than the episode
 
     def config(self) -> dict[str, Any]:
         out = {"kind": "thermal_zones", "gap": self.gap, "steps": self.steps}

@@ -120,7 +120,7 @@ class VehicleSystem:
         self.cr = CR * max(1.0 - 0.15 * g, 0.2)
         self.m = MASS * (1.0 + 0.1 * g)
         self.iz = IZ * (1.0 + 0.2 * g)
-        self.delay = int(round(g))
+        self.delay = int(round(min(g, self.steps)))  # no longer than the episode
         # the controller's feed-forward uses the model's understeer gradient (s²/m)
         self.k_us = MASS / (LF + LR) * (LR / CF - LF / CR)
 

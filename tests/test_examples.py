@@ -210,3 +210,25 @@ def test_example_factories_refuse_a_bool_or_fractional_steps(name, arg):
     with pytest.raises(ValueError, match=f"{next(iter(arg))} must be"):
         make(**arg)
     assert make(**({"steps": 3.0} if "steps" in arg else {"gap": 0.5})) is not None
+
+
+@pytest.mark.parametrize("name", LADDER)
+def test_example_delay_is_no_longer_than_the_episode(name):
+    """A huge gap (odd but legal: --system-arg gap=1e9, 1e308) made a delay queue of 1e9
+    entries (thermal_zones: killed for memory; others minutes per trial) or raised
+    OverflowError; a delay longer than the episode is the same as the episode's length: the
+    trial is as it was and takes no longer than at gap 2."""
+    import importlib
+    import time
+
+    make = importlib.import_module(f"examples.{name}").make_system
+    for gap in (1e9, 1e308):
+        system = make(gap=gap)
+        steps = getattr(system, "steps", 1200)
+        assert system.delay <= steps
+    short = {"steps": 20} if "steps" in make.__code__.co_varnames else {}
+    t0 = time.perf_counter()
+    system = make(gap=1e6, **short)
+    with np.errstate(all="ignore"):
+        out = as_outcome(system.evaluate(system.space.manual))
+    assert time.perf_counter() - t0 < 20 and np.isfinite(out.cost)
