@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 import math
+import numbers
 
 
 def checked_gap(gap: float) -> float:
@@ -23,11 +24,21 @@ def checked_gap(gap: float) -> float:
     return g
 
 
-def checked_steps(steps: int) -> int:
-    """An episode's ``steps`` as an int; ValueError unless a whole number >= 1 (``steps=2.5``
-    was 2 steps, ``steps=true`` one)."""
-    if isinstance(steps, bool) or not isinstance(steps, (int, float)) or steps != int(steps) \
-            or steps < 1:
-        raise ValueError(f"steps must be a whole number >= 1, got {steps!r}")
+def checked_steps(steps: int, name: str = "steps", least: int = 1) -> int:
+    """An episode's ``steps`` (or another count ``name``) as an int; ValueError unless a whole
+    number >= ``least`` (``steps=2.5`` was 2 steps, ``steps=true`` one)."""
+    if isinstance(steps, bool) or not isinstance(steps, numbers.Real) \
+            or not math.isfinite(steps) or steps != int(steps) or steps < least:
+        raise ValueError(f"{name} must be a whole number >= {least}, got {steps!r}")
     return int(steps)
+
+
+def checked_scale(value: float, name: str, zero: bool = False) -> float:
+    """A plant's scale factor ``name`` as a float; ValueError unless a finite number > 0
+    (``zero``: >= 0)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) \
+            or not math.isfinite(value) or value < 0 or (value == 0 and not zero):
+        raise ValueError(f"{name} must be a finite number {'>=' if zero else '>'} 0, "
+                         f"got {value!r}")
+    return float(value)
 

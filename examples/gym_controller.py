@@ -47,6 +47,7 @@ one_thread_env()  # before numpy: MuJoCo steps and the controller are tiny opera
 import numpy as np  # noqa: E402
 
 import latentune as lt  # noqa: E402
+from examples import checked_steps  # noqa: E402
 
 ENV_ID = "Hopper-v5"
 OBS_NAMES = ("z", "torso", "thigh", "leg", "foot",
@@ -111,10 +112,9 @@ class HopperSystem:
     def __init__(self, seed: int = 0, episode_steps: int = 400, mass_scale: float = 1.0,
                  friction_scale: float = 1.0, gear_scale: float = 1.0, obs_noise: float = 0.0,
                  action_delay: int = 0, name: str = "model") -> None:
-        if int(episode_steps) < 1:
-            raise ValueError(f"episode_steps must be >= 1, got {episode_steps}")
-        if int(action_delay) < 0:
-            raise ValueError(f"action_delay must be >= 0, got {action_delay}")
+        checked_steps(episode_steps, "episode_steps")
+        checked_steps(action_delay, "action_delay", 0)
+        checked_steps(seed, "seed", 0)                  # gymnasium refuses a negative seed
         for k, v in (("mass_scale", mass_scale), ("friction_scale", friction_scale),
                      ("gear_scale", gear_scale)):
             if not (math.isfinite(float(v)) and float(v) > 0):

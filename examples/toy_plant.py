@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 import latentune as lt
-from examples import checked_steps
+from examples import checked_scale, checked_steps
 
 N_MASS = 4
 ACTUATED = (0, 1, 3)
@@ -56,8 +56,10 @@ class ChainSystem:
                  damping_scale: float = 1.0, gain_scale: float = 1.0, steps: int = STEPS,
                  name: str = "model") -> None:
         self.space = chain_space()
-        self.mass_scale, self.stiffness_scale = float(mass_scale), float(stiffness_scale)
-        self.damping_scale, self.gain_scale = float(damping_scale), float(gain_scale)
+        self.mass_scale = checked_scale(mass_scale, "mass_scale")
+        self.stiffness_scale = checked_scale(stiffness_scale, "stiffness_scale")
+        self.damping_scale = checked_scale(damping_scale, "damping_scale", zero=True)
+        self.gain_scale = checked_scale(gain_scale, "gain_scale")
         self.steps = checked_steps(steps)
         self.name = str(name)
         self._j_open = None

@@ -232,3 +232,29 @@ def test_example_delay_is_no_longer_than_the_episode(name):
     with np.errstate(all="ignore"):
         out = as_outcome(system.evaluate(system.space.manual))
     assert time.perf_counter() - t0 < 20 and np.isfinite(out.cost)
+
+
+@pytest.mark.parametrize("target, arg", [
+    ("toy_plant:make_real_system", {"mass_scale": -1}),
+    ("toy_plant:make_real_system", {"stiffness_scale": float("nan")}),
+    ("toy_plant:make_real_system", {"gain_scale": True}),
+    ("toy_plant:make_real_system", {"damping_scale": -0.5}),
+    ("gym_controller:make_real_system", {"episode_steps": 2.5}),
+    ("gym_controller:make_real_system", {"episode_steps": True}),
+    ("gym_controller:make_real_system", {"action_delay": 2.5}),
+    ("gym_controller:make_system", {"seed": -1}),
+    ("gym_controller:make_system", {"seed": 2.5}),
+])
+def test_toy_and_hopper_factories_refuse_what_they_cannot_run(target, arg):
+    """The toy plant ran a negative or NaN mass (a fall or a NaN cost at the first trial),
+    the Hopper truncated episode_steps=2.5, action_delay=2.5 and seed=2.5, and seed=-1 raised
+    in gymnasium at the first trial: each is a ValueError from the factory, naming it."""
+    import importlib
+
+    module, factory = target.split(":")
+    if module == "gym_controller":
+        pytest.importorskip("gymnasium")
+    make = getattr(importlib.import_module(f"examples.{module}"), factory)
+    with pytest.raises(ValueError, match=f"{next(iter(arg))} must be"):
+        make(**arg)
+    assert make(**{k: 1 for k in arg}) is not None
