@@ -174,6 +174,25 @@ def test_process_pool_close_does_not_wait_for_a_trial_that_was_left():
     assert time.monotonic() - t0 < 10
 
 
+def test_process_pool_refuses_a_function_of_an_interactive_main(tmp_path, cli_env):
+    """A function or System defined in ``__main__`` of a session without a file (a notebook,
+    python -c) cannot be imported by a worker: EvaluationError naming workers=1 (the pool
+    broke: BrokenProcessPool, 'terminated abruptly')."""
+    code = ("import numpy as np\n"
+            "from latentune.pipeline.evaluators import ProcessEvaluator\n"
+            "from latentune.system import EvaluationError\n"
+            "def f(x):\n    return float(np.sum(x))\n"
+            "with ProcessEvaluator(2) as ev:\n"
+            "    try:\n        ev.map(f, np.ones((2, 2)))\n"
+            "    except EvaluationError as exc:\n        print('refused:', exc)\n")
+    env = {**cli_env, "PYTHONPATH": str(ROOT / "src")}
+    r = subprocess.run([sys.executable, "-c", code], env=env, cwd=tmp_path, text=True,
+                       capture_output=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "refused:" in r.stdout and "__main__ of an interactive session" in r.stdout
+    assert "workers=1" in r.stdout
+
+
 _POOL_SCRIPT = """
 import os, sys, time
 import numpy as np

@@ -119,11 +119,19 @@ def _unshippable(fun: Any, exc: BaseException) -> EvaluationError:
 
 
 def _check_picklable(fun: Any) -> None:
-    """Raise EvaluationError (naming --workers 1) if ``fun`` cannot be pickled."""
+    """Raise EvaluationError (naming --workers 1) if ``fun`` cannot be pickled, or refers to
+    ``__main__`` of a session without a file (a notebook, ``python -c``, stdin): a worker
+    process cannot import what it defines, and the pool broke (BrokenProcessPool)."""
     try:
-        pickle.dumps(fun)
+        data = pickle.dumps(fun)
     except Exception as exc:  # noqa: BLE001 - whatever __reduce__ raises: reported as one line
         raise _unshippable(fun, exc) from None
+    main = sys.modules.get("__main__")
+    if b"__main__" in data and main is not None \
+            and not os.path.isfile(getattr(main, "__file__", None) or ""):
+        raise _unshippable(fun, RuntimeError(
+            "it is defined in __main__ of an interactive session (a notebook, python -c or "
+            "stdin), which worker processes cannot import; define it in a module"))
 
 
 _WORKER_CACHE: dict[str, Any] = {}
