@@ -234,7 +234,8 @@ def test_tune_and_report_with_system_plugin(tmp_path, plugin_dir, cli, in_plugin
                                  "--resume")
     assert "dim" in error_line(code, err)
     assert rows(out) == before
-    code, _, err = in_plugin_dir("phase3", *args, "--phase3-evals", "10", "--resume")
+    code, _, err = in_plugin_dir("phase3", *args[:-4], "--latent-dim", "2", "--phase3-evals",
+                                 "10", "--resume")
     assert code == 0, err
     assert sum(1 for x in rows(out) if x[0] == 3) == 10
     # every ask of the default phase 3, across the resume, is in the store, status and report

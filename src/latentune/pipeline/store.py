@@ -163,7 +163,7 @@ def decode_cost(value: float) -> float:
     return math.copysign(math.inf, v) if abs(v) >= INF_CODE else v
 
 
-def _json_default(o: Any) -> Any:
+def json_default(o: Any) -> Any:
     if isinstance(o, np.ndarray):
         return o.tolist()
     if isinstance(o, (np.integer, np.floating, np.bool_)):
@@ -297,7 +297,7 @@ class RunStore:
         """Store a JSON-able value under ``key`` (its own transaction)."""
         with self._write():
             self.con.execute("INSERT OR REPLACE INTO meta(key, value) VALUES (?, ?)",
-                             (key, json.dumps(value, default=_json_default)))
+                             (key, json.dumps(value, default=json_default)))
 
     def delete_meta(self, key: str) -> None:
         """Remove the meta entry ``key`` if there is one (its own transaction)."""
@@ -315,7 +315,7 @@ class RunStore:
                 self.con.execute("DELETE FROM meta WHERE key=?", (key,))
             else:
                 self.con.execute("INSERT OR REPLACE INTO meta(key, value) VALUES (?, ?)",
-                                 (key, json.dumps(value, default=_json_default)))
+                                 (key, json.dumps(value, default=json_default)))
 
     def get_meta(self, key: str, default: Any = None) -> Any:
         """The JSON value stored under ``key`` (``default`` if absent); StoreError if garbled."""
@@ -382,7 +382,7 @@ class RunStore:
                  None if fall_step is None else int(fall_step),
                  None if wall_s is None else float(wall_s),
                  None if seed is None else int(seed), time.time(),
-                 None if not info else json.dumps(info, default=_json_default)))
+                 None if not info else json.dumps(info, default=json_default)))
         except sqlite3.IntegrityError:
             raise StoreError(f"evaluation {idx} of phase {phase} is already stored") from None
 
@@ -569,12 +569,12 @@ class RunStore:
                              "WHERE phase=? AND idx=?",
                              (encode_cost(cost), int(bool(fell)),
                               None if fall_step is None else int(fall_step),
-                              json.dumps(inf, default=_json_default), t.phase, t.idx))
+                              json.dumps(inf, default=json_default), t.phase, t.idx))
             self.con.execute("INSERT INTO amendments(trial, phase, idx, old, new, note, created) "
                              "VALUES (?, ?, ?, ?, ?, ?, ?)",
                              (int(trial_id), t.phase, t.idx,
-                              json.dumps(old, default=_json_default),
-                              json.dumps(new, default=_json_default), note, time.time()))
+                              json.dumps(old, default=json_default),
+                              json.dumps(new, default=json_default), note, time.time()))
             changed = [old[k] for k in ("cost", "fell", "fall_step")] != \
                 [new[k] for k in ("cost", "fell", "fall_step")]
             if changed:
