@@ -142,3 +142,14 @@ def test_a_spent_fall_budget_ends_phase_3_and_ask_says_so(tmp_path, src):
         with pytest.raises(StoreError, match="fall budget is spent") as info:
             st.ask(phase=3, budget=20, latent=src, transfer_options={"fall_budget": 0.1})
         assert "\n" not in str(info.value)
+
+
+def test_transfer_options_under_plain_name_the_strategy_without_claiming_a_hand_over():
+    """Transfer options with the plain strategy are refused; the message said "a hand-over
+    implies plain" although none was given."""
+    from latentune.errors import UsageError
+    from latentune.pipeline.manifest import transfer_option
+
+    with pytest.raises(UsageError) as e:
+        transfer_option({"fall_budget": 0.2}, "plain", None)
+    assert "not of the plain one" in str(e.value) and "implies" not in str(e.value)

@@ -404,7 +404,8 @@ def transfer_option(options: dict[str, Any] | None, strategy: str,
         return {"transfer_options": None}
     if strategy != "transfer":
         raise UsageError(f"transfer_options are options of the transfer phase 3 (strategy "
-                         f"transfer), not of the {strategy} one (a hand-over implies plain)")
+                         f"transfer), not of the {strategy} one (the strategy given, or the "
+                         "stored one, or plain where a hand-over is given)")
     if "max_fall_prob" in rec:
         raise UsageError("max_fall_prob is an argument of its own (max_fall_prob=...), not one "
                          "of transfer_options")
