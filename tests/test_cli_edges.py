@@ -246,10 +246,14 @@ def test_a_full_disk_during_resume_in_a_real_process(plant, small_run):
     ("phase3", ["--phase1-evals", "9"], "--phase1-evals is not an option of phase3"),
     ("phase3", ["--vae-epochs", "5"], "--vae-epochs is not an option of phase3"),
     ("phase3", ["--vae-kind", "vae"], "--vae-kind vae: the latent space of {run} is det"),
+    ("phase1", ["--phase3-evals", "5"], "--phase3-evals is not an option of phase1"),
+    ("phase1", ["--latent-dim", "2"], "--latent-dim is not an option of phase1"),
+    ("phase1", ["--vae-epochs", "5"], "--vae-epochs is not an option of phase1"),
+    ("phase1", ["--vae-kind", "vae"], "--vae-kind is not an option of phase1"),
 ])
 def test_flags_a_command_would_ignore_are_refused(run_cli, small_run, cmd, flags, expect):
-    """train-vae ran without --method/--regions/..., phase3 without --phase1-evals/--vae-*;
-    train-vae --resume kept a latent space of another size or kind: all without a word."""
+    """train-vae ran without --method/--regions/..., phase3 without --phase1-evals/--vae-*,
+    phase1 without --phase3-evals/--latent-dim/--vae-*; train-vae --resume kept a latent space of another size or kind: all without a word."""
     code, _, err = run_cli("train-vae", *SYS, "--out", small_run, "--latent-dim", "2",
                            "--vae-epochs", "5", "--quiet")
     assert code == 0, err

@@ -378,18 +378,25 @@ UNUSED_FLAGS = {
                   "method": "turbo", "regions": None, "batch_size": None,
                   "max_fall_prob": None},
     "phase3": {"phase1_evals": DEFAULT_PHASE1, "vae_epochs": None},
+    "phase1": {"phase3_evals": DEFAULT_PHASE3, "latent_dim": None, "vae_epochs": None,
+               "vae_kind": "(the default kind)"},
 }
 """The flags a run command shares with ``tune`` but does not use, with their defaults: another
 value is refused (it would be ignored)."""
+_UNUSED_WHY = {"train-vae": "train-vae trains the latent space only",
+               "phase3": "phase3 uses the trained latent space",
+               "phase1": "phase1 tunes θ on the system only (train-vae makes the latent space)"}
 
 
 def _refuse_unused(args: argparse.Namespace, cmd: str) -> None:
+    from latentune.latent.vae import DEFAULT_KIND
+
     for dest, default in UNUSED_FLAGS[cmd].items():
+        default = DEFAULT_KIND if default == "(the default kind)" else default
         if getattr(args, dest, default) != default:
             flag = "--" + dest.replace("_", "-")
             raise CLIError(f"{flag} is not an option of {cmd} (it would be ignored): "
-                           + ("train-vae trains the latent space only"
-                              if cmd == "train-vae" else "phase3 uses the trained latent space"))
+                           f"{_UNUSED_WHY[cmd]}")
 
 
 def _check_stored_vae(study: Any, args: argparse.Namespace, what: str) -> None:
@@ -440,6 +447,8 @@ def _phase1_study(args: argparse.Namespace, latent: bool) -> tuple[Any, Any, Any
     system = make_system(args, args.seed)
     if latent or args.latent_dim is not None:
         _check_latent_dim(args, system.space.dim)
+    if not latent:
+        _refuse_unused(args, "phase1")
     _need_store(study, args.resume)
     _refuse_rerun(study, 1, args.resume)
     try:
