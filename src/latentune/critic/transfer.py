@@ -236,9 +236,9 @@ decision records ``explore_gp``.
 made while the adaptive record's next explore pool is the lines (the target's own GP has led
 the explore asks) is chosen as ``explore_gp`` chooses: its pool (elites, the full box around
 the centre, the latent box) gains as many Sobol points over the θ box and the local maxima of
-the target GP's log EI from the :data:`~latentune.critic.transfer_model._GP_STARTS` best of all, and the ask is the highest log
-EI the fall screen admits (at ``max_fall_prob``). ``L`` and its counters follow it as any
-region ask. Such a decision records ``region_gp``. With ``region_gp="screened"`` such an ask
+the target GP's log EI from the :data:`~latentune.critic.transfer_model._GP_STARTS` best of
+all, and the ask is the highest log EI the fall screen admits (at ``max_fall_prob``). ``L``
+and its counters follow it as any region ask. Such a decision records ``region_gp``. With ``region_gp="screened"`` such an ask
 is screened as an explore ask is: at ``explore_fall_prob`` first, at ``max_fall_prob`` when
 fewer than the batch pass (recorded as ``explore_bound``): an ask the target's own GP moves out
 of the trust region's choice, toward the box's faces, takes the explore asks' smaller risk.
@@ -723,7 +723,6 @@ class Transfer(TwoSpaceCritic):
         self._Z = np.empty((0, self.k))
         self.last_z = np.empty((0, self.k))
         self.decisions: list[dict[str, Any]] = []
-        self._asking_manual = False     # :meth:`_manual_ask` asks the rest of its batch
         self._not_target: tuple[int, int] | None = None    # told rows that are not the target's
         self._elite: np.ndarray | None = None
         self._source_mgd: tuple[np.ndarray, float, np.ndarray] | None = None   # _pool_source
@@ -1179,7 +1178,8 @@ class Transfer(TwoSpaceCritic):
                          ) -> np.ndarray:
         """``explore_gp``'s candidates (m', d) from the lines ``XI`` (m, d): half of the lines,
         as many Sobol points over the whole θ box, and the local maxima of ``gp``'s log expected
-        improvement (:func:`~latentune.critic.transfer_model._local_max`) from the :data:`~latentune.critic.transfer_model._GP_STARTS` best of those, which end
+        improvement (:func:`~latentune.critic.transfer_model._local_max`) from the
+        :data:`~latentune.critic.transfer_model._GP_STARTS` best of those, which end
         on the box's faces and corners where the target's own model puts its best values (as
         a gradient optimizer of GPSampler's or BoTorch's acquisition does)."""
         m = len(XI)
@@ -1418,11 +1418,7 @@ class Transfer(TwoSpaceCritic):
         rule = "every trial so far fell: the target's manual θ"
         if n == 1:
             return self._rule_ask(1, g, self.manual, ELITE, True, rule)
-        self._asking_manual = True
-        try:
-            X, T = self._ask_one_thread(n)        # n: room for the manual θ among them
-        finally:
-            self._asking_manual = False
+        X, T = self._ask_one_thread(n, manual=False)   # n: room for the manual θ among them
         keep = np.flatnonzero(np.abs(X - self.manual).max(1) > 1e-9)[:n - 1]
         z = np.vstack([np.full((1, self.k), np.nan), self.last_z[keep]])
         dec = self.decisions[-1]
@@ -1432,7 +1428,9 @@ class Transfer(TwoSpaceCritic):
         return (np.vstack([self.manual[None, :], X[keep]]),
                 np.concatenate([[4 * g + ELITE], T[keep]]).astype(np.int64))
 
-    def _ask_one_thread(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+    def _ask_one_thread(self, n: int, manual: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """The ask of ``n`` points (``manual``: the manual-θ rule may decide it, as it does
+        unless :meth:`_manual_ask` asks the rest of its batch)."""
         st = self._replay_state()
         g = st["generation"]
         if self.fall_budget_spent:
@@ -1459,7 +1457,7 @@ class Transfer(TwoSpaceCritic):
         E = self._pool_elite()
         design = st["n_own"] < int(self.opts["n_design"]) and len(E) >= 1   # elites left to ask
         M = int(self.opts["n_candidates"])
-        if self._manual_next() and not self._asking_manual:
+        if manual and self._manual_next():
             return self._manual_ask(n, g)
         if st["converged"] and self.opts["stop_converged"]:
             return self._rule_ask(n, g, centre, FULL, False,

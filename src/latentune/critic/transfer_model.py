@@ -366,7 +366,8 @@ class TargetModel:
         self.ls_scale = float(rho)
         self.ls = ls * rho
         self.sigma_r2 = float(s)
-        self.L = jittered_cholesky(self._cov(self.kX, self.hX, self.hX) + self.noise * np.eye(len(v)))
+        self.L = jittered_cholesky(self._cov(self.kX, self.hX, self.hX)
+                                   + self.noise * np.eye(len(v)))
         r = self.v - self.hX @ self.b0
         self.alpha = np.linalg.solve(self.L.T, np.linalg.solve(self.L, r))
 
@@ -463,7 +464,8 @@ class TargetGP:
         self.sigma_r2 = float(np.asarray(h["outputscale"]).reshape(-1)[0])
         self.noise = float(np.asarray(h["noise"]).reshape(-1)[0])
         self.constant = float(np.asarray(h["constant"]).reshape(-1)[0])
-        self.L = jittered_cholesky(self.sigma_r2 * matern52(X, X, self.ls) + self.noise * np.eye(len(X)))
+        self.L = jittered_cholesky(self.sigma_r2 * matern52(X, X, self.ls)
+                                   + self.noise * np.eye(len(X)))
         self.alpha = np.linalg.solve(self.L.T, np.linalg.solve(self.L, zs - self.constant))
 
     def coefficients(self) -> tuple[np.ndarray, np.ndarray]:

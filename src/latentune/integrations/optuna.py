@@ -229,11 +229,16 @@ def trial_cost(trial: Any, sign: float) -> float:
     v = trial.values[0] if trial.values else None
     if v is None:
         return math.inf
-    if math.isfinite(float(v)) and abs(float(v)) < COST_LIMIT:
+    if _is_cost(v):
         return float(sign) * float(v)
     if trial_fell(trial):
         return math.inf
     raise UsageError(_no_cost(trial.number, float(v)))
+
+
+def _is_cost(v: float) -> bool:
+    """Whether an objective value is a cost latentune takes: finite, below COST_LIMIT in size."""
+    return math.isfinite(float(v)) and abs(float(v)) < COST_LIMIT
 
 
 def _no_cost(number: int, value: float) -> str:
@@ -413,7 +418,7 @@ class _CriticSampler:
             if got != d:
                 raise UsageError(self._other_bounds(n, got, trial.number))
         v = values[0] if values else None
-        if v is not None and not (math.isfinite(float(v)) and abs(float(v)) < COST_LIMIT) and \
+        if v is not None and not _is_cost(v) and \
                 not trial_fell(study._storage.get_trial(trial._trial_id), state):
             raise UsageError(f"{type(self).__name__}: " + _no_cost(trial.number, float(v)))
 

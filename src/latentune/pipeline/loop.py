@@ -103,26 +103,28 @@ def phase3_setup(run: RunDir, manifest: Manifest, space: ParameterSpace, actor: 
 
     ls, source = resolve_latent(run, manifest, latent, space, actor)
     strategy = resolve_strategy(manifest, strategy, handover, ls)
-    counts = source_counts(run.dir if source == "self" else Path(source))
     if strategy == "transfer":
-        given = [f"{k} = {v!r}" for k, v, unset in (
-            ("method", method, method == "turbo"), ("regions", regions, regions is None),
-            ("start", start, isinstance(start, str) and start == "manual")) if not unset]
-        if given:
-            raise UsageError(f"{given[0].split(' =')[0]} is an option of the plain phase 3 "
-                             f"(strategy plain), not of the transfer phase 3 (given "
-                             f"{given[0]}): its search starts from the source's best trials "
-                             "and the manual θ, in the latent and the full θ box")
+        for name, value, unset in (("method", method, method == "turbo"),
+                                   ("regions", regions, regions is None),
+                                   ("start", start, isinstance(start, str) and start == "manual")):
+            if not unset:
+                raise UsageError(f"{name} is an option of the plain phase 3 (strategy plain), "
+                                 f"not of the transfer phase 3 (given {name} = {value!r}): its "
+                                 "search starts from the source's best trials and the manual "
+                                 "θ, in the latent and the full θ box")
+    counts = source_counts(run.dir, source, strategy)
     start_rec = mf.start_point(start, space.manual, space.dim)[1]
     return ls, mf.phase3_extra(source, strategy, start_rec, max_fall_prob, handover,
                                transfer_options, counts)
 
 
-def source_counts(run: Path) -> dict[str, int] | None:
-    """How many trials of phases 1 and 3 the run at ``run`` holds (``{"1": n1, "3": n3}``):
-    what a transfer phase 3 from it starts from (recorded, :data:`~latentune.pipeline.
-    manifest.PINNED`); None without a store."""
-    if not (Path(run) / "run.db").is_file():
+def source_counts(run_dir: Path, source: str, strategy: str) -> dict[str, int] | None:
+    """How many trials of phases 1 and 3 a transfer phase 3's source run holds (``{"1": n1,
+    "3": n3}``; ``source``: its latent space's source, ``"self"`` for the study at
+    ``run_dir``): what the phase starts from (recorded, :data:`~latentune.pipeline.manifest.
+    PINNED`). None for another ``strategy`` (not recorded) or a source without a store."""
+    run = Path(run_dir) if source == "self" else Path(source)
+    if strategy != "transfer" or not (run / "run.db").is_file():
         return None
     with RunStore(run) as st:
         return {str(int(ph)): st.count(ph) for ph in (Phase.PHASE1, Phase.PHASE3)}
