@@ -83,7 +83,7 @@ def _help(capsys, *argv: str) -> str:
 def test_help_shows_the_defaults(capsys):
     text = _help(capsys, "tune")
     for needle in ("parallel rollouts (default 2)", "seed (terrain, critic, VAE) (default 0)",
-                   "(default process)", "critic (turbo = TuRBO-m) (default turbo)",
+                   "(default process)", "critic (turbo = TuRBO-m, the default; a resume keeps the stored one)",
                    "phase-1 evaluations (default 400"):
         assert needle in text, needle
     assert "number of suggestions (default 1)" in _help(capsys, "ask")

@@ -287,3 +287,31 @@ def test_a_plugin_run_recorded_with_a_string_exponent_still_resumes(run_cli, plu
     with RunStore(plugin_run) as st:
         assert st.get_meta("config")["system"]["args"]["shift"] == "2.5e-1"
         assert len(st.rows(Phase.PHASE1)) == 8
+
+
+def test_a_resume_keeps_the_stored_method_and_refuses_another(run_cli, plugin_dir, tmp_path):
+    """--method is not repeated on --resume: the stored method goes on (phase 1 and the plain
+    phase 3); another one given is refused naming both. The parser's default was turbo, so a
+    resume without --method of a cma run was refused."""
+    out, p3 = tmp_path / "src", tmp_path / "p3"
+    common = ("--system", "closplant:make", "--system-arg", "dim=3", "--backend", "serial")
+    assert run_cli("phase1", *common, "--out", out, "--phase1-evals", "6", "--method",
+                   "random")[0] == 0
+    code, _, err = run_cli("phase1", *common, "--out", out, "--phase1-evals", "9", "--resume")
+    assert code == 0, err
+    with RunStore(out) as st:
+        assert st.count(Phase.PHASE1) == 9
+    assert lt.Study(out).config()["phase1"]["method"] == "random"
+    code, _, err = run_cli("phase1", *common, "--out", out, "--phase1-evals", "10", "--resume",
+                           "--method", "turbo")
+    line = one_line_error(code, err)
+    assert "method = 'random', not 'turbo'" in line
+    assert run_cli("train-vae", *common, "--out", out, "--vae-epochs", "5")[0] == 0
+    assert run_cli("phase3", *common, "--vae", out, "--out", p3, "--strategy", "plain",
+                   "--method", "cma", "--phase3-evals", "3")[0] == 0
+    code, _, err = run_cli("phase3", *common, "--vae", out, "--out", p3, "--resume",
+                           "--phase3-evals", "5")
+    assert code == 0, err
+    with RunStore(p3) as st:
+        assert st.count(Phase.PHASE3) == 5
+    assert lt.Study(p3).config()["phase3"]["method"] == "cma"

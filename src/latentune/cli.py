@@ -243,8 +243,8 @@ def add_run_args(p: argparse.ArgumentParser, name: str) -> None:
     p.add_argument("--backend", choices=("serial", "process", "ray"), default="process",
                    help="evaluator: serial, a local process pool or ray")
     p.add_argument("--ray-address", default=None, help="Ray cluster address (default: local Ray)")
-    p.add_argument("--method", choices=("turbo", "cma", "random", "sobol"), default="turbo",
-                   help="critic (turbo = TuRBO-m)")
+    p.add_argument("--method", choices=("turbo", "cma", "random", "sobol"), default=None,
+                   help="critic (turbo = TuRBO-m, the default; a resume keeps the stored one)")
     p.add_argument("--regions", type=int, default=None,
                    help="TuRBO-m trust regions (default: ~1 per 500 evaluations, between 1 and 10)")
     p.add_argument("--batch-size", type=int, default=None,
@@ -375,7 +375,7 @@ def _check_latent_dim(args: argparse.Namespace, dim: int) -> None:
 
 UNUSED_FLAGS = {
     "train-vae": {"phase1_evals": DEFAULT_PHASE1, "phase3_evals": DEFAULT_PHASE3,
-                  "method": "turbo", "regions": None, "batch_size": None,
+                  "method": None, "regions": None, "batch_size": None,
                   "max_fall_prob": None},
     "phase3": {"phase1_evals": DEFAULT_PHASE1, "vae_epochs": None},
     "phase1": {"phase3_evals": DEFAULT_PHASE3, "latent_dim": None, "vae_epochs": None,
@@ -478,7 +478,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
         study.train_latent(args.latent_dim, kind=args.vae_kind, epochs=args.vae_epochs)
         # --method and --regions are phase 1's; phase 3 takes them only when it is plain
         plain = resolve_strategy(study.manifest, strategy, handover) == "plain"
-        study.phase3(system, args.phase3_evals, method=args.method if plain else "turbo",
+        study.phase3(system, args.phase3_evals, method=args.method if plain else None,
                      regions=args.regions if plain else None,
                      max_fall_prob=args.max_fall_prob, handover=handover, strategy=strategy,
                      transfer_options=_transfer_options(args, _stored_transfer(study)))

@@ -164,20 +164,20 @@ class Study:
         """The latent space phase 3 uses here (own or copied), or None."""
         return study_latent(self.run)
 
-    def _options(self, phase: int, method: str, budget: int, regions: int | None,
+    def _options(self, phase: int, method: str | None, budget: int, regions: int | None,
                  extra: dict[str, Any], max_new: int | None = None) -> dict[str, Any]:
         return self.manifest.phase_options(phase, method=method, budget=budget, regions=regions,
                                            seed=self.seed, batch_size=self.batch_size_of(phase),
                                            extra=extra, max_new=max_new, phase_run=True)
 
     # ------------------------------------------------------------------ phases
-    def phase1(self, system: Any, budget: int, *, method: str = "turbo",
+    def phase1(self, system: Any, budget: int, *, method: str | None = None,
                regions: int | None = None, start: Any = "manual",
                max_fall_prob: float | None = None, fall_prior: Any = None,
                source_run: Any = None, max_new: int | None = None) -> PhaseResult:
-        """Phase 1: ``method`` tunes the full θ of ``system`` for ``budget`` evaluations in all
-        (stored ones included; ``optuna-*``: Optuna's samplers, ``source_run``: a run whose
-        trials are ``optuna-cmaes``'s ``source_trials``). Resumes a stored phase 1.
+        """Phase 1: ``method`` (None: the stored one, else TuRBO-m; ``optuna-*``: Optuna's
+        samplers, ``source_run``: a run whose trials are ``optuna-cmaes``'s ``source_trials``)
+        tunes the full θ of ``system`` for ``budget`` evaluations in all, stored ones included.
 
         ``start``: ``"manual"`` (the first point is the system's manual θ), ``None`` (from
         scratch: the critic's own initial design) or a (d,) unit-box θ (e.g. another run's best).
@@ -226,7 +226,7 @@ class Study:
             self.log(msg)
         return latent
 
-    def phase3(self, system: Any, budget: int, *, latent: Any = None, method: str = "turbo",
+    def phase3(self, system: Any, budget: int, *, latent: Any = None, method: str | None = None,
                regions: int | None = None, start: Any = "manual",
                max_fall_prob: float | None = None, handover: Any = None,
                strategy: str | None = None, transfer_options: dict[str, Any] | None = None,
@@ -234,8 +234,8 @@ class Study:
         """Phase 3 on ``system`` with the ``strategy`` (default ``"transfer"``: everything the
         source run tried as a model of the target, latent and full θ boxes,
         :mod:`latentune.critic.transfer`; ``"plain"``: the paper's phase 3, ``method`` in the
-        latent box through the decoder; ``method``, ``regions``, ``start`` and ``handover``
-        are its options, refused with the transfer strategy).
+        latent box through the decoder; ``method`` (None: the stored one, else TuRBO-m),
+        ``regions``, ``start`` and ``handover`` are its options, refused with the transfer).
 
         Args:
             latent: None (this study's latent space), a LatentSpace, or another study (its

@@ -93,7 +93,7 @@ critic as target data (with the phase-1 trials among its elites), so it does not
 def phase3_setup(run: RunDir, manifest: Manifest, space: ParameterSpace, actor: str | None,
                  latent: Any, strategy: str | None, start: Any, max_fall_prob: float | None,
                  handover: Any, transfer_options: dict[str, Any] | None,
-                 method: str = "turbo", regions: int | None = None
+                 method: str | None = None, regions: int | None = None
                  ) -> tuple[Any, dict[str, Any]]:
     """(the LatentSpace, phase 3's own options record) of a phase-3 run with these arguments
     (:meth:`~latentune.study.Study.phase3`), checked; writes nothing. The plain strategy's
@@ -104,7 +104,7 @@ def phase3_setup(run: RunDir, manifest: Manifest, space: ParameterSpace, actor: 
     ls, source = resolve_latent(run, manifest, latent, space, actor)
     strategy = resolve_strategy(manifest, strategy, handover, ls)
     if strategy == "transfer":
-        for name, value, unset in (("method", method, method == "turbo"),
+        for name, value, unset in (("method", method, method in (None, "turbo")),
                                    ("regions", regions, regions is None),
                                    ("start", start, isinstance(start, str) and start == "manual")):
             if not unset:

@@ -211,13 +211,14 @@ class Manifest:
         return st.count(phase) + sum(1 for t in st.trials() if t.phase == int(phase)
                                      and t.status in ("queued", "pending"))
 
-    def phase_options(self, phase: int, *, method: str, budget: int, regions: int | None,
+    def phase_options(self, phase: int, *, method: str | None, budget: int, regions: int | None,
                       seed: int, batch_size: int, extra: dict[str, Any] | None = None,
                       max_new: int | None = None, phase_run: bool = False) -> dict[str, Any]:
         """The options record of ``phase`` (checked): the one configuration check of phase runs
         and ask/tell. Stored options must match once the phase has a trial (StoreError naming
-        the stored value); the budget may grow; TuRBO-m's region count defaults by budget and
-        then stays as stored. ``max_new`` (a phase run's stop after so many new trials, not
+        the stored value); the budget may grow; ``method`` None is the stored one (TuRBO-m for a
+        phase without trials); TuRBO-m's region count defaults by budget and then stays as
+        stored. ``max_new`` (a phase run's stop after so many new trials, not
         recorded) is checked too. A ``phase_run`` (the phase run in-process, not by ask/tell)
         is refused while suggestions of the phase (or of phase 3's zero-shot trial) are handed
         out to ask/tell: it would run them again and outgrow the budget (those asked and not
@@ -225,6 +226,10 @@ class Manifest:
         from latentune.critic.turbo import regions_for_budget
 
         key = PHASE_KEYS[Phase(int(phase))]
+        stored = self.config().get(key)
+        n = self.n_used(phase)
+        if method is None:                          # the stored method once the phase has run
+            method = (stored or {}).get("method") if stored and n else "turbo"
         if method not in METHODS:
             raise UsageError(f"unknown method {method!r} (choose from {', '.join(METHODS)})")
         if isinstance(budget, bool) or not isinstance(budget, (int, np.integer)) or budget < 1:
@@ -248,8 +253,6 @@ class Manifest:
                                  f"{', '.join(map(str, out[:5]))}{', …' if len(out) > 5 else ''}"
                                  "): tell them and go on with ask/tell, or run the phase here "
                                  "in a study without them")
-        stored = self.config().get(key)
-        n = self.n_used(phase)
         if regions is None and stored and n:
             regions = stored.get("regions")
         if regions is None and method == "turbo":
@@ -439,7 +442,8 @@ def source_option(method: str, source_run: Any) -> dict[str, Any]:
     if source_run is None:
         return {}
     if method != "optuna-cmaes":
-        raise UsageError(f"source_run is an option of the method optuna-cmaes, not {method}")
+        raise UsageError("source_run is an option of the method optuna-cmaes, not "
+                         f"{method or 'turbo'} (pass method='optuna-cmaes')")
     if not (Path(source_run) / "run.db").is_file():
         raise StoreError(f"no latentune run in {source_run} (expected run.db)")
     return {"source_run": str(Path(source_run).resolve())}
