@@ -163,6 +163,12 @@ def _cartpole(g: float) -> Any:
     return make_system(gap=g)
 
 
+def _servo(g: float) -> Any:
+    from examples.servo_cascade import make_system
+
+    return make_system(gap=g)
+
+
 def _springs(g: float) -> Any:
     from examples.toy_plant import make_real_system
 
@@ -181,6 +187,7 @@ SYSTEMS: dict[str, dict[str, Any]] = {
                   "gaps": (0.5, 1.0, 2.5)},
     "vehicle": {"model": lambda: _vehicle(0.0), "target": _vehicle, "gaps": (0.5, 1.0, 2.0)},
     "cartpole": {"model": lambda: _cartpole(0.0), "target": _cartpole, "gaps": (0.5, 1.0, 2.0)},
+    "servo": {"model": lambda: _servo(0.0), "target": _servo, "gaps": (0.25, 0.5, 1.0)},
 }
 
 
