@@ -132,6 +132,13 @@ class ServoSystem:
         return {"kind": "servo_cascade", "gap": self.gap, "steps": self.steps}
 
     def evaluate(self, theta: np.ndarray) -> lt.Outcome:
+        return self.simulate(theta)[0]
+
+    def simulate(self, theta: np.ndarray) -> tuple[lt.Outcome, dict[str, np.ndarray]]:
+        """The trial of the unit-box θ (d,) and its trace up to the end or the failure:
+        ``time_s``, ``ref`` and ``load`` (the load's reference and angle, rad), ``motor``
+        (the motor's angle, rad) and ``torque`` (the command after the drive's limit, N·m),
+        each (k,)."""
         (kp_pos, ki_pos, kff_v, kp_vel, ki_vel, k_aw, kff_a, fc_comp, fc_vel, f_notch,
          zeta_notch, depth_notch, fc_tau, tau_ref) = (
             float(w) for w in self.space.to_physical(self.space.validate_unit(theta)))
@@ -150,6 +157,11 @@ class ServoSystem:
         prev_cmd = 0.0
         hold: list[float] = []
         hold_from = int(_MOVES[-1][1] / DT) + 50
+        trace: dict[str, list] = {k: [] for k in ("time_s", "ref", "load", "motor", "torque")}
+
+        def done(cost: float, failed: bool, info: dict[str, Any]
+                 ) -> tuple[lt.Outcome, dict[str, np.ndarray]]:
+            return lt.Outcome(cost, failed, info), {k: np.asarray(v) for k, v in trace.items()}
         for t in range(self.steps):
             # measurement: the motor encoder, quantised, ``delay`` samples old
             meas.append(round(th_m / q) * q)
@@ -177,20 +189,23 @@ class ServoSystem:
             th_m += DT * w_m
             th_l += DT * w_l
             e = th_l - r_ref[t]
+            for k, v in (("time_s", t * DT), ("ref", r_ref[t]), ("load", th_l),
+                         ("motor", th_m), ("torque", cmd)):
+                trace[k].append(v)
             if not (math.isfinite(th_l) and math.isfinite(tau_f)) or abs(e) > ERR_LIMIT:
-                return lt.Outcome(100.0 * (2 - t / self.steps), True, {"fall_step": t})
+                return done(100.0 * (2 - t / self.steps), True, {"fall_step": t})
             err2 += e * e
             dtau2 += (cmd - prev_cmd) ** 2
             prev_cmd = cmd
             if t >= hold_from:
                 hold.append(cmd)
         if len(hold) > 10 and float(np.std(hold)) > HOLD_STD_LIMIT:
-            return lt.Outcome(100.0, True, {"fall_step": self.steps - 1,
-                                            "reason": "limit cycle in the last hold"})
+            return done(100.0, True, {"fall_step": self.steps - 1,
+                                      "reason": "limit cycle in the last hold"})
         rms_err = math.sqrt(err2 / self.steps)
         rms_dtau = math.sqrt(dtau2 / self.steps)
-        return lt.Outcome(1e3 * rms_err + 2e3 * rms_dtau, False,
-                          {"rms_err_mrad": 1e3 * rms_err, "rms_dtau_mNm": 1e3 * rms_dtau})
+        return done(1e3 * rms_err + 2e3 * rms_dtau, False,
+                    {"rms_err_mrad": 1e3 * rms_err, "rms_dtau_mNm": 1e3 * rms_dtau})
 
 
 def make_system(gap: float = 0.0, steps: int = STEPS) -> ServoSystem:
