@@ -244,6 +244,26 @@ def test_make_report_user_system_without_simulation(tmp_path: Path):
     assert json.loads((out / "summary.json").read_text())["rms_velocity_error_m_s"] is None
 
 
+@pytest.mark.parametrize("made, line", [
+    ({"robot": None, "gait": None, "actor": None, "terrain": None},
+     "Phase 3 used the VAE of /src/run."),
+    ({"robot": "a1", "gait": "trot", "actor": None, "terrain": "flat"},
+     "Phase 3 used the VAE of /src/run (robot a1, gait trot, terrain flat)."),
+])
+def test_report_names_the_latent_space_source_without_empty_fields(tmp_path: Path, made, line):
+    """A user system's latent space came from no robot or gait: the report said
+    ``({'robot': None, 'gait': None, 'actor': None, 'terrain': None})``; it names what is
+    known, and nothing when nothing is."""
+    cfg = {"system": {"kind": "python", "class": "mymod.Arm"}, "phase1": {"method": "turbo"},
+           "phase3_vae_source": "/src/run",
+           "latent": {"kind": "det", "d": 4, "d_low": 2, "n_train": 9, "box_rule": "b",
+                      "from": made}}
+    with _store(tmp_path / "run", cfg) as st:
+        make_report(st, simulate=False, quiet=True)
+    md = (tmp_path / "run" / "report.md").read_text().splitlines()
+    assert line in md and not any("None" in ln for ln in md if "used the VAE" in ln)
+
+
 class _FakeResult:
     def __init__(self, cost: float) -> None:
         self.cost = cost

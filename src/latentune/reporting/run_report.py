@@ -353,7 +353,9 @@ def make_report(store: Any, system: Any = None, simulate: bool = True, quiet: bo
                   f"{lat.get('n_train')} stable θ; box: {lat.get('box_rule')}.")
         src = cfg.get("phase3_vae_source")
         if src and src != "self":
-            md.append(f"Phase 3 used the VAE of {src} ({lat.get('from')}).")
+            made = ", ".join(f"{k} {v}" for k, v in (lat.get("from") or {}).items()
+                             if v is not None)      # a user system's is empty
+            md.append(f"Phase 3 used the VAE of {src}" + (f" ({made})." if made else "."))
         ho = summary.get("phase3_handover")
         if ho:
             at = ho.get("handover_at")
