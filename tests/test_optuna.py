@@ -164,6 +164,19 @@ def test_import_log_and_refusals(tmp_path):
         import_optuna_study(tmp_path / "missing.log", None, tmp_path / "x")
 
 
+def test_import_of_a_missing_sqlite_url_creates_no_database(tmp_path):
+    """An ``sqlite:///`` URL naming no file (a typo) is refused as a missing file; Optuna's
+    RDBStorage would create an empty database there and the import would say it holds no
+    study."""
+    url = f"sqlite:///{tmp_path / 'typo.db'}"
+    with pytest.raises(OptunaImportError, match="storage file not found: .*typo.db"):
+        import_optuna_study(url, None, tmp_path / "x")
+    assert not (tmp_path / "typo.db").exists() and not (tmp_path / "x").exists()
+    simulator_study(f"sqlite:///{tmp_path / 'sim.db'}", n=3)
+    assert import_optuna_study(f"sqlite:///{tmp_path / 'sim.db'}", None,
+                               tmp_path / "run").store.count(Phase.PHASE1) == 3
+
+
 def test_import_refuses_a_trial_that_stood_with_a_non_finite_value(tmp_path):
     """A COMPLETE trial's value that is not finite (or 1e300 in size or more) is no cost: a
     trial that stood with one (-inf in a minimize study is Optuna's best) refuses the import

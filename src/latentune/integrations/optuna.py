@@ -872,8 +872,8 @@ def _latent_prior(run: Path, latent: Any) -> tuple[np.ndarray, np.ndarray] | Non
 def open_storage(storage: Any) -> Any:
     """An Optuna storage from: a storage object (returned as is), an RDB URL
     (``sqlite:///file.db``, ``postgresql://…``), a path to an SQLite file, or a path to a
-    journal file (``JournalStorage(JournalFileBackend(path))``). OptunaImportError for a path
-    that does not exist."""
+    journal file (``JournalStorage(JournalFileBackend(path))``). OptunaImportError for a path,
+    or the file of an ``sqlite:`` URL, that does not exist (RDBStorage would create it)."""
     if isinstance(storage, optuna.storages.BaseStorage):
         return storage
     if not isinstance(storage, (str, os.PathLike)):
@@ -881,6 +881,9 @@ def open_storage(storage: Any) -> Any:
                                 f"got {type(storage).__name__}")
     s = os.fspath(storage)
     if "://" in s:
+        db = _sqlite_file(s)
+        if db is not None and not Path(db).is_file():   # RDBStorage would create an empty one
+            raise OptunaImportError(f"storage file not found: {db} (of {s})")
         try:
             return optuna.storages.RDBStorage(s)
         except Exception as exc:  # noqa: BLE001 - SQLAlchemy errors of any kind: one line
@@ -900,6 +903,21 @@ def open_storage(storage: Any) -> Any:
     except Exception as exc:  # noqa: BLE001
         raise OptunaImportError(f"{p} is neither an SQLite nor an Optuna journal file "
                                 f"({' '.join(str(exc).split())[:200]})") from None
+
+
+def _sqlite_file(url: str) -> str | None:
+    """The database file of an ``sqlite:`` URL, else None (another database, or in memory)."""
+    from sqlalchemy.engine import make_url
+    from sqlalchemy.exc import ArgumentError
+
+    try:
+        u = make_url(url)
+    except ArgumentError:
+        return None                                     # RDBStorage says what is wrong
+    if u.get_backend_name() != "sqlite" or u.database in (None, "", ":memory:") or \
+            "uri" in u.query:                           # a file: URI says its own mode
+        return None
+    return u.database
 
 
 def _load_study(storage: Any, study_name: str | None) -> Any:
