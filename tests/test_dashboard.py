@@ -104,6 +104,22 @@ def test_dashboard_cli_refusals(tmp_path):
         assert "\n" not in str(ei.value)
 
 
+def test_dashboard_journal_refusals(tmp_path):
+    """--journal in a directory that does not exist is one line, not a traceback; a refused
+    start (no run there) leaves no journal file behind, which would refuse the next attempt."""
+    run = run_dir(tmp_path, 2)
+    with pytest.raises(LatentuneError, match="cannot create journal file") as ei:
+        Dashboard(run, journal=tmp_path / "no_dir" / "j.log")
+    assert "\n" not in str(ei.value)
+    journal = tmp_path / "j.log"
+    with pytest.raises(LatentuneError, match="no latentune run"):
+        Dashboard(tmp_path / "none", journal=journal)
+    assert not journal.exists()
+    dash = Dashboard(run, journal=journal)
+    dash.close()
+    assert journal.stat().st_size > 0
+
+
 def _chromium():
     from selenium import webdriver
     from selenium.webdriver.chrome.options import Options

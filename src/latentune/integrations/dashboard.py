@@ -194,24 +194,33 @@ class Dashboard:
                  journal: str | Path | None = None) -> None:
         if not interval > 0:
             raise UsageError(f"interval must be > 0, got {interval}")
-        storage = None
-        if journal is not None:
-            jp = Path(journal)
+        storage, jp = None, None if journal is None else Path(journal)
+        if jp is not None:
             if jp.exists():
                 raise UsageError(f"journal file {jp} exists: give a new file")
             from optuna.storages.journal import JournalFileBackend, JournalStorage
 
-            storage = JournalStorage(JournalFileBackend(str(jp)))
-        self.export = RunExport(run_dir, storage)
-        self.export.sync()
+            try:
+                storage = JournalStorage(JournalFileBackend(str(jp)))
+            except OSError as exc:
+                raise UsageError(f"cannot create journal file {jp}: "
+                                 f"{exc.strerror or exc}") from None
+        try:
+            self.export = RunExport(run_dir, storage)
+            self.export.sync()
+            app = optuna_dashboard.wsgi(self.export.storage)
+            try:
+                self._server = make_server(HOST, int(port), app, server_class=_Server,
+                                           handler_class=_QuietHandler)
+            except OSError as exc:
+                raise UsageError(f"cannot listen on {HOST}:{port}: "
+                                 f"{exc.strerror or exc}") from None
+        except BaseException:
+            if jp is not None:          # a new file left behind would refuse the next attempt
+                jp.unlink(missing_ok=True)
+            raise
         self.interval = float(interval)
         self._stop = threading.Event()
-        app = optuna_dashboard.wsgi(self.export.storage)
-        try:
-            self._server = make_server(HOST, int(port), app, server_class=_Server,
-                                       handler_class=_QuietHandler)
-        except OSError as exc:
-            raise UsageError(f"cannot listen on {HOST}:{port}: {exc.strerror or exc}") from None
         self.port = int(self._server.server_address[1])
         self.url = f"http://{HOST}:{self.port}/dashboard"
         self._poller = threading.Thread(target=self._poll, name="latentune-dashboard-poll",
