@@ -292,6 +292,21 @@ def test_latent_sampler_optimize_and_seed(source_run, tmp_path):
                                latent.to_unit(latent.encode(src.space().manual)), atol=1e-12)
 
 
+def test_a_study_with_a_latent_sampler_pickles(source_run):
+    """An Optuna study is saved with pickle / joblib.dump (Optuna's FAQ): its LatentSampler
+    (with the latent network, a class built at run time) pickles, and the loaded study goes on
+    with the trials the one kept in memory asks."""
+    import pickle
+
+    sampler = LatentSampler(source_run, seed=0, budget=20)
+    study = optuna.create_study(sampler=sampler)
+    study.optimize(objective_for(sampler), n_trials=2)
+    loaded = pickle.loads(pickle.dumps(study))
+    for s in (study, loaded):
+        s.optimize(objective_for(s.sampler), n_trials=2)
+    assert thetas(loaded) == thetas(study) and len(set(thetas(study))) == 4
+
+
 def test_latent_sampler_falls_and_direction(source_run):
     """Falls reach the critic (constraint > 0, latentune_failed, FAIL); a maximize study is
     negated: the same objective told as -cost in a maximize study gives the same trials."""

@@ -405,5 +405,23 @@ class LatentSpace:
             raise LatentError(f"corrupt latent space {p}: {' '.join(str(exc).split())[:200]}") from None
         return cls(net, d, d_low, kind, box, meta)
 
+    def __getstate__(self) -> dict[str, Any]:
+        """Picklable (the network's class is built at run time): its hidden widths and weights
+        stand for it (an Optuna study with a ``LatentSampler`` saved by ``joblib.dump``)."""
+        state = dict(self.__dict__)
+        net = state.pop("net")
+        state["net_weights"] = ((net.encoder[0].out_features, net.encoder[2].out_features),
+                                {k: v.detach().cpu().clone() for k, v in
+                                 net.state_dict().items()})
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        state = dict(state)
+        widths, weights = state.pop("net_weights")
+        net = _build(state["d"], state["d_low"], state["kind"], tuple(widths)).double()
+        net.load_state_dict(weights)
+        net.eval()
+        self.__dict__.update(state, net=net)
+
     def __repr__(self) -> str:
         return f"LatentSpace(d={self.d}, d_low={self.d_low}, kind={self.kind!r})"
