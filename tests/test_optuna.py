@@ -618,6 +618,10 @@ def test_turbo_sampler(tmp_path):
         TurboSampler({"n": optuna.distributions.IntDistribution(0, 3)})
     with pytest.raises(UsageError, match="start"):
         TurboSampler(dists, start="manual")
+    for regions in (2.5, "3", 0, True):            # 2.5 was taken as 2, "3" as 3
+        with pytest.raises(UsageError, match="regions must be"):
+            TurboSampler(dists, regions=regions)
+    assert TurboSampler(dists, regions=np.int64(3)).regions == 3
 
 
 def test_optuna_samplers_are_phase1_methods(tmp_path):

@@ -306,7 +306,9 @@ class _CriticSampler:
             raise UsageError(f"budget must be an integer >= 1, got {budget!r}")
         if method not in METHODS:
             raise UsageError(f"unknown method {method!r} (choose from {', '.join(METHODS)})")
-        if regions is not None and (isinstance(regions, bool) or not 1 <= int(regions) <= 100):
+        if regions is not None and (isinstance(regions, bool) or
+                                    not isinstance(regions, (int, np.integer)) or
+                                    not 1 <= regions <= 100):
             raise UsageError(f"regions must be in [1, 100], got {regions!r}")
         if max_fall_prob is not None and (isinstance(max_fall_prob, bool) or
                                           not 0.0 < float(max_fall_prob) <= 1.0):
