@@ -571,6 +571,36 @@ def test_a_theta_that_finished_meanwhile_is_chosen_again(source_run, monkeypatch
     assert tuple(pa.values()) != pytest.approx(tuple(pb.values()))
 
 
+def test_a_source_run_that_grows_does_not_change_a_study_under_way(tmp_path):
+    """The transfer strategy searches from the source trials there were at the study's first
+    sample, as Study.phase3 pins them: a study resumed (a new sampler) after the source run got
+    more trials asks what the uninterrupted study asked (it took the new trials in)."""
+    storage = optuna.storages.InMemoryStorage()
+    sim = optuna.create_study(storage=storage, study_name="sim")
+    X = manifold(50)
+
+    def add(xs):
+        sim.add_trials([optuna.trial.create_trial(params=dict(zip(NAMES, map(float, x))),
+                                                  distributions=DISTS, value=cost(x)[0])
+                        for x in xs])
+
+    add(X[:40])
+    import_optuna_study(storage, "sim", tmp_path / "src").train_latent(latent_dim=3, epochs=100)
+
+    def more(study, n):
+        study.sampler = LatentSampler(tmp_path / "src", seed=0, budget=20)
+        study.optimize(objective_for(study.sampler), n_trials=n)
+        return study
+
+    full = more(optuna.create_study(), 5)
+    part = more(optuna.create_study(), 3)
+    add(X[40:])
+    import_optuna_study(storage, "sim", tmp_path / "src")          # 10 more source trials
+    assert thetas(more(part, 2)) == thetas(full)
+    attrs = part._storage.get_study_system_attrs(part._study_id)
+    assert attrs["latentune:source_counts:" + part.sampler._key] == {"1": 40, "3": 0}
+
+
 def test_two_workers_on_one_journal(source_run, tmp_path):
     journal = tmp_path / "target.log"
     from optuna.storages.journal import JournalFileBackend, JournalStorage

@@ -42,7 +42,10 @@ of processes may share one RDB or journal storage):
   points to those with smaller numbers; so workers on one storage do not run the same θ. With
   one worker a seed gives the same trials every time.
 * what the told trials do not determine (TuRBO-m's warm-started GP hyperparameters) is kept in
-  the study's system attribute ``latentune:critic_state:<key>`` after every sample.
+  the study's system attribute ``latentune:critic_state:<key>`` after every sample;
+* the transfer strategy searches from the source run's trials as they were at the study's first
+  sample (their counts pinned in ``latentune:source_counts:<key>``, as ``Study.phase3`` pins
+  them): a source run that gets more trials later does not change a study under way.
 
 The objective must suggest every parameter of the sampler's space with the same bounds and
 scale (``sampler.distributions()`` gives them; ``sampler.suggest_all(trial)`` suggests them all);
@@ -107,6 +110,10 @@ latent code (or None), the critic's tag, the normalized θ, how many finished an
 the critic saw, and how many free points it left to pending trials not sampled yet."""
 STATE_ATTR = "latentune:critic_state:"
 """Prefix of the study system attribute holding the critic state of a sampler configuration."""
+SOURCE_ATTR = "latentune:source_counts:"
+"""Prefix of the study system attribute pinning, for a LatentSampler configuration with the
+transfer strategy, how many phase-1 and phase-3 trials of its source run the study searches
+from (``{"1": n1, "3": n3}``, as ``Study.phase3`` pins them): set at the study's first sample."""
 FAILED_ATTR = "latentune_failed"
 """Trial user attribute: true marks a fall (``trial.set_user_attr("latentune_failed", True)``)."""
 ZERO_SHOT_ATTR = "latentune:zero_shot"
@@ -259,13 +266,15 @@ def _phase3_critic(source_run: Path, latent: Any, space: ParameterSpace, *, stra
                    x0: np.ndarray | None, budget: int, regions: int | None,
                    max_fall_prob: float | None = None,
                    prior: tuple[np.ndarray, np.ndarray] | None = None,
-                   transfer_options: dict[str, Any] | None = None
+                   transfer_options: dict[str, Any] | None = None,
+                   source_counts: dict[str, int] | None = None
                    ) -> tuple[Any, Callable[[np.ndarray], np.ndarray] | None]:
     """The phase-3 critic of :class:`LatentSampler`: ``(critic, decoder)``, the one place that
     chooses it, as ``Study.phase3`` does (:func:`latentune.pipeline.loop.phase_critic`).
 
     ``strategy="transfer"`` (the default): :class:`~latentune.critic.transfer.Transfer` on the
-    θ box from every trial of ``source_run`` (its parameter space ``space`` gives the manual θ),
+    θ box from the trials of ``source_run`` (the first ``source_counts`` of phases 1 and 3; its
+    parameter space ``space`` gives the manual θ),
     a two-space critic (it asks θ; decoder None), with ``transfer_options`` (checked by the
     sampler) and the study's ``budget`` (its fall budget's base). ``strategy="plain"``: the
     paper's phase 3,
@@ -275,7 +284,7 @@ def _phase3_critic(source_run: Path, latent: Any, space: ParameterSpace, *, stra
     if strategy == "transfer":
         from latentune.critic.transfer import Transfer, source_trials
 
-        X, y, fell = source_trials(source_run)
+        X, y, fell = source_trials(source_run, counts=source_counts)
         mfp = {} if max_fall_prob is None else {"max_fall_prob": max_fall_prob}
         return Transfer((X, y, fell), latent, space.manual, batch_size=batch_size, seed=seed,
                         budget=budget, **mfp, **(transfer_options or {})), None
@@ -330,7 +339,8 @@ class _CriticSampler:
         self._dists = distributions_of(self._space)
 
     # ------------------------------------------------------------------ subclass hooks
-    def _critic(self) -> tuple[Any, Callable[[np.ndarray], np.ndarray] | None]:
+    def _critic(self, study: Any) -> tuple[Any, Callable[[np.ndarray], np.ndarray] | None]:
+        """(critic, decoder or None) for a sample of ``study``."""
         raise NotImplementedError
 
     def _external_point(self, theta: np.ndarray) -> np.ndarray | None:
@@ -526,7 +536,7 @@ class _CriticSampler:
         S = optuna.trial.TrialState
         sign = _sign(study)
         trials = study.get_trials(deepcopy=False)              # one snapshot for everything
-        critic, decoder = self._critic()
+        critic, decoder = self._critic(study)
         two_space = hasattr(critic, "last_z")
         X, y, tags, fell, Z = self._history(trials, sign, trial.number, two_space, critic.dim)
         if X:
@@ -718,13 +728,28 @@ class LatentSampler(_CriticSampler, BaseSampler):
             self._x0 = latent.to_unit(latent.encode(best.theta))
         self._prior = _latent_prior(self.source_run, latent) if max_fall_prob else None
 
-    def _critic(self) -> tuple[Any, Callable | None]:
+    def _critic(self, study: Any) -> tuple[Any, Callable | None]:
         return _phase3_critic(self.source_run, self.latent, self._space,
                               strategy=self.strategy, method=self.method,
                               batch_size=self.batch_size, seed=self.seed, x0=self._x0,
                               budget=self.budget, regions=self.regions,
                               max_fall_prob=self.max_fall_prob, prior=self._prior,
-                              transfer_options=self.transfer_options)
+                              transfer_options=self.transfer_options,
+                              source_counts=self._source_counts(study))
+
+    def _source_counts(self, study: Any) -> dict[str, int] | None:
+        """The source trials the study searches from (:data:`SOURCE_ATTR`), pinned at its
+        first sample; None for the plain strategy."""
+        from latentune.pipeline.loop import source_counts
+
+        if self.strategy != "transfer":
+            return None
+        key = SOURCE_ATTR + self._key
+        pinned = study._storage.get_study_system_attrs(study._study_id).get(key)
+        if pinned is None:
+            pinned = source_counts(self.source_run, "self", self.strategy)
+            study._storage.set_study_system_attr(study._study_id, key, pinned)
+        return pinned
 
     def fall_budget(self, study: Any) -> dict[str, Any] | None:
         """The study's fall budget (``transfer_options={"fall_budget": q}``):
@@ -831,7 +856,7 @@ class TurboSampler(_CriticSampler, BaseSampler):
         self._init_common(seed, budget, regions, "turbo", max_fall_prob, constraints_func,
                           independent_sampler)
 
-    def _critic(self) -> tuple[Any, Callable | None]:
+    def _critic(self, study: Any) -> tuple[Any, Callable | None]:
         from latentune.pipeline.phases import make_phase_critic
 
         return make_phase_critic("turbo", self._space.dim, self.batch_size, self.seed,
