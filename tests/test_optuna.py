@@ -674,6 +674,11 @@ def test_optuna_samplers_are_phase1_methods(tmp_path):
     with lt.Study(tmp_path / "cma", seed=1) as st:
         st.phase1(sys_, 6, method="optuna-cmaes", source_run=tmp_path / "src", start=None)
         assert st.config()["phase1"]["source_run"] == str((tmp_path / "src").resolve())
+    with lt.Study(tmp_path / "few", seed=1) as st:        # CMA-ES starts from the best 10 %
+        st.phase1(sys_, 9, method="sobol")
+    with pytest.raises(UsageError, match="hold 9 finite cost.*needs at least 10"):
+        lt.Study(tmp_path / "cma2", seed=1).phase1(sys_, 6, method="optuna-cmaes",
+                                                   source_run=tmp_path / "few")
     with pytest.raises(UsageError, match="source_run is an option of the method optuna-cmaes"):
         lt.Study(tmp_path / "bad", seed=1).phase1(sys_, 6, source_run=tmp_path / "src")
     with pytest.raises(UsageError, match="max_fall_prob is not an option"):

@@ -35,6 +35,9 @@ BASELINE_SAMPLERS = ("tpe", "cmaes", "gp")
 (``GPSampler``)."""
 
 _NUM = 1 << 20
+CMAES_SOURCE_MIN = 10
+"""The fewest source trials with a finite cost ``cmaes`` takes: its warm start (Optuna's
+``source_trials``, ``cmaes.get_warm_start_mgd``) starts from the best 10 % of them."""
 
 
 def baseline_sampler(name: str, seed: int, *, x0: Mapping[str, float] | None = None,
@@ -84,9 +87,9 @@ class OptunaCritic(Critic):
     The critic keeps an in-memory Optuna study with one ``FloatDistribution(0, 1)`` per θ entry
     (``x000``, ``x001``, ...). ``x0`` rows are enqueued (its first trials); ``source`` = (X (m,
     dim), y (m,)) unit-box trials of a related task become the sampler's ``source_trials``
-    (``cmaes`` only; non-finite costs left out). ``ask`` asks the study; ``tell`` tells each
-    point's trial its cost (a non-finite cost as the worst finite cost told so far); an
-    untagged point is added as a completed trial.
+    (``cmaes`` only; non-finite costs left out; at least :data:`CMAES_SOURCE_MIN` left).
+    ``ask`` asks the study; ``tell`` tells each point's trial its cost (a non-finite cost as the
+    worst finite cost told so far); an untagged point is added as a completed trial.
 
     Tags: ``told · 2**20 + number`` — the Optuna trial number and how many trials had been told
     when it was asked. Resume: a fresh critic told points it did not ask re-asks its trials in
@@ -129,8 +132,10 @@ class OptunaCritic(Critic):
                                                     distributions=self.distributions,
                                                     value=float(c))
                           for x, c in zip(Xs, ys) if math.isfinite(c)]
-            if not src_trials:
-                raise UsageError("the source trials hold no finite cost")
+            if len(src_trials) < CMAES_SOURCE_MIN:
+                raise UsageError(f"the source trials hold {len(src_trials)} finite cost(s): "
+                                 "CMA-ES's warm start (Optuna's source_trials) starts from their "
+                                 f"best 10 %, so it needs at least {CMAES_SOURCE_MIN}")
         mean = None if self.x0 is None else self._params(self.x0[0])
         with _Quiet():
             self.study = optuna.create_study(
