@@ -685,6 +685,30 @@ def test_optuna_samplers_are_phase1_methods(tmp_path):
         lt.Study(tmp_path / "bad2", seed=1).phase1(sys_, 6, method="optuna-gp", max_fall_prob=0.3)
 
 
+def test_optuna_cmaes_resume_uses_the_source_trials_it_started_from(tmp_path):
+    """optuna-cmaes's source trials are pinned when phase 1 starts (as the transfer phase 3's
+    are): resumed after the source run got more trials, it asks what the uninterrupted run
+    asked."""
+    space = lt.ParameterSpace(["a", "b", "c"], [0.0] * 3, [1.0] * 3)
+
+    def system(c: float):
+        return lt.FunctionSystem(space, lambda x: float(np.sum((x - c) ** 2)))
+
+    def cmaes(name: str, **kw) -> list:
+        with lt.Study(tmp_path / name, seed=0) as st:
+            st.phase1(system(0.35), 8, method="optuna-cmaes", source_run=tmp_path / "src", **kw)
+            return [r.theta.tolist() for r in st.store.rows(Phase.PHASE1)]
+
+    with lt.Study(tmp_path / "src", seed=0) as st:
+        st.phase1(system(0.3), 12, method="sobol")
+    full = cmaes("full")
+    cmaes("part", max_new=4)
+    with lt.Study(tmp_path / "src", seed=0) as st:
+        st.phase1(system(0.3), 30, method="sobol")                 # the source grows
+    assert cmaes("part") == full
+    assert lt.Study(tmp_path / "part").config()["phase1"]["source_counts"] == {"1": 12, "3": 0}
+
+
 def _small_sampler_run(tmp_path, names: str, n: int, **sampler_opts) -> None:
     """A source on a quadratic of len(names) weights (20 trials, a latent space), then ``n``
     trials of ``LatentSampler`` on a shifted quadratic: all complete, every θ distinct."""

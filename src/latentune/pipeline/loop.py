@@ -55,7 +55,8 @@ def phase_critic(phase: int, pc: dict[str, Any], space: ParameterSpace, run_dir:
         prior = theta_prior(pc.get("fall_prior"), space) if mfp is not None else None
         return make_phase_critic(pc["method"], space.dim, pc["batch_size"], pc["seed"], theta0,
                                  pc["budget"], pc["regions"], mfp, prior,
-                                 source=source_costs(pc.get("source_run"), space))
+                                 source=source_costs(pc.get("source_run"), space,
+                                                     pc.get("source_counts")))
     if latent is None:
         raise LatentError("phase 3 needs a latent space")
     source = pc.get("latent_source", "self")
@@ -123,11 +124,9 @@ def source_counts(run_dir: Path, source: str, strategy: str) -> dict[str, int] |
     "3": n3}``; ``source``: its latent space's source, ``"self"`` for the study at
     ``run_dir``): what the phase starts from (recorded, :data:`~latentune.pipeline.manifest.
     PINNED`). None for another ``strategy`` (not recorded) or a source without a store."""
-    run = Path(run_dir) if source == "self" else Path(source)
-    if strategy != "transfer" or not (run / "run.db").is_file():
+    if strategy != "transfer":
         return None
-    with RunStore(run) as st:
-        return {str(int(ph)): st.count(ph) for ph in (Phase.PHASE1, Phase.PHASE3)}
+    return mf.run_counts(Path(run_dir) if source == "self" else Path(source))
 
 
 def resolve_strategy(manifest: Manifest, strategy: str | None, handover: Any,
@@ -221,15 +220,17 @@ def stop_note(critic: Any, n: int, budget: int) -> str:
             "falls) is spent")
 
 
-def source_costs(run: Any, space: ParameterSpace) -> tuple[np.ndarray, np.ndarray] | None:
-    """The phase-1 and phase-3 trials of the run ``run`` as (X (m, d) unit-box θ, cost (m,)),
-    or None without a run; StoreError when it holds none, or θ of another dimension or box
-    than ``space``'s (:func:`require_same_box`)."""
+def source_costs(run: Any, space: ParameterSpace, counts: dict[str, int] | None = None
+                 ) -> tuple[np.ndarray, np.ndarray] | None:
+    """The phase-1 and phase-3 trials of the run ``run`` (with ``counts``, the pinned
+    ``source_counts``: the first that many of each) as (X (m, d) unit-box θ, cost (m,)), or None
+    without a run; StoreError when it holds none, or θ of another dimension or box than
+    ``space``'s (:func:`require_same_box`)."""
     if run is None:
         return None
     from latentune.critic.transfer import source_trials
 
-    X, y, _ = source_trials(run)
+    X, y, _ = source_trials(run, counts=counts)
     if X.ndim != 2 or len(X) == 0:
         raise StoreError(f"{run} holds no phase-1 or phase-3 trials")
     if X.shape[1] != space.dim:

@@ -45,8 +45,8 @@ RECORDED_IF_GIVEN = ("transfer_options", "source_counts")
 run without it) compares equal to not giving it."""
 PINNED = ("source_counts",)
 """Options taken as the phase first recorded them once it has a trial, never compared: what
-the phase started from (the transfer phase 3's source trials), so a resume asks what the
-uninterrupted run would have."""
+the phase started from (the source trials of the transfer phase 3 and of ``optuna-cmaes``), so a
+resume asks what the uninterrupted run would have."""
 
 
 def describe(system: Any) -> dict[str, Any]:
@@ -438,7 +438,9 @@ def transfer_option(options: dict[str, Any] | None, strategy: str,
 
 def source_option(method: str, source_run: Any) -> dict[str, Any]:
     """The options record of ``source_run``, a run whose phase-1 and phase-3 trials warm-start
-    Optuna's CMA-ES (its ``source_trials`` mode): only with the method ``optuna-cmaes``."""
+    Optuna's CMA-ES (its ``source_trials`` mode): only with the method ``optuna-cmaes``; with
+    the trials it holds now (``source_counts``, :data:`PINNED`: a resume uses those trials, not
+    ones the source made since)."""
     if source_run is None:
         return {}
     if method != "optuna-cmaes":
@@ -446,7 +448,18 @@ def source_option(method: str, source_run: Any) -> dict[str, Any]:
                          f"{method or 'turbo'} (pass method='optuna-cmaes')")
     if not (Path(source_run) / "run.db").is_file():
         raise StoreError(f"no latentune run in {source_run} (expected run.db)")
-    return {"source_run": str(Path(source_run).resolve())}
+    return {"source_run": str(Path(source_run).resolve()), "source_counts": run_counts(source_run)}
+
+
+def run_counts(run: Any) -> dict[str, int] | None:
+    """How many trials of phases 1 and 3 the run at ``run`` holds, ``{"1": n1, "3": n3}`` (what
+    a phase that starts from its trials pins); None without a run store there."""
+    from latentune.pipeline.store import RunStore
+
+    if not (Path(run) / "run.db").is_file():
+        return None
+    with RunStore(run) as st:
+        return {str(int(ph)): st.count(ph) for ph in (Phase.PHASE1, Phase.PHASE3)}
 
 
 def handover(option: Any) -> dict[str, Any] | None:
