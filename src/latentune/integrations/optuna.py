@@ -740,14 +740,14 @@ class LatentSampler(_CriticSampler, BaseSampler):
     def _source_counts(self, study: Any) -> dict[str, int] | None:
         """The source trials the study searches from (:data:`SOURCE_ATTR`), pinned at its
         first sample; None for the plain strategy."""
-        from latentune.pipeline.loop import source_counts
+        from latentune.pipeline.manifest import run_counts
 
         if self.strategy != "transfer":
             return None
         key = SOURCE_ATTR + self._key
         pinned = study._storage.get_study_system_attrs(study._study_id).get(key)
         if pinned is None:
-            pinned = source_counts(self.source_run, "self", self.strategy)
+            pinned = run_counts(self.source_run)
             study._storage.set_study_system_attr(study._study_id, key, pinned)
         return pinned
 
