@@ -648,6 +648,8 @@ def test_turbo_sampler(tmp_path):
         TurboSampler({"n": optuna.distributions.IntDistribution(0, 3)})
     with pytest.raises(UsageError, match="start"):
         TurboSampler(dists, start="manual")
+    with pytest.raises(UsageError, match="independent_sampler must be an Optuna sampler"):
+        TurboSampler(dists, independent_sampler="tpe")      # was an AttributeError at a trial
     for regions in (2.5, "3", 0, True):            # 2.5 was taken as 2, "3" as 3
         with pytest.raises(UsageError, match="regions must be"):
             TurboSampler(dists, regions=regions)

@@ -324,6 +324,9 @@ class _CriticSampler:
             raise UsageError(f"max_fall_prob must be in (0, 1], got {max_fall_prob!r}")
         if constraints_func is not None and not callable(constraints_func):
             raise UsageError("constraints_func must be callable (trial -> sequence of floats)")
+        if independent_sampler is not None and not isinstance(independent_sampler, BaseSampler):
+            raise UsageError("independent_sampler must be an Optuna sampler "
+                             f"(optuna.samplers.BaseSampler), got {independent_sampler!r}")
         self.seed = int(seed)
         self.budget = int(budget)
         self.method = method
