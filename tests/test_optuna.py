@@ -162,6 +162,10 @@ def test_import_log_and_refusals(tmp_path):
         import_optuna_study(storage, "nope", tmp_path / "nope")
     with pytest.raises(OptunaImportError, match="not found"):
         import_optuna_study(tmp_path / "missing.log", None, tmp_path / "x")
+    narrow = lt.ParameterSpace(["kp", "kd"], [0.01, 0.0], [10.0, 0.4], log=[True, False])
+    with pytest.raises(OptunaImportError, match=r"trial 0: kd = 0.5 outside \[0, 0.4\] \(of the "
+                                                r"given space\)"):    # was: the first 3 params
+        import_optuna_study(storage, "log", tmp_path / "narrow", narrow)
 
 
 def test_import_of_a_missing_sqlite_url_creates_no_database(tmp_path):

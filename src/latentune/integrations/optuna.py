@@ -1023,8 +1023,11 @@ def import_optuna_study(storage: Any, study_name: str | None, out: str | os.Path
             continue
         u = _unit_of(sp, t.params)
         if u is None:
-            raise OptunaImportError(f"trial {t.number}: a parameter lies outside the space "
-                                    f"({', '.join(f'{k}={v:g}' for k, v in list(t.params.items())[:3])}...)")
+            out = [f"{n} = {float(t.params[n]):g} outside [{lo:g}, {hi:g}]"
+                   for n, lo, hi in zip(sp.names, sp.lower, sp.upper)
+                   if not lo <= float(t.params[n]) <= hi]
+            raise OptunaImportError(f"trial {t.number}: {'; '.join(out[:3]) or 'a parameter'}"
+                                    f"{' …' if len(out) > 3 else ''} (of the given space)")
         try:
             cost = trial_cost(t, sign)                  # before anything is written
         except UsageError as exc:
