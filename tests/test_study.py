@@ -503,3 +503,17 @@ def test_a_cost_the_store_cannot_keep_is_refused_or_a_fall(tmp_path):
     with lt.Study(tmp_path / "r") as st:
         with pytest.raises(CostError):
             st.phase1(lt.FunctionSystem(sp, lambda x: 1e300), 3)
+
+
+@pytest.mark.parametrize("regions", [2.5, "3", True])
+def test_study_regions_must_be_a_whole_number(tmp_path, regions):
+    """Study.phase1(regions=2.5) ran 2 trust regions (int(2.5)), as TurboSampler did: a
+    UsageError now, before anything is written."""
+    from latentune.errors import UsageError
+
+    system = lt.FunctionSystem(lt.ParameterSpace(["a", "b"], [0, 0], [1, 1]),
+                               lambda x: float(x.sum()))
+    with lt.Study(tmp_path / "r") as st:
+        with pytest.raises(UsageError, match="regions must be an integer in"):
+            st.phase1(system, 4, regions=regions)
+    assert not (tmp_path / "r" / "run.db").exists()

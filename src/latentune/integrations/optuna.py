@@ -89,6 +89,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from latentune.checks import is_whole
 from latentune.constants import COST_LIMIT, Phase
 from latentune.critic.base import Critic
 from latentune.errors import LatentError, LatentuneError, StoreError, UsageError
@@ -315,10 +316,8 @@ class _CriticSampler:
             raise UsageError(f"budget must be an integer >= 1, got {budget!r}")
         if method not in METHODS:
             raise UsageError(f"unknown method {method!r} (choose from {', '.join(METHODS)})")
-        if regions is not None and (isinstance(regions, bool) or
-                                    not isinstance(regions, (int, np.integer)) or
-                                    not 1 <= regions <= 100):
-            raise UsageError(f"regions must be in [1, 100], got {regions!r}")
+        if regions is not None and not is_whole(regions, 1, 100):
+            raise UsageError(f"regions must be an integer in [1, 100], got {regions!r}")
         if max_fall_prob is not None and (isinstance(max_fall_prob, bool) or
                                           not 0.0 < float(max_fall_prob) <= 1.0):
             raise UsageError(f"max_fall_prob must be in (0, 1], got {max_fall_prob!r}")

@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from latentune.checks import is_whole
 from latentune.constants import Phase
 from latentune.errors import StoreError, UsageError
 from latentune.pipeline.rundir import RunDir
@@ -232,13 +233,12 @@ class Manifest:
             method = (stored or {}).get("method") if stored and n else "turbo"
         if method not in METHODS:
             raise UsageError(f"unknown method {method!r} (choose from {', '.join(METHODS)})")
-        if isinstance(budget, bool) or not isinstance(budget, (int, np.integer)) or budget < 1:
+        if not is_whole(budget, 1):
             raise UsageError(f"budget must be an integer >= 1, got {budget!r}")
-        if max_new is not None and (isinstance(max_new, bool) or
-                                    not isinstance(max_new, (int, np.integer)) or max_new < 0):
+        if max_new is not None and not is_whole(max_new, 0):
             raise UsageError(f"max_new must be a whole number >= 0, got {max_new!r}")
-        if regions is not None and not 1 <= int(regions) <= 100:
-            raise UsageError(f"regions must be in [1, 100], got {regions}")
+        if regions is not None and not is_whole(regions, 1, 100):
+            raise UsageError(f"regions must be an integer in [1, 100], got {regions!r}")
         if regions is not None and method != "turbo":
             raise UsageError(f"regions (trust regions) is an option of method turbo (TuRBO-m), "
                              f"not of {method} (given regions = {regions})")
