@@ -266,9 +266,16 @@ def validated_fields(raw: Any, where: str, base_dir: Path) -> dict[str, Any]:
             del fields["nominal_height"]
         for key in _POSITIVE:
             if key in fields:
-                fields[key] = float(fields[key])
+                v = fields[key]
+                try:
+                    fields[key] = float(v) if not isinstance(v, bool) else math.nan
+                except (TypeError, ValueError):
+                    fields[key] = math.nan
                 if not math.isfinite(fields[key]) or fields[key] <= 0:
-                    raise RobotSpecError(f"{where}: {key} must be a positive number")
+                    raise RobotSpecError(f"{where}: {key} must be a positive number, got {v!r}")
+        if fields.get("max_tilt_deg", 0) >= 90:  # up_z < cos(tilt): a robot on its side never fell
+            raise RobotSpecError(f"{where}: max_tilt_deg must be below 90 (beyond it a robot on its "
+                                 f"side or back does not count as fallen), got {fields['max_tilt_deg']:g}")
         for key in _BOOLS:
             if key in fields and not isinstance(fields[key], bool):
                 raise RobotSpecError(f"{where}: {key} must be true or false")
