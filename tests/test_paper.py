@@ -202,6 +202,7 @@ def test_paper_end_to_end(paper_dir: Path):
     (["--scale", "-1"], "--scale"),
     (["--scale", "nan"], "--scale"),
     (["--scale", "inf"], "--scale"),
+    (["--scale", "1e307"], "--scale must be a finite number > 0 (a finite budget)"),
     (["--scale", "abc"], "--scale"),
     (["--workers", "0"], "--workers must be >= 1, got 0"),
     (["--vae-epochs", "0"], "--vae-epochs must be >= 1, got 0"),
@@ -240,6 +241,36 @@ def test_paper_unwritable_out(tmp_path: Path, run_cli, error_line):
 def test_report_only_without_run(tmp_path: Path, run_cli, error_line):
     code, _, err = run_cli("paper", "--out", tmp_path, "--report-only")
     assert "holds no paper run" in error_line(code, err)
+    code, _, err = run_cli("paper", "--out", tmp_path / "no" / "such", "--report-only")
+    assert "holds no paper run" in error_line(code, err)
+    assert not (tmp_path / "no").exists()                  # it was made, empty
+
+
+def test_report_only_takes_the_stored_options(tmp_path: Path, run_cli, error_line, monkeypatch):
+    """--report-only reports the runs on disk: an option left out takes the stored value (the
+    report's own command, without --steps, was refused for a --steps 60 run), one given must be
+    the stored one, and --sources-only (which wrote no report and said 'sources done') is
+    refused."""
+    from latentune.reporting import paper_report
+
+    monkeypatch.setattr(paper_report, "write_paper_report", lambda root, **k: f"report {root}")
+    out = tmp_path / "p"
+    out.mkdir()
+    meta = {"robot": "a1", "actor": "convex", "steps": 60, "seed": 3, "workers": 1,
+            "v_des": 0.5, "seeds": 1, "vae_epochs": 100, "studies": {},
+            "budgets": {**budgets(1e-6, phase3=4)}}
+    (out / "paper.json").write_text(json.dumps(meta))
+    for extra in ([], ["--steps", "60", "--seed", "3", "--scale", "1e-6", "--phase3-evals", "4",
+                       "--workers", "1", "--vae-epochs", "100"]):
+        code, text, err = run_cli("paper", "--out", out, "--report-only", *extra)
+        assert (code, text.strip()) == (0, f"report {out}"), err
+    for extra, expect in ((["--steps", "300"], "--steps 300: "), (["--seed", "1"], "--seed 1: "),
+                          (["--robot", "solo12"], "--robot solo12: "),
+                          (["--seeds", "3"], "--seeds 3: "),
+                          (["--phase1-evals", "99"], "--phase1-evals 99: "),
+                          (["--sources-only"], "--sources-only does not apply to --report-only")):
+        code, _, err = run_cli("paper", "--out", out, "--report-only", *extra)
+        assert expect in error_line(code, err), extra
 
 
 # ---------------------------------------------------------------------------- --seeds

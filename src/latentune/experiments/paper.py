@@ -86,7 +86,7 @@ import numpy as np
 from latentune.constants import GAITS, PAPER_PHASE1, PAPER_PHASE3, Phase
 from latentune.errors import LockError, UsageError
 from latentune.machine import loadavg, machine
-from latentune.reporting.paper_report import ARMS
+from latentune.reporting.paper_report import ARMS, read_paper_meta
 
 logger = logging.getLogger(__name__)
 
@@ -102,8 +102,8 @@ MAPPING_DOC = ("phase1 = max(12, round(10000*S)); phase3 = max(8, round(220*min(
 def budgets(scale: float, phase1: int | None = None, phase3: int | None = None) -> dict[str, Any]:
     """The evaluation budgets of a scale (see the module docstring)."""
     s = float(scale)
-    if not math.isfinite(s) or s <= 0:
-        raise UsageError(f"--scale must be a finite number > 0, got {scale}")
+    if not math.isfinite(s) or s <= 0 or not math.isfinite(PAPER_PHASE1 * s):
+        raise UsageError(f"--scale must be a finite number > 0 (a finite budget), got {scale}")
     p1 = max(MIN_PHASE1, int(round(PAPER_PHASE1 * s))) if phase1 is None else int(phase1)
     p3 = max(MIN_PHASE3, int(round(PAPER_PHASE3 * min(1.0, s ** 0.25)))) if phase3 is None \
         else int(phase3)
@@ -452,6 +452,37 @@ def _check_tasks(opts: PaperOptions, studies: list[StudyPlan]) -> None:
              steps=opts.steps, seed=seed)
 
 
+def _check_report_only(opts: PaperOptions) -> None:
+    """``--report-only`` reports the runs stored in ``--out``: an option left at its default
+    takes the stored value, one given must be the stored one (it cannot change the report).
+
+    Raises:
+        UsageError: no paper run in ``--out``, or an option that does not describe it.
+    """
+    if opts.studies:
+        raise UsageError("--studies does not apply to --report-only: the report covers every "
+                         "study of the run")
+    if opts.sources_only:
+        raise UsageError("--sources-only does not apply to --report-only: the report covers "
+                         "every study of the run")
+    root = Path(opts.out)
+    if not (root / "paper.json").is_file():     # checked before anything is made in --out
+        raise UsageError(f"{root} holds no paper run (no paper.json): run latentune paper first")
+    meta = read_paper_meta(root)
+    b, default = meta["budgets"], PaperOptions()
+    stored = {"robot": meta["robot"], "actor": meta.get("actor"), "steps": meta.get("steps"),
+              "seed": meta.get("seed"), "workers": meta.get("workers"),
+              "v_des": meta.get("v_des"), "seeds": meta.get("seeds", 1),
+              "vae_epochs": meta.get("vae_epochs"), "scale": b["scale"],
+              "phase1": b["phase1"], "phase3": b["phase3"]}
+    for name, value in stored.items():
+        given = getattr(opts, name)
+        if given != getattr(default, name) and given != value:
+            flag = {"phase1": "phase1-evals", "phase3": "phase3-evals"}.get(name, name.replace("_", "-"))
+            raise UsageError(f"--{flag} {given}: {root} holds a paper run with {value} "
+                             "(--report-only reports the stored runs; leave the option out)")
+
+
 def _record_invocation(meta_path: Path, meta: dict[str, Any], mine: dict[str, Any]) -> None:
     """Write ``paper.json`` with this invocation's record ``mine`` (its wall time) into the
     invocations on disk now: another ``latentune paper`` process on the same directory may have
@@ -474,82 +505,70 @@ def run_paper(opts: PaperOptions, report_only: bool = False, simulate: bool = Tr
     from latentune.pipeline.evaluators import make_evaluator
     from latentune.reporting.paper_report import write_paper_report
 
+    def log(msg: str) -> None:
+        if not opts.quiet:
+            logger.info("%s", msg)
+
+    if report_only:
+        _check_report_only(opts)
+        return write_paper_report(opts.out, simulate=simulate, gifs=gifs, log=log)
     b = validate(opts)
-    if report_only and opts.studies:
-        raise UsageError("--studies does not apply to --report-only: the report covers every "
-                         "study of the run")
     studies = plan(opts.robot, b, opts.seeds)
     unknown = sorted(set(opts.studies) - {s.key for s in studies})
     if unknown:
         raise UsageError(f"--studies: {', '.join(unknown)} not in this plan (see the report's "
                          f"Studies list, or paper.json)")
-    if not report_only:
-        _check_tasks(opts, studies)     # before --out is made or paper.json written
+    _check_tasks(opts, studies)     # before --out is made or paper.json written
     root = Path(opts.out)
     _check_out(root)
     meta_path = root / "paper.json"
-    meta: dict[str, Any] = {}
-    if meta_path.is_file():
-        try:
-            meta = json.loads(meta_path.read_text())
-        except (OSError, json.JSONDecodeError) as exc:
-            raise UsageError(f"{meta_path} is unreadable ({exc})") from None
-        if not isinstance(meta, dict):
-            raise UsageError(f"{meta_path} is not a paper run's record (not a JSON object)")
-        if meta.get("robot") != opts.robot or meta.get("actor") != opts.actor or \
-                meta.get("steps") != opts.steps or meta.get("seed") != opts.seed or \
-                (not report_only and meta.get("vae_epochs") != opts.vae_epochs):
-            raise UsageError(f"{root} holds a paper run of another configuration (robot "
-                             f"{meta.get('robot')}, actor {meta.get('actor')}, steps "
-                             f"{meta.get('steps')}, seed {meta.get('seed')}, VAE epochs "
-                             f"{meta.get('vae_epochs') or 'default'})")
-
-    def log(msg: str) -> None:
-        if not opts.quiet:
-            logger.info("%s", msg)
-
-    if not report_only:
-        t0 = time.perf_counter()
-        meta.update({"format": "latentune-paper", "robot": opts.robot, "actor": opts.actor,
-                     "steps": opts.steps, "seed": opts.seed, "v_des": opts.v_des,
-                     "workers": opts.workers, "budgets": b, "command": command_line(opts),
-                     "seeds": opts.seeds, "vae_epochs": opts.vae_epochs,
-                     "studies": {s.key: {"kind": s.kind, "robot": s.robot, "gait": s.gait,
-                                         "terrain": s.terrain, "vae_from": s.vae_from,
-                                         "method": s.method, "budget": s.budget,
-                                         "seed": opts.seed + s.seed_offset + s.seed_index,
-                                         "task_seed": opts.seed + s.seed_offset,
-                                         "label": s.label, "strategy": s.strategy,
-                                         "start": s.start, "source": s.source,
-                                         "seed_index": s.seed_index, "row": s.row,
-                                         "arm": s.arm}
-                                 for s in studies}})
-        meta.setdefault("invocations", [])
-        mine = {"started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-                "command": command_line(opts), "pid": os.getpid(), "wall_s": None,
-                "machine": machine(), "loadavg_start": loadavg()}
-        meta["invocations"].append(mine)
-        try:
-            ev = make_evaluator("process", opts.workers)
-        except (RuntimeError, ValueError, OSError) as exc:
-            raise UsageError(f"cannot start the evaluator: {exc}") from None
-        try:
-            meta_path.write_text(json.dumps(meta, indent=1))   # only once every check passed
-            for s in studies:
-                if opts.studies and s.key not in opts.studies:
-                    continue
-                try:
-                    run_study(s, opts, root, b, ev, log)
-                except LockError as exc:     # another `paper` process on this --out has it
-                    logger.warning("[%s] skipped: %s; run the command again once it is done",
-                                   s.key, exc)
-        finally:
-            ev.close()
-            mine["wall_s"] = time.perf_counter() - t0
-            mine["loadavg_end"] = loadavg()
-            _record_invocation(meta_path, meta, mine)
-    elif not meta_path.is_file():
-        raise UsageError(f"{root} holds no paper run (no paper.json): run latentune paper first")
+    meta: dict[str, Any] = read_paper_meta(root) if meta_path.is_file() else {}
+    if meta and (meta.get("robot") != opts.robot or meta.get("actor") != opts.actor or
+                 meta.get("steps") != opts.steps or meta.get("seed") != opts.seed or
+                 meta.get("vae_epochs") != opts.vae_epochs):
+        raise UsageError(f"{root} holds a paper run of another configuration (robot "
+                         f"{meta.get('robot')}, actor {meta.get('actor')}, steps "
+                         f"{meta.get('steps')}, seed {meta.get('seed')}, VAE epochs "
+                         f"{meta.get('vae_epochs') or 'default'})")
+    t0 = time.perf_counter()
+    meta.update({"format": "latentune-paper", "robot": opts.robot, "actor": opts.actor,
+                 "steps": opts.steps, "seed": opts.seed, "v_des": opts.v_des,
+                 "workers": opts.workers, "budgets": b, "command": command_line(opts),
+                 "seeds": opts.seeds, "vae_epochs": opts.vae_epochs,
+                 "studies": {s.key: {"kind": s.kind, "robot": s.robot, "gait": s.gait,
+                                     "terrain": s.terrain, "vae_from": s.vae_from,
+                                     "method": s.method, "budget": s.budget,
+                                     "seed": opts.seed + s.seed_offset + s.seed_index,
+                                     "task_seed": opts.seed + s.seed_offset,
+                                     "label": s.label, "strategy": s.strategy,
+                                     "start": s.start, "source": s.source,
+                                     "seed_index": s.seed_index, "row": s.row,
+                                     "arm": s.arm}
+                             for s in studies}})
+    meta.setdefault("invocations", [])
+    mine = {"started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+            "command": command_line(opts), "pid": os.getpid(), "wall_s": None,
+            "machine": machine(), "loadavg_start": loadavg()}
+    meta["invocations"].append(mine)
+    try:
+        ev = make_evaluator("process", opts.workers)
+    except (RuntimeError, ValueError, OSError) as exc:
+        raise UsageError(f"cannot start the evaluator: {exc}") from None
+    try:
+        meta_path.write_text(json.dumps(meta, indent=1))   # only once every check passed
+        for s in studies:
+            if opts.studies and s.key not in opts.studies:
+                continue
+            try:
+                run_study(s, opts, root, b, ev, log)
+            except LockError as exc:     # another `paper` process on this --out has it
+                logger.warning("[%s] skipped: %s; run the command again once it is done",
+                               s.key, exc)
+    finally:
+        ev.close()
+        mine["wall_s"] = time.perf_counter() - t0
+        mine["loadavg_end"] = loadavg()
+        _record_invocation(meta_path, meta, mine)
     if opts.sources_only:
         return f"sources of {root} done (phase 1 only; run without --sources-only for the rest)"
     return write_paper_report(root, simulate=simulate, gifs=gifs, log=log)
