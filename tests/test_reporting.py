@@ -406,6 +406,10 @@ def test_paper_report_on_synthetic_directory(tmp_path: Path):
     assert not list(root.glob("com_velocity_*.png")) and not list(root.glob("*.gif"))
 
 
+GOOD_META = ('{"robot": "a1", "budgets": {"scale": 1, "phase1": 1, "phase3": 1, "preservation": 1, '
+             '"baselines": 1}}')
+
+
 @pytest.mark.parametrize("text, expect", [
     ("{}", "is not a latentune paper run's record (no robot)"),
     ("[1]", "is not a latentune paper run's record (not a JSON object)"),
@@ -414,6 +418,16 @@ def test_paper_report_on_synthetic_directory(tmp_path: Path):
     ('{"robot": "a1", "budgets": {"scale": 1, "phase1": 1, "phase3": 1, "preservation": 1, '
      '"baselines": 1}}', "(no studies)"),
     ("nope", "is not JSON (Expecting value"),
+    # hand-edited records of a run: were a ValueError/TypeError/AttributeError traceback, or
+    # a study read outside the directory
+    ('{"robot": "a1", "budgets": {"scale": "big", "phase1": 1, "phase3": 1, "preservation": 1, '
+     '"baselines": 1}, "studies": {}}', "(no budgets"),
+    (GOOD_META[:-1] + ', "studies": {"../../x": {"kind": "tune"}}}', "(study '../../x': not a"),
+    (GOOD_META[:-1] + ', "studies": {"a1-trot": {"row": "trot"}}}', "(study 'a1-trot': not a"),
+    (GOOD_META[:-1] + ', "studies": {}, "seeds": "x"}', "(seed or seeds not an integer)"),
+    (GOOD_META[:-1] + ', "studies": {}, "invocations": "x"}', "(invocations not a list"),
+    (GOOD_META[:-1] + ', "studies": {}, "invocations": [null]}', "(invocations not a list"),
+    (GOOD_META[:-1] + ', "studies": {}, "wall_s_total": "x"}', "(wall_s_total not a number)"),
 ])
 def test_report_of_a_directory_whose_paper_json_is_not_a_paper_runs(tmp_path: Path, run_cli,
                                                                     error_line, text, expect):

@@ -98,10 +98,16 @@ def _baseline_row(label: str, study: str, costs: Any, manual: float | None) -> d
             "stable": s["stable"], "evals_to_beat_manual": s["evals_to_beat"]}
 
 
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
 def read_paper_meta(root: str | Path) -> dict[str, Any]:
     """``root/paper.json``, the record of a ``latentune paper`` run, checked for what the report
     reads: a JSON object with ``robot`` (a1, solo12), ``budgets`` (scale, phase1, phase3,
-    preservation, baselines) and ``studies`` (key → object).
+    preservation, baselines: numbers), ``studies`` (directory name → object with a ``kind``)
+    and, when present, integer ``seed``/``seeds``, a list of ``invocations`` and a number
+    ``wall_s_total`` (a hand-edited record fails here in one line, not in the report).
 
     Raises:
         UsageError: one line naming the file: unreadable, not JSON, or not a paper run's record.
@@ -118,11 +124,25 @@ def read_paper_meta(root: str | Path) -> dict[str, Any]:
     elif meta.get("robot") not in ("a1", "solo12"):
         problem = "no robot" if "robot" not in meta else f"robot {meta['robot']!r}, not a1 or solo12"
     elif not isinstance(meta.get("budgets"), dict) or not all(
-            k in meta["budgets"] for k in ("scale", "phase1", "phase3", "preservation", "baselines")):
-        problem = "no budgets (scale, phase1, phase3, preservation, baselines)"
+            _is_number(meta["budgets"].get(k))
+            for k in ("scale", "phase1", "phase3", "preservation", "baselines")):
+        problem = "no budgets (numbers scale, phase1, phase3, preservation, baselines)"
     elif not isinstance(meta.get("studies"), dict) or not all(
             isinstance(v, dict) for v in meta["studies"].values()):
         problem = "no studies"
+    elif bad := [k for k, v in meta["studies"].items() if Path(k).name != k or k in ("", ".", "..")
+                 or not isinstance(v.get("kind"), str)
+                 or not isinstance(v.get("seed_index", 0), int)]:
+        problem = f"study {bad[0]!r}: not a directory name with a kind"
+    elif not all(isinstance(meta.get(k, 0), int) and not isinstance(meta.get(k, 0), bool)
+                 for k in ("seed", "seeds")):
+        problem = "seed or seeds not an integer"
+    elif not isinstance(meta.get("invocations", []), list) or not all(
+            isinstance(i, dict) and isinstance(i.get("machine") or {}, dict)
+            for i in meta.get("invocations", [])):
+        problem = "invocations not a list of records"
+    elif meta.get("wall_s_total") is not None and not _is_number(meta["wall_s_total"]):
+        problem = "wall_s_total not a number"
     else:
         return meta
     raise UsageError(f"{path} is not a latentune paper run's record ({problem})")
