@@ -685,6 +685,23 @@ def test_amend_keeps_an_audit_trail_and_rebuilds_the_critic(tmp_path):
     st.close()
 
 
+def test_amending_the_only_success_to_a_failure_removes_the_best_files(tmp_path):
+    """best.json (the θ to deploy) and phase1_best.json were left with the θ of a trial that
+    was amended to a failure, and summary.json still named phase1_best.json."""
+    st = lt.Study(tmp_path / "s", seed=0)
+    (s,) = st.ask(space=SPACE)
+    st.tell(s.id, 3.0)
+    assert (st.dir / "best.json").is_file() and (st.dir / "phase1_best.json").is_file()
+    st.tell(s.id, failed=True, amend=True)
+    assert not (st.dir / "best.json").exists() and not (st.dir / "phase1_best.json").exists()
+    summary = st.summary()
+    assert summary["phase1_best_params"] is None and "best" not in summary["artifacts"]
+    st.tell(s.id, 2.0, amend=True)                      # standing again: written again
+    assert json.loads((st.dir / "best.json").read_text()) == SPACE.as_dict(s.theta)
+    assert st.summary()["phase1_best_params"] == "phase1_best.json"
+    st.close()
+
+
 # ---------------------------------------------------------------------------- trials as data
 def test_trials_are_records_with_named_phases_and_physical_params(tmp_path, monkeypatch):
     with lt.Study(tmp_path / "s", seed=0) as st:

@@ -243,22 +243,25 @@ def write_best(store: RunStore, run_dir: Path, space: ParameterSpace | None,
     """Write the θ to deploy as ``--params`` files (physical values by name): the best trial of
     ``phase`` that did not fail as ``DIR/phase<p>_best.json`` (when ``phase`` is given), and
     the best over all phases as ``DIR/best.json``. A phase whose trials all failed gets no
-    file (a stale one is removed). Returns the path of ``best.json``, or None."""
+    file (a stale one is removed, and so is ``best.json`` when no trial of any phase stands).
+    Returns the path of ``best.json``, or None."""
     if space is None:
         return None
     if phase is not None:
         path = run_dir / f"phase{int(phase)}_best.json"
         b = best_row(store, (int(phase),))
         if b is None:
-            if path.is_file():
-                path.unlink()
+            path.unlink(missing_ok=True)
+            store.forget_artifact(f"phase{int(phase)}_best")
         else:
             _write_json(path, space.as_dict(b.theta))
             store.add_artifact(f"phase{int(phase)}_best", path)
     b = best_row(store)
-    if b is None:
-        return None
     path = run_dir / BEST_FILE
+    if b is None:
+        path.unlink(missing_ok=True)
+        store.forget_artifact("best")
+        return None
     _write_json(path, space.as_dict(b.theta))
     store.add_artifact("best", path)
     return path

@@ -342,6 +342,13 @@ class RunStore:
         arts[name] = rel
         self.set_meta("artifacts", arts)
 
+    def forget_artifact(self, name: str) -> None:
+        """Drop an artifact's record (its file is the caller's to delete: a stored path may
+        point anywhere)."""
+        arts = self.get_meta("artifacts", {}) or {}
+        if arts.pop(name, None) is not None:
+            self.set_meta("artifacts", arts)
+
     def artifact(self, name: str) -> Path | None:
         rel = (self.get_meta("artifacts", {}) or {}).get(name)
         if rel is None:
