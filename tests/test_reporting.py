@@ -227,6 +227,17 @@ def test_table_without_zero_shot_and_never_beaten(tmp_path: Path):
     assert "phase 3 6.57" in md                                # the paper's uneven number
 
 
+def test_table_shows_tiny_and_huge_costs(tmp_path: Path):
+    """A best cost of 1e-9 was shown as 0.000 (and -1e-4 as -0.000)."""
+    for costs, best in (([1e-9, 1e12, 3.0], "1e-09"), ([-1e-4, 2.0], "-0.0001"),
+                        ([2e12, 5e12], "2e+12"), ([0.0, 1.0], "0.000"), ([2.5, 7.0], "2.500")):
+        with RunStore(tmp_path / f"run{best}", create=True) as st:
+            st.set_meta("config", {})
+            for i, c in enumerate(costs):       # a user system's cost: no fall threshold
+                st.add(Phase.PHASE1, i, np.full(3, 0.1 * i), c, fell=False, tag=-1)
+            assert _row(comparison_table(st), "phase 1 (θ, TuRBO-m)")[1] == best, costs
+
+
 def test_make_report_user_system_without_simulation(tmp_path: Path):
     cfg = {"system": {"kind": "python", "class": "mymod.Arm"}, "phase1": {"method": "turbo"}}
     with _store(tmp_path / "run", cfg, zero_shot=False) as st:

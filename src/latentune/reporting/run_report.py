@@ -34,12 +34,17 @@ METHOD_LABEL = {"turbo": "TuRBO-m", "cma": "CMA-ES", "random": "random search",
 
 
 def fmt(v: Any, nd: int = 3) -> str:
-    """A table cell: ``–`` for None or a non-finite float, an int as it is, else ``nd`` decimals."""
+    """A table cell: ``–`` for None or a non-finite float, an int as it is, else ``nd`` decimals;
+    a non-zero number that ``nd`` decimals would show as 0 (1e-9 was ``0.000``), or one of
+    1e9 or more, in ``nd`` significant digits."""
     if v is None or (isinstance(v, float) and not math.isfinite(v)):
         return "–"
     if isinstance(v, (int, np.integer)):
         return str(int(v))
-    return f"{float(v):.{nd}f}"
+    x = float(v)
+    if nd > 0 and x != 0 and not 0.5 * 10 ** -nd <= abs(x) < 1e9:
+        return f"{x:.{nd}g}"
+    return f"{x:.{nd}f}"
 
 
 def task_from_config(config: dict[str, Any]):
