@@ -192,3 +192,17 @@ def test_best_out_never_overwrites_a_file_of_the_run(tmp_path, run_cli, error_li
     for _ in range(2):                                  # a θ file of its own may be rewritten
         assert run_cli("best", d, "--out", d / "deploy.json")[0] == 0
     assert run_cli("status", d)[0] == 0
+
+
+def test_best_out_to_a_directory_leaves_no_stray_file(tmp_path, run_cli, error_line):
+    """``best --out SOME_DIR`` left ``SOME_DIR.tmp`` beside it (``--out /tmp``: ``/tmp.tmp``);
+    now a directory is refused and nothing is left."""
+    d = tmp_path / "robot"
+    code, out, err = run_cli("ask", d, "--space", _space_file(tmp_path), "--json")
+    (a,) = json.loads(out)
+    assert run_cli("tell", d, a["id"], "--cost", "2")[0] == 0
+    (tmp_path / "outdir").mkdir()
+    before = sorted(p.name for p in tmp_path.iterdir())
+    assert "is a directory: --out names the θ file" in error_line(
+        *run_cli("best", d, "--out", tmp_path / "outdir")[::2])
+    assert sorted(p.name for p in tmp_path.iterdir()) == before

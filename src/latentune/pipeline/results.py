@@ -9,6 +9,7 @@ the manual θ, phases 1 and 3 and zero-shot that did not fail; a failed θ is ne
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import time
@@ -293,6 +294,9 @@ def _deploy_path(out: str | os.PathLike, run_dir: Path, space: ParameterSpace) -
     if not str(out).strip():
         raise UsageError("the θ file to write (--out) needs a name")
     path = Path(out)
+    if path.is_dir():
+        raise UsageError(f"{path} is a directory: --out names the θ file to write "
+                         f"(e.g. {path / BEST_FILE})")
     if path.is_file() and Path(run_dir).resolve() in path.resolve().parents:
         try:
             theta_file = set(json.loads(path.read_text())) == set(space.names)
@@ -310,4 +314,6 @@ def _write_json(path: Path, value: Any) -> None:
         tmp.write_text(json.dumps(value, indent=1))
         os.replace(tmp, path)
     except OSError as exc:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
         raise StoreError(f"cannot write {path}: {exc.strerror or exc}") from None
