@@ -304,11 +304,14 @@ def test_make_report_resimulates_with_given_system(tmp_path: Path):
     out = tmp_path / "run"
     assert (out / "com_velocity.png").stat().st_size > 1000
     assert "![com_velocity.png](com_velocity.png)" in (out / "report.md").read_text()
-    # simulate=False: the system is not used
+    # simulate=False: the system is not used, and the earlier report's figure (of the best θ
+    # then) is not left behind as an artifact of this one
     sim2 = _FakeSystem()
     with RunStore(out) as st:
         make_report(st, system=sim2, simulate=False, quiet=True)
     assert sim2.calls == []
+    assert not (out / "com_velocity.png").exists()
+    assert "com_velocity_png" not in json.loads((out / "summary.json").read_text())["artifacts"]
 
 
 def test_best_so_far_figure(tmp_path: Path):

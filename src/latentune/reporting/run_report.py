@@ -319,7 +319,8 @@ def decisions_markdown(store: Any) -> list[str]:
 def make_report(store: Any, system: Any = None, simulate: bool = True, quiet: bool = False) -> str:
     """Write ``DIR/report.md``, ``DIR/best_so_far.png``, ``DIR/summary.json`` and (``simulate``
     and a system with ``rollout(theta, record=True)``: ``system``, else the stored config's
-    task) ``DIR/com_velocity.png``; return the comparison table (Markdown).
+    task) ``DIR/com_velocity.png`` (else an earlier report's is removed); return the comparison
+    table (Markdown).
 
     ``quiet``: no progress messages on stderr.
     """
@@ -349,6 +350,9 @@ def make_report(store: Any, system: Any = None, simulate: bool = True, quiet: bo
                           v_des=None if v_des is None else float(np.ravel(v_des)[0]), title=title)
             store.add_artifact("com_velocity_png", out / "com_velocity.png")
             figs.append("com_velocity.png")
+    if "com_velocity.png" not in figs:      # an earlier report's, of another best θ perhaps
+        (out / "com_velocity.png").unlink(missing_ok=True)
+        store.forget_artifact("com_velocity_png")
     summary = write_summary(store)
     table = comparison_table(store)
     lat = cfg.get("latent") or cfg.get("vae") or {}
