@@ -251,3 +251,16 @@ def test_prepared_urdf(tmp_path):
     assert solo.count('<origin xyz="0 0 -0.08" rpy="0 0 0"/><geometry><box size="0.03 0.03 0.16"/>') == 4
     bigger = load_spec_file(write(tmp_path, "base: solo12\nname: solo_big_feet\nfoot_radius: 0.02\n"))
     assert Path(prepared_urdf(bigger)).read_text().count('<sphere radius="0.02"/>') == 4
+
+
+def test_prepared_urdf_of_a_name_that_is_no_file_name(tmp_path):
+    """The rewritten URDF's file name was the spec's name as it is: ``name: ../../x`` wrote it
+    outside the temp directory, ``name: a b/c`` in a new subdirectory."""
+    import tempfile
+
+    cache = Path(tempfile.gettempdir()) / "latentune_urdf"
+    for i, name in enumerate(("../../escaped_by_name", "a b/c", "ünï code")):
+        spec = load_spec_file(write(tmp_path, f"base: b1\nname: {json.dumps(name)}\n", f"s{i}.yaml"))
+        path = Path(prepared_urdf(spec))
+        assert path.parent == cache and path.is_file(), (name, path)
+    assert not any(cache.parent.parent.glob("escaped_by_name*"))

@@ -418,7 +418,8 @@ def prepared_urdf(spec: UrdfFields) -> str:
     text = _fix_uris(text, src)
     key = hashlib.sha1((text + repr((spec.strip_root, spec.primitive_collisions, spec.foot_radius,
                                      sorted(prims.items()))) + _REWRITE_VERSION).encode()).hexdigest()[:12]
-    out = Path(tempfile.gettempdir()) / "latentune_urdf" / f"{spec.name}_{key}.urdf"
+    stem = re.sub(r"[^\w-]", "_", spec.name)     # a name is a label: '../x' or 'a/b' no path
+    out = Path(tempfile.gettempdir()) / "latentune_urdf" / f"{stem}_{key}.urdf"
     if out.is_file():
         return str(out)
 
