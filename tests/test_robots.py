@@ -189,6 +189,7 @@ def test_bad_package_name_is_a_clear_error(tmp_path):
     ("base: a1\nmax_tilt_deg: 90\n", "max_tilt_deg must be below 90 .*, got 90"),
     ("base: a1\nmax_tilt_deg: 180\n", "max_tilt_deg must be below 90 .*, got 180"),
     ("base: a1\nmu: abc\n", "mu must be a positive number, got 'abc'"),
+    ("base: a1\nkd: [1, x, 2]\n", r"kd must be a list of 3 numbers, got \[1, 'x', 2\]"),
     ("base: a1\nfoot_radius: true\n", "foot_radius must be a positive number, got True"),
     ("base: a1\nraibert_gain: -1\n", "raibert_gain must be a positive number, got -1"),
     ("[1, 2]\n", "expected a mapping"),

@@ -256,7 +256,11 @@ def validated_fields(raw: Any, where: str, base_dir: Path) -> dict[str, Any]:
             vals = _sequence(fields[key], key, where)
             if len(vals) != n:
                 raise RobotSpecError(f"{where}: {key} needs {n} entries, got {len(vals)}")
-            fields[key] = tuple(typ(v) for v in vals)
+            try:
+                fields[key] = tuple(typ(v) for v in vals)
+            except (TypeError, ValueError):
+                raise RobotSpecError(f"{where}: {key} must be a list of {n} numbers, got "
+                                     f"{list(vals)}") from None
             if typ is float:
                 bad = [v for v in fields[key] if not math.isfinite(v) or (key in _POSITIVE_TUPLES and v <= 0)]
                 if bad:
