@@ -527,6 +527,10 @@ def summarize(root: Path, methods: list[str] | None = None, targets: list[str] |
         raise RobotTransferError(str(e)) from e
     if targets is not None:
         s["targets"] = [row for row in s["targets"] if row["target"] in targets]
+    if not s["targets"]:          # an empty table and exit 0 read as "nothing went wrong"
+        raise RobotTransferError(f"no runs under {root / 'targets'}"
+                                 + (f" of {', '.join(targets)}" if targets else "")
+                                 + (f" by {', '.join(methods)}" if methods else ""))
     every = rungs(ROBOTS)
     for row in s["targets"]:
         row["label"] = every[row["target"]].label if row["target"] in every else row["target"]

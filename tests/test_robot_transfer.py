@@ -480,6 +480,16 @@ def test_summary_and_plot_without_a_peer_are_one_line(tmp_path, capsys):
     assert not (tmp_path / "s.json").exists() and not (tmp_path / "plots").exists()
 
 
+def test_summary_and_plot_of_no_runs_are_one_line(tmp_path, capsys):
+    """``summary``/``plot`` of a root with no runs (a typo in --root or --targets) printed an
+    empty table and exited 0."""
+    for cmd in (["summary"], ["plot", "--out", str(tmp_path / "plots")],
+                ["summary", "--targets", "a1-trot-hard"]):
+        assert rt.main([*cmd, "--root", str(tmp_path / "nowhere")]) == 2, cmd
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "no runs under" in err[0], err
+
+
 def test_plot_trials_resimulates_the_trials_of_one_run(tmp_path, capsys, monkeypatch):
     """``plot --trials``: the θ of the given trials of one run re-simulated, each labelled with
     the kind of ask that asked it and its stored outcome, beside the re-simulated one; a run
