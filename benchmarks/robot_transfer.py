@@ -431,8 +431,9 @@ def import_paper(paper_run: Path, root: Path, budget: int) -> list[str]:
     fewer than ``budget`` trials are skipped, stored results are kept. Returns one line per
     result written."""
     from latentune.constants import Phase
+    from latentune.reporting.paper_report import read_paper_meta
 
-    meta = json.loads((paper_run / "paper.json").read_text())
+    meta = read_paper_meta(paper_run)       # a missing or hand-edited record: one line
     R = meta["robot"]
     every = rungs(ROBOTS)
     done: list[str] = []

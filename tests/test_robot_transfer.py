@@ -490,6 +490,21 @@ def test_summary_and_plot_of_no_runs_are_one_line(tmp_path, capsys):
         assert len(err) == 1 and "no runs under" in err[0], err
 
 
+def test_import_paper_of_no_paper_run_is_one_line(tmp_path, capsys):
+    """import-paper of a directory without paper.json ('[Errno 2] …'), or with a record that
+    is no paper run's (imported nothing and exited 0, or a traceback), names the file."""
+    (tmp_path / "p").mkdir()
+    for text, expect in ((None, "is unreadable"), ('{"robot": "a1", "studies": []}',
+                                                  "not a latentune paper run's record")):
+        if text is not None:
+            (tmp_path / "p" / "paper.json").write_text(text)
+        assert rt.main(["import-paper", "--paper-run", str(tmp_path / "p"),
+                        "--root", str(tmp_path / "r")]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and str(tmp_path / "p" / "paper.json") in err[0] and expect in err[0]
+    assert not (tmp_path / "r").exists()
+
+
 def test_plot_trials_resimulates_the_trials_of_one_run(tmp_path, capsys, monkeypatch):
     """``plot --trials``: the θ of the given trials of one run re-simulated, each labelled with
     the kind of ask that asked it and its stored outcome, beside the re-simulated one; a run
