@@ -815,3 +815,15 @@ def test_a_failed_trial_may_report_a_non_finite_cost_and_a_standing_one_may_not(
     rows = lt.Study(tmp_path / "p").store.rows(Phase.PHASE1)
     assert res.n == 12 and any(r.fell for r in rows) and any(not r.fell for r in rows)
     assert all(r.cost == 200.0 and r.info["reported_cost"] == "nan" for r in rows if r.fell)
+
+
+def test_status_says_no_trial_told_yet_while_every_suggestion_is_out(run_cli, tmp_path):
+    """With suggestions out and none told, status said 'no trial without a fall', as if every
+    trial had fallen; it says none is told yet, and after a told fall it says that."""
+    d = tmp_path / "s"
+    assert run_cli("ask", d, "--system", "examples.lqr_chain:make_system", "--n", "2")[0] == 0
+    code, out, _ = run_cli("status", d)
+    assert code == 0 and "0 trials, 0 failed, 2 pending; no trial told yet" in out
+    assert run_cli("tell", d, "1", "--failed")[0] == 0
+    out = run_cli("status", d)[1]
+    assert "1 trials, 1 failed, 1 pending; no trial without a fall" in out

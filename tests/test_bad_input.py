@@ -631,6 +631,7 @@ def test_robot_check_reports_a_bad_spec(capsys, spec):
     (["robot", "init", "/nonexistent.urdf"], "URDF /nonexistent.urdf: cannot read"),
     (["robot"], "the following arguments are required: robot_command"),
     (["robot", "init"], "the following arguments are required: urdf"),
+    (["robot", "init", "x.urdf", "--name", " "], "the robot name must not be empty"),
     (["robot", "check", "a1", "--bogus"], "unrecognized arguments: --bogus"),
 ], ids=lambda a: " ".join(a) if isinstance(a, list) else "")
 def test_robot_commands_reject_bad_input(capsys, argv, expect):

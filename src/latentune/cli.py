@@ -711,7 +711,8 @@ def cmd_status(args: argparse.Namespace) -> int:
         print(json.dumps(s))
         return 0
     for name, p in s["phases"].items():
-        best = "no trial without a fall" if p["best"] is None else (
+        best = ("no trial told yet" if p["n"] == 0 else "no trial without a fall") \
+            if p["best"] is None else (
             f"best {p['best']:.6g} (evaluation {p['best_idx']}"
             + (f", suggestion {p['best_trial']}" if p.get("best_trial") is not None else "") + ")")
         print(f"{name}: {p['n']} trials, {p['failed']} failed, {p['pending']} pending; {best}")

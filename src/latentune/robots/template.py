@@ -194,9 +194,12 @@ def init_spec(urdf_path: str | os.PathLike, name: str | None = None) -> str:
         and is written for the legs, feet and stance found, so check the comments.
 
     Raises:
-        RobotSpecError: the URDF cannot be read, or has no four 3-joint legs with the axes of a
-            quadruped's abduction (x), hip (y) and knee (y) joints.
+        RobotSpecError: an empty ``name``; the URDF cannot be read, or has no four 3-joint
+            legs with the axes of a quadruped's abduction (x), hip (y) and knee (y) joints.
     """
+    if name is not None and not str(name).strip():
+        raise RobotSpecError(f"the robot name must not be empty, got {name!r} (leave it out for "
+                             "the URDF's)")
     path = Path(urdf_path).expanduser().resolve()
     tree = read_urdf(path)
     strip = tree.massless_root()
