@@ -827,3 +827,27 @@ def test_status_says_no_trial_told_yet_while_every_suggestion_is_out(run_cli, tm
     assert run_cli("tell", d, "1", "--failed")[0] == 0
     out = run_cli("status", d)[1]
     assert "1 trials, 1 failed, 1 pending; no trial without a fall" in out
+
+
+def test_report_says_what_the_tables_do_not_show(run_cli, tmp_path):
+    """report.md of a run under way said nothing of the trials still out, of the budget not
+    reached, or of amended results: each is a line under the table, and a finished run has
+    none of them."""
+    d = tmp_path / "s"
+    sysargs = ("--system", "examples.lqr_chain:make_system")
+    assert run_cli("ask", d, *sysargs, "--n", "3", "--budget", "4")[0] == 0
+    assert run_cli("tell", d, "1", "--cost", "0.9")[0] == 0
+    assert run_cli("tell", d, "1", "--cost", "0.8", "--amend")[0] == 0
+    assert run_cli("report", d, *sysargs, "--no-sim")[0] == 0
+    md = (d / "report.md").read_text()
+    assert "Phase 1 (θ, TuRBO-m) holds 1 trial of its budget of 4." in md
+    assert "2 suggestions are handed out to ask/tell and not told" in md
+    assert "1 told result was amended" in md
+    for i in (2, 3):
+        assert run_cli("tell", d, str(i), "--cost", "1.0")[0] == 0
+    code, out, err = run_cli("ask", d, "--n", "1")
+    assert code == 0, err
+    assert run_cli("tell", d, out.split()[0], "--cost", "1.0")[0] == 0
+    assert run_cli("report", d, *sysargs, "--no-sim")[0] == 0
+    md = (d / "report.md").read_text()
+    assert "budget of" not in md and "handed out" not in md and "1 told result was" in md

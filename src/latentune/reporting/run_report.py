@@ -316,6 +316,29 @@ def decisions_markdown(store: Any) -> list[str]:
     return md
 
 
+def state_lines(store: Any, cfg: dict[str, Any]) -> list[str]:
+    """What the tables do not show about a run's state: a phase with fewer trials than its
+    budget (stopped, still running, or stopped by its fall budget), suggestions handed out to
+    ask/tell and not told, and amended results. Empty for a finished run."""
+    lines = []
+    for key, phase in (("phase1", Phase.PHASE1), ("phase3", Phase.PHASE3)):
+        budget = (cfg.get(key) or {}).get("budget")
+        n = store.count(phase)
+        if budget and n < int(budget):
+            label = phase_label(phase, cfg)
+            lines.append(f"{label[0].upper()}{label[1:]} holds {n} trial{'s' * (n != 1)} of "
+                         f"its budget of {int(budget)}.")
+    out = len(store.trials("pending"))
+    if out:
+        lines.append(f"{out} suggestion{'s are' if out != 1 else ' is'} handed out to ask/tell "
+                     "and not told: not in the tables yet.")
+    amended = len({a["trial"] for a in store.amendments()})
+    if amended:
+        lines.append(f"{amended} told result{'s were' if amended != 1 else ' was'} amended "
+                     "(`tell --amend`); the tables use the amended values.")
+    return lines + [""] if lines else []
+
+
 def make_report(store: Any, system: Any = None, simulate: bool = True, quiet: bool = False) -> str:
     """Write ``DIR/report.md``, ``DIR/best_so_far.png``, ``DIR/summary.json`` and (``simulate``
     and a system with ``rollout(theta, record=True)``: ``system``, else the stored config's
@@ -356,7 +379,7 @@ def make_report(store: Any, system: Any = None, simulate: bool = True, quiet: bo
     summary = write_summary(store)
     table = comparison_table(store)
     lat = cfg.get("latent") or cfg.get("vae") or {}
-    md = [f"# latentune run: {title}", "", table, ""]
+    md = [f"# latentune run: {title}", "", table, "", *state_lines(store, cfg)]
     if lat:
         md.append(f"Latent space: kind {lat.get('kind')}, d_low {lat.get('d_low')}, trained on "
                   f"{lat.get('n_train')} stable θ; box: {lat.get('box_rule')}.")
@@ -389,4 +412,4 @@ def make_report(store: Any, system: Any = None, simulate: bool = True, quiet: bo
 
 
 __all__ = ["comparison_table", "write_summary", "make_report", "run_stats", "task_from_config",
-           "phase_label", "fmt", "decisions_markdown"]
+           "phase_label", "fmt", "decisions_markdown", "state_lines"]
