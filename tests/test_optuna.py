@@ -762,3 +762,25 @@ def test_plain_latent_sampler_on_a_two_weight_system(tmp_path):
     with pytest.raises(LatentuneError, match="decodes every code to one θ"):
         study.optimize(lambda t: float(sum(flat.suggest_all(t).values())), n_trials=3)
     assert len(study.trials) == 2 and study.trials[0].state == optuna.trial.TrialState.COMPLETE
+
+
+@pytest.mark.parametrize("sampler", ["tpe", "cmaes"])
+def test_a_first_non_finite_cost_is_a_failed_trial_not_a_best_value(sampler):
+    """A first trial whose cost is NaN or inf (a user system's crash) was told as 0.0: for
+    positive costs the best value the study had, which the sampler then searched around. It
+    is told as failed (the samplers leave it out); a later non-finite cost is still told as
+    the worst finite cost before it."""
+    from latentune.critic.optuna import OptunaCritic
+
+    c = OptunaCritic(3, batch_size=1, seed=0, sampler=sampler)
+    for y in (np.nan, 5.0, np.inf):
+        X = c.ask(1)
+        c.tell(X, np.array([y]), c.last_tags)
+    c.tell(np.full((1, 3), 0.5), np.array([np.inf]), np.array([-1]))   # an untagged point
+    trials = c.study.trials
+    assert trials[0].state == optuna.trial.TrialState.FAIL and trials[0].value is None
+    assert [t.value for t in trials[1:]] == [5.0, 5.0, 5.0]
+    c0 = OptunaCritic(3, batch_size=1, seed=0, sampler=sampler)
+    c0.tell(np.full((1, 3), 0.5), np.array([np.nan]), np.array([-1]))
+    assert c0.study.trials[0].state == optuna.trial.TrialState.FAIL
+    assert c0.ask(1).shape == (1, 3)

@@ -6,7 +6,7 @@ unit box, so the phase loop, the store and resume treat them as latentune's own 
 extra; latentune's samplers for Optuna studies are in :mod:`latentune.integrations.optuna`.
 
 As stock tools, the samplers are told each trial's own cost (a non-finite one as the worst
-finite cost before it), failed or not, as a user of Optuna would; only :attr:`best_index
+finite cost before it, or as a failed trial when none is finite before it), failed or not, as a user of Optuna would; only :attr:`best_index
 <latentune.critic.base.Critic.best_index>` ranks the failed trials last, as every critic's."""
 from __future__ import annotations
 
@@ -89,7 +89,7 @@ class OptunaCritic(Critic):
     dim), y (m,)) unit-box trials of a related task become the sampler's ``source_trials``
     (``cmaes`` only; non-finite costs left out; at least :data:`CMAES_SOURCE_MIN` left).
     ``ask`` asks the study; ``tell`` tells each point's trial its cost (a non-finite cost as the
-    worst finite cost told so far); an untagged point is added as a completed trial.
+    worst finite cost told so far, or as failed before any); an untagged point is added as a completed trial.
 
     Tags: ``told · 2**20 + number`` — the Optuna trial number and how many trials had been told
     when it was asked. Resume: a fresh critic told points it did not ask re-asks its trials in
@@ -171,18 +171,25 @@ class OptunaCritic(Critic):
             T.append(int(trial.user_attrs["latentune_told_before"]) * _NUM + trial.number)
         return np.array(X), np.array(T, dtype=np.int64)
 
-    def _value(self, i: int) -> float:
+    def _value(self, i: int) -> float | None:
+        """The value told for point ``i``: its cost; a non-finite cost as the worst finite one
+        before it; None (the trial is told as failed, which the samplers leave out) when none
+        is finite before it (it was told 0.0, a best value for positive costs)."""
         y = float(self._y[i])
         if math.isfinite(y):
             return y
         prev = self._y[: i][np.isfinite(self._y[: i])]
-        return float(prev.max()) if prev.size else 0.0
+        return float(prev.max()) if prev.size else None
 
     def _tell_trial(self, number: int, i: int) -> None:
         trial = self._trials.pop(number)
         with _Quiet():
             if np.allclose(self._point(trial), self._X[i], rtol=0.0, atol=1e-12):
-                self.study.tell(trial, self._value(i))
+                v = self._value(i)
+                if v is None:
+                    self.study.tell(trial, state=optuna.trial.TrialState.FAIL)
+                else:
+                    self.study.tell(trial, v)
             else:                       # a re-asked trial that is not the stored one
                 if not self._warned:
                     logger.warning("%s: a re-asked trial differs from the stored one (the "
@@ -196,9 +203,11 @@ class OptunaCritic(Critic):
 
     def _add(self, i: int) -> None:
         with _Quiet():
+            v = self._value(i)
             self.study.add_trial(optuna.trial.create_trial(
-                params=self._params(self._X[i]), distributions=self.distributions,
-                value=self._value(i)))
+                params=self._params(self._X[i]), distributions=self.distributions, value=v,
+                state=optuna.trial.TrialState.COMPLETE if v is not None
+                else optuna.trial.TrialState.FAIL))
         self._n_told += 1
 
     def _tell(self, idx: np.ndarray, tags: np.ndarray) -> None:
