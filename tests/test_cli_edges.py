@@ -73,6 +73,14 @@ def test_abbreviated_flags_are_refused(run_cli, tmp_path, argv, monkeypatch):
     assert not Path("x").exists()
 
 
+@pytest.mark.parametrize("value", ["-1.5e-3", "-1e299", "-2E+3", "-.5", "-3", "-inf"])
+def test_a_negative_number_in_any_notation_is_a_value_not_a_flag(value):
+    """argparse 3.11 took ``--cost -1.5e-3`` for a flag: "expected one argument"."""
+    args = build_parser().parse_args(["tell", "d", "3", "--cost", value])
+    assert args.cost == float(value)
+    assert build_parser().parse_args(["rollout", "--v-des", value]).v_des == float(value)
+
+
 def _help(capsys, *argv: str) -> str:
     with pytest.raises(SystemExit) as info:
         main([*argv, "--help"])

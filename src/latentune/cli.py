@@ -20,6 +20,7 @@ import json
 import logging
 import math
 import os
+import re
 import shlex
 import sys
 import warnings
@@ -52,13 +53,21 @@ class _HelpFormatter(argparse.HelpFormatter):
         return f"{h} (default %(default)s)" if h else "(default %(default)s)"
 
 
+_NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|infinity|nan)$",
+                              re.IGNORECASE)
+"""What argparse takes for a negative number rather than a flag (:class:`_Parser`)."""
+
+
 class _Parser(argparse.ArgumentParser):
-    """No abbreviated flags (``--phase1-eval`` is not ``--phase1-evals``); errors as one line."""
+    """No abbreviated flags (``--phase1-eval`` is not ``--phase1-evals``); errors as one line;
+    a negative number in any notation (``--cost -1.5e-3``, ``-inf``) is a value, not a flag
+    (Python 3.11's argparse takes only ``-2`` and ``-2.5`` for numbers)."""
 
     def __init__(self, *a: Any, **kw: Any) -> None:
         kw.setdefault("allow_abbrev", False)
         kw.setdefault("formatter_class", _HelpFormatter)
         super().__init__(*a, **kw)
+        self._negative_number_matcher = _NEGATIVE_NUMBER
 
     def error(self, message: str) -> None:  # one line, exit 2 (argparse prints usage otherwise)
         raise CLIError(message)
