@@ -517,3 +517,12 @@ def test_study_regions_must_be_a_whole_number(tmp_path, regions):
         with pytest.raises(UsageError, match="regions must be an integer in"):
             st.phase1(system, 4, regions=regions)
     assert not (tmp_path / "r" / "run.db").exists()
+
+
+def test_a_phase_where_every_trial_failed_says_so_not_best_cost_inf(tmp_path):
+    space = lt.ParameterSpace(["a", "b"], [0.0, 0.0], [1.0, 1.0], manual=[0.5, 0.5])
+    said: list[str] = []
+    with lt.Study(tmp_path / "s", seed=0, log=said.append) as s:
+        res = s.phase1(lt.FunctionSystem(space, lambda x: lt.Outcome(None, failed=True)), 3)
+    assert res.best_cost == float("inf")
+    assert said[-1] == "phase 1: 3 evaluations, no trial stood (all 3 failed)"

@@ -472,8 +472,8 @@ def _phase1_study(args: argparse.Namespace, latent: bool) -> tuple[Any, Any, Any
 
 def _phase_line(res: Any, study: Any) -> str:
     best = study.dir / f"phase{res.phase}_best.json"
-    return (f"phase {res.phase}: {res.n} evaluations ({res.n_new} new), best cost "
-            f"{res.best_cost:.6g}" + (f"; its θ: {best}" if best.is_file() else ""))
+    return (f"phase {res.phase}: {res.n} evaluations ({res.n_new} new), {res.best_text('.6g')}"
+            + (f"; its θ: {best}" if best.is_file() else ""))
 
 
 def cmd_tune(args: argparse.Namespace) -> int:

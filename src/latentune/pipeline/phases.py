@@ -171,6 +171,13 @@ class PhaseResult:
     best_theta: np.ndarray | None
     wall_s: float
 
+    def best_text(self, fmt: str = ".3f") -> str:
+        """``"best cost X"``, or ``"no trial stood"`` when every trial of the phase failed (its
+        ``best_cost`` is then inf)."""
+        if math.isfinite(self.best_cost):
+            return f"best cost {self.best_cost:{fmt}}"
+        return f"no trial stood (all {self.n} failed)" if self.n else "no trial yet"
+
 
 def _progress(total: int, initial: int, desc: str, enabled: bool):
     if not enabled:
