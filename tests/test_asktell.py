@@ -161,6 +161,20 @@ def test_leases_expire_and_are_released(tmp_path):
     st.close()
 
 
+def test_an_ask_beyond_the_budget_hands_out_the_suggestions_left(tmp_path):
+    """A batch of 4 asked for a budget of 4, 3 handed out and told: ask(3) raised "the budget
+    is handed out (3 told, 1 pending)", and the one it had just leased was never shown."""
+    with lt.Study(tmp_path / "s", seed=0) as st:
+        first = st.ask(3, space=SPACE, budget=4)
+        for s in first:
+            st.tell(s.id, float(np.sum(s.theta ** 2)))
+        (last,) = st.ask(3)
+        assert last.id not in {s.id for s in first} and not last.again
+        st.tell(last.id, 1.0)
+        with pytest.raises(StoreError, match="budget of 4 trials is handed out"):
+            st.ask()
+
+
 def _asker(d: str, name: str, rounds: int, q: "mp.Queue") -> None:
     study = lt.Study(d)
     rng = np.random.default_rng(abs(hash(name)) % 2 ** 32)

@@ -287,6 +287,8 @@ def ask(study: Any, n: int = 1, *, system: Any = None, space: ParameterSpace | N
         phases = (Phase.ZERO_SHOT, ctx.phase) if ctx.phase == Phase.PHASE3 else (ctx.phase,)
         got = st.lease(who, phases, int(n), lease)
         need = int(n) - len(got)
+        if got and _budget_left(st, ctx.phase, ctx.options)[0] <= 0:
+            need = 0                    # the budget is handed out: the suggestions there are
         if need > 0:
             if not _take_prepared(study, st, ctx.phase, ctx.options, need):
                 if not ctx.built:
