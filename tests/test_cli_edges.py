@@ -251,6 +251,12 @@ def test_a_full_disk_during_resume_in_a_real_process(plant, small_run):
      "--latent-dim 1: the latent space of {run} has size 2 (kept with --resume"),
     ("train-vae", ["--resume", "--vae-kind", "vae"],
      "--vae-kind vae: the latent space of {run} is det (kept with --resume"),
+    ("train-vae", ["--resume", "--vae-epochs", "7"],
+     "--vae-epochs 7: the latent space of {run} was trained for 5 epochs (kept with --resume"),
+    ("tune", ["--resume", "--phase1-evals", "6", "--phase3-evals", "2", "--latent-dim", "1"],
+     "--latent-dim 1: the latent space of {run} has size 2 (kept with --resume"),
+    ("tune", ["--resume", "--phase1-evals", "6", "--phase3-evals", "2", "--vae-kind", "vae"],
+     "--vae-kind vae: the latent space of {run} is det (kept with --resume"),
     ("phase3", ["--phase1-evals", "9"], "--phase1-evals is not an option of phase3"),
     ("phase3", ["--vae-epochs", "5"], "--vae-epochs is not an option of phase3"),
     ("phase3", ["--vae-kind", "vae"], "--vae-kind vae: the latent space of {run} is det"),
@@ -261,7 +267,8 @@ def test_a_full_disk_during_resume_in_a_real_process(plant, small_run):
 ])
 def test_flags_a_command_would_ignore_are_refused(run_cli, small_run, cmd, flags, expect):
     """train-vae ran without --method/--regions/..., phase3 without --phase1-evals/--vae-*,
-    phase1 without --phase3-evals/--latent-dim/--vae-*; train-vae --resume kept a latent space of another size or kind: all without a word."""
+    phase1 without --phase3-evals/--latent-dim/--vae-*; train-vae --resume and tune --resume
+    kept a latent space of another size, kind or epochs: all without a word."""
     code, _, err = run_cli("train-vae", *SYS, "--out", small_run, "--latent-dim", "2",
                            "--vae-epochs", "5", "--quiet")
     assert code == 0, err

@@ -485,6 +485,14 @@ def test_train_latent_refuses_bad_epochs_before_replacing_the_vae(tmp_path):
             with pytest.raises(UsageError, match="epochs must be a whole number >= 1"):
                 st.train_latent(epochs=bad, retrain=True)
         assert (tmp_path / "r" / "vae.pt").read_bytes() == before
+        # a trained VAE is kept as it is: another size, kind or epochs was ignored silently
+        for kw, said in (({"latent_dim": 1}, "latent_dim = 2, not 1"),
+                         ({"kind": "vae"}, "kind = 'det', not 'vae'"),
+                         ({"epochs": 7}, "epochs = 5, not 7")):
+            with pytest.raises(UsageError, match=said):
+                st.train_latent(**kw)
+        assert st.train_latent(latent_dim=2, kind="det", epochs=5).d_low == 2
+        assert (tmp_path / "r" / "vae.pt").read_bytes() == before
 
 
 def test_a_cost_the_store_cannot_keep_is_refused_or_a_fall(tmp_path):

@@ -411,15 +411,23 @@ def _refuse_unused(args: argparse.Namespace, cmd: str) -> None:
 def _check_stored_vae(study: Any, args: argparse.Namespace, what: str) -> None:
     """--latent-dim and --vae-kind against the latent space stored in ``study`` (``what``: how
     it is used), refused when they differ."""
-    from latentune.latent.vae import DEFAULT_KIND
+    from latentune.pipeline.phase2 import trained_differs
 
     vae = (study.config().get("vae") or {}) if study.exists else {}
-    if args.latent_dim is not None and vae.get("d_low") not in (None, args.latent_dim):
-        raise CLIError(f"--latent-dim {args.latent_dim}: the latent space of {study.dir} "
-                       f"has size {vae['d_low']} ({what})")
-    if args.vae_kind != DEFAULT_KIND and vae.get("kind") not in (None, args.vae_kind):
-        raise CLIError(f"--vae-kind {args.vae_kind}: the latent space of {study.dir} is "
-                       f"{vae['kind']} ({what})")
+    diff = trained_differs(vae, args.latent_dim, _vae_kind(args), getattr(args, "vae_epochs", None))
+    if diff is not None:
+        name, given, stored = diff
+        flag, has = {"latent_dim": ("--latent-dim", f"has size {stored}"),
+                     "kind": ("--vae-kind", f"is {stored}"),
+                     "epochs": ("--vae-epochs", f"was trained for {stored} epochs")}[name]
+        raise CLIError(f"{flag} {given}: the latent space of {study.dir} {has} ({what})")
+
+
+def _vae_kind(args: argparse.Namespace) -> str | None:
+    """--vae-kind, or None when it was left at its default (the stored kind is kept)."""
+    from latentune.latent.vae import DEFAULT_KIND
+
+    return None if args.vae_kind == DEFAULT_KIND else args.vae_kind
 
 
 def _refuse_rerun(study: Any, phase: int, resume: bool) -> None:
@@ -456,6 +464,8 @@ def _phase1_study(args: argparse.Namespace, latent: bool) -> tuple[Any, Any, Any
     system = make_system(args, args.seed)
     if latent or args.latent_dim is not None:
         _check_latent_dim(args, system.space.dim)
+    if latent and args.resume:
+        _check_stored_vae(study, args, "kept with --resume; retrain it with train-vae")
     if not latent:
         _refuse_unused(args, "phase1")
     _need_store(study, args.resume)
@@ -484,7 +494,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
     _transfer_options(args, None)                   # checked before phase 1 runs
     study, system, _ = _phase1_study(args, latent=True)
     with study:
-        study.train_latent(args.latent_dim, kind=args.vae_kind, epochs=args.vae_epochs)
+        study.train_latent(args.latent_dim, kind=_vae_kind(args), epochs=args.vae_epochs)
         # --method and --regions are phase 1's; phase 3 takes them only when it is plain
         plain = resolve_strategy(study.manifest, strategy, handover) == "plain"
         study.phase3(system, args.phase3_evals, method=args.method if plain else None,

@@ -217,8 +217,8 @@ class Study:
         """Phase 2: train the latent space on the phase-1 θ whose trial did not fail.
 
         Returns the :class:`~latentune.latent.LatentSpace` (``DIR/vae.pt``, ``DIR/vae.json``). A
-        trained one is returned as it is unless ``retrain``; retraining after phase 3 used it
-        is refused (it would invalidate the stored phase-3 rows)."""
+        trained one is returned as it is unless ``retrain`` (another size, kind or epochs is
+        refused); retraining after phase 3 used it is refused (it would invalidate phase 3)."""
         with self.writing():
             latent, msg = phase2.train_latent(self.run, self.manifest, self.seed, latent_dim,
                                               kind, epochs, retrain)

@@ -22,7 +22,8 @@ def train_latent(run: RunDir, manifest: Manifest, seed: int, latent_dim: int | N
     """(the run's LatentSpace, a one-line message or None when it was trained before).
 
     Trains it with ``seed`` and saves it as ``DIR/vae.pt`` / ``DIR/vae.json``; a trained one is
-    returned as it is unless ``retrain``; retraining after phase 3 used it is refused (it
+    returned as it is unless ``retrain`` (UsageError for another ``latent_dim``, ``kind`` or
+    ``epochs``: :func:`trained_differs`); retraining after phase 3 used it is refused (it
     would invalidate the stored phase-3 rows). Call with the run's write lock held."""
     from latentune.latent.vae import DEFAULT_KIND, SPREAD_WARN, LatentSpace
 
@@ -33,7 +34,14 @@ def train_latent(run: RunDir, manifest: Manifest, seed: int, latent_dim: int | N
     st = run.store
     if st.artifact("vae") is not None:
         if not retrain:
-            return LatentSpace.load(st.artifact("vae")), None
+            latent = LatentSpace.load(st.artifact("vae"))
+            diff = trained_differs({"d_low": latent.d_low, "kind": latent.kind,
+                                    "epochs": latent.meta.get("epochs")}, latent_dim, kind, epochs)
+            if diff is not None:
+                raise UsageError(f"{run.dir}: its latent space is trained already with "
+                                 f"{diff[0]} = {diff[2]!r}, not {diff[1]!r}: leave {diff[0]} "
+                                 "out to use it, or retrain it (retrain=True)")
+            return latent, None
         if st.count(Phase.PHASE3) > 0 and manifest.config().get("phase3_vae_source") == "self":
             raise LatentError(f"{run.dir}: phase 3 already used the VAE; retraining it "
                               "would invalidate the stored phase-3 rows (use another dir)")
@@ -53,6 +61,7 @@ def train_latent(run: RunDir, manifest: Manifest, seed: int, latent_dim: int | N
     manifest.add_wall("vae", time.perf_counter() - t)
     st.add_artifact("vae", run.dir / "vae")
     manifest.update(vae={"kind": latent.kind, "d_low": latent.d_low, "n_train": len(X),
+                         "epochs": latent.meta.get("epochs"),
                          "seed": seed, "beta": latent.meta.get("beta"),
                          "box": latent.box.tolist(), "box_rule": latent.meta.get("box_rule"),
                          "decoded_variance_ratio": latent.meta.get("decoded_variance_ratio")})
@@ -66,3 +75,17 @@ def train_latent(run: RunDir, manifest: Manifest, seed: int, latent_dim: int | N
     return latent, (f"VAE ({latent.kind}, d_low {latent.d_low}) trained on {len(X)} θ in "
                     f"{latent.meta.get('train_wall_s', 0):.1f} s; final reconstruction error "
                     f"{float('nan') if rec is None else rec:.4f}{spread}")
+
+
+def trained_differs(stored: dict[str, Any], latent_dim: int | None = None,
+                    kind: str | None = None, epochs: int | None = None
+                    ) -> tuple[str, Any, Any] | None:
+    """``(name, given, stored)`` of the first of ``latent_dim``, ``kind`` and ``epochs`` (None:
+    not given) that differs from the trained latent space's record ``stored`` (``d_low``,
+    ``kind``, ``epochs``; a key it lacks is not compared); None when every one given agrees.
+    A trained latent space is kept as it is, so an option that differs would be ignored."""
+    for name, key, given in (("latent_dim", "d_low", latent_dim), ("kind", "kind", kind),
+                             ("epochs", "epochs", epochs)):
+        if given is not None and stored.get(key) is not None and given != stored[key]:
+            return name, given, stored[key]
+    return None
