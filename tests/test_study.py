@@ -534,3 +534,27 @@ def test_a_phase_where_every_trial_failed_says_so_not_best_cost_inf(tmp_path):
         res = s.phase1(lt.FunctionSystem(space, lambda x: lt.Outcome(None, failed=True)), 3)
     assert res.best_cost == float("inf")
     assert said[-1] == "phase 1: 3 evaluations, no trial stood (all 3 failed)"
+
+
+def test_a_fall_flag_that_is_not_a_bool_is_refused_not_guessed(tmp_path):
+    """``failed="False"`` (read from a file) counted as a fall (``bool("False")``), and an
+    array of flags was a ValueError traceback; both are now one line, nothing stored."""
+    from latentune.errors import UsageError
+    from latentune.system import EvaluationError, as_outcome
+
+    for ok, fell in ((False, False), (np.bool_(True), True), (np.array(True), True), (1, True),
+                     (0, False), (None, False)):
+        assert as_outcome(lt.Outcome(1.0, ok)).failed is fell
+        assert as_outcome((1.0, ok)).failed is fell and as_outcome({"cost": 1.0,
+                                                                    "failed": ok}).failed is fell
+    for bad in ("False", "no", np.array([True, False]), float("nan"), 2, 0.0):
+        with pytest.raises(EvaluationError, match="failed = .*expected True or False"):
+            as_outcome(lt.Outcome(1.0, bad))
+    sp = lt.ParameterSpace(["a", "b"], [0.0, 0.0], [1.0, 1.0])
+    with lt.Study(tmp_path / "r") as st:
+        with pytest.raises(EvaluationError, match="failed = 'False'"):
+            st.phase1(lt.FunctionSystem(sp, lambda x: lt.Outcome(1.0, "False")), 3)
+        assert st.store.count(Phase.PHASE1) == 0
+        (s,) = st.ask(space=sp)
+        with pytest.raises(UsageError, match="bad result for suggestion 1: got failed = 'no'"):
+            st.tell(s.id, 1.0, failed="no")

@@ -86,6 +86,24 @@ def as_cost(value: Any, *, allow_nonfinite: bool = False, what: str = "the funct
     return cost
 
 
+def as_failed(value: Any, *, what: str = "evaluate") -> bool:
+    """``value`` as a trial's fall flag, or :class:`EvaluationError` naming what was given.
+
+    Accepts a bool (Python, NumPy, a 0-d array or tensor of one), the integers 0 and 1, and
+    None (not failed); refuses anything else: ``bool("False")`` is True, and an array of
+    several flags has no truth value."""
+    v = value
+    if v is None:
+        return False
+    if hasattr(v, "item") and getattr(v, "ndim", None) == 0:   # a 0-d array or tensor
+        v = v.item()
+    if isinstance(v, (bool, np.bool_)):
+        return bool(v)
+    if isinstance(v, (int, np.integer)) and int(v) in (0, 1):
+        return bool(v)
+    raise EvaluationError(f"{what} returned failed = {_short(v)}; expected True or False")
+
+
 def _too_large(what: str, cost: float) -> str:
     return (f"{what} returned {cost:g}: a cost must be smaller than {COST_LIMIT:g} in size (the "
             "store keeps that for inf); mark the trial failed, or return a smaller penalty")
@@ -126,14 +144,15 @@ def as_outcome(value: Any) -> Outcome:
     was reported (``"nan"``, ``"inf"``, ``"1e+300"``).
     """
     if isinstance(value, Outcome):
-        out = Outcome(value.cost, bool(value.failed), dict(value.info or {}), value.wall_s)
+        out = Outcome(value.cost, as_failed(value.failed), dict(value.info or {}), value.wall_s)
     elif isinstance(value, dict):
-        if "cost" not in value and not value.get("failed"):
+        failed = as_failed(value.get("failed"))
+        if "cost" not in value and not failed:
             raise EvaluationError(f"evaluate returned a dict without 'cost': {sorted(value)}")
-        out = Outcome(value.get("cost"), bool(value.get("failed", False)),
-                      dict(value.get("info") or {}), value.get("wall_s"))
+        out = Outcome(value.get("cost"), failed, dict(value.get("info") or {}),
+                      value.get("wall_s"))
     elif isinstance(value, tuple) and len(value) == 2:
-        out = Outcome(value[0], bool(value[1]))
+        out = Outcome(value[0], as_failed(value[1]))
     elif isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool):
         out = Outcome(as_cost(value, allow_nonfinite=True, what="evaluate"))
     else:
