@@ -396,7 +396,8 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "fall_shrink": False, "centre_falls": 0, "fall_rank": "clipped", "explore_gp": True,
     "explore_record": "count", "explore_bandit": "mean", "region_gp": False,
     "fall_fit": False, "fall_budget": 0.0, "fall_budget_counts": "after_stand",
-    "record_walk": 0, "walk_pick": "rank", "record_cma": False,
+    "record_walk": 0, "walk_pick": "rank", "record_cma": False, "escape_falls": 0,
+    "escape_when": "blind",
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state, where
 ``explore_fall_prob`` is resolved (:func:`resolved_options`)."""
@@ -433,7 +434,8 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "explore_bandit": "mean", "region_gp": False,
                                  "fall_fit": False, "fall_budget": 0.0,
                                  "fall_budget_counts": "all", "record_walk": 0,
-                                 "walk_pick": "rank", "record_cma": False}
+                                 "walk_pick": "rank", "record_cma": False,
+                                 "escape_falls": 0, "escape_when": "blind"}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -485,6 +487,9 @@ FULL_SHAPES = ("lengthscales", "cube")
 """The full pool's box (``full_shape``): sides in proportion to the lengthscales, or a cube."""
 FALL_BUDGET_COUNTS = ("all", "after_stand")
 """The falls a fall budget counts (``fall_budget_counts``, :func:`counted_falls`)."""
+ESCAPE_WHEN = ("blind", "always")
+"""When ``escape_falls`` leaves the source's manifold: only while the told falls' costs are all
+equal (nothing ranks them: no fall step, no cost), or whenever every told trial fell."""
 EXPLORE_WHEN = ("always", "stalled")
 """When a due generation is an explore ask (``explore_when``): always, or only while the trust
 region's side is at its minimum."""
@@ -560,6 +565,7 @@ class _AskContext:
     region_gp: bool = False
     explore_cma: bool = False
     record_cma: bool = False
+    escape: bool = False
 
 
 @dataclass
@@ -658,6 +664,12 @@ class Transfer(TwoSpaceCritic):
         if self.opts["walk_pick"] not in WALK_PICKS:
             raise ValueError(f"walk_pick must be one of {WALK_PICKS}, "
                              f"got {self.opts['walk_pick']!r}")
+        k_es = self.opts["escape_falls"]
+        if isinstance(k_es, bool) or not isinstance(k_es, (int, np.integer)) or k_es < 0:
+            raise ValueError(f"escape_falls must be an integer ≥ 0 (0: off), got {k_es!r}")
+        if self.opts["escape_when"] not in ESCAPE_WHEN:
+            raise ValueError(f"escape_when must be one of {ESCAPE_WHEN}, "
+                             f"got {self.opts['escape_when']!r}")
         k_cf = self.opts["centre_falls"]
         if isinstance(k_cf, bool) or not isinstance(k_cf, (int, np.integer)) or k_cf < 0:
             raise ValueError(f"centre_falls must be an integer ≥ 0 (0: off), got {k_cf!r}")
@@ -919,6 +931,33 @@ class Transfer(TwoSpaceCritic):
             return False
         fell = int(self._fell[asked].sum())
         return fell >= k and fell > float(self.opts["max_fall_prob"]) * int(asked.sum())
+
+    def _escape_due(self) -> bool:
+        """``escape_falls`` = k > 0: True while every told trial fell and there are at least k
+        of them (the zero-shot θ, the design's elites, the manual θ and the asks after them),
+        and (``escape_when="blind"``) their costs are all equal, so nothing ranks the falls
+        (no fall step, no cost: the centre of the trust region is any of them): the explore
+        asks then leave the source's manifold (:meth:`_farthest`)."""
+        k, n = int(self.opts["escape_falls"]), self.n_told
+        if k <= 0 or n < k or not bool(self._fell[:n].all()):
+            return False
+        y = self._y[:n]
+        return self.opts["escape_when"] == "always" or bool(np.all(y == y[0]))
+
+    def _farthest(self, C: np.ndarray, n: int) -> np.ndarray:
+        """Indices of ``n`` of the candidates ``C`` (m, d) chosen one by one as the farthest
+        (Euclidean, in the unit box) from every told θ and from those chosen before it (a
+        greedy maximin design): ``escape_falls``'s ask, where the models, trained on falls
+        alone, cannot tell where the target stands."""
+        X = self._X[:self.n_told]
+        d2 = (C * C).sum(1)[:, None] + (X * X).sum(1)[None, :] - 2.0 * C @ X.T
+        d = np.sqrt(np.maximum(d2, 0.0)).min(1)
+        out: list[int] = []
+        for _ in range(min(n, len(C))):
+            i = int(np.argmax(d))
+            out.append(i)
+            d = np.minimum(d, np.sqrt(((C - C[i]) ** 2).sum(-1)))
+        return np.asarray(out, dtype=np.int64)
 
     def _explore_pool(self, explore: np.ndarray, standing: bool,
                       record: dict[int, ExploreRecord] | None = None, g: int = 0
@@ -1494,7 +1533,10 @@ class Transfer(TwoSpaceCritic):
             if self.opts["explore_gp"] and cost_m is not None and \
                     where in ("lines", "latent_lines"):
                 ctx.explore_gp = self._target_gp(cost_m)
-            if where == "lines":
+            if self._escape_due():      # everything the source suggested fell: go far from it
+                ctx.escape = True
+                parts = [(self._pool_global(M, rng), np.full((M, self.k), np.nan), GLOBAL)]
+            elif where == "lines":
                 XI = self._pool_lines(M, centre, rng)
                 if ctx.explore_gp is not None:
                     XI = self._pool_explore_gp(XI, ctx.explore_gp, rng)
@@ -1581,6 +1623,8 @@ class Transfer(TwoSpaceCritic):
             ok[np.argsort(cands.risk, kind="stable")[:max(n, min(len(C), 3 * n))]] = True
         cands.ok = ok
         cand = np.flatnonzero(ok)
+        if ctx.escape:          # the candidates farthest from every told trial (all fell)
+            return self._chosen(cands, self._farthest(C, n), ctx)
         if ctx.explore_cma:     # CMA-ES's own order: its first draws the screen admits, or
             # where it admits too few, the least likely to fall
             sel = cand[np.argsort(cands.risk[cand], kind="stable")] if forced else cand
@@ -1880,6 +1924,7 @@ class Transfer(TwoSpaceCritic):
             **({"centre_screened": True} if ctx.centre_screened else {}),
             **({"centre_fragile": ctx.fragile} if self.opts["centre_falls"] else {}),
             **({"duplicates_dropped": ctx.duplicates} if ctx.duplicates else {}),
+            **({"escape": True} if ctx.escape else {}),
             **({"repeats_avoided": ctx.repeats} if ctx.repeats else {}),
             **({"safe_fallback": True} if ctx.safe_fallback else {}),
             **({"fall_fit": [ctx.fall_m.ls_scale, ctx.fall_m.noise]}

@@ -133,7 +133,8 @@ def decisions(store: RunStore, phase: int = Phase.PHASE3) -> list[dict[str, Any]
 def decision_kind(d: dict[str, Any]) -> str:
     """What an ask was, from its decision ``d``: ``"design"`` (the source's elite θ),
     ``"explore (lines)"`` / ``"explore (latent)"`` / … (an explore ask and its pool;
-    ``"explore (lines, target GP)"`` when the target's own GP chose it, ``explore_gp``),
+    ``"explore (lines, target GP)"`` when the target's own GP chose it, ``explore_gp``;
+    ``"explore (escape)"``: far from every told trial while all fell, ``escape_falls``),
     ``"manual θ"``, ``"converged"`` or ``"record walk"`` (a rule's ask; the last, a θ deeper
     in the source's record after its top fell, ``record_walk``), ``"record CMA-ES"`` (a draw
     of the screened CMA-ES the asks go to once the source's record fell, ``record_cma``), else
@@ -148,6 +149,8 @@ def decision_kind(d: dict[str, Any]) -> str:
         return "converged"
     if d.get("record_cma"):
         return "record CMA-ES"
+    if d.get("escape"):
+        return "explore (escape)"
     if d.get("explore"):
         return f"explore ({d.get('explore_pool') or 'latent'}" + \
             (", target GP)" if d.get("explore_gp") else ")")
