@@ -4,6 +4,8 @@ of 2, 4 and 8 weights (the bar: ``results/transfer/escape/bar.md``).
     python -m benchmarks.transfer_escape run [--root runs/escape] [--dims 2 4 8]
         [--seeds 0 1 2 3 4] [--kinds anti moved narrow] [--budget 30] [--k 8]
     python -m benchmarks.transfer_escape summary [--root runs/escape] [--k 8] --out F.json
+    python -m benchmarks.transfer_escape blind [--root runs/transfer] [--out runs/escape_blind]
+        [--seeds 0 ... 9] [--budget 40] [--k 8]
 
 The source (the model) costs ``q(θ) = Σ (θ_i − 0.3)²`` on the unit box and fails where
 ``q > r`` (``r = 0.35 d / 4``): it stands in a ball around 0.3. Each target keeps the cost and
@@ -23,7 +25,10 @@ default transfer phase 3, the same with ``escape_falls=k``, and two peers a user
 included for the transfer phase 3. Runs are stored as JSON under
 ``ROOT/d<d>/seed<s>/<kind>/<method>.json`` and skipped when present (the run resumes).
 ``summary`` gives per (kind, d) the median best (a run where every trial fell: inf), the median
-falls, how many runs found a standing trial, and the bar's verdicts.
+falls, how many runs found a standing trial, and the bar's verdicts. ``blind`` runs the default
+and ``escape_falls=k`` on the ladder's harshest targets with their falls reported blind
+(:class:`Blind`), on the ladder's sources; ``benchmarks.transfer compare --root OUT`` pairs
+them.
 """
 from __future__ import annotations
 
@@ -75,6 +80,51 @@ class Bowl:
         return lt.Outcome(q, False) if stands else lt.Outcome(None, True)
 
 
+class Blind:
+    """A target whose falls are reported without a step or a cost (``Outcome(None, True)``):
+    the loop's convention gives each the same cost, so nothing ranks them."""
+
+    def __init__(self, target: Any) -> None:
+        self.target, self.space = target, target.space
+
+    def config(self) -> dict[str, Any]:
+        return {**self.target.config(), "blind_falls": True}
+
+    def evaluate(self, theta: np.ndarray) -> lt.Outcome:
+        from latentune.system import evaluate
+
+        out = evaluate(self.target, theta)
+        return lt.Outcome(None, True) if out.failed else out
+
+
+BLIND_TARGETS = (("servo", 1.0), ("vehicle", 2.5), ("quadrotor", 2.5))
+"""The targets ``escape_falls=8`` changed (the default ran 8 or more falls first there)."""
+
+
+def run_blind(root: Path, out: Path, seeds: list[int], budget: int, k: int) -> None:
+    """The default and ``escape_falls=k`` on :class:`Blind` versions of
+    :data:`BLIND_TARGETS`, on the ladder's sources under ``root`` (made when missing), stored
+    as ``out/<system>/gap<g>/seed<s>/<method>.json`` (skipped when present)."""
+    from benchmarks.transfer import SYSTEMS, run_method, source_run
+
+    for system, gap in BLIND_TARGETS:
+        for s in seeds:
+            src = source_run(root, system, s, 300)
+            for name, opts in (("transfer", None), escape_variant(k)):
+                f = out / system / f"gap{gap:g}" / f"seed{s}" / f"{name}.json"
+                if f.is_file():
+                    continue
+                res = run_method("transfer", Blind(SYSTEMS[system]["target"](gap)), src,
+                                 budget, s, opts)
+                f.parent.mkdir(parents=True, exist_ok=True)
+                f.write_text(json.dumps({"costs": res["costs"], "failed": res["failed"],
+                                         "system": system, "gap": gap, "seed": s,
+                                         "method": name, "budget": budget}))
+                fl = np.asarray(res["failed"], bool)
+                print(f"blind {system} gap {gap:g} seed {s} {name}: falls {int(fl.sum())}",
+                      flush=True)
+
+
 def source_dir(root: Path, d: int, seed: int) -> Path:
     """Phase 1 + the latent space on the source bowl (resumes); its directory."""
     src = root / f"d{d}" / f"seed{seed}" / "source"
@@ -84,11 +134,16 @@ def source_dir(root: Path, d: int, seed: int) -> Path:
     return src
 
 
+def escape_variant(k: int) -> tuple[str, dict[str, Any]]:
+    """The stored name and the transfer options of ``escape_falls=k``."""
+    return f"transfer+escape_falls={k}", {"escape_falls": k}
+
+
 def methods(k: int) -> dict[str, tuple[str, dict[str, Any] | None]]:
     """name -> (benchmarks.transfer method, transfer options)."""
-    return {"transfer": ("transfer", None), f"transfer+escape_falls={k}": (
-        "transfer", {"escape_falls": k}), "turbo_manual": ("turbo_manual", None),
-        "gp": ("gp", None)}
+    name, opts = escape_variant(k)
+    return {"transfer": ("transfer", None), name: ("transfer", opts),
+            "turbo_manual": ("turbo_manual", None), "gp": ("gp", None)}
 
 
 def run(root: Path, dims: list[int], seeds: list[int], kinds: list[str], budget: int,
@@ -132,7 +187,7 @@ def summary(root: Path, k: int) -> dict[str, Any]:
                     "median_falls": float(np.median(v["falls"])),
                     "runs_standing": int(sum(v["stood"]))} for n, v in per.items()}}
             rows.append(row)
-    esc = f"transfer+escape_falls={k}"
+    esc = escape_variant(k)[0]
     verdict: dict[str, Any] = {}
     trapped = [r for r in rows if r["kind"] in ("anti", "moved")]
     if trapped and all(esc in r["methods"] and "transfer" in r["methods"] for r in trapped):
@@ -174,6 +229,13 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--kinds", nargs="+", choices=KINDS, default=list(KINDS))
     r.add_argument("--budget", type=int, default=30)
     r.add_argument("--k", type=int, default=8)
+    b = sub.add_parser("blind", help="the default and escape_falls on blind-fall targets")
+    b.add_argument("--root", type=Path, default=Path("runs/transfer"),
+                   help="the ladder's sources (benchmarks.transfer)")
+    b.add_argument("--out", type=Path, default=Path("runs/escape_blind"))
+    b.add_argument("--seeds", nargs="+", type=int, default=list(range(10)))
+    b.add_argument("--budget", type=int, default=40)
+    b.add_argument("--k", type=int, default=8)
     s = sub.add_parser("summary")
     s.add_argument("--root", type=Path, default=Path("runs/escape"))
     s.add_argument("--k", type=int, default=8)
@@ -181,6 +243,9 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     if a.cmd == "run":
         run(a.root, a.dims, a.seeds, a.kinds, a.budget, a.k)
+        return 0
+    if a.cmd == "blind":
+        run_blind(a.root, a.out, a.seeds, a.budget, a.k)
         return 0
     from benchmarks.common import Provenance, write_json
 

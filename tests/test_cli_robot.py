@@ -164,13 +164,15 @@ def test_record_walk_flags_are_checked_and_recorded(tmp_path, run_cli, error_lin
     assert "invalid choice" in error_line(*run_cli(
         "phase3", "--robot", "a1", "--out", tmp_path / "r", "--record-walk", "3",
         "--walk-pick", "cost")[::2])
+    assert "--escape-falls must be a number of trials ≥ 0" in error_line(*run_cli(
+        "phase3", "--robot", "a1", "--out", tmp_path / "r", "--escape-falls", "-1")[::2])
     assert not (tmp_path / "r").exists()
     d, first = _phase3_asktell(tmp_path)
     code, _, err = run_cli("ask", d, *first, "--record-walk", "3", "--walk-pick", "band",
-                           "--fall-budget", "0.2")
+                           "--fall-budget", "0.2", "--escape-falls", "8")
     assert code == 0, err
     assert lt.Study(d).config()["phase3"]["transfer_options"] == \
-        {"fall_budget": 0.2, "record_walk": 3, "walk_pick": "band"}
+        {"fall_budget": 0.2, "record_walk": 3, "walk_pick": "band", "escape_falls": 8}
     code, _, err = run_cli("ask", d, "--walk-pick", "band")      # the stored walk: K = 3
     assert code == 0, err
     assert "walk_pick" in error_line(*run_cli("ask", d, "--walk-pick", "fall")[::2])

@@ -59,3 +59,47 @@ def test_fall_cost_is_recorded_and_resumed(setting):
     fresh = Transfer(setting[0], None, None, batch_size=16, seed=1)
     fresh.load_state_dict(cr.state_dict())
     assert fresh.opts["fall_cost"] is True
+
+
+@pytest.fixture(scope="module")
+def bowl_source(tmp_path_factory):
+    """A source run of ``benchmarks.transfer_escape``'s 2-weight bowl: phase 1 (40) and its
+    latent space."""
+    import latentune as lt
+    from benchmarks.transfer_escape import Bowl
+
+    d = tmp_path_factory.mktemp("bowl") / "src"
+    with lt.Study(d, seed=0, batch_size=4) as st:
+        st.phase1(Bowl(2), 40)
+        st.train_latent(epochs=30)
+    return d
+
+
+@pytest.mark.parametrize("k", [0, 6])
+def test_escape_falls_leaves_the_source_region_once_k_trials_all_fell(tmp_path, bowl_source, k):
+    """A target that falls wherever the source stood (``anti``): the default phase 3 asks the
+    source's region and falls every trial; with ``escape_falls`` = k, once k trials all fell
+    an explore ask is the θ farthest from them (recorded as ``escape``), which stands, and the
+    rule ends there."""
+    import latentune as lt
+    from benchmarks.transfer_escape import Bowl
+    from latentune.pipeline.phases import state_key
+
+    with lt.Study(tmp_path / "t", seed=0, batch_size=1) as st:
+        st.phase3(Bowl(2, "anti"), 16, latent=bowl_source,
+                  transfer_options={"escape_falls": k} if k else None)
+        fell = st.store.fell(3)
+        ds = st.store.get_meta(state_key(3))["decisions"]
+    escapes = [i for i, d in enumerate(ds) if d.get("escape")]
+    if k == 0:
+        assert fell.all() and not escapes
+    else:
+        assert escapes and all(fell[:escapes[0]]) and escapes[0] + 1 >= k   # + the zero-shot
+        assert not fell[escapes[0]] and len(escapes) == 1
+
+
+def test_escape_falls_is_an_integer_option():
+    src = (np.random.default_rng(0).random((10, 3)), np.arange(10.0), np.zeros(10, bool))
+    for bad in (-1, 2.5, True):
+        with pytest.raises(ValueError, match="escape_falls"):
+            Transfer(src, None, None, escape_falls=bad)

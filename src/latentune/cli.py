@@ -861,6 +861,10 @@ def _transfer_args(p: argparse.ArgumentParser) -> None:
                    help="transfer phase 3: once the zero-shot θ and the design's elites all "
                         "fell, the next K asks walk down the source's own record, one rank "
                         "band each, until one stands; default 0: off")
+    p.add_argument("--escape-falls", type=int, default=None, metavar="K",
+                   help="transfer phase 3: once K target trials all fell, every explore ask "
+                        "(every second ask) takes the θ farthest from them in the whole box, "
+                        "for a target that falls wherever the source stood; default 0: off")
     p.add_argument("--walk-pick", choices=WALK_PICKS, default=None,
                    help="how each step of --record-walk is chosen: the best rank past the "
                         "step's quantile (rank, the default), or the least likely to fall "
@@ -871,13 +875,14 @@ def _transfer_args(p: argparse.ArgumentParser) -> None:
 def _transfer_options(args: argparse.Namespace, stored: dict[str, Any] | None
                       ) -> dict[str, Any] | None:
     """Phase 3's ``transfer_options``: ``stored`` (the stored phase 3's, which a resume or a
-    later ask keeps) with --fall-budget, --record-walk and --walk-pick over it (each checked; a
-    --walk-pick without a walk to choose for is refused). A flag that changes a stored value
-    is then refused by the study, naming both."""
+    later ask keeps) with --fall-budget, --record-walk, --escape-falls and --walk-pick over it
+    (each checked; a --walk-pick without a walk to choose for is refused). A flag that changes
+    a stored value is then refused by the study, naming both."""
     q = getattr(args, "fall_budget", None)
     k = getattr(args, "record_walk", None)
     pick = getattr(args, "walk_pick", None)
-    if q is None and k is None and pick is None:
+    esc = getattr(args, "escape_falls", None)
+    if q is None and k is None and pick is None and esc is None:
         return stored
     opts = dict(stored or {})
     if q is not None:
@@ -888,6 +893,10 @@ def _transfer_options(args: argparse.Namespace, stored: dict[str, Any] | None
         if k < 0:
             raise CLIError(f"--record-walk must be a number of asks ≥ 0 (0: off), got {k}")
         opts["record_walk"] = k
+    if esc is not None:
+        if esc < 0:
+            raise CLIError(f"--escape-falls must be a number of trials ≥ 0 (0: off), got {esc}")
+        opts["escape_falls"] = esc
     if pick is not None:
         if int(opts.get("record_walk", 0)) <= 0:
             raise CLIError("--walk-pick chooses the steps of a walk: give --record-walk K > 0")

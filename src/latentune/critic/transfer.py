@@ -325,6 +325,12 @@ the region's faces and corners, where a gain's best value on the target often li
 and where expected improvement maximized over the box by a gradient method ends, while a
 uniform draw inside the region reaches them with probability 0. The model chooses among them as
 among the others, and the fall screen applies.
+``escape_falls`` = k > 0 (default 0: off): once at least k target trials were told and every
+one fell, an explore ask takes, among ``n_candidates`` Sobol points over the whole θ box, the θ
+farthest from every told trial and from those it chose before (a greedy maximin design;
+recorded as ``escape``): a way off the source's manifold for a target that falls wherever the
+source stood. Where the target's stable θ lie near the source's (the physical targets measured,
+``results/transfer/escape``) the box's far corners fall, so it is not the default.
 ``stand_first`` (default False): while every trial on the target fell, a batch that falls too
 leaves ``L`` and its counters alone: there is no incumbent it could fail to improve on, so the
 trust region that starts at the first standing trial starts at side ``length_init``, not at a
@@ -397,7 +403,6 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "explore_record": "count", "explore_bandit": "mean", "region_gp": False,
     "fall_fit": False, "fall_budget": 0.0, "fall_budget_counts": "after_stand",
     "record_walk": 0, "walk_pick": "rank", "record_cma": False, "escape_falls": 0,
-    "escape_when": "blind",
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state, where
 ``explore_fall_prob`` is resolved (:func:`resolved_options`)."""
@@ -435,7 +440,7 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "fall_fit": False, "fall_budget": 0.0,
                                  "fall_budget_counts": "all", "record_walk": 0,
                                  "walk_pick": "rank", "record_cma": False,
-                                 "escape_falls": 0, "escape_when": "blind"}
+                                 "escape_falls": 0}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -487,9 +492,6 @@ FULL_SHAPES = ("lengthscales", "cube")
 """The full pool's box (``full_shape``): sides in proportion to the lengthscales, or a cube."""
 FALL_BUDGET_COUNTS = ("all", "after_stand")
 """The falls a fall budget counts (``fall_budget_counts``, :func:`counted_falls`)."""
-ESCAPE_WHEN = ("blind", "always")
-"""When ``escape_falls`` leaves the source's manifold: only while the told falls' costs are all
-equal (nothing ranks them: no fall step, no cost), or whenever every told trial fell."""
 EXPLORE_WHEN = ("always", "stalled")
 """When a due generation is an explore ask (``explore_when``): always, or only while the trust
 region's side is at its minimum."""
@@ -667,9 +669,6 @@ class Transfer(TwoSpaceCritic):
         k_es = self.opts["escape_falls"]
         if isinstance(k_es, bool) or not isinstance(k_es, (int, np.integer)) or k_es < 0:
             raise ValueError(f"escape_falls must be an integer ≥ 0 (0: off), got {k_es!r}")
-        if self.opts["escape_when"] not in ESCAPE_WHEN:
-            raise ValueError(f"escape_when must be one of {ESCAPE_WHEN}, "
-                             f"got {self.opts['escape_when']!r}")
         k_cf = self.opts["centre_falls"]
         if isinstance(k_cf, bool) or not isinstance(k_cf, (int, np.integer)) or k_cf < 0:
             raise ValueError(f"centre_falls must be an integer ≥ 0 (0: off), got {k_cf!r}")
@@ -934,15 +933,10 @@ class Transfer(TwoSpaceCritic):
 
     def _escape_due(self) -> bool:
         """``escape_falls`` = k > 0: True while every told trial fell and there are at least k
-        of them (the zero-shot θ, the design's elites, the manual θ and the asks after them),
-        and (``escape_when="blind"``) their costs are all equal, so nothing ranks the falls
-        (no fall step, no cost: the centre of the trust region is any of them): the explore
-        asks then leave the source's manifold (:meth:`_farthest`)."""
+        of them (the zero-shot θ, the design's elites, the manual θ and the asks after them):
+        the explore asks then leave the source's manifold (:meth:`_farthest`)."""
         k, n = int(self.opts["escape_falls"]), self.n_told
-        if k <= 0 or n < k or not bool(self._fell[:n].all()):
-            return False
-        y = self._y[:n]
-        return self.opts["escape_when"] == "always" or bool(np.all(y == y[0]))
+        return k > 0 and n >= k and bool(self._fell[:n].all())
 
     def _farthest(self, C: np.ndarray, n: int) -> np.ndarray:
         """Indices of ``n`` of the candidates ``C`` (m, d) chosen one by one as the farthest

@@ -199,7 +199,8 @@ def failing_message(phase: int, n: int, strategy: str = "plain") -> str:
                 "source run, or fail wherever it is tuned (run its manual θ by hand); the "
                 "transfer strategy asks the manual θ while every trial failed; try a lower "
                 f"--max-fall-prob (it screens at {TRANSFER_DEFAULTS['max_fall_prob']:g} unless "
-                "told), or phase 1 on the target")
+                "told), --escape-falls 8 if the target falls wherever the source stood, or "
+                "phase 1 on the target")
     if int(phase) == 3:
         return (f"phase 3: the last {n} trials all failed: the target may be far from the "
                 "latent space's source; try the hand-over (--handover), the fall-aware critic "
