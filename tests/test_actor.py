@@ -141,6 +141,19 @@ def test_cli_rollout_json(tmp_path, run_cli):
     assert plot.stat().st_size > 1000
 
 
+def test_cli_rollout_json_of_a_fall_gives_the_executed_steps(tmp_path, run_cli):
+    """``steps`` is the steps executed (the task's horizon used to overwrite it) and
+    ``horizon`` the planned ones; the JSON holds every field of the stored trial's info."""
+    params = tmp_path / "p.json"
+    params.write_text(json.dumps([0.0] * 13 + [1.0] * 12))    # no state weight: it sags and falls
+    code, out, err = run_cli("rollout", "--steps", "400", "--json", "--params", params)
+    assert code == 0, err
+    obj = json.loads(out)
+    assert obj["fell"] and obj["steps"] == obj["fall_step"] < 400 and obj["horizon"] == 400
+    assert obj["cost"] == pytest.approx(100.0 * (2 - obj["fall_step"] / 400))
+    assert {"rms_vel_error", "mean_height", "reason", "robot", "seed", "dim"} <= obj.keys()
+
+
 @pytest.mark.parametrize("args,content,expect", [
     (["--robot", "nosuchbot"], None, "unknown robot 'nosuchbot'"),
     (["--task", "moonwalk"], None, "unknown task 'moonwalk'"),

@@ -194,9 +194,10 @@ def cmd_rollout(args: argparse.Namespace) -> int:
 
         plot_rollouts({"rollout": res}, args.plot, v_des=float(task.v_des[0]),
                       title=f"{task.robot_name} {task.gait} ({where})")
-    out = res.summary()
-    out.update(task.config())
-    out.pop("spec", None)
+    # the rollout's fields (``steps`` executed, ``horizon`` planned), then the task's others
+    cfg = {k: v for k, v in task.config().items() if k not in ("spec", "steps")}
+    out = {"cost": res.cost, "fell": res.fell, **res.info(task.steps), "wall_s": res.wall_s,
+           **cfg}
     if args.json:
         print(json.dumps(out))
     else:
