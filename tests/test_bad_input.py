@@ -79,6 +79,7 @@ BAD_TASK_ARGS = [  # (flags, which error)
     (["--steps", "0"], "--steps must be >= 1, got 0"),
     (["--steps", "-5"], "--steps must be >= 1, got -5"),
     (["--steps", "x"], "argument --steps: invalid int value: 'x'"),
+    (["--steps", "1" + "0" * 12], "steps must be at most 10,000,000 (10,000 s at 1 kHz)"),
     (["--v-des", "nan"], "--v-des must be finite, got nan"),
     (["--v-des", "inf"], "--v-des must be finite, got inf"),
     (["--v-des", "9"], "v_des must be a finite velocity of at most 3 m/s"),
@@ -214,6 +215,7 @@ def test_paper_rejects_bad_arguments(capsys, tmp_path, bad, expect):
     (["--timeout", "-1"], "--timeout must be > 0, got -1.0"),
     (["--timeout", "0"], "--timeout must be > 0, got 0.0"),
     (["--steps", "0"], "--steps and --n must be >= 1"), (["--n", "0"], "--steps and --n must be >= 1"),
+    (["--steps", "1" + "0" * 12], "--steps must be at most 10,000,000, got 1" + "0" * 12),
     (["--n", "x"], "argument --n: invalid int value: 'x'"),
 ], ids=lambda b: " ".join(b) if isinstance(b, list) else "")
 def test_bench_rejects_bad_arguments(capsys, bad, expect):

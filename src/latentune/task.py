@@ -32,7 +32,9 @@ from latentune.robots import RobotSpec, get_robot
 from latentune.space import ParameterSpace
 from latentune.system import Outcome
 
-__all__ = ["Task", "RolloutResult", "path_cost", "actor_class", "ACTORS", "C1"]
+__all__ = ["Task", "RolloutResult", "path_cost", "actor_class", "ACTORS", "C1", "MAX_STEPS"]
+MAX_STEPS = 10_000_000
+"""The longest rollout horizon (10,000 s at 1 kHz): a rollout holds a few arrays of this length."""
 ACTORS = {
     "convex": "latentune.actor.convex_mpc:ConvexMPC",
     "kinodynamic": "latentune.actor.kinodynamic:KinodynamicMPC",
@@ -147,6 +149,8 @@ class Task:
             raise UsageError("v_des must be a finite velocity of at most 3 m/s")
         if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
             raise UsageError(f"steps must be a positive integer, got {steps!r}")
+        if steps > MAX_STEPS:
+            raise UsageError(f"steps must be at most {MAX_STEPS:,} (10,000 s at 1 kHz), got {steps}")
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) \
                 or not 0 <= seed < 2 ** 63:
             raise UsageError(f"seed must be an integer in [0, 2**63), got {seed!r}")

@@ -78,8 +78,12 @@ def run_bench(steps: int = 2000, n: int = 8, timeout: float = 900.0,
         UsageError: a bad argument, or no checkout with ``benchmarks/`` (an installed package).
     """
     # the parameters are the command's flags of the same names
+    from latentune.task import MAX_STEPS
+
     if steps < 1 or n < 1:
         raise UsageError("--steps and --n must be >= 1")
+    if steps > MAX_STEPS:
+        raise UsageError(f"--steps must be at most {MAX_STEPS:,}, got {steps}")
     if not timeout > 0:
         raise UsageError(f"--timeout must be > 0, got {timeout}")
     root = root or repo_root()
