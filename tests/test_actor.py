@@ -35,6 +35,17 @@ def test_a1_trot_hills(seed):
     assert 0.4 <= res.mean_vx <= 0.6
 
 
+def test_a_hills_rollout_does_not_depend_on_the_rollouts_before_it():
+    """PyBullet's restoreState kept the heightfield's broadphase pairs in the order the last
+    rollout left them: a θ's cost followed the θ run before it in the world (workers 1 and 2
+    stored other costs for the same θ)."""
+    th = np.random.default_rng(0).random((3, 25))
+    task = lt.Task(terrain="hills", steps=200)
+    after_others = [task(x) for x in th]
+    alone = [lt.Task(terrain="hills", steps=200)(x) for x in th]
+    assert after_others == alone
+
+
 def test_random_theta_properties():
     """Random θ: never an exception, finite costs, fell ⇔ cost ≥ C1, a share falls, a share stands."""
     steps = 600

@@ -341,12 +341,24 @@ class World(WorldBase):
             p.resetJointState(self.robot, j, spec.nominal_q[k], 0.0, physicsClientId=c)
         self._settle()
         self._saved = p.saveState(physicsClientId=c)
+        self._stepped = False      # no step since the state was saved
 
     def _zero_base_velocity(self) -> None:
         p.resetBaseVelocity(self.robot, [0, 0, 0], [0, 0, 0], physicsClientId=self.cid)
 
     def _restore(self) -> None:
+        # restoreState keeps the broadphase's overlapping pairs. With the plane (an infinite
+        # box) they never change; the heightfield's box is finite, so links leaving and
+        # re-entering it reorder them, and a rollout's last bits would follow the rollouts run
+        # before it in this world (other costs for --workers 1 and 2). Hills rebuild the
+        # client once stepped (a few hundredths of a second): every rollout starts as the
+        # first one in a new world.
+        if self._stepped and self.heights is not None:
+            with stdout_to_stderr():
+                p.disconnect(physicsClientId=self.cid)
+                self._build()
         p.restoreState(self._saved, physicsClientId=self.cid)
+        self._stepped = True
 
     def true_state(self) -> RobotState:
         """The exact state of the robot (base inertial frame, see :class:`RobotState`)."""
