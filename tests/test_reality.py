@@ -416,6 +416,16 @@ def test_mujoco_blow_up_is_a_non_finite_state(tmp_path, monkeypatch, capfd, capl
     assert w.true_state().finite
 
 
+def test_pybullet_blow_up_at_finite_positions_is_a_fall():
+    """A huge joint damping blows PyBullet up with finite positions: the base velocity jumps
+    between ±100 m/s (its clamp) at a plausible height. It was a stable rollout at the capped
+    cost just below C1; it is a fall at the step it happens."""
+    task = Task("a1", steps=50, reality={"joint_damping": 1e9})
+    res = task.rollout(task.space.manual)
+    assert res.fell and res.fall_step == 1 and res.cost == pytest.approx(200 - 2)
+    assert res.reason == "simulator blow-up (base speed 173 m/s)"
+
+
 def test_a_study_of_one_reality_refuses_another(tmp_path):
     from latentune.errors import StoreError
     from latentune.study import Study

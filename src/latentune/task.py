@@ -7,8 +7,9 @@ Path cost (paper Eq. 2 with the running cost of its §IV): over N_H physics step
 * it fell at step k:      L = C1 · (2 − k / N_H),  C1 = 100, and the rollout stops there.
 
 So L < C1 ⇔ stable. Fallen: base height above the ground outside [0.5, 2.5]·h_nom, tilt above
-``max_tilt_deg``, a non-foot link touching the ground, a non-finite state, or an actor failure
-(infeasible QP) — never an exception.
+``max_tilt_deg``, a non-foot link touching the ground, a non-finite state or a base speed above
+:data:`BLOWUP_SPEED` (the simulator blew up: PyBullet clamps velocities at 100 m/s), or an actor
+failure (infeasible QP) — never an exception.
 
 A Task may run on another physics engine (``engine="mujoco"``) and in a perturbed reality
 (``reality=``: a preset name, a YAML file, a dict or a :class:`~latentune.sim.reality.Reality`):
@@ -32,7 +33,10 @@ from latentune.robots import RobotSpec, get_robot
 from latentune.space import ParameterSpace
 from latentune.system import Outcome
 
-__all__ = ["Task", "RolloutResult", "path_cost", "actor_class", "ACTORS", "C1", "MAX_STEPS"]
+__all__ = ["Task", "RolloutResult", "path_cost", "actor_class", "ACTORS", "C1", "MAX_STEPS", "BLOWUP_SPEED"]
+BLOWUP_SPEED = 50.0
+"""A base speed above this [m/s] is a simulator blow-up, counted as a fall (legged robots move
+at a few m/s; a blown-up PyBullet world jumps between ±100 m/s at finite positions)."""
 MAX_STEPS = 10_000_000
 """The longest rollout horizon (10,000 s at 1 kHz): a rollout holds a few arrays of this length."""
 ACTORS = {
@@ -288,6 +292,7 @@ class Task:
         s = world.true_state()  # the cost and the fall detector see the true state ...
         flat = world.terrain == "flat"
         h_lo, h_hi = 0.5 * h_nom, 2.5 * h_nom
+        v_max2 = BLOWUP_SPEED ** 2
         while actor is not None and n < N:
             try:
                 tau = actor.control(n, world.observe(s))  # ... the actor its sensors' view
@@ -309,8 +314,12 @@ class Task:
                 rec["rpy"][n - 1] = s.rpy
             if frame_every and (n - 1) % frame_every == 0:
                 frames.append(world.render())
+            v = s.vel
             if not (s.finite and abs(h) < 1e3):
                 fall_step, reason = n, "simulator blow-up (non-finite state)"
+            elif v[0] * v[0] + v[1] * v[1] + v[2] * v[2] > v_max2:
+                fall_step, reason = n, (f"simulator blow-up (base speed "
+                                        f"{math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]):.0f} m/s)")
             elif not (h_lo <= h <= h_hi):
                 fall_step, reason = n, f"base height {h:.3f} m outside [{h_lo:.3f}, {h_hi:.3f}]"
             elif s.up_z < cos_tilt:
