@@ -416,6 +416,18 @@ def test_mujoco_blow_up_is_a_non_finite_state(tmp_path, monkeypatch, capfd, capl
     assert w.true_state().finite
 
 
+@pytest.mark.skipif(not HAVE_MUJOCO, reason="no mujoco")
+def test_an_unusable_mujoco_gl_is_one_line(cli, cli_env):
+    """mujoco's import loads MUJOCO_GL's backend: an unknown name (or osmesa without its
+    library, which the render error suggested) was a traceback of the import."""
+    out = cli("rollout", "--engine", "mujoco", "--steps", "3",
+              env=dict(cli_env, MUJOCO_GL="bogus"), timeout=120)
+    assert out.returncode == 2 and out.stdout == ""
+    assert out.stderr.splitlines() == [
+        "latentune: error: mujoco cannot be imported (RuntimeError: invalid value for environment "
+        "variable MUJOCO_GL: bogus); MUJOCO_GL=bogus is not usable here: unset it or set it to egl"]
+
+
 def test_pybullet_blow_up_at_finite_positions_is_a_fall():
     """A huge joint damping blows PyBullet up with finite positions: the base velocity jumps
     between ±100 m/s (its clamp) at a plausible height. It was a stable rollout at the capped

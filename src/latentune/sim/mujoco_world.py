@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import logging
 import math
+import os
+import warnings
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -64,12 +66,19 @@ def require_mujoco():
     """The ``mujoco`` module (its warnings sent to this module's logger, not to a MUJOCO_LOG.TXT).
 
     Raises:
-        UsageError: mujoco is not installed.
+        UsageError: mujoco is not installed, or its import fails (it loads the OpenGL backend
+            ``MUJOCO_GL`` names: ``osmesa`` without libOSMesa, an unknown name).
     """
     try:
         import mujoco
     except ImportError:
         raise UsageError("engine 'mujoco' needs the mujoco package (pip install mujoco==4.0.0)") from None
+    except Exception as exc:  # noqa: BLE001 - mujoco's import sets up MUJOCO_GL's backend
+        gl = os.environ.get("MUJOCO_GL")
+        why = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+        raise UsageError(f"mujoco cannot be imported ({why})"
+                         + (f"; MUJOCO_GL={gl} is not usable here: unset it or set it to egl"
+                            if gl else "")) from None
     if mujoco.get_mju_user_warning() is None:  # not MuJoCo's default: a MUJOCO_LOG.TXT in the cwd
         mujoco.set_mju_user_warning(_warn)
     return mujoco
@@ -297,7 +306,9 @@ class MujocoWorld(WorldBase):
         mujoco = self.mj
         try:
             if getattr(self, "_renderer", None) is None:
-                self._renderer = mujoco.Renderer(self.mjmodel, height, width)
+                with warnings.catch_warnings():     # GLFW's, before the error below says it all
+                    warnings.simplefilter("ignore")
+                    self._renderer = mujoco.Renderer(self.mjmodel, height, width)
             cam = mujoco.MjvCamera()
             cam.lookat[:] = self._data.qpos[:3]
             cam.distance = 1.0 + 1.5 * self.spec.nominal_height
@@ -306,7 +317,7 @@ class MujocoWorld(WorldBase):
             return self._renderer.render()
         except Exception as exc:  # no OpenGL context on this machine
             raise UsageError(f"MuJoCo cannot render here ({str(exc).splitlines()[0] if str(exc) else exc}); "
-                             "set MUJOCO_GL=egl or osmesa, or use --engine pybullet") from None
+                             "set MUJOCO_GL=egl (or osmesa), or use --engine pybullet") from None
 
     def close(self) -> None:
         r = getattr(self, "_renderer", None)
