@@ -83,6 +83,7 @@ BAD_TASK_ARGS = [  # (flags, which error)
     (["--v-des", "nan"], "--v-des must be finite, got nan"),
     (["--v-des", "inf"], "--v-des must be finite, got inf"),
     (["--v-des", "9"], "v_des must be a finite velocity of at most 3 m/s"),
+    (["--v-des", "1e308"], "v_des must be a finite velocity of at most 3 m/s"),
     (["--seed", "-1"], "--seed must be in [0, 2**63), got -1"),
     (["--seed", str(2 ** 63)], f"--seed must be in [0, 2**63), got {2 ** 63}"),
     (["--seed", "1.5"], "--seed must be an integer, got '1.5'"),
@@ -490,7 +491,7 @@ def test_a_told_suggestion_cannot_be_told_again(capsys, asktell):
                                 dict(terrain="mars"), dict(actor="pid"), dict(steps=0),
                                 dict(steps=True), dict(steps=2.5), dict(seed=-1), dict(seed=1.7),
                                 dict(seed=2 ** 63), dict(v_des=float("nan")), dict(v_des="fast"),
-                                dict(v_des=(1, 2))])
+                                dict(v_des=(1, 2)), dict(v_des=True), dict(v_des="0.5")])
 def test_task_rejects_bad_arguments(kw):
     with pytest.raises(LatentuneError):
         lt.Task(**kw)

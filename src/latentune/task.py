@@ -146,10 +146,15 @@ class Task:
             raise UsageError(f"unknown actor {actor!r} (choose from {', '.join(ACTORS)})")
         self.actor_cls = actor_class(actor)
         try:
+            if isinstance(v_des, (str, bytes, bool, np.bool_)) or any(
+                    isinstance(x, (str, bytes, bool, np.bool_)) for x in np.ravel(v_des)):
+                raise TypeError
             v = np.array([v_des, 0.0, 0.0] if np.isscalar(v_des) else v_des, dtype=float)
+            if v.shape != (3,):
+                raise ValueError
         except (TypeError, ValueError):
             raise UsageError(f"v_des must be a number or a 3-vector [m/s], got {v_des!r}") from None
-        if v.shape != (3,) or not np.all(np.isfinite(v)) or np.linalg.norm(v) > 3.0:
+        if not np.all(np.isfinite(v)) or math.hypot(*v) > 3.0:  # hypot: no overflow
             raise UsageError("v_des must be a finite velocity of at most 3 m/s")
         if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
             raise UsageError(f"steps must be a positive integer, got {steps!r}")
