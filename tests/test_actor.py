@@ -97,9 +97,13 @@ def test_actor_failure_is_a_fall(monkeypatch):
         return orig(self, step, state)
 
     monkeypatch.setattr(cls, "control", failing)
-    res = task.rollout(task.space.manual)
+    res = task.rollout(task.space.manual, record=True)
     assert res.fell and res.fall_step == 101
     assert res.cost == pytest.approx(C1 * (2 - 101 / 500))
+    # the step that never ran is not a sample at height 0 (the plot's CoM dropped to the ground)
+    assert res.steps == 100 and len(res.trace["height"]) == 100
+    assert res.trace["height"].min() > 0.8 * task.spec.nominal_height
+    assert res.mean_height > 0.8 * task.spec.nominal_height
 
 
 def test_parameter_space_roundtrip():

@@ -333,7 +333,7 @@ class Task:
                 fall_step, reason = n, f"body touched the ground: link {link}"
             if fall_step is not None:
                 break
-        n_exec = n if fall_step is None else fall_step
+        n_exec = n      # steps executed: after an actor failure, one fewer than its fall_step
         vel = vel[:n_exec]
         height = height[:n_exec]
         cost = path_cost(vel, self.v_des, fall_step, N)
