@@ -131,6 +131,19 @@ def test_presets_and_yaml_form(tmp_path):
     assert Reality.load(mine) is mine and Reality.load({"friction": 0.3}).foot_friction == 0.3
 
 
+def test_a_profile_reads_numbers_in_exponent_form(tmp_path):
+    """PyYAML reads 1.0e6, 1e-3 (no dot or no exponent sign) as text: they were refused as
+    "must be a number, got '1.0e6'"; text that is no number still is."""
+    f = tmp_path / "exp.yaml"
+    f.write_text("mass_scale: 1.2e0\nnoise_q: 1e-3\npayload_offset: [1e-2, 0, 0]\n"
+                 "latency_steps: 2e0\n")
+    r = Reality.load(str(f))
+    assert (r.mass_scale, r.noise_q, r.payload_offset, r.latency_steps) == (1.2, 1e-3, (0.01, 0, 0), 2)
+    for bad in ("abc", "1e", "-1e3"):
+        with pytest.raises(UsageError):
+            Reality.load({"mass_scale": bad})
+
+
 def test_relative_fields_scale_with_the_robot():
     """The presets' payload, pushes and joint friction are fractions of the robot's mass, weight
     and torque limit: the same share of a light Solo12 as of an A1, resolved by the worlds."""

@@ -51,6 +51,7 @@ import dataclasses
 import hashlib
 import math
 import os
+import re
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -247,8 +248,17 @@ _RULES: dict[str, tuple[str, str]] = {
 }
 
 
+_EXPONENT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
+"""A number in exponent form: YAML 1.1 (PyYAML) reads ``1e6``, ``1.0e6`` and ``1e-3`` as text."""
+
+
 def _number(v: Any) -> bool:
     return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
+
+
+def _yaml_float(v: Any) -> Any:
+    """``v``, or the float of an exponent-form text PyYAML left unread (``1.0e6``)."""
+    return float(v) if isinstance(v, str) and _EXPONENT.fullmatch(v.strip()) else v
 
 
 def _check(key: str, v: Any, where: str) -> Any:
@@ -260,6 +270,7 @@ def _check(key: str, v: Any, where: str) -> Any:
     kind, rule = _RULES[key]
     if v is None and kind.endswith("?"):
         return None
+    v = [_yaml_float(x) for x in v] if isinstance(v, (list, tuple)) else _yaml_float(v)
     if kind.startswith("v3"):
         if isinstance(v, (str, bytes)) or not hasattr(v, "__len__") or len(v) != 3 \
                 or not all(_number(x) for x in v):
