@@ -289,6 +289,18 @@ def test_motor_and_joint_parameters(engine):
         assert int(np.argmax(np.abs(resp) > 1e-9)) == 5 + lat
 
 
+def test_latency_sends_the_command_of_latency_steps_ago_and_holds_no_copies():
+    """The queue held latency_steps copies of the first command: latency_steps 10**12 (a
+    legal profile) was a MemoryError traceback. It holds the commands sent only."""
+    for lat in (3, 10 ** 12):
+        rt = RealityRuntime(Reality(latency_steps=lat), 0, 0.001)
+        cmds = [np.full(12, float(k)) for k in range(8)]
+        out = [rt.motor(c)[0] for c in cmds]
+        assert out == [float(max(0, k - lat)) for k in range(8)] and len(rt.queue) <= 8
+        rt.reset()
+        assert rt.motor(np.full(12, 9.0))[0] == 9.0
+
+
 @engines
 def test_lower_friction_more_foot_slip(engine):
     def slip(w):

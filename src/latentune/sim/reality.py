@@ -53,6 +53,7 @@ import math
 import os
 import re
 import tempfile
+from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
@@ -424,7 +425,7 @@ class RealityRuntime:
         """Restart the generators from the seed, empty the latency queue, no push under way."""
         self.rng_noise = np.random.default_rng([self.seed, 1])
         self.rng_push = np.random.default_rng([self.seed, 2])
-        self.queue: list[np.ndarray] = []
+        self.queue: deque[np.ndarray] = deque()    # the commands sent, at most latency + 1
         self.step_no = 0
         self.push_start = self._next_push(0)
         self.push_dir = np.zeros(3)
@@ -441,11 +442,9 @@ class RealityRuntime:
         it), × ``torque_scale``, clipped to ``torque_limits``."""
         r = self.reality
         tau = np.asarray(tau, dtype=float)
-        if r.latency_steps:
-            if not self.queue:
-                self.queue = [tau.copy()] * r.latency_steps
+        if r.latency_steps:      # no copies of the first command: a latency may exceed the run
             self.queue.append(tau.copy())
-            tau = self.queue.pop(0)
+            tau = self.queue.popleft() if len(self.queue) > r.latency_steps else self.queue[0]
         if r.torque_scale != 1.0:
             tau = tau * r.torque_scale
         if self.limits is not None:
