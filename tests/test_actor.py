@@ -106,6 +106,31 @@ def test_actor_failure_is_a_fall(monkeypatch):
     assert res.mean_height > 0.8 * task.spec.nominal_height
 
 
+def test_a_non_finite_state_is_a_fall_with_finite_means(monkeypatch):
+    """A blow-up to NaN is a fall at its step; its NaN sample made mean_vx and mean_height NaN,
+    which rollout --json printed as NaN (no JSON number) and the trial's info stored."""
+    from latentune.sim.world import World
+
+    task = lt.Task(robot="a1", gait="trot", steps=100)
+    task.world                                     # built and settled before the blow-up
+    orig, calls = World.true_state, []
+
+    def blows_up(self):
+        s = orig(self)
+        calls.append(1)
+        if len(calls) > 30:
+            s.vel[:] = np.nan
+            s.pos[2] = np.nan
+            s.finite = False
+        return s
+
+    monkeypatch.setattr(World, "true_state", blows_up)
+    res = task.rollout(task.space.manual)
+    assert res.fell and res.reason == "simulator blow-up (non-finite state)" and res.fall_step == 30
+    json.dumps(res.info(100), allow_nan=False)
+    assert 0.8 * task.spec.nominal_height < res.mean_height < 1.2 * task.spec.nominal_height
+
+
 def test_parameter_space_roundtrip():
     space = lt.Task(robot="a1", gait="trot").space
     assert space.dim == 25 and len(space.names) == 25

@@ -73,6 +73,16 @@ def path_cost(vel: np.ndarray, v_des: np.ndarray, fall_step: int | None, horizon
     return min(float(math.sqrt(float(np.sum(err * err)))), STABLE_CAP)
 
 
+def _finite_mean(a: np.ndarray) -> float:
+    """The mean of ``a``'s finite entries (a blown-up step's NaN is no sample; NaN is no JSON
+    number); 0.0 when there are none."""
+    m = float(np.mean(a)) if a.size else 0.0
+    if math.isfinite(m):
+        return m
+    a = a[np.isfinite(a)]
+    return float(np.mean(a)) if a.size else 0.0
+
+
 @dataclass
 class RolloutResult:
     """Outcome of one rollout.
@@ -338,8 +348,8 @@ class Task:
         height = height[:n_exec]
         cost = path_cost(vel, self.v_des, fall_step, N)
         win = max(1, min(n_exec, int(round(3.0 / world.dt))))
-        mean_vx = float(np.mean(vel[-win:, 0])) if n_exec else 0.0
-        mean_h = float(np.mean(height[-win:])) if n_exec else 0.0
+        mean_vx = _finite_mean(vel[-win:, 0])
+        mean_h = _finite_mean(height[-win:])
         trace: dict[str, np.ndarray] = {}
         if rec is not None:
             trace = {"t": np.arange(1, n_exec + 1) * world.dt, "vel": vel.copy(),
