@@ -106,6 +106,20 @@ def test_actor_failure_is_a_fall(monkeypatch):
     assert res.mean_height > 0.8 * task.spec.nominal_height
 
 
+def test_a_gif_is_written_when_the_actor_fails_before_a_step(monkeypatch, tmp_path):
+    """rollout --gif of an actor failing at its first command wrote no file (no frame yet)
+    and exited 0."""
+    task = lt.Task(robot="a1", gait="trot", steps=50)
+
+    def failing(self, step, state):
+        raise ActorFailure("QP infeasible (test)")
+
+    monkeypatch.setattr(task.actor_cls, "control", failing)
+    gif = tmp_path / "x.gif"
+    res = task.rollout(task.space.manual, gif=str(gif))
+    assert res.fell and res.steps == 0 and gif.stat().st_size > 0
+
+
 def test_a_non_finite_state_is_a_fall_with_finite_means(monkeypatch):
     """A blow-up to NaN is a fall at its step; its NaN sample made mean_vx and mean_height NaN,
     which rollout --json printed as NaN (no JSON number) and the trial's info stored."""

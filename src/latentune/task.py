@@ -354,8 +354,11 @@ class Task:
         if rec is not None:
             trace = {"t": np.arange(1, n_exec + 1) * world.dt, "vel": vel.copy(),
                      "pos": rec["pos"][:n_exec], "rpy": rec["rpy"][:n_exec], "height": height.copy()}
-        if gif and frames:
+        if gif:
             import imageio.v2 as imageio
+
+            if not frames:             # the actor failed before a step: where it stands
+                frames.append(world.render())
 
             imageio.mimsave(gif, frames, duration=1.0 / gif_fps, loop=0)
         return RolloutResult(cost=cost, fell=fall_step is not None, fall_step=fall_step,
