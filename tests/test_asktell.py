@@ -481,6 +481,9 @@ def test_status_names_phases_and_counts_the_zero_shot_trial(tmp_path, src30):
         assert s["best"]["phase"] == "zero-shot" and s["best"]["trial"] == sugg[0].id
         assert json.loads(Path(s["best"]["params_file"]).read_text()) == sugg[0].params
         assert st.best().phase == Phase.ZERO_SHOT
+        # the files of the phase run: no phase4_best.json named after the store's code
+        assert sorted(f.name for f in st.dir.glob("*best.json")) == ["best.json",
+                                                                      "phase3_best.json"]
         p = st.best_params(tmp_path / "deploy.json")
         assert json.loads(p.read_text()) == sugg[0].params
         nxt = st.ask()[0]

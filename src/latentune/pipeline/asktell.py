@@ -520,7 +520,9 @@ def tell(study: Any, trial_id: int, cost: float | Outcome | None = None, *,
                                 seed=study.seed, info=out.info)
             warn_if_failing(st, ph, lambda: strategy_of(
                 study.config().get(mf.PHASE_KEYS.get(Phase(ph), "")) or {}))
-        write_best(st, study.dir, study.manifest.space(), ph)
+        # a phase file as the phase runs write them (the zero-shot trial counts in best.json)
+        write_best(st, study.dir, study.manifest.space(),
+                   ph if ph in (Phase.PHASE1, Phase.PHASE3) else None)
         row = next(r for r in st.rows(ph) if r.idx == idx)
     prepare(study)
     return row
