@@ -111,6 +111,23 @@ def test_help_shows_the_defaults(capsys):
     assert seen >= 30
 
 
+def test_help_says_what_each_command_and_option_does(capsys):
+    """latentune --help cut its description mid-list ("… | ask | tell |"), named phase 3
+    "TuRBO-m in the latent space" (the paper's, no longer the default) and left status --json,
+    paper --seed/--v-des and robot init's URDF without a word."""
+    text = _help(capsys)
+    assert "phase 3 on the target" in text and "|" not in text.split("positional")[0]
+    assert "(transfer, the default) or TuRBO-m in its latent space (--strategy plain)" in text
+    todo = [("latentune", build_parser())]
+    while todo:
+        name, p = todo.pop()
+        for a in p._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                todo += [(f"{name} {k}", v) for k, v in a.choices.items()]
+            else:
+                assert a.help, (name, a.option_strings or a.dest)
+
+
 def test_verbose_and_quiet_exclude_each_other(run_cli):
     assert "not allowed with argument" in one_line_error(*run_cli("status", "d", "-v",
                                                                   "--quiet")[::2])

@@ -31,6 +31,8 @@ from typing import Any, Callable, Iterator, Sequence
 from latentune import argtypes
 from latentune.errors import CLIError, LatentuneError
 
+DESCRIPTION = ("Tune the weights of a controller: phase 1 on the full θ of a cheap system, phase 2 "
+               "a latent space of its stable θ, phase 3 on the target (see README.md).")
 DEFAULT_PHASE1 = 400
 DEFAULT_PHASE3 = 220
 DEFAULT_WORKERS = 2
@@ -917,7 +919,7 @@ def _strategy(args: argparse.Namespace, handover: Any) -> Any:
 def build_parser() -> argparse.ArgumentParser:
     from latentune.experiments.paper import MAPPING_DOC
 
-    parser = _Parser(prog="latentune", description=__doc__.splitlines()[0])
+    parser = _Parser(prog="latentune", description=DESCRIPTION)
     common = [_verbosity_parser()]
     sub = parser.add_subparsers(dest="command", parser_class=_Parser, required=True)
 
@@ -936,10 +938,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_rollout)
 
     for name, func, hlp in (
-            ("tune", cmd_tune, "phases 1-3: tune θ, learn a latent space, tune in it"),
+            ("tune", cmd_tune, "phases 1-3 on one system: phase1, train-vae, phase3"),
             ("phase1", cmd_phase1, "phase 1: TuRBO-m on the full θ"),
             ("train-vae", cmd_train_vae, "phase 2: train the VAE on the stable phase-1 θ"),
-            ("phase3", cmd_phase3, "phase 3: TuRBO-m in the latent space")):
+            ("phase3", cmd_phase3, "phase 3 on the target: from the source run's trials "
+                                   "(transfer, the default) or TuRBO-m in its latent space "
+                                   "(--strategy plain)")):
         p = add(name, help=hlp)
         add_run_args(p, name)
         p.set_defaults(func=func)
@@ -1010,7 +1014,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = add("status", help="evaluations, failures, pending suggestions, best")
     p.add_argument("dir", help="study directory")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_status)
 
     from latentune.integrations import register_cli
@@ -1027,7 +1031,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.set_defaults(func=cmd_robot_check)
     i = rsub.add_parser("init", parents=common,
                         help="print a starting robot spec (YAML) for a quadruped URDF")
-    i.add_argument("urdf")
+    i.add_argument("urdf", help="the quadruped's URDF file")
     i.add_argument("--name", default=None, help="robot name (default: from the URDF)")
     i.add_argument("--out", default=None, help="write the YAML here (an existing file is kept)")
     i.set_defaults(func=cmd_robot_init)
@@ -1042,9 +1046,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="override the phase-3 (and baseline) budget")
     p.add_argument("--out", default=None, help="output directory (default paper-<robot>)")
     p.add_argument("--workers", type=int, default=2, help="parallel rollouts")
-    p.add_argument("--seed", type=argtypes.seed, default=0)
+    p.add_argument("--seed", type=argtypes.seed, default=0,
+                   help="seed of the studies and target tasks (--seeds N: study seed + i at index i)")
     p.add_argument("--steps", type=int, default=5000, help="rollout horizon in 1 kHz steps")
-    p.add_argument("--v-des", type=float, default=0.5)
+    p.add_argument("--v-des", type=float, default=0.5, help="desired forward velocity [m/s]")
     p.add_argument("--report-only", action="store_true", help="only (re)write DIR/report.md")
     p.add_argument("--sources-only", action="store_true",
                    help="only the phase-1 source runs (resumed later by the full command)")
