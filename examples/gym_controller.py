@@ -15,9 +15,9 @@ and 3 actions (thigh, leg, foot torques): 3 x 11 gains + 3 biases = **36 tuned w
   time, about 0.04 s of wall time) from ``env.reset(seed=seed)``, so a θ always gets the same
   cost. ``failed`` = the episode terminated early (Hopper's "unhealthy" termination: the robot
   fell or its state left the healthy range). ``cost = 100 · exp(-return / 1000)``: in (0, 100)
-  for any return ≥ 0, lower is better, and it is also the cost of a failed trial (a fall ends
-  the episode early and so loses the healthy reward of the remaining steps): the C1 = 100
-  convention for failed trials is not used.
+  for any return ≥ 0, lower is better. A failed trial costs the same with its return less
+  ``FALL_PENALTY`` = 200 (a fall also ends the episode early and so loses the healthy reward of
+  the remaining steps): the C1 = 100 convention for failed trials is not used.
 
 The "real" Hopper (:func:`make_real_system`) is the same controller on a perturbed plant:
 body masses x1.3, friction x0.6, actuator gear x0.8, Gaussian observation noise and a one-step
