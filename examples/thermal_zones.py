@@ -137,7 +137,7 @@ class ZonesSystem:
 
 
 def make_system(gap: float = 0.0, steps: int = STEPS, rooms: int = N) -> ZonesSystem:
-    """``--system examples.thermal_zones:make_system [--system-arg gap=G rooms=R]``: the
-    first ``rooms`` of the five (4·rooms gains; the set-point steps of rooms 1, 3, 5 and the
+    """``--system examples.thermal_zones:make_system [--system-arg gap=G --system-arg rooms=R]``:
+    the first ``rooms`` of the five (4·rooms gains; the set-point steps of rooms 1, 3, 5 and the
     occupancy of rooms 2, 4 among them)."""
     return ZonesSystem(gap=gap, steps=steps, rooms=rooms)
