@@ -82,10 +82,20 @@ def _steps(config: dict[str, Any]) -> int | None:
     return None if not t or t.get("steps") is None else int(t["steps"])
 
 
+def _where(t: dict[str, Any]) -> str:
+    """A built-in task's terrain and actor, and its engine and reality when not the defaults."""
+    parts = [str(t.get("terrain", "?")), str(t.get("actor", "?"))]
+    if t.get("engine"):
+        parts.append(str(t["engine"]))
+    if t.get("reality"):
+        parts.append(f"reality {t['reality'].get('name', '?')}")
+    return ", ".join(parts)
+
+
 def _title(config: dict[str, Any]) -> str:
     t = config.get("task")
     if t:
-        return f"{t.get('robot', '?')} {t.get('gait', '?')} ({t.get('terrain', '?')}, {t.get('actor', '?')})"
+        return f"{t.get('robot', '?')} {t.get('gait', '?')} ({_where(t)})"
     s = config.get("system")
     name = next((s[k] for k in ("target", "class", "name") if s.get(k)), None) \
         if isinstance(s, dict) else s
@@ -150,8 +160,9 @@ def comparison_table(store: Any) -> str:
     stats = run_stats(store)
     rms = t is not None
     if t:
-        head = (f"{t.get('robot', '?')} {t.get('gait', '?')} on {t.get('terrain', '?')} "
-                f"[{t.get('actor', '?')}], {t.get('steps', '?')} steps, v_des {t.get('v_des', '?')}")
+        terrain, _, rest = _where(t).partition(", ")
+        head = (f"{t.get('robot', '?')} {t.get('gait', '?')} on {terrain} [{rest}], "
+                f"{t.get('steps', '?')} steps, v_des {t.get('v_des', '?')}")
     else:
         head = _title(cfg)
     cols = ["best path cost" if rms else "best cost"] + (["RMS velocity error [m/s]"] if rms else [])
