@@ -451,7 +451,7 @@ def test_start_through_ask(tmp_path):
         np.testing.assert_allclose(s.theta, start)     # the critic starts from it
         assert st.config()["phase1"]["start"] == start.tolist()
         assert st.ask(start=start)[0].id == s.id        # the stored one may be repeated
-        for other, shown in (("manual", "not 'manual'"), ("scratch", "not None")):
+        for other, shown in (("manual", "not 'manual'"), ("scratch", "not 'scratch'")):
             with pytest.raises(StoreError, match=shown):
                 st.ask(start=other)
         with pytest.raises(LatentuneError, match="start must be 'manual', 'scratch' or a θ"):
@@ -460,6 +460,9 @@ def test_start_through_ask(tmp_path):
         sugg = st.ask(4, space=SPACE, start="scratch")
         assert st.config()["phase1"]["start"] is None
         assert not any(np.allclose(s.theta, SPACE.manual) for s in sugg)
+        # the refusal names --start's value, not the stored record of scratch (None)
+        with pytest.raises(StoreError, match="start = 'scratch' \\(stored\\), not 'manual'"):
+            st.ask(start="manual")
     with lt.Study(tmp_path / "c", seed=0) as st:
         assert np.allclose(st.ask(space=SPACE)[0].theta, SPACE.manual)
 

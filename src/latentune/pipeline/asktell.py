@@ -190,8 +190,9 @@ def _start_record(start: Any, space: ParameterSpace) -> Any:
     return mf.start_point(start, space.manual, space.dim)[1]
 
 
-def _shown(v: Any) -> str:
-    s = repr(v)
+def _start_shown(record: Any) -> str:
+    """A start record as the user gives it: 'manual', 'scratch' (stored as None) or a θ."""
+    s = repr(SCRATCH if record is None else record)
     return s if len(s) <= 60 else s[:57] + "..."
 
 
@@ -247,7 +248,7 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
         start_rec = _start_record(given["start"], space)
         if stored and start_rec != old_start:
             raise StoreError(f"{study.dir}: phase {int(phase)} runs with start = "
-                             f"{_shown(old_start)} (stored), not {_shown(start_rec)}")
+                             f"{_start_shown(old_start)} (stored), not {_start_shown(start_rec)}")
     mfp = g.get("max_fall_prob")
     ls = None
     if phase == Phase.PHASE3:
