@@ -211,15 +211,18 @@ def test_comparison_table(tmp_path: Path):
     assert "paper (Sarmadi et al." in md and "phase 3 6.17" in md
 
 
-def test_the_table_and_report_name_the_engine_and_reality(tmp_path: Path):
+def test_the_table_and_report_name_the_engine_reality_and_system_args(tmp_path: Path):
     """A run on MuJoCo or on the `hard` robot was titled "a1 trot on flat [convex]", as if it
-    had run on the nominal PyBullet A1."""
+    had run on the nominal PyBullet A1, and a --system run at gap 1 like one at gap 0."""
     task = dict(TASK, engine="mujoco", reality={"name": "hard", "mass_scale": 1.15})
     with _store(tmp_path / "run", {"task": task}) as st:
         assert "a1 trot on flat [convex, mujoco, reality hard], 2500 steps" in comparison_table(st)
         make_report(st, simulate=False, quiet=True)
     head = (tmp_path / "run" / "report.md").read_text().splitlines()[0]
     assert head == "# latentune run: a1 trot (flat, convex, mujoco, reality hard)"
+    plugin = {"kind": "plugin", "target": "examples.lqr_chain:make_system", "args": {"gap": 1}}
+    with _store(tmp_path / "user", {"system": plugin}) as st:      # and a --system's arguments
+        assert comparison_table(st).startswith("system examples.lqr_chain:make_system (gap=1)\n")
 
 
 def test_table_without_zero_shot_and_never_beaten(tmp_path: Path):

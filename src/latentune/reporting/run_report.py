@@ -99,7 +99,9 @@ def _title(config: dict[str, Any]) -> str:
     s = config.get("system")
     name = next((s[k] for k in ("target", "class", "name") if s.get(k)), None) \
         if isinstance(s, dict) else s
-    return f"system {name}" if name else "user system"
+    args = (s.get("args") or {}) if isinstance(s, dict) else {}
+    given = f" ({', '.join(f'{k}={v}' for k, v in args.items())})" if args else ""
+    return f"system {name}{given}" if name else "user system"
 
 
 def _paper_numbers(config: dict[str, Any]) -> dict[str, Any] | None:
