@@ -24,7 +24,7 @@ the reference's acceleration) and Coulomb friction compensation (``fc_comp`` N·
 the reference's rate, smoothed). The torque command passes a notch (``f_notch``, ``zeta_notch``,
 ``depth_notch``) and a low-pass filter (``fc_tau``). Manual θ: a soft velocity loop (its
 bandwidth well below the shaft's resonance) with full feedforward, the notch off: it stands on
-the model and up to gap 1, where it tracks poorly.
+the model and up to gap 0.7, where it tracks poorly; at gap 1 it limit-cycles (fails).
 
 The plant differs from the model by ``gap`` g ≥ 0 (g = 0 is the model itself): ``Jl`` ×
 (1 + 0.8 g), ``k`` × (1 − 0.3 g), ``Fc`` and the load's viscous friction × (1 + 1.5 g),
