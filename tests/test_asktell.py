@@ -553,6 +553,10 @@ def test_the_plain_phase_3s_options_are_refused_by_the_transfer_phase_3(tmp_path
         with pytest.raises(UsageError, match=f"{next(iter(kw))} is an option of the plain phase 3"):
             st.phase3(plant(), 4, latent=src30, **kw)
         assert st.manifest.config().get("phase3") is None and st.trials() == []
+        if "start" not in kw:       # ask --phase 3 --method cma / --regions 3 took and stored them
+            with pytest.raises(UsageError, match=f"{next(iter(kw))} is an option of the plain"):
+                st.ask(system=plant(), phase=3, latent=src30, **kw)
+            assert st.manifest.config().get("phase3") is None and st.trials() == []
     with lt.Study(tmp_path / "p", seed=0) as st:
         st.phase3(plant(), 3, latent=src30, strategy="plain", **kw)
         assert st.manifest.config()["phase3"]["strategy"] == "plain"

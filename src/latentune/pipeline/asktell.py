@@ -61,8 +61,9 @@ from latentune.constants import Phase
 from latentune.errors import LatentuneError, StoreError, UsageError
 from latentune.pipeline import manifest as mf
 from latentune.pipeline.baselines import queue_zero_shot
-from latentune.pipeline.loop import (decoder_of, phase_critic, record_latent, resolve_latent,
-                                     resolve_strategy, source_counts, strategy_of)
+from latentune.pipeline.loop import (decoder_of, phase_critic, record_latent,
+                                     refuse_plain_options, resolve_latent, resolve_strategy,
+                                     source_counts, strategy_of)
 from latentune.pipeline.phases import ask_batch, replay, state_key, warn_if_failing
 from latentune.pipeline.results import phase_name, write_best
 from latentune.pipeline.store import Row, RunStore
@@ -242,6 +243,7 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
             raise UsageError("start is an option of phase 1 and of the plain phase 3 (strategy "
                              "plain); the transfer phase 3 starts from the manual θ and the "
                              "source's best trials")
+        refuse_plain_options(strat, given.get("method"), given.get("regions"))
     old_start = stored.get("start", "manual") if stored else "manual"
     start_rec = old_start
     if given.get("start") is not None:

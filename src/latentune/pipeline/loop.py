@@ -97,26 +97,34 @@ def phase3_setup(run: RunDir, manifest: Manifest, space: ParameterSpace, actor: 
                  method: str | None = None, regions: int | None = None
                  ) -> tuple[Any, dict[str, Any]]:
     """(the LatentSpace, phase 3's own options record) of a phase-3 run with these arguments
-    (:meth:`~latentune.study.Study.phase3`), checked; writes nothing. The plain strategy's
-    own options (``method`` other than TuRBO-m, ``regions``, a ``start`` other than the
-    manual θ) are refused with the transfer strategy, which has no use for them."""
-    from latentune.errors import UsageError
-
+    (:meth:`~latentune.study.Study.phase3`), checked (:func:`refuse_plain_options`); writes
+    nothing."""
     ls, source = resolve_latent(run, manifest, latent, space, actor)
     strategy = resolve_strategy(manifest, strategy, handover, ls)
-    if strategy == "transfer":
-        for name, value, unset in (("method", method, method in (None, "turbo")),
-                                   ("regions", regions, regions is None),
-                                   ("start", start, isinstance(start, str) and start == "manual")):
-            if not unset:
-                raise UsageError(f"{name} is an option of the plain phase 3 (strategy plain), "
-                                 f"not of the transfer phase 3 (given {name} = {value!r}): its "
-                                 "search starts from the source's best trials and the manual "
-                                 "θ, in the latent and the full θ box")
+    refuse_plain_options(strategy, method, regions, start)
     counts = source_counts(run.dir, source, strategy)
     start_rec = mf.start_point(start, space.manual, space.dim)[1]
     return ls, mf.phase3_extra(source, strategy, start_rec, max_fall_prob, handover,
                                transfer_options, counts)
+
+
+def refuse_plain_options(strategy: str, method: str | None, regions: int | None,
+                         start: Any = "manual") -> None:
+    """The plain strategy's own options (``method`` other than TuRBO-m, ``regions``, a
+    ``start`` other than the manual θ) refused with the transfer strategy, which has no use for
+    them (UsageError naming the option)."""
+    from latentune.errors import UsageError
+
+    if strategy != "transfer":
+        return
+    for name, value, unset in (("method", method, method in (None, "turbo")),
+                               ("regions", regions, regions is None),
+                               ("start", start, isinstance(start, str) and start == "manual")):
+        if not unset:
+            raise UsageError(f"{name} is an option of the plain phase 3 (strategy plain), "
+                             f"not of the transfer phase 3 (given {name} = {value!r}): its "
+                             "search starts from the source's best trials and the manual "
+                             "θ, in the latent and the full θ box")
 
 
 def source_counts(run_dir: Path, source: str, strategy: str) -> dict[str, int] | None:
