@@ -589,6 +589,20 @@ def test_a_target_whose_box_differs_from_the_source_is_refused(tmp_path, src30):
                 st.phase1(sys_, 4, max_fall_prob=0.3, fall_prior=src30)
 
 
+def test_a_fall_prior_that_would_be_ignored_is_refused(tmp_path, src30):
+    """ask --phase 3 --fall-prior RUN --max-fall-prob 0.3 stored the latent source as the prior
+    (the given run ignored), and a fall prior without max_fall_prob (ask, Study.phase1) was
+    dropped without a word."""
+    with lt.Study(tmp_path / "t", seed=0) as st:
+        with pytest.raises(UsageError, match="fall_prior is an option of phase 1"):
+            st.ask(system=plant(), phase=3, latent=src30, max_fall_prob=0.3, fall_prior=src30)
+        with pytest.raises(UsageError, match="fall_prior needs max_fall_prob"):
+            st.ask(system=plant(), fall_prior=src30)
+        with pytest.raises(UsageError, match="fall_prior needs max_fall_prob"):
+            st.phase1(plant(), 4, fall_prior=src30)
+        assert st.trials() == [] and st.manifest.config().get("phase1") is None
+
+
 def test_a_phase_run_in_process_is_refused_while_suggestions_are_out(tmp_path, src30):
     """A phase run in-process while ask/tell has suggestions of the phase out (phase 3: its
     zero-shot trial too) would run them again: 12 phase-1 trials for a budget of 10, the

@@ -224,6 +224,9 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
     for opt in ("handover", "transfer_options"):
         if phase == Phase.PHASE1 and given.get(opt):
             raise UsageError(f"{opt} is an option of phase 3")
+    if phase == Phase.PHASE3 and given.get("fall_prior") is not None:
+        raise UsageError("fall_prior is an option of phase 1: phase 3's fall prediction starts "
+                         "from its latent space's source run")
     strategy = given.get("strategy")
     if phase == Phase.PHASE1 and strategy:
         raise UsageError("strategy is an option of phase 3")

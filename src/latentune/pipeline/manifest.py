@@ -352,8 +352,10 @@ def start_point(start: Any, manual: np.ndarray, dim: int) -> tuple[np.ndarray | 
 
 
 def fall_options(max_fall_prob: float | None, prior: Any) -> dict[str, Any]:
-    """The options record of the fall-aware option (checked)."""
+    """The options record of the fall-aware option (checked; a ``prior`` needs it)."""
     if max_fall_prob is None:
+        if prior is not None:
+            raise UsageError("fall_prior needs max_fall_prob (it seeds the fall prediction)")
         return {"max_fall_prob": None}
     if isinstance(max_fall_prob, bool) or not isinstance(max_fall_prob, (int, float)) or \
             not 0.0 < float(max_fall_prob) <= 1.0:
