@@ -76,7 +76,9 @@ def test_process_worker_sends_back_an_outcome_whose_info_cannot_be_pickled():
 
 
 def test_unreachable_ray_address_is_one_line(tmp_path, run_cli, error_line, no_local_ray):
-    """A cluster address nobody answers at: one line at once (Ray alone retries without end)."""
+    """A cluster address nobody answers at: one line at once (Ray alone retries without end),
+    and no run directory left behind (it recorded the seed and system of a run that never
+    started: the same command with another seed was refused)."""
     pytest.importorskip("ray")
     import socket
 
@@ -84,8 +86,10 @@ def test_unreachable_ray_address_is_one_line(tmp_path, run_cli, error_line, no_l
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     code, _, err = run_cli("phase1", *TINY, "--out", tmp_path / "r", "--phase1-evals", "4",
-                           "--backend", "ray", "--ray-address", f"127.0.0.1:{port}")
+                           "--backend", "ray", "--ray-address", f"127.0.0.1:{port}",
+                           "--seed", "1")
     assert f"no Ray cluster answers at 127.0.0.1:{port}" in error_line(code, err)
+    assert not (tmp_path / "r").exists()
 
 
 def _raises_sometimes(x):

@@ -194,7 +194,7 @@ class Study:
         self._options(Phase.PHASE1, method, budget, regions, extra, max_new)   # checked first
         if max_fall_prob is not None:
             theta_prior(fall_prior, system.space)
-        with self.writing() as st:
+        with self.run.writing(evaluating=True) as st:
             self.bind(system)
             pc = self._options(Phase.PHASE1, method, budget, regions, extra)
             self.manifest.update(phase1=pc)
@@ -260,7 +260,7 @@ class Study:
         self._options(Phase.PHASE3, method, budget, regions, extra, max_new)   # checked first
         if self.exists:
             self.bind_check(system)
-        with self.writing() as st:
+        with self.run.writing(evaluating=True) as st:
             self.bind(system)
             pc = self._options(Phase.PHASE3, method, budget, regions, extra)
             record_latent(self.run, self.manifest, ls, source)
@@ -290,7 +290,7 @@ class Study:
         """Pass each phase-1 θ of this study whose trial did not fail through ``latent``'s
         encoder and decoder and evaluate the result on ``system`` (phase 5, idx = the source
         row's idx). Returns ``{n_stable, n_kept, rate}``; resumes."""
-        with self.writing() as st:
+        with self.run.writing(evaluating=True) as st:
             ls, source = resolve_latent(self.run, self.manifest, latent, system.space,
                                         _actor(system))
             t = time.perf_counter()

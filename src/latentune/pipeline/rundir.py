@@ -66,11 +66,15 @@ class RunDir:
         return self._store
 
     @contextmanager
-    def writing(self, wait: float = 0.0) -> Iterator[RunStore]:
+    def writing(self, wait: float = 0.0, evaluating: bool = False) -> Iterator[RunStore]:
         """Hold the write lock (re-entrant) and yield the store (created if needed); the
         outermost holder checks the store first. ``wait``: seconds to wait for another
-        writer's lock before :class:`LockError` (0: refuse at once)."""
+        writer's lock before :class:`LockError` (0: refuse at once). ``evaluating``: the
+        holder runs trials: the evaluator starts first, so one that cannot (Ray without its
+        cluster) leaves the directory as it was (no run store, seed or system recorded)."""
         if self._lock_depth == 0:
+            if evaluating:
+                self.evaluator()
             self._acquire(wait)
         self._lock_depth += 1
         try:
