@@ -160,6 +160,20 @@ def test_phase_same_seed_same_run_whatever_the_completion_order(tmp_path, whole_
     assert len(rev) == 60 and rev == sorted(tuple(t) for t in whole_run)
 
 
+def test_a_run_whose_workers_finish_out_of_order_resumes_to_the_uninterrupted_run(tmp_path,
+                                                                                 whole_run):
+    """Rows are stored as the workers finish and renumbered in ask order when their batch is
+    told, so a resume tells the critic its batches in the order it was told them (told in
+    completion order, it asked other θ), stopped between batches (36) or in one (22)."""
+    from latentune.pipeline.phases import run_phase
+
+    with RunStore(tmp_path / "r", create=True) as st:
+        for stop in (22, 36, 60):
+            run_phase(st, 1, quad, _critic60(), 60, _ReversedEvaluator(),
+                      max_new=stop - st.count(1))
+        np.testing.assert_array_equal(_thetas(st), whole_run)
+
+
 def test_training_set_does_not_depend_on_completion_order(tmp_path):
     from latentune.pipeline.phases import training_set
 

@@ -9,12 +9,12 @@ Resume and crash safety
 -----------------------
 Rows get their index when they are *committed* (completion order), so the indices of a phase
 are always 0..n−1 without gaps, whatever order the workers finish in, and one index is never
-written twice (the store's primary key refuses it). On resume a fresh critic with the same
-options and seed is told the stored rows (X, y, tags) in index order. Index order is completion
-order, not the ask order each batch was told in, but the tags group the rows by ask, so the
-critic replays its batches as they were told and its state is restored (see
-:mod:`latentune.critic.base`; only the order of points inside the GP's data may differ); the loop
-then continues at index n.
+written twice (the store's primary key refuses it). When the batch is told, its rows are
+renumbered in ask order, in the transaction that stores the critic's state
+(:func:`save_state`). On resume a fresh critic with the same options and seed is told the stored
+rows (X, y, tags) in index order, which is the order its batches were told in (the order of the
+points inside the GP's data changes what it asks next), and its state is restored (see
+:mod:`latentune.critic.base`); the loop then continues at index n.
 
 A process may die in the middle of a batch. So every asked batch is recorded in the store's meta
 (:class:`AskedBatch`, key :func:`batch_key`) before its first trial runs, and removed in the
@@ -266,11 +266,13 @@ def batch_key(phase: int) -> str:
     return f"asked_batch_{int(phase)}"
 
 
-def save_state(store: RunStore, phase: int, critic: Any) -> None:
-    """Store ``critic.state_dict()`` for ``phase`` (nothing for a critic without state) and
-    remove the record of the batch just told (:class:`AskedBatch`), in one transaction."""
+def save_state(store: RunStore, phase: int, critic: Any, batch: "AskedBatch") -> None:
+    """Store ``critic.state_dict()`` for ``phase`` (nothing for a critic without state), remove
+    the record of the ``batch`` just told (:class:`AskedBatch`) and renumber its rows in ask
+    order, in one transaction."""
     state = critic.state_dict() if hasattr(critic, "state_dict") else {}
-    store.update_meta({batch_key(phase): None, **({state_key(phase): state} if state else {})})
+    store.reorder(phase, [batch.done[i][2] for i in range(len(batch.thetas))],
+                  {batch_key(phase): None, **({state_key(phase): state} if state else {})})
 
 
 @dataclass
@@ -283,7 +285,7 @@ class AskedBatch:
         U: (k, m) the critic's points; ``T`` (k,) their tags; ``Z`` (k, m') a two-space
             critic's codes (``last_z``, NaN rows for none) or None.
         thetas: (k, d) the normalized θ to evaluate; ``codes``: the code stored with each.
-        done: ask index -> (cost, fell) of the points evaluated so far.
+        done: ask index -> (cost, fell, idx) of the points evaluated so far.
     """
 
     n0: int
@@ -292,7 +294,7 @@ class AskedBatch:
     Z: np.ndarray | None
     thetas: np.ndarray
     codes: list[np.ndarray | None]
-    done: dict[int, tuple[float, bool]] = field(default_factory=dict)
+    done: dict[int, tuple[float, bool, int]] = field(default_factory=dict)
 
     def record(self) -> dict[str, Any]:
         """The JSON record stored under :func:`batch_key` (floats round-trip exactly)."""
@@ -326,7 +328,7 @@ def pending_batch(store: RunStore, phase: int, budget: int, decoder: Callable | 
                   and np.array_equal(b.thetas[i], r.theta)), None)
         if i is None:
             return None
-        b.done[i] = (float(r.cost), bool(r.fell))
+        b.done[i] = (float(r.cost), bool(r.fell), int(r.idx))
     return b
 
 
@@ -467,9 +469,9 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
                 cost = float(r.cost)
                 store_outcome(store, phase, idx, thetas[i], r, z=codes[i], tag=int(T[i]),
                               seed=seed)
+                batch.done[i] = (cost, bool(r.failed), idx)
                 idx += 1
                 new += 1
-                batch.done[i] = (cost, bool(r.failed))
                 streak = streak + 1 if r.failed else 0
                 if streak == FAIL_STREAK:
                     log.warning(failing_message(phase, FAIL_STREAK, strategy))
@@ -486,11 +488,12 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
             if len(batch.done) < len(thetas):      # max_new stopped it: it stays recorded
                 break
             # rows are stored as they complete (crash safety); the critic is told the batch in
-            # ask order, so a seed gives the same run whatever order the workers finish in
+            # ask order, and the rows are renumbered so, so a seed gives the same run whatever
+            # order the workers finish in, and a resume tells the critic that order again
             yb = np.array([batch.done[i][0] for i in range(len(thetas))], dtype=float)
             fb = np.array([batch.done[i][1] for i in range(len(thetas))], dtype=bool)
             critic.tell(U, yb, T.astype(np.int64), fell=fb, **({} if Z is None else {"z": Z}))
-            save_state(store, phase, critic)
+            save_state(store, phase, critic, batch)
             batch = None
     finally:
         if bar is not None:
