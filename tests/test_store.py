@@ -53,3 +53,24 @@ def test_store_rejects_corrupt_and_foreign(tmp_path):
         RunStore(f)
     with pytest.raises(StoreError, match="does not exist"):
         RunStore(tmp_path / "missing")
+
+
+def test_store_of_a_newer_version_is_refused_untouched(tmp_path):
+    """A store written by a newer latentune (another schema) was read and written as if it
+    were this version's: one line saying to upgrade, and the file is not changed."""
+    import json
+
+    d = tmp_path / "new"
+    with RunStore(d, create=True) as st:
+        st.add(1, 0, np.zeros(3), cost=1.0)
+        st.set_meta("version", 99)
+    before = (d / "run.db").read_bytes()
+    with pytest.raises(StoreError, match="of version 99, written by a newer latentune"):
+        RunStore(d)
+    assert (d / "run.db").read_bytes() == before
+    con = sqlite3.connect(d / "run.db")
+    con.execute("UPDATE meta SET value=? WHERE key='version'", (json.dumps(3),))
+    con.commit()
+    con.close()
+    with RunStore(d) as st:
+        assert st.count(1) == 1

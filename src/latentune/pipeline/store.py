@@ -280,6 +280,14 @@ class RunStore:
                 row = con.execute("SELECT value FROM meta WHERE key='format'").fetchone()
                 if row is None or json.loads(row[0]) != FORMAT:
                     raise StoreError(f"{self.path} is not a latentune run store (no format mark)")
+                row = con.execute("SELECT value FROM meta WHERE key='version'").fetchone()
+                version = 1 if row is None else json.loads(row[0])
+                if isinstance(version, bool) or not isinstance(version, int):
+                    raise TypeError(version)            # below: "bad meta"
+                if version > VERSION:
+                    raise StoreError(f"run store {self.path} is of version {version}, written by "
+                                     f"a newer latentune (this one reads versions 1 to "
+                                     f"{VERSION}): upgrade latentune to use it")
                 cols = {r[1] for r in con.execute("PRAGMA table_info(evaluations)")}
                 need = {"phase", "idx", "theta", "z", "tag", "cost", "fell", "fall_step"}
                 if not need <= cols:
