@@ -2,7 +2,10 @@
 foreign files refused without being changed."""
 from __future__ import annotations
 
+import contextlib
+import os
 import sqlite3
+import subprocess
 
 import numpy as np
 import pytest
@@ -74,3 +77,50 @@ def test_store_of_a_newer_version_is_refused_untouched(tmp_path):
     con.close()
     with RunStore(d) as st:
         assert st.count(1) == 1
+
+
+@contextlib.contextmanager
+def _read_only_dir(d):
+    """``d`` cannot be written, as on read-only media: chmod for a user, ``chattr +i`` for root
+    (who writes whatever the mode); skips where neither works."""
+    if os.geteuid() != 0:
+        d.chmod(0o555)
+        try:
+            yield
+        finally:
+            d.chmod(0o755)
+        return
+    if subprocess.run(["chattr", "+i", str(d)], capture_output=True).returncode != 0:
+        pytest.skip("cannot make a directory read-only here (chattr)")
+    try:
+        yield
+    finally:
+        subprocess.run(["chattr", "-i", str(d)], check=True)
+
+
+def test_store_in_a_read_only_directory_is_read_and_refuses_writes(tmp_path):
+    """A run on read-only media (an archive, another user's run: a source for phase 3) was
+    "corrupt (unable to open database file)": SQLite could not create its WAL's shared-memory
+    file. It is read as usual; a write is one line."""
+    d = tmp_path / "ro"
+    with RunStore(d, create=True) as st:
+        st.add(1, 0, np.zeros(3), cost=1.0)
+    with _read_only_dir(d):
+        with RunStore(d) as st:
+            assert st.read_only and st.count(1) == 1 and st.rows(1)[0].cost == 1.0
+            assert RunStore.data_version_of(d)[0] == st.data_version()[0]
+            with pytest.raises(StoreError, match="cannot be written .read-only."):
+                st.add(1, 1, np.zeros(3), cost=2.0)
+        assert sorted(p.name for p in d.iterdir()) == ["run.db"]
+
+
+@pytest.mark.parametrize("name", ["a#b", "x?y", "50%41", "sp ace é"])
+def test_store_reopens_under_a_name_with_uri_characters(tmp_path, name):
+    """A directory named ``a#b`` or ``x?y`` was cut at the URI's fragment or query when the
+    store was checked (an empty file ``a`` was created beside it and the run "missing
+    tables"); ``50%41`` was read as an escape."""
+    with RunStore(tmp_path / name, create=True) as st:
+        st.add(1, 0, np.zeros(3), cost=1.0)
+    with RunStore(tmp_path / name) as st:
+        assert st.count(1) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == [name]

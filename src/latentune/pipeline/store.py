@@ -50,8 +50,10 @@ from __future__ import annotations
 import json
 import math
 import logging
+import os
 import sqlite3
 import time
+import urllib.parse
 from dataclasses import dataclass, field
 from pathlib import Path
 from contextlib import contextmanager
@@ -179,6 +181,18 @@ def _enc(a: Any) -> str | None:
     return json.dumps([float(v) for v in np.asarray(a, dtype=float).reshape(-1)])
 
 
+def read_uri(path: str | Path) -> str:
+    """The SQLite URI that opens the store file ``path`` read-only: its name percent-encoded
+    (a directory named ``a#b``, ``x?y`` or ``50%`` is not a fragment, a query or an escape),
+    and ``immutable`` when its directory cannot be written (read-only media) and it has no
+    write-ahead log to read, since SQLite could not create its shared-memory file there."""
+    p = Path(path).absolute()
+    uri = f"file:{urllib.parse.quote(str(p))}?mode=ro"
+    if not os.access(p.parent, os.W_OK) and not Path(f"{p}-wal").exists():
+        uri += "&immutable=1"
+    return uri
+
+
 def version_of(con: sqlite3.Connection, amendments: bool, trials: bool) -> list[Any]:
     """:meth:`RunStore.data_version` of an open connection (``amendments``, ``trials``: the
     store has those tables)."""
@@ -196,7 +210,9 @@ class RunStore:
 
     ``RunStore(DIR, create=True)`` creates ``DIR`` and ``DIR/run.db`` if needed;
     ``create=False`` requires an existing store. Any file that is not a latentune store raises
-    :class:`StoreError` before anything is written to it.
+    :class:`StoreError` before anything is written to it. A store whose directory cannot be
+    written (read-only media, another user's run) is opened read-only (``read_only``): it is
+    read as usual, and a write raises StoreError.
     """
 
     def __init__(self, run_dir: str | Path, create: bool = False) -> None:
@@ -213,9 +229,14 @@ class RunStore:
             self._check_foreign()
         else:
             self.dir.mkdir(parents=True, exist_ok=True)
+        self.read_only = exists and not os.access(self.dir, os.W_OK)
         try:
-            self.con = sqlite3.connect(str(self.path), timeout=30.0, isolation_level=None)
-            self.con.execute("PRAGMA journal_mode=WAL")
+            if self.read_only:
+                self.con = sqlite3.connect(read_uri(self.path), uri=True, timeout=30.0,
+                                           isolation_level=None)
+            else:
+                self.con = sqlite3.connect(str(self.path), timeout=30.0, isolation_level=None)
+                self.con.execute("PRAGMA journal_mode=WAL")
             self.con.execute("PRAGMA synchronous=NORMAL")
             if not exists:
                 self.con.executescript("BEGIN;" + _SCHEMA + _TRIALS + _AMENDMENTS + "COMMIT;")
@@ -272,7 +293,7 @@ class RunStore:
         if head != b"SQLite format 3\x00":
             raise StoreError(f"{self.path} is not a latentune run store (not an SQLite file)")
         try:
-            con = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True, timeout=30.0)
+            con = sqlite3.connect(read_uri(self.path), uri=True, timeout=30.0)
             try:
                 tables = {r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type='table'")}
                 if not {"meta", "evaluations"} <= tables:
@@ -297,6 +318,8 @@ class RunStore:
                     raise StoreError(f"run store {self.path} is corrupt (integrity check failed)")
             finally:
                 con.close()
+        except sqlite3.OperationalError as exc:         # cannot open or locked: not corrupt
+            raise StoreError(f"cannot read run store {self.path}: {exc}") from None
         except sqlite3.DatabaseError as exc:
             raise StoreError(f"run store {self.path} is corrupt ({exc})") from None
         except (json.JSONDecodeError, TypeError):
@@ -422,6 +445,9 @@ class RunStore:
         """One write transaction (BEGIN IMMEDIATE … COMMIT); a full disk or a locked database
         becomes a StoreError with the store untouched. ``trials``: an ask/tell write (upgrades
         the trials table to leases first)."""
+        if self.read_only:
+            raise StoreError(f"{self.dir} cannot be written (read-only): copy the run to a "
+                             "writable directory to continue it")
         try:
             self.con.execute("BEGIN IMMEDIATE")
         except sqlite3.OperationalError as exc:
@@ -638,7 +664,7 @@ class RunStore:
         if not path.is_file():
             raise StoreError(f"no run store in {run_dir} (expected {DB_NAME})")
         try:
-            con = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=30.0)
+            con = sqlite3.connect(read_uri(path), uri=True, timeout=30.0)
             try:
                 tables = {r[0] for r in con.execute(
                     "SELECT name FROM sqlite_master WHERE type='table'")}
