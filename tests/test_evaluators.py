@@ -92,6 +92,30 @@ def test_unreachable_ray_address_is_one_line(tmp_path, run_cli, error_line, no_l
     assert not (tmp_path / "r").exists()
 
 
+class ExitingSystem:
+    """A trial that calls sys.exit (a script's habit): the command ended with its status and
+    no word, on every backend (a worker's SystemExit was re-raised in the caller)."""
+    space = lt.ParameterSpace(["a", "b", "c"], [0, 0, 0], [1, 1, 1])
+
+    def evaluate(self, u):
+        if u[0] > 0.5:
+            sys.exit(3)
+        return quad(u)
+
+
+def test_a_trial_that_calls_sys_exit_is_a_trial_error_on_every_backend():
+    from latentune.pipeline.evaluators import ProcessEvaluator, SerialEvaluator, TrialError
+
+    X = np.array([[0.1, 0.2, 0.3], [0.9, 0.2, 0.3]])
+    with ProcessEvaluator(2) as pool:
+        for ev in (SerialEvaluator(), pool):
+            got = dict(ev.imap(ExitingSystem(), X))
+            assert got[0].cost == pytest.approx(quad(X[0]))
+            assert isinstance(got[1], TrialError) and "raised SystemExit: 3" in got[1].message
+    got = dict(SerialEvaluator().imap(lambda x: sys.exit("bye") if x[0] > 0.5 else 1.0, X))
+    assert isinstance(got[1], TrialError) and "raised SystemExit: bye" in got[1].message
+
+
 def _raises_sometimes(x):
     if x[0] > 0.6:
         raise RuntimeError("boom")

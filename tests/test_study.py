@@ -558,3 +558,17 @@ def test_a_fall_flag_that_is_not_a_bool_is_refused_not_guessed(tmp_path):
         (s,) = st.ask(space=sp)
         with pytest.raises(UsageError, match="bad result for suggestion 1: got failed = 'no'"):
             st.tell(s.id, 1.0, failed="no")
+
+
+def test_a_failed_flag_that_is_not_a_bool_is_refused():
+    """``return cost, info`` (or a string, or 0.5) as ``(cost, failed)`` made every trial a
+    fall, silently: the flag was read by its truth. A bool, numpy's, or 0 / 1 is a flag."""
+    from latentune.system import EvaluationError, as_outcome
+
+    for bad in ((1.0, {"vx": 1.0}), (1.0, "no"), (1.0, 0.5), {"cost": 1.0, "failed": "False"},
+                lt.Outcome(1.0, [0])):
+        with pytest.raises(EvaluationError, match="failed = .*expected True or False"):
+            as_outcome(bad)
+    for ok, failed in (((1.0, np.bool_(True)), True), ((1.0, 0), False),
+                       ({"cost": 1.0, "failed": 1}, True), (lt.Outcome(1.0, False), False)):
+        assert as_outcome(ok).failed is failed

@@ -255,7 +255,7 @@ def evaluate(system: Any, theta: np.ndarray) -> Outcome:
         raw = system.evaluate(np.asarray(theta, dtype=float).copy())
     except EvaluationError:
         raise
-    except Exception as exc:  # noqa: BLE001 - reported as one line by the caller
+    except (Exception, SystemExit) as exc:  # noqa: BLE001 - one line by the caller; sys.exit too
         raise EvaluationError(f"{type(system).__name__}.evaluate raised "
                               f"{type(exc).__name__}: {' '.join(str(exc).split())[:300]}") from exc
     out = as_outcome(raw)

@@ -229,7 +229,7 @@ def run_trial(fun: Any, key: str | None, x: np.ndarray) -> Outcome | TrialError:
         return TrialError(str(exc), bad_value=True)
     except EvaluationError as exc:
         return TrialError(str(exc))
-    except Exception as exc:  # noqa: BLE001 - a plain callable that raised
+    except (Exception, SystemExit) as exc:  # noqa: BLE001 - a plain callable that raised
         return TrialError(f"the function raised {type(exc).__name__}: "
                           f"{' '.join(str(exc).split())[:300]}")
 
