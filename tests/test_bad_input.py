@@ -96,6 +96,8 @@ BAD_RUN_ARGS = [
     (["--phase1-eval", "10"], "unrecognized arguments: --phase1-eval 10"),   # no abbreviations
     (["--phase3-evals", "-1"], "--phase3-evals must be >= 1, got -1"),
     (["--workers", "0"], "--workers must be >= 1, got 0"),
+    # a typo's pool: a traceback from the semaphore (OverflowError), or thousands of processes
+    (["--workers", "99999999999999999999"], "workers must be a whole number in [1, 4096]"),
     (["--latent-dim", "0"], "--latent-dim must be >= 1, got 0"),
     (["--latent-dim", "50"], "--latent-dim 50: the latent space of a 25-dim θ needs a size in "
                              "[1, 24]"),

@@ -205,6 +205,7 @@ def test_paper_end_to_end(paper_dir: Path):
     (["--scale", "1e307"], "--scale must be a finite number > 0 (a finite budget)"),
     (["--scale", "abc"], "--scale"),
     (["--workers", "0"], "--workers must be >= 1, got 0"),
+    (["--workers", "5000"], "workers must be a whole number in [1, 4096]"),
     (["--vae-epochs", "0"], "--vae-epochs must be >= 1, got 0"),
     (["--studies", "a1-trot", "no-such"], "--studies: no-such not in this plan"),
     (["--report-only", "--studies", "a1-trot"], "--studies does not apply to --report-only"),

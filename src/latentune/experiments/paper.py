@@ -401,6 +401,9 @@ def validate(opts: PaperOptions) -> dict[str, Any]:
     for name, v in (("workers", opts.workers), ("steps", opts.steps)):
         if v < 1:
             raise UsageError(f"--{name} must be >= 1, got {v}")
+    from latentune.pipeline.evaluators import check_workers
+
+    check_workers(opts.workers)
     if opts.seed < 0:
         raise UsageError(f"--seed must be >= 0, got {opts.seed}")
     if opts.vae_epochs is not None and opts.vae_epochs < 1:

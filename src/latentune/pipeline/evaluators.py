@@ -46,6 +46,9 @@ from latentune.system import CostError, EvaluationError, Outcome, as_cost, evalu
 from latentune.threads import THREAD_VARS, thread_env
 
 BACKENDS = ("serial", "process", "ray")
+MAX_WORKERS = 4096
+"""The most workers an evaluator starts (one process or Ray actor each): a larger number is a
+typo (a pool of more processes than that exhausts the machine's memory or file descriptors)."""
 HEAD_PROBE_S = 2.0
 """How often the Ray evaluator checks that the cluster's head accepts a connection while it
 waits for trials [s]."""
@@ -104,6 +107,17 @@ class PluginRef:
             if p not in sys.path:
                 sys.path.insert(0, p)
         return load_system(self.target, self.args)
+
+
+def check_workers(workers: Any) -> int:
+    """``workers`` as an int; UsageError unless it is a whole number in [1, MAX_WORKERS]."""
+    from latentune.errors import UsageError
+
+    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) \
+            or not 1 <= workers <= MAX_WORKERS:
+        raise UsageError(f"workers must be a whole number in [1, {MAX_WORKERS}] (one process "
+                         f"or Ray actor each), got {workers!r}")
+    return int(workers)
 
 
 def _key(fun: Any) -> str | None:
@@ -282,8 +296,7 @@ class ProcessEvaluator(Evaluator):
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor
 
-        if workers < 1:
-            raise ValueError("workers must be >= 1")
+        workers = check_workers(workers)
         if start_method is None:
             start_method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
         self.workers = int(workers)
@@ -432,8 +445,7 @@ class RayEvaluator(Evaluator):
             import ray
         except ImportError:
             raise RuntimeError("the ray backend needs ray (pip install 'latentune[ray]')") from None
-        if workers < 1:
-            raise ValueError("workers must be >= 1")
+        workers = check_workers(workers)
         if max_losses < 1:
             raise ValueError("max_losses must be >= 1")
         if not lost_timeout > 0:

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Iterator
 
 from latentune.errors import LockError, StoreError, UsageError
-from latentune.pipeline.evaluators import BACKENDS, Evaluator, make_evaluator
+from latentune.pipeline.evaluators import BACKENDS, Evaluator, check_workers, make_evaluator
 from latentune.pipeline.store import RunStore
 from latentune.system import EvaluationError
 
@@ -38,7 +38,7 @@ class RunDir:
         self.dir = Path(path)
         if self.dir.exists() and not self.dir.is_dir():
             raise StoreError(f"{self.dir} exists and is not a directory")
-        self.workers = int(workers)
+        self.workers = check_workers(workers)
         self.backend = backend
         self.ray_address = ray_address
         self._store: RunStore | None = None
