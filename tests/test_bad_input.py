@@ -437,6 +437,10 @@ ASKTELL_CASES = [
     (["tell", "{d}", "1", "--cost", "abc"], "argument --cost: invalid float value: 'abc'"),
     (["tell", "{d}", "-1", "--cost", "1"], "no suggestion with id -1"),
     (["tell", "{d}", "1.5", "--cost", "1"], "a suggestion id is an integer, got '1.5'"),
+    # beyond SQLite's integers: a traceback (OverflowError)
+    (["tell", "{d}", str(2 ** 70), "--cost", "1"], f"no suggestion with id {2 ** 70}"),
+    (["tell", "{d}", str(2 ** 63), "--amend", "--cost", "1"], f"no suggestion with id {2 ** 63}"),
+    (["release", "{d}", str(-2 ** 70)], f"no suggestion with id {-2 ** 70}"),
     (["ask", "{d}", "--n", "0"], "--n must be >= 1, got 0"),
     (["ask", "{d}", "--n", "-2"], "--n must be >= 1, got -2"),
     (["ask", "{d}", "--phase", "2"], "argument --phase: invalid choice: 2"),

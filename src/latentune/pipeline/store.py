@@ -545,7 +545,8 @@ class RunStore:
                                     f"AND phase IN ({marks})", tuple(map(int, phases))).rowcount
 
     def _trial(self, trial_id: int) -> Trial:
-        found = self.trials(trial_id=int(trial_id))
+        tid = int(trial_id)     # ids count from 1; SQLite's integers end below 2**63
+        found = self.trials(trial_id=tid) if 0 < tid < 2 ** 63 else []
         if not found:
             raise StoreError(f"no suggestion with id {trial_id} in {self.dir}")
         return found[0]
