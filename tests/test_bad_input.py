@@ -116,6 +116,8 @@ BAD_RUN_ARGS = [
     (["--system", "a:b", "--reality", "heavy"], "--system replaces --robot/--task"),
     (["--system", "nosuchmod:make"], "--system nosuchmod:make: cannot import nosuchmod"),
     (["--no-such-flag"], "unrecognized arguments: --no-such-flag"),
+    # --out "$OUT" with OUT unset: the run was written into the current directory
+    (["--out", ""], "the run directory is empty"),
     (["-v", "--quiet"], "argument --quiet: not allowed with argument -v/--verbose"),
 ]
 
@@ -452,6 +454,9 @@ ASKTELL_CASES = [
     (["ask", "{d}", "--jso"], "unrecognized arguments: --jso"),
     (["tell", "{d}/nope", "1", "--cost", "1"], "no run store in {d}/nope"),
     (["status", "{d}/nope"], "no run store in {d}/nope"),
+    (["ask", " ", "--n", "1"], "the run directory is empty"),
+    (["status", ""], "the run directory is empty"),
+    (["report", ""], "the run directory is empty"),
 ]
 
 

@@ -15,3 +15,11 @@ def seed(s: str) -> int:
     if not 0 <= v < 2 ** 63:
         raise CLIError(f"--seed must be in [0, 2**63), got {v}")
     return v
+
+
+def run_dir(s: str) -> str:
+    """A run directory (``--out``, ``DIR``): any path but an empty one (an unset shell variable:
+    the run was written into the current directory; ``.`` says that)."""
+    if not s.strip():
+        raise CLIError("the run directory is empty: give a path (. for the current directory)")
+    return s

@@ -240,7 +240,8 @@ def add_run_args(p: argparse.ArgumentParser, name: str) -> None:
 
     add_system_args(p)
     p.add_argument("--seed", type=argtypes.seed, default=0, help="seed (terrain, critic, VAE)")
-    p.add_argument("--out", required=True, help="run directory (holds run.db and artifacts)")
+    p.add_argument("--out", required=True, type=argtypes.run_dir,
+                   help="run directory (holds run.db and artifacts)")
     p.add_argument("--phase1-evals", type=int, default=DEFAULT_PHASE1,
                    help=f"phase-1 evaluations (default {DEFAULT_PHASE1}; the paper: 10000)")
     p.add_argument("--phase3-evals", type=int, default=DEFAULT_PHASE3,
@@ -949,7 +950,7 @@ def build_parser() -> argparse.ArgumentParser:
         p.set_defaults(func=func)
 
     p = add("report", help="tables, plots and report.md of a run directory")
-    p.add_argument("dir", help="run directory (or a paper directory)")
+    p.add_argument("dir", type=argtypes.run_dir, help="run directory (or a paper directory)")
     p.add_argument("--no-sim", action="store_true", help="skip the re-simulated CoM plots")
     p.add_argument("--system", default=None, metavar="MODULE:FACTORY",
                    help="rebuild the run's user system to re-simulate (must match the stored one)")
@@ -959,7 +960,8 @@ def build_parser() -> argparse.ArgumentParser:
                    v_des=None)  # report rebuilds built-in tasks from the store
 
     p = add("ask", help="suggest θ for trials run elsewhere (stored as pending)")
-    p.add_argument("dir", help="study directory (created on the first ask)")
+    p.add_argument("dir", type=argtypes.run_dir,
+                   help="study directory (created on the first ask)")
     p.add_argument("--n", type=int, default=1, help="number of suggestions (default 1)")
     add_system_args(p)
     p.add_argument("--space", default=None, metavar="FILE",
@@ -993,7 +995,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_ask)
 
     p = add("tell", help="store the result of a suggestion")
-    p.add_argument("dir", help="study directory")
+    p.add_argument("dir", type=argtypes.run_dir, help="study directory")
     p.add_argument("id", help="the suggestion's id (from ask)")
     p.add_argument("--cost", type=float, default=None, help="the trial's cost")
     p.add_argument("--failed", action="store_true", help="the trial failed (a fall)")
@@ -1003,17 +1005,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_tell)
 
     p = add("release", help="hand a pending suggestion out again (its trial will not be run)")
-    p.add_argument("dir", help="study directory")
+    p.add_argument("dir", type=argtypes.run_dir, help="study directory")
     p.add_argument("id", help="the suggestion's id")
     p.set_defaults(func=cmd_release)
 
     p = add("best", help="write the θ to deploy: the best trial over all phases that did not fail")
-    p.add_argument("dir", help="study directory")
+    p.add_argument("dir", type=argtypes.run_dir, help="study directory")
     p.add_argument("--out", default=None, help="the --params file to write (default DIR/best.json)")
     p.set_defaults(func=cmd_best)
 
     p = add("status", help="evaluations, failures, pending suggestions, best")
-    p.add_argument("dir", help="study directory")
+    p.add_argument("dir", type=argtypes.run_dir, help="study directory")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_status)
 

@@ -106,7 +106,8 @@ def register_cli(sub: Any, parents: Sequence[argparse.ArgumentParser] = ()) -> N
                        help="an Optuna study (RDB URL, SQLite or journal file) as a phase-1 run")
     p.add_argument("storage", help="sqlite:///file.db, another RDB URL, a .db or a journal file")
     p.add_argument("--study", default=None, help="the study name (default: the only study)")
-    p.add_argument("--out", required=True, help="the latentune run directory to write")
+    p.add_argument("--out", required=True, type=argtypes.run_dir,
+                   help="the latentune run directory to write")
     p.add_argument("--space", default=None, metavar="FILE",
                    help="YAML/JSON parameter space to use (default: from the distributions)")
     p.add_argument("--seed", type=argtypes.seed, default=None,
@@ -119,7 +120,7 @@ def register_cli(sub: Any, parents: Sequence[argparse.ArgumentParser] = ()) -> N
     p.set_defaults(func=cmd_import_optuna)
 
     p = sub.add_parser("dashboard", parents=list(parents), help="show a run live in optuna-dashboard (localhost)")
-    p.add_argument("dir", help="run directory")
+    p.add_argument("dir", type=argtypes.run_dir, help="run directory")
     p.add_argument("--port", type=int, default=8080, help="port on 127.0.0.1 (default 8080)")
     p.add_argument("--interval", type=float, default=2.0,
                    help="seconds between reads of the run store (default 2)")
