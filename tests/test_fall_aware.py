@@ -522,3 +522,33 @@ def test_ask_latency_measures_the_fall_model_against_none(tmp_path, monkeypatch)
             if screens:                                      # fitted on both classes
                 assert pc["max_fall_prob"] == 0.3
                 assert crit.fall_prob(np.full((1, 4), 0.5)) is not None
+
+
+def test_a_study_resumes_to_the_uninterrupted_run_after_its_fall_prior_grew(tmp_path):
+    """A fall prior (or optuna-cmaes's source run) is read again on resume: once the prior run
+    had more trials, the resumed phase asked other θ than the run never stopped. The phase
+    records how many trials it began with (``prior_counts``) and a resume reads those."""
+    import latentune as lt
+
+    sp = lt.ParameterSpace(["a", "b", "c"], [0] * 3, [1] * 3, manual=[0.5] * 3)
+
+    def fn(x):
+        y, fell = problem(x)
+        return float(y[0]), bool(fell[0])
+
+    system = lt.FunctionSystem(sp, fn, name="fall3")
+    with lt.Study(tmp_path / "prior", seed=1) as st:
+        st.phase1(system, 12, method="random")
+    runs = {}
+    for name, stop in (("whole", None), ("resumed", 8)):
+        with lt.Study(tmp_path / name) as st:
+            st.phase1(system, 20, max_fall_prob=0.3, fall_prior=tmp_path / "prior",
+                      max_new=stop)
+    with lt.Study(tmp_path / "prior") as st:
+        st.phase1(system, 30, method="random")          # the prior grows meanwhile
+    for name in ("whole", "resumed"):
+        with lt.Study(tmp_path / name) as st:
+            st.phase1(system, 20, max_fall_prob=0.3, fall_prior=tmp_path / "prior")
+            runs[name] = np.array([r.theta for r in st.store.rows(1)])
+            assert st.config()["phase1"]["prior_counts"] == {"1": 12, "3": 0}
+    np.testing.assert_array_equal(runs["resumed"], runs["whole"])

@@ -261,7 +261,7 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
         record_latent(study.run, study.manifest, ls, source)
         extra = mf.phase3_extra(source, strat, start_rec, mfp, g.get("handover"),
                                 g.get("transfer_options"),
-                                source_counts(study.dir, source, strat))
+                                source_counts(study.dir, source))
     else:
         extra = {"start": start_rec, **mf.fall_options(mfp, g.get("fall_prior"))}
     pc = study.manifest.phase_options(phase, method=g["method"], budget=g["budget"],

@@ -52,7 +52,8 @@ def phase_critic(phase: int, pc: dict[str, Any], space: ParameterSpace, run_dir:
     mfp = pc.get("max_fall_prob")
     theta0 = start_theta(pc, space)
     if int(phase) == Phase.PHASE1:
-        prior = theta_prior(pc.get("fall_prior"), space) if mfp is not None else None
+        prior = theta_prior(pc.get("fall_prior"), space, pc.get("prior_counts")) \
+            if mfp is not None else None
         return make_phase_critic(pc["method"], space.dim, pc["batch_size"], pc["seed"], theta0,
                                  pc["budget"], pc["regions"], mfp, prior,
                                  source=source_costs(pc.get("source_run"), space,
@@ -65,11 +66,12 @@ def phase_critic(phase: int, pc: dict[str, Any], space: ParameterSpace, run_dir:
         return transfer_critic(pc, space, run_dir, run, latent)
     latent.require_spread()                 # the paper's phase 3 searches the decoded θ only
     x0 = None if theta0 is None else latent.to_unit(latent.encode(theta0))
-    lprior = latent_prior(run, latent) if mfp is not None else None
+    counts = pc.get("source_counts")            # the source's trials the phase began with
+    lprior = latent_prior(run, latent, counts) if mfp is not None else None
     if pc.get("handover") is None:
         return make_phase_critic(pc["method"], latent.d_low, pc["batch_size"], pc["seed"], x0,
                                  pc["budget"], pc["regions"], mfp, lprior)
-    tprior = theta_prior(run, space) if mfp is not None else None
+    tprior = theta_prior(run, space, counts) if mfp is not None else None
     return make_handover_critic(pc["method"], latent, pc["batch_size"], pc["seed"], x0,
                                 pc["budget"], pc["regions"], pc["handover"], mfp, lprior, tprior)
 
@@ -102,7 +104,7 @@ def phase3_setup(run: RunDir, manifest: Manifest, space: ParameterSpace, actor: 
     ls, source = resolve_latent(run, manifest, latent, space, actor)
     strategy = resolve_strategy(manifest, strategy, handover, ls)
     refuse_plain_options(strategy, method, regions, start)
-    counts = source_counts(run.dir, source, strategy)
+    counts = source_counts(run.dir, source)
     start_rec = mf.start_point(start, space.manual, space.dim)[1]
     return ls, mf.phase3_extra(source, strategy, start_rec, max_fall_prob, handover,
                                transfer_options, counts)
@@ -127,13 +129,11 @@ def refuse_plain_options(strategy: str, method: str | None, regions: int | None,
                              "θ, in the latent and the full θ box")
 
 
-def source_counts(run_dir: Path, source: str, strategy: str) -> dict[str, int] | None:
-    """How many trials of phases 1 and 3 a transfer phase 3's source run holds (``{"1": n1,
-    "3": n3}``; ``source``: its latent space's source, ``"self"`` for the study at
-    ``run_dir``): what the phase starts from (recorded, :data:`~latentune.pipeline.manifest.
-    PINNED`). None for another ``strategy`` (not recorded) or a source without a store."""
-    if strategy != "transfer":
-        return None
+def source_counts(run_dir: Path, source: str) -> dict[str, int] | None:
+    """How many trials of phases 1 and 3 a phase 3's source run holds (``{"1": n1, "3": n3}``;
+    ``source``: its latent space's source, ``"self"`` for the study at ``run_dir``): what the
+    transfer phase 3, or the fall prior of the plain one, starts from (recorded,
+    :data:`~latentune.pipeline.manifest.PINNED`). None for a source without a store."""
     return mf.run_counts(Path(run_dir) if source == "self" else Path(source))
 
 
@@ -230,10 +230,10 @@ def stop_note(critic: Any, n: int, budget: int) -> str:
 
 def source_costs(run: Any, space: ParameterSpace, counts: dict[str, int] | None = None
                  ) -> tuple[np.ndarray, np.ndarray] | None:
-    """The phase-1 and phase-3 trials of the run ``run`` (with ``counts``, the pinned
-    ``source_counts``: the first that many of each) as (X (m, d) unit-box θ, cost (m,)), or None
-    without a run; StoreError when it holds none, or θ of another dimension or box than
-    ``space``'s (:func:`require_same_box`)."""
+    """The phase-1 and phase-3 trials of the run ``run`` as (X (m, d) unit-box θ, cost (m,)),
+    or None without a run (``counts``: only the first that many of each phase, :func:`~latentune.
+    pipeline.manifest.run_counts`); StoreError when it holds none, or θ of another dimension
+    or box than ``space``'s (:func:`require_same_box`)."""
     if run is None:
         return None
     from latentune.critic.transfer import source_trials
@@ -274,19 +274,24 @@ def decoder_of(pc: dict[str, Any], latent: Any) -> Any:
 
 
 # ---------------------------------------------------------------------------- priors
-def _prior_rows(run: Path) -> list[Row]:
+def _prior_rows(run: Path, counts: dict[str, int] | None = None) -> list[Row]:
+    """The phase-1 rows of the run at ``run`` (``counts``: only the first ``counts["1"]``, the
+    ones a phase began with, :func:`~latentune.pipeline.manifest.run_counts`)."""
     if not (Path(run) / "run.db").is_file():
         raise StoreError(f"fall prior: no run store in {run}")
     with RunStore(run) as o:
-        return o.rows(Phase.PHASE1)
+        rows = o.rows(Phase.PHASE1)
+    return rows if counts is None else rows[:int(counts.get(str(int(Phase.PHASE1)), 0))]
 
 
-def theta_prior(run: Any, space: ParameterSpace) -> tuple[np.ndarray, np.ndarray] | None:
-    """(θ (m, d), fell (m,)) of another run's phase 1, the prior of a direct fall-aware search;
-    StoreError when its θ are of another dimension or box than ``space``'s."""
+def theta_prior(run: Any, space: ParameterSpace, counts: dict[str, int] | None = None
+                ) -> tuple[np.ndarray, np.ndarray] | None:
+    """(θ (m, d), fell (m,)) of another run's phase 1 (the first ``counts``, :func:`_prior_rows`),
+    the prior of a direct fall-aware search; StoreError when its θ are of another dimension or
+    box than ``space``'s."""
     if run is None:
         return None
-    rows = _prior_rows(Path(run))
+    rows = _prior_rows(Path(run), counts)
     if not rows:
         return None
     X = np.array([r.theta for r in rows])
@@ -296,10 +301,12 @@ def theta_prior(run: Any, space: ParameterSpace) -> tuple[np.ndarray, np.ndarray
     return X, np.array([r.fell for r in rows], dtype=bool)
 
 
-def latent_prior(run: Path, ls: Any) -> tuple[np.ndarray, np.ndarray] | None:
-    """The source run's phase-1 θ encoded into the latent unit box (codes outside the box are
-    dropped: clipping would pile them on its faces) with their fell flags."""
-    rows = _prior_rows(run)
+def latent_prior(run: Path, ls: Any, counts: dict[str, int] | None = None
+                 ) -> tuple[np.ndarray, np.ndarray] | None:
+    """The source run's phase-1 θ (the first ``counts``, :func:`_prior_rows`) encoded into the
+    latent unit box (codes outside the box are dropped: clipping would pile them on its faces)
+    with their fell flags."""
+    rows = _prior_rows(run, counts)
     if not rows:
         return None
     Z = np.atleast_2d(ls.encode(np.array([r.theta for r in rows])))

@@ -41,13 +41,25 @@ PHASE_KEYS = {Phase.PHASE1: "phase1", Phase.PHASE3: "phase3"}
 COMPARED = ("method", "batch_size", "seed", "regions", "start", "max_fall_prob", "fall_prior",
             "latent_source", "handover", "transfer_options")
 """The options of a phase that must match on resume (budget may grow)."""
-RECORDED_IF_GIVEN = ("transfer_options", "source_counts")
+RECORDED_IF_GIVEN = ("transfer_options", "source_counts", "prior_counts")
 """Options recorded only when given: a record without one (a run stored before it existed, or
 run without it) compares equal to not giving it."""
-PINNED = ("source_counts",)
+PINNED = ("source_counts", "prior_counts")
 """Options taken as the phase first recorded them once it has a trial, never compared: what
-the phase started from (the source trials of the transfer phase 3 and of ``optuna-cmaes``), so a
-resume asks what the uninterrupted run would have."""
+the phase started from (how many trials of each phase its source run or fall prior held:
+:func:`run_counts`), so a resume asks what the uninterrupted run would have, however much
+those runs grew since."""
+
+
+def run_counts(run: Any) -> dict[str, int] | None:
+    """How many trials of phases 1 and 3 the run at ``run`` holds (``{"1": n1, "3": n3}``),
+    None without a run store: what a phase that learns from it starts from (:data:`PINNED`)."""
+    from latentune.pipeline.store import RunStore
+
+    if run is None or not (Path(run) / "run.db").is_file():
+        return None
+    with RunStore(run) as st:
+        return {str(int(ph)): st.count(ph) for ph in (Phase.PHASE1, Phase.PHASE3)}
 
 
 def describe(system: Any) -> dict[str, Any]:
@@ -352,7 +364,8 @@ def start_point(start: Any, manual: np.ndarray, dim: int) -> tuple[np.ndarray | 
 
 
 def fall_options(max_fall_prob: float | None, prior: Any) -> dict[str, Any]:
-    """The options record of the fall-aware option (checked; a ``prior`` needs it)."""
+    """The options record of the fall-aware option (checked): ``prior`` a run directory (its
+    trials counted: ``prior_counts``), a label, or None."""
     if max_fall_prob is None:
         if prior is not None:
             raise UsageError("fall_prior needs max_fall_prob (it seeds the fall prediction)")
@@ -361,7 +374,8 @@ def fall_options(max_fall_prob: float | None, prior: Any) -> dict[str, Any]:
             not 0.0 < float(max_fall_prob) <= 1.0:
         raise UsageError(f"max_fall_prob must be in (0, 1], got {max_fall_prob!r}")
     return {"max_fall_prob": float(max_fall_prob),
-            "fall_prior": None if prior is None else str(prior)}
+            "fall_prior": None if prior is None else str(prior),
+            "prior_counts": None if prior is None else run_counts(prior)}
 
 
 def phase3_extra(source: str, strategy: str, start: Any, max_fall_prob: float | None,
@@ -370,14 +384,15 @@ def phase3_extra(source: str, strategy: str, start: Any, max_fall_prob: float | 
     """Phase 3's own options for :meth:`Manifest.phase_options` (checked): the latent space's
     ``source``, the ``strategy``, the ``start`` record (:func:`start_point`), the fall-aware
     option (its prior: the latent space's source), the hand-over (:func:`handover`), the
-    transfer critic's options (:func:`transfer_option`) and, for it, how many trials of each
-    phase the source run holds (``{"1": n1, "3": n3}``; :data:`PINNED`: a resume uses those
-    trials, not ones the source made since)."""
+    transfer critic's options (:func:`transfer_option`) and, for it or the fall prior, how
+    many trials of each phase the source run holds (:func:`run_counts`; :data:`PINNED`: a
+    resume uses those trials, not ones the source made since)."""
     return {"latent_source": source, "strategy": strategy, "start": start,
             **fall_options(max_fall_prob, None if max_fall_prob is None else "latent source"),
             "handover": handover(hand_over),
             **transfer_option(transfer_options, strategy, max_fall_prob),
-            "source_counts": source_counts if strategy == "transfer" else None}
+            "source_counts": source_counts if strategy == "transfer" or max_fall_prob is not None
+            else None}
 
 
 def transfer_record(options: dict[str, Any] | None) -> dict[str, Any] | None:
@@ -450,18 +465,8 @@ def source_option(method: str, source_run: Any) -> dict[str, Any]:
                          f"{method or 'turbo'} (pass method='optuna-cmaes')")
     if not (Path(source_run) / "run.db").is_file():
         raise StoreError(f"no latentune run in {source_run} (expected run.db)")
-    return {"source_run": str(Path(source_run).resolve()), "source_counts": run_counts(source_run)}
-
-
-def run_counts(run: Any) -> dict[str, int] | None:
-    """How many trials of phases 1 and 3 the run at ``run`` holds, ``{"1": n1, "3": n3}`` (what
-    a phase that starts from its trials pins); None without a run store there."""
-    from latentune.pipeline.store import RunStore
-
-    if not (Path(run) / "run.db").is_file():
-        return None
-    with RunStore(run) as st:
-        return {str(int(ph)): st.count(ph) for ph in (Phase.PHASE1, Phase.PHASE3)}
+    return {"source_run": str(Path(source_run).resolve()),
+            "source_counts": run_counts(source_run)}
 
 
 def handover(option: Any) -> dict[str, Any] | None:
