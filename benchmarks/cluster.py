@@ -39,6 +39,7 @@ one_thread_env()
 
 from examples.lqr_chain import STEPS, ChainSystem  # noqa: E402
 from latentune.system import Outcome  # noqa: E402
+from latentune.pipeline.store import read_uri  # noqa: E402
 
 from benchmarks.common import ROOT, Provenance, add_out_arg, finish  # noqa: E402
 
@@ -212,7 +213,7 @@ class LocalCluster:
 def stored(db: Path) -> int:
     """Phase-1 rows in the store ``db`` (read-only; 0 while it does not exist)."""
     try:
-        con = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=5)
+        con = sqlite3.connect(read_uri(db), uri=True, timeout=5)
         try:
             return con.execute("SELECT COUNT(*) FROM evaluations WHERE phase=1").fetchone()[0]
         finally:

@@ -28,6 +28,8 @@ from typing import Any
 
 import numpy as np
 
+from latentune.pipeline.store import read_uri
+
 from benchmarks.common import Provenance, add_out_arg, finish
 
 
@@ -68,7 +70,7 @@ def _copy(run: Path, dest: Path, swap: bool) -> int:
     if dest.exists():
         shutil.rmtree(dest)
     shutil.copytree(run, dest, ignore=shutil.ignore_patterns("run.lock", "*.db-wal", "*.db-shm"))
-    src = sqlite3.connect(f"file:{run / 'run.db'}?mode=ro", uri=True)
+    src = sqlite3.connect(read_uri(run / 'run.db'), uri=True)
     dst = sqlite3.connect(dest / "run.db")
     try:
         src.backup(dst)                           # one consistent read of a live store
@@ -113,7 +115,7 @@ def main(argv: list[str] | None = None) -> int:
     if not (a.run / "run.db").is_file():
         print(f"phase3_order: {a.run} holds no run store (run.db)", file=sys.stderr)
         return 2
-    con = sqlite3.connect(f"file:{a.run / 'run.db'}?mode=ro", uri=True)
+    con = sqlite3.connect(read_uri(a.run / 'run.db'), uri=True)
     try:
         n1 = con.execute("SELECT COUNT(*) FROM evaluations WHERE phase=1").fetchone()[0]
         cfg = con.execute("SELECT value FROM meta WHERE key='config'").fetchone()

@@ -87,6 +87,8 @@ from benchmarks import transfer as tr
 
 import numpy as np  # noqa: E402  (benchmarks.transfer sets one BLAS thread first)
 
+from latentune.pipeline.store import read_uri  # noqa: E402
+
 logger = logging.getLogger(__name__)
 
 ROBOT_GAITS = ("trot", "jump")
@@ -188,7 +190,7 @@ def copy_db(src_db: Path, dest_db: Path) -> None:
     """One consistent copy of the SQLite store ``src_db`` at ``dest_db``, read through a
     read-only connection with SQLite's online-backup API (a live run may be writing it)."""
     try:
-        con = sqlite3.connect(f"file:{src_db.resolve()}?mode=ro", uri=True, timeout=60.0)
+        con = sqlite3.connect(read_uri(src_db.resolve()), uri=True, timeout=60.0)
         try:
             out = sqlite3.connect(str(dest_db))
             try:

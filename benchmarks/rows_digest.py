@@ -34,6 +34,8 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXP
 
 import numpy as np  # noqa: E402
 
+from latentune.pipeline.store import read_uri  # noqa: E402
+
 from benchmarks.common import Provenance, add_out_arg, finish  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -41,7 +43,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def rows(run: Path) -> list[tuple[int, bytes, float, bool]]:
     """(phase, θ bytes, cost, fell) of every stored evaluation of ``run``, sorted."""
-    con = sqlite3.connect(f"file:{Path(run) / 'run.db'}?mode=ro", uri=True)
+    con = sqlite3.connect(read_uri(Path(run) / 'run.db'), uri=True)
     try:
         got = con.execute("SELECT phase, theta, cost, fell FROM evaluations").fetchall()
     finally:

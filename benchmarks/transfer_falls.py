@@ -63,6 +63,8 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
+from latentune.pipeline.store import read_uri  # noqa: E402
+
 RADII = (0.01, 0.02, 0.05, 0.1, 0.2)
 """RMS distances (unit box) at which fall rates around a centre are counted."""
 PF_EDGES = (0.0, 0.1, 0.2, 0.3, 1.0)
@@ -85,7 +87,7 @@ def snapshot(study: Path, dst: Path) -> Path:
     for f in study.iterdir():
         if f.is_file() and not f.name.startswith("run."):
             shutil.copy2(f, dst / f.name)
-    src = sqlite3.connect(f"file:{study / 'run.db'}?mode=ro", uri=True)
+    src = sqlite3.connect(read_uri(study / 'run.db'), uri=True)
     out = sqlite3.connect(dst / "run.db")
     try:
         src.backup(out)
@@ -341,7 +343,7 @@ def plain_falls(root: Path, plain: str, source: str, seeds: list[int]) -> list[d
         if not (d / "run.db").is_file():
             out.append({"seed": s, "study": d.name, "trials": None, "falls": None})
             continue
-        con = sqlite3.connect(f"file:{d / 'run.db'}?mode=ro", uri=True)
+        con = sqlite3.connect(read_uri(d / 'run.db'), uri=True)
         try:
             n, f = con.execute("select count(*), coalesce(sum(fell), 0) from evaluations "
                                "where phase = 3").fetchone()
