@@ -179,6 +179,45 @@ def test_crash_and_resume(tmp_path, run_cli, cli_env, dump_store):
     assert len({r[2] for r in rows}) == n                    # no θ evaluated twice
 
 
+_SLOW_PLUGIN = """
+import time
+import latentune as lt
+
+
+def make():
+    def fn(x):
+        time.sleep(0.2 if x[0] <= 0.5 else 60)      # trials with x0 > 0.5 hang
+        return float(x.sum())
+    return lt.FunctionSystem(lt.ParameterSpace(["a", "b"], [0, 0], [1, 1], manual=[0.2, 0.2]),
+                             fn, name="slow")
+"""
+
+
+def test_sigterm_stops_a_run_as_ctrl_c_does(tmp_path, cli_env, run_cli):
+    """SIGTERM (kill, docker stop, a batch system's limit) while a trial hangs in a worker:
+    one line and status 143 at once, no worker left (it ended the process with the pool's
+    semaphore warnings on stderr, Ray's crash dump on the Ray backend); a resume goes on."""
+    (tmp_path / "slowplug.py").write_text(_SLOW_PLUGIN)
+    env = {**cli_env, "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), str(tmp_path)])}
+    args = ["phase1", "--system", "slowplug:make", "--out", str(tmp_path / "r"),
+            "--phase1-evals", "8", "--workers", "2", "--quiet"]
+    proc = subprocess.Popen([sys.executable, "-m", "latentune.cli", *args], env=env,
+                            cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True)
+    t0 = time.monotonic()
+    while stored(tmp_path / "r" / "run.db") < 1 and time.monotonic() - t0 < 120:
+        time.sleep(0.05)
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGTERM)
+    try:
+        _, err = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 143, err
+    assert err.strip() == "latentune: error: terminated (SIGTERM); stored results are kept"
+
+
 def _hangs_above_half(x):
     if x[0] > 0.5:
         time.sleep(30)                      # a trial that hangs (or runs long)

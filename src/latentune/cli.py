@@ -10,7 +10,7 @@ shows them on stderr as one line each (``latentune: message``; warnings and Pyth
 :mod:`warnings` as ``latentune: warning: message``): warnings by default, informational lines
 with ``-v/--verbose``, errors only with ``--quiet``. Progress bars are drawn only when stderr
 is a terminal. Exit status: 0 done, 2 bad input or a failure reported in one line, 130
-interrupted, 141 stdout closed early (``latentune ask --json | head``).
+interrupted, 143 terminated (SIGTERM), 141 stdout closed early (``latentune ask --json | head``).
 """
 from __future__ import annotations
 
@@ -1148,6 +1148,32 @@ def _cluster_lost(exc: BaseException, args: argparse.Namespace | None,
     return f"{_one_line(exc)}; the trials stored{where} are safe: {again}"
 
 
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM (``kill``, ``docker stop``, a batch system's time limit) stops a command as
+    Ctrl-C does: its workers are stopped and one line says so (it killed the process at once,
+    leaving the pool's semaphore warnings or Ray's crash dump on stderr)."""
+
+
+@contextmanager
+def _sigterm_stops() -> Iterator[None]:
+    """While a command runs, SIGTERM raises :class:`_Terminated` (the main thread only);
+    the previous handler is restored after."""
+    import signal
+
+    def stop(signum: int, frame: Any) -> None:
+        raise _Terminated
+
+    try:
+        prev = signal.signal(signal.SIGTERM, stop)
+    except ValueError:                         # not the main thread: left as it is
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, prev)
+
+
 def _error(msg: str) -> int:
     print(f"latentune: error: {msg}", file=sys.stderr)
     return 2
@@ -1161,7 +1187,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     one_thread_env()  # before numpy is imported: rollouts are many small matrix operations
     args: argparse.Namespace | None = None
-    with _cli_logging() as set_level:
+    with _cli_logging() as set_level, _sigterm_stops():
         try:
             args = build_parser().parse_args(argv)
             set_level(logging.ERROR if args.quiet else
@@ -1192,6 +1218,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _error(f"an evaluation worker died ({type(exc).__name__}: "
                           f"{_one_line(exc)[:200]}); the finished evaluations are stored: rerun "
                           "with --resume")
+        except _Terminated:
+            print("latentune: error: terminated (SIGTERM); stored results are kept",
+                  file=sys.stderr)
+            return 143
         except KeyboardInterrupt:
             print("latentune: error: interrupted; stored results are kept", file=sys.stderr)
             return 130

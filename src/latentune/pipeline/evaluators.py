@@ -36,7 +36,9 @@ import logging
 import os
 import pickle
 import sys
+import threading
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any, Iterator
 
@@ -166,8 +168,6 @@ def _init_worker(alive: Any = None) -> None:
     """Start of every worker process: one BLAS/OpenMP thread in this process only; with
     ``alive`` (a process pool's), the worker ends when its caller does."""
     if alive is not None:
-        import threading
-
         threading.Thread(target=_exit_with, args=(alive,), daemon=True,
                          name="latentune-exit-with-caller").start()
     for v in THREAD_VARS:                      # libraries loaded from now on
@@ -396,6 +396,20 @@ def _gcs_address(ray: Any) -> str | None:
     return address if isinstance(address, str) and _host_port(address) else None
 
 
+@contextmanager
+def _keeps_sigterm() -> Iterator[None]:
+    """Keep the caller's Python SIGTERM handler (the command line's: stop as Ctrl-C does)
+    across ``ray.init``, which installs its own (a crash dump, then the process ends)."""
+    import signal
+
+    prev = signal.getsignal(signal.SIGTERM)
+    try:
+        yield
+    finally:
+        if callable(prev) and threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGTERM, prev)
+
+
 def _check_reachable(address: str, timeout: float = 10.0) -> None:
     """Raise ConnectionError if a ``HOST:PORT`` Ray address does not accept a TCP connection
     within ``timeout`` seconds (Ray itself retries such an address without end). Other forms
@@ -467,12 +481,13 @@ class RayEvaluator(Evaluator):
                                   "configure_logging": False}
             if address:
                 _check_reachable(address)
-                ray.init(address=address, **kw)
             else:
                 tmp = temp_dir or os.environ.get("RAY_TMPDIR")
                 if tmp:
                     kw["_temp_dir"] = os.path.abspath(tmp)
-                ray.init(num_cpus=self.workers, **kw)
+            with _keeps_sigterm():
+                ray.init(**({"address": address} if address else {"num_cpus": self.workers}),
+                         **kw)
             self._owns = True
         self._ray = ray
         self.head = address if _host_port(address) else _gcs_address(ray)
