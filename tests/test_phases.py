@@ -162,16 +162,20 @@ def test_phase_same_seed_same_run_whatever_the_completion_order(tmp_path, whole_
 
 def test_a_run_whose_workers_finish_out_of_order_resumes_to_the_uninterrupted_run(tmp_path,
                                                                                  whole_run):
-    """Rows are stored as the workers finish and renumbered in ask order when their batch is
-    told, so a resume tells the critic its batches in the order it was told them (told in
-    completion order, it asked other θ), stopped between batches (36) or in one (22)."""
-    from latentune.pipeline.phases import run_phase
+    """Rows are stored as the workers finish, a row out of ask order with the index it was
+    asked at, so a resume tells the critic its batches in the order it was told them (told in
+    completion order, it asked other θ), stopped between batches (36) or in one (22); the
+    rows keep their indices."""
+    from latentune.pipeline.phases import ASKED, run_phase, told_order
 
     with RunStore(tmp_path / "r", create=True) as st:
         for stop in (22, 36, 60):
             run_phase(st, 1, quad, _critic60(), 60, _ReversedEvaluator(),
                       max_new=stop - st.count(1))
-        np.testing.assert_array_equal(_thetas(st), whole_run)
+        rows = st.rows(1)
+        np.testing.assert_array_equal([r.theta for r in told_order(rows)], whole_run)
+        assert [r.idx for r in rows] == list(range(60))
+        assert rows[3].info[ASKED] == 0                 # the first batch, stored reversed
 
 
 def test_training_set_does_not_depend_on_completion_order(tmp_path):

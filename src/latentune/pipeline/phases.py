@@ -9,12 +9,12 @@ Resume and crash safety
 -----------------------
 Rows get their index when they are *committed* (completion order), so the indices of a phase
 are always 0..n−1 without gaps, whatever order the workers finish in, and one index is never
-written twice (the store's primary key refuses it). When the batch is told, its rows are
-renumbered in ask order, in the transaction that stores the critic's state
-(:func:`save_state`). On resume a fresh critic with the same options and seed is told the stored
-rows (X, y, tags) in index order, which is the order its batches were told in (the order of the
-points inside the GP's data changes what it asks next), and its state is restored (see
-:mod:`latentune.critic.base`); the loop then continues at index n.
+written twice (the store's primary key refuses it). A row stored out of its batch's ask order
+records the index it would have had in ask order (``info["asked"]``, :data:`ASKED`). On resume
+a fresh critic with the same options and seed is told the stored rows (X, y, tags) in ask
+order, the order it was told them (:func:`told_order`: the order of the points in the GP's data
+changes what it asks next), and its state is restored (see :mod:`latentune.critic.base`); the
+loop then continues at index n.
 
 A process may die in the middle of a batch. So every asked batch is recorded in the store's meta
 (:class:`AskedBatch`, key :func:`batch_key`) before its first trial runs, and removed in the
@@ -50,7 +50,7 @@ from latentune.constants import Phase
 from latentune.critic.handover import HANDOVER_DEFAULTS
 from latentune.errors import StoreError, UsageError
 from latentune.pipeline.evaluators import ClusterLost, Evaluator, TrialError
-from latentune.pipeline.store import RunStore
+from latentune.pipeline.store import Row, RunStore
 from latentune.system import EvaluationError, Outcome
 
 log = logging.getLogger(__name__)
@@ -256,6 +256,17 @@ def stored_codes(U: np.ndarray, Z: np.ndarray | None, decoded: bool) -> list[np.
     return list(U) if decoded else [None] * len(U)
 
 
+ASKED = "asked"
+"""The key of a row's ``info`` that holds the index the row would have had in its batch's ask
+order, for a row stored out of that order (a worker finished before an earlier-asked one)."""
+
+
+def told_order(rows: list[Row]) -> list[Row]:
+    """``rows`` of a phase (index order) in the order the critic was told them: each batch in
+    ask order (:data:`ASKED`)."""
+    return sorted(rows, key=lambda r: (r.info or {}).get(ASKED, r.idx))
+
+
 def state_key(phase: int) -> str:
     """The store's meta key of the critic state (:meth:`Critic.state_dict`) of ``phase``."""
     return f"critic_state_{int(phase)}"
@@ -266,13 +277,11 @@ def batch_key(phase: int) -> str:
     return f"asked_batch_{int(phase)}"
 
 
-def save_state(store: RunStore, phase: int, critic: Any, batch: "AskedBatch") -> None:
-    """Store ``critic.state_dict()`` for ``phase`` (nothing for a critic without state), remove
-    the record of the ``batch`` just told (:class:`AskedBatch`) and renumber its rows in ask
-    order, in one transaction."""
+def save_state(store: RunStore, phase: int, critic: Any) -> None:
+    """Store ``critic.state_dict()`` for ``phase`` (nothing for a critic without state) and
+    remove the record of the batch just told (:class:`AskedBatch`), in one transaction."""
     state = critic.state_dict() if hasattr(critic, "state_dict") else {}
-    store.reorder(phase, [batch.done[i][2] for i in range(len(batch.thetas))],
-                  {batch_key(phase): None, **({state_key(phase): state} if state else {})})
+    store.update_meta({batch_key(phase): None, **({state_key(phase): state} if state else {})})
 
 
 @dataclass
@@ -285,7 +294,7 @@ class AskedBatch:
         U: (k, m) the critic's points; ``T`` (k,) their tags; ``Z`` (k, m') a two-space
             critic's codes (``last_z``, NaN rows for none) or None.
         thetas: (k, d) the normalized θ to evaluate; ``codes``: the code stored with each.
-        done: ask index -> (cost, fell, idx) of the points evaluated so far.
+        done: ask index -> (cost, fell) of the points evaluated so far.
     """
 
     n0: int
@@ -294,7 +303,7 @@ class AskedBatch:
     Z: np.ndarray | None
     thetas: np.ndarray
     codes: list[np.ndarray | None]
-    done: dict[int, tuple[float, bool, int]] = field(default_factory=dict)
+    done: dict[int, tuple[float, bool]] = field(default_factory=dict)
 
     def record(self) -> dict[str, Any]:
         """The JSON record stored under :func:`batch_key` (floats round-trip exactly)."""
@@ -328,7 +337,7 @@ def pending_batch(store: RunStore, phase: int, budget: int, decoder: Callable | 
                   and np.array_equal(b.thetas[i], r.theta)), None)
         if i is None:
             return None
-        b.done[i] = (float(r.cost), bool(r.fell), int(r.idx))
+        b.done[i] = (float(r.cost), bool(r.fell))
     return b
 
 
@@ -359,26 +368,24 @@ def replay(store: RunStore, phase: int, critic: Any, upto: int | None = None) ->
 
 def _tell_rows(store: RunStore, phase: int, critic: Any, upto: int | None = None) -> int:
     store.check_contiguous(phase)
+    rows = told_order(store.rows(phase)[:upto])
+    if not rows:
+        return 0
+    y = np.array([r.cost for r in rows])
+    tags = np.array([r.tag for r in rows], dtype=np.int64)
+    fell = np.array([r.fell for r in rows], dtype=bool)
     if hasattr(critic, "last_z"):                  # a two-space critic: θ, and z where stored
-        rows = store.rows(phase)[:upto]
-        if not rows:
-            return 0
         k = critic.last_z.shape[1]
-        X = np.array([r.theta for r in rows])
         Z = np.array([r.z if r.z is not None and len(r.z) == k else np.full(k, np.nan)
                       for r in rows])
-        y = np.array([r.cost for r in rows])
-        critic.tell(X, y, np.array([r.tag for r in rows], dtype=np.int64),
-                    fell=np.array([r.fell for r in rows], dtype=bool), z=Z)
+        critic.tell(np.array([r.theta for r in rows]), y, tags, fell=fell, z=Z)
         return len(rows)
-    X, y, tags = store.history(phase)
-    X, y, tags, fell = X[:upto], y[:upto], tags[:upto], store.fell(phase)[:upto]
-    if len(y):
-        if X.shape[1] != critic.dim:
-            raise StoreError(f"stored phase-{phase} points have dimension {X.shape[1]}, "
-                             f"the critic {critic.dim}")
-        critic.tell(X, y, tags, fell=fell)
-    return len(y)
+    X = np.array([r.z if r.z is not None else r.theta for r in rows])      # the critic's box
+    if X.shape[1] != critic.dim:
+        raise StoreError(f"stored phase-{phase} points have dimension {X.shape[1]}, "
+                         f"the critic {critic.dim}")
+    critic.tell(X, y, tags, fell=fell)
+    return len(rows)
 
 
 def ask_batch(critic: Any, k: int, decoder: Callable | None
@@ -467,11 +474,13 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
                     error = error or r.message
                     continue
                 cost = float(r.cost)
+                if batch.n0 + i != idx:         # out of ask order: where it was asked
+                    r = Outcome(r.cost, r.failed, {**r.info, ASKED: batch.n0 + i}, r.wall_s)
                 store_outcome(store, phase, idx, thetas[i], r, z=codes[i], tag=int(T[i]),
                               seed=seed)
-                batch.done[i] = (cost, bool(r.failed), idx)
                 idx += 1
                 new += 1
+                batch.done[i] = (cost, bool(r.failed))
                 streak = streak + 1 if r.failed else 0
                 if streak == FAIL_STREAK:
                     log.warning(failing_message(phase, FAIL_STREAK, strategy))
@@ -488,12 +497,11 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
             if len(batch.done) < len(thetas):      # max_new stopped it: it stays recorded
                 break
             # rows are stored as they complete (crash safety); the critic is told the batch in
-            # ask order, and the rows are renumbered so, so a seed gives the same run whatever
-            # order the workers finish in, and a resume tells the critic that order again
+            # ask order, so a seed gives the same run whatever order the workers finish in
             yb = np.array([batch.done[i][0] for i in range(len(thetas))], dtype=float)
             fb = np.array([batch.done[i][1] for i in range(len(thetas))], dtype=bool)
             critic.tell(U, yb, T.astype(np.int64), fell=fb, **({} if Z is None else {"z": Z}))
-            save_state(store, phase, critic, batch)
+            save_state(store, phase, critic)
             batch = None
     finally:
         if bar is not None:

@@ -12,14 +12,13 @@ Tables
     phase      a :class:`~latentune.constants.Phase`: 0 manual θ, 1 phase 1 (θ space),
                3 phase 3 (latent space), 4 zero-shot (the source run's best θ on this system),
                5 preservation (encode → decode of stable θ)
-    idx        0, 1, 2, ... unique and contiguous within a phase: the order the critic was
-               told them (a phase run's batch is stored in completion order and renumbered in
-               ask order when it is told, :meth:`RunStore.reorder`; ask/tell: tell order)
+    idx        0, 1, 2, ... unique and contiguous within a phase (completion order)
     theta      JSON list, the normalized θ that was evaluated
     z          JSON list, the critic's unit-box latent point (phase 3), else NULL
     tag        the critic's tag of the point (see latentune.critic.base)
     cost, fell (the trial failed), fall_step, wall_s, seed, created (unix time)
-    info       JSON object of the trial's details (Outcome.info; ask/tell: trial id, note)
+    info       JSON object of the trial's details (Outcome.info; ask/tell: trial id, note; a
+               phase run's row stored out of ask order: ``asked``, see latentune.pipeline.phases)
 
 ``trials``: suggestions of ask/tell (trials run elsewhere)::
 
@@ -341,20 +340,6 @@ class RunStore:
         """Write several meta entries in one transaction (a None value removes the entry)."""
         with self._write():
             self._put_meta(entries)
-
-    def reorder(self, phase: int, order: list[int], meta: dict[str, Any] | None = None) -> None:
-        """Renumber the evaluations of ``phase`` at the indices ``order`` in the order listed
-        (the j-th gets the j-th smallest of them) and write the ``meta`` entries (a None value
-        removes the entry), in one transaction."""
-        moved = [(int(o), int(n)) for o, n in zip(order, sorted(order)) if int(o) != int(n)]
-        with self._write():
-            self._put_meta(meta or {})
-            for old, new in moved:          # out of the way first: (phase, idx) is the key
-                self.con.execute("UPDATE evaluations SET idx=? WHERE phase=? AND idx=?",
-                                 (-1 - new, int(phase), old))
-            if moved:
-                self.con.execute("UPDATE evaluations SET idx=-1-idx WHERE phase=? AND idx<0",
-                                 (int(phase),))
 
     def _put_meta(self, entries: dict[str, Any]) -> None:
         for key, value in entries.items():
