@@ -104,7 +104,7 @@ def test_ask_start(tmp_path, run_cli, error_line):
     line = error_line(*run_cli("ask", d, "--start", "manual")[::2])
     assert "start = [0.25, 0.75, 0.75] (stored), not 'manual'" in line
     line = error_line(*run_cli("ask", d, "--start", "scratch")[::2])
-    assert "(stored), not None" in line
+    assert "(stored), not 'scratch'" in line
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps({"a": 7}))
     assert "--start" in error_line(*run_cli("ask", d, "--start", bad)[::2])
