@@ -13,6 +13,7 @@ from typing import Any, Callable
 import numpy as np
 from scipy.optimize import OptimizeResult as _ScipyResult
 
+from latentune.checks import is_whole
 from latentune.critic import critic_class
 from latentune.pipeline.evaluators import Evaluator, SerialEvaluator
 
@@ -41,7 +42,7 @@ class OptimizeResult(_ScipyResult):
 
 
 def _check_int(name: str, v: Any, low: int) -> int:
-    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
+    if not is_whole(v, low):
         raise ValueError(f"{name} must be an integer >= {low}, got {v!r}")
     return int(v)
 

@@ -29,8 +29,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-import numpy as np
-
+from latentune.checks import is_whole
 from latentune.constants import Phase
 from latentune.errors import StoreError, UsageError
 from latentune.pipeline import asktell, baselines, phase2, results
@@ -76,7 +75,7 @@ class Study:
         for name, v, lo in (("seed", seed, 0), ("workers", workers, 1)):
             if v is None and name == "seed":
                 continue
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+            if not is_whole(v, lo):
                 raise UsageError(f"{name} must be an integer >= {lo}, got {v!r}")
         if seed is not None and not 0 <= int(seed) < 2 ** 63:
             raise UsageError(f"seed must be below 2**63, got {seed}")

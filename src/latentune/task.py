@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from latentune.actor.base import Actor, ActorFailure
+from latentune.checks import is_whole
 from latentune.constants import C1, GAITS, STABLE_CAP, TERRAINS, fail_cost
 from latentune.errors import UsageError
 from latentune.robots import RobotSpec, get_robot
@@ -166,7 +167,7 @@ class Task:
             raise UsageError(f"v_des must be a number or a 3-vector [m/s], got {v_des!r}") from None
         if not np.all(np.isfinite(v)) or math.hypot(*v) > 3.0:  # hypot: no overflow
             raise UsageError("v_des must be a finite velocity of at most 3 m/s")
-        if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
+        if not is_whole(steps, 1):
             raise UsageError(f"steps must be a positive integer, got {steps!r}")
         if steps > MAX_STEPS:
             raise UsageError(f"steps must be at most {MAX_STEPS:,} (10,000 s at 1 kHz), got {steps}")

@@ -83,6 +83,8 @@ from typing import Any, Callable, Protocol
 
 import numpy as np
 
+from latentune.checks import is_whole
+
 UNTAGGED: int = -1
 """Tag of a point the critic did not ask for (external / warm data)."""
 X0_TAG: int = -2
@@ -292,12 +294,11 @@ class Critic(ABC):
                  x0: np.ndarray | None = None, **opts: Any) -> None:
         if opts:
             raise TypeError(f"{type(self).__name__}: unknown option(s) {sorted(opts)}")
-        if isinstance(dim, bool) or not isinstance(dim, (int, np.integer)) or dim < 1:
+        if not is_whole(dim, 1):
             raise ValueError(f"dim must be an integer >= 1, got {dim!r}")
-        if isinstance(batch_size, bool) or not isinstance(batch_size, (int, np.integer)) \
-                or batch_size < 1:
+        if not is_whole(batch_size, 1):
             raise ValueError(f"batch_size must be an integer >= 1, got {batch_size!r}")
-        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        if not is_whole(seed, 0):
             raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
         self.dim = int(dim)
         self.batch_size = int(batch_size)
@@ -320,7 +321,7 @@ class Critic(ABC):
         Sets :attr:`last_tags` (n,) int64, the tags to pass back to :meth:`tell`.
         """
         n = self.batch_size if n is None else n
-        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        if not is_whole(n, 1):
             raise ValueError(f"n must be an integer >= 1, got {n!r}")
         if self._screen is None:
             X, tags = self._checked_ask(int(n))

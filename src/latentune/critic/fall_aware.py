@@ -68,6 +68,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from latentune.checks import is_whole
 from latentune.critic.base import Critic, as_unit_points
 from latentune.critic.fall_model import FallModel, GPFallModel
 
@@ -118,11 +119,10 @@ class FallAware(Critic):
             raise ValueError(f"max_fall_prob must be a number in (0, 1], got {max_fall_prob!r}")
         if not (0.0 < float(max_fall_prob) <= 1.0):
             raise ValueError(f"max_fall_prob must be in (0, 1], got {max_fall_prob!r}")
-        if isinstance(oversample, bool) or not isinstance(oversample, (int, np.integer)) \
-                or oversample < 1:
+        if not is_whole(oversample, 1):
             raise ValueError(f"oversample must be an integer >= 1, got {oversample!r}")
         for name, v, lo in (("max_points", max_points, 4), ("max_fit_points", max_fit_points, 4)):
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+            if not is_whole(v, lo):
                 raise ValueError(f"{name} must be an integer >= {lo}, got {v!r}")
         if not (isinstance(refit_fraction, (int, float)) and 0.0 < refit_fraction <= 1.0):
             raise ValueError(f"refit_fraction must be in (0, 1], got {refit_fraction!r}")

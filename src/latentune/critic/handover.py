@@ -45,6 +45,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from latentune.checks import is_whole
 from latentune.critic.base import UNTAGGED, Critic, TwoSpaceCritic
 
 LATENT = 0
@@ -91,8 +92,7 @@ class Handover(TwoSpaceCritic):
         if not isinstance(latent, Critic) or latent.n_told:
             raise ValueError("latent must be a fresh Critic")
         super().__init__(dim, batch_size=latent.batch_size, seed=latent.seed)
-        if isinstance(patience, bool) or not isinstance(patience, (int, np.integer)) \
-                or patience < 1:
+        if not is_whole(patience, 1):
             raise ValueError(f"patience must be an integer >= 1, got {patience!r}")
         if not (isinstance(tol, (int, float)) and not isinstance(tol, bool) and tol >= 0):
             raise ValueError(f"tol must be a number >= 0, got {tol!r}")

@@ -373,6 +373,7 @@ from typing import Any
 
 import numpy as np
 
+from latentune.checks import is_whole
 from latentune.critic.base import TwoSpaceCritic, as_unit_points
 from latentune.critic.transfer_model import (LS_SCALES, SourceModel, TargetGP, TargetModel,
                                              calibrated, fit_calibration, fit_residual_kernel,
@@ -632,7 +633,7 @@ class Transfer(TwoSpaceCritic):
             raise ValueError(f"handoff_rules must be one of {HANDOFF_RULES}, "
                              f"got {self.opts['handoff_rules']!r}")
         k_ex = self.opts["explore_every"]
-        if isinstance(k_ex, bool) or not isinstance(k_ex, (int, np.integer)) or k_ex < 0 \
+        if not is_whole(k_ex, 0) \
                 or k_ex == 1:
             raise ValueError(f"explore_every must be 0 (off) or an integer ≥ 2, got {k_ex!r}")
         for flag in ("stand_first", "explore_adapt", "fall_source_sd", "explore_void",
@@ -645,8 +646,7 @@ class Transfer(TwoSpaceCritic):
                 not 0.0 <= float(q_fb) < 1.0:
             raise ValueError(f"fall_budget must be a share of the trials in [0, 1) (0: none), "
                              f"got {q_fb!r}")
-        if budget is not None and (isinstance(budget, bool) or
-                                   not isinstance(budget, (int, np.integer)) or budget < 1):
+        if budget is not None and not is_whole(budget, 1):
             raise ValueError(f"budget must be a whole number of trials ≥ 1, got {budget!r}")
         self.budget = None if budget is None else int(budget)
         if self.opts["fall_budget_counts"] not in FALL_BUDGET_COUNTS:
@@ -657,20 +657,20 @@ class Transfer(TwoSpaceCritic):
             if not (isinstance(v, (bool, np.bool_)) or (isinstance(v, str) and v == word)):
                 raise ValueError(f"{flag} must be true, false or \"{word}\", got {v!r}")
         k_ef = self.opts["explore_falls"]
-        if isinstance(k_ef, bool) or not isinstance(k_ef, (int, np.integer)) or k_ef < 0:
+        if not is_whole(k_ef, 0):
             raise ValueError(f"explore_falls must be an integer ≥ 0 (0: never stop exploring), "
                              f"got {k_ef!r}")
         k_rw = self.opts["record_walk"]
-        if isinstance(k_rw, bool) or not isinstance(k_rw, (int, np.integer)) or k_rw < 0:
+        if not is_whole(k_rw, 0):
             raise ValueError(f"record_walk must be an integer ≥ 0 (0: off), got {k_rw!r}")
         if self.opts["walk_pick"] not in WALK_PICKS:
             raise ValueError(f"walk_pick must be one of {WALK_PICKS}, "
                              f"got {self.opts['walk_pick']!r}")
         k_es = self.opts["escape_falls"]
-        if isinstance(k_es, bool) or not isinstance(k_es, (int, np.integer)) or k_es < 0:
+        if not is_whole(k_es, 0):
             raise ValueError(f"escape_falls must be an integer ≥ 0 (0: off), got {k_es!r}")
         k_cf = self.opts["centre_falls"]
-        if isinstance(k_cf, bool) or not isinstance(k_cf, (int, np.integer)) or k_cf < 0:
+        if not is_whole(k_cf, 0):
             raise ValueError(f"centre_falls must be an integer ≥ 0 (0: off), got {k_cf!r}")
         if self.opts["fall_rank"] not in FALL_RANKS:
             raise ValueError(f"fall_rank must be one of {FALL_RANKS}, "

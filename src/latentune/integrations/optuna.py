@@ -91,7 +91,6 @@ import numpy as np
 
 from latentune.checks import is_whole
 from latentune.constants import COST_LIMIT, Phase
-from latentune.critic.base import Critic
 from latentune.errors import LatentError, LatentuneError, StoreError, UsageError
 from latentune.space import ParameterSpace
 
@@ -312,7 +311,7 @@ class _CriticSampler:
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or \
                 not 0 <= int(seed) < 2 ** 63:
             raise UsageError(f"seed must be an integer in [0, 2**63), got {seed!r}")
-        if isinstance(budget, bool) or not isinstance(budget, (int, np.integer)) or budget < 1:
+        if not is_whole(budget, 1):
             raise UsageError(f"budget must be an integer >= 1, got {budget!r}")
         if method not in METHODS:
             raise UsageError(f"unknown method {method!r} (choose from {', '.join(METHODS)})")

@@ -57,6 +57,7 @@ from typing import Any
 
 import numpy as np
 
+from latentune.checks import is_whole
 from latentune.constants import Phase
 from latentune.errors import LatentuneError, StoreError, UsageError
 from latentune.pipeline import manifest as mf
@@ -278,7 +279,7 @@ def ask(study: Any, n: int = 1, *, system: Any = None, space: ParameterSpace | N
     ``given``: the phase's options (strategy, method, budget, regions, start, max_fall_prob,
     fall_prior, handover, transfer_options), each None for "the stored one"; ``start`` is
     "manual", :data:`SCRATCH` or a (d,) unit-box θ."""
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+    if not is_whole(n, 1):
         raise UsageError(f"n must be an integer >= 1, got {n!r}")
     who = DEFAULT_ASKER if asker is None else str(asker)
     if not who.strip():

@@ -44,6 +44,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
+from latentune.checks import is_whole
 from latentune.system import CostError, EvaluationError, Outcome, as_cost, evaluate
 from latentune.threads import THREAD_VARS, thread_env
 
@@ -115,8 +116,7 @@ def check_workers(workers: Any) -> int:
     """``workers`` as an int; UsageError unless it is a whole number in [1, MAX_WORKERS]."""
     from latentune.errors import UsageError
 
-    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) \
-            or not 1 <= workers <= MAX_WORKERS:
+    if not is_whole(workers, 1, MAX_WORKERS):
         raise UsageError(f"workers must be a whole number in [1, {MAX_WORKERS}] (one process "
                          f"or Ray actor each), got {workers!r}")
     return int(workers)

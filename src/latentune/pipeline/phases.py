@@ -46,6 +46,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from latentune.checks import is_whole
 from latentune.constants import Phase
 from latentune.critic.handover import HANDOVER_DEFAULTS
 from latentune.errors import StoreError, UsageError
@@ -126,7 +127,7 @@ def handover_options(handover: Any) -> dict[str, Any] | None:
                          f"{', '.join(HANDOVER_DEFAULTS)}, got {handover!r}")
     out = {**HANDOVER_DEFAULTS, **handover}
     p, t, ln = out["patience"], out["tol"], out["length"]
-    if isinstance(p, bool) or not isinstance(p, (int, np.integer)) or p < 1:
+    if not is_whole(p, 1):
         raise ValueError(f"handover patience must be an integer >= 1, got {p!r}")
     if isinstance(t, bool) or not isinstance(t, (int, float)) or not 0 <= t < 1:
         raise ValueError(f"handover tol must be in [0, 1), got {t!r}")
