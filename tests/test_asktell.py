@@ -889,3 +889,17 @@ def test_report_says_what_the_tables_do_not_show(run_cli, tmp_path):
     assert run_cli("report", d, *sysargs, "--no-sim")[0] == 0
     md = (d / "report.md").read_text()
     assert "budget of" not in md and "handed out" not in md and "1 told result was" in md
+
+
+def test_ask_reopens_a_study_run_with_another_seed_than_0(run_cli, tmp_path, error_line):
+    """`latentune ask DIR` on a study a phase run had run with --seed 5 said 'the study was run
+    with seed = 5, not 0 (leave the seed out to reopen it)' though no seed was given: an ask
+    without --seed takes the stored one, as every other command does."""
+    d = tmp_path / "s"
+    with lt.Study(d, seed=5) as st:
+        st.phase1(plant(), 4)
+    code, out, err = run_cli("ask", d, "--budget", "6")
+    assert code == 0, err
+    with lt.Study(d) as st:
+        assert st.seed == 5 and st.config()["asktell"]["seed"] == 5
+    assert "not 0" in error_line(*run_cli("ask", d, "--seed", "0")[::2])

@@ -604,7 +604,7 @@ def _asktell_study(args: argparse.Namespace):
         if seed is not None and seed != at["seed"]:
             raise CLIError(f"{args.dir}: ask/tell runs with seed {at['seed']}, not {seed}")
         return Study(args.dir, seed=at["seed"], batch_size=at["batch_size"])
-    return Study(args.dir, seed=seed or 0)
+    return Study(args.dir, seed=seed)      # None: the stored seed, else 0
 
 
 def cmd_ask(args: argparse.Namespace) -> int:
