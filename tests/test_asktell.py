@@ -903,3 +903,23 @@ def test_ask_reopens_a_study_run_with_another_seed_than_0(run_cli, tmp_path, err
     with lt.Study(d) as st:
         assert st.seed == 5 and st.config()["asktell"]["seed"] == 5
     assert "not 0" in error_line(*run_cli("ask", d, "--seed", "0")[::2])
+
+
+def test_a_fall_step_that_is_no_step_number_is_refused_in_one_line(tmp_path):
+    """``tell(id, failed=True, info={"fall_step": "abc"})`` (or nan, 1e20) ended in a
+    ValueError/OverflowError traceback, and -5, 2.7 or True were stored as fall steps -5, 2
+    and 1; each is a bad result now (UsageError naming the suggestion), the store untouched,
+    and a system returning one stops its phase with an EvaluationError, not a ValueError."""
+    from latentune.system import EvaluationError
+
+    with lt.Study(tmp_path / "s") as st:
+        st.ask(2, space=SPACE)
+        for k in ("abc", float("nan"), 1e20, -5, 2.7, True):
+            with pytest.raises(UsageError, match="bad result for suggestion 1: got fall_step"):
+                st.tell(1, failed=True, info={"fall_step": k})
+        assert st.store.count(Phase.PHASE1) == 0
+        assert st.tell(1, failed=True, info={"fall_step": 30.0}).fall_step == 30
+        assert st.tell(2, failed=True, info={"fall_step": np.int64(7), "horizon": 10}).cost == 130
+    bad = lt.FunctionSystem(SPACE, lambda x: lt.Outcome(None, True, {"fall_step": "abc"}))
+    with lt.Study(tmp_path / "r") as st, pytest.raises(EvaluationError, match="fall_step 'abc'"):
+        st.phase1(bad, 4)

@@ -171,6 +171,9 @@ def as_outcome(value: Any) -> Outcome:
         if not inside:
             raise EvaluationError(f"evaluate reported fall_step {_short(k)} outside its "
                                   f"horizon of {_short(horizon)} steps (0 … horizon)")
+    if k is not None and not _whole_step(k):
+        raise EvaluationError(f"evaluate reported fall_step {_short(k)}; expected a whole "
+                              "number of steps >= 0")
     if out.cost is None:
         if not out.failed:
             raise EvaluationError("evaluate returned no cost for a trial that did not fail")
@@ -181,6 +184,14 @@ def as_outcome(value: Any) -> Outcome:
     if abs(out.cost) >= COST_LIMIT:
         raise CostError(_too_large("evaluate", out.cost))
     return out
+
+
+def _whole_step(k: Any) -> bool:
+    """``k`` is a step number: an integer (or a float with no fraction, as JSON may give it),
+    0 <= k < 2**63 (what the store holds), not a bool."""
+    if isinstance(k, bool) or not isinstance(k, (int, float, np.integer, np.floating)):
+        return False
+    return math.isfinite(k) and float(k).is_integer() and 0 <= k < 2 ** 63
 
 
 def _short(v: Any) -> str:

@@ -511,7 +511,7 @@ def tell(study: Any, trial_id: int, cost: float | Outcome | None = None, *,
                          {"cost": cost, "failed": failed, "info": dict(info or {})})
     except EvaluationError as exc:
         raise UsageError(f"bad result for suggestion {tid}: {exc}".replace(
-            "evaluate returned", "got")) from None
+            "evaluate returned", "got").replace("evaluate reported", "got")) from None
     if note:
         out.info["note"] = str(note)
     with study.run.writing(wait=WAIT_S) as st:
