@@ -923,3 +923,23 @@ def test_a_fall_step_that_is_no_step_number_is_refused_in_one_line(tmp_path):
     bad = lt.FunctionSystem(SPACE, lambda x: lt.Outcome(None, True, {"fall_step": "abc"}))
     with lt.Study(tmp_path / "r") as st, pytest.raises(EvaluationError, match="fall_step 'abc'"):
         st.phase1(bad, 4)
+
+
+def test_ask_and_tell_refuse_a_lease_asker_or_info_of_the_wrong_type(tmp_path):
+    """``ask(lease_s="abc")`` or ``lease_s=[1]`` ended in a ValueError/TypeError traceback,
+    ``lease_s=True`` leased for 1 s, ``asker=["x"]`` leased to the name "['x']", and
+    ``tell(id, 1.0, info="hello")`` ended in a ValueError: each is a UsageError now, nothing
+    leased or stored."""
+    with lt.Study(tmp_path / "s") as st:
+        st.ask(1, space=SPACE)
+        for lease in ("abc", [1], True, 0, float("nan")):
+            with pytest.raises(UsageError, match="lease_s must be a positive number"):
+                st.ask(1, lease_s=lease, asker="b")
+        for who in (["x"], 7, " "):
+            with pytest.raises(UsageError, match="asker must be a non-empty name"):
+                st.ask(1, asker=who)
+        with pytest.raises(UsageError, match="info must be a dict, got str"):
+            st.tell(1, 1.0, info="hello")
+        assert [t.asker for t in st.store.trials("pending")] == ["default"]
+        assert st.store.count(Phase.PHASE1) == 0
+        assert st.ask(1, asker="b", lease_s=np.float64(5.0))[0].asker == "b"

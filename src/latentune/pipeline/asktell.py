@@ -281,9 +281,12 @@ def ask(study: Any, n: int = 1, *, system: Any = None, space: ParameterSpace | N
     "manual", :data:`SCRATCH` or a (d,) unit-box θ."""
     if not is_whole(n, 1):
         raise UsageError(f"n must be an integer >= 1, got {n!r}")
-    who = DEFAULT_ASKER if asker is None else str(asker)
-    if not who.strip():
-        raise UsageError("asker must be a non-empty name")
+    who = DEFAULT_ASKER if asker is None else asker
+    if not isinstance(who, str) or not who.strip():
+        raise UsageError(f"asker must be a non-empty name, got {asker!r}")
+    if lease_s is not None and (isinstance(lease_s, bool) or not isinstance(
+            lease_s, (int, float, np.integer, np.floating))):
+        raise UsageError(f"lease_s must be a positive number of seconds, got {lease_s!r}")
     lease = LEASE_S if lease_s is None else float(lease_s)
     if not np.isfinite(lease) or lease <= 0:
         raise UsageError(f"lease_s must be a positive number of seconds, got {lease_s!r}")
@@ -503,6 +506,8 @@ def tell(study: Any, trial_id: int, cost: float | Outcome | None = None, *,
     also be the :class:`~latentune.system.Outcome` a system's ``evaluate`` returned, given alone
     (without ``failed`` and ``info``)."""
     tid = _check_id(trial_id)
+    if info is not None and not isinstance(info, dict):
+        raise UsageError(f"suggestion {tid}: info must be a dict, got {type(info).__name__}")
     if isinstance(cost, Outcome) and (failed or info):
         raise UsageError(f"suggestion {tid}: give an Outcome alone (its failed and info are "
                          "part of it)")
