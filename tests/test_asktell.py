@@ -943,3 +943,21 @@ def test_ask_and_tell_refuse_a_lease_asker_or_info_of_the_wrong_type(tmp_path):
         assert [t.asker for t in st.store.trials("pending")] == ["default"]
         assert st.store.count(Phase.PHASE1) == 0
         assert st.ask(1, asker="b", lease_s=np.float64(5.0))[0].asker == "b"
+
+
+def test_asks_while_the_zero_shot_trial_is_out_hand_out_the_whole_budget(tmp_path, src30):
+    """While the zero-shot suggestion was out (not told), the transfer critic asks its θ
+    again as its first point; a batch asked then came out one short, and once the other
+    points were held an ask by another asker answered nothing at all (exit 0, no line): the
+    budget's suggestions are all handed out now, and an ask past them is refused."""
+    shutil.copytree(src30, tmp_path / "src")
+    with lt.Study(tmp_path / "s", seed=0) as st:
+        a = st.ask(2, system=plant(0.2), phase=3, latent=tmp_path / "src", budget=5, asker="a")
+        assert [s.phase_name for s in a] == ["zero-shot", "phase 3"]
+        c = st.ask(5, asker="c")
+        assert len(c) == 4 and all(s.phase == Phase.PHASE3 for s in c)
+        ids = [s.id for s in a + c]
+        assert len(set(ids)) == 6
+        assert len({s.theta.tobytes() for s in a + c}) == 6
+        with pytest.raises(StoreError, match="budget of 5 trials is handed out"):
+            st.ask(1, asker="d")

@@ -306,6 +306,9 @@ def ask(study: Any, n: int = 1, *, system: Any = None, space: ParameterSpace | N
                 _queue(study, st, ctx.phase, _critic_batch(study, st, ctx.phase, ctx.options,
                                                            ctx.space, ctx.latent, need))
             got += st.lease(who, (ctx.phase,), need, lease, queued_only=True)
+        if not got:             # never an empty answer: the critic asked only θ handed out
+            raise StoreError(f"{study.dir}: {phase_name(ctx.phase)}'s critic gave no θ that is "
+                             "not handed out already: tell the pending suggestions first")
         return [Suggestion(t.id, t.phase, t.theta, ctx.space.as_dict(t.theta), t.z, again,
                            None, t.asker, t.lease_until) for t, again in got]
 
@@ -408,9 +411,12 @@ def _critic_batch(study: Any, st: RunStore, phase: int, pc: dict[str, Any],
                          f"({critic.falls_allowed()} falls; {st.count(phase)} trials told): "
                          "its best θ is the result; a larger budget allows more falls "
                          "(fall_budget × trials)")
-    U, T, Z, thetas, codes = ask_batch(critic, n_open + k, decoder_of(pc, ls))
-    held = {np.ascontiguousarray(t.theta).tobytes() for t in st.trials()
-            if t.status in ("queued", "pending") and t.phase in (phase, Phase.ZERO_SHOT)}
+    out = [t for t in st.trials()
+           if t.status in ("queued", "pending") and t.phase in (phase, Phase.ZERO_SHOT)]
+    # the critic asks the θ handed out again (the zero-shot θ too: the transfer critic's
+    # first point until it is told), then the new ones
+    U, T, Z, thetas, codes = ask_batch(critic, len(out) + k, decoder_of(pc, ls))
+    held = {np.ascontiguousarray(t.theta).tobytes() for t in out}
     keep = [i for i in range(len(thetas))
             if np.ascontiguousarray(thetas[i]).tobytes() not in held][-k:]
     state = critic.state_dict() if hasattr(critic, "state_dict") else {}
