@@ -961,3 +961,15 @@ def test_asks_while_the_zero_shot_trial_is_out_hand_out_the_whole_budget(tmp_pat
         assert len({s.theta.tobytes() for s in a + c}) == 6
         with pytest.raises(StoreError, match="budget of 5 trials is handed out"):
             st.ask(1, asker="d")
+
+
+def test_telling_a_released_suggestion_says_so(run_cli, tmp_path, error_line):
+    """A suggestion handed out, released, then told was refused with 'suggestion 1 was never
+    handed out (queued)', which it was; the line says it is not handed out now (released or
+    never asked for). ``ask --lease inf`` named the API's lease_s; it names --lease."""
+    d = tmp_path / "s"
+    assert run_cli("ask", d, "--system", "examples.lqr_chain:make_system")[0] == 0
+    assert run_cli("release", d, "1")[0] == 0
+    line = error_line(*run_cli("tell", d, "1", "--cost", "1")[::2])
+    assert "never handed out" not in line and "released" in line
+    assert "--lease must be a positive" in error_line(*run_cli("ask", d, "--lease", "inf")[::2])

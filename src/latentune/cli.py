@@ -627,7 +627,7 @@ def cmd_ask(args: argparse.Namespace) -> int:
     strategy = _strategy(args, handover)
     if args.max_fall_prob is not None and not 0 < args.max_fall_prob <= 1:
         raise CLIError(f"--max-fall-prob must be in (0, 1], got {args.max_fall_prob}")
-    if args.lease is not None and not args.lease > 0:
+    if args.lease is not None and not 0 < args.lease < float("inf"):
         raise CLIError(f"--lease must be a positive number of seconds, got {args.lease}")
     if args.budget is not None:
         _positive("budget", args.budget)

@@ -566,14 +566,17 @@ class RunStore:
         """Store the result of a pending suggestion as the next evaluation of its phase and mark
         it told, in one transaction (a crash leaves it pending, never half-told). Returns idx.
 
-        Raises StoreError for an unknown id, or one that is told, or was never handed out."""
+        Raises StoreError for an unknown id, or one that is told, or is not handed out
+        (never asked for, released or withdrawn)."""
         with self._write(trials=True):
             t = self._trial(trial_id)
             if t.status == "told":
                 raise StoreError(f"suggestion {trial_id} was already told (evaluation {t.idx} "
                                  f"of phase {t.phase}; to correct it, amend it)")
             if t.status != "pending":
-                raise StoreError(f"suggestion {trial_id} was never handed out ({t.status})")
+                raise StoreError(f"suggestion {trial_id} is not handed out ({t.status}: " + (
+                    "never asked for, or released; ask for it)" if t.status == "queued" else
+                    "withdrawn unasked after an amendment or a phase run)"))
             row = self.con.execute("SELECT MAX(idx) FROM evaluations WHERE phase=?",
                                    (t.phase,)).fetchone()
             idx = 0 if row[0] is None else int(row[0]) + 1
