@@ -973,3 +973,24 @@ def test_telling_a_released_suggestion_says_so(run_cli, tmp_path, error_line):
     line = error_line(*run_cli("tell", d, "1", "--cost", "1")[::2])
     assert "never handed out" not in line and "released" in line
     assert "--lease must be a positive" in error_line(*run_cli("ask", d, "--lease", "inf")[::2])
+
+
+def test_amending_the_zero_shot_trial_withdraws_phase_3s_queued_suggestions(tmp_path, src30):
+    """The transfer critic is told the zero-shot trial; amending its result (a success found
+    to be a fall) kept phase 3's suggestions asked from the old result queued, and handed
+    them out. They are withdrawn now, as for an amended phase-3 trial; an amended note alone
+    keeps them."""
+    shutil.copytree(src30, tmp_path / "src")
+    with lt.Study(tmp_path / "s", seed=0) as st:
+        (z,) = st.ask(system=plant(0.2), phase=3, latent=tmp_path / "src", budget=8)
+        st.tell(z.id, 0.3)
+        (s,) = st.ask()
+        queued = [t.id for t in st.store.trials("queued")]
+        assert queued and all(st.store.trials_by_id(i).phase == Phase.PHASE3 for i in queued)
+        st.tell(z.id, 0.3, note="seen", amend=True)
+        assert [t.id for t in st.store.trials("queued")] == queued
+        st.tell(z.id, None, failed=True, amend=True)
+        assert st.store.trials("queued") == []
+        assert {st.store.trials_by_id(i).status for i in queued} == {"dropped"}
+        assert st.store.trials_by_id(s.id).status == "pending"
+        assert st.ask(asker="b")[0].id > max(queued)

@@ -40,7 +40,8 @@ Corrections
 trail (``amendments``). When the cost, fall flag or fall step changed, it drops the suggestions
 queued from the uncorrected rows and the critic's saved state but what does not depend on the
 rows (:data:`ROW_FREE`: the transfer critic's options, source fits and record of decisions), so
-the next ask rebuilds the critic from the corrected rows.
+the next ask rebuilds the critic from the corrected rows (phase 3's too when the zero-shot
+trial is amended: the transfer critic is told it, :func:`~latentune.pipeline.store.critics_told`).
 
 Suggestion files (``DIR/suggestions/<id>.json``, the ``--params`` file of a suggestion) belong
 to the command line: :func:`write_suggestion_files` and :func:`remove_suggestion_file`.
@@ -67,7 +68,7 @@ from latentune.pipeline.loop import (decoder_of, phase_critic, record_latent,
                                      source_counts, strategy_of)
 from latentune.pipeline.phases import ask_batch, replay, state_key, warn_if_failing
 from latentune.pipeline.results import phase_name, write_best
-from latentune.pipeline.store import Row, RunStore
+from latentune.pipeline.store import Row, RunStore, critics_told
 from latentune.space import ParameterSpace
 from latentune.system import EvaluationError, Outcome, as_outcome
 
@@ -529,9 +530,9 @@ def tell(study: Any, trial_id: int, cost: float | Outcome | None = None, *,
         if amend:
             ph, idx, changed = st.amend_trial(tid, out.cost, fell=out.failed,
                                               fall_step=out.fall_step, info=out.info, note=note)
-            if changed:         # the critic is rebuilt from the corrected rows; what does not
-                kept = st.get_meta(state_key(ph)) or {}      # depend on them stays
-                st.set_meta(state_key(ph), {k: v for k, v in kept.items() if k in ROW_FREE})
+            for p in critics_told(ph) if changed else ():   # each critic told the row is
+                kept = st.get_meta(state_key(p)) or {}       # rebuilt from the corrected rows;
+                st.set_meta(state_key(p), {k: v for k, v in kept.items() if k in ROW_FREE})
         else:
             ph = st.trials_by_id(tid).phase
             idx = st.tell_trial(tid, out.cost, fell=out.failed, fall_step=out.fall_step,

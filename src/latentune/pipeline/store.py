@@ -60,7 +60,7 @@ from typing import Any, Iterable, Iterator
 
 import numpy as np
 
-from latentune.constants import COST_LIMIT
+from latentune.constants import COST_LIMIT, Phase
 from latentune.errors import StoreError
 
 FORMAT = "latentune-run-store"
@@ -150,6 +150,12 @@ class Trial:
     created: float
     asker: str | None = None
     lease_until: float | None = None
+
+
+def critics_told(phase: int) -> tuple[int, ...]:
+    """The phases whose critic is told the rows of ``phase``: its own, and phase 3's for the
+    zero-shot trial (the transfer critic is told it before its own rows)."""
+    return (int(phase), int(Phase.PHASE3)) if int(phase) == Phase.ZERO_SHOT else (int(phase),)
 
 
 def encode_cost(cost: float) -> float:
@@ -593,8 +599,8 @@ class RunStore:
                     note: str | None = None) -> tuple[int, int, bool]:
         """Correct the told result of suggestion ``trial_id`` in one transaction: its
         evaluation row gets the new cost, fell, fall_step and info; the old and new values go
-        to ``amendments`` (the audit trail); queued suggestions of its phase, asked from the
-        uncorrected rows, are dropped when the cost, fell or fall_step changed (an amendment of
+        to ``amendments`` (the audit trail); queued suggestions of its phase (and of phase 3
+        for the zero-shot trial: :func:`critics_told`), asked from the uncorrected rows, are dropped when the cost, fell or fall_step changed (an amendment of
         the info or the note alone changes nothing the critic saw). Returns (phase, idx,
         whether the outcome changed). StoreError unless it was told."""
         with self._write(trials=True):
@@ -624,8 +630,9 @@ class RunStore:
             changed = [old[k] for k in ("cost", "fell", "fall_step")] != \
                 [new[k] for k in ("cost", "fell", "fall_step")]
             if changed:
-                self.con.execute("UPDATE trials SET status='dropped' WHERE status='queued' AND "
-                                 "phase=?", (t.phase,))
+                for ph in critics_told(t.phase):
+                    self.con.execute("UPDATE trials SET status='dropped' WHERE status='queued' "
+                                     "AND phase=?", (ph,))
         return t.phase, int(t.idx), changed
 
     def amendments(self) -> list[dict[str, Any]]:
