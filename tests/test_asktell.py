@@ -994,3 +994,15 @@ def test_amending_the_zero_shot_trial_withdraws_phase_3s_queued_suggestions(tmp_
         assert {st.store.trials_by_id(i).status for i in queued} == {"dropped"}
         assert st.store.trials_by_id(s.id).status == "pending"
         assert st.ask(asker="b")[0].id > max(queued)
+
+
+def test_status_says_which_leases_expired(run_cli, tmp_path):
+    """status listed a suggestion whose lease had expired as 'held by' its asker, though the
+    next ask hands it to anyone; it says the lease expired."""
+    d = tmp_path / "s"
+    assert run_cli("ask", d, "--system", "examples.lqr_chain:make_system", "--asker", "a",
+                   "--lease", "0.2")[0] == 0
+    assert run_cli("ask", d, "--asker", "b")[0] == 0
+    time.sleep(0.3)
+    out = run_cli("status", d)[1]
+    assert "pending suggestions: 2 (1 free again: a's lease expired, 2 held by b)" in out

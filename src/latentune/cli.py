@@ -753,9 +753,15 @@ def cmd_status(args: argparse.Namespace) -> int:
         print(f"phase 3 fall budget: {fb['falls']} falls counted, {fb['falls_allowed']} allowed"
               + ("; spent: phase 3 asks no more" if fb["spent"] else ""))
     leases = s.get("leases") or {}
-    print(f"pending suggestions: {len(s['pending'])}" + (" (" + ", ".join(
-        f"{i} held by {leases.get(str(i), {}).get('asker')}" for i in s["pending"]) + ")"
-        if s["pending"] else ""))
+
+    def held(i: int) -> str:
+        lease = leases.get(str(i), {})
+        if lease.get("seconds_left") == 0:      # the next ask hands it out again
+            return f"{i} free again: {lease.get('asker')}'s lease expired"
+        return f"{i} held by {lease.get('asker')}"
+
+    print(f"pending suggestions: {len(s['pending'])}" + (
+        " (" + ", ".join(held(i) for i in s["pending"]) + ")" if s["pending"] else ""))
     if s["best"] is not None:
         b = s["best"]
         print(f"best: {b['cost']:.6g} ({b['phase']}, evaluation {b['idx']}"
