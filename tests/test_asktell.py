@@ -1006,3 +1006,14 @@ def test_status_says_which_leases_expired(run_cli, tmp_path):
     time.sleep(0.3)
     out = run_cli("status", d)[1]
     assert "pending suggestions: 2 (1 free again: a's lease expired, 2 held by b)" in out
+
+
+def test_asking_phase_3_where_ask_tell_runs_phase_1_says_where_to(tmp_path):
+    """``ask --phase 3`` in a directory whose ask/tell runs phase 1 said only 'runs phase 1
+    (stored), not 3'; it says to ask phase 3 in another directory with this one's latent
+    space."""
+    d = tmp_path / "s"
+    with lt.Study(d) as st:
+        st.ask(space=SPACE)
+        with pytest.raises(StoreError, match=f"another directory, with --vae {d}"):
+            st.ask(phase=3)

@@ -174,7 +174,9 @@ def _phase(cfg: dict[str, Any], phase: int | None, latent: Any, dir_: Path) -> i
     stored = (cfg.get("asktell") or {}).get("phase")
     if stored is not None:
         if phase is not None and int(phase) != int(stored):
-            raise StoreError(f"{dir_}: ask/tell runs phase {stored} (stored), not {phase}")
+            raise StoreError(f"{dir_}: ask/tell runs phase {stored} (stored), not {phase}" + (
+                f"; ask phase 3 in another directory, with --vae {dir_}"
+                if int(stored) == Phase.PHASE1 else ""))
         return int(stored)
     if phase is None:
         phase = Phase.PHASE3 if latent is not None else Phase.PHASE1
