@@ -90,7 +90,7 @@ def _help(capsys, *argv: str) -> str:
 
 def test_help_shows_the_defaults(capsys):
     text = _help(capsys, "tune")
-    for needle in ("parallel rollouts (default 2)", "seed (terrain, critic, VAE) (default 0)",
+    for needle in ("parallel rollouts (default 2)", "seed (terrain, critic, VAE); default: the run's stored one, else 0",
                    "(default process)", "critic (turbo = TuRBO-m, the default; a resume keeps the stored one)",
                    "phase-1 evaluations (default 400"):
         assert needle in text, needle
@@ -318,3 +318,21 @@ def test_phase3_resume_keeps_its_stored_fall_and_handover_options(run_cli, small
     line = one_line_error(*run_cli("phase3", *SYS, "--out", small_run, "--phase3-evals", "9",
                                    "--quiet", "--resume", "--max-fall-prob", "0.4")[::2])
     assert "max-fall-prob = 0.5, not 0.4" in line
+
+
+def test_a_run_with_a_seed_reopens_without_it(run_cli, plant, tmp_path, error_line):
+    """``phase1 --seed 3 --out R`` then ``train-vae --out R`` (or ``phase1 --resume``, or
+    ``phase3``) without --seed was refused with 'the study was run with seed = 3, not 0
+    (leave the seed out to reopen it)', though it was left out: --seed defaults to the
+    stored seed; another one is still refused."""
+    out = tmp_path / "run"
+    base = ("--out", out, "--quiet")
+    assert run_cli("phase1", *SYS, *base, "--phase1-evals", "6", "--seed", "3")[0] == 0
+    code, _, err = run_cli("phase1", *SYS, *base, "--phase1-evals", "7", "--resume")
+    assert code == 0, err
+    code, _, err = run_cli("train-vae", *SYS, *base, "--latent-dim", "1", "--vae-epochs", "5")
+    assert code == 0, err
+    assert "seed = 3, not 0" in error_line(*run_cli("train-vae", *SYS, *base, "--seed", "0",
+                                                     "--latent-dim", "1")[::2])
+    with RunStore(out) as st:
+        assert st.count(1) == 7

@@ -239,7 +239,8 @@ def add_run_args(p: argparse.ArgumentParser, name: str) -> None:
     from latentune.latent.vae import DEFAULT_KIND, KINDS
 
     add_system_args(p)
-    p.add_argument("--seed", type=argtypes.seed, default=0, help="seed (terrain, critic, VAE)")
+    p.add_argument("--seed", type=argtypes.seed, default=None,
+                   help="seed (terrain, critic, VAE); default: the run's stored one, else 0")
     p.add_argument("--out", required=True, type=argtypes.run_dir,
                    help="run directory (holds run.db and artifacts)")
     p.add_argument("--phase1-evals", type=int, default=DEFAULT_PHASE1,
@@ -465,7 +466,7 @@ def _phase1_study(args: argparse.Namespace, latent: bool) -> tuple[Any, Any, Any
     (``latent``: the latent-space flags are used afterwards, as in ``tune``)."""
     study = _study(args)
     _check_stored_system(study, args)
-    system = make_system(args, args.seed)
+    system = make_system(args, study.seed)
     if latent or args.latent_dim is not None:
         _check_latent_dim(args, system.space.dim)
     if latent and args.resume:
@@ -520,7 +521,7 @@ def cmd_phase1(args: argparse.Namespace) -> int:
 def cmd_train_vae(args: argparse.Namespace) -> int:
     study = _study(args)
     _check_stored_system(study, args)
-    system = make_system(args, args.seed)
+    system = make_system(args, study.seed)
     _check_latent_dim(args, system.space.dim)
     if not study.exists:
         raise CLIError(f"no run store in {study.dir} (run phase1 or tune first)")
@@ -544,7 +545,7 @@ def cmd_phase3(args: argparse.Namespace) -> int:
     _transfer_options(args, None)                   # checked before anything runs
     study = _study(args)
     _check_stored_system(study, args)
-    system = make_system(args, args.seed)
+    system = make_system(args, study.seed)
     if args.latent_dim is not None:
         _check_latent_dim(args, system.space.dim)
     _need_store(study, args.resume)
