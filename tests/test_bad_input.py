@@ -18,7 +18,7 @@ import pytest
 
 import latentune as lt
 from latentune.cli import main
-from latentune.errors import LatentuneError, StoreError
+from latentune.errors import LatentuneError, ParamsError, StoreError, UsageError
 from latentune.pipeline.store import RunStore
 
 TINY = ["--robot", "a1", "--task", "trot", "--steps", "150", "--quiet"]
@@ -574,6 +574,41 @@ def test_minimize_takes_real_numbers(value):
 def test_parameter_space_rejects_bad_arguments(args):
     with pytest.raises(ValueError):
         lt.ParameterSpace(*args)
+
+
+@pytest.mark.parametrize("args, expect", [
+    ((None, [0], [1]), "names must be a list"), (("ab", [0, 0], [1, 1]), "names must be a list"),
+    ((["a"], ["x"], [1]), "low must be numbers"),
+    ((["a"], [-1.7e308], [1.7e308]), "a's range .* is too wide: its width overflows"),
+    ((["a"], [1e-300], [1e300], [True]), "ratio overflows"),
+    ((["a", "b", "a"], [0] * 3, [1] * 3), "'a' is given twice"),
+    ((["a", "b"], [0, 2], [1, 1]), r"b: \[2, 1\]"),
+])
+def test_parameter_space_errors_are_latentune_errors(args, expect):
+    """A names string, None or a number, bounds that are not numbers and a range whose width
+    overflows (which gave a space of inf physical values) raise one UsageError naming it."""
+    with pytest.raises(UsageError, match=expect):
+        lt.ParameterSpace(*args)
+
+
+def test_parameter_space_mappings_check_shapes(tmp_path):
+    """to_physical broadcast a θ of the wrong length silently ([0.5] -> two values); to_unit
+    raised numpy's broadcast error; parse of a non-string key and load of a deeply nested file
+    raised TypeError / RecursionError."""
+    sp = lt.ParameterSpace(["a", "b"], [1, -1], [100, 1], [True, False])
+    for bad in ([0.5], [0.5] * 3, np.zeros((2, 3)), np.zeros((1, 2, 2))):
+        with pytest.raises(ParamsError, match=r"shape \(2,\) or \(n, 2\)"):
+            sp.to_physical(bad)
+        with pytest.raises(ParamsError, match="shape"):
+            sp.to_unit(bad)
+    for u in ([0, 0], [1, 1], [0, 1], [[0, 1], [1, 0]]):
+        assert np.allclose(sp.to_unit(sp.to_physical(u)), u)
+    with pytest.raises(ParamsError, match="unknown parameter name"):
+        sp.parse({1: 2.0})
+    deep = tmp_path / "deep.json"
+    deep.write_text("[" * 100000 + "]" * 100000)
+    with pytest.raises(ParamsError, match="nested too deeply"):
+        sp.load(deep)
 
 
 @pytest.mark.parametrize("kw", [dict(seed=-1), dict(seed=1.5), dict(workers=0), dict(backend="x"),

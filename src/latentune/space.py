@@ -14,21 +14,33 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Iterable, Sequence
 
 import numpy as np
 
-from latentune.errors import ParamsError
+from latentune.errors import ParamsError, UsageError
 
 
 def _vec(name: str, v: Any, d: int, dtype: type) -> np.ndarray:
     if dtype is bool and any(not isinstance(x, (bool, np.bool_)) and x not in (0, 1)
                              for x in np.asarray(v, dtype=object).reshape(-1)):
-        raise ValueError(f"ParameterSpace: {name} entries must be true or false, got {v!r}")
-    a = np.asarray(v, dtype=dtype).reshape(-1)
+        raise UsageError(f"ParameterSpace: {name} entries must be true or false, got {v!r}")
+    try:
+        a = np.asarray(v, dtype=dtype).reshape(-1)
+    except (TypeError, ValueError, OverflowError):
+        raise UsageError(f"ParameterSpace: {name} must be numbers, got {_short(v)}") from None
     if a.shape != (d,):
-        raise ValueError(f"ParameterSpace: {name} must have {d} entries (one per name), got {a.shape[0]}")
+        raise UsageError(f"ParameterSpace: {name} must have {d} entries (one per name), got {a.shape[0]}")
     return a
+
+
+def _short(v: Any) -> str:
+    r = repr(v)
+    return r if len(r) <= 40 else r[:37] + "..."
+
+
+def _shape_error(what: str, shape: tuple[int, ...], d: int) -> ParamsError:
+    return ParamsError(f"{what} must have shape ({d},) or (n, {d}), got {shape}")
 
 
 class ParameterSpace:
@@ -44,24 +56,36 @@ class ParameterSpace:
             of the unit box. Phase 1 starts its first trust region there.
 
     Attributes ``lower``, ``upper``, ``log``, ``manual_physical`` hold the (d,) arrays.
-    Raises ``ValueError`` for inconsistent arguments.
+    Raises :class:`~latentune.errors.UsageError` (a ``ValueError``) for inconsistent arguments,
+    and for bounds whose width (log entries: whose ratio high / low) a float64 cannot hold.
     """
 
     def __init__(self, names: Sequence[str], low: Any, high: Any, log: Any = None,
                  manual: Any = None) -> None:
+        if isinstance(names, (str, bytes)) or not isinstance(names, Iterable):
+            raise UsageError(f"ParameterSpace: names must be a list of d names, got {_short(names)}")
         names_t = tuple(str(n) for n in names)
         d = len(names_t)
         if d < 1:
-            raise ValueError("ParameterSpace needs at least one name")
+            raise UsageError("ParameterSpace needs at least one name")
         if len(set(names_t)) != d:
-            raise ValueError("ParameterSpace names must be distinct")
+            dup = next(n for n in names_t if names_t.count(n) > 1)
+            raise UsageError(f"ParameterSpace names must be distinct ({dup!r} is given twice)")
         lower = _vec("low", low, d, float)
         upper = _vec("high", high, d, float)
         lg = np.zeros(d, bool) if log is None else _vec("log", log, d, bool)
         if not (np.all(np.isfinite(lower)) and np.all(np.isfinite(upper))):
-            raise ValueError("ParameterSpace bounds must be finite")
+            raise UsageError("ParameterSpace bounds must be finite")
         if np.any(lower >= upper) or np.any(lower[lg] <= 0):
-            raise ValueError("ParameterSpace needs low < high and low > 0 on log entries")
+            i = int(np.flatnonzero((lower >= upper) | (lg & (lower <= 0)))[0])
+            raise UsageError(f"ParameterSpace needs low < high and low > 0 on log entries "
+                             f"({names_t[i]}: [{lower[i]:g}, {upper[i]:g}]{' log' if lg[i] else ''})")
+        with np.errstate(over="ignore"):
+            span = np.where(lg, upper / np.where(lg, lower, 1.0), upper - lower)
+        if not np.all(np.isfinite(span)):
+            i = int(np.flatnonzero(~np.isfinite(span))[0])
+            raise UsageError(f"ParameterSpace: {names_t[i]}'s range [{lower[i]:g}, {upper[i]:g}] "
+                             f"is too wide: its {'ratio' if lg[i] else 'width'} overflows a float64")
         self.names = names_t
         self.lower = lower
         self.upper = upper
@@ -71,11 +95,11 @@ class ParameterSpace:
         else:
             man = _vec("manual", manual, d, float)
             if not np.all(np.isfinite(man)):
-                raise ValueError("ParameterSpace manual values must be finite")
+                raise UsageError("ParameterSpace manual values must be finite")
             tol = 1e-9 * np.maximum(np.abs(upper - lower), 1.0)
             if np.any(man < lower - tol) or np.any(man > upper + tol):
                 i = int(np.flatnonzero((man < lower - tol) | (man > upper + tol))[0])
-                raise ValueError(f"ParameterSpace: manual {names_t[i]} = {man[i]:g} is outside "
+                raise UsageError(f"ParameterSpace: manual {names_t[i]} = {man[i]:g} is outside "
                                  f"[{lower[i]:g}, {upper[i]:g}]")
         self.manual_physical = man
 
@@ -114,12 +138,13 @@ class ParameterSpace:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "ParameterSpace":
         """Build a space from :meth:`to_dict`'s form (also the ``--space`` YAML/JSON file form).
-        Raises ``ValueError`` for missing keys or inconsistent values."""
+        Raises :class:`~latentune.errors.UsageError` (a ``ValueError``) for missing keys or
+        inconsistent values."""
         if not isinstance(d, dict) or not {"names", "low", "high"} <= set(d):
-            raise ValueError("a parameter space needs the keys names, low, high (log, manual optional)")
-        unknown = sorted(set(d) - {"names", "low", "high", "log", "manual"})
+            raise UsageError("a parameter space needs the keys names, low, high (log, manual optional)")
+        unknown = sorted(set(d) - {"names", "low", "high", "log", "manual"}, key=str)
         if unknown:
-            raise ValueError(f"a parameter space has the keys names, low, high, log and manual, "
+            raise UsageError(f"a parameter space has the keys names, low, high, log and manual, "
                              f"not {', '.join(map(str, unknown))}")
         return cls(d["names"], d["low"], d["high"], d.get("log"), d.get("manual"))
 
@@ -132,16 +157,28 @@ class ParameterSpace:
         """(d,) manual-tuned θ in the unit box."""
         return self.to_unit(self.manual_physical)
 
+    def _points(self, v: Any, what: str) -> np.ndarray:
+        """``v`` as a float array of shape (d,) or (n, d); ParamsError otherwise."""
+        try:
+            a = np.asarray(v, dtype=float)
+        except (TypeError, ValueError, OverflowError):
+            raise ParamsError(f"{what} must be numbers, got {_short(v)}") from None
+        if a.ndim not in (1, 2) or a.shape[-1] != self.dim:
+            raise _shape_error(what, a.shape, self.dim)
+        return a
+
     def to_physical(self, u: np.ndarray) -> np.ndarray:
-        """(d,) or (n, d) unit-box θ -> physical values (clipped to the box first)."""
-        u = np.clip(np.asarray(u, dtype=float), 0.0, 1.0)
+        """(d,) or (n, d) unit-box θ -> physical values of the same shape (clipped to the box
+        first). ParamsError for another shape."""
+        u = np.clip(self._points(u, "a unit-box θ"), 0.0, 1.0)
         lin = self.lower + (self.upper - self.lower) * u
         logv = self.lower * (self.upper / np.where(self.log, self.lower, 1.0)) ** u
         return np.where(self.log, logv, lin)
 
     def to_unit(self, x: np.ndarray) -> np.ndarray:
-        """(d,) or (n, d) physical values -> unit box."""
-        x = np.asarray(x, dtype=float)
+        """(d,) or (n, d) physical values -> unit-box θ of the same shape (not clipped: a value
+        outside the bounds maps outside [0, 1]). ParamsError for another shape."""
+        x = self._points(x, "a physical θ")
         lo_l = np.log(np.where(self.log, self.lower, 1.0))
         hi_l = np.log(np.where(self.log, self.upper, 2.0))
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -175,7 +212,7 @@ class ParameterSpace:
         """θ from a JSON value: a list of d normalized values, or an object of physical values
         by name (missing names take the manual value). Returns the unit-box θ, validated."""
         if isinstance(obj, dict):
-            unknown = [k for k in obj if k not in self.names]
+            unknown = [str(k) for k in obj if k not in self.names]
             if unknown:
                 raise ParamsError(f"unknown parameter name(s): {', '.join(unknown[:5])}")
             phys = self.manual_physical.copy()
@@ -208,6 +245,8 @@ class ParameterSpace:
             obj = json.loads(p.read_text())
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise ParamsError(f"params file {p} is not valid JSON ({exc.msg if hasattr(exc, 'msg') else exc})") from None
+        except RecursionError:
+            raise ParamsError(f"params file {p} is nested too deeply to be a params file") from None
         return self.parse(obj)
 
 
