@@ -829,6 +829,25 @@ def test_tell_takes_the_outcome_of_evaluate(tmp_path):
     st.close()
 
 
+def test_tell_refuses_an_info_that_is_not_a_dict_and_a_bad_fall_step(tmp_path):
+    """``tell(id, 1.0, info=[1])`` raised TypeError from ``dict()``; a fall_step that is not a
+    whole number of steps (``"x"``, −1 without a horizon) raised ValueError from ``int()`` or
+    was stored. Now one UsageError each, nothing stored; a whole float step is taken."""
+    from latentune.errors import UsageError
+
+    st = lt.Study(tmp_path / "o", seed=0)
+    a, = st.ask(1, system=plant(), phase=1, method="sobol", budget=6)
+    for kw, expect in ((dict(cost=1.0, info=[1]), "got info = \\[1\\]; expected a dict"),
+                       (dict(cost=1.0, info="x"), "expected a dict"),
+                       (dict(failed=True, info={"fall_step": "x"}), "got fall_step 'x'"),
+                       (dict(failed=True, info={"fall_step": -1}), "whole number of steps")):
+        with pytest.raises(UsageError, match=expect):
+            st.tell(a.id, **kw)
+    assert st.store.count(1) == 0
+    assert st.tell(a.id, failed=True, info={"fall_step": 3.0}).fall_step == 3
+    st.close()
+
+
 def test_a_failed_trial_may_report_a_non_finite_cost_and_a_standing_one_may_not(tmp_path):
     """A simulator that blew up reports ``(nan, failed)``: a fall with the C1 convention and the
     reported value in its info, through tell and through a phase run; a trial that did not fail

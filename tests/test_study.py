@@ -464,6 +464,11 @@ def test_a_fall_step_beyond_its_horizon_and_a_negative_max_new_are_refused(tmp_p
     for k, n in ((50, 10), (-1, 10), ("late", 10)):
         with pytest.raises(EvaluationError, match="outside its horizon"):
             as_outcome(lt.Outcome(None, True, {"fall_step": k, "horizon": n}))
+    for k in ("late", -1, 2.5):                 # no horizon: was int("late") in the store
+        with pytest.raises(EvaluationError, match="expected a whole number of steps"):
+            as_outcome(lt.Outcome(None, True, {"fall_step": k}))
+    with pytest.raises(EvaluationError, match="info = \\[1\\]; expected a dict"):
+        as_outcome(lt.Outcome(1.0, False, [1]))
     sp = lt.ParameterSpace(["a", "b"], [0, 0], [1, 1])
     with lt.Study(tmp_path / "r") as st:
         with pytest.raises(UsageError, match="max_new must be a whole number >= 0"):

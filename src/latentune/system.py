@@ -31,7 +31,7 @@ import os
 import re
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Protocol, runtime_checkable
+from typing import Any, Callable, Mapping, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -144,13 +144,12 @@ def as_outcome(value: Any) -> Outcome:
     was reported (``"nan"``, ``"inf"``, ``"1e+300"``).
     """
     if isinstance(value, Outcome):
-        out = Outcome(value.cost, as_failed(value.failed), dict(value.info or {}), value.wall_s)
+        out = Outcome(value.cost, as_failed(value.failed), _info(value.info), value.wall_s)
     elif isinstance(value, dict):
         failed = as_failed(value.get("failed"))
         if "cost" not in value and not failed:
             raise EvaluationError(f"evaluate returned a dict without 'cost': {sorted(value)}")
-        out = Outcome(value.get("cost"), failed, dict(value.get("info") or {}),
-                      value.get("wall_s"))
+        out = Outcome(value.get("cost"), failed, _info(value.get("info")), value.get("wall_s"))
     elif isinstance(value, tuple) and len(value) == 2:
         out = Outcome(value[0], as_failed(value[1]))
     elif isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool):
@@ -192,6 +191,15 @@ def _whole_step(k: Any) -> bool:
     if isinstance(k, bool) or not isinstance(k, (int, float, np.integer, np.floating)):
         return False
     return math.isfinite(k) and float(k).is_integer() and 0 <= k < 2 ** 63
+
+
+def _info(v: Any) -> dict[str, Any]:
+    """A trial's ``info`` as a new dict (None: empty); EvaluationError for anything else."""
+    if v is None:
+        return {}
+    if not isinstance(v, Mapping):
+        raise EvaluationError(f"evaluate returned info = {_short(v)}; expected a dict")
+    return dict(v)
 
 
 def _short(v: Any) -> str:

@@ -522,7 +522,7 @@ def tell(study: Any, trial_id: int, cost: float | Outcome | None = None, *,
                          "part of it)")
     try:
         out = as_outcome(cost if isinstance(cost, Outcome) else
-                         {"cost": cost, "failed": failed, "info": dict(info or {})})
+                         {"cost": cost, "failed": failed, "info": info})
     except EvaluationError as exc:
         raise UsageError(f"bad result for suggestion {tid}: {exc}".replace(
             "evaluate returned", "got").replace("evaluate reported", "got")) from None
