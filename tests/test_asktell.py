@@ -829,6 +829,53 @@ def test_tell_takes_the_outcome_of_evaluate(tmp_path):
     st.close()
 
 
+def test_ask_refuses_odd_arguments_from_python(tmp_path):
+    """From Python: ``budget=0`` on a first ask was taken as the default 200; ``space`` as a
+    dict raised AttributeError; ``start`` as a dict TypeError; ``phase="x"`` ValueError and
+    ``phase=1.5`` was taken as 1; a later ``budget="x"`` TypeError. Each is one UsageError or
+    StoreError now, and a first ask that is refused leaves no phase."""
+    from latentune.errors import UsageError
+
+    sp = lt.ParameterSpace(["a"], [0], [1])
+    cases = [(dict(budget=0), UsageError, "budget must be an integer >= 1, got 0"),
+             (dict(space={"names": ["a"], "low": [0], "high": [1]}), UsageError,
+              "space must be a latentune.ParameterSpace, not dict"),
+             (dict(start={"a": 0.2}), UsageError, "start must be numbers"),
+             (dict(phase="x"), UsageError, "runs phase 1 or 3, not 'x'"),
+             (dict(phase=1.5), UsageError, "not 1.5")]
+    for i, (kw, err, expect) in enumerate(cases):
+        st = lt.Study(tmp_path / f"s{i}")
+        with pytest.raises(err, match=expect):
+            st.ask(1, **{"space": sp, **kw})
+        assert not (st.config().get("asktell") or {})
+    st = lt.Study(tmp_path / "later")
+    st.ask(1, space=sp, budget=5)
+    for kw, expect in ((dict(budget="x"), "budget = 5 \\(stored\\), not 'x'"),
+                       (dict(phase="x"), "not 'x'"), (dict(phase=1.5), "not 1.5")):
+        with pytest.raises(LatentuneError, match=expect):
+            st.ask(1, **kw)
+    assert st.status()["pending"] == [1]
+
+
+def test_best_and_trials_refuse_a_phase_that_is_not_one(tmp_path):
+    """``best("x")`` raised ValueError, ``best(1.5)`` gave phase 1's best and ``best(2)`` None
+    (no such phase); ``trials(1)`` raised TypeError. A phase is one number of the store's
+    phases or several now; anything else is a UsageError naming them."""
+    from latentune.errors import UsageError
+
+    st = lt.Study(tmp_path / "o", seed=0)
+    a, = st.ask(1, space=lt.ParameterSpace(["a"], [0], [1]), budget=4)
+    st.tell(a.id, 2.0)
+    assert st.best(1).cost == 2.0 and st.best(3) is None
+    assert len(st.trials(1)) == len(st.trials([1])) == 1 and st.trials((3,)) == []
+    for bad in ("x", 1.5, 2, True):
+        with pytest.raises(UsageError, match="a phase is one of 0, 1, 3, 4, 5"):
+            st.best(bad)
+        with pytest.raises(UsageError, match="a phase is one of"):
+            st.trials((1, bad))
+    st.close()
+
+
 def test_tell_refuses_an_info_that_is_not_a_dict_and_a_bad_fall_step(tmp_path):
     """``tell(id, 1.0, info=[1])`` raised TypeError from ``dict()``; a fall_step that is not a
     whole number of steps (``"x"``, −1 without a horizon) raised ValueError from ``int()`` or

@@ -342,9 +342,8 @@ class Study:
     def best(self, phase: int | None = None) -> Row | None:
         """The best stored trial that did not fail: of ``phase``, or over the manual θ, phases
         1 and 3 and zero-shot (default); None if there is none."""
-        if not self.exists:
-            return None
-        return results.best_row(self.store, results.TUNING if phase is None else (int(phase),))
+        phases = results.TUNING if phase is None else results.phases_arg(phase)
+        return results.best_row(self.store, phases) if self.exists else None
 
     def best_params(self, out: str | os.PathLike | None = None) -> Path:
         """Write the θ to deploy (the best trial over all phases that did not fail, physical
@@ -356,14 +355,14 @@ class Study:
         """Per phase and in all, with phase 3's budget: :func:`latentune.pipeline.results.status`."""
         return results.status(self.store, self.dir, self.manifest.config())
 
-    def trials(self, phases: tuple[int, ...] | None = None) -> list[results.TrialRecord]:
-        """Every stored trial as a record: phase by name, θ by name in physical units, cost,
-        failed, info, suggestion id (:class:`~latentune.pipeline.results.TrialRecord`)."""
-        if not self.exists:
-            return []
-        return results.trials(self.store, self.space(), phases)
+    def trials(self, phases: Any = None) -> list[results.TrialRecord]:
+        """Every stored trial of ``phases`` (a phase number or several, default all) as a
+        record: phase by name, θ by name in physical units, cost, failed, info, suggestion id
+        (:class:`~latentune.pipeline.results.TrialRecord`)."""
+        phases = None if phases is None else results.phases_arg(phases)
+        return results.trials(self.store, self.space(), phases) if self.exists else []
 
-    def trials_dataframe(self, phases: tuple[int, ...] | None = None) -> Any:
+    def trials_dataframe(self, phases: Any = None) -> Any:
         """:meth:`trials` as a pandas DataFrame (ImportError naming pandas if it is absent)."""
         return results.trials_dataframe(self.trials(phases))
 

@@ -264,7 +264,10 @@ def as_unit_points(X: Any, dim: int, name: str = "X") -> np.ndarray:
     Accepts a single point (dim,). Raises ``ValueError`` for a wrong shape, non-finite entries
     or entries outside [0, 1] by more than 1e-9.
     """
-    X = np.asarray(X, dtype=float)
+    try:
+        X = np.asarray(X, dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"{name} must be numbers: a point ({dim},) or points (n, {dim})") from None
     if X.ndim == 1 and X.shape[0] == dim:
         X = X[None, :]
     if X.ndim != 2 or X.shape[1] != dim:

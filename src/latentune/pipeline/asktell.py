@@ -161,6 +161,9 @@ def _space(study: Any, system: Any, space: ParameterSpace | None) -> ParameterSp
         study.manifest.bind(system)
         return system.space
     if space is not None:
+        if not isinstance(space, ParameterSpace):
+            raise UsageError(f"space must be a latentune.ParameterSpace, not "
+                             f"{type(space).__name__} (ParameterSpace.from_dict reads a dict)")
         study.manifest.bind_space(space)
         return space
     stored = study.manifest.space()
@@ -172,6 +175,8 @@ def _space(study: Any, system: Any, space: ParameterSpace | None) -> ParameterSp
 
 def _phase(cfg: dict[str, Any], phase: int | None, latent: Any, dir_: Path) -> int:
     stored = (cfg.get("asktell") or {}).get("phase")
+    if phase is not None and not is_whole(phase):
+        raise UsageError(f"ask/tell runs phase 1 or 3, not {phase!r}")
     if stored is not None:
         if phase is not None and int(phase) != int(stored):
             raise StoreError(f"{dir_}: ask/tell runs phase {stored} (stored), not {phase}" + (
@@ -242,7 +247,8 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
     if stored:
         g = mf.ask_options(stored, g, study.dir, phase)
     else:
-        g = {**g, "method": g.get("method") or "turbo", "budget": g.get("budget") or mf.ASK_BUDGET}
+        g = {**g, "method": g.get("method") or "turbo",
+             "budget": mf.ASK_BUDGET if g.get("budget") is None else g["budget"]}
     strat = None
     if phase == Phase.PHASE3:
         strat = resolve_strategy(study.manifest, strategy, g.get("handover"))
@@ -354,7 +360,7 @@ def _stored_context(study: Any, system: Any, space: ParameterSpace | None, phase
         return None
     ph = int(at["phase"])
     pc = cfg.get(mf.PHASE_KEYS[Phase(ph)])
-    if not pc or (phase is not None and int(phase) != ph) or int(pc["seed"]) != study.seed \
+    if not pc or (phase is not None and phase != ph) or int(pc["seed"]) != study.seed \
             or int(pc["batch_size"]) != study.batch_size_of(ph):
         return None
     if latent is not None:

@@ -316,7 +316,7 @@ def ask_options(stored: dict[str, Any] | None, given: dict[str, Any], dir_: Any,
         old = stored.get(k, defaults.get(k))
         if v is None:
             out[k] = old
-        elif k == "budget" and old is not None and v >= old:
+        elif k == "budget" and old is not None and is_whole(v, old):
             out[k] = v
         elif old != v and not (k == "fall_prior" and stored.get("max_fall_prob") is None):
             raise StoreError(f"{dir_}: phase {int(phase)} runs with {k.replace('_', '-')} = "

@@ -20,7 +20,8 @@ from typing import Any
 import numpy as np
 
 from latentune.constants import Phase
-from latentune.errors import StoreError
+from latentune.checks import is_whole
+from latentune.errors import StoreError, UsageError
 from latentune.pipeline.store import Row, RunStore
 from latentune.space import ParameterSpace
 
@@ -73,6 +74,21 @@ def _trial_id(r: Row) -> int | None:
     return int(t) if isinstance(t, (int, np.integer)) else None
 
 
+def phases_arg(phases: Any) -> tuple[Phase, ...]:
+    """``phases`` as the API takes it (one stored phase number, or several: 0 manual, 1, 3,
+    4 zero-shot, 5 preservation) as a tuple of :class:`~latentune.constants.Phase`;
+    UsageError naming anything else (``1.5``, ``"x"``, 2)."""
+    many = not isinstance(phases, (int, np.integer, str, bytes)) and hasattr(phases, "__iter__")
+    out = []
+    for p in (phases if many else (phases,)):
+        if not is_whole(p) or int(p) not in set(Phase):
+            raise UsageError(f"a phase is one of {', '.join(str(int(v)) for v in Phase)} "
+                             f"({', '.join(PHASE_NAMES.get(v, v.name.lower()) for v in Phase)}), "
+                             f"got {p!r}")
+        out.append(Phase(int(p)))
+    return tuple(out)
+
+
 def best_row(store: RunStore, phases: tuple[int, ...] = TUNING) -> Row | None:
     """The stored trial of ``phases`` with the lowest cost among those that did not fail (ties:
     earlier phase, then idx); None if every one failed or there is none."""
@@ -82,8 +98,11 @@ def best_row(store: RunStore, phases: tuple[int, ...] = TUNING) -> Row | None:
 
 def trials(store: RunStore, space: ParameterSpace | None,
            phases: tuple[int, ...] | None = None) -> list[TrialRecord]:
-    """Every stored trial of ``phases`` (default all), in phase then idx order."""
-    if phases is None:
+    """Every stored trial of ``phases`` (default all; see :func:`phases_arg`), in phase then
+    idx order."""
+    if phases is not None:
+        phases = phases_arg(phases)
+    else:
         phases = tuple(int(p) for (p,) in store.con.execute(
             "SELECT DISTINCT phase FROM evaluations ORDER BY phase"))
     out = []
