@@ -612,11 +612,18 @@ def test_parameter_space_mappings_check_shapes(tmp_path):
 
 
 @pytest.mark.parametrize("kw", [dict(seed=-1), dict(seed=1.5), dict(workers=0), dict(backend="x"),
-                                dict(batch_size=0), dict(ray_address="x:1")])
+                                dict(batch_size=0), dict(ray_address="x:1"), dict(batch_size=2.5),
+                                dict(batch_size="a")])
 def test_study_rejects_bad_arguments(tmp_path, kw):
-    with pytest.raises(ValueError):
+    """(batch_size=2.5 was taken as 2, batch_size="a" raised int()'s ValueError.)"""
+    with pytest.raises(UsageError):
         lt.Study(tmp_path / "s", **kw)
     assert not (tmp_path / "s").exists()
+
+
+def test_study_refuses_a_path_that_is_not_one():
+    with pytest.raises(UsageError, match="a run directory is a path, got NoneType"):
+        lt.Study(None)
 
 
 @pytest.mark.parametrize("call", ["budget0", "method", "regions", "start", "system", "latent"])

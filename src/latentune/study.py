@@ -79,7 +79,7 @@ class Study:
                 raise UsageError(f"{name} must be an integer >= {lo}, got {v!r}")
         if seed is not None and not 0 <= int(seed) < 2 ** 63:
             raise UsageError(f"seed must be below 2**63, got {seed}")
-        if batch_size is not None and (isinstance(batch_size, bool) or int(batch_size) < 1):
+        if batch_size is not None and not is_whole(batch_size, 1):
             raise UsageError(f"batch_size must be an integer >= 1, got {batch_size!r}")
         self.run = RunDir(path, workers=int(workers), backend=backend, ray_address=ray_address,
                           evaluator=evaluator)

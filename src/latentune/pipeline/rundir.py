@@ -35,6 +35,8 @@ class RunDir:
             raise UsageError(f"unknown backend {backend!r} (choose from {', '.join(BACKENDS)})")
         if ray_address and backend != "ray":
             raise UsageError("ray_address needs backend='ray'")
+        if not isinstance(path, (str, os.PathLike)):
+            raise UsageError(f"a run directory is a path, got {type(path).__name__} {path!r:.40}")
         self.dir = Path(path)
         if self.dir.exists() and not self.dir.is_dir():
             raise StoreError(f"{self.dir} exists and is not a directory")
