@@ -560,6 +560,30 @@ def test_minimize_refuses_a_function_that_returns_no_cost(value, expect, method)
     assert len(calls) == 1                              # stops at the first such value
 
 
+@pytest.mark.parametrize("kw, expect", [
+    (dict(method="random", foo=1), "method 'random' has no option foo"),
+    (dict(method="turbo", n_regions=0), "method 'turbo': n_regions must be in"),
+    (dict(method="cma", sigma0=-1), "sigma0 must be > 0"),
+    (dict(method="sobol", seed=2 ** 64), "seed must be an integer >= 0 and <= "),
+    (dict(method="x"), "unknown method 'x'"), (dict(budget=0), "budget must be"),
+])
+def test_minimize_refuses_bad_arguments_with_a_usage_error(kw, expect):
+    """An option the method does not take raised the critic's TypeError, an option out of its
+    domain and every argument check a bare ValueError, and seed 2**64 scipy's overflow from
+    Sobol: each is one UsageError (a ValueError) now."""
+    with pytest.raises(UsageError, match=expect):
+        lt.minimize(lambda x: float(x.sum()), [(0, 1)] * 2, **{"budget": 4, **kw})
+
+
+def test_minimize_callback_stops_on_a_numpy_true():
+    res = lt.minimize(lambda x: float(x.sum()), [(0, 1)], method="random", budget=6,
+                      batch_size=2, callback=lambda r: np.True_)
+    assert res.nfev == 2 and res.message == "stopped by callback"
+    res = lt.minimize(lambda x: float(x.sum()), [(0, 1)], method="random", budget=6,
+                      batch_size=2, callback=lambda r: 1)          # not True: runs on
+    assert res.nfev == 6
+
+
 @pytest.mark.parametrize("value", [np.float32(0.5), np.int64(3), 7, np.array(0.25), float("nan"),
                                    float("inf")], ids=repr)
 def test_minimize_takes_real_numbers(value):

@@ -8,6 +8,7 @@
 """
 from __future__ import annotations
 
+import inspect
 from typing import Any, Callable
 
 import numpy as np
@@ -15,6 +16,7 @@ from scipy.optimize import OptimizeResult as _ScipyResult
 
 from latentune.checks import is_whole
 from latentune.critic import critic_class
+from latentune.errors import UsageError
 from latentune.pipeline.evaluators import Evaluator, SerialEvaluator
 
 _BOUNDS_TOL = 1e-9
@@ -41,9 +43,10 @@ class OptimizeResult(_ScipyResult):
     """
 
 
-def _check_int(name: str, v: Any, low: int) -> int:
-    if not is_whole(v, low):
-        raise ValueError(f"{name} must be an integer >= {low}, got {v!r}")
+def _check_int(name: str, v: Any, low: int, high: int | None = None) -> int:
+    if not is_whole(v, low, high):
+        raise UsageError(f"{name} must be an integer >= {low}"
+                         f"{'' if high is None else f' and <= {high}'}, got {v!r}")
     return int(v)
 
 
@@ -51,19 +54,19 @@ def _check_bounds(bounds: Any) -> np.ndarray:
     try:
         b = np.asarray(bounds, dtype=float)
     except (TypeError, ValueError) as e:
-        raise ValueError(f"bounds must be a (d, 2) array of numbers: {e}") from None
+        raise UsageError(f"bounds must be a (d, 2) array of numbers: {e}") from None
     if b.ndim != 2 or b.shape[1] != 2 or b.shape[0] < 1:
-        raise ValueError(f"bounds must have shape (d, 2) with d >= 1, got {b.shape}")
+        raise UsageError(f"bounds must have shape (d, 2) with d >= 1, got {b.shape}")
     if not np.all(np.isfinite(b)):
         bad = sorted({int(i) for i in np.argwhere(~np.isfinite(b))[:, 0]})
-        raise ValueError(f"bounds must be finite; not in dimension(s) {bad}")
+        raise UsageError(f"bounds must be finite; not in dimension(s) {bad}")
     if np.any(np.abs(b) > MAX_ABS_BOUND):
         bad = sorted({int(i) for i in np.argwhere(np.abs(b) > MAX_ABS_BOUND)[:, 0]})
-        raise ValueError(f"bounds must lie within ±{MAX_ABS_BOUND:g} (squares of larger values "
+        raise UsageError(f"bounds must lie within ±{MAX_ABS_BOUND:g} (squares of larger values "
                          f"overflow a float64); rescale dimension(s) {bad}")
     if np.any(b[:, 0] >= b[:, 1]):
         bad = np.flatnonzero(b[:, 0] >= b[:, 1]).tolist()
-        raise ValueError(f"bounds need lower < upper; violated in dimension(s) {bad}")
+        raise UsageError(f"bounds need lower < upper; violated in dimension(s) {bad}")
     return b
 
 
@@ -83,12 +86,12 @@ def minimize(fun: Callable[[np.ndarray], float], bounds: Any, method: str = "tur
         method: "turbo", "cma", "random" or "sobol".
         budget: number of evaluations (>= 1).
         batch_size: points per ask (>= 1); the last batch is cut to the remaining budget.
-        seed: non-negative integer seed; the run is deterministic for a seed.
+        seed: integer seed in [0, 2**63); the run is deterministic for a seed.
         x0: warm-start point(s) (d,) or (k, d) inside ``bounds``; evaluated among the first.
         evaluator: a :class:`~latentune.pipeline.evaluators.Evaluator` (default serial); a
             process or Ray evaluator needs a picklable ``fun``.
         callback: called after every batch with the :class:`OptimizeResult` so far; returning
-            ``True`` stops the run.
+            ``True`` (or ``numpy.True_``) stops the run.
         **opts: options of the critic (e.g. ``n_regions`` for TuRBO, default
             :func:`~latentune.critic.turbo.regions_for_budget` of ``budget``; ``sigma0`` for CMA-ES).
 
@@ -97,25 +100,35 @@ def minimize(fun: Callable[[np.ndarray], float], bounds: Any, method: str = "tur
         message, critic``.
 
     Raises:
-        ValueError: bad bounds, budget, batch_size, seed, x0, method, or a non-callable ``fun``.
+        UsageError: (a ``ValueError``) bad bounds, budget, batch_size, seed, x0, method, an
+            option the method does not take, or a non-callable ``fun``.
         CostError: ``fun`` returned something that is not a real number (None, a string, a bool,
             an array, a complex number, an int beyond float64); it is a TypeError and a
             ValueError (:class:`latentune.system.CostError`).
         EvaluationError: ``fun`` raised (the message names the exception).
     """
     if not callable(fun):
-        raise ValueError("fun must be callable: (d,) ndarray -> float")
+        raise UsageError("fun must be callable: (d,) ndarray -> float")
     b = _check_bounds(bounds)
     budget = _check_int("budget", budget, 1)
     batch_size = _check_int("batch_size", batch_size, 1)
-    seed = _check_int("seed", seed, 0)
+    seed = _check_int("seed", seed, 0, 2 ** 63 - 1)
     if callback is not None and not callable(callback):
-        raise ValueError("callback must be callable or None")
+        raise UsageError("callback must be callable or None")
     if evaluator is None:
         evaluator = SerialEvaluator()
     elif not isinstance(evaluator, Evaluator):
-        raise ValueError("evaluator must be a latentune.pipeline.evaluators.Evaluator")
-    cls = critic_class(method)          # ValueError for an unknown method
+        raise UsageError("evaluator must be a latentune.pipeline.evaluators.Evaluator")
+    try:
+        cls = critic_class(method)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    params = inspect.signature(cls.__init__).parameters
+    if not any(p.kind is p.VAR_KEYWORD for p in params.values()):
+        unknown = sorted(set(opts) - set(params))
+        if unknown:
+            raise UsageError(f"method {method!r} has no option {', '.join(unknown)} (its "
+                             f"options: {', '.join(sorted(set(params) - {'self', 'dim'}))})")
     d = b.shape[0]
     lo, hi = b[:, 0], b[:, 1]
     span = hi - lo
@@ -124,23 +137,26 @@ def minimize(fun: Callable[[np.ndarray], float], bounds: Any, method: str = "tur
         try:
             x0a = np.asarray(x0, dtype=float)
         except (TypeError, ValueError) as e:
-            raise ValueError(f"x0 must be numeric: {e}") from None
+            raise UsageError(f"x0 must be numeric: {e}") from None
         if x0a.ndim == 1:
             x0a = x0a[None, :]
         if x0a.ndim != 2 or x0a.shape[1] != d or x0a.shape[0] < 1:
-            raise ValueError(f"x0 must have shape ({d},) or (k, {d}), got {np.shape(x0)}")
+            raise UsageError(f"x0 must have shape ({d},) or (k, {d}), got {np.shape(x0)}")
         if not np.all(np.isfinite(x0a)):
-            raise ValueError("x0 must be finite")
+            raise UsageError("x0 must be finite")
         tol = _BOUNDS_TOL * np.maximum(span, 1.0)
         if np.any(x0a < lo - tol) or np.any(x0a > hi + tol):
-            raise ValueError("x0 must lie inside bounds")
+            raise UsageError("x0 must lie inside bounds")
         x0_unit = np.clip((x0a - lo) / span, 0.0, 1.0)
 
-    if method == "turbo" and "n_regions" not in opts:
+    if method.lower() == "turbo" and "n_regions" not in opts:
         from latentune.critic.turbo import regions_for_budget
 
         opts["n_regions"] = regions_for_budget(budget)
-    critic = cls(d, batch_size=batch_size, seed=seed, x0=x0_unit, **opts)
+    try:
+        critic = cls(d, batch_size=batch_size, seed=seed, x0=x0_unit, **opts)
+    except ValueError as exc:           # an option out of its domain (n_regions=0, sigma0=-1)
+        raise UsageError(f"method {method!r}: {exc}") from None
 
     def result(message: str, nit: int) -> OptimizeResult:
         i = critic.best_index
@@ -159,10 +175,11 @@ def minimize(fun: Callable[[np.ndarray], float], bounds: Any, method: str = "tur
         Xp = lo + U * span
         y = np.asarray(evaluator.map(fun, Xp), dtype=float).reshape(-1)
         if y.shape[0] != k:
-            raise ValueError(f"evaluator returned {y.shape[0]} costs for {k} points")
+            raise UsageError(f"evaluator returned {y.shape[0]} costs for {k} points")
         critic.tell(U, y, tags=tags)
         nit += 1
-        if callback is not None and callback(result("running", nit)) is True:
+        stop = None if callback is None else callback(result("running", nit))
+        if isinstance(stop, (bool, np.bool_)) and stop:
             message = "stopped by callback"
             break
     res = result(message, nit)
