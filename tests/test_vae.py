@@ -184,3 +184,28 @@ def test_vae_widths_benchmark_reports_what_it_trained(tmp_path, capsys):
         assert row["collapsed"] == f"{int(run['collapsed'])}/1"
         assert run["collapsed"] == (run["spread"] < 1e-9)
     assert main(["--dims", "1"]) == 2 and "--dims must be >= 2" in capsys.readouterr().err
+
+
+def test_maps_check_shapes_and_values_and_train_checks_its_integers():
+    """``to_unit([0.5])`` / ``from_unit([0.5])`` on a 2-d latent box broadcast to two values
+    silently, ``to_unit`` of 3 values raised numpy's broadcast error, ``decode([nan, 0.5])`` and
+    ``encode`` of NaN returned NaN, ``decode(["a", "b"])`` raised float()'s ValueError, and
+    ``train(d_low=2.5)`` / ``epochs=0`` trained a 2-d / untrained space. Each is a LatentError
+    now; the maps keep the input's shape."""
+    from latentune.errors import LatentError
+
+    X = np.random.default_rng(0).random((20, 4))
+    ls = LatentSpace.train(X, 2, epochs=2, seed=0)
+    assert ls.to_unit(ls.encode(X[0])).shape == (2,) and ls.to_unit(ls.encode(X)).shape == (20, 2)
+    assert ls.from_unit([0.5, 0.5]).shape == (2,) and ls.from_unit(np.zeros((3, 2))).shape == (3, 2)
+    assert np.allclose(ls.to_unit(ls.from_unit([0.25, 0.75])), [0.25, 0.75])
+    for f in (ls.to_unit, ls.from_unit, ls.decode):
+        for bad, expect in (([0.5], r"shape \(2,\) or \(n, 2\)"), ([0.5] * 3, "shape"),
+                            ([np.nan, 0.5], "NaN or inf"), (["a", "b"], "must be numbers")):
+            with pytest.raises(LatentError, match=expect):
+                f(bad)
+    with pytest.raises(LatentError, match="NaN or inf"):
+        ls.encode([np.nan] * 4)
+    for kw in (dict(d_low=2.5), dict(d_low=2, epochs=0), dict(d_low=2, batch_size=0)):
+        with pytest.raises(LatentError, match="whole number"):
+            LatentSpace.train(X, **kw)

@@ -61,6 +61,7 @@ from typing import Any
 
 import numpy as np
 
+from latentune.checks import is_whole
 from latentune.errors import LatentError
 
 KINDS = ("det", "vae")
@@ -212,6 +213,12 @@ class LatentSpace:
         if kind not in KINDS:
             raise LatentError(f"unknown VAE kind {kind!r} (choose from {', '.join(KINDS)})")
         n, d = X.shape
+        for name, v in (("latent dimension", d_low), ("epochs", epochs)):
+            if v is not None and not is_whole(v, 1):
+                raise LatentError(f"{name} must be a whole number >= 1, got {v!r}")
+        if not is_whole(batch_size, 1) or not is_whole(seed, 0):
+            raise LatentError(f"batch_size must be a whole number >= 1 and seed one >= 0, got "
+                              f"{batch_size!r} and {seed!r}")
         d_low = default_latent_dim(d) if d_low is None else int(d_low)
         if not 1 <= d_low < d:
             raise LatentError(f"latent dimension must be in [1, {d - 1}], got {d_low}")
@@ -306,15 +313,21 @@ class LatentSpace:
 
     # ------------------------------------------------------------------ maps
     def _as2d(self, a: np.ndarray, k: int, what: str) -> tuple[np.ndarray, bool]:
-        a = np.asarray(a, dtype=float)
+        """(``a`` as finite floats of shape (n, k), whether it was one point (k,)); LatentError
+        for another shape, entries that are not numbers, NaN or inf."""
+        try:
+            a = np.asarray(a, dtype=float)
+        except (TypeError, ValueError, OverflowError):
+            raise LatentError(f"{what} must be numbers, shape ({k},) or (n, {k})") from None
         single = a.ndim == 1
-        a = a.reshape(1, -1) if single else a
-        if a.ndim != 2 or a.shape[1] != k:
-            raise LatentError(f"{what} must have shape ({k},) or (n, {k}), got {np.shape(a)}")
-        return a, single
+        if (a.shape[0] if single else a.shape[-1] if a.ndim == 2 else -1) != k:
+            raise LatentError(f"{what} must have shape ({k},) or (n, {k}), got {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise LatentError(f"{what} holds NaN or inf")
+        return (a.reshape(1, -1) if single else a), single
 
     def decode_code(self, z: np.ndarray) -> np.ndarray:
-        """Codes (n, d_low) -> normalized θ (n, d)."""
+        """Codes (d_low,) or (n, d_low) -> normalized θ (d,) or (n, d) (clipped to [0, 1])."""
         torch = _torch()
         z, single = self._as2d(z, self.d_low, "z")
         with torch.no_grad():
@@ -323,17 +336,22 @@ class LatentSpace:
         return th[0] if single else th
 
     def from_unit(self, u: np.ndarray) -> np.ndarray:
-        """Unit-box latent points -> codes in the latent box."""
-        u = np.clip(np.asarray(u, dtype=float), 0.0, 1.0)
-        return self.box[:, 0] + (self.box[:, 1] - self.box[:, 0]) * u
+        """Unit-box latent points (d_low,) or (n, d_low) (clipped to [0, 1] first) -> codes in
+        the latent box, of the same shape."""
+        u, single = self._as2d(u, self.d_low, "u")
+        z = self.box[:, 0] + (self.box[:, 1] - self.box[:, 0]) * np.clip(u, 0.0, 1.0)
+        return z[0] if single else z
 
     def to_unit(self, z: np.ndarray) -> np.ndarray:
-        """Codes -> unit-box latent points (clipped to [0, 1])."""
-        z = np.asarray(z, dtype=float)
-        return np.clip((z - self.box[:, 0]) / (self.box[:, 1] - self.box[:, 0]), 0.0, 1.0)
+        """Codes (d_low,) or (n, d_low) -> unit-box latent points of the same shape (clipped
+        to [0, 1])."""
+        z, single = self._as2d(z, self.d_low, "z")
+        u = np.clip((z - self.box[:, 0]) / (self.box[:, 1] - self.box[:, 0]), 0.0, 1.0)
+        return u[0] if single else u
 
     def decode(self, u: np.ndarray) -> np.ndarray:
-        """The map D: unit-box latent points (d_low,) or (n, d_low) -> normalized θ."""
+        """The map D: unit-box latent points (d_low,) or (n, d_low) (clipped to [0, 1]) ->
+        normalized θ (d,) or (n, d)."""
         u, single = self._as2d(u, self.d_low, "u")
         th = self.decode_code(self.from_unit(u))
         return th[0] if single else th
@@ -341,7 +359,8 @@ class LatentSpace:
     __call__ = decode
 
     def encode(self, theta: np.ndarray) -> np.ndarray:
-        """Normalized θ (d,) or (n, d) -> codes (μ for ``vae``)."""
+        """Normalized θ (d,) or (n, d) -> codes (d_low,) or (n, d_low) (μ for ``vae``; not
+        clipped to the latent box: :meth:`to_unit` clips)."""
         torch = _torch()
         x, single = self._as2d(theta, self.d, "theta")
         with torch.no_grad():
