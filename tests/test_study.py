@@ -469,6 +469,10 @@ def test_a_fall_step_beyond_its_horizon_and_a_negative_max_new_are_refused(tmp_p
             as_outcome(lt.Outcome(None, True, {"fall_step": k}))
     with pytest.raises(EvaluationError, match="info = \\[1\\]; expected a dict"):
         as_outcome(lt.Outcome(1.0, False, [1]))
+    for w in ("x", -1.0, float("nan")):         # was float("x") in the store: a traceback
+        with pytest.raises(EvaluationError, match="wall_s = .*expected None or a time >= 0"):
+            as_outcome(lt.Outcome(1.0, wall_s=w))
+    assert as_outcome(lt.Outcome(1.0, wall_s=np.float32(2))).wall_s == 2.0
     sp = lt.ParameterSpace(["a", "b"], [0, 0], [1, 1])
     with lt.Study(tmp_path / "r") as st:
         with pytest.raises(UsageError, match="max_new must be a whole number >= 0"):
@@ -577,3 +581,19 @@ def test_a_failed_flag_that_is_not_a_bool_is_refused():
     for ok, failed in (((1.0, np.bool_(True)), True), ((1.0, 0), False),
                        ({"cost": 1.0, "failed": 1}, True), (lt.Outcome(1.0, False), False)):
         assert as_outcome(ok).failed is failed
+
+
+def test_phase3_refuses_a_latent_that_is_not_a_study_or_a_latent_space(tmp_path):
+    """``phase3(sys, 3, latent=5)`` raised os.fspath's TypeError; ``FunctionSystem(...,
+    by_name="no")`` passed θ by name (bool("no") is True)."""
+    from latentune.errors import LatentError
+
+    sp = lt.ParameterSpace(["a", "b"], [0, 0], [1, 1])
+    sys_ = lt.FunctionSystem(sp, lambda x: float(x.sum()))
+    with lt.Study(tmp_path / "t") as st:
+        with pytest.raises(LatentError, match="latent must be a study, its run directory or a "
+                                              "LatentSpace, not int 5"):
+            st.phase3(sys_, 3, latent=5)
+        assert not st.exists or st.trials() == []
+    with pytest.raises(TypeError, match="by_name must be True or False, got 'no'"):
+        lt.FunctionSystem(sp, lambda d: d["a"], by_name="no")

@@ -157,6 +157,13 @@ def as_outcome(value: Any) -> Outcome:
     else:
         raise CostError(f"evaluate returned {type(value).__name__} {_short(value)}; "
                         "expected a cost (float), (cost, failed) or an Outcome")
+    if out.wall_s is not None:
+        w = out.wall_s
+        if isinstance(w, bool) or not isinstance(w, (int, float, np.integer, np.floating)) \
+                or not (math.isfinite(w) and w >= 0):
+            raise EvaluationError(f"evaluate returned wall_s = {_short(w)}; expected None or "
+                                  "a time >= 0 in seconds")
+        out.wall_s = float(w)
     if out.cost is not None:
         out.cost = as_cost(out.cost, allow_nonfinite=True, what="evaluate (its cost)")
         if out.failed and not abs(out.cost) < COST_LIMIT:   # a blown-up simulator: no cost
@@ -234,6 +241,8 @@ class FunctionSystem:
             raise TypeError("FunctionSystem: space must be a latentune.ParameterSpace")
         if not callable(fn):
             raise TypeError("FunctionSystem: fn must be callable")
+        if not isinstance(by_name, (bool, np.bool_)):
+            raise TypeError(f"FunctionSystem: by_name must be True or False, got {by_name!r}")
         self.space = space
         self.fn = fn
         self.by_name = bool(by_name)

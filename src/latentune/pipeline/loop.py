@@ -349,7 +349,11 @@ def resolve_latent(run: RunDir, manifest: Manifest, latent: Any, space: Paramete
         ls = latent
         source = "self" if src is None or Path(src) == me else str(src)
     else:
-        other = Path(latent.dir) if hasattr(latent, "dir") else Path(os.fspath(latent))
+        other = getattr(latent, "dir", latent)
+        if not isinstance(other, (str, os.PathLike)):
+            raise LatentError(f"latent must be a study, its run directory or a LatentSpace, not "
+                              f"{type(latent).__name__} {latent!r:.40}")
+        other = Path(other)
         if not other.is_dir():
             raise LatentError(f"latent: run directory {other} does not exist")
         src = None
