@@ -11,6 +11,7 @@ import shutil
 import sqlite3
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -629,6 +630,11 @@ def test_parameter_space_mappings_check_shapes(tmp_path):
         assert np.allclose(sp.to_unit(sp.to_physical(u)), u)
     with pytest.raises(ParamsError, match="unknown parameter name"):
         sp.parse({1: 2.0})
+    neg = lt.ParameterSpace(["a", "b"], [-3, 0.1], [-1, 10], [False, True])
+    with warnings.catch_warnings():             # a negative linear upper bound: numpy's
+        warnings.simplefilter("error")          # 'invalid value encountered in power'
+        assert np.allclose(neg.to_physical([0.5, 0.5]), [-2, 1])
+        assert np.allclose(neg.to_unit([-2, 1]), [0.5, 0.5])
     deep = tmp_path / "deep.json"
     deep.write_text("[" * 100000 + "]" * 100000)
     with pytest.raises(ParamsError, match="nested too deeply"):

@@ -172,7 +172,8 @@ class ParameterSpace:
         first). ParamsError for another shape."""
         u = np.clip(self._points(u, "a unit-box θ"), 0.0, 1.0)
         lin = self.lower + (self.upper - self.lower) * u
-        logv = self.lower * (self.upper / np.where(self.log, self.lower, 1.0)) ** u
+        ratio = np.where(self.log, self.upper, 1.0) / np.where(self.log, self.lower, 1.0)
+        logv = self.lower * ratio ** u             # 1 ** u on linear entries: no nan warning
         return np.where(self.log, logv, lin)
 
     def to_unit(self, x: np.ndarray) -> np.ndarray:
