@@ -831,7 +831,8 @@ def test_tell_takes_the_outcome_of_evaluate(tmp_path):
 
 def test_ask_refuses_odd_arguments_from_python(tmp_path):
     """From Python: ``budget=0`` on a first ask was taken as the default 200; ``space`` as a
-    dict raised AttributeError; ``start`` as a dict TypeError; ``phase="x"`` ValueError and
+    dict raised AttributeError; ``space`` beside a system of another space was ignored;
+    ``start`` as a dict TypeError; ``phase="x"`` ValueError and
     ``phase=1.5`` was taken as 1; a later ``budget="x"`` TypeError. Each is one UsageError or
     StoreError now, and a first ask that is refused leaves no phase."""
     from latentune.errors import UsageError
@@ -842,7 +843,9 @@ def test_ask_refuses_odd_arguments_from_python(tmp_path):
               "space must be a latentune.ParameterSpace, not dict"),
              (dict(start={"a": 0.2}), UsageError, "start must be numbers"),
              (dict(phase="x"), UsageError, "runs phase 1 or 3, not 'x'"),
-             (dict(phase=1.5), UsageError, "not 1.5")]
+             (dict(phase=1.5), UsageError, "not 1.5"),
+             (dict(system=lt.FunctionSystem(lt.ParameterSpace(["b"], [0], [2]), float)),
+              UsageError, "give a system or a space, not both")]
     for i, (kw, err, expect) in enumerate(cases):
         st = lt.Study(tmp_path / f"s{i}")
         with pytest.raises(err, match=expect):

@@ -157,13 +157,16 @@ def _check_id(trial_id: Any) -> int:
 
 
 def _space(study: Any, system: Any, space: ParameterSpace | None) -> ParameterSpace:
+    if space is not None and not isinstance(space, ParameterSpace):
+        raise UsageError(f"space must be a latentune.ParameterSpace, not "
+                         f"{type(space).__name__} (ParameterSpace.from_dict reads a dict)")
+    if system is not None and space is not None and space != getattr(system, "space", None):
+        raise UsageError("give a system or a space, not both: the system's space is not the "
+                         "space given")
     if system is not None:
         study.manifest.bind(system)
         return system.space
     if space is not None:
-        if not isinstance(space, ParameterSpace):
-            raise UsageError(f"space must be a latentune.ParameterSpace, not "
-                             f"{type(space).__name__} (ParameterSpace.from_dict reads a dict)")
         study.manifest.bind_space(space)
         return space
     stored = study.manifest.space()
