@@ -630,6 +630,9 @@ def test_parameter_space_mappings_check_shapes(tmp_path):
         assert np.allclose(sp.to_unit(sp.to_physical(u)), u)
     with pytest.raises(ParamsError, match="unknown parameter name"):
         sp.parse({1: 2.0})
+    for other in ({"names": ["a", "b"]}, {"names": ["a", "b"], "low": [1], "high": [2]}):
+        assert "cannot be read" in sp.box_difference(other)      # was KeyError / IndexError
+    assert sp.box_difference(sp.to_dict()) is None
     neg = lt.ParameterSpace(["a", "b"], [-3, 0.1], [-1, 10], [False, True])
     with warnings.catch_warnings():             # a negative linear upper bound: numpy's
         warnings.simplefilter("error")          # 'invalid value encountered in power'

@@ -122,9 +122,14 @@ class ParameterSpace:
         names = list(other.get("names") or [])
         if names != list(self.names):
             return f"other names ({', '.join(names[:4])}{', …' if len(names) > 4 else ''})"
-        lo, hi = np.asarray(other["low"], float), np.asarray(other["high"], float)
-        lg = np.zeros(self.dim, bool) if other.get("log") is None else \
-            np.asarray(other["log"], bool)
+        try:
+            lo, hi = np.asarray(other["low"], float), np.asarray(other["high"], float)
+            lg = np.zeros(self.dim, bool) if other.get("log") is None else \
+                np.asarray(other["log"], bool)
+            if not lo.shape == hi.shape == lg.shape == (self.dim,):
+                raise ValueError
+        except (KeyError, TypeError, ValueError):
+            return "bounds that cannot be read (low, high and log of one entry per name)"
         for i, n in enumerate(self.names):
             if lg[i] != self.log[i] or not (np.isclose(lo[i], self.lower[i], rtol=1e-9, atol=0)
                                             and np.isclose(hi[i], self.upper[i], rtol=1e-9,
