@@ -832,7 +832,8 @@ def test_tell_takes_the_outcome_of_evaluate(tmp_path):
 def test_ask_refuses_odd_arguments_from_python(tmp_path):
     """From Python: ``budget=0`` on a first ask was taken as the default 200; ``space`` as a
     dict raised AttributeError; ``space`` beside a system of another space was ignored;
-    ``start`` as a dict TypeError; ``phase="x"`` ValueError and
+    ``start`` as a dict TypeError; ``lease_s=True`` / ``"5"`` were leases of 1 and 5 s, an
+    asker ``"a\\nb"`` broke status's lines and ``["x"]`` was stored as "['x']"; ``phase="x"`` ValueError and
     ``phase=1.5`` was taken as 1; a later ``budget="x"`` TypeError. Each is one UsageError or
     StoreError now, and a first ask that is refused leaves no phase."""
     from latentune.errors import UsageError
@@ -845,7 +846,11 @@ def test_ask_refuses_odd_arguments_from_python(tmp_path):
              (dict(phase="x"), UsageError, "runs phase 1 or 3, not 'x'"),
              (dict(phase=1.5), UsageError, "not 1.5"),
              (dict(system=lt.FunctionSystem(lt.ParameterSpace(["b"], [0], [2]), float)),
-              UsageError, "give a system or a space, not both")]
+              UsageError, "give a system or a space, not both"),
+             (dict(lease_s=True), UsageError, "lease_s must be a positive number"),
+             (dict(lease_s="5"), UsageError, "lease_s must be"),
+             (dict(asker="a\nb"), UsageError, "asker must be a non-empty name on one line"),
+             (dict(asker=["x"]), UsageError, "asker must be")]
     for i, (kw, err, expect) in enumerate(cases):
         st = lt.Study(tmp_path / f"s{i}")
         with pytest.raises(err, match=expect):

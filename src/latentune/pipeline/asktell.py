@@ -294,8 +294,8 @@ def ask(study: Any, n: int = 1, *, system: Any = None, space: ParameterSpace | N
     if not is_whole(n, 1):
         raise UsageError(f"n must be an integer >= 1, got {n!r}")
     who = DEFAULT_ASKER if asker is None else asker
-    if not isinstance(who, str) or not who.strip():
-        raise UsageError(f"asker must be a non-empty name, got {asker!r}")
+    if not isinstance(who, str) or not who.strip() or not who.isprintable():
+        raise UsageError(f"asker must be a non-empty name on one line, got {who!r:.60}")
     if lease_s is not None and (isinstance(lease_s, bool) or not isinstance(
             lease_s, (int, float, np.integer, np.floating))):
         raise UsageError(f"lease_s must be a positive number of seconds, got {lease_s!r}")
