@@ -315,3 +315,12 @@ def test_a_resume_keeps_the_stored_method_and_refuses_another(run_cli, plugin_di
     with RunStore(p3) as st:
         assert st.count(Phase.PHASE3) == 5
     assert lt.Study(p3).config()["phase3"]["method"] == "cma"
+
+
+def test_load_system_refuses_arguments_that_are_not_a_dict():
+    """``load_system(target, [1])`` raised dict()'s TypeError."""
+    from latentune.errors import SystemSpecError
+    from latentune.system import load_system
+
+    with pytest.raises(SystemSpecError, match="the factory's arguments must be a dict, got \\[1\\]"):
+        load_system("examples.toy_plant:make_system", [1])

@@ -473,6 +473,9 @@ def test_a_fall_step_beyond_its_horizon_and_a_negative_max_new_are_refused(tmp_p
         with pytest.raises(EvaluationError, match="wall_s = .*expected None or a time >= 0"):
             as_outcome(lt.Outcome(1.0, wall_s=w))
     assert as_outcome(lt.Outcome(1.0, wall_s=np.float32(2))).wall_s == 2.0
+    with pytest.raises(EvaluationError, match="key\\(s\\) fell; an outcome has cost, failed"):
+        as_outcome({"cost": 1.0, "fell": True})  # was a trial that stood: the fall was lost
+    assert as_outcome({"cost": 1.0, "failed": True, "info": {}, "wall_s": 1}).failed
     sp = lt.ParameterSpace(["a", "b"], [0, 0], [1, 1])
     with lt.Study(tmp_path / "r") as st:
         with pytest.raises(UsageError, match="max_new must be a whole number >= 0"):

@@ -133,11 +133,15 @@ class Outcome:
         return None if v is None else int(v)
 
 
+OUTCOME_KEYS = frozenset({"cost", "failed", "info", "wall_s"})
+"""The keys of an outcome given as a dict (those of :class:`Outcome`)."""
+
+
 def as_outcome(value: Any) -> Outcome:
     """Normalize what an ``evaluate``/function returned to a checked :class:`Outcome`.
 
     Accepts an :class:`Outcome`, a number (the cost; not failed), a ``(cost, failed)`` pair or a
-    dict with ``cost`` and optional ``failed``, ``info``. Raises :class:`EvaluationError` for
+    dict with ``cost`` and optional ``failed``, ``info``, ``wall_s`` (no other key). Raises :class:`EvaluationError` for
     anything else, and for a non-finite cost (or one of 1e300 in size or more) of a trial that
     did not fail. A failed trial's non-finite or so large cost (a simulator that blew up reports
     ``nan``) is no cost: it gets the fall convention, and ``info["reported_cost"]`` keeps what
@@ -146,6 +150,11 @@ def as_outcome(value: Any) -> Outcome:
     if isinstance(value, Outcome):
         out = Outcome(value.cost, as_failed(value.failed), _info(value.info), value.wall_s)
     elif isinstance(value, dict):
+        unknown = sorted(map(str, set(value) - OUTCOME_KEYS))
+        if unknown:                     # {"cost": 1.0, "fell": True} is not a standing trial
+            raise EvaluationError(f"evaluate returned a dict with the key(s) "
+                                  f"{', '.join(unknown)}; an outcome has "
+                                  f"{', '.join(sorted(OUTCOME_KEYS))} (details go in info)")
         failed = as_failed(value.get("failed"))
         if "cost" not in value and not failed:
             raise EvaluationError(f"evaluate returned a dict without 'cost': {sorted(value)}")
@@ -339,6 +348,9 @@ def load_system(target: str, args: dict[str, Any] | None = None) -> Any:
     :class:`SystemSpecError` with one line for a malformed target, a module that cannot be
     imported, a missing attribute, a factory that raises or returns a non-system.
     """
+    if args is not None and not isinstance(args, Mapping):
+        raise SystemSpecError(f"--system {target}: the factory's arguments must be a dict, got "
+                              f"{_short(args)}")
     args = dict(args or {})
     if not isinstance(target, str) or target.count(":") != 1 or not all(target.split(":")):
         raise SystemSpecError(f"--system must be module:factory, got {target!r}")
