@@ -630,6 +630,8 @@ def test_parameter_space_mappings_check_shapes(tmp_path):
         assert np.allclose(sp.to_unit(sp.to_physical(u)), u)
     with pytest.raises(ParamsError, match="unknown parameter name"):
         sp.parse({1: 2.0})
+    with pytest.raises(ParamsError, match=r"as_dict takes one θ of shape \(2,\)"):
+        sp.as_dict([[0.5, 0.5]])                        # was float()'s TypeError
     for other in ({"names": ["a", "b"]}, {"names": ["a", "b"], "low": [1], "high": [2]}):
         assert "cannot be read" in sp.box_difference(other)      # was KeyError / IndexError
     assert sp.box_difference(sp.to_dict()) is None

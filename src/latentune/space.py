@@ -193,8 +193,11 @@ class ParameterSpace:
         return np.where(self.log, logu, linu)
 
     def as_dict(self, u: np.ndarray) -> dict[str, float]:
-        """Physical values by name, for a ``--params`` JSON file."""
-        return {n: float(v) for n, v in zip(self.names, self.to_physical(u))}
+        """A (d,) unit-box θ as physical values by name (a ``--params`` JSON file's form)."""
+        x = self.to_physical(u)
+        if x.ndim != 1:
+            raise ParamsError(f"as_dict takes one θ of shape ({self.dim},), got {x.shape}")
+        return {n: float(v) for n, v in zip(self.names, x)}
 
     def validate_unit(self, u: Any) -> np.ndarray:
         """Check a normalized θ: length d, finite, inside [0, 1] (1e-9 slack). Returns (d,) floats."""
