@@ -648,9 +648,10 @@ def test_parameter_space_mappings_check_shapes(tmp_path):
 
 @pytest.mark.parametrize("kw", [dict(seed=-1), dict(seed=1.5), dict(workers=0), dict(backend="x"),
                                 dict(batch_size=0), dict(ray_address="x:1"), dict(batch_size=2.5),
-                                dict(batch_size="a")])
+                                dict(batch_size="a"), dict(log="x"), dict(evaluator="x")])
 def test_study_rejects_bad_arguments(tmp_path, kw):
-    """(batch_size=2.5 was taken as 2, batch_size="a" raised int()'s ValueError.)"""
+    """(batch_size=2.5 was taken as 2, batch_size="a" raised int()'s ValueError; log="x" and
+    evaluator="x" were taken and raised TypeError / AttributeError at their first use.)"""
     with pytest.raises(UsageError):
         lt.Study(tmp_path / "s", **kw)
     assert not (tmp_path / "s").exists()

@@ -72,15 +72,14 @@ class Study:
                  batch_size: int | None = None, progress: bool = False,
                  log: Callable[[str], None] | None = None,
                  evaluator: Evaluator | None = None) -> None:
-        for name, v, lo in (("seed", seed, 0), ("workers", workers, 1)):
-            if v is None and name == "seed":
-                continue
-            if not is_whole(v, lo):
+        for name, v, lo in (("seed", seed, 0), ("workers", workers, 1),
+                            ("batch_size", batch_size, 1)):
+            if (v is not None or name == "workers") and not is_whole(v, lo):
                 raise UsageError(f"{name} must be an integer >= {lo}, got {v!r}")
         if seed is not None and not 0 <= int(seed) < 2 ** 63:
             raise UsageError(f"seed must be below 2**63, got {seed}")
-        if batch_size is not None and not is_whole(batch_size, 1):
-            raise UsageError(f"batch_size must be an integer >= 1, got {batch_size!r}")
+        if log is not None and not callable(log):
+            raise UsageError(f"log must be a callable taking one line, got {log!r:.40}")
         self.run = RunDir(path, workers=int(workers), backend=backend, ray_address=ray_address,
                           evaluator=evaluator)
         self.manifest = mf.Manifest(self.run)

@@ -35,6 +35,9 @@ class RunDir:
             raise UsageError(f"unknown backend {backend!r} (choose from {', '.join(BACKENDS)})")
         if ray_address and backend != "ray":
             raise UsageError("ray_address needs backend='ray'")
+        if evaluator is not None and not isinstance(evaluator, Evaluator):
+            raise UsageError(f"evaluator must be a latentune.pipeline.evaluators.Evaluator, "
+                             f"got {evaluator!r:.40}")
         if not isinstance(path, (str, os.PathLike)):
             raise UsageError(f"a run directory is a path, got {type(path).__name__} {path!r:.40}")
         self.dir = Path(path)
