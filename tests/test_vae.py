@@ -190,7 +190,8 @@ def test_maps_check_shapes_and_values_and_train_checks_its_integers():
     """``to_unit([0.5])`` / ``from_unit([0.5])`` on a 2-d latent box broadcast to two values
     silently, ``to_unit`` of 3 values raised numpy's broadcast error, ``decode([nan, 0.5])`` and
     ``encode`` of NaN returned NaN, ``decode(["a", "b"])`` raised float()'s ValueError, and
-    ``train(d_low=2.5)`` / ``epochs=0`` trained a 2-d / untrained space. Each is a LatentError
+    ``train(d_low=2.5)`` / ``epochs=0`` trained a 2-d / untrained space, ``beta=nan`` a NaN
+    network. Each is a LatentError
     now; the maps keep the input's shape."""
     from latentune.errors import LatentError
 
@@ -209,3 +210,9 @@ def test_maps_check_shapes_and_values_and_train_checks_its_integers():
     for kw in (dict(d_low=2.5), dict(d_low=2, epochs=0), dict(d_low=2, batch_size=0)):
         with pytest.raises(LatentError, match="whole number"):
             LatentSpace.train(X, **kw)
+    for kw in (dict(hidden=(0, "a")), dict(hidden=(2.5, 3)), dict(beta=float("nan")),
+               dict(lr=-1.0)):           # int()'s ValueError, a 2-unit layer, a NaN network,
+        with pytest.raises(LatentError, match="hidden widths must be|must be a finite"):
+            LatentSpace.train(X, 2, epochs=1, **kw)     # torch's "Invalid learning rate"
+    with pytest.raises(LatentError, match="a latent space's path is a str or Path"):
+        LatentSpace.load(5)

@@ -54,6 +54,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -222,9 +223,15 @@ class LatentSpace:
         d_low = default_latent_dim(d) if d_low is None else int(d_low)
         if not 1 <= d_low < d:
             raise LatentError(f"latent dimension must be in [1, {d - 1}], got {d_low}")
+        if hidden is not None and (isinstance(hidden, (str, bytes)) or len(hidden) != 2
+                                   or not all(is_whole(w, 1) for w in hidden)):
+            raise LatentError(f"hidden widths must be >= 1 (two whole numbers), got {hidden!r}")
         widths = hidden_widths(d) if hidden is None else (int(hidden[0]), int(hidden[1]))
-        if min(widths) < 1:
-            raise LatentError(f"hidden widths must be >= 1, got {hidden}")
+        for name, v, ok in (("beta", beta, lambda x: x >= 0), ("lr", lr, lambda x: x > 0)):
+            if v is not None and (isinstance(v, bool) or not isinstance(
+                    v, (int, float, np.integer, np.floating)) or not math.isfinite(v) or not ok(v)):
+                raise LatentError(f"{name} must be a finite number "
+                                  f"{'>= 0' if name == 'beta' else '> 0'}, got {v!r}")
         beta = (BETA_VAE if kind == "vae" else BETA_DET) if beta is None else float(beta)
         steps_per_epoch = max(1, math.ceil(n / batch_size))
         if epochs is None:
@@ -377,7 +384,6 @@ class LatentSpace:
         Each file is written to a temporary name and renamed, so a failed write (a full disk:
         an :class:`OSError` with its errno) leaves any earlier files as they were."""
         import io
-        import os
 
         torch = _torch()
         p = Path(path_prefix)
@@ -400,6 +406,8 @@ class LatentSpace:
     def load(cls, path_prefix: str | Path) -> "LatentSpace":
         """Read a latent space written by :meth:`save` (``LatentError`` if missing or corrupt)."""
         torch = _torch()
+        if not isinstance(path_prefix, (str, os.PathLike)):
+            raise LatentError(f"a latent space's path is a str or Path, got {path_prefix!r:.40}")
         p = Path(path_prefix)
         pt, js = p.with_suffix(".pt"), p.with_suffix(".json")
         if not pt.is_file() or not js.is_file():
