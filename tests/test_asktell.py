@@ -892,8 +892,8 @@ def test_tell_refuses_an_info_that_is_not_a_dict_and_a_bad_fall_step(tmp_path):
 
     st = lt.Study(tmp_path / "o", seed=0)
     a, = st.ask(1, system=plant(), phase=1, method="sobol", budget=6)
-    for kw, expect in ((dict(cost=1.0, info=[1]), "got info = \\[1\\]; expected a dict"),
-                       (dict(cost=1.0, info="x"), "expected a dict"),
+    for kw, expect in ((dict(cost=1.0, info=[1]), "info must be a dict, got list"),
+                       (dict(cost=1.0, info="x"), "info must be a dict, got str"),
                        (dict(failed=True, info={"fall_step": "x"}), "got fall_step 'x'"),
                        (dict(failed=True, info={"fall_step": -1}), "whole number of steps")):
         with pytest.raises(UsageError, match=expect):
