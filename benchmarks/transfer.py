@@ -741,6 +741,10 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
             continue
         runs.setdefault(tuple(target(r).items()), {}).setdefault(r["method"], {})[
             int(r["seed"])] = r
+    if not runs:                # an empty table and exit 0 read as "nothing went wrong"
+        only = [f"{k} {' '.join(map(str, v))}" for k, v in
+                (("methods", methods), ("seeds", seeds), ("systems", systems)) if v is not None]
+        raise ValueError(f"no runs under {root}" + (f" of {'; '.join(only)}" if only else ""))
     out: dict[str, Any] = {"targets": []}
     for key, by_m in sorted(runs.items()):
         seeds = sorted(set.intersection(*[set(v) for v in by_m.values()]))
@@ -1011,6 +1015,10 @@ def main(argv: list[str] | None = None) -> int:
     if a.cmd == "compare":
         prov = Provenance(argv, module="benchmarks.transfer")
         rows = [compare(Path(a.root), x, b, a.seeds, systems=a.systems) for x in a.a for b in a.b]
+        if not any(r["pairs"] for r in rows):
+            print(f"transfer compare: no (target, seed) under {a.root} holds both methods of "
+                  f"any pair", file=sys.stderr)
+            return 2
         print(compare_text(rows))
         if a.out:
             write_json(a.out, {"rows": rows}, prov)

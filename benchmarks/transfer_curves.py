@@ -15,7 +15,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 
@@ -29,15 +29,22 @@ def best_so_far(run: dict) -> np.ndarray:
 
 
 def targets(root: Path, methods: list[str], seeds: list[int] | None
-            ) -> Iterator[tuple[Path, list[int]]]:
+            ) -> list[tuple[Path, list[int]]]:
     """Each target directory ``ROOT/<system>/gap<g>`` with the seeds (among ``seeds``, all when
-    ``None``) that ran every method of ``methods``; targets with none are skipped."""
+    ``None``) that ran every method of ``methods``; targets with none are skipped. ValueError
+    when no target has one (an empty table would read as a result)."""
+    out = []
     for tdir in sorted(root.glob("*/gap*")):
         have = [int(p.name[4:]) for p in tdir.glob("seed*")
                 if all((p / f"{m}.json").is_file() for m in methods)]
         use = sorted(s for s in have if seeds is None or s in seeds)
         if use:
-            yield tdir, use
+            out.append((tdir, use))
+    if not out:
+        raise ValueError(f"no target under {root} has a seed"
+                         + (f" among {' '.join(map(str, seeds))}" if seeds is not None else "")
+                         + f" that ran every method of {' '.join(methods)}")
+    return out
 
 
 def ladder_args(ap: argparse.ArgumentParser) -> None:

@@ -114,7 +114,11 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ladder_args(ap)
     a = ap.parse_args(argv)
-    rows = explore_stats(Path(a.root), a.methods, a.seeds)
+    try:
+        rows = explore_stats(Path(a.root), a.methods, a.seeds)
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     finish_ladder(a, prov, {}, rows)
     return 0
 

@@ -288,7 +288,7 @@ def test_coords_give_where_each_method_looked_and_its_best(tmp_path, capsys) -> 
         assert len(err) == 1 and f"arm has no coordinate {bad} " in err[0]
         assert "grav_1," not in err[0].split("(")[0]        # only the unknown one is named
     assert tc.main(["--root", str(tmp_path), "--methods", "other", "--coords", "grav_1"]) == 2
-    assert "no stored run holds θ" in capsys.readouterr().err
+    assert "that ran every method of other" in capsys.readouterr().err
     assert tc.main(["--root", str(tmp_path), "--methods", "m"]) == 2
     assert "give --coords NAME ... or --faces" in capsys.readouterr().err
 
@@ -391,6 +391,31 @@ def test_summary_without_a_peer_is_one_line_not_a_traceback(tmp_path, capsys):
     assert "{'system': 'arm', 'gap': 1.0}" in err[0] and "(read: transfer;" in err[0]
     assert not out.exists()
     assert tr.main(["summary", "--root", str(tmp_path), "--out", str(out)]) == 0   # tpe: a peer
+
+
+def test_ladder_tables_of_a_root_without_runs_are_one_line_and_exit_2(tmp_path, capsys):
+    """``summary``, ``compare``, ``transfer_curves`` and ``transfer_explore_stats`` of a root
+    with no matching run (a typo, the wrong directory) said nothing or printed an empty table
+    and exited 0; each now says so in one line on stderr and exits 2, writing nothing."""
+    from benchmarks import transfer_curves, transfer_explore_stats
+
+    out = tmp_path / "o.json"
+    for m, argv in ((tr.main, ["summary", "--root", str(tmp_path), "--out", str(out)]),
+                    (tr.main, ["compare", "--root", str(tmp_path), "--a", "transfer", "--b",
+                               "tpe", "--out", str(out)]),
+                    (transfer_curves.main, ["--root", str(tmp_path), "--methods", "transfer",
+                                            "--out", str(out)]),
+                    (transfer_explore_stats.main, ["--root", str(tmp_path), "--methods",
+                                                   "transfer", "--out", str(out)])):
+        assert m(argv) == 2, argv
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and str(tmp_path) in err[0], err
+        assert not out.exists()
+    _write(tmp_path, "transfer", 0, [2.0, 1.0], [False, False])
+    _write(tmp_path, "tpe", 0, [3.0, 2.0], [False, False])
+    assert tr.main(["summary", "--root", str(tmp_path), "--methods", "gp"]) == 2
+    assert "no runs under" in capsys.readouterr().err and tr.main(
+        ["compare", "--root", str(tmp_path), "--a", "transfer", "--b", "tpe"]) == 0
 
 
 def test_summary_prints_and_writes_only_where_told(tmp_path, capsys, monkeypatch):
