@@ -327,6 +327,20 @@ class Provenance:
                 "wall_s": round(time.perf_counter() - self.t0, 3)}
 
 
+# ==================================================================== entry point
+def cli_main(main: Callable[[], int], prog: str) -> int:
+    """Run a benchmark's ``main()``: a user error of latentune's (a run directory without a
+    store, a bad parameter: :class:`latentune.errors.LatentuneError`) is one line on stderr and
+    exit 2, as argparse's errors are, not a traceback."""
+    from latentune.errors import LatentuneError
+
+    try:
+        return main()
+    except LatentuneError as e:
+        print(f"{prog}: error: {e}", file=sys.stderr)
+        return 2
+
+
 # ==================================================================== output
 def add_out_arg(parser: argparse.ArgumentParser) -> None:
     """``--out FILE.json``: the one output option of every benchmark."""

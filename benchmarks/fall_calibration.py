@@ -24,6 +24,7 @@ share of non-falls screened with them (``lost``).
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from latentune.threads import one_thread_env
@@ -36,7 +37,7 @@ from latentune.critic.fall_model import GPFallModel  # noqa: E402
 from latentune.constants import Phase  # noqa: E402
 from latentune.pipeline.store import RunStore  # noqa: E402
 
-from benchmarks.common import Provenance, add_out_arg, finish  # noqa: E402
+from benchmarks.common import Provenance, add_out_arg, cli_main, finish  # noqa: E402
 
 THRESHOLDS = (0.1, 0.2, 0.3, 0.5)
 VARIANTS = ("prior", "target")
@@ -123,4 +124,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    sys.exit(cli_main(main, "benchmarks.fall_calibration"))

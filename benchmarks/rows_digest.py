@@ -34,15 +34,18 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXP
 
 import numpy as np  # noqa: E402
 
+from latentune.errors import StoreError  # noqa: E402
 from latentune.pipeline.store import read_uri  # noqa: E402
 
-from benchmarks.common import Provenance, add_out_arg, finish  # noqa: E402
+from benchmarks.common import Provenance, add_out_arg, cli_main, finish  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def rows(run: Path) -> list[tuple[int, bytes, float, bool]]:
     """(phase, θ bytes, cost, fell) of every stored evaluation of ``run``, sorted."""
+    if not (Path(run) / "run.db").is_file():
+        raise StoreError(f"no run store in {run} (expected run.db)")
     con = sqlite3.connect(read_uri(Path(run) / 'run.db'), uri=True)
     try:
         got = con.execute("SELECT phase, theta, cost, fell FROM evaluations").fetchall()
@@ -125,4 +128,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(cli_main(main, "benchmarks.rows_digest"))

@@ -865,3 +865,25 @@ def test_sim_check_options_are_the_benchmarks_and_bad_values_are_refused():
                       ("sim_check=4:sim_pick=3", "sim_pick")):
         with pytest.raises(ValueError, match=name):
             tr.check_variant(bad)
+
+
+def test_a_run_directory_without_a_store_is_one_line_not_a_traceback(tmp_path, capsys):
+    """``python -m benchmarks.rows_digest digest DIR`` (and vae_kind, fall_calibration) of a
+    directory without a run store ended in sqlite3's or StoreError's traceback (exit 1); the
+    benchmark entry point (``benchmarks.common.cli_main``) makes a latentune user error one line
+    on stderr and exit 2."""
+    import os
+    import subprocess
+    import sys
+
+    from benchmarks import vae_kind
+    from benchmarks.common import ROOT, cli_main
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), str(ROOT)])}
+    p = subprocess.run([sys.executable, "-m", "benchmarks.rows_digest", "digest", str(tmp_path)],
+                       capture_output=True, text=True, cwd=tmp_path, env=env, timeout=60)
+    assert p.returncode == 2 and p.stderr.strip().splitlines() == [
+        f"benchmarks.rows_digest: error: no run store in {tmp_path} (expected run.db)"], p.stderr
+    assert cli_main(lambda: vae_kind.main([str(tmp_path / "none")]), "benchmarks.vae_kind") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"benchmarks.vae_kind: error: run directory {tmp_path / 'none'} does not exist"]
