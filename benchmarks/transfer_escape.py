@@ -251,6 +251,10 @@ def main(argv: list[str] | None = None) -> int:
 
     prov = Provenance(argv, "benchmarks.transfer_escape")
     res = summary(a.root, a.k)
+    if not res["rows"]:         # an empty table and exit 0 read as "nothing went wrong"
+        print(f"transfer_escape summary: no run of {', '.join(methods(a.k))} under "
+              f"{a.root}/d*/seed*/KIND", file=sys.stderr)
+        return 2
     text = _table(res)
     print(text)
     if a.out is not None:

@@ -394,10 +394,10 @@ def test_summary_without_a_peer_is_one_line_not_a_traceback(tmp_path, capsys):
 
 
 def test_ladder_tables_of_a_root_without_runs_are_one_line_and_exit_2(tmp_path, capsys):
-    """``summary``, ``compare``, ``transfer_curves`` and ``transfer_explore_stats`` of a root
-    with no matching run (a typo, the wrong directory) said nothing or printed an empty table
+    """``summary``, ``compare``, ``transfer_curves``, ``transfer_explore_stats`` and
+    ``transfer_escape summary`` of a root with no matching run (a typo, the wrong directory) said nothing or printed an empty table
     and exited 0; each now says so in one line on stderr and exits 2, writing nothing."""
-    from benchmarks import transfer_curves, transfer_explore_stats
+    from benchmarks import transfer_curves, transfer_escape, transfer_explore_stats
 
     out = tmp_path / "o.json"
     for m, argv in ((tr.main, ["summary", "--root", str(tmp_path), "--out", str(out)]),
@@ -406,7 +406,9 @@ def test_ladder_tables_of_a_root_without_runs_are_one_line_and_exit_2(tmp_path, 
                     (transfer_curves.main, ["--root", str(tmp_path), "--methods", "transfer",
                                             "--out", str(out)]),
                     (transfer_explore_stats.main, ["--root", str(tmp_path), "--methods",
-                                                   "transfer", "--out", str(out)])):
+                                                   "transfer", "--out", str(out)]),
+                    (transfer_escape.main, ["summary", "--root", str(tmp_path), "--out",
+                                            str(out)])):
         assert m(argv) == 2, argv
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and str(tmp_path) in err[0], err
