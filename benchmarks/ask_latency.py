@@ -224,4 +224,6 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from benchmarks.common import cli_main
+
+    sys.exit(cli_main(main, "benchmarks.ask_latency"))

@@ -329,16 +329,20 @@ class Provenance:
 
 # ==================================================================== entry point
 def cli_main(main: Callable[[], int], prog: str) -> int:
-    """Run a benchmark's ``main()``: a user error of latentune's (a run directory without a
-    store, a bad parameter: :class:`latentune.errors.LatentuneError`) is one line on stderr and
-    exit 2, as argparse's errors are, not a traceback."""
+    """Run a benchmark's ``main()`` (every benchmark's ``__main__``): a user error of
+    latentune's (a run directory without a store, a bad parameter:
+    :class:`latentune.errors.LatentuneError`) or an input file that does not exist is one line
+    on stderr and exit 2, as argparse's errors are, not a traceback."""
     from latentune.errors import LatentuneError
 
     try:
         return main()
     except LatentuneError as e:
-        print(f"{prog}: error: {e}", file=sys.stderr)
-        return 2
+        msg = " ".join(str(e).split())
+    except FileNotFoundError as e:
+        msg = f"no such file or directory: {e.filename}"
+    print(f"{prog}: error: {msg}", file=sys.stderr)
+    return 2
 
 
 # ==================================================================== output

@@ -322,10 +322,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    from latentune.errors import LatentuneError
+    from benchmarks.common import cli_main
 
-    try:
-        sys.exit(main())
-    except LatentuneError as exc:
-        print(f"optuna_hopper: error: {' '.join(str(exc).split())}", file=sys.stderr)
-        sys.exit(2)
+    sys.exit(cli_main(main, "benchmarks.optuna_hopper"))

@@ -631,4 +631,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from benchmarks.common import cli_main
+
+    sys.exit(cli_main(main, "benchmarks.peers"))

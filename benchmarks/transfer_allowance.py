@@ -128,4 +128,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from benchmarks.common import cli_main
+
+    sys.exit(cli_main(main, "benchmarks.transfer_allowance"))

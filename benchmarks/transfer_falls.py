@@ -656,4 +656,6 @@ def main_ladder(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from benchmarks.common import cli_main
+
+    sys.exit(cli_main(main, "benchmarks.transfer_falls"))

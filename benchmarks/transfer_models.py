@@ -248,4 +248,6 @@ def emit(rows: list[dict[str, Any]], md: list[str], out: str | None,
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from benchmarks.common import cli_main
+
+    sys.exit(cli_main(main, "benchmarks.transfer_models"))

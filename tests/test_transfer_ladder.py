@@ -870,10 +870,11 @@ def test_sim_check_options_are_the_benchmarks_and_bad_values_are_refused():
 
 
 def test_a_run_directory_without_a_store_is_one_line_not_a_traceback(tmp_path, capsys):
-    """``python -m benchmarks.rows_digest digest DIR`` (and vae_kind, fall_calibration) of a
-    directory without a run store ended in sqlite3's or StoreError's traceback (exit 1); the
-    benchmark entry point (``benchmarks.common.cli_main``) makes a latentune user error one line
-    on stderr and exit 2."""
+    """``python -m benchmarks.rows_digest digest DIR`` (and vae_kind, fall_calibration,
+    fall_costs summary, handover, sample_efficiency) of a directory without a run store, or
+    transfer_diagnose / rollout_identity of a missing file, ended in a traceback (exit 1); every
+    benchmark's entry point (``benchmarks.common.cli_main``) makes a latentune user error or a
+    missing input file one line on stderr and exit 2."""
     import os
     import subprocess
     import sys
@@ -889,3 +890,8 @@ def test_a_run_directory_without_a_store_is_one_line_not_a_traceback(tmp_path, c
     assert cli_main(lambda: vae_kind.main([str(tmp_path / "none")]), "benchmarks.vae_kind") == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"benchmarks.vae_kind: error: run directory {tmp_path / 'none'} does not exist"]
+    from benchmarks import rollout_identity     # a missing input file: one line, not a traceback
+    a = tmp_path / "a.json"
+    assert cli_main(lambda: rollout_identity.main(["--compare", str(a), str(a)]), "x") == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"x: error: no such file or directory: {a}"]
