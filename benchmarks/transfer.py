@@ -684,6 +684,9 @@ def cut_runs(root: Path, method: str, share: float, name: str, seeds: list[int] 
         out = {**cut_at_fall_budget(r, share, counts), "method": name, "derived_from": method}
         f.with_name(f"{name}.json").write_text(json.dumps(out))
         n += 1
+    if not n:                   # "0 runs ... stored" and exit 0 read as done
+        raise ValueError(f"no run of {method} under {root}"
+                         + (f" of seeds {' '.join(map(str, seeds))}" if seeds is not None else ""))
     return n
 
 
@@ -1025,6 +1028,9 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if a.cmd == "run":
         try:            # a bad variant or a gap a system cannot take: refused before any run
+            for flag, v in (("--budget", a.budget), ("--source-evals", a.source_evals)):
+                if v < 1:
+                    raise ValueError(f"{flag} must be >= 1, got {v}")
             for v in a.variants:
                 check_variant(v)
             targets = ladder_targets(a.systems, a.gaps)

@@ -557,6 +557,22 @@ def test_held_out_gaps_replace_the_ladders_and_a_gap_a_system_cannot_take_is_ref
                         "--root", "/nonexistent/x"]) == 2       # before any source run
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0].startswith("transfer run: ") and expect in err[0]
+    for flag in ("--budget", "--source-evals"):     # were run (and stored) with budget 0
+        assert tr.main(["run", "--systems", "arm", flag, "0", "--root", "/nonexistent/x"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err == [f"transfer run: {flag} must be >= 1, got 0"]
+
+
+def test_cut_of_a_method_without_runs_is_refused(tmp_path, capsys):
+    """``cut`` of a method with no stored run (a typo) said '0 runs ... stored as X' and exited
+    0; it now exits 2 with one line naming the method and root."""
+    _write(tmp_path, "transfer", 0, [2.0, 1.0], [False, True])
+    assert tr.main(["cut", "--root", str(tmp_path), "--method", "transfr", "--share", "0.5",
+                    "--as", "x"]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"transfer cut: no run of transfr under {tmp_path}"]
+    assert tr.main(["cut", "--root", str(tmp_path), "--method", "transfer", "--share", "0.5",
+                    "--as", "x"]) == 0
 
 
 def test_cut_stores_a_methods_runs_as_a_fall_budget_would_have_run_them(tmp_path, capsys):
