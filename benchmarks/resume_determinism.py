@@ -85,6 +85,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--dim", type=int, default=10)
     add_out_arg(ap)
     a = ap.parse_args(argv)
+    if a.dim < 1 or not 1 <= a.stop < a.budget:     # else nothing is resumed: a vacuous "same"
+        ap.error(f"--dim must be >= 1 and --stop in [1, --budget - 1], got --dim {a.dim}, "
+                 f"--stop {a.stop}, --budget {a.budget}")
     system = lt.FunctionSystem(_space(a.dim), shifted_levy)
     work = Path(tempfile.mkdtemp(prefix="lt_resume_"))
     rows = []

@@ -911,3 +911,17 @@ def test_a_run_directory_without_a_store_is_one_line_not_a_traceback(tmp_path, c
     assert cli_main(lambda: rollout_identity.main(["--compare", str(a), str(a)]), "x") == 2
     assert capsys.readouterr().err.strip().splitlines() == [
         f"x: error: no such file or directory: {a}"]
+
+
+@pytest.mark.parametrize("argv", [["--stop", "0"], ["--stop", "100"],
+                                  ["--budget", "10", "--stop", "20"], ["--dim", "0"]])
+def test_resume_determinism_refuses_a_stop_that_resumes_nothing(argv, capsys):
+    """``--stop 0`` or a ``--stop`` at or past ``--budget`` never interrupts the run, so the
+    benchmark reported 'no differing evaluation' about a resume that never happened (exit 0);
+    it is refused before any run, one argparse line, exit 2."""
+    from benchmarks import resume_determinism
+
+    with pytest.raises(SystemExit) as e:
+        resume_determinism.main(argv)
+    assert e.value.code == 2
+    assert "--stop in [1, --budget - 1]" in capsys.readouterr().err
