@@ -2,7 +2,7 @@
 
     python -m benchmarks.readme_commands [--out FILE.json]
 
-Clones the current HEAD into a temporary directory, runs the README's first command (set up the
+Clones the current HEAD into a temporary directory (removed at the end: its venv is ~4 GB), runs the README's first command (set up the
 venv and run the main job) and its second (the tests), and records each wall time, exit status,
 the main job's summary (manual / phase-1 / phase-3 best) and the machine load at the start and
 end of each.
@@ -18,6 +18,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 from benchmarks.common import ROOT, Provenance, add_out_arg, finish
 
@@ -35,7 +36,12 @@ def main(argv: list[str] | None = None) -> int:
     add_out_arg(ap)
     a = ap.parse_args(argv)
     cmds = readme_commands()
-    work = Path(tempfile.mkdtemp(prefix="lt_readme_"))
+    with tempfile.TemporaryDirectory(prefix="lt_readme_") as tmp:   # its venv alone is ~4 GB
+        return _run(Path(tmp), cmds, a.out, prov)
+
+
+def _run(work: Path, cmds: list[str], out: Any, prov: Provenance) -> int:
+    """Clone the repository into ``work``, run ``cmds`` there and write what they did."""
     clone = work / "latentune"
     subprocess.run(["git", "clone", "-q", str(ROOT), str(clone)], check=True)
     shared = ROOT.parent / "shared"
@@ -65,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = [{"command": r["command"], "exit": r["exit"], "wall_s": r["wall_s"],
              "load_start": r["loadavg_start"][0], "load_end": r["loadavg_end"][0]}
             for r in runs]
-    finish(a.out, prov, {"clone_commit": commit, "runs": runs, "main_job": summary}, rows,
+    finish(out, prov, {"clone_commit": commit, "runs": runs, "main_job": summary}, rows,
            title="the README's commands on a fresh clone"
                  + (f"; main job {summary}" if summary else ""))
     return 0
