@@ -2,10 +2,10 @@
 
     python -m benchmarks.readme_commands [--out FILE.json]
 
-Clones the current HEAD into a temporary directory (removed at the end: its venv is ~4 GB), runs the README's first command (set up the
-venv and run the main job) and its second (the tests), and records each wall time, exit status,
-the main job's summary (manual / phase-1 / phase-3 best) and the machine load at the start and
-end of each.
+Clones the current HEAD into a temporary directory (removed at the end: its venv is ~4 GB),
+runs the README's first command (set up the venv and run the main job) and its second (the
+tests), and records each wall time, exit status, the main job's summary (manual / phase-1 /
+phase-3 best) and the machine load at the start and end of each.
 """
 from __future__ import annotations
 
