@@ -15,7 +15,8 @@ one. ``--compare`` prints which digests differ between two output files (exit 1 
 
 The output also records :func:`environment` (the libraries that compute the numbers, the CPU's
 vector extension) and the directory ``latentune`` was imported from: bits are only comparable in
-one environment. ``tests/data/rollout_golden.json`` is this benchmark's output
+one environment. ``tests/data/rollout_golden.json`` (and ``rollout_golden_avx2.json``, made the
+same way on an AVX2 machine) is this benchmark's output
 (``--steps 500 --per-task 7``) on main's code before the rollout speed-up (an export of commit
 7f6b88a on ``PYTHONPATH``); ``tests/test_rollout_identity.py`` recomputes it.
 """
