@@ -60,6 +60,16 @@ def spread(values: list[float]) -> dict[str, Any]:
             "max": float(v.max()), "q25": float(q25), "q75": float(q75)}
 
 
+def _lt(a: float | None, b: float | None) -> bool:
+    """a < b for best costs where None (every trial fell) is worse than any cost."""
+    return a is not None and (b is None or a < b)
+
+
+def _best(x: float | None) -> str:
+    """A best cost as the tables show it ("all fell" for None)."""
+    return "all fell" if x is None else f"{x:.2f}"
+
+
 def aggregate(per_seed: list[dict[str, Any]], budget: int,
               checkpoints: list[int]) -> dict[str, Any]:
     agg: dict[str, Any] = {
@@ -71,7 +81,7 @@ def aggregate(per_seed: list[dict[str, Any]], budget: int,
     for m in METHODS:
         rs = [r[m] for r in per_seed]
         a: dict[str, Any] = {"best": spread([x["best"] for x in rs]),
-                             "best_failed": int(sum(x["best_failed"] for x in rs)),
+                             "all_fell": int(sum(x["all_fell"] for x in rs)),
                              "failed": spread([x["failed"] for x in rs]),
                              "failed_total": int(sum(x["failed"] for x in rs)),
                              "trials_total": int(sum(x["n"] for x in rs))}
@@ -81,15 +91,15 @@ def aggregate(per_seed: list[dict[str, Any]], budget: int,
         a["best_at"] = {str(k): spread([x["best_so_far"][k - 1] for x in rs])
                         for k in checkpoints if k <= budget}
         agg[m] = a
-    wins = [r["phase3"]["best"] < r["direct"]["best"] for r in per_seed]
+    wins = [_lt(r["phase3"]["best"], r["direct"]["best"]) for r in per_seed]
     agg["phase3_beats_direct"] = {"seeds": int(sum(wins)), "of": len(wins)}
     agg["phase3_beats_direct_at"] = {
-        str(k): int(sum(r["phase3"]["best_so_far"][k - 1] < r["direct"]["best_so_far"][k - 1]
+        str(k): int(sum(_lt(r["phase3"]["best_so_far"][k - 1], r["direct"]["best_so_far"][k - 1])
                         for r in per_seed)) for k in checkpoints if k <= budget}
-    agg["beats_zero_shot"] = {m: int(sum(r[m]["best"] < r["zero_shot"] for r in per_seed))
-                              for m in METHODS}
-    agg["beats_manual"] = {m: int(sum(r[m]["best"] < r["manual_real"] for r in per_seed))
-                           for m in METHODS}
+    agg["beats_zero_shot"] = {m: int(sum(r[m]["evals_to_beat_zero_shot"] is not None
+                                         for r in per_seed)) for m in METHODS}
+    agg["beats_manual"] = {m: int(sum(r[m]["evals_to_beat_manual"] is not None
+                                      for r in per_seed)) for m in METHODS}
     return agg
 
 
@@ -137,10 +147,9 @@ def markdown(res: dict[str, Any]) -> str:
             "direct falls | model phase-1 best |", "|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in res["per_seed"]:
         out.append(f"| {r['seed']} | {r['manual_real']:.2f} | {r['zero_shot']:.2f}"
-                   f"{' ✗' if r['zero_shot_failed'] else ''} | {r['phase3']['best']:.2f}"
-                   f"{' ✗' if r['phase3']['best_failed'] else ''} | {r['direct']['best']:.2f}"
-                   f"{' ✗' if r['direct']['best_failed'] else ''} | {r['phase3']['failed']} | "
-                   f"{r['direct']['failed']} | {r['model']['phase1_best']:.2f} |")
+                   f"{' ✗' if r['zero_shot_failed'] else ''} | {_best(r['phase3']['best'])} | "
+                   f"{_best(r['direct']['best'])} | {r['phase3']['failed']} | "
+                   f"{r['direct']['failed']} | {_best(r['model']['phase1_best'])} |")
     return "\n".join(out)
 
 
@@ -173,9 +182,9 @@ def main(argv: list[str] | None = None) -> int:
         r["wall_s"] = time.perf_counter() - ts
         per_seed.append(r)
         print(f"seed {s}: manual {r['manual_real']:.2f}, zero-shot {r['zero_shot']:.2f}"
-              f"{' (fell)' if r['zero_shot_failed'] else ''}, phase 3 {r['phase3']['best']:.2f} "
-              f"({r['phase3']['failed']} falls), direct {r['direct']['best']:.2f} "
-              f"({r['direct']['failed']} falls); model phase 1 {model['phase1_best']:.2f}; "
+              f"{' (fell)' if r['zero_shot_failed'] else ''}, phase 3 {_best(r['phase3']['best'])} "
+              f"({r['phase3']['failed']} falls), direct {_best(r['direct']['best'])} "
+              f"({r['direct']['failed']} falls); model phase 1 {_best(model['phase1_best'])}; "
               f"{r['wall_s']:.0f} s", file=sys.stderr, flush=True)
     res = {"benchmark": "sim_to_real",
            "system": {"env": "Hopper-v5", "controller": "linear feedback + bias, 36 weights",

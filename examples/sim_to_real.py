@@ -34,18 +34,39 @@ import numpy as np  # noqa: E402
 
 import latentune as lt  # noqa: E402
 from latentune.constants import Phase  # noqa: E402
+from latentune.reporting.metrics import best_so_far, evals_to_beat  # noqa: E402
 
 if __package__ in (None, ""):                     # run as a file: python examples/sim_to_real.py
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from examples.gym_controller import REAL, make_real_system, make_system  # noqa: E402
 
 
-def _first_below(costs: list[float], level: float) -> int | None:
-    """1-based number of evaluations until the best so far is below ``level`` (None: never)."""
-    for i, c in enumerate(costs, 1):
-        if c < level:
-            return i
-    return None
+def _level(cost: float, fell: bool) -> float:
+    """The cost a tuned trial must beat to beat a reference trial: its cost, or +inf when the
+    reference fell (any trial that stands beats a fall)."""
+    return float("inf") if fell else float(cost)
+
+
+def method_summary(rows: list[Any], zero_shot: float, manual: float) -> dict[str, Any]:
+    """The numbers of one method's real trials ``rows`` (idx order). A trial that fell is never
+    the best, never beats a level and never enters the best-so-far curve: ``best`` is the
+    lowest cost of the trials that stood (None, with ``all_fell`` True, when every trial fell);
+    ``best_so_far[k]`` is None until a trial stands. ``zero_shot`` and ``manual``: the levels
+    to beat (:func:`_level`)."""
+    costs = [float(r.cost) for r in rows]
+    fell = [bool(r.fell) for r in rows]
+    stood = [r for r in rows if not r.fell]
+    best = min(stood, key=lambda r: (r.cost, r.idx)) if stood else None
+    curve = best_so_far(costs, fell)
+    y = np.where(np.asarray(fell, dtype=bool), np.inf, np.asarray(costs, dtype=float))
+    return {"best": None if best is None else float(best.cost), "all_fell": best is None,
+            "best_idx": None if best is None else int(best.idx),
+            "best_return": None if best is None else best.info.get("return"),
+            "best_distance": None if best is None else best.info.get("distance"),
+            "n": len(rows), "failed": int(sum(fell)),
+            "evals_to_beat_zero_shot": evals_to_beat(y, zero_shot),
+            "evals_to_beat_manual": evals_to_beat(y, manual),
+            "best_so_far": [round(float(c), 4) if np.isfinite(c) else None for c in curve]}
 
 
 def _phase_rows(study: lt.Study, phase: int) -> list[Any]:
@@ -62,11 +83,11 @@ def run_model(model_dir: str | os.PathLike, seed: int, phase1_evals: int, latent
         study.phase1(model, phase1_evals)
         latent = study.train_latent(latent_dim=latent_dim)
         rows = _phase_rows(study, Phase.PHASE1)
-        best = study.best(Phase.PHASE1)
+        best = study.best(Phase.PHASE1)          # the best trial that stood (None: all fell)
         return {"dir": str(model_dir), "phase1_evals": len(rows),
                 "phase1_failed": int(sum(r.fell for r in rows)),
                 "manual_cost": float(study.store.rows(Phase.MANUAL)[0].cost),
-                "phase1_best": float(best.cost), "phase1_best_failed": bool(best.fell),
+                "phase1_best": None if best is None else float(best.cost),
                 "vae_n_train": int(latent.meta.get("n_train", 0)), "latent_dim": latent.d_low,
                 "wall_s": time.perf_counter() - t}
 
@@ -83,7 +104,8 @@ def run_real(model_dir: str | os.PathLike, phase3_dir: str | os.PathLike,
     with lt.Study(phase3_dir, seed=seed, workers=workers, backend=backend, log=log) as s3:
         s3.phase3(real, budget, latent=model_dir, strategy="plain")
         zs = s3.store.rows(Phase.ZERO_SHOT)[0]
-        manual = float(s3.store.rows(Phase.MANUAL)[0].cost)
+        man = s3.store.rows(Phase.MANUAL)[0]
+        manual, manual_fell = float(man.cost), bool(man.fell)
         rows3 = _phase_rows(s3, Phase.PHASE3)
     out["phase3_wall_s"] = time.perf_counter() - t
     t = time.perf_counter()
@@ -91,20 +113,10 @@ def run_real(model_dir: str | os.PathLike, phase3_dir: str | os.PathLike,
         sd.phase1(real, budget)
         rowsd = _phase_rows(sd, Phase.PHASE1)
     out["direct_wall_s"] = time.perf_counter() - t
-    zero_shot = float(zs.cost)
-    out.update(manual_real=manual, zero_shot=zero_shot, zero_shot_failed=bool(zs.fell),
+    out.update(manual_real=manual, zero_shot=float(zs.cost), zero_shot_failed=bool(zs.fell),
                zero_shot_info=dict(zs.info))
     for name, rows in (("phase3", rows3), ("direct", rowsd)):
-        costs = [float(r.cost) for r in rows]
-        best = min(rows, key=lambda r: (r.cost, r.idx))
-        curve = np.minimum.accumulate(costs).tolist()
-        out[name] = {"best": float(best.cost), "best_failed": bool(best.fell),
-                     "best_return": best.info.get("return"),
-                     "best_distance": best.info.get("distance"),
-                     "n": len(rows), "failed": int(sum(r.fell for r in rows)),
-                     "evals_to_beat_zero_shot": _first_below(costs, zero_shot),
-                     "evals_to_beat_manual": _first_below(costs, manual),
-                     "best_so_far": [round(c, 4) for c in curve]}
+        out[name] = method_summary(rows, _level(zs.cost, zs.fell), _level(manual, manual_fell))
     return out
 
 
@@ -121,8 +133,9 @@ def table(res: dict[str, Any]) -> str:
     for name, label in (("phase3", "phase 3: TuRBO-m in the model's latent space"),
                         ("direct", "direct: TuRBO-m on θ from the manual θ")):
         r = res[name]
-        lines.append(f"| {label} | {b} | {r['best']:.2f}{' (fell)' if r['best_failed'] else ''} "
-                     f"| {r['failed']}/{r['n']} | {r['evals_to_beat_zero_shot'] or 'never'} |")
+        best = f"none: all {r['n']} fell" if r["all_fell"] else f"{r['best']:.2f}"
+        lines.append(f"| {label} | {b} | {best} | {r['failed']}/{r['n']} | "
+                     f"{r['evals_to_beat_zero_shot'] or 'never'} |")
     return "\n".join(lines)
 
 
@@ -146,7 +159,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"real system = model with {REAL}", flush=True)
     m = run_model(root / "model", a.seed, a.phase1_evals, a.latent_dim, a.episode_steps,
                   a.workers, a.backend, stderr_log)
-    print(f"model: manual {m['manual_cost']:.2f}, phase-1 best {m['phase1_best']:.2f} after "
+    p1 = "none (every trial fell)" if m["phase1_best"] is None else f"{m['phase1_best']:.2f}"
+    print(f"model: manual {m['manual_cost']:.2f}, phase-1 best {p1} after "
           f"{m['phase1_evals']} evaluations ({m['phase1_failed']} failed); VAE on "
           f"{m['vae_n_train']} θ, d_low {m['latent_dim']}", flush=True)
     res = run_real(root / "model", root / "phase3", root / "direct", a.seed, a.phase3_evals,

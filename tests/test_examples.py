@@ -260,3 +260,66 @@ def test_toy_and_hopper_factories_refuse_what_they_cannot_run(target, arg):
     with pytest.raises(ValueError, match=f"{next(iter(arg))} must be"):
         make(**arg)
     assert make(**{k: 1 for k in arg}) is not None
+
+
+def _fake_real_runs(monkeypatch, rows: dict[int, list[tuple[float, bool]]]):
+    """examples.sim_to_real with lt.Study a stand-in whose stores hold ``rows`` (phase ->
+    [(cost, fell)] in idx order) and whose phases run nothing."""
+    import types
+
+    import examples.sim_to_real as s2r
+
+    def row(i, cost, fell):
+        return types.SimpleNamespace(idx=i, cost=cost, fell=fell, info={"return": -cost})
+
+    class Fake:
+        def __init__(self, *a, **k):
+            self.store = types.SimpleNamespace(
+                rows=lambda ph: [row(i, c, f) for i, (c, f) in enumerate(rows[ph])])
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return None
+
+        def phase1(self, *a, **k):
+            return None
+
+        phase3 = phase1
+
+    monkeypatch.setattr(s2r, "lt", types.SimpleNamespace(Study=Fake))
+    monkeypatch.setattr(s2r, "make_real_system", lambda **k: None)
+    return s2r
+
+
+def test_sim_to_real_never_reports_a_fall_as_the_best(monkeypatch):
+    """examples/sim_to_real.py reported a trial that fell as a method's best θ (the Hopper's
+    falls keep a finite cost, often the lowest) and counted it as beating the zero-shot θ;
+    now the best, the best-so-far curve and the evals to beat count the trials that stood
+    only, and a method whose every trial fell says so."""
+    s2r = _fake_real_runs(monkeypatch, {
+        Phase.MANUAL: [(50.0, False)], Phase.ZERO_SHOT: [(40.0, False)],
+        Phase.PHASE3: [(45.0, False), (10.0, True), (30.0, False)],
+        Phase.PHASE1: [(5.0, True), (6.0, True)]})
+    res = s2r.run_real("m", "p3", "d", 0, 3)
+    p3, d = res["phase3"], res["direct"]
+    assert (p3["best"], p3["best_idx"], p3["all_fell"]) == (30.0, 2, False)
+    assert p3["best_so_far"] == [45.0, 45.0, 30.0]
+    assert (p3["evals_to_beat_zero_shot"], p3["evals_to_beat_manual"]) == (3, 1)
+    assert d["best"] is None and d["all_fell"] and d["best_so_far"] == [None, None]
+    assert d["evals_to_beat_zero_shot"] is None and d["best_return"] is None
+    table = s2r.table(res)
+    assert "| 30.00 |" in table and "all 2 fell" in table and "10.00" not in table
+
+
+def test_sim_to_real_a_stood_trial_beats_a_zero_shot_that_fell(monkeypatch):
+    """A zero-shot θ that fell is beaten by the first tuned trial that stands (whatever the
+    fall's cost), never by another fall."""
+    s2r = _fake_real_runs(monkeypatch, {
+        Phase.MANUAL: [(50.0, False)], Phase.ZERO_SHOT: [(5.0, True)],
+        Phase.PHASE3: [(4.0, True), (60.0, False)], Phase.PHASE1: [(70.0, False)]})
+    res = s2r.run_real("m", "p3", "d", 0, 2)
+    assert res["phase3"]["evals_to_beat_zero_shot"] == 2
+    assert res["direct"]["evals_to_beat_zero_shot"] == 1
+    assert res["direct"]["evals_to_beat_manual"] is None
