@@ -475,6 +475,50 @@ def test_a_partly_enqueued_trial_is_told_at_the_theta_it_ran(source_run, kind):
     np.testing.assert_allclose(X[1], study.trials[1].system_attrs[POINT_ATTR]["u"])
 
 
+@pytest.mark.parametrize("enqueued", ["full", "two full", "partial"])
+def test_enqueued_trials_run_first_and_the_zero_shot_next(source_run, enqueued):
+    """A trial enqueued before the first one (study.enqueue_trial, Optuna's convention: run
+    first, as given) took trial 0 and the zero-shot θ was never run (a full one), or was
+    marked the zero-shot trial while running the enqueued value (a partial one). Now the
+    enqueued trials run first, as given, and are told as external points (tag -1); the
+    zero-shot θ is the next trial, then the critic's points."""
+    src = lt.Study(source_run)
+    zs_params = src.space().as_dict(src.best(Phase.PHASE1).theta)
+    sampler = LatentSampler(source_run, seed=0, budget=20)
+    study = optuna.create_study(sampler=sampler)
+    given = [{n: 0.1 * (k + 1) for n in NAMES} for k in range(2 if enqueued == "two full"
+                                                             else 1)]
+    if enqueued == "partial":
+        given = [{"w0": -0.9}]
+    for g in given:
+        study.enqueue_trial(g)
+    study.optimize(objective_for(sampler), n_trials=len(given) + 2)
+    k = len(given)
+    for t, g in zip(study.trials, given):
+        assert all(t.params[n] == v for n, v in g.items())
+        assert not t.system_attrs.get("latentune:zero_shot")
+    zs = study.trials[k]
+    assert zs.system_attrs.get("latentune:zero_shot") is True and POINT_ATTR not in zs.system_attrs
+    np.testing.assert_allclose([zs.params[n] for n in NAMES], [zs_params[n] for n in NAMES],
+                               atol=1e-12)
+    assert study.trials[k + 1].system_attrs[POINT_ATTR]["told"] == k + 1
+    _, y, tags, _, _ = sampler._history(study.get_trials(), 1.0, -1, True, D)
+    assert tags[:k + 1] == [-1] * (k + 1) and y[:k + 1] == [t.value for t in study.trials[:k + 1]]
+
+
+def test_an_enqueued_zero_shot_theta_is_not_run_twice(source_run):
+    """An enqueued trial that is the source's best θ runs it: the sampler does not run it
+    again as the zero-shot trial; the next trial is the critic's."""
+    src = lt.Study(source_run)
+    sampler = LatentSampler(source_run, seed=0, budget=20)
+    study = optuna.create_study(sampler=sampler)
+    study.enqueue_trial(src.space().as_dict(src.best(Phase.PHASE1).theta))
+    study.optimize(objective_for(sampler), n_trials=2)
+    assert not any(t.system_attrs.get("latentune:zero_shot") for t in study.trials)
+    assert study.trials[1].system_attrs[POINT_ATTR]["tag"] >= 0
+    assert len(set(thetas(study))) == 2
+
+
 def test_a_sampler_refuses_a_trial_that_stood_with_a_non_finite_value():
     """A trial that stands with -inf (a minimize study's best for Optuna) stops the study as it
     finishes, naming it, and later samples refuse it too; a fall's -inf is told as +inf."""

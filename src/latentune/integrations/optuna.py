@@ -653,9 +653,11 @@ class LatentSampler(_CriticSampler, BaseSampler):
             ``regions`` is given: 1 below 750).
         start: ``"manual"`` (the first critic point is the code of the source space's manual
             θ), ``"best"`` (the code of the source's best θ) or None (the critic's design).
-        zero_shot: the study's trial 0 is the source's best θ as it is (latentune's
+        zero_shot: the study's first trial is the source's best θ as it is (latentune's
             zero-shot baseline; it counts in the budget and is told to the critic as an
-            external point).
+            external point). Trials enqueued before it (``study.enqueue_trial``) run first,
+            as given, and are told as ordinary external points; the zero-shot trial is the
+            first one after them that is not enqueued (none when one of them ran its θ).
         max_fall_prob: skip candidates whose predicted fall probability exceeds it (the
             source run's phase-1 θ, encoded, with their fall flags, seed the prediction).
         transfer_options: options of the transfer critic over its defaults
@@ -796,7 +798,22 @@ class LatentSampler(_CriticSampler, BaseSampler):
         return self.latent.to_unit(code)
 
     def _fixed_theta(self, study: Any, trial: Any) -> np.ndarray | None:
-        if self._zero_shot_theta is None or trial.number != 0:
+        """The zero-shot θ for the study's first trial the sampler chooses in full: the first
+        trial without enqueued values (``fixed_params``) when every trial before it was
+        enqueued (Optuna runs enqueued trials first, as given; a partly enqueued one is not
+        the zero-shot: its other values are the critic's). None for any other trial, and when
+        an enqueued trial already ran the zero-shot θ."""
+        if self._zero_shot_theta is None or trial.system_attrs.get("fixed_params"):
+            return None
+        before = [t for t in study.get_trials(deepcopy=False) if t.number < trial.number]
+        if any(not t.system_attrs.get("fixed_params") for t in before):
+            return None
+        key = _key_of(self._zero_shot_theta)
+        ran = [t.number for t in before if (u := _unit_of(self._space, t.params)) is not None
+               and _key_of(u) == key]
+        if ran:
+            logger.info("trial %d: enqueued trial %d ran the zero-shot θ already; asking the "
+                        "critic", trial.number, ran[0])
             return None
         study._storage.set_trial_system_attr(trial._trial_id, ZERO_SHOT_ATTR, True)
         return self._zero_shot_theta
