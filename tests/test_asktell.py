@@ -625,6 +625,37 @@ def test_a_phase_run_in_process_is_refused_while_suggestions_are_out(tmp_path, s
         assert len(st.trials()) == 0
 
 
+def test_a_phase_run_after_a_mid_batch_tell_keeps_the_told_and_withdraws_the_rest(tmp_path,
+                                                                                  src30):
+    """ask 4 (the zero-shot and three of a batch of 4), tell 2, then a phase run: it is refused
+    while the other 2 are out, naming them and how to go on (release); once they are released
+    it withdraws them and the batch's unasked one, keeps the told rows (the zero-shot, phase 3's
+    first), asks its own batches up to the budget, and a later tell of a withdrawn one says
+    so. (A tell of a suggestion never runs twice and a told result is never lost.)"""
+    sys_ = plant()
+    with lt.Study(tmp_path / "p3", seed=0, batch_size=4) as st:
+        out = st.ask(4, system=sys_, phase=3, latent=src30, budget=8)
+        assert [s.phase_name for s in out] == ["zero-shot"] + ["phase 3"] * 3
+        told = {s.id: plant_fn(SPACE.to_physical(s.theta)) for s in out[:2]}
+        for i, c in told.items():
+            st.tell(i, c)
+        with pytest.raises(StoreError, match=rf"ids {out[2].id}, {out[3].id}\).*release"):
+            st.phase3(sys_, 8, latent=src30)
+        for s in out[2:]:
+            st.release(s.id)
+        assert st.phase3(sys_, 8, latent=src30).n == 8
+        assert st.store.count(Phase.PHASE3) == 8 and st.store.count(Phase.ZERO_SHOT) == 1
+        assert st.store.rows(Phase.ZERO_SHOT)[0].cost == told[out[0].id]
+        first = st.store.rows(Phase.PHASE3)[0]
+        assert first.cost == told[out[1].id] and np.array_equal(first.theta, out[1].theta)
+        status = {t.id: t.status for t in st.store.trials()}
+        assert [status[s.id] for s in out] == ["told", "told", "dropped", "dropped"]
+        assert list(status.values()).count("dropped") == 3          # and the unasked one
+        assert len({r.theta.tobytes() for r in st.store.rows(Phase.PHASE3)}) == 8
+        with pytest.raises(StoreError, match="dropped"):
+            st.tell(out[2].id, 1.0)
+
+
 def test_a_transfer_phase_3_resumes_from_the_source_trials_it_began_with(tmp_path, src30):
     """The source run's phase 1 grows while a transfer phase 3 from it is stopped: the resume
     asks what the uninterrupted run asked from the source as it was (the counts it began with

@@ -263,8 +263,9 @@ class Manifest:
                 raise StoreError(f"{self.run.dir}: {len(out)} suggestions of phase "
                                  f"{int(phase)} are handed out to ask/tell (ids "
                                  f"{', '.join(map(str, out[:5]))}{', …' if len(out) > 5 else ''}"
-                                 "): tell them and go on with ask/tell, or run the phase here "
-                                 "in a study without them")
+                                 "): tell them and go on with ask/tell, or release them "
+                                 "(the phase run then withdraws them and asks its own), or "
+                                 "run the phase here in a study without them")
         if regions is None and stored and n:
             regions = stored.get("regions")
         if regions is None and method == "turbo":
