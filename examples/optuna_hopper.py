@@ -39,7 +39,7 @@ if __package__ in (None, ""):                   # run as a file: python examples
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from examples.gym_controller import hopper_space, make_real_system, make_system  # noqa: E402
 from latentune.integrations.optuna import (LatentSampler, TurboSampler,  # noqa: E402  # latentune
-                                           import_optuna_study)
+                                           import_optuna_study, trial_fell)
 
 SPACE = hopper_space()                           # names, bounds and the hand-tuned weights
 
@@ -53,6 +53,20 @@ def make_objective(system: Any) -> Callable[[optuna.Trial], float]:
         trial.set_constraint("fall", 1.0 if out.failed else 0.0)         # latentune: a fall
         return out.cost
     return objective
+
+
+def results_of(study: optuna.Study) -> tuple[float | None, int, int]:
+    """(best cost of the trials that did not fall, or None when every one fell; falls; finished
+    trials) of a study: a fall is never its best, whatever cost it was given (a FAIL trial,
+    without a value, counts as a fall)."""
+    S = optuna.trial.TrialState
+    done = study.get_trials(deepcopy=False, states=(S.COMPLETE, S.FAIL))
+    stood = [t.value for t in done if not trial_fell(t) and t.value is not None]
+    return (min(stood) if stood else None), sum(trial_fell(t) for t in done), len(done)
+
+
+def _best_text(best: float | None) -> str:
+    return "none (every trial fell)" if best is None else f"{best:.2f}"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -83,8 +97,9 @@ def main(argv: list[str] | None = None) -> int:
     study = optuna.create_study(study_name="hopper-sim", storage=storage, sampler=sampler,
                                 load_if_exists=True)
     study.optimize(make_objective(sim), n_trials=max(0, a.sim_trials - len(study.trials)))
-    best = min(t.value for t in study.trials if t.value is not None)  # a fall's cost counts too
-    print(f"simulator: {len(study.trials)} trials, best cost {best:.2f}", flush=True)
+    best, falls, _ = results_of(study)                  # a fall is never the best
+    print(f"simulator: {len(study.trials)} trials ({falls} fell), best cost "
+          f"{_best_text(best)}", flush=True)
 
     # 2. latentune: the simulator study as phase 1, and its latent space (phase 2)
     run = import_optuna_study(storage, "hopper-sim", out / "sim", seed=a.seed)        # latentune
@@ -102,14 +117,12 @@ def main(argv: list[str] | None = None) -> int:
         study = optuna.create_study(study_name=f"hopper-real-{name}", storage=storage,
                                     sampler=make(), load_if_exists=True)
         study.optimize(make_objective(real), n_trials=max(0, a.trials - len(study.trials)))
-        done = [t for t in study.trials if t.value is not None]
-        falls = sum(t.constraints.get("fall", 0) > 0 for t in done)
-        results[name] = (min(t.value for t in done), falls, len(done))
+        results[name] = results_of(study)
     print(f"\n| on the real Hopper (seed {a.seed}) | trials | best cost | falls |")
     print("|---|---:|---:|---:|")
     for name, (best, falls, n) in results.items():
         label = "LatentSampler (simulator's latent space)" if name == "latent" else "TPE"
-        print(f"| {label} | {n} | {best:.2f} | {falls} |")
+        print(f"| {label} | {n} | {_best_text(best)} | {falls} |")
     return 0
 
 

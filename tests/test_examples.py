@@ -323,3 +323,28 @@ def test_sim_to_real_a_stood_trial_beats_a_zero_shot_that_fell(monkeypatch):
     assert res["phase3"]["evals_to_beat_zero_shot"] == 2
     assert res["direct"]["evals_to_beat_zero_shot"] == 1
     assert res["direct"]["evals_to_beat_manual"] is None
+
+
+def test_optuna_hopper_never_reports_a_fall_as_the_best():
+    """examples/optuna_hopper.py printed the lowest value of any trial as a study's best cost
+    (the simulator's and the real Hopper's table), a fall's too (the Hopper's falls keep a
+    finite, often the lowest, cost); now the best is over the trials that stood, FAIL trials
+    count as falls, and a study whose every trial fell says so."""
+    optuna = pytest.importorskip("optuna")
+    from examples import optuna_hopper as oh
+
+    FD = optuna.distributions.FloatDistribution
+    study = optuna.create_study()
+    for x, fell in ((0.1, True), (0.5, False), (0.3, False)):
+        study.add_trial(optuna.trial.create_trial(
+            params={"x": x}, distributions={"x": FD(0, 1)}, value=x,
+            system_attrs={"constraints:fall": 1.0 if fell else 0.0}))
+    study.add_trial(optuna.trial.create_trial(params={"x": 0.2}, distributions={"x": FD(0, 1)},
+                                              state=optuna.trial.TrialState.FAIL))
+    assert oh.results_of(study) == (0.3, 2, 4)
+    only_falls = optuna.create_study()
+    only_falls.add_trial(optuna.trial.create_trial(
+        params={"x": 0.1}, distributions={"x": FD(0, 1)}, value=0.1,
+        user_attrs={"latentune_failed": True}))
+    assert oh.results_of(only_falls) == (None, 1, 1)
+    assert oh._best_text(None) == "none (every trial fell)"
