@@ -34,6 +34,7 @@ import numpy as np  # noqa: E402
 
 import latentune as lt  # noqa: E402
 from latentune.constants import Phase  # noqa: E402
+from latentune.errors import LatentuneError, UsageError  # noqa: E402
 from latentune.reporting.metrics import best_so_far, evals_to_beat  # noqa: E402
 
 if __package__ in (None, ""):                     # run as a file: python examples/sim_to_real.py
@@ -142,9 +143,8 @@ def table(res: dict[str, Any]) -> str:
 def main(argv: list[str] | None = None) -> int:
     import argparse
 
-    from latentune.study import stderr_log
-
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="examples.sim_to_real",
+                                 description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="runs/examples/s2r", help="root of the study directories")
     ap.add_argument("--phase1-evals", type=int, default=300, help="model evaluations (phase 1)")
     ap.add_argument("--phase3-evals", type=int, default=60,
@@ -155,6 +155,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--backend", default="serial", choices=("serial", "process", "ray"))
     a = ap.parse_args(argv)
+    try:
+        try:                        # the factories' checks (episode steps, seed)
+            make_real_system(seed=a.seed, episode_steps=a.episode_steps)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+        return _run(a)
+    except LatentuneError as exc:   # a bad budget, a run directory of another run, ...
+        print(f"{ap.prog}: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 2
+
+
+def _run(a: Any) -> int:
+    """The example's run for the parsed arguments ``a`` (see :func:`main`)."""
+    from latentune.study import stderr_log
+
     root = Path(a.out)
     print(f"real system = model with {REAL}", flush=True)
     m = run_model(root / "model", a.seed, a.phase1_evals, a.latent_dim, a.episode_steps,

@@ -348,3 +348,23 @@ def test_optuna_hopper_never_reports_a_fall_as_the_best():
         user_attrs={"latentune_failed": True}))
     assert oh.results_of(only_falls) == (None, 1, 1)
     assert oh._best_text(None) == "none (every trial fell)"
+
+
+@pytest.mark.parametrize("args, says", [
+    (["--phase1-evals", "0"], "budget must be an integer >= 1, got 0"),
+    (["--episode-steps", "0"], "episode_steps must be"),
+    (["--seed", "-1"], "seed must be"),
+])
+def test_sim_to_real_bad_input_is_one_line(tmp_path, capsys, args, says):
+    """python -m examples.sim_to_real --phase1-evals 0 (or --episode-steps 0, --seed -1) ended
+    in a traceback; it is one line on stderr and exit status 2."""
+    pytest.importorskip("gymnasium")
+    import examples.sim_to_real as s2r
+
+    try:
+        code = s2r.main(["--out", str(tmp_path / "s2r"), *args])
+    except SystemExit as exc:                 # argparse's error
+        code = exc.code
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and says in err and len(err.splitlines()) == 1, err
+    assert err.startswith("examples.sim_to_real") and "Traceback" not in err
