@@ -657,6 +657,21 @@ def test_study_rejects_bad_arguments(tmp_path, kw):
     assert not (tmp_path / "s").exists()
 
 
+def test_workers_with_the_serial_backend_are_refused(tmp_path, capsys):
+    """(They ran one trial at a time without a word.) The command line's --backend serial
+    alone takes one worker; a user's own evaluator brings its own workers."""
+    with pytest.raises(UsageError, match="workers = 2 needs the process or ray backend"):
+        lt.Study(tmp_path / "s", workers=2, backend="serial")
+    with pytest.raises(UsageError, match="workers = 3 needs"):
+        lt.Study(tmp_path / "s", workers=3)                 # the default backend is serial
+    from latentune.pipeline.evaluators import SerialEvaluator
+
+    assert lt.Study(tmp_path / "s", workers=2, evaluator=SerialEvaluator()).workers == 2
+    assert_one_line(capsys, "phase1", "--out", tmp_path / "r", "--workers", "2", "--backend",
+                    "serial", expect="workers = 2 needs the process or ray backend")
+    assert not (tmp_path / "s").exists() and not (tmp_path / "r" / "run.db").exists()
+
+
 def test_study_refuses_a_path_that_is_not_one():
     with pytest.raises(UsageError, match="a run directory is a path, got NoneType"):
         lt.Study(None)

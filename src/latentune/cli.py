@@ -253,7 +253,9 @@ def add_run_args(p: argparse.ArgumentParser, name: str) -> None:
                    help="autoencoder kind (see latentune.latent.vae)")
     p.add_argument("--vae-epochs", type=int, default=None,
                    help="VAE training epochs (default: ~2000 Adam steps, at least 100 epochs)")
-    p.add_argument("--workers", type=int, default=DEFAULT_WORKERS, help="parallel rollouts")
+    p.add_argument("--workers", type=int, default=None,
+                   help=f"parallel rollouts (default {DEFAULT_WORKERS}), only 1 with --backend "
+                        "serial (its default)")
     p.add_argument("--backend", choices=("serial", "process", "ray"), default="process",
                    help="evaluator: serial, a local process pool or ray")
     p.add_argument("--ray-address", default=None, help="Ray cluster address (default: local Ray)")
@@ -340,7 +342,9 @@ def _study(args: argparse.Namespace):
             raise CLIError("--fall-prior needs --max-fall-prob (it seeds the fall prediction)")
         if not (Path(args.fall_prior) / "run.db").is_file():
             raise CLIError(f"--fall-prior: no run store in {args.fall_prior}")
-    return Study(args.out, seed=args.seed, workers=args.workers, backend=args.backend,
+    workers = args.workers if args.workers is not None \
+        else 1 if args.backend == "serial" else DEFAULT_WORKERS
+    return Study(args.out, seed=args.seed, workers=workers, backend=args.backend,
                  ray_address=args.ray_address, batch_size=args.batch_size,
                  progress=_progress(args), log=logging.getLogger("latentune.study").info)
 

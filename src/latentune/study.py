@@ -59,7 +59,7 @@ class Study:
         seed: seed of every critic, VAE and trial of this study (recorded). ``None``: the
             stored one for an existing study, else 0; another than the stored one is refused.
         workers: parallel trials; ``backend``: ``serial``, ``process`` (a local pool) or ``ray``
-            (``ray_address`` for a cluster, else a local Ray).
+            (``ray_address`` for a cluster, else a local Ray); serial runs one at a time.
         batch_size: points per critic ask (default: the phase's stored one, else
             ``max(workers, 4)``).
         progress: show a progress bar; ``log``: a callable for one-line messages (default none).

@@ -44,6 +44,9 @@ class RunDir:
         if self.dir.exists() and not self.dir.is_dir():
             raise StoreError(f"{self.dir} exists and is not a directory")
         self.workers = check_workers(workers)
+        if backend == "serial" and self.workers > 1 and evaluator is None:
+            raise UsageError(f"workers = {self.workers} needs the process or ray backend: the "
+                             "serial one runs one trial at a time, in this process")
         self.backend = backend
         self.ray_address = ray_address
         self._store: RunStore | None = None
