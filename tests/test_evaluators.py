@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 
 import latentune as lt
+from latentune.constants import C1
 from latentune.pipeline.store import RunStore
 from latentune.system import EvaluationError
 
@@ -390,3 +391,126 @@ def test_ray_more_workers_than_cpus(ray_local):
     X = np.random.default_rng(0).random((5, 3))
     with RayEvaluator(cpus + 1) as ev:
         np.testing.assert_allclose(ev.map(sq, X), np.sum((X - 0.3) ** 2, axis=1))
+
+
+class HangsOrDies:
+    """A system whose trial hangs (sleeps 60 s) when a > 0.8, ends its process when
+    0.5 < a <= 0.8, else costs quad."""
+    space = lt.ParameterSpace(["a", "b"], [0, 0], [1, 1])
+
+    def evaluate(self, u):
+        if u[0] > 0.8:
+            time.sleep(60)
+        elif u[0] > 0.5:
+            os._exit(3)
+        return quad(u)
+
+
+def _dies_above_half(x):
+    if x[0] > 0.5:
+        os._exit(4)
+    return float(np.sum(x))
+
+
+def test_process_pool_survives_a_worker_that_dies_mid_trial():
+    """(The pool broke: BrokenProcessPool ended the run.) The dying trial is a fall naming the
+    exit code (a plain callable's: a TrialError); the others, run again on a new pool when
+    they were lost with it, give their costs."""
+    from latentune.pipeline.evaluators import ProcessEvaluator, TrialError
+
+    X = np.array([[0.1, 0.2], [0.6, 0.2], [0.2, 0.3], [0.3, 0.1], [0.7, 0.4], [0.4, 0.4]])
+    with ProcessEvaluator(2) as ev:
+        got = dict(ev.imap(HangsOrDies(), X))
+        plain = dict(ev.imap(_dies_above_half, X))
+        assert ev.replaced >= 2
+    assert sorted(got) == list(range(6))
+    for i in (1, 4):
+        assert got[i].failed and got[i].cost == 2 * C1 and got[i].info["exit_code"] == 3
+        assert "worker process died (exit code 3)" in got[i].info["error"]
+        assert isinstance(plain[i], TrialError) and "exit code 4" in plain[i].message
+    for i in (0, 2, 3, 5):
+        assert not got[i].failed and got[i].cost == pytest.approx(quad(X[i]))
+        assert plain[i].cost == pytest.approx(float(np.sum(X[i])))
+
+
+def test_process_pool_stops_a_trial_past_its_timeout():
+    """(A hung trial hung the run for ever.) It is a fall after trial_timeout seconds, its
+    worker killed; the other trials finish."""
+    from latentune.pipeline.evaluators import ProcessEvaluator, make_evaluator
+
+    X = np.array([[0.1, 0.2], [0.9, 0.2], [0.2, 0.3], [0.95, 0.1], [0.4, 0.4]])
+    t0 = time.monotonic()
+    with ProcessEvaluator(2, trial_timeout=1.0) as ev:
+        got = dict(ev.imap(HangsOrDies(), X))
+    assert time.monotonic() - t0 < 30
+    for i in (1, 3):
+        assert got[i].failed and got[i].info["timed_out"] and got[i].info["trial_timeout"] == 1
+        assert got[i].wall_s >= 1.0 and "timeout of 1 s" in got[i].info["error"]
+    for i in (0, 2, 4):
+        assert not got[i].failed and got[i].cost == pytest.approx(quad(X[i]))
+    with make_evaluator("process", 1, trial_timeout=2) as one:   # not the serial evaluator
+        assert type(one) is ProcessEvaluator and one.trial_timeout == 2.0
+    with pytest.raises(ValueError, match="needs the process backend"):
+        make_evaluator("serial", 1, trial_timeout=2)
+
+
+def test_study_trial_timeout_is_stored_and_checked(tmp_path, run_cli, error_line):
+    """Study(trial_timeout=S) / --trial-timeout S: a hung trial is a fall; S is recorded and a
+    reopened study uses it; a value or backend that cannot honour it is refused."""
+    from latentune.errors import UsageError
+
+    with lt.Study(tmp_path / "s", workers=2, backend="process", trial_timeout=1.5) as st:
+        st.phase1(HangsOrDies(), 6, start=[0.9, 0.5])
+        rows = st.store.rows(1)
+        assert st.config()["trial_timeout"] == 1.5
+    timed_out = [r for r in rows if r.info.get("timed_out")]
+    assert len(rows) == 6 and timed_out and all(r.fell for r in timed_out)
+    assert lt.Study(tmp_path / "s", workers=2, backend="process").run.trial_timeout == 1.5
+    assert lt.Study(tmp_path / "s").status()          # a command that runs no trial opens it
+    with pytest.raises(UsageError, match="stored trial timeout .1.5 s. needs the process"):
+        lt.Study(tmp_path / "s").phase1(HangsOrDies(), 8, start=[0.9, 0.5])
+    for bad in (0, -1.0, float("nan"), float("inf"), "5", True):
+        with pytest.raises(UsageError, match="trial_timeout must be a finite number"):
+            lt.Study(tmp_path / "n", workers=2, backend="process", trial_timeout=bad)
+    for kw in ({}, {"backend": "ray"}):
+        with pytest.raises(UsageError, match=r"a trial timeout \(3 s\) needs the process"):
+            lt.Study(tmp_path / "n", trial_timeout=3, **kw)
+    assert not (tmp_path / "n").exists()
+    for argv, expect in ((["--trial-timeout", "0"], "--trial-timeout must be a number of "
+                          "seconds > 0, got 0.0"),
+                         (["--trial-timeout", "inf"], "got inf"),
+                         (["--trial-timeout", "2", "--backend", "serial"],
+                          "a trial timeout (2 s) needs the process backend")):
+        line = error_line(*run_cli("phase1", "--out", tmp_path / "c", "--quiet", *argv)[::2])
+        assert expect in line, line
+    assert not (tmp_path / "c").exists()
+
+
+MANUAL_DIES = '''
+import os, sys
+import numpy as np
+import latentune as lt
+
+class ManualDies:
+    space = lt.ParameterSpace(["a", "b"], [0, 0], [1, 1], manual=[0.9, 0.5])
+
+    def evaluate(self, u):
+        if u[0] > 0.8:
+            os._exit(3)
+        return float(np.sum(u))
+
+if __name__ == "__main__":
+    with lt.Study(sys.argv[1], workers=2, backend="process") as st:
+        st.phase1(ManualDies(), 5)
+        print([r.fell for r in st.store.rows(0)], st.store.count(1))
+'''
+
+
+def test_the_manual_trial_runs_on_the_process_pool(tmp_path, cli_env):
+    """(It ran in the caller's process: a manual θ whose trial crashed ended the run, and a
+    hung one ignored the trial timeout.) It is a failed trial like any other."""
+    (tmp_path / "manual_dies.py").write_text(MANUAL_DIES)
+    p = subprocess.run([sys.executable, str(tmp_path / "manual_dies.py"), str(tmp_path / "s")],
+                       env=cli_env, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert p.stdout.split() == ["[True]", "5"], p.stdout

@@ -259,6 +259,11 @@ def add_run_args(p: argparse.ArgumentParser, name: str) -> None:
     p.add_argument("--backend", choices=("serial", "process", "ray"), default="process",
                    help="evaluator: serial, a local process pool or ray")
     p.add_argument("--ray-address", default=None, help="Ray cluster address (default: local Ray)")
+    if name != "train-vae":
+        p.add_argument("--trial-timeout", type=float, default=None, metavar="S",
+                       help="stop a trial that runs longer than S seconds (its worker process "
+                            "is killed) and store it as failed; --backend process only; "
+                            "default: the run's stored one, else no limit")
     p.add_argument("--method", choices=("turbo", "cma", "random", "sobol"), default=None,
                    help="critic (turbo = TuRBO-m, the default; a resume keeps the stored one)")
     p.add_argument("--regions", type=int, default=None,
@@ -342,11 +347,15 @@ def _study(args: argparse.Namespace):
             raise CLIError("--fall-prior needs --max-fall-prob (it seeds the fall prediction)")
         if not (Path(args.fall_prior) / "run.db").is_file():
             raise CLIError(f"--fall-prior: no run store in {args.fall_prior}")
+    timeout = getattr(args, "trial_timeout", None)
+    if timeout is not None and not (math.isfinite(timeout) and timeout > 0):
+        raise CLIError(f"--trial-timeout must be a number of seconds > 0, got {timeout}")
     workers = args.workers if args.workers is not None \
         else 1 if args.backend == "serial" else DEFAULT_WORKERS
     return Study(args.out, seed=args.seed, workers=workers, backend=args.backend,
                  ray_address=args.ray_address, batch_size=args.batch_size,
-                 progress=_progress(args), log=logging.getLogger("latentune.study").info)
+                 progress=_progress(args), log=logging.getLogger("latentune.study").info,
+                 trial_timeout=timeout)
 
 
 def _check_stored_system(study: Any, args: argparse.Namespace) -> None:

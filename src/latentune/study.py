@@ -65,13 +65,15 @@ class Study:
         progress: show a progress bar; ``log``: a callable for one-line messages (default none).
         evaluator: an Evaluator to use instead of starting one (shared by several studies;
             the caller closes it; ``workers`` should be its worker count).
+        trial_timeout: seconds a trial may run (process backend) before its worker is killed
+            and it is stored as failed; None: the stored one (recorded by a phase), else none.
     """
 
     def __init__(self, path: str | os.PathLike, *, seed: int | None = None, workers: int = 1,
                  backend: str = "serial", ray_address: str | None = None,
                  batch_size: int | None = None, progress: bool = False,
                  log: Callable[[str], None] | None = None,
-                 evaluator: Evaluator | None = None) -> None:
+                 evaluator: Evaluator | None = None, trial_timeout: float | None = None) -> None:
         for name, v, lo in (("seed", seed, 0), ("workers", workers, 1),
                             ("batch_size", batch_size, 1)):
             if (v is not None or name == "workers") and not is_whole(v, lo):
@@ -83,6 +85,7 @@ class Study:
         self.run = RunDir(path, workers=int(workers), backend=backend, ray_address=ray_address,
                           evaluator=evaluator)
         self.manifest = mf.Manifest(self.run)
+        self.run.trial_timeout = self.manifest.trial_timeout(trial_timeout)
         self.dir = self.run.dir
         stored = self.manifest.stored_seed()
         if seed is not None and stored is not None and int(seed) != stored:
@@ -112,10 +115,8 @@ class Study:
 
     def batch_size_of(self, phase: int) -> int:
         """The batch size of ``phase``: the one given, else the stored one, else the default."""
-        if self._batch_size is not None:
-            return self._batch_size
         stored = self.config().get(mf.PHASE_KEYS[Phase(int(phase))]) or {}
-        return int(stored.get("batch_size") or default_batch_size(self.workers))
+        return self._batch_size or int(stored.get("batch_size") or default_batch_size(self.workers))
 
     def writing(self, wait: float = 0.0) -> Any:
         """Hold the study's write lock (re-entrant); yields the store (created if needed)."""
@@ -196,8 +197,9 @@ class Study:
             self.bind(system)
             pc = self._options(Phase.PHASE1, method, budget, regions, extra)
             self.manifest.update(phase1=pc)
-            self.manifest.record_seed(self.seed)
-            self.log(f"manual θ: cost {ensure_manual(st, system, seed=self.seed):.3f}")
+            self.manifest.record_run(self.seed)
+            manual = ensure_manual(st, system, self.seed, self.evaluator())
+            self.log(f"manual θ: cost {manual:.3f}")
             critic = phase_critic(Phase.PHASE1, pc, system.space, self.dir)
             t = time.perf_counter()
             try:
@@ -263,10 +265,11 @@ class Study:
             pc = self._options(Phase.PHASE3, method, budget, regions, extra)
             record_latent(self.run, self.manifest, ls, source)
             self.manifest.update(phase3=pc)
-            self.manifest.record_seed(self.seed)
+            self.manifest.record_run(self.seed)
             if strategy == "plain" or source == "self":     # transfer: the manual θ is a candidate
-                self.log(f"manual θ: cost {ensure_manual(st, system, seed=self.seed):.3f}")
-            zs = baselines.zero_shot(st, system, source, self.seed)
+                manual = ensure_manual(st, system, self.seed, self.evaluator())
+                self.log(f"manual θ: cost {manual:.3f}")
+            zs = baselines.zero_shot(st, system, source, self.seed, self.evaluator())
             if zs is not None:
                 self.log(f"zero-shot (the source's best θ as it is): cost {zs:.3f}")
             critic = phase_critic(Phase.PHASE3, pc, system.space, self.dir, ls)

@@ -32,17 +32,20 @@ def source_best(run: str | os.PathLike) -> Row | None:
     return min(ok, key=lambda r: (r.cost, r.phase, r.idx))
 
 
-def zero_shot(store: RunStore, system: Any, source: str, seed: int) -> float | None:
+def zero_shot(store: RunStore, system: Any, source: str, seed: int,
+              evaluator: Any = None) -> float | None:
     """Evaluate the source study's best θ on ``system`` once (phase 4, idx 0) unless it is
     stored (a zero-shot suggestion of ask/tell not handed out yet is withdrawn: this run asks
-    it); return its cost (None when there is nothing to run)."""
+    it); return its cost (None when there is nothing to run). On ``evaluator`` (the phase's),
+    else in this process."""
     if source == "self" or store.count(Phase.ZERO_SHOT) > 0:
         return None
     store.drop_queued((Phase.ZERO_SHOT,))
     best = source_best(source)
     if best is None:
         return None
-    out = evaluate(system, best.theta)
+    out = evaluator.one(system, best.theta) if evaluator is not None \
+        else evaluate(system, best.theta)
     out.info.update({"source": str(Path(source)), "source_phase": int(best.phase),
                      "source_idx": int(best.idx), "source_cost": float(best.cost)})
     store_outcome(store, Phase.ZERO_SHOT, 0, best.theta, out, seed=seed)

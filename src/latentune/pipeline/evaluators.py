@@ -13,7 +13,9 @@ An evaluator maps ``fun`` over the rows of ``X`` (n, d):
   raises :class:`~latentune.system.EvaluationError` for it. Trials that finished are yielded
   before the error is seen by the caller's next step, so they can be stored.
 * On Ray, a trial lost with its worker or node (no result) is run again on another worker and
-  yielded once (:class:`RayEvaluator`).
+  yielded once (:class:`RayEvaluator`). In the process pool, a trial whose worker dies, or that
+  runs longer than ``trial_timeout``, is a failed trial and the others go on
+  (:class:`ProcessEvaluator`); on the serial backend it ends, or hangs, this process.
 
 Workers keep one instance of a System that has ``cache_key()`` (a simulated Task keeps its
 PyBullet client) for the rest of their life, and run with one BLAS thread: each worker sets the
@@ -34,7 +36,9 @@ from __future__ import annotations
 import json
 import logging
 import os
+import math
 import pickle
+import signal
 import sys
 import threading
 import time
@@ -45,10 +49,15 @@ from typing import Any, Iterator
 import numpy as np
 
 from latentune.checks import is_whole
-from latentune.system import CostError, EvaluationError, Outcome, as_cost, evaluate
+from latentune.system import CostError, EvaluationError, Outcome, as_cost, as_outcome, evaluate
 from latentune.threads import THREAD_VARS, thread_env
 
 BACKENDS = ("serial", "process", "ray")
+MAX_LOST = 3
+"""How many times a process pool runs a trial again that was lost with workers that died of
+something else than a trial (:class:`ProcessEvaluator`) before it ends the trial as failed."""
+POLL_S = 0.25
+"""How often a process pool reads its trials' start reports and checks their timeouts [s]."""
 MAX_WORKERS = 4096
 """The most workers an evaluator starts (one process or Ray actor each): a larger number is a
 typo (a pool of more processes than that exhausts the machine's memory or file descriptors)."""
@@ -122,6 +131,20 @@ def check_workers(workers: Any) -> int:
     return int(workers)
 
 
+def check_timeout(seconds: Any) -> float | None:
+    """``seconds`` (a trial timeout) as a float; None stays None; UsageError unless it is a
+    finite number > 0."""
+    from latentune.errors import UsageError
+
+    if seconds is None:
+        return None
+    if isinstance(seconds, bool) or not isinstance(seconds, (int, float, np.integer, np.floating)) \
+            or not (math.isfinite(seconds) and seconds > 0):
+        raise UsageError(f"trial_timeout must be a finite number of seconds > 0 (or None), got "
+                         f"{seconds!r:.40}")
+    return float(seconds)
+
+
 def _key(fun: Any) -> str | None:
     ck = getattr(fun, "cache_key", None)
     return ck() if callable(ck) else None
@@ -151,6 +174,8 @@ def _check_picklable(fun: Any) -> None:
 
 
 _WORKER_CACHE: dict[str, Any] = {}
+_STARTS: Any = None
+"""In a process-pool worker: the queue its trials report their start on (see :func:`_run_sent`)."""
 
 
 def _exit_with(alive: Any) -> None:
@@ -164,9 +189,12 @@ def _exit_with(alive: Any) -> None:
     os._exit(1)
 
 
-def _init_worker(alive: Any = None) -> None:
+def _init_worker(alive: Any = None, starts: Any = None) -> None:
     """Start of every worker process: one BLAS/OpenMP thread in this process only; with
-    ``alive`` (a process pool's), the worker ends when its caller does."""
+    ``alive`` (a process pool's), the worker ends when its caller does; ``starts``: the queue
+    its trials report their start on (a process pool's)."""
+    global _STARTS
+    _STARTS = starts
     if alive is not None:
         threading.Thread(target=_exit_with, args=(alive,), daemon=True,
                          name="latentune-exit-with-caller").start()
@@ -203,8 +231,13 @@ def _sendable(r: Outcome | TrialError) -> Outcome | TrialError:
     return Outcome(r.cost, r.failed, info, r.wall_s)
 
 
-def _run_sent(fun: Any, key: str | None, x: np.ndarray) -> Outcome | TrialError:
-    """:func:`run_trial` in a worker process: its result as the worker can send it back."""
+def _run_sent(fun: Any, key: str | None, x: np.ndarray,
+              token: Any = None) -> Outcome | TrialError:
+    """:func:`run_trial` in a worker process: its result as the worker can send it back. With a
+    ``token`` (a process pool's trial), ``(token, pid, time.monotonic())`` is first put on the
+    worker's start queue: the pool learns which process runs the trial, since when."""
+    if token is not None and _STARTS is not None:
+        _STARTS.put((token, os.getpid(), time.monotonic()))
     return _sendable(run_trial(fun, key, x))
 
 
@@ -268,6 +301,14 @@ class Evaluator:
             y[i] = r.cost
         return y
 
+    def one(self, fun: Any, x: np.ndarray) -> Outcome:
+        """The Outcome of one trial at ``x`` (d,), run as every other (a worker that dies or
+        a timeout: a failed Outcome); raises as :meth:`map` does on a TrialError."""
+        _, r = next(iter(self.imap(fun, np.asarray(x, dtype=float)[None, :])))
+        if isinstance(r, TrialError):
+            raise (CostError if r.bad_value else EvaluationError)(r.message)
+        return r
+
     def close(self) -> None:
         """Stop the workers (no-op for the serial evaluator)."""
 
@@ -279,7 +320,9 @@ class Evaluator:
 
 
 class SerialEvaluator(Evaluator):
-    """In this process, one point after the other."""
+    """In this process, one point after the other. A trial that ends the process (``os._exit``,
+    a crash of the interpreter or of a simulator's C code) ends the run with it, and a hung one
+    cannot be stopped: the process backend survives both (:class:`ProcessEvaluator`)."""
 
     def imap(self, fun: Any, X: np.ndarray) -> Iterator[tuple[int, Outcome | TrialError]]:
         for i, x in enumerate(np.asarray(X, dtype=float)):
@@ -290,27 +333,61 @@ class SerialEvaluator(Evaluator):
 
 
 class ProcessEvaluator(Evaluator):
-    """A local pool of ``workers`` processes (forkserver on Linux, else spawn)."""
+    """A local pool of ``workers`` processes (forkserver on Linux, else spawn).
 
-    def __init__(self, workers: int = 2, start_method: str | None = None) -> None:
+    A worker process that dies in a trial (the trial called ``os._exit``, crashed the
+    interpreter, was killed by the out-of-memory killer) ends that trial as failed: a System's
+    is an Outcome with ``failed=True`` and ``info["worker_died"]`` (the exit code), a plain
+    callable's a :class:`TrialError`; the other trials go on. ``trial_timeout`` (seconds, None:
+    none): a trial running longer is stopped (its worker is killed) and ends the same way, with
+    ``info["timed_out"]``. A pool that loses a worker loses all of them (``concurrent.futures``
+    stops the others): it is replaced, and the trials the others were running are run again.
+    A trial lost :data:`MAX_LOST` times with workers that died of something else (no trial of
+    theirs is to blame: a worker killed from outside) ends as failed too.
+    """
+
+    def __init__(self, workers: int = 2, start_method: str | None = None,
+                 trial_timeout: float | None = None) -> None:
         import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor
 
         workers = check_workers(workers)
+        self.trial_timeout = check_timeout(trial_timeout)
         if start_method is None:
             start_method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
         self.workers = int(workers)
         self.start_method = start_method
-        ctx = mp.get_context(start_method)
+        self._ctx = mp.get_context(start_method)
         # the workers watch the read end; the write end stays here: a killed caller's workers end
-        self._alive_r, self._alive_w = ctx.Pipe(duplex=False)
-        self._pool = ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=_init_worker,
-                                         initargs=(self._alive_r,))
+        self._alive_r, self._alive_w = self._ctx.Pipe(duplex=False)
+        self._pool, self._starts = self._new_pool()
         self._checked: Any = None               # the last system found picklable
         self._abandoned: set[Any] = set()       # running trials of an imap that was left
+        self._imaps = 0                         # imap calls so far (the tokens' first part)
+        self.replaced = 0                       # pools replaced after a worker died
+
+    def _new_pool(self) -> tuple[Any, Any]:
+        """A pool and the queue its trials report their start on (one per pool: the workers of
+        a broken pool are killed, maybe while writing to it)."""
+        from concurrent.futures import ProcessPoolExecutor
+
+        starts = self._ctx.SimpleQueue()
+        pool = ProcessPoolExecutor(self.workers, mp_context=self._ctx, initializer=_init_worker,
+                                   initargs=(self._alive_r, starts))
+        return pool, starts
+
+    def _replace_pool(self) -> tuple[dict[int, int | None], Any]:
+        """Replace a broken pool: ``({pid: exit code}, start queue)`` of the old one's workers
+        (every one has ended: ``concurrent.futures`` terminates the others)."""
+        old, starts = self._pool, self._starts
+        procs = list((getattr(old, "_processes", None) or {}).values())
+        old.shutdown(wait=True, cancel_futures=True)
+        self._pool, self._starts = self._new_pool()
+        self.replaced += 1
+        return {p.pid: p.exitcode for p in procs}, starts
 
     def imap(self, fun: Any, X: np.ndarray) -> Iterator[tuple[int, Outcome | TrialError]]:
         from concurrent.futures import FIRST_COMPLETED, wait
+        from concurrent.futures.process import BrokenProcessPool
 
         X = np.asarray(X, dtype=float)
         ref = PluginRef.of(fun)
@@ -320,17 +397,117 @@ class ProcessEvaluator(Evaluator):
             _check_picklable(fun)
             self._checked = fun
         key = _key(fun)
-        futs = {self._pool.submit(_run_sent, fun, key, x): i for i, x in enumerate(X)}
-        pending = set(futs)
+        system = isinstance(fun, PluginRef) or hasattr(fun, "evaluate")
+        self._imaps += 1
+        run = self._imaps
+        todo = list(range(X.shape[0]))
+        futs: dict[Any, int] = {}
+        started: dict[int, tuple[int, float]] = {}     # trial -> (worker pid, start)
+        stopped: dict[int, int] = {}    # trials to blame for a break (timed out, died) -> pid
+        lost = [0] * X.shape[0]
+        idle_breaks = 0                                # breaks with no trial running
+        if getattr(self._pool, "_broken", False):      # a worker died between two calls
+            self._replace_pool()[1].close()
         try:
-            while pending:
-                done, pending = wait(pending, return_when=FIRST_COMPLETED)
+            while todo or futs:
+                for i in todo:
+                    futs[self._pool.submit(_run_sent, fun, key, X[i], (run, i))] = i
+                todo = []
+                done, _ = wait(futs, timeout=self._wait_s(started, stopped),
+                               return_when=FIRST_COMPLETED)
+                _read_starts(self._starts, run, started)
+                broken = False
                 for f in sorted(done, key=lambda f: futs[f]):
-                    yield futs[f], f.result()
+                    if isinstance(f.exception(), BrokenProcessPool):
+                        broken = True
+                        continue
+                    i = futs.pop(f)
+                    started.pop(i, None)
+                    yield i, f.result()
+                if not broken:
+                    self._stop_late(started, stopped, futs)
+                    continue
+                codes, starts = self._replace_pool()
+                _read_starts(starts, run, started)
+                starts.close()
+                ends: dict[int, Outcome | TrialError] = {}
+                lost_now = []                          # trials lost with the pool
+                for f, i in futs.items():
+                    if f.done() and not f.cancelled() and f.exception() is None:
+                        ends[i] = f.result()           # it finished before the pool broke
+                        continue
+                    pid, t0 = started.get(i, (None, 0.0))
+                    wall = time.monotonic() - t0 if pid is not None else None
+                    if i in stopped:
+                        ends[i] = self._failed(system, wall, timed_out=True, info={
+                            "timed_out": True, "trial_timeout": self.trial_timeout},
+                            msg=f"the trial ran longer than its timeout of "
+                                f"{self.trial_timeout:g} s: its worker process was stopped")
+                    elif pid is not None and pid not in stopped.values() \
+                            and codes.get(pid) not in (None, -signal.SIGTERM):
+                        ends[i] = self._failed(system, wall, info={
+                            "worker_died": True, "exit_code": codes[pid]},
+                            msg=f"the trial's worker process died ({_exit_text(codes[pid])})")
+                        stopped[i] = pid                # to blame: the others are not
+                    else:
+                        lost_now.append(i)
+                for i in lost_now:
+                    if not stopped and i in started:    # no trial to blame: count the loss
+                        lost[i] += 1
+                        if lost[i] >= MAX_LOST:
+                            ends[i] = self._failed(system, None, info={"worker_died": True},
+                                                   msg=f"the trial was lost with its worker "
+                                                       f"process {lost[i]} times")
+                            continue
+                    todo.append(i)
+                if not stopped and not any(i in started for i in futs.values()):
+                    idle_breaks += 1
+                    if idle_breaks >= MAX_LOST:
+                        raise EvaluationError(f"the process pool's workers died {idle_breaks} "
+                                              "times before running a trial")
+                futs, started, stopped = {}, {}, {}
+                for i in sorted(ends):
+                    yield i, ends[i]
         finally:
-            for f in pending:
+            for f in futs:
                 if not f.cancel():             # running: its result will not be looked at
                     self._abandoned.add(f)
+
+    def _wait_s(self, started: dict[int, tuple[int, float]], stopped: dict[int, int]) -> float:
+        """How long the next wait may block: until the next running trial's timeout, at most
+        :data:`POLL_S` (new starts are read between waits)."""
+        t0s = [t0 for i, (_, t0) in started.items() if i not in stopped]
+        if self.trial_timeout is None or not t0s:
+            return POLL_S
+        return min(POLL_S, max(0.0, min(t0s) + self.trial_timeout - time.monotonic()))
+
+    def _stop_late(self, started: dict[int, tuple[int, float]], stopped: dict[int, int],
+                   futs: dict[Any, int]) -> None:
+        """Kill the worker of every running trial past its timeout (the pool breaks: the next
+        wait sees it)."""
+        if self.trial_timeout is None:
+            return
+        now = time.monotonic()
+        running = set(futs.values())
+        for i, (pid, t0) in started.items():
+            if i in running and i not in stopped and now - t0 > self.trial_timeout:
+                log.warning("a trial ran longer than its timeout of %g s: its worker process "
+                            "%d is stopped", self.trial_timeout, pid)
+                stopped[i] = pid
+                try:
+                    os.kill(pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
+
+    def _failed(self, system: bool, wall: float | None, info: dict[str, Any], msg: str,
+                timed_out: bool = False) -> Outcome | TrialError:
+        """A trial ended by its worker's death: a System's failed Outcome (the C1 convention's
+        cost, ``info["error"]`` = ``msg``), a plain callable's TrialError."""
+        if not system:
+            return TrialError(msg)
+        if not timed_out:
+            log.warning("%s; it is recorded as failed", msg)
+        return as_outcome(Outcome(None, True, {**info, "error": msg}, wall))
 
     def close(self) -> None:
         """Stop the workers; a trial still running for an ``imap`` that was left (Ctrl-C, an
@@ -342,11 +519,33 @@ class ProcessEvaluator(Evaluator):
                 p.terminate()
         self._abandoned.clear()
         self._pool.shutdown(wait=True, cancel_futures=True)
+        self._starts.close()
         self._alive_r.close()
         self._alive_w.close()
 
     def __repr__(self) -> str:
-        return f"ProcessEvaluator(workers={self.workers}, start_method={self.start_method!r})"
+        timeout = "" if self.trial_timeout is None else f", trial_timeout={self.trial_timeout:g}"
+        return (f"ProcessEvaluator(workers={self.workers}, start_method={self.start_method!r}"
+                f"{timeout})")
+
+
+def _read_starts(starts: Any, run: int, started: dict[int, tuple[int, float]]) -> None:
+    """Move the start reports of ``starts`` (a pool's queue) of the ``imap`` call ``run`` into
+    ``started`` (trial -> (pid, start)); others (of an imap that was left) are dropped."""
+    while not starts.empty():
+        (r, i), pid, t0 = starts.get()
+        if r == run:
+            started[i] = (pid, t0)
+
+
+def _exit_text(code: int | None) -> str:
+    """A worker process's exit code in words: ``exit code 3``, ``signal 11 (SIGSEGV)``."""
+    if code is None or code >= 0:
+        return f"exit code {code}"
+    try:
+        return f"signal {-code} ({signal.Signals(-code).name})"
+    except ValueError:
+        return f"signal {-code}"
 
 
 class _RayWorker:
@@ -661,12 +860,16 @@ class RayEvaluator(Evaluator):
 
 
 def make_evaluator(backend: str = "process", workers: int = 2, address: str | None = None,
-                   temp_dir: str | None = None) -> Evaluator:
-    """``serial``, ``process`` (a pool of ``workers``; ``workers == 1`` → serial) or ``ray``."""
+                   temp_dir: str | None = None, trial_timeout: float | None = None) -> Evaluator:
+    """``serial``, ``process`` (a pool of ``workers``; ``workers == 1`` → serial, unless a
+    ``trial_timeout`` asks for a worker that can be stopped) or ``ray``. A ``trial_timeout``
+    needs the process backend (ValueError otherwise)."""
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r} (choose from {', '.join(BACKENDS)})")
-    if backend == "serial" or (backend == "process" and workers == 1):
+    if trial_timeout is not None and backend != "process":
+        raise ValueError(f"a trial timeout needs the process backend, not {backend}")
+    if backend == "serial" or (backend == "process" and workers == 1 and trial_timeout is None):
         return SerialEvaluator()
     if backend == "process":
-        return ProcessEvaluator(workers)
+        return ProcessEvaluator(workers, trial_timeout=trial_timeout)
     return RayEvaluator(workers, address=address, temp_dir=temp_dir)

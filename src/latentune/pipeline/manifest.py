@@ -3,6 +3,7 @@
 Stored in the run store's ``config`` meta entry (JSON)::
 
     seed          the study's seed (every critic, VAE and trial of it)
+    trial_timeout seconds a trial may run (process backend; absent: no limit), kept on resume
     system        which system the phases ran (:func:`describe`), and its ``space``
     phase1, phase3  a phase's options (:meth:`Manifest.phase_options`): method, batch_size, seed,
                   regions, budget, start, max_fall_prob (+ fall_prior), and in phase 3
@@ -139,6 +140,21 @@ class Manifest:
         """Record the study's seed (once)."""
         if self.config().get("seed") is None:
             self.update(seed=int(seed))
+
+    def record_run(self, seed: int) -> None:
+        """Before a phase runs trials: record the seed (once) and the run's trial timeout
+        (when there is one: a resume uses it, see :meth:`trial_timeout`)."""
+        self.record_seed(seed)
+        t = self.run.trial_timeout
+        if t is not None and self.config().get("trial_timeout") != t:
+            self.update(trial_timeout=t)
+
+    def trial_timeout(self, given: Any) -> float | None:
+        """The trial timeout of the run: ``given`` (it replaces the stored one when a phase
+        runs), else the stored one; each checked by :meth:`RunDir.check_timeout`."""
+        if given is not None:
+            return self.run.check_timeout(given)
+        return self.run.check_timeout(self.config().get("trial_timeout"), stored=True)
 
     # ------------------------------------------------------------------ system
     def holds_trials(self) -> bool:

@@ -537,14 +537,18 @@ def _results(evaluator: Evaluator, system: Any, thetas: np.ndarray,
             yield todo[j], r
 
 
-def ensure_manual(store: RunStore, system: Any, seed: int | None = None, idx: int = 0) -> float:
-    """Evaluate the system's manual θ once (phase 0, row ``idx``) and return its cost."""
+def ensure_manual(store: RunStore, system: Any, seed: int | None = None,
+                  evaluator: Evaluator | None = None, idx: int = 0) -> float:
+    """Evaluate the system's manual θ once (phase 0, row ``idx``) and return its cost; on
+    ``evaluator`` (the phase's: a crash or a timeout of the trial is a failed trial there), else
+    in this process."""
     for r in store.rows(Phase.MANUAL):
         if r.idx == idx:
             return r.cost
     from latentune.system import evaluate
 
-    out = evaluate(system, system.space.manual)
+    out = evaluator.one(system, system.space.manual) if evaluator is not None \
+        else evaluate(system, system.space.manual)
     store_outcome(store, Phase.MANUAL, idx, system.space.manual, out, seed=seed)
     return float(out.cost)
 

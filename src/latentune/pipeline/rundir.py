@@ -14,7 +14,8 @@ from pathlib import Path
 from typing import Iterator
 
 from latentune.errors import LockError, StoreError, UsageError
-from latentune.pipeline.evaluators import BACKENDS, Evaluator, check_workers, make_evaluator
+from latentune.pipeline.evaluators import (BACKENDS, Evaluator, check_timeout, check_workers,
+                                           make_evaluator)
 from latentune.pipeline.store import RunStore
 from latentune.system import EvaluationError
 
@@ -54,6 +55,29 @@ class RunDir:
         self._lock_depth = 0
         self._evaluator = evaluator
         self._owns_evaluator = evaluator is None
+        self.trial_timeout: float | None = None
+        """Seconds a trial may run before it is stopped and recorded as failed (None: no limit;
+        the process backend's, see :meth:`check_timeout`)."""
+
+    def check_timeout(self, seconds: object, stored: bool = False) -> float | None:
+        """``seconds`` as the trial timeout of the evaluator this directory starts: None, or a
+        finite number > 0 with the process backend (UsageError otherwise: the serial backend
+        runs trials in this process, where a hung one cannot be stopped). ``stored``: the
+        run's recorded one, checked when the evaluator starts (a command that runs no trial
+        opens any run); None with an evaluator of the caller's (it has its own)."""
+        t = check_timeout(seconds)
+        if t is None or stored:
+            return None if not self._owns_evaluator else t
+        if not self._owns_evaluator:
+            raise UsageError(f"a trial timeout ({t:g} s) is a setting of the evaluator: pass "
+                             "ProcessEvaluator(workers, trial_timeout=...) instead")
+        self._check_backend(t, "a trial timeout")
+        return t
+
+    def _check_backend(self, t: float, what: str) -> None:
+        if self.backend != "process":
+            raise UsageError(f"{what} ({t:g} s) needs the process backend: {self.backend} "
+                             "cannot stop a trial")
 
     @property
     def exists(self) -> bool:
@@ -136,8 +160,11 @@ class RunDir:
     def evaluator(self) -> Evaluator:
         """The evaluator (started on first use; stopped by :meth:`close`)."""
         if self._evaluator is None:
+            if self.trial_timeout is not None:
+                self._check_backend(self.trial_timeout, "the run's stored trial timeout")
             try:
-                self._evaluator = make_evaluator(self.backend, self.workers, self.ray_address)
+                self._evaluator = make_evaluator(self.backend, self.workers, self.ray_address,
+                                                 trial_timeout=self.trial_timeout)
             except (RuntimeError, ValueError, OSError) as exc:
                 raise EvaluationError(f"cannot start the {self.backend} evaluator: {exc}") from None
         return self._evaluator
