@@ -50,6 +50,7 @@ def plant(tmp_path, monkeypatch):
 
 
 SYS = ["--system", "edgeplant:make", "--backend", "serial"]
+VAE_SYS = SYS[:2]          # train-vae runs no rollout: --backend/--workers are refused
 
 
 def _rows(run: Path) -> list[tuple]:
@@ -264,6 +265,10 @@ def test_a_full_disk_during_resume_in_a_real_process(plant, small_run):
     ("train-vae", ["--max-fall-prob", "0.3"], "--max-fall-prob is not an option of train-vae"),
     ("train-vae", ["--phase3-evals", "5"], "--phase3-evals is not an option of train-vae"),
     ("train-vae", ["--batch-size", "3"], "--batch-size is not an option of train-vae"),
+    ("train-vae", ["--workers", "3"], "--workers is not an option of train-vae"),
+    ("train-vae", ["--backend", "serial"], "--backend is not an option of train-vae"),
+    ("train-vae", ["--backend", "ray", "--ray-address", "auto"],
+     "--backend is not an option of train-vae"),
     ("train-vae", ["--resume", "--latent-dim", "1"],
      "--latent-dim 1: the latent space of {run} has size 2 (kept with --resume"),
     ("train-vae", ["--resume", "--vae-kind", "vae"],
@@ -286,17 +291,18 @@ def test_flags_a_command_would_ignore_are_refused(run_cli, small_run, cmd, flags
     """train-vae ran without --method/--regions/..., phase3 without --phase1-evals/--vae-*,
     phase1 without --phase3-evals/--latent-dim/--vae-*; train-vae --resume and tune --resume
     kept a latent space of another size, kind or epochs: all without a word."""
-    code, _, err = run_cli("train-vae", *SYS, "--out", small_run, "--latent-dim", "2",
+    code, _, err = run_cli("train-vae", *VAE_SYS, "--out", small_run, "--latent-dim", "2",
                            "--vae-epochs", "5", "--quiet")
     assert code == 0, err
     before = _rows(small_run)
     line = one_line_error(*run_cli(cmd, *SYS, "--out", small_run, "--phase3-evals", "3",
                                    "--quiet", *flags)[::2]
                           if cmd == "phase3" else
-                          run_cli(cmd, *SYS, "--out", small_run, "--quiet", *flags)[::2])
+                          run_cli(cmd, *(VAE_SYS if cmd == "train-vae" else SYS), "--out",
+                                  small_run, "--quiet", *flags)[::2])
     assert expect.format(run=small_run) in line, line
     assert _rows(small_run) == before
-    code, out, err = run_cli("train-vae", *SYS, "--out", small_run, "--latent-dim", "2",
+    code, out, err = run_cli("train-vae", *VAE_SYS, "--out", small_run, "--latent-dim", "2",
                              "--resume", "--quiet")
     assert code == 0 and "already trained" in out, err
 
@@ -304,7 +310,7 @@ def test_flags_a_command_would_ignore_are_refused(run_cli, small_run, cmd, flags
 def test_phase3_resume_keeps_its_stored_fall_and_handover_options(run_cli, small_run):
     """A plain phase 3 run with --max-fall-prob and --handover: --resume without them was
     refused ("was run with max-fall-prob = 0.5, not None"); it now resumes with them."""
-    assert run_cli("train-vae", *SYS, "--out", small_run, "--latent-dim", "2", "--vae-epochs",
+    assert run_cli("train-vae", *VAE_SYS, "--out", small_run, "--latent-dim", "2", "--vae-epochs",
                    "5", "--quiet")[0] == 0
     flags = ["--strategy", "plain", "--handover", "patience=2", "--max-fall-prob", "0.5"]
     code, _, err = run_cli("phase3", *SYS, "--out", small_run, "--phase3-evals", "4", "--quiet",
@@ -330,9 +336,9 @@ def test_a_run_with_a_seed_reopens_without_it(run_cli, plant, tmp_path, error_li
     assert run_cli("phase1", *SYS, *base, "--phase1-evals", "6", "--seed", "3")[0] == 0
     code, _, err = run_cli("phase1", *SYS, *base, "--phase1-evals", "7", "--resume")
     assert code == 0, err
-    code, _, err = run_cli("train-vae", *SYS, *base, "--latent-dim", "1", "--vae-epochs", "5")
+    code, _, err = run_cli("train-vae", *VAE_SYS, *base, "--latent-dim", "1", "--vae-epochs", "5")
     assert code == 0, err
-    assert "seed = 3, not 0" in error_line(*run_cli("train-vae", *SYS, *base, "--seed", "0",
+    assert "seed = 3, not 0" in error_line(*run_cli("train-vae", *VAE_SYS, *base, "--seed", "0",
                                                      "--latent-dim", "1")[::2])
     with RunStore(out) as st:
         assert st.count(1) == 7

@@ -403,14 +403,15 @@ def _check_latent_dim(args: argparse.Namespace, dim: int) -> None:
 UNUSED_FLAGS = {
     "train-vae": {"phase1_evals": DEFAULT_PHASE1, "phase3_evals": DEFAULT_PHASE3,
                   "method": None, "regions": None, "batch_size": None,
-                  "max_fall_prob": None},
+                  "max_fall_prob": None, "backend": "process", "workers": DEFAULT_WORKERS,
+                  "ray_address": None},
     "phase3": {"phase1_evals": DEFAULT_PHASE1, "vae_epochs": None},
     "phase1": {"phase3_evals": DEFAULT_PHASE3, "latent_dim": None, "vae_epochs": None,
                "vae_kind": "(the default kind)"},
 }
 """The flags a run command shares with ``tune`` but does not use, with their defaults: another
 value is refused (it would be ignored)."""
-_UNUSED_WHY = {"train-vae": "train-vae trains the latent space only",
+_UNUSED_WHY = {"train-vae": "train-vae trains the latent space only (it runs no rollout)",
                "phase3": "phase3 uses the trained latent space",
                "phase1": "phase1 tunes θ on the system only (train-vae makes the latent space)"}
 
