@@ -129,6 +129,16 @@ def test_help_says_what_each_command_and_option_does(capsys):
                 assert a.help, (name, a.option_strings or a.dest)
 
 
+@pytest.mark.parametrize("cmd", sorted(cli_mod.UNUSED_FLAGS))
+def test_help_does_not_offer_the_flags_a_command_refuses(capsys, cmd):
+    """``phase1 --help`` listed --phase3-evals, --latent-dim, --vae-kind and --vae-epochs (and
+    train-vae's --method, --workers, --backend, ...), which the command then refused."""
+    text = _help(capsys, cmd)
+    refused = ["--" + dest.replace("_", "-") for dest in cli_mod.UNUSED_FLAGS[cmd]]
+    assert refused and not [f for f in refused if re.search(re.escape(f) + r"\b", text)], text
+    assert "--out" in text and "--resume" in text
+
+
 def test_verbose_and_quiet_exclude_each_other(run_cli):
     assert "not allowed with argument" in one_line_error(*run_cli("status", "d", "-v",
                                                                   "--quiet")[::2])

@@ -968,6 +968,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "(--strategy plain)")):
         p = add(name, help=hlp)
         add_run_args(p, name)
+        for a in p._actions:            # accepted only to be refused: not offered in --help
+            if a.dest in UNUSED_FLAGS.get(name, {}):
+                a.help = argparse.SUPPRESS
         p.set_defaults(func=func)
 
     p = add("report", help="tables, plots and report.md of a run directory")
