@@ -4,6 +4,7 @@ and later asks that lease without loading the critic."""
 from __future__ import annotations
 
 import json
+import re
 
 import pytest
 import yaml
@@ -141,7 +142,7 @@ def test_fall_budget_flag_is_checked_and_kept_by_later_asks(tmp_path, run_cli, e
     d, first = _phase3_asktell(tmp_path)
     line = error_line(*run_cli("ask", d, *first, "--strategy", "plain",
                                "--fall-budget", "0.2")[::2])
-    assert "options of the transfer phase 3" in line
+    assert "--fall-budget is an option of the transfer phase 3" in line
     assert not (d / "run.db").exists() or "asktell" not in lt.Study(d).config()
     code, _, err = run_cli("ask", d, *first, "--fall-budget", "0.2")
     assert code == 0, err
@@ -175,7 +176,55 @@ def test_record_walk_flags_are_checked_and_recorded(tmp_path, run_cli, error_lin
         {"fall_budget": 0.2, "record_walk": 3, "walk_pick": "band", "escape_falls": 8}
     code, _, err = run_cli("ask", d, "--walk-pick", "band")      # the stored walk: K = 3
     assert code == 0, err
-    assert "walk_pick" in error_line(*run_cli("ask", d, "--walk-pick", "fall")[::2])
+    assert "--walk-pick band (stored), not --walk-pick fall" in error_line(
+        *run_cli("ask", d, "--walk-pick", "fall")[::2])
+
+
+API_NAMES = re.compile(r"transfer[_-]options|fall_prior|max_fall_prob|lease_s|walk_pick|"
+                       r"record_walk|fall_budget|escape_falls|\(strategy |^\w+ (is|are|must) ")
+
+
+def test_ask_refusals_name_the_flags_not_the_python_arguments(tmp_path, run_cli, error_line):
+    """ask's refusals named Study.ask's arguments: "transfer_options is an option of phase 3"
+    for --fall-budget, "fall_prior is an option of phase 1", "(strategy plain)", "runs with
+    transfer-options = None (stored), not {'fall_budget': 0.3}"; they now name the flags."""
+    space = _space_file(tmp_path)
+    d1 = tmp_path / "p1"
+    assert run_cli("ask", d1, "--space", space)[0] == 0
+    d, first = _phase3_asktell(tmp_path)
+    cases = [
+        (("ask", d1, "--fall-budget", "0.2"), "--fall-budget is an option of phase 3"),
+        (("ask", d1, "--record-walk", "2", "--escape-falls", "3"),
+         "--record-walk and --escape-falls are options of phase 3"),
+        (("ask", d1, "--handover"), "--handover is an option of phase 3"),
+        (("ask", d1, "--strategy", "plain"), "--strategy is an option of phase 3"),
+        (("ask", d1, "--asker", ""), "--asker must be a non-empty name"),
+        (("ask", d1, "--method", "cma"), "runs with --method = 'turbo' (stored), not 'cma'"),
+        (("ask", tmp_path / "r0", "--space", space, "--regions", "0"),
+         "--regions must be an integer in [1, 100], got 0"),
+        (("ask", tmp_path / "n1", *first, "--fall-prior", d1),
+         "--fall-prior is an option of phase 1"),
+        (("ask", tmp_path / "n2", *first, "--strategy", "transfer", "--method", "cma"),
+         "--method is an option of the plain phase 3 (--strategy plain), not of the transfer "
+         "phase 3 (given --method = 'cma')"),
+        (("ask", tmp_path / "n3", *first, "--strategy", "plain", "--record-walk", "2"),
+         "--record-walk is an option of the transfer phase 3 (--strategy transfer)"),
+        (("ask", d, *first, "--fall-budget", "0.2"), None),
+        (("ask", d, "--fall-budget", "0.3"),
+         "runs with --fall-budget 0.2 (stored), not --fall-budget 0.3"),
+        (("ask", d, "--escape-falls", "4"), "runs with no --escape-falls (stored), not "
+                                            "--escape-falls 4"),
+        (("ask", d, "--strategy", "plain"),
+         "phase 3 runs with --strategy transfer (stored, with its transfer options), not "
+         "--strategy plain"),
+    ]
+    for argv, expect in cases:
+        code, _, err = run_cli(*argv)
+        if expect is None:
+            assert code == 0, err
+            continue
+        line = error_line(code, err).removeprefix("latentune: error: ")
+        assert expect in line and not API_NAMES.search(line), (argv, line)
 
 
 def test_best_out_never_overwrites_a_file_of_the_run(tmp_path, run_cli, error_line):

@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
 from latentune import argtypes
-from latentune.errors import CLIError, LatentuneError
+from latentune.errors import CLIError, LatentuneError, StoreError, UsageError
 
 DESCRIPTION = ("Tune the weights of a controller: phase 1 on the full θ of a cheap system, phase 2 "
                "a latent space of its stable θ, phase 3 on the target (see README.md).")
@@ -646,15 +646,20 @@ def cmd_ask(args: argparse.Namespace) -> int:
         raise CLIError(f"--lease must be a positive number of seconds, got {args.lease}")
     if args.budget is not None:
         _positive("budget", args.budget)
-    topts = _transfer_options(args, _stored_transfer(study))
+    # the stored transfer options under the flags given; none given: the stored ones (None)
+    topts = (_transfer_options(args, _stored_transfer(study))
+             if any(getattr(args, k) is not None for k in TRANSFER_DESTS) else None)
     with study:
         start = _ask_start(args.start, system, space, study)
-        sugg = study.ask(args.n, system=system, space=space, phase=args.phase, latent=args.vae,
-                         method=args.method, handover=handover, strategy=strategy,
-                         budget=args.budget, regions=args.regions, start=start,
-                         max_fall_prob=args.max_fall_prob, fall_prior=args.fall_prior,
-                         asker=args.asker, lease_s=args.lease,
-                         **({} if topts is None else {"transfer_options": topts}))
+        try:
+            sugg = study.ask(args.n, system=system, space=space, phase=args.phase,
+                             latent=args.vae, method=args.method, handover=handover,
+                             strategy=strategy, budget=args.budget, regions=args.regions,
+                             start=start, max_fall_prob=args.max_fall_prob,
+                             fall_prior=args.fall_prior, asker=args.asker, lease_s=args.lease,
+                             **({} if topts is None else {"transfer_options": topts}))
+        except (UsageError, StoreError) as exc:
+            raise CLIError(_ask_flags(str(exc), args)) from None
         write_suggestion_files(study.dir, sugg)
     if args.json:
         print(json.dumps([s.to_dict() for s in sugg]))
@@ -664,6 +669,57 @@ def cmd_ask(args: argparse.Namespace) -> int:
             more = " ..." if len(s.params) > 6 else ""
             print(f"{s.id}\t{s.phase_name}{' (again)' if s.again else ''}\t{s.path}\t{vals}{more}")
     return 0
+
+
+ASK_FLAGS = {"method": "--method", "budget": "--budget", "regions": "--regions",
+             "start": "--start", "max_fall_prob": "--max-fall-prob",
+             "max-fall-prob": "--max-fall-prob", "fall_prior": "--fall-prior",
+             "fall-prior": "--fall-prior", "handover": "--handover", "strategy": "--strategy",
+             "asker": "--asker", "lease_s": "--lease", "n": "--n",
+             "fall_budget": "--fall-budget", "record_walk": "--record-walk",
+             "escape_falls": "--escape-falls", "walk_pick": "--walk-pick"}
+"""Study.ask's keyword arguments (and transfer_options keys) by the ``ask`` flag that sets
+them, for :func:`_ask_flags`."""
+_TRANSFER_STORED = re.compile(r"runs with transfer-options = (.*) \(stored\), not (.*)$")
+
+
+def _ask_flags(msg: str, args: argparse.Namespace) -> str:
+    """A refusal of :meth:`Study.ask` with the ``ask`` flags in place of the Python names it
+    gives (``transfer_options is an option of phase 3`` → ``--fall-budget is an option of
+    phase 3``; ``(strategy plain)`` → ``(--strategy plain)``; ``runs with method = …`` →
+    ``runs with --method = …``)."""
+    import ast
+
+    given = [ASK_FLAGS[k] for k in TRANSFER_DESTS if getattr(args, k) is not None]
+    if not given and msg.startswith("transfer_options are options of the transfer phase 3"):
+        # the stored options (none given): the stored phase 3 is a transfer one
+        return (f"{args.dir}: phase 3 runs with --strategy transfer (stored, with its transfer "
+                f"options), not --strategy {args.strategy or 'plain'}")
+    topts = " and ".join(given)
+    msg = re.sub(r"^transfer_options (is an option|are options) of",
+                 lambda m: f"{topts} {'are options' if len(given) > 1 else 'is an option'} of",
+                 msg)
+    msg = re.sub(r"^(\w+)( is an option of| must be| is not an option of)",
+                 lambda m: ASK_FLAGS.get(m[1], m[1]) + m[2], msg)
+    msg = re.sub(r"\(strategy (plain|transfer)\)", r"(--strategy \1)", msg)
+    msg = re.sub(r"\(given (\w+) = ",
+                 lambda m: f"(given {ASK_FLAGS.get(m[1], m[1])} = ", msg)
+    m = _TRANSFER_STORED.search(msg)
+    if m:
+        try:
+            old, new = (ast.literal_eval(x) or {} for x in m.groups())
+        except (ValueError, SyntaxError):
+            return msg
+        if not (isinstance(old, dict) and isinstance(new, dict)):
+            return msg
+        keys = [k for k in {**old, **new} if old.get(k) != new.get(k)]
+
+        def shown(d: dict[str, Any]) -> str:
+            return ", ".join(f"{ASK_FLAGS.get(k, k)} {d[k]}" if k in d else
+                             f"no {ASK_FLAGS.get(k, k)}" for k in keys)
+        return msg[:m.start()] + f"runs with {shown(old)} (stored), not {shown(new)}"
+    return re.sub(r"(runs with|was run with) ([a-z][\w-]*) = ",
+                  lambda m: f"{m[1]} {ASK_FLAGS.get(m[2], m[2])} = ", msg)
 
 
 def _ask_start(start: str | None, system: Any, space: Any, study: Any) -> Any:
@@ -895,6 +951,10 @@ def _transfer_args(p: argparse.ArgumentParser) -> None:
                         "step's quantile (rank, the default), or the least likely to fall "
                         "by the target fall model over the record (fall) or in the step's "
                         "band of ranks (band)")
+
+
+TRANSFER_DESTS = ("fall_budget", "record_walk", "escape_falls", "walk_pick")
+"""The flags of :func:`_transfer_args` (their ``args`` attributes)."""
 
 
 def _transfer_options(args: argparse.Namespace, stored: dict[str, Any] | None
