@@ -9,7 +9,8 @@ For every ``ROOT_A/<target>/<sub>/seed<s>/METHOD_A.json`` (the cheap ladder's
 ``METHOD_B`` at the same place under ``ROOT_B``: fall flags must be equal, and costs and (when
 both record them) the θ asked equal element for element, or within the relative tolerance
 ``--rtol`` (on another machine a robot's rollout differs in its last digits). Exit
-status 1 when any pair differs or is missing.
+status 1 when any pair differs or is missing; 2, with one line on stderr, when either side has
+no trace at all (a mistyped root or method).
 """
 from __future__ import annotations
 
@@ -45,6 +46,12 @@ def same_trials(a: dict, b: dict, rtol: float = 0.0) -> bool:
     return "thetas" not in a or "thetas" not in b or _equal(a["thetas"], b["thetas"], rtol)
 
 
+def _error(msg: str) -> int:
+    """One line on stderr, as :func:`benchmarks.common.cli_main` prints it; exit status 2."""
+    print(f"benchmarks.transfer_same: error: {msg}", file=sys.stderr)
+    return 2
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     prov = Provenance(argv, "benchmarks.transfer_same")
@@ -56,8 +63,7 @@ def main(argv: list[str] | None = None) -> int:
     add_out_arg(ap)
     a = ap.parse_args(argv)
     if not a.rtol >= 0.0:
-        print(f"error: --rtol must be >= 0, got {a.rtol}", file=sys.stderr)
-        return 2
+        return _error(f"--rtol must be >= 0, got {a.rtol}")
     (ra, ma), (rb, mb) = a.a, a.b
     rows = []
     for f in sorted(ra.glob(f"*/*/seed*/{ma}.json")):
@@ -67,8 +73,10 @@ def main(argv: list[str] | None = None) -> int:
             json.loads(f.read_text()), json.loads(g.read_text()), a.rtol),
                      "missing": not g.is_file()})
     if not rows:
-        print(f"error: no {ma}.json under {ra}", file=sys.stderr)
-        return 2
+        return _error(f"no {ma}.json under {ra} (expected {ra}/*/*/seed*/{ma}.json)")
+    if all(r["missing"] for r in rows):
+        return _error(f"no {mb}.json under {rb} for any of the {len(rows)} runs of {ma} under "
+                      f"{ra} (e.g. {rb / rows[0]['run'] / (mb + '.json')})")
     n_same = sum(r["same"] for r in rows)
     finish(a.out, prov, {"a": f"{ra}:{ma}", "b": f"{rb}:{mb}", "rtol": a.rtol,
                          "pairs": len(rows), "same": n_same}, [r for r in rows if not r["same"]] or

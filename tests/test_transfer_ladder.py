@@ -202,7 +202,9 @@ def test_explore_stats_split_trials_by_ask(tmp_path) -> None:
     assert row["agreement"] == 0.7                  # of 0.2, 0.4, 1, 1: not the design ask's 9
 
 
-def test_transfer_same_tells_equal_traces_from_different_ones(tmp_path) -> None:
+def test_transfer_same_tells_equal_traces_from_different_ones(tmp_path, capsys) -> None:
+    """A method of ``--b`` with no trace at all (a typo) exited 1 with a table of missing runs
+    and no word on stderr; it is now one line naming what was not found, and exit 2."""
     from benchmarks import transfer_same
 
     for s in (0, 1):
@@ -214,8 +216,16 @@ def test_transfer_same_tells_equal_traces_from_different_ones(tmp_path) -> None:
                                "--out", str(out)]) == 0
     assert json.loads(out.read_text())["same"] == 2
     assert transfer_same.main(["--a", f"{tmp_path}:a", "--b", f"{tmp_path}:c"]) == 1
-    assert transfer_same.main(["--a", f"{tmp_path}:a", "--b", f"{tmp_path}:missing"]) == 1
+    capsys.readouterr()
+    assert transfer_same.main(["--a", f"{tmp_path}:a", "--b", f"{tmp_path}:missing"]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err.count("\n") == 1 and err.startswith(
+        f"benchmarks.transfer_same: error: no missing.json under {tmp_path} for any of the 2 "
+        f"runs of a"), err
+    (tmp_path / "arm" / "gap1" / "seed1" / "b.json").unlink()   # one pair missing: differs
+    assert transfer_same.main(["--a", f"{tmp_path}:a", "--b", f"{tmp_path}:b"]) == 1
     assert transfer_same.main(["--a", f"{tmp_path}:nothing", "--b", f"{tmp_path}:a"]) == 2
+    assert "no nothing.json under" in capsys.readouterr().err
 
 
 def test_transfer_same_reads_methods_with_colons(tmp_path) -> None:
