@@ -113,6 +113,26 @@ def test_committed_report_paper_column(robot: str, table: str, name: str):
         assert (float(cells[2]), float(cells[4])) == (vals["trot"][key], vals["jump"][key]), label
 
 
+@pytest.mark.parametrize("simulate, gifs", [(False, True), (True, False)])
+def test_a_report_without_gifs_removes_an_earlier_reports(tmp_path: Path, simulate: bool,
+                                                          gifs: bool):
+    """``report PAPER_DIR --no-sim`` (or ``paper --report-only --no-sim/--no-gif``) after a
+    report with the re-simulated figures left the earlier GIFs and CoM figures beside the new
+    report.md, which no longer refers to them; they are removed (other files are kept)."""
+    from latentune.reporting.paper_report import make_figures
+
+    stale = ["a1_trot_phase3_best.gif", "a1_trot_hills_phase3_best.gif",
+             "b1_jump_transfer_best.gif", "com_velocity_trot.png", "best_so_far_jump.png"]
+    for f in [*stale, "mine.gif", "notes.png"]:
+        (tmp_path / f).write_bytes(b"old")
+    nums = {"root": tmp_path, "robot": "a1", "R": "A1", "studies": {}, "transfer": {},
+            "seeded": {}, "budgets": {"phase1": 1, "phase3": 1},
+            "table": {g: {"manual": {"ours": 1.0}} for g in ("trot", "jump")}}
+    fig = make_figures(nums, simulate=simulate, gifs=gifs)
+    assert fig["figs"] == [] and fig["gifs"] == []
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mine.gif", "notes.png"]
+
+
 @pytest.fixture(scope="module")
 def paper_dir(tmp_path_factory, cli) -> Path:
     out = tmp_path_factory.mktemp("paper") / "a1"

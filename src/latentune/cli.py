@@ -1035,7 +1035,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = add("report", help="tables, plots and report.md of a run directory")
     p.add_argument("dir", type=argtypes.run_dir, help="run directory (or a paper directory)")
-    p.add_argument("--no-sim", action="store_true", help="skip the re-simulated CoM plots")
+    p.add_argument("--no-sim", action="store_true",
+                   help="skip the re-simulated CoM plots (and a paper directory's GIFs); an "
+                        "earlier report's are removed")
     p.add_argument("--system", default=None, metavar="MODULE:FACTORY",
                    help="rebuild the run's user system to re-simulate (must match the stored one)")
     p.add_argument("--system-arg", action="append", default=[], metavar="KEY=VALUE",
@@ -1148,8 +1150,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--vae-epochs", type=int, default=None,
                    help="the sources' VAE training epochs (default: ~2000 Adam steps, at least "
                         "100 epochs); recorded, and a resume must give the same")
-    p.add_argument("--no-sim", action="store_true", help="report: skip re-simulated CoM plots/GIFs")
-    p.add_argument("--no-gif", action="store_true", help="report: skip the GIFs")
+    p.add_argument("--no-sim", action="store_true",
+                   help="report: skip re-simulated CoM plots/GIFs (an earlier report's are removed)")
+    p.add_argument("--no-gif", action="store_true",
+                   help="report: skip the GIFs (an earlier report's are removed)")
     p.set_defaults(func=cmd_paper)
 
     p = add("bench", help="the performance-ratio benchmarks at a quick size")

@@ -462,8 +462,10 @@ def make_figures(nums: dict[str, Any], simulate: bool = True, gifs: bool = True,
 
     Always: ``best_so_far_<gait>.png``, ``best_so_far_transfer.png`` (A1), ``cost_transform.png``.
     With ``simulate``: ``com_velocity_<gait>.png`` (the best θ of manual / phase 1 / phase 3
-    re-simulated) and, with ``gifs``, GIFs of the best phase-3 θ. Returns ``figs`` and ``gifs``
-    (lists of (file name, caption)) and ``resim`` (gait → label → re-simulated cost).
+    re-simulated) and, with ``gifs``, GIFs of the best phase-3 θ. A figure or GIF of an earlier
+    report that this one does not write (``simulate`` or ``gifs`` off, a study gone) is
+    removed. Returns ``figs`` and ``gifs`` (lists of (file name, caption)) and ``resim`` (gait →
+    label → re-simulated cost).
     """
     from latentune.reporting.plots import (CurvePanel, plot_best_so_far, plot_cost_transform,
                                            plot_rollouts)
@@ -538,7 +540,24 @@ def make_figures(nums: dict[str, Any], simulate: bool = True, gifs: bool = True,
                     log(f"report: GIF {fn}")
                 except Exception as exc:  # noqa: BLE001 - a GIF must not sink the report
                     logger.warning("GIF %s skipped: %s", fn, exc)
+    written = {fn for fn, _ in figs + gif_files}
+    for fn in sorted(_figure_names(nums) - written):   # an earlier report's: not referred to
+        if (root / fn).is_file():
+            (root / fn).unlink()
+            log(f"report: removed an earlier report's {fn}")
     return {"figs": figs, "gifs": gif_files, "resim": resim}
+
+
+def _figure_names(nums: dict[str, Any]) -> set[str]:
+    """Every figure and GIF file name :func:`make_figures` may write for ``nums``' robot (with
+    or without simulation, whichever studies exist)."""
+    robot = nums["robot"]
+    names = {"best_so_far_transfer.png", "cost_transform.png"}
+    names |= {f"seeds_{row}.png" for row in nums["seeded"]}
+    for g in GAITS:
+        names |= {f"best_so_far_{g}.png", f"com_velocity_{g}.png", f"{robot}_{g}_phase3_best.gif",
+                  f"{robot}_{g}_hills_phase3_best.gif", f"b1_{g}_transfer_best.gif"}
+    return names
 
 
 def band(traces: list[list[float]]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
