@@ -701,6 +701,8 @@ def _ask_flags(msg: str, args: argparse.Namespace) -> str:
                  msg)
     msg = re.sub(r"^(\w+)( is an option of| must be| is not an option of)",
                  lambda m: ASK_FLAGS.get(m[1], m[1]) + m[2], msg)
+    msg = re.sub(r"^(\w+) needs (\w+)",
+                 lambda m: f"{ASK_FLAGS.get(m[1], m[1])} needs {ASK_FLAGS.get(m[2], m[2])}", msg)
     msg = re.sub(r"\(strategy (plain|transfer)\)", r"(--strategy \1)", msg)
     msg = re.sub(r"\(given (\w+) = ",
                  lambda m: f"(given {ASK_FLAGS.get(m[1], m[1])} = ", msg)
