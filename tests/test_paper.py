@@ -113,6 +113,15 @@ def test_committed_report_paper_column(robot: str, table: str, name: str):
         assert (float(cells[2]), float(cells[4])) == (vals["trot"][key], vals["jump"][key]), label
 
 
+def test_report_of_a_paper_directory_refuses_system(tmp_path: Path, run_cli, error_line):
+    """``report PAPER_DIR --system M:F`` ignored --system (a paper's studies are built-in
+    robots); it is refused in one line."""
+    (tmp_path / "paper.json").write_text("{}")
+    line = error_line(*run_cli("report", tmp_path, "--no-sim", "--system", "x:y")[::2])
+    assert "--system is for a run directory" in line and "paper directory" in line
+    assert not (tmp_path / "report.md").exists()
+
+
 @pytest.mark.parametrize("simulate, gifs", [(False, True), (True, False)])
 def test_a_report_without_gifs_removes_an_earlier_reports(tmp_path: Path, simulate: bool,
                                                           gifs: bool):

@@ -594,6 +594,10 @@ def cmd_report(args: argparse.Namespace) -> int:
     if (d / "paper.json").is_file() and not (d / "run.db").is_file():
         from latentune.reporting.paper_report import write_paper_report
 
+        if args.system is not None:
+            raise CLIError(f"--system is for a run directory; {d} is a paper directory, whose "
+                           "studies are built-in robots (leave --system out)")
+
         log = logging.getLogger("latentune.report").info
         print(write_paper_report(d, simulate=not args.no_sim, gifs=True, log=log))
         return 0
