@@ -254,7 +254,7 @@ def test_paper_bad_actor_leaves_nothing_to_block_the_fix(tmp_path: Path, run_cli
                            "--scale", "0.001", "--steps", "100", "--workers", "1", "--no-sim")
     assert "unknown actor 'foo'" in error_line(code, err)
     code, out, err = run_cli("paper", "--robot", "a1", "--out", tmp_path / "o", "--scale", "0.001",
-                             "--steps", "100", "--workers", "1", "--no-sim", "--sources-only")
+                             "--steps", "100", "--workers", "1", "--sources-only")
     assert code == 0, err
     assert json.loads((tmp_path / "o" / "paper.json").read_text())["actor"] == "convex"
 
@@ -477,6 +477,8 @@ def test_paper_resume_and_report_command(paper_dir: Path, run_cli, error_line):
     (["--seeds", "-2"], "--seeds must be an integer >= 1, got -2"),
     (["--seeds", "two"], "--seeds must be an integer >= 1, got 'two'"),
     (["--seeds", "3", "--sources-only"], "--seeds does not apply to --sources-only"),
+    (["--sources-only", "--no-sim"], "--no-sim does not apply to --sources-only"),   # ignored
+    (["--sources-only", "--no-gif"], "--no-gif does not apply to --sources-only"),
 ])
 def test_paper_bad_seeds(tmp_path: Path, run_cli, error_line, extra: list[str], expect: str):
     code, _, err = run_cli("paper", "--out", tmp_path / "o", "--scale", "1e-6", *extra)

@@ -909,6 +909,9 @@ def _seeds(s: str) -> int:
 def cmd_paper(args: argparse.Namespace) -> int:
     from latentune.experiments.paper import PaperOptions, run_paper
 
+    for flag, given in (("--no-sim", args.no_sim), ("--no-gif", args.no_gif)):
+        if given and args.sources_only:
+            raise CLIError(f"{flag} does not apply to --sources-only: it writes no report")
     opts = PaperOptions(robot=str(args.robot).lower(), actor=args.actor, scale=args.scale,
                         phase1=args.phase1_evals, phase3=args.phase3_evals,
                         out=args.out or f"paper-{str(args.robot).lower()}", workers=args.workers,
