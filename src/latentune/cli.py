@@ -403,7 +403,7 @@ def _check_latent_dim(args: argparse.Namespace, dim: int) -> None:
 UNUSED_FLAGS = {
     "train-vae": {"phase1_evals": DEFAULT_PHASE1, "phase3_evals": DEFAULT_PHASE3,
                   "method": None, "regions": None, "batch_size": None,
-                  "max_fall_prob": None, "backend": "process", "workers": DEFAULT_WORKERS,
+                  "max_fall_prob": None, "backend": "process", "workers": None,
                   "ray_address": None},
     "phase3": {"phase1_evals": DEFAULT_PHASE1, "vae_epochs": None},
     "phase1": {"phase3_evals": DEFAULT_PHASE3, "latent_dim": None, "vae_epochs": None,
