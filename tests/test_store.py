@@ -124,3 +124,33 @@ def test_store_reopens_under_a_name_with_uri_characters(tmp_path, name):
     with RunStore(tmp_path / name) as st:
         assert st.count(1) == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == [name]
+
+
+def test_a_new_store_appears_whole_to_another_process(tmp_path, monkeypatch):
+    """Two first asks at once: the second opened DIR/run.db while the first was still
+    creating it and failed with 'not a latentune run store (missing tables)'. run.db now
+    appears complete (tables and format mark) or not at all."""
+    d = tmp_path / "run"
+    real = RunStore._is_current
+    seen: list[str] = []
+
+    def is_current(self):
+        if self.path.is_file() and not getattr(is_current, "busy", False):
+            is_current.busy = True       # what another process sees at this moment
+            try:
+                RunStore(d).close()
+                seen.append("ok")
+            except StoreError as exc:
+                seen.append(str(exc))
+            finally:
+                is_current.busy = False
+        return real(self)
+
+    monkeypatch.setattr(RunStore, "_is_current", is_current)
+    st = RunStore(d, create=True)
+    monkeypatch.setattr(RunStore, "_is_current", real)
+    assert all(s == "ok" for s in seen), seen
+    assert st.get_meta("format") == "latentune-run-store" and st.get_meta("created")
+    st.close()
+    assert sorted(p.name for p in d.iterdir() if not p.name.startswith("run.db")) == []
+    RunStore(d, create=True).close()            # a second creator opens the existing store

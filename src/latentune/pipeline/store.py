@@ -234,6 +234,7 @@ class RunStore:
             self._check_foreign()
         else:
             self.dir.mkdir(parents=True, exist_ok=True)
+            self._create()
         self.read_only = exists and not os.access(self.dir, os.W_OK)
         try:
             if self.read_only:
@@ -243,17 +244,38 @@ class RunStore:
                 self.con = sqlite3.connect(str(self.path), timeout=30.0, isolation_level=None)
                 self.con.execute("PRAGMA journal_mode=WAL")
             self.con.execute("PRAGMA synchronous=NORMAL")
-            if not exists:
-                self.con.executescript("BEGIN;" + _SCHEMA + _TRIALS + _AMENDMENTS + "COMMIT;")
             self._current = self._is_current()
-            if not exists:
-                self.set_meta("format", FORMAT)
-                self.set_meta("version", VERSION)
-                self.set_meta("created", time.time())
         except sqlite3.OperationalError as exc:
             raise StoreError(f"run store {self.path}: {exc}") from None
         except sqlite3.DatabaseError as exc:
             raise StoreError(f"run store {self.path} is corrupt ({exc})") from None
+
+    def _create(self) -> None:
+        """Write a new store (tables, format mark, version) to a temporary file and link it in
+        as ``DIR/run.db``: another process (a second first ask) never opens a store without
+        its tables or format mark. A creator that loses the race opens the other's store."""
+        tmp = self.dir / f".{DB_NAME}.{os.getpid()}.{time.monotonic_ns()}.tmp"
+        try:
+            con = sqlite3.connect(str(tmp), isolation_level=None)
+            try:
+                con.executescript("BEGIN;" + _SCHEMA + _TRIALS + _AMENDMENTS + "COMMIT;")
+                con.executemany("INSERT INTO meta(key, value) VALUES (?, ?)",
+                                [(k, json.dumps(v)) for k, v in (
+                                    ("format", FORMAT), ("version", VERSION),
+                                    ("created", time.time()))])
+            finally:
+                con.close()
+            try:
+                os.link(tmp, self.path)
+            except FileExistsError:
+                log.debug("%s: created by another process meanwhile", self.path)
+            except OSError:                     # no hard links here: move it in if still new
+                if not self.path.exists():
+                    os.replace(tmp, self.path)
+        except sqlite3.Error as exc:
+            raise StoreError(f"run store {self.path}: {exc}") from None
+        finally:
+            tmp.unlink(missing_ok=True)
 
     def _is_current(self) -> bool:
         cols = {r[1] for r in self.con.execute("PRAGMA table_info(evaluations)")}
