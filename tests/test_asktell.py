@@ -1122,3 +1122,24 @@ def test_asking_phase_3_where_ask_tell_runs_phase_1_says_where_to(tmp_path):
         st.ask(space=SPACE)
         with pytest.raises(StoreError, match=f"another directory, with --vae {d}"):
             st.ask(phase=3)
+
+
+def test_suggestion_files_are_the_suggestions_handed_out(run_cli, tmp_path):
+    """`release DIR ID` left suggestions/ID.json behind, and kept it when an amendment then
+    withdrew the suggestion (tell ID: 'not handed out (dropped)'): the operator saw a θ to run
+    that no ask hands out. The directory now holds the files of the pending suggestions only."""
+    d = tmp_path / "s"
+    files = lambda: sorted(p.name for p in (d / "suggestions").iterdir())   # noqa: E731
+    assert run_cli("ask", d, "--system", "examples.lqr_chain:make_system", "--n", "3")[0] == 0
+    assert files() == ["1.json", "2.json", "3.json"]
+    assert run_cli("release", d, "3")[0] == 0
+    assert files() == ["1.json", "2.json"]
+    code, out, _ = run_cli("ask", d, "--n", "3")           # 1, 2 again, then 3
+    assert code == 0 and [ln.split()[0] for ln in out.splitlines()] == ["1", "2", "3"]
+    assert files() == ["1.json", "2.json", "3.json"]
+    assert run_cli("release", d, "3")[0] == 0
+    assert run_cli("tell", d, "1", "--cost", "1.0")[0] == 0
+    assert run_cli("tell", d, "1", "--cost", "2.0", "--amend")[0] == 0     # withdraws 3
+    with lt.Study(d) as st:
+        assert st.store.trials_by_id(3).status == "dropped"
+    assert files() == ["2.json"]

@@ -640,7 +640,7 @@ def cmd_ask(args: argparse.Namespace) -> int:
             space = ParameterSpace.from_dict(_read_data(args.space, "--space"))
         except ValueError as exc:
             raise CLIError(f"--space {args.space}: {exc}") from None
-    from latentune.pipeline.asktell import write_suggestion_files
+    from latentune.pipeline.asktell import prune_suggestion_files, write_suggestion_files
 
     handover = _handover(args)
     strategy = _strategy(args, handover)
@@ -665,6 +665,7 @@ def cmd_ask(args: argparse.Namespace) -> int:
         except (UsageError, StoreError) as exc:
             raise CLIError(_ask_flags(str(exc), args)) from None
         write_suggestion_files(study.dir, sugg)
+        prune_suggestion_files(study.dir, _pending_ids(study))
     if args.json:
         print(json.dumps([s.to_dict() for s in sugg]))
     else:
@@ -757,16 +758,21 @@ def cmd_tell(args: argparse.Namespace) -> int:
         trial_id = int(args.id)
     except ValueError:
         raise CLIError(f"a suggestion id is an integer, got {args.id!r}") from None
-    from latentune.pipeline.asktell import remove_suggestion_file
+    from latentune.pipeline.asktell import prune_suggestion_files
     from latentune.pipeline.results import phase_name
 
     with study:
         row = study.tell(trial_id, args.cost, failed=args.failed, note=args.note,
                          amend=args.amend)
-        remove_suggestion_file(study.dir, trial_id)
+        prune_suggestion_files(study.dir, _pending_ids(study))   # an amendment withdraws some
     print(f"{'amended' if args.amend else 'told'} {trial_id}: {phase_name(row.phase)} "
           f"evaluation {row.idx}, cost {row.cost:.6g}{' (failed)' if row.fell else ''}")
     return 0
+
+
+def _pending_ids(study: Any) -> list[int]:
+    """The ids of the suggestions of ``study`` handed out and not told (their files stay)."""
+    return [t.id for t in study.store.trials("pending")]
 
 
 def _stored_study(d: str) -> Any:
@@ -785,9 +791,12 @@ def cmd_release(args: argparse.Namespace) -> int:
         trial_id = int(args.id)
     except ValueError:
         raise CLIError(f"a suggestion id is an integer, got {args.id!r}") from None
+    from latentune.pipeline.asktell import prune_suggestion_files
+
     with study:
         study.release(trial_id)
-    print(f"released {trial_id}: the next ask hands it out again")
+        prune_suggestion_files(study.dir, _pending_ids(study))
+    print(f"released {trial_id}: the next ask hands it out again (its file is removed)")
     return 0
 
 

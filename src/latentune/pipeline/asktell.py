@@ -44,7 +44,8 @@ the next ask rebuilds the critic from the corrected rows (phase 3's too when the
 trial is amended: the transfer critic is told it, :func:`~latentune.pipeline.store.critics_told`).
 
 Suggestion files (``DIR/suggestions/<id>.json``, the ``--params`` file of a suggestion) belong
-to the command line: :func:`write_suggestion_files` and :func:`remove_suggestion_file`.
+to the command line: :func:`write_suggestion_files` and :func:`prune_suggestion_files`
+(the directory holds the files of the suggestions handed out and not told).
 """
 from __future__ import annotations
 
@@ -143,11 +144,19 @@ def write_suggestion_files(run_dir: str | os.PathLike, suggestions: list[Suggest
         s.path = str(path)
 
 
-def remove_suggestion_file(run_dir: str | os.PathLike, trial_id: int) -> None:
-    """Remove ``DIR/suggestions/<id>.json`` if it exists (after its result was told)."""
-    path = Path(run_dir) / "suggestions" / f"{int(trial_id)}.json"
-    if path.is_file():
-        path.unlink()
+def prune_suggestion_files(run_dir: str | os.PathLike, pending: Any) -> list[int]:
+    """Remove the suggestion files ``DIR/suggestions/<id>.json`` whose id is not in
+    ``pending`` (told, released, or withdrawn unasked after an amendment or a phase run), so
+    the directory shows only θ handed out to be run; other files are left. Returns the ids
+    removed."""
+    d = Path(run_dir) / "suggestions"
+    keep = {int(i) for i in pending}
+    gone = []
+    for path in d.glob("*.json") if d.is_dir() else ():
+        if path.stem.isdigit() and int(path.stem) not in keep:
+            path.unlink(missing_ok=True)
+            gone.append(int(path.stem))
+    return sorted(gone)
 
 
 def _check_id(trial_id: Any) -> int:
