@@ -1143,3 +1143,29 @@ def test_suggestion_files_are_the_suggestions_handed_out(run_cli, tmp_path):
     with lt.Study(d) as st:
         assert st.store.trials_by_id(3).status == "dropped"
     assert files() == ["2.json"]
+
+
+def test_tell_refuses_a_suggestion_file_edited_by_hand(run_cli, tmp_path, error_line):
+    """A θ edited in suggestions/ID.json (a gain lowered by hand before running it) was told as
+    suggestion ID: the store recorded the result for the suggested θ, which the robot never
+    ran. tell now refuses in one line naming the changed value, the store untouched; the
+    file as written (or deleted) is told as before."""
+    d = tmp_path / "s"
+    assert run_cli("ask", d, "--system", "examples.lqr_chain:make_system", "--n", "3")[0] == 0
+    f = d / "suggestions" / "1.json"
+    params = json.loads(f.read_text())
+    name = next(iter(params))
+    edited = {**params, name: params[name] * 0.5 + 0.01}
+    f.write_text(json.dumps(edited))
+    line = error_line(*run_cli("tell", d, "1", "--cost", "1.0")[::2])
+    assert f"{name} = {edited[name]:.6g} in it, {params[name]:.6g} suggested" in line
+    assert "release" in line
+    f.write_text("{not json")
+    assert "not valid JSON" in error_line(*run_cli("tell", d, "1", "--cost", "1.0")[::2])
+    with lt.Study(d) as st:
+        assert st.store.count(Phase.PHASE1) == 0
+    assert run_cli("ask", d)[0] == 0                       # 1 again: its file rewritten
+    assert json.loads(f.read_text()) == params
+    assert run_cli("tell", d, "1", "--cost", "1.0")[0] == 0
+    (d / "suggestions" / "2.json").unlink()                # no file: nothing to compare
+    assert run_cli("tell", d, "2", "--cost", "1.0")[0] == 0

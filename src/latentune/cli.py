@@ -762,12 +762,36 @@ def cmd_tell(args: argparse.Namespace) -> int:
     from latentune.pipeline.results import phase_name
 
     with study:
+        _check_suggestion_file(study, trial_id, args)
         row = study.tell(trial_id, args.cost, failed=args.failed, note=args.note,
                          amend=args.amend)
         prune_suggestion_files(study.dir, _pending_ids(study))   # an amendment withdraws some
     print(f"{'amended' if args.amend else 'told'} {trial_id}: {phase_name(row.phase)} "
           f"evaluation {row.idx}, cost {row.cost:.6g}{' (failed)' if row.fell else ''}")
     return 0
+
+
+def _check_suggestion_file(study: Any, trial_id: int, args: argparse.Namespace) -> None:
+    """Refuse to tell a pending suggestion whose file was edited by hand: the store would
+    record the result for the suggested θ, which is not the one the robot ran."""
+    from latentune.pipeline.asktell import DEFAULT_ASKER, edited_suggestion
+
+    if not -2 ** 63 <= trial_id < 2 ** 63:     # no such id: the tell says so
+        return
+    trial = study.store.trials(trial_id=trial_id)
+    space = study.space()
+    if args.amend or not trial or trial[0].status != "pending" or space is None:
+        return
+    what = edited_suggestion(study.dir, trial_id, trial[0].theta, space)
+    if what is not None:
+        f = Path(study.dir) / "suggestions" / f"{trial_id}.json"
+        asker = trial[0].asker
+        again = f"latentune ask {args.dir}" + (
+            "" if asker in (None, DEFAULT_ASKER) else f" --asker {shlex.quote(asker)}")
+        raise CLIError(f"{f} is not suggestion {trial_id}'s θ any more ({what}): its result "
+                       f"would be stored for the suggested θ. If the robot ran the suggested "
+                       f"θ, `{again}` writes the file again, then tell; if it ran the edited "
+                       f"one, that is no suggestion: latentune release {args.dir} {trial_id}")
 
 
 def _pending_ids(study: Any) -> list[int]:

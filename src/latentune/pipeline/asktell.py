@@ -159,6 +159,30 @@ def prune_suggestion_files(run_dir: str | os.PathLike, pending: Any) -> list[int
     return sorted(gone)
 
 
+def edited_suggestion(run_dir: str | os.PathLike, trial_id: int, theta: np.ndarray,
+                      space: ParameterSpace) -> str | None:
+    """How ``DIR/suggestions/<id>.json`` differs from the θ suggestion ``trial_id`` holds
+    (``theta``, unit box): "NAME = V in it, W suggested" for the first changed value, or why
+    it no longer reads as a θ; None when it holds that θ or there is no file."""
+    from latentune.errors import ParamsError
+
+    path = Path(run_dir) / "suggestions" / f"{int(trial_id)}.json"
+    if not path.is_file():
+        return None
+    try:
+        given = space.to_physical(space.load(path))
+    except ParamsError as exc:
+        return str(exc).replace(f"params file {path} ", "it ")
+    stored = space.to_physical(np.asarray(theta, dtype=float))
+    diff = [i for i in range(space.dim)
+            if not np.isclose(given[i], stored[i], rtol=1e-9, atol=1e-12)]
+    if not diff:
+        return None
+    i = diff[0]
+    return (f"{space.names[i]} = {given[i]:.6g} in it, {stored[i]:.6g} suggested"
+            + (f", and {len(diff) - 1} more" if len(diff) > 1 else ""))
+
+
 def _check_id(trial_id: Any) -> int:
     if isinstance(trial_id, bool) or not isinstance(trial_id, (int, np.integer)):
         raise UsageError(f"a suggestion id is an integer, got {trial_id!r}")
