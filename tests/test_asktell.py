@@ -1169,3 +1169,29 @@ def test_tell_refuses_a_suggestion_file_edited_by_hand(run_cli, tmp_path, error_
     assert run_cli("tell", d, "1", "--cost", "1.0")[0] == 0
     (d / "suggestions" / "2.json").unlink()                # no file: nothing to compare
     assert run_cli("tell", d, "2", "--cost", "1.0")[0] == 0
+
+
+def test_ask_says_when_the_fall_model_rates_a_suggestion_above_its_screen(run_cli, tmp_path,
+                                                                          src30):
+    """The transfer critic's design ask after the zero-shot θ fell hands out the source's
+    elites though its fall model rates them 1.0 likely to fall (its screen: 0.3), and the
+    operator at the robot was told nothing. Such a suggestion now carries ``fall_risk`` (the
+    ask's highest rated probability and the bound), and `ask` prints one warning line for it."""
+    shutil.copytree(src30, tmp_path / "src")
+    d = tmp_path / "t"
+    with lt.Study(d, seed=0) as st:
+        z = st.ask(1, system=plant(0.3), phase=3, latent=tmp_path / "src")[0]
+        assert z.phase_name == "zero-shot" and z.fall_risk is None
+        st.tell(z.id, None, failed=True)
+        (s,) = st.ask()
+        assert s.phase_name == "phase 3" and s.fall_risk is not None
+        p, bound = s.fall_risk
+        assert p > bound and s.to_dict()["fall_risk"] == {"max_fall_prob": p, "bound": bound}
+    code, out, err = run_cli("ask", d)                      # s again
+    assert code == 0 and out.split()[0] == str(s.id)
+    assert err.splitlines() == [
+        f"latentune: warning: suggestion {s.id}: the fall model rates θ of the ask that gave it "
+        f"up to {p:.2f} likely to fall, above its screen of {bound:.2f}: be ready to catch the "
+        f"robot, or release it"]
+    code, out, err = run_cli("ask", d, "--json")
+    assert json.loads(out)[0]["fall_risk"] == {"max_fall_prob": p, "bound": bound}

@@ -673,6 +673,12 @@ def cmd_ask(args: argparse.Namespace) -> int:
             vals = ", ".join(f"{k}={v:.6g}" for k, v in list(s.params.items())[:6])
             more = " ..." if len(s.params) > 6 else ""
             print(f"{s.id}\t{s.phase_name}{' (again)' if s.again else ''}\t{s.path}\t{vals}{more}")
+    for s in sugg:
+        if s.fall_risk is not None:
+            logging.getLogger("latentune.ask").warning(
+                "suggestion %d: the fall model rates θ of the ask that gave it up to %.2f likely "
+                "to fall, above its screen of %.2f: be ready to catch the robot, or release it",
+                s.id, *s.fall_risk)
     return 0
 
 

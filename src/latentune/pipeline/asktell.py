@@ -108,6 +108,9 @@ class Suggestion:
         again: True if it was handed out before (to this asker, or a lease that expired).
         asker: who holds it; ``lease_until``: unix time its lease ends.
         path: its ``--params`` file once written (:func:`write_suggestion_files`), else None.
+        fall_risk: ``(p, bound)`` when the transfer phase 3's ask that gave it rated a θ it
+            asked ``p`` likely to fall, above its fall screen's ``bound`` (the critic took θ
+            its screen would refuse: run it with care), else None (:func:`fall_risk`).
     """
 
     id: int
@@ -119,6 +122,7 @@ class Suggestion:
     path: str | None = None
     asker: str | None = None
     lease_until: float | None = None
+    fall_risk: tuple[float, float] | None = None
 
     @property
     def phase_name(self) -> str:
@@ -128,7 +132,9 @@ class Suggestion:
     def to_dict(self) -> dict[str, Any]:
         return {"id": self.id, "phase": self.phase, "phase_name": self.phase_name,
                 "again": self.again, "params": self.params, "theta": self.theta.tolist(),
-                "file": self.path, "asker": self.asker, "lease_until": self.lease_until}
+                "file": self.path, "asker": self.asker, "lease_until": self.lease_until,
+                "fall_risk": None if self.fall_risk is None else
+                {"max_fall_prob": self.fall_risk[0], "bound": self.fall_risk[1]}}
 
 
 def write_suggestion_files(run_dir: str | os.PathLike, suggestions: list[Suggestion]) -> None:
@@ -354,8 +360,30 @@ def ask(study: Any, n: int = 1, *, system: Any = None, space: ParameterSpace | N
         if not got:             # never an empty answer: the critic asked only θ handed out
             raise StoreError(f"{study.dir}: {phase_name(ctx.phase)}'s critic gave no θ that is "
                              "not handed out already: tell the pending suggestions first")
+        risky = fall_risk(st, ctx.phase, ctx.options)
         return [Suggestion(t.id, t.phase, t.theta, ctx.space.as_dict(t.theta), t.z, again,
-                           None, t.asker, t.lease_until) for t, again in got]
+                           None, t.asker, t.lease_until, risky(t)) for t, again in got]
+
+
+def fall_risk(st: RunStore, phase: int, pc: dict[str, Any]) -> Any:
+    """A function of a suggestion (a stored Trial) giving ``(p, bound)`` when the transfer
+    phase 3's ask that gave it (its decision, by the generation of its tag, ``tag // 4``)
+    handed out θ its fall model rates ``p`` likely to fall, above the fall screen's
+    ``bound``; else None (phase 1, the plain phase 3, the zero-shot trial)."""
+    state = st.get_meta(state_key(phase)) if phase == Phase.PHASE3 else None
+    if not isinstance(state, dict) or strategy_of(pc) != "transfer":
+        return lambda t: None
+    bound = (state.get("options") or {}).get("max_fall_prob")
+    by_gen = {d.get("generation"): d for d in state.get("decisions") or ()
+              if isinstance(d, dict)}
+
+    def risk(t: Any) -> tuple[float, float] | None:
+        d = by_gen.get(t.tag // 4) if t.phase == phase and t.tag >= 0 else None
+        p = None if d is None else d.get("max_fall_prob_asked")
+        if p is None or bound is None or not float(p) > float(bound):
+            return None
+        return float(p), float(bound)
+    return risk
 
 
 @dataclass
