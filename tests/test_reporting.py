@@ -517,3 +517,24 @@ def test_report_and_status_name_the_explore_asks_the_targets_gp_chose(tmp_path: 
     col = header.split(" | ").index("explore screen")
     assert [c[col] for c in cells] == ["–", "0.20", "0.30"]
     assert cells[2][2] == "explore (lines, target GP)"
+
+
+def test_comparison_table_leaves_out_phases_a_phase3_run_never_had(tmp_path: Path):
+    """A phase 3 on another study's latent space (a robot run of ask/tell) runs no manual θ and
+    no phase 1: its table showed them as rows of zeros; a run still in phase 1 keeps its empty
+    phase-3 row (still to come), and a phase 3 asked only its zero-shot trial keeps its own."""
+    with RunStore(tmp_path / "robot", create=True) as st:
+        st.set_meta("config", {"system": {"kind": "user"}, "phase3": {"strategy": "transfer"}})
+        st.add(Phase.ZERO_SHOT, 0, np.ones(3), 3.2, fell=False, tag=-1)
+        md = comparison_table(st)
+        assert "manual tuned" not in md and "phase 1 (" not in md
+        assert _row(md, "phase 3 (transfer: source model, latent and θ boxes)")[2] == "0"
+        st.add(Phase.PHASE3, 0, np.zeros(3), 1.0, fell=False, tag=-1)
+        md = comparison_table(st)
+    assert "manual tuned" not in md and "phase 1 (" not in md
+    assert _row(md, "phase 3 (transfer: source model, latent and θ boxes)")[1:3] == ["1.000", "1"]
+    with RunStore(tmp_path / "running", create=True) as st:
+        st.set_meta("config", {"system": {"kind": "user"}})
+        st.add(Phase.MANUAL, 0, np.zeros(3), 2.5, fell=False, tag=-1)
+        md = comparison_table(st)
+    assert _row(md, "phase 1 (θ, TuRBO-m)")[2] == "0" and _row(md, "phase 3 (latent, TuRBO-m)")[2] == "0"

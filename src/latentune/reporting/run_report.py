@@ -156,7 +156,8 @@ def comparison_table(store: Any) -> str:
     """The Markdown table of the run: per phase the best cost, (built-in tasks) its RMS velocity
     error [m/s], the number of evaluations, the stable ones and the evaluations until the first
     trial that beat the manual θ (:func:`manual_target`); the paper's numbers below it when it
-    has the task."""
+    has the task. A phase without trials has a row of zeros while no later phase holds trials
+    (it is still to come), and none after that (it is not part of this run)."""
     cfg = store.get_meta("config") or {}
     t = cfg.get("task")
     stats = run_stats(store)
@@ -170,10 +171,13 @@ def comparison_table(store: Any) -> str:
     cols = ["best path cost" if rms else "best cost"] + (["RMS velocity error [m/s]"] if rms else [])
     cols += ["evaluations", "stable", "evals to beat manual"]
     lines = [head, "", "| | " + " | ".join(cols) + " |", "|---|" + "---:|" * len(cols)]
-    for ph in TABLE_PHASES:
+    for k, ph in enumerate(TABLE_PHASES):
         s = stats[int(ph)]
         if s["n"] == 0:
-            if ph == Phase.ZERO_SHOT:
+            # the zero-shot row only once it ran; an empty row of manual θ or phase 1 not when
+            # a later phase holds trials (a phase 3 on another study's latent space runs none)
+            if ph == Phase.ZERO_SHOT or ph != Phase.PHASE3 and any(
+                    stats[int(q)]["n"] for q in TABLE_PHASES[k + 1:]):
                 continue
             cells = ["–"] * (2 if rms else 1) + ["0", "–", "–"]
         else:
