@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 import latentune as lt
-from latentune.constants import Phase
+from latentune.constants import C1, Phase
 from latentune.errors import LatentuneError, StoreError, UsageError
 from latentune.pipeline import asktell
 from latentune.pipeline import store as store_module
@@ -1195,3 +1195,27 @@ def test_ask_says_when_the_fall_model_rates_a_suggestion_above_its_screen(run_cl
         f"robot, or release it"]
     code, out, err = run_cli("ask", d, "--json")
     assert json.loads(out)[0]["fall_risk"] == {"max_fall_prob": p, "bound": bound}
+
+
+def test_tell_says_when_a_robot_trial_fell(run_cli, tmp_path, error_line):
+    """At the robot, a fall could only be told as --failed, which costs 2·C1 whenever it fell:
+    the falls were all equal and nothing ranked them (the transfer critic learns from a later
+    fall being better). ``tell --failed --fall-step K --horizon N`` costs C1·(2 − K/N), as a
+    simulated fall; the two flags go together, need --failed and 0 ≤ K ≤ N."""
+    d = tmp_path / "s"
+    assert run_cli("ask", d, "--system", "examples.lqr_chain:make_system", "--n", "3")[0] == 0
+    code, out, err = run_cli("tell", d, "1", "--failed", "--fall-step", "75", "--horizon", "100")
+    assert code == 0, err
+    assert run_cli("tell", d, "2", "--failed")[0] == 0
+    with lt.Study(d) as st:
+        rows = st.store.rows(Phase.PHASE1)
+    assert sorted(r.cost for r in rows) == [C1 * 1.25, 2 * C1]
+    assert [(r.info["fall_step"], r.info["horizon"]) for r in rows
+            if "fall_step" in r.info] == [(75, 100)]
+    for flags, want in ((["--failed", "--fall-step", "3"], "go together"),
+                        (["--cost", "1", "--fall-step", "3", "--horizon", "9"], "add --failed"),
+                        (["--failed", "--fall-step", "12", "--horizon", "9"], "within 0"),
+                        (["--failed", "--fall-step", "1", "--horizon", "0"], "within 0")):
+        assert want in error_line(*run_cli("tell", d, "3", *flags)[::2]), flags
+    with lt.Study(d) as st:
+        assert len(st.store.rows(Phase.PHASE1)) == 2

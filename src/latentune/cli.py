@@ -760,6 +760,7 @@ def cmd_tell(args: argparse.Namespace) -> int:
         raise CLIError(f"no run store in {args.dir}")
     if args.cost is None and not args.failed:
         raise CLIError("tell needs --cost C, or --failed (a failed trial may omit the cost)")
+    info = _fall_info(args)
     try:
         trial_id = int(args.id)
     except ValueError:
@@ -770,11 +771,26 @@ def cmd_tell(args: argparse.Namespace) -> int:
     with study:
         _check_suggestion_file(study, trial_id, args)
         row = study.tell(trial_id, args.cost, failed=args.failed, note=args.note,
-                         amend=args.amend)
+                         amend=args.amend, info=info)
         prune_suggestion_files(study.dir, _pending_ids(study))   # an amendment withdraws some
     print(f"{'amended' if args.amend else 'told'} {trial_id}: {phase_name(row.phase)} "
           f"evaluation {row.idx}, cost {row.cost:.6g}{' (failed)' if row.fell else ''}")
     return 0
+
+
+def _fall_info(args: argparse.Namespace) -> dict[str, int] | None:
+    """tell's ``--fall-step K --horizon N`` as the trial's info (None without them); CLIError
+    unless both are given with --failed and 0 ≤ K ≤ N, N > 0."""
+    k, n = args.fall_step, args.horizon
+    if k is None and n is None:
+        return None
+    if k is None or n is None:
+        raise CLIError("--fall-step and --horizon go together (when the trial fell, K of N)")
+    if not args.failed:
+        raise CLIError("--fall-step says when a failed trial fell: add --failed")
+    if not (n > 0 and 0 <= k <= n):
+        raise CLIError(f"--fall-step must be within 0 … --horizon (> 0), got {k} of {n}")
+    return {"fall_step": k, "horizon": n}
 
 
 def _check_suggestion_file(study: Any, trial_id: int, args: argparse.Namespace) -> None:
@@ -1133,6 +1149,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("id", help="the suggestion's id (from ask)")
     p.add_argument("--cost", type=float, default=None, help="the trial's cost")
     p.add_argument("--failed", action="store_true", help="the trial failed (a fall)")
+    p.add_argument("--fall-step", type=int, default=None, metavar="K",
+                   help="with --failed and --horizon: when it fell, K of the trial's N steps "
+                        "(any unit: 32 of 100 tenths of a second); without --cost it costs "
+                        "C1·(2 − K/N), as a simulated fall (a later fall ranks better)")
+    p.add_argument("--horizon", type=int, default=None, metavar="N",
+                   help="the trial's length in the unit of --fall-step")
     p.add_argument("--note", default=None, help="free text stored with the trial")
     p.add_argument("--amend", action="store_true",
                    help="correct a result told before (the old one is kept as an audit trail)")
