@@ -516,10 +516,12 @@ def cmd_tune(args: argparse.Namespace) -> int:
         study.train_latent(args.latent_dim, kind=_vae_kind(args), epochs=args.vae_epochs)
         # --method and --regions are phase 1's; phase 3 takes them only when it is plain
         plain = resolve_strategy(study.manifest, strategy, handover) == "plain"
-        study.phase3(system, args.phase3_evals, method=args.method if plain else None,
-                     regions=args.regions if plain else None,
-                     max_fall_prob=args.max_fall_prob, handover=handover, strategy=strategy,
-                     transfer_options=_transfer_options(args, _stored_transfer(study)))
+        _phase3_flags(study.phase3, system, args.phase3_evals,
+                      method=args.method if plain else None,
+                      regions=args.regions if plain else None,
+                      max_fall_prob=args.max_fall_prob, handover=handover, strategy=strategy,
+                      transfer_options=_transfer_options(args, _stored_transfer(study)),
+                      args=args)
         _finish(study)
     return 0
 
@@ -553,6 +555,19 @@ def cmd_train_vae(args: argparse.Namespace) -> int:
     return 0
 
 
+def _phase3_flags(phase3: Callable[..., Any], *a: Any, args: argparse.Namespace,
+                  **kw: Any) -> Any:
+    """``phase3(*a, **kw)`` (:meth:`Study.phase3`), its refusals in the words of the command's
+    flags (:func:`_ask_flags`: ``--fall-budget is an option of the transfer phase 3``, not
+    ``transfer_options are options …``)."""
+    from latentune.errors import LatentError
+
+    try:
+        return phase3(*a, **kw)
+    except (UsageError, StoreError, LatentError) as exc:
+        raise CLIError(_ask_flags(str(exc), args)) from None
+
+
 def cmd_phase3(args: argparse.Namespace) -> int:
     handover = _handover(args)
     strategy = _strategy(args, handover)
@@ -576,10 +591,11 @@ def cmd_phase3(args: argparse.Namespace) -> int:
         mfp = stored.get("max_fall_prob") if mfp is None else mfp
         handover = stored.get("handover") if handover is None else handover
     with study:
-        study.phase3(system, args.phase3_evals, latent=args.vae, method=args.method,
-                     regions=args.regions, max_fall_prob=mfp,
-                     handover=handover, strategy=strategy,
-                     transfer_options=_transfer_options(args, _stored_transfer(study)))
+        _phase3_flags(study.phase3, system, args.phase3_evals, latent=args.vae,
+                      method=args.method, regions=args.regions, max_fall_prob=mfp,
+                      handover=handover, strategy=strategy,
+                      transfer_options=_transfer_options(args, _stored_transfer(study)),
+                      args=args)
         _finish(study)
     return 0
 
@@ -688,24 +704,29 @@ ASK_FLAGS = {"method": "--method", "budget": "--budget", "regions": "--regions",
              "fall-prior": "--fall-prior", "handover": "--handover", "strategy": "--strategy",
              "asker": "--asker", "lease_s": "--lease", "n": "--n",
              "fall_budget": "--fall-budget", "record_walk": "--record-walk",
-             "escape_falls": "--escape-falls", "walk_pick": "--walk-pick"}
-"""Study.ask's keyword arguments (and transfer_options keys) by the ``ask`` flag that sets
-them, for :func:`_ask_flags`."""
-_TRANSFER_STORED = re.compile(r"runs with transfer-options = (.*) \(stored\), not (.*)$")
+             "escape_falls": "--escape-falls", "walk_pick": "--walk-pick",
+             "batch_size": "--batch-size", "batch-size": "--batch-size",
+             "latent": "--vae"}
+"""Study.ask's and Study.phase3's keyword arguments (and transfer_options keys) by the flag
+that sets them, for :func:`_ask_flags`."""
+_TRANSFER_STORED = re.compile(r"(?:runs|was run) with transfer-options = (.*?)(?: \(stored\))?, "
+                              r"not (.*)$")
 
 
 def _ask_flags(msg: str, args: argparse.Namespace) -> str:
-    """A refusal of :meth:`Study.ask` with the ``ask`` flags in place of the Python names it
-    gives (``transfer_options is an option of phase 3`` → ``--fall-budget is an option of
-    phase 3``; ``(strategy plain)`` → ``(--strategy plain)``; ``runs with method = …`` →
-    ``runs with --method = …``)."""
+    """A refusal of :meth:`Study.ask` (or of :meth:`Study.phase3`, for ``phase3`` and ``tune``)
+    with the command's flags in place of the Python names it gives (``transfer_options is an
+    option of phase 3`` → ``--fall-budget is an option of phase 3``; ``(strategy plain)`` →
+    ``(--strategy plain)``; ``runs with method = …`` → ``runs with --method = …``)."""
     import ast
 
+    where = getattr(args, "dir", None) or args.out
     given = [ASK_FLAGS[k] for k in TRANSFER_DESTS if getattr(args, k) is not None]
     if not given and msg.startswith("transfer_options are options of the transfer phase 3"):
         # the stored options (none given): the stored phase 3 is a transfer one
-        return (f"{args.dir}: phase 3 runs with --strategy transfer (stored, with its transfer "
+        return (f"{where}: phase 3 runs with --strategy transfer (stored, with its transfer "
                 f"options), not --strategy {args.strategy or 'plain'}")
+    msg = re.sub(r"^(.*?: )phase(\d) was run with", r"\1phase \2 was run with", msg)
     topts = " and ".join(given)
     msg = re.sub(r"^transfer_options (is an option|are options) of",
                  lambda m: f"{topts} {'are options' if len(given) > 1 else 'is an option'} of",
@@ -730,7 +751,12 @@ def _ask_flags(msg: str, args: argparse.Namespace) -> str:
         def shown(d: dict[str, Any]) -> str:
             return ", ".join(f"{ASK_FLAGS.get(k, k)} {d[k]}" if k in d else
                              f"no {ASK_FLAGS.get(k, k)}" for k in keys)
-        return msg[:m.start()] + f"runs with {shown(old)} (stored), not {shown(new)}"
+        verb = "runs" if m[0].startswith("runs") else "was run"
+        return msg[:m.start()] + f"{verb} with {shown(old)} (stored), not {shown(new)}"
+    msg = re.sub(r"^latent: ", lambda m: f"{ASK_FLAGS['latent']}: ", msg)
+    msg = re.sub(r"was run with ([a-z][\w-]*) = None, not (.*)$",    # a flag left out
+                 lambda m: f"was run without {ASK_FLAGS.get(m[1], m[1])}, not with "
+                           f"{ASK_FLAGS.get(m[1], m[1])} {m[2]}", msg)
     return re.sub(r"(runs with|was run with) ([a-z][\w-]*) = ",
                   lambda m: f"{m[1]} {ASK_FLAGS.get(m[2], m[2])} = ", msg)
 

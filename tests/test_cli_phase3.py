@@ -1,0 +1,74 @@
+"""``latentune phase3`` / ``tune`` and their phase-3 flags: refusals name the flags, a flag phase 3
+cannot honour is refused before phase 1 runs, a resume keeps what it was run with, and the
+warning of a streak of failed trials suggests only what the run does not do already."""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+import latentune as lt
+
+SYSTEM = ("--system", "examples.toy_plant:make_real_system", "--backend", "serial",
+          "--workers", "1", "--seed", "0")
+
+API_NAMES = re.compile(r"transfer[_-]options|max_fall_prob|walk_pick|record_walk|fall_budget|"
+                       r"escape_falls|batch_size|\(strategy |^\w+ (is|are|must) |"
+                       r"^latent: |with [a-z][\w-]* = ")
+
+
+@pytest.fixture(scope="module")
+def source(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A small source run of the toy chain with its latent space."""
+    from examples.toy_plant import make_system
+
+    d = tmp_path_factory.mktemp("p3src") / "src"
+    study = lt.Study(d, seed=0)
+    study.phase1(make_system(), 24)
+    study.train_latent(4, epochs=20)
+    return d
+
+
+def _phase3(run_cli, source: Path, out: Path, *flags: str, evals: int = 4):
+    return run_cli("phase3", *SYSTEM, "--vae", source, "--out", out,
+                   "--phase3-evals", str(evals), *flags)
+
+
+def test_phase3_refusals_name_the_flags_not_the_python_arguments(tmp_path, run_cli, source,
+                                                                 error_line):
+    """phase3's refusals named Study.phase3's arguments ('transfer_options are options of the
+    transfer phase 3 (strategy transfer)' for --fall-budget, 'method is an option … (given
+    method = 'cma')', 'phase3 was run with transfer-options = {…}, not {…}', 'latent: run
+    directory … does not exist' for --vae), and a resume with --strategy plain of a transfer run
+    with stored options blamed options the user never gave; they now name the flags."""
+    d = tmp_path / "t"
+    code, _, err = _phase3(run_cli, source, d, "--fall-budget", "0.3", "--escape-falls", "2")
+    assert code == 0, err
+    cases = [
+        ((tmp_path / "n1", "--strategy", "plain", "--fall-budget", "0.2"),
+         "--fall-budget is an option of the transfer phase 3 (--strategy transfer)"),
+        ((tmp_path / "n2", "--handover", "--record-walk", "2", "--escape-falls", "3"),
+         "--record-walk and --escape-falls are options of the transfer phase 3"),
+        ((tmp_path / "n3", "--method", "cma"),
+         "--method is an option of the plain phase 3 (--strategy plain), not of the transfer "
+         "phase 3 (given --method = 'cma')"),
+        ((tmp_path / "n4", "--regions", "2"), "--regions is an option of the plain phase 3"),
+        ((d, "--resume", "--fall-budget", "0.2"),
+         "phase 3 was run with --fall-budget 0.3 (stored), not --fall-budget 0.2"),
+        ((d, "--resume", "--escape-falls", "4"),
+         "phase 3 was run with --escape-falls 2 (stored), not --escape-falls 4"),
+        ((d, "--resume", "--strategy", "plain"),
+         "phase 3 runs with --strategy transfer (stored, with its transfer options), not "
+         "--strategy plain"),
+        ((d, "--resume", "--max-fall-prob", "0.2"),
+         "phase 3 was run without --max-fall-prob, not with --max-fall-prob 0.2"),
+        ((d, "--resume", "--batch-size", "2"), "phase 3 was run with --batch-size = 4, not 2"),
+    ]
+    for (out, *flags), expect in cases:
+        line = error_line(*_phase3(run_cli, source, out, *flags, evals=6)[::2])
+        line = line.removeprefix("latentune: error: ")
+        assert expect in line and not API_NAMES.search(line), (flags, line)
+    line = error_line(*run_cli("phase3", *SYSTEM, "--vae", tmp_path / "nowhere", "--out",
+                               tmp_path / "n5", "--phase3-evals", "4")[::2])
+    assert "--vae: run directory" in line and not API_NAMES.search(line), line
