@@ -72,3 +72,20 @@ def test_phase3_refusals_name_the_flags_not_the_python_arguments(tmp_path, run_c
     line = error_line(*run_cli("phase3", *SYSTEM, "--vae", tmp_path / "nowhere", "--out",
                                tmp_path / "n5", "--phase3-evals", "4")[::2])
     assert "--vae: run directory" in line and not API_NAMES.search(line), line
+
+
+@pytest.mark.parametrize("flags, expect", [
+    (("--strategy", "plain", "--fall-budget", "0.2"),
+     "--fall-budget is an option of the transfer phase 3"),
+    (("--handover", "--escape-falls", "2"), "--escape-falls is an option of the transfer phase 3"),
+])
+def test_tune_refuses_phase_3_flags_it_cannot_honour_before_phase_1(tmp_path, run_cli,
+                                                                     error_line, flags, expect):
+    """``tune --strategy plain --fall-budget 0.2`` ran phase 1 and trained the VAE before phase
+    3 refused the transfer option; it is now refused before anything runs."""
+    out = tmp_path / "t"
+    line = error_line(*run_cli("tune", "--system", "examples.toy_plant:make_system",
+                               "--backend", "serial", "--workers", "1", "--out", out,
+                               "--phase1-evals", "6", "--phase3-evals", "4", *flags)[::2])
+    assert expect in line
+    assert not (out / "run.db").exists() or lt.Study(out).store.count(1) == 0

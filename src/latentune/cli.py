@@ -475,11 +475,15 @@ def _finish(study: Any) -> None:
     print(comparison_table(study.store))
 
 
-def _phase1_study(args: argparse.Namespace, latent: bool) -> tuple[Any, Any, Any]:
+def _phase1_study(args: argparse.Namespace, latent: bool,
+                  check: Callable[[Any], None] | None = None) -> tuple[Any, Any, Any]:
     """The study, system and phase-1 result of ``tune``/``phase1``, every flag checked first
-    (``latent``: the latent-space flags are used afterwards, as in ``tune``)."""
+    (``latent``: the latent-space flags are used afterwards, as in ``tune``; ``check(study)``:
+    more checks, before phase 1 runs)."""
     study = _study(args)
     _check_stored_system(study, args)
+    if check is not None:
+        check(study)
     system = make_system(args, study.seed)
     if latent or args.latent_dim is not None:
         _check_latent_dim(args, system.space.dim)
@@ -511,7 +515,19 @@ def cmd_tune(args: argparse.Namespace) -> int:
     handover = _handover(args)                      # checked before phase 1 runs
     strategy = _strategy(args, handover)
     _transfer_options(args, None)                   # checked before phase 1 runs
-    study, system, _ = _phase1_study(args, latent=True)
+
+    def check(study: Any) -> None:
+        """Phase 3's strategy and transfer options checked before phase 1 runs."""
+        from latentune.pipeline.manifest import transfer_option
+
+        try:
+            st = resolve_strategy(study.manifest, strategy, handover)
+            transfer_option(_transfer_options(args, _stored_transfer(study)), st,
+                            args.max_fall_prob)
+        except UsageError as exc:
+            raise CLIError(_ask_flags(str(exc), args)) from None
+
+    study, system, _ = _phase1_study(args, latent=True, check=check)
     with study:
         study.train_latent(args.latent_dim, kind=_vae_kind(args), epochs=args.vae_epochs)
         # --method and --regions are phase 1's; phase 3 takes them only when it is plain
