@@ -89,3 +89,18 @@ def test_tune_refuses_phase_3_flags_it_cannot_honour_before_phase_1(tmp_path, ru
                                "--phase1-evals", "6", "--phase3-evals", "4", *flags)[::2])
     assert expect in line
     assert not (out / "run.db").exists() or lt.Study(out).store.count(1) == 0
+
+
+def test_tune_resume_keeps_the_stored_handover_as_phase3_resume_does(tmp_path, run_cli):
+    """``tune --handover`` resumed without --handover was refused ('phase3 was run with
+    handover = {…}, not None') while ``phase3 --resume`` keeps it: tune keeps it now too."""
+    out = tmp_path / "t"
+    common = ("tune", "--system", "examples.toy_plant:make_system", "--backend", "serial",
+              "--workers", "1", "--out", out, "--phase1-evals", "12", "--vae-epochs", "5")
+    code, _, err = run_cli(*common, "--phase3-evals", "4", "--handover", "patience=3")
+    assert code == 0, err
+    code, _, err = run_cli(*common, "--phase3-evals", "8", "--resume")
+    assert code == 0, err
+    study = lt.Study(out)
+    assert study.store.count(3) == 8
+    assert study.config()["phase3"]["handover"]["patience"] == 3

@@ -532,10 +532,11 @@ def cmd_tune(args: argparse.Namespace) -> int:
         study.train_latent(args.latent_dim, kind=_vae_kind(args), epochs=args.vae_epochs)
         # --method and --regions are phase 1's; phase 3 takes them only when it is plain
         plain = resolve_strategy(study.manifest, strategy, handover) == "plain"
+        mfp, handover = _kept_phase3(study, args, handover)     # as phase3 --resume does
         _phase3_flags(study.phase3, system, args.phase3_evals,
                       method=args.method if plain else None,
                       regions=args.regions if plain else None,
-                      max_fall_prob=args.max_fall_prob, handover=handover, strategy=strategy,
+                      max_fall_prob=mfp, handover=handover, strategy=strategy,
                       transfer_options=_transfer_options(args, _stored_transfer(study)),
                       args=args)
         _finish(study)
@@ -571,6 +572,17 @@ def cmd_train_vae(args: argparse.Namespace) -> int:
     return 0
 
 
+def _kept_phase3(study: Any, args: argparse.Namespace, handover: Any) -> tuple[Any, Any]:
+    """(--max-fall-prob, --handover) of phase 3: a resume of a phase 3 with trials keeps the
+    stored ones unless given."""
+    mfp = args.max_fall_prob
+    stored = (study.config().get("phase3") or {}) if args.resume and study.exists else {}
+    if stored and study.store.count(3) > 0:
+        mfp = stored.get("max_fall_prob") if mfp is None else mfp
+        handover = stored.get("handover") if handover is None else handover
+    return mfp, handover
+
+
 def _phase3_flags(phase3: Callable[..., Any], *a: Any, args: argparse.Namespace,
                   **kw: Any) -> Any:
     """``phase3(*a, **kw)`` (:meth:`Study.phase3`), its refusals in the words of the command's
@@ -601,11 +613,7 @@ def cmd_phase3(args: argparse.Namespace) -> int:
     _refuse_unused(args, "phase3")
     if args.vae is None:
         _check_stored_vae(study, args, "retrain it with train-vae, or leave the flag out")
-    mfp = args.max_fall_prob
-    stored = (study.config().get("phase3") or {}) if args.resume and study.exists else {}
-    if stored and study.store.count(3) > 0:   # a resume keeps what it was run with unless given
-        mfp = stored.get("max_fall_prob") if mfp is None else mfp
-        handover = stored.get("handover") if handover is None else handover
+    mfp, handover = _kept_phase3(study, args, handover)
     with study:
         _phase3_flags(study.phase3, system, args.phase3_evals, latent=args.vae,
                       method=args.method, regions=args.regions, max_fall_prob=mfp,
