@@ -104,3 +104,35 @@ def test_tune_resume_keeps_the_stored_handover_as_phase3_resume_does(tmp_path, r
     study = lt.Study(out)
     assert study.store.count(3) == 8
     assert study.config()["phase3"]["handover"]["patience"] == 3
+
+
+def _all_fall() -> lt.FunctionSystem:
+    """A 24-gain system of the toy chain's box whose every trial fails."""
+    from examples.toy_plant import chain_space
+
+    return lt.FunctionSystem(chain_space(), lambda x: lt.Outcome(1.0, failed=True))
+
+
+@pytest.mark.parametrize("kw, said, unsaid", [
+    ({}, ["--escape-falls 8", "it screens at 0.3 unless told"], []),
+    ({"transfer_options": {"escape_falls": 4}}, ["it screens at 0.3 unless told"],
+     ["--escape-falls"]),
+    ({"max_fall_prob": 0.1}, ["it screens at 0.1)", "--escape-falls 8"], ["unless told"]),
+    ({"strategy": "plain"}, ["--handover", "--max-fall-prob 0.3"], []),
+    ({"handover": {"patience": 3}, "max_fall_prob": 0.2}, ["it screens at 0.2)"],
+     ["--handover", "--max-fall-prob 0.3"]),
+])
+def test_the_failing_warning_suggests_only_what_phase_3_does_not_do(tmp_path, source, caplog,
+                                                                    kw, said, unsaid):
+    """After 8 falls in a row phase 3 warned 'try … --escape-falls 8' to a run with
+    escape_falls on, 'it screens at 0.3 unless told' to one told 0.1, and '--handover',
+    '--max-fall-prob 0.3' to a plain run with both: the line now suggests what it does not do
+    (once, at the 8th fall)."""
+    import logging
+
+    with caplog.at_level(logging.WARNING, logger="latentune"):
+        lt.Study(tmp_path / "t", seed=0).phase3(_all_fall(), 12, latent=source, **kw)
+    warned = [r.getMessage() for r in caplog.records if "trials all failed" in r.getMessage()]
+    assert len(warned) == 1 and warned[0].startswith("phase 3: the last 8 trials"), warned
+    assert all(s in warned[0] for s in said) and not any(s in warned[0] for s in unsaid), \
+        warned[0]

@@ -189,27 +189,55 @@ def _progress(total: int, initial: int, desc: str, enabled: bool):
                 leave=True)
 
 
-def failing_message(phase: int, n: int, strategy: str = "plain") -> str:
+def failing_message(phase: int, n: int, strategy: str = "plain",
+                    running: dict[str, Any] | None = None) -> str:
     """The warning of a phase whose last ``n`` trials all failed, with what to try; in phase 3
     what the ``strategy`` (``"transfer"`` or ``"plain"``) can take: the hand-over is an option of
-    the plain strategy only, and the transfer strategy screens at ``--max-fall-prob`` already."""
+    the plain strategy only, and the transfer strategy screens at ``--max-fall-prob`` already.
+    ``running``: what the phase's critic does already (:func:`fall_options`), not suggested
+    again (None: not known)."""
+    run = running or {}
+    mfp = run.get("max_fall_prob")
     if int(phase) == 3 and strategy == "transfer":
         from latentune.critic.transfer import TRANSFER_DEFAULTS
 
+        p = TRANSFER_DEFAULTS["max_fall_prob"] if mfp is None else mfp
+        told = " unless told" if p == TRANSFER_DEFAULTS["max_fall_prob"] else ""
+        escape = "" if run.get("escape_falls") else \
+            "--escape-falls 8 if the target falls wherever the source stood, "
         return (f"phase 3: the last {n} trials all failed: the target may be far from the "
                 "source run, or fail wherever it is tuned (run its manual θ by hand); the "
                 "transfer strategy asks the manual θ while every trial failed; try a lower "
-                f"--max-fall-prob (it screens at {TRANSFER_DEFAULTS['max_fall_prob']:g} unless "
-                "told), --escape-falls 8 if the target falls wherever the source stood, or "
-                "phase 1 on the target")
+                f"--max-fall-prob (it screens at {p:g}{told}), {escape}or phase 1 on the "
+                "target")
     if int(phase) == 3:
+        handover = "" if run.get("handover") else "the hand-over (--handover), "
+        screen = ("the fall-aware critic (--max-fall-prob 0.3), " if mfp is None else
+                  f"a lower --max-fall-prob (it screens at {mfp:g}), ")
         return (f"phase 3: the last {n} trials all failed: the target may be far from the "
-                "latent space's source; try the hand-over (--handover), the fall-aware critic "
-                "(--max-fall-prob 0.3), the transfer strategy (the default), or phase 1 on "
-                "the target")
+                f"latent space's source; try {handover}{screen}the transfer strategy (the "
+                "default), or phase 1 on the target")
     return (f"phase {int(phase)}: the last {n} trials all failed: the search is where the "
             "system fails; try the fall-aware critic (--max-fall-prob 0.3), a start θ that "
             "does not fail, or narrower bounds")
+
+
+def fall_options(critic: Any) -> dict[str, Any]:
+    """What a phase's ``critic`` does against falls already, for :func:`failing_message`:
+    ``max_fall_prob`` (its screen; None: none), ``escape_falls`` (the transfer critic's) and
+    ``handover`` (a hand-over critic)."""
+    from latentune.critic.fall_aware import FallAware
+    from latentune.critic.handover import Handover
+    from latentune.critic.transfer import Transfer
+
+    if isinstance(critic, Transfer):
+        return {"max_fall_prob": critic.opts["max_fall_prob"],
+                "escape_falls": int(critic.opts["escape_falls"])}
+    out: dict[str, Any] = {"handover": isinstance(critic, Handover)}
+    inner = critic.latent if isinstance(critic, Handover) else critic
+    if isinstance(inner, FallAware):
+        out["max_fall_prob"] = inner.max_fall_prob
+    return out
 
 
 def failure_streak(store: RunStore, phase: int) -> int:
@@ -484,7 +512,9 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
                 batch.done[i] = (cost, bool(r.failed))
                 streak = streak + 1 if r.failed else 0
                 if streak == FAIL_STREAK:
-                    log.warning(failing_message(phase, FAIL_STREAK, strategy))
+                    log.warning(failing_message(
+                        phase, FAIL_STREAK, strategy,
+                        fall_options(critic) if int(phase) == Phase.PHASE3 else None))
                 if cost < best and not r.failed:
                     best = cost
                 if on_row is not None:
