@@ -136,3 +136,19 @@ def test_the_failing_warning_suggests_only_what_phase_3_does_not_do(tmp_path, so
     assert len(warned) == 1 and warned[0].startswith("phase 3: the last 8 trials"), warned
     assert all(s in warned[0] for s in said) and not any(s in warned[0] for s in unsaid), \
         warned[0]
+
+
+@pytest.mark.parametrize("opts", [{"walk_pick": "fall"}, {"walk_pick": "band", "record_walk": 0}])
+def test_walk_pick_without_a_record_walk_is_refused_by_the_api(tmp_path, source, opts):
+    """``Study.phase3(transfer_options={"walk_pick": "fall"})`` ran and ignored walk_pick (there
+    is no walk to choose steps for; the CLI refuses --walk-pick without --record-walk): it is
+    refused before anything is stored."""
+    from examples.toy_plant import make_real_system
+
+    study = lt.Study(tmp_path / "t", seed=0)
+    with pytest.raises(ValueError, match="walk_pick chooses the steps of a record walk"):
+        study.phase3(make_real_system(), 4, latent=source, transfer_options=opts)
+    assert not study.exists or study.store.count(3) == 0
+    assert lt.Study(tmp_path / "u", seed=0).phase3(
+        make_real_system(), 4, latent=source,
+        transfer_options={**opts, "record_walk": 2}).n == 4

@@ -666,6 +666,10 @@ class Transfer(TwoSpaceCritic):
         if self.opts["walk_pick"] not in WALK_PICKS:
             raise ValueError(f"walk_pick must be one of {WALK_PICKS}, "
                              f"got {self.opts['walk_pick']!r}")
+        if "walk_pick" in options and not int(k_rw) > 0:      # it would be ignored
+            raise ValueError(f"walk_pick chooses the steps of a record walk: give record_walk "
+                             f"> 0 with it (got walk_pick = {self.opts['walk_pick']!r}, "
+                             f"record_walk = {k_rw!r})")
         k_es = self.opts["escape_falls"]
         if not is_whole(k_es, 0):
             raise ValueError(f"escape_falls must be an integer ≥ 0 (0: off), got {k_es!r}")
