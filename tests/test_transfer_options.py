@@ -119,7 +119,7 @@ def test_the_fall_budget_of_a_phase_3_on_its_own_system_counts_only_target_trial
         assert not fb["spent"] or fb["falls"] >= fb["falls_allowed"]
 
 
-def test_a_spent_fall_budget_ends_phase_3_and_ask_says_so(tmp_path, src):
+def test_a_spent_fall_budget_ends_phase_3_and_ask_says_so(tmp_path, src, run_cli):
     """``fall_budget`` 0.1 of 20 phase-3 trials and the zero-shot one allows 2 falls after the
     first standing trial (the default count): the loop stops at the batch that spends it (2
     points a batch: at most one fall over), status says so, a resume asks nothing more, and
@@ -142,6 +142,9 @@ def test_a_spent_fall_budget_ends_phase_3_and_ask_says_so(tmp_path, src):
         with pytest.raises(StoreError, match="fall budget is spent") as info:
             st.ask(phase=3, budget=20, latent=src, transfer_options={"fall_budget": 0.1})
         assert "\n" not in str(info.value)
+    # status said "N falls counted" of a budget that counts only falls after a standing trial
+    out = run_cli("status", tmp_path / "t")[1]
+    assert "falls counted (those after the first trial that stood), 2 allowed; spent" in out
 
 
 def test_transfer_options_under_plain_name_the_strategy_without_claiming_a_hand_over():

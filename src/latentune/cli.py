@@ -932,8 +932,10 @@ def cmd_status(args: argparse.Namespace) -> int:
               + (f", pools {'/'.join(sorted(set(last['pools'])))}" if last.get("pools") else ""))
     fb = s.get("fall_budget")
     if fb:
-        print(f"phase 3 fall budget: {fb['falls']} falls counted, {fb['falls_allowed']} allowed"
-              + ("; spent: phase 3 asks no more" if fb["spent"] else ""))
+        which = " (those after the first trial that stood)" \
+            if fb.get("counts") == "after_stand" else ""
+        print(f"phase 3 fall budget: {fb['falls']} falls counted{which}, {fb['falls_allowed']} "
+              "allowed" + ("; spent: phase 3 asks no more" if fb["spent"] else ""))
     leases = s.get("leases") or {}
 
     def held(i: int) -> str:

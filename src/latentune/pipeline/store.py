@@ -600,7 +600,8 @@ class RunStore:
             t = self._trial(trial_id)
             if t.status == "told":
                 raise StoreError(f"suggestion {trial_id} was already told (evaluation {t.idx} "
-                                 f"of phase {t.phase}; to correct it, amend it)")
+                                 f"of phase {t.phase}; to correct it: tell --amend, "
+                                 "amend=True in Python)")
             if t.status != "pending":
                 raise StoreError(f"suggestion {trial_id} is not handed out ({t.status}: " + (
                     "never asked for, or released; ask for it)" if t.status == "queued" else
