@@ -969,7 +969,7 @@ def test_status_says_no_trial_told_yet_while_every_suggestion_is_out(run_cli, tm
     assert code == 0 and "0 trials, 0 failed, 2 pending; no trial told yet" in out
     assert run_cli("tell", d, "1", "--failed")[0] == 0
     out = run_cli("status", d)[1]
-    assert "1 trials, 1 failed, 1 pending; no trial without a fall" in out
+    assert "1 trial, 1 failed, 1 pending; no trial without a fall" in out
 
 
 def test_report_says_what_the_tables_do_not_show(run_cli, tmp_path):
@@ -1219,3 +1219,13 @@ def test_tell_says_when_a_robot_trial_fell(run_cli, tmp_path, error_line):
         assert want in error_line(*run_cli("tell", d, "3", *flags)[::2]), flags
     with lt.Study(d) as st:
         assert len(st.store.rows(Phase.PHASE1)) == 2
+
+
+def test_status_lists_the_phases_in_the_order_they_ran(tmp_path):
+    """status listed phase 3 before the zero-shot trial that opens it (the phases' numbers)."""
+    from latentune.pipeline.results import status
+
+    with store_module.RunStore(tmp_path / "s", create=True) as st:
+        st.add(Phase.PHASE3, 0, np.zeros(2), 1.0, fell=False, tag=-1)
+        st.add(Phase.ZERO_SHOT, 0, np.ones(2), 2.0, fell=False, tag=-1)
+        assert list(status(st, tmp_path / "s")["phases"]) == ["zero-shot", "phase 3"]

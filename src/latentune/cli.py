@@ -920,7 +920,8 @@ def cmd_status(args: argparse.Namespace) -> int:
             if p["best"] is None else (
             f"best {p['best']:.6g} (evaluation {p['best_idx']}"
             + (f", suggestion {p['best_trial']}" if p.get("best_trial") is not None else "") + ")")
-        print(f"{name}: {p['n']} trials, {p['failed']} failed, {p['pending']} pending; {best}")
+        print(f"{name}: {p['n']} trial{'' if p['n'] == 1 else 's'}, {p['failed']} failed, "
+              f"{p['pending']} pending; {best}")
     dec = s.get("decisions")
     if dec:
         last = dec["last"]

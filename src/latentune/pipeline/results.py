@@ -232,7 +232,7 @@ def status(store: RunStore, run_dir: Path, config: dict[str, Any] | None = None
     all_trials = store.trials()
     now = time.time()
     pending = [t for t in all_trials if t.status == "pending"]
-    for ph in Phase:
+    for ph in sorted(Phase, key=lambda p: (p == Phase.PHASE3, p)):   # the order they run in
         rows = store.rows(ph)
         n_pending = sum(1 for t in pending if t.phase == ph)
         if not rows and not n_pending:
