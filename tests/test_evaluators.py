@@ -242,6 +242,49 @@ def test_process_pool_close_does_not_wait_for_a_trial_that_was_left():
     assert time.monotonic() - t0 < 10
 
 
+def test_process_pool_left_imap_then_a_dead_worker_is_clean(monkeypatch):
+    """(An imap left while trials were queued (SIGTERM, Ctrl-C, an error) cancelled them in
+    this thread; a worker that then died, or close() terminating the workers, made the pool's
+    manager thread fail: a traceback 'InvalidStateError: CANCELLED' under the one-line
+    'terminated' message, and the other workers were left running.) No thread fails, every
+    worker of the old pool ends, and the next imap runs at once."""
+    import threading
+
+    from latentune.pipeline.evaluators import ProcessEvaluator
+
+    failed: list[str] = []
+    monkeypatch.setattr(threading, "excepthook",
+                        lambda a: failed.append(f"{a.exc_type.__name__}: {a.exc_value}"))
+    X = np.array([[0.0]] + [[1.0]] * 9)     # the quick trial, then hung ones (queued as well)
+    ev = ProcessEvaluator(2)
+    try:
+        it = ev.imap(_hangs_above_half, X)
+        i, out = next(it)
+        assert i == 0 and out.cost == 0.0
+        it.close()
+        time.sleep(0.5)                     # both workers in a hung trial, more queued
+        procs = list(ev._pool._processes.values())
+        os.kill(procs[0].pid, signal.SIGKILL)       # killed from outside
+        t0 = time.monotonic()
+        while not getattr(ev._pool, "_broken", False) and time.monotonic() - t0 < 10:
+            time.sleep(0.05)
+        time.sleep(0.5)
+        t0 = time.monotonic()
+        got = dict(ev.imap(_hangs_above_half, np.array([[0.1], [0.2]])))
+        assert time.monotonic() - t0 < 10 and {i: r.cost for i, r in got.items()} == \
+            {0: 0.1, 1: 0.2}
+        for p in procs:
+            p.join(5)
+            assert p.exitcode is not None, "a worker of the broken pool was left running"
+        it = ev.imap(_hangs_above_half, X)
+        next(it)
+        it.close()
+    finally:
+        ev.close()                          # terminates the left trials' workers
+    time.sleep(0.5)
+    assert failed == []
+
+
 def test_process_pool_refuses_a_function_of_an_interactive_main(tmp_path, cli_env):
     """A function or System defined in ``__main__`` of a session without a file (a notebook,
     python -c) cannot be imported by a worker: EvaluationError naming workers=1 (the pool

@@ -343,7 +343,9 @@ class ProcessEvaluator(Evaluator):
     ``info["timed_out"]``. A pool that loses a worker loses all of them (``concurrent.futures``
     stops the others): it is replaced, and the trials the others were running are run again.
     A trial lost :data:`MAX_LOST` times with workers that died of something else (no trial of
-    theirs is to blame: a worker killed from outside) ends as failed too.
+    theirs is to blame: a worker killed from outside) ends as failed too. The trials of an
+    ``imap`` that was left before its end (Ctrl-C, an error) are not waited for: the next
+    ``imap``, or :meth:`close`, terminates the workers still running or queued for them.
     """
 
     def __init__(self, workers: int = 2, start_method: str | None = None,
@@ -376,10 +378,11 @@ class ProcessEvaluator(Evaluator):
         return pool, starts
 
     def _replace_pool(self) -> tuple[dict[int, int | None], Any]:
-        """Replace a broken pool: ``({pid: exit code}, start queue)`` of the old one's workers
-        (every one has ended: ``concurrent.futures`` terminates the others)."""
+        """Replace a broken pool, or one running trials of a left imap (its workers are
+        terminated: a hung one would hold the next trials for ever): ``({pid: exit code}, start
+        queue)`` of the old one's workers (every one has ended)."""
         old, starts = self._pool, self._starts
-        procs = list((getattr(old, "_processes", None) or {}).values())
+        procs = self._stop_left()
         old.shutdown(wait=True, cancel_futures=True)
         self._pool, self._starts = self._new_pool()
         self.replaced += 1
@@ -406,8 +409,8 @@ class ProcessEvaluator(Evaluator):
         stopped: dict[int, int] = {}    # trials to blame for a break (timed out, died) -> pid
         lost = [0] * X.shape[0]
         idle_breaks = 0                                # breaks with no trial running
-        if getattr(self._pool, "_broken", False):      # a worker died between two calls
-            self._replace_pool()[1].close()
+        if getattr(self._pool, "_broken", False) or self._left():
+            self._replace_pool()[1].close()    # a worker died, or trials of a left imap run
         try:
             while todo or futs:
                 for i in todo:
@@ -469,9 +472,25 @@ class ProcessEvaluator(Evaluator):
                 for i in sorted(ends):
                     yield i, ends[i]
         finally:
-            for f in futs:
-                if not f.cancel():             # running: its result will not be looked at
-                    self._abandoned.add(f)
+            # not cancelled here: a future cancelled in this thread that the pool has not taken
+            # yet makes its manager thread fail (InvalidStateError) when a worker then dies;
+            # their results will not be looked at, the next imap or close stops them
+            self._abandoned.update(f for f in futs if not f.done())
+
+    def _left(self) -> bool:
+        """Whether a trial of an imap that was left has not finished (queued or running)."""
+        self._abandoned = {f for f in self._abandoned if not f.done()}
+        return bool(self._abandoned)
+
+    def _stop_left(self) -> list[Any]:
+        """Terminate the pool's workers if a trial of a left imap has not finished (else the
+        pool's shutdown would wait for it); return the worker processes."""
+        procs = list((getattr(self._pool, "_processes", None) or {}).values())
+        if self._left():
+            for p in procs:
+                p.terminate()
+        self._abandoned.clear()
+        return procs
 
     def _wait_s(self, started: dict[int, tuple[int, float]], stopped: dict[int, int]) -> float:
         """How long the next wait may block: until the next running trial's timeout, at most
@@ -513,11 +532,7 @@ class ProcessEvaluator(Evaluator):
         """Stop the workers; a trial still running for an ``imap`` that was left (Ctrl-C, an
         error) is not waited for: its worker is terminated (a hung or long trial held the
         caller for ever)."""
-        procs = list((getattr(self._pool, "_processes", None) or {}).values())
-        if any(not f.done() for f in self._abandoned):
-            for p in procs:
-                p.terminate()
-        self._abandoned.clear()
+        self._stop_left()
         self._pool.shutdown(wait=True, cancel_futures=True)
         self._starts.close()
         self._alive_r.close()
