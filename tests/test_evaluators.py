@@ -497,6 +497,38 @@ def test_process_pool_stops_a_trial_past_its_timeout():
         make_evaluator("serial", 1, trial_timeout=2)
 
 
+SLOW_BUILD = """
+import os, time
+import numpy as np
+import latentune as lt
+
+
+def make(main_pid, build):
+    if os.getpid() != main_pid:         # a worker's build: loads a model, starts a simulator
+        time.sleep(build)
+    return lt.FunctionSystem(lt.ParameterSpace(["a", "b"], [0, 0], [1, 1]),
+                             lambda u: float(np.sum(u)))
+"""
+
+
+def test_a_workers_build_of_a_system_is_not_timed_as_its_trial(tmp_path, monkeypatch):
+    """(The first trial of each worker counted the worker's build of a --system: a factory that
+    takes longer than --trial-timeout made every trial time out, each stopped worker's
+    successor building it again.) Only the trial itself is timed."""
+    from latentune.pipeline.evaluators import ProcessEvaluator
+    from latentune.system import load_system
+
+    (tmp_path / "slowbuild.py").write_text(SLOW_BUILD)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    system = load_system("slowbuild:make", {"main_pid": os.getpid(), "build": 2.0})
+    X = np.random.default_rng(0).random((4, 2))
+    with ProcessEvaluator(2, trial_timeout=1.0) as ev:
+        got = dict(ev.imap(system, X))
+        assert ev.replaced == 0
+    for i in range(4):
+        assert not got[i].failed and got[i].cost == pytest.approx(float(np.sum(X[i])))
+
+
 def test_study_trial_timeout_is_stored_and_checked(tmp_path, run_cli, error_line):
     """Study(trial_timeout=S) / --trial-timeout S: a hung trial is a fall; S is recorded and a
     reopened study uses it; a value or backend that cannot honour it is refused."""

@@ -234,20 +234,22 @@ def _sendable(r: Outcome | TrialError) -> Outcome | TrialError:
 def _run_sent(fun: Any, key: str | None, x: np.ndarray,
               token: Any = None) -> Outcome | TrialError:
     """:func:`run_trial` in a worker process: its result as the worker can send it back. With a
-    ``token`` (a process pool's trial), ``(token, pid, time.monotonic())`` is first put on the
-    worker's start queue: the pool learns which process runs the trial, since when."""
+    ``token`` (a process pool's trial), ``(token, pid, time.monotonic())`` is put on the
+    worker's start queue once the System is built (a worker's first build of a ``--system``,
+    which may load a model, is not part of the trial's time): the pool learns which process
+    runs the trial, since when."""
+    fun = _cached(fun, key)
+    if isinstance(fun, TrialError):
+        return fun
     if token is not None and _STARTS is not None:
         _STARTS.put((token, os.getpid(), time.monotonic()))
-    return _sendable(run_trial(fun, key, x))
+    return _sendable(run_trial(fun, None, x))
 
 
-def run_trial(fun: Any, key: str | None, x: np.ndarray) -> Outcome | TrialError:
-    """Evaluate one point in this process (the worker side of every backend).
-
-    A System with a ``key`` is cached: the worker keeps the first instance sent with that key.
-    A :class:`PluginRef` is built here (once per worker). A plain callable's return value must
-    be a real number (nan/inf allowed); anything else is a TrialError naming what it returned.
-    """
+def _cached(fun: Any, key: str | None) -> Any:
+    """``fun``, or with a ``key`` the worker's cached instance of it: the first one sent with
+    that key (a :class:`PluginRef` built here, once per worker); a TrialError if the build
+    failed."""
     if key is not None:
         cached = _WORKER_CACHE.get(key)
         if cached is None:
@@ -264,6 +266,19 @@ def run_trial(fun: Any, key: str | None, x: np.ndarray) -> Outcome | TrialError:
             _WORKER_CACHE.clear()              # one cached System (one simulator) per worker
             _WORKER_CACHE[key] = cached = built
         fun = cached
+    return fun
+
+
+def run_trial(fun: Any, key: str | None, x: np.ndarray) -> Outcome | TrialError:
+    """Evaluate one point in this process (the worker side of every backend).
+
+    A System with a ``key`` is cached: the worker keeps the first instance sent with that key.
+    A :class:`PluginRef` is built here (once per worker). A plain callable's return value must
+    be a real number (nan/inf allowed); anything else is a TrialError naming what it returned.
+    """
+    fun = _cached(fun, key)
+    if isinstance(fun, TrialError):
+        return fun
     x = np.asarray(x, dtype=float).copy()
     try:
         if hasattr(fun, "evaluate"):
@@ -340,7 +355,8 @@ class ProcessEvaluator(Evaluator):
     is an Outcome with ``failed=True`` and ``info["worker_died"]`` (the exit code), a plain
     callable's a :class:`TrialError`; the other trials go on. ``trial_timeout`` (seconds, None:
     none): a trial running longer is stopped (its worker is killed) and ends the same way, with
-    ``info["timed_out"]``. A pool that loses a worker loses all of them (``concurrent.futures``
+    ``info["timed_out"]`` (a worker's build of a ``--system`` before its first trial is not
+    timed). A pool that loses a worker loses all of them (``concurrent.futures``
     stops the others): it is replaced, and the trials the others were running are run again.
     A trial lost :data:`MAX_LOST` times with workers that died of something else (no trial of
     theirs is to blame: a worker killed from outside) ends as failed too. The trials of an
