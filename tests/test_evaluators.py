@@ -511,6 +511,30 @@ def make(main_pid, build):
 """
 
 
+def _sleeps(x):
+    time.sleep(60 if x[0] > 0.8 else x[0] + 0.1)
+    return float(x[0])
+
+
+def test_trials_that_hang_together_are_stopped_together():
+    """(Two trials hanging on 2 workers, started 0.1 s apart, took twice the timeout: stopping
+    the first one's worker broke the pool, the second was lost with it and ran again, hanging
+    for a second timeout.) Trials whose timeouts fall together are stopped together: one pool
+    replaced, one timeout."""
+    from latentune.pipeline.evaluators import ProcessEvaluator, TrialError
+
+    with ProcessEvaluator(2, trial_timeout=2.0) as ev:
+        ev.map(_sleeps, np.array([[0.0], [0.0]]))        # both workers started and idle
+        t0 = time.monotonic()
+        got = dict(ev.imap(_sleeps, np.array([[0.1], [0.2], [0.9], [0.95]])))
+        took = time.monotonic() - t0
+        assert ev.replaced == 1, ev.replaced
+    assert got[0].cost == 0.1 and got[1].cost == 0.2 and sorted(got) == [0, 1, 2, 3]
+    assert all(isinstance(got[i], TrialError) and "timeout of 2 s" in got[i].message
+               for i in (2, 3))
+    assert 2.0 <= took < 4.0, took
+
+
 def test_a_workers_build_of_a_system_is_not_timed_as_its_trial(tmp_path, monkeypatch):
     """(The first trial of each worker counted the worker's build of a --system: a factory that
     takes longer than --trial-timeout made every trial time out, each stopped worker's

@@ -432,7 +432,7 @@ class ProcessEvaluator(Evaluator):
                 for i in todo:
                     futs[self._pool.submit(_run_sent, fun, key, X[i], (run, i))] = i
                 todo = []
-                done, _ = wait(futs, timeout=self._wait_s(started, stopped),
+                done, _ = wait(futs, timeout=self._wait_s(started, stopped, futs.values()),
                                return_when=FIRST_COMPLETED)
                 _read_starts(self._starts, run, started)
                 broken = False
@@ -508,24 +508,42 @@ class ProcessEvaluator(Evaluator):
         self._abandoned.clear()
         return procs
 
-    def _wait_s(self, started: dict[int, tuple[int, float]], stopped: dict[int, int]) -> float:
-        """How long the next wait may block: until the next running trial's timeout, at most
+    def _stop_at(self, started: dict[int, tuple[int, float]], stopped: dict[int, int],
+                 running: Any) -> float | None:
+        """When the next trials past their timeout are to be stopped (``time.monotonic()``;
+        None: no running trial has a timeout): the first running trial's deadline or, since a
+        worker's death stops every running trial, the last one within :data:`POLL_S` (at most a
+        quarter of the timeout) after it: trials that hang together are stopped together, not
+        each lost with the other's worker and run again for another timeout."""
+        if self.trial_timeout is None:
+            return None
+        due = [t0 + self.trial_timeout for i, (_, t0) in started.items()
+               if i in running and i not in stopped]
+        if not due:
+            return None
+        first = min(due)
+        return max(d for d in due if d <= first + min(POLL_S, self.trial_timeout / 4))
+
+    def _wait_s(self, started: dict[int, tuple[int, float]], stopped: dict[int, int],
+                running: Any) -> float:
+        """How long the next wait may block: until the running trials' next stop, at most
         :data:`POLL_S` (new starts are read between waits)."""
-        t0s = [t0 for i, (_, t0) in started.items() if i not in stopped]
-        if self.trial_timeout is None or not t0s:
+        at = self._stop_at(started, stopped, running)
+        if at is None:
             return POLL_S
-        return min(POLL_S, max(0.0, min(t0s) + self.trial_timeout - time.monotonic()))
+        return min(POLL_S, max(0.0, at - time.monotonic()))
 
     def _stop_late(self, started: dict[int, tuple[int, float]], stopped: dict[int, int],
                    futs: dict[Any, int]) -> None:
-        """Kill the worker of every running trial past its timeout (the pool breaks: the next
-        wait sees it)."""
-        if self.trial_timeout is None:
-            return
-        now = time.monotonic()
+        """Kill the worker of every running trial past its timeout once it is time to stop
+        them (:meth:`_stop_at`; the pool breaks: the next wait sees it)."""
         running = set(futs.values())
+        at = self._stop_at(started, stopped, running)
+        now = time.monotonic()
+        if at is None or now < at:
+            return
         for i, (pid, t0) in started.items():
-            if i in running and i not in stopped and now - t0 > self.trial_timeout:
+            if i in running and i not in stopped and t0 + self.trial_timeout <= now:
                 log.warning("a trial ran longer than its timeout of %g s: its worker process "
                             "%d is stopped", self.trial_timeout, pid)
                 stopped[i] = pid
