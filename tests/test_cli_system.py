@@ -324,3 +324,55 @@ def test_load_system_refuses_arguments_that_are_not_a_dict():
 
     with pytest.raises(SystemSpecError, match="the factory's arguments must be a dict, got \\[1\\]"):
         load_system("examples.toy_plant:make_system", [1])
+
+
+CLASS_PLUGIN = textwrap.dedent('''
+    import numpy as np
+    import latentune as lt
+
+
+    class Plant:
+        """A system class: the class itself is the natural factory."""
+        def __init__(self, dim=3, shift=0.0):
+            self.space = lt.ParameterSpace([f"w{i}" for i in range(dim)], [-1.0] * dim,
+                                           [1.0] * dim)
+            self.shift = shift
+        def evaluate(self, u):
+            return float(np.sum((self.space.to_physical(u) - self.shift) ** 2))
+
+
+    class WithSpace(Plant):
+        """A class with a class-level space: a class passes the protocol's attribute test."""
+        space = lt.ParameterSpace(["a"], [0.0], [1.0])
+        def __init__(self):
+            pass
+
+
+    def returns_int():
+        return 42
+''')
+
+
+@pytest.fixture
+def class_plugin(tmp_path, monkeypatch):
+    """A directory holding ``classplant.py``, made the current directory."""
+    d = tmp_path / "cplugins"
+    d.mkdir()
+    (d / "classplant.py").write_text(CLASS_PLUGIN)
+    monkeypatch.chdir(d)
+    monkeypatch.syspath_prepend(str(d))
+    yield d
+    sys.modules.pop("classplant", None)
+
+
+def test_a_system_class_is_a_factory(class_plugin):
+    """``--system mod:Plant`` said 'type is not a latentune system', and with ``--system-arg``
+    'is not callable; it takes no --system-arg': a class is called like any factory."""
+    from latentune.system import load_system
+
+    s = load_system("classplant:Plant")
+    assert type(s).__name__ == "Plant" and s.space.dim == 3
+    s = load_system("classplant:Plant", {"dim": 2, "shift": 0.5})
+    assert s.space.dim == 2 and s.shift == 0.5
+    assert type(load_system("classplant:WithSpace")).__name__ == "WithSpace"
+

@@ -344,7 +344,8 @@ def load_system(target: str, args: dict[str, Any] | None = None) -> Any:
 
     The current directory is searched for ``module`` (as ``python -m`` does).
 
-    ``factory`` may also be a System instance (then ``args`` must be empty). Raises
+    ``factory`` may be a function or a system class (called with ``args``), or a System
+    instance (then ``args`` must be empty). Raises
     :class:`SystemSpecError` with one line for a malformed target, a module that cannot be
     imported, a missing attribute, a factory that raises or returns a non-system.
     """
@@ -369,7 +370,8 @@ def load_system(target: str, args: dict[str, Any] | None = None) -> Any:
         if not hasattr(obj, part):
             raise SystemSpecError(f"--system {target}: {mod_name} has no attribute {attr!r}")
         obj = getattr(obj, part)
-    if callable(obj) and not hasattr(obj, "evaluate"):
+    if inspect.isclass(obj) or (callable(obj) and not hasattr(obj, "evaluate")):
+        # a factory: a function, or a system class (whose ``evaluate`` is not a system's)
         try:
             if args:
                 inspect.signature(obj).bind(**args)
