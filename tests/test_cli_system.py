@@ -376,3 +376,15 @@ def test_a_system_class_is_a_factory(class_plugin):
     assert s.space.dim == 2 and s.shift == 0.5
     assert type(load_system("classplant:WithSpace")).__name__ == "WithSpace"
 
+
+def test_a_factory_that_returns_no_system_names_the_factory_and_what_it_gave(class_plugin):
+    """A factory returning 42 said only 'int is not a latentune system'."""
+    from latentune.errors import SystemSpecError
+    from latentune.system import load_system
+
+    with pytest.raises(SystemSpecError) as e:
+        load_system("classplant:returns_int")
+    msg = str(e.value)
+    assert "--system classplant:returns_int" in msg and "returned int 42" in msg
+    assert "not a latentune system" in msg and "\n" not in msg
+

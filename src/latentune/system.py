@@ -270,14 +270,16 @@ class FunctionSystem:
         return f"FunctionSystem({self.name}, dim={self.space.dim})"
 
 
-def check_system(system: Any) -> Any:
-    """Return ``system`` if it follows the protocol, else raise :class:`SystemSpecError`."""
+def check_system(system: Any, what: str | None = None) -> Any:
+    """Return ``system`` if it follows the protocol, else raise :class:`SystemSpecError`
+    naming ``what`` (default: the object's type) as the thing that is not a system."""
+    name = what or type(system).__name__
     space = getattr(system, "space", None)
     if not isinstance(space, ParameterSpace):
-        raise SystemSpecError(f"{type(system).__name__} is not a latentune system: it needs a "
+        raise SystemSpecError(f"{name} is not a latentune system: it needs a "
                               "`space` attribute that is a latentune.ParameterSpace")
     if not callable(getattr(system, "evaluate", None)):
-        raise SystemSpecError(f"{type(system).__name__} is not a latentune system: it needs a "
+        raise SystemSpecError(f"{name} is not a latentune system: it needs a "
                               "method evaluate(theta) -> Outcome or cost")
     return system
 
@@ -384,9 +386,11 @@ def load_system(target: str, args: dict[str, Any] | None = None) -> Any:
         except Exception as exc:  # noqa: BLE001
             raise SystemSpecError(f"--system {target}: the factory raised {type(exc).__name__}: "
                                   f"{' '.join(str(exc).split())[:200]}") from None
+        check_system(obj, f"--system {target} returned {type(obj).__name__} "
+                          f"{' '.join(_short(obj).split())}, which")
     elif args:
         raise SystemSpecError(f"--system {target} is not callable; it takes no --system-arg")
-    check_system(obj)
+    check_system(obj, f"--system {target} ({type(obj).__name__})")
     try:  # what a study records of a plugin: the string and its arguments, for the user to read
         obj.latentune_plugin = {"target": target, "args": args}
     except (AttributeError, TypeError):
