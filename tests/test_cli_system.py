@@ -388,3 +388,19 @@ def test_a_factory_that_returns_no_system_names_the_factory_and_what_it_gave(cla
     assert "--system classplant:returns_int" in msg and "returned int 42" in msg
     assert "not a latentune system" in msg and "\n" not in msg
 
+
+def test_a_class_passed_for_a_system_is_refused_before_a_trial(class_plugin, tmp_path):
+    """``Study.phase1(WithSpace)`` (the class, not an instance) passed the protocol check and
+    stopped at the first trial with 'type.evaluate raised TypeError: … missing 1 required
+    positional argument'."""
+    import classplant
+    from latentune.errors import SystemSpecError
+    from latentune.system import check_system
+
+    with pytest.raises(SystemSpecError, match=r"WithSpace is a class, not a system: pass an "
+                                              r"instance, WithSpace\(\.\.\.\)"):
+        check_system(classplant.WithSpace)
+    st = lt.Study(tmp_path / "r")
+    with pytest.raises(SystemSpecError, match="is a class, not a system"):
+        st.phase1(classplant.WithSpace, budget=2)
+    assert not (tmp_path / "r" / "run.db").exists() or st.trials() == []

@@ -274,6 +274,9 @@ def check_system(system: Any, what: str | None = None) -> Any:
     """Return ``system`` if it follows the protocol, else raise :class:`SystemSpecError`
     naming ``what`` (default: the object's type) as the thing that is not a system."""
     name = what or type(system).__name__
+    if inspect.isclass(system):      # its evaluate would be called without an instance
+        raise SystemSpecError(f"{system.__name__} is a class, not a system: pass an instance, "
+                              f"{system.__name__}(...)")
     space = getattr(system, "space", None)
     if not isinstance(space, ParameterSpace):
         raise SystemSpecError(f"{name} is not a latentune system: it needs a "
