@@ -1229,3 +1229,28 @@ def test_status_lists_the_phases_in_the_order_they_ran(tmp_path):
         st.add(Phase.PHASE3, 0, np.zeros(2), 1.0, fell=False, tag=-1)
         st.add(Phase.ZERO_SHOT, 0, np.ones(2), 2.0, fell=False, tag=-1)
         assert list(status(st, tmp_path / "s")["phases"]) == ["zero-shot", "phase 3"]
+
+
+def test_a_target_naming_its_parameters_in_another_order_is_told_which(tmp_path, src30):
+    """A target with the source's names in another order (or one renamed) was refused with
+    'trained on θ with other names than the system's', which read as a bug when the names were
+    the same: the line says they are in another order, or which names differ, before anything
+    is stored."""
+    from latentune.errors import LatentError
+
+    other = lt.ParameterSpace(["b", "a", "c", "d"], [-1.0] * 4, [1.0] * 4)
+    renamed = lt.ParameterSpace(["a", "b", "c", "e"], [-1.0] * 4, [1.0] * 4)
+    assert SPACE.box_difference(other.to_dict()) == \
+        "the same names in another order (b, a, c, d there; a, b, c, d here)"
+    assert SPACE.box_difference(renamed.to_dict()) == "other names (e there, not here; d here, " \
+                                                      "not there)"
+    for sp, expect in ((other, r"the same names in another order \(a, b, c, d there; "
+                                r"b, a, c, d here\)"),
+                       (renamed, r"other names \(d there, not here; e here, not there\)")):
+        sys_ = lt.FunctionSystem(sp, lambda x: float(np.sum(x ** 2)))
+        with lt.Study(tmp_path / "".join(sp.names), seed=0) as st:
+            with pytest.raises(LatentError, match=expect):
+                st.phase3(sys_, 4, latent=src30)
+            with pytest.raises(LatentError, match=expect):
+                st.ask(system=sys_, phase=3, latent=src30)
+            assert st.trials() == []

@@ -120,8 +120,9 @@ class ParameterSpace:
         as ``"b: [0, 1] there, [0, 100] here"``; None when they are the same (the manual θ
         aside)."""
         names = list(other.get("names") or [])
-        if names != list(self.names):
-            return f"other names ({', '.join(names[:4])}{', …' if len(names) > 4 else ''})"
+        diff = self.names_difference(names)
+        if diff is not None:
+            return diff
         try:
             lo, hi = np.asarray(other["low"], float), np.asarray(other["high"], float)
             lg = np.zeros(self.dim, bool) if other.get("log") is None else \
@@ -139,6 +140,25 @@ class ParameterSpace:
                 return (f"{n}: {box(lo[i], hi[i], bool(lg[i]))} there, "
                         f"{box(self.lower[i], self.upper[i], bool(self.log[i]))} here")
         return None
+
+    def names_difference(self, names: Sequence[str]) -> str | None:
+        """How the names ``names`` (another space's, "there") differ from this space's
+        ("here"): ``"the same names in another order (b, a there; a, b here)"`` or ``"other
+        names (e there, not here; d here, not there)"`` (up to 4 of each, in order); None when
+        they are the same, in the same order."""
+        there, here = [str(n) for n in names], list(self.names)
+        if there == here:
+            return None
+
+        def some(v: list[str]) -> str:
+            return ", ".join(v[:4]) + (", …" if len(v) > 4 else "")
+        if sorted(there) == sorted(here):
+            return f"the same names in another order ({some(there)} there; {some(here)} here)"
+        only_there = [n for n in there if n not in here]
+        only_here = [n for n in here if n not in there]
+        parts = ([f"{some(only_there)} there, not here"] if only_there else []) + \
+            ([f"{some(only_here)} here, not there"] if only_here else [])
+        return f"other names ({'; '.join(parts) or 'a name given twice'})"
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "ParameterSpace":

@@ -366,9 +366,10 @@ def resolve_latent(run: RunDir, manifest: Manifest, latent: Any, space: Paramete
         raise LatentError(f"the latent space ({source}) maps to {ls.d}-dim θ, but the "
                           f"system has {space.dim}-dim θ")
     names = ls.meta.get("space_names")
-    if names is not None and list(names) != list(space.names):
-        raise LatentError(f"the latent space ({source}) was trained on θ with other names "
-                          "than the system's: normalized θ would not mean the same thing")
+    diff = None if names is None else space.names_difference(list(names))
+    if diff is not None:
+        raise LatentError(f"the latent space ({source}) was trained on θ named otherwise than "
+                          f"the system's, {diff}: normalized θ would not mean the same thing")
     if source != "self":
         require_same_box(source, space, f"the latent space's run ({source})", LatentError)
     trained = ls.meta.get("actor")
