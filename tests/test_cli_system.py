@@ -404,3 +404,30 @@ def test_a_class_passed_for_a_system_is_refused_before_a_trial(class_plugin, tmp
     with pytest.raises(SystemSpecError, match="is a class, not a system"):
         st.phase1(classplant.WithSpace, budget=2)
     assert not (tmp_path / "r" / "run.db").exists() or st.trials() == []
+
+
+def test_a_trial_that_raises_or_returns_nan_names_its_theta(tmp_path):
+    """'Crashy.evaluate raised RuntimeError: solver diverged (phase 1; 9 evaluations are
+    stored; …)' did not say at which θ, the one thing needed to reproduce the crash (the θ is
+    not stored): the line now names it in physical units."""
+    from latentune.system import EvaluationError, evaluate
+
+    space = lt.ParameterSpace(["kp", "ki"], [1e-3, 0.0], [1e3, 2.0], log=[True, False])
+
+    class Crashy:
+        def __init__(self, nan: bool) -> None:
+            self.space, self.nan = space, nan
+
+        def evaluate(self, u):
+            if self.nan:
+                return float("nan")
+            raise RuntimeError("solver diverged")
+
+    u = space.to_unit(np.array([10.0, 0.5]))
+    with pytest.raises(EvaluationError, match=r"raised RuntimeError: solver diverged at θ "
+                                              r"kp=10, ki=0\.5$"):
+        evaluate(Crashy(False), u)
+    with pytest.raises(EvaluationError, match=r"non-finite cost \(nan\) at θ kp=10, ki=0\.5$"):
+        evaluate(Crashy(True), u)
+    with pytest.raises(EvaluationError, match=r"solver diverged at θ kp=1, ki=1"):  # manual θ
+        lt.Study(tmp_path / "r").phase1(Crashy(False), budget=3)

@@ -295,15 +295,28 @@ def evaluate(system: Any, theta: np.ndarray) -> Outcome:
     t0 = time.perf_counter()
     try:
         raw = system.evaluate(np.asarray(theta, dtype=float).copy())
-    except EvaluationError:
-        raise
+        out = as_outcome(raw)
+    except EvaluationError as exc:      # CostError stays a CostError
+        raise type(exc)(f"{exc}{_at(system, theta)}") from exc
     except (Exception, SystemExit) as exc:  # noqa: BLE001 - one line by the caller; sys.exit too
         raise EvaluationError(f"{type(system).__name__}.evaluate raised "
-                              f"{type(exc).__name__}: {' '.join(str(exc).split())[:300]}") from exc
-    out = as_outcome(raw)
+                              f"{type(exc).__name__}: {' '.join(str(exc).split())[:300]}"
+                              f"{_at(system, theta)}") from exc
     if out.wall_s is None:
         out.wall_s = time.perf_counter() - t0
     return out
+
+
+def _at(system: Any, theta: np.ndarray, most: int = 6) -> str:
+    """`` at θ kp=10, ki=0.5`` (physical values, the first ``most`` names): where a trial
+    failed to give a cost, for the error line; "" when the θ cannot be shown."""
+    try:
+        space = system.space
+        x = space.to_physical(np.asarray(theta, dtype=float))
+        shown = ", ".join(f"{n}={v:.4g}" for n, v in zip(space.names[:most], x[:most]))
+    except Exception:  # noqa: BLE001 - the message must not fail
+        return ""
+    return f" at θ {shown}{', …' if space.dim > most else ''}"
 
 
 _DECIMAL = re.compile(r"[-+]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][-+]?[0-9]+)?")
