@@ -26,7 +26,7 @@ from latentune.reporting.metrics import paper_row, phase_stats, rms_velocity_err
 
 logger = logging.getLogger(__name__)
 
-TABLE_PHASES = (Phase.MANUAL, Phase.PHASE1, Phase.PHASE3, Phase.ZERO_SHOT)
+TABLE_PHASES = (Phase.MANUAL, Phase.PHASE1, Phase.ZERO_SHOT, Phase.PHASE3)
 """The table's rows, in order; a zero-shot row appears only when the store has one."""
 
 METHOD_LABEL = {"turbo": "TuRBO-m", "cma": "CMA-ES", "random": "random search",
@@ -176,7 +176,7 @@ def comparison_table(store: Any) -> str:
         if s["n"] == 0:
             # the zero-shot row only once it ran; an empty row of manual θ or phase 1 not when
             # a later phase holds trials (a phase 3 on another study's latent space runs none)
-            if ph == Phase.ZERO_SHOT or ph != Phase.PHASE3 and any(
+            if ph == Phase.ZERO_SHOT or ph in (Phase.MANUAL, Phase.PHASE1) and any(
                     stats[int(q)]["n"] for q in TABLE_PHASES[k + 1:]):
                 continue
             cells = ["–"] * (2 if rms else 1) + ["0", "–", "–"]
@@ -237,7 +237,8 @@ def write_summary(store: Any, wall_this: float | None = None) -> dict[str, Any]:
     wall = store.get_meta("wall", {}) or {}
     arts = store.get_meta("artifacts", {}) or {}
     st = run_stats(store)
-    p0, p1, p3, p4 = (st[int(ph)] for ph in TABLE_PHASES)
+    p0, p1, p3, p4 = (st[int(ph)] for ph in (Phase.MANUAL, Phase.PHASE1, Phase.PHASE3,
+                                              Phase.ZERO_SHOT))
     names = {"manual": p0, "phase1": p1, "phase3": p3, "zero_shot": p4}
     trial = {ph: phase_stats(store.costs(ph))["best"] for ph in (Phase.MANUAL, Phase.ZERO_SHOT)}
     summary = {
