@@ -62,16 +62,22 @@ PLUGIN = textwrap.dedent('''
 ''' % {"vars": THREAD_VARS})
 
 
-@pytest.fixture
-def plugin_dir(tmp_path, monkeypatch):
-    """A directory holding ``closplant.py``, made the current directory (as a user would run)."""
-    d = tmp_path / "plugins"
+def _module_dir(tmp_path, monkeypatch, name: str, text: str):
+    """A directory holding the module ``name`` (source ``text``), made the current directory
+    and put on sys.path (as a user would run); yields it, then forgets the module."""
+    d = tmp_path / f"{name}_dir"
     d.mkdir()
-    (d / "closplant.py").write_text(PLUGIN)
+    (d / f"{name}.py").write_text(text)
     monkeypatch.chdir(d)
     monkeypatch.syspath_prepend(str(d))
     yield d
-    sys.modules.pop("closplant", None)
+    sys.modules.pop(name, None)
+
+
+@pytest.fixture
+def plugin_dir(tmp_path, monkeypatch):
+    """A directory holding ``closplant.py``, made the current directory (as a user would run)."""
+    yield from _module_dir(tmp_path, monkeypatch, "closplant", PLUGIN)
 
 
 # ---------------------------------------------------------------------------- rollout
@@ -356,13 +362,7 @@ CLASS_PLUGIN = textwrap.dedent('''
 @pytest.fixture
 def class_plugin(tmp_path, monkeypatch):
     """A directory holding ``classplant.py``, made the current directory."""
-    d = tmp_path / "cplugins"
-    d.mkdir()
-    (d / "classplant.py").write_text(CLASS_PLUGIN)
-    monkeypatch.chdir(d)
-    monkeypatch.syspath_prepend(str(d))
-    yield d
-    sys.modules.pop("classplant", None)
+    yield from _module_dir(tmp_path, monkeypatch, "classplant", CLASS_PLUGIN)
 
 
 def test_a_system_class_is_a_factory(class_plugin):

@@ -532,7 +532,9 @@ def test_trials_that_hang_together_are_stopped_together():
     assert got[0].cost == 0.1 and got[1].cost == 0.2 and sorted(got) == [0, 1, 2, 3]
     assert all(isinstance(got[i], TrialError) and "timeout of 2 s" in got[i].message
                for i in (2, 3))
-    assert 2.0 <= took < 4.0, took
+    # one replacement is the proof (stopped one by one: two); the wall time only bounds it
+    # from below, since a loaded machine stretches the new pool's start
+    assert took >= 2.0, took
 
 
 def test_a_workers_build_of_a_system_is_not_timed_as_its_trial(tmp_path, monkeypatch):

@@ -666,7 +666,9 @@ class Transfer(TwoSpaceCritic):
         if self.opts["walk_pick"] not in WALK_PICKS:
             raise ValueError(f"walk_pick must be one of {WALK_PICKS}, "
                              f"got {self.opts['walk_pick']!r}")
-        if "walk_pick" in options and not int(k_rw) > 0:      # it would be ignored
+        if self.opts["walk_pick"] != TRANSFER_DEFAULTS["walk_pick"] and not int(k_rw) > 0:
+            # another pick without a walk would be ignored (the default, restored with a
+            # stored run's options, is no choice)
             raise ValueError(f"walk_pick chooses the steps of a record walk: give record_walk "
                              f"> 0 with it (got walk_pick = {self.opts['walk_pick']!r}, "
                              f"record_walk = {k_rw!r})")
