@@ -50,6 +50,13 @@ Systems (``SYSTEMS``; the model is gap 0, each target is the same controller on 
   longer pole, more cart friction, a weaker motor and a round(2 g)-step actuation delay (gaps
   0.5, 1, 2: at 2 most θ that balance the model fail). Added in session 45, after every option
   was chosen: a fifth held-out system.
+* ``servo`` — :mod:`examples.servo_cascade`, 14 gains and filters of a cascaded servo drive on a
+  flexible shaft (gaps 0.25, 0.5, 1). Added in session 50: a sixth held-out system.
+* ``buck`` — :mod:`examples.buck_converter`, 15 gains, limits and filters of a synchronous buck
+  converter's digital voltage and current loops; gap g: less inductance and capacitance (and the
+  ceramic's DC-bias derating), less ESR, a lower and rippled input, a round(2 g)-cycle longer
+  sensing delay and heavier load steps (gaps 0.25, 0.5, 1: at 1 none of the 50 best of 1,500
+  random θ that stand on the model stand). Added in session 51: a seventh held-out system.
 
 For every (system, seed) one source run: ``Study(ROOT/<system>/seed<s>/source, seed=s)``, phase 1
 (TuRBO-m, ``--source-evals`` trials on the model, batch 4) and the latent space. For every target
@@ -169,6 +176,12 @@ def _servo(g: float) -> Any:
     return make_system(gap=g)
 
 
+def _buck(g: float) -> Any:
+    from examples.buck_converter import make_system
+
+    return make_system(gap=g)
+
+
 def _springs(g: float) -> Any:
     from examples.toy_plant import make_real_system
 
@@ -188,6 +201,7 @@ SYSTEMS: dict[str, dict[str, Any]] = {
     "vehicle": {"model": lambda: _vehicle(0.0), "target": _vehicle, "gaps": (0.5, 1.0, 2.0)},
     "cartpole": {"model": lambda: _cartpole(0.0), "target": _cartpole, "gaps": (0.5, 1.0, 2.0)},
     "servo": {"model": lambda: _servo(0.0), "target": _servo, "gaps": (0.25, 0.5, 1.0)},
+    "buck": {"model": lambda: _buck(0.0), "target": _buck, "gaps": (0.25, 0.5, 1.0)},
 }
 
 

@@ -192,8 +192,8 @@ def test_optuna_hopper_benchmark_warm_starts_every_sampler_and_reuses_traces(tmp
     assert json.loads((tmp_path / "o.json").read_text())["per_seed"] == res["per_seed"]
 
 
-LADDER = ["arm_controller", "cartpole_swingup", "lqr_chain", "quadrotor_mpc", "servo_cascade",
-          "thermal_zones", "vehicle_lateral"]
+LADDER = ["arm_controller", "buck_converter", "cartpole_swingup", "lqr_chain", "quadrotor_mpc",
+          "servo_cascade", "thermal_zones", "vehicle_lateral"]
 
 
 STEPS_ARGS = [{"steps": 2.5}, {"steps": True}, {"steps": -3}, {"steps": 0}]
