@@ -1,0 +1,105 @@
+"""What the buck converter does under the manual θ and the best θ each method found: the output
+voltage against the specification and the over-voltage protection, and the inductor current
+(its average and its peak with the switching ripple) against the 12 A trip and the load, over
+the 10 ms (physics before costs).
+
+    python -m benchmarks.buck_traces [--root results/transfer/buck/runs] [--gap 0.5]
+        [--methods zero_shot transfer transfer+...] [--seed S] [--default METHOD]
+        --png F.png [--out F.json]
+
+Reads ``ROOT/buck/gap<g>/seed<s>/<method>.json`` (``benchmarks.transfer run --systems buck``),
+takes each method's best trial that did not fail (the lowest cost when every trial failed; the
+zero-shot θ is its only trial), re-runs that θ on the target
+(:meth:`examples.buck_converter.BuckSystem.simulate`), checks that the cost is the stored one,
+and draws one column per method after a first column for the manual θ on the same target.
+Without ``--seed`` the seed is the one whose ``--default`` best is the (lower) median over the
+seeds stored (default: today's default phase 3, :data:`benchmarks.transfer.DEFAULT_METHOD`), so
+the picture is not a chosen good case. The JSON holds per column the seed, trial index, cost,
+whether, when and why it failed, the largest output voltage (V), the deepest dip below the
+specification after the soft start (V) and the largest peak inductor current (A).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks.common import Provenance, add_out_arg
+from benchmarks.transfer import DEFAULT_METHOD
+from benchmarks.zones_traces import TracesError, median_seed, rerun_best, write_figure
+from examples.buck_converter import I_TRIP, OVP_GAIN, OVP_OFFSET, make_system
+
+
+def _label(m: str, default: str) -> str:
+    return "default" if m == default else "transfer (ladder)" if m == "transfer" else m
+
+
+def main(argv: list[str] | None = None) -> int:
+    prov = Provenance(argv, "benchmarks.buck_traces")
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--root", type=Path, default=Path("results/transfer/buck/runs"))
+    ap.add_argument("--gap", type=float, default=0.5)
+    ap.add_argument("--methods", nargs="+", default=["zero_shot", DEFAULT_METHOD])
+    ap.add_argument("--default", default=DEFAULT_METHOD,
+                    help="the method whose median seed is drawn when --seed is not given")
+    ap.add_argument("--seed", type=int, default=None)
+    ap.add_argument("--png", type=Path, required=True)
+    add_out_arg(ap)
+    a = ap.parse_args(argv)
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    system = make_system(a.gap)
+    try:
+        seed = median_seed(a.root, a.gap, a.default, "buck") if a.seed is None else a.seed
+        reruns = [rerun_best(system, a.root, a.gap, seed, m, "buck") for m in a.methods]
+    except TracesError as e:
+        print(f"buck_traces: error: {e}", file=sys.stderr)
+        return e.code
+    cols = [("manual", (None, *system.simulate(system.space.manual)))] + list(
+        zip(a.methods, reruns))
+    fig, axes = plt.subplots(2, len(cols), figsize=(4.0 * len(cols), 6.0), sharex=True,
+                             sharey="row", squeeze=False)
+    rows = []
+    for j, (m, (i, out, tr)) in enumerate(cols):
+        t = tr["time_s"] * 1e3
+        after = tr["time_s"] > 1e-3
+        rows.append({"method": m, "seed": seed, "trial": i, "cost": out.cost,
+                     "failed": out.failed, "fall_step": out.info.get("fall_step"),
+                     "reason": out.info.get("reason"),
+                     "max_vout_v": float(tr["vout"].max()),
+                     "max_dip_v": float((tr["spec"] - tr["vout"])[after].max())
+                     if after.any() else None,
+                     "max_il_peak_a": float(tr["il_peak"].max())})
+        ax = axes[0, j]
+        ax.plot(t, tr["spec"], lw=0.8, ls="--", color="0.5", label="specification")
+        ax.plot(t, OVP_GAIN * tr["setpoint"] + OVP_OFFSET, lw=0.6, ls=":", color="r",
+                label="over-voltage limit")
+        ax.plot(t, tr["vout"], lw=0.9, color="k", label="output")
+        ax.set_title(f"{_label(m, a.default)}: cost {out.cost:.2f}"
+                     + (f" (fell at {t[-1]:.2f} ms: {out.info.get('reason')})"
+                        if out.failed else ""), fontsize=8)
+        ax = axes[1, j]
+        ax.plot(t, tr["il_peak"], lw=0.5, color="C1", alpha=0.7, label="peak current")
+        ax.plot(t, tr["il"], lw=0.8, color="C0", label="inductor current")
+        ax.plot(t, tr["iload"], lw=0.8, color="C2", label="load current")
+        ax.axhline(I_TRIP, color="r", lw=0.6, ls=":")
+        ax.set_xlabel("time [ms]")
+    axes[0, 0].set_ylabel("output voltage [V]")
+    axes[1, 0].set_ylabel("current [A]")
+    axes[0, -1].legend(fontsize=7)
+    axes[1, -1].legend(fontsize=7)
+    fig.suptitle(f"Buck converter, gap {a.gap:g}, seed {seed}: the manual θ and the best θ of "
+                 f"each method (limits dotted)", fontsize=10)
+    write_figure(fig, a.png, a.out, prov, a.gap, seed, rows, f"buck gap {a.gap:g}, seed {seed}")
+    return 0
+
+
+if __name__ == "__main__":
+    from benchmarks.common import cli_main
+
+    sys.exit(cli_main(main, "benchmarks.buck_traces"))
