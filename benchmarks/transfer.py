@@ -57,6 +57,9 @@ Systems (``SYSTEMS``; the model is gap 0, each target is the same controller on 
   ceramic's DC-bias derating), less ESR, a lower and rippled input, a round(2 g)-cycle longer
   sensing delay and heavier load steps (gaps 0.25, 0.5, 1: at 1 none of the 50 best of 1,500
   random θ that stand on the model stand). Added in session 51: a seventh held-out system.
+* ``bowl`` — :mod:`examples.shifted_bowl`, a smooth anisotropic bowl in 8 weights whose optimum
+  the gap moves by g along every weight, no falls (gaps 0.1, 0.2, 0.3): a probe of phase 3's
+  refinement where the source is nearly right. Added in session 51.
 
 For every (system, seed) one source run: ``Study(ROOT/<system>/seed<s>/source, seed=s)``, phase 1
 (TuRBO-m, ``--source-evals`` trials on the model, batch 4) and the latent space. For every target
@@ -182,6 +185,12 @@ def _buck(g: float) -> Any:
     return make_system(gap=g)
 
 
+def _bowl(g: float) -> Any:
+    from examples.shifted_bowl import make_system
+
+    return make_system(gap=g)
+
+
 def _springs(g: float) -> Any:
     from examples.toy_plant import make_real_system
 
@@ -202,6 +211,7 @@ SYSTEMS: dict[str, dict[str, Any]] = {
     "cartpole": {"model": lambda: _cartpole(0.0), "target": _cartpole, "gaps": (0.5, 1.0, 2.0)},
     "servo": {"model": lambda: _servo(0.0), "target": _servo, "gaps": (0.25, 0.5, 1.0)},
     "buck": {"model": lambda: _buck(0.0), "target": _buck, "gaps": (0.25, 0.5, 1.0)},
+    "bowl": {"model": lambda: _bowl(0.0), "target": _bowl, "gaps": (0.1, 0.2, 0.3)},
 }
 
 
