@@ -24,7 +24,6 @@ import argparse
 import sys
 from pathlib import Path
 
-import numpy as np
 
 from benchmarks.common import Provenance, add_out_arg
 from benchmarks.transfer import DEFAULT_METHOD
