@@ -24,7 +24,6 @@ import argparse
 import sys
 from pathlib import Path
 
-
 from benchmarks.common import Provenance, add_out_arg
 from benchmarks.transfer import DEFAULT_METHOD
 from benchmarks.zones_traces import TracesError, median_seed, rerun_best, write_figure
