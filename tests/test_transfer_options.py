@@ -156,3 +156,24 @@ def test_transfer_options_under_plain_name_the_strategy_without_claiming_a_hand_
     with pytest.raises(UsageError) as e:
         transfer_option({"fall_budget": 0.2}, "plain", None)
     assert "not of the plain one" in str(e.value) and "implies" not in str(e.value)
+
+
+def test_target_scores_values_keep_how_much_better_a_trial_is():
+    """``target_scores="values"``: standing trials standardized, falls one sd above the worst
+    standing one; too few standing trials fall back to the rank scores; an unknown value is
+    refused, and the default is the ranks."""
+    from latentune.critic.transfer import Transfer
+    from latentune.critic.transfer_model import rank_scores, value_scores
+
+    y = np.array([1.0, 2.0, 10.0, 0.5, 7.0])
+    fell = np.array([False, False, False, False, True])
+    v = value_scores(y, fell)
+    ok = ~fell
+    assert np.allclose(v[ok], (y[ok] - y[ok].mean()) / y[ok].std())
+    assert v[4] == pytest.approx(v[ok].max() + 1.0)
+    # 10 is far worse than 2, not just one rank worse
+    assert (v[2] - v[1]) > 3 * (v[1] - v[0])
+    assert np.array_equal(value_scores(y[:2], fell[:2]), rank_scores(y[:2], fell[:2]))
+    assert TRANSFER_DEFAULTS["target_scores"] == "ranks"
+    with pytest.raises(ValueError, match="target_scores"):
+        Transfer((np.zeros((2, 1)), np.zeros(2), np.zeros(2, dtype=bool)), target_scores="raw")

@@ -331,6 +331,11 @@ farthest from every told trial and from those it chose before (a greedy maximin 
 recorded as ``escape``): a way off the source's manifold for a target that falls wherever the
 source stood. Where the target's stable θ lie near the source's (the physical targets measured,
 ``results/transfer/escape``) the box's far corners fall, so it is not the default.
+``target_scores`` (default ``"ranks"``): what the target's cost model fits, the costs'
+Gaussian-copula rank scores or (``"values"``) their standardized values, falls one sd above the
+worst standing trial (:func:`~latentune.critic.transfer_model.value_scores`): values keep how
+much better a trial is, which ranks hide (on a smooth bowl without falls GPSampler, a GP on
+values, ends far lower: ``results/transfer/bowl``); screened there, not the default.
 ``stand_first`` (default False): while every trial on the target fell, a batch that falls too
 leaves ``L`` and its counters alone: there is no incumbent it could fail to improve on, so the
 trust region that starts at the first standing trial starts at side ``length_init``, not at a
@@ -378,7 +383,7 @@ from latentune.critic.base import TwoSpaceCritic, as_unit_points
 from latentune.critic.transfer_model import (LS_SCALES, SourceModel, TargetGP, TargetModel,
                                              calibrated, fit_calibration, fit_residual_kernel,
                                              gp_maxima, jittered_cholesky, rank_scores,
-                                             target_fall_model)
+                                             target_fall_model, value_scores)
 
 log = logging.getLogger(__name__)
 
@@ -404,6 +409,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "explore_record": "count", "explore_bandit": "mean", "region_gp": False,
     "fall_fit": False, "fall_budget": 0.0, "fall_budget_counts": "after_stand",
     "record_walk": 0, "walk_pick": "rank", "record_cma": False, "escape_falls": 0,
+    "target_scores": "ranks",
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state, where
 ``explore_fall_prob`` is resolved (:func:`resolved_options`)."""
@@ -441,7 +447,7 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "fall_fit": False, "fall_budget": 0.0,
                                  "fall_budget_counts": "all", "record_walk": 0,
                                  "walk_pick": "rank", "record_cma": False,
-                                 "escape_falls": 0}
+                                 "escape_falls": 0, "target_scores": "ranks"}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -486,6 +492,9 @@ FALL_RANKS = ("clipped", "bound", "mean")
 (``fall_rank``): the screen's clipped probability, its unclipped bound, or the fall model's
 unclipped posterior mean."""
 WALK_PICKS = ("rank", "fall", "band")
+TARGET_SCORES = ("ranks", "values")
+"""What the target's cost model fits (option ``target_scores``): the costs' Gaussian-copula rank
+scores, or their standardized values (:func:`~latentune.critic.transfer_model.value_scores`)."""
 """How ``record_walk`` picks each step (``walk_pick``): the best rank past the step's quantile,
 the least likely to fall over the whole record, or the least likely to fall in the step's band
 of ranks."""
@@ -663,6 +672,9 @@ class Transfer(TwoSpaceCritic):
         k_rw = self.opts["record_walk"]
         if not is_whole(k_rw, 0):
             raise ValueError(f"record_walk must be an integer ≥ 0 (0: off), got {k_rw!r}")
+        if self.opts["target_scores"] not in TARGET_SCORES:
+            raise ValueError(f"target_scores must be one of {TARGET_SCORES}, "
+                             f"got {self.opts['target_scores']!r}")
         if self.opts["walk_pick"] not in WALK_PICKS:
             raise ValueError(f"walk_pick must be one of {WALK_PICKS}, "
                              f"got {self.opts['walk_pick']!r}")
@@ -1401,7 +1413,8 @@ class Transfer(TwoSpaceCritic):
         if self.n_told == 0:
             return None, None
         sm = self.source_model()
-        v = rank_scores(self._y, self._fell)
+        v = value_scores(self._y, self._fell) if self.opts["target_scores"] == "values" \
+            else rank_scores(self._y, self._fell)
         scales = LS_SCALES if self.opts["fit_lengthscale"] else (1.0,)
         t = float(self.opts["tilt"])
         tilts = (0.0, t / 4, t / 2, t) if t > 0 else (0.0,)

@@ -76,6 +76,23 @@ def rank_scores(y: np.ndarray, fell: np.ndarray) -> np.ndarray:
     return ndtri((ranks - 0.5) / n)
 
 
+def value_scores(y: np.ndarray, fell: np.ndarray) -> np.ndarray:
+    """Standardized values (n,) of costs ``y`` (n,): the trials that did not fail (finite
+    costs) as ``(y − mean) / sd`` over them, every fall (or non-finite cost) one sd above the
+    worst of them; lower is better. With fewer than 3 such trials, or all of one cost, the rank
+    scores (:func:`rank_scores`): a scale needs a spread. Unlike ranks they keep how much
+    better a trial is, which a smooth target's model can extrapolate from."""
+    y = np.asarray(y, dtype=float).reshape(-1)
+    fell = np.asarray(fell, dtype=bool).reshape(-1)
+    ok = ~fell & np.isfinite(y)
+    if ok.sum() < 3 or np.ptp(y[ok]) <= 0:
+        return rank_scores(y, fell)
+    v = np.empty_like(y)
+    v[ok] = (y[ok] - y[ok].mean()) / y[ok].std()
+    v[~ok] = v[ok].max() + 1.0
+    return v
+
+
 _CALIB_EPS = 0.01
 """Screen scores are clipped to ``[ε, 1 − ε]`` before the logit of the calibration map."""
 _CALIB_PRIOR_SD = (1.0, 0.5)
