@@ -20,48 +20,26 @@ specification after the soft start (V) and the largest peak inductor current (A)
 """
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
-from benchmarks.common import Provenance, add_out_arg
+from benchmarks.common import Provenance
 from benchmarks.transfer import DEFAULT_METHOD
-from benchmarks.zones_traces import TracesError, median_seed, rerun_best, write_figure
+from benchmarks.zones_traces import TracesError, method_label, traces_figure, write_figure
 from examples.buck_converter import I_TRIP, OVP_GAIN, OVP_OFFSET, make_system
-
-
-def _label(m: str, default: str) -> str:
-    return "default" if m == default else "transfer (ladder)" if m == "transfer" else m
 
 
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.buck_traces")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--root", type=Path, default=Path("results/transfer/buck/runs"))
-    ap.add_argument("--gap", type=float, default=0.5)
-    ap.add_argument("--methods", nargs="+", default=["zero_shot", DEFAULT_METHOD])
-    ap.add_argument("--default", default=DEFAULT_METHOD,
-                    help="the method whose median seed is drawn when --seed is not given")
-    ap.add_argument("--seed", type=int, default=None)
-    ap.add_argument("--png", type=Path, required=True)
-    add_out_arg(ap)
-    a = ap.parse_args(argv)
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    system = make_system(a.gap)
     try:
-        seed = median_seed(a.root, a.gap, a.default, "buck") if a.seed is None else a.seed
-        reruns = [rerun_best(system, a.root, a.gap, seed, m, "buck") for m in a.methods]
+        a, seed, reruns, fig, axes = traces_figure(
+            argv, __doc__, "buck", make_system, gap=0.5, methods=["zero_shot", DEFAULT_METHOD],
+            default=DEFAULT_METHOD, nrows=2, height=6.0, root=Path("results/transfer/buck/runs"),
+            manual=True, width=4.0)
     except TracesError as e:
         print(f"buck_traces: error: {e}", file=sys.stderr)
         return e.code
-    cols = [("manual", (None, *system.simulate(system.space.manual)))] + list(
-        zip(a.methods, reruns))
-    fig, axes = plt.subplots(2, len(cols), figsize=(4.0 * len(cols), 6.0), sharex=True,
-                             sharey="row", squeeze=False)
+    cols = list(zip(["manual", *a.methods], reruns))
     rows = []
     for j, (m, (i, out, tr)) in enumerate(cols):
         t = tr["time_s"] * 1e3
@@ -78,7 +56,7 @@ def main(argv: list[str] | None = None) -> int:
         ax.plot(t, OVP_GAIN * tr["setpoint"] + OVP_OFFSET, lw=0.6, ls=":", color="r",
                 label="over-voltage limit")
         ax.plot(t, tr["vout"], lw=0.9, color="k", label="output")
-        ax.set_title(f"{_label(m, a.default)}: cost {out.cost:.2f}"
+        ax.set_title(f"{method_label(m, a.default)}: cost {out.cost:.2f}"
                      + (f" (fell at {t[-1]:.2f} ms: {out.info.get('reason')})"
                         if out.failed else ""), fontsize=8)
         ax = axes[1, j]

@@ -97,16 +97,19 @@ def method_label(method: str, default: str | None) -> str:
 
 
 def traces_figure(argv: list[str] | None, doc: str, name: str, make_system: Any, *, gap: float,
-                  methods: list[str], default: str | None, nrows: int, height: float
+                  methods: list[str], default: str | None, nrows: int, height: float,
+                  root: Path = Path("results/transfer/rebuilt/runs"), manual: bool = False,
+                  width: float = 4.2
                   ) -> tuple[argparse.Namespace, int, list[tuple[int, Any, dict]], Any, Any]:
-    """The common part of the ladder systems' trace figures: parse ``argv`` (``--root``,
-    ``--gap``, ``--methods``, ``--default`` when ``default`` is given, ``--seed``, ``--png``,
-    ``--out``), choose the seed (:func:`median_seed` of the default method), re-run each
-    method's best trial on ``make_system(gap)`` (:func:`rerun_best`) and open a figure of
-    ``nrows`` rows and one column per method: ``(args, seed, reruns, fig, axes)``.
-    :class:`TracesError` as :func:`rerun_best` raises it."""
+    """The common part of the ladder systems' trace figures: parse ``argv`` (``--root``, default
+    ``root``, ``--gap``, ``--methods``, ``--default`` when ``default`` is given, ``--seed``,
+    ``--png``, ``--out``), choose the seed (:func:`median_seed` of the default method), re-run
+    each method's best trial on ``make_system(gap)`` (:func:`rerun_best`) and open a figure of
+    ``nrows`` rows and one column (``width`` inches) per method: ``(args, seed, reruns, fig,
+    axes)``. With ``manual`` the first column and rerun are the target's manual θ (trial index
+    None). :class:`TracesError` as :func:`rerun_best` raises it."""
     ap = argparse.ArgumentParser(description=doc.splitlines()[0])
-    ap.add_argument("--root", type=Path, default=Path("results/transfer/rebuilt/runs"))
+    ap.add_argument("--root", type=Path, default=root)
     ap.add_argument("--gap", type=float, default=gap)
     ap.add_argument("--methods", nargs="+", default=methods)
     if default is not None:
@@ -124,8 +127,9 @@ def traces_figure(argv: list[str] | None, doc: str, name: str, make_system: Any,
     seed = median_seed(a.root, a.gap, getattr(a, "default", "transfer"), name) \
         if a.seed is None else a.seed
     system = make_system(a.gap)
-    reruns = [rerun_best(system, a.root, a.gap, seed, m, name) for m in a.methods]
-    fig, axes = plt.subplots(nrows, len(a.methods), figsize=(4.2 * len(a.methods), height),
+    reruns = [(None, *system.simulate(system.space.manual))] if manual else []
+    reruns += [rerun_best(system, a.root, a.gap, seed, m, name) for m in a.methods]
+    fig, axes = plt.subplots(nrows, len(reruns), figsize=(width * len(reruns), height),
                              sharex=True, sharey="row", squeeze=False)
     return a, seed, reruns, fig, axes
 
