@@ -347,9 +347,13 @@ def _study(args: argparse.Namespace):
             raise CLIError("--fall-prior needs --max-fall-prob (it seeds the fall prediction)")
         if not (Path(args.fall_prior) / "run.db").is_file():
             raise CLIError(f"--fall-prior: no run store in {args.fall_prior}")
-    timeout = getattr(args, "trial_timeout", None)
-    if timeout is not None and not (math.isfinite(timeout) and timeout > 0):
-        raise CLIError(f"--trial-timeout must be a number of seconds > 0, got {timeout}")
+    from latentune.pipeline.evaluators import check_timeout
+
+    try:                                # the one check Study makes, with the flag's name
+        timeout = check_timeout(getattr(args, "trial_timeout", None))
+    except UsageError:
+        raise CLIError(f"--trial-timeout must be a number of seconds > 0, got "
+                       f"{args.trial_timeout}") from None
     workers = args.workers if args.workers is not None \
         else 1 if args.backend == "serial" else DEFAULT_WORKERS
     return Study(args.out, seed=args.seed, workers=workers, backend=args.backend,
