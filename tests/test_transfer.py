@@ -744,3 +744,26 @@ def test_add_source_conditions_the_source_models_on_new_trials_and_keeps_the_res
     assert cr.state_dict()["source_hypers"]["cost"] == hypers["cost"]
     with pytest.raises(ValueError):
         cr.add_source(P, np.zeros(2), np.zeros(3, bool))
+
+
+def test_refine_scores_change_the_refinement_asks_only_and_are_recorded(source, hypers):
+    """``refine_scores``: the refinement asks choose by a model of the other scores (recorded in
+    their decision); the design and explore asks, and every ask before the first refinement
+    one, are the default's; a bad value is refused."""
+    X, y, f, c = source
+    with pytest.raises(ValueError, match="refine_scores"):
+        Transfer((X, y, f), None, None, refine_scores="raw")
+    target_c = np.clip(c + 0.1, 0, 1)
+    base, ref = _critic(source, hypers), _critic(source, hypers, refine_scores="warped")
+    _run(base, target_c, 0.5, 24)
+    _run(ref, target_c, 0.5, 24)
+    recs = [d for d in ref.decisions if "refine_scores" in d]
+    assert recs and all(r["refine_scores"] == "warped" and not r["explore"] and not r["design"]
+                        and r.get("rule") is None for r in recs)
+    assert not any("refine_scores" in d for d in base.decisions)
+    first = min(r["n_told"] for r in recs)
+    assert [d["pools"] for d in ref.decisions[:first]] == \
+        [d["pools"] for d in base.decisions[:first]]
+    # the refinement asks' model fits the warped scores, so they pick other θ than the ranks'
+    assert np.array_equal(base.X[:first], ref.X[:first])
+    assert not np.array_equal(base.X, ref.X)

@@ -177,3 +177,23 @@ def test_target_scores_values_keep_how_much_better_a_trial_is():
     assert TRANSFER_DEFAULTS["target_scores"] == "ranks"
     with pytest.raises(ValueError, match="target_scores"):
         Transfer((np.zeros((2, 1)), np.zeros(2), np.zeros(2, dtype=bool)), target_scores="raw")
+
+
+def test_warped_scores_keep_the_order_and_pull_in_a_tail_of_bad_costs():
+    """``warped_scores``: monotone in the standing costs, standardized, falls one sd above the
+    worst standing one; a far outlier no longer flattens the differences near the best (as it
+    does in the plain values); too few standing trials give the rank scores."""
+    from latentune.critic.transfer_model import rank_scores, value_scores, warped_scores
+
+    y = np.array([1.0, 1.1, 1.2, 1.3, 1.5, 100.0, 3.0])
+    fell = np.array([False] * 6 + [True])
+    w, v = warped_scores(y, fell), value_scores(y, fell)
+    ok = ~fell
+    assert np.array_equal(np.argsort(w[ok]), np.argsort(y[ok]))
+    assert w[ok].mean() == pytest.approx(0.0, abs=1e-9) and w[ok].std() == pytest.approx(1.0)
+    assert w[6] == pytest.approx(w[ok].max() + 1.0)
+    # the spread of the five good costs relative to the whole spread: the warp keeps more of it
+    spread = (lambda s: (s[4] - s[0]) / (s[5] - s[0]))
+    assert spread(w) > 3 * spread(v)
+    assert np.array_equal(warped_scores(y[:2], fell[:2]), rank_scores(y[:2], fell[:2]))
+

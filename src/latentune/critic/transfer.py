@@ -336,6 +336,12 @@ Gaussian-copula rank scores or (``"values"``) their standardized values, falls o
 worst standing trial (:func:`~latentune.critic.transfer_model.value_scores`): values keep how
 much better a trial is, which ranks hide (on a smooth bowl without falls GPSampler, a GP on
 values, ends far lower: ``results/transfer/bowl``); screened there, not the default.
+``"warped"``: the standing costs' values through a Yeo-Johnson power warp fitted to them
+(:func:`~latentune.critic.transfer_model.warped_scores`), which pulls in a tail of bad costs.
+``refine_scores`` (default None: ``target_scores``'s): the scores of the cost model the
+refinement asks choose by (the asks that are neither the design, an explore ask nor a rule's);
+the agreement, the pools and the explore asks keep ``target_scores``'s model. Ranks are robust
+where falls and jumps dominate the record; near the best θ, values say where it is lower.
 ``stand_first`` (default False): while every trial on the target fell, a batch that falls too
 leaves ``L`` and its counters alone: there is no incumbent it could fail to improve on, so the
 trust region that starts at the first standing trial starts at side ``length_init``, not at a
@@ -383,7 +389,8 @@ from latentune.critic.base import TwoSpaceCritic, as_unit_points
 from latentune.critic.transfer_model import (LS_SCALES, SourceModel, TargetGP, TargetModel,
                                              calibrated, fit_calibration, fit_residual_kernel,
                                              gp_maxima, jittered_cholesky, rank_scores,
-                                             target_fall_model, value_scores)
+                                             target_fall_model, value_scores,
+                                             warped_scores)
 
 log = logging.getLogger(__name__)
 
@@ -409,7 +416,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "explore_record": "count", "explore_bandit": "mean", "region_gp": False,
     "fall_fit": False, "fall_budget": 0.0, "fall_budget_counts": "after_stand",
     "record_walk": 0, "walk_pick": "rank", "record_cma": False, "escape_falls": 0,
-    "target_scores": "ranks",
+    "target_scores": "ranks", "refine_scores": None,
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state, where
 ``explore_fall_prob`` is resolved (:func:`resolved_options`)."""
@@ -447,7 +454,8 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "fall_fit": False, "fall_budget": 0.0,
                                  "fall_budget_counts": "all", "record_walk": 0,
                                  "walk_pick": "rank", "record_cma": False,
-                                 "escape_falls": 0, "target_scores": "ranks"}
+                                 "escape_falls": 0, "target_scores": "ranks",
+                                 "refine_scores": None}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -492,12 +500,14 @@ FALL_RANKS = ("clipped", "bound", "mean")
 (``fall_rank``): the screen's clipped probability, its unclipped bound, or the fall model's
 unclipped posterior mean."""
 WALK_PICKS = ("rank", "fall", "band")
-TARGET_SCORES = ("ranks", "values")
-"""What the target's cost model fits (option ``target_scores``): the costs' Gaussian-copula rank
-scores, or their standardized values (:func:`~latentune.critic.transfer_model.value_scores`)."""
 """How ``record_walk`` picks each step (``walk_pick``): the best rank past the step's quantile,
 the least likely to fall over the whole record, or the least likely to fall in the step's band
 of ranks."""
+TARGET_SCORES = ("ranks", "values", "warped")
+"""What the target's cost model fits (options ``target_scores`` and ``refine_scores``): the
+costs' Gaussian-copula rank scores, their standardized values
+(:func:`~latentune.critic.transfer_model.value_scores`) or their warped values
+(:func:`~latentune.critic.transfer_model.warped_scores`)."""
 FULL_SHAPES = ("lengthscales", "cube")
 """The full pool's box (``full_shape``): sides in proportion to the lengthscales, or a cube."""
 FALL_BUDGET_COUNTS = ("all", "after_stand")
@@ -578,6 +588,7 @@ class _AskContext:
     explore_cma: bool = False
     record_cma: bool = False
     escape: bool = False
+    refine_scores: str | None = None
 
 
 @dataclass
@@ -675,6 +686,10 @@ class Transfer(TwoSpaceCritic):
         if self.opts["target_scores"] not in TARGET_SCORES:
             raise ValueError(f"target_scores must be one of {TARGET_SCORES}, "
                              f"got {self.opts['target_scores']!r}")
+        if self.opts["refine_scores"] is not None and \
+                self.opts["refine_scores"] not in TARGET_SCORES:
+            raise ValueError(f"refine_scores must be None or one of {TARGET_SCORES}, "
+                             f"got {self.opts['refine_scores']!r}")
         if self.opts["walk_pick"] not in WALK_PICKS:
             raise ValueError(f"walk_pick must be one of {WALK_PICKS}, "
                              f"got {self.opts['walk_pick']!r}")
@@ -1412,9 +1427,15 @@ class Transfer(TwoSpaceCritic):
         """(cost model, fall model) of the target from the told points (None before any)."""
         if self.n_told == 0:
             return None, None
+        return self._cost_model(self.opts["target_scores"]), self._fall_model(self.n_told)
+
+    def _cost_model(self, scores: str) -> TargetModel:
+        """The target's cost model on the told trials' ``scores`` (one of
+        :data:`TARGET_SCORES`): the transfer model over the source's, or the late phase's or
+        ``fit_ard``'s variant of it."""
         sm = self.source_model()
-        v = value_scores(self._y, self._fell) if self.opts["target_scores"] == "values" \
-            else rank_scores(self._y, self._fell)
+        v = {"values": value_scores, "warped": warped_scores,
+             "ranks": rank_scores}[scores](self._y, self._fell)
         scales = LS_SCALES if self.opts["fit_lengthscale"] else (1.0,)
         t = float(self.opts["tilt"])
         tilts = (0.0, t / 4, t / 2, t) if t > 0 else (0.0,)
@@ -1425,7 +1446,7 @@ class Transfer(TwoSpaceCritic):
             ls, s2 = fit_residual_kernel(self._X, v, cost.hX[:, 0], (1.0, 0.0), cost.ls,
                                          cost.sigma_r2)
             cost = TargetModel(self._X, v, sm.cost, ls, sigma_r2=s2, tilts=tilts)
-        return cost, self._fall_model(self.n_told)
+        return cost
 
     def _fall_model(self, t: int) -> TargetModel:
         """The target fall model on the first ``t`` ≥ 1 told trials (:func:`target_fall_model`,
@@ -1602,6 +1623,12 @@ class Transfer(TwoSpaceCritic):
                 XM = np.vstack([XS, gp_maxima(ctx.explore_gp,
                                                np.vstack([p[0] for p in parts] + [XS]))])
                 parts.append((XM, np.full((len(XM), self.k), np.nan), GLOBAL))
+            refine = self.opts["refine_scores"]
+            if refine is not None and refine != self.opts["target_scores"] and \
+                    cost_m is not None and not ctx.region_gp:
+                # the refinement chooses by a model of other scores (the pools stay the same)
+                cost_m = ctx.cost_m = self._cost_model(refine)
+                ctx.refine_scores = refine
         keys = None
         if self.opts["distinct"]:
             taken = self._told_keys()
@@ -1946,7 +1973,8 @@ class Transfer(TwoSpaceCritic):
                 cm.ls / self.source_model().lengthscales))))}
                if cm is not None and self._fitted_ls() else {}),
             **({"handoff": True} if self._handoff_active() else {}),
-            **({"record_cma": True} if ctx.record_cma else {})})
+            **({"record_cma": True} if ctx.record_cma else {}),
+            **({"refine_scores": ctx.refine_scores} if ctx.refine_scores else {})})
         log.debug("transfer ask %s", self.decisions[-1])
         return X, tags
 

@@ -93,6 +93,32 @@ def value_scores(y: np.ndarray, fell: np.ndarray) -> np.ndarray:
     return v
 
 
+def warped_scores(y: np.ndarray, fell: np.ndarray) -> np.ndarray:
+    """Warped values (n,) of costs ``y`` (n,): the trials that did not fail (finite costs)
+    standardized, passed through the Yeo-Johnson power transform whose exponent is fitted to
+    them by maximum likelihood (:func:`scipy.stats.yeojohnson`), and standardized again; every
+    fall (or non-finite cost) one sd above the worst of them; lower is better. The warp is
+    monotone, so the order is the costs'; it pulls in a heavy tail of bad costs (which would
+    flatten :func:`value_scores` near the best) and keeps how much better a trial is, which
+    :func:`rank_scores` hide. With fewer than 3 such trials, or all of one cost, the rank
+    scores."""
+    from scipy.stats import yeojohnson
+
+    y = np.asarray(y, dtype=float).reshape(-1)
+    fell = np.asarray(fell, dtype=bool).reshape(-1)
+    ok = ~fell & np.isfinite(y)
+    if ok.sum() < 3 or np.ptp(y[ok]) <= 0:
+        return rank_scores(y, fell)
+    u = (y[ok] - y[ok].mean()) / y[ok].std()
+    w = np.asarray(yeojohnson(u)[0], dtype=float)
+    if not np.all(np.isfinite(w)) or np.ptp(w) <= 0:    # a degenerate exponent: the values
+        w = u
+    v = np.empty_like(y)
+    v[ok] = (w - w.mean()) / w.std()
+    v[~ok] = v[ok].max() + 1.0
+    return v
+
+
 _CALIB_EPS = 0.01
 """Screen scores are clipped to ``[ε, 1 − ε]`` before the logit of the calibration map."""
 _CALIB_PRIOR_SD = (1.0, 0.5)
