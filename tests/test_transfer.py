@@ -767,3 +767,21 @@ def test_refine_scores_change_the_refinement_asks_only_and_are_recorded(source, 
     # the refinement asks' model fits the warped scores, so they pick other θ than the ranks'
     assert np.array_equal(base.X[:first], ref.X[:first])
     assert not np.array_equal(base.X, ref.X)
+
+
+def test_explore_scores_change_the_explore_asks_gp_only_and_are_recorded(source, hypers):
+    """``explore_scores``: the explore asks' target GP fits the other scores (recorded in their
+    decision); the asks before the first such ask are the default's; a bad value is refused."""
+    X, y, f, c = source
+    with pytest.raises(ValueError, match="explore_scores"):
+        Transfer((X, y, f), None, None, explore_scores="raw")
+    target_c = np.clip(c + 0.1, 0, 1)
+    base, other = _critic(source, hypers), _critic(source, hypers, explore_scores="values")
+    _run(base, target_c, 0.5, 24)
+    _run(other, target_c, 0.5, 24)
+    recs = [d for d in other.decisions if "explore_scores" in d]
+    assert recs and all(r["explore_scores"] == "values" and r["explore"] for r in recs)
+    assert not any("explore_scores" in d for d in base.decisions)
+    first = min(r["n_told"] for r in recs)
+    assert np.array_equal(base.X[:first], other.X[:first])
+    assert not np.array_equal(base.X, other.X)

@@ -342,6 +342,9 @@ values, ends far lower: ``results/transfer/bowl``); screened there, not the defa
 refinement asks choose by (the asks that are neither the design, an explore ask nor a rule's);
 the agreement, the pools and the explore asks keep ``target_scores``'s model. Ranks are robust
 where falls and jumps dominate the record; near the best θ, values say where it is lower.
+``explore_scores`` (default None: ``target_scores``'s): the scores of the target's own GP that
+the ``explore_gp`` and ``region_gp`` asks choose by (their expected improvement); the rest keeps
+``target_scores``'s model.
 ``stand_first`` (default False): while every trial on the target fell, a batch that falls too
 leaves ``L`` and its counters alone: there is no incumbent it could fail to improve on, so the
 trust region that starts at the first standing trial starts at side ``length_init``, not at a
@@ -416,7 +419,7 @@ TRANSFER_DEFAULTS: dict[str, Any] = {
     "explore_record": "count", "explore_bandit": "mean", "region_gp": False,
     "fall_fit": False, "fall_budget": 0.0, "fall_budget_counts": "after_stand",
     "record_walk": 0, "walk_pick": "rank", "record_cma": False, "escape_falls": 0,
-    "target_scores": "ranks", "refine_scores": None,
+    "target_scores": "ranks", "refine_scores": None, "explore_scores": None,
 }
 """The options of :class:`Transfer` (see the module docstring); recorded in its state, where
 ``explore_fall_prob`` is resolved (:func:`resolved_options`)."""
@@ -455,7 +458,7 @@ ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fal
                                  "fall_budget_counts": "all", "record_walk": 0,
                                  "walk_pick": "rank", "record_cma": False,
                                  "escape_falls": 0, "target_scores": "ranks",
-                                 "refine_scores": None}
+                                 "refine_scores": None, "explore_scores": None}
 """Options added after :meth:`Transfer.state_dict` recorded the options, with the value their
 behaviour had before they existed: a stored run without them resumes with these."""
 
@@ -686,10 +689,10 @@ class Transfer(TwoSpaceCritic):
         if self.opts["target_scores"] not in TARGET_SCORES:
             raise ValueError(f"target_scores must be one of {TARGET_SCORES}, "
                              f"got {self.opts['target_scores']!r}")
-        if self.opts["refine_scores"] is not None and \
-                self.opts["refine_scores"] not in TARGET_SCORES:
-            raise ValueError(f"refine_scores must be None or one of {TARGET_SCORES}, "
-                             f"got {self.opts['refine_scores']!r}")
+        for key in ("refine_scores", "explore_scores"):
+            if self.opts[key] is not None and self.opts[key] not in TARGET_SCORES:
+                raise ValueError(f"{key} must be None or one of {TARGET_SCORES}, "
+                                 f"got {self.opts[key]!r}")
         if self.opts["walk_pick"] not in WALK_PICKS:
             raise ValueError(f"walk_pick must be one of {WALK_PICKS}, "
                              f"got {self.opts['walk_pick']!r}")
@@ -1111,6 +1114,14 @@ class Transfer(TwoSpaceCritic):
         """A GP on the target's trials alone (:class:`TargetGP`, TuRBO-m's model) over
         ``base``'s rank scores: the late phase's cost model and the explore and region asks'."""
         return TargetGP(self._X, base.v, self._turbo_helper(), base)
+
+    def _explore_target_gp(self, base: TargetModel) -> TargetGP:
+        """The target's own GP of the explore and region asks: over ``base``'s scores, or over
+        ``explore_scores``'s where that option names others (recorded in the decision)."""
+        scores = self.opts["explore_scores"]
+        if scores is None or scores == self.opts["target_scores"]:
+            return self._target_gp(base)
+        return self._target_gp(self._cost_model(scores))
 
     def falls_allowed(self) -> int | None:
         """The fall budget among the target's told trials (the zero-shot and manual ones
@@ -1566,7 +1577,7 @@ class Transfer(TwoSpaceCritic):
             where = st["explore_pool"]
             if self.opts["explore_gp"] and cost_m is not None and \
                     where in ("lines", "latent_lines"):
-                ctx.explore_gp = self._target_gp(cost_m)
+                ctx.explore_gp = self._explore_target_gp(cost_m)
             if self._escape_due():      # everything the source suggested fell: go far from it
                 ctx.escape = True
                 parts = [(self._pool_global(M, rng), np.full((M, self.k), np.nan), GLOBAL)]
@@ -1618,7 +1629,7 @@ class Transfer(TwoSpaceCritic):
                      (XG, np.full((len(XG), self.k), np.nan), GLOBAL)]
             if self.opts["region_gp"] and cost_m is not None and st["explore_pool"] == "lines":
                 # the lines lead the explore record: the target's own GP chooses this ask too
-                ctx.explore_gp, ctx.region_gp = self._target_gp(cost_m), True
+                ctx.explore_gp, ctx.region_gp = self._explore_target_gp(cost_m), True
                 XS = self._pool_global(M // 2, rng)
                 XM = np.vstack([XS, gp_maxima(ctx.explore_gp,
                                                np.vstack([p[0] for p in parts] + [XS]))])
@@ -1974,7 +1985,10 @@ class Transfer(TwoSpaceCritic):
                if cm is not None and self._fitted_ls() else {}),
             **({"handoff": True} if self._handoff_active() else {}),
             **({"record_cma": True} if ctx.record_cma else {}),
-            **({"refine_scores": ctx.refine_scores} if ctx.refine_scores else {})})
+            **({"refine_scores": ctx.refine_scores} if ctx.refine_scores else {}),
+            **({"explore_scores": self.opts["explore_scores"]}
+               if ctx.explore_gp is not None and self.opts["explore_scores"] is not None
+               else {})})
         log.debug("transfer ask %s", self.decisions[-1])
         return X, tags
 
