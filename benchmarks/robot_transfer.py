@@ -1177,8 +1177,11 @@ def main(argv: list[str] | None = None) -> int:
             from benchmarks.common import Provenance, write_json
 
             prov = Provenance(argv, module="benchmarks.robot_transfer")
-            rows = [tr.compare(Path(a.root) / "targets", x, b, a.seeds, RESULT_GLOB)
-                    for x in a.a for b in a.b]
+            try:
+                rows = [tr.compare(Path(a.root) / "targets", x, b, a.seeds, RESULT_GLOB)
+                        for x in a.a for b in a.b]
+            except ValueError as e:     # a damaged run, or two budgets in one pair
+                raise RobotTransferError(str(e)) from None
             if not any(r["pairs"] for r in rows):
                 raise RobotTransferError(f"no (rung, seed) under {Path(a.root) / 'targets'} "
                                          f"holds both methods of any pair")

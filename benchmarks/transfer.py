@@ -702,7 +702,7 @@ def cut_runs(root: Path, method: str, share: float, name: str, seeds: list[int] 
         raise ValueError(f"--counts must be one of {FALL_BUDGET_COUNTS}, got {counts!r}")
     n = 0
     for f in sorted(root.glob(f"{pattern}/{method}.json")):
-        r = json.loads(f.read_text())
+        r = load_run(f)
         if seeds is not None and int(r["seed"]) not in seeds:
             continue
         out = {**cut_at_fall_budget(r, share, counts), "method": name, "derived_from": method}
@@ -712,6 +712,31 @@ def cut_runs(root: Path, method: str, share: float, name: str, seeds: list[int] 
         raise ValueError(f"no run of {method} under {root}"
                          + (f" of seeds {' '.join(map(str, seeds))}" if seeds is not None else ""))
     return n
+
+
+def run_trials(method: str, budget: int) -> int:
+    """The trials a complete stored run of ``method`` at ``budget`` holds: one for
+    ``zero_shot`` (also ``zero_shot@M``: the source's best θ, tried once), else ``budget``."""
+    return 1 if method.split("@")[0] == "zero_shot" else int(budget)
+
+
+def load_run(f: Path) -> dict[str, Any]:
+    """The stored run ``f`` (``…/seed<s>/<method>.json``). ValueError naming the file when it
+    is not a run (not JSON, no ``costs`` and ``failed`` of one length) or holds another number
+    of trials than a complete run of its ``budget`` (:func:`run_trials`): a damaged or cut-short
+    trace, which a median would otherwise read as a finished run."""
+    try:
+        r = json.loads(f.read_text())
+        n, n_failed = len(r["costs"]), len(r["failed"])
+        want = run_trials(str(r.get("method", f.stem)), r["budget"]) if "budget" in r else n
+    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError, ValueError) as e:
+        raise ValueError(f"{f} is not a stored run ({type(e).__name__}: {e}); delete it "
+                         f"(run makes it again)") from None
+    if n != n_failed or n != want:
+        raise ValueError(f"{f} holds {n} costs and {n_failed} falls where its budget "
+                         f"{r['budget']} makes {want} trials: an incomplete run; delete it "
+                         f"(run makes it again)")
+    return r
 
 
 def _ladder_target(run: dict[str, Any]) -> dict[str, Any]:
@@ -748,11 +773,12 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
     is not read; methods with no ``@M`` twin are read as they are. ``default`` names the method
     judged as latentune's default (its rows read as ``transfer``; the stored ``transfer`` runs
     then read as ``transfer@stored``); ``methods``: only these (names after those renamings)
-    are read; ``seeds``: only these seeds; ``systems``: only these systems."""
+    are read; ``seeds``: only these seeds; ``systems``: only these systems.
+    ValueError for a damaged or incomplete run file (:func:`load_run`)."""
 
     runs: dict[tuple, dict[str, dict[int, dict]]] = {}
     for f in sorted(root.glob(pattern)):
-        r = json.loads(f.read_text())
+        r = load_run(f)
         if machine:
             if f.with_name(f"{r['method']}@{machine}.json").is_file():
                 continue                        # its twin re-run on that machine is read
@@ -870,7 +896,8 @@ def compare(root: Path, a: str, b: str, seeds: list[int] | None = None,
     ``best_a / best_b`` on the same seed, and the whole ``paired_geo_mean``, the geometric mean
     of those (both None where a best cost is not positive). ``pattern``: the run files under
     ``root``, ``<target>/<sub>/seed<s>/<method>.json``; ``systems``: only those targets
-    (``<target>`` is the system's directory)."""
+    (``<target>`` is the system's directory). ValueError for a damaged or incomplete run file
+    of ``a`` or ``b`` (:func:`load_run`)."""
     from scipy.stats import binomtest, gmean
 
     runs: dict[tuple[str, str, str], dict[str, dict]] = {}
@@ -879,7 +906,9 @@ def compare(root: Path, a: str, b: str, seeds: list[int] | None = None,
             continue
         if systems is not None and f.parts[-4] not in systems:
             continue
-        r = json.loads(f.read_text())
+        if f.stem not in (a, b):        # a run file is <method>.json
+            continue
+        r = load_run(f)
         runs.setdefault(f.parts[-4:-1], {})[r["method"]] = r
     pairs = [(k, v[a], v[b]) for k, v in sorted(runs.items()) if a in v and b in v]
     best = [(min(ra["costs"]), min(rb["costs"])) for _, ra, rb in pairs]
@@ -1041,7 +1070,12 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if a.cmd == "compare":
         prov = Provenance(argv, module="benchmarks.transfer")
-        rows = [compare(Path(a.root), x, b, a.seeds, systems=a.systems) for x in a.a for b in a.b]
+        try:
+            rows = [compare(Path(a.root), x, b, a.seeds, systems=a.systems)
+                    for x in a.a for b in a.b]
+        except ValueError as e:
+            print(f"transfer compare: {e}", file=sys.stderr)
+            return 2
         if not any(r["pairs"] for r in rows):
             print(f"transfer compare: no (target, seed) under {a.root} holds both methods of "
                   f"any pair", file=sys.stderr)

@@ -232,7 +232,8 @@ def test_a_variant_is_stored_under_its_name_and_summarized_beside_the_peers(live
 
     def fake(method, target, src, B, seed, options=None):
         calls.append((method, options))
-        return {"costs": [3.0 - (method == "transfer")] * B, "failed": [False] * B}
+        n = 1 if method == "zero_shot" else B           # the zero-shot θ is tried once
+        return {"costs": [3.0 - (method == "transfer")] * n, "failed": [False] * n}
 
     monkeypatch.setattr(tr, "run_method", fake)
     target = make_real_system(steps=60)
@@ -253,14 +254,14 @@ def test_a_variant_is_stored_under_its_name_and_summarized_beside_the_peers(live
 
 def test_cost_checks_count_non_finite_costs_and_separate_falls(tmp_path):
     for m, costs, failed in (("tpe", [4.0, 150.0, float("nan")], [False, True, False]),
-                             ("transfer", [5.0, 3.0], [False, False])):
+                             ("transfer", [5.0, 3.0, 3.0], [False, False, False])):
         f = rt.result_path(tmp_path, "b1-trot-from-a1", 7, 0, m)
         f.parent.mkdir(parents=True, exist_ok=True)
         f.write_text(json.dumps({"target": "b1-trot-from-a1", "source": "a1-trot",
                                  "source_trials": 7, "seed": 0, "method": m, "budget": 3,
                                  "costs": costs, "failed": failed}))
     c = rt.cost_checks(tmp_path)[("b1-trot-from-a1", 7)]
-    assert c == {"trials": 5, "non_finite": 1, "falls": 1, "fall_cost_min": 150.0,
+    assert c == {"trials": 6, "non_finite": 1, "falls": 1, "fall_cost_min": 150.0,
                  "standing_cost_max": 5.0}
     (row,) = rt.summarize(tmp_path)["targets"]
     assert row["cost_check"] == c

@@ -10,11 +10,14 @@ import pytest
 from benchmarks import transfer as tr
 
 
-def _write(root, m: str, seed: int, costs: list[float], failed: list[bool]) -> None:
+def _write(root, m: str, seed: int, costs: list[float], failed: list[bool],
+           budget: int | None = None) -> None:
+    """A stored run of ``m``; its budget: ``budget``, else its trials (a complete run)."""
     f = root / "arm" / "gap1" / f"seed{seed}" / f"{m}.json"
     f.parent.mkdir(parents=True, exist_ok=True)
     f.write_text(json.dumps({"system": "arm", "gap": 1.0, "seed": seed, "method": m,
-                             "budget": 2, "costs": costs, "failed": failed}))
+                             "budget": len(costs) if budget is None else budget,
+                             "costs": costs, "failed": failed}))
 
 
 def test_summary_judges_a_variant_as_the_default(tmp_path):
@@ -935,3 +938,34 @@ def test_resume_determinism_refuses_a_stop_that_resumes_nothing(argv, capsys):
         resume_determinism.main(argv)
     assert e.value.code == 2
     assert "--stop in [1, --budget - 1]" in capsys.readouterr().err
+
+
+def test_summary_compare_and_cut_refuse_an_incomplete_or_damaged_run(tmp_path, capsys):
+    """A run file holding fewer trials than its budget (a cut-short trace) or not JSON at all
+    was read as a finished run (its best over 2 of 4 trials in the medians) or was a
+    traceback; ``summary``, ``compare`` and ``cut`` now name the file in one line and exit 2,
+    writing nothing. The zero-shot θ's one trial is a complete run."""
+    for s in (0, 1):
+        _write(tmp_path, "tpe", s, [4.0, 3.0, 2.0, 1.0], [False] * 4)
+        _write(tmp_path, "zero_shot", s, [4.0], [False], budget=4)
+    _write(tmp_path, "transfer", 0, [2.0, 1.0, 1.0, 1.0], [False] * 4)
+    _write(tmp_path, "transfer", 1, [2.0, 1.5], [False] * 2, budget=4)       # cut short
+    bad = tmp_path / "arm" / "gap1" / "seed1" / "transfer.json"
+    out = tmp_path / "o.json"
+    for damaged in (None, '{"costs": [2.0, 1'):
+        if damaged is not None:
+            bad.write_text(damaged)
+        for argv in (["summary", "--root", str(tmp_path), "--out", str(out)],
+                     ["compare", "--root", str(tmp_path), "--a", "transfer", "--b", "tpe",
+                      "--out", str(out)],
+                     ["cut", "--root", str(tmp_path), "--method", "transfer", "--share", "0.5",
+                      "--as", "cut"]):
+            assert tr.main(argv) == 2, argv
+            err = capsys.readouterr().err.strip().splitlines()
+            assert len(err) == 1 and str(bad) in err[0], err
+            assert ("incomplete run" if damaged is None else "is not a stored run") in err[0]
+            assert not out.exists() and not bad.with_name("cut.json").exists()
+    bad.unlink()
+    assert tr.main(["compare", "--root", str(tmp_path), "--a", "zero_shot", "--b", "tpe"]) == 0
+    assert tr.main(["summary", "--root", str(tmp_path), "--methods", "zero_shot", "tpe"]) == 0
+
