@@ -774,7 +774,12 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
     judged as latentune's default (its rows read as ``transfer``; the stored ``transfer`` runs
     then read as ``transfer@stored``); ``methods``: only these (names after those renamings)
     are read; ``seeds``: only these seeds; ``systems``: only these systems.
-    ValueError for a damaged or incomplete run file (:func:`load_run`)."""
+
+    A target's medians are over the seeds on which every method read ran: each row lists the
+    other seeds (``seeds_left_out``: the seed and the methods without a run on it), and a
+    target without such a seed is listed in ``targets_left_out`` (its seeds per method).
+    ValueError for a damaged or incomplete run file (:func:`load_run`) and when no
+    target is left to judge."""
 
     runs: dict[tuple, dict[str, dict[int, dict]]] = {}
     for f in sorted(root.glob(pattern)):
@@ -798,12 +803,17 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
         only = [f"{k} {' '.join(map(str, v))}" for k, v in
                 (("methods", methods), ("seeds", seeds), ("systems", systems)) if v is not None]
         raise ValueError(f"no runs under {root}" + (f" of {'; '.join(only)}" if only else ""))
-    out: dict[str, Any] = {"targets": []}
+    out: dict[str, Any] = {"targets": [], "targets_left_out": []}
     for key, by_m in sorted(runs.items()):
         seeds = sorted(set.intersection(*[set(v) for v in by_m.values()]))
-        if not seeds:
+        ran = {m: sorted(v) for m, v in sorted(by_m.items())}
+        if not seeds:               # listed, not dropped without a word
+            out["targets_left_out"].append({**dict(key), "seeds_of": ran})
             continue
-        row: dict[str, Any] = {**dict(key), "seeds": seeds, "methods": {}}
+        row: dict[str, Any] = {**dict(key), "seeds": seeds, "methods": {},
+                               "seeds_left_out": [
+                                   {"seed": s, "without": [m for m in ran if s not in by_m[m]]}
+                                   for s in sorted(set().union(*by_m.values())) if s not in seeds]}
         for m, rs in by_m.items():
             best = [min(rs[s]["costs"]) for s in seeds]
             row["methods"][m] = {"median_best": float(np.median(best)),
@@ -877,7 +887,17 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
                 "falls_ok": t["falls_median"] <= (1 if p["falls_median"] <= 4
                                                   else p["falls_median"] / 4)}
         out["targets"].append(row)
+    if not out["targets"]:
+        raise ValueError(f"no target under {root} has a seed on which every method read ran: "
+                         + "; ".join(f"{dict((k, v) for k, v in t.items() if k != 'seeds_of')} "
+                                     f"({_seeds_of(t)})" for t in out["targets_left_out"]))
     return out
+
+
+def _seeds_of(left_out: dict[str, Any]) -> str:
+    """A left-out target's seeds per method as text: ``"gp: seeds 1; transfer: seeds 0"``."""
+    return "; ".join(f"{m}: seeds {' '.join(map(str, v))}"
+                     for m, v in left_out["seeds_of"].items())
 
 
 def compare(root: Path, a: str, b: str, seeds: list[int] | None = None,
@@ -965,6 +985,8 @@ def markdown(s: dict[str, Any],
     for row in s["targets"]:
         lines.append(f"\n### {title(row)} ({len(row['seeds'])} seeds; "
                      f"best peer: {row['best_peer']})\n")
+        for x in row.get("seeds_left_out", []):
+            lines.append(f"seed {x['seed']} left out: no run of {', '.join(x['without'])}\n")
         cut = "transfer" in row["methods"]
         lines.append("| method | median best | IQR | trials to best peer's median | falls |"
                      + (" best at the default's falls |" if cut else ""))
@@ -990,6 +1012,9 @@ def markdown(s: dict[str, Any],
             lines.append(f"\ncriteria: no worse {c['no_worse']} (p {c['mannwhitney_p']:.3f}), "
                          f"≤ B/10 {c['reach_le_B10']}, ≤ B/2 {c['reach_le_B2']}, "
                          f"falls {c['falls_ok']}")
+    for t in s.get("targets_left_out", []):
+        lines.append(f"\n### {title(t)}: left out, no seed on which every method ran "
+                     f"({_seeds_of(t)})")
     return "\n".join(lines)
 
 

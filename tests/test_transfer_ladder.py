@@ -969,3 +969,34 @@ def test_summary_compare_and_cut_refuse_an_incomplete_or_damaged_run(tmp_path, c
     assert tr.main(["compare", "--root", str(tmp_path), "--a", "zero_shot", "--b", "tpe"]) == 0
     assert tr.main(["summary", "--root", str(tmp_path), "--methods", "zero_shot", "tpe"]) == 0
 
+
+def test_summary_says_which_seeds_and_targets_it_leaves_out(tmp_path, capsys):
+    """A target's medians are over the seeds on which every method read ran: a seed where one
+    method is missing was dropped without a word (the table said "2 seeds" of 3), and a target
+    without such a seed vanished from the tables; both are now listed, in the JSON
+    (``seeds_left_out``, ``targets_left_out``) and the tables, and a root where no target has
+    one is refused (exit 2) rather than an empty table."""
+    for s in (0, 1, 2):
+        _write(tmp_path, "tpe", s, [3.0, 2.0], [False, False])
+        if s != 1:
+            _write(tmp_path, "transfer", s, [2.0, 1.0], [False, False])
+    other = tmp_path / "chain" / "gap2"
+    for m, s in (("tpe", 0), ("transfer", 1)):          # chain gap 2: no seed with both
+        f = other / f"seed{s}" / f"{m}.json"
+        f.parent.mkdir(parents=True)
+        f.write_text(json.dumps({"system": "chain", "gap": 2.0, "seed": s, "method": m,
+                                 "budget": 1, "costs": [1.0], "failed": [False]}))
+    s = tr.summarize(tmp_path)
+    (row,) = s["targets"]
+    assert row["seeds"] == [0, 2] and row["seeds_left_out"] == [{"seed": 1,
+                                                                 "without": ["transfer"]}]
+    assert s["targets_left_out"] == [{"system": "chain", "gap": 2.0,
+                                      "seeds_of": {"tpe": [0], "transfer": [1]}}]
+    md = tr.markdown(s)
+    assert "seed 1 left out: no run of transfer" in md
+    assert "### chain gap 2: left out, no seed on which every method ran (tpe: seeds 0; " \
+           "transfer: seeds 1)" in md
+    assert tr.main(["summary", "--root", str(tmp_path), "--systems", "chain"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no target under" in err[0] and "transfer: seeds 1" in err[0]
+
