@@ -778,8 +778,8 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
     A target's medians are over the seeds on which every method read ran: each row lists the
     other seeds (``seeds_left_out``: the seed and the methods without a run on it), and a
     target without such a seed is listed in ``targets_left_out`` (its seeds per method).
-    ValueError for a damaged or incomplete run file (:func:`load_run`) and when no
-    target is left to judge."""
+    ValueError for a damaged or incomplete run file (:func:`load_run`), for a target whose
+    runs have different budgets, and when no target is left to judge."""
 
     runs: dict[tuple, dict[str, dict[int, dict]]] = {}
     for f in sorted(root.glob(pattern)):
@@ -805,6 +805,13 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
         raise ValueError(f"no runs under {root}" + (f" of {'; '.join(only)}" if only else ""))
     out: dict[str, Any] = {"targets": [], "targets_left_out": []}
     for key, by_m in sorted(runs.items()):
+        budgets = {m: sorted({int(r["budget"]) for r in rs.values() if "budget" in r})
+                   for m, rs in by_m.items()}
+        if len({b for v in budgets.values() for b in v}) > 1:
+            raise ValueError(f"the runs of {dict(key)} have different budgets ("
+                             + ", ".join(f"{m}: {'/'.join(map(str, v))}"
+                                         for m, v in sorted(budgets.items()))
+                             + "): their best costs are not comparable")
         seeds = sorted(set.intersection(*[set(v) for v in by_m.values()]))
         ran = {m: sorted(v) for m, v in sorted(by_m.items())}
         if not seeds:               # listed, not dropped without a word
@@ -917,7 +924,8 @@ def compare(root: Path, a: str, b: str, seeds: list[int] | None = None,
     of those (both None where a best cost is not positive). ``pattern``: the run files under
     ``root``, ``<target>/<sub>/seed<s>/<method>.json``; ``systems``: only those targets
     (``<target>`` is the system's directory). ValueError for a damaged or incomplete run file
-    of ``a`` or ``b`` (:func:`load_run`)."""
+    of ``a`` or ``b`` (:func:`load_run`) and for a pair whose two runs have different
+    budgets."""
     from scipy.stats import binomtest, gmean
 
     runs: dict[tuple[str, str, str], dict[str, dict]] = {}
@@ -931,6 +939,11 @@ def compare(root: Path, a: str, b: str, seeds: list[int] | None = None,
         r = load_run(f)
         runs.setdefault(f.parts[-4:-1], {})[r["method"]] = r
     pairs = [(k, v[a], v[b]) for k, v in sorted(runs.items()) if a in v and b in v]
+    for k, ra, rb in pairs:
+        if "budget" in ra and "budget" in rb and ra["budget"] != rb["budget"]:
+            raise ValueError(f"{a} ran at budget {ra['budget']} and {b} at budget "
+                             f"{rb['budget']} on {' '.join(k)}: their best costs are not "
+                             f"comparable")
     best = [(min(ra["costs"]), min(rb["costs"])) for _, ra, rb in pairs]
     d = [ba - bb for ba, bb in best]
     wins, losses = sum(x < 0 for x in d), sum(x > 0 for x in d)

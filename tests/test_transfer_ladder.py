@@ -1000,3 +1000,17 @@ def test_summary_says_which_seeds_and_targets_it_leaves_out(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no target under" in err[0] and "transfer: seeds 1" in err[0]
 
+
+def test_summary_and_compare_refuse_runs_of_different_budgets(tmp_path, capsys):
+    """``run`` at another ``--budget`` on a root adds runs beside those of the first: a
+    method's best of 8 trials was set beside another's best of 4 in one table; ``summary``
+    and ``compare`` now refuse such a target (one line naming the budgets, exit 2)."""
+    for s in (0, 1):
+        _write(tmp_path, "tpe", s, [3.0] * 8, [False] * 8)
+        _write(tmp_path, "transfer", s, [2.0] * 4, [False] * 4)
+    for argv in (["summary", "--root", str(tmp_path)],
+                 ["compare", "--root", str(tmp_path), "--a", "transfer", "--b", "tpe"]):
+        assert tr.main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "not comparable" in err[0], err
+        assert "4" in err[0] and "8" in err[0]
