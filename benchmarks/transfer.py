@@ -84,7 +84,9 @@ trial counted (the zero-shot one included):
   (:class:`latentune.critic.optuna.OptunaCritic`).
 
 Every (system, gap, seed, method) writes ``ROOT/<system>/gap<g>/seed<s>/<method>.json`` (cost,
-failed and θ per trial, wall time) and is skipped when it exists: the run resumes. ``summary``
+failed and θ per trial, wall time) and is skipped when it exists: the run resumes (refused before any run where a
+stored run or source was made with another ``--budget`` or ``--source-evals``, or a stored run
+is damaged). ``summary``
 applies the transfer issue's definitions (best peer, trials to reach its median, falls,
 Mann-Whitney), cuts every method's runs at the default's falls and at criterion (3)'s allowance
 (:func:`fall_allowance`: which methods are then still no worse than the best peer), and writes
@@ -216,11 +218,28 @@ SYSTEMS: dict[str, dict[str, Any]] = {
 
 
 # --------------------------------------------------------------------------- sources
+def check_source(d: Path, evals: int) -> None:
+    """ValueError when the source run ``d`` holds a phase 1 asked for another number of trials
+    than ``evals``: resuming it would extend (or keep) a phase 1 of another size under the
+    latent space and the target runs made from it. Nothing to check where ``d`` has no store."""
+    from latentune.pipeline.store import RunStore
+
+    if not (d / "run.db").is_file():
+        return
+    with RunStore(d) as st:
+        stored = (st.get_meta("config") or {}).get("phase1", {}).get("budget")
+    if stored is not None and int(stored) != evals:
+        raise ValueError(f"the source {d} was made with --source-evals {stored}, not {evals}: "
+                         f"use another --root (or, with run, --source-evals {stored})")
+
+
 def source_run(root: Path, system: str, seed: int, evals: int) -> Path:
-    """Phase 1 + the latent space on the model (resumes); the source directory."""
+    """Phase 1 + the latent space on the model (resumes); the source directory. ValueError
+    when a stored source there was asked for another phase-1 size (:func:`check_source`)."""
     import latentune as lt
 
     d = root / system / f"seed{seed}" / "source"
+    check_source(d, evals)
     with lt.Study(d, seed=seed, batch_size=4) as st:
         st.phase1(SYSTEMS[system]["model"](), evals)
         st.train_latent()
@@ -605,18 +624,41 @@ def ladder_targets(systems: list[str], gaps: list[float] | None) -> dict[str, li
     return out
 
 
+def run_jobs(a: argparse.Namespace) -> list[tuple[str, str, dict[str, Any] | None]]:
+    """``run``'s jobs per target: ``(stored name, method, transfer options)``."""
+    methods = METHODS if a.only is None else a.only
+    return [(m, m, None) for m in methods] + \
+        [(f"transfer+{v}", "transfer", parse_variant(v)) for v in a.variants]
+
+
+def check_resume(a: argparse.Namespace, targets: dict[str, list[tuple]]) -> None:
+    """ValueError, before any run, when ``run`` would resume on stored work of other settings:
+    a source asked for another ``--source-evals`` (:func:`check_source`), or a stored run of
+    one of its jobs that is damaged or incomplete (:func:`load_run`) or ran at another
+    ``--budget`` (it would be kept, and read, beside the runs at this one)."""
+    root = Path(a.root)
+    for seed in a.seeds:
+        for name in a.systems:
+            check_source(root / name / f"seed{seed}" / "source", a.source_evals)
+            for g, _ in targets[name]:
+                for m, _, _ in run_jobs(a):
+                    f = root / name / f"gap{g:g}" / f"seed{seed}" / f"{m}.json"
+                    stored = int(load_run(f)["budget"]) if f.is_file() else a.budget
+                    if stored != a.budget:
+                        raise ValueError(f"{f} was run with --budget {stored}, not {a.budget}: "
+                                         f"run with --budget {stored} or another --root")
+
+
 def run(a: argparse.Namespace, targets: dict[str, list[tuple]]) -> None:
     """``run``: every method and variant on each system's ``targets`` (:func:`ladder_targets`),
-    per seed on its own source run (made when missing; a stored run is kept)."""
+    per seed on its own source run (made when missing; a stored run is kept: call
+    :func:`check_resume` first)."""
     root = Path(a.root)
-    methods = METHODS if a.only is None else a.only
     for seed in a.seeds:
         for name in a.systems:
             src = source_run(root, name, seed, a.source_evals)
             for g, target in targets[name]:
-                jobs = [(m, m, None) for m in methods] + \
-                    [(f"transfer+{v}", "transfer", parse_variant(v)) for v in a.variants]
-                for m, base, opts in jobs:
+                for m, base, opts in run_jobs(a):
                     f = root / name / f"gap{g:g}" / f"seed{seed}" / f"{m}.json"
                     if f.is_file():
                         continue
@@ -1130,6 +1172,7 @@ def main(argv: list[str] | None = None) -> int:
             for v in a.variants:
                 check_variant(v)
             targets = ladder_targets(a.systems, a.gaps)
+            check_resume(a, targets)
         except ValueError as e:
             print(f"transfer run: {e}", file=sys.stderr)
             return 2

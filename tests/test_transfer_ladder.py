@@ -1014,3 +1014,41 @@ def test_summary_and_compare_refuse_runs_of_different_budgets(tmp_path, capsys):
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and "not comparable" in err[0], err
         assert "4" in err[0] and "8" in err[0]
+
+
+def test_run_refuses_to_resume_on_runs_or_sources_of_other_settings(tmp_path, capsys,
+                                                                     monkeypatch):
+    """``run`` skips a stored run and resumes a stored source: run again with another
+    ``--budget`` it kept the stored runs at the old budget beside new ones at this one, with
+    another ``--source-evals`` it extended the source's phase 1 under the runs made from it,
+    and a damaged run file was skipped for good. Each is now refused before any run (one line,
+    exit 2), and the same settings resume."""
+    from latentune.pipeline.store import RunStore
+
+    monkeypatch.setattr(tr, "run_method", lambda *a, **k: pytest.fail("ran"))
+    root = tmp_path / "root"
+    src = root / "bowl" / "seed0" / "source"
+    with RunStore(src, create=True) as st:
+        st.set_meta("config", {"phase1": {"budget": 16}})
+    f = root / "bowl" / "gap0.1" / "seed0" / "zero_shot.json"
+    f.parent.mkdir(parents=True)
+    f.write_text(json.dumps({"system": "bowl", "gap": 0.1, "seed": 0, "method": "zero_shot",
+                             "budget": 4, "costs": [1.0], "failed": [False]}))
+    argv = ["run", "--systems", "bowl", "--seeds", "0", "--gaps", "0.1", "--only", "zero_shot",
+            "--root", str(root)]
+    for extra, words in ((["--budget", "8", "--source-evals", "16"], "--budget 4, not 8"),
+                         (["--budget", "4", "--source-evals", "24"],
+                          "--source-evals 16, not 24")):
+        assert tr.main(argv + extra) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and words in err[0], err
+    f.write_text('{"costs": [1.0')
+    assert tr.main(argv + ["--budget", "4", "--source-evals", "16"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(f) in err[0] and "is not a stored run" in err[0]
+    with RunStore(src) as st:
+        assert st.count(1) == 0                         # the source was not extended
+    f.write_text(json.dumps({"system": "bowl", "gap": 0.1, "seed": 0, "method": "zero_shot",
+                             "budget": 4, "costs": [1.0], "failed": [False]}))
+    monkeypatch.setattr(tr, "source_run", lambda *a: src)
+    assert tr.main(argv + ["--budget", "4", "--source-evals", "16"]) == 0     # resumes: kept
