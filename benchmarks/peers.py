@@ -593,8 +593,8 @@ def main(argv=None) -> int:
     prov = Provenance(argv, "benchmarks.peers")
     p = argparse.ArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--problems", nargs="+", default=list(problems()))
-    p.add_argument("--methods", nargs="*", default=ALL_METHODS)
+    p.add_argument("--problems", nargs="+", default=list(problems()), choices=list(problems()))
+    p.add_argument("--methods", nargs="*", default=ALL_METHODS, choices=ALL_METHODS)
     p.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3, 4])
     p.add_argument("--budget", type=int, default=500)
     p.add_argument("--gp-budget", type=int, default=200)
@@ -618,6 +618,14 @@ def main(argv=None) -> int:
     p.add_argument("--compare", default=None, metavar="DIR",
                    help="compare the runs of --out with the runs of the same name in DIR")
     a = p.parse_args(argv)
+    for v in a.variant or []:       # refused here, not a traceback after the runs began
+        name, eq, js = v.partition("=")
+        try:
+            opts = json.loads(js) if eq and name else None
+        except json.JSONDecodeError as e:
+            p.error(f"--variant {v!r}: the options are not JSON ({e})")
+        if not isinstance(opts, dict):
+            p.error(f"--variant {v!r}: expected NAME='{{\"option\": value}}'")
     if a.compare:
         return compare(a)
     if a.relabel:

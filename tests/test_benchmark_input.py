@@ -1,0 +1,25 @@
+"""Bad input to the robot and peer benchmarks' command lines (benchmarks.reality_gap,
+benchmarks.handover, benchmarks.peers): refused in one line with exit 2 before any work, never
+an empty table with exit 0 or a traceback after the first runs."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+
+
+@pytest.mark.parametrize("argv", [["--problems", "nosuch"], ["--methods", "nosuch"],
+                                  ["--variant", "fast"], ["--variant", "fast={bad"],
+                                  ["--variant", "fast=[1]"]])
+def test_peers_refuses_unknown_problems_methods_and_bad_variants(tmp_path, capsys, argv):
+    """An unknown problem or method, or a ``--variant`` that is not NAME=JSON object, printed a
+    traceback per run ("FAILED …") and exited 0, after logging an invocation; each is now an
+    argparse error (exit 2) and nothing is written."""
+    from benchmarks import peers
+
+    with pytest.raises(SystemExit) as e:
+        peers.main([*argv, "--budget", "4", "--seeds", "0", "--dir", str(tmp_path / "p")])
+    assert e.value.code == 2 and "error:" in capsys.readouterr().err
+    assert not (tmp_path / "p").exists()
+
