@@ -50,16 +50,22 @@ METHODS = ("latent", "handover", "turbo", "optuna_cma", "optuna_tpe")
 
 
 def report(d: Path) -> str:
-    """The tables of every ``*.json`` output in ``d`` with their commands and wall times."""
+    """The tables of every ``*.json`` output in ``d`` with their commands and wall times (other
+    JSON files are passed over). ValueError when ``d`` holds none (an empty report read as
+    done)."""
     out = []
     for f in sorted(d.glob("*.json")):
         o = json.loads(f.read_text())
+        if not (isinstance(o, dict) and "table" in o and "provenance" in o):
+            continue                        # not a handover output
         pr = o["provenance"]
         title = f"{o['robot']} {o['task']}" + (f", reality {o['reality']}" if o.get("reality")
                                                else "")
         out += [f"### {title}: `{f.name}`", "", f"`{pr['command']}` ({pr['wall_s']:.0f} s, "
                 f"commit {str(pr.get('commit'))[:7]}; manual cost {o['manual']:.3f})", "",
                 *o["table"], ""]
+    if not out:
+        raise ValueError(f"no handover output (a *.json with a table) in {d}")
     return "\n".join(out)
 
 
@@ -88,7 +94,11 @@ def main(argv: list[str] | None = None) -> int:
     add_out_arg(ap)
     a = ap.parse_args(argv)
     if a.report:
-        print(report(Path(a.report)))
+        try:
+            print(report(Path(a.report)))
+        except ValueError as e:
+            print(f"handover: error: {e}", file=sys.stderr)
+            return 2
         return 0
     if not (a.vae and a.work):
         ap.error("--vae and --work are required")

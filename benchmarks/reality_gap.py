@@ -50,7 +50,7 @@ def report(d: Path) -> str:
     """One Markdown table of every ``*.json`` output in ``d``: per (robot, task, reality,
     method) the best cost, falls and evaluations to beat zero-shot without fall avoidance and
     with each ``--max-fall-prob`` P found, and the ratios of the median best cost and of the
-    median falls (P / plain)."""
+    median falls (P / plain). ValueError when ``d`` holds none (an empty table read as done)."""
     rows: dict = {}
     probs: set = set()
     cmds = []
@@ -66,6 +66,8 @@ def report(d: Path) -> str:
         for reality, ms in o["summary"].items():
             for m, v in ms.items():
                 rows.setdefault((o["robot"], o["task"], reality, m), {})[fa] = v
+    if not rows:
+        raise ValueError(f"no reality_gap output (a *.json with a summary) in {d}")
     ps = sorted(probs)
 
     def cell(v):
@@ -116,7 +118,11 @@ def main(argv: list[str] | None = None) -> int:
     add_out_arg(ap)
     a = ap.parse_args(argv)
     if a.report:
-        print(report(Path(a.report)))
+        try:
+            print(report(Path(a.report)))
+        except ValueError as e:
+            print(f"reality_gap: error: {e}", file=sys.stderr)
+            return 2
         return 0
     if not a.source:
         ap.error("--source is required")

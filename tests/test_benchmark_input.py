@@ -9,6 +9,20 @@ import pytest
 
 
 
+def test_a_report_of_a_directory_without_outputs_is_refused(tmp_path, capsys):
+    """``--report DIR`` of a directory without outputs (a typo, the wrong one) printed an empty
+    table (reality_gap) or nothing (handover) and exited 0; each now says so, exit 2. JSON
+    files of other benchmarks beside them are passed over, not a traceback."""
+    from benchmarks import handover, reality_gap
+
+    (tmp_path / "other.json").write_text(json.dumps({"rows": []}))
+    for mod, name in ((reality_gap, "reality_gap"), (handover, "handover")):
+        assert mod.main(["--report", str(tmp_path)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(f"{name}: error: no {name} output"), err
+        assert str(tmp_path) in err[0]
+
+
 @pytest.mark.parametrize("argv", [["--problems", "nosuch"], ["--methods", "nosuch"],
                                   ["--variant", "fast"], ["--variant", "fast={bad"],
                                   ["--variant", "fast=[1]"]])
