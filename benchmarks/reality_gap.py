@@ -41,6 +41,10 @@ from benchmarks.common import (Provenance, add_out_arg, median_evals,  # noqa: E
                                write_json)
 
 
+METHODS = ("phase3", "direct", "cma")
+"""The methods run on each target (module docstring)."""
+
+
 def spread(v: list[float]) -> dict:
     a = np.asarray(v, dtype=float)
     return {"median": float(np.median(a)), "min": float(a.min()), "max": float(a.max())}
@@ -110,7 +114,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--steps", type=int, default=5000)
     ap.add_argument("--budget", type=int, default=40)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
-    ap.add_argument("--methods", nargs="+", default=["phase3", "direct", "cma"])
+    ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
     ap.add_argument("--max-fall-prob", type=float, default=None,
                     help="fall-aware critics: skip candidates above this predicted fall probability")
     ap.add_argument("--workers", type=int, default=2)
@@ -126,7 +130,12 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if not a.source:
         ap.error("--source is required")
-    best0 = source_best(a.source).theta     # the zero-shot θ
+    best = source_best(a.source)
+    if best is None:                        # refused before any target is built
+        ap.error(f"--source {a.source} is not a run with phase-1 trials (no zero-shot θ)")
+    if "phase3" in a.methods and not (Path(a.source) / "vae.json").is_file():
+        ap.error(f"--source {a.source} has no latent space (train-vae) for the phase3 method")
+    best0 = best.theta                      # the zero-shot θ
     work = Path(a.work)
     ev = make_evaluator("process", a.workers)
     res: dict = {}

@@ -23,6 +23,27 @@ def test_a_report_of_a_directory_without_outputs_is_refused(tmp_path, capsys):
         assert str(tmp_path) in err[0]
 
 
+def test_reality_gap_refuses_a_source_without_trials_or_latent_space_and_unknown_methods(
+        tmp_path, capsys):
+    """``--source`` that is not a finished run was an AttributeError traceback; a source without
+    a latent space failed at the phase3 method after the targets were built; an unknown
+    ``--methods`` name after the zero-shot θ ran on the robot. Each is now an argparse error
+    (exit 2) before any target is built."""
+    from benchmarks import reality_gap
+    from latentune.pipeline.store import RunStore
+
+    for argv, words in ((["--source", str(tmp_path / "none")], "is not a run with phase-1"),
+                        (["--source", str(tmp_path), "--methods", "tpe"], "invalid choice")):
+        with pytest.raises(SystemExit) as e:
+            reality_gap.main(argv)
+        assert e.value.code == 2 and words in capsys.readouterr().err
+    with RunStore(tmp_path, create=True) as st:        # a phase 1 without a latent space
+        st.add(1, 0, [0.5, 0.5], 1.0)
+    with pytest.raises(SystemExit) as e:
+        reality_gap.main(["--source", str(tmp_path), "--robot", "nosuch"])
+    assert e.value.code == 2 and "has no latent space" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("argv", [["--problems", "nosuch"], ["--methods", "nosuch"],
                                   ["--variant", "fast"], ["--variant", "fast={bad"],
                                   ["--variant", "fast=[1]"]])
