@@ -102,6 +102,10 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if not (a.vae and a.work):
         ap.error("--vae and --work are required")
+    try:                                    # refused before the manual θ's rollout
+        handover = json.loads(a.handover) if a.handover else True
+    except json.JSONDecodeError as e:
+        ap.error(f"--handover is not JSON: {e}")
     from latentune.pipeline.evaluators import make_evaluator
 
     kw = {"actor": a.actor} if a.actor else {}
@@ -109,7 +113,6 @@ def main(argv: list[str] | None = None) -> int:
         kw["reality"] = a.reality
     task = lt.Task(a.robot, a.task, **kw)
     manual = task.rollout(task.space.manual).cost
-    handover = json.loads(a.handover) if a.handover else True
     work = Path(a.work)
     work.mkdir(parents=True, exist_ok=True)
     print(f"{a.robot} {a.task}{' / ' + a.reality if a.reality else ''}: manual {manual:.3f}; "

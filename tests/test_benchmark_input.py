@@ -8,7 +8,6 @@ import json
 import pytest
 
 
-
 def test_a_report_of_a_directory_without_outputs_is_refused(tmp_path, capsys):
     """``--report DIR`` of a directory without outputs (a typo, the wrong one) printed an empty
     table (reality_gap) or nothing (handover) and exited 0; each now says so, exit 2. JSON
@@ -44,6 +43,20 @@ def test_reality_gap_refuses_a_source_without_trials_or_latent_space_and_unknown
     assert e.value.code == 2 and "has no latent space" in capsys.readouterr().err
 
 
+def test_handover_refuses_options_that_are_not_json_before_the_rollout(tmp_path, capsys,
+                                                                      monkeypatch):
+    """``--handover '{bad'`` was a JSONDecodeError traceback after the task was built and the
+    manual θ rolled out; it is now an argparse error (exit 2) first."""
+    import latentune as lt
+    from benchmarks import handover
+
+    monkeypatch.setattr(lt, "Task", lambda *a, **k: pytest.fail("built the task"))
+    with pytest.raises(SystemExit) as e:
+        handover.main(["--vae", str(tmp_path), "--work", str(tmp_path / "w"),
+                       "--handover", "{bad"])
+    assert e.value.code == 2 and "--handover is not JSON" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("argv", [["--problems", "nosuch"], ["--methods", "nosuch"],
                                   ["--variant", "fast"], ["--variant", "fast={bad"],
                                   ["--variant", "fast=[1]"]])
@@ -57,4 +70,3 @@ def test_peers_refuses_unknown_problems_methods_and_bad_variants(tmp_path, capsy
         peers.main([*argv, "--budget", "4", "--seeds", "0", "--dir", str(tmp_path / "p")])
     assert e.value.code == 2 and "error:" in capsys.readouterr().err
     assert not (tmp_path / "p").exists()
-
