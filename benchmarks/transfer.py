@@ -595,6 +595,16 @@ def compare_text(rows: list[dict[str, Any]]) -> str:
                       f"({w['target']})" if g is not None and w is not None else "")
                    + (f"; paired ratio: geometric mean {pg:.3f}"
                       if (pg := r.get("paired_geo_mean")) is not None else ""))
+        if (bar := r.get("bar")) is not None:
+            said = {"paired_geo_mean": lambda c: f"paired ratio {c['value']:.4f} ≤ {c['limit']:g}",
+                    "falls": lambda c: f"falls {c['value'][0]} ≤ {c['limit']:g} × "
+                                       f"{c['value'][1]}",
+                    "targets": lambda c: f"no target above {c['limit'][0]:g} × while losing "
+                                         f"≥ {c['limit'][1]:g} of its seeds "
+                                         f"({', '.join(c['failing']) or 'none'})"}
+            out.append("  bar: " + ("PASSES" if bar["pass"] else "FAILS") + " — " + "; ".join(
+                f"{said[k](c)}: {'holds' if c['pass'] else 'fails'}"
+                for k, c in bar.items() if k != "pass"))
         out += [f"  {t}: {c['wins']}/{c['ties']}/{c['losses']} (w/t/l), falls "
                 f"{c['falls_a']} vs {c['falls_b']}"
                 + (f", medians {c['median_a']:.4g} vs {c['median_b']:.4g}"
@@ -1021,6 +1031,35 @@ def compare(root: Path, a: str, b: str, seeds: list[int] | None = None,
             "by_target": by_target}
 
 
+def bar_check(row: dict[str, Any], paired_max: float | None = None,
+              falls_max: float | None = None,
+              target: tuple[float, float] | None = None) -> dict[str, Any]:
+    """A bar written before a screen's runs, applied to one :func:`compare` row (``a``, the
+    candidate, against ``b``): ``paired_max``, the largest ``paired_geo_mean`` allowed;
+    ``falls_max``, the largest ratio of total falls ``falls_a / falls_b`` (falls_b 0: none
+    allowed); ``target`` = (ratio, share), no target whose median ratio is above ``ratio``
+    while ``a`` loses on at least ``share`` of its seeds (⌈share·pairs⌉). Each given criterion's
+    value, limit and verdict, the failing targets, and ``pass`` (all given ones hold)."""
+    out: dict[str, Any] = {}
+    if paired_max is not None:
+        v = row["paired_geo_mean"]
+        out["paired_geo_mean"] = {"value": v, "limit": paired_max,
+                                  "pass": v is not None and v <= paired_max}
+    if falls_max is not None:
+        fa, fb = row["falls_a"], row["falls_b"]
+        out["falls"] = {"value": [fa, fb], "limit": falls_max,
+                        "pass": fa <= falls_max * fb}
+    if target is not None:
+        ratio, share = target
+        bad = [k for k, t in row["by_target"].items()
+               if t["ratio"] is not None and t["ratio"] > ratio
+               and t["losses"] >= int(np.ceil(share * (t["wins"] + t["ties"] + t["losses"])
+                                              - 1e-9))]
+        out["targets"] = {"failing": bad, "limit": [ratio, share], "pass": not bad}
+    out["pass"] = all(c["pass"] for c in out.values())
+    return out
+
+
 def _falls_paired(falls: list[tuple[int, int]]) -> dict[str, Any]:
     """Per (target, seed) pair of fall counts ``(a, b)``: on how many ``a`` fell more, fewer
     and as often, and a two-sided sign test on the pairs that differ (p 1.0 without any)."""
@@ -1110,6 +1149,14 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("--systems", nargs="+", default=None, choices=list(SYSTEMS),
                    help="only these systems' targets (default: every one stored)")
     c.add_argument("--out", default=None)
+    c.add_argument("--bar-paired", type=float, default=None, metavar="R",
+                   help="a bar: the largest paired geometric-mean ratio (a / b) allowed")
+    c.add_argument("--bar-falls", type=float, default=None, metavar="R",
+                   help="a bar: the largest ratio of total falls (a / b) allowed")
+    c.add_argument("--bar-target", type=float, nargs=2, default=None,
+                   metavar=("RATIO", "SHARE"),
+                   help="a bar: no target whose median ratio is above RATIO while a loses on "
+                        "at least SHARE of its seeds")
     ct = sub.add_parser("cut", help="a method's runs as the transfer critic with fall_budget "
                         "= SHARE would have run them (cut_at_fall_budget), stored as --as")
     ct.add_argument("--root", default="runs/transfer")
@@ -1160,6 +1207,14 @@ def main(argv: list[str] | None = None) -> int:
             print(f"transfer compare: no (target, seed) under {a.root} holds both methods of "
                   f"any pair", file=sys.stderr)
             return 2
+        if (a.bar_paired, a.bar_falls, a.bar_target) != (None, None, None):
+            if a.bar_target is not None and not 0 < a.bar_target[1] <= 1:
+                print(f"transfer compare: --bar-target's SHARE must be in (0, 1], got "
+                      f"{a.bar_target[1]:g}", file=sys.stderr)
+                return 2
+            for r in rows:
+                r["bar"] = bar_check(r, a.bar_paired, a.bar_falls,
+                                     None if a.bar_target is None else tuple(a.bar_target))
         print(compare_text(rows))
         if a.out:
             write_json(a.out, {"rows": rows}, prov)

@@ -155,6 +155,32 @@ def test_compare_pairs_the_ratios_seed_by_seed(tmp_path):
     assert np.isclose(t["paired_ratio"], paired) and np.isclose(r["paired_geo_mean"], paired)
     assert f"paired ratio: geometric mean {paired:.3f}" in tr.compare_text([r])
 
+def test_compare_applies_a_bar_written_before_the_runs(tmp_path, capsys):
+    """``compare --bar-*``: each criterion's verdict; a target fails only when its median ratio
+    is above the limit *and* the candidate loses on the share of its seeds asked (4 of 5 at
+    0.8, not at 0.9); a share outside (0, 1] is refused in one line."""
+    a = [1.3, 1.3, 1.3, 1.3, 0.5]          # loses on 4 of 5 seeds; median 1.3 against 1.0
+    b = [1.0, 1.0, 1.0, 1.0, 1.0]
+    for s in range(5):
+        _write(tmp_path, "a", s, [a[s], 9.0], [False, s == 0])
+        _write(tmp_path, "b", s, [b[s], 9.0], [False, False])
+    r = tr.compare(tmp_path, "a", "b")
+    bar = tr.bar_check(r, paired_max=1.0, falls_max=1.1, target=(1.1, 0.8))
+    assert not bar["paired_geo_mean"]["pass"] and bar["paired_geo_mean"]["value"] > 1.0
+    assert not bar["falls"]["pass"]                       # one fall against none
+    assert bar["targets"]["failing"] == ["arm gap1"] and not bar["pass"]
+    assert tr.bar_check(r, target=(1.1, 0.9))["pass"]    # 5 of 5 would be needed
+    assert tr.bar_check(r, target=(1.4, 0.8))["pass"]    # 1.3 is not above 1.4
+    assert tr.bar_check(r, paired_max=1.2)["pass"]
+    assert tr.main(["compare", "--root", str(tmp_path), "--a", "a", "--b", "b",
+                    "--bar-paired", "1.0", "--bar-target", "1.1", "0.8"]) == 0
+    assert "bar: FAILS" in capsys.readouterr().out
+    assert tr.main(["compare", "--root", str(tmp_path), "--a", "a", "--b", "b",
+                    "--bar-target", "1.1", "4"]) == 2
+    err = capsys.readouterr().err
+    assert "SHARE must be in (0, 1]" in err and len(err.strip().splitlines()) == 1
+
+
 def test_transfer_curves_median_best_so_far_with_provenance(tmp_path) -> None:
     """The curves are medians over seeds of the best standing cost so far (falls never count),
     and the outputs name the command that made them."""
