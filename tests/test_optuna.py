@@ -649,6 +649,57 @@ def test_a_source_run_that_grows_does_not_change_a_study_under_way(tmp_path):
     assert attrs["latentune:source_counts:" + part.sampler._key] == {"1": 40, "3": 0}
 
 
+@pytest.mark.parametrize("strategy", ["transfer", "plain"])
+def test_a_study_resumed_with_a_larger_budget_goes_on_as_one_run(tmp_path, strategy):
+    """A study resumed by a new sampler with a larger budget (more trials planned, as in
+    examples/optuna_hopper.py run again with a larger --trials) goes on from the trials it ran:
+    its sampler's trials are told as the critic's own points, its critic state and its pinned
+    source trials carry on, so it asks what one study with that budget asked (the budget sets
+    no point: only the fall budget's base, and TuRBO-m's region count, 1 below 750)."""
+    storage = optuna.storages.InMemoryStorage()
+    sim = optuna.create_study(storage=storage, study_name="sim")
+    X = manifold(50)
+
+    def add(xs):
+        sim.add_trials([optuna.trial.create_trial(params=dict(zip(NAMES, map(float, x))),
+                                                  distributions=DISTS, value=cost(x)[0])
+                        for x in xs])
+
+    add(X[:40])
+    import_optuna_study(storage, "sim", tmp_path / "src").train_latent(latent_dim=3, epochs=100)
+
+    def more(study, n, budget):
+        study.sampler = LatentSampler(tmp_path / "src", seed=0, budget=budget, strategy=strategy)
+        study.optimize(objective_for(study.sampler), n_trials=n)
+        return study
+
+    full = more(optuna.create_study(), 6, 20)
+    part = more(optuna.create_study(), 4, 10)
+    add(X[40:])
+    import_optuna_study(storage, "sim", tmp_path / "src")          # 10 more source trials
+    assert thetas(more(part, 2, 20)) == thetas(full)
+    assert all(t.system_attrs[POINT_ATTR]["tag"] >= 0 for t in part.trials[1:])
+
+
+def test_keys_written_with_a_budget_name_the_same_configuration():
+    """Keys stored before the budget left them (``…:{regions}:{budget}:…``) map to the key a
+    sampler of that configuration has now, whatever the budget; other configurations do not."""
+    from latentune.integrations.optuna import canonical_key
+
+    s = TurboSampler(DISTS, seed=0, budget=30)
+    h, x0 = s._key.split(":")[1], s._key.split(":")[-1]
+    assert canonical_key(f"theta:{h}:turbo:None:30:None:{x0}") == s._key
+    assert canonical_key(f"theta:{h}:turbo:None:500:None:{x0}") == s._key
+    assert canonical_key(f"theta:{h}:turbo:None:5000:None:{x0}") != s._key   # more regions
+    assert canonical_key(f"theta:{h}:turbo:None:30:0.3:{x0}") != s._key
+    assert canonical_key(s._key) == s._key and canonical_key(None) is None
+    t = "latent:abc:transfer:turbo:None:40:None:manual:" + json.dumps({"fall_budget": 0.15})
+    assert canonical_key(t) == ("latent:abc:transfer:turbo:regions=None:None:manual:"
+                                + json.dumps({"fall_budget": 0.15}))
+    assert canonical_key("latent:abc:plain:turbo:None:40:None:best") == \
+        "latent:abc:plain:turbo:regions=1:None:best"
+
+
 def test_two_workers_on_one_journal(source_run, tmp_path):
     journal = tmp_path / "target.log"
     from optuna.storages.journal import JournalFileBackend, JournalStorage

@@ -105,7 +105,9 @@ logger = logging.getLogger(__name__)
 
 POINT_ATTR = "latentune:point"
 """Trial system attribute of a sampled trial: ``{"key", "u", "z", "tag", "theta", "told",
-"pending", "skipped"}``: the sampler configuration's key, the critic's unit-box point, the
+"pending", "skipped"}``: the sampler configuration's key (its budget not in it: a study resumed
+with a larger budget goes on with the trials it ran, as ``Study.phase3`` does; keys written with
+the budget map to it by :func:`canonical_key`), the critic's unit-box point, the
 latent code (or None), the critic's tag, the normalized θ, how many finished and pending trials
 the critic saw, and how many free points it left to pending trials not sampled yet."""
 STATE_ATTR = "latentune:critic_state:"
@@ -352,6 +354,23 @@ class _CriticSampler:
         """A θ decided without the critic (LatentSampler's zero-shot trial), else None."""
         return None
 
+    def _study_attr(self, study: Any, prefix: str, attrs: dict[str, Any] | None = None) -> Any:
+        """The study system attribute ``prefix`` + the sampler's key, else one written under a
+        key of the same configuration in the form before the budget left keys
+        (:func:`canonical_key`; pinned source counts: the fewest, the first pinned), else
+        None."""
+        if attrs is None:
+            attrs = study._storage.get_study_system_attrs(study._study_id)
+        if prefix + self._key in attrs:
+            return attrs[prefix + self._key]
+        old = [v for k, v in attrs.items() if k.startswith(prefix) and
+               canonical_key(k[len(prefix):]) == self._key]
+        if not old:
+            return None
+        if prefix == SOURCE_ATTR:
+            return min(old, key=lambda c: sum(int(n) for n in c.values()))
+        return old[-1]
+
     # ------------------------------------------------------------------ public helpers
     @property
     def space(self) -> ParameterSpace:
@@ -491,7 +510,7 @@ class _CriticSampler:
         if theta is None:
             return None
         pt = t.system_attrs.get(POINT_ATTR)
-        if isinstance(pt, dict) and pt.get("key") == self._key and \
+        if isinstance(pt, dict) and canonical_key(pt.get("key")) == self._key and \
                 len(pt.get("u", ())) == dim and pt.get("theta") is not None and \
                 np.allclose(theta, np.clip(np.asarray(pt["theta"], dtype=float), 0.0, 1.0),
                             rtol=0.0, atol=THETA_ATOL):
@@ -549,7 +568,7 @@ class _CriticSampler:
             critic.tell(np.array(X), np.array(y, dtype=float), np.array(tags, dtype=np.int64),
                         fell=np.array(fell, dtype=bool), **kw)
         skey = STATE_ATTR + self._key
-        state = study._storage.get_study_system_attrs(study._study_id).get(skey)
+        state = self._study_attr(study, STATE_ATTR)
         if X and state and hasattr(critic, "load_state_dict"):
             critic.load_state_dict(state)
         if getattr(critic, "fall_budget_spent", False):
@@ -625,6 +644,31 @@ class _CriticSampler:
             return np.clip(u, 0.0, 1.0), None
         return np.clip(np.asarray(decoder(u[None, :]), dtype=float)[0], 0.0, 1.0), \
             [float(v) for v in u]
+
+
+def canonical_key(key: Any) -> str | None:
+    """A sampler configuration's key (:data:`POINT_ATTR`'s ``key``) in the form written now:
+    without the budget, with the trust-region count the critic runs with (``regions=R``; None
+    but for TuRBO-m). A key written before (``…:{regions}:{budget}:…``) maps to the same form,
+    so a study resumed with another budget knows its trials; any other value is returned as it
+    is (None for a non-string)."""
+    from latentune.critic.turbo import regions_for_budget
+
+    if not isinstance(key, str):
+        return None
+    p = key.split(":")
+    try:
+        if p[0] == "latent" and len(p) >= 8 and not p[4].startswith("regions="):
+            turbo = p[2] == "plain" and p[3] == "turbo"
+            r = None if not turbo else (int(p[4]) if p[4] != "None" else
+                                        regions_for_budget(int(p[5])))
+            return ":".join(p[:4] + [f"regions={r}"] + p[6:])
+        if p[0] == "theta" and len(p) == 7 and not p[3].startswith("regions="):
+            r = int(p[3]) if p[3] != "None" else regions_for_budget(int(p[4]))
+            return ":".join(p[:3] + [f"regions={r}"] + p[5:])
+    except ValueError:
+        pass
+    return key
 
 
 def _key_of(theta: np.ndarray) -> tuple[float, ...]:
@@ -718,12 +762,13 @@ class LatentSampler(_CriticSampler, BaseSampler):
         best = source_best(src)
         self._zero_shot_theta = None if best is None or not zero_shot else best.theta.copy()
         self.start = start
-        self._key = (f"latent:{_fingerprint(latent)}:{strategy}:{method}:{regions}:{budget}:"
+        self._init_common(seed, budget, regions, method, max_fall_prob, constraints_func,
+                          independent_sampler)
+        self._key = (f"latent:{_fingerprint(latent)}:{strategy}:{method}:"
+                     f"regions={self.regions if strategy == 'plain' else None}:"
                      f"{max_fall_prob}:{start}" + ("" if self.transfer_options is None else
                                                    ":" + json.dumps(self.transfer_options,
                                                                     sort_keys=True)))
-        self._init_common(seed, budget, regions, method, max_fall_prob, constraints_func,
-                          independent_sampler)
         self._x0: np.ndarray | None = None
         if start == "manual":
             self._x0 = latent.to_unit(latent.encode(space.manual))
@@ -748,9 +793,11 @@ class LatentSampler(_CriticSampler, BaseSampler):
         if self.strategy != "transfer":
             return None
         key = SOURCE_ATTR + self._key
-        pinned = study._storage.get_study_system_attrs(study._study_id).get(key)
+        attrs = study._storage.get_study_system_attrs(study._study_id)
+        pinned = self._study_attr(study, SOURCE_ATTR, attrs)
         if pinned is None:
             pinned = run_counts(self.source_run)
+        if attrs.get(key) != pinned:
             study._storage.set_study_system_attr(study._study_id, key, pinned)
         return pinned
 
@@ -869,10 +916,10 @@ class TurboSampler(_CriticSampler, BaseSampler):
             raise UsageError("TurboSampler: start must be None, 'manual' or a dict of "
                              "physical values by name")
         self._x0 = x0
-        self._key = (f"theta:{_space_hash(space)}:turbo:{regions}:{budget}:{max_fall_prob}:"
-                     f"{None if x0 is None else _hash(np.asarray(x0).tobytes())}")
         self._init_common(seed, budget, regions, "turbo", max_fall_prob, constraints_func,
                           independent_sampler)
+        self._key = (f"theta:{_space_hash(space)}:turbo:regions={self.regions}:{max_fall_prob}:"
+                     f"{None if x0 is None else _hash(np.asarray(x0).tobytes())}")
 
     def _critic(self, study: Any) -> tuple[Any, Callable | None]:
         from latentune.pipeline.phases import make_phase_critic
