@@ -278,6 +278,8 @@ def test_latent_sampler_optimize_and_seed(source_run, tmp_path):
     a, b, c = run(0), run(0), run(1)
     assert thetas(a) == thetas(b)                                  # one worker: deterministic
     assert thetas(a)[1:] != thetas(c)[1:]                          # another seed, another run
+    assert {t.system_attrs[POINT_ATTR]["seed"] for s, st in ((0, a), (1, c))
+            for t in st.trials[1:] if t.system_attrs[POINT_ATTR]["seed"] != s} == set()
     # trial 0: the source's best θ as it is (zero-shot)
     zs = a.trials[0]
     assert zs.system_attrs.get("latentune:zero_shot") is True and POINT_ATTR not in zs.system_attrs

@@ -104,10 +104,11 @@ except ImportError:  # pragma: no cover - the extra is not installed
 logger = logging.getLogger(__name__)
 
 POINT_ATTR = "latentune:point"
-"""Trial system attribute of a sampled trial: ``{"key", "u", "z", "tag", "theta", "told",
-"pending", "skipped"}``: the sampler configuration's key (its budget not in it: a study resumed
-with a larger budget goes on with the trials it ran, as ``Study.phase3`` does; keys written with
-the budget map to it by :func:`canonical_key`), the critic's unit-box point, the
+"""Trial system attribute of a sampled trial: ``{"key", "seed", "u", "z", "tag", "theta",
+"told", "pending", "skipped"}``: the sampler configuration's key (its budget not in it: a study
+resumed with a larger budget goes on with the trials it ran, as ``Study.phase3`` does; keys
+written with the budget map to it by :func:`canonical_key`), the critic's seed, the critic's
+unit-box point, the
 latent code (or None), the critic's tag, the normalized θ, how many finished and pending trials
 the critic saw, and how many free points it left to pending trials not sampled yet."""
 STATE_ATTR = "latentune:critic_state:"
@@ -577,7 +578,7 @@ class _CriticSampler:
                            "the best θ that stood; stop the study", trial.number,
                            critic.falls_allowed())
             return np.clip(U[0], 0.0, 1.0), {
-                "key": self._key, "u": [float(v) for v in U[0]], "z": None,
+                "key": self._key, "seed": self.seed, "u": [float(v) for v in U[0]], "z": None,
                 "tag": int(critic.last_tags[0]), "theta": [float(v) for v in U[0]],
                 "told": len(X), "pending": 0, "skipped": 0, "fall_budget_spent": True}
         others = [t for t in trials if t.number != trial.number]
@@ -624,9 +625,9 @@ class _CriticSampler:
             st = critic.state_dict()
             if st:
                 study._storage.set_study_system_attr(study._study_id, skey, st)
-        point = {"key": self._key, "u": [float(v) for v in u], "z": z, "tag": tag,
-                 "theta": [float(v) for v in theta], "told": len(X), "pending": len(pending),
-                 "skipped": unknown}
+        point = {"key": self._key, "seed": self.seed, "u": [float(v) for v in u], "z": z,
+                 "tag": tag, "theta": [float(v) for v in theta], "told": len(X),
+                 "pending": len(pending), "skipped": unknown}
         logger.debug("trial %d: %d told, %d pending (%d before it not sampled yet), tag %d",
                      trial.number, len(X), len(pending), unknown, tag)
         return np.clip(theta, 0.0, 1.0), point
@@ -687,7 +688,7 @@ class LatentSampler(_CriticSampler, BaseSampler):
     Args:
         source_run: a latentune run directory with phase 1 and a trained latent space
             (``Study.train_latent``, ``latentune train-vae``, or an imported Optuna study).
-        seed: the critic's seed (recorded in each trial's ``latentune:point`` key).
+        seed: the critic's seed (recorded in each sampled trial's ``latentune:point``).
         strategy: ``"transfer"`` (default: latentune's phase 3 from every source trial, on the
             latent and the full θ box, :mod:`latentune.critic.transfer`) or ``"plain"`` (the
             paper's phase 3 on the latent box; ``method``, ``regions`` and ``start`` are its
