@@ -702,6 +702,29 @@ def test_keys_written_with_a_budget_name_the_same_configuration():
         "latent:abc:plain:turbo:regions=1:None:best"
 
 
+@pytest.mark.parametrize("kind", ["transfer", "plain", "turbo"])
+def test_a_study_that_prunes_its_trials_goes_on(source_run, kind):
+    """PRUNED trials are not told (the critic's history does not change), but their θ are taken:
+    a study whose pruner cuts most trials (here every one after the first) goes on, each trial
+    at a θ of its own, where the sampler used to stop after a few with "the critic keeps
+    proposing θ that are in the study already"."""
+    if kind == "turbo":
+        sampler = TurboSampler(DISTS, seed=0, budget=40)
+    else:
+        sampler = LatentSampler(source_run, seed=0, budget=40, strategy=kind)
+    study = optuna.create_study(sampler=sampler)
+
+    def objective(trial):
+        p = sampler.suggest_all(trial)
+        if trial.number >= 1:
+            raise optuna.TrialPruned()
+        return cost(np.array([p[n] for n in NAMES]))[0]
+
+    study.optimize(objective, n_trials=24)
+    assert len(study.trials) == 24 and len(set(thetas(study))) == 24
+    assert all(t.state == S.PRUNED for t in study.trials[1:])
+
+
 def test_two_workers_on_one_journal(source_run, tmp_path):
     journal = tmp_path / "target.log"
     from optuna.storages.journal import JournalFileBackend, JournalStorage

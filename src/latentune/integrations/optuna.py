@@ -21,9 +21,10 @@ of processes may share one RDB or journal storage):
 
 * each COMPLETE trial is told with its value (negated for a ``maximize`` study) and a fall flag;
   each FAIL trial is told as a fall with cost +inf (the critics treat it as the worst cost seen);
-  PRUNED and WAITING trials are ignored; a value that is not finite (or of 1e300 in size or
-  more) is no cost: a fall's is +inf, and a trial that stood with one is refused, naming it
-  (:func:`trial_cost`; ``after_trial`` refuses it as it finishes, and every later sample does);
+  PRUNED and WAITING trials are not told (a PRUNED trial's θ is not asked again); a value
+  that is not finite (or of 1e300 in size or more) is no cost: a fall's is +inf, and a trial
+  that stood with one is refused, naming it (:func:`trial_cost`; ``after_trial`` refuses it as
+  it finishes, and every later sample does);
 * a trial *falls* (``failed`` in latentune) when any of its Optuna constraint values is > 0 —
   set by ``trial.set_constraint(name, value)`` in the objective, or by a ``constraints_func``
   given to the sampler (called in ``after_trial``, as Optuna's own samplers do) — or when its
@@ -34,8 +35,9 @@ of processes may share one RDB or journal storage):
   differs from the sampler's —, another sampler, the zero-shot one) with every parameter inside
   the box is an external, untagged point at its own θ (in the latent box: its θ encoded; a code
   outside the latent box is left out); a trial lacking a parameter of the space is left out;
-* RUNNING trials are pending: a trial asks the rebuilt critic for ``len(pending) + 2`` points,
-  passes over those whose θ a trial of the study already has (a RUNNING trial's θ is recorded
+* RUNNING trials are pending: a trial asks the rebuilt critic for ``len(pending) + 2`` points
+  (and one per PRUNED trial, which the critic, not told, asks again), passes over those whose
+  θ a trial of the study already has (a RUNNING trial's θ is recorded
   the moment it is sampled), leaves one more to each pending trial with a smaller number that is
   sampling at the same moment, and takes the next. It records its θ, then checks: when another
   RUNNING trial recorded the same θ at that moment, it chooses again, leaving the first untaken
@@ -545,8 +547,9 @@ class _CriticSampler:
         One snapshot of the study's trials gives the history (finished trials), the pending
         ones (RUNNING, other than ``trial``) and the θ already taken: every trial's parameters,
         and the θ a RUNNING trial was given (``POINT_ATTR``, written as soon as it is sampled,
-        before its parameters). The critic is asked for ``len(pending) + 2`` points; those
-        whose θ is taken are passed over, then one more for each pending trial with a smaller
+        before its parameters). The critic is asked for ``len(pending) + 2`` points, and one
+        per PRUNED trial (not told, the critic asks its θ again); those whose θ is taken are
+        passed over, then one more for each pending trial with a smaller
         number whose θ is not known yet (it is sampling now and takes that one), and the trial
         takes the next (asking again when none is left). ``extra_skip``: pass over that many
         more (a trial that was given the same θ as others with smaller numbers, at the same
@@ -598,7 +601,9 @@ class _CriticSampler:
                 taken.add(_key_of(np.asarray(pt["theta"], dtype=float)))
             elif t.number in pending_numbers and t.number < trial.number and u_t is None:
                 unknown += 1
-        n_ask, skip = len(pending) + 2 + extra_skip, unknown + extra_skip
+        # a PRUNED trial is not told, so the rebuilt critic asks its θ again: one more each
+        untold = sum(t.state == S.PRUNED for t in others)
+        n_ask, skip = len(pending) + 2 + untold + extra_skip, unknown + extra_skip
         chosen = None
         for _ in range(8):
             U = critic.ask(n_ask)
