@@ -19,11 +19,12 @@ Methods (every one from scratch: no method gets the manual θ as its first point
 
 Every (method, seed) is a run store under ``--work`` (``<method>_s<seed>``); a finished store is
 read instead of re-run (so stores of ``benchmarks.sample_efficiency`` with the same task,
-budget, batch size and seed are reused: the same Study calls). Reported per method: evaluations
-to the manual cost and to each ``--targets`` cost (median over seeds; a seed that never gets
-there counts as infinite), the best cost after the budget (median, min, max), falls during
-tuning (median per run), and the two-sided Mann–Whitney U p-value of the bests against the
-handover method's.
+budget, batch size and seed are reused: the same Study calls), and a store run with other
+options or another task is refused before any rollout (``check_stores``). Reported per method:
+evaluations to the manual cost and to each ``--targets`` cost (median over seeds; a seed that
+never gets there counts as infinite), the best cost after the budget (median, min, max), falls
+during tuning (median per run), and the two-sided Mann–Whitney U p-value of the bests against
+the handover method's.
 """
 from __future__ import annotations
 
@@ -32,6 +33,7 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 from latentune.threads import one_thread_env
 
@@ -41,6 +43,7 @@ import numpy as np  # noqa: E402
 
 import latentune as lt  # noqa: E402
 from latentune.constants import Phase  # noqa: E402
+from latentune.errors import StoreError  # noqa: E402
 from latentune.reporting.metrics import evals_to_beat  # noqa: E402
 
 from benchmarks.common import (Provenance, add_out_arg, median_evals,  # noqa: E402
@@ -67,6 +70,57 @@ def report(d: Path) -> str:
     if not out:
         raise ValueError(f"no handover output (a *.json with a table) in {d}")
     return "\n".join(out)
+
+
+def stored_options(m: str, seed: int, batch_size: int, vae: str, handover: Any,
+                   max_fall_prob: float | None) -> dict[str, Any]:
+    """The options a store of method ``m`` records for its phase (phase 3 for ``latent`` and
+    ``handover``, phase 1 otherwise) when this benchmark runs it with these arguments: what a
+    finished store is checked against before it is read instead of re-run."""
+    from latentune.pipeline.phases import handover_options
+
+    base = {"seed": int(seed), "batch_size": int(batch_size), "start": None}
+    if m in ("latent", "handover"):
+        ho = m == "handover"
+        return {**base, "method": "turbo", "strategy": "plain",
+                "latent_source": str(Path(vae).resolve()),
+                "handover": handover_options(handover) if ho else None,
+                "max_fall_prob": None if not ho or max_fall_prob is None
+                else float(max_fall_prob)}
+    return {**base, "max_fall_prob": None,
+            "method": {"optuna_cma": "optuna-cmaes", "optuna_tpe": "optuna-tpe"}.get(m, "turbo")}
+
+
+def stored_differences(stored: dict[str, Any], want: dict[str, Any]) -> list[str]:
+    """``"key = stored (not wanted)"`` for each option of ``want`` that ``stored`` (a phase's
+    options record) holds with another value; options it does not record pass."""
+    return [f"{k.replace('_', '-')} = {stored[k]!r} (not {v!r})" for k, v in want.items()
+            if k in stored and stored[k] != v]
+
+
+def check_stores(a: argparse.Namespace, task: Any, handover: Any) -> None:
+    """StoreError (one line) unless every store under ``--work`` that holds trials of its
+    method's phase was run with the options and the task these arguments ask for: a finished
+    store is read instead of re-run, so one of other options (another ``--handover`` or
+    ``--max-fall-prob`` under the same ``--handover-name``) would be reported as this run."""
+    for m in a.methods:
+        name = a.handover_name if m == "handover" else m
+        phase = Phase.PHASE3 if m in ("latent", "handover") else Phase.PHASE1
+        for s in a.seeds:
+            d = Path(a.work) / f"{name}_s{s}"
+            if not d.exists():
+                continue
+            with lt.Study(d, seed=s, workers=1) as study:
+                if not (study.exists and study.store.count(phase)):
+                    continue
+                study.bind_check(task)
+                key = "phase3" if phase == Phase.PHASE3 else "phase1"
+                diff = stored_differences(study.config().get(key) or {}, stored_options(
+                    m, s, a.batch_size, a.vae, handover, a.max_fall_prob))
+            if diff:
+                raise StoreError(f"{d}: the store of {m} was run with other options "
+                                 f"({'; '.join(diff)}): give another --work"
+                                 f"{' or --handover-name' if m == 'handover' else ''} for them")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -112,6 +166,7 @@ def main(argv: list[str] | None = None) -> int:
     if a.reality:
         kw["reality"] = a.reality
     task = lt.Task(a.robot, a.task, **kw)
+    check_stores(a, task, handover)         # before the manual θ's rollout
     manual = task.rollout(task.space.manual).cost
     work = Path(a.work)
     work.mkdir(parents=True, exist_ok=True)
@@ -129,7 +184,7 @@ def main(argv: list[str] | None = None) -> int:
                 with lt.Study(d, seed=s, workers=a.workers, batch_size=a.batch_size,
                               evaluator=ev) as study:
                     if study.exists and study.store.count(phase) >= a.budget:
-                        ran = False
+                        ran = False         # checked by check_stores
                     else:
                         ran = True
                         if m == "latent":

@@ -70,3 +70,48 @@ def test_peers_refuses_unknown_problems_methods_and_bad_variants(tmp_path, capsy
         peers.main([*argv, "--budget", "4", "--seeds", "0", "--dir", str(tmp_path / "p")])
     assert e.value.code == 2 and "error:" in capsys.readouterr().err
     assert not (tmp_path / "p").exists()
+
+
+def test_handover_refuses_a_store_of_other_options_instead_of_reporting_it(tmp_path, capsys,
+                                                                           monkeypatch):
+    """A finished store under ``--work`` was read as "(stored)" whenever it held ``--budget``
+    trials: a re-run with another ``--max-fall-prob`` or ``--handover`` (or task) under the same
+    ``--handover-name`` silently reported the old run. Such a store is now refused in one line
+    (exit 2) before the manual θ's rollout; one of the same options is still read."""
+    import types
+
+    import latentune as lt
+    from benchmarks import handover
+    from benchmarks.common import cli_main
+    from examples.shifted_bowl import BowlSystem
+
+    with lt.Study(tmp_path / "src", seed=0, workers=1) as st:
+        st.phase1(BowlSystem(0.0), 8)
+        st.train_latent(2, epochs=10)
+
+    class Task(BowlSystem):                 # the benchmark's Task, on the bowl
+        rollouts = 0
+
+        def __init__(self, robot, task, **kw):
+            super().__init__(0.1 if task == "jump" else 0.2)
+
+        def rollout(self, theta):
+            Task.rollouts += 1
+            return types.SimpleNamespace(cost=self.evaluate(theta))
+
+    monkeypatch.setattr(lt, "Task", Task)
+    argv = ["--vae", str(tmp_path / "src"), "--work", str(tmp_path / "w"), "--methods",
+            "handover", "--seeds", "0", "--budget", "4", "--workers", "1"]
+    assert handover.main(argv) == 0
+    capsys.readouterr()
+    for extra, words in ((["--max-fall-prob", "0.3"], "max-fall-prob = None (not 0.3)"),
+                         (["--handover", '{"patience": 3}'], "handover = {"),
+                         (["--task", "trot"], "system")):
+        Task.rollouts = 0
+        assert cli_main(lambda: handover.main(argv + extra), "benchmarks.handover") == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("benchmarks.handover: error:"), err
+        assert "handover_s0" in err[0] and words in err[0], err
+        assert Task.rollouts == 0
+    assert handover.main(argv) == 0         # the same options: read, not re-run
+    assert "(stored)" in capsys.readouterr().err
