@@ -259,7 +259,10 @@ def method_budget(method: str, budget: int, gp_budget: int) -> int:
     return min(budget, gp_budget) if method == "optuna_gp" else budget
 
 
-def bench(a) -> None:
+def bench(a) -> int:
+    """Run every (problem, method, seed) not written yet; 0, or 1 when a run raised (its
+    traceback printed as it happened, the failed runs named in one line on stderr at the end,
+    nothing written for them)."""
     import torch
 
     torch.set_num_threads(1)
@@ -296,7 +299,7 @@ def bench(a) -> None:
             for s in group:
                 for p in a.problems:
                     work.append((p, m, s))
-    n_done = 0
+    n_done, failed = 0, []
     for p, m, s in work:
         b = method_budget(m, a.budget, a.gp_budget)
         path = run_path(out, p, m, s, b, chash)
@@ -306,6 +309,7 @@ def bench(a) -> None:
             r = run_method(m, p, s, b, a.batch_size, variants)
         except Exception:
             print(f"FAILED {p} {m} {s}:\n{traceback.format_exc()}", flush=True)
+            failed.append(f"{p} {m} s{s}")
             continue
         r["critic_hash"] = chash if m.startswith("lt_") else None
         if m.startswith("lt_") and "@" in m:
@@ -322,8 +326,14 @@ def bench(a) -> None:
               flush=True)
     inv["loadavg_end"] = os.getloadavg()
     inv["runs_done"] = n_done
+    inv["runs_failed"] = failed
     with open(out / "invocations.jsonl", "a") as fh:
         fh.write(json.dumps(dict(inv, event="end")) + "\n")
+    if failed:
+        print(f"peers: {len(failed)} of {len(work)} runs failed (their tracebacks above; "
+              f"not written, a re-run tries them again): {', '.join(failed)}",
+              file=sys.stderr, flush=True)
+    return 1 if failed else 0
 
 
 # ------------------------------------------------------------------ report
@@ -633,9 +643,8 @@ def main(argv=None) -> int:
     a.provenance = prov
     if a.report:
         report(a)
-    else:
-        bench(a)
-    return 0
+        return 0
+    return bench(a)
 
 
 if __name__ == "__main__":

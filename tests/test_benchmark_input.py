@@ -115,3 +115,22 @@ def test_handover_refuses_a_store_of_other_options_instead_of_reporting_it(tmp_p
         assert Task.rollouts == 0
     assert handover.main(argv) == 0         # the same options: read, not re-run
     assert "(stored)" in capsys.readouterr().err
+
+
+def test_peers_exits_non_zero_and_names_the_runs_that_failed(tmp_path, capsys):
+    """A run that raised printed "FAILED …" among the others and the command still exited 0 (a
+    script or CI took the suite as done); it now exits 1 and ends with one line naming the
+    failed runs, which are not written."""
+    from benchmarks import peers
+
+    code = peers.main(["--problems", "lqr16", "--methods", "--variant", 'bad={"nosuch": 1}',
+                       "--seeds", "0", "--budget", "4", "--batch-size", "2",
+                       "--dir", str(tmp_path / "p")])
+    out, err = capsys.readouterr()
+    assert code == 1 and "FAILED lqr16 lt_turbo@bad 0" in out
+    assert err.strip().splitlines()[-1] == (
+        "peers: 1 of 1 runs failed (their tracebacks above; not written, a re-run tries them "
+        "again): lqr16 lt_turbo@bad s0")
+    assert not list((tmp_path / "p" / "runs").glob("*.json"))
+    end = json.loads((tmp_path / "p" / "invocations.jsonl").read_text().splitlines()[-1])
+    assert end["runs_failed"] == ["lqr16 lt_turbo@bad s0"]
