@@ -47,6 +47,7 @@ import argparse
 import datetime
 import hashlib
 import json
+import os
 import platform
 import subprocess
 import sys
@@ -328,15 +329,33 @@ class Provenance:
 
 
 # ==================================================================== entry point
+def stdout_closed() -> int:
+    """stdout's reader went away (``| head``): stdout is pointed at /dev/null so that nothing
+    more is written (nor a traceback at the interpreter's last flush); 141, the exit status of
+    ``latentune`` then (a shell's for SIGPIPE)."""
+    try:
+        fd = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(fd, sys.stdout.fileno())
+        os.close(fd)
+    except (OSError, ValueError, AttributeError):
+        pass
+    return 141
+
+
 def cli_main(main: Callable[[], int], prog: str) -> int:
     """Run a benchmark's ``main()`` (every benchmark's ``__main__``): a user error of
     latentune's (a run directory without a store, a bad parameter:
     :class:`latentune.errors.LatentuneError`) or an input file that does not exist is one line
-    on stderr and exit 2, as argparse's errors are, not a traceback."""
+    on stderr and exit 2, as argparse's errors are, not a traceback; a closed stdout
+    (``| head``) ends quietly with exit 141 (:func:`stdout_closed`)."""
     from latentune.errors import LatentuneError
 
     try:
-        return main()
+        code = main()
+        sys.stdout.flush()                  # a closed pipe is seen here, not at exit
+        return code
+    except BrokenPipeError:
+        return stdout_closed()
     except LatentuneError as e:
         msg = " ".join(str(e).split())
     except FileNotFoundError as e:

@@ -134,3 +134,25 @@ def test_peers_exits_non_zero_and_names_the_runs_that_failed(tmp_path, capsys):
     assert not list((tmp_path / "p" / "runs").glob("*.json"))
     end = json.loads((tmp_path / "p" / "invocations.jsonl").read_text().splitlines()[-1])
     assert end["runs_failed"] == ["lqr16 lt_turbo@bad s0"]
+
+
+def test_a_closed_stdout_ends_a_benchmark_without_a_traceback(tmp_path):
+    """``python -m benchmarks.X … | head`` (here ``benchmarks.handover --report``) ended in a
+    BrokenPipeError traceback; every benchmark's command line (``cli_main``) now ends quietly
+    with exit 141, as ``latentune`` does."""
+    import subprocess
+    import sys
+
+    from conftest import CLI_ENV, ROOT
+
+    (tmp_path / "a1_jump.json").write_text(json.dumps({
+        "robot": "a1", "task": "jump", "manual": 1.0, "table": ["| method |"] * 1000,
+        "provenance": {"command": "python -m benchmarks.handover", "wall_s": 1.0}}))
+    env = dict(CLI_ENV, PYTHONPATH=f"{ROOT / 'src'}:{ROOT}")
+    p = subprocess.Popen([sys.executable, "-m", "benchmarks.handover", "--report",
+                          str(tmp_path)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         env=env, text=True, cwd=tmp_path)
+    p.stdout.close()                        # the reader is gone before anything is written
+    err = p.stderr.read()
+    assert p.wait(timeout=120) == 141, err
+    assert err == ""
