@@ -79,12 +79,12 @@ def write_figure(fig: Any, png: Path, out: Any, prov: Provenance, gap: float, se
 
 
 def median_seed(root: Path, gap: float, method: str = "transfer", system: str = "zones") -> int:
-    """The seed whose ``method`` best is the (lower) median over the seeds stored."""
+    """The seed whose ``method`` best is the (lower) median over the seeds stored;
+    :class:`TracesError` (code 2) when no seed has a run of ``method`` there."""
     seeds = sorted(int(p.name[4:]) for p in (root / system / f"gap{gap:g}").glob("seed*")
                    if (p / f"{method}.json").is_file())
     if not seeds:
-        raise SystemExit(f"{system} traces: error: no {method} run under "
-                         f"{root}/{system}/gap{gap:g}")
+        raise TracesError(2, f"no {method} run under {root}/{system}/gap{gap:g}")
     best = [min(stored_run(root, gap, s, method, system)["costs"]) for s in seeds]
     order = np.argsort(best, kind="stable")
     return seeds[int(order[(len(seeds) - 1) // 2])]
@@ -107,7 +107,8 @@ def traces_figure(argv: list[str] | None, doc: str, name: str, make_system: Any,
     each method's best trial on ``make_system(gap)`` (:func:`rerun_best`) and open a figure of
     ``nrows`` rows and one column (``width`` inches) per method: ``(args, seed, reruns, fig,
     axes)``. With ``manual`` the first column and rerun are the target's manual θ (trial index
-    None). :class:`TracesError` as :func:`rerun_best` raises it."""
+    None). :class:`TracesError` as :func:`rerun_best` and :func:`median_seed` raise it, and
+    (code 2) for a gap ``make_system`` refuses."""
     ap = argparse.ArgumentParser(description=doc.splitlines()[0])
     ap.add_argument("--root", type=Path, default=root)
     ap.add_argument("--gap", type=float, default=gap)
@@ -126,7 +127,10 @@ def traces_figure(argv: list[str] | None, doc: str, name: str, make_system: Any,
 
     seed = median_seed(a.root, a.gap, getattr(a, "default", "transfer"), name) \
         if a.seed is None else a.seed
-    system = make_system(a.gap)
+    try:
+        system = make_system(a.gap)
+    except ValueError as e:
+        raise TracesError(2, f"--gap: {e}") from None
     reruns = [(None, *system.simulate(system.space.manual))] if manual else []
     reruns += [rerun_best(system, a.root, a.gap, seed, m, name) for m in a.methods]
     fig, axes = plt.subplots(nrows, len(reruns), figsize=(width * len(reruns), height),

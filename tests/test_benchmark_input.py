@@ -156,3 +156,21 @@ def test_a_closed_stdout_ends_a_benchmark_without_a_traceback(tmp_path):
     err = p.stderr.read()
     assert p.wait(timeout=120) == 141, err
     assert err == ""
+
+
+@pytest.mark.parametrize("name", ["buck_traces", "cartpole_traces", "quadrotor_traces",
+                                  "servo_traces", "vehicle_traces", "zones_traces"])
+def test_traces_of_a_root_or_gap_without_runs_exit_2_in_one_line(tmp_path, capsys, name):
+    """``benchmarks.buck_traces --root DIR`` (or ``--gap G``) without runs there exited 1 with
+    "buck traces: error: …" (a SystemExit of the seed's choice), not 2 as the other usage
+    errors; a gap the system refuses (``--gap -1 --seed 0``) was a ValueError traceback. Each
+    is now one ``<name>: error:`` line and exit 2, for every ladder's traces."""
+    import importlib
+
+    mod = importlib.import_module(f"benchmarks.{name}")
+    for argv, words in ((["--root", str(tmp_path)], f"run under {tmp_path}"),
+                        (["--root", str(tmp_path), "--gap", "-1", "--seed", "0"], "--gap: gap")):
+        assert mod.main([*argv, "--png", str(tmp_path / "t.png")]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(f"{name}: error:") and words in err[0], err
+    assert not (tmp_path / "t.png").exists()
