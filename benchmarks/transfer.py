@@ -1224,6 +1224,11 @@ def main(argv: list[str] | None = None) -> int:
             for flag, v in (("--budget", a.budget), ("--source-evals", a.source_evals)):
                 if v < 1:
                     raise ValueError(f"{flag} must be >= 1, got {v}")
+            small = [m for m, base, _ in run_jobs(a) if base in BESIDE]
+            if small and a.budget < 2:          # they would run 2 trials, stored as budget 1
+                raise ValueError(f"--budget {a.budget} is too small for {', '.join(small)} "
+                                 "(its first two trials are the manual θ and the zero-shot "
+                                 "θ): give --budget >= 2, or --only without them")
             for v in a.variants:
                 check_variant(v)
             targets = ladder_targets(a.systems, a.gaps)

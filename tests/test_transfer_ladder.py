@@ -602,6 +602,22 @@ def test_held_out_gaps_replace_the_ladders_and_a_gap_a_system_cannot_take_is_ref
         assert err == [f"transfer run: {flag} must be >= 1, got 0"]
 
 
+def test_run_refuses_a_budget_below_the_two_first_trials_of_plain_and_handover(capsys):
+    """``run --budget 1`` with ``plain`` or ``handover`` (as the default methods hold them) ran
+    their manual and zero-shot trials (2) anyway and stored them as a run of budget 1; it is
+    now refused in one line (exit 2) before any source run, and ``--only`` without them
+    still takes budget 1."""
+    for only in ([], ["--only", "plain", "zero_shot"], ["--only", "handover"]):
+        assert tr.main(["run", "--systems", "arm", "--budget", "1", *only,
+                        "--root", "/nonexistent/x"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("transfer run: --budget 1 is too small for ")
+        assert ("handover" in err[0]) == ("plain" not in only)
+    assert tr.main(["run", "--systems", "arm", "--budget", "1", "--only", "zero_shot",
+                    "--gaps", "0", "--root", "/nonexistent/x"]) == 2    # past the budget check
+    assert "--budget" not in capsys.readouterr().err
+
+
 def test_cut_of_a_method_without_runs_is_refused(tmp_path, capsys):
     """``cut`` of a method with no stored run (a typo) said '0 runs ... stored as X' and exited
     0; it now exits 2 with one line naming the method and root."""
