@@ -364,6 +364,21 @@ def cli_main(main: Callable[[], int], prog: str) -> int:
     return 2
 
 
+def refuse_out_of_range(ap: argparse.ArgumentParser, a: argparse.Namespace,
+                        **ranges: tuple[Any, Any]) -> None:
+    """``ap.error`` (one line, exit 2) for the first option of ``ranges`` (its ``dest``: a
+    ``(least, most)`` bound, ``most`` None for none; both inclusive) whose value, or one of its
+    values (a list such as ``--seeds``), is out of it; None (an option not given) passes. For
+    the counts and seeds a benchmark would otherwise see refused only after it built its
+    tasks and rolled out their first trials."""
+    for dest, (lo, hi) in ranges.items():
+        v = getattr(a, dest)
+        for x in v if isinstance(v, list) else [v]:
+            if x is not None and not (lo <= x and (hi is None or x <= hi)):
+                ap.error(f"--{dest.replace('_', '-')} must be "
+                         + (f">= {lo}" if hi is None else f"in [{lo}, {hi}]") + f", got {x}")
+
+
 # ==================================================================== output
 def add_out_arg(parser: argparse.ArgumentParser) -> None:
     """``--out FILE.json``: the one output option of every benchmark."""

@@ -47,7 +47,7 @@ from latentune.errors import StoreError  # noqa: E402
 from latentune.reporting.metrics import evals_to_beat  # noqa: E402
 
 from benchmarks.common import (Provenance, add_out_arg, median_evals,  # noqa: E402
-                               write_json)
+                               refuse_out_of_range, write_json)
 
 METHODS = ("latent", "handover", "turbo", "optuna_cma", "optuna_tpe")
 
@@ -156,6 +156,10 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if not (a.vae and a.work):
         ap.error("--vae and --work are required")
+    refuse_out_of_range(ap, a, budget=(1, None), seeds=(0, None), workers=(1, None),
+                        batch_size=(1, None))       # before the task is built
+    if a.max_fall_prob is not None and not 0 < a.max_fall_prob <= 1:
+        ap.error(f"--max-fall-prob must be in (0, 1], got {a.max_fall_prob}")
     try:                                    # refused before the manual θ's rollout
         handover = json.loads(a.handover) if a.handover else True
     except json.JSONDecodeError as e:

@@ -38,7 +38,7 @@ from latentune.reporting.metrics import evals_to_beat  # noqa: E402
 from latentune.study import source_best  # noqa: E402
 
 from benchmarks.common import (Provenance, add_out_arg, median_evals,  # noqa: E402
-                               write_json)
+                               refuse_out_of_range, write_json)
 
 
 METHODS = ("phase3", "direct", "cma")
@@ -130,6 +130,10 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if not a.source:
         ap.error("--source is required")
+    refuse_out_of_range(ap, a, budget=(1, None), seeds=(0, None), workers=(1, None),
+                        steps=(1, None))            # before any target is built
+    if a.max_fall_prob is not None and not 0 < a.max_fall_prob <= 1:
+        ap.error(f"--max-fall-prob must be in (0, 1], got {a.max_fall_prob}")
     best = source_best(a.source)
     if best is None:                        # refused before any target is built
         ap.error(f"--source {a.source} is not a run with phase-1 trials (no zero-shot θ)")

@@ -174,3 +174,35 @@ def test_traces_of_a_root_or_gap_without_runs_exit_2_in_one_line(tmp_path, capsy
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0].startswith(f"{name}: error:") and words in err[0], err
     assert not (tmp_path / "t.png").exists()
+
+
+@pytest.mark.parametrize("name,argv,words", [
+    ("reality_gap", ["--budget", "0"], "--budget must be >= 1, got 0"),
+    ("reality_gap", ["--seeds", "0", "-1"], "--seeds must be >= 0, got -1"),
+    ("reality_gap", ["--workers", "0"], "--workers must be >= 1, got 0"),
+    ("reality_gap", ["--steps", "0"], "--steps must be >= 1, got 0"),
+    ("reality_gap", ["--max-fall-prob", "0"], "--max-fall-prob must be in (0, 1], got 0.0"),
+    ("handover", ["--budget", "0"], "--budget must be >= 1, got 0"),
+    ("handover", ["--seeds", "-2"], "--seeds must be >= 0, got -2"),
+    ("handover", ["--workers", "0"], "--workers must be >= 1, got 0"),
+    ("handover", ["--batch-size", "0"], "--batch-size must be >= 1, got 0"),
+    ("handover", ["--max-fall-prob", "1.5"], "--max-fall-prob must be in (0, 1], got 1.5")])
+def test_robot_benchmarks_refuse_bad_counts_before_building_a_task(tmp_path, capsys, monkeypatch,
+                                                                   name, argv, words):
+    """``--budget 0``, a negative seed, ``--workers 0`` (and ``--steps``, ``--batch-size``,
+    ``--max-fall-prob`` out of range) were refused only inside the Study, after the robot's
+    task was built and its first trial (the zero-shot θ, the manual θ) rolled out; each is now
+    one argparse error (exit 2) before any task."""
+    import importlib
+
+    import latentune as lt
+
+    mod = importlib.import_module(f"benchmarks.{name}")
+    monkeypatch.setattr(lt, "Task", lambda *a, **k: pytest.fail("built the task"))
+    common = (["--source", str(tmp_path), "--work", str(tmp_path / "w")] if name == "reality_gap"
+              else ["--vae", str(tmp_path), "--work", str(tmp_path / "w")])
+    with pytest.raises(SystemExit) as e:
+        mod.main([*common, *argv])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert e.value.code == 2 and err[-1].endswith(f"error: {words}"), err
+    assert not (tmp_path / "w").exists()
