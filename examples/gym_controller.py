@@ -222,11 +222,40 @@ def make_real_system(seed: int = 0, episode_steps: int = 400, mass_scale: float 
                         obs_noise=obs_noise, action_delay=action_delay, name="real")
 
 
+COUNT_ARGS = ("phase1_evals", "phase3_evals", "sim_trials", "trials", "episode_steps",
+              "workers")
+"""The options of the Hopper examples' command lines that are counts (>= 1)."""
+
+
+def check_args(a: Any) -> None:
+    """UsageError for a Hopper example's argument (``a``: its parsed arguments) that would be
+    refused only after trials ran: a count of :data:`COUNT_ARGS` below 1, a negative
+    ``--seed``, a ``--latent-dim`` outside [1, 35] (the latent space is smaller than the 36
+    weights)."""
+    from latentune.errors import UsageError
+
+    for dest in COUNT_ARGS:
+        v = getattr(a, dest, None)
+        if v is not None and v < 1:
+            raise UsageError(f"--{dest.replace('_', '-')} must be >= 1, got {v}")
+    if a.seed < 0:
+        raise UsageError(f"--seed must be >= 0, got {a.seed}")
+    dim = len(hopper_space().names)
+    if not 1 <= a.latent_dim < dim:
+        raise UsageError(f"--latent-dim must be in [1, {dim - 1}] (smaller than the {dim} "
+                         f"weights), got {a.latent_dim}")
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Phases 1-3 through the Python API at a small budget; prints the comparison table."""
+    """Phases 1-3 through the Python API at a small budget; prints the comparison table. A bad
+    argument, or an ``--out`` of another run (another seed, episode length or latent size), is
+    one line on stderr and exit 2."""
     import argparse
 
-    ap = argparse.ArgumentParser(description="latentune on a 36-weight Hopper-v5 controller")
+    from latentune.errors import LatentuneError
+
+    ap = argparse.ArgumentParser(prog="examples.gym_controller",
+                                 description="latentune on a 36-weight Hopper-v5 controller")
     ap.add_argument("--out", default="runs/examples/hopper", help="study directory (resumes)")
     ap.add_argument("--phase1-evals", type=int, default=120)
     ap.add_argument("--phase3-evals", type=int, default=40)
@@ -234,6 +263,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--episode-steps", type=int, default=400)
     ap.add_argument("--seed", type=int, default=0)
     a = ap.parse_args(argv)
+    try:
+        check_args(a)
+        return _run(a)
+    except LatentuneError as exc:   # an --out of another run, a phase 1 without 2 stable θ, ...
+        print(f"{ap.prog}: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 2
+
+
+def _run(a: Any) -> int:
+    """The example's run for the parsed arguments ``a`` (see :func:`main`)."""
     system = make_system(seed=a.seed, episode_steps=a.episode_steps)
     print(f"{system.space.dim} tuned weights; manual θ: cost "
           f"{system.evaluate(system.space.manual).cost:.2f}", flush=True)

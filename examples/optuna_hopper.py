@@ -37,7 +37,8 @@ import optuna  # noqa: E402
 
 if __package__ in (None, ""):                   # run as a file: python examples/optuna_hopper.py
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from examples.gym_controller import hopper_space, make_real_system, make_system  # noqa: E402
+from examples.gym_controller import (check_args, hopper_space,  # noqa: E402
+                                     make_real_system, make_system)
 from latentune.integrations.optuna import (LatentSampler, TurboSampler,  # noqa: E402  # latentune
                                            import_optuna_study, trial_fell)
 
@@ -70,9 +71,13 @@ def _best_text(best: float | None) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The script (module docstring); a bad argument is one line on stderr and exit 2."""
     import argparse
 
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    from latentune.errors import LatentuneError
+
+    ap = argparse.ArgumentParser(prog="examples.optuna_hopper",
+                                 description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="runs/examples/optuna_hopper", help="output directory")
     ap.add_argument("--sim-trials", type=int, default=300, help="trials on the simulator")
     ap.add_argument("--trials", type=int, default=40, help="trials on the real Hopper")
@@ -82,6 +87,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--baseline", action="store_true", help="also run TPE on the real Hopper")
     a = ap.parse_args(argv)
+    try:
+        check_args(a)                   # counts, seed, latent size: before any trial
+        return _run(a)
+    except LatentuneError as exc:
+        print(f"{ap.prog}: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 2
+
+
+def _run(a: Any) -> int:
+    """The script's run for the parsed arguments ``a`` (see :func:`main`)."""
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)

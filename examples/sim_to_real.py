@@ -39,7 +39,8 @@ from latentune.reporting.metrics import best_so_far, evals_to_beat  # noqa: E402
 
 if __package__ in (None, ""):                     # run as a file: python examples/sim_to_real.py
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from examples.gym_controller import REAL, make_real_system, make_system  # noqa: E402
+from examples.gym_controller import (REAL, check_args, make_real_system,  # noqa: E402
+                                     make_system)
 
 
 def _level(cost: float, fell: bool) -> float:
@@ -156,6 +157,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--backend", default="serial", choices=("serial", "process", "ray"))
     a = ap.parse_args(argv)
     try:
+        check_args(a)               # counts, seed, latent size: before phase 1 runs
         try:                        # the factories' checks (episode steps, seed)
             make_real_system(seed=a.seed, episode_steps=a.episode_steps)
         except ValueError as exc:

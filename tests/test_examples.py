@@ -350,21 +350,49 @@ def test_optuna_hopper_never_reports_a_fall_as_the_best():
     assert oh._best_text(None) == "none (every trial fell)"
 
 
-@pytest.mark.parametrize("args, says", [
-    (["--phase1-evals", "0"], "budget must be an integer >= 1, got 0"),
-    (["--episode-steps", "0"], "episode_steps must be"),
-    (["--seed", "-1"], "seed must be"),
-])
-def test_sim_to_real_bad_input_is_one_line(tmp_path, capsys, args, says):
-    """python -m examples.sim_to_real --phase1-evals 0 (or --episode-steps 0, --seed -1) ended
-    in a traceback; it is one line on stderr and exit status 2."""
-    pytest.importorskip("gymnasium")
-    import examples.sim_to_real as s2r
+BAD_COUNTS = [(["--episode-steps", "0"], "--episode-steps must be >= 1, got 0"),
+              (["--seed", "-1"], "--seed must be >= 0, got -1"),
+              (["--latent-dim", "0"], "--latent-dim must be in [1, 35]"),
+              (["--latent-dim", "36"], "--latent-dim must be in [1, 35]")]
+PHASES = [(["--phase1-evals", "0"], "--phase1-evals must be >= 1, got 0"),
+          (["--phase3-evals", "0"], "--phase3-evals must be >= 1, got 0")]
 
-    try:
-        code = s2r.main(["--out", str(tmp_path / "s2r"), *args])
-    except SystemExit as exc:                 # argparse's error
-        code = exc.code
+
+@pytest.mark.parametrize("module, args, says", [
+    *[("sim_to_real", *c) for c in BAD_COUNTS + PHASES
+      + [(["--workers", "0"], "--workers must be >= 1, got 0")]],
+    *[("gym_controller", *c) for c in BAD_COUNTS + PHASES],
+    *[("optuna_hopper", *c) for c in BAD_COUNTS
+      + [(["--sim-trials", "0"], "--sim-trials must be >= 1, got 0"),
+         (["--trials", "0"], "--trials must be >= 1, got 0")]]])
+def test_hopper_examples_bad_input_is_one_line_before_any_trial(tmp_path, capsys, module,
+                                                                 args, says):
+    """python -m examples.sim_to_real --phase1-evals 0 (or --episode-steps 0, --seed -1) ended
+    in a traceback, and so did every bad argument of examples.gym_controller and
+    examples.optuna_hopper; --phase3-evals 0 or --latent-dim 36 were refused only after phase 1
+    ran (300 evaluations by default). Each is one line on stderr and exit status 2, before
+    anything is written."""
+    pytest.importorskip("gymnasium")
+    import importlib
+
+    if module == "optuna_hopper":
+        pytest.importorskip("optuna")
+    mod = importlib.import_module(f"examples.{module}")
+    code = mod.main(["--out", str(tmp_path / "out"), *args])
     err = capsys.readouterr().err.strip()
     assert code == 2 and says in err and len(err.splitlines()) == 1, err
-    assert err.startswith("examples.sim_to_real") and "Traceback" not in err
+    assert err.startswith(f"examples.{module}: error: ") and "Traceback" not in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_gym_controller_into_an_out_of_another_run_is_one_line(tmp_path, capsys):
+    """python -m examples.gym_controller again into its --out with another --episode-steps
+    (a study of another system) was a StoreError traceback; it is one line, exit 2."""
+    g = _hopper()
+    with lt.Study(tmp_path / "h", seed=0) as st:
+        st.phase1(g.make_system(episode_steps=5), 2)
+    assert g.main(["--out", str(tmp_path / "h"), "--episode-steps", "6",
+                   "--phase1-evals", "2"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("examples.gym_controller: error: ") and \
+        str(tmp_path / "h") in err[0], err
