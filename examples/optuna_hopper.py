@@ -14,7 +14,9 @@ Going to latentune changes these lines (marked ``# latentune`` below):
 * on the real Hopper: ``LatentSampler(out / "sim", seed=...)`` instead of ``TPESampler``.
 
 ``--baseline`` also runs the unchanged script (TPE on the real Hopper) for comparison. Every study
-is in ``OUT/hopper.db`` and resumes. Run from the repository root::
+is in ``OUT/hopper.db`` and resumes with the same ``--seed``, ``--episode-steps``,
+``--sim-sampler`` and ``--latent-dim`` (recorded in ``OUT/example.json``; others are refused).
+Run from the repository root::
 
     python -m examples.optuna_hopper --out runs/examples/optuna_hopper --sim-trials 300 --trials 40
 
@@ -24,6 +26,7 @@ and GPSampler over seeds; ``latentune dashboard`` shows the latentune run, and
 """
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 from typing import Any, Callable
@@ -70,8 +73,35 @@ def _best_text(best: float | None) -> str:
     return "none (every trial fell)" if best is None else f"{best:.2f}"
 
 
+SETTINGS = ("seed", "episode_steps", "sim_sampler", "latent_dim")
+"""The arguments that decide what ``OUT``'s studies hold (the budgets may grow on a re-run)."""
+
+
+def check_out(out: Path, a: Any) -> None:
+    """UsageError unless ``out`` is a new directory or holds the studies of these
+    :data:`SETTINGS` (recorded in ``OUT/example.json`` when the directory is new): a re-run
+    with another seed, episode length or simulator sampler would resume the stored studies and
+    report them as runs of these."""
+    from latentune.errors import UsageError
+
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out {out} exists and is not a directory")
+    f, given = out / "example.json", {k: getattr(a, k) for k in SETTINGS}
+    if f.is_file():
+        stored = json.loads(f.read_text())
+        diff = [f"--{k.replace('_', '-')} {stored[k]} (not {given[k]})" for k in SETTINGS
+                if k in stored and stored[k] != given[k]]
+        if diff:
+            raise UsageError(f"{out} holds the studies of {', '.join(diff)}: give another --out, "
+                             "or the stored values to resume them")
+    elif not (out / "hopper.db").exists():        # a new directory (an older one: unrecorded)
+        out.mkdir(parents=True, exist_ok=True)
+        f.write_text(json.dumps(given))
+
+
 def main(argv: list[str] | None = None) -> int:
-    """The script (module docstring); a bad argument is one line on stderr and exit 2."""
+    """The script (module docstring); a bad argument, or an ``--out`` of other settings
+    (:func:`check_out`), is one line on stderr and exit 2."""
     import argparse
 
     from latentune.errors import LatentuneError
@@ -89,6 +119,7 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     try:
         check_args(a)                   # counts, seed, latent size: before any trial
+        check_out(Path(a.out), a)
         return _run(a)
     except LatentuneError as exc:
         print(f"{ap.prog}: error: {' '.join(str(exc).split())}", file=sys.stderr)

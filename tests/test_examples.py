@@ -385,6 +385,39 @@ def test_hopper_examples_bad_input_is_one_line_before_any_trial(tmp_path, capsys
     assert not (tmp_path / "out").exists()
 
 
+def test_optuna_hopper_refuses_an_out_of_other_settings(tmp_path, capsys, monkeypatch):
+    """python -m examples.optuna_hopper again into its --out with another --episode-steps (or
+    seed, --sim-sampler) resumed the stored studies and printed them as runs of the new
+    settings; another --latent-dim or seed was a traceback. The settings are recorded in a new
+    --out and a re-run of others is one line, exit 2; the same settings (budgets may grow)
+    resume; an --out that is a file is one line."""
+    pytest.importorskip("gymnasium")
+    pytest.importorskip("optuna")
+    from examples import optuna_hopper as oh
+
+    ran = []
+    monkeypatch.setattr(oh, "_run", lambda a: ran.append(a) or 0)     # no trial: the checks
+    out = tmp_path / "oh"
+    base = ["--out", str(out), "--episode-steps", "50"]
+    assert oh.main(base) == 0 and len(ran) == 1
+    assert json.loads((out / "example.json").read_text()) == {
+        "seed": 0, "episode_steps": 50, "sim_sampler": "turbo", "latent_dim": 5}
+    assert oh.main([*base, "--trials", "80", "--sim-trials", "400", "--baseline"]) == 0
+    for extra, says in ((["--episode-steps", "60"], "--episode-steps 50 (not 60)"),
+                        (["--seed", "1"], "--seed 0 (not 1)"),
+                        (["--sim-sampler", "tpe"], "--sim-sampler turbo (not tpe)"),
+                        (["--latent-dim", "3"], "--latent-dim 5 (not 3)")):
+        capsys.readouterr()
+        assert oh.main([*base, *extra]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("examples.optuna_hopper: error: ") and \
+            says in err[0] and str(out) in err[0], err
+    assert len(ran) == 2
+    (tmp_path / "file").write_text("")
+    assert oh.main(["--out", str(tmp_path / "file")]) == 2
+    assert "is not a directory" in capsys.readouterr().err
+
+
 def test_gym_controller_into_an_out_of_another_run_is_one_line(tmp_path, capsys):
     """python -m examples.gym_controller again into its --out with another --episode-steps
     (a study of another system) was a StoreError traceback; it is one line, exit 2."""
