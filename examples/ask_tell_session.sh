@@ -19,6 +19,10 @@ ROOT=${1:-}
 cd "$(dirname "$0")/.."                            # the repository root: examples.* imports
 ROOT=${ROOT:-runs/examples/asktell}
 TRIALS=${2:-6}
+if ! [[ $TRIALS =~ ^[0-9]+$ ]] || (( 10#$TRIALS < 1 )); then   # before any trial or store
+  echo "ask_tell_session.sh: error: TRIALS must be a whole number >= 1, got '$TRIALS'" >&2
+  exit 2
+fi
 if [ -x .venv/bin/latentune ]; then LT=${LATENTUNE:-.venv/bin/latentune}; PY=${PYTHON:-.venv/bin/python}
 else LT=${LATENTUNE:-latentune}; PY=${PYTHON:-python3}; fi
 ROBOT=examples.gym_controller:make_real_system

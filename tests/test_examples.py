@@ -6,6 +6,7 @@ The pure-numpy chain (``examples.toy_plant``) always runs; the Gymnasium Hopper
 from __future__ import annotations
 
 import json
+import os
 import sqlite3
 import sys
 from pathlib import Path
@@ -429,3 +430,21 @@ def test_gym_controller_into_an_out_of_another_run_is_one_line(tmp_path, capsys)
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("examples.gym_controller: error: ") and \
         str(tmp_path / "h") in err[0], err
+
+
+@pytest.mark.parametrize("trials", ["abc", "0", "-3", "2.5"])
+def test_ask_tell_session_refuses_a_bad_trial_count(tmp_path, trials):
+    """bash examples/ask_tell_session.sh ROOT abc printed seq's "invalid floating point
+    argument", ran no trial and ended in "latentune: error: no run store" (0: the same without
+    seq's line); a TRIALS that is not a whole number >= 1 is now one line, exit 2, before any
+    command runs."""
+    import subprocess
+
+    script = Path(__file__).resolve().parents[1] / "examples" / "ask_tell_session.sh"
+    p = subprocess.run(["bash", str(script), str(tmp_path / "at"), trials], capture_output=True,
+                       text=True, env={**os.environ, "LATENTUNE": "false", "PYTHON": "false"},
+                       timeout=60)
+    assert p.returncode == 2 and p.stdout == "", p
+    assert p.stderr == ("ask_tell_session.sh: error: TRIALS must be a whole number >= 1, got "
+                        f"'{trials}'\n")
+    assert not (tmp_path / "at").exists()
