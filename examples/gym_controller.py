@@ -47,6 +47,11 @@ one_thread_env()  # before numpy: MuJoCo steps and the controller are tiny opera
 import numpy as np  # noqa: E402
 
 import latentune as lt  # noqa: E402
+
+if __package__ in (None, ""):                   # run as a file: python examples/gym_controller.py
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from examples import checked_steps  # noqa: E402
 
 ENV_ID = "Hopper-v5"
