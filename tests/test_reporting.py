@@ -236,8 +236,7 @@ def test_table_without_zero_shot_and_never_beaten(tmp_path: Path):
         s = write_summary(st)
     assert "zero-shot" not in md and s["zero_shot_cost"] is None
     assert _row(md, "phase 1 (θ, CMA-ES)")[-1] == "not beaten"
-    assert _row(md, "phase 3 (latent, TuRBO-m)") == ["phase 3 (latent, TuRBO-m)", "–", "–", "0",
-                                                     "–", "–"]
+    assert _row(md, "phase 3") == ["phase 3", "–", "–", "0", "–", "–"]   # not started
     assert s["phase1_evals_to_beat_manual"] is None and s["phase1_falls"] == 1
     assert "phase 3 6.57" in md                                # the paper's uneven number
 
@@ -538,4 +537,26 @@ def test_comparison_table_leaves_out_phases_a_phase3_run_never_had(tmp_path: Pat
         st.set_meta("config", {"system": {"kind": "user"}})
         st.add(Phase.MANUAL, 0, np.zeros(3), 2.5, fell=False, tag=-1)
         md = comparison_table(st)
-    assert _row(md, "phase 1 (θ, TuRBO-m)")[2] == "0" and _row(md, "phase 3 (latent, TuRBO-m)")[2] == "0"
+    assert _row(md, "phase 1 (θ, TuRBO-m)")[2] == "0" and _row(md, "phase 3")[2] == "0"
+
+
+def test_a_phase3_not_started_is_not_labelled_with_a_strategy(tmp_path: Path, run_cli):
+    """``latentune report`` on a run stopped after phase 1 (or phase 2) labelled its empty
+    phase-3 row "phase 3 (latent, TuRBO-m)", the plain strategy, although a phase 3 started
+    later runs the transfer one by default: the strategy is chosen when phase 3 starts, so
+    the row is "phase 3" until then, and names the strategy of the stored record after."""
+    import latentune as lt
+    from examples.toy_plant import make_system
+
+    d = tmp_path / "run"
+    lt.Study(d, seed=0).phase1(make_system(), 6)
+    code, _, err = run_cli("report", d, "--quiet")
+    assert code == 0, err
+    md = (d / "report.md").read_text()
+    assert "| phase 3 | – | 0 | – | – |" in md and "phase 3 (" not in md, md
+    with RunStore(d) as st:
+        st.set_meta("config", dict(st.get_meta("config"), phase3={"strategy": "transfer"}))
+        assert _row(comparison_table(st), "phase 3 (transfer: source model, latent and θ "
+                                          "boxes)")[2] == "0"
+        st.set_meta("config", dict(st.get_meta("config"), phase3={"strategy": "plain"}))
+        assert _row(comparison_table(st), "phase 3 (latent, TuRBO-m)")[2] == "0"

@@ -57,15 +57,19 @@ def task_from_config(config: dict[str, Any]):
     return Task.from_config(config["task"])
 
 
-def phase_label(phase: int, config: dict[str, Any]) -> str:
+def phase_label(phase: int, config: dict[str, Any], trials: int | None = None) -> str:
     """The table label of a phase, naming the critic (phase 3: the strategy) of the stored
-    config."""
+    config. A phase 3 with no options record and ``trials == 0`` (not started: its strategy is
+    chosen when it starts) is labelled ``phase 3`` alone; with trials and no record (stores
+    written before the record existed) it is the paper's latent TuRBO-m."""
     def method(key: str) -> str:
         m = str((config.get(key) or {}).get("method", "turbo"))
         return METHOD_LABEL.get(m, m)
 
     p3 = config.get("phase3") or {}
-    if p3.get("strategy") == "transfer":
+    if int(phase) == Phase.PHASE3 and not p3 and trials == 0:
+        third = "phase 3"
+    elif p3.get("strategy") == "transfer":
         third = "phase 3 (transfer: source model, latent and θ boxes)"
     else:
         third = f"phase 3 (latent, {method('phase3')}" + (", hand-over)" if p3.get("handover")
@@ -186,7 +190,7 @@ def comparison_table(store: Any) -> str:
                 beat = fmt(s["evals_to_beat"]) if s["evals_to_beat"] is not None else "not beaten"
             cells = [fmt(s["best"])] + ([fmt(s["rms"])] if rms else [])
             cells += [str(s["n"]), f"{s['stable']}/{s['n']}", beat]
-        lines.append(f"| {phase_label(ph, cfg)} | " + " | ".join(cells) + " |")
+        lines.append(f"| {phase_label(ph, cfg, s['n'])} | " + " | ".join(cells) + " |")
     paper = _paper_numbers(cfg) if t else None
     if paper and any(v is not None for v in paper.values()):
         lines.append("")
