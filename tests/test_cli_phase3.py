@@ -152,3 +152,40 @@ def test_walk_pick_without_a_record_walk_is_refused_by_the_api(tmp_path, source,
     assert lt.Study(tmp_path / "u", seed=0).phase3(
         make_real_system(), 4, latent=source,
         transfer_options={**opts, "record_walk": 2}).n == 4
+
+
+def test_a_latent_space_copied_without_its_run_store_is_named_as_such(tmp_path, run_cli, source,
+                                                                      error_line):
+    """``--vae DIR`` with DIR the VAE files copied out of a run (vae.pt, vae.json, no run.db):
+    phase3 and ask said "no run store in DIR (expected run.db)" and left the target directory
+    with a copied latent space (ask's wording was the API's, ``latent: …``); now one line names
+    what is missing, why the search needs it and what to do, before anything is written. The
+    plain phase 3 without a fall prediction needs the latent space alone, and runs."""
+    import shutil
+
+    copy = tmp_path / "vaecopy"
+    copy.mkdir()
+    for f in ("vae.pt", "vae.json"):
+        shutil.copy(source / f, copy / f)
+    missing = f"--vae: {copy} holds a latent space but no run store (run.db): "
+    for out, flags, why in [
+            (tmp_path / "t", (), "the transfer phase 3 learns from the source run's trials; "
+             "copy the run directory with its run.db, or search the latent space alone "
+             "(--strategy plain)"),
+            (tmp_path / "m", ("--strategy", "plain", "--max-fall-prob", "0.3"),
+             "the fall prediction (--max-fall-prob) starts from the source run's trials")]:
+        line = error_line(*_phase3(run_cli, copy, out, *flags)[::2])
+        assert line.startswith(f"latentune: error: {missing}{why}"), line
+        assert not out.exists()
+        line = error_line(*run_cli("ask", out, *SYSTEM[:2], "--seed", "0", "--vae", copy,
+                                   "--phase", "3", *flags)[::2])
+        assert line.startswith(f"latentune: error: {missing}{why}"), line
+    from examples.toy_plant import make_real_system
+    from latentune.errors import LatentError
+
+    with pytest.raises(LatentError, match=r"^latent: .* no run store \(run\.db\): the "
+                       r"transfer phase 3 learns"):
+        lt.Study(tmp_path / "api").phase3(make_real_system(), 4, latent=copy)
+    assert not (tmp_path / "api").exists()
+    code, _, err = _phase3(run_cli, copy, tmp_path / "p", "--strategy", "plain", evals=3)
+    assert code == 0, err

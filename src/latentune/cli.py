@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
 from latentune import argtypes
-from latentune.errors import CLIError, LatentuneError, StoreError, UsageError
+from latentune.errors import CLIError, LatentError, LatentuneError, StoreError, UsageError
 
 DESCRIPTION = ("Tune the weights of a controller: phase 1 on the full θ of a cheap system, phase 2 "
                "a latent space of its stable θ, phase 3 on the target (see README.md).")
@@ -592,8 +592,6 @@ def _phase3_flags(phase3: Callable[..., Any], *a: Any, args: argparse.Namespace,
     """``phase3(*a, **kw)`` (:meth:`Study.phase3`), its refusals in the words of the command's
     flags (:func:`_ask_flags`: ``--fall-budget is an option of the transfer phase 3``, not
     ``transfer_options are options …``)."""
-    from latentune.errors import LatentError
-
     try:
         return phase3(*a, **kw)
     except (UsageError, StoreError, LatentError) as exc:
@@ -706,7 +704,7 @@ def cmd_ask(args: argparse.Namespace) -> int:
                              start=start, max_fall_prob=args.max_fall_prob,
                              fall_prior=args.fall_prior, asker=args.asker, lease_s=args.lease,
                              **({} if topts is None else {"transfer_options": topts}))
-        except (UsageError, StoreError) as exc:
+        except (UsageError, StoreError, LatentError) as exc:
             raise CLIError(_ask_flags(str(exc), args)) from None
         write_suggestion_files(study.dir, sugg)
         prune_suggestion_files(study.dir, _pending_ids(study))
@@ -764,6 +762,7 @@ def _ask_flags(msg: str, args: argparse.Namespace) -> str:
     msg = re.sub(r"^(\w+) needs (\w+)",
                  lambda m: f"{ASK_FLAGS.get(m[1], m[1])} needs {ASK_FLAGS.get(m[2], m[2])}", msg)
     msg = re.sub(r"\(strategy (plain|transfer)\)", r"(--strategy \1)", msg)
+    msg = re.sub(r"\((\w+)\)", lambda m: f"({ASK_FLAGS.get(m[1], m[1])})", msg)
     msg = re.sub(r"\(given (\w+) = ",
                  lambda m: f"(given {ASK_FLAGS.get(m[1], m[1])} = ", msg)
     m = _TRANSFER_STORED.search(msg)

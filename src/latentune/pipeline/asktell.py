@@ -65,8 +65,8 @@ from latentune.errors import LatentuneError, StoreError, UsageError
 from latentune.pipeline import manifest as mf
 from latentune.pipeline.baselines import queue_zero_shot
 from latentune.pipeline.loop import (decoder_of, phase_critic, record_latent,
-                                     refuse_plain_options, resolve_latent, resolve_strategy,
-                                     source_counts, strategy_of)
+                                     refuse_plain_options, require_source_store, resolve_latent,
+                                     resolve_strategy, source_counts, strategy_of)
 from latentune.pipeline.phases import ask_batch, replay, state_key, warn_if_failing
 from latentune.pipeline.results import phase_name, write_best
 from latentune.pipeline.store import Row, RunStore, critics_told
@@ -310,6 +310,7 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
     ls = None
     if phase == Phase.PHASE3:
         ls, source = resolve_latent(study.run, study.manifest, latent, space)
+        require_source_store(strat, source, mfp)
         record_latent(study.run, study.manifest, ls, source)
         extra = mf.phase3_extra(source, strat, start_rec, mfp, g.get("handover"),
                                 g.get("transfer_options"),

@@ -104,6 +104,7 @@ def phase3_setup(run: RunDir, manifest: Manifest, space: ParameterSpace, actor: 
     ls, source = resolve_latent(run, manifest, latent, space, actor)
     strategy = resolve_strategy(manifest, strategy, handover, ls)
     refuse_plain_options(strategy, method, regions, start)
+    require_source_store(strategy, source, max_fall_prob)
     counts = source_counts(run.dir, source)
     start_rec = mf.start_point(start, space.manual, space.dim)[1]
     return ls, mf.phase3_extra(source, strategy, start_rec, max_fall_prob, handover,
@@ -127,6 +128,27 @@ def refuse_plain_options(strategy: str, method: str | None, regions: int | None,
                              f"not of the transfer phase 3 (given {name} = {value!r}): its "
                              "search starts from the source's best trials and the manual "
                              "θ, in the latent and the full θ box")
+
+
+def require_source_store(strategy: str, source: str, max_fall_prob: float | None = None
+                         ) -> None:
+    """LatentError (one line, before anything is written) when phase 3 is to learn from the
+    trials of a source directory that holds a latent space but no run store (``vae.pt`` and
+    ``vae.json`` copied without ``run.db``): the transfer phase 3 always does, the plain one
+    with ``max_fall_prob`` (its fall prediction starts from them); the plain one without it
+    needs the latent space alone."""
+    if source == "self" or (Path(source) / "run.db").is_file():
+        return
+    if strategy == "transfer":
+        raise LatentError(f"latent: {source} holds a latent space but no run store (run.db): "
+                          "the transfer phase 3 learns from the source run's trials; copy the "
+                          "run directory with its run.db, or search the latent space alone "
+                          "(strategy plain)")
+    if max_fall_prob is not None:
+        raise LatentError(f"latent: {source} holds a latent space but no run store (run.db): "
+                          "the fall prediction (max_fall_prob) starts from the source run's "
+                          "trials; copy the run directory with its run.db, or leave the fall "
+                          "prediction out")
 
 
 def source_counts(run_dir: Path, source: str) -> dict[str, int] | None:
