@@ -59,8 +59,9 @@ def test_phase3_refusals_name_the_flags_not_the_python_arguments(tmp_path, run_c
         ((d, "--resume", "--escape-falls", "4"),
          "phase 3 was run with --escape-falls 2 (stored), not --escape-falls 4"),
         ((d, "--resume", "--strategy", "plain"),
-         "phase 3 runs with --strategy transfer (stored, with its transfer options), not "
-         "--strategy plain"),
+         "phase 3 runs with --strategy transfer (stored), not --strategy plain: leave "
+         "--strategy out to go on with the transfer phase 3, or start a plain phase 3 in "
+         "another directory"),
         ((d, "--resume", "--max-fall-prob", "0.2"),
          "phase 3 was run without --max-fall-prob, not with --max-fall-prob 0.2"),
         ((d, "--resume", "--batch-size", "2"), "phase 3 was run with --batch-size = 4, not 2"),
@@ -189,3 +190,38 @@ def test_a_latent_space_copied_without_its_run_store_is_named_as_such(tmp_path, 
     assert not (tmp_path / "api").exists()
     code, _, err = _phase3(run_cli, copy, tmp_path / "p", "--strategy", "plain", evals=3)
     assert code == 0, err
+
+
+def test_asking_another_strategy_of_a_stored_phase3_says_the_stored_one_and_what_to_do(
+        tmp_path, source):
+    """``Study.ask(strategy="plain")`` (or ``phase3``) on a phase 3 asked with the default
+    transfer strategy said "phase3 was run with strategy = 'transfer', not 'plain'", a
+    hand-over "phase 3 runs with handover = None (stored), not {…}" and ``method="cma"``
+    "runs with method = 'turbo' (stored)", an option the transfer phase 3 has not; now one
+    line each names the stored strategy and how to go on."""
+    from examples.toy_plant import make_real_system
+    from latentune.errors import StoreError, UsageError
+
+    system = make_real_system()
+    study = lt.Study(tmp_path / "t", seed=0)
+    for s in study.ask(2, system=system, latent=source, phase=3):
+        study.tell(s.id, cost=1.0 + s.id)
+    go_on = (r"phase 3 runs with strategy transfer \(stored\), not plain: leave strategy out "
+             r"to go on with the transfer phase 3, or start a plain phase 3 in another "
+             r"directory$")
+    with pytest.raises(StoreError, match=go_on):
+        study.ask(1, system=system, strategy="plain")
+    with pytest.raises(StoreError, match=go_on):
+        study.phase3(system, 6, strategy="plain")
+    with pytest.raises(StoreError, match=r"the hand-over is an option of the plain phase 3, "
+                       r"and this phase 3 runs with strategy transfer \(stored\)"):
+        study.ask(1, system=system, handover=True)
+    with pytest.raises(UsageError, match=r"^method is an option of the plain phase 3"):
+        study.ask(1, system=system, method="cma")
+    assert len(study.ask(1, system=system, strategy="transfer")) == 1
+    plain = lt.Study(tmp_path / "p", seed=0)
+    for s in plain.ask(2, system=system, latent=source, phase=3, strategy="plain"):
+        plain.tell(s.id, cost=2.0)
+    with pytest.raises(StoreError, match=r"runs with strategy plain \(stored\), not transfer: "
+                       r"leave strategy out"):
+        plain.ask(1, system=system, strategy="transfer")

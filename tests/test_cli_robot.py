@@ -217,8 +217,9 @@ def test_ask_refusals_name_the_flags_not_the_python_arguments(tmp_path, run_cli,
         (("ask", d, "--escape-falls", "4"), "runs with no --escape-falls (stored), not "
                                             "--escape-falls 4"),
         (("ask", d, "--strategy", "plain"),
-         "phase 3 runs with --strategy transfer (stored, with its transfer options), not "
-         "--strategy plain"),
+         "phase 3 runs with --strategy transfer (stored), not --strategy plain: leave "
+         "--strategy out to go on with the transfer phase 3, or start a plain phase 3 in "
+         "another directory"),
     ]
     for argv, expect in cases:
         code, _, err = run_cli(*argv)

@@ -528,7 +528,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
             st = resolve_strategy(study.manifest, strategy, handover)
             transfer_option(_transfer_options(args, _stored_transfer(study)), st,
                             args.max_fall_prob)
-        except UsageError as exc:
+        except (UsageError, StoreError) as exc:
             raise CLIError(_ask_flags(str(exc), args)) from None
 
     study, system, _ = _phase1_study(args, latent=True, check=check)
@@ -762,6 +762,10 @@ def _ask_flags(msg: str, args: argparse.Namespace) -> str:
     msg = re.sub(r"^(\w+) needs (\w+)",
                  lambda m: f"{ASK_FLAGS.get(m[1], m[1])} needs {ASK_FLAGS.get(m[2], m[2])}", msg)
     msg = re.sub(r"\(strategy (plain|transfer)\)", r"(--strategy \1)", msg)
+    msg = re.sub(r"runs with strategy (\w+) \(stored\), not (\w+): leave strategy out",
+                 r"runs with --strategy \1 (stored), not --strategy \2: leave --strategy out", msg)
+    msg = re.sub(r"^(.*?)the hand-over is an option(.*)leave the hand-over out",
+                 r"\1--handover is an option\2leave --handover out", msg)
     msg = re.sub(r"\((\w+)\)", lambda m: f"({ASK_FLAGS.get(m[1], m[1])})", msg)
     msg = re.sub(r"\(given (\w+) = ",
                  lambda m: f"(given {ASK_FLAGS.get(m[1], m[1])} = ", msg)

@@ -286,19 +286,21 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
         raise UsageError(f"{study.dir}: ask/tell runs phase 1 here; a latent space is an option "
                          "of phase 3 (use another directory)")
     g = _normalized(given, space)
-    if stored:
-        g = mf.ask_options(stored, g, study.dir, phase)
-    else:
-        g = {**g, "method": g.get("method") or "turbo",
-             "budget": mf.ASK_BUDGET if g.get("budget") is None else g["budget"]}
     strat = None
-    if phase == Phase.PHASE3:
-        strat = resolve_strategy(study.manifest, strategy, g.get("handover"))
+    if phase == Phase.PHASE3:       # before the stored options: they differ by strategy
+        handover = (stored or {}).get("handover") if g.get("handover") is None \
+            else g["handover"]
+        strat = resolve_strategy(study.manifest, strategy, handover, fixed=bool(stored))
         if strat == "transfer" and given.get("start") is not None:
             raise UsageError("start is an option of phase 1 and of the plain phase 3 (strategy "
                              "plain); the transfer phase 3 starts from the manual θ and the "
                              "source's best trials")
         refuse_plain_options(strat, given.get("method"), given.get("regions"))
+    if stored:
+        g = mf.ask_options(stored, g, study.dir, phase)
+    else:
+        g = {**g, "method": g.get("method") or "turbo",
+             "budget": mf.ASK_BUDGET if g.get("budget") is None else g["budget"]}
     old_start = stored.get("start", "manual") if stored else "manual"
     start_rec = old_start
     if given.get("start") is not None:

@@ -160,10 +160,13 @@ def source_counts(run_dir: Path, source: str) -> dict[str, int] | None:
 
 
 def resolve_strategy(manifest: Manifest, strategy: str | None, handover: Any,
-                     latent: Any = None) -> str:
+                     latent: Any = None, fixed: bool = False) -> str:
     """Phase 3's strategy for a call: ``strategy`` if given (checked), else the stored one once
-    phase 3 has trials (``plain`` for runs recorded before strategies existed), else
+    phase 3 has trials or is ``fixed`` (ask/tell asked it: its options record stands; ``plain``
+    for runs recorded before strategies existed), else
     ``transfer`` — or ``plain`` with a hand-over, which is an option of the paper's phase 3.
+    Once it is stored, a given strategy other than the stored one, or a hand-over on a
+    stored transfer phase 3, is refused (StoreError naming the stored strategy and what to do).
     With ``latent`` (the LatentSpace), a plain strategy on a latent space whose codes all
     decode to one θ is refused here, before any trial (``LatentSpace.require_spread``)."""
     from latentune.errors import UsageError
@@ -174,12 +177,21 @@ def resolve_strategy(manifest: Manifest, strategy: str | None, handover: Any,
     if strategy == "transfer" and handover:
         raise UsageError("the hand-over is an option of the plain phase 3 (strategy plain); "
                          "the transfer phase 3 moves to the full θ box on its own")
+    stored = manifest.config().get("phase3")
+    stored = strategy_of(stored) if stored and (fixed or manifest.n_used(Phase.PHASE3)) \
+        else None
+    where = manifest.run.dir
+    if stored is not None and strategy not in (None, stored):
+        raise StoreError(f"{where}: phase 3 runs with strategy {stored} (stored), not "
+                         f"{strategy}: leave strategy out to go on with the {stored} phase 3, "
+                         f"or start a {strategy} phase 3 in another directory")
+    if stored == "transfer" and handover:
+        raise StoreError(f"{where}: the hand-over is an option of the plain phase 3, and this "
+                         "phase 3 runs with strategy transfer (stored), which moves to the full "
+                         "θ box on its own: leave the hand-over out to go on with it, or start "
+                         "a plain phase 3 in another directory")
     if strategy is None:
-        stored = manifest.config().get("phase3")
-        if stored and manifest.n_used(Phase.PHASE3):
-            strategy = strategy_of(stored)
-        else:
-            strategy = "plain" if handover else "transfer"
+        strategy = stored or ("plain" if handover else "transfer")
     if strategy == "plain" and latent is not None:
         latent.require_spread()
     return strategy
