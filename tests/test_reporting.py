@@ -560,3 +560,29 @@ def test_a_phase3_not_started_is_not_labelled_with_a_strategy(tmp_path: Path, ru
                                           "boxes)")[2] == "0"
         st.set_meta("config", dict(st.get_meta("config"), phase3={"strategy": "plain"}))
         assert _row(comparison_table(st), "phase 3 (latent, TuRBO-m)")[2] == "0"
+
+
+def test_an_asktell_store_shows_only_the_phases_it_runs(tmp_path: Path, run_cli):
+    """``latentune report`` on an ask/tell phase-1 study with nothing told showed a "manual
+    tuned | – | 0" row (and an empty phase-3 row), though ask/tell never stores a separate
+    manual trial (the manual θ is phase 1's first suggestion) and runs phase 3 in another
+    directory; an ask/tell phase 3 with nothing told showed empty manual and phase-1 rows.
+    Now an ask/tell store's table has the rows of the phases it runs, and of any that hold
+    trials."""
+    import latentune as lt
+    from examples.toy_plant import make_system
+
+    d = tmp_path / "asktell"
+    lt.Study(d, seed=0).ask(1, system=make_system())
+    code, out, err = run_cli("report", d, "--no-sim", "--quiet")
+    assert code == 0, err
+    assert "manual tuned" not in out and "| phase 3" not in out, out
+    assert _row(out, "phase 1 (θ, TuRBO-m)")[2] == "0"
+    with RunStore(tmp_path / "robot", create=True) as st:
+        st.set_meta("config", {"system": {"kind": "user"}, "asktell": {"phase": 3},
+                               "phase3": {"strategy": "transfer"}})
+        md = comparison_table(st)
+        assert "manual tuned" not in md and "phase 1 (" not in md, md
+        assert _row(md, "phase 3 (transfer: source model, latent and θ boxes)")[2] == "0"
+        st.add(Phase.MANUAL, 0, np.zeros(3), 2.5, fell=False, tag=-1)  # a phase run's, later
+        assert _row(comparison_table(st), "manual tuned")[2] == "1"

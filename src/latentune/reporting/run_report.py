@@ -28,6 +28,9 @@ logger = logging.getLogger(__name__)
 
 TABLE_PHASES = (Phase.MANUAL, Phase.PHASE1, Phase.ZERO_SHOT, Phase.PHASE3)
 """The table's rows, in order; a zero-shot row appears only when the store has one."""
+ASKTELL_PHASES = {Phase.PHASE1: (Phase.PHASE1,), Phase.PHASE3: (Phase.ZERO_SHOT, Phase.PHASE3)}
+"""The table's phases of an ask/tell store by its ask/tell phase: ask/tell stores no separate
+manual trial (the manual θ is phase 1's first suggestion) and runs one phase a directory."""
 
 METHOD_LABEL = {"turbo": "TuRBO-m", "cma": "CMA-ES", "random": "random search",
                 "sobol": "Sobol search"}
@@ -161,11 +164,14 @@ def comparison_table(store: Any) -> str:
     error [m/s], the number of evaluations, the stable ones and the evaluations until the first
     trial that beat the manual θ (:func:`manual_target`); the paper's numbers below it when it
     has the task. A phase without trials has a row of zeros while no later phase holds trials
-    (it is still to come), and none after that (it is not part of this run)."""
+    (it is still to come), and none after that (it is not part of this run); in an ask/tell
+    store, only when it is a phase of its ask/tell phase (:data:`ASKTELL_PHASES`)."""
     cfg = store.get_meta("config") or {}
     t = cfg.get("task")
     stats = run_stats(store)
     rms = t is not None
+    asked = (cfg.get("asktell") or {}).get("phase")
+    runs = ASKTELL_PHASES.get(int(asked), ()) if asked is not None else TABLE_PHASES
     if t:
         terrain, _, rest = _where(t).partition(", ")
         head = (f"{t.get('robot', '?')} {t.get('gait', '?')} on {terrain} [{rest}], "
@@ -180,7 +186,8 @@ def comparison_table(store: Any) -> str:
         if s["n"] == 0:
             # the zero-shot row only once it ran; an empty row of manual θ or phase 1 not when
             # a later phase holds trials (a phase 3 on another study's latent space runs none)
-            if ph == Phase.ZERO_SHOT or ph in (Phase.MANUAL, Phase.PHASE1) and any(
+            if ph == Phase.ZERO_SHOT or ph not in runs or ph in (
+                    Phase.MANUAL, Phase.PHASE1) and any(
                     stats[int(q)]["n"] for q in TABLE_PHASES[k + 1:]):
                 continue
             cells = ["–"] * (2 if rms else 1) + ["0", "–", "–"]
