@@ -8,6 +8,7 @@ import logging
 import math
 import multiprocessing as mp
 import os
+import re
 import shutil
 import sqlite3
 import time
@@ -1254,3 +1255,25 @@ def test_a_target_naming_its_parameters_in_another_order_is_told_which(tmp_path,
             with pytest.raises(LatentError, match=expect):
                 st.ask(system=sys_, phase=3, latent=src30)
             assert st.trials() == []
+
+
+def test_status_and_report_count_one_ask_and_one_fall_in_the_singular(run_cli, tmp_path, src30):
+    """``latentune status`` said "phase 3 decisions: 1 asks" and "1 falls counted, 1 allowed"
+    after a transfer phase 3's first ask and fall; the report "1 asks: design 1". Each count
+    of one is now singular."""
+    shutil.copytree(src30, tmp_path / "src")
+    with lt.Study(tmp_path / "t", seed=0) as st:
+        s = st.ask(2, system=plant(0.3), phase=3, latent=tmp_path / "src", budget=4,
+                   transfer_options={"fall_budget": 0.25})
+        st.tell(s[0].id, 0.2)
+        st.tell(s[1].id, None, failed=True)
+    code, out, err = run_cli("status", tmp_path / "t")
+    assert code == 0, err
+    assert "phase 3 decisions: 1 ask (" in out, out
+    assert "fall budget: 1 fall counted" in out and "1 allowed" in out, out
+    assert re.search(r"\b1 (asks|falls|trials)\b", out) is None, out
+    code, out, err = run_cli("report", tmp_path / "t", "--no-sim", "--quiet")
+    assert code == 0, err
+    md = (tmp_path / "t" / "report.md").read_text()
+    assert "\n1 ask: design 1." in md, md
+    assert re.search(r"\b1 (asks|falls|trials|evaluations)\b", md) is None, md

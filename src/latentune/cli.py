@@ -30,6 +30,7 @@ from typing import Any, Callable, Iterator, Sequence
 
 from latentune import argtypes
 from latentune.errors import CLIError, LatentError, LatentuneError, StoreError, UsageError
+from latentune.wording import counted
 
 DESCRIPTION = ("Tune the weights of a controller: phase 1 on the full θ of a cheap system, phase 2 "
                "a latent space of its stable θ, phase 3 on the target (see README.md).")
@@ -509,7 +510,8 @@ def _phase1_study(args: argparse.Namespace, latent: bool,
 
 def _phase_line(res: Any, study: Any) -> str:
     best = study.dir / f"phase{res.phase}_best.json"
-    return (f"phase {res.phase}: {res.n} evaluations ({res.n_new} new), {res.best_text('.6g')}"
+    return (f"phase {res.phase}: {counted(res.n, 'evaluation')} ({res.n_new} new), "
+            f"{res.best_text('.6g')}"
             + (f"; its θ: {best}" if best.is_file() else ""))
 
 
@@ -927,14 +929,14 @@ def cmd_status(args: argparse.Namespace) -> int:
             if p["best"] is None else (
             f"best {p['best']:.6g} (evaluation {p['best_idx']}"
             + (f", suggestion {p['best_trial']}" if p.get("best_trial") is not None else "") + ")")
-        print(f"{name}: {p['n']} trial{'' if p['n'] == 1 else 's'}, {p['failed']} failed, "
+        print(f"{name}: {counted(p['n'], 'trial')}, {p['failed']} failed, "
               f"{p['pending']} pending; {best}")
     dec = s.get("decisions")
     if dec:
         last = dec["last"]
         agree = "" if last.get("agreement") is None else f", agreement {last['agreement']:.2f}"
         side = "" if last.get("length") is None else f", side {last['length']:.3g}"
-        print(f"phase 3 decisions: {dec['n']} asks ("
+        print(f"phase 3 decisions: {counted(dec['n'], 'ask')} ("
               + ", ".join(f"{k} {v}" for k, v in dec["kinds"].items())
               + f"); last: generation {last['generation']}, {last['kind']}{agree}{side}"
               + (f", pools {'/'.join(sorted(set(last['pools'])))}" if last.get("pools") else ""))
@@ -942,7 +944,8 @@ def cmd_status(args: argparse.Namespace) -> int:
     if fb:
         which = " (those after the first trial that stood)" \
             if fb.get("counts") == "after_stand" else ""
-        print(f"phase 3 fall budget: {fb['falls']} falls counted{which}, {fb['falls_allowed']} "
+        print(f"phase 3 fall budget: {counted(fb['falls'], 'fall')} counted{which}, "
+              f"{fb['falls_allowed']} "
               "allowed" + ("; spent: phase 3 asks no more" if fb["spent"] else ""))
     leases = s.get("leases") or {}
 

@@ -394,6 +394,7 @@ from latentune.critic.transfer_model import (LS_SCALES, SourceModel, TargetGP, T
                                              gp_maxima, jittered_cholesky, rank_scores,
                                              target_fall_model, value_scores,
                                              warped_scores)
+from latentune.wording import counted
 
 log = logging.getLogger(__name__)
 
@@ -1520,8 +1521,9 @@ class Transfer(TwoSpaceCritic):
         if self.fall_budget_spent:
             k_fb = self.falls_allowed()
             return self._rule_ask(n, g, self._centre(), FULL, False,
-                                  f"the fall budget is spent ({k_fb} falls of {self.budget} "
-                                  "trials): the best θ", fall_budget=k_fb)
+                                  f"the fall budget is spent ({counted(k_fb, 'fall')} of "
+                                  f"{counted(self.budget, 'trial')}): the best θ",
+                                  fall_budget=k_fb)
         rng = np.random.default_rng([self.seed, g, 11])
         sm = self.source_model()
         cost_m, fall_m = self.models()

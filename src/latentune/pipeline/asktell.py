@@ -72,6 +72,7 @@ from latentune.pipeline.results import phase_name, write_best
 from latentune.pipeline.store import Row, RunStore, critics_told
 from latentune.space import ParameterSpace
 from latentune.system import EvaluationError, Outcome, as_outcome
+from latentune.wording import counted
 
 ROW_FREE = ("options", "source_hypers", "decisions", "last_decision")
 """The keys of a critic's saved state an amendment keeps: the transfer critic's
@@ -476,7 +477,8 @@ def _critic_batch(study: Any, st: RunStore, phase: int, pc: dict[str, Any],
     and not told are not asked again (the critic does not know them yet). Writes nothing."""
     left, n_open = _budget_left(st, phase, pc)
     if left <= 0:
-        raise StoreError(f"{study.dir}: {phase_name(phase)}'s budget of {pc['budget']} trials is "
+        raise StoreError(f"{study.dir}: {phase_name(phase)}'s budget of "
+                         f"{counted(pc['budget'], 'trial')} is "
                          f"handed out ({st.count(phase)} told, {n_open} pending): tell the "
                          "pending ones, or ask with a larger budget")
     k = min(max(pc["batch_size"], need), left)
@@ -484,7 +486,8 @@ def _critic_batch(study: Any, st: RunStore, phase: int, pc: dict[str, Any],
     replay(st, phase, critic)
     if getattr(critic, "fall_budget_spent", False):
         raise StoreError(f"{study.dir}: {phase_name(phase)}'s fall budget is spent "
-                         f"({critic.falls_allowed()} falls; {st.count(phase)} trials told): "
+                         f"({counted(critic.falls_allowed(), 'fall')}; "
+                         f"{counted(st.count(phase), 'trial')} told): "
                          "its best θ is the result; a larger budget allows more falls "
                          "(fall_budget × trials)")
     out = [t for t in st.trials()

@@ -27,6 +27,7 @@ from latentune.pipeline.phases import make_handover_critic, make_phase_critic, s
 from latentune.pipeline.rundir import RunDir
 from latentune.pipeline.store import RunStore, Row
 from latentune.space import ParameterSpace
+from latentune.wording import counted
 
 
 def start_theta(pc: dict[str, Any], space: ParameterSpace) -> np.ndarray | None:
@@ -258,8 +259,8 @@ def stop_note(critic: Any, n: int, budget: int) -> str:
     nothing."""
     if n >= budget or not getattr(critic, "fall_budget_spent", False):
         return ""
-    return (f"; stopped at {n} of {budget} trials: its fall budget ({critic.falls_allowed()} "
-            "falls) is spent")
+    return (f"; stopped at {n} of {counted(budget, 'trial')}: its fall budget "
+            f"({counted(critic.falls_allowed(), 'fall')}) is spent")
 
 
 def source_costs(run: Any, space: ParameterSpace, counts: dict[str, int] | None = None

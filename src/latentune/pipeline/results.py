@@ -301,7 +301,8 @@ def best_params(store: RunStore, run_dir: Path, space: ParameterSpace | None,
     if b is None:
         n = sum(store.count(ph) for ph in TUNING)
         raise StoreError(f"{run_dir}: no θ to deploy: " + (
-            f"all {n} trials failed" if n else "no trial is stored yet"))
+            ("its only trial failed" if n == 1 else f"all {n} trials failed") if n
+            else "no trial is stored yet"))
     path = run_dir / BEST_FILE if out is None else _deploy_path(out, run_dir, space)
     _write_json(path, space.as_dict(b.theta))
     return path, b

@@ -23,6 +23,7 @@ import numpy as np
 
 from latentune.constants import Phase
 from latentune.reporting.metrics import paper_row, phase_stats, rms_velocity_error
+from latentune.wording import counted
 
 logger = logging.getLogger(__name__)
 
@@ -301,7 +302,7 @@ def _curve_panels(store: Any, cfg: dict[str, Any]) -> list:
         refs: dict[str, float | None] = {"manual θ": manual}
         if ph == Phase.PHASE3 and zero is not None:
             refs["zero-shot (source best θ)"] = zero
-        panels.append(CurvePanel(f"{label}: {len(rows)} evaluations",
+        panels.append(CurvePanel(f"{label}: {counted(len(rows), 'evaluation')}",
                                  {label: [r.cost for r in rows]}, refs,
                                  {label: [r.fell for r in rows]}))
     return panels
@@ -328,7 +329,7 @@ def decisions_markdown(store: Any) -> list[str]:
     if summ is None:
         return []
     md = ["## Phase 3 decisions", "",
-          f"{summ['n']} asks: " + ", ".join(f"{k} {v}" for k, v in summ["kinds"].items())
+          f"{counted(summ['n'], 'ask')}: " + ", ".join(f"{k} {v}" for k, v in summ["kinds"].items())
           + ". The agreement is the posterior mean of the source model's weight in the target's "
           "cost model (1: the target ranks θ as the source did; 0: the source says nothing).", "",
           "| generation | trials told | ask | pools | agreement | side | admissible | "
@@ -355,7 +356,7 @@ def state_lines(store: Any, cfg: dict[str, Any]) -> list[str]:
         n = store.count(phase)
         if budget and n < int(budget):
             label = phase_label(phase, cfg)
-            lines.append(f"{label[0].upper()}{label[1:]} holds {n} trial{'s' * (n != 1)} of "
+            lines.append(f"{label[0].upper()}{label[1:]} holds {counted(n, 'trial')} of "
                          f"its budget of {int(budget)}.")
     out = len(store.trials("pending"))
     if out:
@@ -421,12 +422,13 @@ def make_report(store: Any, system: Any = None, simulate: bool = True, quiet: bo
         if ho:
             at = ho.get("handover_at")
             md.append(f"Phase 3 hand-over rule: {ho.get('rule')}; "
-                      + (f"it handed over after {at} latent evaluations" if at is not None
+                      + (f"it handed over after {counted(at, 'latent evaluation')}"
+                         if at is not None
                          else "it did not hand over")
-                      + f" (latent space: {ho['latent_evals']} evaluations, best "
-                      f"{_fmt(ho['latent_best'])}, {ho['latent_falls']} falls; full θ: "
-                      f"{ho['full_evals']} evaluations, best {_fmt(ho['full_best'])}, "
-                      f"{ho['full_falls']} falls).")
+                      + f" (latent space: {counted(ho['latent_evals'], 'evaluation')}, best "
+                      f"{_fmt(ho['latent_best'])}, {counted(ho['latent_falls'], 'fall')}; "
+                      f"full θ: {counted(ho['full_evals'], 'evaluation')}, best "
+                      f"{_fmt(ho['full_best'])}, {counted(ho['full_falls'], 'fall')}).")
         md.append("")
     md += decisions_markdown(store)
     wall = summary.get("wall_by_phase_s") or {}
