@@ -137,14 +137,29 @@ class Objective:
 
 
 # ------------------------------------------------------------------ methods
+def variant_options(opts: dict, d: int) -> dict:
+    """A variant's options on a problem of dimension ``d``: an option given as "<k>d" is k
+    times the dimension (e.g. ``{"n_init": "2d"}``)."""
+    return {k: int(float(v[:-1]) * d) if isinstance(v, str) and v.endswith("d") and
+            v[:-1].replace(".", "", 1).isdigit() else v for k, v in opts.items()}
+
+
+def check_variant(method: str, opts: dict, dims: list[int], budget: int, batch: int) -> None:
+    """UsageError (a ValueError) naming the option when ``lt_<method>`` with the variant's
+    ``opts`` would be refused on a problem of one of the dimensions ``dims``: an option the
+    critic does not have or a value it refuses (the critic of each run, built and not run)."""
+    from latentune.optimize import minimize_critic
+
+    for d in sorted(set(dims)):
+        minimize_critic(method, d, budget=budget, batch_size=batch, seed=0,
+                        **variant_options(opts, d))
+
+
 def run_lt(method: str, opts: dict, obj: Objective, d: int, batch: int, seed: int) -> None:
     import latentune as lt
 
-    # an option given as "<k>d" is k times the dimension (e.g. {"n_init": "2d"})
-    opts = {k: int(float(v[:-1]) * d) if isinstance(v, str) and v.endswith("d") and
-            v[:-1].replace(".", "", 1).isdigit() else v for k, v in opts.items()}
     lt.minimize(obj, [(0.0, 1.0)] * d, method=method, budget=obj.budget, batch_size=batch,
-                seed=seed, **opts)
+                seed=seed, **variant_options(opts, d))
 
 
 def run_pycma(obj: Objective, d: int, batch: int, seed: int) -> None:
@@ -636,6 +651,13 @@ def main(argv=None) -> int:
             p.error(f"--variant {v!r}: the options are not JSON ({e})")
         if not isinstance(opts, dict):
             p.error(f"--variant {v!r}: expected NAME='{{\"option\": value}}'")
+        if not (a.report or a.compare or a.relabel):     # the runs' critics take them
+            try:
+                check_variant(a.variant_method, opts, [problems()[q].dim for q in a.problems],
+                              a.budget, a.batch_size)
+            except (ValueError, TypeError) as e:    # one line, as benchmarks.transfer's
+                print(f"benchmarks.peers: error: --variant {v!r}: {e}", file=sys.stderr)
+                return 2
     if a.compare:
         return compare(a)
     if a.relabel:

@@ -117,13 +117,37 @@ def test_handover_refuses_a_store_of_other_options_instead_of_reporting_it(tmp_p
     assert "(stored)" in capsys.readouterr().err
 
 
-def test_peers_exits_non_zero_and_names_the_runs_that_failed(tmp_path, capsys):
+@pytest.mark.parametrize("variant, words", [
+    ('x={"nosuch": 1}', "method 'turbo' has no option nosuch (its options: "),
+    ('x={"n_regions": 0}', "method 'turbo': n_regions must be in [1, 65536), got 0")])
+def test_peers_refuses_a_variant_option_the_critic_refuses_before_any_run(tmp_path, capsys,
+                                                                         variant, words):
+    """``--variant 'x={"nosuch": 1}'`` (an option the critic does not have) or a value it
+    refuses was caught only when each run started: a traceback per run ("FAILED …") after the
+    invocation was logged. It is now refused up front in one line, exit 2, nothing written."""
+    from benchmarks import peers
+
+    code = peers.main(["--problems", "lqr16", "--methods", "--variant", variant, "--seeds",
+                       "0", "--budget", "4", "--dir", str(tmp_path / "p")])
+    out, err = capsys.readouterr()
+    assert code == 2 and out == "", out
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(
+        f"benchmarks.peers: error: --variant {variant!r}: ") and words in lines[0], err
+    assert not (tmp_path / "p").exists()
+
+
+def test_peers_exits_non_zero_and_names_the_runs_that_failed(tmp_path, capsys, monkeypatch):
     """A run that raised printed "FAILED …" among the others and the command still exited 0 (a
     script or CI took the suite as done); it now exits 1 and ends with one line naming the
     failed runs, which are not written."""
     from benchmarks import peers
 
-    code = peers.main(["--problems", "lqr16", "--methods", "--variant", 'bad={"nosuch": 1}',
+    def broken(*a, **k):
+        raise RuntimeError("the critic broke")
+
+    monkeypatch.setattr(peers, "run_lt", broken)
+    code = peers.main(["--problems", "lqr16", "--methods", "--variant", 'bad={"n_init": 4}',
                        "--seeds", "0", "--budget", "4", "--batch-size", "2",
                        "--dir", str(tmp_path / "p")])
     out, err = capsys.readouterr()

@@ -70,6 +70,33 @@ def _check_bounds(bounds: Any) -> np.ndarray:
     return b
 
 
+def minimize_critic(method: str, dim: int, *, budget: int, batch_size: int = 10, seed: int = 0,
+                    x0: np.ndarray | None = None, **opts: Any) -> Any:
+    """The critic :func:`minimize` runs for ``method`` on ``dim`` variables with these
+    arguments (``x0``: unit-box warm-start points or None; TuRBO's ``n_regions`` defaults to
+    :func:`~latentune.critic.turbo.regions_for_budget` of ``budget``), built and not asked:
+    a caller checks its options with it before a run. UsageError for an unknown method, an
+    option the method does not have, or an option value it refuses (``n_regions=0``)."""
+    try:
+        cls = critic_class(method)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    params = inspect.signature(cls.__init__).parameters
+    if not any(p.kind is p.VAR_KEYWORD for p in params.values()):
+        unknown = sorted(set(opts) - set(params))
+        if unknown:
+            raise UsageError(f"method {method!r} has no option {', '.join(unknown)} (its "
+                             f"options: {', '.join(sorted(set(params) - {'self', 'dim'}))})")
+    if method.lower() == "turbo" and "n_regions" not in opts:
+        from latentune.critic.turbo import regions_for_budget
+
+        opts = {**opts, "n_regions": regions_for_budget(budget)}
+    try:
+        return cls(dim, batch_size=batch_size, seed=seed, x0=x0, **opts)
+    except ValueError as exc:           # an option out of its domain (n_regions=0, sigma0=-1)
+        raise UsageError(f"method {method!r}: {exc}") from None
+
+
 def minimize(fun: Callable[[np.ndarray], float], bounds: Any, method: str = "turbo",
              budget: int = 500, batch_size: int = 10, seed: int = 0,
              x0: Any = None, evaluator: Evaluator | None = None,
@@ -119,16 +146,6 @@ def minimize(fun: Callable[[np.ndarray], float], bounds: Any, method: str = "tur
         evaluator = SerialEvaluator()
     elif not isinstance(evaluator, Evaluator):
         raise UsageError("evaluator must be a latentune.pipeline.evaluators.Evaluator")
-    try:
-        cls = critic_class(method)
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
-    params = inspect.signature(cls.__init__).parameters
-    if not any(p.kind is p.VAR_KEYWORD for p in params.values()):
-        unknown = sorted(set(opts) - set(params))
-        if unknown:
-            raise UsageError(f"method {method!r} has no option {', '.join(unknown)} (its "
-                             f"options: {', '.join(sorted(set(params) - {'self', 'dim'}))})")
     d = b.shape[0]
     lo, hi = b[:, 0], b[:, 1]
     span = hi - lo
@@ -149,14 +166,8 @@ def minimize(fun: Callable[[np.ndarray], float], bounds: Any, method: str = "tur
             raise UsageError("x0 must lie inside bounds")
         x0_unit = np.clip((x0a - lo) / span, 0.0, 1.0)
 
-    if method.lower() == "turbo" and "n_regions" not in opts:
-        from latentune.critic.turbo import regions_for_budget
-
-        opts["n_regions"] = regions_for_budget(budget)
-    try:
-        critic = cls(d, batch_size=batch_size, seed=seed, x0=x0_unit, **opts)
-    except ValueError as exc:           # an option out of its domain (n_regions=0, sigma0=-1)
-        raise UsageError(f"method {method!r}: {exc}") from None
+    critic = minimize_critic(method, d, budget=budget, batch_size=batch_size, seed=seed,
+                             x0=x0_unit, **opts)
 
     def result(message: str, nit: int) -> OptimizeResult:
         i = critic.best_index
