@@ -521,8 +521,8 @@ def test_no_best_file_for_a_failed_theta_and_a_failing_phase_says_so(tmp_path, c
 def test_a_failing_phase_3_suggests_what_its_strategy_can_take(tmp_path, caplog, src30,
                                                                strategy):
     """Phase 3 on a target where every θ fails warns once, through a phase run and through
-    ask/tell alike, and suggests only what the strategy takes: the hand-over is refused under
-    the transfer strategy, so its warning does not offer it."""
+    ask/tell alike (ask/tell: in a new directory), and suggests only what the strategy takes:
+    the hand-over is refused under the transfer strategy, so its warning does not offer it."""
     sys_ = lt.FunctionSystem(SPACE, all_fail)
     msgs = []
     for how in ("run", "ask"):
@@ -537,7 +537,9 @@ def test_a_failing_phase_3_suggests_what_its_strategy_can_take(tmp_path, caplog,
         warned = [r.getMessage() for r in caplog.records if "trials all failed" in r.getMessage()]
         assert len(warned) == 1 and warned[0].startswith("phase 3: the last")
         msgs.append(warned[0])
-    assert msgs[0] == msgs[1]
+    new = ", in a new directory (the first ask fixed this one's options),"
+    assert new not in msgs[0] and new in msgs[1]       # ask/tell's options are fixed
+    assert msgs[0] == msgs[1].replace(new, "")
     assert ("--handover" in msgs[0]) == (strategy == "plain")
     assert ("manual θ" in msgs[0]) == (strategy == "transfer")
     assert ("screens at 0.3 unless told" in msgs[0]) == (strategy == "transfer")
@@ -1277,3 +1279,32 @@ def test_status_and_report_count_one_ask_and_one_fall_in_the_singular(run_cli, t
     md = (tmp_path / "t" / "report.md").read_text()
     assert "\n1 ask: design 1." in md, md
     assert re.search(r"\b1 (asks|falls|trials|evaluations)\b", md) is None, md
+
+
+def test_a_failing_ask_tell_phase_advises_a_new_directory_and_what_it_does_not_run(
+        run_cli, tmp_path, caplog, error_line):
+    """After 8 falls in a row, ``latentune tell`` on an ask/tell phase 1 asked with
+    ``--max-fall-prob 0.4`` advised "try the fall-aware critic (--max-fall-prob 0.3), a start
+    θ that does not fail, or narrower bounds": the phase screens at 0.4 already, and the next
+    ask refuses another --max-fall-prob or --start (the first ask fixed them). The advice now
+    names the screen it runs and says the options go with a new directory; a phase run names
+    its screen too."""
+    d = tmp_path / "a"
+    with lt.Study(d, seed=0) as st:
+        ids = [s.id for s in st.ask(FAIL_STREAK, system=lt.FunctionSystem(SPACE, all_fail),
+                                    max_fall_prob=0.4)]
+    for i in ids[:-1]:
+        assert run_cli("tell", d, i, "--failed")[0] == 0
+    code, out, err = run_cli("tell", d, ids[-1], "--failed")
+    assert code == 0, err
+    (msg,) = [ln for ln in err.splitlines() if "trials all failed" in ln]
+    assert "--max-fall-prob 0.3" not in msg and "a lower --max-fall-prob (it screens at 0.4)" \
+        in msg, msg
+    assert "in a new directory (the first ask fixed this one's options)" in msg, msg
+    refused = error_line(*run_cli("ask", d, "--max-fall-prob", "0.3")[::2])
+    assert "runs with --max-fall-prob = 0.4 (stored), not 0.3" in refused
+    caplog.clear()
+    with caplog.at_level(logging.WARNING), lt.Study(tmp_path / "run", seed=0) as st:
+        st.phase1(lt.FunctionSystem(SPACE, all_fail), FAIL_STREAK, max_fall_prob=0.4)
+    (msg,) = [r.getMessage() for r in caplog.records if "trials all failed" in r.getMessage()]
+    assert "it screens at 0.4" in msg and "new directory" not in msg, msg

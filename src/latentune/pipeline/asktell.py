@@ -67,7 +67,8 @@ from latentune.pipeline.baselines import queue_zero_shot
 from latentune.pipeline.loop import (decoder_of, phase_critic, record_latent,
                                      refuse_plain_options, require_source_store, resolve_latent,
                                      resolve_strategy, source_counts, strategy_of)
-from latentune.pipeline.phases import ask_batch, replay, state_key, warn_if_failing
+from latentune.pipeline.phases import (ask_batch, replay, state_key, stored_fall_options,
+                                       warn_if_failing)
 from latentune.pipeline.results import phase_name, write_best
 from latentune.pipeline.store import Row, RunStore, critics_told
 from latentune.space import ParameterSpace
@@ -615,8 +616,10 @@ def tell(study: Any, trial_id: int, cost: float | Outcome | None = None, *,
             ph = st.trials_by_id(tid).phase
             idx = st.tell_trial(tid, out.cost, fell=out.failed, fall_step=out.fall_step,
                                 seed=study.seed, info=out.info)
-            warn_if_failing(st, ph, lambda: strategy_of(
-                study.config().get(mf.PHASE_KEYS.get(Phase(ph), "")) or {}))
+            def stored() -> dict[str, Any]:
+                return study.config().get(mf.PHASE_KEYS.get(Phase(ph), "")) or {}
+            warn_if_failing(st, ph, lambda: strategy_of(stored()),
+                            lambda: stored_fall_options(stored()), fixed=True)
         # a phase file as the phase runs write them (the zero-shot trial counts in best.json)
         write_best(st, study.dir, study.manifest.space(),
                    ph if ph in (Phase.PHASE1, Phase.PHASE3) else None)

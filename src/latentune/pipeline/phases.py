@@ -190,14 +190,16 @@ def _progress(total: int, initial: int, desc: str, enabled: bool):
 
 
 def failing_message(phase: int, n: int, strategy: str = "plain",
-                    running: dict[str, Any] | None = None) -> str:
+                    running: dict[str, Any] | None = None, fixed: bool = False) -> str:
     """The warning of a phase whose last ``n`` trials all failed, with what to try; in phase 3
     what the ``strategy`` (``"transfer"`` or ``"plain"``) can take: the hand-over is an option of
     the plain strategy only, and the transfer strategy screens at ``--max-fall-prob`` already.
     ``running``: what the phase's critic does already (:func:`fall_options`), not suggested
-    again (None: not known)."""
+    again (None: not known). ``fixed``: the phase's options cannot change here (ask/tell: the
+    first ask fixed them), so the options are advised for a new directory."""
     run = running or {}
     mfp = run.get("max_fall_prob")
+    new = ", in a new directory (the first ask fixed this one's options)," if fixed else ""
     if int(phase) == 3 and strategy == "transfer":
         from latentune.critic.transfer import TRANSFER_DEFAULTS
 
@@ -207,19 +209,25 @@ def failing_message(phase: int, n: int, strategy: str = "plain",
             "--escape-falls 8 if the target falls wherever the source stood, "
         return (f"phase 3: the last {n} trials all failed: the target may be far from the "
                 "source run, or fail wherever it is tuned (run its manual θ by hand); the "
-                "transfer strategy asks the manual θ while every trial failed; try a lower "
-                f"--max-fall-prob (it screens at {p:g}{told}), {escape}or phase 1 on the "
+                f"transfer strategy asks the manual θ while every trial failed; try{new} a "
+                f"lower --max-fall-prob (it screens at {p:g}{told}), {escape}or phase 1 on the "
                 "target")
+    screen = ("the fall-aware critic (--max-fall-prob 0.3), " if mfp is None else
+              f"a lower --max-fall-prob (it screens at {mfp:g}), ")
     if int(phase) == 3:
         handover = "" if run.get("handover") else "the hand-over (--handover), "
-        screen = ("the fall-aware critic (--max-fall-prob 0.3), " if mfp is None else
-                  f"a lower --max-fall-prob (it screens at {mfp:g}), ")
         return (f"phase 3: the last {n} trials all failed: the target may be far from the "
-                f"latent space's source; try {handover}{screen}the transfer strategy (the "
+                f"latent space's source; try{new} {handover}{screen}the transfer strategy (the "
                 "default), or phase 1 on the target")
     return (f"phase {int(phase)}: the last {n} trials all failed: the search is where the "
-            "system fails; try the fall-aware critic (--max-fall-prob 0.3), a start θ that "
-            "does not fail, or narrower bounds")
+            f"system fails; try{new} {screen}a start θ that does not fail, or narrower bounds")
+
+
+def stored_fall_options(pc: dict[str, Any]) -> dict[str, Any]:
+    """:func:`fall_options` read from a phase's stored options record ``pc`` (an ask/tell
+    phase, whose critic is not built when a result is told)."""
+    return {"max_fall_prob": pc.get("max_fall_prob"), "handover": bool(pc.get("handover")),
+            "escape_falls": int((pc.get("transfer_options") or {}).get("escape_falls", 0))}
 
 
 def fall_options(critic: Any) -> dict[str, Any]:
@@ -248,14 +256,18 @@ def failure_streak(store: RunStore, phase: int) -> int:
 
 
 def warn_if_failing(store: RunStore, phase: int,
-                    strategy: str | Callable[[], str] = "plain") -> bool:
-    """Log :func:`failing_message` (of phase 3's ``strategy``) when the streak of failed trials
-    of ``phase`` has just reached :data:`FAIL_STREAK` (after a trial was stored); return
-    whether it did. ``strategy`` may be a function that reads it, called only then (a told
-    trial reads the study's config only when there is something to warn about)."""
+                    strategy: str | Callable[[], str] = "plain",
+                    running: Callable[[], dict[str, Any]] | None = None,
+                    fixed: bool = False) -> bool:
+    """Log :func:`failing_message` (of phase 3's ``strategy``, with what the critic runs:
+    ``running()``, and ``fixed``) when the streak of failed trials of ``phase`` has just reached
+    :data:`FAIL_STREAK` (after a trial was stored); return whether it did. ``strategy`` may be
+    a function that reads it; it and ``running`` are called only then (a told trial reads the
+    study's config only when there is something to warn about)."""
     if failure_streak(store, phase) == FAIL_STREAK:
         log.warning(failing_message(phase, FAIL_STREAK,
-                                    strategy() if callable(strategy) else strategy))
+                                    strategy() if callable(strategy) else strategy,
+                                    None if running is None else running(), fixed))
         return True
     return False
 
@@ -512,9 +524,8 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
                 batch.done[i] = (cost, bool(r.failed))
                 streak = streak + 1 if r.failed else 0
                 if streak == FAIL_STREAK:
-                    log.warning(failing_message(
-                        phase, FAIL_STREAK, strategy,
-                        fall_options(critic) if int(phase) == Phase.PHASE3 else None))
+                    log.warning(failing_message(phase, FAIL_STREAK, strategy,
+                                                fall_options(critic)))
                 if cost < best and not r.failed:
                     best = cost
                 if on_row is not None:
