@@ -1308,3 +1308,26 @@ def test_a_failing_ask_tell_phase_advises_a_new_directory_and_what_it_does_not_r
         st.phase1(lt.FunctionSystem(SPACE, all_fail), FAIL_STREAK, max_fall_prob=0.4)
     (msg,) = [r.getMessage() for r in caplog.records if "trials all failed" in r.getMessage()]
     assert "it screens at 0.4" in msg and "new directory" not in msg, msg
+
+
+def test_the_tell_that_spends_the_fall_budget_says_the_phase_is_over(run_cli, tmp_path, src30):
+    """The tell that spent a transfer phase 3's fall budget warned "the next suggestion was not
+    prepared (…fall budget is spent (2 falls; 4 trials told)…); the next ask asks the critic",
+    though the next ask only refuses, and the refusal named the API's ``fall_budget``. The tell
+    now says once that the fall budget is spent and the best θ is the result, with the falls
+    allowed by name."""
+    shutil.copytree(src30, tmp_path / "src")
+    d = tmp_path / "t"
+    with lt.Study(d, seed=0, batch_size=2) as st:
+        s = st.ask(3, system=plant(0.3), phase=3, latent=tmp_path / "src", budget=4,
+                   transfer_options={"fall_budget": 0.25})
+        st.tell(s[0].id, 0.2)
+        st.tell(s[1].id, None, failed=True)
+    code, out, err = run_cli("tell", d, s[2].id, "--cost", "0.3")
+    assert code == 0, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "not prepared" not in err and "asks the critic" not in err, err
+    assert "phase 3's fall budget is spent (1 fall allowed; 2 trials told): its best θ is " \
+        "the result" in lines[0], err
+    code, out, err = run_cli("ask", d)
+    assert code == 2 and "fall budget is spent" in err and "fall_budget" not in err, err

@@ -97,6 +97,10 @@ SCRATCH = "scratch"
 log = logging.getLogger(__name__)
 
 
+class FallBudgetSpent(StoreError):
+    """The ask of a transfer phase 3 whose fall budget is spent: the phase asks no more."""
+
+
 @dataclass
 class Suggestion:
     """A θ handed out by ``ask`` for a trial run elsewhere.
@@ -486,11 +490,11 @@ def _critic_batch(study: Any, st: RunStore, phase: int, pc: dict[str, Any],
     critic = phase_critic(phase, pc, space, study.dir, ls)
     replay(st, phase, critic)
     if getattr(critic, "fall_budget_spent", False):
-        raise StoreError(f"{study.dir}: {phase_name(phase)}'s fall budget is spent "
-                         f"({counted(critic.falls_allowed(), 'fall')}; "
-                         f"{counted(st.count(phase), 'trial')} told): "
-                         "its best θ is the result; a larger budget allows more falls "
-                         "(fall_budget × trials)")
+        raise FallBudgetSpent(f"{study.dir}: {phase_name(phase)}'s fall budget is spent "
+                              f"({counted(critic.falls_allowed(), 'fall')} allowed; "
+                              f"{counted(st.count(phase), 'trial')} told): its best θ is the "
+                              "result; an ask with a larger budget allows more falls (the "
+                              "fall budget is a share of it)")
     out = [t for t in st.trials()
            if t.status in ("queued", "pending") and t.phase in (phase, Phase.ZERO_SHOT)]
     # the critic asks the θ handed out again (the zero-shot θ too: the transfer critic's
@@ -571,6 +575,10 @@ def prepare(study: Any) -> bool:
                 return False
             key = _prepared_key(study, st, ph, pc)
             b = _critic_batch(study, st, ph, pc, sp, ls, 1)
+        except FallBudgetSpent as exc:      # the phase is over: nothing to prepare
+            log.warning("%s", exc)
+            st.delete_meta(NEXT_KEY)
+            return False
         except LatentuneError as exc:
             log.warning("%s: the next suggestion was not prepared (%s); the next ask asks "
                         "the critic", study.dir, exc)
