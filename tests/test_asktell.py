@@ -101,7 +101,7 @@ def test_ask_tell_phase3_with_handover_and_start_gives_the_rows_of_the_phase_run
         at.tell(first.id, out.cost, failed=out.failed)
         person(at, target, 24)                 # later asks take every option from the store
         assert at.config()["phase3_handover"]["handover_at"] == hand_run
-        with pytest.raises(StoreError, match="budget of 24 trials is handed out"):
+        with pytest.raises(StoreError, match="budget of 24 trials is told"):
             at.ask()
     with lt.Study(tmp_path / "run") as run, lt.Study(tmp_path / "ask") as at:
         assert rows_of(at, Phase.PHASE3) == rows_of(run, Phase.PHASE3)
@@ -172,7 +172,7 @@ def test_an_ask_beyond_the_budget_hands_out_the_suggestions_left(tmp_path):
         (last,) = st.ask(3)
         assert last.id not in {s.id for s in first} and not last.again
         st.tell(last.id, 1.0)
-        with pytest.raises(StoreError, match="budget of 4 trials is handed out"):
+        with pytest.raises(StoreError, match="budget of 4 trials is told"):
             st.ask()
 
 
@@ -1331,3 +1331,22 @@ def test_the_tell_that_spends_the_fall_budget_says_the_phase_is_over(run_cli, tm
         "the result" in lines[0], err
     code, out, err = run_cli("ask", d)
     assert code == 2 and "fall budget is spent" in err and "fall_budget" not in err, err
+
+
+def test_an_ask_past_a_told_budget_names_the_flag_and_no_pending_suggestions(run_cli, tmp_path,
+                                                                            error_line):
+    """``latentune ask`` on an ask/tell phase whose whole budget was told said "budget of 2
+    trials is handed out (2 told, 0 pending): tell the pending ones, or ask with a larger
+    budget": there is nothing pending, and the flag is ``--budget``. It now says the budget is
+    told and names --budget; with suggestions out it still says to tell them."""
+    d = tmp_path / "a"
+    with lt.Study(d, seed=0) as st:
+        s = st.ask(2, system=plant(), budget=2)
+        st.tell(s[0].id, 0.5)
+    line = error_line(*run_cli("ask", d, "--asker", "bob")[::2])
+    assert "(1 told, 1 pending): tell the pending ones, or ask with a larger --budget" in line
+    with lt.Study(d) as st:
+        st.tell(s[1].id, 0.4)
+    line = error_line(*run_cli("ask", d)[::2])
+    assert "phase 1's budget of 2 trials is told: its best θ is the result " in line, line
+    assert "pending" not in line and line.endswith("or ask with a larger --budget"), line

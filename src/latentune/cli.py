@@ -787,6 +787,8 @@ def _ask_flags(msg: str, args: argparse.Namespace) -> str:
         verb = "runs" if m[0].startswith("runs") else "was run"
         return msg[:m.start()] + f"{verb} with {shown(old)} (stored), not {shown(new)}"
     msg = re.sub(r"^latent: ", lambda m: f"{ASK_FLAGS['latent']}: ", msg)
+    msg = msg.replace("with a larger budget", "with a larger --budget").replace(
+        "the result (best_params())", f"the result (latentune best {where})")
     msg = re.sub(r"was run with ([a-z][\w-]*) = None, not (.*)$",    # a flag left out
                  lambda m: f"was run without {ASK_FLAGS.get(m[1], m[1])}, not with "
                            f"{ASK_FLAGS.get(m[1], m[1])} {m[2]}", msg)

@@ -482,10 +482,11 @@ def _critic_batch(study: Any, st: RunStore, phase: int, pc: dict[str, Any],
     and not told are not asked again (the critic does not know them yet). Writes nothing."""
     left, n_open = _budget_left(st, phase, pc)
     if left <= 0:
-        raise StoreError(f"{study.dir}: {phase_name(phase)}'s budget of "
-                         f"{counted(pc['budget'], 'trial')} is "
-                         f"handed out ({st.count(phase)} told, {n_open} pending): tell the "
-                         "pending ones, or ask with a larger budget")
+        budget = f"{study.dir}: {phase_name(phase)}'s budget of {counted(pc['budget'], 'trial')}"
+        raise StoreError(f"{budget} is handed out ({st.count(phase)} told, {n_open} pending): "
+                         "tell the pending ones, or ask with a larger budget" if n_open else
+                         f"{budget} is told: its best θ is the result (best_params()), or "
+                         "ask with a larger budget")
     k = min(max(pc["batch_size"], need), left)
     critic = phase_critic(phase, pc, space, study.dir, ls)
     replay(st, phase, critic)
