@@ -858,7 +858,8 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
     out: dict[str, Any] = {"targets": [], "targets_left_out": []}
     for key, by_m in sorted(runs.items()):
         budgets = {m: sorted({int(r["budget"]) for r in rs.values() if "budget" in r})
-                   for m, rs in by_m.items()}
+                   for m, rs in by_m.items()
+                   if m.split("@")[0] != "zero_shot"}    # one trial, whatever it records
         if len({b for v in budgets.values() for b in v}) > 1:
             raise ValueError(f"the runs of {dict(key)} have different budgets ("
                              + ", ".join(f"{m}: {'/'.join(map(str, v))}"

@@ -570,7 +570,8 @@ def test_check_default_re_runs_stored_runs_with_the_critics_own_defaults(tmp_pat
     assert "no stored run of M2" in capsys.readouterr().err
 
 
-def test_held_out_gaps_replace_the_ladders_and_a_gap_a_system_cannot_take_is_refused(capsys):
+def test_held_out_gaps_replace_the_ladders_and_a_gap_a_system_cannot_take_is_refused(capsys,
+                                                                                     tmp_path):
     """``--gaps``: every system gets those gaps instead of its ladder's; a gap its factory
     refuses (the Hopper's friction turns 0 at gap 2.5) or a gap ≤ 0 ends ``run`` and
     ``gap_ladder`` with one line on stderr and exit 2, before any run; so does a ``--variants``
@@ -581,8 +582,9 @@ def test_held_out_gaps_replace_the_ladders_and_a_gap_a_system_cannot_take_is_ref
     assert [g for g, _ in got["arm"]] == [1.25, 1.75] == [g for g, _ in got["chain"]]
     assert [g for g, _ in tr.ladder_targets(["arm"], None)["arm"]] == \
         list(tr.SYSTEMS["arm"]["gaps"])
-    for argv in (["run", "--systems", "hopper", "--gaps", "2.5", "--root", "/nonexistent/x"],
-                 ["run", "--systems", "arm", "--gaps", "0", "--root", "/nonexistent/x"]):
+    nowhere = str(tmp_path / "nowhere")
+    for argv in (["run", "--systems", "hopper", "--gaps", "2.5", "--root", nowhere],
+                 ["run", "--systems", "arm", "--gaps", "0", "--root", nowhere]):
         assert tr.main(argv) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0].startswith("transfer run: ")
@@ -593,28 +595,28 @@ def test_held_out_gaps_replace_the_ladders_and_a_gap_a_system_cannot_take_is_ref
                             ("nope=1", "unknown option(s) of the transfer critic: nope"),
                             ("max_fall_prob=2", "max_fall_prob must be in (0, 1]")):
         assert tr.main(["run", "--systems", "arm", "--variants", variant,
-                        "--root", "/nonexistent/x"]) == 2       # before any source run
+                        "--root", str(tmp_path / "nowhere")]) == 2       # before any source run
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0].startswith("transfer run: ") and expect in err[0]
     for flag in ("--budget", "--source-evals"):     # were run (and stored) with budget 0
-        assert tr.main(["run", "--systems", "arm", flag, "0", "--root", "/nonexistent/x"]) == 2
+        assert tr.main(["run", "--systems", "arm", flag, "0", "--root", nowhere]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert err == [f"transfer run: {flag} must be >= 1, got 0"]
 
 
-def test_run_refuses_a_budget_below_the_two_first_trials_of_plain_and_handover(capsys):
+def test_run_refuses_a_budget_below_the_two_first_trials_of_plain_and_handover(capsys, tmp_path):
     """``run --budget 1`` with ``plain`` or ``handover`` (as the default methods hold them) ran
     their manual and zero-shot trials (2) anyway and stored them as a run of budget 1; it is
     now refused in one line (exit 2) before any source run, and ``--only`` without them
     still takes budget 1."""
     for only in ([], ["--only", "plain", "zero_shot"], ["--only", "handover"]):
         assert tr.main(["run", "--systems", "arm", "--budget", "1", *only,
-                        "--root", "/nonexistent/x"]) == 2
+                        "--root", str(tmp_path / "nowhere")]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0].startswith("transfer run: --budget 1 is too small for ")
         assert ("handover" in err[0]) == ("plain" not in only)
     assert tr.main(["run", "--systems", "arm", "--budget", "1", "--only", "zero_shot",
-                    "--gaps", "0", "--root", "/nonexistent/x"]) == 2    # past the budget check
+                    "--gaps", "0", "--root", str(tmp_path)]) == 2    # past the budget check
     assert "--budget" not in capsys.readouterr().err
 
 
@@ -1056,6 +1058,12 @@ def test_summary_and_compare_refuse_runs_of_different_budgets(tmp_path, capsys):
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and "not comparable" in err[0], err
         assert "4" in err[0] and "8" in err[0]
+    # a zero-shot run is one trial whatever budget it records (the paper's robot runs: 1)
+    other = tmp_path / "zero"
+    for s in (0, 1):
+        _write(other, "tpe", s, [3.0] * 4, [False] * 4)
+        _write(other, "zero_shot", s, [5.0], [False])
+    assert tr.main(["summary", "--root", str(other)]) == 0
 
 
 def test_run_refuses_to_resume_on_runs_or_sources_of_other_settings(tmp_path, capsys,
