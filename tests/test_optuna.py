@@ -621,6 +621,13 @@ def test_a_theta_that_finished_meanwhile_is_chosen_again(source_run, monkeypatch
     assert tuple(pa.values()) != pytest.approx(tuple(pb.values()))
 
 
+def _add_trials(study: optuna.Study, xs: np.ndarray) -> None:
+    """Add the points ``xs`` (n, len(NAMES)) to ``study`` as complete trials of ``cost``."""
+    study.add_trials([optuna.trial.create_trial(params=dict(zip(NAMES, map(float, x))),
+                                                distributions=DISTS, value=cost(x)[0])
+                      for x in xs])
+
+
 def test_a_source_run_that_grows_does_not_change_a_study_under_way(tmp_path):
     """The transfer strategy searches from the source trials there were at the study's first
     sample, as Study.phase3 pins them: a study resumed (a new sampler) after the source run got
@@ -630,9 +637,7 @@ def test_a_source_run_that_grows_does_not_change_a_study_under_way(tmp_path):
     X = manifold(50)
 
     def add(xs):
-        sim.add_trials([optuna.trial.create_trial(params=dict(zip(NAMES, map(float, x))),
-                                                  distributions=DISTS, value=cost(x)[0])
-                        for x in xs])
+        _add_trials(sim, xs)
 
     add(X[:40])
     import_optuna_study(storage, "sim", tmp_path / "src").train_latent(latent_dim=3, epochs=100)
@@ -663,9 +668,7 @@ def test_a_study_resumed_with_a_larger_budget_goes_on_as_one_run(tmp_path, strat
     X = manifold(50)
 
     def add(xs):
-        sim.add_trials([optuna.trial.create_trial(params=dict(zip(NAMES, map(float, x))),
-                                                  distributions=DISTS, value=cost(x)[0])
-                        for x in xs])
+        _add_trials(sim, xs)
 
     add(X[:40])
     import_optuna_study(storage, "sim", tmp_path / "src").train_latent(latent_dim=3, epochs=100)

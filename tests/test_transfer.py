@@ -746,42 +746,28 @@ def test_add_source_conditions_the_source_models_on_new_trials_and_keeps_the_res
         cr.add_source(P, np.zeros(2), np.zeros(3, bool))
 
 
-def test_refine_scores_change_the_refinement_asks_only_and_are_recorded(source, hypers):
-    """``refine_scores``: the refinement asks choose by a model of the other scores (recorded in
-    their decision); the design and explore asks, and every ask before the first refinement
-    one, are the default's; a bad value is refused."""
-    X, y, f, c = source
-    with pytest.raises(ValueError, match="refine_scores"):
-        Transfer((X, y, f), None, None, refine_scores="raw")
-    target_c = np.clip(c + 0.1, 0, 1)
-    base, ref = _critic(source, hypers), _critic(source, hypers, refine_scores="warped")
-    _run(base, target_c, 0.5, 24)
-    _run(ref, target_c, 0.5, 24)
-    recs = [d for d in ref.decisions if "refine_scores" in d]
-    assert recs and all(r["refine_scores"] == "warped" and not r["explore"] and not r["design"]
-                        and r.get("rule") is None for r in recs)
-    assert not any("refine_scores" in d for d in base.decisions)
-    first = min(r["n_told"] for r in recs)
-    assert [d["pools"] for d in ref.decisions[:first]] == \
-        [d["pools"] for d in base.decisions[:first]]
-    # the refinement asks' model fits the warped scores, so they pick other θ than the ranks'
-    assert np.array_equal(base.X[:first], ref.X[:first])
-    assert not np.array_equal(base.X, ref.X)
 
-
-def test_explore_scores_change_the_explore_asks_gp_only_and_are_recorded(source, hypers):
-    """``explore_scores``: the explore asks' target GP fits the other scores (recorded in their
-    decision); the asks before the first such ask are the default's; a bad value is refused."""
+@pytest.mark.parametrize("option, value, kind", [("refine_scores", "warped", "refinement"),
+                                                 ("explore_scores", "values", "explore")])
+def test_scores_of_one_kind_of_ask_change_those_asks_only_and_are_recorded(source, hypers,
+                                                                           option, value,
+                                                                           kind):
+    """``refine_scores``: the refinement asks choose by a model of other scores;
+    ``explore_scores``: the explore asks' target GP fits other scores. Each is recorded in the
+    decisions of the asks it changed, and only those (never a design or rule ask, and the
+    refinement option never an explore ask); the asks before the first such ask are the
+    default's; a bad value is refused."""
     X, y, f, c = source
-    with pytest.raises(ValueError, match="explore_scores"):
-        Transfer((X, y, f), None, None, explore_scores="raw")
+    with pytest.raises(ValueError, match=option):
+        Transfer((X, y, f), None, None, **{option: "raw"})
     target_c = np.clip(c + 0.1, 0, 1)
-    base, other = _critic(source, hypers), _critic(source, hypers, explore_scores="values")
+    base, other = _critic(source, hypers), _critic(source, hypers, **{option: value})
     _run(base, target_c, 0.5, 24)
     _run(other, target_c, 0.5, 24)
-    recs = [d for d in other.decisions if "explore_scores" in d]
-    assert recs and all(r["explore_scores"] == "values" and r["explore"] for r in recs)
-    assert not any("explore_scores" in d for d in base.decisions)
+    recs = [d for d in other.decisions if option in d]
+    assert recs and all(r[option] == value and not r["design"] and r.get("rule") is None
+                        and r["explore"] == (kind == "explore") for r in recs)
+    assert not any(option in d for d in base.decisions)
     first = min(r["n_told"] for r in recs)
     assert np.array_equal(base.X[:first], other.X[:first])
     assert not np.array_equal(base.X, other.X)
