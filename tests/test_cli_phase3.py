@@ -225,3 +225,27 @@ def test_asking_another_strategy_of_a_stored_phase3_says_the_stored_one_and_what
     with pytest.raises(StoreError, match=r"runs with strategy plain \(stored\), not transfer: "
                        r"leave strategy out"):
         plain.ask(1, system=system, strategy="transfer")
+
+
+def test_target_scores_is_recorded_changes_the_search_and_is_refused_where_it_cannot_act(
+        tmp_path, run_cli, source, error_line):
+    """``--target-scores warped``: the transfer phase 3 stores it in its options and its
+    asks differ from the ranks' run on the same source and seed; a resume with another value,
+    an unknown value and the plain strategy are refused in one line naming the flag."""
+    base, warped = tmp_path / "ranks", tmp_path / "warped"
+    for out, flags in ((base, ()), (warped, ("--target-scores", "warped"))):
+        code, _, err = _phase3(run_cli, source, out, *flags, evals=14)
+        assert code == 0, err
+    assert lt.Study(warped).config()["phase3"]["transfer_options"] == {"target_scores": "warped"}
+    t_b, t_w = lt.Study(base).trials(3), lt.Study(warped).trials(3)
+    assert len(t_b) == len(t_w) == 14
+    assert [list(t.theta) for t in t_b] != [list(t.theta) for t in t_w]
+    line = error_line(*_phase3(run_cli, source, warped, "--resume", "--target-scores",
+                               "values", evals=16)[::2])
+    assert "--target-scores warped (stored), not --target-scores values" in line, line
+    assert "invalid choice" in error_line(*_phase3(run_cli, source, tmp_path / "x",
+                                                   "--target-scores", "raw")[::2])
+    line = error_line(*_phase3(run_cli, source, tmp_path / "p", "--strategy", "plain",
+                               "--target-scores", "warped")[::2])
+    assert "--target-scores is an option of the transfer phase 3" in line, line
+    assert not API_NAMES.search(line.removeprefix("latentune: error: ")), line

@@ -733,7 +733,7 @@ ASK_FLAGS = {"method": "--method", "budget": "--budget", "regions": "--regions",
              "asker": "--asker", "lease_s": "--lease", "n": "--n",
              "fall_budget": "--fall-budget", "record_walk": "--record-walk",
              "escape_falls": "--escape-falls", "walk_pick": "--walk-pick",
-             "batch_size": "--batch-size", "batch-size": "--batch-size",
+             "target_scores": "--target-scores", "batch_size": "--batch-size", "batch-size": "--batch-size",
              "latent": "--vae"}
 """Study.ask's and Study.phase3's keyword arguments (and transfer_options keys) by the flag
 that sets them, for :func:`_ask_flags`."""
@@ -1061,7 +1061,7 @@ def _strategy_arg(p: argparse.ArgumentParser) -> None:
 
 def _transfer_args(p: argparse.ArgumentParser) -> None:
     """The transfer phase 3's options a person at the robot sets from the shell."""
-    from latentune.critic.transfer import WALK_PICKS
+    from latentune.critic.transfer import TARGET_SCORES, WALK_PICKS
 
     p.add_argument("--fall-budget", type=float, default=None, metavar="Q",
                    help="transfer phase 3: stop once the target's trials after the first one "
@@ -1080,23 +1080,31 @@ def _transfer_args(p: argparse.ArgumentParser) -> None:
                         "step's quantile (rank, the default), or the least likely to fall "
                         "by the target fall model over the record (fall) or in the step's "
                         "band of ranks (band)")
+    p.add_argument("--target-scores", choices=TARGET_SCORES, default=None,
+                   help="transfer phase 3: what its model of the target's cost fits: the "
+                        "costs' ranks (ranks, the default: robust where trials fall and costs "
+                        "jump), their values, or their values under a fitted power warp "
+                        "(warped: measured lower on smooth targets where little falls, "
+                        "higher on some others; not the default)")
 
 
-TRANSFER_DESTS = ("fall_budget", "record_walk", "escape_falls", "walk_pick")
+TRANSFER_DESTS = ("fall_budget", "record_walk", "escape_falls", "walk_pick", "target_scores")
 """The flags of :func:`_transfer_args` (their ``args`` attributes)."""
 
 
 def _transfer_options(args: argparse.Namespace, stored: dict[str, Any] | None
                       ) -> dict[str, Any] | None:
     """Phase 3's ``transfer_options``: ``stored`` (the stored phase 3's, which a resume or a
-    later ask keeps) with --fall-budget, --record-walk, --escape-falls and --walk-pick over it
+    later ask keeps) with --fall-budget, --record-walk, --escape-falls, --walk-pick and
+    --target-scores over it
     (each checked; a --walk-pick without a walk to choose for is refused). A flag that changes
     a stored value is then refused by the study, naming both."""
     q = getattr(args, "fall_budget", None)
     k = getattr(args, "record_walk", None)
     pick = getattr(args, "walk_pick", None)
     esc = getattr(args, "escape_falls", None)
-    if q is None and k is None and pick is None and esc is None:
+    scores = getattr(args, "target_scores", None)
+    if q is None and k is None and pick is None and esc is None and scores is None:
         return stored
     opts = dict(stored or {})
     if q is not None:
@@ -1115,6 +1123,8 @@ def _transfer_options(args: argparse.Namespace, stored: dict[str, Any] | None
         if int(opts.get("record_walk", 0)) <= 0:
             raise CLIError("--walk-pick chooses the steps of a walk: give --record-walk K > 0")
         opts["walk_pick"] = pick
+    if scores is not None:
+        opts["target_scores"] = scores
     return opts
 
 
