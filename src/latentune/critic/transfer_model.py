@@ -82,13 +82,26 @@ def value_scores(y: np.ndarray, fell: np.ndarray) -> np.ndarray:
     worst of them; lower is better. With fewer than 3 such trials, or all of one cost, the rank
     scores (:func:`rank_scores`): a scale needs a spread. Unlike ranks they keep how much
     better a trial is, which a smooth target's model can extrapolate from."""
+    return _standing_scores(y, fell)
+
+
+def _standing_scores(y: np.ndarray, fell: np.ndarray,
+                     warp: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray:
+    """Scores (n,) of costs ``y`` (n,): the standing trials' (not failed, finite) costs
+    standardized and, with ``warp`` (a monotone map of the standardized costs), through it and
+    standardized again; every fall (or non-finite cost) one sd above the worst of them. With
+    fewer than 3 standing trials, or all of one cost, the rank scores (:func:`rank_scores`)."""
     y = np.asarray(y, dtype=float).reshape(-1)
     fell = np.asarray(fell, dtype=bool).reshape(-1)
     ok = ~fell & np.isfinite(y)
     if ok.sum() < 3 or np.ptp(y[ok]) <= 0:
         return rank_scores(y, fell)
+    u = (y[ok] - y[ok].mean()) / y[ok].std()
+    if warp is not None:
+        w = warp(u)
+        u = (w - w.mean()) / w.std()
     v = np.empty_like(y)
-    v[ok] = (y[ok] - y[ok].mean()) / y[ok].std()
+    v[ok] = u
     v[~ok] = v[ok].max() + 1.0
     return v
 
@@ -104,19 +117,12 @@ def warped_scores(y: np.ndarray, fell: np.ndarray) -> np.ndarray:
     scores."""
     from scipy.stats import yeojohnson
 
-    y = np.asarray(y, dtype=float).reshape(-1)
-    fell = np.asarray(fell, dtype=bool).reshape(-1)
-    ok = ~fell & np.isfinite(y)
-    if ok.sum() < 3 or np.ptp(y[ok]) <= 0:
-        return rank_scores(y, fell)
-    u = (y[ok] - y[ok].mean()) / y[ok].std()
-    w = np.asarray(yeojohnson(u)[0], dtype=float)
-    if not np.all(np.isfinite(w)) or np.ptp(w) <= 0:    # a degenerate exponent: the values
-        w = u
-    v = np.empty_like(y)
-    v[ok] = (w - w.mean()) / w.std()
-    v[~ok] = v[ok].max() + 1.0
-    return v
+    def warp(u: np.ndarray) -> np.ndarray:
+        w = np.asarray(yeojohnson(u)[0], dtype=float)
+        # a degenerate exponent: the values
+        return w if np.all(np.isfinite(w)) and np.ptp(w) > 0 else u
+
+    return _standing_scores(y, fell, warp)
 
 
 _CALIB_EPS = 0.01
