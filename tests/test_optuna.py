@@ -621,26 +621,33 @@ def test_a_theta_that_finished_meanwhile_is_chosen_again(source_run, monkeypatch
     assert tuple(pa.values()) != pytest.approx(tuple(pb.values()))
 
 
-def _add_trials(study: optuna.Study, xs: np.ndarray) -> None:
-    """Add the points ``xs`` (n, len(NAMES)) to ``study`` as complete trials of ``cost``."""
-    study.add_trials([optuna.trial.create_trial(params=dict(zip(NAMES, map(float, x))),
-                                                distributions=DISTS, value=cost(x)[0])
-                      for x in xs])
+class _GrowingSource:
+    """A source run imported from an Optuna study "sim" of ``cost`` on ``manifold(50)``: its
+    first 40 points, with a latent space, in ``d``; :meth:`grow` adds the other 10 to the
+    study and imports them (the source run grows under a study that uses it)."""
+
+    def __init__(self, d) -> None:
+        self.d, self.X = d, manifold(50)
+        self.storage = optuna.storages.InMemoryStorage()
+        self.sim = optuna.create_study(storage=self.storage, study_name="sim")
+        self._add(self.X[:40])
+        import_optuna_study(self.storage, "sim", d).train_latent(latent_dim=3, epochs=100)
+
+    def _add(self, xs: np.ndarray) -> None:
+        self.sim.add_trials([optuna.trial.create_trial(
+            params=dict(zip(NAMES, map(float, x))), distributions=DISTS, value=cost(x)[0])
+            for x in xs])
+
+    def grow(self) -> None:
+        self._add(self.X[40:])
+        import_optuna_study(self.storage, "sim", self.d)          # 10 more source trials
 
 
 def test_a_source_run_that_grows_does_not_change_a_study_under_way(tmp_path):
     """The transfer strategy searches from the source trials there were at the study's first
     sample, as Study.phase3 pins them: a study resumed (a new sampler) after the source run got
     more trials asks what the uninterrupted study asked (it took the new trials in)."""
-    storage = optuna.storages.InMemoryStorage()
-    sim = optuna.create_study(storage=storage, study_name="sim")
-    X = manifold(50)
-
-    def add(xs):
-        _add_trials(sim, xs)
-
-    add(X[:40])
-    import_optuna_study(storage, "sim", tmp_path / "src").train_latent(latent_dim=3, epochs=100)
+    src = _GrowingSource(tmp_path / "src")
 
     def more(study, n):
         study.sampler = LatentSampler(tmp_path / "src", seed=0, budget=20)
@@ -649,8 +656,7 @@ def test_a_source_run_that_grows_does_not_change_a_study_under_way(tmp_path):
 
     full = more(optuna.create_study(), 5)
     part = more(optuna.create_study(), 3)
-    add(X[40:])
-    import_optuna_study(storage, "sim", tmp_path / "src")          # 10 more source trials
+    src.grow()
     assert thetas(more(part, 2)) == thetas(full)
     attrs = part._storage.get_study_system_attrs(part._study_id)
     assert attrs["latentune:source_counts:" + part.sampler._key] == {"1": 40, "3": 0}
@@ -663,15 +669,7 @@ def test_a_study_resumed_with_a_larger_budget_goes_on_as_one_run(tmp_path, strat
     its sampler's trials are told as the critic's own points, its critic state and its pinned
     source trials carry on, so it asks what one study with that budget asked (the budget sets
     no point: only the fall budget's base, and TuRBO-m's region count, 1 below 750)."""
-    storage = optuna.storages.InMemoryStorage()
-    sim = optuna.create_study(storage=storage, study_name="sim")
-    X = manifold(50)
-
-    def add(xs):
-        _add_trials(sim, xs)
-
-    add(X[:40])
-    import_optuna_study(storage, "sim", tmp_path / "src").train_latent(latent_dim=3, epochs=100)
+    src = _GrowingSource(tmp_path / "src")
 
     def more(study, n, budget):
         study.sampler = LatentSampler(tmp_path / "src", seed=0, budget=budget, strategy=strategy)
@@ -680,8 +678,7 @@ def test_a_study_resumed_with_a_larger_budget_goes_on_as_one_run(tmp_path, strat
 
     full = more(optuna.create_study(), 6, 20)
     part = more(optuna.create_study(), 4, 10)
-    add(X[40:])
-    import_optuna_study(storage, "sim", tmp_path / "src")          # 10 more source trials
+    src.grow()
     assert thetas(more(part, 2, 20)) == thetas(full)
     assert all(t.system_attrs[POINT_ATTR]["tag"] >= 0 for t in part.trials[1:])
 
