@@ -338,6 +338,12 @@ much better a trial is, which ranks hide (on a smooth bowl without falls GPSampl
 values, ends far lower: ``results/transfer/bowl``); screened there, not the default.
 ``"warped"``: the standing costs' values through a Yeo-Johnson power warp fitted to them
 (:func:`~latentune.critic.transfer_model.warped_scores`), which pulls in a tail of bad costs.
+``"auto"``: at every ask both models (ranks and warped values) are fitted to the target's
+trials and the one whose leave-one-out predictions put fewer pairs of those trials in the wrong
+order (RGPE's ranking loss; falls below every standing trial, pairs of two falls not counted)
+is used; ranks on a tie and while fewer than :data:`AUTO_MIN_STANDING` trials stood. The
+choice and both losses are recorded (``auto_scores``: ``{model: [scores, loss of ranks, loss
+of warped]}``). Values are earned on the target, not assumed.
 ``refine_scores`` (default None: ``target_scores``'s): the scores of the cost model the
 refinement asks choose by (the asks that are neither the design, an explore ask nor a rule's);
 the agreement, the pools and the explore asks keep ``target_scores``'s model. Ranks are robust
@@ -392,6 +398,7 @@ from latentune.critic.base import TwoSpaceCritic, as_unit_points
 from latentune.critic.transfer_model import (LS_SCALES, SourceModel, TargetGP, TargetModel,
                                              calibrated, fit_calibration, fit_residual_kernel,
                                              gp_maxima, jittered_cholesky, rank_scores,
+                                             ranking_loss,
                                              target_fall_model, value_scores,
                                              warped_scores)
 from latentune.wording import counted
@@ -507,11 +514,16 @@ WALK_PICKS = ("rank", "fall", "band")
 """How ``record_walk`` picks each step (``walk_pick``): the best rank past the step's quantile,
 the least likely to fall over the whole record, or the least likely to fall in the step's band
 of ranks."""
-TARGET_SCORES = ("ranks", "values", "warped")
-"""What the target's cost model fits (options ``target_scores`` and ``refine_scores``): the
-costs' Gaussian-copula rank scores, their standardized values
-(:func:`~latentune.critic.transfer_model.value_scores`) or their warped values
-(:func:`~latentune.critic.transfer_model.warped_scores`)."""
+TARGET_SCORES = ("ranks", "values", "warped", "auto")
+"""What the target's cost model fits (options ``target_scores``, ``refine_scores`` and
+``explore_scores``): the costs' Gaussian-copula rank scores, their standardized values
+(:func:`~latentune.critic.transfer_model.value_scores`), their warped values
+(:func:`~latentune.critic.transfer_model.warped_scores`), or (``"auto"``) ranks or warped
+values, whichever model orders the target's own trials better when each is left out
+(:meth:`Transfer._chosen_scores`)."""
+AUTO_MIN_STANDING = 6
+"""``"auto"`` scores: the standing target trials needed before warped values may be chosen
+(with fewer a leave-one-out order says little): ranks until then."""
 FULL_SHAPES = ("lengthscales", "cube")
 """The full pool's box (``full_shape``): sides in proportion to the lengthscales, or a cube."""
 FALL_BUDGET_COUNTS = ("all", "after_stand")
@@ -593,6 +605,7 @@ class _AskContext:
     record_cma: bool = False
     escape: bool = False
     refine_scores: str | None = None
+    auto_scores: dict[str, list] | None = None
 
 
 @dataclass
@@ -775,6 +788,7 @@ class Transfer(TwoSpaceCritic):
         self._elite: np.ndarray | None = None
         self._source_mgd: tuple[np.ndarray, float, np.ndarray] | None = None   # _pool_source
         self._turbo: Any = None
+        self._auto: dict[str, list] = {}    # this ask's "auto" choices (its decision's)
         self._preq = np.empty(0)        # (t,) prequential screen scores (fall_calibrate)
         self._calib: tuple[int, np.ndarray] | None = None     # (n_told, (a, b))
 
@@ -1120,9 +1134,27 @@ class Transfer(TwoSpaceCritic):
         """The target's own GP of the explore and region asks: over ``base``'s scores, or over
         ``explore_scores``'s where that option names others (recorded in the decision)."""
         scores = self.opts["explore_scores"]
+        if scores == "auto":
+            return self._chosen_scores(lambda s: self._target_gp(self._cost_model(s)),
+                                       "explore")
         if scores is None or scores == self.opts["target_scores"]:
             return self._target_gp(base)
         return self._target_gp(self._cost_model(scores))
+
+    def _chosen_scores(self, make: Any, key: str) -> Any:
+        """``"auto"`` scores: ``make("ranks")``, or ``make("warped")`` when at least
+        :data:`AUTO_MIN_STANDING` target trials stood and its leave-one-out means (``loo_mean``)
+        have the lower :func:`~latentune.critic.transfer_model.ranking_loss` on the told trials;
+        the choice and both losses are kept under ``key`` for the ask's decision."""
+        ranks = make("ranks")
+        if int((~self._fell & np.isfinite(self._y)).sum()) < AUTO_MIN_STANDING:
+            self._auto[key] = ["ranks", None, None]
+            return ranks
+        warped = make("warped")
+        loss = [ranking_loss(m.loo_mean(), self._y, self._fell) for m in (ranks, warped)]
+        pick = "warped" if loss[1] < loss[0] else "ranks"
+        self._auto[key] = [pick, round(loss[0], 4), round(loss[1], 4)]
+        return warped if pick == "warped" else ranks
 
     def falls_allowed(self) -> int | None:
         """The fall budget among the target's told trials (the zero-shot and manual ones
@@ -1445,6 +1477,8 @@ class Transfer(TwoSpaceCritic):
         """The target's cost model on the told trials' ``scores`` (one of
         :data:`TARGET_SCORES`): the transfer model over the source's, or the late phase's or
         ``fit_ard``'s variant of it."""
+        if scores == "auto":
+            return self._chosen_scores(self._cost_model, "cost")
         sm = self.source_model()
         v = {"values": value_scores, "warped": warped_scores,
              "ranks": rank_scores}[scores](self._y, self._fell)
@@ -1518,6 +1552,7 @@ class Transfer(TwoSpaceCritic):
         unless :meth:`_manual_ask` asks the rest of its batch)."""
         st = self._replay_state()
         g = st["generation"]
+        self._auto = {}
         if self.fall_budget_spent:
             k_fb = self.falls_allowed()
             return self._rule_ask(n, g, self._centre(), FULL, False,
@@ -1988,6 +2023,7 @@ class Transfer(TwoSpaceCritic):
             **({"handoff": True} if self._handoff_active() else {}),
             **({"record_cma": True} if ctx.record_cma else {}),
             **({"refine_scores": ctx.refine_scores} if ctx.refine_scores else {}),
+            **({"auto_scores": dict(self._auto)} if self._auto else {}),
             **({"explore_scores": self.opts["explore_scores"]}
                if ctx.explore_gp is not None and self.opts["explore_scores"] is not None
                else {})})

@@ -125,6 +125,35 @@ def warped_scores(y: np.ndarray, fell: np.ndarray) -> np.ndarray:
     return _standing_scores(y, fell, warp)
 
 
+def loo_means(L: np.ndarray, alpha: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Leave-one-out posterior means (n,) of a GP's n training targets ``target`` (n,), from
+    the Cholesky factor ``L`` (n, n) of its training covariance (noise included) and
+    ``alpha`` = K⁻¹ (target − prior mean) (n,): ``target − alpha / diag(K⁻¹)`` (Rasmussen &
+    Williams eq. 5.12), the hyperparameters held at their fitted values."""
+    from scipy.linalg import solve_triangular
+
+    Linv = solve_triangular(L, np.eye(len(L)), lower=True)
+    return np.asarray(target, float) - alpha / (Linv * Linv).sum(0)
+
+
+def ranking_loss(pred: np.ndarray, y: np.ndarray, fell: np.ndarray) -> float:
+    """The share of trial pairs that predictions ``pred`` (n,) put in the wrong order (RGPE's
+    ranking loss, Feurer et al.), in [0, 1]; nan without a pair. Trials are ordered as
+    :func:`rank_scores` orders them (costs ``y`` (n,), a fall ``fell`` (n,) below every
+    trial that stood); a pair of two falls, or of equal costs, is not counted (the scores
+    need not order falls among themselves). A tie in ``pred`` counts as half wrong."""
+    pred = np.asarray(pred, float).reshape(-1)
+    y = np.asarray(y, float).reshape(-1)
+    fell = np.asarray(fell, bool).reshape(-1) | ~np.isfinite(y)
+    yy = np.where(fell, np.inf, y)
+    better = (yy[:, None] < yy[None, :]) & ~(fell[:, None] & fell[None, :])
+    n_pairs = int(better.sum())
+    if n_pairs == 0:
+        return math.nan
+    wrong = (pred[:, None] > pred[None, :]) + 0.5 * (pred[:, None] == pred[None, :])
+    return float((wrong * better).sum() / n_pairs)
+
+
 _CALIB_EPS = 0.01
 """Screen scores are clipped to ``[ε, 1 − ε]`` before the logit of the calibration map."""
 _CALIB_PRIOR_SD = (1.0, 0.5)
@@ -470,6 +499,10 @@ class TargetModel:
         C = self._cov(matern52(Xs, Xs, self.ls), hS, hS) - V.T @ V
         return mu, C
 
+    def loo_mean(self) -> np.ndarray:
+        """Leave-one-out posterior means (n,) of the told values ``v`` (:func:`loo_means`)."""
+        return loo_means(self.L, self.alpha, self.v)
+
     def variance(self, Xs: np.ndarray) -> np.ndarray:
         """Posterior marginal variance (m,) at θ ``Xs`` (m, d)."""
         hS = self._basis(Xs)
@@ -547,6 +580,12 @@ class TargetGP:
     def variance(self, Xs: np.ndarray) -> np.ndarray:
         """Posterior marginal variance (m,) at θ ``Xs`` (m, d)."""
         return self._variance(self._cross(Xs))
+
+    def loo_mean(self) -> np.ndarray:
+        """Leave-one-out posterior means (n,) of the told values ``v``, on their scale
+        (:func:`loo_means` of the standardized values)."""
+        zs = (self.v - self.med) / self.s
+        return self.med + self.s * loo_means(self.L, self.alpha, zs)
 
     def log_ei(self, Xs: np.ndarray) -> np.ndarray:
         """log expected improvement (m,) at θ ``Xs`` (m, d) below the lowest told value
