@@ -249,3 +249,29 @@ def test_target_scores_is_recorded_changes_the_search_and_is_refused_where_it_ca
                                "--target-scores", "warped")[::2])
     assert "--target-scores is an option of the transfer phase 3" in line, line
     assert not API_NAMES.search(line.removeprefix("latentune: error: ")), line
+
+
+def test_auto_target_scores_show_their_choice_in_status_and_report(tmp_path, run_cli, source):
+    """``--target-scores auto``: stored in the options; every ask's decision records which
+    model it chose and both leave-one-out ranking losses, and ``status`` and the report say
+    so; ranks until six target trials stood."""
+    out = tmp_path / "auto"
+    code, _, err = _phase3(run_cli, source, out, "--target-scores", "auto", evals=12)
+    assert code == 0, err
+    assert lt.Study(out).config()["phase3"]["transfer_options"] == {"target_scores": "auto"}
+    from latentune.pipeline.results import decision_scores, decisions
+    from latentune.pipeline.store import RunStore
+
+    with RunStore(out) as store:
+        ds = decisions(store)
+    chosen = [d["auto_scores"]["cost"] for d in ds if "auto_scores" in d]
+    assert chosen and chosen[0] == ["ranks", None, None]
+    assert any(c[1] is not None for c in chosen), chosen
+    last = decision_scores(ds[-1])
+    code, text, err = run_cli("status", out)
+    assert code == 0, err
+    assert f"scores: {last}" in text, text
+    assert "loo ranking loss" in last or "too few standing" in last
+    code, _, err = run_cli("report", out, "--no-sim")
+    assert code == 0, err
+    assert "loo ranking loss" in (out / "report.md").read_text()

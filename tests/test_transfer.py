@@ -771,3 +771,76 @@ def test_scores_of_one_kind_of_ask_change_those_asks_only_and_are_recorded(sourc
     first = min(r["n_told"] for r in recs)
     assert np.array_equal(base.X[:first], other.X[:first])
     assert not np.array_equal(base.X, other.X)
+
+
+def test_loo_means_are_the_posterior_means_of_each_trial_left_out(source, hypers):
+    """``TargetModel.loo_mean`` and ``TargetGP.loo_mean``: the closed form equals refitting
+    without trial i (hyperparameters held) and predicting it; ``ranking_loss`` counts the
+    wrongly ordered pairs, a fall below every standing trial, two falls not compared."""
+    from latentune.critic.transfer_model import TargetGP, loo_means, matern52, ranking_loss
+    from latentune.critic.turbo import TurboM
+
+    X, y, f, c = source
+    sm = SourceModel(X, y, f, seed=0, hypers=hypers)
+    rng = np.random.default_rng(1)
+    Xt = rng.uniform(0, 1, (9, D))
+    v = rng.standard_normal(9)
+    tm = TargetModel(Xt, v, sm.cost, sm.lengthscales)
+    for i in range(9):
+        keep = np.arange(9) != i
+        one = TargetModel(Xt[keep], v[keep], sm.cost, sm.lengthscales, sigma_r2=tm.sigma_r2)
+        assert tm.loo_mean()[i] == pytest.approx(one.mean_cov(Xt[i:i + 1], False)[0][0],
+                                                 rel=1e-6, abs=1e-8)
+    gp = TargetGP(Xt, v, TurboM(D, batch_size=1, seed=0, n_regions=1), tm)
+    i = 4
+    keep = np.arange(9) != i
+    K = gp.sigma_r2 * matern52(Xt, Xt, gp.ls) + gp.noise * np.eye(9)
+    zs = (v - gp.med) / gp.s - gp.constant
+    pred = gp.med + gp.s * (gp.constant + K[i, keep] @ np.linalg.solve(K[np.ix_(keep, keep)],
+                                                                         zs[keep]))
+    assert gp.loo_mean()[i] == pytest.approx(pred, rel=1e-6)
+    L = np.linalg.cholesky(np.eye(2) * 2.0)
+    assert np.allclose(loo_means(L, np.array([2.0, 4.0]), np.array([1.0, 1.0])), [-3.0, -7.0])
+    yy = np.array([1.0, 2.0, 3.0, 9.0, 8.0])
+    fell = np.array([False, False, False, True, True])
+    assert ranking_loss(np.array([0.0, 1, 2, 3, 4]), yy, fell) == 0.0
+    assert ranking_loss(np.array([0.0, 1, 2, 4, 3]), yy, fell) == 0.0   # two falls: not compared
+    assert ranking_loss(np.array([1.0, 0, 2, 3, 4]), yy, fell) == pytest.approx(1 / 9)
+    assert ranking_loss(np.array([0.0, 0, 2, 3, 4]), yy, fell) == pytest.approx(0.5 / 9)
+    assert np.isnan(ranking_loss(np.zeros(2), np.ones(2), np.zeros(2, bool)))
+
+
+def test_auto_scores_choose_by_the_targets_own_trials_and_are_recorded(source, hypers):
+    """``target_scores="auto"``: every ask records its choice and both models' ranking losses;
+    ranks while fewer than six target trials stood (so those asks are the default's), warped
+    values only where their loss is lower; ``explore_scores="auto"`` records its choice on the
+    explore asks alone; a bad value is still refused."""
+    from latentune.critic.transfer import AUTO_MIN_STANDING
+
+    X, y, f, c = source
+    target_c = np.clip(c + 0.1, 0, 1)
+    opts = dict(explore_pool="adaptive", explore_gp=True, explore_fall_prob=0.2)
+    base = _critic(source, hypers, **opts)
+    auto = _critic(source, hypers, target_scores="auto", **opts)
+    _run(base, target_c, 0.5, 20)
+    _, falls = _run(auto, target_c, 0.5, 20)
+    recs = [d for d in auto.decisions if "auto_scores" in d]
+    assert recs and not any("auto_scores" in d for d in base.decisions)
+    stood = np.cumsum(~np.asarray(falls))
+    for d in recs:
+        pick, loss_r, loss_w = d["auto_scores"]["cost"]
+        if stood[d["n_told"] - 1] < AUTO_MIN_STANDING:
+            assert (pick, loss_r, loss_w) == ("ranks", None, None)
+        else:
+            assert pick == ("warped" if loss_w < loss_r else "ranks")
+    picks = [d["auto_scores"]["cost"][0] for d in recs]
+    assert "warped" in picks             # on this smooth bowl the values order better
+    first = min(d["n_told"] for d in recs if d["auto_scores"]["cost"][0] == "warped")
+    assert np.array_equal(base.X[:first], auto.X[:first])
+    assert not np.array_equal(base.X, auto.X)
+    ex = _critic(source, hypers, explore_scores="auto", **opts)
+    _run(ex, target_c, 0.5, 20)
+    recs = [d for d in ex.decisions if "auto_scores" in d]
+    assert recs and all(d["explore"] and set(d["auto_scores"]) == {"explore"} for d in recs)
+    with pytest.raises(ValueError, match="target_scores"):
+        _critic(source, hypers, target_scores="automatic")

@@ -941,7 +941,8 @@ def cmd_status(args: argparse.Namespace) -> int:
         print(f"phase 3 decisions: {counted(dec['n'], 'ask')} ("
               + ", ".join(f"{k} {v}" for k, v in dec["kinds"].items())
               + f"); last: generation {last['generation']}, {last['kind']}{agree}{side}"
-              + (f", pools {'/'.join(sorted(set(last['pools'])))}" if last.get("pools") else ""))
+              + (f", pools {'/'.join(sorted(set(last['pools'])))}" if last.get("pools") else "")
+              + (f"; scores: {last['scores']}" if last.get("scores") else ""))
     fb = s.get("fall_budget")
     if fb:
         which = " (those after the first trial that stood)" \
@@ -1085,7 +1086,9 @@ def _transfer_args(p: argparse.ArgumentParser) -> None:
                         "costs' ranks (ranks, the default: robust where trials fall and costs "
                         "jump), their values, or their values under a fitted power warp "
                         "(warped: measured lower on smooth targets where little falls, "
-                        "higher on some others; not the default)")
+                        "higher on some others; not the default), or at every ask ranks or "
+                        "warped, whichever model's leave-one-out predictions order the "
+                        "target's own trials better (auto)")
 
 
 TRANSFER_DESTS = ("fall_budget", "record_walk", "escape_falls", "walk_pick", "target_scores")

@@ -178,6 +178,30 @@ def decision_kind(d: dict[str, Any]) -> str:
     return "region (target GP)" if d.get("region_gp") else "region"
 
 
+def decision_scores(d: dict[str, Any]) -> str | None:
+    """What the cost models of the ask with decision ``d`` fitted where ``"auto"`` scores
+    chose (``auto_scores``), e.g. ``"warped values (loo ranking loss 0.041 against ranks'
+    0.063)"`` for the cost model, then the explore GP's; None where nothing was chosen."""
+    got = d.get("auto_scores")
+    if not isinstance(got, dict):
+        return None
+    parts = []
+    for model in ("cost", "explore"):
+        c = got.get(model)
+        if not (isinstance(c, list) and len(c) == 3):
+            continue
+        pick, loss_r, loss_w = c
+        what = "warped values" if pick == "warped" else "ranks"
+        who = "" if model == "cost" else "explore GP: "
+        if loss_r is None:
+            parts.append(f"{who}{what} (too few standing trials to choose)")
+        else:
+            mine, other = (loss_w, loss_r) if pick == "warped" else (loss_r, loss_w)
+            parts.append(f"{who}{what} (loo ranking loss {mine:.3g} against "
+                         f"{'ranks' if pick == 'warped' else 'warped values'}' {other:.3g})")
+    return "; ".join(parts) or None
+
+
 def decisions_summary(ds: list[dict[str, Any]]) -> dict[str, Any] | None:
     """``{n, kinds: {kind: asks}, last: {generation, kind, agreement, length, pools}}`` of the
     decisions ``ds`` (:func:`decisions`), or None without any."""
@@ -190,7 +214,7 @@ def decisions_summary(ds: list[dict[str, Any]]) -> dict[str, Any] | None:
     return {"n": len(ds), "kinds": kinds,
             "last": {"generation": last.get("generation"), "kind": decision_kind(last),
                      "agreement": last.get("agreement"), "length": last.get("length"),
-                     "pools": last.get("pools")}}
+                     "pools": last.get("pools"), "scores": decision_scores(last)}}
 
 
 def fall_budget(store: RunStore, config: dict[str, Any] | None) -> dict[str, Any] | None:

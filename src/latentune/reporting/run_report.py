@@ -319,10 +319,12 @@ def decisions_markdown(store: Any) -> list[str]:
     """The report's lines on the phase-3 critic's decisions (:func:`~latentune.pipeline.results.
     decisions`): how many asks of each kind, then one table row per ask (generation, trials
     told before it, kind (a record walk's with the rank of its θ in the source's standing
-    trials), pools of its points, agreement, the trust region's side, admissible
+    trials; the scores ``"auto"`` chose, :func:`~latentune.pipeline.results.decision_scores`),
+    pools of its points, agreement, the trust region's side, admissible
     candidates of all, the fall screen's bound when an explore ask applied its own
     (``explore_bound``), the highest fall probability it asked); [] without any."""
-    from latentune.pipeline.results import decision_kind, decisions, decisions_summary
+    from latentune.pipeline.results import (decision_kind, decision_scores, decisions,
+                                            decisions_summary)
 
     ds = decisions(store)
     summ = decisions_summary(ds)
@@ -338,7 +340,8 @@ def decisions_markdown(store: Any) -> list[str]:
         pools = "/".join(sorted(set(d.get("pools") or [])))
         adm = "" if d.get("n_admissible") is None else \
             f"{d['n_admissible']} of {d.get('n_candidates')}"
-        kind = decision_kind(d) + (f" (rank {d['walk_rank']})" if "walk_rank" in d else "")
+        kind = decision_kind(d) + (f" (rank {d['walk_rank']})" if "walk_rank" in d else "") \
+            + (f"; {decision_scores(d)}" if decision_scores(d) else "")
         md.append(f"| {d.get('generation')} | {d.get('n_told')} | {kind} | {pools} | "
                   f"{fmt(d.get('agreement'), 2)} | {fmt(d.get('length'), 4)} | {adm} | "
                   f"{fmt(d.get('explore_bound'), 2)} | {fmt(d.get('max_fall_prob_asked'), 2)} |")
