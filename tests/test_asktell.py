@@ -1350,3 +1350,18 @@ def test_an_ask_past_a_told_budget_names_the_flag_and_no_pending_suggestions(run
     line = error_line(*run_cli("ask", d)[::2])
     assert "phase 1's budget of 2 trials is told: its best θ is the result " in line, line
     assert "pending" not in line and line.endswith("or ask with a larger --budget"), line
+
+
+def test_telling_a_told_zero_shot_trial_again_names_its_phase(tmp_path, src30):
+    """Telling the zero-shot suggestion a second time was refused with '(evaluation 0 of phase
+    4; ...)': the store's code of the zero-shot phase, a phase the user never heard of. The
+    line names the phase as ``tell`` and ``status`` do: 'zero-shot evaluation 0'."""
+    shutil.copytree(src30, tmp_path / "src")
+    with lt.Study(tmp_path / "t", seed=0) as st:
+        (s,) = st.ask(1, system=plant(0.3), phase=3, latent=tmp_path / "src")
+        assert s.phase_name == "zero-shot"
+        st.tell(s.id, 0.5)
+        with pytest.raises(StoreError) as err:
+            st.tell(s.id, 0.4)
+    msg = str(err.value)
+    assert "phase 4" not in msg and "(zero-shot evaluation 0;" in msg and "--amend" in msg

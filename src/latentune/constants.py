@@ -36,6 +36,17 @@ class Phase(IntEnum):
     PRESERVATION = 5  #: stable θ passed through encode → decode and evaluated again
 
 
+PHASE_NAMES: dict[Phase, str] = {Phase.MANUAL: "manual", Phase.PHASE1: "phase 1",
+                                 Phase.PHASE3: "phase 3", Phase.ZERO_SHOT: "zero-shot",
+                                 Phase.PRESERVATION: "preservation"}
+"""The name of each phase of the store, as status, trials and error lines give it."""
+
+
+def phase_name(phase: int) -> str:
+    """"phase 1", "zero-shot", ...: the name of a stored phase number."""
+    return PHASE_NAMES.get(Phase(int(phase)), f"phase {int(phase)}")
+
+
 def fail_cost(fall_step: int | None, horizon: int) -> float:
     """The path cost of a trial that failed at step ``fall_step`` of ``horizon`` steps:
     ``C1 · (2 − k/N_H)`` (a later failure is better). ``None`` (step unknown) gives ``2 · C1``."""

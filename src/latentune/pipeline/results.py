@@ -19,24 +19,16 @@ from typing import Any
 
 import numpy as np
 
-from latentune.constants import Phase
+from latentune.constants import PHASE_NAMES, Phase, phase_name
 from latentune.checks import is_whole
 from latentune.errors import StoreError, UsageError
 from latentune.pipeline.store import Row, RunStore
 from latentune.space import ParameterSpace
 
-PHASE_NAMES = {Phase.MANUAL: "manual", Phase.PHASE1: "phase 1", Phase.PHASE3: "phase 3",
-               Phase.ZERO_SHOT: "zero-shot", Phase.PRESERVATION: "preservation"}
-"""The name of each phase of the store, as status and trials give it."""
 TUNING = (Phase.MANUAL, Phase.PHASE1, Phase.PHASE3, Phase.ZERO_SHOT)
 """The phases whose trials may give the θ to deploy."""
 BEST_FILE = "best.json"
 """The θ to deploy (physical values by name): ``DIR/best.json``."""
-
-
-def phase_name(phase: int) -> str:
-    """"phase 1", "zero-shot", ...: the name of a stored phase number."""
-    return PHASE_NAMES.get(Phase(int(phase)), f"phase {int(phase)}")
 
 
 @dataclass

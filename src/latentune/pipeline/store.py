@@ -60,7 +60,7 @@ from typing import Any, Iterable, Iterator
 
 import numpy as np
 
-from latentune.constants import COST_LIMIT, Phase
+from latentune.constants import COST_LIMIT, Phase, phase_name
 from latentune.errors import StoreError
 
 FORMAT = "latentune-run-store"
@@ -599,8 +599,8 @@ class RunStore:
         with self._write(trials=True):
             t = self._trial(trial_id)
             if t.status == "told":
-                raise StoreError(f"suggestion {trial_id} was already told (evaluation {t.idx} "
-                                 f"of phase {t.phase}; to correct it: tell --amend, "
+                raise StoreError(f"suggestion {trial_id} was already told ({phase_name(t.phase)} "
+                                 f"evaluation {t.idx}; to correct it: tell --amend, "
                                  "amend=True in Python)")
             if t.status != "pending":
                 raise StoreError(f"suggestion {trial_id} is not handed out ({t.status}: " + (
