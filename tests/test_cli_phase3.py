@@ -275,3 +275,32 @@ def test_auto_target_scores_show_their_choice_in_status_and_report(tmp_path, run
     code, _, err = run_cli("report", out, "--no-sim")
     assert code == 0, err
     assert "loo ranking loss" in (out / "report.md").read_text()
+
+
+def test_a_source_without_a_latent_space_says_to_train_one(tmp_path, run_cli, error_line):
+    """``phase3 --vae P1`` (and ``ask --phase 3 --vae P1``) with P1 a run that has phase 1 but
+    no latent space yet (train-vae skipped) said "no latent space at P1/vae (expected vae.pt
+    and vae.json)", a path the user never gave; phase 3 with no --vae in a run without one
+    said "... or pass another study's", the sentence cut off. Both now say what to do: train
+    one (train_latent / train-vae), or name another study's (--vae)."""
+    p1 = tmp_path / "p1"
+    assert run_cli("phase1", *SYSTEM, "--out", p1, "--phase1-evals", "6", "--quiet")[0] == 0
+    for argv in [("phase3", *SYSTEM, "--vae", p1, "--out", tmp_path / "t", "--phase3-evals",
+                  "4"),
+                 ("ask", tmp_path / "a", *SYSTEM[:2], "--phase", "3", "--vae", p1)]:
+        line = error_line(*run_cli(*argv)[::2])
+        assert line == (f"latentune: error: --vae: {p1} holds no latent space: train one there "
+                        "first (train_latent / train-vae)"), line
+    assert not (tmp_path / "t").exists()
+    line = error_line(*run_cli("phase3", *SYSTEM, "--out", p1, "--phase3-evals", "4")[::2])
+    assert line == (f"latentune: error: no latent space in {p1}: train one first (train_latent "
+                    "/ train-vae), or name another study's (--vae)"), line
+    from examples.toy_plant import make_real_system
+    from latentune.errors import LatentError
+
+    with pytest.raises(LatentError, match=r"^latent: .* holds no latent space: train one there "
+                       r"first \(train_latent / train-vae\)$"):
+        lt.Study(tmp_path / "api").phase3(make_real_system(), 4, latent=p1)
+    with pytest.raises(LatentError, match=r"no latent space in .*: train one first "
+                       r"\(train_latent / train-vae\), or name another study's \(latent\)$"):
+        lt.Study(p1).phase3(make_real_system(), 4)

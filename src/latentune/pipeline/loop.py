@@ -378,7 +378,7 @@ def resolve_latent(run: RunDir, manifest: Manifest, latent: Any, space: Paramete
             ls, source = LatentSpace.load(run.store.artifact("vae")), "self"
         else:
             raise LatentError(f"no latent space in {run.dir}: train one first "
-                              "(train_latent / train-vae) or pass another study's")
+                              "(train_latent / train-vae), or name another study's (latent)")
     elif isinstance(latent, LatentSpace):
         src = latent.meta.get("source_run")
         ls = latent
@@ -395,6 +395,9 @@ def resolve_latent(run: RunDir, manifest: Manifest, latent: Any, space: Paramete
         if (other / "run.db").is_file():
             with RunStore(other) as o:
                 src = o.artifact("vae")
+            if src is None and not (other / "vae.pt").is_file():
+                raise LatentError(f"latent: {other} holds no latent space: train one there "
+                                  "first (train_latent / train-vae)")
         ls = LatentSpace.load(src if src is not None else other / "vae")
         source = "self" if other.resolve() == me else str(other.resolve())
     if ls.d != space.dim:
