@@ -737,7 +737,9 @@ def test_robot_check_reports_a_bad_spec(capsys, spec):
 
 @pytest.mark.parametrize("argv, expect", [
     (["robot", "init", "/nonexistent.urdf"], "URDF /nonexistent.urdf: cannot read"),
-    (["robot"], "the following arguments are required: robot_command"),
+    # an internal name, robot_command, was named here; now the subcommands are
+    (["robot"], "the following arguments are required: {check,init}"),
+    (["robot", "chek", "a1"], "argument {check,init}: invalid choice: 'chek'"),
     (["robot", "init"], "the following arguments are required: urdf"),
     (["robot", "init", "x.urdf", "--name", " "], "the robot name must not be empty"),
     (["robot", "check", "a1", "--bogus"], "unrecognized arguments: --bogus"),

@@ -1258,7 +1258,8 @@ def build_parser() -> argparse.ArgumentParser:
     register_cli(sub, parents=common)            # import-optuna, dashboard (the optuna extra)
 
     p = sub.add_parser("robot", help="check a robot spec, or write one for a quadruped URDF")
-    rsub = p.add_subparsers(dest="robot_command", parser_class=_Parser, required=True)
+    rsub = p.add_subparsers(dest="robot_command", metavar="{check,init}", parser_class=_Parser,
+                            required=True)
     c = rsub.add_parser("check", parents=common,
                         help="check a spec against its URDF (and stand it in PyBullet)")
     c.add_argument("spec", help="a1, b1, solo12 or a robot spec .yaml")
