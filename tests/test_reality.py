@@ -108,6 +108,18 @@ def test_bad_yaml_files(tmp_path):
         assert words in str(exc.value) and "\n" not in str(exc.value), name
 
 
+def test_an_unknown_key_of_a_file_lists_base_among_the_known_ones(tmp_path):
+    """A profile file with a misspelled key listed the keys it may hold without ``base``, the key
+    the presets use to build on each other (``bsae: heavy`` read 'unknown key 'bsae' (known:
+    friction, …)'); a file's list names base too, a dict's (which takes no base) does not."""
+    f = tmp_path / "mine.yaml"
+    f.write_text("bsae: heavy\nmass_scale: 1.1\n")
+    with pytest.raises(UsageError, match=r"unknown key 'bsae' \(known: base, friction, "):
+        Reality.load(str(f))
+    with pytest.raises(UsageError, match=r"unknown key 'bsae' \(known: friction, "):
+        Reality.load({"bsae": "heavy"})
+
+
 def test_presets_and_yaml_form(tmp_path):
     assert set(PRESETS) >= {"nominal", "heavy", "worn", "slippery", "laggy", "hard"}
     assert Reality.load("nominal").is_nominal and Reality().is_nominal and Reality.load(None).is_nominal

@@ -199,9 +199,11 @@ class Reality:
         return {"name": self.name, **self.changes()}
 
     @classmethod
-    def from_dict(cls, d: Mapping[str, Any], where: str = "reality") -> "Reality":
+    def from_dict(cls, d: Mapping[str, Any], where: str = "reality", *,
+                  also_known: tuple[str, ...] = ()) -> "Reality":
         """The Reality of a dict of fields (:meth:`to_dict`, or a YAML profile's keys without
-        ``base``).
+        ``base``). ``also_known``: keys the caller took out of ``d`` (a file's ``base``), listed
+        among the known ones when a key is unknown.
 
         Raises:
             UsageError: not a mapping, an unknown key or a bad value (one line).
@@ -212,7 +214,8 @@ class Reality:
         known = {f.name for f in dataclasses.fields(cls)}
         for k in d:
             if k not in known:
-                raise UsageError(f"{where}: unknown key {k!r} (known: {', '.join(sorted(known))})")
+                raise UsageError(f"{where}: unknown key {k!r} "
+                                 f"(known: {', '.join(sorted(known | set(also_known)))})")
         return cls(**{k: _check(k, v, where) for k, v in d.items()})
 
     @classmethod
@@ -335,7 +338,7 @@ def _resolve(source: str | os.PathLike, seen: tuple[str, ...]) -> dict[str, Any]
                              f"({', '.join(preset_names())}) nor a file")
         merged.update(_resolve(bpath, seen + (key,)))
     merged.pop("name", None)
-    Reality.from_dict(raw, where)  # the file's own keys, checked with the file's name
+    Reality.from_dict(raw, where, also_known=("base",))  # the file's own keys, with its name
     merged.update(raw)
     merged.setdefault("name", path.stem)
     return merged
