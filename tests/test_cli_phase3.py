@@ -304,3 +304,34 @@ def test_a_source_without_a_latent_space_says_to_train_one(tmp_path, run_cli, er
     with pytest.raises(LatentError, match=r"no latent space in .*: train one first "
                        r"\(train_latent / train-vae\), or name another study's \(latent\)$"):
         lt.Study(p1).phase3(make_real_system(), 4)
+
+
+def _one_weight():
+    """A system of one weight (the factory of :func:`test_phase_3_of_one_weight_…`)."""
+    space = lt.ParameterSpace(names=["a"], low=[-1.0], high=[1.0], manual=[0.5])
+    return lt.FunctionSystem(space, lambda x: float((x[0] - 0.2) ** 2))
+
+
+def test_phase_3_of_one_weight_says_there_is_no_latent_space(tmp_path, run_cli, error_line):
+    """``phase3`` / ``ask --phase 3`` on a system of one weight (whose phase 1 ran: tune and
+    train-vae refuse it) said "no latent space at RUN/vae …" or "train one first", which
+    train-vae refuses; they now say what tune says: a 1-dim θ has no smaller latent space."""
+    import sys
+    import types
+
+    mod = types.ModuleType("one_weight_mod")
+    mod.make = _one_weight
+    sys.modules["one_weight_mod"] = mod
+    try:
+        sysargs = ("--system", "one_weight_mod:make", "--backend", "serial", "--seed", "0")
+        p1 = tmp_path / "p1"
+        assert run_cli("phase1", *sysargs, "--out", p1, "--phase1-evals", "5", "--quiet")[0] == 0
+        for argv in [("phase3", *sysargs, "--vae", p1, "--out", tmp_path / "t",
+                      "--phase3-evals", "3"),
+                     ("phase3", *sysargs, "--out", p1, "--phase3-evals", "3", "--resume"),
+                     ("ask", tmp_path / "a", *sysargs[:2], "--phase", "3", "--vae", p1)]:
+            line = error_line(*run_cli(*argv)[::2])
+            assert "a 1-dim θ has no smaller latent space" in line and "train" not in line, line
+        assert not (tmp_path / "t").exists()
+    finally:
+        del sys.modules["one_weight_mod"]

@@ -366,10 +366,14 @@ def resolve_latent(run: RunDir, manifest: Manifest, latent: Any, space: Paramete
     """(LatentSpace, source) for phase 3 on ``space``: source is "self" or the source study's
     resolved path. ``latent``: None (the study's own, or the one copied before), a
     LatentSpace, or another study (a directory, or an object with ``dir``). LatentError if the
-    latent space's θ are not this space's (dimension, names, actor)."""
+    latent space's θ are not this space's (dimension, names, actor), or ``space`` has one
+    parameter (no smaller latent space)."""
     from latentune.latent.vae import LatentSpace
 
     me = run.dir.resolve()
+    if space.dim < 2:
+        raise LatentError(f"a {space.dim}-dim θ has no smaller latent space for phase 3 to "
+                          "search: run phase 1 alone")
     if latent is None:
         prev = manifest.config().get("phase3_vae_source")
         if prev not in (None, "self") and run.store.artifact("phase3_vae") is not None:
