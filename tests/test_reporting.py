@@ -401,6 +401,19 @@ def _paper_dir(root: Path) -> Path:
     return root
 
 
+def test_paper_report_names_the_phase_1_prefix_it_has(tmp_path: Path):
+    """At a small --scale the baselines' budget (phase 3's, at least 8) exceeds phase 1's
+    (at least 12 at S = 0.0001: 22 against 12): the row read "phase 1's first 22 evaluations"
+    with 12 in its count. It names the evaluations it holds."""
+    root = _paper_dir(tmp_path / "paper")
+    meta = json.loads((root / "paper.json").read_text())
+    meta["budgets"]["baselines"] = 9                  # phase 1 holds 6
+    (root / "paper.json").write_text(json.dumps(meta))
+    md = write_paper_report(root, simulate=False, gifs=False)
+    assert "phase 1's first 9 evaluations" not in md
+    assert _row(md, "phase 1's first 6 evaluations (TuRBO-m on θ, phase-1 settings)")[1] == "6"
+
+
 def test_paper_report_on_synthetic_directory(tmp_path: Path):
     root = _paper_dir(tmp_path / "paper")
     md = write_paper_report(root, simulate=False, gifs=False)

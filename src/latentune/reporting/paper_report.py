@@ -212,9 +212,10 @@ def compute(root: str | Path) -> dict[str, Any]:
         if main is not None:
             rows["latent"] = _baseline_row("phase 3: TuRBO-m in the latent space (ours)",
                                            f"{robot}-{g}", main["phase3"]["costs"], man)
+            prefix = main["phase1"]["costs"][: b["baselines"]]    # fewer at a small scale
             rows["phase1_prefix"] = _baseline_row(
-                f"phase 1's first {b['baselines']} evaluations (TuRBO-m on θ, phase-1 settings)",
-                f"{robot}-{g}", main["phase1"]["costs"][: b["baselines"]], man)
+                f"phase 1's first {len(prefix)} evaluations (TuRBO-m on θ, phase-1 settings)",
+                f"{robot}-{g}", prefix, man)
         for m in ("turbo", "cma", "random"):
             s = S.get(f"{robot}-{g}-{m}")
             rows[m] = {"label": METHOD_NAME[m], "study": f"{robot}-{g}-{m}",
