@@ -179,6 +179,17 @@ def test_rollout_rejects_bad_arguments(capsys, bad, expect):
     assert_one_line(capsys, "rollout", *bad, expect=expect)
 
 
+def test_a_params_file_of_another_system_says_how_many_names_and_whose(capsys, tmp_path):
+    """A --params file of another system (its best.json, 24 names none of which A1 has) said
+    "unknown parameter name(s): k0, k1, k2, k3, k4": five of them, as if that were all, and
+    nothing of the names A1 takes. The line counts the rest and starts the system's list."""
+    f = tmp_path / "other.json"
+    f.write_text(json.dumps({f"k{i}": 0.1 for i in range(24)}))
+    line = assert_one_line(capsys, "rollout", "--steps", "10", "--params", f,
+                           expect="unknown parameter name(s): k0, k1, k2, k3, k4 and 19 more")
+    assert "(this system's: Q_roll, Q_pitch, Q_yaw, " in line and "25 in all)" in line, line
+
+
 @pytest.mark.parametrize("content, expect", [
     ("not json", "is not valid JSON"),
     ("[0.5]", "expected 25 normalized parameters, got shape (1,)"),

@@ -243,7 +243,11 @@ class ParameterSpace:
         if isinstance(obj, dict):
             unknown = [str(k) for k in obj if k not in self.names]
             if unknown:
-                raise ParamsError(f"unknown parameter name(s): {', '.join(unknown[:5])}")
+                more = f" and {len(unknown) - 5} more" if len(unknown) > 5 else ""
+                mine = ", ".join(self.names[:3]) + (f", …, {self.dim} in all"
+                                                     if self.dim > 3 else "")
+                raise ParamsError(f"unknown parameter name(s): {', '.join(unknown[:5])}{more} "
+                                  f"(this system's: {mine})")
             phys = self.manual_physical.copy()
             for k, v in obj.items():
                 try:
