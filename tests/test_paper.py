@@ -468,7 +468,8 @@ def test_paper_resume_and_report_command(paper_dir: Path, run_cli, error_line):
     assert "another configuration" in error_line(code, err)
     tiny_default_vae = [a for a in TINY if a not in ("--vae-epochs", "100")]
     code, _, err = run_cli("paper", *tiny_default_vae, "--phase3-evals", "6", "--out", out)
-    assert "another configuration" in error_line(code, err) and "VAE epochs 100" in err
+    assert "another configuration" in error_line(code, err) and \
+        "--vae-epochs 100 there, default here" in err
 
 
 # ---------------------------------------------------------------------------- --seeds input
@@ -606,3 +607,28 @@ def test_parallel_paper_processes_share_the_plan(tmp_path: Path, monkeypatch, ca
     meta = json.loads((tmp_path / "p" / "paper.json").read_text())
     assert meta["invocations"][-1]["command"].endswith(
         "--studies a1-trot-preservation a1-jump-hills")
+
+
+def test_a_resume_with_another_v_des_is_refused(tmp_path, run_cli, error_line, monkeypatch):
+    """``latentune paper`` on a directory that holds a paper run compared robot, actor, steps,
+    seed and VAE epochs, not --v-des: a finished run resumed with ``--v-des 0.3`` ran nothing
+    and rewrote paper.json, and the report said "v_des = 0.3 m/s" of rollouts made at 0.5.
+    It is refused as another configuration, paper.json untouched."""
+    import latentune.pipeline.evaluators as ev
+
+    def no_run(*a, **k):
+        raise AssertionError("the refused command ran a study")
+
+    monkeypatch.setattr(ev, "make_evaluator", no_run)
+    out = tmp_path / "p"
+    out.mkdir()
+    b = budgets(1e-6)
+    meta = {"format": "latentune-paper", "robot": "a1", "actor": "convex", "steps": 60,
+            "seed": 0, "v_des": 0.5, "workers": 1, "budgets": b, "seeds": 1,
+            "vae_epochs": 100, "studies": {}}
+    (out / "paper.json").write_text(json.dumps(meta))
+    before = (out / "paper.json").read_text()
+    code, _, err = run_cli("paper", *TINY, "--v-des", "0.3", "--out", out)
+    line = error_line(code, err)
+    assert "another configuration" in line and "--v-des" in line, line
+    assert (out / "paper.json").read_text() == before

@@ -376,6 +376,25 @@ def run_study(plan_: StudyPlan, opts: PaperOptions, root: Path, b: dict[str, Any
         study.close()
 
 
+def _config_differences(meta: dict[str, Any], opts: PaperOptions) -> list[str]:
+    """What a resume of the paper run recorded in ``meta`` (paper.json) gives otherwise than
+    the run: ``"--steps 60 there, 5000 here"`` per differing option (robot, actor, steps,
+    seed, v_des, VAE epochs; a record without v_des, from before it was kept, is not
+    compared on it)."""
+    out = []
+    for flag, key, given in (("--robot", "robot", opts.robot), ("--actor", "actor", opts.actor),
+                             ("--steps", "steps", opts.steps), ("--seed", "seed", opts.seed),
+                             ("--v-des", "v_des", opts.v_des),
+                             ("--vae-epochs", "vae_epochs", opts.vae_epochs)):
+        stored = meta.get(key)
+        if key == "v_des" and stored is None:
+            continue
+        if stored != given:
+            out.append(f"{flag} {'default' if stored is None else stored} there, "
+                       f"{'default' if given is None else given} here")
+    return out
+
+
 def _check_out(out: Path) -> None:
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -526,13 +545,11 @@ def run_paper(opts: PaperOptions, report_only: bool = False, simulate: bool = Tr
     _check_out(root)
     meta_path = root / "paper.json"
     meta: dict[str, Any] = read_paper_meta(root) if meta_path.is_file() else {}
-    if meta and (meta.get("robot") != opts.robot or meta.get("actor") != opts.actor or
-                 meta.get("steps") != opts.steps or meta.get("seed") != opts.seed or
-                 meta.get("vae_epochs") != opts.vae_epochs):
-        raise UsageError(f"{root} holds a paper run of another configuration (robot "
-                         f"{meta.get('robot')}, actor {meta.get('actor')}, steps "
-                         f"{meta.get('steps')}, seed {meta.get('seed')}, VAE epochs "
-                         f"{meta.get('vae_epochs') or 'default'})")
+    differ = _config_differences(meta, opts) if meta else []
+    if differ:
+        raise UsageError(f"{root} holds a paper run of another configuration: "
+                         f"{'; '.join(differ)} (give the stored values to resume it, or "
+                         "another --out)")
     t0 = time.perf_counter()
     meta.update({"format": "latentune-paper", "robot": opts.robot, "actor": opts.actor,
                  "steps": opts.steps, "seed": opts.seed, "v_des": opts.v_des,
