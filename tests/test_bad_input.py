@@ -62,6 +62,21 @@ def run_dir(tmp_path_factory):
     return out
 
 
+def test_a_run_of_another_task_says_which_flags_give_the_stored_one(capsys, copy_run):
+    """``train-vae --out RUN`` after ``phase1 --task jump --steps 50 --out RUN`` (the README's
+    "phases one at a time", with a flag left out) said "holds a run of another system
+    (task.gait: stored 'jump', given 'trot'; task.steps: …)": the store's keys, not what to
+    type. The line ends with the flags that give the stored task."""
+    line = assert_one_line(capsys, "train-vae", "--out", copy_run, "--task", "jump",
+                           expect="holds a run of another system (task.gait: stored 'trot', "
+                                  "given 'jump'; task.steps: stored 150, given 5000)")
+    assert line.endswith(": pass --task trot --steps 150 to go on with it"), line
+    line = assert_one_line(capsys, "phase1", "--robot", "b1", "--terrain", "hills", "--v-des",
+                           "0.3", "--out", copy_run, "--resume", expect="another system")
+    assert line.endswith(": pass --robot a1 --terrain flat --steps 150 --v-des 0.5 to go on "
+                         "with it"), line
+
+
 @pytest.fixture
 def copy_run(run_dir, tmp_path):
     dst = tmp_path / "copy"

@@ -212,8 +212,10 @@ class Manifest:
                 raise StoreError(f"{self.run.dir} holds a run of the user system "
                                  f"{stored.get('target')}: pass --system {stored.get('target')}"
                                  " (and its --system-arg values) again")
+            flags = task_flags(stored, desc)
             raise StoreError(f"{self.run.dir} holds a run of another system "
-                             f"({diff(stored, desc)})")
+                             f"({diff(stored, desc)})"
+                             + (f": pass {flags} to go on with it" if flags else ""))
         return desc
 
     def space(self) -> ParameterSpace | None:
@@ -355,6 +357,38 @@ def diff(a: dict[str, Any], b: dict[str, Any], prefix: str = "") -> str:
         else:
             out.append(f"{prefix}{k}: stored {_short(va)}, given {_short(vb)}")
     return "; ".join(x for x in out[:4] if x)
+
+
+_TASK_FLAGS = (("robot", "--robot"), ("gait", "--task"), ("terrain", "--terrain"),
+               ("actor", "--actor"), ("steps", "--steps"), ("v_des", "--v-des"),
+               ("engine", "--engine"), ("seed", "--seed"))
+
+
+def task_flags(stored: dict[str, Any], given: dict[str, Any]) -> str | None:
+    """The command-line flags that give the stored built-in task where the given one differs
+    (``"--task jump --steps 50"``), or None: not two built-in tasks, or a difference no flag
+    gives alone (a robot spec, a reality profile, a sideways v_des)."""
+    if stored.get("kind") != "task" or given.get("kind") != "task":
+        return None
+    a, b = stored.get("task") or {}, given.get("task") or {}
+    flags = dict(_TASK_FLAGS)
+    if any(a.get(k) != b.get(k) for k in set(a) | set(b) if k not in flags and k != "dim"):
+        return None
+    out = []
+    for key, flag in _TASK_FLAGS:
+        v = a.get(key)
+        if v == b.get(key):
+            continue
+        if key == "engine":
+            v = v or "pybullet"
+        elif key == "v_des":
+            if not (isinstance(v, list) and len(v) == 3 and v[1:] == [0.0, 0.0]):
+                return None
+            v = f"{v[0]:g}"
+        elif v is None or isinstance(v, (dict, list)):
+            return None
+        out.append(f"{flag} {v}")
+    return " ".join(out) or None
 
 
 def _short(v: Any) -> str:
