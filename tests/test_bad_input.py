@@ -694,8 +694,11 @@ def test_workers_with_the_serial_backend_are_refused(tmp_path, capsys):
     from latentune.pipeline.evaluators import SerialEvaluator
 
     assert lt.Study(tmp_path / "s", workers=2, evaluator=SerialEvaluator()).workers == 2
+    # the command line says it in its flags (it said "workers = 2 needs the process or ray
+    # backend", the API's words)
     assert_one_line(capsys, "phase1", "--out", tmp_path / "r", "--workers", "2", "--backend",
-                    "serial", expect="workers = 2 needs the process or ray backend")
+                    "serial", expect="--workers 2 needs --backend process or ray: serial runs "
+                                     "one trial at a time, in this process")
     assert not (tmp_path / "s").exists() and not (tmp_path / "r" / "run.db").exists()
 
 

@@ -588,8 +588,11 @@ def test_study_trial_timeout_is_stored_and_checked(tmp_path, run_cli, error_line
     for argv, expect in ((["--trial-timeout", "0"], "--trial-timeout must be a number of "
                           "seconds > 0, got 0.0"),
                          (["--trial-timeout", "inf"], "got inf"),
-                         (["--trial-timeout", "2", "--backend", "serial"],
-                          "a trial timeout (2 s) needs the process backend")):
+                         (["--trial-timeout", "2", "--backend", "serial"],   # in its flags
+                          "--trial-timeout 2 needs --backend process: serial cannot stop a "
+                          "trial"),
+                         (["--trial-timeout", "2", "--backend", "ray"],
+                          "--trial-timeout 2 needs --backend process: ray cannot stop a trial")):
         line = error_line(*run_cli("phase1", "--out", tmp_path / "c", "--quiet", *argv)[::2])
         assert expect in line, line
     assert not (tmp_path / "c").exists()

@@ -348,15 +348,21 @@ def _study(args: argparse.Namespace):
             raise CLIError("--fall-prior needs --max-fall-prob (it seeds the fall prediction)")
         if not (Path(args.fall_prior) / "run.db").is_file():
             raise CLIError(f"--fall-prior: no run store in {args.fall_prior}")
-    from latentune.pipeline.evaluators import check_timeout
+    from latentune.pipeline.evaluators import check_timeout, check_workers
 
     try:                                # the one check Study makes, with the flag's name
         timeout = check_timeout(getattr(args, "trial_timeout", None))
     except UsageError:
         raise CLIError(f"--trial-timeout must be a number of seconds > 0, got "
                        f"{args.trial_timeout}") from None
+    if timeout is not None and args.backend != "process":
+        raise CLIError(f"--trial-timeout {timeout:g} needs --backend process: {args.backend} "
+                       "cannot stop a trial")
     workers = args.workers if args.workers is not None \
         else 1 if args.backend == "serial" else DEFAULT_WORKERS
+    if args.backend == "serial" and check_workers(workers) > 1:
+        raise CLIError(f"--workers {workers} needs --backend process or ray: serial runs one "
+                       "trial at a time, in this process")
     return Study(args.out, seed=args.seed, workers=workers, backend=args.backend,
                  ray_address=args.ray_address, batch_size=args.batch_size,
                  progress=_progress(args), log=logging.getLogger("latentune.study").info,
