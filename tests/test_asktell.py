@@ -1333,6 +1333,34 @@ def test_the_tell_that_spends_the_fall_budget_says_the_phase_is_over(run_cli, tm
     assert code == 2 and "fall budget is spent" in err and "fall_budget" not in err, err
 
 
+def test_an_ask_after_the_fall_budget_is_spent_refuses_as_status_says(run_cli, tmp_path, src30):
+    """``latentune status`` said "fall budget: 1 fall counted, 1 allowed; spent: phase 3 asks no
+    more", while ``latentune ask`` went on handing out the rest of the batch asked before the
+    fall (the robot fell again on them). An ask now refuses once the fall budget is spent, as
+    status says, naming the suggestions still out (they may be told); the store is unchanged."""
+    shutil.copytree(src30, tmp_path / "src")
+    d = tmp_path / "t"
+    with lt.Study(d, seed=0) as st:
+        (z,) = st.ask(system=plant(0.3), phase=3, latent=tmp_path / "src", budget=4,
+                      transfer_options={"fall_budget": 0.25})
+        st.tell(z.id, 0.2)
+        a, b = st.ask(2)                    # a batch of 4: two handed out, two queued
+        st.tell(a.id, None, failed=True)    # the one fall allowed
+        assert st.status()["fall_budget"]["spent"]
+        before = [(t.id, t.status, t.asker) for t in st.store.trials()]
+        assert [s for _, s, _ in before].count("queued") == 2
+        with pytest.raises(asktell.FallBudgetSpent, match=f"suggestion {b.id} handed out before "
+                                                          "may still be told"):
+            st.ask()
+        assert [(t.id, t.status, t.asker) for t in st.store.trials()] == before
+        st.tell(b.id, 0.3)
+    code, out, err = run_cli("status", d)
+    assert code == 0 and "spent: phase 3 asks no more" in out, out
+    code, out, err = run_cli("ask", d)
+    assert code == 2 and out == "" and "fall budget is spent" in err, (out, err)
+    assert "may still be told" not in err and len(err.strip().splitlines()) == 1, err
+
+
 def test_an_ask_past_a_told_budget_names_the_flag_and_no_pending_suggestions(run_cli, tmp_path,
                                                                             error_line):
     """``latentune ask`` on an ask/tell phase whose whole budget was told said "budget of 2

@@ -69,7 +69,7 @@ from latentune.pipeline.loop import (decoder_of, phase_critic, record_latent,
                                      resolve_strategy, source_counts, strategy_of)
 from latentune.pipeline.phases import (ask_batch, replay, state_key, stored_fall_options,
                                        warn_if_failing)
-from latentune.pipeline.results import phase_name, write_best
+from latentune.pipeline.results import fall_budget, phase_name, write_best
 from latentune.pipeline.store import Row, RunStore, critics_told
 from latentune.space import ParameterSpace
 from latentune.system import EvaluationError, Outcome, as_outcome
@@ -355,6 +355,7 @@ def ask(study: Any, n: int = 1, *, system: Any = None, space: ParameterSpace | N
         if ctx is None:
             ctx = _context(study, st, system, space, phase, latent, given)
         phases = (Phase.ZERO_SHOT, ctx.phase) if ctx.phase == Phase.PHASE3 else (ctx.phase,)
+        refuse_if_fall_budget_spent(study, st, ctx.phase, ctx.options)
         got = st.lease(who, phases, int(n), lease)
         need = int(n) - len(got)
         if got and _budget_left(st, ctx.phase, ctx.options)[0] <= 0:
@@ -372,6 +373,29 @@ def ask(study: Any, n: int = 1, *, system: Any = None, space: ParameterSpace | N
         risky = fall_risk(st, ctx.phase, ctx.options)
         return [Suggestion(t.id, t.phase, t.theta, ctx.space.as_dict(t.theta), t.z, again,
                            None, t.asker, t.lease_until, risky(t)) for t, again in got]
+
+
+def refuse_if_fall_budget_spent(study: Any, st: RunStore, phase: int, pc: dict[str, Any]
+                                ) -> None:
+    """Raise :class:`FallBudgetSpent` when ``phase`` is a transfer phase 3 whose fall budget
+    the told trials spent (:func:`~latentune.pipeline.results.fall_budget`, what ``status``
+    reports): the ask then hands out nothing, neither the suggestions a batch asked before the
+    budget was spent and still queued nor those handed out and not told (they may still be
+    told). The store is left as it is."""
+    if phase != Phase.PHASE3:
+        return
+    fb = fall_budget(st, {"phase3": pc})
+    if not fb or not fb["spent"]:
+        return
+    out = [t.id for t in st.trials() if t.status == "pending"
+           and t.phase in (phase, Phase.ZERO_SHOT)]
+    raise FallBudgetSpent(
+        f"{study.dir}: {phase_name(phase)}'s fall budget is spent "
+        f"({counted(fb['falls_allowed'], 'fall')} allowed; "
+        f"{counted(st.count(phase), 'trial')} told): its best θ is the result; an ask with a "
+        "larger budget allows more falls (the fall budget is a share of it)"
+        + (f"; suggestion{'s' if len(out) > 1 else ''} {', '.join(map(str, out))} handed out "
+           "before may still be told" if out else ""))
 
 
 def fall_risk(st: RunStore, phase: int, pc: dict[str, Any]) -> Any:
