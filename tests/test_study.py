@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import signal
 import sqlite3
@@ -523,6 +524,28 @@ def test_a_cost_the_store_cannot_keep_is_refused_or_a_fall(tmp_path):
     with lt.Study(tmp_path / "r") as st:
         with pytest.raises(CostError):
             st.phase1(lt.FunctionSystem(sp, lambda x: 1e300), 3)
+
+
+def test_an_evaluate_returning_a_0d_array_or_tensor_is_a_cost(tmp_path):
+    """An ``evaluate`` returning a 0-d array or a 0-d torch tensor (``torch.sum(...)``) stopped
+    the phase with "evaluate returned Tensor tensor(0.5); expected a cost (float)", though the
+    same value inside ``(cost, failed)``, a dict or an Outcome was taken. It is now a cost
+    there too; an array of another shape is refused naming its shape."""
+    import torch
+    from latentune.system import CostError, as_outcome
+
+    for v in (np.array(0.5), torch.tensor(0.5), torch.tensor(0.5, dtype=torch.float64)):
+        assert as_outcome(v).cost == 0.5 and as_outcome((v, False)).cost == 0.5
+    for v, shape in ((np.array([0.5]), "(1,)"), (torch.tensor([0.5, 1.0]), "(2,)")):
+        with pytest.raises(CostError, match=re.escape(f"evaluate returned an array of shape "
+                                                      f"{shape}; expected one float")):
+            as_outcome(v)
+    with pytest.raises(CostError, match="expected a cost .float., .cost, failed. or an Outcome"):
+        as_outcome(np.True_)
+    sp = lt.ParameterSpace(["a", "b"], [0, 0], [1, 1])
+    with lt.Study(tmp_path / "r", seed=0) as st:
+        st.phase1(lt.FunctionSystem(sp, lambda x: torch.as_tensor(x).pow(2).sum()), 4)
+        assert len(st.store.costs(1)) == 4
 
 
 @pytest.mark.parametrize("regions", [2.5, "3", True])

@@ -140,7 +140,8 @@ OUTCOME_KEYS = frozenset({"cost", "failed", "info", "wall_s"})
 def as_outcome(value: Any) -> Outcome:
     """Normalize what an ``evaluate``/function returned to a checked :class:`Outcome`.
 
-    Accepts an :class:`Outcome`, a number (the cost; not failed), a ``(cost, failed)`` pair or a
+    Accepts an :class:`Outcome`, a number (the cost; not failed; a 0-d array or tensor of one
+    too, as :func:`as_cost` takes in the other forms), a ``(cost, failed)`` pair or a
     dict with ``cost`` and optional ``failed``, ``info``, ``wall_s`` (no other key). Raises :class:`EvaluationError` for
     anything else, and for a non-finite cost (or one of 1e300 in size or more) of a trial that
     did not fail. A failed trial's non-finite or so large cost (a simulator that blew up reports
@@ -161,7 +162,9 @@ def as_outcome(value: Any) -> Outcome:
         out = Outcome(value.get("cost"), failed, _info(value.get("info")), value.get("wall_s"))
     elif isinstance(value, tuple) and len(value) == 2:
         out = Outcome(value[0], as_failed(value[1]))
-    elif isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool):
+    elif (isinstance(value, (int, float, np.integer, np.floating, np.ndarray))
+          or hasattr(value, "ndim")) and not isinstance(value, (bool, np.bool_)):
+        # a number, or an array or tensor: as_cost takes a 0-d one and names any other shape
         out = Outcome(as_cost(value, allow_nonfinite=True, what="evaluate"))
     else:
         raise CostError(f"evaluate returned {type(value).__name__} {_short(value)}; "
