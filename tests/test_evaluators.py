@@ -598,6 +598,34 @@ def test_study_trial_timeout_is_stored_and_checked(tmp_path, run_cli, error_line
     assert not (tmp_path / "c").exists()
 
 
+def _always_hangs(x):
+    time.sleep(30)
+    return 0.0
+
+
+def test_a_phase_whose_trials_all_time_out_says_so_not_to_try_the_fall_aware_critic(
+        tmp_path, caplog):
+    """A system whose every trial ran past ``--trial-timeout`` warned "the last 8 trials all
+    failed: the search is where the system fails; try the fall-aware critic (--max-fall-prob
+    0.3), a start θ that does not fail, or narrower bounds": no θ would have stood, the clock
+    stopped them. The warning now says the trials ran past the timeout and to resume with a
+    longer one."""
+    import logging
+
+    from latentune.pipeline.phases import FAIL_STREAK
+
+    sp = lt.ParameterSpace(["a", "b"], [0, 0], [1, 1])
+    with caplog.at_level(logging.WARNING), lt.Study(tmp_path / "s", workers=2, backend="process",
+                                                    trial_timeout=0.3) as st:
+        st.phase1(lt.FunctionSystem(sp, _always_hangs), FAIL_STREAK)
+        assert all(r.fell and r.info.get("timed_out") for r in st.store.rows(1))
+    (msg,) = [r.getMessage() for r in caplog.records if "the last" in r.getMessage()]
+    assert msg == (f"phase 1: the last {FAIL_STREAK} trials all ran longer than the trial "
+                   "timeout of 0.3 s and were stopped (stored as failed): a trial of the system "
+                   "may take longer than that; resume with a longer --trial-timeout "
+                   "(trial_timeout=)"), msg
+
+
 MANUAL_DIES = '''
 import os, sys
 import numpy as np

@@ -34,7 +34,8 @@ The critic of a phase is built from the study's stored options by
 Failing phases
 --------------
 When the last :data:`FAIL_STREAK` trials of a phase all failed, one warning is logged
-(:func:`failing_message`: what it may mean and what to try), once per streak.
+(:func:`failing_message`: what it may mean and what to try; :func:`timeout_message` when the
+trial timeout stopped them all), once per streak.
 """
 from __future__ import annotations
 
@@ -221,6 +222,16 @@ def failing_message(phase: int, n: int, strategy: str = "plain",
                 "default), or phase 1 on the target")
     return (f"phase {int(phase)}: the last {n} trials all failed: the search is where the "
             f"system fails; try{new} {screen}a start θ that does not fail, or narrower bounds")
+
+
+def timeout_message(phase: int, n: int, seconds: Any) -> str:
+    """The warning of a phase whose last ``n`` trials were all stopped at the trial timeout of
+    ``seconds`` (in place of :func:`failing_message`: they failed by the clock, not where the
+    search went)."""
+    limit = f" of {float(seconds):g} s" if isinstance(seconds, (int, float)) else ""
+    return (f"phase {int(phase)}: the last {n} trials all ran longer than the trial "
+            f"timeout{limit} and were stopped (stored as failed): a trial of the system may "
+            "take longer than that; resume with a longer --trial-timeout (trial_timeout=)")
 
 
 def stored_fall_options(pc: dict[str, Any]) -> dict[str, Any]:
@@ -490,6 +501,7 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
     b = store.best(phase)           # the lowest cost of a trial that stood
     best = math.inf if b is None else float(b.cost)
     streak = failure_streak(store, phase)
+    stopped = 0                     # of them, the trials stopped at the trial timeout
     new = 0
     try:
         if bar is not None and n0:
@@ -523,8 +535,11 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
                 new += 1
                 batch.done[i] = (cost, bool(r.failed))
                 streak = streak + 1 if r.failed else 0
+                stopped = stopped + 1 if r.failed and r.info.get("timed_out") else 0
                 if streak == FAIL_STREAK:
-                    log.warning(failing_message(phase, FAIL_STREAK, strategy,
+                    log.warning(timeout_message(phase, FAIL_STREAK, r.info.get("trial_timeout"))
+                                if stopped == streak else
+                                failing_message(phase, FAIL_STREAK, strategy,
                                                 fall_options(critic)))
                 if cost < best and not r.failed:
                     best = cost
