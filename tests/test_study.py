@@ -548,6 +548,31 @@ def test_an_evaluate_returning_a_0d_array_or_tensor_is_a_cost(tmp_path):
         assert len(st.store.costs(1)) == 4
 
 
+def _info_json_cannot_hold(x):
+    loop: dict = {"x": float(x[0])}
+    loop["self"] = loop
+    return lt.Outcome(float(x.sum()), info={(1, 2): "pair", np.int64(3): [np.float32(0.5)],
+                                            "loop": loop})
+
+
+def test_an_info_with_keys_json_cannot_have_is_stored_not_a_traceback(tmp_path):
+    """An ``evaluate`` whose Outcome.info had a tuple or a NumPy integer as a key (or held
+    itself) ended ``latentune phase1`` with a traceback ("TypeError: keys must be str, int,
+    float, bool or None, not tuple") on the serial backend, and ``Study.tell(info=…)`` alike.
+    The store keeps such keys as text, as it keeps other values JSON has no type for."""
+    sp = lt.ParameterSpace(["a", "b"], [0, 0], [1, 1])
+    with lt.Study(tmp_path / "r", seed=0, workers=1, backend="serial") as st:
+        st.phase1(lt.FunctionSystem(sp, _info_json_cannot_hold), 3)
+        info = st.trials()[-1].info
+        assert info["(1, 2)"] == "pair" and info["3"] == [0.5]
+        assert info["loop"]["self"] == "<circular>"
+    with lt.Study(tmp_path / "t", seed=0) as st:
+        (s,) = st.ask(system=lt.FunctionSystem(sp, _info_json_cannot_hold))
+        st.tell(s.id, 1.0, info={np.int64(3): 1})
+        st.tell(s.id, 2.0, info={(4, 5): 1}, amend=True)
+        assert st.trials()[0].info["(4, 5)"] == 1 and st.amendments()
+
+
 @pytest.mark.parametrize("regions", [2.5, "3", True])
 def test_study_regions_must_be_a_whole_number(tmp_path, regions):
     """Study.phase1(regions=2.5) ran 2 trust regions (int(2.5)), as TurboSampler did: a

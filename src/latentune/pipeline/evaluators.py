@@ -221,10 +221,10 @@ def _sendable(r: Outcome | TrialError) -> Outcome | TrialError:
         return r
     except Exception:  # noqa: BLE001 - whatever __reduce__ raises
         pass
-    from latentune.pipeline.store import json_default
+    from latentune.pipeline.store import info_json
 
     try:
-        info = json.loads(json.dumps(r.info, default=json_default))
+        info = json.loads(info_json(r.info))
     except Exception as exc:  # noqa: BLE001 - e.g. a circular reference: one line
         return TrialError(f"the trial's info cannot be sent back from its worker or stored "
                           f"({_one_line(exc, 200)})")

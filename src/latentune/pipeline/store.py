@@ -180,6 +180,28 @@ def json_default(o: Any) -> Any:
     return str(o)
 
 
+def info_json(info: Any) -> str:
+    """A trial's ``info`` as the JSON text the store keeps: NumPy values as numbers and lists,
+    keys JSON cannot have (a tuple, a NumPy integer) and any other value as text
+    (:func:`json_default`), a container that holds itself as ``"<circular>"``; never raises."""
+    return json.dumps(_jsonable(info, ()), default=json_default)
+
+
+def _jsonable(o: Any, path: tuple[int, ...]) -> Any:
+    """``o`` with every dict's keys JSON keys and no container that holds itself (``path``: the
+    ids of the containers ``o`` is inside)."""
+    if not isinstance(o, (dict, list, tuple)):
+        return o
+    if id(o) in path:
+        return "<circular>"
+    inner = (*path, id(o))
+    if isinstance(o, dict):
+        return {k if isinstance(k, (str, int, float, bool)) or k is None else
+                json_default(k) if isinstance(k, (np.integer, np.floating, np.bool_)) else str(k):
+                _jsonable(v, inner) for k, v in o.items()}
+    return [_jsonable(v, inner) for v in o]
+
+
 def _enc(a: Any) -> str | None:
     if a is None:
         return None
@@ -449,7 +471,7 @@ class RunStore:
                  None if fall_step is None else int(fall_step),
                  None if wall_s is None else float(wall_s),
                  None if seed is None else int(seed), time.time(),
-                 None if not info else json.dumps(info, default=json_default)))
+                 None if not info else info_json(info)))
         except sqlite3.IntegrityError:
             raise StoreError(f"evaluation {idx} of phase {phase} is already stored") from None
 
@@ -644,12 +666,11 @@ class RunStore:
                              "WHERE phase=? AND idx=?",
                              (encode_cost(cost), int(bool(fell)),
                               None if fall_step is None else int(fall_step),
-                              json.dumps(inf, default=json_default), t.phase, t.idx))
+                              info_json(inf), t.phase, t.idx))
             self.con.execute("INSERT INTO amendments(trial, phase, idx, old, new, note, created) "
                              "VALUES (?, ?, ?, ?, ?, ?, ?)",
                              (int(trial_id), t.phase, t.idx,
-                              json.dumps(old, default=json_default),
-                              json.dumps(new, default=json_default), note, time.time()))
+                              info_json(old), info_json(new), note, time.time()))
             changed = [old[k] for k in ("cost", "fell", "fall_step")] != \
                 [new[k] for k in ("cost", "fell", "fall_step")]
             if changed:
