@@ -635,10 +635,16 @@ def test_parameter_space_rejects_bad_arguments(args):
     ((["a"], [1e-300], [1e300], [True]), "ratio overflows"),
     ((["a", "b", "a"], [0] * 3, [1] * 3), "'a' is given twice"),
     ((["a", "b"], [0, 2], [1, 1]), r"b: \[2, 1\]"),
+    ((["", "b"], [0, 0], [1, 1]), "names must be text on one line, not blank .got ''."),
+    ((["a", " "], [0, 0], [1, 1]), "not blank .got ' '."),
+    ((["a\nb", "c"], [0, 0], [1, 1]), r"not blank .got 'a\\nb'."),
+    ((["a\tb"], [0], [1]), "on one line"),
 ])
 def test_parameter_space_errors_are_latentune_errors(args, expect):
     """A names string, None or a number, bounds that are not numbers and a range whose width
-    overflows (which gave a space of inf physical values) raise one UsageError naming it."""
+    overflows (which gave a space of inf physical values) raise one UsageError naming it. So
+    does a blank name or one with a line break (``latentune ask`` printed "=0.5, b=0.5", or
+    broke its one-line answer in two)."""
     with pytest.raises(UsageError, match=expect):
         lt.ParameterSpace(*args)
 

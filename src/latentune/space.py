@@ -68,6 +68,10 @@ class ParameterSpace:
         d = len(names_t)
         if d < 1:
             raise UsageError("ParameterSpace needs at least one name")
+        blank = next((n for n in names_t if not n.strip() or not n.isprintable()), None)
+        if blank is not None:               # "=0.5" or a line break in ask's one-line answer
+            raise UsageError(f"ParameterSpace names must be text on one line, not blank "
+                             f"(got {blank!r})")
         if len(set(names_t)) != d:
             dup = next(n for n in names_t if names_t.count(n) > 1)
             raise UsageError(f"ParameterSpace names must be distinct ({dup!r} is given twice)")
