@@ -573,6 +573,42 @@ def test_an_info_with_keys_json_cannot_have_is_stored_not_a_traceback(tmp_path):
         assert st.trials()[0].info["(4, 5)"] == 1 and st.amendments()
 
 
+class _Configured:
+    """A system whose ``config()`` raises, or returns a dict with a tuple key."""
+
+    def __init__(self, kind: str) -> None:
+        self.kind = kind
+        self.space = lt.ParameterSpace(["a", "b"], [0, 0], [1, 1])
+
+    def evaluate(self, theta):
+        return float(np.sum(theta))
+
+    def config(self):
+        if self.kind == "raise":
+            raise RuntimeError("no config\nyet")
+        return {"gains": {(0, 1): 2.0}}
+
+
+def test_a_system_whose_config_raises_or_has_a_tuple_key_is_one_clear_error(tmp_path):
+    """``Study.phase1`` on a system whose ``config()`` raised let the system's RuntimeError out
+    unexplained, and one whose config held a tuple key raised json's "TypeError: keys must be
+    str, int, float, bool or None"; the first is now one SystemSpecError naming config(), the
+    second is recorded (its key as text) and compared on resume."""
+    from latentune.errors import SystemSpecError
+
+    with lt.Study(tmp_path / "r") as st:
+        with pytest.raises(SystemSpecError, match=r"_Configured.config\(\) raised RuntimeError: "
+                                                  "no config yet"):
+            st.phase1(_Configured("raise"), 3)
+        assert st.trials() == []
+    with lt.Study(tmp_path / "k") as st:
+        st.phase1(_Configured("tuple"), 3)
+        assert st.config()["system"]["config"] == {"gains": {"(0, 1)": 2.0}}
+    with lt.Study(tmp_path / "k") as st:
+        st.phase1(_Configured("tuple"), 4)
+        assert len(st.trials()) == 5
+
+
 @pytest.mark.parametrize("regions", [2.5, "3", True])
 def test_study_regions_must_be_a_whole_number(tmp_path, regions):
     """Study.phase1(regions=2.5) ran 2 trust regions (int(2.5)), as TurboSampler did: a

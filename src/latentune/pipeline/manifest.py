@@ -27,8 +27,9 @@ import numpy as np
 
 from latentune.checks import is_whole
 from latentune.constants import Phase
-from latentune.errors import StoreError, UsageError
+from latentune.errors import StoreError, SystemSpecError, UsageError
 from latentune.pipeline.rundir import RunDir
+from latentune.pipeline.store import info_json
 from latentune.space import ParameterSpace
 from latentune.system import check_system, decimal_float
 
@@ -82,7 +83,16 @@ def describe(system: Any) -> dict[str, Any]:
                          "space": system.space.to_dict()}
     cfg = getattr(system, "config", None)
     if callable(cfg):
-        d["config"] = json.loads(json.dumps(cfg(), default=str))
+        try:
+            got = cfg()
+        except Exception as exc:  # noqa: BLE001 - the system's own code: one line
+            raise SystemSpecError(f"{type(system).__name__}.config() raised "
+                                  f"{type(exc).__name__}: {' '.join(str(exc).split())[:200]} "
+                                  "(a study records it to recognise the system)") from None
+        try:
+            d["config"] = json.loads(json.dumps(got, default=str))
+        except (TypeError, ValueError):     # a key JSON has no type for, a circular reference
+            d["config"] = json.loads(info_json(got))
     return d
 
 
