@@ -228,6 +228,24 @@ def test_evaluators_leave_the_callers_environment(plugin_dir, monkeypatch):
 
 
 # ---------------------------------------------------------------------------- --system-arg values
+def _stands_at_the_manual_only(x: np.ndarray) -> float:
+    if not np.allclose(x, [0.5, 0.5]):
+        raise RuntimeError("solver diverged")
+    return 1.0
+
+
+def test_a_phase_stopped_after_one_stored_evaluation_says_it_in_the_singular(tmp_path):
+    """A phase stopped by a trial that raised after one evaluation was stored said "(phase 1;
+    1 evaluations are stored; fix the system and resume)"; it now says "1 evaluation is
+    stored" (and "2 evaluations are stored" where there are two)."""
+    from latentune.system import EvaluationError
+
+    space = lt.ParameterSpace(["a", "b"], [0, 0], [1, 1], manual=[0.5, 0.5])
+    with pytest.raises(EvaluationError, match=r"\(phase 1; 1 evaluation is stored; fix the "
+                                              r"system and resume\)$"):
+        lt.Study(tmp_path / "r").phase1(lt.FunctionSystem(space, _stands_at_the_manual_only), 4)
+
+
 def test_system_arg_exponent_values_are_floats():
     from latentune.system import parse_system_args
 

@@ -54,6 +54,7 @@ from latentune.errors import StoreError, UsageError
 from latentune.pipeline.evaluators import ClusterLost, Evaluator, TrialError
 from latentune.pipeline.store import Row, RunStore
 from latentune.system import EvaluationError, Outcome
+from latentune.wording import counted
 
 log = logging.getLogger(__name__)
 
@@ -549,8 +550,10 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
                     bar.update(1)
                     bar.set_postfix(best=f"{best:.3f}")
             if error is not None:
-                raise EvaluationError(f"{error} (phase {int(phase)}; {idx} evaluations are "
-                                      "stored; fix the system and resume)")
+                raise EvaluationError(f"{error} (phase {int(phase)}; "
+                                      f"{counted(idx, 'evaluation')} "
+                                      f"{'is' if idx == 1 else 'are'} stored; fix the system "
+                                      "and resume)")
             if len(batch.done) < len(thetas):      # max_new stopped it: it stays recorded
                 break
             # rows are stored as they complete (crash safety); the critic is told the batch in
@@ -575,8 +578,8 @@ def _lost_head_says_stored(results: Any, store: RunStore, phase: int) -> Any:
     try:
         yield from results
     except ClusterLost as exc:
-        raise ClusterLost(f"{exc} ({store.count(phase)} evaluations of phase {int(phase)} "
-                          "stored)") from None
+        raise ClusterLost(f"{exc} ({counted(store.count(phase), 'evaluation')} of phase "
+                          f"{int(phase)} stored)") from None
 
 
 def _results(evaluator: Evaluator, system: Any, thetas: np.ndarray,
