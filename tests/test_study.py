@@ -457,12 +457,14 @@ def test_plain_phase3_refuses_a_latent_space_that_decodes_to_one_theta(tmp_path)
 def test_a_fall_step_beyond_its_horizon_and_a_negative_max_new_are_refused(tmp_path):
     """A failed outcome whose ``fall_step`` lies outside ``0 … horizon`` is a defect of the
     system, not a trial (its convention cost ``C1·(2 − k/N)`` would fall below every standing
-    trial: −300 for 50 of 10); ``max_new`` below 0 is refused before any trial."""
+    trial: −300 for 50 of 10); ``max_new`` below 0 is refused before any trial. A fall step
+    with a horizon of 0 steps (no step to fall at; ``tell --horizon 0`` is refused) was taken
+    as no horizon: the fall step was dropped and the trial cost 2·C1; it is refused too."""
     from latentune.errors import UsageError
     from latentune.system import EvaluationError, as_outcome
 
     assert as_outcome(lt.Outcome(None, True, {"fall_step": 5, "horizon": 10})).cost == 150.0
-    for k, n in ((50, 10), (-1, 10), ("late", 10)):
+    for k, n in ((50, 10), (-1, 10), ("late", 10), (5, 0), (0, 0), (5, False)):
         with pytest.raises(EvaluationError, match="outside its horizon"):
             as_outcome(lt.Outcome(None, True, {"fall_step": k, "horizon": n}))
     for k in ("late", -1, 2.5):                 # no horizon: was int("late") in the store

@@ -181,9 +181,9 @@ def as_outcome(value: Any) -> Outcome:
         if out.failed and not abs(out.cost) < COST_LIMIT:   # a blown-up simulator: no cost
             out.info["reported_cost"], out.cost = str(out.cost), None
     k, horizon = out.info.get("fall_step"), out.info.get("horizon")
-    if k is not None and horizon:
+    if k is not None and horizon is not None:   # a horizon of 0 steps has no step to fall at
         try:
-            inside = 0 <= float(k) <= float(horizon)
+            inside = 0 <= float(k) <= float(horizon) and float(horizon) > 0
         except (TypeError, ValueError):
             inside = False
         if not inside:
