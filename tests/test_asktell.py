@@ -1333,11 +1333,13 @@ def test_the_tell_that_spends_the_fall_budget_says_the_phase_is_over(run_cli, tm
     assert code == 2 and "fall budget is spent" in err and "fall_budget" not in err, err
 
 
-def test_an_ask_after_the_fall_budget_is_spent_refuses_as_status_says(run_cli, tmp_path, src30):
+def test_an_ask_after_the_fall_budget_is_spent_refuses_as_status_says(run_cli, tmp_path, src30,
+                                                                      caplog):
     """``latentune status`` said "fall budget: 1 fall counted, 1 allowed; spent: phase 3 asks no
     more", while ``latentune ask`` went on handing out the rest of the batch asked before the
-    fall (the robot fell again on them). An ask now refuses once the fall budget is spent, as
-    status says, naming the suggestions still out (they may be told); the store is unchanged."""
+    fall (the robot fell again on them), and the tell that spent it said nothing. An ask now
+    refuses once the fall budget is spent, as status says, naming the suggestions still out
+    (they may be told); the store is unchanged; the tell that spends it says so."""
     shutil.copytree(src30, tmp_path / "src")
     d = tmp_path / "t"
     with lt.Study(d, seed=0) as st:
@@ -1345,7 +1347,11 @@ def test_an_ask_after_the_fall_budget_is_spent_refuses_as_status_says(run_cli, t
                       transfer_options={"fall_budget": 0.25})
         st.tell(z.id, 0.2)
         a, b = st.ask(2)                    # a batch of 4: two handed out, two queued
-        st.tell(a.id, None, failed=True)    # the one fall allowed
+        with caplog.at_level(logging.WARNING):
+            st.tell(a.id, None, failed=True)    # the one fall allowed: the tell says so
+        (msg,) = [r.getMessage() for r in caplog.records if "fall budget" in r.getMessage()]
+        assert "phase 3's fall budget is spent (1 fall allowed; 1 trial told): its best θ is " \
+            f"the result" in msg and f"suggestion {b.id} handed out before may still" in msg, msg
         assert st.status()["fall_budget"]["spent"]
         before = [(t.id, t.status, t.asker) for t in st.store.trials()]
         assert [s for _, s, _ in before].count("queued") == 2

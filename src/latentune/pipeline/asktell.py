@@ -620,7 +620,8 @@ def tell(study: Any, trial_id: int, cost: float | Outcome | None = None, *,
          failed: bool = False, note: str | None = None, info: dict[str, Any] | None = None,
          amend: bool = False) -> Row:
     """Store the result of suggestion ``trial_id`` (``amend``: correct a told one, see the
-    module docstring), then :func:`prepare` the next batch; return its evaluation row. A
+    module docstring), then :func:`prepare` the next batch, or warn that phase 3's fall budget
+    is spent (:func:`refuse_if_fall_budget_spent`); return its evaluation row. A
     failed trial may omit the cost (the convention of :mod:`latentune.system`). ``cost`` may
     also be the :class:`~latentune.system.Outcome` a system's ``evaluate`` returned, given alone
     (without ``failed`` and ``info``)."""
@@ -657,6 +658,17 @@ def tell(study: Any, trial_id: int, cost: float | Outcome | None = None, *,
         write_best(st, study.dir, study.manifest.space(),
                    ph if ph in (Phase.PHASE1, Phase.PHASE3) else None)
         row = next(r for r in st.rows(ph) if r.idx == idx)
+        over = None
+        pc = study.config().get("phase3") if ph in (Phase.ZERO_SHOT, Phase.PHASE3) else None
+        if pc:
+            try:
+                refuse_if_fall_budget_spent(study, st, Phase.PHASE3, pc)
+            except FallBudgetSpent as exc:      # the phase is over: nothing to prepare
+                over = str(exc)
+                st.delete_meta(NEXT_KEY)
+    if over is not None:
+        log.warning("%s", over)
+        return row
     prepare(study)
     return row
 
