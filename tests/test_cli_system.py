@@ -246,6 +246,35 @@ def test_a_phase_stopped_after_one_stored_evaluation_says_it_in_the_singular(tmp
         lt.Study(tmp_path / "r").phase1(lt.FunctionSystem(space, _stands_at_the_manual_only), 4)
 
 
+def test_a_system_whose_space_property_raises_is_one_line(run_cli, tmp_path, monkeypatch,
+                                                          error_line):
+    """``--system mod:Make`` whose ``space`` is a property that raised (a simulator not started)
+    ended ``latentune phase1`` and ``ask`` with the property's traceback; it is one line naming
+    `space` and the error, exit status 2, and no run directory (the API: a SystemSpecError)."""
+    from latentune.errors import SystemSpecError
+
+    made = _module_dir(tmp_path, monkeypatch, "lazyplant", """
+class Make:
+    @property
+    def space(self):
+        raise RuntimeError("simulator not started")
+
+    def evaluate(self, theta):
+        return 1.0
+""")
+    next(made)
+    for cmd in (["phase1", "--out", tmp_path / "r", "--phase1-evals", "3"], ["ask", tmp_path / "r"]):
+        line = error_line(*run_cli(*cmd, "--system", "lazyplant:Make", "--quiet")[::2])
+        assert "reading its `space` or `evaluate` raised RuntimeError: simulator not started" \
+            in line, line
+    assert not (tmp_path / "r").exists()
+    import lazyplant
+
+    with pytest.raises(SystemSpecError, match="raised RuntimeError: simulator not started"):
+        lt.Study(tmp_path / "a").phase1(lazyplant.Make(), 3)
+    next(made, None)                    # forget the module
+
+
 def test_system_arg_exponent_values_are_floats():
     from latentune.system import parse_system_args
 

@@ -280,11 +280,17 @@ def check_system(system: Any, what: str | None = None) -> Any:
     if inspect.isclass(system):      # its evaluate would be called without an instance
         raise SystemSpecError(f"{system.__name__} is a class, not a system: pass an instance, "
                               f"{system.__name__}(...)")
-    space = getattr(system, "space", None)
+    try:
+        space = getattr(system, "space", None)
+        evaluate_ = getattr(system, "evaluate", None)
+    except Exception as exc:  # noqa: BLE001 - a property of the user's: one line
+        raise SystemSpecError(f"{name} is not a latentune system as it is: reading its `space` "
+                              f"or `evaluate` raised {type(exc).__name__}: "
+                              f"{' '.join(str(exc).split())[:200]}") from None
     if not isinstance(space, ParameterSpace):
         raise SystemSpecError(f"{name} is not a latentune system: it needs a "
                               "`space` attribute that is a latentune.ParameterSpace")
-    if not callable(getattr(system, "evaluate", None)):
+    if not callable(evaluate_):
         raise SystemSpecError(f"{name} is not a latentune system: it needs a "
                               "method evaluate(theta) -> Outcome or cost")
     return system
