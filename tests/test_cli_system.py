@@ -275,6 +275,55 @@ class Make:
     next(made, None)                    # forget the module
 
 
+def test_a_frozen_dataclass_or_a_failing_repr_system_runs_and_resumes(run_cli, tmp_path,
+                                                                        monkeypatch):
+    """``--system mod:Frozen`` (a frozen dataclass) ran, but its resume was refused: "holds a run
+    of the Python system mod.Frozen (made through the API); the command line cannot rebuild
+    it" (the --system record could not be set on a frozen object); a system whose __repr__
+    raised ended the command with its traceback. Both run and resume."""
+    made = _module_dir(tmp_path, monkeypatch, "oddplant", """
+from dataclasses import dataclass
+
+import numpy as np
+import latentune as lt
+
+SPACE = lt.ParameterSpace(["a", "b"], [0, 0], [1, 1], manual=[0.5, 0.5])
+
+
+@dataclass(frozen=True)
+class Frozen:
+    scale: float = 1.0
+
+    @property
+    def space(self):
+        return SPACE
+
+    def evaluate(self, theta):
+        return float(np.sum(theta ** 2))
+
+
+class NoRepr:
+    space = SPACE
+
+    def evaluate(self, theta):
+        return float(np.sum(theta ** 2))
+
+    def __repr__(self):
+        raise RuntimeError("no repr")
+""")
+    next(made)
+    for name in ("Frozen", "NoRepr"):
+        run = tmp_path / name
+        for n, more in ((3, []), (5, ["--resume"])):
+            code, out, err = run_cli("phase1", "--system", f"oddplant:{name}", "--out", run,
+                                     "--phase1-evals", n, "--backend", "serial", "--workers", 1,
+                                     "--quiet", *more)
+            assert code == 0, err
+        assert RunStore(run).count(Phase.PHASE1) == 5
+        assert lt.Study(run).config()["system"]["target"] == f"oddplant:{name}"
+    next(made, None)
+
+
 def test_system_arg_exponent_values_are_floats():
     from latentune.system import parse_system_args
 

@@ -222,7 +222,11 @@ def _info(v: Any) -> dict[str, Any]:
 
 
 def _short(v: Any) -> str:
-    s = repr(v)
+    """``repr(v)`` cut to 60 characters (a repr that raises: the type's name)."""
+    try:
+        s = repr(v)
+    except Exception:  # noqa: BLE001 - a user object's __repr__: the message must not fail
+        s = f"<{type(v).__name__} object>"
     return s if len(s) <= 60 else s[:57] + "..."
 
 
@@ -416,8 +420,12 @@ def load_system(target: str, args: dict[str, Any] | None = None) -> Any:
     elif args:
         raise SystemSpecError(f"--system {target} is not callable; it takes no --system-arg")
     check_system(obj, f"--system {target} ({type(obj).__name__})")
+    record = {"target": target, "args": args}
     try:  # what a study records of a plugin: the string and its arguments, for the user to read
-        obj.latentune_plugin = {"target": target, "args": args}
-    except (AttributeError, TypeError):
-        pass
+        obj.latentune_plugin = record
+    except Exception:  # noqa: BLE001 - a frozen dataclass, a __setattr__ that refuses
+        try:
+            object.__setattr__(obj, "latentune_plugin", record)
+        except Exception:  # noqa: BLE001 - __slots__: recorded as a Python object instead
+            pass
     return obj
