@@ -197,3 +197,23 @@ def test_warped_scores_keep_the_order_and_pull_in_a_tail_of_bad_costs():
     assert spread(w) > 3 * spread(v)
     assert np.array_equal(warped_scores(y[:2], fell[:2]), rank_scores(y[:2], fell[:2]))
 
+
+@pytest.mark.parametrize("scale", [1e155, 1e299, 1e-200])
+def test_values_and_warped_scores_of_huge_or_tiny_costs_are_those_of_their_scale(tmp_path, src,
+                                                                                  scale):
+    """Standing costs some 1e155 apart (a diverged simulation that does not fail: squared
+    states) overflowed the standard deviation: ``value_scores`` were all 0 (a flat target
+    model, silently), and ``warped_scores`` NaN, so ``--target-scores warped`` and ``auto``
+    ended phase 3 with "ValueError: cannot convert float NaN to integer" (costs 1e-200 apart
+    underflowed alike). Scores are now those of the same costs at scale 1, and phase 3 runs."""
+    from latentune.critic.transfer_model import value_scores, warped_scores
+
+    y = np.array([1.0, 1.1, 1.2, 1.3, 1.5, 100.0, 3.0])
+    fell = np.array([False] * 6 + [True])
+    for scores in (value_scores, warped_scores):
+        assert np.allclose(scores(scale * y, fell), scores(y, fell), atol=1e-9)
+    sys_ = lt.FunctionSystem(SPACE, lambda x: scale * float(np.sum((x - 0.3) ** 2)))
+    for kind in ("warped", "auto"):
+        with lt.Study(tmp_path / kind, seed=0) as st:
+            st.phase3(sys_, 8, latent=src, transfer_options={"target_scores": kind})
+            assert st.store.count(Phase.PHASE3) == 8

@@ -96,7 +96,7 @@ def _standing_scores(y: np.ndarray, fell: np.ndarray,
     ok = ~fell & np.isfinite(y)
     if ok.sum() < 3 or np.ptp(y[ok]) <= 0:
         return rank_scores(y, fell)
-    u = (y[ok] - y[ok].mean()) / y[ok].std()
+    u = _standardized(y[ok])
     if warp is not None:
         w = warp(u)
         u = (w - w.mean()) / w.std()
@@ -104,6 +104,19 @@ def _standing_scores(y: np.ndarray, fell: np.ndarray,
     v[ok] = u
     v[~ok] = v[ok].max() + 1.0
     return v
+
+
+def _standardized(y: np.ndarray) -> np.ndarray:
+    """``(y − mean) / sd`` of costs ``y`` (n,) of some spread; where the sd overflows (costs
+    beyond about 1e154 apart: their squares are inf) or underflows to 0 (about 1e-154 apart),
+    the same of ``y − mean`` divided by its largest size first, so the scores stay finite."""
+    with np.errstate(over="ignore", under="ignore", invalid="ignore"):
+        sd = y.std()
+        if np.isfinite(sd) and sd > 0:
+            return (y - y.mean()) / sd
+        d = y - y.mean()
+        d = d / np.max(np.abs(d))
+        return d / d.std()
 
 
 def warped_scores(y: np.ndarray, fell: np.ndarray) -> np.ndarray:
