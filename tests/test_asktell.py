@@ -321,6 +321,26 @@ def _settle(study: lt.Study) -> None:
         study.tell(s.id, float(np.sum(s.theta ** 2)))
 
 
+def test_a_tell_whose_preparation_fails_is_stored_and_says_so(tmp_path, monkeypatch, run_cli):
+    """A critic error while the tell prepared the next batch (a ValueError of the transfer
+    critic on costs 1e155 apart was one) ended ``latentune tell`` with a traceback and exit
+    status 1, though the result was stored (telling it again: "already told"). The tell now
+    succeeds with one warning line; the next ask meets the error."""
+    d = tmp_path / "a"
+    with lt.Study(d, seed=0, batch_size=1) as st:      # the tell leaves nothing queued
+        (s,) = st.ask(system=plant(), budget=6)
+
+    def broken(*a, **k):
+        raise ValueError("cannot convert float NaN to integer")
+
+    monkeypatch.setattr(asktell, "_critic_batch", broken)
+    code, out, err = run_cli("tell", d, s.id, "--cost", "0.5")
+    assert code == 0 and f"told {s.id}" in out, (out, err)
+    assert err.count("\n") == 1 and "the next suggestion was not prepared (ValueError: cannot " \
+        "convert float NaN to integer); the next ask asks the critic" in err, err
+    assert lt.Study(d).store.count(Phase.PHASE1) == 1
+
+
 def test_a_stale_prepared_batch_is_never_handed_out(tmp_path):
     sentinel = np.full(4, 0.123)
     with lt.Study(tmp_path / "s", seed=0) as st:

@@ -584,8 +584,8 @@ def _take_prepared(study: Any, st: RunStore, phase: int, pc: dict[str, Any], nee
 def prepare(study: Any) -> bool:
     """Prepare the batch the next ask of ``study`` would ask the critic for, if it would ask
     it (no suggestion queued or handed out, budget left): see the module docstring. Returns
-    whether a batch was prepared. A library error here is logged, not raised (the next ask
-    meets it)."""
+    whether a batch was prepared. An error here (a library's, or the critic's own) is logged,
+    not raised: the told result is stored, and the next ask meets the error."""
     if not study.exists:
         return False
     with study.run.writing(wait=WAIT_S) as st:
@@ -604,9 +604,11 @@ def prepare(study: Any) -> bool:
             log.warning("%s", exc)
             st.delete_meta(NEXT_KEY)
             return False
-        except LatentuneError as exc:
+        except Exception as exc:  # noqa: BLE001 - the told result is stored: a warning
+            why = str(exc) if isinstance(exc, LatentuneError) else \
+                f"{type(exc).__name__}: {' '.join(str(exc).split())[:200]}"
             log.warning("%s: the next suggestion was not prepared (%s); the next ask asks "
-                        "the critic", study.dir, exc)
+                        "the critic", study.dir, why)
             st.delete_meta(NEXT_KEY)
             return False
         st.set_meta(NEXT_KEY, {"phase": ph, "key": key, "thetas": b.thetas, "tags": b.tags,
