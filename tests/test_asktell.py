@@ -341,6 +341,25 @@ def test_a_tell_whose_preparation_fails_is_stored_and_says_so(tmp_path, monkeypa
     assert lt.Study(d).store.count(Phase.PHASE1) == 1
 
 
+def test_a_phase_3_whose_source_run_was_moved_says_it_does_not_exist(run_cli, tmp_path,
+                                                                     src30, error_line):
+    """After the source run of an ask/tell phase 3 was moved, ``latentune ask`` said "latent:
+    …/src holds a latent space but no run store (run.db): … copy the run directory with its
+    run.db": the directory holds nothing, it is gone. It now says the source run does not
+    exist and to put it back."""
+    shutil.copytree(src30, tmp_path / "src")
+    d = tmp_path / "t"
+    with lt.Study(d, seed=0) as st:
+        (z,) = st.ask(system=plant(0.3), phase=3, latent=tmp_path / "src", budget=4)
+    shutil.move(tmp_path / "src", tmp_path / "moved")
+    code, out, err = run_cli("tell", d, z.id, "--cost", "0.5")
+    assert code == 0 and "does not exist (moved or deleted?)" in err, err
+    line = error_line(*run_cli("ask", d)[::2])
+    assert f"the source run {tmp_path / 'src'} does not exist (moved or deleted?): phase 3 " \
+        "learns from its trials; put the run directory back there" in line, line
+    assert "holds a latent space" not in line
+
+
 def test_a_stale_prepared_batch_is_never_handed_out(tmp_path):
     sentinel = np.full(4, 0.123)
     with lt.Study(tmp_path / "s", seed=0) as st:

@@ -137,9 +137,14 @@ def require_source_store(strategy: str, source: str, max_fall_prob: float | None
     trials of a source directory that holds a latent space but no run store (``vae.pt`` and
     ``vae.json`` copied without ``run.db``): the transfer phase 3 always does, the plain one
     with ``max_fall_prob`` (its fall prediction starts from them); the plain one without it
-    needs the latent space alone."""
+    needs the latent space alone. A source directory that no longer exists (a phase 3 started
+    from it, the directory moved since) is named as such."""
     if source == "self" or (Path(source) / "run.db").is_file():
         return
+    if (strategy == "transfer" or max_fall_prob is not None) and not Path(source).exists():
+        raise LatentError(f"latent: the source run {source} does not exist (moved or "
+                          "deleted?): phase 3 learns from its trials; put the run directory "
+                          "back there")
     if strategy == "transfer":
         raise LatentError(f"latent: {source} holds a latent space but no run store (run.db): "
                           "the transfer phase 3 learns from the source run's trials; copy the "
