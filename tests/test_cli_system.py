@@ -263,7 +263,8 @@ class Make:
         return 1.0
 """)
     next(made)
-    for cmd in (["phase1", "--out", tmp_path / "r", "--phase1-evals", "3"], ["ask", tmp_path / "r"]):
+    for cmd in (["phase1", "--out", tmp_path / "r", "--phase1-evals", "3"],
+                ["ask", tmp_path / "r"]):
         line = error_line(*run_cli(*cmd, "--system", "lazyplant:Make", "--quiet")[::2])
         assert "reading its `space` or `evaluate` raised RuntimeError: simulator not started" \
             in line, line

@@ -563,6 +563,38 @@ def test_a_workers_build_of_a_system_is_not_timed_as_its_trial(tmp_path, monkeyp
         assert not got[i].failed and got[i].cost == pytest.approx(float(np.sum(X[i])))
 
 
+OTHER_IN_WORKERS = """
+import os
+import numpy as np
+import latentune as lt
+
+
+def make(main_pid):
+    hi = 1.0 if os.getpid() == main_pid else 4.0     # bounds read from the machine, say
+    return lt.FunctionSystem(lt.ParameterSpace(["a", "b"], [0, 0], [hi, 1]),
+                             lambda x: float(np.sum(x)))
+"""
+
+
+def test_a_factory_building_another_space_in_the_workers_is_refused(tmp_path, monkeypatch):
+    """A ``--system`` factory that built other bounds in the worker processes (bounds read
+    from the machine, or random ones) ran every trial on other physical values than the
+    caller's space says, silently. The worker's build is now checked against the caller's
+    space: the phase stops in one line naming the first difference."""
+    from latentune.system import load_system
+
+    (tmp_path / "otherspace.py").write_text(OTHER_IN_WORKERS)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    system = load_system("otherspace:make", {"main_pid": os.getpid()})
+    with lt.Study(tmp_path / "r", workers=2, backend="process") as st:
+        with pytest.raises(EvaluationError, match=r"could not rebuild --system otherspace:make: "
+                                                  r"its factory built another parameter space "
+                                                  r"in the worker \(a: \[0, 1\] in the caller, "
+                                                  r"\[0, 4\] in the worker\)"):
+            st.phase1(system, 4)
+        assert st.store.count(1) == 0
+
+
 def test_study_trial_timeout_is_stored_and_checked(tmp_path, run_cli, error_line):
     """Study(trial_timeout=S) / --trial-timeout S: a hung trial is a fall; S is recorded and a
     reopened study uses it; a value or backend that cannot honour it is refused."""

@@ -98,6 +98,9 @@ class PluginRef:
     target: str
     args: dict[str, Any] = field(default_factory=dict)
     path: tuple[str, ...] = ()
+    space: dict[str, Any] | None = None
+    """The caller's system's space (:meth:`~latentune.space.ParameterSpace.to_dict`): a worker's
+    build whose unit box means other physical values is refused."""
 
     @classmethod
     def of(cls, system: Any) -> "PluginRef | None":
@@ -106,7 +109,8 @@ class PluginRef:
         if not isinstance(plugin, dict) or not isinstance(plugin.get("target"), str):
             return None
         path = tuple(os.getcwd() if p == "" else p for p in sys.path)
-        return cls(plugin["target"], dict(plugin.get("args") or {}), path)
+        return cls(plugin["target"], dict(plugin.get("args") or {}), path,
+                   system.space.to_dict())
 
     def cache_key(self) -> str:
         return "plugin:" + json.dumps([self.target, self.args], sort_keys=True, default=str)
@@ -115,10 +119,19 @@ class PluginRef:
         """Import and call the factory in this process (its import path extended first)."""
         from latentune.system import load_system
 
+        from latentune.errors import SystemSpecError
+
         for p in reversed(self.path):
             if p not in sys.path:
                 sys.path.insert(0, p)
-        return load_system(self.target, self.args)
+        system = load_system(self.target, self.args)
+        diff = None if self.space is None else system.space.box_difference(self.space)
+        if diff is not None:        # a factory of random or machine-dependent bounds
+            diff = diff.replace(" there", " in the caller").replace(" here", " in the worker")
+            raise SystemSpecError(f"its factory built another parameter space in the worker "
+                                  f"({diff}): it must build the same system every time it is "
+                                  "called")
+        return system
 
 
 def check_workers(workers: Any) -> int:
