@@ -649,6 +649,24 @@ def test_parameter_space_errors_are_latentune_errors(args, expect):
         lt.ParameterSpace(*args)
 
 
+def test_a_stored_run_with_a_blank_name_still_opens(tmp_path):
+    """A run recorded before blank names were refused (its space's names ``""`` and ``"b"``)
+    still opens: its status and trials are read, the name as it was recorded."""
+    sp = lt.ParameterSpace(["a", "b"], [0, 0], [1, 1])
+    with lt.Study(tmp_path / "r") as st:
+        (s,) = st.ask(space=sp)
+        st.tell(s.id, 1.0)
+    with RunStore(tmp_path / "r") as store:
+        cfg = store.get_meta("config")
+        cfg["space"]["names"] = ["", "b"]
+        store.set_meta("config", cfg)
+    st = lt.Study(tmp_path / "r")
+    assert st.status()["phases"]["phase 1"]["n"] == 1
+    assert list(st.trials()[0].params) == ["", "b"]
+    with pytest.raises(UsageError, match="not blank"):
+        lt.ParameterSpace.from_dict({"names": ["", "b"], "low": [0, 0], "high": [1, 1]})
+
+
 def test_parameter_space_mappings_check_shapes(tmp_path):
     """to_physical broadcast a θ of the wrong length silently ([0.5] -> two values); to_unit
     raised numpy's broadcast error; parse of a non-string key and load of a deeply nested file

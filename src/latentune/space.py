@@ -57,18 +57,21 @@ class ParameterSpace:
 
     Attributes ``lower``, ``upper``, ``log``, ``manual_physical`` hold the (d,) arrays.
     Raises :class:`~latentune.errors.UsageError` (a ``ValueError``) for inconsistent arguments,
-    and for bounds whose width (log entries: whose ratio high / low) a float64 cannot hold.
+    for a blank name or one with a line break, and for bounds whose width (log entries: whose
+    ratio high / low) a float64 cannot hold. ``stored``: the space of a stored run, read back
+    (names taken as they were recorded before blank ones were refused).
     """
 
     def __init__(self, names: Sequence[str], low: Any, high: Any, log: Any = None,
-                 manual: Any = None) -> None:
+                 manual: Any = None, *, stored: bool = False) -> None:
         if isinstance(names, (str, bytes)) or not isinstance(names, Iterable):
             raise UsageError(f"ParameterSpace: names must be a list of d names, got {_short(names)}")
         names_t = tuple(str(n) for n in names)
         d = len(names_t)
         if d < 1:
             raise UsageError("ParameterSpace needs at least one name")
-        blank = next((n for n in names_t if not n.strip() or not n.isprintable()), None)
+        blank = None if stored else \
+            next((n for n in names_t if not n.strip() or not n.isprintable()), None)
         if blank is not None:               # "=0.5" or a line break in ask's one-line answer
             raise UsageError(f"ParameterSpace names must be text on one line, not blank "
                              f"(got {blank!r})")
@@ -165,9 +168,10 @@ class ParameterSpace:
         return f"other names ({'; '.join(parts) or 'a name given twice'})"
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "ParameterSpace":
-        """Build a space from :meth:`to_dict`'s form (also the ``--space`` YAML/JSON file form).
-        Raises :class:`~latentune.errors.UsageError` (a ``ValueError``) for missing keys or
+    def from_dict(cls, d: dict[str, Any], *, stored: bool = False) -> "ParameterSpace":
+        """Build a space from :meth:`to_dict`'s form (also the ``--space`` YAML/JSON file form;
+        ``stored``: a stored run's, see the class). Raises
+        :class:`~latentune.errors.UsageError` (a ``ValueError``) for missing keys or
         inconsistent values."""
         if not isinstance(d, dict) or not {"names", "low", "high"} <= set(d):
             raise UsageError("a parameter space needs the keys names, low, high (log, manual optional)")
@@ -175,7 +179,7 @@ class ParameterSpace:
         if unknown:
             raise UsageError(f"a parameter space has the keys names, low, high, log and manual, "
                              f"not {', '.join(map(str, unknown))}")
-        return cls(d["names"], d["low"], d["high"], d.get("log"), d.get("manual"))
+        return cls(d["names"], d["low"], d["high"], d.get("log"), d.get("manual"), stored=stored)
 
     @property
     def dim(self) -> int:

@@ -231,7 +231,7 @@ class Manifest:
     def space(self) -> ParameterSpace | None:
         """The study's parameter space (stored with its first phase or ask), or None."""
         sp = self.config().get("space")
-        return None if sp is None else ParameterSpace.from_dict(sp)
+        return None if sp is None else ParameterSpace.from_dict(sp, stored=True)
 
     def bind_space(self, space: ParameterSpace) -> None:
         """Record the parameter space of trials run elsewhere, or check it is the stored one
