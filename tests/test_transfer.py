@@ -822,8 +822,8 @@ def test_auto_scores_choose_by_the_targets_own_trials_and_are_recorded(source, h
     opts = dict(explore_pool="adaptive", explore_gp=True, explore_fall_prob=0.2)
     base = _critic(source, hypers, **opts)
     auto = _critic(source, hypers, target_scores="auto", **opts)
-    _run(base, target_c, 0.5, 20)
-    _, falls = _run(auto, target_c, 0.5, 20)
+    _run(base, target_c, 0.5, 16)
+    _, falls = _run(auto, target_c, 0.5, 16)
     recs = [d for d in auto.decisions if "auto_scores" in d]
     assert recs and not any("auto_scores" in d for d in base.decisions)
     stood = np.cumsum(~np.asarray(falls))
@@ -839,7 +839,7 @@ def test_auto_scores_choose_by_the_targets_own_trials_and_are_recorded(source, h
     assert np.array_equal(base.X[:first], auto.X[:first])
     assert not np.array_equal(base.X, auto.X)
     ex = _critic(source, hypers, explore_scores="auto", **opts)
-    _run(ex, target_c, 0.5, 20)
+    _run(ex, target_c, 0.5, 16)
     recs = [d for d in ex.decisions if "auto_scores" in d]
     assert recs and all(d["explore"] and set(d["auto_scores"]) == {"explore"} for d in recs)
     with pytest.raises(ValueError, match="target_scores"):
