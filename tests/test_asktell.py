@@ -1438,3 +1438,31 @@ def test_telling_a_told_zero_shot_trial_again_names_its_phase(tmp_path, src30):
             st.tell(s.id, 0.4)
     msg = str(err.value)
     assert "phase 4" not in msg and "(zero-shot evaluation 0;" in msg and "--amend" in msg
+
+
+def test_a_refused_first_ask_of_phase_3_leaves_no_files(run_cli, tmp_path, src30, error_line):
+    """A refused first ``latentune ask DIR --phase 3`` (a missing or bad --vae, a latent space
+    of another dimension, --target-scores with --strategy plain, a latent space given to phase
+    1) left a run.db and run.lock in DIR (with --target-scores also a copied latent space),
+    where ``latentune phase3`` writes nothing. It now refuses before it creates anything."""
+    space = tmp_path / "space.json"
+    space.write_text(json.dumps(SPACE.to_dict()))
+    three = tmp_path / "space3.json"
+    three.write_text(json.dumps(lt.ParameterSpace(["a", "b", "c"], [-1.0] * 3, [1.0] * 3)
+                                .to_dict()))
+    cases = [(("--vae", tmp_path / "nowhere"), "does not exist"),
+             ((), "no latent space in"),
+             (("--vae", src30, "--space", three), "maps to 4-dim θ"),
+             (("--vae", src30, "--strategy", "plain", "--target-scores", "auto"),
+              "--target-scores is an option of the transfer phase 3")]
+    for i, (flags, says) in enumerate(cases):
+        d = tmp_path / f"t{i}"
+        line = error_line(*run_cli("ask", d, "--phase", "3", "--space", space, *flags)[::2])
+        assert says in line, line
+        assert not d.exists(), sorted(p.name for p in d.iterdir())
+    d = tmp_path / "empty"
+    d.mkdir()
+    line = error_line(*run_cli("ask", d, "--phase", "1", "--space", space, "--vae", src30)[::2])
+    assert "a latent space is an option of phase 3" in line and list(d.iterdir()) == [], line
+    code, out, err = run_cli("ask", d, "--phase", "3", "--space", space, "--vae", src30)
+    assert code == 0 and (d / "run.db").is_file() and (d / "phase3_vae.pt").is_file(), err

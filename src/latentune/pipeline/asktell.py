@@ -201,7 +201,10 @@ def _check_id(trial_id: Any) -> int:
     return int(trial_id)
 
 
-def _space(study: Any, system: Any, space: ParameterSpace | None) -> ParameterSpace:
+def _space(study: Any, system: Any, space: ParameterSpace | None, bind: bool = True
+           ) -> ParameterSpace:
+    """The space of an ask: the system's, the given one or the stored one, checked; recorded
+    in the manifest with ``bind`` (else only checked: nothing is written)."""
     if space is not None and not isinstance(space, ParameterSpace):
         raise UsageError(f"space must be a latentune.ParameterSpace, not "
                          f"{type(space).__name__} (ParameterSpace.from_dict reads a dict)")
@@ -209,10 +212,11 @@ def _space(study: Any, system: Any, space: ParameterSpace | None) -> ParameterSp
         raise UsageError("give a system or a space, not both: the system's space is not the "
                          "space given")
     if system is not None:
-        study.manifest.bind(system)
+        study.manifest.bind(system) if bind else study.manifest.bind_check(system)
         return system.space
     if space is not None:
-        study.manifest.bind_space(space)
+        if bind:
+            study.manifest.bind_space(space)
         return space
     stored = study.manifest.space()
     if stored is None:
@@ -273,7 +277,8 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
             ) -> tuple[dict[str, Any], Any]:
     """(the checked options record of ``phase``, its LatentSpace or None) for an ask: options
     not given are the stored ones (or the defaults on the first ask); a given one that differs
-    from the stored is refused (:func:`~latentune.pipeline.manifest.ask_options`)."""
+    from the stored is refused (:func:`~latentune.pipeline.manifest.ask_options`). Writes
+    nothing (:func:`_context` records the latent space)."""
     key = mf.PHASE_KEYS[Phase(phase)]
     cfg = study.manifest.config()
     fixed = (cfg.get("asktell") or {}).get("phase") == phase or study.manifest.n_used(phase)
@@ -319,7 +324,6 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
     if phase == Phase.PHASE3:
         ls, source = resolve_latent(study.run, study.manifest, latent, space)
         require_source_store(strat, source, mfp)
-        record_latent(study.run, study.manifest, ls, source)
         extra = mf.phase3_extra(source, strat, start_rec, mfp, g.get("handover"),
                                 g.get("transfer_options"),
                                 source_counts(study.dir, source))
@@ -350,6 +354,8 @@ def ask(study: Any, n: int = 1, *, system: Any = None, space: ParameterSpace | N
     lease = LEASE_S if lease_s is None else float(lease_s)
     if not np.isfinite(lease) or lease <= 0:
         raise UsageError(f"lease_s must be a positive number of seconds, got {lease_s!r}")
+    if not study.exists:        # the first ask: refused before the directory is written
+        check_first_ask(study, system, space, phase, latent, given)
     with study.run.writing(wait=WAIT_S) as st:
         ctx = _stored_context(study, system, space, phase, latent, given)
         if ctx is None:
@@ -439,11 +445,26 @@ def _context(study: Any, st: RunStore, system: Any, space: ParameterSpace | None
     sp = _space(study, system, space)
     ph = _phase(study.manifest.config(), phase, latent, study.dir)
     pc, ls = options(study, ph, sp, latent, given)
+    if ph == Phase.PHASE3:
+        record_latent(study.run, study.manifest, ls, pc["latent_source"])
     study.manifest.record_seed(study.seed)
     study.manifest.update(asktell={**pc, "phase": ph}, **{mf.PHASE_KEYS[Phase(ph)]: pc})
     if ph == Phase.PHASE3:
         queue_zero_shot(st, pc.get("latent_source"))
     return _Context(ph, pc, sp, ls)
+
+
+def check_first_ask(study: Any, system: Any, space: ParameterSpace | None, phase: int | None,
+                    latent: Any, given: dict[str, Any]) -> None:
+    """Check the first ask of ``study`` (no run store yet) as :func:`_context` does, writing
+    nothing: its space, phase and options (the latent space, its dimension, the strategy's
+    options; the plain phase 3's spread of the latent space), so that a refused first ask
+    leaves no run store, lock or copied latent space behind."""
+    sp = _space(study, system, space, bind=False)
+    ph = _phase({}, phase, latent, study.dir)
+    pc, ls = options(study, ph, sp, latent, given)
+    if ph == Phase.PHASE3 and strategy_of(pc) == "plain":
+        ls.require_spread()
 
 
 def _stored_context(study: Any, system: Any, space: ParameterSpace | None, phase: int | None,
