@@ -1466,3 +1466,26 @@ def test_a_refused_first_ask_of_phase_3_leaves_no_files(run_cli, tmp_path, src30
     assert "a latent space is an option of phase 3" in line and list(d.iterdir()) == [], line
     code, out, err = run_cli("ask", d, "--phase", "3", "--space", space, "--vae", src30)
     assert code == 0 and (d / "run.db").is_file() and (d / "phase3_vae.pt").is_file(), err
+
+
+def test_an_ask_of_more_than_the_budget_leaves_says_how_many_it_handed_out(run_cli, tmp_path,
+                                                                           caplog):
+    """``latentune ask DIR --n 5`` with 3 suggestions left in the phase's budget handed out 3
+    and said nothing. It now warns in one line how many it handed out and why (exit 0); the
+    API logs the same warning."""
+    space = tmp_path / "space.json"
+    space.write_text(json.dumps(SPACE.to_dict()))
+    code, out, err = run_cli("ask", tmp_path / "a", "--space", space, "--budget", "3",
+                             "--n", "5")
+    assert code == 0 and len(out.splitlines()) == 3, (out, err)
+    assert err.splitlines() == [
+        f"latentune: warning: {tmp_path / 'a'}: handed out 3 of the 5 suggestions asked: "
+        "phase 1's budget of 3 trials has no more (0 told, 3 handed out); ask with a larger "
+        "--budget for more"], err
+    code, out, err = run_cli("ask", tmp_path / "a", "--n", "3")      # the same 3 again: quiet
+    assert code == 0 and len(out.splitlines()) == 3 and err == "", err
+    with lt.Study(tmp_path / "b", seed=0) as st, caplog.at_level(logging.WARNING):
+        assert len(st.ask(4, space=SPACE, budget=2)) == 2
+    assert [r.getMessage().split(": ", 1)[1] for r in caplog.records] == [
+        "handed out 2 of the 4 suggestions asked: phase 1's budget of 2 trials has no more "
+        "(0 told, 2 handed out); ask with a larger budget for more"]

@@ -703,7 +703,7 @@ def cmd_ask(args: argparse.Namespace) -> int:
     # the stored transfer options under the flags given; none given: the stored ones (None)
     topts = (_transfer_options(args, _stored_transfer(study))
              if any(getattr(args, k) is not None for k in TRANSFER_DESTS) else None)
-    with study:
+    with study, _flag_words(args):      # the ask's warnings in the words of the flags
         start = _ask_start(args.start, system, space, study)
         try:
             sugg = study.ask(args.n, system=system, space=space, phase=args.phase,
@@ -730,6 +730,30 @@ def cmd_ask(args: argparse.Namespace) -> int:
                 "to fall, above its screen of %.2f: be ready to catch the robot, or release it",
                 s.id, *s.fall_risk)
     return 0
+
+
+class _FlagWords(logging.Filter):
+    """A logging filter putting a record's message in the words of the command's flags
+    (:func:`_ask_flags`: ``a larger budget`` → ``a larger --budget``)."""
+
+    def __init__(self, args: argparse.Namespace) -> None:
+        super().__init__()
+        self.args = args
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        record.msg, record.args = _ask_flags(record.getMessage(), self.args), ()
+        return True
+
+
+@contextmanager
+def _flag_words(args: argparse.Namespace) -> Iterator[None]:
+    """The ask/tell module's log records in the words of the command's flags meanwhile."""
+    logger, flt = logging.getLogger("latentune.pipeline.asktell"), _FlagWords(args)
+    logger.addFilter(flt)
+    try:
+        yield
+    finally:
+        logger.removeFilter(flt)
 
 
 ASK_FLAGS = {"method": "--method", "budget": "--budget", "regions": "--regions",

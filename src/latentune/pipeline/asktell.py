@@ -376,9 +376,23 @@ def ask(study: Any, n: int = 1, *, system: Any = None, space: ParameterSpace | N
         if not got:             # never an empty answer: the critic asked only θ handed out
             raise StoreError(f"{study.dir}: {phase_name(ctx.phase)}'s critic gave no θ that is "
                              "not handed out already: tell the pending suggestions first")
+        if len(got) < int(n):
+            warn_fewer(study, st, ctx.phase, ctx.options, len(got), int(n))
         risky = fall_risk(st, ctx.phase, ctx.options)
         return [Suggestion(t.id, t.phase, t.theta, ctx.space.as_dict(t.theta), t.z, again,
                            None, t.asker, t.lease_until, risky(t)) for t, again in got]
+
+
+def warn_fewer(study: Any, st: RunStore, phase: int, pc: dict[str, Any], got: int, n: int
+               ) -> None:
+    """Log one warning that an ask of ``n`` handed out only ``got`` suggestions, and why: the
+    phase's budget has no more to hand out, or the critic gave no more θ not handed out."""
+    left, n_open = _budget_left(st, phase, pc)
+    why = (f"{phase_name(phase)}'s budget of {counted(pc['budget'], 'trial')} has no more "
+           f"({st.count(phase)} told, {n_open} handed out); ask with a larger budget for more"
+           if left <= 0 else f"{phase_name(phase)}'s critic gave no more θ that is not handed "
+           "out already")
+    log.warning("%s: handed out %d of the %d suggestions asked: %s", study.dir, got, n, why)
 
 
 def refuse_if_fall_budget_spent(study: Any, st: RunStore, phase: int, pc: dict[str, Any]
