@@ -1489,3 +1489,27 @@ def test_an_ask_of_more_than_the_budget_leaves_says_how_many_it_handed_out(run_c
     assert [r.getMessage().split(": ", 1)[1] for r in caplog.records] == [
         "handed out 2 of the 4 suggestions asked: phase 1's budget of 2 trials has no more "
         "(0 told, 2 handed out); ask with a larger budget for more"]
+
+
+def test_a_latent_space_file_given_for_its_run_directory_is_named_a_file(run_cli, tmp_path,
+                                                                         src30, error_line):
+    """``latent='run/vae.pt'`` (a file that exists) said "run directory run/vae.pt does not
+    exist". Phase 3, ask and ``--vae`` now say it is a file and that latent is the run
+    directory holding the latent space and run.db (naming it), before anything is stored."""
+    from latentune.errors import LatentError
+
+    f = src30 / "vae.pt"
+    says = (f"latent: {f} is a file, not a run directory: give the run directory that holds "
+            f"the latent space (vae.pt, vae.json) and run.db ({src30})")
+    with lt.Study(tmp_path / "t", seed=0) as st:
+        with pytest.raises(LatentError) as exc:
+            st.phase3(plant(), 4, latent=f)
+        assert str(exc.value) == says
+        with pytest.raises(LatentError) as exc:
+            st.ask(system=plant(), phase=3, latent=str(f))
+        assert str(exc.value) == says
+    assert not (tmp_path / "t").exists()
+    space = tmp_path / "space.json"
+    space.write_text(json.dumps(SPACE.to_dict()))
+    line = error_line(*run_cli("ask", tmp_path / "u", "--space", space, "--vae", f)[::2])
+    assert line.endswith(f"--vae: {says[len('latent: '):]}"), line

@@ -398,6 +398,11 @@ def resolve_latent(run: RunDir, manifest: Manifest, latent: Any, space: Paramete
             raise LatentError(f"latent must be a study, its run directory or a LatentSpace, not "
                               f"{type(latent).__name__} {latent!r:.40}")
         other = Path(other)
+        if other.exists() and not other.is_dir():
+            holder = other.parent if (other.parent / "vae.pt").is_file() else None
+            raise LatentError(f"latent: {other} is a file, not a run directory: give the run "
+                              "directory that holds the latent space (vae.pt, vae.json) and "
+                              "run.db" + (f" ({holder})" if holder is not None else ""))
         if not other.is_dir():
             raise LatentError(f"latent: run directory {other} does not exist")
         src = None
