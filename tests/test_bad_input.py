@@ -649,6 +649,26 @@ def test_parameter_space_errors_are_latentune_errors(args, expect):
         lt.ParameterSpace(*args)
 
 
+@pytest.mark.parametrize("kw, expect", [
+    ({"low": [[0, 0]]}, "low must be a flat list of 2 entries .one per name., not nested"),
+    ({"high": np.ones((2, 1))}, "high must be a flat list of 2 entries"),
+    ({"low": [[0], [0]]}, "low must be a flat list"),
+    ({"low": ["0", 0]}, "low must be numbers, not text: got \\['0', "),
+    ({"high": np.array(["1", "1"])}, "high must be numbers, not text"),
+    ({"manual": [0.5, "0.5"]}, "manual must be numbers, not text"),
+    ({"log": [[0, 0]]}, "log must be a flat list"),
+])
+def test_parameter_space_refuses_nested_or_text_bounds(kw, expect):
+    """``ParameterSpace(names, low=[[0, 0]], ...)`` was flattened and ``low=["0", 0]`` read as
+    numbers, quietly. Each is now one UsageError naming the argument (from_dict too)."""
+    args = {"names": ["a", "b"], "low": [0, 0], "high": [1, 1], **kw}
+    with pytest.raises(UsageError, match=expect):
+        lt.ParameterSpace(**args)
+    with pytest.raises(UsageError, match=expect):
+        lt.ParameterSpace.from_dict({k: np.asarray(v).tolist() for k, v in args.items()})
+    assert lt.ParameterSpace(["a"], 0, 1).lower.tolist() == [0.0]     # one entry: a number
+
+
 def test_a_stored_run_with_a_blank_name_still_opens(tmp_path):
     """A run recorded before blank names were refused (its space's names ``""`` and ``"b"``)
     still opens: its status and trials are read, the name as it was recorded."""

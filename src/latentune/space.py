@@ -22,6 +22,19 @@ from latentune.errors import ParamsError, UsageError
 
 
 def _vec(name: str, v: Any, d: int, dtype: type) -> np.ndarray:
+    """``v`` as a (d,) array of ``dtype``: a flat list of d entries (a number for d = 1);
+    UsageError naming ``name`` for nested lists, text, or another count."""
+    try:
+        given = np.asarray(v, dtype=object)
+    except (TypeError, ValueError):
+        raise UsageError(f"ParameterSpace: {name} must be a flat list of {d} numbers (one per "
+                         f"name), got {_short(v)}") from None
+    if given.ndim > 1 or any(isinstance(x, (list, tuple, np.ndarray))
+                             for x in given.reshape(-1)):
+        raise UsageError(f"ParameterSpace: {name} must be a flat list of {d} entries (one per "
+                         f"name), not nested: got {_short(v)}")
+    if dtype is not bool and any(isinstance(x, (str, bytes)) for x in given.reshape(-1)):
+        raise UsageError(f"ParameterSpace: {name} must be numbers, not text: got {_short(v)}")
     if dtype is bool and any(not isinstance(x, (bool, np.bool_)) and x not in (0, 1)
                              for x in np.asarray(v, dtype=object).reshape(-1)):
         raise UsageError(f"ParameterSpace: {name} entries must be true or false, got {v!r}")
