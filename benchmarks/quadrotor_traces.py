@@ -19,7 +19,6 @@ fell (if it did), its largest pitch (rad) and its RMS position error over the la
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 import numpy as np
 

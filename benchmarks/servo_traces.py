@@ -18,7 +18,6 @@ largest tracking error (rad) and the RMS torque command (N·m).
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 import numpy as np
 

@@ -18,7 +18,6 @@ whether and when it left the lane, its largest lateral error (m) and its RMS ste
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 import numpy as np
 
