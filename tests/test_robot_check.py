@@ -72,6 +72,20 @@ def test_cli_reports_a_bad_urdf_in_one_line(tmp_path, run_cli, error_line):
         f"latentune: error: robot spec {spec}: URDF {urdf}: not XML (syntax error: line 1, column 0)")
 
 
+def test_check_takes_the_robot_names_rollout_takes(tmp_path, monkeypatch, run_cli):
+    """`robot check NAME` resolves NAME as `--robot NAME` does: an unknown name is refused
+    naming the choices (not "file not found"), and a spec file without .yaml is not OK in
+    check while every other command refuses it."""
+    unknown = "unknown robot 'go1' (choose from a1, b1, solo12 or a spec .yaml)"
+    assert check_spec("go1").errors == [unknown]
+    code, out, _ = run_cli("robot", "check", "go1", "--no-sim")
+    assert code == 2 and out.splitlines()[1] == f"  error: {unknown}"
+    monkeypatch.chdir(tmp_path)
+    Path("myrobot").write_text("base: a1\n")
+    assert check_spec("myrobot").errors == [unknown.replace("go1", "myrobot")]
+    assert check_spec("./myrobot", simulate=False).ok
+
+
 # ----------------------------------------------------------------------------- names and leg order
 def test_wrong_joint_and_foot_names(tmp_path):
     names = list(A1_JOINTS)

@@ -105,7 +105,10 @@ def check_spec(spec: str | os.PathLike | Any, simulate: bool = True) -> CheckRep
         if isinstance(spec, Mapping):
             source, raw, base_dir = f"robot spec {spec.get('name', '?')!r}", spec, Path.cwd()
         else:
-            path = Path(S.SPECS_DIR / f"{spec}.yaml" if isinstance(spec, str) and spec in S.BUILTIN else spec)
+            try:
+                path = S.spec_path(spec)
+            except RobotSpecError as exc:
+                return CheckReport(source=os.fspath(spec), errors=[str(exc)])
             source = str(path)
             try:
                 raw, base_dir = S.read_yaml(path), path.parent

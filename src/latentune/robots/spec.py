@@ -145,9 +145,21 @@ def get_robot(robot: str | os.PathLike | RobotSpec | Mapping[str, Any]) -> Robot
         return spec_from_dict(robot)
     if isinstance(robot, str) and robot in BUILTIN:
         return _copy(_builtin(robot))
+    return load_spec_file(spec_path(robot))
+
+
+def spec_path(robot: str | os.PathLike) -> Path:
+    """The spec file of a robot argument: a built-in name's own spec, else ``robot`` when it
+    names a file (ends in ``.yaml``/``.yml`` or holds a path separator).
+
+    Raises:
+        RobotSpecError: any other name (``unknown robot ...``, naming the choices).
+    """
+    if isinstance(robot, str) and robot in BUILTIN:
+        return SPECS_DIR / f"{robot}.yaml"
     path = os.fspath(robot)
     if path.endswith((".yaml", ".yml")) or os.path.sep in path:
-        return load_spec_file(path)
+        return Path(path)
     raise RobotSpecError(f"unknown robot {path!r} (choose from {', '.join(BUILTIN)} or a spec .yaml)")
 
 
