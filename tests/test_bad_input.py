@@ -77,6 +77,28 @@ def test_a_run_of_another_task_says_which_flags_give_the_stored_one(capsys, copy
                          "with it"), line
 
 
+
+def test_a_run_of_another_reality_says_which_reality_gives_the_stored_one(capsys, copy_run):
+    """``phase1 --reality heavy --resume`` on a run made without --reality said "(task.reality:
+    stored None, given {'name': 'heavy', 'mass_scale': 1.15, 'payload_...)" and no flag to
+    type; it now ends with the --reality preset that gives the stored one (none: a profile
+    no preset gives)."""
+    from latentune.pipeline.manifest import task_flags
+    from latentune.sim.reality import Reality
+
+    line = assert_one_line(capsys, "phase1", *TINY, "--reality", "heavy", "--out", copy_run,
+                           "--resume", expect="task.reality: stored None")
+    assert line.endswith(": pass --reality nominal to go on with it"), line
+    task = {"robot": "a1", "steps": 150}
+    heavy = Reality.load("heavy").to_dict()
+    stored = {"kind": "task", "task": {**task, "reality": heavy}}
+    assert task_flags(stored, {"kind": "task", "task": task}) == "--reality heavy"
+    given = {"kind": "task", "task": {**task, "steps": 20, "reality": heavy}}
+    assert task_flags(stored, given) == "--steps 150"
+    other = {"kind": "task", "task": {**task, "reality": {**heavy, "mass_scale": 1.3}}}
+    assert task_flags(other, {"kind": "task", "task": task}) is None
+
+
 @pytest.fixture
 def copy_run(run_dir, tmp_path):
     dst = tmp_path / "copy"

@@ -371,13 +371,13 @@ def diff(a: dict[str, Any], b: dict[str, Any], prefix: str = "") -> str:
 
 _TASK_FLAGS = (("robot", "--robot"), ("gait", "--task"), ("terrain", "--terrain"),
                ("actor", "--actor"), ("steps", "--steps"), ("v_des", "--v-des"),
-               ("engine", "--engine"), ("seed", "--seed"))
+               ("engine", "--engine"), ("seed", "--seed"), ("reality", "--reality"))
 
 
 def task_flags(stored: dict[str, Any], given: dict[str, Any]) -> str | None:
     """The command-line flags that give the stored built-in task where the given one differs
     (``"--task jump --steps 50"``), or None: not two built-in tasks, or a difference no flag
-    gives alone (a robot spec, a reality profile, a sideways v_des)."""
+    gives alone (a robot spec, a reality profile other than a preset, a sideways v_des)."""
     if stored.get("kind") != "task" or given.get("kind") != "task":
         return None
     a, b = stored.get("task") or {}, given.get("task") or {}
@@ -395,10 +395,24 @@ def task_flags(stored: dict[str, Any], given: dict[str, Any]) -> str | None:
             if not (isinstance(v, list) and len(v) == 3 and v[1:] == [0.0, 0.0]):
                 return None
             v = f"{v[0]:g}"
+        elif key == "reality":
+            v = _reality_preset(v)
+            if v is None:
+                return None
         elif v is None or isinstance(v, (dict, list)):
             return None
         out.append(f"{flag} {v}")
     return " ".join(out) or None
+
+
+def _reality_preset(stored: Any) -> str | None:
+    """The reality preset whose record is ``stored`` (a task's ``reality``; absent: the
+    nominal one), or None: a profile no preset gives."""
+    from latentune.sim.reality import PRESETS, Reality
+
+    if stored is None:
+        return "nominal"
+    return next((p for p in PRESETS if Reality.load(p).to_dict() == stored), None)
 
 
 def _short(v: Any) -> str:
