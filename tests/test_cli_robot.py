@@ -260,3 +260,10 @@ def test_best_out_to_a_directory_leaves_no_stray_file(tmp_path, run_cli, error_l
     assert "is a directory: --out names the θ file" in error_line(
         *run_cli("best", d, "--out", tmp_path / "outdir")[::2])
     assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+def test_rollout_line_names_the_window_of_its_mean_velocity(run_cli):
+    """``rollout --steps 20`` printed "mean vx (last 3 s)" for a 0.02 s rollout; the line now
+    names the window the mean is taken over: the last 3 s, or the whole rollout if shorter."""
+    code, out, _ = run_cli("rollout", "--steps", "20")
+    assert code == 0 and "mean vx (last 0.02 s) " in out, out

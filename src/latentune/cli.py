@@ -205,8 +205,10 @@ def cmd_rollout(args: argparse.Namespace) -> int:
         print(json.dumps(out))
     else:
         state = f"FELL at step {res.fall_step} ({res.reason})" if res.fell else "stable"
+        window = min(res.steps, 3000) / 1000      # mean_vx's window: the last 3 s at 1 kHz
         print(f"{task.robot_name} {task.gait} ({where}): cost {res.cost:.3f}, "
-              f"{state}, mean vx (last 3 s) {res.mean_vx:.3f} m/s, height {res.mean_height:.3f} m, "
+              f"{state}, mean vx (last {window:g} s) {res.mean_vx:.3f} m/s, "
+              f"height {res.mean_height:.3f} m, "
               f"{res.steps} steps in {res.wall_s:.2f} s")
     return 0
 
