@@ -335,3 +335,26 @@ def test_phase_3_of_one_weight_says_there_is_no_latent_space(tmp_path, run_cli, 
         assert not (tmp_path / "t").exists()
     finally:
         del sys.modules["one_weight_mod"]
+
+
+def test_a_resume_with_another_vae_names_the_vae_flag(tmp_path, run_cli, source, error_line):
+    """``phase3 --resume --vae OTHER`` said "phase 3 was run with latent-source = '/a', not
+    '/b'" (and "latent-source = 'self'" for a phase 3 in the run's own latent space): a name
+    no flag has. The line now names --vae."""
+    import shutil
+
+    other = tmp_path / "other"
+    shutil.copytree(source, other)
+    d = tmp_path / "t"
+    code, _, err = _phase3(run_cli, source, d)
+    assert code == 0, err
+    line = error_line(*_phase3(run_cli, other, d, "--resume", evals=6)[::2])
+    assert line.endswith(f"phase 3 was run with --vae = '{source}', not '{other}'"), line
+    own = tmp_path / "own"
+    code, _, err = run_cli("tune", *SYSTEM, "--out", own, "--phase1-evals", "16",
+                           "--phase3-evals", "2", "--latent-dim", "2", "--vae-epochs", "20")
+    assert code == 0, err
+    line = error_line(*_phase3(run_cli, other, own, "--resume", evals=6)[::2])
+    assert line.endswith("phase 3 was run in its own latent space (without --vae), not with "
+                         f"--vae {other}"), line
+    assert not API_NAMES.search(line), line

@@ -766,7 +766,7 @@ ASK_FLAGS = {"method": "--method", "budget": "--budget", "regions": "--regions",
              "fall_budget": "--fall-budget", "record_walk": "--record-walk",
              "escape_falls": "--escape-falls", "walk_pick": "--walk-pick",
              "target_scores": "--target-scores", "batch_size": "--batch-size", "batch-size": "--batch-size",
-             "latent": "--vae"}
+             "latent": "--vae", "latent-source": "--vae", "latent_source": "--vae"}
 """Study.ask's and Study.phase3's keyword arguments (and transfer_options keys) by the flag
 that sets them, for :func:`_ask_flags`."""
 _TRANSFER_STORED = re.compile(r"(?:runs|was run) with transfer-options = (.*?)(?: \(stored\))?, "
@@ -821,6 +821,8 @@ def _ask_flags(msg: str, args: argparse.Namespace) -> str:
     msg = re.sub(r"^latent: ", lambda m: f"{ASK_FLAGS['latent']}: ", msg)
     msg = msg.replace("with a larger budget", "with a larger --budget").replace(
         "the result (best_params())", f"the result (latentune best {where})")
+    msg = re.sub(r"was run with latent-source = 'self', not '(.*)'$",  # its own latent space
+                 r"was run in its own latent space (without --vae), not with --vae \1", msg)
     msg = re.sub(r"was run with ([a-z][\w-]*) = None, not (.*)$",    # a flag left out
                  lambda m: f"was run without {ASK_FLAGS.get(m[1], m[1])}, not with "
                            f"{ASK_FLAGS.get(m[1], m[1])} {m[2]}", msg)
