@@ -358,3 +358,21 @@ def test_a_resume_with_another_vae_names_the_vae_flag(tmp_path, run_cli, source,
     assert line.endswith("phase 3 was run in its own latent space (without --vae), not with "
                          f"--vae {other}"), line
     assert not API_NAMES.search(line), line
+
+
+def test_latent_flags_that_differ_from_the_vae_runs_latent_space_are_refused(tmp_path, run_cli,
+                                                                             source, error_line):
+    """``phase3 --vae RUN --latent-dim 3`` (or ``--vae-kind vae``) ran in RUN's latent space of
+    size 4 (det) and ignored the flag; it is now refused before anything is stored, as the
+    same flags are against the run's own latent space."""
+    for flags, expect in ((("--latent-dim", "3"), f"--latent-dim 3: the latent space of {source} "
+                                                  "has size 4"),
+                          (("--vae-kind", "vae"), f"--vae-kind vae: the latent space of {source} "
+                                                  "is det")):
+        out = tmp_path / flags[0].strip("-")
+        line = error_line(*_phase3(run_cli, source, out, *flags)[::2])
+        assert line.startswith(f"latentune: error: {expect} (--vae's, used as it is; leave the "
+                               "flag out)"), line
+        assert not (out / "run.db").exists()
+    code, _, err = _phase3(run_cli, source, tmp_path / "same", "--latent-dim", "4")
+    assert code == 0, err

@@ -455,6 +455,16 @@ def _check_stored_vae(study: Any, args: argparse.Namespace, what: str) -> None:
         raise CLIError(f"{flag} {given}: the latent space of {study.dir} {has} ({what})")
 
 
+def _check_vae_source(args: argparse.Namespace) -> None:
+    """--latent-dim and --vae-kind against the latent space of the --vae run (phase 3 uses it
+    as it is), refused when they differ; a --vae that is no run is left to phase 3's check."""
+    from latentune.study import Study
+
+    if (Path(args.vae) / "run.db").is_file():
+        with Study(args.vae) as source:
+            _check_stored_vae(source, args, "--vae's, used as it is; leave the flag out")
+
+
 def _vae_kind(args: argparse.Namespace) -> str | None:
     """--vae-kind, or None when it was left at its default (the stored kind is kept)."""
     from latentune.latent.vae import DEFAULT_KIND
@@ -625,6 +635,8 @@ def cmd_phase3(args: argparse.Namespace) -> int:
     _refuse_unused(args, "phase3")
     if args.vae is None:
         _check_stored_vae(study, args, "retrain it with train-vae, or leave the flag out")
+    elif args.latent_dim is not None or _vae_kind(args) is not None:
+        _check_vae_source(args)
     mfp, handover = _kept_phase3(study, args, handover)
     with study:
         _phase3_flags(study.phase3, system, args.phase3_evals, latent=args.vae,
