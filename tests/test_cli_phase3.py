@@ -363,8 +363,9 @@ def test_a_resume_with_another_vae_names_the_vae_flag(tmp_path, run_cli, source,
 def test_latent_flags_that_differ_from_the_vae_runs_latent_space_are_refused(tmp_path, run_cli,
                                                                              source, error_line):
     """``phase3 --vae RUN --latent-dim 3`` (or ``--vae-kind vae``) ran in RUN's latent space of
-    size 4 (det) and ignored the flag; it is now refused before anything is stored, as the
-    same flags are against the run's own latent space."""
+    size 4 (det) and ignored the flag, and so did ``phase3 --resume --latent-dim 3`` of that run;
+    both are now refused before anything is stored, as the same flags are against the run's own
+    latent space."""
     for flags, expect in ((("--latent-dim", "3"), f"--latent-dim 3: the latent space of {source} "
                                                   "has size 4"),
                           (("--vae-kind", "vae"), f"--vae-kind vae: the latent space of {source} "
@@ -376,3 +377,7 @@ def test_latent_flags_that_differ_from_the_vae_runs_latent_space_are_refused(tmp
         assert not (out / "run.db").exists()
     code, _, err = _phase3(run_cli, source, tmp_path / "same", "--latent-dim", "4")
     assert code == 0, err
+    line = error_line(*run_cli("phase3", *SYSTEM, "--out", tmp_path / "same", "--phase3-evals",
+                               "6", "--resume", "--latent-dim", "3")[::2])     # --vae kept
+    assert line.endswith(f"--latent-dim 3: the latent space phase 3 of {tmp_path / 'same'} was "
+                         "run in has size 4 (kept with --resume; leave the flag out)"), line

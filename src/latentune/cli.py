@@ -446,23 +446,34 @@ def _check_stored_vae(study: Any, args: argparse.Namespace, what: str) -> None:
     from latentune.pipeline.phase2 import trained_differs
 
     vae = (study.config().get("vae") or {}) if study.exists else {}
+    _check_vae_record(vae, args, f"the latent space of {study.dir}", what)
+
+
+def _check_vae_record(vae: dict[str, Any], args: argparse.Namespace, which: str,
+                      what: str) -> None:
+    """--latent-dim, --vae-kind and --vae-epochs against ``vae``, the record of a trained
+    latent space (``which``: what it is; ``what``: how it is used), refused when they differ."""
+    from latentune.pipeline.phase2 import trained_differs
+
     diff = trained_differs(vae, args.latent_dim, _vae_kind(args), getattr(args, "vae_epochs", None))
     if diff is not None:
         name, given, stored = diff
         flag, has = {"latent_dim": ("--latent-dim", f"has size {stored}"),
                      "kind": ("--vae-kind", f"is {stored}"),
                      "epochs": ("--vae-epochs", f"was trained for {stored} epochs")}[name]
-        raise CLIError(f"{flag} {given}: the latent space of {study.dir} {has} ({what})")
+        raise CLIError(f"{flag} {given}: {which} {has} ({what})")
 
 
-def _check_vae_source(args: argparse.Namespace) -> None:
-    """--latent-dim and --vae-kind against the latent space of the --vae run (phase 3 uses it
-    as it is), refused when they differ; a --vae that is no run is left to phase 3's check."""
+def _check_vae_source(source: str, args: argparse.Namespace) -> None:
+    """--latent-dim and --vae-kind against the latent space of the --vae run ``source`` (phase 3
+    uses it as it is), refused when they differ; a ``source`` that is no run is left to phase
+    3's check."""
     from latentune.study import Study
 
-    if (Path(args.vae) / "run.db").is_file():
-        with Study(args.vae) as source:
-            _check_stored_vae(source, args, "--vae's, used as it is; leave the flag out")
+    if (args.latent_dim is not None or _vae_kind(args) is not None) \
+            and (Path(source) / "run.db").is_file():
+        with Study(source) as run:
+            _check_stored_vae(run, args, "--vae's, used as it is; leave the flag out")
 
 
 def _vae_kind(args: argparse.Namespace) -> str | None:
@@ -633,10 +644,14 @@ def cmd_phase3(args: argparse.Namespace) -> int:
                        "or pass --vae RUN_DIR)")
     _refuse_rerun(study, 3, args.resume)
     _refuse_unused(args, "phase3")
-    if args.vae is None:
+    if study.exists and study.manifest.n_used(3) and study.config().get("latent") \
+            and study.config().get("phase3_vae_source") not in (None, "self"):
+        _check_vae_record(study.config()["latent"], args, "the latent space phase 3 of "
+                          f"{study.dir} was run in", "kept with --resume; leave the flag out")
+    elif args.vae is not None:
+        _check_vae_source(args.vae, args)
+    else:
         _check_stored_vae(study, args, "retrain it with train-vae, or leave the flag out")
-    elif args.latent_dim is not None or _vae_kind(args) is not None:
-        _check_vae_source(args)
     mfp, handover = _kept_phase3(study, args, handover)
     with study:
         _phase3_flags(study.phase3, system, args.phase3_evals, latent=args.vae,
