@@ -99,6 +99,17 @@ def test_a_run_of_another_reality_says_which_reality_gives_the_stored_one(capsys
     assert task_flags(other, {"kind": "task", "task": task}) is None
 
 
+
+def test_a_system_given_to_a_robot_run_says_to_leave_it_out(capsys, copy_run):
+    """``report RUN --system M:F`` (and ``ask RUN --system M:F``) of a built-in robot's run said
+    "holds a run of another system (args: stored None, given {}; kind: stored 'task', given
+    'plugin'; space: …)", the store's keys; it now names the run's robot and what to do."""
+    for argv in (("report", copy_run, "--no-sim"), ("ask", copy_run)):
+        line = assert_one_line(capsys, *argv, "--system", "examples.toy_plant:make_system",
+                               expect="holds a run of the built-in robot a1 (trot)")
+        assert line.endswith("not of a --system: leave --system (and --system-arg) out"), line
+
+
 @pytest.fixture
 def copy_run(run_dir, tmp_path):
     dst = tmp_path / "copy"

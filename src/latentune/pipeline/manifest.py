@@ -222,6 +222,11 @@ class Manifest:
                 raise StoreError(f"{self.run.dir} holds a run of the user system "
                                  f"{stored.get('target')}: pass --system {stored.get('target')}"
                                  " (and its --system-arg values) again")
+            if stored.get("kind") == "task" and desc.get("kind") == "plugin":
+                t = stored.get("task") or {}
+                raise StoreError(f"{self.run.dir} holds a run of the built-in robot "
+                                 f"{t.get('robot')} ({t.get('gait')}), not of a --system: "
+                                 "leave --system (and --system-arg) out")
             flags = task_flags(stored, desc)
             raise StoreError(f"{self.run.dir} holds a run of another system "
                              f"({diff(stored, desc)})"
