@@ -605,7 +605,6 @@ class _AskContext:
     record_cma: bool = False
     escape: bool = False
     refine_scores: str | None = None
-    auto_scores: dict[str, list] | None = None
 
 
 @dataclass
@@ -1135,8 +1134,9 @@ class Transfer(TwoSpaceCritic):
         ``explore_scores``'s where that option names others (recorded in the decision)."""
         scores = self.opts["explore_scores"]
         if scores == "auto":
-            return self._chosen_scores(lambda s: self._target_gp(self._cost_model(s)),
-                                       "explore")
+            own = self.opts["target_scores"]      # base's scores: not fitted again
+            return self._chosen_scores(
+                lambda s: self._target_gp(base if s == own else self._cost_model(s)), "explore")
         if scores is None or scores == self.opts["target_scores"]:
             return self._target_gp(base)
         return self._target_gp(self._cost_model(scores))
