@@ -36,7 +36,7 @@ def _vec(name: str, v: Any, d: int, dtype: type) -> np.ndarray:
     if dtype is not bool and any(isinstance(x, (str, bytes)) for x in given.reshape(-1)):
         raise UsageError(f"ParameterSpace: {name} must be numbers, not text: got {_short(v)}")
     if dtype is bool and any(not isinstance(x, (bool, np.bool_)) and x not in (0, 1)
-                             for x in np.asarray(v, dtype=object).reshape(-1)):
+                             for x in given.reshape(-1)):
         raise UsageError(f"ParameterSpace: {name} entries must be true or false, got {v!r}")
     try:
         a = np.asarray(v, dtype=dtype).reshape(-1)

@@ -340,8 +340,9 @@ def decisions_markdown(store: Any) -> list[str]:
         pools = "/".join(sorted(set(d.get("pools") or [])))
         adm = "" if d.get("n_admissible") is None else \
             f"{d['n_admissible']} of {d.get('n_candidates')}"
+        scores = decision_scores(d)
         kind = decision_kind(d) + (f" (rank {d['walk_rank']})" if "walk_rank" in d else "") \
-            + (f"; {decision_scores(d)}" if decision_scores(d) else "")
+            + (f"; {scores}" if scores else "")
         md.append(f"| {d.get('generation')} | {d.get('n_told')} | {kind} | {pools} | "
                   f"{fmt(d.get('agreement'), 2)} | {fmt(d.get('length'), 4)} | {adm} | "
                   f"{fmt(d.get('explore_bound'), 2)} | {fmt(d.get('max_fall_prob_asked'), 2)} |")
