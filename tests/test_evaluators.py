@@ -686,3 +686,29 @@ def test_the_manual_trial_runs_on_the_process_pool(tmp_path, cli_env):
                        env=cli_env, capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr[-2000:]
     assert p.stdout.split() == ["[True]", "5"], p.stdout
+
+
+def test_a_pool_that_breaks_while_a_batch_is_submitted_runs_the_rest_after_it(monkeypatch):
+    """(A worker that died while imap was still submitting its batch ended the run: the submit
+    raised BrokenProcessPool.) The trials not submitted yet are submitted after the break and
+    every trial gives its cost."""
+    from concurrent.futures.process import BrokenProcessPool
+
+    from latentune.pipeline.evaluators import ProcessEvaluator
+
+    X = np.array([[0.1, 0.2], [0.6, 0.2], [0.2, 0.3], [0.3, 0.1], [0.7, 0.4], [0.4, 0.4]])
+    with ProcessEvaluator(2) as ev:
+        list(ev.imap(_dies_above_half, X[:1]))          # the pool exists
+        real, calls = ev._pool.submit, []
+
+        def submit(*a, **k):
+            calls.append(1)
+            if len(calls) == 3:
+                raise BrokenProcessPool("a child process terminated abruptly")
+            return real(*a, **k)
+
+        monkeypatch.setattr(ev._pool, "submit", submit)
+        got = dict(ev.imap(_dies_above_half, X[[0, 2, 3, 5]]))   # none above half
+    assert sorted(got) == [0, 1, 2, 3] and len(calls) == 5
+    for k, i in enumerate((0, 2, 3, 5)):
+        assert got[k].cost == pytest.approx(float(np.sum(X[i])))

@@ -442,9 +442,16 @@ class ProcessEvaluator(Evaluator):
             self._replace_pool()[1].close()    # a worker died, or trials of a left imap run
         try:
             while todo or futs:
-                for i in todo:
-                    futs[self._pool.submit(_run_sent, fun, key, X[i], (run, i))] = i
-                todo = []
+                for j, i in enumerate(todo):
+                    try:
+                        futs[self._pool.submit(_run_sent, fun, key, X[i], (run, i))] = i
+                    except BrokenProcessPool:   # a worker died while the batch was submitted
+                        todo = todo[j:]         # not run yet: submitted after the break
+                        if not futs:            # nothing submitted here to see the break
+                            self._replace_pool()[1].close()
+                        break
+                else:
+                    todo = []
                 done, _ = wait(futs, timeout=self._wait_s(started, stopped, futs.values()),
                                return_when=FIRST_COMPLETED)
                 _read_starts(self._starts, run, started)
