@@ -44,6 +44,13 @@ asks and falls by band of the fall screen's probability (``screen_bands``: how c
 screen was), and with ``fall_calibrate`` the median of the runs' last calibration map
 ``(a, b)`` (``b`` well below 1: the screen's score tells little of which θ fall there); and
 the trust-region asks and their falls by band of the step from the centre (``region_steps``).
+
+    python -m benchmarks.transfer_falls kinds --root results/transfer/rebuilt/runs
+        --methods transfer+VARIANT@avx512 ... [--systems ...] [--seeds ...] [--out FILE.json]
+
+``kinds``: per method, the asks and falls by kind of ask (the design, a region ask's pool, an
+explore ask's pool; explore asks whose own GP chose warped values marked so), summed over every
+stored trace.
 """
 from __future__ import annotations
 
@@ -550,6 +557,46 @@ def ladder(root: Path, systems: list[str], seeds: list[int], methods: list[str],
     return rows
 
 
+def kind_of(d: dict[str, Any]) -> str:
+    """The kind of ask of one decision record (:func:`benchmarks.robot_transfer.ask_kind`), an
+    explore ask whose own GP fitted warped values (``explore_scores="auto"`` chose them) marked
+    ``(warped)``."""
+    from benchmarks.robot_transfer import ask_kind
+
+    warped = (d.get("auto_scores") or {}).get("explore", [None])[0] == "warped"
+    return ask_kind(d) + (" (warped)" if warped else "")
+
+
+def kinds(root: Path, methods: list[str], systems: list[str] | None = None,
+          seeds: list[int] | None = None) -> list[dict[str, Any]]:
+    """Asks and falls by kind of ask (:func:`kind_of`; decision ``i`` asked trial ``i + 1``,
+    trial 0 is the zero-shot θ) of every stored trace of each of ``methods`` under ``root``
+    (``ROOT/<system>/gap<g>/seed<s>/<method>.json``; only ``systems`` and ``seeds`` when given),
+    summed over the traces: one row per (method, kind), and one ``all`` row per method."""
+    rows = []
+    for m in methods:
+        acc: dict[str, list[int]] = {}
+        runs = 0
+        for f in sorted(root.glob(f"*/gap*/seed*/{m}.json")):
+            system, seed = f.parts[-4], int(f.parts[-2][4:])
+            if (systems is not None and system not in systems) or \
+                    (seeds is not None and seed not in seeds):
+                continue
+            r = json.loads(f.read_text())
+            runs += 1
+            for i, d in enumerate((r.get("decisions") or [])[:len(r["failed"]) - 1]):
+                a = acc.setdefault(kind_of(d), [0, 0])
+                a[0] += 1
+                a[1] += bool(r["failed"][i + 1])
+        if not runs:
+            raise ValueError(f"no trace of {m} under {root}")
+        total = [sum(v[0] for v in acc.values()), sum(v[1] for v in acc.values())]
+        for k, (n, fell) in [*sorted(acc.items()), ("all", total)]:
+            rows.append({"method": m, "runs": runs, "kind": k, "asks": n, "falls": fell,
+                         "fall_rate": round(fell / n, 4) if n else None})
+    return rows
+
+
 def region_steps(trace: dict[str, Any]) -> np.ndarray:
     """(len(STEP_EDGES) − 1, 2) asks and falls of one :mod:`benchmarks.transfer` trace's
     trust-region asks (neither design nor explore; batch 1) by band of their step from the centre:
@@ -596,6 +643,8 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["ladder"]:
         return main_ladder(argv[1:])
+    if argv[:1] == ["kinds"]:
+        return main_kinds(argv[1:])
     if argv[:1] == ["stores"]:
         argv = argv[1:]
     from benchmarks.common import Provenance, write_json
@@ -652,6 +701,30 @@ def main_ladder(argv: list[str]) -> int:
     rows = ladder(a.root, a.systems, a.seeds, a.methods, a.after)
     finish(a.out, prov, {"root": str(a.root), "seeds": a.seeds, "after": a.after}, rows,
            title=f"Transfer variants on the ladder (median over seeds {a.seeds})")
+    return 0
+
+
+def main_kinds(argv: list[str]) -> int:
+    """``kinds``: asks and falls by kind of ask of transfer variants' traces (their decisions)."""
+    from benchmarks.common import Provenance, finish
+
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.transfer_falls kinds",
+                                 description=main_kinds.__doc__)
+    ap.add_argument("--root", type=Path, default=Path("runs/transfer"))
+    ap.add_argument("--methods", nargs="+", required=True,
+                    help="trace names, e.g. transfer+VARIANT@avx512")
+    ap.add_argument("--systems", nargs="+", default=None)
+    ap.add_argument("--seeds", type=int, nargs="+", default=None)
+    ap.add_argument("--out", type=Path, default=None, metavar="FILE.json")
+    a = ap.parse_args(argv)
+    prov = Provenance(["kinds", *argv], module="benchmarks.transfer_falls")
+    try:
+        rows = kinds(a.root, a.methods, a.systems, a.seeds)
+    except ValueError as e:
+        print(f"transfer_falls kinds: {e}", file=sys.stderr)
+        return 2
+    finish(a.out, prov, {"root": str(a.root), "systems": a.systems, "seeds": a.seeds}, rows,
+           title="Asks and falls by kind of ask, summed over the traces")
     return 0
 
 

@@ -2,6 +2,7 @@
 (``fall_calibrate``): prequential scores, the Platt map, and the screen that uses it."""
 from __future__ import annotations
 
+import json
 import numpy as np
 import pytest
 from scipy.optimize import approx_fprime
@@ -125,3 +126,31 @@ def test_region_steps_count_trust_region_asks_by_their_step_from_the_best_standi
                            {"pools": ["full"]}]}                    # 0.6 from (0.9, 0.1)
     assert STEP_EDGES == (0.0, 0.05, 0.2, 1.0)
     assert region_steps(trace).tolist() == [[1, 1], [1, 0], [1, 1]]
+
+
+def test_kinds_sum_asks_and_falls_by_kind_over_the_traces(tmp_path, capsys):
+    """``benchmarks.transfer_falls kinds``: trial 0 (the zero-shot θ) has no decision and is not
+    counted; each ask counts with its trial's fall under its kind, explore asks whose own GP chose
+    warped values apart; traces of other methods and of seeds not asked for are left out; a
+    method with no trace is one line on stderr and exit 2."""
+    from benchmarks.transfer_falls import kinds, main
+
+    def put(system, gap, seed, method, failed, decisions):
+        d = tmp_path / system / f"gap{gap}" / f"seed{seed}"
+        d.mkdir(parents=True, exist_ok=True)
+        (d / f"{method}.json").write_text(json.dumps({"failed": failed,
+                                                      "decisions": decisions}))
+
+    warped = {"explore": True, "explore_pool": "lines", "auto_scores": {"explore": ["warped"]}}
+    ranks = {"explore": True, "explore_pool": "lines", "auto_scores": {"explore": ["ranks"]}}
+    put("arm", 1, 0, "m", [True, True, False, True, False],
+        [{"design": True}, {"pools": ["full"]}, warped, ranks])
+    put("hopper", 0.5, 1, "m", [False, False, True], [{"design": True}, warped])
+    put("hopper", 0.5, 2, "m", [False, True], [{"design": True}])      # seed left out below
+    put("hopper", 0.5, 1, "other", [False, True], [{"design": True}])
+    rows = {r["kind"]: (r["asks"], r["falls"], r["runs"])
+            for r in kinds(tmp_path, ["m"], seeds=[0, 1])}
+    assert rows == {"design": (2, 1, 2), "full": (1, 0, 2), "explore lines (warped)": (2, 2, 2),
+                    "explore lines": (1, 0, 2), "all": (6, 3, 2)}
+    assert main(["kinds", "--root", str(tmp_path), "--methods", "none"]) == 2
+    assert capsys.readouterr().err.strip() == f"transfer_falls kinds: no trace of none under {tmp_path}"
