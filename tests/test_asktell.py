@@ -1468,6 +1468,106 @@ def test_a_refused_first_ask_of_phase_3_leaves_no_files(run_cli, tmp_path, src30
     assert code == 0 and (d / "run.db").is_file() and (d / "phase3_vae.pt").is_file(), err
 
 
+def whole_store(run_dir: Path) -> list[str]:
+    """Every table, schema and row of a run store as SQL lines (read-only)."""
+    con = sqlite3.connect(f"file:{Path(run_dir) / 'run.db'}?mode=ro", uri=True)
+    try:
+        return list(con.iterdump())
+    finally:
+        con.close()
+
+
+def test_a_first_ask_that_fails_after_its_checks_leaves_no_files(run_cli, tmp_path, error_line):
+    """``latentune ask DIR --space S --max-fall-prob 0.3 --fall-prior RUN`` with a RUN of
+    3-dim θ for a 4-dim space passed the first ask's checks and failed building the critic:
+    it said so in one line but left DIR/run.db and run.lock, and the next ask (without the
+    prior) failed with the same line, the half-made run holding the bad prior. The failed
+    first ask now leaves the directory as it was: none, or an existing one as it was."""
+    space = tmp_path / "space.json"
+    space.write_text(json.dumps(SPACE.to_dict()))
+    s3 = lt.ParameterSpace(["a", "b", "c"], [-1.0] * 3, [1.0] * 3)
+    with lt.Study(tmp_path / "prior3", seed=0) as p:
+        p.phase1(lt.FunctionSystem(s3, lambda x: plant_fn(np.r_[x, 0.0])), 6)
+    bad = ("--space", space, "--max-fall-prob", "0.3", "--fall-prior", tmp_path / "prior3")
+    d = tmp_path / "new"
+    line = error_line(*run_cli("ask", d, *bad)[::2])
+    assert "fall prior" in line and "3 entries, not 4" in line, line
+    assert not d.exists(), sorted(p.name for p in d.iterdir())
+    kept = tmp_path / "kept"
+    kept.mkdir()
+    (kept / "notes.txt").write_text("mine")
+    error_line(*run_cli("ask", kept, *bad)[::2])
+    assert [p.name for p in kept.iterdir()] == ["notes.txt"]
+    code, out, err = run_cli("ask", d, "--space", space)
+    assert code == 0 and out.startswith("1\tphase 1"), (out, err)
+
+
+def test_a_failing_first_ask_of_phase_3_leaves_the_run_as_it_was(tmp_path, src30, monkeypatch):
+    """A first ``Study.ask(phase=3)`` whose critic failed while asking its first batch (here
+    the transfer critic's ask raising) left its phase-3 options, the queued zero-shot
+    suggestion and the copied latent space behind: in a new directory a run the next ask
+    went on with; in the source run itself its options record had a phase 3 that never
+    asked. The error now comes
+    out as it was raised and the directory is as it was: no run in a new one, the source
+    run's store unchanged (schema, meta and rows)."""
+    from latentune.critic.transfer import Transfer
+
+    shutil.copytree(src30, tmp_path / "src")
+    src = tmp_path / "src"
+    before = (whole_store(src), sorted(p.name for p in src.iterdir()))
+
+    def broken(self, n):
+        raise RuntimeError("the GP fit failed")
+
+    monkeypatch.setattr(Transfer, "ask", broken)
+    for d, latent in ((tmp_path / "t", src), (src, None)):
+        with lt.Study(d, seed=0) as st, pytest.raises(RuntimeError, match="GP fit failed"):
+            st.ask(2, system=plant(0.3), phase=3, latent=latent)
+    assert not (tmp_path / "t").exists(), sorted(p.name for p in (tmp_path / "t").iterdir())
+    assert (whole_store(src), sorted(p.name for p in src.iterdir())) == before
+    monkeypatch.undo()
+    with lt.Study(tmp_path / "t", seed=0) as st:
+        assert [s.phase_name for s in st.ask(2, system=plant(0.3), phase=3, latent=src)] == \
+            ["zero-shot", "phase 3"]
+
+
+def test_a_writer_waiting_for_a_failed_first_write_holds_the_lock_it_gets(tmp_path):
+    """A failed first write removes DIR/run.lock while it holds it (and DIR it created). A
+    writer that waited for it must not hold the removed file's lock (a third writer creating
+    a new run.lock would write at the same time): the waiter takes the lock on the file
+    there, and the third is refused."""
+    import threading
+
+    from latentune.errors import LockError
+    from latentune.pipeline.rundir import RunDir
+
+    d = tmp_path / "run"
+    first, waiter = RunDir(d), RunDir(d)
+    holding, checked = threading.Event(), threading.Event()
+
+    def wait_for_it():
+        with waiter.writing(wait=10):
+            holding.set()
+            checked.wait(10)
+
+    t = threading.Thread(target=wait_for_it)
+    with pytest.raises(RuntimeError, match="critic"):
+        with first.writing(), first.as_before_on_error():
+            t.start()
+            time.sleep(0.3)             # the waiter is waiting for the lock
+            raise RuntimeError("the critic failed")
+    try:
+        assert holding.wait(10)
+        with pytest.raises(LockError):
+            with RunDir(d).writing():
+                pass
+    finally:
+        checked.set()
+        t.join(10)
+        waiter.close()
+    assert sorted(p.name for p in d.iterdir() if "-" not in p.name) == ["run.db", "run.lock"]
+
+
 def test_an_ask_of_more_than_the_budget_leaves_says_how_many_it_handed_out(run_cli, tmp_path,
                                                                            caplog):
     """``latentune ask DIR --n 5`` with 3 suggestions left in the phase's budget handed out 3

@@ -53,6 +53,7 @@ import hashlib
 import json
 import logging
 import os
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -356,9 +357,10 @@ def ask(study: Any, n: int = 1, *, system: Any = None, space: ParameterSpace | N
         raise UsageError(f"lease_s must be a positive number of seconds, got {lease_s!r}")
     if not study.exists:        # the first ask: refused before the directory is written
         check_first_ask(study, system, space, phase, latent, given)
-    with study.run.writing(wait=WAIT_S) as st:
+    with study.run.writing(wait=WAIT_S) as st, ExitStack() as undo:
         ctx = _stored_context(study, system, space, phase, latent, given)
-        if ctx is None:
+        if ctx is None:         # options to record: a failure from here leaves the run as it was
+            undo.enter_context(study.run.as_before_on_error())
             ctx = _context(study, st, system, space, phase, latent, given)
         phases = (Phase.ZERO_SHOT, ctx.phase) if ctx.phase == Phase.PHASE3 else (ctx.phase,)
         refuse_if_fall_budget_spent(study, st, ctx.phase, ctx.options)
@@ -369,6 +371,7 @@ def ask(study: Any, n: int = 1, *, system: Any = None, space: ParameterSpace | N
         if need > 0:
             if not _take_prepared(study, st, ctx.phase, ctx.options, need):
                 if not ctx.built:
+                    undo.enter_context(study.run.as_before_on_error())
                     ctx = _context(study, st, system, space, phase, latent, given)
                 _queue(study, st, ctx.phase, _critic_batch(study, st, ctx.phase, ctx.options,
                                                            ctx.space, ctx.latent, need))

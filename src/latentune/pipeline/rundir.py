@@ -7,17 +7,20 @@ a short writer (an ask or a tell) may wait a bounded time for the lock instead (
 """
 from __future__ import annotations
 
+import logging
 import os
 import time
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
+from typing import Any, Iterator
 
 from latentune.errors import LockError, StoreError, UsageError
 from latentune.pipeline.evaluators import (BACKENDS, Evaluator, check_timeout, check_workers,
                                            make_evaluator)
 from latentune.pipeline.store import RunStore
 from latentune.system import EvaluationError
+
+log = logging.getLogger(__name__)
 
 
 class RunDir:
@@ -53,6 +56,9 @@ class RunDir:
         self._store: RunStore | None = None
         self._lock_fd: int | None = None
         self._lock_depth = 0
+        self._found: tuple[set[str] | None, bool] = (None, False)
+        """(the directory's entries, whether it held a store) when the lock was taken."""
+        self._remove_lock = False
         self._evaluator = evaluator
         self._owns_evaluator = evaluator is None
         self.trial_timeout: float | None = None
@@ -107,7 +113,12 @@ class RunDir:
         if self._lock_depth == 0:
             if evaluating:
                 self.evaluator()
+            had_dir, had_lock = self.dir.is_dir(), (self.dir / "run.lock").exists()
             self._acquire(wait)
+            found = set(os.listdir(self.dir))       # after the lock: no writer meanwhile
+            if not had_lock:
+                found.discard("run.lock")
+            self._found = (found if had_dir else None, self.exists)
         self._lock_depth += 1
         try:
             st = self.open()
@@ -119,21 +130,72 @@ class RunDir:
             if self._lock_depth == 0:
                 self._release()
 
+    @contextmanager
+    def as_before_on_error(self) -> Iterator[None]:
+        """Inside :meth:`writing`: an exception raised in the block (then re-raised) leaves the
+        directory as the outermost :meth:`writing` found it. When it held no run store, the
+        store is closed and everything written into the directory since is removed (the lock
+        file, and the directory itself when it was created); else the store is put back as it
+        was on entering the block (:meth:`RunStore.snapshot`) and the files new in the
+        directory (a copied latent space) are removed. Both happen before the lock is
+        released, so no other writer sees the half-made run."""
+        if self._lock_depth == 0:
+            raise RuntimeError("as_before_on_error is used inside writing()")
+        found, had_store = self._found
+        copy = self.open().snapshot() if had_store else None
+        try:
+            yield
+        except BaseException:
+            try:
+                self._put_back(found, copy)
+            except Exception as exc:  # noqa: BLE001 - the write's own error is the one to see
+                log.warning("%s: could not undo the failed write: %s", self.dir, exc)
+            copy = None
+            raise
+        finally:
+            if copy is not None:
+                copy.close()
+
+    def _put_back(self, found: set[str] | None, copy: Any) -> None:
+        """Undo a failed write (see :meth:`as_before_on_error`); what cannot be removed is
+        logged."""
+        import shutil
+
+        keep = set(found or ())
+        if copy is not None:
+            self.open().restore(copy)
+            keep |= {"run.lock", "run.db", "run.db-wal", "run.db-shm", "run.db-journal"}
+        elif self._store is not None:
+            self._store.close()
+            self._store = None
+        for name in sorted(set(os.listdir(self.dir)) - keep - {"run.lock"}):
+            path = self.dir / name
+            try:
+                shutil.rmtree(path) if path.is_dir() and not path.is_symlink() else path.unlink()
+            except OSError as exc:
+                log.warning("%s: could not remove %s after the failed write: %s", self.dir,
+                            name, exc.strerror or exc)
+        self._remove_lock = "run.lock" not in keep
+
     def _acquire(self, wait: float) -> None:
         import fcntl
 
-        try:
-            self.dir.mkdir(parents=True, exist_ok=True)
-            fd = os.open(self.dir / "run.lock", os.O_RDWR | os.O_CREAT, 0o644)
-        except OSError as exc:
-            raise StoreError(f"cannot write to {self.dir}: {exc.strerror or exc}") from None
         deadline = time.monotonic() + max(0.0, float(wait))
         while True:
             try:
+                self.dir.mkdir(parents=True, exist_ok=True)
+                fd = os.open(self.dir / "run.lock", os.O_RDWR | os.O_CREAT, 0o644)
+            except OSError as exc:
+                raise StoreError(f"cannot write to {self.dir}: {exc.strerror or exc}") from None
+            try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                break
+                if self._same_lock(fd):
+                    break
+                os.close(fd)        # the holder removed the lock file (a failed first write)
+                continue
             except OSError:
                 if time.monotonic() < deadline:
+                    os.close(fd)
                     time.sleep(0.05)
                     continue
                 try:
@@ -148,14 +210,29 @@ class RunDir:
         os.pwrite(fd, f"pid {os.getpid()} since {time.strftime('%Y-%m-%d %H:%M:%S')}".encode(), 0)
         self._lock_fd = fd
 
+    def _same_lock(self, fd: int) -> bool:
+        """Whether ``fd`` is still the file ``DIR/run.lock`` (not one removed meanwhile)."""
+        try:
+            return os.fstat(fd).st_ino == os.stat(self.dir / "run.lock").st_ino
+        except OSError:
+            return False
+
     def _release(self) -> None:
         if self._lock_fd is not None:
             try:
                 os.ftruncate(self._lock_fd, 0)
+                if self._remove_lock:           # removed while held: see _same_lock
+                    os.unlink(self.dir / "run.lock")
             except OSError:
                 pass
             os.close(self._lock_fd)       # closing releases the flock
             self._lock_fd = None
+        if self._remove_lock and self._found[0] is None:
+            try:
+                self.dir.rmdir()            # created by the failed write, and empty again
+            except OSError:
+                pass
+        self._remove_lock = False
 
     def evaluator(self) -> Evaluator:
         """The evaluator (started on first use; stopped by :meth:`close`)."""

@@ -374,6 +374,27 @@ class RunStore:
         except (json.JSONDecodeError, TypeError):
             raise StoreError(f"{self.path} is not a latentune run store (bad meta)") from None
 
+    def snapshot(self) -> sqlite3.Connection:
+        """A copy of the whole store in memory (an SQLite connection), for :meth:`restore`."""
+        copy = sqlite3.connect(":memory:")
+        try:
+            self.con.backup(copy)
+        except sqlite3.Error as exc:
+            copy.close()
+            raise StoreError(f"run store {self.path}: {exc}") from None
+        return copy
+
+    def restore(self, copy: sqlite3.Connection) -> None:
+        """Put the store back as :meth:`snapshot` copied it (tables, schema and meta, in one
+        write) and close the copy."""
+        try:
+            copy.backup(self.con)
+        except sqlite3.Error as exc:
+            raise StoreError(f"run store {self.path}: {exc}") from None
+        finally:
+            copy.close()
+        self._current = self._is_current()
+
     # ------------------------------------------------------------------ meta
     def set_meta(self, key: str, value: Any) -> None:
         """Store a JSON-able value under ``key`` (its own transaction)."""
