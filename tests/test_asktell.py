@@ -1372,6 +1372,47 @@ def test_the_tell_that_spends_the_fall_budget_says_the_phase_is_over(run_cli, tm
     assert code == 2 and "fall budget is spent" in err and "fall_budget" not in err, err
 
 
+def falls_mid(x: np.ndarray):
+    """A quadratic that falls where b + c > 0.5 (physical)."""
+    if x[1] + x[2] > 0.5:
+        return lt.Outcome(None, failed=True)
+    return float(np.sum((x - 0.2) ** 2))
+
+
+def test_a_phase_run_stops_in_its_batch_where_ask_tell_stops_at_the_fall_budget(run_cli,
+                                                                                 tmp_path, src30):
+    """``phase3(..., transfer_options={"fall_budget": 0.1})`` (1 fall allowed) whose first
+    trial after the standing zero-shot one fell ran the other three trials of its batch all
+    the same (one more fall: 2 counted, 1 allowed), where ask/tell hands out nothing after
+    that tell. The phase run now starts no trial once the budget is spent: it stores the rows
+    ask/tell stores, says it stopped with 3 trials of its batch not run, and ``status``
+    reports the budget (3 asked, not run) as for ask/tell."""
+    shutil.copytree(src30, tmp_path / "src")
+    sys_ = lt.FunctionSystem(SPACE, falls_mid)
+    opts = {"fall_budget": 0.1}
+    lines: list[str] = []
+    with lt.Study(tmp_path / "run", seed=0, log=lines.append) as run:
+        res = run.phase3(sys_, 12, latent=tmp_path / "src", transfer_options=opts)
+        got = rows_of(run, Phase.PHASE3), rows_of(run, Phase.ZERO_SHOT), run.status()
+    assert res.n == 1 and res.not_run == 3, res
+    assert lines[-1].endswith("stopped at 1 of 12 trials: its fall budget (1 fall) is spent "
+                              "(3 trials of its last batch not run)"), lines[-1]
+    with lt.Study(tmp_path / "run", seed=0) as run:      # a resume runs none of them either
+        again = run.phase3(sys_, 12, latent=tmp_path / "src", transfer_options=opts)
+        assert (again.n, again.n_new) == (1, 0) and run.status() == got[2]
+    with lt.Study(tmp_path / "at", seed=0) as at:
+        with pytest.raises(asktell.FallBudgetSpent):
+            person(at, sys_, 12, system=sys_, phase=3, latent=tmp_path / "src", budget=12,
+                   transfer_options=opts)
+        want = rows_of(at, Phase.PHASE3), rows_of(at, Phase.ZERO_SHOT), at.status()
+    assert got[:2] == want[:2]
+    assert got[2]["fall_budget"] == want[2]["fall_budget"] == {
+        "falls_allowed": 1, "falls": 1, "counts": "after_stand", "spent": True, "not_run": 3}
+    code, out, _ = run_cli("status", tmp_path / "run")
+    assert code == 0 and "1 allowed; spent: phase 3 asks no more (3 trials asked not run)" \
+        in out, out
+
+
 def test_an_ask_after_the_fall_budget_is_spent_refuses_as_status_says(run_cli, tmp_path, src30,
                                                                       caplog):
     """``latentune status`` said "fall budget: 1 fall counted, 1 allowed; spent: phase 3 asks no

@@ -242,6 +242,34 @@ def test_process_pool_close_does_not_wait_for_a_trial_that_was_left():
     assert time.monotonic() - t0 < 10
 
 
+def _slow_above_half(x):
+    if x[0] > 0.5:
+        time.sleep(1.0)                     # still running when the quick one has ended
+    return float(x[0])
+
+
+@pytest.mark.parametrize("backend", ["serial", "process"])
+def test_imap_with_stop_runs_no_trial_after_it_but_finishes_the_running_ones(backend):
+    """``imap(fun, X, stop=f)``: a phase whose fall budget was spent by a batch's first trial
+    ran the batch's other trials all the same (the process pool had them all queued). Once
+    ``stop()`` is True no further trial starts; one running on another worker finishes and is
+    yielded; the others are never run."""
+    from latentune.pipeline.evaluators import ProcessEvaluator, SerialEvaluator
+
+    ev = SerialEvaluator() if backend == "serial" else ProcessEvaluator(2)
+    X = np.array([[0.0], [1.0], [0.1], [0.2]])
+    seen: list[int] = []
+    try:
+        for i, out in ev.imap(_slow_above_half, X, stop=lambda: 0 in seen):
+            seen.append(i)
+            assert out.cost == X[i, 0]
+        assert seen == ([0] if backend == "serial" else [0, 1])
+        assert sorted(i for i, _ in ev.imap(_slow_above_half, X, stop=lambda: False)) == \
+            [0, 1, 2, 3]
+    finally:
+        ev.close()
+
+
 def test_process_pool_left_imap_then_a_dead_worker_is_clean(monkeypatch):
     """(An imap left while trials were queued (SIGTERM, Ctrl-C, an error) cancelled them in
     this thread; a worker that then died, or close() terminating the workers, made the pool's

@@ -216,3 +216,73 @@ def test_phase_with_decoder_and_task(tmp_path):
             assert row.z.shape == (3,) and row.theta.shape == (d,)
             np.testing.assert_allclose(row.theta, decoder(row.z)[0])
             assert row.wall_s > 0 and row.fell == (row.cost >= 100)
+
+
+def _falls_right(x: np.ndarray):
+    import latentune as lt
+
+    return lt.Outcome(None, failed=True) if x[0] > 0.5 else float(np.sum(x ** 2))
+
+
+def _one_fall_critic():
+    """Random search with a fall budget of one fall (the transfer critic's protocol)."""
+    from latentune.critic.random_search import RandomSearch
+
+    class OneFall(RandomSearch):
+        def falls_allowed(self) -> int:
+            return 1
+
+        def fall_budget_spent_after(self, fell: np.ndarray) -> bool:
+            return int(self._fell.sum()) + int(np.sum(fell)) >= 1
+
+        @property
+        def fall_budget_spent(self) -> bool:
+            return self.fall_budget_spent_after(np.zeros(0, dtype=bool))
+
+    return OneFall(3, batch_size=4, seed=3)
+
+
+class _KilledAfter:
+    """Serial, and "dies" (raises :class:`_Killed`) when asked for a trial after ``after``
+    results, whatever its ``stop`` says."""
+
+    def __init__(self, after: int) -> None:
+        self.left = after
+
+    def imap(self, fun, X, stop=None):
+        from latentune.pipeline.evaluators import run_trial
+
+        for i, x in enumerate(X):
+            if self.left == 0:
+                raise _Killed
+            self.left -= 1
+            yield i, run_trial(fun, None, x)
+
+
+def test_a_phase_starts_no_trial_of_its_batch_once_its_fall_budget_is_spent(tmp_path):
+    """A critic with a fall budget (one fall) whose batch's second trial fell: the phase ran
+    the batch's third and fourth trials before it stopped. It now stops at the fall (the
+    rest of the batch not run, recorded, the critic told the two), and a run killed right
+    after the fall resumes to the same stop without running them."""
+    import latentune as lt
+    from latentune.pipeline.evaluators import SerialEvaluator
+    from latentune.pipeline import phases
+    from latentune.pipeline.phases import batch_key, run_phase
+
+    sys_ = lt.FunctionSystem(lt.ParameterSpace(["a", "b", "c"], [0.0] * 3, [1.0] * 3),
+                             _falls_right)
+    asked = _one_fall_critic().ask(4)
+    assert [bool(x > 0.5) for x in asked[:, 0]] == [False, True, False, False]
+    with RunStore(tmp_path / "whole", create=True) as st:
+        res = run_phase(st, 1, sys_, _one_fall_critic(), 12, SerialEvaluator())
+        assert res.n == 2 and res.not_run == 2, res
+        np.testing.assert_array_equal(_thetas(st), asked[:2])
+        assert st.get_meta(phases.fall_stop_key(1)) == {"n": 2, "not_run": 2}
+        assert st.get_meta(batch_key(1)) is None
+    with RunStore(tmp_path / "killed", create=True) as st:
+        with pytest.raises(_Killed):
+            run_phase(st, 1, sys_, _one_fall_critic(), 12, _KilledAfter(2))
+        assert st.count(1) == 2 and st.get_meta(batch_key(1))
+        res = run_phase(st, 1, sys_, _one_fall_critic(), 12, SerialEvaluator())
+        assert (res.n, res.n_new, res.not_run) == (2, 0, 2), res
+        np.testing.assert_array_equal(_thetas(st), asked[:2])

@@ -1010,7 +1010,9 @@ def cmd_status(args: argparse.Namespace) -> int:
             if fb.get("counts") == "after_stand" else ""
         print(f"phase 3 fall budget: {counted(fb['falls'], 'fall')} counted{which}, "
               f"{fb['falls_allowed']} "
-              "allowed" + ("; spent: phase 3 asks no more" if fb["spent"] else ""))
+              "allowed" + ("; spent: phase 3 asks no more" if fb["spent"] else "")
+              + (f" ({counted(fb['not_run'], 'trial')} asked not run)"
+                 if fb.get("not_run") else ""))
     leases = s.get("leases") or {}
 
     def held(i: int) -> str:

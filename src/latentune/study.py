@@ -284,7 +284,7 @@ class Study:
                     self.manifest.update(phase3_handover=critic.rule())
             results.write_best(st, self.dir, system.space, Phase.PHASE3)
             self.log(f"phase 3: {res.n} evaluations, {res.best_text()}"
-                     + stop_note(critic, res.n, pc["budget"]))
+                     + stop_note(critic, res.n, pc["budget"], res.not_run))
             return res
 
     def preservation(self, system: Any, latent: Any) -> dict[str, Any]:

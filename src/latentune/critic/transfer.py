@@ -1168,11 +1168,18 @@ class Transfer(TwoSpaceCritic):
         every later ask is the best θ that did not fall (tag pool ``full``), as
         ``stop_converged`` asks the centre, and a loop that runs the trials itself stops there.
         While every trial fell the search goes on: it has nothing to stop at."""
-        fell = self._fell
+        return self.fall_budget_spent_after(np.zeros(0, dtype=bool))
+
+    def fall_budget_spent_after(self, fell: np.ndarray) -> bool:
+        """:attr:`fall_budget_spent` once outcomes ``fell`` (n,) bool (trials of an asked batch
+        that finished, not told yet) are told after the told ones: what a loop running the
+        batch checks before it starts each further trial."""
+        told = self._fell
         n = self._not_target
         if n is not None:
-            fell = np.delete(fell, np.arange(n[0], min(n[1], len(fell))))
-        return fall_budget_spent(fell, self.opts["fall_budget"], self.budget,
+            told = np.delete(told, np.arange(n[0], min(n[1], len(told))))
+        return fall_budget_spent(np.concatenate([told, np.asarray(fell, dtype=bool)]),
+                                 self.opts["fall_budget"], self.budget,
                                  self.opts["fall_budget_counts"])
 
     def tell_not_target(self, X: np.ndarray, y: np.ndarray, fell: np.ndarray) -> None:

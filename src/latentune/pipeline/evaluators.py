@@ -4,6 +4,9 @@ An evaluator maps ``fun`` over the rows of ``X`` (n, d):
 
 * ``imap(fun, X)`` yields ``(i, result)`` as each trial completes (any order), so the caller
   can store every trial at once; ``map(fun, X)`` returns the (n,) float costs in the order of X.
+  ``imap(fun, X, stop=f)`` starts a trial only while ``f()`` is False: once it is True the
+  trials not started yet are never run (nor yielded) and those running finish and are yielded
+  (the process pool then holds no more trials than it has workers, so that none waits in it).
 * ``fun`` is a System (an object with ``evaluate``, see :mod:`latentune.system`): then
   ``result`` is an :class:`~latentune.system.Outcome`; or a plain callable ``(d,) -> float``
   (``lt.minimize``): then ``result`` is an Outcome holding the float as it was returned
@@ -44,7 +47,7 @@ import threading
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 import numpy as np
 
@@ -314,8 +317,11 @@ class Evaluator:
 
     workers: int = 1
 
-    def imap(self, fun: Any, X: np.ndarray) -> Iterator[tuple[int, Outcome | TrialError]]:
-        """Yield ``(i, Outcome or TrialError)`` for every row i of X (n, d), as they complete."""
+    def imap(self, fun: Any, X: np.ndarray, stop: Callable[[], bool] | None = None
+             ) -> Iterator[tuple[int, Outcome | TrialError]]:
+        """Yield ``(i, Outcome or TrialError)`` for every row i of X (n, d), as they complete;
+        with ``stop``, only the rows started before ``stop()`` turned True (see the module
+        docstring)."""
         raise NotImplementedError
 
     def map(self, fun: Any, X: np.ndarray) -> np.ndarray:
@@ -352,8 +358,11 @@ class SerialEvaluator(Evaluator):
     a crash of the interpreter or of a simulator's C code) ends the run with it, and a hung one
     cannot be stopped: the process backend survives both (:class:`ProcessEvaluator`)."""
 
-    def imap(self, fun: Any, X: np.ndarray) -> Iterator[tuple[int, Outcome | TrialError]]:
+    def imap(self, fun: Any, X: np.ndarray, stop: Callable[[], bool] | None = None
+             ) -> Iterator[tuple[int, Outcome | TrialError]]:
         for i, x in enumerate(np.asarray(X, dtype=float)):
+            if stop is not None and stop():
+                return
             yield i, run_trial(fun, None, x)
 
     def __repr__(self) -> str:
@@ -417,7 +426,8 @@ class ProcessEvaluator(Evaluator):
         self.replaced += 1
         return {p.pid: p.exitcode for p in procs}, starts
 
-    def imap(self, fun: Any, X: np.ndarray) -> Iterator[tuple[int, Outcome | TrialError]]:
+    def imap(self, fun: Any, X: np.ndarray, stop: Callable[[], bool] | None = None
+             ) -> Iterator[tuple[int, Outcome | TrialError]]:
         from concurrent.futures import FIRST_COMPLETED, wait
         from concurrent.futures.process import BrokenProcessPool
 
@@ -442,16 +452,20 @@ class ProcessEvaluator(Evaluator):
             self._replace_pool()[1].close()    # a worker died, or trials of a left imap run
         try:
             while todo or futs:
-                for j, i in enumerate(todo):
+                if stop is not None and todo and stop():
+                    todo = []                   # not started: never run
+                    if not futs:
+                        break
+                room = len(todo) if stop is None else max(0, self.workers - len(futs))
+                for j, i in enumerate(todo[:room]):
                     try:
                         futs[self._pool.submit(_run_sent, fun, key, X[i], (run, i))] = i
                     except BrokenProcessPool:   # a worker died while the batch was submitted
-                        todo = todo[j:]         # not run yet: submitted after the break
+                        room = j                # not run yet: submitted after the break
                         if not futs:            # nothing submitted here to see the break
                             self._replace_pool()[1].close()
                         break
-                else:
-                    todo = []
+                todo = todo[room:]
                 done, _ = wait(futs, timeout=self._wait_s(started, stopped, futs.values()),
                                return_when=FIRST_COMPLETED)
                 _read_starts(self._starts, run, started)
@@ -823,7 +837,8 @@ class RayEvaluator(Evaluator):
         waits = [t - now for t, _ in self._later] + ([] if running else [1.0])
         return min(waits) if waits else None
 
-    def imap(self, fun: Any, X: np.ndarray) -> Iterator[tuple[int, Outcome | TrialError]]:
+    def imap(self, fun: Any, X: np.ndarray, stop: Callable[[], bool] | None = None
+             ) -> Iterator[tuple[int, Outcome | TrialError]]:
         from collections import deque
 
         ray = self._ray
@@ -843,6 +858,10 @@ class RayEvaluator(Evaluator):
         none_alive: float | None = None        # since when no actor is alive (trials waiting)
         try:
             while todo or running:
+                if stop is not None and todo and stop():
+                    todo.clear()                # not started: never run
+                    if not running:
+                        break
                 while todo and self._idle:
                     i, a = todo.popleft(), self._idle.pop(0)
                     running[a.run.remote(fun_ref, key, X[i])] = (i, a)

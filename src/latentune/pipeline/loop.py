@@ -258,14 +258,15 @@ def target_budget(pc: dict[str, Any], n_outside: int) -> int | None:
     return None if pc.get("budget") is None else int(pc["budget"]) + int(n_outside)
 
 
-def stop_note(critic: Any, n: int, budget: int) -> str:
+def stop_note(critic: Any, n: int, budget: int, not_run: int = 0) -> str:
     """Why a phase ended with ``n`` of its ``budget`` trials, to end its log line: the fall
-    budget a critic spent (:attr:`~latentune.critic.transfer.Transfer.fall_budget_spent`), or
-    nothing."""
+    budget a critic spent (:attr:`~latentune.critic.transfer.Transfer.fall_budget_spent`), with
+    the ``not_run`` trials of its last batch it did not start, or nothing."""
     if n >= budget or not getattr(critic, "fall_budget_spent", False):
         return ""
     return (f"; stopped at {n} of {counted(budget, 'trial')}: its fall budget "
-            f"({counted(critic.falls_allowed(), 'fall')}) is spent")
+            f"({counted(critic.falls_allowed(), 'fall')}) is spent"
+            + (f" ({counted(not_run, 'trial')} of its last batch not run)" if not_run else ""))
 
 
 def source_costs(run: Any, space: ParameterSpace, counts: dict[str, int] | None = None

@@ -39,6 +39,7 @@ trial timeout stopped them all), once per streak.
 """
 from __future__ import annotations
 
+import inspect
 import logging
 import math
 import time
@@ -173,6 +174,8 @@ class PhaseResult:
     best_cost: float
     best_theta: np.ndarray | None
     wall_s: float
+    not_run: int = 0
+    """Trials of the last batch not run: the fall budget was spent before they started."""
 
     def best_text(self, fmt: str = ".3f") -> str:
         """``"best cost X"``, or ``"no trial stood"`` when every trial of the phase failed (its
@@ -330,11 +333,22 @@ def batch_key(phase: int) -> str:
     return f"asked_batch_{int(phase)}"
 
 
-def save_state(store: RunStore, phase: int, critic: Any) -> None:
+def fall_stop_key(phase: int) -> str:
+    """The store's meta key of the record of a phase run that stopped in the middle of a batch
+    because its fall budget was spent: ``{"n": rows of the phase then, "not_run": trials of
+    the batch it did not run}`` (:func:`run_phase`, read by
+    :func:`~latentune.pipeline.results.fall_budget`)."""
+    return f"fall_stop_{int(phase)}"
+
+
+def save_state(store: RunStore, phase: int, critic: Any,
+               extra: dict[str, Any] | None = None) -> None:
     """Store ``critic.state_dict()`` for ``phase`` (nothing for a critic without state) and
-    remove the record of the batch just told (:class:`AskedBatch`), in one transaction."""
+    remove the record of the batch just told (:class:`AskedBatch`), in one transaction (with
+    the meta entries ``extra``)."""
     state = critic.state_dict() if hasattr(critic, "state_dict") else {}
-    store.update_meta({batch_key(phase): None, **({state_key(phase): state} if state else {})})
+    store.update_meta({batch_key(phase): None, **({state_key(phase): state} if state else {}),
+                       **(extra or {})})
 
 
 @dataclass
@@ -461,7 +475,11 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
               strategy: str = "plain") -> PhaseResult:
     """Run (or resume) one tuning phase until ``budget`` evaluations are stored, or until a
     critic with a fall budget (``fall_budget_spent``: the transfer critic's ``fall_budget``)
-    has spent it.
+    has spent it. The budget is checked before each trial starts (its
+    ``fall_budget_spent_after`` the batch's finished trials): once spent, the batch's trials
+    not started are not run (those running on other workers finish and are stored), the
+    critic is told the ones that ran, and the stop is recorded (:func:`fall_stop_key`;
+    ``PhaseResult.not_run``).
 
     Args:
         store: the run store; rows of ``phase`` already stored are told to ``critic`` first.
@@ -504,6 +522,14 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
     streak = failure_streak(store, phase)
     stopped = 0                     # of them, the trials stopped at the trial timeout
     new = 0
+    not_run = 0
+    spent_after = getattr(critic, "fall_budget_spent_after", None)
+    if spent_after is not None and critic.falls_allowed() is None:
+        spent_after = None          # no fall budget: a batch runs whole
+
+    def spent() -> bool:            # the fall budget, with the batch's finished trials
+        return spent_after(np.array([batch.done[i][1] for i in sorted(batch.done)],
+                                    dtype=bool))
     try:
         if bar is not None and n0:
             bar.set_postfix(best=f"{best:.3f}")
@@ -522,7 +548,8 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
                 todo = todo[:max_new - new]
             error: str | None = None
             for j, r in _lost_head_says_stored(
-                    _results(evaluator, system, thetas[todo], known or {}), store, phase):
+                    _results(evaluator, system, thetas[todo], known or {},
+                             None if spent_after is None else spent), store, phase):
                 i = todo[j]
                 if isinstance(r, TrialError):
                     error = error or r.message
@@ -554,6 +581,20 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
                                       f"{counted(idx, 'evaluation')} "
                                       f"{'is' if idx == 1 else 'are'} stored; fix the system "
                                       "and resume)")
+            if spent_after is not None and len(batch.done) < len(thetas) and spent():
+                keep = sorted(batch.done)           # told in ask order, as a whole batch is
+                not_run = len(thetas) - len(keep)
+                critic.tell(U[keep], np.array([batch.done[i][0] for i in keep], dtype=float),
+                            T[keep].astype(np.int64),
+                            fell=np.array([batch.done[i][1] for i in keep], dtype=bool),
+                            **({} if Z is None else {"z": Z[keep]}))
+                save_state(store, phase, critic,
+                           {fall_stop_key(phase): {"n": idx, "not_run": not_run}})
+                log.info("phase %d: the fall budget is spent (%d falls): stopped after %d of "
+                         "%d trials, %d of its last batch not run", int(phase),
+                         critic.falls_allowed(), idx, budget, not_run)
+                batch = None
+                break
             if len(batch.done) < len(thetas):      # max_new stopped it: it stays recorded
                 break
             # rows are stored as they complete (crash safety); the critic is told the batch in
@@ -569,7 +610,7 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
     b = store.best(phase)
     wall = time.perf_counter() - t0
     return PhaseResult(phase, store.count(phase), new, b.cost if b else math.inf,
-                       None if b is None else b.theta, wall)
+                       None if b is None else b.theta, wall, not_run)
 
 
 def _lost_head_says_stored(results: Any, store: RunStore, phase: int) -> Any:
@@ -583,17 +624,44 @@ def _lost_head_says_stored(results: Any, store: RunStore, phase: int) -> Any:
 
 
 def _results(evaluator: Evaluator, system: Any, thetas: np.ndarray,
-             known: dict[bytes, Outcome]) -> Any:
-    """``(i, Outcome | TrialError)`` for each row of ``thetas``: known ones first (not run)."""
+             known: dict[bytes, Outcome], stop: Callable[[], bool] | None = None) -> Any:
+    """``(i, Outcome | TrialError)`` for each row of ``thetas``: known ones first (not run).
+    ``stop``: no further row once it returns True (the evaluator's ``imap(..., stop=)``; an
+    evaluator whose ``imap`` takes no ``stop`` is left after the result that made it True)."""
     thetas = np.ascontiguousarray(thetas, dtype=float)
     reuse = [i for i in range(len(thetas)) if thetas[i].tobytes() in known]
     for i in reuse:
+        if stop is not None and stop():
+            return
         out = known[thetas[i].tobytes()]
         yield i, Outcome(out.cost, out.failed, {**out.info, "reused": True}, out.wall_s)
     todo = [i for i in range(len(thetas)) if i not in reuse]
-    if todo:
-        for j, r in evaluator.imap(system, thetas[todo]):
-            yield todo[j], r
+    if not todo:
+        return
+    if stop is None:
+        results = evaluator.imap(system, thetas[todo])
+    elif "stop" in inspect.signature(evaluator.imap).parameters:
+        results = evaluator.imap(system, thetas[todo], stop=stop)
+    else:
+        results = _until(evaluator.imap(system, thetas[todo]), stop)
+    for j, r in results:
+        yield todo[j], r
+
+
+def _until(results: Any, stop: Callable[[], bool]) -> Any:
+    """``results`` as they come, left (closed) once ``stop()`` is True after one."""
+    if stop():
+        return
+    it = iter(results)
+    try:
+        for r in it:
+            yield r
+            if stop():
+                return
+    finally:
+        close = getattr(it, "close", None)
+        if close is not None:
+            close()
 
 
 def ensure_manual(store: RunStore, system: Any, seed: int | None = None,

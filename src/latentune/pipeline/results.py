@@ -211,13 +211,16 @@ def decisions_summary(ds: list[dict[str, Any]]) -> dict[str, Any] | None:
 
 def fall_budget(store: RunStore, config: dict[str, Any] | None) -> dict[str, Any] | None:
     """The transfer phase 3's fall budget (``fall_budget`` > 0; its stored state's options
-    win, as a resume restores them): ``{falls_allowed, falls, counts, spent}`` (``falls``: as
-    ``fall_budget_counts`` counts them) over the target's
+    win, as a resume restores them): ``{falls_allowed, falls, counts, spent, not_run}``
+    (``falls``: as ``fall_budget_counts`` counts them) over the target's
     trials the critic is told (manual, zero-shot and phase 3) out of phase 3's budget and
-    those trials; None for another phase 3, none yet, or no budget."""
+    those trials; ``not_run``: once spent, the trials asked and never run, ask/tell's queued
+    suggestions or the rest of the batch a phase run stopped in (its record,
+    :func:`~latentune.pipeline.phases.fall_stop_key`, while no trial was stored after it);
+    None for another phase 3, none yet, or no budget."""
     from latentune.critic.transfer import TRANSFER_DEFAULTS, fall_budget_status, stored_options
     from latentune.pipeline.loop import target_budget, told_outside
-    from latentune.pipeline.phases import state_key
+    from latentune.pipeline.phases import fall_stop_key, state_key
 
     pc = (config or {}).get("phase3") or {}
     if pc.get("strategy") != "transfer":
@@ -227,8 +230,16 @@ def fall_budget(store: RunStore, config: dict[str, Any] | None) -> dict[str, Any
         {**TRANSFER_DEFAULTS, **(pc.get("transfer_options") or {})}
     rows = told_outside(store)
     fell = np.array([bool(r.fell) for r in rows + store.rows(Phase.PHASE3)], dtype=bool)
-    return fall_budget_status(fell, opts["fall_budget"], target_budget(pc, len(rows)),
-                              opts["fall_budget_counts"])
+    fb = fall_budget_status(fell, opts["fall_budget"], target_budget(pc, len(rows)),
+                            opts["fall_budget_counts"])
+    if fb is not None:
+        stop = store.get_meta(fall_stop_key(Phase.PHASE3)) or {}
+        queued = sum(1 for t in store.trials() if t.status == "queued"
+                     and t.phase in (Phase.ZERO_SHOT, Phase.PHASE3))
+        ran = stop.get("n") == store.count(Phase.PHASE3)
+        fb["not_run"] = (queued + (int(stop.get("not_run", 0)) if ran else 0)) \
+            if fb["spent"] else 0
+    return fb
 
 
 def status(store: RunStore, run_dir: Path, config: dict[str, Any] | None = None
