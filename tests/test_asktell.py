@@ -1380,13 +1380,15 @@ def falls_mid(x: np.ndarray):
 
 
 def test_a_phase_run_stops_in_its_batch_where_ask_tell_stops_at_the_fall_budget(run_cli,
-                                                                                 tmp_path, src30):
+                                                                                 tmp_path, src30,
+                                                                                 caplog):
     """``phase3(..., transfer_options={"fall_budget": 0.1})`` (1 fall allowed) whose first
     trial after the standing zero-shot one fell ran the other three trials of its batch all
     the same (one more fall: 2 counted, 1 allowed), where ask/tell hands out nothing after
     that tell. The phase run now starts no trial once the budget is spent: it stores the rows
     ask/tell stores, says it stopped with 3 trials of its batch not run, and ``status``
-    reports the budget (3 asked, not run) as for ask/tell."""
+    reports the budget (3 asked, not run) as for ask/tell. The stop was said only at -v
+    (``phase3`` ended with fewer trials and no word why): it is a warning now."""
     shutil.copytree(src30, tmp_path / "src")
     sys_ = lt.FunctionSystem(SPACE, falls_mid)
     opts = {"fall_budget": 0.1}
@@ -1397,9 +1399,13 @@ def test_a_phase_run_stops_in_its_batch_where_ask_tell_stops_at_the_fall_budget(
     assert res.n == 1 and res.not_run == 3, res
     assert lines[-1].endswith("stopped at 1 of 12 trials: its fall budget (1 fall) is spent "
                               "(3 trials of its last batch not run)"), lines[-1]
-    with lt.Study(tmp_path / "run", seed=0) as run:      # a resume runs none of them either
+    with lt.Study(tmp_path / "run", seed=0) as run, caplog.at_level(logging.WARNING):
         again = run.phase3(sys_, 12, latent=tmp_path / "src", transfer_options=opts)
-        assert (again.n, again.n_new) == (1, 0) and run.status() == got[2]
+        assert (again.n, again.n_new, again.not_run) == (1, 0, 3) and run.status() == got[2]
+    # said without -v (a warning, as the tell that spends it), by the run and its resume
+    assert [r.getMessage() for r in caplog.records if "fall budget" in r.getMessage()] == [
+        "phase 3's fall budget is spent (1 fall allowed): stopped after 1 of 12 trials (3 "
+        "trials of its last batch not run); its best θ is the result"] * 2
     with lt.Study(tmp_path / "at", seed=0) as at:
         with pytest.raises(asktell.FallBudgetSpent):
             person(at, sys_, 12, system=sys_, phase=3, latent=tmp_path / "src", budget=12,

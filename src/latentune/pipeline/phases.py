@@ -535,8 +535,9 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
             bar.set_postfix(best=f"{best:.3f}")
         while idx < budget and (max_new is None or new < max_new):
             if batch is None and getattr(critic, "fall_budget_spent", False):
-                log.info("phase %d: the fall budget is spent (%d falls): stopped after %d of "
-                         "%d trials", int(phase), critic.falls_allowed(), idx, budget)
+                rec = store.get_meta(fall_stop_key(phase)) or {}    # a stop in a batch before
+                not_run = int(rec.get("not_run", 0)) if rec.get("n") == idx else 0
+                _say_fall_stop(phase, critic.falls_allowed(), idx, budget, not_run)
                 break
             if batch is None:
                 k = min(critic.batch_size, budget - idx)   # whole: max_new leaves the rest
@@ -590,9 +591,7 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
                             **({} if Z is None else {"z": Z[keep]}))
                 save_state(store, phase, critic,
                            {fall_stop_key(phase): {"n": idx, "not_run": not_run}})
-                log.info("phase %d: the fall budget is spent (%d falls): stopped after %d of "
-                         "%d trials, %d of its last batch not run", int(phase),
-                         critic.falls_allowed(), idx, budget, not_run)
+                _say_fall_stop(phase, critic.falls_allowed(), idx, budget, not_run)
                 batch = None
                 break
             if len(batch.done) < len(thetas):      # max_new stopped it: it stays recorded
@@ -611,6 +610,15 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
     wall = time.perf_counter() - t0
     return PhaseResult(phase, store.count(phase), new, b.cost if b else math.inf,
                        None if b is None else b.theta, wall, not_run)
+
+
+def _say_fall_stop(phase: int, allowed: int, n: int, budget: int, not_run: int) -> None:
+    """Warn that ``phase`` stopped at ``n`` of its ``budget`` trials because its fall budget
+    (``allowed`` falls) is spent, with the ``not_run`` trials of its last batch it did not
+    start (as the ask/tell ``tell`` that spends it warns)."""
+    log.warning("phase %d's fall budget is spent (%s allowed): stopped after %d of %d trials%s; "
+                "its best θ is the result", int(phase), counted(allowed, "fall"), n, budget,
+                f" ({counted(not_run, 'trial')} of its last batch not run)" if not_run else "")
 
 
 def _lost_head_says_stored(results: Any, store: RunStore, phase: int) -> Any:
