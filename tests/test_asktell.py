@@ -1615,6 +1615,37 @@ def test_a_writer_waiting_for_a_failed_first_write_holds_the_lock_it_gets(tmp_pa
     assert sorted(p.name for p in d.iterdir() if "-" not in p.name) == ["run.db", "run.lock"]
 
 
+def test_another_latent_space_after_the_zero_shot_trial_is_refused(run_cli, tmp_path, src30,
+                                                                   error_line):
+    """``latentune ask DIR --vae B`` after a first ask with ``--vae A`` had handed out (or
+    told) the zero-shot trial, A's best θ, switched phase 3 to B's latent space and source
+    run without a word (options are fixed by a phase-3 trial, and the zero-shot one is not);
+    ``Study.phase3(latent=B)`` after a run that stopped after its zero-shot trial did the
+    same. Both are refused now, naming A, and nothing is changed."""
+    shutil.copytree(src30, tmp_path / "A")
+    shutil.copytree(src30, tmp_path / "B")
+    space = tmp_path / "space.json"
+    space.write_text(json.dumps(SPACE.to_dict()))
+    d = tmp_path / "t"
+    code, out, err = run_cli("ask", d, "--space", space, "--phase", "3", "--vae", tmp_path / "A")
+    assert code == 0 and "zero-shot" in out, err
+    for told in (False, True):
+        if told:
+            with lt.Study(d) as st:
+                st.tell(1, 0.3)
+        before = whole_store(d)
+        line = error_line(*run_cli("ask", d, "--vae", tmp_path / "B")[::2])
+        assert f"phase 3 was run with the latent space of {tmp_path / 'A'}, not " \
+            f"{tmp_path / 'B'} (its zero-shot trial is the best θ of {tmp_path / 'A'})" in line
+        assert whole_store(d) == before
+    with lt.Study(tmp_path / "run", seed=0) as st:
+        assert st.phase3(plant(0.3), 4, latent=tmp_path / "A", max_new=0).n == 0
+        assert st.store.count(Phase.ZERO_SHOT) == 1
+        with pytest.raises(StoreError, match="its zero-shot trial is the best θ of"):
+            st.phase3(plant(0.3), 4, latent=tmp_path / "B")
+        assert st.config()["phase3"]["latent_source"] == str((tmp_path / "A").resolve())
+
+
 def test_an_ask_of_more_than_the_budget_leaves_says_how_many_it_handed_out(run_cli, tmp_path,
                                                                            caplog):
     """``latentune ask DIR --n 5`` with 3 suggestions left in the phase's budget handed out 3

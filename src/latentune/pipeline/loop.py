@@ -435,13 +435,16 @@ def resolve_latent(run: RunDir, manifest: Manifest, latent: Any, space: Paramete
 
 def record_latent(run: RunDir, manifest: Manifest, ls: Any, source: str) -> None:
     """Record the latent space of phase 3 (copied into the run when it is another study's);
-    StoreError if phase 3 already ran on another one."""
+    StoreError if phase 3 already ran on another one: a phase-3 trial, or its zero-shot trial
+    (the other study's best θ, run, queued or handed out), is stored with it."""
     st = run.store
     prev = manifest.config().get("phase3_vae_source")
-    used = manifest.n_used(Phase.PHASE3)
+    zero_shot = manifest.n_used(Phase.ZERO_SHOT)
+    used = manifest.n_used(Phase.PHASE3) + zero_shot
     if prev is not None and prev != source and used > 0:
         raise StoreError(f"{run.dir}: phase 3 was run with the latent space of {prev}, "
-                         f"not {source}")
+                         f"not {source}" + ("" if used > zero_shot else
+                                            f" (its zero-shot trial is the best θ of {prev})"))
     if prev is None or used == 0:
         if source != "self":
             dst = run.dir / "phase3_vae"
