@@ -548,6 +548,24 @@ def test_ask_rejects_bad_space_files(capsys, tmp_path, content, expect):
     assert not (tmp_path / "d" / "run.db").exists()
 
 
+def test_space_file_reads_exponent_numbers(capsys, tmp_path):
+    """PyYAML reads 1e-4 and 1.0e6 (no dot, or no exponent sign) as text: a --space file
+    with such bounds was refused ('low must be numbers, not text'); they are numbers."""
+    f = tmp_path / "s.yaml"
+    f.write_text("names: [kp, ki]\nlow: [1e-4, -1E3]\nhigh: [1.0e6, 5e+2]\n"
+                 "log: [true, false]\nmanual: [1e-2, 0]\n")
+    assert main(["ask", str(tmp_path / "d"), "--space", str(f)]) == 0
+    capsys.readouterr()
+    with lt.Study(tmp_path / "d") as s:
+        sp = s.space()
+    assert list(sp.lower) == [1e-4, -1e3] and list(sp.upper) == [1e6, 500.0]
+    assert list(sp.manual_physical) == [1e-2, 0.0]
+    assert_one_line(capsys, "ask", tmp_path / "e", "--space", f.with_name("x.yaml"),
+                    expect="file not found")
+    f.write_text("names: [a]\nlow: [1e-4x]\nhigh: [1]\n")     # other text is still refused
+    assert_one_line(capsys, "ask", tmp_path / "e", "--space", f, expect="not text")
+
+
 def test_a_told_suggestion_cannot_be_told_again(capsys, asktell):
     d, _ = asktell
     assert main(["tell", str(d), "1", "--cost", "0.5"]) == 0

@@ -1035,11 +1035,13 @@ def cmd_status(args: argparse.Namespace) -> int:
 def _read_data(path: str, flag: str) -> Any:
     import yaml
 
+    from latentune import yamltext
+
     p = Path(path)
     if not p.is_file():
         raise CLIError(f"{flag}: file not found: {p}")
     try:
-        return yaml.safe_load(p.read_text())
+        return yamltext.load(p.read_text())
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
         raise CLIError(f"{flag}: {p} is not valid YAML/JSON ({str(exc).splitlines()[0]})") from None
 

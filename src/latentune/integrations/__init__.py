@@ -85,6 +85,7 @@ def _load_space(path: str) -> Any:
 
     import yaml
 
+    from latentune import yamltext
     from latentune.errors import CLIError
     from latentune.space import ParameterSpace
 
@@ -92,7 +93,7 @@ def _load_space(path: str) -> Any:
     if not p.is_file():
         raise CLIError(f"--space: file not found: {p}")
     try:
-        return ParameterSpace.from_dict(yaml.safe_load(p.read_text()))
+        return ParameterSpace.from_dict(yamltext.load(p.read_text()))
     except (yaml.YAMLError, ValueError, TypeError) as exc:
         raise CLIError(f"--space {p}: {' '.join(str(exc).split())[:200]}") from None
 

@@ -1,0 +1,28 @@
+"""YAML text as data, with numbers in exponent form read as numbers.
+
+PyYAML follows YAML 1.1, whose float needs a dot and a signed exponent: it reads ``1e-4``,
+``1E3``, ``5e+2`` and ``1.0e6`` as text. :func:`load` reads them as floats (YAML 1.2 and JSON
+do); everything else is :func:`yaml.safe_load`'s.
+"""
+from __future__ import annotations
+
+import re
+from typing import Any
+
+import yaml
+
+
+class ExponentLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` that also resolves a plain scalar in exponent form to a float."""
+
+
+ExponentLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."))
+
+
+def load(text: str) -> Any:
+    """The data of a YAML (or JSON) text, as ``yaml.safe_load`` gives it except that
+    exponent-form numbers (``1e-4``, ``1.0e6``) are floats; raises ``yaml.YAMLError``."""
+    return yaml.load(text, Loader=ExponentLoader)
