@@ -1691,3 +1691,26 @@ def test_a_latent_space_file_given_for_its_run_directory_is_named_a_file(run_cli
     space.write_text(json.dumps(SPACE.to_dict()))
     line = error_line(*run_cli("ask", tmp_path / "u", "--space", space, "--vae", f)[::2])
     assert line.endswith(f"--vae: {says[len('latent: '):]}"), line
+
+
+def test_an_ask_without_a_phase_goes_on_with_the_phase_3_a_phase_run_began(tmp_path, src30,
+                                                                           run_cli):
+    """A target run made by a phase run (``phase3 --vae SRC``), then ``latentune ask DIR``
+    without ``--phase``: the ask handed out the manual θ as a *phase-1* suggestion of the
+    target and fixed ask/tell there to phase 1, so ``ask --phase 3`` was then refused (with
+    the hint to ask phase 3 'with --vae DIR', the target itself). It goes on with the run's
+    phase 3 (as ``--phase 3`` does); a run that holds phase 1 alone still asks phase 1."""
+    sys_ = plant()
+    with lt.Study(tmp_path / "t", seed=0) as st:
+        st.phase3(sys_, 4, latent=src30)
+    with lt.Study(tmp_path / "t") as st:
+        (s,) = st.ask(1, budget=6)
+        assert s.phase_name == "phase 3"
+        assert st.store.count(Phase.PHASE1) == 0
+    code, out, err = run_cli("ask", tmp_path / "t")
+    assert code == 0 and "\tphase 3 (again)\t" in out and "phase 1" not in out, (out, err)
+    with lt.Study(tmp_path / "p1", seed=0) as st:
+        st.phase1(sys_, 4)
+    with lt.Study(tmp_path / "p1") as st:
+        (s,) = st.ask(1, budget=6)
+        assert s.phase_name == "phase 1"

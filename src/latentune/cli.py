@@ -1260,7 +1260,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--space", default=None, metavar="FILE",
                    help="YAML/JSON parameter space: names, low, high, log, manual")
     p.add_argument("--phase", type=int, choices=(1, 3), default=None,
-                   help="1 = the full θ (default), 3 = the latent space of --vae")
+                   help="1 = the full θ, 3 = the latent space of --vae (default: 3 with "
+                        "--vae or in a run holding a phase 3, else 1)")
     p.add_argument("--vae", default=None, metavar="RUN_DIR", help="the latent space for phase 3")
     p.add_argument("--method", choices=("turbo", "cma", "random", "sobol"), default=None,
                    help="critic (first ask: default turbo; later asks: the stored one)")

@@ -308,12 +308,12 @@ class Study:
             asker: str | None = None, lease_s: float | None = None) -> list[Suggestion]:
         """Hand out ``n`` suggestions for trials run elsewhere (the asker's pending ones first).
 
-        The first ask fixes the study's system or ``space``, the phase (1, or 3 with a latent
-        space) and its options as :meth:`phase1` / :meth:`phase3` take them (``budget`` default
-        200; ``start``: ``"manual"``, ``"scratch"`` or a (d,) unit-box θ, not for the transfer
-        phase 3); a later ask takes them from the store (None) and refuses another value (a
-        budget may grow); it hands out the batch :meth:`tell` prepared when that is still what
-        the critic would give. ``asker``, ``lease_s``: :mod:`latentune.pipeline.asktell`."""
+        The first ask fixes the study's system or ``space``, the phase (1; 3 with a latent
+        space or in a run holding a phase 3) and its options as :meth:`phase1` /
+        :meth:`phase3` take them (``budget`` default 200; ``start``: ``"manual"``, ``"scratch"``
+        or a (d,) unit-box θ, not for the transfer phase 3); a later ask takes them from the
+        store (None) and refuses another value (a budget may grow); it hands out the batch
+        :meth:`tell` prepared when still the critic's (``asker``, ``lease_s``: ``asktell``)."""
         return asktell.ask(self, n, system=system, space=space, phase=phase, latent=latent,
                            asker=asker, lease_s=lease_s, method=method, budget=budget,
                            regions=regions, start=start, max_fall_prob=max_fall_prob,

@@ -227,6 +227,8 @@ def _space(study: Any, system: Any, space: ParameterSpace | None, bind: bool = T
 
 
 def _phase(cfg: dict[str, Any], phase: int | None, latent: Any, dir_: Path) -> int:
+    """The phase an ask runs: the one ask/tell stored, else ``phase``, else 3 when a latent
+    space is given or the run holds a phase 3 (a phase run's, ``phase3 --vae``), else 1."""
     stored = (cfg.get("asktell") or {}).get("phase")
     if phase is not None and not is_whole(phase):
         raise UsageError(f"ask/tell runs phase 1 or 3, not {phase!r}")
@@ -237,7 +239,8 @@ def _phase(cfg: dict[str, Any], phase: int | None, latent: Any, dir_: Path) -> i
                 if int(stored) == Phase.PHASE1 else ""))
         return int(stored)
     if phase is None:
-        phase = Phase.PHASE3 if latent is not None else Phase.PHASE1
+        phase = Phase.PHASE3 if latent is not None or cfg.get(mf.PHASE_KEYS[Phase.PHASE3]) \
+            else Phase.PHASE1
     if int(phase) not in (Phase.PHASE1, Phase.PHASE3):
         raise UsageError(f"ask/tell runs phase 1 or 3, not {phase}")
     return int(phase)
