@@ -381,3 +381,36 @@ def test_latent_flags_that_differ_from_the_vae_runs_latent_space_are_refused(tmp
                                "6", "--resume", "--latent-dim", "3")[::2])     # --vae kept
     assert line.endswith(f"--latent-dim 3: the latent space phase 3 of {tmp_path / 'same'} was "
                          "run in has size 4 (kept with --resume; leave the flag out)"), line
+
+
+def test_tune_resumed_with_more_phase1_trials_does_not_keep_a_stale_latent_space(tmp_path,
+                                                                                 run_cli,
+                                                                                 error_line):
+    """``tune --resume --phase1-evals N`` with N above the phase-1 trials the stored latent
+    space was trained on ran the new phase-1 trials and kept that latent space as it was
+    (trained on the first ones; phase 3 searched from those alone): the new trials were run
+    for nothing, without a word. Before phase 3 began the latent space is now trained again on
+    every phase-1 trial, as a tune never stopped would have; once phase 3 ran in it the larger
+    --phase1-evals is refused before any trial, the store untouched."""
+    from latentune.constants import Phase
+    from latentune.pipeline.phases import training_set
+
+    sys_ = ("--system", "examples.toy_plant:make_system", "--backend", "serial", "--workers", "1")
+    a = tmp_path / "a"
+    assert run_cli("phase1", *sys_, "--out", a, "--phase1-evals", "8")[0] == 0
+    assert run_cli("train-vae", *sys_[:2], "--out", a, "--vae-epochs", "5")[0] == 0
+    code, _, err = run_cli("tune", *sys_, "--out", a, "--phase1-evals", "12", "--phase3-evals",
+                           "4", "--vae-epochs", "5", "--resume")
+    assert code == 0, err
+    with lt.Study(a) as st:
+        assert st.store.count(Phase.PHASE1) == 12 and st.store.count(Phase.PHASE3) == 4
+        assert st.config()["vae"]["n_train"] == len(training_set(st.store, Phase.PHASE1))
+        assert st.latent().meta["n_phase1"] == 12
+    before = lt.Study(a).store.count(Phase.PHASE1)
+    line = error_line(*run_cli("tune", *sys_, "--out", a, "--phase1-evals", "16",
+                               "--phase3-evals", "4", "--resume")[::2])
+    assert "--phase1-evals 16" in line and "12" in line, line
+    assert lt.Study(a).store.count(Phase.PHASE1) == before
+    code, _, err = run_cli("tune", *sys_, "--out", a, "--phase1-evals", "12", "--phase3-evals",
+                           "6", "--resume")
+    assert code == 0, err

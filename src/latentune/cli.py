@@ -527,6 +527,9 @@ def _phase1_study(args: argparse.Namespace, latent: bool,
         _refuse_unused(args, "phase1")
     _need_store(study, args.resume)
     _refuse_rerun(study, 1, args.resume)
+    if latent and study.exists:             # tune: after the stored system is checked
+        study.bind_check(system)
+        _refuse_phase1_past_latent(study, args.phase1_evals)
     try:
         res = study.phase1(system, args.phase1_evals, method=args.method, regions=args.regions,
                            max_fall_prob=args.max_fall_prob,
@@ -544,8 +547,29 @@ def _phase_line(res: Any, study: Any) -> str:
             + (f"; its θ: {best}" if best.is_file() else ""))
 
 
+def _refuse_phase1_past_latent(study: Any, phase1_evals: int) -> None:
+    """tune --resume: refuse, before any trial, a --phase1-evals above the phase-1 trials
+    stored once phase 3 ran in the latent space trained on them (neither would use the new
+    ones: the latent space is fixed once phase 3 used it, and phase 3 keeps its source
+    trials)."""
+    from latentune.constants import Phase
+
+    if not study.exists or study.store.artifact("vae") is None \
+            or not study.manifest.n_used(Phase.PHASE3):
+        return
+    n = study.store.count(Phase.PHASE1)
+    if phase1_evals > n:
+        default = " (its default)" if phase1_evals == DEFAULT_PHASE1 else ""
+        raise CLIError(f"--phase1-evals {phase1_evals}{default}: phase 3 of {study.dir} runs "
+                       f"in the latent space trained on its {n} phase-1 trials, and neither "
+                       f"would use more: pass --phase1-evals {n} to go on, or tune again in "
+                       "another directory")
+
+
 def cmd_tune(args: argparse.Namespace) -> int:
+    from latentune.constants import Phase
     from latentune.pipeline.loop import resolve_strategy
+    from latentune.pipeline.phase2 import stale_latent
 
     handover = _handover(args)                      # checked before phase 1 runs
     strategy = _strategy(args, handover)
@@ -564,7 +588,14 @@ def cmd_tune(args: argparse.Namespace) -> int:
 
     study, system, _ = _phase1_study(args, latent=True, check=check)
     with study:
-        study.train_latent(args.latent_dim, kind=_vae_kind(args), epochs=args.vae_epochs)
+        vae = study.config().get("vae") or {}
+        stale = stale_latent(study.store, vae) and not study.manifest.n_used(Phase.PHASE3)
+        if stale:           # phase 1 grew since: trained again on every θ, as if never stopped
+            study.log(f"phase 1 holds θ the latent space was not trained on "
+                      f"({vae['n_train']} of them were): training it again")
+        study.train_latent(args.latent_dim or (vae.get("d_low") if stale else None),
+                           kind=_vae_kind(args) or (vae.get("kind") if stale else None),
+                           epochs=args.vae_epochs, retrain=stale)
         # --method and --regions are phase 1's; phase 3 takes them only when it is plain
         plain = resolve_strategy(study.manifest, strategy, handover) == "plain"
         mfp, handover = _kept_phase3(study, args, handover)     # as phase3 --resume does

@@ -16,6 +16,15 @@ from latentune.pipeline.rundir import RunDir
 logger = logging.getLogger(__name__)
 
 
+def stale_latent(store: Any, vae: dict[str, Any]) -> bool:
+    """True when ``store`` holds a latent space whose record ``vae`` (the manifest's) says it
+    was trained on fewer θ than phase 1 now holds whose trial did not fail (phase 1 grew
+    since)."""
+    n = vae.get("n_train")
+    return store.artifact("vae") is not None and n is not None and \
+        int(n) < len(training_set(store, Phase.PHASE1))
+
+
 def train_latent(run: RunDir, manifest: Manifest, seed: int, latent_dim: int | None = None,
                  kind: str | None = None, epochs: int | None = None, retrain: bool = False
                  ) -> tuple[Any, str | None]:
