@@ -686,3 +686,37 @@ def test_phase3_refuses_a_latent_that_is_not_a_study_or_a_latent_space(tmp_path)
         assert not st.exists or st.trials() == []
     with pytest.raises(TypeError, match="by_name must be True or False, got 'no'"):
         lt.FunctionSystem(sp, lambda d: d["a"], by_name="no")
+
+
+def test_train_latent_says_when_the_kept_latent_space_misses_phase_1_trials(tmp_path, caplog,
+                                                                          run_cli):
+    """Phase 1 grown after ``train_latent`` (``Study.phase1`` with a larger budget, or an
+    Optuna study imported again): ``train_latent()`` returned the latent space trained on the
+    first θ without a word. It is still returned as it is, with one warning naming how many
+    θ it was trained on and how to train on all (``retrain=True``, ``train-vae``)."""
+    import logging
+
+    sp = lt.ParameterSpace(["a", "b", "c"], [0] * 3, [1] * 3)
+    fs = lt.FunctionSystem(sp, lambda x: float(((x - 0.3) ** 2).sum()))
+    with lt.Study(tmp_path / "r", seed=0) as st:
+        st.phase1(fs, 8)
+        st.train_latent(latent_dim=2, epochs=5)
+        caplog.clear()
+        with caplog.at_level(logging.WARNING):
+            st.train_latent()
+        assert not [r for r in caplog.records if r.levelno >= logging.WARNING]
+        st.phase1(fs, 12)
+        caplog.clear()
+        with caplog.at_level(logging.WARNING):
+            kept = st.train_latent()
+        warned = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+        assert len(warned) == 1 and "trained on 8" in warned[0] and "12" in warned[0] \
+            and "retrain" in warned[0], warned
+        assert kept.meta["n_phase1"] == 8
+    plant = ("--system", "examples.toy_plant:make_system", "--out", tmp_path / "t")
+    run = ("--backend", "serial", "--workers", "1")              # and train-vae --resume
+    assert run_cli("phase1", *plant, *run, "--phase1-evals", "6")[0] == 0
+    assert run_cli("train-vae", *plant, "--latent-dim", "2", "--vae-epochs", "5")[0] == 0
+    assert run_cli("phase1", *plant, *run, "--phase1-evals", "9", "--resume")[0] == 0
+    code, out, err = run_cli("train-vae", *plant, "--resume")
+    assert code == 0 and "kept" in out and "phase 1 holds" in err, (out, err)

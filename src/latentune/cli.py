@@ -629,6 +629,7 @@ def cmd_train_vae(args: argparse.Namespace) -> int:
     with study:
         if study.store.artifact("vae") is not None and args.resume:
             _check_stored_vae(study, args, "kept with --resume; leave --resume out to retrain")
+            study.train_latent()            # the kept one (a warning when phase 1 grew since)
             print(f"{study.dir}: the VAE is already trained (kept, --resume)")
             return 0
         latent = study.train_latent(args.latent_dim, kind=args.vae_kind, epochs=args.vae_epochs,

@@ -50,6 +50,12 @@ def train_latent(run: RunDir, manifest: Manifest, seed: int, latent_dim: int | N
                 raise UsageError(f"{run.dir}: its latent space is trained already with "
                                  f"{diff[0]} = {diff[2]!r}, not {diff[1]!r}: leave {diff[0]} "
                                  "out to use it, or retrain it (retrain=True)")
+            vae = manifest.config().get("vae") or {}
+            if stale_latent(st, vae):
+                logger.warning("%s: the latent space was trained on %d θ that did not fail; "
+                               "phase 1 holds %d now: it is kept as it is (retrain=True, or "
+                               "train-vae without --resume, trains it on all)", run.dir,
+                               int(vae["n_train"]), len(training_set(st, Phase.PHASE1)))
             return latent, None
         if st.count(Phase.PHASE3) > 0 and manifest.config().get("phase3_vae_source") == "self":
             raise LatentError(f"{run.dir}: phase 3 already used the VAE; retraining it "
