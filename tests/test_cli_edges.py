@@ -93,7 +93,7 @@ def test_help_shows_the_defaults(capsys):
     text = _help(capsys, "tune")
     for needle in ("parallel rollouts (default 2)", "seed (terrain, critic, VAE); default: the run's stored one, else 0",
                    "(default process)", "critic (turbo = TuRBO-m, the default; a resume keeps the stored one)",
-                   "phase-1 evaluations (default 400"):
+                   "phase-1 evaluations (default: the run's stored budget, else 400"):
         assert needle in text, needle
     assert "number of suggestions (default 1)" in _help(capsys, "ask")
     assert "rollout steps (default 2000)" in _help(capsys, "bench")
@@ -109,7 +109,8 @@ def test_help_shows_the_defaults(capsys):
             elif a.option_strings and a.default not in (None, False, [], argparse.SUPPRESS):
                 assert "default" in fmt._get_help_string(a), (name, a.option_strings)
                 seen += 1
-    assert seen >= 28           # --workers of the run commands: None (2, or 1 when serial)
+    assert seen >= 20           # --workers, --phase1-evals, --phase3-evals of the run
+    #                             commands: None (2, or 1 when serial; the stored budget)
 
 
 def test_help_says_what_each_command_and_option_does(capsys):

@@ -414,3 +414,32 @@ def test_tune_resumed_with_more_phase1_trials_does_not_keep_a_stale_latent_space
     code, _, err = run_cli("tune", *sys_, "--out", a, "--phase1-evals", "12", "--phase3-evals",
                            "6", "--resume")
     assert code == 0, err
+
+
+def test_a_resume_without_budget_flags_goes_on_to_the_stored_budgets(tmp_path, run_cli):
+    """``phase1 --phase1-evals 6``, stopped, then ``phase1 --resume`` without the flag ran
+    phase 1 on to the default 400 trials (394 more than the run was started for; ``tune`` and
+    ``phase3`` alike with 400 and 220). A resume without the flag goes on to the budget the run
+    was started with (as --seed and --trial-timeout do); a flag given still grows it."""
+    from latentune.constants import Phase
+
+    sys_ = ("--system", "examples.toy_plant:make_system", "--backend", "serial", "--workers", "1")
+    a = tmp_path / "a"
+    assert run_cli("phase1", *sys_, "--out", a, "--phase1-evals", "6")[0] == 0
+    code, _, err = run_cli("phase1", *sys_, "--out", a, "--resume")
+    assert code == 0, err
+    assert lt.Study(a).store.count(Phase.PHASE1) == 6
+    code, _, err = run_cli("phase1", *sys_, "--out", a, "--resume", "--phase1-evals", "8")
+    assert code == 0, err
+    assert lt.Study(a).store.count(Phase.PHASE1) == 8
+    t = tmp_path / "t"
+    code, _, err = run_cli("tune", *sys_, "--out", t, "--phase1-evals", "8", "--phase3-evals",
+                           "3", "--vae-epochs", "5")
+    assert code == 0, err
+    code, _, err = run_cli("tune", *sys_, "--out", t, "--resume")
+    assert code == 0, err
+    with lt.Study(t) as st:
+        assert (st.store.count(Phase.PHASE1), st.store.count(Phase.PHASE3)) == (8, 3)
+    code, _, err = run_cli("phase3", *sys_, "--out", t, "--resume")
+    assert code == 0, err
+    assert lt.Study(t).store.count(Phase.PHASE3) == 3

@@ -246,10 +246,12 @@ def add_run_args(p: argparse.ArgumentParser, name: str) -> None:
                    help="seed (terrain, critic, VAE); default: the run's stored one, else 0")
     p.add_argument("--out", required=True, type=argtypes.run_dir,
                    help="run directory (holds run.db and artifacts)")
-    p.add_argument("--phase1-evals", type=int, default=DEFAULT_PHASE1,
-                   help=f"phase-1 evaluations (default {DEFAULT_PHASE1}; the paper: 10000)")
-    p.add_argument("--phase3-evals", type=int, default=DEFAULT_PHASE3,
-                   help=f"phase-3 evaluations (default {DEFAULT_PHASE3})")
+    p.add_argument("--phase1-evals", type=int, default=None,
+                   help=f"phase-1 evaluations (default: the run's stored budget, else "
+                        f"{DEFAULT_PHASE1}; the paper: 10000)")
+    p.add_argument("--phase3-evals", type=int, default=None,
+                   help=f"phase-3 evaluations (default: the run's stored budget, else "
+                        f"{DEFAULT_PHASE3})")
     p.add_argument("--latent-dim", type=int, default=None,
                    help="latent size d_low (default 10 for 25-dim θ, 5 for 77-dim)")
     p.add_argument("--vae-kind", choices=KINDS, default=DEFAULT_KIND,
@@ -414,12 +416,12 @@ def _check_latent_dim(args: argparse.Namespace, dim: int) -> None:
 
 
 UNUSED_FLAGS = {
-    "train-vae": {"phase1_evals": DEFAULT_PHASE1, "phase3_evals": DEFAULT_PHASE3,
+    "train-vae": {"phase1_evals": None, "phase3_evals": None,
                   "method": None, "regions": None, "batch_size": None,
                   "max_fall_prob": None, "backend": "process", "workers": None,
                   "ray_address": None},
-    "phase3": {"phase1_evals": DEFAULT_PHASE1, "vae_epochs": None},
-    "phase1": {"phase3_evals": DEFAULT_PHASE3, "latent_dim": None, "vae_epochs": None,
+    "phase3": {"phase1_evals": None, "vae_epochs": None},
+    "phase1": {"phase3_evals": None, "latent_dim": None, "vae_epochs": None,
                "vae_kind": "(the default kind)"},
 }
 """The flags a run command shares with ``tune`` but does not use, with their defaults: another
@@ -489,6 +491,16 @@ def _refuse_rerun(study: Any, phase: int, resume: bool) -> None:
                        "evaluations; pass --resume to continue the run or choose another --out")
 
 
+def _budget(args: argparse.Namespace, study: Any, phase: int) -> int:
+    """--phase1-evals / --phase3-evals of a run command: the value given, else the budget the
+    run's phase was started with (a resume goes on to it), else the default."""
+    given = args.phase1_evals if phase == 1 else args.phase3_evals
+    if given is not None:
+        return int(given)
+    stored = (study.config().get(f"phase{phase}") or {}).get("budget") if study.exists else None
+    return int(stored) if stored else DEFAULT_PHASE1 if phase == 1 else DEFAULT_PHASE3
+
+
 def _need_store(study: Any, resume: bool) -> None:
     if resume and not study.exists:
         raise CLIError(f"--resume: no run store in {study.dir}")
@@ -527,11 +539,13 @@ def _phase1_study(args: argparse.Namespace, latent: bool,
         _refuse_unused(args, "phase1")
     _need_store(study, args.resume)
     _refuse_rerun(study, 1, args.resume)
-    if latent and study.exists:             # tune: after the stored system is checked
-        study.bind_check(system)
-        _refuse_phase1_past_latent(study, args.phase1_evals)
+    if latent and study.exists:             # tune: after the lock, store and system checks
+        with study.writing():
+            study.bind_check(system)
+            _refuse_phase1_past_latent(study, _budget(args, study, 1))
     try:
-        res = study.phase1(system, args.phase1_evals, method=args.method, regions=args.regions,
+        res = study.phase1(system, _budget(args, study, 1), method=args.method,
+                           regions=args.regions,
                            max_fall_prob=args.max_fall_prob,
                            fall_prior=getattr(args, "fall_prior", None))
     except BaseException:
@@ -559,8 +573,7 @@ def _refuse_phase1_past_latent(study: Any, phase1_evals: int) -> None:
         return
     n = study.store.count(Phase.PHASE1)
     if phase1_evals > n:
-        default = " (its default)" if phase1_evals == DEFAULT_PHASE1 else ""
-        raise CLIError(f"--phase1-evals {phase1_evals}{default}: phase 3 of {study.dir} runs "
+        raise CLIError(f"--phase1-evals {phase1_evals}: phase 3 of {study.dir} runs "
                        f"in the latent space trained on its {n} phase-1 trials, and neither "
                        f"would use more: pass --phase1-evals {n} to go on, or tune again in "
                        "another directory")
@@ -599,7 +612,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
         # --method and --regions are phase 1's; phase 3 takes them only when it is plain
         plain = resolve_strategy(study.manifest, strategy, handover) == "plain"
         mfp, handover = _kept_phase3(study, args, handover)     # as phase3 --resume does
-        _phase3_flags(study.phase3, system, args.phase3_evals,
+        _phase3_flags(study.phase3, system, _budget(args, study, 3),
                       method=args.method if plain else None,
                       regions=args.regions if plain else None,
                       max_fall_prob=mfp, handover=handover, strategy=strategy,
@@ -686,7 +699,7 @@ def cmd_phase3(args: argparse.Namespace) -> int:
         _check_stored_vae(study, args, "retrain it with train-vae, or leave the flag out")
     mfp, handover = _kept_phase3(study, args, handover)
     with study:
-        _phase3_flags(study.phase3, system, args.phase3_evals, latent=args.vae,
+        _phase3_flags(study.phase3, system, _budget(args, study, 3), latent=args.vae,
                       method=args.method, regions=args.regions, max_fall_prob=mfp,
                       handover=handover, strategy=strategy,
                       transfer_options=_transfer_options(args, _stored_transfer(study)),
