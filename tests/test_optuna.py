@@ -904,3 +904,14 @@ def test_a_first_non_finite_cost_is_a_failed_trial_not_a_best_value(sampler):
     c0.tell(np.full((1, 3), 0.5), np.array([np.nan]), np.array([-1]))
     assert c0.study.trials[0].state == optuna.trial.TrialState.FAIL
     assert c0.ask(1).shape == (1, 3)
+
+
+def test_regions_of_a_method_that_has_none_is_refused(source_run):
+    """``LatentSampler(strategy="plain", method="sobol", regions=2)`` was taken and its
+    ``regions`` dropped without a word (TuRBO-m's trust regions; Study.phase3 refuses it):
+    refused, naming the method."""
+    for method in ("cma", "random", "sobol"):
+        with pytest.raises(UsageError, match=f"regions .*method turbo.*not of {method}"):
+            LatentSampler(source_run, strategy="plain", method=method, regions=2)
+    assert LatentSampler(source_run, strategy="plain", method="turbo", regions=2).regions == 2
+    assert LatentSampler(source_run, strategy="plain", method="sobol").regions is None

@@ -322,6 +322,9 @@ class _CriticSampler:
             raise UsageError(f"unknown method {method!r} (choose from {', '.join(METHODS)})")
         if regions is not None and not is_whole(regions, 1, 100):
             raise UsageError(f"regions must be an integer in [1, 100], got {regions!r}")
+        if regions is not None and method != "turbo":
+            raise UsageError(f"regions (trust regions) is an option of method turbo (TuRBO-m), "
+                             f"not of {method} (given regions = {regions})")
         if max_fall_prob is not None and (isinstance(max_fall_prob, bool) or
                                           not 0.0 < float(max_fall_prob) <= 1.0):
             raise UsageError(f"max_fall_prob must be in (0, 1], got {max_fall_prob!r}")
