@@ -528,3 +528,48 @@ def test_a_trial_that_raises_or_returns_nan_names_its_theta(tmp_path):
         evaluate(Crashy(True), u)
     with pytest.raises(EvaluationError, match=r"solver diverged at θ kp=1, ki=1"):  # manual θ
         lt.Study(tmp_path / "r").phase1(Crashy(False), budget=3)
+
+
+SLOTTED = """
+import threading
+
+import numpy as np
+import latentune as lt
+
+
+class Slotted:
+    __slots__ = ("space", "scale", "lock")
+
+    def __init__(self, scale=1.0):
+        self.space = lt.ParameterSpace(["a", "b"], [0, 0], [1, 1], manual=[0.5, 0.5])
+        self.scale = scale
+        self.lock = threading.Lock()            # no pickle: the workers rebuild it
+
+    def evaluate(self, theta):
+        with self.lock:
+            return float(self.scale * np.sum(theta ** 2))
+"""
+
+
+def test_a_slotted_system_class_resumes_from_the_cli(run_cli, tmp_path, monkeypatch):
+    """``--system mod:Slotted`` (a class with ``__slots__``, which cannot take the --system
+    record) ran, but its resume was refused: "holds a run of the Python system mod.Slotted
+    (made through the API); the command line cannot rebuild it". It resumes, on the process
+    pool too (its workers rebuild it from the factory: it holds a lock, which no pickle
+    ships)."""
+    made = _module_dir(tmp_path, monkeypatch, "slotplant", SLOTTED)
+    next(made)
+    run = tmp_path / "slotted"
+    for n, more in ((3, ["--backend", "serial", "--workers", 1]),
+                    (5, ["--resume", "--backend", "serial", "--workers", 1]),
+                    (7, ["--resume", "--workers", 2])):
+        code, out, err = run_cli("phase1", "--system", "slotplant:Slotted", "--out", run,
+                                 "--phase1-evals", n, "--quiet", *more)
+        assert code == 0, err
+    assert RunStore(run).count(Phase.PHASE1) == 7
+    assert lt.Study(run).config()["system"]["target"] == "slotplant:Slotted"
+    line = one_line_error(*run_cli("phase1", "--system", "slotplant:Slotted", "--system-arg",
+                                   "scale=2.0", "--out", run, "--phase1-evals", 8, "--resume",
+                                   "--backend", "serial")[::2])
+    assert "holds a run of another system (args.scale" in line, line
+    next(made, None)

@@ -215,7 +215,7 @@ def cmd_rollout(args: argparse.Namespace) -> int:
 
 def _rollout_system(args: argparse.Namespace) -> int:
     """``rollout --system``: one trial of the user system at --params (default its manual θ)."""
-    from latentune.system import evaluate
+    from latentune.system import evaluate, plugin_record
 
     for flag, v in (("--seed", args.seed), ("--gif", args.gif), ("--plot", args.plot)):
         if v is not None:
@@ -224,7 +224,7 @@ def _rollout_system(args: argparse.Namespace) -> int:
     system = make_system(args)
     theta = system.space.load(args.params) if args.params else system.space.manual
     out = evaluate(system, theta)
-    plugin = getattr(system, "latentune_plugin", {}) or {}
+    plugin = plugin_record(system) or {}
     res = {"system": args.system, "system_args": plugin.get("args", {}), "cost": out.cost,
            "fell": out.failed, "failed": out.failed, "fall_step": out.fall_step,
            "wall_s": out.wall_s, "params": system.space.as_dict(theta), "info": out.info}

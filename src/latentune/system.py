@@ -426,6 +426,25 @@ def load_system(target: str, args: dict[str, Any] | None = None) -> Any:
     except Exception:  # noqa: BLE001 - a frozen dataclass, a __setattr__ that refuses
         try:
             object.__setattr__(obj, "latentune_plugin", record)
-        except Exception:  # noqa: BLE001 - __slots__: recorded as a Python object instead
-            pass
+        except Exception:  # noqa: BLE001 - __slots__: kept beside the object instead
+            _RECORDS[id(obj)] = (obj, record)
     return obj
+
+
+_RECORDS: dict[int, tuple[Any, dict[str, Any]]] = {}
+"""The records of the systems :func:`load_system` made that cannot carry an attribute (a class
+with ``__slots__``), by ``id``; each entry keeps its system alive, so its id is not reused."""
+
+
+def plugin_record(system: Any) -> dict[str, Any] | None:
+    """The ``{"target", "args"}`` record of a system made by :func:`load_system` (its
+    ``latentune_plugin`` attribute, or the record kept beside an object that cannot hold one),
+    or None for any other object."""
+    try:
+        record = getattr(system, "latentune_plugin", None)
+    except Exception:  # noqa: BLE001 - a __getattr__ of the user's
+        record = None
+    if isinstance(record, dict):
+        return record
+    entry = _RECORDS.get(id(system))
+    return entry[1] if entry is not None and entry[0] is system else None

@@ -28,7 +28,7 @@ unavailable): a script that creates one must guard its entry point with
 ``if __name__ == "__main__":``.
 
 Shipping a System to workers: a system made by :func:`latentune.system.load_system` (a
-``--system module:factory`` plugin; it carries ``latentune_plugin``) is rebuilt in each process
+``--system module:factory`` plugin; it has a ``plugin_record``) is rebuilt in each process
 worker from ``module:factory`` and its arguments (:class:`PluginRef`, built once per worker), so
 a factory may return closures. Ray ships systems with its own serializer (cloudpickle) and falls
 back to the same rebuild. Any other system is pickled; one that cannot be is refused with
@@ -108,8 +108,10 @@ class PluginRef:
     @classmethod
     def of(cls, system: Any) -> "PluginRef | None":
         """The reference of a system made by ``load_system`` (None for any other object)."""
-        plugin = getattr(system, "latentune_plugin", None)
-        if not isinstance(plugin, dict) or not isinstance(plugin.get("target"), str):
+        from latentune.system import plugin_record
+
+        plugin = plugin_record(system)
+        if plugin is None or not isinstance(plugin.get("target"), str):
             return None
         path = tuple(os.getcwd() if p == "" else p for p in sys.path)
         return cls(plugin["target"], dict(plugin.get("args") or {}), path,

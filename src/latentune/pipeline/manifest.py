@@ -31,7 +31,7 @@ from latentune.errors import StoreError, SystemSpecError, UsageError
 from latentune.pipeline.rundir import RunDir
 from latentune.pipeline.store import info_json
 from latentune.space import ParameterSpace
-from latentune.system import check_system, decimal_float
+from latentune.system import check_system, decimal_float, plugin_record
 
 OPTUNA_METHODS = ("optuna-tpe", "optuna-cmaes", "optuna-gp")
 """Optuna's samplers as critics (:class:`latentune.critic.optuna.OptunaCritic`; the
@@ -75,8 +75,8 @@ def describe(system: Any) -> dict[str, Any]:
 
     if isinstance(system, Task):
         return {"kind": "task", "task": system.config()}
-    plugin = getattr(system, "latentune_plugin", None)
-    if isinstance(plugin, dict):
+    plugin = plugin_record(system)
+    if plugin is not None:
         return {"kind": "plugin", **plugin, "space": system.space.to_dict()}
     d: dict[str, Any] = {"kind": "python",
                          "class": f"{type(system).__module__}.{type(system).__qualname__}",
