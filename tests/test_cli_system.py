@@ -571,5 +571,35 @@ def test_a_slotted_system_class_resumes_from_the_cli(run_cli, tmp_path, monkeypa
     line = one_line_error(*run_cli("phase1", "--system", "slotplant:Slotted", "--system-arg",
                                    "scale=2.0", "--out", run, "--phase1-evals", 8, "--resume",
                                    "--backend", "serial")[::2])
-    assert "holds a run of another system (args.scale" in line, line
+    assert "holds a run of another system (args.scale: stored 1.0, given 2.0)" in line, line
     next(made, None)
+
+
+def test_a_system_arg_at_its_default_value_is_the_same_system(run_cli, plugin_dir, tmp_path):
+    """A run started without ``--system-arg dim=4`` (closplant:make's default) was refused on a
+    resume with it ("holds a run of another system (args.dim: stored None, given 4)"), and the
+    other way round: a system is its resolved arguments. Another value is refused naming the
+    values the factory ran with (its default included)."""
+    common = ("--system", "closplant:make", "--backend", "serial", "--quiet")
+    runs = tmp_path / "without", tmp_path / "with"
+    for run, first, then in ((runs[0], [], ["dim=4", "shift=0.0"]),
+                             (runs[1], ["dim=4", "shift=0"], [])):
+        for n, pairs, more in ((3, first, []), (5, then, ["--resume"])):
+            flags = [x for p in pairs for x in ("--system-arg", p)]
+            code, _, err = run_cli("phase1", *common, *flags, "--out", run, "--phase1-evals", n,
+                                   *more)
+            assert code == 0, err
+        assert RunStore(run).count(Phase.PHASE1) == 5
+    with RunStore(runs[0]) as st:       # a record written before defaults were recorded
+        cfg = st.get_meta("config")
+        assert cfg["system"].pop("defaults") == {"dim": 4, "shift": 0.0}
+        st.set_meta("config", cfg)
+    code, _, err = run_cli("phase1", *common, "--system-arg", "dim=4", "--out", runs[0],
+                           "--phase1-evals", 6, "--resume")
+    assert code == 0, err
+    line = one_line_error(*run_cli("phase1", *common, "--system-arg", "shift=0.5", "--out",
+                                   runs[0], "--phase1-evals", 7, "--resume")[::2])
+    assert "holds a run of another system (args.shift: stored 0.0, given 0.5)" in line, line
+    line = one_line_error(*run_cli("phase1", *common, "--system-arg", "shift=0.5", "--out",
+                                   runs[1], "--phase1-evals", 6, "--resume")[::2])
+    assert "holds a run of another system (args.shift: stored 0, given 0.5)" in line, line

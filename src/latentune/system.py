@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import importlib
 import inspect
+import json
 import math
 import os
 import re
@@ -379,6 +380,9 @@ def load_system(target: str, args: dict[str, Any] | None = None) -> Any:
     instance (then ``args`` must be empty). Raises
     :class:`SystemSpecError` with one line for a malformed target, a module that cannot be
     imported, a missing attribute, a factory that raises or returns a non-system.
+
+    The system carries the record ``{"target", "args", "defaults"}`` (:func:`plugin_record`;
+    ``defaults``: :func:`factory_defaults`) that a study keeps and compares on resume.
     """
     if args is not None and not isinstance(args, Mapping):
         raise SystemSpecError(f"--system {target}: the factory's arguments must be a dict, got "
@@ -401,8 +405,10 @@ def load_system(target: str, args: dict[str, Any] | None = None) -> Any:
         if not hasattr(obj, part):
             raise SystemSpecError(f"--system {target}: {mod_name} has no attribute {attr!r}")
         obj = getattr(obj, part)
+    defaults: dict[str, Any] = {}
     if inspect.isclass(obj) or (callable(obj) and not hasattr(obj, "evaluate")):
         # a factory: a function, or a system class (whose ``evaluate`` is not a system's)
+        factory = obj
         try:
             if args:
                 inspect.signature(obj).bind(**args)
@@ -417,10 +423,11 @@ def load_system(target: str, args: dict[str, Any] | None = None) -> Any:
                                   f"{' '.join(str(exc).split())[:200]}") from None
         check_system(obj, f"--system {target} returned {type(obj).__name__} "
                           f"{' '.join(_short(obj).split())}, which")
+        defaults = factory_defaults(factory)
     elif args:
         raise SystemSpecError(f"--system {target} is not callable; it takes no --system-arg")
     check_system(obj, f"--system {target} ({type(obj).__name__})")
-    record = {"target": target, "args": args}
+    record = {"target": target, "args": args, "defaults": defaults}
     try:  # what a study records of a plugin: the string and its arguments, for the user to read
         obj.latentune_plugin = record
     except Exception:  # noqa: BLE001 - a frozen dataclass, a __setattr__ that refuses
@@ -431,13 +438,33 @@ def load_system(target: str, args: dict[str, Any] | None = None) -> Any:
     return obj
 
 
+def factory_defaults(factory: Callable[..., Any]) -> dict[str, Any]:
+    """The default values of ``factory``'s parameters, as JSON reads them back (a tuple is a
+    list); a default JSON cannot hold (an object, NaN) is left out, as is every default of a
+    factory whose signature cannot be read. Under the given arguments, they are the resolved
+    arguments of the system a call builds: what a study compares on resume."""
+    try:
+        params = inspect.signature(factory).parameters.values()
+    except (TypeError, ValueError):
+        return {}
+    out: dict[str, Any] = {}
+    for p in params:
+        if p.default is p.empty:
+            continue
+        try:
+            out[p.name] = json.loads(json.dumps(p.default, allow_nan=False))
+        except (TypeError, ValueError):
+            continue
+    return out
+
+
 _RECORDS: dict[int, tuple[Any, dict[str, Any]]] = {}
 """The records of the systems :func:`load_system` made that cannot carry an attribute (a class
 with ``__slots__``), by ``id``; each entry keeps its system alive, so its id is not reused."""
 
 
 def plugin_record(system: Any) -> dict[str, Any] | None:
-    """The ``{"target", "args"}`` record of a system made by :func:`load_system` (its
+    """The ``{"target", "args", "defaults"}`` record of a system made by :func:`load_system` (its
     ``latentune_plugin`` attribute, or the record kept beside an object that cannot hold one),
     or None for any other object."""
     try:

@@ -68,7 +68,8 @@ def describe(system: Any) -> dict[str, Any]:
     """The JSON-able record of which system a phase ran (compared on resume).
 
     A built-in Task: ``{"kind": "task", "task": task.config()}``; a ``--system`` plugin (from
-    :func:`latentune.system.load_system`): ``{"kind": "plugin", "target", "args"}``; any other
+    :func:`latentune.system.load_system`): ``{"kind": "plugin", "target", "args", "defaults",
+    "space"}``; any other
     object: its class, its ``config()`` if it has one, and its space.
     """
     from latentune.task import Task
@@ -97,16 +98,29 @@ def describe(system: Any) -> dict[str, Any]:
 
 
 def same_system(stored: dict[str, Any] | None, desc: dict[str, Any]) -> bool:
-    """Whether the recorded system ``stored`` is the one ``desc`` describes. A plugin recorded
-    before ``--system-arg`` read exponent values as floats holds them as strings (``'1e-3'``):
-    such a string equals the float :func:`~latentune.system.decimal_float` reads from it."""
+    """Whether the recorded system ``stored`` is the one ``desc`` describes. Plugins are
+    compared by their resolved arguments (:func:`plugin_config`): an argument given at its
+    default value is the same system as one left out. A plugin recorded before ``--system-arg``
+    read exponent values as floats holds them as strings (``'1e-3'``): such a string equals
+    the float :func:`~latentune.system.decimal_float` reads from it."""
     if stored is None or stored == desc:
         return stored is not None
-    if stored.get("kind") != "plugin" or not isinstance(stored.get("args"), dict):
+    if stored.get("kind") != "plugin" or desc.get("kind") != "plugin" \
+            or not isinstance(stored.get("args"), dict):
         return False
-    args = {k: decimal_float(v) if isinstance(v, str) and decimal_float(v) is not None else v
-            for k, v in stored["args"].items()}
-    return {**stored, "args": args} == desc
+    return plugin_config(stored, desc.get("defaults")) == plugin_config(desc)
+
+
+def plugin_config(desc: dict[str, Any], defaults: dict[str, Any] | None = None
+                  ) -> dict[str, Any]:
+    """A plugin's description with ``args`` resolved (the factory's defaults under the given
+    arguments) and no ``defaults`` key; ``defaults``: those of a record that has none (one
+    written before they were recorded). Exponent strings of an older record are floats."""
+    d = dict(desc)
+    given = {k: decimal_float(v) if isinstance(v, str) and decimal_float(v) is not None else v
+             for k, v in (d.get("args") or {}).items()}
+    d["args"] = {**(d.pop("defaults", defaults) or {}), **given}
+    return d
 
 
 class Manifest:
@@ -228,8 +242,10 @@ class Manifest:
                                  f"{t.get('robot')} ({t.get('gait')}), not of a --system: "
                                  "leave --system (and --system-arg) out")
             flags = task_flags(stored, desc)
+            shown = (plugin_config(stored, desc.get("defaults")), plugin_config(desc)) \
+                if stored.get("kind") == desc.get("kind") == "plugin" else (stored, desc)
             raise StoreError(f"{self.run.dir} holds a run of another system "
-                             f"({diff(stored, desc)})"
+                             f"({diff(*shown)})"
                              + (f": pass {flags} to go on with it" if flags else ""))
         return desc
 
