@@ -1049,7 +1049,7 @@ def test_ask_reopens_a_study_run_with_another_seed_than_0(run_cli, tmp_path, err
     assert code == 0, err
     with lt.Study(d) as st:
         assert st.seed == 5 and st.config()["asktell"]["seed"] == 5
-    assert "not 0" in error_line(*run_cli("ask", d, "--seed", "0")[::2])
+    assert "--seed 5 (stored), not --seed 0" in error_line(*run_cli("ask", d, "--seed", "0")[::2])
 
 
 def test_a_fall_step_that_is_no_step_number_is_refused_in_one_line(tmp_path):
@@ -1341,7 +1341,7 @@ def test_a_failing_ask_tell_phase_advises_a_new_directory_and_what_it_does_not_r
         in msg, msg
     assert "in a new directory (the first ask fixed this one's options)" in msg, msg
     refused = error_line(*run_cli("ask", d, "--max-fall-prob", "0.3")[::2])
-    assert "runs with --max-fall-prob = 0.4 (stored), not 0.3" in refused
+    assert "runs with --max-fall-prob 0.4 (stored), not --max-fall-prob 0.3" in refused
     caplog.clear()
     with caplog.at_level(logging.WARNING), lt.Study(tmp_path / "run", seed=0) as st:
         st.phase1(lt.FunctionSystem(SPACE, all_fail), FAIL_STREAK, max_fall_prob=0.4)

@@ -321,11 +321,11 @@ def test_existing_run_is_not_rerun_or_changed(capsys, run_dir, tmp_path):
         (["tune", *TINY[:-1], "--terrain", "hills", "--quiet", "--out", run_dir, "--resume"],
          "terrain: stored 'flat', given 'hills'"),
         (["tune", *TINY, "--seed", "5", "--out", run_dir, "--resume"],
-         "not 5 (leave the seed out"),                                          # another seed
+         "--seed 0 (stored), not --seed 5 (leave --seed out"),                 # another seed
         (["tune", *TINY, "--method", "cma", "--out", run_dir, "--resume"],
-         "method = 'turbo', not 'cma'"),                                        # another method
+         "--method turbo (stored), not --method cma"),                          # another method
         (["tune", *TINY, "--batch-size", "7", "--out", run_dir, "--resume"],
-         "batch-size = 4, not 7"),
+         "--batch-size 4 (stored), not --batch-size 7"),
         (["phase1", "--robot", "b1", "--steps", "150", "--quiet", "--out", run_dir, "--resume"],
          "robot: stored 'a1', given 'b1'"),
         (["phase1", "--robot", "a1", "--steps", "151", "--quiet", "--out", run_dir, "--resume"],
@@ -506,8 +506,8 @@ ASKTELL_CASES = [
     (["ask", "{d}", "--n", "0"], "--n must be >= 1, got 0"),
     (["ask", "{d}", "--n", "-2"], "--n must be >= 1, got -2"),
     (["ask", "{d}", "--phase", "2"], "argument --phase: invalid choice: 2"),
-    (["ask", "{d}", "--phase", "3"], "not 3"),
-    (["ask", "{d}", "--seed", "5"], "not 5"),
+    (["ask", "{d}", "--phase", "3"], "runs with --phase 1 (stored), not --phase 3"),
+    (["ask", "{d}", "--seed", "5"], "runs with --seed 0 (stored), not --seed 5"),
     (["ask", "{d}", "--method", "nope"], "argument --method: invalid choice: 'nope'"),
     (["ask", "{d}", "--robot", "a1"], "holds a run of another system"),
     (["ask", "{d}", "--space", "{d}/missing.yaml"], "--space: file not found:"),

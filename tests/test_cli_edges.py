@@ -334,7 +334,7 @@ def test_phase3_resume_keeps_its_stored_fall_and_handover_options(run_cli, small
         assert st.count(3) == 8
     line = one_line_error(*run_cli("phase3", *SYS, "--out", small_run, "--phase3-evals", "9",
                                    "--quiet", "--resume", "--max-fall-prob", "0.4")[::2])
-    assert "max-fall-prob = 0.5, not 0.4" in line
+    assert "--max-fall-prob 0.5 (stored), not --max-fall-prob 0.4" in line
 
 
 def test_a_run_with_a_seed_reopens_without_it(run_cli, plant, tmp_path, error_line):
@@ -349,7 +349,7 @@ def test_a_run_with_a_seed_reopens_without_it(run_cli, plant, tmp_path, error_li
     assert code == 0, err
     code, _, err = run_cli("train-vae", *VAE_SYS, *base, "--latent-dim", "1", "--vae-epochs", "5")
     assert code == 0, err
-    assert "seed = 3, not 0" in error_line(*run_cli("train-vae", *VAE_SYS, *base, "--seed", "0",
-                                                     "--latent-dim", "1")[::2])
+    assert "--seed 3 (stored), not --seed 0" in error_line(
+        *run_cli("train-vae", *VAE_SYS, *base, "--seed", "0", "--latent-dim", "1")[::2])
     with RunStore(out) as st:
         assert st.count(1) == 7

@@ -63,8 +63,9 @@ def test_phase3_refusals_name_the_flags_not_the_python_arguments(tmp_path, run_c
          "--strategy out to go on with the transfer phase 3, or start a plain phase 3 in "
          "another directory"),
         ((d, "--resume", "--max-fall-prob", "0.2"),
-         "phase 3 was run without --max-fall-prob, not with --max-fall-prob 0.2"),
-        ((d, "--resume", "--batch-size", "2"), "phase 3 was run with --batch-size = 4, not 2"),
+         "phase 3 was run with no --max-fall-prob (stored), not --max-fall-prob 0.2"),
+        ((d, "--resume", "--batch-size", "2"),
+         "phase 3 was run with --batch-size 4 (stored), not --batch-size 2"),
     ]
     for (out, *flags), expect in cases:
         line = error_line(*_phase3(run_cli, source, out, *flags, evals=6)[::2])
@@ -349,7 +350,7 @@ def test_a_resume_with_another_vae_names_the_vae_flag(tmp_path, run_cli, source,
     code, _, err = _phase3(run_cli, source, d)
     assert code == 0, err
     line = error_line(*_phase3(run_cli, other, d, "--resume", evals=6)[::2])
-    assert line.endswith(f"phase 3 was run with --vae = '{source}', not '{other}'"), line
+    assert line.endswith(f"phase 3 was run with --vae {source} (stored), not --vae {other}"), line
     own = tmp_path / "own"
     code, _, err = run_cli("tune", *SYSTEM, "--out", own, "--phase1-evals", "16",
                            "--phase3-evals", "2", "--latent-dim", "2", "--vae-epochs", "20")

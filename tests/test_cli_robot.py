@@ -103,9 +103,9 @@ def test_ask_start(tmp_path, run_cli, error_line):
     assert s["params"] == {"a": 0.25, "b": 1.5, "c": 3.0}           # the critic starts there
     assert run_cli("ask", d, "--start", start)[0] == 0               # the stored one again
     line = error_line(*run_cli("ask", d, "--start", "manual")[::2])
-    assert "start = [0.25, 0.75, 0.75] (stored), not 'manual'" in line
+    assert "runs with --start [0.25, 0.75, 0.75] (stored), not --start manual" in line
     line = error_line(*run_cli("ask", d, "--start", "scratch")[::2])
-    assert "(stored), not 'scratch'" in line
+    assert "(stored), not --start scratch" in line
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps({"a": 7}))
     assert "--start" in error_line(*run_cli("ask", d, "--start", bad)[::2])
@@ -201,7 +201,7 @@ def test_ask_refusals_name_the_flags_not_the_python_arguments(tmp_path, run_cli,
         (("ask", d1, "--asker", ""), "--asker must be a non-empty name"),
         (("ask", tmp_path / "fp", "--space", space, "--fall-prior", d1),
          "--fall-prior needs --max-fall-prob"),
-        (("ask", d1, "--method", "cma"), "runs with --method = 'turbo' (stored), not 'cma'"),
+        (("ask", d1, "--method", "cma"), "runs with --method turbo (stored), not --method cma"),
         (("ask", tmp_path / "r0", "--space", space, "--regions", "0"),
          "--regions must be an integer in [1, 100], got 0"),
         (("ask", tmp_path / "n1", *first, "--fall-prior", d1),

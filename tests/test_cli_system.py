@@ -408,7 +408,7 @@ def test_a_resume_keeps_the_stored_method_and_refuses_another(run_cli, plugin_di
     code, _, err = run_cli("phase1", *common, "--out", out, "--phase1-evals", "10", "--resume",
                            "--method", "turbo")
     line = one_line_error(code, err)
-    assert "method = 'random', not 'turbo'" in line
+    assert "phase 1 was run with --method random (stored), not --method turbo" in line
     assert run_cli("train-vae", *common[:-2], "--out", out, "--vae-epochs", "5")[0] == 0
     assert run_cli("phase3", *common, "--vae", out, "--out", p3, "--strategy", "plain",
                    "--method", "cma", "--phase3-evals", "3")[0] == 0
@@ -603,3 +603,43 @@ def test_a_system_arg_at_its_default_value_is_the_same_system(run_cli, plugin_di
     line = one_line_error(*run_cli("phase1", *common, "--system-arg", "shift=0.5", "--out",
                                    runs[1], "--phase1-evals", 6, "--resume")[::2])
     assert "holds a run of another system (args.shift: stored 0, given 0.5)" in line, line
+
+
+def test_resume_refusals_name_the_flag_and_both_values_alike(run_cli, plugin_dir, tmp_path):
+    """A resume with another value was refused in several forms: "runs with --budget = 5
+    (stored), not 3", "phase1 was run with method = 'random', not 'turbo'", "was run with
+    max-fall-prob = None, not 0.2", "ask/tell runs phase 1 (stored), not 3", "runs with seed 0,
+    not 5", beside "runs with --fall-budget 0.2 (stored), not --fall-budget 0.3". Each now
+    names the flag with the stored and the given value in that one form."""
+    system = ("--system", "closplant:make", "--system-arg", "dim=3")
+    a, p = tmp_path / "a", tmp_path / "p"
+    code, _, err = run_cli("ask", a, *system, "--budget", "5", "--max-fall-prob", "0.4",
+                           "--json")
+    assert code == 0, err
+    code, _, err = run_cli("phase1", *system, "--out", p, "--phase1-evals", "6", "--backend",
+                           "serial", "--method", "random", "--batch-size", "2", "--quiet")
+    assert code == 0, err
+    cases = [
+        (("ask", a, "--budget", "3"), "a: phase 1 runs with --budget 5 (stored), not --budget 3"),
+        (("ask", a, "--method", "cma"), "runs with --method turbo (stored), not --method cma"),
+        (("ask", a, "--max-fall-prob", "0.3"),
+         "runs with --max-fall-prob 0.4 (stored), not --max-fall-prob 0.3"),
+        (("ask", a, "--start", "scratch"),
+         "runs with --start manual (stored), not --start scratch"),
+        (("ask", a, "--phase", "3"), "a: ask/tell runs with --phase 1 (stored), not --phase 3; "
+                                     "ask phase 3 in another directory"),
+        (("ask", a, "--seed", "5"), "a: ask/tell runs with --seed 0 (stored), not --seed 5"),
+        (("phase1", "--out", p, "--method", "turbo"),
+         "p: phase 1 was run with --method random (stored), not --method turbo"),
+        (("phase1", "--out", p, "--batch-size", "3"),
+         "p: phase 1 was run with --batch-size 2 (stored), not --batch-size 3"),
+        (("phase1", "--out", p, "--max-fall-prob", "0.2"),
+         "p: phase 1 was run with no --max-fall-prob (stored), not --max-fall-prob 0.2"),
+        (("phase1", "--out", p, "--seed", "4"),
+         "p: the study was run with --seed 0 (stored), not --seed 4 (leave --seed out"),
+    ]
+    for (cmd, *argv), expect in cases:
+        more = ["--json"] if cmd == "ask" else ["--resume", "--phase1-evals", "8", "--backend",
+                                                 "serial"]
+        line = one_line_error(*run_cli(cmd, *argv, *system, *more)[::2])
+        assert expect in line, (argv, line)

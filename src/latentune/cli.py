@@ -367,10 +367,13 @@ def _study(args: argparse.Namespace):
     if args.backend == "serial" and check_workers(workers) > 1:
         raise CLIError(f"--workers {workers} needs --backend process or ray: serial runs one "
                        "trial at a time, in this process")
-    return Study(args.out, seed=args.seed, workers=workers, backend=args.backend,
-                 ray_address=args.ray_address, batch_size=args.batch_size,
-                 progress=_progress(args), log=logging.getLogger("latentune.study").info,
-                 trial_timeout=timeout)
+    try:
+        return Study(args.out, seed=args.seed, workers=workers, backend=args.backend,
+                     ray_address=args.ray_address, batch_size=args.batch_size,
+                     progress=_progress(args), log=logging.getLogger("latentune.study").info,
+                     trial_timeout=timeout)
+    except StoreError as exc:                  # another seed than the stored one
+        raise CLIError(stored_flags(str(exc))) from None
 
 
 def _check_stored_system(study: Any, args: argparse.Namespace) -> None:
@@ -548,6 +551,9 @@ def _phase1_study(args: argparse.Namespace, latent: bool,
                            regions=args.regions,
                            max_fall_prob=args.max_fall_prob,
                            fall_prior=getattr(args, "fall_prior", None))
+    except StoreError as exc:           # a resume with another value than the stored one
+        study.close()
+        raise CLIError(stored_flags(str(exc))) from None
     except BaseException:
         study.close()
         raise
@@ -745,9 +751,13 @@ def _asktell_study(args: argparse.Namespace):
     seed = getattr(args, "seed", None)
     if at is not None:
         if seed is not None and seed != at["seed"]:
-            raise CLIError(f"{args.dir}: ask/tell runs with seed {at['seed']}, not {seed}")
+            raise CLIError(f"{args.dir}: ask/tell runs with --seed {at['seed']} (stored), not "
+                           f"--seed {seed}")
         return Study(args.dir, seed=at["seed"], batch_size=at["batch_size"])
-    return Study(args.dir, seed=seed)      # None: the stored seed, else 0
+    try:
+        return Study(args.dir, seed=seed)      # None: the stored seed, else 0
+    except StoreError as exc:                  # another seed than the stored one
+        raise CLIError(stored_flags(str(exc))) from None
 
 
 def cmd_ask(args: argparse.Namespace) -> int:
@@ -895,11 +905,40 @@ def _ask_flags(msg: str, args: argparse.Namespace) -> str:
         "the result (best_params())", f"the result (latentune best {where})")
     msg = re.sub(r"was run with latent-source = 'self', not '(.*)'$",  # its own latent space
                  r"was run in its own latent space (without --vae), not with --vae \1", msg)
-    msg = re.sub(r"was run with ([a-z][\w-]*) = None, not (.*)$",    # a flag left out
-                 lambda m: f"was run without {ASK_FLAGS.get(m[1], m[1])}, not with "
-                           f"{ASK_FLAGS.get(m[1], m[1])} {m[2]}", msg)
-    return re.sub(r"(runs with|was run with) ([a-z][\w-]*) = ",
-                  lambda m: f"{m[1]} {ASK_FLAGS.get(m[2], m[2])} = ", msg)
+    return stored_flags(msg)
+
+
+_STORED_VALUE = re.compile(r"(runs with|was run with) ([a-z][\w-]*) = (.*?)(?: \(stored\))?, "
+                           r"not (.*?)(?=; | \(leave |$)")
+"""A resume refused for another value, as the study words it (``runs with budget = 5
+(stored), not 3``); the given value ends at ``; ``, `` (leave `` or the end."""
+
+
+def stored_flags(msg: str) -> str:
+    """A resume's refusal for another value in the one form of the command line: the flag
+    with the stored and the given value as the user types them (``runs with --budget 5
+    (stored), not --budget 3``; ``was run with no --max-fall-prob (stored), not
+    --max-fall-prob 0.2``); any other message is returned as it is."""
+    import ast
+
+    def typed(text: str) -> str | None:
+        try:
+            v = ast.literal_eval(text)
+        except (ValueError, SyntaxError):
+            return text
+        return None if v is None else v if isinstance(v, str) else text
+
+    def form(m: re.Match[str]) -> str:
+        flag = ASK_FLAGS.get(m[2], "--" + m[2].replace("_", "-"))
+        old, new = (typed(x) for x in (m[3], m[4]))
+        return (f"{m[1]} " + (f"no {flag}" if old is None else f"{flag} {old}") + " (stored), not "
+                + (f"no {flag}" if new is None else f"{flag} {new}"))
+
+    msg = re.sub(r"^(.*?: )phase(\d) was run with", r"\1phase \2 was run with", msg)
+    msg = re.sub(r"ask/tell runs phase (\d) \(stored\), not (\d)",
+                 r"ask/tell runs with --phase \1 (stored), not --phase \2", msg)
+    msg = msg.replace("(leave the seed out", "(leave --seed out")
+    return _STORED_VALUE.sub(form, msg)
 
 
 def _ask_start(start: str | None, system: Any, space: Any, study: Any) -> Any:
