@@ -240,7 +240,7 @@ def test_paper_end_to_end(paper_dir: Path):
     (["--report-only", "--studies", "a1-trot"], "--studies does not apply to --report-only"),
     # refused by the studies' tasks: before anything is written (paper.json blocked the fix)
     (["--actor", "foo"], "unknown actor 'foo' (choose from convex, kinodynamic)"),
-    (["--v-des", "5"], "v_des must be a finite velocity of at most 3 m/s"),
+    (["--v-des", "5"], "--v-des must be a velocity of at most 3 m/s in size, got 5"),
 ])
 def test_paper_bad_input(tmp_path: Path, run_cli, error_line, extra: list[str], expect: str):
     code, _, err = run_cli("paper", "--out", tmp_path / "o", *extra)

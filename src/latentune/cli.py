@@ -150,6 +150,18 @@ def make_system(args: argparse.Namespace, seed: int = 0) -> Any:
     return make_task(args, seed)
 
 
+def check_v_des(v_des: float | None) -> None:
+    """CLIError naming --v-des unless it is None (the default) or a finite velocity a Task
+    takes (:data:`~latentune.task.MAX_V_DES`)."""
+    from latentune.task import MAX_V_DES
+
+    if v_des is not None and not math.isfinite(v_des):
+        raise CLIError(f"--v-des must be finite, got {v_des}")
+    if v_des is not None and abs(v_des) > MAX_V_DES:
+        raise CLIError(f"--v-des must be a velocity of at most {MAX_V_DES:g} m/s in size, got "
+                       f"{v_des:g}")
+
+
 def make_task(args: argparse.Namespace, seed: int = 0) -> Any:
     from latentune.task import Task
 
@@ -158,8 +170,7 @@ def make_task(args: argparse.Namespace, seed: int = 0) -> Any:
         if v is not None and not str(v).strip():
             raise CLIError(f"--{flag} is empty; leave it out for the default")
     _positive("steps", args.steps)
-    if args.v_des is not None and not math.isfinite(args.v_des):
-        raise CLIError(f"--v-des must be finite, got {args.v_des}")
+    check_v_des(args.v_des)
     try:
         return Task(robot="a1" if args.robot is None else args.robot,
                     gait="trot" if args.task is None else args.task,
@@ -1182,6 +1193,7 @@ def cmd_paper(args: argparse.Namespace) -> int:
     for flag, given in (("--no-sim", args.no_sim), ("--no-gif", args.no_gif)):
         if given and args.sources_only:
             raise CLIError(f"{flag} does not apply to --sources-only: it writes no report")
+    check_v_des(args.v_des)
     opts = PaperOptions(robot=str(args.robot).lower(), actor=args.actor, scale=args.scale,
                         phase1=args.phase1_evals, phase3=args.phase3_evals,
                         out=args.out or f"paper-{str(args.robot).lower()}", workers=args.workers,

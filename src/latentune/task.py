@@ -34,11 +34,14 @@ from latentune.robots import RobotSpec, get_robot
 from latentune.space import ParameterSpace
 from latentune.system import Outcome
 
-__all__ = ["Task", "RolloutResult", "path_cost", "actor_class", "ACTORS", "C1", "MAX_STEPS", "BLOWUP_SPEED"]
+__all__ = ["Task", "RolloutResult", "path_cost", "actor_class", "ACTORS", "C1", "MAX_STEPS", "MAX_V_DES",
+           "BLOWUP_SPEED"]
 BLOWUP_SPEED = 50.0
 """A base speed above this [m/s] is a simulator blow-up, counted as a fall (legged robots move
 at a few m/s; a blown-up PyBullet world jumps between ±100 m/s at finite positions)."""
 MAX_STEPS = 10_000_000
+MAX_V_DES = 3.0
+"""The largest desired velocity a Task takes [m/s] (the size of its 3-vector)."""
 """The longest rollout horizon (10,000 s at 1 kHz): a rollout holds a few arrays of this length."""
 ACTORS = {
     "convex": "latentune.actor.convex_mpc:ConvexMPC",
@@ -165,8 +168,8 @@ class Task:
                 raise ValueError
         except (TypeError, ValueError):
             raise UsageError(f"v_des must be a number or a 3-vector [m/s], got {v_des!r}") from None
-        if not np.all(np.isfinite(v)) or math.hypot(*v) > 3.0:  # hypot: no overflow
-            raise UsageError("v_des must be a finite velocity of at most 3 m/s")
+        if not np.all(np.isfinite(v)) or math.hypot(*v) > MAX_V_DES:  # hypot: no overflow
+            raise UsageError(f"v_des must be a finite velocity of at most {MAX_V_DES:g} m/s")
         if not is_whole(steps, 1):
             raise UsageError(f"steps must be a positive integer, got {steps!r}")
         if steps > MAX_STEPS:
