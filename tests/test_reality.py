@@ -488,3 +488,22 @@ def test_a_study_of_one_reality_refuses_another(tmp_path):
                   Task("a1", steps=100, reality="heavy", engine="mujoco")):
         with pytest.raises(StoreError, match="another"):
             Study(tmp_path / "run").bind(other)
+
+
+@pytest.mark.parametrize("text", ["", "# my robot, to do\n", "{}\n", "name: mine\n"],
+                         ids=["empty", "a comment", "an empty mapping", "a name only"])
+def test_a_profile_file_without_fields_is_refused(tmp_path, run_cli, error_line, text):
+    """``--reality FILE`` of an empty file (or one holding no field) ran the nominal simulator
+    without a word, though a user passing a file means a change: it is refused in one line
+    naming the file and the keys a profile holds (the nominal preset stays nominal)."""
+    f = tmp_path / "mine.yaml"
+    f.write_text(text)
+    with pytest.raises(UsageError, match=f"reality {f}: the file sets no field") as exc:
+        Reality.load(str(f))
+    assert "(known: base, friction, " in str(exc.value) and "\n" not in str(exc.value)
+    line = error_line(*run_cli("rollout", "--reality", f, "--steps", "10")[::2])
+    assert line.startswith(f"latentune: error: reality {f}: the file sets no field"), line
+    (tmp_path / "on_it.yaml").write_text(f"base: [{f.name}]\ntorque_scale: 0.9\n")
+    with pytest.raises(UsageError, match=f"reality {f}: the file sets no field"):
+        Reality.load(str(tmp_path / "on_it.yaml"))
+    assert Reality.load("nominal") == Reality(name="nominal")

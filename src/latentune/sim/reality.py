@@ -330,6 +330,11 @@ def _resolve(source: str | os.PathLike, seen: tuple[str, ...]) -> dict[str, Any]
     bases = [bases] if isinstance(bases, str) else bases
     if not isinstance(bases, list) or not all(isinstance(b, str) for b in bases):
         raise UsageError(f"{where}: base must be a preset name or file, or a list of them")
+    if not is_preset and not bases and not set(raw) - {"name"}:   # a user's file: a change
+        known = {f.name for f in dataclasses.fields(Reality)} | {"base"}
+        raise UsageError(f"{where}: the file sets no field, so it would change nothing "
+                         f"(known: {', '.join(sorted(known))}); for the unchanged simulator, "
+                         "leave the reality out or name the preset nominal")
     merged: dict[str, Any] = {}
     for b in bases:
         bpath = b if b in preset_names() or os.path.isabs(b) else str(path.parent / b)
