@@ -643,3 +643,28 @@ def test_resume_refusals_name_the_flag_and_both_values_alike(run_cli, plugin_dir
                                                  "serial"]
         line = one_line_error(*run_cli(cmd, *argv, *system, *more)[::2])
         assert expect in line, (argv, line)
+
+
+def test_a_system_arg_yaml_reads_as_a_date_resumes(run_cli, plugin_dir, tmp_path):
+    """``--system-arg when=2020-01-01`` (YAML reads a date) ran, but its resume with the same
+    flags was refused: "holds a run of another system (args.when: stored '2020-01-01', given
+    datetime.date(2020, 1, 1))": the store keeps the text, the check compared the date. A
+    system is compared as the store keeps it."""
+    (plugin_dir / "dated.py").write_text(textwrap.dedent('''
+        import closplant
+
+        def make(when=None, dim=3):
+            return closplant.make(dim)
+    '''))
+    run = tmp_path / "dated"
+    for n, more in ((3, []), (5, ["--resume"])):
+        code, _, err = run_cli("phase1", "--system", "dated:make", "--system-arg",
+                               "when=2020-01-01", "--out", run, "--phase1-evals", n,
+                               "--backend", "serial", "--quiet", *more)
+        assert code == 0, err
+    assert RunStore(run).count(Phase.PHASE1) == 5
+    line = one_line_error(*run_cli("phase1", "--system", "dated:make", "--system-arg",
+                                   "when=2020-01-02", "--out", run, "--phase1-evals", 6,
+                                   "--backend", "serial", "--resume")[::2])
+    assert "(args.when: stored '2020-01-01', given '2020-01-02')" in line, line
+    sys.modules.pop("dated", None)

@@ -77,8 +77,8 @@ def describe(system: Any) -> dict[str, Any]:
     if isinstance(system, Task):
         return {"kind": "task", "task": system.config()}
     plugin = plugin_record(system)
-    if plugin is not None:
-        return {"kind": "plugin", **plugin, "space": system.space.to_dict()}
+    if plugin is not None:      # as the store keeps it: a date argument is its text
+        return {"kind": "plugin", **json.loads(info_json(plugin)), "space": system.space.to_dict()}
     d: dict[str, Any] = {"kind": "python",
                          "class": f"{type(system).__module__}.{type(system).__qualname__}",
                          "space": system.space.to_dict()}
