@@ -84,7 +84,8 @@ def test_bad_input(small_run, tmp_path, run_cli, error_line, dump_store):
     msg = error("tune", "--robot", "a1", "--task", "jump", "--steps", "200", "--quiet",
                 "--out", small_run, "--resume")
     assert "another system" in msg and "jump" in msg
-    assert "--seed 0 (stored), not --seed 5" in error("tune", *TINY, "--seed", "5", "--out", small_run, "--resume")
+    assert "--seed 0 (stored), not --seed 5" in error("tune", *TINY, "--seed", "5", "--out",
+                                                      small_run, "--resume")
     # the run exists: no silent re-run without --resume
     assert "pass --resume" in error("phase1", *TINY, "--out", small_run)
     # a VAE of another θ dimension

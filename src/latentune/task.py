@@ -34,8 +34,8 @@ from latentune.robots import RobotSpec, get_robot
 from latentune.space import ParameterSpace
 from latentune.system import Outcome
 
-__all__ = ["Task", "RolloutResult", "path_cost", "actor_class", "ACTORS", "C1", "MAX_STEPS", "MAX_V_DES",
-           "BLOWUP_SPEED"]
+__all__ = ["Task", "RolloutResult", "path_cost", "actor_class", "ACTORS", "C1", "MAX_STEPS",
+           "MAX_V_DES", "BLOWUP_SPEED"]
 BLOWUP_SPEED = 50.0
 """A base speed above this [m/s] is a simulator blow-up, counted as a fall (legged robots move
 at a few m/s; a blown-up PyBullet world jumps between ±100 m/s at finite positions)."""
