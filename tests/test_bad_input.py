@@ -128,7 +128,8 @@ BAD_TASK_ARGS = [  # (flags, which error)
     (["--steps", "0"], "--steps must be >= 1, got 0"),
     (["--steps", "-5"], "--steps must be >= 1, got -5"),
     (["--steps", "x"], "argument --steps: invalid int value: 'x'"),
-    (["--steps", "1" + "0" * 12], "steps must be at most 10,000,000 (10,000 s at 1 kHz)"),
+    (["--steps", "1" + "0" * 12],
+     "--steps must be at most 10,000,000 (10,000 s at 1 kHz), got 1" + "0" * 12),
     (["--v-des", "nan"], "--v-des must be finite, got nan"),
     (["--v-des", "inf"], "--v-des must be finite, got inf"),
     (["--v-des", "9"], "--v-des must be a velocity of at most 3 m/s in size, got 9"),
@@ -146,7 +147,8 @@ BAD_RUN_ARGS = [
     (["--phase3-evals", "-1"], "--phase3-evals must be >= 1, got -1"),
     (["--workers", "0"], "--workers must be >= 1, got 0"),
     # a typo's pool: a traceback from the semaphore (OverflowError), or thousands of processes
-    (["--workers", "99999999999999999999"], "workers must be a whole number in [1, 4096]"),
+    (["--workers", "99999999999999999999"],
+     "--workers must be at most 4096 (one process or Ray actor each), got 99999999999999999999"),
     (["--latent-dim", "0"], "--latent-dim must be >= 1, got 0"),
     (["--latent-dim", "50"], "--latent-dim 50: the latent space of a 25-dim θ needs a size in "
                              "[1, 24]"),

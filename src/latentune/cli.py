@@ -104,6 +104,21 @@ def _positive(name: str, v: Any, low: int = 1) -> None:
         raise CLIError(f"--{name} must be >= {low}, got {v}")
 
 
+def check_limits(args: argparse.Namespace) -> None:
+    """CLIError naming the flag for a --steps or --workers beyond what a Task or an evaluator
+    takes (:data:`~latentune.task.MAX_STEPS`, :data:`~latentune.pipeline.evaluators.
+    MAX_WORKERS`); either flag absent or None passes."""
+    from latentune.pipeline.evaluators import MAX_WORKERS
+    from latentune.task import MAX_STEPS
+
+    steps, workers = getattr(args, "steps", None), getattr(args, "workers", None)
+    if steps is not None and steps > MAX_STEPS:
+        raise CLIError(f"--steps must be at most {MAX_STEPS:,} (10,000 s at 1 kHz), got {steps}")
+    if workers is not None and workers > MAX_WORKERS:
+        raise CLIError(f"--workers must be at most {MAX_WORKERS} (one process or Ray actor "
+                       f"each), got {workers}")
+
+
 # ---------------------------------------------------------------------------- systems
 def add_system_args(p: argparse.ArgumentParser) -> None:
     """The flags that choose the system: a built-in task, or ``--system module:factory``."""
@@ -170,6 +185,7 @@ def make_task(args: argparse.Namespace, seed: int = 0) -> Any:
         if v is not None and not str(v).strip():
             raise CLIError(f"--{flag} is empty; leave it out for the default")
     _positive("steps", args.steps)
+    check_limits(args)
     check_v_des(args.v_des)
     try:
         return Task(robot="a1" if args.robot is None else args.robot,
@@ -351,6 +367,7 @@ def _study(args: argparse.Namespace):
     for flag in ("phase1_evals", "phase3_evals", "workers", "vae_epochs", "latent_dim",
                  "batch_size"):
         _positive(flag.replace("_", "-"), getattr(args, flag, None))
+    check_limits(args)
     if args.regions is not None and not 1 <= args.regions <= 100:
         raise CLIError(f"--regions must be in [1, 100], got {args.regions}")
     if args.ray_address and args.backend != "ray":
@@ -1194,6 +1211,7 @@ def cmd_paper(args: argparse.Namespace) -> int:
         if given and args.sources_only:
             raise CLIError(f"{flag} does not apply to --sources-only: it writes no report")
     check_v_des(args.v_des)
+    check_limits(args)
     opts = PaperOptions(robot=str(args.robot).lower(), actor=args.actor, scale=args.scale,
                         phase1=args.phase1_evals, phase3=args.phase3_evals,
                         out=args.out or f"paper-{str(args.robot).lower()}", workers=args.workers,
