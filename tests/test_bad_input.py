@@ -827,14 +827,17 @@ def test_study_phases_reject_bad_arguments(tmp_path, call):
 
 @pytest.mark.parametrize("method", ["cma", "random", "sobol"])
 def test_regions_with_a_method_other_than_turbo_is_refused(capsys, tmp_path, method):
-    """--regions is TuRBO-m's: with another method it was dropped without a word."""
+    """--regions is TuRBO-m's: with another method it was dropped without a word. The refusal
+    named the API's arguments ("regions (trust regions) is an option of method turbo
+    (TuRBO-m), not of cma (given regions = 3)"); it names the flags."""
+    said = ("--regions (trust regions) is an option of --method turbo (TuRBO-m), not of "
+            f"--method {method} (given --regions = 3)")
     assert_one_line(capsys, "phase1", *TINY, "--out",
                     tmp_path / "p1", "--backend", "serial", "--phase1-evals", "6", "--method",
-                    method, "--regions", "3", expect="regions (trust regions) is an option of "
-                    f"method turbo (TuRBO-m), not of {method} (given regions = 3)")
+                    method, "--regions", "3", expect=said)
     assert not (tmp_path / "p1" / "run.db").exists()
     assert_one_line(capsys, "ask", tmp_path / "a", *TINY, "--method", method, "--regions", "3",
-                    expect="not of " + method)
+                    expect=said)
     space = lt.ParameterSpace(["a", "b", "c"], [0, 0, 0], [1, 1, 1])
     sys_ = lt.FunctionSystem(space, lambda th: float(np.sum((np.asarray(th) - 0.3) ** 2)))
     st = lt.Study(tmp_path / "s")

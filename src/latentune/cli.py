@@ -579,9 +579,9 @@ def _phase1_study(args: argparse.Namespace, latent: bool,
                            regions=args.regions,
                            max_fall_prob=args.max_fall_prob,
                            fall_prior=getattr(args, "fall_prior", None))
-    except StoreError as exc:           # a resume with another value than the stored one
+    except (UsageError, StoreError) as exc:     # in the words of the command's flags
         study.close()
-        raise CLIError(stored_flags(str(exc))) from None
+        raise CLIError(_ask_flags(str(exc), args)) from None
     except BaseException:
         study.close()
         raise
@@ -884,14 +884,15 @@ _TRANSFER_STORED = re.compile(r"(?:runs|was run) with transfer-options = (.*?)(?
 
 
 def _ask_flags(msg: str, args: argparse.Namespace) -> str:
-    """A refusal of :meth:`Study.ask` (or of :meth:`Study.phase3`, for ``phase3`` and ``tune``)
-    with the command's flags in place of the Python names it gives (``transfer_options is an
-    option of phase 3`` → ``--fall-budget is an option of phase 3``; ``(strategy plain)`` →
-    ``(--strategy plain)``; ``runs with method = …`` → ``runs with --method = …``)."""
+    """A refusal of :meth:`Study.ask` (or of :meth:`Study.phase1` and :meth:`Study.phase3`, for
+    ``phase1``, ``phase3`` and ``tune``) with the command's flags in place of the Python names
+    it gives (``transfer_options is an option of phase 3`` → ``--fall-budget is an option of
+    phase 3``; ``(strategy plain)`` → ``(--strategy plain)``; ``runs with method = 'a'
+    (stored), not 'b'`` → ``runs with --method a (stored), not --method b``)."""
     import ast
 
     where = getattr(args, "dir", None) or args.out
-    given = [ASK_FLAGS[k] for k in TRANSFER_DESTS if getattr(args, k) is not None]
+    given = [ASK_FLAGS[k] for k in TRANSFER_DESTS if getattr(args, k, None) is not None]
     if not given and msg.startswith("transfer_options are options of the transfer phase 3"):
         # the stored options (none given): the stored phase 3 is a transfer one
         return (f"{where}: phase 3 runs with --strategy transfer (stored, with its transfer "
@@ -905,6 +906,9 @@ def _ask_flags(msg: str, args: argparse.Namespace) -> str:
                  lambda m: ASK_FLAGS.get(m[1], m[1]) + m[2], msg)
     msg = re.sub(r"^(\w+) needs (\w+)",
                  lambda m: f"{ASK_FLAGS.get(m[1], m[1])} needs {ASK_FLAGS.get(m[2], m[2])}", msg)
+    msg = re.sub(r"^regions \(trust regions\) is an option of method turbo \(TuRBO-m\), not "
+                 r"of (\w+)", r"--regions (trust regions) is an option of --method turbo "
+                 r"(TuRBO-m), not of --method \1", msg)
     msg = re.sub(r"\(strategy (plain|transfer)\)", r"(--strategy \1)", msg)
     msg = re.sub(r"runs with strategy (\w+) \(stored\), not (\w+): leave strategy out",
                  r"runs with --strategy \1 (stored), not --strategy \2: leave --strategy out", msg)
