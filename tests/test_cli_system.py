@@ -668,3 +668,35 @@ def test_a_system_arg_yaml_reads_as_a_date_resumes(run_cli, plugin_dir, tmp_path
                                    "--backend", "serial", "--resume")[::2])
     assert "(args.when: stored '2020-01-01', given '2020-01-02')" in line, line
     sys.modules.pop("dated", None)
+
+
+def test_the_system_flags_a_forgotten_system_line_gives_rebuild_it(run_cli, plugin_dir, tmp_path):
+    """A resume without --system says what to pass; for ``--system-arg when=.nan`` it said
+    ``--system-arg when=NaN`` (YAML reads the text 'NaN': another system), for ``'tags=[1, 2]'``
+    an unquoted ``tags=[1, 2]`` (two shell words) and for ``'tag="true"'`` ``tag=true`` (a
+    bool). The line's flags, as a shell reads them, now resume the run."""
+    import shlex
+
+    (plugin_dir / "tagged.py").write_text(textwrap.dedent('''
+        import closplant
+
+        def make(when=None, tags=(), tag="", dim=3):
+            return closplant.make(dim)
+    '''))
+    run = tmp_path / "tagged"
+    given = ["when=.nan", "tags=[1, 2]", 'tag="true"']
+    code, _, err = run_cli("phase1", "--system", "tagged:make",
+                           *[x for g in given for x in ("--system-arg", g)], "--out", run,
+                           "--phase1-evals", 3, "--backend", "serial", "--quiet")
+    assert code == 0, err
+    line = one_line_error(*run_cli("phase1", "--out", run, "--phase1-evals", 4, "--backend",
+                                   "serial", "--resume")[::2])
+    flags = shlex.split(line.split(": pass ", 1)[1])
+    assert flags[:2] == ["--system", "tagged:make"], line
+    assert flags[2:] == [x for g in ["when=.nan", "tags=[1, 2]", "tag='true'"]
+                         for x in ("--system-arg", g)], line
+    code, _, err = run_cli("phase1", *flags, "--out", run, "--phase1-evals", 4, "--backend",
+                           "serial", "--quiet", "--resume")
+    assert code == 0, err
+    assert RunStore(run).count(Phase.PHASE1) == 4
+    sys.modules.pop("tagged", None)

@@ -413,8 +413,10 @@ def _check_stored_system(study: Any, args: argparse.Namespace) -> None:
     desc = study.config().get("system") or {}
     kind = desc.get("kind")
     if kind == "plugin" and args.system is None:
+        from latentune.system import system_arg_text
+
         target = desc.get("target")
-        given = " ".join(f"--system-arg {k}={v if isinstance(v, str) else json.dumps(v)}"
+        given = " ".join(f"--system-arg {shlex.quote(system_arg_text(k, v))}"
                          for k, v in (desc.get("args") or {}).items())
         raise CLIError(f"{study.dir} holds a run of the user system {target}: pass --system "
                        f"{target}{' ' + given if given else ''}")

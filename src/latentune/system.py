@@ -371,6 +371,25 @@ def parse_system_args(pairs: list[str] | None) -> dict[str, Any]:
     return out
 
 
+def system_arg_text(key: str, value: Any) -> str:
+    """The ``key=value`` text :func:`parse_system_args` reads back as ``value`` (a JSON value,
+    as a study keeps it): ``.nan``/``.inf`` for the non-finite floats, a string YAML would read
+    as something else (``'true'``, ``'10'``) in single quotes, any other value as JSON."""
+    if isinstance(value, float) and not math.isfinite(value):
+        text = ".nan" if math.isnan(value) else ".inf" if value > 0 else "-.inf"
+    elif isinstance(value, str):
+        text = value
+        try:
+            same = parse_system_args([f"{key}={value}"]).get(key.strip()) == value
+        except SystemSpecError:
+            same = False
+        if not same:
+            text = "'" + value.replace("'", "''") + "'"
+    else:
+        text = json.dumps(value, default=str)
+    return f"{key}={text}"
+
+
 def load_system(target: str, args: dict[str, Any] | None = None) -> Any:
     """Import ``module:factory`` and call ``factory(**args)``; return the checked system.
 
