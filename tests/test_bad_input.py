@@ -78,6 +78,20 @@ def test_a_run_of_another_task_says_which_flags_give_the_stored_one(capsys, copy
 
 
 
+def test_the_v_des_a_run_of_another_task_names_gives_the_stored_one(capsys, tmp_path):
+    """``phase1 --v-des 0.1234567`` resumed without it said "pass --v-des 0.123457 to go on
+    with it" (six digits), and that flag was refused again as another system: the flag
+    given now holds the stored velocity as it is."""
+    out = tmp_path / "run"
+    tiny = ["--steps", "20", "--quiet", "--backend", "serial", "--out", str(out)]
+    assert main(["phase1", *tiny, "--v-des", "0.1234567", "--phase1-evals", "2"]) == 0
+    line = assert_one_line(capsys, "phase1", *tiny, "--phase1-evals", "3", "--resume",
+                           expect="another system")
+    assert line.endswith(": pass --v-des 0.1234567 to go on with it"), line
+    assert main(["phase1", *tiny, "--v-des", "0.1234567", "--phase1-evals", "3",
+                 "--resume"]) == 0
+
+
 def test_a_run_of_another_reality_says_which_reality_gives_the_stored_one(capsys, copy_run):
     """``phase1 --reality heavy --resume`` on a run made without --reality said "(task.reality:
     stored None, given {'name': 'heavy', 'mass_scale': 1.15, 'payload_...)" and no flag to

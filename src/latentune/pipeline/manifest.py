@@ -415,7 +415,7 @@ def task_flags(stored: dict[str, Any], given: dict[str, Any]) -> str | None:
         elif key == "v_des":
             if not (isinstance(v, list) and len(v) == 3 and v[1:] == [0.0, 0.0]):
                 return None
-            v = f"{v[0]:g}"
+            v = repr(float(v[0]))       # every digit: the flag gives this very velocity
         elif key == "reality":
             v = _reality_preset(v)
             if v is None:
