@@ -507,3 +507,25 @@ def test_a_profile_file_without_fields_is_refused(tmp_path, run_cli, error_line,
     with pytest.raises(UsageError, match=f"reality {f}: the file sets no field"):
         Reality.load(str(tmp_path / "on_it.yaml"))
     assert Reality.load("nominal") == Reality(name="nominal")
+
+
+def test_a_profile_is_its_fields_not_its_file_name(tmp_path, run_cli, error_line):
+    """A run made with ``--reality mine.yaml`` was refused on a resume with a copy of the file
+    under another name ("another system (task.reality.name: stored 'mine', given 'copy')"),
+    and a heavy run with a file holding ``base: [heavy]``: a profile's name is a label, the
+    perturbation is its fields. Other fields are still another system."""
+    (tmp_path / "mine.yaml").write_text("torque_scale: 0.9\n")
+    (tmp_path / "copy.yaml").write_text("torque_scale: 0.9\n")
+    (tmp_path / "on_heavy.yaml").write_text("base: [heavy]\n")
+    (tmp_path / "other.yaml").write_text("torque_scale: 0.8\n")
+    common = ("--steps", "20", "--backend", "serial", "--quiet")
+    for reality, again in (("mine.yaml", "copy.yaml"), ("heavy", "on_heavy.yaml")):
+        run = tmp_path / f"run_{reality}"
+        for n, r, more in ((2, reality, []), (3, again, ["--resume"])):
+            code, _, err = run_cli("phase1", *common, "--reality", tmp_path / r if "." in r
+                                   else r, "--out", run, "--phase1-evals", n, *more)
+            assert code == 0, err
+    line = error_line(*run_cli("phase1", *common, "--reality", tmp_path / "other.yaml", "--out",
+                               tmp_path / "run_mine.yaml", "--phase1-evals", 4, "--resume")[::2])
+    assert "holds a run of another system (task.reality.torque_scale: stored 0.9, given 0.8)" \
+        in line, line

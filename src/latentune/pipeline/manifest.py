@@ -98,17 +98,27 @@ def describe(system: Any) -> dict[str, Any]:
 
 
 def same_system(stored: dict[str, Any] | None, desc: dict[str, Any]) -> bool:
-    """Whether the recorded system ``stored`` is the one ``desc`` describes. Plugins are
-    compared by their resolved arguments (:func:`plugin_config`): an argument given at its
-    default value is the same system as one left out. A plugin recorded before ``--system-arg``
-    read exponent values as floats holds them as strings (``'1e-3'``): such a string equals
-    the float :func:`~latentune.system.decimal_float` reads from it."""
+    """Whether the recorded system ``stored`` is the one ``desc`` describes: the same
+    :func:`identity` (an argument given at its default value is the same plugin as one left
+    out; a reality profile under another name is the same task)."""
     if stored is None or stored == desc:
         return stored is not None
-    if stored.get("kind") != "plugin" or desc.get("kind") != "plugin" \
-            or not isinstance(stored.get("args"), dict):
-        return False
-    return plugin_config(stored, desc.get("defaults")) == plugin_config(desc)
+    return identity(stored, desc) == identity(desc)
+
+
+def identity(desc: dict[str, Any], like: dict[str, Any] | None = None) -> dict[str, Any]:
+    """What makes the described system the one it is: a plugin's description with its
+    resolved arguments (:func:`plugin_config`; ``like``'s defaults for a record without them),
+    a task's without its reality profile's name (a label: the fields are the perturbation);
+    any other description as it is."""
+    if desc.get("kind") == "plugin" and isinstance(desc.get("args"), dict):
+        return plugin_config(desc, (like or {}).get("defaults"))
+    task = desc.get("task")
+    if desc.get("kind") == "task" and isinstance(task, dict) \
+            and isinstance(task.get("reality"), dict):
+        reality = {k: v for k, v in task["reality"].items() if k != "name"}
+        return {**desc, "task": {**task, "reality": reality}}
+    return desc
 
 
 def plugin_config(desc: dict[str, Any], defaults: dict[str, Any] | None = None
@@ -242,8 +252,8 @@ class Manifest:
                                  f"{t.get('robot')} ({t.get('gait')}), not of a --system: "
                                  "leave --system (and --system-arg) out")
             flags = task_flags(stored, desc)
-            shown = (plugin_config(stored, desc.get("defaults")), plugin_config(desc)) \
-                if stored.get("kind") == desc.get("kind") == "plugin" else (stored, desc)
+            shown = (identity(stored, desc), identity(desc)) \
+                if stored.get("kind") == desc.get("kind") else (stored, desc)
             raise StoreError(f"{self.run.dir} holds a run of another system "
                              f"({diff(*shown)})"
                              + (f": pass {flags} to go on with it" if flags else ""))
