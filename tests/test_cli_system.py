@@ -700,3 +700,30 @@ def test_the_system_flags_a_forgotten_system_line_gives_rebuild_it(run_cli, plug
     assert code == 0, err
     assert RunStore(run).count(Phase.PHASE1) == 4
     sys.modules.pop("tagged", None)
+
+
+def test_a_fall_prior_is_its_directory_not_its_spelling(run_cli, plugin_dir, tmp_path,
+                                                        monkeypatch):
+    """``--fall-prior src`` resumed with ``--fall-prior ./src`` (or its absolute path) was
+    refused: "phase 1 was run with --fall-prior src (stored), not --fall-prior ./src"; and the
+    text was recorded as given, so a resume from another directory read another prior. The
+    directory is recorded and compared as itself."""
+    system = ("--system", "closplant:make", "--system-arg", "dim=3", "--backend", "serial",
+              "--quiet")
+    src = tmp_path / "src"
+    assert run_cli("phase1", *system, "--out", src, "--phase1-evals", 4)[0] == 0
+    monkeypatch.chdir(tmp_path)
+    run, fall = tmp_path / "run", ("--max-fall-prob", "0.5")
+    for n, prior, more in ((3, "src", []), (4, "./src", ["--resume"]),
+                           (5, f"{src}/", ["--resume"])):
+        code, _, err = run_cli("phase1", *system, "--out", run, "--phase1-evals", n, *fall,
+                               "--fall-prior", prior, *more)
+        assert code == 0, err
+    assert lt.Study(run).config()["phase1"]["fall_prior"] == str(src)
+    a = tmp_path / "a"
+    assert run_cli("ask", a, *system[:4], *fall, "--fall-prior", "src", "--json")[0] == 0
+    code, _, err = run_cli("ask", a, "--fall-prior", f"{src}", "--json")
+    assert code == 0, err
+    line = one_line_error(*run_cli("phase1", *system, "--out", run, "--phase1-evals", 6, *fall,
+                                   "--fall-prior", run, "--resume")[::2])
+    assert f"was run with --fall-prior {src} (stored), not --fall-prior {run}" in line, line

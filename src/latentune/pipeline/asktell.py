@@ -271,7 +271,7 @@ def _normalized(given: dict[str, Any], space: ParameterSpace) -> dict[str, Any]:
     if g.get("max_fall_prob") is not None:
         g["max_fall_prob"] = mf.fall_options(g["max_fall_prob"], None)["max_fall_prob"]
     if g.get("fall_prior") is not None:
-        g["fall_prior"] = str(g["fall_prior"])
+        g["fall_prior"] = mf.prior_record(g["fall_prior"])
     if "transfer_options" in g:          # checked with the strategy by :func:`options`
         g["transfer_options"] = mf.transfer_record(g["transfer_options"])
     return g

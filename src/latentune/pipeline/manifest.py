@@ -337,7 +337,7 @@ class Manifest:
             for k in ("method", "batch_size", "seed", "regions", *(extra or {})):
                 if k in PINNED:
                     continue
-                if k in stored and stored.get(k) != pc.get(k):
+                if k in stored and not same_option(k, stored.get(k), pc.get(k)):
                     raise StoreError(f"{self.run.dir}: {key} was run with {k.replace('_', '-')}"
                                      f" = {stored.get(k)!r}, not {pc.get(k)!r}")
             if pc.get("transfer_options") and "transfer_options" not in stored:
@@ -378,7 +378,8 @@ def ask_options(stored: dict[str, Any] | None, given: dict[str, Any], dir_: Any,
             out[k] = old
         elif k == "budget" and old is not None and is_whole(v, old):
             out[k] = v
-        elif old != v and not (k == "fall_prior" and stored.get("max_fall_prob") is None):
+        elif not same_option(k, old, v) \
+                and not (k == "fall_prior" and stored.get("max_fall_prob") is None):
             raise StoreError(f"{dir_}: phase {int(phase)} runs with {k.replace('_', '-')} = "
                              f"{old!r} (stored), not {v!r}")
         else:
@@ -469,6 +470,21 @@ def start_point(start: Any, manual: np.ndarray, dim: int) -> tuple[np.ndarray | 
     return x, [float(v) for v in x]
 
 
+def prior_record(prior: Any) -> str:
+    """A fall prior as recorded: a run directory as its absolute path (a resume from another
+    directory reads the same run), a label as it is."""
+    return str(Path(prior).resolve()) if (Path(prior) / "run.db").is_file() else str(prior)
+
+
+def same_option(key: str, old: Any, new: Any) -> bool:
+    """Whether a stored option ``old`` is the given ``new``; a fall prior is a directory, so
+    two spellings of one (``src``, ``./src``, its absolute path; a record written before it
+    was recorded absolute) are the same."""
+    if key == "fall_prior" and isinstance(old, str) and isinstance(new, str):
+        return old == new or Path(old).resolve() == Path(new).resolve()
+    return old == new
+
+
 def fall_options(max_fall_prob: float | None, prior: Any) -> dict[str, Any]:
     """The options record of the fall-aware option (checked): ``prior`` a run directory (its
     trials counted: ``prior_counts``), a label, or None."""
@@ -480,7 +496,7 @@ def fall_options(max_fall_prob: float | None, prior: Any) -> dict[str, Any]:
             not 0.0 < float(max_fall_prob) <= 1.0:
         raise UsageError(f"max_fall_prob must be in (0, 1], got {max_fall_prob!r}")
     return {"max_fall_prob": float(max_fall_prob),
-            "fall_prior": None if prior is None else str(prior),
+            "fall_prior": None if prior is None else prior_record(prior),
             "prior_counts": None if prior is None else run_counts(prior)}
 
 
