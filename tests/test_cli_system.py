@@ -727,3 +727,28 @@ def test_a_fall_prior_is_its_directory_not_its_spelling(run_cli, plugin_dir, tmp
     line = one_line_error(*run_cli("phase1", *system, "--out", run, "--phase1-evals", 6, *fall,
                                    "--fall-prior", run, "--resume")[::2])
     assert f"was run with --fall-prior {src} (stored), not --fall-prior {run}" in line, line
+
+
+@pytest.mark.parametrize("cmd", ["phase1", "tune"])
+def test_a_phase1_resume_keeps_its_stored_fall_options(run_cli, plugin_dir, tmp_path, cmd):
+    """A phase 1 run with --max-fall-prob (and --fall-prior): ``phase1 --resume`` (or ``tune
+    --resume``) without them was refused ("phase 1 was run with --max-fall-prob 0.5 (stored),
+    not no --max-fall-prob"), where phase 3 and ask keep the stored ones; it resumes with
+    them. Another value is still refused."""
+    system = ("--system", "closplant:make", "--system-arg", "dim=3", "--backend", "serial",
+              "--quiet")
+    src, run = tmp_path / "src", tmp_path / "run"
+    assert run_cli("phase1", *system, "--out", src, "--phase1-evals", 4)[0] == 0
+    code, _, err = run_cli("phase1", *system, "--out", run, "--phase1-evals", 4,
+                           "--max-fall-prob", "0.5", "--fall-prior", src)
+    assert code == 0, err
+    more = ["--phase3-evals", "2", "--vae-epochs", "5", "--latent-dim", "2"] \
+        if cmd == "tune" else []
+    code, _, err = run_cli(cmd, *system, "--out", run, "--phase1-evals", 6, "--resume", *more)
+    assert code == 0, err
+    assert RunStore(run).count(Phase.PHASE1) == 6
+    cfg = lt.Study(run).config()["phase1"]
+    assert cfg["max_fall_prob"] == 0.5 and cfg["fall_prior"] == str(src)
+    line = one_line_error(*run_cli("phase1", *system, "--out", run, "--phase1-evals", 7,
+                                   "--resume", "--max-fall-prob", "0.4")[::2])
+    assert "--max-fall-prob 0.5 (stored), not --max-fall-prob 0.4" in line, line

@@ -576,11 +576,10 @@ def _phase1_study(args: argparse.Namespace, latent: bool,
         with study.writing():
             study.bind_check(system)
             _refuse_phase1_past_latent(study, _budget(args, study, 1))
+    mfp, prior = _kept_phase1(study, args)
     try:
         res = study.phase1(system, _budget(args, study, 1), method=args.method,
-                           regions=args.regions,
-                           max_fall_prob=args.max_fall_prob,
-                           fall_prior=getattr(args, "fall_prior", None))
+                           regions=args.regions, max_fall_prob=mfp, fall_prior=prior)
     except (UsageError, StoreError) as exc:     # in the words of the command's flags
         study.close()
         raise CLIError(_ask_flags(str(exc), args)) from None
@@ -588,6 +587,18 @@ def _phase1_study(args: argparse.Namespace, latent: bool,
         study.close()
         raise
     return study, system, res
+
+
+def _kept_phase1(study: Any, args: argparse.Namespace) -> tuple[Any, Any]:
+    """(--max-fall-prob, --fall-prior) of phase 1: a resume of a phase 1 with trials keeps the
+    stored ones unless given (the prior only with the stored or a given --max-fall-prob)."""
+    mfp, prior = args.max_fall_prob, getattr(args, "fall_prior", None)
+    stored = (study.config().get("phase1") or {}) if args.resume and study.exists else {}
+    if stored and study.manifest.n_used(1) > 0:
+        mfp = stored.get("max_fall_prob") if mfp is None else mfp
+        if prior is None and mfp is not None:
+            prior = stored.get("fall_prior")
+    return mfp, prior
 
 
 def _phase_line(res: Any, study: Any) -> str:
