@@ -752,3 +752,22 @@ def test_a_phase1_resume_keeps_its_stored_fall_options(run_cli, plugin_dir, tmp_
     line = one_line_error(*run_cli("phase1", *system, "--out", run, "--phase1-evals", 7,
                                    "--resume", "--max-fall-prob", "0.4")[::2])
     assert "--max-fall-prob 0.5 (stored), not --max-fall-prob 0.4" in line, line
+
+
+def test_a_handover_refusal_shows_the_flags_form(run_cli, plugin_dir, tmp_path):
+    """A plain phase 3 run with ``--handover patience=2`` resumed with ``--handover`` was
+    refused showing Python dicts ("--handover {'patience': 2, 'tol': 0.01, 'length': 0.2}
+    (stored), not --handover {'patience': 20, …}"); it shows the values as --handover takes
+    them."""
+    system = ("--system", "closplant:make", "--system-arg", "dim=3")
+    src, run = tmp_path / "src", tmp_path / "p3"
+    assert run_cli("phase1", *system, "--out", src, "--phase1-evals", 6, "--backend", "serial",
+                   "--quiet")[0] == 0
+    assert run_cli("train-vae", *system, "--out", src, "--vae-epochs", 5, "--latent-dim", 2,
+                   "--quiet")[0] == 0
+    p3 = ("phase3", *system, "--vae", src, "--out", run, "--strategy", "plain", "--backend",
+          "serial", "--quiet")
+    assert run_cli(*p3, "--handover", "patience=2", "--phase3-evals", 2)[0] == 0
+    line = one_line_error(*run_cli(*p3, "--handover", "--phase3-evals", 3, "--resume")[::2])
+    assert line.endswith("phase 3 was run with --handover patience=2,tol=0.01,length=0.2 "
+                         "(stored), not --handover patience=20,tol=0.01,length=0.2"), line

@@ -963,7 +963,8 @@ def stored_flags(msg: str) -> str:
     """A resume's refusal for another value in the one form of the command line: the flag
     with the stored and the given value as the user types them (``runs with --budget 5
     (stored), not --budget 3``; ``was run with no --max-fall-prob (stored), not
-    --max-fall-prob 0.2``); any other message is returned as it is."""
+    --max-fall-prob 0.2``; a dict of numbers as ``--handover patience=2,tol=0.01``); any
+    other message is returned as it is."""
     import ast
 
     def typed(text: str) -> str | None:
@@ -971,6 +972,8 @@ def stored_flags(msg: str) -> str:
             v = ast.literal_eval(text)
         except (ValueError, SyntaxError):
             return text
+        if isinstance(v, dict) and all(isinstance(x, (int, float)) for x in v.values()):
+            return ",".join(f"{k}={x}" for k, x in v.items())       # --handover's form
         return None if v is None else v if isinstance(v, str) else text
 
     def form(m: re.Match[str]) -> str:
