@@ -168,6 +168,41 @@ def test_import_log_and_refusals(tmp_path):
         import_optuna_study(storage, "log", tmp_path / "narrow", narrow)
 
 
+def test_import_with_a_space_leaves_out_the_parameters_outside_it(tmp_path):
+    """An objective that also suggests an int and a categorical parameter outside the
+    controller: a space naming the float parameters imports their values (a warning names the
+    others and says their values varied); without a space the refusal says to name them; a
+    named parameter that is not a float is still refused."""
+    storage = optuna.storages.InMemoryStorage()
+    study = optuna.create_study(storage=storage, study_name="mixed",
+                                sampler=optuna.samplers.RandomSampler(0))
+
+    def objective(trial):
+        a, b = trial.suggest_float("a", 0.0, 1.0), trial.suggest_float("b", 0.0, 1.0)
+        n = trial.suggest_int("layers", 1, 3)
+        trial.suggest_categorical("solver", ["x", "y"])
+        return (a - 0.3) ** 2 + (b - 0.6) ** 2 + 0.01 * n
+
+    study.optimize(objective, n_trials=8)
+    with pytest.raises(OptunaImportError, match="'layers' is an integer .* naming them in "
+                                                r"space= \(--space FILE\)"):
+        import_optuna_study(storage, "mixed", tmp_path / "all")
+    space = lt.ParameterSpace(["a", "b"], [0.0, 0.0], [1.0, 1.0])
+    with pytest.warns(UserWarning, match=r"layers, solver left out \(not in the given space\); "
+                                         "the values of layers, solver varied") as rec:
+        run = import_optuna_study(storage, "mixed", tmp_path / "ab", space)
+    assert len(rec) == 1 and "\n" not in str(rec[0].message)
+    rows = run.store.rows(Phase.PHASE1)
+    assert [r.info["optuna_trial"] for r in rows] == list(range(8))
+    np.testing.assert_allclose([r.theta for r in rows],
+                               [[t.params["a"], t.params["b"]] for t in study.trials])
+    assert run.config()["phase1"]["import"]["left_out_params"] == ["layers", "solver"]
+    three = lt.ParameterSpace(["a", "b", "layers"], [0.0, 0.0, 1.0], [1.0, 1.0, 3.0])
+    with pytest.raises(OptunaImportError, match="'layers' is an integer distribution"):
+        import_optuna_study(storage, "mixed", tmp_path / "abl", three)
+    assert not (tmp_path / "abl").exists()
+
+
 def test_import_of_a_missing_sqlite_url_creates_no_database(tmp_path):
     """An ``sqlite:///`` URL naming no file (a typo) is refused as a missing file; Optuna's
     RDBStorage would create an empty database there and the import would say it holds no

@@ -66,6 +66,11 @@ Import rules (:func:`import_optuna_study`)
 * int distributions and stepped floats (``step=``) are **refused**: a latent space decodes to
   continuous θ, which the objective's ``suggest_int`` / stepped ``suggest_float`` would not take
   back; categorical distributions are refused too — each with one line naming the parameter;
+* with ``space=`` (``--space``) only the parameters it names are imported (each must be a float
+  of the study); the trials' other parameters (an int or categorical option of the objective
+  outside the controller) are left out, with one warning naming them and saying whether their
+  values varied across the imported trials (then the costs depend on them too); the names are
+  recorded in the run's ``phase1.import.left_out_params``;
 * a ``maximize`` study is negated (latentune minimizes); multi-objective studies are refused;
 * COMPLETE trials are phase-1 rows; a COMPLETE trial with a constraint value > 0 or
   ``latentune_failed`` is a fall (a failed row, its value kept as its cost); FAIL trials are
@@ -1044,8 +1049,9 @@ def import_optuna_study(storage: Any, study_name: str | None, out: str | os.Path
         storage: an Optuna storage object, RDB URL, SQLite file or journal file path.
         study_name: the study (None: the storage's only study).
         out: the run directory (created; importing again adds the trials not imported yet).
-        space: the parameter space to use (names must be the study's parameters; values
-            outside it are refused); default: built from the trials' distributions.
+        space: the parameter space to use (its names: float parameters of the study; the
+            trials' other parameters are left out, with a warning; values outside it are
+            refused); default: built from the trials' distributions (every parameter).
         seed: the run's seed (recorded; used by ``train_latent`` and later phases); None: the
             seed stored in ``out``, else 0.
 
@@ -1066,9 +1072,12 @@ def import_optuna_study(storage: Any, study_name: str | None, out: str | os.Path
     trials = sorted(study.get_trials(deepcopy=False, states=(S.COMPLETE, S.FAIL)),
                     key=lambda t: t.number)
     n_left = len(study.get_trials(deepcopy=False)) - len(trials)
+    named = None if space is None else set(space.names)
     dists: dict[str, Any] = {}
     for t in trials:
         for n, d in t.distributions.items():
+            if named is not None and n not in named:
+                continue                # outside the given space: left out (a warning)
             if n not in dists:
                 dists[n] = d
                 continue
@@ -1080,16 +1089,23 @@ def import_optuna_study(storage: Any, study_name: str | None, out: str | os.Path
                     and old.step is None:
                 dists[n] = optuna.distributions.FloatDistribution(
                     min(old.low, d.low), max(old.high, d.high), log=d.log)
-    sp = space if space is not None else space_from_distributions(dists)
-    if space is not None:
-        space_from_distributions(dists)                       # the refusal rules still apply
+    if space is None:
+        try:
+            sp = space_from_distributions(dists)
+        except OptunaImportError as exc:
+            raise OptunaImportError(f"{exc}; or import the float parameters only, naming them "
+                                    "in space= (--space FILE)") from None
+    else:
+        sp = space
+        space_from_distributions(dists)     # the refusal rules apply to the named parameters
         if set(space.names) != set(dists):
-            raise OptunaImportError("the given space's names differ from the study's parameters "
-                                    f"({sorted(set(space.names) ^ set(dists))[:5]})")
+            raise OptunaImportError("the given space names parameter(s) the study's finished "
+                                    "trials do not have: "
+                                    f"{', '.join(sorted(set(space.names) - set(dists))[:5])}")
     rows: list[tuple[Any, np.ndarray, float]] = []
     incomplete = 0
     for t in trials:
-        if set(t.params) != set(sp.names):
+        if not set(sp.names) <= set(t.params):
             incomplete += 1
             continue
         u = _unit_of(sp, t.params)
@@ -1110,6 +1126,18 @@ def import_optuna_study(storage: Any, study_name: str | None, out: str | os.Path
     if not rows:
         raise OptunaImportError(f"study {study.study_name!r} has no finished trial with every "
                                 "parameter")
+    others: dict[str, set[str]] = {}          # parameters outside the given space: their values
+    for t, _, _ in rows:
+        for n in set(t.params) - set(sp.names):
+            others.setdefault(n, set()).add(repr(t.params[n]))
+    if others:
+        varied = sorted(n for n, v in others.items() if len(v) > 1)
+        same = sorted(n for n, v in others.items() if len(v) == 1)
+        warnings.warn(f"import of {study.study_name!r}: {', '.join(sorted(others))} left out "
+                      "(not in the given space)"
+                      + (f"; the values of {', '.join(varied)} varied across the imported "
+                         "trials, so their costs depend on them too" if varied else "")
+                      + (f"; {', '.join(same)} held one value" if same else ""), stacklevel=2)
     out = Path(out)
     lt_study = Study(out, seed=seed)
     seed = int(lt_study.seed)
@@ -1147,6 +1175,7 @@ def import_optuna_study(storage: Any, study_name: str | None, out: str | os.Path
                            "batch_size": None, "regions": None,
                            "import": {"left_out_unfinished": n_left,
                                       "left_out_incomplete": incomplete,
+                                      "left_out_params": sorted(others),
                                       "rules": "float -> ParameterSpace; int/step/categorical "
                                                "refused; maximize negated; FAIL and constraint "
                                                "> 0 are falls; pruned/running/waiting left out"}})
