@@ -452,7 +452,7 @@ def test_sampler_refuses_other_bounds_on_the_first_trial(source_run):
     """Bounds other than the space's are refused on the trial that shows them, whether or not
     the sampler's value lies inside them, with one message naming the parameter and both
     ranges: wider ones when trial 0 finishes (the sampler's value fits), narrower ones at the
-    suggest or when the trial finishes. Optuna itself refuses another scale (log)."""
+    suggest or when the trial finishes. Another scale (log) is refused at the suggest."""
     ranges = {"wider": (-2.0, 1.0), "narrower": (-1.0, 0.999)}
     for sampler in (LatentSampler(source_run, seed=0, budget=20),
                     TurboSampler(DISTS, seed=0, budget=20)):
@@ -471,6 +471,34 @@ def test_sampler_refuses_other_bounds_on_the_first_trial(source_run):
         study = optuna.create_study(sampler=sampler)
         with pytest.raises(ValueError, match="log"):
             study.optimize(lambda t: t.suggest_float("w0", 0.1, 1.0, log=True), n_trials=1)
+
+
+def test_a_parameter_of_the_space_suggested_as_another_kind_is_refused_by_name(source_run):
+    """suggest_int (or a categorical, or a stepped float) on a parameter of the space is the
+    sampler's UsageError naming the parameter and saying it is a float weight of the space,
+    not Optuna's "Cannot set different distribution kind"; the other parameters still work."""
+    ID, CD = optuna.distributions.IntDistribution, optuna.distributions.CategoricalDistribution
+    for sampler in (LatentSampler(source_run, seed=0, budget=20),
+                    TurboSampler(DISTS, seed=0, budget=20)):
+        name = type(sampler).__name__
+        for suggest, kind in ((lambda t: t.suggest_int("w2", -1, 1), r"an int on \[-1, 1\]"),
+                              (lambda t: t.suggest_categorical("w2", [0.0, 1.0]), "a categorical"),
+                              (lambda t: t.suggest_float("w2", -1.0, 1.0, step=0.5),
+                               r"a stepped float \(step 0.5\)")):
+            study = optuna.create_study(sampler=sampler)
+            t = study.ask()
+            assert -1.0 <= t.suggest_float("w0", -1.0, 1.0) <= 1.0
+            with pytest.raises(UsageError, match=rf"{name}: parameter 'w2' is suggested as {kind}"
+                                                 r", but it is a float weight of the sampler's "
+                                                 r"space on \[-1, 1\]: suggest it with "
+                                                 "suggest_float"):
+                suggest(t)
+            p = sampler.suggest_all(t)
+            assert p["w0"] == t.params["w0"] and set(p) == set(NAMES)
+            study.tell(t, cost(np.array([p[n] for n in NAMES]))[0])
+        study = optuna.create_study(sampler=sampler)
+        with pytest.raises(UsageError, match="'w0' is suggested as an int"):
+            study.optimize(lambda t: t.suggest_int("w0", -1, 1), n_trials=1)
 
 
 def test_a_parameter_of_the_space_not_suggested_is_refused():

@@ -56,8 +56,11 @@ a parameter outside that space is sampled by ``independent_sampler`` (default
 of its parameters not suggested (a misspelled name), raise a ``UsageError`` naming the
 parameter (and both ranges): at the suggest when the sampler's value lies outside the
 objective's bounds, else in ``after_trial`` when the trial finishes COMPLETE (Optuna records
-it; ``study.optimize`` stops, ``study.tell`` raises). Another scale (``log``) Optuna itself
-refuses at the suggest (ValueError). Single-objective studies only.
+it; ``study.optimize`` stops, ``study.tell`` raises). Another scale (``log``), or another kind
+(``suggest_int``, ``suggest_categorical``, a stepped ``suggest_float``), is refused at the
+suggest, a ``UsageError`` naming the parameter as a float weight of the space (the sampler
+returns no relative parameters: each of the space reaches ``sample_independent`` with the
+suggest's distribution and gets the θ ``sample_relative`` chose). Single-objective studies only.
 
 Import rules (:func:`import_optuna_study`)
 ------------------------------------------
@@ -351,6 +354,7 @@ class _CriticSampler:
         self._constraints_func = constraints_func
         self._independent = independent_sampler or optuna.samplers.RandomSampler(seed=self.seed)
         self._dists = distributions_of(self._space)
+        self._given: dict[tuple[int, int], dict[str, float]] = {}
 
     # ------------------------------------------------------------------ subclass hooks
     def _critic(self, study: Any) -> tuple[Any, Callable[[np.ndarray], np.ndarray] | None]:
@@ -419,17 +423,39 @@ class _CriticSampler:
                         trial.number, [n for n, _ in clash])
             theta, point = self._next(study, trial, extra_skip=sum(
                 n < trial.number for n, running in clash if running))
-        phys = physical_params(self._space, theta)
-        return {n: phys[n] for n in search_space if n in phys}
+        self._given[(study._study_id, trial._trial_id)] = physical_params(self._space, theta)
+        return {}
 
     def sample_independent(self, study: Any, trial: Any, param_name: str,
                            param_distribution: Any) -> Any:
         """A parameter outside the space goes to ``independent_sampler``. One of the space gets
-        here only when the objective suggests it with other bounds than the space's (the
-        sampler's value is outside them): :class:`UsageError` naming both ranges."""
-        if param_name in self._dists:
+        the value of the θ :meth:`sample_relative` chose for the trial (it returns no relative
+        parameters, so that the suggest's own distribution reaches the sampler; Optuna would
+        refuse another kind, ``suggest_int``, with a message of its own): a parameter of the
+        space suggested as another kind (int, stepped, categorical) or on bounds or a scale
+        that do not hold the value is refused, :class:`UsageError` naming it; bounds that hold
+        it are refused as the trial finishes (:meth:`_check_finished`)."""
+        want = self._dists.get(param_name)
+        if want is None:
+            return self._independent.sample_independent(study, trial, param_name,
+                                                        param_distribution)
+        D = optuna.distributions
+        if not isinstance(param_distribution, D.FloatDistribution) or \
+                param_distribution.step is not None:
+            d = param_distribution
+            kind = ("a categorical" if isinstance(d, D.CategoricalDistribution) else
+                    f"an int on [{d.low:g}, {d.high:g}]" if isinstance(d, D.IntDistribution)
+                    else f"a stepped float (step {d.step:g})" if isinstance(
+                        d, D.FloatDistribution) else type(d).__name__)
+            raise UsageError(f"{type(self).__name__}: parameter {param_name!r} is suggested "
+                             f"as {kind}, but it is a float weight of the sampler's space on "
+                             f"{_range(want)}: suggest it with suggest_float and those bounds "
+                             "(sampler.distributions() or sampler.suggest_all(trial))")
+        value = self._given.get((study._study_id, trial._trial_id), {}).get(param_name)
+        if value is None or param_distribution.log != want.log or \
+                not param_distribution.low <= value <= param_distribution.high:
             raise UsageError(self._other_bounds(param_name, param_distribution))
-        return self._independent.sample_independent(study, trial, param_name, param_distribution)
+        return value
 
     def _other_bounds(self, name: str, dist: Any, number: int | None = None) -> str:
         at = "" if number is None else f"trial {number}: "
@@ -475,6 +501,7 @@ class _CriticSampler:
 
             _process_constraints_after_trial(self._constraints_func, study, trial, state)
         self._independent.after_trial(study, trial, state, values)
+        self._given.pop((study._study_id, trial._trial_id), None)
         self._check_finished(study, trial, state, values)
         self._after_fall_budget(study, trial, state)
 
