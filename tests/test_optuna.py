@@ -571,6 +571,29 @@ def test_enqueued_trials_run_first_and_the_zero_shot_next(source_run, enqueued):
     assert tags[:k + 1] == [-1] * (k + 1) and y[:k + 1] == [t.value for t in study.trials[:k + 1]]
 
 
+@pytest.mark.parametrize("options", [{}, {"strategy": "plain", "start": "best"}])
+def test_a_partly_enqueued_first_trial_takes_the_rest_from_the_manual_theta(source_run, options):
+    """study.enqueue_trial({"w0": -0.9}) before the zero-shot trial: its other values came
+    from the critic's first point (told nothing: with start="best" the source's best, which
+    the zero-shot trial then ran again but for w0). They are the source's manual θ; the
+    zero-shot trial comes next, then the critic."""
+    src = lt.Study(source_run)
+    manual = src.space().as_dict(src.space().manual)
+    zs = src.space().as_dict(src.best(Phase.PHASE1).theta)
+    sampler = LatentSampler(source_run, seed=0, budget=20, **options)
+    study = optuna.create_study(sampler=sampler)
+    study.enqueue_trial({"w0": -0.9})
+    study.optimize(objective_for(sampler), n_trials=3)
+    first, second = study.trials[0], study.trials[1]
+    assert first.params["w0"] == -0.9
+    np.testing.assert_allclose([first.params[n] for n in NAMES[1:]],
+                               [manual[n] for n in NAMES[1:]], atol=1e-12)
+    assert second.system_attrs.get("latentune:zero_shot") is True
+    np.testing.assert_allclose([second.params[n] for n in NAMES], [zs[n] for n in NAMES],
+                               atol=1e-12)
+    assert study.trials[2].system_attrs[POINT_ATTR]["told"] == 2
+
+
 def test_an_enqueued_zero_shot_theta_is_not_run_twice(source_run):
     """An enqueued trial that is the source's best θ runs it: the sampler does not run it
     again as the zero-shot trial; the next trial is the critic's."""

@@ -741,8 +741,10 @@ class LatentSampler(_CriticSampler, BaseSampler):
         zero_shot: the study's first trial is the source's best θ as it is (latentune's
             zero-shot baseline; it counts in the budget and is told to the critic as an
             external point). Trials enqueued before it (``study.enqueue_trial``) run first,
-            as given, and are told as ordinary external points; the zero-shot trial is the
-            first one after them that is not enqueued (none when one of them ran its θ).
+            as given, and are told as ordinary external points (a partly enqueued one takes
+            its other values from the source space's manual θ, not from the critic, whose
+            first point can be the zero-shot θ); the zero-shot trial is the first one after
+            them that is not enqueued (none when one of them ran its θ).
         max_fall_prob: skip candidates whose predicted fall probability exceeds it (the
             source run's phase-1 θ, encoded, with their fall flags, seed the prediction).
         transfer_options: options of the transfer critic over its defaults
@@ -886,12 +888,18 @@ class LatentSampler(_CriticSampler, BaseSampler):
         return self.latent.to_unit(code)
 
     def _fixed_theta(self, study: Any, trial: Any) -> np.ndarray | None:
-        """The zero-shot θ for the study's first trial the sampler chooses in full: the first
-        trial without enqueued values (``fixed_params``) when every trial before it was
-        enqueued (Optuna runs enqueued trials first, as given; a partly enqueued one is not
-        the zero-shot: its other values are the critic's). None for any other trial, and when
-        an enqueued trial already ran the zero-shot θ."""
-        if self._zero_shot_theta is None or trial.system_attrs.get("fixed_params"):
+        """A θ decided without the critic while the zero-shot trial is still to come (every
+        trial before ``trial`` enqueued, none of them at the zero-shot θ):
+
+        * the zero-shot θ for the first trial the sampler chooses in full (no enqueued values,
+          ``fixed_params``; Optuna runs enqueued trials first, as given);
+        * the source space's manual θ for a partly enqueued trial: its values not enqueued
+          are the manual θ's. The critic, told nothing yet, would give its first point, which
+          can be the zero-shot θ the next trial runs (all but the enqueued values again).
+
+        None for any other trial (a partly enqueued one after the zero-shot trial gets the
+        critic's values), and when an enqueued trial already ran the zero-shot θ."""
+        if self._zero_shot_theta is None:
             return None
         before = [t for t in study.get_trials(deepcopy=False) if t.number < trial.number]
         if any(not t.system_attrs.get("fixed_params") for t in before):
@@ -903,6 +911,11 @@ class LatentSampler(_CriticSampler, BaseSampler):
             logger.info("trial %d: enqueued trial %d ran the zero-shot θ already; asking the "
                         "critic", trial.number, ran[0])
             return None
+        fixed = trial.system_attrs.get("fixed_params")
+        if fixed:
+            logger.info("trial %d: partly enqueued before the zero-shot trial: its other "
+                        "parameters are the source's manual θ", trial.number)
+            return np.clip(np.asarray(self._space.manual, dtype=float), 0.0, 1.0)
         study._storage.set_trial_system_attr(trial._trial_id, ZERO_SHOT_ATTR, True)
         return self._zero_shot_theta
 
