@@ -670,6 +670,37 @@ def test_a_system_arg_yaml_reads_as_a_date_resumes(run_cli, plugin_dir, tmp_path
     sys.modules.pop("dated", None)
 
 
+def test_a_system_arg_date_reaches_the_factory_as_its_text(run_cli, plugin_dir, tmp_path):
+    """``--system-arg when=2020-01-01`` reached the factory as ``datetime.date(2020, 1, 1)``
+    (YAML's timestamp), though a value other than a number, bool, null or list is a string:
+    it is the text ``'2020-01-01'`` (also inside a list), stored so, and a resume agrees."""
+    from latentune.system import parse_system_args
+
+    assert parse_system_args(["when=2020-01-01", "at=2001-12-14 21:59:43.10 -5",
+                              "days=[2020-01-01, 2020-01-02]"]) == {
+        "when": "2020-01-01", "at": "2001-12-14 21:59:43.10 -5",
+        "days": ["2020-01-01", "2020-01-02"]}
+    (plugin_dir / "datetext.py").write_text(textwrap.dedent('''
+        import closplant
+
+        def make(when=None, days=(), dim=3):
+            if not isinstance(when, str) or not all(isinstance(d, str) for d in days):
+                raise TypeError(f"when={when!r}, days={days!r}: not text")
+            return closplant.make(dim)
+    '''))
+    run = tmp_path / "datetext"
+    for n, more in ((3, []), (5, ["--resume"])):
+        code, _, err = run_cli("phase1", "--system", "datetext:make", "--system-arg",
+                               "when=2020-01-01", "--system-arg", "days=[2020-01-01]",
+                               "--out", run, "--phase1-evals", n, "--backend", "serial",
+                               "--quiet", *more)
+        assert code == 0, err
+    assert RunStore(run).count(Phase.PHASE1) == 5
+    assert lt.Study(run).config()["system"]["args"] == {"when": "2020-01-01",
+                                                        "days": ["2020-01-01"]}
+    sys.modules.pop("datetext", None)
+
+
 def test_the_system_flags_a_forgotten_system_line_gives_rebuild_it(run_cli, plugin_dir, tmp_path):
     """A resume without --system says what to pass; for ``--system-arg when=.nan`` it said
     ``--system-arg when=NaN`` (YAML reads the text 'NaN': another system), for ``'tags=[1, 2]'``
