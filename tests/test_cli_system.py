@@ -4,6 +4,7 @@ saying what to pass, and evaluators leave the caller's environment alone."""
 from __future__ import annotations
 
 import json
+import math
 import os
 import sys
 import textwrap
@@ -699,6 +700,44 @@ def test_a_system_arg_date_reaches_the_factory_as_its_text(run_cli, plugin_dir, 
     assert lt.Study(run).config()["system"]["args"] == {"when": "2020-01-01",
                                                         "days": ["2020-01-01"]}
     sys.modules.pop("datetext", None)
+
+
+def test_a_non_finite_float_in_a_list_system_arg_is_shown_so_it_reads_back(run_cli, plugin_dir,
+                                                                           tmp_path):
+    """A resume without --system of a run made with ``--system-arg 'tags=[.nan, .inf]'`` said
+    ``--system-arg 'tags=[NaN, Infinity]'`` (JSON), which reads back as two strings: another
+    system. The values inside a list are shown as --system-arg reads them (``.nan``, ``.inf``,
+    a float in exponent form with a point), and the line's flags resume the run."""
+    import shlex
+
+    from latentune.system import parse_system_args, system_arg_text
+
+    value = [math.nan, math.inf, -math.inf, 1e20, 2.5, "x", [1, math.nan]]
+    back = parse_system_args([system_arg_text("tags", value)])["tags"]
+    assert json.dumps(back) == json.dumps(value), back          # NaN-aware equality
+    (plugin_dir / "nantags.py").write_text(textwrap.dedent('''
+        import math
+
+        import closplant
+
+        def make(tags=(), dim=3):
+            if not (math.isnan(tags[0]) and tags[1] == math.inf):
+                raise TypeError(f"tags={tags!r}")
+            return closplant.make(dim)
+    '''))
+    run = tmp_path / "nantags"
+    code, _, err = run_cli("phase1", "--system", "nantags:make", "--system-arg",
+                           "tags=[.nan, .inf]", "--out", run, "--phase1-evals", 3,
+                           "--backend", "serial", "--quiet")
+    assert code == 0, err
+    line = one_line_error(*run_cli("phase1", "--out", run, "--phase1-evals", 4, "--backend",
+                                   "serial", "--resume")[::2])
+    flags = shlex.split(line.split(": pass ", 1)[1])
+    assert flags == ["--system", "nantags:make", "--system-arg", "tags=[.nan, .inf]"], line
+    code, _, err = run_cli("phase1", *flags, "--out", run, "--phase1-evals", 4, "--backend",
+                           "serial", "--quiet", "--resume")
+    assert code == 0, err
+    sys.modules.pop("nantags", None)
 
 
 def test_the_system_flags_a_forgotten_system_line_gives_rebuild_it(run_cli, plugin_dir, tmp_path):

@@ -374,10 +374,31 @@ def parse_system_args(pairs: list[str] | None) -> dict[str, Any]:
     return out
 
 
+def _flow_text(value: Any) -> str:
+    """``value`` (a JSON value) as YAML flow text that ``yaml.safe_load`` reads back as it:
+    JSON, but ``.nan``/``.inf``/``-.inf`` for the non-finite floats and a float in exponent
+    form with a point (``1.0e+20``: YAML 1.1 reads ``1e+20`` as text), inside lists and
+    mappings too."""
+    if isinstance(value, float) and not isinstance(value, bool):
+        if not math.isfinite(value):
+            return ".nan" if math.isnan(value) else ".inf" if value > 0 else "-.inf"
+        text = repr(float(value))
+        mant, e, exp = text.partition("e")
+        return f"{mant}.0e{exp}" if e and "." not in mant else text
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_flow_text(v) for v in value) + "]"
+    if isinstance(value, Mapping):
+        return "{" + ", ".join(f"{json.dumps(str(k))}: {_flow_text(v)}"
+                               for k, v in value.items()) + "}"
+    return json.dumps(value, default=str)
+
+
 def system_arg_text(key: str, value: Any) -> str:
     """The ``key=value`` text :func:`parse_system_args` reads back as ``value`` (a JSON value,
-    as a study keeps it): ``.nan``/``.inf`` for the non-finite floats, a string YAML would read
-    as something else (``'true'``, ``'10'``) in single quotes, any other value as JSON."""
+    as a study keeps it): ``.nan``/``.inf`` for the non-finite floats (also inside a list,
+    where JSON's ``NaN`` would read back as text), a string YAML would read as something else
+    (``'true'``, ``'10'``) in single quotes, any other value as YAML flow text
+    (:func:`_flow_text`)."""
     if isinstance(value, float) and not math.isfinite(value):
         text = ".nan" if math.isnan(value) else ".inf" if value > 0 else "-.inf"
     elif isinstance(value, str):
@@ -389,7 +410,7 @@ def system_arg_text(key: str, value: Any) -> str:
         if not same:
             text = "'" + value.replace("'", "''") + "'"
     else:
-        text = json.dumps(value, default=str)
+        text = _flow_text(value)
     return f"{key}={text}"
 
 
