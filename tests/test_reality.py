@@ -529,3 +529,33 @@ def test_a_profile_is_its_fields_not_its_file_name(tmp_path, run_cli, error_line
                                tmp_path / "run_mine.yaml", "--phase1-evals", 4, "--resume")[::2])
     assert "holds a run of another system (task.reality.torque_scale: stored 0.9, given 0.8)" \
         in line, line
+
+
+def test_a_run_with_a_reality_file_resumed_without_it_names_the_file(tmp_path, run_cli,
+                                                                     error_line, monkeypatch):
+    """A run made with ``--reality mine.yaml`` and resumed without it said only "another
+    system (task.reality: stored {'torque_scale': 0.9}, given None)": the file was not
+    recorded. Its path (as given, made absolute) is recorded and suggested; that flag, or the
+    path spelled another way, resumes. A file that no longer holds the profile is not
+    suggested."""
+    work = tmp_path / "work"
+    work.mkdir()
+    (work / "mine.yaml").write_text("torque_scale: 0.9\n")
+    monkeypatch.chdir(work)
+    common = ("--steps", "20", "--backend", "serial", "--quiet", "--out", tmp_path / "run")
+    code, _, err = run_cli("phase1", *common, "--reality", "mine.yaml", "--phase1-evals", 2)
+    assert code == 0, err
+    from latentune.study import Study
+
+    assert Study(tmp_path / "run").config()["task"]["reality_file"] == str(work / "mine.yaml")
+    line = error_line(*run_cli("phase1", *common, "--phase1-evals", 3, "--resume")[::2])
+    assert line.endswith(f"given None): pass --reality {work / 'mine.yaml'} to go on with it"), \
+        line
+    monkeypatch.chdir(tmp_path)
+    for n, path in ((3, str(work / "mine.yaml")), (4, "work/mine.yaml")):
+        code, _, err = run_cli("phase1", *common, "--reality", path, "--phase1-evals", n,
+                               "--resume")
+        assert code == 0, err
+    (work / "mine.yaml").write_text("torque_scale: 0.8\n")
+    line = error_line(*run_cli("phase1", *common, "--phase1-evals", 5, "--resume")[::2])
+    assert "given None)" in line and "pass --reality" not in line, line

@@ -177,7 +177,7 @@ class Task:
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) \
                 or not 0 <= seed < 2 ** 63:
             raise UsageError(f"seed must be an integer in [0, 2**63), got {seed!r}")
-        from latentune.sim.reality import Reality
+        from latentune.sim.reality import Reality, profile_file
         from latentune.sim.world import ENGINES
 
         if not isinstance(engine, str) or engine not in ENGINES:
@@ -187,6 +187,7 @@ class Task:
 
             require_mujoco()
         self.reality = Reality.load(reality)
+        self.reality_file = profile_file(reality)
         self.engine = engine
         self.robot_name = self.spec.name
         self.gait = gait
@@ -215,6 +216,8 @@ class Task:
             cfg["spec"] = self.spec.to_dict()
         if not self.reality.is_nominal:
             cfg["reality"] = self.reality.to_dict()
+            if self.reality_file is not None:       # where it was read: a resume suggests it
+                cfg["reality_file"] = self.reality_file
         if self.engine != "pybullet":
             cfg["engine"] = self.engine
         return cfg
@@ -230,9 +233,11 @@ class Task:
             from latentune.robots import spec_from_dict
 
             robot = spec_from_dict(cfg["spec"])
-        return cls(robot=robot, gait=cfg["gait"], terrain=cfg["terrain"], actor=cfg["actor"],
+        task = cls(robot=robot, gait=cfg["gait"], terrain=cfg["terrain"], actor=cfg["actor"],
                    v_des=tuple(cfg["v_des"]), steps=int(cfg["steps"]), seed=int(cfg["seed"]),
                    reality=cfg.get("reality"), engine=cfg.get("engine", "pybullet"))
+        task.reality_file = cfg.get("reality_file")
+        return task
 
     def cache_key(self) -> str:
         """Evaluator workers keep one Task (one simulator client) per key."""

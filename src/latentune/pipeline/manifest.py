@@ -109,15 +109,16 @@ def same_system(stored: dict[str, Any] | None, desc: dict[str, Any]) -> bool:
 def identity(desc: dict[str, Any], like: dict[str, Any] | None = None) -> dict[str, Any]:
     """What makes the described system the one it is: a plugin's description with its
     resolved arguments (:func:`plugin_config`; ``like``'s defaults for a record without them),
-    a task's without its reality profile's name (a label: the fields are the perturbation);
-    any other description as it is."""
+    a task's without its reality profile's name and the file it was read from (labels: the
+    fields are the perturbation); any other description as it is."""
     if desc.get("kind") == "plugin" and isinstance(desc.get("args"), dict):
         return plugin_config(desc, (like or {}).get("defaults"))
     task = desc.get("task")
     if desc.get("kind") == "task" and isinstance(task, dict) \
             and isinstance(task.get("reality"), dict):
         reality = {k: v for k, v in task["reality"].items() if k != "name"}
-        return {**desc, "task": {**task, "reality": reality}}
+        return {**desc, "task": {**{k: v for k, v in task.items() if k != "reality_file"},
+                                 "reality": reality}}
     return desc
 
 
@@ -409,12 +410,14 @@ _TASK_FLAGS = (("robot", "--robot"), ("gait", "--task"), ("terrain", "--terrain"
 def task_flags(stored: dict[str, Any], given: dict[str, Any]) -> str | None:
     """The command-line flags that give the stored built-in task where the given one differs
     (``"--task jump --steps 50"``), or None: not two built-in tasks, or a difference no flag
-    gives alone (a robot spec, a reality profile other than a preset, a sideways v_des)."""
+    gives alone (a robot spec, a reality profile other than a preset or the recorded file it
+    was read from, a sideways v_des)."""
     if stored.get("kind") != "task" or given.get("kind") != "task":
         return None
     a, b = stored.get("task") or {}, given.get("task") or {}
     flags = dict(_TASK_FLAGS)
-    if any(a.get(k) != b.get(k) for k in set(a) | set(b) if k not in flags and k != "dim"):
+    if any(a.get(k) != b.get(k) for k in set(a) | set(b)
+           if k not in flags and k not in ("dim", "reality_file")):
         return None
     out = []
     for key, flag in _TASK_FLAGS:
@@ -428,7 +431,7 @@ def task_flags(stored: dict[str, Any], given: dict[str, Any]) -> str | None:
                 return None
             v = repr(float(v[0]))       # every digit: the flag gives this very velocity
         elif key == "reality":
-            v = _reality_preset(v)
+            v = _reality_preset(v) or _reality_file(v, a.get("reality_file"))
             if v is None:
                 return None
         elif v is None or isinstance(v, (dict, list)):
@@ -445,6 +448,24 @@ def _reality_preset(stored: Any) -> str | None:
     if stored is None:
         return "nominal"
     return next((p for p in PRESETS if Reality.load(p).to_dict() == stored), None)
+
+
+def _reality_file(stored: Any, path: Any) -> str | None:
+    """The recorded reality file ``path`` (shell-quoted) when it still holds the profile
+    ``stored`` (its fields; the name aside), else None."""
+    import shlex
+
+    from latentune.errors import LatentuneError
+    from latentune.sim.reality import Reality
+
+    if not isinstance(path, str) or not isinstance(stored, dict):
+        return None
+    try:
+        fields = Reality.load(path).changes()
+    except (LatentuneError, OSError, ValueError):
+        return None
+    return shlex.quote(path) if fields == {k: v for k, v in stored.items() if k != "name"} \
+        else None
 
 
 def _short(v: Any) -> str:

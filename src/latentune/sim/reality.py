@@ -298,6 +298,17 @@ def _check(key: str, v: Any, where: str) -> Any:
     return int(v) if kind == "i" else float(v)
 
 
+def profile_file(source: Any) -> str | None:
+    """The absolute path of the YAML file a reality ``source`` names (the path as given,
+    made absolute; symlinks kept), or None: a preset name, a dict, a Reality, None."""
+    if not isinstance(source, (str, os.PathLike)):
+        return None
+    text = os.fspath(source)
+    if text in preset_names() and os.sep not in text and not Path(text).suffix:
+        return None
+    return os.path.abspath(text)
+
+
 def _resolve(source: str | os.PathLike, seen: tuple[str, ...]) -> dict[str, Any]:
     """The merged field dict of a preset or file, its ``base`` profiles first."""
     text = os.fspath(source)
