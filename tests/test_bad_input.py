@@ -897,3 +897,39 @@ def test_robot_init_keeps_an_existing_file(capsys, tmp_path):
     assert_one_line(capsys, "robot", "init", "x.urdf", "--out", f,
                     expect=f"{f} exists (not overwritten)")
     assert f.read_text() == "keep me"
+
+
+def test_an_interrupt_after_tune_printed_its_table_exits_0(capsys, tmp_path, monkeypatch):
+    """A Ctrl-C (or SIGTERM) that landed after ``tune`` finished and printed its table, while
+    it closed its run, exited 130 ("interrupted") though the run was complete and stored: it
+    exits 0. One that lands before the table is still 130, and the work is resumable."""
+    import latentune.reporting.run_report as run_report
+    from latentune.study import Study
+
+    close = Study.close
+    hits: list[str] = []
+
+    def interrupted_close(self):        # the signal lands while the finished run is closed
+        close(self)
+        if not hits:
+            hits.append("close")
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(Study, "close", interrupted_close)
+    out = tmp_path / "run"
+    code, stdout, err = run_cli(capsys, "tune", *TINY, "--out", out, "--phase1-evals", "6",
+                                "--phase3-evals", "2", "--backend", "serial",
+                                "--vae-epochs", "5")
+    assert hits and code == 0, (code, err)
+    assert "| best path cost |" in stdout and "interrupted" not in err, (stdout, err)
+    monkeypatch.setattr(Study, "close", close)
+    table = run_report.comparison_table
+
+    def interrupted_table(store):       # the signal lands before the table: not done
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(run_report, "comparison_table", interrupted_table)
+    code, _, err = run_cli(capsys, "tune", *TINY, "--out", out, "--phase1-evals", "6",
+                           "--phase3-evals", "3", "--backend", "serial", "--resume")
+    assert code == 130 and err.strip() == "latentune: error: interrupted; stored results are kept"
+    monkeypatch.setattr(run_report, "comparison_table", table)

@@ -547,11 +547,21 @@ def _stored_transfer(study: Any) -> dict[str, Any] | None:
     return (study.config().get("phase3") or {}).get("transfer_options")
 
 
-def _finish(study: Any) -> None:
+def _finish(study: Any, args: argparse.Namespace) -> None:
+    """Print the run's summary and comparison table; the run is then complete and stored
+    (:func:`_work_done`: a Ctrl-C or SIGTERM after it exits 0)."""
     from latentune.reporting.run_report import comparison_table
 
     study.summary()
     print(comparison_table(study.store))
+    _work_done(args)
+
+
+def _work_done(args: argparse.Namespace) -> None:
+    """Mark the command's work done and reported: an interrupt (Ctrl-C, SIGTERM) that lands
+    after this, while the command closes its run or exits, is not a failure (exit 0)."""
+    sys.stdout.flush()
+    args.work_done = True
 
 
 def _phase1_study(args: argparse.Namespace, latent: bool,
@@ -665,7 +675,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
                       max_fall_prob=mfp, handover=handover, strategy=strategy,
                       transfer_options=_transfer_options(args, _stored_transfer(study)),
                       args=args)
-        _finish(study)
+        _finish(study, args)
     return 0
 
 
@@ -674,6 +684,7 @@ def cmd_phase1(args: argparse.Namespace) -> int:
     with study:
         study.summary()
         print(_phase_line(res, study))
+        _work_done(args)
     return 0
 
 
@@ -751,7 +762,7 @@ def cmd_phase3(args: argparse.Namespace) -> int:
                       handover=handover, strategy=strategy,
                       transfer_options=_transfer_options(args, _stored_transfer(study)),
                       args=args)
-        _finish(study)
+        _finish(study, args)
     return 0
 
 
@@ -1618,50 +1629,67 @@ def _error(msg: str) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; return the exit status."""
-    from concurrent.futures.process import BrokenProcessPool
-
     from latentune.threads import one_thread_env
 
     one_thread_env()  # before numpy is imported: rollouts are many small matrix operations
-    args: argparse.Namespace | None = None
-    with _cli_logging() as set_level, _sigterm_stops():
-        try:
-            args = build_parser().parse_args(argv)
-            set_level(logging.ERROR if args.quiet else
-                      logging.INFO if args.verbose else logging.WARNING)
-            func: Callable[[argparse.Namespace], int] = args.func
-            code = func(args)
-            sys.stdout.flush()                 # a closed pipe is seen here, not at exit
-            return code
-        except LatentuneError as exc:
-            from latentune.pipeline.evaluators import ClusterLost   # numpy: not at import
+    status: dict[str, int] = {}
+    try:
+        with _cli_logging() as set_level, _sigterm_stops():
+            status["code"] = _command(argv, set_level)
+        return status["code"]
+    except KeyboardInterrupt as exc:    # while the handlers were set or restored
+        return status.get("code", 143 if isinstance(exc, _Terminated) else 130)
 
-            if isinstance(exc, ClusterLost):
-                return _error(_cluster_lost(exc, args, argv))
-            return _error(_one_line(exc))
-        except BrokenPipeError:
-            return _stdout_closed()
-        except OSError as exc:
-            if exc.errno not in DISK_ERRNOS:
-                raise
-            where = f" ({exc.filename})" if exc.filename else ""
-            again = ("rerun with --resume" if hasattr(args, "resume") else
-                     "run the command again")
-            return _error(f"cannot write{where}: {exc.strerror or exc}; the stored evaluations "
-                          f"are kept: free space and {again}")
-        except Exception as exc:  # noqa: BLE001 - a dead worker is one line; anything else a bug
-            if not (isinstance(exc, BrokenProcessPool) or type(exc).__module__.startswith("ray.")):
-                raise
-            return _error(f"an evaluation worker died ({type(exc).__name__}: "
-                          f"{_one_line(exc)[:200]}); the finished evaluations are stored: rerun "
-                          "with --resume")
-        except _Terminated:
+
+def _command(argv: Sequence[str] | None, set_level: Callable[[int], None]) -> int:
+    """Parse ``argv`` and run its command; return the exit status. An interrupt (Ctrl-C,
+    SIGTERM) is status 130 (143), unless it landed after the command's work was done and
+    reported (:func:`_work_done`, or the command returned): then the command's status (0)."""
+    from concurrent.futures.process import BrokenProcessPool
+
+    args: argparse.Namespace | None = None
+    code: int | None = None
+    try:
+        args = build_parser().parse_args(argv)
+        set_level(logging.ERROR if args.quiet else
+                  logging.INFO if args.verbose else logging.WARNING)
+        func: Callable[[argparse.Namespace], int] = args.func
+        code = func(args)
+        sys.stdout.flush()                 # a closed pipe is seen here, not at exit
+        return code
+    except LatentuneError as exc:
+        from latentune.pipeline.evaluators import ClusterLost   # numpy: not at import
+
+        if isinstance(exc, ClusterLost):
+            return _error(_cluster_lost(exc, args, argv))
+        return _error(_one_line(exc))
+    except BrokenPipeError:
+        return _stdout_closed()
+    except OSError as exc:
+        if exc.errno not in DISK_ERRNOS:
+            raise
+        where = f" ({exc.filename})" if exc.filename else ""
+        again = ("rerun with --resume" if hasattr(args, "resume") else
+                 "run the command again")
+        return _error(f"cannot write{where}: {exc.strerror or exc}; the stored evaluations "
+                      f"are kept: free space and {again}")
+    except Exception as exc:  # noqa: BLE001 - a dead worker is one line; anything else a bug
+        if not (isinstance(exc, BrokenProcessPool) or type(exc).__module__.startswith("ray.")):
+            raise
+        return _error(f"an evaluation worker died ({type(exc).__name__}: "
+                      f"{_one_line(exc)[:200]}); the finished evaluations are stored: rerun "
+                      "with --resume")
+    except KeyboardInterrupt as exc:
+        if code is not None or getattr(args, "work_done", False):
+            logging.getLogger("latentune.cli").info(
+                "interrupted after the command finished: its results are complete")
+            return 0 if code is None else code
+        if isinstance(exc, _Terminated):
             print("latentune: error: terminated (SIGTERM); stored results are kept",
                   file=sys.stderr)
             return 143
-        except KeyboardInterrupt:
-            print("latentune: error: interrupted; stored results are kept", file=sys.stderr)
-            return 130
+        print("latentune: error: interrupted; stored results are kept", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":
