@@ -1714,3 +1714,15 @@ def test_an_ask_without_a_phase_goes_on_with_the_phase_3_a_phase_run_began(tmp_p
     with lt.Study(tmp_path / "p1") as st:
         (s,) = st.ask(1, budget=6)
         assert s.phase_name == "phase 1"
+
+
+def test_a_phase_of_one_evaluation_logs_1_evaluation(tmp_path, src30):
+    """``Study.phase3(..., max_new=1)`` logged "phase 3: 1 evaluations"; phase 1's line had
+    the same plural. Both now agree with the count."""
+    lines: list[str] = []
+    with lt.Study(tmp_path / "t", seed=0, log=lines.append) as t:
+        t.phase3(plant(0.2), 5, latent=src30, max_new=1)
+        t.phase1(plant(0.2), 3, max_new=1)
+    said = [ln for ln in lines if ln.startswith("phase ")]
+    assert said[0].startswith("phase 3: 1 evaluation, ") and said[1].startswith(
+        "phase 1: 1 evaluation, "), lines

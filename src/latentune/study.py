@@ -209,7 +209,7 @@ class Study:
             finally:
                 self.manifest.add_wall("phase1", time.perf_counter() - t)
             results.write_best(st, self.dir, system.space, Phase.PHASE1)
-            self.log(f"phase 1: {res.n} evaluations, {res.best_text()}")
+            self.log(res.line())
             return res
 
     def train_latent(self, latent_dim: int | None = None, *, kind: str | None = None,
@@ -283,8 +283,7 @@ class Study:
                 if pc["handover"] is not None:
                     self.manifest.update(phase3_handover=critic.rule())
             results.write_best(st, self.dir, system.space, Phase.PHASE3)
-            self.log(f"phase 3: {res.n} evaluations, {res.best_text()}"
-                     + stop_note(critic, res.n, pc["budget"], res.not_run))
+            self.log(res.line() + stop_note(critic, res.n, pc["budget"], res.not_run))
             return res
 
     def preservation(self, system: Any, latent: Any) -> dict[str, Any]:

@@ -184,6 +184,10 @@ class PhaseResult:
             return f"best cost {self.best_cost:{fmt}}"
         return f"no trial stood (all {self.n} failed)" if self.n else "no trial yet"
 
+    def line(self) -> str:
+        """The phase's one-line summary: ``"phase 3: 1 evaluation, best cost X"``."""
+        return f"phase {int(self.phase)}: {counted(self.n, 'evaluation')}, {self.best_text()}"
+
 
 def _progress(total: int, initial: int, desc: str, enabled: bool):
     if not enabled:
