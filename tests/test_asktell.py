@@ -1726,3 +1726,26 @@ def test_a_phase_of_one_evaluation_logs_1_evaluation(tmp_path, src30):
     said = [ln for ln in lines if ln.startswith("phase ")]
     assert said[0].startswith("phase 3: 1 evaluation, ") and said[1].startswith(
         "phase 1: 1 evaluation, "), lines
+
+
+def test_ask_phase_3_in_a_phase_1_run_without_a_latent_space_says_to_train_one(run_cli,
+                                                                                 tmp_path):
+    """``ask DIR --phase 3`` where ask/tell runs phase 1 said "ask phase 3 in another
+    directory, with --vae DIR" though DIR held no latent space (that --vae is refused: "holds
+    no latent space"). It now says to train it first, with the command; once trained, the
+    advice is --vae DIR alone."""
+    d = tmp_path / "p1"
+    sys_ = ("--system", "examples.lqr_chain:make_system")
+    assert run_cli("ask", d, *sys_, "--n", "2", "--budget", "6")[0] == 0
+    code, _, err = run_cli("ask", d, "--phase", "3")
+    assert code == 2 and err.strip().splitlines()[-1] == (
+        f"latentune: error: {d}: ask/tell runs with --phase 1 (stored), not --phase 3; {d} "
+        f"holds no latent space yet: train one there first (latentune train-vae --out {d}), "
+        f"then ask phase 3 in another directory, with --vae {d}"), err
+    with lt.Study(d) as st:
+        for s in st.ask(2):
+            st.tell(s.id, 1.0 + s.id)
+        st.train_latent(latent_dim=2, epochs=5)
+    code, _, err = run_cli("ask", d, "--phase", "3")
+    assert code == 2 and err.strip().endswith(
+        "not --phase 3; ask phase 3 in another directory, with --vae " + str(d)), err

@@ -283,7 +283,8 @@ def test_a_source_without_a_latent_space_says_to_train_one(tmp_path, run_cli, er
     no latent space yet (train-vae skipped) said "no latent space at P1/vae (expected vae.pt
     and vae.json)", a path the user never gave; phase 3 with no --vae in a run without one
     said "... or pass another study's", the sentence cut off. Both now say what to do: train
-    one (train_latent / train-vae), or name another study's (--vae)."""
+    one (train_latent / train-vae), or name another study's (--vae); the command line names
+    its command alone (``latentune train-vae --out P1``), not the API's train_latent."""
     p1 = tmp_path / "p1"
     assert run_cli("phase1", *SYSTEM, "--out", p1, "--phase1-evals", "6", "--quiet")[0] == 0
     for argv in [("phase3", *SYSTEM, "--vae", p1, "--out", tmp_path / "t", "--phase3-evals",
@@ -291,11 +292,11 @@ def test_a_source_without_a_latent_space_says_to_train_one(tmp_path, run_cli, er
                  ("ask", tmp_path / "a", *SYSTEM[:2], "--phase", "3", "--vae", p1)]:
         line = error_line(*run_cli(*argv)[::2])
         assert line == (f"latentune: error: --vae: {p1} holds no latent space: train one there "
-                        "first (train_latent / train-vae)"), line
+                        f"first (latentune train-vae --out {p1})"), line
     assert not (tmp_path / "t").exists()
     line = error_line(*run_cli("phase3", *SYSTEM, "--out", p1, "--phase3-evals", "4")[::2])
-    assert line == (f"latentune: error: no latent space in {p1}: train one first (train_latent "
-                    "/ train-vae), or name another study's (--vae)"), line
+    assert line == (f"latentune: error: no latent space in {p1}: train one first (latentune "
+                    f"train-vae --out {p1}), or name another study's (--vae)"), line
     from examples.toy_plant import make_real_system
     from latentune.errors import LatentError
 

@@ -628,7 +628,7 @@ def test_resume_refusals_name_the_flag_and_both_values_alike(run_cli, plugin_dir
         (("ask", a, "--start", "scratch"),
          "runs with --start manual (stored), not --start scratch"),
         (("ask", a, "--phase", "3"), "a: ask/tell runs with --phase 1 (stored), not --phase 3; "
-                                     "ask phase 3 in another directory"),
+                                     f"{a} holds no latent space yet"),
         (("ask", a, "--seed", "5"), "a: ask/tell runs with --seed 0 (stored), not --seed 5"),
         (("phase1", "--out", p, "--method", "turbo"),
          "p: phase 1 was run with --method random (stored), not --method turbo"),

@@ -956,6 +956,10 @@ def _ask_flags(msg: str, args: argparse.Namespace) -> str:
                              f"no {ASK_FLAGS.get(k, k)}" for k in keys)
         verb = "runs" if m[0].startswith("runs") else "was run"
         return msg[:m.start()] + f"{verb} with {shown(old)} (stored), not {shown(new)}"
+    if "(train_latent / train-vae)" in msg:      # the command that trains the latent space
+        trains = getattr(args, "vae", None) if msg.startswith("latent: ") else where
+        msg = msg.replace("(train_latent / train-vae)",
+                          f"({shlex.join(['latentune', 'train-vae', '--out', str(trains)])})")
     msg = re.sub(r"^latent: ", lambda m: f"{ASK_FLAGS['latent']}: ", msg)
     msg = msg.replace("with a larger budget", "with a larger --budget").replace(
         "the result (best_params())", f"the result (latentune best {where})")

@@ -226,17 +226,23 @@ def _space(study: Any, system: Any, space: ParameterSpace | None, bind: bool = T
     return stored
 
 
-def _phase(cfg: dict[str, Any], phase: int | None, latent: Any, dir_: Path) -> int:
+def _phase(cfg: dict[str, Any], phase: int | None, latent: Any, dir_: Path,
+           trained: Any = None) -> int:
     """The phase an ask runs: the one ask/tell stored, else ``phase``, else 3 when a latent
-    space is given or the run holds a phase 3 (a phase run's, ``phase3 --vae``), else 1."""
+    space is given or the run holds a phase 3 (a phase run's, ``phase3 --vae``), else 1.
+    ``trained``: the store of ``dir_`` (whether it holds a latent space, for the refusal of
+    phase 3 where ask/tell runs phase 1), or None."""
     stored = (cfg.get("asktell") or {}).get("phase")
     if phase is not None and not is_whole(phase):
         raise UsageError(f"ask/tell runs phase 1 or 3, not {phase!r}")
     if stored is not None:
         if phase is not None and int(phase) != int(stored):
+            untrained = trained is not None and trained.artifact("vae") is None
             raise StoreError(f"{dir_}: ask/tell runs phase {stored} (stored), not {phase}" + (
-                f"; ask phase 3 in another directory, with --vae {dir_}"
-                if int(stored) == Phase.PHASE1 else ""))
+                "" if int(stored) != Phase.PHASE1 else
+                f"; {dir_} holds no latent space yet: train one there first (train_latent / "
+                f"train-vae), then ask phase 3 in another directory, with --vae {dir_}"
+                if untrained else f"; ask phase 3 in another directory, with --vae {dir_}"))
         return int(stored)
     if phase is None:
         phase = Phase.PHASE3 if latent is not None or cfg.get(mf.PHASE_KEYS[Phase.PHASE3]) \
@@ -463,7 +469,7 @@ def _context(study: Any, st: RunStore, system: Any, space: ParameterSpace | None
     """The context of an ask with its options checked and recorded in the manifest (the
     zero-shot suggestion queued on phase 3's first ask)."""
     sp = _space(study, system, space)
-    ph = _phase(study.manifest.config(), phase, latent, study.dir)
+    ph = _phase(study.manifest.config(), phase, latent, study.dir, st)
     pc, ls = options(study, ph, sp, latent, given)
     if ph == Phase.PHASE3:
         record_latent(study.run, study.manifest, ls, pc["latent_source"])
