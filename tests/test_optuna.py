@@ -397,8 +397,9 @@ def test_latent_sampler_transfer_options_and_fall_budget(source_run, caplog):
     """``transfer_options`` reach the critic, checked: a bad one or one with the plain strategy
     is refused naming it. ``fall_budget`` 0.1 of 20 trials allows 2 falls after the first
     trial that stood: ``study.optimize`` stops after the trial that spent them (without the
-    option the same objective runs every trial), ``fall_budget(study)`` says so, and a trial
-    asked later re-runs the best θ that stood, with a warning."""
+    option the same objective runs every trial), ``fall_budget(study)`` says so (with the
+    ``not_run`` count of ``Study.status()``: it had none, unlike status), and a trial asked
+    later re-runs the best θ that stood, with a warning."""
     with pytest.raises(UsageError, match="unknown option.*no_such"):
         LatentSampler(source_run, transfer_options={"no_such": 1})
     with pytest.raises(UsageError, match="fall_budget must be"):
@@ -424,7 +425,7 @@ def test_latent_sampler_transfer_options_and_fall_budget(source_run, caplog):
         study.optimize(falls_from_trial_1(sampler), n_trials=20)
     assert len(study.trials) == 3 and "the study stops here" in caplog.text
     assert sampler.fall_budget(study) == {"falls_allowed": 2, "falls": 2,
-                                          "counts": "after_stand", "spent": True}
+                                          "counts": "after_stand", "spent": True, "not_run": 0}
     assert thetas(study)[:3] == thetas(free)[:3]      # the same search until it stops
     caplog.clear()
     with caplog.at_level(logging.WARNING, logger="latentune.integrations.optuna"):
@@ -434,6 +435,9 @@ def test_latent_sampler_transfer_options_and_fall_budget(source_run, caplog):
     assert study._storage.get_trial(t._trial_id).system_attrs[POINT_ATTR]["fall_budget_spent"]
     np.testing.assert_allclose([p[n] for n in NAMES],
                                [study.trials[0].params[n] for n in NAMES], atol=1e-9)
+    # like status, it says how many trials the stop leaves unrun: here the queued ones
+    study.enqueue_trial({n: 0.5 for n in NAMES})
+    assert sampler.fall_budget(study)["not_run"] == 1
 
 
 def test_sampler_refuses_other_bounds(source_run):

@@ -846,10 +846,17 @@ class LatentSampler(_CriticSampler, BaseSampler):
 
     def fall_budget(self, study: Any) -> dict[str, Any] | None:
         """The study's fall budget (``transfer_options={"fall_budget": q}``):
-        ``{falls_allowed, falls, counts, spent}`` over its finished trials in number order (the
-        zero-shot one included; ``falls`` as ``fall_budget_counts`` counts them, ``spent`` as
-        the critic decides it), as ``Study.status()["fall_budget"]``; None without one."""
-        return self._fall_budget_of(self._finished_fell(study))
+        ``{falls_allowed, falls, counts, spent, not_run}`` over its finished trials in number
+        order (the zero-shot one included; ``falls`` as ``fall_budget_counts`` counts them,
+        ``spent`` as the critic decides it; ``not_run``: once spent, the trials queued in the
+        study (WAITING, ``enqueue_trial``) that its stop leaves unrun, else 0), as
+        ``Study.status()["fall_budget"]``; None without one."""
+        fb = self._fall_budget_of(self._finished_fell(study))
+        if fb is not None:
+            waiting = optuna.trial.TrialState.WAITING
+            fb["not_run"] = sum(t.state == waiting for t in study.get_trials(
+                deepcopy=False)) if fb["spent"] else 0
+        return fb
 
     def _fall_budget_of(self, fell: list[bool]) -> dict[str, Any] | None:
         from latentune.critic.transfer import TRANSFER_DEFAULTS, fall_budget_status
