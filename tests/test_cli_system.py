@@ -841,3 +841,29 @@ def test_a_handover_refusal_shows_the_flags_form(run_cli, plugin_dir, tmp_path):
     line = one_line_error(*run_cli(*p3, "--handover", "--phase3-evals", 3, "--resume")[::2])
     assert line.endswith("phase 3 was run with --handover patience=2,tol=0.01,length=0.2 "
                          "(stored), not --handover patience=20,tol=0.01,length=0.2"), line
+
+
+def test_a_factory_default_the_record_cannot_hold_is_named_as_the_default(run_cli, plugin_dir,
+                                                                           tmp_path):
+    """``report DIR --system m:f --system-arg mass=2`` on a run made without --system-arg, of a
+    factory whose default JSON cannot hold (NaN: not recorded), said "args.mass: stored None,
+    given 2", though the factory's default applied, not None. It says "stored the factory's
+    default", and "given the factory's default" the other way round."""
+    (plugin_dir / "nanmass.py").write_text(textwrap.dedent('''
+        import closplant
+
+        def make(mass=float("nan"), dim=3):
+            return closplant.make(dim)
+    '''))
+    runs = tmp_path / "without", tmp_path / "with"
+    for run, pairs in ((runs[0], []), (runs[1], ["--system-arg", "mass=2"])):
+        code, _, err = run_cli("phase1", "--system", "nanmass:make", *pairs, "--out", run,
+                               "--phase1-evals", 3, "--backend", "serial", "--quiet")
+        assert code == 0, err
+    line = one_line_error(*run_cli("report", runs[0], "--system", "nanmass:make",
+                                   "--system-arg", "mass=2", "--no-sim")[::2])
+    assert "(args.mass: stored the factory's default, given 2)" in line, line
+    line = one_line_error(*run_cli("report", runs[1], "--system", "nanmass:make",
+                                   "--no-sim")[::2])
+    assert "(args.mass: stored 2, given the factory's default)" in line, line
+    sys.modules.pop("nanmass", None)

@@ -389,16 +389,20 @@ def ask_options(stored: dict[str, Any] | None, given: dict[str, Any], dir_: Any,
 
 
 def diff(a: dict[str, Any], b: dict[str, Any], prefix: str = "") -> str:
-    """The differing keys of two descriptions, as ``key: stored X, given Y`` (at most 4)."""
+    """The differing keys of two descriptions, as ``key: stored X, given Y`` (at most 4). A
+    plugin's argument one side lacks (left out, and its factory's default is not recorded:
+    one JSON cannot hold, or a ``**kwargs`` one) is "the factory's default", not None."""
     out = []
     for k in sorted(set(a) | set(b)):
         va, vb = a.get(k), b.get(k)
-        if va == vb:
+        if va == vb and (prefix != "args." or (k in a) == (k in b)):
             continue
         if isinstance(va, dict) and isinstance(vb, dict):
             out.append(diff(va, vb, f"{prefix}{k}."))
         else:
-            out.append(f"{prefix}{k}: stored {_short(va)}, given {_short(vb)}")
+            def shown(d: dict[str, Any], v: Any) -> str:
+                return "the factory's default" if prefix == "args." and k not in d else _short(v)
+            out.append(f"{prefix}{k}: stored {shown(a, va)}, given {shown(b, vb)}")
     return "; ".join(x for x in out[:4] if x)
 
 
