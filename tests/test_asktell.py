@@ -1749,3 +1749,27 @@ def test_ask_phase_3_in_a_phase_1_run_without_a_latent_space_says_to_train_one(r
     code, _, err = run_cli("ask", d, "--phase", "3")
     assert code == 2 and err.strip().endswith(
         "not --phase 3; ask phase 3 in another directory, with --vae " + str(d)), err
+
+
+def test_an_ask_that_fails_in_the_critic_hands_out_nothing(tmp_path, src30):
+    """An ask that had leased queued suggestions and then failed in the critic (here: its fall
+    prior's run was moved away) kept them leased: ``status`` showed them pending, and the same
+    asker's next ask gave them back as handed out before. A failed ask now hands out nothing:
+    its leases are undone."""
+    prior = tmp_path / "prior"
+    shutil.copytree(src30, prior)
+    with lt.Study(tmp_path / "a", seed=0) as st:
+        (first,) = st.ask(system=plant(), max_fall_prob=0.3, fall_prior=prior, budget=20)
+        queued = [t.id for t in st.store.trials("queued")]
+        assert queued                           # the rest of the first batch
+    prior.rename(tmp_path / "gone")
+    with lt.Study(tmp_path / "a") as st:
+        with pytest.raises(LatentuneError, match="fall prior"):
+            st.ask(len(queued) + 2)
+        assert [t.id for t in st.store.trials("pending")] == [first.id]
+        assert [t.id for t in st.store.trials("queued")] == queued
+        assert st.status()["pending"] == [first.id]
+    (tmp_path / "gone").rename(prior)
+    with lt.Study(tmp_path / "a") as st:
+        got = st.ask(2)
+        assert [(s.id, s.again) for s in got] == [(first.id, True), (queued[0], False)]

@@ -373,6 +373,8 @@ def ask(study: Any, n: int = 1, *, system: Any = None, space: ParameterSpace | N
             ctx = _context(study, st, system, space, phase, latent, given)
         phases = (Phase.ZERO_SHOT, ctx.phase) if ctx.phase == Phase.PHASE3 else (ctx.phase,)
         refuse_if_fall_budget_spent(study, st, ctx.phase, ctx.options)
+        open_ = st.trials("pending") + st.trials("queued")
+        undo.push(lambda kind, *_: _undo_leases(st, open_, kind))   # after the undos below
         got = st.lease(who, phases, int(n), lease)
         need = int(n) - len(got)
         if got and _budget_left(st, ctx.phase, ctx.options)[0] <= 0:
@@ -393,6 +395,18 @@ def ask(study: Any, n: int = 1, *, system: Any = None, space: ParameterSpace | N
         risky = fall_risk(st, ctx.phase, ctx.options)
         return [Suggestion(t.id, t.phase, t.theta, ctx.space.as_dict(t.theta), t.z, again,
                            None, t.asker, t.lease_until, risky(t)) for t, again in got]
+
+
+def _undo_leases(st: RunStore, before: list[Any], kind: Any) -> bool:
+    """The exit of a failed ask (``kind``: its exception's type, else None): the suggestions
+    it handed out before it failed go back to how they were (``before``), so a failed ask
+    hands out nothing. Returns False: the exception goes on."""
+    if kind is not None:
+        try:
+            st.restore_leases(before)
+        except Exception as exc:  # noqa: BLE001 - the ask's own error is the one to see
+            log.warning("%s: could not undo the failed ask's leases: %s", st.dir, exc)
+    return False
 
 
 def warn_fewer(study: Any, st: RunStore, phase: int, pc: dict[str, Any], got: int, n: int

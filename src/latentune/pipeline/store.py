@@ -579,6 +579,15 @@ class RunStore:
                 out.append((self._trial(i), again))
         return out
 
+    def restore_leases(self, before: list[Trial]) -> None:
+        """Undo leases, in one transaction: each suggestion of ``before`` (as it was before
+        they were given) that is pending now gets back its status, asker and lease end."""
+        with self._write(trials=True):
+            for t in before:
+                self.con.execute("UPDATE trials SET status=?, asker=?, lease_until=? WHERE id=? "
+                                 "AND status='pending'",
+                                 (t.status, t.asker, t.lease_until, int(t.id)))
+
     def release(self, trial_id: int) -> None:
         """Give a pending suggestion back (its lease ends now): the next ask hands it out
         again. StoreError unless it is pending."""
