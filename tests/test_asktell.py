@@ -1635,13 +1635,14 @@ def test_another_latent_space_after_the_zero_shot_trial_is_refused(run_cli, tmp_
                 st.tell(1, 0.3)
         before = whole_store(d)
         line = error_line(*run_cli("ask", d, "--vae", tmp_path / "B")[::2])
-        assert f"phase 3 was run with the latent space of {tmp_path / 'A'}, not " \
-            f"{tmp_path / 'B'} (its zero-shot trial is the best θ of {tmp_path / 'A'})" in line
+        # the zero-shot trial fixes phase 3's options: refused as another option is
+        assert f"phase 3 was run with --vae {(tmp_path / 'A').resolve()} (stored), not --vae " \
+            f"{(tmp_path / 'B').resolve()}" in line, line
         assert whole_store(d) == before
     with lt.Study(tmp_path / "run", seed=0) as st:
         assert st.phase3(plant(0.3), 4, latent=tmp_path / "A", max_new=0).n == 0
         assert st.store.count(Phase.ZERO_SHOT) == 1
-        with pytest.raises(StoreError, match="its zero-shot trial is the best θ of"):
+        with pytest.raises(StoreError, match="phase3 was run with latent-source = .*A', not "):
             st.phase3(plant(0.3), 4, latent=tmp_path / "B")
         assert st.config()["phase3"]["latent_source"] == str((tmp_path / "A").resolve())
 
@@ -1773,3 +1774,33 @@ def test_an_ask_that_fails_in_the_critic_hands_out_nothing(tmp_path, src30):
     with lt.Study(tmp_path / "a") as st:
         got = st.ask(2)
         assert [(s.id, s.again) for s in got] == [(first.id, True), (queued[0], False)]
+
+
+def test_the_zero_shot_trial_alone_fixes_phase_3s_options(tmp_path, src30, run_cli):
+    """After only phase 3's zero-shot trial (asked and told), a phase-3 run or ask could still
+    change phase 3's batch size and fall budget, and recorded the source run's size anew (its
+    phase 1 had grown): the zero-shot trial was not counted as a trial of phase 3. It fixes
+    them as a phase-3 trial does: another value is refused, the source's size stays."""
+    src = tmp_path / "src"
+    shutil.copytree(src30, src)
+    d, target = tmp_path / "t", plant(0.2)
+    with lt.Study(d, seed=0) as at:
+        (z,) = at.ask(system=target, phase=3, latent=src, budget=10)
+        assert z.phase == Phase.ZERO_SHOT
+        out = evaluate(target, z.theta)
+        at.tell(z.id, out.cost, failed=out.failed)
+        stored = at.config()["phase3"]
+    with lt.Study(src) as s:
+        s.phase1(plant(), 32)                                     # the source grows
+    with lt.Study(d, batch_size=2) as st:
+        with pytest.raises(StoreError, match="batch-size = 4, not 2"):
+            st.ask()
+        with pytest.raises(StoreError, match="batch-size = 4, not 2"):
+            st.phase3(target, 10, latent=src)
+    with lt.Study(d) as st:
+        with pytest.raises(StoreError, match="transfer-options = None, not {'fall_budget': 0.3}"):
+            st.phase3(target, 10, latent=src, transfer_options={"fall_budget": 0.3})
+        assert st.config()["phase3"] == stored
+        st.phase3(target, 10, latent=src, max_new=1)
+        assert st.config()["phase3"]["source_counts"] == stored["source_counts"]
+        assert st.config()["phase3"]["batch_size"] == 4

@@ -747,7 +747,7 @@ def cmd_phase3(args: argparse.Namespace) -> int:
                        "or pass --vae RUN_DIR)")
     _refuse_rerun(study, 3, args.resume)
     _refuse_unused(args, "phase3")
-    if study.exists and study.manifest.n_used(3) and study.config().get("latent") \
+    if study.exists and study.manifest.n_fixing(3) and study.config().get("latent") \
             and study.config().get("phase3_vae_source") not in (None, "self"):
         _check_vae_record(study.config()["latent"], args, "the latent space phase 3 of "
                           f"{study.dir} was run in", "kept with --resume; leave the flag out")

@@ -184,7 +184,7 @@ def resolve_strategy(manifest: Manifest, strategy: str | None, handover: Any,
         raise UsageError("the hand-over is an option of the plain phase 3 (strategy plain); "
                          "the transfer phase 3 moves to the full θ box on its own")
     stored = manifest.config().get("phase3")
-    stored = strategy_of(stored) if stored and (fixed or manifest.n_used(Phase.PHASE3)) \
+    stored = strategy_of(stored) if stored and (fixed or manifest.n_fixing(Phase.PHASE3)) \
         else None
     where = manifest.run.dir
     if stored is not None and strategy not in (None, stored):

@@ -284,14 +284,20 @@ class Manifest:
         return st.count(phase) + sum(1 for t in st.trials() if t.phase == int(phase)
                                      and t.status in ("queued", "pending"))
 
+    def n_fixing(self, phase: int) -> int:
+        """Trials that fix ``phase``'s options: :meth:`n_used`, and for phase 3 its zero-shot
+        trial's too (stored or handed out: it is phase 3's first trial)."""
+        return self.n_used(phase) + (self.n_used(Phase.ZERO_SHOT)
+                                     if int(phase) == Phase.PHASE3 else 0)
+
     def phase_options(self, phase: int, *, method: str | None, budget: int, regions: int | None,
                       seed: int, batch_size: int, extra: dict[str, Any] | None = None,
                       max_new: int | None = None, phase_run: bool = False) -> dict[str, Any]:
         """The options record of ``phase`` (checked): the one configuration check of phase runs
         and ask/tell. Stored options must match once the phase has a trial (StoreError naming
-        the stored value); the budget may grow; ``method`` None is the stored one (TuRBO-m for a
-        phase without trials); TuRBO-m's region count defaults by budget and then stays as
-        stored. ``max_new`` (a phase run's stop after so many new trials, not
+        the stored value; phase 3's zero-shot trial counts, :meth:`n_fixing`); the budget may
+        grow; ``method`` None is the stored one (TuRBO-m for a phase without trials); TuRBO-m's
+        region count defaults by budget and then stays as stored. ``max_new`` (a phase run's stop after so many new trials, not
         recorded) is checked too. A ``phase_run`` (the phase run in-process, not by ask/tell)
         is refused while suggestions of the phase (or of phase 3's zero-shot trial) are handed
         out to ask/tell: it would run them again and outgrow the budget (those asked and not
@@ -300,7 +306,7 @@ class Manifest:
 
         key = PHASE_KEYS[Phase(int(phase))]
         stored = self.config().get(key)
-        n = self.n_used(phase)
+        n = self.n_fixing(phase)
         if method is None:                          # the stored method once the phase has run
             method = (stored or {}).get("method") if stored and n else "turbo"
         if method not in METHODS:
@@ -349,11 +355,16 @@ class Manifest:
         """StoreError unless the stored transfer critic of ``phase`` (its saved state, which a
         resume restores and whose options win) was asked with the ``given`` transfer options:
         a run recorded without them (none given, or stored before they existed) resumes only
-        with the values it ran with."""
+        with the values it ran with; a phase 3 that holds its zero-shot trial alone (no
+        critic state yet) was recorded without them, so it takes none."""
         from latentune.critic.transfer import stored_options
         from latentune.pipeline.phases import state_key
 
         state = self.run.store.get_meta(state_key(phase)) or {}
+        if not state and int(phase) == Phase.PHASE3 and not self.n_used(phase) \
+                and self.n_used(Phase.ZERO_SHOT):   # its zero-shot trial alone: the record's
+            raise StoreError(f"{self.run.dir}: {PHASE_KEYS[Phase.PHASE3]} was run with "
+                             f"transfer-options = None, not {given!r}")
         if "options" not in state:      # no state, or one whose constructor's options stand
             return
         stored = stored_options(state) or {}
