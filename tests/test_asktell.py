@@ -1804,3 +1804,25 @@ def test_the_zero_shot_trial_alone_fixes_phase_3s_options(tmp_path, src30, run_c
         st.phase3(target, 10, latent=src, max_new=1)
         assert st.config()["phase3"]["source_counts"] == stored["source_counts"]
         assert st.config()["phase3"]["batch_size"] == 4
+
+
+def test_a_phase_run_where_ask_tell_spent_the_fall_budget_keeps_the_not_run_count(tmp_path,
+                                                                                   src30):
+    """``phase3`` (``latentune phase3 DIR``) in an ask/tell directory whose fall budget was
+    spent with two suggestions of the last batch still queued withdrew them, and ``status``
+    then said 0 asked not run (it had said 2). The run asks nothing (the budget is spent), so
+    it leaves them: status and the run's result both say 2 not run."""
+    shutil.copytree(src30, tmp_path / "src")
+    d, target, opts = tmp_path / "t", plant(0.3), {"fall_budget": 0.25}
+    with lt.Study(d, seed=0) as st:
+        (z,) = st.ask(system=target, phase=3, latent=tmp_path / "src", budget=4,
+                      transfer_options=opts)
+        st.tell(z.id, 0.2)
+        a, b = st.ask(2)                    # a batch of 4: two handed out, two queued
+        st.tell(a.id, None, failed=True)    # the one fall allowed
+        st.tell(b.id, 0.3)
+        before = st.status()["fall_budget"]
+        assert before["spent"] and before["not_run"] == 2, before
+        res = st.phase3(target, 4, latent=tmp_path / "src", transfer_options=opts)
+        assert (res.n_new, res.not_run) == (0, 2), res
+        assert st.status()["fall_budget"] == before

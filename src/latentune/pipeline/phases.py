@@ -483,7 +483,8 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
     ``fall_budget_spent_after`` the batch's finished trials): once spent, the batch's trials
     not started are not run (those running on other workers finish and are stored), the
     critic is told the ones that ran, and the stop is recorded (:func:`fall_stop_key`;
-    ``PhaseResult.not_run``).
+    ``PhaseResult.not_run``). Ask/tell's suggestions not handed out yet are withdrawn (this run
+    asks its own), unless the fall budget is spent already: then they count as not run.
 
     Args:
         store: the run store; rows of ``phase`` already stored are told to ``critic`` first.
@@ -511,9 +512,11 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
             of the phase are stored (a resume runs the batch's others).
     """
     t0 = time.perf_counter()
-    store.drop_queued((phase,))     # ask/tell's, not handed out yet: this run asks its own
     batch = pending_batch(store, phase, budget, decoder)
     replay(store, phase, critic, None if batch is None else batch.n0)
+    if batch is not None or not getattr(critic, "fall_budget_spent", False):
+        store.drop_queued((phase,))     # ask/tell's, not handed out yet: this run asks its own
+    # (else the fall budget is spent: they stay, asked and not run, as status counts them)
     y = store.costs(phase)
     idx = n0 = len(y)
     if batch is not None:
@@ -541,6 +544,8 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
             if batch is None and getattr(critic, "fall_budget_spent", False):
                 rec = store.get_meta(fall_stop_key(phase)) or {}    # a stop in a batch before
                 not_run = int(rec.get("not_run", 0)) if rec.get("n") == idx else 0
+                not_run += sum(1 for t in store.trials("queued")      # ask/tell's
+                               if t.phase in (phase, Phase.ZERO_SHOT))
                 _say_fall_stop(phase, critic.falls_allowed(), idx, budget, not_run)
                 break
             if batch is None:
