@@ -740,3 +740,32 @@ def test_a_pool_that_breaks_while_a_batch_is_submitted_runs_the_rest_after_it(mo
     assert sorted(got) == [0, 1, 2, 3] and len(calls) == 5
     for k, i in enumerate((0, 2, 3, 5)):
         assert got[k].cost == pytest.approx(float(np.sum(X[i])))
+
+
+def _quick_slow_or_dies(x):
+    if x[0] == 1.0:
+        time.sleep(1.5)                     # running when the other worker dies
+    elif x[0] == 2.0:
+        time.sleep(0.4)                     # after the quick one has spent the budget
+        os._exit(5)
+    return float(x[0])
+
+
+def test_a_trial_lost_with_the_pool_after_stop_is_run_again_not_dropped():
+    """``imap(..., stop=)`` on the process pool: a trial running when ``stop()`` turned True
+    (a phase's fall budget spent) and then lost with the pool (another worker died) was
+    dropped: never yielded, and the phase counted it "not run" though it had started. It is
+    run again on the new pool and yielded, as a started trial is; the trials not started by
+    then are still never run."""
+    from latentune.pipeline.evaluators import ProcessEvaluator, TrialError
+
+    X = np.array([[0.0], [1.0], [2.0], [3.0]])
+    seen: list[int] = []
+    with ProcessEvaluator(3) as ev:
+        got = {}
+        for i, out in ev.imap(_quick_slow_or_dies, X, stop=lambda: 0 in seen):
+            seen.append(i)
+            got[i] = out
+        assert ev.replaced >= 1
+    assert sorted(got) == [0, 1, 2], seen
+    assert got[1].cost == 1.0 and isinstance(got[2], TrialError)

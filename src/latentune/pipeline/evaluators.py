@@ -6,7 +6,8 @@ An evaluator maps ``fun`` over the rows of ``X`` (n, d):
   can store every trial at once; ``map(fun, X)`` returns the (n,) float costs in the order of X.
   ``imap(fun, X, stop=f)`` starts a trial only while ``f()`` is False: once it is True the
   trials not started yet are never run (nor yielded) and those running finish and are yielded
-  (the process pool then holds no more trials than it has workers, so that none waits in it).
+  (the process pool then holds no more trials than it has workers, so that none waits in it;
+  a started trial lost with a broken pool is run again, as without ``stop``).
 * ``fun`` is a System (an object with ``evaluate``, see :mod:`latentune.system`): then
   ``result`` is an :class:`~latentune.system.Outcome`; or a plain callable ``(d,) -> float``
   (``lt.minimize``): then ``result`` is an Outcome holding the float as it was returned
@@ -449,14 +450,15 @@ class ProcessEvaluator(Evaluator):
         started: dict[int, tuple[int, float]] = {}     # trial -> (worker pid, start)
         stopped: dict[int, int] = {}    # trials to blame for a break (timed out, died) -> pid
         lost = [0] * X.shape[0]
+        owed: set[int] = set()          # started, then lost with a pool: run again even after stop
         idle_breaks = 0                                # breaks with no trial running
         if getattr(self._pool, "_broken", False) or self._left():
             self._replace_pool()[1].close()    # a worker died, or trials of a left imap run
         try:
             while todo or futs:
                 if stop is not None and todo and stop():
-                    todo = []                   # not started: never run
-                    if not futs:
+                    todo = [i for i in todo if i in owed]   # the others not started: never run
+                    if not futs and not todo:
                         break
                 room = len(todo) if stop is None else max(0, self.workers - len(futs))
                 for j, i in enumerate(todo[:room]):
@@ -478,6 +480,7 @@ class ProcessEvaluator(Evaluator):
                         continue
                     i = futs.pop(f)
                     started.pop(i, None)
+                    owed.discard(i)
                     yield i, f.result()
                 if not broken:
                     self._stop_late(started, stopped, futs)
@@ -514,7 +517,10 @@ class ProcessEvaluator(Evaluator):
                                                    msg=f"the trial was lost with its worker "
                                                        f"process {lost[i]} times")
                             continue
+                    if i in started or i in owed:
+                        owed.add(i)
                     todo.append(i)
+                owed.difference_update(ends)
                 if not stopped and not any(i in started for i in futs.values()):
                     idle_breaks += 1
                     if idle_breaks >= MAX_LOST:
