@@ -769,3 +769,32 @@ def test_a_trial_lost_with_the_pool_after_stop_is_run_again_not_dropped():
         assert ev.replaced >= 1
     assert sorted(got) == [0, 1, 2], seen
     assert got[1].cost == 1.0 and isinstance(got[2], TrialError)
+
+
+@pytest.mark.slow
+def test_ray_runs_a_trial_lost_with_its_worker_after_stop_again(tmp_path, ray_local):
+    """``RayEvaluator.imap(..., stop=)``: a trial running when ``stop()`` turned True (a phase's
+    fall budget spent) and then lost with its worker was dropped (never yielded, counted "not
+    run" though it had started). It is run again and yielded, as the process pool does; the
+    trials not started by then are never run."""
+    from latentune.pipeline.evaluators import RayEvaluator
+
+    marks = str(tmp_path / "crashed")
+
+    def slow_crash_once(x: np.ndarray) -> float:      # shipped by value (cloudpickle)
+        mark = f"{marks}{x[0]:.3f}"
+        if x[0] > 0.5 and not os.path.exists(mark):
+            time.sleep(1.0)                           # running when trial 0 spends the budget
+            open(mark, "w").close()
+            os._exit(1)
+        return float(x[0])
+
+    X = np.array([[0.1], [0.9], [0.2], [0.3]])
+    seen: list[int] = []
+    with RayEvaluator(2) as ev:
+        got = {}
+        for i, out in ev.imap(slow_crash_once, X, stop=lambda: 0 in seen):
+            seen.append(i)
+            got[i] = out
+    assert sorted(got) == [0, 1], seen
+    assert got[1].cost == pytest.approx(0.9) and got[1].info == {"lost_runs": 1}

@@ -7,7 +7,8 @@ An evaluator maps ``fun`` over the rows of ``X`` (n, d):
   ``imap(fun, X, stop=f)`` starts a trial only while ``f()`` is False: once it is True the
   trials not started yet are never run (nor yielded) and those running finish and are yielded
   (the process pool then holds no more trials than it has workers, so that none waits in it;
-  a started trial lost with a broken pool is run again, as without ``stop``).
+  a started trial lost with a broken pool, or with its Ray worker, is run again, as without
+  ``stop``).
 * ``fun`` is a System (an object with ``evaluate``, see :mod:`latentune.system`): then
   ``result`` is an :class:`~latentune.system.Outcome`; or a plain callable ``(d,) -> float``
   (``lt.minimize``): then ``result`` is an Outcome holding the float as it was returned
@@ -863,12 +864,13 @@ class RayEvaluator(Evaluator):
         todo = deque(range(X.shape[0]))
         losses = [0] * X.shape[0]
         running: dict[Any, tuple[int, Any]] = {}
+        owed: set[int] = set()          # started, then lost with a worker: run again after stop
         none_alive: float | None = None        # since when no actor is alive (trials waiting)
         try:
             while todo or running:
                 if stop is not None and todo and stop():
-                    todo.clear()                # not started: never run
-                    if not running:
+                    todo = deque(i for i in todo if i in owed)  # the others: never run
+                    if not running and not todo:
                         break
                 while todo and self._idle:
                     i, a = todo.popleft(), self._idle.pop(0)
@@ -916,6 +918,7 @@ class RayEvaluator(Evaluator):
                         if not self._watch_head(now=True):    # not a worker: the head
                             log.debug("a Ray worker's run was lost while the head does not "
                                       "answer (%s)", _one_line(exc, 160))
+                            owed.add(i)
                             todo.appendleft(i)
                             continue
                         losses[i] += 1
@@ -926,8 +929,10 @@ class RayEvaluator(Evaluator):
                             continue
                         log.warning("a Ray worker was lost (%s); its trial is run again",
                                     _one_line(exc, 160))
+                        owed.add(i)
                         todo.appendleft(i)
                         continue
+                    owed.discard(i)
                     self._idle.append(a)
                     if losses[i] and isinstance(r, Outcome):
                         r = Outcome(r.cost, r.failed, {**r.info, "lost_runs": losses[i]},
