@@ -1826,3 +1826,41 @@ def test_a_phase_run_where_ask_tell_spent_the_fall_budget_keeps_the_not_run_coun
         res = st.phase3(target, 4, latent=tmp_path / "src", transfer_options=opts)
         assert (res.n_new, res.not_run) == (0, 2), res
         assert st.status()["fall_budget"] == before
+
+
+def test_train_vae_trains_the_latent_space_of_an_ask_tell_run_with_a_space_file(run_cli,
+                                                                                 tmp_path,
+                                                                                 error_line):
+    """``latentune train-vae --out DIR`` after a phase 1 by ``ask DIR --space S.yaml`` / ``tell``
+    was refused ("holds a run of another system (kind: stored 'external', given 'task' ...)"),
+    and train-vae had no ``--space``: such a run could not reach phase 3. train-vae now trains
+    on the stored space (``--space`` the same file is taken; another space, or --robot/--system,
+    is refused in one line) and phase 3 by ``ask T --phase 3 --vae DIR`` starts from it."""
+    space = tmp_path / "S.json"
+    space.write_text(json.dumps(SPACE.to_dict()))
+    d = tmp_path / "src"
+    for i in range(12):
+        code, out, err = run_cli("ask", d, *(("--space", space) if i == 0 else ()))
+        assert code == 0, err
+        sid, _, path, _ = out.strip().split("\t")
+        theta = json.loads(Path(path).read_text())
+        out_ = evaluate(plant(), SPACE.parse(theta))
+        tell = ("--failed",) if out_.failed else ("--cost", str(out_.cost))
+        assert run_cli("tell", d, sid, *tell)[0] == 0
+    vae = ("--latent-dim", "2", "--vae-epochs", "20")
+    other = tmp_path / "S2.json"
+    other.write_text(json.dumps({**SPACE.to_dict(), "high": [1.0, 2.0, 1.0, 1.0]}))
+    line = error_line(*run_cli("train-vae", "--out", d, "--space", other, *vae)[::2])
+    assert "another parameter space (b: [-1, 2] there, [-1, 1] here" in line, line
+    line = error_line(*run_cli("train-vae", "--out", d, "--robot", "b1", *vae)[::2])
+    assert "trials run elsewhere (ask --space)" in line and "leave --robot" in line, line
+    line = error_line(*run_cli("train-vae", "--out", d, "--space", space, "--system", "m:f",
+                               *vae)[::2])
+    assert "--space replaces" in line, line
+    assert not (d / "vae.pt").exists()
+    code, out, err = run_cli("train-vae", "--out", d, *vae)
+    assert code == 0 and "d_low 2" in out and (d / "vae.pt").is_file(), err
+    code, out, err = run_cli("train-vae", "--out", d, "--space", space, *vae)
+    assert code == 0 and "d_low 2" in out, err
+    code, out, err = run_cli("ask", tmp_path / "t", "--phase", "3", "--vae", d, "--space", space)
+    assert code == 0 and "\tzero-shot\t" in out, err

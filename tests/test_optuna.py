@@ -269,6 +269,25 @@ def test_import_cli_from_a_journal_file(tmp_path, capsys):
         bad.func(bad)
 
 
+def test_train_vae_on_an_imported_study_then_latent_sampler(tmp_path, run_cli, error_line):
+    """``latentune import-optuna opt.db --study sim --out O`` then ``latentune train-vae --out
+    O`` (the README's two steps without --train-latent) was refused: "O holds a run of another
+    system (direction: stored 'minimize', given None; kind: stored 'optuna', given 'task'
+    ...)". train-vae now trains on the imported space, and LatentSampler(O) searches in it."""
+    db = tmp_path / "opt.db"
+    simulator_study(f"sqlite:///{db}", n=20)
+    assert run_cli("import-optuna", db, "--study", "sim", "--out", tmp_path / "O")[0] == 0
+    line = error_line(*run_cli("train-vae", "--out", tmp_path / "O", "--task", "jump")[::2])
+    assert "an imported Optuna study (import-optuna)" in line, line
+    code, out, err = run_cli("train-vae", "--out", tmp_path / "O", "--latent-dim", "3",
+                             "--vae-epochs", "20")
+    assert code == 0 and "d_low 3) trained on 20" in out, err
+    sampler = LatentSampler(str(tmp_path / "O"), seed=0, budget=3)
+    study = optuna.create_study(sampler=sampler)
+    study.optimize(objective_for(sampler), n_trials=3)
+    assert len(study.trials) == 3 and all(t.state.name == "COMPLETE" for t in study.trials)
+
+
 def test_imported_run_feeds_study_phase3(source_run, tmp_path):
     """The imported run is a source like any other: Study.phase3 with its latent space runs its
     best θ as it is (zero-shot), then the latent search."""

@@ -311,6 +311,10 @@ def add_run_args(p: argparse.ArgumentParser, name: str) -> None:
         _handover_arg(p)
         _strategy_arg(p)
         _transfer_args(p)
+    if name == "train-vae":
+        p.add_argument("--space", default=None, metavar="FILE",
+                       help="for a run of trials run elsewhere (ask --space) or an Optuna "
+                            "import: its YAML/JSON parameter space (default: the stored one)")
     if name == "phase1":
         p.add_argument("--fall-prior", default=None, metavar="RUN_DIR",
                        help="with --max-fall-prob: a run whose phase-1 trials seed the prediction")
@@ -688,14 +692,59 @@ def cmd_phase1(args: argparse.Namespace) -> int:
     return 0
 
 
+SPACE_KINDS = {"external": "trials run elsewhere (ask --space)",
+               "optuna": "an imported Optuna study (import-optuna)",
+               "python": "a Python system (made through the API)"}
+"""The stored systems the command line does not rebuild, by what they are: ``train-vae``
+trains on their stored parameter space."""
+
+
+def _train_vae_space(study: Any, args: argparse.Namespace) -> Any:
+    """The parameter space ``train-vae`` trains on. A run of :data:`SPACE_KINDS` (trials run
+    elsewhere, an Optuna import, a Python system): its stored space, and ``--space FILE``, when
+    given, must be that space (one line naming the difference). Any other run: the space of the
+    system its flags build, checked against the stored system (``--space`` is refused)."""
+    from latentune.space import ParameterSpace
+
+    if args.space is not None and (args.system is not None or _task_given(args)):
+        raise CLIError("--space replaces --robot/--task/--terrain/--actor/--steps/--v-des/"
+                       "--reality/--engine and --system")
+    kind = (study.config().get("system") or {}).get("kind") if study.exists else None
+    if kind not in SPACE_KINDS:
+        if args.space is not None:
+            raise CLIError(f"no run store in {study.dir} (run phase1 or tune first, or ask "
+                           "--space)" if not study.exists else
+                           f"--space {args.space}: {study.dir} holds a run of a system the "
+                           "flags rebuild, not of a parameter space: pass its --robot/--task "
+                           "or --system flags instead")
+        _check_stored_system(study, args)
+        system = make_system(args, study.seed)
+        if study.exists:
+            study.bind_check(system)
+        return system.space
+    if args.system is not None or _task_given(args):
+        raise CLIError(f"{study.dir} holds {SPACE_KINDS[kind]}: train-vae trains on its stored "
+                       "parameter space; leave --robot/--task and --system out")
+    stored = study.space()
+    if args.space is not None:
+        try:
+            given = ParameterSpace.from_dict(_read_data(args.space, "--space"))
+        except ValueError as exc:
+            raise CLIError(f"--space {args.space}: {exc}") from None
+        if given != stored:
+            why = stored.box_difference(given.to_dict()) or "another manual θ"
+            raise CLIError(f"--space {args.space}: {study.dir} holds {SPACE_KINDS[kind]} in "
+                           f"another parameter space ({why}; there: the file, here: the "
+                           "stored one); leave --space out to use the stored one")
+    return stored
+
+
 def cmd_train_vae(args: argparse.Namespace) -> int:
     study = _study(args)
-    _check_stored_system(study, args)
-    system = make_system(args, study.seed)
-    _check_latent_dim(args, system.space.dim)
+    space = _train_vae_space(study, args)
+    _check_latent_dim(args, space.dim)
     if not study.exists:
         raise CLIError(f"no run store in {study.dir} (run phase1 or tune first)")
-    study.bind_check(system)
     _refuse_unused(args, "train-vae")
     with study:
         if study.store.artifact("vae") is not None and args.resume:
