@@ -20,7 +20,7 @@ import pytest
 import latentune as lt
 from latentune.constants import C1, Phase
 from latentune.errors import LatentuneError, StoreError, UsageError
-from latentune.pipeline import asktell
+from latentune.pipeline import asktell, phases
 from latentune.pipeline import store as store_module
 from latentune.pipeline.asktell import write_suggestion_files
 from latentune.pipeline.loop import phase_critic
@@ -1864,3 +1864,28 @@ def test_train_vae_trains_the_latent_space_of_an_ask_tell_run_with_a_space_file(
     assert code == 0 and "d_low 2" in out, err
     code, out, err = run_cli("ask", tmp_path / "t", "--phase", "3", "--vae", d, "--space", space)
     assert code == 0 and "\tzero-shot\t" in out, err
+
+
+def test_a_phase_run_calls_ask_tells_queued_suggestions_asked_not_of_its_batch(tmp_path, src30,
+                                                                               caplog):
+    """``phase3`` in an ask/tell directory whose fall budget ask/tell had spent warned "(2
+    trials of its last batch not run)": the run had no batch; the two were queued by ask/tell.
+    The warning and the run's line now say "(2 trials asked, not run)"."""
+    shutil.copytree(src30, tmp_path / "src")
+    d, target, opts = tmp_path / "t", plant(0.3), {"fall_budget": 0.25}
+    lines: list[str] = []
+    with lt.Study(d, seed=0, log=lines.append) as st:
+        (z,) = st.ask(system=target, phase=3, latent=tmp_path / "src", budget=4,
+                      transfer_options=opts)
+        st.tell(z.id, 0.2)
+        a, b = st.ask(2)                    # a batch of 4: two handed out, two queued
+        st.tell(a.id, None, failed=True)    # the one fall allowed
+        st.tell(b.id, 0.3)
+        with caplog.at_level(logging.WARNING):
+            res = st.phase3(target, 4, latent=tmp_path / "src", transfer_options=opts)
+    assert (res.not_run, res.asked) == (2, 2), res
+    said = [r.getMessage() for r in caplog.records if "stopped after" in r.getMessage()]
+    assert said == ["phase 3's fall budget is spent (1 fall allowed): stopped after 2 of 4 "
+                    "trials (2 trials asked, not run); its best θ is the result"], said
+    assert lines[-1].endswith("is spent (2 trials asked, not run)"), lines[-1]
+    assert phases.not_run_note(3, 1) == " (2 trials of its last batch and 1 asked, not run)"

@@ -283,7 +283,7 @@ class Study:
                 if pc["handover"] is not None:
                     self.manifest.update(phase3_handover=critic.rule())
             results.write_best(st, self.dir, system.space, Phase.PHASE3)
-            self.log(res.line() + stop_note(critic, res.n, pc["budget"], res.not_run))
+            self.log(res.line() + stop_note(critic, res.n, pc["budget"], res.not_run, res.asked))
             return res
 
     def preservation(self, system: Any, latent: Any) -> dict[str, Any]:

@@ -23,7 +23,8 @@ from latentune.constants import Phase
 from latentune.errors import LatentError, StoreError
 from latentune.pipeline import manifest as mf
 from latentune.pipeline.manifest import Manifest
-from latentune.pipeline.phases import make_handover_critic, make_phase_critic, state_key
+from latentune.pipeline.phases import (make_handover_critic, make_phase_critic, not_run_note,
+                                       state_key)
 from latentune.pipeline.rundir import RunDir
 from latentune.pipeline.store import RunStore, Row
 from latentune.space import ParameterSpace
@@ -258,15 +259,16 @@ def target_budget(pc: dict[str, Any], n_outside: int) -> int | None:
     return None if pc.get("budget") is None else int(pc["budget"]) + int(n_outside)
 
 
-def stop_note(critic: Any, n: int, budget: int, not_run: int = 0) -> str:
+def stop_note(critic: Any, n: int, budget: int, not_run: int = 0, asked: int = 0) -> str:
     """Why a phase ended with ``n`` of its ``budget`` trials, to end its log line: the fall
     budget a critic spent (:attr:`~latentune.critic.transfer.Transfer.fall_budget_spent`), with
-    the ``not_run`` trials of its last batch it did not start, or nothing."""
+    the ``not_run`` trials it did not start (``asked`` of them: ask/tell's queued suggestions;
+    :func:`~latentune.pipeline.phases.not_run_note`), or nothing."""
     if n >= budget or not getattr(critic, "fall_budget_spent", False):
         return ""
     return (f"; stopped at {n} of {counted(budget, 'trial')}: its fall budget "
             f"({counted(critic.falls_allowed(), 'fall')}) is spent"
-            + (f" ({counted(not_run, 'trial')} of its last batch not run)" if not_run else ""))
+            + not_run_note(not_run, asked))
 
 
 def source_costs(run: Any, space: ParameterSpace, counts: dict[str, int] | None = None

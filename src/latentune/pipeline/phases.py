@@ -176,6 +176,8 @@ class PhaseResult:
     wall_s: float
     not_run: int = 0
     """Trials of the last batch not run: the fall budget was spent before they started."""
+    asked: int = 0
+    """Of ``not_run``, the suggestions ask/tell asked and had not handed out (queued)."""
 
     def best_text(self, fmt: str = ".3f") -> str:
         """``"best cost X"``, or ``"no trial stood"`` when every trial of the phase failed (its
@@ -187,6 +189,21 @@ class PhaseResult:
     def line(self) -> str:
         """The phase's one-line summary: ``"phase 3: 1 evaluation, best cost X"``."""
         return f"phase {int(self.phase)}: {counted(self.n, 'evaluation')}, {self.best_text()}"
+
+
+def not_run_note(not_run: int, asked: int = 0) -> str:
+    """The trials a spent fall budget left unrun, to end a stop's line: ``" (3 trials of its
+    last batch not run)"``, ``" (2 trials asked, not run)"`` (``asked`` of the ``not_run``:
+    ask/tell's queued suggestions), ``" (1 trial of its last batch and 2 asked, not run)"``;
+    ``""`` when none."""
+    batch = not_run - asked
+    if not_run <= 0:
+        return ""
+    if not asked:
+        return f" ({counted(batch, 'trial')} of its last batch not run)"
+    if not batch:
+        return f" ({counted(asked, 'trial')} asked, not run)"
+    return f" ({counted(batch, 'trial')} of its last batch and {asked} asked, not run)"
 
 
 def _progress(total: int, initial: int, desc: str, enabled: bool):
@@ -529,7 +546,7 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
     streak = failure_streak(store, phase)
     stopped = 0                     # of them, the trials stopped at the trial timeout
     new = 0
-    not_run = 0
+    not_run = asked = 0
     spent_after = getattr(critic, "fall_budget_spent_after", None)
     if spent_after is not None and critic.falls_allowed() is None:
         spent_after = None          # no fall budget: a batch runs whole
@@ -544,9 +561,10 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
             if batch is None and getattr(critic, "fall_budget_spent", False):
                 rec = store.get_meta(fall_stop_key(phase)) or {}    # a stop in a batch before
                 not_run = int(rec.get("not_run", 0)) if rec.get("n") == idx else 0
-                not_run += sum(1 for t in store.trials("queued")      # ask/tell's
-                               if t.phase in (phase, Phase.ZERO_SHOT))
-                _say_fall_stop(phase, critic.falls_allowed(), idx, budget, not_run)
+                asked = sum(1 for t in store.trials("queued")      # ask/tell's
+                            if t.phase in (phase, Phase.ZERO_SHOT))
+                not_run += asked
+                _say_fall_stop(phase, critic.falls_allowed(), idx, budget, not_run, asked)
                 break
             if batch is None:
                 k = min(critic.batch_size, budget - idx)   # whole: max_new leaves the rest
@@ -618,16 +636,18 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
     b = store.best(phase)
     wall = time.perf_counter() - t0
     return PhaseResult(phase, store.count(phase), new, b.cost if b else math.inf,
-                       None if b is None else b.theta, wall, not_run)
+                       None if b is None else b.theta, wall, not_run, asked)
 
 
-def _say_fall_stop(phase: int, allowed: int, n: int, budget: int, not_run: int) -> None:
+def _say_fall_stop(phase: int, allowed: int, n: int, budget: int, not_run: int,
+                   asked: int = 0) -> None:
     """Warn that ``phase`` stopped at ``n`` of its ``budget`` trials because its fall budget
-    (``allowed`` falls) is spent, with the ``not_run`` trials of its last batch it did not
-    start (as the ask/tell ``tell`` that spends it warns)."""
+    (``allowed`` falls) is spent, with the ``not_run`` trials it did not start (``asked`` of
+    them: ask/tell's queued suggestions; :func:`not_run_note`), as the ask/tell ``tell`` that
+    spends it warns."""
     log.warning("phase %d's fall budget is spent (%s allowed): stopped after %d of %d trials%s; "
                 "its best θ is the result", int(phase), counted(allowed, "fall"), n, budget,
-                f" ({counted(not_run, 'trial')} of its last batch not run)" if not_run else "")
+                not_run_note(not_run, asked))
 
 
 def _lost_head_says_stored(results: Any, store: RunStore, phase: int) -> Any:
