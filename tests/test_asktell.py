@@ -1889,3 +1889,23 @@ def test_a_phase_run_calls_ask_tells_queued_suggestions_asked_not_of_its_batch(t
                     "trials (2 trials asked, not run); its best θ is the result"], said
     assert lines[-1].endswith("is spent (2 trials asked, not run)"), lines[-1]
     assert phases.not_run_note(3, 1) == " (2 trials of its last batch and 1 asked, not run)"
+
+
+def test_a_phase_run_on_an_ask_tell_run_of_a_space_file_is_refused_in_words(run_cli, tmp_path,
+                                                                            error_line):
+    """``latentune phase1 --out DIR --resume`` (or ``tune``) on a run made by ``ask DIR --space
+    FILE`` said "holds a run of another system (kind: stored 'external', given 'task'; space:
+    stored {'names': ...", and ``phase3 --out DIR --resume`` "the latent space maps to 4-dim θ,
+    but the system has 25-dim θ" (of the default A1 task nobody asked for). Both now say the
+    run holds trials run elsewhere, with what to do instead."""
+    space = tmp_path / "S.json"
+    space.write_text(json.dumps(SPACE.to_dict()))
+    d = tmp_path / "run"
+    code, out, err = run_cli("ask", d, "--space", space)
+    assert code == 0, err
+    assert run_cli("tell", d, out.split("\t")[0], "--cost", "0.5")[0] == 0
+    for cmd, more in (("phase1", ()), ("tune", ()), ("phase3", ("--vae", d)),
+                      ("phase1", ("--robot", "b1"))):
+        line = error_line(*run_cli(cmd, "--out", d, "--resume", *more)[::2])
+        assert f"{d} holds trials run elsewhere (ask --space)" in line, line
+        assert f"go on with latentune ask {d}" in line, line

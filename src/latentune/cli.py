@@ -424,6 +424,14 @@ def _check_stored_system(study: Any, args: argparse.Namespace) -> None:
                          for k, v in (desc.get("args") or {}).items())
         raise CLIError(f"{study.dir} holds a run of the user system {target}: pass --system "
                        f"{target}{' ' + given if given else ''}")
+    if kind == "external":
+        raise CLIError(f"{study.dir} holds trials run elsewhere (ask --space): no system here "
+                       f"runs its trials; go on with latentune ask {study.dir}, or use it as "
+                       f"the source of a phase 3 in another directory (--vae {study.dir})")
+    if kind == "optuna":
+        raise CLIError(f"{study.dir} holds an imported Optuna study (import-optuna): no system "
+                       "here runs its trials; use it as the source of a phase 3 in another "
+                       f"directory (--vae {study.dir}, or LatentSampler)")
     if kind == "python":
         raise CLIError(f"{study.dir} holds a run of the Python system {desc.get('class')} "
                        "(made through the API); the command line cannot rebuild it: continue "
