@@ -1909,3 +1909,23 @@ def test_a_phase_run_on_an_ask_tell_run_of_a_space_file_is_refused_in_words(run_
         line = error_line(*run_cli(cmd, "--out", d, "--resume", *more)[::2])
         assert f"{d} holds trials run elsewhere (ask --space)" in line, line
         assert f"go on with latentune ask {d}" in line, line
+
+
+def test_an_ask_with_another_space_file_names_the_difference(run_cli, tmp_path, error_line):
+    """``latentune ask DIR --space OTHER.yaml`` on a study of another space said only "DIR
+    holds a study of another parameter space"; it now names the first difference (a bound, a
+    scale, a name, or the manual θ), as ``train-vae --space`` does."""
+    space, other, manual = (tmp_path / f"{n}.json" for n in ("S", "S2", "S3"))
+    space.write_text(json.dumps(SPACE.to_dict()))
+    other.write_text(json.dumps({**SPACE.to_dict(), "high": [1.0, 2.0, 1.0, 1.0]}))
+    manual.write_text(json.dumps({**SPACE.to_dict(), "manual": [0.1] * 4}))
+    d = tmp_path / "run"
+    code, out, err = run_cli("ask", d, "--space", space)
+    assert code == 0, err
+    line = error_line(*run_cli("ask", d, "--space", other)[::2])
+    assert line.endswith("holds a study of another parameter space (b: [-1, 2] there, [-1, 1] "
+                         "here; there: the space given, here: the stored one)"), line
+    line = error_line(*run_cli("ask", d, "--space", manual)[::2])
+    assert line.endswith("holds a study of another parameter space (another manual θ)"), line
+    line = error_line(*run_cli("train-vae", "--out", d, "--space", manual)[::2])
+    assert "in another parameter space (another manual θ); leave --space out" in line, line

@@ -740,10 +740,11 @@ def _train_vae_space(study: Any, args: argparse.Namespace) -> Any:
         except ValueError as exc:
             raise CLIError(f"--space {args.space}: {exc}") from None
         if given != stored:
-            why = stored.box_difference(given.to_dict()) or "another manual θ"
+            why = stored.box_difference(given.to_dict())
+            why = f"{why}; there: the file, here: the stored one" if why else "another manual θ"
             raise CLIError(f"--space {args.space}: {study.dir} holds {SPACE_KINDS[kind]} in "
-                           f"another parameter space ({why}; there: the file, here: the "
-                           "stored one); leave --space out to use the stored one")
+                           f"another parameter space ({why}); leave --space out to use the "
+                           "stored one")
     return stored
 
 

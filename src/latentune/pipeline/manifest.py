@@ -270,7 +270,10 @@ class Manifest:
         (a study that holds no trial takes the new one, as :meth:`bind`)."""
         stored = self.space()
         if stored is not None and stored != space and self.holds_trials():
-            raise StoreError(f"{self.run.dir} holds a study of another parameter space")
+            why = stored.box_difference(space.to_dict())
+            why = f"{why}; there: the space given, here: the stored one" if why else \
+                "another manual θ"
+            raise StoreError(f"{self.run.dir} holds a study of another parameter space ({why})")
         if stored is None or stored != space:
             self._record({"kind": "external", "space": space.to_dict()}, space,
                          stored is not None)
