@@ -1929,3 +1929,22 @@ def test_an_ask_with_another_space_file_names_the_difference(run_cli, tmp_path, 
     assert line.endswith("holds a study of another parameter space (another manual θ)"), line
     line = error_line(*run_cli("train-vae", "--out", d, "--space", manual)[::2])
     assert "in another parameter space (another manual θ); leave --space out" in line, line
+
+
+def test_a_system_given_to_an_ask_tell_run_of_a_space_is_refused_in_words(run_cli, tmp_path,
+                                                                          error_line):
+    """``latentune ask DIR --robot a1`` (or ``Study.ask(system=...)``) on a study started with
+    ``ask DIR --space FILE`` said "holds a run of another system (kind: stored 'external',
+    given 'task'; space: stored {'names': ['a', ...", a dump of the records; it now says
+    what the run holds and to ask it without a system."""
+    space = tmp_path / "S.json"
+    space.write_text(json.dumps(SPACE.to_dict()))
+    d = tmp_path / "run"
+    assert run_cli("ask", d, "--space", space)[0] == 0
+    want = (f"{d} holds a run of another system (trials run elsewhere, in the parameter space "
+            "its first ask was given): ask it without a system")
+    line = error_line(*run_cli("ask", d, "--robot", "a1")[::2])
+    assert line == f"latentune: error: {want}", line
+    with lt.Study(d) as st, pytest.raises(StoreError) as exc:
+        st.ask(system=plant())
+    assert str(exc.value) == want

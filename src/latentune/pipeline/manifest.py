@@ -247,6 +247,12 @@ class Manifest:
                 raise StoreError(f"{self.run.dir} holds a run of the user system "
                                  f"{stored.get('target')}: pass --system {stored.get('target')}"
                                  " (and its --system-arg values) again")
+            if stored.get("kind") in ("external", "optuna"):
+                what = "trials run elsewhere, in the parameter space its first ask was given" \
+                    if stored["kind"] == "external" \
+                    else f"an import of the Optuna study {stored.get('study_name')!r}"
+                raise StoreError(f"{self.run.dir} holds a run of another system ({what}): ask "
+                                 "it without a system")
             if stored.get("kind") == "task" and desc.get("kind") == "plugin":
                 t = stored.get("task") or {}
                 raise StoreError(f"{self.run.dir} holds a run of the built-in robot "
