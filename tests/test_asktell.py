@@ -1948,3 +1948,23 @@ def test_a_system_given_to_an_ask_tell_run_of_a_space_is_refused_in_words(run_cl
     with lt.Study(d) as st, pytest.raises(StoreError) as exc:
         st.ask(system=plant())
     assert str(exc.value) == want
+
+
+def test_an_ask_of_phase_1_in_an_imported_optuna_study_says_what_it_is(run_cli, tmp_path,
+                                                                       error_line):
+    """``latentune ask DIR`` after ``latentune import-optuna ... --out DIR`` said "unknown
+    method 'optuna' (choose from turbo, cma, ...)", a method the user never gave. It now says
+    phase 1 is an imported Optuna study that the import adds to, and a phase 3 may use it."""
+    optuna = pytest.importorskip("optuna")
+    db = tmp_path / "opt.db"
+    study = optuna.create_study(study_name="sim", storage=f"sqlite:///{db}")
+    dists = {n: optuna.distributions.FloatDistribution(-1.0, 1.0) for n in SPACE.names}
+    study.add_trials([optuna.trial.create_trial(params=dict(zip(SPACE.names, map(float, x))),
+                                                distributions=dists, value=float(np.sum(x ** 2)))
+                      for x in np.random.default_rng(0).uniform(-1, 1, (6, 4))])
+    d = tmp_path / "O"
+    assert run_cli("import-optuna", db, "--study", "sim", "--out", d)[0] == 0
+    line = error_line(*run_cli("ask", d)[::2])
+    assert line.endswith(f"{d}: phase 1 is an imported Optuna study: importing the study again "
+                         "adds its new trials, nothing asks more of it; a phase 3 (here or in "
+                         "another directory) can use it as its source"), line

@@ -316,6 +316,11 @@ class Manifest:
         key = PHASE_KEYS[Phase(int(phase))]
         stored = self.config().get(key)
         n = self.n_fixing(phase)
+        if stored and n and stored.get("method") == "optuna":       # import_optuna_study's
+            raise StoreError(f"{self.run.dir}: phase {int(phase)} is an imported Optuna study: "
+                             "importing the study again adds its new trials, nothing asks more "
+                             "of it; a phase 3 (here or in another directory) can use it as "
+                             "its source")
         if method is None:                          # the stored method once the phase has run
             method = (stored or {}).get("method") if stored and n else "turbo"
         if method not in METHODS:
