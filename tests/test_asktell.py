@@ -13,6 +13,7 @@ import shutil
 import sqlite3
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -1806,6 +1807,16 @@ def test_the_zero_shot_trial_alone_fixes_phase_3s_options(tmp_path, src30, run_c
         assert st.config()["phase3"]["batch_size"] == 4
 
 
+def _spend_fall_budget_by_ask_tell(st: Any, target: Any, src: Any, opts: dict) -> None:
+    """Phase 3 by ask/tell with a batch of 4 until its one allowed fall is spent: the zero-shot
+    trial told, two of the batch handed out (one fell, one stood), two left queued."""
+    (z,) = st.ask(system=target, phase=3, latent=src, budget=4, transfer_options=opts)
+    st.tell(z.id, 0.2)
+    a, b = st.ask(2)
+    st.tell(a.id, None, failed=True)
+    st.tell(b.id, 0.3)
+
+
 def test_a_phase_run_where_ask_tell_spent_the_fall_budget_keeps_the_not_run_count(tmp_path,
                                                                                    src30):
     """``phase3`` (``latentune phase3 DIR``) in an ask/tell directory whose fall budget was
@@ -1815,12 +1826,7 @@ def test_a_phase_run_where_ask_tell_spent_the_fall_budget_keeps_the_not_run_coun
     shutil.copytree(src30, tmp_path / "src")
     d, target, opts = tmp_path / "t", plant(0.3), {"fall_budget": 0.25}
     with lt.Study(d, seed=0) as st:
-        (z,) = st.ask(system=target, phase=3, latent=tmp_path / "src", budget=4,
-                      transfer_options=opts)
-        st.tell(z.id, 0.2)
-        a, b = st.ask(2)                    # a batch of 4: two handed out, two queued
-        st.tell(a.id, None, failed=True)    # the one fall allowed
-        st.tell(b.id, 0.3)
+        _spend_fall_budget_by_ask_tell(st, target, tmp_path / "src", opts)
         before = st.status()["fall_budget"]
         assert before["spent"] and before["not_run"] == 2, before
         res = st.phase3(target, 4, latent=tmp_path / "src", transfer_options=opts)
@@ -1875,12 +1881,7 @@ def test_a_phase_run_calls_ask_tells_queued_suggestions_asked_not_of_its_batch(t
     d, target, opts = tmp_path / "t", plant(0.3), {"fall_budget": 0.25}
     lines: list[str] = []
     with lt.Study(d, seed=0, log=lines.append) as st:
-        (z,) = st.ask(system=target, phase=3, latent=tmp_path / "src", budget=4,
-                      transfer_options=opts)
-        st.tell(z.id, 0.2)
-        a, b = st.ask(2)                    # a batch of 4: two handed out, two queued
-        st.tell(a.id, None, failed=True)    # the one fall allowed
-        st.tell(b.id, 0.3)
+        _spend_fall_budget_by_ask_tell(st, target, tmp_path / "src", opts)
         with caplog.at_level(logging.WARNING):
             res = st.phase3(target, 4, latent=tmp_path / "src", transfer_options=opts)
     assert (res.not_run, res.asked) == (2, 2), res

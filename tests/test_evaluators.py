@@ -751,6 +751,17 @@ def _quick_slow_or_dies(x):
     return float(x[0])
 
 
+def _until_trial_0_stops(ev, fun, X):
+    """``ev.imap(fun, X, stop=)`` whose stop turns True once trial 0 is yielded (a phase's fall
+    budget spent by it): ``({i: result}, [i in the order yielded])``."""
+    seen: list[int] = []
+    got = {}
+    for i, out in ev.imap(fun, X, stop=lambda: 0 in seen):
+        seen.append(i)
+        got[i] = out
+    return got, seen
+
+
 def test_a_trial_lost_with_the_pool_after_stop_is_run_again_not_dropped():
     """``imap(..., stop=)`` on the process pool: a trial running when ``stop()`` turned True
     (a phase's fall budget spent) and then lost with the pool (another worker died) was
@@ -760,12 +771,8 @@ def test_a_trial_lost_with_the_pool_after_stop_is_run_again_not_dropped():
     from latentune.pipeline.evaluators import ProcessEvaluator, TrialError
 
     X = np.array([[0.0], [1.0], [2.0], [3.0]])
-    seen: list[int] = []
     with ProcessEvaluator(3) as ev:
-        got = {}
-        for i, out in ev.imap(_quick_slow_or_dies, X, stop=lambda: 0 in seen):
-            seen.append(i)
-            got[i] = out
+        got, seen = _until_trial_0_stops(ev, _quick_slow_or_dies, X)
         assert ev.replaced >= 1
     assert sorted(got) == [0, 1, 2], seen
     assert got[1].cost == 1.0 and isinstance(got[2], TrialError)
@@ -779,22 +786,21 @@ def test_ray_runs_a_trial_lost_with_its_worker_after_stop_again(tmp_path, ray_lo
     trials not started by then are never run."""
     from latentune.pipeline.evaluators import RayEvaluator
 
-    marks = str(tmp_path / "crashed")
+    crashed, started = str(tmp_path / "crashed"), str(tmp_path / "started")
 
     def slow_crash_once(x: np.ndarray) -> float:      # shipped by value (cloudpickle)
-        mark = f"{marks}{x[0]:.3f}"
-        if x[0] > 0.5 and not os.path.exists(mark):
+        if x[0] > 0.5 and not os.path.exists(crashed):
+            open(started, "w").close()
             time.sleep(1.0)                           # running when trial 0 spends the budget
-            open(mark, "w").close()
+            open(crashed, "w").close()
             os._exit(1)
+        t0 = time.monotonic()                         # trial 0 ends once trial 1 runs (an
+        while not os.path.exists(started) and time.monotonic() - t0 < 60:  # actor may be slow
+            time.sleep(0.05)                          # to start)
         return float(x[0])
 
     X = np.array([[0.1], [0.9], [0.2], [0.3]])
-    seen: list[int] = []
     with RayEvaluator(2) as ev:
-        got = {}
-        for i, out in ev.imap(slow_crash_once, X, stop=lambda: 0 in seen):
-            seen.append(i)
-            got[i] = out
+        got, seen = _until_trial_0_stops(ev, slow_crash_once, X)
     assert sorted(got) == [0, 1], seen
     assert got[1].cost == pytest.approx(0.9) and got[1].info == {"lost_runs": 1}
