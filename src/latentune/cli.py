@@ -490,8 +490,6 @@ def _refuse_unused(args: argparse.Namespace, cmd: str) -> None:
 def _check_stored_vae(study: Any, args: argparse.Namespace, what: str) -> None:
     """--latent-dim and --vae-kind against the latent space stored in ``study`` (``what``: how
     it is used), refused when they differ."""
-    from latentune.pipeline.phase2 import trained_differs
-
     vae = (study.config().get("vae") or {}) if study.exists else {}
     _check_vae_record(vae, args, f"the latent space of {study.dir}", what)
 
