@@ -1969,3 +1969,35 @@ def test_an_ask_of_phase_1_in_an_imported_optuna_study_says_what_it_is(run_cli, 
     assert line.endswith(f"{d}: phase 1 is an imported Optuna study: importing the study again "
                          "adds its new trials, nothing asks more of it; a phase 3 (here or in "
                          "another directory) can use it as its source"), line
+
+
+SPACE_YAML = "names: [kp, kd]\nlow: [0.1, 0.0]\nhigh: [10, 1.0]\nmanual: [2.0, 0.5]\n"
+
+
+@pytest.mark.parametrize("start", ["manual", "scratch"])
+def test_an_ask_tell_report_takes_the_manual_theta_from_phase_1s_first_trial(run_cli, tmp_path,
+                                                                             start):
+    """`ask --space` hands out the manual θ as phase 1's trial 0, and summary.json and the
+    report said manual_cost null and "evals to beat manual" "–" though trial 1 beat it: that
+    trial's cost is the manual cost (a manual row, evals to beat 2), as in a phase-1 run; a
+    first trial that is not the manual θ (--start scratch) is no manual trial."""
+    sp = tmp_path / "S.yaml"
+    sp.write_text(SPACE_YAML)
+    d = tmp_path / "run"
+    code, out, err = run_cli("ask", d, "--space", sp, "--n", "3", "--budget", "3",
+                             "--start", start)
+    assert code == 0, err
+    assert ("kp=2, kd=0.5" in out.splitlines()[0]) == (start == "manual")
+    for i, c in ((1, "1.0"), (2, "0.5"), (3, "2.0")):
+        assert run_cli("tell", d, str(i), "--cost", c)[0] == 0
+    code, table, err = run_cli("report", d, "--no-sim")
+    assert code == 0, err
+    s = json.loads((d / "summary.json").read_text())
+    if start == "manual":
+        assert s["manual_cost"] == 1.0 and s["manual_fell"] is False
+        assert s["phase1_evals"] == 3 and s["phase1_evals_to_beat_manual"] == 2
+        assert "| manual tuned | 1.000 | 1 | 1/1 | – |" in table
+        assert "| phase 1 (θ, TuRBO-m) | 0.500 | 3 | 3/3 | 2 |" in table
+    else:
+        assert s["manual_cost"] is None and s["phase1_evals_to_beat_manual"] is None
+        assert "manual tuned" not in table

@@ -31,7 +31,8 @@ TABLE_PHASES = (Phase.MANUAL, Phase.PHASE1, Phase.ZERO_SHOT, Phase.PHASE3)
 """The table's rows, in order; a zero-shot row appears only when the store has one."""
 ASKTELL_PHASES = {Phase.PHASE1: (Phase.PHASE1,), Phase.PHASE3: (Phase.ZERO_SHOT, Phase.PHASE3)}
 """The table's phases of an ask/tell store by its ask/tell phase: ask/tell stores no separate
-manual trial (the manual θ is phase 1's first suggestion) and runs one phase a directory."""
+manual trial (the manual θ is phase 1's first suggestion; :func:`manual_rows` finds it) and
+runs one phase a directory."""
 
 METHOD_LABEL = {"turbo": "TuRBO-m", "cma": "CMA-ES", "random": "random search",
                 "sobol": "Sobol search"}
@@ -123,12 +124,28 @@ def _paper_numbers(config: dict[str, Any]) -> dict[str, Any] | None:
     return {"manual": row.get("manual"), "phase1": row.get("phase1"), "phase3": row.get(key)}
 
 
+def manual_rows(store: Any) -> list:
+    """The trials of the manual θ: the stored manual rows (phase 0); in an ask/tell phase 1,
+    which stores no separate manual trial, its first trial (row 0) when it ran exactly the
+    space's manual θ (the first suggestion of ``start="manual"``); else []."""
+    rows = store.rows(Phase.MANUAL)
+    cfg = store.get_meta("config") or {}
+    if rows or (cfg.get("asktell") or {}).get("phase") != Phase.PHASE1 or not cfg.get("space"):
+        return rows
+    from latentune.space import ParameterSpace
+
+    manual = ParameterSpace.from_dict(cfg["space"], stored=True).manual
+    first = [r for r in store.rows(Phase.PHASE1) if r.idx == 0]
+    return first if first and np.array_equal(np.asarray(first[0].theta, dtype=float),
+                                              manual) else []
+
+
 def manual_target(store: Any) -> float | None:
     """The cost a trial that stood must be strictly below to beat the manual θ: the manual
     trial's cost if it stood; +inf if it failed (a trial that stood ranks before every failed
     one, whatever the costs: :func:`latentune.critic.base.fall_last`), so the first trial that
-    stood beats it; None without a manual trial."""
-    rows = store.rows(Phase.MANUAL)
+    stood beats it; None without a manual trial (:func:`manual_rows`)."""
+    rows = manual_rows(store)
     stood = [r.cost for r in rows if not r.fell]
     return min(stood) if stood else (math.inf if rows else None)
 
@@ -152,7 +169,7 @@ def run_stats(store: Any) -> dict[int, dict[str, Any]]:
     manual = manual_target(store)
     out = {}
     for ph in TABLE_PHASES:
-        rows = store.rows(ph)
+        rows = manual_rows(store) if ph == Phase.MANUAL else store.rows(ph)
         s = phase_stats([r.cost for r in rows], manual, fell=[r.fell for r in rows])
         s["rms"] = rms_velocity_error(s["best"], steps) \
             if steps and s["best"] is not None else None
@@ -252,7 +269,8 @@ def write_summary(store: Any, wall_this: float | None = None) -> dict[str, Any]:
     p0, p1, p3, p4 = (st[int(ph)] for ph in (Phase.MANUAL, Phase.PHASE1, Phase.PHASE3,
                                               Phase.ZERO_SHOT))
     names = {"manual": p0, "phase1": p1, "phase3": p3, "zero_shot": p4}
-    trial = {ph: phase_stats(store.costs(ph))["best"] for ph in (Phase.MANUAL, Phase.ZERO_SHOT)}
+    trial = {Phase.MANUAL: phase_stats([r.cost for r in manual_rows(store)])["best"],
+             Phase.ZERO_SHOT: phase_stats(store.costs(Phase.ZERO_SHOT))["best"]}
     summary = {
         "manual_cost": trial[Phase.MANUAL],
         "manual_fell": bool(p0["falls"]) if p0["n"] else None,
@@ -291,7 +309,7 @@ def _curve_panels(store: Any, cfg: dict[str, Any]) -> list:
     """One best-cost panel per tuned phase (phase 1, phase 3), each on its own evaluation axis."""
     from latentune.reporting.plots import CurvePanel
 
-    manual = phase_stats(store.costs(Phase.MANUAL))["best"]
+    manual = phase_stats([r.cost for r in manual_rows(store)])["best"]
     zero = phase_stats(store.costs(Phase.ZERO_SHOT))["best"]
     panels = []
     for ph in (Phase.PHASE1, Phase.PHASE3):
@@ -447,4 +465,5 @@ def make_report(store: Any, system: Any = None, simulate: bool = True, quiet: bo
 
 
 __all__ = ["comparison_table", "write_summary", "make_report", "run_stats", "task_from_config",
+           "manual_rows", "manual_target",
            "phase_label", "fmt", "decisions_markdown", "state_lines"]
