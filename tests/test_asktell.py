@@ -2001,3 +2001,18 @@ def test_an_ask_tell_report_takes_the_manual_theta_from_phase_1s_first_trial(run
     else:
         assert s["manual_cost"] is None and s["phase1_evals_to_beat_manual"] is None
         assert "manual tuned" not in table
+
+
+def test_the_report_of_an_ask_space_run_is_titled_with_its_space_file(run_cli, tmp_path):
+    """The report of a run asked with `--space S.yaml` was titled "user system": it is titled
+    with the space file's name, kept from the first ask."""
+    sp = tmp_path / "S.yaml"
+    sp.write_text(SPACE_YAML)
+    d = tmp_path / "run"
+    assert run_cli("ask", d, "--space", sp, "--n", "1")[0] == 0
+    assert run_cli("tell", d, "1", "--cost", "1.0")[0] == 0
+    code, table, err = run_cli("report", d, "--no-sim")
+    assert code == 0, err
+    assert table.startswith("space S.yaml (trials run elsewhere)\n")
+    assert (d / "report.md").read_text().startswith(
+        "# latentune run: space S.yaml (trials run elsewhere)\n")

@@ -1024,3 +1024,18 @@ def test_regions_of_a_method_that_has_none_is_refused(source_run):
             LatentSampler(source_run, strategy="plain", method=method, regions=2)
     assert LatentSampler(source_run, strategy="plain", method="turbo", regions=2).regions == 2
     assert LatentSampler(source_run, strategy="plain", method="sobol").regions is None
+
+
+def test_the_report_of_an_import_names_the_study_and_shows_no_empty_phase_row(tmp_path, run_cli):
+    """`latentune report` of an `import-optuna` run showed an empty "phase 3 | – | 0 | –" row
+    (an ask/tell run's report has none) and titled it "user system": it shows phase 1 alone
+    and is titled with the Optuna study's name."""
+    db = tmp_path / "opt.db"
+    simulator_study(f"sqlite:///{db}", n=12)
+    assert run_cli("import-optuna", db, "--study", "sim", "--out", tmp_path / "O")[0] == 0
+    code, table, err = run_cli("report", tmp_path / "O", "--no-sim")
+    assert code == 0, err
+    assert "phase 3" not in table and "user system" not in table
+    assert table.startswith("Optuna study 'sim'\n")
+    assert (tmp_path / "O" / "report.md").read_text().startswith(
+        "# latentune run: Optuna study 'sim'\n")

@@ -908,6 +908,8 @@ def cmd_ask(args: argparse.Namespace) -> int:
             raise CLIError(_ask_flags(str(exc), args)) from None
         write_suggestion_files(study.dir, sugg)
         prune_suggestion_files(study.dir, _pending_ids(study))
+        if args.space is not None and study.config().get("space_file") is None:
+            study.manifest.update(space_file=Path(args.space).name)   # the report's title
     if args.json:
         print(json.dumps([s.to_dict() for s in sugg]))
     else:

@@ -102,10 +102,18 @@ def _where(t: dict[str, Any]) -> str:
 
 
 def _title(config: dict[str, Any]) -> str:
+    """What the run tuned: a built-in task's robot, gait and terrain; an Optuna import's study
+    name; an ask/tell run's space file (``config["space_file"]``); a user system's target,
+    class or name and arguments; else "user system"."""
     t = config.get("task")
     if t:
         return f"{t.get('robot', '?')} {t.get('gait', '?')} ({_where(t)})"
     s = config.get("system")
+    kind = s.get("kind") if isinstance(s, dict) else None
+    if kind == "optuna" and s.get("study_name"):
+        return f"Optuna study {s['study_name']!r}"
+    if kind == "external" and config.get("space_file"):
+        return f"space {config['space_file']} (trials run elsewhere)"
     name = next((s[k] for k in ("target", "class", "name") if s.get(k)), None) \
         if isinstance(s, dict) else s
     args = (s.get("args") or {}) if isinstance(s, dict) else {}
@@ -183,13 +191,16 @@ def comparison_table(store: Any) -> str:
     trial that beat the manual θ (:func:`manual_target`); the paper's numbers below it when it
     has the task. A phase without trials has a row of zeros while no later phase holds trials
     (it is still to come), and none after that (it is not part of this run); in an ask/tell
-    store, only when it is a phase of its ask/tell phase (:data:`ASKTELL_PHASES`)."""
+    store, only when it is a phase of its ask/tell phase (:data:`ASKTELL_PHASES`); in an Optuna
+    import's, phase 1's only (phase 3's too once a phase 3 is recorded)."""
     cfg = store.get_meta("config") or {}
     t = cfg.get("task")
     stats = run_stats(store)
     rms = t is not None
     asked = (cfg.get("asktell") or {}).get("phase")
     runs = ASKTELL_PHASES.get(int(asked), ()) if asked is not None else TABLE_PHASES
+    if (cfg.get("system") or {}).get("kind") == "optuna":      # an import: phase 1 alone,
+        runs = (Phase.PHASE1,) + (ASKTELL_PHASES[Phase.PHASE3] if cfg.get("phase3") else ())
     if t:
         terrain, _, rest = _where(t).partition(", ")
         head = (f"{t.get('robot', '?')} {t.get('gait', '?')} on {terrain} [{rest}], "
