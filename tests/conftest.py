@@ -12,6 +12,9 @@
 * ``cli_env`` (session fixture): the environment of ``cli`` (for ``subprocess.Popen``).
 * ``dump_store`` (session fixture): ``dump_store(run_dir) -> (rows, meta)``, a store's rows
   (phase, idx, theta, z, tag, cost) and meta read-only, to check that a store is unchanged.
+* ``interrupt_in_close`` (function fixture): the next :meth:`Study.close` closes the run, then
+  raises KeyboardInterrupt (a Ctrl-C landing while a command closes its run); returns a list
+  that holds ``"close"`` once it has.
 * ``ray_local`` (function fixture): the ``ray`` module with a local Ray running in this process
   (2 CPUs, a short temp dir), started once per test process and shared: a
   :class:`~latentune.pipeline.evaluators.RayEvaluator` made meanwhile uses it and leaves it
@@ -108,6 +111,25 @@ def run_cli(capsys: pytest.CaptureFixture[str]) -> Callable[..., tuple[int, str,
         return code, out, err
 
     return run
+
+
+@pytest.fixture
+def interrupt_in_close(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """The next :meth:`Study.close` closes the run, then raises KeyboardInterrupt (once);
+    the returned list holds ``"close"`` once it has."""
+    from latentune.study import Study
+
+    close = Study.close
+    hits: list[str] = []
+
+    def interrupted_close(self: Study) -> None:
+        close(self)
+        if not hits:
+            hits.append("close")
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(Study, "close", interrupted_close)
+    return hits
 
 
 def one_line_error(code: int, err: str) -> str:

@@ -899,30 +899,21 @@ def test_robot_init_keeps_an_existing_file(capsys, tmp_path):
     assert f.read_text() == "keep me"
 
 
-def test_an_interrupt_after_tune_printed_its_table_exits_0(capsys, tmp_path, monkeypatch):
+def test_an_interrupt_after_tune_printed_its_table_exits_0(capsys, tmp_path, monkeypatch,
+                                                           interrupt_in_close):
     """A Ctrl-C (or SIGTERM) that landed after ``tune`` finished and printed its table, while
     it closed its run, exited 130 ("interrupted") though the run was complete and stored: it
     exits 0. One that lands before the table is still 130, and the work is resumable."""
     import latentune.reporting.run_report as run_report
-    from latentune.study import Study
 
-    close = Study.close
-    hits: list[str] = []
-
-    def interrupted_close(self):        # the signal lands while the finished run is closed
-        close(self)
-        if not hits:
-            hits.append("close")
-            raise KeyboardInterrupt
-
-    monkeypatch.setattr(Study, "close", interrupted_close)
+    hits = interrupt_in_close           # the signal lands while the finished run is closed
     out = tmp_path / "run"
     code, stdout, err = run_cli(capsys, "tune", *TINY, "--out", out, "--phase1-evals", "6",
                                 "--phase3-evals", "2", "--backend", "serial",
                                 "--vae-epochs", "5")
     assert hits and code == 0, (code, err)
     assert "| best path cost |" in stdout and "interrupted" not in err, (stdout, err)
-    monkeypatch.setattr(Study, "close", close)
+    hits.append("done")                 # the next closes are not interrupted
     table = run_report.comparison_table
 
     def interrupted_table(store):       # the signal lands before the table: not done
@@ -933,3 +924,87 @@ def test_an_interrupt_after_tune_printed_its_table_exits_0(capsys, tmp_path, mon
                            "--phase3-evals", "3", "--backend", "serial", "--resume")
     assert code == 130 and err.strip() == "latentune: error: interrupted; stored results are kept"
     monkeypatch.setattr(run_report, "comparison_table", table)
+
+
+INTERRUPTED = "latentune: error: interrupted; stored results are kept"
+
+
+def _external_run(tmp_path: Path, n_told: int = 0) -> tuple[Path, Path]:
+    """A run of trials run elsewhere in a 4-parameter box (its --space file), ``n_told`` of
+    them asked and told."""
+    space = tmp_path / "space.json"
+    space.write_text(json.dumps({"names": ["a", "b", "c", "d"], "low": [0] * 4,
+                                 "high": [1] * 4}))
+    d = tmp_path / "run"
+    if n_told:
+        with lt.Study(d) as st:
+            for s in st.ask(n_told, space=lt.ParameterSpace.from_dict(
+                    json.loads(space.read_text()))):
+                st.tell(s.id, float(np.sum((np.asarray(list(s.params.values())) - 0.3) ** 2)))
+    return d, space
+
+
+def test_an_interrupt_after_ask_tell_or_release_printed_exits_0(run_cli, tmp_path, monkeypatch,
+                                                                interrupt_in_close):
+    """A Ctrl-C (or SIGTERM) that landed while ``ask``, ``tell`` or ``release`` closed its run,
+    the suggestion or result stored, exited 130 ("interrupted") without printing it: ``ask``'s
+    ids were never shown, and a ``tell`` told again was refused. Each prints its result, then
+    closes its run: an interrupt in the close exits 0. One before the store is written is still
+    130, and nothing is stored."""
+    from latentune.study import Study
+
+    d, space = _external_run(tmp_path)
+    code, out, err = run_cli("ask", d, "--space", space, "--n", "3", "--quiet")
+    assert interrupt_in_close == ["close"] and code == 0, (code, err)
+    ids = [ln.split("\t")[0] for ln in out.splitlines()]
+    assert len(ids) == 3 and "interrupted" not in err, (out, err)
+    for argv, said in ((("tell", d, ids[0], "--cost", "1.5"), f"told {ids[0]}: phase 1"),
+                       (("release", d, ids[1]), f"released {ids[1]}")):
+        interrupt_in_close.clear()
+        code, out, err = run_cli(*argv)
+        assert interrupt_in_close == ["close"] and code == 0, (argv, code, err)
+        assert out.startswith(said) and "interrupted" not in err, (argv, out, err)
+    interrupt_in_close.append("done")           # the closes are not interrupted from here
+
+    def interrupted(self, *a, **kw):            # the signal lands before anything is stored
+        raise KeyboardInterrupt
+
+    for name, argv in (("ask", ("ask", d, "--quiet")),
+                       ("tell", ("tell", d, ids[2], "--cost", "2"))):
+        with monkeypatch.context() as m:
+            m.setattr(Study, name, interrupted)
+            code, out, err = run_cli(*argv)
+        assert code == 130 and out == "" and err.strip() == INTERRUPTED, (argv, code, out, err)
+    with lt.Study(d) as st:
+        assert [r.cost for r in st.store.rows(1)] == [1.5]
+    assert run_cli("tell", d, ids[2], "--cost", "2")[0] == 0      # still pending: told now
+
+
+def test_an_interrupt_after_train_vae_or_report_printed_exits_0(run_cli, tmp_path, monkeypatch,
+                                                                interrupt_in_close):
+    """A Ctrl-C (or SIGTERM) that landed after ``train-vae`` stored and named its VAE, or after
+    ``report`` wrote and printed its report, while it closed its run, exited 130: it exits 0.
+    One before the VAE or report is done is still 130."""
+    from latentune.study import Study
+
+    interrupt_in_close.append("done")           # not while the run is made
+    d, _ = _external_run(tmp_path, n_told=8)
+    for argv, said in ((("train-vae", "--out", d, "--latent-dim", "2", "--vae-epochs", "5"),
+                        "VAE ("),
+                       (("train-vae", "--out", d, "--resume"), f"{d}: the VAE is already"),
+                       (("report", d, "--no-sim", "--quiet"), "user system\n\n| ")):
+        interrupt_in_close.clear()
+        code, out, err = run_cli(*argv)
+        assert interrupt_in_close == ["close"] and code == 0, (argv, code, err)
+        assert out.startswith(said) and "interrupted" not in err, (argv, out, err)
+    interrupt_in_close.append("done")
+
+    def interrupted(self, *a, **kw):
+        raise KeyboardInterrupt
+
+    for name, argv in (("train_latent", ("train-vae", "--out", d, "--vae-epochs", "5")),
+                       ("report", ("report", d, "--no-sim", "--quiet"))):
+        with monkeypatch.context() as m:
+            m.setattr(Study, name, interrupted)
+            code, out, err = run_cli(*argv)
+        assert code == 130 and out == "" and err.strip() == INTERRUPTED, (argv, code, out, err)

@@ -1039,3 +1039,26 @@ def test_the_report_of_an_import_names_the_study_and_shows_no_empty_phase_row(tm
     assert table.startswith("Optuna study 'sim'\n")
     assert (tmp_path / "O" / "report.md").read_text().startswith(
         "# latentune run: Optuna study 'sim'\n")
+
+
+def test_an_interrupt_after_import_optuna_printed_exits_0(tmp_path, run_cli, monkeypatch,
+                                                          interrupt_in_close):
+    """A Ctrl-C (or SIGTERM) that landed after ``import-optuna --train-latent`` stored and
+    printed the import and the latent space, while it closed the run, exited 130
+    ("interrupted"): it exits 0. One before the latent space is trained is still 130."""
+    db = tmp_path / "opt.db"
+    simulator_study(f"sqlite:///{db}", n=20)
+    argv = ("import-optuna", db, "--study", "sim", "--train-latent", "--latent-dim", "3",
+            "--vae-epochs", "5")
+    code, out, err = run_cli(*argv, "--out", tmp_path / "O")
+    assert interrupt_in_close == ["close"] and code == 0, (code, err)
+    assert "phase 1 holds 20 trials" in out and "d_low 3) trained on 20" in out, (out, err)
+    assert "interrupted" not in err, err
+
+    def interrupted(self, *a, **kw):            # the signal lands before the latent space
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(lt.Study, "train_latent", interrupted)
+    code, out, err = run_cli(*argv, "--out", tmp_path / "O2")
+    assert code == 130 and "d_low" not in out, (code, out, err)
+    assert err.strip() == "latentune: error: interrupted; stored results are kept", err

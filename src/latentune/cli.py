@@ -559,17 +559,19 @@ def _stored_transfer(study: Any) -> dict[str, Any] | None:
 
 def _finish(study: Any, args: argparse.Namespace) -> None:
     """Print the run's summary and comparison table; the run is then complete and stored
-    (:func:`_work_done`: a Ctrl-C or SIGTERM after it exits 0)."""
+    (:func:`work_done`: a Ctrl-C or SIGTERM after it exits 0)."""
     from latentune.reporting.run_report import comparison_table
 
     study.summary()
     print(comparison_table(study.store))
-    _work_done(args)
+    work_done(args)
 
 
-def _work_done(args: argparse.Namespace) -> None:
+def work_done(args: argparse.Namespace) -> None:
     """Mark the command's work done and reported: an interrupt (Ctrl-C, SIGTERM) that lands
-    after this, while the command closes its run or exits, is not a failure (exit 0)."""
+    after this, while the command closes its run or exits, is not a failure (exit 0). A
+    command that writes a store prints its result before it closes the store, then calls
+    this."""
     sys.stdout.flush()
     args.work_done = True
 
@@ -694,7 +696,7 @@ def cmd_phase1(args: argparse.Namespace) -> int:
     with study:
         study.summary()
         print(_phase_line(res, study))
-        _work_done(args)
+        work_done(args)
     return 0
 
 
@@ -758,11 +760,13 @@ def cmd_train_vae(args: argparse.Namespace) -> int:
             _check_stored_vae(study, args, "kept with --resume; leave --resume out to retrain")
             study.train_latent()            # the kept one (a warning when phase 1 grew since)
             print(f"{study.dir}: the VAE is already trained (kept, --resume)")
+            work_done(args)
             return 0
         latent = study.train_latent(args.latent_dim, kind=args.vae_kind, epochs=args.vae_epochs,
                                     retrain=True)
         print(f"VAE ({latent.kind}, d_low {latent.d_low}) trained on "
               f"{latent.meta.get('n_train', '?')} θ: {study.dir / 'vae.pt'}")
+        work_done(args)
     return 0
 
 
@@ -847,6 +851,7 @@ def cmd_report(args: argparse.Namespace) -> int:
         system = make_system(args)
     with study:
         print(study.report(system=system, simulate=not args.no_sim))
+        work_done(args)
     return 0
 
 
@@ -895,21 +900,31 @@ def cmd_ask(args: argparse.Namespace) -> int:
     # the stored transfer options under the flags given; none given: the stored ones (None)
     topts = (_transfer_options(args, _stored_transfer(study))
              if any(getattr(args, k) is not None for k in TRANSFER_DESTS) else None)
-    with study, _flag_words(args):      # the ask's warnings in the words of the flags
-        start = _ask_start(args.start, system, space, study)
-        try:
-            sugg = study.ask(args.n, system=system, space=space, phase=args.phase,
-                             latent=args.vae, method=args.method, handover=handover,
-                             strategy=strategy, budget=args.budget, regions=args.regions,
-                             start=start, max_fall_prob=args.max_fall_prob,
-                             fall_prior=args.fall_prior, asker=args.asker, lease_s=args.lease,
-                             **({} if topts is None else {"transfer_options": topts}))
-        except (UsageError, StoreError, LatentError) as exc:
-            raise CLIError(_ask_flags(str(exc), args)) from None
-        write_suggestion_files(study.dir, sugg)
-        prune_suggestion_files(study.dir, _pending_ids(study))
-        if args.space is not None and study.config().get("space_file") is None:
-            study.manifest.update(space_file=Path(args.space).name)   # the report's title
+    with study:
+        with _flag_words(args):     # the ask's warnings in the words of the flags
+            start = _ask_start(args.start, system, space, study)
+            try:
+                sugg = study.ask(
+                    args.n, system=system, space=space, phase=args.phase, latent=args.vae,
+                    method=args.method, handover=handover, strategy=strategy,
+                    budget=args.budget, regions=args.regions, start=start,
+                    max_fall_prob=args.max_fall_prob, fall_prior=args.fall_prior,
+                    asker=args.asker, lease_s=args.lease,
+                    **({} if topts is None else {"transfer_options": topts}))
+            except (UsageError, StoreError, LatentError) as exc:
+                raise CLIError(_ask_flags(str(exc), args)) from None
+            write_suggestion_files(study.dir, sugg)
+            prune_suggestion_files(study.dir, _pending_ids(study))
+            if args.space is not None and study.config().get("space_file") is None:
+                study.manifest.update(space_file=Path(args.space).name)   # the report's title
+        _print_suggestions(sugg, args)
+        work_done(args)
+    return 0
+
+
+def _print_suggestions(sugg: list[Any], args: argparse.Namespace) -> None:
+    """Print ask's suggestions (one JSON line with --json, else a line each) and warn of
+    those whose θ the fall model rates likely to fall."""
     if args.json:
         print(json.dumps([s.to_dict() for s in sugg]))
     else:
@@ -923,7 +938,6 @@ def cmd_ask(args: argparse.Namespace) -> int:
                 "suggestion %d: the fall model rates θ of the ask that gave it up to %.2f likely "
                 "to fall, above its screen of %.2f: be ready to catch the robot, or release it",
                 s.id, *s.fall_risk)
-    return 0
 
 
 class _FlagWords(logging.Filter):
@@ -1100,8 +1114,9 @@ def cmd_tell(args: argparse.Namespace) -> int:
         row = study.tell(trial_id, args.cost, failed=args.failed, note=args.note,
                          amend=args.amend, info=info)
         prune_suggestion_files(study.dir, _pending_ids(study))   # an amendment withdraws some
-    print(f"{'amended' if args.amend else 'told'} {trial_id}: {phase_name(row.phase)} "
-          f"evaluation {row.idx}, cost {row.cost:.6g}{' (failed)' if row.fell else ''}")
+        print(f"{'amended' if args.amend else 'told'} {trial_id}: {phase_name(row.phase)} "
+              f"evaluation {row.idx}, cost {row.cost:.6g}{' (failed)' if row.fell else ''}")
+        work_done(args)
     return 0
 
 
@@ -1169,7 +1184,8 @@ def cmd_release(args: argparse.Namespace) -> int:
     with study:
         study.release(trial_id)
         prune_suggestion_files(study.dir, _pending_ids(study))
-    print(f"released {trial_id}: the next ask hands it out again (its file is removed)")
+        print(f"released {trial_id}: the next ask hands it out again (its file is removed)")
+        work_done(args)
     return 0
 
 
@@ -1706,7 +1722,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _command(argv: Sequence[str] | None, set_level: Callable[[int], None]) -> int:
     """Parse ``argv`` and run its command; return the exit status. An interrupt (Ctrl-C,
     SIGTERM) is status 130 (143), unless it landed after the command's work was done and
-    reported (:func:`_work_done`, or the command returned): then the command's status (0)."""
+    reported (:func:`work_done`, or the command returned): then the command's status (0)."""
     from concurrent.futures.process import BrokenProcessPool
 
     args: argparse.Namespace | None = None

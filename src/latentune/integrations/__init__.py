@@ -34,6 +34,7 @@ def _need(module: str) -> Any:
 def cmd_import_optuna(args: argparse.Namespace) -> int:
     """``latentune import-optuna STORAGE [--study NAME] --out DIR [--space FILE] [--seed S]
     [--train-latent [--latent-dim D] [--vae-epochs E]]``."""
+    from latentune.cli import work_done
     from latentune.errors import CLIError
 
     for flag, v in (("latent-dim", args.latent_dim), ("vae-epochs", args.vae_epochs)):
@@ -58,6 +59,7 @@ def cmd_import_optuna(args: argparse.Namespace) -> int:
             print(f"latent space ({latent.kind}, d_low {latent.d_low}) trained on "
                   f"{latent.meta.get('n_train', '?')} θ that did not fail: "
                   f"LatentSampler({str(args.out)!r}) can use it")
+        work_done(args)
     return 0
 
 
