@@ -11,6 +11,7 @@ a command run without the extra stops with one line naming the install command.
 from __future__ import annotations
 
 import argparse
+import sys
 from typing import Any, Sequence
 
 from latentune import argtypes
@@ -34,7 +35,6 @@ def _need(module: str) -> Any:
 def cmd_import_optuna(args: argparse.Namespace) -> int:
     """``latentune import-optuna STORAGE [--study NAME] --out DIR [--space FILE] [--seed S]
     [--train-latent [--latent-dim D] [--vae-epochs E]]``."""
-    from latentune.cli import work_done
     from latentune.errors import CLIError
 
     for flag, v in (("latent-dim", args.latent_dim), ("vae-epochs", args.vae_epochs)):
@@ -59,7 +59,8 @@ def cmd_import_optuna(args: argparse.Namespace) -> int:
             print(f"latent space ({latent.kind}, d_low {latent.d_low}) trained on "
                   f"{latent.meta.get('n_train', '?')} θ that did not fail: "
                   f"LatentSampler({str(args.out)!r}) can use it")
-        work_done(args)
+        sys.stdout.flush()          # the work is done and reported: an interrupt from here
+        args.work_done = True       # exits 0 (latentune.cli.work_done; not imported: a cycle)
     return 0
 
 
