@@ -130,6 +130,17 @@ def test_user_yaml_with_base_overrides_one_field(tmp_path):
     assert spec_from_dict(spec.to_dict()) == spec
 
 
+def test_user_yaml_reads_numbers_in_exponent_form(tmp_path):
+    """A spec is read as the other user YAML files are (PyYAML alone reads 1e-2 and 2.8e-1 as
+    text): numbers in exponent form are numbers, in a field, a list and a gait."""
+    p = write(tmp_path, "base: a1\nname: exp_a1\nnominal_height: 2.8e-1\nkp: [1e2, 1e2, 1e2]\n"
+                        "gaits:\n  trot: {period: 3.5e-1, duty: 6e-1, step_height: 8e-2}\n")
+    spec = load_spec_file(p)
+    assert spec.nominal_height == 0.28 and spec.kp == (100.0, 100.0, 100.0)
+    assert spec.gaits["trot"] == GaitParams(0.35, 0.6, 0.08, spec.gaits["trot"].offsets)
+    assert robots.check_spec(p, simulate=False).ok
+
+
 def test_user_yaml_urdf_forms(tmp_path):
     a1_urdf = Path(get_robot("a1").urdf)
     (tmp_path / "urdf").mkdir()

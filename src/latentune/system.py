@@ -29,7 +29,6 @@ import inspect
 import json
 import math
 import os
-import re
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Protocol, runtime_checkable
@@ -333,20 +332,6 @@ def _at(system: Any, theta: np.ndarray, most: int = 6) -> str:
     return f" at θ {shown}{', …' if space.dim > most else ''}"
 
 
-_DECIMAL = re.compile(r"[-+]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][-+]?[0-9]+)?")
-"""A number in decimal or exponent form: ``2.5``, ``.5``, ``1e9``, ``-2.5E+3``."""
-
-
-def decimal_float(text: str) -> float | None:
-    """``text`` as a float if it is a number in decimal or exponent form with a point or an
-    exponent (``2.5``, ``1e9``, ``1e-3``, ``-2.5E+3``; ``1e999`` is inf), else None (``10``,
-    ``inf``, ``abc``). Surrounding blanks are ignored."""
-    t = text.strip()
-    if _DECIMAL.fullmatch(t) and not t.lstrip("+-").isdigit():
-        return float(t)
-    return None
-
-
 def parse_system_args(pairs: list[str] | None) -> dict[str, Any]:
     """``["k=v", ...]`` -> dict. A value in decimal or exponent form with a point or an
     exponent (``2.5``, ``1e9``, ``1e-3``, ``-2.5E+3``; ``1e999`` is inf) is a float; any other
@@ -356,7 +341,7 @@ def parse_system_args(pairs: list[str] | None) -> dict[str, Any]:
     ``datetime.date``. (YAML 1.1 alone reads ``1e9`` and ``1.0e9`` as strings.)"""
     import yaml
 
-    from latentune.yamltext import load_no_dates
+    from latentune.yamltext import decimal_float, load_no_dates
 
     out: dict[str, Any] = {}
     for p in pairs or []:

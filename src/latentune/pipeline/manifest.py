@@ -31,7 +31,7 @@ from latentune.errors import StoreError, SystemSpecError, UsageError
 from latentune.pipeline.rundir import RunDir
 from latentune.pipeline.store import info_json
 from latentune.space import ParameterSpace
-from latentune.system import check_system, decimal_float, plugin_record
+from latentune.system import check_system, plugin_record
 
 OPTUNA_METHODS = ("optuna-tpe", "optuna-cmaes", "optuna-gp")
 """Optuna's samplers as critics (:class:`latentune.critic.optuna.OptunaCritic`; the
@@ -127,6 +127,8 @@ def plugin_config(desc: dict[str, Any], defaults: dict[str, Any] | None = None
     """A plugin's description with ``args`` resolved (the factory's defaults under the given
     arguments) and no ``defaults`` key; ``defaults``: those of a record that has none (one
     written before they were recorded). Exponent strings of an older record are floats."""
+    from latentune.yamltext import decimal_float
+
     d = dict(desc)
     given = {k: decimal_float(v) if isinstance(v, str) and decimal_float(v) is not None else v
              for k, v in (d.get("args") or {}).items()}

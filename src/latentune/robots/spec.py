@@ -182,17 +182,19 @@ def load_spec_file(path: str | os.PathLike) -> RobotSpec:
 
 
 def read_yaml(path: Path) -> Any:
-    """The parsed YAML of a spec file.
+    """The parsed YAML of a spec file (numbers in exponent form, ``1e-3``, are floats).
 
     Raises:
         RobotSpecError: missing file or bad YAML.
     """
     import yaml
 
+    from latentune import yamltext
+
     if not path.is_file():
         raise RobotSpecError(f"robot spec file not found: {path}")
     try:
-        return yaml.safe_load(path.read_text())
+        return yamltext.load(path.read_text())
     except yaml.YAMLError as exc:
         raise RobotSpecError(f"robot spec {path}: malformed YAML ({str(exc).splitlines()[0]})") from None
 

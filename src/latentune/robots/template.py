@@ -337,9 +337,9 @@ def init_spec(urdf_path: str | os.PathLike, name: str | None = None) -> str:
 def _self_check(text: str, path: Path) -> Any:
     """:func:`~latentune.robots.check.check_spec` of the written spec, standing in PyBullet; the
     spec must load (else a bug of init_spec)."""
-    import yaml
+    from latentune import yamltext
 
-    report = check_spec(yaml.safe_load(text))
+    report = check_spec(yamltext.load(text))
     if report.errors:
         raise RobotSpecError(f"URDF {path}: init_spec wrote a spec that does not load "
                              f"({'; '.join(report.errors)})")

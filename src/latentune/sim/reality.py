@@ -51,7 +51,6 @@ import dataclasses
 import hashlib
 import math
 import os
-import re
 import tempfile
 from collections import deque
 from dataclasses import dataclass
@@ -252,17 +251,8 @@ _RULES: dict[str, tuple[str, str]] = {
 }
 
 
-_EXPONENT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
-"""A number in exponent form: YAML 1.1 (PyYAML) reads ``1e6``, ``1.0e6`` and ``1e-3`` as text."""
-
-
 def _number(v: Any) -> bool:
     return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
-
-
-def _yaml_float(v: Any) -> Any:
-    """``v``, or the float of an exponent-form text PyYAML left unread (``1.0e6``)."""
-    return float(v) if isinstance(v, str) and _EXPONENT.fullmatch(v.strip()) else v
 
 
 def _check(key: str, v: Any, where: str) -> Any:
@@ -271,10 +261,12 @@ def _check(key: str, v: Any, where: str) -> Any:
         if not isinstance(v, str) or not v.strip():
             raise UsageError(f"{where}: name must be a non-empty string, got {v!r}")
         return v
+    from latentune.yamltext import exponent_float  # PyYAML only when a Reality is made
+
     kind, rule = _RULES[key]
     if v is None and kind.endswith("?"):
         return None
-    v = [_yaml_float(x) for x in v] if isinstance(v, (list, tuple)) else _yaml_float(v)
+    v = [exponent_float(x) for x in v] if isinstance(v, (list, tuple)) else exponent_float(v)
     if kind.startswith("v3"):
         if isinstance(v, (str, bytes)) or not hasattr(v, "__len__") or len(v) != 3 \
                 or not all(_number(x) for x in v):
@@ -325,8 +317,10 @@ def _resolve(source: str | os.PathLike, seen: tuple[str, ...]) -> dict[str, Any]
         raise UsageError(f"{where}: its base profiles include itself")
     import yaml
 
+    from latentune import yamltext
+
     try:
-        raw = yaml.safe_load(path.read_text())
+        raw = yamltext.load(path.read_text())
     except OSError as exc:
         raise UsageError(f"{where}: cannot read ({exc.strerror})") from None
     except yaml.YAMLError as exc:
