@@ -31,6 +31,7 @@ from typing import Any, Callable, Iterator, Sequence
 from latentune import argtypes
 from latentune.errors import CLIError, LatentError, LatentuneError, StoreError, UsageError
 from latentune.wording import counted
+from latentune.workdone import is_done, work_done
 
 DESCRIPTION = ("Tune the weights of a controller: phase 1 on the full θ of a cheap system, phase 2 "
                "a latent space of its stable θ, phase 3 on the target (see README.md).")
@@ -565,15 +566,6 @@ def _finish(study: Any, args: argparse.Namespace) -> None:
     study.summary()
     print(comparison_table(study.store))
     work_done(args)
-
-
-def work_done(args: argparse.Namespace) -> None:
-    """Mark the command's work done and reported: an interrupt (Ctrl-C, SIGTERM) that lands
-    after this, while the command closes its run or exits, is not a failure (exit 0). A
-    command that writes a store prints its result before it closes the store, then calls
-    this."""
-    sys.stdout.flush()
-    args.work_done = True
 
 
 def _phase1_study(args: argparse.Namespace, latent: bool,
@@ -1758,7 +1750,7 @@ def _command(argv: Sequence[str] | None, set_level: Callable[[int], None]) -> in
                       f"{_one_line(exc)[:200]}); the finished evaluations are stored: rerun "
                       "with --resume")
     except KeyboardInterrupt as exc:
-        if code is not None or getattr(args, "work_done", False):
+        if code is not None or is_done(args):
             logging.getLogger("latentune.cli").info(
                 "interrupted after the command finished: its results are complete")
             return 0 if code is None else code

@@ -11,10 +11,10 @@ a command run without the extra stops with one line naming the install command.
 from __future__ import annotations
 
 import argparse
-import sys
 from typing import Any, Sequence
 
 from latentune import argtypes
+from latentune.workdone import work_done
 
 INSTALL_HINT = "install the optuna extra: pip install 'latentune[optuna]'"
 
@@ -59,8 +59,7 @@ def cmd_import_optuna(args: argparse.Namespace) -> int:
             print(f"latent space ({latent.kind}, d_low {latent.d_low}) trained on "
                   f"{latent.meta.get('n_train', '?')} θ that did not fail: "
                   f"LatentSampler({str(args.out)!r}) can use it")
-        sys.stdout.flush()          # the work is done and reported: an interrupt from here
-        args.work_done = True       # exits 0 (latentune.cli.work_done; not imported: a cycle)
+        work_done(args)             # the work is done and reported: an interrupt exits 0
     return 0
 
 
