@@ -393,6 +393,60 @@ def test_a_plugin_run_recorded_with_a_string_exponent_still_resumes(run_cli, plu
         assert len(st.rows(Phase.PHASE1)) == 8
 
 
+SCALED = textwrap.dedent('''
+    import closplant
+
+    def make(scales=(), dim=3, strict=True):
+        if strict and not all(isinstance(s, float) for s in scales):
+            raise TypeError(f"scales={scales!r}: not all numbers")
+        return closplant.make(dim)
+''')
+
+
+def test_system_arg_numbers_inside_a_list_are_floats(run_cli, plugin_dir, tmp_path):
+    """``--system-arg 'scales=[1e9, 2.5e-1]'`` gave the factory the strings '1e9' and
+    '2.5e-1' (YAML 1.1), though ``scales=1e9`` alone is a float: a number with a point or an
+    exponent is a float inside a list or mapping too, and is recorded so."""
+    from latentune.system import parse_system_args
+
+    assert parse_system_args(["k=[1e9, 2, -.5, 1.0e+3, abc]", "m={a: 1e-3, b: [2E2]}"]) == {
+        "k": [1e9, 2, -0.5, 1e3, "abc"], "m": {"a": 1e-3, "b": [200.0]}}
+    (plugin_dir / "scaled.py").write_text(SCALED)
+    run = tmp_path / "scaled"
+    code, _, err = run_cli("phase1", "--system", "scaled:make", "--system-arg",
+                           "scales=[1e9, 2.5e-1]", "--out", run, "--phase1-evals", 3,
+                           "--backend", "serial", "--quiet")
+    assert code == 0, err
+    assert lt.Study(run).config()["system"]["args"] == {"scales": [1e9, 0.25]}
+    sys.modules.pop("scaled", None)
+
+
+def test_a_run_recorded_with_string_numbers_in_a_list_still_resumes(run_cli, plugin_dir,
+                                                                    tmp_path):
+    """A run stored when ``--system-arg 'scales=[1e9, 2.5e-1]'`` reached the factory as
+    strings resumes with the same flag (now floats): the record is compared as --system-arg
+    reads it now, and kept as it is; other numbers are still another system."""
+    (plugin_dir / "scaled.py").write_text(SCALED)
+    run = tmp_path / "old"
+    flags = ("--system", "scaled:make", "--system-arg", "strict=false", "--system-arg",
+             "scales=[1e9, 2.5e-1]", "--out", run, "--backend", "serial", "--quiet")
+    assert run_cli("phase1", *flags, "--phase1-evals", 3)[0] == 0
+    old = ["1e9", "2.5e-1"]
+    with RunStore(run) as st:
+        cfg = st.get_meta("config")
+        cfg["system"]["args"]["scales"] = old
+        st.set_meta("config", cfg)
+    code, _, err = run_cli("phase1", *flags, "--phase1-evals", 5, "--resume")
+    assert code == 0, err
+    with RunStore(run) as st:
+        assert st.get_meta("config")["system"]["args"]["scales"] == old
+        assert st.count(Phase.PHASE1) == 5
+    line = one_line_error(*run_cli("phase1", *flags[:5], "scales=[1e9, 3]", *flags[6:],
+                                   "--phase1-evals", 6, "--resume")[::2])
+    assert "holds a run of another system (args.scales" in line, line
+    sys.modules.pop("scaled", None)
+
+
 def test_a_resume_keeps_the_stored_method_and_refuses_another(run_cli, plugin_dir, tmp_path):
     """--method is not repeated on --resume: the stored method goes on (phase 1 and the plain
     phase 3); another one given is refused naming both. The parser's default was turbo, so a

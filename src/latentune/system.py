@@ -334,26 +334,23 @@ def _at(system: Any, theta: np.ndarray, most: int = 6) -> str:
 
 def parse_system_args(pairs: list[str] | None) -> dict[str, Any]:
     """``["k=v", ...]`` -> dict. A value in decimal or exponent form with a point or an
-    exponent (``2.5``, ``1e9``, ``1e-3``, ``-2.5E+3``; ``1e999`` is inf) is a float; any other
-    value is parsed as a YAML scalar (``10`` an int, ``true``/``false`` booleans, ``null``
-    None, ``[1, 2]`` a list), a string when YAML cannot parse it; an empty value is ``""``;
-    a date (``2020-01-01``, also inside a list) is its text, as the README promises, not a
-    ``datetime.date``. (YAML 1.1 alone reads ``1e9`` and ``1.0e9`` as strings.)"""
+    exponent (``2.5``, ``1e9``, ``1e-3``, ``-2.5E+3``; ``1e999`` is inf) is a float, also
+    inside a list or mapping (``[1e9, 2]``); any other value is parsed as YAML (``10`` an int,
+    ``true``/``false`` booleans, ``null`` None, ``[1, 2]`` a list), a string when YAML cannot
+    parse it; an empty value is ``""``; a date (``2020-01-01``, also inside a list) is its
+    text, as the README promises, not a ``datetime.date`` (:func:`latentune.yamltext.load_arg`;
+    YAML 1.1 alone reads ``1e9`` and ``1.0e9`` as strings)."""
     import yaml
 
-    from latentune.yamltext import decimal_float, load_no_dates
+    from latentune.yamltext import load_arg
 
     out: dict[str, Any] = {}
     for p in pairs or []:
         if "=" not in p or not p.split("=", 1)[0].strip():
             raise SystemSpecError(f"--system-arg must be key=value, got {p!r}")
         k, v = p.split("=", 1)
-        num = decimal_float(v)
-        if num is not None:
-            out[k.strip()] = num
-            continue
         try:
-            out[k.strip()] = load_no_dates(v) if v.strip() else ""
+            out[k.strip()] = load_arg(v) if v.strip() else ""
         except yaml.YAMLError:
             out[k.strip()] = v
     return out

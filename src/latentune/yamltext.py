@@ -2,10 +2,12 @@
 
 PyYAML follows YAML 1.1, whose float needs a dot and a signed exponent: it reads ``1e-4``,
 ``1E3``, ``5e+2`` and ``1.0e6`` as text. :func:`load` reads them as floats (YAML 1.2 and JSON
-do); everything else is :func:`yaml.safe_load`'s. :func:`load_no_dates` reads a date or timestamp
-(``2020-01-01``) as its text. This module owns numbers in exponent form: user YAML files (spaces,
-reality profiles, robot specs) are read with :func:`load`; a value already read as text is a
-number by :func:`exponent_float`, a ``--system-arg`` text by :func:`decimal_float`.
+do); everything else is :func:`yaml.safe_load`'s. :func:`load_arg` reads a ``--system-arg``
+value: any number with a point or an exponent (``-.5`` too) is a float and a date or timestamp
+(``2020-01-01``) is its text, inside lists and mappings too. This module owns numbers in exponent
+form: user YAML files (spaces, reality profiles, robot specs) are read with :func:`load`; a value
+already read as text is a number by :func:`exponent_float`, or by :func:`decimal_float` as
+:func:`load_arg` reads it.
 """
 from __future__ import annotations
 
@@ -19,8 +21,9 @@ _MANTISSA = r"[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9][0-9_]*)"
 """A number's digits with an optional point (``1``, ``2.5``, ``1.``, ``.5``, ``1_000``)."""
 _EXPONENT = re.compile(_MANTISSA + r"[eE][-+]?[0-9]+")
 """A number in exponent form: ``1e-4``, ``1E3``, ``5e+2``, ``1.0e6``, ``.5e1``."""
-_DECIMAL = re.compile(_MANTISSA + r"(?:[eE][-+]?[0-9]+)?")
-"""A number in decimal or exponent form: ``10``, ``2.5``, ``.5``, ``1e9``, ``-2.5E+3``."""
+_POINTED = re.compile(r"(?=[^.eE]*[.eE])" + _MANTISSA + r"(?:[eE][-+]?[0-9]+)?")
+"""A number in decimal or exponent form with a point or an exponent: ``2.5``, ``-.5``, ``1.``,
+``1e9``, ``-2.5E+3`` (not ``10``)."""
 
 
 def exponent_float(value: Any) -> Any:
@@ -36,9 +39,7 @@ def decimal_float(text: str) -> float | None:
     exponent (``2.5``, ``1e9``, ``1e-3``, ``-2.5E+3``; ``1e999`` is inf), else None (``10``,
     ``inf``, ``abc``). Surrounding blanks are ignored."""
     t = text.strip()
-    if _DECIMAL.fullmatch(t) and not t.lstrip("+-").replace("_", "").isdigit():
-        return float(t.replace("_", ""))
-    return None
+    return float(t.replace("_", "")) if _POINTED.fullmatch(t) else None
 
 
 class ExponentLoader(yaml.SafeLoader):
@@ -55,17 +56,22 @@ def load(text: str) -> Any:
     return yaml.load(text, Loader=ExponentLoader)
 
 
-class NoDateLoader(yaml.SafeLoader):
-    """``yaml.SafeLoader`` that leaves dates and timestamps (``2020-01-01``) as their text."""
+class ArgLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` that resolves a plain scalar :func:`decimal_float` reads (a number
+    with a point or an exponent) to a float and leaves dates and timestamps as their text."""
 
 
-NoDateLoader.yaml_implicit_resolvers = {
+ArgLoader.yaml_implicit_resolvers = {
     first: [(tag, regexp) for tag, regexp in resolvers if tag != "tag:yaml.org,2002:timestamp"]
     for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()}
+ArgLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float", re.compile(f"^(?:{_POINTED.pattern})$"), list("-+0123456789."))
 
 
-def load_no_dates(text: str) -> Any:
-    """The data of a YAML text as ``yaml.safe_load`` gives it, except that a date or timestamp
-    (``2020-01-01``, ``2001-12-14 21:59:43.10 -5``), alone or inside a list or mapping, is a
-    string with its text; raises ``yaml.YAMLError``."""
-    return yaml.load(text, Loader=NoDateLoader)
+def load_arg(text: str) -> Any:
+    """The data of a YAML text (a ``--system-arg`` value) as ``yaml.safe_load`` gives it,
+    except that, alone or inside a list or mapping, a number in decimal or exponent form with
+    a point or an exponent (``1e9``, ``1e-3``, ``-.5``; ``1e999`` is inf) is a float, as
+    :func:`decimal_float` reads it, and a date or timestamp (``2020-01-01``,
+    ``2001-12-14 21:59:43.10 -5``) a string with its text; raises ``yaml.YAMLError``."""
+    return yaml.load(text, Loader=ArgLoader)

@@ -126,14 +126,33 @@ def plugin_config(desc: dict[str, Any], defaults: dict[str, Any] | None = None
                   ) -> dict[str, Any]:
     """A plugin's description with ``args`` resolved (the factory's defaults under the given
     arguments) and no ``defaults`` key; ``defaults``: those of a record that has none (one
-    written before they were recorded). Exponent strings of an older record are floats."""
+    written before they were recorded). The given arguments are compared as --system-arg now
+    reads them (:func:`numbers_as_read`): an older record's ``"1e9"`` (also inside a list) is
+    the float."""
+    d = dict(desc)
+    d["args"] = {**(d.pop("defaults", defaults) or {}), **numbers_as_read(d.get("args") or {})}
+    return d
+
+
+def numbers_as_read(value: Any) -> Any:
+    """``value`` (a recorded JSON value) with every text that ``--system-arg`` reads as a float
+    (:func:`latentune.yamltext.decimal_float`: ``"1e9"``, ``"2.5"``) as that float, inside
+    lists and mappings too, and such a mapping key as the text JSON gives the float's key
+    (``"1000000000.0"``). Older versions gave a factory such text as a string (``1e9`` at the
+    top level, then inside a list or mapping): their records are the same system as the
+    float."""
     from latentune.yamltext import decimal_float
 
-    d = dict(desc)
-    given = {k: decimal_float(v) if isinstance(v, str) and decimal_float(v) is not None else v
-             for k, v in (d.get("args") or {}).items()}
-    d["args"] = {**(d.pop("defaults", defaults) or {}), **given}
-    return d
+    def number(text: Any) -> float | None:
+        return decimal_float(text) if isinstance(text, str) else None
+
+    if isinstance(value, list):
+        return [numbers_as_read(v) for v in value]
+    if isinstance(value, dict):
+        return {k if number(k) is None else json.dumps(number(k)): numbers_as_read(v)
+                for k, v in value.items()}
+    num = number(value)
+    return value if num is None else num
 
 
 class Manifest:
