@@ -2016,3 +2016,35 @@ def test_the_report_of_an_ask_space_run_is_titled_with_its_space_file(run_cli, t
     assert table.startswith("space S.yaml (trials run elsewhere)\n")
     assert (d / "report.md").read_text().startswith(
         "# latentune run: space S.yaml (trials run elsewhere)\n")
+
+
+def test_an_ask_that_rebuilds_the_critic_does_not_copy_the_store(tmp_path, src30, monkeypatch):
+    """Every ask that built its critic (its options the stored ones, no prepared batch) copied
+    the whole run store first (``RunStore.snapshot``, to put it back on an error), though it
+    records nothing. It now copies it only when the ask records something (here an options
+    record a run lacks), and that ask's failure still leaves the store as it was."""
+    copies = []
+    snapshot = RunStore.snapshot
+    monkeypatch.setattr(RunStore, "snapshot", lambda self: copies.append(1) or snapshot(self))
+    monkeypatch.setattr(asktell, "prepare", lambda study: False)   # every batch asks the critic
+    with lt.Study(tmp_path / "one", seed=0) as st:
+        person(st, plant(), 10, system=plant(), budget=20)
+        three = lt.Study(tmp_path / "three", seed=0)
+        person(three, plant(0.3), 7, system=plant(0.3), phase=3, latent=src30)
+        three.close()
+        assert copies == [] and st.store.count(Phase.PHASE1) == 10
+        cfg = st.config()
+        for key in ("asktell", "phase1"):   # as a run stored before "regions" was recorded
+            cfg[key].pop("regions")
+        st.store.set_meta("config", cfg)
+        _settle(st)                         # the queued suggestions: nothing is recorded
+        assert copies == []
+        before = whole_store(tmp_path / "one")
+        with monkeypatch.context() as m:
+            m.setattr(asktell, "_critic_batch", lambda *a: (_ for _ in ()).throw(
+                RuntimeError("the GP fit failed")))
+            with pytest.raises(RuntimeError, match="GP fit"):
+                st.ask()
+        assert len(copies) == 1 and whole_store(tmp_path / "one") == before
+        st.ask()
+        assert len(copies) == 2 and st.config()["phase1"]["regions"] is not None

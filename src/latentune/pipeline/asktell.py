@@ -64,14 +64,14 @@ from latentune.checks import is_whole
 from latentune.constants import Phase
 from latentune.errors import LatentuneError, StoreError, UsageError
 from latentune.pipeline import manifest as mf
-from latentune.pipeline.baselines import queue_zero_shot
-from latentune.pipeline.loop import (decoder_of, phase_critic, record_latent,
+from latentune.pipeline.baselines import queue_zero_shot, zero_shot_to_queue
+from latentune.pipeline.loop import (decoder_of, latent_to_record, phase_critic, record_latent,
                                      refuse_plain_options, require_source_store, resolve_latent,
                                      resolve_strategy, source_counts, strategy_of)
 from latentune.pipeline.phases import (ask_batch, replay, state_key, stored_fall_options,
                                        warn_if_failing)
 from latentune.pipeline.results import fall_budget, phase_name, write_best
-from latentune.pipeline.store import Row, RunStore, critics_told
+from latentune.pipeline.store import Row, RunStore, critics_told, json_default
 from latentune.space import ParameterSpace
 from latentune.system import EvaluationError, Outcome, as_outcome
 from latentune.wording import counted
@@ -382,8 +382,7 @@ def ask(study: Any, n: int = 1, *, system: Any = None, space: ParameterSpace | N
         if need > 0:
             if not _take_prepared(study, st, ctx.phase, ctx.options, need):
                 if not ctx.built:
-                    undo.enter_context(study.run.as_before_on_error())
-                    ctx = _context(study, st, system, space, phase, latent, given)
+                    ctx = _context(study, st, system, space, phase, latent, given, undo)
                 _queue(study, st, ctx.phase, _critic_batch(study, st, ctx.phase, ctx.options,
                                                            ctx.space, ctx.latent, need))
             got += st.lease(who, (ctx.phase,), need, lease, queued_only=True)
@@ -479,12 +478,21 @@ class _Context:
 
 
 def _context(study: Any, st: RunStore, system: Any, space: ParameterSpace | None,
-             phase: int | None, latent: Any, given: dict[str, Any]) -> _Context:
+             phase: int | None, latent: Any, given: dict[str, Any],
+             undo: ExitStack | None = None) -> _Context:
     """The context of an ask with its options checked and recorded in the manifest (the
-    zero-shot suggestion queued on phase 3's first ask)."""
-    sp = _space(study, system, space)
+    zero-shot suggestion queued on phase 3's first ask). ``undo``: the ask's exit stack when
+    its context was read from the store (:func:`_stored_context`, its space checked there) and
+    the critic is to be built: it records only when that changes the run
+    (:func:`_records`), and then enters :meth:`RunDir.as_before_on_error` on ``undo`` first;
+    else it writes nothing (and the store is not copied)."""
+    sp = _space(study, system, space, bind=undo is None)
     ph = _phase(study.manifest.config(), phase, latent, study.dir, st)
     pc, ls = options(study, ph, sp, latent, given)
+    if undo is not None:
+        if not _records(study, st, ph, pc):
+            return _Context(ph, pc, sp, ls)
+        undo.enter_context(study.run.as_before_on_error())
     if ph == Phase.PHASE3:
         record_latent(study.run, study.manifest, ls, pc["latent_source"])
     study.manifest.record_seed(study.seed)
@@ -492,6 +500,22 @@ def _context(study: Any, st: RunStore, system: Any, space: ParameterSpace | None
     if ph == Phase.PHASE3:
         queue_zero_shot(st, pc.get("latent_source"))
     return _Context(ph, pc, sp, ls)
+
+
+def _records(study: Any, st: RunStore, phase: int, pc: dict[str, Any]) -> bool:
+    """Whether recording the options record ``pc`` of ``phase`` (:func:`_context`) changes
+    the run: the study's seed, its ask/tell or phase options record differ from what is
+    stored, or phase 3's latent space or zero-shot suggestion is still to be recorded."""
+    cfg = study.manifest.config()
+
+    def same(a: Any, b: Any) -> bool:
+        return json.dumps(a, sort_keys=True, default=json_default) == \
+            json.dumps(b, sort_keys=True, default=json_default)
+    if cfg.get("seed") is None or not same(cfg.get("asktell"), {**pc, "phase": phase}) \
+            or not same(cfg.get(mf.PHASE_KEYS[Phase(phase)]), pc):
+        return True
+    return phase == Phase.PHASE3 and (latent_to_record(study.manifest)
+                                      or zero_shot_to_queue(st, pc.get("latent_source")))
 
 
 def check_first_ask(study: Any, system: Any, space: ParameterSpace | None, phase: int | None,

@@ -52,11 +52,18 @@ def zero_shot(store: RunStore, system: Any, source: str, seed: int,
     return float(out.cost)
 
 
+def zero_shot_to_queue(store: RunStore, source: str | None) -> bool:
+    """Whether :func:`queue_zero_shot` looks for a zero-shot suggestion to queue: phase 3
+    runs on another study's latent space and has no zero-shot trial (told, queued or
+    handed out)."""
+    return source not in (None, "self") and store.count(Phase.ZERO_SHOT) == 0 and not any(
+        t.phase == Phase.ZERO_SHOT and t.status != "dropped" for t in store.trials())
+
+
 def queue_zero_shot(store: RunStore, source: str | None) -> None:
     """Ask/tell with another study's latent space: queue that study's best θ as the zero-shot
     suggestion (phase 4), handed out before phase 3's first, once."""
-    if source in (None, "self") or store.count(Phase.ZERO_SHOT) > 0 or \
-            any(t.phase == Phase.ZERO_SHOT and t.status != "dropped" for t in store.trials()):
+    if not zero_shot_to_queue(store, source):
         return
     best = source_best(source)
     if best is not None:

@@ -435,6 +435,13 @@ def resolve_latent(run: RunDir, manifest: Manifest, latent: Any, space: Paramete
     return ls, source
 
 
+def latent_to_record(manifest: Manifest) -> bool:
+    """Whether :func:`record_latent` writes: no latent space of phase 3 is recorded yet, or
+    phase 3 has no trial (its zero-shot trial counts) to fix it."""
+    return manifest.config().get("phase3_vae_source") is None \
+        or manifest.n_fixing(Phase.PHASE3) == 0
+
+
 def record_latent(run: RunDir, manifest: Manifest, ls: Any, source: str) -> None:
     """Record the latent space of phase 3 (copied into the run when it is another study's);
     StoreError if phase 3 already ran on another one: a phase-3 trial, or its zero-shot trial
@@ -447,7 +454,7 @@ def record_latent(run: RunDir, manifest: Manifest, ls: Any, source: str) -> None
         raise StoreError(f"{run.dir}: phase 3 was run with the latent space of {prev}, "
                          f"not {source}" + ("" if used > zero_shot else
                                             f" (its zero-shot trial is the best θ of {prev})"))
-    if prev is None or used == 0:
+    if latent_to_record(manifest):
         if source != "self":
             dst = run.dir / "phase3_vae"
             ls.save(dst)
