@@ -227,7 +227,8 @@ def test_the_table_and_report_name_the_engine_reality_and_system_args(tmp_path: 
 
 
 def test_table_without_zero_shot_and_never_beaten(tmp_path: Path):
-    cfg = {"task": dict(TASK, terrain="hills"), "phase1": {"method": "cma"}}
+    cfg = {"task": dict(TASK, terrain="hills"), "phase1": {"method": "cma"},
+           "vae": {"d_low": 2}}                     # phase 3 still to come
     with RunStore(tmp_path / "run", create=True) as st:
         st.set_meta("config", cfg)
         _fill(st, Phase.MANUAL, [4.0])
@@ -547,22 +548,43 @@ def test_comparison_table_leaves_out_phases_a_phase3_run_never_had(tmp_path: Pat
     assert "manual tuned" not in md and "phase 1 (" not in md
     assert _row(md, "phase 3 (transfer: source model, latent and θ boxes)")[1:3] == ["1.000", "1"]
     with RunStore(tmp_path / "running", create=True) as st:
-        st.set_meta("config", {"system": {"kind": "user"}})
+        st.set_meta("config", {"system": {"kind": "user"}, "vae": {"d_low": 2}})
         st.add(Phase.MANUAL, 0, np.zeros(3), 2.5, fell=False, tag=-1)
         md = comparison_table(st)
     assert _row(md, "phase 1 (θ, TuRBO-m)")[2] == "0" and _row(md, "phase 3")[2] == "0"
 
 
+def test_a_phase1_run_shows_no_phase3_row(tmp_path: Path, run_cli):
+    """``latentune phase1 --out D`` then ``latentune report D`` showed an empty "phase 3 | – |
+    0" row, as if phase 3 had failed or were to come, though a phase-1 run is complete: its
+    table has the manual and phase-1 rows; the phase-3 row (still to come) appears once the
+    run holds a latent space, as in a ``tune`` run that stopped before phase 3."""
+    d = tmp_path / "run"
+    code, _, err = run_cli("phase1", "--system", "examples.toy_plant:make_system", "--out", d,
+                           "--phase1-evals", "4", "--backend", "serial", "--quiet")
+    assert code == 0, err
+    code, out, err = run_cli("report", d, "--no-sim", "--quiet")
+    assert code == 0, err
+    assert "| phase 3" not in out and "| phase 3" not in (d / "report.md").read_text(), out
+    assert _row(out, "phase 1 (θ, TuRBO-m)")[2] == "4"
+    with RunStore(d) as st:
+        st.set_meta("config", dict(st.get_meta("config"), vae={"d_low": 2}))
+        assert _row(comparison_table(st), "phase 3")[2] == "0"
+
+
 def test_a_phase3_not_started_is_not_labelled_with_a_strategy(tmp_path: Path, run_cli):
-    """``latentune report`` on a run stopped after phase 1 (or phase 2) labelled its empty
-    phase-3 row "phase 3 (latent, TuRBO-m)", the plain strategy, although a phase 3 started
-    later runs the transfer one by default: the strategy is chosen when phase 3 starts, so
-    the row is "phase 3" until then, and names the strategy of the stored record after."""
+    """``latentune report`` on a run stopped after phase 2 (a ``tune`` before phase 3) labelled
+    its empty phase-3 row "phase 3 (latent, TuRBO-m)", the plain strategy, although a phase 3
+    started later runs the transfer one by default: the strategy is chosen when phase 3
+    starts, so the row is "phase 3" until then, and names the strategy of the stored record
+    after."""
     import latentune as lt
     from examples.toy_plant import make_system
 
     d = tmp_path / "run"
-    lt.Study(d, seed=0).phase1(make_system(), 6)
+    with lt.Study(d, seed=0) as st:
+        st.phase1(make_system(), 6)
+        st.train_latent(latent_dim=2, epochs=2)
     code, _, err = run_cli("report", d, "--quiet")
     assert code == 0, err
     md = (d / "report.md").read_text()

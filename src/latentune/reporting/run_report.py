@@ -190,15 +190,19 @@ def comparison_table(store: Any) -> str:
     error [m/s], the number of evaluations, the stable ones and the evaluations until the first
     trial that beat the manual θ (:func:`manual_target`); the paper's numbers below it when it
     has the task. A phase without trials has a row of zeros while no later phase holds trials
-    (it is still to come), and none after that (it is not part of this run); in an ask/tell
-    store, only when it is a phase of its ask/tell phase (:data:`ASKTELL_PHASES`); in an Optuna
-    import's, phase 1's only (phase 3's too once a phase 3 is recorded)."""
+    (it is still to come), and none after that (it is not part of this run); phase 3 only once
+    it can come: the run holds its options record or a latent space (a ``phase1`` run is
+    complete without it; a ``tune`` run that stopped before phase 3 has it to come); in an
+    ask/tell store, only when it is a phase of its ask/tell phase (:data:`ASKTELL_PHASES`); in
+    an Optuna import's, phase 1's only (phase 3's too once a phase 3 is recorded)."""
     cfg = store.get_meta("config") or {}
     t = cfg.get("task")
     stats = run_stats(store)
     rms = t is not None
     asked = (cfg.get("asktell") or {}).get("phase")
     runs = ASKTELL_PHASES.get(int(asked), ()) if asked is not None else TABLE_PHASES
+    if asked is None and not (cfg.get("phase3") or cfg.get("vae")):    # phase 1 alone
+        runs = (Phase.MANUAL, Phase.PHASE1)
     if (cfg.get("system") or {}).get("kind") == "optuna":      # an import: phase 1 alone,
         runs = (Phase.PHASE1,) + (ASKTELL_PHASES[Phase.PHASE3] if cfg.get("phase3") else ())
     if t:
