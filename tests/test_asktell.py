@@ -2018,6 +2018,25 @@ def test_the_report_of_an_ask_space_run_is_titled_with_its_space_file(run_cli, t
         "# latentune run: space S.yaml (trials run elsewhere)\n")
 
 
+def test_the_report_of_an_api_ask_space_run_names_its_space(tmp_path):
+    """``Study.ask(space=...)`` gave a report titled "user system", where ``latentune ask
+    --space FILE`` titles it with the file: the title names the space, by its ``name`` (the
+    file the command line read it from) or else its first names, recorded with the space."""
+    spaces = {"named": lt.ParameterSpace.from_dict(SPACE.to_dict(), name="arm.yaml"),
+              "anon": SPACE}
+    titles = {}
+    for key, sp in spaces.items():
+        with lt.Study(tmp_path / key, seed=0) as st:
+            (s,) = st.ask(space=sp)
+            st.tell(s.id, 1.0)
+            titles[key] = st.report(simulate=False).splitlines()[0]
+    assert titles == {"named": "space arm.yaml (trials run elsewhere)",
+                      "anon": "space of a, b, c, d (trials run elsewhere)"}
+    assert spaces["named"] == SPACE and spaces["named"].to_dict() == SPACE.to_dict()
+    with pytest.raises(UsageError, match="name must be text on one line"):
+        lt.ParameterSpace(["a"], [0.0], [1.0], name="two\nlines")
+
+
 def test_an_ask_that_rebuilds_the_critic_does_not_copy_the_store(tmp_path, src30, monkeypatch):
     """Every ask that built its critic (its options the stored ones, no prepared batch) copied
     the whole run store first (``RunStore.snapshot``, to put it back on an error), though it

@@ -876,7 +876,8 @@ def cmd_ask(args: argparse.Namespace) -> int:
     space = None
     if args.space is not None:
         try:
-            space = ParameterSpace.from_dict(_read_data(args.space, "--space"))
+            space = ParameterSpace.from_dict(_read_data(args.space, "--space"),
+                                             name=Path(args.space).name)
         except ValueError as exc:
             raise CLIError(f"--space {args.space}: {exc}") from None
     from latentune.pipeline.asktell import prune_suggestion_files, write_suggestion_files
@@ -907,8 +908,6 @@ def cmd_ask(args: argparse.Namespace) -> int:
                 raise CLIError(_ask_flags(str(exc), args)) from None
             write_suggestion_files(study.dir, sugg)
             prune_suggestion_files(study.dir, _pending_ids(study))
-            if args.space is not None and study.config().get("space_file") is None:
-                study.manifest.update(space_file=Path(args.space).name)   # the report's title
         _print_suggestions(sugg, args)
         work_done(args)
     return 0

@@ -72,11 +72,18 @@ class ParameterSpace:
     Raises :class:`~latentune.errors.UsageError` (a ``ValueError``) for inconsistent arguments,
     for a blank name or one with a line break, and for bounds whose width (log entries: whose
     ratio high / low) a float64 cannot hold. ``stored``: the space of a stored run, read back
-    (names taken as they were recorded before blank ones were refused).
+    (names taken as they were recorded before blank ones were refused). ``name``: what the
+    space is called (e.g. the file it was read from; attribute ``name``, None by default): an
+    ask/tell run's report is titled with it; it is not part of the space (:meth:`to_dict`,
+    ``==``).
     """
 
     def __init__(self, names: Sequence[str], low: Any, high: Any, log: Any = None,
-                 manual: Any = None, *, stored: bool = False) -> None:
+                 manual: Any = None, *, stored: bool = False, name: str | None = None) -> None:
+        if name is not None and (not isinstance(name, str) or not name.strip()
+                                 or not name.isprintable()):
+            raise UsageError(f"ParameterSpace: name must be text on one line, got {name!r:.60}")
+        self.name = name
         if isinstance(names, (str, bytes)) or not isinstance(names, Iterable):
             raise UsageError(f"ParameterSpace: names must be a list of d names, got {_short(names)}")
         names_t = tuple(str(n) for n in names)
@@ -181,9 +188,10 @@ class ParameterSpace:
         return f"other names ({'; '.join(parts) or 'a name given twice'})"
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any], *, stored: bool = False) -> "ParameterSpace":
+    def from_dict(cls, d: dict[str, Any], *, stored: bool = False,
+                  name: str | None = None) -> "ParameterSpace":
         """Build a space from :meth:`to_dict`'s form (also the ``--space`` YAML/JSON file form;
-        ``stored``: a stored run's, see the class). Raises
+        ``stored``: a stored run's, ``name``: its name, see the class). Raises
         :class:`~latentune.errors.UsageError` (a ``ValueError``) for missing keys or
         inconsistent values."""
         if not isinstance(d, dict) or not {"names", "low", "high"} <= set(d):
@@ -192,7 +200,8 @@ class ParameterSpace:
         if unknown:
             raise UsageError(f"a parameter space has the keys names, low, high, log and manual, "
                              f"not {', '.join(map(str, unknown))}")
-        return cls(d["names"], d["low"], d["high"], d.get("log"), d.get("manual"), stored=stored)
+        return cls(d["names"], d["low"], d["high"], d.get("log"), d.get("manual"), stored=stored,
+                   name=name)
 
     @property
     def dim(self) -> int:

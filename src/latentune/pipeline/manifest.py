@@ -239,9 +239,11 @@ class Manifest:
             stored = {"kind": "task", "task": cfg["task"]}
         return stored
 
-    def _record(self, desc: dict[str, Any], space: ParameterSpace, forget: bool) -> None:
-        """Record the system ``desc`` and its ``space`` (and ``task`` for a built-in task), in
-        one transaction. ``forget`` (a study holding no trial bound to another system): also
+    def _record(self, desc: dict[str, Any], space: ParameterSpace, forget: bool,
+                **more: Any) -> None:
+        """Record the system ``desc`` and its ``space`` (and ``task`` for a built-in task, and
+        the entries ``more``; the space file's name is dropped unless one is given), in one
+        transaction. ``forget`` (a study holding no trial bound to another system): also
         drop what a run on the old system left, the record of an asked batch not yet told and
         the critic states (their points are in the old space)."""
         from latentune.pipeline.phases import batch_key, state_key
@@ -249,7 +251,8 @@ class Manifest:
         st = self.run.open()
         cfg = st.get_meta("config") or {}
         cfg.pop("task", None)
-        cfg.update(system=desc, space=space.to_dict())
+        cfg.pop("space_file", None)
+        cfg.update(system=desc, space=space.to_dict(), **more)
         if desc["kind"] == "task":
             cfg["task"] = desc["task"]
         entries: dict[str, Any] = {"config": cfg}
@@ -294,7 +297,8 @@ class Manifest:
 
     def bind_space(self, space: ParameterSpace) -> None:
         """Record the parameter space of trials run elsewhere, or check it is the stored one
-        (a study that holds no trial takes the new one, as :meth:`bind`)."""
+        (a study that holds no trial takes the new one, as :meth:`bind`); its ``name`` (the
+        report's title, ``space_file``) is recorded with it, or later when none is yet."""
         stored = self.space()
         if stored is not None and stored != space and self.holds_trials():
             why = stored.box_difference(space.to_dict())
@@ -303,7 +307,9 @@ class Manifest:
             raise StoreError(f"{self.run.dir} holds a study of another parameter space ({why})")
         if stored is None or stored != space:
             self._record({"kind": "external", "space": space.to_dict()}, space,
-                         stored is not None)
+                         stored is not None, space_file=space.name)
+        elif space.name and not self.config().get("space_file"):
+            self.update(space_file=space.name)
 
     # ------------------------------------------------------------------ phase options
     def n_used(self, phase: int) -> int:

@@ -103,8 +103,8 @@ def _where(t: dict[str, Any]) -> str:
 
 def _title(config: dict[str, Any]) -> str:
     """What the run tuned: a built-in task's robot, gait and terrain; an Optuna import's study
-    name; an ask/tell run's space file (``config["space_file"]``); a user system's target,
-    class or name and arguments; else "user system"."""
+    name; an ask/tell run's space by its name or file (``config["space_file"]``), else by its
+    first names; a user system's target, class or name and arguments; else "user system"."""
     t = config.get("task")
     if t:
         return f"{t.get('robot', '?')} {t.get('gait', '?')} ({_where(t)})"
@@ -112,8 +112,11 @@ def _title(config: dict[str, Any]) -> str:
     kind = s.get("kind") if isinstance(s, dict) else None
     if kind == "optuna" and s.get("study_name"):
         return f"Optuna study {s['study_name']!r}"
-    if kind == "external" and config.get("space_file"):
-        return f"space {config['space_file']} (trials run elsewhere)"
+    names = list((config.get("space") or {}).get("names") or ())
+    if kind == "external" and (config.get("space_file") or names):
+        what = config.get("space_file") or \
+            f"of {', '.join(map(str, names[:4]))}{', …' if len(names) > 4 else ''}"
+        return f"space {what} (trials run elsewhere)"
     name = next((s[k] for k in ("target", "class", "name") if s.get(k)), None) \
         if isinstance(s, dict) else s
     args = (s.get("args") or {}) if isinstance(s, dict) else {}
