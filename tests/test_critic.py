@@ -819,7 +819,7 @@ def test_turbo_is_not_drawn_to_failed_trials_told_low_costs():
             c = make_critic("turbo", 2, batch_size=4, seed=seed, x0=np.array([0.2, 0.2]),
                             **FAST_TURBO)
             b = np.inf
-            for _ in range(12):
+            for _ in range(8):          # 12 batches gave the same verdicts (21 vs 127 falls)
                 X = c.ask()
                 y, f = problem(X)
                 c.tell(X, y, c.last_tags, fell=f if told else np.zeros(len(y), bool))
