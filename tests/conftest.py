@@ -23,7 +23,8 @@
 
 The README runs the suite with pytest-xdist (``pytest -n auto``): every worker builds the
 module-scoped fixtures of the tests it runs, so those tests are moved to the front of the run,
-and after them the tests marked ``slow`` (tens of seconds in one test: a Ray cluster, a
+after them the tests that use ``ray_local`` (together, so that one worker starts Ray once for
+all of them), then the tests marked ``slow`` (tens of seconds in one test: a Ray cluster, a
 browser), so that no long test is left for the end of the run while the other worker idles.
 
 New processes started in a test process (the process pools of the ``process`` backend, the
@@ -78,18 +79,29 @@ def _shares_a_module_fixture(item: pytest.Item) -> bool:
                                     info.name2fixturedefs.values() for d in defs)
 
 
+def _uses_local_ray(item: pytest.Item) -> bool:
+    return "ray_local" in getattr(item, "fixturenames", ())
+
+
 def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line("markers", "slow: one test of tens of seconds (run early under "
                             "pytest-xdist)")
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Run the tests that use a module-scoped fixture first, then the ``slow`` ones (otherwise
-    in collection order): under pytest-xdist the expensive shared setups (a paper directory, a
-    phase-1 run) start at once on the workers instead of at the end of the run, and the long
-    tests do not end the run on one worker."""
-    items.sort(key=lambda item: (not _shares_a_module_fixture(item),        # stable
-                                 item.get_closest_marker("slow") is None))
+    """Run the tests that use a module-scoped fixture first, then the ones that use the shared
+    local Ray (``ray_local``), then the ``slow`` ones (otherwise in collection order): under
+    pytest-xdist the expensive shared setups (a paper directory, a phase-1 run) start at once on
+    the workers instead of at the end of the run, the local Ray tests are sent to one worker
+    together (one Ray start there instead of one per worker, and another after a
+    ``no_local_ray`` test between them), and the long tests do not end the run on one
+    worker."""
+    def key(item: pytest.Item) -> tuple[bool, bool, bool]:
+        ray = _uses_local_ray(item)
+        return (not _shares_a_module_fixture(item),        # stable
+                item.get_closest_marker("slow") is None and not ray, not ray)
+
+    items.sort(key=key)
 
 
 @pytest.fixture(scope="session")
