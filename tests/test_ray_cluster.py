@@ -3,8 +3,9 @@ its head node killed mid-run (one line, exit 2, the store resumed by the command
 
 The cluster (:class:`benchmarks.cluster.LocalCluster`): a head and a worker node (one CPU each,
 their own temp dirs and free ports), each started with ``ray start --block`` in its own process
-group; the fixture's finalizer ends both nodes (:meth:`~benchmarks.cluster.LocalCluster.stop`)
-even when the test fails.
+group. The tests share it (a module fixture: one head start); each test gets a running head
+and worker node (one a test killed is started again), and the module's finalizer ends the
+nodes (:meth:`~benchmarks.cluster.LocalCluster.stop`) even when a test fails.
 ``ray stop`` is not used: it ends every Ray process on the machine, other runs' included.
 
 The system is the chain of ``examples/lqr_chain.py`` with a journal (:class:`JournalChain`):
@@ -90,17 +91,31 @@ def _journal(path: Path) -> list[tuple[str, int, tuple[float, ...]]]:
     return out
 
 
-@pytest.fixture
-def cluster(cli_env):
+@pytest.fixture(scope="module")
+def nodes(cli_env):
+    """The module's cluster (its head started once); stopped after the module's tests."""
     pytest.importorskip("ray")
     pypath = os.pathsep.join(p for p in (str(ROOT), cli_env.get("PYTHONPATH", "")) if p)
     c = LocalCluster(dict(cli_env, PYTHONPATH=pypath, RAY_AUTH_MODE="disabled"))
     try:
         c.start_head()
-        c.add_worker("worker")
         yield c
     finally:
         c.stop()
+
+
+@pytest.fixture
+def cluster(nodes):
+    """The module's cluster with a head and a worker node ``worker`` running: the head started
+    again if an earlier test killed it, a new worker node if the earlier one was killed."""
+    def down(name: str) -> bool:
+        return name not in nodes.procs or nodes.procs[name].poll() is not None
+
+    if down("head"):
+        nodes.start_head()
+    if down("worker"):
+        nodes.add_worker("worker")
+    return nodes
 
 
 def _phase1(tmp_path: Path, cluster: LocalCluster, log: Path, **popen: Any
