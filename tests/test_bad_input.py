@@ -992,7 +992,8 @@ def test_an_interrupt_after_train_vae_or_report_printed_exits_0(run_cli, tmp_pat
     for argv, said in ((("train-vae", "--out", d, "--latent-dim", "2", "--vae-epochs", "5"),
                         "VAE ("),
                        (("train-vae", "--out", d, "--resume"), f"{d}: the VAE is already"),
-                       (("report", d, "--no-sim", "--quiet"), "user system\n\n| ")):
+                       (("report", d, "--no-sim", "--quiet"),
+                        "space of a, b, c, d (trials run elsewhere)\n\n| ")):
         interrupt_in_close.clear()
         code, out, err = run_cli(*argv)
         assert interrupt_in_close == ["close"] and code == 0, (argv, code, err)
