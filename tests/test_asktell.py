@@ -1438,7 +1438,7 @@ def test_an_ask_after_the_fall_budget_is_spent_refuses_as_status_says(run_cli, t
             st.tell(a.id, None, failed=True)    # the one fall allowed: the tell says so
         (msg,) = [r.getMessage() for r in caplog.records if "fall budget" in r.getMessage()]
         assert "phase 3's fall budget is spent (1 fall allowed; 1 trial told): its best θ is " \
-            f"the result" in msg and f"suggestion {b.id} handed out before may still" in msg, msg
+            "the result" in msg and f"suggestion {b.id} handed out before may still" in msg, msg
         assert st.status()["fall_budget"]["spent"]
         before = [(t.id, t.status, t.asker) for t in st.store.trials()]
         assert [s for _, s, _ in before].count("queued") == 2
