@@ -403,6 +403,21 @@ def test_phase1_on_local_ray(tmp_path, cli, cli_env, dump_store):
         shutil.rmtree(link_dir, ignore_errors=True)
 
 
+def test_head_timeout_is_a_quarter_of_rays_own_when_that_is_shorter(monkeypatch):
+    """Ray ends a process ``$RAY_gcs_rpc_server_reconnect_timeout_s`` (60) s after it lost the
+    head: the Ray evaluator's default head timeout (15 s) is a quarter of a shorter setting, so
+    its own line comes first; a longer setting, or one that is not a positive number, keeps it."""
+    from latentune.pipeline.evaluators import (HEAD_TIMEOUT_S, RAY_RECONNECT_VAR,
+                                               default_head_timeout)
+
+    monkeypatch.delenv(RAY_RECONNECT_VAR, raising=False)
+    assert default_head_timeout() == HEAD_TIMEOUT_S == 15.0
+    for value, expected in (("16", 4.0), ("10.0", 2.5), ("600", 15.0), ("soon", 15.0),
+                            ("0", 15.0), ("nan", 15.0)):
+        monkeypatch.setenv(RAY_RECONNECT_VAR, value)
+        assert default_head_timeout() == expected, value
+
+
 @pytest.mark.slow
 def test_ray_reruns_a_trial_lost_with_its_worker(tmp_path, ray_local):
     """A worker process that dies mid-trial (os._exit) loses that run: Ray restarts the actor,

@@ -71,9 +71,29 @@ HEAD_PROBE_S = 2.0
 waits for trials [s]."""
 HEAD_TIMEOUT_S = 15.0
 """How long the head may not answer before the Ray evaluator gives up [s] (:class:`ClusterLost`;
-Ray itself ends the process after 60 s without its head)."""
+Ray itself ends the process after 60 s without its head): a quarter of Ray's time, by default."""
+RAY_RECONNECT_VAR = "RAY_gcs_rpc_server_reconnect_timeout_s"
+"""Ray's own setting of how long a process may be without its head before Ray ends it [s]
+(60 unless set); a shorter one shortens the Ray evaluator's default head timeout to match."""
 
 log = logging.getLogger(__name__)
+
+
+def default_head_timeout() -> float:
+    """:data:`HEAD_TIMEOUT_S`, or a quarter of Ray's reconnect timeout (``$RAY_gcs_rpc_server_
+    reconnect_timeout_s``) when that is set below 60 s, so that the Ray evaluator reports a lost
+    head before Ray ends the process without a word. An unreadable value is ignored."""
+    raw = os.environ.get(RAY_RECONNECT_VAR)
+    if raw is None:
+        return HEAD_TIMEOUT_S
+    try:
+        ray_s = float(raw)
+    except ValueError:
+        ray_s = math.nan
+    if not ray_s > 0:
+        log.debug("$%s=%r is not a positive number of seconds: ignored", RAY_RECONNECT_VAR, raw)
+        return HEAD_TIMEOUT_S
+    return min(HEAD_TIMEOUT_S, ray_s / 4)
 
 
 class ClusterLost(EvaluationError):
@@ -735,17 +755,18 @@ class RayEvaluator(Evaluator):
     ``imap`` raises :class:`~latentune.system.EvaluationError` (the trials it yielded before
     are complete). ``lost_trials`` counts the lost runs since the evaluator started.
 
-    Lost head: while it waits, the evaluator checks every :data:`HEAD_PROBE_S` seconds that the
-    cluster's head (its GCS address) accepts a TCP connection; one that has not for
-    ``head_timeout`` seconds raises :class:`ClusterLost` (the trials it yielded before are
-    complete; runs lost meanwhile are not counted as lost with a worker). Ray would end the
-    process on its own a minute after losing the head, without a word. After that,
-    :meth:`close` leaves the cluster alone.
+    Lost head: while it waits, the evaluator checks every :data:`HEAD_PROBE_S` seconds (at most
+    half of ``head_timeout``) that the cluster's head (its GCS address) accepts a TCP
+    connection; one that has not for ``head_timeout`` seconds (default:
+    :func:`default_head_timeout`, 15 s) raises :class:`ClusterLost` (the trials it yielded
+    before are complete; runs lost meanwhile are not counted as lost with a worker). Ray would
+    end the process on its own a minute after losing the head (``$RAY_gcs_rpc_server_
+    reconnect_timeout_s``), without a word. After that, :meth:`close` leaves the cluster alone.
     """
 
     def __init__(self, workers: int = 2, address: str | None = None,
                  temp_dir: str | None = None, max_losses: int = 3,
-                 lost_timeout: float = 300.0, head_timeout: float = HEAD_TIMEOUT_S) -> None:
+                 lost_timeout: float = 300.0, head_timeout: float | None = None) -> None:
         try:
             import ray
         except ImportError:
@@ -755,6 +776,8 @@ class RayEvaluator(Evaluator):
             raise ValueError("max_losses must be >= 1")
         if not lost_timeout > 0:
             raise ValueError("lost_timeout must be > 0")
+        if head_timeout is None:
+            head_timeout = default_head_timeout()
         if not head_timeout > 0:
             raise ValueError("head_timeout must be > 0")
         self.workers = int(workers)
@@ -762,6 +785,7 @@ class RayEvaluator(Evaluator):
         self.max_losses = int(max_losses)
         self.lost_timeout = float(lost_timeout)
         self.head_timeout = float(head_timeout)
+        self._probe_s = min(HEAD_PROBE_S, self.head_timeout / 2)
         self.lost_trials = 0
         self.head_lost = False
         self._head_silent: float | None = None  # since when the head has not answered
@@ -803,16 +827,16 @@ class RayEvaluator(Evaluator):
         return isinstance(exc, self._lost_types)
 
     def _watch_head(self, now: bool = False) -> bool:
-        """Check that the head answers (every :data:`HEAD_PROBE_S` seconds, or ``now``) and
+        """Check that the head answers (every ``_probe_s`` seconds, or ``now``) and
         return whether it did at the last check; raise :class:`ClusterLost` once it has not
         for ``head_timeout`` seconds."""
         hp = _host_port(self.head)
         t = time.monotonic()
         if hp is None or (not now and t < self._next_probe):
             return self._head_silent is None
-        self._next_probe = t + HEAD_PROBE_S
+        self._next_probe = t + self._probe_s
         try:
-            _connect(hp, min(HEAD_PROBE_S, 1.0))
+            _connect(hp, min(self._probe_s, 1.0))
         except OSError as exc:
             if self._head_silent is None:
                 self._head_silent = t
@@ -829,7 +853,7 @@ class RayEvaluator(Evaluator):
     def _wait_for_head(self) -> None:
         """Return once the head answers; :class:`ClusterLost` after ``head_timeout`` s."""
         while not self._watch_head(now=True):
-            time.sleep(HEAD_PROBE_S)
+            time.sleep(self._probe_s)
 
     def _wait_back(self, actor: Any) -> None:
         """``actor`` is new or lost a run: it joins the idle actors when a ping returns (once
@@ -886,7 +910,7 @@ class RayEvaluator(Evaluator):
                         f"{self.lost_trials} trial runs lost); the trials finished so far are "
                         f"complete, {len(todo)} were not run")
                 self._watch_head()
-                timeout = min(self._timeout(bool(running)) or HEAD_PROBE_S, HEAD_PROBE_S)
+                timeout = min(self._timeout(bool(running)) or self._probe_s, self._probe_s)
                 refs = [*running, *self._back]
                 if not refs:                    # every actor waits for its next ping
                     time.sleep(timeout)
