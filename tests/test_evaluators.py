@@ -461,7 +461,7 @@ def test_ray_reruns_a_trial_lost_with_its_worker(tmp_path, ray_local):
                 exit_actor()
             return float(np.sum(x))
 
-        ev.lost_timeout = 3.0
+        ev.lost_timeout = 1.0
         with pytest.raises(EvaluationError, match="no Ray worker of 1 was alive"):
             dict(ev.imap(leave, X))
 
