@@ -168,6 +168,36 @@ def test_import_log_and_refusals(tmp_path):
         import_optuna_study(storage, "log", tmp_path / "narrow", narrow)
 
 
+def test_import_of_a_study_with_no_finished_trial_says_so(tmp_path):
+    """A study with no trial yet, or only pruned and running ones, is refused as having no
+    finished trial to import (was: "no parameters: the study has no trial with float
+    parameters", with or without a space naming them, and for a running trial with float
+    parameters); a space naming none of the study's parameters names them (was the same)."""
+    storage = optuna.storages.InMemoryStorage()
+    optuna.create_study(storage=storage, study_name="empty")
+    busy = optuna.create_study(storage=storage, study_name="busy")
+    busy.ask().suggest_float("a", 0.0, 1.0)                          # RUNNING
+    pruned = busy.ask()
+    pruned.suggest_float("a", 0.0, 1.0)
+    busy.tell(pruned, state=S.PRUNED)
+    space = lt.ParameterSpace(["a"], [0.0], [1.0])
+    for name, sp, msg in (("empty", None, "study 'empty' has no finished trial .*: it holds none"),
+                          ("empty", space, "study 'empty' has no finished trial"),
+                          ("busy", None, r"study 'busy' has no finished trial \(COMPLETE or "
+                                         r"FAIL\) to import: it holds 2 \(1 pruned, 1 running\)"),
+                          ("busy", space, "study 'busy' has no finished trial")):
+        with pytest.raises(OptunaImportError, match=msg) as ei:
+            import_optuna_study(storage, name, tmp_path / name, sp)
+        assert "\n" not in str(ei.value) and not (tmp_path / name).exists()
+    done = optuna.create_study(storage=storage, study_name="done")
+    done.add_trial(optuna.trial.create_trial(params={"a": 0.5}, distributions={"a": FD(0, 1)},
+                                             value=1.0))
+    xy = lt.ParameterSpace(["x", "y"], [0.0, 0.0], [1.0, 1.0])
+    with pytest.raises(OptunaImportError, match="the given space names parameter.s. the study's "
+                                                "finished trials do not have: x, y"):
+        import_optuna_study(storage, "done", tmp_path / "xy", xy)
+
+
 def test_import_with_a_space_leaves_out_the_parameters_outside_it(tmp_path):
     """An objective that also suggests an int and a categorical parameter outside the
     controller: a space naming the float parameters imports their values (a warning names the

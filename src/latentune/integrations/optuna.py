@@ -1087,6 +1087,17 @@ def _load_study(storage: Any, study_name: str | None) -> Any:
     return optuna.load_study(study_name=study_name, storage=st)
 
 
+def _unfinished(study: Any) -> str:
+    """``none``, or how many trials ``study`` holds with their states (``2 (1 pruned, 1
+    running)``): what an import finds when no trial finished."""
+    states: dict[str, int] = {}
+    for t in study.get_trials(deepcopy=False):
+        states[t.state.name.lower()] = states.get(t.state.name.lower(), 0) + 1
+    if not states:
+        return "none"
+    return f"{sum(states.values())} ({', '.join(f'{n} {k}' for k, n in sorted(states.items()))})"
+
+
 def import_optuna_study(storage: Any, study_name: str | None, out: str | os.PathLike,
                         space: ParameterSpace | None = None, *, seed: int | None = None) -> Any:
     """Turn an Optuna study into a latentune phase-1 run in ``out``; return its
@@ -1119,6 +1130,9 @@ def import_optuna_study(storage: Any, study_name: str | None, out: str | os.Path
     trials = sorted(study.get_trials(deepcopy=False, states=(S.COMPLETE, S.FAIL)),
                     key=lambda t: t.number)
     n_left = len(study.get_trials(deepcopy=False)) - len(trials)
+    if not trials:
+        raise OptunaImportError(f"study {study.study_name!r} has no finished trial (COMPLETE or "
+                                f"FAIL) to import: it holds {_unfinished(study)}")
     named = None if space is None else set(space.names)
     dists: dict[str, Any] = {}
     for t in trials:
@@ -1144,11 +1158,11 @@ def import_optuna_study(storage: Any, study_name: str | None, out: str | os.Path
                                     "in space= (--space FILE)") from None
     else:
         sp = space
-        space_from_distributions(dists)     # the refusal rules apply to the named parameters
         if set(space.names) != set(dists):
             raise OptunaImportError("the given space names parameter(s) the study's finished "
                                     "trials do not have: "
                                     f"{', '.join(sorted(set(space.names) - set(dists))[:5])}")
+        space_from_distributions(dists)     # the refusal rules apply to the named parameters
     rows: list[tuple[Any, np.ndarray, float]] = []
     incomplete = 0
     for t in trials:
