@@ -2067,3 +2067,18 @@ def test_an_ask_that_rebuilds_the_critic_does_not_copy_the_store(tmp_path, src30
         assert len(copies) == 1 and whole_store(tmp_path / "one") == before
         st.ask()
         assert len(copies) == 2 and st.config()["phase1"]["regions"] is not None
+
+
+def test_a_cost_that_is_not_a_number_is_refused_as_what_tell_got(tmp_path):
+    """``tell(id, cost="abc")`` (or a list, an array, a bool) said "evaluate (its cost)
+    returned str 'abc'" though no evaluate ran; it says what tell got now, the store untouched."""
+    with lt.Study(tmp_path / "s") as st:
+        st.ask(1, space=SPACE)
+        for bad, what in (("abc", "got str 'abc'"), ("3.2", "got str '3.2'"),
+                          ([1.0], "got list"), (np.array([1.0, 2.0]), "got an array of shape"),
+                          (True, "got a bool"), (1e301, "got 1e\\+301")):
+            with pytest.raises(UsageError, match=f"bad result for suggestion 1: {what}") as ei:
+                st.tell(1, cost=bad)
+            assert "evaluate" not in str(ei.value)
+        assert st.store.count(Phase.PHASE1) == 0
+        assert st.tell(1, cost=3.2).cost == 3.2

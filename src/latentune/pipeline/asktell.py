@@ -53,6 +53,7 @@ import hashlib
 import json
 import logging
 import os
+import re
 from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
@@ -722,8 +723,8 @@ def tell(study: Any, trial_id: int, cost: float | Outcome | None = None, *,
         out = as_outcome(cost if isinstance(cost, Outcome) else
                          {"cost": cost, "failed": failed, "info": info})
     except EvaluationError as exc:
-        raise UsageError(f"bad result for suggestion {tid}: {exc}".replace(
-            "evaluate returned", "got").replace("evaluate reported", "got")) from None
+        raise UsageError(f"bad result for suggestion {tid}: " + re.sub(
+            r"evaluate(?: \(its cost\))? (?:returned|reported)", "got", str(exc))) from None
     if note:
         out.info["note"] = str(note)
     with study.run.writing(wait=WAIT_S) as st:
