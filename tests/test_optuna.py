@@ -530,7 +530,6 @@ def test_a_parameter_of_the_space_suggested_as_another_kind_is_refused_by_name(s
     """suggest_int (or a categorical, or a stepped float) on a parameter of the space is the
     sampler's UsageError naming the parameter and saying it is a float weight of the space,
     not Optuna's "Cannot set different distribution kind"; the other parameters still work."""
-    ID, CD = optuna.distributions.IntDistribution, optuna.distributions.CategoricalDistribution
     for sampler in (LatentSampler(source_run, seed=0, budget=20),
                     TurboSampler(DISTS, seed=0, budget=20)):
         name = type(sampler).__name__
