@@ -1090,9 +1090,9 @@ def _load_study(storage: Any, study_name: str | None) -> Any:
 def _unfinished(study: Any) -> str:
     """``none``, or how many trials ``study`` holds with their states (``2 (1 pruned, 1
     running)``): what an import finds when no trial finished."""
-    states: dict[str, int] = {}
-    for t in study.get_trials(deepcopy=False):
-        states[t.state.name.lower()] = states.get(t.state.name.lower(), 0) + 1
+    from collections import Counter
+
+    states = Counter(t.state.name.lower() for t in study.get_trials(deepcopy=False))
     if not states:
         return "none"
     return f"{sum(states.values())} ({', '.join(f'{n} {k}' for k, n in sorted(states.items()))})"
