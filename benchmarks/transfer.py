@@ -4,8 +4,12 @@
         [--budget 40] [--source-evals 300] [--root runs/transfer] [--only METHOD ...]
         [--variants OPTION=VALUE[:OPTION=VALUE] ...]   (transfer variants, stored as transfer+VARIANT)
     python -m benchmarks.transfer summary [--root runs/transfer] [--out F.json]
-        [--default transfer+VARIANT] [--methods METHOD ...] [--machine M]   (prints the tables;
-        --out also writes them, F.json and F.md; --machine: read METHOD@M runs as METHOD)
+        [--default transfer+VARIANT] [--methods METHOD ...] [--machine M] [--budget B]
+        (prints the tables; --out also writes them, F.json and F.md; --machine: read METHOD@M
+        runs as METHOD; --budget: read every run as its first B trials)
+    python -m benchmarks.transfer prefix --root DIR --stored DIR --budget B [--out F]
+        (runs made at a larger budget: exit 0 when each one's first trials equal its stored
+        twin's at budget B, 1 when one differs)
     python -m benchmarks.transfer compare --root runs/transfer --a METHOD ... --b METHOD ...
         [--seeds S ...] [--systems SYSTEM ...] [--out F]
     python -m benchmarks.transfer cut --root DIR --method METHOD --share Q --as NAME
@@ -791,6 +795,21 @@ def load_run(f: Path) -> dict[str, Any]:
     return r
 
 
+def first_trials(run: dict[str, Any], budget: int, f: Path | str = "") -> dict[str, Any]:
+    """``run`` as if it had been run at ``budget``: its first ``budget`` trials (costs, falls
+    and θ where stored) and ``budget`` recorded; a zero-shot run (one trial) as it is.
+    ValueError naming ``f`` when the run holds fewer trials than that (it was run at a smaller
+    budget), since its best would then be read as a best within ``budget``."""
+    if run["method"].split("@")[0] == "zero_shot":
+        return run
+    if int(run["budget"]) < budget:
+        raise ValueError(f"{f or run['method']} was run with budget {run['budget']}, fewer "
+                         f"than --budget {budget}")
+    cut = {k: (v[:budget] if k in ("costs", "failed", "thetas") else v) for k, v in run.items()}
+    cut["budget"] = budget
+    return cut
+
+
 def _ladder_target(run: dict[str, Any]) -> dict[str, Any]:
     return {"system": run["system"], "gap": float(run["gap"])}
 
@@ -817,7 +836,8 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
               target: Callable[[dict[str, Any]], dict[str, Any]] = _ladder_target,
               default: str = "transfer", methods: list[str] | None = None,
               seeds: list[int] | None = None,
-              systems: list[str] | None = None, machine: str | None = None) -> dict[str, Any]:
+              systems: list[str] | None = None, machine: str | None = None,
+              budget: int | None = None) -> dict[str, Any]:
     """The issue's criteria per target from every stored run under ``root`` (the files matching
     ``pattern``); ``target(run)`` gives a run's target fields, the key and head of its row
     (default: ``system`` and ``gap``). ``machine`` = M: a run stored as ``METHOD@M`` (the same
@@ -825,7 +845,9 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
     is not read; methods with no ``@M`` twin are read as they are. ``default`` names the method
     judged as latentune's default (its rows read as ``transfer``; the stored ``transfer`` runs
     then read as ``transfer@stored``); ``methods``: only these (names after those renamings)
-    are read; ``seeds``: only these seeds; ``systems``: only these systems.
+    are read; ``seeds``: only these seeds; ``systems``: only these systems; ``budget`` = B:
+    every run is read as its first B trials (:func:`first_trials`; a run of fewer is refused),
+    the criteria at budget B of runs made at a larger one.
 
     A target's medians are over the seeds on which every method read ran: each row lists the
     other seeds (``seeds_left_out``: the seed and the methods without a run on it), and a
@@ -849,6 +871,8 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
             continue
         if systems is not None and r.get("system") not in systems:
             continue
+        if budget is not None:
+            r = first_trials(r, budget, f)
         runs.setdefault(tuple(target(r).items()), {}).setdefault(r["method"], {})[
             int(r["seed"])] = r
     if not runs:                # an empty table and exit 0 read as "nothing went wrong"
@@ -1113,6 +1137,30 @@ def markdown(s: dict[str, Any],
     return "\n".join(lines)
 
 
+def prefix_check(root: Path, stored: Path, budget: int) -> list[dict[str, Any]]:
+    """Every run under ``root`` (``<system>/gap<g>/seed<s>/<method>.json``) whose twin at the
+    same path under ``stored`` holds ``budget`` trials (a zero-shot run: its one trial), with
+    ``same``: its first ``budget`` trials have the twin's costs and falls, trial for trial (a
+    run made at a larger budget on the same source and seed continues the stored one rather
+    than changing its choices). Runs without a twin are left out. ValueError for a damaged run
+    (:func:`load_run`), a twin of another budget, or no pair at all."""
+    rows: list[dict[str, Any]] = []
+    for f in sorted(root.glob("*/gap*/seed*/*.json")):
+        g = stored / f.relative_to(root)
+        if not g.is_file():
+            continue
+        r, t = load_run(f), load_run(g)
+        n = len(t["costs"])
+        if t["method"].split("@")[0] != "zero_shot" and int(t["budget"]) != budget:
+            raise ValueError(f"{g} was run with budget {t['budget']}, not --budget {budget}")
+        same = r["costs"][:n] == t["costs"] and r["failed"][:n] == t["failed"]
+        rows.append({"run": str(f.relative_to(root)), "same": bool(same),
+                     "trials": n, "of": len(r["costs"])})
+    if not rows:
+        raise ValueError(f"no run under {root} has a twin under {stored}")
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -1142,6 +1190,14 @@ def main(argv: list[str] | None = None) -> int:
     s.add_argument("--machine", default=None, metavar="M",
                    help="read METHOD@M runs (re-run on machine M's sources) as METHOD, in place "
                         "of the METHOD runs beside them")
+    s.add_argument("--budget", type=int, default=None, metavar="B",
+                   help="read every run as its first B trials (runs made at a larger budget)")
+    px = sub.add_parser("prefix", help="runs made at a larger budget against the stored runs "
+                        "of --budget: are their first trials the same?")
+    px.add_argument("--root", required=True, help="the runs made at the larger budget")
+    px.add_argument("--stored", required=True, help="the runs made at --budget")
+    px.add_argument("--budget", type=int, required=True)
+    px.add_argument("--out", default=None)
     c = sub.add_parser("compare", help="methods against methods over (target, seed)")
     c.add_argument("--root", default="runs/transfer")
     c.add_argument("--a", nargs="+", required=True)
@@ -1187,6 +1243,23 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{len(rows) - n_diff} of {len(rows)} runs the same")
         return 1 if n_diff else 0
 
+    if a.cmd == "prefix":
+        prov = Provenance(argv, module="benchmarks.transfer")
+        try:
+            if a.budget < 1:
+                raise ValueError(f"--budget must be >= 1, got {a.budget}")
+            rows = prefix_check(Path(a.root), Path(a.stored), a.budget)
+        except ValueError as e:
+            print(f"transfer prefix: {e}", file=sys.stderr)
+            return 2
+        for r in rows:
+            if not r["same"]:
+                print(f"differs: {r['run']}")
+        n_same = sum(r["same"] for r in rows)
+        print(f"{n_same} of {len(rows)} runs' first trials equal the stored runs'")
+        if a.out:
+            write_json(a.out, {"rows": rows}, prov)
+        return 0 if n_same == len(rows) else 1
     if a.cmd == "cut":
         try:
             n = cut_runs(Path(a.root), a.method, a.share, a.name, a.seeds, a.counts)
@@ -1241,8 +1314,10 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     prov = Provenance(argv, module="benchmarks.transfer")
     try:
+        if a.budget is not None and a.budget < 1:
+            raise ValueError(f"--budget must be >= 1, got {a.budget}")
         res = summarize(Path(a.root), default=a.default, methods=a.methods, systems=a.systems,
-                        machine=a.machine)
+                        machine=a.machine, budget=a.budget)
     except ValueError as e:
         print(f"transfer summary: {e}", file=sys.stderr)
         return 2

@@ -1102,3 +1102,43 @@ def test_run_refuses_to_resume_on_runs_or_sources_of_other_settings(tmp_path, ca
                              "budget": 4, "costs": [1.0], "failed": [False]}))
     monkeypatch.setattr(tr, "source_run", lambda *a: src)
     assert tr.main(argv + ["--budget", "4", "--source-evals", "16"]) == 0     # resumes: kept
+
+
+def test_summary_at_a_smaller_budget_reads_each_runs_first_trials(tmp_path, capsys):
+    """``summary --budget B`` judges runs made at a larger budget on their first B trials: a
+    method whose best came late loses there; a run of fewer than B trials is refused."""
+    for s in (0, 1, 2):
+        _write(tmp_path, "tpe", s, [4.0, 3.0, 3.0, 3.0], [False] * 4)
+        _write(tmp_path, "transfer", s, [5.0, 5.0, 1.0, 1.0], [False, True, False, False])
+        _write(tmp_path, "zero_shot", s, [6.0], [False], budget=4)
+    (row,) = tr.summarize(tmp_path)["targets"]
+    assert row["methods"]["transfer"]["median_best"] == 1.0
+    (row,) = tr.summarize(tmp_path, budget=2)["targets"]
+    assert row["methods"]["transfer"]["median_best"] == 5.0
+    assert row["methods"]["tpe"]["median_best"] == 3.0
+    assert row["methods"]["transfer"]["falls"] == [1, 1, 1]       # per seed
+    assert row["methods"]["zero_shot"]["median_best"] == 6.0
+    assert tr.main(["summary", "--root", str(tmp_path), "--budget", "5"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "fewer than --budget 5" in err[0], err
+
+
+def test_prefix_says_whether_longer_runs_continue_the_stored_ones(tmp_path, capsys):
+    """``prefix``: a run made at a larger budget is the same run as its stored twin for the
+    twin's trials (exit 0), or it is named (exit 1); a twin of another budget is refused."""
+    long, short = tmp_path / "long", tmp_path / "short"
+    _write(long, "tpe", 0, [4.0, 3.0, 2.0, 1.0], [False] * 4)
+    _write(short, "tpe", 0, [4.0, 3.0], [False] * 2)
+    _write(long, "zero_shot", 0, [6.0], [False], budget=4)
+    _write(short, "zero_shot", 0, [6.0], [False], budget=2)
+    _write(long, "gp", 0, [4.0, 3.0, 2.0, 1.0], [False] * 4)       # no twin: left out
+    argv = ["prefix", "--root", str(long), "--stored", str(short), "--budget", "2"]
+    assert tr.main(argv) == 0
+    assert "2 of 2 runs' first trials equal" in capsys.readouterr().out
+    _write(short, "tpe", 0, [4.0, 3.5], [False] * 2)
+    assert tr.main(argv) == 1
+    out = capsys.readouterr().out
+    assert "differs: arm/gap1/seed0/tpe.json" in out and "1 of 2" in out
+    assert tr.main(argv[:-1] + ["3"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not --budget 3" in err[0], err
