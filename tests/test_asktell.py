@@ -2082,3 +2082,50 @@ def test_a_cost_that_is_not_a_number_is_refused_as_what_tell_got(tmp_path):
             assert "evaluate" not in str(ei.value)
         assert st.store.count(Phase.PHASE1) == 0
         assert st.tell(1, cost=3.2).cost == 3.2
+
+
+def test_tell_and_evaluate_word_each_bad_cost_in_their_own_terms(tmp_path):
+    """tell rewrote system.as_outcome's "evaluate returned ..." into "got ..." with a regex, so
+    a reworded message there would have made tell say "evaluate" though none ran; tell passes
+    its own opening now. Each bad cost, as tell gives it and as an evaluate returning the same
+    value does, word for word."""
+    from latentune.system import EvaluationError, as_outcome
+
+    cases = (  # (value, what tell says after "got", what evaluate's check says)
+        ("abc", "got str 'abc'; expected a float cost",
+         "evaluate returned str 'abc'; expected a cost (float), (cost, failed) or an Outcome"),
+        ([1.0], "got list [1.0]; expected a float cost",
+         "evaluate returned list [1.0]; expected a cost (float), (cost, failed) or an Outcome"),
+        (np.array([1.0, 2.0]), "got an array of shape (2,); expected one float (e.g. float(y[0]) "
+         "or y.sum())", "evaluate returned an array of shape (2,); expected one float (e.g. "
+         "float(y[0]) or y.sum())"),
+        (True, "got a bool (True); expected a float cost",
+         "evaluate returned bool True; expected a cost (float), (cost, failed) or an Outcome"),
+        (float("nan"), "got a non-finite cost (nan)", "evaluate returned a non-finite cost (nan)"),
+        (float("inf"), "got a non-finite cost (inf)", "evaluate returned a non-finite cost (inf)"),
+        ({"cost": 1.0, "fell": True}, "got dict {'cost': 1.0, 'fell': True}; expected a float "
+         "cost", "evaluate returned a dict with the key(s) fell; an outcome has cost, failed, "
+         "info, wall_s (details go in info)"),
+        ((1.0, "no"), "got tuple (1.0, 'no'); expected a float cost",
+         "evaluate returned failed = 'no'; expected True or False"),
+        (lt.Outcome("abc"), "got str 'abc'; expected a float cost",
+         "evaluate (its cost) returned str 'abc'; expected a float cost"),
+        (lt.Outcome(1.0, "no"), "got failed = 'no'; expected True or False",
+         "evaluate returned failed = 'no'; expected True or False"),
+        (lt.Outcome(None, True, {"fall_step": 2.5}), "got fall_step 2.5; expected a whole number "
+         "of steps >= 0", "evaluate reported fall_step 2.5; expected a whole number of steps >= 0"),
+    )
+    with lt.Study(tmp_path / "s") as st:
+        st.ask(1, space=SPACE)
+        for bad, told, returned in cases:
+            with pytest.raises(UsageError) as ei:
+                st.tell(1, cost=bad)
+            assert str(ei.value) == f"bad result for suggestion 1: {told}"
+            with pytest.raises(EvaluationError) as ei:
+                as_outcome(bad)
+            assert str(ei.value) == returned
+        with pytest.raises(UsageError) as ei:
+            st.tell(1, 1.0, failed="no")
+        assert str(ei.value) == ("bad result for suggestion 1: got failed = 'no'; expected True "
+                                 "or False")
+        assert st.store.count(Phase.PHASE1) == 0

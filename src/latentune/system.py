@@ -50,48 +50,52 @@ class CostError(EvaluationError, TypeError, ValueError):
     ValueError, so either ``except`` catches it)."""
 
 
-def as_cost(value: Any, *, allow_nonfinite: bool = False, what: str = "the function") -> float:
+def as_cost(value: Any, *, allow_nonfinite: bool = False,
+            opening: str = "the function returned") -> float:
     """``value`` as a float cost, or :class:`CostError` naming what was returned instead.
 
     Accepts a real number (``int``, ``float``, a NumPy real scalar) or a 0-d array of one;
     refuses None, strings, bools, complex numbers, arrays of any other shape, and integers
     that do not fit a float64. Non-finite costs, and finite ones of :data:`~latentune.
     constants.COST_LIMIT` (1e300) in size or more (the store's code for inf), are refused
-    unless ``allow_nonfinite``.
+    unless ``allow_nonfinite``. Each message opens with ``opening`` followed by what was given,
+    e.g. "the function returned a bool (True); expected a float cost" (``opening="got"``:
+    "got a bool (True); ...").
     """
     v = value
     if isinstance(v, np.ndarray) and v.ndim == 0:
         v = v[()]
     if isinstance(v, (bool, np.bool_)):
-        raise CostError(f"{what} returned a bool ({v!r}); expected a float cost")
+        raise CostError(f"{opening} a bool ({v!r}); expected a float cost")
     if isinstance(v, (complex, np.complexfloating)):
-        raise CostError(f"{what} returned a complex number ({_short(v)}); expected a real cost")
+        raise CostError(f"{opening} a complex number ({_short(v)}); expected a real cost")
     if isinstance(v, np.ndarray) or (hasattr(v, "shape") and hasattr(v, "ndim")
                                      and getattr(v, "ndim", 0) > 0):
-        raise CostError(f"{what} returned an array of shape {tuple(v.shape)}; expected one float "
+        raise CostError(f"{opening} an array of shape {tuple(v.shape)}; expected one float "
                         "(e.g. float(y[0]) or y.sum())")
     if not isinstance(v, (int, float, np.integer, np.floating)):
         if hasattr(v, "item") and getattr(v, "ndim", None) == 0:     # a 0-d tensor
-            return as_cost(v.item(), allow_nonfinite=allow_nonfinite, what=what)
-        raise CostError(f"{what} returned {type(v).__name__} {_short(v)}; expected a float cost")
+            return as_cost(v.item(), allow_nonfinite=allow_nonfinite, opening=opening)
+        raise CostError(f"{opening} {type(v).__name__} {_short(v)}; expected a float cost")
     try:
         cost = float(v)
     except OverflowError:
-        raise CostError(f"{what} returned an integer too large for a float64 "
+        raise CostError(f"{opening} an integer too large for a float64 "
                         f"({len(str(abs(int(v))))} digits)") from None
     if not allow_nonfinite and not math.isfinite(cost):
-        raise EvaluationError(f"{what} returned a non-finite cost ({cost})")
+        raise EvaluationError(f"{opening} a non-finite cost ({cost})")
     if not allow_nonfinite and abs(cost) >= COST_LIMIT:
-        raise CostError(_too_large(what, cost))
+        raise CostError(_too_large(opening, cost))
     return cost
 
 
-def as_failed(value: Any, *, what: str = "evaluate") -> bool:
+def as_failed(value: Any, *, opening: str = "evaluate returned") -> bool:
     """``value`` as a trial's fall flag, or :class:`EvaluationError` naming what was given.
 
     Accepts a bool (Python, NumPy, a 0-d array or tensor of one), the integers 0 and 1, and
     None (not failed); refuses anything else: ``bool("False")`` is True, and an array of
-    several flags has no truth value."""
+    several flags has no truth value. The message opens with ``opening`` (see
+    :func:`as_cost`): "evaluate returned failed = 'no'; expected True or False"."""
     v = value
     if v is None:
         return False
@@ -101,11 +105,12 @@ def as_failed(value: Any, *, what: str = "evaluate") -> bool:
         return bool(v)
     if isinstance(v, (int, np.integer)) and int(v) in (0, 1):
         return bool(v)
-    raise EvaluationError(f"{what} returned failed = {_short(v)}; expected True or False")
+    raise EvaluationError(f"{opening} failed = {_short(v)}; expected True or False")
 
 
-def _too_large(what: str, cost: float) -> str:
-    return (f"{what} returned {cost:g}: a cost must be smaller than {COST_LIMIT:g} in size (the "
+def _too_large(opening: str, cost: float) -> str:
+    """The message for a cost of :data:`~latentune.constants.COST_LIMIT` in size or more."""
+    return (f"{opening} {cost:g}: a cost must be smaller than {COST_LIMIT:g} in size (the "
             "store keeps that for inf); mark the trial failed, or return a smaller penalty")
 
 
@@ -137,7 +142,7 @@ OUTCOME_KEYS = frozenset({"cost", "failed", "info", "wall_s"})
 """The keys of an outcome given as a dict (those of :class:`Outcome`)."""
 
 
-def as_outcome(value: Any) -> Outcome:
+def as_outcome(value: Any, *, opening: str | None = None) -> Outcome:
     """Normalize what an ``evaluate``/function returned to a checked :class:`Outcome`.
 
     Accepts an :class:`Outcome`, a number (the cost; not failed; a 0-d array or tensor of one
@@ -147,37 +152,47 @@ def as_outcome(value: Any) -> Outcome:
     did not fail. A failed trial's non-finite or so large cost (a simulator that blew up reports
     ``nan``) is no cost: it gets the fall convention, and ``info["reported_cost"]`` keeps what
     was reported (``"nan"``, ``"inf"``, ``"1e+300"``).
+
+    ``opening`` is the phrase each error message opens with, before what was given: None (an
+    ``evaluate``'s result) says "evaluate returned", "evaluate (its cost) returned" for the cost
+    of an outcome, and "evaluate reported" for its fall step; a result given by hand passes its
+    own, e.g. ``opening="got"``: "got str 'abc'; expected a float cost".
     """
+    returned = opening or "evaluate returned"
+    its_cost = opening or "evaluate (its cost) returned"
+    reported = opening or "evaluate reported"
     if isinstance(value, Outcome):
-        out = Outcome(value.cost, as_failed(value.failed), _info(value.info), value.wall_s)
+        out = Outcome(value.cost, as_failed(value.failed, opening=returned),
+                      _info(value.info, returned), value.wall_s)
     elif isinstance(value, dict):
         unknown = sorted(map(str, set(value) - OUTCOME_KEYS))
         if unknown:                     # {"cost": 1.0, "fell": True} is not a standing trial
-            raise EvaluationError(f"evaluate returned a dict with the key(s) "
+            raise EvaluationError(f"{returned} a dict with the key(s) "
                                   f"{', '.join(unknown)}; an outcome has "
                                   f"{', '.join(sorted(OUTCOME_KEYS))} (details go in info)")
-        failed = as_failed(value.get("failed"))
+        failed = as_failed(value.get("failed"), opening=returned)
         if "cost" not in value and not failed:
-            raise EvaluationError(f"evaluate returned a dict without 'cost': {sorted(value)}")
-        out = Outcome(value.get("cost"), failed, _info(value.get("info")), value.get("wall_s"))
+            raise EvaluationError(f"{returned} a dict without 'cost': {sorted(value)}")
+        out = Outcome(value.get("cost"), failed, _info(value.get("info"), returned),
+                      value.get("wall_s"))
     elif isinstance(value, tuple) and len(value) == 2:
-        out = Outcome(value[0], as_failed(value[1]))
+        out = Outcome(value[0], as_failed(value[1], opening=returned))
     elif (isinstance(value, (int, float, np.integer, np.floating, np.ndarray))
           or hasattr(value, "ndim")) and not isinstance(value, (bool, np.bool_)):
         # a number, or an array or tensor: as_cost takes a 0-d one and names any other shape
-        out = Outcome(as_cost(value, allow_nonfinite=True, what="evaluate"))
+        out = Outcome(as_cost(value, allow_nonfinite=True, opening=returned))
     else:
-        raise CostError(f"evaluate returned {type(value).__name__} {_short(value)}; "
+        raise CostError(f"{returned} {type(value).__name__} {_short(value)}; "
                         "expected a cost (float), (cost, failed) or an Outcome")
     if out.wall_s is not None:
         w = out.wall_s
         if isinstance(w, bool) or not isinstance(w, (int, float, np.integer, np.floating)) \
                 or not (math.isfinite(w) and w >= 0):
-            raise EvaluationError(f"evaluate returned wall_s = {_short(w)}; expected None or "
+            raise EvaluationError(f"{returned} wall_s = {_short(w)}; expected None or "
                                   "a time >= 0 in seconds")
         out.wall_s = float(w)
     if out.cost is not None:
-        out.cost = as_cost(out.cost, allow_nonfinite=True, what="evaluate (its cost)")
+        out.cost = as_cost(out.cost, allow_nonfinite=True, opening=its_cost)
         if out.failed and not abs(out.cost) < COST_LIMIT:   # a blown-up simulator: no cost
             out.info["reported_cost"], out.cost = str(out.cost), None
     k, horizon = out.info.get("fall_step"), out.info.get("horizon")
@@ -187,20 +202,20 @@ def as_outcome(value: Any) -> Outcome:
         except (TypeError, ValueError):
             inside = False
         if not inside:
-            raise EvaluationError(f"evaluate reported fall_step {_short(k)} outside its "
+            raise EvaluationError(f"{reported} fall_step {_short(k)} outside its "
                                   f"horizon of {_short(horizon)} steps (0 … horizon)")
     if k is not None and not _whole_step(k):
-        raise EvaluationError(f"evaluate reported fall_step {_short(k)}; expected a whole "
+        raise EvaluationError(f"{reported} fall_step {_short(k)}; expected a whole "
                               "number of steps >= 0")
     if out.cost is None:
         if not out.failed:
-            raise EvaluationError("evaluate returned no cost for a trial that did not fail")
+            raise EvaluationError(f"{returned} no cost for a trial that did not fail")
         out.cost = fail_cost(out.info.get("fall_step"), out.info.get("horizon") or 1) \
             if out.info.get("fall_step") is not None and out.info.get("horizon") else 2.0 * C1
     if not math.isfinite(out.cost):
-        raise EvaluationError(f"evaluate returned a non-finite cost ({out.cost})")
+        raise EvaluationError(f"{returned} a non-finite cost ({out.cost})")
     if abs(out.cost) >= COST_LIMIT:
-        raise CostError(_too_large("evaluate", out.cost))
+        raise CostError(_too_large(returned, out.cost))
     return out
 
 
@@ -212,12 +227,13 @@ def _whole_step(k: Any) -> bool:
     return math.isfinite(k) and float(k).is_integer() and 0 <= k < 2 ** 63
 
 
-def _info(v: Any) -> dict[str, Any]:
-    """A trial's ``info`` as a new dict (None: empty); EvaluationError for anything else."""
+def _info(v: Any, opening: str) -> dict[str, Any]:
+    """A trial's ``info`` as a new dict (None: empty); EvaluationError for anything else, its
+    message opening with ``opening``."""
     if v is None:
         return {}
     if not isinstance(v, Mapping):
-        raise EvaluationError(f"evaluate returned info = {_short(v)}; expected a dict")
+        raise EvaluationError(f"{opening} info = {_short(v)}; expected a dict")
     return dict(v)
 
 

@@ -53,7 +53,6 @@ import hashlib
 import json
 import logging
 import os
-import re
 from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
@@ -721,10 +720,9 @@ def tell(study: Any, trial_id: int, cost: float | Outcome | None = None, *,
                          "part of it)")
     try:
         out = as_outcome(cost if isinstance(cost, Outcome) else
-                         {"cost": cost, "failed": failed, "info": info})
-    except EvaluationError as exc:
-        raise UsageError(f"bad result for suggestion {tid}: " + re.sub(
-            r"evaluate(?: \(its cost\))? (?:returned|reported)", "got", str(exc))) from None
+                         {"cost": cost, "failed": failed, "info": info}, opening="got")
+    except EvaluationError as exc:      # no evaluate ran: "got str 'abc'; expected a float cost"
+        raise UsageError(f"bad result for suggestion {tid}: {exc}") from None
     if note:
         out.info["note"] = str(note)
     with study.run.writing(wait=WAIT_S) as st:
