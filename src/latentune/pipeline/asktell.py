@@ -71,7 +71,7 @@ from latentune.pipeline.loop import (decoder_of, latent_to_record, phase_critic,
 from latentune.pipeline.phases import (ask_batch, replay, state_key, stored_fall_options,
                                        warn_if_failing)
 from latentune.pipeline.results import fall_budget, phase_name, write_best
-from latentune.pipeline.store import Row, RunStore, critics_told, json_default
+from latentune.pipeline.store import Row, RunStore, critics_told
 from latentune.space import ParameterSpace
 from latentune.system import EvaluationError, Outcome, as_outcome
 from latentune.wording import counted
@@ -489,30 +489,28 @@ def _context(study: Any, st: RunStore, system: Any, space: ParameterSpace | None
     sp = _space(study, system, space, bind=undo is None)
     ph = _phase(study.manifest.config(), phase, latent, study.dir, st)
     pc, ls = options(study, ph, sp, latent, given)
+    record = {"asktell": {**pc, "phase": ph}, mf.PHASE_KEYS[Phase(ph)]: pc}
     if undo is not None:
-        if not _records(study, st, ph, pc):
+        if not _records(study, st, ph, pc, record):
             return _Context(ph, pc, sp, ls)
         undo.enter_context(study.run.as_before_on_error())
     if ph == Phase.PHASE3:
         record_latent(study.run, study.manifest, ls, pc["latent_source"])
     study.manifest.record_seed(study.seed)
-    study.manifest.update(asktell={**pc, "phase": ph}, **{mf.PHASE_KEYS[Phase(ph)]: pc})
+    study.manifest.update(**record)
     if ph == Phase.PHASE3:
         queue_zero_shot(st, pc.get("latent_source"))
     return _Context(ph, pc, sp, ls)
 
 
-def _records(study: Any, st: RunStore, phase: int, pc: dict[str, Any]) -> bool:
+def _records(study: Any, st: RunStore, phase: int, pc: dict[str, Any],
+             record: dict[str, Any]) -> bool:
     """Whether recording the options record ``pc`` of ``phase`` (:func:`_context`) changes
-    the run: the study's seed, its ask/tell or phase options record differ from what is
-    stored, or phase 3's latent space or zero-shot suggestion is still to be recorded."""
-    cfg = study.manifest.config()
-
-    def same(a: Any, b: Any) -> bool:
-        return json.dumps(a, sort_keys=True, default=json_default) == \
-            json.dumps(b, sort_keys=True, default=json_default)
-    if cfg.get("seed") is None or not same(cfg.get("asktell"), {**pc, "phase": phase}) \
-            or not same(cfg.get(mf.PHASE_KEYS[Phase(phase)]), pc):
+    the run: the study's seed is still to be recorded, the manifest entries ``record`` (the
+    ask/tell and phase options records) differ from the stored ones
+    (:meth:`~latentune.pipeline.manifest.Manifest.would_change`), or phase 3's latent space
+    or zero-shot suggestion is still to be recorded."""
+    if study.manifest.config().get("seed") is None or study.manifest.would_change(**record):
         return True
     return phase == Phase.PHASE3 and (latent_to_record(study.manifest)
                                       or zero_shot_to_queue(st, pc.get("latent_source")))

@@ -29,7 +29,7 @@ from latentune.checks import is_whole
 from latentune.constants import Phase
 from latentune.errors import StoreError, SystemSpecError, UsageError
 from latentune.pipeline.rundir import RunDir
-from latentune.pipeline.store import info_json
+from latentune.pipeline.store import info_json, json_default
 from latentune.space import ParameterSpace
 from latentune.system import check_system, plugin_record
 
@@ -134,6 +134,16 @@ def plugin_config(desc: dict[str, Any], defaults: dict[str, Any] | None = None
     return d
 
 
+def _merged(cfg: dict[str, Any], kw: dict[str, Any]) -> dict[str, Any]:
+    """The configuration ``cfg`` with the entries ``kw`` put in (:meth:`Manifest.update`)."""
+    return {**cfg, **kw}
+
+
+def _as_json(cfg: dict[str, Any]) -> str:
+    """``cfg`` as the store's JSON with its keys sorted (:meth:`Manifest.would_change`)."""
+    return json.dumps(cfg, sort_keys=True, default=json_default)
+
+
 def numbers_as_read(value: Any) -> Any:
     """``value`` (a recorded JSON value) with every text that ``--system-arg`` reads as a float
     (:func:`latentune.yamltext.decimal_float`: ``"1e9"``, ``"2.5"``) as that float, inside
@@ -168,10 +178,17 @@ class Manifest:
     def update(self, **kw: Any) -> dict[str, Any]:
         """Merge ``kw`` into the stored configuration (creates the store)."""
         st = self.run.open()
-        cfg = st.get_meta("config") or {}
-        cfg.update(kw)
+        cfg = _merged(st.get_meta("config") or {}, kw)
         st.set_meta("config", cfg)
         return cfg
+
+    def would_change(self, **kw: Any) -> bool:
+        """Whether :meth:`update` with ``kw`` would change the stored configuration: the
+        configuration it would store differs from the stored one as JSON (the store's form:
+        NumPy values as numbers, key order ignored). A dry run: writes nothing, creates no
+        store."""
+        cfg = self.config()
+        return _as_json(_merged(cfg, kw)) != _as_json(cfg)
 
     def add_wall(self, key: str, seconds: float) -> None:
         """Add ``seconds`` of wall time to the ``wall`` meta entry ``key``."""
