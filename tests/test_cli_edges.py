@@ -353,3 +353,22 @@ def test_a_run_with_a_seed_reopens_without_it(run_cli, plant, tmp_path, error_li
         *run_cli("train-vae", *VAE_SYS, *base, "--seed", "0", "--latent-dim", "1")[::2])
     with RunStore(out) as st:
         assert st.count(1) == 7
+
+
+def test_status_does_not_name_the_asker_of_an_ask_without_asker(tmp_path, run_cli):
+    """status said "1 held by default" for a suggestion asked without --asker (the asker's
+    stored name is "default"), which reads as held by a default setting; and "free again:
+    default's lease expired". It now says "1 held" and "free again: its lease expired"; a
+    named asker is still named."""
+    import time
+
+    d = tmp_path / "s"
+    assert run_cli("ask", d, "--system", "examples.lqr_chain:make_system")[0] == 0
+    assert run_cli("ask", d, "--asker", "rig2")[0] == 0
+    out = run_cli("status", d)[1]
+    assert "pending suggestions: 2 (1 held, 2 held by rig2)" in out, out
+    assert run_cli("ask", d, "--lease", "0.2")[0] == 0        # 1 again, on a short lease
+    time.sleep(0.3)
+    out = run_cli("status", d)[1]
+    assert "pending suggestions: 2 (1 free again: its lease expired, 2 held by rig2)" in out, out
+    assert "default" not in out, out

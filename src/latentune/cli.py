@@ -1226,12 +1226,18 @@ def cmd_status(args: argparse.Namespace) -> int:
               + (f" ({counted(fb['not_run'], 'trial')} asked not run)"
                  if fb.get("not_run") else ""))
     leases = s.get("leases") or {}
+    from latentune.pipeline.asktell import DEFAULT_ASKER
 
     def held(i: int) -> str:
+        """Pending suggestion ``i``: by whom it is held, or that its lease expired (the
+        asker of an ask without --asker is not named: its stored name is no flag's value)."""
         lease = leases.get(str(i), {})
+        asker = lease.get("asker")
+        unnamed = asker in (None, DEFAULT_ASKER)
         if lease.get("seconds_left") == 0:      # the next ask hands it out again
-            return f"{i} free again: {lease.get('asker')}'s lease expired"
-        return f"{i} held by {lease.get('asker')}"
+            whose = "its" if unnamed else f"{asker}'s"
+            return f"{i} free again: {whose} lease expired"
+        return f"{i} held" if unnamed else f"{i} held by {asker}"
 
     print(f"pending suggestions: {len(s['pending'])}" + (
         " (" + ", ".join(held(i) for i in s["pending"]) + ")" if s["pending"] else ""))
