@@ -1091,3 +1091,37 @@ def test_an_interrupt_after_import_optuna_printed_exits_0(tmp_path, run_cli, mon
     code, out, err = run_cli(*argv, "--out", tmp_path / "O2")
     assert code == 130 and "d_low" not in out, (code, out, err)
     assert err.strip() == "latentune: error: interrupted; stored results are kept", err
+
+
+def _budget_warnings(record: list) -> list[str]:
+    return [str(w.message) for w in record if "past its budget" in str(w.message)]
+
+
+def test_a_study_that_runs_more_trials_than_the_samplers_budget_warns_once(source_run):
+    """``LatentSampler(budget=5)`` under ``study.optimize(f, n_trials=7)`` asked trials 6 and 7
+    in silence, beyond the trials planned. The first trial past the budget now warns (once
+    per study): the search goes on as planned for the budget (its trust regions, its fall
+    budget); a sampler with a larger budget plans for more. Within the budget, and for a
+    study resumed by a sampler with a larger budget, nothing is said."""
+    import warnings
+
+    for sampler, budget, n in ((LatentSampler(source_run, seed=0, budget=5), 5, 7),
+                               (TurboSampler(DISTS, seed=0, budget=2), 2, 4)):
+        name = type(sampler).__name__
+        study = optuna.create_study(sampler=sampler)
+        with warnings.catch_warnings(record=True) as rec:
+            warnings.simplefilter("always")
+            study.optimize(objective_for(sampler), n_trials=budget)
+            assert _budget_warnings(rec) == [], name
+            study.optimize(objective_for(sampler), n_trials=n - budget)
+        said = _budget_warnings(rec)
+        assert len(said) == 1 and said[0].startswith(
+            f"{name}: trial {budget} makes {budget + 1} trials in the study, past its budget "
+            f"of {budget}: "), said
+        assert len(study.trials) == n and all(t.state == S.COMPLETE for t in study.trials)
+        with warnings.catch_warnings(record=True) as rec:
+            warnings.simplefilter("always")
+            study.sampler = type(sampler)(source_run if name == "LatentSampler" else DISTS,
+                                          seed=0, budget=n + 1)
+            study.optimize(objective_for(study.sampler), n_trials=1)
+        assert _budget_warnings(rec) == [], name

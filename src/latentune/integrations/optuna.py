@@ -47,7 +47,11 @@ of processes may share one RDB or journal storage):
   the study's system attribute ``latentune:critic_state:<key>`` after every sample;
 * the transfer strategy searches from the source run's trials as they were at the study's first
   sample (their counts pinned in ``latentune:source_counts:<key>``, as ``Study.phase3`` pins
-  them): a source run that gets more trials later does not change a study under way.
+  them): a source run that gets more trials later does not change a study under way;
+* ``budget`` is the trials planned, every trial of the study that ran or runs counted: a trial
+  past it is sampled as any other (by the critic planned for the budget: its trust regions, its
+  fall budget), with one ``UserWarning`` per study and sampler; a new sampler with a larger
+  budget goes on with the study's trials.
 
 The objective must suggest every parameter of the sampler's space with the same bounds and
 scale (``sampler.distributions()`` gives them; ``sampler.suggest_all(trial)`` suggests them all);
@@ -355,6 +359,8 @@ class _CriticSampler:
         self._independent = independent_sampler or optuna.samplers.RandomSampler(seed=self.seed)
         self._dists = distributions_of(self._space)
         self._given: dict[tuple[int, int], dict[str, float]] = {}
+        # (storage, study id) of the studies warned of a trial past the budget
+        self._past_budget: set[tuple[int, int]] = set()
 
     # ------------------------------------------------------------------ subclass hooks
     def _critic(self, study: Any) -> tuple[Any, Callable[[np.ndarray], np.ndarray] | None]:
@@ -409,6 +415,7 @@ class _CriticSampler:
         if not search_space:
             return {}
         _sign(study)
+        self._warn_past_budget(study, trial)
         theta, point = self._next(study, trial)
         for _ in range(4):      # write, then check: of two trials given one θ, one sees it
             if point is None:
@@ -425,6 +432,27 @@ class _CriticSampler:
                 n < trial.number for n, running in clash if running))
         self._given[(study._study_id, trial._trial_id)] = physical_params(self._space, theta)
         return {}
+
+    def _warn_past_budget(self, study: Any, trial: Any) -> None:
+        """Warn (``UserWarning``, once per study and sampler) when ``trial`` is past the
+        budget: the study's trials that ran or run (WAITING ones not yet), ``trial`` included,
+        are more than ``budget``. The trial is sampled as any other: the critic goes on as
+        planned for ``budget`` trials (its trust-region count, its fall budget's base)."""
+        which = (id(study._storage), study._study_id)
+        if which in self._past_budget:
+            return
+        waiting = optuna.trial.TrialState.WAITING
+        n = 1 + sum(t.number != trial.number and t.state != waiting
+                    for t in study.get_trials(deepcopy=False))
+        if n <= self.budget:
+            return
+        self._past_budget.add(which)
+        name = type(self).__name__
+        warnings.warn(f"{name}: trial {trial.number} makes {n} trials in the study, past its "
+                      f"budget of {self.budget}: the search goes on as planned for "
+                      f"{self.budget} trials; to plan for more, go on with a {name} of a "
+                      "larger budget (the study keeps its trials)",
+                      UserWarning, stacklevel=2)
 
     def sample_independent(self, study: Any, trial: Any, param_name: str,
                            param_distribution: Any) -> Any:
@@ -735,7 +763,10 @@ class LatentSampler(_CriticSampler, BaseSampler):
             options).
         method: the plain strategy's critic on the latent box: ``turbo`` (TuRBO-m), ``cma``, ``random``,
             ``sobol``; ``budget``: the trials you plan (TuRBO-m's trust regions unless
-            ``regions`` is given: 1 below 750).
+            ``regions`` is given: 1 below 750), the zero-shot and enqueued trials included.
+            A trial past it is sampled all the same, as planned for ``budget``, with one
+            ``UserWarning`` per study; a new sampler with a larger budget goes on with the
+            study's trials.
         start: ``"manual"`` (the first critic point is the code of the source space's manual
             θ), ``"best"`` (the code of the source's best θ) or None (the critic's design).
         zero_shot: the study's first trial is the source's best θ as it is (latentune's
@@ -937,7 +968,8 @@ class TurboSampler(_CriticSampler, BaseSampler):
             stepped and categorical distributions are refused) or a latentune
             :class:`~latentune.space.ParameterSpace`.
         seed: the critic's seed.
-        budget: the trials you plan (sets the number of trust regions unless ``regions``).
+        budget: the trials you plan (sets the number of trust regions unless ``regions``); a
+            trial past it is sampled all the same, with one ``UserWarning`` per study.
         start: None (TuRBO-m's initial design), ``"manual"`` (a ParameterSpace's manual θ)
             or ``{name: physical value}``: the first point.
         max_fall_prob, constraints_func, independent_sampler: as in :class:`LatentSampler`
