@@ -1167,6 +1167,19 @@ def test_asking_phase_3_where_ask_tell_runs_phase_1_says_where_to(tmp_path):
             st.ask(phase=3)
 
 
+def test_asking_phase_3_with_a_latent_space_where_ask_tell_runs_phase_1_names_it(tmp_path):
+    """``Study.ask(phase=3, latent=MINE)`` (or without ``phase``) in a directory whose
+    ask/tell runs phase 1 said to ask phase 3 'with --vae' this directory, or to 'use another
+    directory' alone; both now name the latent space given, the one to ask with elsewhere."""
+    d, mine = tmp_path / "s", tmp_path / "my space"
+    with lt.Study(d) as st:
+        st.ask(space=SPACE)
+        for phase in (3, None):
+            with pytest.raises(LatentuneError) as e:
+                st.ask(phase=phase, latent=mine)
+            assert str(e.value).endswith(f"in another directory, with --vae '{mine}'"), e.value
+
+
 def test_suggestion_files_are_the_suggestions_handed_out(run_cli, tmp_path):
     """`release DIR ID` left suggestions/ID.json behind, and kept it when an amendment then
     withdrew the suggestion (tell ID: 'not handed out (dropped)'): the operator saw a θ to run

@@ -445,3 +445,33 @@ def test_a_resume_without_budget_flags_goes_on_to_the_stored_budgets(tmp_path, r
     code, _, err = run_cli("phase3", *sys_, "--out", t, "--resume")
     assert code == 0, err
     assert lt.Study(t).store.count(Phase.PHASE3) == 3
+
+
+def test_ask_phase_3_with_a_vae_in_a_phase_1_run_names_the_vae_given(tmp_path, run_cli, source,
+                                                                     error_line):
+    """``ask R --phase 3 --vae MINE`` where R's ask/tell runs phase 1 said to train a latent
+    space in R and ask phase 3 "with --vae R", though the user had named the latent space
+    MINE; ``ask R --vae MINE`` said "use another directory" alone. Both now say to ask phase 3
+    in another directory with the --vae given."""
+    r = tmp_path / "R"
+    assert run_cli("ask", r, *SYSTEM[:2], "--budget", "6")[0] == 0
+    for phase in (("--phase", "3"), ()):
+        line = error_line(*run_cli("ask", r, *phase, "--vae", source)[::2])
+        assert line.endswith(f"in another directory, with --vae {source}"), line
+        assert f"--out {r}" not in line and f"--vae {r}" not in line, line
+
+
+def test_ask_phase_1_with_a_vae_where_no_phase_is_stored_says_to_ask_phase_3(tmp_path, run_cli,
+                                                                              source,
+                                                                              error_line):
+    """``ask NEW --phase 1 --vae MINE`` (a new directory, or a phase1 run's, where ask/tell
+    has no phase yet) said "ask/tell runs phase 1 here; ... use another directory", though the
+    same ask without --phase 1 asks phase 3 right there. It now says the two flags conflict
+    and to ask --phase 3 (or leave --phase 1 out)."""
+    new = tmp_path / "new"
+    line = error_line(*run_cli("ask", new, *SYSTEM[:2], "--phase", "1", "--vae", source)[::2])
+    assert line == (f"latentune: error: {new}: --phase 1 with --vae: a latent space is an "
+                    "option of phase 3: ask --phase 3 (or leave --phase 1 out)"), line
+    assert not new.exists()
+    code, out, err = run_cli("ask", new, *SYSTEM[:2], "--phase", "3", "--vae", source)
+    assert code == 0, err

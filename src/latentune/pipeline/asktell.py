@@ -240,6 +240,8 @@ def _phase(cfg: dict[str, Any], phase: int | None, latent: Any, dir_: Path,
             untrained = trained is not None and trained.artifact("vae") is None
             raise StoreError(f"{dir_}: ask/tell runs phase {stored} (stored), not {phase}" + (
                 "" if int(stored) != Phase.PHASE1 else
+                f"; ask phase 3 in another directory, with --vae {_named(latent)}"
+                if latent is not None else
                 f"; {dir_} holds no latent space yet: train one there first (train_latent / "
                 f"train-vae), then ask phase 3 in another directory, with --vae {dir_}"
                 if untrained else f"; ask phase 3 in another directory, with --vae {dir_}"))
@@ -250,6 +252,16 @@ def _phase(cfg: dict[str, Any], phase: int | None, latent: Any, dir_: Path,
     if int(phase) not in (Phase.PHASE1, Phase.PHASE3):
         raise UsageError(f"ask/tell runs phase 1 or 3, not {phase}")
     return int(phase)
+
+
+def _named(latent: Any) -> str:
+    """The latent space an ask was given, as a user names it again: its directory (quoted for
+    a shell where it needs it), or "the latent space given" for a LatentSpace object."""
+    import shlex
+
+    if isinstance(latent, (str, os.PathLike)):
+        return shlex.quote(os.fspath(latent))
+    return "the latent space given"
 
 
 def _start_record(start: Any, space: ParameterSpace) -> Any:
@@ -304,8 +316,11 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
         raise UsageError("strategy is an option of phase 3")
     given = {k: v for k, v in given.items() if k != "strategy"}
     if phase == Phase.PHASE1 and latent is not None:
+        if (cfg.get("asktell") or {}).get("phase") is None:     # phase 1 was asked for
+            raise UsageError(f"{study.dir}: --phase 1 with --vae: a latent space is an option "
+                             "of phase 3: ask --phase 3 (or leave --phase 1 out)")
         raise UsageError(f"{study.dir}: ask/tell runs phase 1 here; a latent space is an option "
-                         "of phase 3 (use another directory)")
+                         f"of phase 3: ask it in another directory, with --vae {_named(latent)}")
     g = _normalized(given, space)
     strat = None
     if phase == Phase.PHASE3:       # before the stored options: they differ by strategy
