@@ -621,3 +621,44 @@ def test_an_asktell_store_shows_only_the_phases_it_runs(tmp_path: Path, run_cli)
         assert _row(md, "phase 3 (transfer: source model, latent and θ boxes)")[2] == "0"
         st.add(Phase.MANUAL, 0, np.zeros(3), 2.5, fell=False, tag=-1)  # a phase run's, later
         assert _row(comparison_table(st), "manual tuned")[2] == "1"
+
+
+def test_an_asktell_reports_manual_theta_is_the_same_in_summary_table_and_figure(
+        tmp_path: Path, monkeypatch):
+    """The manual θ of an ask/tell phase 1 (its first suggestion, :func:`manual_rows`) is found
+    once per report and handed to the summary, the table and the best-cost figure: each shows
+    the same manual trial, here one that failed (a trial that stood beats it, whatever the
+    costs); a first suggestion that is not the manual θ gives no manual trial anywhere."""
+    import latentune as lt
+    from latentune.reporting import plots
+
+    space = lt.ParameterSpace(names=["kp", "kd"], low=[0.1, 0.0], high=[10.0, 1.0],
+                              manual=[2.0, 0.5])
+    refs: list[dict] = []
+    draw = plots.plot_best_so_far
+    monkeypatch.setattr(plots, "plot_best_so_far", lambda panels, path, title="": (
+        refs.extend(p.refs for p in panels), draw(panels, path, title=title)))
+    for start in ("manual", "scratch"):
+        refs.clear()
+        with lt.Study(tmp_path / start, seed=0) as st:
+            sugg = st.ask(3, space=space, start=start)
+            st.tell(sugg[0].id, None, failed=True)
+            st.tell(sugg[1].id, 3.0)
+            st.tell(sugg[2].id, 0.5)
+            table = make_report(st.store, simulate=False, quiet=True)
+            first = st.store.rows(Phase.PHASE1)[0].cost
+        s = json.loads((tmp_path / start / "summary.json").read_text())
+        md = (tmp_path / start / "report.md").read_text()
+        assert table in md
+        assert _row(table, "phase 1 (θ, TuRBO-m)") == [
+            "phase 1 (θ, TuRBO-m)", "0.500", "3", "2/3", "2" if start == "manual" else "–"]
+        if start == "manual":
+            assert _row(table, "manual tuned") == ["manual tuned", "–", "1", "0/1", "–"]
+            assert (s["manual_cost"], s["manual_fell"]) == (first, True)
+            assert s["phase1_evals_to_beat_manual"] == 2
+            assert refs == [{"manual θ": first}]
+        else:
+            assert "manual tuned" not in md
+            assert (s["manual_cost"], s["manual_fell"]) == (None, None)
+            assert s["phase1_evals_to_beat_manual"] is None
+            assert refs == [{"manual θ": None}]

@@ -151,12 +151,12 @@ def manual_rows(store: Any) -> list:
                                               manual) else []
 
 
-def manual_target(store: Any) -> float | None:
-    """The cost a trial that stood must be strictly below to beat the manual θ: the manual
-    trial's cost if it stood; +inf if it failed (a trial that stood ranks before every failed
-    one, whatever the costs: :func:`latentune.critic.base.fall_last`), so the first trial that
-    stood beats it; None without a manual trial (:func:`manual_rows`)."""
-    rows = manual_rows(store)
+def manual_target(rows: list) -> float | None:
+    """The cost a trial that stood must be strictly below to beat the manual θ, from its trials
+    ``rows`` (:func:`manual_rows`): the manual trial's cost if it stood; +inf if it failed (a
+    trial that stood ranks before every failed one, whatever the costs:
+    :func:`latentune.critic.base.fall_last`), so the first trial that stood beats it; None
+    without a manual trial (``rows`` empty)."""
     stood = [r.cost for r in rows if not r.fell]
     return min(stood) if stood else (math.inf if rows else None)
 
@@ -170,25 +170,28 @@ def best_ratio(phase3_best: float | None, phase1_best: float | None) -> float | 
     return phase3_best / phase1_best
 
 
-def run_stats(store: Any) -> dict[int, dict[str, Any]]:
+def run_stats(store: Any, manual: list | None = None) -> dict[int, dict[str, Any]]:
     """Phase → :func:`~latentune.reporting.metrics.phase_stats` of the store's costs against the
     manual θ (:func:`manual_target`: a trial that stood beats a failed manual θ whatever the
     costs), plus ``rms`` (RMS velocity error of the best θ [m/s], built-in tasks only) and
-    ``falls`` counted from the stored ``fell`` flags."""
+    ``falls`` counted from the stored ``fell`` flags. ``manual``: the manual θ's trials
+    (:func:`manual_rows`) when the caller has them; None: found in the store."""
     cfg = store.get_meta("config") or {}
     steps = _steps(cfg)
-    manual = manual_target(store)
+    if manual is None:
+        manual = manual_rows(store)
+    target = manual_target(manual)
     out = {}
     for ph in TABLE_PHASES:
-        rows = manual_rows(store) if ph == Phase.MANUAL else store.rows(ph)
-        s = phase_stats([r.cost for r in rows], manual, fell=[r.fell for r in rows])
+        rows = manual if ph == Phase.MANUAL else store.rows(ph)
+        s = phase_stats([r.cost for r in rows], target, fell=[r.fell for r in rows])
         s["rms"] = rms_velocity_error(s["best"], steps) \
             if steps and s["best"] is not None else None
         out[int(ph)] = s
     return out
 
 
-def comparison_table(store: Any) -> str:
+def comparison_table(store: Any, manual: list | None = None) -> str:
     """The Markdown table of the run: per phase the best cost, (built-in tasks) its RMS velocity
     error [m/s], the number of evaluations, the stable ones and the evaluations until the first
     trial that beat the manual θ (:func:`manual_target`); the paper's numbers below it when it
@@ -197,10 +200,11 @@ def comparison_table(store: Any) -> str:
     it can come: the run holds its options record or a latent space (a ``phase1`` run is
     complete without it; a ``tune`` run that stopped before phase 3 has it to come); in an
     ask/tell store, only when it is a phase of its ask/tell phase (:data:`ASKTELL_PHASES`); in
-    an Optuna import's, phase 1's only (phase 3's too once a phase 3 is recorded)."""
+    an Optuna import's, phase 1's only (phase 3's too once a phase 3 is recorded).
+    ``manual``: the manual θ's trials, as :func:`run_stats` takes them."""
     cfg = store.get_meta("config") or {}
     t = cfg.get("task")
-    stats = run_stats(store)
+    stats = run_stats(store, manual)
     rms = t is not None
     asked = (cfg.get("asktell") or {}).get("phase")
     runs = ASKTELL_PHASES.get(int(asked), ()) if asked is not None else TABLE_PHASES
@@ -263,7 +267,8 @@ def handover_stats(store: Any) -> dict[str, Any] | None:
     return out
 
 
-def write_summary(store: Any, wall_this: float | None = None) -> dict[str, Any]:
+def write_summary(store: Any, wall_this: float | None = None,
+                  manual: list | None = None) -> dict[str, Any]:
     """Write ``DIR/summary.json`` from the store and return it.
 
     Costs: ``manual_cost`` and ``zero_shot_cost`` (the trial's own cost, fallen or not, with
@@ -279,15 +284,18 @@ def write_summary(store: Any, wall_this: float | None = None) -> dict[str, Any]:
     ``wall_s`` (sum over phases), ``wall_by_phase_s``, ``wall_s_this_command``; ``seed``,
     ``config``, ``artifacts``, ``phase{1,3}_best_params``, ``paper`` (the paper's numbers for
     the task or None), ``phase3_handover`` (:func:`handover_stats`), ``written`` (unix time).
+    ``manual``: the manual θ's trials, as :func:`run_stats` takes them.
     """
     cfg = store.get_meta("config") or {}
     wall = store.get_meta("wall", {}) or {}
     arts = store.get_meta("artifacts", {}) or {}
-    st = run_stats(store)
+    if manual is None:
+        manual = manual_rows(store)
+    st = run_stats(store, manual)
     p0, p1, p3, p4 = (st[int(ph)] for ph in (Phase.MANUAL, Phase.PHASE1, Phase.PHASE3,
                                               Phase.ZERO_SHOT))
     names = {"manual": p0, "phase1": p1, "phase3": p3, "zero_shot": p4}
-    trial = {Phase.MANUAL: phase_stats([r.cost for r in manual_rows(store)])["best"],
+    trial = {Phase.MANUAL: phase_stats([r.cost for r in manual])["best"],
              Phase.ZERO_SHOT: phase_stats(store.costs(Phase.ZERO_SHOT))["best"]}
     summary = {
         "manual_cost": trial[Phase.MANUAL],
@@ -323,11 +331,12 @@ def write_summary(store: Any, wall_this: float | None = None) -> dict[str, Any]:
     return summary
 
 
-def _curve_panels(store: Any, cfg: dict[str, Any]) -> list:
-    """One best-cost panel per tuned phase (phase 1, phase 3), each on its own evaluation axis."""
+def _curve_panels(store: Any, cfg: dict[str, Any], manual_trials: list) -> list:
+    """One best-cost panel per tuned phase (phase 1, phase 3), each on its own evaluation axis,
+    with the cost of the manual θ's trials ``manual_trials`` as a reference line."""
     from latentune.reporting.plots import CurvePanel
 
-    manual = phase_stats([r.cost for r in manual_rows(store)])["best"]
+    manual = phase_stats([r.cost for r in manual_trials])["best"]
     zero = phase_stats(store.costs(Phase.ZERO_SHOT))["best"]
     panels = []
     for ph in (Phase.PHASE1, Phase.PHASE3):
@@ -423,7 +432,8 @@ def make_report(store: Any, system: Any = None, simulate: bool = True, quiet: bo
     title = _title(cfg)
     out = store.dir
     figs = []
-    panels = _curve_panels(store, cfg)
+    manual = manual_rows(store)             # found once: an ask/tell store's parses its space
+    panels = _curve_panels(store, cfg, manual)
     if panels:
         plot_best_so_far(panels, out / "best_so_far.png", title=f"{title}: best cost so far")
         store.add_artifact("best_so_far_png", out / "best_so_far.png")
@@ -446,8 +456,8 @@ def make_report(store: Any, system: Any = None, simulate: bool = True, quiet: bo
     if "com_velocity.png" not in figs:      # an earlier report's, of another best θ perhaps
         (out / "com_velocity.png").unlink(missing_ok=True)
         store.forget_artifact("com_velocity_png")
-    summary = write_summary(store)
-    table = comparison_table(store)
+    summary = write_summary(store, manual=manual)
+    table = comparison_table(store, manual)
     lat = cfg.get("latent") or cfg.get("vae") or {}
     md = [f"# latentune run: {title}", "", table, "", *state_lines(store, cfg)]
     if lat:
