@@ -662,3 +662,46 @@ def test_an_asktell_reports_manual_theta_is_the_same_in_summary_table_and_figure
             assert (s["manual_cost"], s["manual_fell"]) == (None, None)
             assert s["phase1_evals_to_beat_manual"] is None
             assert refs == [{"manual θ": None}]
+
+
+def test_a_phase_stopped_short_of_its_budget_says_what_goes_on(tmp_path: Path, run_cli):
+    """A ``tune`` stopped in phase 1 stores what a ``phase1`` does, and its report said only
+    "Phase 1 … holds N trials of its budget of B.", not how to go on: the line names the
+    commands that run the phase with ``--resume`` on the directory (a tune run's goes on to
+    phase 3), the study's method for a system made in Python; a phase 3 whose fall budget is
+    spent says it asks no more; an ask/tell run (it goes on with ``ask``) gets no such hint."""
+    import shlex
+
+    import latentune as lt
+    from examples.toy_plant import make_system
+    from latentune.reporting.run_report import state_lines
+    from latentune.system import load_system
+
+    d = tmp_path / "run"
+    with lt.Study(d, seed=0) as st:      # stopped after 3 of its 10 trials
+        st.phase1(load_system("examples.toy_plant:make_system"), 10, max_new=3)
+    code, _, err = run_cli("report", d, "--no-sim", "--quiet")
+    assert code == 0, err
+    where = shlex.quote(str(d))
+    assert ("Phase 1 (θ, TuRBO-m) holds 3 trials of its budget of 10. If it stopped, the "
+            f"command that ran it goes on: `latentune tune … --out {where} --resume` (a tune "
+            "run: it then trains the latent space and runs phase 3) or `latentune phase1 … "
+            f"--out {where} --resume`.") in (d / "report.md").read_text()
+    with lt.Study(tmp_path / "py", seed=0) as st:
+        st.phase1(make_system(), 10, max_new=3)
+        assert state_lines(st.store, st.config())[0].endswith(
+            f" If it stopped, `Study({str(tmp_path / 'py')!r}).phase1(system, budget)` with the "
+            "same system goes on.")
+    with RunStore(tmp_path / "falls", create=True) as st:
+        cfg = {"system": {"kind": "plugin"}, "phase3": {
+            "strategy": "transfer", "budget": 10, "transfer_options": {"fall_budget": 0.2}}}
+        st.set_meta("config", cfg)
+        for i, fell in enumerate([False, True, True, True]):
+            st.add(Phase.PHASE3, i, np.zeros(3), 200.0 if fell else 1.0, fell=fell, tag=-1)
+        assert state_lines(st, cfg)[0] == (
+            "Phase 3 (transfer: source model, latent and θ boxes) holds 4 trials of its budget "
+            "of 10. Its fall budget is spent (3 falls counted, 2 allowed): it asks no more.")
+    with RunStore(tmp_path / "asktell", create=True) as st:
+        cfg = {"system": {"kind": "plugin"}, "asktell": {"phase": 1}, "phase1": {"budget": 4}}
+        st.add(Phase.PHASE1, 0, np.zeros(3), 1.0, fell=False, tag=-1)
+        assert state_lines(st, cfg)[0] == "Phase 1 (θ, TuRBO-m) holds 1 trial of its budget of 4."

@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import shlex
 import time
 from typing import Any
 
@@ -395,10 +396,43 @@ def decisions_markdown(store: Any) -> list[str]:
     return md
 
 
+RESUMED_BY = {Phase.PHASE1: ("tune", "phase1"), Phase.PHASE3: ("tune", "phase3")}
+"""The commands that run a phase of a phase run, and so go on with it given ``--resume``."""
+
+
+def resume_hint(store: Any, cfg: dict[str, Any], phase: int) -> str:
+    """What goes on with a phase run's ``phase`` (1 or 3) stopped short of its budget, as a
+    sentence after the line that says so: for a built-in task or a ``--system`` run, the
+    commands that run it (:data:`RESUMED_BY`) with ``--resume`` on the run directory (the store
+    does not say which one started it: a ``tune`` stopped in phase 1 stored what a ``phase1``
+    did); for a system made in Python, the study's method again; a phase 3 whose fall budget
+    is spent asks no more, and says so instead. Empty for an ask/tell run (it goes on with
+    ``ask``) and an Optuna import."""
+    kind = (cfg.get("system") or {}).get("kind")
+    if cfg.get("asktell") or kind in ("optuna", "external"):
+        return ""
+    if phase == Phase.PHASE3:
+        from latentune.pipeline.results import fall_budget
+
+        fb = fall_budget(store, cfg)
+        if fb and fb.get("spent"):
+            return (f" Its fall budget is spent ({counted(fb['falls'], 'fall')} counted, "
+                    f"{fb['falls_allowed']} allowed): it asks no more.")
+    if kind == "python":
+        return (f" If it stopped, `Study({str(store.dir)!r}).phase{int(phase)}(system, budget)` "
+                "with the same system goes on.")
+    where = shlex.quote(str(store.dir))
+    tune, other = (f"`latentune {c} … --out {where} --resume`" for c in RESUMED_BY[phase])
+    then = " (a tune run: it then trains the latent space and runs phase 3)" \
+        if phase == Phase.PHASE1 else ""
+    return f" If it stopped, the command that ran it goes on: {tune}{then} or {other}."
+
+
 def state_lines(store: Any, cfg: dict[str, Any]) -> list[str]:
     """What the tables do not show about a run's state: a phase with fewer trials than its
-    budget (stopped, still running, or stopped by its fall budget), suggestions handed out to
-    ask/tell and not told, and amended results. Empty for a finished run."""
+    budget (stopped, still running, or stopped by its fall budget; :func:`resume_hint`),
+    suggestions handed out to ask/tell and not told, and amended results. Empty for a
+    finished run."""
     lines = []
     for key, phase in (("phase1", Phase.PHASE1), ("phase3", Phase.PHASE3)):
         budget = (cfg.get(key) or {}).get("budget")
@@ -406,7 +440,7 @@ def state_lines(store: Any, cfg: dict[str, Any]) -> list[str]:
         if budget and n < int(budget):
             label = phase_label(phase, cfg)
             lines.append(f"{label[0].upper()}{label[1:]} holds {counted(n, 'trial')} of "
-                         f"its budget of {int(budget)}.")
+                         f"its budget of {int(budget)}." + resume_hint(store, cfg, phase))
     out = len(store.trials("pending"))
     if out:
         lines.append(f"{out} suggestion{'s are' if out != 1 else ' is'} handed out to ask/tell "
@@ -494,4 +528,4 @@ def make_report(store: Any, system: Any = None, simulate: bool = True, quiet: bo
 
 __all__ = ["comparison_table", "write_summary", "make_report", "run_stats", "task_from_config",
            "manual_rows", "manual_target",
-           "phase_label", "fmt", "decisions_markdown", "state_lines"]
+           "phase_label", "fmt", "decisions_markdown", "state_lines", "resume_hint"]
