@@ -475,3 +475,53 @@ def test_ask_phase_1_with_a_vae_where_no_phase_is_stored_says_to_ask_phase_3(tmp
     assert not new.exists()
     code, out, err = run_cli("ask", new, *SYSTEM[:2], "--phase", "3", "--vae", source)
     assert code == 0, err
+
+
+def test_a_tune_stopped_in_phase_1_resumes_to_the_phase_3_it_was_started_with(
+        tmp_path, run_cli, monkeypatch, error_line):
+    """``tune … --phase3-evals 2 --latent-dim 2 --vae-epochs 20 --fall-budget 0.3`` stopped
+    (Ctrl-C, SIGTERM) in phase 1 stored only what a ``phase1`` run does, so ``tune --resume``
+    without those flags trained the default latent space and ran phase 3 for the default 220
+    trials without the fall budget, and its report named both ``tune`` and ``phase1`` to go
+    on. tune now records its plan before phase 1 runs: the resume runs the phase 3 it was
+    started with, a flag given to a later resume replaces the planned value (as a larger
+    --phase3-evals does), and the report names ``tune`` alone (a stopped ``phase1`` run:
+    ``phase1`` alone)."""
+    import shlex
+
+    from latentune.study import Study
+
+    phase1 = Study.phase1
+
+    def stopped(self, *a, **kw):             # Ctrl-C after 3 new phase-1 trials
+        phase1(self, *a, **{**kw, "max_new": 3})
+        raise KeyboardInterrupt
+
+    sys_ = ("--system", "examples.toy_plant:make_system", "--backend", "serial", "--quiet")
+    d, p1 = tmp_path / "t", tmp_path / "p1"
+    monkeypatch.setattr(Study, "phase1", stopped)
+    code, _, err = run_cli("tune", *sys_, "--out", d, "--phase1-evals", "8", "--phase3-evals",
+                           "2", "--latent-dim", "2", "--vae-epochs", "20", "--fall-budget", "0.3")
+    assert code == 130, err
+    assert run_cli("phase1", *sys_, "--out", p1, "--phase1-evals", "8")[0] == 130
+    monkeypatch.setattr(Study, "phase1", phase1)
+    for run, cmd in ((d, "tune"), (p1, "phase1")):
+        code, _, err = run_cli("report", run, "--no-sim", "--quiet")
+        assert code == 0, err
+        then = " (it then trains the latent space and runs phase 3)" if cmd == "tune" else ""
+        assert ("holds 3 trials of its budget of 8. If it stopped, the command that ran it goes "
+                f"on: `latentune {cmd} … --out {shlex.quote(str(run))} --resume`{then}.") \
+            in (run / "report.md").read_text()
+    code, _, err = run_cli("tune", *sys_, "--out", d, "--resume")
+    assert code == 0, err
+    with Study(d) as st:
+        cfg = st.config()
+        assert st.store.count(1) == 8 and st.store.count(3) == 2
+    assert (cfg["phase3"]["budget"], cfg["vae"]["d_low"], cfg["vae"]["epochs"]) == (2, 2, 20)
+    assert cfg["phase3"]["transfer_options"] == {"fall_budget": 0.3}
+    code, _, err = run_cli("tune", *sys_, "--out", d, "--resume", "--phase3-evals", "3")
+    assert code == 0, err
+    with Study(d) as st:
+        assert st.store.count(3) == 3 and st.config()["tune"]["phase3_evals"] == 3
+    line = error_line(*run_cli("tune", *sys_, "--out", d, "--resume", "--latent-dim", "3")[::2])
+    assert "--latent-dim 3: the latent space of" in line, line

@@ -537,11 +537,15 @@ def _refuse_rerun(study: Any, phase: int, resume: bool) -> None:
 
 def _budget(args: argparse.Namespace, study: Any, phase: int) -> int:
     """--phase1-evals / --phase3-evals of a run command: the value given, else the budget the
-    run's phase was started with (a resume goes on to it), else the default."""
+    run's phase was started with (a resume goes on to it), else, for phase 3, the one the
+    ``tune`` that started the run planned (:func:`_tune_plan`), else the default."""
     given = args.phase1_evals if phase == 1 else args.phase3_evals
     if given is not None:
         return int(given)
-    stored = (study.config().get(f"phase{phase}") or {}).get("budget") if study.exists else None
+    cfg = study.config() if study.exists else {}
+    stored = (cfg.get(f"phase{phase}") or {}).get("budget")
+    if not stored and phase == 3:
+        stored = (cfg.get("tune") or {}).get("phase3_evals")
     return int(stored) if stored else DEFAULT_PHASE1 if phase == 1 else DEFAULT_PHASE3
 
 
@@ -569,10 +573,13 @@ def _finish(study: Any, args: argparse.Namespace) -> None:
 
 
 def _phase1_study(args: argparse.Namespace, latent: bool,
-                  check: Callable[[Any], None] | None = None) -> tuple[Any, Any, Any]:
+                  check: Callable[[Any], None] | None = None,
+                  record: dict[str, Any] | None = None) -> tuple[Any, Any, Any]:
     """The study, system and phase-1 result of ``tune``/``phase1``, every flag checked first
     (``latent``: the latent-space flags are used afterwards, as in ``tune``; ``check(study)``:
-    more checks, before phase 1 runs)."""
+    more checks, before phase 1 runs). ``record``: entries put in the run's config once every
+    flag and phase 1's options are checked, before phase 1 runs (the store is created for
+    them)."""
     study = _study(args)
     _check_stored_system(study, args)
     if check is not None:
@@ -592,6 +599,10 @@ def _phase1_study(args: argparse.Namespace, latent: bool,
             _refuse_phase1_past_latent(study, _budget(args, study, 1))
     mfp, prior = _kept_phase1(study, args)
     try:
+        if record:
+            _check_phase1(study, system, args, mfp, prior)
+            with study.writing():
+                study.manifest.update(**record)
         res = study.phase1(system, _budget(args, study, 1), method=args.method,
                            regions=args.regions, max_fall_prob=mfp, fall_prior=prior)
     except (UsageError, StoreError) as exc:     # in the words of the command's flags
@@ -601,6 +612,25 @@ def _phase1_study(args: argparse.Namespace, latent: bool,
         study.close()
         raise
     return study, system, res
+
+
+def _check_phase1(study: Any, system: Any, args: argparse.Namespace, mfp: Any,
+                  prior: Any) -> None:
+    """The checks :meth:`Study.phase1` makes before it writes anything (its options against the
+    stored ones, the fall prior, the stored system), made before the run command records what
+    it runs (UsageError or StoreError, as phase 1 would raise them)."""
+    from latentune.pipeline import manifest as mf
+    from latentune.pipeline.loop import theta_prior
+
+    extra = {"start": mf.start_point("manual", system.space.manual, system.space.dim)[1],
+             **mf.fall_options(mfp, prior)}
+    study.manifest.phase_options(1, method=args.method, budget=_budget(args, study, 1),
+                                 regions=args.regions, seed=study.seed,
+                                 batch_size=study.batch_size_of(1), extra=extra, phase_run=True)
+    if mfp is not None:
+        theta_prior(prior, system.space)
+    if study.exists:
+        study.bind_check(system)
 
 
 def _kept_phase1(study: Any, args: argparse.Namespace) -> tuple[Any, Any]:
@@ -640,19 +670,45 @@ def _refuse_phase1_past_latent(study: Any, phase1_evals: int) -> None:
                        "another directory")
 
 
+def _plan_given(args: argparse.Namespace, key: str) -> Any:
+    """The value of ``tune``'s flag ``key`` (of :data:`TUNE_PLAN`) given on the command line,
+    else None (--vae-kind: left at its default)."""
+    return _vae_kind(args) if key == "vae_kind" else getattr(args, key, None)
+
+
+def _tune_plan(study: Any, args: argparse.Namespace) -> dict[str, Any]:
+    """The plan of ``tune`` (the flags of :data:`TUNE_PLAN`, as its run records them under
+    ``tune``): with --resume, each flag not given is set in ``args`` from the run's recorded
+    plan, the way a resume keeps phase 1's stored budget (--phase3-evals is read from it by
+    :func:`_budget`, after a phase 3's stored budget); a given flag replaces the recorded value
+    (a flag the run's latent space or phase 3 already fixed is refused by their checks)."""
+    plan = ((study.config().get("tune") or {}) if study.exists else {}) if args.resume else {}
+    out: dict[str, Any] = {}
+    for key in TUNE_PLAN:
+        given = _plan_given(args, key)
+        out[key] = given if given is not None else plan.get(key)
+        if given is None and out[key] is not None and key != "phase3_evals":
+            setattr(args, key, out[key])
+    return out
+
+
 def cmd_tune(args: argparse.Namespace) -> int:
     from latentune.constants import Phase
     from latentune.pipeline.loop import resolve_strategy
     from latentune.pipeline.phase2 import stale_latent
 
-    handover = _handover(args)                      # checked before phase 1 runs
-    strategy = _strategy(args, handover)
-    _transfer_options(args, None)                   # checked before phase 1 runs
+    _strategy(args, _handover(args))                # the flags given: checked before any read
+    _transfer_options(args, None)
+    plan: dict[str, Any] = {}
 
     def check(study: Any) -> None:
-        """Phase 3's strategy and transfer options checked before phase 1 runs."""
+        """The run's plan read (a resume takes the flags it is not given from it), then phase
+        3's strategy and transfer options checked, before phase 1 runs."""
         from latentune.pipeline.manifest import transfer_option
 
+        plan.update(_tune_plan(study, args))
+        handover = _handover(args)
+        strategy = _strategy(args, handover)
         try:
             st = resolve_strategy(study.manifest, strategy, handover)
             transfer_option(_transfer_options(args, _stored_transfer(study)), st,
@@ -660,7 +716,10 @@ def cmd_tune(args: argparse.Namespace) -> int:
         except (UsageError, StoreError) as exc:
             raise CLIError(_ask_flags(str(exc), args)) from None
 
-    study, system, _ = _phase1_study(args, latent=True, check=check)
+    study, system, _ = _phase1_study(args, latent=True, check=check,
+                                     record={"tune": plan, "command": "tune"})
+    handover = _handover(args)
+    strategy = _strategy(args, handover)
     with study:
         vae = study.config().get("vae") or {}
         stale = stale_latent(study.store, vae) and not study.manifest.n_used(Phase.PHASE3)
@@ -684,7 +743,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
 
 
 def cmd_phase1(args: argparse.Namespace) -> int:
-    study, _, res = _phase1_study(args, latent=False)
+    study, _, res = _phase1_study(args, latent=False, record={"command": "phase1"})
     with study:
         study.summary()
         print(_phase_line(res, study))
@@ -1378,6 +1437,12 @@ def _transfer_args(p: argparse.ArgumentParser) -> None:
 
 TRANSFER_DESTS = ("fall_budget", "record_walk", "escape_falls", "walk_pick", "target_scores")
 """The flags of :func:`_transfer_args` (their ``args`` attributes)."""
+
+TUNE_PLAN = ("phase3_evals", "latent_dim", "vae_kind", "vae_epochs", "method", "regions",
+             "max_fall_prob", "strategy", "handover") + TRANSFER_DESTS
+"""The flags of ``tune`` (their ``args`` attributes) its run records, as given (None: not
+given), under ``tune`` before phase 1 runs: what its latent space and phase 3 are run with,
+which a resume stopped before them would otherwise not know (:func:`_tune_plan`)."""
 
 
 def _transfer_options(args: argparse.Namespace, stored: dict[str, Any] | None

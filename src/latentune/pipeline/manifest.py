@@ -10,6 +10,10 @@ Stored in the run store's ``config`` meta entry (JSON)::
                   latent_source, strategy, handover and transfer_options (only when given)
     asktell       the phase ask/tell drives (``phase``) with the same options
     vae, latent, phase3_vae_source, phase3_handover   phase 2's and phase 3's latent space
+    command       the command-line command that last started a phase run here (``tune`` or
+                  ``phase1``), which its report names to go on
+    tune          a ``tune`` run's plan, recorded before phase 1 runs: the flags it was given
+                  for its latent space and phase 3 (None: not given), which its resume keeps
 
 A study reopened reads its seed and options from here; a conflicting one is refused with one
 line naming the stored value (:class:`~latentune.errors.StoreError`). A study that holds no

@@ -403,11 +403,12 @@ RESUMED_BY = {Phase.PHASE1: ("tune", "phase1"), Phase.PHASE3: ("tune", "phase3")
 def resume_hint(store: Any, cfg: dict[str, Any], phase: int) -> str:
     """What goes on with a phase run's ``phase`` (1 or 3) stopped short of its budget, as a
     sentence after the line that says so: for a built-in task or a ``--system`` run, the
-    commands that run it (:data:`RESUMED_BY`) with ``--resume`` on the run directory (the store
-    does not say which one started it: a ``tune`` stopped in phase 1 stored what a ``phase1``
-    did); for a system made in Python, the study's method again; a phase 3 whose fall budget
-    is spent asks no more, and says so instead. Empty for an ask/tell run (it goes on with
-    ``ask``) and an Optuna import."""
+    command that ran it with ``--resume`` on the run directory: the one recorded (``command``:
+    ``tune``, whose run goes on to phase 3 as planned, or ``phase1``), else, for a run that
+    recorded none (stored before the record existed, or run through the API), the commands that
+    run the phase (:data:`RESUMED_BY`); for a system made in Python, the study's method again; a
+    phase 3 whose fall budget is spent asks no more, and says so instead. Empty for an ask/tell
+    run (it goes on with ``ask``) and an Optuna import."""
     kind = (cfg.get("system") or {}).get("kind")
     if cfg.get("asktell") or kind in ("optuna", "external"):
         return ""
@@ -422,7 +423,15 @@ def resume_hint(store: Any, cfg: dict[str, Any], phase: int) -> str:
         return (f" If it stopped, `Study({str(store.dir)!r}).phase{int(phase)}(system, budget)` "
                 "with the same system goes on.")
     where = shlex.quote(str(store.dir))
+    ran = cfg.get("command") if cfg.get("command") in RESUMED_BY[phase] \
+        else "tune" if cfg.get("tune") is not None else None
     tune, other = (f"`latentune {c} … --out {where} --resume`" for c in RESUMED_BY[phase])
+    if ran == "tune":
+        then = " (it then trains the latent space and runs phase 3)" \
+            if phase == Phase.PHASE1 else ""
+        return f" If it stopped, the command that ran it goes on: {tune}{then}."
+    if ran is not None:
+        return f" If it stopped, the command that ran it goes on: {other}."
     then = " (a tune run: it then trains the latent space and runs phase 3)" \
         if phase == Phase.PHASE1 else ""
     return f" If it stopped, the command that ran it goes on: {tune}{then} or {other}."
