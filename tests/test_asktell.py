@@ -2142,3 +2142,23 @@ def test_tell_and_evaluate_word_each_bad_cost_in_their_own_terms(tmp_path):
         assert str(ei.value) == ("bad result for suggestion 1: got failed = 'no'; expected True "
                                  "or False")
         assert st.store.count(Phase.PHASE1) == 0
+
+
+def test_tell_writes_the_summary_status_shows(tmp_path: Path, run_cli) -> None:
+    """``phase1`` (4 trials), ``ask --budget 5`` and ``tell 1 --cost 1.5``: status showed 5
+    trials, best 1.5, while summary.json still said 4 trials, best 28.02 (tell never wrote it);
+    tell (and ``tell --amend``) now writes it after the result is stored."""
+    d = tmp_path / "run"
+    sys_ = ("--system", "examples.toy_plant:make_system")
+    assert run_cli("phase1", *sys_, "--backend", "serial", "--quiet", "--out", d,
+                   "--phase1-evals", "4")[0] == 0
+    assert run_cli("ask", d, "--budget", "5", "--quiet")[0] == 0
+    for flags, best in ((("--cost", "1.5"), 1.5), (("--cost", "2.5", "--amend"), None)):
+        code, _, err = run_cli("tell", d, "1", *flags)
+        assert code == 0, err
+        summary = json.loads((d / "summary.json").read_text())
+        with lt.Study(d) as st:
+            row = st.best(1)
+            assert (summary["phase1_evals"], summary["phase1_best"]) == (st.store.count(1), row.cost)
+        assert summary["phase1_evals"] == 5 and (best is None or row.cost == best)
+    assert summary["phase1_best"] != 1.5                  # the amended cost replaced it

@@ -1164,6 +1164,7 @@ def cmd_tell(args: argparse.Namespace) -> int:
         row = study.tell(trial_id, args.cost, failed=args.failed, note=args.note,
                          amend=args.amend, info=info)
         prune_suggestion_files(study.dir, _pending_ids(study))   # an amendment withdraws some
+        study.summary()                         # summary.json holds the result told
         print(f"{'amended' if args.amend else 'told'} {trial_id}: {phase_name(row.phase)} "
               f"evaluation {row.idx}, cost {row.cost:.6g}{' (failed)' if row.fell else ''}")
         work_done(args)
