@@ -367,8 +367,8 @@ def test_existing_run_is_not_rerun_or_changed(capsys, run_dir, tmp_path):
 @pytest.mark.parametrize("cmd", ["report", "status"])
 def test_missing_and_foreign_directories(capsys, tmp_path, cmd):
     nope = tmp_path / "nope"
-    assert_one_line(capsys, cmd, nope, expect=f"run directory {nope} does not exist"
-                    if cmd == "report" else f"no run store in {nope}")
+    line = assert_one_line(capsys, cmd, nope, expect=f"no run store in {nope}")
+    assert line == f"latentune: error: no run store in {nope}"   # report: as status, best, tell
     (tmp_path / "empty").mkdir()
     assert_one_line(capsys, cmd, tmp_path / "empty", expect=f"no run store in {tmp_path / 'empty'}")
     f = tmp_path / "file"

@@ -68,7 +68,7 @@ def test_bad_input(small_run, tmp_path, run_cli, error_line, dump_store):
 
     before = dump_store(small_run)
     # missing run directory / store
-    assert "nope does not exist" in error("report", tmp_path / "nope")
+    assert f"no run store in {tmp_path / 'nope'}" in error("report", tmp_path / "nope")
     assert "no run store in" in error("train-vae", *TINY, "--out", tmp_path / "nope")
     assert "no run store in" in error("phase3", *TINY, "--out", tmp_path / "nope2")
     assert not (tmp_path / "nope2").exists()

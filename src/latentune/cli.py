@@ -896,7 +896,7 @@ def cmd_report(args: argparse.Namespace) -> int:
         return 0
     study = Study(d, progress=_progress(args))
     if not study.exists:
-        raise CLIError(f"no run store in {d}" if d.is_dir() else f"run directory {d} does not exist")
+        raise CLIError(f"no run store in {d}")      # as status, best, tell and release say
     system = None
     if args.system is not None:
         system = make_system(args)
