@@ -525,3 +525,30 @@ def test_a_tune_stopped_in_phase_1_resumes_to_the_phase_3_it_was_started_with(
         assert st.store.count(3) == 3 and st.config()["tune"]["phase3_evals"] == 3
     line = error_line(*run_cli("tune", *sys_, "--out", d, "--resume", "--latent-dim", "3")[::2])
     assert "--latent-dim 3: the latent space of" in line, line
+
+
+def test_phase_3_where_no_phase_1_ran_says_to_run_phase_1_first(tmp_path, run_cli, error_line):
+    """``ask NEW --system X --phase 3`` (NEW a new directory, no --vae) said "no latent space
+    in NEW: train one first (latentune train-vae --out NEW), or name another study's (--vae)",
+    but train-vae there fails (no run store: run phase1 or tune first), as it would in a run
+    without phase-1 trials. Where the run holds no phase-1 trial the advice is now to run phase
+    1 there first (``ask --phase 1`` for ask, ``phase1`` for phase3), then train the latent
+    space, or give --vae; the API names its methods."""
+    from examples.toy_plant import make_real_system
+    from latentune.errors import LatentError
+
+    new = tmp_path / "NEW"
+    line = error_line(*run_cli("ask", new, *SYSTEM[:2], "--phase", "3")[::2])
+    assert line == (f"latentune: error: no latent space in {new} and no phase-1 trial to train "
+                    f"one on: run phase 1 there first (latentune ask {new} --phase 1 … and tell "
+                    f"its trials, then latentune train-vae --out {new}), or name another "
+                    "study's (--vae)"), line
+    assert not new.exists()
+    assert run_cli("ask", new, *SYSTEM[:2], "--phase", "1", "--budget", "4")[0] == 0
+    line = error_line(*run_cli("phase3", *SYSTEM, "--out", new, "--phase3-evals", "4")[::2])
+    assert line.endswith(f"run phase 1 there first (latentune phase1 … --out {new}, then "
+                         f"latentune train-vae --out {new}), or name another study's (--vae)")
+    with pytest.raises(LatentError, match=r"no latent space in .* and no phase-1 trial to train "
+                       r"one on: run phase 1 there first \(phase1, then train_latent\), or name "
+                       r"another study's \(latent\)$"):
+        lt.Study(tmp_path / "api").phase3(make_real_system(), 4)

@@ -1082,6 +1082,13 @@ def _ask_flags(msg: str, args: argparse.Namespace) -> str:
         trains = getattr(args, "vae", None) if msg.startswith("latent: ") else where
         msg = msg.replace("(train_latent / train-vae)",
                           f"({shlex.join(['latentune', 'train-vae', '--out', str(trains)])})")
+    if "(phase1, then train_latent)" in msg:     # no phase-1 trial to train one on
+        q = shlex.quote(str(where))
+        runs = f"latentune ask {q} --phase 1 … and tell its trials" \
+            if getattr(args, "command", None) == "ask" else f"latentune phase1 … --out {q}"
+        msg = msg.replace("(phase1, then train_latent)",
+                          f"({runs}, then "
+                          f"{shlex.join(['latentune', 'train-vae', '--out', str(where)])})")
     msg = re.sub(r"^latent: ", lambda m: f"{ASK_FLAGS['latent']}: ", msg)
     msg = msg.replace("with a larger budget", "with a larger --budget").replace(
         "the result (best_params())", f"the result (latentune best {where})")

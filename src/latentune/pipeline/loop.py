@@ -375,7 +375,9 @@ def resolve_latent(run: RunDir, manifest: Manifest, latent: Any, space: Paramete
     resolved path. ``latent``: None (the study's own, or the one copied before), a
     LatentSpace, or another study (a directory, or an object with ``dir``). LatentError if the
     latent space's θ are not this space's (dimension, names, actor), or ``space`` has one
-    parameter (no smaller latent space)."""
+    parameter (no smaller latent space); with ``latent`` None and no latent space here, the
+    LatentError says to train one, or to run phase 1 first where the run holds no phase-1
+    trial."""
     from latentune.latent.vae import LatentSpace
 
     me = run.dir.resolve()
@@ -388,6 +390,10 @@ def resolve_latent(run: RunDir, manifest: Manifest, latent: Any, space: Paramete
             ls, source = LatentSpace.load(run.store.artifact("phase3_vae")), prev
         elif run.exists and run.store.artifact("vae") is not None:
             ls, source = LatentSpace.load(run.store.artifact("vae")), "self"
+        elif not run.exists or not run.store.count(Phase.PHASE1):     # nothing to train on
+            raise LatentError(f"no latent space in {run.dir} and no phase-1 trial to train one "
+                              "on: run phase 1 there first (phase1, then train_latent), or "
+                              "name another study's (latent)")
         else:
             raise LatentError(f"no latent space in {run.dir}: train one first "
                               "(train_latent / train-vae), or name another study's (latent)")
