@@ -1125,3 +1125,22 @@ def test_a_study_that_runs_more_trials_than_the_samplers_budget_warns_once(sourc
                                           seed=0, budget=n + 1)
             study.optimize(objective_for(study.sampler), n_trials=1)
         assert _budget_warnings(rec) == [], name
+
+
+def test_a_sampler_on_a_run_without_phase_1_trials_says_to_run_phase_1_first(tmp_path):
+    """``LatentSampler(R)`` where R holds a space but no phase-1 trial (an ask that was never
+    told) said "train one first", and training there fails for want of trials; it now says to
+    run phase 1 there first. A run with phase-1 trials and no latent space still says to train."""
+    from latentune.errors import LatentError
+
+    r = tmp_path / "R"
+    with lt.Study(r) as st:
+        st.ask(space=lt.ParameterSpace(["a", "b"], [0.0] * 2, [1.0] * 2, manual=[0.5] * 2))
+    with pytest.raises(LatentError, match="no phase-1 trial to train one on: run phase 1 there "
+                                          "first"):
+        LatentSampler(str(r))
+    with lt.Study(r) as st:
+        (s,) = st.ask()
+        st.tell(s.id, 1.0)
+    with pytest.raises(LatentError, match=r"no latent space in .*: train one first"):
+        LatentSampler(str(r))

@@ -819,8 +819,14 @@ class LatentSampler(_CriticSampler, BaseSampler):
         with Study(src) as s:
             space = s.space()
             latent = s.latent()
+            trained_on = s.store.count(Phase.PHASE1)
         if space is None:
             raise StoreError(f"LatentSampler: {src} records no parameter space")
+        if latent is None and not trained_on:
+            raise LatentError(f"LatentSampler: no latent space in {src} and no phase-1 trial to "
+                              "train one on: run phase 1 there first (Study.phase1, or an "
+                              "Optuna study's trials through latentune import-optuna), then "
+                              "train one (Study.train_latent or latentune train-vae)")
         if latent is None:
             raise LatentError(f"LatentSampler: no latent space in {src}: train one first "
                               "(Study.train_latent or latentune train-vae)")
