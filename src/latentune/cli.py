@@ -601,7 +601,9 @@ def _phase1_study(args: argparse.Namespace, latent: bool,
     try:
         if record:
             _check_phase1(study, system, args, mfp, prior)
-            with study.writing():
+            # the evaluator starts first, as phase 1's own write: one that cannot (Ray without
+            # its cluster) leaves no run directory behind
+            with study.run.writing(evaluating=True):
                 study.manifest.update(**record)
         res = study.phase1(system, _budget(args, study, 1), method=args.method,
                            regions=args.regions, max_fall_prob=mfp, fall_prior=prior)
