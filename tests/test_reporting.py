@@ -701,6 +701,13 @@ def test_a_phase_stopped_short_of_its_budget_says_what_goes_on(tmp_path: Path, r
         assert state_lines(st, cfg)[0] == (
             "Phase 3 (transfer: source model, latent and θ boxes) holds 4 trials of its budget "
             "of 10. Its fall budget is spent (3 falls counted, 2 allowed): it asks no more.")
+    with RunStore(tmp_path / "p1p3", create=True) as st:     # phase1, then phase3: phase3
+        cfg = {"system": {"kind": "plugin"}, "command": "phase1",
+               "phase3": {"strategy": "transfer", "budget": 10}}
+        st.add(Phase.PHASE3, 0, np.zeros(3), 1.0, fell=False, tag=-1)
+        assert state_lines(st, cfg)[0].endswith(
+            "If it stopped, the command that ran it goes on: `latentune phase3 … --out "
+            f"{shlex.quote(str(tmp_path / 'p1p3'))} --resume`.")
     with RunStore(tmp_path / "asktell", create=True) as st:
         cfg = {"system": {"kind": "plugin"}, "asktell": {"phase": 1}, "phase1": {"budget": 4}}
         st.add(Phase.PHASE1, 0, np.zeros(3), 1.0, fell=False, tag=-1)

@@ -404,7 +404,8 @@ def resume_hint(store: Any, cfg: dict[str, Any], phase: int) -> str:
     """What goes on with a phase run's ``phase`` (1 or 3) stopped short of its budget, as a
     sentence after the line that says so: for a built-in task or a ``--system`` run, the
     command that ran it with ``--resume`` on the run directory: the one recorded (``command``:
-    ``tune``, whose run goes on to phase 3 as planned, or ``phase1``), else, for a run that
+    ``tune``, whose run goes on to phase 3 as planned, or ``phase1``, whose phase 3 a ``phase3``
+    command ran), else, for a run that
     recorded none (stored before the record existed, or run through the API), the commands that
     run the phase (:data:`RESUMED_BY`); for a system made in Python, the study's method again; a
     phase 3 whose fall budget is spent asks no more, and says so instead. Empty for an ask/tell
@@ -425,6 +426,8 @@ def resume_hint(store: Any, cfg: dict[str, Any], phase: int) -> str:
     where = shlex.quote(str(store.dir))
     ran = cfg.get("command") if cfg.get("command") in RESUMED_BY[phase] \
         else "tune" if cfg.get("tune") is not None else None
+    if phase == Phase.PHASE3 and cfg.get("command") == "phase1":
+        ran = "phase3"              # a phase1 run's phase 3 is a phase3 command's
     tune, other = (f"`latentune {c} … --out {where} --resume`" for c in RESUMED_BY[phase])
     if ran == "tune":
         then = " (it then trains the latent space and runs phase 3)" \
