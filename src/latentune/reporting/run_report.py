@@ -423,20 +423,22 @@ def resume_hint(store: Any, cfg: dict[str, Any], phase: int) -> str:
     if kind == "python":
         return (f" If it stopped, `Study({str(store.dir)!r}).phase{int(phase)}(system, budget)` "
                 "with the same system goes on.")
-    where = shlex.quote(str(store.dir))
-    ran = cfg.get("command") if cfg.get("command") in RESUMED_BY[phase] \
-        else "tune" if cfg.get("tune") is not None else None
-    if phase == Phase.PHASE3 and cfg.get("command") == "phase1":
+    recorded = cfg.get("command")
+    if recorded == "phase1" and phase == Phase.PHASE3:
         ran = "phase3"              # a phase1 run's phase 3 is a phase3 command's
+    elif recorded in RESUMED_BY[phase]:
+        ran = recorded
+    else:
+        ran = "tune" if cfg.get("tune") is not None else None
+    where = shlex.quote(str(store.dir))
     tune, other = (f"`latentune {c} … --out {where} --resume`" for c in RESUMED_BY[phase])
+    p1 = phase == Phase.PHASE1
     if ran == "tune":
-        then = " (it then trains the latent space and runs phase 3)" \
-            if phase == Phase.PHASE1 else ""
+        then = " (it then trains the latent space and runs phase 3)" if p1 else ""
         return f" If it stopped, the command that ran it goes on: {tune}{then}."
     if ran is not None:
         return f" If it stopped, the command that ran it goes on: {other}."
-    then = " (a tune run: it then trains the latent space and runs phase 3)" \
-        if phase == Phase.PHASE1 else ""
+    then = " (a tune run: it then trains the latent space and runs phase 3)" if p1 else ""
     return f" If it stopped, the command that ran it goes on: {tune}{then} or {other}."
 
 
