@@ -237,14 +237,15 @@ def _phase(cfg: dict[str, Any], phase: int | None, latent: Any, dir_: Path,
         raise UsageError(f"ask/tell runs phase 1 or 3, not {phase!r}")
     if stored is not None:
         if phase is not None and int(phase) != int(stored):
-            untrained = trained is not None and trained.artifact("vae") is None
-            raise StoreError(f"{dir_}: ask/tell runs phase {stored} (stored), not {phase}" + (
-                "" if int(stored) != Phase.PHASE1 else
-                f"; ask phase 3 in another directory, with --vae {_named(latent)}"
-                if latent is not None else
-                f"; {dir_} holds no latent space yet: train one there first (train_latent / "
-                f"train-vae), then ask phase 3 in another directory, with --vae {dir_}"
-                if untrained else f"; ask phase 3 in another directory, with --vae {dir_}"))
+            advice = ""
+            if int(stored) == Phase.PHASE1:     # phase 3 goes elsewhere, with a latent space
+                vae = dir_ if latent is None else _named(latent)
+                advice = f"; ask phase 3 in another directory, with --vae {vae}"
+                if latent is None and trained is not None and trained.artifact("vae") is None:
+                    advice = (f"; {dir_} holds no latent space yet: train one there first "
+                              f"(train_latent / train-vae), then ask phase 3 in another "
+                              f"directory, with --vae {dir_}")
+            raise StoreError(f"{dir_}: ask/tell runs phase {stored} (stored), not {phase}{advice}")
         return int(stored)
     if phase is None:
         phase = Phase.PHASE3 if latent is not None or cfg.get(mf.PHASE_KEYS[Phase.PHASE3]) \
