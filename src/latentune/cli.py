@@ -599,14 +599,9 @@ def _phase1_study(args: argparse.Namespace, latent: bool,
             _refuse_phase1_past_latent(study, _budget(args, study, 1))
     mfp, prior = _kept_phase1(study, args)
     try:
-        if record:
-            _check_phase1(study, system, args, mfp, prior)
-            # the evaluator starts first, as phase 1's own write: one that cannot (Ray without
-            # its cluster) leaves no run directory behind
-            with study.run.writing(evaluating=True):
-                study.manifest.update(**record)
         res = study.phase1(system, _budget(args, study, 1), method=args.method,
-                           regions=args.regions, max_fall_prob=mfp, fall_prior=prior)
+                           regions=args.regions, max_fall_prob=mfp, fall_prior=prior,
+                           record=record)
     except (UsageError, StoreError) as exc:     # in the words of the command's flags
         study.close()
         raise CLIError(_ask_flags(str(exc), args)) from None
@@ -614,25 +609,6 @@ def _phase1_study(args: argparse.Namespace, latent: bool,
         study.close()
         raise
     return study, system, res
-
-
-def _check_phase1(study: Any, system: Any, args: argparse.Namespace, mfp: Any,
-                  prior: Any) -> None:
-    """The checks :meth:`Study.phase1` makes before it writes anything (its options against the
-    stored ones, the fall prior, the stored system), made before the run command records what
-    it runs (UsageError or StoreError, as phase 1 would raise them)."""
-    from latentune.pipeline import manifest as mf
-    from latentune.pipeline.loop import theta_prior
-
-    extra = {"start": mf.start_point("manual", system.space.manual, system.space.dim)[1],
-             **mf.fall_options(mfp, prior)}
-    study.manifest.phase_options(1, method=args.method, budget=_budget(args, study, 1),
-                                 regions=args.regions, seed=study.seed,
-                                 batch_size=study.batch_size_of(1), extra=extra, phase_run=True)
-    if mfp is not None:
-        theta_prior(prior, system.space)
-    if study.exists:
-        study.bind_check(system)
 
 
 def _kept_phase1(study: Any, args: argparse.Namespace) -> tuple[Any, Any]:

@@ -172,8 +172,8 @@ class Study:
     # ------------------------------------------------------------------ phases
     def phase1(self, system: Any, budget: int, *, method: str | None = None,
                regions: int | None = None, start: Any = "manual",
-               max_fall_prob: float | None = None, fall_prior: Any = None,
-               source_run: Any = None, max_new: int | None = None) -> PhaseResult:
+               max_fall_prob: float | None = None, fall_prior: Any = None, source_run: Any = None,
+               max_new: int | None = None, record: dict[str, Any] | None = None) -> PhaseResult:
         """Phase 1: ``method`` (None: the stored one, else TuRBO-m; ``optuna-*``: Optuna's
         samplers, ``source_run``: a run whose trials are ``optuna-cmaes``'s ``source_trials``)
         tunes the full θ of ``system`` for ``budget`` evaluations in all, stored ones included.
@@ -185,7 +185,8 @@ class Study:
         more than that share of a batch falls, see
         :func:`~latentune.pipeline.phases.make_phase_critic`); ``fall_prior``: a run directory
         whose phase-1 trials (θ, failed) seed that prediction. ``max_new``: stop after this
-        many new trials."""
+        many new trials. ``record``: entries stored in the run's configuration with phase 1's
+        options once every option is checked, before any trial (e.g. a command's whole plan)."""
         check_system(system)
         extra = {"start": mf.start_point(start, system.space.manual, system.space.dim)[1],
                  **mf.fall_options(max_fall_prob, fall_prior),
@@ -196,7 +197,7 @@ class Study:
         with self.run.writing(evaluating=True) as st:
             self.bind(system)
             pc = self._options(Phase.PHASE1, method, budget, regions, extra)
-            self.manifest.update(phase1=pc)
+            self.manifest.update(phase1=pc, **(record or {}))
             self.manifest.record_run(self.seed)
             manual = ensure_manual(st, system, self.seed, self.evaluator())
             self.log(f"manual θ: cost {manual:.3f}")
