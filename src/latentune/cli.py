@@ -678,6 +678,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
     _strategy(args, _handover(args))                # the flags given: checked before any read
     _transfer_options(args, None)
     plan: dict[str, Any] = {}
+    chosen: dict[str, Any] = {}         # phase 3's handover and strategy, read with the plan
 
     def check(study: Any) -> None:
         """The run's plan read (a resume takes the flags it is not given from it), then phase
@@ -685,8 +686,8 @@ def cmd_tune(args: argparse.Namespace) -> int:
         from latentune.pipeline.manifest import transfer_option
 
         plan.update(_tune_plan(study, args))
-        handover = _handover(args)
-        strategy = _strategy(args, handover)
+        chosen["handover"] = handover = _handover(args)
+        chosen["strategy"] = strategy = _strategy(args, handover)
         try:
             st = resolve_strategy(study.manifest, strategy, handover)
             transfer_option(_transfer_options(args, _stored_transfer(study)), st,
@@ -696,8 +697,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
 
     study, system, _ = _phase1_study(args, latent=True, check=check,
                                      record={"tune": plan, "command": "tune"})
-    handover = _handover(args)
-    strategy = _strategy(args, handover)
+    handover, strategy = chosen["handover"], chosen["strategy"]
     with study:
         vae = study.config().get("vae") or {}
         stale = stale_latent(study.store, vae) and not study.manifest.n_used(Phase.PHASE3)
