@@ -908,12 +908,14 @@ def test_ask_refuses_odd_arguments_from_python(tmp_path):
     dict raised AttributeError; ``space`` beside a system of another space was ignored;
     ``start`` as a dict TypeError; ``lease_s=True`` / ``"5"`` were leases of 1 and 5 s, an
     asker ``"a\\nb"`` broke status's lines and ``["x"]`` was stored as "['x']"; ``phase="x"`` ValueError and
-    ``phase=1.5`` was taken as 1; a later ``budget="x"`` TypeError. Each is one UsageError or
+    ``phase=1.5`` was taken as 1; a later ``budget="x"`` TypeError; ``budget=2**63`` (past the
+    store's integers) was taken. Each is one UsageError or
     StoreError now, and a first ask that is refused leaves no phase."""
     from latentune.errors import UsageError
 
     sp = lt.ParameterSpace(["a"], [0], [1])
-    cases = [(dict(budget=0), UsageError, "budget must be an integer >= 1, got 0"),
+    cases = [(dict(budget=0), UsageError, "budget must be an integer >= 1 and below 2\\*\\*63, got 0"),
+             (dict(budget=2 ** 63), UsageError, f"below 2\\*\\*63, got {2 ** 63}"),
              (dict(space={"names": ["a"], "low": [0], "high": [1]}), UsageError,
               "space must be a latentune.ParameterSpace, not dict"),
              (dict(start={"a": 0.2}), UsageError, "start must be numbers"),

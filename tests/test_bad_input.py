@@ -519,6 +519,9 @@ ASKTELL_CASES = [
     (["tell", "{d}", str(2 ** 70), "--cost", "1"], f"no suggestion with id {2 ** 70}"),
     (["tell", "{d}", str(2 ** 63), "--amend", "--cost", "1"], f"no suggestion with id {2 ** 63}"),
     (["release", "{d}", str(-2 ** 70)], f"no suggestion with id {-2 ** 70}"),
+    # a budget grown past the store's integers was taken
+    (["ask", "{d}", "--budget", str(2 ** 70)],
+     f"--budget must be an integer >= 1 and below 2**63, got {2 ** 70}"),
     (["ask", "{d}", "--n", "0"], "--n must be >= 1, got 0"),
     (["ask", "{d}", "--n", "-2"], "--n must be >= 1, got -2"),
     (["ask", "{d}", "--phase", "2"], "argument --phase: invalid choice: 2"),

@@ -328,8 +328,8 @@ class _CriticSampler:
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or \
                 not 0 <= int(seed) < 2 ** 63:
             raise UsageError(f"seed must be an integer in [0, 2**63), got {seed!r}")
-        if not is_whole(budget, 1):
-            raise UsageError(f"budget must be an integer >= 1, got {budget!r}")
+        if not is_whole(budget, 1, 2 ** 63 - 1):
+            raise UsageError(f"budget must be an integer >= 1 and below 2**63, got {budget!r}")
         if method not in METHODS:
             raise UsageError(f"unknown method {method!r} (choose from {', '.join(METHODS)})")
         if regions is not None and not is_whole(regions, 1, 100):

@@ -373,8 +373,8 @@ class Manifest:
             method = (stored or {}).get("method") if stored and n else "turbo"
         if method not in METHODS:
             raise UsageError(f"unknown method {method!r} (choose from {', '.join(METHODS)})")
-        if not is_whole(budget, 1):
-            raise UsageError(f"budget must be an integer >= 1, got {budget!r}")
+        if not is_whole(budget, 1, 2 ** 63 - 1):         # the store's integers
+            raise UsageError(f"budget must be an integer >= 1 and below 2**63, got {budget!r}")
         if max_new is not None and not is_whole(max_new, 0):
             raise UsageError(f"max_new must be a whole number >= 0, got {max_new!r}")
         if regions is not None and not is_whole(regions, 1, 100):
