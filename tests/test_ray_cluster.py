@@ -41,7 +41,7 @@ from examples.lqr_chain import ChainSystem  # noqa: E402
 HOLD_S = 600.0          # a held trial waits at most this long for its node to be killed
 BUDGET = 24
 KILL_AFTER = 6          # rows stored before the hold starts
-RAY_RECONNECT_S = 16    # the head-loss test's Ray ends its driver 16 s after losing the head
+RAY_RECONNECT_S = 12    # the head-loss test's Ray ends its driver 12 s after losing the head
 
 
 class JournalChain(ChainSystem):
@@ -214,7 +214,7 @@ def test_head_node_killed_mid_run(tmp_path, cluster, dump_store):
                  "a held trial on the worker node", proc, log)
         t0 = time.monotonic()
         cluster.kill("head")
-        proc.wait(timeout=120)           # Ray alone: exit 1 after 16 s, no line of ours
+        proc.wait(timeout=120)           # Ray alone: exit 1 after RAY_RECONNECT_S, no line of ours
         took = time.monotonic() - t0
     finally:
         if proc.poll() is None:

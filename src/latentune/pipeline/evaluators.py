@@ -76,6 +76,13 @@ RAY_RECONNECT_VAR = "RAY_gcs_rpc_server_reconnect_timeout_s"
 """Ray's own setting of how long a process may be without its head before Ray ends it [s]
 (60 unless set); a shorter one shortens the Ray evaluator's default head timeout to match."""
 
+RAY_FLUSH_VAR = "RAY_task_events_shutdown_flush_timeout_ms"
+"""Ray's setting of how long a process's Ray shutdown waits to send its task events to the
+head [ms]; the Ray evaluator connecting to a cluster sets it for its ``ray.init`` (unless the
+user did) to :data:`RAY_FLUSH_MS`, so that a command whose head was lost ends soon after its
+error line instead of waiting on the lost head."""
+RAY_FLUSH_MS = 1000
+
 log = logging.getLogger(__name__)
 
 
@@ -721,6 +728,20 @@ def _keeps_sigterm() -> Iterator[None]:
             signal.signal(signal.SIGTERM, prev)
 
 
+@contextmanager
+def _env_default(var: str, value: str | None) -> Iterator[None]:
+    """Inside the block, ``$var`` is ``value`` unless it is set already (or ``value`` is
+    None); afterwards the caller's environment is as it was."""
+    add = value is not None and var not in os.environ
+    if add:
+        os.environ[var] = value
+    try:
+        yield
+    finally:
+        if add:
+            os.environ.pop(var, None)
+
+
 def _check_reachable(address: str, timeout: float = 10.0) -> None:
     """Raise ConnectionError if a ``HOST:PORT`` Ray address does not accept a TCP connection
     within ``timeout`` seconds (Ray itself retries such an address without end). Other forms
@@ -800,7 +821,8 @@ class RayEvaluator(Evaluator):
                 tmp = temp_dir or os.environ.get("RAY_TMPDIR")
                 if tmp:
                     kw["_temp_dir"] = os.path.abspath(tmp)
-            with _keeps_sigterm():
+            with _keeps_sigterm(), _env_default(RAY_FLUSH_VAR, str(RAY_FLUSH_MS) if address
+                                                else None):
                 ray.init(**({"address": address} if address else {"num_cpus": self.workers}),
                          **kw)
             self._owns = True
