@@ -451,6 +451,7 @@ def test_ray_reruns_a_trial_lost_with_its_worker(tmp_path, ray_local):
         assert isinstance(res[1], TrialError) and "2 times" in res[1].message, res[1]
         assert [res[i].cost for i in (0, 2)] == pytest.approx(X[[0, 2]].sum(axis=1))
         assert ev.lost_trials == 3
+        ev.max_losses = 1                         # map: one lost run is enough to fail it
         with pytest.raises(EvaluationError, match="lost with its Ray worker"):
             ev.map(always_crash, X)
 
