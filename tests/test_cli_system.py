@@ -921,3 +921,20 @@ def test_a_factory_default_the_record_cannot_hold_is_named_as_the_default(run_cl
                                    "--no-sim")[::2])
     assert "(args.mass: stored 2, given the factory's default)" in line, line
     sys.modules.pop("nanmass", None)
+
+
+def test_a_system_arg_given_twice_is_refused(run_cli, plugin_dir, tmp_path):
+    """``--system-arg shift=1 --system-arg shift=2`` ran the system at shift=2 and dropped the
+    first without a word: a key given twice is one line naming it and both values, before any
+    store is made."""
+    from latentune.errors import SystemSpecError
+    from latentune.system import parse_system_args
+
+    with pytest.raises(SystemSpecError, match=r"shift is given twice \(1, then 2\)"):
+        parse_system_args(["shift=1", "dim=3", "shift=2"])
+    out = tmp_path / "r"
+    code, _, err = run_cli("phase1", "--system", "closplant:make", "--system-arg", "shift=1",
+                           "--system-arg", " shift =2", "--out", out, "--phase1-evals", "4",
+                           "--backend", "serial")
+    line = one_line_error(code, err)
+    assert "--system-arg shift is given twice" in line and not (out / "run.db").exists()

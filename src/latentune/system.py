@@ -355,7 +355,8 @@ def parse_system_args(pairs: list[str] | None) -> dict[str, Any]:
     ``true``/``false`` booleans, ``null`` None, ``[1, 2]`` a list), a string when YAML cannot
     parse it; an empty value is ``""``; a date (``2020-01-01``, also inside a list) is its
     text, as the README promises, not a ``datetime.date`` (:func:`latentune.yamltext.load_arg`;
-    YAML 1.1 alone reads ``1e9`` and ``1.0e9`` as strings)."""
+    YAML 1.1 alone reads ``1e9`` and ``1.0e9`` as strings). A key given twice raises
+    :class:`SystemSpecError` naming it and both texts (the first would be dropped unseen)."""
     import yaml
 
     from latentune.yamltext import load_arg
@@ -365,10 +366,15 @@ def parse_system_args(pairs: list[str] | None) -> dict[str, Any]:
         if "=" not in p or not p.split("=", 1)[0].strip():
             raise SystemSpecError(f"--system-arg must be key=value, got {p!r}")
         k, v = p.split("=", 1)
+        k = k.strip()
+        if k in out:
+            first = next(q.split("=", 1)[1] for q in pairs if q.split("=", 1)[0].strip() == k)
+            raise SystemSpecError(f"--system-arg {k} is given twice ({first.strip()}, then "
+                                  f"{v.strip()}): give it once")
         try:
-            out[k.strip()] = load_arg(v) if v.strip() else ""
+            out[k] = load_arg(v) if v.strip() else ""
         except yaml.YAMLError:
-            out[k.strip()] = v
+            out[k] = v
     return out
 
 
