@@ -262,6 +262,7 @@ def test_a_params_file_of_another_system_says_how_many_names_and_whose(capsys, t
     (json.dumps([2.0] * 25), "normalized parameter Q_roll = 2 is outside [0, 1]"),
     (json.dumps([True] * 25), "a params list must hold numbers only"),
     (json.dumps({"nosuch": 1.0}), "unknown parameter name(s): nosuch"),
+    ('{"Q_roll": 1.0, "Q_pitch": 1, "Q_roll": 2.0}', "names Q_roll twice (1.0, then 2.0)"),
     (json.dumps({"Q_roll": -1.0}), "parameter Q_roll = -1 is outside"),
     (json.dumps({"Q_roll": "a"}), "parameter Q_roll must be a finite number, got 'a'"),
     ("3", "params must be a JSON list of normalized values or an object of physical values"),

@@ -300,12 +300,23 @@ class ParameterSpace:
         raise ParamsError("params must be a JSON list of normalized values or an object of physical values")
 
     def load(self, path: str | Path) -> np.ndarray:
-        """Read a ``--params`` JSON file (see :meth:`parse`)."""
+        """Read a ``--params`` JSON file (see :meth:`parse`). A name given twice in one object
+        raises :class:`ParamsError` naming it and both values (JSON alone keeps the last)."""
         p = Path(path)
         if not p.is_file():
             raise ParamsError(f"params file not found: {p}")
+
+        def unique(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+            out: dict[str, Any] = {}
+            for k, v in pairs:
+                if k in out:
+                    raise ParamsError(f"params file {p} names {k} twice ({_short(out[k])}, "
+                                      f"then {_short(v)})")
+                out[k] = v
+            return out
+
         try:
-            obj = json.loads(p.read_text())
+            obj = json.loads(p.read_text(), object_pairs_hook=unique)
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise ParamsError(f"params file {p} is not valid JSON ({exc.msg if hasattr(exc, 'msg') else exc})") from None
         except RecursionError:
