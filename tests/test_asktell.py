@@ -2164,3 +2164,20 @@ def test_tell_writes_the_summary_status_shows(tmp_path: Path, run_cli) -> None:
             assert (summary["phase1_evals"], summary["phase1_best"]) == (st.store.count(1), row.cost)
         assert summary["phase1_evals"] == 5 and (best is None or row.cost == best)
     assert summary["phase1_best"] != 1.5                  # the amended cost replaced it
+
+
+def test_a_space_file_with_a_key_given_twice_is_refused(run_cli, tmp_path, error_line):
+    """A space YAML edited by hand with ``manual:`` written twice started a study at the last
+    one without a word (YAML's loader keeps the last key): it is one line naming the key and
+    its lines, and no store is made; a merge key's fields overridden below it stay allowed."""
+    from latentune import yamltext
+
+    space = tmp_path / "space.yaml"
+    space.write_text("names: [a, b]\nlow: [0, 0]\nhigh: [1, 1]\nmanual: [0.2, 0.2]\n"
+                     "log: [false, false]\nmanual: [0.7, 0.7]\n")
+    d = tmp_path / "run"
+    line = error_line(*run_cli("ask", d, "--space", space)[::2])
+    assert "the key manual is given twice (lines 4 and 6)" in line, line
+    assert not (d / "run.db").exists()
+    assert yamltext.load("base: &b {x: 1, y: 2}\nover:\n  <<: *b\n  y: 3\n") == {
+        "base": {"x": 1, "y": 2}, "over": {"x": 1, "y": 3}}

@@ -43,7 +43,24 @@ def decimal_float(text: str) -> float | None:
 
 
 class ExponentLoader(yaml.SafeLoader):
-    """``yaml.SafeLoader`` that also resolves a plain scalar in exponent form to a float."""
+    """``yaml.SafeLoader`` that also resolves a plain scalar in exponent form to a float, and
+    refuses a mapping that gives a key twice (``yaml.constructor.ConstructorError`` whose first
+    line names the key and its lines), where ``yaml.safe_load`` keeps the last one. Keys that a
+    merge (``<<: *anchor``) brings in may still be overridden."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        seen: dict[tuple[str, str], int] = {}
+        for key_node, _ in node.value:
+            if not isinstance(key_node, yaml.ScalarNode) or key_node.tag.endswith(":merge"):
+                continue
+            key = (key_node.tag, key_node.value)
+            line = key_node.start_mark.line + 1
+            if key in seen:
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"the key {key_node.value} is given twice (lines {seen[key]} "
+                    f"and {line}): keep one", key_node.start_mark)
+            seen[key] = line
+        return super().construct_mapping(node, deep=deep)
 
 
 ExponentLoader.add_implicit_resolver(
@@ -52,7 +69,8 @@ ExponentLoader.add_implicit_resolver(
 
 def load(text: str) -> Any:
     """The data of a YAML (or JSON) text, as ``yaml.safe_load`` gives it except that
-    exponent-form numbers (``1e-4``, ``1.0e6``) are floats; raises ``yaml.YAMLError``."""
+    exponent-form numbers (``1e-4``, ``1.0e6``) are floats and a key given twice in one mapping
+    is refused; raises ``yaml.YAMLError``."""
     return yaml.load(text, Loader=ExponentLoader)
 
 
