@@ -558,6 +558,8 @@ def test_ask_tell_bad_input(capsys, asktell, argv, expect):
     ("names: [a]\nlow: [0]\nhigh: [1]\nlog: [true]\n", "low > 0 on log entries"),
     ("names: [a]\nlow: [0]\nhigh: [1]\nmanual: [5]\n", "manual a = 5 is outside [0, 1]"),
     (": : :", "is not valid YAML/JSON"),
+    ("names: [a, b\nlow: [0, 0]\n",
+     "is not valid YAML/JSON (expected ',' or ']', but got ':' at line 2, column 4)"),
     ("names: [a]\nlow: [1]\nhigh: [2]\nmanul: [1.5]\n", "not manul"),
     ("names: [a]\nlow: [1]\nhigh: [2]\nlog: ['false']\n", "log entries must be true or false"),
 ])

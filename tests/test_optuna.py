@@ -1144,3 +1144,21 @@ def test_a_sampler_on_a_run_without_phase_1_trials_says_to_run_phase_1_first(tmp
         st.tell(s.id, 1.0)
     with pytest.raises(LatentError, match=r"no latent space in .*: train one first"):
         LatentSampler(str(r))
+
+
+def test_import_optuna_with_a_malformed_space_file_says_what_is_wrong(tmp_path, run_cli,
+                                                                       error_line):
+    """``import-optuna --space FILE`` with a YAML error printed PyYAML's whole report on one
+    line ("while parsing a flow sequence in "<unicode string>", line 1, column 8: names: [a
+    ^ expected ..."); it is the problem and where, as ``ask --space`` says it."""
+    space = tmp_path / "space.yaml"
+    space.write_text("names: [a, b\nlow: [0, 0]\n")
+    line = error_line(*run_cli("import-optuna", tmp_path / "none.db", "--out", tmp_path / "O",
+                               "--space", space)[::2])
+    assert line.endswith(f"--space {space}: not valid YAML/JSON (expected ',' or ']', but got "
+                         "':' at line 2, column 4)"), line
+    space.write_bytes(b"names: [a]\n\xd0\xff\n")
+    line = error_line(*run_cli("import-optuna", tmp_path / "none.db", "--out", tmp_path / "O",
+                               "--space", space)[::2])
+    assert line.endswith("not valid YAML/JSON (not UTF-8 text: invalid continuation byte at "
+                         "byte 11)"), line

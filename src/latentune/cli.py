@@ -1306,7 +1306,7 @@ def _read_data(path: str, flag: str) -> Any:
     try:
         return yamltext.load(p.read_text())
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise CLIError(f"{flag}: {p} is not valid YAML/JSON ({str(exc).splitlines()[0]})") from None
+        raise CLIError(f"{flag}: {p} is not valid YAML/JSON ({yamltext.problem(exc)})") from None
 
 
 # ---------------------------------------------------------------------------- robot specs

@@ -58,13 +58,27 @@ class ExponentLoader(yaml.SafeLoader):
             if key in seen:
                 raise yaml.constructor.ConstructorError(
                     None, None, f"the key {key_node.value} is given twice (lines {seen[key]} "
-                    f"and {line}): keep one", key_node.start_mark)
+                    f"and {line}): keep one")
             seen[key] = line
         return super().construct_mapping(node, deep=deep)
 
 
 ExponentLoader.add_implicit_resolver(
     "tag:yaml.org,2002:float", re.compile(f"^(?:{_EXPONENT.pattern})$"), list("-+0123456789."))
+
+
+def problem(exc: yaml.YAMLError | UnicodeDecodeError) -> str:
+    """One line saying what is wrong in a YAML text ``exc`` was raised for: PyYAML's problem
+    and where (``expected ',' or ']', but got ':' at line 2, column 4``), without the context
+    lines and source excerpts its own report spreads over several lines; for a file that is
+    not UTF-8 text, where its first bad byte is."""
+    if isinstance(exc, UnicodeDecodeError):
+        return f"not UTF-8 text: {exc.reason} at byte {exc.start}"
+    what = getattr(exc, "problem", None)
+    if not what:
+        return (str(exc).splitlines() or [type(exc).__name__])[0]
+    mark = getattr(exc, "problem_mark", None)
+    return what if mark is None else f"{what} at line {mark.line + 1}, column {mark.column + 1}"
 
 
 def load(text: str) -> Any:

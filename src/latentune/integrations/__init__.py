@@ -95,8 +95,12 @@ def _load_space(path: str) -> Any:
     if not p.is_file():
         raise CLIError(f"--space: file not found: {p}")
     try:
-        return ParameterSpace.from_dict(yamltext.load(p.read_text()))
-    except (yaml.YAMLError, ValueError, TypeError) as exc:
+        data = yamltext.load(p.read_text())
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise CLIError(f"--space {p}: not valid YAML/JSON ({yamltext.problem(exc)})") from None
+    try:
+        return ParameterSpace.from_dict(data)
+    except (ValueError, TypeError) as exc:
         raise CLIError(f"--space {p}: {' '.join(str(exc).split())[:200]}") from None
 
 

@@ -195,8 +195,8 @@ def read_yaml(path: Path) -> Any:
         raise RobotSpecError(f"robot spec file not found: {path}")
     try:
         return yamltext.load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise RobotSpecError(f"robot spec {path}: malformed YAML ({str(exc).splitlines()[0]})") from None
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise RobotSpecError(f"robot spec {path}: malformed YAML ({yamltext.problem(exc)})") from None
 
 
 def spec_from_dict(d: Mapping[str, Any], base_dir: str | os.PathLike | None = None) -> RobotSpec:

@@ -323,8 +323,8 @@ def _resolve(source: str | os.PathLike, seen: tuple[str, ...]) -> dict[str, Any]
         raw = yamltext.load(path.read_text())
     except OSError as exc:
         raise UsageError(f"{where}: cannot read ({exc.strerror})") from None
-    except yaml.YAMLError as exc:
-        raise UsageError(f"{where}: malformed YAML ({str(exc).splitlines()[0]})") from None
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise UsageError(f"{where}: malformed YAML ({yamltext.problem(exc)})") from None
     if raw is None:
         raw = {}
     if not isinstance(raw, dict):
