@@ -375,6 +375,11 @@ def test_missing_and_foreign_directories(capsys, tmp_path, cmd):
     f = tmp_path / "file"
     f.write_text("x")
     assert_one_line(capsys, cmd, f, expect=f"{f} exists and is not a directory")
+    db = tmp_path / "run" / "run.db"             # the store's file named for its directory
+    db.parent.mkdir()
+    db.write_bytes(b"")
+    assert_one_line(capsys, cmd, db, expect=f"{db} is a file, not a run directory: give the "
+                    f"run directory that holds it ({db.parent})")
 
 
 @pytest.mark.parametrize("damage", ["random_bytes", "empty_file", "foreign_sqlite", "truncated"])

@@ -46,6 +46,9 @@ class RunDir:
             raise UsageError(f"a run directory is a path, got {type(path).__name__} {path!r:.40}")
         self.dir = Path(path)
         if self.dir.exists() and not self.dir.is_dir():
+            if (self.dir.parent / "run.db").is_file():      # a file of a run (its run.db)
+                raise StoreError(f"{self.dir} is a file, not a run directory: give the run "
+                                 f"directory that holds it ({self.dir.parent})")
             raise StoreError(f"{self.dir} exists and is not a directory")
         self.workers = check_workers(workers)
         if backend == "serial" and self.workers > 1 and evaluator is None:
