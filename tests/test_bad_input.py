@@ -1020,3 +1020,14 @@ def test_an_interrupt_after_train_vae_or_report_printed_exits_0(run_cli, tmp_pat
             m.setattr(Study, name, interrupted)
             code, out, err = run_cli(*argv)
         assert code == 130 and out == "" and err.strip() == INTERRUPTED, (argv, code, out, err)
+
+
+def test_a_directory_given_for_a_space_or_params_file_is_named_a_directory(capsys, tmp_path):
+    """``ask --space DIR`` and ``rollout --params DIR`` said "file not found: DIR" of a directory
+    that is there; they say it is a directory, not a file."""
+    d = tmp_path / "conf"
+    d.mkdir()
+    assert_one_line(capsys, "ask", tmp_path / "r", "--space", d,
+                    expect=f"--space: {d} is a directory, not a file")
+    assert_one_line(capsys, "rollout", "--steps", "10", "--params", d,
+                    expect=f"params file {d} is a directory, not a file")

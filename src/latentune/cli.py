@@ -1301,6 +1301,8 @@ def _read_data(path: str, flag: str) -> Any:
     from latentune import yamltext
 
     p = Path(path)
+    if p.is_dir():
+        raise CLIError(f"{flag}: {p} is a directory, not a file")
     if not p.is_file():
         raise CLIError(f"{flag}: file not found: {p}")
     try:

@@ -303,6 +303,8 @@ class ParameterSpace:
         """Read a ``--params`` JSON file (see :meth:`parse`). A name given twice in one object
         raises :class:`ParamsError` naming it and both values (JSON alone keeps the last)."""
         p = Path(path)
+        if p.is_dir():
+            raise ParamsError(f"params file {p} is a directory, not a file")
         if not p.is_file():
             raise ParamsError(f"params file not found: {p}")
 

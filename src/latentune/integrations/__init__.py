@@ -92,6 +92,8 @@ def _load_space(path: str) -> Any:
     from latentune.space import ParameterSpace
 
     p = Path(path)
+    if p.is_dir():
+        raise CLIError(f"--space: {p} is a directory, not a file")
     if not p.is_file():
         raise CLIError(f"--space: file not found: {p}")
     try:
