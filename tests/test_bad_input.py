@@ -555,6 +555,21 @@ def test_ask_tell_bad_input(capsys, asktell, argv, expect):
     assert dump(d) == before
 
 
+def test_a_first_ask_without_a_space_names_the_flags_and_the_api_its_arguments(capsys, tmp_path):
+    """A first ask with neither system nor space: the command names its flags and leaves no
+    directory; the API's refusal names no command-line flag (it named them to Python users)."""
+    import latentune as lt
+    from latentune.errors import StoreError
+
+    d = tmp_path / "r"
+    assert_one_line(capsys, "ask", str(d),
+                    expect="the first ask needs a system or a space (--system, --robot or "
+                           "--space FILE)")
+    assert not d.exists()
+    with pytest.raises(StoreError, match=r"the first ask needs a system or a space$"):
+        lt.Study(d).ask(1)
+
+
 @pytest.mark.parametrize("content, expect", [
     ("names: [a]\nlow: [1]\nhigh: [0]\n", "ParameterSpace needs low < high"),
     ("names: [a, a]\nlow: [0, 0]\nhigh: [1, 1]\n", "ParameterSpace names must be distinct"),
@@ -567,6 +582,8 @@ def test_ask_tell_bad_input(capsys, asktell, argv, expect):
      "is not valid YAML/JSON (expected ',' or ']', but got ':' at line 2, column 4)"),
     ("names: [a]\nlow: [1]\nhigh: [2]\nmanul: [1.5]\n", "not manul"),
     ("names: [a]\nlow: [1]\nhigh: [2]\nlog: ['false']\n", "log entries must be true or false"),
+    # true was taken as 1 (and the error spoke of log entries)
+    ("names: [a, b]\nlow: [true, 0]\nhigh: [1, 1]\n", "low must be numbers, not true/false"),
 ])
 def test_ask_rejects_bad_space_files(capsys, tmp_path, content, expect):
     f = tmp_path / "s.yaml"

@@ -917,6 +917,10 @@ def cmd_ask(args: argparse.Namespace) -> int:
                                              name=Path(args.space).name)
         except ValueError as exc:
             raise CLIError(f"--space {args.space}: {exc}") from None
+    if system is None and space is None and study.space() is None:
+        study.close()
+        raise CLIError(f"{study.dir}: no parameter space yet: the first ask needs a system or "
+                       "a space (--system, --robot or --space FILE)")
     from latentune.pipeline.asktell import prune_suggestion_files, write_suggestion_files
 
     handover = _handover(args)

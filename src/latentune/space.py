@@ -23,7 +23,8 @@ from latentune.errors import ParamsError, UsageError
 
 def _vec(name: str, v: Any, d: int, dtype: type) -> np.ndarray:
     """``v`` as a (d,) array of ``dtype``: a flat list of d entries (a number for d = 1);
-    UsageError naming ``name`` for nested lists, text, or another count."""
+    UsageError naming ``name`` for nested lists, text, true/false where numbers are meant, or
+    another count."""
     try:
         given = np.asarray(v, dtype=object)
     except (TypeError, ValueError):
@@ -35,6 +36,8 @@ def _vec(name: str, v: Any, d: int, dtype: type) -> np.ndarray:
                          f"name), not nested: got {_short(v)}")
     if dtype is not bool and any(isinstance(x, (str, bytes)) for x in given.reshape(-1)):
         raise UsageError(f"ParameterSpace: {name} must be numbers, not text: got {_short(v)}")
+    if dtype is not bool and any(isinstance(x, (bool, np.bool_)) for x in given.reshape(-1)):
+        raise UsageError(f"ParameterSpace: {name} must be numbers, not true/false: got {_short(v)}")
     if dtype is bool and any(not isinstance(x, (bool, np.bool_)) and x not in (0, 1)
                              for x in given.reshape(-1)):
         raise UsageError(f"ParameterSpace: {name} entries must be true or false, got {v!r}")

@@ -103,7 +103,7 @@ def _load_space(path: str) -> Any:
     try:
         return ParameterSpace.from_dict(data)
     except (ValueError, TypeError) as exc:
-        raise CLIError(f"--space {p}: {' '.join(str(exc).split())[:200]}") from None
+        raise CLIError(f"--space {p}: {exc}") from None
 
 
 def register_cli(sub: Any, parents: Sequence[argparse.ArgumentParser] = ()) -> None:

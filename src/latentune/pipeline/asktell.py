@@ -222,7 +222,7 @@ def _space(study: Any, system: Any, space: ParameterSpace | None, bind: bool = T
     stored = study.manifest.space()
     if stored is None:
         raise StoreError(f"{study.dir}: no parameter space yet: the first ask needs a system "
-                         "or a space (--system, --robot or --space FILE)")
+                         "or a space")
     return stored
 
 
