@@ -111,7 +111,7 @@ def test_ask_start(tmp_path, run_cli, error_line):
     assert "--start" in error_line(*run_cli("ask", d, "--start", bad)[::2])
     assert "not found" in error_line(*run_cli("ask", d, "--start", tmp_path / "none.json")[::2])
     line = error_line(*run_cli("ask", tmp_path / "new", "--start", start)[::2])
-    assert "needs the parameter space" in line
+    assert "the first ask needs a system or a space (--system, --robot or --space FILE)" in line
     code, out, err = run_cli("ask", tmp_path / "scratch", "--space", space, "--start", "scratch",
                              "--json", "--n", "4")
     assert code == 0, err

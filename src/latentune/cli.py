@@ -1121,9 +1121,6 @@ def _ask_start(start: str | None, system: Any, space: Any, study: Any) -> Any:
     if start is None or start in ("manual", "scratch"):
         return start
     sp = system.space if system is not None else space if space is not None else study.space()
-    if sp is None:
-        raise CLIError(f"--start {start}: reading a θ file needs the parameter space: pass "
-                       "--system, --robot or --space on the first ask")
     from latentune.errors import ParamsError
 
     try:
