@@ -707,6 +707,18 @@ def test_minimize_callback_stops_on_a_numpy_true():
     assert res.nfev == 6
 
 
+def test_minimize_callback_raising_stopiteration_stops_the_run():
+    """SciPy's way to stop from a callback (``raise StopIteration``) escaped minimize as a bare
+    StopIteration, the result lost (inside a generator: a RuntimeError); it stops the run now,
+    as returning True does, and the result holds the points evaluated."""
+    def stop(r: object) -> None:
+        raise StopIteration
+
+    res = lt.minimize(lambda x: float(x.sum()), [(0, 1)], method="random", budget=6,
+                      batch_size=2, callback=stop)
+    assert res.nfev == 2 and res.message == "stopped by callback" and res.x is not None
+
+
 @pytest.mark.parametrize("value", [np.float32(0.5), np.int64(3), 7, np.array(0.25), float("nan"),
                                    float("inf")], ids=repr)
 def test_minimize_takes_real_numbers(value):

@@ -118,7 +118,8 @@ def minimize(fun: Callable[[np.ndarray], float], bounds: Any, method: str = "tur
         evaluator: a :class:`~latentune.pipeline.evaluators.Evaluator` (default serial); a
             process or Ray evaluator needs a picklable ``fun``.
         callback: called after every batch with the :class:`OptimizeResult` so far; returning
-            ``True`` (or ``numpy.True_``) stops the run.
+            ``True`` (or ``numpy.True_``) or raising ``StopIteration`` (as in SciPy) stops the
+            run (message "stopped by callback").
         **opts: options of the critic (e.g. ``n_regions`` for TuRBO, default
             :func:`~latentune.critic.turbo.regions_for_budget` of ``budget``; ``sigma0`` for CMA-ES).
 
@@ -189,7 +190,10 @@ def minimize(fun: Callable[[np.ndarray], float], bounds: Any, method: str = "tur
             raise UsageError(f"evaluator returned {y.shape[0]} costs for {k} points")
         critic.tell(U, y, tags=tags)
         nit += 1
-        stop = None if callback is None else callback(result("running", nit))
+        try:
+            stop = None if callback is None else callback(result("running", nit))
+        except StopIteration:           # SciPy's way for a callback to stop a run
+            stop = True
         if isinstance(stop, (bool, np.bool_)) and stop:
             message = "stopped by callback"
             break
