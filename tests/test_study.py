@@ -486,6 +486,21 @@ def test_a_fall_step_beyond_its_horizon_and_a_negative_max_new_are_refused(tmp_p
         assert st.trials() == []
 
 
+def test_train_latent_without_a_run_leaves_the_directory_as_it_was(tmp_path):
+    """``train_latent`` on a directory holding no run (a typo, phase 1 not run yet) is refused;
+    it left an empty run store behind (run.db, run.lock; a new directory created), which
+    ``status`` then showed as a run and a later ``latent=`` named as one without a latent
+    space. The directory is as it was now: absent, or empty."""
+    from latentune.errors import LatentError
+
+    for d, made in ((tmp_path / "absent", False), (tmp_path / "empty", True)):
+        if made:
+            d.mkdir()
+        with pytest.raises(LatentError, match="phase 1 has 0 θ"):
+            lt.Study(d).train_latent(epochs=5)
+        assert d.is_dir() == made and (not made or os.listdir(d) == [])
+
+
 def test_train_latent_refuses_bad_epochs_before_replacing_the_vae(tmp_path):
     """``epochs`` of 0, −1 or 2.5 with ``retrain`` is refused before the trained VAE is
     touched (it was replaced by an untrained one, then a TypeError)."""

@@ -217,10 +217,10 @@ class Study:
                      epochs: int | None = None, retrain: bool = False) -> Any:
         """Phase 2: train the latent space on the phase-1 θ whose trial did not fail.
 
-        Returns the :class:`~latentune.latent.LatentSpace` (``DIR/vae.pt``, ``DIR/vae.json``). A
-        trained one is returned as it is unless ``retrain`` (another size, kind or epochs is
-        refused); retraining after phase 3 used it is refused (it would invalidate phase 3)."""
-        with self.writing():
+        Returns the :class:`~latentune.latent.LatentSpace` (``DIR/vae.pt``, ``DIR/vae.json``); a
+        trained one as it is unless ``retrain`` (another size, kind or epochs is refused), which
+        is refused after phase 3 used it. A refusal leaves the directory as it was."""
+        with self.writing(), self.run.as_before_on_error():
             latent, msg = phase2.train_latent(self.run, self.manifest, self.seed, latent_dim,
                                               kind, epochs, retrain)
         if msg:
