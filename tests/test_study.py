@@ -486,6 +486,19 @@ def test_a_fall_step_beyond_its_horizon_and_a_negative_max_new_are_refused(tmp_p
         assert st.trials() == []
 
 
+def test_preservation_refuses_what_is_not_a_system_in_one_line(tmp_path):
+    """``Study.preservation`` given something that is not a system (None, a class, a plain
+    function) raised AttributeError: 'NoneType' object has no attribute 'space'; it says what
+    a system needs now, as phase1 and phase3 do, before the run is touched."""
+    from latentune.errors import SystemSpecError
+
+    st = lt.Study(tmp_path / "r")
+    for bad in (None, lambda x: 0.0, lt.FunctionSystem):
+        with pytest.raises(SystemSpecError, match="not a system|not a latentune system"):
+            st.preservation(bad, None)
+    assert not (tmp_path / "r").exists()
+
+
 def test_train_latent_without_a_run_leaves_the_directory_as_it_was(tmp_path):
     """``train_latent`` on a directory holding no run (a typo, phase 1 not run yet) is refused;
     it left an empty run store behind (run.db, run.lock; a new directory created), which

@@ -291,9 +291,9 @@ class Study:
         """Pass each phase-1 θ of this study whose trial did not fail through ``latent``'s
         encoder and decoder and evaluate the result on ``system`` (phase 5, idx = the source
         row's idx). Returns ``{n_stable, n_kept, rate}``; resumes."""
+        space = check_system(system).space
         with self.run.writing(evaluating=True) as st:
-            ls, source = resolve_latent(self.run, self.manifest, latent, system.space,
-                                        _actor(system))
+            ls, source = resolve_latent(self.run, self.manifest, latent, space, _actor(system))
             t = time.perf_counter()
             res = baselines.preservation(st, system, ls, source, self.evaluator(), self.seed)
             self.manifest.add_wall("preservation_rollouts", time.perf_counter() - t)
