@@ -257,7 +257,7 @@ def test_best_out_to_a_directory_leaves_no_stray_file(tmp_path, run_cli, error_l
     assert run_cli("tell", d, a["id"], "--cost", "2")[0] == 0
     (tmp_path / "outdir").mkdir()
     before = sorted(p.name for p in tmp_path.iterdir())
-    assert "is a directory: --out names the θ file" in error_line(
+    assert "is a directory: name the θ file" in error_line(
         *run_cli("best", d, "--out", tmp_path / "outdir")[::2])
     assert sorted(p.name for p in tmp_path.iterdir()) == before
 

@@ -486,6 +486,22 @@ def test_a_fall_step_beyond_its_horizon_and_a_negative_max_new_are_refused(tmp_p
         assert st.trials() == []
 
 
+def test_best_params_refusals_name_no_command_line_flag(tmp_path):
+    """``Study.best_params(out=...)`` with a directory or an empty name: the refusal named the
+    command's flag (``--out names the θ file to write``) to a Python user; it names the file
+    to give, for both, now."""
+    from latentune.errors import UsageError
+
+    sp = lt.ParameterSpace(["a", "b"], [0, 0], [1, 1])
+    with lt.Study(tmp_path / "r") as st:
+        st.phase1(lt.FunctionSystem(sp, lambda x: float(x.sum())), 2)
+        for out, said in ((tmp_path, "is a directory: name the θ file to write"),
+                          ("", "the θ file to write needs a name")):
+            with pytest.raises(UsageError, match=said) as e:
+                st.best_params(out)
+            assert "--" not in str(e.value)
+
+
 def test_preservation_refuses_what_is_not_a_system_in_one_line(tmp_path):
     """``Study.preservation`` given something that is not a system (None, a class, a plain
     function) raised AttributeError: 'NoneType' object has no attribute 'space'; it says what

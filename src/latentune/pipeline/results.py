@@ -342,10 +342,10 @@ def _deploy_path(out: str | os.PathLike, run_dir: Path, space: ParameterSpace) -
     from latentune.errors import UsageError
 
     if not str(out).strip():
-        raise UsageError("the θ file to write (--out) needs a name")
+        raise UsageError("the θ file to write needs a name")
     path = Path(out)
     if path.is_dir():
-        raise UsageError(f"{path} is a directory: --out names the θ file to write "
+        raise UsageError(f"{path} is a directory: name the θ file to write "
                          f"(e.g. {path / BEST_FILE})")
     if path.is_file() and Path(run_dir).resolve() in path.resolve().parents:
         try:
