@@ -552,3 +552,42 @@ def test_phase_3_where_no_phase_1_ran_says_to_run_phase_1_first(tmp_path, run_cl
                        r"one on: run phase 1 there first \(phase1, then train_latent\), or name "
                        r"another study's \(latent\)$"):
         lt.Study(tmp_path / "api").phase3(make_real_system(), 4)
+
+
+def test_a_phase3_vae_run_goes_on_with_phase3_not_tune(tmp_path, run_cli, source, monkeypatch,
+                                                       error_line, dump_store):
+    """A ``phase3 --vae SRC`` run stopped short of its budget: its report said the command that
+    ran it goes on with ``latentune tune … --resume`` or ``phase3 … --resume``, and ``tune
+    --resume`` there ran a whole phase 1 (its default budget) on the target, trained a latent
+    space of its own, and only then failed (the source moved) or was refused (phase 3 runs in
+    another latent space). The report names ``phase3`` alone, and tune is refused before any
+    trial, naming the command that goes on."""
+    import shlex
+
+    from latentune.study import Study
+
+    phase3 = Study.phase3
+
+    def stopped(self, *a, **kw):             # Ctrl-C after 2 phase-3 trials
+        phase3(self, *a, **{**kw, "max_new": 2})
+        raise KeyboardInterrupt
+
+    d = tmp_path / "t"
+    monkeypatch.setattr(Study, "phase3", stopped)
+    assert _phase3(run_cli, source, d, "--quiet", evals=6)[0] == 130
+    monkeypatch.setattr(Study, "phase3", phase3)
+    code, _, err = run_cli("report", d, "--no-sim", "--quiet")
+    assert code == 0, err
+    where = shlex.quote(str(d))
+    assert ("If it stopped, the command that ran it goes on: `latentune phase3 … --out "
+            f"{where} --resume`.") in (d / "report.md").read_text()
+    before = dump_store(d)
+    line = error_line(*run_cli("tune", *SYSTEM, "--out", d, "--resume", "--phase1-evals", "8",
+                               "--vae-epochs", "20")[::2])
+    assert line == (f"latentune: error: {d}: its phase 3 runs in the latent space of "
+                    f"{source.resolve()} "
+                    "(phase3 --vae), and tune would run a phase 1 here first: go on with "
+                    f"`latentune phase3 … --out {where} --resume`"), line
+    assert dump_store(d) == before
+    with Study(d) as st:
+        assert st.store.count(1) == 0 and st.store.artifact("vae") is None

@@ -648,6 +648,17 @@ def _refuse_phase1_past_latent(study: Any, phase1_evals: int) -> None:
                        "another directory")
 
 
+def _refuse_tune_in_other_latent(study: Any) -> None:
+    """tune on a run whose phase 3 runs in another run's latent space (``phase3 --vae``):
+    refused before any trial (tune would run a phase 1 there, train a latent space of its own
+    and then find phase 3 bound to the other one); the line names the command that goes on."""
+    src = study.config().get("phase3_vae_source") if study.exists else None
+    if src not in (None, "self"):
+        raise CLIError(f"{study.dir}: its phase 3 runs in the latent space of {src} (phase3 "
+                       "--vae), and tune would run a phase 1 here first: go on with "
+                       f"`latentune phase3 … --out {shlex.quote(str(study.dir))} --resume`")
+
+
 def _plan_given(args: argparse.Namespace, key: str) -> Any:
     """The value of ``tune``'s flag ``key`` (of :data:`TUNE_PLAN`) given on the command line,
     else None (--vae-kind: left at its default)."""
@@ -685,6 +696,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
         3's strategy and transfer options checked, before phase 1 runs."""
         from latentune.pipeline.manifest import transfer_option
 
+        _refuse_tune_in_other_latent(study)
         plan.update(_tune_plan(study, args))
         chosen["handover"] = handover = _handover(args)
         chosen["strategy"] = strategy = _strategy(args, handover)

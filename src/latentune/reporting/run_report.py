@@ -405,7 +405,8 @@ def resume_hint(store: Any, cfg: dict[str, Any], phase: int) -> str:
     sentence after the line that says so: for a built-in task or a ``--system`` run, the
     command that ran it with ``--resume`` on the run directory: the one recorded (``command``:
     ``tune``, whose run goes on to phase 3 as planned, or ``phase1``, whose phase 3 a ``phase3``
-    command ran), else, for a run that
+    command ran; a phase 3 in another run's latent space is a ``phase3 --vae`` one), else, for
+    a run that
     recorded none (stored before the record existed, or run through the API), the commands that
     run the phase (:data:`RESUMED_BY`); for a system made in Python, the study's method again; a
     phase 3 whose fall budget is spent asks no more, and says so instead. Empty for an ask/tell
@@ -424,8 +425,9 @@ def resume_hint(store: Any, cfg: dict[str, Any], phase: int) -> str:
         return (f" If it stopped, `Study({str(store.dir)!r}).phase{int(phase)}(system, budget)` "
                 "with the same system goes on.")
     recorded = cfg.get("command")
-    if recorded == "phase1" and phase == Phase.PHASE3:
-        ran = "phase3"              # a phase1 run's phase 3 is a phase3 command's
+    other_latent = cfg.get("phase3_vae_source") not in (None, "self")
+    if phase == Phase.PHASE3 and (recorded == "phase1" or other_latent):
+        ran = "phase3"      # a phase1 run's phase 3, or one in another run's latent space (--vae)
     elif recorded in RESUMED_BY[phase]:
         ran = recorded
     else:
