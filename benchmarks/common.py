@@ -360,8 +360,28 @@ def cli_main(main: Callable[[], int], prog: str) -> int:
         msg = " ".join(str(e).split())
     except FileNotFoundError as e:
         msg = f"no such file or directory: {e.filename}"
+    except OSError as e:
+        msg = os_error_line(e)
     print(f"{prog}: error: {msg}", file=sys.stderr)
     return 2
+
+
+def os_error_line(e: OSError) -> str:
+    """One line for a file that could not be read or written (an ``--out`` under a file or in
+    a read-only directory, a ``--work`` that is a file): the file of the path that is not a
+    directory, a directory given for a file, else the path and the system's reason."""
+    name = e.filename
+    if name is None:
+        return str(e)
+    path = Path(name)
+    if isinstance(e, (FileExistsError, NotADirectoryError)):
+        blocking = next((p for p in (path, *path.parents) if p.exists() and not p.is_dir()),
+                        None)
+        if blocking is not None:
+            return f"{blocking} is not a directory"
+    if isinstance(e, IsADirectoryError):
+        return f"{path} is a directory, not a file"
+    return f"{path}: {e.strerror or e}"
 
 
 def refuse_out_of_range(ap: argparse.ArgumentParser, a: argparse.Namespace,

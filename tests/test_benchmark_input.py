@@ -230,3 +230,41 @@ def test_robot_benchmarks_refuse_bad_counts_before_building_a_task(tmp_path, cap
     err = capsys.readouterr().err.strip().splitlines()
     assert e.value.code == 2 and err[-1].endswith(f"error: {words}"), err
     assert not (tmp_path / "w").exists()
+
+
+def test_an_output_path_that_cannot_be_written_is_one_line_not_a_traceback(tmp_path, capsys):
+    """``benchmarks.transfer summary --out F`` (or ``compare --out``) where F is a directory, or
+    under a file, or in a read-only directory, and ``benchmarks.handover --work FILE``, ended in
+    an IsADirectoryError, FileExistsError or PermissionError traceback (exit 1), after the work
+    was done. Every benchmark's command line (``cli_main``) now says what it could not write in
+    one line, exit 2."""
+    import os
+    from benchmarks import handover, transfer
+    from benchmarks.common import cli_main
+
+    root = tmp_path / "root"
+    run = root / "chain" / "gap1" / "seed0"
+    run.mkdir(parents=True)
+    (run / "zero_shot.json").write_text(json.dumps({
+        "costs": [0.9], "failed": [False], "thetas": [[0.5] * 20], "system": "chain",
+        "gap": 1.0, "seed": 0, "method": "zero_shot", "budget": 1, "wall_s": 0.01}))
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    cases = [
+        (transfer, ["summary", "--root", str(root), "--out", str(afile / "s.json")],
+         f"{afile} is not a directory"),
+        (transfer, ["summary", "--root", str(root), "--out", str(tmp_path)],
+         f"{tmp_path} is a directory, not a file"),
+        (transfer, ["compare", "--root", str(root), "--a", "zero_shot", "--b", "zero_shot",
+                    "--out", str(afile / "c.json")], f"{afile} is not a directory"),
+        (handover, ["--vae", str(root), "--work", str(afile)], f"{afile} is not a directory"),
+    ]
+    for mod, argv, words in cases:
+        prog = mod.__name__
+        assert cli_main(lambda: mod.main(argv), prog) == 2, argv
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err == [f"{prog}: error: {words}"], (argv, err)
+    from benchmarks.common import os_error_line
+
+    denied = PermissionError(13, os.strerror(13), str(tmp_path / "ro" / "s.json"))
+    assert os_error_line(denied) == f"{tmp_path / 'ro' / 's.json'}: Permission denied"
