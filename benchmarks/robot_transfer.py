@@ -1030,21 +1030,25 @@ def plot(a: argparse.Namespace) -> None:
 
 
 # --------------------------------------------------------------------------- command line
-def _nonneg_int(text: str) -> int:
+def _int_at_least(text: str, least: int) -> int:
+    """``text`` as an integer >= ``least``; argparse's one-line error naming that bound."""
     try:
         v = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {v}")
+    if v < least:
+        raise argparse.ArgumentTypeError(f"must be >= {least}, got {v}")
     return v
+
+
+def _nonneg_int(text: str) -> int:
+    """An integer >= 0 (a seed)."""
+    return _int_at_least(text, 0)
 
 
 def _pos_int(text: str) -> int:
-    v = _nonneg_int(text)
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {v}")
-    return v
+    """An integer >= 1 (a count: budget, workers, trials)."""
+    return _int_at_least(text, 1)
 
 
 def parser() -> argparse.ArgumentParser:

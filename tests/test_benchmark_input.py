@@ -268,3 +268,20 @@ def test_an_output_path_that_cannot_be_written_is_one_line_not_a_traceback(tmp_p
 
     denied = PermissionError(13, os.strerror(13), str(tmp_path / "ro" / "s.json"))
     assert os_error_line(denied) == f"{tmp_path / 'ro' / 's.json'}: Permission denied"
+
+
+@pytest.mark.parametrize("argv,words", [
+    (["run", "--budget", "-1"], "argument --budget: must be >= 1, got -1"),
+    (["run", "--budget", "0"], "argument --budget: must be >= 1, got 0"),
+    (["run", "--workers", "-3"], "argument --workers: must be >= 1, got -3"),
+    (["run", "--seeds", "-1"], "argument --seeds: must be >= 0, got -1"),
+])
+def test_robot_transfer_names_the_bound_a_count_must_meet(argv, words, capsys):
+    """``benchmarks.robot_transfer run --budget -1`` said "must be >= 0", a bound 0 itself fails
+    ("must be >= 1, got 0"): a count of at least 1 now names 1 for every value below it."""
+    from benchmarks import robot_transfer
+
+    with pytest.raises(SystemExit) as exc:
+        robot_transfer.parser().parse_args(argv)
+    assert exc.value.code == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1].endswith(words)
