@@ -844,7 +844,8 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
     method re-run on machine M's sources) reads as ``METHOD``, and the ``METHOD`` run beside it
     is not read; methods with no ``@M`` twin are read as they are. ``default`` names the method
     judged as latentune's default (its rows read as ``transfer``; the stored ``transfer`` runs
-    then read as ``transfer@stored``); ``methods``: only these (names after those renamings)
+    then read as ``transfer@stored``; a ``default`` no run under ``root`` is stored as is
+    refused, rather than judging a table without it); ``methods``: only these (names after those renamings)
     are read; ``seeds``: only these seeds; ``systems``: only these systems; ``budget`` = B:
     every run is read as its first B trials (:func:`first_trials`; a run of fewer is refused),
     the criteria at budget B of runs made at a larger one.
@@ -856,8 +857,10 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
     runs have different budgets, and when no target is left to judge."""
 
     runs: dict[tuple, dict[str, dict[int, dict]]] = {}
+    stored: set[str] = set()                    # the methods' names as stored
     for f in sorted(root.glob(pattern)):
         r = load_run(f)
+        stored.add(r["method"])
         if machine:
             if f.with_name(f"{r['method']}@{machine}.json").is_file():
                 continue                        # its twin re-run on that machine is read
@@ -875,6 +878,10 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
             r = first_trials(r, budget, f)
         runs.setdefault(tuple(target(r).items()), {}).setdefault(r["method"], {})[
             int(r["seed"])] = r
+    if default != "transfer" and stored and not any(
+            m == default or (machine and m == f"{default}@{machine}") for m in stored):
+        raise ValueError(f"no run of the default method {default} under {root} (--default; "
+                         f"the stored methods: {', '.join(sorted(stored))})")
     if not runs:                # an empty table and exit 0 read as "nothing went wrong"
         only = [f"{k} {' '.join(map(str, v))}" for k, v in
                 (("methods", methods), ("seeds", seeds), ("systems", systems)) if v is not None]

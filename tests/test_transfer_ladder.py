@@ -36,6 +36,21 @@ def test_summary_judges_a_variant_as_the_default(tmp_path):
     assert row["criteria"]["falls_ok"] and row["methods"]["transfer"]["trials_to_best_peer"] == 2
 
 
+def test_a_default_that_names_no_stored_run_is_refused(tmp_path, capsys):
+    """``transfer summary --default transfer+typo`` read the stored transfer runs as
+    ``transfer@stored`` and judged a table without the default, exit 0; a --default no run
+    under the root is stored as is refused in one line naming the stored methods, exit 2."""
+    for s in (0, 1):
+        _write(tmp_path, "tpe", s, [4.0, 2.0], [False, False])
+        _write(tmp_path, "transfer", s, [2.5, 3.0], [False, True])
+    with pytest.raises(ValueError, match=r"no run of the default method transfer\+typo under "):
+        tr.summarize(tmp_path, default="transfer+typo")
+    assert tr.main(["summary", "--root", str(tmp_path), "--default", "transfer+typo"]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"transfer summary: no run of the default method transfer+typo under {tmp_path} "
+        "(--default; the stored methods: tpe, transfer)")
+
+
 def test_best_at_the_default_falls_cuts_each_seed_at_its_falls(tmp_path):
     """A peer's best is cut before its (k+1)-th fall, k = the default's falls on that seed."""
     assert tr.best_within_falls([9.0, 5.0, 20.0, 1.0], [False, False, True, False], 0) == 5.0
