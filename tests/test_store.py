@@ -114,6 +114,34 @@ def test_store_in_a_read_only_directory_is_read_and_refuses_writes(tmp_path):
         assert sorted(p.name for p in d.iterdir()) == ["run.db"]
 
 
+def test_a_read_only_store_file_in_a_writable_directory_says_so(tmp_path, run_cli, error_line):
+    """A run.db made read-only (chmod a-w, an archive's file) in a writable directory was opened
+    for writing: ``report`` and ``ask`` failed with SQLite's "run store …: attempt to write a
+    readonly database" (ask also warned it "could not undo the failed write"). It is read as a
+    read-only store: status reads it, a write names the file and what to do."""
+    d = tmp_path / "run"
+    with RunStore(d, create=True) as st:
+        st.add(1, 0, np.zeros(3), cost=1.0)
+    f = d / "run.db"
+    if os.geteuid() != 0:
+        f.chmod(0o444)
+    elif subprocess.run(["chattr", "+i", str(f)], capture_output=True).returncode != 0:
+        pytest.skip("cannot make a file read-only here (chattr)")
+    try:
+        with RunStore(d) as st:
+            assert st.read_only and st.count(1) == 1
+            with pytest.raises(StoreError) as exc:
+                st.add(1, 1, np.zeros(3), cost=2.0)
+        assert str(exc.value) == (f"{f} cannot be written (read-only): make it writable, or "
+                                  "copy the run to a writable directory")
+        assert run_cli("status", d)[0] == 0
+    finally:
+        if os.geteuid() != 0:
+            f.chmod(0o644)
+        else:
+            subprocess.run(["chattr", "-i", str(f)], check=True)
+
+
 @pytest.mark.parametrize("name", ["a#b", "x?y", "50%41", "sp ace é"])
 def test_store_reopens_under_a_name_with_uri_characters(tmp_path, name):
     """A directory named ``a#b`` or ``x?y`` was cut at the URI's fragment or query when the

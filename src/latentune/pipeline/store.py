@@ -238,8 +238,8 @@ class RunStore:
     ``RunStore(DIR, create=True)`` creates ``DIR`` and ``DIR/run.db`` if needed;
     ``create=False`` requires an existing store. Any file that is not a latentune store raises
     :class:`StoreError` before anything is written to it. A store whose directory cannot be
-    written (read-only media, another user's run) is opened read-only (``read_only``): it is
-    read as usual, and a write raises StoreError.
+    written (read-only media, another user's run), or whose file cannot (made read-only), is
+    opened read-only (``read_only``): it is read as usual, and a write raises StoreError.
     """
 
     def __init__(self, run_dir: str | Path, create: bool = False) -> None:
@@ -257,7 +257,8 @@ class RunStore:
         else:
             self.dir.mkdir(parents=True, exist_ok=True)
             self._create()
-        self.read_only = exists and not os.access(self.dir, os.W_OK)
+        self.read_only = exists and not (os.access(self.dir, os.W_OK)
+                                         and os.access(self.path, os.W_OK))
         try:
             if self.read_only:
                 self.con = sqlite3.connect(read_uri(self.path), uri=True, timeout=30.0,
@@ -502,8 +503,11 @@ class RunStore:
         becomes a StoreError with the store untouched. ``trials``: an ask/tell write (upgrades
         the trials table to leases first)."""
         if self.read_only:
-            raise StoreError(f"{self.dir} cannot be written (read-only): copy the run to a "
-                             "writable directory to continue it")
+            if not os.access(self.dir, os.W_OK):
+                raise StoreError(f"{self.dir} cannot be written (read-only): copy the run to a "
+                                 "writable directory to continue it")
+            raise StoreError(f"{self.path} cannot be written (read-only): make it writable, or "
+                             "copy the run to a writable directory")
         try:
             self.con.execute("BEGIN IMMEDIATE")
         except sqlite3.OperationalError as exc:
