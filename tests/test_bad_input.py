@@ -286,17 +286,20 @@ def test_rollout_rejects_bad_params_files(capsys, tmp_path, content, expect):
     (["--steps", "0"], "--steps must be >= 1, got 0"),
     (["--seed", "-3"], "--seed must be in [0, 2**63), got -3"),
     (["--v-des", "nan"], "--v-des must be finite, got nan"),
-    (["--phase1-evals", "0"], "budgets must be >= 1"),
+    (["--phase1-evals", "0"], "--phase1-evals must be >= 1, got 0"),
+    (["--phase3-evals", "-1"], "--phase3-evals must be >= 1, got -1"),
     (["--report-only"], "holds no paper run (no paper.json)"),
 ], ids=lambda b: " ".join(b) if isinstance(b, list) else "")
 def test_paper_rejects_bad_arguments(capsys, tmp_path, bad, expect):
+    """Each bad flag is one line naming it (``--phase1-evals 0`` said "budgets must be >= 1",
+    and ``bench --n 0`` "--steps and --n must be >= 1", naming no flag or both)."""
     assert_one_line(capsys, "paper", "--out", tmp_path / "p", "--quiet", *bad, expect=expect)
 
 
 @pytest.mark.parametrize("bad, expect", [
     (["--timeout", "-1"], "--timeout must be > 0, got -1.0"),
     (["--timeout", "0"], "--timeout must be > 0, got 0.0"),
-    (["--steps", "0"], "--steps and --n must be >= 1"), (["--n", "0"], "--steps and --n must be >= 1"),
+    (["--steps", "0"], "--steps must be >= 1, got 0"), (["--n", "0"], "--n must be >= 1, got 0"),
     (["--steps", "1" + "0" * 12], "--steps must be at most 10,000,000, got 1" + "0" * 12),
     (["--n", "x"], "argument --n: invalid int value: 'x'"),
 ], ids=lambda b: " ".join(b) if isinstance(b, list) else "")

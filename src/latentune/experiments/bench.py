@@ -80,8 +80,9 @@ def run_bench(steps: int = 2000, n: int = 8, timeout: float = 900.0,
     # the parameters are the command's flags of the same names
     from latentune.task import MAX_STEPS
 
-    if steps < 1 or n < 1:
-        raise UsageError("--steps and --n must be >= 1")
+    for flag, v in (("--steps", steps), ("--n", n)):
+        if v < 1:
+            raise UsageError(f"{flag} must be >= 1, got {v}")
     if steps > MAX_STEPS:
         raise UsageError(f"--steps must be at most {MAX_STEPS:,}, got {steps}")
     if not timeout > 0:

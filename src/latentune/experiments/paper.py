@@ -107,8 +107,9 @@ def budgets(scale: float, phase1: int | None = None, phase3: int | None = None) 
     p1 = max(MIN_PHASE1, int(round(PAPER_PHASE1 * s))) if phase1 is None else int(phase1)
     p3 = max(MIN_PHASE3, int(round(PAPER_PHASE3 * min(1.0, s ** 0.25)))) if phase3 is None \
         else int(phase3)
-    if p1 < 1 or p3 < 1:
-        raise UsageError("budgets must be >= 1")
+    for flag, v in (("--phase1-evals", p1), ("--phase3-evals", p3)):
+        if v < 1:
+            raise UsageError(f"{flag} must be >= 1, got {v}")
     pres = max(MIN_PRESERVATION, int(round(p1 / 2)))
     return {"scale": s, "phase1": p1, "phase3": p3, "preservation": pres, "baselines": p3,
             "mapping": MAPPING_DOC, "overridden": {"phase1": phase1 is not None,
