@@ -310,7 +310,12 @@ def test_bench_rejects_bad_arguments(capsys, bad, expect):
 def test_paper_out_is_a_file(capsys, tmp_path):
     f = tmp_path / "file"
     f.write_text("x")
-    assert_one_line(capsys, "paper", "--out", f, "--quiet", expect=f"cannot create --out {f}")
+    """--out FILE said "cannot create --out FILE: File exists" (as if a directory were there);
+    it says the path is a file (also for a file among its parents)."""
+    assert_one_line(capsys, "paper", "--out", f, "--quiet",
+                    expect=f"--out {f} is a file, not a directory")
+    assert_one_line(capsys, "paper", "--out", f / "p", "--quiet",
+                    expect=f"cannot create --out {f / 'p'}: {f} is a file, not a directory")
 
 
 @pytest.mark.parametrize("argv, expect", [

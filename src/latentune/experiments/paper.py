@@ -397,10 +397,17 @@ def _config_differences(meta: dict[str, Any], opts: PaperOptions) -> list[str]:
 
 
 def _check_out(out: Path) -> None:
+    """Create the --out directory; UsageError (one line) where it cannot be: a file there or
+    among its parents is named as such."""
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out {out} is a file, not a directory")
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise UsageError(f"cannot create --out {out}: {exc.strerror or exc}") from None
+        blocking = next((p for p in out.parents if p.exists() and not p.is_dir()), None)
+        why = f"{blocking} is a file, not a directory" if blocking is not None \
+            else exc.strerror or exc
+        raise UsageError(f"cannot create --out {out}: {why}") from None
     if not out.is_dir():
         raise UsageError(f"--out {out} is not a directory")
     probe = out / ".latentune-write-test"
