@@ -400,9 +400,26 @@ def refuse_out_of_range(ap: argparse.ArgumentParser, a: argparse.Namespace,
 
 
 # ==================================================================== output
+def out_file(text: str) -> Path:
+    """An ``--out`` file (argparse ``type``), checked before any work so that a long run does
+    not end in a file it cannot write: not a directory, no file among its parents, and its
+    nearest existing parent a writable directory (argparse's one-line error otherwise)."""
+    path = Path(text)
+    if not text.strip():
+        raise argparse.ArgumentTypeError("an output file needs a name")
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{path} is a directory, not a file")
+    parent = next(p for p in path.absolute().parents if p.exists())
+    if not parent.is_dir():
+        raise argparse.ArgumentTypeError(f"{parent} is not a directory")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise argparse.ArgumentTypeError(f"{parent}: Permission denied")
+    return path
+
+
 def add_out_arg(parser: argparse.ArgumentParser) -> None:
-    """``--out FILE.json``: the one output option of every benchmark."""
-    parser.add_argument("--out", type=Path, default=None, metavar="FILE.json",
+    """``--out FILE.json``: the one output option of every benchmark (:func:`out_file`)."""
+    parser.add_argument("--out", type=out_file, default=None, metavar="FILE.json",
                         help="also write the results and their provenance to this JSON file")
 
 

@@ -65,7 +65,7 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import Provenance, write_json  # noqa: E402
+from benchmarks.common import Provenance, out_file, write_json  # noqa: E402
 
 PEERS = ("tpe", "cmaes_source", "gp", "cmaes", "turbo")
 """Samplers that are peers (stock tools); ``latent`` is reported beside them."""
@@ -267,7 +267,7 @@ def main(argv: list[str] | None = None) -> int:
                          "or nothing")
     ap.add_argument("--traces", default=None,
                     help="per (seed, sampler) traces, reused (default: traces/ beside --out)")
-    ap.add_argument("--out", default="results/optuna_hopper/optuna_hopper.json",
+    ap.add_argument("--out", type=out_file, default="results/optuna_hopper/optuna_hopper.json",
                     help="the JSON to write (a .md with the table next to it)")
     a = ap.parse_args(argv)
     for flag, v in (("trials", a.trials), ("phase1-evals", a.phase1_evals)):

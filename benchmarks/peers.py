@@ -74,7 +74,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from benchmarks.common import (ROOT, Provenance, git_commit, machine, problems,  # noqa: E402
-                               versions, write_json)
+                               out_file, versions, write_json)
 
 CRITIC_DIR = ROOT / "src" / "latentune" / "critic"
 CRITIC_FILES = ("__init__.py", "base.py", "cmaes.py", "random_search.py", "turbo.py")
@@ -626,7 +626,7 @@ def main(argv=None) -> int:
     p.add_argument("--batch-size", type=int, default=10)
     p.add_argument("--dir", default=str(ROOT / "results" / "peers"),
                    help="the runs directory (runs/, invocations.jsonl, summaries)")
-    p.add_argument("--out", type=Path, default=None, metavar="FILE.json",
+    p.add_argument("--out", type=out_file, default=None, metavar="FILE.json",
                    help="--report: also write the summary and its provenance to this JSON file")
     p.add_argument("--variant", action="append",
                    help="NAME=JSON: extra latentune run lt_<method>@NAME with these options")

@@ -270,6 +270,28 @@ def test_an_output_path_that_cannot_be_written_is_one_line_not_a_traceback(tmp_p
     assert os_error_line(denied) == f"{tmp_path / 'ro' / 's.json'}: Permission denied"
 
 
+def test_a_long_benchmark_refuses_an_output_it_could_not_write_before_any_work(
+        tmp_path, capsys, monkeypatch):
+    """reality_gap, handover, peers and optuna_hopper checked ``--out`` only when writing it,
+    after hours of work (whose results were then lost). ``--out`` is checked as the command
+    line is read: a directory, a file among its parents; one argparse line, exit 2, nothing run."""
+    import latentune as lt
+    from benchmarks import optuna_hopper, peers, reality_gap
+
+    monkeypatch.setattr(lt, "Task", lambda *a, **k: pytest.fail("built the task"))
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    for mod in (reality_gap, peers, optuna_hopper):
+        for out, words in ((afile / "x.json", f"{afile} is not a directory"),
+                           (tmp_path, f"{tmp_path} is a directory, not a file")):
+            with pytest.raises(SystemExit) as e:
+                mod.main(["--out", str(out)])
+            err = capsys.readouterr().err.strip().splitlines()
+            assert e.value.code == 2 and err[-1].endswith(f"argument --out: {words}"), \
+                (mod.__name__, err)
+    assert list(tmp_path.iterdir()) == [afile]
+
+
 @pytest.mark.parametrize("argv,words", [
     (["run", "--budget", "-1"], "argument --budget: must be >= 1, got -1"),
     (["run", "--budget", "0"], "argument --budget: must be >= 1, got 0"),
