@@ -417,7 +417,20 @@ def test_paper_seeds_end_to_end_with_a_kill(paper_dir: Path, run_cli, cli_env, d
 
 
 # ---------------------------------------------------------------------------- resume, report
-def test_paper_resume_and_report_command(paper_dir: Path, run_cli, error_line):
+@pytest.fixture
+def unrendered_figures(monkeypatch: pytest.MonkeyPatch) -> None:
+    """matplotlib lays out and rasterises no figure: ``savefig`` writes a placeholder file and
+    ``tight_layout`` does nothing. For a test that checks the tables of a report, not its
+    figures (rendering them is most of an in-process report's time; the end-to-end and
+    ``--seeds`` tests check the real figures)."""
+    from matplotlib.figure import Figure
+
+    monkeypatch.setattr(Figure, "savefig", lambda self, path, **kw: Path(path).write_bytes(b"x"))
+    monkeypatch.setattr(Figure, "tight_layout", lambda self, *a, **kw: None)
+
+
+def test_paper_resume_and_report_command(paper_dir: Path, run_cli, error_line,
+                                         unrendered_figures):
     """On the shared seed-0 directory (after the --seeds test copied it): the same command
     evaluates nothing again, ``report DIR`` gives the same tables, a larger budget resumes
     every study, another configuration is refused."""
