@@ -17,7 +17,21 @@ import latentune as lt  # noqa: E402
 from latentune.constants import Phase  # noqa: E402
 from latentune.errors import LatentuneError  # noqa: E402
 from latentune.integrations import register_cli  # noqa: E402
-from latentune.integrations.dashboard import Dashboard, RunExport  # noqa: E402
+
+# latentune.integrations.dashboard imports optuna-dashboard (with scikit-learn and BoTorch):
+# seconds, paid only by the pytest-xdist worker that runs these tests, not at each collection.
+
+
+def RunExport(*a, **kw):  # noqa: N802 - stands for the class
+    """:class:`latentune.integrations.dashboard.RunExport`, imported on first use."""
+    from latentune.integrations.dashboard import RunExport as cls
+    return cls(*a, **kw)
+
+
+def Dashboard(*a, **kw):  # noqa: N802 - stands for the class
+    """:class:`latentune.integrations.dashboard.Dashboard`, imported on first use."""
+    from latentune.integrations.dashboard import Dashboard as cls
+    return cls(*a, **kw)
 
 S = optuna.trial.TrialState
 CHROMIUM_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
