@@ -7,10 +7,7 @@ import argparse
 import json
 import logging
 import math
-import os
-import subprocess
-import sys
-import textwrap
+import multiprocessing
 from pathlib import Path
 
 import numpy as np
@@ -683,13 +680,12 @@ def test_a_sampler_refuses_a_trial_that_stood_with_a_non_finite_value():
         sampler.suggest_all(t)
 
 
-WORKER = textwrap.dedent('''
-    import sys, time
-    import numpy as np, optuna
+def _worker(source: str, journal: str, n: int) -> None:
+    """A worker process of one journal storage: n times, two trials asked (both RUNNING), then
+    both told."""
     from optuna.storages.journal import JournalFileBackend, JournalStorage
-    from latentune.integrations.optuna import LatentSampler
+
     optuna.logging.set_verbosity(optuna.logging.WARNING)
-    source, journal, n = sys.argv[1], sys.argv[2], int(sys.argv[3])
     storage = JournalStorage(JournalFileBackend(journal))
     sampler = LatentSampler(source, seed=0, budget=40)
     study = optuna.load_study(study_name="target", storage=storage, sampler=sampler)
@@ -699,7 +695,6 @@ WORKER = textwrap.dedent('''
         for t, p in ((a, pa), (b, pb)):
             x = np.array(list(p.values()))
             study.tell(t, float(np.sum((x - 0.3) ** 2)))
-''')
 
 
 def test_a_theta_given_twice_at_once_is_chosen_again(source_run, monkeypatch):
@@ -869,15 +864,16 @@ def test_two_workers_on_one_journal(source_run, tmp_path):
 
     storage = JournalStorage(JournalFileBackend(str(journal)))
     optuna.create_study(study_name="target", storage=storage)
-    script = tmp_path / "worker.py"
-    script.write_text(WORKER)
-    env = dict(os.environ, OMP_NUM_THREADS="1", PYTHONPATH=str(ROOT / "src"))
-    procs = [subprocess.Popen([sys.executable, str(script), str(source_run), str(journal), "2"],
-                              env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    # two processes from multiprocessing's forkserver, which has torch and latentune loaded
+    # (conftest): they start at once, where two fresh interpreters import for seconds first
+    ctx = multiprocessing.get_context("forkserver")
+    procs = [ctx.Process(target=_worker, args=(str(source_run), str(journal), 2))
              for _ in range(2)]
     for p in procs:
-        out, err = p.communicate(timeout=240)
-        assert p.returncode == 0, err.decode()[-2000:]
+        p.start()
+    for p in procs:
+        p.join(timeout=240)
+        assert p.exitcode == 0, p.exitcode
     study = optuna.load_study(study_name="target", storage=storage)
     trials = study.trials
     assert len(trials) == 8 and all(t.state == S.COMPLETE for t in trials)    # none lost
