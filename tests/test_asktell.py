@@ -225,7 +225,7 @@ def test_a_kill_during_ask_loses_nothing(tmp_path):
     ctx = mp.get_context("spawn")
     p = ctx.Process(target=_ask_then_die, args=(str(d),))
     p.start()
-    time.sleep(2.5)
+    p.join(timeout=2.5)                                 # at most 2.5 s: no wait once it exited
     if p.is_alive():
         p.kill()                                        # during its ask, or after it
     p.join()
