@@ -325,8 +325,21 @@ def _bests(out: Path, keys: list[str], phase: int) -> list[float]:
     return res
 
 
+@pytest.fixture
+def only_seed_band_figures(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The report draws its seed-band figures; its best-so-far and cost-transform figures (the
+    end-to-end test checks those) are placeholder files, not laid out and rasterised."""
+    from latentune.reporting import plots
+
+    def placeholder(_data: object, path: str | Path, *a: object, **kw: object) -> None:
+        Path(path).write_bytes(b"x")
+
+    monkeypatch.setattr(plots, "plot_best_so_far", placeholder)
+    monkeypatch.setattr(plots, "plot_cost_transform", placeholder)
+
+
 def test_paper_seeds_end_to_end_with_a_kill(paper_dir: Path, run_cli, cli_env, dump_store,
-                                            tmp_path: Path):
+                                            tmp_path: Path, only_seed_band_figures):
     """``paper --seeds 2`` on a copy of the finished seed-0 directory: killed mid-way and run
     again, it reuses the sources (their rows unchanged), keeps the killed study's rows, and its
     report gives median [IQR] cells equal to the stores' and band curves. (Defined before the
