@@ -4,9 +4,11 @@ optuna-dashboard — checked in headless Chromium (Debian's ``chromium`` + ``chr
 from __future__ import annotations
 
 import argparse
+import json
 import shutil
 import time
 from pathlib import Path
+from urllib.request import urlopen
 
 import numpy as np
 import pytest
@@ -62,7 +64,7 @@ def wait_for(cond, timeout: float = 30.0, what: str = "condition"):
         v = cond()
         if v:
             return v
-        time.sleep(0.2)
+        time.sleep(0.05)
     raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}")
 
 
@@ -182,6 +184,12 @@ def test_dashboard_live_in_chromium(tmp_path):
             wait_for(lambda: len(optuna.load_study(study_name="run/phase 1",
                                                    storage=dash.export.storage).trials) == 9,
                      what="the export to catch up")
+            # the page asks the server once when loaded, then every few seconds: load it once the
+            # server serves 9 trials (it keeps a study's trials for 2 s), not a page that waits
+            api = study_url.replace("/dashboard/studies/", "/api/studies/")
+            assert api != study_url, study_url
+            wait_for(lambda: len(json.loads(urlopen(api, timeout=10).read())["trials"]) == 9,
+                     what="the server to serve 9 trials")
             drv.get(study_url)
             wait_for(lambda: points() == 9, what="9 trials in the history plot")
         finally:
