@@ -44,6 +44,15 @@ def manifold(n: int, seed: int = 0) -> np.ndarray:
     return -1 + 2 * (0.5 + 0.45 * np.tanh(s @ A.T / 1.5))
 
 
+def journal_study(path: Path, n: int) -> Path:
+    """:func:`simulator_study` "sim" in an Optuna journal file (quicker to create and open than
+    an SQLite database, whose schema Optuna sets up); returns the file's path."""
+    from optuna.storages.journal import JournalFileBackend, JournalStorage
+
+    simulator_study(JournalStorage(JournalFileBackend(str(path))), n=n)
+    return path
+
+
 def simulator_study(storage, name: str = "sim", n: int = 60, direction: str = "minimize"):
     """An Optuna study "run on a simulator": n COMPLETE trials on the manifold."""
     study = optuna.create_study(storage=storage, study_name=name, direction=direction)
@@ -1055,8 +1064,7 @@ def test_the_report_of_an_import_names_the_study_and_shows_no_empty_phase_row(tm
     """`latentune report` of an `import-optuna` run showed an empty "phase 3 | – | 0 | –" row
     (an ask/tell run's report has none) and titled it "user system": it shows phase 1 alone
     and is titled with the Optuna study's name."""
-    db = tmp_path / "opt.db"
-    simulator_study(f"sqlite:///{db}", n=12)
+    db = journal_study(tmp_path / "opt.log", n=12)
     assert run_cli("import-optuna", db, "--study", "sim", "--out", tmp_path / "O")[0] == 0
     code, table, err = run_cli("report", tmp_path / "O", "--no-sim")
     assert code == 0, err
@@ -1071,8 +1079,7 @@ def test_an_interrupt_after_import_optuna_printed_exits_0(tmp_path, run_cli, mon
     """A Ctrl-C (or SIGTERM) that landed after ``import-optuna --train-latent`` stored and
     printed the import and the latent space, while it closed the run, exited 130
     ("interrupted"): it exits 0. One before the latent space is trained is still 130."""
-    db = tmp_path / "opt.db"
-    simulator_study(f"sqlite:///{db}", n=20)
+    db = journal_study(tmp_path / "opt.log", n=20)
     argv = ("import-optuna", db, "--study", "sim", "--train-latent", "--latent-dim", "3",
             "--vae-epochs", "5")
     code, out, err = run_cli(*argv, "--out", tmp_path / "O")
