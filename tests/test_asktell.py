@@ -1972,8 +1972,11 @@ def test_an_ask_of_phase_1_in_an_imported_optuna_study_says_what_it_is(run_cli, 
     method 'optuna' (choose from turbo, cma, ...)", a method the user never gave. It now says
     phase 1 is an imported Optuna study that the import adds to, and a phase 3 may use it."""
     optuna = pytest.importorskip("optuna")
-    db = tmp_path / "opt.db"
-    study = optuna.create_study(study_name="sim", storage=f"sqlite:///{db}")
+    from optuna.storages.journal import JournalFileBackend, JournalStorage
+
+    db = tmp_path / "opt.log"            # a journal file: no database schema to create
+    study = optuna.create_study(study_name="sim",
+                                storage=JournalStorage(JournalFileBackend(str(db))))
     dists = {n: optuna.distributions.FloatDistribution(-1.0, 1.0) for n in SPACE.names}
     study.add_trials([optuna.trial.create_trial(params=dict(zip(SPACE.names, map(float, x))),
                                                 distributions=dists, value=float(np.sum(x ** 2)))
