@@ -263,7 +263,9 @@ def test_paper_bad_actor_leaves_nothing_to_block_the_fix(tmp_path: Path, run_cli
 def test_paper_unwritable_out(tmp_path: Path, run_cli, error_line):
     f = tmp_path / "file"
     f.write_text("x")
-    for out, expect in ((f / "sub", "cannot create --out"), (f, "cannot create --out"),
+    for out, expect in ((f / "sub", f"cannot create --out {f / 'sub'}: {f} is a file, not a "
+                                    "directory"),
+                        (f, f"--out {f} is a file, not a directory"),
                         ("/proc/latentune-paper-test", "cannot create --out")):
         code, _, err = run_cli("paper", "--out", out, "--scale", "1e-6")
         assert expect in error_line(code, err), out
