@@ -251,6 +251,26 @@ def test_prepared_urdf_of_a_copy_elsewhere_refers_to_its_own_meshes(tmp_path):
         pb.disconnect(c)
 
 
+def test_prepared_urdf_keeps_mesh_paths_relative_to_its_source(tmp_path):
+    """A rewritten URDF lives in the temp directory: its source's relative mesh paths
+    (``meshes/trunk.obj``) named nothing there, and PyBullet could not load it (a traceback)."""
+    import dataclasses
+    import shutil
+
+    shutil.copytree(Path(get_robot("a1").urdf).parent, tmp_path / "a1")
+    spec = dataclasses.replace(get_robot("a1"), name="a1_rel", urdf=str(tmp_path / "a1" / "a1.urdf"),
+                               strip_root=True)
+    text = Path(prepared_urdf(spec)).read_text()
+    assert f'filename="{tmp_path / "a1" / "meshes" / "trunk.obj"}"' in text
+    assert 'filename="meshes/' not in text
+    import pybullet as pb
+    c = pb.connect(pb.DIRECT)
+    try:
+        assert pb.loadURDF(prepared_urdf(spec), physicsClientId=c) >= 0
+    finally:
+        pb.disconnect(c)
+
+
 def test_prepared_urdf(tmp_path):
     assert prepared_urdf(get_robot("a1")) == get_robot("a1").urdf  # nothing to rewrite
     b1 = Path(prepared_urdf(get_robot("b1"))).read_text()

@@ -105,7 +105,7 @@ def package_dir(package: str) -> Path:
 MASSLESS = 1e-4
 """A link lighter than this [kg] (or without ``<inertial>``) counts as massless."""
 
-_REWRITE_VERSION = "rewrite-2"  # in the prepared-URDF cache key: bump when the rewrite changes
+_REWRITE_VERSION = "rewrite-3"  # in the prepared-URDF cache key: bump when the rewrite changes
 
 
 @dataclass(frozen=True)
@@ -323,14 +323,17 @@ def resolve_mesh(filename: str, src: str | os.PathLike,
 
 
 def _fix_uris(text: str, src: Path) -> str:
-    """Replace ``package://`` mesh URIs by absolute paths where the file is found."""
+    """Replace ``package://`` mesh URIs, ``file://`` URIs and paths relative to the URDF's
+    directory by absolute paths where the file is found (a rewritten copy lives elsewhere)."""
     roots = _uri_roots(src)
 
     def fix(m: re.Match) -> str:
+        if Path(m.group(1)).is_absolute():
+            return m.group(0)
         found = resolve_mesh(m.group(1), src, roots)
         return f'filename="{found}"' if found is not None else m.group(0)
 
-    return re.sub(r'filename="(package://[^"]+)"', fix, text)
+    return re.sub(r'filename="([^"]+)"', fix, text)
 
 
 def _strip_root(text: str, root: str | None = None) -> str:
