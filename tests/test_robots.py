@@ -211,6 +211,25 @@ def test_invalid_yaml_fields(tmp_path, text, message):
         load_spec_file(write(tmp_path, text))
 
 
+@pytest.mark.parametrize("old, new, message", [
+    ('<mass value="4.713"/>', '<mass value="-4.713"/>',
+     r"link 'trunk': mass must be a finite number >= 0 \[kg\], got -4.713"),
+    ('<mass value="4.713"/>', '<mass value="nan"/>', r"link 'trunk': mass must be .*, got nan"),
+    ('ixx="0.01683993"', 'ixx="-0.01683993"', "link 'trunk': inertia moments ixx, iyy, izz must be >= 0 .*, got ixx=-0.0168"),
+    ('ixx="0.01683993"', 'ixx="inf"', "link 'trunk': inertia must be finite numbers"),
+    # a root of mass 0 is fixed in space by PyBullet: every rollout stood still and counted as stable
+    ('<mass value="4.713"/>', '<mass value="0"/>', "the root link 'trunk' has mass 0 .* fixed in space"),
+])
+def test_impossible_urdf_mass_or_inertia_is_refused(tmp_path, old, new, message):
+    """Such a URDF loaded: a negative mass made every MPC QP infeasible, a NaN one every MPC
+    problem non-finite (both falls), a negative inertia simulated, a massless root stood still."""
+    text = Path(get_robot("a1").urdf).read_text()
+    assert text.count(old) == 1
+    (tmp_path / "a1.urdf").write_text(text.replace(old, new))
+    with pytest.raises(RobotSpecError, match=message):
+        load_spec_file(write(tmp_path, "base: a1\nurdf: a1.urdf\n"))
+
+
 def test_unknown_robot_name():
     with pytest.raises(RobotSpecError, match="unknown robot 'spot'.*a1, b1, solo12"):
         get_robot("spot")

@@ -4,7 +4,8 @@
 tree and pinocchio forward kinematics at ``nominal_q``, in the base link frame: x forward, y left,
 z up) and fills the fields a spec may omit:
 
-* errors: the URDF is not XML or has no links/joints; a ``joint_names`` entry is missing or not
+* errors: the URDF is not XML or has no links/joints, or a link's mass or inertia is impossible;
+  a root link of mass 0 carries the legs (PyBullet holds it in space); a ``joint_names`` entry is missing or not
   ``revolute``/``continuous``; a foot link is missing; a leg's three joints are not one chain or
   its foot is not below its knee; a foot is not where its leg's name says (FR: x > 0, y < 0;
   FL: x > 0, y > 0; RR: x < 0, y < 0; RL: x < 0, y > 0) or not below the base; a foot has no
@@ -175,7 +176,10 @@ def inspect_fields(fields: Mapping[str, Any]) -> Findings:
     else:
         strip = tree.massless_root()
         out.filled["strip_root"] = strip
-    if root_light and not tree.massless_root():
+    if root_mass == 0 and not tree.massless_root():
+        err(f"the root link {tree.root!r} has mass 0 and carries movable joints: PyBullet would "
+            "hold it fixed in space; give it its mass")
+    elif root_light and not tree.massless_root():
         warn(f"the root link {tree.root!r} is massless but carries movable joints, so it is not "
              "stripped (PyBullet zeroes its inertia; a root of mass 0 would be fixed in space)")
     out.base_link = tree.base(strip)

@@ -19,6 +19,7 @@ import functools
 import hashlib
 import importlib.metadata
 import importlib.util
+import math
 import os
 import re
 import tempfile
@@ -202,6 +203,22 @@ def _floats(text: str | None, n: int, what: str) -> tuple[float, ...]:
     return vals
 
 
+def _check_inertia(el: ET.Element | None, link: str) -> None:
+    """Raise ValueError unless the ``<inertia>`` element (if any) is finite with moments
+    ``ixx``, ``iyy``, ``izz`` >= 0 (up to rounding; the products of inertia are not checked further: real URDFs
+    carry rounded ones)."""
+    if el is None:
+        return
+    v = {k: float(el.get(k, "0")) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
+    if not all(math.isfinite(x) for x in v.values()):
+        raise ValueError(f"link {link!r}: inertia must be finite numbers, got "
+                         + ", ".join(f"{k}={x:g}" for k, x in v.items() if not math.isfinite(x)))
+    negative = [f"{k}={v[k]:g}" for k in ("ixx", "iyy", "izz") if v[k] < -1e-9]  # -5e-20: rounding
+    if negative:
+        raise ValueError(f"link {link!r}: inertia moments ixx, iyy, izz must be >= 0 [kg·m²], "
+                         f"got {', '.join(negative)}")
+
+
 def _opt_float(el: ET.Element | None, key: str) -> float | None:
     v = None if el is None else el.get(key)
     return None if v is None else float(v)
@@ -212,7 +229,8 @@ def read_urdf(path: str | os.PathLike) -> UrdfTree:
 
     Raises:
         RobotSpecError: one line naming the file: unreadable, empty, not XML, no ``<robot>``,
-            no links or joints, a joint naming an undefined link, not one tree.
+            no links or joints, a joint naming an undefined link, not one tree, a link's mass
+            negative or not finite, an inertia not finite or with a negative moment.
     """
     p = Path(path)
     try:
@@ -248,6 +266,10 @@ def _read_urdf(path: str, size: int, mtime_ns: int) -> UrdfTree:
                 raise ValueError(f"link {name!r} is defined twice")
             mass_el = el.find("inertial/mass")
             mass = None if mass_el is None else float(mass_el.get("value", "nan"))
+            if mass is not None and not (math.isfinite(mass) and mass >= 0):
+                raise ValueError(f"link {name!r}: mass must be a finite number >= 0 [kg], "
+                                 f"got {mass_el.get('value')}")
+            _check_inertia(el.find("inertial/inertia"), name)
             geoms = (c.find("geometry") for c in el.findall("collision"))
             cols = tuple((g[0].tag, dict(g[0].attrib)) for g in geoms if g is not None and len(g))
             links[name] = UrdfLink(name, mass, cols)
