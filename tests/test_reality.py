@@ -313,6 +313,19 @@ def test_latency_sends_the_command_of_latency_steps_ago_and_holds_no_copies():
         assert rt.motor(np.full(12, 9.0))[0] == 9.0
 
 
+def test_a_latency_not_shorter_than_the_rollout_is_refused(tmp_path, run_cli, error_line):
+    """latency_steps >= the rollout's steps: no command of the controller ever acted (the
+    first one was held throughout), and the rollout was scored as if it were the controller's."""
+    with pytest.raises(UsageError, match="latency_steps 200 .* not shorter than the rollout's 200 steps"):
+        Task(steps=200, reality={"latency_steps": 200})
+    Task(steps=201, reality={"latency_steps": 200})
+    prof = tmp_path / "slow.yaml"
+    prof.write_text("latency_steps: 100000\n")
+    code, out, err = run_cli("rollout", "--steps", "50", "--reality", str(prof), "--json")
+    assert code == 2 and out == ""
+    assert "latency_steps 100000 " in error_line(code, err) and "50 steps" in error_line(code, err)
+
+
 @engines
 def test_lower_friction_more_foot_slip(engine):
     def slip(w):

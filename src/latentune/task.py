@@ -188,6 +188,11 @@ class Task:
             require_mujoco()
         self.reality = Reality.load(reality)
         self.reality_file = profile_file(reality)
+        if self.reality.latency_steps >= steps:     # the first command would act throughout
+            raise UsageError(f"reality {self.reality.name!r}: latency_steps "
+                             f"{self.reality.latency_steps} is not shorter than the rollout's "
+                             f"{steps} steps: no command of the controller would act (lower "
+                             "latency_steps or give more steps)")
         self.engine = engine
         self.robot_name = self.spec.name
         self.gait = gait
