@@ -243,6 +243,24 @@ def test_rollout_rejects_bad_arguments(capsys, bad, expect):
     assert_one_line(capsys, "rollout", *bad, expect=expect)
 
 
+def test_rollout_refuses_a_plot_or_gif_it_could_not_write_before_the_rollout(capsys, tmp_path):
+    """A file among the parents was 'output directory does not exist'; a path that cannot be
+    written was a traceback after the rollout; an empty --plot/--gif was ignored (no file)."""
+    afile = tmp_path / "f"
+    afile.write_text("")
+    for flag, path, expect in (
+            ("--plot", afile / "x.png", f"--plot {afile / 'x.png'}: {afile} is a file, not a directory"),
+            ("--gif", "", "--gif is empty: give a file name, or leave --gif out"),
+            ("--plot", " ", "--plot is empty: give a file name, or leave --plot out"),
+            ("--plot", "/proc/x.png", "--plot /proc/x.png cannot be written"),
+            ("--gif", "/proc/x.gif", "--gif /proc/x.gif cannot be written")):
+        assert_one_line(capsys, "rollout", "--steps", "5", flag, path, expect=expect)
+    ok = tmp_path / "kept.png"          # an existing file passes the check, then is rewritten
+    ok.write_bytes(b"old")
+    from latentune.cli import main
+    assert main(["rollout", "--steps", "5", "--plot", str(ok)]) == 0 and ok.read_bytes() != b"old"
+
+
 def test_a_params_file_of_another_system_says_how_many_names_and_whose(capsys, tmp_path):
     """A --params file of another system (its best.json, 24 names none of which A1 has) said
     "unknown parameter name(s): k0, k1, k2, k3, k4": five of them, as if that were all, and

@@ -202,21 +202,40 @@ def make_task(args: argparse.Namespace, seed: int = 0) -> Any:
 
 
 # ---------------------------------------------------------------------------- rollout
+def _check_output_file(flag: str, path: str, exts: tuple[str, ...]) -> None:
+    """CLIError naming ``flag`` unless ``path`` is a file name ending in one of ``exts`` that
+    can be written (tried by opening it for appending; a file that was not there is removed)."""
+    if not path.strip():
+        raise CLIError(f"{flag} is empty: give a file name, or leave {flag} out")
+    parent = os.path.dirname(os.path.abspath(path))
+    blocker = next((q for q in [parent, *Path(parent).parents] if os.path.isfile(q)), None)
+    if blocker is not None:
+        raise CLIError(f"{flag} {path}: {blocker} is a file, not a directory")
+    if not os.path.isdir(parent):
+        raise CLIError(f"output directory does not exist: {parent}")
+    if os.path.isdir(path):
+        raise CLIError(f"{path} is a directory, not a file")
+    if not path.lower().endswith(exts):
+        raise CLIError(f"{path}: the file name must end in {' or '.join(exts)}")
+    existed = os.path.exists(path)
+    try:
+        with open(path, "ab"):
+            pass
+        if not existed:
+            os.remove(path)
+    except OSError as exc:
+        raise CLIError(f"{flag} {path} cannot be written ({exc.strerror})") from None
+
+
 def cmd_rollout(args: argparse.Namespace) -> int:
     if args.system is not None or args.system_arg:
         return _rollout_system(args)
     task = make_task(args, 0 if args.seed is None else args.seed)
     theta = task.space.load(args.params) if args.params else task.space.manual
-    for path, exts in ((args.gif, (".gif",)), (args.plot, (".png", ".pdf", ".svg"))):
-        if not path:
-            continue
-        parent = os.path.dirname(os.path.abspath(path))
-        if not os.path.isdir(parent):
-            raise CLIError(f"output directory does not exist: {parent}")
-        if os.path.isdir(path):
-            raise CLIError(f"{path} is a directory, not a file")
-        if not path.lower().endswith(exts):
-            raise CLIError(f"{path}: the file name must end in {' or '.join(exts)}")
+    for flag, path, exts in (("--gif", args.gif, (".gif",)),
+                             ("--plot", args.plot, (".png", ".pdf", ".svg"))):
+        if path is not None:
+            _check_output_file(flag, path, exts)
     res = task.rollout(theta, record=bool(args.plot), gif=args.gif)
     where = ", ".join([task.terrain, task.actor, task.engine]
                       + ([] if task.reality.is_nominal else [f"reality {task.reality.name}"]))
