@@ -203,6 +203,11 @@ def test_bad_package_name_is_a_clear_error(tmp_path):
     ("base: a1\nkd: [1, x, 2]\n", r"kd must be a list of 3 numbers, got \[1, 'x', 2\]"),
     ("base: a1\nfoot_radius: true\n", "foot_radius must be a positive number, got True"),
     ("base: a1\nraibert_gain: -1\n", "raibert_gain must be a positive number, got -1"),
+    # a gait value that is no number said only "bad value (could not convert string to float ...)"
+    ("base: a1\ngaits: {trot: {period: abc, duty: 0.6, step_height: 0.08}}\n",
+     "gait 'trot': period must be a number, got 'abc'"),
+    ("base: a1\ngaits: {trot: {period: 0.38, duty: 0.6, step_height: 0.08, offsets: [0, x, 0.5, 0]}}\n",
+     r"gait 'trot': offsets must be 4 numbers, got \[0, 'x', 0.5, 0\]"),
     ("[1, 2]\n", "expected a mapping"),
     ("name: [\n", "malformed YAML"),
 ])

@@ -343,8 +343,21 @@ def _gaits(raw: Any, where: str) -> dict[str, GaitParams]:
         if not isinstance(g, Mapping) or set(g) - _GAIT_KEYS or not {"period", "duty", "step_height"} <= set(g):
             raise RobotSpecError(f"{where}: gait {name!r} needs period, duty, step_height (and optional offsets)")
         offsets = _sequence(g.get("offsets", TROT_OFFSETS if name == "trot" else JUMP_OFFSETS), "offsets", where)
-        gp = GaitParams(float(g["period"]), float(g["duty"]), float(g["step_height"]),
-                        tuple(float(o) for o in offsets))
+        nums = {}
+        for key in ("period", "duty", "step_height"):
+            try:
+                if isinstance(g[key], bool):     # float(True) is 1.0: a typo, not a period
+                    raise TypeError
+                nums[key] = float(g[key])
+            except (TypeError, ValueError):
+                raise RobotSpecError(f"{where}: gait {name!r}: {key} must be a number, "
+                                     f"got {g[key]!r}") from None
+        try:
+            offs = tuple(float(o) for o in offsets)
+        except (TypeError, ValueError):
+            raise RobotSpecError(f"{where}: gait {name!r}: offsets must be 4 numbers, "
+                                 f"got {list(offsets)}") from None
+        gp = GaitParams(nums["period"], nums["duty"], nums["step_height"], offs)
         # offsets are phases in cycles (taken mod 1 by the schedulers): one cycle is [0, 1)
         for key, value, ok, rule in (
                 ("period", gp.period, math.isfinite(gp.period) and gp.period > 0, "a positive finite number [s]"),
