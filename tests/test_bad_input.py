@@ -261,6 +261,19 @@ def test_rollout_refuses_a_plot_or_gif_it_could_not_write_before_the_rollout(cap
     assert main(["rollout", "--steps", "5", "--plot", str(ok)]) == 0 and ok.read_bytes() != b"old"
 
 
+def test_rollout_refuses_a_seed_that_changes_nothing(capsys, tmp_path):
+    """--seed seeds the hills and a reality's noise and pushes: on flat ground without them
+    every seed gave the same rollout, and a sweep over seeds repeated one rollout unawares."""
+    assert_one_line(capsys, "rollout", "--steps", "5", "--seed", "3",
+                    expect="--seed changes nothing here")
+    assert_one_line(capsys, "rollout", "--steps", "5", "--seed", "3", "--reality", "heavy",
+                    expect="--seed changes nothing here")
+    from latentune.cli import main
+    for extra in (["--terrain", "hills"], ["--reality", "laggy"], ["--reality", "hard"], []):
+        seed = ["--seed", "3"] if extra else []
+        assert main(["rollout", "--steps", "5", *seed, *extra]) == 0, extra
+
+
 def test_a_params_file_of_another_system_says_how_many_names_and_whose(capsys, tmp_path):
     """A --params file of another system (its best.json, 24 names none of which A1 has) said
     "unknown parameter name(s): k0, k1, k2, k3, k4": five of them, as if that were all, and

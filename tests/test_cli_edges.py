@@ -97,7 +97,7 @@ def test_help_shows_the_defaults(capsys):
         assert needle in text, needle
     assert "number of suggestions (default 1)" in _help(capsys, "ask")
     assert "rollout steps (default 2000)" in _help(capsys, "bench")
-    assert "terrain seed (default 0)" in _help(capsys, "rollout")
+    assert "noise and pushes (default 0)" in _help(capsys, "rollout")
     # every option with a default says so, in every command
     todo, seen = [("latentune", build_parser())], 0
     while todo:

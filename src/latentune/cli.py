@@ -231,6 +231,9 @@ def cmd_rollout(args: argparse.Namespace) -> int:
     if args.system is not None or args.system_arg:
         return _rollout_system(args)
     task = make_task(args, 0 if args.seed is None else args.seed)
+    if args.seed is not None and task.terrain != "hills" and not task.reality.is_random:
+        raise CLIError("--seed changes nothing here: it seeds the hills (--terrain hills) and a "
+                       "--reality's sensor noise and pushes; leave it out")
     theta = task.space.load(args.params) if args.params else task.space.manual
     for flag, path, exts in (("--gif", args.gif, (".gif",)),
                              ("--plot", args.plot, (".png", ".pdf", ".svg"))):
@@ -1523,7 +1526,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = add("rollout", help="simulate one rollout and print its path cost (or, with --system, "
                             "run one trial of your system)")
     add_system_args(p)
-    p.add_argument("--seed", type=argtypes.seed, default=None, help="terrain seed (default 0)")
+    p.add_argument("--seed", type=argtypes.seed, default=None, help="terrain seed, and of a --reality's noise and pushes (default 0)")
     p.add_argument("--params", help="JSON file: list of normalized θ or object of physical values "
                                     "(default: the manual θ)")
     p.add_argument("--gif", help="write a GIF of the motion here")

@@ -188,6 +188,11 @@ class Reality:
         return any(getattr(self, k) > 0 for k in _NOISE)
 
     @property
+    def is_random(self) -> bool:
+        """Sensor noise or pushes: a part drawn from the seeded generators."""
+        return self.has_noise or self.push_force > 0 or self.push_fraction > 0
+
+    @property
     def foot_friction(self) -> float:
         """The foot–ground Coulomb friction coefficient (nominal 1.0)."""
         return self.friction if self.friction is not None else self.friction_scale
