@@ -313,6 +313,15 @@ def test_latency_sends_the_command_of_latency_steps_ago_and_holds_no_copies():
         assert rt.motor(np.full(12, 9.0))[0] == 9.0
 
 
+@pytest.mark.skipif(importlib.util.find_spec("mujoco") is None, reason="needs mujoco")
+def test_a_restitution_mujoco_cannot_take_is_refused_not_capped():
+    """MuJoCo's contacts take a restitution up to 0.85: 0.95 ran as 0.85, unsaid."""
+    with pytest.raises(UsageError, match="MuJoCo takes a restitution of at most 0.85.*, got 0.95"):
+        Task(steps=10, engine="mujoco", reality={"restitution": 0.95})
+    Task(steps=10, engine="mujoco", reality={"restitution": 0.85})
+    Task(steps=10, reality={"restitution": 0.95})
+
+
 def test_a_latency_not_shorter_than_the_rollout_is_refused(tmp_path, run_cli, error_line):
     """latency_steps >= the rollout's steps: no command of the controller ever acted (the
     first one was held throughout), and the rollout was scored as if it were the controller's."""

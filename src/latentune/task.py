@@ -188,6 +188,13 @@ class Task:
             require_mujoco()
         self.reality = Reality.load(reality)
         self.reality_file = profile_file(reality)
+        if engine == "mujoco":
+            from latentune.sim.mujoco_world import MAX_RESTITUTION
+
+            if self.reality.restitution > MAX_RESTITUTION:   # contact_solref would cap it
+                raise UsageError(f"reality {self.reality.name!r}: MuJoCo takes a restitution of at "
+                                 f"most {MAX_RESTITUTION:.3g} (its contacts blow up beyond), got "
+                                 f"{self.reality.restitution:g}; use the pybullet engine for more")
         if self.reality.latency_steps >= steps:     # the first command would act throughout
             raise UsageError(f"reality {self.reality.name!r}: latency_steps "
                              f"{self.reality.latency_steps} is not shorter than the rollout's "

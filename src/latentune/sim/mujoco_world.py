@@ -40,7 +40,7 @@ from latentune.sim.world import HILLS_CELL, HILLS_CELLS, WorldBase
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["MujocoWorld", "require_mujoco", "contact_solref", "mujoco_urdf_text"]
+__all__ = ["MujocoWorld", "require_mujoco", "contact_solref", "mujoco_urdf_text", "MAX_RESTITUTION"]
 
 _ROBOT_CONTYPE, _GROUND_CONTYPE = 2, 1   # robot geoms touch the ground, not each other
 CONTACT_TIMECONST = 0.005
@@ -48,6 +48,8 @@ CONTACT_TIMECONST = 0.005
 and 14 mm at a hard touchdown, deep enough for the shank to touch the ground; ≥ 2 steps)."""
 MIN_DAMPING_RATIO = 0.05
 """Least contact damping ratio (restitution ≤ 0.85): below it MuJoCo's contacts blow up."""
+MAX_RESTITUTION = math.exp(-math.pi * MIN_DAMPING_RATIO / math.sqrt(1.0 - MIN_DAMPING_RATIO ** 2))
+"""The largest restitution the MuJoCo world takes (that of :data:`MIN_DAMPING_RATIO`)."""
 
 
 def contact_solref(restitution: float) -> tuple[float, float]:
