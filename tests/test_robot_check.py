@@ -255,6 +255,12 @@ def test_init_spec_refuses_what_is_not_a_quadruped(tmp_path):
         init_spec(urdf_file(tmp_path, text))
     with pytest.raises(RobotSpecError, match="not XML"):
         init_spec(urdf_file(tmp_path, "<robot", "b.urdf"))
+    # an empty path (an unset shell variable) was the working directory: "cannot read (Is a directory)"
+    for empty in ("", "  "):
+        with pytest.raises(RobotSpecError, match="the URDF path is empty"):
+            init_spec(empty)
+    with pytest.raises(RobotSpecError, match=f"URDF {tmp_path}: is a directory, not a URDF file"):
+        init_spec(tmp_path)
 
 
 @pytest.mark.parametrize("name", ["go1", "go2"])

@@ -200,7 +200,11 @@ def init_spec(urdf_path: str | os.PathLike, name: str | None = None) -> str:
     if name is not None and not str(name).strip():
         raise RobotSpecError(f"the robot name must not be empty, got {name!r} (leave it out for "
                              "the URDF's)")
+    if not str(urdf_path).strip():
+        raise RobotSpecError("the URDF path is empty: give the quadruped's .urdf file")
     path = Path(urdf_path).expanduser().resolve()
+    if path.is_dir():
+        raise RobotSpecError(f"URDF {path}: is a directory, not a URDF file")
     tree = read_urdf(path)
     strip = tree.massless_root()
     model = pin_model(str(path), strip)
