@@ -259,7 +259,7 @@ def cmd_rollout(args: argparse.Namespace) -> int:
         print(f"{task.robot_name} {task.gait} ({where}): cost {res.cost:.3f}, "
               f"{state}, mean vx (last {window:g} s) {res.mean_vx:.3f} m/s, "
               f"height {res.mean_height:.3f} m, "
-              f"{res.steps} steps in {res.wall_s:.2f} s")
+              f"{counted(res.steps, 'step')} in {res.wall_s:.2f} s")
     return 0
 
 

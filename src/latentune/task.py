@@ -40,9 +40,9 @@ BLOWUP_SPEED = 50.0
 """A base speed above this [m/s] is a simulator blow-up, counted as a fall (legged robots move
 at a few m/s; a blown-up PyBullet world jumps between ±100 m/s at finite positions)."""
 MAX_STEPS = 10_000_000
+"""The longest rollout horizon (10,000 s at 1 kHz): a rollout holds a few arrays of this length."""
 MAX_V_DES = 3.0
 """The largest desired velocity a Task takes [m/s] (the size of its 3-vector)."""
-"""The longest rollout horizon (10,000 s at 1 kHz): a rollout holds a few arrays of this length."""
 ACTORS = {
     "convex": "latentune.actor.convex_mpc:ConvexMPC",
     "kinodynamic": "latentune.actor.kinodynamic:KinodynamicMPC",
