@@ -65,6 +65,10 @@ def test_runs_every_benchmark_module_with_out(monkeypatch, tmp_path, capsys):
     assert thr[thr.index("--steps") + 1] == "50" and thr[thr.index("--n") + 1] == "3"
     table = capsys.readouterr().out
     assert "| actor | 2.00 |" in table and "| throughput | 4.00 |" in table
+    # the status says whether a ratio meets its goal ("ok" read as met: actor 2.0 <= 2)
+    assert "| ran, goal met |" in table.splitlines()[2]
+    assert "ran, goal missed (3.00, goal <= 2)" in bench.BENCHES[0].verdict(3.0)
+    assert bench.BENCHES[1].verdict(9.0) == "ran"
 
 
 @pytest.mark.parametrize("timeout", [math.inf, 1e10, 3e6])

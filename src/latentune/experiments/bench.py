@@ -33,15 +33,25 @@ class Bench:
     ratio: str
     uses_steps: bool = False
     uses_n: bool = False
+    goal: tuple[str, float] | None = None     # ("<=" or ">=", bound) the ratio should meet
+
+    def verdict(self, ratio: float) -> str:
+        """The status of a benchmark that ran: whether its ratio meets its goal (if any)."""
+        if self.goal is None:
+            return "ran"
+        op, bound = self.goal
+        met = ratio <= bound if op == "<=" else ratio >= bound
+        return "ran, goal met" if met else f"ran, goal missed ({ratio:.2f}, goal {op} {bound:g})"
 
 
 BENCHES: tuple[Bench, ...] = (
-    Bench("actor", ("--repeat", "1"), "rollout / bare stepping + PD (goal <= 2)", uses_steps=True),
+    Bench("actor", ("--repeat", "1"), "rollout / bare stepping + PD (goal <= 2)", uses_steps=True,
+          goal=("<=", 2.0)),
     Bench("turbo_overhead", ("--told", "1000", "--asks", "3", "--regions", "1"),
           "TuRBO-m s/point with torch's threads / with its default one thread (> 1: one "
           "thread is faster)"),
     Bench("throughput", (), "serial / 2 process workers wall time (goal >= 1.8 on 2 free cores)",
-          uses_steps=True, uses_n=True),
+          uses_steps=True, uses_n=True, goal=(">=", 1.8)),
 )
 
 
@@ -114,6 +124,8 @@ def run_bench(steps: int = 2000, n: int = 8, timeout: float = 900.0,
                 row.update(_read(out, r))
                 if row["status"] != "ok":
                     status = 1
+                else:
+                    row["status"] = b.verdict(row["ratio"])
             row["wall_s"] = round(time.perf_counter() - t, 1)
             rows.append(row)
     print(_table(rows))
