@@ -1285,6 +1285,16 @@ def main(argv: list[str] | None = None) -> int:
             print(f"transfer compare: {e}", file=sys.stderr)
             return 2
         if not any(r["pairs"] for r in rows):
+            import difflib
+
+            stored = sorted({f.stem for f in Path(a.root).glob("*/gap*/seed*/*.json")})
+            unknown = [m for m in dict.fromkeys([*a.a, *a.b]) if m not in stored]
+            if unknown:         # a typo, or a method never run here
+                near = difflib.get_close_matches(unknown[0], stored, n=3)
+                print(f"transfer compare: no run of {unknown[0]} under {a.root}"
+                      + (f" (did you mean {' or '.join(near)}?)" if near else ""),
+                      file=sys.stderr)
+                return 2
             print(f"transfer compare: no (target, seed) under {a.root} holds both methods of "
                   f"any pair", file=sys.stderr)
             return 2

@@ -270,6 +270,27 @@ def test_an_output_path_that_cannot_be_written_is_one_line_not_a_traceback(tmp_p
     assert os_error_line(denied) == f"{tmp_path / 'ro' / 's.json'}: Permission denied"
 
 
+def test_compare_names_a_method_with_no_run_and_the_near_ones(tmp_path, capsys):
+    """``transfer compare --a nosuch`` said only that no (target, seed) holds both methods; it
+    names the method without a run (and the stored ones close to it), exit 2; two stored
+    methods that never ran on one seed keep the pair message."""
+    from benchmarks import transfer
+
+    for seed, method in ((0, "zero_shot"), (0, "transfer"), (1, "tpe")):
+        run = tmp_path / "chain" / "gap1" / f"seed{seed}"
+        run.mkdir(parents=True, exist_ok=True)
+        (run / f"{method}.json").write_text(json.dumps({
+            "costs": [0.9], "failed": [False], "thetas": [[0.5] * 20], "system": "chain",
+            "gap": 1.0, "seed": seed, "method": method, "budget": 1, "wall_s": 0.01}))
+    for argv, words in (
+            (["--a", "transfr", "--b", "zero_shot"], "no run of transfr under "
+                                                      f"{tmp_path} (did you mean transfer?)"),
+            (["--a", "tpe", "--b", "zero_shot"], "holds both methods of any pair")):
+        assert transfer.main(["compare", "--root", str(tmp_path), *argv]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and words in err[0], err
+
+
 def test_a_long_benchmark_refuses_an_output_it_could_not_write_before_any_work(
         tmp_path, capsys, monkeypatch):
     """reality_gap, handover, peers and optuna_hopper checked ``--out`` only when writing it,
