@@ -148,6 +148,10 @@ def main(argv: list[str] | None = None) -> int:
             for s in a.seeds:
                 kw = {"engine": "mujoco"} if reality == "mujoco" else {"reality": reality}
                 target = lt.Task(a.robot, a.task, actor=a.actor, steps=a.steps, seed=s, **kw)
+                if target.space.dim != best0.shape[0]:      # another robot's or actor's run
+                    ap.error(f"--source {a.source} tunes {best0.shape[0]} weights, the target "
+                             f"(--robot {a.robot} --actor {a.actor}) {target.space.dim}: give "
+                             "a source run of the target's controller")
                 zero = target.evaluate(best0).cost    # the source's best θ as it is, on the target
                 for m in a.methods:
                     d = work / f"{reality}_{m}{f'_fa{a.max_fall_prob:g}' if a.max_fall_prob else ''}_s{s}"

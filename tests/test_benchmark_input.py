@@ -41,6 +41,13 @@ def test_reality_gap_refuses_a_source_without_trials_or_latent_space_and_unknown
     with pytest.raises(SystemExit) as e:
         reality_gap.main(["--source", str(tmp_path), "--robot", "nosuch"])
     assert e.value.code == 2 and "has no latent space" in capsys.readouterr().err
+    # a source of another controller (2 weights against the A1's 25) said "expected 25
+    # normalized parameters, got shape (2,)" without naming --source
+    with pytest.raises(SystemExit) as e:
+        reality_gap.main(["--source", str(tmp_path), "--methods", "direct", "--steps", "10",
+                          "--work", str(tmp_path / "w"), "--workers", "1"])
+    assert e.value.code == 2 and f"--source {tmp_path} tunes 2 weights, the target (--robot " \
+        "a1 --actor convex) 25" in capsys.readouterr().err
 
 
 def test_handover_refuses_options_that_are_not_json_before_the_rollout(tmp_path, capsys,
