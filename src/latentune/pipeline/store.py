@@ -505,7 +505,7 @@ class RunStore:
         if self.read_only:
             if not os.access(self.dir, os.W_OK):
                 raise StoreError(f"{self.dir} cannot be written (read-only): copy the run to a "
-                                 "writable directory to continue it")
+                                 "writable directory and use the copy")
             raise StoreError(f"{self.path} cannot be written (read-only): make it writable, or "
                              "copy the run to a writable directory")
         try:
