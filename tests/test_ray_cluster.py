@@ -1,18 +1,17 @@
-"""Phase 1 on a two-node Ray cluster started on this machine, its worker node killed mid-run;
-its head node killed mid-run (one line, exit 2, the store resumed by the command the line names).
+"""Phase 1 on a two-node Ray cluster started on this machine, its worker node killed mid-run,
+then its head node (one line, exit 2, the store resumed by the command the line names).
 
 The cluster (:class:`benchmarks.cluster.LocalCluster`): a head and a worker node (one CPU each,
 their own temp dirs and free ports), each started with ``ray start --block`` in its own process
-group. The tests share it (a module fixture: one head start); each test gets a running head
-and worker node (one a test killed is started again), and the module's finalizer ends the
-nodes (:meth:`~benchmarks.cluster.LocalCluster.stop`) even when a test fails.
+group. A module fixture starts the head; a test gets a running head and worker node (one an
+earlier test killed is started again), and the module's finalizer ends the nodes
+(:meth:`~benchmarks.cluster.LocalCluster.stop`) even when a test fails.
 ``ray stop`` is not used: it ends every Ray process on the machine, other runs' included.
 
 The system is the chain of ``examples/lqr_chain.py`` with a journal (:class:`JournalChain`):
 every trial appends ``start``/``end`` lines (its node's process group, its θ) to a file. Once a
-``hold`` file exists, a trial that runs on the worker node (its process group is the worker's)
-writes ``held`` and waits until it is killed with the node, so the test knows which trial the
-kill loses. The run must go on with the head's actor and store every trial once: the lost one
+``hold`` file names a node's process group, a trial that runs on that node writes ``held`` and
+waits until it is killed with the node, so the test knows which trial the kill loses. The run must go on with the head's actor and store every trial once: the lost one
 re-run (its row says ``lost_runs``: 1, its cost is the system's own for that θ), none recorded
 as a failure, none twice, the phase's indices contiguous.
 """
@@ -48,13 +47,19 @@ class JournalChain(ChainSystem):
     """:class:`~examples.lqr_chain.ChainSystem` (plant gap 0.5) whose trials append ``start
     PGID THETA`` and ``end PGID THETA`` lines to ``journal`` (PGID:
     :func:`~benchmarks.cluster.node_group`, the node's; θ: the unit-box values as a JSON list).
-    While the file ``journal + ".hold"`` exists, a trial on the node of group ``hold_pgid``
-    writes ``held PGID THETA`` instead and sleeps (until its process is killed)."""
+    While the file ``journal + ".hold"`` exists, a trial on the node whose process group the
+    file names writes ``held PGID THETA`` instead and sleeps (until its process is killed)."""
 
-    def __init__(self, journal: str, hold_pgid: int) -> None:
+    def __init__(self, journal: str) -> None:
         super().__init__(gap=0.5)
         self.journal = journal
-        self.hold_pgid = int(hold_pgid)
+
+    def _held_here(self) -> bool:
+        try:
+            with open(self.journal + ".hold") as f:
+                return f.read().strip() == str(node_group())
+        except OSError:
+            return False
 
     def _log(self, what: str, theta: np.ndarray) -> None:
         line = f"{what} {node_group()} {json.dumps([float(v) for v in theta])}\n"
@@ -65,7 +70,7 @@ class JournalChain(ChainSystem):
             os.close(fd)
 
     def evaluate(self, theta: np.ndarray) -> Any:
-        if node_group() == self.hold_pgid and os.path.exists(self.journal + ".hold"):
+        if self._held_here():
             self._log("held", theta)
             t0 = time.monotonic()
             while time.monotonic() - t0 < HOLD_S:
@@ -77,9 +82,9 @@ class JournalChain(ChainSystem):
         return out
 
 
-def make_system(journal: str, hold_pgid: int) -> JournalChain:
-    """``--system tests.test_ray_cluster:make_system --system-arg journal=… hold_pgid=…``."""
-    return JournalChain(journal, hold_pgid)
+def make_system(journal: str) -> JournalChain:
+    """``--system tests.test_ray_cluster:make_system --system-arg journal=…``."""
+    return JournalChain(journal)
 
 
 def _journal(path: Path) -> list[tuple[str, int, tuple[float, ...]]]:
@@ -121,13 +126,12 @@ def cluster(nodes):
 
 def _phase1(tmp_path: Path, cluster: LocalCluster, log: Path, env: dict[str, str] | None = None,
             **popen: Any) -> tuple[subprocess.Popen, Path, Path]:
-    """Start ``latentune phase1`` (BUDGET trials of :class:`JournalChain`, trials held on the
-    worker node) on ``cluster`` (its environment with ``env`` added), its output to ``log``;
-    return the process, the run directory and the journal."""
+    """Start ``latentune phase1`` (BUDGET trials of :class:`JournalChain`) on ``cluster`` (its
+    environment with ``env`` added), its output to ``log``; return the process, the run
+    directory and the journal."""
     out, journal = tmp_path / "run", tmp_path / "journal.txt"
     args = ["phase1", "--system", "tests.test_ray_cluster:make_system",
             "--system-arg", f"journal={journal}",
-            "--system-arg", f"hold_pgid={cluster.pgid('worker')}",
             "--out", str(out), "--phase1-evals", str(BUDGET), "--backend", "ray",
             "--ray-address", cluster.address, "--workers", "2", "--seed", "3"]
     with open(log, "wb") as f:
@@ -139,36 +143,85 @@ def _phase1(tmp_path: Path, cluster: LocalCluster, log: Path, env: dict[str, str
 
 
 @pytest.mark.slow
-def test_worker_node_killed_mid_run(tmp_path, cluster, dump_store):
-    log = tmp_path / "cli.log"
-    worker_pgid = cluster.pgid("worker")
-    proc, out, journal = _phase1(tmp_path, cluster, log)
+def test_worker_node_then_head_node_killed_mid_run(tmp_path, cluster, dump_store):
+    """One phase-1 command loses its worker node, then its head node.
+
+    The worker node is killed while a trial is held on it: the run goes on with the head's
+    actor, the held trial is re-run once on the head (its row says ``lost_runs``: 1, its result
+    is the system's own). Then the head node (the GCS the run is connected to) is killed while
+    a trial is held on it: the command ends with exit status 2 and one line more on stderr
+    (what happened, that the stored trials are safe, the command that resumes) before Ray
+    would end it silently (exit 1 after 60 s; here RAY_RECONNECT_S, set through Ray's own
+    variable, which shortens latentune's head timeout to a quarter of it); the store is intact,
+    and that command, once a head is back on the address, completes the phase: every index
+    once, no θ twice, the worker's lost trial the only one re-run."""
+    from latentune.pipeline.evaluators import RAY_RECONNECT_VAR
+
+    log, err_log = tmp_path / "cli.log", tmp_path / "cli.err"
+    worker_pgid, head_pgid = cluster.pgid("worker"), cluster.pgid("head")
+    with open(err_log, "wb") as err:
+        proc, out, journal = _phase1(tmp_path, cluster, log, stderr=err,
+                                     env={RAY_RECONNECT_VAR: str(RAY_RECONNECT_S)})
     hold = Path(str(journal) + ".hold")
     try:
         # both nodes have run trials
         wait_for(lambda: stored(out / "run.db") >= KILL_AFTER and worker_pgid in
                  {g for w, g, _ in _journal(journal) if w == "end"}, "the first rows",
-                 proc, log)
-        hold.touch()
+                 proc, err_log)
+        hold.write_text(str(worker_pgid))
         wait_for(lambda: any(w == "held" for w, _, _ in _journal(journal)),
-                 "a held trial on the worker node", proc, log)
+                 "a held trial on the worker node", proc, err_log)
         held = next(t for w, _, t in _journal(journal) if w == "held")
         n_at_kill = stored(out / "run.db")
         cluster.kill("worker")
         hold.unlink()
-        proc.wait(timeout=900)
+        # the held θ re-run on the head and stored, then a row more
+        wait_for(lambda: any(w == "end" and g == head_pgid and t == held
+                             for w, g, t in _journal(journal))
+                 and stored(out / "run.db") >= n_at_kill + 2, "the lost trial re-run",
+                 proc, err_log)
+        hold.write_text(str(head_pgid))  # the run cannot finish: a trial waits on the head
+        wait_for(lambda: any(w == "held" and g == head_pgid for w, g, _ in _journal(journal)),
+                 "a held trial on the head node", proc, err_log)
+        before_head_kill = err_log.read_text()
+        t0 = time.monotonic()
+        cluster.kill("head")
+        proc.wait(timeout=120)           # Ray alone: exit 1 after RAY_RECONNECT_S, no line of ours
+        took = time.monotonic() - t0
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
-    text = log.read_text()
-    assert proc.returncode == 0, text[-3000:]
-    assert "a Ray worker was lost" in text, text[-3000:]
-    assert n_at_kill < BUDGET                     # the kill was mid-run
+        if hold.exists():
+            hold.unlink()
+    err = err_log.read_text()
+    assert proc.returncode == 2, err[-3000:]
+    assert "a Ray worker was lost" in before_head_kill, err[-3000:]
+    assert "latentune: error" not in before_head_kill, before_head_kill[-3000:]
+    assert n_at_kill < BUDGET                     # the worker kill was mid-run
+    assert err.startswith(before_head_kill), err[-3000:]
+    lines = err[len(before_head_kill):].splitlines()
+    assert len(lines) == 1 and lines[0].startswith("latentune: error: the Ray cluster's head "
+                                                   f"at {cluster.address} stopped answering"), err
+    assert f"the trials stored in {out} are safe" in lines[0], lines[0]
+    assert took < RAY_RECONNECT_S, took
+    kept = [r for r in dump_store(out)[0] if r[0] == 1]
+    n = len(kept)
+    assert n_at_kill + 2 <= n < BUDGET and f"({n} evaluations of phase 1 stored)" in lines[0], \
+        lines[0]
+    assert [r[1] for r in kept] == list(range(n))
 
+    resume = shlex.split(lines[0].split("`")[1])
+    assert resume[0] == "latentune" and resume[-1] == "--resume", resume
+    cluster.start_head()                 # a head is back on the address (no worker node)
+    p = subprocess.run([sys.executable, "-m", "latentune.cli", *resume[1:]], cwd=ROOT,
+                       env=cluster.env, capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr[-3000:]
     rows = [r for r in dump_store(out)[0] if r[0] == 1]
-    assert [r[1] for r in rows] == list(range(BUDGET))      # contiguous, none twice
+    assert rows[:n] == kept                                  # everything stored is kept
+    assert [r[1] for r in rows] == list(range(BUDGET))       # contiguous, none twice
     assert len({r[2] for r in rows}) == BUDGET               # no θ stored twice
+
     from latentune.pipeline.store import RunStore
 
     store = RunStore(out)
@@ -189,62 +242,6 @@ def test_worker_node_killed_mid_run(tmp_path, cluster, dump_store):
     entries = [(w, g) for w, g, t in _journal(journal) if np.array_equal(t, held)]
     assert entries.count(("held", worker_pgid)) == 1
     assert [w for w, g in entries if g != worker_pgid] == ["start", "end"]
-
-
-@pytest.mark.slow
-def test_head_node_killed_mid_run(tmp_path, cluster, dump_store):
-    """The head node (the GCS the run is connected to) is killed while a trial is held on the
-    worker node: the command ends with exit status 2 and one line on stderr (what happened,
-    that the stored trials are safe, the command that resumes) before Ray would end it
-    silently (exit 1 after 60 s; here RAY_RECONNECT_S, set through Ray's own variable, which
-    shortens latentune's head timeout to a quarter of it); the store is intact, and that
-    command, once a head is back on the address, completes the phase: every index once, no θ
-    twice."""
-    from latentune.pipeline.evaluators import RAY_RECONNECT_VAR
-
-    log, err_log = tmp_path / "cli.log", tmp_path / "cli.err"
-    with open(err_log, "wb") as err:
-        proc, out, journal = _phase1(tmp_path, cluster, log, stderr=err,
-                                     env={RAY_RECONNECT_VAR: str(RAY_RECONNECT_S)})
-    hold = Path(str(journal) + ".hold")
-    try:
-        wait_for(lambda: stored(out / "run.db") >= 4, "the first rows", proc, log)
-        hold.touch()                     # the run cannot finish: a trial waits on the worker
-        wait_for(lambda: any(w == "held" for w, _, _ in _journal(journal)),
-                 "a held trial on the worker node", proc, log)
-        t0 = time.monotonic()
-        cluster.kill("head")
-        proc.wait(timeout=120)           # Ray alone: exit 1 after RAY_RECONNECT_S, no line of ours
-        took = time.monotonic() - t0
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
-        if hold.exists():
-            hold.unlink()
-    err = err_log.read_text()
-    assert proc.returncode == 2, err[-3000:]
-    lines = err.splitlines()
-    assert len(lines) == 1 and lines[0].startswith("latentune: error: the Ray cluster's head "
-                                                   f"at {cluster.address} stopped answering"), err
-    assert f"the trials stored in {out} are safe" in lines[0], lines[0]
-    assert took < RAY_RECONNECT_S, took
-    kept = [r for r in dump_store(out)[0] if r[0] == 1]
-    n = len(kept)
-    assert 4 <= n < BUDGET and f"({n} evaluations of phase 1 stored)" in lines[0], lines[0]
-    assert [r[1] for r in kept] == list(range(n))
-
-    resume = shlex.split(lines[0].split("`")[1])
-    assert resume[0] == "latentune" and resume[-1] == "--resume", resume
-    cluster.kill("worker")               # its raylet still names the old head's address,
-    cluster.start_head()                 # which ray start refuses; a head is back on it
-    p = subprocess.run([sys.executable, "-m", "latentune.cli", *resume[1:]], cwd=ROOT,
-                       env=cluster.env, capture_output=True, text=True, timeout=600)
-    assert p.returncode == 0, p.stderr[-3000:]
-    rows = [r for r in dump_store(out)[0] if r[0] == 1]
-    assert rows[:n] == kept                                  # everything stored is kept
-    assert [r[1] for r in rows] == list(range(BUDGET))       # contiguous, none twice
-    assert len({r[2] for r in rows}) == BUDGET               # no θ stored twice
 
 
 def _scripted_starts(monkeypatch, cluster: LocalCluster, fails: int) -> list[subprocess.Popen]:
