@@ -157,7 +157,7 @@ def test_crash_and_resume(tmp_path, run_cli, cli_env, dump_store):
     """SIGKILL of the CLI and its worker processes mid-run (needs real processes), then resume
     (in this process)."""
     out = tmp_path / "crash"
-    n, n_kill = 24, 8
+    n, n_kill = 12, 4
     args = ["phase1", *TINY, "--out", str(out), "--phase1-evals", str(n), "--workers", "2"]
     proc = subprocess.Popen([sys.executable, "-m", "latentune.cli", *args], env=cli_env,
                             start_new_session=True, stdout=subprocess.DEVNULL,
@@ -575,18 +575,18 @@ def test_trials_that_hang_together_are_stopped_together():
     window the two are stopped one by one here too: two replacements."""
     from latentune.pipeline.evaluators import ProcessEvaluator, TrialError
 
-    with ProcessEvaluator(2, trial_timeout=2.0) as ev:
+    with ProcessEvaluator(2, trial_timeout=1.0) as ev:
         ev.map(_sleeps, np.array([[0.0], [0.0]]))        # both workers started and idle
         t0 = time.monotonic()
         got = dict(ev.imap(_sleeps, np.array([[0.0], [0.9], [0.95], [0.2]])))
         took = time.monotonic() - t0
         assert ev.replaced == 1, ev.replaced
     assert got[0].cost == 0.0 and got[3].cost == 0.2 and sorted(got) == [0, 1, 2, 3]
-    assert all(isinstance(got[i], TrialError) and "timeout of 2 s" in got[i].message
+    assert all(isinstance(got[i], TrialError) and "timeout of 1 s" in got[i].message
                for i in (1, 2))
     # one replacement is the proof (stopped one by one: two); the wall time only bounds it
     # from below, since a loaded machine stretches the new pool's start
-    assert took >= 2.0, took
+    assert took >= 1.0, took
 
 
 def test_a_workers_build_of_a_system_is_not_timed_as_its_trial(tmp_path, monkeypatch):
@@ -598,7 +598,7 @@ def test_a_workers_build_of_a_system_is_not_timed_as_its_trial(tmp_path, monkeyp
 
     (tmp_path / "slowbuild.py").write_text(SLOW_BUILD)
     monkeypatch.syspath_prepend(str(tmp_path))
-    system = load_system("slowbuild:make", {"main_pid": os.getpid(), "build": 2.0})
+    system = load_system("slowbuild:make", {"main_pid": os.getpid(), "build": 1.5})
     X = np.random.default_rng(0).random((4, 2))
     with ProcessEvaluator(2, trial_timeout=1.0) as ev:
         got = dict(ev.imap(system, X))
@@ -644,15 +644,15 @@ def test_study_trial_timeout_is_stored_and_checked(tmp_path, run_cli, error_line
     reopened study uses it; a value or backend that cannot honour it is refused."""
     from latentune.errors import UsageError
 
-    with lt.Study(tmp_path / "s", workers=2, backend="process", trial_timeout=1.5) as st:
+    with lt.Study(tmp_path / "s", workers=2, backend="process", trial_timeout=1.0) as st:
         st.phase1(HangsOrDies(), 6, start=[0.9, 0.5])
         rows = st.store.rows(1)
-        assert st.config()["trial_timeout"] == 1.5
+        assert st.config()["trial_timeout"] == 1.0
     timed_out = [r for r in rows if r.info.get("timed_out")]
     assert len(rows) == 6 and timed_out and all(r.fell for r in timed_out)
-    assert lt.Study(tmp_path / "s", workers=2, backend="process").run.trial_timeout == 1.5
+    assert lt.Study(tmp_path / "s", workers=2, backend="process").run.trial_timeout == 1.0
     assert lt.Study(tmp_path / "s").status()          # a command that runs no trial opens it
-    with pytest.raises(UsageError, match="stored trial timeout .1.5 s. needs the process"):
+    with pytest.raises(UsageError, match="stored trial timeout .1 s. needs the process"):
         lt.Study(tmp_path / "s").phase1(HangsOrDies(), 8, start=[0.9, 0.5])
     for bad in (0, -1.0, float("nan"), float("inf"), "5", True):
         with pytest.raises(UsageError, match="trial_timeout must be a finite number"):
