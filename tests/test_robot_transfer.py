@@ -73,6 +73,18 @@ def live(tmp_path_factory) -> Path:
     return d
 
 
+@pytest.fixture(scope="module")
+def taken(live, tmp_path_factory) -> Path:
+    """One snapshot of ``live`` (its latent space trained once for the module)."""
+    return rt.snapshot(live, tmp_path_factory.mktemp("taken") / "sources" / "toy")
+
+
+def _copy_of(snap: Path, root: Path) -> Path:
+    """A copy of the snapshot ``snap`` under ``root/sources/toy/``, as ``rt.snapshot`` would
+    have taken it there."""
+    return Path(shutil.copytree(snap, root / "sources" / "toy" / snap.name))
+
+
 def test_snapshot_copies_without_touching_the_live_store(live, tmp_path, dump_store):
     before = dump_store(live)
     dest = tmp_path / "sources" / "toy"
@@ -93,10 +105,11 @@ def test_snapshot_copies_without_touching_the_live_store(live, tmp_path, dump_st
     assert not list(dest.glob(".taking-*"))
 
 
-def test_snapshot_of_a_grown_source_is_a_new_one(live, tmp_path):
+def test_snapshot_of_a_grown_source_is_a_new_one(live, taken, tmp_path):
     live = Path(shutil.copytree(live, tmp_path / "live" / "toy"))
     dest = tmp_path / "sources" / "toy"
-    first = rt.snapshot(live, dest)
+    first = _copy_of(taken, tmp_path)               # the snapshot of the source's first 16
+    assert rt.snapshot(live, dest) == first         # trials, taken already: reused
     (dest / "n99").mkdir()                                  # unfinished: no snapshot.json
     with lt.Study(live) as st:
         st.phase1(make_system(steps=60), 40, max_new=4)
@@ -122,8 +135,8 @@ def test_snapshot_takes_the_source_latent_space_when_it_has_one(tmp_path):
     np.testing.assert_allclose(lt.LatentSpace.load(snap / "vae").encode(z), mine.encode(z))
 
 
-def test_run_files_record_the_source_size_and_resume(live, tmp_path, monkeypatch):
-    snap = rt.snapshot(live, tmp_path / "sources" / "toy")
+def test_run_files_record_the_source_size_and_resume(taken, tmp_path, monkeypatch):
+    snap = _copy_of(taken, tmp_path)
     n = rt.snapshot_info(snap)["n_trials"]
     target = make_real_system(steps=60)
     for m in ("zero_shot", "turbo_source"):
@@ -225,9 +238,9 @@ def test_variants_run_as_transfer_with_their_options_seed_by_seed(monkeypatch, t
                     str(tmp_path), "--variants", "no_such_option=1"]) == 2
 
 
-def test_a_variant_is_stored_under_its_name_and_summarized_beside_the_peers(live, tmp_path,
+def test_a_variant_is_stored_under_its_name_and_summarized_beside_the_peers(taken, tmp_path,
                                                                               monkeypatch):
-    snap = rt.snapshot(live, tmp_path / "sources" / "toy")
+    snap = _copy_of(taken, tmp_path)
     calls: list[tuple] = []
 
     def fake(method, target, src, B, seed, options=None):
