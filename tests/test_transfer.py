@@ -819,19 +819,20 @@ def test_loo_means_are_the_posterior_means_of_each_trial_left_out(source, hypers
     assert np.isnan(ranking_loss(np.zeros(2), np.ones(2), np.zeros(2, bool)))
 
 
-def test_auto_scores_choose_by_the_targets_own_trials_and_are_recorded(source, hypers):
+def test_auto_scores_choose_by_the_targets_own_trials_and_are_recorded(source, hypers,
+                                                                        default_24):
     """``target_scores="auto"``: every ask records its choice and both models' ranking losses;
     ranks while fewer than six target trials stood (so those asks are the default's), warped
     values only where their loss is lower; ``explore_scores="auto"`` records its choice on the
     explore asks alone; a bad value is still refused."""
-    from latentune.critic.transfer import AUTO_MIN_STANDING
+    from latentune.critic.transfer import AUTO_MIN_STANDING, resolved_options
 
     X, y, f, c = source
     target_c = np.clip(c + 0.1, 0, 1)
     opts = dict(explore_pool="adaptive", explore_gp=True, explore_fall_prob=0.2)
-    base = _critic(source, hypers, **opts)
+    assert resolved_options(opts) == resolved_options({})   # the default critic's options:
+    base = default_24                                       # its run on this target
     auto = _critic(source, hypers, target_scores="auto", **opts)
-    _run(base, target_c, 0.5, 16)
     _, falls = _run(auto, target_c, 0.5, 16)
     recs = [d for d in auto.decisions if "auto_scores" in d]
     assert recs and not any("auto_scores" in d for d in base.decisions)
@@ -846,7 +847,7 @@ def test_auto_scores_choose_by_the_targets_own_trials_and_are_recorded(source, h
     assert "warped" in picks             # on this smooth bowl the values order better
     first = min(d["n_told"] for d in recs if d["auto_scores"]["cost"][0] == "warped")
     assert np.array_equal(base.X[:first], auto.X[:first])
-    assert not np.array_equal(base.X, auto.X)
+    assert not np.array_equal(base.X[:len(auto.X)], auto.X)
     ex = _critic(source, hypers, explore_scores="auto", **opts)
     _run(ex, target_c, 0.5, 16)
     recs = [d for d in ex.decisions if "auto_scores" in d]
