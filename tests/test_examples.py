@@ -180,7 +180,7 @@ def test_optuna_hopper_benchmark_warm_starts_every_sampler_and_reuses_traces(tmp
 
     from benchmarks import optuna_hopper as oh
 
-    args = ["--seeds", "0", "--trials", "3", "--phase1-evals", "60", "--episode-steps", "100",
+    args = ["--seeds", "0", "--trials", "3", "--phase1-evals", "20", "--episode-steps", "50",
             "--models", str(tmp_path / "m"), "--samplers", "latent", "tpe", "--checkpoints",
             "3", "--out", str(tmp_path / "o.json")]
     assert oh.main(args) == 0
