@@ -145,9 +145,10 @@ def test_solo12_trot_hills(seed):
 
 
 def test_random_theta_properties():
-    """20 random θ × 1000 steps: no exception, finite costs, fell ⇔ cost ≥ C1, a share stable,
-    a share falls (the stable set is a proper subset of the box)."""
-    task = lt.Task(robot="solo12", gait="trot", actor="kinodynamic", steps=1000)
+    """20 random θ × 700 steps (long enough for these θ: the same ones fall as over 1000
+    steps): no exception, finite costs, fell ⇔ cost ≥ C1, a share stable, a share falls (the stable set is
+    a proper subset of the box)."""
+    task = lt.Task(robot="solo12", gait="trot", actor="kinodynamic", steps=700)
     rng = np.random.default_rng(0)
     fells = []
     for _ in range(20):
@@ -155,7 +156,7 @@ def test_random_theta_properties():
         assert np.isfinite(res.cost)
         assert res.fell == (res.cost >= C1)
         if res.fell:
-            assert 1 <= res.fall_step <= 1000
+            assert 1 <= res.fall_step <= 700
         fells.append(res.fell)
     for corner in (np.zeros(task.space.dim), np.ones(task.space.dim)):   # box corners: no exception
         res = task.rollout(corner)
