@@ -3,6 +3,8 @@ per-target, per-seed comparison."""
 from __future__ import annotations
 
 import json
+import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -511,8 +513,21 @@ def test_summary_reads_one_machines_reruns_in_place_of_the_stored_runs(tmp_path)
     assert row["methods"]["tpe"]["median_best"] == 2.0
 
 
+@pytest.fixture(scope="module")
+def chain_source(tmp_path_factory) -> Path:
+    """``tr.source_run`` of the chain (seed 0, 16 evaluations), run once for the module."""
+    return tr.source_run(tmp_path_factory.mktemp("chain_source"), "chain", 0, 16)
+
+
+def _source_copy(src: Path, root: Path) -> Path:
+    """A copy of the source run ``src`` where ``tr.source_run(root, "chain", 0, …)`` puts it
+    (a run may write its caches beside the source)."""
+    return Path(shutil.copytree(src, root / "chain" / "seed0" / "source"))
+
+
 def test_a_stored_method_name_keeps_its_explore_pool_after_the_default_changed(tmp_path,
-                                                                                monkeypatch):
+                                                                                monkeypatch,
+                                                                                chain_source):
     """``transfer`` runs the critic with the explore pool and the explore asks of its stored
     runs (``LADDER_BASE``: the pool of the default before session 32, the explore asks of the
     default before session 39), ``transfer+explore_pool=adaptive`` the default of sessions
@@ -520,7 +535,7 @@ def test_a_stored_method_name_keeps_its_explore_pool_after_the_default_changed(t
     base."""
     import latentune.critic.transfer as ct
 
-    src = tr.source_run(tmp_path, "chain", 0, 16)
+    src = _source_copy(chain_source, tmp_path)
     made: list[dict] = []
 
     class Stop(Exception):
@@ -664,14 +679,15 @@ def test_cut_stores_a_methods_runs_as_a_fall_budget_would_have_run_them(tmp_path
     assert "--share must be in (0, 1)" in capsys.readouterr().err
 
 
-def test_screened_cma_runs_only_what_the_fall_screen_admits(tmp_path, monkeypatch):
+def test_screened_cma_runs_only_what_the_fall_screen_admits(tmp_path, monkeypatch,
+                                                           chain_source):
     """``cma_source_screened`` runs the source's best first, then CMA-ES samples the fall screen
     admits (here: first coordinate at most 0.5), the rejected ones told to the study as
     failed; where no draw passes, ``transfer_cma_source`` runs the transfer critic's own ask
     instead."""
     import latentune.critic.transfer as ct
 
-    src = tr.source_run(tmp_path, "chain", 0, 16)
+    src = _source_copy(chain_source, tmp_path)
     edge = 0.5
     monkeypatch.setattr(tr, "SCREEN_DRAWS", 400)
     monkeypatch.setattr(ct.Transfer, "_fall_prob",
