@@ -74,7 +74,13 @@ def live(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def taken(live, tmp_path_factory) -> Path:
+def live_before(live, dump_store) -> tuple[list[tuple], list[tuple]]:
+    """The rows and meta of ``live`` before any snapshot of it was taken."""
+    return dump_store(live)
+
+
+@pytest.fixture(scope="module")
+def taken(live, live_before, tmp_path_factory) -> Path:
     """One snapshot of ``live`` (its latent space trained once for the module)."""
     return rt.snapshot(live, tmp_path_factory.mktemp("taken") / "sources" / "toy")
 
@@ -85,10 +91,9 @@ def _copy_of(snap: Path, root: Path) -> Path:
     return Path(shutil.copytree(snap, root / "sources" / "toy" / snap.name))
 
 
-def test_snapshot_copies_without_touching_the_live_store(live, tmp_path, dump_store):
-    before = dump_store(live)
-    dest = tmp_path / "sources" / "toy"
-    snap = rt.snapshot(live, dest)
+def test_snapshot_copies_without_touching_the_live_store(live, live_before, taken, dump_store):
+    before, snap = live_before, taken
+    dest = snap.parent
     assert snap == dest / "n16"
     assert dump_store(live) == before                       # the live store is unchanged
     assert not (live / "vae.pt").exists()                   # the latent space lives in the copy
