@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -44,6 +45,7 @@ import numpy as np  # noqa: E402
 import latentune as lt  # noqa: E402
 from latentune.constants import Phase  # noqa: E402
 from latentune.errors import StoreError  # noqa: E402
+from latentune.pipeline.phases import handover_options  # noqa: E402
 from latentune.reporting.metrics import evals_to_beat  # noqa: E402
 
 from benchmarks.common import (Provenance, add_out_arg, median_evals,  # noqa: E402
@@ -77,8 +79,6 @@ def stored_options(m: str, seed: int, batch_size: int, vae: str, handover: Any,
     """The options a store of method ``m`` records for its phase (phase 3 for ``latent`` and
     ``handover``, phase 1 otherwise) when this benchmark runs it with these arguments: what a
     finished store is checked against before it is read instead of re-run."""
-    from latentune.pipeline.phases import handover_options
-
     base = {"seed": int(seed), "batch_size": int(batch_size), "start": None}
     if m in ("latent", "handover"):
         ho = m == "handover"
@@ -164,6 +164,12 @@ def main(argv: list[str] | None = None) -> int:
         handover = json.loads(a.handover) if a.handover else True
     except json.JSONDecodeError as e:
         ap.error(f"--handover is not JSON: {e}")
+    try:                                    # JSON of the wrong options: before the task too
+        handover_options(handover)
+    except ValueError as e:
+        ap.error(f"--handover: {e}")
+    if any(not math.isfinite(t) for t in a.targets):
+        ap.error(f"--targets must be finite costs, got {a.targets}")
     from latentune.pipeline.evaluators import make_evaluator
 
     kw = {"actor": a.actor} if a.actor else {}

@@ -62,6 +62,15 @@ def test_handover_refuses_options_that_are_not_json_before_the_rollout(tmp_path,
         handover.main(["--vae", str(tmp_path), "--work", str(tmp_path / "w"),
                        "--handover", "{bad"])
     assert e.value.code == 2 and "--handover is not JSON" in capsys.readouterr().err
+    # JSON, but not hand-over options, and a target cost that is not a number: the same
+    # (they failed after the task was built)
+    for argv, words in ((["--handover", '{"nosuch": 1}'], "--handover: handover must be True"),
+                        (["--handover", "[1]"], "--handover: handover must be True"),
+                        (["--handover", '{"length": 5}'], "handover length must be in"),
+                        (["--targets", "nan"], "--targets must be finite costs")):
+        with pytest.raises(SystemExit) as e:
+            handover.main(["--vae", str(tmp_path), "--work", str(tmp_path / "w"), *argv])
+        assert e.value.code == 2 and words in capsys.readouterr().err, argv
 
 
 @pytest.mark.parametrize("argv", [["--problems", "nosuch"], ["--methods", "nosuch"],
