@@ -125,7 +125,8 @@ def check_stores(a: argparse.Namespace, task: Any, handover: Any) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.handover")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.handover",
+                                 description=__doc__.splitlines()[0])
     ap.add_argument("--report", default=None, metavar="DIR",
                     help="print the tables of the outputs in DIR (e.g. results/handover)")
     ap.add_argument("--robot", default="a1")

@@ -103,7 +103,8 @@ def report(d: Path) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.reality_gap")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.reality_gap",
+                                 description=__doc__.splitlines()[0])
     ap.add_argument("--report", default=None, metavar="DIR",
                     help="print one table of the outputs in DIR (e.g. results/reality_gap)")
     ap.add_argument("--source", help="a finished run directory (phase 1 + VAE)")
