@@ -210,6 +210,9 @@ def test_bad_package_name_is_a_clear_error(tmp_path):
      r"gait 'trot': offsets must be 4 numbers, got \[0, 'x', 0.5, 0\]"),
     ("[1, 2]\n", "expected a mapping"),
     ("name: [\n", "malformed YAML"),
+    # an empty file said "expected a mapping of fields"
+    ("", "the file is empty: it needs the spec's fields"),
+    ("# only a comment\n", "the file is empty"),
 ])
 def test_invalid_yaml_fields(tmp_path, text, message):
     with pytest.raises(RobotSpecError, match=message):

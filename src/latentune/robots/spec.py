@@ -185,7 +185,7 @@ def read_yaml(path: Path) -> Any:
     """The parsed YAML of a spec file (numbers in exponent form, ``1e-3``, are floats).
 
     Raises:
-        RobotSpecError: missing file or bad YAML.
+        RobotSpecError: missing file, bad YAML or an empty file.
     """
     import yaml
 
@@ -194,9 +194,13 @@ def read_yaml(path: Path) -> Any:
     if not path.is_file():
         raise RobotSpecError(f"robot spec file not found: {path}")
     try:
-        return yamltext.load(path.read_text())
+        raw = yamltext.load(path.read_text())
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
         raise RobotSpecError(f"robot spec {path}: malformed YAML ({yamltext.problem(exc)})") from None
+    if raw is None:                 # an empty file (or one of comments only)
+        raise RobotSpecError(f"robot spec {path}: the file is empty: it needs the spec's fields "
+                             "(README, \"Custom robots\")")
+    return raw
 
 
 def spec_from_dict(d: Mapping[str, Any], base_dir: str | os.PathLike | None = None) -> RobotSpec:
