@@ -58,6 +58,7 @@ from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
+from latentune.checks import file_in_the_way
 from latentune.machine import loadavg, machine  # noqa: F401 - re-exported to benchmarks
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -375,8 +376,7 @@ def os_error_line(e: OSError) -> str:
         return str(e)
     path = Path(name)
     if isinstance(e, (FileExistsError, NotADirectoryError)):
-        blocking = next((p for p in (path, *path.parents) if p.exists() and not p.is_dir()),
-                        None)
+        blocking = file_in_the_way(path)
         if blocking is not None:
             return f"{blocking} is not a directory"
     if isinstance(e, IsADirectoryError):

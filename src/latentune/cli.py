@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
 from latentune import argtypes
+from latentune.checks import file_in_the_way
 from latentune.errors import CLIError, LatentError, LatentuneError, StoreError, UsageError
 from latentune.wording import counted
 from latentune.workdone import is_done, work_done
@@ -208,7 +209,7 @@ def _check_output_file(flag: str, path: str, exts: tuple[str, ...]) -> None:
     if not path.strip():
         raise CLIError(f"{flag} is empty: give a file name, or leave {flag} out")
     parent = os.path.dirname(os.path.abspath(path))
-    blocker = next((q for q in [parent, *Path(parent).parents] if os.path.isfile(q)), None)
+    blocker = file_in_the_way(parent)
     if blocker is not None:
         raise CLIError(f"{flag} {path}: {blocker} is a file, not a directory")
     if not os.path.isdir(parent):

@@ -83,6 +83,7 @@ from typing import Any
 
 import numpy as np
 
+from latentune.checks import file_in_the_way
 from latentune.constants import GAITS, PAPER_PHASE1, PAPER_PHASE3, Phase
 from latentune.errors import LockError, UsageError
 from latentune.machine import loadavg, machine
@@ -404,7 +405,7 @@ def _check_out(out: Path) -> None:
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        blocking = next((p for p in out.parents if p.exists() and not p.is_dir()), None)
+        blocking = file_in_the_way(out.parent)
         why = f"{blocking} is a file, not a directory" if blocking is not None \
             else exc.strerror or exc
         raise UsageError(f"cannot create --out {out}: {why}") from None
