@@ -362,15 +362,16 @@ def parse_system_args(pairs: list[str] | None) -> dict[str, Any]:
     from latentune.yamltext import load_arg
 
     out: dict[str, Any] = {}
+    texts: dict[str, str] = {}          # each key's value as given
     for p in pairs or []:
         if "=" not in p or not p.split("=", 1)[0].strip():
             raise SystemSpecError(f"--system-arg must be key=value, got {p!r}")
         k, v = p.split("=", 1)
         k = k.strip()
-        if k in out:
-            first = next(q.split("=", 1)[1] for q in pairs if q.split("=", 1)[0].strip() == k)
-            raise SystemSpecError(f"--system-arg {k} is given twice ({first.strip()}, then "
+        if k in texts:
+            raise SystemSpecError(f"--system-arg {k} is given twice ({texts[k].strip()}, then "
                                   f"{v.strip()}): give it once")
+        texts[k] = v
         try:
             out[k] = load_arg(v) if v.strip() else ""
         except yaml.YAMLError:
