@@ -4,7 +4,8 @@
 spec's prepared URDF (:func:`~latentune.robots.urdf.prepared_urdf`: a massless root stripped,
 primitive collisions where the spec asks for them), with the reality's body perturbations
 (:func:`~latentune.sim.reality.perturbed_urdf`), loaded by MuJoCo's URDF importer with
-visual geoms discarded and fixed links kept as their own bodies (so the feet keep their names).
+visual geoms discarded and fixed links kept as their own bodies (so the feet keep their names);
+a link inertia MuJoCo refuses is corrected and logged (:func:`mujoco_inertia`).
 It gets a free joint for the base, a torque actuator (motor, gear 1, no control limits) per
 joint in the spec's order, gravity 9.81 m/s² and a 1 ms step; the ground is a plane or the
 same Perlin hills as PyBullet (a MuJoCo heightfield of the same 100 × 100 heights, 0.05 m
@@ -40,7 +41,8 @@ from latentune.sim.world import HILLS_CELL, HILLS_CELLS, WorldBase
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["MujocoWorld", "require_mujoco", "contact_solref", "mujoco_urdf_text", "MAX_RESTITUTION"]
+__all__ = ["MujocoWorld", "require_mujoco", "contact_solref", "mujoco_urdf_text", "mujoco_inertia",
+           "MAX_RESTITUTION"]
 
 _ROBOT_CONTYPE, _GROUND_CONTYPE = 2, 1   # robot geoms touch the ground, not each other
 CONTACT_TIMECONST = 0.005
@@ -92,12 +94,106 @@ def _warn(msg: str) -> None:
     logger.warning("MuJoCo warning: %s", msg.strip())
 
 
+INERTIA_EPS = 1e-14
+"""Least principal moment [kg·m²] MuJoCo takes of an inertia with products of inertia (its
+``mjEPS``: below it, 'inertia must have positive eigenvalues')."""
+INERTIA_FLOOR = 1e-6
+"""Least principal moment of a corrected inertia, as a fraction of its largest."""
+INERTIA_TINY = 1e-4
+"""A correction that changes an inertia by at most this fraction (Frobenius norm) is logged at
+INFO (rounding); a larger one is a WARNING that says how much."""
+
+_inertia_said: set[tuple[str, str]] = set()   # (robot, link) whose correction was logged
+
+
+def _sym(v: tuple[float, ...]) -> np.ndarray:
+    """The 3 × 3 inertia matrix of a URDF ``<inertia>`` (ixx, ixy, ixz, iyy, iyz, izz)."""
+    return np.array([[v[0], v[1], v[2]], [v[1], v[3], v[4]], [v[2], v[4], v[5]]])
+
+
+def mujoco_inertia(values: tuple[float, ...]) -> tuple[tuple[float, ...], str] | None:
+    """The inertia MuJoCo can take for a URDF ``<inertia>`` (ixx, ixy, ixz, iyy, iyz, izz
+    [kg·m²]) it refuses, and why (e.g. ``"not positive definite, A + B < C"``), or None when
+    it takes it as written.
+
+    MuJoCo refuses a full inertia (products of inertia not all zero) with a principal moment
+    below :data:`INERTIA_EPS`, and principal moments A, B, C with A + B < C (its compiler
+    option ``balanceinertia`` sets such moments to their mean). The correction: principal
+    moments raised to :data:`INERTIA_FLOOR` × the largest (where one is below
+    :data:`INERTIA_EPS` or negative), then, if A + B < C, A and B raised by a fraction
+    2 × :data:`INERTIA_TINY`² where C exceeds A + B by at most :data:`INERTIA_TINY`² of it
+    (rounding), else all three set to their mean as ``balanceinertia`` does; the principal
+    axes are kept. An all-zero inertia (a massless or static link) is left as written.
+    """
+    full = _sym(values)
+    if not full.any():
+        return None
+    lam, axes = np.linalg.eigh(full)         # ascending
+    products = bool(values[1] or values[2] or values[4])
+    why = []
+    if lam[0] < 0 or (products and lam[0] < INERTIA_EPS):
+        why.append("not positive definite")
+        lam = np.maximum(lam, INERTIA_FLOOR * max(lam[2], INERTIA_EPS))
+    if lam[0] + lam[1] < lam[2]:
+        why.append("A + B < C")
+        nudged = lam * [1 + 2 * INERTIA_TINY ** 2, 1 + 2 * INERTIA_TINY ** 2, 1.0]
+        if lam[2] - lam[0] - lam[1] <= INERTIA_TINY ** 2 * lam[2] and nudged[0] + nudged[1] >= nudged[2]:
+            lam = nudged                      # off by rounding: A and B raised as little
+        else:
+            lam = np.full(3, lam.mean())      # what balanceinertia does
+    if not why:
+        return None
+    if lam[0] == lam[2]:                      # balanced: the same about every axis
+        new = (float(lam[0]), 0.0, 0.0, float(lam[0]), 0.0, float(lam[0]))
+    else:
+        m = axes @ np.diag(lam) @ axes.T
+        new = tuple(float(x) for x in (m[0, 0], m[0, 1], m[0, 2], m[1, 1], m[1, 2], m[2, 2]))
+    return new, ", ".join(why)
+
+
+def _correct_inertias(robot: ET.Element) -> None:
+    """Replace in place each ``<inertia>`` MuJoCo refuses by :func:`mujoco_inertia`'s, logged
+    once per robot and link: INFO for a change within :data:`INERTIA_TINY`, else a WARNING
+    with the principal moments before and after and the relative change."""
+    keys = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+    for link in robot.iter("link"):
+        el = link.find("inertial/inertia")
+        if el is None:
+            continue
+        old = tuple(float(el.get(k, "0")) for k in keys)
+        fixed = mujoco_inertia(old)
+        if fixed is None:
+            continue
+        new, why = fixed
+        for k, v in zip(keys, new):
+            el.set(k, repr(v))
+        said = (robot.get("name", ""), link.get("name", ""))
+        if said in _inertia_said:
+            continue
+        _inertia_said.add(said)
+        change = float(np.linalg.norm(_sym(new) - _sym(old)) / np.linalg.norm(_sym(old)))
+        mass = link.find("inertial/mass")
+        where = (f"robot {said[0]!r}, link {said[1]!r}"
+                 + (f" ({float(mass.get('value', 'nan')):g} kg)" if mass is not None else ""))
+        if change <= INERTIA_TINY:
+            logger.info("%s: MuJoCo refuses its inertia (%s by rounding) and gets it corrected "
+                        "(changed by %.1g %%)", where, why, 100 * change)
+        else:
+            before = ", ".join(f"{x:.3g}" for x in np.linalg.eigvalsh(_sym(old)))
+            after = ", ".join(f"{x:.3g}" for x in np.linalg.eigvalsh(_sym(new)))
+            logger.warning("%s: MuJoCo refuses its inertia (principal moments %s kg·m²: %s) "
+                           "and gets %s instead (changed by %.3g %%)", where, before, why, after,
+                           100 * change)
+
+
 def mujoco_urdf_text(urdf: str) -> str:
     """The URDF text MuJoCo's importer loads: the file with a ``<mujoco><compiler>`` element
     (mesh directory = the URDF's, visual geoms discarded, static bodies not fused, inertias
-    balanced, angles in radians)."""
+    balanced, angles in radians), and the inertias MuJoCo refuses corrected
+    (:func:`mujoco_inertia`, each correction logged)."""
     src = Path(urdf)
     robot = ET.fromstring(src.read_text())
+    _correct_inertias(robot)
     for el in robot.findall("mujoco"):
         robot.remove(el)
     ext = ET.Element("mujoco")

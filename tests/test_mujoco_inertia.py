@@ -1,0 +1,106 @@
+"""Inertias MuJoCo rejects (not positive definite, or against the triangle inequality) are
+corrected in the URDF MuJoCo loads, with a log line per link; valid ones are left alone."""
+from __future__ import annotations
+
+import importlib.util
+import logging
+import xml.etree.ElementTree as ET
+
+import pytest
+
+pytestmark = pytest.mark.skipif(importlib.util.find_spec("mujoco") is None, reason="needs mujoco")
+
+from latentune.sim.mujoco_world import mujoco_urdf_text  # noqa: E402
+
+_LINK = """<link name="{name}"><inertial><origin xyz="0 0 0"/><mass value="{mass}"/>
+  <inertia ixx="{i[0]}" ixy="{i[1]}" ixz="{i[2]}" iyy="{i[3]}" iyz="{i[4]}" izz="{i[5]}"/>
+  </inertial><collision><geometry><sphere radius="0.05"/></geometry></collision></link>"""
+
+
+def _urdf(tmp_path, foot_inertia, robot="tiny", foot_mass=1e-6):
+    """A two-link robot: a base and a 'foot' on a revolute joint with the given inertia."""
+    text = (f'<robot name="{robot}">'
+            + _LINK.format(name="base", mass=2.0, i=(0.02, 0, 0, 0.03, 0, 0.04))
+            + _LINK.format(name="foot", mass=foot_mass, i=foot_inertia)
+            + '<joint name="j" type="revolute"><parent link="base"/><child link="foot"/>'
+              '<axis xyz="0 1 0"/><origin xyz="0 0 -0.2"/>'
+              '<limit effort="10" lower="-1" upper="1" velocity="10"/></joint></robot>')
+    path = tmp_path / f"{robot}.urdf"
+    path.write_text(text)
+    return str(path)
+
+
+def _compile(text: str):
+    import mujoco
+    return mujoco.MjSpec.from_string(text).compile()
+
+
+def _inertia(text: str, link: str) -> dict[str, float]:
+    el = ET.fromstring(text).find(f"link[@name='{link}']/inertial/inertia")
+    return {k: float(v) for k, v in el.attrib.items()}
+
+
+def test_a_rank_one_inertia_is_corrected_and_said_once_per_link(tmp_path, caplog):
+    """example-robot-data's HyQ, ANYmal B and Go1 carry 1e-6 in all six entries: eigenvalues
+    0, 0, 3e-6, which MuJoCo refuses ('inertia must have positive eigenvalues')."""
+    import mujoco
+    urdf = _urdf(tmp_path, (1e-6,) * 6, robot="rank_one")
+    with pytest.raises(ValueError, match="positive eigenvalues"):
+        mujoco.MjSpec.from_string(open(urdf).read()).compile()
+    with caplog.at_level(logging.INFO, logger="latentune.sim.mujoco_world"):
+        text = mujoco_urdf_text(urdf)
+        mujoco_urdf_text(urdf)
+    m = _compile(text)
+    foot = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "foot")
+    assert m.body_inertia[foot] == pytest.approx([1e-6] * 3, rel=1e-5)  # balanced: the mean
+    new = _inertia(text, "foot")
+    assert new["ixy"] == new["ixz"] == new["iyz"] == 0.0
+    lines = [r for r in caplog.records if "'foot'" in r.getMessage()]
+    assert len(lines) == 1 and lines[0].levelname == "WARNING"
+    msg = lines[0].getMessage()
+    assert "rank_one" in msg and "MuJoCo" in msg and "changed by" in msg
+    assert "'base'" not in caplog.text
+
+
+def test_a_triangle_violation_is_balanced_as_mujoco_would_and_logged(tmp_path, caplog):
+    urdf = _urdf(tmp_path, (0.001, 0, 0, 0.001, 0, 0.0030000001), robot="triangle", foot_mass=0.1)
+    with caplog.at_level(logging.INFO, logger="latentune.sim.mujoco_world"):
+        text = mujoco_urdf_text(urdf)
+    new = _inertia(text, "foot")
+    assert new["ixx"] == new["iyy"] == new["izz"] == pytest.approx(0.0050000001 / 3)
+    (rec,) = [r for r in caplog.records if "'foot'" in r.getMessage()]
+    assert rec.levelname == "WARNING" and "A + B < C" in rec.getMessage()
+    _compile(text)
+
+
+def test_a_rounding_off_the_triangle_is_info_not_warning(tmp_path, caplog):
+    urdf = _urdf(tmp_path, (0.001, 0, 0, 0.001, 0, 0.002 * (1 + 1e-12)), robot="rounding", foot_mass=0.1)
+    with caplog.at_level(logging.INFO, logger="latentune.sim.mujoco_world"):
+        text = mujoco_urdf_text(urdf)
+    (rec,) = [r for r in caplog.records if "'foot'" in r.getMessage()]
+    assert rec.levelname == "INFO"
+    new = _inertia(text, "foot")
+    assert (new["ixx"], new["iyy"], new["izz"]) == pytest.approx((0.001, 0.001, 0.002), rel=1e-7)
+    import mujoco
+    m = _compile(text)
+    foot = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "foot")
+    assert sorted(m.body_inertia[foot]) == pytest.approx([0.001, 0.001, 0.002], rel=1e-7)  # not averaged
+
+
+def test_valid_inertias_are_left_as_written(tmp_path, caplog):
+    urdf = _urdf(tmp_path, (0.001, 0.0002, -0.0001, 0.002, 0.0001, 0.0025), robot="valid", foot_mass=0.1)
+    with caplog.at_level(logging.INFO, logger="latentune.sim.mujoco_world"):
+        text = mujoco_urdf_text(urdf)
+    assert _inertia(text, "foot") == {"ixx": 0.001, "ixy": 0.0002, "ixz": -0.0001, "iyy": 0.002,
+                                      "iyz": 0.0001, "izz": 0.0025}
+    assert not caplog.records
+    _compile(text)
+
+
+@pytest.mark.parametrize("robot", ["a1", "b1", "solo12"])
+def test_the_built_in_robots_need_no_correction(robot, caplog):
+    """Their MuJoCo models stay the URDFs' (the B1 and Go1 root with the bad inertia is stripped)."""
+    from latentune.robots import get_robot, prepared_urdf
+    with caplog.at_level(logging.INFO, logger="latentune.sim.mujoco_world"):
+        mujoco_urdf_text(prepared_urdf(get_robot(robot)))
+    assert not caplog.records
