@@ -104,3 +104,19 @@ def test_the_built_in_robots_need_no_correction(robot, caplog):
     with caplog.at_level(logging.INFO, logger="latentune.sim.mujoco_world"):
         mujoco_urdf_text(prepared_urdf(get_robot(robot)))
     assert not caplog.records
+
+
+def test_a_link_without_inertial_gets_no_mass_from_its_collision_shapes(tmp_path):
+    """URDF: no ``<inertial>`` is a massless link (pinocchio's reading; ANYmal C's root). MuJoCo
+    by default gave it its collision box's volume × 1000 kg/m³ (29 kg on ANYmal C's base)."""
+    import mujoco
+    path = tmp_path / "bare.urdf"
+    path.write_text(
+        '<robot name="bare"><link name="base"><collision><geometry><box size="0.5 0.2 0.2"/>'
+        '</geometry></collision></link>'
+        + _LINK.format(name="body", mass=3.0, i=(0.02, 0, 0, 0.03, 0, 0.04))
+        + '<joint name="j" type="fixed"><parent link="base"/><child link="body"/></joint></robot>')
+    m = _compile(mujoco_urdf_text(str(path)))
+    base = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "base")
+    assert m.body_mass[base] == 0.0
+    assert m.body_subtreemass[0] == pytest.approx(3.0)

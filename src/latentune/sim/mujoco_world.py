@@ -5,7 +5,8 @@ spec's prepared URDF (:func:`~latentune.robots.urdf.prepared_urdf`: a massless r
 primitive collisions where the spec asks for them), with the reality's body perturbations
 (:func:`~latentune.sim.reality.perturbed_urdf`), loaded by MuJoCo's URDF importer with
 visual geoms discarded and fixed links kept as their own bodies (so the feet keep their names);
-a link inertia MuJoCo refuses is corrected and logged (:func:`mujoco_inertia`).
+a link inertia MuJoCo refuses is corrected and logged (:func:`mujoco_inertia`), and a link
+without ``<inertial>`` is massless (MuJoCo's default would give it its collision shapes' mass).
 It gets a free joint for the base, a torque actuator (motor, gear 1, no control limits) per
 joint in the spec's order, gravity 9.81 m/s² and a 1 ms step; the ground is a plane or the
 same Perlin hills as PyBullet (a MuJoCo heightfield of the same 100 × 100 heights, 0.05 m
@@ -189,7 +190,8 @@ def _correct_inertias(robot: ET.Element) -> None:
 def mujoco_urdf_text(urdf: str) -> str:
     """The URDF text MuJoCo's importer loads: the file with a ``<mujoco><compiler>`` element
     (mesh directory = the URDF's, visual geoms discarded, static bodies not fused, inertias
-    balanced, angles in radians), and the inertias MuJoCo refuses corrected
+    balanced, a link without ``<inertial>`` massless as the URDF means it, not given its collision
+    shapes' mass, angles in radians), and the inertias MuJoCo refuses corrected
     (:func:`mujoco_inertia`, each correction logged)."""
     src = Path(urdf)
     robot = ET.fromstring(src.read_text())
@@ -198,7 +200,8 @@ def mujoco_urdf_text(urdf: str) -> str:
         robot.remove(el)
     ext = ET.Element("mujoco")
     ET.SubElement(ext, "compiler", meshdir=str(src.parent.resolve()), discardvisual="true",
-                  fusestatic="false", balanceinertia="true", angle="radian")
+                  fusestatic="false", balanceinertia="true", inertiafromgeom="false",
+                  angle="radian")
     robot.insert(0, ext)
     for vis in list(robot.iter("link")):
         for v in vis.findall("visual"):
