@@ -52,6 +52,29 @@ def test_process_evaluator_matches_serial():
     np.testing.assert_allclose(yq, [quad(x) for x in X[:, :6]])
 
 
+def _logs(x):
+    import logging
+
+    logging.getLogger("latentune.test_worker").warning("said in a worker")
+    logging.getLogger("latentune.test_worker").info("an informational line")
+    return quad(x)
+
+
+def test_process_workers_log_through_the_caller_once_at_its_level(capfd, caplog):
+    """A worker's log lines reach the caller's ``latentune`` loggers (its CLI format and
+    --quiet/-v level), once for all workers, not as bare lines on the workers' stderr."""
+    import logging
+
+    from latentune.pipeline.evaluators import ProcessEvaluator
+
+    with caplog.at_level(logging.WARNING, logger="latentune"):
+        with ProcessEvaluator(2) as ev:
+            ev.map(_logs, np.random.default_rng(0).random((4, 3)))
+    said = [r for r in caplog.records if r.name == "latentune.test_worker"]
+    assert [(r.levelname, r.getMessage()) for r in said] == [("WARNING", "said in a worker")]
+    assert "said in a worker" not in capfd.readouterr().err
+
+
 class LockInInfo:
     """A system whose Outcome carries a lock in its info (cannot be pickled)."""
     space = lt.ParameterSpace(["a", "b", "c"], [0, 0, 0], [1, 1, 1])

@@ -236,12 +236,36 @@ def _exit_with(alive: Any) -> None:
     os._exit(1)
 
 
-def _init_worker(alive: Any = None, starts: Any = None) -> None:
+class _QueueLog(logging.Handler):
+    """In a process-pool worker: each log record of the ``latentune`` loggers put on the
+    pool's start queue as ``("log", logger name, level, message)``, for the caller to log
+    (:func:`_read_starts`)."""
+
+    def __init__(self, queue: Any) -> None:
+        super().__init__()
+        self.queue = queue
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            self.queue.put(("log", record.name, record.levelno, record.getMessage()))
+        except Exception:  # noqa: BLE001 - logging's rule: a failed emit is reported, not raised
+            self.handleError(record)
+
+
+def _init_worker(alive: Any = None, starts: Any = None, log_level: int | None = None) -> None:
     """Start of every worker process: one BLAS/OpenMP thread in this process only; with
     ``alive`` (a process pool's), the worker ends when its caller does; ``starts``: the queue
-    its trials report their start on (a process pool's)."""
+    its trials report their start on (a process pool's); with ``log_level`` (the caller's
+    ``latentune`` logger's) the worker's ``latentune`` log records of that level and above go
+    to the caller through ``starts`` (not to the worker's stderr, without the caller's format
+    and level)."""
     global _STARTS
     _STARTS = starts
+    if starts is not None and log_level is not None:
+        logger = logging.getLogger("latentune")
+        logger.handlers = [_QueueLog(starts)]
+        logger.setLevel(log_level)
+        logger.propagate = False
     if alive is not None:
         threading.Thread(target=_exit_with, args=(alive,), daemon=True,
                          name="latentune-exit-with-caller").start()
@@ -430,6 +454,8 @@ class ProcessEvaluator(Evaluator):
         self._ctx = mp.get_context(start_method)
         # the workers watch the read end; the write end stays here: a killed caller's workers end
         self._alive_r, self._alive_w = self._ctx.Pipe(duplex=False)
+        self._log_level = logging.getLogger("latentune").getEffectiveLevel()
+        self._said: set[tuple[str, int, str]] = set()   # worker log lines logged here
         self._pool, self._starts = self._new_pool()
         self._checked: Any = None               # the last system found picklable
         self._abandoned: set[Any] = set()       # running trials of an imap that was left
@@ -443,7 +469,7 @@ class ProcessEvaluator(Evaluator):
 
         starts = self._ctx.SimpleQueue()
         pool = ProcessPoolExecutor(self.workers, mp_context=self._ctx, initializer=_init_worker,
-                                   initargs=(self._alive_r, starts))
+                                   initargs=(self._alive_r, starts, self._log_level))
         return pool, starts
 
     def _replace_pool(self) -> tuple[dict[int, int | None], Any]:
@@ -500,7 +526,7 @@ class ProcessEvaluator(Evaluator):
                 todo = todo[room:]
                 done, _ = wait(futs, timeout=self._wait_s(started, stopped, futs.values()),
                                return_when=FIRST_COMPLETED)
-                _read_starts(self._starts, run, started)
+                _read_starts(self._starts, run, started, self._said)
                 broken = False
                 for f in sorted(done, key=lambda f: futs[f]):
                     if isinstance(f.exception(), BrokenProcessPool):
@@ -514,7 +540,7 @@ class ProcessEvaluator(Evaluator):
                     self._stop_late(started, stopped, futs)
                     continue
                 codes, starts = self._replace_pool()
-                _read_starts(starts, run, started)
+                _read_starts(starts, run, started, self._said)
                 starts.close()
                 ends: dict[int, Outcome | TrialError] = {}
                 lost_now = []                          # trials lost with the pool
@@ -648,11 +674,20 @@ class ProcessEvaluator(Evaluator):
                 f"{timeout})")
 
 
-def _read_starts(starts: Any, run: int, started: dict[int, tuple[int, float]]) -> None:
+def _read_starts(starts: Any, run: int, started: dict[int, tuple[int, float]],
+                 said: set[tuple[str, int, str]]) -> None:
     """Move the start reports of ``starts`` (a pool's queue) of the ``imap`` call ``run`` into
-    ``started`` (trial -> (pid, start)); others (of an imap that was left) are dropped."""
+    ``started`` (trial -> (pid, start)); others (of an imap that was left) are dropped. The
+    workers' log records on it (:class:`_QueueLog`) are logged here by the same loggers, each
+    line once (``said``: the lines logged so far; every worker says the same things)."""
     while not starts.empty():
-        (r, i), pid, t0 = starts.get()
+        item = starts.get()
+        if item[0] == "log":
+            if item[1:] not in said:
+                said.add(item[1:])
+                logging.getLogger(item[1]).log(item[2], "%s", item[3])
+            continue
+        (r, i), pid, t0 = item
         if r == run:
             started[i] = (pid, t0)
 
