@@ -120,3 +120,12 @@ def test_a_link_without_inertial_gets_no_mass_from_its_collision_shapes(tmp_path
     base = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "base")
     assert m.body_mass[base] == 0.0
     assert m.body_subtreemass[0] == pytest.approx(3.0)
+
+
+def test_the_correction_names_the_specs_robot_not_the_urdfs(tmp_path, caplog):
+    """ANYmal B's and C's URDFs are both <robot name="anymal">: the line names the spec."""
+    urdf = _urdf(tmp_path, (1e-6,) * 6, robot="anymal")
+    with caplog.at_level(logging.INFO, logger="latentune.sim.mujoco_world"):
+        mujoco_urdf_text(urdf, "anymal_c")
+    (rec,) = [r for r in caplog.records if "'foot'" in r.getMessage()]
+    assert rec.getMessage().startswith("robot 'anymal_c', link 'foot'")

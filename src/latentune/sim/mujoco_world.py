@@ -152,9 +152,9 @@ def mujoco_inertia(values: tuple[float, ...]) -> tuple[tuple[float, ...], str] |
     return new, ", ".join(why)
 
 
-def _correct_inertias(robot: ET.Element) -> None:
+def _correct_inertias(robot: ET.Element, name: str) -> None:
     """Replace in place each ``<inertia>`` MuJoCo refuses by :func:`mujoco_inertia`'s, logged
-    once per robot and link: INFO for a change within :data:`INERTIA_TINY`, else a WARNING
+    once per robot ``name`` and link: INFO for a change within :data:`INERTIA_TINY`, else a WARNING
     with the principal moments before and after and the relative change."""
     keys = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
     for link in robot.iter("link"):
@@ -168,7 +168,7 @@ def _correct_inertias(robot: ET.Element) -> None:
         new, why = fixed
         for k, v in zip(keys, new):
             el.set(k, repr(v))
-        said = (robot.get("name", ""), link.get("name", ""))
+        said = (name, link.get("name", ""))
         if said in _inertia_said:
             continue
         _inertia_said.add(said)
@@ -187,15 +187,16 @@ def _correct_inertias(robot: ET.Element) -> None:
                            100 * change)
 
 
-def mujoco_urdf_text(urdf: str) -> str:
+def mujoco_urdf_text(urdf: str, name: str | None = None) -> str:
     """The URDF text MuJoCo's importer loads: the file with a ``<mujoco><compiler>`` element
     (mesh directory = the URDF's, visual geoms discarded, static bodies not fused, inertias
     balanced, a link without ``<inertial>`` massless as the URDF means it, not given its collision
     shapes' mass, angles in radians), and the inertias MuJoCo refuses corrected
-    (:func:`mujoco_inertia`, each correction logged)."""
+    (:func:`mujoco_inertia`, each correction logged with the robot ``name``, default the
+    URDF's ``<robot name>``)."""
     src = Path(urdf)
     robot = ET.fromstring(src.read_text())
-    _correct_inertias(robot)
+    _correct_inertias(robot, robot.get("name", "") if name is None else name)
     for el in robot.findall("mujoco"):
         robot.remove(el)
     ext = ET.Element("mujoco")
@@ -244,7 +245,7 @@ class MujocoWorld(WorldBase):
         mujoco, spec, real = self.mj, self.spec, self.reality
         urdf = perturbed_urdf(self.model.urdf, real)
         try:
-            ms = mujoco.MjSpec.from_string(mujoco_urdf_text(urdf))
+            ms = mujoco.MjSpec.from_string(mujoco_urdf_text(urdf, spec.name))
         except ValueError as exc:
             raise UsageError(f"MuJoCo cannot load the URDF of {spec.name} ({urdf}): "
                              f"{str(exc).splitlines()[0]}") from None
