@@ -323,3 +323,36 @@ def test_prepared_urdf_of_a_name_that_is_no_file_name(tmp_path):
         path = Path(prepared_urdf(spec))
         assert path.parent == cache and path.is_file(), (name, path)
     assert not any(cache.parent.parent.glob("escaped_by_name*"))
+
+
+def test_a_link_without_inertial_is_massless_in_pybullet_too(tmp_path):
+    """PyBullet gives a link without ``<inertial>`` 1 kg and 1 kg·m² about each axis (ANYmal C's
+    root 'base'): the prepared URDF gives it a negligible one, as pinocchio and MuJoCo read it."""
+    import types
+
+    import pybullet as pb
+    path = tmp_path / "bare.urdf"
+    inertial = ('<inertial><mass value="{m}"/><inertia ixx="0.01" ixy="0" ixz="0" iyy="0.01" '
+                'iyz="0" izz="0.01"/></inertial>')
+    path.write_text(
+        '<robot name="bare"><link name="base"><collision><geometry><box size="0.5 0.2 0.2"/>'
+        '</geometry></collision></link><link name="frame"/>'
+        f'<link name="trunk">{inertial.format(m=3.0)}</link>'
+        f'<link name="leg">{inertial.format(m=1.0)}</link>'
+        '<joint name="f" type="fixed"><parent link="base"/><child link="trunk"/></joint>'
+        '<joint name="g" type="fixed"><parent link="trunk"/><child link="frame"/></joint>'
+        '<joint name="j" type="revolute"><parent link="trunk"/><child link="leg"/>'
+        '<axis xyz="0 1 0"/><limit effort="1" lower="-1" upper="1" velocity="1"/></joint></robot>')
+    spec = types.SimpleNamespace(name="bare", urdf=str(path), strip_root=False,
+                                 primitive_collisions=False, collision_primitives={},
+                                 foot_radius=0.02)
+    c = pb.connect(pb.DIRECT)
+    try:
+        body = pb.loadURDF(prepared_urdf(spec), physicsClientId=c)
+        masses = [pb.getDynamicsInfo(body, j, physicsClientId=c)[0]
+                  for j in range(-1, pb.getNumJoints(body, physicsClientId=c))]
+        inertia = pb.getDynamicsInfo(body, -1, physicsClientId=c)[2]
+    finally:
+        pb.disconnect(c)
+    assert sum(masses) == pytest.approx(4.0, abs=1e-5)
+    assert max(inertia) < 1e-5

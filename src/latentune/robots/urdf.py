@@ -9,8 +9,8 @@ raises a one-line :class:`~latentune.errors.RobotSpecError` for a file that is n
 tree of links and joints. :func:`prepared_urdf` rewrites a spec's URDF for simulation:
 ``package://`` mesh URIs become absolute paths, a massless dummy root link is removed
 (``strip_root``), ``continuous`` joints become ``revolute`` without limits (one configuration
-value each, as the leg kinematics expect), ``.dae`` collision meshes are dropped (PyBullet
-ignores them), and with ``primitive_collisions`` each link's collision shapes are replaced by the
+value each, as the leg kinematics expect), a link without ``<inertial>`` gets a negligible one
+(:data:`NO_INERTIAL`), ``.dae`` collision meshes are dropped (PyBullet ignores them), and with ``primitive_collisions`` each link's collision shapes are replaced by the
 spec's :class:`CollisionShape` for that link (lengths in metres).
 """
 from __future__ import annotations
@@ -106,7 +106,7 @@ def package_dir(package: str) -> Path:
 MASSLESS = 1e-4
 """A link lighter than this [kg] (or without ``<inertial>``) counts as massless."""
 
-_REWRITE_VERSION = "rewrite-3"  # in the prepared-URDF cache key: bump when the rewrite changes
+_REWRITE_VERSION = "rewrite-4"  # in the prepared-URDF cache key: bump when the rewrite changes
 
 
 @dataclass(frozen=True)
@@ -389,6 +389,33 @@ def _continuous_to_revolute(text: str) -> str:
     return re.sub(r'<joint\b[^>]*type="continuous"[^>]*>.*?</joint>', repl, text, flags=re.S)
 
 
+NO_INERTIAL = ('<inertial><mass value="1e-06"/><inertia ixx="1e-09" ixy="0" ixz="0" iyy="1e-09" '
+               'iyz="0" izz="1e-09"/></inertial>')
+"""The ``<inertial>`` :func:`prepared_urdf` gives a link without one: negligible (PyBullet gives
+such a link 1 kg and 1 kg·m² about each axis; pinocchio and the URDF mean none; a root of mass
+0 would be fixed in space in PyBullet)."""
+
+_BARE_LINK = re.compile(r'<link\s+name="[^"]+"\s*/>|<link\s+name="[^"]+"\s*>(?:(?!</link>).)*?</link>', re.S)
+
+
+def _has_bare_link(text: str) -> bool:
+    """Whether a ``<link>`` of the URDF text has no ``<inertial>``."""
+    return any("<inertial" not in m.group(0) for m in _BARE_LINK.finditer(text))
+
+
+def _add_inertials(text: str) -> str:
+    """Give every ``<link>`` without ``<inertial>`` :data:`NO_INERTIAL`."""
+    def repl(m: re.Match) -> str:
+        link = m.group(0)
+        if "<inertial" in link:
+            return link
+        if link.endswith("/>"):
+            return link[:-2].rstrip() + f">{NO_INERTIAL}</link>"
+        return link.replace(">", f">{NO_INERTIAL}", 1)
+
+    return _BARE_LINK.sub(repl, text)
+
+
 def kinematic_urdf_text(spec_urdf: str | os.PathLike, strip_root: bool) -> str:
     """The URDF text whose kinematics pinocchio and PyBullet see after :func:`prepared_urdf`
     (root stripped, continuous joints revolute); collision and mesh rewrites left out."""
@@ -435,7 +462,9 @@ def prepared_urdf(spec: UrdfFields) -> str:
     src = Path(spec.urdf)
     text = src.read_text()
     continuous = 'type="continuous"' in text
-    if not (spec.strip_root or spec.primitive_collisions or continuous or "package://" in text):
+    bare = _has_bare_link(text)
+    if not (spec.strip_root or spec.primitive_collisions or continuous or bare
+            or "package://" in text):
         return str(src)
     prims = spec.collision_primitives if spec.primitive_collisions else {}
     # the key hashes the text with its mesh URIs resolved: the same URDF in another place (e.g.
@@ -452,6 +481,8 @@ def prepared_urdf(spec: UrdfFields) -> str:
         text = _strip_root(text, read_urdf(src).root)
     if continuous:
         text = _continuous_to_revolute(text)
+    if bare:
+        text = _add_inertials(text)
     # PyBullet does not collide with .dae meshes: drop those collision shapes
     text = re.sub(r'<collision>(?:(?!</collision>).)*?\.dae"(?:(?!</collision>).)*?</collision>', "", text, flags=re.S)
     if spec.primitive_collisions:
