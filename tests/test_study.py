@@ -764,3 +764,49 @@ def test_train_latent_says_when_the_kept_latent_space_misses_phase_1_trials(tmp_
     assert run_cli("phase1", *plant, *run, "--phase1-evals", "9", "--resume")[0] == 0
     code, out, err = run_cli("train-vae", *plant, "--resume")
     assert code == 0 and "kept" in out and "phase 1 holds" in err, (out, err)
+
+
+def _phase1_killed_after(path: Path, n: int) -> None:
+    """In a child process: phase 1 on a bowl whose ``n``-th trial ends the process at once
+    (``os._exit``, as SIGKILL: no clean-up runs)."""
+    calls = [0]
+
+    def cost(x: np.ndarray) -> float:
+        calls[0] += 1
+        if calls[0] > n:
+            os._exit(9)
+        time.sleep(0.02)
+        return float(np.sum((x - 0.3) ** 2))
+
+    space = lt.ParameterSpace(names=["a", "b"], low=[0.0] * 2, high=[1.0] * 2, manual=[0.5] * 2)
+    lt.Study(path, seed=0).phase1(lt.FunctionSystem(space, cost, name="bowl"), 40,
+                                  method="random")
+
+
+def test_a_run_killed_inside_a_phase_reports_its_real_wall_time(tmp_path):
+    """A run killed inside phase 1 (no clean-up: its wall time was never added) reports the
+    time up to its last stored trial, not 0; the next run of the store adds it for good. A phase
+    whose trials no command timed says its time is unknown (wall_s None), never 0."""
+    import multiprocessing
+
+    from latentune.reporting.run_report import write_summary
+
+    proc = multiprocessing.get_context("fork").Process(target=_phase1_killed_after,
+                                                       args=(tmp_path / "k", 8))
+    proc.start()
+    proc.join(60)
+    assert proc.exitcode == 9
+    with RunStore(tmp_path / "k") as st:
+        assert st.count(Phase.PHASE1) > 0
+        s = write_summary(st)
+        assert s["wall_s"] > 0.05 and s["wall_by_phase_s"]["phase1"] > 0.05
+        assert s["wall_unknown"] == []
+    space = lt.ParameterSpace(names=["a", "b"], low=[0.0] * 2, high=[1.0] * 2, manual=[0.5] * 2)
+    sys_ = lt.FunctionSystem(space, lambda x: float(np.sum((x - 0.3) ** 2)), name="bowl")
+    lt.Study(tmp_path / "k", seed=0).phase1(sys_, 12, method="random")
+    with RunStore(tmp_path / "k") as st:
+        assert st.get_meta("wall_open") is None and st.get_meta("wall")["phase1"] > 0.05
+    with RunStore(tmp_path / "k") as st:          # trials with no wall record (ask/tell, or
+        st.delete_meta("wall")                    # a run killed before this fix)
+        s = write_summary(st)
+        assert s["wall_s"] is None and s["wall_unknown"] == ["phase1"]

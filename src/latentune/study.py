@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import logging
 import os
-import time
 from pathlib import Path
 from typing import Any, Callable
 
@@ -202,13 +201,10 @@ class Study:
             manual = ensure_manual(st, system, self.seed, self.evaluator())
             self.log(f"manual θ: cost {manual:.3f}")
             critic = phase_critic(Phase.PHASE1, pc, system.space, self.dir)
-            t = time.perf_counter()
-            try:
+            with self.manifest.timing("phase1"):
                 res = run_phase(st, Phase.PHASE1, system, critic, pc["budget"], self.evaluator(),
                                 seed=self.seed, progress=self.progress, max_new=max_new,
                                 known=manual_outcome(st, system))
-            finally:
-                self.manifest.add_wall("phase1", time.perf_counter() - t)
             results.write_best(st, self.dir, system.space, Phase.PHASE1)
             self.log(res.line())
             return res
@@ -274,13 +270,12 @@ class Study:
             if zs is not None:
                 self.log(f"zero-shot (the source's best θ as it is): cost {zs:.3f}")
             critic = phase_critic(Phase.PHASE3, pc, system.space, self.dir, ls)
-            t = time.perf_counter()
             try:
-                res = run_phase(st, Phase.PHASE3, system, critic, pc["budget"], self.evaluator(),
-                                decoder=decoder_of(pc, ls), seed=self.seed,
-                                progress=self.progress, max_new=max_new, strategy=strategy)
+                with self.manifest.timing("phase3"):
+                    res = run_phase(st, Phase.PHASE3, system, critic, pc["budget"],
+                                    self.evaluator(), decoder=decoder_of(pc, ls), seed=self.seed,
+                                    progress=self.progress, max_new=max_new, strategy=strategy)
             finally:
-                self.manifest.add_wall("phase3", time.perf_counter() - t)
                 if pc["handover"] is not None:
                     self.manifest.update(phase3_handover=critic.rule())
             results.write_best(st, self.dir, system.space, Phase.PHASE3)
@@ -294,10 +289,8 @@ class Study:
         space = check_system(system).space
         with self.run.writing(evaluating=True) as st:
             ls, source = resolve_latent(self.run, self.manifest, latent, space, _actor(system))
-            t = time.perf_counter()
-            res = baselines.preservation(st, system, ls, source, self.evaluator(), self.seed)
-            self.manifest.add_wall("preservation_rollouts", time.perf_counter() - t)
-            return res
+            with self.manifest.timing("preservation_rollouts"):
+                return baselines.preservation(st, system, ls, source, self.evaluator(), self.seed)
 
     # ------------------------------------------------------------------ ask / tell
     def ask(self, n: int = 1, *, system: Any = None, space: ParameterSpace | None = None,

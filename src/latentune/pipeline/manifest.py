@@ -24,6 +24,9 @@ never imports or calls them.
 from __future__ import annotations
 
 import json
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +37,7 @@ from latentune.constants import Phase
 from latentune.errors import StoreError, SystemSpecError, UsageError
 from latentune.pipeline.rundir import RunDir
 from latentune.pipeline.store import info_json, json_default
+from latentune.pipeline.walltime import settle_open
 from latentune.space import ParameterSpace
 from latentune.system import check_system, plugin_record
 
@@ -200,6 +204,23 @@ class Manifest:
         w = st.get_meta("wall", {}) or {}
         w[key] = float(w.get(key, 0.0)) + float(seconds)
         st.set_meta("wall", w)
+
+    @contextmanager
+    def timing(self, key: str) -> Iterator[None]:
+        """Add the block's wall time to the ``wall`` entry ``key`` when it ends. Its start is
+        stored first (``wall_open``): a command killed inside the block leaves it behind, and
+        its time up to its last stored trial counts (:mod:`latentune.pipeline.walltime`);
+        blocks a killed command left open are settled here first."""
+        st = self.run.store
+        settle_open(st)
+        st.set_meta("wall_open", {**(st.get_meta("wall_open", {}) or {}), key: time.time()})
+        t = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.add_wall(key, time.perf_counter() - t)
+            rest = {k: v for k, v in (st.get_meta("wall_open", {}) or {}).items() if k != key}
+            st.update_meta({"wall_open": rest or None})
 
     # ------------------------------------------------------------------ seed
     def stored_seed(self) -> int | None:

@@ -3,7 +3,6 @@ whose trial did not fail (:func:`~latentune.pipeline.phases.training_set`)."""
 from __future__ import annotations
 
 import logging
-import time
 from numbers import Integral
 from typing import Any
 
@@ -65,15 +64,14 @@ def train_latent(run: RunDir, manifest: Manifest, seed: int, latent_dim: int | N
         raise LatentError(f"{run.dir}: phase 1 has {len(X)} θ whose trial did not fail; "
                           "the latent space needs at least 2 (run more phase-1 evaluations)")
     cfg = manifest.config()
-    t = time.perf_counter()
     meta = {"source_run": str(run.dir.resolve()), "n_phase1": st.count(Phase.PHASE1),
             "system": cfg.get("system"), "space_names": cfg.get("space", {}).get("names")}
     if "task" in cfg:
         meta.update({k: cfg["task"][k] for k in ("robot", "gait", "actor", "terrain")})
-    latent = LatentSpace.train(X, d_low=latent_dim, kind=kind or DEFAULT_KIND, seed=seed,
-                               epochs=epochs, meta=meta)
-    latent.save(run.dir / "vae")
-    manifest.add_wall("vae", time.perf_counter() - t)
+    with manifest.timing("vae"):
+        latent = LatentSpace.train(X, d_low=latent_dim, kind=kind or DEFAULT_KIND, seed=seed,
+                                   epochs=epochs, meta=meta)
+        latent.save(run.dir / "vae")
     st.add_artifact("vae", run.dir / "vae")
     manifest.update(vae={"kind": latent.kind, "d_low": latent.d_low, "n_train": len(X),
                          "epochs": latent.meta.get("epochs"),

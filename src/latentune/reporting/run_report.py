@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from latentune.constants import Phase
+from latentune.pipeline.walltime import wall_record
 from latentune.reporting.metrics import paper_row, phase_stats, rms_velocity_error
 from latentune.wording import counted
 
@@ -282,13 +283,16 @@ def write_summary(store: Any, wall_this: float | None = None,
     when the manual θ failed; None if never or without a manual trial);
     ``rms_velocity_error_m_s`` (per phase, the best θ's RMS velocity error [m/s]; None for a
     user system); wall times [s]
-    ``wall_s`` (sum over phases), ``wall_by_phase_s``, ``wall_s_this_command``; ``seed``,
+    ``wall_s`` (sum over phases; None when every phase that ran has an unknown time),
+    ``wall_by_phase_s``, ``wall_unknown`` (the phases whose time is not (all) known: a run
+    killed inside one before storing a trial, or trials told through ask/tell:
+    :func:`~latentune.pipeline.walltime.wall_record`), ``wall_s_this_command``; ``seed``,
     ``config``, ``artifacts``, ``phase{1,3}_best_params``, ``paper`` (the paper's numbers for
     the task or None), ``phase3_handover`` (:func:`handover_stats`), ``written`` (unix time).
     ``manual``: the manual θ's trials, as :func:`run_stats` takes them.
     """
     cfg = store.get_meta("config") or {}
-    wall = store.get_meta("wall", {}) or {}
+    wall, wall_unknown = wall_record(store)
     arts = store.get_meta("artifacts", {}) or {}
     if manual is None:
         manual = manual_rows(store)
@@ -316,8 +320,9 @@ def write_summary(store: Any, wall_this: float | None = None,
         "phase3_vs_phase1": best_ratio(p3["best"], p1["best"]),
         "rms_velocity_error_m_s": ({k: v["rms"] for k, v in names.items()}
                                    if _steps(cfg) else None),
-        "wall_s": float(sum(wall.values())),
+        "wall_s": float(sum(wall.values())) if wall or not wall_unknown else None,
         "wall_by_phase_s": wall,
+        "wall_unknown": wall_unknown,
         "wall_s_this_command": wall_this,
         "seed": cfg.get("phase1", cfg.get("phase3", {})).get("seed", cfg.get("task", {}).get("seed")),
         "config": cfg,
@@ -532,8 +537,14 @@ def make_report(store: Any, system: Any = None, simulate: bool = True, quiet: bo
         md.append("")
     md += decisions_markdown(store)
     wall = summary.get("wall_by_phase_s") or {}
-    if wall:
-        md.append("Wall time: " + ", ".join(f"{k} {v:.0f} s" for k, v in wall.items()) + ".")
+    unknown = summary.get("wall_unknown") or []
+    if wall or unknown:
+        md.append(" ".join(
+            ([("Wall time: " + ", ".join(f"{k} {v:.0f} s" for k, v in wall.items()) + ".")]
+             if wall else [])
+            + ([f"Wall time of {', '.join(unknown)} not (all) known: trials told through "
+                "ask/tell, or a run stopped before it stored its time or any trial."]
+               if unknown else [])))
         md.append("")
     for f in figs:
         md.append(f"![{f}]({f})")
