@@ -10,7 +10,6 @@ torques (the same motion with no controller). Prints the min over repeats.
 """
 from __future__ import annotations
 
-import argparse
 import sys
 
 from latentune.threads import one_thread_env  # noqa: E402
@@ -20,12 +19,12 @@ one_thread_env()
 import latentune as lt  # noqa: E402
 from benchmarks.baseline import (bare_stepping_only, bare_stepping_pd,  # noqa: E402
                                  record_torques, replay_stepping)
-from benchmarks.common import Provenance, add_out_arg, finish  # noqa: E402
+from benchmarks.common import Provenance, add_out_arg, bench_parser, finish  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.actor")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.actor", description=__doc__.splitlines()[0])
     ap.add_argument("--robot", default="a1")
     ap.add_argument("--task", default="trot")
     ap.add_argument("--actor", default="convex")

@@ -51,7 +51,7 @@ import numpy as np  # noqa: E402
 import latentune as lt  # noqa: E402
 from latentune.pipeline.asktell import NEXT_KEY  # noqa: E402
 
-from benchmarks.common import Provenance, add_out_arg, finish  # noqa: E402
+from benchmarks.common import Provenance, add_out_arg, bench_parser, finish  # noqa: E402
 
 ENV = dict(os.environ, **thread_env())
 FALL_SUM = 1.1
@@ -134,7 +134,7 @@ def time_pair(d: Path, mode: str, falls: bool) -> tuple[float, float]:
 
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.ask_latency")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.ask_latency", description=__doc__.splitlines()[0])
     ap.add_argument("--told", type=int, default=1000)
     ap.add_argument("--dim", type=int, default=25)
     ap.add_argument("--repeats", type=int, default=8, help="ask/tell pairs timed per mode")

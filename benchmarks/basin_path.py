@@ -17,7 +17,6 @@ that a search which avoids falls has to jump across the band.
 """
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 from typing import Any
@@ -28,7 +27,8 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import Provenance, add_out_arg, finish, markdown_table  # noqa: E402
+from benchmarks.common import (Provenance, add_out_arg, bench_parser, finish,  # noqa: E402
+                               markdown_table)
 from benchmarks.transfer import SYSTEMS  # noqa: E402
 from benchmarks.transfer import DEFAULT_METHOD as DEFAULT  # noqa: E402
 from benchmarks.transfer_walk import load_trace  # noqa: E402
@@ -84,7 +84,7 @@ def paths(root: Path, system: str, gap: float, a: str, b: str, seeds: list[int],
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     prov = Provenance(argv, "benchmarks.basin_path")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.basin_path", description=__doc__.splitlines()[0])
     ap.add_argument("--system", required=True, choices=list(SYSTEMS))
     ap.add_argument("--gap", type=float, required=True)
     ap.add_argument("--a", default=DEFAULT)

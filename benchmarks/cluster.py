@@ -18,7 +18,6 @@ is stored twice.
 """
 from __future__ import annotations
 
-import argparse
 import logging
 import math
 import os
@@ -41,7 +40,7 @@ from examples.lqr_chain import STEPS, ChainSystem  # noqa: E402
 from latentune.system import Outcome  # noqa: E402
 from latentune.pipeline.store import read_uri  # noqa: E402
 
-from benchmarks.common import ROOT, Provenance, add_out_arg, finish  # noqa: E402
+from benchmarks.common import ROOT, Provenance, add_out_arg, bench_parser, finish  # noqa: E402
 
 logger = logging.getLogger(__name__)
 
@@ -224,7 +223,7 @@ def stored(db: Path) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.cluster")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.cluster", description=__doc__.splitlines()[0])
     ap.add_argument("--trials", type=int, default=400)
     ap.add_argument("--kill-at", type=float, default=0.4,
                     help="kill the worker node when this fraction of the trials is stored")

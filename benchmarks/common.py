@@ -417,6 +417,16 @@ def out_file(text: str) -> Path:
     return path
 
 
+def bench_parser(module: str, description: str | None = None,
+                 **kw: Any) -> argparse.ArgumentParser:
+    """The argument parser of the benchmark ``module`` (``benchmarks.transfer``; a subcommand's
+    parser adds its name: ``benchmarks.transfer_falls ladder``): its usage and error lines name
+    the command as it is run, ``python -m benchmarks.transfer``, not argparse's default, the
+    file's name (``transfer.py``, which is not a command one can run). ``kw``: more of
+    :class:`argparse.ArgumentParser`'s arguments."""
+    return argparse.ArgumentParser(prog=f"python -m {module}", description=description, **kw)
+
+
 def add_out_arg(parser: argparse.ArgumentParser) -> None:
     """``--out FILE.json``: the one output option of every benchmark (:func:`out_file`)."""
     parser.add_argument("--out", type=out_file, default=None, metavar="FILE.json",

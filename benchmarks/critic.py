@@ -22,7 +22,8 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import Provenance, add_out_arg, finish, quick_problems  # noqa: E402
+from benchmarks.common import (Provenance, add_out_arg, bench_parser, finish,  # noqa: E402
+                               quick_problems)
 
 
 def _run_one(args: tuple[str, str, int, int, int]) -> dict:
@@ -42,8 +43,8 @@ def _run_one(args: tuple[str, str, int, int, int]) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.critic")
-    p = argparse.ArgumentParser(description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = bench_parser("benchmarks.critic", description=__doc__,
+                     formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--functions", nargs="+", default=["ackley20", "levy25", "rosenbrock25",
                                                       "styblinski77"],
                    choices=sorted(quick_problems()))

@@ -59,7 +59,7 @@ import numpy as np  # noqa: E402
 
 from latentune.constants import C1, STABLE_CAP  # noqa: E402
 
-from benchmarks.common import Provenance, add_out_arg, finish  # noqa: E402
+from benchmarks.common import Provenance, add_out_arg, bench_parser, finish  # noqa: E402
 
 
 # ============================================================================ problems
@@ -572,8 +572,8 @@ def main(argv: list[str] | None = None) -> int:
     import torch
 
     torch.set_num_threads(1)
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = bench_parser("benchmarks.fall_avoidance", description=__doc__.split("\n\n")[0],
+                     formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--part", choices=("search", "classifiers", "overhead"), default="search")
     p.add_argument("--problems", nargs="*", choices=sorted(problems()), default=None)
     p.add_argument("--methods", nargs="*", default=["turbo", "cma", "random"],

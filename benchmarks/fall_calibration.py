@@ -23,7 +23,6 @@ share of non-falls screened with them (``lost``).
 """
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
@@ -37,7 +36,7 @@ from latentune.critic.fall_model import GPFallModel  # noqa: E402
 from latentune.constants import Phase  # noqa: E402
 from latentune.pipeline.store import RunStore  # noqa: E402
 
-from benchmarks.common import Provenance, add_out_arg, cli_main, finish  # noqa: E402
+from benchmarks.common import Provenance, add_out_arg, bench_parser, cli_main, finish  # noqa: E402
 
 THRESHOLDS = (0.1, 0.2, 0.3, 0.5)
 VARIANTS = ("prior", "target")
@@ -86,7 +85,7 @@ def replay(X: np.ndarray, fell: np.ndarray, batch: np.ndarray, variant: str,
 
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.fall_calibration")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.fall_calibration", description=__doc__.splitlines()[0])
     ap.add_argument("--source", required=True, help="the source run (its phase 1 is the prior)")
     ap.add_argument("--runs", nargs="+", required=True, help="run directories of direct searches")
     ap.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS)

@@ -29,7 +29,6 @@ numbers (``.json``) and every run's trace (cost and failed per trial, ``traces.j
 input is one line on stderr and exit 2."""
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import sys
@@ -178,8 +177,8 @@ def _seeds(text: str) -> list[int]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.fall_costs",
-                                 description=__doc__.split("\n\n")[0])
+    from benchmarks.common import bench_parser
+    ap = bench_parser("benchmarks.fall_costs", description=__doc__.split("\n\n")[0])
     ap.add_argument("cmd", choices=("run", "summary"))
     ap.add_argument("--root", type=Path, required=True)
     ap.add_argument("--systems", default=",".join(tr.SYSTEMS))

@@ -14,7 +14,6 @@ gap; the transfer issue asks for a largest gap where most source-stable θ fail.
 """
 from __future__ import annotations
 
-import argparse
 import sys
 from typing import Any
 
@@ -24,7 +23,7 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import Provenance, add_out_arg, finish  # noqa: E402
+from benchmarks.common import Provenance, add_out_arg, bench_parser, finish  # noqa: E402
 from benchmarks.transfer import SYSTEMS, ladder_targets  # noqa: E402
 from latentune.system import evaluate  # noqa: E402
 
@@ -52,7 +51,7 @@ def ladder_rows(system: str, n: int, seed: int,
 
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.gap_ladder")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.gap_ladder", description=__doc__.splitlines()[0])
     ap.add_argument("--systems", nargs="+", default=list(SYSTEMS), choices=list(SYSTEMS))
     ap.add_argument("--n", type=int, default=300)
     ap.add_argument("--seed", type=int, default=0)

@@ -48,7 +48,7 @@ from latentune.errors import StoreError  # noqa: E402
 from latentune.pipeline.phases import handover_options  # noqa: E402
 from latentune.reporting.metrics import evals_to_beat  # noqa: E402
 
-from benchmarks.common import (Provenance, add_out_arg, median_evals,  # noqa: E402
+from benchmarks.common import (Provenance, add_out_arg, bench_parser, median_evals,  # noqa: E402
                                refuse_out_of_range, write_json)
 
 METHODS = ("latent", "handover", "turbo", "optuna_cma", "optuna_tpe")
@@ -125,8 +125,7 @@ def check_stores(a: argparse.Namespace, task: Any, handover: Any) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.handover")
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.handover",
-                                 description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.handover", description=__doc__.splitlines()[0])
     ap.add_argument("--report", default=None, metavar="DIR",
                     help="print the tables of the outputs in DIR (e.g. results/handover)")
     ap.add_argument("--robot", default="a1")

@@ -18,7 +18,6 @@ Usage:
 """
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 
@@ -32,7 +31,7 @@ import latentune as lt  # noqa: E402
 from latentune.actor import kinodynamic as kd  # noqa: E402
 from latentune.task import C1  # noqa: E402
 from benchmarks.baseline import bare_stepping_only, bare_stepping_pd  # noqa: E402
-from benchmarks.common import Provenance, add_out_arg, finish  # noqa: E402
+from benchmarks.common import Provenance, add_out_arg, bench_parser, finish  # noqa: E402
 
 
 class _Recorder:
@@ -52,7 +51,7 @@ class _Recorder:
 
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.kinodynamic")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.kinodynamic", description=__doc__.splitlines()[0])
     ap.add_argument("--robot", default="solo12")
     ap.add_argument("--task", default="trot")
     ap.add_argument("--steps", type=int, default=5000)

@@ -49,7 +49,6 @@ table next to it.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import sys
@@ -65,7 +64,7 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import Provenance, out_file, write_json  # noqa: E402
+from benchmarks.common import Provenance, bench_parser, out_file, write_json  # noqa: E402
 
 PEERS = ("tpe", "cmaes_source", "gp", "cmaes", "turbo")
 """Samplers that are peers (stock tools); ``latent`` is reported beside them."""
@@ -250,7 +249,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from examples.sim_to_real import run_model
 
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.optuna_hopper", description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     ap.add_argument("--trials", type=int, default=40, help="trials per study on the real Hopper")
     ap.add_argument("--phase1-evals", type=int, default=300, help="model evaluations (phase 1)")

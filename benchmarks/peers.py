@@ -73,8 +73,8 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import (ROOT, Provenance, git_commit, machine, problems,  # noqa: E402
-                               out_file, versions, write_json)
+from benchmarks.common import (ROOT, Provenance, bench_parser, git_commit, machine,  # noqa: E402
+                               out_file, problems, versions, write_json)
 
 CRITIC_DIR = ROOT / "src" / "latentune" / "critic"
 CRITIC_FILES = ("__init__.py", "base.py", "cmaes.py", "random_search.py", "turbo.py")
@@ -616,8 +616,8 @@ def relabel(a) -> int:
 
 def main(argv=None) -> int:
     prov = Provenance(argv, "benchmarks.peers")
-    p = argparse.ArgumentParser(description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = bench_parser("benchmarks.peers", description=__doc__,
+                     formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--problems", nargs="+", default=list(problems()), choices=list(problems()))
     p.add_argument("--methods", nargs="*", default=ALL_METHODS, choices=ALL_METHODS)
     p.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3, 4])

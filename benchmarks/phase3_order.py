@@ -30,7 +30,7 @@ import numpy as np
 
 from latentune.pipeline.store import read_uri
 
-from benchmarks.common import Provenance, add_out_arg, finish
+from benchmarks.common import Provenance, add_out_arg, bench_parser, finish
 
 
 def _reverse_batches(db: Path) -> int:
@@ -105,8 +105,8 @@ def _phase3(d: Path, trials: int) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.phase3_order", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = bench_parser("benchmarks.phase3_order", description=__doc__,
+                      formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--run", type=Path, required=True, help="a finished run directory")
     ap.add_argument("--trials", type=int, default=8, help="phase-3 evaluations per copy")
     ap.add_argument("--work", type=Path, default=Path("runs/phase3_order"))

@@ -15,7 +15,6 @@ evaluations to reach the target by chance.
 """
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import sys
 import time
@@ -30,7 +29,7 @@ import numpy as np  # noqa: E402
 import latentune as lt  # noqa: E402
 from latentune.task import C1  # noqa: E402
 
-from benchmarks.common import Provenance, add_out_arg, finish  # noqa: E402
+from benchmarks.common import Provenance, add_out_arg, bench_parser, finish  # noqa: E402
 
 _TASK = None
 
@@ -58,7 +57,7 @@ def _rollout(theta: np.ndarray):
 
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.random_theta")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.random_theta", description=__doc__.splitlines()[0])
     ap.add_argument("--robot", default="a1")
     ap.add_argument("--task", default="trot")
     ap.add_argument("--actor", default="convex")

@@ -9,7 +9,6 @@ phase-3 best) and the machine load at the start and end of each.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import re
@@ -20,7 +19,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from benchmarks.common import ROOT, Provenance, add_out_arg, finish
+from benchmarks.common import ROOT, Provenance, add_out_arg, bench_parser, finish
 
 
 def readme_commands() -> list[str]:
@@ -32,7 +31,7 @@ def readme_commands() -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.readme_commands")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.readme_commands", description=__doc__.splitlines()[0])
     add_out_arg(ap)
     a = ap.parse_args(argv)
     cmds = readme_commands()

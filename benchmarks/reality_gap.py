@@ -20,7 +20,6 @@ a Study under ``--work`` and resumes.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
@@ -37,7 +36,7 @@ from latentune.pipeline.evaluators import make_evaluator  # noqa: E402
 from latentune.reporting.metrics import evals_to_beat  # noqa: E402
 from latentune.study import source_best  # noqa: E402
 
-from benchmarks.common import (Provenance, add_out_arg, median_evals,  # noqa: E402
+from benchmarks.common import (Provenance, add_out_arg, bench_parser, median_evals,  # noqa: E402
                                refuse_out_of_range, write_json)
 
 
@@ -103,8 +102,7 @@ def report(d: Path) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.reality_gap")
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.reality_gap",
-                                 description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.reality_gap", description=__doc__.splitlines()[0])
     ap.add_argument("--report", default=None, metavar="DIR",
                     help="print one table of the outputs in DIR (e.g. results/reality_gap)")
     ap.add_argument("--source", help="a finished run directory (phase 1 + VAE)")

@@ -31,7 +31,8 @@ import numpy as np  # noqa: E402
 
 import latentune as lt  # noqa: E402
 
-from benchmarks.common import Provenance, add_out_arg, finish, shifted_levy  # noqa: E402
+from benchmarks.common import (Provenance, add_out_arg, bench_parser, finish,  # noqa: E402
+                               shifted_levy)
 
 
 def _space(dim: int) -> lt.ParameterSpace:
@@ -75,7 +76,7 @@ def _stop_by_kill(path: Path, seed: int, a: argparse.Namespace) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.resume_determinism")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.resume_determinism", description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     ap.add_argument("--budget", type=int, default=100)
     ap.add_argument("--stop", type=int, default=40)

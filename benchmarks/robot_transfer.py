@@ -1052,8 +1052,8 @@ def _pos_int(text: str) -> int:
 
 
 def parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.robot_transfer",
-                                 description=__doc__.splitlines()[0])
+    from benchmarks.common import bench_parser
+    ap = bench_parser("benchmarks.robot_transfer", description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
     sub.add_parser("list", help="the rungs")
     sn = sub.add_parser("snapshot", help="snapshot sources (a new one when a source has grown)")

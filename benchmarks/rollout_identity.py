@@ -22,7 +22,6 @@ same way on an AVX2 machine) is this benchmark's output
 """
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 import sys
@@ -35,7 +34,8 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import Provenance, add_out_arg, finish, machine, versions  # noqa: E402
+from benchmarks.common import (Provenance, add_out_arg, bench_parser, finish, machine,  # noqa: E402
+                               versions)
 
 ROBOT_ACTOR = {"a1": "convex", "b1": "convex", "solo12": "kinodynamic"}
 DEFAULT_TASKS = "a1:trot,a1:jump,solo12:trot"
@@ -147,7 +147,7 @@ def compare(a: dict[str, Any], b: dict[str, Any]) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.rollout_identity")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.rollout_identity", description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=300)
     ap.add_argument("--per-task", type=int, default=3)
     ap.add_argument("--tasks", default=DEFAULT_TASKS,

@@ -15,7 +15,6 @@ export of older code first on ``PYTHONPATH`` to profile it).
 """
 from __future__ import annotations
 
-import argparse
 import cProfile
 import pstats
 import sys
@@ -27,7 +26,7 @@ from latentune.threads import one_thread_env  # noqa: E402
 
 one_thread_env()
 
-from benchmarks.common import Provenance, add_out_arg, finish  # noqa: E402
+from benchmarks.common import Provenance, add_out_arg, bench_parser, finish  # noqa: E402
 from benchmarks.rollout_identity import ROBOT_ACTOR, thetas  # noqa: E402
 
 
@@ -74,7 +73,7 @@ def profile_task(robot: str, gait: str, steps: int, per_task: int, top: int) -> 
 
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.rollout_profile")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.rollout_profile", description=__doc__.splitlines()[0])
     ap.add_argument("--tasks", default="a1:trot,a1:jump,b1:trot,solo12:trot")
     ap.add_argument("--steps", type=int, default=5000)
     ap.add_argument("--per-task", type=int, default=3)

@@ -33,7 +33,7 @@ from latentune.threads import one_thread_env, thread_env  # noqa: E402
 
 one_thread_env()
 
-from benchmarks.common import Provenance, add_out_arg, finish  # noqa: E402
+from benchmarks.common import Provenance, add_out_arg, bench_parser, finish  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -120,7 +120,7 @@ def compare_task(base_src: Path, robot: str, gait: str, steps: int, rounds: int
 
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.rollout_speed")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.rollout_speed", description=__doc__.splitlines()[0])
     ap.add_argument("--base-src", type=Path, help="the src directory of the code to compare to")
     ap.add_argument("--tasks", default="a1:trot,solo12:trot")
     ap.add_argument("--steps", type=int, default=5000)

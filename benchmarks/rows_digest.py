@@ -20,7 +20,6 @@ writes it with its provenance (benchmarks.common).
 """
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 import os
@@ -37,7 +36,7 @@ import numpy as np  # noqa: E402
 from latentune.errors import StoreError  # noqa: E402
 from latentune.pipeline.store import read_uri  # noqa: E402
 
-from benchmarks.common import Provenance, add_out_arg, cli_main, finish  # noqa: E402
+from benchmarks.common import Provenance, add_out_arg, bench_parser, cli_main, finish  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -110,7 +109,7 @@ def run_handover(out: Path) -> dict[str, object]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.rows_digest", description=__doc__.splitlines()[0])
     ap.add_argument("what", choices=("digest", "main", "handover"))
     ap.add_argument("dirs", nargs="+", type=Path)
     add_out_arg(ap)

@@ -19,7 +19,6 @@ Target: the manual θ's cost on this task; if the manual θ falls (cost ≥ C1),
 """
 from __future__ import annotations
 
-import argparse
 import sys
 import tempfile
 import time
@@ -35,12 +34,13 @@ import latentune as lt  # noqa: E402
 from latentune.constants import C1  # noqa: E402
 from latentune.reporting.metrics import evals_to_beat  # noqa: E402
 
-from benchmarks.common import Provenance, add_out_arg, finish, median_evals  # noqa: E402
+from benchmarks.common import (Provenance, add_out_arg, bench_parser, finish,  # noqa: E402
+                               median_evals)
 
 
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.sample_efficiency")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.sample_efficiency", description=__doc__.splitlines()[0])
     ap.add_argument("--vae", required=False, help="run directory whose VAE phase 3 uses")
     ap.add_argument("--robot", default="a1")
     ap.add_argument("--task", default="jump")

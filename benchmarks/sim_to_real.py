@@ -30,7 +30,6 @@ Prints a Markdown table; ``--out FILE.json`` writes every seed's results with th
 """
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
@@ -45,7 +44,7 @@ import numpy as np  # noqa: E402
 from examples.gym_controller import REAL  # noqa: E402
 from examples.sim_to_real import run_model, run_real  # noqa: E402
 
-from benchmarks.common import Provenance, add_out_arg, write_json  # noqa: E402
+from benchmarks.common import Provenance, add_out_arg, bench_parser, write_json  # noqa: E402
 
 METHODS = ("phase3", "direct")
 
@@ -155,7 +154,7 @@ def markdown(res: dict[str, Any]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.sim_to_real")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.sim_to_real", description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     ap.add_argument("--phase1-evals", type=int, default=300)
     ap.add_argument("--phase3-evals", type=int, default=100,

@@ -33,7 +33,6 @@ sources must be the same: every pair's first trial (the zero-shot θ) must cost 
 """
 from __future__ import annotations
 
-import argparse
 import contextlib
 import shutil
 import sys
@@ -46,7 +45,7 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import Provenance, add_out_arg, finish  # noqa: E402
+from benchmarks.common import Provenance, add_out_arg, bench_parser, finish  # noqa: E402
 
 RULES = ("current", "table1")
 POOLS = ("elite", "full", "latent", "global")
@@ -213,7 +212,7 @@ def against(runs: list[dict[str, Any]], earlier: dict[str, Any]) -> dict[str, An
 
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.small_theta")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.small_theta", description=__doc__.splitlines()[0])
     ap.add_argument("--root", type=Path, required=True)
     ap.add_argument("--rooms", type=int, nargs="+", default=[1, 2, 3, 4])
     ap.add_argument("--gaps", type=float, nargs="+", default=[1.0, 2.0])

@@ -16,7 +16,6 @@ names of the failed tests.
 """
 from __future__ import annotations
 
-import argparse
 import statistics
 import os
 import re
@@ -29,7 +28,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from benchmarks.common import ROOT, Provenance, add_out_arg, finish
+from benchmarks.common import ROOT, Provenance, add_out_arg, bench_parser, finish
 
 
 def test_command(checkout: Path) -> str:
@@ -84,7 +83,7 @@ def run_suite(checkout: Path, python: str, label: str) -> dict[str, Any]:
 
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.suite_time")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.suite_time", description=__doc__.splitlines()[0])
     ap.add_argument("--python", default=sys.executable,
                     help="interpreter that replaces the README's .venv/bin/python")
     ap.add_argument("--before", metavar="REV", default=None,

@@ -9,7 +9,6 @@ run pays it once. Goal: ratio ≥ 1.8 with 2 workers on 2 free cores.
 """
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 
@@ -19,12 +18,12 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import Provenance, add_out_arg, finish  # noqa: E402
+from benchmarks.common import Provenance, add_out_arg, bench_parser, finish  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.throughput")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.throughput", description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=16)
     ap.add_argument("--steps", type=int, default=5000)
     ap.add_argument("--workers", type=int, default=2)

@@ -15,7 +15,6 @@ stored default's (the watch changes nothing it asks).
 """
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 from typing import Any, Callable
@@ -26,7 +25,7 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import Provenance, add_out_arg, finish  # noqa: E402
+from benchmarks.common import Provenance, add_out_arg, bench_parser, finish  # noqa: E402
 
 
 def strong_max(f: Callable[[np.ndarray], np.ndarray], d: int, seed: int) -> float:
@@ -81,7 +80,7 @@ def search_rows(root: Path, targets: list[tuple[str, float]], seeds: list[int],
 
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.transfer_acq_search")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.transfer_acq_search", description=__doc__.splitlines()[0])
     ap.add_argument("--targets", nargs="+", default=["arm:1.75", "springs:1.75", "arm:0.5"],
                     help="SYSTEM:GAP")
     ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1])

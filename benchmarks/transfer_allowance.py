@@ -20,7 +20,6 @@ strong correlation means a run could estimate the allowance while it runs. Bad i
 line on stderr and exit 2."""
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
@@ -93,7 +92,8 @@ def spearman(rows: list[dict[str, Any]]) -> dict[str, float]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    from benchmarks.common import bench_parser
+    ap = bench_parser("benchmarks.transfer_allowance", description=__doc__.splitlines()[0])
     ap.add_argument("--summary", required=True)
     ap.add_argument("--runs", required=True)
     ap.add_argument("--robot-summary", default=None)

@@ -20,7 +20,6 @@ acquisition over the box (GPSampler's) ends on its faces; a draw inside a trust 
 """
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
@@ -28,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.common import Provenance
+from benchmarks.common import Provenance, bench_parser
 from benchmarks.transfer import SYSTEMS
 from benchmarks.transfer_curves import finish_ladder, ladder_args, targets
 
@@ -95,7 +94,7 @@ def coords(root: Path, methods: list[str], seeds: list[int] | None, names: list[
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     prov = Provenance(argv, "benchmarks.transfer_coords")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.transfer_coords", description=__doc__.splitlines()[0])
     ladder_args(ap)
     ap.add_argument("--coords", nargs="+", default=[],
                     help="θ names of the system's parameter space, or indices")

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.common import Provenance, add_out_arg, finish, markdown_table
+from benchmarks.common import Provenance, add_out_arg, bench_parser, finish, markdown_table
 
 
 def best_so_far(run: dict) -> np.ndarray:
@@ -88,7 +88,7 @@ def curves(root: Path, methods: list[str], seeds: list[int] | None, at: list[int
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     prov = Provenance(argv, "benchmarks.transfer_curves")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.transfer_curves", description=__doc__.splitlines()[0])
     ladder_args(ap)
     ap.add_argument("--at", nargs="+", type=int, default=[1, 2, 4, 10, 20, 40])
     a = ap.parse_args(argv)

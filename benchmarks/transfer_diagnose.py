@@ -26,7 +26,6 @@ admitted and those asked over it (when no candidate passed), with how many fell.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import sys
@@ -161,12 +160,12 @@ def markdown(out: dict[str, Any]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from benchmarks.common import Provenance
+    from benchmarks.common import Provenance, bench_parser
     from benchmarks.transfer import parse_variant
     from latentune.critic.transfer import TRANSFER_DEFAULTS
 
     argv = sys.argv[1:] if argv is None else argv
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.transfer_diagnose", description=__doc__.splitlines()[0])
     ap.add_argument("--sources", default="runs/transfer")
     ap.add_argument("--runs", default="runs/transfer_diag")
     ap.add_argument("--ladder", default="results/transfer/ladder.json")

@@ -19,7 +19,6 @@ ask recorded one).
 """
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
@@ -27,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.common import Provenance
+from benchmarks.common import Provenance, bench_parser
 from benchmarks.transfer_curves import finish_ladder, ladder_args, targets
 
 KINDS = ("design", "explore", "region")
@@ -111,7 +110,7 @@ def explore_stats(root: Path, methods: list[str], seeds: list[int] | None
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     prov = Provenance(argv, "benchmarks.transfer_explore_stats")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.transfer_explore_stats", description=__doc__.splitlines()[0])
     ladder_args(ap)
     a = ap.parse_args(argv)
     try:

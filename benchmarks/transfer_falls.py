@@ -54,7 +54,6 @@ stored trace.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import shutil
@@ -647,9 +646,9 @@ def main(argv: list[str] | None = None) -> int:
         return main_kinds(argv[1:])
     if argv[:1] == ["stores"]:
         argv = argv[1:]
-    from benchmarks.common import Provenance, write_json
+    from benchmarks.common import Provenance, bench_parser, write_json
 
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.transfer_falls", description=__doc__.splitlines()[0])
     ap.add_argument("--root", type=Path, default=Path("results/paper10k/a1"),
                     help="directory holding the studies")
     ap.add_argument("--target", default="a1-jump-flat-default",
@@ -684,10 +683,9 @@ def main(argv: list[str] | None = None) -> int:
 
 def main_ladder(argv: list[str]) -> int:
     """``ladder``: falls and best costs of transfer variants on the transfer ladder's traces."""
-    from benchmarks.common import Provenance, finish
+    from benchmarks.common import Provenance, bench_parser, finish
 
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.transfer_falls ladder",
-                                 description=main_ladder.__doc__)
+    ap = bench_parser("benchmarks.transfer_falls ladder", description=main_ladder.__doc__)
     ap.add_argument("--root", type=Path, default=Path("runs/transfer"))
     ap.add_argument("--systems", nargs="+", default=["chain", "hopper"])
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
@@ -706,10 +704,9 @@ def main_ladder(argv: list[str]) -> int:
 
 def main_kinds(argv: list[str]) -> int:
     """``kinds``: asks and falls by kind of ask of transfer variants' traces (their decisions)."""
-    from benchmarks.common import Provenance, finish
+    from benchmarks.common import Provenance, bench_parser, finish
 
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.transfer_falls kinds",
-                                 description=main_kinds.__doc__)
+    ap = bench_parser("benchmarks.transfer_falls kinds", description=main_kinds.__doc__)
     ap.add_argument("--root", type=Path, default=Path("runs/transfer"))
     ap.add_argument("--methods", nargs="+", required=True,
                     help="trace names, e.g. transfer+VARIANT@avx512")

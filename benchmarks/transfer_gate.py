@@ -119,8 +119,9 @@ def table(rows: list[dict[str, Any]], a: str, b: str, near: int) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.transfer_gate", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    from benchmarks.common import bench_parser
+    ap = bench_parser("benchmarks.transfer_gate", description=__doc__,
+                      formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--runs", required=True, help="SYSTEM/gapG/seedS/METHOD.json traces")
     ap.add_argument("--systems", nargs="*", default=list(tr.SYSTEMS))
     ap.add_argument("--seeds", nargs="*", type=int, default=list(range(10)))

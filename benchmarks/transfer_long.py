@@ -37,7 +37,6 @@ default's.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
@@ -49,7 +48,7 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import Provenance, add_out_arg, finish  # noqa: E402
+from benchmarks.common import Provenance, add_out_arg, bench_parser, finish  # noqa: E402
 
 D, SOURCE, SOURCE_BATCH, B, BATCH, LATE = 20, 1000, 20, 220, 4, 72
 CHECKPOINTS = (40, 100, B)
@@ -197,7 +196,7 @@ def main(argv: list[str] | None = None) -> int:
     from benchmarks.transfer import parse_variant
 
     prov = Provenance(argv, "benchmarks.transfer_long")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.transfer_long", description=__doc__.splitlines()[0])
     ap.add_argument("--variants", nargs="+", default=["default"])
     ap.add_argument("--seeds", nargs="+", type=int, default=list(range(8)))
     ap.add_argument("--problems", nargs="+", default=list(PROBLEMS))

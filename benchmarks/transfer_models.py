@@ -31,7 +31,6 @@ trial set and t, the median over targets × seeds and how often it beats ``trans
 is one line on stderr and exit 2."""
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import warnings
@@ -207,7 +206,8 @@ def table(rows: list[dict[str, Any]]) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    from benchmarks.common import bench_parser
+    ap = bench_parser("benchmarks.transfer_models", description=__doc__.splitlines()[0])
     ap.add_argument("--sources")
     ap.add_argument("--runs")
     ap.add_argument("--merge", nargs="+", default=None, metavar="JSON",

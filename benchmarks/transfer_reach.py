@@ -23,7 +23,6 @@ the source's 50 best is not, reaching it within B/10 needs θ the source never t
 """
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
@@ -35,7 +34,8 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import Provenance, add_out_arg, finish, markdown_table  # noqa: E402
+from benchmarks.common import (Provenance, add_out_arg, bench_parser, finish,  # noqa: E402
+                               markdown_table)
 from benchmarks.transfer import SYSTEMS  # noqa: E402
 from latentune.system import evaluate  # noqa: E402
 
@@ -94,7 +94,7 @@ def reach(sources: Path, peers: dict[tuple[str, float], tuple[str, float]],
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     prov = Provenance(argv, "benchmarks.transfer_reach")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.transfer_reach", description=__doc__.splitlines()[0])
     ap.add_argument("--sources", type=Path, default=Path("runs/transfer"))
     ap.add_argument("--ladder", type=Path, nargs="+",
                     default=[Path("results/transfer/rebuilt/ladder.json")])

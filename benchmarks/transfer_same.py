@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.common import Provenance, add_out_arg, finish
+from benchmarks.common import Provenance, add_out_arg, bench_parser, finish
 
 
 def _spec(text: str) -> tuple[Path, str]:
@@ -55,7 +55,7 @@ def _error(msg: str) -> int:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     prov = Provenance(argv, "benchmarks.transfer_same")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.transfer_same", description=__doc__.splitlines()[0])
     ap.add_argument("--a", type=_spec, required=True, metavar="ROOT:METHOD")
     ap.add_argument("--b", type=_spec, required=True, metavar="ROOT:METHOD")
     ap.add_argument("--rtol", type=float, default=0.0,

@@ -18,7 +18,6 @@ whose sample the screen admitted and those it did not (after :data:`SCREEN_DRAWS
 fell. Bad input is one line on stderr and exit 2."""
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
@@ -83,7 +82,8 @@ def forced(root: Path) -> dict[str, dict[str, int]]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    from benchmarks.common import bench_parser
+    ap = bench_parser("benchmarks.transfer_screened", description=__doc__.splitlines()[0])
     ap.add_argument("--summary", required=True)
     ap.add_argument("--losses", nargs="*", default=["vehicle 2", "cartpole 2"])
     ap.add_argument("--runs", default=None, help="the run tree: count forced and admitted trials")

@@ -25,7 +25,6 @@ transfer model's and the source model's, how often the exact source ranks better
 transfer model (sign test), and the fall AUCs. Bad input is one line on stderr and exit 2."""
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
@@ -135,7 +134,8 @@ def table(rows: list[dict[str, Any]]) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    from benchmarks.common import bench_parser
+    ap = bench_parser("benchmarks.transfer_simrank", description=__doc__.splitlines()[0])
     ap.add_argument("--runs", required=True)
     ap.add_argument("--sources", required=True, help="SYSTEM/seed<s>/source run directories")
     ap.add_argument("--models", required=True, help="transfer_models' output (its rows)")

@@ -32,7 +32,6 @@ summary`` states them; the falls; the paired cost (geometric mean over runs of t
 best over the uncut run's). Bad input is one line on stderr and exit 2."""
 from __future__ import annotations
 
-import argparse
 import itertools
 import json
 import math
@@ -199,7 +198,8 @@ def parse_rule(text: str, grid: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    from benchmarks.common import bench_parser
+    ap = bench_parser("benchmarks.transfer_stop", description=__doc__.splitlines()[0])
     ap.add_argument("--runs", required=True)
     ap.add_argument("--heldout-runs", required=True)
     ap.add_argument("--fresh-runs", default=None)

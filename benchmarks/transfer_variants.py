@@ -25,7 +25,7 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import Provenance, add_out_arg, finish  # noqa: E402
+from benchmarks.common import Provenance, add_out_arg, bench_parser, finish  # noqa: E402
 
 D, SOURCE, B = 16, 200, 30
 
@@ -113,7 +113,7 @@ def _problem(text: str) -> tuple[str, float]:
 
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.transfer_variants")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.transfer_variants", description=__doc__.splitlines()[0])
     ap.add_argument("--variants", nargs="+", default=["turbo_source", "default"])
     ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3])
     ap.add_argument("--problems", nargs="+", type=_problem, default=list(PROBLEMS),

@@ -33,7 +33,6 @@ well here is a candidate for a phase-3 option, to be measured by ``benchmarks.tr
 """
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
@@ -45,7 +44,8 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import Provenance, add_out_arg, finish, markdown_table  # noqa: E402
+from benchmarks.common import (Provenance, add_out_arg, bench_parser, finish,  # noqa: E402
+                               markdown_table)
 from benchmarks.transfer import DEFAULT_METHOD, SYSTEMS  # noqa: E402
 
 SPACING = 0.15          # the default elite_spacing (record_walk's distance from told falls)
@@ -347,7 +347,7 @@ def summarize(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     prov = Provenance(argv, "benchmarks.transfer_walk")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.transfer_walk", description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=Path, nargs="+",
                     default=[Path("results/transfer/rebuilt/runs")])
     ap.add_argument("--sources", type=Path, default=Path("runs/transfer_skx"))

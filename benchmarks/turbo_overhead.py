@@ -32,7 +32,7 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import Provenance, add_out_arg, finish  # noqa: E402
+from benchmarks.common import Provenance, add_out_arg, bench_parser, finish  # noqa: E402
 
 
 def ask_tell_seconds(critic, fun, n_asks: int) -> list[float]:
@@ -105,8 +105,8 @@ def measure(told: int, asks: int, dim: int, batch: int, regions: list[int]) -> l
 
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.turbo_overhead")
-    p = argparse.ArgumentParser(description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = bench_parser("benchmarks.turbo_overhead", description=__doc__,
+                     formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--told", type=int, default=10_000)
     p.add_argument("--asks", type=int, default=5)
     p.add_argument("--dim", type=int, default=25)

@@ -11,7 +11,6 @@ box (uniform random u), and optionally the best cost of a phase 3 of ``--phase3-
 """
 from __future__ import annotations
 
-import argparse
 import sys
 import tempfile
 import time
@@ -23,12 +22,12 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import Provenance, add_out_arg, cli_main, finish  # noqa: E402
+from benchmarks.common import Provenance, add_out_arg, bench_parser, cli_main, finish  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.vae_kind")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.vae_kind", description=__doc__.splitlines()[0])
     ap.add_argument("run_dir")
     ap.add_argument("--kinds", nargs="+", default=["det", "vae"])
     ap.add_argument("--betas", nargs="+", type=float, default=None,

@@ -21,7 +21,6 @@ reconstructed as the mean).
 """
 from __future__ import annotations
 
-import argparse
 import sys
 from typing import Any
 
@@ -31,7 +30,7 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import Provenance, add_out_arg, finish  # noqa: E402
+from benchmarks.common import Provenance, add_out_arg, bench_parser, finish  # noqa: E402
 from latentune.errors import LatentError  # noqa: E402
 from latentune.latent.vae import LatentSpace, hidden_widths  # noqa: E402
 
@@ -66,7 +65,7 @@ def one(kind: str, d: int, seed: int, n: int, rule: str, epochs: int | None = No
 
 def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.vae_widths")
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.vae_widths", description=__doc__.splitlines()[0])
     ap.add_argument("--dims", type=int, nargs="+", default=[2, 3, 5, 8, 11, 16, 18])
     ap.add_argument("--seeds", type=int, default=8, help="seeds 0 .. SEEDS-1")
     ap.add_argument("--n", type=int, default=100, help="training θ per set")

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.common import Provenance, add_out_arg, finish
+from benchmarks.common import Provenance, add_out_arg, bench_parser, finish
 from examples.thermal_zones import BAND, SETTLE, make_system
 
 
@@ -109,7 +109,7 @@ def traces_figure(argv: list[str] | None, doc: str, name: str, make_system: Any,
     axes)``. With ``manual`` the first column and rerun are the target's manual θ (trial index
     None). :class:`TracesError` as :func:`rerun_best` and :func:`median_seed` raise it, and
     (code 2) for a gap ``make_system`` refuses."""
-    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
+    ap = bench_parser(f"benchmarks.{name}_traces", description=doc.splitlines()[0])
     ap.add_argument("--root", type=Path, default=root)
     ap.add_argument("--gap", type=float, default=gap)
     ap.add_argument("--methods", nargs="+", default=methods)

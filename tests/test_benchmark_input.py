@@ -344,3 +344,31 @@ def test_robot_transfer_names_the_bound_a_count_must_meet(argv, words, capsys):
         robot_transfer.parser().parse_args(argv)
     assert exc.value.code == 2
     assert capsys.readouterr().err.strip().splitlines()[-1].endswith(words)
+
+
+def test_every_benchmark_names_itself_as_it_is_run_in_its_usage_lines(capsys):
+    """The less-used benchmarks' usage and error lines named the file (``usage: actor.py``,
+    ``vae_kind.py: error: …``), not a command one can run; every benchmark's parser is now
+    :func:`benchmarks.common.bench_parser` of its own module: ``python -m benchmarks.X``."""
+    import ast
+    import re
+    from pathlib import Path
+
+    from benchmarks import buck_traces, vae_kind
+
+    for f in sorted((Path(__file__).parents[1] / "benchmarks").glob("*.py")):
+        if f.name == "common.py":
+            continue
+        for node in ast.walk(ast.parse(f.read_text())):
+            if not isinstance(node, ast.Call):
+                continue
+            name = ast.unparse(node.func)
+            assert not name.endswith("ArgumentParser"), f"{f.name}: {name}"
+            if name == "bench_parser":
+                arg = ast.unparse(node.args[0]).strip("f'\"")
+                assert re.fullmatch(rf"benchmarks\.({f.stem}|{{name}}_traces)( \w+)?", arg), \
+                    f"{f.name}: {arg}"
+    for mod, name in ((vae_kind, "vae_kind"), (buck_traces, "buck_traces")):
+        with pytest.raises(SystemExit):
+            mod.main(["--help"])
+        assert capsys.readouterr().out.startswith(f"usage: python -m benchmarks.{name} ")
