@@ -290,6 +290,21 @@ def test_report_names_the_latent_space_source_without_empty_fields(tmp_path: Pat
     assert line in md and not any("None" in ln for ln in md if "used the VAE" in ln)
 
 
+def test_the_report_says_when_a_phase_s_wall_time_is_not_known(tmp_path: Path):
+    """A run whose phases no command timed (told through ask/tell, imported, or killed before
+    its time was stored) showed no wall time, and summary.json wall_s 0; the report now says
+    the time is not known, and summary.json's wall_s is None."""
+    cfg = {"system": {"kind": "python", "class": "mymod.Arm"}, "phase1": {"method": "turbo"}}
+    with _store(tmp_path / "run", cfg) as st:
+        st.delete_meta("wall")
+        make_report(st, simulate=False, quiet=True)
+    md = (tmp_path / "run" / "report.md").read_text().splitlines()
+    assert any(ln.startswith("Wall time of phase1, phase3 not (all) known: trials told "
+                             "through ask/tell or imported") for ln in md), md
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["wall_s"] is None and summary["wall_unknown"] == ["phase1", "phase3"]
+
+
 class _FakeResult:
     def __init__(self, cost: float) -> None:
         self.cost = cost

@@ -45,8 +45,8 @@ def wall_record(store: Any) -> tuple[dict[str, float], list[str]]:
     The ``wall`` entries, plus each open block's time up to its last stored trial (a command
     running now, or one killed inside the block). Unknown: a killed block that stored no trial
     (``wall_unknown`` and open ones), and a phase that holds trials but no wall entry (trials
-    told through ask/tell, which no command timed, or a run killed before wall starts were
-    stored)."""
+    told through ask/tell or imported from Optuna, which no command timed, or a run killed
+    before wall starts were stored)."""
     wall = {k: float(v) for k, v in (store.get_meta("wall", {}) or {}).items()}
     spent, unknown = open_walls(store)
     for key, s in spent.items():

@@ -543,7 +543,8 @@ def make_report(store: Any, system: Any = None, simulate: bool = True, quiet: bo
             ([("Wall time: " + ", ".join(f"{k} {v:.0f} s" for k, v in wall.items()) + ".")]
              if wall else [])
             + ([f"Wall time of {', '.join(unknown)} not (all) known: trials told through "
-                "ask/tell, or a run stopped before it stored its time or any trial."]
+                "ask/tell or imported, or a run stopped before it stored its time or any "
+                "trial."]
                if unknown else [])))
         md.append("")
     for f in figs:
