@@ -282,6 +282,21 @@ def test_import_refuses_a_trial_that_stood_with_a_non_finite_value(tmp_path):
     assert [(r.cost, r.fell) for r in rows] == [(1.0, False), (math.inf, True), (math.inf, True)]
 
 
+def test_import_cli_counts_one_trial_and_one_fall_in_the_singular(tmp_path, capsys):
+    """``import-optuna`` of a study with one finished trial, a FAIL, said "holds 1 trials
+    (1 falls)"; it says "1 trial (1 fall)"."""
+    storage = f"sqlite:///{tmp_path / 'o.db'}"
+    s = optuna.create_study(storage=storage, study_name="one")
+    t = s.ask()
+    t.suggest_float("a", 0.0, 1.0)
+    s.tell(t, state=optuna.trial.TrialState.FAIL)
+    parser = argparse.ArgumentParser(prog="latentune")
+    register_cli(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["import-optuna", storage, "--out", str(tmp_path / "run")])
+    assert args.func(args) == 0
+    assert "phase 1 holds 1 trial (1 fall), no trial without a fall" in capsys.readouterr().out
+
+
 def test_import_cli_from_a_journal_file(tmp_path, capsys):
     from optuna.storages.journal import JournalFileBackend, JournalStorage
 

@@ -14,6 +14,7 @@ import argparse
 from typing import Any, Sequence
 
 from latentune import argtypes
+from latentune.wording import counted
 from latentune.workdone import work_done
 
 INSTALL_HINT = "install the optuna extra: pip install 'latentune[optuna]'"
@@ -52,7 +53,8 @@ def cmd_import_optuna(args: argparse.Namespace) -> int:
     with study:
         rows = study.store.rows(Phase.PHASE1)
         best = study.store.best(Phase.PHASE1)
-        print(f"{args.out}: phase 1 holds {len(rows)} trials ({sum(r.fell for r in rows)} falls), "
+        print(f"{args.out}: phase 1 holds {counted(len(rows), 'trial')} "
+              f"({counted(sum(r.fell for r in rows), 'fall')}), "
               + ("no trial without a fall" if best is None else f"best cost {best.cost:.6g}"))
         if args.train_latent:
             latent = study.train_latent(args.latent_dim, epochs=args.vae_epochs)
