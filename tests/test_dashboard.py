@@ -80,7 +80,7 @@ def test_export_phases_falls_and_suggestions(tmp_path):
     for t, r in zip(p1.trials, rows):
         assert t.state == S.COMPLETE and t.value == pytest.approx(r.cost)
         assert t.user_attrs["idx"] == r.idx and t.user_attrs["fell"] == r.fell
-        assert t.constraints == {"fall": 1.0 if r.fell else 0.0}
+        assert t.constraints == {"fall": 1.0 if r.fell else 0.0, "0": 1.0 if r.fell else 0.0}
         np.testing.assert_allclose(list(t.params.values()), space().to_physical(r.theta))
     assert p1.trials[0].distributions["kp"] == optuna.distributions.FloatDistribution(
         0.1, 10.0, log=True)
@@ -105,7 +105,24 @@ def test_export_phases_falls_and_suggestions(tmp_path):
     assert exp2.sync() == 1
     t1 = optuna.load_study(study_name="asked/phase 1", storage=exp2.storage).trials[1]
     assert t1.state == S.COMPLETE and t1.value == 0.7 and t1.user_attrs["fell"] is True
-    assert t1.user_attrs["suggestion"] == sug[1].id and t1.constraints == {"fall": 1.0}
+    assert t1.user_attrs["suggestion"] == sug[1].id and t1.constraints == {"fall": 1.0, "0": 1.0}
+
+
+def test_the_dashboard_serves_a_fall_as_an_infeasible_trial(tmp_path):
+    """A fall was exported only as Optuna's named constraint ``constraints:fall``, which
+    optuna-dashboard does not read (its pages take the ``constraints`` list): the served trials
+    had no constraint and the dashboard drew falls as feasible; each trial now carries its fall
+    in that list too (1 for a fall, else 0)."""
+    run = run_dir(tmp_path, 8)
+    fell = [r.fell for r in lt.Study(run).store.rows(Phase.PHASE1)]
+    with Dashboard(run, port=0, interval=0.3) as dash:
+        base = dash.url.split("/dashboard")[0]
+        names = {s["study_name"]: s["study_id"] for s in json.loads(
+            urlopen(f"{base}/api/studies", timeout=10).read())["study_summaries"]}
+        trials = json.loads(urlopen(f"{base}/api/studies/{names['run/phase 1']}",
+                                    timeout=10).read())["trials"]
+    assert [t["constraints"] for t in trials] == [[1.0 if f else 0.0] for f in fell]
+    assert any(fell) and not all(fell)
 
 
 def test_dashboard_cli_refusals(tmp_path):

@@ -13,8 +13,10 @@ The export (:class:`RunExport`)
   (the run's ``ParameterSpace`` as ``FloatDistribution``s), value = the stored cost, user
   attributes ``phase``, ``idx``, ``fell``, ``fall_step``, ``tag``, ``seed``, ``z`` (phase 3's
   latent point) and the row's ``info`` entries as ``info:<key>``; a fall carries the Optuna
-  constraint ``fall`` = 1 (else 0), so the dashboard draws it as infeasible; a row whose cost is
-  non-finite (stored as 1e300) is a FAIL trial;
+  constraint ``fall`` = 1 (else 0), written both as Optuna 4+ names it (``constraints:fall``)
+  and in the list optuna-dashboard reads (``constraints``, which Optuna's ``trial.constraints``
+  shows as ``"0"``), so the dashboard draws it as infeasible; a row whose cost is non-finite
+  (stored as 1e300) is a FAIL trial;
 * a suggestion handed out by ``ask`` and not told yet is a RUNNING trial; when it is told, that
   trial is completed with its result (a suggestion released by its asker stays RUNNING until it
   is told; one dropped unseen becomes a FAIL trial with user attribute ``status = dropped``);
@@ -149,7 +151,8 @@ class RunExport:
         for k, v in (r.info or {}).items():
             if isinstance(v, (str, int, float, bool)) or v is None:
                 user[f"info:{k}"] = v
-        return user, {"constraints:fall": 1.0 if r.fell else 0.0}
+        fall = 1.0 if r.fell else 0.0
+        return user, {"constraints:fall": fall, "constraints": [fall]}
 
     def _add_row(self, phase: int, r: Any, space: ParameterSpace, dists: dict[str, Any]) -> int:
         user, system = self._attrs(phase, r)
