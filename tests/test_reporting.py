@@ -305,6 +305,21 @@ def test_the_report_says_when_a_phase_s_wall_time_is_not_known(tmp_path: Path):
     assert summary["wall_s"] is None and summary["wall_unknown"] == ["phase1", "phase3"]
 
 
+def test_a_paper_study_killed_inside_a_phase_counts_its_time(tmp_path: Path):
+    """A study of ``paper`` killed inside phase 3 (its start stored, its end never) counted
+    0 s for it in the paper's wall times; it counts up to its last stored trial."""
+    import time as _time
+
+    from latentune.reporting.paper_report import study_stats
+
+    with _store(tmp_path / "run", {"task": TASK}) as st:
+        st.set_meta("wall", {"phase1": 12.0})
+        st.set_meta("wall_open", {"phase3": _time.time() - 60.0})
+        st.add(Phase.PHASE3, len(PHASE3), np.full(3, 0.5), 4.0, fell=False, tag=-1)
+    wall = study_stats(tmp_path / "run")["wall"]
+    assert wall["phase1"] == 12.0 and 59.0 < wall["phase3"] < 120.0
+
+
 class _FakeResult:
     def __init__(self, cost: float) -> None:
         self.cost = cost

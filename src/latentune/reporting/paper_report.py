@@ -25,6 +25,7 @@ import numpy as np
 
 from latentune.constants import C1, PAPER_PHASE1, PAPER_PHASE3, Phase
 from latentune.errors import UsageError
+from latentune.pipeline.walltime import wall_record
 from latentune.reporting.metrics import (PAPER_ROBOT, evals_to_beat, paper_results, paper_row,
                                          phase_stats)
 from latentune.reporting.run_report import fmt, task_from_config
@@ -54,7 +55,8 @@ Claim = tuple[str, "bool | None", str]
 def study_stats(run_dir: Path) -> dict[str, Any] | None:
     """Numbers of one study from its store, None if it was not run.
 
-    Keys ``dir``, ``config``, ``wall`` and per phase (``manual``, ``phase1``, ``phase3``,
+    Keys ``dir``, ``config``, ``wall`` (seconds per phase, a phase killed inside counted up to
+    its last stored trial: :func:`~latentune.pipeline.walltime.wall_record`) and per phase (``manual``, ``phase1``, ``phase3``,
     ``preservation``) a dict: ``n``, ``best``, ``best_idx``, ``stable``, ``falls``, ``theta``
     (the best θ as a list, None without rows), ``costs`` (list, evaluation order) and, for
     phase 1 and phase 3, ``evals_to_beat_manual``; ``preservation_meta``.
@@ -67,7 +69,7 @@ def study_stats(run_dir: Path) -> dict[str, Any] | None:
         return None
     with RunStore(run_dir) as st:
         out: dict[str, Any] = {"dir": run_dir.name, "config": st.get_meta("config") or {},
-                               "wall": st.get_meta("wall", {}) or {}}
+                               "wall": wall_record(st)[0]}
         for ph, name in STUDY_PHASES:
             y = st.costs(ph)
             b = st.best(ph)
