@@ -135,8 +135,28 @@ def test_import_rules(tmp_path):
     # another study into the same directory is refused
     other = optuna.create_study(storage=storage, study_name="other")
     other.add_trial(mk(params={"a": 0.5}, distributions={"a": FD(0, 1)}, value=1.0))
-    with pytest.raises(LatentuneError, match="holds another run"):
+    with pytest.raises(LatentuneError, match="holds another run: an import of study 's', "
+                                             "not of 'other'$"):
         import_optuna_study(storage, "other", tmp_path / "run")  # seed: the stored one
+
+
+def test_a_second_import_whose_trials_widen_a_bound_names_it(tmp_path):
+    """Importing a study again after a trial suggested a parameter on wider bounds said only
+    "holds another run (not an import of study 's' with this space)", naming neither the
+    parameter nor the bounds; it names the first that differs, in the run and in the study."""
+    storage = optuna.storages.InMemoryStorage()
+    study = optuna.create_study(storage=storage, study_name="s")
+    mk = optuna.trial.create_trial
+    study.add_trial(mk(params={"a": 0.5, "b": 1.0}, value=1.0,
+                       distributions={"a": FD(0, 1), "b": FD(0, 3)}))
+    import_optuna_study(storage, "s", tmp_path / "run")
+    study.add_trial(mk(params={"a": 0.5, "b": 3.5}, value=0.5,
+                       distributions={"a": FD(0, 1), "b": FD(0, 4)}))
+    with pytest.raises(LatentuneError, match=r"holds another run: an import of study 's' with "
+                       r"another space \(b: \[0, 3\] there, \[0, 4\] here; there: the run, "
+                       r"here: the study's trials now\); import it into a new directory$"):
+        import_optuna_study(storage, "s", tmp_path / "run")
+    assert lt.Study(tmp_path / "run").store.count(Phase.PHASE1) == 1
 
 
 def test_import_log_and_refusals(tmp_path):

@@ -1136,6 +1136,25 @@ def _unfinished(study: Any) -> str:
     return f"{sum(states.values())} ({', '.join(f'{n} {k}' for k, n in sorted(states.items()))})"
 
 
+def _import_difference(old: dict[str, Any], new: dict[str, Any]) -> str:
+    """What differs between the ``system`` record of a run (``old``) and that of an import of a
+    study into it (``new``): the study, its direction, or the first parameter whose bounds or
+    scale differ (the study's trials now span other bounds: an import of them would move the
+    stored trials' θ), in one phrase."""
+    if old.get("kind") != "optuna":
+        return "a run of another system, not an import of an Optuna study"
+    if old.get("study_name") != new["study_name"]:
+        return f"an import of study {old.get('study_name')!r}, not of {new['study_name']!r}"
+    if old.get("direction") != new["direction"]:
+        return (f"an import of a {old.get('direction')} study {new['study_name']!r}; the study "
+                f"is now {new['direction']}")
+    diff = ParameterSpace.from_dict(new["space"]).box_difference(old.get("space") or {})
+    if diff is not None:
+        return (f"an import of study {new['study_name']!r} with another space ({diff}; there: "
+                "the run, here: the study's trials now); import it into a new directory")
+    return f"an import of study {new['study_name']!r} with another space"
+
+
 def import_optuna_study(storage: Any, study_name: str | None, out: str | os.PathLike,
                         space: ParameterSpace | None = None, *, seed: int | None = None) -> Any:
     """Turn an Optuna study into a latentune phase-1 run in ``out``; return its
@@ -1249,8 +1268,7 @@ def import_optuna_study(storage: Any, study_name: str | None, out: str | os.Path
             old = {k: v for k, v in cfg["system"].items() if k != "storage"}
             new = {k: v for k, v in system.items() if k != "storage"}
             if old != new:
-                raise StoreError(f"{out} holds another run (not an import of study "
-                                 f"{study.study_name!r} with this space)")
+                raise StoreError(f"{out} holds another run: {_import_difference(old, new)}")
         done = {r.info.get("optuna_trial") for r in st.rows(Phase.PHASE1)}
         idx = st.next_idx(Phase.PHASE1)
         added = 0
