@@ -23,7 +23,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from benchmarks.common import Provenance
+from benchmarks.common import Provenance, error_line
 from benchmarks.transfer import DEFAULT_METHOD
 from benchmarks.zones_traces import TracesError, method_label, traces_figure, write_figure
 from examples.buck_converter import I_TRIP, OVP_GAIN, OVP_OFFSET, make_system
@@ -37,7 +37,7 @@ def main(argv: list[str] | None = None) -> int:
             default=DEFAULT_METHOD, nrows=2, height=6.0, root=Path("results/transfer/buck/runs"),
             manual=True, width=4.0)
     except TracesError as e:
-        print(f"buck_traces: error: {e}", file=sys.stderr)
+        error_line("benchmarks.buck_traces", e)
         return e.code
     cols = list(zip(["manual", *a.methods], reruns))
     rows = []

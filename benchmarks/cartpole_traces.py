@@ -22,7 +22,7 @@ import sys
 
 import numpy as np
 
-from benchmarks.common import Provenance
+from benchmarks.common import Provenance, error_line
 from benchmarks.transfer import DEFAULT_METHOD as DEFAULT
 from benchmarks.zones_traces import TracesError, method_label, traces_figure, write_figure
 from examples.cartpole_swingup import BALANCED, TRACK, make_system
@@ -37,7 +37,7 @@ def main(argv: list[str] | None = None) -> int:
             methods=[DEFAULT, "cma_source_trials", "plain", "zero_shot"], default=DEFAULT,
             nrows=3, height=7.2)
     except TracesError as e:
-        print(f"cartpole_traces: error: {e}", file=sys.stderr)
+        error_line("benchmarks.cartpole_traces", e)
         return e.code
     rows = []
     for j, (m, (i, out, tr)) in enumerate(zip(a.methods, reruns)):

@@ -363,8 +363,15 @@ def cli_main(main: Callable[[], int], prog: str) -> int:
         msg = f"no such file or directory: {e.filename}"
     except OSError as e:
         msg = os_error_line(e)
-    print(f"{prog}: error: {msg}", file=sys.stderr)
+    error_line(prog, msg)
     return 2
+
+
+def error_line(module: str, msg: Any) -> None:
+    """Print the one error line of the benchmark ``module`` (``benchmarks.transfer``) on stderr,
+    named as argparse's own error lines name it (:func:`bench_parser`):
+    ``python -m benchmarks.transfer: error: MSG``."""
+    print(f"python -m {module}: error: {msg}", file=sys.stderr)
 
 
 def os_error_line(e: OSError) -> str:

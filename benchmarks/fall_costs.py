@@ -177,7 +177,7 @@ def _seeds(text: str) -> list[int]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from benchmarks.common import bench_parser
+    from benchmarks.common import bench_parser, error_line
     ap = bench_parser("benchmarks.fall_costs", description=__doc__.split("\n\n")[0])
     ap.add_argument("cmd", choices=("run", "summary"))
     ap.add_argument("--root", type=Path, required=True)
@@ -192,15 +192,16 @@ def main(argv: list[str] | None = None) -> int:
         arms = [x for x in a.arms.split(",") if x]
         seeds = _seeds(a.seeds)
     except ValueError:
-        print(f"error: --seeds {a.seeds!r}: expected e.g. 0-9 or 0,2,5", file=sys.stderr)
+        error_line("benchmarks.fall_costs", f"--seeds {a.seeds!r}: expected e.g. 0-9 or 0,2,5")
         return 2
     bad = [s for s in systems if s not in tr.SYSTEMS] + [x for x in arms if x not in ARMS]
     if bad or not systems or not arms or a.evals < 1:
-        print(f"error: unknown system/arm {bad} or empty list or --evals < 1 (systems: "
-              f"{', '.join(tr.SYSTEMS)}; arms: {', '.join(ARMS)})", file=sys.stderr)
+        error_line("benchmarks.fall_costs",
+                   f"unknown system/arm {bad} or empty list or --evals < 1 (systems: "
+                   f"{', '.join(tr.SYSTEMS)}; arms: {', '.join(ARMS)})")
         return 2
     if a.cmd == "summary" and a.out is None:
-        print("error: summary needs --out FILE.json", file=sys.stderr)
+        error_line("benchmarks.fall_costs", "summary needs --out FILE.json")
         return 2
     try:
         if a.cmd == "run":
@@ -213,7 +214,7 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         res = summary(a.root, systems, seeds, a.evals)
     except (ValueError, OSError) as e:
-        print(f"error: {e}", file=sys.stderr)
+        error_line("benchmarks.fall_costs", e)
         return 2
     a.out.parent.mkdir(parents=True, exist_ok=True)
     traces = res.pop("traces")

@@ -23,7 +23,8 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import Provenance, add_out_arg, bench_parser, finish  # noqa: E402
+from benchmarks.common import (Provenance, add_out_arg, bench_parser, error_line,  # noqa: E402
+                               finish)
 from benchmarks.transfer import SYSTEMS, ladder_targets  # noqa: E402
 from latentune.system import evaluate  # noqa: E402
 
@@ -60,12 +61,12 @@ def main(argv: list[str] | None = None) -> int:
     add_out_arg(ap)
     a = ap.parse_args(argv)
     if a.n < 1:
-        print(f"gap_ladder: error: --n must be >= 1, got {a.n}", file=sys.stderr)
+        error_line("benchmarks.gap_ladder", f"--n must be >= 1, got {a.n}")
         return 2
     try:
         rows = [r for s in a.systems for r in ladder_rows(s, a.n, a.seed, a.gaps)]
     except ValueError as e:
-        print(f"gap_ladder: error: {e}", file=sys.stderr)
+        error_line("benchmarks.gap_ladder", e)
         return 2
     finish(a.out, prov, {"n": a.n, "seed": a.seed, "systems": a.systems, "gaps": a.gaps}, rows,
            title="random θ on the model and on each target")

@@ -48,8 +48,8 @@ from latentune.errors import StoreError  # noqa: E402
 from latentune.pipeline.phases import handover_options  # noqa: E402
 from latentune.reporting.metrics import evals_to_beat  # noqa: E402
 
-from benchmarks.common import (Provenance, add_out_arg, bench_parser, median_evals,  # noqa: E402
-                               refuse_out_of_range, write_json)
+from benchmarks.common import (Provenance, add_out_arg, bench_parser, error_line,  # noqa: E402
+                               median_evals, refuse_out_of_range, write_json)
 
 METHODS = ("latent", "handover", "turbo", "optuna_cma", "optuna_tpe")
 
@@ -151,7 +151,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             print(report(Path(a.report)))
         except ValueError as e:
-            print(f"handover: error: {e}", file=sys.stderr)
+            error_line("benchmarks.handover", e)
             return 2
         return 0
     if not (a.vae and a.work):

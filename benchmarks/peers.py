@@ -73,8 +73,8 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import (ROOT, Provenance, bench_parser, git_commit, machine,  # noqa: E402
-                               out_file, problems, versions, write_json)
+from benchmarks.common import (ROOT, Provenance, bench_parser, error_line, git_commit,  # noqa: E402
+                               machine, out_file, problems, versions, write_json)
 
 CRITIC_DIR = ROOT / "src" / "latentune" / "critic"
 CRITIC_FILES = ("__init__.py", "base.py", "cmaes.py", "random_search.py", "turbo.py")
@@ -656,7 +656,7 @@ def main(argv=None) -> int:
                 check_variant(a.variant_method, opts, [problems()[q].dim for q in a.problems],
                               a.budget, a.batch_size)
             except (ValueError, TypeError) as e:    # one line, as benchmarks.transfer's
-                print(f"benchmarks.peers: error: --variant {v!r}: {e}", file=sys.stderr)
+                error_line("benchmarks.peers", f"--variant {v!r}: {e}")
                 return 2
     if a.compare:
         return compare(a)

@@ -22,7 +22,7 @@ import sys
 
 import numpy as np
 
-from benchmarks.common import Provenance
+from benchmarks.common import Provenance, error_line
 from benchmarks.transfer import DEFAULT_METHOD as DEFAULT
 from benchmarks.zones_traces import TracesError, traces_figure, write_figure
 from examples.quadrotor_mpc import PITCH_MAX, make_system
@@ -36,7 +36,7 @@ def main(argv: list[str] | None = None) -> int:
             argv, __doc__, "quadrotor", make_system, gap=2.5, methods=[DEFAULT, "turbo_manual", "zero_shot"],
             default=DEFAULT, nrows=3, height=7.2)
     except TracesError as e:
-        print(f"quadrotor_traces: error: {e}", file=sys.stderr)
+        error_line("benchmarks.quadrotor_traces", e)
         return e.code
     rows = []
     for j, (m, (i, out, tr)) in enumerate(zip(a.methods, reruns)):

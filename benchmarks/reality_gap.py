@@ -36,8 +36,8 @@ from latentune.pipeline.evaluators import make_evaluator  # noqa: E402
 from latentune.reporting.metrics import evals_to_beat  # noqa: E402
 from latentune.study import source_best  # noqa: E402
 
-from benchmarks.common import (Provenance, add_out_arg, bench_parser, median_evals,  # noqa: E402
-                               refuse_out_of_range, write_json)
+from benchmarks.common import (Provenance, add_out_arg, bench_parser, error_line,  # noqa: E402
+                               median_evals, refuse_out_of_range, write_json)
 
 
 METHODS = ("phase3", "direct", "cma")
@@ -124,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             print(report(Path(a.report)))
         except ValueError as e:
-            print(f"reality_gap: error: {e}", file=sys.stderr)
+            error_line("benchmarks.reality_gap", e)
             return 2
         return 0
     if not a.source:

@@ -1143,6 +1143,7 @@ def parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     a = parser().parse_args(argv)
+    from benchmarks.common import error_line
     from latentune.errors import LatentuneError
 
     try:
@@ -1228,7 +1229,7 @@ def main(argv: list[str] | None = None) -> int:
         else:
             plot(a)
     except (RobotTransferError, LatentuneError, OSError) as exc:
-        print(f"robot_transfer: error: {exc}", file=sys.stderr)
+        error_line("benchmarks.robot_transfer", exc)
         return 2
     return 0
 

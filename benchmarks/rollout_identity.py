@@ -34,8 +34,8 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import (Provenance, add_out_arg, bench_parser, finish, machine,  # noqa: E402
-                               versions)
+from benchmarks.common import (Provenance, add_out_arg, bench_parser, error_line,  # noqa: E402
+                               finish, machine, versions)
 
 ROBOT_ACTOR = {"a1": "convex", "b1": "convex", "solo12": "kinodynamic"}
 DEFAULT_TASKS = "a1:trot,a1:jump,solo12:trot"
@@ -166,8 +166,9 @@ def main(argv: list[str] | None = None) -> int:
         if any(len(t) != 2 or t[0] not in ROBOT_ACTOR for t in tasks):
             raise ValueError
     except ValueError:
-        print(f"rollout_identity: error: --tasks must be robot:gait pairs with robots in "
-              f"{', '.join(ROBOT_ACTOR)}, got {a.tasks!r}", file=sys.stderr)
+        error_line("benchmarks.rollout_identity",
+                   f"--tasks must be robot:gait pairs with robots in "
+                   f"{', '.join(ROBOT_ACTOR)}, got {a.tasks!r}")
         return 2
     rows = run(tasks, a.steps, a.per_task)  # type: ignore[arg-type]
     import latentune

@@ -26,7 +26,8 @@ from latentune.threads import one_thread_env  # noqa: E402
 
 one_thread_env()
 
-from benchmarks.common import Provenance, add_out_arg, bench_parser, finish  # noqa: E402
+from benchmarks.common import (Provenance, add_out_arg, bench_parser, error_line,  # noqa: E402
+                               finish)
 from benchmarks.rollout_identity import ROBOT_ACTOR, thetas  # noqa: E402
 
 
@@ -83,8 +84,9 @@ def main(argv: list[str] | None = None) -> int:
     tasks = [tuple(t.split(":")) for t in a.tasks.split(",")]
     if any(len(t) != 2 or t[0] not in ROBOT_ACTOR for t in tasks) or a.steps < 1 \
             or a.per_task < 1 or a.top < 1:
-        print(f"rollout_profile: error: --tasks must be robot:gait pairs with robots in "
-              f"{', '.join(ROBOT_ACTOR)}; --steps, --per-task, --top >= 1", file=sys.stderr)
+        error_line("benchmarks.rollout_profile",
+                   f"--tasks must be robot:gait pairs with robots in "
+                   f"{', '.join(ROBOT_ACTOR)}; --steps, --per-task, --top >= 1")
         return 2
     profiles = [profile_task(r, g, a.steps, a.per_task, a.top) for r, g in tasks]
     rows = []

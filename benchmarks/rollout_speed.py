@@ -33,7 +33,8 @@ from latentune.threads import one_thread_env, thread_env  # noqa: E402
 
 one_thread_env()
 
-from benchmarks.common import Provenance, add_out_arg, bench_parser, finish  # noqa: E402
+from benchmarks.common import (Provenance, add_out_arg, bench_parser, error_line,  # noqa: E402
+                               finish)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -137,9 +138,10 @@ def main(argv: list[str] | None = None) -> int:
     if a.base_src is None or not (a.base_src / "latentune" / "task.py").is_file() \
             or any(len(t) != 2 or t[0] not in ROBOT_ACTOR for t in tasks) \
             or a.steps < 1 or a.rounds < 1:
-        print("rollout_speed: error: --base-src must be a src directory holding latentune/; "
-              f"--tasks robot:gait pairs with robots in {', '.join(ROBOT_ACTOR)}; --steps, "
-              "--rounds >= 1", file=sys.stderr)
+        error_line("benchmarks.rollout_speed",
+                   "--base-src must be a src directory holding latentune/; "
+                   f"--tasks robot:gait pairs with robots in {', '.join(ROBOT_ACTOR)}; --steps, "
+                   "--rounds >= 1")
         return 2
     results = [compare_task(a.base_src.resolve(), r, g, a.steps, a.rounds) for r, g in tasks]
     rows = [{"task": f"{r['robot']} {r['gait']}", "base_wall_s": r["base_wall_s"],

@@ -21,7 +21,7 @@ import sys
 
 import numpy as np
 
-from benchmarks.common import Provenance
+from benchmarks.common import Provenance, error_line
 from benchmarks.zones_traces import TracesError, method_label, traces_figure, write_figure
 from examples.servo_cascade import ERR_LIMIT, make_system
 
@@ -34,7 +34,7 @@ def main(argv: list[str] | None = None) -> int:
             methods=["transfer", "cma_source_trials", "gp", "zero_shot"],
             default="transfer", nrows=3, height=7.2)
     except TracesError as e:
-        print(f"servo_traces: error: {e}", file=sys.stderr)
+        error_line("benchmarks.servo_traces", e)
         return e.code
     tau_max = make_system(gap=a.gap).tau_max
     rows = []

@@ -45,7 +45,8 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import Provenance, add_out_arg, bench_parser, finish  # noqa: E402
+from benchmarks.common import (Provenance, add_out_arg, bench_parser, error_line,  # noqa: E402
+                               finish)
 
 RULES = ("current", "table1")
 POOLS = ("elite", "full", "latent", "global")
@@ -233,11 +234,12 @@ def main(argv: list[str] | None = None) -> int:
     try:            # the critic's own checks, before any trial
         phase3_kw = phase3_options(options)
     except UsageError as e:
-        print(f"small_theta: error: --options: {e}", file=sys.stderr)
+        error_line("benchmarks.small_theta", f"--options: {e}")
         return 2
     if a.against is not None and "current" not in a.rules:
-        print("small_theta: error: --against pairs the current rule's runs: give --rules "
-              "current", file=sys.stderr)
+        error_line("benchmarks.small_theta",
+                   "--against pairs the current rule's runs: give --rules "
+                   "current")
         return 2
     if a.against is not None:
         import json
@@ -246,13 +248,15 @@ def main(argv: list[str] | None = None) -> int:
             earlier = json.loads(a.against.read_text())
             assert isinstance(earlier, dict) and isinstance(earlier.get("runs"), list)
         except (OSError, ValueError, AssertionError) as e:
-            print(f"small_theta: error: --against {a.against}: not an output of this benchmark "
-                  f"({e.__class__.__name__})", file=sys.stderr)
+            error_line("benchmarks.small_theta",
+                       f"--against {a.against}: not an output of this benchmark "
+                       f"({e.__class__.__name__})")
             return 2
     if not all(1 <= r <= 4 for r in a.rooms) or a.phase1 < 8 or a.budget < 2 or \
             min(a.gaps) <= 0:
-        print("small_theta: error: --rooms in [1, 4] (θ below 20 gains), --phase1 >= 8, "
-              "--budget >= 2, --gaps > 0", file=sys.stderr)
+        error_line("benchmarks.small_theta",
+                   "--rooms in [1, 4] (θ below 20 gains), --phase1 >= 8, "
+                   "--budget >= 2, --gaps > 0")
         return 2
     runs, rows = [], []
     for rooms in a.rooms:
@@ -287,7 +291,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             extra["against"] = {"file": str(a.against), **against(runs, earlier)}
         except ValueError as e:
-            print(f"small_theta: error: --against: {e}", file=sys.stderr)
+            error_line("benchmarks.small_theta", f"--against: {e}")
             return 2
         print(f"against {a.against}: {extra['against']}", flush=True)
     finish(a.out, prov, {"root": str(a.root), "rooms": a.rooms, "gaps": a.gaps,

@@ -25,7 +25,8 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import Provenance, add_out_arg, bench_parser, finish  # noqa: E402
+from benchmarks.common import (Provenance, add_out_arg, bench_parser, error_line,  # noqa: E402
+                               finish)
 
 
 def strong_max(f: Callable[[np.ndarray], np.ndarray], d: int, seed: int) -> float:
@@ -98,12 +99,13 @@ def main(argv: list[str] | None = None) -> int:
         except ValueError:
             gap = -1.0
         if name not in SYSTEMS or not gap > 0:
-            print(f"transfer_acq_search: error: a target is SYSTEM:GAP with SYSTEM one of "
-                  f"{', '.join(SYSTEMS)} and GAP > 0, got {t!r}", file=sys.stderr)
+            error_line("benchmarks.transfer_acq_search",
+                       f"a target is SYSTEM:GAP with SYSTEM one of "
+                       f"{', '.join(SYSTEMS)} and GAP > 0, got {t!r}")
             return 2
         targets.append((name, gap))
     if a.every < 1:
-        print(f"transfer_acq_search: error: --every must be >= 1, got {a.every}", file=sys.stderr)
+        error_line("benchmarks.transfer_acq_search", f"--every must be >= 1, got {a.every}")
         return 2
     rows = search_rows(Path(a.root), targets, a.seeds, a.every)
     finish(a.out, prov, {"targets": a.targets, "seeds": a.seeds, "every": a.every}, rows,

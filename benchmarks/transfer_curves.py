@@ -19,7 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.common import Provenance, add_out_arg, bench_parser, finish, markdown_table
+from benchmarks.common import (Provenance, add_out_arg, bench_parser, error_line, finish,
+                               markdown_table)
 
 
 def best_so_far(run: dict) -> np.ndarray:
@@ -93,12 +94,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--at", nargs="+", type=int, default=[1, 2, 4, 10, 20, 40])
     a = ap.parse_args(argv)
     if min(a.at) < 1:
-        print("error: --at: trials count from 1", file=sys.stderr)
+        error_line("benchmarks.transfer_curves", "--at: trials count from 1")
         return 2
     try:
         rows = curves(Path(a.root), a.methods, a.seeds, a.at)
     except ValueError as e:
-        print(f"error: {e}", file=sys.stderr)
+        error_line("benchmarks.transfer_curves", e)
         return 2
     finish_ladder(a, prov, {"at": a.at}, rows)
     return 0

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.common import Provenance, bench_parser
+from benchmarks.common import Provenance, bench_parser, error_line
 from benchmarks.transfer_curves import finish_ladder, ladder_args, targets
 
 KINDS = ("design", "explore", "region")
@@ -116,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         rows = explore_stats(Path(a.root), a.methods, a.seeds)
     except ValueError as e:
-        print(f"error: {e}", file=sys.stderr)
+        error_line("benchmarks.transfer_explore_stats", e)
         return 2
     finish_ladder(a, prov, {}, rows)
     return 0

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.common import Provenance, add_out_arg, bench_parser, finish
+from benchmarks.common import Provenance, add_out_arg, bench_parser, error_line, finish
 
 
 def _spec(text: str) -> tuple[Path, str]:
@@ -48,7 +48,7 @@ def same_trials(a: dict, b: dict, rtol: float = 0.0) -> bool:
 
 def _error(msg: str) -> int:
     """One line on stderr, as :func:`benchmarks.common.cli_main` prints it; exit status 2."""
-    print(f"benchmarks.transfer_same: error: {msg}", file=sys.stderr)
+    error_line("benchmarks.transfer_same", msg)
     return 2
 
 

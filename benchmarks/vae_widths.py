@@ -30,7 +30,8 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import Provenance, add_out_arg, bench_parser, finish  # noqa: E402
+from benchmarks.common import (Provenance, add_out_arg, bench_parser, error_line,  # noqa: E402
+                               finish)
 from latentune.errors import LatentError  # noqa: E402
 from latentune.latent.vae import LatentSpace, hidden_widths  # noqa: E402
 
@@ -74,8 +75,8 @@ def main(argv: list[str] | None = None) -> int:
     add_out_arg(ap)
     a = ap.parse_args(argv)
     if min(a.dims) < 2 or a.seeds < 1 or a.n < 2 or (a.epochs is not None and a.epochs < 1):
-        print("vae_widths: error: --dims must be >= 2, --seeds >= 1, --n >= 2, --epochs >= 1",
-              file=sys.stderr)
+        error_line("benchmarks.vae_widths",
+                   "--dims must be >= 2, --seeds >= 1, --n >= 2, --epochs >= 1")
         return 2
     rows, runs = [], []
     for kind in a.sets:

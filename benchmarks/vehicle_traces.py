@@ -21,7 +21,7 @@ import sys
 
 import numpy as np
 
-from benchmarks.common import Provenance
+from benchmarks.common import Provenance, error_line
 from benchmarks.transfer import DEFAULT_METHOD as DEFAULT
 from benchmarks.zones_traces import TracesError, method_label, traces_figure, write_figure
 from examples.vehicle_lateral import LANE, make_system
@@ -35,7 +35,7 @@ def main(argv: list[str] | None = None) -> int:
             argv, __doc__, "vehicle", make_system, gap=2.0, methods=[DEFAULT, "cma_source_trials", "plain", "zero_shot"],
             default=DEFAULT, nrows=3, height=7.2)
     except TracesError as e:
-        print(f"vehicle_traces: error: {e}", file=sys.stderr)
+        error_line("benchmarks.vehicle_traces", e)
         return e.code
     rows = []
     for j, (m, (i, out, tr)) in enumerate(zip(a.methods, reruns)):

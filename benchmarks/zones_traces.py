@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.common import Provenance, add_out_arg, bench_parser, finish
+from benchmarks.common import Provenance, add_out_arg, bench_parser, error_line, finish
 from examples.thermal_zones import BAND, SETTLE, make_system
 
 
@@ -146,7 +146,7 @@ def main(argv: list[str] | None = None) -> int:
             methods=["transfer", "turbo_manual", "zero_shot"], default=None, nrows=2,
             height=5.6)
     except TracesError as e:
-        print(f"zones_traces: error: {e}", file=sys.stderr)
+        error_line("benchmarks.zones_traces", e)
         return e.code
     rows = []
     for j, (m, (i, out, tr)) in enumerate(zip(a.methods, reruns)):

@@ -18,7 +18,8 @@ def test_a_report_of_a_directory_without_outputs_is_refused(tmp_path, capsys):
     for mod, name in ((reality_gap, "reality_gap"), (handover, "handover")):
         assert mod.main(["--report", str(tmp_path)]) == 2
         err = capsys.readouterr().err.strip().splitlines()
-        assert len(err) == 1 and err[0].startswith(f"{name}: error: no {name} output"), err
+        assert len(err) == 1 and err[0].startswith(
+            f"python -m benchmarks.{name}: error: no {name} output"), err
         assert str(tmp_path) in err[0]
 
 
@@ -126,7 +127,7 @@ def test_handover_refuses_a_store_of_other_options_instead_of_reporting_it(tmp_p
         Task.rollouts = 0
         assert cli_main(lambda: handover.main(argv + extra), "benchmarks.handover") == 2
         err = capsys.readouterr().err.strip().splitlines()
-        assert len(err) == 1 and err[0].startswith("benchmarks.handover: error:"), err
+        assert len(err) == 1 and err[0].startswith("python -m benchmarks.handover: error:"), err
         assert "handover_s0" in err[0] and words in err[0], err
         assert Task.rollouts == 0
     assert handover.main(argv) == 0         # the same options: read, not re-run
@@ -149,7 +150,7 @@ def test_peers_refuses_a_variant_option_the_critic_refuses_before_any_run(tmp_pa
     assert code == 2 and out == "", out
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(
-        f"benchmarks.peers: error: --variant {variant!r}: ") and words in lines[0], err
+        f"python -m benchmarks.peers: error: --variant {variant!r}: ") and words in lines[0], err
     assert not (tmp_path / "p").exists()
 
 
@@ -204,7 +205,8 @@ def test_traces_of_a_root_or_gap_without_runs_exit_2_in_one_line(tmp_path, capsy
     """``benchmarks.buck_traces --root DIR`` (or ``--gap G``) without runs there exited 1 with
     "buck traces: error: …" (a SystemExit of the seed's choice), not 2 as the other usage
     errors; a gap the system refuses (``--gap -1 --seed 0``) was a ValueError traceback. Each
-    is now one ``<name>: error:`` line and exit 2, for every ladder's traces."""
+    is now one ``python -m benchmarks.<name>: error:`` line and exit 2, for every ladder's
+    traces."""
     import importlib
 
     mod = importlib.import_module(f"benchmarks.{name}")
@@ -212,7 +214,8 @@ def test_traces_of_a_root_or_gap_without_runs_exit_2_in_one_line(tmp_path, capsy
                         (["--root", str(tmp_path), "--gap", "-1", "--seed", "0"], "--gap: gap")):
         assert mod.main([*argv, "--png", str(tmp_path / "t.png")]) == 2
         err = capsys.readouterr().err.strip().splitlines()
-        assert len(err) == 1 and err[0].startswith(f"{name}: error:") and words in err[0], err
+        assert len(err) == 1 and words in err[0], err
+        assert err[0].startswith(f"python -m benchmarks.{name}: error:"), err
     assert not (tmp_path / "t.png").exists()
 
 
@@ -279,7 +282,7 @@ def test_an_output_path_that_cannot_be_written_is_one_line_not_a_traceback(tmp_p
         prog = mod.__name__
         assert cli_main(lambda: mod.main(argv), prog) == 2, argv
         err = capsys.readouterr().err.strip().splitlines()
-        assert err == [f"{prog}: error: {words}"], (argv, err)
+        assert err == [f"python -m {prog}: error: {words}"], (argv, err)
     from benchmarks.common import os_error_line
 
     denied = PermissionError(13, os.strerror(13), str(tmp_path / "ro" / "s.json"))
@@ -372,3 +375,21 @@ def test_every_benchmark_names_itself_as_it_is_run_in_its_usage_lines(capsys):
         with pytest.raises(SystemExit):
             mod.main(["--help"])
         assert capsys.readouterr().out.startswith(f"usage: python -m benchmarks.{name} ")
+
+
+def test_every_benchmark_error_line_names_the_command_as_it_is_run(capsys):
+    """A benchmark's own error lines named it four ways (``gap_ladder: error:``,
+    ``benchmarks.vae_kind: error:``, a bare ``error:``, and argparse's
+    ``python -m benchmarks.X: error:``); each is now :func:`benchmarks.common.error_line`, the
+    one argparse's lines have."""
+    import re
+    from pathlib import Path
+
+    from benchmarks import gap_ladder
+
+    for f in sorted((Path(__file__).parents[1] / "benchmarks").glob("*.py")):
+        if f.name != "common.py":
+            assert not re.search(r'print\(f?"[^"]*error: ', f.read_text()), f.name
+    assert gap_ladder.main(["--n", "0"]) == 2
+    assert capsys.readouterr().err == ("python -m benchmarks.gap_ladder: error: --n must be >= 1, "
+                                       "got 0\n")

@@ -209,7 +209,8 @@ def test_ladder_summary_keeps_its_rows(tmp_path):
 def test_command_line_refuses_bad_input(capsys):
     assert rt.main(["run", "--robots", "solo12", "--targets", "a1-trot-heavy"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert err == ["robot_transfer: error: target 'a1-trot-heavy' is a rung of a1, not of solo12"]
+    assert err == ["python -m benchmarks.robot_transfer: error: target 'a1-trot-heavy' is a "
+                   "rung of a1, not of solo12"]
     assert rt.main(["snapshot", "--sources", "a1-walk", "--robots", "a1"]) == 2
     assert "unknown source 'a1-walk'" in capsys.readouterr().err
     with pytest.raises(SystemExit):

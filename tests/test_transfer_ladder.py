@@ -266,8 +266,8 @@ def test_transfer_same_tells_equal_traces_from_different_ones(tmp_path, capsys) 
     assert transfer_same.main(["--a", f"{tmp_path}:a", "--b", f"{tmp_path}:missing"]) == 2
     out, err = capsys.readouterr()
     assert out == "" and err.count("\n") == 1 and err.startswith(
-        f"benchmarks.transfer_same: error: no missing.json under {tmp_path} for any of the 2 "
-        f"runs of a"), err
+        f"python -m benchmarks.transfer_same: error: no missing.json under {tmp_path} for any "
+        f"of the 2 runs of a"), err
     (tmp_path / "arm" / "gap1" / "seed1" / "b.json").unlink()   # one pair missing: differs
     assert transfer_same.main(["--a", f"{tmp_path}:a", "--b", f"{tmp_path}:b"]) == 1
     assert transfer_same.main(["--a", f"{tmp_path}:nothing", "--b", f"{tmp_path}:a"]) == 2
@@ -990,15 +990,18 @@ def test_a_run_directory_without_a_store_is_one_line_not_a_traceback(tmp_path, c
     p = subprocess.run([sys.executable, "-m", "benchmarks.rows_digest", "digest", str(tmp_path)],
                        capture_output=True, text=True, cwd=tmp_path, env=env, timeout=60)
     assert p.returncode == 2 and p.stderr.strip().splitlines() == [
-        f"benchmarks.rows_digest: error: no run store in {tmp_path} (expected run.db)"], p.stderr
+        f"python -m benchmarks.rows_digest: error: no run store in {tmp_path} "
+        "(expected run.db)"], p.stderr
     assert cli_main(lambda: vae_kind.main([str(tmp_path / "none")]), "benchmarks.vae_kind") == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert err == [f"benchmarks.vae_kind: error: run directory {tmp_path / 'none'} does not exist"]
+    assert err == [f"python -m benchmarks.vae_kind: error: run directory {tmp_path / 'none'} "
+                   "does not exist"]
     from benchmarks import rollout_identity     # a missing input file: one line, not a traceback
     a = tmp_path / "a.json"
-    assert cli_main(lambda: rollout_identity.main(["--compare", str(a), str(a)]), "x") == 2
+    assert cli_main(lambda: rollout_identity.main(["--compare", str(a), str(a)]),
+                    "benchmarks.rollout_identity") == 2
     assert capsys.readouterr().err.strip().splitlines() == [
-        f"x: error: no such file or directory: {a}"]
+        f"python -m benchmarks.rollout_identity: error: no such file or directory: {a}"]
 
 
 @pytest.mark.parametrize("argv", [["--stop", "0"], ["--stop", "100"],
