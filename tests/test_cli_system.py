@@ -102,6 +102,21 @@ def test_rollout_evaluates_the_user_system(run_cli, plugin_dir, tmp_path):
     assert code == 0 and out.startswith("closplant:make: cost 1,"), (out, err)
 
 
+def test_rollout_refuses_a_theta_file_of_another_system(run_cli, plugin_dir, tmp_path):
+    """A θ file that records another system (here the ``locked`` factory's, names in common)
+    is one line; the file of this system, or one without the record, runs."""
+    params = tmp_path / "p.json"
+    theirs = {"w0": 0.1, "w1": 0.2, "tuned_for": {"system": "closplant:locked"}}
+    params.write_text(json.dumps(theirs))
+    line = one_line_error(*run_cli("rollout", "--system", "closplant:make",
+                                   "--params", params)[::2])
+    assert line == (f"latentune: error: params file {params} holds θ tuned for the system "
+                    "closplant:locked, not the system closplant:make (delete its 'tuned_for' "
+                    "entry to use it anyway)")
+    params.write_text(json.dumps({**theirs, "tuned_for": {"system": "closplant:make"}}))
+    assert run_cli("rollout", "--system", "closplant:make", "--params", params)[0] == 0
+
+
 @pytest.mark.parametrize("bad, expect", [
     (["--seed", "3"], "--seed is for a built-in robot"),
     (["--gif", "x.gif"], "--gif is for a built-in robot"),

@@ -40,7 +40,8 @@ def test_tune_outputs(small_run, run_cli):
         np.testing.assert_allclose(st.rows(1)[0].theta, Task(steps=200).space.manual)
         assert st.rows(1)[0].cost == pytest.approx(s["manual_cost"])
     best = json.loads((small_run / "phase3_best.json").read_text())
-    assert isinstance(best, dict) and len(best) == 25
+    assert isinstance(best, dict) and len(best) == 26        # 25 weights, what they fit
+    assert best["tuned_for"] == {"robot": "a1", "gait": "trot", "actor": "convex"}
     code, out, err = run_cli("rollout", "--robot", "a1", "--task", "trot", "--steps", "200",
                              "--json", "--params", small_run / "phase1_best.json")
     assert code == 0, err

@@ -223,7 +223,8 @@ def test_tune_and_report_with_system_plugin(tmp_path, plugin_dir, cli, in_plugin
     cfg = json.loads((out / "summary.json").read_text())["config"]
     assert cfg["system"]["target"] == "myplant:make" and cfg["system"]["args"] == {"dim": 6}
     best = json.loads((out / "phase1_best.json").read_text())
-    assert sorted(best) == [f"w{i}" for i in range(6)]
+    assert sorted(best) == ["tuned_for"] + [f"w{i}" for i in range(6)]
+    assert best["tuned_for"] == {"system": "myplant:make"}
     before = rows(out)
     elsewhere = tmp_path / "elsewhere"                          # myplant is not importable here
     elsewhere.mkdir()
@@ -364,7 +365,8 @@ def test_ask_tell_a_whole_phase3_with_kills(tmp_path, plugin_dir, in_plugin_dir,
         pfile = s["file"] or str(tmp_path / f"suggestion{s['id']}.json")
         if not s["file"]:                           # the CLI writes it once it is wired
             Path(pfile).write_text(json.dumps(s["params"]))
-        assert json.loads(Path(pfile).read_text()) == s["params"]
+        assert json.loads(Path(pfile).read_text()) == \
+            {**s["params"], **({"tuned_for": {"system": "myplant:make"}} if s["file"] else {})}
         res = robot_program(pfile)
         tell = [PY, "-m", "latentune.cli", "tell", str(real), str(s["id"])]
         tell += ["--failed"] if res == "FAILED" else ["--cost", res]

@@ -272,8 +272,11 @@ def _rollout_system(args: argparse.Namespace) -> int:
         if v is not None:
             raise CLIError(f"{flag} is for a built-in robot; a --system rollout takes --params "
                            "and --json (its options are --system-arg)")
+    from latentune.pipeline.manifest import describe, tuned_for
+
     system = make_system(args)
-    theta = system.space.load(args.params) if args.params else system.space.manual
+    theta = system.space.load(args.params, tuned_for(describe(system))) if args.params \
+        else system.space.manual
     out = evaluate(system, theta)
     plugin = plugin_record(system) or {}
     res = {"system": args.system, "system_args": plugin.get("args", {}), "cost": out.cost,
@@ -982,7 +985,7 @@ def cmd_ask(args: argparse.Namespace) -> int:
                     **({} if topts is None else {"transfer_options": topts}))
             except (UsageError, StoreError, LatentError) as exc:
                 raise CLIError(_ask_flags(str(exc), args)) from None
-            write_suggestion_files(study.dir, sugg)
+            write_suggestion_files(study.dir, sugg, _tuned_for(None, None, study))
             prune_suggestion_files(study.dir, _pending_ids(study))
         _print_suggestions(sugg, args)
         work_done(args)
@@ -1159,9 +1162,22 @@ def _ask_start(start: str | None, system: Any, space: Any, study: Any) -> Any:
     from latentune.errors import ParamsError
 
     try:
-        return sp.load(start)
+        return sp.load(start, _tuned_for(system, space, study))
     except ParamsError as exc:
         raise CLIError(f"--start {start}: {exc}") from None
+
+
+def _tuned_for(system: Any, space: Any, study: Any) -> dict[str, Any] | None:
+    """What θ of an ask are tuned for: those of ``system`` (the one given), none for a
+    ``space`` given alone (trials run elsewhere), else the study's recorded system's."""
+    from latentune.pipeline.manifest import describe, tuned_for
+    from latentune.pipeline.results import study_tuned_for
+
+    if system is not None:
+        return tuned_for(describe(system))
+    if space is not None or not study.exists:
+        return None
+    return study_tuned_for(study.store)
 
 
 def cmd_tell(args: argparse.Namespace) -> int:

@@ -50,6 +50,21 @@ def _vec(name: str, v: Any, d: int, dtype: type) -> np.ndarray:
     return a
 
 
+TUNED_FOR = "tuned_for"
+"""The entry of a ``--params`` file written by latentune that records what its θ was tuned
+for: an object (:func:`tuned_for_text`), where a parameter's value is a number."""
+
+
+def tuned_for_text(record: Any) -> str:
+    """A tuned-for record as a person reads it: "b1 trot (convex)" for a built-in robot's,
+    "the system mymodule:make" for a user system's, any other as its JSON."""
+    if isinstance(record, dict) and {"robot", "gait", "actor"} <= set(record):
+        return f"{record['robot']} {record['gait']} ({record['actor']})"
+    if isinstance(record, dict) and set(record) == {"system"}:
+        return f"the system {record['system']}"
+    return json.dumps(record, sort_keys=True, default=str)
+
+
 def _short(v: Any) -> str:
     r = repr(v)
     return r if len(r) <= 40 else r[:37] + "..."
@@ -78,7 +93,9 @@ class ParameterSpace:
     (names taken as they were recorded before blank ones were refused). ``name``: what the
     space is called (e.g. the file it was read from; attribute ``name``, None by default): an
     ask/tell run's report is titled with it; it is not part of the space (:meth:`to_dict`,
-    ``==``).
+    ``==``). Attribute ``tuned_for``: what θ of this space are tuned for (a built-in task
+    sets it: robot, gait, actor), or None: :meth:`load` refuses a file that records another
+    (:data:`TUNED_FOR`); not part of the space either.
     """
 
     def __init__(self, names: Sequence[str], low: Any, high: Any, log: Any = None,
@@ -87,6 +104,7 @@ class ParameterSpace:
                                  or not name.isprintable()):
             raise UsageError(f"ParameterSpace: name must be text on one line, got {name!r:.60}")
         self.name = name
+        self.tuned_for: dict[str, Any] | None = None
         if isinstance(names, (str, bytes)) or not isinstance(names, Iterable):
             raise UsageError(f"ParameterSpace: names must be a list of d names, got {_short(names)}")
         names_t = tuple(str(n) for n in names)
@@ -252,6 +270,15 @@ class ParameterSpace:
             raise ParamsError(f"as_dict takes one θ of shape ({self.dim},), got {x.shape}")
         return {n: float(v) for n, v in zip(self.names, x)}
 
+    def as_file(self, u: np.ndarray, tuned_for: dict[str, Any] | None = None) -> dict[str, Any]:
+        """A (d,) unit-box θ as the JSON object of a ``--params`` file latentune writes: its
+        values by name (:meth:`as_dict`) and, when ``tuned_for`` is given (and no parameter
+        has that name), the record of what it was tuned for under :data:`TUNED_FOR`."""
+        out: dict[str, Any] = self.as_dict(u)
+        if tuned_for is not None and TUNED_FOR not in self.names:
+            out[TUNED_FOR] = tuned_for
+        return out
+
     def validate_unit(self, u: Any) -> np.ndarray:
         """Check a normalized θ: length d, finite, inside [0, 1] (1e-9 slack). Returns (d,) floats."""
         try:
@@ -270,9 +297,22 @@ class ParameterSpace:
             raise ParamsError(f"normalized parameter {self.names[i]} = {arr[i]:g} is outside [0, 1]")
         return np.clip(arr, 0.0, 1.0)
 
-    def parse(self, obj: Any) -> np.ndarray:
+    def parse(self, obj: Any, tuned_for: dict[str, Any] | None = None,
+              source: str = "the params") -> np.ndarray:
         """θ from a JSON value: a list of d normalized values, or an object of physical values
-        by name (missing names take the manual value). Returns the unit-box θ, validated."""
+        by name (missing names take the manual value). Returns the unit-box θ, validated.
+        An object's :data:`TUNED_FOR` record (an object) is no parameter: ParamsError (naming
+        ``source``) when it differs from ``tuned_for`` (default: the space's own
+        ``tuned_for``); an object without one is read whatever it was tuned for."""
+        if isinstance(obj, dict) and isinstance(obj.get(TUNED_FOR), dict) \
+                and TUNED_FOR not in self.names:
+            obj = dict(obj)
+            record = obj.pop(TUNED_FOR)
+            want = self.tuned_for if tuned_for is None else tuned_for
+            if want is not None and record != want:
+                raise ParamsError(f"{source} holds θ tuned for {tuned_for_text(record)}, not "
+                                  f"{tuned_for_text(want)} (delete its {TUNED_FOR!r} entry to "
+                                  "use it anyway)")
         if isinstance(obj, dict):
             unknown = [str(k) for k in obj if k not in self.names]
             if unknown:
@@ -302,8 +342,9 @@ class ParameterSpace:
             return self.validate_unit(obj)
         raise ParamsError("params must be a JSON list of normalized values or an object of physical values")
 
-    def load(self, path: str | Path) -> np.ndarray:
-        """Read a ``--params`` JSON file (see :meth:`parse`). A name given twice in one object
+    def load(self, path: str | Path, tuned_for: dict[str, Any] | None = None) -> np.ndarray:
+        """Read a ``--params`` JSON file (see :meth:`parse`; ``tuned_for``: the record a
+        file's must equal, default the space's own). A name given twice in one object
         raises :class:`ParamsError` naming it and both values (JSON alone keeps the last)."""
         p = Path(path)
         if p.is_dir():
@@ -326,7 +367,7 @@ class ParameterSpace:
             raise ParamsError(f"params file {p} is not valid JSON ({exc.msg if hasattr(exc, 'msg') else exc})") from None
         except RecursionError:
             raise ParamsError(f"params file {p} is nested too deeply to be a params file") from None
-        return self.parse(obj)
+        return self.parse(obj, tuned_for, f"params file {p}")
 
 
 def make_space(entries: Sequence[tuple[str, float, float, bool, float]]) -> ParameterSpace:

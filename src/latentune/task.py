@@ -209,6 +209,7 @@ class Task:
         self.steps = int(steps)
         self.seed = int(seed)
         self.space: ParameterSpace = self.actor_cls.space(self.spec, gait)
+        self.space.tuned_for = {"robot": self.robot_name, "gait": gait, "actor": actor}
         self._world = None
 
     # pickling: drop the PyBullet client

@@ -105,6 +105,24 @@ def describe(system: Any) -> dict[str, Any]:
     return d
 
 
+def tuned_for(desc: Any) -> dict[str, Any] | None:
+    """What θ of the system :func:`describe` described as ``desc`` are tuned for, as a
+    ``--params`` file records it (:data:`latentune.space.TUNED_FOR`): a built-in task's robot,
+    gait and actor (not its terrain, reality or engine: θ tuned for one robot may be tried
+    on another ground), a plugin's ``module:factory``, another Python system's class; None
+    for trials run elsewhere (only the space is known) or no description."""
+    if not isinstance(desc, dict):
+        return None
+    task = desc.get("task")
+    if desc.get("kind") == "task" and isinstance(task, dict):
+        return {k: task.get(k) for k in ("robot", "gait", "actor")}
+    if desc.get("kind") == "plugin" and desc.get("target"):
+        return {"system": str(desc["target"])}
+    if desc.get("kind") == "python" and desc.get("class"):
+        return {"system": str(desc["class"])}
+    return None
+
+
 def same_system(stored: dict[str, Any] | None, desc: dict[str, Any]) -> bool:
     """Whether the recorded system ``stored`` is the one ``desc`` describes: the same
     :func:`identity` (an argument given at its default value is the same plugin as one left

@@ -22,8 +22,9 @@ import numpy as np
 from latentune.constants import PHASE_NAMES, Phase, phase_name
 from latentune.checks import is_whole
 from latentune.errors import StoreError, UsageError
+from latentune.pipeline.manifest import tuned_for
 from latentune.pipeline.store import Row, RunStore
-from latentune.space import ParameterSpace
+from latentune.space import TUNED_FOR, ParameterSpace
 
 TUNING = (Phase.MANUAL, Phase.PHASE1, Phase.PHASE3, Phase.ZERO_SHOT)
 """The phases whose trials may give the θ to deploy."""
@@ -294,9 +295,11 @@ def write_best(store: RunStore, run_dir: Path, space: ParameterSpace | None,
     ``phase`` that did not fail as ``DIR/phase<p>_best.json`` (when ``phase`` is given), and
     the best over all phases as ``DIR/best.json``. A phase whose trials all failed gets no
     file (a stale one is removed, and so is ``best.json`` when no trial of any phase stands).
-    Returns the path of ``best.json``, or None."""
+    Each file records what its θ was tuned for (:func:`study_tuned_for`). Returns the path of
+    ``best.json``, or None."""
     if space is None:
         return None
+    record = study_tuned_for(store)
     if phase is not None:
         path = run_dir / f"phase{int(phase)}_best.json"
         b = best_row(store, (int(phase),))
@@ -304,7 +307,7 @@ def write_best(store: RunStore, run_dir: Path, space: ParameterSpace | None,
             path.unlink(missing_ok=True)
             store.forget_artifact(f"phase{int(phase)}_best")
         else:
-            _write_json(path, space.as_dict(b.theta))
+            _write_json(path, space.as_file(b.theta, record))
             store.add_artifact(f"phase{int(phase)}_best", path)
     b = best_row(store)
     path = run_dir / BEST_FILE
@@ -312,7 +315,7 @@ def write_best(store: RunStore, run_dir: Path, space: ParameterSpace | None,
         path.unlink(missing_ok=True)
         store.forget_artifact("best")
         return None
-    _write_json(path, space.as_dict(b.theta))
+    _write_json(path, space.as_file(b.theta, record))
     store.add_artifact("best", path)
     return path
 
@@ -331,8 +334,18 @@ def best_params(store: RunStore, run_dir: Path, space: ParameterSpace | None,
             ("its only trial failed" if n == 1 else f"all {n} trials failed") if n
             else "no trial is stored yet"))
     path = run_dir / BEST_FILE if out is None else _deploy_path(out, run_dir, space)
-    _write_json(path, space.as_dict(b.theta))
+    _write_json(path, space.as_file(b.theta, study_tuned_for(store)))
     return path, b
+
+
+def study_tuned_for(store: RunStore) -> dict[str, Any] | None:
+    """What the θ of the study in ``store`` are tuned for (its recorded system, see
+    :func:`~latentune.pipeline.manifest.tuned_for`), as its ``--params`` files record it."""
+    cfg = store.get_meta("config") or {}
+    desc = cfg.get("system")
+    if desc is None and isinstance(cfg.get("task"), dict):     # a run recorded before systems
+        desc = {"kind": "task", "task": cfg["task"]}
+    return tuned_for(desc)
 
 
 def _deploy_path(out: str | os.PathLike, run_dir: Path, space: ParameterSpace) -> Path:
@@ -349,7 +362,7 @@ def _deploy_path(out: str | os.PathLike, run_dir: Path, space: ParameterSpace) -
                          f"(e.g. {path / BEST_FILE})")
     if path.is_file() and Path(run_dir).resolve() in path.resolve().parents:
         try:
-            theta_file = set(json.loads(path.read_text())) == set(space.names)
+            theta_file = set(json.loads(path.read_text())) - {TUNED_FOR} == set(space.names)
         except (OSError, UnicodeDecodeError, ValueError, TypeError):
             theta_file = False
         if not theta_file:
