@@ -226,6 +226,9 @@ def test_bad_handover_options(capsys, tmp_path, cmd, bad, expect):
 
 ROLLOUT_ARGS = BAD_TASK_ARGS + [
     (["--params", "missing.json"], "params file not found: missing.json"),
+    (["--params", ""], "--params is empty: give a file name, or leave --params out"),
+    (["--params", " ", "--system", "x:y"],
+     "--params is empty: give a file name, or leave --params out"),
     (["--gif", "/nonexistent/dir/x.gif"], "output directory does not exist: /nonexistent/dir"),
     (["--gif", "."], ". is a directory, not a file"),
     (["--gif", "x.png"], "x.png: the file name must end in .gif"),

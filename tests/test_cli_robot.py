@@ -110,6 +110,9 @@ def test_ask_start(tmp_path, run_cli, error_line):
     bad.write_text(json.dumps({"a": 7}))
     assert "--start" in error_line(*run_cli("ask", d, "--start", bad)[::2])
     assert "not found" in error_line(*run_cli("ask", d, "--start", tmp_path / "none.json")[::2])
+    assert error_line(*run_cli("ask", d, "--start", "")[::2]) == (  # once "params file . is a
+        "latentune: error: --start is empty: give manual, scratch or a file name, or leave "
+        "--start out")                                            # directory"
     line = error_line(*run_cli("ask", tmp_path / "new", "--start", start)[::2])
     assert "the first ask needs a system or a space (--system, --robot or --space FILE)" in line
     code, out, err = run_cli("ask", tmp_path / "scratch", "--space", space, "--start", "scratch",

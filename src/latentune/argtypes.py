@@ -23,3 +23,20 @@ def run_dir(s: str) -> str:
     if not s.strip():
         raise CLIError("the run directory is empty: give a path (. for the current directory)")
     return s
+
+
+def params_file(s: str) -> str:
+    """``--params``: a θ file's name; an empty one (an unset shell variable) is refused, not
+    taken for the manual θ as leaving the flag out is."""
+    if not s.strip():
+        raise CLIError("--params is empty: give a file name, or leave --params out")
+    return s
+
+
+def start(s: str) -> str:
+    """ask's ``--start``: manual, scratch or a θ file's name; an empty one is refused (it was
+    read as the current directory)."""
+    if not s.strip():
+        raise CLIError("--start is empty: give manual, scratch or a file name, or leave "
+                       "--start out")
+    return s

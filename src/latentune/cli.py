@@ -1544,8 +1544,9 @@ def build_parser() -> argparse.ArgumentParser:
                             "run one trial of your system)")
     add_system_args(p)
     p.add_argument("--seed", type=argtypes.seed, default=None, help="terrain seed, and of a --reality's noise and pushes (default 0)")
-    p.add_argument("--params", help="JSON file: list of normalized θ or object of physical values "
-                                    "(default: the manual θ)")
+    p.add_argument("--params", type=argtypes.params_file,
+                   help="JSON file: list of normalized θ or object of physical values "
+                        "(default: the manual θ)")
     p.add_argument("--gif", help="write a GIF of the motion here")
     p.add_argument("--plot", help="write a PNG of CoM velocity and height here")
     p.add_argument("--json", action="store_true", help="print one JSON object")
@@ -1596,7 +1597,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--budget", type=int, default=None,
                    help="the trials you plan (first ask: default 200; may grow later)")
     p.add_argument("--regions", type=int, default=None, help="TuRBO-m trust regions")
-    p.add_argument("--start", default=None, metavar="manual|scratch|FILE",
+    p.add_argument("--start", default=None, type=argtypes.start,
+                   metavar="manual|scratch|FILE",
                    help="the θ the search starts from: manual (the manual θ, the default), "
                         "scratch (the critic's own initial design) or a --params file "
                         "(physical values by name, or a list of normalized θ); first ask only")
