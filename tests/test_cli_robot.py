@@ -251,6 +251,28 @@ def test_best_out_never_overwrites_a_file_of_the_run(tmp_path, run_cli, error_li
     assert run_cli("status", d)[0] == 0
 
 
+def test_best_out_never_overwrites_a_suggestion_or_a_phase_file(tmp_path, run_cli, error_line):
+    """``best --out DIR/suggestions/2.json`` wrote the best θ over pending suggestion 2's file
+    (the robot would have run it, and ``tell 2`` then refused the file as edited), and ``--out
+    DIR/phase1_best.json`` put the best over all phases under phase 1's name; both are refused,
+    the files unchanged."""
+    d = tmp_path / "robot"
+    code, out, err = run_cli("ask", d, "--space", _space_file(tmp_path), "--n", "2", "--json")
+    assert code == 0, err
+    a, b = json.loads(out)
+    assert run_cli("tell", d, a["id"], "--cost", "2")[0] == 0
+    pending = d / "suggestions" / f"{b['id']}.json"
+    before = pending.read_text()
+    line = error_line(*run_cli("best", d, "--out", pending)[::2])
+    assert line == (f"latentune: error: {pending} is the file of suggestion {b['id']}: write the "
+                    f"θ elsewhere (or to {d / 'best.json'})")
+    assert pending.read_text() == before
+    (d / "phase1_best.json").write_text(json.dumps(a["params"]))
+    line = error_line(*run_cli("best", d, "--out", d / "phase1_best.json")[::2])
+    assert "phase1_best.json is the file of phase 1's best θ: write the θ elsewhere" in line
+    assert run_cli("tell", d, b["id"], "--cost", "3")[0] == 0
+
+
 def test_best_out_to_a_directory_leaves_no_stray_file(tmp_path, run_cli, error_line):
     """``best --out SOME_DIR`` left ``SOME_DIR.tmp`` beside it (``--out /tmp``: ``/tmp.tmp``);
     now a directory is refused and nothing is left."""

@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -349,9 +350,10 @@ def study_tuned_for(store: RunStore) -> dict[str, Any] | None:
 
 
 def _deploy_path(out: str | os.PathLike, run_dir: Path, space: ParameterSpace) -> Path:
-    """``out`` as the file for the θ to deploy; UsageError for an empty name, and for a file in
+    """``out`` as the file for the θ to deploy; UsageError for an empty name, for a file in
     the run's directory that is not a θ file of this space (its store, summary, records):
-    writing would destroy it."""
+    writing would destroy it, and for a θ file the run keeps itself (a suggestion's, a
+    phase's best: :func:`_own_theta_file`): it would hold another θ than its name says."""
     from latentune.errors import UsageError
 
     if not str(out).strip():
@@ -360,6 +362,10 @@ def _deploy_path(out: str | os.PathLike, run_dir: Path, space: ParameterSpace) -
     if path.is_dir():
         raise UsageError(f"{path} is a directory: name the θ file to write "
                          f"(e.g. {path / BEST_FILE})")
+    own = _own_theta_file(path, run_dir)
+    if own is not None:
+        raise UsageError(f"{path} is the file of {own}: write the θ elsewhere (or to "
+                         f"{Path(run_dir) / BEST_FILE})")
     if path.is_file() and Path(run_dir).resolve() in path.resolve().parents:
         try:
             theta_file = set(json.loads(path.read_text())) - {TUNED_FOR} == set(space.names)
@@ -369,6 +375,18 @@ def _deploy_path(out: str | os.PathLike, run_dir: Path, space: ParameterSpace) -
             raise UsageError(f"{path} is a file of the run {run_dir}, not a θ file: write the "
                              f"θ elsewhere (or to {Path(run_dir) / BEST_FILE})")
     return path
+
+
+def _own_theta_file(path: Path, run_dir: Path) -> str | None:
+    """What θ file of its own the run keeps at ``path`` ("suggestion 7" for
+    ``DIR/suggestions/7.json``, "phase 1's best θ" for ``DIR/phase1_best.json``), or None."""
+    where, run = path.resolve(), Path(run_dir).resolve()
+    if where.parent == run / "suggestions" and where.suffix == ".json" and where.stem.isdigit():
+        return f"suggestion {int(where.stem)}"
+    m = re.fullmatch(r"phase(\d+)_best\.json", where.name)
+    if where.parent == run and m:
+        return f"phase {int(m[1])}'s best θ"
+    return None
 
 
 def _write_json(path: Path, value: Any) -> None:
