@@ -523,15 +523,13 @@ def test_status_names_phases_and_counts_the_zero_shot_trial(tmp_path, src30):
         assert s["phases"]["phase 3"] == {"n": 2, "failed": 1, "pending": 0, "best": 0.5,
                                           "best_idx": 0, "best_trial": sugg[1].id}
         assert s["best"]["phase"] == "zero-shot" and s["best"]["trial"] == sugg[0].id
-        record = {"tuned_for": {"system": "latentune.system.FunctionSystem"}}
-        assert json.loads(Path(s["best"]["params_file"]).read_text()) == \
-            {**sugg[0].params, **record}
+        assert json.loads(Path(s["best"]["params_file"]).read_text()) == sugg[0].params
         assert st.best().phase == Phase.ZERO_SHOT
         # the files of the phase run: no phase4_best.json named after the store's code
         assert sorted(f.name for f in st.dir.glob("*best.json")) == ["best.json",
                                                                       "phase3_best.json"]
         p = st.best_params(tmp_path / "deploy.json")
-        assert json.loads(p.read_text()) == {**sugg[0].params, **record}
+        assert json.loads(p.read_text()) == sugg[0].params
         nxt = st.ask()[0]
         assert st.status()["phases"]["phase 3"]["pending"] == 1 and nxt.phase_name == "phase 3"
         write_suggestion_files(st.dir, [nxt])

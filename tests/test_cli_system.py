@@ -117,6 +117,22 @@ def test_rollout_refuses_a_theta_file_of_another_system(run_cli, plugin_dir, tmp
     assert run_cli("rollout", "--system", "closplant:make", "--params", params)[0] == 0
 
 
+def test_rollout_runs_the_best_of_a_python_study_of_the_same_system(run_cli, plugin_dir,
+                                                                   tmp_path):
+    """A study run from Python on ``closplant.make()`` (a FunctionSystem) recorded its class
+    as what its θ were tuned for, and ``rollout --system closplant:make`` refused its
+    best.json as another system's; such a file records nothing and runs."""
+    import closplant
+
+    with lt.Study(tmp_path / "s") as st:
+        s = st.ask(1, system=closplant.make(), method="random")[0]
+        st.tell(s.id, 1.0)
+        path = st.best_params()
+    assert "tuned_for" not in json.loads(path.read_text())
+    code, out, err = run_cli("rollout", "--system", "closplant:make", "--params", path)
+    assert code == 0, err
+
+
 @pytest.mark.parametrize("bad, expect", [
     (["--seed", "3"], "--seed is for a built-in robot"),
     (["--gif", "x.gif"], "--gif is for a built-in robot"),

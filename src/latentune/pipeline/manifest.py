@@ -109,8 +109,10 @@ def tuned_for(desc: Any) -> dict[str, Any] | None:
     """What θ of the system :func:`describe` described as ``desc`` are tuned for, as a
     ``--params`` file records it (:data:`latentune.space.TUNED_FOR`): a built-in task's robot,
     gait and actor (not its terrain, reality or engine: θ tuned for one robot may be tried
-    on another ground), a plugin's ``module:factory``, another Python system's class; None
-    for trials run elsewhere (only the space is known) or no description."""
+    on another ground), a plugin's ``module:factory``; None for another Python object (its
+    class, often a wrapper such as FunctionSystem, is no name a command could check: the
+    same system given as ``--system module:factory`` must not be refused), for trials run
+    elsewhere (only the space is known) and without a description."""
     if not isinstance(desc, dict):
         return None
     task = desc.get("task")
@@ -118,8 +120,6 @@ def tuned_for(desc: Any) -> dict[str, Any] | None:
         return {k: task.get(k) for k in ("robot", "gait", "actor")}
     if desc.get("kind") == "plugin" and desc.get("target"):
         return {"system": str(desc["target"])}
-    if desc.get("kind") == "python" and desc.get("class"):
-        return {"system": str(desc["class"])}
     return None
 
 
