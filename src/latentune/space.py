@@ -314,8 +314,9 @@ class ParameterSpace:
                                   f"{tuned_for_text(want)} (delete its {TUNED_FOR!r} entry to "
                                   "use it anyway)")
         if isinstance(obj, dict):
-            unknown = [str(k) for k in obj if k not in self.names]
-            if unknown:
+            unknown = [str(k) if str(k).strip() == str(k) and str(k).isprintable()
+                       else repr(str(k)) for k in obj if k not in self.names]
+            if unknown:                 # a space, tab or line break in a name shown as such
                 more = f" and {len(unknown) - 5} more" if len(unknown) > 5 else ""
                 mine = ", ".join(self.names[:3]) + (f", …, {self.dim} in all"
                                                      if self.dim > 3 else "")
