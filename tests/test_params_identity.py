@@ -72,3 +72,17 @@ def test_the_api_refuses_it_too(b1_best):
     theta = b1.space.load(b1_best)
     assert b1.space.as_dict(theta) == pytest.approx(
         {k: v for k, v in json.loads(b1_best.read_text()).items() if k != "tuned_for"})
+
+
+def test_a_studys_stored_space_refuses_another_robots_file(b1_best, tmp_path):
+    """``Study(dir).space()`` (the space of the stored run, as a script reads θ files for it)
+    took a file tuned for another robot; it knows the study's robot and refuses it."""
+    import latentune as lt
+
+    a1 = tmp_path / "a1.json"
+    a1.write_text(json.dumps({**json.loads(b1_best.read_text()),
+                              "tuned_for": {"robot": "a1", "gait": "trot", "actor": "convex"}}))
+    space = lt.Study(b1_best.parent).space()
+    with pytest.raises(ParamsError, match="tuned for a1 trot \\(convex\\), not b1 trot"):
+        space.load(a1)
+    space.load(b1_best)

@@ -351,9 +351,15 @@ class Manifest:
         return desc
 
     def space(self) -> ParameterSpace | None:
-        """The study's parameter space (stored with its first phase or ask), or None."""
+        """The study's parameter space (stored with its first phase or ask), or None; its
+        ``tuned_for`` is the recorded system's (:func:`tuned_for`), so that it refuses a θ
+        file tuned for another."""
         sp = self.config().get("space")
-        return None if sp is None else ParameterSpace.from_dict(sp, stored=True)
+        if sp is None:
+            return None
+        space = ParameterSpace.from_dict(sp, stored=True)
+        space.tuned_for = tuned_for(self._stored())
+        return space
 
     def bind_space(self, space: ParameterSpace) -> None:
         """Record the parameter space of trials run elsewhere, or check it is the stored one
