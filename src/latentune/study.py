@@ -342,8 +342,8 @@ class Study:
 
     def best_params(self, out: str | os.PathLike | None = None) -> Path:
         """Write the θ to deploy (the best trial over all phases that did not fail, physical
-        values by name, a ``--params`` file) to ``out`` (default ``DIR/best.json``); return
-        the path. StoreError if there is no store or no trial succeeded."""
+        values by name and what they are tuned for, a ``--params`` file) to ``out`` (default
+        ``DIR/best.json``); return the path. StoreError without a store or a trial that stood."""
         return results.best_params(self.store, self.dir, self.space(), out)[0]
 
     def status(self) -> dict[str, Any]:

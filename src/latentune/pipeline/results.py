@@ -324,7 +324,8 @@ def write_best(store: RunStore, run_dir: Path, space: ParameterSpace | None,
 def best_params(store: RunStore, run_dir: Path, space: ParameterSpace | None,
                 out: str | os.PathLike | None = None) -> tuple[Path, Row]:
     """Write the θ to deploy (the best trial over all phases that did not fail, physical
-    values by name) to ``out`` (default ``DIR/best.json``); return (path, its row).
+    values by name, and what they are tuned for: :func:`study_tuned_for`) to ``out``
+    (default ``DIR/best.json``); return (path, its row).
     StoreError if no trial succeeded or the study has no parameter space."""
     if space is None:
         raise StoreError(f"{run_dir}: no parameter space stored (no trial yet)")
