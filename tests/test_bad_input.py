@@ -313,6 +313,20 @@ def test_rollout_rejects_bad_params_files(capsys, tmp_path, content, expect):
     assert_one_line(capsys, "rollout", "--steps", "10", "--params", f, expect=expect)
 
 
+def test_rollout_reads_a_params_file_with_a_byte_order_mark(capsys, tmp_path):
+    """A params file saved as UTF-8 with a byte-order mark (Windows Notepad, PowerShell's
+    ``Out-File -Encoding utf8``) was 'not valid JSON (Unexpected UTF-8 BOM ...)'; it is read
+    as the same file without the mark."""
+    from latentune.task import Task
+
+    f = tmp_path / "p.json"
+    f.write_bytes(b"\xef\xbb\xbf" + json.dumps({"Q_roll": 1.0}).encode())
+    theta = Task(steps=10).space.load(f)
+    assert Task(steps=10).space.as_dict(theta)["Q_roll"] == pytest.approx(1.0)
+    code, _, err = run_cli(capsys, "rollout", "--steps", "10", "--params", str(f))
+    assert code == 0, err
+
+
 @pytest.mark.parametrize("bad, expect", [
     (["--robot", "go2"], "unknown robot 'go2' for the paper's studies"),
     (["--scale", "0"], "--scale must be a finite number > 0, got 0"),

@@ -346,7 +346,8 @@ class ParameterSpace:
     def load(self, path: str | Path, tuned_for: dict[str, Any] | None = None) -> np.ndarray:
         """Read a ``--params`` JSON file (see :meth:`parse`; ``tuned_for``: the record a
         file's must equal, default the space's own). A name given twice in one object
-        raises :class:`ParamsError` naming it and both values (JSON alone keeps the last)."""
+        raises :class:`ParamsError` naming it and both values (JSON alone keeps the last).
+        The file is UTF-8, with or without a byte-order mark."""
         p = Path(path)
         if p.is_dir():
             raise ParamsError(f"params file {p} is a directory, not a file")
@@ -363,7 +364,7 @@ class ParameterSpace:
             return out
 
         try:
-            obj = json.loads(p.read_text(), object_pairs_hook=unique)
+            obj = json.loads(p.read_text(encoding="utf-8-sig"), object_pairs_hook=unique)
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise ParamsError(f"params file {p} is not valid JSON ({exc.msg if hasattr(exc, 'msg') else exc})") from None
         except RecursionError:
