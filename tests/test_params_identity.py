@@ -1,7 +1,8 @@
-"""A θ file latentune writes (``best.json``, ``phase<p>_best.json``, a suggestion's file) names
+"""A best-θ file latentune writes (``best.json``, ``phase<p>_best.json``) names
 the robot, gait and controller (or the user system) it was tuned for, and a command that knows
 its own refuses a file of another: B1's best θ is not silently run on A1. A file without that
-record (written by hand, or by an older latentune) is read as before."""
+record (written by hand, by an older latentune, or a suggestion's file, which holds the values by
+name only) is read as before."""
 from __future__ import annotations
 
 import contextlib

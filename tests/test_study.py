@@ -365,8 +365,7 @@ def test_ask_tell_a_whole_phase3_with_kills(tmp_path, plugin_dir, in_plugin_dir,
         pfile = s["file"] or str(tmp_path / f"suggestion{s['id']}.json")
         if not s["file"]:                           # the CLI writes it once it is wired
             Path(pfile).write_text(json.dumps(s["params"]))
-        assert json.loads(Path(pfile).read_text()) == \
-            {**s["params"], **({"tuned_for": {"system": "myplant:make"}} if s["file"] else {})}
+        assert json.loads(Path(pfile).read_text()) == s["params"]   # values by name only
         res = robot_program(pfile)
         tell = [PY, "-m", "latentune.cli", "tell", str(real), str(s["id"])]
         tell += ["--failed"] if res == "FAILED" else ["--cost", res]

@@ -985,7 +985,7 @@ def cmd_ask(args: argparse.Namespace) -> int:
                     **({} if topts is None else {"transfer_options": topts}))
             except (UsageError, StoreError, LatentError) as exc:
                 raise CLIError(_ask_flags(str(exc), args)) from None
-            write_suggestion_files(study.dir, sugg, _tuned_for(None, None, study))
+            write_suggestion_files(study.dir, sugg)
             prune_suggestion_files(study.dir, _pending_ids(study))
         _print_suggestions(sugg, args)
         work_done(args)

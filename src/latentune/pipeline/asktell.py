@@ -72,7 +72,7 @@ from latentune.pipeline.phases import (ask_batch, replay, state_key, stored_fall
                                        warn_if_failing)
 from latentune.pipeline.results import fall_budget, phase_name, write_best
 from latentune.pipeline.store import Row, RunStore, critics_told
-from latentune.space import TUNED_FOR, ParameterSpace
+from latentune.space import ParameterSpace
 from latentune.system import EvaluationError, Outcome, as_outcome
 from latentune.wording import counted
 
@@ -144,18 +144,17 @@ class Suggestion:
                 {"max_fall_prob": self.fall_risk[0], "bound": self.fall_risk[1]}}
 
 
-def write_suggestion_files(run_dir: str | os.PathLike, suggestions: list[Suggestion],
-                           tuned_for: dict[str, Any] | None = None) -> None:
+def write_suggestion_files(run_dir: str | os.PathLike, suggestions: list[Suggestion]) -> None:
     """Write each suggestion's ``--params`` file ``DIR/suggestions/<id>.json`` (physical values
-    by name, and ``tuned_for``, what they are tuned for, when given: see
-    :meth:`~latentune.space.ParameterSpace.as_file`) and set its ``path``."""
+    by name and nothing else: the file a robot program reads, which may pass every entry on to
+    its controller; ``best.json`` records what its θ are tuned for, a suggestion does not) and set
+    its ``path``."""
     d = Path(run_dir) / "suggestions"
     d.mkdir(parents=True, exist_ok=True)
     for s in suggestions:
         path = d / f"{s.id}.json"
         tmp = path.with_suffix(".tmp")
-        record = {} if tuned_for is None or TUNED_FOR in s.params else {TUNED_FOR: tuned_for}
-        tmp.write_text(json.dumps({**s.params, **record}, indent=1))
+        tmp.write_text(json.dumps(s.params, indent=1))
         os.replace(tmp, path)
         s.path = str(path)
 
