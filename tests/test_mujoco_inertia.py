@@ -129,3 +129,41 @@ def test_the_correction_names_the_specs_robot_not_the_urdfs(tmp_path, caplog):
         mujoco_urdf_text(urdf, "anymal_c")
     (rec,) = [r for r in caplog.records if "'foot'" in r.getMessage()]
     assert rec.getMessage().startswith("robot 'anymal_c', link 'foot'")
+
+
+@pytest.mark.parametrize("mass, inertia", [(0.0, 0.0), (0.0, 0.001), (0.1, 0.0)])
+def test_a_moving_link_without_mass_or_inertia_gets_a_negligible_one(tmp_path, caplog, mass, inertia):
+    """MuJoCo refuses a moving body of zero mass or inertia ('mass and inertia of moving bodies
+    must be larger than mjMINVAL'; PyBullet runs it): it gets the prepared URDF's negligible
+    1e-6 kg / 1e-9 kg·m² where it lacks them, with one warning per link."""
+    import mujoco
+    urdf = _urdf(tmp_path, (inertia, 0, 0, inertia, 0, inertia), robot="zero", foot_mass=mass)
+    with pytest.raises(ValueError, match="mjMINVAL"):
+        mujoco.MjSpec.from_string(open(urdf).read()).compile()
+    with caplog.at_level(logging.INFO, logger="latentune.sim.mujoco_world"):
+        text = mujoco_urdf_text(urdf, f"zero_{mass}_{inertia}")
+        mujoco_urdf_text(urdf, f"zero_{mass}_{inertia}")
+    m = _compile(text)
+    foot = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "foot")
+    assert m.body_mass[foot] == pytest.approx(mass or 1e-6)
+    assert m.body_inertia[foot] == pytest.approx([inertia or 1e-9] * 3)
+    (rec,) = [r for r in caplog.records if "'foot'" in r.getMessage()]
+    assert rec.levelname == "WARNING" and "moving" in rec.getMessage()
+
+
+def test_a_massless_link_welded_to_a_massive_one_is_left_alone(tmp_path, caplog):
+    """MuJoCo counts the bodies fixed to a moving one with it: a massless link on a revolute
+    joint carrying a massive link on a fixed joint compiles as written."""
+    path = tmp_path / "welded.urdf"
+    path.write_text(
+        '<robot name="welded">' + _LINK.format(name="base", mass=2.0, i=(0.02, 0, 0, 0.03, 0, 0.04))
+        + _LINK.format(name="hip", mass=0.0, i=(0,) * 6)
+        + _LINK.format(name="thigh", mass=1.0, i=(0.01, 0, 0, 0.01, 0, 0.01))
+        + '<joint name="j" type="revolute"><parent link="base"/><child link="hip"/>'
+          '<axis xyz="0 1 0"/><limit effort="10" lower="-1" upper="1" velocity="10"/></joint>'
+          '<joint name="f" type="fixed"><parent link="hip"/><child link="thigh"/></joint></robot>')
+    with caplog.at_level(logging.INFO, logger="latentune.sim.mujoco_world"):
+        text = mujoco_urdf_text(str(path))
+    assert not caplog.records
+    assert _inertia(text, "hip") == {k: 0.0 for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
+    _compile(text)

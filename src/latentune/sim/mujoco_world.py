@@ -5,7 +5,8 @@ spec's prepared URDF (:func:`~latentune.robots.urdf.prepared_urdf`: a massless r
 primitive collisions where the spec asks for them), with the reality's body perturbations
 (:func:`~latentune.sim.reality.perturbed_urdf`), loaded by MuJoCo's URDF importer with
 visual geoms discarded and fixed links kept as their own bodies (so the feet keep their names);
-a link inertia MuJoCo refuses is corrected and logged (:func:`mujoco_inertia`), and a link
+a link inertia MuJoCo refuses is corrected and logged (:func:`mujoco_inertia`), as is a moving
+link without mass or inertia (negligible ones, :data:`MOVING_MASS`), and a link
 without ``<inertial>`` is massless (MuJoCo's default would give it its collision shapes' mass).
 It gets a free joint for the base, a torque actuator (motor, gear 1, no control limits) per
 joint in the spec's order, gravity 9.81 m/s² and a 1 ms step; the ground is a plane or the
@@ -187,16 +188,94 @@ def _correct_inertias(robot: ET.Element, name: str) -> None:
                            100 * change)
 
 
+MOVING_MIN_VALUE = 1e-15
+"""Least mass [kg] and principal moment [kg·m²] MuJoCo takes of a moving body with the bodies
+fixed to it (its ``mjMINVAL``: below it, 'mass and inertia of moving bodies must be larger than
+mjMINVAL')."""
+MOVING_MASS, MOVING_INERTIA = 1e-6, 1e-9
+"""The mass [kg] and the moment about each axis [kg·m²] a moving link without them gets for
+MuJoCo: negligible, as the prepared URDF's for a link without ``<inertial>``
+(:data:`~latentune.robots.urdf.NO_INERTIAL`)."""
+
+
+def _bound_moving_links(robot: ET.Element, name: str) -> None:
+    """Give each moving link (the root, or the child of a joint that is not fixed) whose mass or
+    smallest principal moment, with those of the links fixed to it, is below
+    :data:`MOVING_MIN_VALUE` the missing :data:`MOVING_MASS` or :data:`MOVING_INERTIA` (added
+    to each principal moment), in place; a WARNING once per robot ``name`` and link."""
+    keys = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+    links = {link.get("name", ""): link for link in robot.findall("link")}
+    fixed: dict[str, list[str]] = {}
+    parent: dict[str, str] = {}
+    for j in robot.findall("joint"):
+        p, c = j.find("parent"), j.find("child")
+        if p is None or c is None:
+            continue
+        parent[c.get("link", "")] = j.get("type", "")
+        if j.get("type") == "fixed":
+            fixed.setdefault(p.get("link", ""), []).append(c.get("link", ""))
+
+    def mass_inertia(link: ET.Element) -> tuple[float, np.ndarray]:
+        mass, inertia = link.find("inertial/mass"), link.find("inertial/inertia")
+        m = float(mass.get("value", "0")) if mass is not None else 0.0
+        v = tuple(float(inertia.get(k, "0")) for k in keys) if inertia is not None else (0.0,) * 6
+        return m, _sym(v)
+
+    for lname, link in links.items():
+        if parent.get(lname) == "fixed":
+            continue
+        group, todo = [], [lname]
+        while todo:
+            n = todo.pop()
+            if n in links:
+                group.append(mass_inertia(links[n]))
+            todo.extend(fixed.get(n, []))
+        light = sum(m for m, _ in group) < MOVING_MIN_VALUE
+        flat = sum(float(np.linalg.eigvalsh(i)[0]) for _, i in group) < MOVING_MIN_VALUE
+        if not (light or flat):
+            continue
+        m, inertia = mass_inertia(link)
+        inertial = link.find("inertial")
+        if inertial is None:
+            inertial = ET.SubElement(link, "inertial")
+        mel = inertial.find("mass")
+        if mel is None:
+            mel = ET.SubElement(inertial, "mass")
+        iel = inertial.find("inertia")
+        if iel is None:
+            iel = ET.SubElement(inertial, "inertia")
+        new_m = max(m, MOVING_MASS) if light else m
+        new_i = inertia + np.eye(3) * max(MOVING_INERTIA - float(np.linalg.eigvalsh(inertia)[0]), 0.0) \
+            if flat else inertia
+        mel.set("value", repr(new_m))
+        for k, (a, b) in zip(keys, ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))):
+            iel.set(k, repr(float(new_i[a, b])))
+        said = (name, lname)
+        if said in _inertia_said:
+            continue
+        _inertia_said.add(said)
+        moments = ", ".join(f"{x:.3g}" for x in np.linalg.eigvalsh(inertia))
+        after = ", ".join(f"{x:.3g}" for x in np.linalg.eigvalsh(new_i))
+        logger.warning("robot %r, link %r: MuJoCo refuses a moving link without %s (%g kg, "
+                       "principal moments %s kg·m², nor any from the links fixed to it) and gets %g kg "
+                       "and %s kg·m² instead", name, lname,
+                       "mass or inertia" if light and flat else "mass" if light else "inertia",
+                       m, moments, new_m, after)
+
+
 def mujoco_urdf_text(urdf: str, name: str | None = None) -> str:
     """The URDF text MuJoCo's importer loads: the file with a ``<mujoco><compiler>`` element
     (mesh directory = the URDF's, visual geoms discarded, static bodies not fused, inertias
     balanced, a link without ``<inertial>`` massless as the URDF means it, not given its collision
     shapes' mass, angles in radians), and the inertias MuJoCo refuses corrected
-    (:func:`mujoco_inertia`, each correction logged with the robot ``name``, default the
+    (:func:`mujoco_inertia`; a moving link without mass or inertia given negligible ones,
+    :func:`_bound_moving_links`; each correction logged with the robot ``name``, default the
     URDF's ``<robot name>``)."""
     src = Path(urdf)
     robot = ET.fromstring(src.read_text())
-    _correct_inertias(robot, robot.get("name", "") if name is None else name)
+    name = robot.get("name", "") if name is None else name
+    _correct_inertias(robot, name)
+    _bound_moving_links(robot, name)
     for el in robot.findall("mujoco"):
         robot.remove(el)
     ext = ET.Element("mujoco")
