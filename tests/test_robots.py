@@ -227,6 +227,14 @@ def test_invalid_yaml_fields(tmp_path, text, message):
     ('ixx="0.01683993"', 'ixx="inf"', "link 'trunk': inertia must be finite numbers"),
     # a root of mass 0 is fixed in space by PyBullet: every rollout stood still and counted as stable
     ('<mass value="4.713"/>', '<mass value="0"/>', "the root link 'trunk' has mass 0 .* fixed in space"),
+    # the URDF format (urdfdom, which pinocchio reads) requires all six: PyBullet took a missing
+    # product as 0, MuJoCo stopped ('required attribute missing'), pinocchio printed a parse error
+    # per link and the MPC's singular matrix ended the rollout in a traceback
+    (' ixy="8.3902e-05" ixz="0.000597679"', '',
+     r"link 'trunk': <inertia> lacks ixy, ixz \(the URDF format requires all six of ixx, ixy, ixz, "
+     r"iyy, iyz, izz; write 0 for a product of inertia that is zero\)"),
+    ('ixx="0.01683993"', 'ixx="heavy"', "link 'trunk': inertia ixx is not a number: 'heavy'"),
+    ('<mass value="4.713"/>', '<mass value="4.7 kg"/>', "link 'trunk': mass is not a number: '4.7 kg'"),
 ])
 def test_impossible_urdf_mass_or_inertia_is_refused(tmp_path, old, new, message):
     """Such a URDF loaded: a negative mass made every MPC QP infeasible, a NaN one every MPC

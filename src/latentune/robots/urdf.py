@@ -203,13 +203,23 @@ def _floats(text: str | None, n: int, what: str) -> tuple[float, ...]:
     return vals
 
 
+INERTIA_KEYS = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+"""The attributes of a URDF ``<inertia>``, all six required by the format (urdfdom)."""
+
+
 def _check_inertia(el: ET.Element | None, link: str) -> None:
-    """Raise ValueError unless the ``<inertia>`` element (if any) is finite with moments
-    ``ixx``, ``iyy``, ``izz`` >= 0 (up to rounding; the products of inertia are not checked further: real URDFs
-    carry rounded ones)."""
+    """Raise ValueError unless the ``<inertia>`` element (if any) has all of :data:`INERTIA_KEYS`
+    (PyBullet would take a missing one as 0, MuJoCo and pinocchio refuse it), as finite numbers,
+    with moments ``ixx``, ``iyy``, ``izz`` >= 0 (up to rounding; the products of inertia are not
+    checked further: real URDFs carry rounded ones)."""
     if el is None:
         return
-    v = {k: float(el.get(k, "0")) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
+    missing = [k for k in INERTIA_KEYS if el.get(k) is None]
+    if missing:
+        raise ValueError(f"link {link!r}: <inertia> lacks {', '.join(missing)} (the URDF format "
+                         f"requires all six of {', '.join(INERTIA_KEYS)}; write 0 for a product "
+                         "of inertia that is zero)")
+    v = {k: _number(el.get(k, ""), f"link {link!r}: inertia {k}") for k in INERTIA_KEYS}
     if not all(math.isfinite(x) for x in v.values()):
         raise ValueError(f"link {link!r}: inertia must be finite numbers, got "
                          + ", ".join(f"{k}={x:g}" for k, x in v.items() if not math.isfinite(x)))
@@ -217,6 +227,14 @@ def _check_inertia(el: ET.Element | None, link: str) -> None:
     if negative:
         raise ValueError(f"link {link!r}: inertia moments ixx, iyy, izz must be >= 0 [kg·m²], "
                          f"got {', '.join(negative)}")
+
+
+def _number(text: str, what: str) -> float:
+    """``float(text)``, or a ValueError that says ``what`` is not a number."""
+    try:
+        return float(text)
+    except ValueError:
+        raise ValueError(f"{what} is not a number: {text!r}") from None
 
 
 def _opt_float(el: ET.Element | None, key: str) -> float | None:
@@ -230,7 +248,8 @@ def read_urdf(path: str | os.PathLike) -> UrdfTree:
     Raises:
         RobotSpecError: one line naming the file: unreadable, empty, not XML, no ``<robot>``,
             no links or joints, a joint naming an undefined link, not one tree, a link's mass
-            negative or not finite, an inertia not finite or with a negative moment.
+            negative or not finite, an inertia lacking one of its six attributes, not finite or
+            with a negative moment.
     """
     p = Path(path)
     try:
@@ -265,7 +284,7 @@ def _read_urdf(path: str, size: int, mtime_ns: int) -> UrdfTree:
             if name in links:
                 raise ValueError(f"link {name!r} is defined twice")
             mass_el = el.find("inertial/mass")
-            mass = None if mass_el is None else float(mass_el.get("value", "nan"))
+            mass = None if mass_el is None else _number(mass_el.get("value", "nan"), f"link {name!r}: mass")
             if mass is not None and not (math.isfinite(mass) and mass >= 0):
                 raise ValueError(f"link {name!r}: mass must be a finite number >= 0 [kg], "
                                  f"got {mass_el.get('value')}")
