@@ -581,3 +581,23 @@ def test_a_run_with_a_reality_file_resumed_without_it_names_the_file(tmp_path, r
     (work / "mine.yaml").write_text("torque_scale: 0.8\n")
     line = error_line(*run_cli("phase1", *common, "--phase1-evals", 5, "--resume")[::2])
     assert "given None)" in line and "pass --reality" not in line, line
+
+
+def test_a_custom_robot_named_like_a_built_in_one_gets_its_own_world():
+    """A spec named 'b1' that is not the built-in B1 (robot init on example-robot-data's
+    b1-z1.urdf named it so) had the same world key: the paper report's world cache (and
+    use_world) would have run it in the built-in B1's world."""
+    import dataclasses
+    import types
+
+    from latentune.robots import get_robot
+
+    b1 = get_robot("b1")
+    other = dataclasses.replace(b1, kp=tuple(2 * k for k in b1.kp))
+    builtin, custom = Task("b1"), Task(robot=other)
+    assert custom.robot_name == "b1" and builtin.world_key() != custom.world_key()
+    assert Task(robot=dataclasses.replace(other)).world_key() == custom.world_key()
+    world = types.SimpleNamespace(spec=b1, terrain="flat", engine="pybullet", reality=builtin.reality)
+    with pytest.raises(UsageError, match="same robot"):
+        custom.use_world(world)
+    builtin.use_world(world)

@@ -314,3 +314,18 @@ def test_body_contact_names_the_link(monkeypatch):
     monkeypatch.setattr(type(world), "body_ground_contact", lambda self: "FR_lower")
     res = task.rollout(task.space.manual)
     assert res.fell and res.fall_step == 10 and res.reason == "body touched the ground: link FR_lower"
+
+
+def test_init_spec_does_not_name_a_robot_like_a_built_in_one(tmp_path):
+    """example-robot-data's b1-z1.urdf (a B1 with an arm) is <robot name="b1_description">, and
+    A1's URDF gives 'a1': the spec was named like the built-in robot without a word."""
+    copy = tmp_path / "b1-z1.urdf"
+    copy.write_text(A1_URDF.read_text())          # <robot name="a1_description">
+    (tmp_path / "meshes").symlink_to(A1_URDF.parent / "meshes")
+    for urdf, expected in ((A1_URDF, "my_a1"), (copy, "b1-z1")):
+        with pytest.warns(RobotSpecWarning, match=r"the URDF's robot name 'a1' is the built-in "
+                                                   rf"robot's: the spec is named '{expected}'"):
+            d = yaml.safe_load(init_spec(urdf))
+        assert d["name"] == expected
+    with pytest.warns(RobotSpecWarning, match="'a1' is the name of a built-in robot"):
+        assert yaml.safe_load(init_spec(A1_URDF, name="a1"))["name"] == "a1"   # as asked

@@ -266,18 +266,19 @@ class Task:
         return Outcome(res.cost, res.fell, res.info(self.steps), res.wall_s)
 
     def world_key(self) -> tuple:
-        """What a world depends on: robot, terrain, seed, engine and reality (not the gait):
-        tasks with equal keys can share one world (:meth:`use_world`)."""
+        """What a world depends on: robot (every field of its spec, not only its name: a custom
+        robot may be named like a built-in one), terrain, seed, engine and reality (not the
+        gait): tasks with equal keys can share one world (:meth:`use_world`)."""
         import json
 
-        return (self.spec.name, self.terrain, self.seed, self.engine,
-                json.dumps(self.reality.to_dict(), sort_keys=True))
+        return (json.dumps(self.spec.to_dict(), sort_keys=True, default=str), self.terrain,
+                self.seed, self.engine, json.dumps(self.reality.to_dict(), sort_keys=True))
 
     def use_world(self, world: Any) -> None:
         """Run this task's rollouts in ``world``, a World of the same robot, terrain and seed
         built by another task (a world does not depend on the gait; building one takes seconds).
         Raises UsageError for a world of another robot, terrain, engine or reality."""
-        if (world.spec.name, world.terrain) != (self.spec.name, self.terrain):
+        if (world.spec, world.terrain) != (self.spec, self.terrain):   # the spec, not its name
             raise UsageError("use_world needs a world of the same robot and terrain")
         if (getattr(world, "engine", "pybullet"), getattr(world, "reality", self.reality)) \
                 != (self.engine, self.reality):

@@ -26,16 +26,18 @@ import math
 import os
 import re
 import struct
+import warnings
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from latentune.constants import G
-from latentune.errors import RobotSpecError
+from latentune.errors import RobotSpecError, RobotSpecWarning
 from latentune.robots.check import CLEARANCE, check_spec, round_sig
 from latentune.robots.inspection import (LEG_SIGNS, LEGS, PLACEHOLDER_EFFORT, joint_position,
                                          link_position, pin_model, placements, usable_collision)
+from latentune.robots.spec import BUILTIN
 from latentune.robots.urdf import ERD, UrdfTree, package_dir, read_urdf, resolve_mesh
 
 CROUCH = 0.75
@@ -182,12 +184,31 @@ def _list(vals, digits: int = 4) -> str:
     return "[" + ", ".join(_num(v, digits) for v in vals) + "]"
 
 
+def _urdf_robot_name(urdf_name: str, path: Path) -> str:
+    """The spec name from the URDF's ``<robot name>`` (without ``_description``; else the file
+    stem); one that is a built-in robot's (:data:`~latentune.robots.spec.BUILTIN`) becomes the
+    file stem when that is none, else ``my_<name>``, with a warning."""
+    def clean(s: str) -> str:
+        return re.sub(r"[^A-Za-z0-9_.-]+", "_", s)
+
+    robot = clean(urdf_name.removesuffix("_description")) or clean(path.stem)
+    if robot not in BUILTIN:
+        return robot
+    stem = clean(path.stem)
+    other = stem if stem and stem not in BUILTIN else f"my_{robot}"
+    warnings.warn(f"the URDF's robot name {robot!r} is the built-in robot's: the spec is named "
+                  f"{other!r} (give --name for another)", RobotSpecWarning, stacklevel=3)
+    return other
+
+
 def init_spec(urdf_path: str | os.PathLike, name: str | None = None) -> str:
     """YAML text of a starting spec for a quadruped URDF (see the module docstring).
 
     Args:
         urdf_path: the URDF file.
-        name: the robot's name (default: the URDF's ``<robot name>`` without ``_description``).
+        name: the robot's name (default: the URDF's ``<robot name>`` without ``_description``,
+            another when that is a built-in robot's, with a warning; a built-in robot's name
+            given here is kept, with a warning).
 
     Returns:
         The spec as YAML with comments; it loads (:func:`~latentune.robots.spec.load_spec_file`)
@@ -202,6 +223,10 @@ def init_spec(urdf_path: str | os.PathLike, name: str | None = None) -> str:
                              "the URDF's)")
     if not str(urdf_path).strip():
         raise RobotSpecError("the URDF path is empty: give the quadruped's .urdf file")
+    if name is not None and name in BUILTIN:
+        warnings.warn(f"{name!r} is the name of a built-in robot: runs and reports show this "
+                      "robot under the same name (choose another --name to tell them apart)",
+                      RobotSpecWarning, stacklevel=2)
     path = Path(urdf_path).expanduser().resolve()
     if path.is_dir():
         raise RobotSpecError(f"URDF {path}: is a directory, not a URDF file")
@@ -282,7 +307,7 @@ def init_spec(urdf_path: str | os.PathLike, name: str | None = None) -> str:
     kd = [round_sig(0.01 * kp, 2), round_sig(0.02 * kp, 2), round_sig(0.02 * kp, 2)]
     period = round(0.6 * math.sqrt(L), 3)
     step = round(0.2 * L, 3)
-    robot = name or re.sub(r"[^A-Za-z0-9_.-]+", "_", tree.name.removesuffix("_description")) or path.stem
+    robot = name or _urdf_robot_name(tree.name, path)
 
     # ---- collisions: the URDF's, unless a foot has none PyBullet uses or another link of the
     # leg reaches the ground at the stance; then a base box and foot spheres only
