@@ -601,3 +601,40 @@ def test_a_custom_robot_named_like_a_built_in_one_gets_its_own_world():
     with pytest.raises(UsageError, match="same robot"):
         custom.use_world(world)
     builtin.use_world(world)
+
+
+@engines
+def test_a_joint_the_spec_does_not_drive_is_held_as_in_the_model(engine, tmp_path):
+    """A URDF joint outside ``joint_names`` (ANYmal's Kinova arm, a spinning lidar) stays at its
+    zero position as in the MPC's model: PyBullet's default motors held it, while MuJoCo let it
+    swing free (the arm's third joint ended at 4.2 rad of a trot)."""
+    import dataclasses
+    from pathlib import Path
+
+    src = Path(A1.urdf)
+    arm = ('<link name="arm"><inertial><origin xyz="0.15 0 0"/><mass value="0.5"/><inertia '
+           'ixx="0.001" ixy="0" ixz="0" iyy="0.001" iyz="0" izz="0.001"/></inertial></link>'
+           '<joint name="arm_joint" type="revolute"><parent link="trunk"/><child link="arm"/>'
+           '<origin xyz="0 0 0.1"/><axis xyz="0 1 0"/><limit effort="5" lower="-3" upper="3" '
+           'velocity="10"/></joint></robot>')
+    (tmp_path / "a1_arm.urdf").write_text(src.read_text().replace("</robot>", arm))
+    (tmp_path / "meshes").symlink_to(src.parent / "meshes")
+    spec = dataclasses.replace(A1, name="a1_arm", urdf=str(tmp_path / "a1_arm.urdf"))
+    w = make_world(spec, "flat", 0, engine=engine)
+    w.reset()
+    for _ in range(200):
+        w.apply(np.zeros(12))
+        w.step()
+    if engine == "mujoco":
+        import mujoco
+        m, d = w.mjmodel, w._data
+        assert mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, "arm_joint") == -1
+        trunk, link = (mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, b) for b in ("trunk", "arm"))
+        rel = d.xmat[trunk].reshape(3, 3).T @ d.xmat[link].reshape(3, 3)
+    else:
+        j = next(j for j in range(p.getNumJoints(w.robot, physicsClientId=w.cid))
+                 if p.getJointInfo(w.robot, j, physicsClientId=w.cid)[1] == b"arm_joint")
+        angle = p.getJointState(w.robot, j, physicsClientId=w.cid)[0]
+        rel = np.array([[math.cos(angle), 0, math.sin(angle)], [0, 1, 0],
+                        [-math.sin(angle), 0, math.cos(angle)]])
+    assert rel == pytest.approx(np.eye(3), abs=1e-3)

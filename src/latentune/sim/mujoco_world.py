@@ -9,7 +9,9 @@ a link inertia MuJoCo refuses is corrected and logged (:func:`mujoco_inertia`), 
 link without mass or inertia (negligible ones, :data:`MOVING_MASS`), and a link
 without ``<inertial>`` is massless (MuJoCo's default would give it its collision shapes' mass).
 It gets a free joint for the base, a torque actuator (motor, gear 1, no control limits) per
-joint in the spec's order, gravity 9.81 m/s² and a 1 ms step; the ground is a plane or the
+joint in the spec's order (a URDF joint outside the spec's, e.g. an arm's, is made fixed: its
+link stays at the joint's zero position, as PyBullet's default motors hold it and the MPC's
+model has it), gravity 9.81 m/s² and a 1 ms step; the ground is a plane or the
 same Perlin hills as PyBullet (a MuJoCo heightfield of the same 100 × 100 heights, 0.05 m
 apart). The robot's geoms collide with the ground only (PyBullet does not collide a robot with
 itself either). Contacts use MuJoCo's soft model with a 0.005 s time constant and damping
@@ -29,6 +31,7 @@ import math
 import os
 import warnings
 import xml.etree.ElementTree as ET
+from collections.abc import Collection
 from pathlib import Path
 
 import numpy as np
@@ -263,16 +266,23 @@ def _bound_moving_links(robot: ET.Element, name: str) -> None:
                        m, moments, new_m, after)
 
 
-def mujoco_urdf_text(urdf: str, name: str | None = None) -> str:
+def mujoco_urdf_text(urdf: str, name: str | None = None,
+                     driven: Collection[str] | None = None) -> str:
     """The URDF text MuJoCo's importer loads: the file with a ``<mujoco><compiler>`` element
     (mesh directory = the URDF's, visual geoms discarded, static bodies not fused, inertias
     balanced, a link without ``<inertial>`` massless as the URDF means it, not given its collision
     shapes' mass, angles in radians), and the inertias MuJoCo refuses corrected
     (:func:`mujoco_inertia`; a moving link without mass or inertia given negligible ones,
     :func:`_bound_moving_links`; each correction logged with the robot ``name``, default the
-    URDF's ``<robot name>``)."""
+    URDF's ``<robot name>``). With ``driven`` (the spec's joint names), every other joint is
+    made fixed: its link stays at the joint's zero position, as PyBullet's default motors hold
+    it and the MPC's model has it (MuJoCo would let an arm's joints swing free)."""
     src = Path(urdf)
     robot = ET.fromstring(src.read_text())
+    if driven is not None:
+        for j in robot.findall("joint"):
+            if j.get("type") != "fixed" and j.get("name") not in driven:
+                j.set("type", "fixed")
     name = robot.get("name", "") if name is None else name
     _correct_inertias(robot, name)
     _bound_moving_links(robot, name)
@@ -324,7 +334,7 @@ class MujocoWorld(WorldBase):
         mujoco, spec, real = self.mj, self.spec, self.reality
         urdf = perturbed_urdf(self.model.urdf, real)
         try:
-            ms = mujoco.MjSpec.from_string(mujoco_urdf_text(urdf, spec.name))
+            ms = mujoco.MjSpec.from_string(mujoco_urdf_text(urdf, spec.name, spec.joint_names))
         except ValueError as exc:
             raise UsageError(f"MuJoCo cannot load the URDF of {spec.name} ({urdf}): "
                              f"{str(exc).splitlines()[0]}") from None
