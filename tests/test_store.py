@@ -114,6 +114,22 @@ def test_store_in_a_read_only_directory_is_read_and_refuses_writes(tmp_path):
         assert sorted(p.name for p in d.iterdir()) == ["run.db"]
 
 
+def test_report_in_a_read_only_directory_is_one_line(tmp_path, run_cli, error_line):
+    """``report`` on a run on read-only media ended in a traceback (PermissionError writing
+    ``best_so_far.png``): the report is written into the run, so it says in one line that the
+    run cannot be written and what to do, before writing anything; ``status`` still reads it."""
+    d = tmp_path / "ro"
+    with RunStore(d, create=True) as st:
+        st.add(1, 0, np.zeros(3), cost=1.0)
+    with _read_only_dir(d):
+        for argv in (["report", d], ["report", d, "--no-sim"]):
+            line = error_line(*run_cli(*argv)[::2])
+            assert line == (f"latentune: error: {d} cannot be written (read-only): copy the run "
+                            "to a writable directory and use the copy")
+        assert run_cli("status", d)[0] == 0
+    assert sorted(p.name for p in d.iterdir()) == ["run.db"]
+
+
 def test_a_read_only_store_file_in_a_writable_directory_says_so(tmp_path, run_cli, error_line):
     """A run.db made read-only (chmod a-w, an archive's file) in a writable directory was opened
     for writing: ``report`` and ``ask`` failed with SQLite's "run store …: attempt to write a

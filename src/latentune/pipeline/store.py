@@ -497,17 +497,23 @@ class RunStore:
         except sqlite3.IntegrityError:
             raise StoreError(f"evaluation {idx} of phase {phase} is already stored") from None
 
+    def check_writable(self) -> None:
+        """StoreError, naming what cannot be written and what to do, when the store was opened
+        read-only (its directory or its file cannot be written); nothing otherwise."""
+        if not self.read_only:
+            return
+        if not os.access(self.dir, os.W_OK):
+            raise StoreError(f"{self.dir} cannot be written (read-only): copy the run to a "
+                             "writable directory and use the copy")
+        raise StoreError(f"{self.path} cannot be written (read-only): make it writable, or "
+                         "copy the run to a writable directory")
+
     @contextmanager
     def _write(self, trials: bool = False) -> Iterator[None]:
         """One write transaction (BEGIN IMMEDIATE … COMMIT); a full disk or a locked database
         becomes a StoreError with the store untouched. ``trials``: an ask/tell write (upgrades
         the trials table to leases first)."""
-        if self.read_only:
-            if not os.access(self.dir, os.W_OK):
-                raise StoreError(f"{self.dir} cannot be written (read-only): copy the run to a "
-                                 "writable directory and use the copy")
-            raise StoreError(f"{self.path} cannot be written (read-only): make it writable, or "
-                             "copy the run to a writable directory")
+        self.check_writable()
         try:
             self.con.execute("BEGIN IMMEDIATE")
         except sqlite3.OperationalError as exc:

@@ -477,12 +477,14 @@ def make_report(store: Any, system: Any = None, simulate: bool = True, quiet: bo
     """Write ``DIR/report.md``, ``DIR/best_so_far.png``, ``DIR/summary.json`` and (``simulate``
     and a system with ``rollout(theta, record=True)``: ``system``, else the stored config's
     task) ``DIR/com_velocity.png`` (else an earlier report's is removed); return the comparison
-    table (Markdown).
+    table (Markdown). A run that cannot be written (read-only media) is a StoreError before
+    anything is written.
 
     ``quiet``: no progress messages on stderr.
     """
     from latentune.reporting.plots import plot_best_so_far, plot_rollouts
 
+    store.check_writable()
     cfg = store.get_meta("config") or {}
     title = _title(cfg)
     out = store.dir
