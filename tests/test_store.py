@@ -114,6 +114,26 @@ def test_store_in_a_read_only_directory_is_read_and_refuses_writes(tmp_path):
         assert sorted(p.name for p in d.iterdir()) == ["run.db"]
 
 
+@pytest.mark.parametrize("key, value", [("config", [1]), ("config", "phase1"),
+                                        ("wall", [3.0]), ("artifacts", 7)])
+@pytest.mark.parametrize("cmd", ["report", "status", "best"])
+def test_a_meta_entry_that_is_not_a_json_object_is_one_line(tmp_path, run_cli, error_line,
+                                                            key, value, cmd):
+    """A run store whose ``config``, ``wall`` or ``artifacts`` entry is valid JSON but not an
+    object (another tool's or another layout's store, a hand edit) ended ``report``, ``status``
+    and ``best`` in a traceback ("'list' object has no attribute 'get'"): opening it says in
+    one line which entry is wrong, and the store is left as it was."""
+    d = tmp_path / "run"
+    with RunStore(d, create=True) as st:
+        st.add(1, 0, np.zeros(3), cost=1.0)
+        st.set_meta(key, value)
+    raw = (d / "run.db").read_bytes()
+    line = error_line(*run_cli(cmd, d)[::2])
+    assert line == (f"latentune: error: run store {d / 'run.db'}: meta entry {key!r} is not a "
+                    f"JSON object (got {type(value).__name__})")
+    assert (d / "run.db").read_bytes() == raw
+
+
 def test_report_in_a_read_only_directory_is_one_line(tmp_path, run_cli, error_line):
     """``report`` on a run on read-only media ended in a traceback (PermissionError writing
     ``best_so_far.png``): the report is written into the run, so it says in one line that the
