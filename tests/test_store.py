@@ -134,6 +134,20 @@ def test_a_meta_entry_that_is_not_a_json_object_is_one_line(tmp_path, run_cli, e
     assert (d / "run.db").read_bytes() == raw
 
 
+def test_best_of_a_store_with_trials_and_no_space_does_not_say_no_trial(tmp_path, run_cli,
+                                                                        error_line):
+    """``best`` on a run store that holds trials but no parameter space in its record (a store
+    of another layout) said "no parameter space stored (no trial yet)", though ``status``
+    lists its trials: it says the record has no space, so the θ cannot be named."""
+    d = tmp_path / "run"
+    with RunStore(d, create=True) as st:
+        st.add(1, 0, np.zeros(3), cost=1.0)
+    line = error_line(*run_cli("best", d)[::2])
+    assert line == (f"latentune: error: {d}: no parameter space stored, though it holds 1 "
+                    "trial (a store of another layout?): its θ cannot be named")
+    assert not (d / "best.json").exists()
+
+
 def test_report_in_a_read_only_directory_is_one_line(tmp_path, run_cli, error_line):
     """``report`` on a run on read-only media ended in a traceback (PermissionError writing
     ``best_so_far.png``): the report is written into the run, so it says in one line that the

@@ -26,6 +26,7 @@ from latentune.errors import StoreError, UsageError
 from latentune.pipeline.manifest import tuned_for
 from latentune.pipeline.store import Row, RunStore
 from latentune.space import TUNED_FOR, ParameterSpace
+from latentune.wording import counted
 
 TUNING = (Phase.MANUAL, Phase.PHASE1, Phase.PHASE3, Phase.ZERO_SHOT)
 """The phases whose trials may give the θ to deploy."""
@@ -326,12 +327,15 @@ def best_params(store: RunStore, run_dir: Path, space: ParameterSpace | None,
     """Write the θ to deploy (the best trial over all phases that did not fail, physical
     values by name, and what they are tuned for: :func:`study_tuned_for`) to ``out``
     (default ``DIR/best.json``); return (path, its row).
-    StoreError if no trial succeeded or the study has no parameter space."""
+    StoreError if no trial succeeded or the study has no parameter space (none stored yet, or
+    a record without one beside stored trials)."""
+    n = sum(store.count(ph) for ph in TUNING)
     if space is None:
-        raise StoreError(f"{run_dir}: no parameter space stored (no trial yet)")
+        raise StoreError(f"{run_dir}: no parameter space stored" + (
+            f", though it holds {counted(n, 'trial')} (a store of another layout?): its θ "
+            "cannot be named" if n else " (no trial yet)"))
     b = best_row(store)
     if b is None:
-        n = sum(store.count(ph) for ph in TUNING)
         raise StoreError(f"{run_dir}: no θ to deploy: " + (
             ("its only trial failed" if n == 1 else f"all {n} trials failed") if n
             else "no trial is stored yet"))
