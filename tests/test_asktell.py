@@ -1017,6 +1017,17 @@ def test_status_says_no_trial_told_yet_while_every_suggestion_is_out(run_cli, tm
     assert "1 trial, 1 failed, 1 pending; no trial without a fall" in out
 
 
+def test_status_of_a_run_without_trials_says_so(run_cli, tmp_path):
+    """A run stopped before its first trial (killed while the first ran, or every suggestion
+    released) printed only "pending suggestions: 0", not what the run holds: it says no trial
+    is stored yet."""
+    d = tmp_path / "s"
+    assert run_cli("ask", d, "--system", "examples.lqr_chain:make_system")[0] == 0
+    assert run_cli("release", d, "1")[0] == 0
+    code, out, _ = run_cli("status", d)
+    assert code == 0 and out.splitlines() == ["no trial stored yet", "pending suggestions: 0"]
+
+
 def test_report_says_what_the_tables_do_not_show(run_cli, tmp_path):
     """report.md of a run under way said nothing of the trials still out, of the budget not
     reached, or of amended results: each is a line under the table, and a finished run has

@@ -1296,6 +1296,8 @@ def cmd_status(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(s))
         return 0
+    if not s["phases"]:
+        print("no trial stored yet")
     for name, p in s["phases"].items():
         best = ("no trial told yet" if p["n"] == 0 else "no trial without a fall") \
             if p["best"] is None else (
