@@ -1240,6 +1240,29 @@ def test_tell_refuses_a_suggestion_file_edited_by_hand(run_cli, tmp_path, error_
     assert run_cli("tell", d, "2", "--cost", "1.0")[0] == 0
 
 
+def test_commands_suggested_for_a_directory_with_spaces_are_quoted(run_cli, tmp_path,
+                                                                    error_line):
+    """``status`` ("write it with: latentune best runs/my run") and ``tell`` on an edited
+    suggestion file ("latentune ask runs/my run", "latentune release runs/my run 1") printed
+    a run directory with a space unquoted, so the command pasted into a shell named another
+    directory; they quote it, as the report's resume hint does."""
+    import shlex
+
+    d = tmp_path / "my run é"
+    q = shlex.quote(str(d))
+    assert run_cli("ask", d, "--system", "examples.lqr_chain:make_system", "--n", "2")[0] == 0
+    f = d / "suggestions" / "1.json"
+    params = json.loads(f.read_text())
+    name = next(iter(params))
+    f.write_text(json.dumps({**params, name: params[name] * 0.5 + 0.01}))
+    line = error_line(*run_cli("tell", d, "1", "--cost", "1.0")[::2])
+    assert f"`latentune ask {q}`" in line and line.endswith(f"latentune release {q} 1")
+    assert run_cli("tell", d, "2", "--cost", "1.0")[0] == 0
+    (d / "best.json").unlink()                  # status then says how to write it
+    out = run_cli("status", d)[1]
+    assert out.splitlines()[-1].endswith(f"; write it with: latentune best {q}"), out
+
+
 def test_ask_says_when_the_fall_model_rates_a_suggestion_above_its_screen(run_cli, tmp_path,
                                                                           src30):
     """The transfer critic's design ask after the zero-shot θ fell hands out the source's

@@ -453,12 +453,13 @@ def _check_stored_system(study: Any, args: argparse.Namespace) -> None:
                        f"{target}{' ' + given if given else ''}")
     if kind == "external":
         raise CLIError(f"{study.dir} holds trials run elsewhere (ask --space): no system here "
-                       f"runs its trials; go on with latentune ask {study.dir}, or use it as "
-                       f"the source of a phase 3 in another directory (--vae {study.dir})")
+                       f"runs its trials; go on with latentune ask {shlex.quote(str(study.dir))}"
+                       ", or use it as the source of a phase 3 in another directory (--vae "
+                       f"{shlex.quote(str(study.dir))})")
     if kind == "optuna":
         raise CLIError(f"{study.dir} holds an imported Optuna study (import-optuna): no system "
                        "here runs its trials; use it as the source of a phase 3 in another "
-                       f"directory (--vae {study.dir}, or LatentSampler)")
+                       f"directory (--vae {shlex.quote(str(study.dir))}, or LatentSampler)")
     if kind == "python":
         raise CLIError(f"{study.dir} holds a run of the Python system {desc.get('class')} "
                        "(made through the API); the command line cannot rebuild it: continue "
@@ -1111,7 +1112,7 @@ def _ask_flags(msg: str, args: argparse.Namespace) -> str:
                           f"{shlex.join(['latentune', 'train-vae', '--out', str(where)])})")
     msg = re.sub(r"^latent: ", lambda m: f"{ASK_FLAGS['latent']}: ", msg)
     msg = msg.replace("with a larger budget", "with a larger --budget").replace(
-        "the result (best_params())", f"the result (latentune best {where})")
+        "the result (best_params())", f"the result (latentune best {shlex.quote(str(where))})")
     msg = re.sub(r"was run with latent-source = 'self', not '(.*)'$",  # its own latent space
                  r"was run in its own latent space (without --vae), not with --vae \1", msg)
     return stored_flags(msg)
@@ -1238,12 +1239,13 @@ def _check_suggestion_file(study: Any, trial_id: int, args: argparse.Namespace) 
     if what is not None:
         f = Path(study.dir) / "suggestions" / f"{trial_id}.json"
         asker = trial[0].asker
-        again = f"latentune ask {args.dir}" + (
+        again = f"latentune ask {shlex.quote(str(args.dir))}" + (
             "" if asker in (None, DEFAULT_ASKER) else f" --asker {shlex.quote(asker)}")
         raise CLIError(f"{f} is not suggestion {trial_id}'s θ any more ({what}): its result "
                        f"would be stored for the suggested θ. If the robot ran the suggested "
                        f"θ, `{again}` writes the file again, then tell; if it ran the edited "
-                       f"one, that is no suggestion: latentune release {args.dir} {trial_id}")
+                       f"one, that is no suggestion: latentune release "
+                       f"{shlex.quote(str(args.dir))} {trial_id}")
 
 
 def _pending_ids(study: Any) -> list[int]:
@@ -1345,7 +1347,7 @@ def cmd_status(args: argparse.Namespace) -> int:
         print(f"best: {b['cost']:.6g} ({b['phase']}, evaluation {b['idx']}"
               + (f", suggestion {b['trial']}" if b.get("trial") is not None else "") + ")"
               + (f"; its θ: {b['params_file']}" if b.get("params_file") else
-                 f"; write it with: latentune best {args.dir}"))
+                 f"; write it with: latentune best {shlex.quote(str(args.dir))}"))
     return 0
 
 
