@@ -122,6 +122,33 @@ def test_report_of_a_paper_directory_refuses_system(tmp_path: Path, run_cli, err
     assert not (tmp_path / "report.md").exists()
 
 
+def test_paper_commands_quote_a_directory_with_a_space(tmp_path: Path, run_cli):
+    """A paper run in ``papers/my run`` recorded ``--out papers/my run`` in paper.json's
+    command, and its report.md and paper_summary.json named ``latentune paper --robot a1
+    --out papers/my run --report-only`` and ``latentune report papers/my run``: pasted into a
+    shell, those named another directory. The directory is quoted for a shell."""
+    import shlex
+
+    from latentune.experiments.paper import PaperOptions, command_line
+
+    out = tmp_path / "my run é"
+    q = shlex.quote(str(out))
+    assert f" --out {q} " in command_line(PaperOptions(out=str(out)))
+    out.mkdir()
+    b = budgets(1e-6)
+    (out / "paper.json").write_text(json.dumps({
+        "format": "latentune-paper", "robot": "a1", "actor": "convex", "steps": 60, "seed": 0,
+        "v_des": 0.5, "workers": 1, "budgets": b, "command": "latentune paper", "seeds": 1,
+        "vae_epochs": 100, "studies": {}, "invocations": [], "wall_s_total": 1.0}))
+    code, _, err = run_cli("report", out, "--no-sim")
+    assert code == 0, err
+    md = (out / "report.md").read_text()
+    assert (f"`latentune paper --robot a1 --out {q} --report-only` (or `latentune report "
+            f"{q}`)") in md, md[:2000]
+    summary = json.loads((out / "paper_summary.json").read_text())
+    assert summary["report_command"] == f"latentune paper --robot a1 --out {q} --report-only"
+
+
 @pytest.mark.parametrize("simulate, gifs", [(False, True), (True, False)])
 def test_a_report_without_gifs_removes_an_earlier_reports(tmp_path: Path, simulate: bool,
                                                           gifs: bool):

@@ -76,6 +76,7 @@ import json
 import logging
 import math
 import os
+import shlex
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -447,9 +448,10 @@ def validate(opts: PaperOptions) -> dict[str, Any]:
 
 
 def command_line(opts: PaperOptions, report_only: bool = False) -> str:
-    """The ``latentune paper`` command that reproduces a run (recorded in paper.json)."""
+    """The ``latentune paper`` command that reproduces a run (recorded in paper.json); the
+    output directory quoted for a shell where it needs it."""
     parts = ["latentune paper", f"--robot {opts.robot}", f"--scale {opts.scale:g}",
-             f"--out {opts.out}", f"--workers {opts.workers}", f"--seed {opts.seed}",
+             f"--out {shlex.quote(str(opts.out))}", f"--workers {opts.workers}", f"--seed {opts.seed}",
              f"--steps {opts.steps}"]
     if opts.phase1 is not None:
         parts.append(f"--phase1-evals {opts.phase1}")

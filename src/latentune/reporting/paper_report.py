@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import shlex
 import time
 from pathlib import Path
 from typing import Any, Callable
@@ -626,7 +627,8 @@ def summary_json(nums: dict[str, Any], claims: list[Claim], fig: dict[str, Any])
     meta, walls = nums["meta"], _walls(nums)
     return {"robot": nums["robot"], "actor": meta.get("actor"), "budgets": nums["budgets"],
             "command": meta.get("command"), "report_command":
-                f"latentune paper --robot {nums['robot']} --out {nums['root']} --report-only",
+                f"latentune paper --robot {nums['robot']} --out "
+                f"{shlex.quote(str(nums['root']))} --report-only",
             "steps": meta.get("steps"), "seed": meta.get("seed"),
             "table": nums["table"], "transfer": nums["transfer"],
             "preservation": nums["preservation"], "baselines": nums["baselines"],
@@ -644,6 +646,7 @@ def _pv(v: Any) -> str:
 
 def _md_header(nums: dict[str, Any]) -> list[str]:
     meta, b, root, robot = nums["meta"], nums["budgets"], nums["root"], nums["robot"]
+    q = shlex.quote(str(root))                  # the directory as a shell command names it
     inv = meta.get("invocations", [])
     wall_studies = float(sum(sum(w.values()) for w in _walls(nums).values()))
     over = [k for k, v in b.get("overridden", {}).items() if v]
@@ -657,8 +660,8 @@ def _md_header(nums: dict[str, Any]) -> list[str]:
         f"seed {meta.get('seed')}, {meta.get('workers')} process workers.", "",
         f"Produced by: `{meta.get('command')}`  ",
         f"Every number and figure below is regenerated from the stored runs "
-        f"(`{root}/<study>/run.db`) by: `latentune paper --robot {robot} --out {root} "
-        f"--report-only` (or `latentune report {root}`).",
+        f"(`{root}/<study>/run.db`) by: `latentune paper --robot {robot} --out {q} "
+        f"--report-only` (or `latentune report {q}`).",
         f"Wall time: {fmt(meta.get('wall_s_total'), 0)} s for the `paper` command(s) "
         f"({len(inv)} invocation(s), excluding this report's re-simulations); "
         f"{wall_studies:.0f} s inside the studies' phases (sum of the stores' wall records).",
