@@ -2055,6 +2055,26 @@ def test_an_ask_tell_report_takes_the_manual_theta_from_phase_1s_first_trial(run
         assert "manual tuned" not in table
 
 
+def test_an_ask_tell_report_finds_the_manual_theta_told_after_other_trials(run_cli, tmp_path):
+    """With suggestions run in parallel, the manual θ (the first suggestion) told after the
+    others is not phase 1's trial 0: the report dropped its manual row and said "evals to
+    beat manual" "–", and summary.json manual_cost null, as if the manual θ had never run.
+    The manual trial is the first suggestion's, wherever its result was stored."""
+    sp = tmp_path / "S.yaml"
+    sp.write_text(SPACE_YAML)
+    d = tmp_path / "run"
+    assert run_cli("ask", d, "--space", sp, "--n", "3", "--budget", "3")[0] == 0
+    for i, c in ((2, "0.5"), (3, "2.0"), (1, "1.0")):       # the manual θ's result comes last
+        assert run_cli("tell", d, str(i), "--cost", c)[0] == 0
+    code, table, err = run_cli("report", d, "--no-sim")
+    assert code == 0, err
+    s = json.loads((d / "summary.json").read_text())
+    assert s["manual_cost"] == 1.0 and s["manual_fell"] is False
+    assert s["phase1_evals_to_beat_manual"] == 1
+    assert "| manual tuned | 1.000 | 1 | 1/1 | – |" in table
+    assert "| phase 1 (θ, TuRBO-m) | 0.500 | 3 | 3/3 | 1 |" in table
+
+
 def test_the_report_of_an_ask_space_run_is_titled_with_its_space_file(run_cli, tmp_path):
     """The report of a run asked with `--space S.yaml` was titled "user system": it is titled
     with the space file's name, kept from the first ask."""

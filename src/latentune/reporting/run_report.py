@@ -139,8 +139,10 @@ def _paper_numbers(config: dict[str, Any]) -> dict[str, Any] | None:
 
 def manual_rows(store: Any) -> list:
     """The trials of the manual θ: the stored manual rows (phase 0); in an ask/tell phase 1,
-    which stores no separate manual trial, its first trial (row 0) when it ran exactly the
-    space's manual θ (the first suggestion of ``start="manual"``); else []."""
+    which stores no separate manual trial, the trial of its first suggestion (the lowest
+    suggestion id told, wherever its result was stored: suggestions run in parallel are told
+    in any order) when it ran exactly the space's manual θ (the first suggestion of
+    ``start="manual"``); else []."""
     rows = store.rows(Phase.MANUAL)
     cfg = store.get_meta("config") or {}
     if rows or (cfg.get("asktell") or {}).get("phase") != Phase.PHASE1 or not cfg.get("space"):
@@ -148,9 +150,11 @@ def manual_rows(store: Any) -> list:
     from latentune.space import ParameterSpace
 
     manual = ParameterSpace.from_dict(cfg["space"], stored=True).manual
-    first = [r for r in store.rows(Phase.PHASE1) if r.idx == 0]
-    return first if first and np.array_equal(np.asarray(first[0].theta, dtype=float),
-                                              manual) else []
+    rows = store.rows(Phase.PHASE1)
+    if not rows:
+        return []
+    first = min(rows, key=lambda r: (r.info.get("trial", math.inf), r.idx))
+    return [first] if np.array_equal(np.asarray(first.theta, dtype=float), manual) else []
 
 
 def manual_target(rows: list) -> float | None:
