@@ -148,6 +148,46 @@ def test_best_of_a_store_with_trials_and_no_space_does_not_say_no_trial(tmp_path
     assert not (d / "best.json").exists()
 
 
+@pytest.mark.parametrize("op", ["add", "forget"])
+def test_an_artifact_recorded_by_another_process_meanwhile_is_kept(tmp_path, op):
+    """``report`` records its figures in the run's artifacts while a phase run records its own
+    (the latent space, the best θ files): each read the record, then wrote it back with its
+    entry, so an entry written by the other between the two was lost (a ``vae`` lost this way
+    leaves phase 3 without its latent space). The read and the write are one transaction."""
+    import threading
+
+    d = tmp_path / "run"
+    with RunStore(d, create=True) as st:
+        st.add_artifact("old", d / "old.png")
+    a = RunStore(d)
+
+    def other_writes() -> None:
+        with RunStore(d) as b:
+            b.add_artifact("vae", d / "vae")
+
+    other = threading.Thread(target=other_writes)
+    read = a.get_meta
+
+    def read_then_other_writes(key, default=None):
+        value = read(key, default)
+        if key == "artifacts" and not other.is_alive() and other.ident is None:
+            other.start()                       # the other process writes meanwhile ...
+            other.join(timeout=0.5)             # ... or waits for this write to end
+        return value
+
+    a.get_meta = read_then_other_writes
+    if op == "add":
+        a.add_artifact("report_md", d / "report.md")
+    else:
+        a.forget_artifact("old")
+    a.close()
+    other.join()
+    with RunStore(d) as st:
+        arts = st.get_meta("artifacts")
+    assert arts == ({"old": "old.png", "vae": "vae", "report_md": "report.md"} if op == "add"
+                    else {"vae": "vae"})
+
+
 def test_report_in_a_read_only_directory_is_one_line(tmp_path, run_cli, error_line):
     """``report`` on a run on read-only media ended in a traceback (PermissionError writing
     ``best_so_far.png``): the report is written into the run, so it says in one line that the

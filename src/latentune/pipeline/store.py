@@ -449,22 +449,26 @@ class RunStore:
         return {k: self.get_meta(k) for (k,) in self.con.execute("SELECT key FROM meta")}
 
     def add_artifact(self, name: str, path: str | Path) -> None:
-        """Record an artifact path (stored relative to the run directory when inside it)."""
+        """Record an artifact path (stored relative to the run directory when inside it). The
+        record is read and written in one transaction: an entry another process (a report
+        beside a phase run) records meanwhile is kept."""
         p = Path(path)
         try:
             rel = str(p.resolve().relative_to(self.dir.resolve()))
         except ValueError:
             rel = str(p)
-        arts = self.get_meta("artifacts", {}) or {}
-        arts[name] = rel
-        self.set_meta("artifacts", arts)
+        with self._write():
+            arts = self.get_meta("artifacts", {}) or {}
+            arts[name] = rel
+            self._put_meta({"artifacts": arts})
 
     def forget_artifact(self, name: str) -> None:
         """Drop an artifact's record (its file is the caller's to delete: a stored path may
-        point anywhere)."""
-        arts = self.get_meta("artifacts", {}) or {}
-        if arts.pop(name, None) is not None:
-            self.set_meta("artifacts", arts)
+        point anywhere), in one transaction as :meth:`add_artifact`."""
+        with self._write():
+            arts = self.get_meta("artifacts", {}) or {}
+            if arts.pop(name, None) is not None:
+                self._put_meta({"artifacts": arts})
 
     def artifact(self, name: str) -> Path | None:
         rel = (self.get_meta("artifacts", {}) or {}).get(name)
