@@ -1981,6 +1981,24 @@ def test_an_ask_with_another_space_file_names_the_difference(run_cli, tmp_path, 
     assert "in another parameter space (another manual θ); leave --space out" in line, line
 
 
+def test_report_with_a_system_on_a_run_of_a_space_says_to_leave_it_out(run_cli, tmp_path,
+                                                                       error_line):
+    """``latentune report DIR --system M:F`` on a run started with ``ask DIR --space FILE``
+    said "holds a run of another system (…): ask it without a system", advice for ``ask``:
+    a report re-simulates with --system, and such a run has no system of its own, so the
+    line says to leave --system out; report.md is not written."""
+    space = tmp_path / "S.json"
+    space.write_text(json.dumps(SPACE.to_dict()))
+    d = tmp_path / "run"
+    assert run_cli("ask", d, "--space", space)[0] == 0
+    assert run_cli("tell", d, "1", "--cost", "1.0")[0] == 0
+    line = error_line(*run_cli("report", d, "--system", "examples.toy_plant:make_system")[::2])
+    assert line == (f"latentune: error: {d} holds trials run elsewhere, in the parameter space "
+                    "its first ask was given: it has no system to re-simulate; leave --system "
+                    "(and --system-arg) out"), line
+    assert not (d / "report.md").exists()
+
+
 def test_a_system_given_to_an_ask_tell_run_of_a_space_is_refused_in_words(run_cli, tmp_path,
                                                                           error_line):
     """``latentune ask DIR --robot a1`` (or ``Study.ask(system=...)``) on a study started with

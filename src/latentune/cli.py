@@ -916,6 +916,13 @@ def cmd_report(args: argparse.Namespace) -> int:
         raise CLIError(f"no run store in {d}")      # as status, best, tell and release say
     system = None
     if args.system is not None:
+        stored = study.config().get("system") or {}
+        if stored.get("kind") in ("external", "optuna"):
+            what = "trials run elsewhere, in the parameter space its first ask was given" \
+                if stored["kind"] == "external" \
+                else f"an import of the Optuna study {stored.get('study_name')!r}"
+            raise CLIError(f"{d} holds {what}: it has no system to re-simulate; leave "
+                           "--system (and --system-arg) out")
         system = make_system(args)
     with study:
         print(study.report(system=system, simulate=not args.no_sim))
