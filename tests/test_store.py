@@ -3,6 +3,7 @@ foreign files refused without being changed."""
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import sqlite3
 import subprocess
@@ -202,6 +203,26 @@ def test_report_in_a_read_only_directory_is_one_line(tmp_path, run_cli, error_li
                             "to a writable directory and use the copy")
         assert run_cli("status", d)[0] == 0
     assert sorted(p.name for p in d.iterdir()) == ["run.db"]
+
+
+def test_best_of_a_run_in_a_read_only_directory_names_out(tmp_path, run_cli, error_line):
+    """``best`` on a run on read-only media said only "cannot write DIR/best.json: Operation
+    not permitted": it says the run cannot be written and how to get the θ anyway
+    (``--out FILE``), which writes it elsewhere."""
+    import latentune as lt
+
+    d = tmp_path / "ro"
+    space = lt.ParameterSpace(["a", "b"], [0.0, 0.0], [1.0, 1.0], manual=[0.5, 0.5])
+    with lt.Study(d) as st:
+        st.tell(st.ask(1, space=space)[0].id, 1.0)
+    (d / "best.json").unlink()
+    with _read_only_dir(d):
+        line = error_line(*run_cli("best", d)[::2])
+        assert line == (f"latentune: error: {d} cannot be written (read-only): write the θ "
+                        "elsewhere with --out FILE")
+        out = tmp_path / "theta.json"
+        assert run_cli("best", d, "--out", out)[0] == 0
+    assert json.loads(out.read_text()) == {"a": 0.5, "b": 0.5}
 
 
 def test_a_read_only_store_file_in_a_writable_directory_says_so(tmp_path, run_cli, error_line):

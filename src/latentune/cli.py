@@ -1291,6 +1291,9 @@ def cmd_best(args: argparse.Namespace) -> int:
 
     study = _stored_study(args.dir)
     with study:
+        if args.out is None and not os.access(study.dir, os.W_OK):
+            raise CLIError(f"{args.dir} cannot be written (read-only): write the θ elsewhere "
+                           "with --out FILE")
         path = study.best_params(args.out)
         b = study.best()
     print(f"best: cost {b.cost:.6g} ({phase_name(b.phase)}, evaluation {b.idx}); its θ, to "
