@@ -226,6 +226,25 @@ def test_the_table_and_report_name_the_engine_reality_and_system_args(tmp_path: 
         assert comparison_table(st).startswith("system examples.lqr_chain:make_system (gap=1)\n")
 
 
+@pytest.mark.parametrize("missing", ["actor", "gait", "v_des"])
+def test_a_task_record_of_another_layout_is_one_line_and_reported_without_sim(
+        tmp_path: Path, run_cli, error_line, missing: str):
+    """``report`` on a built-in robot's run whose stored task lacks a field (a run written by
+    another latentune version) ended in a traceback (KeyError: 'actor') when it rebuilt the
+    task to re-simulate: it says in one line what the record lacks and to report with
+    --no-sim, which writes the tables."""
+    d = tmp_path / "run"
+    task = {k: v for k, v in TASK.items() if k != missing}
+    with _store(d, {"task": task, "phase1": {"method": "turbo"}}):
+        pass
+    line = error_line(*run_cli("report", d)[::2])
+    assert line == (f"latentune: error: {d}: its stored task has no {missing!r} (a run written "
+                    "by another latentune version): it cannot be re-simulated; report it with "
+                    "--no-sim"), line
+    code, out, err = run_cli("report", d, "--no-sim")
+    assert code == 0 and "| phase 1 (θ, TuRBO-m) |" in out, err
+
+
 def test_table_without_zero_shot_and_never_beaten(tmp_path: Path):
     cfg = {"task": dict(TASK, terrain="hills"), "phase1": {"method": "cma"},
            "vae": {"d_low": 2}}                     # phase 3 still to come

@@ -18,11 +18,13 @@ import logging
 import math
 import shlex
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from latentune.constants import Phase
+from latentune.errors import StoreError
 from latentune.pipeline.walltime import wall_record
 from latentune.reporting.metrics import paper_row, phase_stats, rms_velocity_error
 from latentune.wording import counted
@@ -54,13 +56,23 @@ def fmt(v: Any, nd: int = 3) -> str:
     return f"{x:.{nd}f}"
 
 
-def task_from_config(config: dict[str, Any]):
+TASK_KEYS = ("robot", "gait", "terrain", "actor", "v_des", "steps", "seed")
+"""The fields of a stored task record that rebuilding its Task needs."""
+
+
+def task_from_config(config: dict[str, Any], where: str | Path | None = None):
     """The :class:`~latentune.task.Task` of a stored run config (``config["task"]``), or None
-    for a user system's run (no ``"task"``)."""
+    for a user system's run (no ``"task"``). A record without one of :data:`TASK_KEYS` (a run
+    written by another latentune version) is a StoreError naming it (and the run ``where``)."""
     if "task" not in config:
         return None
     from latentune.task import Task
 
+    missing = [k for k in TASK_KEYS if k not in (config["task"] or {})]
+    if missing:
+        raise StoreError(("" if where is None else f"{where}: ") + f"its stored task has no "
+                         f"{missing[0]!r} (a run written by another latentune version): it "
+                         "cannot be re-simulated; report it with --no-sim")
     return Task.from_config(config["task"])
 
 
@@ -363,10 +375,10 @@ def _curve_panels(store: Any, cfg: dict[str, Any], manual_trials: list) -> list:
     return panels
 
 
-def _rollout_system(system: Any, cfg: dict[str, Any]):
-    """The system used to re-simulate: ``system`` if given, else the stored built-in task;
-    None when neither has a ``rollout(theta, record=True)`` method."""
-    sim = system if system is not None else task_from_config(cfg)
+def _rollout_system(system: Any, cfg: dict[str, Any], where: Path):
+    """The system used to re-simulate: ``system`` if given, else the stored built-in task of
+    the run in ``where``; None when neither has a ``rollout(theta, record=True)`` method."""
+    sim = system if system is not None else task_from_config(cfg, where)
     return sim if callable(getattr(sim, "rollout", None)) else None
 
 
@@ -499,7 +511,7 @@ def make_report(store: Any, system: Any = None, simulate: bool = True, quiet: bo
         plot_best_so_far(panels, out / "best_so_far.png", title=f"{title}: best cost so far")
         store.add_artifact("best_so_far_png", out / "best_so_far.png")
         figs.append("best_so_far.png")
-    sim = _rollout_system(system, cfg) if simulate else None
+    sim = _rollout_system(system, cfg, out) if simulate else None
     if sim is not None:
         runs = {}
         for ph in TABLE_PHASES:
