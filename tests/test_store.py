@@ -135,6 +135,30 @@ def test_a_meta_entry_that_is_not_a_json_object_is_one_line(tmp_path, run_cli, e
     assert (d / "run.db").read_bytes() == raw
 
 
+def test_best_of_a_robot_run_stored_before_the_space_was_recorded(tmp_path, run_cli):
+    """A built-in robot's run of the first store layout records its task, not its parameter
+    space: ``status`` said "write it with: latentune best DIR", and ``best`` then refused
+    ("no parameter space stored"), and ``trials()`` named θ ``theta[i]`` in the unit box. The
+    space is the stored task's, as the report's re-simulation takes it."""
+    import latentune as lt
+    from latentune.task import Task
+
+    task = {"robot": "a1", "gait": "trot", "terrain": "flat", "actor": "convex",
+            "v_des": [0.5, 0.0, 0.0], "steps": 200, "seed": 0, "dim": 25}
+    space = Task.from_config(task).space
+    d = tmp_path / "run"
+    with RunStore(d, create=True) as st:
+        st.set_meta("config", {"task": task, "phase1": {"method": "turbo"}})
+        st.add(1, 0, np.full(25, 0.5), cost=3.0)
+        st.add(1, 1, np.full(25, 0.25), cost=2.0)
+    assert "write it with: latentune best" in run_cli("status", d)[1]
+    code, out, err = run_cli("best", d)
+    assert code == 0, err
+    assert json.loads((d / "best.json").read_text()) == space.as_dict(np.full(25, 0.25))
+    with lt.Study(d) as st:
+        assert st.trials()[1].params == space.as_dict(np.full(25, 0.25))
+
+
 def test_best_of_a_store_with_trials_and_no_space_does_not_say_no_trial(tmp_path, run_cli,
                                                                         error_line):
     """``best`` on a run store that holds trials but no parameter space in its record (a store

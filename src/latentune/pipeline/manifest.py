@@ -34,7 +34,7 @@ import numpy as np
 
 from latentune.checks import is_whole
 from latentune.constants import Phase
-from latentune.errors import StoreError, SystemSpecError, UsageError
+from latentune.errors import LatentuneError, StoreError, SystemSpecError, UsageError
 from latentune.pipeline.rundir import RunDir
 from latentune.pipeline.store import info_json, json_default
 from latentune.pipeline.walltime import settle_open
@@ -353,8 +353,18 @@ class Manifest:
     def space(self) -> ParameterSpace | None:
         """The study's parameter space (stored with its first phase or ask), or None; its
         ``tuned_for`` is the recorded system's (:func:`tuned_for`), so that it refuses a θ
-        file tuned for another."""
-        sp = self.config().get("space")
+        file tuned for another. A built-in robot's run of the first store layout records its
+        task and no space: its space is the task's (as the report re-simulates it), or None if
+        the task record cannot be rebuilt."""
+        cfg = self.config()
+        sp = cfg.get("space")
+        if sp is None and isinstance(cfg.get("task"), dict):
+            from latentune.task import Task
+
+            try:
+                return Task.from_config(cfg["task"]).space
+            except (KeyError, TypeError, ValueError, LatentuneError):
+                return None
         if sp is None:
             return None
         space = ParameterSpace.from_dict(sp, stored=True)
