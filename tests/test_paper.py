@@ -149,6 +149,35 @@ def test_paper_commands_quote_a_directory_with_a_space(tmp_path: Path, run_cli):
     assert summary["report_command"] == f"latentune paper --robot a1 --out {q} --report-only"
 
 
+@pytest.mark.parametrize("argv", [["report", "{d}", "--no-sim"],
+                                  ["paper", "--out", "{d}", "--report-only", "--no-sim"]])
+def test_report_of_a_read_only_paper_directory_is_one_line(tmp_path: Path, run_cli, error_line,
+                                                           argv: list[str]):
+    """``report PAPER_DIR`` (and ``paper --report-only``) on a paper directory on read-only
+    media ended in a traceback (PermissionError writing the first figure): it says in one
+    line that the directory cannot be written and what to do, before writing anything."""
+    d = tmp_path / "ro"
+    d.mkdir()
+    (d / "paper.json").write_text(json.dumps({
+        "format": "latentune-paper", "robot": "a1", "actor": "convex", "steps": 60, "seed": 0,
+        "v_des": 0.5, "workers": 1, "budgets": budgets(1e-6), "command": "latentune paper",
+        "seeds": 1, "vae_epochs": 100, "studies": {}, "invocations": [], "wall_s_total": 1.0}))
+    if os.geteuid() != 0:
+        d.chmod(0o555)
+    elif subprocess.run(["chattr", "+i", str(d)], capture_output=True).returncode != 0:
+        pytest.skip("cannot make a directory read-only here (chattr)")
+    try:
+        line = error_line(*run_cli(*[a.format(d=d) for a in argv])[::2])
+    finally:
+        if os.geteuid() != 0:
+            d.chmod(0o755)
+        else:
+            subprocess.run(["chattr", "-i", str(d)], check=True)
+    assert line == (f"latentune: error: {d} cannot be written (read-only): copy the paper "
+                    "directory to a writable directory and report the copy"), line
+    assert sorted(p.name for p in d.iterdir()) == ["paper.json"]
+
+
 @pytest.mark.parametrize("simulate, gifs", [(False, True), (True, False)])
 def test_a_report_without_gifs_removes_an_earlier_reports(tmp_path: Path, simulate: bool,
                                                           gifs: bool):

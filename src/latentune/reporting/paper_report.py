@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import os
 import shlex
 import time
 from pathlib import Path
@@ -940,8 +941,13 @@ def write_paper_report(root: str | Path, simulate: bool = True, gifs: bool = Tru
                        log: Callable[[str], None] | None = None) -> str:
     """Write ``root/report.md``, ``root/paper_summary.json`` and the figures (GIFs and CoM
     figures only with ``simulate``; GIFs only with ``gifs`` too); return the Markdown.
-    Progress messages go to ``log`` (default: this module's logger at INFO level)."""
+    Progress messages go to ``log`` (default: this module's logger at INFO level). A
+    directory that cannot be written (read-only media) is a UsageError before anything is
+    written."""
     log = log or logger.info
+    if not os.access(root, os.W_OK):
+        raise UsageError(f"{root} cannot be written (read-only): copy the paper directory to "
+                         "a writable directory and report the copy")
     nums = compute(root)
     claims = check_claims(nums)
     fig = make_figures(nums, simulate=simulate, gifs=gifs, log=log)
