@@ -1263,6 +1263,22 @@ def test_commands_suggested_for_a_directory_with_spaces_are_quoted(run_cli, tmp_
     assert out.splitlines()[-1].endswith(f"; write it with: latentune best {q}"), out
 
 
+def test_ask_phase_3_in_a_phase_1_run_with_a_space_quotes_the_vae_directory(run_cli, tmp_path,
+                                                                           error_line):
+    """``ask DIR --phase 3`` on a phase-1 ask/tell run in a directory with a space said "then
+    ask phase 3 in another directory, with --vae runs/my run" (the train-vae command beside
+    it quoted): the --vae value is quoted for a shell too."""
+    import shlex
+
+    sp = tmp_path / "S.yaml"
+    sp.write_text(SPACE_YAML)
+    d = tmp_path / "my run"
+    assert run_cli("ask", d, "--space", sp)[0] == 0
+    assert run_cli("tell", d, "1", "--cost", "1.0")[0] == 0
+    line = error_line(*run_cli("ask", d, "--phase", "3")[::2])
+    assert line.endswith(f"ask phase 3 in another directory, with --vae {shlex.quote(str(d))}")
+
+
 def test_ask_says_when_the_fall_model_rates_a_suggestion_above_its_screen(run_cli, tmp_path,
                                                                           src30):
     """The transfer critic's design ask after the zero-shot θ fell hands out the source's

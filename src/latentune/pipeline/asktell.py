@@ -241,12 +241,12 @@ def _phase(cfg: dict[str, Any], phase: int | None, latent: Any, dir_: Path,
         if phase is not None and int(phase) != int(stored):
             advice = ""
             if int(stored) == Phase.PHASE1:     # phase 3 goes elsewhere, with a latent space
-                vae = dir_ if latent is None else _named(latent)
+                vae = _named(dir_ if latent is None else latent)
                 advice = f"; ask phase 3 in another directory, with --vae {vae}"
                 if latent is None and trained is not None and trained.artifact("vae") is None:
                     advice = (f"; {dir_} holds no latent space yet: train one there first "
                               f"(train_latent / train-vae), then ask phase 3 in another "
-                              f"directory, with --vae {dir_}")
+                              f"directory, with --vae {_named(dir_)}")
             raise StoreError(f"{dir_}: ask/tell runs phase {stored} (stored), not {phase}{advice}")
         return int(stored)
     if phase is None:
