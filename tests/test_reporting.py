@@ -761,3 +761,43 @@ def test_a_phase_stopped_short_of_its_budget_says_what_goes_on(tmp_path: Path, r
         cfg = {"system": {"kind": "plugin"}, "asktell": {"phase": 1}, "phase1": {"budget": 4}}
         st.add(Phase.PHASE1, 0, np.zeros(3), 1.0, fell=False, tag=-1)
         assert state_lines(st, cfg)[0] == "Phase 1 (θ, TuRBO-m) holds 1 trial of its budget of 4."
+
+
+def _legends(monkeypatch) -> list[list[str]]:
+    """Patch Figure.savefig to record, per figure saved, its legends' texts and x labels."""
+    from matplotlib.figure import Figure
+
+    seen: list[list[str]] = []
+    save = Figure.savefig
+
+    def record(fig, *a, **k):
+        seen.append([t.get_text() for ax in fig.axes if ax.get_legend() is not None
+                     for t in ax.get_legend().get_texts()] + [ax.get_xlabel() for ax in fig.axes])
+        return save(fig, *a, **k)
+
+    monkeypatch.setattr(Figure, "savefig", record)
+    return seen
+
+
+def test_the_best_cost_figure_numbers_evaluations_as_status_does(tmp_path: Path, monkeypatch,
+                                                                  run_cli):
+    """status, best and tell number a phase's evaluations from 0 (the store's idx); the
+    best-cost figure's legend counted from 1 ("evaluation 3" in status, "best … at 4" in the
+    figure). The figure numbers them as status does."""
+    import latentune as lt
+
+    space = lt.ParameterSpace(names=["kp", "kd"], low=[0.1, 0.0], high=[10.0, 1.0],
+                              manual=[2.0, 0.5])
+    seen = _legends(monkeypatch)
+    d = tmp_path / "run"
+    with lt.Study(d, seed=0) as st:
+        for s, c in zip(st.ask(5, space=space), [4.0, 3.0, 5.0, 0.5, 2.0]):
+            st.tell(s.id, c)
+        idx = st.status()["phases"]["phase 1"]["best_idx"]
+        make_report(st.store, simulate=False, quiet=True)
+    code, out, _ = run_cli("status", d)
+    assert code == 0 and f"evaluation {idx}," in out
+    assert idx == 3
+    texts = seen[-1]
+    assert any(t.endswith(f": best 0.500 at {idx}, 0 fell") for t in texts), texts
+    assert "evaluation (0–4)" in texts, texts

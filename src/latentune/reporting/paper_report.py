@@ -389,7 +389,7 @@ def check_claims(nums: dict[str, Any]) -> list[Claim]:
                        f"{tc.get('jump_with_trot_vae_evals', '< 200')} evaluations, vs "
                        f"~{tc.get('jump_direct_phase1_evals_to_improve', 2000)} for phase 1)",
                        None if cj["phase3"]["n"] == 0 else e3 is not None,
-                       f"first strictly better than manual at evaluation {fmt(e3)} "
+                       f"first strictly better than manual after {fmt(e3)} evaluations "
                        f"(phase 1 on θ: {fmt(e1)} of {mj['phase1']['n']})"))
     for g in GAITS:
         r = nums.get("seeded", {}).get(g)
@@ -850,8 +850,8 @@ def _md_seeded(nums: dict[str, Any]) -> list[str]:
             p3 = r["arms"]["phase3-plain"]["best"]
             when = f"never reaches the plain phase 3's median best ({fmt(p3['median'])}) in " \
                 f"its {p1['n']} evaluations" if not math.isfinite(v) else \
-                f"first reaches the plain phase 3's median best ({fmt(p3['median'])}) at " \
-                f"evaluation {v:.0f}"
+                f"first reaches the plain phase 3's median best ({fmt(p3['median'])}) after " \
+                f"{v:.0f} evaluations"
             md += ["", f"The direct phase-1 run on this target {when}; its best at {p1['n']} "
                    f"evaluations is {fmt(p1['best'])}"
                    + (f", {'inside' if p3['q25'] <= p1['best'] <= p3['q75'] else 'outside'} the "

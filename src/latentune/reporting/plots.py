@@ -2,7 +2,7 @@
 
 * :func:`plot_rollouts`: CoM forward velocity and base height against time of recorded rollouts.
 * :func:`plot_best_so_far`: per panel (one per phase or budget, each with its own evaluation
-  axis) the cost of every evaluation on a log axis with falls marked ×, and below it the best
+  axis, numbered from 0 as the run store's ``idx``, status, best and tell number them) the cost of every evaluation on a log axis with falls marked ×, and below it the best
   cost so far on a linear axis zoomed to the tuned costs.
 * :func:`plot_cost_transform`: the path cost against the Gaussian-copula score the GP models.
 """
@@ -117,8 +117,9 @@ def plot_best_so_far(panels: Sequence[CurvePanel] | CurvePanel, path: str | Path
     """The best-cost figure: one column per :class:`CurvePanel`.
 
     Top row: the cost of every evaluation (log axis, linear where a cost is ≤ 0; stable ·,
-    fell ×, C1 dotted where a cost reaches it) against the evaluation number 1..n of that
-    panel. Bottom row: the best cost so far of the trials that did not fail (none before the
+    fell ×, C1 dotted where a cost reaches it) against the evaluation number 0..n-1 of that
+    panel (the run store's ``idx``, as ``status``, ``best`` and ``tell`` number evaluations; the
+    legend's "best C at k" names evaluation k so). Bottom row: the best cost so far of the trials that did not fail (none before the
     first one that stood) on a linear axis zoomed from the best cost found to the panel's
     highest reference (falls at 100–200 and early costs above the zoom leave it through the
     top; a panel where no trial stood and without a reference says so). Empty curves are
@@ -139,13 +140,13 @@ def plot_best_so_far(panels: Sequence[CurvePanel] | CurvePanel, path: str | Path
                              sharex="col", gridspec_kw={"height_ratios": [1.0, 1.5]})
     for j, p in enumerate(panels):
         top, bot = axes[0, j], axes[1, j]
-        bests, stables, shown, nmax = [], [], [], 1
+        bests, stables, shown, nmax = [], [], [], 1     # nmax: the longest curve's length
         for label, costs in p.curves.items():
             y = np.minimum(np.asarray(costs, dtype=float).reshape(-1), _DISPLAY_MAX)
             if y.size == 0:
                 continue
             shown.append(y)
-            x = np.arange(1, y.size + 1)
+            x = np.arange(y.size)               # the store's idx: 0 .. n-1
             nmax = max(nmax, y.size)
             f = fell_mask(y, p.fell.get(label), fall_cost=C1)
             c = color[label]
@@ -158,7 +159,7 @@ def plot_best_so_far(panels: Sequence[CurvePanel] | CurvePanel, path: str | Path
                 bests.append(b)
                 stables.append(~f)
                 k = int(np.argmin(b))
-                lab = f"{label}: best {y[k]:.3f} at {k + 1}, {int(f.sum())} fell"
+                lab = f"{label}: best {y[k]:.3f} at {k}, {int(f.sum())} fell"
             bot.plot(x, np.where(np.isfinite(b), b, np.nan), color=c, lw=1.4,
                      drawstyle="steps-post", label=lab)
         refs = {k: float(v) for k, v in p.refs.items() if v is not None}
@@ -178,8 +179,8 @@ def plot_best_so_far(panels: Sequence[CurvePanel] | CurvePanel, path: str | Path
                          ha="center", va="center", fontsize=9, color="0.3")
         else:
             bot.set_ylim(*lim)
-        bot.set_xlim(0.5, nmax + 0.5)
-        bot.set_xlabel(f"evaluation (1–{nmax})")
+        bot.set_xlim(-0.5, nmax - 0.5)
+        bot.set_xlabel(f"evaluation (0–{nmax - 1})")
         bot.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=2,
                    frameon=False)
         bot.grid(alpha=0.3)
