@@ -106,12 +106,12 @@ def test_paper_numbers_lookup():
 # ---------------------------------------------------------------------------- run report
 def test_summary_keys_and_values(tmp_path: Path):
     with _store(tmp_path / "run", {"task": TASK, "phase1": {"method": "turbo", "seed": 3}}) as st:
-        s = write_summary(st, wall_this=1.5)
+        s = write_summary(st)
         on_disk = json.loads((tmp_path / "run" / "summary.json").read_text())
     for k in ("manual_cost", "phase1_best", "phase3_best", "phase1_evals", "phase3_evals",
               "wall_s", "phase1_stable", "phase3_stable", "phase1_evals_to_beat_manual",
               "phase3_evals_to_beat_manual", "zero_shot_cost", "phase3_vs_phase1",
-              "wall_by_phase_s", "wall_s_this_command", "seed", "config", "artifacts", "paper",
+              "wall_by_phase_s", "seed", "config", "artifacts", "paper",
               "rms_velocity_error_m_s", "phase1_falls"):
         assert k in s and k in on_disk, k
     assert not any(k.endswith("_evals_to_manual") for k in s)
@@ -121,7 +121,7 @@ def test_summary_keys_and_values(tmp_path: Path):
     # phase 1's first evaluation equals the manual cost: not a "beat"
     assert (s["phase1_evals_to_beat_manual"], s["phase3_evals_to_beat_manual"]) == (4, 3)
     assert s["zero_shot_cost"] == ZERO_SHOT
-    assert s["wall_s"] == 15.0 and s["wall_s_this_command"] == 1.5 and s["seed"] == 3
+    assert s["wall_s"] == 15.0 and s["seed"] == 3
     assert s["rms_velocity_error_m_s"]["phase3"] == pytest.approx(4.5 / 50.0)
     assert s["paper"] == {"manual": 8.96, "phase1": 5.96, "phase3": 6.17}
 
@@ -801,3 +801,21 @@ def test_the_best_cost_figure_numbers_evaluations_as_status_does(tmp_path: Path,
     texts = seen[-1]
     assert any(t.endswith(f": best 0.500 at {idx}, 0 fell") for t in texts), texts
     assert "evaluation (0–4)" in texts, texts
+
+
+def test_summary_has_no_wall_time_of_this_command(tmp_path: Path, run_cli):
+    """summary.json held ``wall_s_this_command``, always null: no command passed it a time, and
+    the summary is rewritten by whichever command ran last (a tell, a report), so it would
+    not be the tuning's time anyway; the run's times are ``wall_s`` and ``wall_by_phase_s``."""
+    import latentune as lt
+
+    space = lt.ParameterSpace(names=["kp"], low=[0.0], high=[1.0], manual=[0.5])
+    d = tmp_path / "run"
+    with lt.Study(d, seed=0) as st:
+        (s,) = st.ask(1, space=space)
+    assert run_cli("tell", d, s.id, "--cost", "2.0")[0] == 0
+    told = json.loads((d / "summary.json").read_text())
+    assert run_cli("report", d, "--no-sim")[0] == 0
+    reported = json.loads((d / "summary.json").read_text())
+    for summ in (told, reported):
+        assert "wall_s_this_command" not in summ and "wall_s" in summ and "wall_by_phase_s" in summ

@@ -285,8 +285,7 @@ def handover_stats(store: Any) -> dict[str, Any] | None:
     return out
 
 
-def write_summary(store: Any, wall_this: float | None = None,
-                  manual: list | None = None) -> dict[str, Any]:
+def write_summary(store: Any, manual: list | None = None) -> dict[str, Any]:
     """Write ``DIR/summary.json`` from the store and return it.
 
     Costs: ``manual_cost`` and ``zero_shot_cost`` (the trial's own cost, fallen or not, with
@@ -302,7 +301,7 @@ def write_summary(store: Any, wall_this: float | None = None,
     ``wall_s`` (sum over phases; None when every phase that ran has an unknown time),
     ``wall_by_phase_s``, ``wall_unknown`` (the phases whose time is not (all) known: a run
     killed inside one before storing a trial, or trials told through ask/tell:
-    :func:`~latentune.pipeline.walltime.wall_record`), ``wall_s_this_command``; ``seed``,
+    :func:`~latentune.pipeline.walltime.wall_record`); ``seed``,
     ``config``, ``artifacts``, ``phase{1,3}_best_params``, ``paper`` (the paper's numbers for
     the task or None), ``phase3_handover`` (:func:`handover_stats`), ``written`` (unix time).
     ``manual``: the manual θ's trials, as :func:`run_stats` takes them.
@@ -339,7 +338,6 @@ def write_summary(store: Any, wall_this: float | None = None,
         "wall_s": float(sum(wall.values())) if wall or not wall_unknown else None,
         "wall_by_phase_s": wall,
         "wall_unknown": wall_unknown,
-        "wall_s_this_command": wall_this,
         "seed": cfg.get("phase1", cfg.get("phase3", {})).get("seed", cfg.get("task", {}).get("seed")),
         "config": cfg,
         "phase1_best_params": arts.get("phase1_best"),
