@@ -212,3 +212,41 @@ def no_local_ray() -> None:
     """No Ray running in this process (the shared one is stopped; ``ray_local`` restarts it)."""
     if "ray" in sys.modules and sys.modules["ray"].is_initialized():
         sys.modules["ray"].shutdown()
+
+
+@pytest.fixture
+def full_disk(monkeypatch: pytest.MonkeyPatch) -> Callable[[], None]:
+    """``full_disk()``: from then on every file opened for writing through ``io.open`` (``open``
+    of a path, ``Path.write_text``, ``os.fdopen``) takes half of its first write, then raises
+    OSError(ENOSPC), as a full disk does; undone at the test's end (or by
+    ``monkeypatch.undo()``)."""
+    import errno
+    import io
+
+    real_open = io.open
+
+    class Full:
+        """A file that takes half of the first write, then the disk is full."""
+
+        def __init__(self, f: Any) -> None:
+            self.f = f
+
+        def write(self, data: Any) -> int:
+            self.f.write(data[: len(data) // 2])
+            self.f.flush()
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+        def __getattr__(self, name: str) -> Any:
+            return getattr(self.f, name)
+
+        def __enter__(self) -> "Full":
+            return self
+
+        def __exit__(self, *exc: Any) -> None:
+            self.f.close()
+
+    def opened(file: Any, mode: str = "r", *a: Any, **k: Any) -> Any:
+        f = real_open(file, mode, *a, **k)
+        return Full(f) if "w" in mode else f
+
+    return lambda: monkeypatch.setattr(io, "open", opened)

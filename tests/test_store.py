@@ -319,3 +319,63 @@ def test_a_new_store_appears_whole_to_another_process(tmp_path, monkeypatch):
     st.close()
     assert sorted(p.name for p in d.iterdir() if not p.name.startswith("run.db")) == []
     RunStore(d, create=True).close()            # a second creator opens the existing store
+
+
+def _asked_and_told(d, costs=(3.0, 1.0)):
+    """An ask/tell run in ``d`` with ``costs`` told; returns its Study, open."""
+    import latentune as lt
+
+    space = lt.ParameterSpace(names=["kp", "kd"], low=[0.0, 0.0], high=[1.0, 1.0],
+                              manual=[0.5, 0.5])
+    st = lt.Study(d, seed=0)
+    for s, c in zip(st.ask(len(costs), space=space), costs):
+        st.tell(s.id, c)
+    return st
+
+
+def test_best_theta_files_of_two_writers_at_once_and_a_users_tmp_file(tmp_path, monkeypatch):
+    """best θ files were written through one temporary name, DIR/best.json.tmp: a second writer
+    meanwhile renamed it away, so the first one's rename failed ('cannot write DIR/best.json'),
+    and a user's own DIR/best.json.tmp was overwritten and removed. Each writer now has a
+    temporary file of its own. The second writer is forced between the first one's write and
+    its rename."""
+    d = tmp_path / "run"
+    st = _asked_and_told(d)
+    mine = d / "best.json.tmp"
+    mine.write_text("my notes")
+    replace, other = os.replace, []
+
+    def other_writes_meanwhile(src, dst):
+        if not other:
+            other.append(None)
+            other[0] = st.best_params()              # the other writer, whole, in between
+        return replace(src, dst)
+
+    monkeypatch.setattr(os, "replace", other_writes_meanwhile)
+    path = st.best_params()
+    monkeypatch.undo()
+    st.close()
+    assert other == [path] and json.loads(path.read_text())["kp"] is not None
+    assert mine.read_text() == "my notes"
+    assert sorted(p.name for p in d.iterdir() if p.name.endswith(".tmp")) == ["best.json.tmp"]
+
+
+def test_summary_and_report_are_not_left_truncated(tmp_path, monkeypatch, full_disk):
+    """summary.json and report.md were written in place: a write cut short (a full disk, a
+    kill) left a truncated file instead of the last whole one. They are written to a
+    temporary file and renamed: the old file stays whole; no temporary file is left."""
+    from latentune.reporting.run_report import make_report, write_summary
+
+    d = tmp_path / "run"
+    st = _asked_and_told(d)
+    make_report(st.store, simulate=False, quiet=True)
+    before = {n: (d / n).read_text() for n in ("summary.json", "report.md")}
+    full_disk()
+    with pytest.raises(OSError):
+        write_summary(st.store)
+    with pytest.raises(OSError):
+        make_report(st.store, simulate=False, quiet=True)
+    monkeypatch.undo()
+    st.close()
+    assert {n: (d / n).read_text() for n in before} == before
+    assert not [p.name for p in d.iterdir() if p.name.endswith(".tmp")]

@@ -85,26 +85,17 @@ def test_vae_seed_fixes_the_weights_and_leaves_the_global_generator_alone(monkey
     assert all(np.array_equal(p, q) for p, q in zip(_weights(a), _weights(b)))
 
 
-def test_save_on_a_full_disk_keeps_the_earlier_files(tmp_path, monkeypatch):
+def test_save_on_a_full_disk_keeps_the_earlier_files(tmp_path, monkeypatch, full_disk):
     """A write that fails (ENOSPC) raises an OSError with its errno and leaves the latent space
     saved before readable and unchanged, with no temporary file behind."""
     import errno
-    from pathlib import Path
 
     X = manifold_points(60)
     ls = LatentSpace.train(X, d_low=2, seed=0, epochs=3)
     ls.save(tmp_path / "vae")
     before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
     other = LatentSpace.train(X, d_low=2, seed=1, epochs=3)
-    real = Path.write_bytes
-
-    def full(self, data):
-        if self.name.endswith(".pt.tmp"):
-            real(self, data[: len(data) // 2])
-            raise OSError(errno.ENOSPC, "No space left on device", str(self))
-        return real(self, data)
-
-    monkeypatch.setattr(Path, "write_bytes", full)
+    full_disk()
     with pytest.raises(OSError) as e:
         other.save(tmp_path / "vae")
     assert e.value.errno == errno.ENOSPC

@@ -62,6 +62,7 @@ from typing import Any
 
 import numpy as np
 
+from latentune.atomicfile import write_atomic
 from latentune.checks import is_whole
 from latentune.errors import LatentError
 
@@ -394,12 +395,7 @@ class LatentSpace:
         meta.update({"format": "latentune-latent-space", "version": 1, "d": self.d,
                      "d_low": self.d_low, "kind": self.kind, "box": self.box.tolist()})
         for path, data in ((pt, buf.getvalue()), (js, json.dumps(meta, indent=1).encode())):
-            tmp = path.with_name(path.name + ".tmp")
-            try:
-                tmp.write_bytes(data)
-                os.replace(tmp, path)
-            finally:
-                tmp.unlink(missing_ok=True)
+            write_atomic(path, data)
         return str(pt), str(js)
 
     @classmethod

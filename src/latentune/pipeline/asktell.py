@@ -60,6 +60,7 @@ from typing import Any
 
 import numpy as np
 
+from latentune.atomicfile import write_atomic
 from latentune.checks import is_whole
 from latentune.constants import Phase
 from latentune.errors import LatentuneError, StoreError, UsageError
@@ -153,9 +154,7 @@ def write_suggestion_files(run_dir: str | os.PathLike, suggestions: list[Suggest
     d.mkdir(parents=True, exist_ok=True)
     for s in suggestions:
         path = d / f"{s.id}.json"
-        tmp = path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(s.params, indent=1))
-        os.replace(tmp, path)
+        write_atomic(path, json.dumps(s.params, indent=1))
         s.path = str(path)
 
 

@@ -9,7 +9,6 @@ the manual θ, phases 1 and 3 and zero-shot that did not fail; a failed θ is ne
 """
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import re
@@ -20,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from latentune.atomicfile import write_atomic
 from latentune.constants import PHASE_NAMES, Phase, phase_name
 from latentune.checks import is_whole
 from latentune.errors import StoreError, UsageError
@@ -395,11 +395,9 @@ def _own_theta_file(path: Path, run_dir: Path) -> str | None:
 
 
 def _write_json(path: Path, value: Any) -> None:
-    tmp = path.with_name(path.name + ".tmp")
+    """Write ``value`` as JSON to ``path`` whole or not at all (:func:`write_atomic`);
+    StoreError naming the file when it cannot be written."""
     try:
-        tmp.write_text(json.dumps(value, indent=1))
-        os.replace(tmp, path)
+        write_atomic(path, json.dumps(value, indent=1))
     except OSError as exc:
-        with contextlib.suppress(OSError):
-            tmp.unlink(missing_ok=True)
         raise StoreError(f"cannot write {path}: {exc.strerror or exc}") from None

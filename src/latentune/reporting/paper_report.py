@@ -25,6 +25,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from latentune.atomicfile import write_atomic
 from latentune.constants import C1, PAPER_PHASE1, PAPER_PHASE3, Phase
 from latentune.errors import UsageError
 from latentune.pipeline.walltime import wall_record
@@ -952,8 +953,8 @@ def write_paper_report(root: str | Path, simulate: bool = True, gifs: bool = Tru
     claims = check_claims(nums)
     fig = make_figures(nums, simulate=simulate, gifs=gifs, log=log)
     root = nums["root"]
-    (root / "paper_summary.json").write_text(json.dumps(summary_json(nums, claims, fig), indent=1,
-                                                        default=float))
+    write_atomic(root / "paper_summary.json",
+                 json.dumps(summary_json(nums, claims, fig), indent=1, default=float))
     text = markdown(nums, claims, fig)
-    (root / "report.md").write_text(text)
+    write_atomic(root / "report.md", text)
     return text

@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from latentune.atomicfile import write_atomic
 from latentune.constants import Phase
 from latentune.errors import StoreError
 from latentune.pipeline.walltime import wall_record
@@ -347,7 +348,7 @@ def write_summary(store: Any, manual: list | None = None) -> dict[str, Any]:
         "phase3_handover": handover_stats(store),
         "written": time.time(),
     }
-    (store.dir / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
+    write_atomic(store.dir / "summary.json", json.dumps(summary, indent=1, default=float))
     return summary
 
 
@@ -565,7 +566,7 @@ def make_report(store: Any, system: Any = None, simulate: bool = True, quiet: bo
         md.append("")
     for f in figs:
         md.append(f"![{f}]({f})")
-    (out / "report.md").write_text("\n".join(md) + "\n")
+    write_atomic(out / "report.md", "\n".join(md) + "\n")
     store.add_artifact("report_md", out / "report.md")
     return table
 
