@@ -705,7 +705,7 @@ def test_an_asktell_reports_manual_theta_is_the_same_in_summary_table_and_figure
             assert _row(table, "manual tuned") == ["manual tuned", "–", "1", "0/1", "–"]
             assert (s["manual_cost"], s["manual_fell"]) == (first, True)
             assert s["phase1_evals_to_beat_manual"] == 2
-            assert refs == [{"manual θ": first}]
+            assert refs == [{"manual θ, fell": first}]
         else:
             assert "manual tuned" not in md
             assert (s["manual_cost"], s["manual_fell"]) == (None, None)
@@ -819,3 +819,18 @@ def test_summary_has_no_wall_time_of_this_command(tmp_path: Path, run_cli):
     reported = json.loads((d / "summary.json").read_text())
     for summ in (told, reported):
         assert "wall_s_this_command" not in summ and "wall_s" in summ and "wall_by_phase_s" in summ
+
+
+def test_the_best_cost_figure_says_the_manual_theta_fell(tmp_path: Path, monkeypatch):
+    """A manual θ that fell was drawn as the reference line "manual θ (200.000)", as if 200
+    were a cost to beat; its legend entry says it fell. One that stood keeps "manual θ (C)"."""
+    seen = _legends(monkeypatch)
+    for fell in (True, False):
+        with RunStore(tmp_path / f"run{fell}", create=True) as st:
+            st.set_meta("config", {"system": {"kind": "user"}})
+            st.add(Phase.MANUAL, 0, np.zeros(3), 200.0 if fell else 6.0, fell=fell, tag=-1)
+            _fill(st, Phase.PHASE1, [7.0, 5.0])
+            make_report(st, simulate=False, quiet=True)
+        texts = seen[-1]
+        assert ("manual θ, fell (200.000)" in texts) == fell, texts
+        assert ("manual θ (6.000)" in texts) == (not fell), texts
