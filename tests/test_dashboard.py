@@ -211,3 +211,34 @@ def test_dashboard_live_in_chromium(tmp_path):
             wait_for(lambda: points() == 9, what="9 trials in the history plot")
         finally:
             drv.quit()
+
+
+def test_a_store_with_trials_and_no_space_says_why_nothing_is_shown(tmp_path: Path):
+    """A run store holding trials but no parameter space and no task (another layout's store):
+    the export exported nothing, silently, and the dashboard showed an empty page. It says why
+    in one line; a store of the first layout (its task recorded, no space) is exported by its
+    task's space; an empty store waits for its first trial."""
+    from latentune.errors import StoreError
+    from latentune.pipeline.store import RunStore
+
+    d = tmp_path / "other"
+    with RunStore(d, create=True) as st:
+        st.add(1, 0, np.zeros(3), cost=1.0)
+        st.add(1, 1, np.zeros(3), cost=2.0)
+    with pytest.raises(StoreError) as e:
+        RunExport(d).sync()
+    assert str(e.value) == (f"{d} holds 2 trials but records no parameter space (a store of "
+                            "another layout?): no trial's parameters can be named, so there is "
+                            "nothing to show")
+    with pytest.raises(StoreError):
+        Dashboard(d)
+    with RunStore(tmp_path / "empty", create=True):
+        pass
+    assert RunExport(tmp_path / "empty").sync() == 0
+    task = {"robot": "a1", "gait": "trot", "terrain": "flat", "actor": "convex",
+            "v_des": [0.5, 0.0, 0.0], "steps": 200, "seed": 0, "dim": 25}
+    with RunStore(tmp_path / "first", create=True) as st:
+        st.set_meta("config", {"task": task})
+        st.add(1, 0, np.full(25, 0.5), cost=3.0)
+    exp = RunExport(tmp_path / "first")
+    assert exp.sync() == 1

@@ -175,6 +175,21 @@ def test_best_of_a_store_with_trials_and_no_space_does_not_say_no_trial(tmp_path
     assert not (d / "best.json").exists()
 
 
+def test_status_of_a_store_with_trials_and_no_space_does_not_advise_best(tmp_path, run_cli,
+                                                                        error_line):
+    """``status`` on such a store (no space, no task recorded) said "write it with: latentune
+    best DIR", and ``best`` then refused: it says the θ cannot be written, and why."""
+    d = tmp_path / "run"
+    with RunStore(d, create=True) as st:
+        st.add(1, 0, np.zeros(3), cost=1.0)
+    code, out, _ = run_cli("status", d)
+    assert code == 0 and "latentune best" not in out, out
+    assert out.splitlines()[-1] == ("best: 1 (phase 1, evaluation 0); its θ cannot be written: "
+                                    "the store records no parameter space (a store of another "
+                                    "layout?)")
+    assert "no parameter space stored" in error_line(*run_cli("best", d)[::2])
+
+
 @pytest.mark.parametrize("op", ["add", "forget"])
 def test_an_artifact_recorded_by_another_process_meanwhile_is_kept(tmp_path, op):
     """``report`` records its figures in the run's artifacts while a phase run records its own

@@ -1305,6 +1305,7 @@ def cmd_status(args: argparse.Namespace) -> int:
     study = _stored_study(args.dir)
     with study:
         s = study.status()
+        nameable = study.space() is not None    # else best refuses: no θ to name
     if args.json:
         print(json.dumps(s))
         return 0
@@ -1357,7 +1358,9 @@ def cmd_status(args: argparse.Namespace) -> int:
         print(f"best: {b['cost']:.6g} ({b['phase']}, evaluation {b['idx']}"
               + (f", suggestion {b['trial']}" if b.get("trial") is not None else "") + ")"
               + (f"; its θ: {b['params_file']}" if b.get("params_file") else
-                 f"; write it with: latentune best {shlex.quote(str(args.dir))}"))
+                 f"; write it with: latentune best {shlex.quote(str(args.dir))}" if nameable
+                 else "; its θ cannot be written: the store records no parameter space (a "
+                 "store of another layout?)"))
     return 0
 
 

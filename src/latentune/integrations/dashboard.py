@@ -22,6 +22,9 @@ The export (:class:`RunExport`)
   is told; one dropped unseen becomes a FAIL trial with user attribute ``status = dropped``);
 * a result corrected after it was exported (``amend``) keeps its first value here: Optuna does
   not change a finished trial; restart the dashboard to show it;
+* θ are named by the run's recorded parameter space (a built-in robot's run of the first store
+  layout: its task's); a store holding trials without either (another layout's) is refused
+  with a StoreError saying so, instead of an export that stays empty;
 * the store is read again every ``interval`` seconds (a new SQLite connection each time, read
   only: the run's writer is never blocked for long); rows already exported are not read twice.
 
@@ -48,8 +51,10 @@ except ImportError:  # pragma: no cover - the extra is not installed
 from latentune.constants import Phase
 from latentune.errors import StoreError, UsageError
 from latentune.integrations.optuna import distributions_of, physical_params
+from latentune.pipeline.manifest import config_space
 from latentune.pipeline.store import RunStore
 from latentune.space import ParameterSpace
+from latentune.wording import counted
 
 logger = logging.getLogger(__name__)
 
@@ -105,10 +110,15 @@ class RunExport:
         with self._lock:
             with RunStore(self.dir) as st:
                 if self._space is None:
-                    sp = (st.get_meta("config") or {}).get("space")
-                    if sp is None:
-                        return 0                          # nothing run yet
-                    self._space = ParameterSpace.from_dict(sp)
+                    self._space = config_space(st.get_meta("config") or {})
+                    if self._space is None:
+                        n = sum(st.count(ph) for ph in Phase) + len(st.trials("pending"))
+                        if n == 0:
+                            return 0                      # nothing run yet
+                        raise StoreError(
+                            f"{self.dir} holds {counted(n, 'trial')} but records no parameter "
+                            "space (a store of another layout?): no trial's parameters can be "
+                            "named, so there is nothing to show")
                 space = self._space
                 dists = distributions_of(space)
                 n = 0

@@ -61,6 +61,23 @@ the phase started from (how many trials of each phase its source run or fall pri
 those runs grew since."""
 
 
+def config_space(cfg: dict[str, Any]) -> ParameterSpace | None:
+    """The parameter space a run's stored ``config`` records: its ``space`` entry; for a
+    built-in robot's run of the first store layout (its task recorded, no space) the task's
+    space; None without either, or when the task record cannot be rebuilt."""
+    sp = cfg.get("space")
+    if sp is not None:
+        return ParameterSpace.from_dict(sp, stored=True)
+    if isinstance(cfg.get("task"), dict):
+        from latentune.task import Task
+
+        try:
+            return Task.from_config(cfg["task"]).space
+        except (KeyError, TypeError, ValueError, LatentuneError):
+            return None
+    return None
+
+
 def run_counts(run: Any) -> dict[str, int] | None:
     """How many trials of phases 1 and 3 the run at ``run`` holds (``{"1": n1, "3": n3}``),
     None without a run store: what a phase that learns from it starts from (:data:`PINNED`)."""
@@ -357,18 +374,9 @@ class Manifest:
         task and no space: its space is the task's (as the report re-simulates it), or None if
         the task record cannot be rebuilt."""
         cfg = self.config()
-        sp = cfg.get("space")
-        if sp is None and isinstance(cfg.get("task"), dict):
-            from latentune.task import Task
-
-            try:
-                return Task.from_config(cfg["task"]).space
-            except (KeyError, TypeError, ValueError, LatentuneError):
-                return None
-        if sp is None:
-            return None
-        space = ParameterSpace.from_dict(sp, stored=True)
-        space.tuned_for = tuned_for(self._stored())
+        space = config_space(cfg)
+        if space is not None and cfg.get("space") is not None:
+            space.tuned_for = tuned_for(self._stored())
         return space
 
     def bind_space(self, space: ParameterSpace) -> None:
