@@ -856,6 +856,28 @@ def test_trials_are_records_with_named_phases_and_physical_params(tmp_path, monk
         assert st.trials_dataframe(phases=(Phase.MANUAL,)).shape[0] == 1
 
 
+def test_trials_dataframe_without_trials_has_the_parameter_columns(tmp_path):
+    """``trials_dataframe()`` of a run without a told trial (asked only, or a phase that holds
+    none) had no ``params_<name>`` columns, unlike with trials: code selecting them raised a
+    KeyError. When the space is known the empty frame has the same columns and dtypes."""
+    import pandas as pd
+
+    cols = ["phase", "idx", "trial", "cost", "failed", *[f"params_{n}" for n in SPACE.names],
+            "info"]
+    with lt.Study(tmp_path / "a", seed=0) as at:
+        (s,) = at.ask(space=SPACE)
+        empty = at.trials_dataframe()
+        assert isinstance(empty, pd.DataFrame) and len(empty) == 0
+        assert list(empty.columns) == cols
+        assert all(empty[f"params_{n}"].dtype == np.float64 for n in SPACE.names)
+        at.tell(s.id, 1.5)
+        assert list(at.trials_dataframe().columns) == cols
+        assert list(at.trials_dataframe(phases=(Phase.MANUAL,)).columns) == cols
+    with lt.Study(tmp_path / "none") as st:             # no store: no space to name
+        assert list(st.trials_dataframe().columns) == ["phase", "idx", "trial", "cost",
+                                                       "failed", "info"]
+
+
 def test_the_store_decodes_non_finite_costs_and_names_no_fall_constant(tmp_path):
     with RunStore(tmp_path / "r", create=True) as st:
         st.add(1, 0, [0.1], math.inf, fell=True)

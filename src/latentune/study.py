@@ -359,7 +359,7 @@ class Study:
 
     def trials_dataframe(self, phases: Any = None) -> Any:
         """:meth:`trials` as a pandas DataFrame (ImportError naming pandas if it is absent)."""
-        return results.trials_dataframe(self.trials(phases))
+        return results.trials_dataframe(self.trials(phases), self.space() if self.exists else None)
 
     def summary(self) -> dict[str, Any]:
         """Write and return ``DIR/summary.json`` (see :mod:`latentune.reporting.run_report`)."""

@@ -110,12 +110,13 @@ def trials(store: RunStore, space: ParameterSpace | None,
     return out
 
 
-def trials_dataframe(records: list[TrialRecord]) -> Any:
+def trials_dataframe(records: list[TrialRecord], space: ParameterSpace | None = None) -> Any:
     """The trials as a pandas DataFrame, one row per trial: columns phase (its name), idx
     (int), trial (the suggestion id, a nullable integer: missing for a trial a phase ran
     itself), cost (float), failed (bool), one ``params_<name>`` column per θ entry (float,
-    physical units), info (a dict per row). ImportError naming the install if pandas is
-    absent."""
+    physical units), info (a dict per row). Without records the frame is empty with the same
+    columns, the ``params_<name>`` ones those of ``space`` (none when it is None). ImportError
+    naming the install if pandas is absent."""
     try:
         import pandas as pd
     except ImportError:
@@ -128,9 +129,11 @@ def trials_dataframe(records: list[TrialRecord]) -> Any:
         d.update({f"params_{k}": v for k, v in t.params.items()})
         d["info"] = t.info
         rows.append(d)
+    params = [] if rows or space is None else [f"params_{k}" for k in space.names]
     df = pd.DataFrame(rows, columns=None if rows else
-                      ["phase", "idx", "trial", "cost", "failed", "info"])
-    return df.astype({"idx": "int64", "trial": "Int64", "cost": "float64", "failed": "bool"})
+                      ["phase", "idx", "trial", "cost", "failed", *params, "info"])
+    return df.astype({"idx": "int64", "trial": "Int64", "cost": "float64", "failed": "bool",
+                      **{k: "float64" for k in params}})
 
 
 def decisions(store: RunStore, phase: int = Phase.PHASE3) -> list[dict[str, Any]]:
