@@ -1390,6 +1390,7 @@ def cmd_robot_check(args: argparse.Namespace) -> int:
 
 
 def cmd_robot_init(args: argparse.Namespace) -> int:
+    from latentune.atomicfile import write_atomic
     from latentune.robots import init_spec
 
     if args.out is not None and os.path.exists(args.out):
@@ -1399,7 +1400,7 @@ def cmd_robot_init(args: argparse.Namespace) -> int:
         print(text, end="")
     else:
         try:
-            Path(args.out).write_text(text)
+            write_atomic(args.out, text)
         except OSError as exc:
             raise CLIError(f"cannot write {args.out}: {exc.strerror or exc}") from None
     return 0

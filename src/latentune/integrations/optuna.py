@@ -1302,7 +1302,9 @@ def import_optuna_study(storage: Any, study_name: str | None, out: str | os.Path
             path = out / "phase1_best.json"
             import json
 
-            path.write_text(json.dumps(sp.as_dict(best.theta), indent=1))
+            from latentune.atomicfile import write_atomic
+
+            write_atomic(path, json.dumps(sp.as_dict(best.theta), indent=1))
             st.add_artifact("phase1_best", path)
     logger.info("imported %d trial(s) of %s into %s (%d left out: pruned/running/waiting; "
                 "%d lack parameters)", added, study.study_name, out, n_left, incomplete)

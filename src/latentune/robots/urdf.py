@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping, Protocol
 
+from latentune.atomicfile import write_atomic
 from latentune.errors import RobotSpecError
 
 ERD = "example-robot-data"
@@ -507,7 +508,5 @@ def prepared_urdf(spec: UrdfFields) -> str:
     if spec.primitive_collisions:
         text = _primitive_collisions(text, spec)
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_suffix(f".{os.getpid()}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, out)
+    write_atomic(out, text)
     return str(out)

@@ -59,6 +59,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from latentune.atomicfile import write_atomic
 from latentune.constants import G
 from latentune.errors import UsageError
 from latentune.sim.state import RobotState
@@ -411,9 +412,7 @@ def perturbed_urdf(urdf: str, reality: Reality) -> str:
         ET.SubElement(joint, "child", link=PAYLOAD_LINK)
         ET.SubElement(joint, "origin", xyz="0 0 0", rpy="0 0 0")
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_suffix(f".{os.getpid()}.tmp")
-    tree.write(tmp, encoding="unicode")
-    os.replace(tmp, out)
+    write_atomic(out, ET.tostring(tree.getroot(), encoding="unicode"))
     return str(out)
 
 
