@@ -2212,6 +2212,24 @@ def test_a_cost_that_is_not_a_number_is_refused_as_what_tell_got(tmp_path):
         assert st.tell(1, cost=3.2).cost == 3.2
 
 
+FALL_HINT = ("; to record a fall, mark the trial failed (tell --failed, or failed=True), or "
+             "give a finite penalty")
+"""What a non-finite cost's message says after the value."""
+
+
+def test_a_non_finite_cost_says_how_to_record_a_fall(run_cli, tmp_path, error_line):
+    """``tell --cost inf`` (and an evaluate returning inf) said only "got a non-finite cost
+    (inf)", not how to record the fall it probably was; the line says to mark it failed, as the
+    too-large cost's does, and a failed trial's inf is then taken."""
+    d = tmp_path / "s"
+    assert run_cli("ask", d, "--system", "examples.lqr_chain:make_system", "--n", "1")[0] == 0
+    line = error_line(*run_cli("tell", d, "1", "--cost", "inf")[::2])
+    assert line.endswith(f"bad result for suggestion 1: got a non-finite cost (inf){FALL_HINT}")
+    assert run_cli("tell", d, "1", "--cost", "inf", "--failed")[0] == 0
+    with pytest.raises(LatentuneError, match=re.escape(f"(inf){FALL_HINT} at θ a=")):
+        evaluate(lt.FunctionSystem(SPACE, lambda x: float("inf")), np.zeros(4))
+
+
 def test_tell_and_evaluate_word_each_bad_cost_in_their_own_terms(tmp_path):
     """tell rewrote system.as_outcome's "evaluate returned ..." into "got ..." with a regex, so
     a reworded message there would have made tell say "evaluate" though none ran; tell passes
@@ -2229,8 +2247,10 @@ def test_tell_and_evaluate_word_each_bad_cost_in_their_own_terms(tmp_path):
          "float(y[0]) or y.sum())"),
         (True, "got a bool (True); expected a float cost",
          "evaluate returned bool True; expected a cost (float), (cost, failed) or an Outcome"),
-        (float("nan"), "got a non-finite cost (nan)", "evaluate returned a non-finite cost (nan)"),
-        (float("inf"), "got a non-finite cost (inf)", "evaluate returned a non-finite cost (inf)"),
+        (float("nan"), f"got a non-finite cost (nan){FALL_HINT}",
+         f"evaluate returned a non-finite cost (nan){FALL_HINT}"),
+        (float("inf"), f"got a non-finite cost (inf){FALL_HINT}",
+         f"evaluate returned a non-finite cost (inf){FALL_HINT}"),
         ({"cost": 1.0, "fell": True}, "got dict {'cost': 1.0, 'fell': True}; expected a float "
          "cost", "evaluate returned a dict with the key(s) fell; an outcome has cost, failed, "
          "info, wall_s (details go in info)"),

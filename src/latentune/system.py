@@ -83,7 +83,7 @@ def as_cost(value: Any, *, allow_nonfinite: bool = False,
         raise CostError(f"{opening} an integer too large for a float64 "
                         f"({len(str(abs(int(v))))} digits)") from None
     if not allow_nonfinite and not math.isfinite(cost):
-        raise EvaluationError(f"{opening} a non-finite cost ({cost})")
+        raise EvaluationError(_non_finite(opening, cost))
     if not allow_nonfinite and abs(cost) >= COST_LIMIT:
         raise CostError(_too_large(opening, cost))
     return cost
@@ -106,6 +106,13 @@ def as_failed(value: Any, *, opening: str = "evaluate returned") -> bool:
     if isinstance(v, (int, np.integer)) and int(v) in (0, 1):
         return bool(v)
     raise EvaluationError(f"{opening} failed = {_short(v)}; expected True or False")
+
+
+def _non_finite(opening: str, cost: float) -> str:
+    """The message for a non-finite cost of a trial that did not fail: what was given, and how
+    to record the fall it usually is (the too-large cost's message says the same)."""
+    return (f"{opening} a non-finite cost ({cost}); to record a fall, mark the trial failed "
+            "(tell --failed, or failed=True), or give a finite penalty")
 
 
 def _too_large(opening: str, cost: float) -> str:
@@ -213,7 +220,7 @@ def as_outcome(value: Any, *, opening: str | None = None) -> Outcome:
         out.cost = fail_cost(out.info.get("fall_step"), out.info.get("horizon") or 1) \
             if out.info.get("fall_step") is not None and out.info.get("horizon") else 2.0 * C1
     if not math.isfinite(out.cost):
-        raise EvaluationError(f"{returned} a non-finite cost ({out.cost})")
+        raise EvaluationError(_non_finite(returned, out.cost))
     if abs(out.cost) >= COST_LIMIT:
         raise CostError(_too_large(returned, out.cost))
     return out
