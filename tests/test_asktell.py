@@ -2314,3 +2314,20 @@ def test_a_space_file_with_a_key_given_twice_is_refused(run_cli, tmp_path, error
     assert not (d / "run.db").exists()
     assert yamltext.load("base: &b {x: 1, y: 2}\nover:\n  <<: *b\n  y: 3\n") == {
         "base": {"x": 1, "y": 2}, "over": {"x": 1, "y": 3}}
+
+
+def test_a_smaller_budget_says_budgets_only_grow(run_cli, tmp_path, error_line):
+    """``ask --budget 5`` on a study asked with --budget 10 said only "runs with --budget 10
+    (stored), not --budget 5", as if the budget were pinned like the method; it says a budget
+    only grows, and a larger one is taken."""
+    d = tmp_path / "s"
+    assert run_cli("ask", d, "--system", "examples.lqr_chain:make_system", "--budget", "10")[0] \
+        == 0
+    line = error_line(*run_cli("ask", d, "--budget", "5")[::2])
+    assert line.endswith("phase 1 runs with --budget 10 (stored), not --budget 5; a budget can "
+                         "only grow: give 10 or more, or leave it out"), line
+    with lt.Study(d) as st:
+        with pytest.raises(StoreError, match=r"budget = 10 \(stored\), not 9; a budget can only "
+                                             r"grow: give 10 or more"):
+            st.ask(1, budget=9)
+    assert run_cli("ask", d, "--budget", "12")[0] == 0

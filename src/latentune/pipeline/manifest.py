@@ -503,7 +503,7 @@ def ask_options(stored: dict[str, Any] | None, given: dict[str, Any], dir_: Any,
                 phase: int) -> dict[str, Any]:
     """The options of a later ask: each ``None`` in ``given`` is the stored value; an explicit
     one that differs from the stored is refused in one line naming the stored value (a budget
-    may grow). ``stored``: the phase's options record (None on the first ask)."""
+    may grow; a smaller one is refused saying so). ``stored``: the phase's options record (None on the first ask)."""
     if not stored:
         return dict(given)
     defaults = {"start": "manual", "max_fall_prob": None, "handover": None, "regions": None,
@@ -515,6 +515,10 @@ def ask_options(stored: dict[str, Any] | None, given: dict[str, Any], dir_: Any,
             out[k] = old
         elif k == "budget" and old is not None and is_whole(v, old):
             out[k] = v
+        elif k == "budget" and old is not None and is_whole(v, 1):
+            raise StoreError(f"{dir_}: phase {int(phase)} runs with budget = {old!r} (stored), "
+                             f"not {v!r}; a budget can only grow: give {old} or more, or leave "
+                             "it out")
         elif not same_option(k, old, v) \
                 and not (k == "fall_prior" and stored.get("max_fall_prob") is None):
             raise StoreError(f"{dir_}: phase {int(phase)} runs with {k.replace('_', '-')} = "
