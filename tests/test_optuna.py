@@ -700,9 +700,12 @@ def test_an_enqueued_zero_shot_theta_is_not_run_twice(source_run):
     assert len(set(thetas(study))) == 2
 
 
-def test_a_sampler_refuses_a_trial_that_stood_with_a_non_finite_value():
-    """A trial that stands with -inf (a minimize study's best for Optuna) stops the study as it
-    finishes, naming it, and later samples refuse it too; a fall's -inf is told as +inf."""
+def test_a_sampler_tells_a_trial_that_stood_with_a_non_finite_value_as_a_fall():
+    """A trial that stood with -inf (a minimize study's best for Optuna) or +inf stopped the
+    study as it finished, and every later ask raised, leaving a RUNNING trial behind each time:
+    Optuna has recorded the trial and cannot drop it, so the study could not go on. The samplers
+    tell such a trial as a fall with cost +inf, as a FAIL (one warning names it), and the study
+    goes on; a fall's -inf is told as +inf, as before."""
     dists = {"a": FD(0.0, 1.0), "b": FD(-1.0, 1.0)}
     sampler = TurboSampler(dists, seed=0, budget=20)
     study = optuna.create_study(sampler=sampler)
@@ -712,16 +715,20 @@ def test_a_sampler_refuses_a_trial_that_stood_with_a_non_finite_value():
         if trial.number == 1:
             trial.set_constraint("fall", 1.0)
             return -math.inf
-        return -math.inf if trial.number == 3 else v
+        return {3: -math.inf, 4: math.inf}.get(trial.number, v)
 
-    with pytest.raises(UsageError, match="trial 3 stood with value -inf"):
+    with pytest.warns(UserWarning, match=r"trial 3 stood with value -inf: .* counts it as a "
+                                         r"fall \(cost \+inf\)"):
         study.optimize(objective, n_trials=6)
-    assert len(study.trials) == 4
-    _, y, _, fell, _ = sampler._history(study.get_trials()[:3], 1.0, -1, False, 2)
-    assert y[1] == math.inf and fell[1]
+    S = optuna.trial.TrialState
+    assert [t.state for t in study.trials] == [S.COMPLETE] * 6
+    _, y, _, fell, _ = sampler._history(study.get_trials(), 1.0, -1, False, 2)
+    assert [y[i] for i in (1, 3, 4)] == [math.inf] * 3 and all(fell[i] for i in (1, 3, 4))
+    assert not fell[0] and math.isfinite(y[0])
     t = study.ask()
-    with pytest.raises(UsageError, match="trial 3 stood"):
-        sampler.suggest_all(t)
+    assert set(sampler.suggest_all(t)) == {"a", "b"}
+    study.tell(t, 0.5)
+    assert not any(t.state == S.RUNNING for t in study.trials)
 
 
 def _worker(source: str, journal: str, n: int) -> None:

@@ -22,9 +22,10 @@ of processes may share one RDB or journal storage):
 * each COMPLETE trial is told with its value (negated for a ``maximize`` study) and a fall flag;
   each FAIL trial is told as a fall with cost +inf (the critics treat it as the worst cost seen);
   PRUNED and WAITING trials are not told (a PRUNED trial's θ is not asked again); a value
-  that is not finite (or of 1e300 in size or more) is no cost: a fall's is +inf, and a trial
-  that stood with one is refused, naming it (:func:`trial_cost`; ``after_trial`` refuses it as
-  it finishes, and every later sample does);
+  that is not finite (or of 1e300 in size or more) is no cost: the trial is told as a fall
+  with cost +inf, as a FAIL, and one that stood with one gets a ``UserWarning`` naming it as it
+  finishes (Optuna has recorded it and keeps it: a refusal would stop every later sample, so
+  the study could not go on; :func:`import_optuna_study` refuses it, :func:`trial_cost`);
 * a trial *falls* (``failed`` in latentune) when any of its Optuna constraint values is > 0 —
   set by ``trial.set_constraint(name, value)`` in the objective, or by a ``constraints_func``
   given to the sampler (called in ``after_trial``, as Optuna's own samplers do) — or when its
@@ -265,6 +266,24 @@ def _is_cost(v: float) -> bool:
     return math.isfinite(float(v)) and abs(float(v)) < COST_LIMIT
 
 
+def _sampled_fell(trial: Any, state: Any = None, values: Sequence[float] | None = None
+                  ) -> bool:
+    """Whether the samplers tell a finished trial as a fall: :func:`trial_fell`, or a value
+    that is no cost (not finite, or of 1e300 in size or more: a blown-up objective).
+    ``state``, ``values``: those it is being finished with (in ``after_trial``, before the
+    storage records them), else its own."""
+    vs = trial.values if values is None else values
+    v = vs[0] if vs else None
+    return trial_fell(trial, state) or (v is not None and not _is_cost(v))
+
+
+def _sampled_cost(trial: Any, sign: float) -> float:
+    """The cost the samplers tell for a finished trial: :func:`trial_cost`, with +inf (a fall's,
+    :func:`_sampled_fell`) for a value that is no cost, where that refuses one that stood."""
+    v = trial.values[0] if trial.values else None
+    return math.inf if v is not None and not _is_cost(v) else trial_cost(trial, sign)
+
+
 def _no_cost(number: int, value: float) -> str:
     return (f"trial {number} stood with value {value:g}: latentune takes a finite cost smaller "
             f"than {COST_LIMIT:g} in size; return a finite value, or mark the trial a fall "
@@ -496,9 +515,10 @@ class _CriticSampler:
                         values: Sequence[float] | None) -> None:
         """Refuse (:class:`UsageError`) a trial finishing COMPLETE that the critic cannot be
         told truly: a parameter of the space suggested with other bounds, or not
-        suggested at all (a misspelled name: the trial did not run at a θ of the space), or a
-        value that is no cost while the trial stood (:func:`trial_cost`). Optuna still records
-        the trial; the refusal stops ``study.optimize`` (``study.tell`` raises it)."""
+        suggested at all (a misspelled name: the trial did not run at a θ of the space). Optuna
+        still records the trial; the refusal stops ``study.optimize`` (``study.tell`` raises
+        it). A value that is no cost while the trial stood gets a ``UserWarning``: the trial
+        is told as a fall (:func:`_sampled_fell`)."""
         if state != optuna.trial.TrialState.COMPLETE:
             return
         for n, d in self._dists.items():
@@ -517,7 +537,12 @@ class _CriticSampler:
         v = values[0] if values else None
         if v is not None and not _is_cost(v) and \
                 not trial_fell(study._storage.get_trial(trial._trial_id), state):
-            raise UsageError(f"{type(self).__name__}: " + _no_cost(trial.number, float(v)))
+            warnings.warn(f"{type(self).__name__}: trial {trial.number} stood with value "
+                          f"{float(v):g}: that is no cost, so the sampler counts it as a fall "
+                          f"(cost +inf); to say so, mark the trial a fall "
+                          f"(trial.set_constraint(...) > 0 or the user attribute "
+                          f"{FAILED_ATTR!r}), else return a finite value",
+                          UserWarning, stacklevel=2)
 
     def before_trial(self, study: Any, trial: Any) -> None:
         self._independent.before_trial(study, trial)
@@ -531,9 +556,10 @@ class _CriticSampler:
         self._independent.after_trial(study, trial, state, values)
         self._given.pop((study._study_id, trial._trial_id), None)
         self._check_finished(study, trial, state, values)
-        self._after_fall_budget(study, trial, state)
+        self._after_fall_budget(study, trial, state, values)
 
-    def _after_fall_budget(self, study: Any, trial: Any, state: Any) -> None:
+    def _after_fall_budget(self, study: Any, trial: Any, state: Any,
+                           values: Sequence[float] | None) -> None:
         """Subclass hook called after each trial (LatentSampler: its fall budget)."""
 
     def reseed_rng(self) -> None:
@@ -557,9 +583,9 @@ class _CriticSampler:
                 continue
             x, tag, z = told
             X.append(x)
-            y.append(math.nan if now else trial_cost(t, sign))
+            y.append(math.nan if now else _sampled_cost(t, sign))
             tags.append(tag)
-            fell.append(bool(extra[1]) if now else trial_fell(t))
+            fell.append(bool(extra[1]) if now else _sampled_fell(t))
             Z.append(z)
         return X, y, tags, fell, Z
 
@@ -911,12 +937,14 @@ class LatentSampler(_CriticSampler, BaseSampler):
                                          self._space.dim, extra=extra)
         return fell
 
-    def _after_fall_budget(self, study: Any, trial: Any, state: Any) -> None:
+    def _after_fall_budget(self, study: Any, trial: Any, state: Any,
+                           values: Sequence[float] | None) -> None:
         if self.transfer_options is None or not self.transfer_options.get("fall_budget"):
             return
         now = study._storage.get_trial(trial._trial_id)         # constraints set just now
         fb = self._fall_budget_of(self._finished_fell(study, (trial.number,
-                                                              trial_fell(now, state))))
+                                                              _sampled_fell(now, state,
+                                                                            values))))
         if fb is None or not fb["spent"]:
             return
         logger.warning("trial %d: the fall budget is spent (%d falls counted, %d allowed); "
