@@ -324,6 +324,37 @@ def test_the_report_says_when_a_phase_s_wall_time_is_not_known(tmp_path: Path):
     assert summary["wall_s"] is None and summary["wall_unknown"] == ["phase1", "phase3"]
 
 
+def test_a_block_killed_then_run_again_says_which_part_of_its_time_is_known(tmp_path: Path):
+    """A VAE training killed before it ended (no trial, so its time is lost), then trained
+    again to the end: the report said "Wall time of vae not (all) known: trials told through
+    ask/tell or imported, ...", as if nothing of it were timed. The later training's time is
+    known and shown; the killed one's is not, and the report says that part is missing and
+    why; summary.json keeps vae in wall_unknown (its total is not all known)."""
+    import time as _time
+
+    from latentune.pipeline.manifest import Manifest
+    from latentune.pipeline.rundir import RunDir
+    from latentune.pipeline.walltime import settle_open
+
+    cfg = {"system": {"kind": "python", "class": "mymod.Arm"}, "phase1": {"method": "turbo"}}
+    with _store(tmp_path / "run", cfg) as st:
+        st.set_meta("wall_open", {"vae": _time.time()})     # killed in its training
+        settle_open(st)
+    run = RunDir(tmp_path / "run")
+    with Manifest(run).timing("vae"):          # the training run again, to its end
+        pass
+    run.store.close()
+    with RunStore(tmp_path / "run") as st:
+        make_report(st, simulate=False, quiet=True)
+    md = (tmp_path / "run" / "report.md").read_text().splitlines()
+    line = next(ln for ln in md if ln.startswith("Wall time:"))
+    assert "phase1 12 s, phase3 3 s, vae 0 s + unknown." in line, line
+    assert "The time of vae leaves out a block stopped before it stored its time" in line, line
+    assert "told through ask/tell" not in line, line
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["wall_unknown"] == ["vae"] and summary["wall_by_phase_s"]["vae"] >= 0.0
+
+
 def test_a_paper_study_killed_inside_a_phase_counts_its_time(tmp_path: Path):
     """A study of ``paper`` killed inside phase 3 (its start stored, its end never) counted
     0 s for it in the paper's wall times; it counts up to its last stored trial."""

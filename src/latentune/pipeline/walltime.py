@@ -5,7 +5,9 @@ when a timed block ends. ``wall_open``: the unix time each running block started
 it runs, so a command killed inside one (SIGKILL: no clean-up) leaves its start behind; its time
 is counted up to the last trial stored since (:func:`wall_record`), and written into ``wall``
 when the next timed block of the store starts (:func:`settle_open`). ``wall_unknown``: the keys
-of killed blocks that stored no trial, whose time nobody knows.
+of killed blocks that stored no trial, whose time nobody knows; a later block of the same key
+that ends adds its time to ``wall`` and leaves the key in ``wall_unknown``: the key's total is
+then partly known (the report shows its time "+ unknown").
 """
 from __future__ import annotations
 

@@ -301,7 +301,9 @@ def write_summary(store: Any, manual: list | None = None) -> dict[str, Any]:
     user system); wall times [s]
     ``wall_s`` (sum over phases; None when every phase that ran has an unknown time),
     ``wall_by_phase_s``, ``wall_unknown`` (the phases whose time is not (all) known: a run
-    killed inside one before storing a trial, or trials told through ask/tell:
+    killed inside one before storing a trial, or trials told through ask/tell; one that is in
+    ``wall_by_phase_s`` too is partly known: its blocks that ended are counted, the killed
+    one is not, and a later block that ends does not make it known:
     :func:`~latentune.pipeline.walltime.wall_record`); ``seed``,
     ``config``, ``artifacts``, ``phase{1,3}_best_params``, ``paper`` (the paper's numbers for
     the task or None), ``phase3_handover`` (:func:`handover_stats`), ``written`` (unix time).
@@ -559,13 +561,20 @@ def make_report(store: Any, system: Any = None, simulate: bool = True, quiet: bo
     wall = summary.get("wall_by_phase_s") or {}
     unknown = summary.get("wall_unknown") or []
     if wall or unknown:
+        partly = [k for k in unknown if k in wall]      # timed, and a block of it lost
+        none = [k for k in unknown if k not in wall]
         md.append(" ".join(
-            ([("Wall time: " + ", ".join(f"{k} {v:.0f} s" for k, v in wall.items()) + ".")]
+            ([("Wall time: " + ", ".join(f"{k} {v:.0f} s" + (" + unknown" if k in partly
+                                                               else "")
+                                         for k, v in wall.items()) + ".")]
              if wall else [])
-            + ([f"Wall time of {', '.join(unknown)} not (all) known: trials told through "
+            + ([f"The time of {', '.join(partly)} leaves out a block stopped before it stored "
+                "its time or any trial (a command killed in it, or one running now): the "
+                "blocks that ended are counted."] if partly else [])
+            + ([f"Wall time of {', '.join(none)} not (all) known: trials told through "
                 "ask/tell or imported, or a run stopped before it stored its time or any "
                 "trial."]
-               if unknown else [])))
+               if none else [])))
         md.append("")
     for f in figs:
         md.append(f"![{f}]({f})")
