@@ -835,6 +835,17 @@ def test_parameter_space_refuses_nested_or_text_bounds(kw, expect):
     assert lt.ParameterSpace(["a"], 0, 1).lower.tolist() == [0.0]     # one entry: a number
 
 
+def test_a_parameter_space_reads_its_bounds_by_the_names_it_was_given():
+    """``ParameterSpace(names, low, high)`` held its bounds as ``lower``/``upper`` only:
+    ``space.low`` raised AttributeError. ``low``/``high`` are the same arrays, read-only
+    (``lower``/``upper`` remain)."""
+    sp = lt.ParameterSpace(["a", "b"], low=[0, 1], high=[2, 3])
+    assert sp.low is sp.lower and sp.high is sp.upper
+    assert sp.low.tolist() == [0.0, 1.0] and sp.high.tolist() == [2.0, 3.0]
+    with pytest.raises(AttributeError):
+        sp.low = np.zeros(2)
+
+
 def test_a_stored_run_with_a_blank_name_still_opens(tmp_path):
     """A run recorded before blank names were refused (its space's names ``""`` and ``"b"``)
     still opens: its status and trials are read, the name as it was recorded."""

@@ -86,7 +86,9 @@ class ParameterSpace:
         manual: (d,) the hand-tuned θ in physical units, inside the bounds; default the centre
             of the unit box. Phase 1 starts its first trust region there.
 
-    Attributes ``lower``, ``upper``, ``log``, ``manual_physical`` hold the (d,) arrays.
+    Attributes ``low``, ``high`` (read-only, the constructor's names), ``log``,
+    ``manual_physical`` hold the (d,) arrays; ``lower``, ``upper`` remain, the same arrays as
+    ``low``, ``high``.
     Raises :class:`~latentune.errors.UsageError` (a ``ValueError``) for inconsistent arguments,
     for a blank name or one with a line break, and for bounds whose width (log entries: whose
     ratio high / low) a float64 cannot hold. ``stored``: the space of a stored run, read back
@@ -227,6 +229,16 @@ class ParameterSpace:
     @property
     def dim(self) -> int:
         return len(self.names)
+
+    @property
+    def low(self) -> np.ndarray:
+        """(d,) lower physical bounds, the constructor's ``low``: the array ``lower`` holds."""
+        return self.lower
+
+    @property
+    def high(self) -> np.ndarray:
+        """(d,) upper physical bounds, the constructor's ``high``: the array ``upper`` holds."""
+        return self.upper
 
     @property
     def manual(self) -> np.ndarray:
