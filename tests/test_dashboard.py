@@ -242,3 +242,36 @@ def test_a_store_with_trials_and_no_space_says_why_nothing_is_shown(tmp_path: Pa
         st.add(1, 0, np.full(25, 0.5), cost=3.0)
     exp = RunExport(tmp_path / "first")
     assert exp.sync() == 1
+
+
+def free_port() -> str:
+    """A port on 127.0.0.1 that nothing listens on now (the CLI's --port takes no 0)."""
+    import socket
+
+    with socket.socket() as sk:
+        sk.bind(("127.0.0.1", 0))
+        return str(sk.getsockname()[1])
+
+
+@pytest.mark.parametrize("how, expect", [
+    ("term", "latentune: error: terminated (SIGTERM); the run is unchanged (the dashboard "
+             "only reads it)"),
+    ("int", "latentune: error: interrupted; the run is unchanged (the dashboard only reads it)"),
+])
+def test_a_dashboard_stopped_while_it_starts_says_the_run_is_unchanged(tmp_path, monkeypatch,
+                                                                       run_cli, how, expect):
+    """SIGTERM (or Ctrl-C) while ``latentune dashboard`` started said "stored results are
+    kept", odd for a command that stores nothing; it says the run is unchanged."""
+    import os
+    import signal
+
+    from latentune.integrations import dashboard
+
+    def stopped(self):
+        if how == "term":
+            os.kill(os.getpid(), signal.SIGTERM)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(dashboard.Dashboard, "start", stopped)
+    code, out, err = run_cli("dashboard", run_dir(tmp_path, 2), "--port", free_port())
+    assert (code, err.strip()) == (143 if how == "term" else 130, expect), (code, err)

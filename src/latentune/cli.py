@@ -1884,11 +1884,12 @@ def _command(argv: Sequence[str] | None, set_level: Callable[[int], None]) -> in
             logging.getLogger("latentune.cli").info(
                 "interrupted after the command finished: its results are complete")
             return 0 if code is None else code
+        # what an interrupt leaves: a command may say it (set_defaults(interrupt_note=...))
+        note = getattr(args, "interrupt_note", None) or "stored results are kept"
         if isinstance(exc, _Terminated):
-            print("latentune: error: terminated (SIGTERM); stored results are kept",
-                  file=sys.stderr)
+            print(f"latentune: error: terminated (SIGTERM); {note}", file=sys.stderr)
             return 143
-        print("latentune: error: interrupted; stored results are kept", file=sys.stderr)
+        print(f"latentune: error: interrupted; {note}", file=sys.stderr)
         return 130
 
 

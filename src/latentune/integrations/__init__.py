@@ -137,4 +137,5 @@ def register_cli(sub: Any, parents: Sequence[argparse.ArgumentParser] = ()) -> N
                    help="seconds between reads of the run store (default 2)")
     p.add_argument("--journal", default=None, metavar="FILE",
                    help="also keep the exported trials in this Optuna journal file")
-    p.set_defaults(func=cmd_dashboard)
+    p.set_defaults(func=cmd_dashboard,      # what an interrupt before it serves leaves
+                   interrupt_note="the run is unchanged (the dashboard only reads it)")
