@@ -704,7 +704,7 @@ def main_ladder(argv: list[str]) -> int:
 
 def main_kinds(argv: list[str]) -> int:
     """``kinds``: asks and falls by kind of ask of transfer variants' traces (their decisions)."""
-    from benchmarks.common import Provenance, bench_parser, finish
+    from benchmarks.common import Provenance, bench_parser, error_line, finish
 
     ap = bench_parser("benchmarks.transfer_falls kinds", description=main_kinds.__doc__)
     ap.add_argument("--root", type=Path, default=Path("runs/transfer"))
@@ -718,7 +718,7 @@ def main_kinds(argv: list[str]) -> int:
     try:
         rows = kinds(a.root, a.methods, a.systems, a.seeds)
     except ValueError as e:
-        print(f"transfer_falls kinds: {e}", file=sys.stderr)
+        error_line("benchmarks.transfer_falls kinds", e)
         return 2
     finish(a.out, prov, {"root": str(a.root), "systems": a.systems, "seeds": a.seeds}, rows,
            title="Asks and falls by kind of ask, summed over the traces")

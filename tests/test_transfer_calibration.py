@@ -132,7 +132,8 @@ def test_kinds_sum_asks_and_falls_by_kind_over_the_traces(tmp_path, capsys):
     """``benchmarks.transfer_falls kinds``: trial 0 (the zero-shot θ) has no decision and is not
     counted; each ask counts with its trial's fall under its kind, explore asks whose own GP chose
     warped values apart; traces of other methods and of seeds not asked for are left out; a
-    method with no trace is one line on stderr and exit 2."""
+    method with no trace is one line on stderr and exit 2, named as argparse's lines of the
+    command are (it said ``transfer_falls kinds: no trace of ...``, without ``error:``)."""
     from benchmarks.transfer_falls import kinds, main
 
     def put(system, gap, seed, method, failed, decisions):
@@ -153,4 +154,5 @@ def test_kinds_sum_asks_and_falls_by_kind_over_the_traces(tmp_path, capsys):
     assert rows == {"design": (2, 1, 2), "full": (1, 0, 2), "explore lines (warped)": (2, 2, 2),
                     "explore lines": (1, 0, 2), "all": (6, 3, 2)}
     assert main(["kinds", "--root", str(tmp_path), "--methods", "none"]) == 2
-    assert capsys.readouterr().err.strip() == f"transfer_falls kinds: no trace of none under {tmp_path}"
+    assert capsys.readouterr().err.strip() == ("python -m benchmarks.transfer_falls kinds: error: "
+                                               f"no trace of none under {tmp_path}")
