@@ -969,3 +969,21 @@ def test_a_system_arg_given_twice_is_refused(run_cli, plugin_dir, tmp_path):
                            "--backend", "serial")
     line = one_line_error(code, err)
     assert "--system-arg shift is given twice" in line and not (out / "run.db").exists()
+
+
+def test_ask_with_system_on_a_run_made_through_the_api_says_to_leave_it_out(run_cli, tmp_path):
+    """``ask DIR --system M:F`` on a run made through the API with the same system said "holds
+    a run of another system (args: stored None, given {}; class: stored ..., given None; ...)",
+    a diff of two descriptions; it names the Python system and says to leave --system out
+    (report said the same), and the ask without it goes on."""
+    from examples.lqr_chain import make_system
+
+    with lt.Study(tmp_path / "api", seed=0) as st:
+        st.phase1(make_system(), 3, method="random")
+    line = one_line_error(*run_cli("ask", tmp_path / "api", "--system",
+                                   "examples.lqr_chain:make_system", "--budget", "4")[::2])
+    assert line == (f"latentune: error: {tmp_path / 'api'} holds a run of the Python system "
+                    "examples.lqr_chain.ChainSystem (made through the API), not of --system "
+                    "examples.lqr_chain:make_system: leave --system out (ask, tell and report "
+                    "read the stored run), or continue it with latentune.Study"), line
+    assert run_cli("ask", tmp_path / "api", "--budget", "4")[0] == 0

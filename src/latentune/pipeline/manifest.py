@@ -354,6 +354,12 @@ class Manifest:
                     else f"an import of the Optuna study {stored.get('study_name')!r}"
                 raise StoreError(f"{self.run.dir} holds a run of another system ({what}): ask "
                                  "it without a system")
+            if stored.get("kind") == "python" and desc.get("kind") == "plugin":
+                raise StoreError(f"{self.run.dir} holds a run of the Python system "
+                                 f"{stored.get('class')} (made through the API), not of "
+                                 f"--system {desc.get('target')}: leave --system out (ask, tell "
+                                 "and report read the stored run), or continue it with "
+                                 "latentune.Study")
             if stored.get("kind") == "task" and desc.get("kind") == "plugin":
                 t = stored.get("task") or {}
                 raise StoreError(f"{self.run.dir} holds a run of the built-in robot "
