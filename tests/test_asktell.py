@@ -2331,3 +2331,23 @@ def test_a_smaller_budget_says_budgets_only_grow(run_cli, tmp_path, error_line):
                                              r"grow: give 10 or more"):
             st.ask(1, budget=9)
     assert run_cli("ask", d, "--budget", "12")[0] == 0
+
+
+def test_a_transfer_option_on_a_stored_plain_phase_3_says_it_is_the_transfer_ones(
+        run_cli, tmp_path, src30, error_line):
+    """``ask DIR --record-walk 2`` on a plain phase 3 said "runs with no --record-walk (stored),
+    not --record-walk 2", as if the option could have been given when it started; it says the
+    option is the transfer phase 3's and this one is plain, as --handover on a stored transfer
+    phase 3 does."""
+    d = tmp_path / "p"
+    with lt.Study(d, seed=0) as st:
+        st.ask(2, system=plant(0.1), phase=3, latent=src30, strategy="plain", budget=6)
+        with pytest.raises(StoreError, match=r"transfer_options are options of the transfer "
+                                             r"phase 3, and this phase 3 runs with strategy "
+                                             r"plain \(stored\)"):
+            st.ask(1, transfer_options={"record_walk": 2})
+    line = error_line(*run_cli("ask", d, "--record-walk", "2")[::2])
+    assert line.endswith(f"{d}: --record-walk is an option of the transfer phase 3, and this "
+                         "phase 3 runs with --strategy plain (stored): leave --record-walk out "
+                         "to go on with it, or start a transfer phase 3 in another directory"), \
+        line

@@ -519,6 +519,12 @@ def ask_options(stored: dict[str, Any] | None, given: dict[str, Any], dir_: Any,
         old = stored.get(k, defaults.get(k))
         if v is None:
             out[k] = old
+        elif k == "transfer_options" and int(phase) == Phase.PHASE3 and \
+                (stored.get("strategy") or "plain") == "plain":     # not an option of it
+            raise StoreError(f"{dir_}: transfer_options are options of the transfer phase 3, "
+                             "and this phase 3 runs with strategy plain (stored): leave them "
+                             "out to go on with it, or start a transfer phase 3 in another "
+                             "directory")
         elif k == "budget" and old is not None and is_whole(v, old):
             out[k] = v
         elif k == "budget" and old is not None and is_whole(v, 1):
