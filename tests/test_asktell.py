@@ -2351,3 +2351,24 @@ def test_a_transfer_option_on_a_stored_plain_phase_3_says_it_is_the_transfer_one
                          "phase 3 runs with --strategy plain (stored): leave --record-walk out "
                          "to go on with it, or start a transfer phase 3 in another directory"), \
         line
+
+
+def test_a_phase_3_run_given_as_the_latent_space_names_its_source(run_cli, tmp_path, src30,
+                                                                   error_line):
+    """``ask NEW --phase 3 --vae T`` where T is itself a phase 3 (on the latent space of S)
+    said "T holds no latent space: train one there first (latentune train-vae --out T)", which
+    fails there (T has no phase-1 trial); it names S, whose latent space T searched."""
+    t = tmp_path / "t"
+    with lt.Study(t, seed=0) as st:
+        st.ask(1, system=plant(0.1), phase=3, latent=src30, budget=4)
+    space_file = tmp_path / "space.json"
+    space_file.write_text(json.dumps(SPACE.to_dict()))
+    with pytest.raises(LatentuneError, match=re.escape(
+            f"latent: {t} holds no latent space of its own: it is a phase 3 on the latent "
+            f"space of {src30.resolve()}; give that run instead (latent)")):
+        lt.Study(tmp_path / "n").ask(1, system=plant(0.2), phase=3, latent=t)
+    assert not (tmp_path / "n").exists()
+    line = error_line(*run_cli("ask", tmp_path / "n", "--phase", "3", "--vae", t, "--space",
+                               space_file)[::2])
+    assert line.endswith(f"--vae: {t} holds no latent space of its own: it is a phase 3 on the "
+                         f"latent space of {src30.resolve()}; give that run instead (--vae)"), line

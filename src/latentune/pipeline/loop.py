@@ -418,7 +418,12 @@ def resolve_latent(run: RunDir, manifest: Manifest, latent: Any, space: Paramete
         if (other / "run.db").is_file():
             with RunStore(other) as o:
                 src = o.artifact("vae")
+                searched = (o.get_meta("config") or {}).get("phase3_vae_source")
             if src is None and not (other / "vae.pt").is_file():
+                if searched not in (None, "self"):      # a phase 3 on another's latent space
+                    raise LatentError(f"latent: {other} holds no latent space of its own: it "
+                                      f"is a phase 3 on the latent space of {searched}; give "
+                                      "that run instead (latent)")
                 raise LatentError(f"latent: {other} holds no latent space: train one there "
                                   "first (train_latent / train-vae)")
         ls = LatentSpace.load(src if src is not None else other / "vae")
