@@ -1666,11 +1666,14 @@ def test_a_failing_first_ask_of_phase_3_leaves_the_run_as_it_was(tmp_path, src30
             ["zero-shot", "phase 3"]
 
 
-def test_a_writer_waiting_for_a_failed_first_write_holds_the_lock_it_gets(tmp_path):
+def test_a_writer_waiting_for_a_failed_first_write_holds_the_lock_it_gets(tmp_path,
+                                                                         monkeypatch):
     """A failed first write removes DIR/run.lock while it holds it (and DIR it created). A
     writer that waited for it must not hold the removed file's lock (a third writer creating
     a new run.lock would write at the same time): the waiter takes the lock on the file
-    there, and the third is refused."""
+    there, and the third is refused. The first write fails only once the waiter has found the
+    lock taken (its first ``flock`` refused), however slowly the waiter's thread starts."""
+    import fcntl
     import threading
 
     from latentune.errors import LockError
@@ -1678,7 +1681,18 @@ def test_a_writer_waiting_for_a_failed_first_write_holds_the_lock_it_gets(tmp_pa
 
     d = tmp_path / "run"
     first, waiter = RunDir(d), RunDir(d)
-    holding, checked = threading.Event(), threading.Event()
+    holding, checked, refused = threading.Event(), threading.Event(), threading.Event()
+    flock = fcntl.flock
+
+    def watched_flock(fd, op):
+        try:
+            return flock(fd, op)
+        except OSError:
+            if threading.current_thread() is t:
+                refused.set()
+            raise
+
+    monkeypatch.setattr(fcntl, "flock", watched_flock)
 
     def wait_for_it():
         with waiter.writing(wait=10):
@@ -1689,7 +1703,7 @@ def test_a_writer_waiting_for_a_failed_first_write_holds_the_lock_it_gets(tmp_pa
     with pytest.raises(RuntimeError, match="critic"):
         with first.writing(), first.as_before_on_error():
             t.start()
-            time.sleep(0.3)             # the waiter is waiting for the lock
+            assert refused.wait(10)     # the waiter is waiting for the lock
             raise RuntimeError("the critic failed")
     try:
         assert holding.wait(10)
