@@ -25,7 +25,7 @@ of processes may share one RDB or journal storage):
   that is not finite (or of 1e300 in size or more) is no cost: the trial is told as a fall
   with cost +inf, as a FAIL, and one that stood with one gets a ``UserWarning`` naming it as it
   finishes (Optuna has recorded it and keeps it: a refusal would stop every later sample, so
-  the study could not go on; :func:`import_optuna_study` refuses it, :func:`trial_cost`);
+  the study could not go on; :func:`import_optuna_study` imports it the same way);
 * a trial *falls* (``failed`` in latentune) when any of its Optuna constraint values is > 0 —
   set by ``trial.set_constraint(name, value)`` in the objective, or by a ``constraints_func``
   given to the sampler (called in ``after_trial``, as Optuna's own samplers do) — or when its
@@ -84,9 +84,9 @@ Import rules (:func:`import_optuna_study`)
   ``latentune_failed`` is a fall (a failed row, its value kept as its cost); FAIL trials are
   falls with cost +inf; PRUNED, RUNNING and WAITING trials are left out, and so
   are trials that lack one of the parameters (a warning counts them);
-* a value that is not finite (or of 1e300 in size or more) is no cost (:func:`trial_cost`): a
-  fall's becomes +inf, as a FAIL's; a trial that stood with one (``-inf`` in a minimize study
-  is Optuna's best) refuses the import, naming the trial;
+* a value that is not finite (or of 1e300 in size or more) is no cost (:func:`trial_cost`):
+  the trial is a fall with cost +inf, as a FAIL, as the samplers tell it; one that stood with
+  such a value (``-inf`` in a minimize study is Optuna's best) is named in one warning;
 * rows are untagged (tag −1: points the critic did not ask for), in trial-number order, with
   ``info`` = ``optuna_trial``, ``optuna_state``, ``optuna_value``, ``constraints``; importing
   again into the same directory adds the trials not imported yet.
@@ -244,21 +244,13 @@ def trial_fell(trial: Any, state: Any = None) -> bool:
 
 def trial_cost(trial: Any, sign: float) -> float:
     """The cost latentune minimizes for a finished trial: ``sign · value`` (sign −1 for a
-    maximize study); +inf for a FAIL trial (it has no value).
-
-    A value that is not finite, or of :data:`~latentune.constants.COST_LIMIT` (1e300) in size
-    or more, is no cost, as in latentune's own trials (:func:`latentune.system.as_outcome`): a
-    fall's is +inf (the fall convention, as a FAIL); a trial that stood with one is refused,
-    :class:`~latentune.errors.UsageError` naming the trial (Optuna keeps a COMPLETE ``-inf`` in
-    a minimize study as its best, which latentune cannot rank)."""
+    maximize study); +inf for a FAIL trial (it has no value) and for a value that is no cost:
+    not finite, or of :data:`~latentune.constants.COST_LIMIT` (1e300) in size or more, as in
+    latentune's own trials (:func:`latentune.system.as_outcome`). Such a trial is told as a
+    fall (:func:`_sampled_fell`), even one that stood (Optuna keeps a COMPLETE ``-inf`` in a
+    minimize study as its best, which latentune cannot rank)."""
     v = trial.values[0] if trial.values else None
-    if v is None:
-        return math.inf
-    if _is_cost(v):
-        return float(sign) * float(v)
-    if trial_fell(trial):
-        return math.inf
-    raise UsageError(_no_cost(trial.number, float(v)))
+    return float(sign) * float(v) if v is not None and _is_cost(v) else math.inf
 
 
 def _is_cost(v: float) -> bool:
@@ -277,17 +269,6 @@ def _sampled_fell(trial: Any, state: Any = None, values: Sequence[float] | None 
     return trial_fell(trial, state) or (v is not None and not _is_cost(v))
 
 
-def _sampled_cost(trial: Any, sign: float) -> float:
-    """The cost the samplers tell for a finished trial: :func:`trial_cost`, with +inf (a fall's,
-    :func:`_sampled_fell`) for a value that is no cost, where that refuses one that stood."""
-    v = trial.values[0] if trial.values else None
-    return math.inf if v is not None and not _is_cost(v) else trial_cost(trial, sign)
-
-
-def _no_cost(number: int, value: float) -> str:
-    return (f"trial {number} stood with value {value:g}: latentune takes a finite cost smaller "
-            f"than {COST_LIMIT:g} in size; return a finite value, or mark the trial a fall "
-            f"(trial.set_constraint(...) > 0 or the user attribute {FAILED_ATTR!r})")
 
 
 def _sign(study: Any) -> float:
@@ -583,7 +564,7 @@ class _CriticSampler:
                 continue
             x, tag, z = told
             X.append(x)
-            y.append(math.nan if now else _sampled_cost(t, sign))
+            y.append(math.nan if now else trial_cost(t, sign))
             tags.append(tag)
             fell.append(bool(extra[1]) if now else _sampled_fell(t))
             Z.append(z)
@@ -1261,11 +1242,14 @@ def import_optuna_study(storage: Any, study_name: str | None, out: str | os.Path
                    if not lo <= float(t.params[n]) <= hi]
             raise OptunaImportError(f"trial {t.number}: {'; '.join(out[:3]) or 'a parameter'}"
                                     f"{' …' if len(out) > 3 else ''} (of the given space)")
-        try:
-            cost = trial_cost(t, sign)                  # before anything is written
-        except UsageError as exc:
-            raise OptunaImportError(f"study {study.study_name!r}: {exc}") from None
-        rows.append((t, u, cost))
+        rows.append((t, u, trial_cost(t, sign)))
+    no_cost = [t.number for t, _, cost in rows if t.values and math.isinf(cost)
+               and not trial_fell(t)]
+    if no_cost:
+        warnings.warn(f"import of {study.study_name!r}: trial(s) {', '.join(map(str, no_cost[:5]))}"
+                      f"{' …' if len(no_cost) > 5 else ''} stood with a value that is no cost "
+                      f"(not finite, or {COST_LIMIT:g} in size or more): imported as falls of "
+                      "cost +inf, as latentune's samplers tell them", stacklevel=2)
     if incomplete:
         warnings.warn(f"import of {study.study_name!r}: {incomplete} finished trial(s) lack some "
                       "of the parameters and are left out", stacklevel=2)
@@ -1310,7 +1294,7 @@ def import_optuna_study(storage: Any, study_name: str | None, out: str | os.Path
             if t.datetime_start is not None and t.datetime_complete is not None:
                 wall = (t.datetime_complete - t.datetime_start).total_seconds()
             store_outcome(st, Phase.PHASE1, idx, u,
-                          Outcome(cost, trial_fell(t), info, wall), tag=-1, seed=seed)
+                          Outcome(cost, _sampled_fell(t), info, wall), tag=-1, seed=seed)
             idx += 1
             added += 1
         cfg = st.get_meta("config") or {}
