@@ -158,9 +158,14 @@ def mujoco_inertia(values: tuple[float, ...]) -> tuple[tuple[float, ...], str] |
 
 def _correct_inertias(robot: ET.Element, name: str) -> None:
     """Replace in place each ``<inertia>`` MuJoCo refuses by :func:`mujoco_inertia`'s, logged
-    once per robot ``name`` and link: INFO for a change within :data:`INERTIA_TINY`, else a WARNING
-    with the principal moments before and after and the relative change."""
+    once per robot ``name`` and link: INFO for a change within :data:`INERTIA_TINY` of the
+    link's inertia, or within :data:`INERTIA_TINY` of the robot's largest link inertia (a
+    placeholder link of negligible mass, as example-robot-data's feet of 1e-6 kg: no change
+    the motion can show), else a WARNING with the principal moments before and after and the
+    relative change."""
     keys = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+    scale = max((float(np.linalg.norm(_sym(tuple(float(el.get(k, "0")) for k in keys))))
+                 for el in robot.iter("inertia")), default=0.0)
     for link in robot.iter("link"):
         el = link.find("inertial/inertia")
         if el is None:
@@ -176,13 +181,18 @@ def _correct_inertias(robot: ET.Element, name: str) -> None:
         if said in _inertia_said:
             continue
         _inertia_said.add(said)
-        change = float(np.linalg.norm(_sym(new) - _sym(old)) / np.linalg.norm(_sym(old)))
+        moved = float(np.linalg.norm(_sym(new) - _sym(old)))
+        change = moved / float(np.linalg.norm(_sym(old)))
         mass = link.find("inertial/mass")
         where = (f"robot {said[0]!r}, link {said[1]!r}"
                  + (f" ({float(mass.get('value', 'nan')):g} kg)" if mass is not None else ""))
         if change <= INERTIA_TINY:
             logger.info("%s: MuJoCo refuses its inertia (%s by rounding) and gets it corrected "
                         "(changed by %.1g %%)", where, why, 100 * change)
+        elif moved <= INERTIA_TINY * scale:
+            logger.info("%s: MuJoCo refuses its inertia (%s) and gets it corrected by %.3g "
+                        "kg·m², negligible against the robot's largest link inertia (%.3g "
+                        "kg·m²)", where, why, moved, scale)
         else:
             before = ", ".join(f"{x:.3g}" for x in np.linalg.eigvalsh(_sym(old)))
             after = ", ".join(f"{x:.3g}" for x in np.linalg.eigvalsh(_sym(new)))
