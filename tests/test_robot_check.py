@@ -329,3 +329,14 @@ def test_init_spec_does_not_name_a_robot_like_a_built_in_one(tmp_path):
         assert d["name"] == expected
     with pytest.warns(RobotSpecWarning, match="'a1' is the name of a built-in robot"):
         assert yaml.safe_load(init_spec(A1_URDF, name="a1"))["name"] == "a1"   # as asked
+
+
+def test_a_root_without_inertial_carrying_the_legs_is_not_warned_about():
+    """ANYmal C's root 'base' has no <inertial> and carries the legs: check warned that PyBullet
+    zeroes its inertia and a root of mass 0 would be fixed in space, but the prepared URDF gives
+    such a link a negligible mass and the robot floats; a root of mass 0 is still refused."""
+    urdf = erd_robots_dir() / "anymal_c_simple_description" / "urdf" / "anymal.urdf"
+    d = yaml.safe_load(init_spec(urdf))
+    rep = check_spec(d, simulate=False)
+    assert rep.ok and rep.warnings == []
+    assert read_urdf(prepared_urdf(spec_from_dict(d))).links["base"].mass == pytest.approx(1e-6)

@@ -17,8 +17,10 @@ z up) and fills the fields a spec may omit:
 * warnings: ``nominal_height`` more than :data:`HEIGHT_TOLERANCE` from the forward-kinematics
   height, feet not level at ``nominal_q``, ``nominal_q`` outside the URDF's joint limits,
   ``torque_limits`` above the URDF's effort limits, an effort limit that looks like a placeholder,
-  ``strip_root`` that strips nothing or is off with a massless root, a massless root that
-  carries movable joints (not strippable), a ``collision_primitives`` key that matches no link.
+  ``strip_root`` that strips nothing or is off with a massless root, a ``collision_primitives``
+  key that matches no link. A root without ``<inertial>`` that carries movable joints is not
+  stripped and not warned about (the prepared URDF gives it a negligible mass); one whose
+  ``<inertial>`` gives mass 0 is an error (PyBullet would hold it fixed in space).
 
 The loader (:mod:`latentune.robots.spec`) raises :class:`~latentune.errors.RobotSpecError` with
 every error in one line and warns (:func:`emit_warning`) once per process about each warning;
@@ -36,7 +38,7 @@ import numpy as np
 
 from latentune.constants import G
 from latentune.errors import RobotSpecError, RobotSpecWarning
-from latentune.robots.urdf import MASSLESS, UrdfTree, kinematic_urdf_text, read_urdf, resolve_mesh
+from latentune.robots.urdf import UrdfTree, kinematic_urdf_text, read_urdf, resolve_mesh
 
 LEGS = ("FR", "FL", "RR", "RL")
 """The leg order of every per-leg spec field: front right, front left, rear right, rear left."""
@@ -164,7 +166,6 @@ def inspect_fields(fields: Mapping[str, Any]) -> Findings:
 
     # ---- root link
     root_mass = tree.links[tree.root].mass
-    root_light = root_mass is None or root_mass < MASSLESS
     if "strip_root" in fields:
         strip = bool(fields["strip_root"])
         if strip and not tree.massless_root():
@@ -176,12 +177,11 @@ def inspect_fields(fields: Mapping[str, Any]) -> Findings:
     else:
         strip = tree.massless_root()
         out.filled["strip_root"] = strip
+    # a root without <inertial> gets a negligible mass in the prepared URDF and floats; one of
+    # mass 0 given in its <inertial> would be held fixed in space by PyBullet
     if root_mass == 0 and not tree.massless_root():
         err(f"the root link {tree.root!r} has mass 0 and carries movable joints: PyBullet would "
             "hold it fixed in space; give it its mass")
-    elif root_light and not tree.massless_root():
-        warn(f"the root link {tree.root!r} is massless but carries movable joints, so it is not "
-             "stripped (PyBullet zeroes its inertia; a root of mass 0 would be fixed in space)")
     out.base_link = tree.base(strip)
     out.mass = tree.total_mass()
     if out.mass <= 0:
