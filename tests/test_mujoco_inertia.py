@@ -180,3 +180,16 @@ def test_a_massless_link_welded_to_a_massive_one_is_left_alone(tmp_path, caplog)
     assert not caplog.records
     assert _inertia(text, "hip") == {k: 0.0 for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
     _compile(text)
+
+
+def test_two_robots_of_one_name_each_say_their_corrections(tmp_path, caplog):
+    """The once-per-link line was keyed on (robot name, link): a second robot of the same name
+    (another URDF) said nothing of its own corrections."""
+    (tmp_path / "a").mkdir(), (tmp_path / "b").mkdir()
+    first = _urdf(tmp_path / "a", (1e-6,) * 6, robot="same_name")
+    second = _urdf(tmp_path / "b", (0.001, 0, 0, 0.001, 0, 0.0030000001), robot="same_name", foot_mass=0.1)
+    with caplog.at_level(logging.INFO, logger="latentune.sim.mujoco_world"):
+        for urdf in (first, second, first, second):
+            mujoco_urdf_text(urdf)
+    lines = [r.getMessage() for r in caplog.records if "'foot'" in r.getMessage()]
+    assert len(lines) == 2 and "A + B < C" in lines[1]

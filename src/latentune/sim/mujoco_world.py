@@ -108,7 +108,7 @@ INERTIA_TINY = 1e-4
 """A correction that changes an inertia by at most this fraction (Frobenius norm) is logged at
 INFO (rounding); a larger one is a WARNING that says how much."""
 
-_inertia_said: set[tuple[str, str]] = set()   # (robot, link) whose correction was logged
+_inertia_said: set[tuple[str, str, str]] = set()   # (URDF file, robot, link) whose correction was logged
 
 
 def _sym(v: tuple[float, ...]) -> np.ndarray:
@@ -156,13 +156,13 @@ def mujoco_inertia(values: tuple[float, ...]) -> tuple[tuple[float, ...], str] |
     return new, ", ".join(why)
 
 
-def _correct_inertias(robot: ET.Element, name: str) -> None:
+def _correct_inertias(robot: ET.Element, name: str, where_from: str) -> None:
     """Replace in place each ``<inertia>`` MuJoCo refuses by :func:`mujoco_inertia`'s, logged
-    once per robot ``name`` and link: INFO for a change within :data:`INERTIA_TINY` of the
-    link's inertia, or within :data:`INERTIA_TINY` of the robot's largest link inertia (a
-    placeholder link of negligible mass, as example-robot-data's feet of 1e-6 kg: no change
-    the motion can show), else a WARNING with the principal moments before and after and the
-    relative change."""
+    once per URDF file ``where_from``, robot ``name`` and link (two robots of one name are
+    two): INFO for a change within :data:`INERTIA_TINY` of the link's inertia, or within
+    :data:`INERTIA_TINY` of the robot's largest link inertia (a placeholder link of negligible
+    mass, as example-robot-data's feet of 1e-6 kg: no change the motion can show), else a
+    WARNING with the principal moments before and after and the relative change."""
     keys = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
     scale = max((float(np.linalg.norm(_sym(tuple(float(el.get(k, "0")) for k in keys))))
                  for el in robot.iter("inertia")), default=0.0)
@@ -177,14 +177,14 @@ def _correct_inertias(robot: ET.Element, name: str) -> None:
         new, why = fixed
         for k, v in zip(keys, new):
             el.set(k, repr(v))
-        said = (name, link.get("name", ""))
+        said = (where_from, name, link.get("name", ""))
         if said in _inertia_said:
             continue
         _inertia_said.add(said)
         moved = float(np.linalg.norm(_sym(new) - _sym(old)))
         change = moved / float(np.linalg.norm(_sym(old)))
         mass = link.find("inertial/mass")
-        where = (f"robot {said[0]!r}, link {said[1]!r}"
+        where = (f"robot {name!r}, link {said[2]!r}"
                  + (f" ({float(mass.get('value', 'nan')):g} kg)" if mass is not None else ""))
         if change <= INERTIA_TINY:
             logger.info("%s: MuJoCo refuses its inertia (%s by rounding) and gets it corrected "
@@ -211,11 +211,12 @@ MuJoCo: negligible, as the prepared URDF's for a link without ``<inertial>``
 (:data:`~latentune.robots.urdf.NO_INERTIAL`)."""
 
 
-def _bound_moving_links(robot: ET.Element, name: str) -> None:
+def _bound_moving_links(robot: ET.Element, name: str, where_from: str) -> None:
     """Give each moving link (the root, or the child of a joint that is not fixed) whose mass or
     smallest principal moment, with those of the links fixed to it, is below
     :data:`MOVING_MIN_VALUE` the missing :data:`MOVING_MASS` or :data:`MOVING_INERTIA` (added
-    to each principal moment), in place; a WARNING once per robot ``name`` and link."""
+    to each principal moment), in place; a WARNING once per URDF file ``where_from``, robot
+    ``name`` and link."""
     keys = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
     links = {link.get("name", ""): link for link in robot.findall("link")}
     fixed: dict[str, list[str]] = {}
@@ -263,7 +264,7 @@ def _bound_moving_links(robot: ET.Element, name: str) -> None:
         mel.set("value", repr(new_m))
         for k, (a, b) in zip(keys, ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))):
             iel.set(k, repr(float(new_i[a, b])))
-        said = (name, lname)
+        said = (where_from, name, lname)
         if said in _inertia_said:
             continue
         _inertia_said.add(said)
@@ -294,8 +295,8 @@ def mujoco_urdf_text(urdf: str, name: str | None = None,
             if j.get("type") != "fixed" and j.get("name") not in driven:
                 j.set("type", "fixed")
     name = robot.get("name", "") if name is None else name
-    _correct_inertias(robot, name)
-    _bound_moving_links(robot, name)
+    _correct_inertias(robot, name, str(src.resolve()))
+    _bound_moving_links(robot, name, str(src.resolve()))
     for el in robot.findall("mujoco"):
         robot.remove(el)
     ext = ET.Element("mujoco")
