@@ -340,3 +340,19 @@ def test_a_root_without_inertial_carrying_the_legs_is_not_warned_about():
     rep = check_spec(d, simulate=False)
     assert rep.ok and rep.warnings == []
     assert read_urdf(prepared_urdf(spec_from_dict(d))).links["base"].mass == pytest.approx(1e-6)
+
+
+def test_init_spec_names_solo12_by_its_file(tmp_path):
+    """example-robot-data's solo12.urdf and solo.urdf (Solo8) are both <robot name="solo">:
+    robot init named Solo12 'solo', as Solo8, and said nothing of the built-in 'solo12'. A file
+    stem that extends the robot name is more specific and names the spec; one that is a
+    built-in robot's gives 'my_<stem>' with a warning."""
+    solo = erd_robots_dir() / "solo_description" / "robots"
+    with pytest.warns(RobotSpecWarning, match=r"the URDF file's name 'solo12' is the built-in "
+                                               r"robot's: the spec is named 'my_solo12'"):
+        assert yaml.safe_load(init_spec(solo / "solo12.urdf"))["name"] == "my_solo12"
+    copy = tmp_path / "solo12_light.urdf"
+    copy.write_text((solo / "solo12.urdf").read_text())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert yaml.safe_load(init_spec(copy))["name"] == "solo12_light"

@@ -186,15 +186,23 @@ def _list(vals, digits: int = 4) -> str:
 
 def _urdf_robot_name(urdf_name: str, path: Path) -> str:
     """The spec name from the URDF's ``<robot name>`` (without ``_description``; else the file
-    stem); one that is a built-in robot's (:data:`~latentune.robots.spec.BUILTIN`) becomes the
-    file stem when that is none, else ``my_<name>``, with a warning."""
+    stem), or the file stem when it extends that name (``solo12.urdf`` of ``<robot name="solo">``,
+    as Solo8's ``solo.urdf`` is); a robot name that is a built-in robot's
+    (:data:`~latentune.robots.spec.BUILTIN`) becomes the file stem when that is none, else
+    ``my_<name>``, with a warning, and a file stem that extends the name and is a built-in
+    robot's becomes ``my_<stem>``, with a warning."""
     def clean(s: str) -> str:
         return re.sub(r"[^A-Za-z0-9_.-]+", "_", s)
 
-    robot = clean(urdf_name.removesuffix("_description")) or clean(path.stem)
+    robot, stem = clean(urdf_name.removesuffix("_description")) or clean(path.stem), clean(path.stem)
     if robot not in BUILTIN:
-        return robot
-    stem = clean(path.stem)
+        if not (stem != robot and stem.startswith(robot)):
+            return robot
+        if stem not in BUILTIN:
+            return stem
+        warnings.warn(f"the URDF file's name {stem!r} is the built-in robot's: the spec is named "
+                      f"'my_{stem}' (give --name for another)", RobotSpecWarning, stacklevel=3)
+        return f"my_{stem}"
     other = stem if stem and stem not in BUILTIN else f"my_{robot}"
     warnings.warn(f"the URDF's robot name {robot!r} is the built-in robot's: the spec is named "
                   f"{other!r} (give --name for another)", RobotSpecWarning, stacklevel=3)
@@ -207,7 +215,8 @@ def init_spec(urdf_path: str | os.PathLike, name: str | None = None) -> str:
     Args:
         urdf_path: the URDF file.
         name: the robot's name (default: the URDF's ``<robot name>`` without ``_description``,
-            another when that is a built-in robot's, with a warning; a built-in robot's name
+            or the file stem when it extends that name, another when that is a built-in
+            robot's, with a warning; a built-in robot's name
             given here is kept, with a warning).
 
     Returns:
