@@ -589,7 +589,7 @@ def test_fall_shrink_halves_a_region_whose_group_falls():
 
 
 @pytest.mark.parametrize("kw", [dict(design_side=0.0), dict(design_side=1.5),
-                                dict(fall_shrink=1.0), dict(fall_shrink=-0.1)])
+                                dict(fall_shrink=1.5), dict(fall_shrink=-0.1)])
 def test_fall_options_bad_values(kw):
     with pytest.raises(ValueError):
         TurboM(3, **kw)

@@ -346,6 +346,21 @@ def test_fall_aware_turbo_tells_its_falls_and_starts_near_the_warm_start():
     assert inner.fell[-len(X):].all()
 
 
+def test_max_fall_prob_1_runs_turbo(tmp_path, run_cli):
+    """--max-fall-prob 1, which the flags take ((0, 1]), stopped phase 1, ask and the plain
+    phase 3 with TuRBO-m in a traceback ('fall_shrink must be in [0, 1), got 1.0'); it runs
+    (no share of falls exceeds 1: falls never halve a region by that rule)."""
+    from latentune.pipeline.phases import make_phase_critic
+
+    c = make_phase_critic("turbo", 4, batch_size=4, seed=0, x0=np.full(4, 0.5), budget=40,
+                          max_fall_prob=1.0)
+    assert c.inner.fall_shrink == 1.0
+    code, out, err = run_cli("phase1", "--system", "examples.toy_plant:make_system", "--backend",
+                             "serial", "--workers", "1", "--out", tmp_path / "r",
+                             "--phase1-evals", "3", "--max-fall-prob", "1")
+    assert code == 0 and "Traceback" not in err, err
+
+
 # ----------------------------------------------------------------------------- diagnostics
 def test_failed_classifier_and_gp_fits_are_reported_once_each(monkeypatch, caplog):
     """Failed fits of the fall model and of the inner TuRBO-m (both BoTorch fits) are counted

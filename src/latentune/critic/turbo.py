@@ -324,7 +324,7 @@ class TurboM(Critic):
         design_side: side of the box around ``x0`` that region 0's first design fills (in
             (0, 1]; None: the whole box). See "Falls" in the module docstring.
         fall_shrink: halve a region whose Thompson group's share of fallen trials exceeds this
-            (in [0, 1); None: falls do not shrink regions). See "Falls".
+            (in [0, 1]; 1 or None: falls do not shrink regions). See "Falls".
     """
 
     method = "turbo"
@@ -384,8 +384,8 @@ class TurboM(Critic):
         if design_side is not None and not 0 < design_side <= 1:
             raise ValueError(f"design_side must be in (0, 1], got {design_side!r}")
         self.design_side = None if design_side is None else float(design_side)
-        if fall_shrink is not None and not 0 <= fall_shrink < 1:
-            raise ValueError(f"fall_shrink must be in [0, 1), got {fall_shrink!r}")
+        if fall_shrink is not None and not 0 <= fall_shrink <= 1:
+            raise ValueError(f"fall_shrink must be in [0, 1], got {fall_shrink!r}")
         self.fall_shrink = None if fall_shrink is None else float(fall_shrink)
         self._gen = 0
         self.regions = [self._fresh_region(r, epoch=0, epoch_gen=0)
