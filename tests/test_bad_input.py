@@ -213,7 +213,9 @@ def test_phase1_fall_prior_is_checked_before_any_trial(capsys, tmp_path):
 @pytest.mark.parametrize("cmd", ["tune", "phase3"])
 @pytest.mark.parametrize("bad, expect", [
     (["--handover", "size=3"], "--handover size=3: expected patience=X,tol=X,length=X"),
-    (["--handover", "patience=a"], "--handover patience=a: patience must be a number, got 'a'"),
+    (["--handover", "patience=a"], "--handover patience=a: patience must be an integer, got 'a'"),
+    (["--handover", "patience=1.5"], "--handover patience=1.5: patience must be an integer, got '1.5'"),
+    (["--handover", "tol=x"], "--handover tol=x: tol must be a number, got 'x'"),
     (["--handover", "tol=2"], "--handover tol=2: handover tol must be in [0, 1)"),
     (["--handover", "length=0"], "--handover length=0: handover length must be in (0, 1.6]"),
     (["--handover", "patience"], "--handover patience: expected patience=X,tol=X,length=X"),

@@ -381,7 +381,8 @@ def _handover(args: argparse.Namespace) -> Any:
         try:
             out[key] = type(HANDOVER_DEFAULTS[key])(val)    # int patience, float tol, length
         except ValueError:
-            raise CLIError(f"--handover {v}: {key} must be a number, got {val!r}") from None
+            kind = "an integer" if isinstance(HANDOVER_DEFAULTS[key], int) else "a number"
+            raise CLIError(f"--handover {v}: {key} must be {kind}, got {val!r}") from None
 
     try:
         handover_options(out)
