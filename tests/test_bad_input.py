@@ -216,6 +216,8 @@ def test_phase1_fall_prior_is_checked_before_any_trial(capsys, tmp_path):
     (["--handover", "patience=a"], "--handover patience=a: patience must be an integer, got 'a'"),
     (["--handover", "patience=1.5"], "--handover patience=1.5: patience must be an integer, got '1.5'"),
     (["--handover", "tol=x"], "--handover tol=x: tol must be a number, got 'x'"),
+    (["--handover", "patience=2,tol=0.1,patience=3"],
+     "--handover patience=2,tol=0.1,patience=3: patience given twice (2, 3)"),
     (["--handover", "tol=2"], "--handover tol=2: handover tol must be in [0, 1)"),
     (["--handover", "length=0"], "--handover length=0: handover length must be in (0, 1.6]"),
     (["--handover", "patience"], "--handover patience: expected patience=X,tol=X,length=X"),

@@ -372,12 +372,17 @@ def _handover(args: argparse.Namespace) -> Any:
     from latentune.pipeline.phases import handover_options
 
     out: dict[str, Any] = {}
+    texts: dict[str, str] = {}
     for part in v.split(","):
         key, sep, val = part.partition("=")
         key = key.strip()
         if not sep or key not in HANDOVER_DEFAULTS:
             raise CLIError(f"--handover {v}: expected "
                            + ",".join(f"{k}=X" for k in HANDOVER_DEFAULTS))
+        if key in texts:        # the later one would win without a word
+            raise CLIError(f"--handover {v}: {key} given twice ({texts[key].strip()}, "
+                           f"{val.strip()})")
+        texts[key] = val
         try:
             out[key] = type(HANDOVER_DEFAULTS[key])(val)    # int patience, float tol, length
         except ValueError:
