@@ -591,3 +591,18 @@ def test_a_phase3_vae_run_goes_on_with_phase3_not_tune(tmp_path, run_cli, source
     assert dump_store(d) == before
     with Study(d) as st:
         assert st.store.count(1) == 0 and st.store.artifact("vae") is None
+
+
+def test_resume_of_a_hand_over_run_with_strategy_transfer_names_the_stored_strategy(
+        tmp_path, run_cli, source, error_line):
+    """A plain phase 3 with --handover resumed (phase3 --resume, ask) with --strategy transfer
+    and no --handover was told 'the hand-over is an option of the plain phase 3', a flag the
+    command did not give; it names the stored strategy, as without a hand-over."""
+    d = tmp_path / "h"
+    code, _, err = _phase3(run_cli, source, d, "--handover", "patience=2")
+    assert code == 0, err
+    line = error_line(*_phase3(run_cli, source, d, "--resume", "--strategy", "transfer",
+                               evals=6)[::2])
+    assert "phase 3 runs with --strategy plain (stored), not --strategy transfer" in line, line
+    line = error_line(*run_cli("ask", d, *SYSTEM[:2], "--strategy", "transfer")[::2])
+    assert "phase 3 runs with --strategy plain (stored), not --strategy transfer" in line, line

@@ -181,17 +181,18 @@ def resolve_strategy(manifest: Manifest, strategy: str | None, handover: Any,
     if strategy is not None and strategy not in STRATEGIES:
         raise UsageError(f"unknown phase-3 strategy {strategy!r} (choose from "
                          f"{', '.join(STRATEGIES)})")
-    if strategy == "transfer" and handover:
-        raise UsageError("the hand-over is an option of the plain phase 3 (strategy plain); "
-                         "the transfer phase 3 moves to the full θ box on its own")
     stored = manifest.config().get("phase3")
     stored = strategy_of(stored) if stored and (fixed or manifest.n_fixing(Phase.PHASE3)) \
         else None
     where = manifest.run.dir
+    # the stored strategy first: ``handover`` may be the stored one, not the caller's
     if stored is not None and strategy not in (None, stored):
         raise StoreError(f"{where}: phase 3 runs with strategy {stored} (stored), not "
                          f"{strategy}: leave strategy out to go on with the {stored} phase 3, "
                          f"or start a {strategy} phase 3 in another directory")
+    if strategy == "transfer" and handover:
+        raise UsageError("the hand-over is an option of the plain phase 3 (strategy plain); "
+                         "the transfer phase 3 moves to the full θ box on its own")
     if stored == "transfer" and handover:
         raise StoreError(f"{where}: the hand-over is an option of the plain phase 3, and this "
                          "phase 3 runs with strategy transfer (stored), which moves to the full "
