@@ -855,3 +855,30 @@ def test_auto_scores_choose_by_the_targets_own_trials_and_are_recorded(source, h
     assert recs and all(d["explore"] and set(d["auto_scores"]) == {"explore"} for d in recs)
     with pytest.raises(ValueError, match="target_scores"):
         _critic(source, hypers, target_scores="automatic")
+
+
+def test_a_source_run_replaced_by_a_smaller_one_is_refused(tmp_path):
+    """A transfer phase 3 resumed after its source directory was replaced by another run (of
+    the same space, with fewer trials than phase 3 began with) went on silently with that
+    run's trials; it is refused in one line, as a source that is gone."""
+    import shutil
+
+    import latentune as lt
+    from latentune.errors import LatentError
+
+    space = lt.ParameterSpace(names=["a", "b", "c"], low=[0.0] * 3, high=[1.0] * 3,
+                              manual=[0.5] * 3)
+    plant = lt.FunctionSystem(space, lambda w: float(((w - 0.3) ** 2).sum()))
+    for name, n in (("src", 16), ("other", 8)):
+        with lt.Study(tmp_path / name, seed=0) as s:
+            s.phase1(plant, n)
+            s.train_latent(latent_dim=2, epochs=5)
+    with lt.Study(tmp_path / "t", seed=0) as t:
+        t.phase3(plant, 4, latent=tmp_path / "src")
+    shutil.rmtree(tmp_path / "src")
+    shutil.copytree(tmp_path / "other", tmp_path / "src")
+    with lt.Study(tmp_path / "t", seed=0) as t:
+        with pytest.raises(LatentError, match=r"holds 8 phase-1 trials, fewer than the 16 "
+                                              r"phase 3 began with") as exc:
+            t.phase3(plant, 8)
+        assert "\n" not in str(exc.value) and t.store.count(3) == 4

@@ -64,6 +64,8 @@ def phase_critic(phase: int, pc: dict[str, Any], space: ParameterSpace, run_dir:
         raise LatentError("phase 3 needs a latent space")
     source = pc.get("latent_source", "self")
     run = run_dir if source in (None, "self") else Path(source)
+    if source not in (None, "self"):
+        require_pinned_trials(source, pc.get("source_counts"))
     if strategy_of(pc) == "transfer":
         return transfer_critic(pc, space, run_dir, run, latent)
     latent.require_spread()                 # the paper's phase 3 searches the decoded θ only
@@ -156,6 +158,20 @@ def require_source_store(strategy: str, source: str, max_fall_prob: float | None
                           "the fall prediction (max_fall_prob) starts from the source run's "
                           "trials; copy the run directory with its run.db, or leave the fall "
                           "prediction out")
+
+
+def require_pinned_trials(source: str, counts: dict[str, int] | None) -> None:
+    """LatentError (one line) when the source run at ``source`` holds fewer trials of a phase
+    than ``counts``, the ones phase 3 began with (:func:`source_counts`): the directory holds
+    another run now (replaced or cut since), whose trials would go on in their place. Nothing
+    to check without ``counts`` or a run store there (:func:`require_source_store`)."""
+    now = mf.run_counts(source) if counts else None
+    for ph, n in sorted((counts or {}).items()):
+        if now is not None and now.get(ph, 0) < int(n):
+            held = counted(now.get(ph, 0), f"phase-{ph} trial")
+            raise LatentError(f"latent: the source run {source} holds {held}, fewer than the "
+                              f"{n} phase 3 began with: it is not the run phase 3 learns from "
+                              "(replaced since?); put that run back there")
 
 
 def source_counts(run_dir: Path, source: str) -> dict[str, int] | None:
