@@ -1134,3 +1134,20 @@ def test_a_directory_given_for_a_space_or_params_file_is_named_a_directory(capsy
                     expect=f"--space: {d} is a directory, not a file")
     assert_one_line(capsys, "rollout", "--steps", "10", "--params", d,
                     expect=f"params file {d} is a directory, not a file")
+
+
+@pytest.mark.parametrize("argv, flag", [
+    (["phase3", "--out", "{d}", "--vae", ""], "--vae"),
+    (["phase3", "--out", "{d}", "--vae", " "], "--vae"),
+    (["ask", "{d}", "--vae", ""], "--vae"),
+    (["phase1", "--out", "{d}", "--max-fall-prob", "0.5", "--fall-prior", ""], "--fall-prior"),
+    (["ask", "{d}", "--max-fall-prob", "0.5", "--fall-prior", ""], "--fall-prior"),
+])
+def test_an_empty_run_directory_flag_says_it_is_empty(capsys, tmp_path, argv, flag):
+    """--vae '' (an unset shell variable) said 'no latent space at vae', --vae ' ' '--vae: run
+    directory  does not exist' and --fall-prior '' 'fall prior: no run store in .'; each says
+    the flag is empty, as --params '' does."""
+    argv = [a.format(d=tmp_path / "r") for a in argv] + ["--system", "examples.toy_plant:make_system"]
+    assert_one_line(capsys, *argv, expect=f"{flag} is empty: give a run directory, or leave "
+                                          f"{flag} out")
+    assert not (tmp_path / "r").exists()

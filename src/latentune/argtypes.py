@@ -3,6 +3,8 @@ register on it (:func:`latentune.integrations.register_cli`): each parses one fl
 raises :class:`~latentune.errors.CLIError` with a one-line message naming the flag."""
 from __future__ import annotations
 
+from typing import Callable
+
 from latentune.errors import CLIError
 
 
@@ -40,3 +42,16 @@ def start(s: str) -> str:
         raise CLIError("--start is empty: give manual, scratch or a file name, or leave "
                        "--start out")
     return s
+
+
+def other_run(flag: str) -> Callable[[str], str]:
+    """The type of a flag naming another run's directory (``--vae``, ``--fall-prior``): any path
+    but an empty one (an unset shell variable was read as the current directory or as a
+    file name), refused naming ``flag``."""
+    def parse(s: str) -> str:
+        if not s.strip():
+            raise CLIError(f"{flag} is empty: give a run directory, or leave {flag} out")
+        return s
+
+    parse.__name__ = flag.lstrip("-").replace("-", "_")
+    return parse

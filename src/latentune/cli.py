@@ -344,10 +344,11 @@ def add_run_args(p: argparse.ArgumentParser, name: str) -> None:
                             "import: its YAML/JSON parameter space (default: the stored one)")
     if name == "phase1":
         p.add_argument("--fall-prior", default=None, metavar="RUN_DIR",
+                       type=argtypes.other_run("--fall-prior"),
                        help="with --max-fall-prob: a run whose phase-1 trials seed the prediction")
     p.add_argument("--resume", action="store_true", help="continue the run stored in --out")
     if name == "phase3":
-        p.add_argument("--vae", default=None, metavar="RUN_DIR",
+        p.add_argument("--vae", default=None, metavar="RUN_DIR", type=argtypes.other_run("--vae"),
                        help="use the latent space of another run (same θ); its best θ is also "
                             "run as it is here (zero-shot baseline)")
 
@@ -1616,7 +1617,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--phase", type=int, choices=(1, 3), default=None,
                    help="1 = the full θ, 3 = the latent space of --vae (default: 3 with "
                         "--vae or in a run holding a phase 3, else 1)")
-    p.add_argument("--vae", default=None, metavar="RUN_DIR", help="the latent space for phase 3")
+    p.add_argument("--vae", default=None, metavar="RUN_DIR", type=argtypes.other_run("--vae"),
+                   help="the latent space for phase 3")
     p.add_argument("--method", choices=("turbo", "cma", "random", "sobol"), default=None,
                    help="critic (first ask: default turbo; later asks: the stored one)")
     _handover_arg(p)
@@ -1633,6 +1635,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-fall-prob", type=float, default=None, metavar="P",
                    help="fall-aware: skip candidates whose predicted fall probability exceeds P")
     p.add_argument("--fall-prior", default=None, metavar="RUN_DIR",
+                   type=argtypes.other_run("--fall-prior"),
                    help="phase 1 with --max-fall-prob: a run whose trials seed the prediction")
     p.add_argument("--asker", default=None,
                    help="who runs the trials (several askers on one study each get their own)")
