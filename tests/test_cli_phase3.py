@@ -292,11 +292,13 @@ def test_a_source_without_a_latent_space_says_to_train_one(tmp_path, run_cli, er
                  ("ask", tmp_path / "a", *SYSTEM[:2], "--phase", "3", "--vae", p1)]:
         line = error_line(*run_cli(*argv)[::2])
         assert line == (f"latentune: error: --vae: {p1} holds no latent space: train one there "
-                        f"first (latentune train-vae --out {p1})"), line
+                        f"first (latentune train-vae --out {p1} --system "
+                        "examples.toy_plant:make_real_system)"), line
     assert not (tmp_path / "t").exists()
     line = error_line(*run_cli("phase3", *SYSTEM, "--out", p1, "--phase3-evals", "4")[::2])
     assert line == (f"latentune: error: no latent space in {p1}: train one first (latentune "
-                    f"train-vae --out {p1}), or name another study's (--vae)"), line
+                    f"train-vae --out {p1} --system examples.toy_plant:make_real_system), or "
+                    "name another study's (--vae)"), line
     from examples.toy_plant import make_real_system
     from latentune.errors import LatentError
 
@@ -606,3 +608,23 @@ def test_resume_of_a_hand_over_run_with_strategy_transfer_names_the_stored_strat
     assert "phase 3 runs with --strategy plain (stored), not --strategy transfer" in line, line
     line = error_line(*run_cli("ask", d, *SYSTEM[:2], "--strategy", "transfer")[::2])
     assert "phase 3 runs with --strategy plain (stored), not --strategy transfer" in line, line
+
+
+def test_the_train_vae_hint_for_a_source_without_latent_space_runs(tmp_path, run_cli,
+                                                                     error_line):
+    """phase3 --vae on a phase-1-only run of a --system said 'train one there first
+    (latentune train-vae --out SRC)', and that command stopped with 'SRC holds a run of the
+    user system …: pass --system …'; the hint carries the source's --system and its
+    --system-arg values, and runs."""
+    import shlex
+
+    src = tmp_path / "p1"
+    code, _, err = run_cli("phase1", "--system", "examples.toy_plant:make_system",
+                           "--system-arg", "steps=60", "--backend", "serial", "--workers", "1",
+                           "--out", src, "--phase1-evals", "6", "--quiet")
+    assert code == 0, err
+    line = error_line(*_phase3(run_cli, src, tmp_path / "t")[::2])
+    hint = re.search(r"\((latentune train-vae [^)]*)\)", line)
+    assert hint and "--system examples.toy_plant:make_system --system-arg steps=60" in hint[1], line
+    code, _, err = run_cli(*shlex.split(hint[1])[1:], "--vae-epochs", "5", "--latent-dim", "2")
+    assert code == 0, err

@@ -442,6 +442,29 @@ def _study(args: argparse.Namespace):
         raise CLIError(stored_flags(str(exc))) from None
 
 
+def plugin_flags(desc: dict[str, Any]) -> list[str]:
+    """The --system and --system-arg flags (shell-quoted) that name the --system plugin of a
+    stored system description ``desc`` (kind ``plugin``) again."""
+    from latentune.system import system_arg_text
+
+    out = ["--system", shlex.quote(str(desc.get("target")))]
+    for k, v in (desc.get("args") or {}).items():
+        out += ["--system-arg", shlex.quote(system_arg_text(k, v))]
+    return out
+
+
+def _stored_plugin_flags(run: Any) -> list[str]:
+    """:func:`plugin_flags` of the run at ``run`` when it holds a run of a --system plugin,
+    else none (read from its stored config; nothing is imported)."""
+    from latentune.study import Study
+
+    try:
+        desc = Study(run).config().get("system") or {} if (Path(run) / "run.db").is_file() else {}
+    except LatentuneError:
+        return []
+    return plugin_flags(desc) if desc.get("kind") == "plugin" else []
+
+
 def _check_stored_system(study: Any, args: argparse.Namespace) -> None:
     """Refuse, in one line saying what to pass, a run directory whose stored system is not the
     kind the flags describe (read from the stored config; nothing is imported). A study that
@@ -451,13 +474,8 @@ def _check_stored_system(study: Any, args: argparse.Namespace) -> None:
     desc = study.config().get("system") or {}
     kind = desc.get("kind")
     if kind == "plugin" and args.system is None:
-        from latentune.system import system_arg_text
-
-        target = desc.get("target")
-        given = " ".join(f"--system-arg {shlex.quote(system_arg_text(k, v))}"
-                         for k, v in (desc.get("args") or {}).items())
-        raise CLIError(f"{study.dir} holds a run of the user system {target}: pass --system "
-                       f"{target}{' ' + given if given else ''}")
+        raise CLIError(f"{study.dir} holds a run of the user system {desc.get('target')}: pass "
+                       + " ".join(plugin_flags(desc)))
     if kind == "external":
         raise CLIError(f"{study.dir} holds trials run elsewhere (ask --space): no system here "
                        f"runs its trials; go on with latentune ask {shlex.quote(str(study.dir))}"
@@ -1120,7 +1138,8 @@ def _ask_flags(msg: str, args: argparse.Namespace) -> str:
     if "(train_latent / train-vae)" in msg:      # the command that trains the latent space
         trains = getattr(args, "vae", None) if msg.startswith("latent: ") else where
         msg = msg.replace("(train_latent / train-vae)",
-                          f"({shlex.join(['latentune', 'train-vae', '--out', str(trains)])})")
+                          f"({shlex.join(['latentune', 'train-vae', '--out', str(trains)])}"
+                          + "".join(" " + f for f in _stored_plugin_flags(trains)) + ")")
     if "(phase1, then train_latent)" in msg:     # no phase-1 trial to train one on
         q = shlex.quote(str(where))
         runs = f"latentune ask {q} --phase 1 … and tell its trials" \
