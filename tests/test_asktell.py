@@ -1843,7 +1843,8 @@ def test_ask_phase_3_in_a_phase_1_run_without_a_latent_space_says_to_train_one(r
     code, _, err = run_cli("ask", d, "--phase", "3")
     assert code == 2 and err.strip().splitlines()[-1] == (
         f"latentune: error: {d}: ask/tell runs with --phase 1 (stored), not --phase 3; {d} "
-        f"holds no latent space yet: train one there first (latentune train-vae --out {d}), "
+        f"holds no latent space yet: train one there first (latentune train-vae --out {d} "
+        "--system examples.lqr_chain:make_system), "
         f"then ask phase 3 in another directory, with --vae {d}"), err
     with lt.Study(d) as st:
         for s in st.ask(2):
