@@ -1558,6 +1558,13 @@ def test_an_ask_past_a_told_budget_names_the_flag_and_no_pending_suggestions(run
     line = error_line(*run_cli("ask", d)[::2])
     assert "phase 1's budget of 2 trials is told: its best θ is the result " in line, line
     assert "pending" not in line and line.endswith("or ask with a larger --budget"), line
+    d = tmp_path / "fell"
+    with lt.Study(d, seed=0) as st:
+        for s in st.ask(2, system=plant(), budget=2):
+            st.tell(s.id, failed=True)
+    line = error_line(*run_cli("ask", d)[::2])      # said its best θ is the result
+    assert "phase 1's budget of 2 trials is told and no trial stood: there is no θ to deploy; " \
+           "ask with a larger --budget" in line and "best θ" not in line, line
 
 
 def test_telling_a_told_zero_shot_trial_again_names_its_phase(tmp_path, src30):

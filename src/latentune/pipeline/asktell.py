@@ -71,7 +71,7 @@ from latentune.pipeline.loop import (decoder_of, latent_to_record, phase_critic,
                                      resolve_strategy, source_counts, strategy_of)
 from latentune.pipeline.phases import (ask_batch, replay, state_key, stored_fall_options,
                                        warn_if_failing)
-from latentune.pipeline.results import fall_budget, phase_name, write_best
+from latentune.pipeline.results import best_row, fall_budget, phase_name, write_best
 from latentune.pipeline.store import Row, RunStore, critics_told
 from latentune.space import ParameterSpace
 from latentune.system import EvaluationError, Outcome, as_outcome
@@ -607,9 +607,13 @@ def _critic_batch(study: Any, st: RunStore, phase: int, pc: dict[str, Any],
     left, n_open = _budget_left(st, phase, pc)
     if left <= 0:
         budget = f"{study.dir}: {phase_name(phase)}'s budget of {counted(pc['budget'], 'trial')}"
-        raise StoreError(f"{budget} is handed out ({st.count(phase)} told, {n_open} pending): "
-                         "tell the pending ones, or ask with a larger budget" if n_open else
-                         f"{budget} is told: its best θ is the result (best_params()), or "
+        if n_open:
+            raise StoreError(f"{budget} is handed out ({st.count(phase)} told, {n_open} "
+                             "pending): tell the pending ones, or ask with a larger budget")
+        if best_row(st) is None:            # every trial of the study failed
+            raise StoreError(f"{budget} is told and no trial stood: there is no θ to deploy; "
+                             "ask with a larger budget")
+        raise StoreError(f"{budget} is told: its best θ is the result (best_params()), or "
                          "ask with a larger budget")
     k = min(max(pc["batch_size"], need), left)
     critic = phase_critic(phase, pc, space, study.dir, ls)
