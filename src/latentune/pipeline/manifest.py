@@ -140,6 +140,16 @@ def tuned_for(desc: Any) -> dict[str, Any] | None:
     return None
 
 
+def stored_system(cfg: dict[str, Any]) -> dict[str, Any] | None:
+    """The system a run's stored ``config`` records (:func:`describe`'s record): its
+    ``system`` entry; for a run written before systems were recorded, its task as
+    ``{"kind": "task", "task": ...}``; None without either."""
+    stored = cfg.get("system")
+    if stored is None and "task" in cfg:
+        stored = {"kind": "task", "task": cfg["task"]}
+    return stored
+
+
 def same_system(stored: dict[str, Any] | None, desc: dict[str, Any]) -> bool:
     """Whether the recorded system ``stored`` is the one ``desc`` describes: the same
     :func:`identity` (an argument given at its default value is the same plugin as one left
@@ -309,12 +319,8 @@ class Manifest:
         return desc
 
     def _stored(self) -> dict[str, Any] | None:
-        """The recorded system (a run written before systems were recorded: its task)."""
-        cfg = self.config()
-        stored = cfg.get("system")
-        if stored is None and "task" in cfg:
-            stored = {"kind": "task", "task": cfg["task"]}
-        return stored
+        """The recorded system (:func:`stored_system`)."""
+        return stored_system(self.config())
 
     def _record(self, desc: dict[str, Any], space: ParameterSpace, forget: bool,
                 **more: Any) -> None:

@@ -23,7 +23,7 @@ from latentune.atomicfile import write_atomic
 from latentune.constants import PHASE_NAMES, Phase, phase_name
 from latentune.checks import is_whole
 from latentune.errors import StoreError, UsageError
-from latentune.pipeline.manifest import tuned_for
+from latentune.pipeline.manifest import stored_system, tuned_for
 from latentune.pipeline.store import Row, RunStore
 from latentune.space import TUNED_FOR, ParameterSpace
 from latentune.wording import counted
@@ -350,11 +350,7 @@ def best_params(store: RunStore, run_dir: Path, space: ParameterSpace | None,
 def study_tuned_for(store: RunStore) -> dict[str, Any] | None:
     """What the θ of the study in ``store`` are tuned for (its recorded system, see
     :func:`~latentune.pipeline.manifest.tuned_for`), as its ``--params`` files record it."""
-    cfg = store.get_meta("config") or {}
-    desc = cfg.get("system")
-    if desc is None and isinstance(cfg.get("task"), dict):     # a run recorded before systems
-        desc = {"kind": "task", "task": cfg["task"]}
-    return tuned_for(desc)
+    return tuned_for(stored_system(store.get_meta("config") or {}))
 
 
 def _deploy_path(out: str | os.PathLike, run_dir: Path, space: ParameterSpace) -> Path:
