@@ -943,11 +943,10 @@ def cmd_report(args: argparse.Namespace) -> int:
     if args.system is not None:
         stored = study.config().get("system") or {}
         if stored.get("kind") in ("external", "optuna"):
-            what = "trials run elsewhere, in the parameter space its first ask was given" \
-                if stored["kind"] == "external" \
-                else f"an import of the Optuna study {stored.get('study_name')!r}"
-            raise CLIError(f"{d} holds {what}: it has no system to re-simulate; leave "
-                           "--system (and --system-arg) out")
+            from latentune.pipeline.manifest import no_system_text
+
+            raise CLIError(f"{d} holds {no_system_text(stored)}: it has no system to "
+                           "re-simulate; leave --system (and --system-arg) out")
         system = make_system(args)
     with study:
         print(study.report(system=system, simulate=not args.no_sim))

@@ -150,6 +150,15 @@ def stored_system(cfg: dict[str, Any]) -> dict[str, Any] | None:
     return stored
 
 
+def no_system_text(stored: dict[str, Any]) -> str:
+    """What a run of recorded system ``stored`` of kind ``external`` or ``optuna`` (no system
+    to run) holds, as a message says it: trials run elsewhere, or an import of an Optuna
+    study (named)."""
+    if stored.get("kind") == "external":
+        return "trials run elsewhere, in the parameter space its first ask was given"
+    return f"an import of the Optuna study {stored.get('study_name')!r}"
+
+
 def same_system(stored: dict[str, Any] | None, desc: dict[str, Any]) -> bool:
     """Whether the recorded system ``stored`` is the one ``desc`` describes: the same
     :func:`identity` (an argument given at its default value is the same plugin as one left
@@ -355,10 +364,8 @@ class Manifest:
                                  f"{stored.get('target')}: pass --system {stored.get('target')}"
                                  " (and its --system-arg values) again")
             if stored.get("kind") in ("external", "optuna"):
-                what = "trials run elsewhere, in the parameter space its first ask was given" \
-                    if stored["kind"] == "external" \
-                    else f"an import of the Optuna study {stored.get('study_name')!r}"
-                raise StoreError(f"{self.run.dir} holds a run of another system ({what}): ask "
+                raise StoreError(f"{self.run.dir} holds a run of another system "
+                                 f"({no_system_text(stored)}): ask "
                                  "it without a system")
             if stored.get("kind") == "python" and desc.get("kind") == "plugin":
                 raise StoreError(f"{self.run.dir} holds a run of the Python system "
