@@ -193,3 +193,16 @@ def test_two_robots_of_one_name_each_say_their_corrections(tmp_path, caplog):
             mujoco_urdf_text(urdf)
     lines = [r.getMessage() for r in caplog.records if "'foot'" in r.getMessage()]
     assert len(lines) == 2 and "A + B < C" in lines[1]
+
+
+def test_a_massless_link_with_a_refused_inertia_says_both_corrections(tmp_path, caplog):
+    """A moving link whose inertia MuJoCo refuses and that has no mass gets two corrections,
+    each logged: the inertia's log line once said it, and the mass it is given was silent."""
+    urdf = _urdf(tmp_path, (0.01, 0, 0, 0.01, 0, 0.05), robot="massless_bad", foot_mass=0.0)
+    with caplog.at_level(logging.INFO, logger="latentune.sim.mujoco_world"):
+        text = mujoco_urdf_text(urdf)
+    _compile(text)
+    lines = [r.getMessage() for r in caplog.records if "'foot'" in r.getMessage()]
+    assert len(lines) == 2, lines
+    assert any("A + B < C" in m for m in lines)
+    assert any("without mass" in m for m in lines)

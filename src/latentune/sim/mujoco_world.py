@@ -108,7 +108,8 @@ INERTIA_TINY = 1e-4
 """A correction that changes an inertia by at most this fraction (Frobenius norm) is logged at
 INFO (rounding); a larger one is a WARNING that says how much."""
 
-_inertia_said: set[tuple[str, str, str]] = set()   # (URDF file, robot, link) whose correction was logged
+_inertia_said: set[tuple[str, str, str, str]] = set()
+"""(URDF file, robot, link, ``"inertia"`` or ``"moving"``) whose correction was logged."""
 
 
 def _sym(v: tuple[float, ...]) -> np.ndarray:
@@ -177,7 +178,7 @@ def _correct_inertias(robot: ET.Element, name: str, where_from: str) -> None:
         new, why = fixed
         for k, v in zip(keys, new):
             el.set(k, repr(v))
-        said = (where_from, name, link.get("name", ""))
+        said = (where_from, name, link.get("name", ""), "inertia")
         if said in _inertia_said:
             continue
         _inertia_said.add(said)
@@ -264,7 +265,7 @@ def _bound_moving_links(robot: ET.Element, name: str, where_from: str) -> None:
         mel.set("value", repr(new_m))
         for k, (a, b) in zip(keys, ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))):
             iel.set(k, repr(float(new_i[a, b])))
-        said = (where_from, name, lname)
+        said = (where_from, name, lname, "moving")   # said apart from an inertia correction
         if said in _inertia_said:
             continue
         _inertia_said.add(said)
