@@ -221,12 +221,12 @@ def _bound_moving_links(robot: ET.Element, name: str, where_from: str) -> None:
     keys = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
     links = {link.get("name", ""): link for link in robot.findall("link")}
     fixed: dict[str, list[str]] = {}
-    parent: dict[str, str] = {}
+    joint_type: dict[str, str] = {}       # link -> type of the joint it is the child of
     for j in robot.findall("joint"):
         p, c = j.find("parent"), j.find("child")
         if p is None or c is None:
             continue
-        parent[c.get("link", "")] = j.get("type", "")
+        joint_type[c.get("link", "")] = j.get("type", "")
         if j.get("type") == "fixed":
             fixed.setdefault(p.get("link", ""), []).append(c.get("link", ""))
 
@@ -237,7 +237,7 @@ def _bound_moving_links(robot: ET.Element, name: str, where_from: str) -> None:
         return m, _sym(v)
 
     for lname, link in links.items():
-        if parent.get(lname) == "fixed":
+        if joint_type.get(lname) == "fixed":
             continue
         group, todo = [], [lname]
         while todo:
