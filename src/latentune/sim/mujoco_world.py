@@ -39,7 +39,7 @@ import numpy as np
 from latentune.constants import G
 from latentune.errors import UsageError
 from latentune.robots import RobotSpec
-from latentune.robots.urdf import read_urdf
+from latentune.robots.urdf import INERTIA_KEYS, read_urdf
 from latentune.sim.reality import Reality, perturbed_urdf
 from latentune.sim.state import RobotState
 from latentune.sim.world import HILLS_CELL, HILLS_CELLS, WorldBase
@@ -164,19 +164,18 @@ def _correct_inertias(robot: ET.Element, name: str, where_from: str) -> None:
     :data:`INERTIA_TINY` of the robot's largest link inertia (a placeholder link of negligible
     mass, as example-robot-data's feet of 1e-6 kg: no change the motion can show), else a
     WARNING with the principal moments before and after and the relative change."""
-    keys = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
-    scale = max((float(np.linalg.norm(_sym(tuple(float(el.get(k, "0")) for k in keys))))
+    scale = max((float(np.linalg.norm(_sym(tuple(float(el.get(k, "0")) for k in INERTIA_KEYS))))
                  for el in robot.iter("inertia")), default=0.0)
     for link in robot.iter("link"):
         el = link.find("inertial/inertia")
         if el is None:
             continue
-        old = tuple(float(el.get(k, "0")) for k in keys)
+        old = tuple(float(el.get(k, "0")) for k in INERTIA_KEYS)
         fixed = mujoco_inertia(old)
         if fixed is None:
             continue
         new, why = fixed
-        for k, v in zip(keys, new):
+        for k, v in zip(INERTIA_KEYS, new):
             el.set(k, repr(v))
         said = (where_from, name, link.get("name", ""), "inertia")
         if said in _inertia_said:
@@ -218,7 +217,6 @@ def _bound_moving_links(robot: ET.Element, name: str, where_from: str) -> None:
     :data:`MOVING_MIN_VALUE` the missing :data:`MOVING_MASS` or :data:`MOVING_INERTIA` (added
     to each principal moment), in place; a WARNING once per URDF file ``where_from``, robot
     ``name`` and link."""
-    keys = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
     links = {link.get("name", ""): link for link in robot.findall("link")}
     fixed: dict[str, list[str]] = {}
     joint_type: dict[str, str] = {}       # link -> type of the joint it is the child of
@@ -233,7 +231,7 @@ def _bound_moving_links(robot: ET.Element, name: str, where_from: str) -> None:
     def mass_inertia(link: ET.Element) -> tuple[float, np.ndarray]:
         mass, inertia = link.find("inertial/mass"), link.find("inertial/inertia")
         m = float(mass.get("value", "0")) if mass is not None else 0.0
-        v = tuple(float(inertia.get(k, "0")) for k in keys) if inertia is not None else (0.0,) * 6
+        v = tuple(float(inertia.get(k, "0")) for k in INERTIA_KEYS) if inertia is not None else (0.0,) * 6
         return m, _sym(v)
 
     for lname, link in links.items():
@@ -263,7 +261,7 @@ def _bound_moving_links(robot: ET.Element, name: str, where_from: str) -> None:
         new_i = inertia + np.eye(3) * max(MOVING_INERTIA - float(np.linalg.eigvalsh(inertia)[0]), 0.0) \
             if flat else inertia
         mel.set("value", repr(new_m))
-        for k, (a, b) in zip(keys, ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))):
+        for k, (a, b) in zip(INERTIA_KEYS, ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))):
             iel.set(k, repr(float(new_i[a, b])))
         said = (where_from, name, lname, "moving")   # said apart from an inertia correction
         if said in _inertia_said:
