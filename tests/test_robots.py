@@ -364,3 +364,21 @@ def test_a_link_without_inertial_is_massless_in_pybullet_too(tmp_path):
         pb.disconnect(c)
     assert sum(masses) == pytest.approx(4.0, abs=1e-5)
     assert max(inertia) < 1e-5
+
+
+
+@pytest.mark.parametrize("bare", ["<link name='base'><collision/></link>",
+                                  "<link name='frame'/>", '<link type="x" name="frame"/>'])
+def test_a_link_without_inertial_is_found_however_its_attributes_are_written(tmp_path, bare):
+    """A link without ``<inertial>`` written with single quotes (valid XML) or another attribute
+    before its name was not found, and kept PyBullet's 1 kg."""
+    import types
+
+    from latentune.robots.urdf import NO_INERTIAL
+    path = tmp_path / "quoted.urdf"
+    path.write_text(f'<robot name="r">{bare}<link name="leg"><inertial/></link></robot>')
+    spec = types.SimpleNamespace(name="quoted", urdf=str(path), strip_root=False,
+                                 primitive_collisions=False, collision_primitives={},
+                                 foot_radius=0.02)
+    out = Path(prepared_urdf(spec)).read_text()
+    assert out.count(NO_INERTIAL) == 1 and out.count("<inertial") == 2

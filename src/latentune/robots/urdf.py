@@ -107,7 +107,7 @@ def package_dir(package: str) -> Path:
 MASSLESS = 1e-4
 """A link lighter than this [kg] (or without ``<inertial>``) counts as massless."""
 
-_REWRITE_VERSION = "rewrite-4"  # in the prepared-URDF cache key: bump when the rewrite changes
+_REWRITE_VERSION = "rewrite-5"  # in the prepared-URDF cache key: bump when the rewrite changes
 
 
 @dataclass(frozen=True)
@@ -415,7 +415,9 @@ NO_INERTIAL = ('<inertial><mass value="1e-06"/><inertia ixx="1e-09" ixy="0" ixz=
 such a link 1 kg and 1 kg·m² about each axis; pinocchio and the URDF mean none; a root of mass
 0 would be fixed in space in PyBullet)."""
 
-_BARE_LINK = re.compile(r'<link\s+name="[^"]+"\s*/>|<link\s+name="[^"]+"\s*>(?:(?!</link>).)*?</link>', re.S)
+_BARE_LINK = re.compile(r'<link(?=[\s/>])[^>]*?/>|<link(?=[\s>])[^>]*>(?:(?!</link>).)*?</link>',
+                        re.S)
+"""A ``<link>`` element, empty or not, whatever its attributes and their quotes."""
 
 
 def _has_bare_link(text: str) -> bool:
