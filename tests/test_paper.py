@@ -717,3 +717,14 @@ def test_a_resume_with_another_v_des_is_refused(tmp_path, run_cli, error_line, m
     line = error_line(code, err)
     assert "another configuration" in line and "--v-des" in line, line
     assert (out / "paper.json").read_text() == before
+
+
+def test_a_missing_paper_directory_is_not_called_read_only(tmp_path):
+    """write_paper_report on a directory that does not exist said it 'cannot be written
+    (read-only)'; it says what is missing, as before the read-only check."""
+    from latentune.errors import UsageError
+    from latentune.reporting.paper_report import write_paper_report
+
+    with pytest.raises(UsageError) as exc:
+        write_paper_report(tmp_path / "nowhere")
+    assert "read-only" not in str(exc.value) and "paper.json" in str(exc.value)
