@@ -55,6 +55,12 @@ TUNED_FOR = "tuned_for"
 for: an object (:func:`tuned_for_text`), where a parameter's value is a number."""
 
 
+def task_tuned_for(robot: Any, gait: Any, actor: Any) -> dict[str, Any]:
+    """The :data:`TUNED_FOR` record of θ of a built-in task: its robot's name, gait and actor
+    (not its terrain, reality or engine)."""
+    return {"robot": robot, "gait": gait, "actor": actor}
+
+
 def tuned_for_text(record: Any) -> str:
     """A tuned-for record as a person reads it: "b1 trot (convex)" for a built-in robot's,
     "the system mymodule:make" for a user system's, any other as its JSON."""

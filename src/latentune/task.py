@@ -31,7 +31,7 @@ from latentune.checks import is_whole
 from latentune.constants import C1, GAITS, STABLE_CAP, TERRAINS, fail_cost
 from latentune.errors import UsageError
 from latentune.robots import RobotSpec, get_robot
-from latentune.space import ParameterSpace
+from latentune.space import ParameterSpace, task_tuned_for
 from latentune.system import Outcome
 
 __all__ = ["Task", "RolloutResult", "path_cost", "actor_class", "ACTORS", "C1", "MAX_STEPS",
@@ -209,7 +209,7 @@ class Task:
         self.steps = int(steps)
         self.seed = int(seed)
         self.space: ParameterSpace = self.actor_cls.space(self.spec, gait)
-        self.space.tuned_for = {"robot": self.robot_name, "gait": gait, "actor": actor}
+        self.space.tuned_for = task_tuned_for(self.robot_name, gait, actor)
         self._world = None
 
     # pickling: drop the PyBullet client

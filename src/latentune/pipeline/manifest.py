@@ -38,7 +38,7 @@ from latentune.errors import LatentuneError, StoreError, SystemSpecError, UsageE
 from latentune.pipeline.rundir import RunDir
 from latentune.pipeline.store import info_json, json_default
 from latentune.pipeline.walltime import settle_open
-from latentune.space import ParameterSpace
+from latentune.space import ParameterSpace, task_tuned_for
 from latentune.system import check_system, plugin_record
 
 OPTUNA_METHODS = ("optuna-tpe", "optuna-cmaes", "optuna-gp")
@@ -134,7 +134,7 @@ def tuned_for(desc: Any) -> dict[str, Any] | None:
         return None
     task = desc.get("task")
     if desc.get("kind") == "task" and isinstance(task, dict):
-        return {k: task.get(k) for k in ("robot", "gait", "actor")}
+        return task_tuned_for(task.get("robot"), task.get("gait"), task.get("actor"))
     if desc.get("kind") == "plugin" and desc.get("target"):
         return {"system": str(desc["target"])}
     return None
