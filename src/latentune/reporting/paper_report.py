@@ -624,13 +624,18 @@ def _walls(nums: dict[str, Any]) -> dict[str, dict[str, float]]:
     return {k: (s or {}).get("wall", {}) for k, s in nums["studies"].items()}
 
 
+def report_command(nums: dict[str, Any]) -> str:
+    """The command that regenerates the report of the paper directory ``nums`` describes
+    (:func:`compute`) from its stored runs, its directory quoted for a shell where it needs it."""
+    return (f"latentune paper --robot {nums['robot']} --out {shlex.quote(str(nums['root']))} "
+            "--report-only")
+
+
 def summary_json(nums: dict[str, Any], claims: list[Claim], fig: dict[str, Any]) -> dict[str, Any]:
     """The content of ``paper_summary.json`` (JSON-able; wall times in s)."""
     meta, walls = nums["meta"], _walls(nums)
     return {"robot": nums["robot"], "actor": meta.get("actor"), "budgets": nums["budgets"],
-            "command": meta.get("command"), "report_command":
-                f"latentune paper --robot {nums['robot']} --out "
-                f"{shlex.quote(str(nums['root']))} --report-only",
+            "command": meta.get("command"), "report_command": report_command(nums),
             "steps": meta.get("steps"), "seed": meta.get("seed"),
             "table": nums["table"], "transfer": nums["transfer"],
             "preservation": nums["preservation"], "baselines": nums["baselines"],
@@ -647,7 +652,7 @@ def _pv(v: Any) -> str:
 
 
 def _md_header(nums: dict[str, Any]) -> list[str]:
-    meta, b, root, robot = nums["meta"], nums["budgets"], nums["root"], nums["robot"]
+    meta, b, root = nums["meta"], nums["budgets"], nums["root"]
     q = shlex.quote(str(root))                  # the directory as a shell command names it
     inv = meta.get("invocations", [])
     wall_studies = float(sum(sum(w.values()) for w in _walls(nums).values()))
@@ -662,8 +667,7 @@ def _md_header(nums: dict[str, Any]) -> list[str]:
         f"seed {meta.get('seed')}, {meta.get('workers')} process workers.", "",
         f"Produced by: `{meta.get('command')}`  ",
         f"Every number and figure below is regenerated from the stored runs "
-        f"(`{root}/<study>/run.db`) by: `latentune paper --robot {robot} --out {q} "
-        f"--report-only` (or `latentune report {q}`).",
+        f"(`{root}/<study>/run.db`) by: `{report_command(nums)}` (or `latentune report {q}`).",
         f"Wall time: {fmt(meta.get('wall_s_total'), 0)} s for the `paper` command(s) "
         f"({len(inv)} invocation(s), excluding this report's re-simulations); "
         f"{wall_studies:.0f} s inside the studies' phases (sum of the stores' wall records).",
