@@ -116,11 +116,13 @@ def test_store_in_a_read_only_directory_is_read_and_refuses_writes(tmp_path):
 
 
 @pytest.mark.parametrize("key, value", [("config", [1]), ("config", "phase1"),
-                                        ("wall", [3.0]), ("artifacts", 7)])
+                                        ("wall", [3.0]), ("artifacts", 7),
+                                        ("wall_open", [3.0])])
 @pytest.mark.parametrize("cmd", ["report", "status", "best"])
 def test_a_meta_entry_that_is_not_a_json_object_is_one_line(tmp_path, run_cli, error_line,
                                                             key, value, cmd):
-    """A run store whose ``config``, ``wall`` or ``artifacts`` entry is valid JSON but not an
+    """A run store whose ``config``, ``wall``, ``wall_open`` or ``artifacts`` entry is valid
+    JSON but not an
     object (another tool's or another layout's store, a hand edit) ended ``report``, ``status``
     and ``best`` in a traceback ("'list' object has no attribute 'get'"): opening it says in
     one line which entry is wrong, and the store is left as it was."""

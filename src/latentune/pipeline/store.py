@@ -68,7 +68,7 @@ VERSION = 3
 INF_CODE = COST_LIMIT
 """How a non-finite cost is stored (SQLite REAL has no inf): ±INF_CODE."""
 DB_NAME = "run.db"
-OBJECT_META = ("config", "wall", "artifacts")
+OBJECT_META = ("config", "wall", "wall_open", "artifacts")
 """The meta entries that hold a JSON object (or are absent): opening a store whose entry holds
 anything else is a StoreError naming it."""
 
