@@ -348,7 +348,9 @@ def cli_main(main: Callable[[], int], prog: str) -> int:
     latentune's (a run directory without a store, a bad parameter:
     :class:`latentune.errors.LatentuneError`) or an input file that does not exist is one line
     on stderr and exit 2, as argparse's errors are, not a traceback; a closed stdout
-    (``| head``) ends quietly with exit 141 (:func:`stdout_closed`)."""
+    (``| head``) ends quietly with exit 141 (:func:`stdout_closed`). ``prog``: the benchmark's
+    module (``benchmarks.transfer``), which the error line names as ``python -m MODULE``
+    (:func:`error_line`)."""
     from latentune.errors import LatentuneError
 
     try:
