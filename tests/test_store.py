@@ -396,3 +396,15 @@ def test_summary_and_report_are_not_left_truncated(tmp_path, monkeypatch, full_d
     st.close()
     assert {n: (d / n).read_text() for n in before} == before
     assert not [p.name for p in d.iterdir() if p.name.endswith(".tmp")]
+
+
+def test_a_wall_unknown_entry_that_is_not_a_list_is_one_line(tmp_path, run_cli, error_line):
+    """``wall_unknown`` (the keys of timed blocks whose time is lost) holding a number ended
+    ``report`` in a traceback ("'int' object is not iterable"); opening the store says so."""
+    d = tmp_path / "run"
+    with RunStore(d, create=True) as st:
+        st.add(1, 0, np.zeros(3), cost=1.0)
+        st.set_meta("wall_unknown", 5)
+    line = error_line(*run_cli("report", d, "--no-sim")[::2])
+    assert line == (f"latentune: error: run store {d / 'run.db'}: meta entry 'wall_unknown' is "
+                    "not a JSON list (got int)")

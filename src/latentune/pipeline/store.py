@@ -71,6 +71,8 @@ DB_NAME = "run.db"
 OBJECT_META = ("config", "wall", "wall_open", "artifacts")
 """The meta entries that hold a JSON object (or are absent): opening a store whose entry holds
 anything else is a StoreError naming it."""
+LIST_META = ("wall_unknown",)
+"""The meta entries that hold a JSON list (or are absent), checked as :data:`OBJECT_META`."""
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -362,16 +364,17 @@ class RunStore:
                     raise StoreError(f"run store {self.path} is of version {version}, written by "
                                      f"a newer latentune (this one reads versions 1 to "
                                      f"{VERSION}): upgrade latentune to use it")
-                for key in OBJECT_META:
+                for key, kind, what in [*((k, dict, "object") for k in OBJECT_META),
+                                        *((k, list, "list") for k in LIST_META)]:
                     row = con.execute("SELECT value FROM meta WHERE key=?", (key,)).fetchone()
                     try:
                         value = None if row is None else json.loads(row[0])
                     except (json.JSONDecodeError, TypeError):
                         raise StoreError(f"run store {self.path}: meta entry {key!r} is not "
                                          "valid JSON") from None
-                    if value is not None and not isinstance(value, dict):
+                    if value is not None and not isinstance(value, kind):
                         raise StoreError(f"run store {self.path}: meta entry {key!r} is not a "
-                                         f"JSON object (got {type(value).__name__})")
+                                         f"JSON {what} (got {type(value).__name__})")
                 cols = {r[1] for r in con.execute("PRAGMA table_info(evaluations)")}
                 need = {"phase", "idx", "theta", "z", "tag", "cost", "fell", "fall_step"}
                 if not need <= cols:
