@@ -305,6 +305,36 @@ def test_import_takes_a_trial_that_stood_with_a_non_finite_value_as_a_fall(tmp_p
     assert [(r.cost, r.fell) for r in rows] == [(1.0, False), (math.inf, True), (math.inf, True)]
 
 
+def test_a_no_cost_trial_is_named_only_by_the_import_that_imports_it(tmp_path):
+    """Importing a study again named the trial that stood with a value that is no cost once
+    more ("imported as falls"), though that import added no trial; so did an import refused
+    for a directory holding another run. The warning names the trials this import adds."""
+    import warnings as w
+
+    from latentune.errors import StoreError
+    storage = optuna.storages.InMemoryStorage()
+    mk = optuna.trial.create_trial
+    p = [dict(zip(NAMES, map(float, x))) for x in manifold(3, seed=2)]
+    s = optuna.create_study(storage=storage, study_name="again")
+    s.add_trials([mk(params=p[0], distributions=DISTS, value=1.0),
+                  mk(params=p[1], distributions=DISTS, value=-math.inf)])
+    with pytest.warns(UserWarning, match=r"trial\(s\) 1 stood"):
+        import_optuna_study(storage, "again", tmp_path / "run")
+    s.add_trials([mk(params=p[2], distributions=DISTS, value=2.0)])
+    with w.catch_warnings(record=True) as got:
+        w.simplefilter("always")
+        st = import_optuna_study(storage, "again", tmp_path / "run")
+    assert st.store.count(Phase.PHASE1) == 3
+    assert not [x for x in got if "no cost" in str(x.message)]
+    other = optuna.create_study(storage=storage, study_name="other")
+    other.add_trials([mk(params=p[1], distributions=DISTS, value=-math.inf)])
+    with w.catch_warnings(record=True) as got:
+        w.simplefilter("always")
+        with pytest.raises(StoreError):
+            import_optuna_study(storage, "other", tmp_path / "run")
+    assert not [x for x in got if "no cost" in str(x.message)]
+
+
 def test_import_cli_counts_one_trial_and_one_fall_in_the_singular(tmp_path, capsys):
     """``import-optuna`` of a study with one finished trial, a FAIL, said "holds 1 trials
     (1 falls)"; it says "1 trial (1 fall)"."""

@@ -1243,13 +1243,6 @@ def import_optuna_study(storage: Any, study_name: str | None, out: str | os.Path
             raise OptunaImportError(f"trial {t.number}: {'; '.join(out[:3]) or 'a parameter'}"
                                     f"{' …' if len(out) > 3 else ''} (of the given space)")
         rows.append((t, u, trial_cost(t, sign)))
-    no_cost = [t.number for t, _, cost in rows if t.values and math.isinf(cost)
-               and not trial_fell(t)]
-    if no_cost:
-        warnings.warn(f"import of {study.study_name!r}: trial(s) {', '.join(map(str, no_cost[:5]))}"
-                      f"{' …' if len(no_cost) > 5 else ''} stood with a value that is no cost "
-                      f"(not finite, or {COST_LIMIT:g} in size or more): imported as falls of "
-                      "cost +inf, as latentune's samplers tell them", stacklevel=2)
     if incomplete:
         warnings.warn(f"import of {study.study_name!r}: {incomplete} finished trial(s) lack some "
                       "of the parameters and are left out", stacklevel=2)
@@ -1284,9 +1277,12 @@ def import_optuna_study(storage: Any, study_name: str | None, out: str | os.Path
         done = {r.info.get("optuna_trial") for r in st.rows(Phase.PHASE1)}
         idx = st.next_idx(Phase.PHASE1)
         added = 0
+        no_cost = []                        # added trials that stood with a value of no cost
         for t, u, cost in rows:
             if t.number in done:
                 continue
+            if t.values and math.isinf(cost) and not trial_fell(t):
+                no_cost.append(t.number)
             info = {"optuna_trial": int(t.number), "optuna_state": t.state.name,
                     "optuna_value": None if not t.values else float(t.values[0]),
                     "constraints": {k: float(v) for k, v in t.constraints.items()}}
@@ -1318,6 +1314,11 @@ def import_optuna_study(storage: Any, study_name: str | None, out: str | os.Path
 
             write_atomic(path, json.dumps(sp.as_dict(best.theta), indent=1))
             st.add_artifact("phase1_best", path)
+    if no_cost:
+        warnings.warn(f"import of {study.study_name!r}: trial(s) {', '.join(map(str, no_cost[:5]))}"
+                      f"{' …' if len(no_cost) > 5 else ''} stood with a value that is no cost "
+                      f"(not finite, or {COST_LIMIT:g} in size or more): imported as falls of "
+                      "cost +inf, as latentune's samplers tell them", stacklevel=2)
     logger.info("imported %d trial(s) of %s into %s (%d left out: pruned/running/waiting; "
                 "%d lack parameters)", added, study.study_name, out, n_left, incomplete)
     return lt_study
