@@ -228,15 +228,17 @@ def small_run(run_cli, plant, tmp_path):
 
 @pytest.mark.parametrize("name", ["phase1_best.json", "vae.json", "summary.json"])
 def test_a_full_disk_is_one_line(run_cli, monkeypatch, small_run, name):
-    """The disk fills up when the run writes ``name`` (a file of the run directory)."""
+    """The disk fills up when the run writes ``name`` (a file of the run directory), or the
+    temporary file it is written to first (``.NAME.XXXX.tmp``, opened by its descriptor)."""
     import builtins
     import io
 
     real_open = io.open
 
     def full_open(file, mode="r", *a, **k):
-        if Path(str(file)).name.startswith(name) and any(c in mode for c in "wax"):
-            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(file))
+        path = os.readlink(f"/proc/self/fd/{file}") if isinstance(file, int) else str(file)
+        if Path(path).name.lstrip(".").startswith(name) and any(c in mode for c in "wax"):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), path)
         return real_open(file, mode, *a, **k)
 
     before = _rows(small_run)

@@ -28,11 +28,15 @@ _MODE = 0o666 & ~_umask()
 def write_atomic(path: str | os.PathLike, data: str | bytes) -> None:
     """Replace ``path`` by a file holding ``data`` (str: written as UTF-8) in one rename, from a
     unique temporary file ``.<name>.<random>.tmp`` beside it; on any error the temporary file
-    is removed, ``path`` is left as it was and the error is raised. The new file has the
-    permissions of an ordinary new file (0666 less the umask)."""
+    is removed, ``path`` is left as it was and the error is raised (an OSError naming ``path``,
+    the file the caller writes, not the temporary one). The new file has the permissions of an
+    ordinary new file (0666 less the umask)."""
     path = Path(path)
     raw = data.encode("utf-8") if isinstance(data, str) else bytes(data)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as exc:
+        raise OSError(exc.errno, exc.strerror, str(path)) from exc
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(raw)
@@ -40,9 +44,11 @@ def write_atomic(path: str | os.PathLike, data: str | bytes) -> None:
             os.fsync(f.fileno())
         os.chmod(tmp, _MODE)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         try:
             os.unlink(tmp)
         except OSError:
             pass
+        if isinstance(exc, OSError) and exc.errno is not None:
+            raise OSError(exc.errno, exc.strerror, str(path)) from exc
         raise
