@@ -27,8 +27,8 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import (Provenance, add_out_arg, bench_parser, finish,  # noqa: E402
-                               markdown_table)
+from benchmarks.common import (Provenance, add_out_arg, bench_parser, error_line,  # noqa: E402
+                               finish, markdown_table)
 from benchmarks.transfer import SYSTEMS  # noqa: E402
 from benchmarks.transfer import DEFAULT_METHOD as DEFAULT  # noqa: E402
 from benchmarks.transfer_walk import load_trace  # noqa: E402
@@ -96,12 +96,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--md", type=Path, default=None, metavar="FILE.md")
     a = ap.parse_args(argv)
     if a.points < 2:
-        print("basin_path: --points takes a count ≥ 2", file=sys.stderr)
+        error_line("benchmarks.basin_path", "--points takes a count ≥ 2")
         return 2
     rows = paths(a.root, a.system, a.gap, a.a, a.b, a.seeds, a.points)
     if not rows:
-        print(f"basin_path: no seed where both {a.a} and {a.b} have a standing trial with θ "
-              f"under {a.root}/{a.system}/gap{a.gap:g}", file=sys.stderr)
+        error_line("benchmarks.basin_path", f"no seed where both {a.a} and {a.b} have a "
+                   f"standing trial with θ under {a.root}/{a.system}/gap{a.gap:g}")
         return 2
     banded = sum(1 for r in rows if r["longest_band"] > 0)
     summary = {"system": a.system, "gap": a.gap, "a": a.a, "b": a.b, "seeds": len(rows),

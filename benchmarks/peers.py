@@ -345,9 +345,9 @@ def bench(a) -> int:
     with open(out / "invocations.jsonl", "a") as fh:
         fh.write(json.dumps(dict(inv, event="end")) + "\n")
     if failed:
-        print(f"peers: {len(failed)} of {len(work)} runs failed (their tracebacks above; "
-              f"not written, a re-run tries them again): {', '.join(failed)}",
-              file=sys.stderr, flush=True)
+        error_line("benchmarks.peers", f"{len(failed)} of {len(work)} runs failed (their "
+                   f"tracebacks above; not written, a re-run tries them again): "
+                   f"{', '.join(failed)}")
     return 1 if failed else 0
 
 
@@ -536,7 +536,7 @@ def compare(a) -> int:
         here_best.append(r["best"])
         there_best.append(o["best"])
     if not rows:
-        print(f"no run of {out / 'runs'} is also in {other / 'runs'}", file=sys.stderr)
+        error_line("benchmarks.peers", f"no run of {out / 'runs'} is also in {other / 'runs'}")
         return 1
     lines = [f"# {out} against {other}", "",
              f"{sum(r['identical'] for r in rows)} of {len(rows)} runs have identical traces; "
@@ -578,9 +578,9 @@ def relabel(a) -> int:
     here = machine()
     elsewhere = {json.dumps(o.get("machine")) for o in old.values()} - {json.dumps(here)}
     if elsewhere:      # a seeded trajectory is reproducible on one kind of CPU only (--compare)
-        print(f"runs of {a.relabel} were made on another machine ({', '.join(sorted(elsewhere))}; "
-              f"here {json.dumps(here)}): their traces cannot be checked here; re-run them",
-              file=sys.stderr)
+        error_line("benchmarks.peers", f"runs of {a.relabel} were made on another machine "
+                   f"({', '.join(sorted(elsewhere))}; here {json.dumps(here)}): their traces "
+                   "cannot be checked here; re-run them")
         return 1
     picks = []
     for m in ("lt_turbo", "lt_cma"):      # --relabel-check runs of each, spread over the list

@@ -30,7 +30,7 @@ import numpy as np
 
 from latentune.pipeline.store import read_uri
 
-from benchmarks.common import Provenance, add_out_arg, bench_parser, finish
+from benchmarks.common import Provenance, add_out_arg, bench_parser, error_line, finish
 
 
 def _reverse_batches(db: Path) -> int:
@@ -113,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
     add_out_arg(ap)
     a = ap.parse_args(argv)
     if not (a.run / "run.db").is_file():
-        print(f"phase3_order: {a.run} holds no run store (run.db)", file=sys.stderr)
+        error_line("benchmarks.phase3_order", f"{a.run} holds no run store (run.db)")
         return 2
     con = sqlite3.connect(read_uri(a.run / 'run.db'), uri=True)
     try:
@@ -122,8 +122,8 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         con.close()
     if n1 < 2 or cfg is None or '"phase3"' not in cfg[0] or '"task"' not in cfg[0]:
-        print(f"phase3_order: {a.run} is not a finished run of a task with phase 1 and phase 3 "
-              "(e.g. the README's `latentune tune` output)", file=sys.stderr)
+        error_line("benchmarks.phase3_order", f"{a.run} is not a finished run of a task with "
+                   "phase 1 and phase 3 (e.g. the README's `latentune tune` output)")
         return 2
     prov = Provenance()
     out: dict[str, Any] = {}

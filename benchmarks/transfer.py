@@ -115,6 +115,7 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
+from benchmarks.common import error_line  # noqa: E402
 from latentune.system import evaluate  # noqa: E402
 
 PEERS = ("zero_shot", "turbo_manual", "turbo_source", "cma_source", "cma_source_trials", "tpe",
@@ -1245,7 +1246,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             rows = check_default(Path(a.root), Path(a.stored), a.method, a.systems, a.seeds)
         except ValueError as e:
-            print(f"transfer check-default: {e}", file=sys.stderr)
+            error_line("benchmarks.transfer check-default", e)
             return 2
         n_diff = sum(not r["same"] for r in rows)
         print(f"{len(rows) - n_diff} of {len(rows)} runs the same")
@@ -1258,7 +1259,7 @@ def main(argv: list[str] | None = None) -> int:
                 raise ValueError(f"--budget must be >= 1, got {a.budget}")
             rows = prefix_check(Path(a.root), Path(a.stored), a.budget)
         except ValueError as e:
-            print(f"transfer prefix: {e}", file=sys.stderr)
+            error_line("benchmarks.transfer prefix", e)
             return 2
         for r in rows:
             if not r["same"]:
@@ -1272,7 +1273,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             n = cut_runs(Path(a.root), a.method, a.share, a.name, a.seeds, a.counts)
         except ValueError as e:
-            print(f"transfer cut: {e}", file=sys.stderr)
+            error_line("benchmarks.transfer cut", e)
             return 2
         print(f"{n} runs of {a.method} cut at fall_budget {a.share:g} ({a.counts}), stored as "
               f"{a.name}")
@@ -1283,7 +1284,7 @@ def main(argv: list[str] | None = None) -> int:
             rows = [compare(Path(a.root), x, b, a.seeds, systems=a.systems)
                     for x in a.a for b in a.b]
         except ValueError as e:
-            print(f"transfer compare: {e}", file=sys.stderr)
+            error_line("benchmarks.transfer compare", e)
             return 2
         if not any(r["pairs"] for r in rows):
             import difflib
@@ -1292,17 +1293,16 @@ def main(argv: list[str] | None = None) -> int:
             unknown = [m for m in dict.fromkeys([*a.a, *a.b]) if m not in stored]
             if unknown:         # a typo, or a method never run here
                 near = difflib.get_close_matches(unknown[0], stored, n=3)
-                print(f"transfer compare: no run of {unknown[0]} under {a.root}"
-                      + (f" (did you mean {' or '.join(near)}?)" if near else ""),
-                      file=sys.stderr)
+                error_line("benchmarks.transfer compare", f"no run of {unknown[0]} under {a.root}"
+                           + (f" (did you mean {' or '.join(near)}?)" if near else ""))
                 return 2
-            print(f"transfer compare: no (target, seed) under {a.root} holds both methods of "
-                  f"any pair", file=sys.stderr)
+            error_line("benchmarks.transfer compare", f"no (target, seed) under {a.root} holds "
+                       "both methods of any pair")
             return 2
         if (a.bar_paired, a.bar_falls, a.bar_target) != (None, None, None):
             if a.bar_target is not None and not 0 < a.bar_target[1] <= 1:
-                print(f"transfer compare: --bar-target's SHARE must be in (0, 1], got "
-                      f"{a.bar_target[1]:g}", file=sys.stderr)
+                error_line("benchmarks.transfer compare", "--bar-target's SHARE must be in "
+                           f"(0, 1], got {a.bar_target[1]:g}")
                 return 2
             for r in rows:
                 r["bar"] = bar_check(r, a.bar_paired, a.bar_falls,
@@ -1326,7 +1326,7 @@ def main(argv: list[str] | None = None) -> int:
             targets = ladder_targets(a.systems, a.gaps)
             check_resume(a, targets)
         except ValueError as e:
-            print(f"transfer run: {e}", file=sys.stderr)
+            error_line("benchmarks.transfer run", e)
             return 2
         run(a, targets)
         return 0
@@ -1337,7 +1337,7 @@ def main(argv: list[str] | None = None) -> int:
         res = summarize(Path(a.root), default=a.default, methods=a.methods, systems=a.systems,
                         machine=a.machine, budget=a.budget)
     except ValueError as e:
-        print(f"transfer summary: {e}", file=sys.stderr)
+        error_line("benchmarks.transfer summary", e)
         return 2
     p = prov.finish()
     md = markdown(res)

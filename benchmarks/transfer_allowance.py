@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.common import error_line
 from benchmarks.transfer import DEFAULT_METHOD as DEFAULT
 from benchmarks.transfer_walk import load_trace, runs_by_seed
 
@@ -112,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
             robots = rows_of(rs, robot_early(Path(a.robot_traces), a.default),
                              "{target}")
     except (OSError, ValueError, KeyError) as e:
-        print(f"transfer_allowance: {e}", file=sys.stderr)
+        error_line("benchmarks.transfer_allowance", e)
         return 2
     res = {"cheap": rows, "robots": robots, "spearman": {
         "cheap": spearman(rows), "robots": spearman(robots), "all": spearman(rows + robots)}}

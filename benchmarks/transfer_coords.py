@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.common import Provenance, bench_parser
+from benchmarks.common import Provenance, bench_parser, error_line
 from benchmarks.transfer import SYSTEMS
 from benchmarks.transfer_curves import finish_ladder, ladder_args, targets
 
@@ -104,16 +104,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--targets", nargs="+", default=None, help="e.g. arm/gap1.5")
     a = ap.parse_args(argv)
     if not a.coords and not a.faces:
-        print("transfer_coords: give --coords NAME ... or --faces (or both)", file=sys.stderr)
+        error_line("benchmarks.transfer_coords", "give --coords NAME ... or --faces (or both)")
         return 2
     try:
         rows = coords(Path(a.root), a.methods, a.seeds, a.coords, a.targets, a.faces)
     except ValueError as e:
-        print(f"transfer_coords: {e}", file=sys.stderr)
+        error_line("benchmarks.transfer_coords", e)
         return 2
     if not rows:
-        print("transfer_coords: no stored run holds θ for these targets, methods and coordinates",
-              file=sys.stderr)
+        error_line("benchmarks.transfer_coords",
+                   "no stored run holds θ for these targets, methods and coordinates")
         return 2
     finish_ladder(a, prov, {"coords": a.coords}, rows)
     return 0

@@ -38,6 +38,8 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
+from benchmarks.common import error_line  # noqa: E402
+
 
 def _dist(a: np.ndarray, b: np.ndarray) -> dict[str, float]:
     d = np.asarray(a, float) - np.asarray(b, float)
@@ -190,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
             lrow = next(r for r in ladder["targets"] if r["system"] == system
                         and abs(r["gap"] - gap) < 1e-9)
         except (ValueError, StopIteration):
-            print(f"transfer_diagnose: no ladder target {spec!r} in {a.ladder}", file=sys.stderr)
+            error_line("benchmarks.transfer_diagnose", f"no ladder target {spec!r} in {a.ladder}")
             return 2
         peer = lrow["best_peer"]
         row: dict[str, Any] = {"system": system, "gap": gap, "peer": peer, "seeds": {}}

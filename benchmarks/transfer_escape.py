@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 
 import latentune as lt
+from benchmarks.common import error_line
 
 SOURCE_EVALS = 150
 CENTRE, MOVED = 0.3, 0.8
@@ -252,8 +253,8 @@ def main(argv: list[str] | None = None) -> int:
     prov = Provenance(argv, "benchmarks.transfer_escape")
     res = summary(a.root, a.k)
     if not res["rows"]:         # an empty table and exit 0 read as "nothing went wrong"
-        print(f"transfer_escape summary: no run of {', '.join(methods(a.k))} under "
-              f"{a.root}/d*/seed*/KIND", file=sys.stderr)
+        error_line("benchmarks.transfer_escape summary",
+                   f"no run of {', '.join(methods(a.k))} under {a.root}/d*/seed*/KIND")
         return 2
     text = _table(res)
     print(text)

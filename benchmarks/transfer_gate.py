@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks import transfer as tr
+from benchmarks.common import error_line
 from benchmarks.transfer_models import _spearman, emit
 from benchmarks.transfer_simrank import source_outcomes
 from benchmarks.transfer_walk import auc, load_trace
@@ -140,7 +141,7 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError(f"--runs {args.runs}: no such directory")
         rows = score(Path(args.runs), args.systems, args.seeds, args.a, args.b, args.near)
     except ValueError as e:
-        print(f"transfer_gate: {e}", file=sys.stderr)
+        error_line("benchmarks.transfer_gate", e)
         return 2
     emit(rows, table(rows, args.a, args.b, args.near), args.out, with_md=True)
     return 0

@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks import transfer as tr
+from benchmarks.common import error_line
 from benchmarks.transfer_walk import auc, load_trace
 
 CUTS = (5, 10, 20)
@@ -229,7 +230,7 @@ def main(argv: list[str] | None = None) -> int:
         if not rows:
             raise ValueError("no stored target run with its θ for those systems and seeds")
     except (OSError, ValueError, KeyError) as e:
-        print(f"transfer_models: {e}", file=sys.stderr)
+        error_line("benchmarks.transfer_models", e)
         return 2
     emit(rows, table(rows), a.out)
     return 0

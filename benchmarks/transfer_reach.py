@@ -34,8 +34,8 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import (Provenance, add_out_arg, bench_parser, finish,  # noqa: E402
-                               markdown_table)
+from benchmarks.common import (Provenance, add_out_arg, bench_parser, error_line,  # noqa: E402
+                               finish, markdown_table)
 from benchmarks.transfer import SYSTEMS  # noqa: E402
 from latentune.system import evaluate  # noqa: E402
 
@@ -105,16 +105,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--md", type=Path, default=None, metavar="FILE.md")
     a = ap.parse_args(argv)
     if min(a.top) < 1:
-        print("transfer_reach: --top takes counts ≥ 1", file=sys.stderr)
+        error_line("benchmarks.transfer_reach", "--top takes counts ≥ 1")
         return 2
     missing = [str(f) for f in a.ladder if not f.is_file()]
     if missing:
-        print(f"transfer_reach: no ladder summary {', '.join(missing)}", file=sys.stderr)
+        error_line("benchmarks.transfer_reach", f"no ladder summary {', '.join(missing)}")
         return 2
     rows = reach(a.sources, best_peers(a.ladder), a.systems, a.seeds, sorted(set(a.top)))
     if not rows:
-        print(f"transfer_reach: no source run under {a.sources} for a target of the ladder "
-              "summaries", file=sys.stderr)
+        error_line("benchmarks.transfer_reach", f"no source run under {a.sources} for a target "
+                   "of the ladder summaries")
         return 2
     finish(a.out, prov, {"sources": str(a.sources), "ladder": [str(f) for f in a.ladder],
                          "top": sorted(set(a.top))}, rows)

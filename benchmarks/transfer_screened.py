@@ -23,6 +23,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from benchmarks.common import error_line
+
 CMA_PEERS = ("cma_source", "cma_source_trials")
 
 
@@ -96,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
                 raise ValueError(f"no run tree at {a.runs}")
             res["forced"] = forced(Path(a.runs))
     except (OSError, ValueError, KeyError) as e:
-        print(f"transfer_screened: {e}", file=sys.stderr)
+        error_line("benchmarks.transfer_screened", e)
         return 2
     for r in res["rows"]:
         print(f"{r['target']:13s} {r['peer']:17s} {r['peer_median']:.4g} / {r['peer_falls']:g}  "

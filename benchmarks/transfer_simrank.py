@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks import transfer as tr
+from benchmarks.common import error_line
 from benchmarks.transfer_models import CUTS, SETS, _spearman, emit
 from benchmarks.transfer_walk import auc, load_trace
 
@@ -155,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError("no rows for those systems in --models")
         rows = score(rows, Path(a.runs), Path(a.sources))
     except (OSError, ValueError, KeyError, json.JSONDecodeError) as e:
-        print(f"transfer_simrank: {e}", file=sys.stderr)
+        error_line("benchmarks.transfer_simrank", e)
         return 2
     emit(rows, table(rows), a.out, with_md=True)
     return 0

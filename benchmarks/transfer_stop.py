@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks import transfer as tr
+from benchmarks.common import error_line
 from benchmarks.transfer_walk import load_trace, runs_by_seed
 from latentune.critic.transfer import FALL_BUDGET_COUNTS, counted_falls
 
@@ -242,7 +243,7 @@ def main(argv: list[str] | None = None) -> int:
             if fresh:
                 chosen[name]["fresh"] = paired_only(fresh, c["_end"])
     except (OSError, ValueError, KeyError) as e:
-        print(f"transfer_stop: {e}", file=sys.stderr)
+        error_line("benchmarks.transfer_stop", e)
         return 2
     for g in grid:
         del g["_end"]

@@ -44,8 +44,8 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import (Provenance, add_out_arg, bench_parser, finish,  # noqa: E402
-                               markdown_table)
+from benchmarks.common import (Provenance, add_out_arg, bench_parser, error_line,  # noqa: E402
+                               finish, markdown_table)
 from benchmarks.transfer import DEFAULT_METHOD, SYSTEMS  # noqa: E402
 
 SPACING = 0.15          # the default elite_spacing (record_walk's distance from told falls)
@@ -362,18 +362,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--md", type=Path, default=None, metavar="FILE.md")
     a = ap.parse_args(argv)
     if a.steps < 1:
-        print("transfer_walk: --steps takes a count ≥ 1", file=sys.stderr)
+        error_line("benchmarks.transfer_walk", "--steps takes a count ≥ 1")
         return 2
     missing = [str(r) for r in a.runs if not r.is_dir()]
     if missing:
-        print(f"transfer_walk: no runs directory {', '.join(missing)}", file=sys.stderr)
+        error_line("benchmarks.transfer_walk", f"no runs directory {', '.join(missing)}")
         return 2
     gaps = None if a.gaps is None else {s: list(a.gaps) for s in a.systems}
     rows, summary = study(a.runs, a.sources, a.cache, a.systems, gaps, a.seeds, a.method,
                           a.steps)
     if not rows:
-        print("transfer_walk: no stored run in which the source's record fell (or no source "
-              f"run under {a.sources})", file=sys.stderr)
+        error_line("benchmarks.transfer_walk", "no stored run in which the source's record "
+                   f"fell (or no source run under {a.sources})")
         return 2
     finish(a.out, prov, {"runs": [str(r) for r in a.runs], "sources": str(a.sources),
                          "method": a.method, "steps": a.steps, "summary": summary}, rows)

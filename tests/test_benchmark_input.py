@@ -170,8 +170,8 @@ def test_peers_exits_non_zero_and_names_the_runs_that_failed(tmp_path, capsys, m
     out, err = capsys.readouterr()
     assert code == 1 and "FAILED lqr16 lt_turbo@bad 0" in out
     assert err.strip().splitlines()[-1] == (
-        "peers: 1 of 1 runs failed (their tracebacks above; not written, a re-run tries them "
-        "again): lqr16 lt_turbo@bad s0")
+        "python -m benchmarks.peers: error: 1 of 1 runs failed (their tracebacks above; not "
+        "written, a re-run tries them again): lqr16 lt_turbo@bad s0")
     assert not list((tmp_path / "p" / "runs").glob("*.json"))
     end = json.loads((tmp_path / "p" / "invocations.jsonl").read_text().splitlines()[-1])
     assert end["runs_failed"] == ["lqr16 lt_turbo@bad s0"]
@@ -393,3 +393,23 @@ def test_every_benchmark_error_line_names_the_command_as_it_is_run(capsys):
     assert gap_ladder.main(["--n", "0"]) == 2
     assert capsys.readouterr().err == ("python -m benchmarks.gap_ladder: error: --n must be >= 1, "
                                        "got 0\n")
+
+
+def test_no_benchmark_prints_its_own_error_line_under_a_bare_name(tmp_path, capsys):
+    """``322a25ea`` left about thirty error lines of thirteen benchmarks printed by hand under
+    the module's bare name (``transfer summary: …``, ``transfer_coords: …``, ``phase3_order:
+    …``); each is now :func:`benchmarks.common.error_line`, ``python -m benchmarks.X: error:``
+    (a subcommand's adds its name: ``python -m benchmarks.transfer summary: error:``)."""
+    import re
+    from pathlib import Path
+
+    from benchmarks import transfer, transfer_coords
+
+    for f in sorted((Path(__file__).parents[1] / "benchmarks").glob("*.py")):
+        assert not re.search(rf'print\(\s*f?"{f.stem}( [\w-]+)?: ', f.read_text()), f.name
+    assert transfer.main(["summary", "--root", str(tmp_path), "--methods", "transfer"]) == 2
+    assert capsys.readouterr().err == ("python -m benchmarks.transfer summary: error: no runs "
+                                       f"under {tmp_path} of methods transfer\n")
+    assert transfer_coords.main(["--root", str(tmp_path), "--methods", "transfer"]) == 2
+    assert capsys.readouterr().err == ("python -m benchmarks.transfer_coords: error: give "
+                                       "--coords NAME ... or --faces (or both)\n")

@@ -49,7 +49,8 @@ def test_a_default_that_names_no_stored_run_is_refused(tmp_path, capsys):
         tr.summarize(tmp_path, default="transfer+typo")
     assert tr.main(["summary", "--root", str(tmp_path), "--default", "transfer+typo"]) == 2
     assert capsys.readouterr().err.strip() == (
-        f"transfer summary: no run of the default method transfer+typo under {tmp_path} "
+        "python -m benchmarks.transfer summary: error: no run of the default method "
+        f"transfer+typo under {tmp_path} "
         "(--default; the stored methods: tpe, transfer)")
 
 
@@ -427,7 +428,8 @@ def test_reach_runs_the_sources_best_standing_theta_on_the_target(tmp_path, monk
     assert row["best_of_top_5"] <= row["best_of_top_1"]
     capsys.readouterr()
     assert rr.main(["--sources", str(tmp_path), "--ladder", str(tmp_path / "none.json")]) == 2
-    assert capsys.readouterr().err.startswith("transfer_reach: no ladder summary")
+    assert capsys.readouterr().err.startswith(
+        "python -m benchmarks.transfer_reach: error: no ladder summary")
     assert rr.main(["--sources", str(tmp_path / "empty"), "--ladder", str(ladder),
                     "--systems", "bowl"]) == 2
     assert "no source run under" in capsys.readouterr().err
@@ -443,7 +445,8 @@ def test_summary_without_a_peer_is_one_line_not_a_traceback(tmp_path, capsys):
     assert tr.main(["summary", "--root", str(tmp_path), "--methods", "transfer",
                     "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("transfer summary: no peer among the methods read")
+    assert len(err) == 1 and err[0].startswith(
+        "python -m benchmarks.transfer summary: error: no peer among the methods read")
     assert "{'system': 'arm', 'gap': 1.0}" in err[0] and "(read: transfer;" in err[0]
     assert not out.exists()
     assert tr.main(["summary", "--root", str(tmp_path), "--out", str(out)]) == 0   # tpe: a peer
@@ -617,7 +620,7 @@ def test_held_out_gaps_replace_the_ladders_and_a_gap_a_system_cannot_take_is_ref
                  ["run", "--systems", "arm", "--gaps", "0", "--root", nowhere]):
         assert tr.main(argv) == 2
         err = capsys.readouterr().err.strip().splitlines()
-        assert len(err) == 1 and err[0].startswith("transfer run: ")
+        assert len(err) == 1 and err[0].startswith("python -m benchmarks.transfer run: error: ")
     assert gap_ladder.main(["--systems", "hopper", "--gaps", "2.5", "--n", "2"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "hopper cannot take gap 2.5" in err[0]
@@ -627,11 +630,12 @@ def test_held_out_gaps_replace_the_ladders_and_a_gap_a_system_cannot_take_is_ref
         assert tr.main(["run", "--systems", "arm", "--variants", variant,
                         "--root", str(tmp_path / "nowhere")]) == 2       # before any source run
         err = capsys.readouterr().err.strip().splitlines()
-        assert len(err) == 1 and err[0].startswith("transfer run: ") and expect in err[0]
+        assert len(err) == 1 and expect in err[0]
+        assert err[0].startswith("python -m benchmarks.transfer run: error: ")
     for flag in ("--budget", "--source-evals"):     # were run (and stored) with budget 0
         assert tr.main(["run", "--systems", "arm", flag, "0", "--root", nowhere]) == 2
         err = capsys.readouterr().err.strip().splitlines()
-        assert err == [f"transfer run: {flag} must be >= 1, got 0"]
+        assert err == [f"python -m benchmarks.transfer run: error: {flag} must be >= 1, got 0"]
 
 
 def test_run_refuses_a_budget_below_the_two_first_trials_of_plain_and_handover(capsys, tmp_path):
@@ -643,7 +647,8 @@ def test_run_refuses_a_budget_below_the_two_first_trials_of_plain_and_handover(c
         assert tr.main(["run", "--systems", "arm", "--budget", "1", *only,
                         "--root", str(tmp_path / "nowhere")]) == 2
         err = capsys.readouterr().err.strip().splitlines()
-        assert len(err) == 1 and err[0].startswith("transfer run: --budget 1 is too small for ")
+        assert len(err) == 1 and err[0].startswith(
+            "python -m benchmarks.transfer run: error: --budget 1 is too small for ")
         assert ("handover" in err[0]) == ("plain" not in only)
     assert tr.main(["run", "--systems", "arm", "--budget", "1", "--only", "zero_shot",
                     "--gaps", "0", "--root", str(tmp_path)]) == 2    # past the budget check
@@ -657,7 +662,7 @@ def test_cut_of_a_method_without_runs_is_refused(tmp_path, capsys):
     assert tr.main(["cut", "--root", str(tmp_path), "--method", "transfr", "--share", "0.5",
                     "--as", "x"]) == 2
     assert capsys.readouterr().err.strip().splitlines() == [
-        f"transfer cut: no run of transfr under {tmp_path}"]
+        f"python -m benchmarks.transfer cut: error: no run of transfr under {tmp_path}"]
     assert tr.main(["cut", "--root", str(tmp_path), "--method", "transfer", "--share", "0.5",
                     "--as", "x"]) == 0
 
@@ -733,7 +738,7 @@ def test_screened_cma_bar_sets_each_cma_peer_beside_its_screened_twin(tmp_path, 
         ts.bar(summary, [])
     assert ts.main(["--summary", str(tmp_path / "missing.json")]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("transfer_screened:") and "missing.json" in err
+    assert err.startswith("python -m benchmarks.transfer_screened: error:") and "missing.json" in err
 
 
 def test_trace_panels_call_only_the_default_default():
@@ -888,7 +893,7 @@ def test_simrank_scores_the_exact_source_and_a_local_source_gp(tmp_path, monkeyp
     mf.write_text(json.dumps({"rows": rows}))
     assert sr.main(["--runs", str(tmp_path / "runs"), "--sources", str(tmp_path / "src"),
                     "--models", str(mf), "--systems", "nosuch"]) == 2
-    assert "transfer_simrank: unknown system" in capsys.readouterr().err
+    assert "transfer_simrank: error: unknown system" in capsys.readouterr().err
 
 
 def test_transfer_gate_measures_local_agreement_and_labels_wins(tmp_path, monkeypatch, capsys):
@@ -921,9 +926,9 @@ def test_transfer_gate_measures_local_agreement_and_labels_wins(tmp_path, monkey
     assert any(line.startswith("| bowl | 1 / 0 |") for line in md)
     assert tg.main(["--runs", str(tmp_path / "runs"), "--systems", "bowl", "--seeds", "1",
                     "--a", "A", "--b", "B"]) == 2
-    assert "transfer_gate: bowl gap 1 seed 1: no stored run of A" in capsys.readouterr().err
+    assert "transfer_gate: error: bowl gap 1 seed 1: no stored run of A" in capsys.readouterr().err
     assert tg.main(["--runs", str(tmp_path / "runs"), "--systems", "nosuch"]) == 2
-    assert "transfer_gate: unknown system" in capsys.readouterr().err
+    assert "transfer_gate: error: unknown system" in capsys.readouterr().err
 
 
 def test_fall_costs_tells_a_low_cost_flagged_or_hidden_and_tables_the_arms(tmp_path, capsys):
