@@ -346,11 +346,11 @@ def stdout_closed() -> int:
 def cli_main(main: Callable[[], int], prog: str) -> int:
     """Run a benchmark's ``main()`` (every benchmark's ``__main__``): a user error of
     latentune's (a run directory without a store, a bad parameter:
-    :class:`latentune.errors.LatentuneError`) or an input file that does not exist is one line
-    on stderr and exit 2, as argparse's errors are, not a traceback; a closed stdout
-    (``| head``) ends quietly with exit 141 (:func:`stdout_closed`). ``prog``: the benchmark's
-    module (``benchmarks.transfer``), which the error line names as ``python -m MODULE``
-    (:func:`error_line`)."""
+    :class:`latentune.errors.LatentuneError`) or an input file that does not exist (named, or
+    the FileNotFoundError's own message when it names none) is one line on stderr and exit 2,
+    as argparse's errors are, not a traceback; a closed stdout (``| head``) ends quietly with
+    exit 141 (:func:`stdout_closed`). ``prog``: the benchmark's module (``benchmarks.transfer``),
+    which the error line names as ``python -m MODULE`` (:func:`error_line`)."""
     from latentune.errors import LatentuneError
 
     try:
@@ -361,8 +361,8 @@ def cli_main(main: Callable[[], int], prog: str) -> int:
         return stdout_closed()
     except LatentuneError as e:
         msg = " ".join(str(e).split())
-    except FileNotFoundError as e:
-        msg = f"no such file or directory: {e.filename}"
+    except FileNotFoundError as e:      # raised with a message of its own: that message
+        msg = str(e) if e.filename is None else f"no such file or directory: {e.filename}"
     except OSError as e:
         msg = os_error_line(e)
     error_line(prog, msg)

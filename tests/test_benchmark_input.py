@@ -413,3 +413,21 @@ def test_no_benchmark_prints_its_own_error_line_under_a_bare_name(tmp_path, caps
     assert transfer_coords.main(["--root", str(tmp_path), "--methods", "transfer"]) == 2
     assert capsys.readouterr().err == ("python -m benchmarks.transfer_coords: error: give "
                                        "--coords NAME ... or --faces (or both)\n")
+
+
+def test_a_missing_file_raised_with_a_message_is_named_by_that_message(tmp_path, capsys):
+    """``transfer_falls --root R`` (no run store under R) and ``transfer_diagnose --sources S``
+    (no source run under S) said ``no such file or directory: None``: they raise
+    FileNotFoundError with a message and no file name; the message is the error line now."""
+    from benchmarks import common, transfer_falls
+
+    def missing() -> int:
+        raise FileNotFoundError(f"no run store at {tmp_path}")
+
+    assert common.cli_main(missing, "benchmarks.transfer_falls") == 2
+    assert capsys.readouterr().err == ("python -m benchmarks.transfer_falls: error: no run "
+                                       f"store at {tmp_path}\n")
+    assert common.cli_main(lambda: transfer_falls.main(["--root", str(tmp_path)]),
+                           "benchmarks.transfer_falls") == 2
+    assert capsys.readouterr().err == ("python -m benchmarks.transfer_falls: error: no run "
+                                       f"store at {tmp_path / 'a1-jump'}\n")
