@@ -838,7 +838,7 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
               default: str = "transfer", methods: list[str] | None = None,
               seeds: list[int] | None = None,
               systems: list[str] | None = None, machine: str | None = None,
-              budget: int | None = None) -> dict[str, Any]:
+              budget: int | None = None, known_methods: bool = False) -> dict[str, Any]:
     """The issue's criteria per target from every stored run under ``root`` (the files matching
     ``pattern``); ``target(run)`` gives a run's target fields, the key and head of its row
     (default: ``system`` and ``gap``). ``machine`` = M: a run stored as ``METHOD@M`` (the same
@@ -849,7 +849,10 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
     refused, rather than judging a table without it); ``methods``: only these (names after those renamings)
     are read; ``seeds``: only these seeds; ``systems``: only these systems; ``budget`` = B:
     every run is read as its first B trials (:func:`first_trials`; a run of fewer is refused),
-    the criteria at budget B of runs made at a larger one.
+    the criteria at budget B of runs made at a larger one. ``known_methods``: a ``methods`` name
+    no run under ``root`` reads as (a typo, read as a method without runs otherwise) is refused,
+    naming the stored names close to it (``transfer@stored`` passes: it reads nothing without
+    a ``default``, as the committed commands that name it expect).
 
     A target's medians are over the seeds on which every method read ran: each row lists the
     other seeds (``seeds_left_out``: the seed and the methods without a run on it), and a
@@ -859,6 +862,7 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
 
     runs: dict[tuple, dict[str, dict[int, dict]]] = {}
     stored: set[str] = set()                    # the methods' names as stored
+    read: set[str] = set()                      # ... and as read (after the renamings)
     for f in sorted(root.glob(pattern)):
         r = load_run(f)
         stored.add(r["method"])
@@ -869,6 +873,7 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
                 r["method"] = r["method"][:-len(machine) - 1]
         if default != "transfer" and r["method"] in (default, "transfer"):
             r["method"] = "transfer" if r["method"] == default else "transfer@stored"
+        read.add(r["method"])
         if methods is not None and r["method"] not in methods:
             continue
         if seeds is not None and int(r["seed"]) not in seeds:
@@ -883,6 +888,14 @@ def summarize(root: Path, pattern: str = "*/gap*/seed*/*.json",
             m == default or (machine and m == f"{default}@{machine}") for m in stored):
         raise ValueError(f"no run of the default method {default} under {root} (--default; "
                          f"the stored methods: {', '.join(sorted(stored))})")
+    unknown = [m for m in methods or [] if m not in read and m != "transfer@stored"
+               ] if known_methods and read else []      # transfer@stored: none without --default
+    if unknown:
+        import difflib
+
+        near = difflib.get_close_matches(unknown[0], sorted(read), n=3)
+        raise ValueError(f"no run of {unknown[0]} under {root} (--methods"
+                         + (f"; did you mean {' or '.join(near)}?)" if near else ")"))
     if not runs:                # an empty table and exit 0 read as "nothing went wrong"
         only = [f"{k} {' '.join(map(str, v))}" for k, v in
                 (("methods", methods), ("seeds", seeds), ("systems", systems)) if v is not None]
@@ -1335,7 +1348,7 @@ def main(argv: list[str] | None = None) -> int:
         if a.budget is not None and a.budget < 1:
             raise ValueError(f"--budget must be >= 1, got {a.budget}")
         res = summarize(Path(a.root), default=a.default, methods=a.methods, systems=a.systems,
-                        machine=a.machine, budget=a.budget)
+                        machine=a.machine, budget=a.budget, known_methods=True)
     except ValueError as e:
         error_line("benchmarks.transfer summary", e)
         return 2

@@ -54,6 +54,25 @@ def test_a_default_that_names_no_stored_run_is_refused(tmp_path, capsys):
         "(--default; the stored methods: tpe, transfer)")
 
 
+def test_summary_refuses_a_method_with_no_run_beside_others(tmp_path, capsys):
+    """``transfer summary --methods transfr tpe`` (a typo beside a stored method) judged the
+    table of tpe alone, exit 0, as if transfr had been read; a --methods name no run under the
+    root is stored as (after --default and --machine's renamings) is refused in one line naming
+    the methods close to it, exit 2."""
+    for s in (0, 1):
+        _write(tmp_path, "tpe", s, [4.0, 2.0], [False, False])
+        _write(tmp_path, "transfer+x=1", s, [2.5, 3.0], [False, True])
+        _write(tmp_path, "gp@m2", s, [2.5, 3.0], [False, True])
+    assert tr.main(["summary", "--root", str(tmp_path), "--methods", "transfr", "tpe"]) == 2
+    assert capsys.readouterr().err == (
+        f"python -m benchmarks.transfer summary: error: no run of transfr under {tmp_path} "
+        "(--methods; did you mean transfer+x=1?)\n")
+    assert tr.main(["summary", "--root", str(tmp_path), "--default", "transfer+x=1",
+                    "--machine", "m2", "--methods", "transfer", "tpe", "gp"]) == 0
+    assert tr.main(["summary", "--root", str(tmp_path), "--methods", "tpe", "transfer+x=1",
+                    "transfer@stored"]) == 0        # as committed commands name it
+    capsys.readouterr()
+
 def test_best_at_the_default_falls_cuts_each_seed_at_its_falls(tmp_path):
     """A peer's best is cut before its (k+1)-th fall, k = the default's falls on that seed."""
     assert tr.best_within_falls([9.0, 5.0, 20.0, 1.0], [False, False, True, False], 0) == 5.0
@@ -475,7 +494,7 @@ def test_ladder_tables_of_a_root_without_runs_are_one_line_and_exit_2(tmp_path, 
     _write(tmp_path, "transfer", 0, [2.0, 1.0], [False, False])
     _write(tmp_path, "tpe", 0, [3.0, 2.0], [False, False])
     assert tr.main(["summary", "--root", str(tmp_path), "--methods", "gp"]) == 2
-    assert "no runs under" in capsys.readouterr().err and tr.main(
+    assert "no run of gp under" in capsys.readouterr().err and tr.main(
         ["compare", "--root", str(tmp_path), "--a", "transfer", "--b", "tpe"]) == 0
 
 
