@@ -682,8 +682,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def main_ladder(argv: list[str]) -> int:
-    """``ladder``: falls and best costs of transfer variants on the transfer ladder's traces."""
-    from benchmarks.common import Provenance, bench_parser, finish
+    """``ladder``: falls and best costs of transfer variants on the transfer ladder's traces; a
+    --methods name with no trace under --root for these systems and seeds is refused (exit 2)."""
+    from benchmarks.common import Provenance, add_out_arg, bench_parser, error_line, finish
 
     ap = bench_parser("benchmarks.transfer_falls ladder", description=main_ladder.__doc__)
     ap.add_argument("--root", type=Path, default=Path("runs/transfer"))
@@ -693,10 +694,16 @@ def main_ladder(argv: list[str]) -> int:
                     help="trace names, e.g. transfer transfer+fall_cost=true")
     ap.add_argument("--after", type=int, default=8,
                     help="also count the falls from this trial on (0-based index)")
-    ap.add_argument("--out", type=Path, default=None, metavar="FILE.json")
+    add_out_arg(ap)
     a = ap.parse_args(argv)
     prov = Provenance(["ladder", *argv], module="benchmarks.transfer_falls")
     rows = ladder(a.root, a.systems, a.seeds, a.methods, a.after)
+    missing = [m for m in a.methods if not any(r["method"] == m and r["seeds"] for r in rows)]
+    if missing:             # an empty table (or the others' rows alone) and exit 0 misled
+        error_line("benchmarks.transfer_falls ladder",
+                   f"no trace of {' '.join(missing)} under {a.root} (systems "
+                   f"{' '.join(a.systems)}, seeds {' '.join(map(str, a.seeds))})")
+        return 2
     finish(a.out, prov, {"root": str(a.root), "seeds": a.seeds, "after": a.after}, rows,
            title=f"Transfer variants on the ladder (median over seeds {a.seeds})")
     return 0

@@ -431,3 +431,29 @@ def test_a_missing_file_raised_with_a_message_is_named_by_that_message(tmp_path,
                            "benchmarks.transfer_falls") == 2
     assert capsys.readouterr().err == ("python -m benchmarks.transfer_falls: error: no run "
                                        f"store at {tmp_path / 'a1-jump'}\n")
+
+
+def test_transfer_falls_ladder_refuses_a_method_without_traces_and_a_bad_out(tmp_path, capsys):
+    """``transfer_falls ladder --root R`` with no trace of a --methods name under R (a typo,
+    the wrong directory) printed an empty table, or the others' rows alone, and exited 0, and
+    its --out was not checked before the work; each is now one line, exit 2."""
+    from benchmarks import transfer_falls
+
+    assert transfer_falls.main(["ladder", "--root", str(tmp_path), "--methods", "transfr"]) == 2
+    assert capsys.readouterr().err == ("python -m benchmarks.transfer_falls ladder: error: no "
+                                       f"trace of transfr under {tmp_path} (systems chain "
+                                       "hopper, seeds 0 1 2)\n")
+    run = tmp_path / "chain" / "gap1" / "seed0" / "transfer.json"
+    run.parent.mkdir(parents=True)
+    run.write_text(json.dumps({"costs": [2.0, 1.0], "failed": [False, True],
+                               "thetas": [[0.5], [0.6]]}))
+    argv = ["ladder", "--root", str(tmp_path), "--methods", "transfer", "transfr"]
+    assert transfer_falls.main(argv) == 2             # a row of 0 seeds is no trace
+    assert "no trace of transfr under" in capsys.readouterr().err
+    assert transfer_falls.main(argv[:-1]) == 0
+    capsys.readouterr()
+    (tmp_path / "f").write_text("")
+    with pytest.raises(SystemExit) as e:
+        transfer_falls.main(["ladder", "--root", str(tmp_path), "--out",
+                             str(tmp_path / "f" / "o.json")])
+    assert e.value.code == 2 and f"{tmp_path / 'f'} is not a directory" in capsys.readouterr().err
