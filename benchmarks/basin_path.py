@@ -29,6 +29,7 @@ import numpy as np  # noqa: E402
 
 from benchmarks.common import (Provenance, add_out_arg, bench_parser, error_line,  # noqa: E402
                                finish, markdown_table)
+from benchmarks.common import out_file, write_text  # noqa: E402
 from benchmarks.transfer import SYSTEMS  # noqa: E402
 from benchmarks.transfer import DEFAULT_METHOD as DEFAULT  # noqa: E402
 from benchmarks.transfer_walk import load_trace  # noqa: E402
@@ -93,7 +94,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", nargs="+", type=int, default=list(range(10)))
     ap.add_argument("--points", type=int, default=41)
     add_out_arg(ap)
-    ap.add_argument("--md", type=Path, default=None, metavar="FILE.md")
+    ap.add_argument("--md", type=out_file, default=None, metavar="FILE.md")
     a = ap.parse_args(argv)
     if a.points < 2:
         error_line("benchmarks.basin_path", "--points takes a count ≥ 2")
@@ -110,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
                "median_falls_share": float(np.median([r["falls_share"] for r in rows]))}
     finish(a.out, prov, {"summary": summary}, rows)
     if a.md is not None:
-        a.md.write_text(f"`{prov.command}`\n\n{markdown_table([summary])}\n\n"
+        write_text(a.md, f"`{prov.command}`\n\n{markdown_table([summary])}\n\n"
                         f"{markdown_table(rows)}\n")
     return 0
 

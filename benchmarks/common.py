@@ -477,6 +477,14 @@ def _json_default(v: Any) -> Any:
     raise TypeError(f"not JSON serializable: {type(v).__name__}")
 
 
+def write_text(path: Path | str, text: str) -> Path:
+    """Write an output text file (a ``--md`` table) to ``path``, parents created; return it."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+    return path
+
+
 def write_json(path: Path | str, results: dict[str, Any], prov: Provenance | dict[str, Any]
                ) -> Path:
     """Write ``{**results, "provenance": ...}`` to ``path`` (parents created); return it."""

@@ -21,6 +21,7 @@ import numpy as np
 
 from benchmarks.common import (Provenance, add_out_arg, bench_parser, error_line, finish,
                                markdown_table)
+from benchmarks.common import out_file, write_text  # noqa: E402
 
 
 def best_so_far(run: dict) -> np.ndarray:
@@ -56,7 +57,7 @@ def ladder_args(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--methods", nargs="+", required=True)
     ap.add_argument("--seeds", nargs="+", type=int, default=None)
     add_out_arg(ap)
-    ap.add_argument("--md", type=Path, default=None, metavar="FILE.md",
+    ap.add_argument("--md", type=out_file, default=None, metavar="FILE.md",
                     help="also write the table, headed by the command that made it")
 
 
@@ -66,7 +67,7 @@ def finish_ladder(a: argparse.Namespace, prov: Provenance, params: dict[str, Any
     with ``--md``, the table headed by the command that made it (:func:`ladder_args`)."""
     finish(a.out, prov, {"root": str(a.root), "methods": a.methods, **params}, rows)
     if a.md is not None:
-        a.md.write_text(f"`{prov.command}`\n\n{markdown_table(rows)}\n")
+        write_text(a.md, f"`{prov.command}`\n\n{markdown_table(rows)}\n")
 
 
 def curves(root: Path, methods: list[str], seeds: list[int] | None, at: list[int]

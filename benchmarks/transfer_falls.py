@@ -646,7 +646,7 @@ def main(argv: list[str] | None = None) -> int:
         return main_kinds(argv[1:])
     if argv[:1] == ["stores"]:
         argv = argv[1:]
-    from benchmarks.common import Provenance, bench_parser, write_json
+    from benchmarks.common import Provenance, bench_parser, out_file, write_json, write_text
 
     ap = bench_parser("benchmarks.transfer_falls", description=__doc__.splitlines()[0])
     ap.add_argument("--root", type=Path, default=Path("results/paper10k/a1"),
@@ -661,9 +661,9 @@ def main(argv: list[str] | None = None) -> int:
                     metavar="OPTION=VALUE[:OPTION=VALUE]",
                     help="also ask a copy of the critic with these Transfer options at every "
                          "replayed ask and report the fall model's mean probability at its θ")
-    ap.add_argument("--out", type=Path, default=None, metavar="FILE.json",
+    ap.add_argument("--out", type=out_file, default=None, metavar="FILE.json",
                     help="write the results (every trial's record) and provenance here")
-    ap.add_argument("--md", type=Path, default=None, metavar="FILE.md",
+    ap.add_argument("--md", type=out_file, default=None, metavar="FILE.md",
                     help="write the Markdown report here (it is printed on stdout too)")
     a = ap.parse_args(argv)
     prov = Provenance(["stores", *argv], module="benchmarks.transfer_falls")
@@ -674,8 +674,7 @@ def main(argv: list[str] | None = None) -> int:
     md = markdown(res)
     print(md)
     if a.md is not None:
-        a.md.parent.mkdir(parents=True, exist_ok=True)
-        a.md.write_text(md)
+        write_text(a.md, md)
     if a.out is not None:
         write_json(a.out, res, prov)
     return 0

@@ -49,6 +49,7 @@ one_thread_env()
 import numpy as np  # noqa: E402
 
 from benchmarks.common import Provenance, add_out_arg, bench_parser, finish  # noqa: E402
+from benchmarks.common import out_file, write_text  # noqa: E402
 
 D, SOURCE, SOURCE_BATCH, B, BATCH, LATE = 20, 1000, 20, 220, 4, 72
 CHECKPOINTS = (40, 100, B)
@@ -201,7 +202,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", nargs="+", type=int, default=list(range(8)))
     ap.add_argument("--problems", nargs="+", default=list(PROBLEMS))
     ap.add_argument("--root", type=Path, default=Path("runs/transfer_long"))
-    ap.add_argument("--md", type=Path, default=None, help="also write the table to this file")
+    ap.add_argument("--md", type=out_file, default=None, help="also write the table to this file")
     add_out_arg(ap)
     a = ap.parse_args(argv)
     rows: list[dict[str, Any]] = []
@@ -234,7 +235,7 @@ def main(argv: list[str] | None = None) -> int:
                  "## Falls by trust-region side (all seeds pooled)\n"]
         parts += [f"### {s['problem']} gap {s['gap']:g}, {s['variant']}\n\n"
                   f"{markdown_table(s['sides'])}\n" for s in sides]
-        a.md.write_text("\n".join(parts))
+        write_text(a.md, "\n".join(parts))
     return 0
 
 

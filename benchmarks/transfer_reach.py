@@ -36,6 +36,7 @@ import numpy as np  # noqa: E402
 
 from benchmarks.common import (Provenance, add_out_arg, bench_parser, error_line,  # noqa: E402
                                finish, markdown_table)
+from benchmarks.common import out_file, write_text  # noqa: E402
 from benchmarks.transfer import SYSTEMS  # noqa: E402
 from latentune.system import evaluate  # noqa: E402
 
@@ -102,7 +103,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", nargs="+", type=int, default=list(range(10)))
     ap.add_argument("--top", nargs="+", type=int, default=[4, 50])
     add_out_arg(ap)
-    ap.add_argument("--md", type=Path, default=None, metavar="FILE.md")
+    ap.add_argument("--md", type=out_file, default=None, metavar="FILE.md")
     a = ap.parse_args(argv)
     if min(a.top) < 1:
         error_line("benchmarks.transfer_reach", "--top takes counts ≥ 1")
@@ -119,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     finish(a.out, prov, {"sources": str(a.sources), "ladder": [str(f) for f in a.ladder],
                          "top": sorted(set(a.top))}, rows)
     if a.md is not None:
-        a.md.write_text(f"`{prov.command}`\n\n{markdown_table(rows)}\n")
+        write_text(a.md, f"`{prov.command}`\n\n{markdown_table(rows)}\n")
     return 0
 
 

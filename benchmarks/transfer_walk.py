@@ -46,6 +46,7 @@ import numpy as np  # noqa: E402
 
 from benchmarks.common import (Provenance, add_out_arg, bench_parser, error_line,  # noqa: E402
                                finish, markdown_table)
+from benchmarks.common import out_file, write_text  # noqa: E402
 from benchmarks.transfer import DEFAULT_METHOD, SYSTEMS  # noqa: E402
 
 SPACING = 0.15          # the default elite_spacing (record_walk's distance from told falls)
@@ -359,7 +360,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--method", default=DEFAULT_METHOD)
     ap.add_argument("--steps", type=int, default=3)
     add_out_arg(ap)
-    ap.add_argument("--md", type=Path, default=None, metavar="FILE.md")
+    ap.add_argument("--md", type=out_file, default=None, metavar="FILE.md")
     a = ap.parse_args(argv)
     if a.steps < 1:
         error_line("benchmarks.transfer_walk", "--steps takes a count ≥ 1")
@@ -378,7 +379,7 @@ def main(argv: list[str] | None = None) -> int:
     finish(a.out, prov, {"runs": [str(r) for r in a.runs], "sources": str(a.sources),
                          "method": a.method, "steps": a.steps, "summary": summary}, rows)
     if a.md is not None:
-        a.md.write_text(f"`{prov.command}`\n\n{markdown_table(summary)}\n")
+        write_text(a.md, f"`{prov.command}`\n\n{markdown_table(summary)}\n")
     return 0
 
 

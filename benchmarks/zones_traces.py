@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks.common import Provenance, add_out_arg, bench_parser, error_line, finish
+from benchmarks.common import out_file  # noqa: E402
 from examples.thermal_zones import BAND, SETTLE, make_system
 
 
@@ -117,7 +118,7 @@ def traces_figure(argv: list[str] | None, doc: str, name: str, make_system: Any,
         ap.add_argument("--default", default=default,
                         help="the method whose median seed is drawn when --seed is not given")
     ap.add_argument("--seed", type=int, default=None)
-    ap.add_argument("--png", type=Path, required=True)
+    ap.add_argument("--png", type=out_file, required=True)
     add_out_arg(ap)
     a = ap.parse_args(argv)
     import matplotlib

@@ -457,3 +457,24 @@ def test_transfer_falls_ladder_refuses_a_method_without_traces_and_a_bad_out(tmp
         transfer_falls.main(["ladder", "--root", str(tmp_path), "--out",
                              str(tmp_path / "f" / "o.json")])
     assert e.value.code == 2 and f"{tmp_path / 'f'} is not a directory" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("module, argv", [
+    ("basin_path", ["--md"]), ("transfer_curves", ["--md"]), ("transfer_falls", ["stores", "--md"]),
+    ("transfer_long", ["--md"]), ("transfer_reach", ["--md"]), ("transfer_walk", ["--md"]),
+    ("zones_traces", ["--png"]), ("servo_traces", ["--png"])])
+def test_a_table_or_figure_path_that_cannot_be_written_is_refused_before_the_work(
+        tmp_path, capsys, module, argv):
+    """``--md`` (and the traces' ``--png``) were plain paths: one under a file (or in a
+    directory that cannot be written) failed only when written, after the work; they are
+    checked as the command line is read, as ``--out`` is (argparse's line, exit 2)."""
+    import importlib
+
+    (tmp_path / "f").write_text("")
+    bad = str(tmp_path / "f" / ("t.png" if argv[-1] == "--png" else "t.md"))
+    mod = importlib.import_module(f"benchmarks.{module}")
+    with pytest.raises(SystemExit) as e:
+        mod.main([*argv, bad])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and f"{tmp_path / 'f'} is not a directory" in err, err
+    assert f"python -m benchmarks.{module}" in err, err
