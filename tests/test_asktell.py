@@ -580,7 +580,7 @@ def test_a_failing_phase_3_suggests_what_its_strategy_can_take(tmp_path, caplog,
     new = ", in a new directory (the first ask fixed this one's options),"
     assert new not in msgs[0] and new in msgs[1]       # ask/tell's options are fixed
     assert msgs[0] == msgs[1].replace(new, "")
-    assert ("--handover" in msgs[0]) == (strategy == "plain")
+    assert ("the hand-over (handover)" in msgs[0]) == (strategy == "plain")   # Python's words
     assert ("manual θ" in msgs[0]) == (strategy == "transfer")
     assert ("screens at 0.3 unless told" in msgs[0]) == (strategy == "transfer")
 

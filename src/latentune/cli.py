@@ -1861,11 +1861,12 @@ def _error(msg: str) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; return the exit status."""
     from latentune.threads import one_thread_env
+    from latentune.wording import command_line_words
 
     one_thread_env()  # before numpy is imported: rollouts are many small matrix operations
     status: dict[str, int] = {}
     try:
-        with _cli_logging() as set_level, _sigterm_stops():
+        with _cli_logging() as set_level, _sigterm_stops(), command_line_words():
             status["code"] = _command(argv, set_level)
         return status["code"]
     except KeyboardInterrupt as exc:    # while the handlers were set or restored

@@ -1,9 +1,50 @@
-"""Count phrases of the text a user reads: ``counted(1, "trial")`` is "1 trial",
-``counted(2, "trial")`` "2 trials"."""
+"""Phrases of the text a user reads: counts (``counted(1, "trial")`` is "1 trial",
+``counted(2, "trial")`` "2 trials") and options named as the reader sets them (:func:`option`:
+a flag at the command line, a keyword in Python)."""
 from __future__ import annotations
+
+from contextlib import contextmanager
+from typing import Any, Iterator
 
 
 def counted(n: int, noun: str, plural: str | None = None) -> str:
     """``n`` and ``noun``: the noun as it is when ``n`` is 1, else its plural (``plural``, or
     ``noun`` + "s")."""
     return f"{n} {noun if n == 1 else (plural or noun + 's')}"
+
+
+_COMMAND_LINE = [False]
+"""Whether messages are read at the command line now (:func:`command_line_words`)."""
+
+FLAGS = {"max_fall_prob": "--max-fall-prob", "handover": "--handover",
+         "escape_falls": "--escape-falls"}
+"""The command line's flag of each phase option a message may advise."""
+
+TRANSFER_KEYS = frozenset({"escape_falls"})
+"""The options the Python API takes in ``transfer_options`` rather than as a keyword."""
+
+
+@contextmanager
+def command_line_words() -> Iterator[None]:
+    """Inside the block :func:`option` names options by the command line's flags (the command
+    line's ``main`` runs every command in it); outside, by the Python API's keywords."""
+    before = _COMMAND_LINE[0]
+    _COMMAND_LINE[0] = True
+    try:
+        yield
+    finally:
+        _COMMAND_LINE[0] = before
+
+
+def option(name: str, value: Any = None) -> str:
+    """How a message names the phase option ``name`` (a key of :data:`FLAGS`), set to ``value``
+    if given: its flag at the command line (``--max-fall-prob 0.3``), else the Python API's
+    keyword (``max_fall_prob=0.3``; a transfer option as ``transfer_options={'escape_falls':
+    8}``, or ``transfer_options['escape_falls']`` without a value)."""
+    if _COMMAND_LINE[0]:
+        return FLAGS[name] + ("" if value is None else f" {value:g}" if isinstance(value, float)
+                              else f" {value}")
+    if name in TRANSFER_KEYS:
+        return (f"transfer_options[{name!r}]" if value is None
+                else f"transfer_options={{{name!r}: {value!r}}}")
+    return name if value is None else f"{name}={value!r}"

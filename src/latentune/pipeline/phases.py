@@ -222,7 +222,11 @@ def failing_message(phase: int, n: int, strategy: str = "plain",
     the plain strategy only, and the transfer strategy screens at ``--max-fall-prob`` already.
     ``running``: what the phase's critic does already (:func:`fall_options`), not suggested
     again (None: not known). ``fixed``: the phase's options cannot change here (ask/tell: the
-    first ask fixed them), so the options are advised for a new directory."""
+    first ask fixed them), so the options are advised for a new directory. Options are named
+    as the reader sets them (:func:`latentune.wording.option`: flags at the command line,
+    keywords in Python)."""
+    from latentune.wording import option
+
     run = running or {}
     mfp = run.get("max_fall_prob")
     new = ", in a new directory (the first ask fixed this one's options)," if fixed else ""
@@ -232,16 +236,16 @@ def failing_message(phase: int, n: int, strategy: str = "plain",
         p = TRANSFER_DEFAULTS["max_fall_prob"] if mfp is None else mfp
         told = " unless told" if p == TRANSFER_DEFAULTS["max_fall_prob"] else ""
         escape = "" if run.get("escape_falls") else \
-            "--escape-falls 8 if the target falls wherever the source stood, "
+            f"{option('escape_falls', 8)} if the target falls wherever the source stood, "
         return (f"phase 3: the last {n} trials all failed: the target may be far from the "
                 "source run, or fail wherever it is tuned (run its manual θ by hand); the "
                 f"transfer strategy asks the manual θ while every trial failed; try{new} a "
-                f"lower --max-fall-prob (it screens at {p:g}{told}), {escape}or phase 1 on the "
-                "target")
-    screen = ("the fall-aware critic (--max-fall-prob 0.3), " if mfp is None else
-              f"a lower --max-fall-prob (it screens at {mfp:g}), ")
+                f"lower {option('max_fall_prob')} (it screens at {p:g}{told}), {escape}or phase 1 "
+                "on the target")
+    screen = (f"the fall-aware critic ({option('max_fall_prob', 0.3)}), " if mfp is None else
+              f"a lower {option('max_fall_prob')} (it screens at {mfp:g}), ")
     if int(phase) == 3:
-        handover = "" if run.get("handover") else "the hand-over (--handover), "
+        handover = "" if run.get("handover") else f"the hand-over ({option('handover')}), "
         return (f"phase 3: the last {n} trials all failed: the target may be far from the "
                 f"latent space's source; try{new} {handover}{screen}the transfer strategy (the "
                 "default), or phase 1 on the target")
