@@ -157,3 +157,493 @@ def test_the_failing_warning_names_the_flags_at_the_command_line(tmp_path, sourc
     (warned,) = [ln for ln in err.splitlines() if "trials all failed" in ln] or [(code, err)]
     assert "a lower --max-fall-prob (it screens at 0.3 unless told)" in warned, warned
     assert "--escape-falls 8 if the target falls" in warned and "transfer_options" not in warned
+
+
+@pytest.mark.parametrize("opts", [{"walk_pick": "fall"}, {"walk_pick": "band", "record_walk": 0}])
+def test_walk_pick_without_a_record_walk_is_refused_by_the_api(tmp_path, source, opts):
+    """``Study.phase3(transfer_options={"walk_pick": "fall"})`` ran and ignored walk_pick (there
+    is no walk to choose steps for; the CLI refuses --walk-pick without --record-walk): it is
+    refused before anything is stored."""
+    from examples.toy_plant import make_real_system
+
+    study = lt.Study(tmp_path / "t", seed=0)
+    with pytest.raises(ValueError, match="walk_pick chooses the steps of a record walk"):
+        study.phase3(make_real_system(), 4, latent=source, transfer_options=opts)
+    assert not study.exists or study.store.count(3) == 0
+    assert lt.Study(tmp_path / "u", seed=0).phase3(
+        make_real_system(), 4, latent=source,
+        transfer_options={**opts, "record_walk": 2}).n == 4
+
+
+def test_a_latent_space_copied_without_its_run_store_is_named_as_such(tmp_path, run_cli, source,
+                                                                      error_line):
+    """``--vae DIR`` with DIR the VAE files copied out of a run (vae.pt, vae.json, no run.db):
+    phase3 and ask said "no run store in DIR (expected run.db)" and left the target directory
+    with a copied latent space (ask's wording was the API's, ``latent: …``); now one line names
+    what is missing, why the search needs it and what to do, before anything is written. The
+    plain phase 3 without a fall prediction needs the latent space alone, and runs."""
+    import shutil
+
+    copy = tmp_path / "vaecopy"
+    copy.mkdir()
+    for f in ("vae.pt", "vae.json"):
+        shutil.copy(source / f, copy / f)
+    missing = f"--vae: {copy} holds a latent space but no run store (run.db): "
+    for out, flags, why in [
+            (tmp_path / "t", (), "the transfer phase 3 learns from the source run's trials; "
+             "copy the run directory with its run.db, or search the latent space alone "
+             "(--strategy plain)"),
+            (tmp_path / "m", ("--strategy", "plain", "--max-fall-prob", "0.3"),
+             "the fall prediction (--max-fall-prob) starts from the source run's trials")]:
+        line = error_line(*_phase3(run_cli, copy, out, *flags)[::2])
+        assert line.startswith(f"latentune: error: {missing}{why}"), line
+        assert not out.exists()
+        line = error_line(*run_cli("ask", out, *SYSTEM[:2], "--seed", "0", "--vae", copy,
+                                   "--phase", "3", *flags)[::2])
+        assert line.startswith(f"latentune: error: {missing}{why}"), line
+    from examples.toy_plant import make_real_system
+    from latentune.errors import LatentError
+
+    with pytest.raises(LatentError, match=r"^latent: .* no run store \(run\.db\): the "
+                       r"transfer phase 3 learns"):
+        lt.Study(tmp_path / "api").phase3(make_real_system(), 4, latent=copy)
+    assert not (tmp_path / "api").exists()
+    code, _, err = _phase3(run_cli, copy, tmp_path / "p", "--strategy", "plain", evals=3)
+    assert code == 0, err
+
+
+def test_asking_another_strategy_of_a_stored_phase3_says_the_stored_one_and_what_to_do(
+        tmp_path, source):
+    """``Study.ask(strategy="plain")`` (or ``phase3``) on a phase 3 asked with the default
+    transfer strategy said "phase3 was run with strategy = 'transfer', not 'plain'", a
+    hand-over "phase 3 runs with handover = None (stored), not {…}" and ``method="cma"``
+    "runs with method = 'turbo' (stored)", an option the transfer phase 3 has not; now one
+    line each names the stored strategy and how to go on."""
+    from examples.toy_plant import make_real_system
+    from latentune.errors import StoreError, UsageError
+
+    system = make_real_system()
+    study = lt.Study(tmp_path / "t", seed=0)
+    for s in study.ask(2, system=system, latent=source, phase=3):
+        study.tell(s.id, cost=1.0 + s.id)
+    go_on = (r"phase 3 runs with strategy transfer \(stored\), not plain: leave strategy out "
+             r"to go on with the transfer phase 3, or start a plain phase 3 in another "
+             r"directory$")
+    with pytest.raises(StoreError, match=go_on):
+        study.ask(1, system=system, strategy="plain")
+    with pytest.raises(StoreError, match=go_on):
+        study.phase3(system, 6, strategy="plain")
+    with pytest.raises(StoreError, match=r"the hand-over is an option of the plain phase 3, "
+                       r"and this phase 3 runs with strategy transfer \(stored\)"):
+        study.ask(1, system=system, handover=True)
+    with pytest.raises(UsageError, match=r"^method is an option of the plain phase 3"):
+        study.ask(1, system=system, method="cma")
+    assert len(study.ask(1, system=system, strategy="transfer")) == 1
+    plain = lt.Study(tmp_path / "p", seed=0)
+    for s in plain.ask(2, system=system, latent=source, phase=3, strategy="plain"):
+        plain.tell(s.id, cost=2.0)
+    with pytest.raises(StoreError, match=r"runs with strategy plain \(stored\), not transfer: "
+                       r"leave strategy out"):
+        plain.ask(1, system=system, strategy="transfer")
+
+
+def test_target_scores_is_recorded_changes_the_search_and_is_refused_where_it_cannot_act(
+        tmp_path, run_cli, source, error_line):
+    """``--target-scores warped``: the transfer phase 3 stores it in its options and its
+    asks differ from the ranks' run on the same source and seed; a resume with another value,
+    an unknown value and the plain strategy are refused in one line naming the flag."""
+    base, warped = tmp_path / "ranks", tmp_path / "warped"
+    for out, flags in ((base, ()), (warped, ("--target-scores", "warped"))):
+        code, _, err = _phase3(run_cli, source, out, *flags, evals=14)
+        assert code == 0, err
+    assert lt.Study(warped).config()["phase3"]["transfer_options"] == {"target_scores": "warped"}
+    t_b, t_w = lt.Study(base).trials(3), lt.Study(warped).trials(3)
+    assert len(t_b) == len(t_w) == 14
+    assert [list(t.theta) for t in t_b] != [list(t.theta) for t in t_w]
+    line = error_line(*_phase3(run_cli, source, warped, "--resume", "--target-scores",
+                               "values", evals=16)[::2])
+    assert "--target-scores warped (stored), not --target-scores values" in line, line
+    assert "invalid choice" in error_line(*_phase3(run_cli, source, tmp_path / "x",
+                                                   "--target-scores", "raw")[::2])
+    line = error_line(*_phase3(run_cli, source, tmp_path / "p", "--strategy", "plain",
+                               "--target-scores", "warped")[::2])
+    assert "--target-scores is an option of the transfer phase 3" in line, line
+    assert not API_NAMES.search(line.removeprefix("latentune: error: ")), line
+
+
+def test_auto_target_scores_show_their_choice_in_status_and_report(tmp_path, run_cli, source):
+    """``--target-scores auto``: stored in the options; every ask's decision records which
+    model it chose and both leave-one-out ranking losses, and ``status`` and the report say
+    so; ranks until six target trials stood."""
+    out = tmp_path / "auto"
+    code, _, err = _phase3(run_cli, source, out, "--target-scores", "auto", evals=12)
+    assert code == 0, err
+    assert lt.Study(out).config()["phase3"]["transfer_options"] == {"target_scores": "auto"}
+    from latentune.pipeline.results import decision_scores, decisions
+    from latentune.pipeline.store import RunStore
+
+    with RunStore(out) as store:
+        ds = decisions(store)
+    chosen = [d["auto_scores"]["cost"] for d in ds if "auto_scores" in d]
+    assert chosen and chosen[0] == ["ranks", None, None]
+    assert any(c[1] is not None for c in chosen), chosen
+    last = decision_scores(ds[-1])
+    code, text, err = run_cli("status", out)
+    assert code == 0, err
+    assert f"scores: {last}" in text, text
+    assert "loo ranking loss" in last or "too few standing" in last
+    code, _, err = run_cli("report", out, "--no-sim")
+    assert code == 0, err
+    assert "loo ranking loss" in (out / "report.md").read_text()
+
+
+def test_a_source_without_a_latent_space_says_to_train_one(tmp_path, run_cli, error_line):
+    """``phase3 --vae P1`` (and ``ask --phase 3 --vae P1``) with P1 a run that has phase 1 but
+    no latent space yet (train-vae skipped) said "no latent space at P1/vae (expected vae.pt
+    and vae.json)", a path the user never gave; phase 3 with no --vae in a run without one
+    said "... or pass another study's", the sentence cut off. Both now say what to do: train
+    one (train_latent / train-vae), or name another study's (--vae); the command line names
+    its command alone (``latentune train-vae --out P1``), not the API's train_latent."""
+    p1 = tmp_path / "p1"
+    assert run_cli("phase1", *SYSTEM, "--out", p1, "--phase1-evals", "6", "--quiet")[0] == 0
+    for argv in [("phase3", *SYSTEM, "--vae", p1, "--out", tmp_path / "t", "--phase3-evals",
+                  "4"),
+                 ("ask", tmp_path / "a", *SYSTEM[:2], "--phase", "3", "--vae", p1)]:
+        line = error_line(*run_cli(*argv)[::2])
+        assert line == (f"latentune: error: --vae: {p1} holds no latent space: train one there "
+                        f"first (latentune train-vae --out {p1} --system "
+                        "examples.toy_plant:make_real_system)"), line
+    assert not (tmp_path / "t").exists()
+    line = error_line(*run_cli("phase3", *SYSTEM, "--out", p1, "--phase3-evals", "4")[::2])
+    assert line == (f"latentune: error: no latent space in {p1}: train one first (latentune "
+                    f"train-vae --out {p1} --system examples.toy_plant:make_real_system), or "
+                    "name another study's (--vae)"), line
+    from examples.toy_plant import make_real_system
+    from latentune.errors import LatentError
+
+    with pytest.raises(LatentError, match=r"^latent: .* holds no latent space: train one there "
+                       r"first \(train_latent / train-vae\)$"):
+        lt.Study(tmp_path / "api").phase3(make_real_system(), 4, latent=p1)
+    with pytest.raises(LatentError, match=r"no latent space in .*: train one first "
+                       r"\(train_latent / train-vae\), or name another study's \(latent\)$"):
+        lt.Study(p1).phase3(make_real_system(), 4)
+
+
+def _one_weight():
+    """A system of one weight (the factory of :func:`test_phase_3_of_one_weight_…`)."""
+    space = lt.ParameterSpace(names=["a"], low=[-1.0], high=[1.0], manual=[0.5])
+    return lt.FunctionSystem(space, lambda x: float((x[0] - 0.2) ** 2))
+
+
+def test_phase_3_of_one_weight_says_there_is_no_latent_space(tmp_path, run_cli, error_line):
+    """``phase3`` / ``ask --phase 3`` on a system of one weight (whose phase 1 ran: tune and
+    train-vae refuse it) said "no latent space at RUN/vae …" or "train one first", which
+    train-vae refuses; they now say what tune says: a 1-dim θ has no smaller latent space."""
+    import sys
+    import types
+
+    mod = types.ModuleType("one_weight_mod")
+    mod.make = _one_weight
+    sys.modules["one_weight_mod"] = mod
+    try:
+        sysargs = ("--system", "one_weight_mod:make", "--backend", "serial", "--seed", "0")
+        p1 = tmp_path / "p1"
+        assert run_cli("phase1", *sysargs, "--out", p1, "--phase1-evals", "5", "--quiet")[0] == 0
+        for argv in [("phase3", *sysargs, "--vae", p1, "--out", tmp_path / "t",
+                      "--phase3-evals", "3"),
+                     ("phase3", *sysargs, "--out", p1, "--phase3-evals", "3", "--resume"),
+                     ("ask", tmp_path / "a", *sysargs[:2], "--phase", "3", "--vae", p1)]:
+            line = error_line(*run_cli(*argv)[::2])
+            assert "a 1-dim θ has no smaller latent space" in line and "train" not in line, line
+        assert not (tmp_path / "t").exists()
+    finally:
+        del sys.modules["one_weight_mod"]
+
+
+def test_a_resume_with_another_vae_names_the_vae_flag(tmp_path, run_cli, source, error_line):
+    """``phase3 --resume --vae OTHER`` said "phase 3 was run with latent-source = '/a', not
+    '/b'" (and "latent-source = 'self'" for a phase 3 in the run's own latent space): a name
+    no flag has. The line now names --vae."""
+    import shutil
+
+    other = tmp_path / "other"
+    shutil.copytree(source, other)
+    d = tmp_path / "t"
+    code, _, err = _phase3(run_cli, source, d)
+    assert code == 0, err
+    line = error_line(*_phase3(run_cli, other, d, "--resume", evals=6)[::2])
+    assert line.endswith(f"phase 3 was run with --vae {source} (stored), not --vae {other}"), line
+    own = tmp_path / "own"
+    code, _, err = run_cli("tune", *SYSTEM, "--out", own, "--phase1-evals", "16",
+                           "--phase3-evals", "2", "--latent-dim", "2", "--vae-epochs", "20")
+    assert code == 0, err
+    line = error_line(*_phase3(run_cli, other, own, "--resume", evals=6)[::2])
+    assert line.endswith("phase 3 was run in its own latent space (without --vae), not with "
+                         f"--vae {other}"), line
+    assert not API_NAMES.search(line), line
+
+
+def test_latent_flags_that_differ_from_the_vae_runs_latent_space_are_refused(tmp_path, run_cli,
+                                                                             source, error_line):
+    """``phase3 --vae RUN --latent-dim 3`` (or ``--vae-kind vae``) ran in RUN's latent space of
+    size 4 (det) and ignored the flag, and so did ``phase3 --resume --latent-dim 3`` of that run;
+    both are now refused before anything is stored, as the same flags are against the run's own
+    latent space."""
+    for flags, expect in ((("--latent-dim", "3"), f"--latent-dim 3: the latent space of {source} "
+                                                  "has size 4"),
+                          (("--vae-kind", "vae"), f"--vae-kind vae: the latent space of {source} "
+                                                  "is det")):
+        out = tmp_path / flags[0].strip("-")
+        line = error_line(*_phase3(run_cli, source, out, *flags)[::2])
+        assert line.startswith(f"latentune: error: {expect} (--vae's, used as it is; leave the "
+                               "flag out)"), line
+        assert not (out / "run.db").exists()
+    code, _, err = _phase3(run_cli, source, tmp_path / "same", "--latent-dim", "4")
+    assert code == 0, err
+    line = error_line(*run_cli("phase3", *SYSTEM, "--out", tmp_path / "same", "--phase3-evals",
+                               "6", "--resume", "--latent-dim", "3")[::2])     # --vae kept
+    assert line.endswith(f"--latent-dim 3: the latent space phase 3 of {tmp_path / 'same'} was "
+                         "run in has size 4 (kept with --resume; leave the flag out)"), line
+
+
+def test_tune_resumed_with_more_phase1_trials_does_not_keep_a_stale_latent_space(tmp_path,
+                                                                                 run_cli,
+                                                                                 error_line):
+    """``tune --resume --phase1-evals N`` with N above the phase-1 trials the stored latent
+    space was trained on ran the new phase-1 trials and kept that latent space as it was
+    (trained on the first ones; phase 3 searched from those alone): the new trials were run
+    for nothing, without a word. Before phase 3 began the latent space is now trained again on
+    every phase-1 trial, as a tune never stopped would have; once phase 3 ran in it the larger
+    --phase1-evals is refused before any trial, the store untouched."""
+    from latentune.constants import Phase
+    from latentune.pipeline.phases import training_set
+
+    sys_ = ("--system", "examples.toy_plant:make_system", "--backend", "serial", "--workers", "1")
+    a = tmp_path / "a"
+    assert run_cli("phase1", *sys_, "--out", a, "--phase1-evals", "8")[0] == 0
+    assert run_cli("train-vae", *sys_[:2], "--out", a, "--vae-epochs", "5")[0] == 0
+    code, _, err = run_cli("tune", *sys_, "--out", a, "--phase1-evals", "12", "--phase3-evals",
+                           "4", "--vae-epochs", "5", "--resume")
+    assert code == 0, err
+    with lt.Study(a) as st:
+        assert st.store.count(Phase.PHASE1) == 12 and st.store.count(Phase.PHASE3) == 4
+        assert st.config()["vae"]["n_train"] == len(training_set(st.store, Phase.PHASE1))
+        assert st.latent().meta["n_phase1"] == 12
+    before = lt.Study(a).store.count(Phase.PHASE1)
+    line = error_line(*run_cli("tune", *sys_, "--out", a, "--phase1-evals", "16",
+                               "--phase3-evals", "4", "--resume")[::2])
+    assert "--phase1-evals 16" in line and "12" in line, line
+    assert lt.Study(a).store.count(Phase.PHASE1) == before
+    code, _, err = run_cli("tune", *sys_, "--out", a, "--phase1-evals", "12", "--phase3-evals",
+                           "6", "--resume")
+    assert code == 0, err
+
+
+def test_a_resume_without_budget_flags_goes_on_to_the_stored_budgets(tmp_path, run_cli):
+    """``phase1 --phase1-evals 6``, stopped, then ``phase1 --resume`` without the flag ran
+    phase 1 on to the default 400 trials (394 more than the run was started for; ``tune`` and
+    ``phase3`` alike with 400 and 220). A resume without the flag goes on to the budget the run
+    was started with (as --seed and --trial-timeout do); a flag given still grows it."""
+    from latentune.constants import Phase
+
+    sys_ = ("--system", "examples.toy_plant:make_system", "--backend", "serial", "--workers", "1")
+    a = tmp_path / "a"
+    assert run_cli("phase1", *sys_, "--out", a, "--phase1-evals", "6")[0] == 0
+    code, _, err = run_cli("phase1", *sys_, "--out", a, "--resume")
+    assert code == 0, err
+    assert lt.Study(a).store.count(Phase.PHASE1) == 6
+    code, _, err = run_cli("phase1", *sys_, "--out", a, "--resume", "--phase1-evals", "8")
+    assert code == 0, err
+    assert lt.Study(a).store.count(Phase.PHASE1) == 8
+    t = tmp_path / "t"
+    code, _, err = run_cli("tune", *sys_, "--out", t, "--phase1-evals", "8", "--phase3-evals",
+                           "3", "--vae-epochs", "5")
+    assert code == 0, err
+    code, _, err = run_cli("tune", *sys_, "--out", t, "--resume")
+    assert code == 0, err
+    with lt.Study(t) as st:
+        assert (st.store.count(Phase.PHASE1), st.store.count(Phase.PHASE3)) == (8, 3)
+    code, _, err = run_cli("phase3", *sys_, "--out", t, "--resume")
+    assert code == 0, err
+    assert lt.Study(t).store.count(Phase.PHASE3) == 3
+
+
+def test_ask_phase_3_with_a_vae_in_a_phase_1_run_names_the_vae_given(tmp_path, run_cli, source,
+                                                                     error_line):
+    """``ask R --phase 3 --vae MINE`` where R's ask/tell runs phase 1 said to train a latent
+    space in R and ask phase 3 "with --vae R", though the user had named the latent space
+    MINE; ``ask R --vae MINE`` said "use another directory" alone. Both now say to ask phase 3
+    in another directory with the --vae given."""
+    r = tmp_path / "R"
+    assert run_cli("ask", r, *SYSTEM[:2], "--budget", "6")[0] == 0
+    for phase in (("--phase", "3"), ()):
+        line = error_line(*run_cli("ask", r, *phase, "--vae", source)[::2])
+        assert line.endswith(f"in another directory, with --vae {source}"), line
+        assert f"--out {r}" not in line and f"--vae {r}" not in line, line
+
+
+def test_ask_phase_1_with_a_vae_where_no_phase_is_stored_says_to_ask_phase_3(tmp_path, run_cli,
+                                                                              source,
+                                                                              error_line):
+    """``ask NEW --phase 1 --vae MINE`` (a new directory, or a phase1 run's, where ask/tell
+    has no phase yet) said "ask/tell runs phase 1 here; ... use another directory", though the
+    same ask without --phase 1 asks phase 3 right there. It now says the two flags conflict
+    and to ask --phase 3 (or leave --phase 1 out)."""
+    new = tmp_path / "new"
+    line = error_line(*run_cli("ask", new, *SYSTEM[:2], "--phase", "1", "--vae", source)[::2])
+    assert line == (f"latentune: error: {new}: --phase 1 with --vae: a latent space is an "
+                    "option of phase 3: ask --phase 3 (or leave --phase 1 out)"), line
+    assert not new.exists()
+    code, out, err = run_cli("ask", new, *SYSTEM[:2], "--phase", "3", "--vae", source)
+    assert code == 0, err
+
+
+def test_a_tune_stopped_in_phase_1_resumes_to_the_phase_3_it_was_started_with(
+        tmp_path, run_cli, monkeypatch, error_line):
+    """``tune … --phase3-evals 2 --latent-dim 2 --vae-epochs 20 --fall-budget 0.3`` stopped
+    (Ctrl-C, SIGTERM) in phase 1 stored only what a ``phase1`` run does, so ``tune --resume``
+    without those flags trained the default latent space and ran phase 3 for the default 220
+    trials without the fall budget, and its report named both ``tune`` and ``phase1`` to go
+    on. tune now records its plan before phase 1 runs: the resume runs the phase 3 it was
+    started with, a flag given to a later resume replaces the planned value (as a larger
+    --phase3-evals does), and the report names ``tune`` alone (a stopped ``phase1`` run:
+    ``phase1`` alone)."""
+    import shlex
+
+    from latentune.study import Study
+
+    phase1 = Study.phase1
+
+    def stopped(self, *a, **kw):             # Ctrl-C after 3 new phase-1 trials
+        phase1(self, *a, **{**kw, "max_new": 3})
+        raise KeyboardInterrupt
+
+    sys_ = ("--system", "examples.toy_plant:make_system", "--backend", "serial", "--quiet")
+    d, p1 = tmp_path / "t", tmp_path / "p1"
+    monkeypatch.setattr(Study, "phase1", stopped)
+    code, _, err = run_cli("tune", *sys_, "--out", d, "--phase1-evals", "8", "--phase3-evals",
+                           "2", "--latent-dim", "2", "--vae-epochs", "20", "--fall-budget", "0.3")
+    assert code == 130, err
+    assert run_cli("phase1", *sys_, "--out", p1, "--phase1-evals", "8")[0] == 130
+    monkeypatch.setattr(Study, "phase1", phase1)
+    for run, cmd in ((d, "tune"), (p1, "phase1")):
+        code, _, err = run_cli("report", run, "--no-sim", "--quiet")
+        assert code == 0, err
+        then = " (it then trains the latent space and runs phase 3)" if cmd == "tune" else ""
+        assert ("holds 3 trials of its budget of 8. If it stopped, the command that ran it goes "
+                f"on: `latentune {cmd} … --out {shlex.quote(str(run))} --resume`{then}.") \
+            in (run / "report.md").read_text()
+    code, _, err = run_cli("tune", *sys_, "--out", d, "--resume")
+    assert code == 0, err
+    with Study(d) as st:
+        cfg = st.config()
+        assert st.store.count(1) == 8 and st.store.count(3) == 2
+    assert (cfg["phase3"]["budget"], cfg["vae"]["d_low"], cfg["vae"]["epochs"]) == (2, 2, 20)
+    assert cfg["phase3"]["transfer_options"] == {"fall_budget": 0.3}
+    code, _, err = run_cli("tune", *sys_, "--out", d, "--resume", "--phase3-evals", "3")
+    assert code == 0, err
+    with Study(d) as st:
+        assert st.store.count(3) == 3 and st.config()["tune"]["phase3_evals"] == 3
+    line = error_line(*run_cli("tune", *sys_, "--out", d, "--resume", "--latent-dim", "3")[::2])
+    assert "--latent-dim 3: the latent space of" in line, line
+
+
+def test_phase_3_where_no_phase_1_ran_says_to_run_phase_1_first(tmp_path, run_cli, error_line):
+    """``ask NEW --system X --phase 3`` (NEW a new directory, no --vae) said "no latent space
+    in NEW: train one first (latentune train-vae --out NEW), or name another study's (--vae)",
+    but train-vae there fails (no run store: run phase1 or tune first), as it would in a run
+    without phase-1 trials. Where the run holds no phase-1 trial the advice is now to run phase
+    1 there first (``ask --phase 1`` for ask, ``phase1`` for phase3), then train the latent
+    space, or give --vae; the API names its methods."""
+    from examples.toy_plant import make_real_system
+    from latentune.errors import LatentError
+
+    new = tmp_path / "NEW"
+    line = error_line(*run_cli("ask", new, *SYSTEM[:2], "--phase", "3")[::2])
+    assert line == (f"latentune: error: no latent space in {new} and no phase-1 trial to train "
+                    f"one on: run phase 1 there first (latentune ask {new} --phase 1 … and tell "
+                    f"its trials, then latentune train-vae --out {new}), or name another "
+                    "study's (--vae)"), line
+    assert not new.exists()
+    assert run_cli("ask", new, *SYSTEM[:2], "--phase", "1", "--budget", "4")[0] == 0
+    line = error_line(*run_cli("phase3", *SYSTEM, "--out", new, "--phase3-evals", "4")[::2])
+    assert line.endswith(f"run phase 1 there first (latentune phase1 … --out {new}, then "
+                         f"latentune train-vae --out {new}), or name another study's (--vae)")
+    with pytest.raises(LatentError, match=r"no latent space in .* and no phase-1 trial to train "
+                       r"one on: run phase 1 there first \(phase1, then train_latent\), or name "
+                       r"another study's \(latent\)$"):
+        lt.Study(tmp_path / "api").phase3(make_real_system(), 4)
+
+
+def test_a_phase3_vae_run_goes_on_with_phase3_not_tune(tmp_path, run_cli, source, monkeypatch,
+                                                       error_line, dump_store):
+    """A ``phase3 --vae SRC`` run stopped short of its budget: its report said the command that
+    ran it goes on with ``latentune tune … --resume`` or ``phase3 … --resume``, and ``tune
+    --resume`` there ran a whole phase 1 (its default budget) on the target, trained a latent
+    space of its own, and only then failed (the source moved) or was refused (phase 3 runs in
+    another latent space). The report names ``phase3`` alone, and tune is refused before any
+    trial, naming the command that goes on."""
+    import shlex
+
+    from latentune.study import Study
+
+    phase3 = Study.phase3
+
+    def stopped(self, *a, **kw):             # Ctrl-C after 2 phase-3 trials
+        phase3(self, *a, **{**kw, "max_new": 2})
+        raise KeyboardInterrupt
+
+    d = tmp_path / "t"
+    monkeypatch.setattr(Study, "phase3", stopped)
+    assert _phase3(run_cli, source, d, "--quiet", evals=6)[0] == 130
+    monkeypatch.setattr(Study, "phase3", phase3)
+    code, _, err = run_cli("report", d, "--no-sim", "--quiet")
+    assert code == 0, err
+    where = shlex.quote(str(d))
+    assert ("If it stopped, the command that ran it goes on: `latentune phase3 … --out "
+            f"{where} --resume`.") in (d / "report.md").read_text()
+    before = dump_store(d)
+    line = error_line(*run_cli("tune", *SYSTEM, "--out", d, "--resume", "--phase1-evals", "8",
+                               "--vae-epochs", "20")[::2])
+    assert line == (f"latentune: error: {d}: its phase 3 runs in the latent space of "
+                    f"{source.resolve()} "
+                    "(phase3 --vae), and tune would run a phase 1 here first: go on with "
+                    f"`latentune phase3 … --out {where} --resume`"), line
+    assert dump_store(d) == before
+    with Study(d) as st:
+        assert st.store.count(1) == 0 and st.store.artifact("vae") is None
+
+
+def test_resume_of_a_hand_over_run_with_strategy_transfer_names_the_stored_strategy(
+        tmp_path, run_cli, source, error_line):
+    """A plain phase 3 with --handover resumed (phase3 --resume, ask) with --strategy transfer
+    and no --handover was told 'the hand-over is an option of the plain phase 3', a flag the
+    command did not give; it names the stored strategy, as without a hand-over."""
+    d = tmp_path / "h"
+    code, _, err = _phase3(run_cli, source, d, "--handover", "patience=2")
+    assert code == 0, err
+    line = error_line(*_phase3(run_cli, source, d, "--resume", "--strategy", "transfer",
+                               evals=6)[::2])
+    assert "phase 3 runs with --strategy plain (stored), not --strategy transfer" in line, line
+    line = error_line(*run_cli("ask", d, *SYSTEM[:2], "--strategy", "transfer")[::2])
+    assert "phase 3 runs with --strategy plain (stored), not --strategy transfer" in line, line
+
+
+def test_the_train_vae_hint_for_a_source_without_latent_space_runs(tmp_path, run_cli,
+                                                                     error_line):
+    """phase3 --vae on a phase-1-only run of a --system said 'train one there first
+    (latentune train-vae --out SRC)', and that command stopped with 'SRC holds a run of the
+    user system …: pass --system …'; the hint carries the source's --system and its
+    --system-arg values, and runs."""
+    import shlex
+
+    src = tmp_path / "p1"
+    code, _, err = run_cli("phase1", "--system", "examples.toy_plant:make_system",
+                           "--system-arg", "steps=60", "--backend", "serial", "--workers", "1",
+                           "--out", src, "--phase1-evals", "6", "--quiet")
+    assert code == 0, err
+    line = error_line(*_phase3(run_cli, src, tmp_path / "t")[::2])
+    hint = re.search(r"\((latentune train-vae [^)]*)\)", line)
+    assert hint and "--system examples.toy_plant:make_system --system-arg steps=60" in hint[1], line
+    code, _, err = run_cli(*shlex.split(hint[1])[1:], "--vae-epochs", "5", "--latent-dim", "2")
+    assert code == 0, err
