@@ -27,31 +27,28 @@ def run_dir(s: str) -> str:
     return s
 
 
-def params_file(s: str) -> str:
-    """``--params``: a θ file's name; an empty one (an unset shell variable) is refused, not
-    taken for the manual θ as leaving the flag out is."""
-    if not s.strip():
-        raise CLIError("--params is empty: give a file name, or leave --params out")
-    return s
-
-
-def start(s: str) -> str:
-    """ask's ``--start``: manual, scratch or a θ file's name; an empty one is refused (it was
-    read as the current directory)."""
-    if not s.strip():
-        raise CLIError("--start is empty: give manual, scratch or a file name, or leave "
-                       "--start out")
-    return s
-
-
-def other_run(flag: str) -> Callable[[str], str]:
-    """The type of a flag naming another run's directory (``--vae``, ``--fall-prior``): any path
-    but an empty one (an unset shell variable was read as the current directory or as a
-    file name), refused naming ``flag``."""
+def given(flag: str, what: str) -> Callable[[str], str]:
+    """The type of a flag naming a file or a run (``--params``, ``--start``, ``--vae``,
+    ``--fall-prior``): any text but an empty one (an unset shell variable, read as the current
+    directory, as a file name, or as if the flag were left out), refused naming ``flag`` and
+    ``what`` it takes."""
     def parse(s: str) -> str:
         if not s.strip():
-            raise CLIError(f"{flag} is empty: give a run directory, or leave {flag} out")
+            raise CLIError(f"{flag} is empty: give {what}, or leave {flag} out")
         return s
 
     parse.__name__ = flag.lstrip("-").replace("-", "_")
     return parse
+
+
+params_file = given("--params", "a file name")
+"""``--params``: a θ file's name (an empty one was taken for the manual θ)."""
+
+start = given("--start", "manual, scratch or a file name")
+"""ask's ``--start``: manual, scratch or a θ file's name (an empty one was read as the current
+directory)."""
+
+
+def other_run(flag: str) -> Callable[[str], str]:
+    """The type of a flag naming another run's directory (``--vae``, ``--fall-prior``)."""
+    return given(flag, "a run directory")
