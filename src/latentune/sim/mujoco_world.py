@@ -117,6 +117,23 @@ def _sym(v: tuple[float, ...]) -> np.ndarray:
     return np.array([[v[0], v[1], v[2]], [v[1], v[3], v[4]], [v[2], v[4], v[5]]])
 
 
+def _six(m: np.ndarray) -> tuple[float, ...]:
+    """The six values (ixx, ixy, ixz, iyy, iyz, izz) of a 3 × 3 inertia matrix: :func:`_sym`'s
+    inverse."""
+    return tuple(float(x) for x in (m[0, 0], m[0, 1], m[0, 2], m[1, 1], m[1, 2], m[2, 2]))
+
+
+def _inertia_values(el: ET.Element | None) -> tuple[float, ...]:
+    """The six values of a URDF ``<inertia>`` element (an absent attribute or element: 0)."""
+    return tuple(float(el.get(k, "0")) for k in INERTIA_KEYS) if el is not None else (0.0,) * 6
+
+
+def _set_inertia(el: ET.Element, values: tuple[float, ...]) -> None:
+    """Write the six values (ixx, ixy, ixz, iyy, iyz, izz) into a URDF ``<inertia>``."""
+    for k, v in zip(INERTIA_KEYS, values):
+        el.set(k, repr(v))
+
+
 def mujoco_inertia(values: tuple[float, ...]) -> tuple[tuple[float, ...], str] | None:
     """The inertia MuJoCo can take for a URDF ``<inertia>`` (ixx, ixy, ixz, iyy, iyz, izz
     [kg·m²]) it refuses, and why (e.g. ``"not positive definite, A + B < C"``), or None when
@@ -152,8 +169,7 @@ def mujoco_inertia(values: tuple[float, ...]) -> tuple[tuple[float, ...], str] |
     if lam[0] == lam[2]:                      # balanced: the same about every axis
         new = (float(lam[0]), 0.0, 0.0, float(lam[0]), 0.0, float(lam[0]))
     else:
-        m = axes @ np.diag(lam) @ axes.T
-        new = tuple(float(x) for x in (m[0, 0], m[0, 1], m[0, 2], m[1, 1], m[1, 2], m[2, 2]))
+        new = _six(axes @ np.diag(lam) @ axes.T)
     return new, ", ".join(why)
 
 
@@ -164,19 +180,18 @@ def _correct_inertias(robot: ET.Element, name: str, where_from: str) -> None:
     :data:`INERTIA_TINY` of the robot's largest link inertia (a placeholder link of negligible
     mass, as example-robot-data's feet of 1e-6 kg: no change the motion can show), else a
     WARNING with the principal moments before and after and the relative change."""
-    scale = max((float(np.linalg.norm(_sym(tuple(float(el.get(k, "0")) for k in INERTIA_KEYS))))
-                 for el in robot.iter("inertia")), default=0.0)
+    scale = max((float(np.linalg.norm(_sym(_inertia_values(el)))) for el in robot.iter("inertia")),
+                default=0.0)
     for link in robot.iter("link"):
         el = link.find("inertial/inertia")
         if el is None:
             continue
-        old = tuple(float(el.get(k, "0")) for k in INERTIA_KEYS)
+        old = _inertia_values(el)
         fixed = mujoco_inertia(old)
         if fixed is None:
             continue
         new, why = fixed
-        for k, v in zip(INERTIA_KEYS, new):
-            el.set(k, repr(v))
+        _set_inertia(el, new)
         said = (where_from, name, link.get("name", ""), "inertia")
         if said in _inertia_said:
             continue
@@ -231,8 +246,7 @@ def _bound_moving_links(robot: ET.Element, name: str, where_from: str) -> None:
     def mass_inertia(link: ET.Element) -> tuple[float, np.ndarray]:
         mass, inertia = link.find("inertial/mass"), link.find("inertial/inertia")
         m = float(mass.get("value", "0")) if mass is not None else 0.0
-        v = tuple(float(inertia.get(k, "0")) for k in INERTIA_KEYS) if inertia is not None else (0.0,) * 6
-        return m, _sym(v)
+        return m, _sym(_inertia_values(inertia))
 
     for lname, link in links.items():
         if joint_type.get(lname) == "fixed":
@@ -261,8 +275,7 @@ def _bound_moving_links(robot: ET.Element, name: str, where_from: str) -> None:
         new_i = inertia + np.eye(3) * max(MOVING_INERTIA - float(np.linalg.eigvalsh(inertia)[0]), 0.0) \
             if flat else inertia
         mel.set("value", repr(new_m))
-        for k, (a, b) in zip(INERTIA_KEYS, ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))):
-            iel.set(k, repr(float(new_i[a, b])))
+        _set_inertia(iel, _six(new_i))
         said = (where_from, name, lname, "moving")   # said apart from an inertia correction
         if said in _inertia_said:
             continue
@@ -294,8 +307,9 @@ def mujoco_urdf_text(urdf: str, name: str | None = None,
             if j.get("type") != "fixed" and j.get("name") not in driven:
                 j.set("type", "fixed")
     name = robot.get("name", "") if name is None else name
-    _correct_inertias(robot, name, str(src.resolve()))
-    _bound_moving_links(robot, name, str(src.resolve()))
+    where_from = str(src.resolve())
+    _correct_inertias(robot, name, where_from)
+    _bound_moving_links(robot, name, where_from)
     for el in robot.findall("mujoco"):
         robot.remove(el)
     ext = ET.Element("mujoco")
