@@ -409,8 +409,11 @@ def _continuous_to_revolute(text: str) -> str:
     return re.sub(r'<joint\b[^>]*type="continuous"[^>]*>.*?</joint>', repl, text, flags=re.S)
 
 
-NO_INERTIAL = ('<inertial><mass value="1e-06"/><inertia ixx="1e-09" ixy="0" ixz="0" iyy="1e-09" '
-               'iyz="0" izz="1e-09"/></inertial>')
+NO_INERTIAL_MASS, NO_INERTIAL_MOMENT = 1e-6, 1e-9
+"""The mass [kg] and the moment about each axis [kg·m²] of :data:`NO_INERTIAL`."""
+NO_INERTIAL = (f'<inertial><mass value="{NO_INERTIAL_MASS!r}"/><inertia ixx="{NO_INERTIAL_MOMENT!r}" '
+               f'ixy="0" ixz="0" iyy="{NO_INERTIAL_MOMENT!r}" iyz="0" izz="{NO_INERTIAL_MOMENT!r}"/>'
+               '</inertial>')
 """The ``<inertial>`` :func:`prepared_urdf` gives a link without one: negligible (PyBullet gives
 such a link 1 kg and 1 kg·m² about each axis; pinocchio and the URDF mean none; a root of mass
 0 would be fixed in space in PyBullet)."""

@@ -39,7 +39,7 @@ import numpy as np
 from latentune.constants import G
 from latentune.errors import UsageError
 from latentune.robots import RobotSpec
-from latentune.robots.urdf import INERTIA_KEYS, read_urdf
+from latentune.robots.urdf import INERTIA_KEYS, NO_INERTIAL_MASS, NO_INERTIAL_MOMENT, read_urdf
 from latentune.sim.reality import Reality, perturbed_urdf
 from latentune.sim.state import RobotState
 from latentune.sim.world import HILLS_CELL, HILLS_CELLS, WorldBase
@@ -220,9 +220,9 @@ MOVING_MIN_VALUE = 1e-15
 """Least mass [kg] and principal moment [kg·m²] MuJoCo takes of a moving body with the bodies
 fixed to it (its ``mjMINVAL``: below it, 'mass and inertia of moving bodies must be larger than
 mjMINVAL')."""
-MOVING_MASS, MOVING_INERTIA = 1e-6, 1e-9
+MOVING_MASS, MOVING_INERTIA = NO_INERTIAL_MASS, NO_INERTIAL_MOMENT
 """The mass [kg] and the moment about each axis [kg·m²] a moving link without them gets for
-MuJoCo: negligible, as the prepared URDF's for a link without ``<inertial>``
+MuJoCo: negligible, the prepared URDF's for a link without ``<inertial>``
 (:data:`~latentune.robots.urdf.NO_INERTIAL`)."""
 
 
