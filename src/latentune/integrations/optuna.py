@@ -269,8 +269,6 @@ def _sampled_fell(trial: Any, state: Any = None, values: Sequence[float] | None 
     return trial_fell(trial, state) or (v is not None and not _is_cost(v))
 
 
-
-
 def _sign(study: Any) -> float:
     if len(study.directions) != 1:
         raise UsageError("latentune's samplers and import take single-objective studies only")
@@ -1038,7 +1036,6 @@ class TurboSampler(_CriticSampler, BaseSampler):
 
     def _external_point(self, theta: np.ndarray) -> np.ndarray | None:
         return theta
-
 
 
 def _hash(b: bytes) -> str:
