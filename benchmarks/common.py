@@ -421,9 +421,30 @@ def out_file(text: str) -> Path:
     parent = next(p for p in path.absolute().parents if p.exists())
     if not parent.is_dir():
         raise argparse.ArgumentTypeError(f"{parent} is not a directory")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise argparse.ArgumentTypeError(f"{parent}: Permission denied")
+    _refuse_unwritable(parent)
     return path
+
+
+def out_dir(text: str) -> Path:
+    """An output directory (argparse ``type``: ``robot_transfer export --out DIR``), checked
+    before any work as :func:`out_file` checks a file: not a file, no file among its parents,
+    and the nearest of it and its parents that exists a writable directory (argparse's one-line
+    error otherwise). The directory itself is made by the writer."""
+    path = Path(text)
+    if not text.strip():
+        raise argparse.ArgumentTypeError("an output directory needs a name")
+    blocking = file_in_the_way(path)
+    if blocking is not None:
+        raise argparse.ArgumentTypeError(f"{blocking} is not a directory")
+    _refuse_unwritable(next(p for p in (path.absolute(), *path.absolute().parents)
+                            if p.exists()))
+    return path
+
+
+def _refuse_unwritable(directory: Path) -> None:
+    """argparse's error when files cannot be made in the existing ``directory``."""
+    if not os.access(directory, os.W_OK | os.X_OK):
+        raise argparse.ArgumentTypeError(f"{directory}: Permission denied")
 
 
 def bench_parser(module: str, description: str | None = None,

@@ -177,7 +177,7 @@ def _seeds(text: str) -> list[int]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from benchmarks.common import bench_parser, error_line
+    from benchmarks.common import bench_parser, error_line, out_file
     ap = bench_parser("benchmarks.fall_costs", description=__doc__.split("\n\n")[0])
     ap.add_argument("cmd", choices=("run", "summary"))
     ap.add_argument("--root", type=Path, required=True)
@@ -185,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--arms", default=",".join(ARMS))
     ap.add_argument("--seeds", default="0-9")
     ap.add_argument("--evals", type=int, default=300)
-    ap.add_argument("--out", type=Path)
+    ap.add_argument("--out", type=out_file, metavar="FILE.json")
     a = ap.parse_args(argv)
     try:
         systems = [s for s in a.systems.split(",") if s]

@@ -1052,7 +1052,7 @@ def _pos_int(text: str) -> int:
 
 
 def parser() -> argparse.ArgumentParser:
-    from benchmarks.common import bench_parser
+    from benchmarks.common import bench_parser, out_dir, out_file
     ap = bench_parser("benchmarks.robot_transfer", description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
     sub.add_parser("list", help="the rungs")
@@ -1086,7 +1086,7 @@ def parser() -> argparse.ArgumentParser:
     im.add_argument("--budget", type=_pos_int, default=100)
     s = sub.add_parser("summary", help="the criteria per rung")
     s.add_argument("--root", default="runs/robot_transfer")
-    s.add_argument("--out", default=None,
+    s.add_argument("--out", type=out_file, default=None,
                    help="write the summary to this JSON and its tables to the .md beside it "
                         "(default: print only)")
     s.add_argument("--methods", nargs="+", default=None, help="only these methods' runs")
@@ -1101,11 +1101,11 @@ def parser() -> argparse.ArgumentParser:
     c.add_argument("--a", nargs="+", required=True)
     c.add_argument("--b", nargs="+", required=True)
     c.add_argument("--seeds", nargs="+", type=_nonneg_int, default=None, help="only these seeds")
-    c.add_argument("--out", default=None, help="a .json")
+    c.add_argument("--out", type=out_file, default=None, help="a .json")
     ex = sub.add_parser("export", help="the runs' traces (cost and fall per trial, wall "
                         "time, load) as one JSON per rung, to commit")
     ex.add_argument("--root", default="runs/robot_transfer")
-    ex.add_argument("--out", required=True, help="a directory")
+    ex.add_argument("--out", type=out_dir, required=True, help="a directory")
     rs = sub.add_parser("restore", help="rebuild the run files from exported traces (without "
                         "the θ of every trial): run then resumes, summary and plot read them")
     rs.add_argument("--traces", required=True, help="a directory of `export`")
@@ -1123,13 +1123,13 @@ def parser() -> argparse.ArgumentParser:
     dc = sub.add_parser("decisions", help="what the default phase 3 did, from its decision "
                         "records (trust-region floor, fall screen, explore asks, falls by pool)")
     dc.add_argument("--root", default="runs/robot_transfer")
-    dc.add_argument("--out", required=True, help="a .json (and a .md beside it)")
+    dc.add_argument("--out", type=out_file, required=True, help="a .json (and a .md beside it)")
     dc.add_argument("--method", default="transfer")
     dc.add_argument("--seeds", nargs="+", type=_nonneg_int, default=None, help="only these seeds")
     pl = sub.add_parser("plot", help="CoM plots of the best θ per rung")
     pl.add_argument("--targets", nargs="+", default=None)
     pl.add_argument("--root", default="runs/robot_transfer")
-    pl.add_argument("--out", default="results/robot_transfer")
+    pl.add_argument("--out", type=out_dir, default="results/robot_transfer")
     pl.add_argument("--gifs", action="store_true", help="also a GIF of each re-simulated θ")
     pl.add_argument("--default", default="transfer", help="as summary's --default")
     pl.add_argument("--methods", nargs="+", default=None, help="only these methods' runs")

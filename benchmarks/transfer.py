@@ -1184,7 +1184,7 @@ def prefix_check(root: Path, stored: Path, budget: int) -> list[dict[str, Any]]:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    from benchmarks.common import bench_parser
+    from benchmarks.common import bench_parser, out_file
     ap = bench_parser("benchmarks.transfer", description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("run")
@@ -1200,7 +1200,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="these gaps on every system instead of its ladder's (held-out gaps)")
     s = sub.add_parser("summary")
     s.add_argument("--root", default="runs/transfer")
-    s.add_argument("--out", default=None,
+    s.add_argument("--out", type=out_file, default=None,
                    help="write the summary to this JSON and its tables to the .md beside it "
                         "(default: print only)")
     s.add_argument("--default", default="transfer",
@@ -1219,7 +1219,7 @@ def main(argv: list[str] | None = None) -> int:
     px.add_argument("--root", required=True, help="the runs made at the larger budget")
     px.add_argument("--stored", required=True, help="the runs made at --budget")
     px.add_argument("--budget", type=int, required=True)
-    px.add_argument("--out", default=None)
+    px.add_argument("--out", type=out_file, default=None)
     c = sub.add_parser("compare", help="methods against methods over (target, seed)")
     c.add_argument("--root", default="runs/transfer")
     c.add_argument("--a", nargs="+", required=True)
@@ -1227,7 +1227,7 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("--seeds", nargs="+", type=int, default=None)
     c.add_argument("--systems", nargs="+", default=None, choices=list(SYSTEMS),
                    help="only these systems' targets (default: every one stored)")
-    c.add_argument("--out", default=None)
+    c.add_argument("--out", type=out_file, default=None)
     c.add_argument("--bar-paired", type=float, default=None, metavar="R",
                    help="a bar: the largest paired geometric-mean ratio (a / b) allowed")
     c.add_argument("--bar-falls", type=float, default=None, metavar="R",

@@ -93,14 +93,14 @@ def spearman(rows: list[dict[str, Any]]) -> dict[str, float]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from benchmarks.common import bench_parser
+    from benchmarks.common import bench_parser, out_file, write_text
     ap = bench_parser("benchmarks.transfer_allowance", description=__doc__.splitlines()[0])
     ap.add_argument("--summary", required=True)
     ap.add_argument("--runs", required=True)
     ap.add_argument("--robot-summary", default=None)
     ap.add_argument("--robot-traces", default=None)
     ap.add_argument("--default", default=DEFAULT)
-    ap.add_argument("--out", default=None)
+    ap.add_argument("--out", type=out_file, default=None, metavar="FILE.json")
     a = ap.parse_args(sys.argv[1:] if argv is None else argv)
     try:
         if (a.robot_summary is None) != (a.robot_traces is None):
@@ -124,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
     for k, v in res["spearman"].items():
         print(f"Spearman ρ ({k}, {v['n']} targets): {v['rho']:.3f} (p {v['p']:.2g})")
     if a.out:
-        Path(a.out).write_text(json.dumps(res, indent=1))
+        write_text(a.out, json.dumps(res, indent=1))
     return 0
 
 

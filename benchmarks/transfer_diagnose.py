@@ -162,7 +162,7 @@ def markdown(out: dict[str, Any]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from benchmarks.common import Provenance, bench_parser
+    from benchmarks.common import Provenance, bench_parser, out_file
     from benchmarks.transfer import parse_variant
     from latentune.critic.transfer import TRANSFER_DEFAULTS
 
@@ -177,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--options", default="", help="transfer options option=value[:option=value]")
     ap.add_argument("--stored", default="results/transfer/runs",
                     help="stored ladder traces for the fall screen's calibration")
-    ap.add_argument("--out", default="results/transfer/selection/diagnosis.json")
+    ap.add_argument("--out", type=out_file, default="results/transfer/selection/diagnosis.json")
     a = ap.parse_args(argv)
     prov = Provenance(argv, module="benchmarks.transfer_diagnose")
     ladder = json.loads(Path(a.ladder).read_text())

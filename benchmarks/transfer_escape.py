@@ -220,7 +220,7 @@ def _table(res: dict[str, Any]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from benchmarks.common import bench_parser
+    from benchmarks.common import bench_parser, out_dir, out_file
     ap = bench_parser("benchmarks.transfer_escape", description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("run")
@@ -233,14 +233,14 @@ def main(argv: list[str] | None = None) -> int:
     b = sub.add_parser("blind", help="the default and escape_falls on blind-fall targets")
     b.add_argument("--root", type=Path, default=Path("runs/transfer"),
                    help="the ladder's sources (benchmarks.transfer)")
-    b.add_argument("--out", type=Path, default=Path("runs/escape_blind"))
+    b.add_argument("--out", type=out_dir, default="runs/escape_blind")
     b.add_argument("--seeds", nargs="+", type=int, default=list(range(10)))
     b.add_argument("--budget", type=int, default=40)
     b.add_argument("--k", type=int, default=8)
     s = sub.add_parser("summary")
     s.add_argument("--root", type=Path, default=Path("runs/escape"))
     s.add_argument("--k", type=int, default=8)
-    s.add_argument("--out", type=Path, default=None)
+    s.add_argument("--out", type=out_file, default=None)
     a = ap.parse_args(argv)
     if a.cmd == "run":
         run(a.root, a.dims, a.seeds, a.kinds, a.budget, a.k)

@@ -710,7 +710,7 @@ def main_ladder(argv: list[str]) -> int:
 
 def main_kinds(argv: list[str]) -> int:
     """``kinds``: asks and falls by kind of ask of transfer variants' traces (their decisions)."""
-    from benchmarks.common import Provenance, bench_parser, error_line, finish
+    from benchmarks.common import Provenance, bench_parser, error_line, finish, out_file
 
     ap = bench_parser("benchmarks.transfer_falls kinds", description=main_kinds.__doc__)
     ap.add_argument("--root", type=Path, default=Path("runs/transfer"))
@@ -718,7 +718,7 @@ def main_kinds(argv: list[str]) -> int:
                     help="trace names, e.g. transfer+VARIANT@avx512")
     ap.add_argument("--systems", nargs="+", default=None)
     ap.add_argument("--seeds", type=int, nargs="+", default=None)
-    ap.add_argument("--out", type=Path, default=None, metavar="FILE.json")
+    ap.add_argument("--out", type=out_file, default=None, metavar="FILE.json")
     a = ap.parse_args(argv)
     prov = Provenance(["kinds", *argv], module="benchmarks.transfer_falls")
     try:

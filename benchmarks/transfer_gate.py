@@ -120,7 +120,7 @@ def table(rows: list[dict[str, Any]], a: str, b: str, near: int) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from benchmarks.common import bench_parser
+    from benchmarks.common import bench_parser, out_file
     ap = bench_parser("benchmarks.transfer_gate", description=__doc__,
                       formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--runs", required=True, help="SYSTEM/gapG/seedS/METHOD.json traces")
@@ -129,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--a", default=PICK, help="the method a gate would act in")
     ap.add_argument("--b", default=tr.DEFAULT_METHOD, help="the method it is judged against")
     ap.add_argument("--near", type=int, default=10)
-    ap.add_argument("--out", default=None)
+    ap.add_argument("--out", type=out_file, default=None, metavar="FILE.json")
     args = ap.parse_args(argv)
     try:
         bad = [s for s in args.systems if s not in tr.SYSTEMS]

@@ -207,7 +207,7 @@ def table(rows: list[dict[str, Any]]) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from benchmarks.common import bench_parser
+    from benchmarks.common import bench_parser, out_file
     ap = bench_parser("benchmarks.transfer_models", description=__doc__.splitlines()[0])
     ap.add_argument("--sources")
     ap.add_argument("--runs")
@@ -215,7 +215,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="no new cuts: the table of the rows stored in these outputs, together")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     ap.add_argument("--systems", nargs="*", default=None)
-    ap.add_argument("--out", default=None)
+    ap.add_argument("--out", type=out_file, default=None, metavar="FILE.json")
     a = ap.parse_args(sys.argv[1:] if argv is None else argv)
     try:
         if a.merge:
@@ -236,7 +236,7 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def emit(rows: list[dict[str, Any]], md: list[str], out: str | None,
+def emit(rows: list[dict[str, Any]], md: list[str], out: str | Path | None,
          with_md: bool = False) -> None:
     """Print the table ``md``; with ``out``, write ``{"rows", "table"}`` there as JSON (and,
     ``with_md``, the table beside it as ``.md``)."""

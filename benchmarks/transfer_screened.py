@@ -84,12 +84,12 @@ def forced(root: Path) -> dict[str, dict[str, int]]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from benchmarks.common import bench_parser
+    from benchmarks.common import bench_parser, out_file, write_text
     ap = bench_parser("benchmarks.transfer_screened", description=__doc__.splitlines()[0])
     ap.add_argument("--summary", required=True)
     ap.add_argument("--losses", nargs="*", default=["vehicle 2", "cartpole 2"])
     ap.add_argument("--runs", default=None, help="the run tree: count forced and admitted trials")
-    ap.add_argument("--out", default=None)
+    ap.add_argument("--out", type=out_file, default=None, metavar="FILE.json")
     a = ap.parse_args(sys.argv[1:] if argv is None else argv)
     try:
         res = bar(json.loads(Path(a.summary).read_text()), a.losses)
@@ -111,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{k}: admitted {c['admitted']} (fell {c['admitted_fell']}), forced "
               f"{c['forced']} (fell {c['forced_fell']})")
     if a.out:
-        Path(a.out).write_text(json.dumps(res, indent=1))
+        write_text(a.out, json.dumps(res, indent=1))
     return 0
 
 

@@ -135,13 +135,13 @@ def table(rows: list[dict[str, Any]]) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from benchmarks.common import bench_parser
+    from benchmarks.common import bench_parser, out_file
     ap = bench_parser("benchmarks.transfer_simrank", description=__doc__.splitlines()[0])
     ap.add_argument("--runs", required=True)
     ap.add_argument("--sources", required=True, help="SYSTEM/seed<s>/source run directories")
     ap.add_argument("--models", required=True, help="transfer_models' output (its rows)")
     ap.add_argument("--systems", nargs="*", default=None)
-    ap.add_argument("--out", default=None)
+    ap.add_argument("--out", type=out_file, default=None, metavar="FILE.json")
     a = ap.parse_args(sys.argv[1:] if argv is None else argv)
     try:
         if not Path(a.runs).is_dir():

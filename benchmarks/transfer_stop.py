@@ -199,7 +199,7 @@ def parse_rule(text: str, grid: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from benchmarks.common import bench_parser
+    from benchmarks.common import bench_parser, out_file, write_text
     ap = bench_parser("benchmarks.transfer_stop", description=__doc__.splitlines()[0])
     ap.add_argument("--runs", required=True)
     ap.add_argument("--heldout-runs", required=True)
@@ -210,7 +210,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--also", nargs="*", default=[], metavar="FAMILY:K=V,...",
                     help="rules judged on every set beside the chosen ones (not a choice: a "
                          "look), e.g. early:a=1,b=1,counts=all or stall:m=2,w=0.25")
-    ap.add_argument("--out", default=None)
+    ap.add_argument("--out", type=out_file, default=None, metavar="FILE.json")
     a = ap.parse_args(sys.argv[1:] if argv is None else argv)
     try:
         if (a.robot_summary is None) != (a.robot_traces is None):
@@ -265,7 +265,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"  fresh gaps ({f['runs']} runs): falls {f['falls']} of {f['falls_uncut']}, "
                   f"paired {f['paired_cost']:.4f}, worst {f['worst']:.3f}")
     if a.out:
-        Path(a.out).write_text(json.dumps(res, indent=1))
+        write_text(a.out, json.dumps(res, indent=1))
     return 0
 
 

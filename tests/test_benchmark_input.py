@@ -4,6 +4,7 @@ an empty table with exit 0 or a traceback after the first runs."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -278,11 +279,16 @@ def test_an_output_path_that_cannot_be_written_is_one_line_not_a_traceback(tmp_p
                     "--out", str(afile / "c.json")], f"{afile} is not a directory"),
         (handover, ["--vae", str(root), "--work", str(afile)], f"{afile} is not a directory"),
     ]
-    for mod, argv, words in cases:
+    for mod, argv, words in cases:            # transfer's --out: refused as it is read
         prog = mod.__name__
-        assert cli_main(lambda: mod.main(argv), prog) == 2, argv
+        try:
+            code = cli_main(lambda: mod.main(argv), prog)
+        except SystemExit as e:
+            code = e.code
+        assert code == 2, argv
         err = capsys.readouterr().err.strip().splitlines()
-        assert err == [f"python -m {prog}: error: {words}"], (argv, err)
+        assert err[-1].startswith(f"python -m {prog}") and err[-1].endswith(f"error: {words}") \
+            or err[-1].endswith(f"argument --out: {words}"), (argv, err)
     from benchmarks.common import os_error_line
 
     denied = PermissionError(13, os.strerror(13), str(tmp_path / "ro" / "s.json"))
@@ -462,19 +468,71 @@ def test_transfer_falls_ladder_refuses_a_method_without_traces_and_a_bad_out(tmp
 @pytest.mark.parametrize("module, argv", [
     ("basin_path", ["--md"]), ("transfer_curves", ["--md"]), ("transfer_falls", ["stores", "--md"]),
     ("transfer_long", ["--md"]), ("transfer_reach", ["--md"]), ("transfer_walk", ["--md"]),
-    ("zones_traces", ["--png"]), ("servo_traces", ["--png"])])
+    ("zones_traces", ["--png"]), ("servo_traces", ["--png"]),
+    ("fall_costs", ["summary", "--root", "r", "--out"]),
+    ("transfer", ["summary", "--out"]), ("transfer", ["compare", "--a", "x", "--b", "y", "--out"]),
+    ("transfer", ["prefix", "--root", "r", "--stored", "s", "--budget", "4", "--out"]),
+    ("robot_transfer", ["summary", "--out"]),
+    ("robot_transfer", ["compare", "--a", "x", "--b", "y", "--out"]),
+    ("robot_transfer", ["decisions", "--out"]), ("robot_transfer", ["export", "--out/"]),
+    ("robot_transfer", ["plot", "--out/"]), ("transfer_escape", ["summary", "--out"]),
+    ("transfer_escape", ["blind", "--out/"]),
+    ("transfer_falls", ["kinds", "--methods", "x", "--out"]),
+    ("transfer_allowance", ["--summary", "s", "--runs", "r", "--out"]),
+    ("transfer_diagnose", ["--out"]), ("transfer_gate", ["--runs", "r", "--out"]),
+    ("transfer_models", ["--out"]), ("transfer_screened", ["--summary", "s", "--out"]),
+    ("transfer_simrank", ["--runs", "r", "--sources", "s", "--models", "m", "--out"]),
+    ("transfer_stop", ["--runs", "r", "--heldout-runs", "h", "--out"])])
 def test_a_table_or_figure_path_that_cannot_be_written_is_refused_before_the_work(
-        tmp_path, capsys, module, argv):
-    """``--md`` (and the traces' ``--png``) were plain paths: one under a file (or in a
-    directory that cannot be written) failed only when written, after the work; they are
-    checked as the command line is read, as ``--out`` is (argparse's line, exit 2)."""
+        tmp_path, capsys, monkeypatch, module, argv):
+    """``--md``, the traces' ``--png`` and a dozen benchmarks' ``--out`` (transfer summary,
+    robot_transfer decisions, transfer_stop, ...) were plain paths: one under a file, a
+    directory given for a file or one in a directory that cannot be written failed only when
+    written, after the work (or, for those written with ``Path.write_text``, one in a directory
+    not made yet). They are checked as the command line is read, as ``add_out_arg``'s ``--out``
+    is (argparse's line, exit 2); an output directory (``--out/`` here: export, plot, blind) is
+    refused when it is a file."""
     import importlib
+    import os
+
+    from benchmarks import common
 
     (tmp_path / "f").write_text("")
-    bad = str(tmp_path / "f" / ("t.png" if argv[-1] == "--png" else "t.md"))
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    access = os.access       # the tests may run as root, to whom every directory is writable
+    monkeypatch.setattr(common.os, "access", lambda p, mode, **kw: (
+        Path(p) != ro or not mode & os.W_OK) and access(p, mode, **kw))
+    name = "t.png" if argv[-1] == "--png" else "t.md"
+    cases = [(tmp_path / "f" / name, f"{tmp_path / 'f'} is not a directory"),
+             (ro / name, f"{ro}: Permission denied")]
+    if argv[-1].endswith("/"):              # an output directory: a file is not one
+        argv = [*argv[:-1], argv[-1][:-1]]
+        cases.append((tmp_path / "f", f"{tmp_path / 'f'} is not a directory"))
+    else:
+        cases.append((tmp_path, f"{tmp_path} is a directory, not a file"))
     mod = importlib.import_module(f"benchmarks.{module}")
-    with pytest.raises(SystemExit) as e:
-        mod.main([*argv, bad])
-    err = capsys.readouterr().err
-    assert e.value.code == 2 and f"{tmp_path / 'f'} is not a directory" in err, err
-    assert f"python -m benchmarks.{module}" in err, err
+    for bad, words in cases:
+        with pytest.raises(SystemExit) as e:
+            mod.main([*argv, str(bad)])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert e.value.code == 2 and err[-1].endswith(f": {words}"), (bad, err)
+        assert err[-1].startswith(f"python -m benchmarks.{module}"), err
+    assert sorted(tmp_path.iterdir()) == [tmp_path / "f", ro]
+
+
+def test_an_output_in_a_directory_not_made_yet_is_written_there(tmp_path, capsys):
+    """transfer_screened (as transfer_allowance and transfer_stop) wrote ``--out`` with
+    ``Path.write_text``: one in a directory not made yet ended in a FileNotFoundError after
+    the work. Its parents are made, as every ``--out``'s are."""
+    from benchmarks import transfer_screened
+
+    summary = tmp_path / "s.json"
+    m = {"median_best": 1.0, "falls_median": 1, "falls": [1], "median_best_within_allowance": 1.0}
+    summary.write_text(json.dumps({"targets": [{
+        "system": "chain", "gap": 1, "best_peer": "cma_source", "fall_allowance": 2,
+        "within_allowance": [], "methods": {"cma_source": m, "cma_source_screened": m}}]}))
+    out = tmp_path / "new" / "dir" / "o.json"
+    transfer_screened.main(["--summary", str(summary), "--losses", "--out", str(out)])
+    capsys.readouterr()
+    assert json.loads(out.read_text())["rows"][0]["target"] == "chain 1"
