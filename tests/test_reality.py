@@ -4,6 +4,7 @@ simulated dynamics in its intended direction (in PyBullet and in MuJoCo), the ra
 reproducible for a seed and differ across seeds, and the manual θ walks on A1 in MuJoCo."""
 from __future__ import annotations
 
+import ctypes.util
 import importlib.util
 import json
 import math
@@ -485,6 +486,36 @@ def test_an_unusable_mujoco_gl_is_one_line(cli, cli_env):
     assert out.stderr.splitlines() == [
         "latentune: error: mujoco cannot be imported (RuntimeError: invalid value for environment "
         "variable MUJOCO_GL: bogus); MUJOCO_GL=bogus is not usable here: unset it or set it to egl"]
+
+
+@pytest.mark.skipif(not HAVE_MUJOCO or ctypes.util.find_library("EGL") is None,
+                    reason="no mujoco, or no libEGL to draw without a display")
+def test_a_mujoco_gif_without_a_display_or_mujoco_gl_is_drawn_headless(cli, cli_env, tmp_path):
+    """``rollout --engine mujoco --gif`` on a machine without a display and MUJOCO_GL unset
+    (mujoco then loads GLFW, which needs a display) was refused after the rollout: 'MuJoCo
+    cannot render here ... set MUJOCO_GL=egl'. Without a display, an unset MUJOCO_GL is egl
+    (osmesa without libEGL) before mujoco is imported, and the GIF is drawn."""
+    env = {k: v for k, v in cli_env.items()
+           if k not in ("MUJOCO_GL", "DISPLAY", "WAYLAND_DISPLAY", "PYOPENGL_PLATFORM")}
+    gif = tmp_path / "x.gif"
+    out = cli("rollout", "--robot", "a1", "--task", "trot", "--engine", "mujoco", "--steps", "20",
+              "--gif", gif, env=env, timeout=300)
+    assert out.returncode == 0 and out.stderr == "", out.stderr
+    assert gif.read_bytes()[:4] == b"GIF8"
+
+
+@pytest.mark.skipif(not HAVE_MUJOCO, reason="no mujoco")
+def test_a_mujoco_gl_that_cannot_draw_here_is_named_in_one_line(cli, cli_env, tmp_path):
+    """A MUJOCO_GL that imports but cannot draw here (glfw without a display) was told to set
+    MUJOCO_GL=egl without being named (the same line as for an unset one); it is named."""
+    env = {k: v for k, v in cli_env.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    out = cli("rollout", "--engine", "mujoco", "--steps", "20", "--gif", tmp_path / "x.gif",
+              env=dict(env, MUJOCO_GL="glfw"), timeout=300)
+    assert out.returncode == 2 and len(out.stderr.splitlines()) == 1, out.stderr
+    assert out.stderr.startswith(
+        "latentune: error: MuJoCo cannot render here with MUJOCO_GL=glfw (")
+    assert out.stderr.endswith("set MUJOCO_GL=egl (or osmesa), or use --engine pybullet\n")
+    assert not (tmp_path / "x.gif").exists()
 
 
 def test_pybullet_blow_up_at_finite_positions_is_a_fall():

@@ -29,6 +29,7 @@ from __future__ import annotations
 import logging
 import math
 import os
+import sys
 import warnings
 import xml.etree.ElementTree as ET
 from collections.abc import Collection
@@ -71,13 +72,40 @@ def contact_solref(restitution: float) -> tuple[float, float]:
     return 0.01, max(-le / math.sqrt(math.pi ** 2 + le ** 2), MIN_DAMPING_RATIO)
 
 
+def headless_gl() -> str | None:
+    """The ``MUJOCO_GL`` backend to draw with when none is set on a Linux machine without a
+    display (no ``DISPLAY`` nor ``WAYLAND_DISPLAY``), where mujoco's default, GLFW, cannot
+    open a window: ``PYOPENGL_PLATFORM``'s when it names egl or osmesa, else egl where libEGL
+    is found, else osmesa where libOSMesa is; None otherwise (a ``MUJOCO_GL`` is set, a display
+    is there, or neither library is found: rendering then says which ``MUJOCO_GL`` to set)."""
+    env = os.environ
+    if env.get("MUJOCO_GL") or not sys.platform.startswith("linux") \
+            or env.get("DISPLAY") or env.get("WAYLAND_DISPLAY"):
+        return None
+    platform = env.get("PYOPENGL_PLATFORM", "").strip().lower()
+    if platform in ("egl", "osmesa"):
+        return platform
+    import ctypes.util
+
+    return next((gl for gl, lib in (("egl", "EGL"), ("osmesa", "OSMesa"))
+                 if ctypes.util.find_library(lib)), None)
+
+
 def require_mujoco():
     """The ``mujoco`` module (its warnings sent to this module's logger, not to a MUJOCO_LOG.TXT).
+
+    Before mujoco's first import, which loads the OpenGL backend ``MUJOCO_GL`` names, an unset
+    ``MUJOCO_GL`` on a machine without a display is set to a headless backend
+    (:func:`headless_gl`), so that ``--gif`` draws there.
 
     Raises:
         UsageError: mujoco is not installed, or its import fails (it loads the OpenGL backend
             ``MUJOCO_GL`` names: ``osmesa`` without libOSMesa, an unknown name).
     """
+    gl = None if "mujoco" in sys.modules else headless_gl()
+    if gl is not None:
+        os.environ["MUJOCO_GL"] = gl
+        logger.info("no display and MUJOCO_GL unset: MuJoCo draws with MUJOCO_GL=%s", gl)
     try:
         import mujoco
     except ImportError:
@@ -517,7 +545,9 @@ class MujocoWorld(WorldBase):
 
     def render(self, width: int = 320, height: int = 240) -> np.ndarray:
         """(H, W, 3) uint8 RGB frame from a camera following the robot (needs an OpenGL
-        context, e.g. ``MUJOCO_GL=egl`` or ``osmesa``; the collision geoms are drawn)."""
+        context, e.g. ``MUJOCO_GL=egl`` or ``osmesa``, which :func:`require_mujoco` sets when
+        there is no display; the collision geoms are drawn). A context that cannot be made is a
+        UsageError naming the ``MUJOCO_GL`` in use and the one to try."""
         mujoco = self.mj
         try:
             if getattr(self, "_renderer", None) is None:
@@ -531,8 +561,11 @@ class MujocoWorld(WorldBase):
             self._renderer.update_scene(self._data, cam)
             return self._renderer.render()
         except Exception as exc:  # no OpenGL context on this machine
-            raise UsageError(f"MuJoCo cannot render here ({str(exc).splitlines()[0] if str(exc) else exc}); "
-                             "set MUJOCO_GL=egl (or osmesa), or use --engine pybullet") from None
+            gl = os.environ.get("MUJOCO_GL", "").strip().lower()
+            other = {"egl": "osmesa", "osmesa": "egl"}.get(gl, "egl (or osmesa)")
+            raise UsageError(f"MuJoCo cannot render here{f' with MUJOCO_GL={gl}' if gl else ''} "
+                             f"({str(exc).splitlines()[0] if str(exc) else exc}); "
+                             f"set MUJOCO_GL={other}, or use --engine pybullet") from None
 
     def close(self) -> None:
         r = getattr(self, "_renderer", None)
