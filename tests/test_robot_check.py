@@ -124,6 +124,39 @@ def test_feet_must_be_below_the_base_and_at_the_contact_point(tmp_path):
     assert "foot_links: FR_lower, FL_lower, RR_lower, RL_lower at the knee joint, not at the foot" in msg
 
 
+def test_a_foot_larger_than_the_leg_is_refused_and_a_large_one_warns(tmp_path):
+    """A foot_radius beyond the leg length (hip -> knee -> foot) only warned that nominal_height
+    was off the forward-kinematics height, and nothing at all with nominal_height omitted (the
+    height then follows the foot); it is refused naming the range. A foot over a quarter of the
+    leg (a ball foot, a wheel) still loads, with a warning; the built-in robots' are 5-6 %."""
+    leg = check_spec("a1", simulate=False).leg_length
+    for extra in ("", "nominal_height: 0.8\n"):
+        msg = load_error(spec_file(tmp_path, f"base: a1\nfoot_radius: 0.5\n{extra}"))
+        assert msg.endswith(f": foot_radius must be in (0, {leg:.3g}) m, below the leg length "
+                            "(hip -> knee -> foot at q = 0), got 0.5"), msg
+    rep = check_spec(spec_file(tmp_path, "base: a1\nfoot_radius: 0.15\nnominal_height: 0.43\n",
+                               "b.yaml"), simulate=False)
+    assert rep.ok and rep.warnings == [
+        f"foot_radius 0.15 m is {100 * 0.15 / leg:.0f}% of the leg length {leg:.3g} m (more than "
+        "25%): a ball foot or a wheel?"]
+    for name in ("a1", "b1", "solo12"):
+        assert check_spec(name, simulate=False).warnings == [], name
+
+
+def test_a_joint_limit_whose_lower_is_above_its_upper_is_refused(tmp_path):
+    """A spec joint whose URDF <limit> has lower > upper (swapped: PyBullet reads it as no
+    limit at all) loaded without a word, and nominal_q was not checked against it; it is
+    refused naming the joint, its lower limit and the bound it must be under."""
+    text = A1_URDF.read_text()
+    bad = text.replace('lower="-1.0471975512" upper="4.18879020479"',
+                       'lower="4.18879020479" upper="-1.0471975512"', 1)
+    assert bad != text
+    urdf = urdf_file(tmp_path, bad)
+    msg = load_error(spec_file(tmp_path, f"base: a1\nurdf: {urdf}\n"))
+    assert msg.endswith(": joint_names: FR_upper_joint's URDF <limit> lower must be at most its "
+                        "upper -1.047 rad, got 4.189"), msg
+
+
 # ----------------------------------------------------------------------------- computed fields
 def test_nominal_height_and_torque_limits_from_the_urdf(tmp_path, capsys):
     text = "\n".join(f"{k}: {json.dumps(v)}" for k, v in get_robot("a1").to_dict().items()

@@ -9,7 +9,8 @@ z up) and fills the fields a spec may omit:
   ``revolute``/``continuous``; a foot link is missing; a leg's three joints are not one chain or
   its foot is not below its knee; a foot is not where its leg's name says (FR: x > 0, y < 0;
   FL: x > 0, y > 0; RR: x < 0, y < 0; RL: x < 0, y > 0) or not below the base; a foot has no
-  collision shape PyBullet uses.
+  collision shape PyBullet uses; a spec joint's URDF ``<limit>`` has lower > upper; ``foot_radius``
+  is the leg length or more.
 * filled when omitted: ``nominal_height`` (the base height that ``nominal_q`` gives with the feet
   on the ground: ``foot_radius`` − mean foot z), ``torque_limits`` (the URDF's
   ``<limit effort>``, the smallest of the four legs per joint role), ``strip_root`` (true iff the
@@ -18,9 +19,10 @@ z up) and fills the fields a spec may omit:
   height, feet not level at ``nominal_q``, ``nominal_q`` outside the URDF's joint limits,
   ``torque_limits`` above the URDF's effort limits, an effort limit that looks like a placeholder,
   ``strip_root`` that strips nothing or is off with a massless root, a ``collision_primitives``
-  key that matches no link. A root without ``<inertial>`` that carries movable joints is not
-  stripped and not warned about (the prepared URDF gives it a negligible mass); one whose
-  ``<inertial>`` gives mass 0 is an error (PyBullet would hold it fixed in space).
+  key that matches no link, ``foot_radius`` above :data:`LARGE_FOOT` of the leg length. A root
+  without ``<inertial>`` that carries movable joints is not stripped and not warned about (the
+  prepared URDF gives it a negligible mass); one whose ``<inertial>`` gives mass 0 is an error
+  (PyBullet would hold it fixed in space).
 
 The loader (:mod:`latentune.robots.spec`) raises :class:`~latentune.errors.RobotSpecError` with
 every error in one line and warns (:func:`emit_warning`) once per process about each warning;
@@ -52,6 +54,9 @@ LEVEL_TOLERANCE = 0.05
 """Spread of the foot heights at ``nominal_q``, relative to the height, that warns."""
 PLACEHOLDER_EFFORT = 5.0
 """An effort limit above this × m·g·leg length looks like a placeholder (A1's URDF: 1000 N·m)."""
+LARGE_FOOT = 0.25
+"""A ``foot_radius`` above this share of the leg length warns (a ball foot, a wheel; the built-in
+robots' are 5–6 %); one of the leg length or more is refused."""
 
 
 @dataclass
@@ -210,6 +215,15 @@ def inspect_fields(fields: Mapping[str, Any]) -> Findings:
     if out.errors:
         return out
 
+    # ---- joint limits: a <limit> with lower > upper is no range (PyBullet reads it as none)
+    for j in jn:
+        lo, hi = tree.joints[j].lower, tree.joints[j].upper
+        if tree.joints[j].type == "revolute" and lo is not None and hi is not None and lo > hi:
+            err(f"joint_names: {j}'s URDF <limit> lower must be at most its upper {hi:.4g} rad, "
+                f"got {lo:.4g}")
+    if out.errors:
+        return out
+
     # ---- leg chains: abduction -> hip -> knee -> foot
     for k, leg in enumerate(LEGS):
         j0, j1, j2 = jn[3 * k:3 * k + 3]
@@ -258,6 +272,13 @@ def inspect_fields(fields: Mapping[str, Any]) -> Findings:
     if out.errors:
         return out
     radius = float(fields["foot_radius"])
+    if radius >= leg_length:
+        err(f"foot_radius must be in (0, {leg_length:.3g}) m, below the leg length (hip -> knee "
+            f"-> foot at q = 0), got {radius:g}")
+        return out
+    if radius > LARGE_FOOT * leg_length:
+        warn(f"foot_radius {radius:g} m is {100 * radius / leg_length:.0f}% of the leg length "
+             f"{leg_length:.3g} m (more than {100 * LARGE_FOOT:.0f}%): a ball foot or a wheel?")
     fk_height = radius - float(foot_pos[:, 2].mean())
     out.fk_height = fk_height
     spread = float(np.ptp(foot_pos[:, 2]))
