@@ -157,6 +157,23 @@ def test_a_joint_limit_whose_lower_is_above_its_upper_is_refused(tmp_path):
                         "upper -1.047 rad, got 4.189"), msg
 
 
+def test_a_link_with_mass_and_a_zero_moment_of_inertia_warns(tmp_path):
+    """A link of mass > 0 with a zero moment of inertia (a point mass or a thin rod: a limit,
+    not a body) loaded without a word, while a negative one is refused; it loads with a
+    warning naming the link, the moment and the mass."""
+    text = A1_URDF.read_text()
+    zero = text.replace('ixx="0.005529065"', 'ixx="0"', 1)
+    assert zero != text
+    rep = check_spec(spec_file(tmp_path, f"base: a1\nurdf: {urdf_file(tmp_path, zero)}\n"),
+                     simulate=False)
+    assert rep.ok and rep.warnings == [
+        "link 'FR_upper' has mass 1.013 kg and the moment of inertia ixx = 0 kg·m² (a point mass "
+        "or a thin rod, not a body): give its moments (the engines need them > 0)"]
+    neg = urdf_file(tmp_path, text.replace('ixx="0.005529065"', 'ixx="-0.005"', 1), "n.urdf")
+    assert "inertia moments ixx, iyy, izz must be >= 0 [kg·m²], got ixx=-0.005" in load_error(
+        spec_file(tmp_path, f"base: a1\nurdf: {neg}\n", "n.yaml"))
+
+
 # ----------------------------------------------------------------------------- computed fields
 def test_nominal_height_and_torque_limits_from_the_urdf(tmp_path, capsys):
     text = "\n".join(f"{k}: {json.dumps(v)}" for k, v in get_robot("a1").to_dict().items()

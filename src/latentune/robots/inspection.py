@@ -19,7 +19,8 @@ z up) and fills the fields a spec may omit:
   height, feet not level at ``nominal_q``, ``nominal_q`` outside the URDF's joint limits,
   ``torque_limits`` above the URDF's effort limits, an effort limit that looks like a placeholder,
   ``strip_root`` that strips nothing or is off with a massless root, a ``collision_primitives``
-  key that matches no link, ``foot_radius`` above :data:`LARGE_FOOT` of the leg length. A root
+  key that matches no link, ``foot_radius`` above :data:`LARGE_FOOT` of the leg length, a link
+  with mass and a zero moment of inertia. A root
   without ``<inertial>`` that carries movable joints is not stripped and not warned about (the
   prepared URDF gives it a negligible mass); one whose ``<inertial>`` gives mass 0 is an error
   (PyBullet would hold it fixed in space).
@@ -40,7 +41,7 @@ import numpy as np
 
 from latentune.constants import G
 from latentune.errors import RobotSpecError, RobotSpecWarning
-from latentune.robots.urdf import UrdfTree, kinematic_urdf_text, read_urdf, resolve_mesh
+from latentune.robots.urdf import MASSLESS, UrdfTree, kinematic_urdf_text, read_urdf, resolve_mesh
 
 LEGS = ("FR", "FL", "RR", "RL")
 """The leg order of every per-leg spec field: front right, front left, rear right, rear left."""
@@ -187,6 +188,12 @@ def inspect_fields(fields: Mapping[str, Any]) -> Findings:
     if root_mass == 0 and not tree.massless_root():
         err(f"the root link {tree.root!r} has mass 0 and carries movable joints: PyBullet would "
             "hold it fixed in space; give it its mass")
+    for link in tree.links.values():      # a limit, not a body: the engines need moments > 0
+        if link.moments is not None and (link.mass or 0.0) >= MASSLESS and min(link.moments) <= 0:
+            k = ("ixx", "iyy", "izz")[int(np.argmin(link.moments))]
+            warn(f"link {link.name!r} has mass {link.mass:g} kg and the moment of inertia {k} = 0 "
+                 "kg·m² (a point mass or a thin rod, not a body): give its moments (the engines "
+                 "need them > 0)")
     out.base_link = tree.base(strip)
     out.mass = tree.total_mass()
     if out.mass <= 0:

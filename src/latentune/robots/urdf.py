@@ -113,11 +113,13 @@ _REWRITE_VERSION = "rewrite-5"  # in the prepared-URDF cache key: bump when the 
 @dataclass(frozen=True)
 class UrdfLink:
     """A ``<link>``: ``mass`` [kg] (None without ``<inertial>``); ``collisions``: one
-    ``(geometry tag, attributes)`` per ``<collision>``, e.g. ``("sphere", {"radius": "0.02"})``."""
+    ``(geometry tag, attributes)`` per ``<collision>``, e.g. ``("sphere", {"radius": "0.02"})``;
+    ``moments``: the ``<inertia>``'s ``ixx``, ``iyy``, ``izz`` [kg·m²] (None without one)."""
 
     name: str
     mass: float | None
     collisions: tuple[tuple[str, dict[str, str]], ...]
+    moments: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -208,13 +210,14 @@ INERTIA_KEYS = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
 """The attributes of a URDF ``<inertia>``, all six required by the format (urdfdom)."""
 
 
-def _check_inertia(el: ET.Element | None, link: str) -> None:
-    """Raise ValueError unless the ``<inertia>`` element (if any) has all of :data:`INERTIA_KEYS`
-    (PyBullet would take a missing one as 0, MuJoCo and pinocchio refuse it), as finite numbers,
-    with moments ``ixx``, ``iyy``, ``izz`` >= 0 (up to rounding; the products of inertia are not
-    checked further: real URDFs carry rounded ones)."""
+def _check_inertia(el: ET.Element | None, link: str) -> tuple[float, float, float] | None:
+    """The moments ``(ixx, iyy, izz)`` of the ``<inertia>`` element (None without one). Raise
+    ValueError unless it has all of :data:`INERTIA_KEYS` (PyBullet would take a missing one as
+    0, MuJoCo and pinocchio refuse it), as finite numbers, with moments ``ixx``, ``iyy``,
+    ``izz`` >= 0 (up to rounding; the products of inertia are not checked further: real URDFs
+    carry rounded ones)."""
     if el is None:
-        return
+        return None
     missing = [k for k in INERTIA_KEYS if el.get(k) is None]
     if missing:
         raise ValueError(f"link {link!r}: <inertia> lacks {', '.join(missing)} (the URDF format "
@@ -228,6 +231,7 @@ def _check_inertia(el: ET.Element | None, link: str) -> None:
     if negative:
         raise ValueError(f"link {link!r}: inertia moments ixx, iyy, izz must be >= 0 [kg·m²], "
                          f"got {', '.join(negative)}")
+    return v["ixx"], v["iyy"], v["izz"]
 
 
 def _number(text: str, what: str) -> float:
@@ -289,10 +293,10 @@ def _read_urdf(path: str, size: int, mtime_ns: int) -> UrdfTree:
             if mass is not None and not (math.isfinite(mass) and mass >= 0):
                 raise ValueError(f"link {name!r}: mass must be a finite number >= 0 [kg], "
                                  f"got {mass_el.get('value')}")
-            _check_inertia(el.find("inertial/inertia"), name)
+            moments = _check_inertia(el.find("inertial/inertia"), name)
             geoms = (c.find("geometry") for c in el.findall("collision"))
             cols = tuple((g[0].tag, dict(g[0].attrib)) for g in geoms if g is not None and len(g))
-            links[name] = UrdfLink(name, mass, cols)
+            links[name] = UrdfLink(name, mass, cols, moments)
         for el in root.findall("joint"):
             name, typ = el.get("name"), el.get("type")
             if not name or not typ:
