@@ -64,7 +64,7 @@ one_thread_env()
 
 import numpy as np  # noqa: E402
 
-from benchmarks.common import Provenance, bench_parser, out_file, write_json  # noqa: E402
+from benchmarks.common import Provenance, bench_parser, out_dir, out_file, write_json  # noqa: E402
 
 PEERS = ("tpe", "cmaes_source", "gp", "cmaes", "turbo")
 """Samplers that are peers (stock tools); ``latent`` is reported beside them."""
@@ -264,7 +264,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--warm-start", choices=("best", "none"), default="best",
                     help="the Optuna samplers' trial 0: the model run's best θ (as latent's) "
                          "or nothing")
-    ap.add_argument("--traces", default=None,
+    ap.add_argument("--traces", type=out_dir, default=None,
                     help="per (seed, sampler) traces, reused (default: traces/ beside --out)")
     ap.add_argument("--out", type=out_file, default="results/optuna_hopper/optuna_hopper.json",
                     help="the JSON to write (a .md with the table next to it)")

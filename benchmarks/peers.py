@@ -74,7 +74,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from benchmarks.common import (ROOT, Provenance, bench_parser, error_line, git_commit,  # noqa: E402
-                               machine, out_file, problems, versions, write_json)
+                               machine, out_dir, out_file, problems, versions, write_json)
 
 CRITIC_DIR = ROOT / "src" / "latentune" / "critic"
 CRITIC_FILES = ("__init__.py", "base.py", "cmaes.py", "random_search.py", "turbo.py")
@@ -624,7 +624,7 @@ def main(argv=None) -> int:
     p.add_argument("--budget", type=int, default=500)
     p.add_argument("--gp-budget", type=int, default=200)
     p.add_argument("--batch-size", type=int, default=10)
-    p.add_argument("--dir", default=str(ROOT / "results" / "peers"),
+    p.add_argument("--dir", type=out_dir, default=str(ROOT / "results" / "peers"),
                    help="the runs directory (runs/, invocations.jsonl, summaries)")
     p.add_argument("--out", type=out_file, default=None, metavar="FILE.json",
                    help="--report: also write the summary and its provenance to this JSON file")

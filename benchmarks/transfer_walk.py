@@ -46,7 +46,7 @@ import numpy as np  # noqa: E402
 
 from benchmarks.common import (Provenance, add_out_arg, bench_parser, error_line,  # noqa: E402
                                finish, markdown_table)
-from benchmarks.common import out_file, write_text  # noqa: E402
+from benchmarks.common import out_dir, out_file, write_text  # noqa: E402
 from benchmarks.transfer import DEFAULT_METHOD, SYSTEMS  # noqa: E402
 
 SPACING = 0.15          # the default elite_spacing (record_walk's distance from told falls)
@@ -352,7 +352,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--runs", type=Path, nargs="+",
                     default=[Path("results/transfer/rebuilt/runs")])
     ap.add_argument("--sources", type=Path, default=Path("runs/transfer_skx"))
-    ap.add_argument("--cache", type=Path, default=Path("runs/transfer_walk"))
+    ap.add_argument("--cache", type=out_dir, default="runs/transfer_walk")
     ap.add_argument("--systems", nargs="+", default=list(SYSTEMS), choices=list(SYSTEMS))
     ap.add_argument("--gaps", nargs="+", type=float, default=None,
                     help="gaps (the same for every system) instead of each system's ladder")

@@ -482,7 +482,8 @@ def test_transfer_falls_ladder_refuses_a_method_without_traces_and_a_bad_out(tmp
     ("transfer_diagnose", ["--out"]), ("transfer_gate", ["--runs", "r", "--out"]),
     ("transfer_models", ["--out"]), ("transfer_screened", ["--summary", "s", "--out"]),
     ("transfer_simrank", ["--runs", "r", "--sources", "s", "--models", "m", "--out"]),
-    ("transfer_stop", ["--runs", "r", "--heldout-runs", "h", "--out"])])
+    ("transfer_stop", ["--runs", "r", "--heldout-runs", "h", "--out"]),
+    ("optuna_hopper", ["--traces/"]), ("transfer_walk", ["--cache/"]), ("peers", ["--dir/"])])
 def test_a_table_or_figure_path_that_cannot_be_written_is_refused_before_the_work(
         tmp_path, capsys, monkeypatch, module, argv):
     """``--md``, the traces' ``--png`` and a dozen benchmarks' ``--out`` (transfer summary,
@@ -490,8 +491,8 @@ def test_a_table_or_figure_path_that_cannot_be_written_is_refused_before_the_wor
     directory given for a file or one in a directory that cannot be written failed only when
     written, after the work (or, for those written with ``Path.write_text``, one in a directory
     not made yet). They are checked as the command line is read, as ``add_out_arg``'s ``--out``
-    is (argparse's line, exit 2); an output directory (``--out/`` here: export, plot, blind) is
-    refused when it is a file."""
+    is (argparse's line, exit 2); an output directory (``--out/`` here: export, plot, blind; the
+    traces, caches and runs a benchmark writes as it goes) is refused when it is a file."""
     import importlib
     import os
 
