@@ -849,7 +849,7 @@ class LatentSampler(_CriticSampler, BaseSampler):
         self.start = start
         self._init_common(seed, budget, regions, method, max_fall_prob, constraints_func,
                           independent_sampler)
-        self._key = (f"latent:{_fingerprint(latent)}:{strategy}:{method}:"
+        self._key = (f"latent:{latent.fingerprint()}:{strategy}:{method}:"
                      f"regions={self.regions if strategy == 'plain' else None}:"
                      f"{max_fall_prob}:{start}" + ("" if self.transfer_options is None else
                                                    ":" + json.dumps(self.transfer_options,
@@ -1048,14 +1048,6 @@ def _space_hash(space: ParameterSpace) -> str:
     d = space.to_dict()
     d.pop("manual", None)
     return _hash(json.dumps(d, sort_keys=True).encode())
-
-
-def _fingerprint(latent: Any) -> str:
-    """A short hash of a latent space's weights and box (which latent box a point belongs to)."""
-    h = hashlib.sha1(np.asarray(latent.box, dtype=float).tobytes())
-    for v in latent.net.state_dict().values():
-        h.update(v.detach().cpu().numpy().tobytes())
-    return h.hexdigest()[:12]
 
 
 def _latent_prior(run: Path, latent: Any) -> tuple[np.ndarray, np.ndarray] | None:

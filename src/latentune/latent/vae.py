@@ -52,6 +52,7 @@ error, stable preservation; ``--phase3-evals N`` adds a phase 3); a committed ru
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -378,6 +379,14 @@ class LatentSpace:
     def reconstruct(self, theta: np.ndarray) -> np.ndarray:
         """encode -> decode (the code itself, not clipped to the box)."""
         return self.decode_code(self.encode(theta))
+
+    def fingerprint(self) -> str:
+        """A short hash (12 hex digits) of the latent box and the network's weights: equal for
+        the same latent space, saved and loaded again, wherever its files are."""
+        h = hashlib.sha1(np.asarray(self.box, dtype=float).tobytes())
+        for v in self.net.state_dict().values():
+            h.update(v.detach().cpu().numpy().tobytes())
+        return h.hexdigest()[:12]
 
     # ------------------------------------------------------------------ files
     def save(self, path_prefix: str | Path) -> tuple[str, str]:

@@ -66,9 +66,9 @@ from latentune.constants import Phase
 from latentune.errors import LatentuneError, StoreError, UsageError
 from latentune.pipeline import manifest as mf
 from latentune.pipeline.baselines import queue_zero_shot, zero_shot_to_queue
-from latentune.pipeline.loop import (decoder_of, latent_to_record, phase_critic, record_latent,
-                                     refuse_plain_options, require_source_store, resolve_latent,
-                                     resolve_strategy, source_counts, strategy_of)
+from latentune.pipeline.loop import (check_source_run, decoder_of, latent_to_record, phase_critic,
+                                     record_latent, refuse_plain_options, require_source_store,
+                                     resolve_latent, resolve_strategy, source_counts, strategy_of)
 from latentune.pipeline.phases import (ask_batch, replay, state_key, stored_fall_options,
                                        warn_if_failing)
 from latentune.pipeline.results import best_row, fall_budget, phase_name, write_best
@@ -302,7 +302,8 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
     """(the checked options record of ``phase``, its LatentSpace or None) for an ask: options
     not given are the stored ones (or the defaults on the first ask); a given one that differs
     from the stored is refused (:func:`~latentune.pipeline.manifest.ask_options`). Writes
-    nothing (:func:`_context` records the latent space)."""
+    nothing (:func:`_context` records the latent space) but the new place of a moved source
+    run (:func:`~latentune.pipeline.loop.check_source_run`)."""
     key = mf.PHASE_KEYS[Phase(phase)]
     cfg = study.manifest.config()
     fixed = (cfg.get("asktell") or {}).get("phase") == phase or study.manifest.n_used(phase)
@@ -351,6 +352,7 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
     if phase == Phase.PHASE3:
         ls, source = resolve_latent(study.run, study.manifest, latent, space)
         require_source_store(strat, source, mfp)
+        check_source_run(study.run, study.manifest, source, ls)
         extra = mf.phase3_extra(source, strat, start_rec, mfp, g.get("handover"),
                                 g.get("transfer_options"),
                                 source_counts(study.dir, source))

@@ -13,6 +13,7 @@ This module also finds the latent space phase 3 searches (the study's own or ano
 """
 from __future__ import annotations
 
+import logging
 import os
 from pathlib import Path
 from typing import Any
@@ -29,6 +30,8 @@ from latentune.pipeline.rundir import RunDir
 from latentune.pipeline.store import RunStore, Row
 from latentune.space import ParameterSpace
 from latentune.wording import counted
+
+log = logging.getLogger(__name__)
 
 
 def start_theta(pc: dict[str, Any], space: ParameterSpace) -> np.ndarray | None:
@@ -65,7 +68,7 @@ def phase_critic(phase: int, pc: dict[str, Any], space: ParameterSpace, run_dir:
     source = pc.get("latent_source", "self")
     run = run_dir if source in (None, "self") else Path(source)
     if source not in (None, "self"):
-        require_pinned_trials(source, pc.get("source_counts"))
+        require_pinned_trials(source, pc.get("source_counts"), pc.get("source_fingerprint"))
     if strategy_of(pc) == "transfer":
         return transfer_critic(pc, space, run_dir, run, latent)
     latent.require_spread()                 # the paper's phase 3 searches the decoded θ only
@@ -104,11 +107,12 @@ def phase3_setup(run: RunDir, manifest: Manifest, space: ParameterSpace, actor: 
                  ) -> tuple[Any, dict[str, Any]]:
     """(the LatentSpace, phase 3's own options record) of a phase-3 run with these arguments
     (:meth:`~latentune.study.Study.phase3`), checked (:func:`refuse_plain_options`); writes
-    nothing."""
+    nothing but the new place of a moved source run (:func:`check_source_run`)."""
     ls, source = resolve_latent(run, manifest, latent, space, actor)
     strategy = resolve_strategy(manifest, strategy, handover, ls)
     refuse_plain_options(strategy, method, regions, start)
     require_source_store(strategy, source, max_fall_prob)
+    check_source_run(run, manifest, source, ls)
     counts = source_counts(run.dir, source)
     start_rec = mf.start_point(start, space.manual, space.dim)[1]
     return ls, mf.phase3_extra(source, strategy, start_rec, max_fall_prob, handover,
@@ -147,7 +151,7 @@ def require_source_store(strategy: str, source: str, max_fall_prob: float | None
     if (strategy == "transfer" or max_fall_prob is not None) and not Path(source).exists():
         raise LatentError(f"latent: the source run {source} does not exist (moved or "
                           "deleted?): phase 3 learns from its trials; put the run directory "
-                          "back there")
+                          "back there, or give its new place (latent)")
     if strategy == "transfer":
         raise LatentError(f"latent: {source} holds a latent space but no run store (run.db): "
                           "the transfer phase 3 learns from the source run's trials; copy the "
@@ -160,18 +164,85 @@ def require_source_store(strategy: str, source: str, max_fall_prob: float | None
                           "prediction out")
 
 
-def require_pinned_trials(source: str, counts: dict[str, int] | None) -> None:
-    """LatentError (one line) when the source run at ``source`` holds fewer trials of a phase
-    than ``counts``, the ones phase 3 began with (:func:`source_counts`): the directory holds
-    another run now (replaced or cut since), whose trials would go on in their place. Nothing
-    to check without ``counts`` or a run store there (:func:`require_source_store`)."""
-    now = mf.run_counts(source) if counts else None
-    for ph, n in sorted((counts or {}).items()):
-        if now is not None and now.get(ph, 0) < int(n):
+def source_mismatch(source: Any, counts: dict[str, int] | None,
+                    fingerprint: str | None = None) -> str | None:
+    """Why the run at ``source`` is not the source run a phase 3 began with, in words that
+    follow "it" ("holds 8 phase-1 trials, fewer than the 16 phase 3 began with"); None when it
+    is, or when nothing is pinned to know it by. That run is known by the trials phase 3 began
+    with: their ``counts`` (:func:`source_counts`) and ``fingerprint``
+    (:func:`~latentune.pipeline.manifest.run_fingerprint`); a phase 3 recorded before the
+    fingerprint existed (None) by the counts alone. The one identity check of a source run:
+    on a resume (:func:`require_pinned_trials`) and for a moved one (:func:`check_source_run`)."""
+    if not counts:
+        return None
+    if not (Path(source) / "run.db").is_file():
+        return "does not exist" if not Path(source).exists() else "holds no run store (run.db)"
+    now = mf.run_counts(source) or {}
+    for ph, n in sorted(counts.items()):
+        if now.get(ph, 0) < int(n):
             held = counted(now.get(ph, 0), f"phase-{ph} trial")
-            raise LatentError(f"latent: the source run {source} holds {held}, fewer than the "
-                              f"{n} phase 3 began with: it is not the run phase 3 learns from "
-                              "(replaced since?); put that run back there")
+            return f"holds {held}, fewer than the {n} phase 3 began with"
+    if fingerprint is not None and mf.run_fingerprint(source, counts) != fingerprint:
+        began = " and ".join(counted(int(n), f"phase-{ph} trial")
+                             for ph, n in sorted(counts.items()) if int(n))
+        return f"holds other trials than the {began} phase 3 began with"
+    return None
+
+
+def require_pinned_trials(source: str, counts: dict[str, int] | None,
+                          fingerprint: str | None = None) -> None:
+    """LatentError (one line) when the run at ``source`` is not the source run phase 3 began
+    with (:func:`source_mismatch`: fewer trials than ``counts``, or other ones than
+    ``fingerprint``): the directory holds another run now (replaced or cut since), whose trials
+    would go on in their place. Nothing to check without ``counts``."""
+    why = source_mismatch(source, counts, fingerprint)
+    if why is not None:
+        raise LatentError(f"latent: the source run at {source} is not the run phase 3 began "
+                          f"with: it {why} (replaced since?); put that run back there, or "
+                          "give the directory that holds it now (latent)")
+
+
+def check_source_run(run: RunDir, manifest: Manifest, source: str, latent: Any) -> None:
+    """Check, before anything is written, that a phase 3 with trials goes on from the source
+    run it began with, ``source`` (the stored one, or the one given: its ``latent`` space).
+    The stored source: LatentError (one line) when it holds another run now
+    (:func:`require_pinned_trials`). Another directory: recorded as the new place of the source
+    run when that run was moved there: the stored directory no longer holds the run phase 3
+    began with and ``source`` does (:func:`source_mismatch`; for a phase 3 recorded before the
+    fingerprint of those trials existed, ``latent`` is also the latent space phase 3 copied:
+    counts alone do not tell two runs apart), with one warning "source run moved from A to
+    B"; LatentError (one line) when ``source`` holds another run. Nothing otherwise: the stored
+    source still holds that run, or nothing is pinned to know it by (a plain phase 3 without a
+    fall prediction), and the options check names the stored source."""
+    cfg = manifest.config()
+    pc = cfg.get("phase3") or {}
+    prev, counts, fp = pc.get("latent_source"), pc.get("source_counts"), \
+        pc.get("source_fingerprint")
+    if source == "self" or prev in (None, "self") or not counts \
+            or not manifest.n_fixing(Phase.PHASE3):
+        return
+    if source == prev:
+        require_pinned_trials(source, counts, fp)
+        return
+    gone = source_mismatch(prev, counts, fp)
+    if gone is None:
+        return
+    why = source_mismatch(source, counts, fp)
+    copied = study_latent(run) if why is None and fp is None else None
+    if copied is not None and copied.fingerprint() != latent.fingerprint():
+        why = ("holds another latent space than the one phase 3 copied from that run (phase 3 "
+               "was recorded before its source's trials were fingerprinted: their counts "
+               "alone do not tell two runs apart)")
+    if why is not None:
+        raise LatentError(f"latent: {source} is not the run phase 3 began with ({prev}, which "
+                          f"{gone} now): it {why}; give the directory that holds that run now")
+    log.warning("%s: phase 3's source run moved from %s to %s (the same trials): recorded "
+                "its new place", run.dir, prev, source)
+    with run.writing():
+        cfg = manifest.config()
+        moved = {k: {**cfg[k], "latent_source": source} for k in ("phase3", "asktell")
+                 if (cfg.get(k) or {}).get("latent_source") == prev}
+        manifest.update(**moved, phase3_vae_source=source)
 
 
 def source_counts(run_dir: Path, source: str) -> dict[str, int] | None:

@@ -23,6 +23,7 @@ never imports or calls them.
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import time
 from collections.abc import Iterator
@@ -51,14 +52,14 @@ PHASE_KEYS = {Phase.PHASE1: "phase1", Phase.PHASE3: "phase3"}
 COMPARED = ("method", "batch_size", "seed", "regions", "start", "max_fall_prob", "fall_prior",
             "latent_source", "handover", "transfer_options")
 """The options of a phase that must match on resume (budget may grow)."""
-RECORDED_IF_GIVEN = ("transfer_options", "source_counts", "prior_counts")
+RECORDED_IF_GIVEN = ("transfer_options", "source_counts", "source_fingerprint", "prior_counts")
 """Options recorded only when given: a record without one (a run stored before it existed, or
 run without it) compares equal to not giving it."""
-PINNED = ("source_counts", "prior_counts")
+PINNED = ("source_counts", "source_fingerprint", "prior_counts")
 """Options taken as the phase first recorded them once it has a trial, never compared: what
 the phase started from (how many trials of each phase its source run or fall prior held:
-:func:`run_counts`), so a resume asks what the uninterrupted run would have, however much
-those runs grew since."""
+:func:`run_counts`; which trials those were: :func:`run_fingerprint`), so a resume asks what
+the uninterrupted run would have, however much those runs grew since."""
 
 
 def config_space(cfg: dict[str, Any]) -> ParameterSpace | None:
@@ -87,6 +88,30 @@ def run_counts(run: Any) -> dict[str, int] | None:
         return None
     with RunStore(run) as st:
         return {str(int(ph)): st.count(ph) for ph in (Phase.PHASE1, Phase.PHASE3)}
+
+
+def run_fingerprint(run: Any, counts: dict[str, int] | None) -> str | None:
+    """The sha256 (hex) of the trials of the run at ``run`` that ``counts`` pins
+    (:func:`run_counts`): of phases 1 and 3 in (phase, idx) order, the first ``counts[phase]``
+    of each (idx below it, as :func:`~latentune.critic.transfer.source_trials` takes them),
+    their θ, cost (float64 bytes) and fell flag; None without ``counts`` or a run store. The
+    same run gives the same value wherever its directory is and however many trials it made
+    since; another run gives another."""
+    from latentune.pipeline.store import RunStore
+
+    if counts is None or run is None or not (Path(run) / "run.db").is_file():
+        return None
+    h = hashlib.sha256()
+    with RunStore(run) as st:
+        for ph in (Phase.PHASE1, Phase.PHASE3):
+            n = int(counts.get(str(int(ph)), 0))
+            h.update(f"phase {int(ph)}: {n} trials\n".encode())
+            for r in st.rows(ph):
+                if r.idx < n:
+                    h.update(np.ascontiguousarray(r.theta, dtype="<f8").tobytes())
+                    h.update(np.array([r.cost], dtype="<f8").tobytes())
+                    h.update(b"\x01" if r.fell else b"\x00")
+    return h.hexdigest()
 
 
 def describe(system: Any) -> dict[str, Any]:
@@ -697,14 +722,17 @@ def phase3_extra(source: str, strategy: str, start: Any, max_fall_prob: float | 
     ``source``, the ``strategy``, the ``start`` record (:func:`start_point`), the fall-aware
     option (its prior: the latent space's source), the hand-over (:func:`handover`), the
     transfer critic's options (:func:`transfer_option`) and, for it or the fall prior, how
-    many trials of each phase the source run holds (:func:`run_counts`; :data:`PINNED`: a
-    resume uses those trials, not ones the source made since)."""
+    many trials of each phase the source run holds (:func:`run_counts`) and, for another
+    run's, their fingerprint (:func:`run_fingerprint`; :data:`PINNED`: a resume uses those
+    trials, not ones the source made since, and knows the source run by them)."""
+    pinned = strategy == "transfer" or max_fall_prob is not None
     return {"latent_source": source, "strategy": strategy, "start": start,
             **fall_options(max_fall_prob, None if max_fall_prob is None else "latent source"),
             "handover": handover(hand_over),
             **transfer_option(transfer_options, strategy, max_fall_prob),
-            "source_counts": source_counts if strategy == "transfer" or max_fall_prob is not None
-            else None}
+            "source_counts": source_counts if pinned else None,
+            "source_fingerprint": run_fingerprint(source, source_counts)
+            if pinned and source != "self" else None}
 
 
 def transfer_record(options: dict[str, Any] | None) -> dict[str, Any] | None:

@@ -1,0 +1,124 @@
+"""A phase 3's source run is known by the trials it began with: a source run directory that was
+moved is followed to its new place (``--vae NEW``) when it holds that run, and refused when it
+holds another; a source replaced in place by another run is refused, however many trials that
+run holds. Runs recorded before the trials' fingerprint existed are known by their counts."""
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+import latentune as lt
+
+SYSTEM = ("--system", "examples.toy_plant:make_real_system", "--backend", "serial",
+          "--workers", "1", "--seed", "0")
+
+
+def _run(d: Path, seed: int, n: int) -> Path:
+    """A source run of the toy chain at ``d``: ``n`` phase-1 trials of ``seed``, a latent
+    space."""
+    from examples.toy_plant import make_system
+
+    with lt.Study(d, seed=seed) as study:
+        study.phase1(make_system(), n)
+        study.train_latent(4, epochs=20)
+    return d
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """The source run (24 trials) and another run of the same system (30 trials, more)."""
+    base = tmp_path_factory.mktemp("p3id")
+    return {"source": _run(base / "source", 0, 24), "other": _run(base / "other", 1, 30)}
+
+
+def _phase3(run_cli, vae: Path | None, out: Path, evals: int, *flags: str):
+    return run_cli("phase3", *SYSTEM, *(("--vae", vae) if vae is not None else ()),
+                   "--out", out, "--phase3-evals", str(evals), *flags)
+
+
+def _started(run_cli, runs: dict[str, Path], tmp_path: Path) -> tuple[Path, Path]:
+    """(the source run copied to tmp_path/src, a phase 3 of 4 trials from it at tmp_path/t)."""
+    src, t = tmp_path / "src", tmp_path / "t"
+    shutil.copytree(runs["source"], src)
+    code, _, err = _phase3(run_cli, src, t, 4)
+    assert code == 0, err
+    return src, t
+
+
+def test_a_moved_source_run_given_at_its_new_place_goes_on(tmp_path, run_cli, runs):
+    """``mv runs/src runs/archive/src`` and ``phase3 --resume --vae runs/archive/src`` was
+    refused ("phase 3 was run with --vae …/src (stored), not --vae …/archive/src"); the run
+    there is the one phase 3 began with, so the phase goes on, the new place is recorded and
+    logged once."""
+    src, t = _started(run_cli, runs, tmp_path)
+    new = tmp_path / "archive" / "src"
+    new.parent.mkdir()
+    shutil.move(src, new)
+    code, _, err = _phase3(run_cli, new, t, 6, "--resume")
+    assert code == 0, err
+    moved = [ln for ln in err.splitlines() if "moved from" in ln]
+    assert len(moved) == 1 and f"source run moved from {src.resolve()} to {new.resolve()}" \
+        in moved[0], err
+    cfg = lt.Study(t).config()
+    assert cfg["phase3"]["latent_source"] == cfg["phase3_vae_source"] == str(new.resolve())
+    assert lt.Study(t).store.count(3) == 6
+    code, _, err = _phase3(run_cli, None, t, 7, "--resume")      # recorded: no --vae needed
+    assert code == 0 and "moved from" not in err, err
+    assert lt.Study(t).store.count(3) == 7
+
+
+def test_a_moved_source_run_pointed_at_another_run_is_refused(tmp_path, run_cli, runs,
+                                                              error_line):
+    """The source run gone and ``--vae`` naming another run of the same system: one line says
+    the run there is not the one phase 3 began with; nothing is recorded."""
+    src, t = _started(run_cli, runs, tmp_path)
+    shutil.rmtree(src)
+    line = error_line(*_phase3(run_cli, runs["other"], t, 6, "--resume")[::2])
+    assert line.startswith(f"latentune: error: --vae: {runs['other'].resolve()} is not the run "
+                           "phase 3 began with"), line
+    assert "holds other trials than" in line, line
+    cfg = lt.Study(t).config()
+    assert cfg["phase3"]["latent_source"] == str(src.resolve())
+    assert lt.Study(t).store.count(3) == 4
+
+
+def test_a_source_run_replaced_by_a_larger_one_is_refused(tmp_path, run_cli, runs, error_line):
+    """The source directory replaced by another run with more trials than phase 3 began with
+    went on silently with that run's trials (only a run with fewer was noticed); it is refused
+    in one line, from the command line and from Python."""
+    from latentune.errors import LatentError
+    from latentune.system import load_system
+
+    src, t = _started(run_cli, runs, tmp_path)
+    shutil.rmtree(src)
+    shutil.copytree(runs["other"], src)
+    line = error_line(*_phase3(run_cli, None, t, 6, "--resume")[::2])
+    assert f"the source run at {src.resolve()} is not the run phase 3 began with" in line, line
+    with lt.Study(t) as study:
+        with pytest.raises(LatentError, match="is not the run phase 3 began with") as exc:
+            study.phase3(load_system("examples.toy_plant:make_real_system"), 6)
+        assert "\n" not in str(exc.value) and study.store.count(3) == 4
+
+
+def test_a_run_recorded_without_the_fingerprint_is_known_by_its_counts(tmp_path, run_cli, runs,
+                                                                       error_line):
+    """A phase 3 recorded before the source trials' fingerprint existed: its moved source is
+    followed to its new place on the counts and the latent space phase 3 copied from it (the
+    counts alone would take another run with as many trials), and its resume goes on."""
+    src, t = _started(run_cli, runs, tmp_path)
+    with lt.Study(t) as study, study.run.writing():
+        pc = dict(study.config()["phase3"])
+        pc.pop("source_fingerprint", None)
+        study.manifest.update(phase3=pc)
+    new = tmp_path / "moved"
+    shutil.move(src, new)
+    line = error_line(*_phase3(run_cli, runs["other"], t, 6, "--resume")[::2])
+    assert "is not the run phase 3 began with" in line and "holds another latent space" in line
+    code, _, err = _phase3(run_cli, new, t, 6, "--resume")
+    assert code == 0, err
+    cfg = lt.Study(t).config()
+    assert cfg["phase3"]["latent_source"] == str(new.resolve())
+    assert "source_fingerprint" not in cfg["phase3"]
+    assert lt.Study(t).store.count(3) == 6
