@@ -122,3 +122,24 @@ def test_a_run_recorded_without_the_fingerprint_is_known_by_its_counts(tmp_path,
     assert cfg["phase3"]["latent_source"] == str(new.resolve())
     assert "source_fingerprint" not in cfg["phase3"]
     assert lt.Study(t).store.count(3) == 6
+
+
+def test_an_ask_tell_phase_3_follows_its_moved_source_run(tmp_path, runs):
+    """``Study.ask(latent=NEW)`` for an ask/tell phase 3 whose source run was moved to NEW was
+    refused ("phase3 was run with latent-source = '…/src', not '…/moved'"); it goes on,
+    with the new place recorded in the phase's and ask/tell's records."""
+    from latentune.system import evaluate, load_system
+
+    system = load_system("examples.toy_plant:make_real_system")
+    src, new = tmp_path / "src", tmp_path / "moved"
+    shutil.copytree(runs["source"], src)
+    with lt.Study(tmp_path / "t", seed=0) as study:
+        for s in study.ask(2, system=system, phase=3, latent=src, budget=6):
+            out = evaluate(system, s.theta)
+            study.tell(s.id, out.cost, failed=out.failed)
+    shutil.move(src, new)
+    with lt.Study(tmp_path / "t", seed=0) as study:
+        (s,) = study.ask(latent=new)
+        cfg = study.config()
+        assert cfg["phase3"]["latent_source"] == cfg["asktell"]["latent_source"] \
+            == cfg["phase3_vae_source"] == str(new.resolve())
