@@ -879,6 +879,32 @@ def test_a_source_run_that_grows_does_not_change_a_study_under_way(tmp_path):
     assert attrs["latentune:source_counts:" + part.sampler._key] == {"1": 40, "3": 0}
 
 
+def test_a_source_run_holding_other_trials_is_refused_by_a_study_under_way(tmp_path):
+    """A study resumed (a new sampler) after its source directory came to hold other trials
+    than the ones pinned at its first sample (as many, the same latent space: one cost edited
+    here) went on with them; the sampler pins their fingerprint with their counts and refuses
+    the source in one line, as Study.phase3 does."""
+    import sqlite3
+
+    from latentune.errors import LatentError
+
+    _GrowingSource(tmp_path / "src")
+    study = optuna.create_study()
+    study.sampler = LatentSampler(tmp_path / "src", seed=0, budget=20)
+    study.optimize(objective_for(study.sampler), n_trials=2)
+    con = sqlite3.connect(tmp_path / "src" / "run.db")
+    with con:
+        con.execute("UPDATE evaluations SET cost = cost + 1 WHERE phase = 1 AND idx = 3")
+    con.close()
+    study.sampler = LatentSampler(tmp_path / "src", seed=0, budget=20)
+    with pytest.raises(LatentError, match=r"^LatentSampler: the source run at .* is not the run "
+                                          r"the study began with: it holds other trials than the 40 "
+                                          r"phase-1 trials the study began with") as exc:
+        study.optimize(objective_for(study.sampler), n_trials=1)
+    assert "\n" not in str(exc.value)
+    assert [t.state for t in study.trials] == [S.COMPLETE, S.COMPLETE, S.FAIL]
+
+
 @pytest.mark.parametrize("strategy", ["transfer", "plain"])
 def test_a_study_resumed_with_a_larger_budget_goes_on_as_one_run(tmp_path, strategy):
     """A study resumed by a new sampler with a larger budget (more trials planned, as in

@@ -132,6 +132,11 @@ SOURCE_ATTR = "latentune:source_counts:"
 """Prefix of the study system attribute pinning, for a LatentSampler configuration with the
 transfer strategy, how many phase-1 and phase-3 trials of its source run the study searches
 from (``{"1": n1, "3": n3}``, as ``Study.phase3`` pins them): set at the study's first sample."""
+SOURCE_PRINT_ATTR = "latentune:source_fingerprint:"
+"""Prefix of the study system attribute pinning, beside :data:`SOURCE_ATTR`, the fingerprint of
+those source trials (:func:`latentune.pipeline.manifest.run_fingerprint`): a source directory
+that holds other trials later is refused (:func:`latentune.pipeline.loop.source_mismatch`);
+studies pinned before it existed are checked by the counts alone."""
 FAILED_ATTR = "latentune_failed"
 """Trial user attribute: true marks a fall (``trial.set_user_attr("latentune_failed", True)``)."""
 ZERO_SHOT_ATTR = "latentune:zero_shot"
@@ -842,6 +847,7 @@ class LatentSampler(_CriticSampler, BaseSampler):
         if start not in ("manual", "best", None):
             raise UsageError(f"start must be 'manual', 'best' or None, got {start!r}")
         self.source_run = src.resolve()
+        self._source_checked = False        # the source run is the one the study pinned
         self._space = space
         self.latent = latent
         best = source_best(src)
@@ -872,18 +878,32 @@ class LatentSampler(_CriticSampler, BaseSampler):
 
     def _source_counts(self, study: Any) -> dict[str, int] | None:
         """The source trials the study searches from (:data:`SOURCE_ATTR`), pinned at its
-        first sample; None for the plain strategy."""
-        from latentune.pipeline.manifest import run_counts
+        first sample with their fingerprint (:data:`SOURCE_PRINT_ATTR`); None for the plain
+        strategy. LatentError (one line) when the source run holds other trials than those
+        now (replaced or cut since): checked once per sampler."""
+        from latentune.pipeline.loop import source_mismatch
+        from latentune.pipeline.manifest import run_counts, run_fingerprint
 
         if self.strategy != "transfer":
             return None
         key = SOURCE_ATTR + self._key
         attrs = study._storage.get_study_system_attrs(study._study_id)
         pinned = self._study_attr(study, SOURCE_ATTR, attrs)
+        printed = None if pinned is None else self._study_attr(study, SOURCE_PRINT_ATTR, attrs)
         if pinned is None:
             pinned = run_counts(self.source_run)
+            printed = run_fingerprint(self.source_run, pinned)
+            study._storage.set_study_system_attr(study._study_id, SOURCE_PRINT_ATTR + self._key,
+                                                 printed)
         if attrs.get(key) != pinned:
             study._storage.set_study_system_attr(study._study_id, key, pinned)
+        if not self._source_checked:
+            why = source_mismatch(self.source_run, pinned, printed, "the study")
+            if why is not None:
+                raise LatentError(f"LatentSampler: the source run at {self.source_run} is not "
+                                  f"the run the study began with: it {why} (replaced since?); "
+                                  "give the directory that holds that run (source_run)")
+            self._source_checked = True
         return pinned
 
     def fall_budget(self, study: Any) -> dict[str, Any] | None:

@@ -165,10 +165,10 @@ def require_source_store(strategy: str, source: str, max_fall_prob: float | None
 
 
 def source_mismatch(source: Any, counts: dict[str, int] | None,
-                    fingerprint: str | None = None) -> str | None:
-    """Why the run at ``source`` is not the source run a phase 3 began with, in words that
-    follow "it" ("holds 8 phase-1 trials, fewer than the 16 phase 3 began with"); None when it
-    is, or when nothing is pinned to know it by. That run is known by the trials phase 3 began
+                    fingerprint: str | None = None, who: str = "phase 3") -> str | None:
+    """Why the run at ``source`` is not the source run a phase 3 (``who``) began with, in
+    words that follow "it" ("holds 8 phase-1 trials, fewer than the 16 phase 3 began with");
+    None when it is, or when nothing is pinned to know it by. That run is known by the trials phase 3 began
     with: their ``counts`` (:func:`source_counts`) and ``fingerprint``
     (:func:`~latentune.pipeline.manifest.run_fingerprint`); a phase 3 recorded before the
     fingerprint existed (None) by the counts alone. The one identity check of a source run:
@@ -181,11 +181,11 @@ def source_mismatch(source: Any, counts: dict[str, int] | None,
     for ph, n in sorted(counts.items()):
         if now.get(ph, 0) < int(n):
             held = counted(now.get(ph, 0), f"phase-{ph} trial")
-            return f"holds {held}, fewer than the {n} phase 3 began with"
+            return f"holds {held}, fewer than the {n} {who} began with"
     if fingerprint is not None and mf.run_fingerprint(source, counts) != fingerprint:
         began = " and ".join(counted(int(n), f"phase-{ph} trial")
                              for ph, n in sorted(counts.items()) if int(n))
-        return f"holds other trials than the {began} phase 3 began with"
+        return f"holds other trials than the {began} {who} began with"
     return None
 
 
