@@ -168,11 +168,12 @@ def source_mismatch(source: Any, counts: dict[str, int] | None,
                     fingerprint: str | None = None, who: str = "phase 3") -> str | None:
     """Why the run at ``source`` is not the source run a phase 3 (``who``) began with, in
     words that follow "it" ("holds 8 phase-1 trials, fewer than the 16 phase 3 began with");
-    None when it is, or when nothing is pinned to know it by. That run is known by the trials phase 3 began
-    with: their ``counts`` (:func:`source_counts`) and ``fingerprint``
+    None when it is, or when nothing is pinned to know it by. That run is known by the trials
+    it held then: their ``counts`` (:func:`source_counts`) and ``fingerprint``
     (:func:`~latentune.pipeline.manifest.run_fingerprint`); a phase 3 recorded before the
     fingerprint existed (None) by the counts alone. The one identity check of a source run:
-    on a resume (:func:`require_pinned_trials`) and for a moved one (:func:`check_source_run`)."""
+    on a resume (:func:`require_pinned_trials`), for a moved one (:func:`check_source_run`)
+    and for the Optuna sampler's (:class:`~latentune.integrations.optuna.LatentSampler`)."""
     if not counts:
         return None
     if not (Path(source) / "run.db").is_file():
@@ -203,7 +204,7 @@ def require_pinned_trials(source: str, counts: dict[str, int] | None,
 
 
 def check_source_run(run: RunDir, manifest: Manifest, source: str, latent: Any) -> None:
-    """Check, before anything is written, that a phase 3 with trials goes on from the source
+    """Check, before a phase 3 with trials writes anything, that it goes on from the source
     run it began with, ``source`` (the stored one, or the one given: its ``latent`` space).
     The stored source: LatentError (one line) when it holds another run now
     (:func:`require_pinned_trials`). Another directory: recorded as the new place of the source
@@ -235,7 +236,7 @@ def check_source_run(run: RunDir, manifest: Manifest, source: str, latent: Any) 
                "alone do not tell two runs apart)")
     if why is not None:
         raise LatentError(f"latent: {source} is not the run phase 3 began with ({prev}, which "
-                          f"{gone} now): it {why}; give the directory that holds that run now")
+                          f"now {gone}): it {why}; give the directory that holds that run now")
     log.warning("%s: phase 3's source run moved from %s to %s (the same trials): recorded "
                 "its new place", run.dir, prev, source)
     with run.writing():
