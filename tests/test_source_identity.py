@@ -87,7 +87,8 @@ def test_a_moved_source_run_pointed_at_another_run_is_refused(tmp_path, run_cli,
 def test_a_source_run_replaced_by_a_larger_one_is_refused(tmp_path, run_cli, runs, error_line):
     """The source directory replaced by another run with more trials than phase 3 began with
     went on silently with that run's trials (only a run with fewer was noticed); it is refused
-    in one line, from the command line and from Python."""
+    in one line, from the command line and from Python. The source run found elsewhere goes
+    on from there."""
     from latentune.errors import LatentError
     from latentune.system import load_system
 
@@ -100,6 +101,11 @@ def test_a_source_run_replaced_by_a_larger_one_is_refused(tmp_path, run_cli, run
         with pytest.raises(LatentError, match="is not the run phase 3 began with") as exc:
             study.phase3(load_system("examples.toy_plant:make_real_system"), 6)
         assert "\n" not in str(exc.value) and study.store.count(3) == 4
+    orig = tmp_path / "orig"            # the source run, moved there before src was replaced
+    shutil.copytree(runs["source"], orig)
+    code, _, err = _phase3(run_cli, orig, t, 6, "--resume")
+    assert code == 0 and f"moved from {src.resolve()} to {orig.resolve()}" in err, err
+    assert lt.Study(t).store.count(3) == 6
 
 
 def test_a_run_recorded_without_the_fingerprint_is_known_by_its_counts(tmp_path, run_cli, runs,
