@@ -1,4 +1,4 @@
-"""Files written whole or not at all: :func:`write_atomic`.
+"""Files written whole or not at all: :func:`write_atomic`; :func:`fsync_path` flushes one to disk.
 
 The text is written to a temporary file of a name no other writer uses, in the target's
 directory (so the rename stays on one file system), then renamed over the target with
@@ -9,6 +9,7 @@ temporary file (``DIR/best.json.tmp``) is not touched.
 """
 from __future__ import annotations
 
+import errno
 import os
 import tempfile
 from pathlib import Path
@@ -23,6 +24,20 @@ def _umask() -> int:
 
 _MODE = 0o666 & ~_umask()
 """The permissions an ``open(path, "w")`` gives a new file (mkstemp's are 0600)."""
+
+
+def fsync_path(path: str | os.PathLike) -> None:
+    """Flush the file or directory ``path`` to disk (``os.fsync`` of it opened read-only): a
+    directory's entries, such as a name just linked or renamed into it, survive a crash. A
+    file system that cannot flush a directory (EINVAL, ENOTSUP) is left to its own schedule."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    except OSError as exc:
+        if exc.errno not in (errno.EINVAL, errno.ENOTSUP) or not os.path.isdir(path):
+            raise
+    finally:
+        os.close(fd)
 
 
 def write_atomic(path: str | os.PathLike, data: str | bytes) -> None:
