@@ -865,3 +865,41 @@ def test_the_best_cost_figure_says_the_manual_theta_fell(tmp_path: Path, monkeyp
         texts = seen[-1]
         assert ("manual θ, fell (200.000)" in texts) == fell, texts
         assert ("manual θ (6.000)" in texts) == (not fell), texts
+
+
+@pytest.mark.parametrize("manual_fell", [False, True])
+def test_evals_to_beat_manual_counts_the_phases_own_trials_from_1_in_every_report(
+        tmp_path: Path, manual_fell: bool):
+    """"Evals to beat manual" counts a phase's own evaluations from 1: phase 1's first is the
+    manual θ's trial (it never beats itself), phase 3's leaves the manual and zero-shot trials
+    out, a failed trial never beats it and any trial that stood beats a failed manual θ. The
+    paper report's ``study_stats`` counted a failed trial's cost and had no count against a
+    failed manual θ (None: "not beaten"); the summary, the table and it now agree, and the
+    report says how it counts."""
+    from latentune.reporting.paper_report import study_stats
+
+    man = 200.0 if manual_fell else 6.0
+    with RunStore(tmp_path / "run", create=True) as st:
+        st.set_meta("config", {"system": {"kind": "user"},
+                               "phase3": {"strategy": "plain", "budget": 3}})
+        st.add(Phase.MANUAL, 0, np.zeros(3), man, fell=manual_fell, tag=-1)
+        for i, (c, f) in enumerate([(man, manual_fell), (1.0, True), (5.0, False)]):
+            st.add(Phase.PHASE1, i, np.full(3, 0.1 * i), c, fell=f, tag=-1)
+        st.add(Phase.ZERO_SHOT, 0, np.ones(3), 4.0, fell=False, tag=-1)   # not counted below
+        for i, (c, f) in enumerate([(0.5, True), (7.0, False), (5.5, False)]):
+            st.add(Phase.PHASE3, i, np.full(3, 0.2 * i), c, fell=f, tag=-1)
+        summ = write_summary(st)
+        md = comparison_table(st)
+    paper = study_stats(tmp_path / "run")
+    p3 = 2 if manual_fell else 3
+    assert (summ["phase1_evals_to_beat_manual"], summ["phase3_evals_to_beat_manual"]) == (3, p3)
+    assert (paper["phase1"]["evals_to_beat_manual"],
+            paper["phase3"]["evals_to_beat_manual"]) == (3, p3)
+    assert _row(md, "phase 1 (θ, TuRBO-m)")[-1] == "3"
+    assert _row(md, "phase 3 (latent, TuRBO-m)")[-1] == str(p3)
+    assert _row(md, "zero-shot (source best θ)")[-1] == "1"
+    with RunStore(tmp_path / "run") as st:
+        make_report(st, simulate=False)
+    md = (tmp_path / "run" / "report.md").read_text()
+    assert "\nEvals to beat manual: the first of the phase's own evaluations, counted from 1, " \
+        in md and "phase 3's count leaves out the manual and zero-shot trials." in md

@@ -62,11 +62,13 @@ def study_stats(run_dir: Path) -> dict[str, Any] | None:
     its last stored trial: :func:`~latentune.pipeline.walltime.wall_record`) and per phase (``manual``, ``phase1``, ``phase3``,
     ``preservation``) a dict: ``n``, ``best``, ``best_idx``, ``stable``, ``falls``, ``theta``
     (the best θ as a list, None without rows), ``costs`` (list, evaluation order) and, for
-    phase 1 and phase 3, ``evals_to_beat_manual``; ``preservation_meta``.
+    phase 1 and phase 3, ``evals_to_beat_manual`` (as the run report counts it,
+    :func:`~latentune.reporting.run_report.beats_manual`); ``preservation_meta``.
     """
     from latentune.critic.transfer import stored_options
     from latentune.pipeline.phases import state_key
     from latentune.pipeline.store import RunStore
+    from latentune.reporting.run_report import beats_manual
 
     if not (run_dir / "run.db").is_file():
         return None
@@ -84,9 +86,9 @@ def study_stats(run_dir: Path) -> dict[str, Any] | None:
         out["preservation_meta"] = st.get_meta("preservation")
         state = st.get_meta(state_key(3))
         out["phase3_options"] = stored_options(state) if isinstance(state, dict) else None
-    man = out["manual"]["best"]
-    for name in ("phase1", "phase3"):
-        out[name]["evals_to_beat_manual"] = evals_to_beat(out[name]["costs"], man)
+        beat = beats_manual(st)
+        for ph, name in ((Phase.PHASE1, "phase1"), (Phase.PHASE3, "phase3")):
+            out[name]["evals_to_beat_manual"] = beat[int(ph)]
     return out
 
 
@@ -97,10 +99,13 @@ def _cell(S: dict[str, Any], key: str, phase: str, paper: Any, **extra: Any) -> 
             "evals": 0 if s is None else s[phase]["n"], "study": key, **extra}
 
 
-def _baseline_row(label: str, study: str, costs: Any, manual: float | None) -> dict[str, Any]:
-    s = phase_stats(costs, manual, fall_cost=C1)
+def _baseline_row(label: str, study: str, costs: Any, beat: int | None) -> dict[str, Any]:
+    """A baseline table row of the (n,) ``costs`` whose ``evals_to_beat_manual`` is ``beat``
+    (the study's count, :func:`study_stats`; None when not within ``costs``)."""
+    s = phase_stats(costs, fall_cost=C1)
+    beat = beat if beat is not None and beat <= s["n"] else None
     return {"label": label, "study": study, "n": s["n"], "best": s["best"],
-            "stable": s["stable"], "evals_to_beat_manual": s["evals_to_beat"]}
+            "stable": s["stable"], "evals_to_beat_manual": beat}
 
 
 def _is_number(v: Any) -> bool:
@@ -216,11 +221,12 @@ def compute(root: str | Path) -> dict[str, Any]:
         rows = {}
         if main is not None:
             rows["latent"] = _baseline_row("phase 3: TuRBO-m in the latent space (ours)",
-                                           f"{robot}-{g}", main["phase3"]["costs"], man)
+                                           f"{robot}-{g}", main["phase3"]["costs"],
+                                           main["phase3"]["evals_to_beat_manual"])
             prefix = main["phase1"]["costs"][: b["baselines"]]    # fewer at a small scale
             rows["phase1_prefix"] = _baseline_row(
                 f"phase 1's first {len(prefix)} evaluations (TuRBO-m on θ, phase-1 settings)",
-                f"{robot}-{g}", prefix, man)
+                f"{robot}-{g}", prefix, main["phase1"]["evals_to_beat_manual"])
         for m in ("turbo", "cma", "random"):
             s = S.get(f"{robot}-{g}-{m}")
             rows[m] = {"label": METHOD_NAME[m], "study": f"{robot}-{g}-{m}",

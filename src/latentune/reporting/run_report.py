@@ -180,6 +180,24 @@ def manual_target(rows: list) -> float | None:
     return min(stood) if stood else (math.inf if rows else None)
 
 
+BEAT_NOTE = ("Evals to beat manual: the first of the phase's own evaluations, counted from 1, "
+             "that stood and cost strictly less than the manual θ (the first that stood, when "
+             "the manual θ failed). Phase 1's first evaluation is the manual θ's trial; phase "
+             "3's count leaves out the manual and zero-shot trials.")
+"""The report's line under its table saying how "evals to beat manual" counts
+(:func:`beats_manual`)."""
+
+
+def beats_manual(store: Any, manual: list | None = None) -> dict[int, int | None]:
+    """Phase → its "evals to beat manual": the first of the phase's own evaluations, counted
+    from 1 in the store's order, that did not fail and cost strictly less than the manual θ
+    (any that did not fail, when the manual θ failed: :func:`manual_target`); None if none
+    did, or without a manual trial. Phase 1's first evaluation is the manual θ's trial (never
+    a beat); phase 3 leaves the manual and zero-shot trials out (the zero-shot phase has its
+    own count, 1 or None). ``manual``: as :func:`run_stats` takes it."""
+    return {ph: s["evals_to_beat"] for ph, s in run_stats(store, manual).items()}
+
+
 def best_ratio(phase3_best: float | None, phase1_best: float | None) -> float | None:
     """``phase3_best / phase1_best`` when both bests are positive (< 1: phase 3 found a lower
     cost); None otherwise: for a zero or negative cost the ratio of costs does not say which
@@ -212,8 +230,8 @@ def run_stats(store: Any, manual: list | None = None) -> dict[int, dict[str, Any
 
 def comparison_table(store: Any, manual: list | None = None) -> str:
     """The Markdown table of the run: per phase the best cost, (built-in tasks) its RMS velocity
-    error [m/s], the number of evaluations, the stable ones and the evaluations until the first
-    trial that beat the manual θ (:func:`manual_target`); the paper's numbers below it when it
+    error [m/s], the number of evaluations, the stable ones and the evaluations to beat the
+    manual θ (:func:`beats_manual`: 1-based, the phase's own); the paper's numbers below it when it
     has the task. A phase without trials has a row of zeros while no later phase holds trials
     (it is still to come), and none after that (it is not part of this run); phase 3 only once
     it can come: the run holds its options record or a latent space (a ``phase1`` run is
@@ -536,7 +554,8 @@ def make_report(store: Any, system: Any = None, simulate: bool = True, quiet: bo
     summary = write_summary(store, manual=manual)
     table = comparison_table(store, manual)
     lat = cfg.get("latent") or cfg.get("vae") or {}
-    md = [f"# latentune run: {title}", "", table, "", *state_lines(store, cfg)]
+    md = [f"# latentune run: {title}", "", table, "", *([BEAT_NOTE, ""] if manual else []),
+          *state_lines(store, cfg)]
     if lat:
         md.append(f"Latent space: kind {lat.get('kind')}, d_low {lat.get('d_low')}, trained on "
                   f"{lat.get('n_train')} stable θ; box: {lat.get('box_rule')}.")
