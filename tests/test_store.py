@@ -7,6 +7,7 @@ import json
 import os
 import sqlite3
 import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -408,3 +409,53 @@ def test_a_wall_unknown_entry_that_is_not_a_list_is_one_line(tmp_path, run_cli, 
     line = error_line(*run_cli("report", d, "--no-sim")[::2])
     assert line == (f"latentune: error: run store {d / 'run.db'}: meta entry 'wall_unknown' is "
                     "not a JSON list (got int)")
+
+
+def test_a_new_store_is_born_in_wal_mode(tmp_path, monkeypatch):
+    """run.db is in WAL mode when it is linked in, before its first open (file format bytes 18
+    and 19 are 2): that open never switches journal modes, the one write of a store through a
+    rollback journal, which a kill could leave hot. Nothing of the temporary file is left."""
+    heads = []
+    link = os.link
+
+    def recording_link(src, dst, *a, **kw):
+        heads.append(open(src, "rb").read(20))
+        return link(src, dst, *a, **kw)
+
+    monkeypatch.setattr(os, "link", recording_link)
+    RunStore(tmp_path / "run", create=True).close()
+    assert len(heads) == 1 and heads[0][18:20] == b"\x02\x02", heads
+    assert sorted(p.name for p in (tmp_path / "run").iterdir()) == ["run.db"]
+
+
+def test_a_store_killed_with_a_hot_rollback_journal_opens_rolled_back(tmp_path, caplog):
+    """A store of an earlier version (rollback journal) whose writer was killed mid-transaction
+    (a hot run.db-journal): opening it rolled the transaction back and went on; before, the
+    read-only check could not (SQLITE_READONLY_ROLLBACK) and every command said 'cannot read
+    run store …: attempt to write a readonly database'."""
+    d = tmp_path / "run"
+    with RunStore(d, create=True) as st:
+        for i in range(3):
+            st.add(1, i, np.full(3, i / 10), cost=1.0 + i)
+    con = sqlite3.connect(str(d / "run.db"))
+    con.execute("PRAGMA journal_mode=DELETE")
+    con.close()
+    killed = r"""
+import os, signal, sqlite3, sys
+con = sqlite3.connect(sys.argv[1], isolation_level=None)
+con.execute("PRAGMA cache_size=1")
+con.execute("BEGIN")
+con.execute("UPDATE evaluations SET cost = cost + 100")
+con.execute("CREATE TABLE filler(x)")
+con.execute("INSERT INTO filler SELECT randomblob(4000) FROM evaluations, evaluations AS b, "
+            "evaluations AS c, evaluations AS e")
+os.kill(os.getpid(), signal.SIGKILL)
+"""
+    subprocess.run([sys.executable, "-c", killed, str(d / "run.db")])
+    assert (d / "run.db-journal").stat().st_size > 0            # hot: the kill left it
+    with caplog.at_level("WARNING", logger="latentune.pipeline.store"):
+        with RunStore(d) as st:
+            assert [r.cost for r in st.rows(1)] == [1.0, 2.0, 3.0]   # the old values
+            st.add(1, 3, np.full(3, 0.3), cost=4.0)                  # and it can be written
+    assert "rolling back" in caplog.text
+    assert not (d / "run.db-journal").exists() or (d / "run.db-journal").stat().st_size == 0

@@ -298,6 +298,10 @@ class RunStore:
                                 [(k, json.dumps(v)) for k, v in (
                                     ("format", FORMAT), ("version", VERSION),
                                     ("created", time.time()))])
+                # born in WAL mode: its first open never switches modes, which writes the
+                # header through a rollback journal (a kill then left a hot journal that a
+                # read-only open cannot roll back)
+                con.execute("PRAGMA journal_mode=WAL")
             finally:
                 con.close()
             fsync_path(tmp)
@@ -347,8 +351,10 @@ class RunStore:
                          (json.dumps(VERSION),))
         self._has_leases = True
 
-    def _check_foreign(self) -> None:
-        """Validate an existing file read-only (nothing is written to a foreign/corrupt file)."""
+    def _check_foreign(self, rolled_back: bool = False) -> None:
+        """Validate an existing file read-only (nothing is written to a foreign/corrupt file);
+        a hot rollback journal a killed writer left is rolled back first (:meth:`_roll_back`,
+        once: ``rolled_back``) where the store can be written."""
         try:
             with open(self.path, "rb") as f:
                 head = f.read(16)
@@ -394,11 +400,33 @@ class RunStore:
             finally:
                 con.close()
         except sqlite3.OperationalError as exc:         # cannot open or locked: not corrupt
+            if getattr(exc, "sqlite_errorname", "") == "SQLITE_READONLY_ROLLBACK" \
+                    and not rolled_back and os.access(self.dir, os.W_OK) \
+                    and os.access(self.path, os.W_OK):
+                self._roll_back()
+                return self._check_foreign(rolled_back=True)
             raise StoreError(f"cannot read run store {self.path}: {exc}") from None
         except sqlite3.DatabaseError as exc:
             raise StoreError(f"run store {self.path} is corrupt ({exc})") from None
         except (json.JSONDecodeError, TypeError):
             raise StoreError(f"{self.path} is not a latentune run store (bad meta)") from None
+
+    def _roll_back(self) -> None:
+        """Roll back the transaction a killed writer left in a rollback journal (a hot
+        ``run.db-journal``: a store of an earlier version killed while it changed journal
+        modes), which a read-only connection cannot do (SQLITE_READONLY_ROLLBACK): a
+        read-write connection's first read does it, as any writer's would, and restores the
+        store as it was before that transaction."""
+        log.warning("%s: rolling back the transaction a killed process left in %s-journal",
+                    self.path, DB_NAME)
+        try:
+            con = sqlite3.connect(str(self.path), timeout=30.0)
+            try:
+                con.execute("SELECT COUNT(*) FROM sqlite_master").fetchone()
+            finally:
+                con.close()
+        except sqlite3.Error as exc:
+            raise StoreError(f"cannot read run store {self.path}: {exc}") from None
 
     def snapshot(self) -> sqlite3.Connection:
         """A copy of the whole store in memory (an SQLite connection), for :meth:`restore`."""
