@@ -721,8 +721,19 @@ def test_a_phase_whose_trials_all_time_out_says_so_not_to_try_the_fall_aware_cri
     (msg,) = [r.getMessage() for r in caplog.records if "the last" in r.getMessage()]
     assert msg == (f"phase 1: the last {FAIL_STREAK} trials all ran longer than the trial "
                    "timeout of 0.3 s and were stopped (stored as failed): a trial of the system "
-                   "may take longer than that; resume with a longer --trial-timeout "
-                   "(trial_timeout=)"), msg
+                   "may take longer than that; resume with a longer trial_timeout"), msg
+
+
+def test_the_timeout_warning_names_the_timeout_as_the_reader_sets_it():
+    """The warning of a phase whose trials all timed out said "resume with a longer
+    --trial-timeout (trial_timeout=)" to everyone; it names the flag at the command line and
+    the keyword in Python (:func:`latentune.wording.option`)."""
+    from latentune.pipeline.phases import timeout_message
+    from latentune.wording import command_line_words
+
+    assert timeout_message(1, 8, 0.3).endswith("resume with a longer trial_timeout")
+    with command_line_words():
+        assert timeout_message(3, 8, 0.3).endswith("resume with a longer --trial-timeout")
 
 
 MANUAL_DIES = '''

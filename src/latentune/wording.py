@@ -3,6 +3,8 @@
 a flag at the command line, a keyword in Python)."""
 from __future__ import annotations
 
+import os
+import shlex
 from contextlib import contextmanager
 from typing import Any, Iterator
 
@@ -17,8 +19,8 @@ _COMMAND_LINE = [False]
 """Whether messages are read at the command line now (:func:`command_line_words`)."""
 
 FLAGS = {"max_fall_prob": "--max-fall-prob", "handover": "--handover",
-         "escape_falls": "--escape-falls"}
-"""The command line's flag of each phase option a message may advise."""
+         "escape_falls": "--escape-falls", "trial_timeout": "--trial-timeout"}
+"""The command line's flag of each Python keyword a message may advise."""
 
 TRANSFER_KEYS = frozenset({"escape_falls"})
 """The options the Python API takes in ``transfer_options`` rather than as a keyword."""
@@ -37,13 +39,19 @@ def command_line_words() -> Iterator[None]:
 
 
 def option(name: str, value: Any = None) -> str:
-    """How a message names the phase option ``name`` (a key of :data:`FLAGS`), set to ``value``
-    if given: its flag at the command line (``--max-fall-prob 0.3``), else the Python API's
-    keyword (``max_fall_prob=0.3``; a transfer option as ``transfer_options={'escape_falls':
-    8}``, or ``transfer_options['escape_falls']`` without a value)."""
+    """How a message names the option ``name`` (a key of :data:`FLAGS`), set to ``value`` if
+    given: its flag at the command line (``--max-fall-prob 0.3``; a text or path quoted for a
+    shell; a bool value is the flag alone), else the Python API's keyword
+    (``max_fall_prob=0.3``, ``latent='runs/a'``, ``amend=True``; a transfer option as
+    ``transfer_options={'escape_falls': 8}``, or ``transfer_options['escape_falls']`` without
+    a value)."""
+    if isinstance(value, os.PathLike):
+        value = os.fspath(value)
     if _COMMAND_LINE[0]:
-        return FLAGS[name] + ("" if value is None else f" {value:g}" if isinstance(value, float)
-                              else f" {value}")
+        if value is None or isinstance(value, bool):
+            return FLAGS[name]
+        return f"{FLAGS[name]} " + (f"{value:g}" if isinstance(value, float) else
+                                    shlex.quote(value) if isinstance(value, str) else str(value))
     if name in TRANSFER_KEYS:
         return (f"transfer_options[{name!r}]" if value is None
                 else f"transfer_options={{{name!r}: {value!r}}}")

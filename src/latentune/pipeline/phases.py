@@ -256,11 +256,13 @@ def failing_message(phase: int, n: int, strategy: str = "plain",
 def timeout_message(phase: int, n: int, seconds: Any) -> str:
     """The warning of a phase whose last ``n`` trials were all stopped at the trial timeout of
     ``seconds`` (in place of :func:`failing_message`: they failed by the clock, not where the
-    search went)."""
+    search went). The timeout is named as the reader sets it (:func:`latentune.wording.option`)."""
+    from latentune.wording import option
+
     limit = f" of {float(seconds):g} s" if isinstance(seconds, (int, float)) else ""
     return (f"phase {int(phase)}: the last {n} trials all ran longer than the trial "
             f"timeout{limit} and were stopped (stored as failed): a trial of the system may "
-            "take longer than that; resume with a longer --trial-timeout (trial_timeout=)")
+            f"take longer than that; resume with a longer {option('trial_timeout')}")
 
 
 def stored_fall_options(pc: dict[str, Any]) -> dict[str, Any]:
