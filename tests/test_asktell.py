@@ -1198,21 +1198,33 @@ def test_asking_phase_3_where_ask_tell_runs_phase_1_says_where_to(tmp_path):
     d = tmp_path / "s"
     with lt.Study(d) as st:
         st.ask(space=SPACE)
-        with pytest.raises(StoreError, match=f"another directory, with --vae {d}"):
+        with pytest.raises(StoreError, match=re.escape(f"another directory, with latent='{d}'")):
             st.ask(phase=3)
 
 
 def test_asking_phase_3_with_a_latent_space_where_ask_tell_runs_phase_1_names_it(tmp_path):
     """``Study.ask(phase=3, latent=MINE)`` (or without ``phase``) in a directory whose
     ask/tell runs phase 1 said to ask phase 3 'with --vae' this directory, or to 'use another
-    directory' alone; both now name the latent space given, the one to ask with elsewhere."""
+    directory' alone; both now name the latent space given, the one to ask with elsewhere, by
+    the keyword that gives it in Python (``latent=``; the command line's ``--vae``)."""
     d, mine = tmp_path / "s", tmp_path / "my space"
     with lt.Study(d) as st:
         st.ask(space=SPACE)
         for phase in (3, None):
             with pytest.raises(LatentuneError) as e:
                 st.ask(phase=phase, latent=mine)
-            assert str(e.value).endswith(f"in another directory, with --vae '{mine}'"), e.value
+            assert str(e.value).endswith(f"in another directory, with latent='{mine}'"), e.value
+
+
+def test_asking_phase_1_with_a_latent_space_names_the_keywords(tmp_path):
+    """``Study.ask(phase=1, latent=DIR)`` said "--phase 1 with --vae: ... ask --phase 3 (or
+    leave --phase 1 out)", the command line's flags, to a Python caller; it names the keywords
+    (the command line keeps its flags: test_cli_phase3)."""
+    d = tmp_path / "s"
+    with lt.Study(d) as st, pytest.raises(UsageError) as e:
+        st.ask(space=SPACE, phase=1, latent=tmp_path / "src")
+    assert str(e.value) == (f"{d}: phase=1 with latent: a latent space is an option of phase 3: "
+                            "ask phase=3 (or leave phase=1 out)"), e.value
 
 
 def test_suggestion_files_are_the_suggestions_handed_out(run_cli, tmp_path):

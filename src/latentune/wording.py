@@ -19,7 +19,8 @@ _COMMAND_LINE = [False]
 """Whether messages are read at the command line now (:func:`command_line_words`)."""
 
 FLAGS = {"max_fall_prob": "--max-fall-prob", "handover": "--handover",
-         "escape_falls": "--escape-falls", "trial_timeout": "--trial-timeout"}
+         "escape_falls": "--escape-falls", "trial_timeout": "--trial-timeout",
+         "phase": "--phase", "latent": "--vae"}
 """The command line's flag of each Python keyword a message may advise."""
 
 TRANSFER_KEYS = frozenset({"escape_falls"})

@@ -75,7 +75,7 @@ from latentune.pipeline.results import best_row, fall_budget, phase_name, write_
 from latentune.pipeline.store import Row, RunStore, critics_told
 from latentune.space import ParameterSpace
 from latentune.system import EvaluationError, Outcome, as_outcome
-from latentune.wording import counted
+from latentune.wording import counted, option
 
 ROW_FREE = ("options", "source_hypers", "decisions", "last_decision")
 """The keys of a critic's saved state an amendment keeps: the transfer critic's
@@ -241,11 +241,11 @@ def _phase(cfg: dict[str, Any], phase: int | None, latent: Any, dir_: Path,
             advice = ""
             if int(stored) == Phase.PHASE1:     # phase 3 goes elsewhere, with a latent space
                 vae = _named(dir_ if latent is None else latent)
-                advice = f"; ask phase 3 in another directory, with --vae {vae}"
+                advice = f"; ask phase 3 in another directory, with {vae}"
                 if latent is None and trained is not None and trained.artifact("vae") is None:
                     advice = (f"; {dir_} holds no latent space yet: train one there first "
                               f"(train_latent / train-vae), then ask phase 3 in another "
-                              f"directory, with --vae {_named(dir_)}")
+                              f"directory, with {_named(dir_)}")
             raise StoreError(f"{dir_}: ask/tell runs phase {stored} (stored), not {phase}{advice}")
         return int(stored)
     if phase is None:
@@ -257,12 +257,12 @@ def _phase(cfg: dict[str, Any], phase: int | None, latent: Any, dir_: Path,
 
 
 def _named(latent: Any) -> str:
-    """The latent space an ask was given, as a user names it again: its directory (quoted for
-    a shell where it needs it), or "the latent space given" for a LatentSpace object."""
-    import shlex
-
+    """The latent space an ask was given, as a user gives it again: its directory by the
+    option that takes it (:func:`latentune.wording.option`: ``--vae DIR``, quoted for a shell
+    where it needs it, at the command line; ``latent='DIR'`` in Python), or "the latent space
+    given" for a LatentSpace object."""
     if isinstance(latent, (str, os.PathLike)):
-        return shlex.quote(os.fspath(latent))
+        return option("latent", latent)
     return "the latent space given"
 
 
@@ -320,10 +320,11 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
     given = {k: v for k, v in given.items() if k != "strategy"}
     if phase == Phase.PHASE1 and latent is not None:
         if (cfg.get("asktell") or {}).get("phase") is None:     # phase 1 was asked for
-            raise UsageError(f"{study.dir}: --phase 1 with --vae: a latent space is an option "
-                             "of phase 3: ask --phase 3 (or leave --phase 1 out)")
+            raise UsageError(f"{study.dir}: {option('phase', 1)} with {option('latent')}: a "
+                             f"latent space is an option of phase 3: ask {option('phase', 3)} "
+                             f"(or leave {option('phase', 1)} out)")
         raise UsageError(f"{study.dir}: ask/tell runs phase 1 here; a latent space is an option "
-                         f"of phase 3: ask it in another directory, with --vae {_named(latent)}")
+                         f"of phase 3: ask it in another directory, with {_named(latent)}")
     g = _normalized(given, space)
     strat = None
     if phase == Phase.PHASE3:       # before the stored options: they differ by strategy
