@@ -776,8 +776,9 @@ def test_amend_keeps_an_audit_trail_and_rebuilds_the_critic(tmp_path):
         ids.append(s.id)
         st.tell(s.id, -3.0 if cost == 2.0 else cost)   # a typo on the second
     assert st.best().cost == -3.0
-    with pytest.raises(StoreError, match="already told.*amend"):
+    with pytest.raises(StoreError, match="already told") as e:
         st.tell(ids[1], 2.0)
+    assert str(e.value).endswith("to correct it, tell it again with amend=True)"), e.value
     queued = [t for t in st.store.trials() if t.status == "queued"]
     assert queued                                       # asked from the typo
     row = st.tell(ids[1], 2.0, amend=True, note="typo: -3")
@@ -1591,7 +1592,7 @@ def test_telling_a_told_zero_shot_trial_again_names_its_phase(tmp_path, src30):
         with pytest.raises(StoreError) as err:
             st.tell(s.id, 0.4)
     msg = str(err.value)
-    assert "phase 4" not in msg and "(zero-shot evaluation 0;" in msg and "--amend" in msg
+    assert "phase 4" not in msg and "(zero-shot evaluation 0;" in msg and "amend=True" in msg
 
 
 def test_a_refused_first_ask_of_phase_3_leaves_no_files(run_cli, tmp_path, src30, error_line):

@@ -20,7 +20,8 @@ _COMMAND_LINE = [False]
 
 FLAGS = {"max_fall_prob": "--max-fall-prob", "handover": "--handover",
          "escape_falls": "--escape-falls", "trial_timeout": "--trial-timeout",
-         "phase": "--phase", "latent": "--vae"}
+         "phase": "--phase", "latent": "--vae",
+         "amend": "--amend"}
 """The command line's flag of each Python keyword a message may advise."""
 
 TRANSFER_KEYS = frozenset({"escape_falls"})

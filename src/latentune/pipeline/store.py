@@ -63,6 +63,7 @@ import numpy as np
 from latentune.atomicfile import fsync_path
 from latentune.constants import COST_LIMIT, Phase, phase_name
 from latentune.errors import StoreError
+from latentune.wording import option
 
 FORMAT = "latentune-run-store"
 VERSION = 3
@@ -719,8 +720,8 @@ class RunStore:
             t = self._trial(trial_id)
             if t.status == "told":
                 raise StoreError(f"suggestion {trial_id} was already told ({phase_name(t.phase)} "
-                                 f"evaluation {t.idx}; to correct it: tell --amend, "
-                                 "amend=True in Python)")
+                                 f"evaluation {t.idx}; to correct it, tell it again with "
+                                 f"{option('amend', True)})")
             if t.status != "pending":
                 raise StoreError(f"suggestion {trial_id} is not handed out ({t.status}: " + (
                     "never asked for, or released; ask for it)" if t.status == "queued" else
