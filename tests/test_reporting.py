@@ -232,11 +232,19 @@ def test_a_task_record_of_another_layout_is_one_line_and_reported_without_sim(
     """``report`` on a built-in robot's run whose stored task lacks a field (a run written by
     another latentune version) ended in a traceback (KeyError: 'actor') when it rebuilt the
     task to re-simulate: it says in one line what the record lacks and to report with
-    --no-sim, which writes the tables."""
+    --no-sim, which writes the tables. Study.report said "--no-sim" too; it says
+    simulate=False (:func:`latentune.wording.option`)."""
+    import latentune as lt
+    from latentune.errors import StoreError
+
     d = tmp_path / "run"
     task = {k: v for k, v in TASK.items() if k != missing}
     with _store(d, {"task": task, "phase1": {"method": "turbo"}}):
         pass
+    with lt.Study(d) as st, pytest.raises(StoreError) as e:
+        st.report()
+    assert str(e.value).endswith("it cannot be re-simulated; report it with simulate=False"), \
+        e.value
     line = error_line(*run_cli("report", d)[::2])
     assert line == (f"latentune: error: {d}: its stored task has no {missing!r} (a run written "
                     "by another latentune version): it cannot be re-simulated; report it with "

@@ -21,8 +21,9 @@ _COMMAND_LINE = [False]
 FLAGS = {"max_fall_prob": "--max-fall-prob", "handover": "--handover",
          "escape_falls": "--escape-falls", "trial_timeout": "--trial-timeout",
          "phase": "--phase", "latent": "--vae",
-         "amend": "--amend"}
-"""The command line's flag of each Python keyword a message may advise."""
+         "amend": "--amend", "simulate": "--no-sim"}
+"""The command line's flag of each Python keyword a message may advise (``simulate``: the
+flag that sets it False)."""
 
 TRANSFER_KEYS = frozenset({"escape_falls"})
 """The options the Python API takes in ``transfer_options`` rather than as a keyword."""

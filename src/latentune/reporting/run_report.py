@@ -28,7 +28,7 @@ from latentune.constants import Phase
 from latentune.errors import StoreError
 from latentune.pipeline.walltime import wall_record
 from latentune.reporting.metrics import paper_row, phase_stats, rms_velocity_error
-from latentune.wording import counted
+from latentune.wording import counted, option
 
 logger = logging.getLogger(__name__)
 
@@ -64,7 +64,9 @@ TASK_KEYS = ("robot", "gait", "terrain", "actor", "v_des", "steps", "seed")
 def task_from_config(config: dict[str, Any], where: str | Path | None = None):
     """The :class:`~latentune.task.Task` of a stored run config (``config["task"]``), or None
     for a user system's run (no ``"task"``). A record without one of :data:`TASK_KEYS` (a run
-    written by another latentune version) is a StoreError naming it (and the run ``where``)."""
+    written by another latentune version) is a StoreError naming it (and the run ``where``),
+    and to report without simulating (:func:`latentune.wording.option`: ``--no-sim``,
+    ``simulate=False``)."""
     if "task" not in config:
         return None
     from latentune.task import Task
@@ -73,7 +75,7 @@ def task_from_config(config: dict[str, Any], where: str | Path | None = None):
     if missing:
         raise StoreError(("" if where is None else f"{where}: ") + f"its stored task has no "
                          f"{missing[0]!r} (a run written by another latentune version): it "
-                         "cannot be re-simulated; report it with --no-sim")
+                         f"cannot be re-simulated; report it with {option('simulate', False)}")
     return Task.from_config(config["task"])
 
 
