@@ -167,11 +167,18 @@ def test_a_closure_factory_runs_under_the_default_process_pool(run_cli, plugin_d
 
 
 def test_an_unpicklable_api_system_is_one_line_naming_workers_1(tmp_path):
+    """An API system that cannot be pickled is one line saying to run it in this process or
+    to build it by ``load_system``; it said so in the command line's words ("--workers 1 (API:
+    workers=1 or backend='serial'), or pass it as --system module:factory"), though only a
+    Python caller meets it (a --system's system is rebuilt in each worker)."""
     space = lt.ParameterSpace(["a", "b"], [0, 0], [1, 1])
     system = lt.FunctionSystem(space, lambda x: float(np.sum(x)))
-    with pytest.raises(LatentuneError, match="--workers 1") as info:
+    with pytest.raises(LatentuneError, match="workers=1") as info:
         lt.Study(tmp_path / "s", workers=2, backend="process").phase1(system, 6)
     assert "cannot be sent to worker processes" in str(info.value)
+    assert str(info.value).endswith(
+        "run it in this process with workers=1 (or backend='serial'), or build it with "
+        "latentune.load_system('module:factory')"), info.value
     # the same system runs in this process
     res = lt.Study(tmp_path / "t", workers=1).phase1(system, 6)
     assert res.n == 6

@@ -198,14 +198,17 @@ def _key(fun: Any) -> str | None:
 
 
 def _unshippable(fun: Any, exc: BaseException) -> EvaluationError:
+    """The refusal of a system that cannot be sent to the workers, in the Python API's words:
+    only a Python caller meets it (a ``--system`` system is sent as a :class:`PluginRef`, a
+    built-in task pickles)."""
     return EvaluationError(
         f"{type(fun).__name__} cannot be sent to worker processes ({type(exc).__name__}: "
-        f"{' '.join(str(exc).split())[:200]}); run it in this process with --workers 1 "
-        "(API: workers=1 or backend='serial'), or pass it as --system module:factory")
+        f"{' '.join(str(exc).split())[:200]}); run it in this process with workers=1 (or "
+        "backend='serial'), or build it with latentune.load_system('module:factory')")
 
 
 def _check_picklable(fun: Any) -> None:
-    """Raise EvaluationError (naming --workers 1) if ``fun`` cannot be pickled, or refers to
+    """Raise EvaluationError (naming workers=1) if ``fun`` cannot be pickled, or refers to
     ``__main__`` of a session without a file (a notebook, ``python -c``, stdin): a worker
     process cannot import what it defines, and the pool broke (BrokenProcessPool)."""
     try:
