@@ -1455,7 +1455,8 @@ def test_the_tell_that_spends_the_fall_budget_says_the_phase_is_over(run_cli, tm
     prepared (…fall budget is spent (2 falls; 4 trials told)…); the next ask asks the critic",
     though the next ask only refuses, and the refusal named the API's ``fall_budget``. The tell
     now says once that the fall budget is spent and the best θ is the result, with the falls
-    allowed by name."""
+    allowed by name; at the command line it names the flag (an ask with a larger --budget),
+    where it said budget (the ask's refusal was translated, the tell's warning not)."""
     shutil.copytree(src30, tmp_path / "src")
     d = tmp_path / "t"
     with lt.Study(d, seed=0, batch_size=2) as st:
@@ -1468,9 +1469,10 @@ def test_the_tell_that_spends_the_fall_budget_says_the_phase_is_over(run_cli, tm
     lines = err.strip().splitlines()
     assert len(lines) == 1 and "not prepared" not in err and "asks the critic" not in err, err
     assert "phase 3's fall budget is spent (1 fall allowed; 2 trials told): its best θ is " \
-        "the result" in lines[0], err
+        "the result; an ask with a larger --budget allows more falls" in lines[0], err
     code, out, err = run_cli("ask", d)
     assert code == 2 and "fall budget is spent" in err and "fall_budget" not in err, err
+    assert "an ask with a larger --budget allows more falls" in err, err
 
 
 def falls_mid(x: np.ndarray):

@@ -1044,7 +1044,7 @@ def _print_suggestions(sugg: list[Any], args: argparse.Namespace) -> None:
 
 class _FlagWords(logging.Filter):
     """A logging filter putting a record's message in the words of the command's flags
-    (:func:`_ask_flags`: ``a larger budget`` → ``a larger --budget``)."""
+    (:func:`_ask_flags`)."""
 
     def __init__(self, args: argparse.Namespace) -> None:
         super().__init__()
@@ -1147,8 +1147,8 @@ def _ask_flags(msg: str, args: argparse.Namespace) -> str:
                           f"({runs}, then "
                           f"{shlex.join(['latentune', 'train-vae', '--out', str(where)])})")
     msg = re.sub(r"^latent: ", lambda m: f"{ASK_FLAGS['latent']}: ", msg)
-    msg = msg.replace("with a larger budget", "with a larger --budget").replace(
-        "the result (best_params())", f"the result (latentune best {shlex.quote(str(where))})")
+    msg = msg.replace("the result (best_params())",
+                      f"the result (latentune best {shlex.quote(str(where))})")
     msg = re.sub(r"was run with latent-source = 'self', not '(.*)'$",  # its own latent space
                  r"was run in its own latent space (without --vae), not with --vae \1", msg)
     return stored_flags(msg)

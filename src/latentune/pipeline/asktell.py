@@ -434,7 +434,8 @@ def warn_fewer(study: Any, st: RunStore, phase: int, pc: dict[str, Any], got: in
     phase's budget has no more to hand out, or the critic gave no more θ not handed out."""
     left, n_open = _budget_left(st, phase, pc)
     why = (f"{phase_name(phase)}'s budget of {counted(pc['budget'], 'trial')} has no more "
-           f"({st.count(phase)} told, {n_open} handed out); ask with a larger budget for more"
+           f"({st.count(phase)} told, {n_open} handed out); ask with a larger "
+           f"{option('budget')} for more"
            if left <= 0 else f"{phase_name(phase)}'s critic gave no more θ that is not handed "
            "out already")
     log.warning("%s: handed out %d of the %d suggestions asked: %s", study.dir, got, n, why)
@@ -458,7 +459,7 @@ def refuse_if_fall_budget_spent(study: Any, st: RunStore, phase: int, pc: dict[s
         f"{study.dir}: {phase_name(phase)}'s fall budget is spent "
         f"({counted(fb['falls_allowed'], 'fall')} allowed; "
         f"{counted(st.count(phase), 'trial')} told): its best θ is the result; an ask with a "
-        "larger budget allows more falls (the fall budget is a share of it)"
+        f"larger {option('budget')} allows more falls (the fall budget is a share of it)"
         + (f"; suggestion{'s' if len(out) > 1 else ''} {', '.join(map(str, out))} handed out "
            "before may still be told" if out else ""))
 
@@ -612,12 +613,13 @@ def _critic_batch(study: Any, st: RunStore, phase: int, pc: dict[str, Any],
         budget = f"{study.dir}: {phase_name(phase)}'s budget of {counted(pc['budget'], 'trial')}"
         if n_open:
             raise StoreError(f"{budget} is handed out ({st.count(phase)} told, {n_open} "
-                             "pending): tell the pending ones, or ask with a larger budget")
+                             f"pending): tell the pending ones, or ask with a larger "
+                             f"{option('budget')}")
         if best_row(st) is None:            # every trial of the study failed
             raise StoreError(f"{budget} is told and no trial stood: there is no θ to deploy; "
-                             "ask with a larger budget")
+                             f"ask with a larger {option('budget')}")
         raise StoreError(f"{budget} is told: its best θ is the result (best_params()), or "
-                         "ask with a larger budget")
+                         f"ask with a larger {option('budget')}")
     k = min(max(pc["batch_size"], need), left)
     critic = phase_critic(phase, pc, space, study.dir, ls)
     replay(st, phase, critic)
@@ -625,8 +627,8 @@ def _critic_batch(study: Any, st: RunStore, phase: int, pc: dict[str, Any],
         raise FallBudgetSpent(f"{study.dir}: {phase_name(phase)}'s fall budget is spent "
                               f"({counted(critic.falls_allowed(), 'fall')} allowed; "
                               f"{counted(st.count(phase), 'trial')} told): its best θ is the "
-                              "result; an ask with a larger budget allows more falls (the "
-                              "fall budget is a share of it)")
+                              f"result; an ask with a larger {option('budget')} allows more "
+                              "falls (the fall budget is a share of it)")
     out = [t for t in st.trials()
            if t.status in ("queued", "pending") and t.phase in (phase, Phase.ZERO_SHOT)]
     # the critic asks the θ handed out again (the zero-shot θ too: the transfer critic's
