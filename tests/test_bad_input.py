@@ -268,6 +268,19 @@ def test_rollout_refuses_a_plot_or_gif_it_could_not_write_before_the_rollout(cap
     assert main(["rollout", "--steps", "5", "--plot", str(ok)]) == 0 and ok.read_bytes() != b"old"
 
 
+@pytest.mark.parametrize("argv, expect", [
+    (["--system", "x:y", "--gif", ""], "--gif is for a built-in robot"),
+    (["--gif", "", "--robot", "nosuch"], "unknown robot 'nosuch'"),
+    (["--gif", "", "--seed", "3"], "--seed changes nothing here"),
+    (["--plot", "", "--gif", "x.txt"], "x.txt: the file name must end in .gif")])
+def test_an_empty_plot_or_gif_is_not_the_first_of_several_faults(capsys, argv, expect):
+    """rollout checks an empty --gif/--plot with the files it writes, after the robot, the
+    system, the seed and --gif's suffix (a twin of argtypes.given, which would refuse it while
+    the command line is parsed, before any of these): the first error of a command line with
+    several faults is the one it was."""
+    assert_one_line(capsys, "rollout", *argv, expect=expect)
+
+
 def test_rollout_refuses_a_seed_that_changes_nothing(capsys, tmp_path):
     """--seed seeds the hills and a reality's noise and pushes: on flat ground without them
     every seed gave the same rollout, and a sweep over seeds repeated one rollout unawares."""
