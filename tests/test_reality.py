@@ -438,6 +438,28 @@ def test_manual_theta_walks_on_a1_in_mujoco():
 
 
 @pytest.mark.skipif(not HAVE_MUJOCO, reason="no mujoco")
+def test_a_mujoco_world_that_cannot_render_names_the_engine_as_the_reader_sets_it(monkeypatch):
+    """MuJoCo without an OpenGL context said "... or use --engine pybullet" to a Python caller
+    too (a GIF of ``Task(engine='mujoco')``); the engine is named as the reader sets it
+    (:func:`latentune.wording.option`)."""
+    import mujoco
+
+    from latentune.wording import command_line_words
+
+    def no_gl(*a, **k):
+        raise RuntimeError("no OpenGL context")
+
+    monkeypatch.setattr(mujoco, "Renderer", no_gl)
+    w = make_world(A1, "flat", 0, engine="mujoco")
+    with pytest.raises(UsageError) as e:
+        w.render()
+    assert str(e.value).endswith("or use engine='pybullet'"), e.value
+    with command_line_words(), pytest.raises(UsageError) as e:
+        w.render()
+    assert str(e.value).endswith("or use --engine pybullet"), e.value
+
+
+@pytest.mark.skipif(not HAVE_MUJOCO, reason="no mujoco")
 def test_mujoco_hills_are_the_pybullet_hills():
     import mujoco
 

@@ -22,7 +22,7 @@ FLAGS = {"max_fall_prob": "--max-fall-prob", "handover": "--handover",
          "escape_falls": "--escape-falls", "trial_timeout": "--trial-timeout",
          "phase": "--phase", "latent": "--vae",
          "amend": "--amend", "simulate": "--no-sim",
-         "budget": "--budget"}
+         "budget": "--budget", "engine": "--engine"}
 """The command line's flag of each Python keyword a message may advise (``simulate``: the
 flag that sets it False)."""
 

@@ -547,7 +547,8 @@ class MujocoWorld(WorldBase):
         """(H, W, 3) uint8 RGB frame from a camera following the robot (needs an OpenGL
         context, e.g. ``MUJOCO_GL=egl`` or ``osmesa``, which :func:`require_mujoco` sets when
         there is no display; the collision geoms are drawn). A context that cannot be made is a
-        UsageError naming the ``MUJOCO_GL`` in use and the one to try."""
+        UsageError naming the ``MUJOCO_GL`` in use, the one to try and the PyBullet engine, as
+        the reader sets it (:func:`latentune.wording.option`)."""
         mujoco = self.mj
         try:
             if getattr(self, "_renderer", None) is None:
@@ -561,11 +562,14 @@ class MujocoWorld(WorldBase):
             self._renderer.update_scene(self._data, cam)
             return self._renderer.render()
         except Exception as exc:  # no OpenGL context on this machine
+            from latentune.wording import option
+
             gl = os.environ.get("MUJOCO_GL", "").strip().lower()
             other = {"egl": "osmesa", "osmesa": "egl"}.get(gl, "egl (or osmesa)")
+            why = str(exc).splitlines()[0] if str(exc) else exc
             raise UsageError(f"MuJoCo cannot render here{f' with MUJOCO_GL={gl}' if gl else ''} "
-                             f"({str(exc).splitlines()[0] if str(exc) else exc}); "
-                             f"set MUJOCO_GL={other}, or use --engine pybullet") from None
+                             f"({why}); set MUJOCO_GL={other}, or use "
+                             f"{option('engine', 'pybullet')}") from None
 
     def close(self) -> None:
         r = getattr(self, "_renderer", None)
