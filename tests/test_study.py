@@ -152,6 +152,18 @@ def test_study_phases_on_a_user_system(tmp_path, user_sim):
     target.close()
 
 
+def test_a_run_of_another_task_names_the_task_keywords_that_give_the_stored_one(tmp_path):
+    """``Study.phase1(Task(...))`` on a run of another built-in task said "pass --steps 20
+    --v-des 0.1234567 to go on with it", the command line's flags, to a Python caller; it
+    names the Task's keywords (every digit of v_des; the command line keeps its flags:
+    test_bad_input)."""
+    with lt.Study(tmp_path / "r", seed=0) as st:
+        st.phase1(lt.Task(steps=20, v_des=0.1234567), 1)
+    with lt.Study(tmp_path / "r", seed=0) as st, pytest.raises(StoreError) as e:
+        st.phase1(lt.Task(steps=30), 2)
+    assert str(e.value).endswith(": pass steps=20, v_des=0.1234567 to go on with it"), e.value
+
+
 def test_phase3_hands_over_to_the_full_space_and_records_it(tmp_path, user_sim):
     import myplant
 

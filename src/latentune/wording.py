@@ -22,7 +22,9 @@ FLAGS = {"max_fall_prob": "--max-fall-prob", "handover": "--handover",
          "escape_falls": "--escape-falls", "trial_timeout": "--trial-timeout",
          "phase": "--phase", "latent": "--vae",
          "amend": "--amend", "simulate": "--no-sim",
-         "budget": "--budget", "engine": "--engine"}
+         "budget": "--budget", "engine": "--engine", "robot": "--robot", "gait": "--task",
+         "terrain": "--terrain", "actor": "--actor", "steps": "--steps", "v_des": "--v-des",
+         "seed": "--seed", "reality": "--reality"}
 """The command line's flag of each Python keyword a message may advise (``simulate``: the
 flag that sets it False)."""
 
@@ -44,18 +46,21 @@ def command_line_words() -> Iterator[None]:
 
 def option(name: str, value: Any = None) -> str:
     """How a message names the option ``name`` (a key of :data:`FLAGS`), set to ``value`` if
-    given: its flag at the command line (``--max-fall-prob 0.3``; a text or path quoted for a
-    shell; a bool value is the flag alone), else the Python API's keyword
-    (``max_fall_prob=0.3``, ``latent='runs/a'``, ``amend=True``; a transfer option as
-    ``transfer_options={'escape_falls': 8}``, or ``transfer_options['escape_falls']`` without
-    a value)."""
+    given: its flag at the command line (``--max-fall-prob 0.3``; a float with every digit it
+    needs, a text or path quoted for a shell; a bool value is the flag alone), else the Python
+    API's keyword (``max_fall_prob=0.3``, ``latent='runs/a'``, ``amend=True``; a transfer
+    option as ``transfer_options={'escape_falls': 8}``, or ``transfer_options['escape_falls']``
+    without a value)."""
     if isinstance(value, os.PathLike):
         value = os.fspath(value)
     if _COMMAND_LINE[0]:
         if value is None or isinstance(value, bool):
             return FLAGS[name]
-        return f"{FLAGS[name]} " + (f"{value:g}" if isinstance(value, float) else
-                                    shlex.quote(value) if isinstance(value, str) else str(value))
+        if isinstance(value, float):       # every digit the value needs, no more
+            shown = f"{value:g}" if float(f"{value:g}") == value else repr(value)
+        else:
+            shown = shlex.quote(value) if isinstance(value, str) else str(value)
+        return f"{FLAGS[name]} {shown}"
     if name in TRANSFER_KEYS:
         return (f"transfer_options[{name!r}]" if value is None
                 else f"transfer_options={{{name!r}: {value!r}}}")

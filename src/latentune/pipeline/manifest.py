@@ -596,25 +596,28 @@ def diff(a: dict[str, Any], b: dict[str, Any], prefix: str = "") -> str:
     return "; ".join(x for x in out[:4] if x)
 
 
-_TASK_FLAGS = (("robot", "--robot"), ("gait", "--task"), ("terrain", "--terrain"),
-               ("actor", "--actor"), ("steps", "--steps"), ("v_des", "--v-des"),
-               ("engine", "--engine"), ("seed", "--seed"), ("reality", "--reality"))
+_TASK_KEYS = ("robot", "gait", "terrain", "actor", "steps", "v_des", "engine", "seed", "reality")
+"""The fields of a built-in task's record that one option gives (:func:`task_flags`): a Task
+keyword, and a flag of the command line (:data:`latentune.wording.FLAGS`)."""
 
 
 def task_flags(stored: dict[str, Any], given: dict[str, Any]) -> str | None:
-    """The command-line flags that give the stored built-in task where the given one differs
-    (``"--task jump --steps 50"``), or None: not two built-in tasks, or a difference no flag
-    gives alone (a robot spec, a reality profile other than a preset or the recorded file it
-    was read from, a sideways v_des)."""
+    """The options that give the stored built-in task where the given one differs, as the
+    reader sets them (:func:`latentune.wording.option`): the command line's flags
+    (``"--task jump --steps 50"``), or the Task's keywords in Python (``"gait='jump',
+    steps=50"``); None: not two built-in tasks, or a difference no option gives alone (a robot
+    spec, a reality profile other than a preset or the recorded file it was read from, a
+    sideways v_des)."""
+    from latentune.wording import option
+
     if stored.get("kind") != "task" or given.get("kind") != "task":
         return None
     a, b = stored.get("task") or {}, given.get("task") or {}
-    flags = dict(_TASK_FLAGS)
     if any(a.get(k) != b.get(k) for k in set(a) | set(b)
-           if k not in flags and k not in ("dim", "reality_file")):
+           if k not in _TASK_KEYS and k not in ("dim", "reality_file")):
         return None
     out = []
-    for key, flag in _TASK_FLAGS:
+    for key in _TASK_KEYS:
         v = a.get(key)
         if v == b.get(key):
             continue
@@ -623,15 +626,16 @@ def task_flags(stored: dict[str, Any], given: dict[str, Any]) -> str | None:
         elif key == "v_des":
             if not (isinstance(v, list) and len(v) == 3 and v[1:] == [0.0, 0.0]):
                 return None
-            v = repr(float(v[0]))       # every digit: the flag gives this very velocity
+            v = float(v[0])             # every digit: the option gives this very velocity
         elif key == "reality":
             v = _reality_preset(v) or _reality_file(v, a.get("reality_file"))
             if v is None:
                 return None
         elif v is None or isinstance(v, (dict, list)):
             return None
-        out.append(f"{flag} {v}")
-    return " ".join(out) or None
+        out.append(option(key, v))
+    # flags follow one another on a command line; keywords are a call's arguments
+    return (" " if out and out[0].startswith("--") else ", ").join(out) or None
 
 
 def _reality_preset(stored: Any) -> str | None:
@@ -645,10 +649,8 @@ def _reality_preset(stored: Any) -> str | None:
 
 
 def _reality_file(stored: Any, path: Any) -> str | None:
-    """The recorded reality file ``path`` (shell-quoted) when it still holds the profile
-    ``stored`` (its fields; the name aside), else None."""
-    import shlex
-
+    """The recorded reality file ``path`` when it still holds the profile ``stored`` (its
+    fields; the name aside), else None."""
     from latentune.errors import LatentuneError
     from latentune.sim.reality import Reality
 
@@ -658,8 +660,7 @@ def _reality_file(stored: Any, path: Any) -> str | None:
         fields = Reality.load(path).changes()
     except (LatentuneError, OSError, ValueError):
         return None
-    return shlex.quote(path) if fields == {k: v for k, v in stored.items() if k != "name"} \
-        else None
+    return path if fields == {k: v for k, v in stored.items() if k != "name"} else None
 
 
 def _short(v: Any) -> str:
