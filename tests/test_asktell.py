@@ -591,10 +591,13 @@ def test_the_plain_phase_3s_options_are_refused_by_the_transfer_phase_3(tmp_path
     """``method``, ``regions`` and ``start`` steer only the plain phase 3: the transfer phase 3
     (the default) refuses them by name before anything is stored (they were taken, changed
     nothing, and were recorded, so a resume without them was refused); with ``strategy="plain"``
-    they stand."""
+    they stand. The refusal names the strategy as Python gives it ("(strategy='plain')"; it
+    said "(strategy plain)", which the command line turned into its flag)."""
     with lt.Study(tmp_path / "t", seed=0) as st:
-        with pytest.raises(UsageError, match=f"{next(iter(kw))} is an option of the plain phase 3"):
+        with pytest.raises(UsageError, match=f"{next(iter(kw))} is an option of the plain phase 3"
+                           ) as e:
             st.phase3(plant(), 4, latent=src30, **kw)
+        assert "the plain phase 3 (strategy='plain'), not of the transfer" in str(e.value), e.value
         assert st.manifest.config().get("phase3") is None and st.trials() == []
         if "start" not in kw:       # ask --phase 3 --method cma / --regions 3 took and stored them
             with pytest.raises(UsageError, match=f"{next(iter(kw))} is an option of the plain"):

@@ -1107,7 +1107,6 @@ def _ask_flags(msg: str, args: argparse.Namespace) -> str:
     msg = re.sub(r"^regions \(trust regions\) is an option of method turbo \(TuRBO-m\), not "
                  r"of (\w+)", r"--regions (trust regions) is an option of --method turbo "
                  r"(TuRBO-m), not of --method \1", msg)
-    msg = re.sub(r"\(strategy (plain|transfer)\)", r"(--strategy \1)", msg)
     msg = re.sub(r"runs with strategy (\w+) \(stored\), not (\w+): leave strategy out",
                  r"runs with --strategy \1 (stored), not --strategy \2: leave --strategy out", msg)
     msg = re.sub(r"^(.*?)the hand-over is an option(.*)leave the hand-over out",

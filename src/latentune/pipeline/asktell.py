@@ -332,9 +332,9 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
             else g["handover"]
         strat = resolve_strategy(study.manifest, strategy, handover, fixed=bool(stored))
         if strat == "transfer" and given.get("start") is not None:
-            raise UsageError("start is an option of phase 1 and of the plain phase 3 (strategy "
-                             "plain); the transfer phase 3 starts from the manual θ and the "
-                             "source's best trials")
+            raise UsageError("start is an option of phase 1 and of the plain phase 3 "
+                             f"({option('strategy', 'plain')}); the transfer phase 3 starts "
+                             "from the manual θ and the source's best trials")
         refuse_plain_options(strat, given.get("method"), given.get("regions"))
     if stored:
         g = mf.ask_options(stored, g, study.dir, phase)

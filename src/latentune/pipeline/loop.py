@@ -29,7 +29,7 @@ from latentune.pipeline.phases import (make_handover_critic, make_phase_critic, 
 from latentune.pipeline.rundir import RunDir
 from latentune.pipeline.store import RunStore, Row
 from latentune.space import ParameterSpace
-from latentune.wording import counted
+from latentune.wording import counted, option
 
 log = logging.getLogger(__name__)
 
@@ -132,7 +132,8 @@ def refuse_plain_options(strategy: str, method: str | None, regions: int | None,
                                ("regions", regions, regions is None),
                                ("start", start, isinstance(start, str) and start == "manual")):
         if not unset:
-            raise UsageError(f"{name} is an option of the plain phase 3 (strategy plain), "
+            raise UsageError(f"{name} is an option of the plain phase 3 "
+                             f"({option('strategy', 'plain')}), "
                              f"not of the transfer phase 3 (given {name} = {value!r}): its "
                              "search starts from the source's best trials and the manual "
                              "θ, in the latent and the full θ box")
@@ -156,7 +157,7 @@ def require_source_store(strategy: str, source: str, max_fall_prob: float | None
         raise LatentError(f"latent: {source} holds a latent space but no run store (run.db): "
                           "the transfer phase 3 learns from the source run's trials; copy the "
                           "run directory with its run.db, or search the latent space alone "
-                          "(strategy plain)")
+                          f"({option('strategy', 'plain')})")
     if max_fall_prob is not None:
         raise LatentError(f"latent: {source} holds a latent space but no run store (run.db): "
                           "the fall prediction (max_fall_prob) starts from the source run's "
@@ -279,8 +280,9 @@ def resolve_strategy(manifest: Manifest, strategy: str | None, handover: Any,
                          f"{strategy}: leave strategy out to go on with the {stored} phase 3, "
                          f"or start a {strategy} phase 3 in another directory")
     if strategy == "transfer" and handover:
-        raise UsageError("the hand-over is an option of the plain phase 3 (strategy plain); "
-                         "the transfer phase 3 moves to the full θ box on its own")
+        raise UsageError("the hand-over is an option of the plain phase 3 "
+                         f"({option('strategy', 'plain')}); the transfer phase 3 moves to the "
+                         "full θ box on its own")
     if stored == "transfer" and handover:
         raise StoreError(f"{where}: the hand-over is an option of the plain phase 3, and this "
                          "phase 3 runs with strategy transfer (stored), which moves to the full "
@@ -307,7 +309,7 @@ def transfer_critic(pc: dict[str, Any], space: ParameterSpace, run_dir: Path, so
                                counts=pc.get("source_counts"))
     if len(y) < 2:
         raise LatentError(f"transfer phase 3: the source run {source_run} has {len(y)} trials; "
-                          "it needs at least 2 (or use strategy plain)")
+                          f"it needs at least 2 (or use {option('strategy', 'plain')})")
     mfp = pc.get("max_fall_prob")
     rows, state = [], None
     if (Path(run_dir) / "run.db").is_file():

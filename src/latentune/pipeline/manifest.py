@@ -41,6 +41,7 @@ from latentune.pipeline.store import info_json, json_default
 from latentune.pipeline.walltime import settle_open
 from latentune.space import ParameterSpace, task_tuned_for
 from latentune.system import check_system, plugin_record
+from latentune.wording import option
 
 OPTUNA_METHODS = ("optuna-tpe", "optuna-cmaes", "optuna-gp")
 """Optuna's samplers as critics (:class:`latentune.critic.optuna.OptunaCritic`; the
@@ -608,8 +609,6 @@ def task_flags(stored: dict[str, Any], given: dict[str, Any]) -> str | None:
     steps=50"``); None: not two built-in tasks, or a difference no option gives alone (a robot
     spec, a reality profile other than a preset or the recorded file it was read from, a
     sideways v_des)."""
-    from latentune.wording import option
-
     if stored.get("kind") != "task" or given.get("kind") != "task":
         return None
     a, b = stored.get("task") or {}, given.get("task") or {}
@@ -764,9 +763,10 @@ def transfer_option(options: dict[str, Any] | None, strategy: str,
     if rec is None:
         return {"transfer_options": None}
     if strategy != "transfer":
-        raise UsageError(f"transfer_options are options of the transfer phase 3 (strategy "
-                         f"transfer), not of the {strategy} one (the strategy given, or the "
-                         "stored one, or plain where a hand-over is given)")
+        raise UsageError(f"transfer_options are options of the transfer phase 3 "
+                         f"({option('strategy', 'transfer')}), not of the {strategy} one (the "
+                         "strategy given, or the stored one, or plain where a hand-over is "
+                         "given)")
     if "max_fall_prob" in rec:
         raise UsageError("max_fall_prob is an argument of its own (max_fall_prob=...), not one "
                          "of transfer_options")
