@@ -374,11 +374,27 @@ def test_init_spec_does_not_name_a_robot_like_a_built_in_one(tmp_path):
     (tmp_path / "meshes").symlink_to(A1_URDF.parent / "meshes")
     for urdf, expected in ((A1_URDF, "my_a1"), (copy, "b1-z1")):
         with pytest.warns(RobotSpecWarning, match=r"the URDF's robot name 'a1' is the built-in "
-                                                   rf"robot's: the spec is named '{expected}'"):
+                                                   rf"robot's: the spec is named '{expected}' "
+                                                   r"\(give name='NAME' for another\)"):
             d = yaml.safe_load(init_spec(urdf))
         assert d["name"] == expected
-    with pytest.warns(RobotSpecWarning, match="'a1' is the name of a built-in robot"):
+    with pytest.warns(RobotSpecWarning, match="'a1' is the name of a built-in robot.*choose "
+                                              "another name to tell them apart"):
         assert yaml.safe_load(init_spec(A1_URDF, name="a1"))["name"] == "a1"   # as asked
+
+
+def test_init_spec_names_the_name_option_as_the_reader_gives_it():
+    """init_spec's warnings of a built-in robot's name said "give --name for another" and
+    "choose another --name" to a Python caller too; they name the option as the reader gives
+    it (:func:`latentune.wording.option`: ``name=`` in Python, ``--name`` at the command
+    line, where ``robot init`` runs it)."""
+    from latentune.wording import command_line_words
+
+    with command_line_words():
+        with pytest.warns(RobotSpecWarning, match=r"\(give --name NAME for another\)"):
+            init_spec(A1_URDF)
+        with pytest.warns(RobotSpecWarning, match="choose another --name to tell them apart"):
+            init_spec(A1_URDF, name="a1")
 
 
 def test_a_root_without_inertial_carrying_the_legs_is_not_warned_about():

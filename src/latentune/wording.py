@@ -24,7 +24,8 @@ FLAGS = {"max_fall_prob": "--max-fall-prob", "handover": "--handover",
          "amend": "--amend", "simulate": "--no-sim",
          "budget": "--budget", "engine": "--engine", "robot": "--robot", "gait": "--task",
          "terrain": "--terrain", "actor": "--actor", "steps": "--steps", "v_des": "--v-des",
-         "seed": "--seed", "reality": "--reality", "strategy": "--strategy"}
+         "seed": "--seed", "reality": "--reality", "strategy": "--strategy",
+         "name": "--name"}
 """The command line's flag of each Python keyword a message may advise (``simulate``: the
 flag that sets it False)."""
 

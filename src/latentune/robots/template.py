@@ -39,6 +39,7 @@ from latentune.robots.inspection import (LEG_SIGNS, LEGS, PLACEHOLDER_EFFORT, jo
                                          link_position, pin_model, placements, usable_collision)
 from latentune.robots.spec import BUILTIN
 from latentune.robots.urdf import ERD, UrdfTree, package_dir, read_urdf, resolve_mesh
+from latentune.wording import option
 
 CROUCH = 0.75
 """Hip-flexion-joint-to-foot distance at the stance, as a fraction of the leg length."""
@@ -201,11 +202,13 @@ def _urdf_robot_name(urdf_name: str, path: Path) -> str:
         if stem not in BUILTIN:
             return stem
         warnings.warn(f"the URDF file's name {stem!r} is the built-in robot's: the spec is named "
-                      f"'my_{stem}' (give --name for another)", RobotSpecWarning, stacklevel=3)
+                      f"'my_{stem}' (give {option('name', 'NAME')} for another)", RobotSpecWarning,
+                      stacklevel=3)
         return f"my_{stem}"
     other = stem if stem and stem not in BUILTIN else f"my_{robot}"
     warnings.warn(f"the URDF's robot name {robot!r} is the built-in robot's: the spec is named "
-                  f"{other!r} (give --name for another)", RobotSpecWarning, stacklevel=3)
+                  f"{other!r} (give {option('name', 'NAME')} for another)", RobotSpecWarning,
+                  stacklevel=3)
     return other
 
 
@@ -234,7 +237,8 @@ def init_spec(urdf_path: str | os.PathLike, name: str | None = None) -> str:
         raise RobotSpecError("the URDF path is empty: give the quadruped's .urdf file")
     if name is not None and name in BUILTIN:
         warnings.warn(f"{name!r} is the name of a built-in robot: runs and reports show this "
-                      "robot under the same name (choose another --name to tell them apart)",
+                      f"robot under the same name (choose another {option('name')} to tell them "
+                      "apart)",
                       RobotSpecWarning, stacklevel=2)
     path = Path(urdf_path).expanduser().resolve()
     if path.is_dir():
