@@ -66,6 +66,10 @@ def test_phase3_refusals_name_the_flags_not_the_python_arguments(tmp_path, run_c
          "phase 3 was run with no --max-fall-prob (stored), not --max-fall-prob 0.2"),
         ((d, "--resume", "--batch-size", "2"),
          "phase 3 was run with --batch-size 4 (stored), not --batch-size 2"),
+        ((d, "--resume", "--handover"),
+         "--handover is an option of the plain phase 3, and this phase 3 runs with --strategy "
+         "transfer (stored), which moves to the full θ box on its own: leave --handover out to "
+         "go on with it, or start a plain phase 3 in another directory"),
     ]
     for (out, *flags), expect in cases:
         line = error_line(*_phase3(run_cli, source, out, *flags, evals=6)[::2])
@@ -233,8 +237,9 @@ def test_asking_another_strategy_of_a_stored_phase3_says_the_stored_one_and_what
         study.ask(1, system=system, strategy="plain")
     with pytest.raises(StoreError, match=go_on):
         study.phase3(system, 6, strategy="plain")
-    with pytest.raises(StoreError, match=r"the hand-over is an option of the plain phase 3, "
-                       r"and this phase 3 runs with strategy transfer \(stored\)"):
+    with pytest.raises(StoreError, match=r": handover is an option of the plain phase 3, and "
+                       r"this phase 3 runs with strategy='transfer' \(stored\), .*: leave "
+                       r"handover out to go on with it"):
         study.ask(1, system=system, handover=True)
     with pytest.raises(UsageError, match=r"^method is an option of the plain phase 3"):
         study.ask(1, system=system, method="cma")

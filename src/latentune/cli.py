@@ -1109,8 +1109,6 @@ def _ask_flags(msg: str, args: argparse.Namespace) -> str:
                  r"(TuRBO-m), not of --method \1", msg)
     msg = re.sub(r"runs with strategy (\w+) \(stored\), not (\w+): leave strategy out",
                  r"runs with --strategy \1 (stored), not --strategy \2: leave --strategy out", msg)
-    msg = re.sub(r"^(.*?)the hand-over is an option(.*)leave the hand-over out",
-                 r"\1--handover is an option\2leave --handover out", msg)
     msg = re.sub(r"^(.*?)transfer_options are options of(.*?) strategy plain \(stored\): "
                  r"leave them out",
                  lambda m: f"{m[1]}{topts} {'are options' if len(given) > 1 else 'is an option'}"

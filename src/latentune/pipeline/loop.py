@@ -280,14 +280,15 @@ def resolve_strategy(manifest: Manifest, strategy: str | None, handover: Any,
                          f"{strategy}: leave strategy out to go on with the {stored} phase 3, "
                          f"or start a {strategy} phase 3 in another directory")
     if strategy == "transfer" and handover:
-        raise UsageError("the hand-over is an option of the plain phase 3 "
+        raise UsageError(f"{option('handover')} is an option of the plain phase 3 "
                          f"({option('strategy', 'plain')}); the transfer phase 3 moves to the "
                          "full θ box on its own")
     if stored == "transfer" and handover:
-        raise StoreError(f"{where}: the hand-over is an option of the plain phase 3, and this "
-                         "phase 3 runs with strategy transfer (stored), which moves to the full "
-                         "θ box on its own: leave the hand-over out to go on with it, or start "
-                         "a plain phase 3 in another directory")
+        raise StoreError(f"{where}: {option('handover')} is an option of the plain phase 3, and "
+                         f"this phase 3 runs with {option('strategy', 'transfer')} (stored), "
+                         "which moves to the full θ box on its own: leave "
+                         f"{option('handover')} out to go on with it, or start a plain phase 3 "
+                         "in another directory")
     if strategy is None:
         strategy = stored or ("plain" if handover else "transfer")
     if strategy == "plain" and latent is not None:
