@@ -1132,7 +1132,8 @@ def _ask_flags(msg: str, args: argparse.Namespace) -> str:
         verb = "runs" if m[0].startswith("runs") else "was run"
         return msg[:m.start()] + f"{verb} with {shown(old)} (stored), not {shown(new)}"
     if "(train_latent / train-vae)" in msg:      # the command that trains the latent space
-        trains = getattr(args, "vae", None) if msg.startswith("latent: ") else where
+        trains = getattr(args, "vae", None) if msg.startswith(f"{ASK_FLAGS['latent']}: ") \
+            else where
         msg = msg.replace("(train_latent / train-vae)",
                           f"({shlex.join(['latentune', 'train-vae', '--out', str(trains)])}"
                           + "".join(" " + f for f in _stored_plugin_flags(trains)) + ")")
@@ -1143,7 +1144,6 @@ def _ask_flags(msg: str, args: argparse.Namespace) -> str:
         msg = msg.replace("(phase1, then train_latent)",
                           f"({runs}, then "
                           f"{shlex.join(['latentune', 'train-vae', '--out', str(where)])})")
-    msg = re.sub(r"^latent: ", lambda m: f"{ASK_FLAGS['latent']}: ", msg)
     msg = msg.replace("the result (best_params())",
                       f"the result (latentune best {shlex.quote(str(where))})")
     msg = re.sub(r"was run with latent-source = 'self', not '(.*)'$",  # its own latent space

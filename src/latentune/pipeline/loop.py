@@ -149,17 +149,18 @@ def require_source_store(strategy: str, source: str, max_fall_prob: float | None
     from it, the directory moved since) is named as such."""
     if source == "self" or (Path(source) / "run.db").is_file():
         return
+    opt = option("latent")      # as the reader gives the source: --vae DIR, or latent=
     if (strategy == "transfer" or max_fall_prob is not None) and not Path(source).exists():
-        raise LatentError(f"latent: the source run {source} does not exist (moved or "
+        raise LatentError(f"{opt}: the source run {source} does not exist (moved or "
                           "deleted?): phase 3 learns from its trials; put the run directory "
                           "back there, or give its new place (latent)")
     if strategy == "transfer":
-        raise LatentError(f"latent: {source} holds a latent space but no run store (run.db): "
+        raise LatentError(f"{opt}: {source} holds a latent space but no run store (run.db): "
                           "the transfer phase 3 learns from the source run's trials; copy the "
                           "run directory with its run.db, or search the latent space alone "
                           f"({option('strategy', 'plain')})")
     if max_fall_prob is not None:
-        raise LatentError(f"latent: {source} holds a latent space but no run store (run.db): "
+        raise LatentError(f"{opt}: {source} holds a latent space but no run store (run.db): "
                           "the fall prediction (max_fall_prob) starts from the source run's "
                           "trials; copy the run directory with its run.db, or leave the fall "
                           "prediction out")
@@ -199,9 +200,9 @@ def require_pinned_trials(source: str, counts: dict[str, int] | None,
     would go on in their place. Nothing to check without ``counts``."""
     why = source_mismatch(source, counts, fingerprint)
     if why is not None:
-        raise LatentError(f"latent: the source run at {source} is not the run phase 3 began "
-                          f"with: it {why} (replaced since?); put that run back there, or "
-                          "give the directory that holds it now (latent)")
+        raise LatentError(f"{option('latent')}: the source run at {source} is not the run "
+                          f"phase 3 began with: it {why} (replaced since?); put that run back "
+                          "there, or give the directory that holds it now (latent)")
 
 
 def check_source_run(run: RunDir, manifest: Manifest, source: str, latent: Any) -> None:
@@ -236,8 +237,9 @@ def check_source_run(run: RunDir, manifest: Manifest, source: str, latent: Any) 
                "was recorded before its source's trials were fingerprinted: their counts "
                "alone do not tell two runs apart)")
     if why is not None:
-        raise LatentError(f"latent: {source} is not the run phase 3 began with ({prev}, which "
-                          f"now {gone}): it {why}; give the directory that holds that run now")
+        raise LatentError(f"{option('latent')}: {source} is not the run phase 3 began with "
+                          f"({prev}, which now {gone}): it {why}; give the directory that "
+                          "holds that run now")
     log.warning("%s: phase 3's source run moved from %s to %s (the same trials): recorded "
                 "its new place", run.dir, prev, source)
     with run.writing():
@@ -499,13 +501,14 @@ def resolve_latent(run: RunDir, manifest: Manifest, latent: Any, space: Paramete
             raise LatentError(f"latent must be a study, its run directory or a LatentSpace, not "
                               f"{type(latent).__name__} {latent!r:.40}")
         other = Path(other)
+        opt = option("latent")      # as the reader gives it: --vae DIR, or latent=
         if other.exists() and not other.is_dir():
             holder = other.parent if (other.parent / "vae.pt").is_file() else None
-            raise LatentError(f"latent: {other} is a file, not a run directory: give the run "
+            raise LatentError(f"{opt}: {other} is a file, not a run directory: give the run "
                               "directory that holds the latent space (vae.pt, vae.json) and "
                               "run.db" + (f" ({holder})" if holder is not None else ""))
         if not other.is_dir():
-            raise LatentError(f"latent: run directory {other} does not exist")
+            raise LatentError(f"{opt}: run directory {other} does not exist")
         src = None
         if (other / "run.db").is_file():
             with RunStore(other) as o:
@@ -513,10 +516,10 @@ def resolve_latent(run: RunDir, manifest: Manifest, latent: Any, space: Paramete
                 searched = (o.get_meta("config") or {}).get("phase3_vae_source")
             if src is None and not (other / "vae.pt").is_file():
                 if searched not in (None, "self"):      # a phase 3 on another's latent space
-                    raise LatentError(f"latent: {other} holds no latent space of its own: it "
+                    raise LatentError(f"{opt}: {other} holds no latent space of its own: it "
                                       f"is a phase 3 on the latent space of {searched}; give "
-                                      "that run instead (latent)")
-                raise LatentError(f"latent: {other} holds no latent space: train one there "
+                                      f"that run instead ({opt})")
+                raise LatentError(f"{opt}: {other} holds no latent space: train one there "
                                   "first (train_latent / train-vae)")
         ls = LatentSpace.load(src if src is not None else other / "vae")
         source = "self" if other.resolve() == me else str(other.resolve())
