@@ -18,14 +18,15 @@ def counted(n: int, noun: str, plural: str | None = None) -> str:
 _COMMAND_LINE = [False]
 """Whether messages are read at the command line now (:func:`command_line_words`)."""
 
-FLAGS = {"max_fall_prob": "--max-fall-prob", "handover": "--handover",
-         "escape_falls": "--escape-falls", "trial_timeout": "--trial-timeout",
-         "phase": "--phase", "latent": "--vae",
-         "amend": "--amend", "simulate": "--no-sim",
-         "budget": "--budget", "engine": "--engine", "robot": "--robot", "gait": "--task",
-         "terrain": "--terrain", "actor": "--actor", "steps": "--steps", "v_des": "--v-des",
-         "seed": "--seed", "reality": "--reality", "strategy": "--strategy",
-         "name": "--name"}
+FLAGS = {
+    # the phase options and the run's
+    "max_fall_prob": "--max-fall-prob", "handover": "--handover", "escape_falls": "--escape-falls",
+    "strategy": "--strategy", "budget": "--budget", "phase": "--phase", "latent": "--vae",
+    "trial_timeout": "--trial-timeout", "amend": "--amend", "simulate": "--no-sim",
+    # a built-in task's (Task's keywords), and robot init's
+    "robot": "--robot", "gait": "--task", "terrain": "--terrain", "actor": "--actor",
+    "steps": "--steps", "v_des": "--v-des", "engine": "--engine", "seed": "--seed",
+    "reality": "--reality", "name": "--name"}
 """The command line's flag of each Python keyword a message may advise (``simulate``: the
 flag that sets it False)."""
 
