@@ -220,7 +220,8 @@ def test_study_phase3_default_is_transfer(tmp_path):
         assert real.store.count(Phase.MANUAL) == 0
         zs = real.store.rows(Phase.ZERO_SHOT)[0].cost
         assert r.best_cost <= zs
-        with pytest.raises(UsageError, match=r"handover is an option of the plain phase 3 \(strategy=.plain.\)"):
+        with pytest.raises(UsageError,
+                           match=r"handover is an option of the plain phase 3 \(strategy=.plain"):
             real.phase3(plant(0.05), 12, latent=tmp_path / "sim", strategy="transfer",
                         handover=True)
     with lt.Study(tmp_path / "real", seed=1) as again:
