@@ -524,6 +524,13 @@ def test_a_mujoco_gif_without_a_display_or_mujoco_gl_is_drawn_headless(cli, cli_
               "--gif", gif, env=env, timeout=300)
     assert out.returncode == 0 and out.stderr == "", out.stderr
     assert gif.read_bytes()[:4] == b"GIF8"
+    # the robot can be seen: a lit ground, and a robot much darker than it (before the light
+    # and the ground's colour: every pixel of the first frame between 34 and 43 of 255)
+    import imageio.v3 as iio
+
+    grey = iio.imread(gif)[0][..., :3].astype(float).mean(axis=2)
+    assert np.median(grey) > 120 and np.percentile(grey, 2) < np.median(grey) - 60, \
+        (np.median(grey), np.percentile(grey, 2))
 
 
 @pytest.mark.skipif(not HAVE_MUJOCO, reason="no mujoco")

@@ -60,6 +60,10 @@ MAX_RESTITUTION = math.exp(-math.pi * MIN_DAMPING_RATIO / math.sqrt(1.0 - MIN_DA
 """The largest restitution the MuJoCo world takes (that of :data:`MIN_DAMPING_RATIO`)."""
 
 
+GROUND_RGBA = (0.62, 0.66, 0.7, 1.0)
+"""The colour of the ground in MuJoCo's frames (RGBA): a light grey against the background."""
+
+
 def contact_solref(restitution: float) -> tuple[float, float]:
     """MuJoCo ``solref`` (time constant [s], damping ratio) of the contacts for a restitution
     coefficient e: ratio 1 and :data:`CONTACT_TIMECONST` for e = 0; otherwise the ratio ζ of
@@ -412,6 +416,13 @@ class MujocoWorld(WorldBase):
             hf.userdata = self.heights.T.reshape(-1).tolist()
             ground = ms.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_HFIELD, hfieldname="hills")
         ground.name = "ground"
+        # what a GIF sees, nothing the physics reads: a lighter ground than the background and
+        # a light from above (MuJoCo's dim headlight alone drew a dark robot on a dark floor)
+        ground.rgba = GROUND_RGBA
+        sun = ms.worldbody.add_light(pos=[0.0, 0.0, 5.0], dir=[0.0, 0.0, -1.0],
+                                     diffuse=[0.7, 0.7, 0.7], specular=[0.2, 0.2, 0.2])
+        sun.type = mujoco.mjtLightType.mjLIGHT_DIRECTIONAL
+        ms.visual.headlight.ambient = [0.3, 0.3, 0.3]
         ground.contype, ground.conaffinity = _GROUND_CONTYPE, _ROBOT_CONTYPE
         ground.friction = [mu, 0.005, 0.0001]
         ground.solref = [timeconst, ratio]
