@@ -1192,7 +1192,7 @@ def test_status_says_which_leases_expired(run_cli, tmp_path):
     assert run_cli("ask", d, "--asker", "a", "--lease", "0.2")[0] == 0
     time.sleep(0.3)
     out = run_cli("status", d)[1]
-    assert "pending suggestions: 2 (1 held by b, 2 free again: a's lease expired)" in out
+    assert "pending suggestions: 2 (suggestion 1 held by b, suggestion 2 free again: a's lease expired)" in out
 
 
 def test_asking_phase_3_where_ask_tell_runs_phase_1_says_where_to(tmp_path):

@@ -361,16 +361,18 @@ def test_status_does_not_name_the_asker_of_an_ask_without_asker(tmp_path, run_cl
     """status said "1 held by default" for a suggestion asked without --asker (the asker's
     stored name is "default"), which reads as held by a default setting; and "free again:
     default's lease expired". It now says "1 held" and "free again: its lease expired"; a
-    named asker is still named."""
+    named asker is still named. Each is named as a suggestion ("2 (1 held, 2 held)" read as
+    counts)."""
     import time
 
     d = tmp_path / "s"
     assert run_cli("ask", d, "--system", "examples.lqr_chain:make_system")[0] == 0
     assert run_cli("ask", d, "--asker", "rig2")[0] == 0
     out = run_cli("status", d)[1]
-    assert "pending suggestions: 2 (1 held, 2 held by rig2)" in out, out
+    assert "pending suggestions: 2 (suggestion 1 held, suggestion 2 held by rig2)" in out, out
     assert run_cli("ask", d, "--lease", "0.2")[0] == 0        # 1 again, on a short lease
     time.sleep(0.3)
     out = run_cli("status", d)[1]
-    assert "pending suggestions: 2 (1 free again: its lease expired, 2 held by rig2)" in out, out
+    assert ("pending suggestions: 2 (suggestion 1 free again: its lease expired, suggestion 2 "
+            "held by rig2)") in out, out
     assert "default" not in out, out

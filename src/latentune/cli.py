@@ -1368,14 +1368,16 @@ def cmd_status(args: argparse.Namespace) -> int:
 
     def held(i: int) -> str:
         """Pending suggestion ``i``: by whom it is held, or that its lease expired (the
-        asker of an ask without --asker is not named: its stored name is no flag's value)."""
+        asker of an ask without --asker is not named: its stored name is no flag's value):
+        ``"suggestion 1 held by rig2"``, named as a suggestion ("2 (1 held, 2 held)" read as
+        counts)."""
         lease = leases.get(str(i), {})
         asker = lease.get("asker")
         unnamed = asker in (None, DEFAULT_ASKER)
         if lease.get("seconds_left") == 0:      # the next ask hands it out again
             whose = "its" if unnamed else f"{asker}'s"
-            return f"{i} free again: {whose} lease expired"
-        return f"{i} held" if unnamed else f"{i} held by {asker}"
+            return f"suggestion {i} free again: {whose} lease expired"
+        return f"suggestion {i} held" + ("" if unnamed else f" by {asker}")
 
     print(f"pending suggestions: {len(s['pending'])}" + (
         " (" + ", ".join(held(i) for i in s["pending"]) + ")" if s["pending"] else ""))
