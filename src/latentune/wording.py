@@ -67,3 +67,10 @@ def option(name: str, value: Any = None) -> str:
         return (f"transfer_options[{name!r}]" if value is None
                 else f"transfer_options={{{name!r}: {value!r}}}")
     return name if value is None else f"{name}={value!r}"
+
+
+def joined(options: list[str]) -> str:
+    """Several :func:`option` texts as the reader writes them together: one after the other on
+    a command line (``--task jump --steps 50``), a call's arguments in Python (``gait='jump',
+    steps=50``)."""
+    return (" " if _COMMAND_LINE[0] else ", ").join(options)

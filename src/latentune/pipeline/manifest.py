@@ -41,7 +41,7 @@ from latentune.pipeline.store import info_json, json_default
 from latentune.pipeline.walltime import settle_open
 from latentune.space import ParameterSpace, task_tuned_for
 from latentune.system import check_system, plugin_record
-from latentune.wording import option
+from latentune.wording import joined, option
 
 OPTUNA_METHODS = ("optuna-tpe", "optuna-cmaes", "optuna-gp")
 """Optuna's samplers as critics (:class:`latentune.critic.optuna.OptunaCritic`; the
@@ -633,8 +633,7 @@ def task_flags(stored: dict[str, Any], given: dict[str, Any]) -> str | None:
         elif v is None or isinstance(v, (dict, list)):
             return None
         out.append(option(key, v))
-    # flags follow one another on a command line; keywords are a call's arguments
-    return (" " if out and out[0].startswith("--") else ", ").join(out) or None
+    return joined(out) or None
 
 
 def _reality_preset(stored: Any) -> str | None:
