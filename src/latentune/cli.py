@@ -31,7 +31,7 @@ from typing import Any, Callable, Iterator, Sequence
 from latentune import argtypes
 from latentune.checks import file_in_the_way
 from latentune.errors import CLIError, LatentError, LatentuneError, StoreError, UsageError
-from latentune.wording import counted
+from latentune.wording import FLAGS, counted
 from latentune.workdone import is_done, work_done
 
 DESCRIPTION = ("Tune the weights of a controller: phase 1 on the full θ of a cheap system, phase 2 "
@@ -1066,17 +1066,18 @@ def _flag_words(args: argparse.Namespace) -> Iterator[None]:
         logger.removeFilter(flt)
 
 
-ASK_FLAGS = {"method": "--method", "budget": "--budget", "regions": "--regions",
-             "start": "--start", "max_fall_prob": "--max-fall-prob",
-             "max-fall-prob": "--max-fall-prob", "fall_prior": "--fall-prior",
-             "fall-prior": "--fall-prior", "handover": "--handover", "strategy": "--strategy",
-             "asker": "--asker", "lease_s": "--lease", "n": "--n",
+ASK_FLAGS = {**{k: FLAGS[k] for k in ("budget", "max_fall_prob", "handover", "strategy",
+                                       "escape_falls", "latent")},
+             "method": "--method", "regions": "--regions", "start": "--start",
+             "max-fall-prob": FLAGS["max_fall_prob"], "fall_prior": "--fall-prior",
+             "fall-prior": "--fall-prior", "asker": "--asker", "lease_s": "--lease", "n": "--n",
              "fall_budget": "--fall-budget", "record_walk": "--record-walk",
-             "escape_falls": "--escape-falls", "walk_pick": "--walk-pick",
-             "target_scores": "--target-scores", "batch_size": "--batch-size", "batch-size": "--batch-size",
-             "latent": "--vae", "latent-source": "--vae", "latent_source": "--vae"}
+             "walk_pick": "--walk-pick", "target_scores": "--target-scores",
+             "batch_size": "--batch-size", "batch-size": "--batch-size",
+             "latent-source": FLAGS["latent"], "latent_source": FLAGS["latent"]}
 """Study.ask's and Study.phase3's keyword arguments (and transfer_options keys) by the flag
-that sets them, for :func:`_ask_flags`."""
+that sets them, for :func:`_ask_flags`: those :data:`latentune.wording.FLAGS` names too from
+there (one table of their flags), the others here."""
 _TRANSFER_STORED = re.compile(r"(?:runs|was run) with transfer-options = (.*?)(?: \(stored\))?, "
                               r"not (.*)$")
 
