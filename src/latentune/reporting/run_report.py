@@ -196,8 +196,21 @@ def beats_manual(store: Any, manual: list | None = None) -> dict[int, int | None
     (any that did not fail, when the manual θ failed: :func:`manual_target`); None if none
     did, or without a manual trial. Phase 1's first evaluation is the manual θ's trial (never
     a beat); phase 3 leaves the manual and zero-shot trials out (the zero-shot phase has its
-    own count, 1 or None). ``manual``: as :func:`run_stats` takes it."""
-    return {ph: s["evals_to_beat"] for ph, s in run_stats(store, manual).items()}
+    own count, 1 or None). ``manual``: as :func:`run_stats` takes it. The count of
+    :func:`run_stats` (:func:`~latentune.reporting.metrics.phase_stats` against
+    :func:`manual_target`) from the stored costs and fall flags alone, without reading the
+    trials' θ (most of reading a large store)."""
+    if manual is None:
+        manual = manual_rows(store)
+    target = manual_target(manual)
+    out = {}
+    for ph in TABLE_PHASES:
+        if ph == Phase.MANUAL:
+            costs, fell = [r.cost for r in manual], [r.fell for r in manual]
+        else:
+            costs, fell = store.costs(ph).tolist(), store.fell(ph).tolist()
+        out[int(ph)] = phase_stats(costs, target, fell=fell)["evals_to_beat"]
+    return out
 
 
 def best_ratio(phase3_best: float | None, phase1_best: float | None) -> float | None:
