@@ -906,6 +906,37 @@ def test_a_source_run_holding_other_trials_is_refused_by_a_study_under_way(tmp_p
     assert [t.state for t in study.trials] == [S.COMPLETE, S.COMPLETE, S.FAIL]
 
 
+def test_a_source_run_amended_since_goes_on_with_one_warning(tmp_path, caplog):
+    """A study resumed after one of its pinned source trials was amended (a cost corrected,
+    kept in the store's audit trail as ``tell --amend`` keeps it) was refused as holding other
+    trials; the source is the same run: the study goes on, with one warning naming the
+    amended trial."""
+    import json
+    import sqlite3
+
+    _GrowingSource(tmp_path / "src")
+    study = optuna.create_study()
+    study.sampler = LatentSampler(tmp_path / "src", seed=0, budget=20)
+    study.optimize(objective_for(study.sampler), n_trials=2)
+    con = sqlite3.connect(tmp_path / "src" / "run.db")
+    with con:
+        (cost, fell), = con.execute("SELECT cost, fell FROM evaluations WHERE phase = 1 AND "
+                                    "idx = 3").fetchall()
+        con.execute("UPDATE evaluations SET cost = cost + 1 WHERE phase = 1 AND idx = 3")
+        con.execute("INSERT INTO amendments(trial, phase, idx, old, new, note, created) VALUES "
+                    "(44, 1, 3, ?, ?, NULL, 0)",
+                    (json.dumps({"cost": cost, "fell": bool(fell)}),
+                     json.dumps({"cost": cost + 1, "fell": bool(fell)})))
+    con.close()
+    caplog.set_level(logging.WARNING)
+    study.sampler = LatentSampler(tmp_path / "src", seed=0, budget=20)
+    study.optimize(objective_for(study.sampler), n_trials=2)
+    assert [t.state for t in study.trials] == [S.COMPLETE] * 4
+    (line,) = [ln for ln in caplog.text.splitlines() if "amended since" in ln]
+    assert "trial 44 was amended since the study began" in line and \
+        "the study goes on with the source run's latent space and the amended results" in line
+
+
 @pytest.mark.parametrize("strategy", ["transfer", "plain"])
 def test_a_study_resumed_with_a_larger_budget_goes_on_as_one_run(tmp_path, strategy):
     """A study resumed by a new sampler with a larger budget (more trials planned, as in

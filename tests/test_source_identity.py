@@ -26,11 +26,29 @@ def _run(d: Path, seed: int, n: int) -> Path:
     return d
 
 
+def _asked(d: Path) -> Path:
+    """A source run of the toy chain at ``d`` whose 24 phase-1 trials were asked and told
+    (ids 1 to 24: ``tell --amend`` can correct them), with a latent space."""
+    from examples.toy_plant import make_system
+    from latentune.system import evaluate
+
+    system = make_system()
+    with lt.Study(d, seed=0) as study:
+        for _ in range(6):
+            for s in study.ask(4, system=system, phase=1, budget=24):
+                out = evaluate(system, s.theta)
+                study.tell(s.id, out.cost, failed=out.failed)
+        study.train_latent(4, epochs=20)
+    return d
+
+
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    """The source run (24 trials) and another run of the same system (30 trials, more)."""
+    """The source run (24 trials), another run of the same system (30 trials, more) and a
+    source run of 24 trials asked and told (its results can be amended)."""
     base = tmp_path_factory.mktemp("p3id")
-    return {"source": _run(base / "source", 0, 24), "other": _run(base / "other", 1, 30)}
+    return {"source": _run(base / "source", 0, 24), "other": _run(base / "other", 1, 30),
+            "asked": _asked(base / "asked")}
 
 
 def _phase3(run_cli, vae: Path | None, out: Path, evals: int, *flags: str):
@@ -149,3 +167,76 @@ def test_an_ask_tell_phase_3_follows_its_moved_source_run(tmp_path, runs):
         cfg = study.config()
         assert cfg["phase3"]["latent_source"] == cfg["asktell"]["latent_source"] \
             == cfg["phase3_vae_source"] == str(new.resolve())
+
+
+def _amended_lines(err: str) -> list[str]:
+    return [ln for ln in err.splitlines() if "amended since" in ln]
+
+
+def test_an_amended_source_run_goes_on_with_one_warning(tmp_path, run_cli, runs):
+    """``latentune tell SRC 7 --cost 9 --amend`` on the source run of a phase 3 under way made
+    its resume fail: "the source run at SRC is not the run phase 3 began with: it holds other
+    trials than the 24 phase-1 trials phase 3 began with (replaced since?)". The run is the
+    same (the same θ, in the same order), one result of it was corrected: phase 3 goes on with
+    one warning naming the amended trial and what phase 3 goes on with."""
+    src, t = tmp_path / "src", tmp_path / "t"
+    shutil.copytree(runs["asked"], src)
+    code, _, err = _phase3(run_cli, src, t, 4)
+    assert code == 0, err
+    code, _, err = run_cli("tell", src, "7", "--cost", "9.0", "--amend")
+    assert code == 0, err
+    code, _, err = _phase3(run_cli, None, t, 6, "--resume")
+    assert code == 0, err
+    (line,) = _amended_lines(err)
+    assert f"the source run at {src.resolve()}: trial 7 was amended since phase 3 began " \
+           "(--amend: a cost or fall flag corrected); phase 3 goes on with the latent space it " \
+           "copied when it began and the amended results" in line, line
+    assert "is not the run" not in err
+    assert lt.Study(t).store.count(3) == 6
+
+
+def test_an_amended_source_run_pinned_the_old_way_goes_on(tmp_path, runs, caplog):
+    """The pin is the sha256 of the pinned trials' θ, cost and fell flag as it always was (the
+    value computed here by hand), so a store pinned before amendments were told apart resumes:
+    a plain fall-aware phase 3 from Python whose source had trial 5 amended before it began
+    (part of the pin) and trials 2 and 9 (twice) since goes on with one warning naming 2 and
+    9; trial 12 amended to the value it had names nothing."""
+    import hashlib
+    import logging
+
+    import numpy as np
+
+    from latentune.pipeline.store import RunStore
+    from latentune.system import load_system
+
+    real = load_system("examples.toy_plant:make_real_system")
+    src = tmp_path / "src"
+    shutil.copytree(runs["asked"], src)
+    with lt.Study(src) as s:
+        s.tell(5, 3.5, amend=True)
+        twelve = next(r.cost for r in s.store.rows(1) if r.info.get("trial") == 12)
+    with lt.Study(tmp_path / "t", seed=0) as study:
+        study.phase3(real, 4, latent=src, strategy="plain", max_fall_prob=0.5)
+        pc = study.config()["phase3"]
+    h = hashlib.sha256()
+    with RunStore(src) as st:
+        for ph in (1, 3):
+            n = int(pc["source_counts"][str(ph)])
+            h.update(f"phase {ph}: {n} trials\n".encode())
+            for r in st.rows(ph)[:n]:
+                h.update(np.asarray(r.theta, dtype="<f8").tobytes())
+                h.update(np.array([r.cost], dtype="<f8").tobytes())
+                h.update(b"\x01" if r.fell else b"\x00")
+    assert pc["source_fingerprint"] == h.hexdigest()
+    with lt.Study(src) as s:
+        s.tell(9, 4.0, amend=True)
+        s.tell(2, 1.25, amend=True)
+        s.tell(9, 4.5, amend=True)
+        s.tell(12, twelve + 1.0, amend=True)
+        s.tell(12, twelve, amend=True)
+    caplog.set_level(logging.WARNING)
+    with lt.Study(tmp_path / "t", seed=0) as study:
+        study.phase3(real, 6, strategy="plain", max_fall_prob=0.5)
+        assert study.store.count(3) == 6
+    (line,) = _amended_lines(caplog.text)
+    assert "trials 2, 9 were amended since phase 3 began (amend=True" in line, line

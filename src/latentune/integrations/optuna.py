@@ -880,7 +880,8 @@ class LatentSampler(_CriticSampler, BaseSampler):
         """The source trials the study searches from (:data:`SOURCE_ATTR`), pinned at its
         first sample with their fingerprint (:data:`SOURCE_PRINT_ATTR`); None for the plain
         strategy. LatentError (one line) when the source run holds other trials than those
-        now (replaced or cut since): checked once per sampler."""
+        now (replaced or cut since), a warning when some of them were amended since
+        (:func:`~latentune.pipeline.loop.source_mismatch`): checked once per sampler."""
         from latentune.pipeline.loop import source_mismatch
         from latentune.pipeline.manifest import run_counts, run_fingerprint
 
@@ -898,7 +899,8 @@ class LatentSampler(_CriticSampler, BaseSampler):
         if attrs.get(key) != pinned:
             study._storage.set_study_system_attr(study._study_id, key, pinned)
         if not self._source_checked:
-            why = source_mismatch(self.source_run, pinned, printed, "the study")
+            why = source_mismatch(self.source_run, pinned, printed, "the study",
+                                  "the source run's latent space")
             if why is not None:
                 raise LatentError(f"LatentSampler: the source run at {self.source_run} is not "
                                   f"the run the study began with: it {why} (replaced since?); "

@@ -53,7 +53,8 @@ def phase_critic(phase: int, pc: dict[str, Any], space: ParameterSpace, run_dir:
     the encoded phase-1 trials of the latent space's source run (``run_dir`` when
     ``latent_source`` is "self"); with ``handover``, a
     :class:`~latentune.critic.handover.Handover` on the θ box. Every phase-3 strategy is one
-    branch here."""
+    branch here. The source run is not checked here: the phase's start did
+    (:func:`check_source_run`, in :func:`phase3_setup` and ask/tell's options)."""
     mfp = pc.get("max_fall_prob")
     theta0 = start_theta(pc, space)
     if int(phase) == Phase.PHASE1:
@@ -67,8 +68,6 @@ def phase_critic(phase: int, pc: dict[str, Any], space: ParameterSpace, run_dir:
         raise LatentError("phase 3 needs a latent space")
     source = pc.get("latent_source", "self")
     run = run_dir if source in (None, "self") else Path(source)
-    if source not in (None, "self"):
-        require_pinned_trials(source, pc.get("source_counts"), pc.get("source_fingerprint"))
     if strategy_of(pc) == "transfer":
         return transfer_critic(pc, space, run_dir, run, latent)
     latent.require_spread()                 # the paper's phase 3 searches the decoded θ only
@@ -167,15 +166,19 @@ def require_source_store(strategy: str, source: str, max_fall_prob: float | None
 
 
 def source_mismatch(source: Any, counts: dict[str, int] | None,
-                    fingerprint: str | None = None, who: str = "phase 3") -> str | None:
+                    fingerprint: str | None = None, who: str = "phase 3",
+                    uses: str = "the latent space it copied when it began") -> str | None:
     """Why the run at ``source`` is not the source run a phase 3 (``who``) began with, in
     words that follow "it" ("holds 8 phase-1 trials, fewer than the 16 phase 3 began with");
     None when it is, or when nothing is pinned to know it by. That run is known by the trials
     it held then: their ``counts`` (:func:`source_counts`) and ``fingerprint``
     (:func:`~latentune.pipeline.manifest.run_fingerprint`); a phase 3 recorded before the
-    fingerprint existed (None) by the counts alone. The one identity check of a source run:
-    on a resume (:func:`require_pinned_trials`), for a moved one (:func:`check_source_run`)
-    and for the Optuna sampler's (:class:`~latentune.integrations.optuna.LatentSampler`)."""
+    fingerprint existed (None) by the counts alone. A run whose pinned trials were amended
+    since (:func:`~latentune.pipeline.manifest.amended_since`: the same θ, a cost or fall flag
+    corrected) is that run: one warning names the amended trials and says that ``who`` goes
+    on with ``uses`` and the amended results. The one identity check of a source run: on a
+    resume (:func:`require_pinned_trials`), for a moved one (:func:`check_source_run`) and for
+    the Optuna sampler's (:class:`~latentune.integrations.optuna.LatentSampler`)."""
     if not counts:
         return None
     if not (Path(source) / "run.db").is_file():
@@ -185,10 +188,19 @@ def source_mismatch(source: Any, counts: dict[str, int] | None,
         if now.get(ph, 0) < int(n):
             held = counted(now.get(ph, 0), f"phase-{ph} trial")
             return f"holds {held}, fewer than the {n} {who} began with"
-    if fingerprint is not None and mf.run_fingerprint(source, counts) != fingerprint:
+    if fingerprint is None:
+        return None
+    amended = mf.amended_since(source, counts, fingerprint)
+    if amended is None:
         began = " and ".join(counted(int(n), f"phase-{ph} trial")
                              for ph, n in sorted(counts.items()) if int(n))
         return f"holds other trials than the {began} {who} began with"
+    if amended:
+        log.warning("the source run at %s: trial%s %s amended since %s began (%s: a cost or "
+                    "fall flag corrected); %s goes on with %s and the amended results", source,
+                    "s" if len(amended) > 1 else "", ", ".join(map(str, amended))
+                    + (" were" if len(amended) > 1 else " was"), who, option("amend", True),
+                    who, uses)
     return None
 
 
@@ -196,8 +208,8 @@ def require_pinned_trials(source: str, counts: dict[str, int] | None,
                           fingerprint: str | None = None) -> None:
     """LatentError (one line) when the run at ``source`` is not the source run phase 3 began
     with (:func:`source_mismatch`: fewer trials than ``counts``, or other ones than
-    ``fingerprint``): the directory holds another run now (replaced or cut since), whose trials
-    would go on in their place. Nothing to check without ``counts``."""
+    ``fingerprint``, amendments since undone): the directory holds another run now (replaced or
+    cut since), whose trials would go on in their place. Nothing to check without ``counts``."""
     why = source_mismatch(source, counts, fingerprint)
     if why is not None:
         raise LatentError(f"{option('latent')}: the source run at {source} is not the run "
@@ -216,7 +228,9 @@ def check_source_run(run: RunDir, manifest: Manifest, source: str, latent: Any) 
     counts alone do not tell two runs apart), with one warning "source run moved from A to
     B"; LatentError (one line) when ``source`` holds another run. Nothing otherwise: the stored
     source still holds that run, or nothing is pinned to know it by (a plain phase 3 without a
-    fall prediction), and the options check names the stored source."""
+    fall prediction), and the options check names the stored source. A run whose pinned
+    trials were amended since is that run (one warning, :func:`source_mismatch`). This is a
+    phase 3 start's one check of its source run (:func:`phase_critic` does not check again)."""
     cfg = manifest.config()
     pc = cfg.get("phase3") or {}
     prev, counts, fp = pc.get("latent_source"), pc.get("source_counts"), \

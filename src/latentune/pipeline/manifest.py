@@ -97,22 +97,73 @@ def run_fingerprint(run: Any, counts: dict[str, int] | None) -> str | None:
     of each (idx below it, as :func:`~latentune.critic.transfer.source_trials` takes them),
     their θ, cost (float64 bytes) and fell flag; None without ``counts`` or a run store. The
     same run gives the same value wherever its directory is and however many trials it made
-    since; another run gives another."""
+    since; another run gives another (and so does an amended result: :func:`amended_since`)."""
     from latentune.pipeline.store import RunStore
 
     if counts is None or run is None or not (Path(run) / "run.db").is_file():
         return None
-    h = hashlib.sha256()
     with RunStore(run) as st:
-        for ph in (Phase.PHASE1, Phase.PHASE3):
-            n = int(counts.get(str(int(ph)), 0))
-            h.update(f"phase {int(ph)}: {n} trials\n".encode())
-            for r in st.rows(ph):
-                if r.idx < n:
-                    h.update(np.ascontiguousarray(r.theta, dtype="<f8").tobytes())
-                    h.update(np.array([r.cost], dtype="<f8").tobytes())
-                    h.update(b"\x01" if r.fell else b"\x00")
+        return _digest(_pinned_rows(st, counts))
+
+
+PinnedRows = list[tuple[int, int, list[tuple[int, bytes, float, bool]]]]
+"""The trials :func:`run_fingerprint` hashes: per phase (phase, its count, [(idx, θ as
+float64 bytes, cost, fell)])."""
+
+
+def _pinned_rows(st: Any, counts: dict[str, int]) -> PinnedRows:
+    """The trials of the open run store ``st`` that ``counts`` pins (:data:`PinnedRows`)."""
+    out = []
+    for ph in (Phase.PHASE1, Phase.PHASE3):
+        n = int(counts.get(str(int(ph)), 0))
+        out.append((int(ph), n, [(r.idx, np.ascontiguousarray(r.theta, dtype="<f8").tobytes(),
+                                  float(r.cost), bool(r.fell)) for r in st.rows(ph) if r.idx < n]))
+    return out
+
+
+def _digest(pinned: PinnedRows, outcomes: dict[tuple[int, int], tuple[float, bool]] | None = None
+            ) -> str:
+    """:func:`run_fingerprint` of ``pinned``, with the (cost, fell) of ``outcomes`` (by (phase,
+    idx)) in place of the stored ones."""
+    h = hashlib.sha256()
+    for ph, n, rows in pinned:
+        h.update(f"phase {ph}: {n} trials\n".encode())
+        for idx, theta, cost, fell in rows:
+            cost, fell = (outcomes or {}).get((ph, idx), (cost, fell))
+            h.update(theta)
+            h.update(np.array([cost], dtype="<f8").tobytes())
+            h.update(b"\x01" if fell else b"\x00")
     return h.hexdigest()
+
+
+def amended_since(run: Any, counts: dict[str, int], fingerprint: str) -> list[int] | None:
+    """Whether the run at ``run`` holds the trials that ``counts`` and ``fingerprint``
+    (:func:`run_fingerprint`) pinned, and which of them were amended since: [] when they hash
+    to ``fingerprint`` as they are; the ids of the told trials whose cost or fall flag an
+    amendment changed since (``tell --amend``, :meth:`~latentune.pipeline.store.RunStore.
+    amendments`) when undoing the latest amendments of those trials, newest first, gives
+    ``fingerprint`` back: the same run (the same θ, in the same order), results corrected
+    since; None when neither does (another run, or no run store). Reads the run once; works
+    for pins taken before this existed (the pinned value is the same)."""
+    from latentune.pipeline.store import RunStore
+
+    if run is None or not (Path(run) / "run.db").is_file():
+        return None
+    with RunStore(run) as st:
+        pinned = _pinned_rows(st, counts)
+        if _digest(pinned) == fingerprint:
+            return []
+        now = {(ph, idx): (cost, fell) for ph, _, rows in pinned for idx, _, cost, fell in rows}
+        amends = [a for a in st.amendments() if (a["phase"], a["idx"]) in now]
+    undone: dict[tuple[int, int], tuple[float, bool]] = {}
+    trial = {(a["phase"], a["idx"]): int(a["trial"]) for a in amends}
+    for a in reversed(amends):
+        undone[(a["phase"], a["idx"])] = (float(a["old"]["cost"]), bool(a["old"]["fell"]))
+        if _digest(pinned, undone) == fingerprint:
+            return sorted(trial[k] for k, (cost, fell) in undone.items()
+                          if fell != now[k][1] or np.float64(cost).tobytes()
+                          != np.float64(now[k][0]).tobytes())
+    return None
 
 
 def describe(system: Any) -> dict[str, Any]:
