@@ -240,3 +240,35 @@ def test_an_amended_source_run_pinned_the_old_way_goes_on(tmp_path, runs, caplog
         assert study.store.count(3) == 6
     (line,) = _amended_lines(caplog.text)
     assert "trials 2, 9 were amended since phase 3 began (amend=True" in line, line
+
+
+@pytest.mark.parametrize("strategy", ["transfer", "plain"])
+def test_a_phase_3_start_reads_its_source_trials_once(tmp_path, runs, monkeypatch, strategy):
+    """The sha256 of the source's pinned trials (0.13 s on a 10,000-trial source) was computed
+    two or three times per phase-3 start: for the options record even on a resume, where the
+    pinned value stands, and in each check. A first start computes it once (to pin it), a
+    resume once (to check it), in Python and in ask/tell."""
+    from latentune.pipeline import manifest as mf
+    from latentune.system import evaluate, load_system
+
+    reads: list[str] = []
+    for name in ("run_fingerprint", "amended_since"):
+        def counting(*a, _f=getattr(mf, name), _n=name, **k):
+            reads.append(_n)
+            return _f(*a, **k)
+        monkeypatch.setattr(mf, name, counting)
+    real = load_system("examples.toy_plant:make_real_system")
+    kw = {"strategy": strategy, "max_fall_prob": 0.5}
+    with lt.Study(tmp_path / "t", seed=0) as study:
+        study.phase3(real, 3, latent=runs["source"], **kw)
+        assert reads == ["run_fingerprint"]
+        reads.clear()
+        study.phase3(real, 4, **kw)
+        assert reads == ["amended_since"]
+    reads.clear()
+    with lt.Study(tmp_path / "a", seed=0) as study:
+        (s,) = study.ask(system=real, phase=3, latent=runs["source"], budget=6, **kw)
+        assert reads == ["run_fingerprint"]
+        reads.clear()
+        study.tell(s.id, evaluate(real, s.theta).cost)      # prepares the next batch: a check
+        assert reads == ["amended_since"]

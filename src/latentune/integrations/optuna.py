@@ -881,7 +881,8 @@ class LatentSampler(_CriticSampler, BaseSampler):
         first sample with their fingerprint (:data:`SOURCE_PRINT_ATTR`); None for the plain
         strategy. LatentError (one line) when the source run holds other trials than those
         now (replaced or cut since), a warning when some of them were amended since
-        (:func:`~latentune.pipeline.loop.source_mismatch`): checked once per sampler."""
+        (:func:`~latentune.pipeline.loop.source_mismatch`): checked once per sampler, not at
+        the study's first sample, which pins them (one read of the source's trials)."""
         from latentune.pipeline.loop import source_mismatch
         from latentune.pipeline.manifest import run_counts, run_fingerprint
 
@@ -891,11 +892,12 @@ class LatentSampler(_CriticSampler, BaseSampler):
         attrs = study._storage.get_study_system_attrs(study._study_id)
         pinned = self._study_attr(study, SOURCE_ATTR, attrs)
         printed = None if pinned is None else self._study_attr(study, SOURCE_PRINT_ATTR, attrs)
-        if pinned is None:
+        if pinned is None:          # pinned now: the trials it holds, nothing to check
             pinned = run_counts(self.source_run)
             printed = run_fingerprint(self.source_run, pinned)
             study._storage.set_study_system_attr(study._study_id, SOURCE_PRINT_ATTR + self._key,
                                                  printed)
+            self._source_checked = True
         if attrs.get(key) != pinned:
             study._storage.set_study_system_attr(study._study_id, key, pinned)
         if not self._source_checked:

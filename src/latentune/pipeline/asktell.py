@@ -68,7 +68,7 @@ from latentune.pipeline import manifest as mf
 from latentune.pipeline.baselines import queue_zero_shot, zero_shot_to_queue
 from latentune.pipeline.loop import (check_source_run, decoder_of, latent_to_record, phase_critic,
                                      record_latent, refuse_plain_options, require_source_store,
-                                     resolve_latent, resolve_strategy, source_counts, strategy_of)
+                                     resolve_latent, resolve_strategy, source_pin, strategy_of)
 from latentune.pipeline.phases import (ask_batch, replay, state_key, stored_fall_options,
                                        warn_if_failing)
 from latentune.pipeline.results import best_row, fall_budget, phase_name, write_best
@@ -297,13 +297,15 @@ def _normalized(given: dict[str, Any], space: ParameterSpace) -> dict[str, Any]:
     return g
 
 
-def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: dict[str, Any]
-            ) -> tuple[dict[str, Any], Any]:
+def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: dict[str, Any],
+            pin: bool = True) -> tuple[dict[str, Any], Any]:
     """(the checked options record of ``phase``, its LatentSpace or None) for an ask: options
     not given are the stored ones (or the defaults on the first ask); a given one that differs
     from the stored is refused (:func:`~latentune.pipeline.manifest.ask_options`). Writes
     nothing (:func:`_context` records the latent space) but the new place of a moved source
-    run (:func:`~latentune.pipeline.loop.check_source_run`)."""
+    run (:func:`~latentune.pipeline.loop.check_source_run`). ``pin`` False: a check whose
+    record is not kept (:func:`check_first_ask`), without reading the source's trials to pin
+    them (:func:`~latentune.pipeline.loop.source_pin`)."""
     key = mf.PHASE_KEYS[Phase(phase)]
     cfg = study.manifest.config()
     fixed = (cfg.get("asktell") or {}).get("phase") == phase or study.manifest.n_used(phase)
@@ -356,7 +358,8 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
         check_source_run(study.run, study.manifest, source, ls)
         extra = mf.phase3_extra(source, strat, start_rec, mfp, g.get("handover"),
                                 g.get("transfer_options"),
-                                source_counts(study.dir, source))
+                                *source_pin(study.dir, study.manifest, source,
+                                            pin and mf.pins_source(strat, mfp)))
     else:
         extra = {"start": start_rec, **mf.fall_options(mfp, g.get("fall_prior"))}
     pc = study.manifest.phase_options(phase, method=g["method"], budget=g["budget"],
@@ -545,7 +548,7 @@ def check_first_ask(study: Any, system: Any, space: ParameterSpace | None, phase
     leaves no run store, lock or copied latent space behind."""
     sp = _space(study, system, space, bind=False)
     ph = _phase({}, phase, latent, study.dir)
-    pc, ls = options(study, ph, sp, latent, given)
+    pc, ls = options(study, ph, sp, latent, given, pin=False)
     if ph == Phase.PHASE3 and strategy_of(pc) == "plain":
         ls.require_spread()
 

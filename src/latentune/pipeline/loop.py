@@ -112,10 +112,11 @@ def phase3_setup(run: RunDir, manifest: Manifest, space: ParameterSpace, actor: 
     refuse_plain_options(strategy, method, regions, start)
     require_source_store(strategy, source, max_fall_prob)
     check_source_run(run, manifest, source, ls)
-    counts = source_counts(run.dir, source)
     start_rec = mf.start_point(start, space.manual, space.dim)[1]
     return ls, mf.phase3_extra(source, strategy, start_rec, max_fall_prob, handover,
-                               transfer_options, counts)
+                               transfer_options,
+                               *source_pin(run.dir, manifest, source,
+                                           mf.pins_source(strategy, max_fall_prob)))
 
 
 def refuse_plain_options(strategy: str, method: str | None, regions: int | None,
@@ -261,6 +262,25 @@ def check_source_run(run: RunDir, manifest: Manifest, source: str, latent: Any) 
         moved = {k: {**cfg[k], "latent_source": source} for k in ("phase3", "asktell")
                  if (cfg.get(k) or {}).get("latent_source") == prev}
         manifest.update(**moved, phase3_vae_source=source)
+
+
+def source_pin(run_dir: Path, manifest: Manifest, source: str, pinned: bool
+               ) -> tuple[dict[str, int] | None, str | None]:
+    """(``source_counts``, ``source_fingerprint``) for phase 3's options record
+    (:func:`~latentune.pipeline.manifest.phase3_extra`) when it pins its ``source``'s trials
+    (``pinned``, :func:`~latentune.pipeline.manifest.pins_source`; else (None, None)): once
+    phase 3 has a trial, the stored ones, which stand (:meth:`~latentune.pipeline.manifest.
+    Manifest.phase_options` takes them; :func:`check_source_run` checked the source against
+    them), without reading the source; else the source's now (:func:`source_counts`, and
+    :func:`~latentune.pipeline.manifest.run_fingerprint` for another run: the one read of its
+    trials at a first start)."""
+    if not pinned:
+        return None, None
+    stored = manifest.config().get("phase3")
+    if stored and manifest.n_fixing(Phase.PHASE3):
+        return stored.get("source_counts"), stored.get("source_fingerprint")
+    counts = source_counts(run_dir, source)
+    return counts, None if source == "self" else mf.run_fingerprint(source, counts)
 
 
 def source_counts(run_dir: Path, source: str) -> dict[str, int] | None:

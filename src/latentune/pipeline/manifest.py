@@ -765,24 +765,33 @@ def fall_options(max_fall_prob: float | None, prior: Any) -> dict[str, Any]:
             "prior_counts": None if prior is None else run_counts(prior)}
 
 
+def pins_source(strategy: str, max_fall_prob: float | None) -> bool:
+    """Whether phase 3 with this ``strategy`` and ``max_fall_prob`` pins its source run's
+    trials (:data:`PINNED`: ``source_counts`` and ``source_fingerprint``): the transfer
+    strategy and the fall prediction learn from them."""
+    return strategy == "transfer" or max_fall_prob is not None
+
+
 def phase3_extra(source: str, strategy: str, start: Any, max_fall_prob: float | None,
                  hand_over: Any, transfer_options: dict[str, Any] | None,
-                 source_counts: dict[str, int] | None = None) -> dict[str, Any]:
+                 source_counts: dict[str, int] | None = None,
+                 source_fingerprint: str | None = None) -> dict[str, Any]:
     """Phase 3's own options for :meth:`Manifest.phase_options` (checked): the latent space's
     ``source``, the ``strategy``, the ``start`` record (:func:`start_point`), the fall-aware
     option (its prior: the latent space's source), the hand-over (:func:`handover`), the
-    transfer critic's options (:func:`transfer_option`) and, for it or the fall prior, how
-    many trials of each phase the source run holds (:func:`run_counts`) and, for another
-    run's, their fingerprint (:func:`run_fingerprint`; :data:`PINNED`: a resume uses those
-    trials, not ones the source made since, and knows the source run by them)."""
-    pinned = strategy == "transfer" or max_fall_prob is not None
+    transfer critic's options (:func:`transfer_option`) and, where phase 3 pins its source's
+    trials (:func:`pins_source`), how many of each phase the source run holds
+    (:func:`run_counts`) and, for another run's, their fingerprint (:func:`run_fingerprint`),
+    as the caller read them (:func:`~latentune.pipeline.loop.source_pin`; :data:`PINNED`: a
+    resume uses those trials, not ones the source made since, and knows the source run by
+    them)."""
+    pinned = pins_source(strategy, max_fall_prob)
     return {"latent_source": source, "strategy": strategy, "start": start,
             **fall_options(max_fall_prob, None if max_fall_prob is None else "latent source"),
             "handover": handover(hand_over),
             **transfer_option(transfer_options, strategy, max_fall_prob),
             "source_counts": source_counts if pinned else None,
-            "source_fingerprint": run_fingerprint(source, source_counts)
-            if pinned and source != "self" else None}
+            "source_fingerprint": source_fingerprint if pinned and source != "self" else None}
 
 
 def transfer_record(options: dict[str, Any] | None) -> dict[str, Any] | None:
