@@ -272,3 +272,46 @@ def test_a_phase_3_start_reads_its_source_trials_once(tmp_path, runs, monkeypatc
         reads.clear()
         study.tell(s.id, evaluate(real, s.theta).cost)      # prepares the next batch: a check
         assert reads == ["amended_since"]
+
+
+def test_a_plain_phase_3_follows_its_moved_source_run(tmp_path, run_cli, runs, error_line):
+    """A plain phase 3 without a fall prediction pinned nothing of its source run, so after
+    ``mv src moved`` its resume with ``--vae moved`` was refused ("phase3 was run with
+    latent-source = '…/src', not '…/moved'"). It pins the source's trials as the transfer
+    phase 3 does: the moved run is followed (one warning, the new place recorded), another run
+    named in its place is refused in one line."""
+    src, t = tmp_path / "src", tmp_path / "t"
+    shutil.copytree(runs["source"], src)
+    code, _, err = _phase3(run_cli, src, t, 4, "--strategy", "plain")
+    assert code == 0, err
+    new = tmp_path / "moved"
+    shutil.move(src, new)
+    line = error_line(*_phase3(run_cli, runs["other"], t, 6, "--resume", "--strategy",
+                               "plain")[::2])
+    assert "is not the run phase 3 began with" in line and "holds other trials" in line, line
+    code, _, err = _phase3(run_cli, new, t, 6, "--resume", "--strategy", "plain")
+    assert code == 0, err
+    assert f"source run moved from {src.resolve()} to {new.resolve()}" in err, err
+    cfg = lt.Study(t).config()
+    assert cfg["phase3"]["latent_source"] == cfg["phase3_vae_source"] == str(new.resolve())
+    assert lt.Study(t).store.count(3) == 6
+
+
+def test_a_plain_phase_3_needs_its_source_run_only_where_it_reads_it(tmp_path, run_cli, runs,
+                                                                    error_line):
+    """A plain phase 3 without a fall prediction searches the latent space it copied: its
+    resume goes on when the source directory was deleted or holds another run, as long as it
+    is not named; named (``--vae SRC``, whose latent space would be searched), another run
+    there is refused in one line."""
+    src, t = tmp_path / "src", tmp_path / "t"
+    shutil.copytree(runs["source"], src)
+    assert _phase3(run_cli, src, t, 4, "--strategy", "plain")[0] == 0
+    shutil.rmtree(src)
+    code, _, err = _phase3(run_cli, None, t, 5, "--resume", "--strategy", "plain")
+    assert code == 0, err
+    shutil.copytree(runs["other"], src)
+    code, _, err = _phase3(run_cli, None, t, 6, "--resume", "--strategy", "plain")
+    assert code == 0, err
+    line = error_line(*_phase3(run_cli, src, t, 7, "--resume", "--strategy", "plain")[::2])
+    assert f"the source run at {src.resolve()} is not the run phase 3 began with" in line, line
+    assert lt.Study(t).store.count(3) == 6

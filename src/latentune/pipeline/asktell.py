@@ -355,11 +355,12 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
     if phase == Phase.PHASE3:
         ls, source = resolve_latent(study.run, study.manifest, latent, space)
         require_source_store(strat, source, mfp)
-        check_source_run(study.run, study.manifest, source, ls)
+        check_source_run(study.run, study.manifest, source, ls,
+                         latent is not None or mf.learns_from_source(strat, mfp))
         extra = mf.phase3_extra(source, strat, start_rec, mfp, g.get("handover"),
                                 g.get("transfer_options"),
                                 *source_pin(study.dir, study.manifest, source,
-                                            pin and mf.pins_source(strat, mfp)))
+                                            pin and mf.pins_source(strat, mfp, source)))
     else:
         extra = {"start": start_rec, **mf.fall_options(mfp, g.get("fall_prior"))}
     pc = study.manifest.phase_options(phase, method=g["method"], budget=g["budget"],

@@ -111,12 +111,13 @@ def phase3_setup(run: RunDir, manifest: Manifest, space: ParameterSpace, actor: 
     strategy = resolve_strategy(manifest, strategy, handover, ls)
     refuse_plain_options(strategy, method, regions, start)
     require_source_store(strategy, source, max_fall_prob)
-    check_source_run(run, manifest, source, ls)
+    check_source_run(run, manifest, source, ls,
+                     latent is not None or mf.learns_from_source(strategy, max_fall_prob))
     start_rec = mf.start_point(start, space.manual, space.dim)[1]
     return ls, mf.phase3_extra(source, strategy, start_rec, max_fall_prob, handover,
                                transfer_options,
                                *source_pin(run.dir, manifest, source,
-                                           mf.pins_source(strategy, max_fall_prob)))
+                                           mf.pins_source(strategy, max_fall_prob, source)))
 
 
 def refuse_plain_options(strategy: str, method: str | None, regions: int | None,
@@ -218,20 +219,24 @@ def require_pinned_trials(source: str, counts: dict[str, int] | None,
                           "there, or give the directory that holds it now (latent)")
 
 
-def check_source_run(run: RunDir, manifest: Manifest, source: str, latent: Any) -> None:
+def check_source_run(run: RunDir, manifest: Manifest, source: str, latent: Any,
+                     reads: bool = True) -> None:
     """Check, before a phase 3 with trials writes anything, that it goes on from the source
     run it began with, ``source`` (the stored one, or the one given: its ``latent`` space).
-    The stored source: LatentError (one line) when it holds another run now
-    (:func:`require_pinned_trials`). Another directory: recorded as the new place of the source
-    run when that run was moved there: the stored directory no longer holds the run phase 3
-    began with and ``source`` does (:func:`source_mismatch`; for a phase 3 recorded before the
-    fingerprint of those trials existed, ``latent`` is also the latent space phase 3 copied:
-    counts alone do not tell two runs apart), with one warning "source run moved from A to
-    B"; LatentError (one line) when ``source`` holds another run. Nothing otherwise: the stored
-    source still holds that run, or nothing is pinned to know it by (a plain phase 3 without a
-    fall prediction), and the options check names the stored source. A run whose pinned
-    trials were amended since is that run (one warning, :func:`source_mismatch`). This is a
-    phase 3 start's one check of its source run (:func:`phase_critic` does not check again)."""
+    The stored source, where phase 3 ``reads`` it (its trials: :func:`~latentune.pipeline.
+    manifest.learns_from_source`; or its latent space, given again: a plain phase 3 without a
+    fall prediction otherwise searches the copy it made and needs nothing there): LatentError
+    (one line) when it holds another run now (:func:`require_pinned_trials`). Another
+    directory: recorded as the new place of the source run when that run was moved there: the
+    stored directory no longer holds the run phase 3 began with and ``source`` does
+    (:func:`source_mismatch`; for a phase 3 recorded before the fingerprint of those trials
+    existed, ``latent`` is also the latent space phase 3 copied: counts alone do not tell two
+    runs apart), with one warning "source run moved from A to B"; LatentError (one line) when
+    ``source`` holds another run. Nothing otherwise: the stored source still holds that run,
+    or nothing is pinned to know it by (a plain phase 3 recorded before it pinned its
+    source), and the options check names the stored source. A run whose pinned trials were
+    amended since is that run (one warning, :func:`source_mismatch`). This is a phase 3
+    start's one check of its source run (:func:`phase_critic` does not check again)."""
     cfg = manifest.config()
     pc = cfg.get("phase3") or {}
     prev, counts, fp = pc.get("latent_source"), pc.get("source_counts"), \
@@ -240,7 +245,8 @@ def check_source_run(run: RunDir, manifest: Manifest, source: str, latent: Any) 
             or not manifest.n_fixing(Phase.PHASE3):
         return
     if source == prev:
-        require_pinned_trials(source, counts, fp)
+        if reads:
+            require_pinned_trials(source, counts, fp)
         return
     gone = source_mismatch(prev, counts, fp)
     if gone is None:

@@ -765,11 +765,19 @@ def fall_options(max_fall_prob: float | None, prior: Any) -> dict[str, Any]:
             "prior_counts": None if prior is None else run_counts(prior)}
 
 
-def pins_source(strategy: str, max_fall_prob: float | None) -> bool:
-    """Whether phase 3 with this ``strategy`` and ``max_fall_prob`` pins its source run's
-    trials (:data:`PINNED`: ``source_counts`` and ``source_fingerprint``): the transfer
-    strategy and the fall prediction learn from them."""
+def learns_from_source(strategy: str, max_fall_prob: float | None) -> bool:
+    """Whether phase 3 with this ``strategy`` and ``max_fall_prob`` learns from its source
+    run's trials: the transfer strategy and the fall prediction do; the plain phase 3 without
+    one searches the latent space alone."""
     return strategy == "transfer" or max_fall_prob is not None
+
+
+def pins_source(strategy: str, max_fall_prob: float | None, source: str) -> bool:
+    """Whether phase 3 pins its ``source`` run's trials (:data:`PINNED`: ``source_counts``,
+    and ``source_fingerprint`` for another run's): where it learns from them
+    (:func:`learns_from_source`), and for another run's whatever the strategy, which knows
+    that run by them (a moved source followed, another run refused)."""
+    return learns_from_source(strategy, max_fall_prob) or source != "self"
 
 
 def phase3_extra(source: str, strategy: str, start: Any, max_fall_prob: float | None,
@@ -780,12 +788,13 @@ def phase3_extra(source: str, strategy: str, start: Any, max_fall_prob: float | 
     ``source``, the ``strategy``, the ``start`` record (:func:`start_point`), the fall-aware
     option (its prior: the latent space's source), the hand-over (:func:`handover`), the
     transfer critic's options (:func:`transfer_option`) and, where phase 3 pins its source's
-    trials (:func:`pins_source`), how many of each phase the source run holds
+    trials (:func:`pins_source`: ``source_counts`` None otherwise), how many of each phase the
+    source run holds
     (:func:`run_counts`) and, for another run's, their fingerprint (:func:`run_fingerprint`),
     as the caller read them (:func:`~latentune.pipeline.loop.source_pin`; :data:`PINNED`: a
     resume uses those trials, not ones the source made since, and knows the source run by
     them)."""
-    pinned = pins_source(strategy, max_fall_prob)
+    pinned = pins_source(strategy, max_fall_prob, source)
     return {"latent_source": source, "strategy": strategy, "start": start,
             **fall_options(max_fall_prob, None if max_fall_prob is None else "latent source"),
             "handover": handover(hand_over),
