@@ -140,6 +140,134 @@ def test_a_reopened_study_takes_its_seed_and_options_from_the_store(tmp_path):
     np.testing.assert_array_equal([s.theta for s in ctl], [s.theta for s in grown])
 
 
+# ---------------------------------------------------------------------------- one θ, one trial
+MANUAL_BEST = lt.ParameterSpace(["a", "b", "c", "d"], [-1.0] * 4, [1.0] * 4, manual=[0.0] * 4)
+"""A space whose manual θ (0.5 in the unit box) is the optimum of :func:`bowl` without a shift:
+a source's phase 1 never beats it, so the source's best θ (the zero-shot θ) is the manual θ."""
+
+
+def bowl(shift: float = 0.0, ran: list | None = None) -> lt.FunctionSystem:
+    """A quadratic about ``shift`` on :data:`MANUAL_BEST` that adds every θ it runs (physical)
+    to ``ran``."""
+    def fn(x: np.ndarray) -> float:
+        if ran is not None:
+            ran.append(tuple(np.round(x, 12)))
+        return float(np.sum((x - shift) ** 2))
+    return lt.FunctionSystem(MANUAL_BEST, fn)
+
+
+@pytest.fixture(scope="module")
+def src_manual_best(tmp_path_factory) -> Path:
+    """A source run whose best θ is the manual θ: phase 1 (12, seed 0) of :func:`bowl` and a
+    2-d latent space (300 epochs: fewer leave it decoding every code to about one θ). Tests
+    copy it."""
+    d = tmp_path_factory.mktemp("srcmb") / "src"
+    with lt.Study(d, seed=0) as src:
+        src.phase1(bowl(), 12)
+        src.train_latent(latent_dim=2, epochs=300)
+    return d
+
+
+@pytest.fixture
+def decodes_manual(monkeypatch) -> None:
+    """A decoder that gives the manual θ exactly for codes it decodes near it (within 0.06 of
+    it in every unit-box entry): a latent space whose decoded start is the manual θ itself."""
+    from latentune.latent.vae import LatentSpace
+
+    orig = LatentSpace.decode_code
+
+    def snapped(self, z):
+        th = orig(self, z)
+        near = np.all(np.abs(np.atleast_2d(th) - 0.5) < 0.06, axis=1)
+        out = np.atleast_2d(th).copy()
+        out[near] = 0.5
+        return out[0] if np.ndim(th) == 1 else out
+    monkeypatch.setattr(LatentSpace, "decode_code", snapped)
+
+
+def plain_by_asktell(d: Path, src: Path, target_ran: list, n: int, budget: int = 6) -> lt.Study:
+    """A person running the plain phase 3 of ``d`` on :func:`bowl` (0.1) by ask/tell, one
+    suggestion at a time: the zero-shot trial, then phase-3 trials, ``n`` in all."""
+    target = bowl(0.1, target_ran)
+    with lt.Study(d, seed=1) as at:
+        for i in range(n):
+            kw = dict(system=target, phase=3, latent=src, strategy="plain",
+                      budget=budget) if i == 0 else {}
+            try:
+                (s,) = at.ask(**kw)
+            except StoreError:          # the budget is told
+                break
+            out = evaluate(target, s.theta)
+            at.tell(s.id, out.cost, failed=out.failed)
+    return lt.Study(d)
+
+
+def test_the_plain_phase_3_runs_the_manual_theta_once_when_it_is_the_sources_best(
+        tmp_path, src_manual_best, decodes_manual, caplog):
+    """``Study.phase3(strategy="plain")`` ran the manual θ (phase 0), then the source's best θ
+    as the zero-shot trial, then the decoded start of the search: the same θ three times on
+    the target when the source's best is the manual θ and the start decodes to it. It runs it
+    once: the zero-shot trial and the start are stored with its outcome (``info["reused"]``,
+    said at INFO), and the start's row counts in phase 3's budget."""
+    shutil.copytree(src_manual_best, tmp_path / "src")
+    with lt.Study(tmp_path / "src") as src:
+        assert np.array_equal(src.best().theta, MANUAL_BEST.manual)     # the premise
+    ran: list = []
+    caplog.set_level(logging.INFO, logger="latentune")
+    with lt.Study(tmp_path / "run", seed=1) as run:
+        res = run.phase3(bowl(0.1, ran), 6, latent=tmp_path / "src", strategy="plain")
+        zs = run.store.rows(Phase.ZERO_SHOT)[0]
+        p3 = run.store.rows(Phase.PHASE3)
+    assert len(ran) == len(set(ran)), ran                          # no θ run twice
+    assert ran.count(tuple(np.zeros(4))) == 1
+    assert res.n == 6 and len(ran) == 1 + 6 - sum(bool(r.info.get("reused")) for r in p3)
+    assert zs.info.get("reused") and np.array_equal(zs.theta, MANUAL_BEST.manual)
+    assert p3[0].info.get("reused") and np.array_equal(p3[0].theta, MANUAL_BEST.manual)
+    assert "not run again" in caplog.text
+
+
+def test_ask_tell_never_hands_out_a_told_theta_as_the_plain_phase_3s_start(
+        tmp_path, src_manual_best, decodes_manual):
+    """Ask/tell's plain phase 3 handed out the zero-shot θ (the source's best, here the manual
+    θ), then its decoded start: the same θ, two trials on the robot. The start is stored with
+    the zero-shot trial's outcome instead (a told row of phase 3, in its budget), and the
+    first phase-3 suggestion is the next point of the design."""
+    shutil.copytree(src_manual_best, tmp_path / "src")
+    ran: list = []
+    with plain_by_asktell(tmp_path / "at", tmp_path / "src", ran, 4) as at:
+        p3 = at.store.rows(Phase.PHASE3)
+    assert len(ran) == 4 and len(ran) == len(set(ran)), ran        # no θ handed out twice
+    assert p3[0].info.get("reused") and np.array_equal(p3[0].theta, MANUAL_BEST.manual)
+
+
+def test_both_front_ends_give_the_plain_phase_3_the_same_theta_and_trials(
+        tmp_path, src_manual_best, decodes_manual, caplog):
+    """For a seed, the phase run and ask/tell store the same phase-3 rows (θ, cost, fall,
+    reused or run, in the order the critic is told them), and run the same θ, each once, on
+    the target (the phase run's manual θ, phase 0, is the θ ask/tell runs as the zero-shot
+    trial); so does a phase run stopped in its first batch and resumed."""
+    shutil.copytree(src_manual_best, tmp_path / "src")
+    ran_run: list = []
+    with lt.Study(tmp_path / "run", seed=1) as run:
+        run.phase3(bowl(0.1, ran_run), 6, latent=tmp_path / "src", strategy="plain")
+    ran_at: list = []
+    plain_by_asktell(tmp_path / "at", tmp_path / "src", ran_at, 20).close()
+
+    def rows(d: Path) -> list[tuple]:
+        with lt.Study(d) as st:
+            return [(r.phase, r.theta.tobytes(), r.cost, r.fell, bool(r.info.get("reused")))
+                    for ph in (Phase.PHASE3,) for r in phases.told_order(st.store.rows(ph))]
+    assert rows(tmp_path / "run") == rows(tmp_path / "at")
+    assert sorted(ran_run) == sorted(ran_at) and len(ran_at) == len(set(ran_at))
+    ran_cut: list = []          # stopped in its first batch, after the start's reused row
+    for max_new in (2, None):
+        with lt.Study(tmp_path / "cut", seed=1) as cut:
+            cut.phase3(bowl(0.1, ran_cut), 6, latent=tmp_path / "src", strategy="plain",
+                       max_new=max_new)
+    assert "not deterministic" not in caplog.text
+    assert rows(tmp_path / "cut") == rows(tmp_path / "run") and sorted(ran_cut) == sorted(ran_run)
+
+
 # ---------------------------------------------------------------------------- several askers
 def test_leases_expire_and_are_released(tmp_path):
     st = lt.Study(tmp_path / "s", seed=0)

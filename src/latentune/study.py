@@ -37,7 +37,8 @@ from latentune.pipeline.asktell import Suggestion
 from latentune.pipeline.baselines import source_best
 from latentune.pipeline.evaluators import Evaluator
 from latentune.pipeline.loop import (decoder_of, phase3_setup, phase_critic, record_latent,
-                                     resolve_latent, stop_note, study_latent, theta_prior)
+                                     resolve_latent, reuse_phases, stop_note, study_latent,
+                                     theta_prior)
 from latentune.pipeline.manifest import describe
 from latentune.pipeline.phases import (PhaseResult, default_batch_size, ensure_manual,
                                        manual_outcome, run_phase)
@@ -274,7 +275,8 @@ class Study:
                 with self.manifest.timing("phase3"):
                     res = run_phase(st, Phase.PHASE3, system, critic, pc["budget"],
                                     self.evaluator(), decoder=decoder_of(pc, ls), seed=self.seed,
-                                    progress=self.progress, max_new=max_new, strategy=strategy)
+                                    progress=self.progress, max_new=max_new, strategy=strategy,
+                                    reuse=reuse_phases(Phase.PHASE3, pc))
             finally:
                 if pc["handover"] is not None:
                     self.manifest.update(phase3_handover=critic.rule())

@@ -34,6 +34,15 @@ study's suggestions, ids and rows are the same with or without the preparation, 
 loses nothing: the prepared batch is written in one transaction after the told result's, and
 turned into queued suggestions (with the critic's state) in one transaction.
 
+One θ, one trial
+----------------
+In the plain phase 3 a θ the critic asks that the study holds a trial of already (the manual
+θ's, the zero-shot trial's, phase 3's own: :func:`~latentune.pipeline.loop.reuse_phases`) is not
+handed out: :func:`_queue` stores it at once with that trial's outcome (``info["reused"]``),
+first in its batch, as the phase run stores it (:func:`~latentune.pipeline.phases.run_phase`'s
+``reuse``); it counts in the budget in both. A zero-shot θ the study holds a trial of is stored
+from it the same way (:func:`~latentune.pipeline.baselines.queue_zero_shot`).
+
 Corrections
 -----------
 ``tell(..., amend=True)`` replaces a told result; the store keeps the old one in its audit
@@ -68,9 +77,10 @@ from latentune.pipeline import manifest as mf
 from latentune.pipeline.baselines import queue_zero_shot, zero_shot_to_queue
 from latentune.pipeline.loop import (check_source_run, decoder_of, latent_to_record, phase_critic,
                                      record_latent, refuse_plain_options, require_source_store,
-                                     resolve_latent, resolve_strategy, source_pin, strategy_of)
-from latentune.pipeline.phases import (ask_batch, replay, state_key, stored_fall_options,
-                                       warn_if_failing)
+                                     resolve_latent, resolve_strategy, reuse_phases,
+                                     source_pin, strategy_of)
+from latentune.pipeline.phases import (ask_batch, replay, reused_first, say_reused, state_key,
+                                       stored_fall_options, stored_outcomes, warn_if_failing)
 from latentune.pipeline.results import best_row, fall_budget, phase_name, write_best
 from latentune.pipeline.store import Row, RunStore, critics_told
 from latentune.space import ParameterSpace
@@ -403,13 +413,18 @@ def ask(study: Any, n: int = 1, *, system: Any = None, space: ParameterSpace | N
         need = int(n) - len(got)
         if got and _budget_left(st, ctx.phase, ctx.options)[0] <= 0:
             need = 0                    # the budget is handed out: the suggestions there are
-        if need > 0:
+        while need > 0:
+            told = st.count(ctx.phase)
             if not _take_prepared(study, st, ctx.phase, ctx.options, need):
                 if not ctx.built:
                     ctx = _context(study, st, system, space, phase, latent, given, undo)
-                _queue(study, st, ctx.phase, _critic_batch(study, st, ctx.phase, ctx.options,
-                                                           ctx.space, ctx.latent, need))
-            got += st.lease(who, (ctx.phase,), need, lease, queued_only=True)
+                _queue(study, st, ctx.phase, ctx.options,
+                       _critic_batch(study, st, ctx.phase, ctx.options, ctx.space, ctx.latent,
+                                     need))
+            new = st.lease(who, (ctx.phase,), need, lease, queued_only=True)
+            got, need = got + new, need - len(new)
+            if st.count(ctx.phase) == told or _budget_left(st, ctx.phase, ctx.options)[0] <= 0:
+                break       # no θ of the batch was a stored trial's: the critic gave its all
         if not got:             # never an empty answer: the critic asked only θ handed out
             raise StoreError(f"{study.dir}: {phase_name(ctx.phase)}'s critic gave no θ that is "
                              "not handed out already: tell the pending suggestions first")
@@ -524,7 +539,7 @@ def _context(study: Any, st: RunStore, system: Any, space: ParameterSpace | None
     study.manifest.record_seed(study.seed)
     study.manifest.update(**record)
     if ph == Phase.PHASE3:
-        queue_zero_shot(st, pc.get("latent_source"))
+        queue_zero_shot(st, pc.get("latent_source"), study.seed)
     return _Context(ph, pc, sp, ls)
 
 
@@ -647,13 +662,31 @@ def _critic_batch(study: Any, st: RunStore, phase: int, pc: dict[str, Any],
                   state, rule)
 
 
-def _queue(study: Any, st: RunStore, phase: int, batch: _Batch) -> None:
+def _queue(study: Any, st: RunStore, phase: int, pc: dict[str, Any], batch: _Batch
+           ) -> None:
     """Queue ``batch`` as suggestions, with the critic's state (the next ask reuses its GP
-    fits) and without any prepared batch, in one transaction."""
+    fits) and without any prepared batch, in one transaction (``pc``: the phase's options
+    record). Its θ that are a stored trial's (:func:`~latentune.pipeline.loop.reuse_phases`:
+    the plain phase 3) are not handed out: they are told that trial's outcome at once, first,
+    as the phase run stores them (:func:`~latentune.pipeline.phases.reused_first`), said at
+    INFO, and count in the phase's budget."""
     meta: dict[str, Any] = {NEXT_KEY: None}
     if batch.state:
         meta[state_key(phase)] = batch.state
-    st.queue_trials(phase, batch.thetas, batch.codes, batch.tags, meta=meta)
+    known = stored_outcomes(st, reuse_phases(phase, pc))
+    o = reused_first(batch.thetas, known)
+    told = []
+    for i in o:
+        out = known.get(np.ascontiguousarray(batch.thetas[i], dtype=float).tobytes())
+        if out is not None:
+            say_reused(phase, out)
+        told.append(None if out is None else {
+            "cost": out.cost, "fell": out.failed, "fall_step": out.fall_step,
+            "wall_s": out.wall_s, "seed": study.seed, "info": {**out.info, "reused": True}})
+    st.queue_trials(phase, batch.thetas[o], [batch.codes[i] for i in o], batch.tags[o],
+                    meta=meta, told=told)
+    if any(t is not None for t in told):
+        write_best(st, study.dir, study.manifest.space(), phase)
     if batch.rule is not None:
         study.manifest.update(phase3_handover=batch.rule)
 
@@ -688,7 +721,7 @@ def _take_prepared(study: Any, st: RunStore, phase: int, pc: dict[str, Any], nee
         st.delete_meta(NEXT_KEY)
         return False
     codes = [None if c is None else np.asarray(c, dtype=float) for c in prep["codes"]]
-    _queue(study, st, phase, _Batch(np.asarray(prep["thetas"], dtype=float), codes,
+    _queue(study, st, phase, pc, _Batch(np.asarray(prep["thetas"], dtype=float), codes,
                                     np.asarray(prep["tags"], dtype=np.int64), prep["state"],
                                     prep["rule"]))
     return True

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from latentune.constants import Phase
-from latentune.pipeline.phases import store_outcome
+from latentune.pipeline.phases import reused_outcome, store_outcome
 from latentune.pipeline.store import Row, RunStore
 from latentune.system import EvaluationError, evaluate
 
@@ -32,20 +32,30 @@ def source_best(run: str | os.PathLike) -> Row | None:
     return min(ok, key=lambda r: (r.cost, r.phase, r.idx))
 
 
+REUSED_BY_ZERO_SHOT = (Phase.MANUAL, Phase.PHASE3)
+"""The phases whose stored trial of the zero-shot θ gives the zero-shot trial its outcome
+instead of a new trial (the source's best is often the manual θ, which the plain phase 3 runs
+first)."""
+
+
 def zero_shot(store: RunStore, system: Any, source: str, seed: int,
               evaluator: Any = None) -> float | None:
     """Evaluate the source study's best θ on ``system`` once (phase 4, idx 0) unless it is
     stored (a zero-shot suggestion of ask/tell not handed out yet is withdrawn: this run asks
     it); return its cost (None when there is nothing to run). On ``evaluator`` (the phase's),
-    else in this process."""
+    else in this process; a trial of that θ stored already (:data:`REUSED_BY_ZERO_SHOT`: the
+    manual θ's, when the source's best is the manual θ) gives its outcome instead, as
+    :func:`queue_zero_shot` does for ask/tell."""
     if source == "self" or store.count(Phase.ZERO_SHOT) > 0:
         return None
     store.drop_queued((Phase.ZERO_SHOT,))
     best = source_best(source)
     if best is None:
         return None
-    out = evaluator.one(system, best.theta) if evaluator is not None \
-        else evaluate(system, best.theta)
+    out = reused_outcome(store, Phase.ZERO_SHOT, best.theta, REUSED_BY_ZERO_SHOT)
+    if out is None:
+        out = evaluator.one(system, best.theta) if evaluator is not None \
+            else evaluate(system, best.theta)
     out.info.update({"source": str(Path(source)), "source_phase": int(best.phase),
                      "source_idx": int(best.idx), "source_cost": float(best.cost)})
     store_outcome(store, Phase.ZERO_SHOT, 0, best.theta, out, seed=seed)
@@ -60,14 +70,23 @@ def zero_shot_to_queue(store: RunStore, source: str | None) -> bool:
         t.phase == Phase.ZERO_SHOT and t.status != "dropped" for t in store.trials())
 
 
-def queue_zero_shot(store: RunStore, source: str | None) -> None:
+def queue_zero_shot(store: RunStore, source: str | None, seed: int | None = None) -> None:
     """Ask/tell with another study's latent space: queue that study's best θ as the zero-shot
-    suggestion (phase 4), handed out before phase 3's first, once."""
+    suggestion (phase 4), handed out before phase 3's first, once; a trial of that θ stored
+    already (:data:`REUSED_BY_ZERO_SHOT`) is stored as the zero-shot trial instead (with
+    ``seed``), as :func:`zero_shot` does."""
     if not zero_shot_to_queue(store, source):
         return
     best = source_best(source)
-    if best is not None:
+    if best is None:
+        return
+    out = reused_outcome(store, Phase.ZERO_SHOT, best.theta, REUSED_BY_ZERO_SHOT)
+    if out is None:
         store.add_trial(Phase.ZERO_SHOT, best.theta, None, -1)
+        return
+    out.info.update({"source": str(Path(source)), "source_phase": int(best.phase),
+                     "source_idx": int(best.idx), "source_cost": float(best.cost)})
+    store_outcome(store, Phase.ZERO_SHOT, 0, best.theta, out, seed=seed)
 
 
 def preservation(store: RunStore, system: Any, latent: Any, source: str, evaluator: Any,

@@ -94,6 +94,19 @@ def strategy_of(pc: dict[str, Any]) -> str:
     return str(pc.get("strategy") or "plain")
 
 
+def reuse_phases(phase: int, pc: dict[str, Any]) -> tuple[int, ...]:
+    """The phases whose stored trials a θ the critic of ``phase`` (options record ``pc``) asks
+    again is stored from, not run again (:func:`~latentune.pipeline.phases.stored_outcomes`),
+    in the phase run and ask/tell alike: for the plain phase 3, the manual θ's trial, the
+    zero-shot trial and phase 3's own (its decoded start may be the manual θ, which may be the
+    source's best). None for phase 1 (its manual θ is reused by the phase run alone: ask/tell
+    has no trial of it before phase 1's) and the transfer phase 3 (it is told those trials
+    and never asks a told θ again, option ``distinct``)."""
+    if int(phase) != Phase.PHASE3 or strategy_of(pc) != "plain":
+        return ()
+    return (Phase.MANUAL, Phase.ZERO_SHOT, Phase.PHASE3)
+
+
 OWN_TOLD = 30
 """Phase 3 on the system of its own phase 1: the best trials of phase 1 told to the transfer
 critic as target data (with the phase-1 trials among its elites), so it does not run them again."""

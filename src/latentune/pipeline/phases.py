@@ -49,7 +49,7 @@ from typing import Any, Callable
 import numpy as np
 
 from latentune.checks import is_whole
-from latentune.constants import Phase
+from latentune.constants import Phase, phase_name
 from latentune.critic.handover import HANDOVER_DEFAULTS
 from latentune.errors import StoreError, UsageError
 from latentune.pipeline.evaluators import ClusterLost, Evaluator, TrialError
@@ -435,13 +435,15 @@ def pending_batch(store: RunStore, phase: int, budget: int, decoder: Callable | 
     return b
 
 
-def reask(critic: Any, batch: AskedBatch, decoder: Callable | None) -> None:
+def reask(critic: Any, batch: AskedBatch, decoder: Callable | None,
+          known: dict[bytes, Outcome] | None = None) -> None:
     """Ask ``critic``, told the rows stored before ``batch``, for as many points as ``batch``
     holds, so its state (model fits, random streams, Optuna's trials) is the one the stopped
     run's critic had while the batch was evaluated; the recorded points are the ones evaluated
     and told. A critic that asks other points (not deterministic) is told the recorded ones as
-    points of its batch (a warning says so)."""
-    U, T = ask_batch(critic, len(batch.thetas), decoder)[:2]
+    points of its batch (a warning says so). ``known``: the stored outcomes the batch was
+    ordered by when it was asked (:func:`ask_batch`)."""
+    U, T = ask_batch(critic, len(batch.thetas), decoder, known)[:2]
     if U.shape != batch.U.shape or not (np.array_equal(U, batch.U)
                                         and np.array_equal(T, batch.T)):
         log.warning("the critic asked again for the batch a stopped run left unfinished gives "
@@ -482,16 +484,23 @@ def _tell_rows(store: RunStore, phase: int, critic: Any, upto: int | None = None
     return len(rows)
 
 
-def ask_batch(critic: Any, k: int, decoder: Callable | None
+def ask_batch(critic: Any, k: int, decoder: Callable | None,
+              known: dict[bytes, Outcome] | None = None
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray, list[Any]]:
     """Ask ``critic`` for ``k`` points: (U (k, m) its points, tags (k,), Z (k, m') a
-    two-space critic's codes or None, θ (k, d), the code to store with each θ)."""
+    two-space critic's codes or None, θ (k, d), the code to store with each θ);
+    with ``known``, in the order they are stored and told (:func:`reused_first`), else in
+    ask order."""
     U = critic.ask(k)
     T = critic.last_tags.copy()
     Z = getattr(critic, "last_z", None)           # a two-space critic's latent codes
     Z = None if Z is None else Z.copy()
     thetas, codes = asked_points(U, Z, decoder)
-    return U, T, Z, thetas, codes
+    if not known:
+        return U, T, Z, thetas, codes
+    o = reused_first(thetas, known)
+    return (U[o], T[o], None if Z is None else Z[o], np.asarray(thetas)[o],
+            [codes[i] for i in o])
 
 
 def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int,
@@ -499,7 +508,7 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
               decoder: Callable[[np.ndarray], np.ndarray] | None = None, seed: int | None = None,
               progress: bool = False, on_row: Callable[[int, float], None] | None = None,
               max_new: int | None = None, known: dict[bytes, Outcome] | None = None,
-              strategy: str = "plain") -> PhaseResult:
+              strategy: str = "plain", reuse: tuple[int, ...] = ()) -> PhaseResult:
     """Run (or resume) one tuning phase until ``budget`` evaluations are stored, or until a
     critic with a fall budget (``fall_budget_spent``: the transfer critic's ``fall_budget``)
     has spent it. The budget is checked before each trial starts (its
@@ -527,6 +536,11 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
             evaluated once as phase 0, is phase 1's first point).
         strategy: phase 3's strategy (``"transfer"`` or ``"plain"``): what the warning of a
             streak of failed trials suggests (:func:`failing_message`).
+        reuse: phases whose stored trials join ``known`` at each batch (the rows stored before
+            it, :func:`stored_outcomes`; :func:`~latentune.pipeline.loop.reuse_phases`): a θ
+            asked again is stored with the outcome it had (a row of the phase, in its budget),
+            as ask/tell stores it, and said at INFO (:func:`say_reused`). A batch is stored
+            and told with those first (:func:`reused_first`).
 
     Raises:
         EvaluationError: a trial raised or gave no usable cost; the batch's finished trials are
@@ -542,8 +556,12 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
     # (else the fall budget is spent: they stay, asked and not run, as status counts them)
     y = store.costs(phase)
     idx = n0 = len(y)
+
+    def known_at(n: int) -> dict[bytes, Outcome]:   # what a batch asked at row n reuses
+        return {**(known or {}), **stored_outcomes(store, reuse, {int(phase): n})}
+    kn = known_at(n0 if batch is None else batch.n0)
     if batch is not None:
-        reask(critic, batch, decoder)
+        reask(critic, batch, decoder, kn)
         log.info("phase %d: finishing the batch of %d points a stopped run asked (%d of them "
                  "stored)", int(phase), len(batch.thetas), len(batch.done))
     bar = _progress(budget, min(n0, budget), f"phase {phase}", progress)
@@ -574,7 +592,8 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
                 break
             if batch is None:
                 k = min(critic.batch_size, budget - idx)   # whole: max_new leaves the rest
-                batch = AskedBatch(idx, *ask_batch(critic, k, decoder))     # for the resume
+                kn = known_at(idx)
+                batch = AskedBatch(idx, *ask_batch(critic, k, decoder, kn))     # for the resume
                 store.set_meta(batch_key(phase), batch.record())
             U, T, Z, thetas, codes = batch.U, batch.T, batch.Z, batch.thetas, batch.codes
             todo = [i for i in range(len(thetas)) if i not in batch.done]
@@ -582,13 +601,14 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
                 todo = todo[:max_new - new]
             error: str | None = None
             for j, r in _lost_head_says_stored(
-                    _results(evaluator, system, thetas[todo], known or {},
+                    _results(evaluator, system, thetas[todo], kn,
                              None if spent_after is None else spent), store, phase):
                 i = todo[j]
                 if isinstance(r, TrialError):
                     error = error or r.message
                     continue
                 cost = float(r.cost)
+                say_reused(phase, r)
                 if batch.n0 + i != idx:         # out of ask order: where it was asked
                     r = Outcome(r.cost, r.failed, {**r.info, ASKED: batch.n0 + i}, r.wall_s)
                 store_outcome(store, phase, idx, thetas[i], r, z=codes[i], tag=int(T[i]),
@@ -711,16 +731,31 @@ def ensure_manual(store: RunStore, system: Any, seed: int | None = None,
                   evaluator: Evaluator | None = None, idx: int = 0) -> float:
     """Evaluate the system's manual θ once (phase 0, row ``idx``) and return its cost; on
     ``evaluator`` (the phase's: a crash or a timeout of the trial is a failed trial there), else
-    in this process."""
+    in this process. A zero-shot trial of the manual θ stored already (the source's best was
+    the manual θ) gives its outcome instead (:func:`reused_outcome`)."""
     for r in store.rows(Phase.MANUAL):
         if r.idx == idx:
             return r.cost
     from latentune.system import evaluate
 
-    out = evaluator.one(system, system.space.manual) if evaluator is not None \
-        else evaluate(system, system.space.manual)
+    out = reused_outcome(store, Phase.MANUAL, system.space.manual, (Phase.ZERO_SHOT,))
+    if out is None:
+        out = evaluator.one(system, system.space.manual) if evaluator is not None \
+            else evaluate(system, system.space.manual)
     store_outcome(store, Phase.MANUAL, idx, system.space.manual, out, seed=seed)
     return float(out.cost)
+
+
+def reused_outcome(store: RunStore, phase: int, theta: np.ndarray,
+                   phases: tuple[int, ...]) -> Outcome | None:
+    """The outcome of the stored trial of ``phases`` whose θ is ``theta`` (its ``info`` with
+    ``"reused": True`` and ``"same_as"``, :func:`stored_outcomes`), said at INFO for a trial
+    of ``phase`` that is then not run (:func:`say_reused`); None when there is none."""
+    out = stored_outcomes(store, phases).get(np.ascontiguousarray(theta, dtype=float).tobytes())
+    if out is None:
+        return None
+    say_reused(phase, out)
+    return Outcome(out.cost, out.failed, {**out.info, "reused": True}, out.wall_s)
 
 
 def manual_outcome(store: RunStore, system: Any) -> dict[bytes, Outcome]:
@@ -733,6 +768,52 @@ def manual_outcome(store: RunStore, system: Any) -> dict[bytes, Outcome]:
     r = rows[0]
     info = {**r.info, "fall_step": r.fall_step} if r.fall_step is not None else dict(r.info)
     return {theta.tobytes(): Outcome(r.cost, r.fell, info, r.wall_s)}
+
+
+NOT_REUSED = (ASKED, "trial", "reused", "same_as", "source", "source_phase", "source_idx",
+              "source_cost")
+"""The keys of a stored row's ``info`` that say where the row stands, not what the trial gave:
+left out of the outcome a θ asked again is stored with (:func:`stored_outcomes`)."""
+
+
+def stored_outcomes(store: RunStore, phases: tuple[int, ...],
+                    upto: dict[int, int] | None = None) -> dict[bytes, Outcome]:
+    """The stored trials of ``phases`` (``upto``: only the first ``upto[p]`` rows of phase
+    ``p``) by the bytes of their (d,) float64 θ, the first stored of equal θ, each as the
+    Outcome a θ asked again is stored with instead of a new trial (:func:`run_phase`'s
+    ``known``; ``info["same_as"]``: [phase, idx] of the trial it repeats)."""
+    out: dict[bytes, Outcome] = {}
+    for ph in phases:
+        rows = store.rows(ph)
+        for r in rows if upto is None or ph not in upto else rows[:upto[ph]]:
+            key = np.ascontiguousarray(r.theta, dtype=float).tobytes()
+            if key in out:
+                continue
+            info = {k: v for k, v in (r.info or {}).items() if k not in NOT_REUSED}
+            if r.fall_step is not None:
+                info["fall_step"] = r.fall_step
+            out[key] = Outcome(r.cost, r.fell, {**info, "same_as": [int(ph), int(r.idx)]},
+                               r.wall_s)
+    return out
+
+
+def reused_first(thetas: np.ndarray, known: dict[bytes, Outcome]) -> np.ndarray:
+    """The order in which a batch of asked ``thetas`` (k, d) is stored and told: its θ found in
+    ``known`` (stored with that outcome, not run) first, then the others, each part in ask
+    order. The phase run and ask/tell store a batch in this order alike, so the critic is told
+    the same rows in the same order whichever drives the loop."""
+    hit = [i for i in range(len(thetas))
+           if np.ascontiguousarray(thetas[i], dtype=float).tobytes() in known]
+    return np.array(hit + [i for i in range(len(thetas)) if i not in hit], dtype=np.int64)
+
+
+def say_reused(phase: int, out: Outcome) -> None:
+    """Log at INFO that an asked θ is the θ of a stored trial (``out.info["same_as"]``) and is
+    stored with its outcome instead of being run again."""
+    same = out.info.get("same_as")
+    if same is not None:
+        log.info("phase %d: an asked θ is the θ of the stored %s trial %d: stored with its "
+                 "outcome, not run again", int(phase), phase_name(same[0]), int(same[1]))
 
 
 def training_set(store: RunStore, phase: int = Phase.PHASE1) -> np.ndarray:

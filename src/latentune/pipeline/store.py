@@ -594,20 +594,32 @@ class RunStore:
 
     # ------------------------------------------------------------------ ask/tell trials
     def queue_trials(self, phase: int, thetas: Any, zs: list[Any], tags: Any,
-                     meta: dict[str, Any] | None = None) -> list[int]:
+                     meta: dict[str, Any] | None = None,
+                     told: list[dict[str, Any] | None] | None = None) -> list[int]:
         """Record a batch the critic asked as 'queued' suggestions (one transaction); return
         their ids in ask order. ``thetas`` (n, d), ``zs`` n codes or None, ``tags`` (n,).
-        ``meta``: entries written in the same transaction (a None value removes the entry)."""
+        ``meta``: entries written in the same transaction (a None value removes the entry).
+        ``told``: per suggestion None, or the result it is told at once (a θ of a stored trial,
+        not run again): a dict of ``cost``, ``fell``, ``fall_step``, ``wall_s``, ``seed`` and
+        ``info``, stored as the next evaluation of ``phase`` (in the order given)."""
         now = time.time()
         with self._write(trials=True):
             self._put_meta(meta or {})
             ids = []
-            for th, z, tag in zip(thetas, zs, tags):
+            for th, z, tag, res in zip(thetas, zs, tags, told or [None] * len(thetas)):
                 cur = self.con.execute(
                     "INSERT INTO trials(phase, theta, z, tag, status, idx, created) "
                     "VALUES (?, ?, ?, ?, 'queued', NULL, ?)",
                     (int(phase), _enc(th), _enc(z), int(tag), now))
                 ids.append(int(cur.lastrowid))
+                if res is None:
+                    continue
+                idx = self.next_idx(int(phase))
+                self._insert(int(phase), idx, th, res["cost"], z, int(tag), res["fell"],
+                             res.get("fall_step"), res.get("wall_s"), res.get("seed"),
+                             {**(res.get("info") or {}), "trial": ids[-1]})
+                self.con.execute("UPDATE trials SET status='told', idx=?, told=? WHERE id=?",
+                                 (idx, now, ids[-1]))
         return ids
 
     def add_trial(self, phase: int, theta: Any, z: Any, tag: int) -> int:
