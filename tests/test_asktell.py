@@ -268,6 +268,30 @@ def test_both_front_ends_give_the_plain_phase_3_the_same_theta_and_trials(
     assert rows(tmp_path / "cut") == rows(tmp_path / "run") and sorted(ran_cut) == sorted(ran_run)
 
 
+def test_a_first_ask_of_two_gives_the_plain_phase_3_the_rows_of_the_phase_run(
+        tmp_path, src_manual_best):
+    """A first ``ask(2)`` of the plain phase 3 hands out the zero-shot θ and a phase-3 θ before
+    the zero-shot trial is told. The plain critic never sees the zero-shot trial, yet the ask
+    counted it among the θ the critic asks again: it asked one point more and dropped its
+    first, the search's start, so the phase-3 rows differed from the phase run's (and its
+    design asked a told θ again). It asks its own handed-out θ again only, as the phase run
+    it gives the rows of."""
+    shutil.copytree(src_manual_best, tmp_path / "src")
+    with lt.Study(tmp_path / "run", seed=1) as run:
+        run.phase3(bowl(0.1), 6, latent=tmp_path / "src", strategy="plain")
+        want = rows_of(run, Phase.PHASE3)
+    target = bowl(0.1)
+    with lt.Study(tmp_path / "at", seed=1) as at:
+        first = at.ask(2, system=target, phase=3, latent=tmp_path / "src", strategy="plain",
+                       budget=6)
+        assert [s.phase_name for s in first] == ["zero-shot", "phase 3"]
+        for s in first:
+            at.tell(s.id, evaluate(target, s.theta).cost)
+        while at.store.count(Phase.PHASE3) < 6:
+            person(at, target, 1)
+        assert rows_of(at, Phase.PHASE3) == want
+
+
 # ---------------------------------------------------------------------------- several askers
 def test_leases_expire_and_are_released(tmp_path):
     st = lt.Study(tmp_path / "s", seed=0)

@@ -650,9 +650,10 @@ def _critic_batch(study: Any, st: RunStore, phase: int, pc: dict[str, Any],
                               "falls (the fall budget is a share of it)")
     out = [t for t in st.trials()
            if t.status in ("queued", "pending") and t.phase in (phase, Phase.ZERO_SHOT)]
-    # the critic asks the θ handed out again (the zero-shot θ too: the transfer critic's
-    # first point until it is told), then the new ones
-    U, T, Z, thetas, codes = ask_batch(critic, len(out) + k, decoder_of(pc, ls))
+    # the critic asks the θ handed out again (the zero-shot θ too for the transfer critic:
+    # its first point until it is told; the plain critic never sees it), then the new ones
+    again = [t for t in out if t.phase == phase or strategy_of(pc) == "transfer"]
+    U, T, Z, thetas, codes = ask_batch(critic, len(again) + k, decoder_of(pc, ls))
     held = {np.ascontiguousarray(t.theta).tobytes() for t in out}
     keep = [i for i in range(len(thetas))
             if np.ascontiguousarray(thetas[i]).tobytes() not in held][-k:]
