@@ -292,6 +292,29 @@ def test_a_first_ask_of_two_gives_the_plain_phase_3_the_rows_of_the_phase_run(
         assert rows_of(at, Phase.PHASE3) == want
 
 
+def test_an_ask_whose_batch_is_all_told_theta_asks_on_or_says_the_budget_is_told(
+        tmp_path, src_manual_best, decodes_manual):
+    """A first ``ask(2)`` whose phase-3 start decodes to the zero-shot θ handed out with it:
+    the start is not handed out twice (it is held back, and the design later asks θ it told,
+    stored from their trials). An ask whose batch held only such θ said "the critic gave no θ
+    that is not handed out already" when it used the last of the budget; it asks the next
+    batch, or says the budget is told. No θ runs twice on the target."""
+    shutil.copytree(src_manual_best, tmp_path / "src")
+    ran: list = []
+    target = bowl(0.1, ran)
+    with lt.Study(tmp_path / "at", seed=1) as at:
+        for s in at.ask(2, system=target, phase=3, latent=tmp_path / "src", strategy="plain",
+                        budget=8):
+            at.tell(s.id, evaluate(target, s.theta).cost)
+        with pytest.raises(StoreError, match="budget of 8 trials is told"):
+            for _ in range(9):
+                (s,) = at.ask()
+                at.tell(s.id, evaluate(target, s.theta).cost)
+        assert at.store.count(Phase.PHASE3) == 8
+        assert any(r.info.get("reused") for r in at.store.rows(Phase.PHASE3))
+    assert len(ran) == len(set(ran)), ran
+
+
 # ---------------------------------------------------------------------------- several askers
 def test_leases_expire_and_are_released(tmp_path):
     st = lt.Study(tmp_path / "s", seed=0)

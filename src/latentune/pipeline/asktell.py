@@ -423,8 +423,10 @@ def ask(study: Any, n: int = 1, *, system: Any = None, space: ParameterSpace | N
                                      need))
             new = st.lease(who, (ctx.phase,), need, lease, queued_only=True)
             got, need = got + new, need - len(new)
-            if st.count(ctx.phase) == told or _budget_left(st, ctx.phase, ctx.options)[0] <= 0:
+            if st.count(ctx.phase) == told:
                 break       # no θ of the batch was a stored trial's: the critic gave its all
+            if got and _budget_left(st, ctx.phase, ctx.options)[0] <= 0:
+                break       # (none handed out and the budget told: the next batch says so)
         if not got:             # never an empty answer: the critic asked only θ handed out
             raise StoreError(f"{study.dir}: {phase_name(ctx.phase)}'s critic gave no θ that is "
                              "not handed out already: tell the pending suggestions first")
