@@ -315,3 +315,89 @@ def test_a_plain_phase_3_needs_its_source_run_only_where_it_reads_it(tmp_path, r
     line = error_line(*_phase3(run_cli, src, t, 7, "--resume", "--strategy", "plain")[::2])
     assert f"the source run at {src.resolve()} is not the run phase 3 began with" in line, line
     assert lt.Study(t).store.count(3) == 6
+
+
+def _codes(d: Path) -> set[int]:
+    """The lengths of the latent codes of the phase-3 trials stored at ``d``."""
+    return {len(r.z) for r in lt.Study(d).store.rows(3) if r.z is not None}
+
+
+def _retrained(src: Path) -> None:
+    """The source run's latent space trained again on the same trials, of another size."""
+    with lt.Study(src) as s:
+        s.train_latent(3, epochs=20, retrain=True)
+
+
+def _copied(t: Path) -> str:
+    with lt.Study(t) as study:
+        return study.latent().fingerprint()
+
+
+@pytest.mark.parametrize("strategy", ["transfer", "plain"])
+def test_a_retrained_source_latent_space_named_again_goes_on_with_the_copy(
+        tmp_path, run_cli, runs, strategy):
+    """``latentune phase2`` run again on the source (another latent dimension, the same trials)
+    and ``phase3 --resume --vae SRC`` went on with the retrained 3-dim space instead of the
+    4-dim copy phase 3 began with: its new trials carried codes of another space than the
+    stored ones. Phase 3 goes on with its copy and one warning naming the cause."""
+    src, t = tmp_path / "src", tmp_path / "t"
+    shutil.copytree(runs["source"], src)
+    flags = ("--strategy", strategy)
+    code, _, err = _phase3(run_cli, src, t, 4, *flags)
+    assert code == 0, err
+    before = _copied(t)
+    _retrained(src)
+    code, _, err = _phase3(run_cli, src, t, 6, "--resume", *flags)
+    assert code == 0, err
+    lines = [ln for ln in err.splitlines() if "retrained since" in ln]
+    assert len(lines) == 1 and f"{src.resolve()} holds another latent space than the one " \
+        "phase 3 began with" in lines[0] and "goes on with its copy" in lines[0], err
+    assert lt.Study(t).store.count(3) == 6 and _copied(t) == before
+    if strategy == "plain":
+        assert _codes(t) == {4}, _codes(t)
+
+
+@pytest.mark.parametrize("strategy", ["transfer", "plain"])
+def test_a_retrained_source_latent_space_given_to_python_and_ask_goes_on_with_the_copy(
+        tmp_path, runs, caplog, strategy):
+    """``Study.phase3(latent=SRC)`` and ``Study.ask(latent=SRC)`` on a resume after SRC's
+    latent space was retrained go on with phase 3's copy, with one warning each."""
+    import logging
+
+    from latentune.system import evaluate, load_system
+
+    real = load_system("examples.toy_plant:make_real_system")
+    src = tmp_path / "src"
+    shutil.copytree(runs["source"], src)
+    with lt.Study(tmp_path / "t", seed=0) as study:
+        study.phase3(real, 3, latent=src, strategy=strategy)
+    with lt.Study(tmp_path / "a", seed=0) as study:
+        for s in study.ask(2, system=real, phase=3, latent=src, budget=6, strategy=strategy):
+            study.tell(s.id, evaluate(real, s.theta).cost)
+    before = {k: _copied(tmp_path / k) for k in "ta"}
+    _retrained(src)
+    caplog.set_level(logging.WARNING)
+    with lt.Study(tmp_path / "t", seed=0) as study:
+        study.phase3(real, 5, latent=src, strategy=strategy)
+        assert study.store.count(3) == 5
+    with lt.Study(tmp_path / "a", seed=0) as study:
+        for s in study.ask(4, latent=src):      # more than the batch the last tell prepared
+            study.tell(s.id, evaluate(real, s.theta).cost)
+    lines = [r.getMessage() for r in caplog.records if "retrained since" in r.getMessage()]
+    assert len(lines) == 2, lines
+    assert {k: _copied(tmp_path / k) for k in "ta"} == before
+    if strategy == "plain":
+        assert _codes(tmp_path / "t") == _codes(tmp_path / "a") == {4}
+
+
+def test_a_first_phase_3_takes_the_retrained_latent_space(tmp_path, runs):
+    """A phase 3 with no trial yet copies the source's latent space as it is now."""
+    from latentune.system import load_system
+
+    src = tmp_path / "src"
+    shutil.copytree(runs["source"], src)
+    _retrained(src)
+    real = load_system("examples.toy_plant:make_real_system")
+    with lt.Study(tmp_path / "t", seed=0) as study:
+        study.phase3(real, 3, latent=src, strategy="plain")
+        assert study.latent().d_low == 3

@@ -75,8 +75,8 @@ from latentune.constants import Phase
 from latentune.errors import LatentuneError, StoreError, UsageError
 from latentune.pipeline import manifest as mf
 from latentune.pipeline.baselines import queue_zero_shot, zero_shot_to_queue
-from latentune.pipeline.loop import (check_source_run, decoder_of, latent_to_record, phase_critic,
-                                     record_latent, refuse_plain_options, require_source_store,
+from latentune.pipeline.loop import (began_latent, check_source_run, decoder_of,
+                                     latent_to_record, phase_critic, record_latent, refuse_plain_options, require_source_store,
                                      resolve_latent, resolve_strategy, reuse_phases,
                                      source_pin, strategy_of)
 from latentune.pipeline.phases import (ask_batch, replay, reused_first, say_reused, state_key,
@@ -367,6 +367,7 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
         require_source_store(strat, source, mfp)
         check_source_run(study.run, study.manifest, source, ls,
                          latent is not None or mf.learns_from_source(strat, mfp))
+        ls = began_latent(study.run, study.manifest, ls, source, latent is not None)
         extra = mf.phase3_extra(source, strat, start_rec, mfp, g.get("handover"),
                                 g.get("transfer_options"),
                                 *source_pin(study.dir, study.manifest, source,

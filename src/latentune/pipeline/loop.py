@@ -126,6 +126,7 @@ def phase3_setup(run: RunDir, manifest: Manifest, space: ParameterSpace, actor: 
     require_source_store(strategy, source, max_fall_prob)
     check_source_run(run, manifest, source, ls,
                      latent is not None or mf.learns_from_source(strategy, max_fall_prob))
+    ls = began_latent(run, manifest, ls, source, latent is not None)
     start_rec = mf.start_point(start, space.manual, space.dim)[1]
     return ls, mf.phase3_extra(source, strategy, start_rec, max_fall_prob, handover,
                                transfer_options,
@@ -281,6 +282,32 @@ def check_source_run(run: RunDir, manifest: Manifest, source: str, latent: Any,
         moved = {k: {**cfg[k], "latent_source": source} for k in ("phase3", "asktell")
                  if (cfg.get(k) or {}).get("latent_source") == prev}
         manifest.update(**moved, phase3_vae_source=source)
+
+
+def began_latent(run: RunDir, manifest: Manifest, latent: Any, source: str,
+                 given: bool = True) -> Any:
+    """The latent space phase 3 searches, once it has a trial (its zero-shot trial counts):
+    the copy it made of its source run's latent space when it began, whatever that run holds
+    now; ``latent`` (the one :func:`resolve_latent` found) on a first start, for a phase 3 on
+    its own latent space, or when the source was not ``given`` (``latent`` is the copy then).
+    A source named again (``given``, :func:`check_source_run` has checked it is the run phase
+    3 began with) whose latent space is another now (trained again since, on the same trials)
+    gives one warning: phase 3's stored trials carry codes of the copy, so it goes on with that
+    one. Call it after :func:`check_source_run` (a moved source is recorded there)."""
+    from latentune.latent.vae import LatentSpace
+
+    if not given or source == "self" or not manifest.n_fixing(Phase.PHASE3) \
+            or manifest.config().get("phase3_vae_source") != source:
+        return latent
+    path = run.store.artifact("phase3_vae")
+    if path is None:
+        return latent
+    copy = LatentSpace.load(path)
+    if copy.fingerprint() != latent.fingerprint():
+        log.warning("%s holds another latent space than the one phase 3 began with (retrained "
+                    "since?): phase 3 goes on with its copy of that one (%s); to search the "
+                    "new one, start a new phase 3 in another directory", source, path)
+    return copy
 
 
 def source_pin(run_dir: Path, manifest: Manifest, source: str, pinned: bool
