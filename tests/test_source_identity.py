@@ -401,3 +401,50 @@ def test_a_first_phase_3_takes_the_retrained_latent_space(tmp_path, runs):
     with lt.Study(tmp_path / "t", seed=0) as study:
         study.phase3(real, 3, latent=src, strategy="plain")
         assert study.latent().d_low == 3
+
+
+@pytest.mark.parametrize("strategy", ["transfer", "plain"])
+def test_an_optuna_study_under_way_refuses_a_retrained_latent_space(tmp_path, runs, strategy):
+    """A LatentSampler made for a study under way after its source's latent space was trained
+    again searched the retrained space (its trials told as outside points, the transfer
+    strategy's source trials pinned again as the run holds them now): the study switched
+    latent spaces silently. The study pins the latent space of its first sample; a sampler with
+    another is refused in one line (the study holds no copy of the old one to go on with); the
+    same latent space from a moved source goes on."""
+    optuna = pytest.importorskip("optuna")
+    from latentune.errors import LatentError
+    from latentune.integrations.optuna import LatentSampler
+
+    src = tmp_path / "src"
+    shutil.copytree(runs["source"], src)
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+
+    def objective(trial):
+        return float(sum(v * v for v in trial.study.sampler.suggest_all(trial).values()))
+
+    def more(study, where, n):
+        study.sampler = LatentSampler(where, seed=0, budget=20, strategy=strategy)
+        study.optimize(objective, n_trials=n)
+
+    study = optuna.create_study()
+    more(study, src, 3)
+    moved = tmp_path / "moved"
+    shutil.move(src, moved)
+    more(study, moved, 1)                  # the same latent space at another place
+    _retrained(moved)
+    with pytest.raises(LatentError, match=r"^LatentSampler: .*moved holds another latent space "
+                                          r"than the one the study began with \(retrained "
+                                          r"since\?\)") as exc:
+        more(study, moved, 1)
+    assert "\n" not in str(exc.value)
+    with pytest.raises(LatentError, match=r"the study began with the latent space of .*moved, "
+                                          r"and .*other holds another"):
+        more(study, runs["other"], 1)
+    from latentune.integrations.optuna import LATENT_ATTR
+
+    study._storage.set_study_system_attr(study._study_id, LATENT_ATTR, None)  # pinned before
+    with pytest.raises(LatentError, match=r"moved holds another latent space than the one the "
+                                          r"study began with \(retrained since\?\)"):
+        more(study, moved, 1)           # known by its first sampled trial's key
+    assert len([t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]) == 4
+

@@ -49,6 +49,8 @@ of processes may share one RDB or journal storage):
 * the transfer strategy searches from the source run's trials as they were at the study's first
   sample (their counts pinned in ``latentune:source_counts:<key>``, as ``Study.phase3`` pins
   them): a source run that gets more trials later does not change a study under way;
+* the latent space too is the one of the study's first sample (``latentune:latent_space``): a
+  sampler whose source's latent space was trained again since is refused;
 * ``budget`` is the trials planned, every trial of the study that ran or runs counted: a trial
   past it is sampled as any other (by the critic planned for the budget: its trust regions, its
   fall budget), with one ``UserWarning`` per study and sampler; a new sampler with a larger
@@ -137,6 +139,12 @@ SOURCE_PRINT_ATTR = "latentune:source_fingerprint:"
 those source trials (:func:`latentune.pipeline.manifest.run_fingerprint`): a source directory
 that holds other trials later is refused (:func:`latentune.pipeline.loop.source_mismatch`);
 studies pinned before it existed are checked by the counts alone."""
+LATENT_ATTR = "latentune:latent_space"
+"""Study system attribute pinning the latent space a study's LatentSampler searches:
+``{"fingerprint", "source_run"}`` (:meth:`latentune.latent.LatentSpace.fingerprint`) of the
+sampler of its first sample that asks the critic; a later sampler with another latent space
+(its source's trained again since, or another run's) is refused. Studies sampled before it
+existed are pinned to the latent space in their first sampled trial's key."""
 FAILED_ATTR = "latentune_failed"
 """Trial user attribute: true marks a fall (``trial.set_user_attr("latentune_failed", True)``)."""
 ZERO_SHOT_ATTR = "latentune:zero_shot"
@@ -848,6 +856,7 @@ class LatentSampler(_CriticSampler, BaseSampler):
             raise UsageError(f"start must be 'manual', 'best' or None, got {start!r}")
         self.source_run = src.resolve()
         self._source_checked = False        # the source run is the one the study pinned
+        self._latent_checked: set[tuple[int, int]] = set()   # (storage, study) checked
         self._space = space
         self.latent = latent
         best = source_best(src)
@@ -855,7 +864,8 @@ class LatentSampler(_CriticSampler, BaseSampler):
         self.start = start
         self._init_common(seed, budget, regions, method, max_fall_prob, constraints_func,
                           independent_sampler)
-        self._key = (f"latent:{latent.fingerprint()}:{strategy}:{method}:"
+        self._latent_print = latent.fingerprint()
+        self._key = (f"latent:{self._latent_print}:{strategy}:{method}:"
                      f"regions={self.regions if strategy == 'plain' else None}:"
                      f"{max_fall_prob}:{start}" + ("" if self.transfer_options is None else
                                                    ":" + json.dumps(self.transfer_options,
@@ -868,6 +878,7 @@ class LatentSampler(_CriticSampler, BaseSampler):
         self._prior = _latent_prior(self.source_run, latent) if max_fall_prob else None
 
     def _critic(self, study: Any) -> tuple[Any, Callable | None]:
+        self._check_latent(study)
         return _phase3_critic(self.source_run, self.latent, self._space,
                               strategy=self.strategy, method=self.method,
                               batch_size=self.batch_size, seed=self.seed, x0=self._x0,
@@ -875,6 +886,34 @@ class LatentSampler(_CriticSampler, BaseSampler):
                               max_fall_prob=self.max_fall_prob, prior=self._prior,
                               transfer_options=self.transfer_options,
                               source_counts=self._source_counts(study))
+
+    def _check_latent(self, study: Any) -> None:
+        """Pin the sampler's latent space in ``study`` (:data:`LATENT_ATTR`) at its first
+        sample, or check it against the pinned one (once per sampler and study): LatentError
+        (one line) when it is another (the source's latent space trained again since, or
+        another run's). The study's trials were sampled in the pinned one and the study holds
+        no copy of it, so it cannot go on with it; the same latent space from a moved source
+        goes on (its new place recorded)."""
+        sid = (id(study._storage), int(study._study_id))
+        if sid in self._latent_checked:
+            return
+        now = {"fingerprint": self._latent_print, "source_run": str(self.source_run)}
+        pinned = study._storage.get_study_system_attrs(study._study_id).get(LATENT_ATTR) \
+            or _first_latent(study)
+        if pinned is not None and pinned.get("fingerprint") != now["fingerprint"]:
+            was = pinned.get("source_run")
+            if was in (None, now["source_run"]):
+                why = (f"{self.source_run} holds another latent space than the one the study "
+                       "began with (retrained since?)")
+            else:
+                why = (f"the study began with the latent space of {was}, and {self.source_run} "
+                       "holds another")
+            raise LatentError(f"LatentSampler: {why}: the study's trials were sampled in that "
+                              "one; give the run directory that holds it (source_run), or "
+                              "start a new study")
+        if pinned != now:
+            study._storage.set_study_system_attr(study._study_id, LATENT_ATTR, now)
+        self._latent_checked.add(sid)
 
     def _source_counts(self, study: Any) -> dict[str, int] | None:
         """The source trials the study searches from (:data:`SOURCE_ATTR`), pinned at its
@@ -993,6 +1032,17 @@ class LatentSampler(_CriticSampler, BaseSampler):
             return np.clip(np.asarray(self._space.manual, dtype=float), 0.0, 1.0)
         study._storage.set_trial_system_attr(trial._trial_id, ZERO_SHOT_ATTR, True)
         return self._zero_shot_theta
+
+def _first_latent(study: Any) -> dict[str, Any] | None:
+    """The latent space a study sampled before :data:`LATENT_ATTR` existed was pinned to:
+    ``{"fingerprint", "source_run": None}`` from the key of its first trial a LatentSampler
+    sampled (:data:`POINT_ATTR`), else None."""
+    for t in sorted(study.get_trials(deepcopy=False), key=lambda t: t.number):
+        key = (t.system_attrs.get(POINT_ATTR) or {}).get("key")
+        if isinstance(key, str) and key.startswith("latent:"):
+            return {"fingerprint": key.split(":")[1], "source_run": None}
+    return None
+
 
 class TurboSampler(_CriticSampler, BaseSampler):
     """latentune's TuRBO-m (phase 1) as an Optuna sampler on the θ box of a search space.
