@@ -448,3 +448,83 @@ def test_an_optuna_study_under_way_refuses_a_retrained_latent_space(tmp_path, ru
         more(study, moved, 1)           # known by its first sampled trial's key
     assert len([t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]) == 4
 
+
+def test_an_amendment_of_the_source_is_reported_once(tmp_path, run_cli, runs, caplog):
+    """The warning that a pinned source trial was amended since phase 3 began was repeated at
+    every start: every ask, and every tell that prepared the next batch, of an ask/tell phase
+    3, and every resume. It is said once per amendment: a later amendment is reported alone."""
+    import logging
+
+    from latentune.system import evaluate, load_system
+
+    real = load_system("examples.toy_plant:make_real_system")
+    src = tmp_path / "src"
+    shutil.copytree(runs["asked"], src)
+    kw = {"strategy": "plain", "max_fall_prob": 0.5}
+    with lt.Study(tmp_path / "a", seed=0) as study:
+        for s in study.ask(2, system=real, phase=3, latent=src, budget=40, **kw):
+            study.tell(s.id, evaluate(real, s.theta).cost)
+    with lt.Study(src) as s:
+        s.tell(7, 9.0, amend=True)
+    caplog.set_level(logging.WARNING)
+
+    def rounds(n: int) -> list[str]:
+        caplog.clear()
+        for _ in range(n):
+            with lt.Study(tmp_path / "a", seed=0) as study:
+                for s in study.ask(4):      # a batch each: a start of the critic
+                    study.tell(s.id, evaluate(real, s.theta).cost)
+        return [r.getMessage() for r in caplog.records if "amended since" in r.getMessage()]
+
+    (line,) = rounds(3)
+    assert "trial 7 was amended since phase 3 began" in line, line
+    with lt.Study(src) as s:
+        s.tell(9, 4.0, amend=True)
+    (line,) = rounds(2)
+    assert "trial 9 was amended since phase 3 began" in line and "7" not in line.split(
+        "began")[0].split("trial")[-1], line
+    t = tmp_path / "t"                  # a phase run, resumed from the command line
+    code, _, err = _phase3(run_cli, src, t, 3)
+    assert code == 0, err
+    with lt.Study(src) as s:
+        s.tell(3, 2.0, amend=True)
+    code, _, err = _phase3(run_cli, None, t, 4, "--resume")
+    assert code == 0 and len(_amended_lines(err)) == 1, err
+    code, _, err = _phase3(run_cli, None, t, 5, "--resume")
+    assert code == 0 and not _amended_lines(err), err
+
+
+def test_an_optuna_study_reports_an_amendment_of_its_source_once(tmp_path, runs, caplog):
+    """Each new LatentSampler of a study under way repeated the warning that a pinned source
+    trial was amended; the study records the amendments reported and says each once."""
+    import logging
+
+    optuna = pytest.importorskip("optuna")
+    from latentune.integrations.optuna import LatentSampler
+
+    src = tmp_path / "src"
+    shutil.copytree(runs["asked"], src)
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+
+    def objective(trial):
+        return float(sum(v * v for v in trial.study.sampler.suggest_all(trial).values()))
+
+    def more(study) -> list[str]:
+        caplog.clear()
+        study.sampler = LatentSampler(src, seed=0, budget=20)
+        study.optimize(objective, n_trials=1)
+        return [r.getMessage() for r in caplog.records if "amended since" in r.getMessage()]
+
+    study = optuna.create_study()
+    more(study)
+    more(study)
+    with lt.Study(src) as s:
+        s.tell(7, 9.0, amend=True)
+    caplog.set_level(logging.WARNING)
+    (line,) = more(study)
+    assert "trial 7 was amended since the study began" in line, line
+    assert more(study) == []
+    with lt.Study(src) as s:
+        s.tell(9, 4.0, amend=True)
+    (line,) = more(study)
+    assert "trial 9 was amended" in line, line

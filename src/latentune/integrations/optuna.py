@@ -139,6 +139,10 @@ SOURCE_PRINT_ATTR = "latentune:source_fingerprint:"
 those source trials (:func:`latentune.pipeline.manifest.run_fingerprint`): a source directory
 that holds other trials later is refused (:func:`latentune.pipeline.loop.source_mismatch`);
 studies pinned before it existed are checked by the counts alone."""
+AMENDED_ATTR = "latentune:source_amendments_reported:"
+"""Prefix of the study system attribute holding, beside :data:`SOURCE_PRINT_ATTR`, the highest
+amendment of those source trials a sampler reported (a warning per amendment, not per
+sampler: :func:`latentune.pipeline.loop.source_mismatch`); absent until one is."""
 LATENT_ATTR = "latentune:latent_space"
 """Study system attribute pinning the latent space a study's LatentSampler searches:
 ``{"fingerprint", "source_run"}`` (:meth:`latentune.latent.LatentSpace.fingerprint`) of the
@@ -920,7 +924,8 @@ class LatentSampler(_CriticSampler, BaseSampler):
         first sample with their fingerprint (:data:`SOURCE_PRINT_ATTR`); None for the plain
         strategy. LatentError (one line) when the source run holds other trials than those
         now (replaced or cut since), a warning when some of them were amended since
-        (:func:`~latentune.pipeline.loop.source_mismatch`): checked once per sampler, not at
+        (:func:`~latentune.pipeline.loop.source_mismatch`; once per amendment,
+        :data:`AMENDED_ATTR`): checked once per sampler, not at
         the study's first sample, which pins them (one read of the source's trials)."""
         from latentune.pipeline.loop import source_mismatch
         from latentune.pipeline.manifest import run_counts, run_fingerprint
@@ -940,8 +945,13 @@ class LatentSampler(_CriticSampler, BaseSampler):
         if attrs.get(key) != pinned:
             study._storage.set_study_system_attr(study._study_id, key, pinned)
         if not self._source_checked:
+            seen = AMENDED_ATTR + self._key
+
+            def record(latest: int) -> None:
+                study._storage.set_study_system_attr(study._study_id, seen, int(latest))
             why = source_mismatch(self.source_run, pinned, printed, "the study",
-                                  "the source run's latent space")
+                                  "the source run's latent space",
+                                  reported=int(attrs.get(seen) or 0), record=record)
             if why is not None:
                 raise LatentError(f"LatentSampler: the source run at {self.source_run} is not "
                                   f"the run the study began with: it {why} (replaced since?); "

@@ -76,7 +76,8 @@ from latentune.errors import LatentuneError, StoreError, UsageError
 from latentune.pipeline import manifest as mf
 from latentune.pipeline.baselines import queue_zero_shot, zero_shot_to_queue
 from latentune.pipeline.loop import (began_latent, check_source_run, decoder_of,
-                                     latent_to_record, phase_critic, record_latent, refuse_plain_options, require_source_store,
+                                     latent_to_record, phase_critic, record_latent,
+                                     refuse_plain_options, require_source_store,
                                      resolve_latent, resolve_strategy, reuse_phases,
                                      source_pin, strategy_of)
 from latentune.pipeline.phases import (ask_batch, replay, reused_first, say_reused, state_key,
@@ -313,9 +314,10 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
     not given are the stored ones (or the defaults on the first ask); a given one that differs
     from the stored is refused (:func:`~latentune.pipeline.manifest.ask_options`). Writes
     nothing (:func:`_context` records the latent space) but the new place of a moved source
-    run (:func:`~latentune.pipeline.loop.check_source_run`). ``pin`` False: a check whose
-    record is not kept (:func:`check_first_ask`), without reading the source's trials to pin
-    them (:func:`~latentune.pipeline.loop.source_pin`)."""
+    run and the source's amendments reported (:func:`~latentune.pipeline.loop.
+    check_source_run`). ``pin`` False: a check whose record is not kept
+    (:func:`check_first_ask`), without reading the source's trials to pin them
+    (:func:`~latentune.pipeline.loop.source_pin`)."""
     key = mf.PHASE_KEYS[Phase(phase)]
     cfg = study.manifest.config()
     fixed = (cfg.get("asktell") or {}).get("phase") == phase or study.manifest.n_used(phase)

@@ -16,7 +16,7 @@ from __future__ import annotations
 import logging
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -119,7 +119,8 @@ def phase3_setup(run: RunDir, manifest: Manifest, space: ParameterSpace, actor: 
                  ) -> tuple[Any, dict[str, Any]]:
     """(the LatentSpace, phase 3's own options record) of a phase-3 run with these arguments
     (:meth:`~latentune.study.Study.phase3`), checked (:func:`refuse_plain_options`); writes
-    nothing but the new place of a moved source run (:func:`check_source_run`)."""
+    nothing but the new place of a moved source run and the source's amendments reported
+    (:func:`check_source_run`)."""
     ls, source = resolve_latent(run, manifest, latent, space, actor)
     strategy = resolve_strategy(manifest, strategy, handover, ls)
     refuse_plain_options(strategy, method, regions, start)
@@ -183,7 +184,9 @@ def require_source_store(strategy: str, source: str, max_fall_prob: float | None
 
 def source_mismatch(source: Any, counts: dict[str, int] | None,
                     fingerprint: str | None = None, who: str = "phase 3",
-                    uses: str = "the latent space it copied when it began") -> str | None:
+                    uses: str = "the latent space it copied when it began",
+                    reported: int = 0, record: Callable[[int], None] | None = None
+                    ) -> str | None:
     """Why the run at ``source`` is not the source run a phase 3 (``who``) began with, in
     words that follow "it" ("holds 8 phase-1 trials, fewer than the 16 phase 3 began with");
     None when it is, or when nothing is pinned to know it by. That run is known by the trials
@@ -191,8 +194,11 @@ def source_mismatch(source: Any, counts: dict[str, int] | None,
     (:func:`~latentune.pipeline.manifest.run_fingerprint`); a phase 3 recorded before the
     fingerprint existed (None) by the counts alone. A run whose pinned trials were amended
     since (:func:`~latentune.pipeline.manifest.amended_since`: the same θ, a cost or fall flag
-    corrected) is that run: one warning names the amended trials and says that ``who`` goes
-    on with ``uses`` and the amended results. The one identity check of a source run: on a
+    corrected) is that run: one warning names the trials amended since that an amendment
+    numbered above ``reported`` (the highest one reported before) changed, and says that
+    ``who`` goes on with ``uses`` and the amended results; ``record`` is then called with the
+    highest amendment number, to be passed as ``reported`` next time: each amendment is
+    reported once. The one identity check of a source run: on a
     resume (:func:`require_pinned_trials`), for a moved one (:func:`check_source_run`) and for
     the Optuna sampler's (:class:`~latentune.integrations.optuna.LatentSampler`)."""
     if not counts:
@@ -206,27 +212,32 @@ def source_mismatch(source: Any, counts: dict[str, int] | None,
             return f"holds {held}, fewer than the {n} {who} began with"
     if fingerprint is None:
         return None
-    amended = mf.amended_since(source, counts, fingerprint)
-    if amended is None:
+    since = mf.amended_since(source, counts, fingerprint, reported)
+    if since is None:
         began = " and ".join(counted(int(n), f"phase-{ph} trial")
                              for ph, n in sorted(counts.items()) if int(n))
         return f"holds other trials than the {began} {who} began with"
+    amended, latest = since
     if amended:
         log.warning("the source run at %s: trial%s %s amended since %s began (%s: a cost or "
                     "fall flag corrected); %s goes on with %s and the amended results", source,
                     "s" if len(amended) > 1 else "", ", ".join(map(str, amended))
                     + (" were" if len(amended) > 1 else " was"), who, option("amend", True),
                     who, uses)
+    if record is not None and latest > reported:
+        record(latest)
     return None
 
 
 def require_pinned_trials(source: str, counts: dict[str, int] | None,
-                          fingerprint: str | None = None) -> None:
+                          fingerprint: str | None = None, reported: int = 0,
+                          record: Callable[[int], None] | None = None) -> None:
     """LatentError (one line) when the run at ``source`` is not the source run phase 3 began
     with (:func:`source_mismatch`: fewer trials than ``counts``, or other ones than
     ``fingerprint``, amendments since undone): the directory holds another run now (replaced or
-    cut since), whose trials would go on in their place. Nothing to check without ``counts``."""
-    why = source_mismatch(source, counts, fingerprint)
+    cut since), whose trials would go on in their place. Nothing to check without ``counts``.
+    ``reported``, ``record``: the amendments reported before (:func:`source_mismatch`)."""
+    why = source_mismatch(source, counts, fingerprint, reported=reported, record=record)
     if why is not None:
         raise LatentError(f"{option('latent')}: the source run at {source} is not the run "
                           f"phase 3 began with: it {why} (replaced since?); put that run back "
@@ -249,7 +260,8 @@ def check_source_run(run: RunDir, manifest: Manifest, source: str, latent: Any,
     ``source`` holds another run. Nothing otherwise: the stored source still holds that run,
     or nothing is pinned to know it by (a plain phase 3 recorded before it pinned its
     source), and the options check names the stored source. A run whose pinned trials were
-    amended since is that run (one warning, :func:`source_mismatch`). This is a phase 3
+    amended since is that run (one warning per amendment, :func:`source_mismatch`; the ones
+    reported are recorded, :func:`amendments_reported`). This is a phase 3
     start's one check of its source run (:func:`phase_critic` does not check again)."""
     cfg = manifest.config()
     pc = cfg.get("phase3") or {}
@@ -258,14 +270,15 @@ def check_source_run(run: RunDir, manifest: Manifest, source: str, latent: Any,
     if source == "self" or prev in (None, "self") or not counts \
             or not manifest.n_fixing(Phase.PHASE3):
         return
+    reported, record = amendments_reported(run, manifest, fp)
     if source == prev:
         if reads:
-            require_pinned_trials(source, counts, fp)
+            require_pinned_trials(source, counts, fp, reported, record)
         return
-    gone = source_mismatch(prev, counts, fp)
+    gone = source_mismatch(prev, counts, fp, reported=reported, record=record)
     if gone is None:
         return
-    why = source_mismatch(source, counts, fp)
+    why = source_mismatch(source, counts, fp, reported=reported, record=record)
     copied = study_latent(run) if why is None and fp is None else None
     if copied is not None and copied.fingerprint() != latent.fingerprint():
         why = ("holds another latent space than the one phase 3 copied from that run (phase 3 "
@@ -308,6 +321,28 @@ def began_latent(run: RunDir, manifest: Manifest, latent: Any, source: str,
                     "since?): phase 3 goes on with its copy of that one (%s); to search the "
                     "new one, start a new phase 3 in another directory", source, path)
     return copy
+
+
+REPORTED_KEY = "phase3_amendments_reported"
+"""Manifest entry of the amendments of phase 3's source run reported so far
+(:func:`source_mismatch`): ``{"source_fingerprint": the pin they are of, "amendment": the
+highest amendment number reported}``; absent until one is."""
+
+
+def amendments_reported(run: RunDir, manifest: Manifest, fingerprint: str | None
+                        ) -> tuple[int, Callable[[int], None]]:
+    """(the highest amendment of phase 3's source run reported since it was pinned with
+    ``fingerprint``, 0 if none; a function recording a higher one in the manifest,
+    :data:`REPORTED_KEY`) for :func:`source_mismatch`: each amendment is reported once."""
+    seen = manifest.config().get(REPORTED_KEY) or {}
+    reported = int(seen.get("amendment") or 0) \
+        if seen.get("source_fingerprint") == fingerprint else 0
+
+    def record(latest: int) -> None:
+        with run.writing():
+            manifest.update(**{REPORTED_KEY: {"source_fingerprint": fingerprint,
+                                              "amendment": int(latest)}})
+    return reported, record
 
 
 def source_pin(run_dir: Path, manifest: Manifest, source: str, pinned: bool

@@ -136,15 +136,18 @@ def _digest(pinned: PinnedRows, outcomes: dict[tuple[int, int], tuple[float, boo
     return h.hexdigest()
 
 
-def amended_since(run: Any, counts: dict[str, int], fingerprint: str) -> list[int] | None:
+def amended_since(run: Any, counts: dict[str, int], fingerprint: str, after: int = 0
+                  ) -> tuple[list[int], int] | None:
     """Whether the run at ``run`` holds the trials that ``counts`` and ``fingerprint``
-    (:func:`run_fingerprint`) pinned, and which of them were amended since: [] when they hash
-    to ``fingerprint`` as they are; the ids of the told trials whose cost or fall flag an
-    amendment changed since (``tell --amend``, :meth:`~latentune.pipeline.store.RunStore.
-    amendments`) when undoing the latest amendments of those trials, newest first, gives
-    ``fingerprint`` back: the same run (the same θ, in the same order), results corrected
-    since; None when neither does (another run, or no run store). Reads the run once; works
-    for pins taken before this existed (the pinned value is the same)."""
+    (:func:`run_fingerprint`) pinned, and which of them were amended since: ([], ``after``)
+    when they hash to ``fingerprint`` as they are; when undoing the latest amendments of those
+    trials (``tell --amend``, :meth:`~latentune.pipeline.store.RunStore.amendments`), newest
+    first, gives ``fingerprint`` back (the same run: the same θ, in the same order, results
+    corrected since), the ids of the told trials whose cost or fall flag those amendments
+    changed and that one numbered above ``after`` amended (the ones not reported yet), with
+    the highest number of those amendments (``after`` if higher); None when neither does
+    (another run, or no run store). Reads the run once; works for pins taken before this
+    existed (the pinned value is the same)."""
     from latentune.pipeline.store import RunStore
 
     if run is None or not (Path(run) / "run.db").is_file():
@@ -152,17 +155,21 @@ def amended_since(run: Any, counts: dict[str, int], fingerprint: str) -> list[in
     with RunStore(run) as st:
         pinned = _pinned_rows(st, counts)
         if _digest(pinned) == fingerprint:
-            return []
+            return [], int(after)
         now = {(ph, idx): (cost, fell) for ph, _, rows in pinned for idx, _, cost, fell in rows}
         amends = [a for a in st.amendments() if (a["phase"], a["idx"]) in now]
     undone: dict[tuple[int, int], tuple[float, bool]] = {}
+    newest: dict[tuple[int, int], int] = {}         # each trial's newest amendment number
     trial = {(a["phase"], a["idx"]): int(a["trial"]) for a in amends}
     for a in reversed(amends):
-        undone[(a["phase"], a["idx"])] = (float(a["old"]["cost"]), bool(a["old"]["fell"]))
+        k = (a["phase"], a["idx"])
+        undone[k] = (float(a["old"]["cost"]), bool(a["old"]["fell"]))
+        newest.setdefault(k, int(a["n"]))
         if _digest(pinned, undone) == fingerprint:
             return sorted(trial[k] for k, (cost, fell) in undone.items()
-                          if fell != now[k][1] or np.float64(cost).tobytes()
-                          != np.float64(now[k][0]).tobytes())
+                          if newest[k] > after and (fell != now[k][1] or np.float64(
+                              cost).tobytes() != np.float64(now[k][0]).tobytes())), \
+                max([int(after), *newest.values()])
     return None
 
 

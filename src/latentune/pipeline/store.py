@@ -790,13 +790,14 @@ class RunStore:
         return t.phase, int(t.idx), changed
 
     def amendments(self) -> list[dict[str, Any]]:
-        """The audit trail of amended results, oldest first: ``{trial, phase, idx, old, new,
-        note, created}`` (old/new: cost, fell, fall_step, info)."""
+        """The audit trail of amended results, oldest first: ``{n, trial, phase, idx, old, new,
+        note, created}`` (n: the amendment's number, rising; old/new: cost, fell, fall_step,
+        info)."""
         if not self._has_leases:
             return []
-        return [{"trial": r[0], "phase": r[1], "idx": r[2], "old": json.loads(r[3]),
+        return [{"n": r[7], "trial": r[0], "phase": r[1], "idx": r[2], "old": json.loads(r[3]),
                  "new": json.loads(r[4]), "note": r[5], "created": r[6]}
-                for r in self.con.execute("SELECT trial, phase, idx, old, new, note, created "
+                for r in self.con.execute("SELECT trial, phase, idx, old, new, note, created, n "
                                           "FROM amendments ORDER BY n")]
 
     def data_version(self) -> list[Any]:
