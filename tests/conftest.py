@@ -172,6 +172,22 @@ def error_line() -> Callable[[int, str], str]:
     return one_line_error
 
 
+@pytest.fixture
+def source_reads(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """Record each read of a source run's pinned trials: the names of the calls of
+    ``manifest.run_fingerprint`` (to pin them) and ``manifest.amended_since`` (to check them),
+    in order, in the returned list (the functions still run)."""
+    from latentune.pipeline import manifest as mf
+
+    reads: list[str] = []
+    for name in ("run_fingerprint", "amended_since"):
+        def counting(*a: Any, _f: Callable = getattr(mf, name), _n: str = name, **k: Any) -> Any:
+            reads.append(_n)
+            return _f(*a, **k)
+        monkeypatch.setattr(mf, name, counting)
+    return reads
+
+
 @pytest.fixture(scope="session")
 def cli_env() -> dict[str, str]:
     """The environment ``cli`` runs the command line in (one BLAS thread, Ray auth off)."""

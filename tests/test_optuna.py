@@ -906,17 +906,10 @@ def test_a_source_run_holding_other_trials_is_refused_by_a_study_under_way(tmp_p
     assert [t.state for t in study.trials] == [S.COMPLETE, S.COMPLETE, S.FAIL]
 
 
-def test_a_study_reads_its_source_trials_once_per_sampler(tmp_path, monkeypatch):
+def test_a_study_reads_its_source_trials_once_per_sampler(tmp_path, source_reads):
     """The first sample pinned the source trials' fingerprint and then computed it again to
     check it against itself; it reads them once (to pin), a new sampler once (to check)."""
-    from latentune.pipeline import manifest as mf
-
-    reads: list[str] = []
-    for name in ("run_fingerprint", "amended_since"):
-        def counting(*a, _f=getattr(mf, name), _n=name, **k):
-            reads.append(_n)
-            return _f(*a, **k)
-        monkeypatch.setattr(mf, name, counting)
+    reads = source_reads
     _GrowingSource(tmp_path / "src")
     study = optuna.create_study()
     study.sampler = LatentSampler(tmp_path / "src", seed=0, budget=20)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import shutil
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -243,20 +244,14 @@ def test_an_amended_source_run_pinned_the_old_way_goes_on(tmp_path, runs, caplog
 
 
 @pytest.mark.parametrize("strategy", ["transfer", "plain"])
-def test_a_phase_3_start_reads_its_source_trials_once(tmp_path, runs, monkeypatch, strategy):
+def test_a_phase_3_start_reads_its_source_trials_once(tmp_path, runs, source_reads, strategy):
     """The sha256 of the source's pinned trials (0.13 s on a 10,000-trial source) was computed
     two or three times per phase-3 start: for the options record even on a resume, where the
     pinned value stands, and in each check. A first start computes it once (to pin it), a
     resume once (to check it), in Python and in ask/tell."""
-    from latentune.pipeline import manifest as mf
     from latentune.system import evaluate, load_system
 
-    reads: list[str] = []
-    for name in ("run_fingerprint", "amended_since"):
-        def counting(*a, _f=getattr(mf, name), _n=name, **k):
-            reads.append(_n)
-            return _f(*a, **k)
-        monkeypatch.setattr(mf, name, counting)
+    reads = source_reads
     real = load_system("examples.toy_plant:make_real_system")
     kw = {"strategy": strategy, "max_fall_prob": 0.5}
     with lt.Study(tmp_path / "t", seed=0) as study:
@@ -403,6 +398,18 @@ def test_a_first_phase_3_takes_the_retrained_latent_space(tmp_path, runs):
         assert study.latent().d_low == 3
 
 
+def _sample(study: Any, where: Path, n: int, **kw: Any) -> None:
+    """``n`` more trials of the Optuna ``study``, sampled by a new LatentSampler of the source
+    run at ``where`` (seed 0, budget 20, ``kw``), of the sum of squares of θ."""
+    from latentune.integrations.optuna import LatentSampler
+
+    def objective(trial: Any) -> float:
+        return float(sum(v * v for v in trial.study.sampler.suggest_all(trial).values()))
+
+    study.sampler = LatentSampler(where, seed=0, budget=20, **kw)
+    study.optimize(objective, n_trials=n)
+
+
 @pytest.mark.parametrize("strategy", ["transfer", "plain"])
 def test_an_optuna_study_under_way_refuses_a_retrained_latent_space(tmp_path, runs, strategy):
     """A LatentSampler made for a study under way after its source's latent space was trained
@@ -413,18 +420,13 @@ def test_an_optuna_study_under_way_refuses_a_retrained_latent_space(tmp_path, ru
     same latent space from a moved source goes on."""
     optuna = pytest.importorskip("optuna")
     from latentune.errors import LatentError
-    from latentune.integrations.optuna import LatentSampler
 
     src = tmp_path / "src"
     shutil.copytree(runs["source"], src)
     optuna.logging.set_verbosity(optuna.logging.WARNING)
 
-    def objective(trial):
-        return float(sum(v * v for v in trial.study.sampler.suggest_all(trial).values()))
-
     def more(study, where, n):
-        study.sampler = LatentSampler(where, seed=0, budget=20, strategy=strategy)
-        study.optimize(objective, n_trials=n)
+        _sample(study, where, n, strategy=strategy)
 
     study = optuna.create_study()
     more(study, src, 3)
@@ -500,19 +502,14 @@ def test_an_optuna_study_reports_an_amendment_of_its_source_once(tmp_path, runs,
     import logging
 
     optuna = pytest.importorskip("optuna")
-    from latentune.integrations.optuna import LatentSampler
 
     src = tmp_path / "src"
     shutil.copytree(runs["asked"], src)
     optuna.logging.set_verbosity(optuna.logging.WARNING)
 
-    def objective(trial):
-        return float(sum(v * v for v in trial.study.sampler.suggest_all(trial).values()))
-
     def more(study) -> list[str]:
         caplog.clear()
-        study.sampler = LatentSampler(src, seed=0, budget=20)
-        study.optimize(objective, n_trials=1)
+        _sample(study, src, 1)
         return [r.getMessage() for r in caplog.records if "amended since" in r.getMessage()]
 
     study = optuna.create_study()
