@@ -49,7 +49,7 @@ from latentune.pipeline.phases import handover_options  # noqa: E402
 from latentune.reporting.metrics import evals_to_beat  # noqa: E402
 
 from benchmarks.common import (Provenance, add_out_arg, bench_parser, error_line,  # noqa: E402
-                               median_evals, refuse_out_of_range, write_json)
+                               median_evals, out_dir, refuse_out_of_range, write_json)
 
 METHODS = ("latent", "handover", "turbo", "optuna_cma", "optuna_tpe")
 
@@ -144,7 +144,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--targets", type=float, nargs="*", default=[])
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--batch-size", type=int, default=4)
-    ap.add_argument("--work")
+    ap.add_argument("--work", type=out_dir)
     add_out_arg(ap)
     a = ap.parse_args(argv)
     if a.report:

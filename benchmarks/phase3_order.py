@@ -30,7 +30,8 @@ import numpy as np
 
 from latentune.pipeline.store import read_uri
 
-from benchmarks.common import Provenance, add_out_arg, bench_parser, error_line, finish
+from benchmarks.common import (Provenance, add_out_arg, bench_parser, error_line, finish,
+                               out_dir)
 
 
 def _reverse_batches(db: Path) -> int:
@@ -109,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
                       formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--run", type=Path, required=True, help="a finished run directory")
     ap.add_argument("--trials", type=int, default=8, help="phase-3 evaluations per copy")
-    ap.add_argument("--work", type=Path, default=Path("runs/phase3_order"))
+    ap.add_argument("--work", type=out_dir, default=Path("runs/phase3_order"))
     add_out_arg(ap)
     a = ap.parse_args(argv)
     if not (a.run / "run.db").is_file():

@@ -37,7 +37,7 @@ from latentune.reporting.metrics import evals_to_beat  # noqa: E402
 from latentune.study import source_best  # noqa: E402
 
 from benchmarks.common import (Provenance, add_out_arg, bench_parser, error_line,  # noqa: E402
-                               median_evals, refuse_out_of_range, write_json)
+                               median_evals, out_dir, refuse_out_of_range, write_json)
 
 
 METHODS = ("phase3", "direct", "cma")
@@ -117,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-fall-prob", type=float, default=None,
                     help="fall-aware critics: skip candidates above this predicted fall probability")
     ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--work", default="runs/reality_gap")
+    ap.add_argument("--work", type=out_dir, default="runs/reality_gap")
     add_out_arg(ap)
     a = ap.parse_args(argv)
     if a.report:

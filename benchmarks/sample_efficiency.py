@@ -35,7 +35,7 @@ from latentune.constants import C1  # noqa: E402
 from latentune.reporting.metrics import evals_to_beat  # noqa: E402
 
 from benchmarks.common import (Provenance, add_out_arg, bench_parser, finish,  # noqa: E402
-                               median_evals)
+                               median_evals, out_dir)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -59,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--reconstruct", action="store_true",
                     help="also pass the best θ of each full-space method through the VAE "
                          "(encode -> decode) and simulate it: is it inside the latent space?")
-    ap.add_argument("--work", default=None, help="directory for the per-run stores")
+    ap.add_argument("--work", type=out_dir, default=None, help="directory for the per-run stores")
     add_out_arg(ap)
     a = ap.parse_args(argv)
     from latentune.pipeline.evaluators import make_evaluator

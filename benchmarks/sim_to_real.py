@@ -44,7 +44,8 @@ import numpy as np  # noqa: E402
 from examples.gym_controller import REAL  # noqa: E402
 from examples.sim_to_real import run_model, run_real  # noqa: E402
 
-from benchmarks.common import Provenance, add_out_arg, bench_parser, write_json  # noqa: E402
+from benchmarks.common import (Provenance, add_out_arg, bench_parser, out_dir,  # noqa: E402
+                               write_json)
 
 METHODS = ("phase3", "direct")
 
@@ -162,7 +163,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--checkpoints", type=int, nargs="*", default=[10, 20, 40, 60])
     ap.add_argument("--latent-dim", type=int, default=5)
     ap.add_argument("--episode-steps", type=int, default=400)
-    ap.add_argument("--work", default="runs/sim_to_real", help="root of the study directories")
+    ap.add_argument("--work", type=out_dir, default="runs/sim_to_real",
+                    help="root of the study directories")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--backend", default="serial", choices=("serial", "process", "ray"))
     add_out_arg(ap)

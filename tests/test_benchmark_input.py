@@ -288,11 +288,31 @@ def test_an_output_path_that_cannot_be_written_is_one_line_not_a_traceback(tmp_p
         assert code == 2, argv
         err = capsys.readouterr().err.strip().splitlines()
         assert err[-1].startswith(f"python -m {prog}") and err[-1].endswith(f"error: {words}") \
-            or err[-1].endswith(f"argument --out: {words}"), (argv, err)
+            or err[-1].endswith((f"argument --out: {words}", f"argument --work: {words}")), \
+            (argv, err)
     from benchmarks.common import os_error_line
 
     denied = PermissionError(13, os.strerror(13), str(tmp_path / "ro" / "s.json"))
     assert os_error_line(denied) == f"{tmp_path / 'ro' / 's.json'}: Permission denied"
+
+
+@pytest.mark.parametrize("module", ["handover", "phase3_order", "reality_gap",
+                                    "sample_efficiency", "sim_to_real"])
+def test_a_work_directory_under_a_file_is_refused_as_it_is_read(tmp_path, capsys, module):
+    """``--work`` of five benchmarks was checked only when first written: after the sources
+    were read (handover, reality_gap), after the required options' checks, or at the first
+    study. It is refused as the command line is read, as ``--out`` is (argparse's one line,
+    exit 2), before any other option is checked."""
+    import importlib
+
+    mod = importlib.import_module(f"benchmarks.{module}")
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    with pytest.raises(SystemExit) as e:
+        mod.main(["--work", str(afile / "w")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert e.value.code == 2 and err[-1] == (f"python -m benchmarks.{module}: error: argument "
+                                             f"--work: {afile} is not a directory"), err
 
 
 def test_compare_names_a_method_with_no_run_and_the_near_ones(tmp_path, capsys):
