@@ -796,6 +796,34 @@ def _phase1_killed_after(path: Path, n: int) -> None:
                                   method="random")
 
 
+def test_a_killed_phase_s_wall_time_does_not_take_in_trials_told_later(tmp_path):
+    """A run killed inside phase 1 leaves its block open; its time counts up to its last stored
+    trial. Trials told later through ask/tell (no command timed them, and asking settles no
+    block) counted as that run's own: the killed block's time stretched to the last tell, hours
+    later at a robot. It counts the trials its command stored, not the told ones."""
+    import multiprocessing
+
+    from latentune.pipeline.walltime import wall_record
+
+    proc = multiprocessing.get_context("fork").Process(target=_phase1_killed_after,
+                                                       args=(tmp_path / "k", 8))
+    proc.start()
+    proc.join(60)
+    assert proc.exitcode == 9
+    with RunStore(tmp_path / "k") as st:
+        before = wall_record(st)[0]["phase1"]
+    assert before > 0.05
+    space = lt.ParameterSpace(names=["a", "b"], low=[0.0] * 2, high=[1.0] * 2, manual=[0.5] * 2)
+    sys_ = lt.FunctionSystem(space, lambda x: float(np.sum((x - 0.3) ** 2)), name="bowl")
+    with lt.Study(tmp_path / "k", seed=0) as study:
+        time.sleep(1.0)                               # the trial at the robot
+        for s in study.ask(2, system=sys_, phase=1):
+            study.tell(s.id, float(np.sum((s.theta - 0.3) ** 2)))
+    with RunStore(tmp_path / "k") as st:
+        assert st.count(Phase.PHASE1) >= 10
+        assert wall_record(st)[0]["phase1"] == pytest.approx(before)
+
+
 def test_a_run_killed_inside_a_phase_reports_its_real_wall_time(tmp_path):
     """A run killed inside phase 1 (no clean-up: its wall time was never added) reports the
     time up to its last stored trial, not 0; the next run of the store adds it for good. A phase

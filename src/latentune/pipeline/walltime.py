@@ -3,7 +3,8 @@
 ``wall``: seconds per key (``phase1``, ``vae``, ``phase3``, ``preservation_rollouts``), added
 when a timed block ends. ``wall_open``: the unix time each running block started, stored before
 it runs, so a command killed inside one (SIGKILL: no clean-up) leaves its start behind; its time
-is counted up to the last trial stored since (:func:`wall_record`), and written into ``wall``
+is counted up to the last trial a command stored since (:func:`wall_record`; not the trials
+told through ask/tell after it), and written into ``wall``
 when the next timed block of the store starts (:func:`settle_open`). ``wall_unknown``: the keys
 of killed blocks that stored no trial, whose time nobody knows; a later block of the same key
 that ends adds its time to ``wall`` and leaves the key in ``wall_unknown``: the key's total is
@@ -21,8 +22,12 @@ WALL_PHASES: dict[str, Phase] = {"phase1": Phase.PHASE1, "phase3": Phase.PHASE3,
 
 
 def last_created(store: Any, since: float) -> float | None:
-    """The unix time of the last trial stored at or after ``since`` (any phase), or None."""
-    row = store.con.execute("SELECT MAX(created) FROM evaluations WHERE created >= ?",
+    """The unix time of the last trial a command stored at or after ``since`` (any phase), or
+    None. Trials told through ask/tell (``info["trial"]``: the suggestion's id) are left out:
+    no command timed them, and an ask or a tell settles no open block (:func:`settle_open`),
+    so a killed block's time would otherwise stretch to the last tell after it."""
+    row = store.con.execute("SELECT MAX(created) FROM evaluations WHERE created >= ? AND "
+                            "(CASE WHEN json_valid(info) THEN json_extract(info, '$.trial') END) IS NULL",
                             (float(since),)).fetchone()
     return None if row[0] is None else float(row[0])
 
