@@ -84,6 +84,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
 
 from benchmarks import transfer as tr
+from benchmarks.transfer_falls import STEP_EDGES, ask_kind, band, region_steps
 
 import numpy as np  # noqa: E402  (benchmarks.transfer sets one BLAS thread first)
 
@@ -668,8 +669,6 @@ def decision_stats(run: dict[str, Any], floor: float = 1 / 64) -> dict[str, Any]
     of the θ asked (``max_fall_prob_asked``; :data:`SCREEN_BANDS`); ``region_steps``: the
     trust-region asks and their falls per band of the step from the centre
     (:func:`benchmarks.transfer_falls.region_steps`; runs with their θ only)."""
-    from benchmarks.transfer_falls import region_steps
-
     dec = run.get("decisions") or []
     failed = run["failed"]
     costs = run["costs"]
@@ -709,16 +708,6 @@ def decision_stats(run: dict[str, Any], floor: float = 1 / 64) -> dict[str, Any]
         **({"region_steps": region_steps(run).tolist()} if "thetas" in run else {})}
 
 
-def ask_kind(d: dict[str, Any]) -> str:
-    """The kind of ask of one decision record: ``design``, ``explore <pool>`` (``latent`` for
-    records made before the explore pool was recorded), or the region ask's pool."""
-    if d.get("design"):
-        return "design"
-    if d.get("explore"):
-        return f"explore {d.get('explore_pool', 'latent')}"
-    return (d.get("pools") or ["?"])[0]
-
-
 SCREEN_BANDS = (0.0, 0.1, 0.15, 0.2, 0.3)
 """Lower edges of the bands of the fall screen's probability :func:`decision_stats` counts the
 asks in (the last band reaches 1; the default ``max_fall_prob`` is 0.3)."""
@@ -727,8 +716,6 @@ asks in (the last band reaches 1; the default ``max_fall_prob`` is 0.3)."""
 def screen_band(p: float | None) -> str:
     """The band (:data:`SCREEN_BANDS`) of the screen's probability ``p``, e.g. ``"0.15–0.2"``;
     ``"?"`` without one."""
-    from benchmarks.transfer_falls import band
-
     if p is None or not math.isfinite(float(p)):
         return "?"
     edges = (*SCREEN_BANDS, 1.0)
@@ -837,8 +824,6 @@ def decisions(root: Path, method: str = "transfer", seeds: list[int] | None = No
 def _steps_summed(counts: list[list[list[int]]]) -> list[list[int]]:
     """The sum of ``region_steps`` tables (each one ``[asks, falls]`` per band of
     :data:`benchmarks.transfer_falls.STEP_EDGES`); zeros for none."""
-    from benchmarks.transfer_falls import STEP_EDGES
-
     zero = np.zeros((len(STEP_EDGES) - 1, 2), dtype=int)
     return (zero + np.sum(counts, axis=0, dtype=int) if counts else zero).tolist()
 
@@ -855,8 +840,6 @@ def _summed(counts: list[dict[str, list[int]]]) -> dict[str, list[int]]:
 
 
 def decisions_markdown(d: dict[str, Any]) -> str:
-    from benchmarks.transfer_falls import STEP_EDGES
-
     lines = ["| rung | seeds | trust-region asks at side ≤ 1/64 | asks the fall screen "
              "admitted < 5 % of | explore asks / their falls | falls by pool | asks `distinct` "
              "changed (all seeds) |",

@@ -556,12 +556,19 @@ def ladder(root: Path, systems: list[str], seeds: list[int], methods: list[str],
     return rows
 
 
-def kind_of(d: dict[str, Any]) -> str:
-    """The kind of ask of one decision record (:func:`benchmarks.robot_transfer.ask_kind`), an
-    explore ask whose own GP fitted warped values (``explore_scores="auto"`` chose them) marked
-    ``(warped)``."""
-    from benchmarks.robot_transfer import ask_kind
+def ask_kind(d: dict[str, Any]) -> str:
+    """The kind of ask of one decision record: ``design``, ``explore <pool>`` (``latent`` for
+    records made before the explore pool was recorded), or the region ask's pool."""
+    if d.get("design"):
+        return "design"
+    if d.get("explore"):
+        return f"explore {d.get('explore_pool', 'latent')}"
+    return (d.get("pools") or ["?"])[0]
 
+
+def kind_of(d: dict[str, Any]) -> str:
+    """The kind of ask of one decision record (:func:`ask_kind`), an explore ask whose own GP
+    fitted warped values (``explore_scores="auto"`` chose them) marked ``(warped)``."""
     warped = (d.get("auto_scores") or {}).get("explore", [None])[0] == "warped"
     return ask_kind(d) + (" (warped)" if warped else "")
 
