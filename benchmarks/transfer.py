@@ -259,7 +259,8 @@ def source_hypers(src: Path, seed: int, options: dict[str, Any] | None = None) -
     ``source_order="stored"`` with the default ``max_points`` keeps the cache of the runs made
     before the option (``transfer_source_model.json``, fitted with the seed of its first use);
     any other choice has its own file per seed."""
-    from latentune.critic.transfer import TRANSFER_DEFAULTS, Transfer, source_trials
+    from latentune.critic.transfer import TRANSFER_DEFAULTS, Transfer
+    from latentune.pipeline.baselines import source_trials
     from latentune.critic.transfer_model import SourceModel
 
     opts = {**TRANSFER_DEFAULTS, **(options or {})}
@@ -394,7 +395,8 @@ def run_method(method: str, target: Any, src: Path, B: int, seed: int,
     """B target trials of ``method`` (module docstring; ``options``: the transfer critic's
     options beyond its defaults); returns costs, failed, the θ tried (unit box, one list per
     trial) and extras."""
-    from latentune.critic.transfer import Transfer, source_trials
+    from latentune.critic.transfer import Transfer
+    from latentune.pipeline.baselines import source_trials
     from latentune.latent.vae import LatentSpace
     from latentune.study import source_best
 

@@ -150,7 +150,7 @@ def score_cut(src_rows: tuple[np.ndarray, np.ndarray, np.ndarray], hypers: dict[
 def run(sources: Path, runs: Path, seeds: list[int], systems: list[str] | None,
         cuts: tuple[int, ...] = CUTS) -> list[dict[str, Any]]:
     """One row per (system, gap, seed, trial set, cut) with every model's scores."""
-    from latentune.critic.transfer import source_trials
+    from latentune.pipeline.baselines import source_trials
 
     rows = []
     for sysdir in sorted(p for p in runs.iterdir() if p.is_dir()):

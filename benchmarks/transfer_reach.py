@@ -53,7 +53,7 @@ def best_peers(ladders: list[Path]) -> dict[tuple[str, float], tuple[str, float]
 
 def top_source_theta(src: Path, k: int) -> np.ndarray:
     """(≤ k, d) the source's trials that did not fall, lowest model cost first."""
-    from latentune.critic.transfer import source_trials
+    from latentune.pipeline.baselines import source_trials
 
     X, y, fell = source_trials(src)
     keep = np.flatnonzero(~fell & np.isfinite(y))

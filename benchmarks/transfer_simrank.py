@@ -70,7 +70,7 @@ def source_outcomes(system: str, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 def score(rows: list[dict[str, Any]], runs: Path, sources: Path) -> list[dict[str, Any]]:
     """Each row of transfer_models with ``exact``: the exact source's ρ and AUC at its cut,
     and ``local``: the local source GP's ρ."""
-    from latentune.critic.transfer import source_trials
+    from latentune.pipeline.baselines import source_trials
     from latentune.critic.transfer_model import rank_scores
 
     srcs: dict[tuple[str, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}

@@ -256,7 +256,8 @@ def simulate(c: WalkCase, rule: Rule, steps: int) -> tuple[int, int | None]:
 def build_case(system: str, gap: float, seed: int, trace: dict[str, Any], sources: Path,
                cache: Path) -> WalkCase | None:
     """The walk's view of one run (None without a source run or candidates)."""
-    from latentune.critic.transfer import canonical_order, source_trials
+    from latentune.critic.transfer import canonical_order
+    from latentune.pipeline.baselines import source_trials
     from latentune.critic.transfer_model import SourceModel
     from latentune.system import evaluate
 

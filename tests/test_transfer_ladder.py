@@ -413,7 +413,7 @@ def test_reach_runs_the_sources_best_standing_theta_on_the_target(tmp_path, monk
 
     import latentune as lt
     from benchmarks import transfer_reach as rr
-    from latentune.critic.transfer import source_trials
+    from latentune.pipeline.baselines import source_trials
 
     monkeypatch.setitem(tr.SYSTEMS, "bowl", {"model": lambda: _Bowl(0.3, 0.9),
                                              "target": lambda g: _Bowl(0.3 + 0.2 * g, 0.6),
@@ -899,7 +899,7 @@ def test_simrank_scores_the_exact_source_and_a_local_source_gp(tmp_path, monkeyp
          "failed": [False] * 16}))
     Xs = rng.random((120, 3))
     src = (Xs, ((Xs - 0.4) ** 2).sum(1), np.zeros(120, bool))
-    monkeypatch.setattr("latentune.critic.transfer.source_trials", lambda d: src)
+    monkeypatch.setattr("latentune.pipeline.baselines.source_trials", lambda d: src)
     (tmp_path / "src" / "bowl" / "seed0" / "source").mkdir(parents=True)
     (tmp_path / "src" / "bowl" / "seed0" / "source" / "run.db").write_text("")
     rows = [{"system": "bowl", "gap": 1.0, "seed": 0, "set": "default", "t": 5,

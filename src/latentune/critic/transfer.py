@@ -388,7 +388,6 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -2130,24 +2129,3 @@ def canonical_order(X: np.ndarray, y: np.ndarray, fell: np.ndarray) -> np.ndarra
     X = np.asarray(X, dtype=float)
     keys = [X[:, j] for j in range(X.shape[1] - 1, -1, -1)]
     return np.lexsort([*keys, np.asarray(fell, dtype=bool), np.asarray(y, dtype=float)])
-
-
-def source_trials(run: str | Path, phases: tuple[int, ...] | None = None,
-                  counts: dict[str, int] | None = None
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Every trial of a source run's ``phases`` (default phases 1 and 3) as
-    ``(X (N, d), y (N,), fell (N,))``, in (phase, idx) order; with ``counts`` (phase number as
-    text to a count, :func:`~latentune.pipeline.loop.source_counts`) only the first that many
-    of each phase (the trials a phase 3 began with)."""
-    from latentune.constants import Phase
-    from latentune.pipeline.store import RunStore
-
-    with RunStore(run) as st:
-        rows = [r for ph in (phases or (Phase.PHASE1, Phase.PHASE3)) for r in st.rows(ph)
-                if counts is None or r.idx < int(counts.get(str(int(ph)), 0))]
-    if not rows:
-        return np.empty((0, 0)), np.empty(0), np.empty(0, dtype=bool)
-    X = np.array([r.theta for r in rows], dtype=float)
-    y = np.array([r.cost for r in rows], dtype=float)
-    f = np.array([bool(r.fell) for r in rows], dtype=bool)
-    return X, y, f

@@ -314,7 +314,8 @@ def _phase3_critic(source_run: Path, latent: Any, space: ParameterSpace, *, stra
     (``x0``: (d_low,) code of the warm start; ``prior``: (codes (m, d_low), fell (m,)) of the
     source run for the fall-aware option), with the decoder ``latent.decode``."""
     if strategy == "transfer":
-        from latentune.critic.transfer import Transfer, source_trials
+        from latentune.critic.transfer import Transfer
+        from latentune.pipeline.baselines import source_trials
 
         X, y, fell = source_trials(source_run, counts=source_counts)
         mfp = {} if max_fall_prob is None else {"max_fall_prob": max_fall_prob}

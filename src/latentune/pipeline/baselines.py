@@ -32,6 +32,24 @@ def source_best(run: str | os.PathLike) -> Row | None:
     return min(ok, key=lambda r: (r.cost, r.phase, r.idx))
 
 
+def source_trials(run: str | Path, phases: tuple[int, ...] | None = None,
+                  counts: dict[str, int] | None = None
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every trial of a source run's ``phases`` (default phases 1 and 3) as
+    ``(X (N, d), y (N,), fell (N,))``, in (phase, idx) order; with ``counts`` (phase number as
+    text to a count, :func:`~latentune.pipeline.loop.source_counts`) only the first that many
+    of each phase (the trials a phase 3 began with)."""
+    with RunStore(run) as st:
+        rows = [r for ph in (phases or (Phase.PHASE1, Phase.PHASE3)) for r in st.rows(ph)
+                if counts is None or r.idx < int(counts.get(str(int(ph)), 0))]
+    if not rows:
+        return np.empty((0, 0)), np.empty(0), np.empty(0, dtype=bool)
+    X = np.array([r.theta for r in rows], dtype=float)
+    y = np.array([r.cost for r in rows], dtype=float)
+    f = np.array([bool(r.fell) for r in rows], dtype=bool)
+    return X, y, f
+
+
 REUSED_BY_ZERO_SHOT = (Phase.MANUAL, Phase.PHASE3)
 """The phases whose stored trial of the zero-shot θ gives the zero-shot trial its outcome
 instead of a new trial (the source's best is often the manual θ, which the plain phase 3 runs

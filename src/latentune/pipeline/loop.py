@@ -420,7 +420,8 @@ def transfer_critic(pc: dict[str, Any], space: ParameterSpace, run_dir: Path, so
     latent space, the target's manual θ, and the target trials stored outside phase 3 (the
     zero-shot trial and the manual θ's) told to it as data. Its ``budget`` (for
     ``fall_budget``) is the phase's budget and those trials."""
-    from latentune.critic.transfer import Transfer, source_trials
+    from latentune.critic.transfer import Transfer
+    from latentune.pipeline.baselines import source_trials
 
     own = Path(source_run).resolve() == Path(run_dir).resolve()
     X, y, fell = source_trials(source_run, phases=(Phase.PHASE1,) if own else None,
@@ -488,7 +489,7 @@ def source_costs(run: Any, space: ParameterSpace, counts: dict[str, int] | None 
     or box than ``space``'s (:func:`require_same_box`)."""
     if run is None:
         return None
-    from latentune.critic.transfer import source_trials
+    from latentune.pipeline.baselines import source_trials
 
     X, y, _ = source_trials(run, counts=counts)
     if X.ndim != 2 or len(X) == 0:

@@ -94,7 +94,7 @@ def run_counts(run: Any) -> dict[str, int] | None:
 def run_fingerprint(run: Any, counts: dict[str, int] | None) -> str | None:
     """The sha256 (hex) of the trials of the run at ``run`` that ``counts`` pins
     (:func:`run_counts`): of phases 1 and 3 in (phase, idx) order, the first ``counts[phase]``
-    of each (idx below it, as :func:`~latentune.critic.transfer.source_trials` takes them),
+    of each (idx below it, as :func:`~latentune.pipeline.baselines.source_trials` takes them),
     their θ, cost (float64 bytes) and fell flag; None without ``counts`` or a run store. The
     same run gives the same value wherever its directory is and however many trials it made
     since; another run gives another (and so does an amended result: :func:`amended_since`)."""
