@@ -575,8 +575,43 @@ def test_a_factory_that_returns_no_system_names_the_factory_and_what_it_gave(cla
     with pytest.raises(SystemSpecError) as e:
         load_system("classplant:returns_int")
     msg = str(e.value)
-    assert "--system classplant:returns_int" in msg and "returned int 42" in msg
+    assert "load_system('classplant:returns_int')" in msg and "returned int 42" in msg
     assert "not a latentune system" in msg and "\n" not in msg
+
+
+def test_load_system_names_the_system_in_its_callers_words(class_plugin, tmp_path):
+    """``lt.load_system`` told Python callers about ``--system`` and ``--system-arg``, flags
+    they never gave; a worker rebuilding a system for the command line and for Python alike
+    used them. A Python caller reads ``load_system('T')`` and ``args``; the command line
+    (``command_line_words``, as ``latentune`` runs every command) ``--system T`` and
+    ``--system-arg``; a worker says what its caller would."""
+    from latentune.errors import SystemSpecError
+    from latentune.pipeline.evaluators import PluginRef
+    from latentune.system import load_system
+    from latentune.wording import command_line_words
+
+    cases = [(("nocolon",), "load_system: the target must be module:factory, got 'nocolon'",
+              "--system must be module:factory, got 'nocolon'"),
+             (("classplant:returns_int", {"nope": 1}),
+              "load_system('classplant:returns_int'): bad args (",
+              "--system classplant:returns_int: bad --system-arg ("),
+             (("classplant:nosuch",), "load_system('classplant:nosuch'): classplant has no "
+              "attribute 'nosuch'", "--system classplant:nosuch: classplant has no attribute")]
+    for args, python, cli in cases:
+        with pytest.raises(SystemSpecError) as e:
+            load_system(*args)
+        assert str(e.value).startswith(python) and "--system" not in str(e.value), str(e.value)
+        with command_line_words(), pytest.raises(SystemSpecError) as e:
+            load_system(*args)
+        assert str(e.value).startswith(cli), str(e.value)
+    ref = PluginRef.of(load_system("classplant:Plant"))      # a worker's rebuild, and its
+    assert ref.name() == "load_system('classplant:Plant')"    # failure, in Python's words
+    with command_line_words():
+        ref = PluginRef.of(load_system("classplant:Plant"))
+    assert ref.name() == "--system classplant:Plant"         # ... or the command line's
+    bad = PluginRef("classplant:nosuch", command_line=ref.command_line)
+    with pytest.raises(SystemSpecError, match=r"^--system classplant:nosuch: classplant has no"):
+        bad.build()                                           # in a worker: Python's words
 
 
 def test_a_class_passed_for_a_system_is_refused_before_a_trial(class_plugin, tmp_path):

@@ -654,7 +654,7 @@ def test_a_factory_building_another_space_in_the_workers_is_refused(tmp_path, mo
     monkeypatch.syspath_prepend(str(tmp_path))
     system = load_system("otherspace:make", {"main_pid": os.getpid()})
     with lt.Study(tmp_path / "r", workers=2, backend="process") as st:
-        with pytest.raises(EvaluationError, match=r"could not rebuild --system otherspace:make: "
+        with pytest.raises(EvaluationError, match=r"could not rebuild load_system\('otherspace:make'\): "
                                                   r"its factory built another parameter space "
                                                   r"in the worker \(a: \[0, 1\] in the caller, "
                                                   r"\[0, 4\] in the worker\)"):

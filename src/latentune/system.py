@@ -38,6 +38,7 @@ import numpy as np
 from latentune.constants import C1, COST_LIMIT, fail_cost
 from latentune.errors import LatentuneError, SystemSpecError
 from latentune.space import ParameterSpace
+from latentune.wording import at_command_line
 
 
 class EvaluationError(LatentuneError):
@@ -426,6 +427,12 @@ def system_arg_text(key: str, value: Any) -> str:
     return f"{key}={text}"
 
 
+def plugin_name(target: Any, cli: bool) -> str:
+    """How a message names the system ``module:factory`` its reader gave: ``--system TARGET``
+    at the command line (``cli``), ``load_system('TARGET')`` in Python."""
+    return f"--system {target}" if cli else f"load_system({target!r})"
+
+
 def load_system(target: str, args: dict[str, Any] | None = None) -> Any:
     """Import ``module:factory`` and call ``factory(**args)``; return the checked system.
 
@@ -434,17 +441,21 @@ def load_system(target: str, args: dict[str, Any] | None = None) -> Any:
     ``factory`` may be a function or a system class (called with ``args``), or a System
     instance (then ``args`` must be empty). Raises
     :class:`SystemSpecError` with one line for a malformed target, a module that cannot be
-    imported, a missing attribute, a factory that raises or returns a non-system.
+    imported, a missing attribute, a factory that raises or returns a non-system; the line
+    names the system as its reader gave it (:func:`plugin_name`).
 
     The system carries the record ``{"target", "args", "defaults"}`` (:func:`plugin_record`;
     ``defaults``: :func:`factory_defaults`) that a study keeps and compares on resume.
     """
+    cli = at_command_line()
+    named = plugin_name(target, cli)
     if args is not None and not isinstance(args, Mapping):
-        raise SystemSpecError(f"--system {target}: the factory's arguments must be a dict, got "
+        raise SystemSpecError(f"{named}: the factory's arguments must be a dict, got "
                               f"{_short(args)}")
     args = dict(args or {})
     if not isinstance(target, str) or target.count(":") != 1 or not all(target.split(":")):
-        raise SystemSpecError(f"--system must be module:factory, got {target!r}")
+        raise SystemSpecError(f"{'--system' if cli else 'load_system: the target'} must be "
+                              f"module:factory, got {target!r}")
     mod_name, attr = target.split(":")
     import sys
 
@@ -453,12 +464,12 @@ def load_system(target: str, args: dict[str, Any] | None = None) -> Any:
     try:
         mod = importlib.import_module(mod_name)
     except Exception as exc:  # noqa: BLE001 - any import failure is one line
-        raise SystemSpecError(f"--system {target}: cannot import {mod_name} "
+        raise SystemSpecError(f"{named}: cannot import {mod_name} "
                               f"({type(exc).__name__}: {' '.join(str(exc).split())[:200]})") from None
     obj: Any = mod
     for part in attr.split("."):
         if not hasattr(obj, part):
-            raise SystemSpecError(f"--system {target}: {mod_name} has no attribute {attr!r}")
+            raise SystemSpecError(f"{named}: {mod_name} has no attribute {attr!r}")
         obj = getattr(obj, part)
     defaults: dict[str, Any] = {}
     if inspect.isclass(obj) or (callable(obj) and not hasattr(obj, "evaluate")):
@@ -468,20 +479,22 @@ def load_system(target: str, args: dict[str, Any] | None = None) -> Any:
             if args:
                 inspect.signature(obj).bind(**args)
         except TypeError as exc:
-            raise SystemSpecError(f"--system {target}: bad --system-arg ({exc})") from None
+            raise SystemSpecError(f"{named}: bad {'--system-arg' if cli else 'args'} ({exc})"
+                                  ) from None
         except ValueError:
             pass
         try:
             obj = obj(**args)
         except Exception as exc:  # noqa: BLE001
-            raise SystemSpecError(f"--system {target}: the factory raised {type(exc).__name__}: "
+            raise SystemSpecError(f"{named}: the factory raised {type(exc).__name__}: "
                                   f"{' '.join(str(exc).split())[:200]}") from None
-        check_system(obj, f"--system {target} returned {type(obj).__name__} "
+        check_system(obj, f"{named} returned {type(obj).__name__} "
                           f"{' '.join(_short(obj).split())}, which")
         defaults = factory_defaults(factory)
     elif args:
-        raise SystemSpecError(f"--system {target} is not callable; it takes no --system-arg")
-    check_system(obj, f"--system {target} ({type(obj).__name__})")
+        raise SystemSpecError(f"{named} is not callable; it takes no "
+                              f"{'--system-arg' if cli else 'args'}")
+    check_system(obj, f"{named} ({type(obj).__name__})")
     record = {"target": target, "args": args, "defaults": defaults}
     try:  # what a study records of a plugin: the string and its arguments, for the user to read
         obj.latentune_plugin = record

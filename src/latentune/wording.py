@@ -46,6 +46,11 @@ def command_line_words() -> Iterator[None]:
         _COMMAND_LINE[0] = before
 
 
+def at_command_line() -> bool:
+    """Whether messages are read at the command line now (inside :func:`command_line_words`)."""
+    return _COMMAND_LINE[0]
+
+
 def option(name: str, value: Any = None) -> str:
     """How a message names the option ``name`` (a key of :data:`FLAGS`), set to ``value`` if
     given: its flag at the command line (``--max-fall-prob 0.3``; a float with every digit it

@@ -133,32 +133,47 @@ class PluginRef:
     space: dict[str, Any] | None = None
     """The caller's system's space (:meth:`~latentune.space.ParameterSpace.to_dict`): a worker's
     build whose unit box means other physical values is refused."""
+    command_line: bool = False
+    """Whether the caller reads messages at the command line (:func:`~latentune.wording.
+    at_command_line` when the reference was made): a worker's build failure names the system as
+    the caller gave it (:meth:`name`; ``--system T`` or ``load_system('T')``)."""
 
     @classmethod
     def of(cls, system: Any) -> "PluginRef | None":
         """The reference of a system made by ``load_system`` (None for any other object)."""
         from latentune.system import plugin_record
+        from latentune.wording import at_command_line
 
         plugin = plugin_record(system)
         if plugin is None or not isinstance(plugin.get("target"), str):
             return None
         path = tuple(os.getcwd() if p == "" else p for p in sys.path)
         return cls(plugin["target"], dict(plugin.get("args") or {}), path,
-                   system.space.to_dict())
+                   system.space.to_dict(), at_command_line())
+
+    def name(self) -> str:
+        """The system as the caller gave it (:func:`~latentune.system.plugin_name`)."""
+        from latentune.system import plugin_name
+
+        return plugin_name(self.target, self.command_line)
 
     def cache_key(self) -> str:
         return "plugin:" + json.dumps([self.target, self.args], sort_keys=True, default=str)
 
     def build(self) -> Any:
-        """Import and call the factory in this process (its import path extended first)."""
-        from latentune.system import load_system
+        """Import and call the factory in this process (its import path extended first); its
+        errors in the caller's words (:attr:`command_line`)."""
+        from contextlib import nullcontext
 
         from latentune.errors import SystemSpecError
+        from latentune.system import load_system
+        from latentune.wording import command_line_words
 
         for p in reversed(self.path):
             if p not in sys.path:
                 sys.path.insert(0, p)
-        system = load_system(self.target, self.args)
+        with command_line_words() if self.command_line else nullcontext():
+            system = load_system(self.target, self.args)
         diff = None if self.space is None else system.space.box_difference(self.space)
         if diff is not None:        # a factory of random or machine-dependent bounds
             diff = diff.replace(" there", " in the caller").replace(" here", " in the worker")
@@ -333,7 +348,7 @@ def _cached(fun: Any, key: str | None) -> Any:
                 except EvaluationError as exc:
                     return TrialError(str(exc))
                 except Exception as exc:  # noqa: BLE001 - e.g. SystemSpecError: one line
-                    return TrialError(f"a worker could not rebuild --system {fun.target}: "
+                    return TrialError(f"a worker could not rebuild {fun.name()}: "
                                       f"{' '.join(str(exc).split())[:300]}")
             else:
                 built = fun
