@@ -2056,8 +2056,8 @@ def test_ask_phase_3_in_a_phase_1_run_without_a_latent_space_says_to_train_one(r
 
 
 def test_an_ask_that_fails_in_the_critic_hands_out_nothing(tmp_path, src30):
-    """An ask that had leased queued suggestions and then failed in the critic (here: its fall
-    prior's run was moved away) kept them leased: ``status`` showed them pending, and the same
+    """An ask that had leased queued suggestions and then failed building the next batch (here:
+    its fall prior's run was moved away, refused before the critic is built) kept them leased: ``status`` showed them pending, and the same
     asker's next ask gave them back as handed out before. A failed ask now hands out nothing:
     its leases are undone."""
     prior = tmp_path / "prior"
@@ -2068,7 +2068,8 @@ def test_an_ask_that_fails_in_the_critic_hands_out_nothing(tmp_path, src30):
         assert queued                           # the rest of the first batch
     prior.rename(tmp_path / "gone")
     with lt.Study(tmp_path / "a") as st:
-        with pytest.raises(LatentuneError, match="fall prior"):
+        with pytest.raises(LatentuneError, match=r"^fall_prior: the run at .*prior is not the "
+                                                 r"run phase 1 began with: it does not exist"):
             st.ask(len(queued) + 2)
         assert [t.id for t in st.store.trials("pending")] == [first.id]
         assert [t.id for t in st.store.trials("queued")] == queued

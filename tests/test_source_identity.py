@@ -525,3 +525,69 @@ def test_an_optuna_study_reports_an_amendment_of_its_source_once(tmp_path, runs,
         s.tell(9, 4.0, amend=True)
     (line,) = more(study)
     assert "trial 9 was amended" in line, line
+
+
+def test_a_phase_1_refuses_a_fall_prior_or_source_run_replaced_since(tmp_path, run_cli, runs,
+                                                                     error_line):
+    """Phase 1's fall prior (``--fall-prior``) and optuna-cmaes's ``source_run`` were pinned
+    by their counts alone: a directory replaced by another run of as many trials or more went
+    on, its first trials seeding the resumed critic in place of the ones phase 1 began with,
+    without a word. Their trials are fingerprinted as phase 3's source is, and a resume on
+    another run is refused in one line naming the option, at the command line and in
+    Python."""
+    from examples.toy_plant import make_real_system
+    from latentune.errors import LatentError
+
+    prior, t = tmp_path / "prior", tmp_path / "t"
+    shutil.copytree(runs["source"], prior)
+    flags = ("--phase1-evals", "4", "--max-fall-prob", "0.5", "--fall-prior", prior)
+    code, _, err = run_cli("phase1", *SYSTEM, "--out", t, *flags)
+    assert code == 0, err
+    shutil.rmtree(prior)
+    shutil.copytree(runs["other"], prior)           # 30 trials: more than the 24 pinned
+    line = error_line(*run_cli("phase1", *SYSTEM, "--out", t, *flags, "--resume")[::2])
+    assert line.startswith(f"latentune: error: --fall-prior: the run at {prior.resolve()} is "
+                           "not the run phase 1 began with: it holds other trials than the 24 "
+                           "phase-1 trials phase 1 began with"), line
+    src = tmp_path / "src"
+    shutil.copytree(runs["source"], src)
+    with lt.Study(tmp_path / "c", seed=0) as study:
+        study.phase1(make_real_system(), 4, method="optuna-cmaes", source_run=src)
+    shutil.rmtree(src)
+    shutil.copytree(runs["other"], src)
+    with lt.Study(tmp_path / "c", seed=0) as study, \
+            pytest.raises(LatentError, match=r"^source_run: the run at .*src is not the run "
+                                             r"phase 1 began with") as exc:
+        study.phase1(make_real_system(), 6, method="optuna-cmaes", source_run=src)
+    assert "\n" not in str(exc.value)
+
+
+def test_a_fall_prior_amended_since_goes_on_and_is_reported_once(tmp_path, runs, caplog):
+    """A fall prior whose pinned trials were amended since (``tell --amend``) is the same run:
+    ask/tell's phase 1 goes on with one warning naming the amended trial, and says it once,
+    not at every ask."""
+    import logging
+
+    from examples.toy_plant import make_real_system
+    from latentune.system import evaluate
+
+    prior = tmp_path / "prior"
+    shutil.copytree(runs["asked"], prior)
+    real = make_real_system()
+    kw = {"max_fall_prob": 0.5, "fall_prior": prior}
+    with lt.Study(tmp_path / "a", seed=0) as study:
+        for s in study.ask(2, system=real, phase=1, budget=40, **kw):
+            study.tell(s.id, evaluate(real, s.theta).cost)
+    with lt.Study(prior) as s:
+        s.tell(5, 9.0, amend=True)
+    caplog.set_level(logging.WARNING)
+    said = []
+    for _ in range(3):
+        caplog.clear()
+        with lt.Study(tmp_path / "a", seed=0) as study:
+            for s in study.ask(4):
+                study.tell(s.id, evaluate(real, s.theta).cost)
+        said.append([r.getMessage() for r in caplog.records
+                     if "amended since" in r.getMessage()])
+    assert [len(x) for x in said] == [1, 0, 0], said
+    assert "trial 5 was amended since phase 1 began" in said[0][0], said[0]

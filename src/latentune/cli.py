@@ -1067,10 +1067,9 @@ def _flag_words(args: argparse.Namespace) -> Iterator[None]:
 
 
 ASK_FLAGS = {**{k: FLAGS[k] for k in ("budget", "max_fall_prob", "handover", "strategy",
-                                       "escape_falls", "latent")},
+                                       "escape_falls", "latent", "fall_prior")},
              "method": "--method", "regions": "--regions", "start": "--start",
-             "max-fall-prob": FLAGS["max_fall_prob"], "fall_prior": "--fall-prior",
-             "fall-prior": "--fall-prior", "asker": "--asker", "lease_s": "--lease", "n": "--n",
+             "max-fall-prob": FLAGS["max_fall_prob"], "fall-prior": FLAGS["fall_prior"], "asker": "--asker", "lease_s": "--lease", "n": "--n",
              "fall_budget": "--fall-budget", "record_walk": "--record-walk",
              "walk_pick": "--walk-pick", "target_scores": "--target-scores",
              "batch_size": "--batch-size", "batch-size": "--batch-size",

@@ -36,9 +36,9 @@ from latentune.pipeline import manifest as mf
 from latentune.pipeline.asktell import Suggestion
 from latentune.pipeline.baselines import source_best
 from latentune.pipeline.evaluators import Evaluator
-from latentune.pipeline.loop import (decoder_of, phase3_setup, phase_critic, record_latent,
-                                     resolve_latent, reuse_phases, stop_note, study_latent,
-                                     theta_prior)
+from latentune.pipeline.loop import (check_phase1_runs, decoder_of, phase3_setup, phase_critic,
+                                     record_latent, resolve_latent, reuse_phases, stop_note,
+                                     study_latent, theta_prior)
 from latentune.pipeline.manifest import describe
 from latentune.pipeline.phases import (PhaseResult, default_batch_size, ensure_manual,
                                        manual_outcome, run_phase)
@@ -197,6 +197,7 @@ class Study:
         with self.run.writing(evaluating=True) as st:
             self.bind(system)
             pc = self._options(Phase.PHASE1, method, budget, regions, extra)
+            check_phase1_runs(self.run, self.manifest, pc)
             self.manifest.update(phase1=pc, **(record or {}))
             self.manifest.record_run(self.seed)
             manual = ensure_manual(st, system, self.seed, self.evaluator())

@@ -75,8 +75,8 @@ from latentune.constants import Phase
 from latentune.errors import LatentuneError, StoreError, UsageError
 from latentune.pipeline import manifest as mf
 from latentune.pipeline.baselines import queue_zero_shot, zero_shot_to_queue
-from latentune.pipeline.loop import (began_latent, check_source_run, decoder_of,
-                                     latent_to_record, phase_critic, record_latent,
+from latentune.pipeline.loop import (began_latent, check_phase1_runs, check_source_run,
+                                     decoder_of, latent_to_record, phase_critic, record_latent,
                                      refuse_plain_options, require_source_store,
                                      resolve_latent, resolve_strategy, reuse_phases,
                                      source_pin, strategy_of)
@@ -379,6 +379,8 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
     pc = study.manifest.phase_options(phase, method=g["method"], budget=g["budget"],
                                       regions=g.get("regions"), seed=study.seed,
                                       batch_size=study.batch_size_of(phase), extra=extra)
+    if phase == Phase.PHASE1:
+        check_phase1_runs(study.run, study.manifest, pc)
     return pc, ls
 
 

@@ -29,7 +29,7 @@ from latentune.pipeline.phases import (make_handover_critic, make_phase_critic, 
 from latentune.pipeline.rundir import RunDir
 from latentune.pipeline.store import RunStore, Row
 from latentune.space import ParameterSpace
-from latentune.wording import counted, option
+from latentune.wording import FLAGS, counted, option
 
 log = logging.getLogger(__name__)
 
@@ -329,20 +329,50 @@ REPORTED_KEY = "phase3_amendments_reported"
 highest amendment number reported}``; absent until one is."""
 
 
-def amendments_reported(run: RunDir, manifest: Manifest, fingerprint: str | None
-                        ) -> tuple[int, Callable[[int], None]]:
-    """(the highest amendment of phase 3's source run reported since it was pinned with
-    ``fingerprint``, 0 if none; a function recording a higher one in the manifest,
+def amendments_reported(run: RunDir, manifest: Manifest, fingerprint: str | None,
+                        key: str = REPORTED_KEY) -> tuple[int, Callable[[int], None]]:
+    """(the highest amendment of a pinned run (phase 3's source; phase 1's fall prior or
+    source run: :data:`PHASE1_PINS`) reported since it was pinned with ``fingerprint``, 0 if
+    none; a function recording a higher one in the manifest entry ``key``, default
     :data:`REPORTED_KEY`) for :func:`source_mismatch`: each amendment is reported once."""
-    seen = manifest.config().get(REPORTED_KEY) or {}
+    seen = manifest.config().get(key) or {}
     reported = int(seen.get("amendment") or 0) \
         if seen.get("source_fingerprint") == fingerprint else 0
 
     def record(latest: int) -> None:
         with run.writing():
-            manifest.update(**{REPORTED_KEY: {"source_fingerprint": fingerprint,
-                                              "amendment": int(latest)}})
+            manifest.update(**{key: {"source_fingerprint": fingerprint,
+                                     "amendment": int(latest)}})
     return reported, record
+
+
+PHASE1_PINS = {"fall_prior": ("prior_counts", "prior_fingerprint"),
+               "source_run": ("source_counts", "source_fingerprint")}
+"""The runs phase 1 learns from (its options ``fall_prior`` and ``source_run``, optuna-cmaes's
+``source_trials``) and the pins of each in its options record (counts, fingerprint)."""
+
+
+def check_phase1_runs(run: RunDir, manifest: Manifest, pc: dict[str, Any]) -> None:
+    """Check, before a phase 1 with trials goes on, that the runs it learns from
+    (:data:`PHASE1_PINS`) are the ones it began with (:func:`source_mismatch`): LatentError
+    (one line) naming the option when one holds another run now (replaced or cut since; its
+    trials would seed the resumed critic in place of the ones it began with), one warning per
+    amendment of their trials since (recorded in ``phase1_<option>_amendments_reported``).
+    Nothing to check before the phase's first trial, or for a pin recorded before the
+    fingerprint existed (counts alone)."""
+    if not manifest.n_fixing(Phase.PHASE1):
+        return
+    for name, (n_key, fp_key) in PHASE1_PINS.items():
+        where, counts, fp = pc.get(name), pc.get(n_key), pc.get(fp_key)
+        if where is None or not counts:
+            continue
+        reported, record = amendments_reported(run, manifest, fp,
+                                               f"phase1_{name}_amendments_reported")
+        why = source_mismatch(where, counts, fp, "phase 1", "those trials", reported, record)
+        if why is not None:
+            raise LatentError(f"{option(name) if name in FLAGS else name}: the run at {where} "
+                              "is not the run phase 1 began "
+                              f"with: it {why} (replaced since?); put that run back there")
 
 
 def source_pin(run_dir: Path, manifest: Manifest, source: str, pinned: bool

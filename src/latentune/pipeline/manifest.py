@@ -53,10 +53,11 @@ PHASE_KEYS = {Phase.PHASE1: "phase1", Phase.PHASE3: "phase3"}
 COMPARED = ("method", "batch_size", "seed", "regions", "start", "max_fall_prob", "fall_prior",
             "latent_source", "handover", "transfer_options")
 """The options of a phase that must match on resume (budget may grow)."""
-RECORDED_IF_GIVEN = ("transfer_options", "source_counts", "source_fingerprint", "prior_counts")
+RECORDED_IF_GIVEN = ("transfer_options", "source_counts", "source_fingerprint", "prior_counts",
+                     "prior_fingerprint")
 """Options recorded only when given: a record without one (a run stored before it existed, or
 run without it) compares equal to not giving it."""
-PINNED = ("source_counts", "source_fingerprint", "prior_counts")
+PINNED = ("source_counts", "source_fingerprint", "prior_counts", "prior_fingerprint")
 """Options taken as the phase first recorded them once it has a trial, never compared: what
 the phase started from (how many trials of each phase its source run or fall prior held:
 :func:`run_counts`; which trials those were: :func:`run_fingerprint`), so a resume asks what
@@ -759,7 +760,9 @@ def same_option(key: str, old: Any, new: Any) -> bool:
 
 def fall_options(max_fall_prob: float | None, prior: Any) -> dict[str, Any]:
     """The options record of the fall-aware option (checked): ``prior`` a run directory (its
-    trials counted: ``prior_counts``), a label, or None."""
+    trials counted, ``prior_counts``, and fingerprinted, ``prior_fingerprint``:
+    :func:`run_fingerprint`; :data:`PINNED`, checked on resume by
+    :func:`~latentune.pipeline.loop.require_pinned_prior`), a label, or None."""
     if max_fall_prob is None:
         if prior is not None:
             raise UsageError("fall_prior needs max_fall_prob (it seeds the fall prediction)")
@@ -767,9 +770,11 @@ def fall_options(max_fall_prob: float | None, prior: Any) -> dict[str, Any]:
     if isinstance(max_fall_prob, bool) or not isinstance(max_fall_prob, (int, float)) or \
             not 0.0 < float(max_fall_prob) <= 1.0:
         raise UsageError(f"max_fall_prob must be in (0, 1], got {max_fall_prob!r}")
+    counts = None if prior is None else run_counts(prior)
     return {"max_fall_prob": float(max_fall_prob),
             "fall_prior": None if prior is None else prior_record(prior),
-            "prior_counts": None if prior is None else run_counts(prior)}
+            "prior_counts": counts,
+            "prior_fingerprint": None if counts is None else run_fingerprint(prior, counts)}
 
 
 def learns_from_source(strategy: str, max_fall_prob: float | None) -> bool:
@@ -872,8 +877,9 @@ def transfer_option(options: dict[str, Any] | None, strategy: str,
 def source_option(method: str, source_run: Any) -> dict[str, Any]:
     """The options record of ``source_run``, a run whose phase-1 and phase-3 trials warm-start
     Optuna's CMA-ES (its ``source_trials`` mode): only with the method ``optuna-cmaes``; with
-    the trials it holds now (``source_counts``, :data:`PINNED`: a resume uses those trials, not
-    ones the source made since)."""
+    the trials it holds now (``source_counts``, and their ``source_fingerprint``,
+    :data:`PINNED`: a resume uses those trials, not ones the source made since, and knows the
+    run by them: :func:`~latentune.pipeline.loop.check_phase1_runs`)."""
     if source_run is None:
         return {}
     if method != "optuna-cmaes":
@@ -881,8 +887,9 @@ def source_option(method: str, source_run: Any) -> dict[str, Any]:
                          f"{method or 'turbo'} (pass method='optuna-cmaes')")
     if not (Path(source_run) / "run.db").is_file():
         raise StoreError(f"no latentune run in {source_run} (expected run.db)")
-    return {"source_run": str(Path(source_run).resolve()),
-            "source_counts": run_counts(source_run)}
+    counts = run_counts(source_run)
+    return {"source_run": str(Path(source_run).resolve()), "source_counts": counts,
+            "source_fingerprint": run_fingerprint(source_run, counts)}
 
 
 def handover(option: Any) -> dict[str, Any] | None:
