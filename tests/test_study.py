@@ -567,6 +567,23 @@ def test_train_latent_refuses_bad_epochs_before_replacing_the_vae(tmp_path):
         assert (tmp_path / "r" / "vae.pt").read_bytes() == before
 
 
+def test_train_latent_names_a_latent_dim_of_the_wrong_type_on_a_trained_run(tmp_path):
+    """``train_latent(latent_dim="5")`` on a run trained with latent_dim 5 said "trained already
+    with latent_dim = 5, not '5'" (as if the sizes differed); it now says latent_dim must be a
+    whole number, as on a run not trained yet, and keeps the trained VAE."""
+    from latentune.errors import LatentError
+
+    sp = lt.ParameterSpace(["a", "b", "c"], [0] * 3, [1] * 3)
+    with lt.Study(tmp_path / "r", seed=0) as st:
+        st.phase1(lt.FunctionSystem(sp, lambda x: float(((x - 0.3) ** 2).sum())), 12)
+        st.train_latent(latent_dim=2, epochs=5)
+        for bad in ("2", 2.0, 0, True):
+            with pytest.raises(LatentError, match=r"latent dimension must be a whole number >= 1,"
+                                                  r" got"):
+                st.train_latent(latent_dim=bad)
+        assert st.train_latent(latent_dim=2).d_low == 2
+
+
 def test_a_cost_the_store_cannot_keep_is_refused_or_a_fall(tmp_path):
     """The store keeps ±1e300 for ±inf: a standing trial's cost of 1e300 or more in size is
     refused by name (it was stored and read back as inf, and best() became inf); a failed

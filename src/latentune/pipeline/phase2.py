@@ -6,6 +6,7 @@ import logging
 from numbers import Integral
 from typing import Any
 
+from latentune.checks import is_whole
 from latentune.constants import Phase
 from latentune.errors import LatentError, UsageError
 from latentune.pipeline.manifest import Manifest
@@ -31,7 +32,8 @@ def train_latent(run: RunDir, manifest: Manifest, seed: int, latent_dim: int | N
 
     Trains it with ``seed`` and saves it as ``DIR/vae.pt`` / ``DIR/vae.json``; a trained one is
     returned as it is unless ``retrain`` (UsageError for another ``latent_dim``, ``kind`` or
-    ``epochs``: :func:`trained_differs`); retraining after phase 3 used it is refused (it
+    ``epochs``: :func:`trained_differs`; LatentError for a latent_dim that is not a whole number
+    >= 1, checked first); retraining after phase 3 used it is refused (it
     would invalidate the stored phase-3 rows). Call with the run's write lock held."""
     from latentune.latent.vae import DEFAULT_KIND, SPREAD_WARN, LatentSpace
 
@@ -39,6 +41,8 @@ def train_latent(run: RunDir, manifest: Manifest, seed: int, latent_dim: int | N
                                or epochs < 1):
         raise UsageError(f"epochs must be a whole number >= 1 (or None: the default), got "
                          f"{epochs!r}")
+    if latent_dim is not None and not is_whole(latent_dim, 1):
+        raise LatentError(f"latent dimension must be a whole number >= 1, got {latent_dim!r}")
     st = run.store
     if st.artifact("vae") is not None:
         if not retrain:
