@@ -731,6 +731,9 @@ def test_a_system_arg_at_its_default_value_is_the_same_system(run_cli, plugin_di
     line = one_line_error(*run_cli("phase1", *common, "--system-arg", "shift=0.5", "--out",
                                    runs[1], "--phase1-evals", 6, "--resume")[::2])
     assert "holds a run of another system (args.shift: stored 0, given 0.5)" in line, line
+    # the refusal says what to pass to go on (it named the difference and nothing to do)
+    assert line.endswith("given 0.5): pass --system closplant:make --system-arg dim=4 "
+                         "--system-arg shift=0 to go on with it, or use another directory"), line
 
 
 def test_resume_refusals_name_the_flag_and_both_values_alike(run_cli, plugin_dir, tmp_path):

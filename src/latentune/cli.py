@@ -442,20 +442,10 @@ def _study(args: argparse.Namespace):
         raise CLIError(stored_flags(str(exc))) from None
 
 
-def plugin_flags(desc: dict[str, Any]) -> list[str]:
-    """The --system and --system-arg flags (shell-quoted) that name the --system plugin of a
-    stored system description ``desc`` (kind ``plugin``) again."""
-    from latentune.system import system_arg_text
-
-    out = ["--system", shlex.quote(str(desc.get("target")))]
-    for k, v in (desc.get("args") or {}).items():
-        out += ["--system-arg", shlex.quote(system_arg_text(k, v))]
-    return out
-
-
 def _stored_plugin_flags(run: Any) -> list[str]:
     """:func:`plugin_flags` of the run at ``run`` when it holds a run of a --system plugin,
     else none (read from its stored config; nothing is imported)."""
+    from latentune.pipeline.manifest import plugin_flags
     from latentune.study import Study
 
     try:
@@ -469,6 +459,8 @@ def _check_stored_system(study: Any, args: argparse.Namespace) -> None:
     """Refuse, in one line saying what to pass, a run directory whose stored system is not the
     kind the flags describe (read from the stored config; nothing is imported). A study that
     holds no trial may take another system (:meth:`Manifest.holds_trials`)."""
+    from latentune.pipeline.manifest import plugin_flags
+
     if not study.exists or not study.manifest.holds_trials():
         return
     desc = study.config().get("system") or {}

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import shlex
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -40,7 +41,7 @@ from latentune.pipeline.rundir import RunDir
 from latentune.pipeline.store import info_json, json_default
 from latentune.pipeline.walltime import settle_open
 from latentune.space import ParameterSpace, task_tuned_for
-from latentune.system import check_system, plugin_record
+from latentune.system import check_system, plugin_record, system_arg_text
 from latentune.wording import joined, option
 
 OPTUNA_METHODS = ("optuna-tpe", "optuna-cmaes", "optuna-gp")
@@ -233,6 +234,15 @@ def stored_system(cfg: dict[str, Any]) -> dict[str, Any] | None:
     if stored is None and "task" in cfg:
         stored = {"kind": "task", "task": cfg["task"]}
     return stored
+
+
+def plugin_flags(desc: dict[str, Any]) -> list[str]:
+    """The --system and --system-arg flags (shell-quoted) that name the --system plugin of a
+    stored system description ``desc`` (kind ``plugin``) again."""
+    out = ["--system", shlex.quote(str(desc.get("target")))]
+    for k, v in (desc.get("args") or {}).items():
+        out += ["--system-arg", shlex.quote(system_arg_text(k, v))]
+    return out
 
 
 def no_system_text(stored: dict[str, Any]) -> str:
@@ -463,12 +473,16 @@ class Manifest:
                 raise StoreError(f"{self.run.dir} holds a run of the built-in robot "
                                  f"{t.get('robot')} ({t.get('gait')}), not of a --system: "
                                  "leave --system (and --system-arg) out")
-            flags = task_flags(stored, desc)
             shown = (identity(stored, desc), identity(desc)) \
                 if stored.get("kind") == desc.get("kind") else (stored, desc)
+            if stored.get("kind") == "plugin" == desc.get("kind"):
+                hint = (f": pass {' '.join(plugin_flags(stored))} to go on with it, or use "
+                        "another directory")
+            else:
+                flags = task_flags(stored, desc)
+                hint = f": pass {flags} to go on with it" if flags else ""
             raise StoreError(f"{self.run.dir} holds a run of another system "
-                             f"({diff(*shown)})"
-                             + (f": pass {flags} to go on with it" if flags else ""))
+                             f"({diff(*shown)}){hint}")
         return desc
 
     def space(self) -> ParameterSpace | None:
