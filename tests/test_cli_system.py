@@ -1032,3 +1032,60 @@ def test_ask_with_system_on_a_run_made_through_the_api_says_to_leave_it_out(run_
                     "examples.lqr_chain:make_system: leave --system out (ask, tell and report "
                     "read the stored run), or continue it with latentune.Study"), line
     assert run_cli("ask", tmp_path / "api", "--budget", "4")[0] == 0
+
+
+
+STOPPING = textwrap.dedent('''
+    import os
+
+    import numpy as np
+    import latentune as lt
+
+
+    def make():
+        """Unless STOPPLANT_RUNS is set, the first trial of a process runs and the next is a
+        Ctrl-C (the file "stop" marks that one has run)."""
+        def fn(x):
+            if not os.environ.get("STOPPLANT_RUNS"):
+                if os.path.exists("stop"):
+                    os.remove("stop")
+                    raise KeyboardInterrupt
+                open("stop", "w").close()
+            return float(np.sum((x - 0.2) ** 2))
+        return lt.FunctionSystem(lt.ParameterSpace(["a", "b", "c"], [-1.0] * 3, [1.0] * 3,
+                                                   manual=[0.5] * 3), fn)
+''')
+
+
+def test_a_phase_run_stopped_after_its_first_trial_is_not_rerun_without_resume(
+        run_cli, tmp_path, monkeypatch):
+    """A Ctrl-C after the zero-shot θ, the first trial a phase-3 run stores, left a directory
+    that the same command without --resume went on with silently, while one with a phase-3
+    trial is refused ("already holds N phase-3 evaluations; pass --resume ..."). It is now
+    refused the same way, the store unchanged; --resume goes on."""
+    from conftest import dump
+
+    made = _module_dir(tmp_path, monkeypatch, "stopplant", STOPPING)
+    next(made)
+    common = ("--system", "stopplant:make", "--backend", "serial", "--quiet")
+    src, tgt = tmp_path / "src", tmp_path / "tgt"
+    monkeypatch.setenv("STOPPLANT_RUNS", "1")
+    code, _, err = run_cli("tune", *common, "--out", src, "--phase1-evals", 12,
+                           "--phase3-evals", 2, "--vae-epochs", 20)
+    assert code == 0, err
+    monkeypatch.delenv("STOPPLANT_RUNS")
+    code, _, err = run_cli("phase3", *common, "--vae", src, "--out", tgt, "--phase3-evals", 4)
+    assert code == 130, err
+    assert RunStore(tgt).count(Phase.ZERO_SHOT) == 1 and RunStore(tgt).count(Phase.PHASE3) == 0
+    before = dump(tgt)
+    line = one_line_error(*run_cli("phase3", *common, "--vae", src, "--out", tgt,
+                                   "--phase3-evals", 4)[::2])
+    assert line.endswith(f"{tgt} already holds the zero-shot trial phase 3 began with; pass "
+                         "--resume to continue the run or choose another --out"), line
+    assert dump(tgt) == before
+    monkeypatch.setenv("STOPPLANT_RUNS", "1")
+    code, _, err = run_cli("phase3", *common, "--vae", src, "--out", tgt, "--phase3-evals", 4,
+                           "--resume")
+    assert code == 0, err
+    assert RunStore(tgt).count(Phase.PHASE3) == 4
+    next(made, None)

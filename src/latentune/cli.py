@@ -574,9 +574,22 @@ def _vae_kind(args: argparse.Namespace) -> str | None:
 
 
 def _refuse_rerun(study: Any, phase: int, resume: bool) -> None:
-    if study.exists and study.store.count(phase) > 0 and not resume:
-        raise CLIError(f"{study.dir} already holds {study.store.count(phase)} phase-{phase} "
-                       "evaluations; pass --resume to continue the run or choose another --out")
+    """Refuse, without --resume, a run of ``phase`` in a directory where it began: it holds
+    trials of the phase, or (phase 3) the zero-shot trial the phase run stores first (a run
+    stopped by Ctrl-C right after it)."""
+    from latentune.constants import Phase
+
+    if resume or not study.exists:
+        return
+    n = study.store.count(phase)
+    if n > 0:
+        held = f"{n} phase-{phase} evaluations"
+    elif phase == Phase.PHASE3 and study.store.count(Phase.ZERO_SHOT) > 0:
+        held = "the zero-shot trial phase 3 began with"
+    else:
+        return
+    raise CLIError(f"{study.dir} already holds {held}; pass --resume to continue the run or "
+                   "choose another --out")
 
 
 def _budget(args: argparse.Namespace, study: Any, phase: int) -> int:
