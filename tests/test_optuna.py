@@ -374,6 +374,26 @@ def test_import_cli_from_a_journal_file(tmp_path, capsys):
         bad.func(bad)
 
 
+def test_import_cli_names_a_latent_dim_too_large_for_the_imported_space(tmp_path, run_cli,
+                                                                        error_line):
+    """``import-optuna --train-latent --latent-dim D`` with D not below the study's number of
+    parameters imported the trials, then said "latent dimension must be in [1, 5], got 6":
+    neither the flag nor that the trials are stored and how to train on them. It now names
+    --latent-dim and the train-vae command that trains the stored run."""
+    db = tmp_path / "opt.db"
+    simulator_study(f"sqlite:///{db}", n=20)
+    d = len(NAMES)
+    line = error_line(*run_cli("import-optuna", db, "--study", "sim", "--out", tmp_path / "O",
+                               "--train-latent", "--latent-dim", d)[::2])
+    assert line.endswith(f"--latent-dim {d}: the latent space of a {d}-dim θ needs a size in "
+                         f"[1, {d - 1}]; the trials are imported: train it with latentune "
+                         f"train-vae --out {tmp_path / 'O'} --latent-dim N"), line
+    assert lt.Study(tmp_path / "O").store.count(Phase.PHASE1) == 20
+    code, out, err = run_cli("train-vae", "--out", tmp_path / "O", "--latent-dim", 2,
+                             "--vae-epochs", 20)
+    assert code == 0 and "d_low 2) trained on 20" in out, err
+
+
 def test_train_vae_on_an_imported_study_then_latent_sampler(tmp_path, run_cli, error_line):
     """``latentune import-optuna opt.db --study sim --out O`` then ``latentune train-vae --out
     O`` (the README's two steps without --train-latent) was refused: "O holds a run of another

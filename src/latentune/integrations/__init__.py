@@ -57,12 +57,27 @@ def cmd_import_optuna(args: argparse.Namespace) -> int:
               f"({counted(sum(r.fell for r in rows), 'fall')}), "
               + ("no trial without a fall" if best is None else f"best cost {best.cost:.6g}"))
         if args.train_latent:
+            _check_imported_latent_dim(study, args)
             latent = study.train_latent(args.latent_dim, epochs=args.vae_epochs)
             print(f"latent space ({latent.kind}, d_low {latent.d_low}) trained on "
                   f"{latent.meta.get('n_train', '?')} θ that did not fail: "
                   f"LatentSampler({str(args.out)!r}) can use it")
         work_done(args)             # the work is done and reported: an interrupt exits 0
     return 0
+
+
+def _check_imported_latent_dim(study: Any, args: argparse.Namespace) -> None:
+    """CLIError naming --latent-dim, and the train-vae command that trains the run now
+    holding the imported trials, when --latent-dim does not fit the imported space."""
+    import shlex
+
+    from latentune.errors import CLIError
+
+    dim, ld = study.space().dim, args.latent_dim
+    if ld is not None and not 1 <= ld < dim:
+        raise CLIError(f"--latent-dim {ld}: the latent space of a {dim}-dim θ needs a size in "
+                       f"[1, {dim - 1}]; the trials are imported: train it with "
+                       f"latentune train-vae --out {shlex.quote(str(args.out))} --latent-dim N")
 
 
 def cmd_dashboard(args: argparse.Namespace) -> int:
