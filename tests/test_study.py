@@ -164,6 +164,25 @@ def test_a_run_of_another_task_names_the_task_keywords_that_give_the_stored_one(
     assert str(e.value).endswith(": pass steps=20, v_des=0.1234567 to go on with it"), e.value
 
 
+def test_a_run_of_another_python_system_says_what_to_do(tmp_path):
+    """``Study.phase1`` with a FunctionSystem of another function (renamed, a lambda now) on a
+    run holding trials said only "holds a run of another system (config.name: stored 'f',
+    given '<lambda>')"; it now says to go on with the system the run holds, or use another
+    directory."""
+    sp = lt.ParameterSpace(["a", "b"], [0, 0], [1, 1])
+
+    def f(x):
+        return float(x.sum())
+
+    with lt.Study(tmp_path / "r", seed=0) as st:
+        st.phase1(lt.FunctionSystem(sp, f), 2)
+    with lt.Study(tmp_path / "r", seed=0) as st, pytest.raises(StoreError) as e:
+        st.phase1(lt.FunctionSystem(sp, lambda x: float(x.sum())), 3)
+    assert "another system (config.name: stored '" in str(e.value), e.value
+    assert str(e.value).endswith("): go on with the system it was run with, or use another "
+                                 "directory"), e.value
+
+
 def test_phase3_hands_over_to_the_full_space_and_records_it(tmp_path, user_sim):
     import myplant
 

@@ -480,7 +480,8 @@ class Manifest:
                         "another directory")
             else:
                 flags = task_flags(stored, desc)
-                hint = f": pass {flags} to go on with it" if flags else ""
+                hint = (f": pass {flags} to go on with it" if flags else
+                        ": go on with the system it was run with, or use another directory")
             raise StoreError(f"{self.run.dir} holds a run of another system "
                              f"({diff(*shown)}){hint}")
         return desc
