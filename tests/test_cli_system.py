@@ -1089,3 +1089,20 @@ def test_a_phase_run_stopped_after_its_first_trial_is_not_rerun_without_resume(
     assert code == 0, err
     assert RunStore(tgt).count(Phase.PHASE3) == 4
     next(made, None)
+
+
+def test_train_vae_reports_the_decoders_spread(run_cli, plugin_dir, tmp_path):
+    """README: "train-vae reports the decoder's spread (the variance of the decoded θ over the
+    training set's)"; it printed only "VAE (det, d_low 2) trained on N θ: DIR/vae.pt", the
+    spread shown with -v alone. The line now ends with it, as recorded in the manifest."""
+    import re
+
+    run = tmp_path / "r"
+    common = ("--system", "closplant:make", "--out", run)
+    assert run_cli("phase1", *common, "--phase1-evals", 10, "--backend", "serial",
+                   "--quiet")[0] == 0
+    code, out, err = run_cli("train-vae", *common, "--latent-dim", 2, "--vae-epochs", 20)
+    assert code == 0, err
+    ratio = lt.Study(run).config()["vae"]["decoded_variance_ratio"]
+    assert re.fullmatch(rf"VAE \(det, d_low 2\) trained on \d+ θ: {re.escape(str(run))}/vae.pt; "
+                        rf"decoded spread {ratio:.3f} of the training variance\n", out), out

@@ -862,8 +862,10 @@ def cmd_train_vae(args: argparse.Namespace) -> int:
             return 0
         latent = study.train_latent(args.latent_dim, kind=args.vae_kind, epochs=args.vae_epochs,
                                     retrain=True)
+        ratio = latent.meta.get("decoded_variance_ratio")
+        spread = "" if ratio is None else f"; decoded spread {ratio:.3f} of the training variance"
         print(f"VAE ({latent.kind}, d_low {latent.d_low}) trained on "
-              f"{latent.meta.get('n_train', '?')} θ: {study.dir / 'vae.pt'}")
+              f"{latent.meta.get('n_train', '?')} θ: {study.dir / 'vae.pt'}{spread}")
         work_done(args)
     return 0
 
