@@ -2588,3 +2588,19 @@ def test_a_phase_3_run_given_as_the_latent_space_names_its_source(run_cli, tmp_p
                                space_file)[::2])
     assert line.endswith(f"--vae: {t} holds no latent space of its own: it is a phase 3 on the "
                          f"latent space of {src30.resolve()}; give that run instead (--vae)"), line
+
+
+def test_an_ask_start_that_names_no_file_lists_what_start_takes(run_cli, tmp_path, error_line):
+    """``ask --start scrach`` (a typo of scratch) said "--start scrach: params file not found:
+    scrach", as if only a file were meant; it now lists what --start takes, and no store is
+    made."""
+    sp = tmp_path / "S.yaml"
+    sp.write_text(SPACE_YAML)
+    d = tmp_path / "run"
+    line = error_line(*run_cli("ask", d, "--space", sp, "--start", "scrach")[::2])
+    assert line.endswith("--start scrach: no such file; give manual, scratch or a --params "
+                         "file"), line
+    assert not (d / "run.db").exists()
+    (tmp_path / "today.json").write_text(json.dumps({"kp": 3.0, "kd": 0.5}))
+    code, out, err = run_cli("ask", d, "--space", sp, "--start", tmp_path / "today.json")
+    assert code == 0 and "kp=3, kd=0.5" in out, err

@@ -1199,6 +1199,8 @@ def _ask_start(start: str | None, system: Any, space: Any, study: Any) -> Any:
     a --params file (read with the system's, the given or the stored parameter space)."""
     if start is None or start in ("manual", "scratch"):
         return start
+    if not Path(start).exists():            # a typo of manual or scratch, or a missing file
+        raise CLIError(f"--start {start}: no such file; give manual, scratch or a --params file")
     sp = system.space if system is not None else space if space is not None else study.space()
     from latentune.errors import ParamsError
 
