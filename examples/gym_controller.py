@@ -277,13 +277,15 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run(a: Any) -> int:
-    """The example's run for the parsed arguments ``a`` (see :func:`main`)."""
-    system = make_system(seed=a.seed, episode_steps=a.episode_steps)
-    print(f"{system.space.dim} tuned weights; manual θ: cost "
-          f"{system.evaluate(system.space.manual).cost:.2f}", flush=True)
+    """The example's run for the parsed arguments ``a`` (see :func:`main`). The study is
+    opened first: an ``--out`` it refuses (a file, a run of another seed) stops before any
+    episode."""
     from latentune.study import stderr_log
 
+    system = make_system(seed=a.seed, episode_steps=a.episode_steps)
     with lt.Study(a.out, seed=a.seed, log=stderr_log) as study:
+        print(f"{system.space.dim} tuned weights; manual θ: cost "
+              f"{system.evaluate(system.space.manual).cost:.2f}", flush=True)
         study.phase1(system, a.phase1_evals)
         study.train_latent(latent_dim=a.latent_dim)
         study.phase3(system, a.phase3_evals)

@@ -430,6 +430,15 @@ def test_gym_controller_into_an_out_of_another_run_is_one_line(tmp_path, capsys)
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("examples.gym_controller: error: ") and \
         str(tmp_path / "h") in err[0], err
+    # an --out of another seed, or a file: the refusal came after an episode of the manual θ
+    # and its "36 tuned weights; manual θ: cost ..." line; it is the one line, nothing run
+    (tmp_path / "file").write_text("")
+    for argv, says in ((["--out", str(tmp_path / "h"), "--episode-steps", "5", "--seed", "3"],
+                        "seed = 0, not 3"),
+                       (["--out", str(tmp_path / "file")], "is not a directory")):
+        assert g.main([*argv, "--phase1-evals", "2"]) == 2
+        out, err = capsys.readouterr()
+        assert out == "" and len(err.strip().splitlines()) == 1 and says in err, (out, err)
 
 
 @pytest.mark.parametrize("trials", ["abc", "0", "-3", "2.5"])
