@@ -734,6 +734,14 @@ def test_a_system_arg_at_its_default_value_is_the_same_system(run_cli, plugin_di
     # the refusal says what to pass to go on (it named the difference and nothing to do)
     assert line.endswith("given 0.5): pass --system closplant:make --system-arg dim=4 "
                          "--system-arg shift=0 to go on with it, or use another directory"), line
+    from latentune.errors import StoreError        # in Python's words from Python
+    from latentune.system import load_system
+
+    with pytest.raises(StoreError) as e:
+        lt.Study(runs[1]).phase1(load_system("closplant:make", {"shift": 0.5}), 7)
+    assert str(e.value).endswith("given 0.5): pass the system of load_system('closplant:make', "
+                                 "{'dim': 4, 'shift': 0}) to go on with it, or use another "
+                                 "directory"), str(e.value)
 
 
 def test_resume_refusals_name_the_flag_and_both_values_alike(run_cli, plugin_dir, tmp_path):

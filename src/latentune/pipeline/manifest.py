@@ -42,7 +42,7 @@ from latentune.pipeline.store import info_json, json_default
 from latentune.pipeline.walltime import settle_open
 from latentune.space import ParameterSpace, task_tuned_for
 from latentune.system import check_system, plugin_record, system_arg_text
-from latentune.wording import joined, option
+from latentune.wording import at_command_line, joined, option
 
 OPTUNA_METHODS = ("optuna-tpe", "optuna-cmaes", "optuna-gp")
 """Optuna's samplers as critics (:class:`latentune.critic.optuna.OptunaCritic`; the
@@ -476,8 +476,10 @@ class Manifest:
             shown = (identity(stored, desc), identity(desc)) \
                 if stored.get("kind") == desc.get("kind") else (stored, desc)
             if stored.get("kind") == "plugin" == desc.get("kind"):
-                hint = (f": pass {' '.join(plugin_flags(stored))} to go on with it, or use "
-                        "another directory")
+                again = " ".join(plugin_flags(stored)) if at_command_line() else \
+                    (f"the system of load_system({stored.get('target')!r}, "
+                     f"{dict(stored.get('args') or {})!r})")
+                hint = f": pass {again} to go on with it, or use another directory"
             else:
                 flags = task_flags(stored, desc)
                 hint = (f": pass {flags} to go on with it" if flags else
