@@ -832,20 +832,26 @@ def _phase1_killed_after(path: Path, n: int) -> None:
                                   method="random")
 
 
+def _killed_in_phase1(path: Path) -> None:
+    """Phase 1 at ``path`` in a forked process that dies (exit 9, no clean-up) at its 9th
+    trial (:func:`_phase1_killed_after`)."""
+    import multiprocessing
+
+    proc = multiprocessing.get_context("fork").Process(target=_phase1_killed_after,
+                                                       args=(path, 8))
+    proc.start()
+    proc.join(60)
+    assert proc.exitcode == 9
+
+
 def test_a_killed_phase_s_wall_time_does_not_take_in_trials_told_later(tmp_path):
     """A run killed inside phase 1 leaves its block open; its time counts up to its last stored
     trial. Trials told later through ask/tell (no command timed them, and asking settles no
     block) counted as that run's own: the killed block's time stretched to the last tell, hours
     later at a robot. It counts the trials its command stored, not the told ones."""
-    import multiprocessing
-
     from latentune.pipeline.walltime import wall_record
 
-    proc = multiprocessing.get_context("fork").Process(target=_phase1_killed_after,
-                                                       args=(tmp_path / "k", 8))
-    proc.start()
-    proc.join(60)
-    assert proc.exitcode == 9
+    _killed_in_phase1(tmp_path / "k")
     with RunStore(tmp_path / "k") as st:
         before = wall_record(st)[0]["phase1"]
     assert before > 0.05
@@ -864,15 +870,9 @@ def test_a_run_killed_inside_a_phase_reports_its_real_wall_time(tmp_path):
     """A run killed inside phase 1 (no clean-up: its wall time was never added) reports the
     time up to its last stored trial, not 0; the next run of the store adds it for good. A phase
     whose trials no command timed says its time is unknown (wall_s None), never 0."""
-    import multiprocessing
-
     from latentune.reporting.run_report import write_summary
 
-    proc = multiprocessing.get_context("fork").Process(target=_phase1_killed_after,
-                                                       args=(tmp_path / "k", 8))
-    proc.start()
-    proc.join(60)
-    assert proc.exitcode == 9
+    _killed_in_phase1(tmp_path / "k")
     with RunStore(tmp_path / "k") as st:
         assert st.count(Phase.PHASE1) > 0
         s = write_summary(st)
