@@ -887,3 +887,32 @@ def test_a_run_killed_inside_a_phase_reports_its_real_wall_time(tmp_path):
         st.delete_meta("wall")                    # a run killed before this fix)
         s = write_summary(st)
         assert s["wall_s"] is None and s["wall_unknown"] == ["phase1"]
+
+
+def test_a_phase_run_cannot_lower_the_budget_it_stored(tmp_path, run_cli, error_line):
+    """``Study.phase1(system, 8)`` (``phase1 --phase1-evals 8 --resume``) on a phase 1 of 20
+    trials recorded a budget of 8 with 20 trials stored, silently: a later ask said "phase 1's
+    budget of 8 trials is told", and the critic's plan (its trust regions, by budget) was no
+    longer the one its trials were asked by. A smaller budget is refused as an ask refuses it;
+    the same or a larger one goes on."""
+    from latentune.errors import StoreError
+
+    space = lt.ParameterSpace(["a", "b"], [0.0, 0.0], [1.0, 1.0], manual=[0.5, 0.5])
+    bowl = lt.FunctionSystem(space, lambda x: float(np.sum((x - 0.3) ** 2)), name="bowl")
+    with lt.Study(tmp_path / "r", seed=0) as st:
+        st.phase1(bowl, 20, method="random")
+    with lt.Study(tmp_path / "r", seed=0) as st, \
+            pytest.raises(StoreError, match=r"phase 1 has a budget of 20 trials \(stored\), "
+                                            r"which budget=8 would lower; a budget can only "
+                                            r"grow: give budget=20 or more$"):
+        st.phase1(bowl, 8, method="random")
+    with lt.Study(tmp_path / "r", seed=0) as st:
+        assert st.config()["phase1"]["budget"] == 20
+        assert st.phase1(bowl, 22, method="random").n == 22
+    out = tmp_path / "c"
+    flags = ("--system", "examples.toy_plant:make_system", "--out", out, "--backend", "serial")
+    assert run_cli("phase1", *flags, "--phase1-evals", "6")[0] == 0
+    line = error_line(*run_cli("phase1", *flags, "--phase1-evals", "4", "--resume")[::2])
+    assert line.endswith("phase 1 has a budget of 6 trials (stored), which --phase1-evals 4 "
+                         "would lower; a budget can only grow: give --phase1-evals 6 or more, "
+                         "or leave it out"), line

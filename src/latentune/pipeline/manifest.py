@@ -537,7 +537,7 @@ class Manifest:
         """The options record of ``phase`` (checked): the one configuration check of phase runs
         and ask/tell. Stored options must match once the phase has a trial (StoreError naming
         the stored value; phase 3's zero-shot trial counts, :meth:`n_fixing`); the budget may
-        grow; ``method`` None is the stored one (TuRBO-m for a phase without trials); TuRBO-m's
+        grow, a smaller one is refused (a phase run's as an ask's: :func:`ask_options`); ``method`` None is the stored one (TuRBO-m for a phase without trials); TuRBO-m's
         region count defaults by budget and then stays as stored. ``max_new`` (a phase run's stop after so many new trials, not
         recorded) is checked too. A ``phase_run`` (the phase run in-process, not by ask/tell)
         is refused while suggestions of the phase (or of phase 3's zero-shot trial) are handed
@@ -586,6 +586,14 @@ class Manifest:
               "regions": regions if method == "turbo" else None, "budget": int(budget),
               **(extra or {})}
         if stored and n:
+            old = stored.get("budget")
+            if old is not None and int(budget) < int(old):
+                cli = at_command_line()
+                name = f"--{key}-evals " if cli else "budget="
+                raise StoreError(f"{self.run.dir}: phase {int(phase)} has a budget of {old} "
+                                 f"trials (stored), which {name}{int(budget)} would lower; a "
+                                 f"budget can only grow: give {name}{old} or more"
+                                 + (", or leave it out" if cli else ""))
             pc.update({k: stored.get(k) for k in PINNED if k in pc})
             for k in ("method", "batch_size", "seed", "regions", *(extra or {})):
                 if k in PINNED:
