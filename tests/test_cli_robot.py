@@ -109,7 +109,8 @@ def test_ask_start(tmp_path, run_cli, error_line):
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps({"a": 7}))
     assert "--start" in error_line(*run_cli("ask", d, "--start", bad)[::2])
-    assert "not found" in error_line(*run_cli("ask", d, "--start", tmp_path / "none.json")[::2])
+    assert "no such file" in error_line(*run_cli("ask", d, "--start",
+                                                  tmp_path / "none.json")[::2])
     assert error_line(*run_cli("ask", d, "--start", "")[::2]) == (  # once "params file . is a
         "latentune: error: --start is empty: give manual, scratch or a file name, or leave "
         "--start out")                                            # directory"

@@ -880,7 +880,7 @@ def test_a_run_killed_inside_a_phase_reports_its_real_wall_time(tmp_path):
         assert s["wall_unknown"] == []
     space = lt.ParameterSpace(names=["a", "b"], low=[0.0] * 2, high=[1.0] * 2, manual=[0.5] * 2)
     sys_ = lt.FunctionSystem(space, lambda x: float(np.sum((x - 0.3) ** 2)), name="bowl")
-    lt.Study(tmp_path / "k", seed=0).phase1(sys_, 12, method="random")
+    lt.Study(tmp_path / "k", seed=0).phase1(sys_, 40, method="random")
     with RunStore(tmp_path / "k") as st:
         assert st.get_meta("wall_open") is None and st.get_meta("wall")["phase1"] > 0.05
     with RunStore(tmp_path / "k") as st:          # trials with no wall record (ask/tell, or
