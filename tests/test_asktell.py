@@ -292,6 +292,31 @@ def test_a_first_ask_of_two_gives_the_plain_phase_3_the_rows_of_the_phase_run(
         assert rows_of(at, Phase.PHASE3) == want
 
 
+def test_asks_that_end_with_the_batch_give_the_rows_of_the_phase_run_others_do_not(
+        tmp_path, src30):
+    """README: ask/tell gives the phase run's suggestions when each ask ends with the critic's
+    batch of 4 (``--n 1`` first, then ``--n 4``); an ask of 3 reaches into the next batch,
+    which the critic then asks with the ask's first θ not told, so later rows differ."""
+    target = plant(0.2)
+    with lt.Study(tmp_path / "run", seed=1) as run:
+        run.phase3(target, 12, latent=src30)
+        want = rows_of(run, Phase.PHASE3)
+
+    def by_asktell(d: Path, n: int) -> list[tuple]:
+        with lt.Study(d, seed=1) as at:
+            (s,) = at.ask(system=target, phase=3, latent=src30, budget=12)
+            out = evaluate(target, s.theta)
+            at.tell(s.id, out.cost, failed=out.failed)
+            while at.store.count(Phase.PHASE3) < 12:
+                for s in at.ask(n):
+                    out = evaluate(target, s.theta)
+                    at.tell(s.id, out.cost, failed=out.failed)
+            return rows_of(at, Phase.PHASE3)
+    assert by_asktell(tmp_path / "at4", 4) == want
+    got3 = by_asktell(tmp_path / "at3", 3)
+    assert got3[:4] == want[:4] and got3 != want
+
+
 def test_an_ask_whose_batch_is_all_told_theta_asks_on_or_says_the_budget_is_told(
         tmp_path, src_manual_best, decodes_manual):
     """A first ``ask(2)`` whose phase-3 start decodes to the zero-shot θ handed out with it:
