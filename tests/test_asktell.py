@@ -1543,6 +1543,26 @@ def test_ask_says_when_the_fall_model_rates_a_suggestion_above_its_screen(run_cl
     assert json.loads(out)[0]["fall_risk"] == {"max_fall_prob": p, "bound": bound}
 
 
+def test_a_suggestion_keeps_the_fall_risk_of_the_ask_that_gave_it_after_an_amendment(
+        tmp_path, src30):
+    """An amendment rebuilds the critic, whose next ask records its decision under the same
+    generation as the ask that handed out the pending suggestions, replacing it: a suggestion
+    handed out again then carried the new ask's fall risk (the warning said "the ask that gave
+    it" rated θ 0.81 likely to fall where that ask had said 0.35, or said nothing). Each
+    suggestion keeps the risk of the ask that queued it."""
+    shutil.copytree(src30, tmp_path / "src")
+    with lt.Study(tmp_path / "t", seed=0) as st:
+        z = st.ask(1, system=plant(0.3), phase=3, latent=tmp_path / "src")[0]
+        st.tell(z.id, None, failed=True)
+        (s,) = st.ask(asker="alice")
+        assert s.fall_risk is not None
+        st.tell(z.id, 0.5, amend=True)              # it stood after all: the critic is rebuilt
+        (other,) = st.ask(asker="bob")
+        assert other.id != s.id and other.fall_risk != s.fall_risk
+        (again,) = st.ask(asker="alice")
+        assert again.id == s.id and again.again and again.fall_risk == s.fall_risk
+
+
 def test_tell_says_when_a_robot_trial_fell(run_cli, tmp_path, error_line):
     """At the robot, a fall could only be told as --failed, which costs 2·C1 whenever it fell:
     the falls were all equal and nothing ranked them (the transfer critic learns from a later

@@ -93,6 +93,12 @@ ROW_FREE = ("options", "source_hypers", "decisions", "last_decision")
 (:meth:`~latentune.critic.transfer.Transfer.state_dict`) options, source models' fits and
 record of its asks, none of which depends on the target's told rows."""
 
+RISK_KEY = "asktell_fall_risk"
+"""Meta entry: suggestion id -> the highest probability of falling the transfer critic's fall
+model gave θ of the ask that queued it (its decision's ``max_fall_prob_asked``), recorded when
+queued: after an amendment the rebuilt critic asks that generation again and its decision
+replaces the first one in the critic's record."""
+
 LEASE_S = 3600.0
 """How long a suggestion stays leased to its asker when it is not told [s] (one hour)."""
 WAIT_S = 60.0
@@ -492,8 +498,9 @@ def refuse_if_fall_budget_spent(study: Any, st: RunStore, phase: int, pc: dict[s
 
 def fall_risk(st: RunStore, phase: int, pc: dict[str, Any]) -> Any:
     """A function of a suggestion (a stored Trial) giving ``(p, bound)`` when the transfer
-    phase 3's ask that gave it (its decision, by the generation of its tag, ``tag // 4``)
-    handed out θ its fall model rates ``p`` likely to fall, above the fall screen's
+    phase 3's ask that gave it handed out θ its fall model rates ``p`` likely to fall (as
+    recorded when it was queued, :data:`RISK_KEY`; a suggestion queued before that record:
+    its decision, by the generation of its tag, ``tag // 4``), above the fall screen's
     ``bound``; else None (phase 1, the plain phase 3, the zero-shot trial)."""
     state = st.get_meta(state_key(phase)) if phase == Phase.PHASE3 else None
     if not isinstance(state, dict) or strategy_of(pc) != "transfer":
@@ -501,10 +508,14 @@ def fall_risk(st: RunStore, phase: int, pc: dict[str, Any]) -> Any:
     bound = (state.get("options") or {}).get("max_fall_prob")
     by_gen = {d.get("generation"): d for d in state.get("decisions") or ()
               if isinstance(d, dict)}
+    recorded = st.get_meta(RISK_KEY) or {}
 
     def risk(t: Any) -> tuple[float, float] | None:
-        d = by_gen.get(t.tag // 4) if t.phase == phase and t.tag >= 0 else None
-        p = None if d is None else d.get("max_fall_prob_asked")
+        if t.phase != phase or t.tag < 0:
+            return None
+        p = recorded.get(str(t.id))
+        if p is None:       # queued by a version that did not record it: its generation's
+            p = (by_gen.get(t.tag // 4) or {}).get("max_fall_prob_asked")
         if p is None or bound is None or not float(p) > float(bound):
             return None
         return float(p), float(bound)
@@ -691,8 +702,11 @@ def _queue(study: Any, st: RunStore, phase: int, pc: dict[str, Any], batch: _Bat
         told.append(None if out is None else {
             "cost": out.cost, "fell": out.failed, "fall_step": out.fall_step,
             "wall_s": out.wall_s, "seed": study.seed, "info": {**out.info, "reused": True}})
+    asked = (batch.state.get("last_decision") or {}).get("max_fall_prob_asked") \
+        if batch.state else None
     st.queue_trials(phase, batch.thetas[o], [batch.codes[i] for i in o], batch.tags[o],
-                    meta=meta, told=told)
+                    meta=meta, told=told,
+                    each=None if asked is None else (RISK_KEY, float(asked)))
     if any(t is not None for t in told):
         write_best(st, study.dir, study.manifest.space(), phase)
     if batch.rule is not None:

@@ -595,10 +595,13 @@ class RunStore:
     # ------------------------------------------------------------------ ask/tell trials
     def queue_trials(self, phase: int, thetas: Any, zs: list[Any], tags: Any,
                      meta: dict[str, Any] | None = None,
-                     told: list[dict[str, Any] | None] | None = None) -> list[int]:
+                     told: list[dict[str, Any] | None] | None = None,
+                     each: tuple[str, Any] | None = None) -> list[int]:
         """Record a batch the critic asked as 'queued' suggestions (one transaction); return
         their ids in ask order. ``thetas`` (n, d), ``zs`` n codes or None, ``tags`` (n,).
         ``meta``: entries written in the same transaction (a None value removes the entry).
+        ``each``: ``(key, value)``: the meta entry ``key`` (a map of suggestion ids) gets
+        ``value`` under each new suggestion's id, in the same transaction.
         ``told``: per suggestion None, or the result it is told at once (a θ of a stored trial,
         not run again): a dict of ``cost``, ``fell``, ``fall_step``, ``wall_s``, ``seed`` and
         ``info``, stored as the next evaluation of ``phase`` (in the order given)."""
@@ -620,6 +623,10 @@ class RunStore:
                              {**(res.get("info") or {}), "trial": ids[-1]})
                 self.con.execute("UPDATE trials SET status='told', idx=?, told=? WHERE id=?",
                                  (idx, now, ids[-1]))
+            if each is not None:
+                key, value = each
+                self._put_meta({key: {**(self.get_meta(key) or {}),
+                                      **{str(i): value for i in ids}}})
         return ids
 
     def add_trial(self, phase: int, theta: Any, z: Any, tag: int) -> int:
