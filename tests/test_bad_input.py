@@ -595,6 +595,10 @@ ASKTELL_CASES = [
     (["tell", "{d}", "99", "--cost", "1"], "no suggestion with id 99"),
     (["tell", "{d}", "x", "--cost", "1"], "a suggestion id is an integer, got 'x'"),
     (["tell", "{d}", "1"], "tell needs --cost C, or --failed"),
+    # a note alone: the same line, which did not say how to amend only the note
+    (["tell", "{d}", "1", "--amend", "--note", "slipped"],
+     "tell --amend needs the corrected result, --cost C or --failed (to change only the note, "
+     "give the told result again with --note)"),
     (["tell", "{d}", "1", "--cost", "nan"], "non-finite cost (nan)"),
     (["tell", "{d}", "1", "--cost", "inf"], "non-finite cost (inf)"),
     (["tell", "{d}", "1", "--cost", "abc"], "argument --cost: invalid float value: 'abc'"),

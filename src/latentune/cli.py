@@ -1230,7 +1230,10 @@ def cmd_tell(args: argparse.Namespace) -> int:
     if not study.exists:
         raise CLIError(f"no run store in {args.dir}")
     if args.cost is None and not args.failed:
-        raise CLIError("tell needs --cost C, or --failed (a failed trial may omit the cost)")
+        raise CLIError("tell --amend needs the corrected result, --cost C or --failed (to "
+                       "change only the note, give the told result again with --note)"
+                       if args.amend else
+                       "tell needs --cost C, or --failed (a failed trial may omit the cost)")
     info = _fall_info(args)
     try:
         trial_id = int(args.id)
