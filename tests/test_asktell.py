@@ -1001,6 +1001,26 @@ def test_amend_keeps_an_audit_trail_and_rebuilds_the_critic(tmp_path):
     st.close()
 
 
+def test_an_amendment_without_a_note_keeps_the_trials_note(tmp_path, run_cli):
+    """``tell 1 --cost 3.2 --note "slipped once"`` then ``tell 1 --cost 2.9 --amend`` (a typo
+    in the cost) dropped the operator's note from the trial: ``trials()`` showed none. A
+    correction without ``--note`` keeps it; one with ``--note`` gives the trial that note."""
+    sp = tmp_path / "S.yaml"
+    sp.write_text(SPACE_YAML)
+    d = tmp_path / "r"
+    assert run_cli("ask", d, "--space", sp, "--n", "2")[0] == 0
+    assert run_cli("tell", d, "1", "--cost", "3.2", "--note", "slipped once")[0] == 0
+    assert run_cli("tell", d, "1", "--cost", "2.9", "--amend")[0] == 0
+    assert run_cli("tell", d, "2", "--cost", "4", "--note", "old")[0] == 0
+    assert run_cli("tell", d, "2", "--cost", "5", "--amend", "--note", "typo: 4")[0] == 0
+    with lt.Study(d) as st:
+        notes = {t.trial: (t.cost, t.info.get("note")) for t in st.trials()}
+        assert notes == {1: (2.9, "slipped once"), 2: (5.0, "typo: 4")}
+        a = st.amendments()
+        assert a[0]["new"]["info"]["note"] == "slipped once" and a[0]["note"] is None
+        assert a[0]["old"]["info"]["note"] == "slipped once"
+
+
 def test_amending_the_only_success_to_a_failure_removes_the_best_files(tmp_path):
     """best.json (the θ to deploy) and phase1_best.json were left with the θ of a trial that
     was amended to a failure, and summary.json still named phase1_best.json."""

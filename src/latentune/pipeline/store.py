@@ -760,7 +760,8 @@ class RunStore:
                     fall_step: int | None = None, info: dict[str, Any] | None = None,
                     note: str | None = None) -> tuple[int, int, bool]:
         """Correct the told result of suggestion ``trial_id`` in one transaction: its
-        evaluation row gets the new cost, fell, fall_step and info; the old and new values go
+        evaluation row gets the new cost, fell, fall_step and info (the told note, ``info``'s
+        ``"note"``, unless ``info`` gives one); the old and new values go
         to ``amendments`` (the audit trail); queued suggestions of its phase (and of phase 3
         for the zero-shot trial: :func:`critics_told`), asked from the uncorrected rows, are dropped when the cost, fell or fall_step changed (an amendment of
         the info or the note alone changes nothing the critic saw). Returns (phase, idx,
@@ -776,6 +777,8 @@ class RunStore:
                    "info": json.loads(r[3]) if r[3] else {}}
             inf = dict(info or {})
             inf["trial"] = int(trial_id)
+            if "note" in old["info"] and "note" not in inf:   # a correction keeps the
+                inf["note"] = old["info"]["note"]             # operator's note unless given
             if fell is None:
                 fell = fall_step is not None
             new = {"cost": float(cost), "fell": bool(fell), "fall_step": fall_step, "info": inf}
