@@ -459,3 +459,29 @@ os.kill(os.getpid(), signal.SIGKILL)
             st.add(1, 3, np.full(3, 0.3), cost=4.0)                  # and it can be written
     assert "rolling back" in caplog.text
     assert not (d / "run.db-journal").exists() or (d / "run.db-journal").stat().st_size == 0
+
+
+def test_a_second_open_in_one_process_keeps_its_writes_seen_by_other_processes(tmp_path):
+    """RunStore read the file's header with Python's open(); closing that descriptor dropped
+    every POSIX lock the process held on run.db, its open connection's too. Another process
+    closing its connection (a `status` while a phase run wrote its report) then found itself
+    the last one, checkpointed and deleted the write-ahead log still in use: the first
+    process's later commits went to the deleted log, unseen by other processes, and an `ask`
+    meanwhile failed with a traceback ("database disk image is malformed") or "disk I/O
+    error". A second open no longer touches the file outside SQLite."""
+    d = tmp_path / "r"
+    read = ("import sys; from latentune.pipeline.store import RunStore; "
+            "s = RunStore(sys.argv[1]); print(s.get_meta('x')); s.close()")
+
+    def other_process() -> str:
+        return subprocess.run([sys.executable, "-c", read, str(d)], check=True,
+                              capture_output=True, text=True).stdout.strip()
+    a = RunStore(d, create=True)
+    a.set_meta("x", 1)
+    RunStore(d).close()                 # a second open of the same run in this process
+    assert other_process() == "1"       # it opens and closes its own connection
+    assert (d / "run.db-wal").exists()  # the log in use stays
+    a.set_meta("x", 2)
+    assert other_process() == "2"
+    a.close()
+    assert other_process() == "2"

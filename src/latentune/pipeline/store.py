@@ -356,13 +356,15 @@ class RunStore:
         """Validate an existing file read-only (nothing is written to a foreign/corrupt file);
         a hot rollback journal a killed writer left is rolled back first (:meth:`_roll_back`,
         once: ``rolled_back``) where the store can be written."""
+        # read through SQLite only: closing a descriptor of the file opened otherwise drops
+        # every POSIX lock this process holds on it, an open connection's too, and another
+        # process's close then deletes the write-ahead log that connection still writes
+        not_sqlite = StoreError(f"{self.path} is not a latentune run store (not an SQLite file)")
         try:
-            with open(self.path, "rb") as f:
-                head = f.read(16)
+            if os.stat(self.path).st_size == 0:     # SQLite would open it as an empty store
+                raise not_sqlite
         except OSError as exc:
             raise StoreError(f"cannot read run store {self.path}: {exc.strerror}") from None
-        if head != b"SQLite format 3\x00":
-            raise StoreError(f"{self.path} is not a latentune run store (not an SQLite file)")
         try:
             con = sqlite3.connect(read_uri(self.path), uri=True, timeout=30.0)
             try:
@@ -408,6 +410,8 @@ class RunStore:
                 return self._check_foreign(rolled_back=True)
             raise StoreError(f"cannot read run store {self.path}: {exc}") from None
         except sqlite3.DatabaseError as exc:
+            if getattr(exc, "sqlite_errorname", "") == "SQLITE_NOTADB":
+                raise not_sqlite from None
             raise StoreError(f"run store {self.path} is corrupt ({exc})") from None
         except (json.JSONDecodeError, TypeError):
             raise StoreError(f"{self.path} is not a latentune run store (bad meta)") from None
