@@ -485,3 +485,21 @@ def test_a_second_open_in_one_process_keeps_its_writes_seen_by_other_processes(t
     assert other_process() == "2"
     a.close()
     assert other_process() == "2"
+
+
+def test_a_store_that_reads_malformed_when_checked_is_one_line(tmp_path, run_cli, error_line,
+                                                               monkeypatch):
+    """A store SQLite found malformed when a writer checked it (an ask) ended in a traceback
+    (``sqlite3.DatabaseError: database disk image is malformed``); it is one line."""
+    sp = tmp_path / "S.yaml"
+    sp.write_text("names: [a, b]\nlow: [0, 0]\nhigh: [1, 1]\n")
+    d = tmp_path / "r"
+    assert run_cli("ask", d, "--space", sp)[0] == 0
+    assert run_cli("tell", d, "1", "--cost", "1")[0] == 0
+
+    def malformed(self: RunStore, phase: int) -> None:
+        raise sqlite3.DatabaseError("database disk image is malformed")
+    monkeypatch.setattr(RunStore, "check_contiguous", malformed)
+    line = error_line(*run_cli("ask", d)[::2])
+    assert line == (f"latentune: error: run store {d / 'run.db'} is corrupt (database disk "
+                    "image is malformed)")

@@ -894,11 +894,17 @@ class RunStore:
             raise StoreError(f"phase {phase} indices are not contiguous ({n} rows, max idx {mx})")
 
     def check(self) -> None:
-        """Check every phase: indices contiguous, rows decodable, config readable (StoreError)."""
-        for (ph,) in self.con.execute("SELECT DISTINCT phase FROM evaluations").fetchall():
-            self.check_contiguous(ph)
-            self.rows(ph)
-        self.get_meta("config")
+        """Check every phase: indices contiguous, rows decodable, config readable (StoreError;
+        a file SQLite finds malformed too)."""
+        try:
+            for (ph,) in self.con.execute("SELECT DISTINCT phase FROM evaluations").fetchall():
+                self.check_contiguous(ph)
+                self.rows(ph)
+            self.get_meta("config")
+        except sqlite3.OperationalError as exc:         # locked or unreadable: not corrupt
+            raise StoreError(f"cannot read run store {self.path}: {exc}") from None
+        except sqlite3.DatabaseError as exc:
+            raise StoreError(f"run store {self.path} is corrupt ({exc})") from None
 
     def close(self) -> None:
         try:
