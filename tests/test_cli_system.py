@@ -1114,3 +1114,14 @@ def test_train_vae_reports_the_decoders_spread(run_cli, plugin_dir, tmp_path):
     ratio = lt.Study(run).config()["vae"]["decoded_variance_ratio"]
     assert re.fullmatch(rf"VAE \(det, d_low 2\) trained on \d+ θ: {re.escape(str(run))}/vae.pt; "
                         rf"decoded spread {ratio:.3f} of the training variance\n", out), out
+
+
+def test_a_run_of_one_trial_is_named_in_the_singular(run_cli, error_line, tmp_path):
+    """A phase run again without --resume on a run of one phase-1 trial said "already holds 1
+    phase-1 evaluations"; one is one evaluation."""
+    out = tmp_path / "one"
+    flags = ("--system", "examples.toy_plant:make_system", "--out", out, "--backend", "serial",
+             "--phase1-evals", "1")
+    assert run_cli("phase1", *flags)[0] == 0
+    line = error_line(*run_cli("phase1", *flags)[::2])
+    assert "already holds 1 phase-1 evaluation; pass --resume" in line, line

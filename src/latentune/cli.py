@@ -583,7 +583,7 @@ def _refuse_rerun(study: Any, phase: int, resume: bool) -> None:
         return
     n = study.store.count(phase)
     if n > 0:
-        held = f"{n} phase-{phase} evaluations"
+        held = counted(n, f"phase-{phase} evaluation")
     elif phase == Phase.PHASE3 and study.store.count(Phase.ZERO_SHOT) > 0:
         held = "the zero-shot trial phase 3 began with"
     else:

@@ -42,7 +42,7 @@ from latentune.pipeline.store import info_json, json_default
 from latentune.pipeline.walltime import settle_open
 from latentune.space import ParameterSpace, task_tuned_for
 from latentune.system import check_system, plugin_record, system_arg_text
-from latentune.wording import at_command_line, joined, option
+from latentune.wording import at_command_line, counted, joined, option
 
 OPTUNA_METHODS = ("optuna-tpe", "optuna-cmaes", "optuna-gp")
 """Optuna's samplers as critics (:class:`latentune.critic.optuna.OptunaCritic`; the
@@ -572,8 +572,10 @@ class Manifest:
             out = [t.id for t in self.run.store.trials()
                    if t.phase in held and t.status == "pending"]
             if out:
-                raise StoreError(f"{self.run.dir}: {len(out)} suggestions of phase "
-                                 f"{int(phase)} are handed out to ask/tell (ids "
+                one = len(out) == 1
+                raise StoreError(f"{self.run.dir}: {counted(len(out), 'suggestion')} of phase "
+                                 f"{int(phase)} {'is' if one else 'are'} handed out to ask/tell "
+                                 f"({'id' if one else 'ids'} "
                                  f"{', '.join(map(str, out[:5]))}{', …' if len(out) > 5 else ''}"
                                  "): tell them and go on with ask/tell, or release them "
                                  "(the phase run then withdraws them and asks its own), or "
