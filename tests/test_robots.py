@@ -130,6 +130,19 @@ def test_user_yaml_with_base_overrides_one_field(tmp_path):
     assert spec_from_dict(spec.to_dict()) == spec
 
 
+def test_user_yaml_with_base_overrides_only_the_gaits_given(tmp_path):
+    """`gaits: {trot: {period: 0.4}}` under `base: a1` replaced all of A1's gaits: the spec had
+    no jump ('robot has no gait jump') and a trot without duty was refused. The gaits and gait
+    fields given now override the base's, the others are kept."""
+    a1 = get_robot("a1")
+    spec = load_spec_file(write(tmp_path, "base: a1\nname: slow_a1\ngaits:\n  trot: {period: 0.4}\n"))
+    assert spec.gaits["jump"] == a1.gaits["jump"]
+    assert spec.gaits["trot"] == GaitParams(0.4, 0.6, 0.08, a1.gaits["trot"].offsets)
+    spec = load_spec_file(write(tmp_path, "base: a1\ngaits:\n  walk: {period: 0.5, duty: 0.75, "
+                                          "step_height: 0.05}\n", "walk.yaml"))
+    assert set(spec.gaits) == {"trot", "jump", "walk"} and spec.gaits["trot"] == a1.gaits["trot"]
+
+
 def test_user_yaml_reads_numbers_in_exponent_form(tmp_path):
     """A spec is read as the other user YAML files are (PyYAML alone reads 1e-2 and 2.8e-1 as
     text): numbers in exponent form are numbers, in a field, a list and a gait."""

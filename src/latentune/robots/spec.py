@@ -9,7 +9,8 @@ A spec is a YAML file read by :func:`load_spec_file`; the built-in robots (:data
 the files ``specs/<name>.yaml`` of this package. The ``urdf`` field is a path (absolute, or
 relative to the YAML file) or ``{package: <name>, path: <path inside the package>}`` for a URDF
 shipped by an installed package (``pybullet_data``, ``example-robot-data``). ``base: <built-in
-name>`` starts from a built-in robot and overrides only the fields given. Units: SI (m, s, rad,
+name>`` starts from a built-in robot and overrides only the fields given (in ``gaits``, only
+the gaits and gait fields given). Units: SI (m, s, rad,
 N·m); angles of ``max_tilt_deg`` in degrees.
 
 Every load checks the spec against its URDF (:mod:`latentune.robots.inspection`: joint and foot names,
@@ -256,7 +257,8 @@ def validated_fields(raw: Any, where: str, base_dir: Path) -> dict[str, Any]:
         base = fields.pop("base")
         if not isinstance(base, str) or base not in BUILTIN:
             raise RobotSpecError(f"{where}: unknown base robot {base!r} (choose from {', '.join(BUILTIN)})")
-        fields = {**_builtin(base).to_dict(), **fields}
+        start = _builtin(base).to_dict()
+        fields = {**start, **fields, "gaits": _over_gaits(start["gaits"], fields.get("gaits"))}
     missing = [k for k in _REQUIRED if k not in fields]
     if missing:
         raise RobotSpecError(f"{where}: missing field(s) {', '.join(missing)}")
@@ -337,6 +339,20 @@ def _urdf_path(urdf: Any, where: str, base_dir: Path) -> str:
     if not path.is_file():
         raise RobotSpecError(f"{where}: URDF not found: {path}")
     return str(path)
+
+
+def _over_gaits(base: Mapping[str, Any], given: Any) -> Any:
+    """A ``base:`` spec's gaits: the base robot's, with the gaits (and, in a gait the base has,
+    the gait fields) that ``given`` names overriding them; ``given`` as it is if not a mapping
+    (:func:`_gaits` refuses it)."""
+    if given is None:
+        return dict(base)
+    if not isinstance(given, Mapping):
+        return given
+    out = dict(base)
+    for name, g in given.items():
+        out[name] = {**base[name], **g} if isinstance(g, Mapping) and name in base else g
+    return out
 
 
 def _gaits(raw: Any, where: str) -> dict[str, GaitParams]:
