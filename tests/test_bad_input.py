@@ -236,11 +236,14 @@ ROLLOUT_ARGS = BAD_TASK_ARGS + [
     (["--params", ""], "--params is empty: give a file name, or leave --params out"),
     (["--params", " ", "--system", "x:y"],
      "--params is empty: give a file name, or leave --params out"),
-    (["--gif", "/nonexistent/dir/x.gif"], "output directory does not exist: /nonexistent/dir"),
-    (["--gif", "."], ". is a directory, not a file"),
-    (["--gif", "x.png"], "x.png: the file name must end in .gif"),
-    (["--plot", "x.txt"], "x.txt: the file name must end in .png or .pdf or .svg"),
-    (["--plot", "/nonexistent/x.png"], "output directory does not exist: /nonexistent"),
+    # each names its flag (with --gif and --plot both given, which one is wrong)
+    (["--gif", "/nonexistent/dir/x.gif"],
+     "--gif /nonexistent/dir/x.gif: directory /nonexistent/dir does not exist (create it first)"),
+    (["--gif", "."], "--gif . is a directory: give a file name in it"),
+    (["--gif", "x.png"], "--gif x.png: the file name must end in .gif"),
+    (["--plot", "x.txt"], "--plot x.txt: the file name must end in .png or .pdf or .svg"),
+    (["--plot", "/nonexistent/x.png"],
+     "--plot /nonexistent/x.png: directory /nonexistent does not exist"),
     (["--json", "x"], "unrecognized arguments: x"),
     (["--jso"], "unrecognized arguments: --jso"),
     (["--system", "nosuchmod:make"], "--system nosuchmod:make: cannot import nosuchmod"),
@@ -275,7 +278,7 @@ def test_rollout_refuses_a_plot_or_gif_it_could_not_write_before_the_rollout(cap
     (["--system", "x:y", "--gif", ""], "--gif is for a built-in robot"),
     (["--gif", "", "--robot", "nosuch"], "unknown robot 'nosuch'"),
     (["--gif", "", "--seed", "3"], "--seed changes nothing here"),
-    (["--plot", "", "--gif", "x.txt"], "x.txt: the file name must end in .gif")])
+    (["--plot", "", "--gif", "x.txt"], "--gif x.txt: the file name must end in .gif")])
 def test_an_empty_plot_or_gif_is_not_the_first_of_several_faults(capsys, argv, expect):
     """rollout checks an empty --gif/--plot with the files it writes, after the robot, the
     system, the seed and --gif's suffix (a twin of argtypes.given, which would refuse it while
@@ -1029,8 +1032,24 @@ def test_robot_init_keeps_an_existing_file(capsys, tmp_path):
     f = tmp_path / "spec.yaml"
     f.write_text("keep me")
     assert_one_line(capsys, "robot", "init", "x.urdf", "--out", f,
-                    expect=f"{f} exists (not overwritten)")
+                    expect=f"--out {f} exists (not overwritten): delete it or give another --out")
     assert f.read_text() == "keep me"
+
+
+@pytest.mark.parametrize("out, expect", [
+    ("nodir/go1.yaml", "--out nodir/go1.yaml: directory {tmp}/nodir does not exist"),
+    (".", "--out . is a directory: give a file name in it"),
+    ("go1", "--out go1: the file name must end in .yaml or .yml"),
+    ("/proc/go1.yaml", "--out /proc/go1.yaml cannot be written")])
+def test_robot_init_refuses_an_out_it_cannot_write_before_reading_the_urdf(
+        capsys, tmp_path, monkeypatch, out, expect):
+    """``robot init --out`` into a missing directory said 'cannot write nodir/go1.yaml: No such
+    file or directory' after reading the URDF, a directory '. exists (not overwritten)', and a
+    name without .yaml was written (``--robot go1`` then read it as an unknown built-in name).
+    Each is now refused as rollout's --gif/--plot are, before the URDF is read."""
+    monkeypatch.chdir(tmp_path)
+    assert_one_line(capsys, "robot", "init", "/nonexistent.urdf", "--out", out,
+                    expect=expect.format(tmp=tmp_path))
 
 
 def test_an_interrupt_after_tune_printed_its_table_exits_0(capsys, tmp_path, monkeypatch,

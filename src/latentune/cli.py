@@ -213,11 +213,11 @@ def _check_output_file(flag: str, path: str, exts: tuple[str, ...]) -> None:
     if blocker is not None:
         raise CLIError(f"{flag} {path}: {blocker} is a file, not a directory")
     if not os.path.isdir(parent):
-        raise CLIError(f"output directory does not exist: {parent}")
+        raise CLIError(f"{flag} {path}: directory {parent} does not exist (create it first)")
     if os.path.isdir(path):
-        raise CLIError(f"{path} is a directory, not a file")
+        raise CLIError(f"{flag} {path} is a directory: give a file name in it")
     if not path.lower().endswith(exts):
-        raise CLIError(f"{path}: the file name must end in {' or '.join(exts)}")
+        raise CLIError(f"{flag} {path}: the file name must end in {' or '.join(exts)}")
     existed = os.path.exists(path)
     try:
         with open(path, "ab"):
@@ -1433,8 +1433,11 @@ def cmd_robot_init(args: argparse.Namespace) -> int:
     from latentune.atomicfile import write_atomic
     from latentune.robots import init_spec
 
-    if args.out is not None and os.path.exists(args.out):
-        raise CLIError(f"{args.out} exists (not overwritten)")
+    if args.out is not None:
+        if os.path.isfile(args.out):
+            raise CLIError(f"--out {args.out} exists (not overwritten): delete it or give "
+                           "another --out")
+        _check_output_file("--out", args.out, (".yaml", ".yml"))
     text = init_spec(args.urdf, name=args.name)
     if args.out is None:
         print(text, end="")
