@@ -184,7 +184,10 @@ def test_bad_package_name_is_a_clear_error(tmp_path):
 
 
 @pytest.mark.parametrize("text, message", [
-    ("base: a1\nunknown_key: 1\n", "unknown field"),
+    ("base: a1\nunknown_key: 1\n", r"unknown field\(s\) unknown_key \(the fields: README, "),
+    # a typo names the field it was meant to be (it said 'unknown field(s) nominal_heigth')
+    ("base: a1\nnominal_heigth: 0.3\nkp: [1, 1, 1]\n",
+     r"unknown field\(s\) nominal_heigth \(did you mean nominal_height\?\)"),
     ("base: spot\n", "unknown base robot 'spot'"),
     ("base: a1\nstrip_root: 'yes'\n", "strip_root must be true or false"),
     ("base: a1\ngaits: {trot: {period: 0.4, duty: 1.5, step_height: 0.08}}\n", "0 < duty < 1"),

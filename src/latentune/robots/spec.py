@@ -264,7 +264,8 @@ def validated_fields(raw: Any, where: str, base_dir: Path) -> dict[str, Any]:
         raise RobotSpecError(f"{where}: missing field(s) {', '.join(missing)}")
     unknown = set(fields) - _FIELDS
     if unknown:
-        raise RobotSpecError(f"{where}: unknown field(s) {', '.join(sorted(unknown))}")
+        raise RobotSpecError(f"{where}: unknown field(s) {', '.join(sorted(unknown))} "
+                             f"({_meant(sorted(unknown))})")
     fields["urdf"] = _urdf_path(fields["urdf"], where, base_dir)
     try:
         if not isinstance(fields["name"], str) or not fields["name"]:
@@ -313,6 +314,16 @@ def validated_fields(raw: Any, where: str, base_dir: Path) -> dict[str, Any]:
         raise RobotSpecError(f"{where}: primitive_collisions needs collision_primitives "
                              "(link-name suffix -> {box: [x, y, z]} or {sphere: radius})")
     return fields
+
+
+def _meant(unknown: list[str]) -> str:
+    """What unknown spec fields were meant to be: 'did you mean X?' for those close to a field's
+    name, else where the fields are listed."""
+    import difflib
+
+    close = [m[0] for k in unknown if (m := difflib.get_close_matches(str(k).lower(), _FIELDS, n=1))]
+    return (f"did you mean {', '.join(close)}?" if close
+            else 'the fields: README, "Custom robots"')
 
 
 def _sequence(v: Any, key: str, where: str) -> tuple:
