@@ -331,9 +331,12 @@ def test_a_params_file_of_another_system_says_how_many_names_and_whose(capsys, t
     ("[1" + "0" * 400 + "," + ",".join(["0.5"] * 24) + "]", "numbers a float can hold"),
 ])
 def test_rollout_rejects_bad_params_files(capsys, tmp_path, content, expect):
+    """Each names the file (a wrong list said 'expected 25 normalized parameters, got shape
+    (2,)' alone, with --params and ask --start's file both in mind)."""
     f = tmp_path / "p.json"
     f.write_text(content)
-    assert_one_line(capsys, "rollout", "--steps", "10", "--params", f, expect=expect)
+    line = assert_one_line(capsys, "rollout", "--steps", "10", "--params", f, expect=expect)
+    assert f"params file {f}" in line, line
 
 
 def test_rollout_reads_a_params_file_with_a_byte_order_mark(capsys, tmp_path):

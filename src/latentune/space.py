@@ -364,8 +364,8 @@ class ParameterSpace:
     def load(self, path: str | Path, tuned_for: dict[str, Any] | None = None) -> np.ndarray:
         """Read a ``--params`` JSON file (see :meth:`parse`; ``tuned_for``: the record a
         file's must equal, default the space's own). A name given twice in one object
-        raises :class:`ParamsError` naming it and both values (JSON alone keeps the last).
-        The file is UTF-8, with or without a byte-order mark."""
+        raises :class:`ParamsError` naming it and both values (JSON alone keeps the last); every
+        ParamsError names the file. The file is UTF-8, with or without a byte-order mark."""
         p = Path(path)
         if p.is_dir():
             raise ParamsError(f"params file {p} is a directory, not a file")
@@ -387,7 +387,12 @@ class ParameterSpace:
             raise ParamsError(f"params file {p} is not valid JSON ({exc.msg if hasattr(exc, 'msg') else exc})") from None
         except RecursionError:
             raise ParamsError(f"params file {p} is nested too deeply to be a params file") from None
-        return self.parse(obj, tuned_for, f"params file {p}")
+        source = f"params file {p}"
+        try:
+            return self.parse(obj, tuned_for, source)
+        except ParamsError as exc:      # parse's own messages do not name the file
+            msg = str(exc)
+            raise ParamsError(msg if msg.startswith(source) else f"{source}: {msg}") from None
 
 
 def make_space(entries: Sequence[tuple[str, float, float, bool, float]]) -> ParameterSpace:
