@@ -295,6 +295,31 @@ def test_init_spec_replaces_collisions_that_reach_the_ground():
     assert "lf_lowerleg is 1.0 mm from the ground" in text and set(d["collision_primitives"]) == {"trunk", "_foot"}
 
 
+def test_primitive_collisions_give_each_matched_link_one_shape():
+    """HyQ's trunk collides through a .dae mesh, which PyBullet ignores and the rewrite dropped
+    before replacing collisions: the init spec's trunk box was never added (a belly on the
+    ground was no fall in either engine), and a link with several collisions (ANYmal's base:
+    8, HyQ's feet: 2) got one copy of its shape for each. Each link a key matches now has
+    exactly that shape; links no key matches have none."""
+    import xml.etree.ElementTree as ET
+
+    from latentune.robots import prepared_urdf, spec_from_dict
+
+    for urdf, box in (("hyq_description/robots/hyq_no_sensors.urdf", "trunk"),
+                      ("anymal_b_simple_description/robots/anymal.urdf", "base")):
+        d = yaml.safe_load(init_spec(erd_robots_dir() / urdf))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            spec = spec_from_dict(d)
+        links = {ln.get("name"): ln for ln in ET.parse(prepared_urdf(spec)).getroot().iter("link")}
+        shapes = {n: [g.tag for c in ln.findall("collision") for g in c.find("geometry")]
+                  for n, ln in links.items()}
+        assert shapes[box] == ["box"], (urdf, shapes[box])
+        feet = [n for n in spec.foot_links]
+        assert all(shapes[f] == ["sphere"] for f in feet), {f: shapes[f] for f in feet}
+        assert all(not v for n, v in shapes.items() if n != box and n not in feet), shapes
+
+
 def test_init_spec_refuses_what_is_not_a_quadruped(tmp_path):
     text = A1_URDF.read_text()
     for leg in ("RR", "RL"):  # rear legs of two joints

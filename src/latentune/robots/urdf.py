@@ -10,8 +10,9 @@ tree of links and joints. :func:`prepared_urdf` rewrites a spec's URDF for simul
 ``package://`` mesh URIs become absolute paths, a massless dummy root link is removed
 (``strip_root``), ``continuous`` joints become ``revolute`` without limits (one configuration
 value each, as the leg kinematics expect), a link without ``<inertial>`` gets a negligible one
-(:data:`NO_INERTIAL`), ``.dae`` collision meshes are dropped (PyBullet ignores them), and with ``primitive_collisions`` each link's collision shapes are replaced by the
-spec's :class:`CollisionShape` for that link (lengths in metres).
+(:data:`NO_INERTIAL`), ``.dae`` collision meshes are dropped (PyBullet ignores them), and with
+``primitive_collisions`` each link's collision shapes (none, one or several, ``.dae`` or not) are
+replaced by one: the spec's :class:`CollisionShape` for that link, if any (lengths in metres).
 """
 from __future__ import annotations
 
@@ -107,7 +108,7 @@ def package_dir(package: str) -> Path:
 MASSLESS = 1e-4
 """A link lighter than this [kg] (or without ``<inertial>``) counts as massless."""
 
-_REWRITE_VERSION = "rewrite-5"  # in the prepared-URDF cache key: bump when the rewrite changes
+_REWRITE_VERSION = "rewrite-6"  # in the prepared-URDF cache key: bump when the rewrite changes
 
 
 @dataclass(frozen=True)
@@ -470,13 +471,17 @@ def _collision_xml(shape: CollisionShape, foot_radius: float) -> str:
 
 
 def _primitive_collisions(text: str, spec: UrdfFields) -> str:
-    """In every link, replace each collision by the shape whose key ends the link's name, or
-    drop it when no key matches."""
+    """Give every link exactly one collision, the shape whose key ends the link's name (also
+    where its own were ``.dae`` meshes, already dropped), or none when no key matches."""
     def repl_link(m: re.Match) -> str:
         body, name = m.group(0), m.group(1)
         shape = next((s for suffix, s in spec.collision_primitives.items() if name.endswith(suffix)), None)
         col = "" if shape is None else _collision_xml(shape, spec.foot_radius)
-        return re.sub(r"<collision>.*?</collision>", lambda _: col, body, flags=re.S)
+        # in place of the first collision (the others dropped), else before </link>
+        body, n = re.subn(r"<collision>.*?</collision>", lambda _: "\0", body, flags=re.S)
+        if n:
+            return body.replace("\0", col, 1).replace("\0", "")
+        return body[:-len("</link>")] + col + "</link>"
 
     return re.sub(r'<link\s+name="([^"]+)"\s*>.*?</link>', repl_link, text, flags=re.S)
 
