@@ -276,3 +276,20 @@ def test_osqp_and_daqp_agree_on_mpc_qp():
         x_osqp = osqp_actor._qp(*args)
         # forces are in units of m·g: agree within 1 % of the weight
         assert np.allclose(x_daqp, x_osqp, atol=1e-2), np.abs(x_daqp - x_osqp).max()
+
+
+def test_a_rollout_gif_plays_at_its_frame_rate(tmp_path):
+    """rollout --gif passed imageio a frame duration in seconds (0.1), which its GIF writer
+    reads as milliseconds: the file held no frame delay at all, played as fast as a viewer
+    can (browsers happen to slow such a GIF to 10 fps). Each frame now lasts 1/gif_fps s."""
+    from PIL import Image
+
+    task = lt.Task(robot="a1", gait="trot", steps=250)
+    gif = tmp_path / "x.gif"
+    task.rollout(task.space.manual, gif=str(gif), gif_fps=20)
+    with Image.open(gif) as im:
+        delays = []
+        for i in range(im.n_frames):
+            im.seek(i)
+            delays.append(im.info.get("duration"))
+    assert len(delays) == 5 and delays == [50] * 5, delays

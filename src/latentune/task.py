@@ -383,7 +383,8 @@ class Task:
             if not frames:             # the actor failed before a step: where it stands
                 frames.append(world.render())
 
-            imageio.mimsave(gif, frames, duration=1.0 / gif_fps, loop=0)
+            # imageio's GIF writer (pillow) takes each frame's duration in milliseconds
+            imageio.mimsave(gif, frames, duration=1000.0 / gif_fps, loop=0)
         return RolloutResult(cost=cost, fell=fall_step is not None, fall_step=fall_step,
                              steps=n_exec, mean_vx=mean_vx, mean_height=mean_h, wall_s=0.0,
                              reason=reason, trace=trace)
