@@ -320,6 +320,24 @@ def test_primitive_collisions_give_each_matched_link_one_shape():
         assert all(not v for n, v in shapes.items() if n != box and n not in feet), shapes
 
 
+def test_a_missing_collision_mesh_is_named_at_load(tmp_path, capsys):
+    """A collision mesh file that is not there (a URDF copied without its meshes/) passed the
+    load; rollout then ended in a traceback ('pybullet.error: Cannot load URDF file.'), robot
+    check said 'PyBullet cannot build the robot (error: Cannot load URDF file.)'. The load now
+    names the link and the file."""
+    from latentune.cli import main
+
+    text = A1_URDF.read_text().replace('<box size="0.267 0.194 0.114"/>',
+                                       '<mesh filename="meshes/trunk.stl"/>', 1)
+    urdf_file(tmp_path, text, "a1.urdf")
+    spec = spec_file(tmp_path, "base: a1\nurdf: a1.urdf\n")
+    msg = load_error(spec)
+    assert "link 'trunk': collision mesh meshes/trunk.stl not found" in msg, msg
+    assert main(["rollout", "--robot", str(spec), "--steps", "5"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "collision mesh meshes/trunk.stl not found" in err[0], err
+
+
 def test_init_spec_refuses_what_is_not_a_quadruped(tmp_path):
     text = A1_URDF.read_text()
     for leg in ("RR", "RL"):  # rear legs of two joints

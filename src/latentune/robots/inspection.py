@@ -9,7 +9,8 @@ z up) and fills the fields a spec may omit:
   ``revolute``/``continuous``; a foot link is missing; a leg's three joints are not one chain or
   its foot is not below its knee; a foot is not where its leg's name says (FR: x > 0, y < 0;
   FL: x > 0, y > 0; RR: x < 0, y < 0; RL: x < 0, y > 0) or not below the base; a foot has no
-  collision shape PyBullet uses; a spec joint's URDF ``<limit>`` has lower > upper; ``foot_radius``
+  collision shape PyBullet uses; a link's collision mesh file is missing (without
+  ``primitive_collisions``); a spec joint's URDF ``<limit>`` has lower > upper; ``foot_radius``
   is the leg length or more.
 * filled when omitted: ``nominal_height`` (the base height that ``nominal_q`` gives with the feet
   on the ground: ``foot_radius`` − mean foot z), ``torque_limits`` (the URDF's
@@ -337,7 +338,12 @@ def inspect_fields(fields: Mapping[str, Any]) -> Findings:
         if nofoot:
             err(f"collision_primitives: no key ends the foot link name(s) {', '.join(nofoot)}, "
                 "so they would not touch the ground")
-    else:
+    else:       # the URDF's own collision shapes: a mesh file that is not there stops PyBullet
+        for link in tree.links.values():
+            for fn in (a.get("filename", "") for tag, a in link.collisions if tag == "mesh"):
+                if fn and not fn.lower().endswith(".dae") and resolve_mesh(fn, tree.path) is None:
+                    err(f"link {link.name!r}: collision mesh {fn} not found (a path is relative "
+                        "to the URDF's directory): add the file, or give primitive_collisions")
         nofoot = [f for f in feet if not usable_collision(tree, f)]
         if nofoot:
             err(f"foot link(s) {', '.join(nofoot)} have no collision shape PyBullet uses (none, a "
