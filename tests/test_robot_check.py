@@ -32,8 +32,12 @@ def spec_file(tmp_path: Path, text: str, name: str = "robot.yaml") -> Path:
 
 
 def urdf_file(tmp_path: Path, text: str, name: str = "robot.urdf") -> Path:
+    """``text`` written to ``tmp_path/name``, beside A1's meshes/ (a URDF is loaded with the
+    mesh files it names)."""
     p = tmp_path / name
     p.write_text(text)
+    if not (tmp_path / "meshes").exists():
+        (tmp_path / "meshes").symlink_to(A1_URDF.parent / "meshes")
     return p
 
 
@@ -320,7 +324,7 @@ def test_primitive_collisions_give_each_matched_link_one_shape():
         assert all(not v for n, v in shapes.items() if n != box and n not in feet), shapes
 
 
-def test_a_missing_collision_mesh_is_named_at_load(tmp_path, capsys):
+def test_a_missing_mesh_file_is_named_at_load(tmp_path, capsys):
     """A collision mesh file that is not there (a URDF copied without its meshes/) passed the
     load; rollout then ended in a traceback ('pybullet.error: Cannot load URDF file.'), robot
     check said 'PyBullet cannot build the robot (error: Cannot load URDF file.)'. The load now
@@ -328,14 +332,25 @@ def test_a_missing_collision_mesh_is_named_at_load(tmp_path, capsys):
     from latentune.cli import main
 
     text = A1_URDF.read_text().replace('<box size="0.267 0.194 0.114"/>',
-                                       '<mesh filename="meshes/trunk.stl"/>', 1)
+                                       '<mesh filename="meshes/none.stl"/>', 1)
     urdf_file(tmp_path, text, "a1.urdf")
     spec = spec_file(tmp_path, "base: a1\nurdf: a1.urdf\n")
     msg = load_error(spec)
-    assert "link 'trunk': collision mesh meshes/trunk.stl not found" in msg, msg
+    assert msg.endswith("link 'trunk': collision mesh meshes/none.stl not found (a path is "
+                        "relative to the URDF's directory): add the file, or give "
+                        "primitive_collisions"), msg
     assert main(["rollout", "--robot", str(spec), "--steps", "5"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "collision mesh meshes/trunk.stl not found" in err[0], err
+    assert len(err) == 1 and "collision mesh meshes/none.stl not found" in err[0], err
+    # PyBullet refuses a missing visual mesh as well, with visual shapes ignored or not (the
+    # MuJoCo engine discards visuals), also with primitive_collisions
+    text = A1_URDF.read_text().replace('<mesh filename="meshes/trunk.obj"',
+                                       '<mesh filename="nowhere/trunk.obj"', 1)
+    urdf_file(tmp_path, text, "vis.urdf")
+    for extra in ("", "primitive_collisions: true\ncollision_primitives: {trunk: {box: [0.2, "
+                      "0.1, 0.1]}, _toe: {sphere: foot_radius}}\n"):
+        msg = load_error(spec_file(tmp_path, "base: a1\nurdf: vis.urdf\n" + extra, "vis.yaml"))
+        assert "link 'trunk': visual mesh nowhere/trunk.obj not found" in msg, msg
 
 
 def test_init_spec_refuses_what_is_not_a_quadruped(tmp_path):

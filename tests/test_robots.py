@@ -158,6 +158,7 @@ def test_user_yaml_urdf_forms(tmp_path):
     a1_urdf = Path(get_robot("a1").urdf)
     (tmp_path / "urdf").mkdir()
     shutil.copy(a1_urdf, tmp_path / "urdf" / "mine.urdf")
+    (tmp_path / "urdf" / "meshes").symlink_to(a1_urdf.parent / "meshes")  # the files it names
     rel = load_spec_file(write(tmp_path, "base: a1\nurdf: urdf/mine.urdf\n"))
     assert rel.urdf == str((tmp_path / "urdf" / "mine.urdf").resolve())
     absolute = load_spec_file(write(tmp_path, f"base: a1\nurdf: {a1_urdf}\n", "abs.yaml"))

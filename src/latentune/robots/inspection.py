@@ -9,8 +9,8 @@ z up) and fills the fields a spec may omit:
   ``revolute``/``continuous``; a foot link is missing; a leg's three joints are not one chain or
   its foot is not below its knee; a foot is not where its leg's name says (FR: x > 0, y < 0;
   FL: x > 0, y > 0; RR: x < 0, y < 0; RL: x < 0, y > 0) or not below the base; a foot has no
-  collision shape PyBullet uses; a link's collision mesh file is missing (without
-  ``primitive_collisions``); a spec joint's URDF ``<limit>`` has lower > upper; ``foot_radius``
+  collision shape PyBullet uses; a mesh file the URDF names is missing (a visual one, or a
+  collision one without ``primitive_collisions``); a spec joint's URDF ``<limit>`` has lower > upper; ``foot_radius``
   is the leg length or more.
 * filled when omitted: ``nominal_height`` (the base height that ``nominal_q`` gives with the feet
   on the ground: ``foot_radius`` − mean foot z), ``torque_limits`` (the URDF's
@@ -142,6 +142,25 @@ def link_position(model: Any, data: Any, link: str) -> np.ndarray:
 
 def _fmt(v: float) -> str:
     return f"{v:+.3f}"
+
+
+def missing_meshes(tree: UrdfTree, collisions: bool = True) -> list[tuple[str, str, str]]:
+    """(link, "visual" or "collision", filename) of each mesh file the URDF names that is not
+    there (PyBullet refuses to load such a URDF, visual shapes ignored or not); collision
+    ``.dae`` meshes (dropped for PyBullet) are not looked for, nor any collision mesh without
+    ``collisions`` (``primitive_collisions`` replaces them)."""
+    import xml.etree.ElementTree as ET
+
+    out = []
+    for link in ET.parse(tree.path).getroot().iter("link"):
+        for kind in ("visual", "collision") if collisions else ("visual",):
+            for mesh in link.findall(f"{kind}/geometry/mesh"):
+                fn = mesh.get("filename", "")
+                if not fn or (kind == "collision" and fn.lower().endswith(".dae")):
+                    continue
+                if resolve_mesh(fn, tree.path) is None:
+                    out.append((link.get("name", "?"), kind, fn))
+    return out
 
 
 def usable_collision(tree: UrdfTree, link: str) -> bool:
@@ -333,17 +352,19 @@ def inspect_fields(fields: Mapping[str, Any]) -> Findings:
 
     # ---- collisions
     prims = fields.get("collision_primitives") or {}
+    missing = missing_meshes(tree, collisions=not fields.get("primitive_collisions"))
+    if missing:                 # the first by name, then how many more (a URDF without meshes/)
+        link, kind, fn = missing[0]
+        more = f" and {len(missing) - 1} more mesh file(s)" if len(missing) > 1 else ""
+        err(f"link {link!r}: {kind} mesh {fn} not found{more} (a path is relative to the "
+            "URDF's directory): add " + ("them" if more else "the file") + (", or give primitive_collisions" if any(
+                k == "collision" for _, k, _ in missing) else ""))
     if fields.get("primitive_collisions"):
         nofoot = [f for f in feet if not any(f.endswith(s) for s in prims)]
         if nofoot:
             err(f"collision_primitives: no key ends the foot link name(s) {', '.join(nofoot)}, "
                 "so they would not touch the ground")
-    else:       # the URDF's own collision shapes: a mesh file that is not there stops PyBullet
-        for link in tree.links.values():
-            for fn in (a.get("filename", "") for tag, a in link.collisions if tag == "mesh"):
-                if fn and not fn.lower().endswith(".dae") and resolve_mesh(fn, tree.path) is None:
-                    err(f"link {link.name!r}: collision mesh {fn} not found (a path is relative "
-                        "to the URDF's directory): add the file, or give primitive_collisions")
+    else:
         nofoot = [f for f in feet if not usable_collision(tree, f)]
         if nofoot:
             err(f"foot link(s) {', '.join(nofoot)} have no collision shape PyBullet uses (none, a "
