@@ -195,6 +195,13 @@ def test_bad_package_name_is_a_clear_error(tmp_path):
     ("base: a1\nprimitive_collisions: true\n", "primitive_collisions needs collision_primitives"),
     ("base: solo12\ncollision_primitives: {FOOT: {cone: 1}}\n", "collision primitive 'FOOT'"),
     ("base: a1\nkp: 100\n", "kp must be a list"),
+    # a gait's typo and missing fields are named (it said 'gait trot needs period, duty,
+    # step_height', under base: a1 too, where the period was there)
+    ("base: a1\ngaits: {trot: {perod: 0.4}}\n",
+     r"gait 'trot': unknown field\(s\) perod \(did you mean period\?\)"),
+    ("base: a1\ngaits: {walk: {period: 0.4}}\n",
+     r"gait 'walk' needs period, duty, step_height \(and optional offsets\); missing: duty, "
+     "step_height"),
     # impossible values are refused by field and value (they made every rollout a fall, or OK)
     ("base: a1\ngaits: {trot: {period: 0.38, duty: 0.6, step_height: 0.08, offsets: [.nan, 0.5, 0.5, 0]}}\n",
      r"gait 'trot': offsets must be phases in \[0, 1\) cycles, got nan"),

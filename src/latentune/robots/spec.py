@@ -25,7 +25,7 @@ import functools
 import importlib.resources
 import math
 import os
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -316,12 +316,12 @@ def validated_fields(raw: Any, where: str, base_dir: Path) -> dict[str, Any]:
     return fields
 
 
-def _meant(unknown: list[str]) -> str:
-    """What unknown spec fields were meant to be: 'did you mean X?' for those close to a field's
-    name, else where the fields are listed."""
+def _meant(unknown: list[str], names: Collection[str] = _FIELDS) -> str:
+    """What unknown spec (or gait) fields were meant to be: 'did you mean X?' for those close
+    to one of ``names``, else where the fields are listed."""
     import difflib
 
-    close = [m[0] for k in unknown if (m := difflib.get_close_matches(str(k).lower(), _FIELDS, n=1))]
+    close = [m[0] for k in unknown if (m := difflib.get_close_matches(str(k).lower(), names, n=1))]
     return (f"did you mean {', '.join(close)}?" if close
             else 'the fields: README, "Custom robots"')
 
@@ -371,8 +371,16 @@ def _gaits(raw: Any, where: str) -> dict[str, GaitParams]:
         raise RobotSpecError(f"{where}: gaits must map gait names to {{period, duty, step_height}}")
     gaits = {}
     for name, g in raw.items():
-        if not isinstance(g, Mapping) or set(g) - _GAIT_KEYS or not {"period", "duty", "step_height"} <= set(g):
-            raise RobotSpecError(f"{where}: gait {name!r} needs period, duty, step_height (and optional offsets)")
+        needs = f"{where}: gait {name!r} needs period, duty, step_height (and optional offsets)"
+        if not isinstance(g, Mapping):
+            raise RobotSpecError(needs)
+        unknown = sorted(map(str, set(g) - _GAIT_KEYS))
+        if unknown:
+            raise RobotSpecError(f"{where}: gait {name!r}: unknown field(s) {', '.join(unknown)} "
+                                 f"({_meant(unknown, _GAIT_KEYS)})")
+        missing = [k for k in ("period", "duty", "step_height") if k not in g]
+        if missing:
+            raise RobotSpecError(f"{needs}; missing: {', '.join(missing)}")
         offsets = _sequence(g.get("offsets", TROT_OFFSETS if name == "trot" else JUMP_OFFSETS), "offsets", where)
         nums = {}
         for key in ("period", "duty", "step_height"):
