@@ -441,6 +441,31 @@ def test_head_timeout_is_a_quarter_of_rays_own_when_that_is_shorter(monkeypatch)
         assert default_head_timeout() == expected, value
 
 
+def test_ctrl_c_while_ray_starts_stops_the_ray_it_started(monkeypatch):
+    """Ctrl-C (SIGINT) while ``ray.init`` starts a local Ray: interrupted midway, Ray's agent
+    processes (DashboardAgent, RuntimeEnvAgent) were left running after the command ended (a
+    minute or more), and the command sometimes ended in a segfault (status -11, not 130). The interrupt is held until the start-up returns;
+    the Ray started is then shut down and KeyboardInterrupt raised."""
+    ray = pytest.importorskip("ray")
+    from latentune.pipeline.evaluators import RayEvaluator
+
+    calls: list[str] = []
+
+    def init(**kw):                   # Ctrl-C lands while Ray's processes are being started
+        os.kill(os.getpid(), signal.SIGINT)
+        for _ in range(100):          # the handler runs between bytecodes: give it the chance
+            time.sleep(0.001)
+        calls.append("init done")
+
+    monkeypatch.setattr(ray, "is_initialized", lambda: False)
+    monkeypatch.setattr(ray, "init", init)
+    monkeypatch.setattr(ray, "shutdown", lambda: calls.append("shutdown"))
+    with pytest.raises(KeyboardInterrupt):
+        RayEvaluator(2)
+    assert calls == ["init done", "shutdown"]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
 @pytest.mark.slow
 def test_ray_reruns_a_trial_lost_with_its_worker(tmp_path, ray_local):
     """A worker process that dies mid-trial (os._exit) loses that run: Ray restarts the actor,

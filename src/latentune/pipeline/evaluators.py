@@ -782,6 +782,25 @@ def _keeps_sigterm() -> Iterator[None]:
 
 
 @contextmanager
+def _holds_sigint() -> Iterator[list[int]]:
+    """Inside the block a Ctrl-C (SIGINT) is noted in the yielded list, not raised (main thread,
+    Python's default handler only; restored after): ``ray.init`` interrupted midway leaves the
+    agent processes it started running after the command ended."""
+    import signal
+
+    noted: list[int] = []
+    if threading.current_thread() is not threading.main_thread() \
+            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        yield noted
+        return
+    prev = signal.signal(signal.SIGINT, lambda signum, frame: noted.append(signum))
+    try:
+        yield noted
+    finally:
+        signal.signal(signal.SIGINT, prev)
+
+
+@contextmanager
 def _env_default(var: str, value: str | None) -> Iterator[None]:
     """Inside the block, ``$var`` is ``value`` unless it is set already (or ``value`` is
     None); afterwards the caller's environment is as it was."""
@@ -874,11 +893,14 @@ class RayEvaluator(Evaluator):
                 tmp = temp_dir or os.environ.get("RAY_TMPDIR")
                 if tmp:
                     kw["_temp_dir"] = os.path.abspath(tmp)
-            with _keeps_sigterm(), _env_default(RAY_FLUSH_VAR, str(RAY_FLUSH_MS) if address
-                                                else None):
+            with _keeps_sigterm(), _holds_sigint() as interrupted, \
+                    _env_default(RAY_FLUSH_VAR, str(RAY_FLUSH_MS) if address else None):
                 ray.init(**({"address": address} if address else {"num_cpus": self.workers}),
                          **kw)
             self._owns = True
+            if interrupted:                     # Ctrl-C during the start-up: undo it, then stop
+                ray.shutdown()
+                raise KeyboardInterrupt
         self._ray = ray
         self.head = address if _host_port(address) else _gcs_address(ray)
         from ray import exceptions as rex
