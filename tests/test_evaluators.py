@@ -687,6 +687,30 @@ def test_a_factory_building_another_space_in_the_workers_is_refused(tmp_path, mo
         assert st.store.count(1) == 0
 
 
+def test_a_stored_trial_timeout_refused_by_another_backend_names_the_one_to_use(
+        tmp_path, run_cli, error_line):
+    """A run started with --trial-timeout and resumed with --backend ray (a cluster) or serial
+    is refused: the message names the backend that runs it (it said only that the stored
+    timeout needs the process backend), as a flag at the command line, a keyword in Python."""
+    from latentune.errors import UsageError
+
+    def make_system():
+        return lt.load_system("examples.toy_plant:make_system")
+
+    with lt.Study(tmp_path / "r", workers=1, backend="process", trial_timeout=5) as st:
+        st.phase1(make_system(), 2)
+    for backend in ("ray", "serial"):
+        code, _, err = run_cli("phase1", "--system", "examples.toy_plant:make_system", "--out",
+                               tmp_path / "r", "--phase1-evals", 4, "--workers", 1,
+                               "--backend", backend, "--resume")
+        line = error_line(code, err)
+        assert "stored trial timeout (5 s) needs the process backend" in line, line
+        assert line.endswith("run it with --backend process"), line
+        with pytest.raises(UsageError, match=r"run it with backend='process'$"):
+            lt.Study(tmp_path / "r", backend=backend).phase1(make_system(), 4)
+    assert lt.Study(tmp_path / "r").store.count(1) == 2
+
+
 def test_study_trial_timeout_is_stored_and_checked(tmp_path, run_cli, error_line):
     """Study(trial_timeout=S) / --trial-timeout S: a hung trial is a fall; S is recorded and a
     reopened study uses it; a value or backend that cannot honour it is refused."""

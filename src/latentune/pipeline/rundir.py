@@ -19,6 +19,7 @@ from latentune.pipeline.evaluators import (BACKENDS, Evaluator, check_timeout, c
                                            make_evaluator)
 from latentune.pipeline.store import RunStore
 from latentune.system import EvaluationError
+from latentune.wording import option
 
 log = logging.getLogger(__name__)
 
@@ -83,10 +84,12 @@ class RunDir:
         self._check_backend(t, "a trial timeout")
         return t
 
-    def _check_backend(self, t: float, what: str) -> None:
+    def _check_backend(self, t: float, what: str, advice: str = "") -> None:
+        """UsageError (``what``, then ``advice``) unless this directory's backend is the
+        process one, the only one that can stop a trial after ``t`` seconds."""
         if self.backend != "process":
             raise UsageError(f"{what} ({t:g} s) needs the process backend: {self.backend} "
-                             "cannot stop a trial")
+                             f"cannot stop a trial{advice}")
 
     @property
     def exists(self) -> bool:
@@ -240,8 +243,9 @@ class RunDir:
     def evaluator(self) -> Evaluator:
         """The evaluator (started on first use; stopped by :meth:`close`)."""
         if self._evaluator is None:
-            if self.trial_timeout is not None:
-                self._check_backend(self.trial_timeout, "the run's stored trial timeout")
+            if self.trial_timeout is not None:     # recorded: only the process backend runs it
+                self._check_backend(self.trial_timeout, "the run's stored trial timeout",
+                                    f"; run it with {option('backend', 'process')}")
             try:
                 self._evaluator = make_evaluator(self.backend, self.workers, self.ray_address,
                                                  trial_timeout=self.trial_timeout)
