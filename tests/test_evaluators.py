@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
@@ -464,6 +465,11 @@ def test_ctrl_c_while_ray_starts_stops_the_ray_it_started(monkeypatch):
         RayEvaluator(2)
     assert calls == ["init done", "shutdown"]
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    calls.clear()           # connecting to a cluster starts nothing, and may hang: not held
+    with socket.create_server(("127.0.0.1", 0)) as server:
+        with pytest.raises(KeyboardInterrupt):
+            RayEvaluator(2, address=f"127.0.0.1:{server.getsockname()[1]}")
+    assert calls == []
 
 
 @pytest.mark.slow

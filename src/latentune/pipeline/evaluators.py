@@ -782,14 +782,15 @@ def _keeps_sigterm() -> Iterator[None]:
 
 
 @contextmanager
-def _holds_sigint() -> Iterator[list[int]]:
-    """Inside the block a Ctrl-C (SIGINT) is noted in the yielded list, not raised (main thread,
-    Python's default handler only; restored after): ``ray.init`` interrupted midway leaves the
-    agent processes it started running after the command ended."""
+def _holds_sigint(hold: bool = True) -> Iterator[list[int]]:
+    """Inside the block a Ctrl-C (SIGINT) is noted in the yielded list, not raised (if ``hold``;
+    main thread, Python's default handler only; restored after): ``ray.init`` starting a local
+    Ray, interrupted midway, leaves the agent processes it started running after the command
+    ended. Not held while connecting to a cluster (nothing is started; that can hang)."""
     import signal
 
     noted: list[int] = []
-    if threading.current_thread() is not threading.main_thread() \
+    if not hold or threading.current_thread() is not threading.main_thread() \
             or signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
         yield noted
         return
@@ -893,7 +894,7 @@ class RayEvaluator(Evaluator):
                 tmp = temp_dir or os.environ.get("RAY_TMPDIR")
                 if tmp:
                     kw["_temp_dir"] = os.path.abspath(tmp)
-            with _keeps_sigterm(), _holds_sigint() as interrupted, \
+            with _keeps_sigterm(), _holds_sigint(not address) as interrupted, \
                     _env_default(RAY_FLUSH_VAR, str(RAY_FLUSH_MS) if address else None):
                 ray.init(**({"address": address} if address else {"num_cpus": self.workers}),
                          **kw)
