@@ -117,6 +117,24 @@ def test_unreachable_ray_address_is_one_line(tmp_path, run_cli, error_line, no_l
     assert not (tmp_path / "r").exists()
 
 
+def test_ray_address_from_the_environment_is_the_cluster(tmp_path, run_cli, error_line,
+                                                        no_local_ray, monkeypatch):
+    """``$RAY_ADDRESS`` (Ray's own default address) without --ray-address: the ray backend
+    connects there, checked like --ray-address. It passed num_cpus for a local Ray and Ray
+    refused: 'When connecting to an existing cluster, num_cpus and num_gpus must not be
+    provided', whether a cluster answered there or not."""
+    pytest.importorskip("ray")
+
+    with socket.socket() as s:                       # a port that was free a moment ago
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    monkeypatch.setenv("RAY_ADDRESS", f"127.0.0.1:{port}")
+    code, _, err = run_cli("phase1", *TINY, "--out", tmp_path / "r", "--phase1-evals", "4",
+                           "--backend", "ray")
+    assert f"no Ray cluster answers at 127.0.0.1:{port} (" in error_line(code, err)
+    assert not (tmp_path / "r").exists()
+
+
 class ExitingSystem:
     """A trial that calls sys.exit (a script's habit): the command ended with its status and
     no word, on every backend (a worker's SystemExit was re-raised in the caller)."""

@@ -831,7 +831,8 @@ def _check_reachable(address: str, timeout: float = 10.0) -> None:
 
 
 class RayEvaluator(Evaluator):
-    """``workers`` Ray actors (one CPU each) on a cluster (``address``) or on a local Ray.
+    """``workers`` Ray actors (one CPU each) on a cluster (``address``, else ``$RAY_ADDRESS``
+    as Ray's own default) or on a local Ray.
 
     A local Ray gets ``num_cpus=workers``; its temp dir is ``temp_dir`` or ``$RAY_TMPDIR``.
     Ray is shut down on :meth:`close` only if this evaluator started it. A ``HOST:PORT``
@@ -875,6 +876,7 @@ class RayEvaluator(Evaluator):
         if not head_timeout > 0:
             raise ValueError("head_timeout must be > 0")
         self.workers = int(workers)
+        address = address or os.environ.get("RAY_ADDRESS") or None   # Ray's default address
         self.address = address
         self.max_losses = int(max_losses)
         self.lost_timeout = float(lost_timeout)
