@@ -490,6 +490,35 @@ def test_ctrl_c_while_ray_starts_stops_the_ray_it_started(monkeypatch):
     assert calls == []
 
 
+def test_sigterm_while_ray_starts_is_the_callers_stop(monkeypatch):
+    """SIGTERM while ``ray.init`` starts: Ray's own start-up handler ended the command with
+    ``sys.exit(15)`` (status 15, no line; the command line's is 143 and a line). The caller's
+    SIGTERM handler now acts (after Ray's start is shut down), and stays installed."""
+    ray = pytest.importorskip("ray")
+    from latentune.pipeline.evaluators import RayEvaluator
+
+    class Stop(Exception):
+        pass
+
+    def stop(signum, frame):
+        raise Stop
+
+    def init(**kw):                   # Ray's handler, as SIGTERM lands during its start-up
+        raise SystemExit(signal.SIGTERM)
+
+    calls: list[str] = []
+    monkeypatch.setattr(ray, "is_initialized", lambda: False)
+    monkeypatch.setattr(ray, "init", init)
+    monkeypatch.setattr(ray, "shutdown", lambda: calls.append("shutdown"))
+    prev = signal.signal(signal.SIGTERM, stop)
+    try:
+        with pytest.raises(Stop):
+            RayEvaluator(2)
+        assert signal.getsignal(signal.SIGTERM) is stop and calls == ["shutdown"]
+    finally:
+        signal.signal(signal.SIGTERM, prev)
+
+
 @pytest.mark.slow
 def test_ray_reruns_a_trial_lost_with_its_worker(tmp_path, ray_local):
     """A worker process that dies mid-trial (os._exit) loses that run: Ray restarts the actor,

@@ -768,14 +768,25 @@ def _gcs_address(ray: Any) -> str | None:
 
 
 @contextmanager
-def _keeps_sigterm() -> Iterator[None]:
+def _keeps_sigterm(undo: Callable[[], None] | None = None) -> Iterator[None]:
     """Keep the caller's Python SIGTERM handler (the command line's: stop as Ctrl-C does)
-    across ``ray.init``, which installs its own (a crash dump, then the process ends)."""
+    across ``ray.init``, which installs its own (a crash dump, then the process ends). A
+    SIGTERM during the block that Ray's start-up handler turned into ``sys.exit(SIGTERM)``
+    calls ``undo`` (``ray.shutdown``), then the caller's handler (which raises its stop)."""
     import signal
 
     prev = signal.getsignal(signal.SIGTERM)
     try:
         yield
+    except SystemExit as exc:
+        if exc.code != signal.SIGTERM or not callable(prev) \
+                or threading.current_thread() is not threading.main_thread():
+            raise
+        signal.signal(signal.SIGTERM, prev)
+        if undo is not None:
+            undo()
+        prev(signal.SIGTERM, None)
+        raise
     finally:
         if callable(prev) and threading.current_thread() is threading.main_thread():
             signal.signal(signal.SIGTERM, prev)
@@ -896,7 +907,7 @@ class RayEvaluator(Evaluator):
                 tmp = temp_dir or os.environ.get("RAY_TMPDIR")
                 if tmp:
                     kw["_temp_dir"] = os.path.abspath(tmp)
-            with _keeps_sigterm(), _holds_sigint(not address) as interrupted, \
+            with _keeps_sigterm(ray.shutdown), _holds_sigint(not address) as interrupted, \
                     _env_default(RAY_FLUSH_VAR, str(RAY_FLUSH_MS) if address else None):
                 ray.init(**({"address": address} if address else {"num_cpus": self.workers}),
                          **kw)
