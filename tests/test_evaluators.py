@@ -479,15 +479,21 @@ def test_ctrl_c_while_ray_starts_stops_the_ray_it_started(monkeypatch):
     monkeypatch.setattr(ray, "is_initialized", lambda: False)
     monkeypatch.setattr(ray, "init", init)
     monkeypatch.setattr(ray, "shutdown", lambda: calls.append("shutdown"))
-    with pytest.raises(KeyboardInterrupt):
-        RayEvaluator(2)
-    assert calls == ["init done", "shutdown"]
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
-    calls.clear()           # connecting to a cluster starts nothing, and may hang: not held
-    with socket.create_server(("127.0.0.1", 0)) as server:
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    # Python's own Ctrl-C handler, as a command has it (a pytest-xdist worker ignores SIGINT)
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
         with pytest.raises(KeyboardInterrupt):
-            RayEvaluator(2, address=f"127.0.0.1:{server.getsockname()[1]}")
-    assert calls == []
+            RayEvaluator(2)
+        assert calls == ["init done", "shutdown"]
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        calls.clear()           # connecting to a cluster starts nothing, and may hang: not held
+        with socket.create_server(("127.0.0.1", 0)) as server:
+            with pytest.raises(KeyboardInterrupt):
+                RayEvaluator(2, address=f"127.0.0.1:{server.getsockname()[1]}")
+        assert calls == []
+    finally:
+        signal.signal(signal.SIGINT, before)
 
 
 def test_sigterm_while_ray_starts_is_the_callers_stop(monkeypatch):
