@@ -10,6 +10,7 @@ import math
 import multiprocessing
 import re
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -900,6 +901,16 @@ def test_a_source_run_that_grows_does_not_change_a_study_under_way(tmp_path):
     assert attrs["latentune:source_counts:" + part.sampler._key] == {"1": 40, "3": 0}
 
 
+def _sampled_from_growing_source(src: Path) -> Any:
+    """A new in-memory Optuna study of 2 trials sampled by a LatentSampler (seed 0, budget 20)
+    of a :class:`_GrowingSource` made at ``src`` (its source trials pinned)."""
+    _GrowingSource(src)
+    study = optuna.create_study()
+    study.sampler = LatentSampler(src, seed=0, budget=20)
+    study.optimize(objective_for(study.sampler), n_trials=2)
+    return study
+
+
 def test_a_source_run_holding_other_trials_is_refused_by_a_study_under_way(tmp_path):
     """A study resumed (a new sampler) after its source directory came to hold other trials
     than the ones pinned at its first sample (as many, the same latent space: one cost edited
@@ -909,10 +920,7 @@ def test_a_source_run_holding_other_trials_is_refused_by_a_study_under_way(tmp_p
 
     from latentune.errors import LatentError
 
-    _GrowingSource(tmp_path / "src")
-    study = optuna.create_study()
-    study.sampler = LatentSampler(tmp_path / "src", seed=0, budget=20)
-    study.optimize(objective_for(study.sampler), n_trials=2)
+    study = _sampled_from_growing_source(tmp_path / "src")
     con = sqlite3.connect(tmp_path / "src" / "run.db")
     with con:
         con.execute("UPDATE evaluations SET cost = cost + 1 WHERE phase = 1 AND idx = 3")
@@ -930,10 +938,7 @@ def test_a_study_reads_its_source_trials_once_per_sampler(tmp_path, source_reads
     """The first sample pinned the source trials' fingerprint and then computed it again to
     check it against itself; it reads them once (to pin), a new sampler once (to check)."""
     reads = source_reads
-    _GrowingSource(tmp_path / "src")
-    study = optuna.create_study()
-    study.sampler = LatentSampler(tmp_path / "src", seed=0, budget=20)
-    study.optimize(objective_for(study.sampler), n_trials=2)
+    study = _sampled_from_growing_source(tmp_path / "src")
     assert reads == ["run_fingerprint"]
     reads.clear()
     study.sampler = LatentSampler(tmp_path / "src", seed=0, budget=20)
@@ -949,10 +954,7 @@ def test_a_source_run_amended_since_goes_on_with_one_warning(tmp_path, caplog):
     import json
     import sqlite3
 
-    _GrowingSource(tmp_path / "src")
-    study = optuna.create_study()
-    study.sampler = LatentSampler(tmp_path / "src", seed=0, budget=20)
-    study.optimize(objective_for(study.sampler), n_trials=2)
+    study = _sampled_from_growing_source(tmp_path / "src")
     con = sqlite3.connect(tmp_path / "src" / "run.db")
     with con:
         (cost, fell), = con.execute("SELECT cost, fell FROM evaluations WHERE phase = 1 AND "
