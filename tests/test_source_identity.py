@@ -591,3 +591,30 @@ def test_a_fall_prior_amended_since_goes_on_and_is_reported_once(tmp_path, runs,
                      if "amended since" in r.getMessage()])
     assert [len(x) for x in said] == [1, 0, 0], said
     assert "trial 5 was amended since phase 1 began" in said[0][0], said[0]
+
+
+def test_a_phase_1_reads_its_fall_prior_once_per_start(tmp_path, runs, source_reads):
+    """Phase 1 fingerprinted its fall prior's trials at every start (for an options record
+    whose stored pin then stood) and read them again to check them on a resume: two reads of
+    the prior where one does. A first start reads them once (to pin), a resume once (to
+    check), in Python and in ask/tell."""
+    from examples.toy_plant import make_real_system
+    from latentune.system import evaluate
+
+    real = make_real_system()
+    kw = {"max_fall_prob": 0.5, "fall_prior": runs["source"]}
+    with lt.Study(tmp_path / "p", seed=0) as study:
+        study.phase1(real, 3, **kw)
+        assert source_reads == ["run_fingerprint"]
+        source_reads.clear()
+        study.phase1(real, 4, **kw)
+        assert source_reads == ["amended_since"]
+        assert study.config()["phase1"]["prior_fingerprint"]
+    source_reads.clear()
+    with lt.Study(tmp_path / "a", seed=0) as study:
+        for s in study.ask(1, system=real, phase=1, budget=20, **kw):
+            study.tell(s.id, evaluate(real, s.theta).cost)
+        assert source_reads == ["run_fingerprint"]
+        source_reads.clear()
+        study.ask(8)                    # past the queued batch: the critic is built again
+        assert source_reads == ["amended_since"]

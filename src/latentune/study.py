@@ -197,7 +197,7 @@ class Study:
         with self.run.writing(evaluating=True) as st:
             self.bind(system)
             pc = self._options(Phase.PHASE1, method, budget, regions, extra)
-            check_phase1_runs(self.run, self.manifest, pc)
+            pc = check_phase1_runs(self.run, self.manifest, pc)
             self.manifest.update(phase1=pc, **(record or {}))
             self.manifest.record_run(self.seed)
             manual = ensure_manual(st, system, self.seed, self.evaluator())

@@ -385,8 +385,8 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
     pc = study.manifest.phase_options(phase, method=g["method"], budget=g["budget"],
                                       regions=g.get("regions"), seed=study.seed,
                                       batch_size=study.batch_size_of(phase), extra=extra)
-    if phase == Phase.PHASE1:
-        check_phase1_runs(study.run, study.manifest, pc)
+    if phase == Phase.PHASE1 and pin:
+        pc = check_phase1_runs(study.run, study.manifest, pc)
     return pc, ls
 
 

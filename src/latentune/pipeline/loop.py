@@ -352,19 +352,24 @@ PHASE1_PINS = {"fall_prior": ("prior_counts", "prior_fingerprint"),
 ``source_trials``) and the pins of each in its options record (counts, fingerprint)."""
 
 
-def check_phase1_runs(run: RunDir, manifest: Manifest, pc: dict[str, Any]) -> None:
-    """Check, before a phase 1 with trials goes on, that the runs it learns from
-    (:data:`PHASE1_PINS`) are the ones it began with (:func:`source_mismatch`): LatentError
-    (one line) naming the option when one holds another run now (replaced or cut since; its
-    trials would seed the resumed critic in place of the ones it began with), one warning per
-    amendment of their trials since (recorded in ``phase1_<option>_amendments_reported``).
-    Nothing to check before the phase's first trial, or for a pin recorded before the
-    fingerprint existed (counts alone)."""
-    if not manifest.n_fixing(Phase.PHASE1):
-        return
+def check_phase1_runs(run: RunDir, manifest: Manifest, pc: dict[str, Any]) -> dict[str, Any]:
+    """Phase 1's options record ``pc`` (:meth:`~latentune.pipeline.manifest.Manifest.
+    phase_options`) with the runs it learns from (:data:`PHASE1_PINS`) pinned or checked, each
+    read once. Before the phase's first trial: their fingerprints added
+    (:func:`~latentune.pipeline.manifest.run_fingerprint` of the trials counted). After it:
+    checked against the stored pins (:func:`source_mismatch`): LatentError (one line) naming
+    the option when one holds another run now (replaced or cut since; its trials would seed
+    the resumed critic in place of the ones it began with), one warning per amendment of their
+    trials since (recorded in ``phase1_<option>_amendments_reported``); a pin recorded before
+    the fingerprint existed is checked by its counts alone."""
+    first = not manifest.n_fixing(Phase.PHASE1)
+    out = dict(pc)
     for name, (n_key, fp_key) in PHASE1_PINS.items():
         where, counts, fp = pc.get(name), pc.get(n_key), pc.get(fp_key)
         if where is None or not counts:
+            continue
+        if first:
+            out[fp_key] = mf.run_fingerprint(where, counts)
             continue
         reported, record = amendments_reported(run, manifest, fp,
                                                f"phase1_{name}_amendments_reported")
@@ -373,6 +378,7 @@ def check_phase1_runs(run: RunDir, manifest: Manifest, pc: dict[str, Any]) -> No
             raise LatentError(f"{option(name) if name in FLAGS else name}: the run at {where} "
                               "is not the run phase 1 began "
                               f"with: it {why} (replaced since?); put that run back there")
+    return out
 
 
 def source_pin(run_dir: Path, manifest: Manifest, source: str, pinned: bool

@@ -787,9 +787,9 @@ def same_option(key: str, old: Any, new: Any) -> bool:
 
 def fall_options(max_fall_prob: float | None, prior: Any) -> dict[str, Any]:
     """The options record of the fall-aware option (checked): ``prior`` a run directory (its
-    trials counted, ``prior_counts``, and fingerprinted, ``prior_fingerprint``:
-    :func:`run_fingerprint`; :data:`PINNED`, checked on resume by
-    :func:`~latentune.pipeline.loop.require_pinned_prior`), a label, or None."""
+    trials counted, ``prior_counts``, and their ``prior_fingerprint``, None here: the phase
+    pins it at its first start and checks it on resume, one read of the run each time,
+    :func:`~latentune.pipeline.loop.check_phase1_runs`; :data:`PINNED`), a label, or None."""
     if max_fall_prob is None:
         if prior is not None:
             raise UsageError("fall_prior needs max_fall_prob (it seeds the fall prediction)")
@@ -800,8 +800,7 @@ def fall_options(max_fall_prob: float | None, prior: Any) -> dict[str, Any]:
     counts = None if prior is None else run_counts(prior)
     return {"max_fall_prob": float(max_fall_prob),
             "fall_prior": None if prior is None else prior_record(prior),
-            "prior_counts": counts,
-            "prior_fingerprint": None if counts is None else run_fingerprint(prior, counts)}
+            "prior_counts": counts, "prior_fingerprint": None}
 
 
 def learns_from_source(strategy: str, max_fall_prob: float | None) -> bool:
@@ -904,9 +903,10 @@ def transfer_option(options: dict[str, Any] | None, strategy: str,
 def source_option(method: str, source_run: Any) -> dict[str, Any]:
     """The options record of ``source_run``, a run whose phase-1 and phase-3 trials warm-start
     Optuna's CMA-ES (its ``source_trials`` mode): only with the method ``optuna-cmaes``; with
-    the trials it holds now (``source_counts``, and their ``source_fingerprint``,
+    the trials it holds now (``source_counts``, and their ``source_fingerprint``, None here
+    and pinned at the phase's first start, :func:`~latentune.pipeline.loop.check_phase1_runs`;
     :data:`PINNED`: a resume uses those trials, not ones the source made since, and knows the
-    run by them: :func:`~latentune.pipeline.loop.check_phase1_runs`)."""
+    run by them)."""
     if source_run is None:
         return {}
     if method != "optuna-cmaes":
@@ -916,7 +916,7 @@ def source_option(method: str, source_run: Any) -> dict[str, Any]:
         raise StoreError(f"no latentune run in {source_run} (expected run.db)")
     counts = run_counts(source_run)
     return {"source_run": str(Path(source_run).resolve()), "source_counts": counts,
-            "source_fingerprint": run_fingerprint(source_run, counts)}
+            "source_fingerprint": None}
 
 
 def handover(option: Any) -> dict[str, Any] | None:
