@@ -500,6 +500,7 @@ def test_transfer_falls_ladder_refuses_a_method_without_traces_and_a_bad_out(tmp
     ("transfer_falls", ["kinds", "--methods", "x", "--out"]),
     ("transfer_allowance", ["--summary", "s", "--runs", "r", "--out"]),
     ("transfer_diagnose", ["--out"]), ("transfer_gate", ["--runs", "r", "--out"]),
+    ("transfer_agreement", ["--runs", "r", "--out"]),
     ("transfer_models", ["--out"]), ("transfer_screened", ["--summary", "s", "--out"]),
     ("transfer_simrank", ["--runs", "r", "--sources", "s", "--models", "m", "--out"]),
     ("transfer_stop", ["--runs", "r", "--heldout-runs", "h", "--out"]),

@@ -950,6 +950,47 @@ def test_transfer_gate_measures_local_agreement_and_labels_wins(tmp_path, monkey
     assert "transfer_gate: error: unknown system" in capsys.readouterr().err
 
 
+def test_transfer_agreement_reads_the_agreement_at_a_cut_and_labels_gpsampler_wins(tmp_path,
+                                                                                     capsys):
+    """``transfer_agreement``: the agreement is the decision's at ``n_told`` = the cut; the label
+    is GPSampler's best strictly below the method's; a low agreement that goes with GPSampler's
+    wins gives AUC 1 and the highest threshold a* below which it wins more than half; a pair without GPSampler's run
+    is left out; a missing root is one line, exit 2."""
+    from benchmarks import transfer_agreement as ta
+
+    def put(seed: int, agree: float, best: float, peer: float | None) -> None:
+        d = tmp_path / "runs" / "bowl" / "gap2" / f"seed{seed}"
+        d.mkdir(parents=True)
+        decisions = [{"n_told": t, "agreement": agree if t == 10 else 9.0} for t in range(1, 40)]
+        (d / "A.json").write_text(json.dumps({"costs": [5.0, best, 0.0], "budget": 2,
+                                              "decisions": decisions}))
+        if peer is not None:
+            (d / "gp.json").write_text(json.dumps({"costs": [5.0, peer], "budget": 2}))
+
+    for seed, agree, best, peer in ((0, 0.1, 2.0, 1.0), (1, 0.2, 2.0, 1.5), (2, 0.8, 1.0, 1.0),
+                                    (3, 0.9, 1.0, 3.0), (4, 0.0, 1.0, None)):
+        put(seed, agree, best, peer)
+    rows = ta.pairs(tmp_path / "runs", "A", (10, 20))
+    assert [r["seed"] for r in rows] == [0, 1, 2, 3]          # seed 4 has no GPSampler run
+    assert [r["peer_wins"] for r in rows] == [True, True, False, False]   # a tie is no win
+    assert rows[0]["agreement"] == {"10": 0.1, "20": 9.0} and rows[0]["best"] == 2.0
+    ag = np.array([r["agreement"]["10"] for r in rows])
+    won = np.array([r["peer_wins"] for r in rows])
+    assert ta.threshold(ag, won) == pytest.approx(0.8)          # wins 2 of the 3 at or below
+    assert ta.threshold(ag, ~won) is None                          # nowhere more than half
+    st = ta.cut_stats(rows, 10, 0.8)
+    assert st["auc"] == pytest.approx(1.0) and st["picked"] == 3 and st["wins_held"] == 1.0
+    assert st["picked_win_share"] == pytest.approx(2 / 3)
+    assert ta.cut_stats(rows, 20, None)["auc"] == pytest.approx(0.5)   # 9.0 everywhere: ties
+    assert ta.main(["--runs", str(tmp_path / "runs"), "--method", "A",
+                    "--out", str(tmp_path / "a.json")]) == 0
+    assert "| bowl 2 | 4 | 2 | 0.50 / 9.00 |" in (tmp_path / "a.md").read_text()
+    capsys.readouterr()
+    assert ta.main(["--runs", str(tmp_path / "nosuch")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "transfer_agreement: error: --runs" in err[0], err
+
+
 def test_fall_costs_tells_a_low_cost_flagged_or_hidden_and_tables_the_arms(tmp_path, capsys):
     """``fall_costs``: a failed trial is told (k/N)·c_manual, its flag kept (``told``) or moved
     to ``info`` (``hidden``); a short run of each arm on the chain is summarized per system;
