@@ -2634,6 +2634,38 @@ def test_a_transfer_option_on_a_stored_plain_phase_3_says_it_is_the_transfer_one
         line
 
 
+def test_a_transfer_flag_at_its_default_is_the_option_left_out(run_cli, tmp_path, src30,
+                                                                 error_line):
+    """A later ``ask DIR --fall-budget 0`` (the help's "default 0: never stop") on a transfer
+    phase 3 begun without it said "runs with no --fall-budget (stored), not --fall-budget 0.0",
+    and so did ``--record-walk 0``, ``--escape-falls 0`` and ``--target-scores ranks``; and a
+    ``phase3 --resume --fall-budget 0`` recorded the option, after which ``--target-scores
+    ranks`` was refused. Found running the README's ask/tell commands with each flag repeated
+    at its default. A flag given at its default is the option left out; another value is
+    still refused."""
+    d = tmp_path / "a"
+    with lt.Study(d, seed=0) as st:
+        person(st, plant(0.1), 2, system=plant(0.1), phase=3, latent=src30, budget=8)
+        st.ask(1, transfer_options={"fall_budget": 0.0})     # the Python API alike
+        st.release(3)
+    for flags in (("--fall-budget", "0"), ("--record-walk", "0"), ("--escape-falls", "0"),
+                  ("--target-scores", "ranks", "--fall-budget", "0")):
+        code, out, err = run_cli("ask", d, *flags)
+        assert code == 0, err
+        assert run_cli("release", d, out.split()[0])[0] == 0
+    line = error_line(*run_cli("ask", d, "--fall-budget", "0.2")[::2])
+    assert line.endswith("phase 3 runs with no --fall-budget (stored), not --fall-budget 0.2"), \
+        line
+    r = tmp_path / "r"
+    with lt.Study(r, seed=0) as st:
+        st.phase3(plant(0.1), 3, latent=src30)
+        st.phase3(plant(0.1), 3, latent=src30, transfer_options={"fall_budget": 0.0})
+        st.phase3(plant(0.1), 3, latent=src30,
+                  transfer_options={"fall_budget": 0.0, "target_scores": "ranks"})
+        with pytest.raises(StoreError, match="not {'fall_budget': 0.1"):
+            st.phase3(plant(0.1), 3, latent=src30, transfer_options={"fall_budget": 0.1})
+
+
 def test_a_phase_3_run_given_as_the_latent_space_names_its_source(run_cli, tmp_path, src30,
                                                                    error_line):
     """``ask NEW --phase 3 --vae T`` where T is itself a phase 3 (on the latent space of S)

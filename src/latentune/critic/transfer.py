@@ -475,6 +475,28 @@ LEGACY_OPTIONS: dict[str, Any] = {**TRANSFER_DEFAULTS, **ADDED_OPTIONS, "max_fal
                                   "restart": False, "full_scales": 1, "global_share": 0.0}
 """The options of runs stored before :meth:`Transfer.state_dict` recorded them."""
 
+NEUTRAL_OPTIONS: dict[str, Any] = {
+    k: v for k, v in TRANSFER_DEFAULTS.items()
+    if k != "max_fall_prob" and ADDED_OPTIONS.get(k, v) == v and LEGACY_OPTIONS.get(k, v) == v}
+"""The options whose default every stored run resumes with too (the same value in
+:data:`TRANSFER_DEFAULTS`, :data:`ADDED_OPTIONS` and :data:`LEGACY_OPTIONS`: ``fall_budget`` 0,
+``record_walk`` 0, ``target_scores`` ``"ranks"``, …): given at it, such an option is the option
+left out (:func:`same_options`). ``max_fall_prob`` is not among them: the phase's own option
+sets it."""
+
+
+def same_options(old: dict[str, Any] | None, new: dict[str, Any] | None) -> bool:
+    """Whether two records of a phase 3's ``transfer_options`` (None: none given) run the same
+    critic: equal once the options given at their :data:`NEUTRAL_OPTIONS` value are left out
+    (``{"fall_budget": 0.0}`` is None; ``{"explore_gp": True}``, the default today but not
+    what a run stored before it resumes with, is not)."""
+    def given(opts: dict[str, Any] | None) -> dict[str, Any]:
+        return {k: v for k, v in (opts or {}).items()
+                if not (k in NEUTRAL_OPTIONS and v == NEUTRAL_OPTIONS[k]
+                        and isinstance(v, bool) == isinstance(NEUTRAL_OPTIONS[k], bool))}
+    return given(old) == given(new)
+
+
 EXPLORE_RECORDS = ("count", "gain")
 """How ``explore_pool="adaptive"`` weighs an explore record (``explore_record``)."""
 EXPLORE_BANDITS = ("mean", "thompson")

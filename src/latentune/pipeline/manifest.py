@@ -603,6 +603,8 @@ class Manifest:
                 if k in stored and not same_option(k, stored.get(k), pc.get(k)):
                     raise StoreError(f"{self.run.dir}: {key} was run with {k.replace('_', '-')}"
                                      f" = {stored.get(k)!r}, not {pc.get(k)!r}")
+                if k == "transfer_options" and k in stored:     # the record as it began
+                    pc[k] = stored[k]
             if pc.get("transfer_options") and "transfer_options" not in stored:
                 self.check_transfer_state(phase, pc["transfer_options"])
         return {k: v for k, v in pc.items() if v is not None or k not in RECORDED_IF_GIVEN}
@@ -660,8 +662,8 @@ def ask_options(stored: dict[str, Any] | None, given: dict[str, Any], dir_: Any,
                 and not (k == "fall_prior" and stored.get("max_fall_prob") is None):
             raise StoreError(f"{dir_}: phase {int(phase)} runs with {k.replace('_', '-')} = "
                              f"{old!r} (stored), not {v!r}")
-        else:
-            out[k] = v
+        else:       # transfer options at their defaults: the record stays as it began
+            out[k] = old if k == "transfer_options" else v
     return out
 
 
@@ -779,9 +781,14 @@ def prior_record(prior: Any) -> str:
 def same_option(key: str, old: Any, new: Any) -> bool:
     """Whether a stored option ``old`` is the given ``new``; a fall prior is a directory, so
     two spellings of one (``src``, ``./src``, its absolute path; a record written before it
-    was recorded absolute) are the same."""
+    was recorded absolute) are the same; transfer options given at the default every run
+    resumes with are the same as left out (:func:`latentune.critic.transfer.same_options`)."""
     if key == "fall_prior" and isinstance(old, str) and isinstance(new, str):
         return old == new or Path(old).resolve() == Path(new).resolve()
+    if key == "transfer_options" and old != new:    # an option at its default: left out
+        from latentune.critic.transfer import same_options
+
+        return same_options(old, new)
     return old == new
 
 
