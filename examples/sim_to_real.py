@@ -5,9 +5,10 @@ The model is Gymnasium's nominal ``Hopper-v5`` with the 36-weight linear control
 (body masses x1.3, friction x0.6, actuator gear x0.8, observation noise, a one-step action
 delay). Three ways to get a θ for the real system, at equal real-system budgets:
 
-* **phase 3** — TuRBO-m in the latent space learnt on the model (``lt.Study(real_dir)
-  .phase3(real, budget, latent=model_dir)``; that call also runs the model's best θ on the real
-  system once: the zero-shot row);
+* **phase 3** — the paper's phase 3, TuRBO-m in the latent space learnt on the model
+  (``lt.Study(real_dir).phase3(real, budget, latent=model_dir, strategy="plain")``; without
+  ``strategy`` it is latentune's default, transfer; that call also runs the model's best θ on
+  the real system once: the zero-shot row);
 * **zero-shot** — the model's best θ as it is (1 real evaluation);
 * **direct** — TuRBO-m on the full θ on the real system from the manual θ
   (``lt.Study(direct_dir).phase1(real, budget)``), no model at all.
