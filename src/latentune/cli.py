@@ -333,7 +333,8 @@ def add_run_args(p: argparse.ArgumentParser, name: str) -> None:
                    help="fall-aware critic: skip candidates whose predicted probability of "
                         "failing exceeds P in (0, 1], and (TuRBO-m) start near the warm start "
                         "and shrink the trust region when more than P of a batch falls "
-                        "(default off; phase 3 learns it from the latent space's source run)")
+                        "(default off, but 0.3 in the transfer phase 3; phase 3 learns it "
+                        "from the latent space's source run)")
     if name in ("tune", "phase3"):
         _handover_arg(p)
         _strategy_arg(p)
@@ -1665,7 +1666,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "scratch (the critic's own initial design) or a --params file "
                         "(physical values by name, or a list of normalized θ); first ask only")
     p.add_argument("--max-fall-prob", type=float, default=None, metavar="P",
-                   help="fall-aware: skip candidates whose predicted fall probability exceeds P")
+                   help="fall-aware: skip candidates whose predicted fall probability exceeds P "
+                        "(first ask: default off, but 0.3 in the transfer phase 3)")
     p.add_argument("--fall-prior", default=None, metavar="RUN_DIR",
                    type=argtypes.other_run("--fall-prior"),
                    help="phase 1 with --max-fall-prob: a run whose trials seed the prediction")
