@@ -307,7 +307,8 @@ def add_run_args(p: argparse.ArgumentParser, name: str) -> None:
                    help=f"phase-3 evaluations (default: the run's stored budget, else "
                         f"{DEFAULT_PHASE3})")
     p.add_argument("--latent-dim", type=int, default=None,
-                   help="latent size d_low (default 10 for 25-dim θ, 5 for 77-dim)")
+                   help="latent size d_low (default 10 for 25-dim θ, 5 for 77-dim, else "
+                        "d/4 between 2 and 10, below d)")
     p.add_argument("--vae-kind", choices=KINDS, default=DEFAULT_KIND,
                    help="autoencoder kind (see latentune.latent.vae)")
     p.add_argument("--vae-epochs", type=int, default=None,
