@@ -1685,7 +1685,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("dir", type=argtypes.run_dir, help="study directory")
     p.add_argument("id", help="the suggestion's id (from ask)")
     p.add_argument("--cost", type=float, default=None, help="the trial's cost")
-    p.add_argument("--failed", action="store_true", help="the trial failed (a fall)")
+    p.add_argument("--failed", action="store_true",
+                   help="the trial failed (a fall); without --cost it costs 2·C1 = 200")
     p.add_argument("--fall-step", type=int, default=None, metavar="K",
                    help="with --failed and --horizon: when it fell, K of the trial's N steps "
                         "(any unit: 32 of 100 tenths of a second); without --cost it costs "
