@@ -100,6 +100,28 @@ def test_process_worker_sends_back_an_outcome_whose_info_cannot_be_pickled():
         assert out.info["k"] == 1 and "lock" in out.info["lock"]
 
 
+def test_a_script_without_the_main_guard_is_told_what_killed_its_workers(tmp_path, cli_env):
+    """A script that runs ``Study(..., workers=2, backend="process").phase1`` at its top level
+    (the README's Python API needs the ``__main__`` guard for it) ended with "the process
+    pool's workers died 3 times before running a trial" and nothing on why: each worker runs
+    the script again while it starts. The error now names the guard. Found running the README's
+    Python API with the process pool."""
+    script = tmp_path / "noguard.py"
+    script.write_text(
+        "import latentune as lt\n"
+        "def f(x):\n    return float(x.sum())\n"
+        "space = lt.ParameterSpace(names=['a', 'b'], low=[0, 0], high=[1, 1])\n"
+        f"study = lt.Study({str(tmp_path / 'run')!r}, seed=0, workers=2, backend='process')\n"
+        "study.phase1(lt.FunctionSystem(space, f), 4)\n")
+    env = {**cli_env, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+    proc = subprocess.run([sys.executable, str(script)], env=env, capture_output=True,
+                          text=True, timeout=300, cwd=tmp_path)
+    line = next((ln for ln in proc.stderr.splitlines()
+                 if ln.startswith("latentune.system.EvaluationError")), proc.stderr)
+    assert proc.returncode != 0 and "died 3 times before running a trial" in line, proc.stderr
+    assert 'if __name__ == "__main__":' in line, line
+
+
 def test_unreachable_ray_address_is_one_line(tmp_path, run_cli, error_line, no_local_ray):
     """A cluster address nobody answers at: one line at once (Ray alone retries without end),
     and no run directory left behind (it recorded the seed and system of a run that never

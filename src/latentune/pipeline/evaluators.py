@@ -597,7 +597,8 @@ class ProcessEvaluator(Evaluator):
                     idle_breaks += 1
                     if idle_breaks >= MAX_LOST:
                         raise EvaluationError(f"the process pool's workers died {idle_breaks} "
-                                              "times before running a trial")
+                                              "times before running a trial"
+                                              + _main_script_hint(self.start_method))
                 futs, started, stopped = {}, {}, {}
                 for i in sorted(ends):
                     yield i, ends[i]
@@ -708,6 +709,19 @@ def _read_starts(starts: Any, run: int, started: dict[int, tuple[int, float]],
         (r, i), pid, t0 = item
         if r == run:
             started[i] = (pid, t0)
+
+
+def _main_script_hint(start_method: str) -> str:
+    """What to check when the pool's workers die before any trial and the caller is a script
+    run as ``python script.py``: a forkserver or spawn worker imports that script again while
+    it starts, and a script without the ``__main__`` guard starts its study there too. "" for
+    a fork pool or a ``python -m`` module (the command line guards its entry point)."""
+    main = sys.modules.get("__main__")
+    if start_method == "fork" or getattr(main, "__spec__", None) is not None \
+            or not getattr(main, "__file__", None):
+        return ""
+    return (f" (each worker runs {os.path.basename(main.__file__)} again as it starts: put the "
+            'code that runs the study under `if __name__ == "__main__":`)')
 
 
 def _exit_text(code: int | None) -> str:
