@@ -655,7 +655,11 @@ def main(argv: list[str] | None = None) -> int:
         argv = argv[1:]
     from benchmarks.common import Provenance, bench_parser, out_file, write_json, write_text
 
-    ap = bench_parser("benchmarks.transfer_falls", description=__doc__.splitlines()[0])
+    ap = bench_parser("benchmarks.transfer_falls", description=__doc__.splitlines()[0],
+                      epilog="This is its 'stores' command (the default). The others: "
+                             "'ladder' (the traces of benchmarks.transfer run: falls by screen "
+                             "band and by trust-region step, region_steps) and 'kinds' (asks "
+                             "and falls by kind of ask); each has its own --help.")
     ap.add_argument("--root", type=Path, default=Path("results/paper10k/a1"),
                     help="directory holding the studies")
     ap.add_argument("--target", default="a1-jump-flat-default",
