@@ -348,7 +348,10 @@ def add_run_args(p: argparse.ArgumentParser, name: str) -> None:
         p.add_argument("--fall-prior", default=None, metavar="RUN_DIR",
                        type=argtypes.other_run("--fall-prior"),
                        help="with --max-fall-prob: a run whose phase-1 trials seed the prediction")
-    p.add_argument("--resume", action="store_true", help="continue the run stored in --out")
+    p.add_argument("--resume", action="store_true",
+                   help="keep the latent space already trained in --out (without it, train-vae "
+                        "trains it again)" if name == "train-vae" else
+                        "continue the run stored in --out")
     if name == "phase3":
         p.add_argument("--vae", default=None, metavar="RUN_DIR", type=argtypes.other_run("--vae"),
                        help="use the latent space of another run (same θ); its best θ is also "
