@@ -1136,6 +1136,36 @@ def test_an_interrupt_after_ask_tell_or_release_printed_exits_0(run_cli, tmp_pat
     assert run_cli("tell", d, ids[2], "--cost", "2")[0] == 0      # still pending: told now
 
 
+@pytest.mark.parametrize("delay", [0.1, 0.3])
+def test_a_ctrl_c_while_the_process_exits_after_ask_printed_exits_0(tmp_path, delay):
+    """A Ctrl-C in the second or so after ``latentune ask`` printed its suggestions, while the
+    interpreter shut down (torch's modules torn down), killed the process with SIGINT: status
+    -2 and no word, the suggestions stored. The command's work is done and reported, so the
+    process ends with the command's status (0), as an interrupt while the run closes does."""
+    import signal
+    import time
+
+    from conftest import CLI_ENV
+
+    d, space = _external_run(tmp_path)
+    p = subprocess.Popen(   # Python's own Ctrl-C handler (a pytest-xdist worker ignores SIGINT)
+        [sys.executable, "-m", "latentune.cli", "ask", str(d), "--space", str(space), "--n",
+         "2"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=CLI_ENV,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    out = b""
+    while out.count(b"\n") < 2:                 # both suggestions printed
+        chunk = os.read(p.stdout.fileno(), 4096)
+        assert chunk, (out, p.stderr.read())
+        out += chunk
+    time.sleep(delay)
+    p.send_signal(signal.SIGINT)
+    rest, err = p.communicate(timeout=60)
+    assert p.returncode == 0 and err == b"" and rest == b"", (p.returncode, err, rest)
+    assert [ln.split(b"\t")[0] for ln in out.splitlines()] == [b"1", b"2"]
+    with lt.Study(d) as st:
+        assert [t.id for t in st.store.trials("pending")] == [1, 2]
+
+
 def test_an_interrupt_after_train_vae_or_report_printed_exits_0(run_cli, tmp_path, monkeypatch,
                                                                 interrupt_in_close):
     """A Ctrl-C (or SIGTERM) that landed after ``train-vae`` stored and named its VAE, or after

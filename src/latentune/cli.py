@@ -11,6 +11,8 @@ shows them on stderr as one line each (``latentune: message``; warnings and Pyth
 with ``-v/--verbose``, errors only with ``--quiet``. Progress bars are drawn only when stderr
 is a terminal. Exit status: 0 done, 2 bad input or a failure reported in one line, 130
 interrupted, 143 terminated (SIGTERM), 141 stdout closed early (``latentune ask --json | head``).
+An interrupt after the command printed its result (while it closes its run, or while the process
+exits) leaves the command's status.
 """
 from __future__ import annotations
 
@@ -1889,9 +1891,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with _cli_logging() as set_level, _sigterm_stops(), command_line_words():
             status["code"] = _command(argv, set_level)
-        return status["code"]
     except KeyboardInterrupt as exc:    # while the handlers were set or restored
-        return status.get("code", 143 if isinstance(exc, _Terminated) else 130)
+        status.setdefault("code", 143 if isinstance(exc, _Terminated) else 130)
+    if argv is None:                    # the process's command line: it exits next
+        _exit_uninterrupted()
+    return status["code"]
+
+
+def _exit_uninterrupted() -> None:
+    """The command has ended and its status is decided: a Ctrl-C or SIGTERM from here on is
+    ignored, so the process exits with the command's status. The interpreter's shutdown (a
+    second or so tearing down torch's modules) restores the default handlers, and a Ctrl-C
+    there killed the process silently (status -2) after ``ask`` had printed and stored its
+    suggestions; an ignored signal stays ignored through the shutdown."""
+    import signal
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            signal.signal(sig, signal.SIG_IGN)
+        except (ValueError, KeyboardInterrupt):   # not the main thread; or it landed now
+            pass
 
 
 def _command(argv: Sequence[str] | None, set_level: Callable[[int], None]) -> int:
