@@ -363,6 +363,33 @@ def test_leases_expire_and_are_released(tmp_path):
     st.close()
 
 
+def test_a_second_tell_after_an_expired_lease_says_whose_result_stands(tmp_path, run_cli,
+                                                                      error_line):
+    """Alice's lease expired, bob was handed the suggestion and told it; alice's tell then said
+    only "already told ... tell it again with --amend", which would silently overwrite bob's
+    result. The refusal names the result that stands: its cost (and fall), note, when it was
+    told and to whom the suggestion was handed out then; the store is untouched."""
+    st = lt.Study(tmp_path / "s", seed=0)
+    (a,) = st.ask(space=SPACE, asker="alice", lease_s=0.3)
+    time.sleep(0.4)                                    # alice's lease expires
+    (b,) = st.ask(asker="bob")
+    assert b.id == a.id and b.again
+    st.tell(b.id, 2.5, failed=True, note="bob's run")
+    with pytest.raises(StoreError, match="already told") as e:
+        st.tell(a.id, 5.0)                             # alice's result, for the same θ
+    msg = str(e.value)
+    told = time.strftime("%Y-%m-%d", time.gmtime())
+    for part in ("cost 2.5 (failed)", "note \"bob's run\"", f"told {told}", "handed out to bob",
+                 "amend=True"):
+        assert part in msg, (part, msg)
+    st.close()
+    code, out, err = run_cli("tell", tmp_path / "s", a.id, "--cost", "5")
+    line = error_line(code, err)
+    assert "handed out to bob" in line and "--amend" in line and "amend=True" not in line, line
+    with lt.Study(tmp_path / "s") as st:
+        assert [(r.cost, r.fell) for r in st.store.rows(1)] == [(2.5, True)]
+
+
 def test_an_ask_beyond_the_budget_hands_out_the_suggestions_left(tmp_path):
     """A batch of 4 asked for a budget of 4, 3 handed out and told: ask(3) raised "the budget
     is handed out (3 told, 1 pending)", and the one it had just leased was never shown."""
@@ -981,7 +1008,10 @@ def test_amend_keeps_an_audit_trail_and_rebuilds_the_critic(tmp_path):
     assert st.best().cost == -3.0
     with pytest.raises(StoreError, match="already told") as e:
         st.tell(ids[1], 2.0)
-    assert str(e.value).endswith("to correct it, tell it again with amend=True)"), e.value
+    assert str(e.value).endswith("to replace it, tell it again with "
+                                 "amend=True"), e.value
+    assert "was already told: cost -3, told " in str(e.value), e.value
+    assert "while handed out without an asker's name" in str(e.value), e.value
     queued = [t for t in st.store.trials() if t.status == "queued"]
     assert queued                                       # asked from the typo
     row = st.tell(ids[1], 2.0, amend=True, note="typo: -3")
@@ -1837,7 +1867,7 @@ def test_telling_a_told_zero_shot_trial_again_names_its_phase(tmp_path, src30):
         with pytest.raises(StoreError) as err:
             st.tell(s.id, 0.4)
     msg = str(err.value)
-    assert "phase 4" not in msg and "(zero-shot evaluation 0;" in msg and "amend=True" in msg
+    assert "phase 4" not in msg and "(zero-shot evaluation 0)" in msg and "amend=True" in msg
 
 
 def test_a_refused_first_ask_of_phase_3_leaves_no_files(run_cli, tmp_path, src30, error_line):

@@ -83,7 +83,7 @@ from latentune.pipeline.loop import (began_latent, check_phase1_runs, check_sour
 from latentune.pipeline.phases import (ask_batch, replay, reused_first, say_reused, state_key,
                                        stored_fall_options, stored_outcomes, warn_if_failing)
 from latentune.pipeline.results import best_row, fall_budget, phase_name, write_best
-from latentune.pipeline.store import Row, RunStore, critics_told
+from latentune.pipeline.store import DEFAULT_ASKER, Row, RunStore, critics_told
 from latentune.space import ParameterSpace
 from latentune.system import EvaluationError, Outcome, as_outcome
 from latentune.wording import counted, option
@@ -103,7 +103,6 @@ LEASE_S = 3600.0
 """How long a suggestion stays leased to its asker when it is not told [s] (one hour)."""
 WAIT_S = 60.0
 """How long an ask or a tell waits for another writer of the study [s]."""
-DEFAULT_ASKER = "default"
 OPTIONS = ("strategy", "method", "budget", "regions", "start", "max_fall_prob", "fall_prior",
            "handover", "transfer_options")
 """The phase options an ask takes (each None for "the stored one")."""

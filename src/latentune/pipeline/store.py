@@ -75,6 +75,8 @@ OBJECT_META = ("config", "wall", "wall_open", "artifacts")
 anything else is a StoreError naming it."""
 LIST_META = ("wall_unknown",)
 """The meta entries that hold a JSON list (or are absent), checked as :data:`OBJECT_META`."""
+DEFAULT_ASKER = "default"
+"""The asker of a suggestion asked without an asker's name."""
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -742,9 +744,7 @@ class RunStore:
         with self._write(trials=True):
             t = self._trial(trial_id)
             if t.status == "told":
-                raise StoreError(f"suggestion {trial_id} was already told ({phase_name(t.phase)} "
-                                 f"evaluation {t.idx}; to correct it, tell it again with "
-                                 f"{option('amend', True)})")
+                raise StoreError(self._told_already(t))
             if t.status != "pending":
                 raise StoreError(f"suggestion {trial_id} is not handed out ({t.status}: " + (
                     "never asked for, or released; ask for it)" if t.status == "queued" else
@@ -759,6 +759,25 @@ class RunStore:
             self.con.execute("UPDATE trials SET status='told', idx=?, told=? WHERE id=?",
                              (idx, time.time(), int(trial_id)))
         return idx
+
+    def _told_already(self, t: Trial) -> str:
+        """The refusal of a second tell of told suggestion ``t``: the result that stands (cost,
+        fall, note), when it was told and to whom ``t`` was handed out then, so that a teller
+        whose lease had expired and was taken over amends knowingly, or not at all."""
+        r = self.con.execute("SELECT e.cost, e.fell, e.info, t.told FROM evaluations e JOIN "
+                             "trials t ON t.phase=e.phase AND t.idx=e.idx WHERE t.id=?",
+                             (int(t.id),)).fetchone()
+        info = json.loads(r[2]) if r[2] else {}
+        note = f", note {json.dumps(str(info['note']), ensure_ascii=False)}" if info.get("note") \
+            else ""
+        when = (time.strftime(" %Y-%m-%d %H:%M:%S UTC", time.gmtime(r[3]))
+                if r[3] is not None else "")
+        to = ("" if not t.asker else " while handed out without an asker's name"
+              if t.asker == DEFAULT_ASKER else f" while handed out to {t.asker}")
+        return (f"suggestion {t.id} was already told: cost {decode_cost(r[0]):.6g}"
+                f"{' (failed)' if r[1] else ''}{note}, told{when}{to} ({phase_name(t.phase)} "
+                f"evaluation {t.idx}). That result stands; to replace it, tell it again with "
+                f"{option('amend', True)}")
 
     def amend_trial(self, trial_id: int, cost: float, *, fell: bool,
                     fall_step: int | None = None, info: dict[str, Any] | None = None,
