@@ -1110,6 +1110,33 @@ def test_trials_are_records_with_named_phases_and_physical_params(tmp_path, monk
         assert st.trials_dataframe(phases=(Phase.MANUAL,)).shape[0] == 1
 
 
+def test_trials_are_listed_in_the_order_they_were_stored(tmp_path, src30):
+    """``Study.trials()`` listed a phase-3 study's zero-shot trial (the first made on the
+    target) after phase 3's trials: phases were ordered by their number (zero-shot is 4).
+    Trials are listed as they were stored (told): the zero-shot trial first when told first,
+    between phase 3's when told between them; a phase's own rows in idx order."""
+    shutil.copytree(src30, tmp_path / "src")
+    with lt.Study(tmp_path / "t", seed=0) as st:
+        (z,) = st.ask(1, system=plant(0.3), phase=3, latent=tmp_path / "src")
+        assert z.phase_name == "zero-shot"
+        st.tell(z.id, 0.5)
+        for s in st.ask(2):
+            st.tell(s.id, 0.7)
+        assert [(r.phase, r.idx) for r in st.trials()] == [
+            ("zero-shot", 0), ("phase 3", 0), ("phase 3", 1)]
+        assert st.trials_dataframe()["phase"].tolist() == ["zero-shot", "phase 3", "phase 3"]
+    with lt.Study(tmp_path / "u", seed=0) as st:         # zero-shot told between phase 3's
+        got = st.ask(3, system=plant(0.3), phase=3, latent=tmp_path / "src")
+        assert [s.phase_name for s in got] == ["zero-shot", "phase 3", "phase 3"]
+        for s in (got[1], got[0], got[2]):
+            st.tell(s.id, 0.6)
+        recs = st.trials()
+        assert [(r.phase, r.trial) for r in recs] == [
+            ("phase 3", got[1].id), ("zero-shot", got[0].id), ("phase 3", got[2].id)]
+        assert [r.phase for r in st.trials(phases=(Phase.PHASE3, Phase.ZERO_SHOT))] == \
+            [r.phase for r in recs]
+
+
 def test_trials_dataframe_without_trials_has_the_parameter_columns(tmp_path):
     """``trials_dataframe()`` of a run without a told trial (asked only, or a phase that holds
     none) had no ``params_<name>`` columns, unlike with trials: code selecting them raised a

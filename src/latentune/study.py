@@ -356,7 +356,7 @@ class Study:
     def trials(self, phases: Any = None) -> list[results.TrialRecord]:
         """Every stored trial of ``phases`` (a phase number or several, default all) as a
         record: phase by name, θ by name in physical units, cost, failed, info, suggestion id
-        (:class:`~latentune.pipeline.results.TrialRecord`)."""
+        (:class:`~latentune.pipeline.results.TrialRecord`), in the order they were stored."""
         phases = None if phases is None else results.phases_arg(phases)
         return results.trials(self.store, self.space(), phases) if self.exists else []
 

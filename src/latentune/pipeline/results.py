@@ -93,20 +93,21 @@ def best_row(store: RunStore, phases: tuple[int, ...] = TUNING) -> Row | None:
 
 def trials(store: RunStore, space: ParameterSpace | None,
            phases: tuple[int, ...] | None = None) -> list[TrialRecord]:
-    """Every stored trial of ``phases`` (default all; see :func:`phases_arg`), in phase then
-    idx order."""
-    if phases is not None:
-        phases = phases_arg(phases)
-    else:
-        phases = tuple(int(p) for (p,) in store.con.execute(
-            "SELECT DISTINCT phase FROM evaluations ORDER BY phase"))
+    """Every stored trial of ``phases`` (default all; see :func:`phases_arg`) in the order the
+    trials were stored (:meth:`~latentune.pipeline.store.RunStore.stored_order`), a phase's
+    own rows in idx order: the phases as they were made (manual, phase 1, then the zero-shot
+    trial and phase 3's as they were told: a zero-shot trial told after some of phase 3's
+    comes between them)."""
+    wanted = None if phases is None else {int(p) for p in phases_arg(phases)}
+    order = [p for p, _ in store.stored_order() if wanted is None or p in wanted]
+    rows = {ph: iter(store.rows(ph)) for ph in set(order)}     # each in idx order
     out = []
-    for ph in phases:
-        for r in store.rows(ph):
-            params = space.as_dict(r.theta) if space is not None else \
-                {f"theta[{i}]": float(v) for i, v in enumerate(r.theta)}
-            out.append(TrialRecord(phase_name(ph), r.idx, params, r.cost, r.fell, dict(r.info),
-                                   _trial_id(r), r.theta, r.z, r.created))
+    for ph in order:                # a phase's place in the order: its next row by idx
+        r = next(rows[ph])
+        params = space.as_dict(r.theta) if space is not None else \
+            {f"theta[{i}]": float(v) for i, v in enumerate(r.theta)}
+        out.append(TrialRecord(phase_name(r.phase), r.idx, params, r.cost, r.fell, dict(r.info),
+                               _trial_id(r), r.theta, r.z, r.created))
     return out
 
 

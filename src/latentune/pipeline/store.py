@@ -860,6 +860,12 @@ class RunStore:
         except sqlite3.DatabaseError as exc:
             raise StoreError(f"run store {path}: {exc}") from None
 
+    def stored_order(self) -> list[tuple[int, int]]:
+        """``(phase, idx)`` of every evaluation, in the order they were stored (SQLite's rowid:
+        an insert's, kept by an amendment; a phase's rows are stored in idx order)."""
+        return [(int(p), int(i)) for p, i in
+                self.con.execute("SELECT phase, idx FROM evaluations ORDER BY rowid")]
+
     def rows(self, phase: int) -> list[Row]:
         """The evaluations of ``phase`` in idx order (StoreError for a garbled row)."""
         out = []
