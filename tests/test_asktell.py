@@ -268,6 +268,76 @@ def test_both_front_ends_give_the_plain_phase_3_the_same_theta_and_trials(
     assert rows(tmp_path / "cut") == rows(tmp_path / "run") and sorted(ran_cut) == sorted(ran_run)
 
 
+@pytest.fixture
+def decodes_coarse(monkeypatch) -> None:
+    """A decoder that snaps every θ entry to 0.3 or 0.7 (16 θ in all): a batch of 4 the plain
+    phase 3 asks often holds one θ twice."""
+    from latentune.latent.vae import LatentSpace
+
+    orig = LatentSpace.decode_code
+
+    def snapped(self, z):
+        th = orig(self, z)
+        return np.where(np.asarray(th) < 0.5, 0.3, 0.7)
+    monkeypatch.setattr(LatentSpace, "decode_code", snapped)
+
+
+def test_a_theta_asked_twice_in_one_batch_runs_once_in_both_front_ends(
+        tmp_path, src_manual_best, decodes_coarse, monkeypatch):
+    """The plain phase 3 reused a θ the study held a trial of, but ran a θ asked twice within
+    one batch twice (two trials on the target for one θ). The second is stored with the
+    first's outcome once it is told (``reused``, ``same_as``), in the phase run and ask/tell
+    alike: the same rows, each θ run once."""
+    shutil.copytree(src_manual_best, tmp_path / "src")
+    ran_run: list = []
+    with lt.Study(tmp_path / "run", seed=1) as run:
+        run.phase3(bowl(0.1, ran_run), 12, latent=tmp_path / "src", strategy="plain")
+        p3 = run.store.rows(Phase.PHASE3)
+    twins = [(a, b) for a in p3 for b in p3 if a.idx < b.idx and a.idx // 4 == b.idx // 4
+             and np.array_equal(a.theta, b.theta) and not a.info.get("reused")]
+    assert twins, "premise: a batch of 4 asks one θ twice"
+    assert all(b.info.get("reused") and b.info.get("same_as") == [Phase.PHASE3, a.idx]
+               for a, b in twins), [(a.idx, b.idx, b.info) for a, b in twins]
+    assert len(ran_run) == len(set(ran_run)), ran_run
+    ran_at: list = []
+    plain_by_asktell(tmp_path / "at", tmp_path / "src", ran_at, 20, budget=12).close()
+
+    def rows(d: Path) -> list[tuple]:
+        with lt.Study(d) as st:
+            return [(r.theta.tobytes(), r.cost, r.fell, r.info.get("same_as"))
+                    for r in phases.told_order(st.store.rows(Phase.PHASE3))]
+    assert rows(tmp_path / "at") == rows(tmp_path / "run")
+    assert sorted(ran_at) == sorted(ran_run)
+    ran_4: list = []                    # asks of a whole batch (4): the second of a θ is not
+    target = bowl(0.1, ran_4)           # handed out, and is told with the first
+    with lt.Study(tmp_path / "at4", seed=1) as at:
+        (z,) = at.ask(system=target, phase=3, latent=tmp_path / "src", strategy="plain",
+                      budget=12)
+        at.tell(z.id, evaluate(target, z.theta).cost)
+        while at.store.count(Phase.PHASE3) < 12:
+            try:
+                got = at.ask(4)
+            except StoreError as exc:       # the batch's θ were all stored ones: told at once
+                assert "is told" in str(exc) and at.store.count(Phase.PHASE3) == 12
+                break
+            assert len({s.theta.tobytes() for s in got}) == len(got)
+            for s in got:
+                at.tell(s.id, evaluate(target, s.theta).cost)
+    assert len(ran_4) == len(set(ran_4)), ran_4     # (asks of 4 reach into the next batch
+    twins = asktell.tell_twins                  # a kill after a tell, before its twins' tell
+
+    def not_in_tell(*a):
+        if __import__("sys")._getframe(1).f_code.co_name != "tell":
+            twins(*a)
+    monkeypatch.setattr(asktell, "tell_twins", not_in_tell)
+    ran_k: list = []
+    plain_by_asktell(tmp_path / "kill", tmp_path / "src", ran_k, 20, budget=12).close()
+    assert len(ran_k) == len(set(ran_k)), ran_k   # the next ask told the twin, not handed it
+    assert rows(tmp_path / "kill") == rows(tmp_path / "run")
+    with lt.Study(tmp_path / "at4") as at:            # when one was stored θ: other rows)
+        assert at.store.count(Phase.PHASE3) == 12 and not at.store.trials("queued")
+
+
 def test_a_first_ask_of_two_gives_the_plain_phase_3_the_rows_of_the_phase_run(
         tmp_path, src_manual_best):
     """A first ``ask(2)`` of the plain phase 3 hands out the zero-shot θ and a phase-3 θ before

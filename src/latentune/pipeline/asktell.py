@@ -40,7 +40,9 @@ In the plain phase 3 a θ the critic asks that the study holds a trial of alread
 θ's, the zero-shot trial's, phase 3's own: :func:`~latentune.pipeline.loop.reuse_phases`) is not
 handed out: :func:`_queue` stores it at once with that trial's outcome (``info["reused"]``),
 first in its batch, as the phase run stores it (:func:`~latentune.pipeline.phases.run_phase`'s
-``reuse``); it counts in the budget in both. A zero-shot θ the study holds a trial of is stored
+``reuse``); it counts in the budget in both. A θ the critic asks twice within a batch (or that
+another suggestion still out holds) waits, not handed out, and is told the first one's outcome
+as soon as that is told (:func:`tell_twins`), as the phase run stores it right after the first. A zero-shot θ the study holds a trial of is stored
 from it the same way (:func:`~latentune.pipeline.baselines.queue_zero_shot`).
 
 Corrections
@@ -417,9 +419,11 @@ def ask(study: Any, n: int = 1, *, system: Any = None, space: ParameterSpace | N
             ctx = _context(study, st, system, space, phase, latent, given)
         phases = (Phase.ZERO_SHOT, ctx.phase) if ctx.phase == Phase.PHASE3 else (ctx.phase,)
         refuse_if_fall_budget_spent(study, st, ctx.phase, ctx.options)
+        waits = reuse_phases(ctx.phase, ctx.options)
+        tell_twins(study, st, waits)        # (a kill between a tell and its twins' tells)
         open_ = st.trials("pending") + st.trials("queued")
         undo.push(lambda kind, *_: _undo_leases(st, open_, kind))   # after the undos below
-        got = st.lease(who, phases, int(n), lease)
+        got = st.lease(who, phases, int(n), lease, waits=waits)
         need = int(n) - len(got)
         if got and _budget_left(st, ctx.phase, ctx.options)[0] <= 0:
             need = 0                    # the budget is handed out: the suggestions there are
@@ -431,7 +435,7 @@ def ask(study: Any, n: int = 1, *, system: Any = None, space: ParameterSpace | N
                 _queue(study, st, ctx.phase, ctx.options,
                        _critic_batch(study, st, ctx.phase, ctx.options, ctx.space, ctx.latent,
                                      need))
-            new = st.lease(who, (ctx.phase,), need, lease, queued_only=True)
+            new = st.lease(who, (ctx.phase,), need, lease, queued_only=True, waits=waits)
             got, need = got + new, need - len(new)
             if st.count(ctx.phase) == told:
                 break       # no θ of the batch was a stored trial's: the critic gave its all
@@ -691,8 +695,9 @@ def _queue(study: Any, st: RunStore, phase: int, pc: dict[str, Any], batch: _Bat
     meta: dict[str, Any] = {NEXT_KEY: None}
     if batch.state:
         meta[state_key(phase)] = batch.state
-    known = stored_outcomes(st, reuse_phases(phase, pc))
-    o = reused_first(batch.thetas, known)
+    reuse = reuse_phases(phase, pc)
+    known = stored_outcomes(st, reuse)
+    o = reused_first(batch.thetas, known, bool(reuse))   # a θ asked twice: after its first
     told = []
     for i in o:
         out = known.get(np.ascontiguousarray(batch.thetas[i], dtype=float).tobytes())
@@ -710,6 +715,30 @@ def _queue(study: Any, st: RunStore, phase: int, pc: dict[str, Any], batch: _Bat
         write_best(st, study.dir, study.manifest.space(), phase)
     if batch.rule is not None:
         study.manifest.update(phase3_handover=batch.rule)
+
+
+def tell_twins(study: Any, st: RunStore, reuse: tuple[int, ...]) -> None:
+    """Tell each queued suggestion of the phases ``reuse`` (:func:`~latentune.pipeline.loop.
+    reuse_phases`: the plain phase 3) whose θ a stored trial of them holds: that trial's
+    outcome (``info["reused"]``, ``"same_as"``), as the phase run stores a θ asked twice in one
+    batch right after the first (:func:`~latentune.pipeline.phases.batch_twins`). Such a
+    suggestion waits, not handed out, while the first of its θ is out (:meth:`RunStore.lease`'s
+    ``waits``)."""
+    waiting = [t for t in st.trials("queued") if t.phase in reuse] if reuse else []
+    if not waiting:
+        return
+    known = stored_outcomes(st, reuse)
+    told = {}
+    for t in waiting:
+        out = known.get(np.ascontiguousarray(t.theta, dtype=float).tobytes())
+        if out is not None:
+            say_reused(t.phase, out)
+            told[t.id] = {"cost": out.cost, "fell": out.failed, "fall_step": out.fall_step,
+                          "wall_s": out.wall_s, "seed": study.seed,
+                          "info": {**out.info, "reused": True}}
+    if told:
+        st.tell_queued(told)
+        write_best(st, study.dir, study.manifest.space(), Phase.PHASE3)
 
 
 def _prepared_key(study: Any, st: RunStore, phase: int, pc: dict[str, Any]) -> str:
@@ -818,6 +847,9 @@ def tell(study: Any, trial_id: int, cost: float | Outcome | None = None, *,
             ph = st.trials_by_id(tid).phase
             idx = st.tell_trial(tid, out.cost, fell=out.failed, fall_step=out.fall_step,
                                 seed=study.seed, info=out.info)
+            p3 = study.config().get("phase3") if ph in (Phase.ZERO_SHOT, Phase.PHASE3) else None
+            tell_twins(study, st, reuse_phases(Phase.PHASE3, p3) if p3 else ())
+
             def stored() -> dict[str, Any]:
                 return study.config().get(mf.PHASE_KEYS.get(Phase(ph), "")) or {}
             warn_if_failing(st, ph, lambda: strategy_of(stored()),

@@ -436,14 +436,14 @@ def pending_batch(store: RunStore, phase: int, budget: int, decoder: Callable | 
 
 
 def reask(critic: Any, batch: AskedBatch, decoder: Callable | None,
-          known: dict[bytes, Outcome] | None = None) -> None:
+          known: dict[bytes, Outcome] | None = None, twins: bool = False) -> None:
     """Ask ``critic``, told the rows stored before ``batch``, for as many points as ``batch``
     holds, so its state (model fits, random streams, Optuna's trials) is the one the stopped
     run's critic had while the batch was evaluated; the recorded points are the ones evaluated
     and told. A critic that asks other points (not deterministic) is told the recorded ones as
     points of its batch (a warning says so). ``known``: the stored outcomes the batch was
-    ordered by when it was asked (:func:`ask_batch`)."""
-    U, T = ask_batch(critic, len(batch.thetas), decoder, known)[:2]
+    ordered by when it was asked (:func:`ask_batch`; ``twins`` as there)."""
+    U, T = ask_batch(critic, len(batch.thetas), decoder, known, twins)[:2]
     if U.shape != batch.U.shape or not (np.array_equal(U, batch.U)
                                         and np.array_equal(T, batch.T)):
         log.warning("the critic asked again for the batch a stopped run left unfinished gives "
@@ -485,20 +485,20 @@ def _tell_rows(store: RunStore, phase: int, critic: Any, upto: int | None = None
 
 
 def ask_batch(critic: Any, k: int, decoder: Callable | None,
-              known: dict[bytes, Outcome] | None = None
+              known: dict[bytes, Outcome] | None = None, twins: bool = False
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray, list[Any]]:
     """Ask ``critic`` for ``k`` points: (U (k, m) its points, tags (k,), Z (k, m') a
     two-space critic's codes or None, θ (k, d), the code to store with each θ);
-    with ``known``, in the order they are stored and told (:func:`reused_first`), else in
-    ask order."""
+    with ``known`` (or ``twins``), in the order they are stored and told
+    (:func:`reused_first`), else in ask order."""
     U = critic.ask(k)
     T = critic.last_tags.copy()
     Z = getattr(critic, "last_z", None)           # a two-space critic's latent codes
     Z = None if Z is None else Z.copy()
     thetas, codes = asked_points(U, Z, decoder)
-    if not known:
+    if not known and not twins:
         return U, T, Z, thetas, codes
-    o = reused_first(thetas, known)
+    o = reused_first(thetas, known or {}, twins)
     return (U[o], T[o], None if Z is None else Z[o], np.asarray(thetas)[o],
             [codes[i] for i in o])
 
@@ -540,7 +540,9 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
             it, :func:`stored_outcomes`; :func:`~latentune.pipeline.loop.reuse_phases`): a θ
             asked again is stored with the outcome it had (a row of the phase, in its budget),
             as ask/tell stores it, and said at INFO (:func:`say_reused`). A batch is stored
-            and told with those first (:func:`reused_first`).
+            and told with those first (:func:`reused_first`). With ``reuse``, a θ asked twice
+            within a batch is run once: the second is stored with the first's outcome right
+            after it (:func:`batch_twins`, :func:`twin_outcome`).
 
     Raises:
         EvaluationError: a trial raised or gave no usable cost; the batch's finished trials are
@@ -561,7 +563,7 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
         return {**(known or {}), **stored_outcomes(store, reuse, {int(phase): n})}
     kn = known_at(n0 if batch is None else batch.n0)
     if batch is not None:
-        reask(critic, batch, decoder, kn)
+        reask(critic, batch, decoder, kn, bool(reuse))
         log.info("phase %d: finishing the batch of %d points a stopped run asked (%d of them "
                  "stored)", int(phase), len(batch.thetas), len(batch.done))
     bar = _progress(budget, min(n0, budget), f"phase {phase}", progress)
@@ -578,6 +580,31 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
     def spent() -> bool:            # the fall budget, with the batch's finished trials
         return spent_after(np.array([batch.done[i][1] for i in sorted(batch.done)],
                                     dtype=bool))
+
+    def put(i: int, r: Outcome) -> None:    # store row i of the batch, as told
+        nonlocal idx, new, streak, stopped, best
+        cost = float(r.cost)
+        say_reused(phase, r)
+        if batch.n0 + i != idx:         # out of ask order: where it was asked
+            r = Outcome(r.cost, r.failed, {**r.info, ASKED: batch.n0 + i}, r.wall_s)
+        store_outcome(store, phase, idx, batch.thetas[i], r, z=batch.codes[i],
+                      tag=int(batch.T[i]), seed=seed)
+        idx += 1
+        new += 1
+        batch.done[i] = (cost, bool(r.failed))
+        streak = streak + 1 if r.failed else 0
+        stopped = stopped + 1 if r.failed and r.info.get("timed_out") else 0
+        if streak == FAIL_STREAK:
+            log.warning(timeout_message(phase, FAIL_STREAK, r.info.get("trial_timeout"))
+                        if stopped == streak else
+                        failing_message(phase, FAIL_STREAK, strategy, fall_options(critic)))
+        if cost < best and not r.failed:
+            best = cost
+        if on_row is not None:
+            on_row(idx, cost)
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(best=f"{best:.3f}")
     try:
         if bar is not None and n0:
             bar.set_postfix(best=f"{best:.3f}")
@@ -593,43 +620,30 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
             if batch is None:
                 k = min(critic.batch_size, budget - idx)   # whole: max_new leaves the rest
                 kn = known_at(idx)
-                batch = AskedBatch(idx, *ask_batch(critic, k, decoder, kn))     # for the resume
+                batch = AskedBatch(idx, *ask_batch(critic, k, decoder, kn,       # for the resume
+                                                   bool(reuse)))
                 store.set_meta(batch_key(phase), batch.record())
             U, T, Z, thetas, codes = batch.U, batch.T, batch.Z, batch.thetas, batch.codes
             todo = [i for i in range(len(thetas)) if i not in batch.done]
             if max_new is not None:
                 todo = todo[:max_new - new]
+            # a θ asked twice in the batch is run once (the plain phase 3): the second is
+            # stored with the first's outcome right after it (or now, the first stored before)
+            twin_of = batch_twins(thetas, kn) if reuse else {}
+            runs = [i for i in todo if i not in twin_of]
             error: str | None = None
+            for i in [i for i in todo if twin_of.get(i) in batch.done]:
+                put(i, twin_outcome(store, phase, thetas[i]))
             for j, r in _lost_head_says_stored(
-                    _results(evaluator, system, thetas[todo], kn,
+                    _results(evaluator, system, thetas[runs], kn,
                              None if spent_after is None else spent), store, phase):
-                i = todo[j]
+                i = runs[j]
                 if isinstance(r, TrialError):
                     error = error or r.message
                     continue
-                cost = float(r.cost)
-                say_reused(phase, r)
-                if batch.n0 + i != idx:         # out of ask order: where it was asked
-                    r = Outcome(r.cost, r.failed, {**r.info, ASKED: batch.n0 + i}, r.wall_s)
-                store_outcome(store, phase, idx, thetas[i], r, z=codes[i], tag=int(T[i]),
-                              seed=seed)
-                idx += 1
-                new += 1
-                batch.done[i] = (cost, bool(r.failed))
-                streak = streak + 1 if r.failed else 0
-                stopped = stopped + 1 if r.failed and r.info.get("timed_out") else 0
-                if streak == FAIL_STREAK:
-                    log.warning(timeout_message(phase, FAIL_STREAK, r.info.get("trial_timeout"))
-                                if stopped == streak else
-                                failing_message(phase, FAIL_STREAK, strategy,
-                                                fall_options(critic)))
-                if cost < best and not r.failed:
-                    best = cost
-                if on_row is not None:
-                    on_row(idx, cost)
-                if bar is not None:
-                    bar.update(1)
-                    bar.set_postfix(best=f"{best:.3f}")
+                put(i, r)
+                for t in (t for t in todo if twin_of.get(t) == i):
+                    put(t, twin_outcome(store, phase, thetas[t]))
             if error is not None:
                 raise EvaluationError(f"{error} (phase {int(phase)}; "
                                       f"{counted(idx, 'evaluation')} "
@@ -797,14 +811,49 @@ def stored_outcomes(store: RunStore, phases: tuple[int, ...],
     return out
 
 
-def reused_first(thetas: np.ndarray, known: dict[bytes, Outcome]) -> np.ndarray:
+def reused_first(thetas: np.ndarray, known: dict[bytes, Outcome], twins: bool = False
+                 ) -> np.ndarray:
     """The order in which a batch of asked ``thetas`` (k, d) is stored and told: its θ found in
     ``known`` (stored with that outcome, not run) first, then the others, each part in ask
-    order. The phase run and ask/tell store a batch in this order alike, so the critic is told
-    the same rows in the same order whichever drives the loop."""
-    hit = [i for i in range(len(thetas))
-           if np.ascontiguousarray(thetas[i], dtype=float).tobytes() in known]
-    return np.array(hit + [i for i in range(len(thetas)) if i not in hit], dtype=np.int64)
+    order; with ``twins``, a θ asked again within the batch right after the first of its θ
+    (:func:`batch_twins`: stored with that one's outcome once it is told). The phase run and
+    ask/tell store a batch in this order alike, so the critic is told the same rows in the same
+    order whichever drives the loop."""
+    keys = [np.ascontiguousarray(t, dtype=float).tobytes() for t in thetas]
+    hit = [i for i in range(len(thetas)) if keys[i] in known]
+    rest = [i for i in range(len(thetas)) if i not in hit]
+    if twins:
+        of = batch_twins(thetas, known)
+        order: list[int] = []
+        for i in rest:
+            if i not in of:
+                order += [i, *(t for t in rest if of.get(t) == i)]
+        rest = order
+    return np.array(hit + rest, dtype=np.int64)
+
+
+def batch_twins(thetas: np.ndarray, known: dict[bytes, Outcome]) -> dict[int, int]:
+    """The θ of a batch (k, d) asked again within it and not in ``known``: ``{i: j}``, row i
+    repeats the earlier row j (the first of its θ), which is run; i is not (the plain phase 3,
+    :func:`~latentune.pipeline.loop.reuse_phases`)."""
+    first: dict[bytes, int] = {}
+    out: dict[int, int] = {}
+    for i, t in enumerate(thetas):
+        key = np.ascontiguousarray(t, dtype=float).tobytes()
+        if key in known:
+            continue
+        if key in first:
+            out[i] = first[key]
+        else:
+            first[key] = i
+    return out
+
+
+def twin_outcome(store: RunStore, phase: int, theta: np.ndarray) -> Outcome:
+    """The outcome a θ asked twice in one batch (:func:`batch_twins`) is stored with: that of
+    the first stored trial of ``phase`` with its θ (``info``: ``"reused"``, ``"same_as"``)."""
+    out = stored_outcomes(store, (phase,))[np.ascontiguousarray(theta, dtype=float).tobytes()]
+    return Outcome(out.cost, out.failed, {**out.info, "reused": True}, out.wall_s)
 
 
 def say_reused(phase: int, out: Outcome) -> None:

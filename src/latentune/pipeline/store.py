@@ -621,32 +621,49 @@ class RunStore:
                     "VALUES (?, ?, ?, ?, 'queued', NULL, ?)",
                     (int(phase), _enc(th), _enc(z), int(tag), now))
                 ids.append(int(cur.lastrowid))
-                if res is None:
-                    continue
-                idx = self.next_idx(int(phase))
-                self._insert(int(phase), idx, th, res["cost"], z, int(tag), res["fell"],
-                             res.get("fall_step"), res.get("wall_s"), res.get("seed"),
-                             {**(res.get("info") or {}), "trial": ids[-1]})
-                self.con.execute("UPDATE trials SET status='told', idx=?, told=? WHERE id=?",
-                                 (idx, now, ids[-1]))
+                if res is not None:
+                    self._told_now(ids[-1], int(phase), th, z, int(tag), res, now)
             if each is not None:
                 key, value = each
                 self._put_meta({key: {**(self.get_meta(key) or {}),
                                       **{str(i): value for i in ids}}})
         return ids
 
+    def _told_now(self, tid: int, phase: int, theta: Any, z: Any, tag: int,
+                  res: dict[str, Any], now: float) -> None:
+        """Store ``res`` (see :meth:`queue_trials`' ``told``) as the next evaluation of
+        ``phase`` for suggestion ``tid`` and mark it told (within the caller's transaction)."""
+        idx = self.next_idx(phase)
+        self._insert(phase, idx, theta, res["cost"], z, tag, res["fell"], res.get("fall_step"),
+                     res.get("wall_s"), res.get("seed"), {**(res.get("info") or {}), "trial": tid})
+        self.con.execute("UPDATE trials SET status='told', idx=?, told=? WHERE id=?",
+                         (idx, now, tid))
+
+    def tell_queued(self, told: dict[int, dict[str, Any]]) -> None:
+        """Tell queued suggestions at once, in one transaction: ``{id: result}`` (a dict as
+        :meth:`queue_trials`' ``told``), in the order given; a suggestion no longer queued is
+        left as it is."""
+        now = time.time()
+        with self._write(trials=True):
+            for tid, res in told.items():
+                t = self._trial(tid)
+                if t.status == "queued":
+                    self._told_now(t.id, t.phase, t.theta, t.z, t.tag, res, now)
+
     def add_trial(self, phase: int, theta: Any, z: Any, tag: int) -> int:
         """Record one 'queued' suggestion; return its id."""
         return self.queue_trials(phase, [theta], [z], [tag])[0]
 
     def lease(self, asker: str, phases: tuple[int, ...], n: int, lease_s: float,
-              queued_only: bool = False) -> list[tuple[Trial, bool]]:
+              queued_only: bool = False, waits: tuple[int, ...] = ()
+              ) -> list[tuple[Trial, bool]]:
         """Hand out up to ``n`` suggestions of ``phases`` to ``asker`` for ``lease_s`` seconds,
         in one transaction: first those ``asker`` holds already, then those whose lease expired
         (or that were never leased under version 2), then queued ones (``phases`` in the order
         given, oldest first); only queued ones with ``queued_only``. Returns ``(trial, again)``
         pairs; ``again``: it was handed out before. Each suggestion is leased to one asker at a
-        time."""
+        time. ``waits``: phases whose queued suggestion is not handed out while an earlier one
+        of these phases with its θ is queued or handed out (it is told that one's outcome)."""
         now = time.time()
         ph = tuple(int(p) for p in phases)
         marks = ",".join("?" * len(ph))
@@ -662,9 +679,13 @@ class RunStore:
                     break
                 for (i,) in self.con.execute(f"SELECT id FROM trials WHERE {q} ORDER BY id", args):
                     picks.append((int(i), True))
+            wait = ",".join(str(int(p)) for p in waits) or "NULL"
             for p in ph:
-                for (i,) in self.con.execute("SELECT id FROM trials WHERE status='queued' AND "
-                                             "phase=? ORDER BY id", (p,)):
+                for (i,) in self.con.execute(
+                        "SELECT id FROM trials q WHERE status='queued' AND phase=? AND NOT ("
+                        f"phase IN ({wait}) AND EXISTS (SELECT 1 FROM trials o WHERE "
+                        f"o.id<q.id AND o.phase IN ({wait}) AND o.theta=q.theta AND "
+                        "o.status IN ('queued', 'pending'))) ORDER BY id", (p,)):
                     picks.append((int(i), False))
             for i, again in picks[:int(n)]:
                 self.con.execute("UPDATE trials SET status='pending', asker=?, lease_until=? "
