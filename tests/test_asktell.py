@@ -338,6 +338,30 @@ def test_a_theta_asked_twice_in_one_batch_runs_once_in_both_front_ends(
         assert at.store.count(Phase.PHASE3) == 12 and not at.store.trials("queued")
 
 
+def test_amending_a_trial_amends_the_rows_stored_from_it(tmp_path, src_manual_best,
+                                                         decodes_manual):
+    """The plain phase 3 stores a θ the study holds a trial of with that trial's outcome
+    (``same_as``). Amending that trial (a typo in the zero-shot cost) left the row stored from
+    it with the typo: phase 3's row, its best and the rebuilt critic kept the wrong cost. The
+    rows stored from an amended trial are amended with it (in the audit trail too)."""
+    shutil.copytree(src_manual_best, tmp_path / "src")
+    target = bowl(0.1)
+    with lt.Study(tmp_path / "at", seed=1) as at:
+        (z,) = at.ask(system=target, phase=3, latent=tmp_path / "src", strategy="plain",
+                      budget=6)
+        at.tell(z.id, 90.0)                         # a typo: 0.04 was measured
+        (s,) = at.ask()
+        (r0,) = [r for r in at.store.rows(Phase.PHASE3) if r.idx == 0]
+        assert r0.info.get("same_as") == [Phase.ZERO_SHOT, 0] and r0.cost == 90.0  # premise
+        at.tell(z.id, 0.04, amend=True, note="typo")
+        (r0,) = [r for r in at.store.rows(Phase.PHASE3) if r.idx == 0]
+        assert r0.cost == 0.04 and r0.info.get("same_as") == [Phase.ZERO_SHOT, 0]
+        assert r0.info.get("reused") and r0.info.get("trial") != z.id
+        trail = at.amendments()
+        assert [a["trial"] for a in trail] == [z.id, r0.info["trial"]]
+        assert trail[1]["old"]["cost"] == 90.0 and trail[1]["new"]["cost"] == 0.04
+
+
 def test_a_first_ask_of_two_gives_the_plain_phase_3_the_rows_of_the_phase_run(
         tmp_path, src_manual_best):
     """A first ``ask(2)`` of the plain phase 3 hands out the zero-shot θ and a phase-3 θ before

@@ -82,8 +82,9 @@ from latentune.pipeline.loop import (began_latent, check_phase1_runs, check_sour
                                      refuse_plain_options, require_source_store,
                                      resolve_latent, resolve_strategy, reuse_phases,
                                      source_pin, strategy_of)
-from latentune.pipeline.phases import (ask_batch, replay, reused_first, say_reused, state_key,
-                                       stored_fall_options, stored_outcomes, warn_if_failing)
+from latentune.pipeline.phases import (NOT_REUSED, ask_batch, replay, reused_first, say_reused,
+                                       state_key, stored_fall_options, stored_outcomes,
+                                       warn_if_failing)
 from latentune.pipeline.results import best_row, fall_budget, phase_name, write_best
 from latentune.pipeline.store import DEFAULT_ASKER, Row, RunStore, critics_told
 from latentune.space import ParameterSpace
@@ -840,7 +841,12 @@ def tell(study: Any, trial_id: int, cost: float | Outcome | None = None, *,
         if amend:
             ph, idx, changed = st.amend_trial(tid, out.cost, fell=out.failed,
                                               fall_step=out.fall_step, info=out.info, note=note)
-            for p in critics_told(ph) if changed else ():   # each critic told the row is
+            told = set(critics_told(ph))
+            if changed:                 # the rows stored from it (same_as) are amended with it
+                told |= _amend_copies(st, ph, idx, out, note)
+                if Phase.PHASE3 in told and ph != Phase.PHASE3:    # a phase-3 row amended
+                    write_best(st, study.dir, study.manifest.space(), Phase.PHASE3)
+            for p in sorted(told) if changed else ():       # each critic told the row is
                 kept = st.get_meta(state_key(p)) or {}       # rebuilt from the corrected rows;
                 st.set_meta(state_key(p), {k: v for k, v in kept.items() if k in ROW_FREE})
         else:
@@ -871,6 +877,25 @@ def tell(study: Any, trial_id: int, cost: float | Outcome | None = None, *,
         return row
     prepare(study)
     return row
+
+
+def _amend_copies(st: RunStore, phase: int, idx: int, out: Outcome, note: str | None
+                  ) -> set[int]:
+    """Amend the told rows stored from evaluation ``idx`` of ``phase`` (``info["same_as"]``: a
+    θ asked again, stored with its outcome, not run) to its corrected outcome ``out``, and
+    those stored from them; return the phases of the critics told them
+    (:func:`~latentune.pipeline.store.critics_told`)."""
+    told: set[int] = set()
+    for r in [r for p in (Phase.ZERO_SHOT, Phase.PHASE3) for r in st.rows(p)]:
+        if r.info.get("same_as") != [int(phase), int(idx)] or r.info.get("trial") is None:
+            continue
+        info = {**{k: v for k, v in out.info.items() if k not in NOT_REUSED},
+                "reused": True, "same_as": [int(phase), int(idx)]}
+        st.amend_trial(int(r.info["trial"]), out.cost, fell=out.failed,
+                       fall_step=out.fall_step, info=info,
+                       note=note or f"{phase_name(phase)} evaluation {idx} amended")
+        told |= set(critics_told(r.phase)) | _amend_copies(st, r.phase, r.idx, out, note)
+    return told
 
 
 def release(study: Any, trial_id: int) -> None:
