@@ -1037,6 +1037,29 @@ def test_a_study_that_prunes_its_trials_goes_on(source_run, kind):
     assert all(t.state == S.PRUNED for t in study.trials[1:])
 
 
+def test_the_plain_sampler_never_runs_a_theta_twice_and_says_when_it_has_no_other(
+        source_run, monkeypatch):
+    """The plain phase 3 through the sampler, in a latent space that decodes to few θ (here
+    every θ entry snapped to 0.3 or 0.7): no trial gets a θ the study holds (the phase run
+    would store a θ asked again from its trial; an Optuna trial cannot be given a stored
+    value). When the critic proposes only taken θ, the trial fails and the study stops with a
+    line that said only 'the critic keeps proposing θ that are in the study already'; it says
+    what to do."""
+    from latentune.latent.vae import LatentSpace
+
+    orig = LatentSpace.decode_code
+    monkeypatch.setattr(LatentSpace, "decode_code",
+                        lambda self, z: np.where(np.asarray(orig(self, z)) < 0.5, 0.3, 0.7))
+    sampler = LatentSampler(source_run, seed=0, strategy="plain", budget=40)
+    study = optuna.create_study(sampler=sampler)
+    with pytest.raises(LatentuneError, match="keeps proposing") as err:
+        study.optimize(objective_for(sampler), n_trials=40)
+    ran = [t for t in study.trials if t.params]
+    assert 1 < len(ran) < 40 and len({tuple(t.params.values()) for t in ran}) == len(ran)
+    assert study.trials[-1].state == S.FAIL and not study.trials[-1].params
+    assert "strategy='transfer'" in str(err.value) and f"({len(ran)} θ in all)" in str(err.value)
+
+
 def test_two_workers_on_one_journal(source_run, tmp_path):
     journal = tmp_path / "target.log"
     from optuna.storages.journal import JournalFileBackend, JournalStorage

@@ -708,9 +708,13 @@ class _CriticSampler:
                 break
             logger.info("trial %d: every asked θ is taken already; asking again", trial.number)
             n_ask, skip = 2, 0
-        if chosen is None:
-            raise LatentuneError(f"{type(self).__name__}: the critic keeps proposing θ that are "
-                                 "in the study already")
+        if chosen is None:      # no trial is run twice: this one fails, the study stops
+            few = (f" ({len(taken)} θ in all): the latent space decodes the region the plain "
+                   "strategy searches to few θ; go on with strategy='transfer' (it searches the "
+                   "full θ box as well), or a latent space trained on more source trials"
+                   if getattr(self, "strategy", None) == "plain" else "")
+            raise LatentuneError(f"{type(self).__name__}: trial {trial.number}: the critic keeps "
+                                 f"proposing θ that are in the study already{few}")
         u, theta, z, tag = chosen
         if hasattr(critic, "state_dict"):
             st = critic.state_dict()
@@ -811,6 +815,13 @@ class LatentSampler(_CriticSampler, BaseSampler):
             warning.
         constraints_func: Optuna's ``trial -> sequence of floats``; a value > 0 is a fall.
         independent_sampler: for parameters outside the source's space.
+
+    The sampler never gives a trial a θ the study holds already (a finished, running or pruned
+    trial's): the critic's next point is taken instead. When the plain critic proposes only
+    such θ (a latent space that decodes to few θ), the trial fails with a LatentuneError that
+    says so and what to do, and ``study.optimize`` stops, rather than run one θ twice (the
+    phase run stores such a θ from its trial instead, ``info["same_as"]``; an Optuna trial
+    cannot be given a stored value).
 
     Raises :class:`~latentune.errors.LatentError` / ``StoreError`` for a source run without
     a latent space or parameter space.
