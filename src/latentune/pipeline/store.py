@@ -679,13 +679,13 @@ class RunStore:
                     break
                 for (i,) in self.con.execute(f"SELECT id FROM trials WHERE {q} ORDER BY id", args):
                     picks.append((int(i), True))
-            wait = ",".join(str(int(p)) for p in waits) or "NULL"
+            wait = ",".join(str(int(p)) for p in waits)
+            twin = (f" AND NOT (phase IN ({wait}) AND EXISTS (SELECT 1 FROM trials o WHERE "
+                    f"o.id<q.id AND o.phase IN ({wait}) AND o.theta=q.theta AND "
+                    "o.status IN ('queued', 'pending')))") if waits else ""
             for p in ph:
-                for (i,) in self.con.execute(
-                        "SELECT id FROM trials q WHERE status='queued' AND phase=? AND NOT ("
-                        f"phase IN ({wait}) AND EXISTS (SELECT 1 FROM trials o WHERE "
-                        f"o.id<q.id AND o.phase IN ({wait}) AND o.theta=q.theta AND "
-                        "o.status IN ('queued', 'pending'))) ORDER BY id", (p,)):
+                for (i,) in self.con.execute("SELECT id FROM trials q WHERE status='queued' AND "
+                                             f"phase=?{twin} ORDER BY id", (p,)):
                     picks.append((int(i), False))
             for i, again in picks[:int(n)]:
                 self.con.execute("UPDATE trials SET status='pending', asker=?, lease_until=? "
