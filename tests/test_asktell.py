@@ -458,16 +458,19 @@ def test_leases_expire_and_are_released(tmp_path):
 
 
 def test_a_second_tell_after_an_expired_lease_says_whose_result_stands(tmp_path, run_cli,
-                                                                      error_line):
+                                                                      error_line, caplog):
     """Alice's lease expired, bob was handed the suggestion and told it; alice's tell then said
     only "already told ... tell it again with --amend", which would silently overwrite bob's
     result. The refusal names the result that stands: its cost (and fall), note, when it was
-    told and to whom the suggestion was handed out then; the store is untouched."""
+    told and to whom the suggestion was handed out then; the store is untouched. Bob's ask
+    says whose expired lease it took over."""
     st = lt.Study(tmp_path / "s", seed=0)
     (a,) = st.ask(space=SPACE, asker="alice", lease_s=0.3)
     time.sleep(0.4)                                    # alice's lease expires
+    caplog.set_level(logging.WARNING, logger="latentune")
     (b,) = st.ask(asker="bob")
     assert b.id == a.id and b.again
+    assert f"suggestion {a.id} was handed out to alice, whose lease expired" in caplog.text
     st.tell(b.id, 2.5, failed=True, note="bob's run")
     with pytest.raises(StoreError, match="already told") as e:
         st.tell(a.id, 5.0)                             # alice's result, for the same θ

@@ -447,6 +447,13 @@ def ask(study: Any, n: int = 1, *, system: Any = None, space: ParameterSpace | N
                              "not handed out already: tell the pending suggestions first")
         if len(got) < int(n):
             warn_fewer(study, st, ctx.phase, ctx.options, len(got), int(n))
+        held = {t.id: t.asker for t in open_ if t.status == "pending"}
+        for t, _ in got:                    # taken over from another asker's expired lease
+            if held.get(t.id) not in (None, who):
+                log.warning("suggestion %d was handed out to %s, whose lease expired: if it "
+                            "runs there all the same, the first tell stands and the other is "
+                            "refused", t.id, "an asker without a name"
+                            if held[t.id] == DEFAULT_ASKER else held[t.id])
         risky = fall_risk(st, ctx.phase, ctx.options)
         return [Suggestion(t.id, t.phase, t.theta, ctx.space.as_dict(t.theta), t.z, again,
                            None, t.asker, t.lease_until, risky(t)) for t, again in got]
