@@ -1882,7 +1882,10 @@ def _error(msg: str) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line; return the exit status."""
+    """Run the command line; return the exit status. Without ``argv`` (the process's own
+    command line: the ``latentune`` script, ``python -m latentune.cli``) it returns with
+    SIGINT and SIGTERM ignored, for the process to exit with that status
+    (:func:`_exit_uninterrupted`); give ``argv`` to run a command within a program."""
     from latentune.threads import one_thread_env
     from latentune.wording import command_line_words
 
