@@ -883,7 +883,7 @@ class RunStore:
 
     def stored_order(self) -> list[tuple[int, int]]:
         """``(phase, idx)`` of every evaluation, in the order they were stored (SQLite's rowid:
-        an insert's, kept by an amendment; a phase's rows are stored in idx order)."""
+        an insert's, kept by an amendment)."""
         return [(int(p), int(i)) for p, i in
                 self.con.execute("SELECT phase, idx FROM evaluations ORDER BY rowid")]
 
