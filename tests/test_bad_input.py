@@ -705,7 +705,8 @@ def test_a_told_suggestion_cannot_be_told_again(capsys, asktell):
     capsys.readouterr()
     before = dump(d)
     assert_one_line(capsys, "tell", d, "1", "--cost", "0.4", expect="suggestion 1 was already told")
-    assert_one_line(capsys, "tell", d, "1", "--cost", "0.4", expect="That result stands; to replace it, tell it again with --amend")
+    assert_one_line(capsys, "tell", d, "1", "--cost", "0.4",
+                    expect="That result stands; to replace it, tell it again with --amend")
     assert dump(d) == before
 
 

@@ -42,8 +42,9 @@ handed out: :func:`_queue` stores it at once with that trial's outcome (``info["
 first in its batch, as the phase run stores it (:func:`~latentune.pipeline.phases.run_phase`'s
 ``reuse``); it counts in the budget in both. A θ the critic asks twice within a batch (or that
 another suggestion still out holds) waits, not handed out, and is told the first one's outcome
-as soon as that is told (:func:`tell_twins`), as the phase run stores it right after the first. A zero-shot θ the study holds a trial of is stored
-from it the same way (:func:`~latentune.pipeline.baselines.queue_zero_shot`).
+as soon as that is told (:func:`tell_twins`), as the phase run stores it right after the first.
+A zero-shot θ the study holds a trial of is stored from it the same way
+(:func:`~latentune.pipeline.baselines.queue_zero_shot`).
 
 Corrections
 -----------
