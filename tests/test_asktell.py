@@ -283,7 +283,7 @@ def decodes_coarse(monkeypatch) -> None:
 
 
 def test_a_theta_asked_twice_in_one_batch_runs_once_in_both_front_ends(
-        tmp_path, src_manual_best, decodes_coarse, monkeypatch):
+        tmp_path, src_manual_best, decodes_coarse, monkeypatch, caplog):
     """The plain phase 3 reused a θ the study held a trial of, but ran a θ asked twice within
     one batch twice (two trials on the target for one θ). The second is stored with the
     first's outcome once it is told (``reused``, ``same_as``), in the phase run and ask/tell
@@ -308,6 +308,8 @@ def test_a_theta_asked_twice_in_one_batch_runs_once_in_both_front_ends(
                     for r in phases.told_order(st.store.rows(Phase.PHASE3))]
     assert rows(tmp_path / "at") == rows(tmp_path / "run")
     assert sorted(ran_at) == sorted(ran_run)
+    caplog.set_level(logging.WARNING, logger="latentune")
+    seen_wait = False
     ran_4: list = []                    # asks of a whole batch (4): the second of a θ is not
     target = bowl(0.1, ran_4)           # handed out, and is told with the first
     with lt.Study(tmp_path / "at4", seed=1) as at:
@@ -321,9 +323,12 @@ def test_a_theta_asked_twice_in_one_batch_runs_once_in_both_front_ends(
                 assert "is told" in str(exc) and at.store.count(Phase.PHASE3) == 12
                 break
             assert len({s.theta.tobytes() for s in got}) == len(got)
+            if len(got) < 4 and at.store.trials("queued"):
+                assert "asked twice waits for the first one's result" in caplog.text
+                seen_wait = True
             for s in got:
                 at.tell(s.id, evaluate(target, s.theta).cost)
-    assert len(ran_4) == len(set(ran_4)), ran_4     # (asks of 4 reach into the next batch
+    assert len(ran_4) == len(set(ran_4)) and seen_wait, ran_4   # (asks of 4 reach into the
     twins = asktell.tell_twins                  # a kill after a tell, before its twins' tell
 
     def not_in_tell(*a):
@@ -334,7 +339,7 @@ def test_a_theta_asked_twice_in_one_batch_runs_once_in_both_front_ends(
     plain_by_asktell(tmp_path / "kill", tmp_path / "src", ran_k, 20, budget=12).close()
     assert len(ran_k) == len(set(ran_k)), ran_k   # the next ask told the twin, not handed it
     assert rows(tmp_path / "kill") == rows(tmp_path / "run")
-    with lt.Study(tmp_path / "at4") as at:            # when one was stored θ: other rows)
+    with lt.Study(tmp_path / "at4") as at:      # next batch when one was stored θ: other rows)
         assert at.store.count(Phase.PHASE3) == 12 and not at.store.trials("queued")
 
 
