@@ -484,8 +484,9 @@ def warn_fewer(study: Any, st: RunStore, phase: int, pc: dict[str, Any], got: in
            "out already")
     waiting = sum(1 for t in st.trials("queued") if t.phase == phase)
     if waiting and reuse_phases(phase, pc):     # queued, not handed out: twins (tell_twins)
-        why += (f"; {counted(waiting, 'θ', 'θ')} it asked twice {'waits' if waiting == 1 else 'wait'}"
-                " for the first one's result and will be told with it")
+        verb = "waits" if waiting == 1 else "wait"
+        why += (f"; {counted(waiting, 'θ', 'θ')} it asked twice {verb} for the first one's "
+                "result and will be told with it")
     log.warning("%s: handed out %d of the %d suggestions asked: %s", study.dir, got, n, why)
 
 
