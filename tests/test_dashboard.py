@@ -108,6 +108,36 @@ def test_export_phases_falls_and_suggestions(tmp_path):
     assert t1.user_attrs["suggestion"] == sug[1].id and t1.constraints == {"fall": 1.0, "0": 1.0}
 
 
+def test_preservation_rows_stored_between_two_polls_are_all_exported(tmp_path):
+    """The export took a phase's exported rows to be its first ``idx + 1`` (the last row's
+    idx), but a preservation row's idx is its phase-1 row's, and a phase-1 trial that fell
+    has none: with a poll between two preservation trials, 10 of 27 rows of a run were shown.
+    Every stored row is exported once, whatever its idx."""
+    run = run_dir(tmp_path, 12)
+    with lt.Study(run) as s:
+        s.train_latent(latent_dim=2, epochs=20)
+    exp = RunExport(run)
+    exp.sync()
+    system = lt.FunctionSystem(space(), plant)
+
+    class Polled:                       # the dashboard's poll before each preservation trial
+        space = system.space
+
+        def evaluate(self, u):
+            exp.sync()
+            return system.evaluate(u)
+
+    with lt.Study(run) as s:
+        s.preservation(Polled(), run)
+        stored = [r.idx for r in s.store.rows(Phase.PRESERVATION)]
+        p1 = s.store.rows(Phase.PHASE1)
+    assert any(r.fell for r in p1[:-1])                 # the premise: a gap in the idx
+    exp.sync()
+    assert exp.sync() == 0
+    shown = optuna.load_study(study_name="run/preservation", storage=exp.storage).trials
+    assert sorted(t.user_attrs["idx"] for t in shown) == stored
+
+
 def test_the_dashboard_serves_a_fall_as_an_infeasible_trial(tmp_path):
     """A fall was exported only as Optuna's named constraint ``constraints:fall``, which
     optuna-dashboard does not read (its pages take the ``constraints`` list): the served trials

@@ -26,7 +26,8 @@ The export (:class:`RunExport`)
   layout: its task's); a store holding trials without either (another layout's) is refused
   with a StoreError saying so, instead of an export that stays empty;
 * the store is read again every ``interval`` seconds (a new SQLite connection each time, read
-  only: the run's writer is never blocked for long); rows already exported are not read twice.
+  only: the run's writer is never blocked for long); a phase whose row count has not grown is
+  not read again, and a row is exported once, whatever its idx (preservation rows have gaps).
 
 The exported storage is in memory, or an Optuna journal file with ``journal=`` (a new file).
 """
@@ -86,7 +87,8 @@ class RunExport:
         self.storage = storage if storage is not None else optuna.storages.InMemoryStorage()
         self.name = self.dir.resolve().name
         self._study_ids: dict[int, int] = {}
-        self._done: dict[int, int] = {}                 # phase -> rows exported
+        self._done: dict[int, set[int]] = {}            # phase -> idx exported (a
+        # preservation row's idx is its phase-1 row's: a phase's idx may have gaps)
         self._running: dict[int, int] = {}              # store suggestion id -> Optuna trial id
         self._space: ParameterSpace | None = None
         self._lock = threading.Lock()
@@ -123,12 +125,13 @@ class RunExport:
                 dists = distributions_of(space)
                 n = 0
                 for ph in Phase:
-                    start = self._done.get(int(ph), 0)
-                    if st.count(ph) <= start:
+                    done = self._done.setdefault(int(ph), set())
+                    if st.count(ph) <= len(done):
                         continue
-                    for r in st.rows(ph)[start:]:
-                        n += self._add_row(int(ph), r, space, dists)
-                        self._done[int(ph)] = r.idx + 1
+                    for r in st.rows(ph):
+                        if r.idx not in done:
+                            n += self._add_row(int(ph), r, space, dists)
+                            done.add(r.idx)
                 status = {t.id: t.status for t in st.trials()}
                 for sid in [i for i in self._running if status.get(i) == "dropped"]:
                     otid = self._running.pop(sid)         # discarded unseen: it will not be told
