@@ -22,7 +22,7 @@ from latentune.reporting.metrics import (best_so_far, evals_to_beat, fall_count,
 from latentune.reporting.paper_report import write_paper_report
 from latentune.reporting.plots import CurvePanel, plot_best_so_far
 from latentune.reporting.run_report import (comparison_table, handover_stats, make_report,
-                                             write_summary)
+                                             state_lines, write_summary)
 
 TASK = {"robot": "a1", "gait": "trot", "terrain": "flat", "actor": "convex",
         "v_des": [0.5, 0.0, 0.0], "steps": 2500, "seed": 0, "dim": 3}
@@ -658,6 +658,32 @@ def test_a_phase1_run_shows_no_phase3_row(tmp_path: Path, run_cli):
     with RunStore(d) as st:
         st.set_meta("config", dict(st.get_meta("config"), vae={"d_low": 2}))
         assert _row(comparison_table(st), "phase 3")[2] == "0"
+
+
+def test_a_tune_run_stopped_before_phase3_says_phase3_is_to_come(tmp_path: Path, run_cli):
+    """A ``tune`` run stopped (Ctrl-C) while it trained its latent space holds phase 1 and the
+    plan of its phase 3, but no latent space and no phase-3 record: ``latentune report``
+    showed the table and lines of a finished ``phase1`` run, nothing of the 30 phase-3 trials
+    still to come. Its table now has the empty phase-3 row, and a line says phase 3 has not
+    started, how many trials it plans and the command that goes on."""
+    d = tmp_path / "run"
+    code, _, err = run_cli("phase1", "--system", "examples.toy_plant:make_system", "--out", d,
+                           "--phase1-evals", "4", "--backend", "serial", "--quiet")
+    assert code == 0, err
+    with RunStore(d) as st:         # as tune records its plan before phase 1 runs
+        st.set_meta("config", dict(st.get_meta("config"), command="tune",
+                                   tune={"phase3_evals": 30}))
+    code, out, err = run_cli("report", d, "--no-sim", "--quiet")
+    assert code == 0, err
+    assert _row(out, "phase 3")[1:3] == ["–", "0"], out
+    md = (d / "report.md").read_text()
+    assert ("Phase 3 has not started: the tune run plans 30 trials. If it stopped, the command "
+            f"that ran it goes on: `latentune tune … --out {d} --resume` (it trains the latent "
+            "space, then runs phase 3).") in md, md
+    with RunStore(d) as st:         # its latent space trained: phase 3 alone is to come
+        st.set_meta("config", dict(st.get_meta("config"), vae={"d_low": 2}))
+        lines = state_lines(st, st.get_meta("config"))
+    assert any("`latentune tune … --out" in ln and "(it runs phase 3)" in ln for ln in lines)
 
 
 def test_a_phase3_not_started_is_not_labelled_with_a_strategy(tmp_path: Path, run_cli):

@@ -249,8 +249,9 @@ def comparison_table(store: Any, manual: list | None = None) -> str:
     manual θ (:func:`beats_manual`: 1-based, the phase's own); the paper's numbers below it when it
     has the task. A phase without trials has a row of zeros while no later phase holds trials
     (it is still to come), and none after that (it is not part of this run); phase 3 only once
-    it can come: the run holds its options record or a latent space (a ``phase1`` run is
-    complete without it; a ``tune`` run that stopped before phase 3 has it to come); in an
+    it can come: the run holds its options record, a latent space or a ``tune`` plan (a
+    ``phase1`` run is complete without it; a ``tune`` run that stopped before phase 3 has it
+    to come); in an
     ask/tell store, only when it is a phase of its ask/tell phase (:data:`ASKTELL_PHASES`); in
     an Optuna import's, phase 1's only (phase 3's too once a phase 3 is recorded).
     ``manual``: the manual θ's trials, as :func:`run_stats` takes them."""
@@ -260,7 +261,8 @@ def comparison_table(store: Any, manual: list | None = None) -> str:
     rms = t is not None
     asked = (cfg.get("asktell") or {}).get("phase")
     runs = ASKTELL_PHASES.get(int(asked), ()) if asked is not None else TABLE_PHASES
-    if asked is None and not (cfg.get("phase3") or cfg.get("vae")):    # phase 1 alone
+    if asked is None and not (cfg.get("phase3") or cfg.get("vae")) and \
+            cfg.get("tune") is None:            # phase 1 alone (a tune run plans phase 3)
         runs = (Phase.MANUAL, Phase.PHASE1)
     if (cfg.get("system") or {}).get("kind") == "optuna":      # an import: phase 1 alone,
         runs = (Phase.PHASE1,) + (ASKTELL_PHASES[Phase.PHASE3] if cfg.get("phase3") else ())
@@ -504,7 +506,8 @@ def resume_hint(store: Any, cfg: dict[str, Any], phase: int) -> str:
 
 def state_lines(store: Any, cfg: dict[str, Any]) -> list[str]:
     """What the tables do not show about a run's state: a phase with fewer trials than its
-    budget (stopped, still running, or stopped by its fall budget; :func:`resume_hint`),
+    budget (stopped, still running, or stopped by its fall budget; :func:`resume_hint`), a
+    ``tune`` run's phase 3 not started (stopped in or after phase 2),
     suggestions handed out to ask/tell and not told, and amended results. Empty for a
     finished run."""
     lines = []
@@ -515,6 +518,16 @@ def state_lines(store: Any, cfg: dict[str, Any]) -> list[str]:
             label = phase_label(phase, cfg)
             lines.append(f"{label[0].upper()}{label[1:]} holds {counted(n, 'trial')} of "
                          f"its budget of {int(budget)}." + resume_hint(store, cfg, phase))
+    p1 = (cfg.get("phase1") or {}).get("budget")
+    if cfg.get("tune") is not None and not cfg.get("phase3") and not store.count(Phase.PHASE3) \
+            and not (p1 and store.count(Phase.PHASE1) < int(p1)):   # else said with phase 1's
+        planned = cfg["tune"].get("phase3_evals")
+        plan = f": the tune run plans {counted(planned, 'trial')}" if planned else ""
+        then = "it runs phase 3" if cfg.get("vae") else \
+            "it trains the latent space, then runs phase 3"
+        lines.append(f"Phase 3 has not started{plan}. If it stopped, the command that ran it "
+                     f"goes on: `latentune tune … --out {shlex.quote(str(store.dir))} "
+                     f"--resume` ({then}).")
     out = len(store.trials("pending"))
     if out:
         lines.append(f"{out} suggestion{'s are' if out != 1 else ' is'} handed out to ask/tell "
