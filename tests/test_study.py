@@ -889,6 +889,31 @@ def test_a_run_killed_inside_a_phase_reports_its_real_wall_time(tmp_path):
         assert s["wall_s"] is None and s["wall_unknown"] == ["phase1"]
 
 
+def test_a_phase_s_wall_time_counts_its_manual_and_zero_shot_trials(tmp_path, user_sim):
+    """A phase's wall time began after its manual θ's trial (and phase 3's zero-shot trial)
+    had run, though phase 1's first row is that trial and phase 3's target budget counts both:
+    a phase 1 of a 0.3 s trial reported 0.6 s for 3 trials (0.9 s of trials), and a slow
+    manual trial (5 s) left the report's wall time at 2 s for an 8 s run. The phase's time
+    now holds them."""
+    from latentune.reporting.run_report import write_summary
+
+    def slow(x: np.ndarray) -> float:
+        time.sleep(0.3)
+        return float(np.sum((x - 0.2) ** 2))
+
+    import myplant
+
+    space = myplant.make(8).space
+    with lt.Study(tmp_path / "p1", seed=0) as s:
+        s.phase1(lt.FunctionSystem(space, slow), 3, method="random")
+        assert write_summary(s.store)["wall_by_phase_s"]["phase1"] >= 0.9
+    shutil.copytree(user_sim[0], tmp_path / "sim")
+    with lt.Study(tmp_path / "p3", seed=0) as s:      # manual, zero-shot and 2 phase-3 trials
+        s.phase3(lt.FunctionSystem(space, slow), 2, latent=tmp_path / "sim", strategy="plain")
+        assert s.store.count(Phase.MANUAL) == s.store.count(Phase.ZERO_SHOT) == 1
+        assert write_summary(s.store)["wall_by_phase_s"]["phase3"] >= 1.2
+
+
 def test_a_phase_run_cannot_lower_the_budget_it_stored(tmp_path, run_cli, error_line):
     """``Study.phase1(system, 8)`` (``phase1 --phase1-evals 8 --resume``) on a phase 1 of 20
     trials recorded a budget of 8 with 20 trials stored, silently: a later ask said "phase 1's

@@ -200,10 +200,10 @@ class Study:
             pc = check_phase1_runs(self.run, self.manifest, pc)
             self.manifest.update(phase1=pc, **(record or {}))
             self.manifest.record_run(self.seed)
-            manual = ensure_manual(st, system, self.seed, self.evaluator())
-            self.log(f"manual θ: cost {manual:.3f}")
-            critic = phase_critic(Phase.PHASE1, pc, system.space, self.dir)
-            with self.manifest.timing("phase1"):
+            with self.manifest.timing("phase1"):       # its first row is the manual trial
+                manual = ensure_manual(st, system, self.seed, self.evaluator())
+                self.log(f"manual θ: cost {manual:.3f}")
+                critic = phase_critic(Phase.PHASE1, pc, system.space, self.dir)
                 res = run_phase(st, Phase.PHASE1, system, critic, pc["budget"], self.evaluator(),
                                 seed=self.seed, progress=self.progress, max_new=max_new,
                                 known=manual_outcome(st, system))
@@ -265,22 +265,22 @@ class Study:
             record_latent(self.run, self.manifest, ls, source)
             self.manifest.update(phase3=pc)
             self.manifest.record_run(self.seed)
-            if strategy == "plain" or source == "self":     # transfer: the manual θ is a candidate
-                manual = ensure_manual(st, system, self.seed, self.evaluator())
-                self.log(f"manual θ: cost {manual:.3f}")
-            zs = baselines.zero_shot(st, system, source, self.seed, self.evaluator())
-            if zs is not None:
-                self.log(f"zero-shot (the source's best θ as it is): cost {zs:.3f}")
-            critic = phase_critic(Phase.PHASE3, pc, system.space, self.dir, ls)
-            try:
-                with self.manifest.timing("phase3"):
+            with self.manifest.timing("phase3"):        # the target's trials, these two too
+                if strategy == "plain" or source == "self":  # transfer: the manual θ a candidate
+                    manual = ensure_manual(st, system, self.seed, self.evaluator())
+                    self.log(f"manual θ: cost {manual:.3f}")
+                zs = baselines.zero_shot(st, system, source, self.seed, self.evaluator())
+                if zs is not None:
+                    self.log(f"zero-shot (the source's best θ as it is): cost {zs:.3f}")
+                critic = phase_critic(Phase.PHASE3, pc, system.space, self.dir, ls)
+                try:
                     res = run_phase(st, Phase.PHASE3, system, critic, pc["budget"],
                                     self.evaluator(), decoder=decoder_of(pc, ls), seed=self.seed,
                                     progress=self.progress, max_new=max_new, strategy=strategy,
                                     reuse=reuse_phases(Phase.PHASE3, pc))
-            finally:
-                if pc["handover"] is not None:
-                    self.manifest.update(phase3_handover=critic.rule())
+                finally:
+                    if pc["handover"] is not None:
+                        self.manifest.update(phase3_handover=critic.rule())
             results.write_best(st, self.dir, system.space, Phase.PHASE3)
             self.log(res.line() + stop_note(critic, res.n, pc["budget"], res.not_run, res.asked))
             return res
