@@ -901,6 +901,22 @@ def test_the_best_cost_figure_says_the_manual_theta_fell(tmp_path: Path, monkeyp
         assert ("manual θ (6.000)" in texts) == (not fell), texts
 
 
+def test_the_best_cost_figure_says_the_zero_shot_trial_fell(tmp_path: Path, monkeypatch):
+    """A zero-shot trial that fell was drawn in phase 3's panel as the reference line
+    "zero-shot (source best θ) (200.000)", as if 200 were a cost to beat (the manual θ's line
+    says it fell); its legend entry says it fell too. One that stood keeps its cost."""
+    seen = _legends(monkeypatch)
+    for fell in (True, False):
+        with RunStore(tmp_path / f"run{fell}", create=True) as st:
+            st.set_meta("config", {"system": {"kind": "user"}, "phase3": {"strategy": "transfer"}})
+            st.add(Phase.ZERO_SHOT, 0, np.zeros(3), 200.0 if fell else 6.0, fell=fell, tag=-1)
+            _fill(st, Phase.PHASE3, [7.0, 5.0])
+            make_report(st, simulate=False, quiet=True)
+        texts = seen[-1]
+        assert ("zero-shot (source best θ), fell (200.000)" in texts) == fell, texts
+        assert ("zero-shot (source best θ) (6.000)" in texts) == (not fell), texts
+
+
 @pytest.mark.parametrize("manual_fell", [False, True])
 def test_evals_to_beat_manual_counts_the_phases_own_trials_from_1_in_every_report(
         tmp_path: Path, manual_fell: bool):

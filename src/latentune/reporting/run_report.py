@@ -391,14 +391,15 @@ def write_summary(store: Any, manual: list | None = None) -> dict[str, Any]:
 
 def _curve_panels(store: Any, cfg: dict[str, Any], manual_trials: list) -> list:
     """One best-cost panel per tuned phase (phase 1, phase 3), each on its own evaluation axis,
-    with the cost of the manual θ's trials ``manual_trials`` as a reference line, labelled
-    "manual θ, fell" when every one of them fell (its cost is no cost to beat: any trial that
-    stands beats it)."""
+    with the cost of the manual θ's trials ``manual_trials`` as a reference line (phase 3's
+    also the zero-shot trial's), labelled "manual θ, fell" ("zero-shot (source best θ), fell")
+    when every one of them fell (its cost is no cost to beat: any trial that stands beats it)."""
     from latentune.reporting.plots import CurvePanel
 
     manual = phase_stats([r.cost for r in manual_trials])["best"]
     fell = bool(manual_trials) and all(r.fell for r in manual_trials)
     zero = phase_stats(store.costs(Phase.ZERO_SHOT))["best"]
+    zero_fell = bool(store.count(Phase.ZERO_SHOT)) and bool(store.fell(Phase.ZERO_SHOT).all())
     panels = []
     for ph in (Phase.PHASE1, Phase.PHASE3):
         rows = store.rows(ph)
@@ -407,7 +408,7 @@ def _curve_panels(store: Any, cfg: dict[str, Any], manual_trials: list) -> list:
         label = phase_label(ph, cfg)
         refs: dict[str, float | None] = {"manual θ, fell" if fell else "manual θ": manual}
         if ph == Phase.PHASE3 and zero is not None:
-            refs["zero-shot (source best θ)"] = zero
+            refs["zero-shot (source best θ)" + (", fell" if zero_fell else "")] = zero
         panels.append(CurvePanel(f"{label}: {counted(len(rows), 'evaluation')}",
                                  {label: [r.cost for r in rows]}, refs,
                                  {label: [r.fell for r in rows]}))
