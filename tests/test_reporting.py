@@ -917,6 +917,38 @@ def test_the_best_cost_figure_says_the_zero_shot_trial_fell(tmp_path: Path, monk
         assert ("zero-shot (source best θ) (6.000)" in texts) == (not fell), texts
 
 
+def test_the_best_cost_axis_of_a_panel_where_no_trial_stood_names_its_scale(
+        tmp_path: Path, monkeypatch):
+    """Where no trial of a phase stood, the best-so-far axis shows only the reference lines
+    on a log axis (ticks 0.1, 0.2, 0.5, 1), yet its label said "best cost so far (linear,
+    zoomed)". The label names the scale drawn: log there, linear and zoomed where a trial
+    stood."""
+    from matplotlib.figure import Figure
+
+    labels: list[str] = []
+    save = Figure.savefig
+    monkeypatch.setattr(Figure, "savefig", lambda fig, *a, **k: (
+        labels.append(fig.axes[1].get_ylabel()), save(fig, *a, **k))[1])
+    for stood in (False, True):
+        with RunStore(tmp_path / f"run{stood}", create=True) as st:
+            st.set_meta("config", {"system": {"kind": "user"}})
+            st.add(Phase.MANUAL, 0, np.zeros(3), 0.36, fell=True, tag=-1)
+            st.add(Phase.PHASE1, 0, np.zeros(3), 0.36, fell=True, tag=-1)
+            st.add(Phase.PHASE1, 1, np.ones(3), 3.0, fell=not stood, tag=-1)
+            make_report(st, simulate=False, quiet=True)
+        assert labels[-1] == ("best cost so far (linear, zoomed)" if stood
+                              else "best cost so far (log)"), labels
+    from latentune.reporting.plots import CurvePanel, plot_best_so_far
+
+    shown: list = []                 # two columns: the second's own scale is named too
+    monkeypatch.setattr(Figure, "savefig", lambda fig, *a, **k: shown.append(
+        [ax.get_ylabel() for ax in fig.axes[2:]]))
+    plot_best_so_far([CurvePanel("a", {"a": [2.0, 1.0]}, {"m": 3.0}),
+                      CurvePanel("b", {"b": [5.0, 4.0]}, {"m": 3.0}, {"b": [True, True]})],
+                     tmp_path / "two.png")
+    assert shown == [["best cost so far (linear, zoomed)", "best cost so far (log)"]]
+
+
 @pytest.mark.parametrize("manual_fell", [False, True])
 def test_evals_to_beat_manual_counts_the_phases_own_trials_from_1_in_every_report(
         tmp_path: Path, manual_fell: bool):

@@ -122,7 +122,8 @@ def plot_best_so_far(panels: Sequence[CurvePanel] | CurvePanel, path: str | Path
     legend's "best C at k" names evaluation k so). Bottom row: the best cost so far of the trials that did not fail (none before the
     first one that stood) on a linear axis zoomed from the best cost found to the panel's
     highest reference (falls at 100–200 and early costs above the zoom leave it through the
-    top; a panel where no trial stood and without a reference says so). Empty curves are
+    top; where no trial stood, the references alone on a log axis, or a panel without one
+    says so; the axis label names the scale). Empty curves are
     skipped; a figure with no curve raises ``ValueError``.
     """
     if isinstance(panels, CurvePanel):
@@ -138,6 +139,7 @@ def plot_best_so_far(panels: Sequence[CurvePanel] | CurvePanel, path: str | Path
     fig, axes = plt.subplots(2, ncol, figsize=(max(7.0, 5.8 * ncol), 7.0 + 0.17 * nleg),
                              squeeze=False,
                              sharex="col", gridspec_kw={"height_ratios": [1.0, 1.5]})
+    first_bot = ""                              # the first column's best-so-far scale
     for j, p in enumerate(panels):
         top, bot = axes[0, j], axes[1, j]
         bests, stables, shown, nmax = [], [], [], 1     # nmax: the longest curve's length
@@ -172,8 +174,9 @@ def plot_best_so_far(panels: Sequence[CurvePanel] | CurvePanel, path: str | Path
         scale = _log_axis(top, np.concatenate(shown + [np.array(list(refs.values()))]))
         top.set_title(p.title, fontsize=10)
         lim = _zoom(bests, stables, [v for v in refs.values() if v < C1])
+        bot_scale = "linear, zoomed"
         if lim is None:
-            _log_axis(bot, list(refs.values()))
+            bot_scale = _log_axis(bot, list(refs.values()))
             if not refs:     # nothing to draw: no trial stood and no reference cost
                 bot.text(0.5, 0.5, "no trial stood: no best cost so far", transform=bot.transAxes,
                          ha="center", va="center", fontsize=9, color="0.3")
@@ -187,7 +190,9 @@ def plot_best_so_far(panels: Sequence[CurvePanel] | CurvePanel, path: str | Path
         top.grid(alpha=0.3)
         if j == 0 or scale == "linear":
             top.set_ylabel(f"cost of each evaluation\n(· stable, × fell; {scale})")
-            bot.set_ylabel("best cost so far (linear, zoomed)")
+        if j == 0 or bot_scale != first_bot:        # a column's own scale is named
+            bot.set_ylabel(f"best cost so far ({bot_scale})")
+        first_bot = bot_scale if j == 0 else first_bot
     if title:
         fig.suptitle(title)
     fig.tight_layout()
