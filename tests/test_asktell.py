@@ -226,6 +226,31 @@ def test_the_plain_phase_3_runs_the_manual_theta_once_when_it_is_the_sources_bes
     assert "not run again" in caplog.text
 
 
+def test_status_report_and_summary_say_which_trials_were_not_run_again(
+        tmp_path, src_manual_best, decodes_manual, run_cli):
+    """The plain phase 3 stores its zero-shot trial and its decoded start with the manual θ's
+    outcome (one trial on the target, three rows); status said "phase 3: 6 trials", the
+    report "6 evaluations" and the three rows' falls as three, without a word that two were
+    never run. The rows still count (the budget counts them), and status, report.md and
+    summary.json say how many of each phase's trials repeat a stored trial."""
+    shutil.copytree(src_manual_best, tmp_path / "src")
+    with lt.Study(tmp_path / "run", seed=1) as run:
+        run.phase3(bowl(0.1), 6, latent=tmp_path / "src", strategy="plain")
+        st = run.status()
+    assert st["phases"]["phase 3"]["reused"] == 1 and st["phases"]["zero-shot"]["reused"] == 1
+    assert st["phases"]["manual"]["reused"] == 0 and st["phases"]["phase 3"]["n"] == 6
+    code, out, err = run_cli("status", tmp_path / "run")
+    assert code == 0, err
+    assert "phase 3: 6 trials (1 repeats a stored trial, not run again), 0 failed" in out, out
+    assert run_cli("report", tmp_path / "run", "--no-sim")[0] == 0
+    md = (tmp_path / "run" / "report.md").read_text()
+    assert ("Phase 3 (latent, TuRBO-m): 1 of its 6 trials repeats the θ of a stored trial, "
+            "stored with that trial's outcome, not run again; the table counts it.") in md, md
+    assert "Zero-shot (source best θ): its trial repeats the θ of a stored trial" in md, md
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert (summary["phase3_reused"], summary["phase3_evals"]) == (1, 6)
+
+
 def test_ask_tell_never_hands_out_a_told_theta_as_the_plain_phase_3s_start(
         tmp_path, src_manual_best, decodes_manual):
     """Ask/tell's plain phase 3 handed out the zero-shot θ (the source's best, here the manual
@@ -849,8 +874,8 @@ def test_status_names_phases_and_counts_the_zero_shot_trial(tmp_path, src30):
         st.tell(sugg[2].id, None, failed=True)
         s = st.status()
         assert set(s["phases"]) == {"zero-shot", "phase 3"}
-        assert s["phases"]["phase 3"] == {"n": 2, "failed": 1, "pending": 0, "best": 0.5,
-                                          "best_idx": 0, "best_trial": sugg[1].id}
+        assert s["phases"]["phase 3"] == {"n": 2, "failed": 1, "pending": 0, "reused": 0,
+                                          "best": 0.5, "best_idx": 0, "best_trial": sugg[1].id}
         assert s["best"]["phase"] == "zero-shot" and s["best"]["trial"] == sugg[0].id
         assert json.loads(Path(s["best"]["params_file"]).read_text()) == sugg[0].params
         assert st.best().phase == Phase.ZERO_SHOT

@@ -1361,7 +1361,10 @@ def cmd_status(args: argparse.Namespace) -> int:
             if p["best"] is None else (
             f"best {p['best']:.6g} (evaluation {p['best_idx']}"
             + (f", suggestion {p['best_trial']}" if p.get("best_trial") is not None else "") + ")")
-        print(f"{name}: {counted(p['n'], 'trial')}, {p['failed']} failed, "
+        k = p.get("reused") or 0         # stored with a stored trial's outcome, not run
+        again = f" ({k} {'repeat' if k > 1 else 'repeats'} a stored trial, not run again)" \
+            if k else ""
+        print(f"{name}: {counted(p['n'], 'trial')}{again}, {p['failed']} failed, "
               f"{p['pending']} pending; {best}")
     dec = s.get("decisions")
     if dec:

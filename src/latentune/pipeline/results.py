@@ -84,6 +84,14 @@ def phases_arg(phases: Any) -> tuple[Phase, ...]:
     return tuple(out)
 
 
+def reused_count(rows: list[Row]) -> int:
+    """How many of ``rows`` repeat the θ of a stored trial and were stored with its outcome,
+    not run again (``info["reused"]``: phase 1's first row, the manual θ's trial; a plain phase
+    3's decoded start or a zero-shot θ the study held a trial of). They count in the phase's
+    trials and budget; their falls are that trial's."""
+    return sum(1 for r in rows if r.info.get("reused"))
+
+
 def best_row(store: RunStore, phases: tuple[int, ...] = TUNING) -> Row | None:
     """The stored trial of ``phases`` with the lowest cost among those that did not fail (ties:
     earlier phase, then idx); None if every one failed or there is none."""
@@ -253,9 +261,10 @@ def status(store: RunStore, run_dir: Path, config: dict[str, Any] | None = None
            ) -> dict[str, Any]:
     """The status of a study for the person at the robot (JSON-able).
 
-    ``phases``: by name, each ``{n, failed, pending, best, best_idx, best_trial}`` (told
-    trials, how many failed, suggestions handed out and not told, the best cost that did not
-    fail, its row and suggestion id); ``pending``: the ids handed out and not told, with
+    ``phases``: by name, each ``{n, failed, pending, reused, best, best_idx, best_trial}``
+    (told trials, how many failed, suggestions handed out and not told, how many of the
+    trials repeat a stored trial's θ and were stored with its outcome, not run again
+    (:func:`reused_count`), the best cost that did not fail, its row and suggestion id); ``pending``: the ids handed out and not told, with
     ``leases`` (id → asker, seconds left); ``queued``: asked from the critic, not handed out;
     ``told``: suggestions told; ``amended``: corrections; ``best``: the best trial over all
     phases (zero-shot included) with ``phase``, ``idx``, ``trial``, ``cost`` and
@@ -275,6 +284,7 @@ def status(store: RunStore, run_dir: Path, config: dict[str, Any] | None = None
         b = min(ok, key=lambda r: (r.cost, r.idx)) if ok else None
         out["phases"][phase_name(ph)] = {
             "n": len(rows), "failed": sum(r.fell for r in rows), "pending": n_pending,
+            "reused": reused_count(rows),
             "best": None if b is None else b.cost, "best_idx": None if b is None else b.idx,
             "best_trial": None if b is None else _trial_id(b)}
     out["pending"] = [t.id for t in pending]

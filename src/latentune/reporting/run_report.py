@@ -329,7 +329,10 @@ def write_summary(store: Any, manual: list | None = None) -> dict[str, Any]:
     ``phase3_best`` (the best trial that did not fail; None if none stood),
     ``phase3_vs_phase1`` (``phase3_best / phase1_best`` when both are positive, else None:
     :func:`best_ratio`); counts: ``phase{1,3}_evals``, ``phase{1,3}_stable``,
-    ``phase{1,3}_falls``, ``phase{1,3}_evals_to_beat_manual`` (the first evaluation, 1-based,
+    ``phase{1,3}_falls``, ``phase{1,3}_reused`` (of the evaluations, those stored with a
+    stored trial's outcome, not run again: :func:`~latentune.pipeline.results.reused_count`;
+    phase 1's first, the manual θ's trial, is one), ``phase{1,3}_evals_to_beat_manual`` (the
+    first evaluation, 1-based,
     that did not fail and beat the manual θ: strictly below its cost, or any that did not fail
     when the manual θ failed; None if never or without a manual trial);
     ``rms_velocity_error_m_s`` (per phase, the best θ's RMS velocity error [m/s]; None for a
@@ -344,6 +347,8 @@ def write_summary(store: Any, manual: list | None = None) -> dict[str, Any]:
     the task or None), ``phase3_handover`` (:func:`handover_stats`), ``written`` (unix time).
     ``manual``: the manual θ's trials, as :func:`run_stats` takes them.
     """
+    from latentune.pipeline.results import reused_count
+
     cfg = store.get_meta("config") or {}
     wall, wall_unknown = wall_record(store)
     arts = store.get_meta("artifacts", {}) or {}
@@ -368,6 +373,8 @@ def write_summary(store: Any, manual: list | None = None) -> dict[str, Any]:
         "phase3_stable": p3["stable"],
         "phase1_falls": p1["falls"],
         "phase3_falls": p3["falls"],
+        "phase1_reused": reused_count(store.rows(Phase.PHASE1)),
+        "phase3_reused": reused_count(store.rows(Phase.PHASE3)),
         "phase1_evals_to_beat_manual": p1["evals_to_beat"],
         "phase3_evals_to_beat_manual": p3["evals_to_beat"],
         "phase3_vs_phase1": best_ratio(p3["best"], p1["best"]),
@@ -508,7 +515,9 @@ def resume_hint(store: Any, cfg: dict[str, Any], phase: int) -> str:
 def state_lines(store: Any, cfg: dict[str, Any]) -> list[str]:
     """What the tables do not show about a run's state: a phase with fewer trials than its
     budget (stopped, still running, or stopped by its fall budget; :func:`resume_hint`), a
-    ``tune`` run's phase 3 not started (stopped in or after phase 2),
+    ``tune`` run's phase 3 not started (stopped in or after phase 2), zero-shot and phase-3
+    trials stored with a stored trial's outcome, not run again
+    (:func:`~latentune.pipeline.results.reused_count`),
     suggestions handed out to ask/tell and not told, and amended results. Empty for a
     finished run."""
     lines = []
@@ -529,6 +538,20 @@ def state_lines(store: Any, cfg: dict[str, Any]) -> list[str]:
         lines.append(f"Phase 3 has not started{plan}. If it stopped, the command that ran it "
                      f"goes on: `latentune tune … --out {shlex.quote(str(store.dir))} "
                      f"--resume` ({then}).")
+    from latentune.pipeline.results import reused_count
+
+    for phase in (Phase.ZERO_SHOT, Phase.PHASE3):   # phase 1's: its first, the manual θ's
+        rows = store.rows(phase) if store.count(phase) else []
+        k = reused_count(rows)
+        if k:
+            fell = sum(1 for r in rows if r.info.get("reused") and r.fell)
+            label = phase_label(phase, cfg)
+            which = "its trial repeats" if len(rows) == 1 else \
+                f"{k} of its {len(rows)} trials {'repeat' if k > 1 else 'repeats'}"
+            falls = "" if not fell else " (a fall)" if k == 1 else f" ({counted(fell, 'fall')})"
+            lines.append(f"{label[0].upper()}{label[1:]}: {which} the θ of a stored trial, "
+                         f"stored with that trial's outcome{falls}, not run again; the table "
+                         f"counts {'them' if k > 1 else 'it'}.")
     out = len(store.trials("pending"))
     if out:
         lines.append(f"{out} suggestion{'s are' if out != 1 else ' is'} handed out to ask/tell "
