@@ -264,8 +264,8 @@ def status(store: RunStore, run_dir: Path, config: dict[str, Any] | None = None
     ``phases``: by name, each ``{n, failed, pending, reused, best, best_idx, best_trial}``
     (told trials, how many failed, suggestions handed out and not told, how many of the
     trials repeat a stored trial's θ and were stored with its outcome, not run again
-    (:func:`reused_count`), the best cost that did not fail, its row and suggestion id); ``pending``: the ids handed out and not told, with
-    ``leases`` (id → asker, seconds left); ``queued``: asked from the critic, not handed out;
+    (:func:`reused_count`), the best cost that did not fail, its row and suggestion id);
+    ``pending``: the ids handed out and not told, with ``leases`` (id → asker, seconds left); ``queued``: asked from the critic, not handed out;
     ``told``: suggestions told; ``amended``: corrections; ``best``: the best trial over all
     phases (zero-shot included) with ``phase``, ``idx``, ``trial``, ``cost`` and
     ``params_file`` (``DIR/best.json`` when written) -- or None; ``decisions``: the phase-3
