@@ -241,7 +241,7 @@ def test_status_report_and_summary_say_which_trials_were_not_run_again(
     assert st["phases"]["manual"]["reused"] == 0 and st["phases"]["phase 3"]["n"] == 6
     code, out, err = run_cli("status", tmp_path / "run")
     assert code == 0, err
-    assert "phase 3: 6 trials (1 repeats a stored trial, not run again), 0 failed" in out, out
+    assert "phase 3: 6 of 6 trials (1 repeats a stored trial, not run again), 0 failed" in out, out
     assert run_cli("report", tmp_path / "run", "--no-sim")[0] == 0
     md = (tmp_path / "run" / "report.md").read_text()
     assert ("Phase 3 (latent, TuRBO-m): 1 of its 6 trials repeats the θ of a stored trial, "
@@ -874,8 +874,9 @@ def test_status_names_phases_and_counts_the_zero_shot_trial(tmp_path, src30):
         st.tell(sugg[2].id, None, failed=True)
         s = st.status()
         assert set(s["phases"]) == {"zero-shot", "phase 3"}
-        assert s["phases"]["phase 3"] == {"n": 2, "failed": 1, "pending": 0, "reused": 0,
-                                          "best": 0.5, "best_idx": 0, "best_trial": sugg[1].id}
+        assert s["phases"]["phase 3"] == {"n": 2, "budget": 200, "failed": 1, "pending": 0,
+                                          "reused": 0, "best": 0.5, "best_idx": 0,
+                                          "best_trial": sugg[1].id}
         assert s["best"]["phase"] == "zero-shot" and s["best"]["trial"] == sugg[0].id
         assert json.loads(Path(s["best"]["params_file"]).read_text()) == sugg[0].params
         assert st.best().phase == Phase.ZERO_SHOT
@@ -1441,10 +1442,32 @@ def test_status_says_no_trial_told_yet_while_every_suggestion_is_out(run_cli, tm
     d = tmp_path / "s"
     assert run_cli("ask", d, "--system", "examples.lqr_chain:make_system", "--n", "2")[0] == 0
     code, out, _ = run_cli("status", d)
-    assert code == 0 and "0 trials, 0 failed, 2 pending; no trial told yet" in out
+    assert code == 0 and "0 of 200 trials, 0 failed, 2 pending; no trial told yet" in out
     assert run_cli("tell", d, "1", "--failed")[0] == 0
     out = run_cli("status", d)[1]
-    assert "1 trial, 1 failed, 1 pending; no trial without a fall" in out
+    assert "1 of 200 trials, 1 failed, 1 pending; no trial without a fall" in out
+
+
+def test_status_says_each_phase_s_budget(run_cli, tmp_path):
+    """status said "phase 1: 3 trials, 1 pending" and never the phase's budget, though an ask
+    past it is refused ("phase 1's budget of 10 trials is told") and the report says "holds
+    3 trials of its budget of 10": a phase with a budget says "3 of 10 trials" (--json:
+    ``budget``), after a grown budget its new one; the manual θ and zero-shot have none."""
+    d = tmp_path / "s"
+    assert run_cli("ask", d, "--system", "examples.lqr_chain:make_system", "--n", "4",
+                   "--budget", "10")[0] == 0
+    for i in (1, 2, 3):
+        assert run_cli("tell", d, str(i), "--cost", "1.5")[0] == 0
+    out = run_cli("status", d)[1]
+    assert "phase 1: 3 of 10 trials, 0 failed, 1 pending; best 1.5" in out, out
+    assert run_cli("ask", d, "--budget", "12")[0] == 0
+    p1 = json.loads(run_cli("status", d, "--json")[1])["phases"]["phase 1"]
+    assert (p1["n"], p1["budget"]) == (3, 12)
+    with lt.Study(tmp_path / "run", seed=0) as st:
+        st.phase1(lt.FunctionSystem(SPACE, lambda x: float(np.sum(x ** 2))), 5, method="sobol")
+        got = st.status()["phases"]
+    assert (got["manual"]["budget"], got["phase 1"]["budget"], got["phase 1"]["n"]) == \
+        (None, 5, 5)
 
 
 def test_status_of_a_run_without_trials_says_so(run_cli, tmp_path):

@@ -1364,7 +1364,9 @@ def cmd_status(args: argparse.Namespace) -> int:
         k = p.get("reused") or 0         # stored with a stored trial's outcome, not run
         again = f" ({k} {'repeat' if k > 1 else 'repeats'} a stored trial, not run again)" \
             if k else ""
-        print(f"{name}: {counted(p['n'], 'trial')}{again}, {p['failed']} failed, "
+        told = counted(p["n"], "trial") if p.get("budget") is None else \
+            f"{p['n']} of {counted(p['budget'], 'trial')}"
+        print(f"{name}: {told}{again}, {p['failed']} failed, "
               f"{p['pending']} pending; {best}")
     dec = s.get("decisions")
     if dec:

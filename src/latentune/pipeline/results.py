@@ -30,6 +30,8 @@ from latentune.wording import counted
 
 TUNING = (Phase.MANUAL, Phase.PHASE1, Phase.PHASE3, Phase.ZERO_SHOT)
 """The phases whose trials may give the θ to deploy."""
+BUDGET_KEYS = {Phase.PHASE1: "phase1", Phase.PHASE3: "phase3"}
+"""The phases with a budget of trials, and the key of their options record in the config."""
 BEST_FILE = "best.json"
 """The θ to deploy (physical values by name): ``DIR/best.json``."""
 
@@ -261,8 +263,9 @@ def status(store: RunStore, run_dir: Path, config: dict[str, Any] | None = None
            ) -> dict[str, Any]:
     """The status of a study for the person at the robot (JSON-able).
 
-    ``phases``: by name, each ``{n, failed, pending, reused, best, best_idx, best_trial}``
-    (told trials, how many failed, suggestions handed out and not told, how many of the
+    ``phases``: by name, each ``{n, budget, failed, pending, reused, best, best_idx,
+    best_trial}`` (told trials, the phase's budget of trials (phases 1 and 3, from the study's
+    ``config``; else None), how many failed, suggestions handed out and not told, how many of the
     trials repeat a stored trial's θ and were stored with its outcome, not run again
     (:func:`reused_count`), the best cost that did not fail, its row and suggestion id);
     ``pending``: the ids handed out and not told, with ``leases`` (id → asker, seconds left); ``queued``: asked from the critic, not handed out;
@@ -282,8 +285,10 @@ def status(store: RunStore, run_dir: Path, config: dict[str, Any] | None = None
             continue
         ok = [r for r in rows if not r.fell]
         b = min(ok, key=lambda r: (r.cost, r.idx)) if ok else None
+        budget = ((config or {}).get(BUDGET_KEYS.get(ph, "")) or {}).get("budget")
         out["phases"][phase_name(ph)] = {
-            "n": len(rows), "failed": sum(r.fell for r in rows), "pending": n_pending,
+            "n": len(rows), "budget": None if budget is None else int(budget),
+            "failed": sum(r.fell for r in rows), "pending": n_pending,
             "reused": reused_count(rows),
             "best": None if b is None else b.cost, "best_idx": None if b is None else b.idx,
             "best_trial": None if b is None else _trial_id(b)}
