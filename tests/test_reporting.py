@@ -660,6 +660,17 @@ def test_a_phase1_run_shows_no_phase3_row(tmp_path: Path, run_cli):
         assert _row(comparison_table(st), "phase 3")[2] == "0"
 
 
+def test_the_wall_time_of_a_short_phase_is_not_rounded_to_0_s(tmp_path: Path):
+    """A phase of cheap trials that took 0.46 s was reported as "Wall time: phase3 0 s" (whole
+    seconds), as if it took no time; under 10 s the report gives a tenth of a second."""
+    cfg = {"system": {"kind": "python", "class": "mymod.Arm"}, "phase1": {"method": "turbo"}}
+    with _store(tmp_path / "run", cfg) as st:
+        st.set_meta("wall", {"phase1": 12.4, "phase3": 0.46, "vae": 3.0})
+        make_report(st, simulate=False, quiet=True)
+    md = (tmp_path / "run" / "report.md").read_text()
+    assert "Wall time: phase1 12 s, phase3 0.5 s, vae 3 s." in md, md
+
+
 def test_a_tune_run_stopped_before_phase3_says_phase3_is_to_come(tmp_path: Path, run_cli):
     """A ``tune`` run stopped (Ctrl-C) while it trained its latent space holds phase 1 and the
     plan of its phase 3, but no latent space and no phase-3 record: ``latentune report``

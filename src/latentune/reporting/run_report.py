@@ -300,6 +300,12 @@ def comparison_table(store: Any, manual: list | None = None) -> str:
     return "\n".join(lines)
 
 
+def seconds(v: float) -> str:
+    """A wall time [s] as the report writes it: whole seconds from 10 s, else tenths without
+    a trailing zero ("12", "0.5", "3"; 0.46 s is not "0")."""
+    return f"{v:.0f}" if v >= 9.95 else f"{v:.1f}".rstrip("0").rstrip(".")
+
+
 def _fmt(v: float | None) -> str:
     return "-" if v is None else f"{v:.3f}"
 
@@ -635,7 +641,7 @@ def make_report(store: Any, system: Any = None, simulate: bool = True, quiet: bo
         partly = [k for k in unknown if k in wall]      # timed, and a block of it lost
         none = [k for k in unknown if k not in wall]
         md.append(" ".join(
-            ([("Wall time: " + ", ".join(f"{k} {v:.0f} s" + (" + unknown" if k in partly
+            ([("Wall time: " + ", ".join(f"{k} {seconds(v)} s" + (" + unknown" if k in partly
                                                                else "")
                                          for k, v in wall.items()) + ".")]
              if wall else [])
