@@ -1410,7 +1410,9 @@ def cmd_status(args: argparse.Namespace) -> int:
         print(f"best: {b['cost']:.6g} ({b['phase']}, evaluation {b['idx']}"
               + (f", suggestion {b['trial']}" if b.get("trial") is not None else "") + ")"
               + (f"; its θ: {b['params_file']}" if b.get("params_file") else
-                 f"; write it with: latentune best {shlex.quote(str(args.dir))}" if nameable
+                 (f"; {Path(args.dir) / 'best.json'} holds an earlier best θ (a run stopped "
+                  "before it wrote this one)" if b.get("params_stale") else "")
+                 + f"; write it with: latentune best {shlex.quote(str(args.dir))}" if nameable
                  else "; its θ cannot be written: the store records no parameter space (a "
                  "store of another layout?)"))
     return 0

@@ -23,7 +23,7 @@ from latentune.atomicfile import write_atomic
 from latentune.constants import PHASE_NAMES, Phase, phase_name
 from latentune.checks import is_whole
 from latentune.errors import StoreError, UsageError
-from latentune.pipeline.manifest import stored_system, tuned_for
+from latentune.pipeline.manifest import config_space, stored_system, tuned_for
 from latentune.pipeline.store import Row, RunStore
 from latentune.space import TUNED_FOR, ParameterSpace
 from latentune.wording import counted
@@ -270,8 +270,10 @@ def status(store: RunStore, run_dir: Path, config: dict[str, Any] | None = None
     (:func:`reused_count`), the best cost that did not fail, its row and suggestion id);
     ``pending``: the ids handed out and not told, with ``leases`` (id → asker, seconds left); ``queued``: asked from the critic, not handed out;
     ``told``: suggestions told; ``amended``: corrections; ``best``: the best trial over all
-    phases (zero-shot included) with ``phase``, ``idx``, ``trial``, ``cost`` and
-    ``params_file`` (``DIR/best.json`` when written) -- or None; ``decisions``: the phase-3
+    phases (zero-shot included) with ``phase``, ``idx``, ``trial``, ``cost``, ``params_file``
+    (``DIR/best.json`` when it holds this trial's θ, :func:`holds_theta`, else None) and
+    ``params_stale`` (``DIR/best.json`` holds another θ: a run stopped before writing its best,
+    e.g. by Ctrl-C) -- or None; ``decisions``: the phase-3
     critic's decisions so far (:func:`decisions_summary`), or None; ``fall_budget``: phase
     3's (:func:`fall_budget`, from the study's ``config``), or None."""
     out: dict[str, Any] = {"dir": str(run_dir), "phases": {}}
@@ -304,10 +306,26 @@ def status(store: RunStore, run_dir: Path, config: dict[str, Any] | None = None
     out["fall_budget"] = fall_budget(store, config)
     b = best_row(store)
     f = run_dir / BEST_FILE
+    holds = None if b is None else holds_theta(f, b.theta, config_space(config or {}))
     out["best"] = None if b is None else {
         "phase": phase_name(b.phase), "idx": b.idx, "trial": _trial_id(b), "cost": b.cost,
-        "params_file": str(f) if f.is_file() else None}
+        "params_file": str(f) if holds else None, "params_stale": holds is False}
     return out
+
+
+def holds_theta(path: Path, theta: np.ndarray, space: ParameterSpace | None) -> bool | None:
+    """Whether the θ file ``path`` holds the (d,) unit-box ``theta`` (its values by name, as
+    :func:`write_best` writes them): None when there is no such file or no ``space`` to name
+    θ by, False for a file of another θ (e.g. ``best.json`` of an earlier best, left by a run
+    stopped before it wrote its own)."""
+    if space is None or not path.is_file():
+        return None
+    try:
+        got = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError):
+        return False
+    want = space.as_dict(theta)
+    return isinstance(got, dict) and all(got.get(k) == v for k, v in want.items())
 
 
 def write_best(store: RunStore, run_dir: Path, space: ParameterSpace | None,
