@@ -264,18 +264,19 @@ def status(store: RunStore, run_dir: Path, config: dict[str, Any] | None = None
     """The status of a study for the person at the robot (JSON-able).
 
     ``phases``: by name, each ``{n, budget, failed, pending, reused, best, best_idx,
-    best_trial}`` (told trials, the phase's budget of trials (phases 1 and 3, from the study's
-    ``config``; else None), how many failed, suggestions handed out and not told, how many of the
-    trials repeat a stored trial's θ and were stored with its outcome, not run again
-    (:func:`reused_count`), the best cost that did not fail, its row and suggestion id);
-    ``pending``: the ids handed out and not told, with ``leases`` (id → asker, seconds left); ``queued``: asked from the critic, not handed out;
-    ``told``: suggestions told; ``amended``: corrections; ``best``: the best trial over all
-    phases (zero-shot included) with ``phase``, ``idx``, ``trial``, ``cost``, ``params_file``
-    (``DIR/best.json`` when it holds this trial's θ, :func:`holds_theta`, else None) and
-    ``params_stale`` (``DIR/best.json`` holds another θ: a run stopped before writing its best,
-    e.g. by Ctrl-C) -- or None; ``decisions``: the phase-3
-    critic's decisions so far (:func:`decisions_summary`), or None; ``fall_budget``: phase
-    3's (:func:`fall_budget`, from the study's ``config``), or None."""
+    best_trial}`` (told trials; the phase's budget of trials, phases 1 and 3, from the study's
+    ``config``, else None; how many failed; suggestions handed out and not told; how many of
+    the trials repeat a stored trial's θ and were stored with its outcome, not run again,
+    :func:`reused_count`; the best cost that did not fail, its row and suggestion id);
+    ``pending``: the ids handed out and not told, with ``leases`` (id → asker, seconds left);
+    ``queued``: asked from the critic, not handed out; ``told``: suggestions told;
+    ``amended``: corrections; ``best``: the best trial over all phases (zero-shot included)
+    with ``phase``, ``idx``, ``trial``, ``cost``, ``params_file`` (``DIR/best.json`` when it
+    holds this trial's θ, :func:`holds_theta`, else None) and ``params_stale``
+    (``DIR/best.json`` holds another θ: a run stopped before writing its best, e.g. by
+    Ctrl-C) -- or None; ``decisions``: the phase-3 critic's decisions so far
+    (:func:`decisions_summary`), or None; ``fall_budget``: phase 3's (:func:`fall_budget`,
+    from the study's ``config``), or None."""
     out: dict[str, Any] = {"dir": str(run_dir), "phases": {}}
     all_trials = store.trials()
     now = time.time()
