@@ -327,6 +327,21 @@ def handover_stats(store: Any) -> dict[str, Any] | None:
     return out
 
 
+def _best_file(store: Any, cfg: dict[str, Any], arts: dict[str, Any], phase: int) -> str | None:
+    """The artifact ``phase{phase}_best`` (the phase's best θ file) while it holds the θ of the
+    phase's best trial; None without one, or for a file of an earlier best (a run stopped
+    before it wrote its own: :func:`~latentune.pipeline.results.holds_theta`)."""
+    from latentune.pipeline.manifest import config_space
+    from latentune.pipeline.results import best_row, holds_theta
+
+    name = arts.get(f"phase{int(phase)}_best")
+    b = best_row(store, (int(phase),)) if name else None
+    if b is None:
+        return None
+    return name if holds_theta(store.dir / name, b.theta, config_space(cfg)) is not False \
+        else None
+
+
 def write_summary(store: Any, manual: list | None = None) -> dict[str, Any]:
     """Write ``DIR/summary.json`` from the store and return it.
 
@@ -349,7 +364,8 @@ def write_summary(store: Any, manual: list | None = None) -> dict[str, Any]:
     ``wall_by_phase_s`` too is partly known: its blocks that ended are counted, the killed
     one is not, and a later block that ends does not make it known:
     :func:`~latentune.pipeline.walltime.wall_record`); ``seed``,
-    ``config``, ``artifacts``, ``phase{1,3}_best_params``, ``paper`` (the paper's numbers for
+    ``config``, ``artifacts``, ``phase{1,3}_best_params`` (the phase's best θ file, while it
+    holds that θ), ``paper`` (the paper's numbers for
     the task or None), ``phase3_handover`` (:func:`handover_stats`), ``written`` (unix time).
     ``manual``: the manual θ's trials, as :func:`run_stats` takes them.
     """
@@ -391,8 +407,8 @@ def write_summary(store: Any, manual: list | None = None) -> dict[str, Any]:
         "wall_unknown": wall_unknown,
         "seed": cfg.get("phase1", cfg.get("phase3", {})).get("seed", cfg.get("task", {}).get("seed")),
         "config": cfg,
-        "phase1_best_params": arts.get("phase1_best"),
-        "phase3_best_params": arts.get("phase3_best"),
+        "phase1_best_params": _best_file(store, cfg, arts, Phase.PHASE1),
+        "phase3_best_params": _best_file(store, cfg, arts, Phase.PHASE3),
         "artifacts": arts,
         "paper": _paper_numbers(cfg) if "task" in cfg else None,
         "phase3_handover": handover_stats(store),
