@@ -664,7 +664,8 @@ def test_summary_names_a_phase_s_best_file_only_when_it_holds_the_best_theta(tmp
     """A phase run stopped (Ctrl-C) after a better trial than its earlier best, before it
     wrote phase1_best.json: summary.json gave "phase1_best": 0.0655 beside
     "phase1_best_params": "phase1_best.json", a file of the earlier best θ (0.153). The file
-    is named only while it holds the phase's best θ (``latentune best`` writes the θ to deploy)."""
+    is named only while it holds the phase's best θ (``latentune best`` writes the θ to
+    deploy)."""
     import latentune as lt
 
     space = lt.ParameterSpace(["a", "b"], [0.0, 0.0], [1.0, 1.0], manual=[0.5, 0.5])
