@@ -688,6 +688,30 @@ def test_summary_names_a_phase_s_best_file_only_when_it_holds_the_best_theta(tmp
     assert summary["phase1_best"] == 0.0 and summary["phase1_best_params"] is None, summary
 
 
+def test_the_beat_note_says_where_an_ask_tell_manual_trial_was_told(tmp_path: Path, run_cli):
+    """The note under the table said "Phase 1's first evaluation is the manual θ's trial" in
+    an ask/tell study whose manual suggestion was told third (evaluations count in the order
+    told): it names the evaluation the manual θ's trial is there; a phase run's stays."""
+    import latentune as lt
+
+    space = lt.ParameterSpace(["a", "b"], [0.0, 0.0], [1.0, 1.0], manual=[0.5, 0.5])
+    d = tmp_path / "at"
+    with lt.Study(d, seed=0) as st:
+        s1, s2, s3 = st.ask(3, space=space)
+        st.tell(s2.id, 0.1)
+        st.tell(s3.id, 0.9)
+        st.tell(s1.id, 0.36)
+        make_report(st.store, simulate=False, quiet=True)
+    md = (d / "report.md").read_text()
+    assert "Phase 1's first evaluation is the manual θ's trial" not in md, md
+    assert "Phase 1's evaluation 3 (in the order told) is the manual θ's trial" in md, md
+    run = tmp_path / "run"
+    with lt.Study(run, seed=0) as st:
+        st.phase1(lt.FunctionSystem(space, lambda x: float(np.sum(x))), 3, method="random")
+        make_report(st.store, simulate=False, quiet=True)
+    assert "Phase 1's first evaluation is the manual θ's trial" in (run / "report.md").read_text()
+
+
 def test_the_wall_time_of_a_short_phase_is_not_rounded_to_0_s(tmp_path: Path):
     """A phase of cheap trials that took 0.46 s was reported as "Wall time: phase3 0 s" (whole
     seconds), as if it took no time; under 10 s the report gives a tenth of a second."""

@@ -187,7 +187,18 @@ BEAT_NOTE = ("Evals to beat manual: the first of the phase's own evaluations, co
              "the manual θ failed). Phase 1's first evaluation is the manual θ's trial; phase "
              "3's count leaves out the manual and zero-shot trials.")
 """The report's line under its table saying how "evals to beat manual" counts
-(:func:`beats_manual`)."""
+(:func:`beats_manual`); :func:`beat_note` says it for the run at hand."""
+
+
+def beat_note(manual: list) -> str:
+    """:data:`BEAT_NOTE` for the manual θ's trials ``manual`` (:func:`manual_rows`): an
+    ask/tell phase 1's manual trial is one of its rows, at the place it was told, which the
+    note names when it is not the first."""
+    rows = [r for r in manual if r.phase == Phase.PHASE1]
+    if not rows or rows[0].idx == 0:
+        return BEAT_NOTE
+    return BEAT_NOTE.replace("Phase 1's first evaluation is",
+                             f"Phase 1's evaluation {rows[0].idx + 1} (in the order told) is")
 
 
 def beats_manual(store: Any, manual: list | None = None) -> dict[int, int | None]:
@@ -628,7 +639,7 @@ def make_report(store: Any, system: Any = None, simulate: bool = True, quiet: bo
     summary = write_summary(store, manual=manual)
     table = comparison_table(store, manual)
     lat = cfg.get("latent") or cfg.get("vae") or {}
-    md = [f"# latentune run: {title}", "", table, "", *([BEAT_NOTE, ""] if manual else []),
+    md = [f"# latentune run: {title}", "", table, "", *([beat_note(manual), ""] if manual else []),
           *state_lines(store, cfg)]
     if lat:
         md.append(f"Latent space: kind {lat.get('kind')}, d_low {lat.get('d_low')}, trained on "
