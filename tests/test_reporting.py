@@ -747,6 +747,15 @@ def test_a_tune_run_stopped_before_phase3_says_phase3_is_to_come(tmp_path: Path,
         st.set_meta("config", dict(st.get_meta("config"), vae={"d_low": 2}))
         lines = state_lines(st, st.get_meta("config"))
     assert any("`latentune tune … --out" in ln and "(it runs phase 3)" in ln for ln in lines)
+    with RunStore(d) as st:         # every phase-1 trial fell: no latent space can be trained
+        cfg = dict(st.get_meta("config"))
+        cfg.pop("vae")
+        st.con.execute("UPDATE evaluations SET fell=1")
+        st.con.commit()
+        lines = state_lines(st, cfg)
+    assert any("plans 30 trials; its latent space needs at least 2 phase-1 trials that did not "
+               "fail and phase 1 holds 0, so more phase-1 trials come first:" in ln and
+               "--phase1-evals N` (N above 4)" in ln for ln in lines), lines
 
 
 def test_a_phase3_not_started_is_not_labelled_with_a_strategy(tmp_path: Path, run_cli):

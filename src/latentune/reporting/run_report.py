@@ -568,9 +568,16 @@ def state_lines(store: Any, cfg: dict[str, Any]) -> list[str]:
         plan = f": the tune run plans {counted(planned, 'trial')}" if planned else ""
         then = "it runs phase 3" if cfg.get("vae") else \
             "it trains the latent space, then runs phase 3"
-        lines.append(f"Phase 3 has not started{plan}. If it stopped, the command that ran it "
-                     f"goes on: `latentune tune … --out {shlex.quote(str(store.dir))} "
-                     f"--resume` ({then}).")
+        where = shlex.quote(str(store.dir))
+        stood = int((~store.fell(Phase.PHASE1)).sum())
+        if not cfg.get("vae") and stood < 2:        # phase 2 refuses: the resume would too
+            lines.append(f"Phase 3 has not started{plan}; its latent space needs at least 2 "
+                         f"phase-1 trials that did not fail and phase 1 holds {stood}, so more "
+                         f"phase-1 trials come first: `latentune tune … --out {where} --resume "
+                         f"--phase1-evals N` (N above {store.count(Phase.PHASE1)}).")
+        else:
+            lines.append(f"Phase 3 has not started{plan}. If it stopped, the command that ran "
+                         f"it goes on: `latentune tune … --out {where} --resume` ({then}).")
     from latentune.pipeline.results import reused_count
 
     for phase in (Phase.ZERO_SHOT, Phase.PHASE3):   # phase 1's: its first, the manual θ's
