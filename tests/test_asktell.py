@@ -251,6 +251,36 @@ def test_status_report_and_summary_say_which_trials_were_not_run_again(
     assert (summary["phase3_reused"], summary["phase3_evals"]) == (1, 6)
 
 
+def test_an_amended_trial_corrects_the_rows_that_repeat_it(tmp_path, src_manual_best,
+                                                          decodes_manual, run_cli):
+    """Ask/tell's plain phase 3 stores its decoded start with the zero-shot trial's outcome
+    (the same θ). Amending the zero-shot trial (0.04 → 3.0) left that row at 0.04: status and
+    best named "best: 0.04 (phase 3, evaluation 0)", a cost the robot never gave for that θ.
+    The rows that repeat an amended trial are corrected with it (their own amendment in the
+    audit trail), and the critic is rebuilt from the corrected rows."""
+    shutil.copytree(src_manual_best, tmp_path / "src")
+    with plain_by_asktell(tmp_path / "at", tmp_path / "src", [], 4) as at:
+        zs = at.store.rows(Phase.ZERO_SHOT)[0]
+        start = at.store.rows(Phase.PHASE3)[0]
+        assert start.info.get("same_as") == [int(Phase.ZERO_SHOT), 0]        # the premise
+        at.tell(zs.info["trial"], 3.0, amend=True)
+        start = at.store.rows(Phase.PHASE3)[0]
+        assert (start.cost, start.fell) == (3.0, False)
+        assert start.info["reused"] and start.info["same_as"] == [int(Phase.ZERO_SHOT), 0]
+        assert {a["trial"] for a in at.amendments()} == {zs.info["trial"], start.info["trial"]}
+        assert at.best().cost != 0.04 or at.best().phase != Phase.PHASE3
+        at.tell(zs.info["trial"], 200.0, failed=True, amend=True)    # then: it fell
+        assert at.store.rows(Phase.PHASE3)[0].fell
+    code, out, err = run_cli("status", tmp_path / "at")
+    assert code == 0, err
+    assert "best: 0.04 (phase 3, evaluation 0" not in out, out
+    code, out, err = run_cli("tell", tmp_path / "at", zs.info["trial"], "--cost", "2.5",
+                             "--amend")
+    assert code == 0, err
+    assert out.strip() == (f"amended {zs.info['trial']}: zero-shot evaluation 0, cost 2.5; so "
+                           "is phase 3 evaluation 0, which repeats its θ"), out
+
+
 def test_ask_tell_never_hands_out_a_told_theta_as_the_plain_phase_3s_start(
         tmp_path, src_manual_best, decodes_manual):
     """Ask/tell's plain phase 3 handed out the zero-shot θ (the source's best, here the manual

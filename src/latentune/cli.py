@@ -1246,6 +1246,7 @@ def cmd_tell(args: argparse.Namespace) -> int:
         trial_id = int(args.id)
     except ValueError:
         raise CLIError(f"a suggestion id is an integer, got {args.id!r}") from None
+    from latentune.constants import Phase
     from latentune.pipeline.asktell import prune_suggestion_files
     from latentune.pipeline.results import phase_name
 
@@ -1255,8 +1256,13 @@ def cmd_tell(args: argparse.Namespace) -> int:
                          amend=args.amend, info=info)
         prune_suggestion_files(study.dir, _pending_ids(study))   # an amendment withdraws some
         study.summary()                         # summary.json holds the result told
+        same = [f"{phase_name(r.phase)} evaluation {r.idx}"        # corrected with it
+                for p in (Phase.ZERO_SHOT, Phase.PHASE3) for r in study.store.rows(p)
+                if r.info.get("same_as") == [row.phase, row.idx]]
         print(f"{'amended' if args.amend else 'told'} {trial_id}: {phase_name(row.phase)} "
-              f"evaluation {row.idx}, cost {row.cost:.6g}{' (failed)' if row.fell else ''}")
+              f"evaluation {row.idx}, cost {row.cost:.6g}{' (failed)' if row.fell else ''}"
+              + (f"; so is {', '.join(same)}, which repeats its θ" if args.amend and same
+                 else ""))
         work_done(args)
     return 0
 
