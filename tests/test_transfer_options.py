@@ -59,6 +59,23 @@ def test_options_reach_the_critic_and_are_fixed_on_resume(tmp_path, src):
     ({"transfer_options": {"max_fall_prob": 0.2}}, "max_fall_prob is an argument of its own"),
     ({"transfer_options": OFF, "strategy": "plain"}, "options of the transfer phase 3"),
     ({"transfer_options": OFF, "handover": True}, "options of the transfer phase 3"),
+    # numeric options out of their range: before, n_candidates 0 stopped the run at its first
+    # model ask with numpy's "argmin of an empty sequence" (options and five trials stored),
+    # and the others ran as something else (a side of 0, no fall screen with a NaN kappa)
+    ({"transfer_options": {"n_candidates": 0}}, "n_candidates must be"),
+    ({"transfer_options": {"n_design": -1}}, "n_design must be"),
+    ({"transfer_options": {"n_elite": 2.5}}, "n_elite must be"),
+    ({"transfer_options": {"max_points": 1}}, "max_points must be"),
+    ({"transfer_options": {"fail_tol": 0}}, "fail_tol must be"),
+    ({"transfer_options": {"succ_tol": True}}, "succ_tol must be"),
+    ({"transfer_options": {"latent_falls": -1}}, "latent_falls must be"),
+    ({"transfer_options": {"fit_ard": -2}}, "fit_ard must be"),
+    ({"transfer_options": {"length_init": 0}}, "length_init must be"),
+    ({"transfer_options": {"length_min": float("nan")}}, "length_min must be"),
+    ({"transfer_options": {"length_max": 1e-3}}, "length_min .* must not exceed length_max"),
+    ({"transfer_options": {"elite_spacing": -1}}, "elite_spacing must be"),
+    ({"transfer_options": {"fall_kappa": float("nan")}}, "fall_kappa must be"),
+    ({"transfer_options": {"latent_share_max": 1.5}}, "latent_share_max must be"),
 ])
 def test_options_the_critic_cannot_honour_are_refused_before_anything_is_stored(
         tmp_path, src, kw, match):

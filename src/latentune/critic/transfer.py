@@ -444,6 +444,39 @@ def resolved_options(options: dict[str, Any]) -> dict[str, Any]:
         opts["explore_fall_prob"] = round(2.0 * float(p) / 3.0, 12)
     return opts
 
+WHOLE_OPTIONS: dict[str, int] = {"n_design": 0, "n_elite": 0, "n_candidates": 1,
+                                 "max_points": 2, "succ_tol": 1, "fail_tol": 1,
+                                 "latent_falls": 0, "fit_ard": 0}
+"""Options that count something, with the least whole number each takes."""
+
+
+def check_numbers(opts: dict[str, Any]) -> None:
+    """ValueError, naming the option, when a counting option (:data:`WHOLE_OPTIONS`) is not a
+    whole number at or above its least value, a trust-region side (``length_min``,
+    ``length_init``, ``length_max``, in units of the unit box) is not a finite positive number
+    or ``length_min`` exceeds ``length_max``, ``elite_spacing`` or ``fall_kappa`` is not a
+    finite number ≥ 0, or ``latent_share_max`` is not a share in [0, 1]."""
+    def number(v: Any) -> bool:
+        return isinstance(v, (int, float, np.integer, np.floating)) and not \
+            isinstance(v, (bool, np.bool_)) and math.isfinite(float(v))
+
+    for key, low in WHOLE_OPTIONS.items():
+        if not is_whole(opts[key], low):
+            raise ValueError(f"{key} must be a whole number ≥ {low}, got {opts[key]!r}")
+    for key in ("length_min", "length_init", "length_max"):
+        if not (number(opts[key]) and float(opts[key]) > 0):
+            raise ValueError(f"{key} must be a positive side of the unit box, got {opts[key]!r}")
+    if float(opts["length_min"]) > float(opts["length_max"]):
+        raise ValueError(f"length_min ({opts['length_min']!r}) must not exceed length_max "
+                         f"({opts['length_max']!r})")
+    for key in ("elite_spacing", "fall_kappa"):
+        if not (number(opts[key]) and float(opts[key]) >= 0):
+            raise ValueError(f"{key} must be a finite number ≥ 0, got {opts[key]!r}")
+    if not (number(opts["latent_share_max"]) and 0.0 <= float(opts["latent_share_max"]) <= 1.0):
+        raise ValueError(f"latent_share_max must be a share in [0, 1], "
+                         f"got {opts['latent_share_max']!r}")
+
+
 ADDED_OPTIONS: dict[str, Any] = {"design_screen": False, "fit_ard": 0, "safe_fallback": False,
                                  "fall_cost": False, "handoff": 0, "handoff_model": "target",
                                  "handoff_fall_shrink": False, "handoff_rules": "turbo",
@@ -679,6 +712,7 @@ class Transfer(TwoSpaceCritic):
             raise ValueError(f"max_fall_prob must be in (0, 1], got {p!r}")
         if not 0.0 <= float(self.opts["global_share"]) < 1.0:
             raise ValueError(f"global_share must be in [0, 1), got {self.opts['global_share']!r}")
+        check_numbers(self.opts)
         if int(self.opts["full_scales"]) < 1:
             raise ValueError(f"full_scales must be ≥ 1, got {self.opts['full_scales']!r}")
         if isinstance(self.opts["handoff"], bool) or int(self.opts["handoff"]) < 0:
