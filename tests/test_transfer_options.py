@@ -76,6 +76,10 @@ def test_options_reach_the_critic_and_are_fixed_on_resume(tmp_path, src):
     ({"transfer_options": {"elite_spacing": -1}}, "elite_spacing must be"),
     ({"transfer_options": {"fall_kappa": float("nan")}}, "fall_kappa must be"),
     ({"transfer_options": {"latent_share_max": 1.5}}, "latent_share_max must be"),
+    # a flag given as text: "false" was truthy, so the option ran switched on
+    ({"transfer_options": {"restart": "false"}}, "restart must be true or false"),
+    ({"transfer_options": {"stop_converged": "no"}}, "stop_converged must be true or false"),
+    ({"transfer_options": {"fall_cost": 1}}, "fall_cost must be true or false"),
 ])
 def test_options_the_critic_cannot_honour_are_refused_before_anything_is_stored(
         tmp_path, src, kw, match):

@@ -729,7 +729,9 @@ class Transfer(TwoSpaceCritic):
             raise ValueError(f"explore_every must be 0 (off) or an integer ≥ 2, got {k_ex!r}")
         for flag in ("stand_first", "explore_adapt", "fall_source_sd", "explore_void",
                      "centre_screen", "distinct", "explore_skip", "fall_calibrate",
-                     "fall_shrink", "explore_gp", "fall_fit", "record_cma"):
+                     "fall_shrink", "explore_gp", "fall_fit", "record_cma", "fit_lengthscale",
+                     "restart", "design_screen", "fall_cost", "stop_converged",
+                     "handoff_fall_shrink"):
             if not isinstance(self.opts[flag], (bool, np.bool_)):
                 raise ValueError(f"{flag} must be true or false, got {self.opts[flag]!r}")
         q_fb = self.opts["fall_budget"]
