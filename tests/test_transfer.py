@@ -883,3 +883,57 @@ def test_a_source_run_replaced_by_a_smaller_one_is_refused(tmp_path):
                                               r"phase 3 began with") as exc:
             t.phase3(plant, 8)
         assert "\n" not in str(exc.value) and t.store.count(3) == 4
+
+
+def test_a_model_fit_that_failed_is_recorded_in_the_decision_of_its_ask(source, hypers,
+                                                                         monkeypatch, caplog):
+    """A source-model fit that raises (GPyTorch's NotPSDError is a RuntimeError) leaves the
+    model at its starting hyperparameters, which changes what phase 3 asks: the warning is
+    logged, and the ask's decision records which fit failed and why (before: the log line
+    only, nothing in the record ``status`` and ``report`` read). A fit restored from the state
+    is not a new failure."""
+    import latentune.critic.transfer_model as tm
+
+    def broken(mll):
+        raise RuntimeError("NotPSDError: matrix not positive definite")
+
+    X, y, f, c = source
+    monkeypatch.setattr(tm, "_scipy_fit", broken)
+    cr = Transfer((X, y, f), None, None, batch_size=1, seed=3, explore_every=0)
+    with caplog.at_level("WARNING"):
+        P = cr.ask(1)
+    assert "source model fit failed" in caplog.text
+    failed = cr.decisions[-1]["fit_failed"]
+    assert set(failed) == {"source cost model", "source fall model"}
+    assert "NotPSDError" in failed["source cost model"]
+    cr.tell(P, *_bowl(P, c, 0.6)[:1], cr.last_tags, fell=_bowl(P, c, 0.6)[1])
+    cr.ask(1)
+    assert "fit_failed" not in cr.decisions[-1]          # said once, in the ask that fitted
+    again = _critic(source, cr.state_dict()["source_hypers"], explore_every=0)
+    again.ask(1)
+    assert "fit_failed" not in again.decisions[-1]
+    monkeypatch.undo()
+    ok = _critic(source, hypers, explore_every=0)
+    ok.ask(1)
+    assert "fit_failed" not in ok.decisions[-1]
+
+
+def test_a_target_gp_fit_that_failed_is_recorded_in_the_decision_of_its_ask(source, hypers,
+                                                                            monkeypatch):
+    """The explore asks' GP on the target's trials alone (TuRBO-m's fit) that raises keeps its
+    starting hyperparameters: the decision of the ask that used it says so."""
+    import botorch.optim.fit as bf
+
+    def broken(mll, **kw):
+        raise RuntimeError("NotPSDError: matrix not positive definite")
+
+    X, y, f, c = source
+    cr = _critic(source, hypers)
+    P = cr.ask(1)
+    cr.tell(P, _bowl(P, c, 0.6)[0], cr.last_tags, fell=_bowl(P, c, 0.6)[1])
+    monkeypatch.setattr(bf, "fit_gpytorch_mll_scipy", broken)
+    _run(cr, c, 0.6, 5)
+    said = [d["fit_failed"] for d in cr.decisions if "fit_failed" in d]
+    assert said and all(set(s) == {"target GP"} and "NotPSDError" in s["target GP"]
+                        for s in said)
+    assert all(d.get("explore") for d in cr.decisions if "fit_failed" in d)

@@ -235,6 +235,8 @@ class FitReport:
         self.logger = logger
         self.n_fits = 0
         self.n_failed = 0
+        self.last_failure = ""
+        """The error of the last fit that failed ("" before any did)."""
 
     def record(self, ok: bool, detail: str = "") -> None:
         """Count one fit; on the first failure, log ``detail`` (the error) once."""
@@ -242,6 +244,7 @@ class FitReport:
         if ok:
             return
         self.n_failed += 1
+        self.last_failure = detail or "no detail"
         if self.n_failed == 1:
             self.logger.warning("%s: a hyperparameter fit failed (%s); the model keeps its "
                                 "starting hyperparameters; later failures are only counted "

@@ -847,6 +847,7 @@ class Transfer(TwoSpaceCritic):
         self._auto: dict[str, list] = {}    # this ask's "auto" choices (its decision's)
         self._preq = np.empty(0)        # (t,) prequential screen scores (fall_calibrate)
         self._calib: tuple[int, np.ndarray] | None = None     # (n_told, (a, b))
+        self._fit_failed: dict[str, str] = {}   # model fits that raised since the last decision
 
     # ------------------------------------------------------------------ properties
     @property
@@ -869,9 +870,12 @@ class Transfer(TwoSpaceCritic):
         """The fitted source models (fitted at the first need, or restored from the state)."""
         if self._model is None:
             X, y, f = self.source_rows()
+            fitted = self._hypers is None
             self._model = SourceModel(X, y, f, seed=self.seed, max_points=self.opts["max_points"],
                                       hypers=self._hypers)
             self._hypers = self._model.hypers
+            if fitted:              # a fit that raised is said in the next ask's decision
+                self._fit_failed.update(self._model.fit_failures())
         return self._model
 
     def add_source(self, X: np.ndarray, y: np.ndarray, fell: np.ndarray) -> None:
@@ -1179,12 +1183,18 @@ class Transfer(TwoSpaceCritic):
             from latentune.critic.turbo import TurboM
 
             self._turbo = TurboM(self.dim, batch_size=1, seed=self.seed, n_regions=1)
+            self._turbo.fit_report.what = "phase 3's target GP"     # its failures' log line
         return self._turbo
 
     def _target_gp(self, base: TargetModel) -> TargetGP:
         """A GP on the target's trials alone (:class:`TargetGP`, TuRBO-m's model) over
         ``base``'s rank scores: the late phase's cost model and the explore and region asks'."""
-        return TargetGP(self._X, base.v, self._turbo_helper(), base)
+        report = self._turbo_helper().fit_report
+        before = report.n_failed
+        gp = TargetGP(self._X, base.v, self._turbo_helper(), base)
+        if report.n_failed > before:
+            self._fit_failed["target GP"] = report.last_failure
+        return gp
 
     def _explore_target_gp(self, base: TargetModel) -> TargetGP:
         """The target's own GP of the explore and region asks: over ``base``'s scores, or over
@@ -1591,8 +1601,15 @@ class Transfer(TwoSpaceCritic):
         self.last_z = np.full((n, self.k), np.nan)
         self.decisions.append({"generation": g, "n_told": self.n_told, "design": design,
                                "rule": rule, **record, "pools": [POOL_NAMES[pool]] * n,
-                               "explore": False})
+                               "explore": False, **self._fits_said()})
         return np.tile(theta, (n, 1)), np.full(n, 4 * g + pool, dtype=np.int64)
+
+    def _fits_said(self) -> dict[str, Any]:
+        """``{"fit_failed": {model: why}}`` for the model fits that raised since the last
+        decision (each kept its starting hyperparameters: the ask differs from a fitted one's),
+        then forgotten; ``{}`` when none did."""
+        said, self._fit_failed = self._fit_failed, {}
+        return {"fit_failed": said} if said else {}
 
     def _manual_ask(self, n: int, g: int) -> tuple[np.ndarray, np.ndarray]:
         """Every told trial fell: the target's manual θ once, first; the rest of a batch (n > 1)
@@ -2090,7 +2107,8 @@ class Transfer(TwoSpaceCritic):
             **({"auto_scores": dict(self._auto)} if self._auto else {}),
             **({"explore_scores": self.opts["explore_scores"]}
                if ctx.explore_gp is not None and self.opts["explore_scores"] is not None
-               else {})})
+               else {}),
+            **self._fits_said()})
         log.debug("transfer ask %s", self.decisions[-1])
         return X, tags
 

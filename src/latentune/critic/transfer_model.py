@@ -308,8 +308,10 @@ def _scipy_fit(mll: Any) -> Any:
 
 def fit_gp(X: np.ndarray, y: np.ndarray, hypers: dict[str, Any] | None) -> tuple[_GPFit, dict]:
     """Fit (or, with ``hypers``, only condition) a Matérn-5/2 ARD GP on (X (n, d), y (n,)) with
-    BoTorch; return its numpy predictor and its hyperparameters (JSON-ready)."""
+    BoTorch; return its numpy predictor and its hyperparameters (JSON-ready; a fit that raised
+    leaves the starting values and says why under ``"fit_failed"``)."""
     n, d = X.shape
+    failed = None
     if hypers is None:
         import torch
         from botorch.models import SingleTaskGP
@@ -338,13 +340,15 @@ def fit_gp(X: np.ndarray, y: np.ndarray, hypers: dict[str, Any] | None) -> tuple
         except Exception as exc:  # noqa: BLE001 - reported, starting values kept
             log.warning("source model fit failed (%s: %s); using its starting hyperparameters",
                         type(exc).__name__, exc)
+            failed = f"{type(exc).__name__}: {exc}"
         finally:
             model.eval()
         hypers = {"lengthscale": model.covar_module.base_kernel.lengthscale.detach().numpy()
                   .reshape(-1).tolist(),
                   "outputscale": float(model.covar_module.outputscale.detach()),
                   "noise": float(model.likelihood.noise.detach().reshape(-1)[0]),
-                  "constant": float(model.mean_module.constant.detach())}
+                  "constant": float(model.mean_module.constant.detach()),
+                  **({"fit_failed": failed} if failed is not None else {})}
     ls = np.clip(np.asarray(hypers["lengthscale"], dtype=float).reshape(d), *_LS_BOUNDS)
     os_, noise, c = float(hypers["outputscale"]), float(hypers["noise"]), float(hypers["constant"])
     K = os_ * matern52(X, X, ls) + noise * np.eye(n)
@@ -394,6 +398,12 @@ class SourceModel:
             self.fall_gp, hf = fit_gp(X[fpick], self.fell[fpick].astype(float),
                                        hypers.get("fall"))
         self.hypers = {"cost": hc, "fall": hf}
+
+    def fit_failures(self) -> dict[str, str]:
+        """Which of the fits that made these hyperparameters raised, and why: ``{"source cost
+        model" | "source fall model": "ErrorName: message"}`` (empty when both fitted)."""
+        return {f"source {name} model": h["fit_failed"]
+                for name, h in self.hypers.items() if h and h.get("fit_failed")}
 
     @property
     def lengthscales(self) -> np.ndarray:
