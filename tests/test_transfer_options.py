@@ -238,3 +238,25 @@ def test_values_and_warped_scores_of_huge_or_tiny_costs_are_those_of_their_scale
         with lt.Study(tmp_path / kind, seed=0) as st:
             st.phase3(sys_, 8, latent=src, transfer_options={"target_scores": kind})
             assert st.store.count(Phase.PHASE3) == 8
+
+
+def test_a_model_fit_that_failed_is_said_by_status_and_the_report(tmp_path, src, monkeypatch):
+    """A phase 3 whose source model fit raised (kept its starting hyperparameters): its
+    decision records it, and the report's "Phase 3 decisions" says which fit, in which ask."""
+    import latentune.critic.transfer_model as tm
+    from latentune.pipeline.results import decisions
+
+    def broken(mll):
+        raise RuntimeError("NotPSDError: not positive definite")
+
+    monkeypatch.setattr(tm, "_scipy_fit", broken)
+    with lt.Study(tmp_path / "t", seed=0) as st:
+        st.phase3(plant(0.2), 4, latent=src)
+        said = [d["fit_failed"] for d in decisions(st.store) if "fit_failed" in d]
+        assert said and "NotPSDError" in said[0]["source cost model"]
+        st.report(simulate=False)
+        summary = st.status()["decisions"]
+    assert summary["fit_failed"] == len(said)
+    text = (tmp_path / "t" / "report.md").read_text()
+    assert "model fit that failed" in text and "source cost model (RuntimeError: NotPSDError" \
+        in text

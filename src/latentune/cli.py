@@ -1383,7 +1383,9 @@ def cmd_status(args: argparse.Namespace) -> int:
               + ", ".join(f"{k} {v}" for k, v in dec["kinds"].items())
               + f"); last: generation {last['generation']}, {last['kind']}{agree}{side}"
               + (f", pools {'/'.join(sorted(set(last['pools'])))}" if last.get("pools") else "")
-              + (f"; scores: {last['scores']}" if last.get("scores") else ""))
+              + (f"; scores: {last['scores']}" if last.get("scores") else "")
+              + (f"; {counted(dec['fit_failed'], 'ask')} with a model fit that failed "
+                 "(latentune report lists them)" if dec.get("fit_failed") else ""))
     fb = s.get("fall_budget")
     if fb:
         which = " (those after the first trial that stood)" \

@@ -213,7 +213,8 @@ def decision_scores(d: dict[str, Any]) -> str | None:
 
 def decisions_summary(ds: list[dict[str, Any]]) -> dict[str, Any] | None:
     """``{n, kinds: {kind: asks}, last: {generation, kind, agreement, length, pools}}`` of the
-    decisions ``ds`` (:func:`decisions`), or None without any."""
+    decisions ``ds`` (:func:`decisions`), with ``fit_failed``: how many asks used a model fit
+    that raised (its starting hyperparameters kept) when any did, or None without any."""
     if not ds:
         return None
     kinds: dict[str, int] = {}
@@ -223,7 +224,9 @@ def decisions_summary(ds: list[dict[str, Any]]) -> dict[str, Any] | None:
     return {"n": len(ds), "kinds": kinds,
             "last": {"generation": last.get("generation"), "kind": decision_kind(last),
                      "agreement": last.get("agreement"), "length": last.get("length"),
-                     "pools": last.get("pools"), "scores": decision_scores(last)}}
+                     "pools": last.get("pools"), "scores": decision_scores(last)},
+            **({"fit_failed": n_failed} if (n_failed := sum("fit_failed" in d for d in ds))
+               else {})}
 
 
 def fall_budget(store: RunStore, config: dict[str, Any] | None) -> dict[str, Any] | None:

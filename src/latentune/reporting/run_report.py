@@ -494,6 +494,12 @@ def decisions_markdown(store: Any) -> list[str]:
                   f"{fmt(d.get('agreement'), 2)} | {fmt(d.get('length'), 4)} | {adm} | "
                   f"{fmt(d.get('explore_bound'), 2)} | {fmt(d.get('max_fall_prob_asked'), 2)} |")
     md.append("")
+    failed = [f"generation {d.get('generation')}: " + ", ".join(
+        f"{model} ({why})" for model, why in d["fit_failed"].items())
+        for d in ds if d.get("fit_failed")]
+    if failed:
+        md += ["Asks with a model fit that failed (the model kept its starting hyperparameters, "
+               "so the ask differs from a fitted model's): " + "; ".join(failed) + ".", ""]
     return md
 
 
