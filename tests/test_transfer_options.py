@@ -80,6 +80,9 @@ def test_options_reach_the_critic_and_are_fixed_on_resume(tmp_path, src):
     ({"transfer_options": {"restart": "false"}}, "restart must be true or false"),
     ({"transfer_options": {"stop_converged": "no"}}, "stop_converged must be true or false"),
     ({"transfer_options": {"fall_cost": 1}}, "fall_cost must be true or false"),
+    # counts given as fractions: int() made 2.5 a 2 and ran with it
+    ({"transfer_options": {"full_scales": 2.5}}, "full_scales must be a whole number"),
+    ({"transfer_options": {"handoff": 2.5}}, "handoff must be a whole number"),
 ])
 def test_options_the_critic_cannot_honour_are_refused_before_anything_is_stored(
         tmp_path, src, kw, match):

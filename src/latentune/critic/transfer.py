@@ -446,7 +446,8 @@ def resolved_options(options: dict[str, Any]) -> dict[str, Any]:
 
 WHOLE_OPTIONS: dict[str, int] = {"n_design": 0, "n_elite": 0, "n_candidates": 1,
                                  "max_points": 2, "succ_tol": 1, "fail_tol": 1,
-                                 "latent_falls": 0, "fit_ard": 0}
+                                 "latent_falls": 0, "fit_ard": 0, "full_scales": 1,
+                                 "handoff": 0}
 """Options that count something, with the least whole number each takes."""
 
 
@@ -713,10 +714,6 @@ class Transfer(TwoSpaceCritic):
         if not 0.0 <= float(self.opts["global_share"]) < 1.0:
             raise ValueError(f"global_share must be in [0, 1), got {self.opts['global_share']!r}")
         check_numbers(self.opts)
-        if int(self.opts["full_scales"]) < 1:
-            raise ValueError(f"full_scales must be ≥ 1, got {self.opts['full_scales']!r}")
-        if isinstance(self.opts["handoff"], bool) or int(self.opts["handoff"]) < 0:
-            raise ValueError(f"handoff must be an integer ≥ 0, got {self.opts['handoff']!r}")
         if self.opts["handoff_model"] not in HANDOFF_MODELS:
             raise ValueError(f"handoff_model must be one of {HANDOFF_MODELS}, "
                              f"got {self.opts['handoff_model']!r}")
