@@ -942,6 +942,40 @@ def test_no_best_file_for_a_failed_theta_and_a_failing_phase_says_so(tmp_path, c
     assert sum("trials all failed" in r.getMessage() for r in caplog.records) == 1
 
 
+def test_a_phase_whose_standing_trials_all_cost_the_same_says_so_once(tmp_path, caplog, src30):
+    """A cost that does not depend on θ (a constant by mistake, a saturated or rounded cost)
+    gives the search nothing to follow: once FLAT_COUNT trials of a phase stood, all at one
+    cost, one warning says so, in a phase run and through ask/tell alike (before: phases 1 and
+    3 spent their budgets with no word). A cost that varies says nothing."""
+    from latentune.pipeline.phases import FLAT_COUNT
+
+    flat = lt.FunctionSystem(SPACE, lambda x: 1.0)
+
+    def said() -> list[str]:
+        return [r.getMessage() for r in caplog.records if "all cost" in r.getMessage()]
+    with caplog.at_level(logging.WARNING):
+        with lt.Study(tmp_path / "p1", seed=0) as st:
+            st.phase1(flat, FLAT_COUNT + 4)
+        assert said() == [f"phase 1: its {FLAT_COUNT} trials that stood so far all cost 1: "
+                          "the cost does not tell these θ apart, so the search has nothing "
+                          "to follow; check what the system returns (a constant by mistake, "
+                          "a cost that saturates or is rounded)"]
+        caplog.clear()
+        with lt.Study(tmp_path / "p3", seed=0) as st:
+            st.phase3(flat, FLAT_COUNT + 2, latent=src30)
+        assert len(said()) == 1 and said()[0].startswith("phase 3: its ")
+        caplog.clear()
+        with lt.Study(tmp_path / "a", seed=0) as at:
+            for i in range(FLAT_COUNT + 3):
+                (s,) = at.ask(space=SPACE)
+                at.tell(s.id, 2.5, failed=i % 4 == 3)    # falls do not count
+        assert len(said()) == 1 and "all cost 2.5" in said()[0]
+        caplog.clear()
+        with lt.Study(tmp_path / "v", seed=0) as st:
+            st.phase1(plant(), FLAT_COUNT + 2)
+        assert said() == []
+
+
 @pytest.mark.parametrize("strategy", ["transfer", "plain"])
 def test_a_failing_phase_3_suggests_what_its_strategy_can_take(tmp_path, caplog, src30,
                                                                strategy):

@@ -85,7 +85,7 @@ from latentune.pipeline.loop import (began_latent, check_phase1_runs, check_sour
                                      source_pin, strategy_of)
 from latentune.pipeline.phases import (NOT_REUSED, ask_batch, replay, reused_first, say_reused,
                                        state_key, stored_fall_options, stored_outcomes,
-                                       warn_if_failing)
+                                       warn_if_failing, warn_if_flat)
 from latentune.pipeline.results import best_row, fall_budget, phase_name, write_best
 from latentune.pipeline.store import DEFAULT_ASKER, Row, RunStore, critics_told
 from latentune.space import ParameterSpace
@@ -873,6 +873,8 @@ def tell(study: Any, trial_id: int, cost: float | Outcome | None = None, *,
                 return study.config().get(mf.PHASE_KEYS.get(Phase(ph), "")) or {}
             warn_if_failing(st, ph, lambda: strategy_of(stored()),
                             lambda: stored_fall_options(stored()), fixed=True)
+            if not out.failed:
+                warn_if_flat(st, ph)
         # a phase file as the phase runs write them (the zero-shot trial counts in best.json)
         write_best(st, study.dir, study.manifest.space(),
                    ph if ph in (Phase.PHASE1, Phase.PHASE3) else None)

@@ -35,7 +35,9 @@ Failing phases
 --------------
 When the last :data:`FAIL_STREAK` trials of a phase all failed, one warning is logged
 (:func:`failing_message`: what it may mean and what to try; :func:`timeout_message` when the
-trial timeout stopped them all), once per streak.
+trial timeout stopped them all), once per streak. When the trials of phase 1 or 3 that stood
+reach :data:`FLAT_COUNT`, all at one cost, one warning says the cost does not tell θ apart
+(:func:`warn_if_flat`).
 """
 from __future__ import annotations
 
@@ -61,6 +63,10 @@ log = logging.getLogger(__name__)
 
 FAIL_STREAK = 8
 """A phase whose last this many trials all failed says so (:func:`failing_message`)."""
+
+FLAT_COUNT = 10
+"""A phase whose trials that stood reach this many, all at one cost, says so
+(:func:`warn_if_flat`)."""
 
 FALL_DESIGN_SIDE = 0.8
 """Side of the box around the warm start that a fall-aware TuRBO-m's first design fills (the
@@ -312,6 +318,23 @@ def warn_if_failing(store: RunStore, phase: int,
                                     None if running is None else running(), fixed))
         return True
     return False
+
+
+def warn_if_flat(store: RunStore, phase: int) -> bool:
+    """Log one warning when the trials of ``phase`` (1 or 3) that stood number just
+    :data:`FLAT_COUNT` (call it after storing a trial that stood) and all cost the same: the
+    cost does not tell those θ apart, so the search has nothing to follow. Returns whether it
+    warned."""
+    if int(phase) not in (Phase.PHASE1, Phase.PHASE3):
+        return False
+    y = store.costs(phase)[~store.fell(phase)]
+    if len(y) != FLAT_COUNT or np.ptp(y) > 0:
+        return False
+    log.warning("phase %d: its %d trials that stood so far all cost %g: the cost does not tell "
+                "these θ apart, so the search has nothing to follow; check what the system "
+                "returns (a constant by mistake, a cost that saturates or is rounded)",
+                int(phase), FLAT_COUNT, float(y[0]))
+    return True
 
 
 def store_outcome(store: RunStore, phase: int, idx: int, theta: np.ndarray, out: Outcome, *,
@@ -571,6 +594,7 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
     best = math.inf if b is None else float(b.cost)
     streak = failure_streak(store, phase)
     stopped = 0                     # of them, the trials stopped at the trial timeout
+    standing = int((~store.fell(phase)).sum())      # the trials that stood (warn_if_flat)
     new = 0
     not_run = asked = 0
     spent_after = getattr(critic, "fall_budget_spent_after", None)
@@ -582,7 +606,7 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
                                     dtype=bool))
 
     def put(i: int, r: Outcome) -> None:    # store row i of the batch, as told
-        nonlocal idx, new, streak, stopped, best
+        nonlocal idx, new, streak, stopped, best, standing
         cost = float(r.cost)
         say_reused(phase, r)
         if batch.n0 + i != idx:         # out of ask order: where it was asked
@@ -593,6 +617,9 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
         new += 1
         batch.done[i] = (cost, bool(r.failed))
         streak = streak + 1 if r.failed else 0
+        standing += 0 if r.failed else 1
+        if standing == FLAT_COUNT and not r.failed:
+            warn_if_flat(store, phase)
         stopped = stopped + 1 if r.failed and r.info.get("timed_out") else 0
         if streak == FAIL_STREAK:
             log.warning(timeout_message(phase, FAIL_STREAK, r.info.get("trial_timeout"))
