@@ -650,7 +650,7 @@ def run_phase(store: RunStore, phase: int, system: Any, critic: Any, budget: int
                 batch = AskedBatch(idx, *ask_batch(critic, k, decoder, kn,       # for the resume
                                                    bool(reuse)))
                 store.set_meta(batch_key(phase), batch.record())
-            U, T, Z, thetas, codes = batch.U, batch.T, batch.Z, batch.thetas, batch.codes
+            U, T, Z, thetas = batch.U, batch.T, batch.Z, batch.thetas
             todo = [i for i in range(len(thetas)) if i not in batch.done]
             if max_new is not None:
                 todo = todo[:max_new - new]
