@@ -130,6 +130,31 @@ def test_user_yaml_with_base_overrides_one_field(tmp_path):
     assert spec_from_dict(spec.to_dict()) == spec
 
 
+def test_base_spec_without_a_name_is_named_by_its_file(tmp_path, run_cli, error_line):
+    """A `base: a1` spec without `name:` kept the name `a1`: `rollout --json` said robot "a1"
+    and its θ files were "tuned for a1 trot (convex)", as the built-in A1's. It is now named by
+    its file's stem; where that is no name of its own (a built-in's, or a dict without a file),
+    it is refused in one line asking for one."""
+    import latentune as lt
+
+    p = write(tmp_path, "base: a1\nkp: [120, 120, 120]\n", "heavy_a1.yaml")
+    spec = load_spec_file(p)
+    assert spec.name == "heavy_a1" and spec.kp == (120.0,) * 3 and not is_builtin(spec)
+    assert robots.check_spec(p, simulate=False).name == "heavy_a1"
+    task = lt.Task(robot=str(p), gait="trot")
+    assert task.space.tuned_for == {"robot": "heavy_a1", "gait": "trot", "actor": "convex"}
+    assert task.config()["robot"] == "heavy_a1"
+    code, out, _ = run_cli("rollout", "--robot", p, "--steps", "5", "--json")
+    assert code == 0 and json.loads(out)["robot"] == "heavy_a1"
+    own = write(tmp_path, "base: a1\nkp: [120, 120, 120]\n", "a1.yaml")
+    code, out, err = run_cli("rollout", "--robot", own, "--steps", "5", "--json")
+    assert out == "" and error_line(code, err) == (
+        f"latentune: error: robot spec {own}: a spec with base: a1 needs a name of its own "
+        "(e.g. name: my_a1); its file's stem 'a1' is a built-in robot's")
+    with pytest.raises(RobotSpecError, match=r"base: b1 needs a name of its own \(e.g. name: my_b1\)$"):
+        spec_from_dict({"base": "b1"})
+
+
 def test_user_yaml_with_base_overrides_only_the_gaits_given(tmp_path):
     """`gaits: {trot: {period: 0.4}}` under `base: a1` replaced all of A1's gaits: the spec had
     no jump ('robot has no gait jump') and a trot without duty was refused. The gaits and gait
@@ -162,7 +187,7 @@ def test_user_yaml_urdf_forms(tmp_path):
     rel = load_spec_file(write(tmp_path, "base: a1\nurdf: urdf/mine.urdf\n"))
     assert rel.urdf == str((tmp_path / "urdf" / "mine.urdf").resolve())
     absolute = load_spec_file(write(tmp_path, f"base: a1\nurdf: {a1_urdf}\n", "abs.yaml"))
-    assert absolute == get_robot("a1")
+    assert absolute.name == "abs" and absolute == RobotSpec(**{**get_robot("a1").__dict__, "name": "abs"})
     pkg = load_spec_file(write(tmp_path, "base: a1\nurdf: {package: pybullet_data, path: a1/a1.urdf}\n", "p.yaml"))
     assert pkg.urdf == str(a1_urdf.resolve())
 

@@ -103,7 +103,7 @@ def check_spec(spec: str | os.PathLike | Any, simulate: bool = True) -> CheckRep
         source, fields = spec.name, dict(spec.__dict__)
     else:
         if isinstance(spec, Mapping):
-            source, raw, base_dir = f"robot spec {spec.get('name', '?')!r}", spec, Path.cwd()
+            source, raw, base_dir, stem = f"robot spec {spec.get('name', '?')!r}", spec, Path.cwd(), None
         else:
             try:
                 path = S.spec_path(spec)
@@ -111,11 +111,11 @@ def check_spec(spec: str | os.PathLike | Any, simulate: bool = True) -> CheckRep
                 return CheckReport(source=os.fspath(spec), errors=[str(exc)])
             source = str(path)
             try:
-                raw, base_dir = S.read_yaml(path), path.parent
+                raw, base_dir, stem = S.read_yaml(path), path.parent, path.stem
             except RobotSpecError as exc:
                 return CheckReport(source=source, errors=[_strip_prefix(str(exc), path)])
         try:
-            fields = S.validated_fields(raw, "", base_dir)
+            fields = S.validated_fields(raw, "", base_dir, stem)
         except RobotSpecError as exc:
             return CheckReport(source=source, errors=[str(exc).removeprefix(": ")])
     found = inspect_fields(fields)

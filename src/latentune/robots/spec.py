@@ -10,7 +10,8 @@ the files ``specs/<name>.yaml`` of this package. The ``urdf`` field is a path (a
 relative to the YAML file) or ``{package: <name>, path: <path inside the package>}`` for a URDF
 shipped by an installed package (``pybullet_data``, ``example-robot-data``). ``base: <built-in
 name>`` starts from a built-in robot and overrides only the fields given (in ``gaits``, only
-the gaits and gait fields given). Units: SI (m, s, rad,
+the gaits and gait fields given); without ``name:`` it is named by its file's stem, never as its
+base. Units: SI (m, s, rad,
 N·m); angles of ``max_tilt_deg`` in degrees.
 
 Every load checks the spec against its URDF (:mod:`latentune.robots.inspection`: joint and foot names,
@@ -179,7 +180,7 @@ def load_spec_file(path: str | os.PathLike) -> RobotSpec:
             a spec that does not fit its URDF (:mod:`latentune.robots.inspection`).
     """
     p = Path(path)
-    return _build(read_yaml(p), f"robot spec {p}", p.parent)
+    return _build(read_yaml(p), f"robot spec {p}", p.parent, p.stem)
 
 
 def read_yaml(path: Path) -> Any:
@@ -228,12 +229,12 @@ _BOOLS = ("strip_root", "primitive_collisions")
 _GAIT_KEYS = {"period", "duty", "step_height", "offsets"}
 
 
-def _build(raw: Any, where: str, base_dir: Path) -> RobotSpec:
+def _build(raw: Any, where: str, base_dir: Path, stem: str | None = None) -> RobotSpec:
     """Validate a mapping of spec fields and check them against the URDF (``where`` prefixes
-    every error and warning message)."""
+    every error and warning message; ``stem``: the spec file's, see :func:`validated_fields`)."""
     from latentune.robots.inspection import emit_warning, inspect_fields
 
-    fields = validated_fields(raw, where, base_dir)
+    fields = validated_fields(raw, where, base_dir, stem)
     found = inspect_fields(fields)
     if found.errors:
         raise RobotSpecError(f"{where}: {'; '.join(found.errors)}")
@@ -243,9 +244,13 @@ def _build(raw: Any, where: str, base_dir: Path) -> RobotSpec:
     return spec
 
 
-def validated_fields(raw: Any, where: str, base_dir: Path) -> dict[str, Any]:
+def validated_fields(raw: Any, where: str, base_dir: Path, stem: str | None = None) -> dict[str, Any]:
     """The fields of a spec mapping, typed and checked on their own (not yet against the URDF);
     ``nominal_height``, ``torque_limits`` and ``strip_root`` may be absent.
+
+    A ``base:`` spec without ``name:`` is named by ``stem`` (its file's stem, ``heavy_a1`` for
+    ``heavy_a1.yaml``), never by its base: a changed A1 named ``a1`` would pass as the built-in
+    A1 (its θ files, its outputs). Without a stem, or with a built-in robot's, it is refused.
 
     Raises:
         RobotSpecError: ``where: <problem>``.
@@ -257,6 +262,12 @@ def validated_fields(raw: Any, where: str, base_dir: Path) -> dict[str, Any]:
         base = fields.pop("base")
         if not isinstance(base, str) or base not in BUILTIN:
             raise RobotSpecError(f"{where}: unknown base robot {base!r} (choose from {', '.join(BUILTIN)})")
+        if "name" not in fields:
+            if stem is None or stem in BUILTIN:
+                why = "" if stem is None else f"; its file's stem {stem!r} is a built-in robot's"
+                raise RobotSpecError(f"{where}: a spec with base: {base} needs a name of its own "
+                                     f"(e.g. name: my_{base}){why}")
+            fields["name"] = stem
         start = _builtin(base).to_dict()
         fields = {**start, **fields, "gaits": _over_gaits(start["gaits"], fields.get("gaits"))}
     missing = [k for k in _REQUIRED if k not in fields]
