@@ -178,6 +178,30 @@ def test_a_link_with_mass_and_a_zero_moment_of_inertia_warns(tmp_path):
         spec_file(tmp_path, f"base: a1\nurdf: {neg}\n", "n.yaml"))
 
 
+def test_a_link_welded_by_a_fixed_joint_may_have_zero_moments(tmp_path, run_cli):
+    """HyQ's `trunk_imu` (0.018 kg, moments 0, fixed to the trunk) was warned about on every
+    load ("the engines need them > 0"), yet a link on a fixed joint is welded into its parent's
+    body: its moments add to the parent's, a point mass is no limit there (HyQ's rollouts were
+    the same to 8 digits with moments 1e-6, in PyBullet and MuJoCo). Such a link loads
+    without a word; a zero moment on a link that moves (FR_upper) still warns."""
+    text = A1_URDF.read_text()
+    toe = '<mass value="0.06"/>\n      <inertia ixx="9.6e-06" ixy="0.0" ixz="0.0" iyy="9.6e-06"'
+    assert toe in text
+    zero = text.replace(toe, '<mass value="0.06"/>\n      <inertia ixx="0" ixy="0.0" ixz="0.0" iyy="0"', 1)
+    spec = spec_file(tmp_path, f"base: a1\nurdf: {urdf_file(tmp_path, zero)}\n")
+    rep = check_spec(spec, simulate=False)
+    assert rep.ok and rep.warnings == []
+    code, out, err = run_cli("rollout", "--robot", spec, "--steps", "200", "--json")
+    code_a1, out_a1, _ = run_cli("rollout", "--robot", "a1", "--steps", "200", "--json")
+    assert code == code_a1 == 0 and err == ""
+    # the toe loses its own moments (9.6e-6 kg·m²): the cost moves by ~1e-6, relative
+    assert json.loads(out)["cost"] == pytest.approx(json.loads(out_a1)["cost"], rel=1e-5)
+    moving = zero.replace('ixx="0.005529065"', 'ixx="0"', 1)
+    rep = check_spec(spec_file(tmp_path, f"base: a1\nurdf: {urdf_file(tmp_path, moving, 'm.urdf')}\n",
+                               "m.yaml"), simulate=False)
+    assert [w.split(" has ")[0] for w in rep.warnings] == ["link 'FR_upper'"]
+
+
 # ----------------------------------------------------------------------------- computed fields
 def test_nominal_height_and_torque_limits_from_the_urdf(tmp_path, capsys):
     text = "\n".join(f"{k}: {json.dumps(v)}" for k, v in get_robot("a1").to_dict().items()

@@ -209,7 +209,11 @@ def inspect_fields(fields: Mapping[str, Any]) -> Findings:
         err(f"the root link {tree.root!r} has mass 0 and carries movable joints: PyBullet would "
             "hold it fixed in space; give it its mass")
     for link in tree.links.values():      # a limit, not a body: the engines need moments > 0
-        if link.moments is not None and (link.mass or 0.0) >= MASSLESS and min(link.moments) <= 0:
+        # ... in a body that moves: a link on a fixed joint (HyQ's trunk_imu) is welded into
+        # its parent's body, its moments added to the parent's (PyBullet, MuJoCo, pinocchio)
+        welded = (j := tree.parent_joint(link.name)) is not None and j.type == "fixed"
+        if (link.moments is not None and (link.mass or 0.0) >= MASSLESS and not welded
+                and min(link.moments) <= 0):
             k = ("ixx", "iyy", "izz")[int(np.argmin(link.moments))]
             warn(f"link {link.name!r} has mass {link.mass:g} kg and the moment of inertia {k} = 0 "
                  "kg·m² (a point mass or a thin rod, not a body): give its moments (the engines "
