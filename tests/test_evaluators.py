@@ -8,6 +8,7 @@ The tests of Ray evaluators in this process share one local Ray (conftest's ``ra
 command line's phase 1 on Ray starts its own, in its process."""
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import signal
@@ -15,6 +16,7 @@ import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -136,6 +138,47 @@ def test_unreachable_ray_address_is_one_line(tmp_path, run_cli, error_line, no_l
                            "--backend", "ray", "--ray-address", f"127.0.0.1:{port}",
                            "--seed", "1")
     assert f"no Ray cluster answers at 127.0.0.1:{port}" in error_line(code, err)
+    assert not (tmp_path / "r").exists()
+
+
+@pytest.mark.parametrize("greeting", [b"", b"SSH-2.0-OpenSSH_9.6\r\n"])
+def test_a_ray_address_that_is_no_ray_head_is_one_line(tmp_path, run_cli, error_line,
+                                                      no_local_ray, monkeypatch, greeting):
+    """An address where something answers but no Ray head (a port of another service, one
+    that says nothing or greets in its own protocol): Ray's connect retried it, without end
+    when it bound 127.0.0.1 only (Ray dials the machine's own address instead: 10 minutes of
+    'Failed to connect to GCS' lines, and SIGTERM did not end it). A gRPC handshake (HTTP/2
+    SETTINGS, which Ray's head sends at once) is now asked for first: none within seconds is
+    one line naming the address, before Ray is called."""
+    pytest.importorskip("ray")
+    import ray
+
+    def no_init(*a: object, **k: object) -> None:
+        raise AssertionError("ray.init was called")
+
+    monkeypatch.setattr(ray, "init", no_init)
+    server = socket.create_server(("127.0.0.1", 0))
+    port = server.getsockname()[1]
+    held: list[socket.socket] = []
+
+    def serve() -> None:
+        with contextlib.suppress(OSError):
+            while True:
+                conn, _ = server.accept()
+                held.append(conn)
+                conn.sendall(greeting)
+
+    threading.Thread(target=serve, daemon=True).start()
+    t0 = time.monotonic()
+    try:
+        code, _, err = run_cli("phase1", *TINY, "--out", tmp_path / "r", "--phase1-evals", "4",
+                               "--backend", "ray", "--ray-address", f"127.0.0.1:{port}")
+    finally:
+        server.close()
+        for c in held:
+            c.close()
+    assert time.monotonic() - t0 < 10
+    assert f": 127.0.0.1:{port} answers, but not as a Ray cluster's head (" in error_line(code, err)
     assert not (tmp_path / "r").exists()
 
 
@@ -737,6 +780,7 @@ def test_a_workers_build_of_a_system_is_not_timed_as_its_trial(tmp_path, monkeyp
 
 
 OTHER_IN_WORKERS = """
+import contextlib
 import os
 import numpy as np
 import latentune as lt

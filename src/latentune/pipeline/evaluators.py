@@ -840,19 +840,56 @@ def _env_default(var: str, value: str | None) -> Iterator[None]:
             os.environ.pop(var, None)
 
 
-def _check_reachable(address: str, timeout: float = 10.0) -> None:
+HTTP2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + b"\x00\x00\x00\x04\x00\x00\x00\x00\x00"
+"""The HTTP/2 client connection preface and an empty SETTINGS frame (RFC 9113 §3.4): what a
+gRPC client sends first; a gRPC server (a Ray head's GCS) answers with its SETTINGS frame."""
+
+HANDSHAKE_S = 3.0
+"""How long :func:`_check_reachable` waits for a Ray head's gRPC handshake [s]."""
+
+
+def _check_reachable(address: str, timeout: float = 10.0, handshake: float = HANDSHAKE_S) -> None:
     """Raise ConnectionError if a ``HOST:PORT`` Ray address does not accept a TCP connection
-    within ``timeout`` seconds (Ray itself retries such an address without end). Other forms
-    (``auto``, ``ray://…``) are left to Ray."""
+    within ``timeout`` seconds, or accepts one but sends no HTTP/2 SETTINGS frame (the gRPC
+    handshake of a Ray head's GCS) within ``handshake`` seconds: another service's port. Ray
+    itself retries either without end. Not checked: other forms (``auto``, ``ray://…``), and
+    the handshake under ``RAY_USE_TLS`` (it starts with TLS's)."""
+    import socket
+
     hp = _host_port(address)
     if hp is None:
         return
     try:
-        _connect(hp, timeout)
+        conn = socket.create_connection(hp, timeout=timeout)
     except OSError as exc:
         raise ConnectionError(f"no Ray cluster answers at {address} ({exc.strerror or exc}); "
                               "start its head (ray start --head) or correct the address"
                               ) from None
+    if os.environ.get("RAY_USE_TLS", "").lower() in ("1", "true"):
+        conn.close()
+        return
+    with conn:
+        header, why = b"", f"no gRPC handshake within {handshake:g} s"
+        try:
+            conn.settimeout(handshake)
+            conn.sendall(HTTP2_PREFACE)
+            deadline = time.monotonic() + handshake
+            while len(header) < 9 and time.monotonic() < deadline:
+                chunk = conn.recv(9 - len(header))
+                if not chunk:
+                    why = "it closed the connection"
+                    break
+                header += chunk
+        except OSError as exc:
+            if not isinstance(exc, TimeoutError):
+                why = f"the connection failed: {exc.strerror or exc}"
+    # a frame header: length (3 bytes), type (4: SETTINGS), flags, stream 0
+    if len(header) == 9 and header[3] == 4 and header[5:9] == bytes(4):
+        return
+    if len(header) == 9:
+        why = f"it answered {header[:9]!r}, not a gRPC handshake"
+    raise ConnectionError(f"{address} answers, but not as a Ray cluster's head ({why}): give "
+                          "the port of its head's `ray start --head --port` (6379 by default)")
 
 
 class RayEvaluator(Evaluator):
@@ -861,7 +898,8 @@ class RayEvaluator(Evaluator):
 
     A local Ray gets ``num_cpus=workers``; its temp dir is ``temp_dir`` or ``$RAY_TMPDIR``.
     Ray is shut down on :meth:`close` only if this evaluator started it. A ``HOST:PORT``
-    address that accepts no connection raises ConnectionError at once.
+    address that accepts no connection, or gives no Ray head's gRPC handshake within
+    :data:`HANDSHAKE_S` seconds, raises ConnectionError (Ray would retry it without end).
 
     Lost workers: a trial whose actor dies before it returns (its node stopped or lost, the
     worker process killed or out of memory, its connection lost) has given no result; it is run
