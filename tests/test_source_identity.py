@@ -352,6 +352,32 @@ def test_a_retrained_source_latent_space_named_again_goes_on_with_the_copy(
         assert _codes(t) == {4}, _codes(t)
 
 
+def test_a_retrained_source_is_reported_once_per_retraining(tmp_path, run_cli, runs):
+    """Each call that named a retrained source again (``phase3 --resume --vae SRC``, each
+    ``ask``) warned again that it holds another latent space than phase 3's copy: one
+    retraining, a warning per call. It is reported once per retraining, recorded in the run's
+    manifest (``phase3_retrained_reported``: the source latent space reported); a second
+    retraining is reported again."""
+    from latentune.pipeline.loop import RETRAINED_KEY
+
+    src, t = _started(run_cli, runs, tmp_path)
+    warned = []
+    for evals in (5, 6):
+        _retrained(src) if evals == 5 else None
+        code, _, err = _phase3(run_cli, src, t, evals, "--resume")
+        assert code == 0, err
+        warned.append(sum("retrained since" in ln for ln in err.splitlines()))
+    with lt.Study(src) as s:
+        now = s.latent().fingerprint()
+    assert warned == [1, 0] and lt.Study(t).manifest.config()[RETRAINED_KEY] == {
+        "latent_fingerprint": now}
+    with lt.Study(src) as s:
+        s.train_latent(2, epochs=20, retrain=True)
+    code, _, err = _phase3(run_cli, src, t, 7, "--resume")
+    assert code == 0 and sum("retrained since" in ln for ln in err.splitlines()) == 1, err
+    assert lt.Study(t).store.count(3) == 7
+
+
 @pytest.mark.parametrize("strategy", ["transfer", "plain"])
 def test_a_retrained_source_latent_space_given_to_python_and_ask_goes_on_with_the_copy(
         tmp_path, runs, caplog, strategy):

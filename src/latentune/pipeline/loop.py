@@ -120,7 +120,8 @@ def phase3_setup(run: RunDir, manifest: Manifest, space: ParameterSpace, actor: 
     """(the LatentSpace, phase 3's own options record) of a phase-3 run with these arguments
     (:meth:`~latentune.study.Study.phase3`), checked (:func:`refuse_plain_options`); writes
     nothing but the new place of a moved source run and the source's amendments reported
-    (:func:`check_source_run`)."""
+    (:func:`check_source_run`), and a retraining of its latent space reported
+    (:func:`began_latent`)."""
     ls, source = resolve_latent(run, manifest, latent, space, actor)
     strategy = resolve_strategy(manifest, strategy, handover, ls)
     refuse_plain_options(strategy, method, regions, start)
@@ -305,8 +306,9 @@ def began_latent(run: RunDir, manifest: Manifest, latent: Any, source: str,
     its own latent space, or when the source was not ``given`` (``latent`` is the copy then).
     A source named again (``given``, :func:`check_source_run` has checked it is the run phase
     3 began with) whose latent space is another now (trained again since, on the same trials)
-    gives one warning: phase 3's stored trials carry codes of the copy, so it goes on with that
-    one. Call it after :func:`check_source_run` (a moved source is recorded there)."""
+    gives one warning per retraining (recorded in :data:`RETRAINED_KEY`): phase 3's stored
+    trials carry codes of the copy, so it goes on with that one. Call it after
+    :func:`check_source_run` (a moved source is recorded there)."""
     from latentune.latent.vae import LatentSpace
 
     if not given or source == "self" or not manifest.n_fixing(Phase.PHASE3) \
@@ -316,11 +318,20 @@ def began_latent(run: RunDir, manifest: Manifest, latent: Any, source: str,
     if path is None:
         return latent
     copy = LatentSpace.load(path)
-    if copy.fingerprint() != latent.fingerprint():
+    now = latent.fingerprint()
+    reported = {"latent_fingerprint": now}
+    if copy.fingerprint() != now and manifest.config().get(RETRAINED_KEY) != reported:
         log.warning("%s holds another latent space than the one phase 3 began with (retrained "
                     "since?): phase 3 goes on with its copy of that one (%s); to search the "
                     "new one, start a new phase 3 in another directory", source, path)
+        with run.writing():
+            manifest.update(**{RETRAINED_KEY: reported})
     return copy
+
+
+RETRAINED_KEY = "phase3_retrained_reported"
+"""Manifest entry of the last retrained latent space of phase 3's source run reported
+(:func:`began_latent`): ``{"latent_fingerprint": its fingerprint}``; absent until one is."""
 
 
 REPORTED_KEY = "phase3_amendments_reported"
