@@ -182,6 +182,16 @@ def test_a_ray_address_that_is_no_ray_head_is_one_line(tmp_path, run_cli, error_
     assert not (tmp_path / "r").exists()
 
 
+@pytest.mark.parametrize("address", ["", "  "])
+def test_an_empty_ray_address_is_refused(tmp_path, run_cli, error_line, address):
+    """`--ray-address "$HEAD"` with $HEAD unset ran the phase on a local Ray (an empty address
+    read as none given), not the cluster, without a word. It is refused, naming the flag."""
+    code, out, err = run_cli("phase1", *TINY, "--out", tmp_path / "r", "--phase1-evals", "2",
+                             "--backend", "ray", "--ray-address", address)
+    assert error_line(code, err).startswith("latentune: error: --ray-address is empty: give ")
+    assert out == "" and not (tmp_path / "r").exists()
+
+
 def test_ray_address_from_the_environment_is_the_cluster(tmp_path, run_cli, error_line,
                                                         no_local_ray, monkeypatch):
     """``$RAY_ADDRESS`` (Ray's own default address) without --ray-address: the ray backend

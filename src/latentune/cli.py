@@ -320,7 +320,8 @@ def add_run_args(p: argparse.ArgumentParser, name: str) -> None:
                         "serial (its default)")
     p.add_argument("--backend", choices=("serial", "process", "ray"), default="process",
                    help="evaluator: serial, a local process pool or ray")
-    p.add_argument("--ray-address", default=None, help="Ray cluster address (default: $RAY_ADDRESS, else a local Ray)")
+    p.add_argument("--ray-address", default=None, help="Ray cluster address (default: $RAY_ADDRESS, else a local Ray)",
+                   type=argtypes.given("--ray-address", "the cluster head's HOST:PORT"))
     if name != "train-vae":
         p.add_argument("--trial-timeout", type=float, default=None, metavar="S",
                        help="stop a trial that runs longer than S seconds (its worker process "
