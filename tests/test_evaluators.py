@@ -192,6 +192,19 @@ def test_an_empty_ray_address_is_refused(tmp_path, run_cli, error_line, address)
     assert out == "" and not (tmp_path / "r").exists()
 
 
+@pytest.mark.parametrize("port", ["0", "65536", "99999"])
+def test_a_ray_address_port_out_of_range_is_refused(tmp_path, run_cli, error_line, port):
+    """`--ray-address 127.0.0.1:99999` said 'no Ray cluster answers at 127.0.0.1:99999
+    (Connection refused)': the port was taken modulo 65536 (34463 was dialled). A port outside
+    1..65535 is refused as such, before anything is dialled."""
+    pytest.importorskip("ray")
+    code, _, err = run_cli("phase1", *TINY, "--out", tmp_path / "r", "--phase1-evals", "2",
+                           "--backend", "ray", "--ray-address", f"127.0.0.1:{port}")
+    assert error_line(code, err).endswith(
+        f"127.0.0.1:{port}: the port must be 1 to 65535, got {port}")
+    assert not (tmp_path / "r").exists()
+
+
 def test_ray_address_from_the_environment_is_the_cluster(tmp_path, run_cli, error_line,
                                                         no_local_ray, monkeypatch):
     """``$RAY_ADDRESS`` (Ray's own default address) without --ray-address: the ray backend

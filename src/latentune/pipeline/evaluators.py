@@ -859,6 +859,8 @@ def _check_reachable(address: str, timeout: float = 10.0, handshake: float = HAN
     hp = _host_port(address)
     if hp is None:
         return
+    if not 0 < hp[1] < 65536:           # the resolver takes it modulo 65536: another port
+        raise ConnectionError(f"{address}: the port must be 1 to 65535, got {hp[1]}")
     try:
         conn = socket.create_connection(hp, timeout=timeout)
     except OSError as exc:
