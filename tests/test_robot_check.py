@@ -204,7 +204,8 @@ def test_a_link_welded_by_a_fixed_joint_may_have_zero_moments(tmp_path, run_cli)
 
 # ----------------------------------------------------------------------------- computed fields
 def test_nominal_height_and_torque_limits_from_the_urdf(tmp_path, capsys):
-    text = "\n".join(f"{k}: {json.dumps(v)}" for k, v in get_robot("a1").to_dict().items()
+    text = "\n".join(f"{k}: {json.dumps(v)}" for k, v in
+                     {**get_robot("a1").to_dict(), "name": "a1_urdf_values"}.items()
                      if k not in ("nominal_height", "torque_limits", "strip_root"))
     spec = load_spec_file(spec_file(tmp_path, text))
     assert spec.nominal_height == pytest.approx(0.2987, abs=1e-4)      # foot_radius − mean foot z

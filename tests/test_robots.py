@@ -155,6 +155,23 @@ def test_base_spec_without_a_name_is_named_by_its_file(tmp_path, run_cli, error_
         spec_from_dict({"base": "b1"})
 
 
+def test_a_spec_file_named_as_a_built_in_but_other_warns(tmp_path, run_cli):
+    """A spec file that names itself `a1` but is another robot (other gains here) passed as the
+    built-in A1 without a word: `rollout --json` said robot "a1" and its θ files were tuned for
+    "a1 trot (convex)". It loads with one warning naming the fields that differ; a file equal
+    to the built-in loads without one."""
+    p = write(tmp_path, "base: a1\nname: a1\nkp: [120, 120, 120]\nmu: 0.5\n", "mine.yaml")
+    code, out, err = run_cli("rollout", "--robot", p, "--steps", "5", "--json")
+    assert code == 0 and json.loads(out)["robot"] == "a1"
+    assert err.splitlines() == [
+        f"latentune: warning: robot spec {p}: named a1, as a built-in robot, but not that robot "
+        "(kp, mu differ): its θ files and results pass as the built-in a1's; give it a name of "
+        "its own"]
+    same = write(tmp_path, "base: a1\nname: a1\n", "same.yaml")
+    code, out, err = run_cli("rollout", "--robot", same, "--steps", "5", "--json")
+    assert code == 0 and err == ""
+
+
 def test_user_yaml_with_base_overrides_only_the_gaits_given(tmp_path):
     """`gaits: {trot: {period: 0.4}}` under `base: a1` replaced all of A1's gaits: the spec had
     no jump ('robot has no gait jump') and a trot without duty was refused. The gaits and gait

@@ -174,13 +174,25 @@ def is_builtin(spec: RobotSpec) -> bool:
 
 def load_spec_file(path: str | os.PathLike) -> RobotSpec:
     """Read a robot spec from a YAML file (see the module docstring; README, "Custom robots").
+    One named as a built-in robot but differing from it warns (it would pass as that robot).
 
     Raises:
         RobotSpecError: missing file, bad YAML, missing/unknown/ill-typed field, URDF not found,
             a spec that does not fit its URDF (:mod:`latentune.robots.inspection`).
     """
+    from latentune.robots.inspection import emit_warning
+
     p = Path(path)
-    return _build(read_yaml(p), f"robot spec {p}", p.parent, p.stem)
+    where = f"robot spec {p}"
+    spec = _build(read_yaml(p), where, p.parent, p.stem)
+    if spec.name in BUILTIN and p.resolve().parent != SPECS_DIR.resolve():
+        other = [k for k, v in spec.__dict__.items() if v != getattr(_builtin(spec.name), k)]
+        if other:
+            emit_warning(f"{where}: named {spec.name}, as a built-in robot, but not that robot "
+                         f"({', '.join(other[:4])}{', …' if len(other) > 4 else ''} differ): its "
+                         f"θ files and results pass as the built-in {spec.name}'s; give it a "
+                         "name of its own")
+    return spec
 
 
 def read_yaml(path: Path) -> Any:
