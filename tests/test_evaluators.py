@@ -548,6 +548,17 @@ def test_head_timeout_is_a_quarter_of_rays_own_when_that_is_shorter(monkeypatch)
         assert default_head_timeout() == expected, value
 
 
+def _greets_as_a_head(server: socket.socket) -> None:
+    """Answer each connection to ``server`` with an HTTP/2 SETTINGS frame, the start of a Ray
+    head's gRPC handshake (the check before ``ray.init``), then hold it."""
+    held = []
+    with contextlib.suppress(OSError):
+        while True:
+            conn, _ = server.accept()
+            held.append(conn)
+            conn.sendall(b"\x00\x00\x00\x04\x00\x00\x00\x00\x00")
+
+
 def test_ctrl_c_while_ray_starts_stops_the_ray_it_started(monkeypatch):
     """Ctrl-C (SIGINT) while ``ray.init`` starts a local Ray: interrupted midway, Ray's agent
     processes (DashboardAgent, RuntimeEnvAgent) were left running after the command ended (a
@@ -577,6 +588,7 @@ def test_ctrl_c_while_ray_starts_stops_the_ray_it_started(monkeypatch):
         assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
         calls.clear()           # connecting to a cluster starts nothing, and may hang: not held
         with socket.create_server(("127.0.0.1", 0)) as server:
+            threading.Thread(target=_greets_as_a_head, args=(server,), daemon=True).start()
             with pytest.raises(KeyboardInterrupt):
                 RayEvaluator(2, address=f"127.0.0.1:{server.getsockname()[1]}")
         assert calls == []
