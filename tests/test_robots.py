@@ -167,6 +167,8 @@ def test_a_spec_file_named_as_a_built_in_but_other_warns(tmp_path, run_cli):
         f"latentune: warning: robot spec {p}: named a1, as a built-in robot, but not that robot "
         "(kp, mu differ): its θ files and results pass as the built-in a1's; give it a name of "
         "its own"]
+    assert robots.check_spec(p, simulate=False).warnings == [err.split(f"{p}: ", 1)[1].strip()]
+    assert robots.check_spec("a1", simulate=False).warnings == []
     same = write(tmp_path, "base: a1\nname: a1\n", "same.yaml")
     code, out, err = run_cli("rollout", "--robot", same, "--steps", "5", "--json")
     assert code == 0 and err == ""

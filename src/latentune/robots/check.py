@@ -99,6 +99,7 @@ def check_spec(spec: str | os.PathLike | Any, simulate: bool = True) -> CheckRep
     ``nominal_q``) to measure the settled base (CoM) height and the clearance of the nearest
     non-foot link; below :data:`CLEARANCE` a warning says the robot will count as fallen (body
     contact) as soon as that link touches."""
+    path: Path | None = None
     if isinstance(spec, S.RobotSpec):
         source, fields = spec.name, dict(spec.__dict__)
     else:
@@ -124,6 +125,9 @@ def check_spec(spec: str | os.PathLike | Any, simulate: bool = True) -> CheckRep
     report = CheckReport(**found.__dict__, source=source, name=str(fields.get("name", "")),
                          urdf=str(fields.get("urdf", "")), nominal_height=fields.get("nominal_height"),
                          torque_limits=None if tl is None else [float(v) for v in tl])
+    clash = S.builtin_name_clash(S.RobotSpec(**fields), path) if report.ok and path else None
+    if clash is not None:
+        report.warnings.append(clash)
     if simulate and report.ok:
         _stand(S.RobotSpec(**fields), report)
     return report

@@ -185,14 +185,25 @@ def load_spec_file(path: str | os.PathLike) -> RobotSpec:
     p = Path(path)
     where = f"robot spec {p}"
     spec = _build(read_yaml(p), where, p.parent, p.stem)
-    if spec.name in BUILTIN and p.resolve().parent != SPECS_DIR.resolve():
-        other = [k for k, v in spec.__dict__.items() if v != getattr(_builtin(spec.name), k)]
-        if other:
-            emit_warning(f"{where}: named {spec.name}, as a built-in robot, but not that robot "
-                         f"({', '.join(other[:4])}{', …' if len(other) > 4 else ''} differ): its "
-                         f"θ files and results pass as the built-in {spec.name}'s; give it a "
-                         "name of its own")
+    clash = builtin_name_clash(spec, p)
+    if clash is not None:
+        emit_warning(f"{where}: {clash}")
     return spec
+
+
+def builtin_name_clash(spec: RobotSpec, path: Path) -> str | None:
+    """What is wrong with the spec read from the file ``path`` when it gives a built-in
+    robot's name but is not that robot (its θ files and results would pass as the built-in's),
+    else None (the built-in spec files themselves included)."""
+    if spec.name not in BUILTIN or path.resolve().parent == SPECS_DIR.resolve():
+        return None
+    other = [k for k, v in spec.__dict__.items() if v != getattr(_builtin(spec.name), k)]
+    if not other:
+        return None
+    differ = "differs" if len(other) == 1 else "differ"
+    return (f"named {spec.name}, as a built-in robot, but not that robot ({', '.join(other[:4])}"
+            f"{', …' if len(other) > 4 else ''} {differ}): its θ files and results pass as the "
+            f"built-in {spec.name}'s; give it a name of its own")
 
 
 def read_yaml(path: Path) -> Any:
