@@ -547,6 +547,57 @@ def test_a_second_tell_after_an_expired_lease_says_whose_result_stands(tmp_path,
         assert [(r.cost, r.fell) for r in st.store.rows(1)] == [(2.5, True)]
 
 
+def test_a_tell_records_its_asker_and_one_naming_another_than_a_live_lease_is_refused(
+        tmp_path, run_cli, error_line):
+    """Alice's lease expired and bob was handed her suggestion; alice's tell was stored all the
+    same, and bob's tell was then refused with "... while handed out to bob", a cost he never
+    told. A tell names its asker (``asker``, ``--asker``): it is recorded with the trial
+    (``info["told_by"]``, in ``trials()`` and the audit trail), a tell naming another asker
+    than the holder of a live lease is refused (nothing stored), and a refusal of a second tell
+    names who told the result that stands. A tell without an asker is stored as before."""
+    st = lt.Study(tmp_path / "s", seed=0)
+    (a,) = st.ask(space=SPACE, asker="alice", lease_s=0.3)
+    time.sleep(0.4)                                    # alice's lease expires
+    (b,) = st.ask(asker="bob")
+    assert b.id == a.id
+    with pytest.raises(StoreError, match="handed out to bob") as e:
+        st.tell(a.id, 5.0, asker="alice")
+    assert "alice's result is not stored" in str(e.value), str(e.value)
+    assert st.store.rows(1) == []
+    st.tell(b.id, 2.0, asker="bob")
+    with pytest.raises(StoreError, match="already told") as e:
+        st.tell(a.id, 5.0, asker="alice")
+    assert "by bob" in str(e.value), str(e.value)
+    (rec,) = st.trials()
+    assert rec.info["told_by"] == "bob" and rec.cost == 2.0
+    st.tell(b.id, 2.1, asker="carol", amend=True)
+    (am,) = st.amendments()
+    assert am["old"]["info"]["told_by"] == "bob" and am["new"]["info"]["told_by"] == "carol"
+    with pytest.raises(StoreError, match="by carol"):
+        st.tell(a.id, 5.0)
+    (c,) = st.ask(asker="dave")                         # a tell without an asker: as before
+    st.tell(c.id, 3.0)
+    assert "told_by" not in st.store.rows(1)[-1].info
+    with pytest.raises(StoreError, match="already told") as e:
+        st.tell(c.id, 4.0, asker="dave")
+    assert "by a tell that named no asker" in str(e.value) and "by dave" not in str(e.value)
+    with pytest.raises(UsageError, match="asker"):
+        st.tell(c.id, 4.0, asker=" ")
+    st.close()
+    d = tmp_path / "c"                                  # the command line
+    sp = tmp_path / "S.yaml"
+    sp.write_text(SPACE_YAML)
+    assert run_cli("ask", d, "--space", sp, "--asker", "alice", "--lease", "0.3")[0] == 0
+    time.sleep(0.4)
+    assert run_cli("ask", d, "--asker", "bob")[0] == 0
+    line = error_line(*run_cli("tell", d, "1", "--cost", "5", "--asker", "alice")[::2])
+    assert "handed out to bob" in line, line
+    code, out, _ = run_cli("tell", d, "1", "--cost", "2", "--asker", "bob")
+    assert code == 0 and "told 1" in out
+    line = error_line(*run_cli("tell", d, "1", "--cost", "5")[::2])
+    assert "by bob" in line and "--amend" in line, line
+
+
 def test_an_ask_beyond_the_budget_hands_out_the_suggestions_left(tmp_path):
     """A batch of 4 asked for a budget of 4, 3 handed out and told: ask(3) raised "the budget
     is handed out (3 told, 1 pending)", and the one it had just leased was never shown."""

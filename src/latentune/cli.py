@@ -1254,7 +1254,7 @@ def cmd_tell(args: argparse.Namespace) -> int:
     with study:
         _check_suggestion_file(study, trial_id, args)
         row = study.tell(trial_id, args.cost, failed=args.failed, note=args.note,
-                         amend=args.amend, info=info)
+                         amend=args.amend, info=info, asker=args.asker)
         prune_suggestion_files(study.dir, _pending_ids(study))   # an amendment withdraws some
         study.summary()                         # summary.json holds the result told
         same = [f"{phase_name(r.phase)} evaluation {r.idx}"        # corrected with it
@@ -1717,6 +1717,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--note", default=None, help="free text stored with the trial")
     p.add_argument("--amend", action="store_true",
                    help="correct a result told before (the old one is kept as an audit trail)")
+    p.add_argument("--asker", default=None,
+                   help="who tells it (recorded with the trial); refused while another "
+                        "asker's lease on it lasts")
     p.set_defaults(func=cmd_tell)
 
     p = add("release", help="hand a pending suggestion out again (its trial will not be run)")

@@ -318,15 +318,16 @@ class Study:
 
     def tell(self, trial_id: int, cost: float | None = None, *, failed: bool = False,
              note: str | None = None, info: dict[str, Any] | None = None,
-             amend: bool = False) -> Row:
+             amend: bool = False, asker: str | None = None) -> Row:
         """Store the result of suggestion ``trial_id``: its cost (None with ``failed``: the C1
         convention; or an ``Outcome`` alone), whether it failed, a free note. ``amend``:
-        correct a told result (the old one is kept in the store's audit trail). StoreError for
-        an unknown id, one told already (without ``amend``) or never handed out. With no
+        correct a told result (the old one is kept in the store's audit trail). ``asker``: who
+        tells it (``info["told_by"]``). StoreError for an unknown id, one told already (without
+        ``amend``), never handed out, or leased to another asker than ``asker``. With no
         suggestion left out, it prepares the next ask's batch (:func:`~latentune.pipeline.
         asktell.prepare`)."""
         return asktell.tell(self, trial_id, cost, failed=failed, note=note, info=info,
-                            amend=amend)
+                            amend=amend, asker=asker)
 
     def release(self, trial_id: int) -> None:
         """End the lease of a pending suggestion now: the next ask hands it out again."""

@@ -217,6 +217,13 @@ def edited_suggestion(run_dir: str | os.PathLike, trial_id: int, theta: np.ndarr
             + (f", and {len(diff) - 1} more" if len(diff) > 1 else ""))
 
 
+def _check_asker(who: Any) -> str:
+    """``who``, an asker's name (UsageError unless a non-empty name on one line)."""
+    if not isinstance(who, str) or not who.strip() or not who.isprintable():
+        raise UsageError(f"asker must be a non-empty name on one line, got {who!r:.60}")
+    return who
+
+
 def _check_id(trial_id: Any) -> int:
     if isinstance(trial_id, bool) or not isinstance(trial_id, (int, np.integer)):
         raise UsageError(f"a suggestion id is an integer, got {trial_id!r}")
@@ -403,9 +410,7 @@ def ask(study: Any, n: int = 1, *, system: Any = None, space: ParameterSpace | N
     "manual", :data:`SCRATCH` or a (d,) unit-box θ."""
     if not is_whole(n, 1):
         raise UsageError(f"n must be an integer >= 1, got {n!r}")
-    who = DEFAULT_ASKER if asker is None else asker
-    if not isinstance(who, str) or not who.strip() or not who.isprintable():
-        raise UsageError(f"asker must be a non-empty name on one line, got {who!r:.60}")
+    who = _check_asker(DEFAULT_ASKER if asker is None else asker)
     if lease_s is not None and (isinstance(lease_s, bool) or not isinstance(
             lease_s, (int, float, np.integer, np.floating))):
         raise UsageError(f"lease_s must be a positive number of seconds, got {lease_s!r}")
@@ -830,14 +835,18 @@ def prepare(study: Any) -> bool:
 
 def tell(study: Any, trial_id: int, cost: float | Outcome | None = None, *,
          failed: bool = False, note: str | None = None, info: dict[str, Any] | None = None,
-         amend: bool = False) -> Row:
+         amend: bool = False, asker: str | None = None) -> Row:
     """Store the result of suggestion ``trial_id`` (``amend``: correct a told one, see the
     module docstring), then :func:`prepare` the next batch, or warn that phase 3's fall budget
-    is spent (:func:`refuse_if_fall_budget_spent`); return its evaluation row. A
+    is spent (:func:`refuse_if_fall_budget_spent`); return its evaluation row. ``asker``: who
+    tells it, recorded with the row (``info["told_by"]``); a tell naming another asker than
+    the holder of a lease not expired is refused (StoreError); None: no name, as before. A
     failed trial may omit the cost (the convention of :mod:`latentune.system`). ``cost`` may
     also be the :class:`~latentune.system.Outcome` a system's ``evaluate`` returned, given alone
     (without ``failed`` and ``info``)."""
     tid = _check_id(trial_id)
+    if asker is not None:
+        _check_asker(asker)
     if info is not None and not isinstance(info, dict):
         raise UsageError(f"suggestion {tid}: info must be a dict, got {type(info).__name__}")
     if isinstance(cost, Outcome) and (failed or info):
@@ -853,7 +862,8 @@ def tell(study: Any, trial_id: int, cost: float | Outcome | None = None, *,
     with study.run.writing(wait=WAIT_S) as st:
         if amend:
             ph, idx, changed = st.amend_trial(tid, out.cost, fell=out.failed,
-                                              fall_step=out.fall_step, info=out.info, note=note)
+                                              fall_step=out.fall_step, info=out.info, note=note,
+                                              asker=asker)
             told = set(critics_told(ph))
             if changed:                 # the rows stored from it (same_as) are amended with it
                 told |= _amend_copies(st, ph, idx, out, note)
@@ -865,7 +875,7 @@ def tell(study: Any, trial_id: int, cost: float | Outcome | None = None, *,
         else:
             ph = st.trials_by_id(tid).phase
             idx = st.tell_trial(tid, out.cost, fell=out.failed, fall_step=out.fall_step,
-                                seed=study.seed, info=out.info)
+                                seed=study.seed, info=out.info, asker=asker)
             p3 = study.config().get("phase3") if ph in (Phase.ZERO_SHOT, Phase.PHASE3) else None
             tell_twins(study, st, reuse_phases(Phase.PHASE3, p3) if p3 else ())
 

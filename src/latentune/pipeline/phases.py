@@ -55,7 +55,7 @@ from latentune.constants import Phase, phase_name
 from latentune.critic.handover import HANDOVER_DEFAULTS
 from latentune.errors import StoreError, UsageError
 from latentune.pipeline.evaluators import ClusterLost, Evaluator, TrialError
-from latentune.pipeline.store import Row, RunStore
+from latentune.pipeline.store import TOLD_BY, Row, RunStore
 from latentune.system import EvaluationError, Outcome
 from latentune.wording import counted
 
@@ -812,7 +812,7 @@ def manual_outcome(store: RunStore, system: Any) -> dict[bytes, Outcome]:
 
 
 NOT_REUSED = (ASKED, "trial", "reused", "same_as", "source", "source_phase", "source_idx",
-              "source_cost")
+              "source_cost", TOLD_BY)
 """The keys of a stored row's ``info`` that say where the row stands, not what the trial gave:
 left out of the outcome a θ asked again is stored with (:func:`stored_outcomes`)."""
 

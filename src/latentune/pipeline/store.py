@@ -17,8 +17,9 @@ Tables
     z          JSON list, the critic's unit-box latent point (phase 3), else NULL
     tag        the critic's tag of the point (see latentune.critic.base)
     cost, fell (the trial failed), fall_step, wall_s, seed, created (unix time)
-    info       JSON object of the trial's details (Outcome.info; ask/tell: trial id, note; a
-               phase run's row stored out of ask order: ``asked``, see latentune.pipeline.phases)
+    info       JSON object of the trial's details (Outcome.info; ask/tell: trial id, note,
+               who told it (:data:`TOLD_BY`, when the tell named an asker); a phase run's
+               row stored out of ask order: ``asked``, see latentune.pipeline.phases)
 
 ``trials``: suggestions of ask/tell (trials run elsewhere)::
 
@@ -77,6 +78,9 @@ LIST_META = ("wall_unknown",)
 """The meta entries that hold a JSON list (or are absent), checked as :data:`OBJECT_META`."""
 DEFAULT_ASKER = "default"
 """The asker of a suggestion asked without an asker's name."""
+TOLD_BY = "told_by"
+"""The key of a told row's ``info`` naming who told (or amended) its result: the tell's asker;
+absent when the tell named none."""
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -159,6 +163,15 @@ class Trial:
     created: float
     asker: str | None = None
     lease_until: float | None = None
+
+
+def _holder(asker: str, to: str = "") -> str:
+    """A lease holder as a message names it: ``"bob"`` (``to``: ``"to bob"``, ``"theirs"``:
+    ``"bob's"``), or, for a suggestion asked without an asker's name (:data:`DEFAULT_ASKER`),
+    ``"without an asker's name"`` (``"the unnamed asker's"``)."""
+    if asker == DEFAULT_ASKER:
+        return "the unnamed asker's" if to == "theirs" else "without an asker's name"
+    return f"{asker}'s" if to == "theirs" else f"{to} {asker}".strip()
 
 
 def critics_told(phase: int) -> tuple[int, ...]:
@@ -756,12 +769,14 @@ class RunStore:
 
     def tell_trial(self, trial_id: int, cost: float, *, fell: bool, fall_step: int | None = None,
                    wall_s: float | None = None, seed: int | None = None,
-                   info: dict[str, Any] | None = None) -> int:
+                   info: dict[str, Any] | None = None, asker: str | None = None) -> int:
         """Store the result of a pending suggestion as the next evaluation of its phase and mark
         it told, in one transaction (a crash leaves it pending, never half-told). Returns idx.
+        ``asker``: who tells it, recorded in the row's info (:data:`TOLD_BY`); None: not named.
 
         Raises StoreError for an unknown id, or one that is told, or is not handed out
-        (never asked for, released or withdrawn)."""
+        (never asked for, released or withdrawn), or, with ``asker``, one whose lease another
+        asker holds and has not expired."""
         with self._write(trials=True):
             t = self._trial(trial_id)
             if t.status == "told":
@@ -770,11 +785,20 @@ class RunStore:
                 raise StoreError(f"suggestion {trial_id} is not handed out ({t.status}: " + (
                     "never asked for, or released; ask for it)" if t.status == "queued" else
                     "withdrawn unasked after an amendment or a phase run)"))
+            if asker is not None and t.asker not in (None, asker) \
+                    and t.lease_until is not None and t.lease_until >= time.time():
+                until = time.strftime("%H:%M:%S UTC", time.gmtime(t.lease_until))
+                raise StoreError(f"suggestion {trial_id} is handed out {_holder(t.asker, 'to')} "
+                                 f"until {until}, not to {asker}: {asker}'s result is not "
+                                 f"stored (while the lease lasts, its result is "
+                                 f"{_holder(t.asker, 'theirs')} to tell)")
             row = self.con.execute("SELECT MAX(idx) FROM evaluations WHERE phase=?",
                                    (t.phase,)).fetchone()
             idx = 0 if row[0] is None else int(row[0]) + 1
             inf = dict(info or {})
             inf["trial"] = int(trial_id)
+            if asker is not None:
+                inf[TOLD_BY] = str(asker)
             self._insert(t.phase, idx, t.theta, cost, t.z, t.tag, fell, fall_step, wall_s, seed,
                          inf)
             self.con.execute("UPDATE trials SET status='told', idx=?, told=? WHERE id=?",
@@ -783,29 +807,35 @@ class RunStore:
 
     def _told_already(self, t: Trial) -> str:
         """The refusal of a second tell of told suggestion ``t``: the result that stands (cost,
-        fall, note), when it was told and to whom ``t`` was handed out then, so that a teller
-        whose lease had expired and was taken over amends knowingly, or not at all."""
+        fall, note), when it was told (or last amended), by whom (:data:`TOLD_BY`) and to whom
+        ``t`` was handed out then, so that a teller whose lease had expired and was taken over
+        amends knowingly, or not at all."""
         r = self.con.execute("SELECT e.cost, e.fell, e.info, t.told FROM evaluations e JOIN "
                              "trials t ON t.phase=e.phase AND t.idx=e.idx WHERE t.id=?",
                              (int(t.id),)).fetchone()
         info = json.loads(r[2]) if r[2] else {}
         note = f", note {json.dumps(str(info['note']), ensure_ascii=False)}" if info.get("note") \
             else ""
-        when = (time.strftime(" %Y-%m-%d %H:%M:%S UTC", time.gmtime(r[3]))
-                if r[3] is not None else "")
-        to = ("" if not t.asker else " while handed out without an asker's name"
-              if t.asker == DEFAULT_ASKER else f" while handed out to {t.asker}")
+        amended = self.con.execute("SELECT MAX(created) FROM amendments WHERE trial=?",
+                                   (int(t.id),)).fetchone()[0] if self._has_leases else None
+        at = r[3] if amended is None else amended
+        when = (time.strftime(" %Y-%m-%d %H:%M:%S UTC", time.gmtime(at))
+                if at is not None else "")
+        by = f" by {info[TOLD_BY]}" if info.get(TOLD_BY) else " by a tell that named no asker"
+        to = "" if not t.asker else f", while handed out {_holder(t.asker, 'to')}"
         return (f"suggestion {t.id} was already told: cost {decode_cost(r[0]):.6g}"
-                f"{' (failed)' if r[1] else ''}{note}, told{when}{to} ({phase_name(t.phase)} "
+                f"{' (failed)' if r[1] else ''}{note}, {'told' if amended is None else 'amended'}"
+                f"{when}{by}{to} ({phase_name(t.phase)} "
                 f"evaluation {t.idx}). That result stands; to replace it, tell it again with "
                 f"{option('amend', True)}")
 
     def amend_trial(self, trial_id: int, cost: float, *, fell: bool,
                     fall_step: int | None = None, info: dict[str, Any] | None = None,
-                    note: str | None = None) -> tuple[int, int, bool]:
+                    note: str | None = None, asker: str | None = None) -> tuple[int, int, bool]:
         """Correct the told result of suggestion ``trial_id`` in one transaction: its
         evaluation row gets the new cost, fell, fall_step and info (the told note, ``info``'s
-        ``"note"``, unless ``info`` gives one); the old and new values go
+        ``"note"``, unless ``info`` gives one; :data:`TOLD_BY` the amending ``asker``, none
+        when it names none: the result is no longer the first teller's); the old and new values go
         to ``amendments`` (the audit trail); queued suggestions of its phase (and of phase 3
         for the zero-shot trial: :func:`critics_told`), asked from the uncorrected rows, are dropped when the cost, fell or fall_step changed (an amendment of
         the info or the note alone changes nothing the critic saw). Returns (phase, idx,
@@ -823,6 +853,9 @@ class RunStore:
             inf["trial"] = int(trial_id)
             if "note" in old["info"] and "note" not in inf:   # a correction keeps the
                 inf["note"] = old["info"]["note"]             # operator's note unless given
+            inf.pop(TOLD_BY, None)
+            if asker is not None:
+                inf[TOLD_BY] = str(asker)
             if fell is None:
                 fell = fall_step is not None
             new = {"cost": float(cost), "fell": bool(fell), "fall_step": fall_step, "info": inf}
