@@ -422,6 +422,38 @@ def test_amending_a_trial_amends_the_rows_stored_from_it(tmp_path, src_manual_be
         assert trail[1]["old"]["cost"] == 90.0 and trail[1]["new"]["cost"] == 0.04
 
 
+def test_amending_a_trial_amends_the_copies_a_phase_run_stored_from_it(
+        tmp_path, src_manual_best, decodes_manual):
+    """The amendment of a told trial reached only the copies ask/tell stored (a suggestion id):
+    a plain phase 3 run in the same directory after the zero-shot trial was told stores the
+    manual θ's row (phase 0) and its start (phase 3) as copies of it (``same_as``), and they
+    kept the typo. Every copy follows the original, whichever front end stored it, each in the
+    audit trail (a row without a suggestion: ``trial`` None)."""
+    shutil.copytree(src_manual_best, tmp_path / "src")
+    target = bowl(0.1)
+    with lt.Study(tmp_path / "at", seed=1) as at:
+        (z,) = at.ask(system=target, phase=3, latent=tmp_path / "src", strategy="plain",
+                      budget=6)
+        at.tell(z.id, 90.0)                         # a typo: 0.04 was measured
+        at.phase3(target, 6, latent=tmp_path / "src", strategy="plain")
+        copies = [r for p in (Phase.MANUAL, Phase.PHASE3) for r in at.store.rows(p)
+                  if r.info.get("same_as")]
+        assert len(copies) >= 2 and all(r.cost == 90.0 and r.info.get("trial") is None
+                                        for r in copies)          # premise: the phase run's
+        at.tell(z.id, 0.04, amend=True, note="typo")
+        now = {(r.phase, r.idx): r for p in (Phase.MANUAL, Phase.PHASE3)
+               for r in at.store.rows(p)}
+        for c in copies:
+            r = now[(c.phase, c.idx)]
+            assert r.cost == 0.04 and r.info.get("same_as") == c.info["same_as"], r
+            assert r.info.get("reused") and r.info.get("trial") is None
+        trail = at.amendments()
+        assert {(a["phase"], a["idx"]) for a in trail[1:]} == {(c.phase, c.idx) for c in copies}
+        assert all(a["trial"] is None and a["old"]["cost"] == 90.0 and a["new"]["cost"] == 0.04
+                   for a in trail[1:])
+        assert at.best().cost == 0.04
+
+
 def test_a_first_ask_of_two_gives_the_plain_phase_3_the_rows_of_the_phase_run(
         tmp_path, src_manual_best):
     """A first ``ask(2)`` of the plain phase 3 hands out the zero-shot θ and a phase-3 θ before

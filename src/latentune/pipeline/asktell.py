@@ -49,8 +49,9 @@ A zero-shot θ the study holds a trial of is stored from it the same way
 Corrections
 -----------
 ``tell(..., amend=True)`` replaces a told result; the store keeps the old one in its audit
-trail (``amendments``). When the cost, fall flag or fall step changed, it drops the suggestions
-queued from the uncorrected rows and the critic's saved state but what does not depend on the
+trail (``amendments``), and amends the rows stored as copies of it (``info["same_as"]``, by
+ask/tell or a phase run alike), each with its own entry (:meth:`RunStore.amend_trial`).
+When the cost, fall flag or fall step changed, it drops the suggestions queued from the uncorrected rows and the critic's saved state but what does not depend on the
 rows (:data:`ROW_FREE`: the transfer critic's options, source fits and record of decisions), so
 the next ask rebuilds the critic from the corrected rows (phase 3's too when the zero-shot
 trial is amended: the transfer critic is told it, :func:`~latentune.pipeline.store.critics_told`).
@@ -83,9 +84,9 @@ from latentune.pipeline.loop import (began_latent, check_phase1_runs, check_sour
                                      refuse_plain_options, require_source_store,
                                      resolve_latent, resolve_strategy, reuse_phases,
                                      source_pin, strategy_of)
-from latentune.pipeline.phases import (NOT_REUSED, ask_batch, replay, reused_first, say_reused,
-                                       state_key, stored_fall_options, stored_outcomes,
-                                       warn_if_failing, warn_if_flat)
+from latentune.pipeline.phases import (ask_batch, replay, reused_first, say_reused, state_key,
+                                       stored_fall_options, stored_outcomes, warn_if_failing,
+                                       warn_if_flat)
 from latentune.pipeline.results import best_row, fall_budget, phase_name, write_best
 from latentune.pipeline.store import DEFAULT_ASKER, Row, RunStore, critics_told
 from latentune.space import ParameterSpace
@@ -861,17 +862,18 @@ def tell(study: Any, trial_id: int, cost: float | Outcome | None = None, *,
         out.info["note"] = str(note)
     with study.run.writing(wait=WAIT_S) as st:
         if amend:
-            ph, idx, changed = st.amend_trial(tid, out.cost, fell=out.failed,
-                                              fall_step=out.fall_step, info=out.info, note=note,
-                                              asker=asker)
-            told = set(critics_told(ph))
-            if changed:                 # the rows stored from it (same_as) are amended with it
-                told |= _amend_copies(st, ph, idx, out, note)
-                if Phase.PHASE3 in told and ph != Phase.PHASE3:    # a phase-3 row amended
-                    write_best(st, study.dir, study.manifest.space(), Phase.PHASE3)
+            # the rows stored as copies of it (same_as), by ask/tell or a phase run, with it
+            ph, idx, changed, copies = st.amend_trial(
+                tid, out.cost, fell=out.failed, fall_step=out.fall_step, info=out.info,
+                note=note, asker=asker)
+            told = {c for p in (ph, *(p for p, _ in copies)) for c in critics_told(p)}
+            if changed and Phase.PHASE3 in told and ph != Phase.PHASE3:  # a phase-3 row
+                write_best(st, study.dir, study.manifest.space(), Phase.PHASE3)
             for p in sorted(told) if changed else ():       # each critic told the row is
-                kept = st.get_meta(state_key(p)) or {}       # rebuilt from the corrected rows;
-                st.set_meta(state_key(p), {k: v for k, v in kept.items() if k in ROW_FREE})
+                kept = st.get_meta(state_key(p))             # rebuilt from the corrected rows;
+                if kept is not None or p != Phase.MANUAL:    # (the manual θ has no critic)
+                    st.set_meta(state_key(p), {k: v for k, v in (kept or {}).items()
+                                               if k in ROW_FREE})
         else:
             ph = st.trials_by_id(tid).phase
             idx = st.tell_trial(tid, out.cost, fell=out.failed, fall_step=out.fall_step,
@@ -902,25 +904,6 @@ def tell(study: Any, trial_id: int, cost: float | Outcome | None = None, *,
         return row
     prepare(study)
     return row
-
-
-def _amend_copies(st: RunStore, phase: int, idx: int, out: Outcome, note: str | None
-                  ) -> set[int]:
-    """Amend the told rows stored from evaluation ``idx`` of ``phase`` (``info["same_as"]``: a
-    θ asked again, stored with its outcome, not run) to its corrected outcome ``out``, and
-    those stored from them; return the phases of the critics told them
-    (:func:`~latentune.pipeline.store.critics_told`)."""
-    told: set[int] = set()
-    for r in [r for p in (Phase.ZERO_SHOT, Phase.PHASE3) for r in st.rows(p)]:
-        if r.info.get("same_as") != [int(phase), int(idx)] or r.info.get("trial") is None:
-            continue
-        info = {**{k: v for k, v in out.info.items() if k not in NOT_REUSED},
-                "reused": True, "same_as": [int(phase), int(idx)]}
-        st.amend_trial(int(r.info["trial"]), out.cost, fell=out.failed,
-                       fall_step=out.fall_step, info=info,
-                       note=note or f"{phase_name(phase)} evaluation {idx} amended")
-        told |= set(critics_told(r.phase)) | _amend_copies(st, r.phase, r.idx, out, note)
-    return told
 
 
 def release(study: Any, trial_id: int) -> None:

@@ -162,14 +162,15 @@ def amended_since(run: Any, counts: dict[str, int], fingerprint: str, after: int
         amends = [a for a in st.amendments() if (a["phase"], a["idx"]) in now]
     undone: dict[tuple[int, int], tuple[float, bool]] = {}
     newest: dict[tuple[int, int], int] = {}         # each trial's newest amendment number
-    trial = {(a["phase"], a["idx"]): int(a["trial"]) for a in amends}
+    trial = {(a["phase"], a["idx"]): a["trial"] for a in amends}     # None: a copy's
     for a in reversed(amends):
         k = (a["phase"], a["idx"])
         undone[k] = (float(a["old"]["cost"]), bool(a["old"]["fell"]))
         newest.setdefault(k, int(a["n"]))
         if _digest(pinned, undone) == fingerprint:
-            return sorted(trial[k] for k, (cost, fell) in undone.items()
-                          if newest[k] > after and (fell != now[k][1] or np.float64(
+            return sorted(int(trial[k]) for k, (cost, fell) in undone.items()
+                          if trial[k] is not None and newest[k] > after
+                          and (fell != now[k][1] or np.float64(
                               cost).tobytes() != np.float64(now[k][0]).tobytes())), \
                 max([int(after), *newest.values()])
     return None

@@ -55,7 +55,7 @@ from latentune.constants import Phase, phase_name
 from latentune.critic.handover import HANDOVER_DEFAULTS
 from latentune.errors import StoreError, UsageError
 from latentune.pipeline.evaluators import ClusterLost, Evaluator, TrialError
-from latentune.pipeline.store import TOLD_BY, Row, RunStore
+from latentune.pipeline.store import ASKED, NOT_REUSED, Row, RunStore
 from latentune.system import EvaluationError, Outcome
 from latentune.wording import counted
 
@@ -360,11 +360,6 @@ def stored_codes(U: np.ndarray, Z: np.ndarray | None, decoded: bool) -> list[np.
     if Z is not None:
         return [z if np.all(np.isfinite(z)) else None for z in Z]
     return list(U) if decoded else [None] * len(U)
-
-
-ASKED = "asked"
-"""The key of a row's ``info`` that holds the index the row would have had in its batch's ask
-order, for a row stored out of that order (a worker finished before an earlier-asked one)."""
 
 
 def told_order(rows: list[Row]) -> list[Row]:
@@ -809,12 +804,6 @@ def manual_outcome(store: RunStore, system: Any) -> dict[bytes, Outcome]:
     r = rows[0]
     info = {**r.info, "fall_step": r.fall_step} if r.fall_step is not None else dict(r.info)
     return {theta.tobytes(): Outcome(r.cost, r.fell, info, r.wall_s)}
-
-
-NOT_REUSED = (ASKED, "trial", "reused", "same_as", "source", "source_phase", "source_idx",
-              "source_cost", TOLD_BY)
-"""The keys of a stored row's ``info`` that say where the row stands, not what the trial gave:
-left out of the outcome a θ asked again is stored with (:func:`stored_outcomes`)."""
 
 
 def stored_outcomes(store: RunStore, phases: tuple[int, ...],

@@ -34,8 +34,9 @@ Tables
     created, told (unix times)
 
 ``amendments``: the audit trail of corrected results (:meth:`RunStore.amend_trial`): the
-suggestion id, its evaluation (phase, idx), the old and new (cost, fell, info) as JSON, the time
-and a note. The evaluation row holds the corrected values.
+suggestion id (0 for a row a phase run stored: a copy amended with the row it was stored from),
+its evaluation (phase, idx), the old and new (cost, fell, info) as JSON, the time and a note.
+The evaluation row holds the corrected values.
 
 Costs are stored as given; a non-finite cost is encoded as ±1e300 (NaN as +1e300) and decoded
 back to ±inf by every reader here (:meth:`rows`, :meth:`history`, :meth:`costs`). ``fell`` is
@@ -81,6 +82,15 @@ DEFAULT_ASKER = "default"
 TOLD_BY = "told_by"
 """The key of a told row's ``info`` naming who told (or amended) its result: the tell's asker;
 absent when the tell named none."""
+ASKED = "asked"
+"""The key of a row's ``info`` that holds the index the row would have had in its batch's ask
+order, for a row stored out of that order (a worker finished before an earlier-asked one)."""
+NOT_REUSED = (ASKED, "trial", "reused", "same_as", "source", "source_phase", "source_idx",
+              "source_cost", TOLD_BY)
+"""The keys of a stored row's ``info`` that say where the row stands, not what the trial gave:
+left out of the outcome a θ asked again is stored with (a copy, ``info["same_as"]``:
+:func:`~latentune.pipeline.phases.stored_outcomes`), and kept by a copy when the row it was
+stored from is amended (:meth:`RunStore.amend_trial`)."""
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -831,15 +841,20 @@ class RunStore:
 
     def amend_trial(self, trial_id: int, cost: float, *, fell: bool,
                     fall_step: int | None = None, info: dict[str, Any] | None = None,
-                    note: str | None = None, asker: str | None = None) -> tuple[int, int, bool]:
+                    note: str | None = None, asker: str | None = None
+                    ) -> tuple[int, int, bool, list[tuple[int, int]]]:
         """Correct the told result of suggestion ``trial_id`` in one transaction: its
         evaluation row gets the new cost, fell, fall_step and info (the told note, ``info``'s
         ``"note"``, unless ``info`` gives one; :data:`TOLD_BY` the amending ``asker``, none
         when it names none: the result is no longer the first teller's); the old and new values go
-        to ``amendments`` (the audit trail); queued suggestions of its phase (and of phase 3
-        for the zero-shot trial: :func:`critics_told`), asked from the uncorrected rows, are dropped when the cost, fell or fall_step changed (an amendment of
-        the info or the note alone changes nothing the critic saw). Returns (phase, idx,
-        whether the outcome changed). StoreError unless it was told."""
+        to ``amendments`` (the audit trail). When the cost, fell or fall_step changed (an
+        amendment of the info or the note alone changes nothing the critic saw), the rows
+        stored as copies of it (``info["same_as"]``, by ask/tell or a phase run alike), and
+        copies of those, are amended to the same outcome, each with its own entry
+        (:meth:`_amend_copies`), and the queued suggestions of the phases whose critics were
+        told an amended row (:func:`critics_told`), asked from the uncorrected rows, are
+        dropped. Returns (phase, idx, whether the outcome changed, the (phase, idx) of the
+        copies amended). StoreError unless it was told."""
         with self._write(trials=True):
             t = self._trial(trial_id)
             if t.status != "told":
@@ -870,19 +885,58 @@ class RunStore:
                               info_json(old), info_json(new), note, time.time()))
             changed = [old[k] for k in ("cost", "fell", "fall_step")] != \
                 [new[k] for k in ("cost", "fell", "fall_step")]
+            copies = self._amend_copies(t.phase, int(t.idx), new, note) if changed else []
             if changed:
-                for ph in critics_told(t.phase):
+                for ph in {c for p in (t.phase, *(p for p, _ in copies))
+                           for c in critics_told(p)}:
                     self.con.execute("UPDATE trials SET status='dropped' WHERE status='queued' "
                                      "AND phase=?", (ph,))
-        return t.phase, int(t.idx), changed
+        return t.phase, int(t.idx), changed, copies
+
+    def _amend_copies(self, phase: int, idx: int, new: dict[str, Any], note: str | None
+                      ) -> list[tuple[int, int]]:
+        """Within the caller's transaction, amend the rows stored as copies of evaluation
+        ``idx`` of ``phase`` (``info["same_as"]``) to its corrected outcome ``new`` (cost,
+        fell, fall_step, info), and the copies of those; return their (phase, idx). A copy
+        keeps its own :data:`NOT_REUSED` entries (its suggestion id if it has one, ``same_as``,
+        ``asked``) and takes the rest of its info from ``new``; each gets its entry in
+        ``amendments`` (its suggestion id, or 0), noted ``note`` or "<phase> evaluation <idx>
+        amended"."""
+        out: list[tuple[int, int]] = []
+        for p, i, cost, fell, fall_step, text in self.con.execute(
+                "SELECT phase, idx, cost, fell, fall_step, info FROM evaluations WHERE info "
+                "LIKE '%same_as%' ORDER BY rowid").fetchall():
+            info = json.loads(text)
+            if not isinstance(info, dict) or info.get("same_as") != [int(phase), int(idx)]:
+                continue
+            inf = {**{k: v for k, v in new["info"].items() if k not in NOT_REUSED},
+                   **{k: v for k, v in info.items() if k in NOT_REUSED}, "reused": True}
+            if new["fall_step"] is not None:
+                inf["fall_step"] = new["fall_step"]
+            copy = {**new, "info": inf}
+            self.con.execute("UPDATE evaluations SET cost=?, fell=?, fall_step=?, info=? "
+                             "WHERE phase=? AND idx=?",
+                             (encode_cost(new["cost"]), int(bool(new["fell"])),
+                              new["fall_step"], info_json(inf), p, i))
+            trial = info.get("trial")
+            self.con.execute("INSERT INTO amendments(trial, phase, idx, old, new, note, created) "
+                             "VALUES (?, ?, ?, ?, ?, ?, ?)",
+                             (int(trial) if isinstance(trial, int) else 0, p, i, info_json(
+                                 {"cost": decode_cost(cost), "fell": bool(fell),
+                                  "fall_step": fall_step, "info": info}), info_json(copy),
+                              note or f"{phase_name(phase)} evaluation {idx} amended",
+                              time.time()))
+            out += [(int(p), int(i)), *self._amend_copies(p, i, copy, note)]
+        return out
 
     def amendments(self) -> list[dict[str, Any]]:
         """The audit trail of amended results, oldest first: ``{n, trial, phase, idx, old, new,
-        note, created}`` (n: the amendment's number, rising; old/new: cost, fell, fall_step,
-        info)."""
+        note, created}`` (n: the amendment's number, rising; trial: the suggestion id, None for
+        a copy a phase run stored; old/new: cost, fell, fall_step, info)."""
         if not self._has_leases:
             return []
-        return [{"n": r[7], "trial": r[0], "phase": r[1], "idx": r[2], "old": json.loads(r[3]),
+        return [{"n": r[7], "trial": r[0] or None, "phase": r[1], "idx": r[2],
+                 "old": json.loads(r[3]),
                  "new": json.loads(r[4]), "note": r[5], "created": r[6]}
                 for r in self.con.execute("SELECT trial, phase, idx, old, new, note, created, n "
                                           "FROM amendments ORDER BY n")]

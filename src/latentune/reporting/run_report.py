@@ -602,7 +602,7 @@ def state_lines(store: Any, cfg: dict[str, Any]) -> list[str]:
     if out:
         lines.append(f"{out} suggestion{'s are' if out != 1 else ' is'} handed out to ask/tell "
                      "and not told: not in the tables yet.")
-    amended = len({a["trial"] for a in store.amendments()})
+    amended = len({a["trial"] for a in store.amendments() if a["trial"] is not None})
     if amended:
         lines.append(f"{amended} told result{'s were' if amended != 1 else ' was'} amended "
                      "(`tell --amend`); the tables use the amended values.")
