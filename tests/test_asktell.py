@@ -398,6 +398,40 @@ def test_a_theta_asked_twice_in_one_batch_runs_once_in_both_front_ends(
         assert at.store.count(Phase.PHASE3) == 12 and not at.store.trials("queued")
 
 
+def test_a_tell_that_stores_a_repeat_of_its_theta_says_so(tmp_path, src_manual_best,
+                                                          decodes_coarse, run_cli):
+    """A θ asked twice in a batch waits and is stored with the first one's result when that
+    is told; the tell said nothing of it (only at -v), and ``status`` then counted one trial
+    more than was told. The tell's line (and ``--json``'s ``copies``) names the copy it stored
+    too; an amendment names the copies it amended with the trial."""
+    shutil.copytree(src_manual_best, tmp_path / "src")
+    target = bowl(0.1)
+    d = tmp_path / "at"
+    with lt.Study(d, seed=1) as at:
+        (z,) = at.ask(system=target, phase=3, latent=tmp_path / "src", strategy="plain",
+                      budget=12)
+        at.tell(z.id, evaluate(target, z.theta).cost)
+        got = at.ask(4)
+        (w,) = at.store.trials("queued")                # premise: a twin waits
+    first = next(s for s in got if np.array_equal(s.theta, w.theta))
+    for s in got:
+        if s.id != first.id:
+            code, out, _ = run_cli("tell", d, s.id, "--cost", "0.9")
+            assert code == 0 and "copy" not in out and "copies" not in out, out
+    code, out, _ = run_cli("tell", d, first.id, "--cost", "0.5")
+    with lt.Study(d) as at:
+        (twin,) = [r for r in at.store.rows(Phase.PHASE3) if r.info.get("trial") == w.id]
+        assert twin.info.get("same_as") and twin.cost == 0.5
+        assert code == 0 and f"1 copy: phase 3 evaluation {twin.idx} (suggestion {w.id})" \
+            in out, out
+        assert at.status()["phases"]["phase 3"]["n"] == len(got) + 1
+    code, out, _ = run_cli("tell", d, first.id, "--cost", "0.6", "--amend", "--json")
+    rec = json.loads(out)
+    assert code == 0 and rec["id"] == first.id and rec["amended"] and rec["cost"] == 0.6
+    assert rec["copies"] == [{"id": w.id, "phase": int(Phase.PHASE3), "phase_name": "phase 3",
+                              "idx": twin.idx}], rec
+
+
 def test_amending_a_trial_amends_the_rows_stored_from_it(tmp_path, src_manual_best,
                                                          decodes_manual):
     """The plain phase 3 stores a θ the study holds a trial of with that trial's outcome

@@ -1247,25 +1247,50 @@ def cmd_tell(args: argparse.Namespace) -> int:
         trial_id = int(args.id)
     except ValueError:
         raise CLIError(f"a suggestion id is an integer, got {args.id!r}") from None
-    from latentune.constants import Phase
     from latentune.pipeline.asktell import prune_suggestion_files
     from latentune.pipeline.results import phase_name
 
     with study:
         _check_suggestion_file(study, trial_id, args)
+        n_amended = len(study.amendments())
         row = study.tell(trial_id, args.cost, failed=args.failed, note=args.note,
                          amend=args.amend, info=info, asker=args.asker)
+        # the rows stored with it (a θ asked again, waiting for its result), or amended with it
+        copies = study.store.copies(row.phase, row.idx)
+        if args.amend:
+            now = {(a["phase"], a["idx"]) for a in study.amendments()[n_amended:]}
+            copies = [c for c in copies if (c.phase, c.idx) in now]
         prune_suggestion_files(study.dir, _pending_ids(study))   # an amendment withdraws some
         study.summary()                         # summary.json holds the result told
-        same = [f"{phase_name(r.phase)} evaluation {r.idx}"        # corrected with it
-                for p in (Phase.ZERO_SHOT, Phase.PHASE3) for r in study.store.rows(p)
-                if r.info.get("same_as") == [row.phase, row.idx]]
-        print(f"{'amended' if args.amend else 'told'} {trial_id}: {phase_name(row.phase)} "
-              f"evaluation {row.idx}, cost {row.cost:.6g}{' (failed)' if row.fell else ''}"
-              + (f"; so is {', '.join(same)}, which repeats its θ" if args.amend and same
-                 else ""))
+        if args.json:
+            print(json.dumps({"id": trial_id, "amended": bool(args.amend),
+                              "phase": int(row.phase), "phase_name": phase_name(row.phase),
+                              "idx": row.idx, "cost": row.cost, "failed": row.fell,
+                              "copies": [{"id": c.info.get("trial"), "phase": int(c.phase),
+                                          "phase_name": phase_name(c.phase), "idx": c.idx}
+                                         for c in copies]}))
+        else:
+            print(f"{'amended' if args.amend else 'told'} {trial_id}: {phase_name(row.phase)} "
+                  f"evaluation {row.idx}, cost {row.cost:.6g}{' (failed)' if row.fell else ''}"
+                  + _copies_said(copies, args.amend))
         work_done(args)
     return 0
+
+
+def _copies_said(copies: list[Any], amend: bool) -> str:
+    """The end of tell's line naming the rows stored as copies of the told one (a θ asked
+    again, stored with its result, not run) or amended with it: ``"; also stored with this
+    result: 1 copy: phase 3 evaluation 5 (suggestion 9), its θ asked again"``; "" for none."""
+    from latentune.pipeline.results import phase_name
+
+    if not copies:
+        return ""
+    named = ", ".join(f"{phase_name(c.phase)} evaluation {c.idx}" + (
+        f" (suggestion {c.info['trial']})" if c.info.get("trial") is not None else "")
+        for c in copies)
+    what = f"{counted(len(copies), 'copy', 'copies')}: {named}"
+    return (f"; also amended: {what}, stored from it" if amend else
+            f"; also stored with this result: {what}, its θ asked again (not run)")
 
 
 def _fall_info(args: argparse.Namespace) -> dict[str, int] | None:
@@ -1720,6 +1745,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--asker", default=None,
                    help="who tells it (recorded with the trial); refused while another "
                         "asker's lease on it lasts")
+    p.add_argument("--json", action="store_true",
+                   help="print one JSON object (with the copies stored or amended with it)")
     p.set_defaults(func=cmd_tell)
 
     p = add("release", help="hand a pending suggestion out again (its trial will not be run)")

@@ -896,38 +896,49 @@ class RunStore:
     def _amend_copies(self, phase: int, idx: int, new: dict[str, Any], note: str | None
                       ) -> list[tuple[int, int]]:
         """Within the caller's transaction, amend the rows stored as copies of evaluation
-        ``idx`` of ``phase`` (``info["same_as"]``) to its corrected outcome ``new`` (cost,
-        fell, fall_step, info), and the copies of those; return their (phase, idx). A copy
-        keeps its own :data:`NOT_REUSED` entries (its suggestion id if it has one, ``same_as``,
-        ``asked``) and takes the rest of its info from ``new``; each gets its entry in
-        ``amendments`` (its suggestion id, or 0), noted ``note`` or "<phase> evaluation <idx>
-        amended"."""
+        ``idx`` of ``phase`` and the copies of those (:meth:`copies`) to its corrected outcome
+        ``new`` (cost, fell, fall_step, info); return their (phase, idx). A copy keeps its own
+        :data:`NOT_REUSED` entries (its suggestion id if it has one, ``same_as``, ``asked``)
+        and takes the rest of its info from ``new``; each gets its entry in ``amendments``
+        (its suggestion id, or 0), noted ``note`` or "<phase> evaluation <idx> amended"."""
         out: list[tuple[int, int]] = []
-        for p, i, cost, fell, fall_step, text in self.con.execute(
-                "SELECT phase, idx, cost, fell, fall_step, info FROM evaluations WHERE info "
-                "LIKE '%same_as%' ORDER BY rowid").fetchall():
-            info = json.loads(text)
-            if not isinstance(info, dict) or info.get("same_as") != [int(phase), int(idx)]:
-                continue
+        for r in self.copies(phase, idx):
             inf = {**{k: v for k, v in new["info"].items() if k not in NOT_REUSED},
-                   **{k: v for k, v in info.items() if k in NOT_REUSED}, "reused": True}
+                   **{k: v for k, v in r.info.items() if k in NOT_REUSED}, "reused": True}
             if new["fall_step"] is not None:
                 inf["fall_step"] = new["fall_step"]
-            copy = {**new, "info": inf}
             self.con.execute("UPDATE evaluations SET cost=?, fell=?, fall_step=?, info=? "
                              "WHERE phase=? AND idx=?",
                              (encode_cost(new["cost"]), int(bool(new["fell"])),
-                              new["fall_step"], info_json(inf), p, i))
-            trial = info.get("trial")
+                              new["fall_step"], info_json(inf), r.phase, r.idx))
+            trial = r.info.get("trial")
             self.con.execute("INSERT INTO amendments(trial, phase, idx, old, new, note, created) "
                              "VALUES (?, ?, ?, ?, ?, ?, ?)",
-                             (int(trial) if isinstance(trial, int) else 0, p, i, info_json(
-                                 {"cost": decode_cost(cost), "fell": bool(fell),
-                                  "fall_step": fall_step, "info": info}), info_json(copy),
+                             (int(trial) if isinstance(trial, int) else 0, r.phase, r.idx,
+                              info_json({"cost": r.cost, "fell": r.fell,
+                                         "fall_step": r.fall_step, "info": r.info}),
+                              info_json({**new, "info": inf}),
                               note or f"{phase_name(phase)} evaluation {idx} amended",
                               time.time()))
-            out += [(int(p), int(i)), *self._amend_copies(p, i, copy, note)]
+            out.append((int(r.phase), int(r.idx)))
         return out
+
+    def copies(self, phase: int, idx: int) -> list[Row]:
+        """The rows stored as copies of evaluation ``idx`` of ``phase`` (``info["same_as"]``:
+        a θ asked again, stored with its outcome and not run, by ask/tell or a phase run), and
+        the copies of those, in the order they were stored."""
+        if not (self._current or self._has_info):
+            return []
+        rows = {(r.phase, r.idx): r for (p,) in self.con.execute(
+                    "SELECT DISTINCT phase FROM evaluations WHERE info LIKE '%same_as%'"
+                ).fetchall() for r in self.rows(p) if r.info.get("same_as") is not None}
+        found, todo = set(), [(int(phase), int(idx))]
+        while todo:
+            of = list(todo.pop())
+            new = [k for k, r in rows.items() if r.info["same_as"] == of and k not in found]
+            found.update(new)
+            todo += new
+        return [rows[k] for k in self.stored_order() if k in found]
 
     def amendments(self) -> list[dict[str, Any]]:
         """The audit trail of amended results, oldest first: ``{n, trial, phase, idx, old, new,
