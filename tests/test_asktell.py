@@ -655,7 +655,8 @@ def test_a_tell_records_its_asker_and_one_naming_another_than_a_live_lease_is_re
     sp.write_text(SPACE_YAML)
     assert run_cli("ask", d, "--space", sp, "--asker", "alice", "--lease", "0.3")[0] == 0
     time.sleep(0.4)
-    assert run_cli("ask", d, "--asker", "bob")[0] == 0
+    code, _, err = run_cli("ask", d, "--asker", "bob")
+    assert "a tell naming that asker is refused while this lease lasts" in err, err
     line = error_line(*run_cli("tell", d, "1", "--cost", "5", "--asker", "alice")[::2])
     assert "handed out to bob" in line, line
     code, out, _ = run_cli("tell", d, "1", "--cost", "2", "--asker", "bob")

@@ -458,8 +458,9 @@ def ask(study: Any, n: int = 1, *, system: Any = None, space: ParameterSpace | N
         for t, _ in got:                    # taken over from another asker's expired lease
             if held.get(t.id) not in (None, who):
                 log.warning("suggestion %d was handed out to %s, whose lease expired: if it "
-                            "runs there all the same, the first tell stands and the other is "
-                            "refused", t.id, "an asker without a name"
+                            "runs there all the same, a tell naming that asker is refused "
+                            "while this lease lasts; of tells naming no asker, the first "
+                            "stands and the other is refused", t.id, "an asker without a name"
                             if held[t.id] == DEFAULT_ASKER else held[t.id])
         risky = fall_risk(st, ctx.phase, ctx.options)
         return [Suggestion(t.id, t.phase, t.theta, ctx.space.as_dict(t.theta), t.z, again,
