@@ -277,8 +277,9 @@ def test_an_amended_trial_corrects_the_rows_that_repeat_it(tmp_path, src_manual_
     code, out, err = run_cli("tell", tmp_path / "at", zs.info["trial"], "--cost", "2.5",
                              "--amend")
     assert code == 0, err
-    assert out.strip() == (f"amended {zs.info['trial']}: zero-shot evaluation 0, cost 2.5; so "
-                           "is phase 3 evaluation 0, which repeats its θ"), out
+    assert out.strip() == (f"amended {zs.info['trial']}: zero-shot evaluation 0, cost 2.5; also "
+                           f"amended: 1 copy: phase 3 evaluation 0 (suggestion "
+                           f"{start.info['trial']}), stored from it"), out
 
 
 def test_ask_tell_never_hands_out_a_told_theta_as_the_plain_phase_3s_start(
