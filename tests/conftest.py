@@ -188,6 +188,32 @@ def source_reads(monkeypatch: pytest.MonkeyPatch) -> list[str]:
     return reads
 
 
+@pytest.fixture
+def stopped_after_a_better_trial(tmp_path: Path) -> tuple[Path, Any]:
+    """A run of a 2-weight function (costs 1 + Σθ, but 0 at its 6th call) whose phase 1 ran 3
+    random trials, then was resumed to 12 and stopped by a Ctrl-C at the 7th call: its best
+    trial (cost 0, evaluation 5) came after the last write of its best files, which hold the
+    earlier best θ. Returns (run directory, its :class:`~latentune.space.ParameterSpace`)."""
+    import latentune as lt
+
+    space = lt.ParameterSpace(["a", "b"], [0.0, 0.0], [1.0, 1.0], manual=[0.5, 0.5])
+    calls = []
+
+    def fn(x: Any) -> float:
+        calls.append(1)
+        if len(calls) == 7:
+            raise KeyboardInterrupt                 # Ctrl-C in the resumed run
+        return 0.0 if len(calls) == 6 else 1.0 + float(sum(x))
+
+    d = tmp_path / "run"
+    with lt.Study(d, seed=0) as s:
+        s.phase1(lt.FunctionSystem(space, fn), 3, method="random")
+        assert s.summary()["phase1_best_params"] == "phase1_best.json"
+    with pytest.raises(KeyboardInterrupt), lt.Study(d, seed=0) as s:
+        s.phase1(lt.FunctionSystem(space, fn), 12, method="random")
+    return d, space
+
+
 @pytest.fixture(scope="session")
 def cli_env() -> dict[str, str]:
     """The environment ``cli`` runs the command line in (one BLAS thread, Ray auth off)."""

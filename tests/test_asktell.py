@@ -2,6 +2,7 @@
 store, several askers with leases, status, amendments, trials as data, failing phases."""
 from __future__ import annotations
 
+import contextlib
 import inspect
 import json
 import logging
@@ -13,7 +14,7 @@ import shutil
 import sqlite3
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 import pytest
@@ -433,18 +434,26 @@ def test_a_tell_that_stores_a_repeat_of_its_theta_says_so(tmp_path, src_manual_b
                               "idx": twin.idx}], rec
 
 
+@contextlib.contextmanager
+def _zero_shot_told_a_typo(tmp_path: Path, src: Path, target: Any) -> Iterator[tuple[Any, Any]]:
+    """An ask/tell plain phase 3 on ``target`` from a copy of the source ``src`` whose zero-shot
+    trial was told 90.0 where 0.04 was measured: yields (the open study, that suggestion)."""
+    shutil.copytree(src, tmp_path / "src")
+    with lt.Study(tmp_path / "at", seed=1) as at:
+        (z,) = at.ask(system=target, phase=3, latent=tmp_path / "src", strategy="plain",
+                      budget=6)
+        at.tell(z.id, 90.0)
+        yield at, z
+
+
 def test_amending_a_trial_amends_the_rows_stored_from_it(tmp_path, src_manual_best,
                                                          decodes_manual):
     """The plain phase 3 stores a θ the study holds a trial of with that trial's outcome
     (``same_as``). Amending that trial (a typo in the zero-shot cost) left the row stored from
     it with the typo: phase 3's row, its best and the rebuilt critic kept the wrong cost. The
     rows stored from an amended trial are amended with it (in the audit trail too)."""
-    shutil.copytree(src_manual_best, tmp_path / "src")
     target = bowl(0.1)
-    with lt.Study(tmp_path / "at", seed=1) as at:
-        (z,) = at.ask(system=target, phase=3, latent=tmp_path / "src", strategy="plain",
-                      budget=6)
-        at.tell(z.id, 90.0)                         # a typo: 0.04 was measured
+    with _zero_shot_told_a_typo(tmp_path, src_manual_best, target) as (at, z):
         (s,) = at.ask()
         (r0,) = [r for r in at.store.rows(Phase.PHASE3) if r.idx == 0]
         assert r0.info.get("same_as") == [Phase.ZERO_SHOT, 0] and r0.cost == 90.0  # premise
@@ -464,12 +473,8 @@ def test_amending_a_trial_amends_the_copies_a_phase_run_stored_from_it(
     manual θ's row (phase 0) and its start (phase 3) as copies of it (``same_as``), and they
     kept the typo. Every copy follows the original, whichever front end stored it, each in the
     audit trail (a row without a suggestion: ``trial`` None)."""
-    shutil.copytree(src_manual_best, tmp_path / "src")
     target = bowl(0.1)
-    with lt.Study(tmp_path / "at", seed=1) as at:
-        (z,) = at.ask(system=target, phase=3, latent=tmp_path / "src", strategy="plain",
-                      budget=6)
-        at.tell(z.id, 90.0)                         # a typo: 0.04 was measured
+    with _zero_shot_told_a_typo(tmp_path, src_manual_best, target) as (at, z):
         at.phase3(target, 6, latent=tmp_path / "src", strategy="plain")
         copies = [r for p in (Phase.MANUAL, Phase.PHASE3) for r in at.store.rows(p)
                   if r.info.get("same_as")]

@@ -660,7 +660,8 @@ def test_a_phase1_run_shows_no_phase3_row(tmp_path: Path, run_cli):
         assert _row(comparison_table(st), "phase 3")[2] == "0"
 
 
-def test_summary_names_a_phase_s_best_file_only_when_it_holds_the_best_theta(tmp_path: Path):
+def test_summary_names_a_phase_s_best_file_only_when_it_holds_the_best_theta(
+        stopped_after_a_better_trial):
     """A phase run stopped (Ctrl-C) after a better trial than its earlier best, before it
     wrote phase1_best.json: summary.json gave "phase1_best": 0.0655 beside
     "phase1_best_params": "phase1_best.json", a file of the earlier best θ (0.153). The file
@@ -668,21 +669,7 @@ def test_summary_names_a_phase_s_best_file_only_when_it_holds_the_best_theta(tmp
     deploy)."""
     import latentune as lt
 
-    space = lt.ParameterSpace(["a", "b"], [0.0, 0.0], [1.0, 1.0], manual=[0.5, 0.5])
-    calls = []
-
-    def fn(x: np.ndarray) -> float:
-        calls.append(1)
-        if len(calls) == 7:
-            raise KeyboardInterrupt                 # Ctrl-C in the resumed run
-        return 0.0 if len(calls) == 6 else 1.0 + float(np.sum(x))
-
-    d = tmp_path / "run"
-    with lt.Study(d, seed=0) as s:
-        s.phase1(lt.FunctionSystem(space, fn), 3, method="random")
-        assert s.summary()["phase1_best_params"] == "phase1_best.json"
-    with pytest.raises(KeyboardInterrupt), lt.Study(d, seed=0) as s:
-        s.phase1(lt.FunctionSystem(space, fn), 12, method="random")
+    d, _ = stopped_after_a_better_trial
     with lt.Study(d) as s:
         summary = s.summary()
     assert summary["phase1_best"] == 0.0 and summary["phase1_best_params"] is None, summary

@@ -914,25 +914,13 @@ def test_a_phase_s_wall_time_counts_its_manual_and_zero_shot_trials(tmp_path, us
         assert write_summary(s.store)["wall_by_phase_s"]["phase3"] >= 1.2
 
 
-def test_status_does_not_point_at_a_best_file_of_an_earlier_best(tmp_path, run_cli):
+def test_status_does_not_point_at_a_best_file_of_an_earlier_best(stopped_after_a_better_trial,
+                                                                 run_cli):
     """A phase run stopped (Ctrl-C) after a better trial than its earlier best, before it
     wrote best.json: status said "best: 0 (phase 1, evaluation 5); its θ: DIR/best.json",
     while best.json held the earlier best θ, the one a person would deploy. Status names the
     file only when it holds the best trial's θ, and else says to write it."""
-    space = lt.ParameterSpace(["a", "b"], [0.0, 0.0], [1.0, 1.0], manual=[0.5, 0.5])
-    calls = []
-
-    def fn(x: np.ndarray) -> float:
-        calls.append(1)
-        if len(calls) == 7:
-            raise KeyboardInterrupt                 # Ctrl-C in the resumed run
-        return 0.0 if len(calls) == 6 else 1.0 + float(np.sum(x))
-
-    d = tmp_path / "run"
-    with lt.Study(d, seed=0) as s:
-        s.phase1(lt.FunctionSystem(space, fn), 3, method="random")
-    with pytest.raises(KeyboardInterrupt), lt.Study(d, seed=0) as s:
-        s.phase1(lt.FunctionSystem(space, fn), 12, method="random")
+    d, space = stopped_after_a_better_trial
     with lt.Study(d) as s:
         best, st = s.best(), s.status()
         assert best.cost == 0.0
