@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 import latentune as lt
+from latentune.errors import StoreError
 
 SYSTEM = ("--system", "examples.toy_plant:make_real_system", "--backend", "serial",
           "--workers", "1", "--seed", "0")
@@ -652,3 +653,74 @@ def test_the_train_vae_hint_for_a_source_without_latent_space_runs(tmp_path, run
     assert hint and "--system examples.toy_plant:make_system --system-arg steps=60" in hint[1], line
     code, _, err = run_cli(*shlex.split(hint[1])[1:], "--vae-epochs", "5", "--latent-dim", "2")
     assert code == 0, err
+
+
+def _fall_record(d: Path) -> dict:
+    """The fall-aware entries of phase 3's options record (what the phase began with)."""
+    pc = lt.Study(d).config()["phase3"]
+    return {k: pc[k] for k in ("max_fall_prob", "fall_prior", "prior_counts",
+                               "prior_fingerprint") if k in pc}
+
+
+@pytest.mark.parametrize("how", ["ask", "phase3", "api"])
+def test_max_fall_prob_at_the_transfer_default_is_the_option_left_out(tmp_path, run_cli, source,
+                                                                     error_line, how):
+    """``ask D --max-fall-prob 0.3`` (and ``phase3 --resume --max-fall-prob 0.3``, and
+    ``Study.phase3(max_fall_prob=0.3)``) on a transfer phase 3 begun without it was refused:
+    'runs with no --max-fall-prob (stored), not --max-fall-prob 0.3', although 0.3 is the
+    transfer phase 3's screen unless told. Found by a colleague running the README's ask/tell
+    commands. It is the option left out: accepted, and the record keeps what the phase began
+    with (no fall prior added); another value is still refused in one line."""
+    d = tmp_path / "t"
+    if how == "ask":
+        code, _, err = run_cli("ask", d, *SYSTEM[:2], "--vae", source, "--n", "2",
+                               "--budget", "8")
+        assert code == 0, err
+        before = _fall_record(d)
+        code, _, err = run_cli("ask", d, "--max-fall-prob", "0.3")
+        assert code == 0, err
+        again = ("ask", d, "--max-fall-prob", "0.4")
+    elif how == "phase3":
+        assert _phase3(run_cli, source, d)[0] == 0
+        before = _fall_record(d)
+        code, _, err = _phase3(run_cli, source, d, "--resume", "--max-fall-prob", "0.3",
+                               evals=6)
+        assert code == 0, err
+        assert lt.Study(d).store.count(3) == 6
+        again = ("phase3", *SYSTEM, "--vae", source, "--out", d, "--phase3-evals", "8",
+                 "--resume", "--max-fall-prob", "0.4")
+    else:
+        from examples.toy_plant import make_real_system
+
+        with lt.Study(d, seed=0) as st:
+            st.phase3(make_real_system(), 4, latent=source)
+            before = _fall_record(d)
+            st.phase3(make_real_system(), 6, max_fall_prob=0.3)
+            assert st.store.count(3) == 6
+            with pytest.raises(StoreError, match="max-fall-prob = None, not 0.4"):
+                st.phase3(make_real_system(), 8, max_fall_prob=0.4)
+    assert before == {"max_fall_prob": None} == _fall_record(d)
+    if how != "api":
+        line = error_line(*run_cli(*again)[::2])
+        assert line.endswith("no --max-fall-prob (stored), not --max-fall-prob 0.4"), line
+
+
+def test_max_fall_prob_left_out_of_a_transfer_phase_3_begun_at_its_default_keeps_it(
+        tmp_path, source):
+    """The converse in Python: a transfer phase 3 begun with ``max_fall_prob=0.3`` resumed
+    without it (None: the transfer default, the same screen) goes on, its record as it began;
+    where the default is off (the plain phase 3) giving 0.3 is still refused."""
+    from examples.toy_plant import make_real_system
+
+    d = tmp_path / "t"
+    with lt.Study(d, seed=0) as st:
+        st.phase3(make_real_system(), 4, latent=source, max_fall_prob=0.3)
+        began = _fall_record(d)
+        assert began["max_fall_prob"] == 0.3 and began["fall_prior"] == "latent source"
+        st.phase3(make_real_system(), 6)
+    assert _fall_record(d) == began and lt.Study(d).store.count(3) == 6
+    p = tmp_path / "p"
+    with lt.Study(p, seed=0) as st:
+        st.phase3(make_real_system(), 4, latent=source, strategy="plain")
+        with pytest.raises(StoreError, match="max-fall-prob = None, not 0.3"):
+            st.phase3(make_real_system(), 6, max_fall_prob=0.3)

@@ -598,6 +598,12 @@ class Manifest:
                                  f"budget can only grow: give {name}{old} or more"
                                  + (", or leave it out" if cli else ""))
             pc.update({k: stored.get(k) for k in PINNED if k in pc})
+            if same_fall_prob(phase, stored, stored.get("max_fall_prob"),
+                              pc.get("max_fall_prob")):     # the fall record as it began
+                for k in FALL_KEYS:
+                    pc.pop(k, None)
+                    if k in stored:
+                        pc[k] = stored[k]
             for k in ("method", "batch_size", "seed", "regions", *(extra or {})):
                 if k in PINNED:
                     continue
@@ -659,6 +665,8 @@ def ask_options(stored: dict[str, Any] | None, given: dict[str, Any], dir_: Any,
             raise StoreError(f"{dir_}: phase {int(phase)} runs with budget = {old!r} (stored), "
                              f"not {v!r}; a budget can only grow: give {old} or more, or leave "
                              "it out")
+        elif k == "max_fall_prob" and same_fall_prob(phase, stored, old, v):
+            out[k] = old        # the phase's own default: the record stays as it began
         elif not same_option(k, old, v) \
                 and not (k == "fall_prior" and stored.get("max_fall_prob") is None):
             raise StoreError(f"{dir_}: phase {int(phase)} runs with {k.replace('_', '-')} = "
@@ -791,6 +799,34 @@ def same_option(key: str, old: Any, new: Any) -> bool:
 
         return same_options(old, new)
     return old == new
+
+
+FALL_KEYS = ("max_fall_prob", "fall_prior", "prior_counts", "prior_fingerprint")
+"""The entries of a phase's options record that the fall-aware option writes
+(:func:`fall_options`)."""
+
+
+def default_fall_prob(phase: int, stored: dict[str, Any]) -> float | None:
+    """The screen a phase with the options record ``stored`` runs with when ``max_fall_prob``
+    is left out: the transfer phase 3's 0.3 (its critic's default,
+    :data:`latentune.critic.transfer.TRANSFER_DEFAULTS`); None (off) in phase 1 and the plain
+    phase 3, where giving it adds a fall-aware critic."""
+    if int(phase) != Phase.PHASE3 or (stored.get("strategy") or "plain") != "transfer":
+        return None
+    from latentune.critic.transfer import TRANSFER_DEFAULTS
+
+    return float(TRANSFER_DEFAULTS["max_fall_prob"])
+
+
+def same_fall_prob(phase: int, stored: dict[str, Any], old: Any, new: Any) -> bool:
+    """Whether the stored ``max_fall_prob`` ``old`` and the given ``new`` of a phase whose
+    options record is ``stored`` screen alike: equal, or one left out (None) and the other
+    the phase's default screen (:func:`default_fall_prob`: 0.3 in the transfer phase 3,
+    where ``max_fall_prob=0.3`` is the option left out)."""
+    if old == new:
+        return True
+    d = default_fall_prob(phase, stored)
+    return d is not None and {old, new} <= {None, d}
 
 
 def fall_options(max_fall_prob: float | None, prior: Any) -> dict[str, Any]:
