@@ -3057,7 +3057,8 @@ def test_a_transfer_flag_at_its_default_is_the_option_left_out(run_cli, tmp_path
         st.phase3(plant(0.1), 3, latent=src30, transfer_options={"fall_budget": 0.0})
         st.phase3(plant(0.1), 3, latent=src30,
                   transfer_options={"fall_budget": 0.0, "target_scores": "ranks"})
-        with pytest.raises(StoreError, match="not {'fall_budget': 0.1"):
+        assert "transfer_options" not in st.config()["phase3"]    # the record as it began
+        with pytest.raises(StoreError, match="fall_budget = 0.0, not 0.1"):
             st.phase3(plant(0.1), 3, latent=src30, transfer_options={"fall_budget": 0.1})
 
 

@@ -724,3 +724,28 @@ def test_max_fall_prob_left_out_of_a_transfer_phase_3_begun_at_its_default_keeps
         st.phase3(make_real_system(), 4, latent=source, strategy="plain")
         with pytest.raises(StoreError, match="max-fall-prob = None, not 0.3"):
             st.phase3(make_real_system(), 6, max_fall_prob=0.3)
+
+
+@pytest.mark.parametrize("flags", [("--fall-budget", "0"), ("--target-scores", "ranks"),
+                                   ("--record-walk", "0", "--escape-falls", "0")])
+def test_a_resume_given_transfer_flags_at_their_defaults_keeps_the_record(tmp_path, run_cli,
+                                                                         source, error_line,
+                                                                         flags):
+    """``phase3 --resume --fall-budget 0`` (a default every stored run resumes with) on a
+    transfer phase 3 begun without transfer options went on, but recorded
+    ``transfer_options = {'fall_budget': 0.0}`` in the phase's record, which then said it was
+    run with the option (a later --fall-budget 0.2: 'was run with --fall-budget 0.0 (stored)');
+    Study.phase3 alike. Found giving each flag of phase3 --resume at its documented default
+    and reading the record. The record keeps what the phase began with."""
+    d = tmp_path / "t"
+    assert _phase3(run_cli, source, d)[0] == 0
+    before = lt.Study(d).config()["phase3"]
+    assert "transfer_options" not in before
+    code, _, err = _phase3(run_cli, source, d, "--resume", *flags, evals=5)
+    assert code == 0, err
+    after = lt.Study(d).config()["phase3"]
+    assert after == {**before, "budget": 5}
+    line = error_line(*_phase3(run_cli, source, d, "--resume", "--fall-budget", "0.2",
+                               evals=6)[::2])
+    assert line.endswith("phase 3's transfer critic was run with --fall-budget 0.0 (stored), "
+                         "not --fall-budget 0.2"), line

@@ -610,8 +610,8 @@ class Manifest:
                 if k in stored and not same_option(k, stored.get(k), pc.get(k)):
                     raise StoreError(f"{self.run.dir}: {key} was run with {k.replace('_', '-')}"
                                      f" = {stored.get(k)!r}, not {pc.get(k)!r}")
-                if k == "transfer_options" and k in stored:     # the record as it began
-                    pc[k] = stored[k]
+                if k == "transfer_options" and (k in stored or same_option(k, None, pc[k])):
+                    pc[k] = stored.get(k)       # the record as it began (options at defaults)
             if pc.get("transfer_options") and "transfer_options" not in stored:
                 self.check_transfer_state(phase, pc["transfer_options"])
         return {k: v for k, v in pc.items() if v is not None or k not in RECORDED_IF_GIVEN}
