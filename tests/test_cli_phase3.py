@@ -749,3 +749,32 @@ def test_a_resume_given_transfer_flags_at_their_defaults_keeps_the_record(tmp_pa
                                evals=6)[::2])
     assert line.endswith("phase 3's transfer critic was run with --fall-budget 0.0 (stored), "
                          "not --fall-budget 0.2"), line
+
+
+@pytest.mark.parametrize("how", ["ask", "phase3"])
+def test_walk_pick_at_its_default_without_a_walk_is_the_option_left_out(tmp_path, run_cli,
+                                                                        source, error_line, how):
+    """``ask D --walk-pick rank`` and ``phase3 --resume --walk-pick rank`` (the help's "rank,
+    the default") on a transfer phase 3 without a record walk were refused: '--walk-pick
+    chooses the steps of a walk: give --record-walk K > 0', while the transfer critic (and
+    Study.phase3's ``walk_pick="rank"``) takes the default without a walk. Found giving each
+    flag of ask and phase3 --resume at its documented default. It is the option left out;
+    another pick without a walk is still refused in one line."""
+    d = tmp_path / "t"
+    if how == "ask":
+        code, _, err = run_cli("ask", d, *SYSTEM[:2], "--vae", source, "--n", "2",
+                               "--budget", "8")
+        cmd: tuple = ("ask", d)
+    else:
+        code, _, err = _phase3(run_cli, source, d)
+        cmd = ("phase3", *SYSTEM, "--vae", source, "--out", d, "--phase3-evals", "4",
+               "--resume")
+    assert code == 0, err
+    before = lt.Study(d).config()["phase3"]
+    for flags in (("--walk-pick", "rank"), ("--walk-pick", "rank", "--record-walk", "0")):
+        code, _, err = run_cli(*cmd, *flags)
+        assert code == 0, (flags, err)
+    assert lt.Study(d).config()["phase3"] == before
+    line = error_line(*run_cli(*cmd, "--walk-pick", "fall")[::2])
+    assert line == "latentune: error: --walk-pick chooses the steps of a walk: give " \
+                   "--record-walk K > 0", line

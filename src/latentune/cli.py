@@ -1599,7 +1599,8 @@ def _transfer_options(args: argparse.Namespace, stored: dict[str, Any] | None
     """Phase 3's ``transfer_options``: ``stored`` (the stored phase 3's, which a resume or a
     later ask keeps) with --fall-budget, --record-walk, --escape-falls, --walk-pick and
     --target-scores over it
-    (each checked; a --walk-pick without a walk to choose for is refused). A flag that changes
+    (each checked; a --walk-pick other than the default without a walk to choose for is
+    refused). A flag that changes
     a stored value is then refused by the study, naming both."""
     q = getattr(args, "fall_budget", None)
     k = getattr(args, "record_walk", None)
@@ -1622,7 +1623,10 @@ def _transfer_options(args: argparse.Namespace, stored: dict[str, Any] | None
             raise CLIError(f"--escape-falls must be a number of trials ≥ 0 (0: off), got {esc}")
         opts["escape_falls"] = esc
     if pick is not None:
-        if int(opts.get("record_walk", 0)) <= 0:
+        from latentune.critic.transfer import TRANSFER_DEFAULTS
+
+        # the default pick without a walk is no choice (as the critic takes it): left out
+        if int(opts.get("record_walk", 0)) <= 0 and pick != TRANSFER_DEFAULTS["walk_pick"]:
             raise CLIError("--walk-pick chooses the steps of a walk: give --record-walk K > 0")
         opts["walk_pick"] = pick
     if scores is not None:
