@@ -598,8 +598,9 @@ class Manifest:
                                  f"budget can only grow: give {name}{old} or more"
                                  + (", or leave it out" if cli else ""))
             pc.update({k: stored.get(k) for k in PINNED if k in pc})
-            if same_fall_prob(phase, stored, stored.get("max_fall_prob"),
-                              pc.get("max_fall_prob")):     # the fall record as it began
+            if stored.get("max_fall_prob") != pc.get("max_fall_prob") and same_fall_prob(
+                    phase, stored, stored.get("max_fall_prob"), pc.get("max_fall_prob")):
+                # the phase's default screen given or left out: the fall record as it began
                 for k in FALL_KEYS:
                     pc.pop(k, None)
                     if k in stored:
