@@ -670,7 +670,8 @@ def test_max_fall_prob_at_the_transfer_default_is_the_option_left_out(tmp_path, 
     'runs with no --max-fall-prob (stored), not --max-fall-prob 0.3', although 0.3 is the
     transfer phase 3's screen unless told. Found by a colleague running the README's ask/tell
     commands. It is the option left out: accepted, and the record keeps what the phase began
-    with (no fall prior added); another value is still refused in one line."""
+    with (no fall prior added); another value is still refused in one line, which said 'runs
+    with no --max-fall-prob' as if the phase screened nothing: it says it screens at 0.3."""
     d = tmp_path / "t"
     if how == "ask":
         code, _, err = run_cli("ask", d, *SYSTEM[:2], "--vae", source, "--n", "2",
@@ -697,12 +698,16 @@ def test_max_fall_prob_at_the_transfer_default_is_the_option_left_out(tmp_path, 
             before = _fall_record(d)
             st.phase3(make_real_system(), 6, max_fall_prob=0.3)
             assert st.store.count(3) == 6
-            with pytest.raises(StoreError, match="max-fall-prob = None, not 0.4"):
+            with pytest.raises(StoreError, match=r"max-fall-prob = None, not 0.4; without "
+                               r"it the transfer phase 3 screens at 0.3: leave it out \(or give "
+                               r"max_fall_prob=0.3\)"):
                 st.phase3(make_real_system(), 8, max_fall_prob=0.4)
     assert before == {"max_fall_prob": None} == _fall_record(d)
     if how != "api":
         line = error_line(*run_cli(*again)[::2])
-        assert line.endswith("no --max-fall-prob (stored), not --max-fall-prob 0.4"), line
+        assert line.endswith("no --max-fall-prob (stored), not --max-fall-prob 0.4; without "
+                             "it the transfer phase 3 screens at 0.3: leave it out (or give "
+                             "--max-fall-prob 0.3) to go on with it"), line
 
 
 def test_max_fall_prob_left_out_of_a_transfer_phase_3_begun_at_its_default_keeps_it(

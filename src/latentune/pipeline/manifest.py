@@ -610,7 +610,8 @@ class Manifest:
                     continue
                 if k in stored and not same_option(k, stored.get(k), pc.get(k)):
                     raise StoreError(f"{self.run.dir}: {key} was run with {k.replace('_', '-')}"
-                                     f" = {stored.get(k)!r}, not {pc.get(k)!r}")
+                                     f" = {stored.get(k)!r}, not {pc.get(k)!r}"
+                                     + default_fall_note(k, phase, stored))
                 if k == "transfer_options" and (k in stored or same_option(k, None, pc[k])):
                     pc[k] = stored.get(k)       # the record as it began (options at defaults)
             if pc.get("transfer_options") and "transfer_options" not in stored:
@@ -671,7 +672,7 @@ def ask_options(stored: dict[str, Any] | None, given: dict[str, Any], dir_: Any,
         elif not same_option(k, old, v) \
                 and not (k == "fall_prior" and stored.get("max_fall_prob") is None):
             raise StoreError(f"{dir_}: phase {int(phase)} runs with {k.replace('_', '-')} = "
-                             f"{old!r} (stored), not {v!r}")
+                             f"{old!r} (stored), not {v!r}" + default_fall_note(k, phase, stored))
         else:       # transfer options at their defaults: the record stays as it began
             out[k] = old if k == "transfer_options" else v
     return out
@@ -828,6 +829,18 @@ def same_fall_prob(phase: int, stored: dict[str, Any], old: Any, new: Any) -> bo
         return True
     d = default_fall_prob(phase, stored)
     return d is not None and {old, new} <= {None, d}
+
+
+def default_fall_note(key: str, phase: int, stored: dict[str, Any]) -> str:
+    """What a refusal of another ``max_fall_prob`` (``key``) adds where the stored phase runs
+    without one but screens at its default (:func:`default_fall_prob`): "; without it the
+    transfer phase 3 screens at 0.3: …", so that 'no --max-fall-prob' does not read as no
+    screen; "" otherwise."""
+    d = default_fall_prob(phase, stored)
+    if key != "max_fall_prob" or d is None or stored.get("max_fall_prob") is not None:
+        return ""
+    return (f"; without it the transfer phase 3 screens at {d:g}: leave it out (or give "
+            f"{option('max_fall_prob', d)}) to go on with it")
 
 
 def fall_options(max_fall_prob: float | None, prior: Any) -> dict[str, Any]:
