@@ -783,3 +783,32 @@ def test_walk_pick_at_its_default_without_a_walk_is_the_option_left_out(tmp_path
     line = error_line(*run_cli(*cmd, "--walk-pick", "fall")[::2])
     assert line == "latentune: error: --walk-pick chooses the steps of a walk: give " \
                    "--record-walk K > 0", line
+
+
+@pytest.mark.parametrize("cmd", ["phase3", "tune"])
+def test_a_resume_given_walk_pick_goes_by_the_stored_record_walk(tmp_path, run_cli, source,
+                                                                 error_line, cmd):
+    """``phase3 --resume --walk-pick band`` (and ``tune --resume``) of a phase 3 run with
+    --record-walk 2 was refused: '--walk-pick chooses the steps of a walk: give --record-walk K
+    > 0', though the run has its walk (ask reads it from the store, as a resume keeps it); a
+    user who then gave --record-walk 2 was refused another way. Found giving each flag of
+    phase3 --resume on a run begun with transfer options. The stored walk counts: the default
+    pick is accepted, another one refused as a change of the stored option."""
+    d = tmp_path / "t"
+    if cmd == "phase3":
+        assert _phase3(run_cli, source, d, "--record-walk", "2")[0] == 0
+        again: tuple = ("phase3", *SYSTEM, "--vae", source, "--out", d, "--phase3-evals", "4",
+                        "--resume")
+    else:
+        again = ("tune", "--system", "examples.toy_plant:make_system", *SYSTEM[2:], "--out", d,
+                 "--phase1-evals", "8", "--phase3-evals", "2", "--vae-epochs", "5")
+        code, _, err = run_cli(*again, "--record-walk", "2")
+        assert code == 0, err
+        again = (*again, "--resume")
+    before = lt.Study(d).config()["phase3"]
+    assert before["transfer_options"] == {"record_walk": 2}
+    code, _, err = run_cli(*again, "--walk-pick", "rank")
+    assert code == 0, err
+    assert lt.Study(d).config()["phase3"] == before
+    line = error_line(*run_cli(*again, "--walk-pick", "band")[::2])
+    assert line.endswith("was run with no --walk-pick (stored), not --walk-pick band"), line

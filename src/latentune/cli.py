@@ -752,7 +752,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
     from latentune.pipeline.phase2 import stale_latent
 
     _strategy(args, _handover(args))                # the flags given: checked before any read
-    _transfer_options(args, None)
+    _transfer_options(args, None, unread=args.resume)
     plan: dict[str, Any] = {}
     chosen: dict[str, Any] = {}         # phase 3's handover and strategy, read with the plan
 
@@ -903,7 +903,7 @@ def _phase3_flags(phase3: Callable[..., Any], *a: Any, args: argparse.Namespace,
 def cmd_phase3(args: argparse.Namespace) -> int:
     handover = _handover(args)
     strategy = _strategy(args, handover)
-    _transfer_options(args, None)                   # checked before anything runs
+    _transfer_options(args, None, unread=args.resume)   # checked before anything runs
     study = _study(args)
     _check_stored_system(study, args)
     system = make_system(args, study.seed)
@@ -1594,14 +1594,14 @@ given), under ``tune`` before phase 1 runs: what its latent space and phase 3 ar
 which a resume stopped before them would otherwise not know (:func:`_tune_plan`)."""
 
 
-def _transfer_options(args: argparse.Namespace, stored: dict[str, Any] | None
-                      ) -> dict[str, Any] | None:
+def _transfer_options(args: argparse.Namespace, stored: dict[str, Any] | None, *,
+                      unread: bool = False) -> dict[str, Any] | None:
     """Phase 3's ``transfer_options``: ``stored`` (the stored phase 3's, which a resume or a
     later ask keeps) with --fall-budget, --record-walk, --escape-falls, --walk-pick and
     --target-scores over it
     (each checked; a --walk-pick other than the default without a walk to choose for is
-    refused). A flag that changes
-    a stored value is then refused by the study, naming both."""
+    refused; ``unread``: a resume's stored options not read yet, whose walk that check
+    waits for). A flag that changes a stored value is then refused by the study, naming both."""
     q = getattr(args, "fall_budget", None)
     k = getattr(args, "record_walk", None)
     pick = getattr(args, "walk_pick", None)
@@ -1626,7 +1626,8 @@ def _transfer_options(args: argparse.Namespace, stored: dict[str, Any] | None
         from latentune.critic.transfer import TRANSFER_DEFAULTS
 
         # the default pick without a walk is no choice (as the critic takes it): left out
-        if int(opts.get("record_walk", 0)) <= 0 and pick != TRANSFER_DEFAULTS["walk_pick"]:
+        if int(opts.get("record_walk", 0)) <= 0 and pick != TRANSFER_DEFAULTS["walk_pick"] \
+                and not unread:
             raise CLIError("--walk-pick chooses the steps of a walk: give --record-walk K > 0")
         opts["walk_pick"] = pick
     if scores is not None:
