@@ -812,3 +812,23 @@ def test_a_resume_given_walk_pick_goes_by_the_stored_record_walk(tmp_path, run_c
     assert lt.Study(d).config()["phase3"] == before
     line = error_line(*run_cli(*again, "--walk-pick", "band")[::2])
     assert line.endswith("was run with no --walk-pick (stored), not --walk-pick band"), line
+
+
+def test_a_transfer_flag_on_a_resumed_plain_phase_3_says_it_runs_plain(tmp_path, run_cli,
+                                                                        source, error_line):
+    """``phase3 --resume --fall-budget 0.1`` of a plain phase 3 said '--fall-budget is an option
+    of the transfer phase 3 (--strategy transfer), not of the plain one (the strategy given, or
+    the stored one, or plain where a hand-over is given)', leaving the reader to work out which;
+    ``ask`` says the stored phase 3 runs plain and what to do. The resume says it too. Found
+    giving each transfer flag of phase3 --resume on a plain run."""
+    d = tmp_path / "p"
+    assert _phase3(run_cli, source, d, "--strategy", "plain")[0] == 0
+    for flags in (("--fall-budget", "0.1"), ("--target-scores", "values")):
+        line = error_line(*_phase3(run_cli, source, d, "--resume", *flags, evals=6)[::2])
+        assert line == (f"latentune: error: {d}: {flags[0]} is an option of the transfer phase 3,"
+                        f" and this phase 3 runs with --strategy plain (stored): leave "
+                        f"{flags[0]} out to go on with it, or start a transfer phase 3 in "
+                        "another directory"), line
+    line = error_line(*_phase3(run_cli, source, tmp_path / "n", "--strategy", "plain",
+                               "--fall-budget", "0.1")[::2])
+    assert "--fall-budget is an option of the transfer phase 3 (--strategy transfer)" in line

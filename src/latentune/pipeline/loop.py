@@ -124,6 +124,9 @@ def phase3_setup(run: RunDir, manifest: Manifest, space: ParameterSpace, actor: 
     (:func:`began_latent`)."""
     ls, source = resolve_latent(run, manifest, latent, space, actor)
     strategy = resolve_strategy(manifest, strategy, handover, ls)
+    if transfer_options and strategy == "plain" and manifest.n_fixing(Phase.PHASE3) \
+            and strategy_of(manifest.config().get("phase3") or {}) == "plain":
+        raise StoreError(mf.stored_plain_refusal(run.dir))      # as a later ask says it
     refuse_plain_options(strategy, method, regions, start)
     require_source_store(strategy, source, max_fall_prob)
     check_source_run(run, manifest, source, ls,

@@ -657,10 +657,7 @@ def ask_options(stored: dict[str, Any] | None, given: dict[str, Any], dir_: Any,
             out[k] = old
         elif k == "transfer_options" and int(phase) == Phase.PHASE3 and \
                 (stored.get("strategy") or "plain") == "plain":     # not an option of it
-            raise StoreError(f"{dir_}: transfer_options are options of the transfer phase 3, "
-                             "and this phase 3 runs with strategy plain (stored): leave them "
-                             "out to go on with it, or start a transfer phase 3 in another "
-                             "directory")
+            raise StoreError(stored_plain_refusal(dir_))
         elif k == "budget" and old is not None and is_whole(v, old):
             out[k] = v
         elif k == "budget" and old is not None and is_whole(v, 1):
@@ -676,6 +673,14 @@ def ask_options(stored: dict[str, Any] | None, given: dict[str, Any], dir_: Any,
         else:       # transfer options at their defaults: the record stays as it began
             out[k] = old if k == "transfer_options" else v
     return out
+
+
+def stored_plain_refusal(dir_: Any) -> str:
+    """The refusal of transfer options given to a later ask or a resume of the stored plain
+    phase 3 in ``dir_`` (the same words for both)."""
+    return (f"{dir_}: transfer_options are options of the transfer phase 3, and this phase 3 "
+            "runs with strategy plain (stored): leave them out to go on with it, or start a "
+            "transfer phase 3 in another directory")
 
 
 def diff(a: dict[str, Any], b: dict[str, Any], prefix: str = "") -> str:
