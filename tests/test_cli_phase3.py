@@ -832,3 +832,23 @@ def test_a_transfer_flag_on_a_resumed_plain_phase_3_says_it_runs_plain(tmp_path,
     line = error_line(*_phase3(run_cli, source, tmp_path / "n", "--strategy", "plain",
                                "--fall-budget", "0.1")[::2])
     assert "--fall-budget is an option of the transfer phase 3 (--strategy transfer)" in line
+
+
+def test_a_transfer_flag_on_a_resumed_plain_tune_says_it_runs_plain(tmp_path, run_cli,
+                                                                     error_line):
+    """``tune --resume --fall-budget 0.1`` of a tune whose phase 3 runs plain said the vague
+    '… not of the plain one (the strategy given, or the stored one, or plain where a hand-over
+    is given)', as phase3 --resume did; it says the stored phase 3 runs plain, before phase 1
+    runs. Found giving each transfer flag of tune --resume on a plain run."""
+    d = tmp_path / "t"
+    run = ("tune", "--system", "examples.toy_plant:make_system", *SYSTEM[2:], "--out", d,
+           "--phase3-evals", "2", "--vae-epochs", "5")
+    code, _, err = run_cli(*run, "--phase1-evals", "8", "--strategy", "plain")
+    assert code == 0, err
+    line = error_line(*run_cli(*run, "--phase1-evals", "10", "--resume", "--fall-budget",
+                               "0.1")[::2])
+    assert line == (f"latentune: error: {d}: --fall-budget is an option of the transfer phase "
+                    "3, and this phase 3 runs with --strategy plain (stored): leave "
+                    "--fall-budget out to go on with it, or start a transfer phase 3 in "
+                    "another directory"), line
+    assert lt.Study(d).store.count(1) == 8

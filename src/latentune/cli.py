@@ -748,7 +748,7 @@ def _tune_plan(study: Any, args: argparse.Namespace) -> dict[str, Any]:
 
 def cmd_tune(args: argparse.Namespace) -> int:
     from latentune.constants import Phase
-    from latentune.pipeline.loop import resolve_strategy
+    from latentune.pipeline.loop import refuse_transfer_on_stored_plain, resolve_strategy
     from latentune.pipeline.phase2 import stale_latent
 
     _strategy(args, _handover(args))                # the flags given: checked before any read
@@ -767,8 +767,9 @@ def cmd_tune(args: argparse.Namespace) -> int:
         chosen["strategy"] = strategy = _strategy(args, handover)
         try:
             st = resolve_strategy(study.manifest, strategy, handover)
-            transfer_option(_transfer_options(args, _stored_transfer(study)), st,
-                            args.max_fall_prob)
+            topts = _transfer_options(args, _stored_transfer(study))
+            refuse_transfer_on_stored_plain(study.manifest, st, topts, study.dir)
+            transfer_option(topts, st, args.max_fall_prob)
         except (UsageError, StoreError) as exc:
             raise CLIError(_ask_flags(str(exc), args)) from None
 

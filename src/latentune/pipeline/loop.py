@@ -124,9 +124,7 @@ def phase3_setup(run: RunDir, manifest: Manifest, space: ParameterSpace, actor: 
     (:func:`began_latent`)."""
     ls, source = resolve_latent(run, manifest, latent, space, actor)
     strategy = resolve_strategy(manifest, strategy, handover, ls)
-    if transfer_options and strategy == "plain" and manifest.n_fixing(Phase.PHASE3) \
-            and strategy_of(manifest.config().get("phase3") or {}) == "plain":
-        raise StoreError(mf.stored_plain_refusal(run.dir))      # as a later ask says it
+    refuse_transfer_on_stored_plain(manifest, strategy, transfer_options, run.dir)
     refuse_plain_options(strategy, method, regions, start)
     require_source_store(strategy, source, max_fall_prob)
     check_source_run(run, manifest, source, ls,
@@ -137,6 +135,16 @@ def phase3_setup(run: RunDir, manifest: Manifest, space: ParameterSpace, actor: 
                                transfer_options,
                                *source_pin(run.dir, manifest, source,
                                            mf.pins_source(strategy, max_fall_prob, source)))
+
+
+def refuse_transfer_on_stored_plain(manifest: Manifest, strategy: str,
+                                    transfer_options: dict[str, Any] | None, where: Any) -> None:
+    """StoreError, in the words a later ask uses (:func:`~latentune.pipeline.manifest.
+    stored_plain_refusal`), when ``transfer_options`` are given to a resume of the stored
+    plain phase 3 (``strategy`` resolved plain, the phase fixed by a trial)."""
+    if transfer_options and strategy == "plain" and manifest.n_fixing(Phase.PHASE3) \
+            and strategy_of(manifest.config().get("phase3") or {}) == "plain":
+        raise StoreError(mf.stored_plain_refusal(where))
 
 
 def refuse_plain_options(strategy: str, method: str | None, regions: int | None,
