@@ -961,3 +961,38 @@ def test_a_phase_run_cannot_lower_the_budget_it_stored(tmp_path, run_cli, error_
     assert line.endswith("phase 1 has a budget of 6 trials (stored), which --phase1-evals 4 "
                          "would lower; a budget can only grow: give --phase1-evals 6 or more, "
                          "or leave it out"), line
+
+
+def test_train_latent_warns_when_few_stable_theta_for_the_latent_dimension(tmp_path, caplog,
+                                                                         run_cli):
+    """A latent space trained on 2 stable θ with latent_dim 2 (fewer than latent_dim + 1)
+    was trained without a word: its codes span at most n − 1 of the box's directions. It now
+    warns once, in one line naming the count, the threshold, what it means for phase 3 and what
+    to do (more phase-1 trials, a smaller latent dimension); 3 θ for latent_dim 2 do not warn.
+    ``train-vae`` says it on stderr."""
+    import logging
+
+    sp = lt.ParameterSpace(["a", "b", "c", "d"], [0] * 4, [1] * 4)
+    fs = lt.FunctionSystem(sp, lambda x: float(((x - 0.3) ** 2).sum()))
+
+    def warnings_of(st: lt.Study, n: int) -> list[str]:
+        st.phase1(fs, n, method="random")
+        caplog.clear()
+        with caplog.at_level(logging.WARNING):
+            st.train_latent(latent_dim=2, epochs=5, retrain=True)
+        return [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING
+                and "stable θ" in r.getMessage()]
+
+    with lt.Study(tmp_path / "r", seed=0) as st:
+        warned = warnings_of(st, 2)
+        assert len(warned) == 1 and "\n" not in warned[0], warned
+        for part in ("2 stable θ", "latent dimension + 1 = 3", "phase 3", "phase-1 trials",
+                     "latent dimension of 1 (--latent-dim 1, latent_dim=1)"):
+            assert part in warned[0], (part, warned[0])
+        assert warnings_of(st, 3) == []
+    plant = ("--system", "examples.shifted_bowl:make_system", "--out", tmp_path / "t")
+    assert run_cli("phase1", *plant, "--backend", "serial", "--workers", "1",
+                   "--phase1-evals", "2", "--method", "random")[0] == 0     # no trial fails
+    code, out, err = run_cli("train-vae", *plant, "--latent-dim", "3", "--vae-epochs", "5")
+    assert code == 0 and "trained on 2 θ" in out, (out, err)
+    assert "2 stable θ" in err and "--latent-dim 1" in err, err

@@ -39,6 +39,15 @@ variance of the θ decoded from :data:`SPREAD_CODES` Sobol codes of the latent b
 training set's total variance (``decoded_variance_ratio`` in the meta). The paper's plain phase 3
 refuses a latent space whose codes all decode to one θ (:meth:`LatentSpace.require_spread`).
 
+Few training θ
+--------------
+n training θ encode to n codes, which span at most n − 1 directions of the d_low-dim code
+space; the ``det`` kind's KL needs the batch's code covariance (d_low × d_low) to be of full
+rank, which takes at least d_low + 1 codes (:func:`min_training`). With fewer the latent box has
+directions no training θ fixes: what the decoder gives there is the untrained network's guess.
+Phase 2 warns then (:func:`few_training_note`); more phase-1 trials, or a latent dimension of
+at most n − 1, avoid it.
+
 Default kind
 ------------
 ``det`` is the default because it reconstructs the stable set better than ``vae``: with β = 1
@@ -106,6 +115,26 @@ SPREAD_CODES = 256
 SPREAD_WARN = 0.01
 """Below this share of the training set's variance, training logs a warning (module docstring,
 "Widths and spread")."""
+
+
+def min_training(d_low: int) -> int:
+    """The fewest training θ (d_low + 1) whose codes can span the d_low-dim latent box (and give
+    the ``det`` kind's KL a code covariance of full rank): module docstring, "Few training θ"."""
+    return int(d_low) + 1
+
+
+def few_training_note(n: int, d_low: int) -> str | None:
+    """One line saying that ``n`` training θ are fewer than :func:`min_training` (``d_low``),
+    what it means for phase 3 and what to do; None when they are enough."""
+    need = min_training(d_low)
+    if n >= need:
+        return None
+    most = "" if n - 1 == 1 else "at most "
+    return (f"the VAE learned from {n} stable θ, fewer than latent dimension + 1 = {need}: they "
+            f"fix at most {n - 1} of its {d_low} latent directions, so along the others phase 3's "
+            "latent asks decode to the untrained decoder's guesses, not to θ like the stable "
+            f"ones; run more phase-1 trials, or train it with a latent dimension of {most}{n - 1} "
+            f"(--latent-dim {n - 1}, latent_dim={n - 1})")
 
 
 def hidden_widths(d: int) -> tuple[int, int]:

@@ -34,8 +34,12 @@ def train_latent(run: RunDir, manifest: Manifest, seed: int, latent_dim: int | N
     returned as it is unless ``retrain`` (UsageError for another ``latent_dim``, ``kind`` or
     ``epochs``: :func:`trained_differs`; LatentError for a latent_dim that is not a whole number
     >= 1, checked first); retraining after phase 3 used it is refused (it
-    would invalidate the stored phase-3 rows). Call with the run's write lock held."""
-    from latentune.latent.vae import DEFAULT_KIND, SPREAD_WARN, LatentSpace
+    would invalidate the stored phase-3 rows). Logs a warning when the latent space decodes to
+    little of the training θ's variance (``SPREAD_WARN``) and when the stable θ are fewer than
+    the latent dimension + 1 (:func:`latentune.latent.vae.few_training_note`). Call with the
+    run's write lock held."""
+    from latentune.latent.vae import (DEFAULT_KIND, SPREAD_WARN, LatentSpace,
+                                      few_training_note)
 
     if epochs is not None and (isinstance(epochs, bool) or not isinstance(epochs, Integral)
                                or epochs < 1):
@@ -87,6 +91,9 @@ def train_latent(run: RunDir, manifest: Manifest, seed: int, latent_dim: int | N
     if ratio is not None and ratio < SPREAD_WARN:
         logger.warning("%s: the latent box decodes to %.2g of the training θ's variance: the "
                        "paper's plain phase 3 can reach little beyond one θ", run.dir, ratio)
+    few = few_training_note(len(X), latent.d_low)
+    if few is not None:
+        logger.warning("%s: %s", run.dir, few)
     spread = "" if ratio is None else f"; decoded spread {ratio:.3f} of the training variance"
     rec = latent.meta.get("final_rec")
     return latent, (f"VAE ({latent.kind}, d_low {latent.d_low}) trained on {len(X)} θ in "
