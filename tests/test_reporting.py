@@ -1044,3 +1044,28 @@ def test_evals_to_beat_manual_counts_the_phases_own_trials_from_1_in_every_repor
     md = (tmp_path / "run" / "report.md").read_text()
     assert "\nEvals to beat manual: the first of the phase's own evaluations, counted from 1, " \
         in md and "phase 3's count leaves out the manual and zero-shot trials." in md
+
+
+def test_status_and_report_say_the_agreement_is_not_measured_on_constant_costs(tmp_path,
+                                                                             run_cli):
+    """A constant source and a constant target: ``status`` said "agreement 1.00", the prior,
+    which the data cannot move. status and report now say "agreement not measured (the
+    target's costs do not vary)"; a bowl's agreement is still a number."""
+    import latentune as lt
+
+    sp = lt.ParameterSpace(["a", "b", "c", "d"], [0] * 4, [1] * 4, manual=[0.5] * 4)
+    flat = lt.FunctionSystem(sp, lambda x: 1.0)
+    bowl = lt.FunctionSystem(sp, lambda x: float(((x - 0.3) ** 2).sum()))
+    for name, fs in (("flat", flat), ("bowl", bowl)):
+        with lt.Study(tmp_path / name, seed=0) as st:
+            st.phase1(fs, 10)
+            st.train_latent(latent_dim=2, epochs=5)
+            st.phase3(fs, 4)
+    code, out, err = run_cli("status", tmp_path / "flat")
+    assert code == 0 and "agreement not measured (the target's costs do not vary)" in out, out
+    assert "agreement 1.00" not in out
+    assert run_cli("report", tmp_path / "flat")[0] == 0
+    md = (tmp_path / "flat" / "report.md").read_text()
+    assert "| not measured (the target's costs do not vary) |" in md
+    code, out, err = run_cli("status", tmp_path / "bowl")
+    assert code == 0 and re.search(r"agreement -?\d\.\d\d", out) and "not measured" not in out, out

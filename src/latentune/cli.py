@@ -1404,7 +1404,9 @@ def cmd_status(args: argparse.Namespace) -> int:
     dec = s.get("decisions")
     if dec:
         last = dec["last"]
-        agree = "" if last.get("agreement") is None else f", agreement {last['agreement']:.2f}"
+        agree = f", agreement not measured ({last['agreement_unmeasured']})" \
+            if last.get("agreement_unmeasured") else \
+            "" if last.get("agreement") is None else f", agreement {last['agreement']:.2f}"
         side = "" if last.get("length") is None else f", side {last['length']:.3g}"
         print(f"phase 3 decisions: {counted(dec['n'], 'ask')} ("
               + ", ".join(f"{k} {v}" for k, v in dec["kinds"].items())

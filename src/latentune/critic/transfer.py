@@ -395,7 +395,7 @@ import numpy as np
 from latentune.checks import is_whole
 from latentune.critic.base import TwoSpaceCritic, as_unit_points
 from latentune.critic.transfer_model import (LS_SCALES, SourceModel, TargetGP, TargetModel,
-                                             calibrated, fit_calibration, fit_residual_kernel,
+                                             agreement_unmeasured, calibrated, fit_calibration, fit_residual_kernel,
                                              gp_maxima, jittered_cholesky, rank_scores,
                                              ranking_loss,
                                              target_fall_model, value_scores,
@@ -2061,6 +2061,7 @@ class Transfer(TwoSpaceCritic):
         self.decisions.append({
             "generation": ctx.generation, "n_told": self.n_told, "design": bool(ctx.design),
             "agreement": float(ctx.agree[0]), "agreement_sd": float(ctx.agree_sd[0]),
+            **({"agreement_unmeasured": why} if (why := agreement_unmeasured(cm)) else {}),
             "sigma_r2": None if cm is None else cm.sigma_r2,
             "ls_scale": None if cm is None else cm.ls_scale,
             **({"tilt": getattr(cm, "tilt", None)} if self.opts["tilt"] else {}),

@@ -693,3 +693,19 @@ def fit_residual_kernel(X: np.ndarray, v: np.ndarray, h0: np.ndarray,
     if not (np.all(np.isfinite(ls)) and math.isfinite(s2)):
         return np.asarray(ls0, dtype=float), float(sigma_r2_0)
     return ls, s2
+
+
+def agreement_unmeasured(model: Any) -> str | None:
+    """Why the agreement of the target's cost model ``model`` (a :class:`TargetModel`, or a
+    model with its ``base``; None: no model yet) is only its prior: no target model yet, the
+    target's scores ``v`` do not vary over its trials, or the source model is the same at each
+    of them (its feature ``h0X``); None when the data can measure it. Read only: it changes no
+    ask (``status``/``report`` print it instead of a number)."""
+    if model is None:
+        return "no target model yet"
+    base = getattr(model, "base", model)
+    if np.ptp(np.asarray(model.v, dtype=float)) <= 0:
+        return "the target's costs do not vary"
+    if np.ptp(np.asarray(getattr(base, "h0X", model.v), dtype=float)) <= 0:
+        return "the source's costs do not vary where the target tried"
+    return None

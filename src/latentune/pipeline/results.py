@@ -212,7 +212,8 @@ def decision_scores(d: dict[str, Any]) -> str | None:
 
 
 def decisions_summary(ds: list[dict[str, Any]]) -> dict[str, Any] | None:
-    """``{n, kinds: {kind: asks}, last: {generation, kind, agreement, length, pools}}`` of the
+    """``{n, kinds: {kind: asks}, last: {generation, kind, agreement, agreement_unmeasured (why
+    the agreement is only its prior, else None), length, pools}}`` of the
     decisions ``ds`` (:func:`decisions`), with ``fit_failed``: how many asks used a model fit
     that raised (its starting hyperparameters kept) when any did, or None without any."""
     if not ds:
@@ -223,7 +224,9 @@ def decisions_summary(ds: list[dict[str, Any]]) -> dict[str, Any] | None:
     last = ds[-1]
     return {"n": len(ds), "kinds": kinds,
             "last": {"generation": last.get("generation"), "kind": decision_kind(last),
-                     "agreement": last.get("agreement"), "length": last.get("length"),
+                     "agreement": last.get("agreement"),
+                     "agreement_unmeasured": last.get("agreement_unmeasured"),
+                     "length": last.get("length"),
                      "pools": last.get("pools"), "scores": decision_scores(last)},
             **({"fit_failed": n_failed} if (n_failed := sum("fit_failed" in d for d in ds))
                else {})}

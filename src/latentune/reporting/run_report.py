@@ -477,6 +477,11 @@ def decisions_markdown(store: Any) -> list[str]:
     summ = decisions_summary(ds)
     if summ is None:
         return []
+
+    def agreement_cell(d: dict[str, Any]) -> str:
+        why = d.get("agreement_unmeasured")
+        return f"not measured ({why})" if why else fmt(d.get("agreement"), 2)
+
     md = ["## Phase 3 decisions", "",
           f"{counted(summ['n'], 'ask')}: " + ", ".join(f"{k} {v}" for k, v in summ["kinds"].items())
           + ". The agreement is the posterior mean of the source model's weight in the target's "
@@ -491,7 +496,7 @@ def decisions_markdown(store: Any) -> list[str]:
         kind = decision_kind(d) + (f" (rank {d['walk_rank']})" if "walk_rank" in d else "") \
             + (f"; {scores}" if scores else "")
         md.append(f"| {d.get('generation')} | {d.get('n_told')} | {kind} | {pools} | "
-                  f"{fmt(d.get('agreement'), 2)} | {fmt(d.get('length'), 4)} | {adm} | "
+                  f"{agreement_cell(d)} | {fmt(d.get('length'), 4)} | {adm} | "
                   f"{fmt(d.get('explore_bound'), 2)} | {fmt(d.get('max_fall_prob_asked'), 2)} |")
     md.append("")
     failed = [f"generation {d.get('generation')}: " + ", ".join(
