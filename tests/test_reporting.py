@@ -1069,3 +1069,18 @@ def test_status_and_report_say_the_agreement_is_not_measured_on_constant_costs(t
     assert "| not measured (the target's costs do not vary) |" in md
     code, out, err = run_cli("status", tmp_path / "bowl")
     assert code == 0 and re.search(r"agreement -?\d\.\d\d", out) and "not measured" not in out, out
+
+
+def test_best_so_far_figure_of_costs_near_1e290_lays_out(tmp_path):
+    """Costs near 1e290 (a manual θ's reference among them): the legend wrote them with 3
+    decimals, 294-character labels, and matplotlib's "Tight layout not applied" reached the
+    user's stderr as a latentune warning, the figure crushed. The labels now give 4 significant
+    digits above 1e6 (the best's own cost, not the drawn 1e6), and the layout warns nothing."""
+    import warnings
+
+    costs = 1e290 * (1.0 + np.linspace(1.0, 0.1, 8))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        plot_best_so_far([CurvePanel("phase 1", {"p1": costs}, {"manual θ": 3e290}),
+                          CurvePanel("phase 3", {"p3": costs[:4]})], tmp_path / "h.png")
+    assert (tmp_path / "h.png").stat().st_size > 0

@@ -21,6 +21,13 @@ _DISPLAY_MAX = 1e6
 """Costs above this (a non-finite cost is stored as 1e300) are drawn at this value."""
 
 
+def _num(v: float) -> str:
+    """A cost for a legend: 3 decimals (``12.346``) below 1e6 in magnitude, else 4 significant
+    digits (``1.235e+290``): a cost near 1e290 written with 3 decimals is a 294-character label
+    that leaves tight_layout no room for the axes."""
+    return f"{v:.3f}" if abs(v) < 1e6 else f"{v:.4g}"
+
+
 def pyplot():
     """matplotlib.pyplot on the non-interactive Agg backend."""
     import matplotlib
@@ -144,7 +151,8 @@ def plot_best_so_far(panels: Sequence[CurvePanel] | CurvePanel, path: str | Path
         top, bot = axes[0, j], axes[1, j]
         bests, stables, shown, nmax = [], [], [], 1     # nmax: the longest curve's length
         for label, costs in p.curves.items():
-            y = np.minimum(np.asarray(costs, dtype=float).reshape(-1), _DISPLAY_MAX)
+            raw = np.asarray(costs, dtype=float).reshape(-1)
+            y = np.minimum(raw, _DISPLAY_MAX)
             if y.size == 0:
                 continue
             shown.append(y)
@@ -161,12 +169,12 @@ def plot_best_so_far(panels: Sequence[CurvePanel] | CurvePanel, path: str | Path
                 bests.append(b)
                 stables.append(~f)
                 k = int(np.argmin(b))
-                lab = f"{label}: best {y[k]:.3f} at {k}, {int(f.sum())} fell"
+                lab = f"{label}: best {_num(raw[k])} at {k}, {int(f.sum())} fell"
             bot.plot(x, np.where(np.isfinite(b), b, np.nan), color=c, lw=1.4,
                      drawstyle="steps-post", label=lab)
         refs = {k: float(v) for k, v in p.refs.items() if v is not None}
         for (label, v), ls in zip(refs.items(), ("--", "-.", ":", (0, (5, 1)))):
-            bot.axhline(v, color="k", ls=ls, lw=1, label=f"{label} ({v:.3f})")
+            bot.axhline(v, color="k", ls=ls, lw=1, label=f"{label} ({_num(v)})")
         if any((y >= C1).any() for y in shown):     # costs on the path-cost scale reach it
             top.axhline(C1, color="0.4", ls=":", lw=1)
             top.text(0.99, C1, f"C1 = {C1:g} (fall)", transform=top.get_yaxis_transform(),
