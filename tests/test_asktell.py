@@ -909,6 +909,27 @@ def test_a_stale_prepared_batch_is_never_handed_out(tmp_path):
         st.store.check()
 
 
+def test_a_transfer_phase3_ask_takes_the_default_start_as_left_out(tmp_path, src30):
+    """start="manual" (ask --start manual, the help's default) is what Study.phase3 takes with
+    the transfer strategy: the option left out, on the first ask and on a later one; another
+    start is refused in one line on both (found: ask refused "manual" that phase3 took)."""
+    shutil.copytree(src30, tmp_path / "src")
+    with lt.Study(tmp_path / "t", seed=0) as st:
+        (s,) = st.ask(system=plant(0.2), phase=3, latent=tmp_path / "src", budget=30,
+                      start="manual")
+        st.tell(s.id, evaluate(plant(0.2), s.theta).cost)
+        (s,) = st.ask(start="manual")
+        assert s.phase_name == "phase 3"
+        assert st.config()["phase3"]["start"] == "manual"
+        for start in ([0.4] * 4, "scratch"):
+            with pytest.raises(UsageError, match="start is an option of phase 1 and of the "
+                                                 "plain phase 3"):
+                st.ask(start=start)
+    with lt.Study(tmp_path / "p", seed=0) as st:
+        with pytest.raises(UsageError, match="start is an option of the plain phase 3"):
+            st.phase3(plant(0.2), 4, latent=tmp_path / "src", start=None)
+
+
 def test_a_prepared_transfer_phase3_gives_the_rows_of_asking_the_critic(tmp_path, monkeypatch,
                                                                          src30):
     shutil.copytree(src30, tmp_path / "src")
@@ -927,7 +948,7 @@ def test_a_prepared_transfer_phase3_gives_the_rows_of_asking_the_critic(tmp_path
                 out = evaluate(target, s.theta)
                 st.tell(s.id, out.cost, failed=out.failed)
             assert st.config()["phase3"]["strategy"] == "transfer"
-            for start in ([0.4] * 4, "scratch", "manual"):
+            for start in ([0.4] * 4, "scratch"):
                 with pytest.raises(LatentuneError, match="start is an option of phase 1 and "
                                                          "of the plain phase 3"):
                     st.ask(start=start)

@@ -1719,7 +1719,9 @@ def build_parser() -> argparse.ArgumentParser:
                    metavar="manual|scratch|FILE",
                    help="the θ the search starts from: manual (the manual θ, the default), "
                         "scratch (the critic's own initial design) or a --params file "
-                        "(physical values by name, or a list of normalized θ); first ask only")
+                        "(physical values by name, or a list of normalized θ); first ask only; "
+                        "the transfer phase 3 takes only manual (it starts from the manual θ "
+                        "and the source's best trials)")
     p.add_argument("--max-fall-prob", type=float, default=None, metavar="P",
                    help="fall-aware: skip candidates whose predicted fall probability exceeds P "
                         "(first ask: default off, but 0.3 in the transfer phase 3)")

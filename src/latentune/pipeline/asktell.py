@@ -362,7 +362,9 @@ def options(study: Any, phase: int, space: ParameterSpace, latent: Any, given: d
         handover = (stored or {}).get("handover") if g.get("handover") is None \
             else g["handover"]
         strat = resolve_strategy(study.manifest, strategy, handover, fixed=bool(stored))
-        if strat == "transfer" and given.get("start") is not None:
+        start = given.get("start")      # "manual" is the option left out, as in Study.phase3
+        if strat == "transfer" and start is not None \
+                and not (isinstance(start, str) and start == "manual"):
             raise UsageError("start is an option of phase 1 and of the plain phase 3 "
                              f"({option('strategy', 'plain')}); the transfer phase 3 starts "
                              "from the manual θ and the source's best trials")
@@ -639,9 +641,8 @@ def _stored_context(study: Any, system: Any, space: ParameterSpace | None, phase
     if given.get("strategy") is not None and (ph != Phase.PHASE3
                                               or given["strategy"] != strategy_of(pc)):
         return None
-    if given.get("start") is not None and (
-            (ph == Phase.PHASE3 and strategy_of(pc) == "transfer")
-            or _start_record(given["start"], sp) != pc.get("start", "manual")):
+    if given.get("start") is not None \
+            and _start_record(given["start"], sp) != pc.get("start", "manual"):
         return None
     return _Context(ph, pc, sp, None, built=False)
 
