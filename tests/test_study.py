@@ -996,3 +996,22 @@ def test_train_latent_warns_when_few_stable_theta_for_the_latent_dimension(tmp_p
     code, out, err = run_cli("train-vae", *plant, "--latent-dim", "3", "--vae-epochs", "5")
     assert code == 0 and "trained on 2 θ" in out, (out, err)
     assert "2 stable θ" in err and "--latent-dim 1" in err, err
+
+
+def test_a_resume_keeps_the_stored_regions_and_says_so(tmp_path):
+    """phase1 with a budget grown past its first one's default regions (~1 per 500 trials),
+    given regions at the new budget's default, was refused with 'was run with regions = 1, not
+    2' alone, not saying a resume keeps the stored regions; the refusal now says so and how to
+    go on, and the stored value given is accepted."""
+    from latentune.critic.turbo import regions_for_budget
+
+    system = lt.FunctionSystem(lt.ParameterSpace(["a", "b"], [0, 0], [1, 1]),
+                               lambda x: float(x.sum()))
+    assert regions_for_budget(4) == 1 and regions_for_budget(1200) == 2
+    with lt.Study(tmp_path / "r") as st:
+        st.phase1(system, 4)
+        with pytest.raises(StoreError, match=r"regions = 1, not 2; a resume keeps the stored "
+                                              r"regions: leave them out \(or give regions=1\)"):
+            st.phase1(system, 1200, regions=2)
+        st.phase1(system, 5, regions=1)
+        assert st.config()["phase1"]["regions"] == 1

@@ -330,7 +330,8 @@ def add_run_args(p: argparse.ArgumentParser, name: str) -> None:
     p.add_argument("--method", choices=("turbo", "cma", "random", "sobol"), default=None,
                    help="critic (turbo = TuRBO-m, the default; a resume keeps the stored one)")
     p.add_argument("--regions", type=int, default=None,
-                   help="TuRBO-m trust regions (default: ~1 per 500 evaluations, between 1 and 10)")
+                   help="TuRBO-m trust regions (default: ~1 per 500 evaluations, between 1 and 10, "
+                        "of the first budget; a resume keeps the stored regions)")
     p.add_argument("--batch-size", type=int, default=None,
                    help="critic batch size (default max(workers, 4))")
     p.add_argument("--max-fall-prob", type=float, default=None, metavar="P",

@@ -23,7 +23,7 @@ FLAGS = {
     "max_fall_prob": "--max-fall-prob", "handover": "--handover", "escape_falls": "--escape-falls",
     "strategy": "--strategy", "budget": "--budget", "phase": "--phase", "latent": "--vae",
     "trial_timeout": "--trial-timeout", "amend": "--amend", "simulate": "--no-sim",
-    "fall_prior": "--fall-prior", "backend": "--backend",
+    "fall_prior": "--fall-prior", "backend": "--backend", "regions": "--regions",
     # a built-in task's (Task's keywords), and robot init's
     "robot": "--robot", "gait": "--task", "terrain": "--terrain", "actor": "--actor",
     "steps": "--steps", "v_des": "--v-des", "engine": "--engine", "seed": "--seed",

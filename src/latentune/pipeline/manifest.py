@@ -611,7 +611,8 @@ class Manifest:
                 if k in stored and not same_option(k, stored.get(k), pc.get(k)):
                     raise StoreError(f"{self.run.dir}: {key} was run with {k.replace('_', '-')}"
                                      f" = {stored.get(k)!r}, not {pc.get(k)!r}"
-                                     + default_fall_note(k, phase, stored))
+                                     + default_fall_note(k, phase, stored)
+                                     + kept_regions_note(k, stored))
                 if k == "transfer_options" and (k in stored or same_option(k, None, pc[k])):
                     pc[k] = stored.get(k)       # the record as it began (options at defaults)
             if pc.get("transfer_options") and "transfer_options" not in stored:
@@ -846,6 +847,16 @@ def default_fall_note(key: str, phase: int, stored: dict[str, Any]) -> str:
         return ""
     return (f"; without it the transfer phase 3 screens at {d:g}: leave it out (or give "
             f"{option('max_fall_prob', d)}) to go on with it")
+
+
+def kept_regions_note(key: str, stored: dict[str, Any]) -> str:
+    """What a refusal of other ``regions`` (``key``) on a resume adds: the run keeps its stored
+    trust regions (their default follows the first budget, not a grown one) and how to go on
+    with them; "" for another key."""
+    if key != "regions" or stored.get("regions") is None:
+        return ""
+    return (f"; a resume keeps the stored regions: leave them out (or give "
+            f"{option('regions', stored['regions'])}) to go on with them")
 
 
 def fall_options(max_fall_prob: float | None, prior: Any) -> dict[str, Any]:
