@@ -1015,3 +1015,27 @@ def test_a_resume_keeps_the_stored_regions_and_says_so(tmp_path):
             st.phase1(system, 1200, regions=2)
         st.phase1(system, 5, regions=1)
         assert st.config()["phase1"]["regions"] == 1
+
+
+def test_a_ctrl_c_in_vae_training_keeps_its_wall_time(tmp_path, monkeypatch):
+    """A Ctrl-C during phase 2's training (as inside tune) dropped the block's wall time: the
+    rollback of the failed write removed the 'vae' entry with the rest, and the report listed
+    phase 1's time alone. The time spent is now kept; the latent space is still not written."""
+    from latentune.latent import LatentSpace
+
+    system = lt.FunctionSystem(lt.ParameterSpace(["a", "b"], [0, 0], [1, 1]),
+                               lambda x: float(x.sum()))
+    with lt.Study(tmp_path / "r", seed=0) as st:
+        st.phase1(system, 8)
+
+    def interrupted(*args, **kwargs):
+        time.sleep(0.3)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(LatentSpace, "train", staticmethod(interrupted))
+    with lt.Study(tmp_path / "r") as st:
+        with pytest.raises(KeyboardInterrupt):
+            st.train_latent(latent_dim=2, epochs=5)
+        wall = st.store.get_meta("wall")
+        assert wall["vae"] >= 0.3 and wall["phase1"] > 0, wall
+        assert not (tmp_path / "r" / "vae.pt").exists() and "vae" not in st.config()

@@ -218,7 +218,8 @@ class Study:
         Returns the :class:`~latentune.latent.LatentSpace` (``DIR/vae.pt``, ``DIR/vae.json``); a
         trained one as it is unless ``retrain`` (another size, kind or epochs is refused), which
         is refused after phase 3 used it. A refusal leaves the directory as it was."""
-        with self.writing(), self.run.as_before_on_error():
+        with self.writing(), phase2.wall_kept(self.manifest, "vae"), \
+                self.run.as_before_on_error():      # a Ctrl-C keeps the time spent
             latent, msg = phase2.train_latent(self.run, self.manifest, self.seed, latent_dim,
                                               kind, epochs, retrain)
         if msg:

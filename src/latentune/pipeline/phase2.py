@@ -3,8 +3,10 @@ whose trial did not fail (:func:`~latentune.pipeline.phases.training_set`)."""
 from __future__ import annotations
 
 import logging
+import time
+from contextlib import contextmanager
 from numbers import Integral
-from typing import Any
+from typing import Any, Iterator
 
 from latentune.checks import is_whole
 from latentune.constants import Phase
@@ -23,6 +25,20 @@ def stale_latent(store: Any, vae: dict[str, Any]) -> bool:
     n = vae.get("n_train")
     return store.artifact("vae") is not None and n is not None and \
         int(n) < len(training_set(store, Phase.PHASE1))
+
+
+@contextmanager
+def wall_kept(manifest: Manifest, key: str) -> Iterator[None]:
+    """Outside a rollback (:meth:`~latentune.pipeline.rundir.RunDir.as_before_on_error`),
+    inside the write lock: a Ctrl-C (KeyboardInterrupt) in the block adds the block's wall
+    time [s] to ``wall[key]`` after the rollback removed the record of it, so that the run
+    still counts the time spent (a refusal adds nothing: the directory is left as it was)."""
+    t = time.perf_counter()
+    try:
+        yield
+    except KeyboardInterrupt:
+        manifest.add_wall(key, time.perf_counter() - t)
+        raise
 
 
 def train_latent(run: RunDir, manifest: Manifest, seed: int, latent_dim: int | None = None,
