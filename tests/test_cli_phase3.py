@@ -852,3 +852,24 @@ def test_a_transfer_flag_on_a_resumed_plain_tune_says_it_runs_plain(tmp_path, ru
                     "--fall-budget out to go on with it, or start a transfer phase 3 in "
                     "another directory"), line
     assert lt.Study(d).store.count(1) == 8
+
+
+def test_a_tune_resume_given_transfer_defaults_keeps_its_plan(tmp_path, run_cli):
+    """``tune --resume --fall-budget 0`` (and --record-walk 0, --target-scores ranks: defaults
+    every stored run resumes with) of a tune begun without them stored them in its ``tune``
+    plan (fall_budget: 0.0) although the run began without; the plan now records what the run
+    began with, as the phase records do. Found reading the plan after such a resume."""
+    d = tmp_path / "t"
+    run = ("tune", "--system", "examples.toy_plant:make_system", *SYSTEM[2:], "--out", d,
+           "--phase1-evals", "8", "--vae-epochs", "5")
+    code, _, err = run_cli(*run, "--phase3-evals", "2")
+    assert code == 0, err
+    code, _, err = run_cli(*run, "--phase3-evals", "3", "--resume", "--fall-budget", "0",
+                           "--record-walk", "0", "--target-scores", "ranks")
+    assert code == 0, err
+    with lt.Study(d) as st:
+        plan = st.config()["tune"]
+        assert st.store.count(3) == 3 and plan["phase3_evals"] == 3
+        assert [plan.get(k) for k in ("fall_budget", "record_walk", "target_scores")] \
+            == [None] * 3, plan
+        assert "transfer_options" not in st.config()["phase3"]

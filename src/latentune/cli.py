@@ -736,11 +736,18 @@ def _tune_plan(study: Any, args: argparse.Namespace) -> dict[str, Any]:
     ``tune``): with --resume, each flag not given is set in ``args`` from the run's recorded
     plan, the way a resume keeps phase 1's stored budget (--phase3-evals is read from it by
     :func:`_budget`, after a phase 3's stored budget); a given flag replaces the recorded value
-    (a flag the run's latent space or phase 3 already fixed is refused by their checks)."""
+    (a flag the run's latent space or phase 3 already fixed is refused by their checks); a
+    transfer flag given at a default every run resumes with is the flag left out where the plan
+    has none (:func:`latentune.critic.transfer.same_options`)."""
+    from latentune.critic.transfer import same_options
+
     plan = ((study.config().get("tune") or {}) if study.exists else {}) if args.resume else {}
     out: dict[str, Any] = {}
     for key in TUNE_PLAN:
         given = _plan_given(args, key)
+        if given is not None and args.resume and study.exists and key in TRANSFER_DESTS \
+                and plan.get(key) is None and same_options(None, {key: given}):
+            given = None            # a default every run resumes with: the plan as it began
         out[key] = given if given is not None else plan.get(key)
         if given is None and out[key] is not None and key != "phase3_evals":
             setattr(args, key, out[key])
