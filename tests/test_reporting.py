@@ -344,7 +344,8 @@ def test_a_block_killed_then_run_again_says_which_part_of_its_time_is_known(tmp_
     from latentune.pipeline.rundir import RunDir
     from latentune.pipeline.walltime import settle_open
 
-    cfg = {"system": {"kind": "python", "class": "mymod.Arm"}, "phase1": {"method": "turbo"}}
+    cfg = {"system": {"kind": "python", "class": "mymod.Arm"}, "phase1": {"method": "turbo"},
+           "vae": {"latent_dim": 2}}                    # the training that ended stored it
     with _store(tmp_path / "run", cfg) as st:
         st.set_meta("wall_open", {"vae": _time.time()})     # killed in its training
         settle_open(st)
@@ -702,7 +703,8 @@ def test_the_beat_note_says_where_an_ask_tell_manual_trial_was_told(tmp_path: Pa
 def test_the_wall_time_of_a_short_phase_is_not_rounded_to_0_s(tmp_path: Path):
     """A phase of cheap trials that took 0.46 s was reported as "Wall time: phase3 0 s" (whole
     seconds), as if it took no time; under 10 s the report gives a tenth of a second."""
-    cfg = {"system": {"kind": "python", "class": "mymod.Arm"}, "phase1": {"method": "turbo"}}
+    cfg = {"system": {"kind": "python", "class": "mymod.Arm"}, "phase1": {"method": "turbo"},
+           "vae": {"latent_dim": 2}}
     with _store(tmp_path / "run", cfg) as st:
         st.set_meta("wall", {"phase1": 12.4, "phase3": 0.46, "vae": 3.0})
         make_report(st, simulate=False, quiet=True)

@@ -1020,7 +1020,8 @@ def test_a_resume_keeps_the_stored_regions_and_says_so(tmp_path):
 def test_a_ctrl_c_in_vae_training_keeps_its_wall_time(tmp_path, monkeypatch):
     """A Ctrl-C during phase 2's training (as inside tune) dropped the block's wall time: the
     rollback of the failed write removed the 'vae' entry with the rest, and the report listed
-    phase 1's time alone. The time spent is now kept; the latent space is still not written."""
+    phase 1's time alone. The time spent is now kept; the latent space is still not written,
+    and the report says the time is that of a training stopped before it stored one."""
     from latentune.latent import LatentSpace
 
     system = lt.FunctionSystem(lt.ParameterSpace(["a", "b"], [0, 0], [1, 1]),
@@ -1039,3 +1040,7 @@ def test_a_ctrl_c_in_vae_training_keeps_its_wall_time(tmp_path, monkeypatch):
         wall = st.store.get_meta("wall")
         assert wall["vae"] >= 0.3 and wall["phase1"] > 0, wall
         assert not (tmp_path / "r" / "vae.pt").exists() and "vae" not in st.config()
+        st.report()
+    line = next(ln for ln in (tmp_path / "r" / "report.md").read_text().splitlines()
+                if ln.startswith("Wall time:"))
+    assert re.search(r"vae [0-9.]+ s \(stopped before it stored a latent space\)", line), line

@@ -685,9 +685,11 @@ def make_report(store: Any, system: Any = None, simulate: bool = True, quiet: bo
     if wall or unknown:
         partly = [k for k in unknown if k in wall]      # timed, and a block of it lost
         none = [k for k in unknown if k not in wall]
+        stopped = {"vae": " (stopped before it stored a latent space)"} \
+            if "vae" in wall and not cfg.get("vae") else {}   # a Ctrl-C in its training
         md.append(" ".join(
             ([("Wall time: " + ", ".join(f"{k} {seconds(v)} s" + (" + unknown" if k in partly
-                                                               else "")
+                                                               else "") + stopped.get(k, "")
                                          for k, v in wall.items()) + ".")]
              if wall else [])
             + ([f"The time of {', '.join(partly)} leaves out a block stopped before it stored "
