@@ -85,8 +85,8 @@ from latentune.pipeline.loop import (began_latent, check_phase1_runs, check_sour
                                      resolve_latent, resolve_strategy, reuse_phases,
                                      source_pin, strategy_of)
 from latentune.pipeline.phases import (ask_batch, replay, reused_first, say_reused, state_key,
-                                       stored_fall_options, stored_outcomes, warn_if_failing,
-                                       warn_if_flat)
+                                       stored_fall_options, stored_outcomes, theta_key,
+                                       warn_if_failing, warn_if_flat)
 from latentune.pipeline.results import best_row, fall_budget, phase_name, write_best
 from latentune.pipeline.store import DEFAULT_ASKER, Row, RunStore, critics_told
 from latentune.space import ParameterSpace
@@ -722,7 +722,7 @@ def _queue(study: Any, st: RunStore, phase: int, pc: dict[str, Any], batch: _Bat
     o = reused_first(batch.thetas, known, bool(reuse))   # a θ asked twice: after its first
     told = []
     for i in o:
-        out = known.get(np.ascontiguousarray(batch.thetas[i], dtype=float).tobytes())
+        out = known.get(theta_key(batch.thetas[i]))
         if out is not None:
             say_reused(phase, out)
         told.append(None if out is None else {
@@ -752,7 +752,7 @@ def tell_twins(study: Any, st: RunStore, reuse: tuple[int, ...]) -> None:
     known = stored_outcomes(st, reuse)
     told = {}
     for t in waiting:
-        out = known.get(np.ascontiguousarray(t.theta, dtype=float).tobytes())
+        out = known.get(theta_key(t.theta))
         if out is not None:
             say_reused(t.phase, out)
             told[t.id] = {"cost": out.cost, "fell": out.failed, "fall_step": out.fall_step,

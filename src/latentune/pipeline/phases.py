@@ -782,12 +782,18 @@ def ensure_manual(store: RunStore, system: Any, seed: int | None = None,
     return float(out.cost)
 
 
+def theta_key(theta: np.ndarray) -> bytes:
+    """The key of a (d,) θ among stored trials: the bytes of its float64 values (equal θ, equal
+    keys: :func:`stored_outcomes`, :func:`batch_twins`)."""
+    return np.ascontiguousarray(theta, dtype=float).tobytes()
+
+
 def reused_outcome(store: RunStore, phase: int, theta: np.ndarray,
                    phases: tuple[int, ...]) -> Outcome | None:
     """The outcome of the stored trial of ``phases`` whose θ is ``theta`` (its ``info`` with
     ``"reused": True`` and ``"same_as"``, :func:`stored_outcomes`), said at INFO for a trial
     of ``phase`` that is then not run (:func:`say_reused`); None when there is none."""
-    out = stored_outcomes(store, phases).get(np.ascontiguousarray(theta, dtype=float).tobytes())
+    out = stored_outcomes(store, phases).get(theta_key(theta))
     if out is None:
         return None
     say_reused(phase, out)
@@ -816,7 +822,7 @@ def stored_outcomes(store: RunStore, phases: tuple[int, ...],
     for ph in phases:
         rows = store.rows(ph)
         for r in rows if upto is None or ph not in upto else rows[:upto[ph]]:
-            key = np.ascontiguousarray(r.theta, dtype=float).tobytes()
+            key = theta_key(r.theta)
             if key in out:
                 continue
             info = {k: v for k, v in (r.info or {}).items() if k not in NOT_REUSED}
@@ -835,7 +841,7 @@ def reused_first(thetas: np.ndarray, known: dict[bytes, Outcome], twins: bool = 
     (:func:`batch_twins`: stored with that one's outcome once it is told). The phase run and
     ask/tell store a batch in this order alike, so the critic is told the same rows in the same
     order whichever drives the loop."""
-    keys = [np.ascontiguousarray(t, dtype=float).tobytes() for t in thetas]
+    keys = [theta_key(t) for t in thetas]
     hit = [i for i in range(len(thetas)) if keys[i] in known]
     rest = [i for i in range(len(thetas)) if i not in hit]
     if twins:
@@ -855,7 +861,7 @@ def batch_twins(thetas: np.ndarray, known: dict[bytes, Outcome]) -> dict[int, in
     first: dict[bytes, int] = {}
     out: dict[int, int] = {}
     for i, t in enumerate(thetas):
-        key = np.ascontiguousarray(t, dtype=float).tobytes()
+        key = theta_key(t)
         if key in known:
             continue
         if key in first:
@@ -868,7 +874,7 @@ def batch_twins(thetas: np.ndarray, known: dict[bytes, Outcome]) -> dict[int, in
 def twin_outcome(store: RunStore, phase: int, theta: np.ndarray) -> Outcome:
     """The outcome a θ asked twice in one batch (:func:`batch_twins`) is stored with: that of
     the first stored trial of ``phase`` with its θ (``info``: ``"reused"``, ``"same_as"``)."""
-    out = stored_outcomes(store, (phase,))[np.ascontiguousarray(theta, dtype=float).tobytes()]
+    out = stored_outcomes(store, (phase,))[theta_key(theta)]
     return Outcome(out.cost, out.failed, {**out.info, "reused": True}, out.wall_s)
 
 
