@@ -723,11 +723,7 @@ def _queue(study: Any, st: RunStore, phase: int, pc: dict[str, Any], batch: _Bat
     told = []
     for i in o:
         out = known.get(theta_key(batch.thetas[i]))
-        if out is not None:
-            say_reused(phase, out)
-        told.append(None if out is None else {
-            "cost": out.cost, "fell": out.failed, "fall_step": out.fall_step,
-            "wall_s": out.wall_s, "seed": study.seed, "info": {**out.info, "reused": True}})
+        told.append(None if out is None else _reused_result(study, phase, out))
     asked = (batch.state.get("last_decision") or {}).get("max_fall_prob_asked") \
         if batch.state else None
     st.queue_trials(phase, batch.thetas[o], [batch.codes[i] for i in o], batch.tags[o],
@@ -737,6 +733,16 @@ def _queue(study: Any, st: RunStore, phase: int, pc: dict[str, Any], batch: _Bat
         write_best(st, study.dir, study.manifest.space(), phase)
     if batch.rule is not None:
         study.manifest.update(phase3_handover=batch.rule)
+
+
+def _reused_result(study: Any, phase: int, out: Outcome) -> dict[str, Any]:
+    """The result a suggestion of ``phase`` is told at once with, the stored ``out`` of a trial
+    with its θ (:func:`~latentune.pipeline.phases.stored_outcomes`), as
+    :meth:`RunStore.queue_trials`' ``told`` and :meth:`RunStore.tell_queued` take it (said at
+    INFO: :func:`~latentune.pipeline.phases.say_reused`)."""
+    say_reused(phase, out)
+    return {"cost": out.cost, "fell": out.failed, "fall_step": out.fall_step,
+            "wall_s": out.wall_s, "seed": study.seed, "info": {**out.info, "reused": True}}
 
 
 def tell_twins(study: Any, st: RunStore, reuse: tuple[int, ...]) -> None:
@@ -754,10 +760,7 @@ def tell_twins(study: Any, st: RunStore, reuse: tuple[int, ...]) -> None:
     for t in waiting:
         out = known.get(theta_key(t.theta))
         if out is not None:
-            say_reused(t.phase, out)
-            told[t.id] = {"cost": out.cost, "fell": out.failed, "fall_step": out.fall_step,
-                          "wall_s": out.wall_s, "seed": study.seed,
-                          "info": {**out.info, "reused": True}}
+            told[t.id] = _reused_result(study, t.phase, out)
     if told:
         st.tell_queued(told)
         write_best(st, study.dir, study.manifest.space(), Phase.PHASE3)
